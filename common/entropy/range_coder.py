@@ -1,0 +1,116 @@
+"""Range coding with exact integer frequency tables (normative).
+
+Every probability the codec uses is an integer frequency table of total 2^24 with
+every frequency >= 1; constriction's queue RangeEncoder (32-bit words, 24-bit
+precision) codes with exactly those frequencies. ``Categorical((f - 1), perfect=False)``
+reproduces f exactly: constriction gives each symbol one unit and shares out the rest
+in proportion to the weights, and the weights f - 1 sum to exactly 2^24 - n
+(tests/test_range_coder.py checks this against the coder's own state).
+
+Coded words are serialized as little-endian uint32.
+"""
+
+from __future__ import annotations
+
+import constriction
+import numpy as np
+
+from lghcc.common.errors import BitstreamError
+
+PRECISION_BITS = 24
+TOTAL_FREQUENCY = 1 << PRECISION_BITS
+MAX_UNIFORM_BITS = 16  # raw bits are sent in pieces of at most this many
+
+
+def check_frequencies(freqs: np.ndarray) -> np.ndarray:
+    f = np.asarray(freqs, dtype=np.int64)
+    if f.ndim != 1 or f.size < 1:
+        raise ValueError("a frequency table is a non-empty 1-D array")
+    if int(f.sum()) != TOTAL_FREQUENCY or int(f.min()) < 1:
+        raise ValueError(f"frequencies must be >= 1 and sum to 2^{PRECISION_BITS} (sum={int(f.sum())}, "
+                         f"min={int(f.min())})")
+    return f
+
+
+def exact_model(freqs: np.ndarray):
+    """A constriction model that codes with exactly these integer frequencies."""
+    f = check_frequencies(freqs)
+    if f.size == 1:
+        # One symbol costs nothing; constriction needs at least two entries, so give the
+        # second one unit: the same code for the only symbol that can occur.
+        f = np.array([TOTAL_FREQUENCY - 1, 1], dtype=np.int64)
+    return constriction.stream.model.Categorical((f - 1).astype(np.float64), perfect=False)
+
+
+def _uniform(nbits: int):
+    return constriction.stream.model.Uniform(1 << nbits)
+
+
+class RangeEncoder:
+    def __init__(self) -> None:
+        self._enc = constriction.stream.queue.RangeEncoder()
+
+    def encode(self, symbols: np.ndarray, model) -> None:
+        """Code i.i.d. symbols (0-based indices) with one model from ``exact_model``."""
+        s = np.ascontiguousarray(symbols, dtype=np.int32)
+        if s.size:
+            self._enc.encode(s, model)
+
+    def encode_bits(self, values: np.ndarray, nbits: np.ndarray | int) -> None:
+        """Code unsigned integers of ``nbits`` bits each (0..64) with uniform probabilities."""
+        v = np.asarray(values, dtype=np.uint64).ravel()
+        nb = np.broadcast_to(np.asarray(nbits, dtype=np.int64), v.shape)
+        for shift in range(0, int(nb.max(initial=0)), MAX_UNIFORM_BITS):
+            sel = nb > shift
+            if not sel.any():
+                break
+            width = np.minimum(nb[sel] - shift, MAX_UNIFORM_BITS)
+            piece = (v[sel] >> np.uint64(shift)) & ((np.uint64(1) << width.astype(np.uint64)) - np.uint64(1))
+            for w in np.unique(width):
+                m = width == w
+                self._enc.encode(piece[m].astype(np.int32), _uniform(int(w)))
+
+    def to_bytes(self) -> bytes:
+        return self._enc.get_compressed().astype("<u4").tobytes()
+
+
+class RangeDecoder:
+    def __init__(self, data: bytes, what: str = "coded data") -> None:
+        if len(data) % 4:
+            raise BitstreamError(f"{what}: length {len(data)} is not a whole number of 32-bit words")
+        self._what = what
+        words = np.frombuffer(data, dtype="<u4").astype(np.uint32)
+        try:
+            self._dec = constriction.stream.queue.RangeDecoder(words)
+        except Exception as e:  # constriction rejects some impossible word sequences up front
+            raise BitstreamError(f"{what}: invalid range-coded data ({e})") from None
+
+    def decode(self, count: int, model) -> np.ndarray:
+        if count == 0:
+            return np.zeros(0, dtype=np.int64)
+        try:
+            return np.asarray(self._dec.decode(model, int(count)), dtype=np.int64)
+        except Exception as e:
+            raise BitstreamError(f"{self._what}: range decoding failed ({e})") from None
+
+    def decode_bits(self, nbits: np.ndarray | int, count: int | None = None) -> np.ndarray:
+        nb = np.asarray(nbits, dtype=np.int64)
+        if nb.ndim == 0:
+            nb = np.full(int(count), int(nb), dtype=np.int64)
+        out = np.zeros(nb.shape, dtype=np.uint64)
+        for shift in range(0, int(nb.max(initial=0)), MAX_UNIFORM_BITS):
+            sel = np.flatnonzero(nb > shift)
+            if not sel.size:
+                break
+            width = np.minimum(nb[sel] - shift, MAX_UNIFORM_BITS)
+            piece = np.zeros(sel.size, dtype=np.uint64)
+            for w in np.unique(width):
+                m = width == w
+                piece[m] = self.decode(int(m.sum()), _uniform(int(w))).astype(np.uint64)
+            out[sel] |= piece << np.uint64(shift)
+        return out
+
+    def check_exhausted(self) -> None:
+        """The coder must have consumed all its words: leftover data means corruption."""
+        if self._dec.maybe_exhausted() is False:
+            raise BitstreamError(f"{self._what}: data left over after decoding")

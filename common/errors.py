@@ -1,0 +1,22 @@
+"""The project's own errors. Every failure a user can cause ends in one of these,
+with a message naming what is wrong; never a bare traceback from deep inside."""
+
+
+class LghccError(Exception):
+    """Base class of every error lghcc raises on purpose."""
+
+
+class BitstreamError(LghccError):
+    """The bitstream is malformed: truncated, corrupted, or violates a constraint of the spec."""
+
+
+class UnsupportedStreamError(BitstreamError):
+    """The bitstream is well formed but uses a version, profile or unit this decoder does not support."""
+
+
+class HashMismatchError(BitstreamError):
+    """The decoded output does not match the hash carried in the stream."""
+
+
+class InputError(LghccError):
+    """The encoder's input (a scene, a file, an option) cannot be used; the message says why."""

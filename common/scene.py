@@ -1,0 +1,141 @@
+"""The anchor scene: what the codec compresses and what the decoder rebuilds.
+
+An anchor (Scaffold-GS) has an integer voxel position, a feature vector, 6 log
+scalings (3 for its offsets, 3 for its Gaussians' base scale) and K offsets; HAC
+adds a live/dead mask per offset. Small render MLPs turn anchors into Gaussians.
+World position of an anchor = origin + coords * voxel_size (float32, in that order).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from lghcc.common.errors import InputError
+
+NUM_SCALINGS = 6
+DEFAULT_FEATURE_DIM = 50
+DEFAULT_NUM_OFFSETS = 10
+
+MlpRole = Literal["opacity", "cov", "color", "feature_bank"]
+MLP_ROLES: tuple[str, ...] = ("opacity", "cov", "color", "feature_bank")
+Activation = Literal["none", "relu", "tanh", "sigmoid"]
+ACTIVATIONS: tuple[str, ...] = ("none", "relu", "tanh", "sigmoid")
+
+
+@dataclass
+class RenderMLP:
+    """A stack of Linear layers; ``activations[l]`` follows layer l.
+    Scaffold-GS: Linear(C+4, C), ReLU, Linear(C, out), then Tanh (opacity),
+    none (covariance) or Sigmoid (color)."""
+
+    weights: list[np.ndarray]  # each [out, in] float32
+    biases: list[np.ndarray]  # each [out] float32
+    activations: list[str]
+
+    def __post_init__(self) -> None:
+        if not (len(self.weights) == len(self.biases) == len(self.activations)) or not self.weights:
+            raise InputError("a render MLP needs one weight, bias and activation per layer")
+        for l, (w, b, a) in enumerate(zip(self.weights, self.biases, self.activations)):
+            if w.ndim != 2 or b.shape != (w.shape[0],):
+                raise InputError(f"render MLP layer {l}: weight {w.shape} and bias {b.shape} do not match")
+            if l and w.shape[1] != self.weights[l - 1].shape[0]:
+                raise InputError(f"render MLP layer {l}: input size {w.shape[1]} != previous output "
+                                 f"{self.weights[l - 1].shape[0]}")
+            if a not in ACTIVATIONS:
+                raise InputError(f"render MLP layer {l}: unknown activation {a!r}")
+            if not (np.isfinite(w).all() and np.isfinite(b).all()):
+                raise InputError(f"render MLP layer {l} contains NaN or Inf")
+
+    @property
+    def in_dim(self) -> int:
+        return int(self.weights[0].shape[1])
+
+    @property
+    def out_dim(self) -> int:
+        return int(self.weights[-1].shape[0])
+
+    def num_parameters(self) -> int:
+        return sum(w.size + b.size for w, b in zip(self.weights, self.biases))
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        """Float reference evaluation (informative; the renderer uses torch)."""
+        for w, b, a in zip(self.weights, self.biases, self.activations):
+            x = x @ w.T + b
+            if a == "relu":
+                x = np.maximum(x, 0)
+            elif a == "tanh":
+                x = np.tanh(x)
+            elif a == "sigmoid":
+                x = 1 / (1 + np.exp(-x))
+        return x
+
+
+@dataclass
+class AnchorScene:
+    coords: np.ndarray  # [N, 3] int64 voxel coordinates, unique
+    voxel_size: float  # > 0
+    origin: np.ndarray  # [3] float32
+    features: np.ndarray  # [N, C] float32
+    scalings: np.ndarray  # [N, 6] float32, log scales
+    offsets: np.ndarray  # [N, K, 3] float32, in units of the offset scaling
+    offset_mask: np.ndarray | None = None  # [N, K] bool: live offsets (HAC); None = all live
+    mlps: dict[str, RenderMLP] = field(default_factory=dict)
+    # Not coded (Scaffold-GS does not render with them); kept so transcoding loses nothing it uses.
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def num_anchors(self) -> int:
+        return int(self.coords.shape[0])
+
+    @property
+    def feature_dim(self) -> int:
+        return int(self.features.shape[1])
+
+    @property
+    def num_offsets(self) -> int:
+        return int(self.offsets.shape[1])
+
+    def positions(self) -> np.ndarray:
+        """World positions [N, 3] float32: origin + coords * voxel_size, rounded per IEEE binary32."""
+        c = self.coords.astype(np.float32)
+        return (c * np.float32(self.voxel_size) + self.origin.astype(np.float32)).astype(np.float32)
+
+    def validate(self) -> "AnchorScene":
+        """Check shapes, dtypes and values; raise InputError naming the first problem."""
+        n = self.coords.shape[0] if self.coords.ndim == 2 else -1
+        if self.coords.ndim != 2 or self.coords.shape[1] != 3:
+            raise InputError(f"anchor coordinates must have shape [N, 3], got {self.coords.shape}")
+        if n == 0:
+            raise InputError("the scene has no anchors")
+        if not np.issubdtype(self.coords.dtype, np.integer):
+            raise InputError("anchor coordinates must be integers (voxel indices)")
+        if not (np.isfinite(self.voxel_size) and self.voxel_size > 0):
+            raise InputError(f"voxel size must be a positive finite number, got {self.voxel_size}")
+        if self.origin.shape != (3,) or not np.isfinite(self.origin).all():
+            raise InputError(f"origin must be 3 finite numbers, got {self.origin}")
+        for name, arr, shape in (
+            ("features", self.features, (n, None)),
+            ("scalings", self.scalings, (n, NUM_SCALINGS)),
+            ("offsets", self.offsets, (n, None, 3)),
+        ):
+            if arr.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, arr.shape)):
+                want = "[" + ", ".join("*" if s is None else str(s) for s in shape) + "]"
+                raise InputError(f"{name} must have shape {want} for {n} anchors, got {list(arr.shape)}")
+            if not np.isfinite(arr).all():
+                bad = int((~np.isfinite(arr)).reshape(n, -1).any(axis=1).sum())
+                raise InputError(f"{name} contain NaN or Inf (in {bad} anchors)")
+        if self.features.shape[1] == 0:
+            raise InputError("features must have at least one channel")
+        if self.offsets.shape[1] == 0:
+            raise InputError("each anchor needs at least one offset")
+        if self.offset_mask is not None and self.offset_mask.shape != self.offsets.shape[:2]:
+            raise InputError(f"offset mask must have shape {list(self.offsets.shape[:2])}, "
+                             f"got {list(self.offset_mask.shape)}")
+        uniq = np.unique(self.coords, axis=0).shape[0]
+        if uniq != n:
+            raise InputError(f"{n - uniq} anchors share a voxel with another anchor; merge them first "
+                             "(lghcc-enc merges them when given --merge-duplicates)")
+        return self
