@@ -124,8 +124,15 @@ class SyntaxVisitor:
         ``arrays``; ``count`` has been range-checked by the element it came from."""
         yield from range(count)
 
-    def nested(self, child: "SyntaxStructure") -> None:
+    def struct(self, obj: Any, name: str, i: int | None, cls: type["SyntaxStructure"], **context) -> Any:
+        """A nested structure, stored in ``obj.name`` (or ``obj.name[i]``); ``context`` carries
+        already-parsed values the child's syntax depends on."""
+        child = _get(obj, name, i)
+        saved = self.structure
+        self.structure = f"{saved}.{_label(name, i)}" if saved else cls.syntax_name
         child.syntax(self)
+        self.structure = saved
+        return child
 
 
 def _checked_f32(bits: int, name: str, positive: bool) -> float:
@@ -169,6 +176,10 @@ class ReadVisitor(SyntaxVisitor):
 
     def byte_align(self) -> None:
         self.r.byte_align()
+
+    def struct(self, obj, name, i, cls, **context):
+        _set(obj, name, i, cls(**context))
+        return super().struct(obj, name, i, cls, **context)
 
     def loop(self, count, text, obj=None, arrays=(), index="i"):
         for a in arrays:
@@ -258,8 +269,8 @@ class TableVisitor(SyntaxVisitor):
         self.depth -= 1
         self.rows.append(TableRow(self.depth, "}"))
 
-    def nested(self, child):
-        self.rows.append(TableRow(self.depth, f"{child.syntax_name}( )"))
+    def struct(self, obj, name, i, cls, **context):
+        self.rows.append(TableRow(self.depth, f"{cls.syntax_name}( )"))
 
     def markdown(self, title: str) -> str:
         lines = [f"| {title} | Descriptor |", "|---|---|"]
@@ -280,15 +291,17 @@ class SyntaxStructure:
         raise NotImplementedError
 
     @classmethod
-    def parse(cls, reader: BitReader, trace: list[TraceEntry] | None = None):
-        obj = cls()
+    def parse(cls, reader: BitReader, trace: list[TraceEntry] | None = None, **context):
+        """Parse one structure; ``context`` gives values from earlier structures (e.g. counts)."""
+        obj = cls(**context)
         obj.syntax(ReadVisitor(reader, cls.syntax_name, trace))
         return obj
 
     @classmethod
-    def from_bytes(cls, data: bytes, trace: list[TraceEntry] | None = None, what: str | None = None):
+    def from_bytes(cls, data: bytes, trace: list[TraceEntry] | None = None, what: str | None = None,
+                   **context):
         reader = BitReader(data, what or cls.syntax_name)
-        obj = cls.parse(reader, trace)
+        obj = cls.parse(reader, trace, **context)
         if reader.bits_left >= 8:
             raise BitstreamError(f"{cls.syntax_name}: {reader.bits_left // 8} unexpected trailing bytes")
         return obj

@@ -1,0 +1,184 @@
+"""Syntax of the data-unit payloads (spec clause 7). One class per structure; its
+``syntax()`` is the single description that reads, writes, sizes and documents it.
+
+Fields that are not syntax elements but context from earlier structures (counts the
+syntax depends on) are plain dataclass fields listed in ``context`` comments.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from lghcc.common.syntax import SyntaxStructure, SyntaxVisitor
+
+# Profile "main", level limits (spec clause 8). A decoder rejects streams beyond them,
+# so no allocation is ever sized by an unchecked field.
+MAX_ANCHORS = 1 << 24
+MAX_FEATURE_DIM = 1024
+MAX_NUM_OFFSETS = 64
+MAX_ATTRIBUTE_VALUES = 1 << 31  # num_anchors * num_attribute_channels
+MAX_MLPS = 4
+MAX_MLP_LAYERS = 8
+MAX_MLP_WIDTH = 4096
+MAX_EXPONENT = 64
+NUM_SCALE_LEVELS_BITS = 6
+MASK_PROB_BITS = 12
+
+# attribute_level values
+LEVEL_ALL = 0  # no hierarchy: one attribute unit holds every anchor
+# context_model_id values
+CONTEXT_PER_CHANNEL_PRIOR = 0
+
+HASH_TYPE_SHA256 = 1
+
+
+@dataclass
+class SceneParameterSet(SyntaxStructure):
+    """sps: the dimensions of the scene and the quantization of its attributes."""
+
+    syntax_name = "scene_parameter_set"
+    clause = "7.3.1"
+    num_anchors_minus1: int = 0
+    feature_dim_minus1: int = 0
+    num_offsets_minus1: int = 0
+    voxel_size: float = 1.0
+    origin: list = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    offset_mask_present_flag: int = 0
+    feature_step: float = 1.0
+    scaling_step: float = 1.0
+    offset_step: float = 1.0
+
+    def syntax(self, v: SyntaxVisitor) -> None:
+        v.ue(self, "num_anchors_minus1", hi=MAX_ANCHORS - 1)
+        v.ue(self, "feature_dim_minus1", hi=MAX_FEATURE_DIM - 1)
+        v.ue(self, "num_offsets_minus1", hi=MAX_NUM_OFFSETS - 1)
+        v.f32(self, "voxel_size", positive=True)
+        for i in v.loop(3, "3", self, ("origin",)):
+            v.f32(self, "origin", i)
+        v.flag(self, "offset_mask_present_flag")
+        v.f32(self, "feature_step", positive=True)
+        v.f32(self, "scaling_step", positive=True)
+        v.f32(self, "offset_step", positive=True)
+
+    # derived values (spec 7.4.1)
+    @property
+    def num_anchors(self) -> int:
+        return self.num_anchors_minus1 + 1
+
+    @property
+    def feature_dim(self) -> int:
+        return self.feature_dim_minus1 + 1
+
+    @property
+    def num_offsets(self) -> int:
+        return self.num_offsets_minus1 + 1
+
+
+@dataclass
+class RenderMlpHeader(SyntaxStructure):
+    syntax_name = "render_mlp_header"
+    clause = "7.3.3"
+    mlp_role: int = 0
+    num_layers_minus1: int = 0
+    input_dim_minus1: int = 0
+    output_dim_minus1: list = field(default_factory=list)
+    activation: list = field(default_factory=list)
+    weight_exponent: list = field(default_factory=list)
+    weight_level: list = field(default_factory=list)
+    bias_exponent: list = field(default_factory=list)
+    bias_level: list = field(default_factory=list)
+
+    def syntax(self, v: SyntaxVisitor) -> None:
+        v.u(2, self, "mlp_role")
+        v.ue(self, "num_layers_minus1", hi=MAX_MLP_LAYERS - 1)
+        v.ue(self, "input_dim_minus1", hi=MAX_MLP_WIDTH - 1)
+        arrays = ("output_dim_minus1", "activation", "weight_exponent", "weight_level", "bias_exponent",
+                  "bias_level")
+        for l in v.loop(self.num_layers_minus1 + 1, "num_layers_minus1 + 1", self, arrays, index="l"):
+            v.ue(self, "output_dim_minus1", l, hi=MAX_MLP_WIDTH - 1)
+            v.u(2, self, "activation", l)
+            v.se(self, "weight_exponent", l, lo=-MAX_EXPONENT, hi=MAX_EXPONENT)
+            v.u(NUM_SCALE_LEVELS_BITS, self, "weight_level", l)
+            v.se(self, "bias_exponent", l, lo=-MAX_EXPONENT, hi=MAX_EXPONENT)
+            v.u(NUM_SCALE_LEVELS_BITS, self, "bias_level", l)
+
+
+@dataclass
+class RenderModelUnit(SyntaxStructure):
+    """The render MLPs (R_model): layer shapes, per-tensor exponents and table levels,
+    then every weight and bias entropy coded in one chunk."""
+
+    syntax_name = "render_model_unit"
+    clause = "7.3.2"
+    num_mlps: int = 0
+    mlps: list = field(default_factory=list)
+    coded_size: int = 0
+    coded_data: bytes = b""
+
+    def syntax(self, v: SyntaxVisitor) -> None:
+        v.ue(self, "num_mlps", hi=MAX_MLPS)
+        for m in v.loop(self.num_mlps, "num_mlps", self, ("mlps",), index="m"):
+            v.struct(self, "mlps", m, RenderMlpHeader)
+        v.ue(self, "coded_size")
+        v.byte_align()
+        v.payload(self, "coded_data", self.coded_size)
+
+
+@dataclass
+class AttributeUnitHeader(SyntaxStructure):
+    """Header of an attribute unit; the chunk payloads follow it, in order."""
+
+    syntax_name = "attribute_unit_header"
+    clause = "7.3.5"
+    # context (from the sps and the level): not syntax elements
+    num_channels: int = 1
+    num_offsets: int = 1
+    offset_mask_present: int = 0
+    num_rows: int = 1
+    # syntax elements
+    attribute_level: int = 0
+    context_model_id: int = 0
+    prior_mean: list = field(default_factory=list)
+    prior_level: list = field(default_factory=list)
+    mask_live_prob: list = field(default_factory=list)
+    rows_per_chunk_minus1: int = 0
+    mask_chunk_size: list = field(default_factory=list)
+    chunk_size: list = field(default_factory=list)
+
+    @property
+    def rows_per_chunk(self) -> int:
+        return self.rows_per_chunk_minus1 + 1
+
+    @property
+    def num_chunks(self) -> int:
+        return -(-self.num_rows // self.rows_per_chunk)
+
+    def syntax(self, v: SyntaxVisitor) -> None:
+        v.u(2, self, "attribute_level", hi=LEVEL_ALL)
+        v.u(3, self, "context_model_id", hi=CONTEXT_PER_CHANNEL_PRIOR)
+        for _ in v.when(self.context_model_id == CONTEXT_PER_CHANNEL_PRIOR,
+                        "context_model_id == 0"):
+            for c in v.loop(self.num_channels, "NumChannels", self, ("prior_mean", "prior_level"), index="c"):
+                v.se(self, "prior_mean", c, lo=-(1 << 40), hi=1 << 40)
+                v.u(NUM_SCALE_LEVELS_BITS, self, "prior_level", c)
+        for _ in v.when(self.offset_mask_present, "offset_mask_present_flag"):
+            for k in v.loop(self.num_offsets, "NumOffsets", self, ("mask_live_prob",), index="k"):
+                v.u(MASK_PROB_BITS, self, "mask_live_prob", k, lo=1, hi=(1 << MASK_PROB_BITS) - 1)
+        v.ue(self, "rows_per_chunk_minus1", hi=max(self.num_rows - 1, 0))
+        for i in v.loop(self.num_chunks, "NumChunks", self, ("mask_chunk_size", "chunk_size")):
+            for _ in v.when(self.offset_mask_present, "offset_mask_present_flag"):
+                v.ue(self, "mask_chunk_size", i)
+            v.ue(self, "chunk_size", i)
+        v.byte_align()
+
+
+@dataclass
+class DecodedSceneHashUnit(SyntaxStructure):
+    syntax_name = "decoded_scene_hash_unit"
+    clause = "7.3.6"
+    hash_type: int = HASH_TYPE_SHA256
+    scene_hash: bytes = bytes(32)
+
+    def syntax(self, v: SyntaxVisitor) -> None:
+        v.u(8, self, "hash_type", lo=HASH_TYPE_SHA256, hi=HASH_TYPE_SHA256)
+        v.payload(self, "scene_hash", 32)
