@@ -1,0 +1,96 @@
+"""Minimal, vectorized PLY I/O for point elements with scalar properties (the layout of
+3DGS and Scaffold-GS files). Reads binary (either endianness) and ASCII; writes binary
+little-endian, atomically."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from lghcc.common.errors import InputError
+from lghcc.common.fileio import atomic_output
+
+_PLY_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+    "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+}
+MAX_HEADER_BYTES = 1 << 20
+
+
+def read_ply(path: str | os.PathLike, element: str = "vertex") -> dict[str, np.ndarray]:
+    """Return {property name: array} for one element. Raises InputError naming the file."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as e:
+        raise InputError(f"{path}: cannot read ({e.strerror})") from None
+    end = raw.find(b"end_header", 0, MAX_HEADER_BYTES)
+    if not raw.startswith(b"ply") or end < 0:
+        raise InputError(f"{path}: not a PLY file (no 'ply' magic or no end_header)")
+    body_start = raw.index(b"\n", end) + 1
+    lines = raw[:end].decode("ascii", "replace").splitlines()
+    fmt = None
+    elements: list[tuple[str, int, list[tuple[str, str]]]] = []
+    for line in lines[1:]:
+        parts = line.split()
+        if not parts or parts[0] in ("comment", "obj_info"):
+            continue
+        if parts[0] == "format":
+            fmt = parts[1]
+        elif parts[0] == "element":
+            elements.append((parts[1], int(parts[2]), []))
+        elif parts[0] == "property":
+            if not elements:
+                raise InputError(f"{path}: property before any element")
+            if parts[1] == "list":
+                elements[-1][2].append(("list", parts[-1]))
+                continue
+            if parts[1] not in _PLY_TYPES:
+                raise InputError(f"{path}: unknown property type {parts[1]!r}")
+            elements[-1][2].append((_PLY_TYPES[parts[1]], parts[2]))
+    if fmt not in ("binary_little_endian", "binary_big_endian", "ascii"):
+        raise InputError(f"{path}: unsupported PLY format {fmt!r}")
+    offset = body_start
+    for name, count, props in elements:
+        if any(t == "list" for t, _ in props):
+            if name == element:
+                raise InputError(f"{path}: element {element!r} has list properties, which are not supported")
+            raise InputError(f"{path}: element {name!r} with list properties precedes {element!r}")
+        if fmt == "ascii":
+            if name != element:
+                raise InputError(f"{path}: ASCII PLY with elements before {element!r} is not supported")
+            text = raw[body_start:].decode("ascii", "replace").split()
+            vals = np.asarray(text[: count * len(props)], dtype=np.float64)
+            if vals.size != count * len(props):
+                raise InputError(f"{path}: file ends before {count} {element} rows")
+            vals = vals.reshape(count, len(props))
+            return {p: vals[:, i].astype(t) for i, (t, p) in enumerate(props)}
+        endian = "<" if fmt == "binary_little_endian" else ">"
+        dtype = np.dtype([(p, endian + t) for t, p in props])
+        nbytes = dtype.itemsize * count
+        if name == element:
+            if offset + nbytes > len(raw):
+                raise InputError(f"{path}: file is truncated ({len(raw) - offset} bytes for {count} rows of "
+                                 f"{dtype.itemsize} bytes)")
+            arr = np.frombuffer(raw, dtype=dtype, count=count, offset=offset)
+            return {p: arr[p].astype(arr[p].dtype.newbyteorder("=")) for _, p in props}
+        offset += nbytes
+    raise InputError(f"{path}: no element {element!r}")
+
+
+def write_ply(path: str | os.PathLike, columns: dict[str, np.ndarray]) -> None:
+    names = list(columns)
+    n = len(next(iter(columns.values()))) if columns else 0
+    dtype = np.dtype([(k, "<f4") for k in names])
+    arr = np.empty(n, dtype=dtype)
+    for k in names:
+        arr[k] = columns[k]
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
+    header += [f"property float {k}" for k in names]
+    header.append("end_header\n")
+    with atomic_output(path) as f:
+        f.write("\n".join(header).encode("ascii"))
+        f.write(arr.tobytes())

@@ -1,0 +1,209 @@
+"""Read and write the Scaffold-GS checkpoint layout (the interchange format of anchor-based 3DGS).
+
+    <model>/point_cloud/iteration_<N>/point_cloud.ply   anchors
+    <model>/point_cloud/iteration_<N>/checkpoint.pth    {'opacity_mlp': state_dict, 'cov_mlp': ..., 'color_mlp': ...}
+
+PLY fields per anchor: x,y,z, nx,ny,nz, f_offset_0..3K-1 (index = axis*K + k),
+f_anchor_feat_0..C-1, opacity, scale_0..5 (log), rot_0..3; HAC adds f_mask_0..K-1.
+MLPs may also come as HAC's names (mlp_opacity, ...) or as traced modules
+(opacity_mlp.pt, ...) from older Scaffold-GS versions.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+
+from lghcc.common.errors import InputError
+from lghcc.common.fileio import atomic_output
+from lghcc.common.ply import read_ply, write_ply
+from lghcc.common.scene import NUM_SCALINGS, AnchorScene, RenderMLP
+
+# Output activation of each role in Scaffold-GS (hidden layers use ReLU).
+ROLE_FINAL_ACTIVATION = {"opacity": "tanh", "cov": "none", "color": "sigmoid", "feature_bank": "none"}
+STATE_DICT_NAMES = {
+    "opacity": ("opacity_mlp", "mlp_opacity"),
+    "cov": ("cov_mlp", "mlp_cov"),
+    "color": ("color_mlp", "mlp_color"),
+    "feature_bank": ("mlp_feature_bank", "feature_bank_mlp"),
+}
+PLY_NAME = "point_cloud.ply"
+CHECKPOINT_NAME = "checkpoint.pth"
+
+
+def _numbered(cols: dict[str, np.ndarray], prefix: str) -> list[str]:
+    names = [k for k in cols if re.fullmatch(re.escape(prefix) + r"\d+", k)]
+    return sorted(names, key=lambda k: int(k[len(prefix):]))
+
+
+def locate_ply(path: str | os.PathLike) -> Path:
+    """Accept a .ply file, an iteration folder, or a model folder (highest iteration wins)."""
+    p = Path(path)
+    if p.is_file():
+        return p
+    if (p / PLY_NAME).is_file():
+        return p / PLY_NAME
+    its = sorted((int(m.group(1)), d) for d in (p / "point_cloud").glob("iteration_*")
+                 if (m := re.fullmatch(r"iteration_(\d+)", d.name)) and (d / PLY_NAME).is_file())
+    if its:
+        return its[-1][1] / PLY_NAME
+    raise InputError(f"{p}: no {PLY_NAME} found (give a .ply file, an iteration folder or a Scaffold-GS "
+                     "model folder with point_cloud/iteration_<N>/)")
+
+
+def infer_voxel_size(positions: np.ndarray) -> float:
+    """Scaffold-GS anchors sit on a grid of the voxel size: find the smallest spacing
+    that explains every coordinate within 1e-3 voxel."""
+    p = positions.astype(np.float64)
+    extent = float(np.ptp(p, axis=0).max()) if len(p) > 1 else 0.0
+    if extent == 0.0:
+        return 1.0
+    cands = []
+    for a in range(3):
+        u = np.unique(p[:, a])
+        d = np.diff(u)
+        d = d[d > extent * 1e-7]
+        if d.size:
+            cands.append(d.min())
+    if not cands:
+        return 1.0
+    v = float(min(cands))
+    err = np.abs(p / v - np.round(p / v)).max()
+    if err > 1e-3:
+        raise InputError(f"anchor positions are not on a regular grid (best spacing {v:.6g} leaves an error of "
+                         f"{err:.3g} voxels); pass the voxel size explicitly (--voxel-size)")
+    return v
+
+
+def quantize_positions(positions: np.ndarray, voxel_size: float, origin: np.ndarray) -> np.ndarray:
+    c = np.round((positions.astype(np.float64) - origin) / voxel_size)
+    if not np.isfinite(c).all() or np.abs(c).max(initial=0) >= 2 ** 31:
+        raise InputError("anchor positions / voxel size exceed the coordinate range of +-2^31 voxels")
+    return c.astype(np.int64)
+
+
+def _mlp_from_state_dict(role: str, sd: dict) -> RenderMLP:
+    layer_ids = sorted({int(k.split(".")[0]) for k in sd if k.endswith(".weight")})
+    if not layer_ids:
+        raise InputError(f"{role} MLP: no Linear weights in its state dict")
+    ws = [np.asarray(sd[f"{i}.weight"].detach().cpu().numpy(), dtype=np.float32) for i in layer_ids]
+    bs = [np.asarray(sd[f"{i}.bias"].detach().cpu().numpy(), dtype=np.float32) for i in layer_ids]
+    acts = ["relu"] * (len(ws) - 1) + [ROLE_FINAL_ACTIVATION[role]]
+    return RenderMLP(ws, bs, acts)
+
+
+def read_mlps(folder: Path) -> dict[str, RenderMLP]:
+    import torch
+
+    mlps: dict[str, RenderMLP] = {}
+    ckpt = folder / CHECKPOINT_NAME
+    if ckpt.is_file():
+        try:
+            data = torch.load(ckpt, map_location="cpu", weights_only=True)
+        except Exception as e:
+            raise InputError(f"{ckpt}: cannot load ({e})") from None
+        for role, names in STATE_DICT_NAMES.items():
+            for name in names:
+                if name in data:
+                    mlps[role] = _mlp_from_state_dict(role, data[name])
+                    break
+        return mlps
+    for role, names in STATE_DICT_NAMES.items():
+        f = folder / f"{names[0]}.pt"
+        if f.is_file():
+            try:
+                mlps[role] = _mlp_from_state_dict(role, torch.jit.load(str(f), map_location="cpu").state_dict())
+            except Exception as e:
+                raise InputError(f"{f}: cannot load traced module ({e})") from None
+    return mlps
+
+
+def read_scaffold(path: str | os.PathLike, voxel_size: float | None = None,
+                  origin: np.ndarray | None = None) -> AnchorScene:
+    ply = locate_ply(path)
+    cols = read_ply(ply)
+    for req in ("x", "y", "z"):
+        if req not in cols:
+            raise InputError(f"{ply}: no '{req}' property: not an anchor point cloud")
+    feats = _numbered(cols, "f_anchor_feat_")
+    offs = _numbered(cols, "f_offset_")
+    scales = _numbered(cols, "scale_")
+    if not feats:
+        raise InputError(f"{ply}: no f_anchor_feat_* properties: not a Scaffold-GS anchor file "
+                         "(a plain 3DGS PLY must be converted first)")
+    if not offs or len(offs) % 3:
+        raise InputError(f"{ply}: expected 3K f_offset_* properties, found {len(offs)}")
+    if len(scales) != NUM_SCALINGS:
+        raise InputError(f"{ply}: expected scale_0..5, found {len(scales)} scale properties")
+    n = len(cols["x"])
+    k = len(offs) // 3
+    positions = np.stack([cols["x"], cols["y"], cols["z"]], axis=1).astype(np.float64)
+    if not np.isfinite(positions).all():
+        raise InputError(f"{ply}: anchor positions contain NaN or Inf")
+    origin = np.zeros(3) if origin is None else np.asarray(origin, dtype=np.float64)
+    vs = infer_voxel_size(positions - origin) if voxel_size is None else float(voxel_size)
+    offsets = np.stack([cols[c] for c in offs], axis=1).astype(np.float32).reshape(n, 3, k).transpose(0, 2, 1)
+    mask_cols = _numbered(cols, "f_mask_")
+    mask = None
+    if mask_cols:
+        if len(mask_cols) != k:
+            raise InputError(f"{ply}: {len(mask_cols)} f_mask_* properties for {k} offsets")
+        m = np.stack([cols[c] for c in mask_cols], axis=1).astype(np.float64)
+        # Binary masks are taken as they are; HAC's raw mask logits are binarized as HAC does.
+        mask = (m > 0.5) if np.isin(m, (0.0, 1.0)).all() else (1 / (1 + np.exp(-m)) > 0.01)
+    extra = {}
+    if "opacity" in cols:
+        extra["opacity"] = cols["opacity"].astype(np.float32)
+    rots = _numbered(cols, "rot_")
+    if len(rots) == 4:
+        extra["rotation"] = np.stack([cols[c] for c in rots], axis=1).astype(np.float32)
+    return AnchorScene(
+        coords=quantize_positions(positions, vs, origin),
+        voxel_size=vs,
+        origin=origin.astype(np.float32),
+        features=np.stack([cols[c] for c in feats], axis=1).astype(np.float32),
+        scalings=np.stack([cols[c] for c in scales], axis=1).astype(np.float32),
+        offsets=np.ascontiguousarray(offsets),
+        offset_mask=mask,
+        mlps=read_mlps(ply.parent),
+        extra=extra,
+    )
+
+
+def write_scaffold(scene: AnchorScene, model_dir: str | os.PathLike, iteration: int = 0) -> Path:
+    """Write the Scaffold-GS layout; returns the folder holding the PLY and the MLPs."""
+    import torch
+
+    folder = Path(model_dir) / "point_cloud" / f"iteration_{iteration}"
+    n, k = scene.num_anchors, scene.num_offsets
+    pos = scene.positions()
+    cols: dict[str, np.ndarray] = {"x": pos[:, 0], "y": pos[:, 1], "z": pos[:, 2]}
+    for c in ("nx", "ny", "nz"):
+        cols[c] = np.zeros(n, np.float32)
+    off = scene.offsets.transpose(0, 2, 1).reshape(n, 3 * k)
+    cols.update({f"f_offset_{i}": off[:, i] for i in range(3 * k)})
+    cols.update({f"f_anchor_feat_{i}": scene.features[:, i] for i in range(scene.feature_dim)})
+    cols["opacity"] = scene.extra.get("opacity", np.zeros(n, np.float32))
+    cols.update({f"scale_{i}": scene.scalings[:, i] for i in range(NUM_SCALINGS)})
+    rot = scene.extra.get("rotation", np.tile(np.array([1, 0, 0, 0], np.float32), (n, 1)))
+    cols.update({f"rot_{i}": rot[:, i] for i in range(4)})
+    if scene.offset_mask is not None:
+        cols.update({f"f_mask_{i}": scene.offset_mask[:, i].astype(np.float32) for i in range(k)})
+    write_ply(folder / PLY_NAME, cols)
+    if scene.mlps:
+        state = {}
+        for role, mlp in scene.mlps.items():
+            sd = {}
+            for l, (w, b) in enumerate(zip(mlp.weights, mlp.biases)):
+                sd[f"{2 * l}.weight"] = torch.from_numpy(np.array(w))
+                sd[f"{2 * l}.bias"] = torch.from_numpy(np.array(b))
+            state[STATE_DICT_NAMES[role][0]] = sd
+        buf = io.BytesIO()
+        torch.save(state, buf)
+        with atomic_output(folder / CHECKPOINT_NAME) as f:
+            f.write(buf.getvalue())
+    return folder

@@ -1,0 +1,126 @@
+"""lghcc-enc: compress an anchor-based 3DGS scene into one .lghcc file."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+from lghcc.common.errors import LghccError
+from lghcc.common.fileio import atomic_write_bytes
+
+DESCRIPTION = """\
+Compress an anchor-based 3D Gaussian Splatting scene (Scaffold-GS / HAC layout) into a
+single .lghcc file that lghcc-dec turns back into exactly the same decoded scene on any
+machine. The file holds everything: geometry, attributes, render MLPs and a hash of
+the decoded scene.
+
+examples:
+  lghcc-enc --procedural 20000 -o demo.lghcc          built-in procedural scene
+  lghcc-enc outputs/garden -o garden.lghcc             Scaffold-GS model folder
+  lghcc-enc point_cloud.ply --preset high -o g.lghcc   a PLY (MLPs from checkpoint.pth beside it)
+"""
+
+
+def setup_args() -> argparse.ArgumentParser:
+    from lghcc.encoder.config import preset_names
+
+    p = argparse.ArgumentParser(prog="lghcc-enc", description=DESCRIPTION,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("input", nargs="?", help="Scaffold-GS model folder, iteration folder or point_cloud.ply")
+    p.add_argument("-o", "--output", required=True, help="the .lghcc file to write")
+    p.add_argument("--procedural", type=int, metavar="N",
+                   help="encode the built-in procedural scene with about N anchors instead of an input")
+    p.add_argument("--seed", type=int, default=0, help="seed of the procedural scene (default 0)")
+    p.add_argument("--preset", default="medium", choices=preset_names(),
+                   help="rate point: attribute quantization steps and MLP precision (default: medium)")
+    p.add_argument("--config", metavar="YAML", help="YAML file overriding preset options")
+    p.add_argument("--feature-step", type=float, help="quantization step of anchor features")
+    p.add_argument("--scaling-step", type=float, help="quantization step of the log scalings")
+    p.add_argument("--offset-step", type=float, help="quantization step of the offsets")
+    p.add_argument("--mlp-weight-bits", type=int, help="bits per quantized render-MLP weight (2..24)")
+    p.add_argument("--voxel-size", type=float,
+                   help="anchor voxel size (default: inferred from the anchor grid of the input)")
+    p.add_argument("--merge-duplicates", action="store_true",
+                   help="merge anchors that fall in the same voxel (attributes averaged) instead of failing")
+    p.add_argument("-f", "--force", action="store_true", help="overwrite the output file if it exists")
+    p.add_argument("--no-verify", action="store_true",
+                   help="skip decoding the written stream to check it (faster)")
+    p.add_argument("--json", metavar="FILE", help="also write the size breakdown and timings as JSON")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
+    return p
+
+
+def _load_scene(args):
+    from lghcc.common.procedural import make_procedural_scene
+    from lghcc.common.scaffold_io import read_scaffold
+    from lghcc.encoder.scene_prep import merge_duplicate_anchors
+
+    if (args.input is None) == (args.procedural is None):
+        raise LghccError("give exactly one of an input path or --procedural N")
+    if args.procedural is not None:
+        if args.procedural < 1:
+            raise LghccError("--procedural needs a positive anchor count")
+        return make_procedural_scene(args.procedural, seed=args.seed), "procedural"
+    if not Path(args.input).exists():
+        raise LghccError(f"{args.input}: no such file or folder")
+    scene = read_scaffold(args.input, voxel_size=args.voxel_size)
+    if args.merge_duplicates:
+        scene, merged = merge_duplicate_anchors(scene)
+        if merged and not args.quiet:
+            print(f"merged {merged} anchors that shared a voxel", file=sys.stderr)
+    return scene, args.input
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = setup_args().parse_args(argv)
+    from lghcc.decoder.decode import decode_stream
+    from lghcc.encoder.config import load_config
+    from lghcc.encoder.encode import encode_scene
+
+    say = (lambda *a: None) if args.quiet else print
+    try:
+        out = Path(args.output)
+        if args.input and out.exists() and Path(args.input).exists() and os.path.samefile(out, args.input):
+            raise LghccError("the output would overwrite the input")
+        if out.exists() and not args.force:
+            raise LghccError(f"{out} exists; use --force to overwrite it")
+        cfg = load_config(args.preset, args.config, {
+            "feature_step": args.feature_step, "scaling_step": args.scaling_step,
+            "offset_step": args.offset_step, "mlp_weight_bits": args.mlp_weight_bits})
+        t0 = time.perf_counter()
+        scene, source = _load_scene(args)
+        t_load = time.perf_counter() - t0
+        result = encode_scene(scene, cfg, progress=not args.quiet and sys.stderr.isatty())
+        verified = None
+        if not args.no_verify:
+            decoded = decode_stream(result.data)
+            verified = decoded.stream_hash == result.scene_hash
+            if not verified:
+                raise LghccError("internal error: the written stream does not decode to the encoded scene")
+        atomic_write_bytes(out, result.data)
+    except LghccError as e:
+        print(f"lghcc-enc: error: {e}", file=sys.stderr)
+        return 1
+    st = result.stats
+    say(f"{source}: {scene.num_anchors:,} anchors, C={scene.feature_dim}, K={scene.num_offsets} -> {out} "
+        f"({len(result.data):,} bytes)")
+    say(result.breakdown.table())
+    overhead = st["attribute_coded_bits"] / max(st["attribute_ideal_bits"], 1) - 1
+    say(f"attribute coding: {st['attribute_coded_bits']:,} bits, {100 * overhead:+.3f}% over the model's ideal")
+    say(f"time: load {t_load:.2f} s, encode {st['time_total_s']:.2f} s"
+        + ("" if verified is None else ", decoded and verified: hash matches"))
+    say(f"decoded scene SHA-256: {result.scene_hash.hex()}")
+    if args.json:
+        atomic_write_bytes(args.json, json.dumps({
+            "input": source, "output": str(out), "num_anchors": scene.num_anchors, "bytes": len(result.data),
+            "breakdown": result.breakdown.bytes_by_category, "stats": st,
+            "scene_sha256": result.scene_hash.hex(), "config": vars(cfg)}, indent=2).encode())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

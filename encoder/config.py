@@ -1,0 +1,72 @@
+"""Encoder configuration: presets are YAML files (encoder/presets/*.yaml); a user's YAML
+file or command-line options override single fields."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import yaml
+
+from lghcc.common.errors import InputError
+
+
+@dataclass
+class EncoderConfig:
+    # Quantization steps of the attribute groups (decoded value = q * step).
+    feature_step: float = 0.02
+    scaling_step: float = 0.02
+    offset_step: float = 0.02
+    # Render MLP weights: signed integers of this many bits with a power-of-two scale per tensor.
+    mlp_weight_bits: int = 14
+    # Anchors per independently decodable attribute chunk.
+    rows_per_chunk: int = 65536
+    # Rows sampled when choosing each channel's prior (informative speed/accuracy knob).
+    prior_fit_rows: int = 50000
+
+    def validate(self) -> "EncoderConfig":
+        for name in ("feature_step", "scaling_step", "offset_step"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and v > 0 and v < float("inf")):
+                raise InputError(f"{name} must be a positive finite number, got {v!r}")
+        if not (2 <= self.mlp_weight_bits <= 24):
+            raise InputError(f"mlp_weight_bits must be in [2, 24], got {self.mlp_weight_bits}")
+        if self.rows_per_chunk < 1:
+            raise InputError("rows_per_chunk must be at least 1")
+        if self.prior_fit_rows < 1:
+            raise InputError("prior_fit_rows must be at least 1")
+        return self
+
+
+def preset_names() -> list[str]:
+    return sorted(p.name[:-5] for p in resources.files("lghcc.encoder").joinpath("presets").iterdir()
+                  if p.name.endswith(".yaml"))
+
+
+def _apply(cfg: EncoderConfig, data: dict, source: str) -> EncoderConfig:
+    if not isinstance(data, dict):
+        raise InputError(f"{source}: expected a mapping of option: value")
+    fields = {f.name for f in dataclasses.fields(EncoderConfig)}
+    unknown = sorted(set(data) - fields)
+    if unknown:
+        raise InputError(f"{source}: unknown option(s) {', '.join(unknown)} (known: {', '.join(sorted(fields))})")
+    return dataclasses.replace(cfg, **data)
+
+
+def load_config(preset: str = "medium", config_file: str | Path | None = None,
+                overrides: dict | None = None) -> EncoderConfig:
+    if preset not in preset_names():
+        raise InputError(f"unknown preset {preset!r}; choose one of {', '.join(preset_names())}")
+    text = resources.files("lghcc.encoder").joinpath("presets", f"{preset}.yaml").read_text()
+    cfg = _apply(EncoderConfig(), yaml.safe_load(text) or {}, f"preset {preset}")
+    if config_file is not None:
+        try:
+            data = yaml.safe_load(Path(config_file).read_text())
+        except (OSError, yaml.YAMLError) as e:
+            raise InputError(f"{config_file}: cannot read the configuration ({e})") from None
+        cfg = _apply(cfg, data or {}, str(config_file))
+    if overrides:
+        cfg = _apply(cfg, {k: v for k, v in overrides.items() if v is not None}, "command line")
+    return cfg.validate()

@@ -1,0 +1,208 @@
+"""The encoder (informative): it chooses quantization, priors and chunking, and writes
+a stream that the normative decoding process turns back into exactly the scene whose
+hash it carries. Everything the decoder must reproduce is computed by common/ code.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from tqdm import tqdm
+
+from lghcc.common import attributes as attr
+from lghcc.common.container import DataUnit, UnitType, read_container, write_container
+from lghcc.common.entropy.symbol_coder import ideal_code_length_bits, level_for_sigma
+from lghcc.common.errors import InputError
+from lghcc.common.geometry import encode_geometry, normative_order
+from lghcc.common.hashing import scene_digest
+from lghcc.common.render_model import dequantize, write_render_model_unit
+from lghcc.common.report import SizeBreakdown, breakdown_of
+from lghcc.common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene, RenderMLP
+from lghcc.common.units import (CONTEXT_PER_CHANNEL_PRIOR, LEVEL_ALL, MASK_PROB_BITS, MAX_ANCHORS,
+                                MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, AttributeUnitHeader, DecodedSceneHashUnit,
+                                RenderMlpHeader, SceneParameterSet)
+from lghcc.encoder.config import EncoderConfig
+
+MAX_QUANTIZED_MAGNITUDE = 2 ** 52  # |x / step| beyond this cannot be rounded exactly in float64
+
+
+@dataclass
+class EncodeResult:
+    data: bytes
+    breakdown: SizeBreakdown
+    decoded: AnchorScene  # the scene the decoder will output, bit for bit
+    scene_hash: bytes
+    stats: dict = field(default_factory=dict)
+
+
+def quantize(values: np.ndarray, steps: np.ndarray, what: str) -> np.ndarray:
+    scaled = values.astype(np.float64) / steps.astype(np.float64)
+    worst = float(np.abs(scaled).max(initial=0))
+    if not worst < MAX_QUANTIZED_MAGNITUDE:
+        raise InputError(f"{what}: a value is {worst:.3g} quantization steps from zero, beyond the coding "
+                         f"range of 2^52 steps; use a larger step")
+    return np.rint(scaled).astype(np.int64)
+
+
+def _best_level(residuals: np.ndarray) -> int:
+    """The scale level with the fewest ideal bits for these residuals (informative choice)."""
+    if residuals.size == 0:
+        return 0
+    sigma = max(float(np.sqrt(np.mean(residuals.astype(np.float64) ** 2))), 1e-3)
+    centre = int(level_for_sigma(np.array([sigma]))[0])
+    best = None
+    for lv in range(max(0, centre - 2), min(63, centre + 2) + 1):
+        bits = ideal_code_length_bits(residuals, np.full(residuals.size, lv, dtype=np.int64))
+        if best is None or bits < best[0]:
+            best = (bits, lv)
+    return best[1]
+
+
+def fit_per_channel_prior(q: np.ndarray, live: np.ndarray, sample_rows: int, seed: int = 0):
+    """Per channel: integer mean (median) and the scale level that codes it best."""
+    n, m = q.shape
+    rows = np.arange(n) if n <= sample_rows else np.sort(
+        np.random.default_rng(seed).choice(n, sample_rows, replace=False))
+    qs, ls = q[rows], live[rows]
+    means = np.zeros(m, dtype=np.int64)
+    levels = np.zeros(m, dtype=np.int64)
+    for c in range(m):
+        vals = qs[ls[:, c], c]
+        if vals.size:
+            means[c] = int(np.median(vals).round())
+            levels[c] = _best_level(vals - means[c])
+    return means, levels
+
+
+def quantize_mlp_tensor(t: np.ndarray, bits: int) -> tuple[np.ndarray, int]:
+    """Power-of-two scale so that |q| <= 2^(bits-1) - 1 (informative choice)."""
+    peak = float(np.abs(t).max(initial=0))
+    if peak == 0.0:
+        return np.zeros(t.shape, np.int64), 0
+    exp = int(np.ceil(np.log2(peak / ((1 << (bits - 1)) - 1))))
+    exp = min(max(exp, -MAX_EXPONENT), MAX_EXPONENT)
+    q = np.rint(np.ldexp(t.astype(np.float64), -exp))
+    if np.abs(q).max() > (1 << (bits - 1)) - 1:  # rounding at the top of the range
+        exp += 1
+        q = np.rint(np.ldexp(t.astype(np.float64), -exp))
+    if np.abs(q).max() >= 2 ** 24:
+        raise InputError(f"an MLP weight of magnitude {peak:.3g} cannot be represented")
+    return q.astype(np.int64), exp
+
+
+def quantize_render_model(mlps: dict[str, RenderMLP], bits: int):
+    """-> (unit payload, decoded MLPs)."""
+    headers, tensors, decoded = [], [], {}
+    for role in MLP_ROLES:
+        mlp = mlps.get(role)
+        if mlp is None:
+            continue
+        h = RenderMlpHeader(mlp_role=MLP_ROLES.index(role), num_layers_minus1=len(mlp.weights) - 1,
+                            input_dim_minus1=mlp.in_dim - 1)
+        ts, ws, bs = [], [], []
+        for w, b, a in zip(mlp.weights, mlp.biases, mlp.activations):
+            qw, ew = quantize_mlp_tensor(w, bits)
+            qb, eb = quantize_mlp_tensor(b, bits)
+            h.output_dim_minus1.append(w.shape[0] - 1)
+            h.activation.append(ACTIVATIONS.index(a))
+            h.weight_exponent.append(ew)
+            h.bias_exponent.append(eb)
+            h.weight_level.append(_best_level(qw.ravel()))
+            h.bias_level.append(_best_level(qb.ravel()))
+            ts += [qw, qb]
+            ws.append(dequantize(qw, ew))
+            bs.append(dequantize(qb, eb))
+        headers.append(h)
+        tensors.append(ts)
+        decoded[role] = RenderMLP(ws, bs, list(mlp.activations))
+    return write_render_model_unit(headers, tensors), decoded
+
+
+def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress: bool = False) -> EncodeResult:
+    cfg = (cfg or EncoderConfig()).validate()
+    scene.validate()
+    n = scene.num_anchors
+    if n > MAX_ANCHORS:
+        raise InputError(f"{n} anchors exceed the profile's limit of {MAX_ANCHORS}")
+    stats: dict = {}
+    t0 = time.perf_counter()
+    bar = tqdm(total=5, desc="encode", unit="step", disable=not progress, leave=False)
+
+    bar.set_postfix_str("geometry")
+    order = normative_order(scene.coords)
+    coords = scene.coords[order]
+    geometry_payload = encode_geometry(coords)
+    stats["time_geometry_s"] = time.perf_counter() - t0
+    bar.update()
+
+    bar.set_postfix_str("quantization")
+    mask = None if scene.offset_mask is None else scene.offset_mask[order].astype(bool)
+    if mask is not None and mask.all():
+        mask = None  # every offset is live: the mask tool is switched off and costs nothing
+    sps = SceneParameterSet(
+        num_anchors_minus1=n - 1, feature_dim_minus1=scene.feature_dim - 1,
+        num_offsets_minus1=scene.num_offsets - 1, voxel_size=float(scene.voxel_size),
+        origin=[float(x) for x in scene.origin], offset_mask_present_flag=int(mask is not None),
+        feature_step=cfg.feature_step, scaling_step=cfg.scaling_step, offset_step=cfg.offset_step)
+    layout = attr.ChannelLayout(scene.feature_dim, scene.num_offsets)
+    if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
+        raise InputError(f"{n} anchors x {layout.num_channels} channels exceed the profile's limit")
+    sps = SceneParameterSet.from_bytes(sps.to_bytes())  # exactly the values the decoder will see
+    steps = layout.steps(sps)
+    values = layout.join(scene.features[order], scene.scalings[order], scene.offsets[order])
+    live = layout.live_channels(mask, n)
+    q = np.where(live, quantize(values, steps, "attributes"), 0)
+    bar.update()
+
+    bar.set_postfix_str("attributes")
+    t1 = time.perf_counter()
+    means, levels = fit_per_channel_prior(q, live, cfg.prior_fit_rows)
+    header = AttributeUnitHeader(
+        num_channels=layout.num_channels, num_offsets=scene.num_offsets,
+        offset_mask_present=int(mask is not None), num_rows=n, attribute_level=LEVEL_ALL,
+        context_model_id=CONTEXT_PER_CHANNEL_PRIOR, prior_mean=means.tolist(), prior_level=levels.tolist(),
+        rows_per_chunk_minus1=min(cfg.rows_per_chunk, n) - 1)
+    if mask is not None:
+        p = np.clip(np.rint(mask.mean(axis=0) * (1 << MASK_PROB_BITS)), 1, (1 << MASK_PROB_BITS) - 1)
+        header.mask_live_prob = [int(x) for x in p]
+        mask_models = attr.mask_models(header.mask_live_prob)
+    residuals = (q - means) * live
+    level_rows = np.broadcast_to(levels, (header.rows_per_chunk, layout.num_channels))
+    chunks: list[bytes] = []
+    for i in range(header.num_chunks):
+        lo, hi = i * header.rows_per_chunk, min(n, (i + 1) * header.rows_per_chunk)
+        if mask is not None:
+            chunks.append(attr.encode_mask_chunk(mask[lo:hi], mask_models))
+            header.mask_chunk_size.append(len(chunks[-1]))
+        chunks.append(attr.encode_residual_chunk(residuals[lo:hi], level_rows[: hi - lo], live[lo:hi]))
+        header.chunk_size.append(len(chunks[-1]))
+    attribute_payload = header.to_bytes() + b"".join(chunks)
+    stats["attribute_ideal_bits"] = ideal_code_length_bits(
+        residuals[live], np.broadcast_to(levels, (n, layout.num_channels))[live])
+    stats["attribute_coded_bits"] = 8 * sum(header.chunk_size)
+    stats["time_attributes_s"] = time.perf_counter() - t1
+    bar.update()
+
+    bar.set_postfix_str("render model")
+    units = [DataUnit(UnitType.SCENE_PARAMETER_SET, sps.to_bytes())]
+    decoded_mlps = {}
+    if scene.mlps:
+        model_payload, decoded_mlps = quantize_render_model(scene.mlps, cfg.mlp_weight_bits)
+        units.append(DataUnit(UnitType.RENDER_MODEL, model_payload))
+    bar.update()
+
+    bar.set_postfix_str("hash")
+    features, scalings, offsets = layout.split(attr.reconstruct(q, steps))
+    decoded = AnchorScene(coords=coords, voxel_size=float(sps.voxel_size),
+                          origin=np.asarray(sps.origin, dtype=np.float32), features=features, scalings=scalings,
+                          offsets=offsets, offset_mask=mask, mlps=decoded_mlps)
+    digest = scene_digest(decoded)
+    units += [DataUnit(UnitType.GEOMETRY, geometry_payload), DataUnit(UnitType.ATTRIBUTE, attribute_payload),
+              DataUnit(UnitType.DECODED_SCENE_HASH, DecodedSceneHashUnit(scene_hash=digest).to_bytes())]
+    data = write_container(units)
+    bar.update()
+    bar.close()
+    stats["time_total_s"] = time.perf_counter() - t0
+    return EncodeResult(data, breakdown_of(read_container(data), n), decoded, digest, stats)
