@@ -1,0 +1,32 @@
+# make demo : set up .venv, encode and decode the built-in procedural scene
+# make test : set up .venv, run the test suite
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: setup demo test test-slow spec bench clean
+
+$(STAMP): pyproject.toml
+	python3 -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q torch==2.13.0
+	$(PY) -m pip install -q -e '.[test]'
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+demo: setup
+	$(VENV)/bin/lghcc-enc --procedural 20000 -o demo_out/demo.lghcc --force
+	$(VENV)/bin/lghcc-dec demo_out/demo.lghcc -o demo_out/decoded
+
+test: setup
+	$(PY) -m pytest
+
+test-slow: setup
+	$(PY) -m pytest -m slow
+
+spec: setup
+	$(PY) tools/gen_spec_tables.py
+
+clean:
+	rm -rf demo_out build *.egg-info
