@@ -1,0 +1,116 @@
+"""The decoder given damaged or hostile input ends in the project's own error, quickly,
+or in a valid decode; never another exception, a hang, or a huge allocation."""
+
+import time
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from lghcc.common.container import DataUnit, UnitType, read_container, write_container
+from lghcc.common.errors import BitstreamError, LghccError, UnsupportedStreamError
+from lghcc.common.units import SceneParameterSet
+from lghcc.decoder.decode import decode_stream
+from lghcc.encoder.encode import EncoderConfig, encode_scene
+
+from scenes import random_scene
+
+STREAM = encode_scene(random_scene(np.random.default_rng(7), 60, mask=True), EncoderConfig(rows_per_chunk=16)).data
+UNITS = read_container(STREAM).units
+TIME_LIMIT_S = 5.0
+
+
+def _decode_or_own_error(data: bytes) -> None:
+    t0 = time.perf_counter()
+    try:
+        res = decode_stream(data)
+        assert res.scene.num_anchors >= 1
+    except LghccError as e:
+        assert str(e)
+    assert time.perf_counter() - t0 < TIME_LIMIT_S
+
+
+def _rewrap(units) -> bytes:
+    """Re-frame units with valid CRCs, so that damage reaches the payload parsers."""
+    return write_container([DataUnit(u.unit_type, u.payload) for u in units])
+
+
+@settings(max_examples=60)
+@given(st.data())
+def test_payload_mutations_with_valid_crcs(data):
+    units = [DataUnit(u.unit_type, bytearray(u.payload)) for u in UNITS]
+    target = data.draw(st.integers(0, len(units) - 1))
+    payload = units[target].payload
+    op = data.draw(st.sampled_from(["flip", "truncate", "insert", "delete", "extreme"]))
+    if op == "flip" and payload:
+        for _ in range(data.draw(st.integers(1, 4))):
+            i = data.draw(st.integers(0, len(payload) - 1))
+            payload[i] ^= 1 << data.draw(st.integers(0, 7))
+    elif op == "truncate":
+        del payload[data.draw(st.integers(0, len(payload))):]
+    elif op == "insert":
+        i = data.draw(st.integers(0, len(payload)))
+        payload[i:i] = data.draw(st.binary(min_size=1, max_size=8))
+    elif op == "delete" and payload:
+        i = data.draw(st.integers(0, len(payload) - 1))
+        del payload[i:i + data.draw(st.integers(1, 8))]
+    elif op == "extreme" and payload:
+        i = data.draw(st.integers(0, len(payload) - 1))
+        payload[i:i + 4] = data.draw(st.sampled_from([b"\x00\x00\x00\x00", b"\xff\xff\xff\xff", b"\x00\x00\x00\x01"]))
+    units[target] = DataUnit(units[target].unit_type, bytes(payload))
+    _decode_or_own_error(_rewrap(units))
+
+
+@settings(max_examples=40)
+@given(st.binary(max_size=400))
+def test_random_bytes(blob):
+    _decode_or_own_error(blob)
+    _decode_or_own_error(STREAM[:8] + blob)
+
+
+@given(st.permutations(list(range(len(UNITS)))))
+def test_shuffled_units(perm):
+    shuffled = [UNITS[i] for i in perm]
+    if perm == list(range(len(UNITS))):
+        decode_stream(_rewrap(shuffled))
+    else:
+        with pytest.raises(BitstreamError):
+            decode_stream(_rewrap(shuffled))
+
+
+def test_truncation_at_every_unit_boundary_is_rejected():
+    for cut in range(len(UNITS)):
+        with pytest.raises(BitstreamError, match="has no"):
+            decode_stream(_rewrap(UNITS[:cut]))
+
+
+def test_unknown_critical_unit_stops_and_ancillary_unit_is_skipped():
+    with pytest.raises(UnsupportedStreamError, match="0x42"):
+        decode_stream(_rewrap(UNITS[:2] + [DataUnit(0x42, b"new tool")] + UNITS[2:]))
+    res = decode_stream(_rewrap(UNITS[:2] + [DataUnit(0xC0, b"an extension")] + UNITS[2:]))
+    assert res.skipped_units and "0xc0" in res.skipped_units[0]
+
+
+def test_huge_declared_counts_fail_before_allocating():
+    sps = SceneParameterSet.from_bytes(UNITS[0].payload)
+    sps.num_anchors_minus1 = (1 << 24) - 1
+    sps.feature_dim_minus1 = 1023
+    units = [DataUnit(UnitType.SCENE_PARAMETER_SET, sps.to_bytes())] + UNITS[1:]
+    t0 = time.perf_counter()
+    with pytest.raises(BitstreamError, match="level limit"):
+        decode_stream(_rewrap(units))
+    assert time.perf_counter() - t0 < 1.0
+
+
+def test_max_anchors_option():
+    with pytest.raises(BitstreamError, match="more than the allowed maximum 10"):
+        decode_stream(STREAM, max_anchors=10)
+
+
+def test_hash_mismatch_is_reported():
+    from lghcc.common.errors import HashMismatchError
+    units = list(UNITS)
+    units[-1] = DataUnit(UnitType.DECODED_SCENE_HASH, units[-1].payload[:1] + bytes(32))
+    with pytest.raises(HashMismatchError, match="does not match"):
+        decode_stream(_rewrap(units))
+    assert decode_stream(_rewrap(units), verify_hash=False).hash_checked is False
