@@ -129,7 +129,7 @@ class SyntaxVisitor:
         already-parsed values the child's syntax depends on."""
         child = _get(obj, name, i)
         saved = self.structure
-        self.structure = f"{saved}.{_label(name, i)}" if saved else cls.syntax_name
+        self.structure = cls.syntax_name
         child.syntax(self)
         self.structure = saved
         return child
@@ -232,6 +232,8 @@ class TableRow:
     depth: int
     text: str
     descriptor: str = ""
+    lo: int | None = None
+    hi: int | None = None
 
 
 class TableVisitor(SyntaxVisitor):
@@ -243,7 +245,7 @@ class TableVisitor(SyntaxVisitor):
 
     def _visit(self, desc, obj, name, i, lo, hi, read, write, nbits):
         label = name if i is None else f"{name}[ {i if isinstance(i, str) else 'i'} ]"
-        self.rows.append(TableRow(self.depth, label, desc))
+        self.rows.append(TableRow(self.depth, label, desc, lo, hi))
         try:
             return _get(obj, name, i)
         except (AttributeError, IndexError, TypeError):

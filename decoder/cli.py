@@ -34,6 +34,8 @@ def setup_args() -> argparse.ArgumentParser:
     p.add_argument("--trace", metavar="FILE", help="write a bit trace: every syntax element with its position")
     p.add_argument("--threads", type=int, help="torch threads for inference (the output does not depend on it)")
     p.add_argument("--max-anchors", type=int, help="refuse streams declaring more anchors than this")
+    p.add_argument("--print-hash", action="store_true",
+                   help="print only the SHA-256 of the decoded scene (spec clause 11), computed from the output")
     p.add_argument("--json", metavar="FILE", help="also write the size breakdown as JSON")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
     return p
@@ -70,6 +72,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"lghcc-dec: error: {args.stream}: {e}", file=sys.stderr)
         return 1
     s = result.scene
+    if args.print_hash:
+        from lghcc.common.hashing import scene_digest
+        print(scene_digest(s).hex())
+        return 0
     say(f"{args.stream}: {s.num_anchors:,} anchors, C={s.feature_dim}, K={s.num_offsets}, "
         f"{len(data):,} bytes, decoded in {t_dec:.2f} s ({s.num_anchors / max(t_dec, 1e-9):,.0f} anchors/s)")
     say(result.breakdown.table())

@@ -1,0 +1,121 @@
+"""Which syntax elements, and which classes of their values, a set of streams exercises.
+
+Elements come from the syntax descriptions (the same ones that generate the spec's
+tables); observed values come from the decoder's bit trace. Value classes:
+  flags (u(1)) and enumerated elements: each allowed value;
+  se(v): negative, zero, positive;  other integers: at their minimum, above it;
+  f(32) and byte strings: present (byte strings: empty / non-empty).
+Data-unit types are counted too: each known type and 'ancillary'.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from lghcc.common.container import ANCILLARY_UNIT_TYPE_MIN, UnitType, read_container
+from lghcc.common.spec_tables import all_structures
+from lghcc.common.syntax import TableVisitor
+
+ENUMERATIONS = {
+    "render_mlp_header.mlp_role": [0, 1, 2, 3],
+    "render_mlp_header.activation": [0, 1, 2, 3],
+}
+NOT_IN_TRACE = {"container_header", "data_unit_header"}  # parsed by the container layer; see unit types
+
+
+def element_classes() -> dict[str, list]:
+    classes: dict[str, list] = {}
+    for cls in all_structures():
+        if cls.syntax_name in NOT_IN_TRACE:
+            continue
+        v = TableVisitor()
+        cls().syntax(v)
+        for row in v.rows:
+            if not row.descriptor:
+                continue
+            name = f"{cls.syntax_name}.{row.text.split('[')[0].strip()}"
+            if name in ENUMERATIONS:
+                classes[name] = list(ENUMERATIONS[name])
+            elif row.lo is not None and row.hi is not None and row.hi - row.lo <= 1:
+                classes[name] = list(range(row.lo, row.hi + 1))
+            elif row.descriptor == "u(1)":
+                classes[name] = [0, 1]
+            elif row.descriptor == "se(v)":
+                classes[name] = ["negative", "zero", "positive"]
+            elif row.descriptor == "f(32)":
+                classes[name] = ["present"]
+            elif row.descriptor.startswith("b("):
+                classes[name] = ["empty", "non-empty"]
+            else:
+                classes[name] = ["minimum", "above minimum"]
+    classes["data_unit.unit_type"] = [t.name.lower() for t in UnitType if t != UnitType.CONTEXT_MODEL] + ["ancillary"]
+    return classes
+
+
+def _value_class(name: str, value, kinds: list):
+    if isinstance(value, (bytes, bytearray)):
+        return "empty" if not value else "non-empty"
+    if kinds == ["present"]:
+        return "present"
+    if kinds == ["negative", "zero", "positive"]:
+        return "negative" if value < 0 else "zero" if value == 0 else "positive"
+    if kinds == ["minimum", "above minimum"]:
+        return "minimum" if value == 0 else "above minimum"
+    return value
+
+
+@dataclass
+class CoverageReport:
+    classes: dict[str, list]
+    seen: dict[str, set] = field(default_factory=dict)
+
+    @property
+    def elements_covered(self) -> int:
+        return sum(1 for k in self.classes if self.seen.get(k))
+
+    @property
+    def classes_total(self) -> int:
+        return sum(len(v) for v in self.classes.values())
+
+    @property
+    def classes_covered(self) -> int:
+        return sum(len(set(v) & self.seen.get(k, set())) for k, v in self.classes.items())
+
+    def missing(self) -> list[str]:
+        out = []
+        for k, v in self.classes.items():
+            miss = [c for c in v if c not in self.seen.get(k, set())]
+            if miss:
+                out.append(f"{k}: {', '.join(map(str, miss))}")
+        return out
+
+    def text(self) -> str:
+        n = len(self.classes)
+        lines = [f"syntax elements exercised: {self.elements_covered}/{n} "
+                 f"({100 * self.elements_covered / n:.1f}%)",
+                 f"value classes exercised:   {self.classes_covered}/{self.classes_total} "
+                 f"({100 * self.classes_covered / self.classes_total:.1f}%)"]
+        miss = self.missing()
+        if miss:
+            lines.append("not exercised:")
+            lines += [f"  {m}" for m in miss]
+        return "\n".join(lines)
+
+
+def coverage_report(streams: list[Path]) -> CoverageReport:
+    from lghcc.decoder.decode import decode_stream
+
+    report = CoverageReport(element_classes())
+    for path in streams:
+        data = Path(path).read_bytes()
+        for u in read_container(data).units:
+            t = "ancillary" if u.unit_type >= ANCILLARY_UNIT_TYPE_MIN else UnitType(u.unit_type).name.lower()
+            report.seen.setdefault("data_unit.unit_type", set()).add(t)
+        for e in decode_stream(data, trace=True).trace:
+            name = re.sub(r"\[\d+\]", "", e.name)
+            kinds = report.classes.get(name)
+            if kinds is not None:
+                report.seen.setdefault(name, set()).add(_value_class(name, e.value, kinds))
+    return report
