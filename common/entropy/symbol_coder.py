@@ -1,0 +1,261 @@
+"""Coding of integer residuals with the frozen scale tables (normative; spec/entropy.md).
+
+A residual r = q - mean is coded with the table of its scale level i (known to both sides
+from the context model): bin r + L_i when |r| <= L_i, else the escape bin ESC = 2 L_i + 1
+followed, in the chunk's escape section, by the sign, the magnitude class and the raw
+remainder bits of m = |r| - L_i - 1.
+
+One chunk is one range-coder stream:
+
+1. level groups: for i = 0..63, the bins of all symbols of level i, in the order of the
+   symbols (row-major), coded with level i's table;
+2. escape section, over the escaped symbols in the order of the symbols:
+   all signs (1 raw bit each, 1 = negative), then all classes k = bit_length(m) with the
+   class table, then all remainders m - 2^(k-1) as k - 1 raw bits (nothing when k = 0).
+
+Any |r| <= 2^62 - 1 can be coded; the encoder rejects anything else with ValueError.
+The decoder raises BitstreamError on data that cannot come from an encoder.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lghcc.common.entropy.range_coder import RangeDecoder, RangeEncoder, exact_model
+from lghcc.common.entropy.tables import (
+    HALF_WIDTHS,
+    MAX_ABS_RESIDUAL,
+    NUM_SCALE_LEVELS,
+    PRECISION_BITS,
+    SCALE_SIGMAS,
+    TABLES,
+)
+from lghcc.common.errors import BitstreamError
+
+__all__ = [
+    "encode_symbols", "decode_symbols", "ideal_code_length_bits", "encode_chunked", "decode_chunked",
+    "level_for_sigma", "estimate_bits_float", "escape_class",
+]
+
+_ESC = 2 * HALF_WIDTHS + 1                      # escape bin index per level
+_LEVEL_MODELS: list = [None] * NUM_SCALE_LEVELS
+_CLASS_MODEL = None
+# informative: ideal code length of every bin (bits), for ideal_code_length_bits
+_BIN_BITS = PRECISION_BITS - np.log2(TABLES.freqs.astype(np.float64))
+_CLASS_BITS = PRECISION_BITS - np.log2(TABLES.escape_class_freqs.astype(np.float64))
+
+
+def _level_model(i: int):
+    m = _LEVEL_MODELS[i]
+    if m is None:
+        m = _LEVEL_MODELS[i] = exact_model(TABLES.level(i))
+    return m
+
+
+def _class_model():
+    global _CLASS_MODEL
+    if _CLASS_MODEL is None:
+        _CLASS_MODEL = exact_model(TABLES.escape_class_freqs)
+    return _CLASS_MODEL
+
+
+# --- input checks ------------------------------------------------------------------------
+
+def _levels(levels: np.ndarray, shape: tuple | None = None) -> np.ndarray:
+    lv = np.asarray(levels)
+    if shape is not None and lv.shape != shape:
+        raise ValueError(f"levels have shape {lv.shape}, residuals {shape}")
+    if lv.size == 0:
+        return np.zeros(lv.shape, dtype=np.uint8)
+    if not np.issubdtype(lv.dtype, np.integer):
+        raise ValueError(f"levels must be integers, not {lv.dtype}")
+    if int(lv.min()) < 0 or int(lv.max()) >= NUM_SCALE_LEVELS:
+        raise ValueError(f"levels must lie in [0, {NUM_SCALE_LEVELS}) (found {int(lv.min())}..{int(lv.max())})")
+    return lv.astype(np.uint8)
+
+
+def _residuals(residuals: np.ndarray) -> np.ndarray:
+    r = np.asarray(residuals)
+    if r.size == 0:
+        return np.zeros(r.shape, dtype=np.int64)
+    if not np.issubdtype(r.dtype, np.integer):
+        raise ValueError(f"residuals must be integers, not {r.dtype}")
+    if np.issubdtype(r.dtype, np.unsignedinteger):
+        if int(r.max()) > MAX_ABS_RESIDUAL:
+            raise ValueError(f"residual {int(r.max())} exceeds the codable range |r| <= 2^62 - 1")
+        return r.astype(np.int64)
+    r = r.astype(np.int64)
+    lo, hi = int(r.min()), int(r.max())
+    if lo < -MAX_ABS_RESIDUAL or hi > MAX_ABS_RESIDUAL:
+        raise ValueError(f"residual {lo if lo < -MAX_ABS_RESIDUAL else hi} exceeds the codable range "
+                         f"|r| <= 2^62 - 1")
+    return r
+
+
+def escape_class(m: np.ndarray) -> np.ndarray:
+    """k = bit length of m (0 for m = 0), for 0 <= m < 2^63; exact integer arithmetic."""
+    x = np.asarray(m, dtype=np.uint64).copy()
+    k = np.zeros(x.shape, dtype=np.int64)
+    for s in (32, 16, 8, 4, 2, 1):
+        big = x >= np.uint64(1 << s)
+        k[big] += s
+        x[big] >>= np.uint64(s)
+    return k + (x > 0)
+
+
+def _bins(r: np.ndarray, lv: np.ndarray):
+    L = HALF_WIDTHS[lv]
+    esc = (r > L) | (r < -L)
+    bins = np.where(esc, _ESC[lv], r + L)
+    return bins, esc, L
+
+
+def _escape_parts(r: np.ndarray, L: np.ndarray):
+    """sign (1 = negative), class k, remainder, remainder width for escaped residuals."""
+    neg = r < 0
+    m = np.abs(r) - L - 1                     # >= 0; |r| <= 2^62 - 1 so no overflow
+    k = escape_class(m)
+    width = np.maximum(k - 1, 0)
+    rem = np.where(k > 0, m - np.left_shift(np.int64(1), width), 0)
+    return neg.astype(np.uint64), k, rem.astype(np.uint64), width
+
+
+# --- one chunk ---------------------------------------------------------------------------
+
+def encode_symbols(residuals: np.ndarray, levels: np.ndarray) -> bytes:
+    """Code one chunk of residuals (row-major order), each with the table of its level."""
+    r = _residuals(residuals).ravel()
+    lv = _levels(levels, np.shape(residuals)).ravel()
+    if r.size == 0:
+        return b""
+    bins, esc, L = _bins(r, lv)
+    enc = RangeEncoder()
+    order = np.argsort(lv, kind="stable")
+    counts = np.bincount(lv, minlength=NUM_SCALE_LEVELS)
+    sorted_bins = bins[order].astype(np.int32)
+    start = 0
+    for i in np.flatnonzero(counts):
+        end = start + int(counts[i])
+        enc.encode(sorted_bins[start:end], _level_model(int(i)))
+        start = end
+    if esc.any():
+        sign, k, rem, width = _escape_parts(r[esc], L[esc])
+        enc.encode_bits(sign, 1)
+        enc.encode(k, _class_model())
+        enc.encode_bits(rem, width)
+    return enc.to_bytes()
+
+
+def decode_symbols(data: bytes, levels: np.ndarray, what: str = "chunk") -> np.ndarray:
+    """Decode one chunk; ``levels`` (from the context model) give the count and the tables.
+    Returns int64 residuals of the shape of ``levels``."""
+    lv_in = np.asarray(levels)
+    lv = _levels(lv_in).ravel()
+    n = lv.size
+    dec = RangeDecoder(bytes(data), what)
+    out = np.zeros(n, dtype=np.int64)
+    if n:
+        order = np.argsort(lv, kind="stable")
+        counts = np.bincount(lv, minlength=NUM_SCALE_LEVELS)
+        sorted_bins = np.empty(n, dtype=np.int64)
+        start = 0
+        for i in np.flatnonzero(counts):
+            end = start + int(counts[i])
+            sorted_bins[start:end] = dec.decode(end - start, _level_model(int(i)))
+            start = end
+        bins = np.empty(n, dtype=np.int64)
+        bins[order] = sorted_bins
+        L = HALF_WIDTHS[lv]
+        esc = bins == _ESC[lv]
+        out = bins - L
+        ne = int(esc.sum())
+        if ne:
+            neg = dec.decode_bits(1, ne).astype(bool)
+            k = dec.decode(ne, _class_model())
+            width = np.maximum(k - 1, 0)
+            rem = dec.decode_bits(width)
+            # k <= 62 and rem < 2^(k-1): m < 2^62, magnitude < 2^62 + 2^13, no overflow
+            m = np.where(k > 0, np.left_shift(np.uint64(1), width.astype(np.uint64)) + rem, np.uint64(0))
+            mag = m + (L[esc] + 1).astype(np.uint64)
+            if int(mag.max()) > MAX_ABS_RESIDUAL:
+                raise BitstreamError(f"{what}: escaped residual magnitude {int(mag.max())} exceeds 2^62 - 1")
+            mag = mag.astype(np.int64)
+            out[esc] = np.where(neg, -mag, mag)
+    dec.check_exhausted()
+    return out.reshape(lv_in.shape)
+
+
+def ideal_code_length_bits(residuals: np.ndarray, levels: np.ndarray) -> float:
+    """-log2 of the probabilities the tables give these residuals, escape class and raw
+    remainder bits included: what the coder spends, up to its termination (<= 2 words)."""
+    r = _residuals(residuals).ravel()
+    lv = _levels(levels, np.shape(residuals)).ravel()
+    if r.size == 0:
+        return 0.0
+    bins, esc, L = _bins(r, lv)
+    bits = float(_BIN_BITS[TABLES.offsets[lv] + bins].sum())
+    if esc.any():
+        _, k, _, width = _escape_parts(r[esc], L[esc])
+        bits += float(k.size + _CLASS_BITS[k].sum() + width.sum())
+    return bits
+
+
+# --- chunks ------------------------------------------------------------------------------
+
+def _chunk_count(rows: int, rows_per_chunk: int) -> int:
+    if isinstance(rows_per_chunk, bool) or int(rows_per_chunk) != rows_per_chunk or rows_per_chunk < 1:
+        raise ValueError(f"rows_per_chunk must be a positive integer, not {rows_per_chunk!r}")
+    return -(-rows // int(rows_per_chunk))
+
+
+def encode_chunked(residuals: np.ndarray, levels: np.ndarray, rows_per_chunk: int) -> list[bytes]:
+    """[N, ...] arrays; chunk k codes rows k*S .. (k+1)*S - 1 (row-major) as one stream."""
+    r = np.asarray(residuals)
+    lv = np.asarray(levels)
+    if r.ndim < 1 or r.shape != lv.shape:
+        raise ValueError(f"residuals {r.shape} and levels {lv.shape} must have the same shape (ndim >= 1)")
+    _chunk_count(r.shape[0], rows_per_chunk)
+    S = int(rows_per_chunk)
+    return [encode_symbols(r[a:a + S], lv[a:a + S]) for a in range(0, r.shape[0], S)]
+
+
+def decode_chunked(chunks: list[bytes], levels: np.ndarray, rows_per_chunk: int) -> np.ndarray:
+    lv = np.asarray(levels)
+    if lv.ndim < 1:
+        raise ValueError("levels must have at least one dimension (rows)")
+    expected = _chunk_count(lv.shape[0], rows_per_chunk)
+    if len(chunks) != expected:
+        raise BitstreamError(f"{len(chunks)} chunks where {lv.shape[0]} rows in chunks of "
+                             f"{rows_per_chunk} make {expected}")
+    S = int(rows_per_chunk)
+    out = np.zeros(lv.shape, dtype=np.int64)
+    for c, data in enumerate(chunks):
+        out[c * S:(c + 1) * S] = decode_symbols(data, lv[c * S:(c + 1) * S], f"chunk {c}")
+    return out
+
+
+# --- informative helpers for encoders ------------------------------------------------------
+
+_LOG_SIGMA0 = np.log(SCALE_SIGMAS[0])
+_LOG_STEP = (np.log(SCALE_SIGMAS[-1]) - _LOG_SIGMA0) / (NUM_SCALE_LEVELS - 1)
+
+
+def level_for_sigma(sigma: np.ndarray) -> np.ndarray:
+    """Nearest level in the log domain, clipped to [0, 63] (informative)."""
+    s = np.asarray(sigma, dtype=np.float64)
+    if np.isnan(s).any():
+        raise ValueError("sigma contains NaN")
+    with np.errstate(divide="ignore"):
+        x = (np.log(np.maximum(s, 0.0)) - _LOG_SIGMA0) / _LOG_STEP
+    return np.clip(np.rint(np.nan_to_num(x, nan=0.0, posinf=63.0, neginf=0.0)), 0, 63).astype(np.int64)
+
+
+def estimate_bits_float(residuals: np.ndarray, sigma: np.ndarray) -> float:
+    """Bits of residuals under a discretized zero-mean Gaussian of scale sigma (clamped to the
+    tables' range), each probability floored at 2^-24 (informative, smooth in sigma)."""
+    from scipy.special import ndtr
+
+    a = np.abs(np.asarray(residuals, dtype=np.float64))
+    s = np.clip(np.asarray(sigma, dtype=np.float64), SCALE_SIGMAS[0], SCALE_SIGMAS[-1])
+    p = ndtr((0.5 - a) / s) - ndtr((-0.5 - a) / s)
+    return float(-np.log2(np.maximum(p, 2.0 ** -PRECISION_BITS)).sum())
