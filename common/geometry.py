@@ -1,0 +1,469 @@
+"""Lossless geometry coding of anchor positions: the geometry data unit payload (normative).
+
+The payload is a small header (``GeometryHeader``, spec/geometry.md clause G.2), byte
+alignment, then one range-coded stream (``lghcc.common.entropy.range_coder``) holding an
+octree of the anchor coordinates relative to their bounding-box minimum:
+
+* depth by depth, nodes in Morton order;
+* at each depth, first the direct-coding decisions (IDCM) of eligible isolated nodes and
+  the raw low bits of their points, then the occupancy of the remaining nodes, coded as
+  up to 8 binary decisions in 8 vectorized passes (child 0 .. 7);
+* every binary decision has a context computed from data the decoder already has
+  (face neighbours at the node's depth, already-coded sibling bits, already-coded
+  children of neighbouring nodes); the symbols of one pass are grouped by context and
+  each group is coded with one exact frequency table derived, in integer arithmetic, from
+  the counts of every symbol coded before in that context. Nothing about the
+  probabilities is transmitted.
+
+Encoder and decoder share one code path (``_OctreeCoder``): the only difference is
+whether a binary decision's value is written or read, so they cannot drift apart.
+
+The normative anchor order is Morton (z-order) of the coordinates relative to their
+bounding-box minimum, x the most significant of each bit triple (``normative_order``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lghcc.common.bitio import BitReader, BitWriter
+from lghcc.common.entropy.range_coder import (TOTAL_FREQUENCY, RangeDecoder, RangeEncoder,
+                                              exact_model)
+from lghcc.common.errors import BitstreamError
+from lghcc.common.syntax import SyntaxStructure, SyntaxVisitor
+
+COORD_MIN = -(1 << 31)
+COORD_MAX = (1 << 31) - 1
+MAX_BIT_DEPTH = 32
+
+# geom_idcm_mode values (eligibility rules for direct coding, spec G.5.2)
+IDCM_OFF = 0
+IDCM_ISOLATED = 1  # only child, parent without face neighbours, parent with <= 2 siblings+1
+IDCM_NO_NEIGHBOURS = 2  # parent without face neighbours
+MAX_IDCM_MODE = 2
+MIN_IDCM_LEVELS = 2  # a node is eligible only when at least this many levels remain below it
+
+# Probability adaptation (spec G.6)
+COUNT_LIMIT = 1 << 13  # a context whose n0 + n1 exceeds this has both counts halved (rounded up)
+
+# Occupancy context layout (spec G.5.4): per pass k, ctx = ((axes * 4) + sib) * 4 + dens
+NUM_AXES_STATES = 27
+NUM_OCC_CONTEXTS = NUM_AXES_STATES * 4 * 4
+DENS_BUCKET = np.array([0, 1, 1, 2, 2, 3, 3], dtype=np.int64)  # by number of occupied face neighbours
+POPCOUNT8 = np.array([bin(i).count("1") for i in range(256)], dtype=np.int64)
+NUM_IDCM_FLAG_CONTEXTS = 9
+
+_MORTON_BITS = 21  # one 64-bit Morton key holds 21 bits per axis
+
+
+@dataclass
+class GeometryHeader(SyntaxStructure):
+    """geometry_header: bounding-box minimum, bit depth per axis, direct-coding mode."""
+
+    syntax_name = "geometry_header"
+    clause = "7.3.4"
+    geom_bbox_min_sign_flag: list = field(default_factory=lambda: [0, 0, 0])
+    geom_bbox_min_abs: list = field(default_factory=lambda: [0, 0, 0])
+    geom_bit_depth: list = field(default_factory=lambda: [0, 0, 0])
+    geom_idcm_mode: int = IDCM_ISOLATED
+
+    def syntax(self, v: SyntaxVisitor) -> None:
+        for i in v.loop(3, "3", self, ("geom_bbox_min_sign_flag", "geom_bbox_min_abs", "geom_bit_depth")):
+            v.flag(self, "geom_bbox_min_sign_flag", i)
+            v.ue(self, "geom_bbox_min_abs", i, hi=1 << 31)
+            v.u(6, self, "geom_bit_depth", i, hi=MAX_BIT_DEPTH)
+        v.ue(self, "geom_idcm_mode", hi=MAX_IDCM_MODE)
+
+    # derived values (spec G.3)
+    @property
+    def bbox_min(self) -> list[int]:
+        return [-a if s else a for s, a in zip(self.geom_bbox_min_sign_flag, self.geom_bbox_min_abs)]
+
+    @classmethod
+    def for_min(cls, bbox_min, bit_depth, idcm_mode: int) -> "GeometryHeader":
+        m = [int(x) for x in bbox_min]
+        return cls(geom_bbox_min_sign_flag=[int(x < 0) for x in m], geom_bbox_min_abs=[abs(x) for x in m],
+                   geom_bit_depth=[int(d) for d in bit_depth], geom_idcm_mode=int(idcm_mode))
+
+
+# --- Morton order -----------------------------------------------------------------------------
+
+def _spread3(v: np.ndarray) -> np.ndarray:
+    """Spread the low 21 bits of v (uint64) so that bit i moves to bit 3i."""
+    x = v.astype(np.uint64) & np.uint64(0x1FFFFF)
+    x = (x | (x << np.uint64(32))) & np.uint64(0x1F00000000FFFF)
+    x = (x | (x << np.uint64(16))) & np.uint64(0x1F0000FF0000FF)
+    x = (x | (x << np.uint64(8))) & np.uint64(0x100F00F00F00F00F)
+    x = (x | (x << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
+    x = (x | (x << np.uint64(2))) & np.uint64(0x1249249249249249)
+    return x
+
+
+def _morton21(q: np.ndarray) -> np.ndarray:
+    """Morton keys of non-negative coordinates < 2^21, x most significant."""
+    return (_spread3(q[:, 0]) << np.uint64(2)) | (_spread3(q[:, 1]) << np.uint64(1)) | _spread3(q[:, 2])
+
+
+def _morton_perm(offsets: np.ndarray, depth: int) -> np.ndarray:
+    """Stable permutation sorting non-negative offsets (< 2^depth) into Morton order."""
+    if depth <= _MORTON_BITS:
+        return np.argsort(_morton21(offsets), kind="stable")
+    lo = _morton21(offsets & ((1 << _MORTON_BITS) - 1))
+    hi = _morton21(offsets >> _MORTON_BITS)
+    return np.lexsort((lo, hi))
+
+
+def _check_coords(coords) -> np.ndarray:
+    c = np.asarray(coords)
+    if c.ndim != 2 or c.shape[1] != 3:
+        raise ValueError(f"coordinates must have shape [N, 3], not {list(c.shape)}")
+    if c.shape[0] < 1:
+        raise ValueError("at least one anchor is needed")
+    if not np.issubdtype(c.dtype, np.integer):
+        raise ValueError(f"coordinates must be integers, not {c.dtype}")
+    c = c.astype(np.int64)
+    lo, hi = int(c.min()), int(c.max())
+    if lo < COORD_MIN or hi > COORD_MAX:
+        raise ValueError(f"coordinates must lie in [-2^31, 2^31), found [{lo}, {hi}]")
+    return c
+
+
+def _bit_depths(offsets: np.ndarray) -> list[int]:
+    return [int(offsets[:, a].max()).bit_length() for a in range(3)]
+
+
+def normative_order(coords: np.ndarray) -> np.ndarray:
+    """coords int64 [N,3] (unique). The permutation (int64 [N]) that puts anchors in the normative
+    order: Morton order of coords - min(coords) (per axis), x most significant; stable."""
+    c = _check_coords(coords)
+    off = c - c.min(axis=0)
+    return _morton_perm(off, max(_bit_depths(off))).astype(np.int64)
+
+
+# --- adaptive binary coding -------------------------------------------------------------------
+
+def binary_frequency(counts: np.ndarray) -> np.ndarray:
+    """Frequency (of 2^24) of symbol 1 from counts [..., 2] = (n0, n1): the integer KT estimate
+    floor((2*n1 + 1) * 2^24 / (2*(n0 + n1) + 2)), clipped to [1, 2^24 - 1] (spec G.6)."""
+    n0 = counts[..., 0].astype(np.int64)
+    n1 = counts[..., 1].astype(np.int64)
+    f1 = ((2 * n1 + 1) * TOTAL_FREQUENCY) // (2 * (n0 + n1) + 2)
+    return np.clip(f1, 1, TOTAL_FREQUENCY - 1)
+
+
+class _SymbolIO:
+    """Writes or reads binary decisions grouped by context; one class for both directions."""
+
+    def __init__(self, encoder: RangeEncoder | None = None, decoder: RangeDecoder | None = None):
+        self.enc = encoder
+        self.dec = decoder
+
+    @property
+    def encoding(self) -> bool:
+        return self.enc is not None
+
+    def binary(self, ctx: np.ndarray, table: np.ndarray, values: np.ndarray | None = None) -> np.ndarray:
+        """Code one binary decision per entry of ctx with the adaptive table (counts [C, 2]).
+        Symbols are grouped by context in increasing context order, each group in its original
+        order; then every coded symbol is added to its context's counts."""
+        n = int(ctx.size)
+        if n == 0:
+            return np.zeros(0, dtype=np.int64)
+        order = np.argsort(ctx, kind="stable")
+        sc = ctx[order]
+        starts = np.flatnonzero(np.concatenate(([True], sc[1:] != sc[:-1])))
+        ends = np.append(starts[1:], n)
+        f1 = binary_frequency(table[sc[starts]])
+        if self.encoding:
+            sv = values[order]
+            for s, e, f in zip(starts.tolist(), ends.tolist(), f1.tolist()):
+                self.enc.encode(sv[s:e], exact_model(np.array([TOTAL_FREQUENCY - f, f], dtype=np.int64)))
+        else:
+            sv = np.empty(n, dtype=np.int64)
+            for s, e, f in zip(starts.tolist(), ends.tolist(), f1.tolist()):
+                sv[s:e] = self.dec.decode(e - s, exact_model(np.array([TOTAL_FREQUENCY - f, f], dtype=np.int64)))
+            values = np.empty(n, dtype=np.int64)
+            values[order] = sv
+        values = values.astype(np.int64)
+        table += np.bincount(ctx.astype(np.int64) * 2 + values, minlength=table.size).reshape(table.shape)
+        big = table.sum(axis=1) > COUNT_LIMIT
+        if big.any():
+            table[big] = (table[big] + 1) >> 1
+        return values
+
+    def raw(self, nbits: int, values: np.ndarray | None = None, count: int = 0) -> np.ndarray:
+        if nbits == 0:
+            return np.zeros(count if values is None else values.size, dtype=np.int64)
+        if self.encoding:
+            self.enc.encode_bits(values.astype(np.uint64), nbits)
+            return values
+        return self.dec.decode_bits(nbits, count).astype(np.int64)
+
+
+# --- neighbours -------------------------------------------------------------------------------
+
+def _face_neighbours(q: np.ndarray, depth: int) -> np.ndarray:
+    """Index of the node at q -/+ e_a among the nodes q (Morton order, unique), or -1.
+    Returns int64 [6, M] for the directions -x, +x, -y, +y, -z, +z."""
+    m = q.shape[0]
+    out = np.full((6, m), -1, dtype=np.int64)
+    if m == 0:
+        return out
+    size = 1 << depth
+    if depth <= _MORTON_BITS:
+        keys = _morton21(q)  # ascending: the nodes are in Morton order
+        perm = None
+    else:
+        raw = np.ascontiguousarray(q.astype(">u4")).view("S12").ravel()
+        perm = np.argsort(raw, kind="stable")
+        keys = raw[perm]
+    for a in range(3):
+        for side, delta in ((0, -1), (1, 1)):
+            nq = q[:, a] + delta
+            ok = (nq >= 0) & (nq < size)
+            if not ok.any():
+                continue
+            idx = np.flatnonzero(ok)
+            qq = q[idx].copy()
+            qq[:, a] = nq[idx]
+            if perm is None:
+                kq = _morton21(qq)
+            else:
+                kq = np.ascontiguousarray(qq.astype(">u4")).view("S12").ravel()
+            pos = np.searchsorted(keys, kq)
+            pos_c = np.minimum(pos, m - 1)
+            hit = (pos < m) & (keys[pos_c] == kq)
+            found = pos_c[hit] if perm is None else perm[pos_c[hit]]
+            out[2 * a + side, idx[hit]] = found
+    return out
+
+
+# --- the octree (shared by encoder and decoder) ----------------------------------------------
+
+AXIS_BIT = (4, 2, 1)  # bit of the child index that carries axis a (x, y, z)
+
+
+class _ContextState:
+    """Adaptive counts, identical at encoder and decoder."""
+
+    def __init__(self) -> None:
+        self.occ = np.zeros((8, NUM_OCC_CONTEXTS, 2), dtype=np.int64)
+        self.idcm_flag = np.zeros((NUM_IDCM_FLAG_CONTEXTS, 2), dtype=np.int64)
+        self.idcm_two = np.zeros((1, 2), dtype=np.int64)
+
+
+def _idcm_eligible(mode: int, remaining: int, sib1: np.ndarray, par_nbr: np.ndarray,
+                   par_sib1: np.ndarray) -> np.ndarray:
+    if mode == IDCM_OFF or remaining < MIN_IDCM_LEVELS:
+        return np.zeros(sib1.shape, dtype=bool)
+    if mode == IDCM_ISOLATED:
+        return (sib1 == 1) & (par_nbr == 0) & (par_sib1 <= 2)
+    return par_nbr == 0
+
+
+def _code_occupancy(io: _SymbolIO, st: _ContextState, q: np.ndarray, depth: int, remaining: int,
+                    bit_depth: list[int], occ_true: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Code the occupancy bytes of the nodes q at ``depth`` (children at depth + 1).
+    Returns (occupancy uint8-valued int64 [M], number of occupied face neighbours [M])."""
+    m = q.shape[0]
+    nb = _face_neighbours(q, depth)
+    exists = (nb >= 0).astype(np.int64)
+    nbr_count = exists.sum(axis=0)
+    dens = DENS_BUCKET[nbr_count]
+    occ = np.zeros(m, dtype=np.int64) if occ_true is None else occ_true
+    splits = [remaining - 1 < d for d in bit_depth]  # axis a splits at this depth
+    valid = [k for k in range(8) if all(splits[a] or not (k & AXIS_BIT[a]) for a in range(3))]
+    last = valid[-1]
+    padded = np.append(occ, 0) if occ_true is not None else None
+    for k in valid:
+        if occ_true is None:
+            padded = np.append(occ, 0)  # index -1 (no neighbour) reads an empty node
+        axes = np.zeros(m, dtype=np.int64)
+        for a in range(3):
+            bit = AXIS_BIT[a]
+            if k & bit:
+                j = k ^ bit
+                s = (occ >> j) & 1
+                o = (padded[nb[2 * a + 1]] >> j) & 1
+                axes = axes * 3 + s + o
+            else:
+                axes = axes * 3 + exists[2 * a]
+        before = POPCOUNT8[occ & ((1 << k) - 1)]
+        ctx = ((axes * 4 + np.minimum(before, 3)) * 4 + dens)
+        if k == last:
+            coded = np.flatnonzero(before > 0)
+            inferred = np.flatnonzero(before == 0)
+        else:
+            coded = None
+            inferred = None
+        if coded is None:
+            vals = io.binary(ctx, st.occ[k], None if occ_true is None else (occ_true >> k) & 1)
+            if occ_true is None:
+                occ |= vals << k
+        else:
+            vals = io.binary(ctx[coded], st.occ[k], None if occ_true is None else (occ_true[coded] >> k) & 1)
+            if occ_true is None:
+                occ[coded] |= vals << k
+                occ[inferred] |= 1 << k
+    return occ, nbr_count
+
+
+def _children(q: np.ndarray, occ: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Children of the nodes q with occupancy occ, in Morton order: (coords [M', 3], parent index)."""
+    bits = np.unpackbits(occ.astype(np.uint8)[:, None], axis=1, bitorder="little")
+    parent, k = np.nonzero(bits)
+    child = 2 * q[parent] + np.stack([(k >> 2) & 1, (k >> 1) & 1, k & 1], axis=1)
+    return child, parent
+
+
+def _validate_header(h: GeometryHeader, num_anchors: int) -> None:
+    for a in range(3):
+        if h.geom_bbox_min_sign_flag[a] == 0 and h.geom_bbox_min_abs[a] > COORD_MAX:
+            raise BitstreamError(f"geometry_header.geom_bbox_min_abs[{a}] = {h.geom_bbox_min_abs[a]} "
+                                 f"puts the bounding-box minimum outside [-2^31, 2^31)")
+    total_bits = sum(h.geom_bit_depth)
+    if num_anchors > (1 << total_bits):
+        raise BitstreamError(f"{num_anchors} anchors cannot be distinct in a bounding box of "
+                             f"{h.geom_bit_depth} bits per axis")
+
+
+def encode_geometry(coords: np.ndarray, idcm_mode: int = IDCM_ISOLATED) -> bytes:
+    """coords int64 [N,3], unique, N>=1, each coordinate in [-2**31, 2**31). Returns the geometry
+    unit payload: geometry_header, byte alignment, range-coded octree data."""
+    c = _check_coords(coords)
+    if idcm_mode not in (IDCM_OFF, IDCM_ISOLATED, IDCM_NO_NEIGHBOURS):
+        raise ValueError(f"idcm_mode={idcm_mode} is not one of 0, 1, 2")
+    bmin = c.min(axis=0)
+    off = c - bmin
+    bit_depth = _bit_depths(off)
+    dmax = max(bit_depth)
+    pts = off[_morton_perm(off, dmax)]
+    if pts.shape[0] > 1 and not np.any(pts[1:] != pts[:-1], axis=1).all():
+        raise ValueError("coordinates must be unique")
+    header = GeometryHeader.for_min(bmin.tolist(), bit_depth, idcm_mode)
+    w = BitWriter()
+    header.write_to(w)
+    w.byte_align()
+    enc = RangeEncoder()
+    io = _SymbolIO(encoder=enc)
+    st = _ContextState()
+    # per node of the current depth: sib1 (occupied children of its parent), parent's face
+    # neighbour count, parent's sib1; the points of each node are contiguous in pts
+    sib1 = np.ones(1, dtype=np.int64)
+    par_nbr = np.zeros(1, dtype=np.int64)
+    par_sib1 = np.ones(1, dtype=np.int64)
+    for depth in range(dmax):
+        remaining = dmax - depth
+        q_all = pts >> remaining
+        new = np.ones(pts.shape[0], dtype=bool)
+        new[1:] = np.any(q_all[1:] != q_all[:-1], axis=1)
+        starts = np.flatnonzero(new)
+        q = q_all[starts]
+        npts = np.diff(np.append(starts, pts.shape[0]))
+        # direct coding
+        elig = np.flatnonzero(_idcm_eligible(idcm_mode, remaining, sib1, par_nbr, par_sib1))
+        if elig.size:
+            flag = (npts[elig] <= 2).astype(np.int64)
+            ctx = np.minimum(sib1[elig] - 1, 2) * 3 + np.minimum(par_sib1[elig] - 1, 2)
+            io.binary(ctx, st.idcm_flag, flag)
+            direct = elig[flag == 1]
+            two = (npts[direct] == 2).astype(np.int64)
+            io.binary(np.zeros(direct.size, dtype=np.int64), st.idcm_two, two)
+            first = starts[direct]
+            sel = np.concatenate([first, first[two == 1] + 1])
+            sel.sort()
+            for a in range(3):
+                nb_a = min(remaining, bit_depth[a])
+                io.raw(nb_a, pts[sel, a] & ((1 << nb_a) - 1))
+            keep_nodes = np.ones(q.shape[0], dtype=bool)
+            keep_nodes[direct] = False
+            keep_pts = np.repeat(keep_nodes, npts)
+            pts = pts[keep_pts]
+            q, sib1 = q[keep_nodes], sib1[keep_nodes]
+            if pts.shape[0] == 0:
+                break
+            q_all = pts >> remaining
+            new = np.ones(pts.shape[0], dtype=bool)
+            new[1:] = np.any(q_all[1:] != q_all[:-1], axis=1)
+            starts = np.flatnonzero(new)
+        ci = (((pts[:, 0] >> (remaining - 1)) & 1) << 2) | (((pts[:, 1] >> (remaining - 1)) & 1) << 1) \
+            | ((pts[:, 2] >> (remaining - 1)) & 1)
+        occ = np.bitwise_or.reduceat(np.left_shift(1, ci), starts)
+        occ, nbr_count = _code_occupancy(io, st, q, depth, remaining, bit_depth, occ)
+        _, parent = _children(q, occ)
+        par_sib1 = sib1[parent]
+        sib1 = POPCOUNT8[occ][parent]
+        par_nbr = nbr_count[parent]
+    return w.getvalue() + enc.to_bytes()
+
+
+def decode_geometry(payload: bytes, num_anchors: int) -> np.ndarray:
+    """Decode the geometry payload of ``num_anchors`` anchors. Returns int64 [N,3] coordinates in
+    normative order. Raises BitstreamError on any malformed payload."""
+    n = int(num_anchors)
+    if n < 1:
+        raise BitstreamError(f"num_anchors = {n}: the geometry of at least one anchor is needed")
+    reader = BitReader(payload, "geometry payload")
+    header = GeometryHeader.parse(reader)
+    reader.byte_align()
+    _validate_header(header, n)
+    data = bytes(payload[reader.bit_position // 8:])
+    dec = RangeDecoder(data, "geometry data")
+    io = _SymbolIO(decoder=dec)
+    st = _ContextState()
+    bit_depth = list(header.geom_bit_depth)
+    mode = header.geom_idcm_mode
+    dmax = max(bit_depth)
+    q = np.zeros((1, 3), dtype=np.int64)
+    sib1 = np.ones(1, dtype=np.int64)
+    par_nbr = np.zeros(1, dtype=np.int64)
+    par_sib1 = np.ones(1, dtype=np.int64)
+    direct_pts: list[np.ndarray] = []
+    num_direct = 0
+    for depth in range(dmax):
+        remaining = dmax - depth
+        elig = np.flatnonzero(_idcm_eligible(mode, remaining, sib1, par_nbr, par_sib1))
+        if elig.size:
+            ctx = np.minimum(sib1[elig] - 1, 2) * 3 + np.minimum(par_sib1[elig] - 1, 2)
+            flag = io.binary(ctx, st.idcm_flag)
+            direct = elig[flag == 1]
+            two = io.binary(np.zeros(direct.size, dtype=np.int64), st.idcm_two)
+            owner = np.sort(np.concatenate([direct, direct[two == 1]]))
+            if num_direct + owner.size + (q.shape[0] - direct.size) > n:
+                raise BitstreamError(f"geometry data: more than num_anchors = {n} anchors at depth {depth}")
+            low = np.stack([io.raw(min(remaining, bit_depth[a]), count=owner.size) for a in range(3)], axis=1)
+            p = (q[owner] << remaining) | low
+            if owner.size > 1:
+                same = (owner[1:] == owner[:-1]) & np.all(p[1:] == p[:-1], axis=1)
+                if same.any():
+                    raise BitstreamError(f"geometry data: a directly coded node at depth {depth} holds "
+                                         f"the same point twice")
+            direct_pts.append(p)
+            num_direct += owner.size
+            keep = np.ones(q.shape[0], dtype=bool)
+            keep[direct] = False
+            q, sib1 = q[keep], sib1[keep]
+            if q.shape[0] == 0:
+                break
+        occ, nbr_count = _code_occupancy(io, st, q, depth, remaining, bit_depth, None)
+        num_children = int(POPCOUNT8[occ].sum())
+        if num_direct + num_children > n:
+            raise BitstreamError(f"geometry data: {num_direct + num_children} anchors at depth {depth + 1}, "
+                                 f"more than num_anchors = {n}")
+        q, parent = _children(q, occ)
+        par_sib1 = sib1[parent]
+        sib1 = POPCOUNT8[occ][parent]
+        par_nbr = nbr_count[parent]
+    dec.check_exhausted()
+    pts = np.concatenate(direct_pts + [q]) if (dmax == 0 or q.shape[0]) else np.concatenate(direct_pts)
+    if pts.shape[0] != n:
+        raise BitstreamError(f"geometry data holds {pts.shape[0]} anchors, num_anchors = {n}")
+    bmin = np.array(header.bbox_min, dtype=np.int64)
+    if np.any(pts.min(axis=0) != 0):
+        raise BitstreamError("geometry data: the decoded anchors do not attain the bounding-box minimum")
+    coords = pts + bmin
+    if int(coords.max()) > COORD_MAX:
+        raise BitstreamError("geometry data: decoded coordinates exceed 2^31 - 1")
+    return coords[_morton_perm(pts, dmax)]
