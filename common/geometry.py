@@ -46,7 +46,7 @@ MAX_IDCM_MODE = 2
 MIN_IDCM_LEVELS = 2  # a node is eligible only when at least this many levels remain below it
 
 # Probability adaptation (spec G.6)
-COUNT_LIMIT = 1 << 13  # a context whose n0 + n1 exceeds this has both counts halved (rounded up)
+COUNT_LIMIT = 1 << 10  # a context whose n0 + n1 exceeds this has both counts halved (rounded up)
 
 # Occupancy context layout (spec G.5.4): per pass k, ctx = ((axes * 4) + sib) * 4 + dens
 NUM_AXES_STATES = 27
