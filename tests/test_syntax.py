@@ -86,7 +86,7 @@ def test_nested_structures_round_trip_with_trace(mlps, coded):
     back = RenderModelUnit.from_bytes(w.getvalue(), trace_r)
     assert back == unit
     assert [(e.bit_position, e.name, e.value) for e in trace_r] == [(e.bit_position, e.name, e.value) for e in trace_w]
-    assert any(e.name == "render_model_unit.mlps[0].weight_exponent[0]" for e in trace_r)
+    assert any(e.name == "render_mlp_header.weight_exponent[0]" for e in trace_r)
 
 
 def test_reader_rejects_out_of_range_values_by_name():
