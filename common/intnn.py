@@ -1,0 +1,220 @@
+"""Integer network arithmetic (normative; spec/hierarchy_ggconv.md, clause "Integer networks").
+
+Every value that flows between layers is an *activation*: a signed 16-bit integer in
+[ACT_MIN, ACT_MAX] = [-32768, 32767]. A layer ``IntLinear`` computes, per output o,
+
+    acc_o = bias_o + sum_i weight_{o,i} * x_i          exact, int64
+    y_o   = rshift_round(acc_o, shift)                  (acc + 2^(shift-1)) >> shift; y = acc if shift == 0
+    y_o   = clamp(y_o, 0, ACT_MAX) if relu else clamp(y_o, ACT_MIN, ACT_MAX)
+
+with weights of weight_bits in {8, 16} bits (two's complement range), bias int32, shift in
+[0, MAX_SHIFT]. ``>>`` is the arithmetic shift, i.e. floor division by 2^shift; with the
+added half, rshift_round rounds to nearest with ties toward plus infinity (-2.5 -> -2,
+2.5 -> 3) for negative and positive values alike.
+
+Bit-width bound (asserted for every layer at construction): with |x_i| <= 2^15,
+|weight| <= 2^(weight_bits-1), fan-in n <= MAX_FAN_IN = 2^16 and |bias| <= 2^31,
+
+    |acc| <= n * 2^15 * 2^(weight_bits-1) + 2^31 <= 2^16 * 2^30 + 2^31 < 2^47 < 2^62,
+
+and adding the rounding half (< 2^31) keeps it below 2^62. Integer addition being
+associative, the result cannot depend on the summation order, the thread count or the
+BLAS: torch's int64 matmul is exact (no BLAS; checked with 1 and 2 threads in the tests).
+(Informative: since every partial sum stays below 2^53, a float64 GEMM on these integers is
+exact too, which is the way to evaluate the network on hardware without int64 matmul.)
+
+The quantization helpers at the end of this module are informative (used by the encoder to
+turn a float network into this form); the decoder never calls them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+ACT_BITS = 16
+ACT_MIN = -(1 << (ACT_BITS - 1))
+ACT_MAX = (1 << (ACT_BITS - 1)) - 1
+BIAS_BITS = 32
+WEIGHT_BITS_ALLOWED = (8, 16)
+MAX_SHIFT = 31
+MAX_FAN_IN = 1 << 16
+ACC_LIMIT = 1 << 62  # the asserted bound on |accumulator|
+_ROWS_PER_CHUNK = 1 << 16
+
+
+def int_range(bits: int) -> tuple[int, int]:
+    """Two's complement range of a signed integer of `bits` bits."""
+    return -(1 << (bits - 1)), (1 << (bits - 1)) - 1
+
+
+def rshift_round(x: torch.Tensor, shift: int) -> torch.Tensor:
+    """(x + 2^(shift-1)) >> shift for shift >= 1 (floor semantics of >> for negatives: rounds to
+    nearest, ties toward +inf); x unchanged for shift == 0. x: int64 tensor."""
+    if shift < 0 or shift > 62:
+        raise ValueError(f"shift must be in [0, 62], got {shift}")
+    if shift == 0:
+        return x
+    return (x + (1 << (shift - 1))) >> shift
+
+
+def rshift_round_np(x: np.ndarray, shift: int) -> np.ndarray:
+    """numpy twin of ``rshift_round`` (int64)."""
+    if shift < 0 or shift > 62:
+        raise ValueError(f"shift must be in [0, 62], got {shift}")
+    if shift == 0:
+        return x
+    return (x + np.int64(1 << (shift - 1))) >> np.int64(shift)
+
+
+def clamp_act(x: torch.Tensor, relu: bool = False) -> torch.Tensor:
+    return x.clamp(0 if relu else ACT_MIN, ACT_MAX)
+
+
+def check_activations(x: torch.Tensor, what: str = "input") -> None:
+    """Assert that every value of x is a 16-bit activation (the precondition of the bound)."""
+    if x.dtype != torch.int64:
+        raise TypeError(f"{what} must be an int64 tensor, got {x.dtype}")
+    if x.numel() and (int(x.min()) < ACT_MIN or int(x.max()) > ACT_MAX):
+        raise ValueError(f"{what} outside the 16-bit activation range [{ACT_MIN}, {ACT_MAX}]: "
+                         f"[{int(x.min())}, {int(x.max())}]")
+
+
+@dataclass
+class IntLinear:
+    weight: np.ndarray  # int [out, in], in int_range(weight_bits)
+    bias: np.ndarray  # int [out], in int_range(32)
+    shift: int  # [0, MAX_SHIFT]
+    relu: bool
+    weight_bits: int = 16
+    _w: torch.Tensor = field(init=False, repr=False, compare=False)
+    _b: torch.Tensor = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        w = np.asarray(self.weight)
+        b = np.asarray(self.bias)
+        if self.weight_bits not in WEIGHT_BITS_ALLOWED:
+            raise ValueError(f"weight_bits must be one of {WEIGHT_BITS_ALLOWED}, got {self.weight_bits}")
+        if w.ndim != 2 or b.shape != (w.shape[0],):
+            raise ValueError(f"weight {list(w.shape)} and bias {list(b.shape)} do not match")
+        if w.size and not np.issubdtype(w.dtype, np.integer) or b.size and not np.issubdtype(b.dtype, np.integer):
+            raise ValueError("IntLinear weights and biases must be integers")
+        if not 1 <= w.shape[1] <= MAX_FAN_IN or w.shape[0] < 1:
+            raise ValueError(f"fan-in must be in [1, {MAX_FAN_IN}] and fan-out >= 1, got {list(w.shape)}")
+        lo, hi = int_range(self.weight_bits)
+        if w.size and (int(w.min()) < lo or int(w.max()) > hi):
+            raise ValueError(f"weights outside the {self.weight_bits}-bit range")
+        blo, bhi = int_range(BIAS_BITS)
+        if b.size and (int(b.min()) < blo or int(b.max()) > bhi):
+            raise ValueError("biases outside the 32-bit range")
+        if isinstance(self.shift, bool) or not 0 <= int(self.shift) <= MAX_SHIFT:
+            raise ValueError(f"shift must be in [0, {MAX_SHIFT}], got {self.shift}")
+        self.shift = int(self.shift)
+        self.relu = bool(self.relu)
+        self.weight = w.astype(np.int64)
+        self.bias = b.astype(np.int64)
+        # The bit-width proof, asserted: architectural bound and the tighter bound of these weights.
+        arch = self.fan_in * (1 << (ACT_BITS - 1)) * (1 << (self.weight_bits - 1)) + (1 << (BIAS_BITS - 1))
+        assert arch + (1 << MAX_SHIFT) < ACC_LIMIT, "accumulator bound violated"
+        assert self.accumulator_bound() <= arch
+        self._w = torch.from_numpy(np.ascontiguousarray(self.weight.T))  # [in, out] int64
+        self._b = torch.from_numpy(self.bias.copy())
+
+    @property
+    def fan_in(self) -> int:
+        return int(self.weight.shape[1])
+
+    @property
+    def fan_out(self) -> int:
+        return int(self.weight.shape[0])
+
+    def accumulator_bound(self) -> int:
+        """max over outputs of sum_i |w_oi| * 2^15 + |b_o|: no accumulator can exceed it."""
+        s = np.abs(self.weight).sum(axis=1) * (1 << (ACT_BITS - 1)) + np.abs(self.bias)
+        return int(s.max())
+
+    def __call__(self, x: torch.Tensor, check: bool = True) -> torch.Tensor:
+        """x: int64 [R, fan_in] activations -> int64 [R, fan_out] activations."""
+        if check:
+            check_activations(x)
+        if x.ndim != 2 or x.shape[1] != self.fan_in:
+            raise ValueError(f"expected input [R, {self.fan_in}], got {list(x.shape)}")
+        outs = []
+        for lo in range(0, x.shape[0], _ROWS_PER_CHUNK):
+            acc = torch.addmm(self._b, x[lo:lo + _ROWS_PER_CHUNK], self._w)
+            outs.append(clamp_act(rshift_round(acc, self.shift), self.relu))
+        if not outs:
+            return torch.zeros((0, self.fan_out), dtype=torch.int64)
+        return outs[0] if len(outs) == 1 else torch.cat(outs)
+
+
+@dataclass
+class IntMLP:
+    layers: list[IntLinear]
+
+    def __post_init__(self) -> None:
+        if not self.layers:
+            raise ValueError("an IntMLP needs at least one layer")
+        for l in range(1, len(self.layers)):
+            if self.layers[l].fan_in != self.layers[l - 1].fan_out:
+                raise ValueError(f"layer {l}: fan-in {self.layers[l].fan_in} != previous fan-out "
+                                 f"{self.layers[l - 1].fan_out}")
+
+    @property
+    def in_dim(self) -> int:
+        return self.layers[0].fan_in
+
+    @property
+    def out_dim(self) -> int:
+        return self.layers[-1].fan_out
+
+    def num_parameters(self) -> int:
+        return sum(l.weight.size + l.bias.size for l in self.layers)
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        check_activations(x)
+        for layer in self.layers:
+            x = layer(x, check=False)  # every layer output is clamped to the activation range
+        return x
+
+
+# ----------------------------------------------------------------------------------------------
+# Informative: quantization of float layers (encoder side).
+# ----------------------------------------------------------------------------------------------
+
+def round_half_up(x: np.ndarray) -> np.ndarray:
+    """floor(x + 1/2): the rounding of rshift_round, for float arrays."""
+    return np.floor(np.asarray(x, dtype=np.float64) + 0.5)
+
+
+def frac_bits_for(max_abs: float, bits: int = ACT_BITS, lo: int = -MAX_SHIFT, hi: int = 24) -> int:
+    """Largest f in [lo, hi] with max_abs * 2^f <= 2^(bits-1) - 1 (the per-tensor power-of-two scale)."""
+    top = (1 << (bits - 1)) - 1
+    if not math.isfinite(max_abs):
+        raise ValueError("cannot scale a tensor containing NaN or Inf")
+    if max_abs <= 0:
+        return hi
+    f = math.floor(math.log2(top / max_abs))
+    while f > lo and max_abs * 2.0**f > top:  # guard log2 rounding
+        f -= 1
+    return max(lo, min(hi, f))
+
+
+def quantize_linear(weight: np.ndarray, bias: np.ndarray, out_frac: int, relu: bool,
+                    weight_bits: int = 16) -> tuple[IntLinear, int]:
+    """Turn a float layer acting on the integer input values (y_real = x_int @ weight.T + bias,
+    output stored as round(y_real * 2^out_frac)) into an IntLinear with one power-of-two weight
+    scale 2^acc_frac. Returns the layer and acc_frac (the accumulator's fractional bits;
+    shift = acc_frac - out_frac)."""
+    w = np.asarray(weight, dtype=np.float64)
+    b = np.asarray(bias, dtype=np.float64)
+    acc_frac = frac_bits_for(float(np.abs(w).max()) if w.size else 0.0, weight_bits,
+                             lo=out_frac, hi=out_frac + MAX_SHIFT)
+    lo, hi = int_range(weight_bits)
+    wq = np.clip(round_half_up(w * 2.0**acc_frac), lo, hi).astype(np.int64)
+    blo, bhi = int_range(BIAS_BITS)
+    bq = np.clip(round_half_up(b * 2.0**acc_frac), blo, bhi).astype(np.int64)
+    return IntLinear(wq, bq, acc_frac - out_frac, relu, weight_bits), acc_frac
