@@ -54,12 +54,23 @@ class RangeEncoder:
         """Code i.i.d. symbols (0-based indices) with one model from ``exact_model``."""
         s = np.ascontiguousarray(symbols, dtype=np.int32)
         if s.size:
-            self._enc.encode(s, model)
+            try:
+                self._enc.encode(s, model)
+            except (KeyError, ValueError) as e:  # constriction signals a symbol outside the model this way
+                raise ValueError(f"a symbol is outside its model's alphabet ({e})") from None
 
     def encode_bits(self, values: np.ndarray, nbits: np.ndarray | int) -> None:
         """Code unsigned integers of ``nbits`` bits each (0..64) with uniform probabilities."""
-        v = np.asarray(values, dtype=np.uint64).ravel()
+        raw = np.asarray(values).ravel()
+        if raw.size and np.issubdtype(raw.dtype, np.signedinteger) and raw.min() < 0:
+            raise ValueError("encode_bits codes unsigned values only")
+        v = raw.astype(np.uint64)
         nb = np.broadcast_to(np.asarray(nbits, dtype=np.int64), v.shape)
+        if nb.size and (nb.min() < 0 or nb.max() > 64):
+            raise ValueError("bit widths must be in [0, 64]")
+        narrow = nb < 64
+        if np.any(v[narrow] >> nb[narrow].astype(np.uint64)):
+            raise ValueError("a value does not fit in its bit width")
         for shift in range(0, int(nb.max(initial=0)), MAX_UNIFORM_BITS):
             sel = nb > shift
             if not sel.any():
@@ -96,6 +107,8 @@ class RangeDecoder:
     def decode_bits(self, nbits: np.ndarray | int, count: int | None = None) -> np.ndarray:
         nb = np.asarray(nbits, dtype=np.int64)
         if nb.ndim == 0:
+            if count is None:
+                raise ValueError("decode_bits with one width needs a count")
             nb = np.full(int(count), int(nb), dtype=np.int64)
         out = np.zeros(nb.shape, dtype=np.uint64)
         for shift in range(0, int(nb.max(initial=0)), MAX_UNIFORM_BITS):
