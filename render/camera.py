@@ -1,0 +1,607 @@
+"""Pinhole cameras and loaders for posed image sets (informative).
+
+Convention (OpenCV / COLMAP): camera x right, y down, z forward; ``world_to_camera``
+maps world points to camera points; pixel (i, j) has its centre at (i + 0.5, j + 0.5)
+in image coordinates u = fx * x / z + cx, v = fy * y / z + cy.
+
+Loaders: NeRF-synthetic (``transforms_<split>.json``), LLFF (``poses_bounds.npy``),
+COLMAP sparse models (``cameras``/``images``/``points3D`` as ``.bin`` or ``.txt``).
+Every problem with the input raises ``InputError`` naming the file.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import struct
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from lghcc.common.errors import InputError
+from lghcc.render.imageio import composite_background, png_size, read_image
+
+log = logging.getLogger(__name__)
+
+# OpenGL/Blender camera axes (x right, y up, z back) -> OpenCV (x right, y down, z forward).
+_GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+@dataclass
+class Camera:
+    world_to_camera: np.ndarray  # [4, 4] float64, OpenCV axes
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+    near: float = 0.01
+    far: float = 1e10
+    name: str = ""
+    image: np.ndarray | None = None  # [H, W, 3] float32 in [0, 1], background already composited
+    distortion: tuple[float, ...] = field(default_factory=tuple)  # ignored by the renderer (logged)
+
+    def __post_init__(self) -> None:
+        m = np.asarray(self.world_to_camera, np.float64)
+        if m.shape != (4, 4) or not np.isfinite(m).all():
+            raise InputError(f"camera {self.name!r}: world_to_camera must be a finite 4x4 matrix")
+        self.world_to_camera = m
+        for k in ("fx", "fy", "cx", "cy", "near", "far"):
+            v = float(getattr(self, k))
+            if not math.isfinite(v) and k != "far":
+                raise InputError(f"camera {self.name!r}: {k} must be finite, got {v}")
+            setattr(self, k, v)
+        if self.fx <= 0 or self.fy <= 0:
+            raise InputError(f"camera {self.name!r}: focal lengths must be positive, got {self.fx}, {self.fy}")
+        self.width, self.height = int(self.width), int(self.height)
+        if self.width <= 0 or self.height <= 0:
+            raise InputError(f"camera {self.name!r}: image size must be positive, got {self.width}x{self.height}")
+        if not 0 < self.near < self.far:
+            raise InputError(f"camera {self.name!r}: need 0 < near < far, got {self.near}, {self.far}")
+
+    # --- geometry -----------------------------------------------------------------
+    @property
+    def rotation(self) -> np.ndarray:
+        return self.world_to_camera[:3, :3]
+
+    @property
+    def translation(self) -> np.ndarray:
+        return self.world_to_camera[:3, 3]
+
+    @property
+    def camera_to_world(self) -> np.ndarray:
+        return np.linalg.inv(self.world_to_camera)
+
+    @property
+    def center(self) -> np.ndarray:
+        """Camera centre in world coordinates: -R^T t."""
+        return -self.rotation.T @ self.translation
+
+    @property
+    def forward(self) -> np.ndarray:
+        """Viewing direction (camera +z) in world coordinates."""
+        return self.rotation[2].copy()
+
+    @property
+    def K(self) -> np.ndarray:
+        return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1]], np.float64)
+
+    @property
+    def fov_x(self) -> float:
+        return 2.0 * math.atan(0.5 * self.width / self.fx)
+
+    @property
+    def fov_y(self) -> float:
+        return 2.0 * math.atan(0.5 * self.height / self.fy)
+
+    def world_to_camera_points(self, points: np.ndarray) -> np.ndarray:
+        return np.asarray(points, np.float64) @ self.rotation.T + self.translation
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel coordinates [N, 2] and depths [N] of world points (no clipping)."""
+        pc = self.world_to_camera_points(points)
+        z = pc[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = np.stack([self.fx * pc[:, 0] / z + self.cx, self.fy * pc[:, 1] / z + self.cy], axis=1)
+        return uv, z
+
+    def view_directions(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Unit directions from the camera centre to the points [N, 3] and distances [N]
+        (Scaffold-GS's ``ob_view``, ``ob_dist``)."""
+        d = np.asarray(points, np.float64) - self.center
+        dist = np.linalg.norm(d, axis=1)
+        return d / np.maximum(dist, 1e-12)[:, None], dist
+
+    def scaled(self, factor: float) -> "Camera":
+        """The same view at ``factor`` times the resolution (image dropped unless factor is 1)."""
+        w, h = max(1, round(self.width * factor)), max(1, round(self.height * factor))
+        sx, sy = w / self.width, h / self.height
+        return replace(self, fx=self.fx * sx, fy=self.fy * sy, cx=self.cx * sx, cy=self.cy * sy,
+                       width=w, height=h, image=self.image if (w, h) == (self.width, self.height) else None)
+
+    @classmethod
+    def from_camera_to_world(cls, c2w: np.ndarray, fx: float, fy: float, cx: float, cy: float,
+                             width: int, height: int, convention: str = "opencv", **kw) -> "Camera":
+        """Build from a camera-to-world matrix ([3, 4] or [4, 4]) in OpenCV or OpenGL axes."""
+        m = np.eye(4)
+        c2w = np.asarray(c2w, np.float64)
+        if c2w.shape not in ((3, 4), (4, 4)):
+            raise InputError(f"camera-to-world matrix must be 3x4 or 4x4, got {c2w.shape}")
+        m[:3, :] = c2w[:3, :]
+        if convention == "opengl":
+            m = m @ _GL_TO_CV
+        elif convention != "opencv":
+            raise InputError(f"unknown camera convention {convention!r} (opencv or opengl)")
+        if not np.isfinite(m).all():
+            raise InputError("camera-to-world matrix has NaN or Inf")
+        r = m[:3, :3]
+        if abs(abs(np.linalg.det(r)) - 1.0) > 1e-3:
+            raise InputError(f"camera-to-world rotation is not orthonormal (det {np.linalg.det(r):.4f})")
+        w2c = np.eye(4)
+        w2c[:3, :3] = r.T
+        w2c[:3, 3] = -r.T @ m[:3, 3]
+        return cls(w2c, fx, fy, cx, cy, width, height, **kw)
+
+    @classmethod
+    def look_at(cls, eye, target, up=(0.0, 0.0, 1.0), *, width: int = 64, height: int = 64,
+                fov_x_deg: float = 60.0, **kw) -> "Camera":
+        """A camera at ``eye`` looking at ``target``; ``up`` is the world's up direction."""
+        eye, target, up = (np.asarray(v, np.float64) for v in (eye, target, up))
+        z = target - eye
+        if np.linalg.norm(z) == 0:
+            raise InputError("look_at: eye and target coincide")
+        z /= np.linalg.norm(z)
+        x = np.cross(z, up)
+        if np.linalg.norm(x) < 1e-9:
+            x = np.cross(z, np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0]))
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        c2w = np.eye(4)
+        c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = x, y, z, eye
+        f = 0.5 * width / math.tan(math.radians(fov_x_deg) / 2)
+        return cls.from_camera_to_world(c2w, f, f, width / 2, height / 2, width, height, **kw)
+
+
+# --- NeRF-synthetic --------------------------------------------------------------------
+
+def _resolve_image(root: Path, file_path: str, json_path: Path) -> Path:
+    p = root / file_path
+    if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".exr"):
+        return p
+    for ext in (".png", ".jpg", ".jpeg"):
+        if p.with_name(p.name + ext).exists():
+            return p.with_name(p.name + ext)
+    raise InputError(f"{json_path}: image for frame {file_path!r} not found (tried .png, .jpg, .jpeg)")
+
+
+def load_nerf_synthetic(root: str | os.PathLike, split: str = "test", background: str | tuple = "white",
+                        load_images: bool = True, near: float = 0.01, far: float = 1e10,
+                        max_frames: int | None = None) -> list[Camera]:
+    """Cameras of ``<root>/transforms_<split>.json`` (Blender/NeRF layout, OpenGL axes).
+    Images (RGBA) are composited on ``background`` ('white', 'black' or RGB)."""
+    root = Path(root)
+    jp = root / f"transforms_{split}.json"
+    if not jp.is_file():
+        raise InputError(f"{jp}: file not found")
+    try:
+        meta = json.loads(jp.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise InputError(f"{jp}: not valid JSON ({e})") from None
+    if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list):
+        raise InputError(f"{jp}: no 'frames' list")
+    if "camera_angle_x" not in meta and "fl_x" not in meta:
+        raise InputError(f"{jp}: neither 'camera_angle_x' nor 'fl_x' given")
+    frames = meta["frames"][:max_frames] if max_frames else meta["frames"]
+    cams = []
+    for i, fr in enumerate(frames):
+        if not isinstance(fr, dict) or "file_path" not in fr or "transform_matrix" not in fr:
+            raise InputError(f"{jp}: frame {i} needs 'file_path' and 'transform_matrix'")
+        c2w = np.asarray(fr["transform_matrix"], np.float64)
+        if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
+            raise InputError(f"{jp}: frame {i} transform_matrix is not a finite 4x4 matrix")
+        ip = _resolve_image(root, fr["file_path"], jp)
+        img = None
+        if load_images:
+            img = composite_background(read_image(ip), background)
+            h, w = img.shape[:2]
+        elif "w" in meta and "h" in meta:
+            w, h = int(meta["w"]), int(meta["h"])
+        else:
+            if not ip.is_file():
+                raise InputError(f"{jp}: image {ip} not found")
+            w, h = png_size(ip)
+        if "fl_x" in meta:
+            fx = float(meta["fl_x"])
+            fy = float(meta.get("fl_y", fx))
+        else:
+            fx = 0.5 * w / math.tan(0.5 * float(meta["camera_angle_x"]))
+            fy = 0.5 * h / math.tan(0.5 * float(meta["camera_angle_y"])) if "camera_angle_y" in meta else fx
+        cx, cy = float(meta.get("cx", w / 2)), float(meta.get("cy", h / 2))
+        try:
+            cam = Camera.from_camera_to_world(c2w, fx, fy, cx, cy, w, h, convention="opengl", near=near, far=far,
+                                              name=Path(fr["file_path"]).name, image=img)
+        except InputError as e:
+            raise InputError(f"{jp}: frame {i}: {e}") from None
+        cams.append(cam)
+    return cams
+
+
+# --- LLFF ----------------------------------------------------------------------------------
+
+_IMAGE_EXTS = (".png", ".jpg", ".jpeg")
+
+
+def load_llff(root: str | os.PathLike, images_dir: str = "images", load_images: bool = True,
+              near_factor: float = 0.9) -> list[Camera]:
+    """Cameras of ``<root>/poses_bounds.npy`` ([N, 17]: a 3x5 matrix [R | t | (H, W, focal)] per
+    view with rotation columns (down, right, backwards), then near and far bounds), images
+    in ``<root>/<images_dir>`` in sorted order. When the images are smaller than the poses'
+    H, W (``images_4`` etc.), the intrinsics are scaled to them."""
+    root = Path(root)
+    pb = root / "poses_bounds.npy"
+    if not pb.is_file():
+        raise InputError(f"{pb}: file not found")
+    try:
+        arr = np.load(pb, allow_pickle=False)
+    except (ValueError, OSError) as e:
+        raise InputError(f"{pb}: cannot read ({e})") from None
+    if arr.ndim != 2 or arr.shape[1] != 17:
+        raise InputError(f"{pb}: expected an [N, 17] array, got {list(arr.shape)}")
+    if not np.isfinite(arr).all():
+        raise InputError(f"{pb}: contains NaN or Inf")
+    poses = arr[:, :15].reshape(-1, 3, 5).astype(np.float64)
+    bounds = arr[:, 15:].astype(np.float64)
+    idir = root / images_dir
+    files = sorted(p for p in idir.iterdir() if p.suffix.lower() in _IMAGE_EXTS) if idir.is_dir() else []
+    if load_images and not files:
+        raise InputError(f"{idir}: no images found")
+    if files and len(files) != len(poses):
+        raise InputError(f"{pb}: {len(poses)} poses but {len(files)} images in {idir}")
+    cams = []
+    for i, p in enumerate(poses):
+        h0, w0, f = p[:, 4]
+        if h0 <= 0 or w0 <= 0 or f <= 0:
+            raise InputError(f"{pb}: view {i} has a non-positive height, width or focal length")
+        img = None
+        w, h = int(round(w0)), int(round(h0))
+        if load_images:
+            img = composite_background(read_image(files[i]), "black")
+            h, w = img.shape[:2]
+        s = w / w0
+        if abs(h / h0 - s) > 0.02:
+            raise InputError(f"{pb}: view {i}: image {files[i] if files else ''} is {w}x{h}, "
+                             f"not a scaled copy of {int(w0)}x{int(h0)}")
+        c2w = np.eye(4)
+        r = p[:, :3]
+        c2w[:3, :3] = np.stack([r[:, 1], r[:, 0], -r[:, 2]], axis=1)  # (down, right, back) -> (right, down, fwd)
+        c2w[:3, 3] = p[:, 3]
+        near = max(float(bounds[i, 0]) * near_factor, 1e-3)
+        far = max(float(bounds[i, 1]) / near_factor, near * 2)
+        try:
+            cams.append(Camera.from_camera_to_world(c2w, f * s, f * s, w / 2, h / 2, w, h, near=near, far=far,
+                                                    name=files[i].name if files else f"view_{i:03d}",
+                                                    image=img))
+        except InputError as e:
+            raise InputError(f"{pb}: view {i}: {e}") from None
+    return cams
+
+
+# --- COLMAP ----------------------------------------------------------------------------------
+
+# model id -> (name, number of parameters)
+COLMAP_MODELS = {
+    0: ("SIMPLE_PINHOLE", 3), 1: ("PINHOLE", 4), 2: ("SIMPLE_RADIAL", 4), 3: ("RADIAL", 5),
+    4: ("OPENCV", 8), 5: ("OPENCV_FISHEYE", 8), 6: ("FULL_OPENCV", 12), 7: ("FOV", 5),
+    8: ("SIMPLE_RADIAL_FISHEYE", 4), 9: ("RADIAL_FISHEYE", 5), 10: ("THIN_PRISM_FISHEYE", 12),
+}
+_MODEL_IDS = {name: (i, n) for i, (name, n) in COLMAP_MODELS.items()}
+# Models the pinhole renderer can use: (fx, fy, cx, cy) from params, the rest is distortion.
+_SUPPORTED = {
+    "SIMPLE_PINHOLE": lambda p: (p[0], p[0], p[1], p[2], ()),
+    "PINHOLE": lambda p: (p[0], p[1], p[2], p[3], ()),
+    "SIMPLE_RADIAL": lambda p: (p[0], p[0], p[1], p[2], tuple(p[3:])),
+    "RADIAL": lambda p: (p[0], p[0], p[1], p[2], tuple(p[3:])),
+    "OPENCV": lambda p: (p[0], p[1], p[2], p[3], tuple(p[4:])),
+}
+
+
+@dataclass
+class ColmapCamera:
+    camera_id: int
+    model: str
+    width: int
+    height: int
+    params: np.ndarray
+
+
+@dataclass
+class ColmapImage:
+    image_id: int
+    qvec: np.ndarray  # (w, x, y, z), world-to-camera
+    tvec: np.ndarray
+    camera_id: int
+    name: str
+
+
+@dataclass
+class ColmapModel:
+    cameras: dict[int, ColmapCamera]
+    images: dict[int, ColmapImage]
+    points_xyz: np.ndarray  # [P, 3] float64
+    points_rgb: np.ndarray  # [P, 3] uint8
+    points_error: np.ndarray  # [P] float64
+    points_id: np.ndarray  # [P] int64
+
+
+def qvec_to_rotmat(q: np.ndarray) -> np.ndarray:
+    w, x, y, z = np.asarray(q, np.float64) / max(np.linalg.norm(q), 1e-300)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+class _Reader:
+    def __init__(self, path: Path):
+        self.path, self.data, self.pos = path, path.read_bytes(), 0
+
+    def read(self, fmt: str):
+        n = struct.calcsize(fmt)
+        if self.pos + n > len(self.data):
+            raise InputError(f"{self.path}: truncated at byte {self.pos} (needs {n} more bytes)")
+        v = struct.unpack_from(fmt, self.data, self.pos)
+        self.pos += n
+        return v
+
+    def array(self, dtype: np.dtype, count: int) -> np.ndarray:
+        n = np.dtype(dtype).itemsize * count
+        if count < 0 or self.pos + n > len(self.data):
+            raise InputError(f"{self.path}: truncated at byte {self.pos} (array of {count} records)")
+        a = np.frombuffer(self.data, dtype, count, self.pos)
+        self.pos += n
+        return a
+
+    def cstring(self) -> str:
+        end = self.data.find(b"\0", self.pos)
+        if end < 0:
+            raise InputError(f"{self.path}: truncated image name at byte {self.pos}")
+        s = self.data[self.pos:end].decode("utf-8", "replace")
+        self.pos = end + 1
+        return s
+
+    def finish(self) -> None:
+        if self.pos != len(self.data):
+            raise InputError(f"{self.path}: {len(self.data) - self.pos} unexpected bytes after the last record")
+
+
+def _check_camera(path: Path, cam: ColmapCamera, nparams: int) -> ColmapCamera:
+    if len(cam.params) != nparams:
+        raise InputError(f"{path}: camera {cam.camera_id} ({cam.model}) has {len(cam.params)} parameters, "
+                         f"expected {nparams}")
+    if cam.width <= 0 or cam.height <= 0:
+        raise InputError(f"{path}: camera {cam.camera_id} has size {cam.width}x{cam.height}")
+    if not np.isfinite(cam.params).all():
+        raise InputError(f"{path}: camera {cam.camera_id} has NaN or Inf parameters")
+    return cam
+
+
+def _read_cameras_bin(path: Path) -> dict[int, ColmapCamera]:
+    r = _Reader(path)
+    (n,) = r.read("<Q")
+    out = {}
+    for _ in range(n):
+        cid, mid, w, h = r.read("<iiQQ")
+        if mid not in COLMAP_MODELS:
+            raise InputError(f"{path}: camera {cid} has unknown model id {mid}")
+        name, np_ = COLMAP_MODELS[mid]
+        params = np.array(r.read(f"<{np_}d"), np.float64)
+        out[cid] = _check_camera(path, ColmapCamera(cid, name, int(w), int(h), params), np_)
+    r.finish()
+    return out
+
+
+def _data_lines(path: Path) -> list[str]:
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text file") from None
+    return [ln for ln in text.splitlines() if not ln.lstrip().startswith("#")]
+
+
+def _read_cameras_txt(path: Path) -> dict[int, ColmapCamera]:
+    out = {}
+    for ln in _data_lines(path):
+        f = ln.split()
+        if not f:
+            continue
+        try:
+            cid, model, w, h = int(f[0]), f[1], int(f[2]), int(f[3])
+            params = np.array([float(x) for x in f[4:]], np.float64)
+        except (ValueError, IndexError):
+            raise InputError(f"{path}: cannot parse camera line {ln!r}") from None
+        if model not in _MODEL_IDS:
+            raise InputError(f"{path}: camera {cid} has unknown model {model!r}")
+        out[cid] = _check_camera(path, ColmapCamera(cid, model, w, h, params), _MODEL_IDS[model][1])
+    return out
+
+
+def _read_images_bin(path: Path) -> dict[int, ColmapImage]:
+    r = _Reader(path)
+    (n,) = r.read("<Q")
+    out = {}
+    for _ in range(n):
+        iid, qw, qx, qy, qz, tx, ty, tz, cid = r.read("<idddddddi")
+        name = r.cstring()
+        (npts,) = r.read("<Q")
+        r.array(np.dtype([("x", "<f8"), ("y", "<f8"), ("id", "<i8")]), npts)
+        out[iid] = ColmapImage(iid, np.array([qw, qx, qy, qz]), np.array([tx, ty, tz]), cid, name)
+    r.finish()
+    return out
+
+
+def _read_images_txt(path: Path) -> dict[int, ColmapImage]:
+    lines = _data_lines(path)
+    out, i = {}, 0
+    while i < len(lines):
+        f = lines[i].split()
+        i += 1
+        if not f:
+            continue
+        try:
+            iid = int(f[0])
+            q = np.array([float(x) for x in f[1:5]])
+            t = np.array([float(x) for x in f[5:8]])
+            cid = int(f[8])
+            name = " ".join(f[9:])
+        except (ValueError, IndexError):
+            raise InputError(f"{path}: cannot parse image line {lines[i - 1]!r}") from None
+        if len(q) != 4 or len(t) != 3 or not name:
+            raise InputError(f"{path}: image line {lines[i - 1]!r} needs ID, 4 quaternion values, "
+                             "3 translation values, camera ID and name")
+        i += 1  # the POINTS2D line (may be empty)
+        out[iid] = ColmapImage(iid, q, t, cid, name)
+    return out
+
+
+def _read_points_bin(path: Path):
+    r = _Reader(path)
+    (n,) = r.read("<Q")
+    ids, xyz, rgb, err = np.zeros(n, np.int64), np.zeros((n, 3)), np.zeros((n, 3), np.uint8), np.zeros(n)
+    for k in range(n):
+        pid, x, y, z, cr, cg, cb, e, tl = r.read("<QdddBBBdQ")
+        r.array(np.dtype([("img", "<i4"), ("idx", "<i4")]), tl)
+        ids[k], xyz[k], rgb[k], err[k] = pid, (x, y, z), (cr, cg, cb), e
+    r.finish()
+    return ids, xyz, rgb, err
+
+
+def _read_points_txt(path: Path):
+    rows = []
+    for ln in _data_lines(path):
+        f = ln.split()
+        if not f:
+            continue
+        if len(f) < 8 or (len(f) - 8) % 2:
+            raise InputError(f"{path}: cannot parse point line {ln[:80]!r}")
+        try:
+            rows.append((int(f[0]), float(f[1]), float(f[2]), float(f[3]), int(f[4]), int(f[5]), int(f[6]),
+                         float(f[7])))
+        except ValueError:
+            raise InputError(f"{path}: cannot parse point line {ln[:80]!r}") from None
+    a = np.array(rows, np.float64).reshape(-1, 8)
+    return a[:, 0].astype(np.int64), a[:, 1:4], a[:, 4:7].clip(0, 255).astype(np.uint8), a[:, 7]
+
+
+def read_colmap_model(sparse_dir: str | os.PathLike) -> ColmapModel:
+    """Read cameras, images and points3D from a COLMAP sparse folder (``.bin`` preferred,
+    else ``.txt``)."""
+    d = Path(sparse_dir)
+    if not d.is_dir():
+        raise InputError(f"{d}: COLMAP sparse folder not found")
+
+    def pick(stem: str) -> Path:
+        for ext in (".bin", ".txt"):
+            if (d / (stem + ext)).is_file():
+                return d / (stem + ext)
+        raise InputError(f"{d}: neither {stem}.bin nor {stem}.txt found")
+
+    cp, ip = pick("cameras"), pick("images")
+    cams = _read_cameras_bin(cp) if cp.suffix == ".bin" else _read_cameras_txt(cp)
+    imgs = _read_images_bin(ip) if ip.suffix == ".bin" else _read_images_txt(ip)
+    for im in imgs.values():
+        if im.camera_id not in cams:
+            raise InputError(f"{ip}: image {im.image_id} ({im.name}) refers to camera {im.camera_id}, "
+                             f"which {cp.name} does not define")
+        if not (np.isfinite(im.qvec).all() and np.isfinite(im.tvec).all()) or np.linalg.norm(im.qvec) == 0:
+            raise InputError(f"{ip}: image {im.image_id} ({im.name}) has an invalid pose")
+    try:
+        pp = pick("points3D")
+        pid, xyz, rgb, err = _read_points_bin(pp) if pp.suffix == ".bin" else _read_points_txt(pp)
+    except InputError as e:
+        if "neither" not in str(e):
+            raise
+        pid, xyz, rgb, err = np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3), np.uint8), np.zeros(0)
+    return ColmapModel(cams, imgs, xyz, rgb, err, pid)
+
+
+def load_colmap(sparse_dir: str | os.PathLike, images_dir: str | os.PathLike | None = None,
+                load_images: bool = False, near: float = 0.01, far: float = 1e10) -> tuple[list[Camera], ColmapModel]:
+    """Cameras (sorted by image name) of a COLMAP sparse model, and the model itself (points3D).
+    Pinhole models are used as they are; SIMPLE_RADIAL, RADIAL and OPENCV are rendered as
+    pinhole cameras with their distortion ignored (a warning is logged: undistort the images
+    with ``colmap image_undistorter`` for exact results); other models raise InputError."""
+    model = read_colmap_model(sparse_dir)
+    if load_images and images_dir is None:
+        raise InputError("load_colmap: load_images needs images_dir")
+    out, warned = [], set()
+    for im in sorted(model.images.values(), key=lambda m: m.name):
+        cc = model.cameras[im.camera_id]
+        if cc.model not in _SUPPORTED:
+            raise InputError(f"{sparse_dir}: camera {cc.camera_id} uses the {cc.model} model, which the pinhole "
+                             f"renderer does not support (supported: {', '.join(_SUPPORTED)}); undistort "
+                             "the images first")
+        fx, fy, cx, cy, dist = _SUPPORTED[cc.model](cc.params)
+        if any(abs(x) > 0 for x in dist) and cc.camera_id not in warned:
+            log.warning("COLMAP camera %d (%s): distortion %s ignored by the pinhole renderer",
+                        cc.camera_id, cc.model, dist)
+            warned.add(cc.camera_id)
+        w2c = np.eye(4)
+        w2c[:3, :3] = qvec_to_rotmat(im.qvec)
+        w2c[:3, 3] = im.tvec
+        img, w, h = None, cc.width, cc.height
+        if load_images:
+            img = composite_background(read_image(Path(images_dir) / im.name), "black")
+            ih, iw = img.shape[:2]
+            if (iw, ih) != (w, h):
+                s = iw / w
+                if abs(ih / h - s) > 0.02:
+                    raise InputError(f"{Path(images_dir) / im.name}: image is {iw}x{ih}, camera "
+                                     f"{cc.camera_id} is {w}x{h}")
+                fx, fy, cx, cy, w, h = fx * s, fy * s, cx * s, cy * s, iw, ih
+        out.append(Camera(w2c, fx, fy, cx, cy, w, h, near=near, far=far, name=im.name, image=img,
+                          distortion=tuple(float(x) for x in dist)))
+    return out, model
+
+
+def write_colmap_text(folder: str | os.PathLike, cameras: list[ColmapCamera], images: list[ColmapImage],
+                      points_xyz: np.ndarray | None = None, points_rgb: np.ndarray | None = None) -> None:
+    """Write a COLMAP text model (cameras.txt, images.txt, points3D.txt), without 2D tracks."""
+    d = Path(folder)
+    d.mkdir(parents=True, exist_ok=True)
+    (d / "cameras.txt").write_text("# Camera list\n" + "".join(
+        f"{c.camera_id} {c.model} {c.width} {c.height} " + " ".join(repr(float(x)) for x in c.params) + "\n"
+        for c in cameras))
+    (d / "images.txt").write_text("# Image list\n" + "".join(
+        f"{m.image_id} " + " ".join(repr(float(x)) for x in (*m.qvec, *m.tvec)) + f" {m.camera_id} {m.name}\n\n"
+        for m in images))
+    xyz = np.zeros((0, 3)) if points_xyz is None else points_xyz
+    rgb = np.zeros((len(xyz), 3), np.uint8) if points_rgb is None else points_rgb
+    (d / "points3D.txt").write_text("# 3D point list\n" + "".join(
+        f"{i + 1} {x[0]!r} {x[1]!r} {x[2]!r} {c[0]} {c[1]} {c[2]} 0.0\n" for i, (x, c) in enumerate(zip(xyz, rgb))))
+
+
+def write_colmap_binary(folder: str | os.PathLike, cameras: list[ColmapCamera], images: list[ColmapImage],
+                        points_xyz: np.ndarray | None = None, points_rgb: np.ndarray | None = None) -> None:
+    """Write a COLMAP binary model (cameras.bin, images.bin, points3D.bin), without 2D tracks."""
+    d = Path(folder)
+    d.mkdir(parents=True, exist_ok=True)
+    b = [struct.pack("<Q", len(cameras))]
+    for c in cameras:
+        b.append(struct.pack("<iiQQ", c.camera_id, _MODEL_IDS[c.model][0], c.width, c.height))
+        b.append(struct.pack(f"<{len(c.params)}d", *c.params))
+    (d / "cameras.bin").write_bytes(b"".join(b))
+    b = [struct.pack("<Q", len(images))]
+    for m in images:
+        b.append(struct.pack("<idddddddi", m.image_id, *m.qvec, *m.tvec, m.camera_id))
+        b.append(m.name.encode() + b"\0" + struct.pack("<Q", 0))
+    (d / "images.bin").write_bytes(b"".join(b))
+    xyz = np.zeros((0, 3)) if points_xyz is None else points_xyz
+    rgb = np.zeros((len(xyz), 3), np.uint8) if points_rgb is None else points_rgb
+    b = [struct.pack("<Q", len(xyz))]
+    for i, (x, c) in enumerate(zip(xyz, rgb)):
+        b.append(struct.pack("<QdddBBBdQ", i + 1, *x, *(int(v) for v in c), 0.0, 0))
+    (d / "points3D.bin").write_bytes(b"".join(b))

@@ -1,0 +1,477 @@
+"""A differentiable tile-based Gaussian rasterizer in pure torch (CPU), after 3DGS.
+
+Stages:
+
+1. ``project_gaussians`` (autograd): camera-space means; cull behind ``near`` / beyond
+   ``far``; EWA splatting cov2d = J W Sigma W^T J^T + eps2d I (eps2d = 0.3 px as in 3DGS;
+   J with 3DGS's clamping of x/z, y/z to 1.3x the field of view); conic = cov2d^-1.
+   Computed in float64 (huge and tiny scales stay finite), returned in the input dtype.
+2. Footprint: a Gaussian reaches pixel p only while its power
+   0.5 d^T conic d <= t = min(sigma_cutoff^2 / 2, ln(255 opacity)), i.e. inside
+   ``sigma_cutoff`` (3) standard deviations and where alpha >= 1/255 (3DGS's skip rule,
+   here exact). The bounding box of that ellipse gives the 16x16 tiles it touches;
+   Gaussians touching none are culled. As the cutoff is applied per pixel, the image does
+   not depend on the tile size (in 3DGS it does slightly).
+3. ``_Composite`` (custom autograd Function): per tile, Gaussians sorted by depth,
+   front-to-back alpha compositing with alpha = min(0.99, o exp(-power)), early
+   termination where the transmittance would fall below 1e-4 (the Gaussian that would
+   bring it there is not drawn, as in 3DGS). Tiles are processed in batches padded to
+   the same length (tiles grouped by their Gaussian count; very long tiles are split
+   along depth carrying the transmittance), with the power of every (Gaussian, pixel)
+   pair from one matrix product against a quadratic pixel basis. The backward pass
+   recomputes each batch and applies the 3DGS gradient formulas (no per-pixel state is
+   kept between passes).
+
+``rasterize`` returns the image on a background colour, the accumulated alpha and
+optionally the alpha-weighted depth; gradients reach means, quats, scales, opacities
+and colours (and anything upstream, e.g. the neural-Gaussian MLPs).
+
+``rasterize_gsplat`` uses gsplat's CUDA rasterizer when torch sees a GPU and gsplat is
+installed (guarded import; not exercised here: this machine has neither).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from lghcc.render.camera import Camera
+
+ALPHA_MIN = 1.0 / 255.0
+ALPHA_MAX = 0.99
+T_MIN = 1e-4
+LOG_T_MIN = math.log(T_MIN)
+DEFAULT_CHUNK_ELEMENTS = 1 << 21  # (Gaussian, pixel) pairs per batch
+
+
+# --------------------------------------------------------------------------------------
+# Projection
+# --------------------------------------------------------------------------------------
+
+def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
+    """[M, 4] (w, x, y, z), any norm (zero -> identity) -> [M, 3, 3]."""
+    n = torch.linalg.vector_norm(q, dim=1, keepdim=True)
+    q = torch.where(n > 0, q / n.clamp_min(1e-30), torch.tensor([1.0, 0, 0, 0], dtype=q.dtype, device=q.device))
+    w, x, y, z = q.unbind(1)
+    return torch.stack([
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], dim=1).reshape(-1, 3, 3)
+
+
+@dataclass
+class Projection:
+    """Per Gaussian (all M, in input order); only entries with ``valid`` are meaningful."""
+    means2d: torch.Tensor  # [M, 2] pixel coordinates
+    conics: torch.Tensor  # [M, 3] (a, b, c): power = 0.5 a dx^2 + b dx dy + 0.5 c dy^2
+    depths: torch.Tensor  # [M] camera z
+    cov2d: torch.Tensor  # [M, 3] (xx, xy, yy)
+    valid: torch.Tensor  # [M] bool: in front of the camera, finite
+
+
+def project_gaussians(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, camera: Camera,
+                      eps2d: float = 0.3) -> Projection:
+    """EWA projection of 3D Gaussians into ``camera`` (see the module doc)."""
+    dt = means.dtype
+    m, q, s = means.double(), quats.double(), scales.double()
+    r = torch.as_tensor(camera.rotation, dtype=torch.float64, device=means.device)
+    t = torch.as_tensor(camera.translation, dtype=torch.float64, device=means.device)
+    pc = m @ r.T + t
+    x, y, z = pc.unbind(1)
+    valid = (z > camera.near) & (z < camera.far) & torch.isfinite(pc).all(1)
+    zs = torch.where(valid, z, torch.ones_like(z))
+    lim_xp = (camera.width - camera.cx) / camera.fx + 0.3 * camera.width / camera.fx
+    lim_xn = camera.cx / camera.fx + 0.3 * camera.width / camera.fx
+    lim_yp = (camera.height - camera.cy) / camera.fy + 0.3 * camera.height / camera.fy
+    lim_yn = camera.cy / camera.fy + 0.3 * camera.height / camera.fy
+    tx = torch.clamp(x / zs, -lim_xn, lim_xp) * zs
+    ty = torch.clamp(y / zs, -lim_yn, lim_yp) * zs
+    fx, fy = camera.fx, camera.fy
+    zero = torch.zeros_like(zs)
+    jac = torch.stack([fx / zs, zero, -fx * tx / zs ** 2, zero, fy / zs, -fy * ty / zs ** 2], 1).reshape(-1, 2, 3)
+    rot = quat_to_rotmat(q)
+    s = torch.where(torch.isfinite(s), s.abs(), torch.zeros_like(s)).clamp(max=1e30)
+    ms = rot * s[:, None, :]  # R S
+    jw = jac @ r  # [M, 2, 3]
+    tmat = jw @ ms  # J W R S
+    cov = tmat @ tmat.transpose(1, 2)
+    a = cov[:, 0, 0] + eps2d
+    b = cov[:, 0, 1]
+    c = cov[:, 1, 1] + eps2d
+    det = a * c - b * b
+    valid = valid & (det > 0) & torch.isfinite(det)
+    det = torch.where(valid, det, torch.ones_like(det))
+    a, b, c = (torch.where(valid, v, torch.ones_like(v) if v is not b else torch.zeros_like(v)) for v in (a, b, c))
+    conics = torch.stack([c / det, -b / det, a / det], 1)
+    u = fx * x / zs + camera.cx
+    v = fy * y / zs + camera.cy
+    means2d = torch.stack([u, v], 1)
+    valid = valid & torch.isfinite(means2d).all(1)
+    means2d = torch.where(valid[:, None], means2d, torch.zeros_like(means2d))
+    return Projection(means2d.to(dt), conics.to(dt), z.to(dt), torch.stack([a, b, c], 1).to(dt), valid)
+
+
+# --------------------------------------------------------------------------------------
+# Tiles
+# --------------------------------------------------------------------------------------
+
+@dataclass
+class TilePlan:
+    """Gaussian-tile pairs sorted by (tile, depth), and batches of tiles to process."""
+    tile_size: int
+    tiles_x: int
+    tiles_y: int
+    gauss: torch.Tensor  # [P] int64, Gaussian index per pair (index into the compacted arrays)
+    tile_start: torch.Tensor  # [T] int64, first pair of each tile
+    tile_count: torch.Tensor  # [T] int64
+    batches: list = field(default_factory=list)  # (tile ids [B], length L, chunk length Lc)
+
+    @property
+    def num_pairs(self) -> int:
+        return int(self.gauss.numel())
+
+
+def _plan_tiles(means2d: torch.Tensor, cov2d: torch.Tensor, thresh: torch.Tensor, depths: torch.Tensor,
+                width: int, height: int, tile_size: int, chunk_elements: int):
+    """Bounding boxes of the footprints -> sorted pairs and batches. Returns (plan, keep)
+    where keep [M] says which Gaussians touch at least one tile."""
+    with torch.no_grad():
+        tiles_x = (width + tile_size - 1) // tile_size
+        tiles_y = (height + tile_size - 1) // tile_size
+        md = means2d.detach().double()
+        cv = cov2d.detach().double()
+        tt = thresh.double().clamp_min(0)
+        ex = torch.sqrt(2 * tt * cv[:, 0])
+        ey = torch.sqrt(2 * tt * cv[:, 2])
+        x0 = torch.floor((md[:, 0] - ex) / tile_size).clamp(0, tiles_x)
+        x1 = torch.floor((md[:, 0] + ex) / tile_size + 1).clamp(0, tiles_x)
+        y0 = torch.floor((md[:, 1] - ey) / tile_size).clamp(0, tiles_y)
+        y1 = torch.floor((md[:, 1] + ey) / tile_size + 1).clamp(0, tiles_y)
+        nx, ny = (x1 - x0).long(), (y1 - y0).long()
+        keep = (thresh > 0) & (nx > 0) & (ny > 0)
+        kidx = torch.nonzero(keep).squeeze(1)
+        # depth order among the kept Gaussians
+        order = kidx[torch.argsort(depths.detach()[kidx], stable=True)]
+        cnt = (nx * ny)[order]
+        total = int(cnt.sum())
+        gid = torch.repeat_interleave(order, cnt)
+        first = torch.cumsum(cnt, 0) - cnt
+        local = torch.arange(total, dtype=torch.int64) - torch.repeat_interleave(first, cnt)
+        nxg = nx[gid]
+        tx = x0.long()[gid] + local % nxg
+        ty = y0.long()[gid] + torch.div(local, nxg, rounding_mode="floor")
+        tile = ty * tiles_x + tx
+        tile_sorted, perm = torch.sort(tile, stable=True)
+        gauss = gid[perm]
+        ntiles = tiles_x * tiles_y
+        tile_count = torch.bincount(tile_sorted, minlength=ntiles)
+        tile_start = torch.cumsum(tile_count, 0) - tile_count
+        # batches: tiles by decreasing count; a batch holds B tiles padded to the longest
+        batches = []
+        per_tile = tile_size * tile_size
+        lmax_chunk = max(1, chunk_elements // per_tile)
+        nonempty = torch.nonzero(tile_count > 0).squeeze(1)
+        srt = nonempty[torch.argsort(tile_count[nonempty], descending=True, stable=True)]
+        counts = tile_count[srt].tolist()
+        i = 0
+        while i < len(counts):
+            length = counts[i]
+            lc = min(length, lmax_chunk)
+            nb = max(1, chunk_elements // (lc * per_tile))
+            batches.append((srt[i:i + nb], length, lc))
+            i += nb
+        plan = TilePlan(tile_size, tiles_x, tiles_y, gauss, tile_start, tile_count, batches)
+    return plan, keep
+
+
+def _pixel_basis(tile_size: int, dtype: torch.dtype) -> torch.Tensor:
+    """[6, P] rows (1, px, py, px^2, py^2, px py), pixel centres relative to the tile centre."""
+    r = torch.arange(tile_size, dtype=torch.float64) + 0.5 - tile_size / 2
+    py, px = torch.meshgrid(r, r, indexing="ij")
+    px, py = px.reshape(-1), py.reshape(-1)
+    return torch.stack([torch.ones_like(px), px, py, px * px, py * py, px * py]).to(dtype)
+
+
+def _coefficients(mx: torch.Tensor, my: torch.Tensor, a: torch.Tensor, b: torch.Tensor, c: torch.Tensor):
+    """Power = coef . basis for a Gaussian at tile-local (mx, my) with conic (a, b, c)."""
+    return torch.stack([0.5 * a * mx * mx + 0.5 * c * my * my + b * mx * my,
+                        -(a * mx + b * my), -(c * my + b * mx), 0.5 * a, 0.5 * c, b], -1)
+
+
+class _Composite(torch.autograd.Function):
+    """acc[tile, pixel, :] = sum_i w_i f_i with w_i = alpha_i T_i (front to back)."""
+
+    @staticmethod
+    def forward(ctx, means2d, conics, opacities, feats, thresh, plan: TilePlan):
+        dt = feats.dtype
+        m, d = feats.shape
+        ts = plan.tile_size
+        npx = ts * ts
+        ntiles = plan.tiles_x * plan.tiles_y
+        acc = torch.zeros(ntiles, npx, d, dtype=dt)
+        basis = _pixel_basis(ts, dt)
+        # padding Gaussian at index m: never drawn (threshold below any power)
+        md, cn, op, ft, th = _padded(means2d, conics, opacities, feats, thresh)
+        carries = []
+        with torch.no_grad():
+            for tiles, length, lc in plan.batches:
+                idx, centres = _batch_index(plan, tiles, length, m)
+                carry = torch.zeros(len(tiles), npx, dtype=dt)
+                saved = []
+                for s0 in range(0, length, lc):
+                    saved.append(carry)
+                    g = idx[:, s0:s0 + lc]
+                    alpha, _, _ = _alpha(g, centres, md, cn, op, th, basis)
+                    la = torch.log1p(-alpha)
+                    cs = torch.cumsum(la, 1).add_(carry[:, None, :])
+                    w = (cs - la).exp_().mul_(alpha).mul_(cs >= LOG_T_MIN)
+                    acc[tiles] += torch.bmm(w.transpose(1, 2), ft[g])
+                    carry = cs[:, -1]
+                carries.append(saved)
+        ctx.plan, ctx.carries = plan, carries
+        ctx.save_for_backward(means2d, conics, opacities, feats, thresh)
+        return acc
+
+    @staticmethod
+    def backward(ctx, grad_acc):
+        means2d, conics, opacities, feats, thresh = ctx.saved_tensors
+        plan = ctx.plan
+        dt = feats.dtype
+        m, d = feats.shape
+        ts = plan.tile_size
+        basis = _pixel_basis(ts, dt)
+        md, cn, op, ft, th = _padded(means2d, conics, opacities, feats, thresh)
+        g_md = torch.zeros(m + 1, 2, dtype=dt)
+        g_cn = torch.zeros(m + 1, 3, dtype=dt)
+        g_op = torch.zeros(m + 1, dtype=dt)
+        g_ft = torch.zeros(m + 1, d, dtype=dt)
+        grad_acc = grad_acc.contiguous()
+        for (tiles, length, lc), saved in zip(plan.batches, ctx.carries):
+            idx, centres = _batch_index(plan, tiles, length, m)
+            gout = grad_acc[tiles]  # [B, npx, d]
+            suffix = torch.zeros(len(tiles), ts * ts, dtype=dt)  # sum over later chunks of gf_j w_j
+            for ci in range(len(saved) - 1, -1, -1):
+                s0 = ci * lc
+                g = idx[:, s0:s0 + lc]
+                alpha, gexp, pmask = _alpha(g, centres, md, cn, op, th, basis)
+                la = torch.log1p(-alpha)
+                cs = torch.cumsum(la, 1).add_(saved[ci][:, None, :])
+                incl = cs >= LOG_T_MIN
+                t_ex = (cs - la).exp_()
+                w = t_ex * alpha * incl
+                fg = ft[g]  # [B, Lc, d]
+                g_ft.index_add_(0, g.reshape(-1), torch.bmm(w, gout).reshape(-1, d))
+                gf = torch.bmm(fg, gout.transpose(1, 2))  # [B, Lc, npx] dL/dw
+                gw = gf * w
+                csum = torch.cumsum(gw, 1)
+                total = csum[:, -1:, :]
+                s_after = (total - csum).add_(suffix[:, None, :])
+                suffix = suffix + total[:, 0]
+                # dL/dalpha = T_i gf_i - S_i / (1 - alpha_i), on drawn, unclamped entries
+                g_alpha = (gf * t_ex - s_after / (1 - alpha)) * (incl & pmask)
+                g_op.index_add_(0, g.reshape(-1), (g_alpha * gexp).sum(2).reshape(-1))
+                g_pow = -(g_alpha * alpha)  # dL/dpower [B, Lc, npx]
+                gcoef = (g_pow.reshape(-1, ts * ts) @ basis.T).reshape(g.shape + (6,))
+                mx = md[g, 0] - centres[:, None, 0]
+                my = md[g, 1] - centres[:, None, 1]
+                a, b, c = cn[g, 0], cn[g, 1], cn[g, 2]
+                g0, g1, g2, g3, g4, g5 = gcoef.unbind(-1)
+                gmx = g0 * (a * mx + b * my) - g1 * a - g2 * b
+                gmy = g0 * (c * my + b * mx) - g1 * b - g2 * c
+                ga = g0 * 0.5 * mx * mx - g1 * mx + 0.5 * g3
+                gb = g0 * mx * my - g1 * my - g2 * mx + g5
+                gc = g0 * 0.5 * my * my - g2 * my + 0.5 * g4
+                flat = g.reshape(-1)
+                g_md.index_add_(0, flat, torch.stack([gmx, gmy], -1).reshape(-1, 2))
+                g_cn.index_add_(0, flat, torch.stack([ga, gb, gc], -1).reshape(-1, 3))
+        return g_md[:m], g_cn[:m], g_op[:m], g_ft[:m], None, None
+
+
+def _padded(means2d, conics, opacities, feats, thresh):
+    dt = feats.dtype
+    md = torch.cat([means2d.detach(), torch.zeros(1, 2, dtype=dt)])
+    cn = torch.cat([conics.detach(), torch.ones(1, 3, dtype=dt)])
+    op = torch.cat([opacities.detach(), torch.zeros(1, dtype=dt)])
+    ft = torch.cat([feats.detach(), torch.zeros(1, feats.shape[1], dtype=dt)])
+    th = torch.cat([thresh.to(dt), torch.full((1,), -1.0, dtype=dt)])
+    return md, cn, op, ft, th
+
+
+def _batch_index(plan: TilePlan, tiles: torch.Tensor, length: int, pad: int):
+    """[B, L] Gaussian indices (pad where a tile has fewer) and tile centres [B, 2]."""
+    ar = torch.arange(length, dtype=torch.int64)
+    cnt = plan.tile_count[tiles]
+    pos = plan.tile_start[tiles][:, None] + ar[None, :]
+    ok = ar[None, :] < cnt[:, None]
+    idx = torch.where(ok, plan.gauss[pos.clamp(max=max(plan.num_pairs - 1, 0))], torch.full_like(pos, pad))
+    ts = plan.tile_size
+    centres = torch.stack([(tiles % plan.tiles_x).double() * ts + ts / 2,
+                           torch.div(tiles, plan.tiles_x, rounding_mode="floor").double() * ts + ts / 2], 1)
+    return idx, centres
+
+
+def _alpha(g, centres, md, cn, op, th, basis):
+    """alpha [B, L, P] (0 where not drawn), o*exp(-power) and the unclamped-drawn mask."""
+    dt = md.dtype
+    c = centres.to(dt)
+    mx = md[g, 0] - c[:, None, 0]
+    my = md[g, 1] - c[:, None, 1]
+    coef = _coefficients(mx, my, cn[g, 0], cn[g, 1], cn[g, 2])  # [B, L, 6]
+    power = (coef.reshape(-1, 6) @ basis).reshape(g.shape + (basis.shape[1],)).clamp_(min=0)
+    drawn = power <= th[g][:, :, None]
+    gexp = power.neg_().exp_().mul_(drawn)  # G (0 where not drawn)
+    alpha = gexp * op[g][:, :, None]
+    unclamped = drawn & (alpha < ALPHA_MAX)
+    alpha = alpha.clamp_(max=ALPHA_MAX)
+    return alpha, gexp, unclamped
+
+
+# --------------------------------------------------------------------------------------
+# Public entry points
+# --------------------------------------------------------------------------------------
+
+@dataclass
+class RenderResult:
+    image: torch.Tensor  # [H, W, C] on the background
+    alpha: torch.Tensor  # [H, W] accumulated opacity (1 - final transmittance)
+    depth: torch.Tensor | None  # [H, W] alpha-weighted camera depth sum_i w_i z_i (divide by alpha for mean)
+    stats: dict
+
+
+def rasterize(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
+              colors: torch.Tensor, camera: Camera, *, background=None, tile_size: int = 16,
+              sigma_cutoff: float = 3.0, eps2d: float = 0.3, render_depth: bool = False,
+              chunk_elements: int = DEFAULT_CHUNK_ELEMENTS) -> RenderResult:
+    """Render Gaussians (means [M, 3], quats [M, 4] (w, x, y, z), scales [M, 3] (not log),
+    opacities [M] in [0, 1], colors [M, C]) into ``camera``. ``background``: C values (default
+    zeros). Differentiable with respect to all five tensors. The dtype of ``colors`` sets
+    the compositing precision (float64 for gradient checks)."""
+    dt = colors.dtype
+    h, w = camera.height, camera.width
+    if means.ndim != 2 or means.shape[1] != 3:
+        raise ValueError(f"means must be [M, 3], got {list(means.shape)}")
+    mcount = means.shape[0]
+    for name, t, shape in (("quats", quats, (mcount, 4)), ("scales", scales, (mcount, 3)),
+                           ("opacities", opacities, (mcount,))):
+        if tuple(t.shape) != shape:
+            raise ValueError(f"{name} must be {list(shape)}, got {list(t.shape)}")
+    if colors.ndim != 2 or colors.shape[0] != mcount:
+        raise ValueError(f"colors must be [M, C], got {list(colors.shape)}")
+    nch = colors.shape[1]
+    bg = torch.zeros(nch, dtype=dt) if background is None else torch.as_tensor(background, dtype=dt).reshape(-1)
+    if bg.shape != (nch,):
+        raise ValueError(f"background must have {nch} values, got {list(bg.shape)}")
+    proj = project_gaussians(means, quats, scales, camera, eps2d)
+    op = opacities.to(dt)
+    with torch.no_grad():
+        o = op.detach().double()
+        finite_o = torch.isfinite(o) & (o > 0)
+        lo = torch.log(255.0 * torch.where(finite_o, o, torch.ones_like(o)).clamp(max=1.0))
+        thresh = torch.minimum(lo, torch.full_like(lo, 0.5 * sigma_cutoff ** 2))
+        thresh = torch.where(proj.valid & finite_o & (o * 255.0 >= 1.0), thresh, torch.full_like(thresh, -1.0))
+    plan, keep = _plan_tiles(proj.means2d, proj.cov2d, thresh, proj.depths, w, h, tile_size, chunk_elements)
+    kidx = torch.nonzero(keep).squeeze(1)
+    # compact to the Gaussians that reach the image
+    remap = torch.full((mcount + 1,), -1, dtype=torch.int64)
+    remap[kidx] = torch.arange(kidx.numel())
+    plan.gauss = remap[plan.gauss]
+    feats = colors[kidx].to(dt)
+    feats = torch.where(torch.isfinite(feats), feats, torch.zeros_like(feats))
+    extra = [torch.ones(kidx.numel(), 1, dtype=dt)]
+    if render_depth:
+        extra.append(proj.depths[kidx].to(dt)[:, None])
+    feats = torch.cat([feats] + extra, 1)
+    acc = _Composite.apply(proj.means2d[kidx].to(dt), proj.conics[kidx].to(dt), op[kidx].clamp(0, 1), feats,
+                           thresh[kidx].to(dt), plan)
+    ts = tile_size
+    img = acc.reshape(plan.tiles_y, plan.tiles_x, ts, ts, -1).permute(0, 2, 1, 3, 4)
+    img = img.reshape(plan.tiles_y * ts, plan.tiles_x * ts, -1)[:h, :w]
+    alpha = img[..., nch]
+    image = img[..., :nch] + (1 - alpha)[..., None] * bg
+    depth = img[..., nch + 1] if render_depth else None
+    stats = {"gaussians": mcount, "in_front": int(proj.valid.sum()), "rasterized": int(kidx.numel()),
+             "tile_pairs": plan.num_pairs, "batches": len(plan.batches)}
+    return RenderResult(image, alpha, depth, stats)
+
+
+def render_scene(scene, camera: Camera, *, background=None, cull: bool = True, margin: float = 0.15,
+                 dtype: torch.dtype = torch.float32, backend: str = "torch", **kw) -> RenderResult:
+    """Neural Gaussians of ``scene`` (AnchorScene or SceneTensors) for ``camera``, rasterized.
+    ``backend``: 'torch' (this module) or 'gsplat' (CUDA; see ``rasterize_gsplat``)."""
+    from lghcc.render.neural_gaussians import generate_neural_gaussians
+
+    sigma = kw.get("sigma_cutoff", 3.0)
+    ng = generate_neural_gaussians(scene, camera, cull=cull, margin=margin, sigma_cutoff=sigma, dtype=dtype)
+    fn = rasterize if backend == "torch" else rasterize_gsplat if backend == "gsplat" else None
+    if fn is None:
+        raise ValueError(f"unknown backend {backend!r} (torch or gsplat)")
+    res = fn(ng.means, ng.quats, ng.scales, ng.opacities, ng.colors, camera, background=background, **kw)
+    res.stats.update({f"ng_{k}": v for k, v in ng.stats.items()})
+    return res
+
+
+def composite_reference(means2d, conics, opacities, feats, thresh, width: int, height: int):
+    """Plain-autograd compositing of all Gaussians over all pixels, one Gaussian at a time in
+    the given (depth) order: the definition the tiled path must match. Small images only.
+    Returns acc [H, W, C] = sum_i w_i f_i (no background)."""
+    dt = feats.dtype
+    ys, xs = torch.meshgrid(torch.arange(height, dtype=dt) + 0.5, torch.arange(width, dtype=dt) + 0.5,
+                            indexing="ij")
+    acc = torch.zeros(height, width, feats.shape[1], dtype=dt)
+    logt = torch.zeros(height, width, dtype=dt)
+    for i in range(means2d.shape[0]):
+        dx, dy = means2d[i, 0] - xs, means2d[i, 1] - ys
+        a, b, c = conics[i]
+        power = 0.5 * a * dx * dx + 0.5 * c * dy * dy + b * dx * dy
+        drawn = power <= thresh[i]
+        alpha = torch.where(drawn, torch.clamp(opacities[i] * torch.exp(-power), max=ALPHA_MAX),
+                            torch.zeros((), dtype=dt))
+        la = torch.log1p(-alpha)
+        ok = (logt + la) >= LOG_T_MIN
+        w = torch.where(ok, alpha * torch.exp(logt), torch.zeros((), dtype=dt))
+        acc = acc + w[..., None] * feats[i]
+        logt = logt + la
+    return acc
+
+
+# --------------------------------------------------------------------------------------
+# Optional CUDA backend
+# --------------------------------------------------------------------------------------
+
+def gsplat_available() -> bool:
+    """True when gsplat imports and torch sees a CUDA device."""
+    try:
+        import gsplat  # noqa: F401
+    except ImportError:
+        return False
+    return torch.cuda.is_available()
+
+
+def rasterize_gsplat(means, quats, scales, opacities, colors, camera: Camera, *, background=None,
+                     tile_size: int = 16, eps2d: float = 0.3, render_depth: bool = False,
+                     sigma_cutoff: float = 3.0, chunk_elements: int | None = None) -> RenderResult:
+    """The same rendering with ``gsplat.rasterization`` (CUDA). Differences from the torch
+    path: gsplat's own footprint (3 sigma of the major axis, opacity-aware in recent
+    versions), float32 only. ``sigma_cutoff`` and ``chunk_elements`` are ignored."""
+    try:
+        from gsplat import rasterization
+    except ImportError as e:  # pragma: no cover - needs gsplat
+        raise RuntimeError("the gsplat backend needs `pip install gsplat` and a CUDA GPU") from e
+    if not torch.cuda.is_available():  # pragma: no cover
+        raise RuntimeError("the gsplat backend needs a CUDA GPU")
+    dev = torch.device("cuda")
+    viewmat = torch.as_tensor(camera.world_to_camera, dtype=torch.float32, device=dev)[None]
+    k = torch.as_tensor(camera.K, dtype=torch.float32, device=dev)[None]
+    bg = None if background is None else torch.as_tensor(background, dtype=torch.float32, device=dev).reshape(1, -1)
+    f32 = lambda t: t.to(dev, torch.float32)  # noqa: E731
+    out, alphas, meta = rasterization(
+        f32(means), f32(quats), f32(scales), f32(opacities), f32(colors), viewmat, k, camera.width, camera.height,
+        near_plane=camera.near, far_plane=camera.far, eps2d=eps2d, tile_size=tile_size, backgrounds=bg,
+        render_mode="RGB+ED" if render_depth else "RGB", packed=False)
+    img = out[0]
+    depth = img[..., -1] * alphas[0, ..., 0] if render_depth else None
+    img = img[..., :-1] if render_depth else img
+    return RenderResult(img, alphas[0, ..., 0], depth, {"gaussians": int(means.shape[0]), "backend": "gsplat"})
