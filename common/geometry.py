@@ -47,6 +47,8 @@ MIN_IDCM_LEVELS = 2  # a node is eligible only when at least this many levels re
 
 # Probability adaptation (spec G.6)
 COUNT_LIMIT = 1 << 10  # a context whose n0 + n1 exceeds this has both counts halved (rounded up)
+LEVEL_COUNT_LIMIT = 1 << 6  # the same, applied to the occupancy counts at the start of every depth
+CHUNK_LOG2 = 8  # decisions of one pass are coded in chunks 0..2^8, 2^8..2^9, 2^9..2^10, ...
 
 # Occupancy context layout (spec G.5.4): per pass k, ctx = ((axes * 4) + sib) * 4 + dens
 NUM_AXES_STATES = 27
@@ -153,6 +155,28 @@ def binary_frequency(counts: np.ndarray) -> np.ndarray:
     return np.clip(f1, 1, TOTAL_FREQUENCY - 1)
 
 
+def chunk_bounds(n: int) -> list[int]:
+    """Chunk boundaries of n decisions: 0, 2^c, 2^(c+1), ... (c = CHUNK_LOG2), then n."""
+    b = [0]
+    if n == 0:
+        return b
+    size = 1 << CHUNK_LOG2
+    while size < n:
+        b.append(size)
+        size *= 2
+    b.append(n)
+    return b
+
+
+def limit_counts(table: np.ndarray, limit: int) -> None:
+    """Halve (rounding up) both counts of every context whose n0 + n1 exceeds limit, repeatedly."""
+    while True:
+        big = table.sum(axis=1) > limit
+        if not big.any():
+            return
+        table[big] = (table[big] + 1) >> 1
+
+
 class _SymbolIO:
     """Writes or reads binary decisions grouped by context; one class for both directions."""
 
@@ -166,11 +190,18 @@ class _SymbolIO:
 
     def binary(self, ctx: np.ndarray, table: np.ndarray, values: np.ndarray | None = None) -> np.ndarray:
         """Code one binary decision per entry of ctx with the adaptive table (counts [C, 2]).
-        Symbols are grouped by context in increasing context order, each group in its original
-        order; then every coded symbol is added to its context's counts."""
+        The decisions are cut into chunks (``chunk_bounds``); within a chunk they are grouped by
+        context, in increasing context order, each group in its original order, and coded with
+        the table's frequencies; then the chunk's decisions are added to the counts."""
         n = int(ctx.size)
-        if n == 0:
-            return np.zeros(0, dtype=np.int64)
+        out = np.empty(n, dtype=np.int64)
+        bounds = chunk_bounds(n)
+        for c0, c1 in zip(bounds[:-1], bounds[1:]):
+            out[c0:c1] = self._binary_chunk(ctx[c0:c1], table, None if values is None else values[c0:c1])
+        return out
+
+    def _binary_chunk(self, ctx: np.ndarray, table: np.ndarray, values: np.ndarray | None) -> np.ndarray:
+        n = int(ctx.size)
         order = np.argsort(ctx, kind="stable")
         sc = ctx[order]
         starts = np.flatnonzero(np.concatenate(([True], sc[1:] != sc[:-1])))
@@ -188,9 +219,7 @@ class _SymbolIO:
             values[order] = sv
         values = values.astype(np.int64)
         table += np.bincount(ctx.astype(np.int64) * 2 + values, minlength=table.size).reshape(table.shape)
-        big = table.sum(axis=1) > COUNT_LIMIT
-        if big.any():
-            table[big] = (table[big] + 1) >> 1
+        limit_counts(table, COUNT_LIMIT)
         return values
 
     def raw(self, nbits: int, values: np.ndarray | None = None, count: int = 0) -> np.ndarray:
@@ -268,6 +297,8 @@ def _code_occupancy(io: _SymbolIO, st: _ContextState, q: np.ndarray, depth: int,
     """Code the occupancy bytes of the nodes q at ``depth`` (children at depth + 1).
     Returns (occupancy uint8-valued int64 [M], number of occupied face neighbours [M])."""
     m = q.shape[0]
+    for k in range(8):
+        limit_counts(st.occ[k], LEVEL_COUNT_LIMIT)
     nb = _face_neighbours(q, depth)
     exists = (nb >= 0).astype(np.int64)
     nbr_count = exists.sum(axis=0)
@@ -410,6 +441,8 @@ def decode_geometry(payload: bytes, num_anchors: int) -> np.ndarray:
     reader.byte_align()
     _validate_header(header, n)
     data = bytes(payload[reader.bit_position // 8:])
+    if max(header.geom_bit_depth) == 0 and data:
+        raise BitstreamError(f"geometry payload: {len(data)} bytes of coded data after a header of bit depth 0")
     dec = RangeDecoder(data, "geometry data")
     io = _SymbolIO(decoder=dec)
     st = _ContextState()
