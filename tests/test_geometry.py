@@ -308,3 +308,10 @@ def test_million_anchors_fast():
     t2 = time.perf_counter()
     np.testing.assert_array_equal(out, c[normative_order(c)])
     assert t1 - t0 < 20 and t2 - t1 < 20
+
+
+def test_spec_holds_the_generated_header_table():
+    from pathlib import Path
+
+    spec = (Path(__file__).resolve().parents[1] / "spec" / "geometry.md").read_text()
+    assert GeometryHeader.syntax_table() in spec
