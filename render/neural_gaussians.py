@@ -226,6 +226,7 @@ def generate_neural_gaussians(scene: AnchorScene | SceneTensors, camera: Camera,
         idx = torch.nonzero(vis).squeeze(1)
     else:
         idx = torch.arange(n, device=dev)
+    n_view = int(idx.numel())
     if live is not None:  # anchors with no live offset never run an MLP
         idx = idx[live[idx].any(dim=1)]
     nv = int(idx.numel())
@@ -259,9 +260,9 @@ def generate_neural_gaussians(scene: AnchorScene | SceneTensors, camera: Camera,
     m = int(means.shape[0])
     stats = {
         "anchors": n,
-        "anchors_in_view": int(idx.numel()) if live is None else nv,
-        "anchors_with_gaussians": int(a_loc.numel()),
-        "offsets_in_view": nv * k,
+        "anchors_in_view": n_view,  # after frustum culling
+        "anchors_run": nv,  # in view with at least one live offset: the opacity MLP runs on these
+        "anchors_with_gaussians": int(a_loc.numel()),  # the covariance and colour MLPs run on these
         "offsets_live_in_view": nv * k if live is None else int(live[idx].sum()),
         "gaussians": m,
     }

@@ -251,6 +251,7 @@ class _Composite(torch.autograd.Function):
         grad_acc = grad_acc.contiguous()
         for (tiles, length, lc), saved in zip(plan.batches, ctx.carries):
             idx, centres = _batch_index(plan, tiles, length, m)
+            centres = centres.to(dt)
             gout = grad_acc[tiles]  # [B, npx, d]
             suffix = torch.zeros(len(tiles), ts * ts, dtype=dt)  # sum over later chunks of gf_j w_j
             for ci in range(len(saved) - 1, -1, -1):
