@@ -21,7 +21,17 @@ from lghcc.common.entropy.range_coder import TOTAL_FREQUENCY, RangeDecoder, Rang
 from lghcc.common.entropy.symbol_coder import decode_symbols, encode_symbols
 from lghcc.common.errors import BitstreamError
 from lghcc.common.scene import NUM_SCALINGS
-from lghcc.common.units import MASK_PROB_BITS, SceneParameterSet
+from lghcc.common.bitio import BitReader
+from lghcc.common.syntax import TraceEntry
+from lghcc.common.units import (CONTEXT_PER_CHANNEL_PRIOR, MASK_PROB_BITS, AttributeUnitHeader,
+                                SceneParameterSet)
+
+# Quantization-step adjustment (context models with a step output): the step of a value is
+# float32(step(c)) * STEP_ADJUST_FACTORS[a], one binary32 multiplication. The factors are
+# 2^(a/4), a = 0..7, frozen here as binary32 constants.
+STEP_ADJUST_FACTORS = np.array([1.0, 1.1892071, 1.4142135, 1.6817929, 2.0, 2.3784142, 2.828427, 3.3635857],
+                               dtype=np.float32)
+NUM_STEP_ADJUST = len(STEP_ADJUST_FACTORS)
 
 
 @dataclass(frozen=True)
@@ -70,9 +80,36 @@ def layout_of(sps: SceneParameterSet) -> ChannelLayout:
     return ChannelLayout(sps.feature_dim, sps.num_offsets)
 
 
-def reconstruct(q: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """Normative reconstruction: float32(q) * step, elementwise, steps broadcast over rows."""
-    return (q.astype(np.float32) * steps.astype(np.float32)).astype(np.float32)
+@dataclass
+class CodingParams:
+    """What a context model gives each value of an attribute unit: an integer mean, a scale
+    level in [0, 64) and, optionally, a step-adjustment index in [0, 8). Arrays [rows, M]
+    (or broadcastable to it)."""
+
+    mean: np.ndarray
+    level: np.ndarray
+    step_adjust: np.ndarray | None = None
+
+    def rows(self, lo: int, hi: int, num_channels: int) -> "CodingParams":
+        """The parameters of rows lo..hi-1 (arrays with one row apply to every row)."""
+        def take(a):
+            if a is None:
+                return None
+            return np.broadcast_to(a, (hi - lo, num_channels)) if a.shape[0] == 1 else a[lo:hi]
+        return CodingParams(take(self.mean), take(self.level), take(self.step_adjust))
+
+
+def effective_steps(steps: np.ndarray, step_adjust: np.ndarray | None) -> np.ndarray:
+    """float32 steps per value: float32(step(c)) * STEP_ADJUST_FACTORS[a]."""
+    s = steps.astype(np.float32)
+    if step_adjust is None:
+        return s
+    return (s * STEP_ADJUST_FACTORS[step_adjust]).astype(np.float32)
+
+
+def reconstruct(q: np.ndarray, steps: np.ndarray, step_adjust: np.ndarray | None = None) -> np.ndarray:
+    """Normative reconstruction: float32(q) * effective step, elementwise."""
+    return (q.astype(np.float32) * effective_steps(steps, step_adjust)).astype(np.float32)
 
 
 # --- offset masks -------------------------------------------------------------------------
@@ -130,3 +167,67 @@ def split_chunks(payload: bytes, sizes: list[int], what: str) -> list[bytes]:
 def check_levels(levels: np.ndarray, what: str) -> None:
     if levels.size and (levels.min() < 0 or levels.max() >= 64):
         raise BitstreamError(f"{what}: a scale level is outside [0, 63]")
+
+
+# --- the attribute unit ---------------------------------------------------------------------
+
+def prior_params(h: AttributeUnitHeader) -> CodingParams:
+    return CodingParams(np.asarray(h.prior_mean, dtype=np.int64)[None, :],
+                        np.asarray(h.prior_level, dtype=np.int64)[None, :])
+
+
+def write_attribute_unit(h: AttributeUnitHeader, layout: ChannelLayout, q: np.ndarray,
+                         mask: np.ndarray | None, params: CodingParams) -> bytes:
+    """Code q [rows, M] (dead values ignored) in chunks; fills the header's chunk sizes.
+    ``mask`` must be given exactly when h.offset_mask_present."""
+    models = mask_models(h.mask_live_prob) if h.offset_mask_present else None
+    chunks: list[bytes] = []
+    h.mask_chunk_size, h.chunk_size = [], []
+    for i in range(h.num_chunks):
+        lo, hi = i * h.rows_per_chunk, min(h.num_rows, (i + 1) * h.rows_per_chunk)
+        if models is not None:
+            chunks.append(encode_mask_chunk(mask[lo:hi], models))
+            h.mask_chunk_size.append(len(chunks[-1]))
+        live = layout.live_channels(None if mask is None else mask[lo:hi], hi - lo)
+        p = params.rows(lo, hi, layout.num_channels)
+        chunks.append(encode_residual_chunk(q[lo:hi] - p.mean, p.level, live))
+        h.chunk_size.append(len(chunks[-1]))
+    return h.to_bytes() + b"".join(chunks)
+
+
+def read_attribute_unit(payload: bytes, sps: SceneParameterSet, num_rows: int, level: int,
+                        context=None, trace: list[TraceEntry] | None = None):
+    """Parse and decode an attribute unit of ``num_rows`` rows at hierarchy ``level``.
+
+    ``context``: a callable returning the CodingParams of a context model (None when the
+    stream has none). Returns (header, q int64 [rows, M], mask bool [rows, K] or None, params).
+    """
+    layout = layout_of(sps)
+    reader = BitReader(payload, f"attribute unit (level {level})")
+    h = AttributeUnitHeader.parse(reader, trace, num_channels=layout.num_channels, num_offsets=sps.num_offsets,
+                                  offset_mask_present=sps.offset_mask_present_flag, num_rows=num_rows)
+    if h.attribute_level != level:
+        raise BitstreamError(f"attribute unit: attribute_level {h.attribute_level} where level {level} is expected")
+    if h.context_model_id == CONTEXT_PER_CHANNEL_PRIOR:
+        params = prior_params(h)
+    else:
+        if context is None:
+            raise BitstreamError(f"attribute unit (level {level}) uses context model {h.context_model_id}, "
+                                 "but the stream has no matching context model unit")
+        params = context(h.context_model_id)
+    check_levels(np.asarray(params.level), f"attribute unit (level {level})")
+    body = payload[reader.bit_position // 8:]
+    sizes = [x for pair in zip(h.mask_chunk_size, h.chunk_size) for x in pair] if h.offset_mask_present \
+        else list(h.chunk_size)
+    pieces = iter(split_chunks(body, sizes, f"attribute unit (level {level})"))
+    models = mask_models(h.mask_live_prob) if h.offset_mask_present else None
+    q = np.zeros((num_rows, layout.num_channels), dtype=np.int64)
+    mask = np.ones((num_rows, sps.num_offsets), dtype=bool) if h.offset_mask_present else None
+    for i in range(h.num_chunks):
+        lo, hi = i * h.rows_per_chunk, min(num_rows, (i + 1) * h.rows_per_chunk)
+        if models is not None:
+            mask[lo:hi] = decode_mask_chunk(next(pieces), hi - lo, models, f"attribute mask chunk {i}")
+        live = layout.live_channels(None if mask is None else mask[lo:hi], hi - lo)
+        p = params.rows(lo, hi, layout.num_channels)
+        q[lo:hi] = (decode_residual_chunk(next(pieces), p.level, live, f"attribute chunk {i}") + p.mean) * live
+    return h, q, mask, params

@@ -24,10 +24,16 @@ MAX_EXPONENT = 64
 NUM_SCALE_LEVELS_BITS = 6
 MASK_PROB_BITS = 12
 
+MAX_COARSE_VOXEL_SCALE = 1 << 20
 # attribute_level values
 LEVEL_ALL = 0  # no hierarchy: one attribute unit holds every anchor
+LEVEL_1 = 1  # one anchor per coarse voxel
+LEVEL_2 = 2  # the rest, coded with a context from level 1
 # context_model_id values
 CONTEXT_PER_CHANNEL_PRIOR = 0
+CONTEXT_PARENT_MLP = 1  # Context-GS style "vanilla EM": an MLP over the parent's decoded attributes
+CONTEXT_GGCONV = 2  # LG-HCC: GG-Conv over the Ball k-NN graph of level 2
+MAX_CONTEXT_MODEL_ID = CONTEXT_GGCONV
 
 HASH_TYPE_SHA256 = 1
 
@@ -47,6 +53,8 @@ class SceneParameterSet(SyntaxStructure):
     feature_step: float = 1.0
     scaling_step: float = 1.0
     offset_step: float = 1.0
+    hierarchy_enabled_flag: int = 0
+    coarse_voxel_scale_minus1: int = 0
 
     def syntax(self, v: SyntaxVisitor) -> None:
         v.ue(self, "num_anchors_minus1", hi=MAX_ANCHORS - 1)
@@ -59,8 +67,15 @@ class SceneParameterSet(SyntaxStructure):
         v.f32(self, "feature_step", positive=True)
         v.f32(self, "scaling_step", positive=True)
         v.f32(self, "offset_step", positive=True)
+        v.flag(self, "hierarchy_enabled_flag")
+        for _ in v.when(self.hierarchy_enabled_flag, "hierarchy_enabled_flag"):
+            v.ue(self, "coarse_voxel_scale_minus1", hi=MAX_COARSE_VOXEL_SCALE - 1)
 
     # derived values (spec 7.4.1)
+    @property
+    def coarse_voxel_scale(self) -> int:
+        return self.coarse_voxel_scale_minus1 + 1
+
     @property
     def num_anchors(self) -> int:
         return self.num_anchors_minus1 + 1
@@ -154,8 +169,8 @@ class AttributeUnitHeader(SyntaxStructure):
         return -(-self.num_rows // self.rows_per_chunk)
 
     def syntax(self, v: SyntaxVisitor) -> None:
-        v.u(2, self, "attribute_level", hi=LEVEL_ALL)
-        v.u(3, self, "context_model_id", hi=CONTEXT_PER_CHANNEL_PRIOR)
+        v.u(2, self, "attribute_level", hi=LEVEL_2)
+        v.u(3, self, "context_model_id", hi=MAX_CONTEXT_MODEL_ID)
         for _ in v.when(self.context_model_id == CONTEXT_PER_CHANNEL_PRIOR,
                         "context_model_id == 0"):
             for c in v.loop(self.num_channels, "NumChannels", self, ("prior_mean", "prior_level"), index="c"):

@@ -1,32 +1,34 @@
 """The decoding process (spec clause 12): bitstream in, anchor scene out, nothing else needed.
 
-Order of data units (clause 6.4): scene_parameter_set first; then render_model (optional),
-geometry, one attribute unit per level; decoded_scene_hash last. Ancillary units
-(type >= 0x80) may appear anywhere after the scene parameter set and are skipped.
+Critical data units come in the order (clause 6.3)
+    scene_parameter_set, [render_model], geometry, [context_model], attribute x (1 or 2), decoded_scene_hash
+with two attribute units (level 1, then level 2) when the hierarchy is enabled. Ancillary
+units (type >= 0x80) may appear anywhere after the scene parameter set and are skipped.
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from lghcc.common import attributes as attr
-from lghcc.common.bitio import BitReader
 from lghcc.common.container import Container, DataUnit, UnitType, read_container
 from lghcc.common.errors import BitstreamError, HashMismatchError, UnsupportedStreamError
 from lghcc.common.geometry import decode_geometry
 from lghcc.common.hashing import scene_digest
+from lghcc.common.hierarchy import build_hierarchy
 from lghcc.common.render_model import read_render_model_unit
 from lghcc.common.report import SizeBreakdown, breakdown_of
 from lghcc.common.scene import AnchorScene
 from lghcc.common.syntax import TraceEntry
-from lghcc.common.units import (CONTEXT_PER_CHANNEL_PRIOR, MAX_ATTRIBUTE_VALUES, AttributeUnitHeader,
-                                DecodedSceneHashUnit, SceneParameterSet)
+from lghcc.common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ATTRIBUTE_VALUES, DecodedSceneHashUnit,
+                                SceneParameterSet)
 
-# Units a stream of this version must carry exactly once, in this order.
-REQUIRED_ORDER = (UnitType.SCENE_PARAMETER_SET, UnitType.GEOMETRY, UnitType.ATTRIBUTE,
-                  UnitType.DECODED_SCENE_HASH)
+_LETTER = {UnitType.SCENE_PARAMETER_SET: "S", UnitType.RENDER_MODEL: "R", UnitType.GEOMETRY: "G",
+           UnitType.CONTEXT_MODEL: "C", UnitType.ATTRIBUTE: "A", UnitType.DECODED_SCENE_HASH: "H"}
+_UNIT_ORDER = re.compile(r"SR?GC?A{1,2}H")
 
 
 @dataclass
@@ -39,69 +41,29 @@ class DecodeResult:
     trace: list[TraceEntry] | None = None
 
 
-def _organize(container: Container) -> tuple[dict[int, DataUnit], list[str]]:
-    """Check unit types, multiplicity and order; return the critical units by type."""
-    by_type: dict[int, DataUnit] = {}
+def organize_units(container: Container) -> tuple[list[DataUnit], list[str]]:
+    """Check unit types and their order; return the critical units and the skipped ones."""
+    critical: list[DataUnit] = []
     skipped: list[str] = []
-    order: list[int] = []
     for idx, u in enumerate(container.units):
         if u.is_ancillary:
-            if not order:
+            if not critical:
                 raise BitstreamError(f"data unit {idx}: an ancillary unit precedes the scene parameter set")
             skipped.append(f"{u.type_name} ({len(u.payload)} bytes at byte {u.offset})")
-            continue
-        if u.unit_type not in UnitType._value2member_map_ or u.unit_type == UnitType.CONTEXT_MODEL:
+        elif u.unit_type in _LETTER:
+            critical.append(u)
+        else:
             raise UnsupportedStreamError(f"data unit {idx} has unit type 0x{u.unit_type:02x}, which this "
                                          "decoder does not know and which is not marked ancillary")
-        if u.unit_type in by_type:
-            raise BitstreamError(f"data unit {idx}: a second {u.type_name} unit")
-        if order and order[-1] == UnitType.DECODED_SCENE_HASH:
-            raise BitstreamError(f"data unit {idx}: {u.type_name} after the decoded scene hash unit")
-        by_type[u.unit_type] = u
-        order.append(u.unit_type)
-    for t in REQUIRED_ORDER:
-        if t not in by_type:
-            raise BitstreamError(f"the stream has no {UnitType(t).name.lower()} unit")
-    required_seen = [t for t in order if t in REQUIRED_ORDER]
-    if required_seen != list(REQUIRED_ORDER):
-        raise BitstreamError("data units are out of order: expected " +
-                             ", ".join(UnitType(t).name.lower() for t in REQUIRED_ORDER))
-    if order[0] != UnitType.SCENE_PARAMETER_SET:
-        raise BitstreamError("the first data unit is not the scene parameter set")
-    if UnitType.RENDER_MODEL in by_type and order.index(UnitType.RENDER_MODEL) > order.index(UnitType.GEOMETRY):
-        raise BitstreamError("the render model unit must precede the geometry unit")
-    return by_type, skipped
-
-
-def decode_attribute_unit(payload: bytes, sps: SceneParameterSet, num_rows: int, level: int,
-                          trace: list[TraceEntry] | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    """Returns (q int64 [rows, M], offset_mask bool [rows, K] or None)."""
-    layout = attr.layout_of(sps)
-    reader = BitReader(payload, "attribute unit")
-    h = AttributeUnitHeader.parse(reader, trace, num_channels=layout.num_channels, num_offsets=sps.num_offsets,
-                                  offset_mask_present=sps.offset_mask_present_flag, num_rows=num_rows)
-    if h.attribute_level != level:
-        raise BitstreamError(f"attribute unit: attribute_level {h.attribute_level}, expected {level}")
-    body = payload[reader.bit_position // 8:]
-    sizes = [s for pair in zip(h.mask_chunk_size, h.chunk_size) for s in pair] if h.offset_mask_present \
-        else list(h.chunk_size)
-    pieces = attr.split_chunks(body, sizes, "attribute unit")
-    if h.context_model_id != CONTEXT_PER_CHANNEL_PRIOR:  # guarded by the header's range check
-        raise UnsupportedStreamError(f"context model {h.context_model_id} is not supported")
-    prior_mean = np.asarray(h.prior_mean, dtype=np.int64)
-    prior_level = np.asarray(h.prior_level, dtype=np.int64)
-    models = attr.mask_models(h.mask_live_prob) if h.offset_mask_present else None
-    q = np.empty((num_rows, layout.num_channels), dtype=np.int64)
-    mask = np.ones((num_rows, sps.num_offsets), dtype=bool) if h.offset_mask_present else None
-    it = iter(pieces)
-    for i in range(h.num_chunks):
-        lo, hi = i * h.rows_per_chunk, min(num_rows, (i + 1) * h.rows_per_chunk)
-        if models is not None:
-            mask[lo:hi] = attr.decode_mask_chunk(next(it), hi - lo, models, f"attribute mask chunk {i}")
-        live = layout.live_channels(None if mask is None else mask[lo:hi], hi - lo)
-        levels = np.broadcast_to(prior_level, (hi - lo, layout.num_channels))
-        q[lo:hi] = attr.decode_residual_chunk(next(it), levels, live, f"attribute chunk {i}") + prior_mean * live
-    return q, mask
+    letters = "".join(_LETTER[UnitType(u.unit_type)] for u in critical)
+    for t in (UnitType.SCENE_PARAMETER_SET, UnitType.GEOMETRY, UnitType.ATTRIBUTE, UnitType.DECODED_SCENE_HASH):
+        if _LETTER[t] not in letters:
+            raise BitstreamError(f"the stream has no {t.name.lower()} unit")
+    if not _UNIT_ORDER.fullmatch(letters):
+        names = ", ".join(u.type_name for u in critical)
+        raise BitstreamError(f"data units are out of order or repeated: {names} (expected scene_parameter_set, "
+                             "[render_model], geometry, [context_model], attribute (1 or 2), decoded_scene_hash)")
+    return critical, skipped
 
 
 def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
@@ -109,8 +71,12 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
     """Decode a whole stream. Raises a BitstreamError subclass naming the problem."""
     entries: list[TraceEntry] | None = [] if trace else None
     container = read_container(data)
-    units, skipped = _organize(container)
-    sps = SceneParameterSet.from_bytes(units[UnitType.SCENE_PARAMETER_SET].payload, entries,
+    units, skipped = organize_units(container)
+    by_type: dict[int, list[DataUnit]] = {}
+    for u in units:
+        by_type.setdefault(u.unit_type, []).append(u)
+
+    sps = SceneParameterSet.from_bytes(by_type[UnitType.SCENE_PARAMETER_SET][0].payload, entries,
                                        what="scene parameter set")
     layout = attr.layout_of(sps)
     n = sps.num_anchors
@@ -119,19 +85,39 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
                              f"{MAX_ATTRIBUTE_VALUES} attribute values")
     if max_anchors is not None and n > max_anchors:
         raise BitstreamError(f"the stream declares {n} anchors, more than the allowed maximum {max_anchors}")
+    attribute_units = by_type[UnitType.ATTRIBUTE]
+    if len(attribute_units) != (2 if sps.hierarchy_enabled_flag else 1):
+        raise BitstreamError(f"{len(attribute_units)} attribute units with hierarchy_enabled_flag = "
+                             f"{sps.hierarchy_enabled_flag}")
+    if UnitType.CONTEXT_MODEL in by_type:
+        raise UnsupportedStreamError("context model units are not supported by this decoder version")
 
     mlps = {}
-    if UnitType.RENDER_MODEL in units:
-        mlps = read_render_model_unit(units[UnitType.RENDER_MODEL].payload, entries)
-    coords = decode_geometry(units[UnitType.GEOMETRY].payload, n)
-    q, mask = decode_attribute_unit(units[UnitType.ATTRIBUTE].payload, sps, n, 0, entries)
-    values = attr.reconstruct(q, layout.steps(sps))  # dead offsets have q = 0, so they reconstruct to 0
+    if UnitType.RENDER_MODEL in by_type:
+        mlps = read_render_model_unit(by_type[UnitType.RENDER_MODEL][0].payload, entries)
+    coords = decode_geometry(by_type[UnitType.GEOMETRY][0].payload, n)
+
+    steps = layout.steps(sps)
+    values = np.empty((n, layout.num_channels), dtype=np.float32)
+    mask = np.ones((n, sps.num_offsets), dtype=bool) if sps.offset_mask_present_flag else None
+    if sps.hierarchy_enabled_flag:
+        hier = build_hierarchy(coords, sps.coarse_voxel_scale)
+        if hier.num_level2 == 0:
+            raise BitstreamError("hierarchy_enabled_flag is 1 but level 2 is empty")
+        levels = [(LEVEL_1, hier.level1_idx), (LEVEL_2, hier.level2_idx)]
+    else:
+        levels = [(LEVEL_ALL, np.arange(n))]
+    for unit, (level, rows) in zip(attribute_units, levels):
+        _, q, m, params = attr.read_attribute_unit(unit.payload, sps, rows.size, level, None, entries)
+        values[rows] = attr.reconstruct(q, steps, params.step_adjust)  # dead offsets have q = 0
+        if mask is not None:
+            mask[rows] = m
     features, scalings, offsets = layout.split(values)
     scene = AnchorScene(coords=coords, voxel_size=float(sps.voxel_size),
                         origin=np.asarray(sps.origin, dtype=np.float32), features=features,
                         scalings=scalings, offsets=offsets, offset_mask=mask, mlps=mlps)
 
-    hash_unit = DecodedSceneHashUnit.from_bytes(units[UnitType.DECODED_SCENE_HASH].payload, entries,
+    hash_unit = DecodedSceneHashUnit.from_bytes(by_type[UnitType.DECODED_SCENE_HASH][0].payload, entries,
                                                 what="decoded scene hash unit")
     if verify_hash:
         digest = scene_digest(scene)

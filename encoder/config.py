@@ -25,6 +25,9 @@ class EncoderConfig:
     rows_per_chunk: int = 65536
     # Rows sampled when choosing each channel's prior (informative speed/accuracy knob).
     prior_fit_rows: int = 50000
+    # Two-level hierarchy: level 1 = one anchor per coarse voxel of this many voxels per side.
+    hierarchy: bool = False
+    coarse_voxel_scale: int = 4
 
     def validate(self) -> "EncoderConfig":
         for name in ("feature_step", "scaling_step", "offset_step"):
@@ -35,6 +38,8 @@ class EncoderConfig:
             raise InputError(f"mlp_weight_bits must be in [2, 24], got {self.mlp_weight_bits}")
         if self.rows_per_chunk < 1:
             raise InputError("rows_per_chunk must be at least 1")
+        if not 1 <= self.coarse_voxel_scale <= (1 << 20):
+            raise InputError(f"coarse_voxel_scale must be in [1, 2^20], got {self.coarse_voxel_scale}")
         if self.prior_fit_rows < 1:
             raise InputError("prior_fit_rows must be at least 1")
         return self

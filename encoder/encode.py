@@ -20,7 +20,8 @@ from lghcc.common.hashing import scene_digest
 from lghcc.common.render_model import dequantize, write_render_model_unit
 from lghcc.common.report import SizeBreakdown, breakdown_of
 from lghcc.common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene, RenderMLP
-from lghcc.common.units import (CONTEXT_PER_CHANNEL_PRIOR, LEVEL_ALL, MASK_PROB_BITS, MAX_ANCHORS,
+from lghcc.common.hierarchy import build_hierarchy
+from lghcc.common.units import (CONTEXT_PER_CHANNEL_PRIOR, LEVEL_1, LEVEL_2, LEVEL_ALL, MASK_PROB_BITS, MAX_ANCHORS,
                                 MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, AttributeUnitHeader, DecodedSceneHashUnit,
                                 RenderMlpHeader, SceneParameterSet)
 from lghcc.encoder.config import EncoderConfig
@@ -141,11 +142,17 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
     mask = None if scene.offset_mask is None else scene.offset_mask[order].astype(bool)
     if mask is not None and mask.all():
         mask = None  # every offset is live: the mask tool is switched off and costs nothing
+    levels = [(LEVEL_ALL, np.arange(n))]
+    if cfg.hierarchy:
+        hier = build_hierarchy(coords, cfg.coarse_voxel_scale)
+        if hier.num_level2:  # an empty level 2 switches the hierarchy off: it costs no bits
+            levels = [(LEVEL_1, hier.level1_idx), (LEVEL_2, hier.level2_idx)]
     sps = SceneParameterSet(
         num_anchors_minus1=n - 1, feature_dim_minus1=scene.feature_dim - 1,
         num_offsets_minus1=scene.num_offsets - 1, voxel_size=float(scene.voxel_size),
         origin=[float(x) for x in scene.origin], offset_mask_present_flag=int(mask is not None),
-        feature_step=cfg.feature_step, scaling_step=cfg.scaling_step, offset_step=cfg.offset_step)
+        feature_step=cfg.feature_step, scaling_step=cfg.scaling_step, offset_step=cfg.offset_step,
+        hierarchy_enabled_flag=int(len(levels) == 2), coarse_voxel_scale_minus1=cfg.coarse_voxel_scale - 1)
     layout = attr.ChannelLayout(scene.feature_dim, scene.num_offsets)
     if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
         raise InputError(f"{n} anchors x {layout.num_channels} channels exceed the profile's limit")
@@ -153,35 +160,33 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
     steps = layout.steps(sps)
     values = layout.join(scene.features[order], scene.scalings[order], scene.offsets[order])
     live = layout.live_channels(mask, n)
-    q = np.where(live, quantize(values, steps, "attributes"), 0)
     bar.update()
 
     bar.set_postfix_str("attributes")
     t1 = time.perf_counter()
-    means, levels = fit_per_channel_prior(q, live, cfg.prior_fit_rows)
-    header = AttributeUnitHeader(
-        num_channels=layout.num_channels, num_offsets=scene.num_offsets,
-        offset_mask_present=int(mask is not None), num_rows=n, attribute_level=LEVEL_ALL,
-        context_model_id=CONTEXT_PER_CHANNEL_PRIOR, prior_mean=means.tolist(), prior_level=levels.tolist(),
-        rows_per_chunk_minus1=min(cfg.rows_per_chunk, n) - 1)
-    if mask is not None:
-        p = np.clip(np.rint(mask.mean(axis=0) * (1 << MASK_PROB_BITS)), 1, (1 << MASK_PROB_BITS) - 1)
-        header.mask_live_prob = [int(x) for x in p]
-        mask_models = attr.mask_models(header.mask_live_prob)
-    residuals = (q - means) * live
-    level_rows = np.broadcast_to(levels, (header.rows_per_chunk, layout.num_channels))
-    chunks: list[bytes] = []
-    for i in range(header.num_chunks):
-        lo, hi = i * header.rows_per_chunk, min(n, (i + 1) * header.rows_per_chunk)
+    recon = np.zeros_like(values, dtype=np.float32)
+    attribute_payloads = []
+    stats["attribute_ideal_bits"] = 0.0
+    stats["attribute_coded_bits"] = 0
+    for level, rows in levels:
+        q = np.where(live[rows], quantize(values[rows], steps, "attributes"), 0)
+        means, lv = fit_per_channel_prior(q, live[rows], cfg.prior_fit_rows)
+        header = AttributeUnitHeader(
+            num_channels=layout.num_channels, num_offsets=scene.num_offsets,
+            offset_mask_present=int(mask is not None), num_rows=rows.size, attribute_level=level,
+            context_model_id=CONTEXT_PER_CHANNEL_PRIOR, prior_mean=means.tolist(), prior_level=lv.tolist(),
+            rows_per_chunk_minus1=min(cfg.rows_per_chunk, rows.size) - 1)
+        level_mask = None if mask is None else mask[rows]
         if mask is not None:
-            chunks.append(attr.encode_mask_chunk(mask[lo:hi], mask_models))
-            header.mask_chunk_size.append(len(chunks[-1]))
-        chunks.append(attr.encode_residual_chunk(residuals[lo:hi], level_rows[: hi - lo], live[lo:hi]))
-        header.chunk_size.append(len(chunks[-1]))
-    attribute_payload = header.to_bytes() + b"".join(chunks)
-    stats["attribute_ideal_bits"] = ideal_code_length_bits(
-        residuals[live], np.broadcast_to(levels, (n, layout.num_channels))[live])
-    stats["attribute_coded_bits"] = 8 * sum(header.chunk_size)
+            p = np.clip(np.rint(level_mask.mean(axis=0) * (1 << MASK_PROB_BITS)), 1, (1 << MASK_PROB_BITS) - 1)
+            header.mask_live_prob = [int(x) for x in p]
+        params = attr.prior_params(header)
+        attribute_payloads.append(attr.write_attribute_unit(header, layout, q, level_mask, params))
+        lr = live[rows]
+        stats["attribute_ideal_bits"] += ideal_code_length_bits(
+            (q - params.mean)[lr], np.broadcast_to(params.level, q.shape)[lr])
+        stats["attribute_coded_bits"] += 8 * sum(header.chunk_size)
+        recon[rows] = attr.reconstruct(q, steps, params.step_adjust)
     stats["time_attributes_s"] = time.perf_counter() - t1
     bar.update()
 
@@ -194,13 +199,14 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
     bar.update()
 
     bar.set_postfix_str("hash")
-    features, scalings, offsets = layout.split(attr.reconstruct(q, steps))
+    features, scalings, offsets = layout.split(recon)
     decoded = AnchorScene(coords=coords, voxel_size=float(sps.voxel_size),
                           origin=np.asarray(sps.origin, dtype=np.float32), features=features, scalings=scalings,
                           offsets=offsets, offset_mask=mask, mlps=decoded_mlps)
     digest = scene_digest(decoded)
-    units += [DataUnit(UnitType.GEOMETRY, geometry_payload), DataUnit(UnitType.ATTRIBUTE, attribute_payload),
-              DataUnit(UnitType.DECODED_SCENE_HASH, DecodedSceneHashUnit(scene_hash=digest).to_bytes())]
+    units.append(DataUnit(UnitType.GEOMETRY, geometry_payload))
+    units += [DataUnit(UnitType.ATTRIBUTE, p) for p in attribute_payloads]
+    units.append(DataUnit(UnitType.DECODED_SCENE_HASH, DecodedSceneHashUnit(scene_hash=digest).to_bytes()))
     data = write_container(units)
     bar.update()
     bar.close()

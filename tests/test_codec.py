@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 import torch
-from hypothesis import given, settings
+from hypothesis import given, settings, strategies as st
 
 from lghcc.common.errors import InputError
 from lghcc.common.hashing import scene_digest
@@ -48,12 +48,32 @@ def test_procedural_round_trip_and_quantization_error():
 
 
 @settings(max_examples=40)
-@given(scenes())
-def test_round_trip_hard_cases(scene):
-    res = encode_scene(scene, EncoderConfig(feature_step=0.01, scaling_step=0.1, offset_step=0.05, rows_per_chunk=7))
+@given(scenes(), st.booleans(), st.sampled_from([1, 2, 4, 1 << 20]))
+def test_round_trip_hard_cases(scene, hierarchy, scale):
+    cfg = EncoderConfig(feature_step=0.01, scaling_step=0.1, offset_step=0.05, rows_per_chunk=7,
+                        hierarchy=hierarchy, coarse_voxel_scale=scale)
+    res = encode_scene(scene, cfg)
     dec = decode_stream(res.data)
     assert_same_scene(dec.scene, res.decoded)
     assert dec.scene.num_anchors == scene.num_anchors
+
+
+def test_hierarchy_levels_and_switch_off():
+    # One anchor: level 2 is empty, so the hierarchy is switched off and costs nothing.
+    one = random_scene(np.random.default_rng(0), 1)
+    assert encode_scene(one, EncoderConfig(hierarchy=True)).data == encode_scene(one, EncoderConfig()).data
+    # 501 anchors in one coarse voxel: one level-1 parent with 500 children.
+    rng = np.random.default_rng(1)
+    scene = random_scene(rng, 1)
+    g = np.stack(np.meshgrid(*[np.arange(8)] * 3, indexing="ij"), -1).reshape(-1, 3)[:501]
+    scene.coords = g.astype(np.int64)
+    scene.features = rng.normal(size=(501, 4)).astype(np.float32)
+    scene.scalings = rng.normal(size=(501, 6)).astype(np.float32)
+    scene.offsets = rng.normal(size=(501, 2, 3)).astype(np.float32)
+    res = encode_scene(scene, EncoderConfig(hierarchy=True, coarse_voxel_scale=8))
+    dec = decode_stream(res.data)
+    assert_same_scene(dec.scene, res.decoded)
+    assert dec.breakdown.bytes_by_category["attributes"] > 0
 
 
 def test_values_far_outside_the_tables_use_the_escape_path():
