@@ -430,14 +430,14 @@ def encode_geometry(coords: np.ndarray, idcm_mode: int = IDCM_ISOLATED) -> bytes
     return w.getvalue() + enc.to_bytes()
 
 
-def decode_geometry(payload: bytes, num_anchors: int) -> np.ndarray:
+def decode_geometry(payload: bytes, num_anchors: int, trace: list | None = None) -> np.ndarray:
     """Decode the geometry payload of ``num_anchors`` anchors. Returns int64 [N,3] coordinates in
     normative order. Raises BitstreamError on any malformed payload."""
     n = int(num_anchors)
     if n < 1:
         raise BitstreamError(f"num_anchors = {n}: the geometry of at least one anchor is needed")
     reader = BitReader(payload, "geometry payload")
-    header = GeometryHeader.parse(reader)
+    header = GeometryHeader.parse(reader, trace)
     reader.byte_align()
     _validate_header(header, n)
     data = bytes(payload[reader.bit_position // 8:])

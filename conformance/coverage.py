@@ -23,6 +23,7 @@ ENUMERATIONS = {
     "render_mlp_header.activation": [0, 1, 2, 3],
 }
 NOT_IN_TRACE = {"container_header", "data_unit_header"}  # parsed by the container layer; see unit types
+FIXED_LENGTH = {"decoded_scene_hash_unit.scene_hash"}  # byte strings that cannot be empty
 
 
 def element_classes() -> dict[str, list]:
@@ -47,7 +48,7 @@ def element_classes() -> dict[str, list]:
             elif row.descriptor == "f(32)":
                 classes[name] = ["present"]
             elif row.descriptor.startswith("b("):
-                classes[name] = ["empty", "non-empty"]
+                classes[name] = ["non-empty"] if name in FIXED_LENGTH else ["empty", "non-empty"]
             else:
                 classes[name] = ["minimum", "above minimum"]
     classes["data_unit.unit_type"] = [t.name.lower() for t in UnitType if t != UnitType.CONTEXT_MODEL] + ["ancillary"]

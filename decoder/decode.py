@@ -95,7 +95,7 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
     mlps = {}
     if UnitType.RENDER_MODEL in by_type:
         mlps = read_render_model_unit(by_type[UnitType.RENDER_MODEL][0].payload, entries)
-    coords = decode_geometry(by_type[UnitType.GEOMETRY][0].payload, n)
+    coords = decode_geometry(by_type[UnitType.GEOMETRY][0].payload, n, entries)
 
     steps = layout.steps(sps)
     values = np.empty((n, layout.num_channels), dtype=np.float32)
