@@ -581,7 +581,7 @@ def write_colmap_text(folder: str | os.PathLike, cameras: list[ColmapCamera], im
     xyz = np.zeros((0, 3)) if points_xyz is None else points_xyz
     rgb = np.zeros((len(xyz), 3), np.uint8) if points_rgb is None else points_rgb
     (d / "points3D.txt").write_text("# 3D point list\n" + "".join(
-        f"{i + 1} {x[0]!r} {x[1]!r} {x[2]!r} {c[0]} {c[1]} {c[2]} 0.0\n" for i, (x, c) in enumerate(zip(xyz, rgb))))
+        f"{i + 1} {float(x[0])!r} {float(x[1])!r} {float(x[2])!r} {int(c[0])} {int(c[1])} {int(c[2])} 0.0\n" for i, (x, c) in enumerate(zip(xyz, rgb))))
 
 
 def write_colmap_binary(folder: str | os.PathLike, cameras: list[ColmapCamera], images: list[ColmapImage],

@@ -1,0 +1,327 @@
+"""Cameras, loaders (NeRF-synthetic, LLFF, COLMAP text/binary), PNG I/O, loader errors."""
+
+import json
+import math
+import struct
+import zlib
+
+import numpy as np
+import pytest
+
+from lghcc.common.errors import InputError
+from lghcc.render.camera import (Camera, ColmapCamera, ColmapImage, load_colmap, load_llff, load_nerf_synthetic,
+                                 qvec_to_rotmat, read_colmap_model, write_colmap_binary, write_colmap_text)
+from lghcc.render.imageio import read_image, write_png
+
+
+def _rot_y(a):
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+
+# --- Camera --------------------------------------------------------------------------------
+
+def test_camera_projects_and_looks_where_told():
+    cam = Camera.look_at([0, -4, 0], [0, 0, 0], up=[0, 0, 1], width=101, height=81, fov_x_deg=60)
+    np.testing.assert_allclose(cam.center, [0, -4, 0], atol=1e-12)
+    np.testing.assert_allclose(cam.forward, [0, 1, 0], atol=1e-12)
+    uv, z = cam.project(np.array([[0.0, 0, 0], [0.0, 0, 1.0], [1.0, 0, 0]]))
+    np.testing.assert_allclose(uv[0], [50.5, 40.5])
+    assert z[0] == pytest.approx(4.0)
+    assert uv[1, 1] < 40.5  # world up is image up (y down)
+    assert uv[2, 0] > 50.5  # world +x is to the right seen from -y
+    assert cam.fov_x == pytest.approx(math.radians(60))
+    d, dist = cam.view_directions(np.array([[0.0, 0, 0]]))
+    np.testing.assert_allclose(d[0], [0, 1, 0], atol=1e-12)
+    assert dist[0] == pytest.approx(4.0)
+    big = cam.scaled(2)
+    assert (big.width, big.height) == (202, 162) and big.fx == pytest.approx(2 * cam.fx)
+
+
+def test_camera_rejects_bad_values():
+    with pytest.raises(InputError):
+        Camera(np.eye(4), -1, 1, 0, 0, 10, 10)
+    with pytest.raises(InputError):
+        Camera(np.eye(4), 1, 1, 0, 0, 0, 10)
+    with pytest.raises(InputError):
+        Camera(np.full((4, 4), np.nan), 1, 1, 0, 0, 10, 10)
+    with pytest.raises(InputError, match="orthonormal"):
+        Camera.from_camera_to_world(np.eye(4) * 2, 1, 1, 0, 0, 10, 10)
+
+
+# --- PNG -------------------------------------------------------------------------------------
+
+def _png_bytes(img_u8: np.ndarray, filters: list[int]) -> bytes:
+    """An RGBA PNG with the given filter type per row (encoder written from the PNG spec)."""
+    h, w, c = img_u8.shape
+    bpp = c
+    rows, prev = [], np.zeros(w * c, np.int64)
+    for y in range(h):
+        line = img_u8[y].reshape(-1).astype(np.int64)
+        left = np.concatenate([np.zeros(bpp, np.int64), line[:-bpp]])
+        upleft = np.concatenate([np.zeros(bpp, np.int64), prev[:-bpp]])
+        f = filters[y % len(filters)]
+        if f == 0:
+            out = line
+        elif f == 1:
+            out = line - left
+        elif f == 2:
+            out = line - prev
+        elif f == 3:
+            out = line - (left + prev) // 2
+        else:
+            p = left + prev - upleft
+            pa, pb, pc = abs(p - left), abs(p - prev), abs(p - upleft)
+            out = line - np.where((pa <= pb) & (pa <= pc), left, np.where(pb <= pc, prev, upleft))
+        rows.append(bytes([f]) + (out & 255).astype(np.uint8).tobytes())
+        prev = line
+
+    def chunk(t, b):
+        return struct.pack(">I", len(b)) + t + b + struct.pack(">I", zlib.crc32(t + b) & 0xFFFFFFFF)
+
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 6, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(b"".join(rows))) + chunk(b"IEND", b""))
+
+
+def test_png_reader_undoes_every_filter(tmp_path):
+    img = np.random.default_rng(0).integers(0, 256, size=(9, 7, 4), dtype=np.uint8)
+    p = tmp_path / "f.png"
+    p.write_bytes(_png_bytes(img, [0, 1, 2, 3, 4]))
+    np.testing.assert_array_equal(np.round(read_image(p) * 255).astype(np.uint8), img)
+
+
+def test_png_write_read_round_trip(tmp_path):
+    img = np.random.default_rng(1).random((5, 6, 3)).astype(np.float32)
+    write_png(tmp_path / "x.png", img)
+    back = read_image(tmp_path / "x.png")
+    assert back.shape == (5, 6, 3)
+    assert np.abs(back - img).max() <= 0.5 / 255 + 1e-6
+
+
+def test_image_errors(tmp_path):
+    with pytest.raises(InputError, match="not found"):
+        read_image(tmp_path / "missing.png")
+    (tmp_path / "bad.png").write_bytes(b"not a png at all")
+    with pytest.raises(InputError, match="bad.png"):
+        read_image(tmp_path / "bad.png")
+
+
+# --- NeRF-synthetic ------------------------------------------------------------------------------
+
+def _write_nerf(root, n=3, size=(8, 6), missing=None):
+    (root / "test").mkdir(parents=True)
+    frames = []
+    for i in range(n):
+        c2w = np.eye(4)
+        c2w[:3, :3] = _rot_y(0.3 * i)
+        c2w[:3, 3] = [0.1 * i, 0.2, 4.0]
+        frames.append({"file_path": f"./test/r_{i}", "transform_matrix": c2w.tolist()})
+        if i != missing:
+            img = np.zeros((size[1], size[0], 4), np.float32)
+            img[..., 0] = 1.0
+            img[..., 3] = np.linspace(0, 1, size[0])[None, :]
+            write_png(root / "test" / f"r_{i}.png", img)
+    (root / "transforms_test.json").write_text(json.dumps({"camera_angle_x": 0.8, "frames": frames}))
+
+
+def test_nerf_loader_converts_opengl_poses_and_composites(tmp_path):
+    _write_nerf(tmp_path)
+    white = load_nerf_synthetic(tmp_path, "test", background="white")
+    black = load_nerf_synthetic(tmp_path, "test", background="black")
+    assert len(white) == 3
+    cam = white[0]
+    assert (cam.width, cam.height) == (8, 6)
+    assert cam.fx == pytest.approx(4 / math.tan(0.4)) and cam.cx == 4 and cam.cy == 3
+    # OpenGL camera at (0, 0.2, 4) looking down -z: OpenCV forward is world -z, image down is world -y
+    np.testing.assert_allclose(cam.center, [0, 0.2, 4.0], atol=1e-12)
+    np.testing.assert_allclose(cam.forward, [0, 0, -1], atol=1e-12)
+    uv, z = cam.project(np.array([[0.0, 0.2, 0.0], [0.0, 1.2, 0.0]]))
+    np.testing.assert_allclose(uv[0], [4, 3], atol=1e-9)
+    assert z[0] == pytest.approx(4.0) and uv[1, 1] < 3
+    a = np.linspace(0, 1, 8)[None, :]
+    np.testing.assert_allclose(white[0].image[..., 1], np.broadcast_to(1 - a, (6, 8)), atol=1 / 255)
+    np.testing.assert_allclose(black[0].image[..., 1], 0, atol=1e-7)
+    np.testing.assert_allclose(black[0].image[..., 0], np.broadcast_to(a, (6, 8)), atol=1 / 255)
+    no_img = load_nerf_synthetic(tmp_path, "test", load_images=False)
+    assert no_img[2].image is None and no_img[2].width == 8
+
+
+def test_nerf_loader_errors(tmp_path):
+    with pytest.raises(InputError, match="transforms_test.json: file not found"):
+        load_nerf_synthetic(tmp_path)
+    _write_nerf(tmp_path, missing=1)
+    with pytest.raises(InputError, match="r_1"):
+        load_nerf_synthetic(tmp_path)
+    with pytest.raises(InputError, match="background"):
+        load_nerf_synthetic(tmp_path, background="grey", max_frames=1)
+    (tmp_path / "transforms_test.json").write_text('{"frames": []}')
+    with pytest.raises(InputError, match="camera_angle_x"):
+        load_nerf_synthetic(tmp_path)
+    (tmp_path / "transforms_test.json").write_text('{"camera_angle_x": 0.5, "frames": [{"file_path": "./test/r_0", '
+                                                     '"transform_matrix": [[1, 0], [0, 1]]}]}')
+    with pytest.raises(InputError, match="4x4"):
+        load_nerf_synthetic(tmp_path)
+
+
+@pytest.mark.data
+def test_lego_loader(shared_data):
+    root = shared_data / "lego" / "lego_100"
+    if not (root / "transforms_test.json").is_file():
+        pytest.skip(f"lego not found at {root}")
+    cams = load_nerf_synthetic(root, "test", background="white", max_frames=4)
+    assert len(cams) == 4
+    for c in cams:
+        assert c.image.shape == (100, 100, 3) and c.image.dtype == np.float32
+        assert 0 <= c.image.min() and c.image.max() <= 1
+        assert c.image[0, 0].tolist() == [1.0, 1.0, 1.0]  # corner: white background
+        assert np.linalg.norm(c.center) == pytest.approx(4.03, abs=0.05)  # NeRF-synthetic orbit radius
+        _, z = c.project(np.zeros((1, 3)))  # the object at the origin is in front of every camera
+        assert z[0] > 3.5
+    assert cams[0].fx == pytest.approx(50 / math.tan(0.6911112070083618 / 2))
+    all_test = load_nerf_synthetic(root, "test", load_images=False)
+    assert len(all_test) == 200
+
+
+# --- COLMAP ---------------------------------------------------------------------------------
+
+def _colmap_fixture():
+    cams = [ColmapCamera(1, "PINHOLE", 64, 48, np.array([50.0, 52.0, 32.0, 24.0])),
+            ColmapCamera(2, "SIMPLE_RADIAL", 32, 24, np.array([30.0, 16.0, 12.0, 0.01])),
+            ColmapCamera(3, "SIMPLE_PINHOLE", 20, 10, np.array([15.0, 10.0, 5.0]))]
+    q = np.array([0.9, 0.1, -0.2, 0.3])
+    q /= np.linalg.norm(q)
+    imgs = [ColmapImage(1, q, np.array([0.1, 0.2, 3.0]), 1, "b.png"),
+            ColmapImage(7, np.array([1.0, 0, 0, 0]), np.array([0.0, 0, 2.0]), 2, "a.png"),
+            ColmapImage(3, np.array([0.0, 1.0, 0, 0]), np.array([0.0, 0, 5.0]), 3, "c.png")]
+    xyz = np.random.default_rng(0).normal(size=(5, 3))
+    rgb = np.random.default_rng(1).integers(0, 256, size=(5, 3)).astype(np.uint8)
+    return cams, imgs, xyz, rgb
+
+
+@pytest.mark.parametrize("writer", [write_colmap_text, write_colmap_binary])
+def test_colmap_loader(tmp_path, writer):
+    cams, imgs, xyz, rgb = _colmap_fixture()
+    writer(tmp_path, cams, imgs, xyz, rgb)
+    out, model = load_colmap(tmp_path)
+    assert [c.name for c in out] == ["a.png", "b.png", "c.png"]
+    b = out[1]
+    assert (b.fx, b.fy, b.cx, b.cy, b.width, b.height) == (50.0, 52.0, 32.0, 24.0, 64, 48)
+    np.testing.assert_allclose(b.rotation, qvec_to_rotmat(imgs[0].qvec), atol=1e-12)
+    np.testing.assert_allclose(b.translation, [0.1, 0.2, 3.0])
+    assert out[0].fx == out[0].fy == 30.0 and out[0].distortion == (0.01,)
+    assert out[2].fx == out[2].fy == 15.0 and out[2].cx == 10.0
+    np.testing.assert_allclose(model.points_xyz, xyz)
+    np.testing.assert_array_equal(model.points_rgb, rgb)
+    np.testing.assert_allclose(qvec_to_rotmat(imgs[0].qvec) @ qvec_to_rotmat(imgs[0].qvec).T, np.eye(3), atol=1e-12)
+
+
+def test_colmap_text_and_binary_agree(tmp_path):
+    cams, imgs, xyz, rgb = _colmap_fixture()
+    write_colmap_text(tmp_path / "t", cams, imgs, xyz, rgb)
+    write_colmap_binary(tmp_path / "b", cams, imgs, xyz, rgb)
+    a, _ = load_colmap(tmp_path / "t")
+    b, _ = load_colmap(tmp_path / "b")
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x.world_to_camera, y.world_to_camera)
+        assert (x.fx, x.fy, x.cx, x.cy, x.width, x.height, x.name) == (y.fx, y.fy, y.cx, y.cy, y.width, y.height, y.name)
+
+
+def test_colmap_text_with_points2d_lines(tmp_path):
+    (tmp_path / "cameras.txt").write_text("# c\n1 PINHOLE 10 8 9 9 5 4\n")
+    (tmp_path / "images.txt").write_text(
+        "# Image list with two lines of data per image:\n"
+        "1 1 0 0 0 0 0 1 1 one.png\n2.5 3.0 -1 4.0 5.0 12\n"
+        "2 1 0 0 0 0 0 2 1 two.png\n\n")
+    (tmp_path / "points3D.txt").write_text("1 0.5 0.5 0.5 10 20 30 0.1 1 0 2 0\n")
+    cams, model = load_colmap(tmp_path)
+    assert [c.name for c in cams] == ["one.png", "two.png"]
+    assert model.points_xyz.shape == (1, 3) and model.points_rgb.tolist() == [[10, 20, 30]]
+
+
+def test_colmap_loads_images(tmp_path):
+    cams, imgs, _, _ = _colmap_fixture()
+    write_colmap_text(tmp_path / "sparse", cams[:1], imgs[:1])
+    (tmp_path / "images").mkdir()
+    write_png(tmp_path / "images" / "b.png", np.full((24, 32, 3), 0.5, np.float32))  # half size
+    out, _ = load_colmap(tmp_path / "sparse", tmp_path / "images", load_images=True)
+    assert out[0].image.shape == (24, 32, 3) and out[0].fx == pytest.approx(25.0) and out[0].width == 32
+    with pytest.raises(InputError, match="b.png"):
+        load_colmap(tmp_path / "sparse", tmp_path / "nowhere", load_images=True)
+
+
+def test_colmap_errors(tmp_path):
+    cams, imgs, xyz, rgb = _colmap_fixture()
+    with pytest.raises(InputError, match="not found"):
+        load_colmap(tmp_path / "nope")
+    d = tmp_path / "m"
+    write_colmap_binary(d, cams, imgs, xyz, rgb)
+    # inconsistent: an image refers to a camera that does not exist
+    write_colmap_binary(d, cams[:1], imgs, xyz, rgb)
+    with pytest.raises(InputError, match="refers to camera 2"):
+        load_colmap(d)
+    # truncated binary
+    write_colmap_binary(d, cams, imgs, xyz, rgb)
+    data = (d / "images.bin").read_bytes()
+    (d / "images.bin").write_bytes(data[:-5])
+    with pytest.raises(InputError, match="images.bin: truncated"):
+        read_colmap_model(d)
+    # unsupported model
+    fish = [ColmapCamera(1, "OPENCV_FISHEYE", 10, 10, np.ones(8))]
+    write_colmap_text(tmp_path / "f", fish, imgs[:1])
+    with pytest.raises(InputError, match="OPENCV_FISHEYE"):
+        load_colmap(tmp_path / "f")
+    # wrong parameter count and unknown model names
+    (tmp_path / "f" / "cameras.txt").write_text("1 PINHOLE 10 10 5 5 5\n")
+    with pytest.raises(InputError, match="cameras.txt: camera 1 \\(PINHOLE\\) has 3 parameters, expected 4"):
+        load_colmap(tmp_path / "f")
+    (tmp_path / "f" / "cameras.txt").write_text("1 WEIRD 10 10 5 5 5\n")
+    with pytest.raises(InputError, match="unknown model 'WEIRD'"):
+        load_colmap(tmp_path / "f")
+    (tmp_path / "f" / "cameras.bin").write_bytes(struct.pack("<QiiQQ", 1, 1, 99, 10, 10))
+    with pytest.raises(InputError, match="unknown model id 99"):
+        load_colmap(tmp_path / "f")
+
+
+# --- LLFF ----------------------------------------------------------------------------------------
+
+def _write_llff(root, n=3, hw=(12, 16), f=20.0, img_hw=(6, 8), n_images=None):
+    root.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for i in range(n):
+        c2w_cv = np.eye(4)
+        c2w_cv[:3, :3] = _rot_y(0.2 * i)
+        c2w_cv[:3, 3] = [i, 0.5, -3.0]
+        right, down, fwd = c2w_cv[:3, 0], c2w_cv[:3, 1], c2w_cv[:3, 2]
+        m = np.stack([down, right, -fwd, c2w_cv[:3, 3], np.array([hw[0], hw[1], f])], axis=1)  # LLFF layout
+        rows.append(np.concatenate([m.reshape(-1), [1.0, 10.0]]))
+    np.save(root / "poses_bounds.npy", np.array(rows))
+    (root / "images").mkdir(exist_ok=True)
+    for i in range(n if n_images is None else n_images):
+        write_png(root / "images" / f"{i:03d}.png", np.full((*img_hw, 3), 0.25 * (i % 4), np.float32))
+
+
+def test_llff_loader(tmp_path):
+    _write_llff(tmp_path)
+    cams = load_llff(tmp_path)
+    assert len(cams) == 3
+    c = cams[1]
+    assert (c.width, c.height) == (8, 6) and c.fx == pytest.approx(10.0)  # images are half the pose size
+    np.testing.assert_allclose(c.center, [1, 0.5, -3.0], atol=1e-12)
+    np.testing.assert_allclose(c.rotation.T[:, 2], _rot_y(0.2)[:, 2], atol=1e-12)  # forward column
+    assert c.near == pytest.approx(0.9) and c.image.shape == (6, 8, 3)
+    assert cams[1].image[0, 0, 0] == pytest.approx(0.25, abs=1 / 255)
+
+
+def test_llff_errors(tmp_path):
+    with pytest.raises(InputError, match="poses_bounds.npy: file not found"):
+        load_llff(tmp_path)
+    _write_llff(tmp_path / "a", n_images=2)
+    with pytest.raises(InputError, match="3 poses but 2 images"):
+        load_llff(tmp_path / "a")
+    _write_llff(tmp_path / "b", img_hw=(6, 12))
+    with pytest.raises(InputError, match="not a scaled copy"):
+        load_llff(tmp_path / "b")
+    (tmp_path / "c").mkdir()
+    np.save(tmp_path / "c" / "poses_bounds.npy", np.zeros((3, 15)))
+    with pytest.raises(InputError, match=r"\[N, 17\]"):
+        load_llff(tmp_path / "c")
