@@ -13,7 +13,8 @@ Per level-2 anchor i (rows in level-2 order), with x_i the parent's decoded attr
 3. feature branch: e_ij = feat_mlp([clamp16(x_j[:C] - x_i[:C]), U - (D-1) 2^(FB-1)]), Ch outputs.
 4. h_i = clamp16(rshift_round(sum_j valid_ij * w_ij * e_ij, h_shift)).
 5. o_i = head_mlp([h_i, clamp(p_i mod s, 0, 32767) (3), n_valid_i, x_i]), 3M outputs;
-   mean = o[0:M], level = clamp(o[M:2M], 0, 63), step_adjust = clamp(o[2M:3M], 0, 7).
+   mean = clamp16(x_i + o[0:M]) (the parent's value is the base of the prediction),
+   level = clamp(o[M:2M], 0, 63), step_adjust = clamp(o[2M:3M], 0, 7).
 
 Bounds: trilinear sum |.| <= 2^24 * 2^15 = 2^39; sum_j |w e| <= MAX_K * 2^30 = 2^36; the MLPs
 obey common/intnn.py (|acc| < 2^47). Every intermediate fits int64 with a wide margin.
@@ -239,11 +240,12 @@ class EdgeInputs:
 
 
 def edge_inputs(coords2: torch.Tensor, xpar: torch.Tensor, nbr: torch.Tensor, valid: torch.Tensor,
-                rows: slice, num_features: int, radius: int, grid: int) -> EdgeInputs:
-    """Normative edge quantities for anchors coords2[rows] (all tensors int64 / bool)."""
+                rows: slice | torch.Tensor, num_features: int, radius: int, grid: int) -> EdgeInputs:
+    """Normative edge quantities for the anchors `rows` (a slice or an int64 index tensor);
+    edges come row by row, slots in order."""
     v = valid[rows]
     r_loc, slot = torch.nonzero(v, as_tuple=True)
-    i = r_loc + rows.start
+    i = r_loc + rows.start if isinstance(rows, slice) else rows[r_loc]
     j = nbr[rows][r_loc, slot]
     dp = coords2[j] - coords2[i]
     u = grid_coordinate(dp, radius, grid)
@@ -257,8 +259,10 @@ def head_inputs(h: torch.Tensor, local_pos: torch.Tensor, n_valid: torch.Tensor,
     return torch.cat([h, local_pos.clamp(0, ACT_MAX), n_valid[:, None], xpar], 1)
 
 
-def split_outputs(o: torch.Tensor, m: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    return o[:, :m], o[:, m:2 * m].clamp(0, NUM_LEVELS - 1), o[:, 2 * m:].clamp(0, NUM_STEP_ADJUST - 1)
+def split_outputs(o: torch.Tensor, xpar: torch.Tensor, m: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """mean = clamp16(parent value + o[0:M]); level, step_adjust: o clamped to their ranges."""
+    return (clamp16(xpar + o[:, :m]), o[:, m:2 * m].clamp(0, NUM_LEVELS - 1),
+            o[:, 2 * m:].clamp(0, NUM_STEP_ADJUST - 1))
 
 
 def level2_graph(params: GGConvParams, coords2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -323,5 +327,5 @@ def ggconv_coding_params(params: GGConvParams, coords2, parent_attrs, voxel_scal
     if not outs:
         z = np.zeros((0, m), dtype=np.int64)
         return z, z.copy(), z.copy()
-    mean, level, adj = split_outputs(torch.cat(outs), m)
+    mean, level, adj = split_outputs(torch.cat(outs), xpar, m)
     return mean.numpy().copy(), level.numpy().copy(), adj.numpy().copy()

@@ -1,0 +1,432 @@
+"""Fitting the GG-Conv context model (informative, encoder side).
+
+A float twin of common/context/ggconv.py with the same structure is trained in two phases:
+
+1. float phase: real-valued weights and activations; the integer-valued inputs (feature
+   differences, grid offsets, local positions, parent attributes) enter through fixed
+   power-of-two column scales that are folded into the first layers' weights at export;
+2. quantized phase (straight-through rounding): the forward pass *emulates the integer path
+   exactly* (float64 arithmetic on integers below 2^53, round half up, the same clamps),
+   weights are rounded with one power-of-two scale per layer, gradients pass through every
+   rounding and clamp unchanged.
+
+The export takes the very integers the quantized phase used, so the integer path
+(``ggconv_coding_params``) reproduces the twin's quantized outputs.
+
+Loss per level-2 anchor, summed over its M attribute channels: the estimated rate (bits of
+the symbol round(x / 2^(a/4)) under a discretized Gaussian of mean mu and of the sigma of the
+scale level, both in adjusted steps; x is the attribute in base quantization steps) plus
+lambda * 2^(a/2) / 12 (the quantization MSE in squared base steps).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import nn
+from tqdm.auto import tqdm
+
+from lghcc.common.context.ggconv import (
+    GRID_FRAC_BITS,
+    MAX_H_SHIFT,
+    NUM_LEVELS,
+    NUM_STEP_ADJUST,
+    STEP_ADJUST_FACTORS,
+    TRI_SHIFT,
+    GGConvParams,
+    edge_inputs,
+    ggconv_coding_params,
+    head_inputs,
+    sigma_of_level,
+)
+from lghcc.common.intnn import ACT_MAX, ACT_MIN, BIAS_BITS, MAX_SHIFT, IntLinear, IntMLP, frac_bits_for, int_range
+from lghcc.common.knn import ball_knn
+
+
+@dataclass
+class GGConvTrainConfig:
+    k: int = 8
+    radius_sq: int | None = None  # None: twice the median squared distance to the k-th neighbour
+    grid: int = 5
+    ctx_channels: int = 16
+    feat_hidden: int = 32
+    head_hidden: int = 64
+    weight_bits: int = 16
+    float_steps: int = 300
+    qat_steps: int = 150
+    batch: int = 1024
+    lr: float = 3e-3
+    lam: float = 16.0  # distortion weight, bits per squared base step
+    max_train_anchors: int = 200_000
+    seed: int = 0
+    progress: bool = True
+
+
+def _ste_round(x: torch.Tensor) -> torch.Tensor:
+    """floor(x + 1/2) forward, identity backward."""
+    return x + (torch.floor(x + 0.5) - x).detach()
+
+
+def _ste_clamp(x: torch.Tensor, lo: float, hi: float) -> torch.Tensor:
+    return x + (x.clamp(lo, hi) - x).detach()
+
+
+class _InwardClamp(torch.autograd.Function):
+    """clamp(x, lo, hi) forward; backward passes the gradient inside the range and, outside
+    it, only when a descent step would move x back toward the range (no drift, no dead unit)."""
+
+    @staticmethod
+    def forward(ctx, x, lo, hi):
+        ctx.save_for_backward(x)
+        ctx.lo, ctx.hi = lo, hi
+        return x.clamp(lo, hi)
+
+    @staticmethod
+    def backward(ctx, g):
+        (x,) = ctx.saved_tensors
+        keep = ((x >= ctx.lo) & (x <= ctx.hi)) | ((x < ctx.lo) & (g < 0)) | ((x > ctx.hi) & (g > 0))
+        return g * keep, None, None
+
+
+def _inward_clamp(x: torch.Tensor, lo: float, hi: float) -> torch.Tensor:
+    return _InwardClamp.apply(x, lo, hi)
+
+
+def _pow2_scale(std: float) -> float:
+    """A power of two near 1/std (column scale of an integer input)."""
+    return 2.0 ** -round(math.log2(max(std, 1e-3)))
+
+
+def default_radius_sq(coords2: np.ndarray, k: int) -> int:
+    """Twice the median squared distance to the k-th nearest level-2 neighbour (at least 1)."""
+    if coords2.shape[0] < 2:
+        return 1
+    from scipy.spatial import cKDTree
+    kk = min(k, coords2.shape[0] - 1)
+    sub = coords2[:: max(1, coords2.shape[0] // 20000)].astype(np.float64)
+    d, _ = cKDTree(coords2.astype(np.float64)).query(sub, k=kk + 1)
+    return max(1, int(math.ceil(2 * float(np.median(d[:, kk] ** 2)))))
+
+
+class _QLayer(nn.Module):
+    """A float Linear acting on real inputs; the input integers' column scales (real = int * q)
+    are given at call time. In quantized mode it emulates IntLinear exactly."""
+
+    def __init__(self, fan_in: int, fan_out: int, relu: bool, weight_bits: int):
+        super().__init__()
+        self.lin = nn.Linear(fan_in, fan_out, dtype=torch.float64)
+        self.relu = relu
+        self.weight_bits = weight_bits
+        self.acc_frac: int | None = None  # set when quantization starts
+        self.out_frac: int = 0
+
+    def w_eff(self, q: torch.Tensor) -> torch.Tensor:
+        return self.lin.weight * q[None, :]
+
+    def int_params(self, q: torch.Tensor, ste: bool) -> tuple[torch.Tensor, torch.Tensor]:
+        rnd = _ste_round if ste else (lambda t: torch.floor(t + 0.5))
+        lo, hi = int_range(self.weight_bits)
+        blo, bhi = int_range(BIAS_BITS)
+        w = _ste_clamp(rnd(self.w_eff(q) * 2.0 ** self.acc_frac), lo, hi)
+        b = _ste_clamp(rnd(self.lin.bias * 2.0 ** self.acc_frac), blo, bhi)
+        return w, b
+
+    def start_quantization(self, q: torch.Tensor, out_frac: int) -> None:
+        with torch.no_grad():
+            m = float(self.w_eff(q).abs().max()) * 1.25
+        self.out_frac = out_frac
+        self.acc_frac = frac_bits_for(m, self.weight_bits, lo=out_frac, hi=out_frac + MAX_SHIFT)
+
+    def forward(self, x: torch.Tensor, q: torch.Tensor, quant: bool) -> torch.Tensor:
+        """float mode: x real, returns real. quant mode: x integer-valued (real = x * q),
+        returns integer-valued activations (real = y * 2^-out_frac)."""
+        if not quant:
+            y = self.lin(x)
+            return torch.relu(y) if self.relu else y
+        w, b = self.int_params(q, ste=True)
+        acc = x @ w.T + b
+        y = _ste_round(acc * 2.0 ** -(self.acc_frac - self.out_frac))
+        return _ste_clamp(y, 0 if self.relu else ACT_MIN, ACT_MAX)
+
+    def export(self, q: torch.Tensor) -> IntLinear:
+        with torch.no_grad():
+            w, b = self.int_params(q, ste=False)
+        return IntLinear(w.numpy().astype(np.int64), b.numpy().astype(np.int64),
+                         self.acc_frac - self.out_frac, self.relu, self.weight_bits)
+
+
+class GGConvFloat(nn.Module):
+    """The float twin of GG-Conv (same structure as the integer model)."""
+
+    def __init__(self, num_features: int, num_attrs: int, cfg: GGConvTrainConfig,
+                 feat_q: torch.Tensor, head_q_raw: torch.Tensor):
+        super().__init__()
+        c, m, ch, d = num_features, num_attrs, cfg.ctx_channels, cfg.grid
+        self.c, self.m, self.ch, self.d = c, m, ch, d
+        g = torch.Generator().manual_seed(cfg.seed)
+        self.table = nn.Parameter(1.0 / cfg.k + 0.1 * torch.randn(d ** 3, ch, generator=g, dtype=torch.float64))
+        self.feat = nn.ModuleList([_QLayer(c + 3, cfg.feat_hidden, True, cfg.weight_bits),
+                                   _QLayer(cfg.feat_hidden, ch, False, cfg.weight_bits)])
+        self.head = nn.ModuleList([_QLayer(ch + 4 + m, cfg.head_hidden, True, cfg.weight_bits),
+                                   _QLayer(cfg.head_hidden, 3 * m, False, cfg.weight_bits)])
+        self.feat_q = feat_q  # column scales of the feature-MLP input integers
+        self.head_q_raw = head_q_raw  # column scales of the head's integer inputs after h
+        self.quant = False
+        self.frac: dict[str, int] = {}
+        self.k = cfg.k
+        self.radius_sq = 0  # set by train_ggconv_twin
+
+    # -- pieces ---------------------------------------------------------------------------
+    def _qs(self, frac: int, n: int) -> torch.Tensor:
+        return torch.full((n,), 2.0 ** -frac, dtype=torch.float64)
+
+    def _mlp(self, layers, x, q0):
+        q = q0
+        for l, layer in enumerate(layers):
+            x = layer(x, q, True)
+            q = self._qs(layer.out_frac, layer.lin.out_features)
+        return x
+
+    def table_int(self, ste: bool) -> torch.Tensor:
+        rnd = _ste_round if ste else (lambda t: torch.floor(t + 0.5))
+        return _ste_clamp(rnd(self.table * 2.0 ** self.frac["table"]), ACT_MIN, ACT_MAX)
+
+    def forward(self, batch: dict, collect: dict | None = None):
+        """Returns (mean, level, adj), real-valued in float mode, integer-valued when quantized."""
+        fin = batch["feat_in"]
+        if self.quant:
+            e = self._mlp(self.feat, fin, self.feat_q)
+            t = self.table_int(ste=True)
+            cw = batch["corner_w"]
+            w = _ste_round((cw[:, :, None] * t[batch["corner_idx"]]).sum(1) * 2.0 ** -TRI_SHIFT)
+            hsum = torch.zeros((batch["n"], self.ch), dtype=torch.float64).index_add(0, batch["row"], w * e)
+            h = _ste_clamp(_ste_round(hsum * 2.0 ** -self.frac["h_shift"]), ACT_MIN, ACT_MAX)
+            z = torch.cat([h, batch["head_raw"]], 1)
+            o = self._mlp(self.head, z, torch.cat([self._qs(self.frac["h"], self.ch), self.head_q_raw]))
+            lv = _inward_clamp(o[:, self.m:2 * self.m], 0, NUM_LEVELS - 1)
+            adj = _inward_clamp(o[:, 2 * self.m:], 0, NUM_STEP_ADJUST - 1)
+            return _ste_clamp(batch["head_raw"][:, 4:] + o[:, :self.m], ACT_MIN, ACT_MAX), lv, adj
+        x = fin * self.feat_q
+        h1 = self.feat[0](x, None, False)
+        e = self.feat[1](h1, None, False)
+        w = (batch["corner_w"][:, :, None] * self.table[batch["corner_idx"]]).sum(1) * 2.0 ** -TRI_SHIFT
+        h = torch.zeros((batch["n"], self.ch), dtype=torch.float64).index_add(0, batch["row"], w * e)
+        z = torch.cat([h, batch["head_raw"] * self.head_q_raw], 1)
+        h2 = self.head[0](z, None, False)
+        o = self.head[1](h2, None, False)
+        if collect is not None:
+            for key, v in (("feat0", h1), ("e", e), ("h", h), ("head0", h2), ("w", w)):
+                collect[key] = max(collect.get(key, 0.0), float(v.abs().max()) if v.numel() else 0.0)
+        lv = _inward_clamp(o[:, self.m:2 * self.m], 0, NUM_LEVELS - 1)
+        adj = _inward_clamp(o[:, 2 * self.m:], 0, NUM_STEP_ADJUST - 1)
+        return batch["head_raw"][:, 4:] + o[:, :self.m], lv, adj
+
+    def start_quantization(self, stats: dict) -> None:
+        """Choose every power-of-two scale from calibration maxima; switch to integer emulation."""
+        f_feat0 = frac_bits_for(2 * stats["feat0"], lo=-8, hi=14)
+        f_e = frac_bits_for(2 * stats["e"], lo=-8, hi=14)
+        f_t = frac_bits_for(1.25 * float(self.table.detach().abs().max()), lo=-8, hi=14)
+        f_h = frac_bits_for(2 * stats["h"], lo=-8, hi=14)
+        f_h = max(f_t + f_e - MAX_H_SHIFT, min(f_h, f_t + f_e))  # 0 <= h_shift <= MAX_H_SHIFT
+        f_head0 = frac_bits_for(2 * stats["head0"], lo=-8, hi=14)
+        self.frac = {"table": f_t, "e": f_e, "h": f_h, "h_shift": f_t + f_e - f_h}
+        self.feat[0].start_quantization(self.feat_q, f_feat0)
+        self.feat[1].start_quantization(self._qs(f_feat0, self.feat[0].lin.out_features), f_e)
+        self.head[0].start_quantization(torch.cat([self._qs(f_h, self.ch), self.head_q_raw]), f_head0)
+        self.head[1].start_quantization(self._qs(f_head0, self.head[0].lin.out_features), 0)
+        self.quant = True
+
+    def export(self, num_features: int, k: int, radius_sq: int) -> GGConvParams:
+        with torch.no_grad():
+            table = self.table_int(ste=False).numpy().astype(np.int64).reshape(self.d, self.d, self.d, self.ch)
+        feat = IntMLP([self.feat[0].export(self.feat_q),
+                       self.feat[1].export(self._qs(self.feat[0].out_frac, self.feat[0].lin.out_features))])
+        head = IntMLP([self.head[0].export(torch.cat([self._qs(self.frac["h"], self.ch), self.head_q_raw])),
+                       self.head[1].export(self._qs(self.head[0].out_frac, self.head[0].lin.out_features))])
+        return GGConvParams(num_features, k, radius_sq, table, self.frac["h_shift"], feat, head)
+
+
+# -- data -----------------------------------------------------------------------------------
+
+@dataclass
+class _Data:
+    feat_in: torch.Tensor  # float64 [E, C+3]
+    corner_idx: torch.Tensor
+    corner_w: torch.Tensor  # float64
+    row: torch.Tensor  # int64 [E], anchor row within the training set
+    edge_start: torch.Tensor  # int64 [T]
+    n_edges: torch.Tensor  # int64 [T]
+    head_raw: torch.Tensor  # float64 [T, 4 + M]: local position, n_valid, parent attributes
+    targets: torch.Tensor  # float64 [T, M], base steps
+
+
+def _prepare(coords2, parent_attrs, targets, voxel_scale, num_features, k, radius_sq, grid, rows,
+             neighbours) -> _Data:
+    c = torch.from_numpy(np.ascontiguousarray(coords2, dtype=np.int64))
+    x = torch.from_numpy(np.ascontiguousarray(parent_attrs, dtype=np.int64)).clamp(ACT_MIN, ACT_MAX)
+    nbr, valid = neighbours if neighbours is not None else ball_knn(coords2, k, radius_sq)
+    nbr_t = torch.from_numpy(np.ascontiguousarray(nbr, dtype=np.int64))
+    valid_t = torch.from_numpy(np.ascontiguousarray(valid, dtype=bool))
+    rows_t = torch.from_numpy(rows)
+    ed = edge_inputs(c, x, nbr_t, valid_t, rows_t, num_features, math.isqrt(radius_sq), grid)
+    n_valid = valid_t[rows_t].sum(1).to(torch.int64)
+    start = torch.cumsum(n_valid, 0) - n_valid
+    local = torch.from_numpy(np.mod(np.asarray(coords2, dtype=np.int64)[rows], np.int64(voxel_scale)))
+    head_raw = head_inputs(torch.zeros((rows.size, 0), dtype=torch.int64), local, n_valid, x[rows_t])
+    return _Data(ed.feat_in.double(), ed.corner_idx, ed.corner_w.double(), ed.row, start, n_valid,
+                 head_raw.double(), torch.from_numpy(np.asarray(targets, dtype=np.float64)[rows]))
+
+
+def _batch(d: _Data, sel: torch.Tensor) -> dict:
+    cnt = d.n_edges[sel]
+    total = int(cnt.sum())
+    first = torch.repeat_interleave(d.edge_start[sel], cnt)
+    offs = torch.arange(total) - torch.repeat_interleave(torch.cumsum(cnt, 0) - cnt, cnt)
+    e = first + offs
+    return {"n": int(sel.numel()), "feat_in": d.feat_in[e], "corner_idx": d.corner_idx[e],
+            "corner_w": d.corner_w[e], "row": torch.repeat_interleave(torch.arange(sel.numel()), cnt),
+            "head_raw": d.head_raw[sel], "targets": d.targets[sel]}
+
+
+# -- loss -----------------------------------------------------------------------------------
+
+_LOG_SIGMA0 = math.log(0.11)
+_LOG_SIGMA_STEP = math.log(512.0 / 0.11) / 63.0
+
+
+def gaussian_bits(y: torch.Tensor, mu: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
+    """Bits of integer symbols y under a discretized Gaussian (mu, sigma); floor 2^-24."""
+    a = (y - mu).abs()
+    p = torch.special.ndtr((0.5 - a) / sigma) - torch.special.ndtr((-0.5 - a) / sigma)
+    return -torch.log2(p.clamp_min(2.0 ** -24))
+
+
+def rd_loss(mean, level, adj, targets, lam: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """(loss, bits) per anchor, summed over channels."""
+    sigma = torch.exp(_LOG_SIGMA0 + _LOG_SIGMA_STEP * level)
+    y = _ste_round(targets * torch.exp2(-adj / 4))
+    bits = gaussian_bits(y, mean, sigma).sum(1)
+    dist = (torch.exp2(adj / 2) / 12).sum(1)
+    return bits + lam * dist, bits
+
+
+# -- fitting --------------------------------------------------------------------------------
+
+def fit_ggconv(coords2, parent_attrs, targets, num_features: int, voxel_scale: int,
+               config: GGConvTrainConfig | None = None,
+               neighbours: tuple[np.ndarray, np.ndarray] | None = None) -> GGConvParams:
+    """Fit GG-Conv on the level-2 anchors.
+
+    coords2: int [N2, 3] level-2 positions (level-2 order); parent_attrs: int [N2, M] their
+    parents' decoded attributes in quantization units (features first); targets: float
+    [N2, M] the level-2 attributes in base quantization steps; voxel_scale: the hierarchy's s;
+    neighbours: the level-2 Ball k-NN graph when already computed with the config's k and
+    radius_sq. Returns the quantized parameters for ``ggconv_coding_params``.
+    """
+    return train_ggconv_twin(coords2, parent_attrs, targets, num_features, voxel_scale, config, neighbours)[0]
+
+
+def train_ggconv_twin(coords2, parent_attrs, targets, num_features: int, voxel_scale: int,
+                      config: GGConvTrainConfig | None = None,
+                      neighbours: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[GGConvParams, GGConvFloat]:
+    """``fit_ggconv`` that also returns the trained float twin (in quantized mode)."""
+    cfg = config or GGConvTrainConfig()
+    coords2 = np.asarray(coords2, dtype=np.int64)
+    parent_attrs = np.asarray(parent_attrs, dtype=np.int64)
+    targets = np.asarray(targets, dtype=np.float64)
+    n, m = parent_attrs.shape
+    if coords2.shape != (n, 3) or targets.shape != (n, m) or not 1 <= num_features <= m:
+        raise ValueError("coords2 [N2,3], parent_attrs [N2,M] and targets [N2,M] must agree")
+    if n == 0:
+        raise ValueError("no level-2 anchors to fit on")
+    radius_sq = cfg.radius_sq if cfg.radius_sq is not None else default_radius_sq(coords2, cfg.k)
+    torch.manual_seed(cfg.seed)
+    rng = np.random.default_rng(cfg.seed)
+    rows = np.sort(rng.permutation(n)[:cfg.max_train_anchors]).astype(np.int64)
+    data = _prepare(coords2, parent_attrs, targets, voxel_scale, num_features, cfg.k, radius_sq, cfg.grid,
+                    rows, neighbours)
+    t = rows.size
+
+    # column scales (powers of two, folded into the first layers at export)
+    fi = data.feat_in
+    fstd = float(fi[:, :num_features].std()) if fi.shape[0] > 1 else 1.0
+    feat_q = torch.tensor([_pow2_scale(fstd)] * num_features + [2.0 ** -GRID_FRAC_BITS] * 3, dtype=torch.float64)
+    hr = data.head_raw
+    xstd = hr[:, 4:].std(0) if t > 1 else torch.ones(m, dtype=torch.float64)
+    head_q_raw = torch.tensor([_pow2_scale(float(voxel_scale) / 2)] * 3 + [2.0 ** -3]
+                              + [_pow2_scale(float(s)) for s in xstd], dtype=torch.float64)
+
+    model = GGConvFloat(num_features, m, cfg, feat_q, head_q_raw)
+    model.radius_sq = radius_sq
+    # initial output biases: mean 0, level of each channel's spread (about the parent), no adjustment
+    with torch.no_grad():
+        resid = data.targets - hr[:, 4:]
+        spread = resid.abs().mean(0) * 1.25 + 0.05
+        lv = ((spread.log() - _LOG_SIGMA0) / _LOG_SIGMA_STEP).clamp(0, NUM_LEVELS - 1)
+        last = model.head[1].lin
+        last.weight.mul_(0.1)
+        last.bias.zero_()
+        last.bias[m:2 * m] = lv
+        last.bias[2 * m:] = 0.25
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    total = cfg.float_steps + cfg.qat_steps
+    bar = tqdm(range(total), desc="fit GG-Conv", disable=not cfg.progress, unit="step")
+    stats: dict = {}
+    for step in bar:
+        if step == cfg.float_steps:
+            with torch.no_grad():
+                for lo in range(0, t, 8192):
+                    model(_batch(data, torch.arange(lo, min(t, lo + 8192))), collect=stats)
+            model.start_quantization(stats)
+            for g in opt.param_groups:
+                g["lr"] = cfg.lr * 0.3
+        sel = torch.from_numpy(rng.integers(0, t, min(cfg.batch, t)))
+        b = _batch(data, sel)
+        mean, level, adj = model(b)
+        loss, bits = rd_loss(mean, level, adj, b["targets"], cfg.lam)
+        opt.zero_grad()
+        (loss.mean() / m).backward()
+        opt.step()
+        if step % 10 == 0:
+            bar.set_postfix(bits_per_anchor=f"{float(bits.detach().mean()):.1f}", quant=model.quant)
+    if not model.quant:  # qat_steps == 0: quantize without fine-tuning
+        with torch.no_grad():
+            for lo in range(0, t, 8192):
+                model(_batch(data, torch.arange(lo, min(t, lo + 8192))), collect=stats)
+        model.start_quantization(stats)
+    return model.export(num_features, cfg.k, radius_sq), model
+
+
+def twin_outputs(model: GGConvFloat, coords2, parent_attrs, voxel_scale: int, neighbours=None):
+    """The twin's (quantized) outputs for every level-2 anchor, as float64 numpy arrays."""
+    n, m = np.asarray(parent_attrs).shape
+    data = _prepare(coords2, parent_attrs, np.zeros((n, m)), voxel_scale, model.c, model.k, model.radius_sq,
+                    model.d, np.arange(n, dtype=np.int64), neighbours)
+    with torch.no_grad():
+        outs = [model(_batch(data, torch.arange(lo, min(n, lo + 8192)))) for lo in range(0, n, 8192)]
+    return tuple(torch.cat([o[i] for o in outs]).numpy() for i in range(3))
+
+
+def estimated_rate_bits(params: GGConvParams, coords2, parent_attrs, targets, voxel_scale: int,
+                        neighbours=None) -> tuple[float, np.ndarray]:
+    """Bits of the level-2 attributes coded with the integer path's parameters and the frozen
+    scale tables (symbols round(x / STEP_ADJUST_FACTORS[a])); also returns step_adjust."""
+    from lghcc.common.entropy.symbol_coder import ideal_code_length_bits
+
+    mean, level, adj = ggconv_coding_params(params, coords2, parent_attrs, voxel_scale, neighbours)
+    f = STEP_ADJUST_FACTORS[adj].astype(np.float64)
+    sym = np.floor(np.asarray(targets, dtype=np.float64) / f + 0.5).astype(np.int64)
+    return ideal_code_length_bits(sym - mean, level), adj
+
+
+def zero_mean_prior_bits(targets) -> float:
+    """Reference: each channel coded with one zero-mean Gaussian level fitted to its RMS."""
+    from lghcc.common.entropy.symbol_coder import ideal_code_length_bits, level_for_sigma
+
+    x = np.asarray(targets, dtype=np.float64)
+    sym = np.floor(x + 0.5).astype(np.int64)
+    lv = level_for_sigma(np.sqrt((sym.astype(np.float64) ** 2).mean(0)))
+    return ideal_code_length_bits(sym, np.broadcast_to(lv, sym.shape))
