@@ -59,11 +59,12 @@ class ChannelLayout:
         s[self.offset_start:] = np.float32(sps.offset_step)
         return s
 
-    def live_channels(self, offset_mask: np.ndarray | None, n: int) -> np.ndarray:
-        """bool [N, M]: which attribute values are coded."""
+    def live_channels(self, offset_mask: np.ndarray | None, n: int) -> np.ndarray | None:
+        """bool [N, M]: which attribute values are coded; None when all of them are."""
+        if offset_mask is None or offset_mask.all():
+            return None
         live = np.ones((n, self.num_channels), dtype=bool)
-        if offset_mask is not None:
-            live[:, self.offset_start:] = np.repeat(offset_mask.astype(bool), 3, axis=1)
+        live[:, self.offset_start:] = np.repeat(offset_mask.astype(bool), 3, axis=1)
         return live
 
     def join(self, features: np.ndarray, scalings: np.ndarray, offsets: np.ndarray) -> np.ndarray:
@@ -142,12 +143,16 @@ def decode_mask_chunk(data: bytes, rows: int, models, what: str) -> np.ndarray:
 
 # --- residual chunks ------------------------------------------------------------------------
 
-def encode_residual_chunk(residuals: np.ndarray, levels: np.ndarray, live: np.ndarray) -> bytes:
-    """Code the live entries of [rows, M] residuals in row-major order."""
+def encode_residual_chunk(residuals: np.ndarray, levels: np.ndarray, live: np.ndarray | None) -> bytes:
+    """Code the live entries of [rows, M] residuals in row-major order (live None: all)."""
+    if live is None:
+        return encode_symbols(residuals, levels)
     return encode_symbols(residuals[live], levels[live])
 
 
-def decode_residual_chunk(data: bytes, levels: np.ndarray, live: np.ndarray, what: str) -> np.ndarray:
+def decode_residual_chunk(data: bytes, levels: np.ndarray, live: np.ndarray | None, what: str) -> np.ndarray:
+    if live is None:
+        return decode_symbols(data, levels, what)
     out = np.zeros(levels.shape, dtype=np.int64)
     out[live] = decode_symbols(data, levels[live], what)
     return out
@@ -196,11 +201,14 @@ def write_attribute_unit(h: AttributeUnitHeader, layout: ChannelLayout, q: np.nd
 
 
 def read_attribute_unit(payload: bytes, sps: SceneParameterSet, num_rows: int, level: int,
-                        context=None, trace: list[TraceEntry] | None = None):
-    """Parse and decode an attribute unit of ``num_rows`` rows at hierarchy ``level``.
+                        values_out: np.ndarray, rows: np.ndarray | None = None, context=None,
+                        trace: list[TraceEntry] | None = None, keep_q: bool = False):
+    """Parse and decode an attribute unit of ``num_rows`` rows at hierarchy ``level``; write
+    the reconstructed values of row r to ``values_out[rows[r]]`` (``rows`` None: row r).
 
-    ``context``: a callable returning the CodingParams of a context model (None when the
-    stream has none). Returns (header, q int64 [rows, M], mask bool [rows, K] or None, params).
+    ``context``: a callable context_model_id -> CodingParams (None when the stream has no
+    context model). Returns (header, mask bool [rows, K] or None, q int64 [rows, M] when
+    ``keep_q`` else None). Chunk by chunk, so memory stays proportional to the output.
     """
     layout = layout_of(sps)
     reader = BitReader(payload, f"attribute unit (level {level})")
@@ -221,13 +229,24 @@ def read_attribute_unit(payload: bytes, sps: SceneParameterSet, num_rows: int, l
         else list(h.chunk_size)
     pieces = iter(split_chunks(body, sizes, f"attribute unit (level {level})"))
     models = mask_models(h.mask_live_prob) if h.offset_mask_present else None
-    q = np.zeros((num_rows, layout.num_channels), dtype=np.int64)
+    steps = layout.steps(sps)
     mask = np.ones((num_rows, sps.num_offsets), dtype=bool) if h.offset_mask_present else None
+    q_all = np.zeros((num_rows, layout.num_channels), dtype=np.int64) if keep_q else None
     for i in range(h.num_chunks):
         lo, hi = i * h.rows_per_chunk, min(num_rows, (i + 1) * h.rows_per_chunk)
         if models is not None:
             mask[lo:hi] = decode_mask_chunk(next(pieces), hi - lo, models, f"attribute mask chunk {i}")
         live = layout.live_channels(None if mask is None else mask[lo:hi], hi - lo)
         p = params.rows(lo, hi, layout.num_channels)
-        q[lo:hi] = (decode_residual_chunk(next(pieces), p.level, live, f"attribute chunk {i}") + p.mean) * live
-    return h, q, mask, params
+        q = decode_residual_chunk(next(pieces), p.level, live, f"attribute chunk {i}")
+        q += p.mean
+        if live is not None:
+            q *= live  # values that are not coded are 0
+        v = reconstruct(q, steps, p.step_adjust)
+        if rows is None:
+            values_out[lo:hi] = v
+        else:
+            values_out[rows[lo:hi]] = v
+        if keep_q:
+            q_all[lo:hi] = q
+    return h, mask, q_all

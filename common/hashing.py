@@ -22,6 +22,9 @@ import numpy as np
 from lghcc.common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene
 
 
+HASH_BLOCK_ROWS = 1 << 16
+
+
 def _i64(*values: int) -> bytes:
     return np.asarray(values, dtype="<i8").tobytes()
 
@@ -32,9 +35,10 @@ def scene_digest(scene: AnchorScene) -> bytes:
     h.update(_i64(scene.num_anchors, scene.feature_dim, scene.num_offsets))
     h.update(np.asarray([scene.voxel_size], dtype="<f4").tobytes())
     h.update(np.asarray(scene.origin, dtype="<f4").tobytes())
-    h.update(np.ascontiguousarray(scene.coords, dtype="<i8").tobytes())
+    h.update(np.ascontiguousarray(scene.coords, dtype="<i8").data)
     for arr in (scene.features, scene.scalings, scene.offsets):
-        h.update(np.ascontiguousarray(arr, dtype="<f4").tobytes())
+        for lo in range(0, arr.shape[0], HASH_BLOCK_ROWS):  # row blocks: no full-size copies
+            h.update(np.ascontiguousarray(arr[lo:lo + HASH_BLOCK_ROWS], dtype="<f4").data)
     if scene.offset_mask is None:
         h.update(b"\x00")
     else:

@@ -31,7 +31,10 @@ def _smooth_field(rng: np.random.Generator, p: np.ndarray, channels: int, freq: 
     w = rng.normal(scale=freq, size=(channels, nf, 3))
     phase = rng.uniform(0, 2 * np.pi, (channels, nf))
     amp = rng.normal(size=(channels, nf)) / np.sqrt(nf / 2)
-    return np.einsum("cf,ncf->nc", amp, np.sin(np.einsum("cfd,nd->ncf", w, p) + phase))
+    out = np.empty((p.shape[0], channels))
+    for c in range(channels):  # one channel at a time: memory O(N * nf), not O(N * C * nf)
+        out[:, c] = np.sin(p @ w[c].T + phase[c]) @ amp[c]
+    return out
 
 
 def _mlp(rng: np.random.Generator, dims: list[int], final: str) -> RenderMLP:

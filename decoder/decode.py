@@ -97,7 +97,6 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
         mlps = read_render_model_unit(by_type[UnitType.RENDER_MODEL][0].payload, entries)
     coords = decode_geometry(by_type[UnitType.GEOMETRY][0].payload, n, entries)
 
-    steps = layout.steps(sps)
     values = np.empty((n, layout.num_channels), dtype=np.float32)
     mask = np.ones((n, sps.num_offsets), dtype=bool) if sps.offset_mask_present_flag else None
     if sps.hierarchy_enabled_flag:
@@ -106,12 +105,12 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
             raise BitstreamError("hierarchy_enabled_flag is 1 but level 2 is empty")
         levels = [(LEVEL_1, hier.level1_idx), (LEVEL_2, hier.level2_idx)]
     else:
-        levels = [(LEVEL_ALL, np.arange(n))]
+        levels = [(LEVEL_ALL, None)]
     for unit, (level, rows) in zip(attribute_units, levels):
-        _, q, m, params = attr.read_attribute_unit(unit.payload, sps, rows.size, level, None, entries)
-        values[rows] = attr.reconstruct(q, steps, params.step_adjust)  # dead offsets have q = 0
+        num_rows = n if rows is None else rows.size
+        _, m, _ = attr.read_attribute_unit(unit.payload, sps, num_rows, level, values, rows, None, entries)
         if mask is not None:
-            mask[rows] = m
+            mask[slice(None) if rows is None else rows] = m
     features, scalings, offsets = layout.split(values)
     scene = AnchorScene(coords=coords, voxel_size=float(sps.voxel_size),
                         origin=np.asarray(sps.origin, dtype=np.float32), features=features,

@@ -160,6 +160,8 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
     steps = layout.steps(sps)
     values = layout.join(scene.features[order], scene.scalings[order], scene.offsets[order])
     live = layout.live_channels(mask, n)
+    if live is None:
+        live = np.ones((n, layout.num_channels), dtype=bool)
     bar.update()
 
     bar.set_postfix_str("attributes")

@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import datetime
 import platform
-import resource
 import subprocess
 import sys
 import tempfile
@@ -24,15 +23,19 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
+# Peak memory is VmHWM of the child itself: ru_maxrss would carry over the parent's peak
+# across fork/exec on Linux.
 CHILD = r"""
-import resource, sys, time
+import sys, time
+def hwm():
+    return next(int(l.split()[1]) * 1024 for l in open('/proc/self/status') if l.startswith('VmHWM'))
 from lghcc.decoder.decode import decode_stream
 data = open(sys.argv[1], 'rb').read()
-base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+base = hwm()
 t = time.perf_counter(); r = decode_stream(data); dt = time.perf_counter() - t
 s = r.scene
 scene_bytes = s.coords.nbytes + s.features.nbytes + s.scalings.nbytes + s.offsets.nbytes
-print(dt, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024, base * 1024, scene_bytes)
+print(dt, hwm(), base, scene_bytes)
 """
 
 
