@@ -16,6 +16,7 @@ import numpy as np
 from lghcc.common import attributes as attr
 from lghcc.common.container import Container, DataUnit, UnitType, read_container
 from lghcc.common.errors import BitstreamError, HashMismatchError, UnsupportedStreamError
+from lghcc.common.context.models import level2_coding_params, read_context_model
 from lghcc.common.geometry import decode_geometry
 from lghcc.common.hashing import scene_digest
 from lghcc.common.hierarchy import build_hierarchy
@@ -89,8 +90,11 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
     if len(attribute_units) != (2 if sps.hierarchy_enabled_flag else 1):
         raise BitstreamError(f"{len(attribute_units)} attribute units with hierarchy_enabled_flag = "
                              f"{sps.hierarchy_enabled_flag}")
+    context_model = None
     if UnitType.CONTEXT_MODEL in by_type:
-        raise UnsupportedStreamError("context model units are not supported by this decoder version")
+        if not sps.hierarchy_enabled_flag:
+            raise BitstreamError("a context model unit in a stream without the hierarchy")
+        context_model = read_context_model(by_type[UnitType.CONTEXT_MODEL][0].payload, layout, entries)
 
     mlps = {}
     if UnitType.RENDER_MODEL in by_type:
@@ -106,9 +110,23 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
         levels = [(LEVEL_1, hier.level1_idx), (LEVEL_2, hier.level2_idx)]
     else:
         levels = [(LEVEL_ALL, None)]
+    q_level1 = None
+
+    def level2_context(model_id: int) -> attr.CodingParams:
+        if context_model is None or model_id != context_model[0]:
+            raise BitstreamError(f"the level-2 attribute unit uses context model {model_id}, but the stream's "
+                                 "context model unit " + ("is missing" if context_model is None else
+                                                          f"holds model {context_model[0]}"))
+        parent_attrs = q_level1[hier.parent_of_level2]
+        return level2_coding_params(context_model, coords[hier.level2_idx], parent_attrs, sps.coarse_voxel_scale)
+
     for unit, (level, rows) in zip(attribute_units, levels):
         num_rows = n if rows is None else rows.size
-        _, m, _ = attr.read_attribute_unit(unit.payload, sps, num_rows, level, values, rows, None, entries)
+        _, m, q = attr.read_attribute_unit(unit.payload, sps, num_rows, level, values, rows,
+                                           level2_context if level == LEVEL_2 else None, entries,
+                                           keep_q=level == LEVEL_1 and context_model is not None)
+        if level == LEVEL_1:
+            q_level1 = q
         if mask is not None:
             mask[slice(None) if rows is None else rows] = m
     features, scalings, offsets = layout.split(values)
