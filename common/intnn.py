@@ -211,8 +211,10 @@ def quantize_linear(weight: np.ndarray, bias: np.ndarray, out_frac: int, relu: b
     shift = acc_frac - out_frac)."""
     w = np.asarray(weight, dtype=np.float64)
     b = np.asarray(bias, dtype=np.float64)
-    acc_frac = frac_bits_for(float(np.abs(w).max()) if w.size else 0.0, weight_bits,
-                             lo=out_frac, hi=out_frac + MAX_SHIFT)
+    acc_frac = min(frac_bits_for(float(np.abs(w).max()) if w.size else 0.0, weight_bits,
+                                 lo=out_frac, hi=out_frac + MAX_SHIFT),
+                   frac_bits_for(float(np.abs(b).max()) if b.size else 0.0, BIAS_BITS,
+                                 lo=out_frac, hi=out_frac + MAX_SHIFT))  # biases must fit 32 bits too
     lo, hi = int_range(weight_bits)
     wq = np.clip(round_half_up(w * 2.0**acc_frac), lo, hi).astype(np.int64)
     blo, bhi = int_range(BIAS_BITS)

@@ -137,8 +137,11 @@ class _QLayer(nn.Module):
     def start_quantization(self, q: torch.Tensor, out_frac: int) -> None:
         with torch.no_grad():
             m = float(self.w_eff(q).abs().max()) * 1.25
+            mb = float(self.lin.bias.abs().max()) * 1.25
         self.out_frac = out_frac
-        self.acc_frac = frac_bits_for(m, self.weight_bits, lo=out_frac, hi=out_frac + MAX_SHIFT)
+        # one power-of-two scale that fits both the weights (weight_bits) and the biases (32 bits)
+        self.acc_frac = min(frac_bits_for(m, self.weight_bits, lo=out_frac, hi=out_frac + MAX_SHIFT),
+                            max(out_frac, frac_bits_for(mb, BIAS_BITS, lo=out_frac, hi=out_frac + MAX_SHIFT)))
 
     def forward(self, x: torch.Tensor, q: torch.Tensor, quant: bool) -> torch.Tensor:
         """float mode: x real, returns real. quant mode: x integer-valued (real = x * q),

@@ -117,3 +117,11 @@ def test_quantize_linear_approximates_float_layer():
         ref = x @ w.T + b
         tol = (40 * 500 * 2.0 ** -acc_frac) + 2 ** -6
         assert np.abs(y - ref).max() <= tol
+
+
+def test_quantize_linear_large_bias_fits_32_bits():
+    # tiny weights would ask for a huge scale; the bias must still fit int32 (no silent clipping)
+    layer, acc_frac = quantize_linear(np.full((2, 3), 1e-5), np.array([30.0, -30.0]), out_frac=0, relu=False)
+    assert np.abs(layer.bias).max() < 2 ** 31
+    y = layer(torch.tensor([[0, 0, 0]])).tolist()[0]
+    assert y == [30, -30]

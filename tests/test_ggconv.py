@@ -1,0 +1,232 @@
+"""GG-Conv integer inference (common/context/ggconv.py) and its fitting (encoder/ggconv_train.py)."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from lghcc.common.context.ggconv import (
+    GRID_FRAC_BITS,
+    STEP_ADJUST_FACTORS,
+    GGConvParams,
+    NamedIntArray,
+    ggconv_coding_params,
+    grid_coordinate,
+    level2_graph,
+    sigma_of_level,
+    trilinear_corners,
+)
+from lghcc.common.hierarchy import build_hierarchy
+from lghcc.common.intnn import ACT_MAX, ACT_MIN, IntLinear, IntMLP
+
+
+def random_params(rng, c=6, koff=2, ch=5, hid=7, hid2=9, k=8, radius_sq=6, grid=5, wscale=2000, shift=12):
+    m = c + 6 + 3 * koff
+
+    def lin(i, o, relu):
+        return IntLinear(rng.integers(-wscale, wscale + 1, (o, i)), rng.integers(-50000, 50000, o), shift, relu)
+
+    return GGConvParams(c, k, radius_sq, rng.integers(-2 ** 15, 2 ** 15, (grid, grid, grid, ch)), 15,
+                        IntMLP([lin(c + 3, hid, True), lin(hid, ch, False)]),
+                        IntMLP([lin(ch + 4 + m, hid2, True), lin(hid2, 3 * m, False)]))
+
+
+def reference(p: GGConvParams, coords, xpar, s):
+    """The normative text of spec/hierarchy_ggconv.md, one anchor at a time in Python integers."""
+    n, m, c, d, fb = len(coords), p.num_attrs, p.num_features, p.grid_size, GRID_FRAC_BITS
+    r = math.isqrt(p.radius_sq)
+    cl = lambda v, lo=ACT_MIN: max(lo, min(ACT_MAX, v))
+    rs = lambda v, sh: (v + (1 << (sh - 1))) >> sh if sh else v
+
+    def mlp(net, x):
+        for layer in net.layers:
+            x = [cl(rs(int(layer.bias[o]) + sum(int(layer.weight[o, i]) * x[i] for i in range(len(x))), layer.shift),
+                    0 if layer.relu else ACT_MIN) for o in range(layer.fan_out)]
+        return x
+
+    x = [[cl(int(v)) for v in row] for row in xpar]
+    out = []
+    for i in range(n):
+        cand = sorted((sum((int(coords[j][a]) - int(coords[i][a])) ** 2 for a in range(3)), j)
+                      for j in range(n) if j != i)
+        nb = [j for d2, j in cand if d2 <= p.radius_sq][:p.k]
+        hsum = [0] * p.context_channels
+        for j in nb:
+            u = [((int(coords[j][a]) - int(coords[i][a]) + r) * (d - 1) * 2 ** (fb + 1) + 2 * r) // (4 * r)
+                 for a in range(3)]
+            i0 = [min(ua >> fb, d - 2) for ua in u]
+            t = [u[a] - (i0[a] << fb) for a in range(3)]
+            w = []
+            for ch in range(p.context_channels):
+                acc = 0
+                for bx in (0, 1):
+                    for by in (0, 1):
+                        for bz in (0, 1):
+                            wt = 1
+                            for a, bit in enumerate((bx, by, bz)):
+                                wt *= t[a] if bit else (1 << fb) - t[a]
+                            acc += wt * int(p.table[i0[0] + bx, i0[1] + by, i0[2] + bz, ch])
+                w.append(rs(acc, 3 * fb))
+            e = mlp(p.feat_mlp, [cl(x[j][q] - x[i][q]) for q in range(c)] + [ua - (d - 1) * 2 ** (fb - 1) for ua in u])
+            hsum = [hs + wc * ec for hs, wc, ec in zip(hsum, w, e)]
+        h = [cl(rs(v, p.h_shift)) for v in hsum]
+        loc = [cl(int(coords[i][a]) % s) for a in range(3)]
+        o = mlp(p.head_mlp, h + loc + [len(nb)] + x[i])
+        out.append(([cl(x[i][q] + o[q]) for q in range(m)], [min(63, max(0, v)) for v in o[m:2 * m]],
+                    [min(7, max(0, v)) for v in o[2 * m:]]))
+    return [np.array([o[q] for o in out], dtype=np.int64).reshape(n, m) for q in range(3)]
+
+
+def _scene(rng, n=40, extent=6):
+    c = np.unique(rng.integers(-extent, extent, (n, 3)), axis=0)
+    return c[rng.permutation(len(c))]
+
+
+def test_matches_independent_reference():
+    rng = np.random.default_rng(0)
+    for trial in range(3):
+        p = random_params(rng)
+        c = _scene(rng)
+        x = rng.integers(-300, 300, (len(c), p.num_attrs))
+        got = ggconv_coding_params(p, c, x, 3, block=7)
+        ref = reference(p, c, x, 3)
+        for g, r in zip(got, ref):
+            assert np.array_equal(g, r)
+
+
+def test_extreme_values_and_isolated_anchors():
+    rng = np.random.default_rng(1)
+    p = random_params(rng, wscale=2 ** 15 - 1, shift=0)
+    c = np.concatenate([_scene(rng, 20, 3), [[100, 100, 100], [-100, 50, 0]]])  # two anchors with no neighbour
+    x = rng.choice([-(2 ** 40), 2 ** 40, ACT_MIN, ACT_MAX, 0], (len(c), p.num_attrs))
+    mean, level, adj = ggconv_coding_params(p, c, x, 4)
+    ref = reference(p, c, x, 4)
+    assert all(np.array_equal(a, b) for a, b in zip((mean, level, adj), ref))
+    assert mean.min() >= ACT_MIN and mean.max() <= ACT_MAX
+    assert level.min() >= 0 and level.max() <= 63 and adj.min() >= 0 and adj.max() <= 7
+    idx, valid = level2_graph(p, c)
+    assert not valid[-2:].any()
+
+
+def test_equidistant_neighbours_and_fewer_than_k():
+    rng = np.random.default_rng(2)
+    p = random_params(rng, radius_sq=1)
+    # a plus-shaped cluster: the centre has 6 neighbours at d2 = 1 (< k = 8), the arms 1 each
+    c = np.array([[0, 0, 0], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]])
+    c = c[rng.permutation(7)]
+    x = rng.integers(-50, 50, (7, p.num_attrs))
+    idx, valid = level2_graph(p, c)
+    centre = int(np.nonzero((c == 0).all(1))[0][0])
+    assert valid[centre].sum() == 6 and idx[centre, :6].tolist() == sorted(set(range(7)) - {centre})
+    got = ggconv_coding_params(p, c, x, 2)
+    assert all(np.array_equal(a, b) for a, b in zip(got, reference(p, c, x, 2)))
+
+
+def test_bit_exact_across_thread_counts():
+    rng = np.random.default_rng(3)
+    p = random_params(rng, c=16, koff=4, ch=8, hid=16, hid2=24, radius_sq=5)
+    c = _scene(rng, 20000, 25)
+    x = rng.integers(-2000, 2000, (len(c), p.num_attrs))
+    nb = level2_graph(p, c)
+    old = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        a = ggconv_coding_params(p, c, x, 4, nb)
+        torch.set_num_threads(2)
+        b = ggconv_coding_params(p, c, x, 4, nb, block=4096)
+    finally:
+        torch.set_num_threads(old)
+    assert all(np.array_equal(u, v) for u, v in zip(a, b))
+
+
+def test_empty_and_single_anchor():
+    rng = np.random.default_rng(4)
+    p = random_params(rng)
+    z = ggconv_coding_params(p, np.zeros((0, 3), np.int64), np.zeros((0, p.num_attrs), np.int64), 2)
+    assert all(a.shape == (0, p.num_attrs) for a in z)
+    x = rng.integers(-5, 5, (1, p.num_attrs))
+    got = ggconv_coding_params(p, np.array([[3, 4, 5]]), x, 2)
+    assert all(np.array_equal(a, b) for a, b in zip(got, reference(p, np.array([[3, 4, 5]]), x, 2)))
+
+
+def test_grid_coordinate_and_trilinear_weights():
+    for r in (1, 2, 3, 7, 1000):
+        dp = torch.arange(-r, r + 1)[:, None].repeat(1, 3)
+        u = grid_coordinate(dp, r, 5)
+        assert int(u.min()) == 0 and int(u.max()) == 4 << GRID_FRAC_BITS
+        assert torch.equal(u[:, 0] + u.flip(0)[:, 0], torch.full((2 * r + 1,), 4 << GRID_FRAC_BITS))  # symmetric
+        idx, w = trilinear_corners(u, 5)
+        assert (w.sum(1) == 1 << 24).all() and int(idx.min()) >= 0 and int(idx.max()) < 125
+
+
+def test_serialization_round_trip_and_errors():
+    rng = np.random.default_rng(5)
+    p = random_params(rng)
+    arrays = p.to_arrays()
+    assert [a.name for a in arrays][:5] == ["num_features", "k", "radius_sq", "h_shift", "table"]
+    assert {a.name: a.bits for a in arrays}["table"] == 16 and {a.name: a.bits for a in arrays}["feat.0.bias"] == 32
+    q = GGConvParams.from_arrays(arrays)
+    c = _scene(rng, 60)
+    x = rng.integers(-100, 100, (len(c), p.num_attrs))
+    assert all(np.array_equal(a, b) for a, b in zip(ggconv_coding_params(p, c, x, 2), ggconv_coding_params(q, c, x, 2)))
+    with pytest.raises(ValueError, match="missing"):
+        GGConvParams.from_arrays([a for a in arrays if a.name != "h_shift"])
+    with pytest.raises(ValueError, match="unknown"):
+        GGConvParams.from_arrays(arrays + [NamedIntArray("extra", np.array(1), 8, False)])
+    bad = [NamedIntArray(a.name, a.values + (1 << 20) if a.name == "table" else a.values, a.bits, a.signed)
+           for a in arrays]
+    with pytest.raises(ValueError, match="range"):
+        GGConvParams.from_arrays(bad)
+
+
+def test_step_adjust_factors_frozen():
+    assert STEP_ADJUST_FACTORS.dtype == np.float32 and not STEP_ADJUST_FACTORS.flags.writeable
+    assert [float(np.float32(2 ** (a / 4))) for a in range(8)] == STEP_ADJUST_FACTORS.tolist()
+    assert sigma_of_level(0) == pytest.approx(0.11) and sigma_of_level(63) == pytest.approx(512)
+    try:
+        from lghcc.common.entropy.tables import SCALE_SIGMAS
+    except ImportError:  # pragma: no cover
+        return
+    assert np.allclose(SCALE_SIGMAS, sigma_of_level(np.arange(64)))
+
+
+def _smooth_scene(n=3500, extent=32, c=6, koff=2, s=4, seed=0):
+    rng = np.random.default_rng(seed)
+    coords = np.unique(rng.integers(0, extent, (n, 3)), axis=0)
+    coords = coords[rng.permutation(len(coords))]
+    m = c + 6 + 3 * koff
+    freq = rng.normal(0, 0.15, (m, 3))
+    phase = rng.uniform(0, 6.28, m)
+    vals = 20 * np.sin(coords @ freq.T + phase) + rng.normal(0, 0.3, (len(coords), m))
+    h = build_hierarchy(coords, s)
+    parent = np.floor(vals[h.parent_anchor_of_level2] + 0.5).astype(np.int64)
+    return coords[h.level2_idx], parent, vals[h.level2_idx], c, s
+
+
+def test_fit_reduces_rate_and_twin_matches_integer_path():
+    from lghcc.encoder.ggconv_train import (
+        GGConvTrainConfig,
+        estimated_rate_bits,
+        train_ggconv_twin,
+        twin_outputs,
+        zero_mean_prior_bits,
+    )
+
+    c2, parent, targets, c, s = _smooth_scene()
+    cfg = GGConvTrainConfig(float_steps=100, qat_steps=30, batch=384, lam=1000.0, progress=False,
+                            ctx_channels=8, feat_hidden=16, head_hidden=32)
+    params, twin = train_ggconv_twin(c2, parent, targets, c, s, cfg)
+    bits, adj = estimated_rate_bits(params, c2, parent, targets, s)
+    base = zero_mean_prior_bits(targets)
+    assert (adj == 0).mean() > 0.99  # lambda high: same distortion as the reference
+    assert bits < 0.85 * base, (bits / len(c2), base / len(c2))
+    mean_t, level_t, adj_t = twin_outputs(twin, c2, parent, s)
+    mean_i, level_i, adj_i = ggconv_coding_params(params, c2, parent, s)
+    assert (np.abs(mean_t - mean_i) <= 1).mean() > 0.99
+    # the quantized twin emulates the integer path exactly
+    assert np.array_equal(mean_t, mean_i) and np.array_equal(level_t, level_i) and np.array_equal(adj_t, adj_i)
+    # parameters survive serialization
+    q = GGConvParams.from_arrays(params.to_arrays())
+    assert np.array_equal(ggconv_coding_params(q, c2, parent, s)[0], mean_i)
+
