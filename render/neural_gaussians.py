@@ -212,10 +212,12 @@ def _mlp_input(m: nn.Module, feat: torch.Tensor, view: torch.Tensor, dist: torch
 
 def generate_neural_gaussians(scene: AnchorScene | SceneTensors, camera: Camera, *, cull: bool = True,
                               margin: float = 0.15, sigma_cutoff: float = 3.0,
-                              dtype: torch.dtype = torch.float32) -> NeuralGaussians:
+                              dtype: torch.dtype = torch.float32, mask_opacity: bool = True) -> NeuralGaussians:
     """The neural Gaussians an anchor scene produces for ``camera`` (see the module doc).
     ``scene``: an AnchorScene (converted with ``SceneTensors.from_scene``; pass a SceneTensors
-    to avoid converting per view or to differentiate). Statistics in ``.stats``."""
+    to avoid converting per view or to differentiate). Statistics in ``.stats``.
+    ``mask_opacity=False`` is for benchmarks only: it also builds Gaussians with opacity <= 0
+    (which the rasterizer then skips), to measure what Scaffold-GS's opacity mask saves."""
     st = _as_scene_tensors(scene, dtype)
     n, k = st.num_anchors, st.num_offsets
     pos, dev = st.positions, st.positions.device
@@ -238,7 +240,8 @@ def generate_neural_gaussians(scene: AnchorScene | SceneTensors, camera: Camera,
     if "feature_bank" in st.mlps:
         feat = _feature_bank(st.mlps["feature_bank"], feat, torch.cat([view, dist], 1))
     op = st.mlps["opacity"](_mlp_input(st.mlps["opacity"], feat, view, dist))  # [nv, K]
-    keep = op > 0
+    # mask_opacity=False (for measuring what the mask saves) builds Gaussians with opacity <= 0 too
+    keep = op > 0 if mask_opacity else torch.ones_like(op, dtype=torch.bool)
     if live is not None:
         keep &= live[idx]
     # Anchors with at least one Gaussian: the only ones the covariance and colour MLPs see.

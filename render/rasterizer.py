@@ -219,17 +219,17 @@ class _Composite(torch.autograd.Function):
         with torch.no_grad():
             for tiles, length, lc in plan.batches:
                 idx, centres = _batch_index(plan, tiles, length, m)
-                carry = torch.zeros(len(tiles), npx, dtype=dt)
+                carry = torch.zeros(len(tiles), npx, 1, dtype=dt)
                 saved = []
                 for s0 in range(0, length, lc):
                     saved.append(carry)
                     g = idx[:, s0:s0 + lc]
-                    alpha, _, _ = _alpha(g, centres, md, cn, op, th, basis)
+                    alpha, _, _ = _alpha(g, centres, md, cn, op, th, basis)  # [B, P, L]
                     la = torch.log1p(-alpha)
-                    cs = torch.cumsum(la, 1).add_(carry[:, None, :])
+                    cs = torch.cumsum(la, 2).add_(carry)
                     w = (cs - la).exp_().mul_(alpha).mul_(cs >= LOG_T_MIN)
-                    acc[tiles] += torch.bmm(w.transpose(1, 2), ft[g])
-                    carry = cs[:, -1]
+                    acc[tiles] += torch.bmm(w, ft[g])
+                    carry = cs[:, :, -1:]
                 carries.append(saved)
         ctx.plan, ctx.carries = plan, carries
         ctx.save_for_backward(means2d, conics, opacities, feats, thresh)
@@ -253,29 +253,29 @@ class _Composite(torch.autograd.Function):
             idx, centres = _batch_index(plan, tiles, length, m)
             centres = centres.to(dt)
             gout = grad_acc[tiles]  # [B, npx, d]
-            suffix = torch.zeros(len(tiles), ts * ts, dtype=dt)  # sum over later chunks of gf_j w_j
+            suffix = torch.zeros(len(tiles), ts * ts, 1, dtype=dt)  # sum over later chunks of gf_j w_j
             for ci in range(len(saved) - 1, -1, -1):
                 s0 = ci * lc
                 g = idx[:, s0:s0 + lc]
                 alpha, gexp, pmask = _alpha(g, centres, md, cn, op, th, basis)
-                la = torch.log1p(-alpha)
-                cs = torch.cumsum(la, 1).add_(saved[ci][:, None, :])
+                la = torch.log1p(-alpha)  # [B, P, Lc]
+                cs = torch.cumsum(la, 2).add_(saved[ci])
                 incl = cs >= LOG_T_MIN
                 t_ex = (cs - la).exp_()
                 w = t_ex * alpha * incl
                 fg = ft[g]  # [B, Lc, d]
-                g_ft.index_add_(0, g.reshape(-1), torch.bmm(w, gout).reshape(-1, d))
-                gf = torch.bmm(fg, gout.transpose(1, 2))  # [B, Lc, npx] dL/dw
+                g_ft.index_add_(0, g.reshape(-1), torch.bmm(w.transpose(1, 2), gout).reshape(-1, d))
+                gf = torch.bmm(gout, fg.transpose(1, 2))  # [B, P, Lc] dL/dw
                 gw = gf * w
-                csum = torch.cumsum(gw, 1)
-                total = csum[:, -1:, :]
-                s_after = (total - csum).add_(suffix[:, None, :])
-                suffix = suffix + total[:, 0]
+                csum = torch.cumsum(gw, 2)
+                total = csum[:, :, -1:]
+                s_after = (total - csum).add_(suffix)
+                suffix = suffix + total
                 # dL/dalpha = T_i gf_i - S_i / (1 - alpha_i), on drawn, unclamped entries
                 g_alpha = (gf * t_ex - s_after / (1 - alpha)) * (incl & pmask)
-                g_op.index_add_(0, g.reshape(-1), (g_alpha * gexp).sum(2).reshape(-1))
-                g_pow = -(g_alpha * alpha)  # dL/dpower [B, Lc, npx]
-                gcoef = (g_pow.reshape(-1, ts * ts) @ basis.T).reshape(g.shape + (6,))
+                g_op.index_add_(0, g.reshape(-1), (g_alpha * gexp).sum(1).reshape(-1))
+                g_pow = -(g_alpha * alpha)  # dL/dpower [B, P, Lc]
+                gcoef = torch.matmul(basis, g_pow).transpose(1, 2)  # [B, Lc, 6]
                 mx = md[g, 0] - centres[:, None, 0]
                 my = md[g, 1] - centres[:, None, 1]
                 a, b, c = cn[g, 0], cn[g, 1], cn[g, 2]
@@ -315,16 +315,16 @@ def _batch_index(plan: TilePlan, tiles: torch.Tensor, length: int, pad: int):
 
 
 def _alpha(g, centres, md, cn, op, th, basis):
-    """alpha [B, L, P] (0 where not drawn), o*exp(-power) and the unclamped-drawn mask."""
+    """alpha [B, P, L] (pixels x Gaussians; 0 where not drawn), o*exp(-power) and the unclamped-drawn mask."""
     dt = md.dtype
     c = centres.to(dt)
     mx = md[g, 0] - c[:, None, 0]
     my = md[g, 1] - c[:, None, 1]
     coef = _coefficients(mx, my, cn[g, 0], cn[g, 1], cn[g, 2])  # [B, L, 6]
-    power = (coef.reshape(-1, 6) @ basis).reshape(g.shape + (basis.shape[1],)).clamp_(min=0)
-    drawn = power <= th[g][:, :, None]
+    power = torch.matmul(basis.T, coef.transpose(1, 2)).clamp_(min=0)  # [B, P, L]
+    drawn = power <= th[g][:, None, :]
     gexp = power.neg_().exp_().mul_(drawn)  # G (0 where not drawn)
-    alpha = gexp * op[g][:, :, None]
+    alpha = gexp * op[g][:, None, :]
     unclamped = drawn & (alpha < ALPHA_MAX)
     alpha = alpha.clamp_(max=ALPHA_MAX)
     return alpha, gexp, unclamped
