@@ -28,6 +28,14 @@ class EncoderConfig:
     # Two-level hierarchy: level 1 = one anchor per coarse voxel of this many voxels per side.
     hierarchy: bool = False
     coarse_voxel_scale: int = 4
+    # Level-2 context model: per_channel (the spine's prior), parent_mlp (vanilla EM) or ggconv.
+    context_model: str = "per_channel"
+    context_k: int = 8  # neighbours of the Ball k-NN graph (GG-Conv)
+    context_lambda: float = 16.0  # distortion weight of the step adjustment, bits per squared step
+    context_float_steps: int = 300  # training steps in float
+    context_qat_steps: int = 150  # quantization-aware steps (GG-Conv)
+    context_weight_bits: int = 16  # integer precision of the context model's weights: 8 or 16
+    context_train_anchors: int = 200_000  # level-2 anchors sampled for training
 
     def validate(self) -> "EncoderConfig":
         for name in ("feature_step", "scaling_step", "offset_step"):
@@ -40,6 +48,14 @@ class EncoderConfig:
             raise InputError("rows_per_chunk must be at least 1")
         if not 1 <= self.coarse_voxel_scale <= (1 << 20):
             raise InputError(f"coarse_voxel_scale must be in [1, 2^20], got {self.coarse_voxel_scale}")
+        if self.context_model not in ("per_channel", "parent_mlp", "ggconv"):
+            raise InputError(f"context_model must be per_channel, parent_mlp or ggconv, got {self.context_model!r}")
+        if self.context_model != "per_channel" and not self.hierarchy:
+            raise InputError(f"context_model {self.context_model} needs the hierarchy (hierarchy: true)")
+        if self.context_weight_bits not in (8, 16):
+            raise InputError("context_weight_bits must be 8 or 16")
+        if not 1 <= self.context_k <= 64:
+            raise InputError("context_k must be in [1, 64]")
         if self.prior_fit_rows < 1:
             raise InputError("prior_fit_rows must be at least 1")
         return self

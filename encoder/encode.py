@@ -12,9 +12,12 @@ import numpy as np
 from tqdm import tqdm
 
 from lghcc.common import attributes as attr
-from lghcc.common.container import DataUnit, UnitType, read_container, write_container
+from lghcc.common.container import (UNIT_CRC_BYTES, UNIT_HEADER_BYTES, DataUnit, UnitType, read_container,
+                                    write_container)
 from lghcc.common.entropy.symbol_coder import ideal_code_length_bits, level_for_sigma
 from lghcc.common.errors import InputError
+from lghcc.common.context.model_unit import write_context_model_unit
+from lghcc.common.context.models import CONTEXT_MODEL_NAMES, level2_coding_params, read_context_model
 from lghcc.common.geometry import encode_geometry, normative_order
 from lghcc.common.hashing import scene_digest
 from lghcc.common.render_model import dequantize, write_render_model_unit
@@ -25,8 +28,20 @@ from lghcc.common.units import (CONTEXT_PER_CHANNEL_PRIOR, LEVEL_1, LEVEL_2, LEV
                                 MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, AttributeUnitHeader, DecodedSceneHashUnit,
                                 RenderMlpHeader, SceneParameterSet)
 from lghcc.encoder.config import EncoderConfig
+from lghcc.encoder.context_fit import fit_level2_context
+from lghcc.encoder.ggconv_train import GGConvTrainConfig
 
+UNIT_FRAMING_BYTES = UNIT_HEADER_BYTES + UNIT_CRC_BYTES
 MAX_QUANTIZED_MAGNITUDE = 2 ** 52  # |x / step| beyond this cannot be rounded exactly in float64
+
+
+@dataclass
+class LevelCoding:
+    """One way of coding the attributes of a hierarchy level."""
+    q: np.ndarray
+    params: attr.CodingParams
+    payload: bytes
+    header: AttributeUnitHeader
 
 
 @dataclass
@@ -36,6 +51,12 @@ class EncodeResult:
     decoded: AnchorScene  # the scene the decoder will output, bit for bit
     scene_hash: bytes
     stats: dict = field(default_factory=dict)
+
+
+def context_train_config(cfg: EncoderConfig, progress: bool) -> GGConvTrainConfig:
+    return GGConvTrainConfig(k=cfg.context_k, lam=cfg.context_lambda, float_steps=cfg.context_float_steps,
+                             qat_steps=cfg.context_qat_steps, weight_bits=cfg.context_weight_bits,
+                             max_train_anchors=cfg.context_train_anchors, progress=progress)
 
 
 def quantize(values: np.ndarray, steps: np.ndarray, what: str) -> np.ndarray:
@@ -170,25 +191,63 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
     attribute_payloads = []
     stats["attribute_ideal_bits"] = 0.0
     stats["attribute_coded_bits"] = 0
+    q_level1 = None
+    context_payload = None
     for level, rows in levels:
-        q = np.where(live[rows], quantize(values[rows], steps, "attributes"), 0)
-        means, lv = fit_per_channel_prior(q, live[rows], cfg.prior_fit_rows)
-        header = AttributeUnitHeader(
-            num_channels=layout.num_channels, num_offsets=scene.num_offsets,
-            offset_mask_present=int(mask is not None), num_rows=rows.size, attribute_level=level,
-            context_model_id=CONTEXT_PER_CHANNEL_PRIOR, prior_mean=means.tolist(), prior_level=lv.tolist(),
-            rows_per_chunk_minus1=min(cfg.rows_per_chunk, rows.size) - 1)
+        level_live = live[rows]
         level_mask = None if mask is None else mask[rows]
-        if mask is not None:
-            p = np.clip(np.rint(level_mask.mean(axis=0) * (1 << MASK_PROB_BITS)), 1, (1 << MASK_PROB_BITS) - 1)
-            header.mask_live_prob = [int(x) for x in p]
-        params = attr.prior_params(header)
-        attribute_payloads.append(attr.write_attribute_unit(header, layout, q, level_mask, params))
-        lr = live[rows]
+
+        def new_header() -> AttributeUnitHeader:
+            h = AttributeUnitHeader(
+                num_channels=layout.num_channels, num_offsets=scene.num_offsets,
+                offset_mask_present=int(mask is not None), num_rows=rows.size, attribute_level=level,
+                rows_per_chunk_minus1=min(cfg.rows_per_chunk, rows.size) - 1)
+            if mask is not None:
+                p = np.clip(np.rint(level_mask.mean(axis=0) * (1 << MASK_PROB_BITS)), 1, (1 << MASK_PROB_BITS) - 1)
+                h.mask_live_prob = [int(x) for x in p]
+            return h
+
+        def code(header: AttributeUnitHeader, q: np.ndarray, params: attr.CodingParams) -> LevelCoding:
+            payload = attr.write_attribute_unit(header, layout, q, level_mask, params)
+            return LevelCoding(q, params, payload, header)
+
+        q = np.where(level_live, quantize(values[rows], steps, "attributes"), 0)
+        header = new_header()
+        means, lv = fit_per_channel_prior(q, level_live, cfg.prior_fit_rows)
+        header.context_model_id = CONTEXT_PER_CHANNEL_PRIOR
+        header.prior_mean, header.prior_level = means.tolist(), lv.tolist()
+        chosen = code(header, q, attr.prior_params(header))
+        if level == LEVEL_2 and cfg.context_model != "per_channel":
+            t2 = time.perf_counter()
+            parent_attrs = q_level1[hier.parent_of_level2]
+            targets = np.where(level_live, values[rows] / steps.astype(np.float64), 0.0)
+            fitted = fit_level2_context(cfg.context_model, coords[rows], parent_attrs, targets,
+                                        scene.feature_dim, cfg.coarse_voxel_scale, context_train_config(cfg, progress))
+            unit = write_context_model_unit(fitted.model_id, fitted.params.to_arrays(), fitted.feat_layers,
+                                            fitted.head_layers)
+            model = read_context_model(unit, layout)  # exactly what the decoder will use
+            params = level2_coding_params(model, coords[rows], parent_attrs, cfg.coarse_voxel_scale)
+            q_ctx = np.where(level_live, quantize(values[rows], attr.effective_steps(steps, params.step_adjust),
+                                                  "attributes"), 0)
+            header = new_header()
+            header.context_model_id = fitted.model_id
+            with_context = code(header, q_ctx, params)
+            stats["time_context_fit_s"] = time.perf_counter() - t2
+            stats["level2_bytes_per_channel_prior"] = len(chosen.payload)
+            stats["level2_bytes_with_context"] = len(with_context.payload) + len(unit)
+            # A context model the scene does not benefit from is not used and costs nothing.
+            if len(with_context.payload) + len(unit) + UNIT_FRAMING_BYTES < len(chosen.payload):
+                chosen, context_payload = with_context, unit
+        stats[f"level{level}_context_model"] = CONTEXT_MODEL_NAMES[chosen.header.context_model_id]
+        if level == LEVEL_1:
+            q_level1 = chosen.q
+        attribute_payloads.append(chosen.payload)
+        lq, lp = chosen.q, chosen.params
         stats["attribute_ideal_bits"] += ideal_code_length_bits(
-            (q - params.mean)[lr], np.broadcast_to(params.level, q.shape)[lr])
-        stats["attribute_coded_bits"] += 8 * sum(header.chunk_size)
-        recon[rows] = attr.reconstruct(q, steps, params.step_adjust)
+            (lq - lp.mean)[level_live], np.broadcast_to(lp.level, lq.shape)[level_live])
+        stats["attribute_coded_bits"] += 8 * sum(chosen.header.chunk_size)
+        stats[f"attribute_bytes_level{level}"] = len(chosen.payload)
+        recon[rows] = attr.reconstruct(lq, steps, lp.step_adjust)
     stats["time_attributes_s"] = time.perf_counter() - t1
     bar.update()
 
@@ -207,6 +266,8 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
                           offsets=offsets, offset_mask=mask, mlps=decoded_mlps)
     digest = scene_digest(decoded)
     units.append(DataUnit(UnitType.GEOMETRY, geometry_payload))
+    if context_payload is not None:
+        units.append(DataUnit(UnitType.CONTEXT_MODEL, context_payload))
     units += [DataUnit(UnitType.ATTRIBUTE, p) for p in attribute_payloads]
     units.append(DataUnit(UnitType.DECODED_SCENE_HASH, DecodedSceneHashUnit(scene_hash=digest).to_bytes()))
     data = write_container(units)

@@ -39,7 +39,7 @@ MAX_H_SHIFT = 40
 NUM_LEVELS = 64
 NUM_STEP_ADJUST = 8
 NUM_SCALINGS = 6
-MAX_RADIUS_SQ = 3 * MAX_EXTENT * MAX_EXTENT
+MAX_RADIUS_SQ = (1 << 62) - 1  # coded as a 62-bit unsigned value (context-model unit)
 
 #: Step adjustment a in [0, 8) multiplies the base quantization step by 2^(a/4). Frozen float32
 #: constants (the nearest binary32 to 2^(a/4)); the decoder multiplies with exactly these.
@@ -132,7 +132,7 @@ class GGConvParams:
         {mlp}.{l}.bias (s32 [out]), {mlp}.{l}.shift (u8). ReLU follows every layer but the last."""
         out = [NamedIntArray("num_features", np.array(self.num_features, dtype=np.int64), 16, False),
                NamedIntArray("k", np.array(self.k, dtype=np.int64), 8, False),
-               NamedIntArray("radius_sq", np.array(self.radius_sq, dtype=np.int64), 64, False),
+               NamedIntArray("radius_sq", np.array(self.radius_sq, dtype=np.int64), 62, False),
                NamedIntArray("h_shift", np.array(self.h_shift, dtype=np.int64), 8, False),
                NamedIntArray("table", self.table.copy(), 16, True)]
         for name, mlp in (("feat", self.feat_mlp), ("head", self.head_mlp)):

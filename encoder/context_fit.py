@@ -1,0 +1,86 @@
+"""Fitting the level-2 context model (informative, encoder side).
+
+``fit_level2_context`` dispatches on the model: GG-Conv (encoder/ggconv_train.py: float
+twin, then quantization-aware training that emulates the integer path) or the parent MLP
+(the paper's "vanilla EM"; below: float training with the same rate-distortion loss, then
+post-training quantization with per-layer power-of-two scales).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import nn
+from tqdm.auto import tqdm
+
+from lghcc.common.context.parent_mlp import ParentMlpParams
+from lghcc.common.intnn import ACT_MAX, ACT_MIN, IntMLP, frac_bits_for, quantize_linear
+from lghcc.common.units import CONTEXT_GGCONV, CONTEXT_PARENT_MLP
+from lghcc.encoder.ggconv_train import GGConvTrainConfig, fit_ggconv, rd_loss
+
+CONTEXT_MODEL_IDS = {"parent_mlp": CONTEXT_PARENT_MLP, "ggconv": CONTEXT_GGCONV}
+
+
+@dataclass
+class FittedContext:
+    model_id: int
+    params: object  # GGConvParams | ParentMlpParams
+    feat_layers: int
+    head_layers: int
+
+
+def fit_parent_mlp(coords2: np.ndarray, parent_attrs: np.ndarray, targets: np.ndarray, num_features: int,
+                   voxel_scale: int, cfg: GGConvTrainConfig) -> ParentMlpParams:
+    """Head MLP [local position (3), parent attributes (M)] -> 3M, fitted on the rate-distortion
+    loss of GG-Conv's trainer, then quantized (16-bit activations, cfg.weight_bits weights)."""
+    n, m = parent_attrs.shape
+    rng = np.random.default_rng(cfg.seed)
+    torch.manual_seed(cfg.seed)
+    rows = np.sort(rng.permutation(n)[:cfg.max_train_anchors])
+    local = np.mod(coords2[rows], voxel_scale).clip(0, ACT_MAX).astype(np.float64)
+    xpar = np.clip(parent_attrs[rows], ACT_MIN, ACT_MAX).astype(np.float64)
+    x_int = torch.from_numpy(np.concatenate([local, xpar], 1))
+    tgt = torch.from_numpy(np.asarray(targets, dtype=np.float64)[rows])
+    xp = torch.from_numpy(xpar)
+    scale = 1.0 / x_int.std(0).clamp_min(1.0)  # input normalization, folded into layer 1 at export
+    hidden = cfg.head_hidden
+    net = nn.Sequential(nn.Linear(3 + m, hidden), nn.ReLU(), nn.Linear(hidden, 3 * m)).double()
+    with torch.no_grad():  # start from "predict the parent, spread of the residual, no step change"
+        net[2].weight.mul_(0.1)
+        net[2].bias.zero_()
+        spread = (tgt - xp).abs().mean(0) * 1.25 + 0.05
+        net[2].bias[m:2 * m] = ((spread.log() - np.log(0.11)) / (np.log(512 / 0.11) / 63)).clamp(0, 63)
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    steps = cfg.float_steps + cfg.qat_steps
+    for _ in tqdm(range(steps), desc="fit parent MLP", disable=not cfg.progress, unit="step"):
+        sel = torch.from_numpy(rng.integers(0, rows.size, min(cfg.batch, rows.size)))
+        o = net(x_int[sel] * scale)
+        mean = xp[sel] + o[:, :m]
+        level = o[:, m:2 * m].clamp(0, 63)
+        adj = o[:, 2 * m:].clamp(0, 7)
+        loss, _ = rd_loss(mean, level, adj, tgt[sel], cfg.lam)
+        opt.zero_grad()
+        (loss.mean() / m).backward()
+        opt.step()
+    with torch.no_grad():
+        w1 = (net[0].weight * scale[None, :]).numpy()
+        b1 = net[0].bias.numpy()
+        h = torch.relu(x_int @ torch.from_numpy(w1).T + torch.from_numpy(b1))
+        f1 = frac_bits_for(float(h.abs().max()) if h.numel() else 0.0)
+        l1, _ = quantize_linear(w1, b1, f1, relu=True, weight_bits=cfg.weight_bits)
+        l2, _ = quantize_linear(net[2].weight.numpy() * 2.0 ** -f1, net[2].bias.numpy(), 0, relu=False,
+                                weight_bits=cfg.weight_bits)
+    return ParentMlpParams(num_features, IntMLP([l1, l2]))
+
+
+def fit_level2_context(kind: str, coords2: np.ndarray, parent_attrs: np.ndarray, targets: np.ndarray,
+                       num_features: int, voxel_scale: int, cfg: GGConvTrainConfig) -> FittedContext:
+    if kind == "ggconv":
+        p = fit_ggconv(coords2, parent_attrs, targets, num_features, voxel_scale, cfg)
+        return FittedContext(CONTEXT_GGCONV, p, len(p.feat_mlp.layers), len(p.head_mlp.layers))
+    if kind == "parent_mlp":
+        p = fit_parent_mlp(coords2, parent_attrs, targets, num_features, voxel_scale, cfg)
+        return FittedContext(CONTEXT_PARENT_MLP, p, 0, len(p.head_mlp.layers))
+    raise ValueError(f"unknown context model {kind!r}")
