@@ -29,8 +29,9 @@ from lghcc.common.units import (CONTEXT_PER_CHANNEL_PRIOR, MASK_PROB_BITS, Attri
 # Quantization-step adjustment (context models with a step output): the step of a value is
 # float32(step(c)) * STEP_ADJUST_FACTORS[a], one binary32 multiplication. The factors are
 # 2^(a/4), a = 0..7, frozen here as binary32 constants.
-STEP_ADJUST_FACTORS = np.array([1.0, 1.1892071, 1.4142135, 1.6817929, 2.0, 2.3784142, 2.828427, 3.3635857],
+STEP_ADJUST_FACTORS = np.array([1.0, 1.18920708, 1.41421354, 1.68179286, 2.0, 2.37841415, 2.82842708, 3.36358571],
                                dtype=np.float32)
+STEP_ADJUST_FACTORS.setflags(write=False)
 NUM_STEP_ADJUST = len(STEP_ADJUST_FACTORS)
 
 

@@ -8,10 +8,12 @@ from lghcc.common.syntax import SyntaxStructure
 
 def all_structures() -> list[type[SyntaxStructure]]:
     from lghcc.common import container, geometry, units
+    from lghcc.common.context import model_unit
 
     return [container.ContainerHeader, container.UnitHeader, units.SceneParameterSet,
             units.RenderModelUnit, units.RenderMlpHeader, geometry.GeometryHeader,
-            units.AttributeUnitHeader, units.DecodedSceneHashUnit]
+            units.AttributeUnitHeader, units.DecodedSceneHashUnit, model_unit.ContextModelUnit,
+            model_unit.IntArrayHeader]
 
 
 def syntax_tables_markdown() -> str:

@@ -51,7 +51,7 @@ def element_classes() -> dict[str, list]:
                 classes[name] = ["non-empty"] if name in FIXED_LENGTH else ["empty", "non-empty"]
             else:
                 classes[name] = ["minimum", "above minimum"]
-    classes["data_unit.unit_type"] = [t.name.lower() for t in UnitType if t != UnitType.CONTEXT_MODEL] + ["ancillary"]
+    classes["data_unit.unit_type"] = [t.name.lower() for t in UnitType] + ["ancillary"]
     return classes
 
 

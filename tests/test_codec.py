@@ -150,3 +150,36 @@ def test_decoding_is_the_same_with_1_and_2_threads():
 def test_encoding_is_deterministic():
     scene = make_procedural_scene(1500, seed=4, with_mask=True)
     assert encode_scene(scene).data == encode_scene(scene).data
+
+
+@pytest.mark.parametrize("model", ["parent_mlp", "ggconv"])
+def test_context_models_round_trip_bit_exact_across_threads(model):
+    scene = make_procedural_scene(1200, seed=5, feature_dim=6, num_offsets=2, with_mask=True)
+    cfg = EncoderConfig(hierarchy=True, context_model=model, context_k=4, context_float_steps=20,
+                        context_qat_steps=5, context_fallback=False)
+    res = encode_scene(scene, cfg)
+    assert res.breakdown.bytes_by_category["model"] > 0
+    assert res.stats["level2_context_model"] != "per-channel prior"
+    digests = []
+    for threads in (1, 2):
+        torch.set_num_threads(threads)
+        dec = decode_stream(res.data)
+        assert_same_scene(dec.scene, res.decoded)
+        digests.append(scene_digest(dec.scene))
+    assert digests[0] == digests[1]
+
+
+def test_context_model_that_does_not_pay_is_not_written():
+    # Two level-2 anchors cannot pay for a trained network: the encoder keeps the prior.
+    scene = random_scene(np.random.default_rng(2), 1)
+    scene.coords = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    scene.features = np.zeros((3, 4), np.float32)
+    scene.scalings = np.zeros((3, 6), np.float32)
+    scene.offsets = np.zeros((3, 2, 3), np.float32)
+    cfg = EncoderConfig(hierarchy=True, coarse_voxel_scale=4, context_model="parent_mlp", context_float_steps=5,
+                        context_qat_steps=0)
+    res = encode_scene(scene, cfg)
+    assert res.stats["level2_context_model"] == "per-channel prior"
+    from lghcc.common.container import UnitType, read_container
+    assert all(u.unit_type != UnitType.CONTEXT_MODEL for u in read_container(res.data).units)
+    assert_same_scene(decode_stream(res.data).scene, res.decoded)

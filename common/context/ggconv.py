@@ -28,6 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from lghcc.common.attributes import STEP_ADJUST_FACTORS  # noqa: F401 (re-exported)
+from lghcc.common.context.model_unit import NamedIntArray
 from lghcc.common.intnn import ACT_MAX, ACT_MIN, IntLinear, IntMLP, WEIGHT_BITS_ALLOWED, rshift_round
 from lghcc.common.knn import MAX_EXTENT, ball_knn
 
@@ -41,27 +43,12 @@ NUM_STEP_ADJUST = 8
 NUM_SCALINGS = 6
 MAX_RADIUS_SQ = (1 << 62) - 1  # coded as a 62-bit unsigned value (context-model unit)
 
-#: Step adjustment a in [0, 8) multiplies the base quantization step by 2^(a/4). Frozen float32
-#: constants (the nearest binary32 to 2^(a/4)); the decoder multiplies with exactly these.
-STEP_ADJUST_FACTORS = np.array(
-    [1.0, 1.18920708, 1.41421354, 1.68179286, 2.0, 2.37841415, 2.82842708, 3.36358571],
-    dtype=np.float32)
-STEP_ADJUST_FACTORS.setflags(write=False)
 
 
 def sigma_of_level(level) -> np.ndarray:
     """Nominal sigma of a scale level, in quantization steps (informative; the normative
     probabilities are the frozen tables of common/entropy/tables.py)."""
     return 0.11 * (512.0 / 0.11) ** (np.asarray(level, dtype=np.float64) / 63.0)
-
-
-@dataclass(frozen=True)
-class NamedIntArray:
-    """One serializable parameter: integer values of `bits` bits, signed or unsigned."""
-    name: str
-    values: np.ndarray  # int64, any shape
-    bits: int
-    signed: bool
 
 
 @dataclass
