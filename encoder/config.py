@@ -36,6 +36,7 @@ class EncoderConfig:
     context_qat_steps: int = 150  # quantization-aware steps (GG-Conv)
     context_weight_bits: int = 16  # integer precision of the context model's weights: 8 or 16
     context_train_anchors: int = 200_000  # level-2 anchors sampled for training
+    context_fallback: bool = True  # use the context model only when it saves bytes over the prior
 
     def validate(self) -> "EncoderConfig":
         for name in ("feature_step", "scaling_step", "offset_step"):

@@ -236,7 +236,8 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
             stats["level2_bytes_per_channel_prior"] = len(chosen.payload)
             stats["level2_bytes_with_context"] = len(with_context.payload) + len(unit)
             # A context model the scene does not benefit from is not used and costs nothing.
-            if len(with_context.payload) + len(unit) + UNIT_FRAMING_BYTES < len(chosen.payload):
+            if not cfg.context_fallback or \
+                    len(with_context.payload) + len(unit) + UNIT_FRAMING_BYTES < len(chosen.payload):
                 chosen, context_payload = with_context, unit
         stats[f"level{level}_context_model"] = CONTEXT_MODEL_NAMES[chosen.header.context_model_id]
         if level == LEVEL_1:

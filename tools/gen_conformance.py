@@ -70,7 +70,8 @@ def build_scene(s: dict):
     from lghcc.common.procedural import make_procedural_scene
 
     if s["generator"] == "procedural":
-        return make_procedural_scene(s["num_anchors"], seed=s.get("seed", 0), with_mask=s.get("with_mask", False))
+        return make_procedural_scene(s["num_anchors"], seed=s.get("seed", 0), with_mask=s.get("with_mask", False),
+                                     feature_dim=s.get("feature_dim", 50), num_offsets=s.get("num_offsets", 10))
     if s["generator"] == "random":
         return random_scene(s)
     raise ValueError(f"unknown scene generator {s['generator']!r}")
@@ -93,9 +94,12 @@ def post_process(data: bytes, post: dict) -> bytes:
 
 def generate(entry: dict) -> tuple[bytes, str | None]:
     """-> (stream bytes, decoded scene SHA-256 hex or None when the stream must be rejected)."""
+    import torch
+
     from lghcc.encoder.config import load_config
     from lghcc.encoder.encode import encode_scene
 
+    torch.set_num_threads(1)  # context-model training in float must be reproducible byte for byte
     cfg = load_config(entry.get("preset", "medium"), overrides=entry.get("config"))
     result = encode_scene(build_scene(entry["scene"]), cfg)
     data = post_process(result.data, entry.get("post", {}))
