@@ -203,13 +203,13 @@ def write_attribute_unit(h: AttributeUnitHeader, layout: ChannelLayout, q: np.nd
 
 def read_attribute_unit(payload: bytes, sps: SceneParameterSet, num_rows: int, level: int,
                         values_out: np.ndarray, rows: np.ndarray | None = None, context=None,
-                        trace: list[TraceEntry] | None = None, keep_q: bool = False):
+                        trace: list[TraceEntry] | None = None, keep_q: bool = False, on_chunk=None):
     """Parse and decode an attribute unit of ``num_rows`` rows at hierarchy ``level``; write
     the reconstructed values of row r to ``values_out[rows[r]]`` (``rows`` None: row r).
 
     ``context``: a callable context_model_id -> CodingParams (None when the stream has no
-    context model). Returns (header, mask bool [rows, K] or None, q int64 [rows, M] when
-    ``keep_q`` else None). Chunk by chunk, so memory stays proportional to the output.
+    context model). ``on_chunk(rows)`` is called after each chunk (progress). Returns
+    (header, mask bool [rows, K] or None, q int64 [rows, M] when ``keep_q`` else None). Chunk by chunk, so memory stays proportional to the output.
     """
     layout = layout_of(sps)
     reader = BitReader(payload, f"attribute unit (level {level})")
@@ -250,4 +250,6 @@ def read_attribute_unit(payload: bytes, sps: SceneParameterSet, num_rows: int, l
             values_out[rows[lo:hi]] = v
         if keep_q:
             q_all[lo:hi] = q
+        if on_chunk is not None:
+            on_chunk(hi - lo)
     return h, mask, q_all

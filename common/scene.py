@@ -134,6 +134,10 @@ class AnchorScene:
         if self.offset_mask is not None and self.offset_mask.shape != self.offsets.shape[:2]:
             raise InputError(f"offset mask must have shape {list(self.offsets.shape[:2])}, "
                              f"got {list(self.offset_mask.shape)}")
+        with np.errstate(over="ignore", invalid="ignore"):
+            if not np.isfinite(self.positions()).all():
+                raise InputError(f"world positions (origin + coords * voxel size {self.voxel_size:g}) overflow "
+                                 "IEEE binary32; use a smaller voxel size or origin")
         uniq = np.unique(self.coords, axis=0).shape[0]
         if uniq != n:
             raise InputError(f"{n - uniq} anchors share a voxel with another anchor; merge them first "

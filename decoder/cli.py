@@ -57,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
             raise LghccError(f"{args.stream}: cannot read ({e.strerror})") from None
         t0 = time.perf_counter()
         result = decode_stream(data, verify_hash=not args.no_verify, trace=bool(args.trace),
-                               max_anchors=args.max_anchors)
+                               max_anchors=args.max_anchors, progress=not args.quiet and sys.stderr.isatty())
         t_dec = time.perf_counter() - t0
         if args.output:
             write_scaffold(result.scene, args.output)

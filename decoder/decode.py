@@ -12,6 +12,7 @@ import re
 from dataclasses import dataclass, field
 
 import numpy as np
+from tqdm import tqdm
 
 from lghcc.common import attributes as attr
 from lghcc.common.container import Container, DataUnit, UnitType, read_container
@@ -68,8 +69,9 @@ def organize_units(container: Container) -> tuple[list[DataUnit], list[str]]:
 
 
 def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
-                  max_anchors: int | None = None) -> DecodeResult:
-    """Decode a whole stream. Raises a BitstreamError subclass naming the problem."""
+                  max_anchors: int | None = None, progress: bool = False) -> DecodeResult:
+    """Decode a whole stream. Raises a BitstreamError subclass naming the problem.
+    ``progress`` shows a bar of decoded anchors on stderr."""
     entries: list[TraceEntry] | None = [] if trace else None
     container = read_container(data)
     units, skipped = organize_units(container)
@@ -120,15 +122,18 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
         parent_attrs = q_level1[hier.parent_of_level2]
         return level2_coding_params(context_model, coords[hier.level2_idx], parent_attrs, sps.coarse_voxel_scale)
 
+    bar = tqdm(total=n, desc="decode attributes", unit="anchor", disable=not progress, leave=False)
     for unit, (level, rows) in zip(attribute_units, levels):
         num_rows = n if rows is None else rows.size
         _, m, q = attr.read_attribute_unit(unit.payload, sps, num_rows, level, values, rows,
                                            level2_context if level == LEVEL_2 else None, entries,
-                                           keep_q=level == LEVEL_1 and context_model is not None)
+                                           keep_q=level == LEVEL_1 and context_model is not None,
+                                           on_chunk=bar.update)
         if level == LEVEL_1:
             q_level1 = q
         if mask is not None:
             mask[slice(None) if rows is None else rows] = m
+    bar.close()
     features, scalings, offsets = layout.split(values)
     scene = AnchorScene(coords=coords, voxel_size=float(sps.voxel_size),
                         origin=np.asarray(sps.origin, dtype=np.float32), features=features,
