@@ -227,7 +227,7 @@ class _Composite(torch.autograd.Function):
                     alpha, _, _ = _alpha(g, centres, md, cn, op, th, basis)  # [B, P, L]
                     la = torch.log1p(-alpha)
                     cs = torch.cumsum(la, 2).add_(carry)
-                    w = (cs - la).exp_().mul_(alpha).mul_(cs >= LOG_T_MIN)
+                    w = (cs - la).clamp_(min=-80.0).exp_().mul_(alpha).mul_(cs >= LOG_T_MIN)
                     acc[tiles] += torch.bmm(w, ft[g])
                     carry = cs[:, :, -1:]
                 carries.append(saved)
@@ -261,7 +261,7 @@ class _Composite(torch.autograd.Function):
                 la = torch.log1p(-alpha)  # [B, P, Lc]
                 cs = torch.cumsum(la, 2).add_(saved[ci])
                 incl = cs >= LOG_T_MIN
-                t_ex = (cs - la).exp_()
+                t_ex = (cs - la).clamp_(min=-80.0).exp_()  # drawn pairs have cs >= ln 1e-4
                 w = t_ex * alpha * incl
                 fg = ft[g]  # [B, Lc, d]
                 g_ft.index_add_(0, g.reshape(-1), torch.bmm(w.transpose(1, 2), gout).reshape(-1, d))
@@ -321,7 +321,9 @@ def _alpha(g, centres, md, cn, op, th, basis):
     mx = md[g, 0] - c[:, None, 0]
     my = md[g, 1] - c[:, None, 1]
     coef = _coefficients(mx, my, cn[g, 0], cn[g, 1], cn[g, 2])  # [B, L, 6]
-    power = torch.matmul(basis.T, coef.transpose(1, 2)).clamp_(min=0)  # [B, P, L]
+    # clamp to [0, 80]: exp(-80) is still a normal float32 (denormals are very slow on CPUs);
+    # the cutoff is <= 4.5, so the clamp changes no drawn pair
+    power = torch.matmul(basis.T, coef.transpose(1, 2)).clamp_(0.0, 80.0)  # [B, P, L]
     drawn = power <= th[g][:, None, :]
     gexp = power.neg_().exp_().mul_(drawn)  # G (0 where not drawn)
     alpha = gexp * op[g][:, None, :]
