@@ -11,7 +11,7 @@ import numpy as np
 from lghcc.common.scene import DEFAULT_FEATURE_DIM, DEFAULT_NUM_OFFSETS, AnchorScene, RenderMLP
 
 
-def _surface_points(rng: np.random.Generator, n: int) -> np.ndarray:
+def surface_points(rng: np.random.Generator, n: int) -> np.ndarray:
     """n points on a torus (45%), a sphere (25%) and a ground plane (30%), in [-1, 1]^3."""
     nt, ns = int(0.45 * n), int(0.25 * n)
     npl = n - nt - ns
@@ -52,7 +52,7 @@ def make_procedural_scene(num_anchors: int = 20000, seed: int = 0, feature_dim: 
     rng = np.random.default_rng(seed)
     # Surface area ~ 8.6 units^2: pick the voxel so that the surfaces hold ~num_anchors voxels.
     voxel = float(np.sqrt(8.6 / num_anchors))
-    pts = _surface_points(rng, 4 * num_anchors + 16)
+    pts = surface_points(rng, 4 * num_anchors + 16)
     coords = np.unique(np.floor(pts / voxel).astype(np.int64), axis=0)
     if coords.shape[0] > num_anchors:
         coords = coords[np.sort(rng.choice(coords.shape[0], num_anchors, replace=False))]

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lghcc.common.procedural import surface_points
 from lghcc.common.geometry import (IDCM_ISOLATED, _morton_perm, decode_geometry, encode_geometry,
                                    normative_order)
 
@@ -69,25 +70,12 @@ def voxelize(xyz: np.ndarray, bits: int) -> np.ndarray:
     return unique_voxels(np.floor((xyz - lo) / side * ((1 << bits) - 1) + 0.5).astype(np.int64))
 
 
-def _surface_samples(rng: np.random.Generator, m: int) -> np.ndarray:
-    nt, ns = int(0.45 * m), int(0.25 * m)
-    npl = m - nt - ns
-    u, v = rng.uniform(0, 2 * np.pi, (2, nt))
-    torus = np.stack([(0.55 + 0.18 * np.cos(v)) * np.cos(u), (0.55 + 0.18 * np.cos(v)) * np.sin(u),
-                      0.18 * np.sin(v) + 0.1], axis=1)
-    d = rng.normal(size=(ns, 3))
-    sphere = 0.25 * d / np.linalg.norm(d, axis=1, keepdims=True) + np.array([0.0, 0.0, 0.2])
-    x, y = rng.uniform(-1, 1, (2, npl))
-    plane = np.stack([x, y, -0.35 + 0.05 * np.sin(3 * x) * np.cos(2 * y)], axis=1)
-    return np.concatenate([torus, sphere, plane])
-
-
 def surface_cloud(n: int, seed: int = 0) -> np.ndarray:
     """About n unique voxels of densely sampled surfaces (torus, sphere, wavy ground plane):
     the grid resolution is chosen so that the voxelized surfaces hold about n voxels; the
     surfaces are sampled 8 times more densely than that, so the voxelization is closed."""
     rng = np.random.default_rng(seed)
-    pts = _surface_samples(rng, 8 * n)
+    pts = surface_points(rng, 8 * n)
     res = np.sqrt(n / 12.0)
     for _ in range(2):  # calibrate the resolution on the voxel count
         res *= np.sqrt(n / unique_voxels(np.floor((pts + 1) * res).astype(np.int64)).shape[0])
