@@ -14,7 +14,7 @@ from tqdm import tqdm
 from lghcc.common import attributes as attr
 from lghcc.common.container import (UNIT_CRC_BYTES, UNIT_HEADER_BYTES, DataUnit, UnitType, read_container,
                                     write_container)
-from lghcc.common.entropy.symbol_coder import ideal_code_length_bits, level_for_sigma
+from lghcc.common.entropy.symbol_coder import best_level, ideal_code_length_bits
 from lghcc.common.errors import InputError
 from lghcc.common.context.model_unit import write_context_model_unit
 from lghcc.common.context.models import CONTEXT_MODEL_NAMES, level2_coding_params, read_context_model
@@ -68,20 +68,6 @@ def quantize(values: np.ndarray, steps: np.ndarray, what: str) -> np.ndarray:
     return np.rint(scaled).astype(np.int64)
 
 
-def _best_level(residuals: np.ndarray) -> int:
-    """The scale level with the fewest ideal bits for these residuals (informative choice)."""
-    if residuals.size == 0:
-        return 0
-    sigma = max(float(np.sqrt(np.mean(residuals.astype(np.float64) ** 2))), 1e-3)
-    centre = int(level_for_sigma(np.array([sigma]))[0])
-    best = None
-    for lv in range(max(0, centre - 2), min(63, centre + 2) + 1):
-        bits = ideal_code_length_bits(residuals, np.full(residuals.size, lv, dtype=np.int64))
-        if best is None or bits < best[0]:
-            best = (bits, lv)
-    return best[1]
-
-
 def fit_per_channel_prior(q: np.ndarray, live: np.ndarray, sample_rows: int, seed: int = 0):
     """Per channel: integer mean (median) and the scale level that codes it best."""
     n, m = q.shape
@@ -94,7 +80,7 @@ def fit_per_channel_prior(q: np.ndarray, live: np.ndarray, sample_rows: int, see
         vals = qs[ls[:, c], c]
         if vals.size:
             means[c] = int(np.median(vals).round())
-            levels[c] = _best_level(vals - means[c])
+            levels[c] = best_level(vals - means[c])
     return means, levels
 
 
@@ -131,8 +117,8 @@ def quantize_render_model(mlps: dict[str, RenderMLP], bits: int):
             h.activation.append(ACTIVATIONS.index(a))
             h.weight_exponent.append(ew)
             h.bias_exponent.append(eb)
-            h.weight_level.append(_best_level(qw.ravel()))
-            h.bias_level.append(_best_level(qb.ravel()))
+            h.weight_level.append(best_level(qw.ravel()))
+            h.bias_level.append(best_level(qb.ravel()))
             ts += [qw, qb]
             ws.append(dequantize(qw, ew))
             bs.append(dequantize(qb, eb))

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lghcc.common.entropy.symbol_coder import decode_symbols, encode_symbols
+from lghcc.common.entropy.symbol_coder import best_level, decode_symbols, encode_symbols
 from lghcc.common.errors import BitstreamError
 from lghcc.common.syntax import SyntaxStructure, SyntaxVisitor
 from lghcc.common.units import CONTEXT_GGCONV, CONTEXT_PARENT_MLP, MAX_CONTEXT_MODEL_ID, NUM_SCALE_LEVELS_BITS
@@ -94,17 +94,6 @@ class ContextModelUnit(SyntaxStructure):
         v.payload(self, "coded_data", self.coded_size)
 
 
-def _level_for(values: np.ndarray) -> int:
-    from lghcc.common.entropy.symbol_coder import ideal_code_length_bits, level_for_sigma
-
-    if values.size == 0:
-        return 0
-    sigma = max(float(np.sqrt(np.mean(values.astype(np.float64) ** 2))), 1e-3)
-    c = int(level_for_sigma(np.array([sigma]))[0])
-    cands = range(max(0, c - 2), min(63, c + 2) + 1)
-    return min(cands, key=lambda lv: ideal_code_length_bits(values, np.full(values.size, lv, np.int64)))
-
-
 def write_context_model_unit(model_id: int, arrays: list[NamedIntArray], feat_layers: int,
                              head_layers: int) -> bytes:
     names = array_names(model_id, feat_layers, head_layers)
@@ -117,7 +106,7 @@ def write_context_model_unit(model_id: int, arrays: list[NamedIntArray], feat_la
         v = np.asarray(a.values, dtype=np.int64).reshape(-1)
         if a.bits > MAX_VALUE_BITS:
             raise ValueError(f"{a.name}: {a.bits}-bit values exceed the {MAX_VALUE_BITS}-bit limit")
-        lv = _level_for(v)
+        lv = best_level(v)
         shape = np.shape(a.values) or ()
         unit.arrays.append(IntArrayHeader(array_ndim=len(shape), array_dim_minus1=[d - 1 for d in shape],
                                           array_bits_minus1=a.bits - 1, array_signed_flag=int(a.signed),

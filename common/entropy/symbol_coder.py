@@ -259,3 +259,15 @@ def estimate_bits_float(residuals: np.ndarray, sigma: np.ndarray) -> float:
     s = np.clip(np.asarray(sigma, dtype=np.float64), SCALE_SIGMAS[0], SCALE_SIGMAS[-1])
     p = ndtr((0.5 - a) / s) - ndtr((-0.5 - a) / s)
     return float(-np.log2(np.maximum(p, 2.0 ** -PRECISION_BITS)).sum())
+
+
+def best_level(residuals: np.ndarray) -> int:
+    """Informative (encoder choice): the one scale level that codes these residuals in the
+    fewest ideal bits, searched around the level of their RMS."""
+    r = np.asarray(residuals, dtype=np.int64).ravel()
+    if r.size == 0:
+        return 0
+    sigma = max(float(np.sqrt(np.mean(r.astype(np.float64) ** 2))), 1e-3)
+    centre = int(level_for_sigma(np.array([sigma]))[0])
+    candidates = range(max(0, centre - 2), min(NUM_SCALE_LEVELS - 1, centre + 2) + 1)
+    return min(candidates, key=lambda lv: ideal_code_length_bits(r, np.full(r.size, lv, dtype=np.int64)))
