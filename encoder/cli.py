@@ -49,6 +49,8 @@ def setup_args() -> argparse.ArgumentParser:
     p.add_argument("-f", "--force", action="store_true", help="overwrite the output file if it exists")
     p.add_argument("--no-verify", action="store_true",
                    help="skip decoding the written stream to check it (faster)")
+    p.add_argument("--report-ideal", action="store_true",
+                   help="also report how close attribute coding comes to its model's ideal code length")
     p.add_argument("--json", metavar="FILE", help="also write the size breakdown and timings as JSON")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
     return p
@@ -94,7 +96,8 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         scene, source = _load_scene(args)
         t_load = time.perf_counter() - t0
-        result = encode_scene(scene, cfg, progress=not args.quiet and sys.stderr.isatty())
+        result = encode_scene(scene, cfg, progress=not args.quiet and sys.stderr.isatty(),
+                              measure_ideal=args.report_ideal)
         verified = None
         if not args.no_verify:
             decoded = decode_stream(result.data)
@@ -109,8 +112,9 @@ def main(argv: list[str] | None = None) -> int:
     say(f"{source}: {scene.num_anchors:,} anchors, C={scene.feature_dim}, K={scene.num_offsets} -> {out} "
         f"({len(result.data):,} bytes)")
     say(result.breakdown.table())
-    overhead = st["attribute_coded_bits"] / max(st["attribute_ideal_bits"], 1) - 1
-    say(f"attribute coding: {st['attribute_coded_bits']:,} bits, {100 * overhead:+.3f}% over the model's ideal")
+    if args.report_ideal:
+        overhead = st["attribute_coded_bits"] / max(st["attribute_ideal_bits"], 1) - 1
+        say(f"attribute coding: {st['attribute_coded_bits']:,} bits, {100 * overhead:+.3f}% over the model's ideal")
     say(f"time: load {t_load:.2f} s, encode {st['time_total_s']:.2f} s"
         + ("" if verified is None else ", decoded and verified: hash matches"))
     say(f"decoded scene SHA-256: {result.scene_hash.hex()}")

@@ -128,7 +128,10 @@ def quantize_render_model(mlps: dict[str, RenderMLP], bits: int):
     return write_render_model_unit(headers, tensors), decoded
 
 
-def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress: bool = False) -> EncodeResult:
+def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress: bool = False,
+                 measure_ideal: bool = False) -> EncodeResult:
+    """Encode a scene. ``measure_ideal`` also computes the attribute model's ideal code length
+    (stats["attribute_ideal_bits"]), a full extra pass over the symbols."""
     cfg = (cfg or EncoderConfig()).validate()
     scene.validate()
     n = scene.num_anchors
@@ -175,7 +178,8 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
     t1 = time.perf_counter()
     recon = np.zeros_like(values, dtype=np.float32)
     attribute_payloads = []
-    stats["attribute_ideal_bits"] = 0.0
+    if measure_ideal:
+        stats["attribute_ideal_bits"] = 0.0
     stats["attribute_coded_bits"] = 0
     q_level1 = None
     context_payload = None
@@ -230,8 +234,9 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
             q_level1 = chosen.q
         attribute_payloads.append(chosen.payload)
         lq, lp = chosen.q, chosen.params
-        stats["attribute_ideal_bits"] += ideal_code_length_bits(
-            (lq - lp.mean)[level_live], np.broadcast_to(lp.level, lq.shape)[level_live])
+        if measure_ideal:
+            stats["attribute_ideal_bits"] += ideal_code_length_bits(
+                (lq - lp.mean)[level_live], np.broadcast_to(lp.level, lq.shape)[level_live])
         stats["attribute_coded_bits"] += 8 * sum(chosen.header.chunk_size)
         stats[f"attribute_bytes_level{level}"] = len(chosen.payload)
         recon[rows] = attr.reconstruct(lq, steps, lp.step_adjust)

@@ -14,9 +14,11 @@ from scenes import random_scene
 
 def test_procedural_demo_round_trip(tmp_path, capsys):
     out = tmp_path / "demo.lghcc"
-    assert enc_cli.main(["--procedural", "1500", "-o", str(out), "--json", str(tmp_path / "e.json")]) == 0
+    assert enc_cli.main(["--procedural", "1500", "-o", str(out), "--json", str(tmp_path / "e.json"),
+                         "--report-ideal"]) == 0
     text = capsys.readouterr().out
     assert "geometry" in text and "attributes" in text and "hash matches" in text
+    assert "over the model's ideal" in text
     assert dec_cli.main([str(out), "-o", str(tmp_path / "dec"), "--trace", str(tmp_path / "t.txt")]) == 0
     text = capsys.readouterr().out
     assert "matches the stream" in text and "bits/anchor" in text

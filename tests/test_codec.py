@@ -33,7 +33,7 @@ def assert_same_scene(a, b):
 def test_procedural_round_trip_and_quantization_error():
     scene = make_procedural_scene(3000, seed=1)
     cfg = load_config("medium")
-    res = encode_scene(scene, cfg)
+    res = encode_scene(scene, cfg, measure_ideal=True)
     dec = decode_stream(res.data)
     assert_same_scene(dec.scene, res.decoded)
     assert dec.breakdown.total_bytes == len(res.data)
