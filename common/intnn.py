@@ -19,9 +19,20 @@ Bit-width bound (asserted for every layer at construction): with |x_i| <= 2^15,
 
 and adding the rounding half (< 2^31) keeps it below 2^62. Integer addition being
 associative, the result cannot depend on the summation order, the thread count or the
-BLAS: torch's int64 matmul is exact (no BLAS; checked with 1 and 2 threads in the tests).
-(Informative: since every partial sum stays below 2^53, a float64 GEMM on these integers is
-exact too, which is the way to evaluate the network on hardware without int64 matmul.)
+BLAS.
+
+Evaluation (informative; the result is what is normative): ``IntLinear.__call__`` runs the
+layer as a float64 GEMM. This is exact: every input, weight and bias is an integer, every
+product is an integer of magnitude < 2^46 and every partial sum, in whatever order or
+blocking the BLAS uses (FMA or not), is an integer of magnitude < 2^47 < 2^53, hence exactly
+representable; an IEEE operation whose exact result is representable returns it exactly.
+rshift_round is folded into the GEMM: with weights w 2^-shift and bias (b + 2^(shift-1)) 2^-shift,
+every product and partial sum is an integer multiple of 2^-shift of magnitude < 2^(47-shift),
+i.e. at most 47 + 1 significant bits: exact again, and the GEMM returns
+(acc + 2^(shift-1)) / 2^shift exactly; floor and clamp are exact.
+``call_int64`` is the same layer in int64 arithmetic (torch's int64 matmul, no BLAS); the
+tests compare the two, and the constructor asserts the precondition (the architectural
+accumulator bound plus the rounding half below 2^53) for every layer.
 
 The quantization helpers at the end of this module are informative (used by the encoder to
 turn a float network into this form); the decoder never calls them.
@@ -43,6 +54,7 @@ WEIGHT_BITS_ALLOWED = (8, 16)
 MAX_SHIFT = 31
 MAX_FAN_IN = 1 << 16
 ACC_LIMIT = 1 << 62  # the asserted bound on |accumulator|
+F64_EXACT = 1 << 53  # integers below this are exact in float64
 _ROWS_PER_CHUNK = 1 << 16
 
 
@@ -120,8 +132,15 @@ class IntLinear:
         arch = self.fan_in * (1 << (ACT_BITS - 1)) * (1 << (self.weight_bits - 1)) + (1 << (BIAS_BITS - 1))
         assert arch + (1 << MAX_SHIFT) < ACC_LIMIT, "accumulator bound violated"
         assert self.accumulator_bound() <= arch
+        # float64 evaluation is exact: |acc| + rounding half < 2^47 + 2^31 < 2^53 (module docstring)
+        assert arch + (1 << MAX_SHIFT) < F64_EXACT, "float64 exactness bound violated"
         self._w = torch.from_numpy(np.ascontiguousarray(self.weight.T))  # [in, out] int64
         self._b = torch.from_numpy(self.bias.copy())
+        # float64 evaluation with the rounding folded in: weights * 2^-shift, (bias + half) * 2^-shift,
+        # so that the GEMM yields (acc + 2^(shift-1)) / 2^shift exactly (module docstring)
+        sc = 2.0 ** -self.shift
+        self._ws = self._w.to(torch.float64).mul_(sc)
+        self._bs = (self._b.to(torch.float64) + (float(1 << (self.shift - 1)) if self.shift else 0.0)).mul_(sc)
 
     @property
     def fan_in(self) -> int:
@@ -136,8 +155,28 @@ class IntLinear:
         s = np.abs(self.weight).sum(axis=1) * (1 << (ACT_BITS - 1)) + np.abs(self.bias)
         return int(s.max())
 
+    def finish_f64(self, acc_s: torch.Tensor) -> torch.Tensor:
+        """acc_s = (acc + 2^(shift-1)) / 2^shift in float64 (what the scaled GEMM gives) ->
+        floor and clamp, in place; returns the float64 activations (exact)."""
+        return acc_s.floor_().clamp_(0.0 if self.relu else float(ACT_MIN), float(ACT_MAX))
+
+    def forward_f64(self, x: torch.Tensor) -> torch.Tensor:
+        """x: float64 [R, fan_in] holding 16-bit activations -> float64 [R, fan_out] activations
+        (exact, see the module docstring)."""
+        if x.shape[0] == 0:
+            return torch.zeros((0, self.fan_out), dtype=torch.float64)
+        return self.finish_f64(torch.addmm(self._bs, x, self._ws))
+
     def __call__(self, x: torch.Tensor, check: bool = True) -> torch.Tensor:
-        """x: int64 [R, fan_in] activations -> int64 [R, fan_out] activations."""
+        """x: int64 [R, fan_in] activations -> int64 [R, fan_out] activations (float64 GEMM, exact)."""
+        if check:
+            check_activations(x)
+        if x.ndim != 2 or x.shape[1] != self.fan_in:
+            raise ValueError(f"expected input [R, {self.fan_in}], got {list(x.shape)}")
+        return self.forward_f64(x.to(torch.float64)).to(torch.int64)
+
+    def call_int64(self, x: torch.Tensor, check: bool = True) -> torch.Tensor:
+        """The same layer in int64 arithmetic (reference for the float64 path)."""
         if check:
             check_activations(x)
         if x.ndim != 2 or x.shape[1] != self.fan_in:
@@ -174,10 +213,28 @@ class IntMLP:
     def num_parameters(self) -> int:
         return sum(l.weight.size + l.bias.size for l in self.layers)
 
+    def forward_f64(self, x: torch.Tensor) -> torch.Tensor:
+        """float64 activations in and out (exact; no input check)."""
+        for layer in self.layers:
+            x = layer.forward_f64(x)
+        return x
+
     def __call__(self, x: torch.Tensor) -> torch.Tensor:
         check_activations(x)
+        if x.ndim != 2 or x.shape[1] != self.in_dim:
+            raise ValueError(f"expected input [R, {self.in_dim}], got {list(x.shape)}")
+        out = []
+        for lo in range(0, x.shape[0], _ROWS_PER_CHUNK):  # every layer output is an activation
+            out.append(self.forward_f64(x[lo:lo + _ROWS_PER_CHUNK].to(torch.float64)).to(torch.int64))
+        if not out:
+            return torch.zeros((0, self.out_dim), dtype=torch.int64)
+        return out[0] if len(out) == 1 else torch.cat(out)
+
+    def call_int64(self, x: torch.Tensor) -> torch.Tensor:
+        """int64 reference evaluation (equal to ``__call__``)."""
+        check_activations(x)
         for layer in self.layers:
-            x = layer(x, check=False)  # every layer output is clamped to the activation range
+            x = layer.call_int64(x, check=False)
         return x
 
 

@@ -68,7 +68,7 @@ def reference(p: GGConvParams, coords, xpar, s):
                                 wt *= t[a] if bit else (1 << fb) - t[a]
                             acc += wt * int(p.table[i0[0] + bx, i0[1] + by, i0[2] + bz, ch])
                 w.append(rs(acc, 3 * fb))
-            e = mlp(p.feat_mlp, [cl(x[j][q] - x[i][q]) for q in range(c)] + [ua - (d - 1) * 2 ** (fb - 1) for ua in u])
+            e = mlp(p.feat_mlp, [x[j][q] - x[i][q] for q in range(c)] + [ua - (d - 1) * 2 ** (fb - 1) for ua in u])
             hsum = [hs + wc * ec for hs, wc, ec in zip(hsum, w, e)]
         h = [cl(rs(v, p.h_shift)) for v in hsum]
         loc = [cl(int(coords[i][a]) % s) for a in range(3)]
@@ -230,3 +230,13 @@ def test_fit_reduces_rate_and_twin_matches_integer_path():
     q = GGConvParams.from_arrays(params.to_arrays())
     assert np.array_equal(ggconv_coding_params(q, c2, parent, s)[0], mean_i)
 
+
+
+def test_large_radius_without_offset_table_matches_reference():
+    """Radii with (2R+1)^3 beyond the offset table's limit take the per-edge geometry path."""
+    rng = np.random.default_rng(12)
+    p = random_params(rng, radius_sq=60 ** 2, k=5)
+    c = _scene(rng, 30, 40)
+    x = rng.choice([ACT_MIN, ACT_MAX, 0, 7, -300], (len(c), p.num_attrs))
+    got = ggconv_coding_params(p, c, x, 5, block=4)
+    assert all(np.array_equal(a, b) for a, b in zip(got, reference(p, c, x, 5)))

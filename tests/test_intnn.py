@@ -125,3 +125,24 @@ def test_quantize_linear_large_bias_fits_32_bits():
     assert np.abs(layer.bias).max() < 2 ** 31
     y = layer(torch.tensor([[0, 0, 0]])).tolist()[0]
     assert y == [30, -30]
+
+
+def test_float64_path_equals_int64_path_at_extremes():
+    """IntLinear evaluates as a float64 GEMM with the rounding folded into the weights; it must
+    equal the int64 evaluation exactly, also at the architectural bound (largest fan-in
+    products, extreme biases, every shift)."""
+    rng = np.random.default_rng(11)
+    for wb in (8, 16):
+        lo, hi = -(1 << (wb - 1)), (1 << (wb - 1)) - 1
+        for shift in (0, 1, 7, 17, 31):
+            fan_in = 4096
+            w = rng.choice([lo, hi, 0, 1, -1], (6, fan_in))
+            w[0], w[1] = hi, lo  # rows whose accumulators reach the bound
+            b = rng.choice([-(2 ** 31), 2 ** 31 - 1, 0, 12345], 6)
+            layer = IntLinear(w, b, shift, relu=bool(shift % 2), weight_bits=wb)
+            x = torch.from_numpy(rng.choice([ACT_MIN, ACT_MAX, 0, -1, 1, 2 ** 14], (300, fan_in)))
+            x[0] = ACT_MAX
+            x[1] = ACT_MIN
+            assert torch.equal(layer(x), layer.call_int64(x))
+            h = _exact(layer, x[:3].numpy())
+            assert np.array_equal(layer(x[:3]).numpy(), h)

@@ -10,14 +10,16 @@ Per level-2 anchor i (rows in level-2 order), with x_i the parent's decoded attr
    in [0, (D-1) 2^FB] (FB = 8 fractional bits); cell i0 = min(U >> FB, D-2), t = U - i0 2^FB;
    w_ij = rshift_round(sum over the 8 corners of prod_axes(t or 2^FB - t) * T[corner], 3 FB),
    T the int16 table [D, D, D, Ch].
-3. feature branch: e_ij = feat_mlp([clamp16(x_j[:C] - x_i[:C]), U - (D-1) 2^(FB-1)]), Ch outputs.
+3. feature branch: e_ij = feat_mlp([x_j[:C] - x_i[:C], U - (D-1) 2^(FB-1)]), Ch outputs; the
+   feature differences are NOT clamped (17-bit inputs of the first layer, |acc| < 2^48).
 4. h_i = clamp16(rshift_round(sum_j valid_ij * w_ij * e_ij, h_shift)).
 5. o_i = head_mlp([h_i, clamp(p_i mod s, 0, 32767) (3), n_valid_i, x_i]), 3M outputs;
    mean = clamp16(x_i + o[0:M]) (the parent's value is the base of the prediction),
    level = clamp(o[M:2M], 0, 63), step_adjust = clamp(o[2M:3M], 0, 7).
 
 Bounds: trilinear sum |.| <= 2^24 * 2^15 = 2^39; sum_j |w e| <= MAX_K * 2^30 = 2^36; the MLPs
-obey common/intnn.py (|acc| < 2^47). Every intermediate fits int64 with a wide margin.
+obey common/intnn.py (|acc| < 2^47; < 2^48 for the feature MLP's first layer with its 17-bit
+difference inputs). Every intermediate is an integer below 2^53 (exact in float64 too).
 """
 
 from __future__ import annotations
@@ -221,7 +223,7 @@ def trilinear_sum(table_f64: torch.Tensor, corner_idx: torch.Tensor, corner_w: t
 class EdgeInputs:
     """The valid edges of a block of anchors (rows r of the block, neighbour slots flattened)."""
     row: torch.Tensor  # int64 [E]: anchor row (within the block) of each edge
-    feat_in: torch.Tensor  # int64 [E, C + 3]: clamp16(x_j - x_i) features, U - (D-1) 2^(FB-1)
+    feat_in: torch.Tensor  # int64 [E, C + 3]: x_j - x_i features (17 bits), U - (D-1) 2^(FB-1)
     corner_idx: torch.Tensor  # int64 [E, 8]
     corner_w: torch.Tensor  # int64 [E, 8]
 
@@ -237,7 +239,7 @@ def edge_inputs(coords2: torch.Tensor, xpar: torch.Tensor, nbr: torch.Tensor, va
     dp = coords2[j] - coords2[i]
     u = grid_coordinate(dp, radius, grid)
     du = u - ((grid - 1) << (GRID_FRAC_BITS - 1))
-    df = clamp16(xpar[j, :num_features] - xpar[i, :num_features])
+    df = xpar[j, :num_features] - xpar[i, :num_features]  # not clamped: 17-bit values
     ci, cw = trilinear_corners(u, grid)
     return EdgeInputs(r_loc, torch.cat([df, du], 1), ci, cw)
 
@@ -269,9 +271,25 @@ def _check_inputs(params: GGConvParams, coords2, parent_attrs, voxel_scale):
     return c.astype(np.int64, copy=False), x.astype(np.int64, copy=False)
 
 
+def _geometry_terms(dp: torch.Tensor, params: GGConvParams, table_f: torch.Tensor, lin0_u: torch.Tensor,
+                    lin0_b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """For offsets dp (int64 [L, 3], |dp| <= R): the grid part of the feature MLP's first
+    accumulator, bias + W[:, C:] (U - (D-1) 2^(FB-1)) (float64 [L, H], exact: |.| < 3 2^11 2^15
+    + 2^31), and the geometry weights w (float64 [L, Ch], 16-bit integers)."""
+    g = params.grid_size
+    u = grid_coordinate(dp, params.radius, g)
+    du = (u - ((g - 1) << (GRID_FRAC_BITS - 1))).to(torch.float64)
+    ci, cw = trilinear_corners(u, g)
+    w = rshift_round(trilinear_sum(table_f, ci, cw), TRI_SHIFT).to(torch.float64)
+    return torch.addmm(lin0_b, du, lin0_u), w
+
+
+_LUT_MAX = 1 << 17  # largest (2R+1)^3 for which the geometry terms are tabulated per offset
+
+
 def ggconv_coding_params(params: GGConvParams, coords2, parent_attrs, voxel_scale: int,
                          neighbours: tuple[np.ndarray, np.ndarray] | None = None,
-                         block: int = 1 << 14) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                         block: int = 1 << 12) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Coding parameters of the level-2 attributes.
 
     coords2: int [N2, 3] level-2 positions in level-2 order; parent_attrs: int [N2, M] the
@@ -280,9 +298,25 @@ def ggconv_coding_params(params: GGConvParams, coords2, parent_attrs, voxel_scal
     ``level2_graph`` (computed when None).
     Returns mean, level, step_adjust, each int64 [N2, M]: the integer mean of each attribute
     symbol, its scale level in [0, 64) and its step adjustment in [0, 8).
+
+    Evaluation (informative; bit-exact with the normative text, see the tests against a
+    one-anchor-at-a-time Python-integer reference):
+    * every quantity is an integer held in float64 and every operation's exact result is an
+      integer of magnitude < 2^53, so float64 arithmetic is exact (common/intnn.py);
+    * the feature MLP's first layer is linear in its input, and its input is the *unclamped*
+      difference x_j - x_i: its accumulator is
+          A_ij = P_j - P_i + bias + W[:, C:] du_ij,  P_n = W[:, :C] x_n[:C]   (|P| <= C 2^30 < 2^46)
+      so P is computed once per anchor and gathered per edge (|A| < 2^48);
+    * the geometry terms depend only on the offset dp = p_j - p_i, so for small radii they are
+      tabulated once for every dp in [-R, R]^3;
+    * edges are laid out densely [block, K]; invalid slots use j = i and are masked to zero
+      before the aggregation (sum of at most 64 products |w e| <= 2^30: exact).
     """
     c, x = _check_inputs(params, coords2, parent_attrs, voxel_scale)
     n, m = c.shape[0], params.num_attrs
+    if n == 0:
+        z = np.zeros((0, m), dtype=np.int64)
+        return z, z.copy(), z.copy()
     if neighbours is None:
         nbr, valid = level2_graph(params, c)
     else:
@@ -291,28 +325,61 @@ def ggconv_coding_params(params: GGConvParams, coords2, parent_attrs, voxel_scal
             raise ValueError(f"neighbours must be two [N2, {params.k}] arrays")
         if valid.any() and (int(nbr[valid].min()) < 0 or int(nbr[valid].max()) >= n):
             raise ValueError("neighbour index out of range")
+    k, cf, ch, r = params.k, params.num_features, params.context_channels, params.radius
     coords_t = torch.from_numpy(np.ascontiguousarray(c))
-    xpar = clamp16(torch.from_numpy(np.ascontiguousarray(x)))
-    nbr_t = torch.from_numpy(np.ascontiguousarray(nbr, dtype=np.int64))
+    xi = clamp16(torch.from_numpy(np.ascontiguousarray(x)))
+    xf = xi.to(torch.float64)
     valid_t = torch.from_numpy(np.ascontiguousarray(valid, dtype=bool))
-    local = torch.from_numpy(np.mod(c, np.int64(voxel_scale)))
-    table_f = torch.from_numpy(params.table.reshape(-1, params.context_channels).astype(np.float64))
-    outs = []
+    self_idx = torch.arange(n, dtype=torch.int64)
+    nbr_t = torch.where(valid_t, torch.from_numpy(np.ascontiguousarray(nbr, dtype=np.int64)), self_idx[:, None])
+    local = torch.from_numpy(np.mod(c, np.int64(voxel_scale))).clamp_(0, ACT_MAX).to(torch.float64)
+    n_valid = valid_t.sum(1).to(torch.float64)
+    table_f = torch.from_numpy(params.table.reshape(-1, ch).astype(np.float64))
+    feat0, feat_rest = params.feat_mlp.layers[0], params.feat_mlp.layers[1:]
+    # the first layer's scaled weights and bias (common/intnn.py): every term below is an integer
+    # multiple of 2^-shift of magnitude < 2^(48-shift), exact in float64
+    w0 = feat0._ws  # [C + 3, H]
+    lin0_x, lin0_u, lin0_b = w0[:cf].contiguous(), w0[cf:].contiguous(), feat0._bs
+    hdim = feat0.fan_out
+    p_all = xf[:, :cf] @ lin0_x  # [N, H]: W[:, :C] x_n 2^-shift, exact
+    hs = params.h_shift
+    w_scale = 2.0 ** -hs  # folded into the geometry weights: sum_j (w 2^-hs) e is exact (< 2^(36-hs))
+
+    side = 2 * r + 1
+    use_lut = side ** 3 <= min(_LUT_MAX, max(1 << 10, 2 * n * k))
+    if use_lut:
+        ax = torch.arange(-r, r + 1, dtype=torch.int64)
+        grid_dp = torch.stack(torch.meshgrid(ax, ax, ax, indexing="ij"), -1).reshape(-1, 3)
+        lut_lin, lut_w = _geometry_terms(grid_dp, params, table_f, lin0_u, lin0_b)
+        lut_w = torch.cat([lut_w.mul_(w_scale), torch.zeros((1, ch), dtype=torch.float64)])  # last row: invalid slot
+        invalid_code = side ** 3
+    mean = np.empty((n, m), dtype=np.int64)
+    level = np.empty((n, m), dtype=np.int64)
+    adj = np.empty((n, m), dtype=np.int64)
     for lo in range(0, n, block):
-        rows = slice(lo, min(n, lo + block))
-        nb = rows.stop - rows.start
-        ed = edge_inputs(coords_t, xpar, nbr_t, valid_t, rows, params.num_features, params.radius,
-                         params.grid_size)
-        e = params.feat_mlp(ed.feat_in)  # [E, Ch]
-        w = rshift_round(trilinear_sum(table_f, ed.corner_idx, ed.corner_w), TRI_SHIFT)  # int16 range
-        hsum = torch.zeros((nb, params.context_channels), dtype=torch.int64)
-        hsum.index_add_(0, ed.row, w * e)
-        h = clamp16(rshift_round(hsum, params.h_shift))
-        n_valid = valid_t[rows].sum(1).to(torch.int64)
-        o = params.head_mlp(head_inputs(h, local[rows], n_valid, xpar[rows]))
-        outs.append(o)
-    if not outs:
-        z = np.zeros((0, m), dtype=np.int64)
-        return z, z.copy(), z.copy()
-    mean, level, adj = split_outputs(torch.cat(outs), xpar, m)
-    return mean.numpy().copy(), level.numpy().copy(), adj.numpy().copy()
+        hi = min(n, lo + block)
+        nb = hi - lo
+        j = nbr_t[lo:hi].reshape(-1)  # [nb K]
+        v = valid_t[lo:hi].reshape(-1)
+        dp = (coords_t.index_select(0, j).view(nb, k, 3) - coords_t[lo:hi, None, :]).view(-1, 3)
+        if use_lut:
+            code = ((dp[:, 0] + r) * side + (dp[:, 1] + r)) * side + (dp[:, 2] + r)
+            g_lin = lut_lin.index_select(0, code)
+            g_w = lut_w.index_select(0, torch.where(v, code, invalid_code))
+        else:
+            g_lin, g_w = _geometry_terms(dp, params, table_f, lin0_u, lin0_b)
+            g_w.mul_((v.to(torch.float64) * w_scale)[:, None])
+        acc = p_all.index_select(0, j).view(nb, k, hdim).sub_(p_all[lo:hi, None, :]).view(-1, hdim).add_(g_lin)
+        e = feat0.finish_f64(acc)
+        for layer in feat_rest:
+            e = layer.forward_f64(e)
+        hsum = g_w.mul_(e).view(nb, k, ch).sum(1)  # sum_j w e / 2^hs: |.| <= 64 2^30 / 2^hs, exact
+        if hs:
+            hsum.add_(0.5)
+        h = hsum.floor_().clamp_(ACT_MIN, ACT_MAX)
+        z = torch.cat([h, local[lo:hi], n_valid[lo:hi, None], xf[lo:hi]], 1)
+        o = params.head_mlp.forward_f64(z)
+        mean[lo:hi] = o[:, :m].add_(xf[lo:hi]).clamp_(ACT_MIN, ACT_MAX).numpy()
+        level[lo:hi] = o[:, m:2 * m].clamp(0, NUM_LEVELS - 1).numpy()
+        adj[lo:hi] = o[:, 2 * m:].clamp(0, NUM_STEP_ADJUST - 1).numpy()
+    return mean, level, adj
