@@ -9,9 +9,21 @@ from pathlib import Path
 import pytest
 import yaml
 
+import numpy as np
+
+from lghcc.common import attributes as attr
+from lghcc.common.bitio import BitReader
+from lghcc.common.container import UnitType, read_container
+from lghcc.common.context.model_unit import ContextModelUnit
+from lghcc.common.context.models import read_context_model
+from lghcc.common.entropy.tables import HALF_WIDTHS
+from lghcc.common.errors import BitstreamError
+from lghcc.common.geometry import decode_geometry
+from lghcc.common.hierarchy import build_hierarchy
 from lghcc.common.spec_tables import syntax_tables_markdown
+from lghcc.common.units import AttributeUnitHeader, SceneParameterSet
 from lghcc.conformance import runner
-from lghcc.conformance.coverage import coverage_report
+from lghcc.conformance.coverage import IMPOSSIBLE, coverage_report
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -65,7 +77,81 @@ def test_runner_cli_and_external_decoder(capsys):
     assert runner.main(["no_such_stream"]) == 2
 
 
-def test_coverage_of_syntax_elements():
+def test_coverage_of_syntax_elements_and_value_classes():
     cases = [c.stream for c in runner.load_cases() if c.meta.get("expect", "decode") == "decode"]
     rep = coverage_report(cases)
     assert rep.elements_covered == len(rep.classes), rep.text()
+    assert rep.classes_covered == rep.classes_total, rep.text()
+    assert not rep.contradictions(), rep.text()
+    assert all(k in rep.classes and c in rep.classes[k] for k, c in IMPOSSIBLE), "a stale impossible class"
+
+
+def _units(case_id: str):
+    return read_container((runner.STREAMS_DIR / case_id / "stream.lghcc").read_bytes()).units
+
+
+def test_impossible_context_model_unit_without_coded_data():
+    """IMPOSSIBLE: an empty context-model chunk decodes num_features as -L <= -4, which both models reject."""
+    assert int(HALF_WIDTHS.min()) >= 4
+    for case_id in ("c012_parent_mlp_context", "c019_ggconv_minimal"):
+        payload = next(u.payload for u in _units(case_id) if u.unit_type == UnitType.CONTEXT_MODEL)
+        unit = ContextModelUnit.from_bytes(payload)
+        unit.coded_size, unit.coded_data = 0, b""
+        sps = SceneParameterSet.from_bytes(_units(case_id)[0].payload)
+        with pytest.raises(BitstreamError, match="num_features|outside its"):
+            read_context_model(unit.to_bytes(), attr.layout_of(sps))
+
+
+def test_impossible_coarse_voxel_scale_one():
+    """IMPOSSIBLE: decoded coordinates are distinct, so coarse voxels of 1 leave level 2 empty (e006)."""
+    for case_id in ("c011_hierarchy_per_channel", "c019_ggconv_minimal"):
+        units = _units(case_id)
+        sps = SceneParameterSet.from_bytes(units[0].payload)
+        coords = decode_geometry(next(u.payload for u in units if u.unit_type == UnitType.GEOMETRY), sps.num_anchors)
+        assert np.unique(coords, axis=0).shape[0] == sps.num_anchors
+        assert build_hierarchy(coords, 1).num_level2 == 0
+
+
+def test_empty_chunks_decode_as_bin_zero():
+    """c017: its empty chunks hold, per spec 10.6.4, residual -L_level for every coded value (checked here
+    against the header, independently of the range decoder), and every offset of an empty mask chunk is dead."""
+    from lghcc.decoder.decode import decode_stream
+
+    units = _units("c017_empty_chunks")
+    sps = SceneParameterSet.from_bytes(units[0].payload)
+    layout = attr.layout_of(sps)
+    h = AttributeUnitHeader.parse(BitReader(units[2].payload), num_channels=layout.num_channels,
+                                  num_offsets=sps.num_offsets, offset_mask_present=1, num_rows=sps.num_anchors)
+    assert h.chunk_size[1] == h.mask_chunk_size[1] == h.chunk_size[3] == 0 and h.mask_chunk_size[3] > 0
+    scene = decode_stream((runner.STREAMS_DIR / "c017_empty_chunks" / "stream.lghcc").read_bytes()).scene
+    values = layout.join(scene.features, scene.scalings, scene.offsets)
+    q = np.asarray(h.prior_mean) - HALF_WIDTHS[np.asarray(h.prior_level)]
+    want = attr.reconstruct(q[None, :], layout.steps(sps))[0]
+    s = h.rows_per_chunk
+    assert not scene.offset_mask[s:2 * s].any()
+    assert np.array_equal(values[s:2 * s, :layout.offset_start], np.broadcast_to(want[:layout.offset_start],
+                                                                                 (s, layout.offset_start)))
+    assert not values[s:2 * s, layout.offset_start:].any()
+    rows = values[3 * s:4 * s]
+    live = layout.live_channels(scene.offset_mask[3 * s:4 * s], s)
+    live = np.ones_like(rows, dtype=bool) if live is None else live
+    assert np.array_equal(rows[live], np.broadcast_to(want, rows.shape)[live])
+    assert not rows[~live].any()
+
+
+def test_decoding_is_identical_with_1_and_2_torch_threads():
+    """Cross-environment determinism, within one machine: every stream decodes to the same hash with
+    1 and with 2 torch threads (intra-op parallelism must not change a bit)."""
+    import torch
+
+    cases = [c for c in runner.load_cases() if c.meta.get("expect", "decode") == "decode"]
+    before = torch.get_num_threads()
+    digests = {}
+    try:
+        for threads in (1, 2):
+            torch.set_num_threads(threads)
+            digests[threads] = {c.id: runner.decode_internal(c.stream) for c in cases}
+    finally:
+        torch.set_num_threads(before)
+    assert digests[1] == digests[2]
+    assert digests[1] == {c.id: c.meta["decoded_sha256"] for c in cases}

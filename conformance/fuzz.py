@@ -1,0 +1,493 @@
+"""Decoder fuzzing: mutate conformance streams and check that the decoder ends every case in
+``LghccError`` or a valid decode, within a time bound and without a huge allocation.
+
+The mutation engine (``Mutator``) works at three depths:
+
+* raw bytes of the whole stream: bit flips, truncation, inserted / deleted / overwritten bytes,
+  pure random data (CRCs usually stop these in the container layer);
+* data units, re-framed with valid CRC-32s so that the damage reaches the payload parsers:
+  payload bit flips, truncation, insertions, deletions, 4-byte extreme values, shuffled,
+  dropped or duplicated units, units spliced from another stream;
+* syntax elements: every element of every parsed header (sps, render model, geometry,
+  context model, attribute unit with its chunk sizes, hash unit) can be rewritten with an
+  extreme value of its descriptor (0, 1, the largest value of its width, 2^k +- 1 up to 2^64,
+  NaN / Inf / denormal floats ...), re-coded in place (Exp-Golomb lengths change), CRCs fixed.
+
+Cases run in a forked worker process with an address-space limit (``RLIMIT_AS``), so an
+allocation beyond it raises MemoryError there (reported as a bug) instead of exhausting the
+machine; a case that runs past the time bound is killed and reported as a bug (timeout), and
+the worker is restarted. This module never imports the encoder.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import multiprocessing as mp
+import random
+import resource
+import time
+import traceback
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from lghcc.common.bitio import BitReader
+from lghcc.common.container import DataUnit, UnitType, read_container, write_container
+from lghcc.common.errors import LghccError
+
+# --- seeds -------------------------------------------------------------------------------------
+
+
+def load_seeds(streams_dir: Path | None = None, max_bytes: int = 200_000) -> dict[str, bytes]:
+    """The conformance streams that decode (expect: decode), by id; larger ones left out."""
+    from lghcc.conformance.runner import STREAMS_DIR, load_cases
+
+    seeds = {}
+    for case in load_cases(Path(streams_dir) if streams_dir else STREAMS_DIR):
+        if case.meta.get("expect", "decode") == "decode":
+            data = case.stream.read_bytes()
+            if len(data) <= max_bytes:
+                seeds[case.id] = data
+    return seeds
+
+
+# --- syntax elements of a stream -----------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Element:
+    unit: int  # index of the data unit
+    bit: int  # bit position in the unit payload
+    nbits: int  # coded length
+    name: str
+    descriptor: str
+    value: object
+
+
+_STRUCTURE_UNIT = {"scene_parameter_set": UnitType.SCENE_PARAMETER_SET,
+                   "render_model_unit": UnitType.RENDER_MODEL, "render_mlp_header": UnitType.RENDER_MODEL,
+                   "geometry_header": UnitType.GEOMETRY, "context_model_unit": UnitType.CONTEXT_MODEL,
+                   "int_array_header": UnitType.CONTEXT_MODEL, "attribute_unit_header": UnitType.ATTRIBUTE,
+                   "decoded_scene_hash_unit": UnitType.DECODED_SCENE_HASH}
+
+
+def _ue_bits(v: int) -> str:
+    x = v + 1
+    return "0" * (x.bit_length() - 1) + format(x, "b")
+
+
+def _se_code(v: int) -> int:
+    return 2 * v - 1 if v > 0 else -2 * v
+
+
+def code_bits(descriptor: str, value: int) -> str:
+    """The bits of ``value`` coded with ``descriptor`` (u(n), ue(v), se(v), f(32) as its bits)."""
+    if descriptor == "ue(v)":
+        return _ue_bits(value)
+    if descriptor == "se(v)":
+        return _ue_bits(_se_code(value))
+    n = 32 if descriptor == "f(32)" else int(descriptor[2:-1])
+    return format(value & ((1 << n) - 1), f"0{n}b")
+
+
+def stream_elements(data: bytes) -> list[Element]:
+    """Every syntax element of a decodable stream, located in its unit (from the decoder's trace)."""
+    from lghcc.common.syntax import f32_bits
+    from lghcc.decoder.decode import decode_stream
+
+    units = read_container(data).units
+    trace = decode_stream(data, trace=True).trace
+    # units of each type in stream order; a structure's entries belong to the next unit of its type
+    # when its first element reappears (two attribute units in a hierarchy)
+    by_type: dict[int, list[int]] = {}
+    for i, u in enumerate(units):
+        by_type.setdefault(u.unit_type, []).append(i)
+    taken: dict[int, int] = {}
+    first_name: dict[int, str] = {}
+    out = []
+    for e in trace:
+        struct = e.name.split(".")[0]
+        t = _STRUCTURE_UNIT.get(struct)
+        if t is None or t not in by_type:
+            continue
+        if first_name.get(t) is None:
+            first_name[t] = e.name
+            taken[t] = 0
+        elif e.name == first_name[t]:
+            taken[t] += 1
+        idx = by_type[t][min(taken[t], len(by_type[t]) - 1)]
+        if e.descriptor.startswith("b("):
+            continue  # byte strings are mutated as bytes
+        value = f32_bits(e.value) if e.descriptor == "f(32)" else int(e.value)
+        out.append(Element(idx, e.bit_position, len(code_bits(e.descriptor, value)), e.name, e.descriptor,
+                           value))
+    return out
+
+
+def replace_element(payload: bytes, el: Element, value: int) -> bytes:
+    """Re-code one element with a new value; later bits move with it; zero-padded to bytes."""
+    bits = "".join(format(b, "08b") for b in payload)
+    new = bits[:el.bit] + code_bits(el.descriptor, value) + bits[el.bit + el.nbits:]
+    new += "0" * (-len(new) % 8)
+    return int(new, 2).to_bytes(len(new) // 8, "big") if new else b""
+
+
+_EXTREME_F32 = [0x00000000, 0x80000000, 0x7F800000, 0xFF800000, 0x7FC00000, 0x00000001, 0x7F7FFFFF,
+                0xFF7FFFFF, 0x3F800000, 0xBF800000, 0x00800000]
+
+
+def extreme_values(el: Element, rng: random.Random) -> int:
+    d = el.descriptor
+    if d == "f(32)":
+        return rng.choice(_EXTREME_F32 + [rng.getrandbits(32)])
+    if d.startswith("u("):
+        n = int(d[2:-1])
+        return rng.choice([0, 1, (1 << n) - 1, 1 << (n - 1), rng.getrandbits(n), el.value ^ 1])
+    k = rng.choice([1, 2, 7, 8, 15, 16, 23, 24, 30, 31, 32, 40, 52, 62, 63, 64])
+    big = rng.choice([(1 << k) - 1, 1 << k, (1 << k) + 1])
+    v = int(el.value)
+    if d == "ue(v)":
+        return rng.choice([0, 1, max(v - 1, 0), v + 1, 2 * v + 1, big, rng.randrange(0, 1 << 20)])
+    return rng.choice([0, 1, -1, v + 1, v - 1, -v, big, -big])
+
+
+# --- the mutator -----------------------------------------------------------------------------------
+
+class Mutator:
+    """Seeded mutations of seed streams. ``case(rng)`` -> (bytes, description)."""
+
+    RAW = ("raw_bitflip", "raw_truncate", "raw_insert", "raw_delete", "raw_overwrite", "random_bytes",
+           "random_after_header")
+    UNIT = ("payload_bitflip", "payload_truncate", "payload_insert", "payload_delete", "payload_extreme4",
+            "shuffle_units", "drop_unit", "duplicate_unit", "splice_unit")
+    FIELD = ("field_extreme", "field_extreme_multi")
+
+    def __init__(self, seeds: dict[str, bytes]):
+        if not seeds:
+            raise LghccError("no seed streams to mutate")
+        self.seeds = seeds
+        self.ids = sorted(seeds)
+        self._units = {k: [DataUnit(u.unit_type, u.payload) for u in read_container(v).units]
+                       for k, v in seeds.items()}
+        self._elements: dict[str, list[Element]] = {}
+        self.ops = self.RAW + self.UNIT + self.FIELD + self.FIELD  # syntax-aware mutations twice as often
+
+    def elements(self, sid: str) -> list[Element]:
+        if sid not in self._elements:
+            self._elements[sid] = stream_elements(self.seeds[sid])
+        return self._elements[sid]
+
+    def case(self, rng: random.Random) -> tuple[bytes, str]:
+        sid = rng.choice(self.ids)
+        op = rng.choice(self.ops)
+        data, what = getattr(self, "_" + op)(rng, sid)
+        return data, f"{sid}: {op}: {what}"
+
+    # raw -----------------------------------------------------------------------------------------
+    def _raw_bitflip(self, rng, sid):
+        b = bytearray(self.seeds[sid])
+        pos = [rng.randrange(8 * len(b)) for _ in range(rng.randint(1, 8))]
+        for p in pos:
+            b[p >> 3] ^= 0x80 >> (p & 7)
+        return bytes(b), f"bits {pos}"
+
+    def _raw_truncate(self, rng, sid):
+        n = rng.randrange(len(self.seeds[sid]))
+        return self.seeds[sid][:n], f"first {n} bytes"
+
+    def _raw_insert(self, rng, sid):
+        b = self.seeds[sid]
+        i = rng.randrange(len(b) + 1)
+        ins = rng.randbytes(rng.randint(1, 16))
+        return b[:i] + ins + b[i:], f"{len(ins)} bytes at {i}"
+
+    def _raw_delete(self, rng, sid):
+        b = self.seeds[sid]
+        i, n = rng.randrange(len(b)), rng.randint(1, 16)
+        return b[:i] + b[i + n:], f"{n} bytes at {i}"
+
+    def _raw_overwrite(self, rng, sid):
+        b = bytearray(self.seeds[sid])
+        i = rng.randrange(len(b))
+        v = rng.choice([b"\x00" * 4, b"\xff" * 4, b"\x7f\xff\xff\xff", b"\x80\x00\x00\x00"])
+        b[i:i + 4] = v
+        return bytes(b[:len(self.seeds[sid])]), f"{v.hex()} at {i}"
+
+    def _random_bytes(self, rng, sid):
+        n = rng.randint(0, 512)
+        return rng.randbytes(n), f"{n} random bytes"
+
+    def _random_after_header(self, rng, sid):
+        n = rng.randint(0, 512)
+        return self.seeds[sid][:8] + rng.randbytes(n), f"container header + {n} random bytes"
+
+    # units -----------------------------------------------------------------------------------------
+    def _pick_unit(self, rng, sid) -> tuple[list[DataUnit], int]:
+        units = list(self._units[sid])
+        return units, rng.randrange(len(units))
+
+    def _with_payload(self, units, j, payload) -> bytes:
+        units[j] = DataUnit(units[j].unit_type, bytes(payload))
+        return write_container(units)
+
+    def _payload_bitflip(self, rng, sid):
+        units, j = self._pick_unit(rng, sid)
+        b = bytearray(units[j].payload)
+        if not b:
+            return write_container(units), f"unit {j} empty"
+        pos = [rng.randrange(8 * len(b)) for _ in range(rng.randint(1, 4))]
+        for p in pos:
+            b[p >> 3] ^= 0x80 >> (p & 7)
+        return self._with_payload(units, j, b), f"unit {j} bits {pos}"
+
+    def _payload_truncate(self, rng, sid):
+        units, j = self._pick_unit(rng, sid)
+        n = rng.randint(0, len(units[j].payload))
+        return self._with_payload(units, j, units[j].payload[:n]), f"unit {j} first {n} bytes"
+
+    def _payload_insert(self, rng, sid):
+        units, j = self._pick_unit(rng, sid)
+        p = units[j].payload
+        i = rng.randint(0, len(p))
+        ins = rng.randbytes(rng.randint(1, 8))
+        return self._with_payload(units, j, p[:i] + ins + p[i:]), f"unit {j}: {len(ins)} bytes at {i}"
+
+    def _payload_delete(self, rng, sid):
+        units, j = self._pick_unit(rng, sid)
+        p = units[j].payload
+        i, n = rng.randint(0, max(len(p) - 1, 0)), rng.randint(1, 8)
+        return self._with_payload(units, j, p[:i] + p[i + n:]), f"unit {j}: {n} bytes deleted at {i}"
+
+    def _payload_extreme4(self, rng, sid):
+        units, j = self._pick_unit(rng, sid)
+        b = bytearray(units[j].payload)
+        i = rng.randint(0, max(len(b) - 1, 0))
+        v = rng.choice([b"\x00\x00\x00\x00", b"\xff\xff\xff\xff", b"\x00\x00\x00\x01", b"\x80\x00\x00\x00"])
+        b[i:i + 4] = v
+        return self._with_payload(units, j, b[:max(len(units[j].payload), 1)]), f"unit {j}: {v.hex()} at {i}"
+
+    def _shuffle_units(self, rng, sid):
+        units = list(self._units[sid])
+        order = list(range(len(units)))
+        rng.shuffle(order)
+        return write_container([units[i] for i in order]), f"order {order}"
+
+    def _drop_unit(self, rng, sid):
+        units, j = self._pick_unit(rng, sid)
+        del units[j]
+        return write_container(units), f"unit {j} dropped"
+
+    def _duplicate_unit(self, rng, sid):
+        units, j = self._pick_unit(rng, sid)
+        k = rng.randint(0, len(units))
+        units.insert(k, units[j])
+        return write_container(units), f"unit {j} repeated at {k}"
+
+    def _splice_unit(self, rng, sid):
+        """A unit of the same type from another stream: consistent alone, inconsistent together."""
+        units, j = self._pick_unit(rng, sid)
+        other = rng.choice(self.ids)
+        same = [u for u in self._units[other] if u.unit_type == units[j].unit_type]
+        if not same:
+            return write_container(units), "no unit to splice"
+        units[j] = rng.choice(same)
+        return write_container(units), f"unit {j} from {other}"
+
+    # syntax elements ---------------------------------------------------------------------------------
+    def _field_extreme(self, rng, sid, count: int = 1):
+        units = list(self._units[sid])
+        els = self.elements(sid)
+        changes = []
+        # distinct units; within a unit, from the last element backwards so positions stay valid
+        picked = sorted(rng.sample(els, min(count, len(els))), key=lambda e: (e.unit, -e.bit))
+        done = set()
+        for el in picked:
+            if (el.unit, el.bit) in done:
+                continue
+            done.add((el.unit, el.bit))
+            v = extreme_values(el, rng)
+            units[el.unit] = DataUnit(units[el.unit].unit_type, replace_element(units[el.unit].payload, el, v))
+            changes.append(f"{el.name}={v}")
+        return write_container(units), ", ".join(changes)
+
+    def _field_extreme_multi(self, rng, sid):
+        return self._field_extreme(rng, sid, rng.randint(2, 4))
+
+
+# --- running cases ---------------------------------------------------------------------------------
+
+VALID = "valid decode"
+
+
+def classify(data: bytes) -> tuple[str, str]:
+    """Decode in this process: (kind, detail). kind: VALID, 'error: <class>' or 'BUG: <class>'."""
+    from lghcc.decoder.decode import decode_stream
+
+    try:
+        res = decode_stream(data)
+        if res.scene.num_anchors < 1:
+            return "BUG: empty scene", "a valid decode with no anchors"
+        return VALID, ""
+    except LghccError as e:
+        if not str(e):
+            return "BUG: error without message", type(e).__name__
+        return f"error: {type(e).__name__}", str(e)[:200]
+    except MemoryError:
+        return "BUG: MemoryError", traceback.format_exc()
+    except Exception as e:  # noqa: BLE001 - every other exception is a decoder bug
+        return f"BUG: {type(e).__name__}", traceback.format_exc()
+
+
+def _worker(conn, memory_bytes: int | None, threads: int) -> None:
+    import torch
+
+    torch.set_num_threads(threads)
+    import lghcc.decoder.decode  # noqa: F401 - imported before the clock of the first case starts
+
+    if memory_bytes:
+        resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
+    conn.send("ready")
+    while True:
+        try:
+            data = conn.recv_bytes()
+        except EOFError:
+            return
+        t0 = time.perf_counter()
+        try:
+            kind, detail = classify(data)
+        except Exception as e:  # noqa: BLE001 - e.g. MemoryError while handling another error
+            kind, detail = f"BUG: {type(e).__name__}", traceback.format_exc()
+        peak_kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        conn.send((kind, detail, time.perf_counter() - t0, peak_kib))
+
+
+def _vm_size_bytes() -> int:
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmSize:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 0
+
+
+class Sandbox:
+    """A forked worker that decodes cases one at a time, with an address-space limit of the
+    parent's current size plus ``memory_mb`` and a wall-clock bound per case."""
+
+    def __init__(self, timeout: float = 5.0, memory_mb: int | None = 2048, threads: int = 1):
+        self.timeout = timeout
+        self.memory_bytes = _vm_size_bytes() + memory_mb * (1 << 20) if memory_mb else None
+        self.threads = threads
+        self._ctx = mp.get_context("fork")
+        self._proc = None
+        self._conn = None
+
+    def _start(self) -> None:
+        parent, child = self._ctx.Pipe()
+        self._proc = self._ctx.Process(target=_worker, args=(child, self.memory_bytes, self.threads), daemon=True)
+        self._proc.start()
+        child.close()
+        self._conn = parent
+        if not parent.poll(120) or parent.recv() != "ready":
+            raise RuntimeError("the fuzz worker process did not start")
+
+    def _stop(self) -> None:
+        if self._proc is not None:
+            self._proc.kill()
+            self._proc.join()
+            self._conn.close()
+        self._proc = self._conn = None
+
+    def run(self, data: bytes) -> tuple[str, str, float]:
+        if self._proc is None or not self._proc.is_alive():
+            self._start()
+        t0 = time.perf_counter()
+        self._conn.send_bytes(data)
+        if not self._conn.poll(self.timeout):
+            self._stop()
+            return "BUG: timeout", f"no result after {self.timeout:g} s", time.perf_counter() - t0
+        try:
+            kind, detail, seconds, _ = self._conn.recv()
+        except (EOFError, OSError):
+            code = self._proc.exitcode if self._proc else None
+            self._stop()
+            return "BUG: worker died", f"exit code {code}", time.perf_counter() - t0
+        return kind, detail, seconds
+
+    def close(self) -> None:
+        if self._conn is not None:
+            self._conn.close()
+        if self._proc is not None:
+            self._proc.join(timeout=2)
+            if self._proc.is_alive():
+                self._proc.kill()
+        self._proc = self._conn = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+@dataclass
+class Summary:
+    cases: int = 0
+    seconds: float = 0.0
+    outcomes: Counter = field(default_factory=Counter)
+    slowest: tuple[float, str] = (0.0, "")
+    failures: list[tuple[str, str, str, bytes]] = field(default_factory=list)  # kind, what, detail, data
+
+    @property
+    def bugs(self) -> int:
+        return sum(n for k, n in self.outcomes.items() if k.startswith("BUG"))
+
+    @property
+    def cases_per_minute(self) -> float:
+        return 60.0 * self.cases / self.seconds if self.seconds else 0.0
+
+    def text(self) -> str:
+        lines = [f"cases: {self.cases} in {self.seconds:.1f} s ({self.cases_per_minute:.0f} cases/min)",
+                 "outcomes:"]
+        for k, n in sorted(self.outcomes.items(), key=lambda kv: (not kv[0].startswith("BUG"), -kv[1])):
+            lines.append(f"  {n:>7}  {k}")
+        lines.append(f"slowest case: {self.slowest[0]:.3f} s ({self.slowest[1]})")
+        lines.append(f"bugs: {self.bugs}")
+        return "\n".join(lines)
+
+
+def save_failure(folder: Path, kind: str, what: str, detail: str, data: bytes) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    tag = kind.split(":")[-1].strip().replace(" ", "_")
+    name = f"{tag}_{hashlib.sha256(data).hexdigest()[:12]}"
+    (folder / f"{name}.lghcc").write_bytes(data)
+    (folder / f"{name}.txt").write_text(f"{kind}\n{what}\n\n{detail}\n")
+    return folder / f"{name}.lghcc"
+
+
+def run_campaign(mutator: Mutator, *, seed: int = 0, cases: int | None = None, seconds: float | None = None,
+                 timeout: float = 5.0, memory_mb: int | None = 2048, threads: int = 1,
+                 failures_dir: Path | None = None, progress=None) -> Summary:
+    """Run mutated cases until ``cases`` are done or ``seconds`` have passed (whichever first)."""
+    if cases is None and seconds is None:
+        raise ValueError("give cases or seconds")
+    rng = random.Random(seed)
+    summary = Summary()
+    t0 = time.perf_counter()
+    with Sandbox(timeout, memory_mb, threads) as box:
+        while (cases is None or summary.cases < cases) and (seconds is None or time.perf_counter() - t0 < seconds):
+            data, what = mutator.case(rng)
+            kind, detail, dt = box.run(data)
+            summary.cases += 1
+            summary.outcomes[kind] += 1
+            if dt > summary.slowest[0]:
+                summary.slowest = (dt, what)
+            if kind.startswith("BUG"):
+                summary.failures.append((kind, what, detail, data))
+                if failures_dir is not None:
+                    save_failure(Path(failures_dir), kind, what, detail, data)
+            if progress is not None:
+                progress(summary)
+    summary.seconds = time.perf_counter() - t0
+    return summary
+
