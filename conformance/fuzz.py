@@ -173,7 +173,10 @@ class Mutator:
 
     def elements(self, sid: str) -> list[Element]:
         if sid not in self._elements:
-            self._elements[sid] = stream_elements(self.seeds[sid])
+            try:
+                self._elements[sid] = stream_elements(self.seeds[sid])
+            except LghccError:  # a seed this decoder rejects (e.g. a suite newer than the decoder)
+                self._elements[sid] = []
         return self._elements[sid]
 
     def case(self, rng: random.Random) -> tuple[bytes, str]:
