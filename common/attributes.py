@@ -243,7 +243,11 @@ def read_attribute_unit(payload: bytes, sps: SceneParameterSet, num_rows: int, l
         q += p.mean
         if live is not None:
             q *= live  # values that are not coded are 0
-        v = reconstruct(q, steps, p.step_adjust)
+        with np.errstate(over="ignore", invalid="ignore"):
+            v = reconstruct(q, steps, p.step_adjust)
+        if not np.isfinite(v).all():
+            raise BitstreamError(f"attribute chunk {i} (level {level}): a decoded value overflows binary32 "
+                                 "(a conforming stream decodes to finite values only)")
         if rows is None:
             values_out[lo:hi] = v
         else:

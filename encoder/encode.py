@@ -239,7 +239,10 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
                 (lq - lp.mean)[level_live], np.broadcast_to(lp.level, lq.shape)[level_live])
         stats["attribute_coded_bits"] += 8 * sum(chosen.header.chunk_size)
         stats[f"attribute_bytes_level{level}"] = len(chosen.payload)
-        recon[rows] = attr.reconstruct(lq, steps, lp.step_adjust)
+        with np.errstate(over="ignore", invalid="ignore"):
+            recon[rows] = attr.reconstruct(lq, steps, lp.step_adjust)
+        if not np.isfinite(recon[rows]).all():
+            raise InputError("an attribute value would decode beyond the binary32 range; use a smaller value or step")
     stats["time_attributes_s"] = time.perf_counter() - t1
     bar.update()
 

@@ -114,3 +114,11 @@ def test_hash_mismatch_is_reported():
     with pytest.raises(HashMismatchError, match="does not match"):
         decode_stream(_rewrap(units))
     assert decode_stream(_rewrap(units), verify_hash=False).hash_checked is False
+
+
+def test_a_step_that_overflows_binary32_is_rejected():
+    sps = SceneParameterSet.from_bytes(UNITS[0].payload)
+    sps.feature_step = 3.0e38  # any feature value of magnitude >= 2 steps overflows
+    units = [DataUnit(UnitType.SCENE_PARAMETER_SET, sps.to_bytes())] + UNITS[1:]
+    with pytest.raises(BitstreamError, match="overflows binary32"):
+        decode_stream(_rewrap(units))
