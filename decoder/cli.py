@@ -22,6 +22,9 @@ attributes, model) in bytes and bits per anchor.
 examples:
   lghcc-dec demo.lghcc -o decoded/
   lghcc-dec demo.lghcc --trace demo.trace.txt      (no -o: check and report only)
+  lghcc-dec demo.lghcc --render orbit:8 --render-out views/    8 PNGs around the scene
+  lghcc-dec demo.lghcc --render lego/transforms_test.json --render-out views/
+  lghcc-dec demo.lghcc --export-ply demo_3dgs.ply   plain 3DGS PLY for standard viewers
 """
 
 
@@ -37,8 +40,56 @@ def setup_args() -> argparse.ArgumentParser:
     p.add_argument("--print-hash", action="store_true",
                    help="print only the SHA-256 of the decoded scene (spec clause 11), computed from the output")
     p.add_argument("--json", metavar="FILE", help="also write the size breakdown as JSON")
+    g = p.add_argument_group("looking at the result")
+    g.add_argument("--render", metavar="CAMERAS",
+                   help="render the decoded scene: 'orbit:N' (N cameras on a circle around it), a NeRF-synthetic "
+                        "transforms_<split>.json, or a COLMAP sparse folder")
+    g.add_argument("--render-out", metavar="DIR", help="folder for the rendered PNGs (needed with --render)")
+    g.add_argument("--render-size", default="256x256", metavar="WxH", help="image size of orbit cameras (256x256)")
+    g.add_argument("--render-scale", type=float, default=1.0,
+                   help="scale of the image size of file cameras (default 1)")
+    g.add_argument("--background", default="black", choices=("black", "white"), help="render background")
+    g.add_argument("--export-ply", metavar="FILE",
+                   help="also write the decoded scene as a plain 3DGS PLY (INRIA layout) for standard viewers")
+    g.add_argument("--export-sh-degree", type=int, default=1, choices=(0, 1, 2, 3),
+                   help="SH degree of the exported colours (default 1)")
+    g.add_argument("--export-directions", type=int, default=16,
+                   help="view directions per anchor over which the MLPs are evaluated (default 16)")
+    g.add_argument("--export-distance", type=float,
+                   help="camera distance for those views (default 2.5 x the anchors' bounding radius)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
     return p
+
+
+def _render_views(args, scene, say) -> None:
+    import re
+
+    import torch
+
+    from lghcc.render.imageio import background_color, write_png
+    from lghcc.render.rasterizer import render_scene
+    from lghcc.render.views import cameras_from_spec
+
+    m = re.fullmatch(r"(\d+)x(\d+)", args.render_size)
+    if not m or min(int(m.group(1)), int(m.group(2))) < 1:
+        raise LghccError(f"--render-size must be WxH, got {args.render_size!r}")
+    if not args.render_out:
+        raise LghccError("--render needs --render-out DIR")
+    cams = cameras_from_spec(args.render, scene.positions(), width=int(m.group(1)), height=int(m.group(2)),
+                             scale=args.render_scale)
+    out = Path(args.render_out)
+    out.mkdir(parents=True, exist_ok=True)
+    bg = background_color(args.background)
+    from lghcc.render.neural_gaussians import SceneTensors
+
+    st = SceneTensors.from_scene(scene)
+    t0 = time.perf_counter()
+    with torch.no_grad():
+        for i, cam in enumerate(cams):
+            img = render_scene(st, cam, background=bg).image.clamp(0, 1).numpy()
+            stem = Path(cam.name).stem if cam.name else f"view_{i:03d}"
+            write_png(out / f"{i:03d}_{stem}.png", img)
+    say(f"rendered {len(cams)} views into {out} in {time.perf_counter() - t0:.2f} s")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -47,6 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     from lghcc.decoder.decode import decode_stream
 
     say = (lambda *a: None) if args.quiet else print
+    note = (lambda *a: None) if args.print_hash else say  # --print-hash prints the hash alone
     try:
         if args.threads is not None:
             import torch
@@ -61,6 +113,17 @@ def main(argv: list[str] | None = None) -> int:
         t_dec = time.perf_counter() - t0
         if args.output:
             write_scaffold(result.scene, args.output)
+        if args.render:
+            _render_views(args, result.scene, note)
+        if args.export_ply:
+            from lghcc.render.export import export_3dgs
+
+            t1 = time.perf_counter()
+            ex = export_3dgs(result.scene, args.export_ply, sh_degree=args.export_sh_degree,
+                             num_directions=args.export_directions, distance=args.export_distance)
+            note(f"wrote {args.export_ply}: {ex.num_gaussians:,} Gaussians (3DGS PLY, SH degree "
+                f"{args.export_sh_degree}, {args.export_directions} directions at distance "
+                f"{ex.stats['distance']:.4g}) in {time.perf_counter() - t1:.2f} s")
         if args.trace:
             lines = [f"{e.bit_position:>10} {e.name:<60} {e.descriptor:<8} "
                      f"{e.value.hex() if isinstance(e.value, bytes) else e.value}" for e in result.trace]

@@ -46,6 +46,18 @@ def setup_args() -> argparse.ArgumentParser:
                    help="anchor voxel size (default: inferred from the anchor grid of the input)")
     p.add_argument("--merge-duplicates", action="store_true",
                    help="merge anchors that fall in the same voxel (attributes averaged) instead of failing")
+    t = p.add_argument_group("plain 3DGS input (a PLY with f_dc_0 and no f_anchor_feat_0 is transcoded to anchors first)")
+    t.add_argument("--transcode-anchors", type=int, metavar="N",
+                   help="target anchor count of the transcoded scene (default: a quarter of the Gaussians)")
+    t.add_argument("--transcode-voxel-size", type=float, metavar="V", help="anchor voxel size (overrides the count)")
+    t.add_argument("--transcode-iterations", type=int, default=200,
+                   help="render-fitting iterations (default 200; 0: distillation only)")
+    t.add_argument("--transcode-distill-steps", type=int, default=400,
+                   help="attribute-distillation steps that initialize features and MLPs (default 400)")
+    t.add_argument("--transcode-views", type=int, default=32, help="training views on a sphere (default 32)")
+    t.add_argument("--transcode-resolution", type=int, default=128, help="square render size for fitting (128)")
+    t.add_argument("--transcode-feature-dim", type=int, default=32, help="anchor feature size C (default 32)")
+    t.add_argument("--transcode-offsets", type=int, default=10, help="offsets per anchor K (default 10)")
     p.add_argument("-f", "--force", action="store_true", help="overwrite the output file if it exists")
     p.add_argument("--no-verify", action="store_true",
                    help="skip decoding the written stream to check it (faster)")
@@ -69,6 +81,23 @@ def _load_scene(args):
         return make_procedural_scene(args.procedural, seed=args.seed), "procedural"
     if not Path(args.input).exists():
         raise LghccError(f"{args.input}: no such file or folder")
+    from lghcc.render.gaussians3dgs import is_3dgs_ply
+
+    if is_3dgs_ply(args.input):
+        from lghcc.encoder.transcode import TranscodeConfig, transcode_3dgs
+
+        say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
+        say(f"{args.input}: a plain 3DGS PLY (f_dc_0, no f_anchor_feat_0): transcoding it to an anchor scene "
+            "first, by fitting against renders of it (this takes minutes on a CPU; see --transcode-*)")
+        cfg = TranscodeConfig(anchors=args.transcode_anchors, voxel_size=args.transcode_voxel_size,
+                              iterations=args.transcode_iterations, distill_steps=args.transcode_distill_steps,
+                              views=args.transcode_views, resolution=args.transcode_resolution,
+                              feature_dim=args.transcode_feature_dim, num_offsets=args.transcode_offsets,
+                              progress=not args.quiet and sys.stderr.isatty())
+        res = transcode_3dgs(args.input, cfg, log=say)
+        say(f"transcoded in {res.stats['time_total_s']:.1f} s: {res.scene.num_anchors:,} anchors, held-out PSNR "
+            f"against the source renders {res.stats['psnr_final']:.2f} dB")
+        return res.scene, args.input
     scene = read_scaffold(args.input, voxel_size=args.voxel_size)
     if args.merge_duplicates:
         scene, merged = merge_duplicate_anchors(scene)

@@ -210,6 +210,43 @@ def _mlp_input(m: nn.Module, feat: torch.Tensor, view: torch.Tensor, dist: torch
     return torch.cat([feat, view, dist], 1) if m.in_dim == c + 4 else torch.cat([feat, view], 1)
 
 
+def anchor_mlp_features(st: SceneTensors, idx: torch.Tensor, view: torch.Tensor, dist: torch.Tensor) -> torch.Tensor:
+    """The feature the MLPs see for anchors ``idx`` viewed along ``view`` [n, 3] (unit) from
+    distance ``dist`` [n, 1]: the anchor feature, mixed by the feature bank when present."""
+    feat = st.features[idx]
+    if "feature_bank" in st.mlps:
+        feat = _feature_bank(st.mlps["feature_bank"], feat, torch.cat([view, dist], 1))
+    return feat
+
+
+def gaussian_geometry(st: SceneTensors, anchor: torch.Tensor, ki: torch.Tensor,
+                      cov: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Means, scales and unit quaternions of the Gaussians (anchor[i], offset ki[i]) from
+    their covariance-MLP outputs ``cov`` [M, 7]: mean = p + o_k exp(s[0:3]),
+    scale = exp(s[3:6]) sigmoid(cov[0:3]), quat = normalize(cov[3:7])."""
+    s = torch.exp(st.scalings[anchor])
+    means = st.positions[anchor] + st.offsets[anchor, ki] * s[:, :3]
+    scales = s[:, 3:6] * torch.sigmoid(cov[:, :3])
+    quats = torch.nn.functional.normalize(cov[:, 3:7], dim=1)
+    return means, scales, quats
+
+
+def evaluate_anchors(scene: AnchorScene | SceneTensors, idx: torch.Tensor, view: torch.Tensor, dist: torch.Tensor,
+                     dtype: torch.dtype = torch.float32) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Raw MLP outputs of anchors ``idx`` [n] (repeats allowed) for given unit view directions
+    ``view`` [n, 3] (camera centre -> anchor) and distances ``dist`` [n, 1], for all K offsets:
+    opacity [n, K] (tanh), covariance [n, K, 7] (3 scale logits, 4 quaternion values) and
+    colour [n, K, 3], exactly as ``generate_neural_gaussians`` computes them for a camera at
+    position - dist * view. No masking: dead offsets and opacity <= 0 are the caller's business."""
+    st = _as_scene_tensors(scene, dtype)
+    k = st.num_offsets
+    feat = anchor_mlp_features(st, idx, view, dist)
+    op = st.mlps["opacity"](_mlp_input(st.mlps["opacity"], feat, view, dist))
+    cov = st.mlps["cov"](_mlp_input(st.mlps["cov"], feat, view, dist)).reshape(-1, k, 7)
+    col = st.mlps["color"](_mlp_input(st.mlps["color"], feat, view, dist)).reshape(-1, k, 3)
+    return op, cov, col
+
+
 def generate_neural_gaussians(scene: AnchorScene | SceneTensors, camera: Camera, *, cull: bool = True,
                               margin: float = 0.15, sigma_cutoff: float = 3.0,
                               dtype: torch.dtype = torch.float32, mask_opacity: bool = True) -> NeuralGaussians:
@@ -232,13 +269,12 @@ def generate_neural_gaussians(scene: AnchorScene | SceneTensors, camera: Camera,
     if live is not None:  # anchors with no live offset never run an MLP
         idx = idx[live[idx].any(dim=1)]
     nv = int(idx.numel())
-    feat, p = st.features[idx], pos[idx]
+    p = pos[idx]
     centre = torch.as_tensor(camera.center, dtype=p.dtype, device=dev)
     d = p - centre
     dist = torch.linalg.vector_norm(d, dim=1, keepdim=True)
     view = d / dist.clamp_min(1e-12)
-    if "feature_bank" in st.mlps:
-        feat = _feature_bank(st.mlps["feature_bank"], feat, torch.cat([view, dist], 1))
+    feat = anchor_mlp_features(st, idx, view, dist)
     op = st.mlps["opacity"](_mlp_input(st.mlps["opacity"], feat, view, dist))  # [nv, K]
     # mask_opacity=False (for measuring what the mask saves) builds Gaussians with opacity <= 0 too
     keep = op > 0 if mask_opacity else torch.ones_like(op, dtype=torch.bool)
@@ -255,10 +291,7 @@ def generate_neural_gaussians(scene: AnchorScene | SceneTensors, camera: Camera,
     col = st.mlps["color"](_mlp_input(st.mlps["color"], feat_s, view_s, dist_s)).reshape(-1, k, 3)
     cov, col = cov[ai_loc, ki], col[ai_loc, ki]
     anchor = idx[sub[ai_loc]]
-    s = torch.exp(st.scalings[anchor])
-    means = pos[anchor] + st.offsets[anchor, ki] * s[:, :3]
-    scales = s[:, 3:6] * torch.sigmoid(cov[:, :3])
-    quats = torch.nn.functional.normalize(cov[:, 3:7], dim=1)
+    means, scales, quats = gaussian_geometry(st, anchor, ki, cov)
     opac = op[a_loc[ai_loc], ki]
     m = int(means.shape[0])
     stats = {

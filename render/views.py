@@ -1,0 +1,67 @@
+"""Camera sets for looking at results (informative): ``orbit:N``, a NeRF-synthetic
+transforms JSON, or a COLMAP sparse folder (used by ``lghcc-dec --render`` and
+tools/compare.py)."""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from lghcc.common.errors import InputError
+from lghcc.render.camera import Camera, load_colmap, load_nerf_synthetic
+
+
+def orbit_cameras(positions: np.ndarray, n: int, *, width: int = 256, height: int = 256, fov_deg: float = 50.0,
+                  elevation_deg: float = 20.0, up: tuple = (0.0, 0.0, 1.0)) -> list[Camera]:
+    """n cameras on a circle around points (robust box: 1%..99% quantiles), ``elevation_deg``
+    above the plane normal to ``up``, at a distance where the box's sphere fills the view."""
+    if n < 1:
+        raise InputError(f"orbit needs at least one camera, got {n}")
+    p = np.asarray(positions, np.float64)
+    lo, hi = np.quantile(p, 0.01, axis=0), np.quantile(p, 0.99, axis=0)
+    centre = (lo + hi) / 2
+    radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-6)
+    fov = min(fov_deg, fov_deg * height / width)
+    dist = radius / math.sin(math.radians(fov) / 2) * 1.05
+    u = np.asarray(up, np.float64)
+    u = u / np.linalg.norm(u)
+    a = np.cross(u, [1.0, 0, 0] if abs(u[0]) < 0.9 else [0, 1.0, 0])
+    a /= np.linalg.norm(a)
+    b = np.cross(u, a)
+    el = math.radians(elevation_deg)
+    cams = []
+    for i in range(n):
+        t = 2 * math.pi * i / n
+        d = math.cos(el) * (math.cos(t) * a + math.sin(t) * b) + math.sin(el) * u
+        cams.append(Camera.look_at(centre + dist * d, centre, up=u, width=width, height=height, fov_x_deg=fov_deg,
+                                   near=dist * 1e-3, far=dist * 10, name=f"orbit_{i:03d}"))
+    return cams
+
+
+def cameras_from_spec(spec: str, positions: np.ndarray, *, width: int = 256, height: int = 256,
+                      scale: float = 1.0) -> list[Camera]:
+    """``orbit:N`` (around ``positions``, width x height), a NeRF-synthetic
+    ``transforms_<split>.json`` or a folder holding one (test split preferred), or a COLMAP
+    sparse folder (cameras/images .bin or .txt). File cameras are scaled by ``scale``."""
+    m = re.fullmatch(r"orbit:(\d+)", spec.strip())
+    if m:
+        return orbit_cameras(positions, int(m.group(1)), width=width, height=height)
+    p = Path(spec)
+    if p.is_file() and p.suffix == ".json":
+        mm = re.fullmatch(r"transforms_(\w+)\.json", p.name)
+        if not mm:
+            raise InputError(f"{p}: expected a NeRF-synthetic transforms_<split>.json")
+        cams = load_nerf_synthetic(p.parent, mm.group(1), load_images=False)
+    elif p.is_dir() and any((p / f"transforms_{s}.json").is_file() for s in ("test", "val", "train")):
+        split = next(s for s in ("test", "val", "train") if (p / f"transforms_{s}.json").is_file())
+        cams = load_nerf_synthetic(p, split, load_images=False)
+    elif p.is_dir():
+        cams, _ = load_colmap(p)
+    else:
+        raise InputError(f"{spec}: not 'orbit:N', a transforms JSON or a COLMAP sparse folder")
+    if not cams:
+        raise InputError(f"{spec}: no cameras")
+    return [c.scaled(scale) for c in cams] if scale != 1.0 else cams
