@@ -107,3 +107,23 @@ def test_decoder_cli_render_and_export(tmp_path, capsys):
     assert dec_cli.main([str(s), "--render", "orbit:2", "-q"]) == 1
     assert "--render-out" in capsys.readouterr().err
     assert dec_cli.main([str(s), "--render", "nowhere:3", "--render-out", str(out), "-q"]) == 1
+
+
+def test_compare_tool_writes_table_and_side_by_side(tmp_path):
+    import importlib.util
+    from pathlib import Path
+
+    from lghcc.common.scaffold_io import write_scaffold
+
+    spec = importlib.util.spec_from_file_location("compare", Path(__file__).parents[1] / "tools" / "compare.py")
+    compare = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(compare)
+    write_scaffold(make_procedural_scene(300), tmp_path / "ref")
+    s = tmp_path / "p.lghcc"
+    assert enc_cli.main(["--procedural", "300", "-o", str(s), "-q"]) == 0
+    md, png = tmp_path / "c.md", tmp_path / "c.png"
+    assert compare.main([str(tmp_path / "ref"), str(s), "--views", "orbit:1", "--size", "32x24", "--out-md", str(md),
+                         "--out-png", str(png), "--no-lpips"]) == 0
+    row = [ln for ln in md.read_text().splitlines() if ln.startswith("| p.lghcc")][0]
+    assert float(row.split("|")[5]) > 40 and "skipped" in row
+    assert read_image(png).shape == (24, 96, 3)
