@@ -158,6 +158,8 @@ def read_scaffold(path: str | os.PathLike, voxel_size: float | None = None,
     extra = {}
     if "opacity" in cols:
         extra["opacity"] = cols["opacity"].astype(np.float32)
+    if "opacity_accum" in cols:  # training statistic (lghcc-train), used by NAAP
+        extra["opacity_accum"] = cols["opacity_accum"].astype(np.float32)
     rots = _numbered(cols, "rot_")
     if len(rots) == 4:
         extra["rotation"] = np.stack([cols[c] for c in rots], axis=1).astype(np.float32)
@@ -191,6 +193,8 @@ def write_scaffold(scene: AnchorScene, model_dir: str | os.PathLike, iteration: 
     cols.update({f"scale_{i}": scene.scalings[:, i] for i in range(NUM_SCALINGS)})
     rot = scene.extra.get("rotation", np.tile(np.array([1, 0, 0, 0], np.float32), (n, 1)))
     cols.update({f"rot_{i}": rot[:, i] for i in range(4)})
+    if "opacity_accum" in scene.extra:  # training statistic (lghcc-train), used by NAAP
+        cols["opacity_accum"] = np.asarray(scene.extra["opacity_accum"], np.float32).reshape(n)
     if scene.offset_mask is not None:
         cols.update({f"f_mask_{i}": scene.offset_mask[:, i].astype(np.float32) for i in range(k)})
     write_ply(folder / PLY_NAME, cols)

@@ -1,0 +1,240 @@
+"""lghcc-train: a tiny scene rendered by our own renderer is the ground truth; training
+reduces the loss, checkpoint + resume is exact, bad inputs raise InputError naming the
+file, and the written checkpoint reads back and encodes."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from lghcc.common.errors import InputError
+from lghcc.common.scaffold_io import read_scaffold
+from lghcc.common.scene import AnchorScene, RenderMLP
+from lghcc.encoder import train as T
+from lghcc.render.camera import Camera
+from lghcc.render.imageio import write_png
+from lghcc.render.rasterizer import render_scene
+
+GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
+SIZE = 24
+
+
+def _teacher(rng: np.random.Generator, c: int = 8, k: int = 3) -> AnchorScene:
+    g = np.arange(-3, 4)
+    coords = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    coords = coords[rng.permutation(len(coords))[:60]].astype(np.int64)
+    n = len(coords)
+
+    def mlp(out, final, bias=0.0):
+        return RenderMLP([rng.normal(0, 0.5, (c, c + 4)).astype(np.float32),
+                          rng.normal(0, 0.5, (out, c)).astype(np.float32)],
+                         [np.zeros(c, np.float32), np.full(out, bias, np.float32)], ["relu", final])
+
+    return AnchorScene(coords=coords, voxel_size=0.12, origin=np.zeros(3, np.float32),
+                       features=rng.normal(size=(n, c)).astype(np.float32),
+                       scalings=np.full((n, 6), math.log(0.12), np.float32),
+                       offsets=rng.normal(0, 0.5, (n, k, 3)).astype(np.float32),
+                       mlps={"opacity": mlp(k, "tanh", 0.8), "cov": mlp(7 * k, "none"),
+                             "color": mlp(3 * k, "sigmoid")})
+
+
+def _cameras(n: int, radius: float = 3.0) -> list[Camera]:
+    cams = []
+    for i in range(n):
+        a = 2 * math.pi * i / n
+        eye = (radius * math.cos(a), radius * math.sin(a), 0.8 + 0.4 * (i % 3))
+        cams.append(Camera.look_at(eye, (0, 0, 0), width=SIZE, height=SIZE, fov_x_deg=40.0, name=f"r_{i}"))
+    return cams
+
+
+def make_dataset(root, n_train: int = 8, n_test: int = 3, seed: int = 0):
+    """A NeRF-synthetic folder whose images our renderer made from a random anchor scene."""
+    rng = np.random.default_rng(seed)
+    scene = _teacher(rng)
+    cams = _cameras(n_train + n_test)
+    fov = cams[0].fov_x
+    for split, sub in (("train", cams[:n_train]), ("test", cams[n_train:])):
+        (root / split).mkdir(parents=True, exist_ok=True)
+        frames = []
+        for j, cam in enumerate(sub):
+            with torch.no_grad():
+                img = render_scene(scene, cam, background=torch.ones(3)).image.clamp(0, 1).numpy()
+            write_png(root / split / f"r_{j}.png", img)
+            frames.append({"file_path": f"./{split}/r_{j}",
+                           "transform_matrix": (cam.camera_to_world @ GL_TO_CV).tolist()})
+        (root / f"transforms_{split}.json").write_text(json.dumps({"camera_angle_x": fov, "frames": frames}))
+    return root
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    return make_dataset(tmp_path_factory.mktemp("tiny"))
+
+
+def tiny_config(data, **kw) -> T.TrainConfig:
+    base = dict(data=str(data), iterations=30, feature_dim=8, num_offsets=3, init_points=400, threads=1,
+                eval_interval=1000, checkpoint_interval=1000, stats_from=2, densify_from=6, densify_until=24,
+                densify_interval=6, seed=3)
+    base.update(kw)
+    return T.TrainConfig(**base)
+
+
+def _train_psnr(tr: T.Trainer) -> float:
+    from lghcc.render.metrics import psnr
+
+    scene = tr.to_scene()
+    return float(np.mean([psnr(T.render_image(scene, c, tr.bg), c.image) for c in tr.ds.train]))
+
+
+def test_training_reduces_loss(data, tmp_path):
+    cfg = tiny_config(data, iterations=80, densify_until=60)
+    torch.set_num_threads(1)
+    tr = T.Trainer(cfg, T.load_dataset(data), tmp_path)
+    tr.fresh()
+    before = _train_psnr(tr)
+    losses = [tr.step()["loss"] for _ in range(cfg.iterations)]
+    after = _train_psnr(tr)
+    assert after > before + 0.8, (before, after)
+    assert np.mean(losses[-10:]) < 0.85 * np.mean(losses[:10])
+    assert tr.num_anchors > 0
+    assert np.unique(tr.coords.numpy(), axis=0).shape[0] == tr.num_anchors  # one anchor per voxel
+
+
+def test_growing_and_pruning_keep_optimizer_in_step(data, tmp_path):
+    cfg = tiny_config(data, densify_grad_threshold=0.0, min_opacity=0.5)  # force both
+    torch.set_num_threads(1)
+    tr = T.Trainer(cfg, T.load_dataset(data), tmp_path)
+    tr.fresh()
+    n0 = tr.num_anchors
+    counts = []
+    for _ in range(13):
+        tr.step()
+        counts.append(tr.num_anchors)
+    assert counts != [n0] * len(counts)  # the anchor set changed
+    k = cfg.num_offsets
+    for name, p in tr.params.items():
+        assert p.shape[0] == tr.num_anchors
+        st = tr.opt.state[p]
+        assert st["exp_avg"].shape == p.shape and st["exp_avg_sq"].shape == p.shape
+    assert tr.offset_denom.shape[0] == tr.num_anchors * k
+    assert tr.life_views.shape[0] == tr.num_anchors
+
+
+def test_resume_is_exact(data, tmp_path):
+    cfg = tiny_config(data, iterations=24, checkpoint_interval=5, eval_interval=10)
+    a = T.train(cfg, tmp_path / "a", progress=False, log=lambda *x: None)
+    assert a.finished and a.iteration == 24
+    b1 = T.train(cfg, tmp_path / "b", stop_after=13, progress=False, log=lambda *x: None)
+    assert not b1.finished and b1.iteration == 13
+    b = T.train(cfg, tmp_path / "b", resume=True, progress=False, log=lambda *x: None)
+    assert b.finished and b.iteration == 24
+    sa = torch.load(tmp_path / "a" / T.STATE_NAME, weights_only=False)
+    sb = torch.load(tmp_path / "b" / T.STATE_NAME, weights_only=False)
+    assert torch.equal(sa["coords"], sb["coords"])
+    for k in sa["params"]:
+        assert torch.equal(sa["params"][k], sb["params"][k]), k
+    for r in sa["mlps"]:
+        for k in sa["mlps"][r]:
+            assert torch.equal(sa["mlps"][r][k], sb["mlps"][r][k]), (r, k)
+    for pid, st in sa["optimizer"]["state"].items():
+        for k in ("exp_avg", "exp_avg_sq"):
+            assert torch.equal(st[k], sb["optimizer"]["state"][pid][k])
+    for k in sa["stats"]:
+        assert torch.equal(sa["stats"][k], sb["stats"][k]), k
+    assert [h["psnr"] for h in a.history] == [h["psnr"] for h in b.history]
+    pa = (tmp_path / "a" / "point_cloud" / "iteration_24" / "point_cloud.ply").read_bytes()
+    pb = (tmp_path / "b" / "point_cloud" / "iteration_24" / "point_cloud.ply").read_bytes()
+    assert pa == pb
+    metrics = json.loads((tmp_path / "b" / "metrics.json").read_text())
+    assert [m["iteration"] for m in metrics] == [10, 20, 24]
+    assert (tmp_path / "b" / "metrics.csv").read_text().splitlines()[0].startswith("iteration,")
+
+
+def test_checkpoint_reads_back_and_encodes(data, tmp_path):
+    from lghcc.decoder.decode import decode_stream
+    from lghcc.encoder.cli import main as enc_main
+
+    cfg = tiny_config(data, iterations=12)
+    res = T.train(cfg, tmp_path / "run", progress=False, log=lambda *x: None)
+    # with the voxel size given, the anchor grid reads back exactly; inferred, up to float32 rounding
+    exact = read_scaffold(tmp_path / "run", voxel_size=res.scene.voxel_size)
+    np.testing.assert_array_equal(exact.coords, res.scene.coords)
+    np.testing.assert_array_equal(exact.positions(), res.scene.positions())
+    scene = read_scaffold(tmp_path / "run")
+    pos = res.scene.positions()
+    order_a, order_b = np.lexsort(pos.T), np.lexsort(scene.positions().T)
+    np.testing.assert_allclose(scene.positions()[order_b], pos[order_a], atol=1e-5)
+    np.testing.assert_array_equal(scene.features[order_b], res.scene.features[order_a])
+    np.testing.assert_array_equal(scene.offsets[order_b], res.scene.offsets[order_a])
+    acc = scene.extra["opacity_accum"]
+    assert acc.shape == (scene.num_anchors,) and np.all(acc >= 0) and np.all(acc <= 1) and acc.max() > 0
+    assert set(scene.mlps) == {"opacity", "cov", "color"} and scene.mlps["opacity"].in_dim == cfg.feature_dim + 4
+    out = tmp_path / "x.lghcc"
+    assert enc_main([str(tmp_path / "run"), "-o", str(out), "-q"]) == 0
+    dec = decode_stream(out.read_bytes())
+    assert dec.scene.num_anchors == scene.num_anchors
+    r = T.evaluate_model(tmp_path / "run", data)
+    assert r["views"] == 3 and math.isfinite(r["psnr"])
+    assert abs(r["psnr"] - res.history[-1]["psnr"]) < 1e-3  # what training reported for its last iteration
+
+
+def test_bad_inputs_name_the_file(data, tmp_path):
+    import shutil
+
+    with pytest.raises(InputError, match="nowhere"):
+        T.load_dataset(tmp_path / "nowhere")
+    with pytest.raises(InputError, match="transforms_train.json"):
+        T.load_dataset(tmp_path)  # a folder without any known layout
+
+    bad = tmp_path / "missing_image"
+    shutil.copytree(data, bad)
+    (bad / "train" / "r_2.png").unlink()
+    with pytest.raises(InputError, match=r"transforms_train\.json.*r_2"):
+        T.load_dataset(bad)
+
+    bad = tmp_path / "bad_camera"
+    shutil.copytree(data, bad)
+    meta = json.loads((bad / "transforms_train.json").read_text())
+    meta["frames"][1]["transform_matrix"] = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]
+    (bad / "transforms_train.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match=r"transforms_train\.json.*frame 1"):
+        T.load_dataset(bad)
+
+    bad = tmp_path / "bad_size"
+    shutil.copytree(data, bad)
+    write_png(bad / "test" / "r_1.png", np.zeros((SIZE, SIZE + 4, 3)))
+    with pytest.raises(InputError, match=r"transforms_test\.json.*different sizes"):
+        T.load_dataset(bad)
+
+    bad = tmp_path / "no_angle"
+    shutil.copytree(data, bad)
+    meta = json.loads((bad / "transforms_train.json").read_text())
+    del meta["camera_angle_x"]
+    (bad / "transforms_train.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match=r"transforms_train\.json"):
+        T.load_dataset(bad)
+
+
+def test_cli(data, tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        T.main(["--help"])
+    assert e.value.code == 0
+    assert "--resume" in capsys.readouterr().out
+    assert T.main([str(tmp_path / "nothing"), "-o", str(tmp_path / "o")]) == 1
+    assert "nothing" in capsys.readouterr().err
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("iterations: 4\nfeature-dim: 8\nnum_offsets: 2\ninit_points: 200\nthreads: 1\n")
+    assert T.main([str(data), "-o", str(tmp_path / "o"), "--config", str(cfg), "--iterations", "3", "-q"]) == 0
+    saved = (tmp_path / "o" / "config.yaml").read_text()
+    assert "iterations: 3" in saved and "feature_dim: 8" in saved and "num_offsets: 2" in saved
+    capsys.readouterr()
+    assert T.main([str(data), "--evaluate", str(tmp_path / "o"), "--threads", "1"]) == 0
+    assert "test PSNR" in capsys.readouterr().out
+    assert T.main([str(data), "-o", str(tmp_path / "o"), "-q"]) == 1  # refuses to overwrite a run
+    assert "--resume" in capsys.readouterr().err
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("iteratons: 4\n")
+    assert T.main([str(data), "-o", str(tmp_path / "p"), "--config", str(bad)]) == 1
+    assert "iteratons" in capsys.readouterr().err
