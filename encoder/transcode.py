@@ -104,8 +104,8 @@ def _occupied(points: np.ndarray, origin: np.ndarray, voxel: float) -> np.ndarra
 
 
 def voxel_size_for_count(points: np.ndarray, target: int) -> float:
-    """Voxel size whose grid (origin at the points' minimum) has about ``target`` occupied voxels."""
-    origin = points.min(0)
+    """Voxel size whose grid (through the world origin) has about ``target`` occupied voxels."""
+    origin = np.zeros(3)
     extent = float(np.ptp(points, axis=0).max()) or 1.0
     lo, hi = extent * 1e-5, extent * 2
     for _ in range(40):
@@ -137,7 +137,7 @@ def anchorize(g: Gaussians3DGS, cfg: TranscodeConfig) -> dict:
         if target < 1:
             raise InputError(f"the anchor count must be positive, got {target}")
         voxel = voxel_size_for_count(pts, target)
-    origin = pts.min(0)
+    origin = np.zeros(3)  # the grid through the world origin: a written checkpoint's voxel size can be inferred
     coords_all = _occupied(pts, origin, voxel)
     coords, inv = np.unique(coords_all, axis=0, return_inverse=True)
     inv = inv.reshape(-1)

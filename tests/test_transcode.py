@@ -161,6 +161,14 @@ def test_tiny_transcode_improves_over_its_initialization():
     assert s["psnr_init_train"] > 12  # distillation alone already gives a recognizable scene
     assert s["psnr_final_train"] > s["psnr_init_train"] + 0.5, s
     assert np.isfinite(s["psnr_final"])
+    # a written checkpoint reads back on the same grid (voxel size inferred, no shift)
+    import tempfile
+
+    from lghcc.common.scaffold_io import read_scaffold, write_scaffold
+    with tempfile.TemporaryDirectory() as d:
+        write_scaffold(r.scene, d)
+        back = read_scaffold(d)
+    np.testing.assert_allclose(back.positions(), r.scene.positions(), atol=1e-6)
 
 
 def test_encoder_cli_transcodes_a_plain_3dgs_ply(tmp_path, capsys):
