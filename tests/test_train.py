@@ -89,7 +89,7 @@ def _train_psnr(tr: T.Trainer) -> float:
 
 
 def test_training_reduces_loss(data, tmp_path):
-    cfg = tiny_config(data, iterations=80, densify_until=60)
+    cfg = tiny_config(data, iterations=80, densify_from=1000)  # optimization only (growing: below)
     torch.set_num_threads(1)
     tr = T.Trainer(cfg, T.load_dataset(data), tmp_path)
     tr.fresh()
@@ -113,6 +113,7 @@ def test_growing_and_pruning_keep_optimizer_in_step(data, tmp_path):
         tr.step()
         counts.append(tr.num_anchors)
     assert counts != [n0] * len(counts)  # the anchor set changed
+    assert tr.grown > 0 and tr.pruned > 0 and tr.num_anchors == n0 + tr.grown - tr.pruned
     k = cfg.num_offsets
     for name, p in tr.params.items():
         assert p.shape[0] == tr.num_anchors
@@ -238,3 +239,30 @@ def test_cli(data, tmp_path, capsys):
     bad.write_text("iteratons: 4\n")
     assert T.main([str(data), "-o", str(tmp_path / "p"), "--config", str(bad)]) == 1
     assert "iteratons" in capsys.readouterr().err
+
+
+def test_llff_layout_trains(tmp_path):
+    """LLFF (poses_bounds.npy + images/): every 8th view is held out; random init on camera rays."""
+    rng = np.random.default_rng(1)
+    scene = _teacher(rng)
+    cams = _cameras(9)
+    (tmp_path / "images").mkdir()
+    rows = []
+    for i, cam in enumerate(cams):
+        with torch.no_grad():
+            img = render_scene(scene, cam, background=torch.zeros(3)).image.clamp(0, 1).numpy()
+        write_png(tmp_path / "images" / f"{i:03d}.png", img)
+        c2w = cam.camera_to_world
+        pose = np.concatenate([np.stack([c2w[:3, 1], c2w[:3, 0], -c2w[:3, 2], c2w[:3, 3]], 1),
+                               [[SIZE], [SIZE], [cam.fx]]], 1)
+        rows.append(np.concatenate([pose.reshape(-1), [1.5, 4.5]]))
+    np.save(tmp_path / "poses_bounds.npy", np.array(rows))
+    ds = T.load_dataset(tmp_path, background="black")
+    assert ds.kind == "llff" and len(ds.train) == 7 and len(ds.test) == 2
+    np.testing.assert_allclose(ds.train[0].center, cams[1].center, atol=1e-9)
+    cfg = tiny_config(tmp_path, iterations=4, background="black", eval_interval=4)
+    res = T.train(cfg, tmp_path / "run", progress=False, log=lambda *x: None)
+    assert res.finished and math.isfinite(res.history[-1]["psnr"])
+    pts = T.init_points(ds, cfg, np.random.default_rng(0))
+    depth = np.array([c.world_to_camera_points(pts)[:, 2] for c in ds.train])
+    assert pts.shape == (cfg.init_points, 3) and (depth.max(0) > 1.0).all()
