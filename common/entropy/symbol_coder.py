@@ -130,14 +130,23 @@ def encode_symbols(residuals: np.ndarray, levels: np.ndarray) -> bytes:
         return b""
     bins, esc, L = _bins(r, lv)
     enc = RangeEncoder()
-    order = np.argsort(lv, kind="stable")
-    counts = np.bincount(lv, minlength=NUM_SCALE_LEVELS)
-    sorted_bins = bins[order].astype(np.int32)
-    start = 0
-    for i in np.flatnonzero(counts):
-        end = start + int(counts[i])
-        enc.encode(sorted_bins[start:end], _level_model(int(i)))
-        start = end
+    lv_in = np.asarray(levels)
+    if lv_in.ndim == 2 and lv_in.shape[0] > 1 and lv_in.strides[0] == 0:
+        # one level per column: group i is the columns of level i, row-major (no sort needed)
+        row = lv_in[0]
+        b2 = bins.reshape(lv_in.shape)
+        for i in np.unique(row):
+            cols = np.flatnonzero(row == i)
+            enc.encode((b2 if cols.size == row.size else b2[:, cols]).ravel(), _level_model(int(i)))
+    else:
+        order = np.argsort(lv, kind="stable")
+        counts = np.bincount(lv, minlength=NUM_SCALE_LEVELS)
+        sorted_bins = bins[order].astype(np.int32)
+        start = 0
+        for i in np.flatnonzero(counts):
+            end = start + int(counts[i])
+            enc.encode(sorted_bins[start:end], _level_model(int(i)))
+            start = end
     if esc.any():
         sign, k, rem, width = _escape_parts(r[esc], L[esc])
         enc.encode_bits(sign, 1)
@@ -146,25 +155,47 @@ def encode_symbols(residuals: np.ndarray, levels: np.ndarray) -> bytes:
     return enc.to_bytes()
 
 
+def _decode_bins_by_column(dec: RangeDecoder, row_levels: np.ndarray, rows: int) -> np.ndarray:
+    """Bins [rows, M] of a chunk whose levels are the same in every row (one level per column):
+    the group of level i is then the columns of level i, row-major, so each group decodes
+    straight into its columns; the same order as the general path, without a sort."""
+    m = row_levels.size
+    bins = np.empty((rows, m), dtype=np.int64)
+    for i in np.unique(row_levels):
+        cols = np.flatnonzero(row_levels == i)
+        seg = dec.decode(rows * cols.size, _level_model(int(i)))
+        if cols.size == m:
+            bins[:] = seg.reshape(rows, m)
+        else:
+            bins[:, cols] = seg.reshape(rows, cols.size)
+    return bins
+
+
 def decode_symbols(data: bytes, levels: np.ndarray, what: str = "chunk") -> np.ndarray:
     """Decode one chunk; ``levels`` (from the context model) give the count and the tables.
     Returns int64 residuals of the shape of ``levels``."""
     lv_in = np.asarray(levels)
-    lv = _levels(lv_in).ravel()
-    n = lv.size
     dec = RangeDecoder(bytes(data), what)
-    out = np.zeros(n, dtype=np.int64)
-    if n:
-        order = np.argsort(lv, kind="stable")
-        counts = np.bincount(lv, minlength=NUM_SCALE_LEVELS)
-        sorted_bins = np.empty(n, dtype=np.int64)
-        start = 0
-        for i in np.flatnonzero(counts):
-            end = start + int(counts[i])
-            sorted_bins[start:end] = dec.decode(end - start, _level_model(int(i)))
-            start = end
+    if lv_in.ndim == 2 and lv_in.shape[0] > 1 and lv_in.strides[0] == 0:  # one row, broadcast
+        row = _levels(lv_in[0])
+        bins = _decode_bins_by_column(dec, row, lv_in.shape[0]).ravel()
+        lv = np.broadcast_to(row, lv_in.shape).ravel()
+    else:
+        lv = _levels(lv_in).ravel()
+        n = lv.size
         bins = np.empty(n, dtype=np.int64)
-        bins[order] = sorted_bins
+        if n:
+            order = np.argsort(lv, kind="stable")
+            counts = np.bincount(lv, minlength=NUM_SCALE_LEVELS)
+            sorted_bins = np.empty(n, dtype=np.int64)
+            start = 0
+            for i in np.flatnonzero(counts):
+                end = start + int(counts[i])
+                sorted_bins[start:end] = dec.decode(end - start, _level_model(int(i)))
+                start = end
+            bins[order] = sorted_bins
+    out = bins
+    if lv.size:
         L = HALF_WIDTHS[lv]
         esc = bins == _ESC[lv]
         out = bins - L
