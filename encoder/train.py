@@ -912,15 +912,17 @@ def _config_from_yaml(path: str) -> dict:
     return out
 
 
-def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) -> TrainConfig:
+def config_from_args(args: argparse.Namespace, argv: list[str] | None) -> TrainConfig:
+    """Defaults, then the YAML file, then the options given on the command line."""
     fields = {f.name for f in dataclasses.fields(TrainConfig)}
-    values = {}
+    values = {k: v for k, v in vars(args).items() if k in fields}
     if args.config:
         values.update(_config_from_yaml(args.config))
-    defaults = vars(parser.parse_args([]))
-    for k, v in vars(args).items():
-        if k in fields and (v != defaults.get(k) or k not in values):
-            values[k] = v
+        given = setup_args()
+        for action in given._actions:
+            action.default = argparse.SUPPRESS
+            action.required = False
+        values.update({k: v for k, v in vars(given.parse_args(argv)).items() if k in fields})
     if args.data is not None:
         values["data"] = str(Path(args.data).absolute())
     try:
@@ -930,8 +932,8 @@ def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) 
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = setup_args()
-    args = parser.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = setup_args().parse_args(argv)
     try:
         if args.evaluate:
             if not args.data:
@@ -943,7 +945,7 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if not args.output:
             raise InputError("give the output folder with -o")
-        cfg = config_from_args(args, parser)
+        cfg = config_from_args(args, argv)
         if not args.resume and not cfg.data:
             raise InputError("give the data folder (or --resume an existing run)")
         if not args.resume and (Path(args.output) / STATE_NAME).exists():

@@ -230,6 +230,11 @@ def test_cli(data, tmp_path, capsys):
     assert T.main([str(data), "-o", str(tmp_path / "o"), "--config", str(cfg), "--iterations", "3", "-q"]) == 0
     saved = (tmp_path / "o" / "config.yaml").read_text()
     assert "iterations: 3" in saved and "feature_dim: 8" in saved and "num_offsets: 2" in saved
+    # an option given on the command line wins over the file even when it equals the default
+    cfg.write_text("iterations: 4\nseed: 5\n")
+    args = T.setup_args().parse_args(argv := [str(data), "-o", "x", "--config", str(cfg), "--seed", "0"])
+    c = T.config_from_args(args, argv)
+    assert (c.seed, c.iterations, c.feature_dim) == (0, 4, T.TrainConfig().feature_dim)
     capsys.readouterr()
     assert T.main([str(data), "--evaluate", str(tmp_path / "o"), "--threads", "1"]) == 0
     assert "test PSNR" in capsys.readouterr().out
