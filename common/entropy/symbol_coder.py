@@ -178,8 +178,8 @@ def decode_symbols(data: bytes, levels: np.ndarray, what: str = "chunk") -> np.n
     dec = RangeDecoder(bytes(data), what)
     if lv_in.ndim == 2 and lv_in.shape[0] > 1 and lv_in.strides[0] == 0:  # one row, broadcast
         row = _levels(lv_in[0])
-        bins = _decode_bins_by_column(dec, row, lv_in.shape[0]).ravel()
-        lv = np.broadcast_to(row, lv_in.shape).ravel()
+        bins = _decode_bins_by_column(dec, row, lv_in.shape[0])
+        half, esc_bin = HALF_WIDTHS[row], _ESC[row]  # per column, broadcast over the rows
     else:
         lv = _levels(lv_in).ravel()
         n = lv.size
@@ -194,11 +194,11 @@ def decode_symbols(data: bytes, levels: np.ndarray, what: str = "chunk") -> np.n
                 sorted_bins[start:end] = dec.decode(end - start, _level_model(int(i)))
                 start = end
             bins[order] = sorted_bins
+        half, esc_bin = HALF_WIDTHS[lv], _ESC[lv]
     out = bins
-    if lv.size:
-        L = HALF_WIDTHS[lv]
-        esc = bins == _ESC[lv]
-        out = bins - L
+    if bins.size:
+        esc = bins == esc_bin
+        out -= half  # in place: bins become residuals
         ne = int(esc.sum())
         if ne:
             neg = dec.decode_bits(1, ne).astype(bool)
@@ -207,7 +207,7 @@ def decode_symbols(data: bytes, levels: np.ndarray, what: str = "chunk") -> np.n
             rem = dec.decode_bits(width)
             # k <= 62 and rem < 2^(k-1): m < 2^62, magnitude < 2^62 + 2^13, no overflow
             m = np.where(k > 0, np.left_shift(np.uint64(1), width.astype(np.uint64)) + rem, np.uint64(0))
-            mag = m + (L[esc] + 1).astype(np.uint64)
+            mag = m + (np.broadcast_to(half, bins.shape)[esc] + 1).astype(np.uint64)
             if int(mag.max()) > MAX_ABS_RESIDUAL:
                 raise BitstreamError(f"{what}: escaped residual magnitude {int(mag.max())} exceeds 2^62 - 1")
             mag = mag.astype(np.int64)
