@@ -109,9 +109,11 @@ def effective_steps(steps: np.ndarray, step_adjust: np.ndarray | None) -> np.nda
     return (s * STEP_ADJUST_FACTORS[step_adjust]).astype(np.float32)
 
 
-def reconstruct(q: np.ndarray, steps: np.ndarray, step_adjust: np.ndarray | None = None) -> np.ndarray:
-    """Normative reconstruction: float32(q) * effective step, elementwise."""
-    return (q.astype(np.float32) * effective_steps(steps, step_adjust)).astype(np.float32)
+def reconstruct(q: np.ndarray, steps: np.ndarray, step_adjust: np.ndarray | None = None,
+                out: np.ndarray | None = None) -> np.ndarray:
+    """Normative reconstruction: float32(q) * effective step, one binary32 multiplication
+    per value (into ``out`` when given)."""
+    return np.multiply(q.astype(np.float32), effective_steps(steps, step_adjust), out=out, dtype=np.float32)
 
 
 # --- offset masks -------------------------------------------------------------------------
@@ -243,15 +245,14 @@ def read_attribute_unit(payload: bytes, sps: SceneParameterSet, num_rows: int, l
         q += p.mean
         if live is not None:
             q *= live  # values that are not coded are 0
+        target = values_out[lo:hi] if rows is None else np.empty((hi - lo, layout.num_channels), np.float32)
         with np.errstate(over="ignore", invalid="ignore"):
-            v = reconstruct(q, steps, p.step_adjust)
-        if not np.isfinite(v).all():
+            reconstruct(q, steps, p.step_adjust, out=target)
+        if not np.isfinite(target).all():
             raise BitstreamError(f"attribute chunk {i} (level {level}): a decoded value overflows binary32 "
                                  "(a conforming stream decodes to finite values only)")
-        if rows is None:
-            values_out[lo:hi] = v
-        else:
-            values_out[rows[lo:hi]] = v
+        if rows is not None:
+            values_out[rows[lo:hi]] = target
         if keep_q:
             q_all[lo:hi] = q
         if on_chunk is not None:

@@ -97,10 +97,11 @@ class RangeDecoder:
             raise BitstreamError(f"{what}: invalid range-coded data ({e})") from None
 
     def decode(self, count: int, model) -> np.ndarray:
+        """``count`` symbols (int32, as constriction returns them)."""
         if count == 0:
-            return np.zeros(0, dtype=np.int64)
+            return np.zeros(0, dtype=np.int32)
         try:
-            return np.asarray(self._dec.decode(model, int(count)), dtype=np.int64)
+            return self._dec.decode(model, int(count))
         except Exception as e:
             raise BitstreamError(f"{self._what}: range decoding failed ({e})") from None
 

@@ -160,7 +160,7 @@ def _decode_bins_by_column(dec: RangeDecoder, row_levels: np.ndarray, rows: int)
     the group of level i is then the columns of level i, row-major, so each group decodes
     straight into its columns; the same order as the general path, without a sort."""
     m = row_levels.size
-    bins = np.empty((rows, m), dtype=np.int64)
+    bins = np.empty((rows, m), dtype=np.int32)
     for i in np.unique(row_levels):
         cols = np.flatnonzero(row_levels == i)
         seg = dec.decode(rows * cols.size, _level_model(int(i)))
@@ -179,7 +179,7 @@ def decode_symbols(data: bytes, levels: np.ndarray, what: str = "chunk") -> np.n
     if lv_in.ndim == 2 and lv_in.shape[0] > 1 and lv_in.strides[0] == 0:  # one row, broadcast
         row = _levels(lv_in[0])
         bins = _decode_bins_by_column(dec, row, lv_in.shape[0])
-        half, esc_bin = HALF_WIDTHS[row], _ESC[row]  # per column, broadcast over the rows
+        half, esc_bin = HALF_WIDTHS[row], _ESC[row].astype(np.int32)  # per column, broadcast over rows
     else:
         lv = _levels(lv_in).ravel()
         n = lv.size
@@ -195,7 +195,7 @@ def decode_symbols(data: bytes, levels: np.ndarray, what: str = "chunk") -> np.n
                 start = end
             bins[order] = sorted_bins
         half, esc_bin = HALF_WIDTHS[lv], _ESC[lv]
-    out = bins
+    out = bins.astype(np.int64)
     if bins.size:
         esc = bins == esc_bin
         out -= half  # in place: bins become residuals
