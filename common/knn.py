@@ -86,6 +86,16 @@ def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return x * x + y * y + z * z
 
 
+def _prepare(coords, query, k: int):
+    """Checked int64 data and query points, and empty outputs (idx -1, valid False) of [M, k]."""
+    c = _as_coords(coords, "coords")
+    self_mode = query is None
+    q = c if self_mode else _as_coords(query, "query")
+    check_extent(c, q)
+    m = q.shape[0]
+    return c, q, self_mode, np.full((m, k), -1, dtype=np.int64), np.zeros((m, k), dtype=bool)
+
+
 def ball_knn(coords, k: int, radius_sq: int, query=None, exclude_self: bool = True,
              workers: int = -1, initial_extra: int = 8) -> tuple[np.ndarray, np.ndarray]:
     """Canonical Ball k-NN.
@@ -106,13 +116,8 @@ def ball_knn(coords, k: int, radius_sq: int, query=None, exclude_self: bool = Tr
         raise ValueError(f"radius_sq must be a non-negative integer, got {radius_sq!r}")
     k = int(k)
     radius_sq = int(radius_sq)
-    c = _as_coords(coords, "coords")
-    self_mode = query is None
-    q = c if self_mode else _as_coords(query, "query")
-    check_extent(c, q)
+    c, q, self_mode, idx_out, valid_out = _prepare(coords, query, k)
     n, m = c.shape[0], q.shape[0]
-    idx_out = np.full((m, k), -1, dtype=np.int64)
-    valid_out = np.zeros((m, k), dtype=bool)
     if n == 0 or m == 0 or k == 0:
         return idx_out, valid_out
     # Clamp the radius to the largest possible d2 so float bounds stay finite.
@@ -189,13 +194,8 @@ def ball_knn(coords, k: int, radius_sq: int, query=None, exclude_self: bool = Tr
 def ball_knn_bruteforce(coords, k: int, radius_sq: int, query=None,
                         exclude_self: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """O(N M) reference of ``ball_knn`` (same contract), for tests and tiny inputs."""
-    c = _as_coords(coords, "coords")
-    self_mode = query is None
-    q = c if self_mode else _as_coords(query, "query")
-    check_extent(c, q)
+    c, q, self_mode, idx_out, valid_out = _prepare(coords, query, k)
     n, m = c.shape[0], q.shape[0]
-    idx_out = np.full((m, k), -1, dtype=np.int64)
-    valid_out = np.zeros((m, k), dtype=bool)
     for r in range(m):
         if n == 0:
             break

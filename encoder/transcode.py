@@ -225,13 +225,18 @@ def distill(st: SceneTensors, g: Gaussians3DGS, a: dict, cfg: TranscodeConfig, c
         t_col = sh_to_rgb(g.sh_degree, sh_t, d).clamp(0, 1)
         l_col = ((col - t_col).abs().mean(-1) * w).sum() / wsum
         loss = l_op + l_sc + l_rot + 2 * l_col
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        sched.step()
-        losses.append(float(loss.detach()))
-        bar.set_postfix(loss=f"{losses[-1]:.4f}")
+        _optimizer_step(opt, sched, loss, losses, bar)
     return losses
+
+
+def _optimizer_step(opt, sched, loss: torch.Tensor, losses: list, bar) -> None:
+    """One Adam step with its schedule; the loss is logged and shown on the progress bar."""
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    opt.step()
+    sched.step()
+    losses.append(float(loss.detach()))
+    bar.set_postfix(loss=f"{losses[-1]:.4f}")
 
 
 def _to_scene(st: SceneTensors, a: dict) -> AnchorScene:
@@ -298,12 +303,7 @@ def transcode_3dgs(source: str | Gaussians3DGS, cfg: TranscodeConfig | None = No
         img = render_scene(st, train[j]).image
         l1 = (img - t_train[j]).abs().mean()
         loss = (1 - cfg.lambda_dssim) * l1 + cfg.lambda_dssim * (1 - ssim_torch(img, t_train[j]))
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        sched.step()
-        losses.append(float(loss.detach()))
-        bar.set_postfix(loss=f"{losses[-1]:.4f}")
+        _optimizer_step(opt, sched, loss, losses, bar)
     t_fit = time.perf_counter() - t2
     scene = _to_scene(st, a)
     psnr_final = evaluate_views(scene, test, t_test) if test else float("nan")
