@@ -288,9 +288,9 @@ def test_garden_and_donut_beat_gpcc(shared_data):
     if not garden.exists() or not donut.exists():
         pytest.skip("garden or donut data missing")
     g = _voxelize(np.load(garden)["means3d"].astype(np.float64), 12)
-    from plyfile import PlyData
+    from lghcc.common.ply import read_ply
 
-    v = PlyData.read(str(donut))["vertex"]
+    v = read_ply(donut)
     d = _voxelize(np.stack([v["x"], v["y"], v["z"]], axis=1).astype(np.float64), 12)
     for coords, gpcc in ((g, 12.0), (d, 18.0)):
         payload = roundtrip(coords)
