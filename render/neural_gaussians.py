@@ -224,7 +224,9 @@ def gaussian_geometry(st: SceneTensors, anchor: torch.Tensor, ki: torch.Tensor,
     """Means, scales and unit quaternions of the Gaussians (anchor[i], offset ki[i]) from
     their covariance-MLP outputs ``cov`` [M, 7]: mean = p + o_k exp(s[0:3]),
     scale = exp(s[3:6]) sigmoid(cov[0:3]), quat = normalize(cov[3:7])."""
-    s = torch.exp(st.scalings[anchor])
+    # clamp as anchor_bounding_radii does: exp(>= 88.8) overflows float32 and the Inf would
+    # reach the gradients (0 * Inf); exp(80) ~ 5.5e34 is still finite
+    s = torch.exp(st.scalings[anchor].clamp(max=80.0))
     means = st.positions[anchor] + st.offsets[anchor, ki] * s[:, :3]
     scales = s[:, 3:6] * torch.sigmoid(cov[:, :3])
     quats = torch.nn.functional.normalize(cov[:, 3:7], dim=1)

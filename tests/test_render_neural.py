@@ -156,6 +156,28 @@ def test_gradients_reach_anchor_attributes_and_mlps():
             assert float(weight.grad[i, j]) == pytest.approx(float(lp - lm) / 2e-6, rel=1e-4, abs=1e-6), role
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, F64])
+def test_hard_case_huge_anchor_scalings_stay_finite(dtype):
+    """Anchor log-scalings >= 89 overflow exp in float32; they are clamped (at 80) before exp, as
+    the culling radii are, so the image and every gradient stay finite."""
+    scene = _scene(n=20, c=8, k=3, seed=1, log_scale=-1.0)
+    scene.scalings[:3] = 89.0  # offsets and Gaussian scales overflow
+    scene.scalings[3:6, :3] = 95.0  # offsets only
+    scene.scalings[6:8, 3:] = 200.0  # Gaussian scales only
+    scene.scalings[8] = -200.0  # underflow to zero
+    cam = Camera.look_at([0.2, -1.8, 0.5], [0.0, 0.0, 0.0], width=24, height=16, fov_x_deg=60)
+    for cull in (True, False):
+        st = SceneTensors.from_scene(scene, dtype, requires_grad=True)
+        r = render_scene(st, cam, cull=cull, dtype=dtype, background=[0.5, 0.5, 0.5])
+        assert torch.isfinite(r.image).all() and torch.isfinite(r.alpha).all()
+        assert r.stats["ng_gaussians"] > 0 and r.stats["rasterized"] > 0
+        (r.image * torch.linspace(0.5, 1.5, 3, dtype=dtype)).sum().backward()
+        grads = {n: p.grad for n, p in st.named_parameters() if p.grad is not None}
+        assert {"positions", "features", "scalings", "offsets"} <= set(grads)
+        for name, g in grads.items():
+            assert torch.isfinite(g).all(), (cull, name)
+
+
 def test_mlp_shape_errors():
     scene = _scene(c=8, k=3)
     bad = dict(scene.mlps)
