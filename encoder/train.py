@@ -172,6 +172,9 @@ def load_dataset(data: str | Path, background: str = "white", downscale: int = 1
                          "poses_bounds.npy or sparse/0)")
     if downscale < 1:
         raise InputError(f"--downscale must be a positive integer, got {downscale}")
+    # one colour for every loader ('white', 'black' or 'r,g,b'): images with alpha are
+    # composited on the background the trainer renders on
+    background = _background(background)
     sfm = None
     if (root / "transforms_train.json").is_file():
         kind = "nerf_synthetic"
@@ -185,18 +188,14 @@ def load_dataset(data: str | Path, background: str = "white", downscale: int = 1
             _check_sizes(test, str(root / "transforms_test.json"))
     elif (root / "poses_bounds.npy").is_file():
         kind = "llff"
-        cams = load_llff(root, images_dir=images)
+        cams = load_llff(root, images_dir=images, background=background)
         _check_sizes(cams, str(root / "poses_bounds.npy"))
         train = [c for i, c in enumerate(cams) if i % 8]
         test = cams[::8]
     elif (root / "sparse" / "0").is_dir() or (root / "sparse").is_dir():
         kind = "colmap"
         sp = root / "sparse" / "0" if (root / "sparse" / "0").is_dir() else root / "sparse"
-        cams, model = load_colmap(sp, root / images, load_images=True)
-        from lghcc.render.imageio import composite_background
-
-        cams = [dataclasses.replace(c, image=composite_background(c.image, background)) if c.image.shape[2] == 4
-                else c for c in cams]
+        cams, model = load_colmap(sp, root / images, load_images=True, background=background)
         _check_sizes(cams, str(sp))
         train = [c for i, c in enumerate(cams) if i % 8]
         test = cams[::8]

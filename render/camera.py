@@ -236,11 +236,12 @@ _IMAGE_EXTS = (".png", ".jpg", ".jpeg")
 
 
 def load_llff(root: str | os.PathLike, images_dir: str = "images", load_images: bool = True,
-              near_factor: float = 0.9) -> list[Camera]:
+              near_factor: float = 0.9, background: str | tuple = "black") -> list[Camera]:
     """Cameras of ``<root>/poses_bounds.npy`` ([N, 17]: a 3x5 matrix [R | t | (H, W, focal)] per
     view with rotation columns (down, right, backwards), then near and far bounds), images
     in ``<root>/<images_dir>`` in sorted order. When the images are smaller than the poses'
-    H, W (``images_4`` etc.), the intrinsics are scaled to them."""
+    H, W (``images_4`` etc.), the intrinsics are scaled to them. Images with an alpha channel
+    are composited on ``background`` ('white', 'black' or RGB; the trainer passes its own)."""
     root = Path(root)
     pb = root / "poses_bounds.npy"
     if not pb.is_file():
@@ -269,7 +270,7 @@ def load_llff(root: str | os.PathLike, images_dir: str = "images", load_images: 
         img = None
         w, h = int(round(w0)), int(round(h0))
         if load_images:
-            img = composite_background(read_image(files[i]), "black")
+            img = composite_background(read_image(files[i]), background)
             h, w = img.shape[:2]
         s = w / w0
         if abs(h / h0 - s) > 0.02:
@@ -529,8 +530,11 @@ def read_colmap_model(sparse_dir: str | os.PathLike) -> ColmapModel:
 
 
 def load_colmap(sparse_dir: str | os.PathLike, images_dir: str | os.PathLike | None = None,
-                load_images: bool = False, near: float = 0.01, far: float = 1e10) -> tuple[list[Camera], ColmapModel]:
+                load_images: bool = False, near: float = 0.01, far: float = 1e10,
+                background: str | tuple = "black") -> tuple[list[Camera], ColmapModel]:
     """Cameras (sorted by image name) of a COLMAP sparse model, and the model itself (points3D).
+    Loaded images with an alpha channel are composited on ``background`` ('white', 'black'
+    or RGB; the trainer passes its own).
     Pinhole models are used as they are; SIMPLE_RADIAL, RADIAL and OPENCV are rendered as
     pinhole cameras with their distortion ignored (a warning is logged: undistort the images
     with ``colmap image_undistorter`` for exact results); other models raise InputError."""
@@ -554,7 +558,7 @@ def load_colmap(sparse_dir: str | os.PathLike, images_dir: str | os.PathLike | N
         w2c[:3, 3] = im.tvec
         img, w, h = None, cc.width, cc.height
         if load_images:
-            img = composite_background(read_image(Path(images_dir) / im.name), "black")
+            img = composite_background(read_image(Path(images_dir) / im.name), background)
             ih, iw = img.shape[:2]
             if (iw, ih) != (w, h):
                 s = iw / w

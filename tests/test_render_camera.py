@@ -312,6 +312,30 @@ def test_llff_loader(tmp_path):
     assert cams[1].image[0, 0, 0] == pytest.approx(0.25, abs=1 / 255)
 
 
+@pytest.mark.parametrize("loader", ["llff", "colmap"])
+def test_llff_and_colmap_composite_rgba_on_the_given_background(tmp_path, loader):
+    """Transparent pixels take the caller's background (they were always black)."""
+    rgba = np.zeros((6, 8, 4), np.float32)
+    rgba[..., 0] = 1.0
+    rgba[:, :4, 3] = 1.0  # left half opaque red, right half transparent
+    if loader == "llff":
+        _write_llff(tmp_path, n=1)
+        write_png(tmp_path / "images" / "000.png", rgba)
+        load = lambda bg: load_llff(tmp_path, background=bg)  # noqa: E731
+    else:
+        write_colmap_text(tmp_path / "sparse", [ColmapCamera(1, "PINHOLE", 8, 6, np.array([8.0, 8.0, 4.0, 3.0]))],
+                          [ColmapImage(1, np.array([1.0, 0, 0, 0]), np.zeros(3), 1, "a.png")])
+        (tmp_path / "images").mkdir()
+        write_png(tmp_path / "images" / "a.png", rgba)
+        load = lambda bg: load_colmap(tmp_path / "sparse", tmp_path / "images", load_images=True,  # noqa: E731
+                                      background=bg)[0]
+    for bg, want in (("white", [1, 1, 1]), ("black", [0, 0, 0]), ((0.2, 0.4, 0.6), [0.2, 0.4, 0.6])):
+        img = load(bg)[0].image
+        assert img.shape == (6, 8, 3)
+        np.testing.assert_allclose(img[:, 4:], np.broadcast_to(np.float32(want), (6, 4, 3)), atol=1e-6)
+        np.testing.assert_allclose(img[:, :4], np.broadcast_to(np.float32([1, 0, 0]), (6, 4, 3)), atol=1e-6)
+
+
 def test_llff_errors(tmp_path):
     with pytest.raises(InputError, match="poses_bounds.npy: file not found"):
         load_llff(tmp_path)

@@ -271,3 +271,63 @@ def test_llff_layout_trains(tmp_path):
     pts = T.init_points(ds, cfg, np.random.default_rng(0))
     depth = np.array([c.world_to_camera_points(pts)[:, 2] for c in ds.train])
     assert pts.shape == (cfg.init_points, 3) and (depth.max(0) > 1.0).all()
+
+
+def _lego_colmap(shared_data, root, n_views: int = 10):
+    """A COLMAP layout (sparse/0 written with the project's own writer, images/ with lego's RGBA
+    PNGs) from the first ``n_views`` lego_100 training views; points3D: 2,000 points uniform in
+    the ball of radius 1.3 that holds lego. Returns the alpha masks by image name."""
+    import shutil
+
+    from lghcc.render.camera import ColmapCamera, ColmapImage, load_nerf_synthetic, write_colmap_binary
+    from lghcc.render.export import rotmat_to_quat
+    from lghcc.render.imageio import read_image
+
+    lego = shared_data / "lego" / "lego_100"
+    if not (lego / "transforms_train.json").is_file():
+        pytest.skip(f"lego not found at {lego}")
+    cams = load_nerf_synthetic(lego, "train", load_images=False, max_frames=n_views)
+    (root / "images").mkdir(parents=True)
+    c0 = cams[0]
+    ccam = ColmapCamera(1, "PINHOLE", c0.width, c0.height, np.array([c0.fx, c0.fy, c0.cx, c0.cy]))
+    images, alphas = [], {}
+    for i, c in enumerate(cams):
+        name = f"{i:03d}.png"
+        shutil.copyfile(lego / "train" / f"{c.name}.png", root / "images" / name)
+        rgba = read_image(root / "images" / name)
+        assert rgba.shape[2] == 4  # lego's PNGs are RGBA: the case under test
+        alphas[name] = rgba[..., 3]
+        images.append(ColmapImage(i + 1, rotmat_to_quat(c.rotation[None])[0], c.translation.copy(), 1, name))
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(2000, 3))
+    pts = d / np.linalg.norm(d, axis=1, keepdims=True) * 1.3 * rng.random((2000, 1)) ** (1 / 3)
+    write_colmap_binary(root / "sparse" / "0", [ccam], images, pts, rng.integers(0, 256, (2000, 3)).astype(np.uint8))
+    return alphas
+
+
+@pytest.mark.data
+def test_colmap_layout_composites_on_the_chosen_background_and_trains(shared_data, tmp_path):
+    """COLMAP data with transparent images: the ground truth is composited on --background (it
+    was always black, so a white-background run compared white renders with black truth)."""
+    alphas = _lego_colmap(shared_data, tmp_path)
+    for spec, want in (("white", [1.0, 1.0, 1.0]), ("black", [0.0, 0.0, 0.0]), ("0.2,0.4,0.6", [0.2, 0.4, 0.6])):
+        ds = T.load_dataset(tmp_path, background=spec)
+        assert ds.kind == "colmap" and len(ds.train) == 8 and len(ds.test) == 2 and ds.sfm_points.shape == (2000, 3)
+        for cam in ds.train + ds.test:
+            clear = alphas[cam.name] == 0
+            assert clear.mean() > 0.3  # lego leaves most of the image transparent
+            np.testing.assert_allclose(cam.image[clear], np.broadcast_to(np.float32(want), (int(clear.sum()), 3)),
+                                       atol=1e-6)
+    cfg = tiny_config(tmp_path, iterations=40, background="white", init="sfm", eval_interval=40,
+                      stats_from=1000, densify_from=1000)
+    torch.set_num_threads(1)
+    res = T.train(cfg, tmp_path / "run", progress=False, log=lambda *x: None)
+    ds = T.load_dataset(tmp_path, background="white")
+    from lghcc.render.metrics import psnr
+
+    white = float(np.mean([psnr(np.ones_like(c.image), c.image) for c in ds.test]))  # background only
+    final = res.history[-1]["psnr"]
+    assert res.finished and res.history[-1]["views"] == 2
+    # the object is learned on top of the right background: measured 13.2 dB against 9.1 dB for the
+    # background alone; with the truth on black (the bug) the run reached 8.0 dB
+    assert final > 12.0 and final > white + 3.0, (final, white)
