@@ -151,12 +151,14 @@ def _downscale(cams: list, factor: int) -> list:
 
 
 def _check_sizes(cams: list, what: str) -> None:
-    sizes = {(c.width, c.height) for c in cams}
     for c in cams:
         if c.image is None or c.image.shape[:2] != (c.height, c.width):
             raise InputError(f"{what}: image {c.name!r} does not match its camera size {c.width}x{c.height}")
-    if len(sizes) > 1:
-        raise InputError(f"{what}: the images have different sizes {sorted(sizes)}; all views must share one size")
+    first = cams[0] if cams else None
+    for c in cams:
+        if (c.width, c.height) != (first.width, first.height):
+            raise InputError(f"{what}: image {c.name!r} is {c.width}x{c.height} but {first.name!r} (the first view) is "
+                             f"{first.width}x{first.height}: the images have different sizes; all views must share one size")
 
 
 def load_dataset(data: str | Path, background: str = "white", downscale: int = 1,

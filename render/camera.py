@@ -178,11 +178,42 @@ def _resolve_image(root: Path, file_path: str, json_path: Path) -> Path:
     raise InputError(f"{json_path}: image for frame {file_path!r} not found (tried .png, .jpg, .jpeg)")
 
 
+def _json_number(meta: dict, key: str, jp: Path, kind: str) -> float:
+    """``meta[key]`` checked: kind 'angle' (radians in (0, pi)), 'positive', 'finite' or 'size'
+    (positive integer). Raises InputError naming the file and the field."""
+    v = meta[key]
+    want = {"angle": "an angle in radians, 0 < angle < pi", "positive": "a positive number",
+            "finite": "a finite number", "size": "a positive integer"}[kind]
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise InputError(f"{jp}: '{key}' must be {want}, got {v!r}")
+    x = float(v)
+    ok = math.isfinite(x) and {"angle": 0 < x < math.pi, "positive": x > 0, "finite": True,
+                               "size": x > 0 and x == int(x)}[kind]
+    if not ok:
+        raise InputError(f"{jp}: '{key}' must be {want}, got {v!r}")
+    return x
+
+
+def _image_size(path: Path) -> tuple[int, int]:
+    """(width, height): from the header for PNG, else by reading the image."""
+    if path.suffix.lower() == ".png":
+        return png_size(path)
+    img = read_image(path)
+    return img.shape[1], img.shape[0]
+
+
 def load_nerf_synthetic(root: str | os.PathLike, split: str = "test", background: str | tuple = "white",
                         load_images: bool = True, near: float = 0.01, far: float = 1e10,
                         max_frames: int | None = None) -> list[Camera]:
     """Cameras of ``<root>/transforms_<split>.json`` (Blender/NeRF layout, OpenGL axes).
-    Images (RGBA) are composited on ``background`` ('white', 'black' or RGB)."""
+    Images (RGBA) are composited on ``background`` ('white', 'black' or RGB).
+
+    Intrinsics: ``fl_x`` (``fl_y``, ``cx``, ``cy``) in pixels of a ``w`` x ``h`` image, else
+    ``camera_angle_x`` (``camera_angle_y``) in radians. Each camera takes the size of its
+    image (header only when ``load_images`` is False; ``w``/``h`` where the image is absent),
+    so rendering views and training agree. When ``w``/``h`` are given and the image has
+    another size with the same aspect ratio (a downscaled copy), the pixel intrinsics are
+    scaled to it; another aspect ratio raises InputError."""
     root = Path(root)
     jp = root / f"transforms_{split}.json"
     if not jp.is_file():
@@ -195,35 +226,59 @@ def load_nerf_synthetic(root: str | os.PathLike, split: str = "test", background
         raise InputError(f"{jp}: no 'frames' list")
     if "camera_angle_x" not in meta and "fl_x" not in meta:
         raise InputError(f"{jp}: neither 'camera_angle_x' nor 'fl_x' given")
+    kinds = {"camera_angle_x": "angle", "camera_angle_y": "angle", "fl_x": "positive", "fl_y": "positive",
+             "cx": "finite", "cy": "finite", "w": "size", "h": "size"}
+    intr = {k: _json_number(meta, k, jp, kind) for k, kind in kinds.items() if k in meta}
+    if ("w" in intr) != ("h" in intr):
+        raise InputError(f"{jp}: 'w' and 'h' must be given together")
+    size0 = (int(intr["w"]), int(intr["h"])) if "w" in intr else None
     frames = meta["frames"][:max_frames] if max_frames else meta["frames"]
     cams = []
     for i, fr in enumerate(frames):
         if not isinstance(fr, dict) or "file_path" not in fr or "transform_matrix" not in fr:
             raise InputError(f"{jp}: frame {i} needs 'file_path' and 'transform_matrix'")
-        c2w = np.asarray(fr["transform_matrix"], np.float64)
+        fp = fr["file_path"]
+        if not isinstance(fp, str) or not fp.strip():
+            raise InputError(f"{jp}: frame {i}: 'file_path' must be a non-empty string, got {fp!r}")
+        try:
+            c2w = np.asarray(fr["transform_matrix"], np.float64)
+        except (ValueError, TypeError):
+            c2w = np.zeros(0)
         if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
             raise InputError(f"{jp}: frame {i} transform_matrix is not a finite 4x4 matrix")
-        ip = _resolve_image(root, fr["file_path"], jp)
+        ip = _resolve_image(root, fp, jp)
         img = None
         if load_images:
             img = composite_background(read_image(ip), background)
             h, w = img.shape[:2]
-        elif "w" in meta and "h" in meta:
-            w, h = int(meta["w"]), int(meta["h"])
+        elif ip.is_file():
+            w, h = _image_size(ip)
+        elif size0 is not None:
+            w, h = size0
         else:
-            if not ip.is_file():
-                raise InputError(f"{jp}: image {ip} not found")
-            w, h = png_size(ip)
-        if "fl_x" in meta:
-            fx = float(meta["fl_x"])
-            fy = float(meta.get("fl_y", fx))
+            raise InputError(f"{jp}: image {ip} not found")
+        sx = sy = 1.0
+        if size0 is not None and (w, h) != size0:
+            sx, sy = w / size0[0], h / size0[1]
+            if abs(sx / sy - 1.0) > 0.01:
+                raise InputError(f"{jp}: frame {i}: image {ip} is {w}x{h}, but the file gives w={size0[0]}, "
+                                 f"h={size0[1]} (another aspect ratio); fix 'w'/'h' or the image")
+            if not cams:
+                log.info("%s: images are %dx%d, the file says %dx%d: intrinsics scaled by %.4g", jp, w, h, *size0, sx)
+        if "fl_x" in intr:
+            fx = intr["fl_x"] * sx
+            fy = intr.get("fl_y", intr["fl_x"]) * sy
         else:
-            fx = 0.5 * w / math.tan(0.5 * float(meta["camera_angle_x"]))
-            fy = 0.5 * h / math.tan(0.5 * float(meta["camera_angle_y"])) if "camera_angle_y" in meta else fx
-        cx, cy = float(meta.get("cx", w / 2)), float(meta.get("cy", h / 2))
+            fx = 0.5 * w / math.tan(0.5 * intr["camera_angle_x"])
+            fy = 0.5 * h / math.tan(0.5 * intr["camera_angle_y"]) if "camera_angle_y" in intr else fx
+        cx = intr["cx"] * sx if "cx" in intr else w / 2
+        cy = intr["cy"] * sy if "cy" in intr else h / 2
+        if size0 is None and not (0 <= cx <= w and 0 <= cy <= h):
+            raise InputError(f"{jp}: frame {i}: principal point ({cx:g}, {cy:g}) lies outside the {w}x{h} image "
+                             f"{ip.name}: the intrinsics are for another image size; give 'w' and 'h'")
         try:
             cam = Camera.from_camera_to_world(c2w, fx, fy, cx, cy, w, h, convention="opengl", near=near, far=far,
-                                              name=Path(fr["file_path"]).name, image=img)
+                                              name=Path(fp).name, image=img)
         except InputError as e:
             raise InputError(f"{jp}: frame {i}: {e}") from None
         cams.append(cam)

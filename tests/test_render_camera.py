@@ -163,6 +163,105 @@ def test_nerf_loader_errors(tmp_path):
         load_nerf_synthetic(tmp_path)
 
 
+@pytest.mark.parametrize("field, value, match", [
+    ("camera_angle_x", 0, "'camera_angle_x' must be an angle"),
+    ("camera_angle_x", "abc", "'camera_angle_x' must be an angle in radians.*'abc'"),
+    ("camera_angle_x", None, "'camera_angle_x' must be an angle.*None"),
+    ("camera_angle_x", [1], r"'camera_angle_x' must be an angle.*\[1\]"),
+    ("camera_angle_x", 4.0, "'camera_angle_x' must be an angle"),
+    ("camera_angle_y", -0.5, "'camera_angle_y' must be an angle"),
+    ("fl_x", 0, "'fl_x' must be a positive number"),
+    ("fl_y", "7", "'fl_y' must be a positive number"),
+    ("cx", float("nan"), "'cx' must be a finite number"),
+    ("w", 7.5, "'w' must be a positive integer"),
+    ("h", True, "'h' must be a positive integer"),
+])
+@pytest.mark.parametrize("load_images", [True, False])
+def test_nerf_loader_rejects_bad_intrinsics_naming_file_and_field(tmp_path, field, value, match, load_images):
+    _write_nerf(tmp_path)
+    jp = tmp_path / "transforms_test.json"
+    meta = json.loads(jp.read_text())
+    meta.update({"w": 8, "h": 6} if field in ("w", "h") else {})
+    meta[field] = value
+    jp.write_text(json.dumps(meta))
+    with pytest.raises(InputError, match="transforms_test.json: " + match):
+        load_nerf_synthetic(tmp_path, load_images=load_images)
+
+
+@pytest.mark.parametrize("load_images", [True, False])
+def test_nerf_loader_rejects_bad_frames_naming_file_and_field(tmp_path, load_images):
+    _write_nerf(tmp_path)
+    jp = tmp_path / "transforms_test.json"
+    meta = json.loads(jp.read_text())
+    for bad in (17, None, "", ["./test/r_0"]):
+        meta["frames"][1]["file_path"] = bad
+        jp.write_text(json.dumps(meta))
+        with pytest.raises(InputError, match="transforms_test.json: frame 1: 'file_path' must be a non-empty string"):
+            load_nerf_synthetic(tmp_path, load_images=load_images)
+    meta["frames"][1]["file_path"] = "./test/r_1"
+    meta["frames"][1]["transform_matrix"] = "abc"
+    jp.write_text(json.dumps(meta))
+    with pytest.raises(InputError, match="transforms_test.json: frame 1 transform_matrix"):
+        load_nerf_synthetic(tmp_path, load_images=load_images)
+    meta["frames"][1]["transform_matrix"] = [[1, 0, 0, "x"]] * 4
+    jp.write_text(json.dumps(meta))
+    with pytest.raises(InputError, match="transforms_test.json: frame 1 transform_matrix"):
+        load_nerf_synthetic(tmp_path, load_images=load_images)
+
+
+@pytest.mark.parametrize("load_images", [True, False])
+def test_nerf_loader_scales_intrinsics_given_for_another_size(tmp_path, load_images):
+    """w/h = 16x12 with fl_x for 16 px, but 8x6 images: fx, fy, cx, cy are halved. Training
+    (load_images) and rendering views (header only) build the same cameras."""
+    _write_nerf(tmp_path)
+    jp = tmp_path / "transforms_test.json"
+    meta = json.loads(jp.read_text())
+    del meta["camera_angle_x"]
+    meta.update({"w": 16, "h": 12, "fl_x": 20.0, "fl_y": 22.0, "cx": 8.5, "cy": 6.5})
+    jp.write_text(json.dumps(meta))
+    cams = load_nerf_synthetic(tmp_path, load_images=load_images)
+    c = cams[0]
+    assert (c.width, c.height) == (8, 6)
+    assert (c.fx, c.fy, c.cx, c.cy) == pytest.approx((10.0, 11.0, 4.25, 3.25))
+    # angle-based: the focal length follows the image width; cx in pixels of w is scaled
+    del meta["fl_x"], meta["fl_y"]
+    meta["camera_angle_x"] = 0.8
+    jp.write_text(json.dumps(meta))
+    c = load_nerf_synthetic(tmp_path, load_images=load_images)[0]
+    assert c.fx == pytest.approx(4 / math.tan(0.4)) and c.cx == pytest.approx(4.25)
+    # another aspect ratio: a clear error naming the image
+    meta.update({"w": 16, "h": 16})
+    jp.write_text(json.dumps(meta))
+    with pytest.raises(InputError, match=r"transforms_test.json: frame 0: image .*r_0.png is 8x6.*w=16, h=16"):
+        load_nerf_synthetic(tmp_path, load_images=load_images)
+    # without w/h, a principal point outside the image means intrinsics for another size
+    del meta["w"], meta["h"]
+    meta.update({"fl_x": 20.0, "cx": 8.5, "cy": 6.5})
+    jp.write_text(json.dumps(meta))
+    with pytest.raises(InputError, match=r"principal point \(8.5, 6.5\) lies outside the 8x6 image r_0.png"):
+        load_nerf_synthetic(tmp_path, load_images=load_images)
+
+
+def test_render_views_and_training_cameras_agree(tmp_path):
+    """lghcc-dec --render / tools/compare.py views (cameras_from_spec) are the cameras the
+    trainer uses, also when the file's w/h and fl_x are for larger images."""
+    from lghcc.render.views import cameras_from_spec
+
+    _write_nerf(tmp_path)
+    jp = tmp_path / "transforms_test.json"
+    meta = json.loads(jp.read_text())
+    meta.update({"w": 800, "h": 600, "fl_x": 900.0})
+    del meta["camera_angle_x"]
+    jp.write_text(json.dumps(meta))
+    train = load_nerf_synthetic(tmp_path, "test", load_images=True)
+    for views in (cameras_from_spec(str(jp), np.zeros((1, 3))), cameras_from_spec(str(tmp_path), np.zeros((1, 3)))):
+        assert len(views) == len(train)
+        for v, t in zip(views, train):
+            assert (v.width, v.height, v.fx, v.fy, v.cx, v.cy) == (t.width, t.height, t.fx, t.fy, t.cx, t.cy) \
+                == (8, 6, 9.0, 9.0, 4.0, 3.0)
+            np.testing.assert_array_equal(v.world_to_camera, t.world_to_camera)
+
+
 @pytest.mark.data
 def test_lego_loader(shared_data):
     root = shared_data / "lego" / "lego_100"
@@ -180,6 +279,27 @@ def test_lego_loader(shared_data):
     assert cams[0].fx == pytest.approx(50 / math.tan(0.6911112070083618 / 2))
     all_test = load_nerf_synthetic(root, "test", load_images=False)
     assert len(all_test) == 200
+
+
+@pytest.mark.data
+def test_lego_with_intrinsics_for_800px(shared_data, tmp_path):
+    """lego_100's images with a camera file written for the 800x800 originals (w, h, fl_x):
+    the intrinsics are scaled to the 100 px images, the same cameras as camera_angle_x gives."""
+    root = shared_data / "lego" / "lego_100"
+    if not (root / "transforms_test.json").is_file():
+        pytest.skip(f"lego not found at {root}")
+    meta = json.loads((root / "transforms_test.json").read_text())
+    ref = load_nerf_synthetic(root, "test", max_frames=3)
+    f800 = 400 / math.tan(meta["camera_angle_x"] / 2)
+    meta.update({"w": 800, "h": 800, "fl_x": f800, "fl_y": f800, "cx": 400.0, "cy": 400.0})
+    del meta["camera_angle_x"]
+    (tmp_path / "test").symlink_to(root / "test")
+    (tmp_path / "transforms_test.json").write_text(json.dumps(meta))
+    for load_images in (True, False):
+        cams = load_nerf_synthetic(tmp_path, "test", max_frames=3, load_images=load_images)
+        for c, r in zip(cams, ref):
+            assert (c.width, c.height) == (100, 100)
+            assert (c.fx, c.fy, c.cx, c.cy) == pytest.approx((r.fx, r.fy, 50.0, 50.0), rel=1e-12)
 
 
 # --- COLMAP ---------------------------------------------------------------------------------

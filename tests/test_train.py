@@ -208,6 +208,11 @@ def test_bad_inputs_name_the_file(data, tmp_path):
     write_png(bad / "test" / "r_1.png", np.zeros((SIZE, SIZE + 4, 3)))
     with pytest.raises(InputError, match=r"transforms_test\.json.*different sizes"):
         T.load_dataset(bad)
+    write_png(bad / "train" / "r_5.png", np.zeros((SIZE // 2, SIZE // 2, 3)))  # a training image, same aspect
+    write_png(bad / "train" / "r_6.png", np.zeros((SIZE, SIZE + 4, 3)))
+    with pytest.raises(InputError, match=rf"transforms_train\.json: image 'r_5' is {SIZE // 2}x{SIZE // 2} but 'r_0' "
+                                         rf"\(the first view\) is {SIZE}x{SIZE}: the images have different sizes"):
+        T.load_dataset(bad)
 
     bad = tmp_path / "no_angle"
     shutil.copytree(data, bad)
