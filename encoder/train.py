@@ -39,7 +39,10 @@ What it does (Scaffold-GS, Lu et al. 2024, with the differences listed here):
 * Output: ``<out>/point_cloud/iteration_<N>/`` (the Scaffold-GS layout lghcc-enc reads),
   ``<out>/train_state.pth`` (everything needed to resume exactly: parameters, Adam state,
   statistics, RNG states), ``<out>/metrics.json`` / ``metrics.csv`` (test PSNR/SSIM curve),
-  ``<out>/config.yaml``. Every file is written atomically.
+  ``<out>/config.yaml``. Every file is written atomically, and every iteration folder too (written
+  as a hidden sibling, then renamed into place: a killed run never leaves one without MLPs).
+* Resume: ``--resume`` continues exactly; with a larger ``--iterations`` it extends the run
+  (also a finished one), the learning-rate decays keeping their original span.
 """
 
 from __future__ import annotations
@@ -95,6 +98,9 @@ class TrainConfig:
     eval_views: int = 0  # test views used at intermediate evaluations (0: all); the final one uses all
     checkpoint_interval: int = 1000
     keep_checkpoints: int = 2
+    # span of the learning-rate decays; None: ``iterations``. A resumed run extended with a larger
+    # --iterations keeps its original span (the added iterations train at the final rates).
+    lr_schedule_iterations: int | None = None
     # Scaffold-GS schedule (defaults as Scaffold-GS: stats from 500, grow/prune 1500..15000 every 100)
     stats_from: int = 500
     densify_from: int = 1500
@@ -365,7 +371,8 @@ class Trainer:
         self._set_lr(self.iteration)
 
     def _set_lr(self, step: int) -> None:
-        cfg, n = self.cfg, self.cfg.iterations
+        cfg = self.cfg
+        n = cfg.lr_schedule_iterations if cfg.lr_schedule_iterations is not None else cfg.iterations
         lrs = {
             "features": cfg.feature_lr, "scalings": cfg.scaling_lr,
             "offsets": _expon_lr(step, cfg.offset_lr_init * self.spatial_lr_scale,
@@ -636,7 +643,7 @@ class Trainer:
         self._set_lr(self.iteration)
 
     def save_checkpoint(self) -> Path:
-        folder = write_scaffold(self.to_scene(), self.out, self.iteration)
+        folder = write_checkpoint_folder(self.to_scene(), self.out, self.iteration)
         buf = io.BytesIO()
         torch.save(self.state_dict(), buf)
         atomic_write_bytes(self.out / STATE_NAME, buf.getvalue())
@@ -658,6 +665,52 @@ class Trainer:
         for h in self.history:
             w.writerow(h)
         atomic_write_bytes(self.out / "metrics.csv", sio.getvalue().encode())
+
+
+TMP_PREFIX = ".tmp_"  # point_cloud/.tmp_iteration_<N>_<pid>: a checkpoint folder being written
+OLD_PREFIX = ".old_"  # point_cloud/.old_iteration_<N>_<pid>: a replaced folder about to be removed
+
+
+def write_checkpoint_folder(scene: AnchorScene, out: Path, iteration: int) -> Path:
+    """``write_scaffold`` into a temporary sibling of ``out/point_cloud/iteration_<N>``, renamed
+    into place once complete (PLY and MLPs), so a run killed mid-write never leaves an
+    iteration folder without its MLPs (readers take the newest ``iteration_<N>``; the hidden
+    temporary names do not match). A folder already there for N (a repeated checkpoint) is
+    moved aside first and removed after. Leftovers of killed writes are removed."""
+    pc = Path(out) / "point_cloud"
+    pc.mkdir(parents=True, exist_ok=True)
+    for d in pc.iterdir():
+        if d.is_dir() and d.name.startswith((TMP_PREFIX, OLD_PREFIX)):
+            shutil.rmtree(d, ignore_errors=True)
+    name = f"iteration_{iteration}"
+    tmp_model = pc / f"{TMP_PREFIX}{name}_{os.getpid()}"
+    written = write_scaffold(scene, tmp_model, iteration)  # tmp_model/point_cloud/iteration_<N>
+    staged = pc / f"{TMP_PREFIX}{name}_{os.getpid()}.ready"
+    os.replace(written, staged)
+    shutil.rmtree(tmp_model)
+    final = pc / name
+    old = None
+    if final.exists():
+        old = pc / f"{OLD_PREFIX}{name}_{os.getpid()}"
+        os.replace(final, old)
+    os.replace(staged, final)
+    _fsync_dir(pc)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+    return final
+
+
+def _fsync_dir(d: Path) -> None:
+    try:
+        fd = os.open(d, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 def _rows_in(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -733,10 +786,14 @@ def _check_config(cfg: TrainConfig) -> None:
 
 
 def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, stop_after: int | None = None,
-          time_limit_s: float | None = None, progress: bool = True, log=print) -> TrainResult:
+          time_limit_s: float | None = None, progress: bool = True, log=print,
+          iterations: int | None = None) -> TrainResult:
     """Train (or resume) into ``out``. ``stop_after``: stop after that iteration with a
     checkpoint, as if interrupted (a later ``resume=True`` continues exactly). ``time_limit_s``:
-    stop (with a checkpoint and a full evaluation) once this much training time has passed."""
+    stop (with a checkpoint and a full evaluation) once this much training time has passed.
+    ``iterations`` (with ``resume``): a new total for the run, also for a finished one, which
+    then continues (the learning-rate decays keep their original span; the added iterations
+    use the final rates); smaller than the iteration reached raises InputError."""
     out = Path(out)
     state = None
     if resume:
@@ -750,7 +807,22 @@ def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, stop_after
         if state.get("version") != STATE_VERSION:
             raise InputError(f"{sp}: training state version {state.get('version')} not supported")
         saved = TrainConfig(**state["config"])
-        saved.threads = cfg.threads  # the only setting a resumed run may change
+        saved.threads = cfg.threads  # a resumed run may change the threads and extend the iterations
+        reached = int(state["iteration"])
+        if iterations is not None and iterations != saved.iterations:
+            if iterations < reached:
+                raise InputError(f"{out}: the run is already at iteration {reached}; --iterations {iterations} "
+                                 "cannot shorten it")
+            if saved.lr_schedule_iterations is None:
+                saved.lr_schedule_iterations = saved.iterations
+            log(f"run extended from {saved.iterations} to {iterations} iterations (the learning-rate decays keep "
+                f"their span of {saved.lr_schedule_iterations}; later iterations use the final rates)")
+            saved.iterations = iterations
+            atomic_write_bytes(out / "config.yaml",
+                               yaml.safe_dump(dataclasses.asdict(saved), sort_keys=False).encode())
+        elif reached >= saved.iterations:
+            log(f"the run already finished at iteration {reached} of {saved.iterations}; "
+                "give --iterations N (> the current count) to continue it")
         cfg = saved
     _check_config(cfg)
     torch.set_num_threads(cfg.threads)
@@ -843,7 +915,8 @@ def setup_args() -> argparse.ArgumentParser:
     p.add_argument("--config", metavar="YAML",
                    help="YAML file of options (keys as the long options, with _ or -); the command line wins")
     p.add_argument("--resume", action="store_true",
-                   help="continue the run in the output folder from its last checkpoint (its saved settings are used)")
+                   help="continue the run in the output folder from its last checkpoint (its saved settings are "
+                        "used, except --threads; a larger --iterations extends the run, also a finished one)")
     g = p.add_argument_group("training")
     g.add_argument("--iterations", type=int, default=d.iterations, help=f"training steps, one view each (default {d.iterations})")
     g.add_argument("--seed", type=int, default=d.seed, help="random seed (default 0): same seed, same result")
@@ -913,6 +986,19 @@ def _config_from_yaml(path: str) -> dict:
     return out
 
 
+def explicit_options(args: argparse.Namespace, argv: list[str] | None) -> set[str]:
+    """TrainConfig fields the user set: on the command line or in the --config file."""
+    fields = {f.name for f in dataclasses.fields(TrainConfig)}
+    given = setup_args()
+    for action in given._actions:
+        action.default = argparse.SUPPRESS
+        action.required = False
+    out = {k for k in vars(given.parse_args(argv)) if k in fields}
+    if args.config:
+        out |= set(_config_from_yaml(args.config)) & fields
+    return out
+
+
 def config_from_args(args: argparse.Namespace, argv: list[str] | None) -> TrainConfig:
     """Defaults, then the YAML file, then the options given on the command line."""
     fields = {f.name for f in dataclasses.fields(TrainConfig)}
@@ -952,9 +1038,17 @@ def main(argv: list[str] | None = None) -> int:
         if not args.resume and (Path(args.output) / STATE_NAME).exists():
             raise InputError(f"{args.output} already holds a training run; use --resume to continue it "
                              "or choose another output folder")
+        iterations = None
+        if args.resume:
+            given = explicit_options(args, argv) - {"data"}
+            iterations = cfg.iterations if "iterations" in given else None
+            ignored = sorted(given - {"iterations", "threads"})
+            if ignored:
+                print("lghcc-train: --resume uses the run's saved settings; ignored: "
+                      + ", ".join("--" + k.replace("_", "-") for k in ignored), file=sys.stderr)
         res = train(cfg, args.output, resume=args.resume, stop_after=args.stop_after,
                     time_limit_s=None if args.time_limit is None else 60.0 * args.time_limit,
-                    progress=not args.quiet)
+                    progress=not args.quiet, iterations=iterations)
     except LghccError as e:
         print(f"lghcc-train: error: {e}", file=sys.stderr)
         return 1

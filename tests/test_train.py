@@ -153,6 +153,77 @@ def test_resume_is_exact(data, tmp_path):
     assert (tmp_path / "b" / "metrics.csv").read_text().splitlines()[0].startswith("iteration,")
 
 
+def test_checkpoint_folder_is_atomic(data, tmp_path, monkeypatch):
+    """A run killed between the PLY and the MLP write leaves no iteration folder without MLPs:
+    the newest one readable is the previous complete checkpoint; resuming cleans up."""
+    from lghcc.common import scaffold_io
+
+    cfg = tiny_config(data, iterations=15, checkpoint_interval=5, eval_interval=100, keep_checkpoints=0)
+    real = scaffold_io.atomic_output
+    calls = {"n": 0}
+
+    def dying(path, *a, **kw):
+        if path.name == scaffold_io.CHECKPOINT_NAME:
+            calls["n"] += 1
+            if calls["n"] == 2:  # the MLPs of the second checkpoint (iteration 10)
+                raise KeyboardInterrupt("killed between the PLY and the MLP write")
+        return real(path, *a, **kw)
+
+    monkeypatch.setattr(scaffold_io, "atomic_output", dying)
+    with pytest.raises(KeyboardInterrupt):
+        T.train(cfg, tmp_path / "run", progress=False, log=lambda *x: None)
+    pc = tmp_path / "run" / "point_cloud"
+    assert sorted(d.name for d in pc.iterdir() if not d.name.startswith(".")) == ["iteration_5"]
+    assert any(d.name.startswith(T.TMP_PREFIX) for d in pc.iterdir())  # the half-written folder, hidden
+    scene = read_scaffold(tmp_path / "run")  # the newest complete checkpoint, with its MLPs
+    assert set(scene.mlps) == {"opacity", "cov", "color"}
+    monkeypatch.setattr(scaffold_io, "atomic_output", real)
+    res = T.train(cfg, tmp_path / "run", resume=True, progress=False, log=lambda *x: None)
+    assert res.finished and res.iteration == 15
+    # resumed from iteration 5 (its state was saved before the kill); leftovers removed
+    assert sorted(d.name for d in pc.iterdir()) == ["iteration_10", "iteration_15", "iteration_5"]
+    for it in (5, 10, 15):
+        assert (pc / f"iteration_{it}" / scaffold_io.CHECKPOINT_NAME).is_file()
+    # a checkpoint written again for the same iteration replaces the folder whole
+    before = (pc / "iteration_15" / "point_cloud.ply").read_bytes()
+    folder = T.write_checkpoint_folder(res.scene, tmp_path / "run", 15)
+    assert folder == pc / "iteration_15" and (folder / "point_cloud.ply").read_bytes() == before
+    assert sorted(d.name for d in pc.iterdir()) == ["iteration_10", "iteration_15", "iteration_5"]
+
+
+def test_resume_extends_a_finished_run(data, tmp_path, capsys):
+    """--resume --iterations 30 after a run finished at 20 trains on to 30, exactly as one run of
+    30 whose learning-rate decays span 20; a smaller count is refused; no count: a message."""
+    quiet = dict(progress=False, log=lambda *x: None)
+    cfg = tiny_config(data, iterations=20, checkpoint_interval=10, eval_interval=10)
+    a = T.train(cfg, tmp_path / "a", **quiet)
+    assert a.finished and a.iteration == 20
+    logs = []
+    b = T.train(cfg, tmp_path / "a", resume=True, iterations=30, progress=False, log=logs.append)
+    assert b.finished and b.iteration == 30 and "extended from 20 to 30" in logs[0]
+    assert [h["iteration"] for h in b.history] == [10, 20, 30]
+    assert "iterations: 30" in (tmp_path / "a" / "config.yaml").read_text()
+    ref = T.train(tiny_config(data, iterations=30, checkpoint_interval=10, eval_interval=10,
+                              lr_schedule_iterations=20), tmp_path / "ref", **quiet)
+    sa = torch.load(tmp_path / "a" / T.STATE_NAME, weights_only=False)
+    sr = torch.load(tmp_path / "ref" / T.STATE_NAME, weights_only=False)
+    for k in sa["params"]:
+        assert torch.equal(sa["params"][k], sr["params"][k]), k
+    assert [h["psnr"] for h in b.history] == [h["psnr"] for h in ref.history]
+    with pytest.raises(InputError, match="already at iteration 30; --iterations 25 cannot shorten it"):
+        T.train(cfg, tmp_path / "a", resume=True, iterations=25, **quiet)
+    logs = []
+    c = T.train(cfg, tmp_path / "a", resume=True, progress=False, log=logs.append)
+    assert c.iteration == 30 and any("already finished at iteration 30" in m for m in logs)
+    # the command line: --iterations given on --resume extends; other settings are reported as ignored
+    capsys.readouterr()
+    assert T.main(["-o", str(tmp_path / "a"), "--resume", "--iterations", "36", "--feature-dim", "4", "-q"]) == 0
+    cap = capsys.readouterr()
+    assert "finished at iteration 36" in cap.out and "ignored: --feature-dim" in cap.err
+    assert T.main(["-o", str(tmp_path / "a"), "--resume", "-q"]) == 0
+    assert "already finished at iteration 36" in capsys.readouterr().out
+
+
 def test_checkpoint_reads_back_and_encodes(data, tmp_path):
     from lghcc.decoder.decode import decode_stream
     from lghcc.encoder.cli import main as enc_main
