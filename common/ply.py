@@ -81,16 +81,44 @@ def read_ply(path: str | os.PathLike, element: str = "vertex") -> dict[str, np.n
     raise InputError(f"{path}: no element {element!r}")
 
 
-def write_ply(path: str | os.PathLike, columns: dict[str, np.ndarray]) -> None:
+WRITE_BLOCK_ROWS = 1 << 16
+
+
+def read_ply_comments(path: str | os.PathLike) -> list[str]:
+    """The text of the header's ``comment`` lines (without the keyword), reading only the header."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(MAX_HEADER_BYTES)
+    except OSError as e:
+        raise InputError(f"{path}: cannot read ({e.strerror})") from None
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
+        raise InputError(f"{path}: not a PLY file (no 'ply' magic or no end_header)")
+    return [line[len("comment "):] for line in head[:end].decode("ascii", "replace").splitlines()
+            if line.startswith("comment ")]
+
+
+def write_ply(path: str | os.PathLike, columns: dict[str, np.ndarray], comments: list[str] = ()) -> None:
+    """Binary little-endian float32 columns, written atomically in blocks of rows: the memory
+    it needs beyond the columns themselves is one block, whatever the row count."""
     names = list(columns)
     n = len(next(iter(columns.values()))) if columns else 0
-    dtype = np.dtype([(k, "<f4") for k in names])
-    arr = np.empty(n, dtype=dtype)
     for k in names:
-        arr[k] = columns[k]
-    header = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
+        if len(columns[k]) != n:
+            raise ValueError(f"PLY column {k!r} has {len(columns[k])} rows, expected {n}")
+    for c in comments:
+        if "\n" in c or "\r" in c or not c.isascii():
+            raise ValueError(f"PLY comment {c!r} must be one line of ASCII")
+    header = ["ply", "format binary_little_endian 1.0", *(f"comment {c}" for c in comments), f"element vertex {n}"]
     header += [f"property float {k}" for k in names]
     header.append("end_header\n")
+    block = np.empty((min(n, WRITE_BLOCK_ROWS), len(names)), dtype="<f4")  # rows as the file lays them out
     with atomic_output(path) as f:
         f.write("\n".join(header).encode("ascii"))
-        f.write(arr.tobytes())
+        for lo in range(0, n, WRITE_BLOCK_ROWS):
+            hi = min(n, lo + WRITE_BLOCK_ROWS)
+            out = block[: hi - lo]
+            for j, k in enumerate(names):
+                out[:, j] = columns[k][lo:hi]
+            f.write(out.data)

@@ -6,6 +6,10 @@ conformance sources and benchmarks; the same seed gives the same scene.
 
 from __future__ import annotations
 
+import sys
+
+from typing import Callable
+
 import numpy as np
 
 from lghcc.common.scene import DEFAULT_FEATURE_DIM, DEFAULT_NUM_OFFSETS, AnchorScene, RenderMLP
@@ -25,8 +29,12 @@ def surface_points(rng: np.random.Generator, n: int) -> np.ndarray:
     return np.concatenate([torus, sphere, plane])
 
 
-def _smooth_field(rng: np.random.Generator, p: np.ndarray, channels: int, freq: float) -> np.ndarray:
-    """channels smooth functions of position: random Fourier features, unit variance."""
+def _smooth_field(rng: np.random.Generator, p: np.ndarray, channels: int, freq: float,
+                  tick: Callable[[], None] = lambda: None) -> np.ndarray:
+    """channels smooth functions of position: random Fourier features, unit variance.
+    ``tick`` is called once per channel done (progress). The per-channel loop stays: computing
+    several channels, or blocks of rows, at once is faster but not bit-identical (BLAS blocking),
+    and the scenes of the conformance sources must not change."""
     nf = 8
     w = rng.normal(scale=freq, size=(channels, nf, 3))
     phase = rng.uniform(0, 2 * np.pi, (channels, nf))
@@ -34,6 +42,7 @@ def _smooth_field(rng: np.random.Generator, p: np.ndarray, channels: int, freq: 
     out = np.empty((p.shape[0], channels))
     for c in range(channels):  # one channel at a time: memory O(N * nf), not O(N * C * nf)
         out[:, c] = np.sin(p @ w[c].T + phase[c]) @ amp[c]
+        tick()
     return out
 
 
@@ -45,25 +54,36 @@ def _mlp(rng: np.random.Generator, dims: list[int], final: str) -> RenderMLP:
 
 def make_procedural_scene(num_anchors: int = 20000, seed: int = 0, feature_dim: int = DEFAULT_FEATURE_DIM,
                           num_offsets: int = DEFAULT_NUM_OFFSETS, with_mask: bool = False,
-                          noise: float = 0.05) -> AnchorScene:
-    """About ``num_anchors`` anchors (voxelization merges a few), voxel size chosen for the count."""
+                          noise: float = 0.05, progress: bool = False) -> AnchorScene:
+    """About ``num_anchors`` anchors (voxelization merges a few), voxel size chosen for the count.
+    ``progress``: show a progress bar on stderr (one step per generated attribute channel); the
+    scene is the same with or without it."""
     if num_anchors < 1:
         raise ValueError("num_anchors must be at least 1")
+    from tqdm import tqdm
+
+    channels = 2 + feature_dim + 6 + 3 * num_offsets + (num_offsets if with_mask else 0)
+    bar = tqdm(total=channels, desc="procedural scene", unit="ch", disable=not progress, leave=False,
+               file=sys.stderr)
     rng = np.random.default_rng(seed)
     # Surface area ~ 8.6 units^2: pick the voxel so that the surfaces hold ~num_anchors voxels.
     voxel = float(np.sqrt(8.6 / num_anchors))
     pts = surface_points(rng, 4 * num_anchors + 16)
+    bar.update()
     coords = np.unique(np.floor(pts / voxel).astype(np.int64), axis=0)
+    bar.update()
     if coords.shape[0] > num_anchors:
         coords = coords[np.sort(rng.choice(coords.shape[0], num_anchors, replace=False))]
     n = coords.shape[0]
     p = (coords + 0.5) * voxel
-    feats = 0.8 * _smooth_field(rng, p, feature_dim, 3.0) + noise * rng.normal(size=(n, feature_dim))
-    scal = np.log(voxel) + 0.3 * _smooth_field(rng, p, 6, 2.0) + noise * rng.normal(size=(n, 6))
-    offs = 0.5 * _smooth_field(rng, p, 3 * num_offsets, 2.5) + noise * rng.normal(size=(n, 3 * num_offsets))
+    feats = 0.8 * _smooth_field(rng, p, feature_dim, 3.0, bar.update) + noise * rng.normal(size=(n, feature_dim))
+    scal = np.log(voxel) + 0.3 * _smooth_field(rng, p, 6, 2.0, bar.update) + noise * rng.normal(size=(n, 6))
+    offs = (0.5 * _smooth_field(rng, p, 3 * num_offsets, 2.5, bar.update)
+            + noise * rng.normal(size=(n, 3 * num_offsets)))
     mask = None
     if with_mask:
-        mask = _smooth_field(rng, p, num_offsets, 2.0) > -0.6
+        mask = _smooth_field(rng, p, num_offsets, 2.0, bar.update) > -0.6
+    bar.close()
     c = feature_dim
     mlps = {
         "opacity": _mlp(rng, [c + 4, c, num_offsets], "tanh"),

@@ -5,8 +5,14 @@
 
 PLY fields per anchor: x,y,z, nx,ny,nz, f_offset_0..3K-1 (index = axis*K + k),
 f_anchor_feat_0..C-1, opacity, scale_0..5 (log), rot_0..3; HAC adds f_mask_0..K-1.
-MLPs may also come as HAC's names (mlp_opacity, ...) or as traced modules
-(opacity_mlp.pt, ...) from older Scaffold-GS versions.
+MLPs may also come as HAC's names (mlp_opacity, ...), in a file named checkpoints.pth,
+or as traced modules (opacity_mlp.pt, ...) from older Scaffold-GS versions.
+
+lghcc writes the scene's voxel size and origin into the PLY header as comment lines
+(``comment lghcc voxel_size 0x1.0c9b1ep-4``, ``comment lghcc origin X Y Z``, exact
+float.hex values), which Scaffold-GS tools ignore; reading them back makes decode then
+re-encode give the same scene, where re-guessing the voxel size from float32 positions
+could be off in the last bits.
 """
 
 from __future__ import annotations
@@ -14,13 +20,14 @@ from __future__ import annotations
 import io
 import os
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from lghcc.common.errors import InputError
 from lghcc.common.fileio import atomic_output
-from lghcc.common.ply import read_ply, write_ply
+from lghcc.common.ply import read_ply, read_ply_comments, write_ply
 from lghcc.common.scene import NUM_SCALINGS, AnchorScene, RenderMLP
 
 # Output activation of each role in Scaffold-GS (hidden layers use ReLU).
@@ -33,6 +40,13 @@ STATE_DICT_NAMES = {
 }
 PLY_NAME = "point_cloud.ply"
 CHECKPOINT_NAME = "checkpoint.pth"
+CHECKPOINT_NAMES = (CHECKPOINT_NAME, "checkpoints.pth")  # read in this order; the first found is used
+TRACED_MLP_NAMES = tuple(f"{names[0]}.pt" for names in STATE_DICT_NAMES.values())
+PLY_COMMENT_PREFIX = "lghcc "
+
+
+class MissingMlpWarning(UserWarning):
+    """A Scaffold-GS folder without a recognised render-MLP file: the scene is read without MLPs."""
 
 
 def _numbered(cols: dict[str, np.ndarray], prefix: str) -> list[str]:
@@ -97,20 +111,31 @@ def _mlp_from_state_dict(role: str, sd: dict) -> RenderMLP:
 
 
 def read_mlps(folder: Path) -> dict[str, RenderMLP]:
+    """The render MLPs of an iteration folder: from checkpoint.pth (or checkpoints.pth), else from
+    traced modules. Warns (MissingMlpWarning, naming the folder) when no MLP file is recognised."""
     import torch
 
     mlps: dict[str, RenderMLP] = {}
-    ckpt = folder / CHECKPOINT_NAME
-    if ckpt.is_file():
+    ckpt = next((folder / name for name in CHECKPOINT_NAMES if (folder / name).is_file()), None)
+    if ckpt is not None:
         try:
             data = torch.load(ckpt, map_location="cpu", weights_only=True)
         except Exception as e:
             raise InputError(f"{ckpt}: cannot load ({e})") from None
+        if not isinstance(data, dict):
+            raise InputError(f"{ckpt}: not a dictionary of state dicts")
         for role, names in STATE_DICT_NAMES.items():
             for name in names:
                 if name in data:
-                    mlps[role] = _mlp_from_state_dict(role, data[name])
+                    try:
+                        mlps[role] = _mlp_from_state_dict(role, data[name])
+                    except InputError as e:
+                        raise InputError(f"{ckpt}: {e}") from None
                     break
+        if not mlps:
+            warnings.warn(f"{ckpt}: no render MLP found in it (expected keys "
+                          f"{', '.join(n for names in STATE_DICT_NAMES.values() for n in names)}); "
+                          "the scene has no render MLPs", MissingMlpWarning, stacklevel=3)
         return mlps
     for role, names in STATE_DICT_NAMES.items():
         f = folder / f"{names[0]}.pt"
@@ -119,13 +144,47 @@ def read_mlps(folder: Path) -> dict[str, RenderMLP]:
                 mlps[role] = _mlp_from_state_dict(role, torch.jit.load(str(f), map_location="cpu").state_dict())
             except Exception as e:
                 raise InputError(f"{f}: cannot load traced module ({e})") from None
+    if not mlps:
+        warnings.warn(f"{folder}: no render-MLP file recognised (looked for {' or '.join(CHECKPOINT_NAMES)}, "
+                      f"or {', '.join(TRACED_MLP_NAMES)}); the scene has no render MLPs", MissingMlpWarning,
+                      stacklevel=3)
     return mlps
+
+
+def _header_grid(ply: Path) -> tuple[float | None, np.ndarray | None]:
+    """The voxel size and origin lghcc wrote into the PLY header, when it did."""
+    voxel, origin = None, None
+    for c in read_ply_comments(ply):
+        if not c.startswith(PLY_COMMENT_PREFIX):
+            continue
+        key, _, value = c[len(PLY_COMMENT_PREFIX):].partition(" ")
+        try:
+            if key == "voxel_size":
+                voxel = float.fromhex(value.strip())
+            elif key == "origin":
+                origin = np.array([float.fromhex(v) for v in value.split()], dtype=np.float64)
+                if origin.shape != (3,):
+                    raise ValueError("three values expected")
+        except ValueError as e:
+            raise InputError(f"{ply}: unreadable header comment {c!r} ({e})") from None
+    if voxel is not None and not (np.isfinite(voxel) and voxel > 0):
+        raise InputError(f"{ply}: header comment voxel_size {voxel} is not a positive finite number")
+    if origin is not None and not np.isfinite(origin).all():
+        raise InputError(f"{ply}: header comment origin {origin} is not finite")
+    return voxel, origin
 
 
 def read_scaffold(path: str | os.PathLike, voxel_size: float | None = None,
                   origin: np.ndarray | None = None) -> AnchorScene:
+    """Read a Scaffold-GS PLY (and the MLPs beside it) and validate the scene; every error names
+    the file. The voxel size and origin are, in order of preference: the arguments, the values
+    lghcc wrote into the PLY header, else inferred from the anchor grid (origin 0). Anchors
+    sharing a voxel are allowed here (the encoder rejects or merges them)."""
+    if voxel_size is not None and not (np.isfinite(voxel_size) and voxel_size > 0):
+        raise InputError(f"the voxel size must be a positive finite number, got {voxel_size}")
     ply = locate_ply(path)
     cols = read_ply(ply)
+    header_voxel, header_origin = _header_grid(ply)
     for req in ("x", "y", "z"):
         if req not in cols:
             raise InputError(f"{ply}: no '{req}' property: not an anchor point cloud")
@@ -144,8 +203,21 @@ def read_scaffold(path: str | os.PathLike, voxel_size: float | None = None,
     positions = np.stack([cols["x"], cols["y"], cols["z"]], axis=1).astype(np.float64)
     if not np.isfinite(positions).all():
         raise InputError(f"{ply}: anchor positions contain NaN or Inf")
-    origin = np.zeros(3) if origin is None else np.asarray(origin, dtype=np.float64)
-    vs = infer_voxel_size(positions - origin) if voxel_size is None else float(voxel_size)
+    if origin is None:
+        origin = np.zeros(3) if header_origin is None else header_origin
+    origin = np.asarray(origin, dtype=np.float64)
+    if origin.shape != (3,) or not np.isfinite(origin).all():
+        raise InputError(f"the origin must be 3 finite numbers, got {origin}")
+    vs = float(voxel_size) if voxel_size is not None else header_voxel
+    if vs is None:
+        try:
+            vs = infer_voxel_size(positions - origin)
+        except InputError as e:
+            raise InputError(f"{ply}: {e}") from None
+    try:
+        coords = quantize_positions(positions, vs, origin)
+    except InputError as e:
+        raise InputError(f"{ply}: {e}") from None
     offsets = np.stack([cols[c] for c in offs], axis=1).astype(np.float32).reshape(n, 3, k).transpose(0, 2, 1)
     mask_cols = _numbered(cols, "f_mask_")
     mask = None
@@ -163,8 +235,8 @@ def read_scaffold(path: str | os.PathLike, voxel_size: float | None = None,
     rots = _numbered(cols, "rot_")
     if len(rots) == 4:
         extra["rotation"] = np.stack([cols[c] for c in rots], axis=1).astype(np.float32)
-    return AnchorScene(
-        coords=quantize_positions(positions, vs, origin),
+    scene = AnchorScene(
+        coords=coords,
         voxel_size=vs,
         origin=origin.astype(np.float32),
         features=np.stack([cols[c] for c in feats], axis=1).astype(np.float32),
@@ -174,10 +246,16 @@ def read_scaffold(path: str | os.PathLike, voxel_size: float | None = None,
         mlps=read_mlps(ply.parent),
         extra=extra,
     )
+    try:
+        return scene.validate(check_unique=False)
+    except InputError as e:
+        raise InputError(f"{ply}: {e}") from None
 
 
 def write_scaffold(scene: AnchorScene, model_dir: str | os.PathLike, iteration: int = 0) -> Path:
-    """Write the Scaffold-GS layout; returns the folder holding the PLY and the MLPs."""
+    """Write the Scaffold-GS layout; returns the folder holding the PLY and the MLPs. MLP files
+    left in that folder by an earlier scene (checkpoint.pth when this scene has no MLPs,
+    checkpoints.pth, traced modules) are removed, so the folder never mixes two scenes."""
     import torch
 
     folder = Path(model_dir) / "point_cloud" / f"iteration_{iteration}"
@@ -186,8 +264,8 @@ def write_scaffold(scene: AnchorScene, model_dir: str | os.PathLike, iteration: 
     cols: dict[str, np.ndarray] = {"x": pos[:, 0], "y": pos[:, 1], "z": pos[:, 2]}
     for c in ("nx", "ny", "nz"):
         cols[c] = np.zeros(n, np.float32)
-    off = scene.offsets.transpose(0, 2, 1).reshape(n, 3 * k)
-    cols.update({f"f_offset_{i}": off[:, i] for i in range(3 * k)})
+    # f_offset_(axis*K + k) = offsets[:, k, axis]: strided views, no copy of the offsets
+    cols.update({f"f_offset_{a * k + j}": scene.offsets[:, j, a] for a in range(3) for j in range(k)})
     cols.update({f"f_anchor_feat_{i}": scene.features[:, i] for i in range(scene.feature_dim)})
     cols["opacity"] = scene.extra.get("opacity", np.zeros(n, np.float32))
     cols.update({f"scale_{i}": scene.scalings[:, i] for i in range(NUM_SCALINGS)})
@@ -197,7 +275,12 @@ def write_scaffold(scene: AnchorScene, model_dir: str | os.PathLike, iteration: 
         cols["opacity_accum"] = np.asarray(scene.extra["opacity_accum"], np.float32).reshape(n)
     if scene.offset_mask is not None:
         cols.update({f"f_mask_{i}": scene.offset_mask[:, i].astype(np.float32) for i in range(k)})
-    write_ply(folder / PLY_NAME, cols)
+    grid = [f"{PLY_COMMENT_PREFIX}voxel_size {float(np.float32(scene.voxel_size)).hex()}",
+            f"{PLY_COMMENT_PREFIX}origin " + " ".join(float(v).hex() for v in np.asarray(scene.origin, np.float32))]
+    write_ply(folder / PLY_NAME, cols, comments=grid)
+    for stale in CHECKPOINT_NAMES[1:] + TRACED_MLP_NAMES + (() if scene.mlps else (CHECKPOINT_NAME,)):
+        if (folder / stale).is_file():
+            (folder / stale).unlink()
     if scene.mlps:
         state = {}
         for role, mlp in scene.mlps.items():

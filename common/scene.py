@@ -103,8 +103,10 @@ class AnchorScene:
         c = self.coords.astype(np.float32)
         return (c * np.float32(self.voxel_size) + self.origin.astype(np.float32)).astype(np.float32)
 
-    def validate(self) -> "AnchorScene":
-        """Check shapes, dtypes and values; raise InputError naming the first problem."""
+    def validate(self, check_unique: bool = True) -> "AnchorScene":
+        """Check shapes, dtypes and values; raise InputError naming the first problem.
+        ``check_unique=False`` skips the one-anchor-per-voxel check (a reader that leaves
+        merging to the encoder)."""
         n = self.coords.shape[0] if self.coords.ndim == 2 else -1
         if self.coords.ndim != 2 or self.coords.shape[1] != 3:
             raise InputError(f"anchor coordinates must have shape [N, 3], got {self.coords.shape}")
@@ -138,7 +140,7 @@ class AnchorScene:
             if not np.isfinite(self.positions()).all():
                 raise InputError(f"world positions (origin + coords * voxel size {self.voxel_size:g}) overflow "
                                  "IEEE binary32; use a smaller voxel size or origin")
-        uniq = np.unique(self.coords, axis=0).shape[0]
+        uniq = np.unique(self.coords, axis=0).shape[0] if check_unique else n
         if uniq != n:
             raise InputError(f"{n - uniq} anchors share a voxel with another anchor; merge them first "
                              "(lghcc-enc merges them when given --merge-duplicates)")

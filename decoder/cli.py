@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import os
 import sys
 import time
 from pathlib import Path
 
 from lghcc.common.errors import HashMismatchError, LghccError
-from lghcc.common.fileio import atomic_write_bytes
+from lghcc.common.fileio import atomic_write_bytes, check_output_paths, check_writable_file, write_error
 
 DESCRIPTION = """\
 Decode an LG-HCC stream (.lghcc) into an anchor scene in the Scaffold-GS layout:
@@ -25,7 +27,20 @@ examples:
   lghcc-dec demo.lghcc --render orbit:8 --render-out views/    8 PNGs around the scene
   lghcc-dec demo.lghcc --render lego/transforms_test.json --render-out views/
   lghcc-dec demo.lghcc --export-ply demo_3dgs.ply   plain 3DGS PLY for standard viewers
+
+No output may name the input stream or another output. An existing, non-empty -o folder
+is refused unless --force is given (then the decoded scene's files in it are replaced).
 """
+
+
+def _positive_float(text: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(x) and x > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text!r}")
+    return x
 
 
 def setup_args() -> argparse.ArgumentParser:
@@ -33,12 +48,14 @@ def setup_args() -> argparse.ArgumentParser:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("stream", help="the .lghcc file to decode")
     p.add_argument("-o", "--output", metavar="DIR", help="folder to write the decoded scene to")
+    p.add_argument("-f", "--force", action="store_true",
+                   help="write into an existing non-empty -o folder (the decoded scene's files are replaced)")
     p.add_argument("--no-verify", action="store_true", help="do not check the decoded-scene hash")
     p.add_argument("--trace", metavar="FILE", help="write a bit trace: every syntax element with its position")
     p.add_argument("--threads", type=int, help="torch threads for inference (the output does not depend on it)")
     p.add_argument("--max-anchors", type=int, help="refuse streams declaring more anchors than this")
     p.add_argument("--print-hash", action="store_true",
-                   help="print only the SHA-256 of the decoded scene (spec clause 11), computed from the output")
+                   help="print only the SHA-256 of the decoded scene (spec clause 12), computed from the output")
     p.add_argument("--json", metavar="FILE", help="also write the size breakdown as JSON")
     g = p.add_argument_group("looking at the result")
     g.add_argument("--render", metavar="CAMERAS",
@@ -46,8 +63,8 @@ def setup_args() -> argparse.ArgumentParser:
                         "transforms_<split>.json, or a COLMAP sparse folder")
     g.add_argument("--render-out", metavar="DIR", help="folder for the rendered PNGs (needed with --render)")
     g.add_argument("--render-size", default="256x256", metavar="WxH", help="image size of orbit cameras (256x256)")
-    g.add_argument("--render-scale", type=float, default=1.0,
-                   help="scale of the image size of file cameras (default 1)")
+    g.add_argument("--render-scale", type=_positive_float, default=1.0,
+                   help="scale of the image size of file cameras, a positive number (default 1)")
     g.add_argument("--background", default="black", choices=("black", "white"), help="render background")
     g.add_argument("--export-ply", metavar="FILE",
                    help="also write the decoded scene as a plain 3DGS PLY (INRIA layout) for standard viewers")
@@ -78,7 +95,10 @@ def _render_views(args, scene, say) -> None:
     cams = cameras_from_spec(args.render, scene.positions(), width=int(m.group(1)), height=int(m.group(2)),
                              scale=args.render_scale)
     out = Path(args.render_out)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise write_error(out, e) from None
     bg = background_color(args.background)
     from lghcc.render.neural_gaussians import SceneTensors
 
@@ -88,8 +108,36 @@ def _render_views(args, scene, say) -> None:
         for i, cam in enumerate(cams):
             img = render_scene(st, cam, background=bg).image.clamp(0, 1).numpy()
             stem = Path(cam.name).stem if cam.name else f"view_{i:03d}"
-            write_png(out / f"{i:03d}_{stem}.png", img)
+            try:
+                write_png(out / f"{i:03d}_{stem}.png", img)
+            except OSError as e:
+                raise write_error(out / f"{i:03d}_{stem}.png", e) from None
     say(f"rendered {len(cams)} views into {out} in {time.perf_counter() - t0:.2f} s")
+
+
+def _check_output_folder(path: str, force: bool) -> None:
+    """-o: an existing folder must be empty unless --force; an existing file is an error; a new
+    folder must be creatable. Raises LghccError before any decoding work is done."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise LghccError(f"cannot write {p} (it exists and is not a folder)")
+    if p.is_dir():
+        if any(p.iterdir()) and not force:
+            raise LghccError(f"{p} is not empty; use --force to write the decoded scene into it "
+                             "(its files are replaced; other files are left as they are)")
+        if not os.access(p, os.W_OK | os.X_OK):
+            raise LghccError(f"cannot write {p} (permission denied)")
+        return
+    parent = p.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise LghccError(f"cannot write {p} (cannot create a folder in {parent})")
+
+
+def _other_iterations(path: str) -> list[str]:
+    root = Path(path) / "point_cloud"
+    return sorted(d.name for d in root.glob("iteration_*") if d.name != "iteration_0") if root.is_dir() else []
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -100,6 +148,19 @@ def main(argv: list[str] | None = None) -> int:
     say = (lambda *a: None) if args.quiet else print
     note = (lambda *a: None) if args.print_hash else say  # --print-hash prints the hash alone
     try:
+        # Every output is checked before decoding: none may overwrite the stream or another output.
+        check_output_paths({"-o": args.output, "--json": args.json, "--trace": args.trace,
+                            "--export-ply": args.export_ply, "--render-out": args.render_out},
+                           {"input stream": args.stream})
+        if args.output:
+            _check_output_folder(args.output, args.force)
+        for path in (args.json, args.trace, args.export_ply):
+            if path:
+                check_writable_file(path)
+        if args.render and not args.render_out:
+            raise LghccError("--render needs --render-out DIR")
+        if args.render_out and Path(args.render_out).exists() and not Path(args.render_out).is_dir():
+            raise LghccError(f"cannot write {args.render_out} (it exists and is not a folder)")
         if args.threads is not None:
             import torch
             torch.set_num_threads(max(1, args.threads))
@@ -108,33 +169,58 @@ def main(argv: list[str] | None = None) -> int:
         except OSError as e:
             raise LghccError(f"{args.stream}: cannot read ({e.strerror})") from None
         t0 = time.perf_counter()
-        result = decode_stream(data, verify_hash=not args.no_verify, trace=bool(args.trace),
-                               max_anchors=args.max_anchors, progress=not args.quiet and sys.stderr.isatty())
+        try:
+            result = decode_stream(data, verify_hash=not args.no_verify, trace=bool(args.trace),
+                                   max_anchors=args.max_anchors, progress=not args.quiet and sys.stderr.isatty())
+        except HashMismatchError as e:
+            print(f"lghcc-dec: error: {args.stream}: {e}", file=sys.stderr)
+            return 3
+        except LghccError as e:
+            raise LghccError(f"{args.stream}: {e}") from None
         t_dec = time.perf_counter() - t0
         if args.output:
-            write_scaffold(result.scene, args.output)
+            stale = _other_iterations(args.output)
+            if stale and not args.quiet:
+                print(f"lghcc-dec: warning: {args.output} also holds point_cloud/{', '.join(stale)}; readers "
+                      "that take the highest iteration will not read the decoded scene", file=sys.stderr)
+            try:
+                write_scaffold(result.scene, args.output)
+            except OSError as e:
+                raise write_error(args.output, e) from None
         if args.render:
             _render_views(args, result.scene, note)
         if args.export_ply:
             from lghcc.render.export import export_3dgs
 
             t1 = time.perf_counter()
-            ex = export_3dgs(result.scene, args.export_ply, sh_degree=args.export_sh_degree,
-                             num_directions=args.export_directions, distance=args.export_distance)
+            try:
+                ex = export_3dgs(result.scene, args.export_ply, sh_degree=args.export_sh_degree,
+                                 num_directions=args.export_directions, distance=args.export_distance)
+            except OSError as e:
+                raise write_error(args.export_ply, e) from None
             note(f"wrote {args.export_ply}: {ex.num_gaussians:,} Gaussians (3DGS PLY, SH degree "
                 f"{args.export_sh_degree}, {args.export_directions} directions at distance "
                 f"{ex.stats['distance']:.4g}) in {time.perf_counter() - t1:.2f} s")
         if args.trace:
             lines = [f"{e.bit_position:>10} {e.name:<60} {e.descriptor:<8} "
                      f"{e.value.hex() if isinstance(e.value, bytes) else e.value}" for e in result.trace]
-            atomic_write_bytes(args.trace, ("\n".join(lines) + "\n").encode())
-    except HashMismatchError as e:
-        print(f"lghcc-dec: error: {e}", file=sys.stderr)
-        return 3
+            try:
+                atomic_write_bytes(args.trace, ("\n".join(lines) + "\n").encode())
+            except OSError as e:
+                raise write_error(args.trace, e) from None
+        s = result.scene
+        if args.json:
+            try:
+                atomic_write_bytes(args.json, json.dumps({
+                    "stream": args.stream, "num_anchors": s.num_anchors, "bytes": len(data),
+                    "breakdown": result.breakdown.bytes_by_category, "decode_s": t_dec,
+                    "hash_checked": result.hash_checked, "scene_sha256": result.stream_hash.hex()},
+                    indent=2).encode())
+            except OSError as e:
+                raise write_error(args.json, e) from None
     except LghccError as e:
-        print(f"lghcc-dec: error: {args.stream}: {e}", file=sys.stderr)
+        print(f"lghcc-dec: error: {e}", file=sys.stderr)
         return 1
-    s = result.scene
     if args.print_hash:
         from lghcc.common.hashing import scene_digest
         print(scene_digest(s).hex())
@@ -148,11 +234,6 @@ def main(argv: list[str] | None = None) -> int:
         + f" ({result.stream_hash.hex()})")
     if args.output:
         say(f"wrote {Path(args.output) / 'point_cloud' / 'iteration_0'}")
-    if args.json:
-        atomic_write_bytes(args.json, json.dumps({
-            "stream": args.stream, "num_anchors": s.num_anchors, "bytes": len(data),
-            "breakdown": result.breakdown.bytes_by_category, "decode_s": t_dec,
-            "hash_checked": result.hash_checked, "scene_sha256": result.stream_hash.hex()}, indent=2).encode())
     return 0
 
 

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
+import math
 import sys
 import time
+import warnings
 from pathlib import Path
 
 from lghcc.common.errors import LghccError
-from lghcc.common.fileio import atomic_write_bytes
+from lghcc.common.fileio import atomic_write_bytes, check_output_paths, check_writable_file, write_error
 
 DESCRIPTION = """\
 Compress an anchor-based 3D Gaussian Splatting scene (Scaffold-GS / HAC layout) into a
@@ -23,6 +24,16 @@ examples:
   lghcc-enc outputs/garden -o garden.lghcc             Scaffold-GS model folder
   lghcc-enc point_cloud.ply --preset high -o g.lghcc   a PLY (MLPs from checkpoint.pth beside it)
 """
+
+
+def _positive_float(text: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(x) and x > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text!r}")
+    return x
 
 
 def setup_args() -> argparse.ArgumentParser:
@@ -42,14 +53,14 @@ def setup_args() -> argparse.ArgumentParser:
     p.add_argument("--scaling-step", type=float, help="quantization step of the log scalings")
     p.add_argument("--offset-step", type=float, help="quantization step of the offsets")
     p.add_argument("--mlp-weight-bits", type=int, help="bits per quantized render-MLP weight (2..24)")
-    p.add_argument("--voxel-size", type=float,
+    p.add_argument("--voxel-size", type=_positive_float,
                    help="anchor voxel size (default: inferred from the anchor grid of the input)")
     p.add_argument("--merge-duplicates", action="store_true",
                    help="merge anchors that fall in the same voxel (attributes averaged) instead of failing")
     t = p.add_argument_group("plain 3DGS input (a PLY with f_dc_0 and no f_anchor_feat_0 is transcoded to anchors first)")
     t.add_argument("--transcode-anchors", type=int, metavar="N",
                    help="target anchor count of the transcoded scene (default: a quarter of the Gaussians)")
-    t.add_argument("--transcode-voxel-size", type=float, metavar="V", help="anchor voxel size (overrides the count)")
+    t.add_argument("--transcode-voxel-size", type=_positive_float, metavar="V", help="anchor voxel size (overrides the count)")
     t.add_argument("--transcode-iterations", type=int, default=200,
                    help="render-fitting iterations (default 200; 0: distillation only)")
     t.add_argument("--transcode-distill-steps", type=int, default=400,
@@ -70,7 +81,7 @@ def setup_args() -> argparse.ArgumentParser:
 
 def _load_scene(args):
     from lghcc.common.procedural import make_procedural_scene
-    from lghcc.common.scaffold_io import read_scaffold
+    from lghcc.common.scaffold_io import MissingMlpWarning, read_scaffold
     from lghcc.encoder.scene_prep import merge_duplicate_anchors
 
     if (args.input is None) == (args.procedural is None):
@@ -78,7 +89,8 @@ def _load_scene(args):
     if args.procedural is not None:
         if args.procedural < 1:
             raise LghccError("--procedural needs a positive anchor count")
-        return make_procedural_scene(args.procedural, seed=args.seed), "procedural"
+        return make_procedural_scene(args.procedural, seed=args.seed,
+                                     progress=not args.quiet and sys.stderr.isatty()), "procedural"
     if not Path(args.input).exists():
         raise LghccError(f"{args.input}: no such file or folder")
     from lghcc.render.gaussians3dgs import is_3dgs_ply
@@ -98,7 +110,14 @@ def _load_scene(args):
         say(f"transcoded in {res.stats['time_total_s']:.1f} s: {res.scene.num_anchors:,} anchors, held-out PSNR "
             f"against the source renders {res.stats['psnr_final']:.2f} dB")
         return res.scene, args.input
-    scene = read_scaffold(args.input, voxel_size=args.voxel_size)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", MissingMlpWarning)
+        scene = read_scaffold(args.input, voxel_size=args.voxel_size)
+    for w in caught:  # e.g. a folder without a recognised MLP file: said even with -q
+        if issubclass(w.category, MissingMlpWarning):
+            print(f"lghcc-enc: warning: {w.message}", file=sys.stderr)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     if args.merge_duplicates:
         scene, merged = merge_duplicate_anchors(scene)
         if merged and not args.quiet:
@@ -115,10 +134,20 @@ def main(argv: list[str] | None = None) -> int:
     say = (lambda *a: None) if args.quiet else print
     try:
         out = Path(args.output)
-        if args.input and out.exists() and Path(args.input).exists() and os.path.samefile(out, args.input):
-            raise LghccError("the output would overwrite the input")
-        if out.exists() and not args.force:
+        # Every output is checked before encoding: none may overwrite the input or another output.
+        inputs = {"input": args.input, "--config file": args.config}
+        if args.input and Path(args.input).is_dir():  # a model folder: its PLY is the input
+            from lghcc.common.scaffold_io import locate_ply
+            try:
+                inputs["input PLY"] = locate_ply(args.input)
+            except LghccError:
+                pass  # reported when the scene is read
+        check_output_paths({"-o": args.output, "--json": args.json}, inputs)
+        if out.exists() and not out.is_dir() and not args.force:
             raise LghccError(f"{out} exists; use --force to overwrite it")
+        for path in (args.output, args.json):
+            if path:
+                check_writable_file(path)
         cfg = load_config(args.preset, args.config, {
             "feature_step": args.feature_step, "scaling_step": args.scaling_step,
             "offset_step": args.offset_step, "mlp_weight_bits": args.mlp_weight_bits})
@@ -133,7 +162,19 @@ def main(argv: list[str] | None = None) -> int:
             verified = decoded.stream_hash == result.scene_hash
             if not verified:
                 raise LghccError("internal error: the written stream does not decode to the encoded scene")
-        atomic_write_bytes(out, result.data)
+        try:
+            atomic_write_bytes(out, result.data)
+        except OSError as e:
+            raise write_error(out, e) from None
+        if args.json:
+            st = result.stats
+            try:
+                atomic_write_bytes(args.json, json.dumps({
+                    "input": source, "output": str(out), "num_anchors": scene.num_anchors,
+                    "bytes": len(result.data), "breakdown": result.breakdown.bytes_by_category, "stats": st,
+                    "scene_sha256": result.scene_hash.hex(), "config": vars(cfg)}, indent=2).encode())
+            except OSError as e:
+                raise write_error(args.json, e) from None
     except LghccError as e:
         print(f"lghcc-enc: error: {e}", file=sys.stderr)
         return 1
@@ -147,11 +188,6 @@ def main(argv: list[str] | None = None) -> int:
     say(f"time: load {t_load:.2f} s, encode {st['time_total_s']:.2f} s"
         + ("" if verified is None else ", decoded and verified: hash matches"))
     say(f"decoded scene SHA-256: {result.scene_hash.hex()}")
-    if args.json:
-        atomic_write_bytes(args.json, json.dumps({
-            "input": source, "output": str(out), "num_anchors": scene.num_anchors, "bytes": len(result.data),
-            "breakdown": result.breakdown.bytes_by_category, "stats": st,
-            "scene_sha256": result.scene_hash.hex(), "config": vars(cfg)}, indent=2).encode())
     return 0
 
 
