@@ -741,7 +741,8 @@ def render_image(scene, cam, background) -> np.ndarray:
     from lghcc.render.rasterizer import render_scene
 
     bg = torch.as_tensor(np.asarray(background, np.float32).reshape(3))
-    return render_scene(scene, cam, background=bg).image.clamp(0, 1).double().numpy()
+    # the CPU reference renderer, as in training: reported metrics do not depend on the machine
+    return render_scene(scene, cam, background=bg, backend="torch").image.clamp(0, 1).double().numpy()
 
 
 def evaluate_model(model: str | Path, data: str | Path, background: str = "white", downscale: int = 1,

@@ -251,7 +251,9 @@ def _to_scene(st: SceneTensors, a: dict) -> AnchorScene:
 @torch.no_grad()
 def evaluate_views(scene, cams: list[Camera], targets: list[torch.Tensor]) -> float:
     """Mean PSNR of the anchor scene's renders against ``targets`` over ``cams``."""
-    vals = [psnr(render_scene(scene, cam).image.clamp(0, 1).numpy(), t.numpy()) for cam, t in zip(cams, targets)]
+    # the CPU reference renderer throughout the transcoder: results do not depend on the machine
+    vals = [psnr(render_scene(scene, cam, backend="torch").image.clamp(0, 1).numpy(), t.numpy())
+            for cam, t in zip(cams, targets)]
     return float(np.mean(vals))
 
 
@@ -274,7 +276,7 @@ def transcode_3dgs(source: str | Gaussians3DGS, cfg: TranscodeConfig | None = No
     cam_dist = float(np.linalg.norm(train[0].center - center))
     with torch.no_grad():
         bar = tqdm(train + test, desc="transcode: render source", unit="view", disable=not cfg.progress, leave=False)
-        targets = [render_3dgs(g, cam).image.clamp(0, 1) for cam in bar]
+        targets = [render_3dgs(g, cam, backend="torch").image.clamp(0, 1) for cam in bar]
     t_train, t_test = targets[:len(train)], targets[len(train):]
     t_render = time.perf_counter() - t0
     a = anchorize(g, cfg)
@@ -300,7 +302,7 @@ def transcode_3dgs(source: str | Gaussians3DGS, cfg: TranscodeConfig | None = No
     bar = tqdm(range(cfg.iterations), desc="transcode: fit", unit="it", disable=not cfg.progress, leave=False)
     for it in bar:
         j = int(rng.integers(len(train)))
-        img = render_scene(st, train[j]).image
+        img = render_scene(st, train[j], backend="torch").image
         l1 = (img - t_train[j]).abs().mean()
         loss = (1 - cfg.lambda_dssim) * l1 + cfg.lambda_dssim * (1 - ssim_torch(img, t_train[j]))
         _optimizer_step(opt, sched, loss, losses, bar)

@@ -6,11 +6,13 @@ Never imports lghcc.encoder (the decoder may render)."""
 from lghcc.render.camera import Camera, load_colmap, load_llff, load_nerf_synthetic, read_colmap_model
 from lghcc.render.metrics import lpips, psnr, ssim
 from lghcc.render.neural_gaussians import NeuralGaussians, SceneTensors, generate_neural_gaussians
-from lghcc.render.rasterizer import RenderResult, project_gaussians, rasterize, render_scene
+from lghcc.render.rasterizer import (RenderResult, gsplat_available, project_gaussians, rasterize, rasterize_gsplat,
+                                     render_scene, select_backend)
 
 __all__ = [
     "Camera", "load_colmap", "load_llff", "load_nerf_synthetic", "read_colmap_model",
     "lpips", "psnr", "ssim",
     "NeuralGaussians", "SceneTensors", "generate_neural_gaussians",
-    "RenderResult", "project_gaussians", "rasterize", "render_scene",
+    "RenderResult", "gsplat_available", "project_gaussians", "rasterize", "rasterize_gsplat", "render_scene",
+    "select_backend",
 ]

@@ -168,7 +168,11 @@ def write_3dgs_ply(path: str | os.PathLike, means: np.ndarray, sh: np.ndarray, o
     write_ply(path, {k_: np.asarray(v, np.float32) for k_, v in cols.items()})
 
 
-def render_3dgs(g: Gaussians3DGS, camera: Camera, *, background=None, **kw) -> RenderResult:
-    """Render a plain 3DGS scene into ``camera`` (SH colours for this camera centre)."""
+def render_3dgs(g: Gaussians3DGS, camera: Camera, *, background=None, backend: str = "auto", **kw) -> RenderResult:
+    """Render a plain 3DGS scene into ``camera`` (SH colours for this camera centre);
+    ``backend`` as ``render_scene`` (auto: gsplat when CUDA and gsplat are usable)."""
+    from lghcc.render.rasterizer import rasterize_gsplat, select_backend
+
     cols = g.colors(camera.center)
-    return rasterize(g.means, g.quats, g.scales, g.opacities, cols, camera, background=background, **kw)
+    fn = rasterize if select_backend(backend) == "torch" else rasterize_gsplat
+    return fn(g.means, g.quats, g.scales, g.opacities, cols, camera, background=background, **kw)

@@ -4,7 +4,8 @@ Stages:
 
 1. ``project_gaussians`` (autograd): camera-space means; cull behind ``near`` / beyond
    ``far``; EWA splatting cov2d = J W Sigma W^T J^T + eps2d I (eps2d = 0.3 px as in 3DGS;
-   J with 3DGS's clamping of x/z, y/z to 1.3x the field of view); conic = cov2d^-1.
+   J with 3DGS's clamping of x/z, y/z to the image edges plus 0.3 x tan(fov/2), i.e. 1.3x
+   the half field of view for a centred principal point, as 3DGS and gsplat); conic = cov2d^-1.
    Computed in float64 (huge and tiny scales stay finite), returned in the input dtype.
 2. Footprint: a Gaussian reaches pixel p only while its power
    0.5 d^T conic d <= t = min(sigma_cutoff^2 / 2, ln(255 opacity)), i.e. inside
@@ -26,14 +27,37 @@ Stages:
 optionally the alpha-weighted depth; gradients reach means, quats, scales, opacities
 and colours (and anything upstream, e.g. the neural-Gaussian MLPs).
 
-``rasterize_gsplat`` uses gsplat's CUDA rasterizer when torch sees a GPU and gsplat is
-installed (guarded import; not exercised here: this machine has neither).
+``rasterize_gsplat`` does the same with gsplat's CUDA rasterizer (``pip install
+'lghcc[gsplat]'`` and a CUDA GPU); ``render_scene(backend=...)`` chooses: 'auto' (the
+default) takes gsplat when CUDA and gsplat are both usable, else this module ('torch').
+Results come back on the device and in the dtype of the caller's colours. Conventions are
+the same (quaternions (w, x, y, z), world-to-camera OpenCV view matrix, pixel centres at
++0.5, eps2d dilation, depth-sorted front-to-back compositing stopping before the
+transmittance drops below 1e-4, background added as (1 - alpha) bg). Known differences:
+
+* gsplat clamps alpha at 0.999, this module (as 3DGS) at 0.99: they differ where
+  opacity x exp(-power) > 0.99.
+* gsplat with its opacity-aware bounding box (recent releases; older ones bound by 3 sigma
+  of the major axis, by tile) draws every pixel with alpha >= 1/255, i.e. out to
+  sqrt(2 ln(255 o)) <= 3.33 standard deviations; this module stops at
+  ``sigma_cutoff`` (default 3) as well. ``sigma_cutoff=GSPLAT_SIGMA_CUTOFF`` (3.33) makes
+  the footprints equal; at 3, a pixel between 3 and 3.33 sigma lacks alpha <= o e^-4.5
+  (<= 0.011) per Gaussian.
+* float32 throughout in gsplat (fast exp); this module projects in float64. Near the
+  alpha >= 1/255 and transmittance thresholds a rounding can draw or skip one Gaussian
+  at a pixel (<= 1/255 per such pixel).
+* zero quaternions (identity here), non-finite colours (0 here) and opacities outside
+  [0, 1] (clamped here) are sanitized by ``rasterize_gsplat`` before gsplat sees them.
+
+tests/test_render_rasterizer.py::test_gsplat_matches_cpu_rasterizer states the measured
+agreement (skipped without CUDA and gsplat).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 import torch
@@ -83,10 +107,12 @@ def project_gaussians(means: torch.Tensor, quats: torch.Tensor, scales: torch.Te
     x, y, z = pc.unbind(1)
     valid = (z > camera.near) & (z < camera.far) & torch.isfinite(pc).all(1)
     zs = torch.where(valid, z, torch.ones_like(z))
-    lim_xp = (camera.width - camera.cx) / camera.fx + 0.3 * camera.width / camera.fx
-    lim_xn = camera.cx / camera.fx + 0.3 * camera.width / camera.fx
-    lim_yp = (camera.height - camera.cy) / camera.fy + 0.3 * camera.height / camera.fy
-    lim_yn = camera.cy / camera.fy + 0.3 * camera.height / camera.fy
+    # 3DGS / gsplat: tan_fov = 0.5 W / fx; limits = image edges + 0.3 tan_fov
+    tan_x, tan_y = 0.5 * camera.width / camera.fx, 0.5 * camera.height / camera.fy
+    lim_xp = (camera.width - camera.cx) / camera.fx + 0.3 * tan_x
+    lim_xn = camera.cx / camera.fx + 0.3 * tan_x
+    lim_yp = (camera.height - camera.cy) / camera.fy + 0.3 * tan_y
+    lim_yn = camera.cy / camera.fy + 0.3 * tan_y
     tx = torch.clamp(x / zs, -lim_xn, lim_xp) * zs
     ty = torch.clamp(y / zs, -lim_yn, lim_yp) * zs
     fx, fy = camera.fx, camera.fy
@@ -396,21 +422,21 @@ def rasterize(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, op
     image = img[..., :nch] + (1 - alpha)[..., None] * bg
     depth = img[..., nch + 1] if render_depth else None
     stats = {"gaussians": mcount, "in_front": int(proj.valid.sum()), "rasterized": int(kidx.numel()),
-             "tile_pairs": plan.num_pairs, "batches": len(plan.batches)}
+             "tile_pairs": plan.num_pairs, "batches": len(plan.batches), "backend": "torch"}
     return RenderResult(image, alpha, depth, stats)
 
 
 def render_scene(scene, camera: Camera, *, background=None, cull: bool = True, margin: float = 0.15,
-                 dtype: torch.dtype = torch.float32, backend: str = "torch", **kw) -> RenderResult:
+                 dtype: torch.dtype = torch.float32, backend: Backend = "auto", **kw) -> RenderResult:
     """Neural Gaussians of ``scene`` (AnchorScene or SceneTensors) for ``camera``, rasterized.
-    ``backend``: 'torch' (this module) or 'gsplat' (CUDA; see ``rasterize_gsplat``)."""
+    ``backend``: 'torch' (this module, CPU), 'gsplat' (CUDA; see ``rasterize_gsplat``) or
+    'auto' (gsplat when CUDA and gsplat are usable, else torch; ``select_backend``). The
+    image is on the device of the scene's tensors (the CPU for an AnchorScene) either way."""
     from lghcc.render.neural_gaussians import generate_neural_gaussians
 
+    fn = rasterize if select_backend(backend) == "torch" else rasterize_gsplat
     sigma = kw.get("sigma_cutoff", 3.0)
     ng = generate_neural_gaussians(scene, camera, cull=cull, margin=margin, sigma_cutoff=sigma, dtype=dtype)
-    fn = rasterize if backend == "torch" else rasterize_gsplat if backend == "gsplat" else None
-    if fn is None:
-        raise ValueError(f"unknown backend {backend!r} (torch or gsplat)")
     res = fn(ng.means, ng.quats, ng.scales, ng.opacities, ng.colors, camera, background=background, **kw)
     res.stats.update({f"ng_{k}": v for k, v in ng.stats.items()})
     return res
@@ -444,37 +470,93 @@ def composite_reference(means2d, conics, opacities, feats, thresh, width: int, h
 # Optional CUDA backend
 # --------------------------------------------------------------------------------------
 
+Backend = Literal["auto", "torch", "gsplat"]
+# gsplat's footprint: alpha >= 1/255 reaches sqrt(2 ln(255 o)) <= sqrt(2 ln 255) standard deviations
+GSPLAT_SIGMA_CUTOFF = math.sqrt(2.0 * math.log(255.0))
+_GSPLAT_IMPORT: list = []  # [bool]: whether ``import gsplat`` worked (tried once)
+
+
 def gsplat_available() -> bool:
     """True when gsplat imports and torch sees a CUDA device."""
-    try:
-        import gsplat  # noqa: F401
-    except ImportError:
-        return False
-    return torch.cuda.is_available()
+    if not _GSPLAT_IMPORT:
+        try:
+            import gsplat  # noqa: F401
+            _GSPLAT_IMPORT.append(True)
+        except Exception:  # noqa: BLE001 - ImportError, or a gsplat build that fails to load
+            _GSPLAT_IMPORT.append(False)
+    return _GSPLAT_IMPORT[0] and torch.cuda.is_available()
+
+
+def select_backend(backend: Backend = "auto") -> str:
+    """'torch' or 'gsplat' for a requested backend: 'auto' takes gsplat when
+    ``gsplat_available()``, else torch; 'gsplat' raises RuntimeError when it is not usable."""
+    if backend == "auto":
+        return "gsplat" if gsplat_available() else "torch"
+    if backend == "torch":
+        return "torch"
+    if backend == "gsplat":
+        if not gsplat_available():
+            raise RuntimeError("the gsplat backend needs gsplat (pip install 'lghcc[gsplat]') and a CUDA GPU; "
+                               "use backend='torch' or 'auto'")
+        return "gsplat"
+    raise ValueError(f"unknown backend {backend!r} (auto, torch or gsplat)")
 
 
 def rasterize_gsplat(means, quats, scales, opacities, colors, camera: Camera, *, background=None,
                      tile_size: int = 16, eps2d: float = 0.3, render_depth: bool = False,
                      sigma_cutoff: float = 3.0, chunk_elements: int | None = None) -> RenderResult:
-    """The same rendering with ``gsplat.rasterization`` (CUDA). Differences from the torch
-    path: gsplat's own footprint (3 sigma of the major axis, opacity-aware in recent
-    versions), float32 only. ``sigma_cutoff`` and ``chunk_elements`` are ignored."""
-    try:
-        from gsplat import rasterization
-    except ImportError as e:  # pragma: no cover - needs gsplat
-        raise RuntimeError("the gsplat backend needs `pip install gsplat` and a CUDA GPU") from e
-    if not torch.cuda.is_available():  # pragma: no cover
-        raise RuntimeError("the gsplat backend needs a CUDA GPU")
-    dev = torch.device("cuda")
-    viewmat = torch.as_tensor(camera.world_to_camera, dtype=torch.float32, device=dev)[None]
-    k = torch.as_tensor(camera.K, dtype=torch.float32, device=dev)[None]
-    bg = None if background is None else torch.as_tensor(background, dtype=torch.float32, device=dev).reshape(1, -1)
-    f32 = lambda t: t.to(dev, torch.float32)  # noqa: E731
+    """``rasterize`` with ``gsplat.rasterization`` (CUDA, float32): the same arguments and
+    result. Inputs may be on the CPU or a CUDA device; the image, alpha and depth come back
+    on the device and in the dtype of ``colors`` (differentiable through the copies).
+    ``sigma_cutoff`` and ``chunk_elements`` are ignored (gsplat's footprint is alpha >= 1/255,
+    see the module doc for the known differences)."""
+    if not gsplat_available():
+        raise RuntimeError("the gsplat backend needs gsplat (pip install 'lghcc[gsplat]') and a CUDA GPU")
+    from gsplat import rasterization
+
+    out_dev, dt = colors.device, colors.dtype
+    if means.ndim != 2 or means.shape[1] != 3:
+        raise ValueError(f"means must be [M, 3], got {list(means.shape)}")
+    mcount = means.shape[0]
+    for name, t, shape in (("quats", quats, (mcount, 4)), ("scales", scales, (mcount, 3)),
+                           ("opacities", opacities, (mcount,))):
+        if tuple(t.shape) != shape:
+            raise ValueError(f"{name} must be {list(shape)}, got {list(t.shape)}")
+    if colors.ndim != 2 or colors.shape[0] != mcount:
+        raise ValueError(f"colors must be [M, C], got {list(colors.shape)}")
+    nch = colors.shape[1]
+    dev = means.device if means.is_cuda else torch.device("cuda")
+    f32 = torch.float32
+    bg = torch.zeros(nch, dtype=f32, device=dev) if background is None else \
+        torch.as_tensor(background, dtype=f32).reshape(-1).to(dev)
+    if bg.shape != (nch,):
+        raise ValueError(f"background must have {nch} values, got {list(bg.shape)}")
+    if mcount == 0:  # nothing to draw: the background (as the CPU path)
+        h, w = camera.height, camera.width
+        img = bg.to(out_dev, dt).expand(h, w, nch) + colors.sum() * 0
+        zero = torch.zeros(h, w, dtype=dt, device=out_dev)
+        return RenderResult(img, zero, zero.clone() if render_depth else None,
+                            {"gaussians": 0, "backend": "gsplat", "rasterized": 0})
+    # the CPU path's sanitizing: zero quaternion -> identity, |scale|, finite colours, o in [0, 1]
+    q = quats.to(dev, f32)
+    qn = torch.linalg.vector_norm(q, dim=1, keepdim=True)
+    q = torch.where(qn > 0, q / qn.clamp_min(1e-30), torch.tensor([1.0, 0, 0, 0], dtype=f32, device=dev))
+    s = scales.to(dev, f32)
+    s = torch.where(torch.isfinite(s), s.abs(), torch.zeros_like(s))
+    c = colors.to(dev, f32)
+    c = torch.where(torch.isfinite(c), c, torch.zeros_like(c))
+    o = opacities.to(dev, f32).clamp(0, 1)
+    viewmat = torch.as_tensor(camera.world_to_camera, dtype=f32).to(dev)[None]  # world -> camera (OpenCV)
+    k = torch.as_tensor(camera.K, dtype=f32).to(dev)[None]
     out, alphas, meta = rasterization(
-        f32(means), f32(quats), f32(scales), f32(opacities), f32(colors), viewmat, k, camera.width, camera.height,
-        near_plane=camera.near, far_plane=camera.far, eps2d=eps2d, tile_size=tile_size, backgrounds=bg,
-        render_mode="RGB+ED" if render_depth else "RGB", packed=False)
-    img = out[0]
-    depth = img[..., -1] * alphas[0, ..., 0] if render_depth else None
-    img = img[..., :-1] if render_depth else img
-    return RenderResult(img, alphas[0, ..., 0], depth, {"gaussians": int(means.shape[0]), "backend": "gsplat"})
+        means.to(dev, f32), q, s, o, c, viewmat, k, camera.width, camera.height,
+        near_plane=camera.near, far_plane=camera.far, eps2d=eps2d, tile_size=tile_size, backgrounds=bg[None],
+        render_mode="RGB+ED" if render_depth else "RGB", packed=False, rasterize_mode="classic", sh_degree=None)
+    img, alpha = out[0], alphas[0, ..., 0]
+    depth = img[..., nch] * alpha if render_depth else None  # expected depth -> alpha-weighted sum
+    img = img[..., :nch]
+    radii = meta["radii"]
+    drawn = (radii.reshape(radii.shape[0], radii.shape[1], -1) > 0).any(-1)
+    stats = {"gaussians": int(mcount), "backend": "gsplat", "rasterized": int(drawn.sum())}
+    back = lambda t: None if t is None else t.to(out_dev, dt)  # noqa: E731
+    return RenderResult(back(img), back(alpha), back(depth), stats)

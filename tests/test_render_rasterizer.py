@@ -1,6 +1,7 @@
 """The CPU rasterizer: closed-form image, agreement with the plain definition, gradients,
 hard cases."""
 
+import functools
 import math
 
 import numpy as np
@@ -227,3 +228,134 @@ def test_speed_100k_gaussians_800px():
     t = time.perf_counter()
     rasterize(*args, cam)
     assert time.perf_counter() - t < 2.0
+
+
+def test_jacobian_clamp_matches_3dgs_and_gsplat():
+    """x/z is clamped to the image edge + 0.3 tan(fov_x / 2) (1.3x the half field of view for a
+    centred principal point) in the EWA Jacobian, as 3DGS and gsplat do."""
+    cam = _head_on_camera(40, 30, 50.0)  # tan(fov_x / 2) = 0.4, limit 0.52
+    z, sigma = 2.0, 0.1
+    for xz in (0.3, 2.0, -2.0):  # inside the limit, beyond it on either side
+        proj = project_gaussians(torch.tensor([[xz * z, 0.0, z]], dtype=F64), torch.tensor([[1.0, 0, 0, 0]], dtype=F64),
+                                 torch.full((1, 3), sigma, dtype=F64), cam)
+        t = max(-0.52, min(0.52, xz))
+        want = sigma ** 2 * (cam.fx / z) ** 2 * (1 + t * t) + 0.3  # J = f/z [1, 0, -t]
+        assert float(proj.cov2d[0, 0]) == pytest.approx(want, rel=1e-12)
+
+
+def test_backend_selection(monkeypatch):
+    import lghcc.render.rasterizer as R
+
+    for avail, want in ((False, "torch"), (True, "gsplat")):
+        monkeypatch.setattr(R, "gsplat_available", lambda a=avail: a)
+        assert R.select_backend("auto") == want
+        assert R.select_backend("torch") == "torch"
+    monkeypatch.setattr(R, "gsplat_available", lambda: False)
+    with pytest.raises(RuntimeError, match="lghcc\\[gsplat\\].*CUDA"):
+        R.select_backend("gsplat")
+    with pytest.raises(ValueError, match="unknown backend 'cuda'"):
+        R.select_backend("cuda")
+
+
+def test_auto_backend_without_cuda_is_the_cpu_path():
+    from lghcc.common.procedural import make_procedural_scene
+    from lghcc.render.rasterizer import render_scene
+
+    if gsplat_available():
+        pytest.skip("gsplat and CUDA present: auto selects gsplat (see test_gsplat_matches_cpu_rasterizer)")
+    scene = make_procedural_scene(num_anchors=200, seed=1)
+    cam = Camera.look_at([0.0, -3.0, 1.0], [0, 0, 0], width=32, height=24, fov_x_deg=50)
+    a = render_scene(scene, cam, background=[1.0, 1.0, 1.0])
+    b = render_scene(scene, cam, background=[1.0, 1.0, 1.0], backend="torch")
+    assert a.stats["backend"] == "torch" and a.image.device.type == "cpu"
+    torch.testing.assert_close(a.image, b.image, rtol=0, atol=0)
+
+
+# --- gsplat against the CPU rasterizer --------------------------------------------------------
+# Stated agreement (float32 gsplat vs this module), per scene, image and alpha:
+#   footprints made equal (sigma_cutoff = GSPLAT_SIGMA_CUTOFF, sqrt(2 ln 255) = 3.33):
+#       max |difference| <= GSPLAT_MAX_ABS (0.02, ~5/255) and PSNR >= GSPLAT_MIN_PSNR (50 dB);
+#   the CPU default sigma_cutoff = 3: max |difference| <= 0.06 and PSNR >= 40 dB
+#       (pixels between 3 and 3.33 sigma lack alpha <= 0.011 per Gaussian).
+# Opacities stay <= 0.95 so the alpha clamps (0.99 here, 0.999 in gsplat) never act. Bounds
+# derived from the known differences (a rounding at the alpha >= 1/255 threshold moves a
+# pixel by <= 1/255); not yet measured: no GPU was available when this test was written.
+GSPLAT_MAX_ABS, GSPLAT_MIN_PSNR = 0.02, 50.0
+
+
+def _gsplat_scene(kind: str, seed: int = 0):
+    g = torch.Generator().manual_seed(seed)
+    m = {"isotropic": 300, "anisotropic": 300, "overlapping": 80, "off_screen": 120}[kind]
+    means = torch.randn(m, 3, generator=g) * torch.tensor([0.6, 0.45, 0.3]) + torch.tensor([0.0, 0.0, 3.0])
+    quats = torch.randn(m, 4, generator=g)
+    scales = torch.rand(m, 3, generator=g) * 0.08 + 0.01
+    op = torch.rand(m, generator=g) * 0.85 + 0.1  # [0.1, 0.95]
+    col = torch.rand(m, 3, generator=g)
+    if kind == "isotropic":
+        scales = scales[:, :1].repeat(1, 3)
+    elif kind == "anisotropic":  # needles and discs, random orientations: catches quaternion order
+        scales = scales * torch.tensor([12.0, 1.0, 0.2])
+    elif kind == "overlapping":  # a stack along the view axis: depth order and early termination
+        means = torch.randn(m, 3, generator=g) * 0.05 + torch.tensor([0.0, 0.0, 2.0])
+        means[:, 2] += torch.linspace(0, 2, m)
+        scales = torch.rand(m, 3, generator=g) * 0.15 + 0.1
+        op = torch.rand(m, generator=g) * 0.35 + 0.6
+    elif kind == "off_screen":  # centres beyond the left/right edges and the Jacobian clamp (x/z > 0.69)
+        side = torch.where(torch.rand(m, generator=g) < 0.5, -1.0, 1.0)
+        xz = 0.45 + torch.rand(m, generator=g) * 0.8
+        means[:, 0] = side * xz * means[:, 2]
+        scales = torch.rand(m, 3, generator=g) * 0.4 + 0.1
+    return [means, quats, scales, op, col]
+
+
+def _psnr(a: torch.Tensor, b: torch.Tensor) -> float:
+    mse = float(((a - b) ** 2).mean())
+    return math.inf if mse == 0 else 10 * math.log10(1.0 / mse)
+
+
+@pytest.mark.skipif(not gsplat_available(), reason="needs gsplat (pip install 'lghcc[gsplat]') and a CUDA GPU")
+@pytest.mark.parametrize("kind", ["isotropic", "anisotropic", "overlapping", "off_screen"])
+def test_gsplat_matches_cpu_rasterizer(kind):
+    from lghcc.render.rasterizer import GSPLAT_SIGMA_CUTOFF
+
+    cam = Camera(np.eye(4), 60.0, 60.0, 32.0, 24.0, 64, 48, near=0.1, far=100.0)  # tan(fov_x / 2) = 0.53
+    bg = torch.tensor([0.2, 0.5, 0.8])
+    params = _gsplat_scene(kind)
+    for cutoff, max_abs, min_psnr in ((GSPLAT_SIGMA_CUTOFF, GSPLAT_MAX_ABS, GSPLAT_MIN_PSNR), (3.0, 0.06, 40.0)):
+        ref = rasterize(*params, cam, background=bg, render_depth=True, sigma_cutoff=cutoff)
+        got = rasterize_gsplat(*params, cam, background=bg, render_depth=True)
+        assert got.image.device.type == "cpu" and got.image.dtype == torch.float32  # the caller's device and dtype
+        assert got.image.shape == ref.image.shape and got.alpha.shape == ref.alpha.shape
+        assert ref.alpha.max() > 0.5  # the scene is in view
+        for a, b in ((got.image, ref.image), (got.alpha, ref.alpha)):
+            assert float((a - b).abs().max()) <= max_abs, (kind, cutoff, float((a - b).abs().max()))
+            assert _psnr(a, b) >= min_psnr, (kind, cutoff, _psnr(a, b))
+        if cutoff == GSPLAT_SIGMA_CUTOFF:  # alpha-weighted depth, relative to the depth range
+            assert float((got.depth - ref.depth).abs().max()) <= max_abs * float(params[0][:, 2].max())
+    # gradients: colour gradients are the compositing weights summed over pixels
+    w = torch.rand(48, 64, 3, generator=torch.Generator().manual_seed(1))
+    grads = []
+    for fn in (functools.partial(rasterize, sigma_cutoff=GSPLAT_SIGMA_CUTOFF), rasterize_gsplat):
+        p = [t.clone().requires_grad_() for t in params]
+        (fn(*p, cam, background=bg).image * w).sum().backward()
+        assert all(torch.isfinite(t.grad).all() for t in p)
+        grads.append(p[4].grad)
+    torch.testing.assert_close(grads[1], grads[0], rtol=0.02, atol=0.05)
+    # inputs on the GPU: results stay there
+    cuda = [t.cuda() for t in params]
+    r = rasterize_gsplat(*cuda, cam, background=bg.cuda())
+    assert r.image.is_cuda
+    torch.testing.assert_close(r.image.cpu(), rasterize_gsplat(*params, cam, background=bg).image)
+
+
+@pytest.mark.skipif(not gsplat_available(), reason="needs gsplat (pip install 'lghcc[gsplat]') and a CUDA GPU")
+def test_auto_backend_with_cuda_uses_gsplat_and_returns_cpu_images():
+    from lghcc.common.procedural import make_procedural_scene
+    from lghcc.render.rasterizer import GSPLAT_SIGMA_CUTOFF, render_scene
+
+    scene = make_procedural_scene(num_anchors=300, seed=2)
+    cam = Camera.look_at([0.0, -3.0, 1.0], [0, 0, 0], width=64, height=48, fov_x_deg=50)
+    a = render_scene(scene, cam, background=[1.0, 1.0, 1.0])
+    b = render_scene(scene, cam, background=[1.0, 1.0, 1.0], backend="torch", sigma_cutoff=GSPLAT_SIGMA_CUTOFF)
+    assert a.stats["backend"] == "gsplat" and a.image.device.type == "cpu"
+    assert _psnr(a.image, b.image) >= 40.0  # neural Gaussians may reach opacity 1 (alpha clamp 0.999 vs 0.99)
