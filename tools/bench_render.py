@@ -3,7 +3,7 @@
 10k / 100k / 1M Gaussians, and what frustum culling and opacity masking save when anchors
 become neural Gaussians, on the lego test cameras.
 
-Scenes (procedural; no trained lego model exists in the project yet):
+Scenes:
   * rasterizer: M Gaussians on an ellipsoid shell filling lego's bounding box
     (centre (0, 0, 0.35), semi-axes 0.65 x 1.1 x 0.6), scales uniform in [0.3, 0.9] x
     sqrt(area / M) (so the shell stays covered at every M), random rotations, opacities
@@ -13,6 +13,9 @@ Scenes (procedural; no trained lego model exists in the project yet):
     z into lego's bounding box; with the HAC offset mask. Views: the lego test cameras at
     800x800 (orbit radius about 4: the whole object is in view), and the same cameras moved
     to 25% of their distance (close-ups, where culling matters).
+  * ``--scene DIR`` (repeatable): a trained anchor scene instead of / besides the procedural
+    one (``--scene procedural``), e.g. a lghcc-train output folder (Scaffold-GS layout), used
+    as it is, on the same cameras.
 
 Writes a markdown report (``--out``, default tools/results/render.md).
 """
@@ -96,16 +99,34 @@ def bench_rasterizer(cam, sizes, repeat, rows, threads):
               f"pairs {r.stats['tile_pairs']:,}", flush=True)
 
 
-def bench_neural(cams, anchors, rows_out, repeat):
-    from lghcc.common.procedural import make_procedural_scene
-    from lghcc.render.neural_gaussians import SceneTensors, generate_neural_gaussians
+def load_bench_scene(spec: str, anchors: int):
+    """(SceneTensors, description) for ``procedural`` or a Scaffold-GS model folder."""
+    from lghcc.render.neural_gaussians import SceneTensors
+
+    if spec == "procedural":
+        from lghcc.common.procedural import make_procedural_scene
+
+        scene = make_procedural_scene(anchors, seed=0, with_mask=True)
+        st = SceneTensors.from_scene(scene)
+        with torch.no_grad():
+            st.positions = st.positions * 0.65 + torch.tensor([0.0, 0.0, 0.35])
+            st.scalings = st.scalings + math.log(0.65)
+        return st, (f"Procedural anchor scene: {st.num_anchors:,} anchors, K={scene.num_offsets} offsets, "
+                    f"{int(scene.offset_mask.sum()):,} live offsets (HAC mask), scaled into lego's bounding box "
+                    "(see the tool's doc)")
+    from lghcc.common.scaffold_io import read_scaffold
+
+    scene = read_scaffold(spec)
+    live = scene.num_anchors * scene.num_offsets if scene.offset_mask is None else int(scene.offset_mask.sum())
+    return SceneTensors.from_scene(scene), (f"Trained anchor scene `{spec}`: {scene.num_anchors:,} anchors, "
+                                            f"C={scene.feature_dim}, K={scene.num_offsets}, {live:,} offsets "
+                                            f"({'no mask' if scene.offset_mask is None else 'masked'}), as trained")
+
+
+def bench_neural(cams, st, rows_out, repeat):
+    from lghcc.render.neural_gaussians import generate_neural_gaussians
     from lghcc.render.rasterizer import rasterize
 
-    scene = make_procedural_scene(anchors, seed=0, with_mask=True)
-    st = SceneTensors.from_scene(scene)
-    with torch.no_grad():
-        st.positions = st.positions * 0.65 + torch.tensor([0.0, 0.0, 0.35])
-        st.scalings = st.scalings + math.log(0.65)
     variants = {"cull + opacity mask (default)": dict(cull=True, mask_opacity=True),
                 "no frustum culling": dict(cull=False, mask_opacity=True),
                 "no opacity mask": dict(cull=True, mask_opacity=False),
@@ -144,7 +165,6 @@ def bench_neural(cams, anchors, rows_out, repeat):
                              acc["rasterized"] / n, acc["pairs"] / n, t_gen / n, t_ras / n))
             print(f"  {view_name}, {name}: anchors in view {acc['anchors_in_view'] / n:,.0f}, Gaussians built "
                   f"{acc['gaussians'] / n:,.0f}, neural {t_gen / n:.3f} s, raster {t_ras / n:.3f} s", flush=True)
-    return st.num_anchors, int(scene.offset_mask.sum())
 
 
 def main(argv=None) -> int:
@@ -160,6 +180,10 @@ def main(argv=None) -> int:
                     help="torch thread counts for the rasterizer timing, comma separated (0: torch's default); "
                          "the neural-Gaussian part uses the first (default %(default)s)")
     ap.add_argument("--skip-neural", action="store_true", help="only time the rasterizer")
+    ap.add_argument("--skip-rasterizer", action="store_true", help="only the culling/masking section")
+    ap.add_argument("--scene", action="append", metavar="DIR",
+                    help="anchor scene for the culling/masking section: 'procedural' (default) or a Scaffold-GS "
+                         "model folder (e.g. a lghcc-train output); repeat for several")
     ap.add_argument("--out", type=Path, default=ROOT / "tools" / "results" / "render.md",
                     help="markdown report (default %(default)s)")
     a = ap.parse_args(argv)
@@ -168,33 +192,39 @@ def main(argv=None) -> int:
     cams, _ = _lego_cameras(a.lego, a.views, a.size)
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads; image {a.size}x{a.size}", flush=True)
     rrows = []
-    for th in threads:
+    for th in threads if not a.skip_rasterizer else []:
         torch.set_num_threads(th)
         bench_rasterizer(cams[0], sizes, a.repeat, rrows, th)
     torch.set_num_threads(threads[0])
-    nrows, n_anchors, n_live = [], 0, 0
-    if not a.skip_neural:
-        n_anchors, n_live = bench_neural(cams, a.anchors, nrows, a.repeat)
+    nsections = []  # (description, rows)
+    for spec in ([] if a.skip_neural else (a.scene or ["procedural"])):
+        st, desc = load_bench_scene(spec, a.anchors)
+        print(desc, flush=True)
+        nrows = []
+        bench_neural(cams, st, nrows, a.repeat)
+        nsections.append((desc, nrows))
     cmd = "python tools/bench_render.py " + " ".join(argv if argv is not None else sys.argv[1:])
     lines = [
         "# Renderer benchmark (lghcc.render, pure torch on CPU)", "",
         f"Command: `{cmd.strip()}`  ",
         f"Date: {datetime.date.today().isoformat()}; torch {torch.__version__}, threads {threads}, "
         f"{platform.processor() or platform.machine()}; the 2 cores were shared with other jobs, so times vary.", "",
-        f"## Rasterizer, {a.size}x{a.size}, lego test camera r_0", "",
-        "Gaussians on an ellipsoid shell in lego's bounding box (scales ~ sqrt(area/M): the shell stays covered); "
-        "time is the best of the repeats (1M: one run). Backward: `(image.sum() + alpha.sum()).backward()`.", "",
-        "| Gaussians | threads | drawn | Gaussian-tile pairs | forward (no grad) s | forward (grad) s | backward s | grads finite |",
-        "|---:|---:|---:|---:|---:|---:|---:|:---:|",
     ]
+    if rrows:
+        lines += [
+            f"## Rasterizer, {a.size}x{a.size}, lego test camera r_0", "",
+            "Gaussians on an ellipsoid shell in lego's bounding box (scales ~ sqrt(area/M): the shell stays covered); "
+            "time is the best of the repeats (1M: one run). Backward: `(image.sum() + alpha.sum()).backward()`.", "",
+            "| Gaussians | threads | drawn | Gaussian-tile pairs | forward (no grad) s | forward (grad) s | backward s "
+            "| grads finite |",
+            "|---:|---:|---:|---:|---:|---:|---:|:---:|",
+        ]
     for m, th, drawn, pairs, tf, tfg, tb, fin in rrows:
         lines.append(f"| {m:,} | {th} | {drawn:,} | {pairs:,} | {tf:.2f} | {tfg:.2f} | {tb:.2f} | "
                      f"{'yes' if fin else 'NO'} |")
-    if nrows:
+    for desc, nrows in nsections:
         lines += ["", f"## Neural Gaussians: frustum culling and opacity masking, {a.size}x{a.size}", "",
-                  f"Procedural anchor scene: {n_anchors:,} anchors, K=10 offsets, {n_live:,} live offsets (HAC mask), "
-                  "scaled into lego's bounding box (see the tool's doc); per-view averages over "
-                  f"{len(cams)} lego test cameras, best of {a.repeat} per view, {threads[0]} thread(s). 'no opacity mask' builds the Gaussians with opacity <= 0 too "
+                  f"{desc}; per-view averages over {len(cams)} lego test cameras, best of {a.repeat} per view, {threads[0]} thread(s). 'no opacity mask' builds the Gaussians with opacity <= 0 too "
                   "(the rasterizer then skips them).", "",
                   "| views | variant | anchors in view | Gaussians built | drawn | tile pairs | anchors -> Gaussians s | rasterize s |",
                   "|---|---|---:|---:|---:|---:|---:|---:|"]
