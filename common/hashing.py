@@ -1,4 +1,4 @@
-"""The decoded-scene hash (spec clause 11): SHA-256 over a canonical serialization of
+"""The decoded-scene hash (spec clause 12): SHA-256 over a canonical serialization of
 everything the decoder outputs, so that a decoder can prove it rebuilt the scene the
 encoder meant, bit for bit (as video codecs carry a decoded picture hash).
 

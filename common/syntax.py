@@ -104,9 +104,8 @@ class SyntaxVisitor:
                            lambda v: 32)
 
     def payload(self, obj: Any, name: str, nbytes: int) -> bytes:
-        """A byte string b(8*n); starts byte-aligned."""
-        return self._visit(f"b(8*{nbytes if not isinstance(self, TableVisitor) else 'n'})", obj, name, None,
-                           None, None,
+        """A byte string b(8*n) of n = ``nbytes`` bytes; starts byte-aligned."""
+        return self._visit(f"b(8*{nbytes})", obj, name, None, None, None,
                            lambda r, lab: r.bytes(nbytes, lab), lambda w, v, lab: w.bytes(v, lab),
                            lambda v: 8 * len(v))
 
@@ -237,19 +236,43 @@ class TableRow:
 
 
 class TableVisitor(SyntaxVisitor):
-    """Walks every branch once and records the syntax table of a structure."""
+    """Walks every branch once and records the syntax table of a structure.
 
-    def __init__(self) -> None:
+    An array element is labelled with the index variable of the innermost loop around it
+    (``for( l ... ) output_dim_minus1[ l ]``). A byte string is labelled b(8*n) with n the
+    element that gives its length, found by probing (``SyntaxStructure.syntax_table``):
+    ``probe = (name, value)`` makes the scalar element ``name`` take ``value`` during a walk,
+    and ``payload_sizes`` records the byte count each b(8*n) was given."""
+
+    def __init__(self, probe: tuple[str, int] | None = None) -> None:
         self.rows: list[TableRow] = []
         self.depth = 1
+        self.indices: list[str] = []  # index variables of the enclosing loops, innermost last
+        self.scalars: list[str] = []  # scalar elements in table order
+        self.payload_rows: list[int] = []  # row of each b(8*n)
+        self.payload_sizes: list[int] = []
+        self.probe = probe
 
     def _visit(self, desc, obj, name, i, lo, hi, read, write, nbits):
-        label = name if i is None else f"{name}[ {i if isinstance(i, str) else 'i'} ]"
+        if i is None:
+            label = name
+            self.scalars.append(name)
+            if self.probe is not None and self.probe[0] == name:
+                setattr(obj, name, self.probe[1])
+                return self.probe[1]
+        else:
+            label = f"{name}[ {i if isinstance(i, str) else (self.indices[-1] if self.indices else 'i')} ]"
         self.rows.append(TableRow(self.depth, label, desc, lo, hi))
         try:
             return _get(obj, name, i)
         except (AttributeError, IndexError, TypeError):
             return 0
+
+    def payload(self, obj, name, nbytes):
+        self.payload_rows.append(len(self.rows))
+        self.payload_sizes.append(nbytes)
+        self.rows.append(TableRow(self.depth, name, "b(8*n)"))
+        return b""
 
     def byte_align(self) -> None:
         self.rows.append(TableRow(self.depth, "byte_alignment( )", ""))
@@ -267,7 +290,9 @@ class TableVisitor(SyntaxVisitor):
                 setattr(obj, a, [0])
         self.rows.append(TableRow(self.depth, f"for( {index} = 0; {index} < {text}; {index}++ ) {{"))
         self.depth += 1
+        self.indices.append(index)
         yield 0
+        self.indices.pop()
         self.depth -= 1
         self.rows.append(TableRow(self.depth, "}"))
 
@@ -326,5 +351,25 @@ class SyntaxStructure:
     def syntax_table(cls) -> str:
         v = TableVisitor()
         cls().syntax(v)
+        for p, row in enumerate(v.payload_rows):
+            v.rows[row].descriptor = f"b(8*{cls._payload_length(v, p)})"
         head = f"{cls.syntax_name}( ) {{"
         return v.markdown(head) + "\n| } | |"
+
+    @classmethod
+    def _payload_length(cls, table: TableVisitor, p: int) -> str:
+        """What n is in the p-th b(8*n) of the structure: the scalar element whose value it is,
+        found by giving each element in turn an unusual value; else the constant byte count."""
+        sentinel = 7919
+        found = []
+        for name in dict.fromkeys(table.scalars):
+            probe = TableVisitor(probe=(name, sentinel))
+            try:
+                cls().syntax(probe)
+            except Exception:  # an element the structure cannot take that value for: not a length
+                continue
+            if len(probe.payload_sizes) > p and probe.payload_sizes[p] == sentinel:
+                found.append(name)
+        if len(found) > 1:
+            raise RuntimeError(f"{cls.syntax_name}: the length of byte string {p} follows from {found}")
+        return found[0] if found else str(table.payload_sizes[p])

@@ -1,4 +1,4 @@
-"""The decoding process (spec clause 12): bitstream in, anchor scene out, nothing else needed.
+"""The decoding process (spec clause 13): bitstream in, anchor scene out, nothing else needed.
 
 Critical data units come in the order (clause 6.3)
     scene_parameter_set, [render_model], geometry, [context_model], attribute x (1 or 2), decoded_scene_hash
@@ -145,5 +145,5 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
         digest = scene_digest(scene)
         if digest != hash_unit.scene_hash:
             raise HashMismatchError("the decoded scene does not match the hash in the stream "
-                                    f"(decoded {digest.hex()[:16]}..., stream {hash_unit.scene_hash.hex()[:16]}...)")
+                                    f"(decoded SHA-256 {digest.hex()}, stream {hash_unit.scene_hash.hex()})")
     return DecodeResult(scene, breakdown_of(container, n), verify_hash, hash_unit.scene_hash, skipped, entries)

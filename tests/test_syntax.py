@@ -133,5 +133,46 @@ def test_syntax_table_shows_blocks():
     table = AttributeUnitHeader.syntax_table()
     assert "if( context_model_id == 0 ) {" in table
     assert "for( c = 0; c < NumChannels; c++ ) {" in table
-    assert "prior_level[ i ] | u(6)" in table
+    assert "prior_level[ c ] | u(6)" in table
     assert table.count("{") == table.count("}")
+
+
+def test_syntax_table_index_follows_the_loop_variable():
+    # Each array element is indexed by the variable of the loop around it, never a fixed [ i ].
+    import re
+
+    from lghcc.common.spec_tables import all_structures
+
+    checked = 0
+    for cls in all_structures():
+        blocks: list[str | None] = []  # loop variable, or None for an if block
+        for line in cls.syntax_table().splitlines()[2:-1]:
+            text = line.split("|")[1].replace("&nbsp;", "").strip()
+            if m := re.fullmatch(r"for\( (\w+) = 0; .*\{", text):
+                blocks.append(m.group(1))
+            elif text.startswith("if("):
+                blocks.append(None)
+            elif text == "}":
+                blocks.pop()
+            elif m := re.fullmatch(r"\w+\[ (\w+) \]", text):
+                loops = [b for b in blocks if b is not None]
+                assert loops and m.group(1) == loops[-1], (cls.syntax_name, text, blocks)
+                checked += 1
+        assert not blocks
+    assert checked >= 12  # origin, geometry header, MLP layers, priors, masks, chunks, array dims
+    table = RenderMlpHeader.syntax_table()
+    assert "output_dim_minus1[ l ] | ue(v)" in table and "[ i ]" not in table
+
+
+def test_syntax_table_says_what_n_is_in_byte_strings():
+    from lghcc.common.context.model_unit import ContextModelUnit
+    from lghcc.common.units import DecodedSceneHashUnit
+
+    assert "coded_data | b(8*coded_size) |" in RenderModelUnit.syntax_table()
+    assert "coded_data | b(8*coded_size) |" in ContextModelUnit.syntax_table()
+    assert "scene_hash | b(8*32) |" in DecodedSceneHashUnit.syntax_table()
+    # The trace of a real stream gives the actual byte count.
+    trace: list[TraceEntry] = []
+    unit = DecodedSceneHashUnit(scene_hash=bytes(range(32)))
+    DecodedSceneHashUnit.from_bytes(unit.to_bytes(), trace=trace)
+    assert [e.descriptor for e in trace] == ["u(8)", "b(8*32)"]
