@@ -1,4 +1,4 @@
-"""Anchor attributes as coded symbols (spec clause 9): channel layout, reconstruction,
+"""Anchor attributes as coded symbols (spec clause 11): channel layout, reconstruction,
 and the coding of attribute-unit chunks (offset masks and residual symbols).
 
 Channel layout of an anchor's attribute vector (M = C + 6 + 3K channels):
