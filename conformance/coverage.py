@@ -1,33 +1,58 @@
 """Which syntax elements, and which classes of their values, a set of streams exercises.
 
-Elements come from the syntax descriptions (the same ones that generate the spec's
-tables); observed values come from the decoder's bit trace. Value classes:
-  flags (u(1)) and enumerated elements: each allowed value;
-  se(v): negative, zero, positive;  other integers: at their minimum, above it;
-  f(32) and byte strings: present (byte strings: empty / non-empty).
-Data-unit types are counted too: each known type and 'ancillary'.
+Elements come from the syntax descriptions (the same ones that generate the spec's tables),
+the container header and data-unit headers included; observed values come from the decoder's
+bit trace, and from the container layer for its headers. Value classes of an element:
 
-Some classes cannot occur in any stream a conforming decoder accepts; ``IMPOSSIBLE`` lists
-them with the reason. They are reported as such and left out of the denominator; a stream
-that exercised one would contradict the reason, and the report says so.
+  enumerated elements (flags, modes, roles, activations, levels of the hierarchy, fixed
+  values such as the magic number, and integers with at most 5 allowed values): each value;
+  other integers: 'minimum' (its lowest allowed value), 'maximum' (its profile/level limit or,
+  for u(n) without one, the largest value of its width; a context-dependent limit for
+  rows_per_chunk_minus1: NumRows - 1, one chunk), 'other' (strictly between); ue(v) elements
+  without an upper limit (byte counts) have no 'maximum';
+  se(v): 'minimum', 'maximum', and 'negative' / 'zero' / 'positive' strictly between;
+  f(32) > 0: 'minimum' (2^-149, the smallest subnormal), 'maximum' (the largest finite
+  binary32) and 'other'; other f(32): as se(v), with -/+ the largest finite binary32;
+  byte strings: 'empty', 'non-empty' (fixed-length ones: 'non-empty').
+Data-unit types are classes of data_unit_header.unit_type: each known type and 'ancillary'.
+
+Classes that no stream a conforming decoder accepts can exercise are in ``IMPOSSIBLE`` with the
+reason: reported as such and left out of the denominator (a stream that exercises one would
+contradict the reason; the report says so). Classes that are possible but not exercised on
+purpose are in ``NOT_EXERCISED`` with the reason: they stay in the denominator, so the
+percentage is what the suite really covers.
 """
 
 from __future__ import annotations
 
 import re
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from lghcc.common.container import ANCILLARY_UNIT_TYPE_MIN, UnitType, read_container
+from lghcc.common.container import ANCILLARY_UNIT_TYPE_MIN, MAGIC, Profile, UnitType, read_container
 from lghcc.common.spec_tables import all_structures
 from lghcc.common.syntax import TableVisitor
 
+F32_MAX = struct.unpack("<f", struct.pack("<I", 0x7F7FFFFF))[0]
+F32_MIN_POSITIVE = struct.unpack("<f", struct.pack("<I", 0x00000001))[0]
+
+# elements whose values are an enumeration (their syntax gives a wider or no range)
 ENUMERATIONS = {
+    "container_header.magic": [MAGIC],
+    "container_header.version_major": [0],
+    "container_header.profile_idc": [int(p) for p in Profile],
+    "container_header.reserved_zero_8bits": [0],
     "render_mlp_header.mlp_role": [0, 1, 2, 3],
     "render_mlp_header.activation": [0, 1, 2, 3],
 }
-NOT_IN_TRACE = {"container_header", "data_unit_header"}  # parsed by the container layer; see unit types
+# integer elements with a value of their own beside minimum / other / maximum
+SPECIAL_VALUES = {"container_header.version_minor": [1]}  # the version of this document
+# upper limits that depend on earlier elements: element -> how the limit is found (see _contextual_max)
+CONTEXT_DEPENDENT_MAX = {"attribute_unit_header.rows_per_chunk_minus1": "NumRows - 1 (a single chunk)"}
+ENUM_MAX_VALUES = 5  # integers with at most this many allowed values are enumerated
 FIXED_LENGTH = {"decoded_scene_hash_unit.scene_hash"}  # byte strings that cannot be empty
+UNIT_TYPE = "data_unit_header.unit_type"
 
 # (element, value class) -> why no decodable stream can exercise it (checked against the code,
 # see tests/test_spec_and_conformance.py for the executable parts of each argument).
@@ -43,67 +68,143 @@ IMPOSSIBLE: dict[tuple[str, str], str] = {
         "L_i >= 4), so num_features < 1 and both models reject the unit",
     ("context_model_unit.coded_data", "empty"):
         "coded_data is coded_size bytes; see context_model_unit.coded_size: minimum",
+    ("attribute_unit_header.prior_mean", "minimum"):
+        "se(v) codes magnitudes up to 2^31 - 1 only (common/bitio.py reads at most 31 leading zeros: ue(v) "
+        "<= 2^32 - 2, the H.264 range the spec's clause 2 cites), below the syntax's limit of 2^40 "
+        "(spec 7.3.5); c025 codes -(2^31 - 1). A spec / syntax inconsistency, reported",
+    ("attribute_unit_header.prior_mean", "maximum"):
+        "as attribute_unit_header.prior_mean: minimum; c025 codes 2^31 - 1",
 }
+
+_CONTEXT_MODEL_PENDING = ("the context-model syntax (GG-Conv / parent MLP) is being changed by another "
+                          "engineer, who regenerates the context-model streams; a stream for this class "
+                          "belongs with that regeneration")
+# (element, value class) -> why the suite does not exercise it although a stream could
+NOT_EXERCISED: dict[tuple[str, str], str] = {
+    ("scene_parameter_set.num_anchors_minus1", "maximum"):
+        "2^24 anchors: a stream of tens of MB that takes minutes to encode and decode",
+    ("data_unit_header.unit_payload_size", "maximum"):
+        "a payload of 2^32 - 1 bytes (4 GiB)",
+    ("int_array_header.array_dim_minus1", "maximum"):
+        "an array of 2^24 values (also the limit on all context-model values together): a stream of "
+        "many MB; and " + _CONTEXT_MODEL_PENDING,
+    ("context_model_unit.feat_num_layers_minus1", "maximum"): _CONTEXT_MODEL_PENDING,
+    ("context_model_unit.head_num_layers_minus1", "maximum"): _CONTEXT_MODEL_PENDING,
+    ("int_array_header.array_ndim", 3): _CONTEXT_MODEL_PENDING,
+}
+
+
+@dataclass(frozen=True)
+class ElementInfo:
+    """How one element's values are classified."""
+    name: str
+    descriptor: str
+    classes: tuple
+    lo: int | float | None = None
+    hi: int | float | None = None  # None: no maximum class (or contextual)
+    kind: str = "integer"  # enum, integer, signed, float, positive_float, bytes
+
+
+class _Probe(TableVisitor):
+    """A TableVisitor that also records which f(32) elements must be > 0."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.positive: dict[str, bool] = {}
+
+    def f32(self, obj, name, i=None, *, positive=False):
+        self.positive[name] = positive
+        return super().f32(obj, name, i, positive=positive)
+
+
+def _element_info(struct_name: str, row, positive: dict[str, bool]) -> ElementInfo:
+    base = row.text.split("[")[0].strip()
+    name = f"{struct_name}.{base}"
+    d = row.descriptor
+    lo, hi = row.lo, row.hi
+    if name in ENUMERATIONS:
+        return ElementInfo(name, d, tuple(ENUMERATIONS[name]), kind="enum")
+    if name == UNIT_TYPE:
+        return ElementInfo(name, d, tuple(t.name.lower() for t in UnitType) + ("ancillary",), kind="enum")
+    if d == "f(32)":
+        if positive.get(base):
+            return ElementInfo(name, d, ("minimum", "other", "maximum"), F32_MIN_POSITIVE, F32_MAX, "positive_float")
+        return ElementInfo(name, d, ("minimum", "negative", "zero", "positive", "maximum"), -F32_MAX, F32_MAX,
+                           "float")
+    if d.startswith("b("):
+        return ElementInfo(name, d, ("non-empty",) if name in FIXED_LENGTH else ("empty", "non-empty"), kind="bytes")
+    if name in CONTEXT_DEPENDENT_MAX:
+        return ElementInfo(name, d, ("minimum", "other", "maximum"), lo or 0, None, "integer")
+    if d.startswith("u(") and hi is None:
+        hi = (1 << int(d[2:-1])) - 1
+    lo = 0 if lo is None and d != "se(v)" else lo
+    if lo is not None and hi is not None and hi - lo < ENUM_MAX_VALUES:
+        return ElementInfo(name, d, tuple(range(lo, hi + 1)), lo, hi, "enum")
+    if d == "se(v)":
+        cls = (("minimum",) if lo is not None else ()) + ("negative", "zero", "positive") + \
+              (("maximum",) if hi is not None else ())
+        return ElementInfo(name, d, cls, lo, hi, "signed")
+    special = tuple(SPECIAL_VALUES.get(name, ()))
+    return ElementInfo(name, d, ("minimum",) + special + ("other",) + (("maximum",) if hi is not None else ()),
+                       lo, hi, "integer")
+
+
+def element_infos() -> dict[str, ElementInfo]:
+    out: dict[str, ElementInfo] = {}
+    for cls in all_structures():
+        v = _Probe()
+        cls().syntax(v)
+        for row in v.rows:
+            if row.descriptor:
+                info = _element_info(cls.syntax_name, row, v.positive)
+                out[info.name] = info
+    return out
 
 
 def element_minimums() -> dict[str, int]:
     """The smallest allowed value of each integer element (its ``lo``; 0 when unbounded)."""
-    out = {}
-    for cls in all_structures():
-        v = TableVisitor()
-        cls().syntax(v)
-        for row in v.rows:
-            if row.descriptor:
-                out[f"{cls.syntax_name}.{row.text.split('[')[0].strip()}"] = row.lo or 0
-    return out
+    return {k: (i.lo or 0) for k, i in element_infos().items() if i.kind in ("integer", "signed", "enum")}
 
 
 def element_classes() -> dict[str, list]:
-    classes: dict[str, list] = {}
-    for cls in all_structures():
-        if cls.syntax_name in NOT_IN_TRACE:
-            continue
-        v = TableVisitor()
-        cls().syntax(v)
-        for row in v.rows:
-            if not row.descriptor:
-                continue
-            name = f"{cls.syntax_name}.{row.text.split('[')[0].strip()}"
-            if name in ENUMERATIONS:
-                classes[name] = list(ENUMERATIONS[name])
-            elif row.lo is not None and row.hi is not None and row.hi - row.lo <= 1:
-                classes[name] = list(range(row.lo, row.hi + 1))
-            elif row.descriptor == "u(1)":
-                classes[name] = [0, 1]
-            elif row.descriptor == "se(v)":
-                classes[name] = ["negative", "zero", "positive"]
-            elif row.descriptor == "f(32)":
-                classes[name] = ["present"]
-            elif row.descriptor.startswith("b("):
-                classes[name] = ["non-empty"] if name in FIXED_LENGTH else ["empty", "non-empty"]
-            else:
-                classes[name] = ["minimum", "above minimum"]
-    classes["data_unit.unit_type"] = [t.name.lower() for t in UnitType] + ["ancillary"]
-    return classes
+    return {k: list(i.classes) for k, i in element_infos().items()}
 
 
-def _value_class(name: str, value, kinds: list, minimum: int = 0):
-    if isinstance(value, (bytes, bytearray)):
+def value_class(info: ElementInfo, value, contextual_max: int | None = None):
+    """The class of one observed value of an element."""
+    if info.kind == "bytes":
         return "empty" if not value else "non-empty"
-    if kinds == ["present"]:
-        return "present"
-    if kinds == ["negative", "zero", "positive"]:
-        return "negative" if value < 0 else "zero" if value == 0 else "positive"
-    if kinds == ["minimum", "above minimum"]:
-        return "minimum" if value == minimum else "above minimum"
-    return value
+    if info.kind == "enum":
+        return value
+    if info.kind in ("float", "positive_float"):
+        x = float(value)
+        if x == info.lo:
+            return "minimum"
+        if x == info.hi:
+            return "maximum"
+        if info.kind == "positive_float":
+            return "other"
+        return "negative" if x < 0 else "zero" if x == 0 else "positive"
+    v = int(value)
+    hi = contextual_max if info.name in CONTEXT_DEPENDENT_MAX else info.hi
+    if info.lo is not None and v == info.lo:
+        return "minimum"
+    if hi is not None and v == hi:
+        return "maximum"
+    if v in SPECIAL_VALUES.get(info.name, ()):
+        return v
+    if info.kind == "signed":
+        return "negative" if v < 0 else "zero" if v == 0 else "positive"
+    return "other"
 
 
 @dataclass
 class CoverageReport:
     classes: dict[str, list]
     seen: dict[str, set] = field(default_factory=dict)
-    impossible: dict[tuple[str, str], str] = field(default_factory=lambda: dict(IMPOSSIBLE))
+    impossible: dict[tuple[str, object], str] = field(default_factory=lambda: dict(IMPOSSIBLE))
+    not_exercised: dict[tuple[str, object], str] = field(default_factory=lambda: dict(NOT_EXERCISED))
+    rejections: list[tuple[str, str, str]] = field(default_factory=list)  # (id, error class, message fragment)
 
     def _possible(self, name: str) -> list:
         return [c for c in self.classes[name] if (name, c) not in self.impossible]
@@ -121,17 +222,28 @@ class CoverageReport:
     def classes_covered(self) -> int:
         return sum(len(set(self._possible(k)) & self.seen.get(k, set())) for k in self.classes)
 
+    def missing_classes(self) -> list[tuple[str, object]]:
+        return [(k, c) for k in self.classes for c in self._possible(k) if c not in self.seen.get(k, set())]
+
+    def unexplained(self) -> list[tuple[str, object]]:
+        """Classes neither exercised nor listed in NOT_EXERCISED with a reason."""
+        return [m for m in self.missing_classes() if m not in self.not_exercised]
+
     def missing(self) -> list[str]:
-        out = []
-        for k in self.classes:
-            miss = [c for c in self._possible(k) if c not in self.seen.get(k, set())]
-            if miss:
-                out.append(f"{k}: {', '.join(map(str, miss))}")
-        return out
+        out: dict[str, list] = {}
+        for k, c in self.missing_classes():
+            out.setdefault(k, []).append(c)
+        return [f"{k}: {', '.join(map(str, cs))}" for k, cs in out.items()]
 
     def contradictions(self) -> list[str]:
-        """Classes marked impossible that a stream exercises nevertheless (the reason is wrong)."""
-        return [f"{k}: {c}" for (k, c) in self.impossible if c in self.seen.get(k, set())]
+        """Classes marked impossible or not exercised that a stream exercises nevertheless."""
+        return [f"{k}: {c}" for (k, c) in list(self.impossible) + list(self.not_exercised)
+                if c in self.seen.get(k, set())]
+
+    def stale(self) -> list[str]:
+        """IMPOSSIBLE / NOT_EXERCISED entries naming an element or class that does not exist."""
+        return [f"{k}: {c}" for (k, c) in list(self.impossible) + list(self.not_exercised)
+                if k not in self.classes or c not in self.classes[k]]
 
     def text(self) -> str:
         n = len(self.classes)
@@ -140,33 +252,70 @@ class CoverageReport:
                  f"value classes exercised:   {self.classes_covered}/{self.classes_total} "
                  f"({100 * self.classes_covered / self.classes_total:.1f}%), "
                  f"{len(self.impossible)} more impossible by construction"]
-        miss = self.missing()
-        if miss:
+        unexplained = self.unexplained()
+        if unexplained:
             lines.append("not exercised:")
-            lines += [f"  {m}" for m in miss]
+            lines += [f"  {k}: {c}" for k, c in unexplained]
+        gaps = [(k, c, why) for (k, c), why in self.not_exercised.items() if c not in self.seen.get(k, set())]
+        if gaps:
+            lines.append("not exercised, on purpose (counted as missing):")
+            lines += [f"  {k}: {c}: {why}" for k, c, why in gaps]
         if self.impossible:
             lines.append("impossible by construction (not counted):")
             lines += [f"  {k}: {c}: {why}" for (k, c), why in self.impossible.items()]
+        if self.rejections:
+            lines.append(f"rejections exercised by {len(self.rejections)} error streams:")
+            lines += [f"  {i}: {kind}: '{msg}'" for i, kind, msg in self.rejections]
         bad = self.contradictions()
         if bad:
-            lines.append("EXERCISED ALTHOUGH MARKED IMPOSSIBLE:")
+            lines.append("EXERCISED ALTHOUGH MARKED IMPOSSIBLE OR NOT EXERCISED:")
             lines += [f"  {b}" for b in bad]
         return "\n".join(lines)
 
 
-def coverage_report(streams: list[Path]) -> CoverageReport:
+def _container_values(data: bytes):
+    """(element, value) of the container header and every data-unit header of a stream."""
+    c = read_container(data)
+    for name in ("magic", "version_major", "version_minor", "profile_idc", "reserved_zero_8bits"):
+        yield f"container_header.{name}", getattr(c.header, name)
+    for u in c.units:
+        t = "ancillary" if u.unit_type >= ANCILLARY_UNIT_TYPE_MIN else UnitType(u.unit_type).name.lower()
+        yield UNIT_TYPE, t
+        yield "data_unit_header.unit_payload_size", len(u.payload)
+
+
+def _trace_values(trace):
+    """(element, value, contextual maximum) for each trace entry; the maximum of
+    rows_per_chunk_minus1 is NumRows - 1, reached exactly when its header lists one chunk."""
+    entries = [(re.sub(r"\[\d+\]", "", e.name), e.value) for e in trace]
+    for j, (name, value) in enumerate(entries):
+        ctx = None
+        if name == "attribute_unit_header.rows_per_chunk_minus1":
+            chunks = 0
+            for other, _ in entries[j + 1:]:
+                if other == "attribute_unit_header.chunk_size":
+                    chunks += 1
+                elif other != "attribute_unit_header.mask_chunk_size":
+                    break
+            ctx = value if chunks == 1 else value + 1  # one chunk: the value is NumRows - 1
+        yield name, value, ctx
+
+
+def coverage_report(streams: list[Path], error_cases: list | None = None) -> CoverageReport:
+    """Coverage of the decodable ``streams``; ``error_cases`` (runner Cases) are listed with the
+    rejection each one exercises."""
     from lghcc.decoder.decode import decode_stream
 
-    report = CoverageReport(element_classes())
-    minimums = element_minimums()
+    infos = element_infos()
+    report = CoverageReport({k: list(i.classes) for k, i in infos.items()})
     for path in streams:
         data = Path(path).read_bytes()
-        for u in read_container(data).units:
-            t = "ancillary" if u.unit_type >= ANCILLARY_UNIT_TYPE_MIN else UnitType(u.unit_type).name.lower()
-            report.seen.setdefault("data_unit.unit_type", set()).add(t)
-        for e in decode_stream(data, trace=True).trace:
-            name = re.sub(r"\[\d+\]", "", e.name)
-            kinds = report.classes.get(name)
-            if kinds is not None:
-                report.seen.setdefault(name, set()).add(_value_class(name, e.value, kinds, minimums.get(name, 0)))
+        for name, value in _container_values(data):
+            report.seen.setdefault(name, set()).add(value_class(infos[name], value))
+        for name, value, ctx in _trace_values(decode_stream(data, trace=True).trace):
+            info = infos.get(name)
+            if info is not None:
+                report.seen.setdefault(name, set()).add(value_class(info, value, ctx))
+    for case in error_cases or []:
+        report.rejections.append((case.id, case.meta.get("expect_error", "?"), case.meta.get("expect_message", "?")))
     return report

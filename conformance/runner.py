@@ -1,31 +1,62 @@
 """lghcc-conformance: decode every conformance stream and check its decoded-scene hash.
 
-Each stream lives in ``conformance/streams/<id>/`` as ``stream.lghcc`` and ``test.yaml``
-(purpose, profile, tools exercised, expected outcome, SHA-256 of the decoded scene
-and of the stream itself). A decoder conforms when it reproduces every hash and
-rejects every stream marked ``expect: error``.
+Each stream lives in ``conformance/streams/<id>/`` as ``stream.lghcc`` and ``test.yaml``:
+  id, purpose, profile, stream_bytes, stream_sha256
+  tools            what the stream exercises, derived by tools/gen_conformance.py from what the
+                   reference decoder decoded (e.g. 'escape' iff an escaped residual was decoded)
+  expect: decode   decoded_sha256: SHA-256 of the decoded scene (spec clause 12, lghcc_v0.md)
+  expect: error    expect_error: the reference decoder's error class (BitstreamError,
+                   UnsupportedStreamError or HashMismatchError) and expect_message: a fragment
+                   of its message (the reason); both are checked for the reference decoder
+  renders          (optional, informative) reference images of fixed cameras and a tolerance;
+                   checked with --render (the renderer is not normative, hence no hash)
+A decoder conforms when it reproduces every hash and rejects every stream marked
+``expect: error``.
 
-Another implementation is tested with ``--decoder-cmd``: a command template with
-``{stream}``; it must exit 0 and print the decoded scene's SHA-256 (spec clause 11)
-as 64 hex digits on the last line of its output, or exit non-zero to reject a stream.
-Example: ``lghcc-conformance --decoder-cmd "lghcc-dec {stream} --print-hash"``.
+Another implementation is tested with ``--decoder-cmd``, a command template: ``{stream}``
+(required) is replaced by the stream's path, ``{out}`` (needed with --render) by an empty
+folder where the decoder writes the decoded scene in the Scaffold-GS layout (as lghcc-dec -o).
+Rejection protocol (its exit status):
+  0        decoded: the last line of stdout is the decoded scene's SHA-256 (spec clause 12)
+           as 64 hex digits
+  1        the stream was rejected as non-conforming (passes every error stream)
+  3        rejected because the decoded scene does not match the stream's hash (lghcc-dec's
+           code; passes only streams whose expect_error is HashMismatchError)
+  2        usage error (the command line is wrong): FAIL
+  other    any other exit status, death by a signal, or no exit within --timeout: FAIL
+Example: ``lghcc-conformance --decoder-cmd "lghcc-dec {stream} --print-hash"``, or with renders
+``lghcc-conformance --render --decoder-cmd "lghcc-dec {stream} -o {out} --print-hash"``.
+Exit status of lghcc-conformance: 0 all passed, 1 a stream failed, 2 usage or suite error.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
+import math
+import re
 import shlex
+import signal
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from lghcc.common.errors import LghccError
 
 STREAMS_DIR = Path(__file__).resolve().parent / "streams"
+# the error classes an error stream may expect (lghcc.common.errors), and the exit codes that
+# count as that rejection for an external decoder
+ERROR_KINDS = ("BitstreamError", "UnsupportedStreamError", "HashMismatchError")
+EXIT_REJECTED = 1
+EXIT_USAGE = 2
+EXIT_HASH_MISMATCH = 3
+_HEX64 = re.compile(r"[0-9a-f]{64}")
 
 
 @dataclass
@@ -38,6 +69,10 @@ class Case:
     def stream(self) -> Path:
         return self.folder / "stream.lghcc"
 
+    @property
+    def expect(self) -> str:
+        return self.meta.get("expect", "decode")
+
 
 @dataclass
 class Outcome:
@@ -47,6 +82,68 @@ class Outcome:
     note: str
 
 
+def _bad(folder: Path, what: str) -> LghccError:
+    return LghccError(f"{folder / 'test.yaml'}: {what}")
+
+
+def validate_meta(meta, folder: Path) -> dict:
+    """Check one test.yaml; raise LghccError naming the file and the problem."""
+    if not isinstance(meta, dict):
+        raise _bad(folder, "not a mapping")
+    if meta.get("id") != folder.name:
+        raise _bad(folder, f"id {meta.get('id')!r} is not the folder name {folder.name!r}")
+    expect = meta.get("expect", "decode")
+    if expect not in ("decode", "error"):
+        raise _bad(folder, f"unknown expect value {expect!r} (decode or error)")
+    for key in ("stream_sha256",) + (("decoded_sha256",) if expect == "decode" else ()):
+        v = meta.get(key)
+        if v is None:
+            raise _bad(folder, f"missing {key}")
+        if not isinstance(v, str) or not _HEX64.fullmatch(v):
+            raise _bad(folder, f"{key} is not 64 lower-case hex digits: {v!r}")
+    if not isinstance(meta.get("stream_bytes"), int):
+        raise _bad(folder, "missing or non-integer stream_bytes")
+    if expect == "error":
+        if "decoded_sha256" in meta:
+            raise _bad(folder, "an error stream has a decoded_sha256")
+        if meta.get("expect_error") not in ERROR_KINDS:
+            raise _bad(folder, f"expect_error {meta.get('expect_error')!r} is not one of {', '.join(ERROR_KINDS)}")
+        if not isinstance(meta.get("expect_message"), str) or not meta["expect_message"].strip():
+            raise _bad(folder, "missing expect_message (a fragment of the reference decoder's message)")
+    elif "expect_error" in meta or "expect_message" in meta:
+        raise _bad(folder, "expect_error / expect_message on a stream that must decode")
+    if "renders" in meta:
+        if expect != "decode":
+            raise _bad(folder, "renders on an error stream")
+        validate_renders(meta["renders"], folder)
+    if not (folder / "stream.lghcc").is_file():
+        raise _bad(folder, "no stream.lghcc beside it")
+    return meta
+
+
+def validate_renders(r, folder: Path) -> None:
+    if not isinstance(r, dict):
+        raise _bad(folder, "renders is not a mapping")
+    for key in ("cameras", "size", "background", "images", "min_psnr_db", "max_abs_error"):
+        if key not in r:
+            raise _bad(folder, f"renders: missing {key}")
+    if not re.fullmatch(r"orbit:\d+", str(r["cameras"])):
+        raise _bad(folder, f"renders.cameras must be 'orbit:N', got {r['cameras']!r}")
+    if not re.fullmatch(r"\d+x\d+", str(r["size"])):
+        raise _bad(folder, f"renders.size must be WxH, got {r['size']!r}")
+    if r["background"] not in ("black", "white"):
+        raise _bad(folder, f"renders.background must be black or white, got {r['background']!r}")
+    n = int(str(r["cameras"]).split(":")[1])
+    if not isinstance(r["images"], list) or len(r["images"]) != n:
+        raise _bad(folder, f"renders.images must list {n} files")
+    for name in r["images"]:
+        if not (folder / str(name)).is_file():
+            raise _bad(folder, f"renders: reference image {name} is missing")
+    for key in ("min_psnr_db", "max_abs_error"):
+        if not isinstance(r[key], (int, float)) or r[key] < 0:
+            raise _bad(folder, f"renders.{key} must be a non-negative number")
+
+
 def load_cases(root: Path = STREAMS_DIR, ids: list[str] | None = None) -> list[Case]:
     if not root.is_dir():
         raise LghccError(f"{root}: no conformance streams folder")
@@ -54,7 +151,11 @@ def load_cases(root: Path = STREAMS_DIR, ids: list[str] | None = None) -> list[C
     for folder in sorted(p for p in root.iterdir() if (p / "test.yaml").is_file()):
         if ids and folder.name not in ids:
             continue
-        cases.append(Case(folder.name, folder, yaml.safe_load((folder / "test.yaml").read_text())))
+        try:
+            meta = yaml.safe_load((folder / "test.yaml").read_text())
+        except yaml.YAMLError as e:
+            raise _bad(folder, f"not valid YAML ({e})") from None
+        cases.append(Case(folder.name, folder, validate_meta(meta, folder)))
     if ids:
         missing = sorted(set(ids) - {c.id for c in cases})
         if missing:
@@ -62,56 +163,223 @@ def load_cases(root: Path = STREAMS_DIR, ids: list[str] | None = None) -> list[C
     return cases
 
 
-def decode_internal(stream: Path) -> str:
-    """The reference decoder: returns the decoded scene's SHA-256 (hex); raises LghccError."""
+# --- the reference decoder, in process ----------------------------------------------------------
+
+def warm_up(render: bool = False) -> None:
+    """Import the decoder (torch, the entropy tables ...) so that the first stream's time is its own."""
+    import lghcc.common.hashing  # noqa: F401
+    import lghcc.decoder.decode  # noqa: F401
+    if render:
+        import lghcc.render.rasterizer  # noqa: F401
+        import lghcc.render.views  # noqa: F401
+
+
+def decode_scene_internal(stream: Path):
+    """The reference decoder: -> (decoded scene's SHA-256 hex, scene); raises LghccError."""
     from lghcc.common.hashing import scene_digest
     from lghcc.decoder.decode import decode_stream
 
-    return scene_digest(decode_stream(stream.read_bytes()).scene).hex()
+    scene = decode_stream(stream.read_bytes()).scene
+    return scene_digest(scene).hex(), scene
 
 
-def decode_external(template: str, stream: Path, timeout: float) -> tuple[int, str]:
-    cmd = [a.replace("{stream}", str(stream)) for a in shlex.split(template)]
+def decode_internal(stream: Path) -> str:
+    """The reference decoder: returns the decoded scene's SHA-256 (hex); raises LghccError."""
+    return decode_scene_internal(stream)[0]
+
+
+# --- an external decoder ---------------------------------------------------------------------------
+
+@dataclass
+class External:
+    status: str  # 'exit', 'signal', 'timeout'
+    code: int  # exit code or signal number
+    last_line: str
+    stderr_tail: str
+
+    def describe(self) -> str:
+        if self.status == "timeout":
+            return f"timed out after {self.code} s"
+        if self.status == "signal":
+            try:
+                name = signal.Signals(self.code).name
+            except ValueError:
+                name = f"signal {self.code}"
+            return f"killed by {name}"
+        tail = f" ({self.stderr_tail})" if self.stderr_tail else ""
+        return f"exit code {self.code}{tail}"
+
+
+def check_template(template: str, render: bool = False) -> None:
+    """A --decoder-cmd must name {stream} in one of its arguments (and {out} for --render)."""
     try:
-        out = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+        args = shlex.split(template)
+    except ValueError as e:
+        raise LghccError(f"--decoder-cmd cannot be split into arguments: {e}") from None
+    if not args:
+        raise LghccError("--decoder-cmd is empty")
+    if not any("{stream}" in a for a in args):
+        raise LghccError("--decoder-cmd must contain {stream}, replaced by the path of each stream")
+    if render and not any("{out}" in a for a in args):
+        raise LghccError("--render with --decoder-cmd needs {out} in the command: a folder where the decoder "
+                         "writes the decoded scene (Scaffold-GS layout, as lghcc-dec -o)")
+
+
+def decode_external(template: str, stream: Path, timeout: float, out: Path | None = None) -> External:
+    cmd = [a.replace("{stream}", str(stream)).replace("{out}", str(out) if out else "") for a in shlex.split(template)]
+    try:
+        res = subprocess.run(cmd, capture_output=True, text=True, errors="replace", timeout=timeout)
     except subprocess.TimeoutExpired:
-        return -1, f"timed out after {timeout:.0f} s"
+        return External("timeout", int(math.ceil(timeout)), "", "")
     except OSError as e:
         raise LghccError(f"cannot run the decoder command: {e}") from None
-    lines = out.stdout.strip().splitlines()
-    return out.returncode, lines[-1].strip() if lines else ""
+    lines = res.stdout.strip().splitlines()
+    err = res.stderr.strip().splitlines()
+    last = lines[-1].strip() if lines else ""
+    if res.returncode < 0:
+        return External("signal", -res.returncode, last, err[-1][:80] if err else "")
+    return External("exit", res.returncode, last, err[-1][:80] if err else "")
 
 
-def run_case(case: Case, decoder_cmd: str | None = None, timeout: float = 120.0) -> Outcome:
-    expect = case.meta.get("expect", "decode")
-    t0 = time.perf_counter()
-    if decoder_cmd is None:
+# --- renders (informative) ---------------------------------------------------------------------------
+
+def render_views(scene, cameras: str, size: str, background: str = "black") -> list[np.ndarray]:
+    """Images [H, W, 3] float32 in [0, 1] of the scene from the cameras of ``cameras`` ('orbit:N')
+    at ``size`` ('WxH'), as lghcc-dec --render draws them (the renderer is informative)."""
+    import torch
+
+    from lghcc.render.imageio import background_color
+    from lghcc.render.neural_gaussians import SceneTensors
+    from lghcc.render.rasterizer import render_scene
+    from lghcc.render.views import cameras_from_spec
+
+    w, h = (int(x) for x in size.split("x"))
+    cams = cameras_from_spec(cameras, scene.positions(), width=w, height=h)
+    bg = background_color(background)
+    st = SceneTensors.from_scene(scene)
+    with torch.no_grad():
+        return [render_scene(st, cam, background=bg).image.clamp(0, 1).numpy().astype(np.float32) for cam in cams]
+
+
+def to_uint16(img: np.ndarray) -> np.ndarray:
+    return np.round(np.clip(np.asarray(img, np.float64), 0, 1) * 65535.0).astype(np.uint16)
+
+
+def compare_renders(scene, spec: dict, folder: Path) -> tuple[bool, str]:
+    """Render the scene as ``spec`` says and compare each image with its reference within the
+    tolerance (PSNR >= min_psnr_db and max |difference| <= max_abs_error). -> (ok, note)."""
+    imgs = render_views(scene, spec["cameras"], spec["size"], spec["background"])
+    worst_psnr, worst_err = math.inf, 0.0
+    for img, name in zip(imgs, spec["images"]):
+        ref = np.load(folder / name).astype(np.float64) / 65535.0
+        if ref.shape != img.shape:
+            return False, f"render {name}: shape {list(img.shape)} != reference {list(ref.shape)}"
+        d = img.astype(np.float64) - ref
+        mse = float(np.mean(d * d))
+        worst_psnr = min(worst_psnr, math.inf if mse == 0 else -10 * math.log10(mse))
+        worst_err = max(worst_err, float(np.abs(d).max()))
+    ok = worst_psnr >= spec["min_psnr_db"] and worst_err <= spec["max_abs_error"]
+    psnr_txt = "inf" if worst_psnr == math.inf else f"{worst_psnr:.1f}"
+    note = (f"{len(imgs)} renders: PSNR >= {psnr_txt} dB, max error {255 * worst_err:.2f}/255"
+            + ("" if ok else f" (tolerance: >= {spec['min_psnr_db']} dB, <= "
+                             f"{255 * spec['max_abs_error']:.2f}/255)"))
+    return ok, note
+
+
+# --- one case --------------------------------------------------------------------------------------
+
+def _judge_error(case: Case, kind: str, message: str | None) -> tuple[bool, str]:
+    """The reference decoder rejected the stream with ``kind``: right class and reason?"""
+    if case.expect != "error":
+        return False, f"error: {kind}: {message}"
+    want, frag = case.meta["expect_error"], case.meta["expect_message"]
+    if kind != want:
+        return False, f"rejected with {kind} instead of {want}: {message}"
+    if message is not None and frag not in message:
+        return False, f"rejected for another reason (expected '{frag}'): {message}"
+    return True, f"rejected: {kind}: {message}"
+
+
+def _run_internal(case: Case, render: bool) -> tuple[bool, str]:
+    try:
+        digest, scene = decode_scene_internal(case.stream)
+    except LghccError as e:
+        return _judge_error(case, type(e).__name__, str(e))
+    except Exception as e:  # noqa: BLE001 - any other exception is a decoder bug: a FAIL row
+        return False, f"unexpected {type(e).__name__}: {e}"
+    return _judge_decoded(case, digest, scene, render)
+
+
+def _judge_decoded(case: Case, digest: str, scene, render: bool) -> tuple[bool, str]:
+    if case.expect == "error":
+        return False, "decoded a stream that must be rejected"
+    want = case.meta["decoded_sha256"]
+    if digest != want:
+        return False, f"hash {str(digest)[:16]}... != {want[:16]}..."
+    note = "hash matches"
+    if render and "renders" in case.meta:
+        if scene is None:
+            return False, "hash matches; no decoded scene to render"
         try:
-            digest, err = decode_internal(case.stream), None
-        except LghccError as e:
-            digest, err = None, str(e)
-    else:
-        rc, last = decode_external(decoder_cmd, case.stream, timeout)
-        digest, err = (last, None) if rc == 0 else (None, f"exit code {rc}")
-    dt = time.perf_counter() - t0
-    if expect == "error":
-        ok = err is not None
-        note = f"rejected: {err}" if ok else "decoded a stream that must be rejected"
-    else:
-        want = case.meta["decoded_sha256"]
-        ok = err is None and digest == want
-        note = "hash matches" if ok else (f"error: {err}" if err else f"hash {str(digest)[:16]}... != {want[:16]}...")
-    return Outcome(case, ok, dt, note)
+            ok, rnote = compare_renders(scene, case.meta["renders"], case.folder)
+        except Exception as e:  # noqa: BLE001 - a scene the renderer cannot draw fails the check
+            return False, f"hash matches; render failed: {type(e).__name__}: {e}"
+        return ok, f"{note}; {rnote}"
+    return True, note
 
 
-def format_table(outcomes: list[Outcome]) -> str:
+def _run_external(case: Case, template: str, timeout: float, render: bool) -> tuple[bool, str]:
+    with tempfile.TemporaryDirectory(prefix="lghcc-conf-") as tmp:
+        out = Path(tmp) / "decoded"
+        ext = decode_external(template, case.stream, timeout, out if render else None)
+        if ext.status != "exit" or ext.code not in (0, EXIT_REJECTED, EXIT_HASH_MISMATCH):
+            what = " (usage error: check --decoder-cmd)" if ext.status == "exit" and ext.code == EXIT_USAGE else ""
+            return False, f"{ext.describe()}{what}"
+        if ext.code == EXIT_REJECTED:
+            if case.expect == "error":
+                return True, f"rejected (exit code 1; expected {case.meta['expect_error']})"
+            return False, f"rejected a stream that must decode: {ext.describe()}"
+        if ext.code == EXIT_HASH_MISMATCH:
+            if case.expect == "error" and case.meta["expect_error"] == "HashMismatchError":
+                return True, "rejected: decoded scene hash mismatch (exit code 3)"
+            return False, (f"{ext.describe()}: reported a hash mismatch, expected "
+                           + (case.meta["expect_error"] if case.expect == "error" else "a decode"))
+        digest = ext.last_line.lower()
+        if case.expect == "decode" and not _HEX64.fullmatch(digest):
+            return False, f"exit code 0 but the last line of output is not a SHA-256: {ext.last_line[:40]!r}"
+        scene = None
+        if render and case.expect == "decode" and "renders" in case.meta and digest == case.meta["decoded_sha256"]:
+            from lghcc.common.scaffold_io import read_scaffold
+
+            try:
+                scene = read_scaffold(out)
+            except LghccError as e:
+                return False, f"hash matches; cannot read the decoder's output scene in {{out}}: {e}"
+        return _judge_decoded(case, digest, scene, render)
+
+
+def run_case(case: Case, decoder_cmd: str | None = None, timeout: float = 120.0, render: bool = False) -> Outcome:
+    t0 = time.perf_counter()
+    if hashlib.sha256(case.stream.read_bytes()).hexdigest() != case.meta["stream_sha256"]:
+        return Outcome(case, False, 0.0, "stream.lghcc does not match its stream_sha256: a damaged suite")
+    if decoder_cmd is None:
+        ok, note = _run_internal(case, render)
+    else:
+        ok, note = _run_external(case, decoder_cmd, timeout, render)
+    return Outcome(case, ok, time.perf_counter() - t0, note)
+
+
+def format_table(outcomes: list[Outcome], total_s: float | None = None, warm_up_s: float | None = None) -> str:
     w = max([len(o.case.id) for o in outcomes] + [6])
     lines = [f"{'stream':<{w}}  {'expect':<7} {'result':<6} {'ms':>8}  note"]
     for o in outcomes:
-        lines.append(f"{o.case.id:<{w}}  {o.case.meta.get('expect', 'decode'):<7} "
-                     f"{'pass' if o.passed else 'FAIL':<6} {1000 * o.seconds:>8.1f}  {o.note[:100]}")
+        lines.append(f"{o.case.id:<{w}}  {o.case.expect:<7} "
+                     f"{'pass' if o.passed else 'FAIL':<6} {1000 * o.seconds:>8.1f}  {o.note[:140]}")
     n_pass = sum(o.passed for o in outcomes)
-    lines.append(f"{n_pass} passed, {len(outcomes) - n_pass} failed")
+    tail = f" in {total_s:.2f} s" if total_s is not None else ""
+    if warm_up_s is not None:
+        tail += f" (after {warm_up_s:.2f} s of imports, not counted)"
+    lines.append(f"{n_pass} passed, {len(outcomes) - n_pass} failed{tail}")
     return "\n".join(lines)
 
 
@@ -120,30 +388,48 @@ def setup_args() -> argparse.ArgumentParser:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("ids", nargs="*", help="stream ids to run (default: all)")
     p.add_argument("--streams", default=str(STREAMS_DIR), help="folder of conformance streams")
-    p.add_argument("--decoder-cmd", help="external decoder command template with {stream}")
-    p.add_argument("--timeout", type=float, default=120.0, help="seconds per stream for an external decoder")
+    p.add_argument("--decoder-cmd", help="external decoder command template with {stream} (and {out} for --render); "
+                                         "see the rejection protocol above")
+    p.add_argument("--timeout", type=float, default=120.0,
+                   help="seconds per stream for an external decoder; a decoder still running then FAILs (120)")
     p.add_argument("--threads", type=int, help="torch threads for the reference decoder")
+    p.add_argument("--render", action="store_true",
+                   help="also render the decoded scene of every stream with reference renders and compare "
+                        "within the stream's tolerance (informative: the renderer is not normative)")
     p.add_argument("--coverage", action="store_true",
                    help="also report which syntax elements and value classes the suite exercises")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = setup_args().parse_args(argv)
+    parser = setup_args()
+    args = parser.parse_args(argv)
+    if args.decoder_cmd is not None:
+        try:
+            check_template(args.decoder_cmd, args.render)
+        except LghccError as e:
+            parser.error(str(e))  # exit status 2
     try:
         if args.threads:
             import torch
             torch.set_num_threads(args.threads)
         cases = load_cases(Path(args.streams), args.ids or None)
-        outcomes = [run_case(c, args.decoder_cmd, args.timeout) for c in cases]
+        t0 = time.perf_counter()
+        if args.decoder_cmd is None or args.render:
+            warm_up(args.render)
+        warm_s = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        outcomes = [run_case(c, args.decoder_cmd, args.timeout, args.render) for c in cases]
+        total = time.perf_counter() - t0
     except LghccError as e:
         print(f"lghcc-conformance: error: {e}", file=sys.stderr)
         return 2
-    print(format_table(outcomes))
+    print(format_table(outcomes, total, warm_s))
     if args.coverage:
         from lghcc.conformance.coverage import coverage_report
         print()
-        print(coverage_report([c.stream for c in cases if c.meta.get("expect", "decode") == "decode"]).text())
+        print(coverage_report([c.stream for c in cases if c.expect == "decode"],
+                              [c for c in cases if c.expect == "error"]).text())
     return 0 if all(o.passed for o in outcomes) else 1
 
 

@@ -2,7 +2,17 @@
 """Generate the conformance streams from conformance/sources.yaml, or check them.
 
     python tools/gen_conformance.py            # (re)write conformance/streams/<id>/
-    python tools/gen_conformance.py --check    # the encoder must reproduce every stream byte for byte
+    python tools/gen_conformance.py c020_idcm_mode_2      # only these streams
+    python tools/gen_conformance.py --check    # the encoder must reproduce every stream byte for byte,
+                                               # and its test.yaml exactly
+    python tools/gen_conformance.py --renders  # only the reference renders (informative) of the
+                                               # streams with `renders` in sources.yaml
+
+Every stream is checked against sources.yaml when generated: a stream that must decode decodes
+to the encoder's hash; an error stream is rejected by the reference decoder with
+`expect_error` and a message holding `expect_message`. test.yaml's `tools` are derived from
+what the reference decoder did with the stream (tags below); the `tools` of sources.yaml
+state the intent and must be among them.
 
 Streams are frozen once committed: regenerate only when the bitstream format changes
 on purpose, and say so in the commit.
@@ -13,6 +23,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import sys
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -59,6 +70,10 @@ def random_scene(s: dict):
     coords = coords[rng.permutation(len(coords))[:n]].astype(np.int64)
     if s.get("shift_to_zero"):  # bounding-box minimum 0 on every axis
         coords -= coords.min(axis=0)
+    for j, xyz in enumerate(s.get("extra_coords", [])):  # given coordinates replace the first rows
+        coords[j] = xyz
+    if len(np.unique(coords, axis=0)) != n:
+        raise ValueError("extra_coords repeat a coordinate of the scene")
     scale = float(s.get("value_scale", 1.0))
     feats = (scale * rng.normal(size=(n, c))).astype(np.float32)
     if "constant" in s:
@@ -82,10 +97,15 @@ def random_scene(s: dict):
         mlps["cov"].activations[1] = "tanh"
     scalings = rng.normal(size=(n, 6)).astype(np.float32)
     offsets = rng.normal(size=(n, k, 3)).astype(np.float32)
+    if "constant_scalings" in s:
+        scalings[:] = s["constant_scalings"]
+    if "constant_offsets" in s:
+        offsets[:] = s["constant_offsets"]
     mask = None
     if s.get("mask"):
         mask = rng.random((n, k)) < 0.6
         mask[:, s.get("dead_slots", [])] = False  # slots that are never live: mask_live_prob at its minimum
+        mask[:, s.get("live_slots", [])] = True  # slots that are always live: mask_live_prob at its maximum
     return AnchorScene(
         coords=coords, voxel_size=float(s.get("voxel_size", 0.01)),
         origin=np.asarray(s.get("origin", [0.0, 0.0, 0.0]), dtype=np.float32),
@@ -217,10 +237,61 @@ def _rehash(data: bytes) -> bytes:
     from lghcc.decoder.decode import decode_stream
 
     digest = scene_digest(decode_stream(data, verify_hash=False).scene)
-    units = [DataUnit(u.unit_type, u.payload) for u in read_container(data).units]
+    container = read_container(data)
+    units = [DataUnit(u.unit_type, u.payload) for u in container.units]
     j = _unit_index(units, UnitType.DECODED_SCENE_HASH)
     units[j] = DataUnit(UnitType.DECODED_SCENE_HASH, DecodedSceneHashUnit(scene_hash=digest).to_bytes())
-    return write_container(units)
+    return write_container(units, container.header)
+
+
+def _set_render_mlp(units, edits: list[dict]):
+    """Rewrite fields of render MLP headers (e.g. exponents at their limits); the coded integers
+    stay, so the decoded weights change by powers of two (rehash the stream).
+    edits: [{mlp: m, layer: l, weight_exponent: e, bias_exponent: e}, ...]."""
+    from lghcc.common.container import DataUnit, UnitType
+    from lghcc.common.units import RenderModelUnit
+
+    j = _unit_index(units, UnitType.RENDER_MODEL)
+    unit = RenderModelUnit.from_bytes(units[j].payload)
+    for e in edits:
+        h = unit.mlps[int(e["mlp"])]
+        for key in ("weight_exponent", "bias_exponent", "weight_level", "bias_level"):
+            if key in e:
+                getattr(h, key)[int(e["layer"])] = int(e[key])
+    units[j] = DataUnit(UnitType.RENDER_MODEL, unit.to_bytes())
+
+
+def _set_prior_mean(units, means: dict):
+    """Overwrite prior means of the (single, level-0) attribute unit: {channel: mean}. The coded
+    residuals stay, so the channel's decoded values move with the mean (rehash the stream)."""
+    from lghcc.common import attributes as attr
+    from lghcc.common.bitio import BitReader
+    from lghcc.common.container import DataUnit, UnitType
+    from lghcc.common.units import AttributeUnitHeader, SceneParameterSet
+
+    sps = SceneParameterSet.from_bytes(units[_unit_index(units, UnitType.SCENE_PARAMETER_SET)].payload)
+    j = _unit_index(units, UnitType.ATTRIBUTE)
+    r = BitReader(units[j].payload)
+    h = AttributeUnitHeader.parse(r, num_channels=attr.layout_of(sps).num_channels, num_offsets=sps.num_offsets,
+                                  offset_mask_present=sps.offset_mask_present_flag, num_rows=sps.num_anchors)
+    for c, m in means.items():
+        h.prior_mean[int(c)] = int(m)
+    units[j] = DataUnit(UnitType.ATTRIBUTE, h.to_bytes() + units[j].payload[r.bit_position // 8:])
+
+
+def _insert_raw_unit(data: bytes, spec: dict) -> bytes:
+    """Insert a data unit framed by hand (valid size and CRC-32) before unit ``index``: for unit
+    types the writer refuses (type 0)."""
+    import zlib
+
+    from lghcc.common.container import read_container
+
+    units = read_container(data).units
+    i = int(spec["index"])
+    pos = units[i].offset if i < len(units) else len(data)
+    payload = spec.get("payload", "").encode()
+    body = bytes([int(spec["type"])]) + len(payload).to_bytes(4, "big") + payload
+    return data[:pos] + body + zlib.crc32(body).to_bytes(4, "big") + data[pos:]
 
 
 def post_process(data: bytes, post: dict) -> bytes:
@@ -248,6 +319,10 @@ def post_process(data: bytes, post: dict) -> bytes:
         _empty_chunks(units, post["empty_chunks"])
     if "hand_ggconv" in post:
         _hand_ggconv(units, post["hand_ggconv"])
+    if "set_prior_mean" in post:
+        _set_prior_mean(units, post["set_prior_mean"])
+    if "set_render_mlp" in post:
+        _set_render_mlp(units, post["set_render_mlp"])
     if "set_sps" in post:  # overwrite scene parameter set fields
         j = _unit_index(units, UnitType.SCENE_PARAMETER_SET)
         sps = SceneParameterSet.from_bytes(units[j].payload)
@@ -271,6 +346,8 @@ def post_process(data: bytes, post: dict) -> bytes:
     out = write_container(units, header)
     if post.get("rehash"):
         out = _rehash(out)
+    if "insert_raw_unit" in post:
+        out = _insert_raw_unit(out, post["insert_raw_unit"])
     if "flip_byte" in post:  # damage one byte without fixing the CRC
         b = bytearray(out)
         b[int(post["flip_byte"])] ^= 0x01
@@ -287,9 +364,13 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
     from lghcc.encoder.config import load_config
     from lghcc.encoder.encode import encode_scene
 
+    before = torch.get_num_threads()
     torch.set_num_threads(1)  # context-model training in float must be reproducible byte for byte
-    cfg = load_config(entry.get("preset", "medium"), overrides=entry.get("config"))
-    result = encode_scene(build_scene(entry["scene"]), cfg)
+    try:
+        cfg = load_config(entry.get("preset", "medium"), overrides=entry.get("config"))
+        result = encode_scene(build_scene(entry["scene"]), cfg)
+    finally:
+        torch.set_num_threads(before)
     post = entry.get("post", {})
     data = post_process(result.data, post)
     if entry.get("expect") == "error":
@@ -307,35 +388,276 @@ def load_sources() -> list[dict]:
     return yaml.safe_load(SOURCES.read_text())["streams"]
 
 
+# --- what a stream exercises, from what the reference decoder decoded -----------------------------
+
+TOOL_TAGS = """\
+Tags of test.yaml `tools`, derived from the reference decoder's result (never written by hand):
+  geometry_idcm_<m>     geometry coded with geom_idcm_mode m
+  render_model          a render-model unit (render_model_empty: one with no MLPs)
+  hierarchy             hierarchy_enabled_flag = 1 (two attribute units)
+  per_channel_prior, parent_mlp_context, ggconv_context   the context_model_id of an attribute unit
+  context_model_unit    a context-model unit
+  offset_mask           offset_mask_present_flag = 1
+  chunks                an attribute unit with more than one chunk; empty_chunk: a chunk of 0 bytes
+  escape                the decoder decoded an escaped residual (spec 10.5) in some unit
+  ancillary_unit        an ancillary unit (skipped)
+  container_version     a version_minor other than this document's
+  maximum_values        an element at its maximum (its profile/level limit, the largest value of its
+                        width, or the largest finite binary32; the 'maximum' class of conformance/coverage.py)
+  error streams: container (rejected by the container layer: framing, CRC, version, profile,
+  unit types, order), hash (HashMismatchError), level_limits (N * M above the limit), the stage
+  that rejected it (attributes, geometry, render_model, hierarchy, context_model: the module of
+  the innermost frame), and the tags of the parts that parse (hierarchy, offset_mask, ...)."""
+
+
+class EscapeCounter:
+    """Counts escaped residuals while decoding: wraps lghcc.common.entropy.symbol_coder.decode_symbols
+    wherever lghcc modules hold it, and compares each residual with its level's half width (spec 10.4:
+    escaped iff |r| > L_i). Restores the originals on exit. (A counter in the decoder itself would be
+    the cleaner hook; see the conformance report.)"""
+
+    def __enter__(self):
+        from lghcc.common.entropy import symbol_coder
+        from lghcc.common.entropy.tables import HALF_WIDTHS
+
+        self.count = 0
+        orig = symbol_coder.decode_symbols
+
+        def counting(data, levels, *a, **k):
+            r = orig(data, levels, *a, **k)
+            if np.size(r):
+                self.count += int((np.abs(r) > HALF_WIDTHS[np.asarray(levels, np.int64)]).sum())
+            return r
+
+        self._patched = [(m, orig) for m in list(sys.modules.values())
+                         if getattr(m, "__name__", "").startswith("lghcc.") and getattr(m, "decode_symbols", None) is orig]
+        for m, _ in self._patched:
+            m.decode_symbols = counting
+        return self
+
+    def __exit__(self, *exc):
+        for m, orig in self._patched:
+            m.decode_symbols = orig
+
+
+def _structure_tags(data: bytes) -> set[str]:
+    """Tags of a stream's parts that parse without decoding (container, sps, unit types)."""
+    from lghcc.common import attributes as attr
+    from lghcc.common.container import UnitType, read_container
+    from lghcc.common.units import MAX_ATTRIBUTE_VALUES, SceneParameterSet
+
+    units = read_container(data).units
+    tags = set()
+    types = {u.unit_type for u in units}
+    if UnitType.RENDER_MODEL in types:
+        tags.add("render_model")
+    if UnitType.CONTEXT_MODEL in types:
+        tags.add("context_model_unit")
+    if any(u.is_ancillary for u in units):
+        tags.add("ancillary_unit")
+    sps_units = [u for u in units if u.unit_type == UnitType.SCENE_PARAMETER_SET]
+    if sps_units:
+        sps = SceneParameterSet.from_bytes(sps_units[0].payload)
+        if sps.hierarchy_enabled_flag:
+            tags.add("hierarchy")
+        if sps.offset_mask_present_flag:
+            tags.add("offset_mask")
+        if sps.num_anchors * attr.layout_of(sps).num_channels > MAX_ATTRIBUTE_VALUES:
+            tags.add("level_limits")
+    return tags
+
+
+def derive_tools(data: bytes) -> list[str]:
+    """The `tools` of a stream, from what the reference decoder does with it (TOOL_TAGS)."""
+    from lghcc.common.container import VERSION_MINOR, read_container
+    from lghcc.common.errors import HashMismatchError, LghccError
+    from lghcc.conformance.coverage import _trace_values, element_infos, value_class
+    from lghcc.decoder.decode import decode_stream, organize_units
+
+    try:
+        container = read_container(data)
+        organize_units(container)
+    except LghccError:
+        return ["container"]
+    tags = _structure_tags(data)
+    try:
+        with EscapeCounter() as esc:
+            res = decode_stream(data, trace=True)
+    except HashMismatchError:
+        return sorted(tags | {"hash"})
+    except LghccError as e:  # the decoding stage that rejected it: the module of the innermost frame
+        stages = [Path(f.filename).stem for f in traceback.extract_tb(e.__traceback__)]
+        stage = next((m for m in reversed(stages) if m in ("attributes", "geometry", "render_model", "hierarchy",
+                                                             "model_unit", "models", "ggconv", "parent_mlp")), None)
+        return sorted(tags | ({{"model_unit": "context_model", "models": "context_model", "ggconv": "context_model",
+                               "parent_mlp": "context_model"}.get(stage, stage)} if stage else set()))
+    if container.header.version_minor != VERSION_MINOR:
+        tags.add("container_version")
+    if esc.count:
+        tags.add("escape")
+    infos = element_infos()
+    chunk_sizes: list[int] = []
+    for name, value, ctx in _trace_values(res.trace):
+        if name == "geometry_header.geom_idcm_mode":
+            tags.add(f"geometry_idcm_{value}")
+        elif name == "attribute_unit_header.context_model_id":
+            tags.add({0: "per_channel_prior", 1: "parent_mlp_context", 2: "ggconv_context"}[int(value)])
+        elif name == "render_model_unit.num_mlps" and value == 0:
+            tags.add("render_model_empty")
+        elif name == "attribute_unit_header.rows_per_chunk_minus1":
+            chunk_sizes.append(0)
+        elif name == "attribute_unit_header.chunk_size":
+            chunk_sizes[-1] += 1
+            if value == 0:
+                tags.add("empty_chunk")
+        elif name == "attribute_unit_header.mask_chunk_size" and value == 0:
+            tags.add("empty_chunk")
+        info = infos.get(name)
+        if info is not None and info.kind not in ("enum", "bytes") and value_class(info, value, ctx) == "maximum" \
+                and name != "attribute_unit_header.rows_per_chunk_minus1":
+            tags.add("maximum_values")
+    if any(c > 1 for c in chunk_sizes):
+        tags.add("chunks")
+    return sorted(tags)
+
+
+def check_expectation(entry: dict, data: bytes, decoded: str | None) -> None:
+    """The reference decoder must do with the stream what sources.yaml says: decode it to
+    ``decoded``, or reject it with ``expect_error`` whose message holds ``expect_message``."""
+    from lghcc.common.errors import LghccError
+    from lghcc.common.hashing import scene_digest
+    from lghcc.decoder.decode import decode_stream
+
+    try:
+        digest = scene_digest(decode_stream(data).scene).hex()
+    except LghccError as e:
+        if entry.get("expect") != "error":
+            raise SystemExit(f"{entry['id']}: the reference decoder rejects the stream: {e}") from None
+        kind, msg = type(e).__name__, str(e)
+        if kind != entry.get("expect_error") or entry.get("expect_message", "\0") not in msg:
+            raise SystemExit(f"{entry['id']}: the reference decoder says {kind}: {msg!r}; sources.yaml expects "
+                             f"{entry.get('expect_error')}: {entry.get('expect_message')!r}") from None
+        return
+    if entry.get("expect") == "error":
+        raise SystemExit(f"{entry['id']}: the reference decoder decodes a stream that must be rejected")
+    if digest != decoded:
+        raise SystemExit(f"{entry['id']}: decodes to {digest}, not the encoder's {decoded}")
+
+
+# --- reference renders (informative) ----------------------------------------------------------------
+
+RENDER_DEFAULTS = {"background": "black", "min_psnr_db": 50.0, "max_abs_error": 2 / 255}
+RENDER_NOTE = ("informative: the renderer is not normative (float rendering differs across machines and "
+               "libraries), so each image is compared with its reference within the tolerance, never by hash; "
+               "images are .npy uint16 [H, W, 3], value / 65535")
+
+
+def renders_meta(entry: dict) -> dict | None:
+    spec = entry.get("renders")
+    if not spec:
+        return None
+    r = {"note": RENDER_NOTE, "cameras": spec["cameras"], "size": spec["size"],
+         "background": spec.get("background", RENDER_DEFAULTS["background"])}
+    n = int(str(spec["cameras"]).split(":")[1])
+    r["images"] = [f"render_{i:03d}.npy" for i in range(n)]
+    r["min_psnr_db"] = float(spec.get("min_psnr_db", RENDER_DEFAULTS["min_psnr_db"]))
+    r["max_abs_error"] = float(spec.get("max_abs_error", RENDER_DEFAULTS["max_abs_error"]))
+    return r
+
+
+def write_renders(entry: dict, data: bytes, folder: Path) -> None:
+    """Render the decoded scene from the stream's cameras; write the reference images."""
+    import torch
+
+    from lghcc.conformance.runner import render_views, to_uint16
+    from lghcc.decoder.decode import decode_stream
+
+    r = renders_meta(entry)
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        imgs = render_views(decode_stream(data).scene, r["cameras"], r["size"], r["background"])
+    finally:
+        torch.set_num_threads(before)
+    for name, img in zip(r["images"], imgs):
+        np.save(folder / name, to_uint16(img))
+
+
 def test_yaml(entry: dict, data: bytes, decoded: str | None) -> dict:
-    meta = {"id": entry["id"], "purpose": entry["purpose"], "profile": "main", "tools": entry.get("tools", []),
-            "expect": entry.get("expect", "decode"), "stream_bytes": len(data),
-            "stream_sha256": hashlib.sha256(data).hexdigest()}
+    meta = {"id": entry["id"], "purpose": entry["purpose"], "profile": "main", "tools": derive_tools(data),
+            "expect": entry.get("expect", "decode")}
+    if entry.get("expect") == "error":
+        meta["expect_error"] = entry["expect_error"]
+        meta["expect_message"] = entry["expect_message"]
+    meta["stream_bytes"] = len(data)
+    meta["stream_sha256"] = hashlib.sha256(data).hexdigest()
     if decoded:
         meta["decoded_sha256"] = decoded
+    r = renders_meta(entry)
+    if r:
+        meta["renders"] = r
+    derived = set(meta["tools"])
+    derived |= {"geometry"} if any(t.startswith("geometry_idcm_") for t in derived) else set()
+    derived |= {"container"} if derived & {"ancillary_unit", "container_version"} else set()
+    missing = set(entry.get("tools", [])) - derived if meta["expect"] == "decode" else set()
+    if missing:  # sources.yaml's tools are the intent; the derived ones must include them
+        raise SystemExit(f"{entry['id']}: sources.yaml says it exercises {sorted(missing)}, but the reference "
+                         f"decoder's result shows only {meta['tools']}")
     return meta
 
 
+def yaml_text(meta: dict) -> str:
+    return yaml.safe_dump(meta, sort_keys=False)
+
+
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--check", action="store_true", help="verify the committed streams instead of writing")
+    ap = argparse.ArgumentParser(description=__doc__ + "\n" + TOOL_TAGS,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    mode = ap.add_mutually_exclusive_group()
+    mode.add_argument("--check", action="store_true",
+                      help="verify the committed streams and their test.yaml instead of writing")
+    mode.add_argument("--renders", action="store_true",
+                      help="only (re)write the reference renders (and test.yaml) of streams with `renders` in "
+                           "sources.yaml, from the committed streams")
     ap.add_argument("ids", nargs="*", help="only these stream ids")
     args = ap.parse_args(argv)
+    entries = load_sources()
+    unknown = sorted(set(args.ids) - {e["id"] for e in entries})
+    if unknown:
+        print(f"gen_conformance: error: no such stream in {SOURCES.name}: {', '.join(unknown)}", file=sys.stderr)
+        return 2
     failures = 0
-    for entry in load_sources():
+    for entry in entries:
         if args.ids and entry["id"] not in args.ids:
             continue
-        data, decoded = generate(entry)
         folder = STREAMS / entry["id"]
+        if args.renders:
+            if not entry.get("renders"):
+                if args.ids:
+                    print(f"{entry['id']}: no renders in {SOURCES.name}")
+                continue
+            data = (folder / "stream.lghcc").read_bytes()
+            meta = yaml.safe_load((folder / "test.yaml").read_text())
+            write_renders(entry, data, folder)
+            (folder / "test.yaml").write_text(yaml_text(test_yaml(entry, data, meta.get("decoded_sha256"))))
+            print(f"{entry['id']}: {len(renders_meta(entry)['images'])} reference renders")
+            continue
+        data, decoded = generate(entry)
+        check_expectation(entry, data, decoded)
         if args.check:
             stored = (folder / "stream.lghcc").read_bytes() if (folder / "stream.lghcc").is_file() else None
-            ok = stored == data
-            failures += not ok
-            print(f"{entry['id']}: {'reproduced byte for byte' if ok else 'DIFFERS from the committed stream'}")
+            stored_yaml = (folder / "test.yaml").read_text() if (folder / "test.yaml").is_file() else None
+            want_yaml = yaml_text(test_yaml(entry, data, decoded))
+            problems = (["the stream DIFFERS from the committed one"] if stored != data else []) + \
+                       (["test.yaml DIFFERS from the committed one"] if stored_yaml != want_yaml else [])
+            failures += bool(problems)
+            print(f"{entry['id']}: {'; '.join(problems) if problems else 'stream and test.yaml reproduced'}")
             continue
         folder.mkdir(parents=True, exist_ok=True)
         (folder / "stream.lghcc").write_bytes(data)
-        (folder / "test.yaml").write_text(yaml.safe_dump(test_yaml(entry, data, decoded), sort_keys=False))
+        if entry.get("renders"):
+            write_renders(entry, data, folder)
+        (folder / "test.yaml").write_text(yaml_text(test_yaml(entry, data, decoded)))
         print(f"{entry['id']}: {len(data):,} bytes")
     return 1 if failures else 0
 
