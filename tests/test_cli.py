@@ -82,3 +82,204 @@ def test_help_explains(capsys):
             main(["--help"])
         text = capsys.readouterr().out
         assert "examples:" in text and "Scaffold-GS" in text
+
+
+# --- outputs: clean errors, never over the input, never mixing two scenes ------------------------------
+
+@pytest.fixture(scope="module")
+def small_stream(tmp_path_factory):
+    d = tmp_path_factory.mktemp("stream")
+    out = d / "s.lghcc"
+    assert enc_cli.main(["--procedural", "200", "-o", str(out), "-q"]) == 0
+    return out
+
+
+def _copy(src: Path, dst: Path) -> Path:
+    dst.write_bytes(src.read_bytes())
+    return dst
+
+
+def test_unwritable_outputs_are_one_line_errors(tmp_path, capsys, small_stream):
+    afile = tmp_path / "afile"
+    afile.write_bytes(b"x")
+    adir = tmp_path / "adir"
+    adir.mkdir()
+    cases = [
+        (dec_cli.main, [str(small_stream), "-o", str(afile)], f"cannot write {afile} (it exists and is not a folder)"),
+        (dec_cli.main, [str(small_stream), "--render", "orbit:1", "--render-out", str(afile)],
+         f"cannot write {afile} (it exists and is not a folder)"),
+        (dec_cli.main, [str(small_stream), "--json", str(afile / "x.json")], f"cannot write {afile / 'x.json'}"),
+        (dec_cli.main, [str(small_stream), "--trace", str(adir)], f"cannot write {adir} (it is a folder)"),
+        (enc_cli.main, ["--procedural", "100", "-o", str(adir), "-f"], f"cannot write {adir} (it is a folder)"),
+        (enc_cli.main, ["--procedural", "100", "-o", str(afile / "x.lghcc")], f"cannot write {afile / 'x.lghcc'}"),
+        (enc_cli.main, ["--procedural", "100", "-o", str(tmp_path / "ok.lghcc"), "--json", str(adir)],
+         f"cannot write {adir} (it is a folder)"),
+    ]
+    for main, argv, message in cases:
+        assert main(argv) == 1, argv
+        err = capsys.readouterr().err
+        assert message in err and "Traceback" not in err and err.count("\n") == 1, (argv, err)
+    assert afile.read_bytes() == b"x" and list(adir.iterdir()) == []
+    assert not (tmp_path / "ok.lghcc").exists()  # nothing is written when one output cannot be
+
+
+def test_write_failing_late_is_a_clean_error(tmp_path, capsys, small_stream, monkeypatch):
+    # A failure only the write itself finds (disk full, a path that vanished) is reported the same way.
+    import errno
+
+    from lghcc.common import fileio
+
+    def full(*a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(fileio.tempfile, "mkstemp", full)
+    monkeypatch.setattr(fileio, "check_writable_file", lambda *a, **k: None)
+    monkeypatch.setattr(dec_cli, "check_writable_file", lambda *a, **k: None)
+    monkeypatch.setattr(enc_cli, "check_writable_file", lambda *a, **k: None)
+    assert dec_cli.main([str(small_stream), "-q", "-o", str(tmp_path / "dec")]) == 1
+    assert f"cannot write {tmp_path / 'dec'} (No space left on device)" in capsys.readouterr().err
+    assert dec_cli.main([str(small_stream), "-q", "--json", str(tmp_path / "d.json")]) == 1
+    assert f"cannot write {tmp_path / 'd.json'} (No space left on device)" in capsys.readouterr().err
+    assert enc_cli.main(["--procedural", "100", "-q", "-o", str(tmp_path / "e.lghcc")]) == 1
+    assert f"cannot write {tmp_path / 'e.lghcc'} (No space left on device)" in capsys.readouterr().err
+
+
+def test_error_messages_name_the_path_once(tmp_path, capsys):
+    missing = tmp_path / "nope.lghcc"
+    assert dec_cli.main([str(missing)]) == 1
+    err = capsys.readouterr().err
+    assert err == f"lghcc-dec: error: {missing}: cannot read (No such file or directory)\n"
+
+
+@pytest.mark.parametrize("value", ["nan", "0", "-1", "inf", "abc"])
+def test_bad_render_scale_and_voxel_size_are_usage_errors(value, capsys, tmp_path, small_stream):
+    with pytest.raises(SystemExit) as e:
+        dec_cli.main([str(small_stream), "--render", "orbit:1", "--render-out", str(tmp_path / "v"),
+                      "--render-scale", value])
+    assert e.value.code == 2
+    assert "--render-scale" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:
+        enc_cli.main(["--procedural", "100", "-o", str(tmp_path / "x.lghcc"), "--voxel-size", value])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "--voxel-size" in err and ("positive finite" in err or "expected a number" in err)
+    assert "RuntimeWarning" not in err and not (tmp_path / "v").exists()
+
+
+def test_no_output_may_overwrite_the_input(tmp_path, capsys, small_stream):
+    stream = _copy(small_stream, tmp_path / "c.lghcc")
+    before = stream.read_bytes()
+    link = tmp_path / "link.lghcc"
+    link.symlink_to(stream)
+    for argv in (["--json", str(stream)], ["--trace", str(stream)], ["--export-ply", str(stream)],
+                 ["--json", str(tmp_path / "." / "c.lghcc")], ["--trace", str(link)], ["-o", str(stream)]):
+        assert dec_cli.main([str(stream), "-q"] + argv) == 1, argv
+        assert "would overwrite the input stream" in capsys.readouterr().err
+    assert dec_cli.main([str(stream), "-q", "--json", str(tmp_path / "a"), "--trace", str(tmp_path / "a")]) == 1
+    assert "are the same file" in capsys.readouterr().err
+    assert stream.read_bytes() == before
+    # The encoder: --json against the input (a PLY, or the PLY inside a model folder) and against -o.
+    folder = write_scaffold(random_scene(np.random.default_rng(1), 20), tmp_path / "m")
+    ply = folder / "point_cloud.ply"
+    ply_bytes = ply.read_bytes()
+    for argv in ([str(ply), "-o", str(tmp_path / "o.lghcc"), "--json", str(ply)],
+                 [str(tmp_path / "m"), "-o", str(tmp_path / "o.lghcc"), "--json", str(ply)],
+                 [str(tmp_path / "m"), "-o", str(ply), "-f"]):
+        assert enc_cli.main(argv) == 1, argv
+        assert "would overwrite the input" in capsys.readouterr().err
+    assert enc_cli.main(["--procedural", "100", "-o", str(tmp_path / "o.lghcc"), "--json",
+                         str(tmp_path / "o.lghcc")]) == 1
+    assert "are the same file" in capsys.readouterr().err
+    assert ply.read_bytes() == ply_bytes and not (tmp_path / "o.lghcc").exists()
+
+
+def test_decoding_into_a_used_folder_needs_force_and_never_mixes_scenes(tmp_path, capsys):
+    with_mlps = random_scene(np.random.default_rng(2), 30, with_mlps=True)
+    without = random_scene(np.random.default_rng(3), 40, with_mlps=False)
+    for name, scene in (("a", with_mlps), ("b", without)):
+        from lghcc.encoder.encode import encode_scene
+        (tmp_path / f"{name}.lghcc").write_bytes(encode_scene(scene).data)
+    out = tmp_path / "dec"
+    assert dec_cli.main([str(tmp_path / "a.lghcc"), "-o", str(out), "-q"]) == 0
+    it = out / "point_cloud" / "iteration_0"
+    assert (it / "checkpoint.pth").is_file()
+    assert dec_cli.main([str(tmp_path / "b.lghcc"), "-o", str(out), "-q"]) == 1
+    assert "is not empty; use --force" in capsys.readouterr().err
+    assert dec_cli.main([str(tmp_path / "b.lghcc"), "-o", str(out), "-q", "--force"]) == 0
+    assert not (it / "checkpoint.pth").exists()  # the first scene's MLPs are gone
+    with pytest.warns(UserWarning, match="no render-MLP file recognised"):
+        back = read_scaffold(out)
+    assert back.num_anchors == 40 and back.mlps == {}
+    # An empty existing folder needs no --force.
+    (tmp_path / "empty").mkdir()
+    assert dec_cli.main([str(tmp_path / "a.lghcc"), "-o", str(tmp_path / "empty"), "-q"]) == 0
+
+
+def test_encoder_warns_about_a_folder_without_mlps(tmp_path, capsys):
+    folder = write_scaffold(random_scene(np.random.default_rng(4), 25, with_mlps=False), tmp_path / "m")
+    assert enc_cli.main([str(tmp_path / "m"), "-o", str(tmp_path / "x.lghcc"), "-q"]) == 0
+    err = capsys.readouterr().err
+    assert f"lghcc-enc: warning: {folder}: no render-MLP file recognised" in err
+
+
+def test_decode_then_reencode_gives_the_same_scene(tmp_path, capsys):
+    import json
+
+    first, again = tmp_path / "a.lghcc", tmp_path / "b.lghcc"
+    assert enc_cli.main(["--procedural", "2500", "--seed", "3", "-o", str(first), "--json", str(tmp_path / "a.json"),
+                         "-q"]) == 0
+    assert dec_cli.main([str(first), "-o", str(tmp_path / "dec"), "-q"]) == 0
+    ply = tmp_path / "dec" / "point_cloud" / "iteration_0" / "point_cloud.ply"
+    assert b"comment lghcc voxel_size " in ply.read_bytes()[:400]
+    assert enc_cli.main([str(tmp_path / "dec"), "-o", str(again), "--json", str(tmp_path / "b.json"), "-q"]) == 0
+    h1 = json.loads((tmp_path / "a.json").read_text())["scene_sha256"]
+    h2 = json.loads((tmp_path / "b.json").read_text())["scene_sha256"]
+    assert h1 == h2
+    # Without the header comment the voxel size is guessed from float32 positions: not the same bits.
+    from lghcc.common.scaffold_io import infer_voxel_size
+    scene = read_scaffold(tmp_path / "dec")
+    assert infer_voxel_size(scene.positions().astype(np.float64)) != scene.voxel_size
+
+
+def test_hash_mismatch_prints_both_full_digests_and_the_stream(tmp_path, capsys, small_stream):
+    import zlib
+
+    data = bytearray(small_stream.read_bytes())
+    unit = slice(len(data) - (5 + 33 + 4), len(data) - 4)  # the decoded_scene_hash unit, without its CRC
+    assert data[unit.start] == 0x06
+    data[-5] ^= 0x01  # last byte of scene_hash
+    data[-4:] = zlib.crc32(bytes(data[unit])).to_bytes(4, "big")
+    bad = tmp_path / "bad.lghcc"
+    bad.write_bytes(bytes(data))
+    assert dec_cli.main([str(bad)]) == 3
+    err = capsys.readouterr().err
+    import re
+    digests = re.findall(r"\b[0-9a-f]{64}\b", err)
+    assert len(digests) == 2 and digests[0] != digests[1] and digests[0][:62] == digests[1][:62]
+    assert str(bad) in err
+
+
+def test_outputs_get_the_umask_mode(tmp_path, small_stream):
+    import os
+    import stat
+
+    old = os.umask(0o027)
+    try:
+        assert dec_cli.main([str(small_stream), "-q", "-o", str(tmp_path / "d"), "--json", str(tmp_path / "d.json")]) == 0
+        assert enc_cli.main(["--procedural", "50", "-q", "-o", str(tmp_path / "e.lghcc")]) == 0
+    finally:
+        os.umask(old)
+    for f in (tmp_path / "d.json", tmp_path / "e.lghcc", tmp_path / "d" / "point_cloud" / "iteration_0" / "point_cloud.ply",
+              tmp_path / "d" / "point_cloud" / "iteration_0" / "checkpoint.pth"):
+        assert stat.S_IMODE(f.stat().st_mode) == 0o640, f
+
+
+def test_procedural_progress_bar_does_not_change_the_scene(capsys):
+    from lghcc.common.hashing import scene_digest
+    from lghcc.common.procedural import make_procedural_scene
+
+    quiet = make_procedural_scene(3000, seed=7, with_mask=True)
+    shown = make_procedural_scene(3000, seed=7, with_mask=True, progress=True)
+    assert scene_digest(quiet) == scene_digest(shown)
+    assert np.array_equal(quiet.offset_mask, shown.offset_mask)
+    assert "procedural scene" in capsys.readouterr().err

@@ -1,13 +1,16 @@
 """The Scaffold-GS checkpoint layout: write, read, variants, errors."""
 
+import re
+
 import numpy as np
 import pytest
 import torch
 
 from lghcc.common.errors import InputError
-from lghcc.common.ply import read_ply, write_ply
+from lghcc.common.hashing import scene_digest
+from lghcc.common.ply import read_ply, read_ply_comments, write_ply
 from lghcc.common.procedural import make_procedural_scene
-from lghcc.common.scaffold_io import infer_voxel_size, read_scaffold, write_scaffold
+from lghcc.common.scaffold_io import MissingMlpWarning, infer_voxel_size, read_scaffold, write_scaffold
 
 
 def test_round_trip_exact(tmp_path):
@@ -76,3 +79,124 @@ def test_truncated_and_garbage_ply(tmp_path):
         read_scaffold(tmp_path / "junk.ply")
     with pytest.raises(InputError, match="no point_cloud.ply"):
         read_scaffold(tmp_path / "nothing_here")
+
+
+def test_checkpoints_pth_is_accepted_and_missing_mlps_warn(tmp_path):
+    scene = make_procedural_scene(60, seed=1, feature_dim=4, num_offsets=2)
+    folder = write_scaffold(scene, tmp_path)
+    (folder / "checkpoint.pth").rename(folder / "checkpoints.pth")
+    back = read_scaffold(tmp_path)
+    assert set(back.mlps) == {"opacity", "cov", "color"}
+    assert np.array_equal(back.mlps["cov"].weights[1], scene.mlps["cov"].weights[1])
+    (folder / "checkpoints.pth").unlink()
+    with pytest.warns(MissingMlpWarning, match=f"{folder}: no render-MLP file recognised"):
+        assert read_scaffold(tmp_path).mlps == {}
+    torch.save({"something_else": {}}, folder / "checkpoint.pth")
+    with pytest.warns(MissingMlpWarning, match="checkpoint.pth: no render MLP found in it"):
+        assert read_scaffold(tmp_path).mlps == {}
+
+
+def test_write_scaffold_removes_stale_mlp_files(tmp_path):
+    with_mlps = make_procedural_scene(40, seed=0, feature_dim=4, num_offsets=2)
+    folder = write_scaffold(with_mlps, tmp_path)
+    for name in ("checkpoints.pth", "opacity_mlp.pt", "cov_mlp.pt", "color_mlp.pt"):
+        (folder / name).write_bytes(b"stale")
+    (folder / "notes.txt").write_bytes(b"not ours")
+    write_scaffold(with_mlps, tmp_path)
+    assert sorted(p.name for p in folder.iterdir()) == ["checkpoint.pth", "notes.txt", "point_cloud.ply"]
+    without = make_procedural_scene(30, seed=1, feature_dim=4, num_offsets=2)
+    without.mlps = {}
+    write_scaffold(without, tmp_path)
+    assert sorted(p.name for p in folder.iterdir()) == ["notes.txt", "point_cloud.ply"]
+    with pytest.warns(MissingMlpWarning):
+        back = read_scaffold(tmp_path)
+    assert back.num_anchors == without.num_anchors and back.mlps == {}
+
+
+def test_voxel_size_and_origin_survive_the_float32_positions(tmp_path):
+    scene = make_procedural_scene(400, seed=2, feature_dim=4, num_offsets=2)
+    scene.voxel_size = 0.06557438
+    scene.origin = np.array([0.1, -2.5, 1e3], np.float32)
+    folder = write_scaffold(scene, tmp_path)
+    back = read_scaffold(tmp_path)
+    assert back.voxel_size == float(np.float32(scene.voxel_size))
+    assert back.origin.tobytes() == scene.origin.tobytes()
+    assert np.array_equal(back.coords, scene.coords)
+    assert scene_digest(back) == scene_digest(scene)
+    # Other tools ignore comment lines; the values are exact hex floats.
+    comments = read_ply_comments(folder / "point_cloud.ply")
+    assert comments[0] == f"lghcc voxel_size {float(np.float32(0.06557438)).hex()}"
+    assert comments[1].startswith("lghcc origin ")
+    # An explicit voxel size still wins; a file without the comments falls back to inference.
+    assert read_scaffold(tmp_path, voxel_size=2 * back.voxel_size).voxel_size == 2 * back.voxel_size
+    cols = read_ply(folder / "point_cloud.ply")
+    write_ply(folder / "point_cloud.ply", cols)
+    assert read_ply_comments(folder / "point_cloud.ply") == []
+    # Far from the origin the float32 positions no longer pin the grid down: inference fails.
+    with pytest.raises(InputError, match="not on a regular grid"):
+        read_scaffold(tmp_path)
+    again = read_scaffold(tmp_path, voxel_size=back.voxel_size, origin=scene.origin)
+    assert np.array_equal(again.coords, scene.coords)
+
+
+def test_read_scaffold_validates_with_the_path(tmp_path):
+    scene = make_procedural_scene(50, seed=0, feature_dim=4, num_offsets=2)
+    folder = write_scaffold(scene, tmp_path)
+    ply = folder / "point_cloud.ply"
+    for column, value, message in (("f_anchor_feat_2", np.nan, "features contain NaN or Inf"),
+                                   ("scale_4", np.inf, "scalings contain NaN or Inf"),
+                                   ("f_offset_1", -np.inf, "offsets contain NaN or Inf")):
+        cols = read_ply(ply) if column == "f_anchor_feat_2" else cols
+        cols[column] = cols[column].copy()
+        good = cols[column][7]
+        cols[column][7] = value
+        write_ply(ply, cols)
+        with pytest.raises(InputError, match=f"^{re.escape(str(ply))}: {message}"):
+            read_scaffold(tmp_path)
+        cols[column][7] = good
+    write_ply(ply, cols)
+    for bad in (0.0, -1.0, np.nan, np.inf):
+        with pytest.raises(InputError, match="voxel size must be a positive finite number"):
+            read_scaffold(tmp_path, voxel_size=bad)
+    # Anchors sharing a voxel are left for the encoder to reject or merge (--merge-duplicates).
+    cols = read_ply(ply)
+    for c in ("x", "y", "z"):
+        cols[c][1] = cols[c][0]
+    write_ply(ply, cols)
+    assert read_scaffold(tmp_path).num_anchors == scene.num_anchors
+
+
+def test_write_ply_in_blocks_matches_a_single_copy(tmp_path, monkeypatch):
+    from lghcc.common import ply as ply_mod
+
+    rng = np.random.default_rng(0)
+    cols = {"x": rng.normal(size=1000).astype(np.float32), "flag": rng.random(1000) < 0.5,
+            "d": rng.normal(size=1000)}  # bool and float64 columns are stored as float32
+    monkeypatch.setattr(ply_mod, "WRITE_BLOCK_ROWS", 7)  # 143 blocks, the last one partial
+    write_ply(tmp_path / "a.ply", cols, comments=["hello world"])
+    raw = (tmp_path / "a.ply").read_bytes()
+    body = np.stack([cols["x"], cols["flag"].astype(np.float32), cols["d"].astype(np.float32)], 1).astype("<f4")
+    assert raw.endswith(body.tobytes())
+    assert raw.startswith(b"ply\nformat binary_little_endian 1.0\ncomment hello world\nelement vertex 1000\n")
+    back = read_ply(tmp_path / "a.ply")
+    assert np.array_equal(back["x"], cols["x"]) and np.array_equal(back["flag"], cols["flag"].astype(np.float32))
+    write_ply(tmp_path / "empty.ply", {"x": np.zeros(0, np.float32)})
+    assert len(read_ply(tmp_path / "empty.ply")["x"]) == 0
+    with pytest.raises(ValueError, match="rows"):
+        write_ply(tmp_path / "b.ply", {"x": np.zeros(3), "y": np.zeros(4)})
+    with pytest.raises(ValueError, match="one line"):
+        write_ply(tmp_path / "b.ply", {"x": np.zeros(3)}, comments=["two\nlines"])
+
+
+def test_written_files_get_the_umask_mode(tmp_path):
+    import os
+    import stat
+
+    old = os.umask(0o002)
+    try:
+        folder = write_scaffold(make_procedural_scene(20, seed=0, feature_dim=4, num_offsets=2), tmp_path)
+    finally:
+        os.umask(old)
+    for f in (folder / "point_cloud.ply", folder / "checkpoint.pth"):
+        assert stat.S_IMODE(f.stat().st_mode) == 0o664
+    assert not [p for p in folder.iterdir() if p.name.startswith(".")]  # no temporary files left
