@@ -7,7 +7,9 @@ The mutation engine (``Mutator``) works at three depths:
   pure random data (CRCs usually stop these in the container layer);
 * data units, re-framed with valid CRC-32s so that the damage reaches the payload parsers:
   payload bit flips, truncation, insertions, deletions, 4-byte extreme values, shuffled,
-  dropped or duplicated units, units spliced from another stream;
+  dropped or duplicated units, units spliced from another stream, and a unit_payload_size
+  that disagrees with the payload (0, +-1, swallowing its CRC or the next unit, 2^31,
+  2^32 - 1 ...) with a CRC-32 that is valid for the bytes that size delimits;
 * syntax elements: every element of every parsed header (sps, render model, geometry,
   context model, attribute unit with its chunk sizes, hash unit) can be rewritten with an
   extreme value of its descriptor (0, 1, the largest value of its width, 2^k +- 1 up to 2^64,
@@ -16,7 +18,12 @@ The mutation engine (``Mutator``) works at three depths:
 Cases run in a forked worker process with an address-space limit (``RLIMIT_AS``), so an
 allocation beyond it raises MemoryError there (reported as a bug) instead of exhausting the
 machine; a case that runs past the time bound is killed and reported as a bug (timeout), and
-the worker is restarted. This module never imports the encoder.
+the worker is restarted. The worker measures each case's peak resident memory (the kernel's
+VmHWM, reset before the case through /proc/self/clear_refs). This module never imports the encoder.
+
+Two drivers: ``run_campaign`` (random.Random, seeded; the long runs of tools/fuzz_decoder.py)
+and ``mutation_programs`` (a hypothesis strategy: seed stream, then one or two mutation steps
+whose choices hypothesis draws, so that it can shrink a failure; tests/test_fuzz.py).
 """
 
 from __future__ import annotations
@@ -24,7 +31,9 @@ from __future__ import annotations
 import hashlib
 import multiprocessing as mp
 import random
+import re
 import resource
+import zlib
 import time
 import traceback
 from collections import Counter
@@ -125,10 +134,16 @@ def stream_elements(data: bytes) -> list[Element]:
 
 def replace_element(payload: bytes, el: Element, value: int) -> bytes:
     """Re-code one element with a new value; later bits move with it; zero-padded to bytes."""
-    bits = "".join(format(b, "08b") for b in payload)
-    new = bits[:el.bit] + code_bits(el.descriptor, value) + bits[el.bit + el.nbits:]
-    new += "0" * (-len(new) % 8)
-    return int(new, 2).to_bytes(len(new) // 8, "big") if new else b""
+    total = 8 * len(payload)
+    whole = int.from_bytes(payload, "big")
+    after = total - el.bit - el.nbits  # bits after the element
+    code = code_bits(el.descriptor, value)
+    head = whole >> (total - el.bit)
+    tail = whole & ((1 << after) - 1) if after > 0 else 0
+    n = el.bit + len(code) + max(after, 0)
+    new = (((head << len(code)) | int(code, 2)) << max(after, 0)) | tail
+    pad = -n % 8
+    return (new << pad).to_bytes((n + pad) // 8, "big") if n else b""
 
 
 _EXTREME_F32 = [0x00000000, 0x80000000, 0x7F800000, 0xFF800000, 0x7FC00000, 0x00000001, 0x7F7FFFFF,
@@ -158,7 +173,7 @@ class Mutator:
     RAW = ("raw_bitflip", "raw_truncate", "raw_insert", "raw_delete", "raw_overwrite", "random_bytes",
            "random_after_header")
     UNIT = ("payload_bitflip", "payload_truncate", "payload_insert", "payload_delete", "payload_extreme4",
-            "shuffle_units", "drop_unit", "duplicate_unit", "splice_unit")
+            "shuffle_units", "drop_unit", "duplicate_unit", "splice_unit", "unit_size")
     FIELD = ("field_extreme", "field_extreme_multi")
 
     def __init__(self, seeds: dict[str, bytes]):
@@ -184,6 +199,23 @@ class Mutator:
         op = rng.choice(self.ops)
         data, what = getattr(self, "_" + op)(rng, sid)
         return data, f"{sid}: {op}: {what}"
+
+    @classmethod
+    def of_bytes(cls, data: bytes) -> "Mutator":
+        """A mutator of one (already mutated) stream, for a further step: raw mutations, and unit
+        mutations when its container still parses. Field mutations need the decoder's trace of a
+        valid stream, which a mutated stream need not have, so they are left out (and nothing is
+        decoded in this process)."""
+        m = cls.__new__(cls)
+        m.seeds, m.ids, m._elements = {"step": data}, ["step"], {"step": []}
+        try:
+            m._units = {"step": [DataUnit(u.unit_type, u.payload) for u in read_container(data).units]}
+            m.ops = cls.RAW + (cls.UNIT if m._units["step"] else ())
+        except LghccError:
+            m._units, m.ops = {}, cls.RAW
+        if len(data) == 0:
+            m.ops = ("random_bytes",)
+        return m
 
     # raw -----------------------------------------------------------------------------------------
     def _raw_bitflip(self, rng, sid):
@@ -295,6 +327,24 @@ class Mutator:
         units[j] = rng.choice(same)
         return write_container(units), f"unit {j} from {other}"
 
+    def _unit_size(self, rng, sid):
+        """unit_payload_size of one unit changed, the unit's CRC-32 made valid for the bytes the new
+        size delimits (the bytes after them follow unchanged): the container layer accepts the unit
+        and the payload parser, or the framing of the next units, meets the mismatch."""
+        units, j = self._pick_unit(rng, sid)
+        data = write_container(units)
+        pos = read_container(data).units[j].offset
+        n = len(units[j].payload)
+        nxt = units[j + 1].size if j + 1 < len(units) else 0
+        size = rng.choice([0, 1, max(n - 1, 0), n + 1, n + 4, n + 4 + nxt, n + 4 + max(nxt - 4, 0), 1 << 31,
+                           (1 << 32) - 1, rng.randrange(0, len(data) - pos + 16)])
+        hdr = bytes([units[j].unit_type]) + size.to_bytes(4, "big")
+        tail = data[pos + 5:]
+        if size > len(tail):  # the stream ends inside the declared payload
+            return data[:pos] + hdr + tail, f"unit {j}: size {size} (payload {n}), beyond the end"
+        crc = zlib.crc32(hdr + tail[:size]).to_bytes(4, "big")
+        return data[:pos] + hdr + tail[:size] + crc + tail[size:], f"unit {j}: size {size} (payload {n})"
+
     # syntax elements ---------------------------------------------------------------------------------
     def _field_extreme(self, rng, sid, count: int = 1):
         units = list(self._units[sid])
@@ -314,6 +364,35 @@ class Mutator:
 
     def _field_extreme_multi(self, rng, sid):
         return self._field_extreme(rng, sid, rng.randint(2, 4))
+
+
+# --- hypothesis-driven mutation programs ------------------------------------------------------------
+
+def mutation_programs(mutator: Mutator, max_steps: int = 2):
+    """A hypothesis strategy of mutation programs: (seed id, [(op, rng), ...]). The first step is any
+    mutation of the seed stream; later steps mutate the result (raw and unit mutations, see
+    ``Mutator.of_bytes``). Every choice inside a step comes from the step's hypothesis-controlled
+    Random, so that hypothesis can replay, shrink and derandomize programs. Needs hypothesis."""
+    from hypothesis import strategies as st
+
+    steps = st.lists(st.tuples(st.sampled_from(mutator.ops), st.randoms(use_true_random=False)),
+                     min_size=1, max_size=max_steps)
+    return st.tuples(st.sampled_from(mutator.ids), steps)
+
+
+def apply_program(mutator: Mutator, program) -> tuple[bytes, str]:
+    """The stream a mutation program makes, and a description of its steps."""
+    sid, steps = program
+    op, rng = steps[0]
+    data, what = getattr(mutator, "_" + op)(rng, sid)
+    desc = [f"{sid}: {op}: {what}"]
+    for op, rng in steps[1:]:
+        m = Mutator.of_bytes(data)
+        if op not in m.ops:  # e.g. a field mutation as a second step: a raw one of the same rank instead
+            op = m.ops[Mutator.RAW.index(op) % len(m.ops)] if op in Mutator.RAW else m.ops[len(op) % len(m.ops)]
+        data, what = getattr(m, "_" + op)(rng, "step")
+        desc.append(f"then {op}: {what}")
+    return data, "; ".join(desc)
 
 
 # --- running cases ---------------------------------------------------------------------------------
@@ -354,13 +433,36 @@ def _worker(conn, memory_bytes: int | None, threads: int) -> None:
             data = conn.recv_bytes()
         except EOFError:
             return
+        base_kib = _reset_peak_rss()
         t0 = time.perf_counter()
         try:
             kind, detail = classify(data)
         except Exception as e:  # noqa: BLE001 - e.g. MemoryError while handling another error
             kind, detail = f"BUG: {type(e).__name__}", traceback.format_exc()
-        peak_kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        conn.send((kind, detail, time.perf_counter() - t0, peak_kib))
+        dt = time.perf_counter() - t0
+        peak_kib = _status_kib("VmHWM") or resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        conn.send((kind, detail, dt, peak_kib, max(peak_kib - base_kib, 0)))
+
+
+def _status_kib(key: str) -> int:
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith(key + ":"):
+                return int(line.split()[1])
+    except OSError:
+        pass
+    return 0
+
+
+def _reset_peak_rss() -> int:
+    """Reset the kernel's peak-RSS mark (VmHWM) to the current RSS; returns the current RSS (KiB).
+    Without /proc/self/clear_refs the peak is the process's peak so far (an upper bound)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+    except OSError:
+        pass
+    return _status_kib("VmRSS")
 
 
 def _vm_size_bytes() -> int:
@@ -371,6 +473,19 @@ def _vm_size_bytes() -> int:
     except OSError:
         pass
     return 0
+
+
+class CaseResult(tuple):
+    """(kind, detail, seconds, peak_kib, growth_kib) with names."""
+
+    def __new__(cls, kind: str, detail: str, seconds: float, peak_kib: int = 0, growth_kib: int = 0):
+        return super().__new__(cls, (kind, detail, seconds, peak_kib, growth_kib))
+
+    kind = property(lambda self: self[0])
+    detail = property(lambda self: self[1])
+    seconds = property(lambda self: self[2])
+    peak_kib = property(lambda self: self[3])
+    growth_kib = property(lambda self: self[4])
 
 
 class Sandbox:
@@ -401,21 +516,23 @@ class Sandbox:
             self._conn.close()
         self._proc = self._conn = None
 
-    def run(self, data: bytes) -> tuple[str, str, float]:
+    def run(self, data: bytes) -> "CaseResult":
+        """Decode one case in the worker: (kind, detail, seconds, peak RSS KiB, peak above the RSS
+        before the case KiB); the memory figures are 0 when the worker timed out or died."""
         if self._proc is None or not self._proc.is_alive():
             self._start()
         t0 = time.perf_counter()
         self._conn.send_bytes(data)
         if not self._conn.poll(self.timeout):
             self._stop()
-            return "BUG: timeout", f"no result after {self.timeout:g} s", time.perf_counter() - t0
+            return CaseResult("BUG: timeout", f"no result after {self.timeout:g} s", time.perf_counter() - t0)
         try:
-            kind, detail, seconds, _ = self._conn.recv()
+            kind, detail, seconds, peak_kib, growth_kib = self._conn.recv()
         except (EOFError, OSError):
             code = self._proc.exitcode if self._proc else None
             self._stop()
-            return "BUG: worker died", f"exit code {code}", time.perf_counter() - t0
-        return kind, detail, seconds
+            return CaseResult("BUG: worker died", f"exit code {code}", time.perf_counter() - t0)
+        return CaseResult(kind, detail, seconds, peak_kib, growth_kib)
 
     def close(self) -> None:
         if self._conn is not None:
@@ -433,13 +550,41 @@ class Sandbox:
         self.close()
 
 
+def message_prefix(message: str, words: int = 8) -> str:
+    """A message's first words with numbers and hex digests replaced by '#': groups errors by reason."""
+    m = re.sub(r"0x[0-9a-fA-F]+|\b[0-9a-f]{8,}\b|-?\d+(\.\d+)?(e[+-]?\d+)?", "#",
+               message.strip().splitlines()[0] if message else "")
+    return " ".join(m.split()[:words])
+
+
 @dataclass
 class Summary:
     cases: int = 0
     seconds: float = 0.0
     outcomes: Counter = field(default_factory=Counter)
+    reasons: Counter = field(default_factory=Counter)  # (kind, message prefix) of the errors
     slowest: tuple[float, str] = (0.0, "")
+    peak_kib: list[int] = field(default_factory=list)  # per case: the worker's peak RSS
+    growth_kib: list[int] = field(default_factory=list)  # per case: peak RSS above the RSS before the case
+    largest: tuple[int, str] = (0, "")  # the largest growth and its case
     failures: list[tuple[str, str, str, bytes]] = field(default_factory=list)  # kind, what, detail, data
+
+    def add(self, res: "CaseResult", what: str, data: bytes, failures_dir: Path | None = None) -> None:
+        self.cases += 1
+        self.outcomes[res.kind] += 1
+        if res.kind.startswith("error"):
+            self.reasons[(res.kind[len("error: "):], message_prefix(res.detail))] += 1
+        if res.seconds > self.slowest[0]:
+            self.slowest = (res.seconds, what)
+        if res.peak_kib:
+            self.peak_kib.append(res.peak_kib)
+            self.growth_kib.append(res.growth_kib)
+            if res.growth_kib > self.largest[0]:
+                self.largest = (res.growth_kib, what)
+        if res.kind.startswith("BUG"):
+            self.failures.append((res.kind, what, res.detail, data))
+            if failures_dir is not None:
+                save_failure(Path(failures_dir), res.kind, what, res.detail, data)
 
     @property
     def bugs(self) -> int:
@@ -449,12 +594,29 @@ class Summary:
     def cases_per_minute(self) -> float:
         return 60.0 * self.cases / self.seconds if self.seconds else 0.0
 
-    def text(self) -> str:
+    def memory_text(self) -> str:
+        if not self.peak_kib:
+            return "peak memory: not measured"
+        peaks, growth = sorted(self.peak_kib), sorted(self.growth_kib)
+
+        def q(a, f):
+            return a[min(int(f * len(a)), len(a) - 1)] / 1024
+        return (f"peak RSS per case: median {q(peaks, 0.5):.0f} MiB, max {peaks[-1] / 1024:.0f} MiB; above the "
+                f"worker's RSS before the case: median {q(growth, 0.5):.1f} MiB, 99th percentile "
+                f"{q(growth, 0.99):.1f} MiB, max {growth[-1] / 1024:.1f} MiB ({self.largest[1][:100]})")
+
+    def text(self, top_reasons: int = 15) -> str:
         lines = [f"cases: {self.cases} in {self.seconds:.1f} s ({self.cases_per_minute:.0f} cases/min)",
                  "outcomes:"]
         for k, n in sorted(self.outcomes.items(), key=lambda kv: (not kv[0].startswith("BUG"), -kv[1])):
             lines.append(f"  {n:>7}  {k}")
-        lines.append(f"slowest case: {self.slowest[0]:.3f} s ({self.slowest[1]})")
+        if self.reasons:
+            lines.append(f"errors by reason (class, message prefix; {len(self.reasons)} distinct, "
+                         f"top {min(top_reasons, len(self.reasons))}):")
+            for (kind, prefix), n in self.reasons.most_common(top_reasons):
+                lines.append(f"  {n:>7}  {kind}: {prefix}")
+        lines.append(f"slowest case: {self.slowest[0]:.3f} s ({self.slowest[1][:120]})")
+        lines.append(self.memory_text())
         lines.append(f"bugs: {self.bugs}")
         return "\n".join(lines)
 
@@ -480,15 +642,7 @@ def run_campaign(mutator: Mutator, *, seed: int = 0, cases: int | None = None, s
     with Sandbox(timeout, memory_mb, threads) as box:
         while (cases is None or summary.cases < cases) and (seconds is None or time.perf_counter() - t0 < seconds):
             data, what = mutator.case(rng)
-            kind, detail, dt = box.run(data)
-            summary.cases += 1
-            summary.outcomes[kind] += 1
-            if dt > summary.slowest[0]:
-                summary.slowest = (dt, what)
-            if kind.startswith("BUG"):
-                summary.failures.append((kind, what, detail, data))
-                if failures_dir is not None:
-                    save_failure(Path(failures_dir), kind, what, detail, data)
+            summary.add(box.run(data), what, data, failures_dir)
             if progress is not None:
                 progress(summary)
     summary.seconds = time.perf_counter() - t0
