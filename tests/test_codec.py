@@ -6,6 +6,7 @@ import torch
 from hypothesis import given, settings, strategies as st
 
 from lghcc.common.errors import InputError
+from lghcc.common.geometry import normative_order
 from lghcc.common.hashing import scene_digest
 from lghcc.common.procedural import make_procedural_scene
 from lghcc.decoder.decode import decode_stream
@@ -47,9 +48,70 @@ def test_procedural_round_trip_and_quantization_error():
     assert res.stats["attribute_coded_bits"] <= res.stats["attribute_ideal_bits"] * 1.001 + 64 * 32
 
 
-@settings(max_examples=40)
-@given(scenes(), st.booleans(), st.sampled_from([1, 2, 4, 1 << 20]))
-def test_round_trip_hard_cases(scene, hierarchy, scale):
+HARD_CASES = ("random", "one_anchor", "one_coarse_voxel", "far_coordinates", "constant_features", "escape")
+
+
+@st.composite
+def hard_cases(draw):
+    """(scene, hierarchy, coarse voxel scale, case): the scenes() strategy (sizes, spreads up to 2^30,
+    value scales up to 1e6, voxel sizes 1e-30 .. 1e30, masks, with and without MLPs) turned into
+    each hard case in turn."""
+    case = draw(st.sampled_from(HARD_CASES))
+    scene = draw(scenes())
+    hierarchy = draw(st.booleans())
+    scale = draw(st.sampled_from([1, 2, 4, 1 << 20]))
+    rng = np.random.default_rng(draw(st.integers(0, 2 ** 32 - 1)))
+    n = scene.num_anchors
+
+    def keep(rows):
+        for name in ("coords", "features", "scalings", "offsets"):
+            setattr(scene, name, getattr(scene, name)[rows])
+        if scene.offset_mask is not None:
+            scene.offset_mask = scene.offset_mask[rows]
+
+    if case == "one_anchor":
+        keep(slice(0, 1))
+    elif case == "one_coarse_voxel":  # every anchor in the coarse voxel at the origin: one parent, n-1 children
+        hierarchy, scale = True, draw(st.sampled_from([2, 4, 16]))
+        cells = np.stack(np.meshgrid(*[np.arange(scale)] * 3, indexing="ij"), -1).reshape(-1, 3)
+        rows = min(n, len(cells))
+        keep(slice(0, rows))
+        scene.coords = cells[rng.permutation(len(cells))[:rows]].astype(np.int64)
+    elif case == "far_coordinates":
+        scene.coords = np.clip(scene.coords, -10 ** 6, 10 ** 6)
+        scene.coords[0] = (10 ** 6, 10 ** 6, 10 ** 6)
+        if n > 1:
+            scene.coords[1] = (-10 ** 6, -10 ** 6, -10 ** 6)
+        _, first = np.unique(scene.coords, axis=0, return_index=True)
+        keep(np.sort(first))
+    elif case == "constant_features":
+        scene.features[:] = draw(st.sampled_from([0.0, 1.0, -7.5, 123.25]))
+    elif case == "escape":  # values 10^4 to 10^6 steps from any prior mean: past every table (|r| <= 4096)
+        if n == 1:  # a second anchor, so that no prior mean can sit on every value
+            scene.coords = np.concatenate([scene.coords, scene.coords + [1, 0, 0]])
+            for name in ("features", "scalings", "offsets"):
+                setattr(scene, name, np.concatenate([getattr(scene, name)] * 2))
+            if scene.offset_mask is not None:
+                scene.offset_mask = np.concatenate([scene.offset_mask] * 2)
+        big = rng.choice([-1, 1], size=scene.features.shape) * 10.0 ** rng.uniform(2, 4, scene.features.shape)
+        scene.features[:] = big.astype(np.float32)
+        scene.features[0], scene.features[1] = np.float32(1e4), np.float32(-1e4)  # +-10^6 steps of 0.01
+        scene.offsets[0, 0, :], scene.offsets[1, 0, :] = np.float32(2.5e3), np.float32(-2.5e3)
+    return scene, hierarchy, scale, case
+
+
+def quantized(x: np.ndarray, step: float) -> np.ndarray:
+    """What the decoder shall output for input x: float32(rint(x / step)) * step in binary32, with
+    step the binary32 value the stream carries."""
+    s = np.float32(step)
+    q = np.rint(x.astype(np.float64) / np.float64(s)).astype(np.int64)  # integers: -0.0 becomes 0
+    return q.astype(np.float32) * s
+
+
+@settings(max_examples=60, deadline=None)
+@given(hard_cases())
+def test_round_trip_hard_cases(case):
+    scene, hierarchy, scale, kind = case
     cfg = EncoderConfig(feature_step=0.01, scaling_step=0.1, offset_step=0.05, rows_per_chunk=7,
                         hierarchy=hierarchy, coarse_voxel_scale=scale)
     with np.errstate(over="ignore", invalid="ignore"):
@@ -61,7 +123,46 @@ def test_round_trip_hard_cases(scene, hierarchy, scale):
     res = encode_scene(scene, cfg)
     dec = decode_stream(res.data)
     assert_same_scene(dec.scene, res.decoded)
-    assert dec.scene.num_anchors == scene.num_anchors
+    out = dec.scene
+    # Against the input, not the encoder's own prediction.
+    assert out.num_anchors == scene.num_anchors
+    order = normative_order(scene.coords)
+    assert np.array_equal(out.coords, scene.coords[order])  # the input's anchors, in normative order
+    assert np.array_equal(np.unique(out.coords, axis=0), np.unique(scene.coords, axis=0))
+    assert out.voxel_size == float(np.float32(scene.voxel_size))
+    assert out.origin.tobytes() == np.asarray(scene.origin, np.float32).tobytes()
+    live = np.ones((scene.num_anchors, scene.num_offsets), bool) if scene.offset_mask is None else scene.offset_mask
+    live = live[order]
+    out_live = np.ones_like(live) if out.offset_mask is None else out.offset_mask
+    assert np.array_equal(out_live, live)
+    assert out.features.tobytes() == quantized(scene.features[order], cfg.feature_step).tobytes()
+    assert out.scalings.tobytes() == quantized(scene.scalings[order], cfg.scaling_step).tobytes()
+    want_offsets = np.where(live[:, :, None], quantized(scene.offsets[order], cfg.offset_step), np.float32(0))
+    assert out.offsets.tobytes() == want_offsets.tobytes()
+    if kind == "constant_features":
+        assert (out.features == out.features[0, 0]).all()
+
+
+def test_hard_case_generator_covers_every_case():
+    seen = {}
+
+    @settings(max_examples=150, deadline=None, database=None)
+    @given(hard_cases())
+    def collect(case):
+        scene, hierarchy, scale, kind = case
+        if kind == "one_anchor":
+            assert scene.num_anchors == 1
+        if kind == "one_coarse_voxel":
+            assert hierarchy and (np.floor_divide(scene.coords, scale) == 0).all()
+        if kind == "far_coordinates":
+            assert np.abs(scene.coords).max() == 10 ** 6
+        if kind == "escape":  # every feature channel spans 2 * 10^6 steps of 0.01: some residual escapes
+            from lghcc.common.entropy.tables import HALF_WIDTHS
+            assert (np.ptp(scene.features, axis=0) / 0.01).min() > 2 * HALF_WIDTHS.max()
+        seen[kind] = seen.get(kind, 0) + 1
+
+    collect()
+    assert set(seen) == set(HARD_CASES)
 
 
 def test_hierarchy_levels_and_switch_off():
@@ -147,9 +248,14 @@ def test_all_live_mask_costs_nothing():
 def test_decoding_is_the_same_with_1_and_2_threads():
     data = encode_scene(make_procedural_scene(2000, seed=2)).data
     digests = []
-    for threads in (1, 2):
-        torch.set_num_threads(threads)
-        digests.append(scene_digest(decode_stream(data).scene))
+    before = torch.get_num_threads()
+    try:
+        for threads in (1, 2):
+            torch.set_num_threads(threads)
+            digests.append(scene_digest(decode_stream(data).scene))
+    finally:
+        torch.set_num_threads(before)  # leave the process as it was for the tests that follow
+    assert torch.get_num_threads() == before
     assert digests[0] == digests[1]
 
 
@@ -167,11 +273,15 @@ def test_context_models_round_trip_bit_exact_across_threads(model):
     assert res.breakdown.bytes_by_category["model"] > 0
     assert res.stats["level2_context_model"] != "per-channel prior"
     digests = []
-    for threads in (1, 2):
-        torch.set_num_threads(threads)
-        dec = decode_stream(res.data)
-        assert_same_scene(dec.scene, res.decoded)
-        digests.append(scene_digest(dec.scene))
+    before = torch.get_num_threads()
+    try:
+        for threads in (1, 2):
+            torch.set_num_threads(threads)
+            dec = decode_stream(res.data)
+            assert_same_scene(dec.scene, res.decoded)
+            digests.append(scene_digest(dec.scene))
+    finally:
+        torch.set_num_threads(before)
     assert digests[0] == digests[1]
 
 
