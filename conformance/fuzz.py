@@ -40,7 +40,6 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from lghcc.common.bitio import BitReader
 from lghcc.common.container import DataUnit, UnitType, read_container, write_container
 from lghcc.common.errors import LghccError
 

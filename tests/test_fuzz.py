@@ -5,7 +5,6 @@ no example database. The long run is `python tools/fuzz_decoder.py --minutes N` 
 
 import random
 import time
-import zlib
 from datetime import timedelta
 
 import pytest
