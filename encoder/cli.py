@@ -75,7 +75,7 @@ def setup_args() -> argparse.ArgumentParser:
     p.add_argument("--report-ideal", action="store_true",
                    help="also report how close attribute coding comes to its model's ideal code length")
     p.add_argument("--json", metavar="FILE", help="also write the size breakdown and timings as JSON")
-    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors and warnings")
     return p
 
 

@@ -2,11 +2,14 @@
 """Benchmark of lossless geometry coding (informative).
 
 For the garden SfM points and the donut Gaussian centres voxelized on 10-, 12- and 14-bit
-grids (longest bounding-box side -> 2^bits cells, duplicates removed), and for a procedural
-surface cloud of 10k / 100k / 1M anchors: bits per voxel, encode and decode time of
-lghcc.common.geometry, beside zstd (level 19) of the Morton-sorted coordinates (int32
-little-endian, and Morton-delta varints) and beside G-PCC (TMC13 v23) figures where known.
-Writes a markdown table (default tools/results/geometry.md).
+grids (longest bounding-box side -> 2^bits cells, duplicates removed), for a closed
+surface cloud of 10k / 100k / 1M voxels (densely sampled surfaces, every surface voxel
+kept), and for the anchors of the procedural scene (common/procedural.py
+make_procedural_scene, seed 0, the scene of lghcc-enc --procedural and of the codec
+benchmark: voxels drawn at random from sparsely sampled surfaces) at the same sizes: bits
+per voxel, encode and decode time of lghcc.common.geometry, beside zstd (level 19) of the
+Morton-sorted coordinates (int32 little-endian, and Morton-delta varints) and beside G-PCC
+(TMC13 v23) figures where known. Writes a markdown table (default tools/results/geometry.md).
 
 Data comes from ../shared/data (see its README); a data set that is missing is reported
 and skipped, never silently replaced.
@@ -23,13 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
-from lghcc.common.procedural import surface_points
+from lghcc.common.procedural import make_procedural_scene, surface_points
 from lghcc.common.geometry import (IDCM_ISOLATED, _morton_perm, decode_geometry, encode_geometry,
                                    normative_order)
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT.parent / "shared" / "data"
-# G-PCC (TMC13 v23, octree + planar + IDCM), lossless, bits per voxel (DESIGN.md section 6)
+# G-PCC (TMC13 v23, octree + planar + IDCM), lossless, bits per voxel: figures supplied with the
+# project brief, measured outside this repository
 GPCC_BPV = {("garden", 12): 12.0, ("donut", 12): 18.0}
 
 
@@ -80,6 +84,19 @@ def surface_cloud(n: int, seed: int = 0) -> np.ndarray:
     for _ in range(2):  # calibrate the resolution on the voxel count
         res *= np.sqrt(n / unique_voxels(np.floor((pts + 1) * res).astype(np.int64)).shape[0])
     return unique_voxels(np.floor((pts + 1) * res).astype(np.int64))
+
+
+def procedural_coords(n: int, seed: int = 0) -> np.ndarray:
+    """The anchor coordinates of make_procedural_scene(n, seed), without generating its
+    attributes (minutes at 1M): the same random draws, in the same order, as its first steps.
+    main() checks the equality on the smallest size."""
+    rng = np.random.default_rng(seed)
+    voxel = float(np.sqrt(8.6 / n))
+    pts = surface_points(rng, 4 * n + 16)
+    coords = np.unique(np.floor(pts / voxel).astype(np.int64), axis=0)
+    if coords.shape[0] > n:
+        coords = coords[np.sort(rng.choice(coords.shape[0], n, replace=False))]
+    return coords
 
 
 def unique_voxels(v: np.ndarray) -> np.ndarray:
@@ -153,7 +170,12 @@ def load_sets(data_dir: Path, grids: list[int], sizes: list[int]) -> tuple[list,
         sets += [("donut", b, voxelize(xyz, b)) for b in grids]
     else:
         missing.append(str(donut))
-    sets += [(f"surface-{n // 1000}k", None, surface_cloud(n)) for n in sizes]
+    sets += [(f"surface cloud {n // 1000}k", None, surface_cloud(n)) for n in sizes]
+    if sizes:
+        n = min(sizes)
+        if not np.array_equal(procedural_coords(n), make_procedural_scene(n, seed=0).coords):
+            raise SystemExit("procedural_coords() no longer matches make_procedural_scene(); update it")
+    sets += [(f"procedural scene {n // 1000}k", None, procedural_coords(n)) for n in sizes]
     return sets, missing
 
 
@@ -163,7 +185,7 @@ def setup_args() -> argparse.ArgumentParser:
     p.add_argument("--data", type=Path, default=DEFAULT_DATA, help="shared data folder (default: %(default)s)")
     p.add_argument("--grids", type=int, nargs="+", default=[10, 12, 14], help="voxel grid bits")
     p.add_argument("--sizes", type=int, nargs="*", default=[10_000, 100_000, 1_000_000],
-                   help="anchor counts of the procedural surface clouds")
+                   help="sizes of the surface clouds and procedural scenes (anchors)")
     p.add_argument("--repeat", type=int, default=1, help="timing repetitions (best is reported)")
     p.add_argument("--out", type=Path, default=ROOT / "tools" / "results" / "geometry.md",
                    help="markdown output (default: %(default)s); '-' for stdout only")
@@ -191,8 +213,13 @@ def main(argv: list[str] | None = None) -> int:
         f"Codec: lghcc.common.geometry, geom_idcm_mode={IDCM_ISOLATED}. bpv = bits per voxel (unique voxel "
         "after voxelization), whole payload including its header. zstd: level 19 on the coordinates "
         "relative to the bounding-box minimum in normative (Morton) order, as int32 little-endian, and as "
-        "LEB128 varints of Morton-key deltas. G-PCC: TMC13 v23 octree+planar+IDCM (DESIGN.md 6), "
-        "measured elsewhere on the 12-bit grid.",
+        "LEB128 varints of Morton-key deltas. G-PCC: TMC13 v23 octree+planar+IDCM, lossless, on the "
+        "12-bit grid: figures supplied with the project brief (measured outside this repository).  ",
+        "Rows: *surface cloud N* = a closed surface (torus, sphere, wavy plane) sampled 8x denser than its "
+        "voxels, every surface voxel kept (`surface_cloud`); *procedural scene N* = the anchors of "
+        "`make_procedural_scene(N, seed=0)` (`lghcc-enc --procedural N`, the codec benchmark's scene): "
+        "the same surfaces sampled 4 points per anchor and subsampled at random to N, so sparser and "
+        "less regular; its bpv is the geometry bits per anchor.",
         "",
         "| data | grid bits | voxels | lghcc bpv | enc s | dec s | zstd int32 bpv | zstd Morton-delta bpv "
         "| G-PCC bpv |",
