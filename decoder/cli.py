@@ -10,6 +10,11 @@ import sys
 import time
 from pathlib import Path
 
+# Rendering (--render) runs torch's OpenMP kernels: passive waiting keeps 2 threads from spinning
+# against other jobs on a shared machine (100k Gaussians forward: 7.6 s spinning, 1.8 s passive).
+# Set before torch is imported; a user's own setting wins.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 from lghcc.common.errors import HashMismatchError, LghccError
 from lghcc.common.fileio import atomic_write_bytes, check_output_paths, check_writable_file, write_error
 

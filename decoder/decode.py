@@ -119,8 +119,8 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
             raise BitstreamError(f"the level-2 attribute unit uses context model {model_id}, but the stream's "
                                  "context model unit " + ("is missing" if context_model is None else
                                                           f"holds model {context_model[0]}"))
-        parent_attrs = q_level1[hier.parent_of_level2]
-        return level2_coding_params(context_model, coords[hier.level2_idx], parent_attrs, sps.coarse_voxel_scale)
+        return level2_coding_params(context_model, coords[hier.level1_idx], q_level1, coords[hier.level2_idx],
+                                    hier.parent_of_level2, sps.coarse_voxel_scale)
 
     bar = tqdm(total=n, desc="decode attributes", unit="anchor", disable=not progress, leave=False)
     for unit, (level, rows) in zip(attribute_units, levels):

@@ -55,6 +55,13 @@ def setup_args() -> argparse.ArgumentParser:
     p.add_argument("--mlp-weight-bits", type=int, help="bits per quantized render-MLP weight (2..24)")
     p.add_argument("--voxel-size", type=_positive_float,
                    help="anchor voxel size (default: inferred from the anchor grid of the input)")
+    pr = p.add_argument_group("anchor pruning before coding (default: none)")
+    pr.add_argument("--prune", choices=("none", "naap", "opacity"),
+                    help="naap: Neighborhood-Aware Anchor Pruning (importance from each anchor's opacity and its "
+                         "k-NN neighbourhood; pruned anchors are merged into their nearest kept neighbour); "
+                         "opacity: drop anchors below an opacity threshold (Context-GS)")
+    pr.add_argument("--prune-keep", type=float, metavar="RATIO", help="keep this fraction of the anchors (0..1]")
+    pr.add_argument("--prune-tau", type=float, metavar="TAU", help="or: prune anchors whose importance is below TAU")
     p.add_argument("--merge-duplicates", action="store_true",
                    help="merge anchors that fall in the same voxel (attributes averaged) instead of failing")
     t = p.add_argument_group("plain 3DGS input (a PLY with f_dc_0 and no f_anchor_feat_0 is transcoded to anchors first)")
@@ -150,7 +157,8 @@ def main(argv: list[str] | None = None) -> int:
                 check_writable_file(path)
         cfg = load_config(args.preset, args.config, {
             "feature_step": args.feature_step, "scaling_step": args.scaling_step,
-            "offset_step": args.offset_step, "mlp_weight_bits": args.mlp_weight_bits})
+            "offset_step": args.offset_step, "mlp_weight_bits": args.mlp_weight_bits, "pruning": args.prune,
+            "prune_keep_ratio": args.prune_keep, "prune_tau": args.prune_tau})
         t0 = time.perf_counter()
         scene, source = _load_scene(args)
         t_load = time.perf_counter() - t0
@@ -179,7 +187,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"lghcc-enc: error: {e}", file=sys.stderr)
         return 1
     st = result.stats
-    say(f"{source}: {scene.num_anchors:,} anchors, C={scene.feature_dim}, K={scene.num_offsets} -> {out} "
+    if "pruning" in st:
+        say(st["pruning"])
+    say(f"{source}: {result.decoded.num_anchors:,} anchors, C={scene.feature_dim}, K={scene.num_offsets} -> {out} "
         f"({len(result.data):,} bytes)")
     say(result.breakdown.table())
     if args.report_ideal:

@@ -31,12 +31,28 @@ class EncoderConfig:
     # Level-2 context model: per_channel (the spine's prior), parent_mlp (vanilla EM) or ggconv.
     context_model: str = "per_channel"
     context_k: int = 8  # neighbours of the Ball k-NN graph (GG-Conv)
+    # GG-Conv neighbours: 1 = the level-1 anchors with their own decoded attributes (default:
+    # fewer bits, tools/results/context.md), 2 = the other level-2 anchors carrying their
+    # parents' attributes (the paper's graph over A_pre^(2)).
+    context_neighbour_level: int = 1
+    context_channels: int = 32  # GG-Conv context channels Ch (geometry table and feature MLP outputs)
+    context_feat_hidden: int = 64  # GG-Conv feature-MLP hidden width
+    context_head_hidden: int = 64  # head-MLP hidden width (GG-Conv and parent MLP)
     context_lambda: float = 16.0  # distortion weight of the step adjustment, bits per squared step
-    context_float_steps: int = 300  # training steps in float
-    context_qat_steps: int = 150  # quantization-aware steps (GG-Conv)
+    context_float_steps: int = 1200  # training steps in float
+    context_qat_steps: int = 300  # quantization-aware steps (GG-Conv; the parent MLP trains float_steps + qat_steps)
     context_weight_bits: int = 16  # integer precision of the context model's weights: 8 or 16
     context_train_anchors: int = 200_000  # level-2 anchors sampled for training
     context_fallback: bool = True  # use the context model only when it saves bytes over the prior
+    # Anchor pruning before coding (informative): none, naap (Neighborhood-Aware Anchor Pruning:
+    # low-importance anchors merged into their nearest retained neighbour) or opacity (Context-GS's
+    # plain threshold, for comparison). Give a keep ratio or an importance threshold tau.
+    pruning: str = "none"
+    prune_keep_ratio: float | None = None  # keep this fraction of the anchors
+    prune_tau: float | None = None  # or: prune anchors whose importance (accumulated opacity) is below tau
+    naap_k: int = 8  # NAAP neighbours
+    naap_lambda: float = 0.5  # NAAP: weight of the neighbourhood opacity in the importance
+    naap_gamma: float = 0.2  # NAAP: share of a pruned anchor merged into its target
 
     def validate(self) -> "EncoderConfig":
         for name in ("feature_step", "scaling_step", "offset_step"):
@@ -57,6 +73,22 @@ class EncoderConfig:
             raise InputError("context_weight_bits must be 8 or 16")
         if not 1 <= self.context_k <= 64:
             raise InputError("context_k must be in [1, 64]")
+        if self.context_neighbour_level not in (1, 2):
+            raise InputError("context_neighbour_level must be 1 (level-1 anchors) or 2 (level-2 anchors)")
+        for name in ("context_channels", "context_feat_hidden", "context_head_hidden"):
+            if not 1 <= getattr(self, name) <= 4096:
+                raise InputError(f"{name} must be in [1, 4096], got {getattr(self, name)}")
+        for name in ("context_float_steps", "context_qat_steps"):
+            if getattr(self, name) < 0:
+                raise InputError(f"{name} must be >= 0")
+        if self.pruning not in ("none", "naap", "opacity"):
+            raise InputError(f"pruning must be none, naap or opacity, got {self.pruning!r}")
+        if self.pruning != "none" and (self.prune_keep_ratio is None) == (self.prune_tau is None):
+            raise InputError(f"pruning {self.pruning} needs exactly one of prune_keep_ratio or prune_tau")
+        if self.prune_keep_ratio is not None and not 0 < self.prune_keep_ratio <= 1:
+            raise InputError(f"prune_keep_ratio must be in (0, 1], got {self.prune_keep_ratio}")
+        if not 1 <= self.naap_k <= 64 or not 0 <= self.naap_lambda <= 1 or not 0 <= self.naap_gamma <= 1:
+            raise InputError("naap_k must be in [1, 64], naap_lambda and naap_gamma in [0, 1]")
         if self.prior_fit_rows < 1:
             raise InputError("prior_fit_rows must be at least 1")
         return self

@@ -54,6 +54,7 @@ def fit_parent_mlp(coords2: np.ndarray, parent_attrs: np.ndarray, targets: np.nd
         net[2].bias[m:2 * m] = ((spread.log() - np.log(0.11)) / (np.log(512 / 0.11) / 63)).clamp(0, 63)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     steps = cfg.float_steps + cfg.qat_steps
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.lr, total_steps=max(steps, 1) + 1, pct_start=0.1)
     for _ in tqdm(range(steps), desc="fit parent MLP", disable=not cfg.progress, unit="step"):
         sel = torch.from_numpy(rng.integers(0, rows.size, min(cfg.batch, rows.size)))
         o = net(x_int[sel] * scale)
@@ -64,6 +65,7 @@ def fit_parent_mlp(coords2: np.ndarray, parent_attrs: np.ndarray, targets: np.nd
         opt.zero_grad()
         (loss.mean() / m).backward()
         opt.step()
+        sched.step()
     with torch.no_grad():
         w1 = (net[0].weight * scale[None, :]).numpy()
         b1 = net[0].bias.numpy()
@@ -75,10 +77,15 @@ def fit_parent_mlp(coords2: np.ndarray, parent_attrs: np.ndarray, targets: np.nd
     return ParentMlpParams(num_features, IntMLP([l1, l2]))
 
 
-def fit_level2_context(kind: str, coords2: np.ndarray, parent_attrs: np.ndarray, targets: np.ndarray,
-                       num_features: int, voxel_scale: int, cfg: GGConvTrainConfig) -> FittedContext:
+def fit_level2_context(kind: str, coords1: np.ndarray, attrs1: np.ndarray, coords2: np.ndarray, parent: np.ndarray,
+                       targets: np.ndarray, num_features: int, voxel_scale: int,
+                       cfg: GGConvTrainConfig) -> FittedContext:
+    """Fit the level-2 context model ``kind`` (parent_mlp or ggconv) on the decoded level 1
+    (coords1 [N1, 3], attrs1 [N1, M] quantized) and the level-2 targets (float [N2, M], in base
+    steps) of the level-2 anchors at coords2 [N2, 3] with parents ``parent`` [N2] (level-1 index)."""
+    parent_attrs = attrs1[parent]
     if kind == "ggconv":
-        p = fit_ggconv(coords2, parent_attrs, targets, num_features, voxel_scale, cfg)
+        p = fit_ggconv(coords2, parent_attrs, targets, num_features, voxel_scale, cfg, level1=(coords1, attrs1))
         return FittedContext(CONTEXT_GGCONV, p, len(p.feat_mlp.layers), len(p.head_mlp.layers))
     if kind == "parent_mlp":
         p = fit_parent_mlp(coords2, parent_attrs, targets, num_features, voxel_scale, cfg)

@@ -54,9 +54,22 @@ class EncodeResult:
 
 
 def context_train_config(cfg: EncoderConfig, progress: bool) -> GGConvTrainConfig:
-    return GGConvTrainConfig(k=cfg.context_k, lam=cfg.context_lambda, float_steps=cfg.context_float_steps,
-                             qat_steps=cfg.context_qat_steps, weight_bits=cfg.context_weight_bits,
-                             max_train_anchors=cfg.context_train_anchors, progress=progress)
+    return GGConvTrainConfig(k=cfg.context_k, neighbour_level=cfg.context_neighbour_level,
+                             ctx_channels=cfg.context_channels, feat_hidden=cfg.context_feat_hidden,
+                             head_hidden=cfg.context_head_hidden, lam=cfg.context_lambda,
+                             float_steps=cfg.context_float_steps, qat_steps=cfg.context_qat_steps,
+                             weight_bits=cfg.context_weight_bits, max_train_anchors=cfg.context_train_anchors,
+                             progress=progress)
+
+
+def prune_scene(scene: AnchorScene, cfg: EncoderConfig):
+    """The configured pruning (NAAP or opacity threshold) -> (pruned scene, PruneReport)."""
+    from lghcc.encoder.naap import NaapConfig, naap_prune, opacity_prune
+
+    if cfg.pruning == "naap":
+        return naap_prune(scene, NaapConfig(k=cfg.naap_k, lam=cfg.naap_lambda, gamma=cfg.naap_gamma,
+                                            tau=cfg.prune_tau, keep_ratio=cfg.prune_keep_ratio))
+    return opacity_prune(scene, tau=cfg.prune_tau, keep_ratio=cfg.prune_keep_ratio)
 
 
 def quantize(values: np.ndarray, steps: np.ndarray, what: str) -> np.ndarray:
@@ -134,10 +147,14 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
     (stats["attribute_ideal_bits"]), a full extra pass over the symbols."""
     cfg = (cfg or EncoderConfig()).validate()
     scene.validate()
+    stats: dict = {}
+    if cfg.pruning != "none":
+        scene, report = prune_scene(scene, cfg)
+        stats["pruning"] = str(report)
+        stats["anchors_before_pruning"] = report.num_before
     n = scene.num_anchors
     if n > MAX_ANCHORS:
         raise InputError(f"{n} anchors exceed the profile's limit of {MAX_ANCHORS}")
-    stats: dict = {}
     t0 = time.perf_counter()
     bar = tqdm(total=5, desc="encode", unit="step", disable=not progress, leave=False)
 
@@ -209,14 +226,15 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
         chosen = code(header, q, attr.prior_params(header))
         if level == LEVEL_2 and cfg.context_model != "per_channel":
             t2 = time.perf_counter()
-            parent_attrs = q_level1[hier.parent_of_level2]
             targets = np.where(level_live, values[rows] / steps.astype(np.float64), 0.0)
-            fitted = fit_level2_context(cfg.context_model, coords[rows], parent_attrs, targets,
-                                        scene.feature_dim, cfg.coarse_voxel_scale, context_train_config(cfg, progress))
+            fitted = fit_level2_context(cfg.context_model, coords[hier.level1_idx], q_level1, coords[rows],
+                                        hier.parent_of_level2, targets, scene.feature_dim, cfg.coarse_voxel_scale,
+                                        context_train_config(cfg, progress))
             unit = write_context_model_unit(fitted.model_id, fitted.params.to_arrays(), fitted.feat_layers,
                                             fitted.head_layers)
             model = read_context_model(unit, layout)  # exactly what the decoder will use
-            params = level2_coding_params(model, coords[rows], parent_attrs, cfg.coarse_voxel_scale)
+            params = level2_coding_params(model, coords[hier.level1_idx], q_level1, coords[rows],
+                                          hier.parent_of_level2, cfg.coarse_voxel_scale)
             q_ctx = np.where(level_live, quantize(values[rows], attr.effective_steps(steps, params.step_adjust),
                                                   "attributes"), 0)
             header = new_header()

@@ -21,7 +21,8 @@ from lghcc.common.hierarchy import build_hierarchy
 from lghcc.common.intnn import ACT_MAX, ACT_MIN, IntLinear, IntMLP
 
 
-def random_params(rng, c=6, koff=2, ch=5, hid=7, hid2=9, k=8, radius_sq=6, grid=5, wscale=2000, shift=12):
+def random_params(rng, c=6, koff=2, ch=5, hid=7, hid2=9, k=8, radius_sq=6, grid=5, wscale=2000, shift=12,
+                  neighbour_level=2):
     m = c + 6 + 3 * koff
 
     def lin(i, o, relu):
@@ -29,11 +30,12 @@ def random_params(rng, c=6, koff=2, ch=5, hid=7, hid2=9, k=8, radius_sq=6, grid=
 
     return GGConvParams(c, k, radius_sq, rng.integers(-2 ** 15, 2 ** 15, (grid, grid, grid, ch)), 15,
                         IntMLP([lin(c + 3, hid, True), lin(hid, ch, False)]),
-                        IntMLP([lin(ch + 4 + m, hid2, True), lin(hid2, 3 * m, False)]))
+                        IntMLP([lin(ch + 4 + m, hid2, True), lin(hid2, 3 * m, False)]), neighbour_level)
 
 
-def reference(p: GGConvParams, coords, xpar, s):
-    """The normative text of spec/hierarchy_ggconv.md, one anchor at a time in Python integers."""
+def reference(p: GGConvParams, coords, xpar, s, level1=None):
+    """The normative text of spec/hierarchy_ggconv.md, one anchor at a time in Python integers.
+    level1 = (positions, attributes) of the level-1 anchors, for neighbour_level 1."""
     n, m, c, d, fb = len(coords), p.num_attrs, p.num_features, p.grid_size, GRID_FRAC_BITS
     r = math.isqrt(p.radius_sq)
     cl = lambda v, lo=ACT_MIN: max(lo, min(ACT_MAX, v))
@@ -46,14 +48,18 @@ def reference(p: GGConvParams, coords, xpar, s):
         return x
 
     x = [[cl(int(v)) for v in row] for row in xpar]
+    if p.neighbour_level == 2:  # the other level-2 anchors, carrying their parents' attributes
+        dpos, dx = coords, x
+    else:  # the level-1 anchors, carrying their own attributes
+        dpos, dx = level1[0], [[cl(int(v)) for v in row] for row in level1[1]]
     out = []
     for i in range(n):
-        cand = sorted((sum((int(coords[j][a]) - int(coords[i][a])) ** 2 for a in range(3)), j)
-                      for j in range(n) if j != i)
-        nb = [j for d2, j in cand if d2 <= p.radius_sq][:p.k]
+        cand = sorted((sum((int(dpos[j][a]) - int(coords[i][a])) ** 2 for a in range(3)), j)
+                      for j in range(len(dpos)) if p.neighbour_level == 1 or j != i)
+        nb = [j for d2, j in cand if 0 < d2 <= p.radius_sq or (d2 == 0 and p.neighbour_level == 2)][:p.k]
         hsum = [0] * p.context_channels
         for j in nb:
-            u = [((int(coords[j][a]) - int(coords[i][a]) + r) * (d - 1) * 2 ** (fb + 1) + 2 * r) // (4 * r)
+            u = [((int(dpos[j][a]) - int(coords[i][a]) + r) * (d - 1) * 2 ** (fb + 1) + 2 * r) // (4 * r)
                  for a in range(3)]
             i0 = [min(ua >> fb, d - 2) for ua in u]
             t = [u[a] - (i0[a] << fb) for a in range(3)]
@@ -68,7 +74,7 @@ def reference(p: GGConvParams, coords, xpar, s):
                                 wt *= t[a] if bit else (1 << fb) - t[a]
                             acc += wt * int(p.table[i0[0] + bx, i0[1] + by, i0[2] + bz, ch])
                 w.append(rs(acc, 3 * fb))
-            e = mlp(p.feat_mlp, [x[j][q] - x[i][q] for q in range(c)] + [ua - (d - 1) * 2 ** (fb - 1) for ua in u])
+            e = mlp(p.feat_mlp, [dx[j][q] - x[i][q] for q in range(c)] + [ua - (d - 1) * 2 ** (fb - 1) for ua in u])
             hsum = [hs + wc * ec for hs, wc, ec in zip(hsum, w, e)]
         h = [cl(rs(v, p.h_shift)) for v in hsum]
         loc = [cl(int(coords[i][a]) % s) for a in range(3)]
@@ -93,6 +99,43 @@ def test_matches_independent_reference():
         ref = reference(p, c, x, 3)
         for g, r in zip(got, ref):
             assert np.array_equal(g, r)
+
+
+def _split(rng, n=60, extent=6, s=3):
+    """A random anchor set split by the hierarchy: (level-1 coords, level-2 coords, parent index)."""
+    c = _scene(rng, n, extent)
+    h = build_hierarchy(c, s)
+    return c[h.level1_idx], c[h.level2_idx], h.parent_of_level2
+
+
+def test_level1_neighbours_match_independent_reference():
+    """neighbour_level 1: level-2 anchors gather the level-1 anchors, with their own attributes."""
+    rng = np.random.default_rng(20)
+    for trial in range(3):
+        p = random_params(rng, neighbour_level=1, radius_sq=[6, 12, 30][trial])
+        c1, c2, parent = _split(rng, 80, 7, 3)
+        x1 = rng.integers(-300, 300, (len(c1), p.num_attrs))
+        got = ggconv_coding_params(p, c2, x1[parent], 3, block=5, level1=(c1, x1))
+        ref = reference(p, c2, x1[parent], 3, level1=(c1, x1))
+        for g, r in zip(got, ref):
+            assert np.array_equal(g, r)
+    with pytest.raises(ValueError, match="level-1"):
+        ggconv_coding_params(p, c2, x1[parent], 3)
+
+
+def test_level1_neighbours_hard_cases():
+    """Fewer than k level-1 anchors in the ball, none at all, equidistant ones, extreme values."""
+    rng = np.random.default_rng(21)
+    p = random_params(rng, neighbour_level=1, radius_sq=1, k=8, wscale=2 ** 15 - 1, shift=0)
+    c1 = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1], [50, 50, 50]])
+    c2 = np.array([[0, 0, 0], [1, 1, 0], [-40, 0, 0]])  # 6 equidistant, 2 at d2 = 1, none
+    x1 = rng.choice([-(2 ** 40), 2 ** 40, ACT_MIN, ACT_MAX, 0], (len(c1), p.num_attrs))
+    xp = rng.choice([ACT_MIN, ACT_MAX, 0], (len(c2), p.num_attrs))
+    idx, valid = level2_graph(p, c2, c1)
+    assert valid.sum(1).tolist() == [6, 2, 0] and idx[0, :6].tolist() == [0, 1, 2, 3, 4, 5]
+    got = ggconv_coding_params(p, c2, xp, 2, level1=(c1, x1))
+    assert all(np.array_equal(a, b) for a, b in zip(got, reference(p, c2, xp, 2, level1=(c1, x1))))
+    assert got[0].min() >= ACT_MIN and got[0].max() <= ACT_MAX
 
 
 def test_extreme_values_and_isolated_anchors():
@@ -164,7 +207,7 @@ def test_serialization_round_trip_and_errors():
     rng = np.random.default_rng(5)
     p = random_params(rng)
     arrays = p.to_arrays()
-    assert [a.name for a in arrays][:5] == ["num_features", "k", "radius_sq", "h_shift", "table"]
+    assert [a.name for a in arrays][:6] == ["num_features", "neighbour_level", "k", "radius_sq", "h_shift", "table"]
     assert {a.name: a.bits for a in arrays}["table"] == 16 and {a.name: a.bits for a in arrays}["feat.0.bias"] == 32
     q = GGConvParams.from_arrays(arrays)
     c = _scene(rng, 60)
@@ -177,6 +220,10 @@ def test_serialization_round_trip_and_errors():
     bad = [NamedIntArray(a.name, a.values + (1 << 20) if a.name == "table" else a.values, a.bits, a.signed)
            for a in arrays]
     with pytest.raises(ValueError, match="range"):
+        GGConvParams.from_arrays(bad)
+    bad = [NamedIntArray(a.name, np.array(3) if a.name == "neighbour_level" else a.values, a.bits, a.signed)
+           for a in arrays]
+    with pytest.raises(ValueError, match="neighbour_level"):
         GGConvParams.from_arrays(bad)
 
 
@@ -192,6 +239,8 @@ def test_step_adjust_factors_frozen():
 
 
 def _smooth_scene(n=3500, extent=32, c=6, koff=2, s=4, seed=0):
+    """A smooth random field on random voxels, split by the hierarchy: returns the level-2
+    positions, parent attributes and targets, C, s and the level-1 (positions, attributes)."""
     rng = np.random.default_rng(seed)
     coords = np.unique(rng.integers(0, extent, (n, 3)), axis=0)
     coords = coords[rng.permutation(len(coords))]
@@ -200,11 +249,12 @@ def _smooth_scene(n=3500, extent=32, c=6, koff=2, s=4, seed=0):
     phase = rng.uniform(0, 6.28, m)
     vals = 20 * np.sin(coords @ freq.T + phase) + rng.normal(0, 0.3, (len(coords), m))
     h = build_hierarchy(coords, s)
-    parent = np.floor(vals[h.parent_anchor_of_level2] + 0.5).astype(np.int64)
-    return coords[h.level2_idx], parent, vals[h.level2_idx], c, s
+    q1 = np.floor(vals[h.level1_idx] + 0.5).astype(np.int64)
+    return coords[h.level2_idx], q1[h.parent_of_level2], vals[h.level2_idx], c, s, (coords[h.level1_idx], q1)
 
 
-def test_fit_reduces_rate_and_twin_matches_integer_path():
+@pytest.mark.parametrize("neighbour_level", [1, 2])
+def test_fit_reduces_rate_and_twin_matches_integer_path(neighbour_level):
     from lghcc.encoder.ggconv_train import (
         GGConvTrainConfig,
         estimated_rate_bits,
@@ -213,23 +263,23 @@ def test_fit_reduces_rate_and_twin_matches_integer_path():
         zero_mean_prior_bits,
     )
 
-    c2, parent, targets, c, s = _smooth_scene()
+    c2, parent, targets, c, s, level1 = _smooth_scene()
     cfg = GGConvTrainConfig(float_steps=100, qat_steps=30, batch=384, lam=1000.0, progress=False,
-                            ctx_channels=8, feat_hidden=16, head_hidden=32)
-    params, twin = train_ggconv_twin(c2, parent, targets, c, s, cfg)
-    bits, adj = estimated_rate_bits(params, c2, parent, targets, s)
+                            ctx_channels=8, feat_hidden=16, head_hidden=32, neighbour_level=neighbour_level)
+    params, twin = train_ggconv_twin(c2, parent, targets, c, s, cfg, level1=level1)
+    assert params.neighbour_level == neighbour_level
+    bits, adj = estimated_rate_bits(params, c2, parent, targets, s, level1=level1)
     base = zero_mean_prior_bits(targets)
     assert (adj == 0).mean() > 0.99  # lambda high: same distortion as the reference
     assert bits < 0.85 * base, (bits / len(c2), base / len(c2))
-    mean_t, level_t, adj_t = twin_outputs(twin, c2, parent, s)
-    mean_i, level_i, adj_i = ggconv_coding_params(params, c2, parent, s)
+    mean_t, level_t, adj_t = twin_outputs(twin, c2, parent, s, level1=level1)
+    mean_i, level_i, adj_i = ggconv_coding_params(params, c2, parent, s, level1=level1)
     assert (np.abs(mean_t - mean_i) <= 1).mean() > 0.99
     # the quantized twin emulates the integer path exactly
     assert np.array_equal(mean_t, mean_i) and np.array_equal(level_t, level_i) and np.array_equal(adj_t, adj_i)
     # parameters survive serialization
     q = GGConvParams.from_arrays(params.to_arrays())
-    assert np.array_equal(ggconv_coding_params(q, c2, parent, s)[0], mean_i)
-
+    assert np.array_equal(ggconv_coding_params(q, c2, parent, s, level1=level1)[0], mean_i)
 
 
 def test_large_radius_without_offset_table_matches_reference():

@@ -75,3 +75,36 @@ def test_opacity_from_the_mlp():
     scene.mlps = {}
     with pytest.raises(InputError, match="no opacity MLP"):
         estimate_anchor_opacity(scene)
+
+
+@pytest.mark.parametrize("method", ["naap", "opacity"])
+def test_encoder_prunes_before_coding(method):
+    """lghcc-enc's pruning option: the stream holds the kept anchors, decoded bit-exactly."""
+    from lghcc.decoder.decode import decode_stream
+    from lghcc.encoder.config import EncoderConfig
+    from lghcc.encoder.encode import encode_scene
+
+    scene = make_procedural_scene(600, seed=1, feature_dim=8, num_offsets=3)
+    full = encode_scene(scene, EncoderConfig())
+    res = encode_scene(scene, EncoderConfig(pruning=method, prune_keep_ratio=0.5))
+    n = scene.num_anchors
+    assert res.decoded.num_anchors == round(0.5 * n) and res.stats["anchors_before_pruning"] == n
+    assert len(res.data) < 0.7 * len(full.data)
+    dec = decode_stream(res.data)
+    assert dec.stream_hash == res.scene_hash and dec.scene.num_anchors == res.decoded.num_anchors
+    # every kept anchor is one of the input's
+    kept = {tuple(c) for c in dec.scene.coords.tolist()}
+    assert kept <= {tuple(c) for c in scene.coords.tolist()}
+
+
+def test_encoder_pruning_options_are_checked():
+    from lghcc.encoder.config import EncoderConfig
+
+    with pytest.raises(InputError, match="exactly one"):
+        EncoderConfig(pruning="naap").validate()
+    with pytest.raises(InputError, match="exactly one"):
+        EncoderConfig(pruning="naap", prune_keep_ratio=0.5, prune_tau=0.1).validate()
+    with pytest.raises(InputError, match="keep_ratio"):
+        EncoderConfig(pruning="opacity", prune_keep_ratio=1.5).validate()
+    with pytest.raises(InputError, match="pruning must be"):
+        EncoderConfig(pruning="random").validate()

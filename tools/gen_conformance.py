@@ -208,7 +208,8 @@ def _hand_ggconv(units, spec: dict):
     w[m:2 * m, ch + 3] = 1  # level grows with the number of valid neighbours
     bias = np.concatenate([np.zeros(m), np.full(m, int(spec.get("level", 8))), np.zeros(m)]).astype(np.int64)
     head = IntLinear(w, bias, 0, False, 8)
-    p = GGConvParams(num_features=c, k=int(spec.get("k", 2)), radius_sq=int(spec.get("radius_sq", 64)),
+    p = GGConvParams(num_features=c, neighbour_level=int(spec.get("neighbour_level", 2)), k=int(spec.get("k", 2)),
+                     radius_sq=int(spec.get("radius_sq", 64)),
                      table=table, h_shift=0, feat_mlp=IntMLP([feat]), head_mlp=IntMLP([head]))
     arrays = []
     for a in p.to_arrays():
@@ -219,7 +220,8 @@ def _hand_ggconv(units, spec: dict):
         arrays.append(NamedIntArray(a.name, v, bits, a.signed))
     unit = write_context_model_unit(CONTEXT_GGCONV, arrays, 1, 1)
     model = read_context_model(unit, layout)
-    params = level2_coding_params(model, coords[hier.level2_idx], q1[hier.parent_of_level2], sps.coarse_voxel_scale)
+    params = level2_coding_params(model, coords[hier.level1_idx], q1, coords[hier.level2_idx], hier.parent_of_level2,
+                                  sps.coarse_voxel_scale)
     assert params.step_adjust is None or not params.step_adjust.any()
     h = AttributeUnitHeader(num_channels=m, num_offsets=sps.num_offsets, offset_mask_present=h2.offset_mask_present,
                             num_rows=hier.num_level2, attribute_level=LEVEL_2, context_model_id=CONTEXT_GGCONV,

@@ -4,8 +4,11 @@ spec/hierarchy_ggconv.md, clause "GG-Conv").
 Per level-2 anchor i (rows in level-2 order), with x_i the parent's decoded attributes
 (M = C features + 6 scalings + 3K offsets, integer quantization units, clamped to 16 bits):
 
-1. neighbours j: canonical Ball k-NN among level-2 anchors (common/knn.py), k and radius_sq
-   from the model parameters; invalid slots contribute nothing.
+1. neighbours j: canonical Ball k-NN (common/knn.py) from p_i, k and radius_sq from the model
+   parameters; invalid slots contribute nothing. The model's neighbour_level says among which
+   anchors: 2 = the other level-2 anchors, each carrying its parent's attributes x_j (the
+   paper's graph over the preliminary context set A_pre^(2)); 1 = the level-1 anchors, each
+   carrying its own decoded attributes x_j at its own position.
 2. geometry branch: R = isqrt(radius_sq); per axis U = floor(((dp + R) (D-1) 2^(FB+1) + 2R) / (4R))
    in [0, (D-1) 2^FB] (FB = 8 fractional bits); cell i0 = min(U >> FB, D-2), t = U - i0 2^FB;
    w_ij = rshift_round(sum over the 8 corners of prod_axes(t or 2^FB - t) * T[corner], 3 FB),
@@ -44,7 +47,7 @@ NUM_LEVELS = 64
 NUM_STEP_ADJUST = 8
 NUM_SCALINGS = 6
 MAX_RADIUS_SQ = (1 << 62) - 1  # coded as a 62-bit unsigned value (context-model unit)
-
+NEIGHBOUR_LEVELS = (1, 2)  # 1: neighbours are level-1 anchors; 2: level-2 anchors (the paper's graph)
 
 
 def sigma_of_level(level) -> np.ndarray:
@@ -62,6 +65,7 @@ class GGConvParams:
     h_shift: int  # [0, MAX_H_SHIFT]
     feat_mlp: IntMLP  # C + 3 -> ... -> Ch
     head_mlp: IntMLP  # Ch + 3 + 1 + M -> ... -> 3 M
+    neighbour_level: int = 2  # NEIGHBOUR_LEVELS: the hierarchy level whose anchors are the neighbours
 
     def __post_init__(self) -> None:
         t = np.asarray(self.table)
@@ -77,7 +81,10 @@ class GGConvParams:
             raise ValueError(f"radius_sq must be in [1, {MAX_RADIUS_SQ}], got {self.radius_sq}")
         if not 0 <= int(self.h_shift) <= MAX_H_SHIFT:
             raise ValueError(f"h_shift must be in [0, {MAX_H_SHIFT}], got {self.h_shift}")
+        if isinstance(self.neighbour_level, bool) or int(self.neighbour_level) not in NEIGHBOUR_LEVELS:
+            raise ValueError(f"neighbour_level must be one of {NEIGHBOUR_LEVELS}, got {self.neighbour_level}")
         self.k, self.radius_sq, self.h_shift = int(self.k), int(self.radius_sq), int(self.h_shift)
+        self.neighbour_level = int(self.neighbour_level)
         ch = self.context_channels
         c = int(self.num_features)
         if c < 1 or self.feat_mlp.in_dim != c + 3 or self.feat_mlp.out_dim != ch:
@@ -116,10 +123,11 @@ class GGConvParams:
     # -- serialization -----------------------------------------------------------------------
     def to_arrays(self) -> list[NamedIntArray]:
         """Flat list of named integer arrays with their bit widths, in a fixed order:
-        num_features (u16), k (u8), radius_sq (u64), h_shift (u8), table (s16 [D,D,D,Ch]),
+        num_features (u16), neighbour_level (u8), k (u8), radius_sq (u62), h_shift (u8), table (s16 [D,D,D,Ch]),
         then for mlp in (feat, head), for each layer l: {mlp}.{l}.weight (s8 or s16 [out, in]),
         {mlp}.{l}.bias (s32 [out]), {mlp}.{l}.shift (u8). ReLU follows every layer but the last."""
         out = [NamedIntArray("num_features", np.array(self.num_features, dtype=np.int64), 16, False),
+               NamedIntArray("neighbour_level", np.array(self.neighbour_level, dtype=np.int64), 8, False),
                NamedIntArray("k", np.array(self.k, dtype=np.int64), 8, False),
                NamedIntArray("radius_sq", np.array(self.radius_sq, dtype=np.int64), 62, False),
                NamedIntArray("h_shift", np.array(self.h_shift, dtype=np.int64), 8, False),
@@ -171,8 +179,9 @@ class GGConvParams:
                 raise ValueError(f"the {name} MLP has no layers")
             return IntMLP([IntLinear(w, b, s, i < len(layers) - 1, wb) for i, (w, b, s, wb) in enumerate(layers)])
 
-        p = cls(num_features=get("num_features", True), k=get("k", True), radius_sq=get("radius_sq", True),
-                h_shift=get("h_shift", True), table=get("table")[0], feat_mlp=mlp("feat"), head_mlp=mlp("head"))
+        p = cls(num_features=get("num_features", True), neighbour_level=get("neighbour_level", True), k=get("k", True),
+                radius_sq=get("radius_sq", True), h_shift=get("h_shift", True), table=get("table")[0],
+                feat_mlp=mlp("feat"), head_mlp=mlp("head"))
         if by:
             raise ValueError(f"unknown parameters: {sorted(by)}")
         return p
@@ -228,18 +237,21 @@ class EdgeInputs:
     corner_w: torch.Tensor  # int64 [E, 8]
 
 
-def edge_inputs(coords2: torch.Tensor, xpar: torch.Tensor, nbr: torch.Tensor, valid: torch.Tensor,
-                rows: slice | torch.Tensor, num_features: int, radius: int, grid: int) -> EdgeInputs:
-    """Normative edge quantities for the anchors `rows` (a slice or an int64 index tensor);
-    edges come row by row, slots in order."""
+def edge_inputs(q_coords: torch.Tensor, q_attrs: torch.Tensor, d_coords: torch.Tensor, d_attrs: torch.Tensor,
+                nbr: torch.Tensor, valid: torch.Tensor, rows: slice | torch.Tensor, num_features: int, radius: int,
+                grid: int) -> EdgeInputs:
+    """Normative edge quantities for the level-2 anchors `rows` (a slice or an int64 index
+    tensor); edges come row by row, slots in order. q_*: the level-2 anchors (positions,
+    clamped parent attributes); d_*: the neighbour set (the same tensors for neighbour_level 2,
+    the level-1 anchors for neighbour_level 1); nbr indexes d_*."""
     v = valid[rows]
     r_loc, slot = torch.nonzero(v, as_tuple=True)
     i = r_loc + rows.start if isinstance(rows, slice) else rows[r_loc]
     j = nbr[rows][r_loc, slot]
-    dp = coords2[j] - coords2[i]
+    dp = d_coords[j] - q_coords[i]
     u = grid_coordinate(dp, radius, grid)
     du = u - ((grid - 1) << (GRID_FRAC_BITS - 1))
-    df = xpar[j, :num_features] - xpar[i, :num_features]  # not clamped: 17-bit values
+    df = d_attrs[j, :num_features] - q_attrs[i, :num_features]  # not clamped: 17-bit values
     ci, cw = trilinear_corners(u, grid)
     return EdgeInputs(r_loc, torch.cat([df, du], 1), ci, cw)
 
@@ -254,21 +266,44 @@ def split_outputs(o: torch.Tensor, xpar: torch.Tensor, m: int) -> tuple[torch.Te
             o[:, 2 * m:].clamp(0, NUM_STEP_ADJUST - 1))
 
 
-def level2_graph(params: GGConvParams, coords2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The Ball k-NN graph over level-2 anchors (canonical; self excluded)."""
-    return ball_knn(coords2, params.k, params.radius_sq, exclude_self=True)
+def neighbour_graph(k: int, radius_sq: int, neighbour_level: int, coords2: np.ndarray,
+                    coords1: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The canonical Ball k-NN graph of the level-2 anchors: among the other level-2 anchors
+    (neighbour_level 2, self excluded) or among the level-1 anchors (neighbour_level 1)."""
+    if neighbour_level == 2:
+        return ball_knn(coords2, k, radius_sq, exclude_self=True)
+    return ball_knn(coords1, k, radius_sq, query=coords2)
 
 
-def _check_inputs(params: GGConvParams, coords2, parent_attrs, voxel_scale):
-    c = np.asarray(coords2)
-    x = np.asarray(parent_attrs)
-    if c.ndim != 2 or c.shape[1] != 3 or (c.size and not np.issubdtype(c.dtype, np.integer)):
-        raise ValueError(f"coords2 must be integer [N2, 3], got {c.dtype} {list(c.shape)}")
-    if x.shape != (c.shape[0], params.num_attrs) or (x.size and not np.issubdtype(x.dtype, np.integer)):
-        raise ValueError(f"parent_attrs must be integer [N2, {params.num_attrs}], got {x.dtype} {list(x.shape)}")
+def level2_graph(params: GGConvParams, coords2: np.ndarray, coords1: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The graph ``params`` calls for (coords1, the level-1 positions, needed for neighbour_level 1)."""
+    return neighbour_graph(params.k, params.radius_sq, params.neighbour_level, coords2, coords1)
+
+
+def _int_array(a, cols: int, what: str) -> np.ndarray:
+    x = np.asarray(a)
+    if x.ndim != 2 or x.shape[1] != cols or (x.size and not np.issubdtype(x.dtype, np.integer)):
+        raise ValueError(f"{what} must be integer [N, {cols}], got {x.dtype} {list(x.shape)}")
+    return x.astype(np.int64, copy=False)
+
+
+def _check_inputs(params: GGConvParams, coords2, parent_attrs, voxel_scale, level1):
+    c = _int_array(coords2, 3, "coords2")
+    x = _int_array(parent_attrs, params.num_attrs, "parent_attrs")
+    if x.shape[0] != c.shape[0]:
+        raise ValueError(f"parent_attrs has {x.shape[0]} rows for {c.shape[0]} level-2 anchors")
     if isinstance(voxel_scale, bool) or not isinstance(voxel_scale, (int, np.integer)) or voxel_scale < 1:
         raise ValueError(f"voxel_scale must be an integer >= 1, got {voxel_scale!r}")
-    return c.astype(np.int64, copy=False), x.astype(np.int64, copy=False)
+    c1 = x1 = None
+    if params.neighbour_level == 1:
+        if level1 is None:
+            raise ValueError("a GG-Conv model with neighbour_level 1 needs the level-1 positions and attributes")
+        c1 = _int_array(level1[0], 3, "level-1 coords")
+        x1 = _int_array(level1[1], params.num_attrs, "level-1 attributes")
+        if c1.shape[0] != x1.shape[0]:
+            raise ValueError("level-1 coords and attributes differ in length")
+    return c, x, c1, x1
 
 
 def _geometry_terms(dp: torch.Tensor, params: GGConvParams, table_f: torch.Tensor, lin0_u: torch.Tensor,
@@ -289,13 +324,15 @@ _LUT_MAX = 1 << 17  # largest (2R+1)^3 for which the geometry terms are tabulate
 
 def ggconv_coding_params(params: GGConvParams, coords2, parent_attrs, voxel_scale: int,
                          neighbours: tuple[np.ndarray, np.ndarray] | None = None,
-                         block: int = 1 << 12) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                         block: int = 1 << 12, level1: tuple[np.ndarray, np.ndarray] | None = None
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Coding parameters of the level-2 attributes.
 
     coords2: int [N2, 3] level-2 positions in level-2 order; parent_attrs: int [N2, M] the
     decoded attributes of each one's level-1 parent (features first), in quantization units;
-    voxel_scale: the hierarchy's coarse voxel scale s; neighbours: (idx, valid) from
-    ``level2_graph`` (computed when None).
+    voxel_scale: the hierarchy's coarse voxel scale s; level1: (int [N1, 3] positions,
+    int [N1, M] decoded attributes) of the level-1 anchors, needed when the model's
+    neighbour_level is 1; neighbours: (idx, valid) from ``level2_graph`` (computed when None).
     Returns mean, level, step_adjust, each int64 [N2, M]: the integer mean of each attribute
     symbol, its scale level in [0, 64) and its step adjustment in [0, 8).
 
@@ -309,29 +346,29 @@ def ggconv_coding_params(params: GGConvParams, coords2, parent_attrs, voxel_scal
       so P is computed once per anchor and gathered per edge (|A| < 2^48);
     * the geometry terms depend only on the offset dp = p_j - p_i, so for small radii they are
       tabulated once for every dp in [-R, R]^3;
-    * edges are laid out densely [block, K]; invalid slots use j = i and are masked to zero
-      before the aggregation (sum of at most 64 products |w e| <= 2^30: exact).
+    * edges are laid out densely [block, K]; invalid slots use j = 0 with dp = 0 and are masked
+      to zero before the aggregation (sum of at most 64 products |w e| <= 2^30: exact).
     """
-    c, x = _check_inputs(params, coords2, parent_attrs, voxel_scale)
+    c, x, c1, x1 = _check_inputs(params, coords2, parent_attrs, voxel_scale, level1)
     n, m = c.shape[0], params.num_attrs
     if n == 0:
         z = np.zeros((0, m), dtype=np.int64)
         return z, z.copy(), z.copy()
+    n_data = n if params.neighbour_level == 2 else c1.shape[0]
     if neighbours is None:
-        nbr, valid = level2_graph(params, c)
+        nbr, valid = level2_graph(params, c, c1)
     else:
         nbr, valid = (np.asarray(a) for a in neighbours)
         if nbr.shape != (n, params.k) or valid.shape != (n, params.k):
             raise ValueError(f"neighbours must be two [N2, {params.k}] arrays")
-        if valid.any() and (int(nbr[valid].min()) < 0 or int(nbr[valid].max()) >= n):
+        if valid.any() and (int(nbr[valid].min()) < 0 or int(nbr[valid].max()) >= n_data):
             raise ValueError("neighbour index out of range")
     k, cf, ch, r = params.k, params.num_features, params.context_channels, params.radius
     coords_t = torch.from_numpy(np.ascontiguousarray(c))
     xi = clamp16(torch.from_numpy(np.ascontiguousarray(x)))
     xf = xi.to(torch.float64)
     valid_t = torch.from_numpy(np.ascontiguousarray(valid, dtype=bool))
-    self_idx = torch.arange(n, dtype=torch.int64)
-    nbr_t = torch.where(valid_t, torch.from_numpy(np.ascontiguousarray(nbr, dtype=np.int64)), self_idx[:, None])
+    nbr_t = torch.where(valid_t, torch.from_numpy(np.ascontiguousarray(nbr, dtype=np.int64)), 0)
     local = torch.from_numpy(np.mod(c, np.int64(voxel_scale))).clamp_(0, ACT_MAX).to(torch.float64)
     n_valid = valid_t.sum(1).to(torch.float64)
     table_f = torch.from_numpy(params.table.reshape(-1, ch).astype(np.float64))
@@ -341,7 +378,12 @@ def ggconv_coding_params(params: GGConvParams, coords2, parent_attrs, voxel_scal
     w0 = feat0._ws  # [C + 3, H]
     lin0_x, lin0_u, lin0_b = w0[:cf].contiguous(), w0[cf:].contiguous(), feat0._bs
     hdim = feat0.fan_out
-    p_all = xf[:, :cf] @ lin0_x  # [N, H]: W[:, :C] x_n 2^-shift, exact
+    p_query = xf[:, :cf] @ lin0_x  # [N2, H]: W[:, :C] x_n 2^-shift, exact
+    if params.neighbour_level == 2:
+        data_coords, p_data = coords_t, p_query
+    else:
+        data_coords = torch.from_numpy(np.ascontiguousarray(c1))
+        p_data = clamp16(torch.from_numpy(np.ascontiguousarray(x1)))[:, :cf].to(torch.float64) @ lin0_x
     hs = params.h_shift
     w_scale = 2.0 ** -hs  # folded into the geometry weights: sum_j (w 2^-hs) e is exact (< 2^(36-hs))
 
@@ -361,7 +403,8 @@ def ggconv_coding_params(params: GGConvParams, coords2, parent_attrs, voxel_scal
         nb = hi - lo
         j = nbr_t[lo:hi].reshape(-1)  # [nb K]
         v = valid_t[lo:hi].reshape(-1)
-        dp = (coords_t.index_select(0, j).view(nb, k, 3) - coords_t[lo:hi, None, :]).view(-1, 3)
+        dp = (data_coords.index_select(0, j).view(nb, k, 3) - coords_t[lo:hi, None, :]).view(-1, 3)
+        dp.mul_(v[:, None])  # invalid slots: dp = 0 (their terms are masked below)
         if use_lut:
             code = ((dp[:, 0] + r) * side + (dp[:, 1] + r)) * side + (dp[:, 2] + r)
             g_lin = lut_lin.index_select(0, code)
@@ -369,7 +412,7 @@ def ggconv_coding_params(params: GGConvParams, coords2, parent_attrs, voxel_scal
         else:
             g_lin, g_w = _geometry_terms(dp, params, table_f, lin0_u, lin0_b)
             g_w.mul_((v.to(torch.float64) * w_scale)[:, None])
-        acc = p_all.index_select(0, j).view(nb, k, hdim).sub_(p_all[lo:hi, None, :]).view(-1, hdim).add_(g_lin)
+        acc = p_data.index_select(0, j).view(nb, k, hdim).sub_(p_query[lo:hi, None, :]).view(-1, hdim).add_(g_lin)
         e = feat0.finish_f64(acc)
         for layer in feat_rest:
             e = layer.forward_f64(e)

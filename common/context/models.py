@@ -1,29 +1,41 @@
 """The level-2 context models behind one interface (normative): read the context-model
-unit into parameters, and turn decoded level-1 attributes into level-2 coding parameters.
+unit into parameters, and turn the decoded level 1 into level-2 coding parameters.
 A new context model plugs in here: an id, a parameter class with to_arrays/from_arrays,
-and a function giving (mean, level, step_adjust)."""
+and a function giving (mean, level, step_adjust).
+
+The models' inference uses torch; it is imported only when a stream carries a context model,
+so decoding a stream without one never loads it (time and memory: only what the stream calls for).
+"""
 
 from __future__ import annotations
 
 import numpy as np
 
 from lghcc.common.attributes import ChannelLayout, CodingParams
-from lghcc.common.context.ggconv import GGConvParams, ggconv_coding_params
 from lghcc.common.context.model_unit import read_context_model_unit
-from lghcc.common.context.parent_mlp import ParentMlpParams, parent_mlp_coding_params
 from lghcc.common.errors import BitstreamError
 from lghcc.common.units import CONTEXT_GGCONV, CONTEXT_PARENT_MLP
 
-PARAMS_CLASS = {CONTEXT_PARENT_MLP: ParentMlpParams, CONTEXT_GGCONV: GGConvParams}
 CONTEXT_MODEL_NAMES = {0: "per-channel prior", CONTEXT_PARENT_MLP: "parent MLP (vanilla EM)",
                        CONTEXT_GGCONV: "GG-Conv"}
+
+
+def params_class(model_id: int):
+    """The parameter class of a context model id (1 parent MLP, 2 GG-Conv)."""
+    if model_id == CONTEXT_GGCONV:
+        from lghcc.common.context.ggconv import GGConvParams
+        return GGConvParams
+    if model_id == CONTEXT_PARENT_MLP:
+        from lghcc.common.context.parent_mlp import ParentMlpParams
+        return ParentMlpParams
+    raise BitstreamError(f"context model unit: unknown context model id {model_id}")
 
 
 def read_context_model(payload: bytes, layout: ChannelLayout, trace=None):
     """-> (model_id, params). Checks that the model fits the scene's channel layout."""
     model_id, arrays = read_context_model_unit(payload, trace)
     try:
-        params = PARAMS_CLASS[model_id].from_arrays(arrays)
+        params = params_class(model_id).from_arrays(arrays)
     except ValueError as e:
         raise BitstreamError(f"context model unit: {e}") from None
     if params.num_attrs != layout.num_channels or params.num_features != layout.feature_dim:
@@ -33,10 +45,21 @@ def read_context_model(payload: bytes, layout: ChannelLayout, trace=None):
     return model_id, params
 
 
-def level2_coding_params(model, coords2: np.ndarray, parent_attrs: np.ndarray, voxel_scale: int) -> CodingParams:
+def level2_coding_params(model, coords1: np.ndarray, attrs1: np.ndarray, coords2: np.ndarray,
+                         parent: np.ndarray, voxel_scale: int) -> CodingParams:
+    """Coding parameters of the level-2 attributes from the decoded level 1.
+
+    model: (model_id, params) from ``read_context_model``; coords1 int [N1, 3] and attrs1
+    int [N1, M]: the level-1 positions and decoded quantized attributes (level-1 order);
+    coords2 int [N2, 3]: the level-2 positions; parent int [N2]: each level-2 anchor's parent
+    as an index into level 1 (Annex H, clause H.2); voxel_scale: the coarse voxel scale s."""
     model_id, params = model
+    parent_attrs = attrs1[parent]
     if model_id == CONTEXT_GGCONV:
-        mean, level, adj = ggconv_coding_params(params, coords2, parent_attrs, voxel_scale)
+        from lghcc.common.context.ggconv import ggconv_coding_params
+        mean, level, adj = ggconv_coding_params(params, coords2, parent_attrs, voxel_scale,
+                                                level1=(coords1, attrs1))
     else:
+        from lghcc.common.context.parent_mlp import parent_mlp_coding_params
         mean, level, adj = parent_mlp_coding_params(params, coords2, parent_attrs, voxel_scale)
     return CodingParams(mean, level, adj)
