@@ -38,3 +38,15 @@ def test_importing_the_decoder_loads_no_encoder_module():
 def test_no_bare_common_package_is_importable():
     out = subprocess.run([sys.executable, "-c", "import common"], capture_output=True, text=True, cwd="/")
     assert out.returncode != 0
+
+
+def test_a_stream_without_context_model_decodes_without_torch():
+    """Only what a stream calls for: torch (the context models' inference) is not even imported
+    for a stream without a context model; it is for one with GG-Conv."""
+    code = ("import sys; from lghcc.decoder.decode import decode_stream; "
+            "d = decode_stream(open(sys.argv[1], 'rb').read()); print('torch' in sys.modules)")
+    streams = ROOT / "conformance" / "streams"
+    for stream, uses_torch in (("c002_procedural_medium", "False"), ("c030_ggconv_level1_neighbours", "True")):
+        out = subprocess.run([sys.executable, "-c", code, str(streams / stream / "stream.lghcc")],
+                             capture_output=True, text=True, check=True).stdout.strip()
+        assert out == uses_torch, (stream, out)
