@@ -128,6 +128,17 @@ class TrainConfig:
     mlp_cov_lr_final: float = 0.004
     mlp_color_lr_init: float = 0.008
     mlp_color_lr_final: float = 0.00005
+    # Rate-distortion training (LG-HCC eq. 12: L = L_render + lambda L_anchor): from rate_from
+    # on (after the last growing/pruning, so the anchor set is fixed), the loss adds
+    # rate_lambda x the estimated bits per attribute value of the anchors under the codec's
+    # hierarchy and context model (encoder/rate_model.py), and the scene renders with its
+    # attributes quantized as the encoder will (steps rate_step). 0: plain Scaffold-GS.
+    rate_lambda: float = 0.0
+    rate_from: int | None = None  # None: densify_until
+    rate_step: float = 0.02  # the encoder's feature/scaling/offset step (0.02: preset medium)
+    rate_voxel_scale: int = 4  # the encoder's coarse voxel scale
+    rate_neighbour_level: int = 1  # the encoder's GG-Conv neighbour level
+    rate_lr: float = 0.002  # learning rate of the rate model's parameters
 
 
 # ------------------------------------------------------------------------------------------
@@ -326,6 +337,9 @@ class Trainer:
         self.loss_ema = None
         self.grown = 0  # anchors added by growing / removed by pruning, since the start
         self.pruned = 0
+        self.rate_model = None  # encoder/rate_model.AnchorRateModel, built when the rate phase starts
+        self.rate_opt = None
+        self.rate_bits = None  # last estimate of the attribute bits per anchor
 
     # --- construction ----------------------------------------------------------------
     def fresh(self) -> None:
@@ -395,8 +409,41 @@ class Trainer:
     def scene_tensors(self):
         from lghcc.render.neural_gaussians import SceneTensors
 
-        return SceneTensors(self.positions(), self.params["features"], self.params["scalings"],
-                            self.params["offsets"], self.mlps)
+        f, sc, off = self.params["features"], self.params["scalings"], self.params["offsets"]
+        if self.rate_model is not None:  # render what the decoder will output (straight-through rounding)
+            from lghcc.encoder.rate_model import quantize_ste
+
+            step = torch.tensor(self.cfg.rate_step, dtype=torch.float32)
+            f, sc, off = quantize_ste(f, step), quantize_ste(sc, step), quantize_ste(off, step)
+        return SceneTensors(self.positions(), f, sc, off, self.mlps)
+
+    # --- rate-distortion phase ---------------------------------------------------------
+    @property
+    def rate_start(self) -> int:
+        return self.cfg.rate_from if self.cfg.rate_from is not None else self.cfg.densify_until
+
+    def attribute_values(self) -> torch.Tensor:
+        """[N, M] attributes in the codec's channel layout (features, scalings, offsets k-major)."""
+        n = self.num_anchors
+        return torch.cat([self.params["features"], self.params["scalings"], self.params["offsets"].reshape(n, -1)], 1)
+
+    def _build_rate_model(self, scales=None) -> None:
+        from lghcc.encoder.ggconv_train import GGConvTrainConfig
+        from lghcc.encoder.rate_model import AnchorRateModel
+
+        cfg = self.cfg
+        m = cfg.feature_dim + 6 + 3 * cfg.num_offsets
+        twin = GGConvTrainConfig(neighbour_level=cfg.rate_neighbour_level, ctx_channels=16, feat_hidden=32,
+                                 head_hidden=32, seed=cfg.seed)
+        self.rate_model = AnchorRateModel(self.coords.numpy(), np.full(m, cfg.rate_step), cfg.feature_dim,
+                                          cfg.rate_voxel_scale, self.attribute_values().detach().numpy(), twin)
+        if scales is not None and self.rate_model.twin is not None:  # resume: the saved input scales
+            self.rate_model.twin.feat_q, self.rate_model.twin.head_q_raw = scales
+        self.rate_opt = torch.optim.Adam(self.rate_model.parameters(), lr=cfg.rate_lr)
+
+    def _rate_scales(self):
+        t = self.rate_model.twin
+        return None if t is None else (t.feat_q, t.head_q_raw)
 
     # --- one iteration ---------------------------------------------------------------
     def _next_view(self) -> int:
@@ -428,6 +475,10 @@ class Trainer:
         loss = (1 - cfg.lambda_dssim) * l1 + cfg.lambda_dssim * (1 - ssim_torch(img, gt))
         if cfg.lambda_volume:
             loss = loss + cfg.lambda_volume * ng.scales.prod(dim=1).mean()
+        if self.rate_model is not None:
+            bits = self.rate_model(self.attribute_values(), generator=self.gen)["total"]
+            self.rate_bits = float(bits.detach()) / self.num_anchors
+            loss = loss + cfg.rate_lambda * bits.float() / (self.num_anchors * self.rate_model.num_attrs)
         loss.backward()
         with torch.no_grad():
             if it > cfg.stats_from and it <= cfg.densify_until:
@@ -435,11 +486,16 @@ class Trainer:
             self._accumulate_life(ng)
         self.opt.step()
         self.opt.zero_grad(set_to_none=True)
+        if self.rate_opt is not None:
+            self.rate_opt.step()
+            self.rate_opt.zero_grad(set_to_none=True)
         self.iteration = it
         lv = float(loss.detach())
         self.loss_ema = lv if self.loss_ema is None else 0.6 * self.loss_ema + 0.4 * lv
         if (cfg.densify_from < it <= cfg.densify_until and it % cfg.densify_interval == 0):
             self.adjust_anchors()
+        if cfg.rate_lambda > 0 and self.rate_model is None and it >= self.rate_start:
+            self._build_rate_model()  # the anchor set is final: no growing or pruning after densify_until
         return {"loss": lv, "gaussians": ng.num_gaussians}
 
     def _accumulate(self, st, ng, cam, anchor_bounding_radii, visible_anchors) -> None:
@@ -590,7 +646,13 @@ class Trainer:
             ss.append(ssim(img, cam.image))
         return {"iteration": self.iteration, "time_s": round(self.elapsed, 2), "psnr": float(np.mean(ps)),
                 "ssim": float(np.mean(ss)), "views": len(test), "anchors": self.num_anchors,
-                "grown": self.grown, "pruned": self.pruned, "loss_ema": self.loss_ema}
+                "grown": self.grown, "pruned": self.pruned, "loss_ema": self.loss_ema,
+                **({} if self.rate_model is None else {"rate_bits_per_anchor": self._rate_estimate()})}
+
+    @torch.no_grad()
+    def _rate_estimate(self) -> float:
+        """Estimated attribute bits per anchor of the rounded attributes (no noise)."""
+        return float(self.rate_model(self.attribute_values(), noise=False)["total"]) / self.num_anchors
 
     # --- export and checkpoints ------------------------------------------------------
     def to_scene(self) -> AnchorScene:
@@ -614,6 +676,9 @@ class Trainer:
             "np_rng": self.np_rng.bit_generator.state, "torch_gen": self.gen.get_state(),
             "order": list(self.order), "history": self.history, "elapsed": self.elapsed,
             "loss_ema": self.loss_ema, "grown": self.grown, "pruned": self.pruned,
+            "rate": None if self.rate_model is None else {
+                "model": self.rate_model.state_dict(), "optimizer": self.rate_opt.state_dict(),
+                "scales": self._rate_scales()},
         }
 
     def load_state_dict(self, sd: dict) -> None:
@@ -641,6 +706,10 @@ class Trainer:
         self._build_optimizer()
         self.opt.load_state_dict(sd["optimizer"])
         self._set_lr(self.iteration)
+        if sd.get("rate") is not None:
+            self._build_rate_model(sd["rate"]["scales"])
+            self.rate_model.load_state_dict(sd["rate"]["model"])
+            self.rate_opt.load_state_dict(sd["rate"]["optimizer"])
 
     def save_checkpoint(self) -> Path:
         folder = write_checkpoint_folder(self.to_scene(), self.out, self.iteration)
@@ -659,7 +728,8 @@ class Trainer:
     def _write_metrics(self) -> None:
         atomic_write_bytes(self.out / "metrics.json", json.dumps(self.history, indent=1).encode())
         sio = io.StringIO()
-        fields = ["iteration", "time_s", "psnr", "ssim", "views", "anchors", "grown", "pruned", "loss_ema"]
+        fields = ["iteration", "time_s", "psnr", "ssim", "views", "anchors", "grown", "pruned", "loss_ema",
+                  "rate_bits_per_anchor"]
         w = csv.DictWriter(sio, fieldnames=fields, extrasaction="ignore")
         w.writeheader()
         for h in self.history:
@@ -784,6 +854,17 @@ def _check_config(cfg: TrainConfig) -> None:
             raise InputError(f"{name.replace('_', '-')} must be a positive integer, got {v!r}")
     if cfg.voxel_size is not None and not (cfg.voxel_size > 0 and math.isfinite(cfg.voxel_size)):
         raise InputError(f"voxel-size must be a positive number, got {cfg.voxel_size}")
+    if not (cfg.rate_lambda >= 0 and math.isfinite(cfg.rate_lambda)):
+        raise InputError(f"rate-lambda must be a non-negative number, got {cfg.rate_lambda}")
+    if cfg.rate_lambda > 0:
+        if not (cfg.rate_step > 0 and math.isfinite(cfg.rate_step)):
+            raise InputError(f"rate-step must be a positive number, got {cfg.rate_step}")
+        start = cfg.rate_from if cfg.rate_from is not None else cfg.densify_until
+        if start < cfg.densify_until:
+            raise InputError(f"rate-from ({start}) must not come before the last growing/pruning "
+                             f"(densify-until {cfg.densify_until}): the rate model needs a fixed anchor set")
+        if cfg.rate_voxel_scale < 2 or cfg.rate_neighbour_level not in (1, 2):
+            raise InputError("rate-voxel-scale must be >= 2 and rate-neighbour-level 1 or 2")
 
 
 def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, stop_after: int | None = None,
@@ -854,7 +935,8 @@ def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, stop_after
             bar.update(1)
             if it % 10 == 0:
                 bar.set_postfix(loss=f"{tr.loss_ema:.4f}" if tr.loss_ema is not None else "-",
-                                anchors=tr.num_anchors, gs=info["gaussians"])
+                                anchors=tr.num_anchors, gs=info["gaussians"],
+                                **({} if tr.rate_bits is None else {"bits_per_anchor": f"{tr.rate_bits:.0f}"}))
         last = it >= cfg.iterations
         timed_out = time_limit_s is not None and tr.elapsed >= time_limit_s
         if it % cfg.eval_interval == 0 or last or timed_out:
@@ -863,7 +945,9 @@ def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, stop_after
             t_start += time.perf_counter() - t0  # evaluation time is not training time
             tr.history.append(rec)
             msg = (f"[it {it}] test PSNR {rec['psnr']:.2f} dB, SSIM {rec['ssim']:.4f} ({rec['views']} views), "
-                   f"{rec['anchors']:,} anchors (+{tr.grown:,} grown, -{tr.pruned:,} pruned so far), {tr.elapsed:.0f} s")
+                   f"{rec['anchors']:,} anchors (+{tr.grown:,} grown, -{tr.pruned:,} pruned so far), {tr.elapsed:.0f} s"
+                   + (f", ~{rec['rate_bits_per_anchor']:.0f} attribute bits/anchor" if "rate_bits_per_anchor" in rec
+                      else ""))
             (bar.write(msg) if bar is not None else log(msg))
         if it % cfg.checkpoint_interval == 0 or last or timed_out or (stop_after is not None and it >= stop_after):
             t0 = time.perf_counter()
@@ -963,6 +1047,18 @@ def setup_args() -> argparse.ArgumentParser:
                    help="prune anchors whose summed neural opacity per view stays below this (default 0.005)")
     g.add_argument("--skip-finer-levels", action="store_true",
                    help="Scaffold-GS's literal growing rule: no finer level when the coarsest adds no anchor")
+    g = p.add_argument_group("rate-distortion training (LG-HCC: L = L_render + lambda x estimated attribute bits)")
+    g.add_argument("--rate-lambda", type=float, default=d.rate_lambda,
+                   help="weight of the estimated bits per attribute value under the codec's hierarchy and GG-Conv "
+                        "context (0: plain Scaffold-GS, the default; 0.001-0.01: smaller streams)")
+    g.add_argument("--rate-from", type=int, help="first iteration with the rate term (default: --densify-until; "
+                   "not earlier, the anchor set must be final)")
+    g.add_argument("--rate-step", type=float, default=d.rate_step,
+                   help=f"the quantization step the encoder will use (default {d.rate_step}, preset medium)")
+    g.add_argument("--rate-voxel-scale", type=int, default=d.rate_voxel_scale,
+                   help=f"the encoder's coarse voxel scale (default {d.rate_voxel_scale})")
+    g.add_argument("--rate-neighbour-level", type=int, choices=(1, 2), default=d.rate_neighbour_level,
+                   help="the encoder's GG-Conv neighbour level (default 1)")
     g.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     return p
 
