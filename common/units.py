@@ -23,6 +23,7 @@ MAX_MLP_WIDTH = 4096
 MAX_EXPONENT = 64
 NUM_SCALE_LEVELS_BITS = 6
 MASK_PROB_BITS = 12
+PRIOR_MEAN_MAX = (1 << 31) - 1  # |prior_mean|: the magnitudes se(v) codes (common/bitio.py)
 
 MAX_COARSE_VOXEL_SCALE = 1 << 20
 # attribute_level values
@@ -174,7 +175,7 @@ class AttributeUnitHeader(SyntaxStructure):
         for _ in v.when(self.context_model_id == CONTEXT_PER_CHANNEL_PRIOR,
                         "context_model_id == 0"):
             for c in v.loop(self.num_channels, "NumChannels", self, ("prior_mean", "prior_level"), index="c"):
-                v.se(self, "prior_mean", c, lo=-(1 << 40), hi=1 << 40)
+                v.se(self, "prior_mean", c, lo=-PRIOR_MEAN_MAX, hi=PRIOR_MEAN_MAX)
                 v.u(NUM_SCALE_LEVELS_BITS, self, "prior_level", c)
         for _ in v.when(self.offset_mask_present, "offset_mask_present_flag"):
             for k in v.loop(self.num_offsets, "NumOffsets", self, ("mask_live_prob",), index="k"):

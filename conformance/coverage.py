@@ -57,6 +57,9 @@ UNIT_TYPE = "data_unit_header.unit_type"
 # (element, value class) -> why no decodable stream can exercise it (checked against the code,
 # see tests/test_spec_and_conformance.py for the executable parts of each argument).
 IMPOSSIBLE: dict[tuple[str, str], str] = {
+    ("int_array_header.array_ndim", 3):
+        "every context-model array has a fixed shape (Annex H, clauses H.5.1 and H.6.1): scalars (0 or 1 "
+        "dimension), biases (1), weights (2) and the GG-Conv table (4); a model rejects any other shape",
     ("scene_parameter_set.coarse_voxel_scale_minus1", "minimum"):
         "coarse voxels of 1 voxel hold one anchor each, since decoded anchor coordinates are distinct "
         "(octree leaves are distinct and decode_geometry rejects a direct-coded node holding one point "
@@ -68,17 +71,8 @@ IMPOSSIBLE: dict[tuple[str, str], str] = {
         "L_i >= 4), so num_features < 1 and both models reject the unit",
     ("context_model_unit.coded_data", "empty"):
         "coded_data is coded_size bytes; see context_model_unit.coded_size: minimum",
-    ("attribute_unit_header.prior_mean", "minimum"):
-        "se(v) codes magnitudes up to 2^31 - 1 only (common/bitio.py reads at most 31 leading zeros: ue(v) "
-        "<= 2^32 - 2, the H.264 range the spec's clause 2 cites), below the syntax's limit of 2^40 "
-        "(spec 7.3.5); c025 codes -(2^31 - 1). A spec / syntax inconsistency, reported",
-    ("attribute_unit_header.prior_mean", "maximum"):
-        "as attribute_unit_header.prior_mean: minimum; c025 codes 2^31 - 1",
 }
 
-_CONTEXT_MODEL_PENDING = ("the context-model syntax (GG-Conv / parent MLP) is being changed by another "
-                          "engineer, who regenerates the context-model streams; a stream for this class "
-                          "belongs with that regeneration")
 # (element, value class) -> why the suite does not exercise it although a stream could
 NOT_EXERCISED: dict[tuple[str, str], str] = {
     ("scene_parameter_set.num_anchors_minus1", "maximum"):
@@ -86,11 +80,7 @@ NOT_EXERCISED: dict[tuple[str, str], str] = {
     ("data_unit_header.unit_payload_size", "maximum"):
         "a payload of 2^32 - 1 bytes (4 GiB)",
     ("int_array_header.array_dim_minus1", "maximum"):
-        "an array of 2^24 values (also the limit on all context-model values together): a stream of "
-        "many MB; and " + _CONTEXT_MODEL_PENDING,
-    ("context_model_unit.feat_num_layers_minus1", "maximum"): _CONTEXT_MODEL_PENDING,
-    ("context_model_unit.head_num_layers_minus1", "maximum"): _CONTEXT_MODEL_PENDING,
-    ("int_array_header.array_ndim", 3): _CONTEXT_MODEL_PENDING,
+        "an array of 2^24 values (also the limit on all context-model values together): a stream of many MB",
 }
 
 

@@ -25,7 +25,7 @@ from lghcc.common.report import SizeBreakdown, breakdown_of
 from lghcc.common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene, RenderMLP
 from lghcc.common.hierarchy import build_hierarchy
 from lghcc.common.units import (CONTEXT_PER_CHANNEL_PRIOR, LEVEL_1, LEVEL_2, LEVEL_ALL, MASK_PROB_BITS, MAX_ANCHORS,
-                                MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, AttributeUnitHeader, DecodedSceneHashUnit,
+                                MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, PRIOR_MEAN_MAX, AttributeUnitHeader, DecodedSceneHashUnit,
                                 RenderMlpHeader, SceneParameterSet)
 from lghcc.encoder.config import EncoderConfig
 from lghcc.encoder.context_fit import fit_level2_context
@@ -91,8 +91,8 @@ def fit_per_channel_prior(q: np.ndarray, live: np.ndarray, sample_rows: int, see
     levels = np.zeros(m, dtype=np.int64)
     for c in range(m):
         vals = qs[ls[:, c], c]
-        if vals.size:
-            means[c] = int(np.median(vals).round())
+        if vals.size:  # the prior mean is a prediction: clamped to its syntax range, escapes code the rest
+            means[c] = int(np.clip(np.median(vals).round(), -PRIOR_MEAN_MAX, PRIOR_MEAN_MAX))
             levels[c] = best_level(vals - means[c])
     return means, levels
 

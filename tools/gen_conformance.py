@@ -202,15 +202,27 @@ def _hand_ggconv(units, spec: dict):
     rng = np.random.default_rng(int(spec.get("seed", 0)))
     table = rng.integers(-64, 64, size=(d, d, d, ch), endpoint=True)
     feat_in = _ggconv_feature_inputs(c)
-    feat = IntLinear(rng.integers(-3, 3, size=(ch, feat_in), endpoint=True), np.zeros(ch, np.int64), 0, False, 8)
-    # head inputs: h (Ch), local position (3), n_valid (1), parent attributes (M); outputs mean, level, adjust
-    w = np.zeros((3 * m, ch + 4 + m), np.int64)
-    w[m:2 * m, ch + 3] = 1  # level grows with the number of valid neighbours
+    n_feat, n_head = int(spec.get("feat_layers", 1)), int(spec.get("head_layers", 1))
+    # feature MLP: small random layers (ReLU between them), Ch outputs
+    widths = [feat_in] + [ch] * n_feat
+    feat_layers = [IntLinear(rng.integers(-3, 3, size=(o, i), endpoint=True), np.zeros(o, np.int64), 0,
+                             l < n_feat - 1, 8) for l, (i, o) in enumerate(zip(widths[:-1], widths[1:]))]
+    # head inputs: h (Ch), local position (3), n_valid (1), parent attributes (M); outputs mean, level, adjust.
+    # Deeper heads carry n_valid (>= 0, unchanged by ReLU) through 1-wide identity layers.
+    head_layers = []
+    if n_head > 1:
+        w0 = np.zeros((1, ch + 4 + m), np.int64)
+        w0[0, ch + 3] = 1
+        head_layers.append(IntLinear(w0, np.zeros(1, np.int64), 0, True, 8))
+        head_layers += [IntLinear(np.ones((1, 1), np.int64), np.zeros(1, np.int64), 0, True, 8)
+                        for _ in range(n_head - 2)]
+    w = np.zeros((3 * m, ch + 4 + m if n_head == 1 else 1), np.int64)
+    w[m:2 * m, ch + 3 if n_head == 1 else 0] = 1  # level grows with the number of valid neighbours
     bias = np.concatenate([np.zeros(m), np.full(m, int(spec.get("level", 8))), np.zeros(m)]).astype(np.int64)
-    head = IntLinear(w, bias, 0, False, 8)
+    head_layers.append(IntLinear(w, bias, 0, False, 8))
     p = GGConvParams(num_features=c, neighbour_level=int(spec.get("neighbour_level", 2)), k=int(spec.get("k", 2)),
                      radius_sq=int(spec.get("radius_sq", 64)),
-                     table=table, h_shift=0, feat_mlp=IntMLP([feat]), head_mlp=IntMLP([head]))
+                     table=table, h_shift=0, feat_mlp=IntMLP(feat_layers), head_mlp=IntMLP(head_layers))
     arrays = []
     for a in p.to_arrays():
         v = np.asarray(a.values)
@@ -218,7 +230,7 @@ def _hand_ggconv(units, spec: dict):
             v = v.reshape(1)
         bits = 1 if a.name.endswith(".shift") or a.name == "h_shift" else a.bits
         arrays.append(NamedIntArray(a.name, v, bits, a.signed))
-    unit = write_context_model_unit(CONTEXT_GGCONV, arrays, 1, 1)
+    unit = write_context_model_unit(CONTEXT_GGCONV, arrays, n_feat, n_head)
     model = read_context_model(unit, layout)
     params = level2_coding_params(model, coords[hier.level1_idx], q1, coords[hier.level2_idx], hier.parent_of_level2,
                                   sps.coarse_voxel_scale)
