@@ -35,13 +35,15 @@ class EncoderConfig:
     # fewer bits, tools/results/context.md), 2 = the other level-2 anchors carrying their
     # parents' attributes (the paper's graph over A_pre^(2)).
     context_neighbour_level: int = 1
-    context_channels: int = 32  # GG-Conv context channels Ch (geometry table and feature MLP outputs)
-    context_feat_hidden: int = 64  # GG-Conv feature-MLP hidden width
-    context_head_hidden: int = 64  # head-MLP hidden width (GG-Conv and parent MLP)
+    # Context-model size; None: chosen from the number of level-2 anchors (context_model_size), so
+    # that a small scene is not charged for a model it cannot pay back.
+    context_channels: int | None = None  # GG-Conv context channels Ch (geometry table and feature MLP outputs)
+    context_feat_hidden: int | None = None  # GG-Conv feature-MLP hidden width
+    context_head_hidden: int | None = None  # head-MLP hidden width (GG-Conv and parent MLP)
     context_lambda: float = 16.0  # distortion weight of the step adjustment, bits per squared step
     context_float_steps: int = 1200  # training steps in float
     context_qat_steps: int = 300  # quantization-aware steps (GG-Conv; the parent MLP trains float_steps + qat_steps)
-    context_weight_bits: int = 16  # integer precision of the context model's weights: 8 or 16
+    context_weight_bits: int | None = None  # integer precision of the context model's weights: 8 or 16
     context_train_anchors: int = 200_000  # level-2 anchors sampled for training
     context_fallback: bool = True  # use the context model only when it saves bytes over the prior
     # Anchor pruning before coding (informative): none, naap (Neighborhood-Aware Anchor Pruning:
@@ -69,14 +71,14 @@ class EncoderConfig:
             raise InputError(f"context_model must be per_channel, parent_mlp or ggconv, got {self.context_model!r}")
         if self.context_model != "per_channel" and not self.hierarchy:
             raise InputError(f"context_model {self.context_model} needs the hierarchy (hierarchy: true)")
-        if self.context_weight_bits not in (8, 16):
+        if self.context_weight_bits not in (None, 8, 16):
             raise InputError("context_weight_bits must be 8 or 16")
         if not 1 <= self.context_k <= 64:
             raise InputError("context_k must be in [1, 64]")
         if self.context_neighbour_level not in (1, 2):
             raise InputError("context_neighbour_level must be 1 (level-1 anchors) or 2 (level-2 anchors)")
         for name in ("context_channels", "context_feat_hidden", "context_head_hidden"):
-            if not 1 <= getattr(self, name) <= 4096:
+            if getattr(self, name) is not None and not 1 <= getattr(self, name) <= 4096:
                 raise InputError(f"{name} must be in [1, 4096], got {getattr(self, name)}")
         for name in ("context_float_steps", "context_qat_steps"):
             if getattr(self, name) < 0:
@@ -92,6 +94,20 @@ class EncoderConfig:
         if self.prior_fit_rows < 1:
             raise InputError("prior_fit_rows must be at least 1")
         return self
+
+
+# Context-model sizes by number of level-2 anchors: (Ch, feature hidden, head hidden, weight bits).
+# Measured in tools/results/context.md: a 16-bit Ch=32 model (about 65 kB) pays for itself from
+# about 20k level-2 anchors on; below, smaller 8-bit models (7-20 kB) keep most of the gain.
+CONTEXT_MODEL_SIZES = ((8_000, (8, 16, 16, 8)), (50_000, (16, 32, 32, 8)), (None, (32, 64, 64, 16)))
+
+
+def context_model_size(cfg: EncoderConfig, num_level2: int) -> tuple[int, int, int, int]:
+    """(Ch, feature hidden, head hidden, weight bits): the configured values, and for those left
+    at None the size for ``num_level2`` anchors from CONTEXT_MODEL_SIZES."""
+    auto = next(size for limit, size in CONTEXT_MODEL_SIZES if limit is None or num_level2 < limit)
+    given = (cfg.context_channels, cfg.context_feat_hidden, cfg.context_head_hidden, cfg.context_weight_bits)
+    return tuple(g if g is not None else a for g, a in zip(given, auto))
 
 
 def preset_names() -> list[str]:

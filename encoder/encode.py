@@ -27,7 +27,7 @@ from lghcc.common.hierarchy import build_hierarchy
 from lghcc.common.units import (CONTEXT_PER_CHANNEL_PRIOR, LEVEL_1, LEVEL_2, LEVEL_ALL, MASK_PROB_BITS, MAX_ANCHORS,
                                 MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, PRIOR_MEAN_MAX, AttributeUnitHeader, DecodedSceneHashUnit,
                                 RenderMlpHeader, SceneParameterSet)
-from lghcc.encoder.config import EncoderConfig
+from lghcc.encoder.config import EncoderConfig, context_model_size
 from lghcc.encoder.context_fit import fit_level2_context
 from lghcc.encoder.ggconv_train import GGConvTrainConfig
 
@@ -53,12 +53,12 @@ class EncodeResult:
     stats: dict = field(default_factory=dict)
 
 
-def context_train_config(cfg: EncoderConfig, progress: bool) -> GGConvTrainConfig:
+def context_train_config(cfg: EncoderConfig, num_level2: int, progress: bool) -> GGConvTrainConfig:
+    ch, feat_hidden, head_hidden, weight_bits = context_model_size(cfg, num_level2)
     return GGConvTrainConfig(k=cfg.context_k, neighbour_level=cfg.context_neighbour_level,
-                             ctx_channels=cfg.context_channels, feat_hidden=cfg.context_feat_hidden,
-                             head_hidden=cfg.context_head_hidden, lam=cfg.context_lambda,
+                             ctx_channels=ch, feat_hidden=feat_hidden, head_hidden=head_hidden, lam=cfg.context_lambda,
                              float_steps=cfg.context_float_steps, qat_steps=cfg.context_qat_steps,
-                             weight_bits=cfg.context_weight_bits, max_train_anchors=cfg.context_train_anchors,
+                             weight_bits=weight_bits, max_train_anchors=cfg.context_train_anchors,
                              progress=progress)
 
 
@@ -174,6 +174,7 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
         hier = build_hierarchy(coords, cfg.coarse_voxel_scale)
         if hier.num_level2:  # an empty level 2 switches the hierarchy off: it costs no bits
             levels = [(LEVEL_1, hier.level1_idx), (LEVEL_2, hier.level2_idx)]
+            stats["num_level1"], stats["num_level2"] = hier.num_level1, hier.num_level2
     sps = SceneParameterSet(
         num_anchors_minus1=n - 1, feature_dim_minus1=scene.feature_dim - 1,
         num_offsets_minus1=scene.num_offsets - 1, voxel_size=float(scene.voxel_size),
@@ -229,7 +230,7 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
             targets = np.where(level_live, values[rows] / steps.astype(np.float64), 0.0)
             fitted = fit_level2_context(cfg.context_model, coords[hier.level1_idx], q_level1, coords[rows],
                                         hier.parent_of_level2, targets, scene.feature_dim, cfg.coarse_voxel_scale,
-                                        context_train_config(cfg, progress))
+                                        context_train_config(cfg, rows.size, progress))
             unit = write_context_model_unit(fitted.model_id, fitted.params.to_arrays(), fitted.feat_layers,
                                             fitted.head_layers)
             model = read_context_model(unit, layout)  # exactly what the decoder will use
