@@ -128,54 +128,86 @@ def _subset(scene: AnchorScene, keep: np.ndarray) -> AnchorScene:
                        mlps=scene.mlps, extra={k: v[keep] for k, v in scene.extra.items()})
 
 
+@dataclass
+class PrunePlan:
+    """Which anchors stay (keep, bool [N]) and, for NAAP, the kept anchor each pruned one is
+    merged into (targets [num pruned], an index into the kept anchors in their order)."""
+    method: str
+    keep: np.ndarray
+    targets: np.ndarray | None
+    tau: float
+
+    def report(self) -> PruneReport:
+        merged = 0 if self.targets is None else int(np.unique(self.targets).size)
+        return PruneReport(self.method, int(self.keep.size), int(self.keep.sum()), self.tau, merged)
+
+    def merge(self, values: np.ndarray, gamma: float) -> np.ndarray:
+        """Weighted Attribute Transformation (paper eq. 11) of one attribute ([N, ...]): the kept
+        rows, each target blended with the mean of the pruned anchors merged into it,
+        Theta_k = (1 - gamma) theta_k + gamma theta_r. Without targets: the kept rows."""
+        own = values[self.keep]
+        if self.targets is None or not self.targets.size:
+            return own.copy()
+        theirs = values[~self.keep].astype(np.float64)
+        counts = np.bincount(self.targets, minlength=own.shape[0]).astype(np.float64)
+        acc = np.zeros((own.shape[0],) + theirs.shape[1:])
+        np.add.at(acc, self.targets, theirs)
+        hit = counts > 0
+        mean = acc / np.maximum(counts, 1).reshape((-1,) + (1,) * (theirs.ndim - 1))
+        out = own.astype(np.float64).copy()
+        out[hit] = (1 - gamma) * out[hit] + gamma * mean[hit]
+        return out.astype(values.dtype)
+
+
+def opacity_plan(opacity: np.ndarray, tau: float | None = None, keep_ratio: float | None = None) -> PrunePlan:
+    """Context-GS style: drop anchors whose accumulated opacity is below tau."""
+    a = np.asarray(opacity, dtype=np.float64)
+    t = _threshold(a, tau, keep_ratio)
+    return PrunePlan("opacity", _keep_mask(a, t, keep_ratio), None, t)
+
+
+def naap_plan(coords: np.ndarray, opacity: np.ndarray, cfg: NaapConfig) -> PrunePlan:
+    """NAAP steps 1-3: importance over the k-NN graph, threshold, nearest kept neighbour of
+    every pruned anchor."""
+    a = np.asarray(opacity, dtype=np.float64)
+    n = coords.shape[0]
+    cf = coords.astype(np.float64)
+    radius = cfg.radius_voxels
+    if radius is None:
+        radius = 4.0 * float(np.median(cKDTree(cf).query(cf, k=2)[0][:, 1])) if n > 1 else 1.0
+    xi = naap_importance(coords, a, cfg.k, radius, cfg.eps, cfg.lam)
+    tau = _threshold(xi, cfg.tau, cfg.keep_ratio)
+    keep = _keep_mask(xi, tau, cfg.keep_ratio)
+    targets = np.zeros(0, np.int64)
+    if not keep.all():
+        targets = cKDTree(cf[keep]).query(cf[~keep], k=1)[1].astype(np.int64)
+    return PrunePlan("naap", keep, targets, tau)
+
+
+def apply_plan(scene: AnchorScene, plan: PrunePlan, gamma: float, opacity: np.ndarray) -> AnchorScene:
+    """The scene with the plan's anchors kept; with NAAP targets, offsets, scalings and the
+    accumulated opacity (and a per-anchor opacity, if the scene has one) merged (eq. 11)."""
+    out = _subset(scene, plan.keep)
+    if plan.targets is not None and plan.targets.size:
+        out.offsets = plan.merge(scene.offsets, gamma)
+        out.scalings = plan.merge(scene.scalings, gamma)
+        out.extra = dict(out.extra)
+        out.extra["opacity_accum"] = plan.merge(np.asarray(opacity, dtype=np.float64), gamma)
+        if "opacity" in scene.extra:
+            out.extra["opacity"] = plan.merge(np.asarray(scene.extra["opacity"]), gamma)
+    return out
+
+
 def opacity_prune(scene: AnchorScene, tau: float | None = None, keep_ratio: float | None = None,
                   opacity: np.ndarray | None = None) -> tuple[AnchorScene, PruneReport]:
     """Context-GS style: drop anchors whose accumulated opacity is below tau."""
     a = estimate_anchor_opacity(scene) if opacity is None else opacity
-    t = _threshold(a, tau, keep_ratio)
-    keep = _keep_mask(a, t, keep_ratio)
-    return _subset(scene, keep), PruneReport("opacity", scene.num_anchors, int(keep.sum()), t)
+    plan = opacity_plan(a, tau, keep_ratio)
+    return _subset(scene, plan.keep), plan.report()
 
 
 def naap_prune(scene: AnchorScene, cfg: NaapConfig, opacity: np.ndarray | None = None
                ) -> tuple[AnchorScene, PruneReport]:
     a = estimate_anchor_opacity(scene) if opacity is None else np.asarray(opacity, dtype=np.float64)
-    n = scene.num_anchors
-    coords = scene.coords.astype(np.float64)
-    radius = cfg.radius_voxels
-    if radius is None:
-        if n > 1:
-            d1 = cKDTree(coords).query(coords, k=2)[0][:, 1]
-            radius = 4.0 * float(np.median(d1))
-        else:
-            radius = 1.0
-    xi = naap_importance(scene.coords, a, cfg.k, radius, cfg.eps, cfg.lam)
-    tau = _threshold(xi, cfg.tau, cfg.keep_ratio)
-    keep = _keep_mask(xi, tau, cfg.keep_ratio)
-    pruned = np.flatnonzero(~keep)
-    kept = np.flatnonzero(keep)
-    merged = _subset(scene, keep)
-    merged.scalings = merged.scalings.copy()
-    merged.offsets = merged.offsets.copy()
-    targets = np.zeros(0, np.int64)
-    if pruned.size:
-        targets = cKDTree(coords[kept]).query(coords[pruned], k=1)[1]  # index into kept
-        counts = np.bincount(targets, minlength=kept.size).astype(np.float64)
-        hit = counts > 0
-
-        def fuse(own: np.ndarray, theirs: np.ndarray) -> np.ndarray:
-            acc = np.zeros((kept.size,) + theirs.shape[1:])
-            np.add.at(acc, targets, theirs.astype(np.float64))
-            mean = acc / np.maximum(counts, 1).reshape((-1,) + (1,) * (theirs.ndim - 1))
-            out = own.astype(np.float64).copy()
-            out[hit] = (1 - cfg.gamma) * out[hit] + cfg.gamma * mean[hit]
-            return out.astype(own.dtype)
-
-        merged.offsets = fuse(merged.offsets, scene.offsets[pruned])
-        merged.scalings = fuse(merged.scalings, scene.scalings[pruned])
-        merged.extra = dict(merged.extra)
-        merged.extra["opacity_accum"] = fuse(a[kept], a[pruned])
-        if "opacity" in scene.extra:
-            merged.extra["opacity"] = fuse(merged.extra["opacity"], scene.extra["opacity"][pruned])
-    report = PruneReport("naap", n, int(kept.size), tau, int(np.unique(targets).size))
-    return merged, report
+    plan = naap_plan(scene.coords, a, cfg)
+    return apply_plan(scene, plan, cfg.gamma, a), plan.report()

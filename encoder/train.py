@@ -128,6 +128,15 @@ class TrainConfig:
     mlp_cov_lr_final: float = 0.004
     mlp_color_lr_init: float = 0.008
     mlp_color_lr_final: float = 0.00005
+    # Anchor pruning once the anchor set is grown (after the growing/pruning at prune_at), then
+    # training goes on with the pruned set, as the paper applies NAAP (section 3.3): naap merges
+    # low-importance anchors into their nearest kept neighbour; opacity drops the anchors of
+    # lowest accumulated opacity (Context-GS). none: no extra pruning.
+    prune: str = "none"
+    prune_keep: float = 0.8  # fraction of the anchors kept
+    prune_at: int | None = None  # None: densify_until
+    naap_lambda: float = 0.5
+    naap_gamma: float = 0.2
     # Rate-distortion training (LG-HCC eq. 12: L = L_render + lambda L_anchor): from rate_from
     # on (after the last growing/pruning, so the anchor set is fixed), the loss adds
     # rate_lambda x the estimated bits per attribute value of the anchors under the codec's
@@ -340,6 +349,7 @@ class Trainer:
         self.rate_model = None  # encoder/rate_model.AnchorRateModel, built when the rate phase starts
         self.rate_opt = None
         self.rate_bits = None  # last estimate of the attribute bits per anchor
+        self.prune_report = None  # what prune_anchors did
 
     # --- construction ----------------------------------------------------------------
     def fresh(self) -> None:
@@ -416,6 +426,37 @@ class Trainer:
             step = torch.tensor(self.cfg.rate_step, dtype=torch.float32)
             f, sc, off = quantize_ste(f, step), quantize_ste(sc, step), quantize_ste(off, step)
         return SceneTensors(self.positions(), f, sc, off, self.mlps)
+
+    # --- pruning (NAAP or opacity) -----------------------------------------------------
+    @property
+    def prune_at(self) -> int:
+        return self.cfg.prune_at if self.cfg.prune_at is not None else self.cfg.densify_until
+
+    @torch.no_grad()
+    def prune_anchors(self) -> None:
+        """NAAP or opacity pruning of the current anchors (encoder/naap.py), importance from the
+        opacity accumulated since each anchor's creation; NAAP merges offsets, scalings and the
+        accumulated opacity of every pruned anchor into its nearest kept neighbour (eq. 11).
+        The optimizer state of the kept anchors carries over."""
+        from lghcc.encoder.naap import NaapConfig, naap_plan, opacity_plan
+
+        cfg = self.cfg
+        acc = (self.life_opacity / self.life_views.clamp_min(1)).numpy()
+        if cfg.prune == "naap":
+            plan = naap_plan(self.coords.numpy(), acc,
+                             NaapConfig(keep_ratio=cfg.prune_keep, lam=cfg.naap_lambda, gamma=cfg.naap_gamma))
+        else:
+            plan = opacity_plan(acc, keep_ratio=cfg.prune_keep)
+        merged = {name: torch.from_numpy(plan.merge(self.params[name].detach().numpy(), cfg.naap_gamma))
+                  for name in ("scalings", "offsets")}
+        merged_acc = plan.merge(acc, cfg.naap_gamma)
+        keep = torch.from_numpy(plan.keep)
+        self._keep(keep)
+        for name, v in merged.items():
+            self.params[name].copy_(v)
+        self.life_opacity = torch.from_numpy(merged_acc) * self.life_views.clamp_min(1)
+        self.pruned += int((~keep).sum())
+        self.prune_report = str(plan.report())
 
     # --- rate-distortion phase ---------------------------------------------------------
     @property
@@ -494,6 +535,8 @@ class Trainer:
         self.loss_ema = lv if self.loss_ema is None else 0.6 * self.loss_ema + 0.4 * lv
         if (cfg.densify_from < it <= cfg.densify_until and it % cfg.densify_interval == 0):
             self.adjust_anchors()
+        if cfg.prune != "none" and it == self.prune_at:
+            self.prune_anchors()
         if cfg.rate_lambda > 0 and self.rate_model is None and it >= self.rate_start:
             self._build_rate_model()  # the anchor set is final: no growing or pruning after densify_until
         return {"loss": lv, "gaussians": ng.num_gaussians}
@@ -819,18 +862,23 @@ def evaluate_model(model: str | Path, data: str | Path, background: str = "white
                    images: str = "images", voxel_size: float | None = None) -> dict:
     """Test-view PSNR / SSIM of a Scaffold-GS model (e.g. a decoded .lghcc) on a dataset."""
     from lghcc.common.scaffold_io import read_scaffold
-    from lghcc.render.metrics import psnr, ssim
 
     scene = read_scaffold(model, voxel_size=voxel_size)
     ds = load_dataset(data, background, downscale, images)
+    return {"model": str(model), **evaluate_scene(scene, ds.test, background)}
+
+
+def evaluate_scene(scene, cams: list, background: str = "white") -> dict:
+    """Mean PSNR / SSIM of ``scene`` (an AnchorScene) against the images of ``cams``."""
+    from lghcc.render.metrics import psnr, ssim
+
     bg = _background(background)
     ps, ss = [], []
-    for cam in ds.test:
+    for cam in cams:
         img = render_image(scene, cam, bg)
         ps.append(psnr(img, cam.image))
         ss.append(ssim(img, cam.image))
-    return {"model": str(model), "psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)), "views": len(ps),
-            "anchors": scene.num_anchors}
+    return {"psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)), "views": len(ps), "anchors": scene.num_anchors}
 
 
 # ------------------------------------------------------------------------------------------
@@ -854,6 +902,18 @@ def _check_config(cfg: TrainConfig) -> None:
             raise InputError(f"{name.replace('_', '-')} must be a positive integer, got {v!r}")
     if cfg.voxel_size is not None and not (cfg.voxel_size > 0 and math.isfinite(cfg.voxel_size)):
         raise InputError(f"voxel-size must be a positive number, got {cfg.voxel_size}")
+    if cfg.prune not in ("none", "naap", "opacity"):
+        raise InputError(f"prune must be none, naap or opacity, got {cfg.prune!r}")
+    if cfg.prune != "none":
+        if not 0 < cfg.prune_keep <= 1:
+            raise InputError(f"prune-keep must be in (0, 1], got {cfg.prune_keep}")
+        at = cfg.prune_at if cfg.prune_at is not None else cfg.densify_until
+        if at < cfg.densify_until or at > cfg.iterations:
+            raise InputError(f"prune-at ({at}) must lie between densify-until ({cfg.densify_until}) and the last "
+                             f"iteration ({cfg.iterations})")
+        rate_start = cfg.rate_from if cfg.rate_from is not None else cfg.densify_until
+        if cfg.rate_lambda > 0 and rate_start < at:
+            raise InputError(f"rate-from ({rate_start}) must not come before prune-at ({at})")
     if not (cfg.rate_lambda >= 0 and math.isfinite(cfg.rate_lambda)):
         raise InputError(f"rate-lambda must be a non-negative number, got {cfg.rate_lambda}")
     if cfg.rate_lambda > 0:
@@ -931,6 +991,8 @@ def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, stop_after
         info = tr.step()
         tr.elapsed = time.perf_counter() - t_start
         it = tr.iteration
+        if cfg.prune != "none" and it == tr.prune_at and tr.prune_report:
+            (bar.write if bar is not None else log)(f"[it {it}] pruned after growing: {tr.prune_report}")
         if bar is not None:
             bar.update(1)
             if it % 10 == 0:
@@ -944,6 +1006,8 @@ def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, stop_after
             rec = tr.evaluate(0 if (last or timed_out) else cfg.eval_views)
             t_start += time.perf_counter() - t0  # evaluation time is not training time
             tr.history.append(rec)
+            if tr.prune_report and not any(h.get("pruning") for h in tr.history):
+                rec["pruning"] = tr.prune_report
             msg = (f"[it {it}] test PSNR {rec['psnr']:.2f} dB, SSIM {rec['ssim']:.4f} ({rec['views']} views), "
                    f"{rec['anchors']:,} anchors (+{tr.grown:,} grown, -{tr.pruned:,} pruned so far), {tr.elapsed:.0f} s"
                    + (f", ~{rec['rate_bits_per_anchor']:.0f} attribute bits/anchor" if "rate_bits_per_anchor" in rec
@@ -1047,6 +1111,14 @@ def setup_args() -> argparse.ArgumentParser:
                    help="prune anchors whose summed neural opacity per view stays below this (default 0.005)")
     g.add_argument("--skip-finer-levels", action="store_true",
                    help="Scaffold-GS's literal growing rule: no finer level when the coarsest adds no anchor")
+    g = p.add_argument_group("anchor pruning after growing (then training goes on with the pruned set)")
+    g.add_argument("--prune", choices=("none", "naap", "opacity"), default=d.prune,
+                   help="naap: Neighborhood-Aware Anchor Pruning (importance from each anchor's accumulated opacity "
+                        "and its k-NN neighbourhood; pruned anchors merged into their nearest kept neighbour); "
+                        "opacity: drop the anchors of lowest accumulated opacity (Context-GS). Default none")
+    g.add_argument("--prune-keep", type=float, default=d.prune_keep,
+                   help=f"fraction of the anchors kept (default {d.prune_keep})")
+    g.add_argument("--prune-at", type=int, help="iteration of the pruning (default: --densify-until)")
     g = p.add_argument_group("rate-distortion training (LG-HCC: L = L_render + lambda x estimated attribute bits)")
     g.add_argument("--rate-lambda", type=float, default=d.rate_lambda,
                    help="weight of the estimated bits per attribute value under the codec's hierarchy and GG-Conv "

@@ -440,3 +440,30 @@ def test_rate_phase_must_follow_the_last_growing(data, tmp_path):
                 log=lambda *x: None)
     with pytest.raises(InputError, match="rate-lambda"):
         T.train(tiny_config(data, rate_lambda=-1.0), tmp_path / "y", progress=False, log=lambda *x: None)
+
+
+@pytest.mark.parametrize("method", ["naap", "opacity"])
+def test_pruning_after_growing_keeps_the_ratio_trains_on_and_resumes_exactly(data, tmp_path, method):
+    """--prune naap|opacity: once growing ends, the anchor set shrinks to the keep ratio (NAAP
+    merging the pruned anchors' offsets and scalings into their nearest kept neighbours) and
+    training continues on it; an interrupted run resumes bit for bit across the pruning."""
+    cfg = tiny_config(data, iterations=30, densify_until=12, prune=method, prune_keep=0.5, checkpoint_interval=5,
+                      eval_interval=30)
+    a = T.train(cfg, tmp_path / "a", progress=False, log=lambda *x: None)
+    ref = T.train(tiny_config(data, iterations=30, densify_until=12, checkpoint_interval=5, eval_interval=30),
+                  tmp_path / "r", stop_after=12, progress=False, log=lambda *x: None)  # the same run, unpruned
+    assert a.scene.num_anchors == round(0.5 * ref.scene.num_anchors)
+    assert a.history[-1]["pruning"].startswith(method)
+    kept = {tuple(c) for c in a.scene.coords.tolist()}
+    assert kept <= {tuple(c) for c in ref.scene.coords.tolist()}
+    assert np.isfinite(a.scene.offsets).all() and np.isfinite(a.scene.scalings).all()
+    T.train(cfg, tmp_path / "b", stop_after=10, progress=False, log=lambda *x: None)
+    b = T.train(cfg, tmp_path / "b", resume=True, progress=False, log=lambda *x: None)
+    assert np.array_equal(a.scene.features, b.scene.features) and np.array_equal(a.scene.offsets, b.scene.offsets)
+
+
+def test_pruning_options_are_checked(data, tmp_path):
+    with pytest.raises(InputError, match="prune-keep"):
+        T.train(tiny_config(data, prune="naap", prune_keep=0.0), tmp_path / "x", progress=False, log=lambda *x: None)
+    with pytest.raises(InputError, match="prune-at"):
+        T.train(tiny_config(data, prune="opacity", prune_at=3), tmp_path / "y", progress=False, log=lambda *x: None)

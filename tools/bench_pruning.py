@@ -1,0 +1,112 @@
+#!/usr/bin/env python3
+"""NAAP against opacity-threshold pruning at the same anchor count: bytes and rendered fidelity.
+
+For a trained anchor scene (a Scaffold-GS folder with its training statistics, e.g. lghcc-train's
+output, whose PLY holds the accumulated opacity NAAP uses) and the dataset it was trained on,
+for each keep ratio: prune with NAAP (paper section 3.3: neighbourhood-aware importance,
+pruned anchors merged into their nearest kept neighbour) and with Context-GS's plain opacity
+threshold, encode with the chosen preset (lghcc-enc's code path: encode_scene with the
+pruning fields of EncoderConfig), decode, and render the test views: stream bytes by part and
+test PSNR / SSIM of the decoded scene. The unpruned scene is the first row.
+
+Pruning here is post-hoc (at encode time, no fine-tuning after it); the paper prunes during
+training and trains on. Both methods get exactly the same number of anchors.
+
+    python tools/bench_pruning.py /work/scenes/lego100 /work/shared/data/lego/lego_100 --keep 0.9 0.75 0.6
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _load() -> str:
+    try:
+        return " ".join(open("/proc/loadavg").read().split()[:3])
+    except OSError:
+        return "n/a"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("scene", help="trained Scaffold-GS folder (with opacity_accum in its PLY)")
+    ap.add_argument("data", help="the dataset it was trained on (test views are rendered)")
+    ap.add_argument("--keep", type=float, nargs="+", default=[0.9, 0.75, 0.6], help="keep ratios")
+    ap.add_argument("--preset", default="medium")
+    ap.add_argument("--background", default="white")
+    ap.add_argument("--views", type=int, default=0, help="test views to render (0: all)")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--out", type=Path, default=ROOT / "tools" / "results" / "pruning.md")
+    args = ap.parse_args(argv)
+
+    import numpy as np
+    import torch
+
+    from lghcc.common.scaffold_io import read_scaffold
+    from lghcc.decoder.decode import decode_stream
+    from lghcc.encoder.config import load_config
+    from lghcc.encoder.encode import encode_scene
+    from lghcc.encoder.train import evaluate_scene, load_dataset
+
+    torch.set_num_threads(args.threads)
+    scene = read_scaffold(args.scene)
+    if "opacity_accum" not in scene.extra:
+        print(f"note: {args.scene} has no training statistics; opacities come from the opacity MLP", file=sys.stderr)
+    ds = load_dataset(args.data, args.background)
+    cams = ds.test
+    if args.views and args.views < len(cams):
+        cams = [cams[i] for i in np.linspace(0, len(cams) - 1, args.views).round().astype(int)]
+    base_cfg = load_config(args.preset)
+    cmd = "python tools/bench_pruning.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    lines = ["# NAAP vs opacity pruning: bytes and fidelity at the same anchor count", "",
+             f"Command: `{cmd}`  ",
+             f"Date: {datetime.date.today().isoformat()}; {args.threads} torch threads, shared 2-core VM.  ",
+             f"Scene: `{args.scene}` ({scene.num_anchors:,} anchors), preset `{args.preset}`; PSNR/SSIM of the "
+             f"decoded stream on {len(cams)} test views of `{args.data}` (CPU reference renderer). NAAP: K=8, "
+             f"lambda={base_cfg.naap_lambda}, gamma={base_cfg.naap_gamma}, radius 4x the median nearest-neighbour "
+             "distance; importance from the training's accumulated opacity.", "",
+             "| pruning | keep | anchors | bytes | attribute bytes | geometry bytes | test PSNR dB | SSIM | "
+             "encode+decode s | load |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
+
+    def row(method: str, keep: float | None) -> None:
+        over = {} if keep is None else dict(pruning=method, prune_keep_ratio=keep)
+        cfg = dataclasses.replace(base_cfg, **over).validate()
+        t0 = time.perf_counter()
+        res = encode_scene(scene, cfg)
+        dec = decode_stream(res.data)
+        dt = time.perf_counter() - t0
+        assert dec.stream_hash == res.scene_hash
+        ev = evaluate_scene(dec.scene, cams, args.background)
+        bd = res.breakdown.bytes_by_category
+        lines.append(f"| {method} | {'-' if keep is None else keep} | {dec.scene.num_anchors:,} | {len(res.data):,} | "
+                     f"{bd.get('attributes', 0):,} | {bd.get('geometry', 0):,} | {ev['psnr']:.3f} | {ev['ssim']:.4f} | "
+                     f"{dt:.1f} | {_load()} |")
+        print(lines[-1], flush=True)
+        _write(args.out, lines)
+
+    row("none", None)
+    for keep in args.keep:
+        for method in ("opacity", "naap"):
+            row(method, keep)
+    _write(args.out, lines)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _write(path: Path, lines: list[str]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
