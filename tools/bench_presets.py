@@ -8,6 +8,10 @@ Writes a markdown table (default tools/results/presets.md).
 
     python tools/bench_presets.py --procedural 20000
     python tools/bench_presets.py path/to/scaffold_model --views 8 --size 256
+    python tools/bench_presets.py runs/lego --data ../shared/data/lego/lego_100 --append
+
+With --data (the images the scene was trained on) the decoded scene's test-view PSNR/SSIM
+against the real images is reported too; --append adds this scene's section to the table file.
 """
 
 from __future__ import annotations
@@ -31,6 +35,9 @@ def main(argv=None) -> int:
     ap.add_argument("--presets", nargs="+", help="presets to run (default: all)")
     ap.add_argument("--views", type=int, default=6, help="orbit cameras for the render PSNR")
     ap.add_argument("--size", type=int, default=192, help="render width and height")
+    ap.add_argument("--data", help="dataset of the scene: also report test-view PSNR/SSIM against its images")
+    ap.add_argument("--background", default="white", help="background of --data (default white)")
+    ap.add_argument("--append", action="store_true", help="append this scene's section to --out")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--out", default=str(ROOT / "tools" / "results" / "presets.md"))
     args = ap.parse_args(argv)
@@ -47,7 +54,13 @@ def main(argv=None) -> int:
     from lghcc.render.views import orbit_cameras
 
     torch.set_num_threads(args.threads)
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     scene = read_scaffold(args.input) if args.input else make_procedural_scene(args.procedural, seed=0)
+    test = None
+    if args.data:
+        from lghcc.encoder.train import evaluate_scene, load_dataset
+
+        test = load_dataset(args.data, args.background).test
     source = args.input or f"procedural scene, {scene.num_anchors:,} anchors (seed 0)"
     cams = orbit_cameras(scene.positions(), args.views, width=args.size, height=args.size)
     with torch.no_grad():
@@ -64,19 +77,29 @@ def main(argv=None) -> int:
         with torch.no_grad():
             p = np.mean([psnr(render_scene(dec.scene, c).image.numpy(), r) for c, r in zip(cams, refs)])
         n = scene.num_anchors
+        ev = evaluate_scene(dec.scene, test, args.background) if test is not None else None
         rows.append((name, len(res.data), 8 * len(res.data) / n, t_enc, t_dec, float(p),
-                     res.stats.get("level2_context_model", "-")))
-        print(f"{name}: {len(res.data):,} B, enc {t_enc:.1f} s, dec {t_dec:.2f} s, render PSNR {p:.2f} dB", flush=True)
-    lines = ["# Presets: size, time and fidelity", "",
+                     res.stats.get("level2_context_model", "-"), ev))
+        print(f"{name}: {len(res.data):,} B, enc {t_enc:.1f} s, dec {t_dec:.2f} s, render PSNR {p:.2f} dB"
+              + (f", test PSNR {ev['psnr']:.3f} dB" if ev else ""), flush=True)
+    ref_ev = evaluate_scene(scene, test, args.background) if test is not None else None
+    lines = [] if args.append else ["# Presets: size, time and fidelity", ""]
+    lines += [f"## {source}", "",
              f"Command: `python tools/bench_presets.py {' '.join(argv or sys.argv[1:])}`  ",
              f"Date: {datetime.date.today()}; {args.threads} torch threads; shared 2-core VM, load "
              f"{' '.join(f'{x:.1f}' for x in os.getloadavg())} at the end (timings are noisy).  ",
              f"Scene: {source}. Fidelity: mean PSNR of {args.views} orbit renders ({args.size} px) of the decoded "
-             "scene against the same renders of the input scene.", "",
-             "| preset | bytes | bits/anchor | encode s | decode s | render PSNR dB | level-2 model |",
-             "|---|---:|---:|---:|---:|---:|---|"]
-    lines += [f"| {r[0]} | {r[1]:,} | {r[2]:.1f} | {r[3]:.1f} | {r[4]:.2f} | {r[5]:.2f} | {r[6]} |" for r in rows]
-    Path(args.out).write_text("\n".join(lines) + "\n")
+             "scene against the same renders of the input scene."
+             + (f" Test PSNR/SSIM: the decoded scene on the {len(test)} test views of `{args.data}` (the input "
+                f"scene itself: {ref_ev['psnr']:.3f} dB / {ref_ev['ssim']:.4f})." if test is not None else ""), "",
+             "| preset | bytes | bits/anchor | encode s | decode s | render PSNR dB | level-2 model |"
+             + (" test PSNR dB | test SSIM |" if test is not None else ""),
+             "|---|---:|---:|---:|---:|---:|---|" + ("---:|---:|" if test is not None else "")]
+    lines += [f"| {r[0]} | {r[1]:,} | {r[2]:.1f} | {r[3]:.1f} | {r[4]:.2f} | {r[5]:.2f} | {r[6]} |"
+              + (f" {r[7]['psnr']:.3f} | {r[7]['ssim']:.4f} |" if r[7] else "") for r in rows]
+    out = Path(args.out)
+    prev = out.read_text() + "\n" if args.append and out.exists() else ""
+    out.write_text(prev + "\n".join(lines) + "\n")
     print(f"wrote {args.out}")
     return 0
 
