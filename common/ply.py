@@ -84,8 +84,9 @@ def read_ply(path: str | os.PathLike, element: str = "vertex") -> dict[str, np.n
 WRITE_BLOCK_ROWS = 1 << 16
 
 
-def read_ply_comments(path: str | os.PathLike) -> list[str]:
-    """The text of the header's ``comment`` lines (without the keyword), reading only the header."""
+def read_ply_header_lines(path: str | os.PathLike) -> list[str]:
+    """The lines of a PLY file's header before ``end_header`` (reading only the header);
+    InputError naming the file when it cannot be read or is not a PLY file."""
     path = Path(path)
     try:
         with open(path, "rb") as f:
@@ -95,8 +96,12 @@ def read_ply_comments(path: str | os.PathLike) -> list[str]:
     end = head.find(b"end_header")
     if not head.startswith(b"ply") or end < 0:
         raise InputError(f"{path}: not a PLY file (no 'ply' magic or no end_header)")
-    return [line[len("comment "):] for line in head[:end].decode("ascii", "replace").splitlines()
-            if line.startswith("comment ")]
+    return head[:end].decode("ascii", "replace").splitlines()
+
+
+def read_ply_comments(path: str | os.PathLike) -> list[str]:
+    """The text of the header's ``comment`` lines (without the keyword), reading only the header."""
+    return [line[len("comment "):] for line in read_ply_header_lines(path) if line.startswith("comment ")]
 
 
 def write_ply(path: str | os.PathLike, columns: dict[str, np.ndarray], comments: list[str] = ()) -> None:

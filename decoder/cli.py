@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
 import time
@@ -15,6 +14,7 @@ from pathlib import Path
 # Set before torch is imported; a user's own setting wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+from lghcc.common.cliargs import positive_float
 from lghcc.common.errors import HashMismatchError, LghccError
 from lghcc.common.fileio import atomic_write_bytes, check_output_paths, check_writable_file, write_error
 
@@ -38,16 +38,6 @@ is refused unless --force is given (then the decoded scene's files in it are rep
 """
 
 
-def _positive_float(text: str) -> float:
-    try:
-        x = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (math.isfinite(x) and x > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text!r}")
-    return x
-
-
 def setup_args() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="lghcc-dec", description=DESCRIPTION,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -68,7 +58,7 @@ def setup_args() -> argparse.ArgumentParser:
                         "transforms_<split>.json, or a COLMAP sparse folder")
     g.add_argument("--render-out", metavar="DIR", help="folder for the rendered PNGs (needed with --render)")
     g.add_argument("--render-size", default="256x256", metavar="WxH", help="image size of orbit cameras (256x256)")
-    g.add_argument("--render-scale", type=_positive_float, default=1.0,
+    g.add_argument("--render-scale", type=positive_float, default=1.0,
                    help="scale of the image size of file cameras, a positive number (default 1)")
     g.add_argument("--background", default="black", choices=("black", "white"), help="render background")
     g.add_argument("--export-ply", metavar="FILE",

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 import warnings
 from pathlib import Path
 
+from lghcc.common.cliargs import positive_float
 from lghcc.common.errors import LghccError
 from lghcc.common.fileio import atomic_write_bytes, check_output_paths, check_writable_file, write_error
 
@@ -24,16 +24,6 @@ examples:
   lghcc-enc outputs/garden -o garden.lghcc             Scaffold-GS model folder
   lghcc-enc point_cloud.ply --preset high -o g.lghcc   a PLY (MLPs from checkpoint.pth beside it)
 """
-
-
-def _positive_float(text: str) -> float:
-    try:
-        x = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (math.isfinite(x) and x > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text!r}")
-    return x
 
 
 def setup_args() -> argparse.ArgumentParser:
@@ -53,7 +43,7 @@ def setup_args() -> argparse.ArgumentParser:
     p.add_argument("--scaling-step", type=float, help="quantization step of the log scalings")
     p.add_argument("--offset-step", type=float, help="quantization step of the offsets")
     p.add_argument("--mlp-weight-bits", type=int, help="bits per quantized render-MLP weight (2..24)")
-    p.add_argument("--voxel-size", type=_positive_float,
+    p.add_argument("--voxel-size", type=positive_float,
                    help="anchor voxel size (default: inferred from the anchor grid of the input)")
     pr = p.add_argument_group("anchor pruning before coding (default: none)")
     pr.add_argument("--prune", choices=("none", "naap", "opacity"),
@@ -67,7 +57,7 @@ def setup_args() -> argparse.ArgumentParser:
     t = p.add_argument_group("plain 3DGS input (a PLY with f_dc_0 and no f_anchor_feat_0 is transcoded to anchors first)")
     t.add_argument("--transcode-anchors", type=int, metavar="N",
                    help="target anchor count of the transcoded scene (default: a quarter of the Gaussians)")
-    t.add_argument("--transcode-voxel-size", type=_positive_float, metavar="V", help="anchor voxel size (overrides the count)")
+    t.add_argument("--transcode-voxel-size", type=positive_float, metavar="V", help="anchor voxel size (overrides the count)")
     t.add_argument("--transcode-iterations", type=int, default=200,
                    help="render-fitting iterations (default 200; 0: distillation only)")
     t.add_argument("--transcode-distill-steps", type=int, default=400,

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from lghcc.common.errors import InputError
-from lghcc.common.ply import MAX_HEADER_BYTES, read_ply, write_ply
+from lghcc.common.ply import read_ply, read_ply_header_lines, write_ply
 from lghcc.render.camera import Camera
 from lghcc.render.rasterizer import RenderResult, rasterize
 from lghcc.render.sh import MAX_SH_DEGREE, num_sh_coeffs, sh_to_rgb
@@ -67,17 +67,8 @@ class Gaussians3DGS:
 
 def read_ply_header(path: str | os.PathLike) -> list[str]:
     """Property names of the first element of a PLY file, from its header only."""
-    p = Path(path)
-    try:
-        with open(p, "rb") as f:
-            head = f.read(MAX_HEADER_BYTES)
-    except OSError as e:
-        raise InputError(f"{p}: cannot read ({e.strerror})") from None
-    end = head.find(b"end_header")
-    if not head.startswith(b"ply") or end < 0:
-        raise InputError(f"{p}: not a PLY file (no 'ply' magic or no end_header)")
     names, seen_element = [], False
-    for line in head[:end].decode("ascii", "replace").splitlines():
+    for line in read_ply_header_lines(path):
         parts = line.split()
         if parts[:1] == ["element"]:
             if seen_element:

@@ -370,6 +370,21 @@ class RenderResult:
     stats: dict
 
 
+def _check_gaussians(means, quats, scales, opacities, colors) -> tuple[int, int]:
+    """The shapes every backend requires: means [M, 3], quats [M, 4], scales [M, 3],
+    opacities [M], colors [M, C]. Returns (M, C); ValueError naming the tensor otherwise."""
+    if means.ndim != 2 or means.shape[1] != 3:
+        raise ValueError(f"means must be [M, 3], got {list(means.shape)}")
+    mcount = means.shape[0]
+    for name, t, shape in (("quats", quats, (mcount, 4)), ("scales", scales, (mcount, 3)),
+                           ("opacities", opacities, (mcount,))):
+        if tuple(t.shape) != shape:
+            raise ValueError(f"{name} must be {list(shape)}, got {list(t.shape)}")
+    if colors.ndim != 2 or colors.shape[0] != mcount:
+        raise ValueError(f"colors must be [M, C], got {list(colors.shape)}")
+    return mcount, colors.shape[1]
+
+
 def rasterize(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
               colors: torch.Tensor, camera: Camera, *, background=None, tile_size: int = 16,
               sigma_cutoff: float = 3.0, eps2d: float = 0.3, render_depth: bool = False,
@@ -380,16 +395,7 @@ def rasterize(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, op
     the compositing precision (float64 for gradient checks)."""
     dt = colors.dtype
     h, w = camera.height, camera.width
-    if means.ndim != 2 or means.shape[1] != 3:
-        raise ValueError(f"means must be [M, 3], got {list(means.shape)}")
-    mcount = means.shape[0]
-    for name, t, shape in (("quats", quats, (mcount, 4)), ("scales", scales, (mcount, 3)),
-                           ("opacities", opacities, (mcount,))):
-        if tuple(t.shape) != shape:
-            raise ValueError(f"{name} must be {list(shape)}, got {list(t.shape)}")
-    if colors.ndim != 2 or colors.shape[0] != mcount:
-        raise ValueError(f"colors must be [M, C], got {list(colors.shape)}")
-    nch = colors.shape[1]
+    mcount, nch = _check_gaussians(means, quats, scales, opacities, colors)
     bg = torch.zeros(nch, dtype=dt) if background is None else torch.as_tensor(background, dtype=dt).reshape(-1)
     if bg.shape != (nch,):
         raise ValueError(f"background must have {nch} values, got {list(bg.shape)}")
@@ -515,16 +521,7 @@ def rasterize_gsplat(means, quats, scales, opacities, colors, camera: Camera, *,
     from gsplat import rasterization
 
     out_dev, dt = colors.device, colors.dtype
-    if means.ndim != 2 or means.shape[1] != 3:
-        raise ValueError(f"means must be [M, 3], got {list(means.shape)}")
-    mcount = means.shape[0]
-    for name, t, shape in (("quats", quats, (mcount, 4)), ("scales", scales, (mcount, 3)),
-                           ("opacities", opacities, (mcount,))):
-        if tuple(t.shape) != shape:
-            raise ValueError(f"{name} must be {list(shape)}, got {list(t.shape)}")
-    if colors.ndim != 2 or colors.shape[0] != mcount:
-        raise ValueError(f"colors must be [M, C], got {list(colors.shape)}")
-    nch = colors.shape[1]
+    mcount, nch = _check_gaussians(means, quats, scales, opacities, colors)
     dev = means.device if means.is_cuda else torch.device("cuda")
     f32 = torch.float32
     bg = torch.zeros(nch, dtype=f32, device=dev) if background is None else \

@@ -31,6 +31,8 @@ from pathlib import Path
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # shared machine: no spinning threads
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tools"))
+from benchutil import load_average, write_lines  # noqa: E402
 
 MODELS = {  # label -> encoder options
     "per-channel prior": dict(context_model="per_channel"),
@@ -38,13 +40,6 @@ MODELS = {  # label -> encoder options
     "GG-Conv, level-2 graph (paper)": dict(context_model="ggconv", context_neighbour_level=2),
     "GG-Conv, level-1 neighbours": dict(context_model="ggconv", context_neighbour_level=1),
 }
-
-
-def _load() -> str:
-    try:
-        return " ".join(open("/proc/loadavg").read().split()[:3])
-    except OSError:
-        return "n/a"
 
 
 def load_scene(spec: str):
@@ -83,7 +78,7 @@ def run_one(scene, args, **over) -> dict:
     ctx = st["level2_bytes_with_context"] - l2 if cfg.context_model != "per_channel" else 0
     return {"n": n, "n2": st.get("num_level2", 0), "l1_bits": 8 * l1 / n, "l2_bits": 8 * l2 / n,
             "ctx_bytes": ctx, "all_bits": 8 * (l1 + l2 + ctx) / n, "enc_s": t_enc,
-            "fit_s": st.get("time_context_fit_s", 0.0), "dec_s": t_dec, "load": _load()}
+            "fit_s": st.get("time_context_fit_s", 0.0), "dec_s": t_dec, "load": load_average()}
 
 
 def main(argv=None) -> int:
@@ -147,7 +142,7 @@ def main(argv=None) -> int:
                          f"{r['ctx_bytes']:,} | {l2m:.1f} | {r['all_bits']:.1f} | {ratio(base, False)} | "
                          f"{ratio(base, True)} | {ratio(par, False)} | {ratio(par, True)} | {r['enc_s']:.1f} | "
                          f"{r['fit_s']:.1f} | {r['dec_s']:.2f} | {r['n'] / r['dec_s']:,.0f} | {r['load']} |")
-        _write(args.out, lines)
+        write_lines(args.out, lines)
 
     if not args.no_tradeoff:
         scene, label = load_scene(args.tradeoff_scene)
@@ -174,7 +169,7 @@ def main(argv=None) -> int:
             print(setting, r, flush=True)
             lines.append(f"| {setting} | {l2m:.1f} | {r['l2_bits']:.1f} | {r['ctx_bytes']:,} | {r['fit_s']:.1f} | "
                          f"{r['dec_s']:.2f} | {r['load']} |")
-            _write(args.out, lines)
+            write_lines(args.out, lines)
         lines += ["", "decode s is the whole decoder; the per-channel row is the decoder without a context "
                   "model, so the difference is the k-NN plus GG-Conv inference."]
         plot = args.plot or args.out.with_suffix(".png")
@@ -198,14 +193,9 @@ def main(argv=None) -> int:
             fig.tight_layout()
             fig.savefig(plot, dpi=110)
             lines.append(f"![accuracy vs time]({plot.name})")
-    _write(args.out, lines)
+    write_lines(args.out, lines)
     print(f"wrote {args.out}")
     return 0
-
-
-def _write(path: Path, lines: list[str]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":

@@ -28,13 +28,8 @@ from pathlib import Path
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _load() -> str:
-    try:
-        return " ".join(open("/proc/loadavg").read().split()[:3])
-    except OSError:
-        return "n/a"
+sys.path.insert(0, str(ROOT / "tools"))
+from benchutil import load_average, write_lines  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -90,22 +85,17 @@ def main(argv=None) -> int:
         bd = res.breakdown.bytes_by_category
         lines.append(f"| {method} | {'-' if keep is None else keep} | {dec.scene.num_anchors:,} | {len(res.data):,} | "
                      f"{bd.get('attributes', 0):,} | {bd.get('geometry', 0):,} | {ev['psnr']:.3f} | {ev['ssim']:.4f} | "
-                     f"{dt:.1f} | {_load()} |")
+                     f"{dt:.1f} | {load_average()} |")
         print(lines[-1], flush=True)
-        _write(args.out, lines)
+        write_lines(args.out, lines)
 
     row("none", None)
     for keep in args.keep:
         for method in ("opacity", "naap"):
             row(method, keep)
-    _write(args.out, lines)
+    write_lines(args.out, lines)
     print(f"wrote {args.out}")
     return 0
-
-
-def _write(path: Path, lines: list[str]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":
