@@ -100,6 +100,16 @@ def hard_cases(draw):
     return scene, hierarchy, scale, case
 
 
+CONTEXT_MODELS = {  # level-2 coding options, with fits short enough for a property test
+    "per_channel": {},
+    "parent_mlp": dict(context_model="parent_mlp", context_float_steps=4, context_qat_steps=0),
+    "ggconv_level1": dict(context_model="ggconv", context_neighbour_level=1, context_k=3, context_float_steps=4,
+                          context_qat_steps=2),
+    "ggconv_level2": dict(context_model="ggconv", context_neighbour_level=2, context_k=3, context_float_steps=4,
+                          context_qat_steps=2),
+}
+
+
 def quantized(x: np.ndarray, step: float) -> np.ndarray:
     """What the decoder shall output for input x: float32(rint(x / step)) * step in binary32, with
     step the binary32 value the stream carries."""
@@ -109,11 +119,16 @@ def quantized(x: np.ndarray, step: float) -> np.ndarray:
 
 
 @settings(max_examples=60, deadline=None)
-@given(hard_cases())
-def test_round_trip_hard_cases(case):
+@given(hard_cases(), st.sampled_from(sorted(CONTEXT_MODELS)))
+def test_round_trip_hard_cases(case, context):
+    """Every hard case, coded with each level-2 model (a context model forces the hierarchy on and
+    is always written), decodes bit-exactly to the quantized input."""
     scene, hierarchy, scale, kind = case
+    over = dict(CONTEXT_MODELS[context], context_fallback=False)
+    if context != "per_channel":
+        hierarchy, scale = True, min(scale, 16)
     cfg = EncoderConfig(feature_step=0.01, scaling_step=0.1, offset_step=0.05, rows_per_chunk=7,
-                        hierarchy=hierarchy, coarse_voxel_scale=scale)
+                        hierarchy=hierarchy, coarse_voxel_scale=scale, **over)
     with np.errstate(over="ignore", invalid="ignore"):
         representable = np.isfinite(scene.positions()).all()
     if not representable:  # e.g. voxel size 1e30 at coordinates 2^30: world positions overflow binary32
@@ -283,6 +298,25 @@ def test_context_models_round_trip_bit_exact_across_threads(model):
     finally:
         torch.set_num_threads(before)
     assert digests[0] == digests[1]
+
+
+@pytest.mark.parametrize("context", ["parent_mlp", "ggconv_level1", "ggconv_level2"])
+def test_a_level1_anchor_with_500_children(context):
+    """One coarse voxel (s = 8) holding 501 anchors: one level-1 parent, 500 level-2 children;
+    every context model codes them, bit-exactly."""
+    rng = np.random.default_rng(7)
+    scene = make_procedural_scene(600, seed=7, feature_dim=4, num_offsets=2)
+    cells = np.stack(np.meshgrid(*[np.arange(8)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    rows = np.arange(501)
+    scene.coords = cells[rng.permutation(512)[:501]].astype(np.int64)
+    for name in ("features", "scalings", "offsets"):
+        setattr(scene, name, getattr(scene, name)[rows])
+    cfg = EncoderConfig(hierarchy=True, coarse_voxel_scale=8, context_fallback=False, **CONTEXT_MODELS[context])
+    res = encode_scene(scene, cfg)
+    assert res.stats["num_level1"] == 1 and res.stats["num_level2"] == 500
+    assert res.stats["level2_context_model"] != "per-channel prior"
+    dec = decode_stream(res.data)
+    assert_same_scene(dec.scene, res.decoded)
 
 
 def test_context_model_that_does_not_pay_is_not_written():
