@@ -223,6 +223,8 @@ def main(argv: list[str] | None = None) -> int:
     say(f"{args.stream}: {s.num_anchors:,} anchors, C={s.feature_dim}, K={s.num_offsets}, "
         f"{len(data):,} bytes, decoded in {t_dec:.2f} s ({s.num_anchors / max(t_dec, 1e-9):,.0f} anchors/s)")
     say(result.breakdown.table())
+    if result.tools:
+        say("tools: " + "; ".join(result.tools))
     for u in result.skipped_units:
         say(f"skipped ancillary unit {u}")
     say("decoded scene hash: " + ("matches the stream" if result.hash_checked else "not checked")

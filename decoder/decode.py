@@ -17,7 +17,7 @@ from tqdm import tqdm
 from lghcc.common import attributes as attr
 from lghcc.common.container import Container, DataUnit, UnitType, read_container
 from lghcc.common.errors import BitstreamError, HashMismatchError, UnsupportedStreamError
-from lghcc.common.context.models import level2_coding_params, read_context_model
+from lghcc.common.context.models import describe_context_model, level2_coding_params, read_context_model
 from lghcc.common.geometry import decode_geometry
 from lghcc.common.hashing import scene_digest
 from lghcc.common.hierarchy import build_hierarchy
@@ -41,6 +41,7 @@ class DecodeResult:
     stream_hash: bytes
     skipped_units: list[str] = field(default_factory=list)
     trace: list[TraceEntry] | None = None
+    tools: list[str] = field(default_factory=list)  # the coding tools the stream uses, in words
 
 
 def organize_units(container: Container) -> tuple[list[DataUnit], list[str]]:
@@ -146,4 +147,11 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
         if digest != hash_unit.scene_hash:
             raise HashMismatchError("the decoded scene does not match the hash in the stream "
                                     f"(decoded SHA-256 {digest.hex()}, stream {hash_unit.scene_hash.hex()})")
-    return DecodeResult(scene, breakdown_of(container, n), verify_hash, hash_unit.scene_hash, skipped, entries)
+    tools = ["offset masks"] if sps.offset_mask_present_flag else []
+    if sps.hierarchy_enabled_flag:
+        tools.append(f"two-level hierarchy (coarse voxels of {sps.coarse_voxel_scale}; {hier.num_level1:,} level-1 "
+                     f"and {hier.num_level2:,} level-2 anchors)")
+        tools.append("level-2 context: " + ("per-channel prior" if context_model is None
+                                            else describe_context_model(context_model)))
+    return DecodeResult(scene, breakdown_of(container, n), verify_hash, hash_unit.scene_hash, skipped, entries,
+                        tools)

@@ -45,6 +45,19 @@ def read_context_model(payload: bytes, layout: ChannelLayout, trace=None):
     return model_id, params
 
 
+def describe_context_model(model) -> str:
+    """A context model and its main settings in words (for reports)."""
+    model_id, p = model
+    mlps = [m for m in (getattr(p, "feat_mlp", None), p.head_mlp) if m is not None]
+    width = {layer.weight_bits for mlp in mlps for layer in mlp.layers}
+    bits = "/".join(str(b) for b in sorted(width))
+    if model_id == CONTEXT_GGCONV:
+        nb = "level-1 anchors" if p.neighbour_level == 1 else "level-2 anchors (parents' attributes)"
+        return (f"GG-Conv over {nb}, k={p.k}, radius^2={p.radius_sq}, table {p.grid_size}^3 x {p.context_channels}, "
+                f"{p.num_parameters():,} parameters of {bits} bits")
+    return f"parent MLP, {p.num_parameters():,} parameters of {bits} bits"
+
+
 def level2_coding_params(model, coords1: np.ndarray, attrs1: np.ndarray, coords2: np.ndarray,
                          parent: np.ndarray, voxel_scale: int) -> CodingParams:
     """Coding parameters of the level-2 attributes from the decoded level 1.
