@@ -410,6 +410,7 @@ Tags of test.yaml `tools`, derived from the reference decoder's result (never wr
   render_model          a render-model unit (render_model_empty: one with no MLPs)
   hierarchy             hierarchy_enabled_flag = 1 (two attribute units)
   per_channel_prior, parent_mlp_context, ggconv_context   the context_model_id of an attribute unit
+  ggconv_neighbour_level_<n>   a GG-Conv model whose neighbours are the level-n anchors (Annex H.5)
   context_model_unit    a context-model unit
   offset_mask           offset_mask_present_flag = 1
   chunks                an attribute unit with more than one chunk; empty_chunk: a chunk of 0 bytes
@@ -483,7 +484,7 @@ def _structure_tags(data: bytes) -> set[str]:
 
 def derive_tools(data: bytes) -> list[str]:
     """The `tools` of a stream, from what the reference decoder does with it (TOOL_TAGS)."""
-    from lghcc.common.container import VERSION_MINOR, read_container
+    from lghcc.common.container import VERSION_MINOR, UnitType, read_container
     from lghcc.common.errors import HashMismatchError, LghccError
     from lghcc.conformance.coverage import _trace_values, element_infos, value_class
     from lghcc.decoder.decode import decode_stream, organize_units
@@ -507,6 +508,16 @@ def derive_tools(data: bytes) -> list[str]:
                                "parent_mlp": "context_model"}.get(stage, stage)} if stage else set()))
     if container.header.version_minor != VERSION_MINOR:
         tags.add("container_version")
+    for u in container.units:
+        if u.unit_type == UnitType.CONTEXT_MODEL:
+            from lghcc.common.attributes import ChannelLayout
+            from lghcc.common.context.models import read_context_model
+            from lghcc.common.units import CONTEXT_GGCONV
+
+            sc = res.scene
+            model_id, params = read_context_model(u.payload, ChannelLayout(sc.feature_dim, sc.num_offsets))
+            if model_id == CONTEXT_GGCONV:
+                tags.add(f"ggconv_neighbour_level_{params.neighbour_level}")
     if esc.count:
         tags.add("escape")
     infos = element_infos()
