@@ -13,6 +13,9 @@ Pruning here is post-hoc (at encode time, no fine-tuning after it); the paper pr
 training and trains on. Both methods get exactly the same number of anchors.
 
     python tools/bench_pruning.py /work/scenes/lego100 /work/shared/data/lego/lego_100 --keep 0.9 0.75 0.6
+
+--trained LABEL=DIR (repeatable) adds rows for scenes pruned inside training (lghcc-train --prune,
+the paper's way: prune once growing ends, then train on), encoded without further pruning.
 """
 
 from __future__ import annotations
@@ -38,6 +41,8 @@ def main(argv=None) -> int:
     ap.add_argument("data", help="the dataset it was trained on (test views are rendered)")
     ap.add_argument("--keep", type=float, nargs="+", default=[0.9, 0.75, 0.6], help="keep ratios")
     ap.add_argument("--preset", default="medium")
+    ap.add_argument("--trained", action="append", default=[], metavar="LABEL=DIR",
+                    help="a scene pruned during training, encoded as is (repeatable)")
     ap.add_argument("--background", default="white")
     ap.add_argument("--views", type=int, default=0, help="test views to render (0: all)")
     ap.add_argument("--threads", type=int, default=2)
@@ -73,11 +78,11 @@ def main(argv=None) -> int:
              "| pruning | keep | anchors | bytes | attribute bytes | geometry bytes | test PSNR dB | SSIM | "
              "encode+decode s | load |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
 
-    def row(method: str, keep: float | None) -> None:
+    def row(method: str, keep: float | None, source=None) -> None:
         over = {} if keep is None else dict(pruning=method, prune_keep_ratio=keep)
         cfg = dataclasses.replace(base_cfg, **over).validate()
         t0 = time.perf_counter()
-        res = encode_scene(scene, cfg)
+        res = encode_scene(scene if source is None else source, cfg)
         dec = decode_stream(res.data)
         dt = time.perf_counter() - t0
         assert dec.stream_hash == res.scene_hash
@@ -93,6 +98,12 @@ def main(argv=None) -> int:
     for keep in args.keep:
         for method in ("opacity", "naap"):
             row(method, keep)
+    if args.trained:
+        lines += ["", "Pruned during training (lghcc-train --prune, then trained on), encoded as is:", "",
+                  lines[6], lines[7]]
+        for spec in args.trained:
+            label, _, folder = spec.partition("=")
+            row(label, None, read_scaffold(folder))
     write_lines(args.out, lines)
     print(f"wrote {args.out}")
     return 0
