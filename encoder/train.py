@@ -472,10 +472,19 @@ class Trainer:
         from lghcc.encoder.ggconv_train import GGConvTrainConfig
         from lghcc.encoder.rate_model import AnchorRateModel
 
+        from lghcc.common.geometry import normative_order
+        from lghcc.common.hierarchy import build_hierarchy
+        from lghcc.encoder.config import EncoderConfig, context_model_size
+
         cfg = self.cfg
         m = cfg.feature_dim + 6 + 3 * cfg.num_offsets
-        twin = GGConvTrainConfig(neighbour_level=cfg.rate_neighbour_level, ctx_channels=16, feat_hidden=32,
-                                 head_hidden=32, seed=cfg.seed)
+        coords = self.coords.numpy()
+        # the model the encoder will fit for this many level-2 anchors (its size rule), so the scene is
+        # trained for a rate that coder can reach
+        n2 = build_hierarchy(coords[normative_order(coords)], cfg.rate_voxel_scale).num_level2
+        ch, feat_hidden, head_hidden, _ = context_model_size(EncoderConfig(), n2)
+        twin = GGConvTrainConfig(neighbour_level=cfg.rate_neighbour_level, ctx_channels=ch, feat_hidden=feat_hidden,
+                                 head_hidden=head_hidden, seed=cfg.seed)
         self.rate_model = AnchorRateModel(self.coords.numpy(), np.full(m, cfg.rate_step), cfg.feature_dim,
                                           cfg.rate_voxel_scale, self.attribute_values().detach().numpy(), twin)
         if scales is not None and self.rate_model.twin is not None:  # resume: the saved input scales
