@@ -94,6 +94,7 @@ def main(argv=None) -> int:
     ap.add_argument("--no-tradeoff", action="store_true", help="skip table (b)")
     ap.add_argument("--threads", type=int, default=2, help="torch threads")
     ap.add_argument("--out", type=Path, default=ROOT / "tools" / "results" / "context.md")
+    ap.add_argument("--append", action="store_true", help="append this run's tables to --out")
     ap.add_argument("--plot", type=Path, default=None, help="PNG for table (b) (default: next to --out)")
     args = ap.parse_args(argv)
 
@@ -104,7 +105,8 @@ def main(argv=None) -> int:
     torch.set_num_threads(args.threads)
     d = EncoderConfig()
     cmd = "python tools/bench_context.py " + " ".join(sys.argv[1:] if argv is None else argv)
-    lines = ["# Level-2 context models: bits and time", "",
+    prev = args.out.read_text().rstrip("\n").split("\n") + [""] if args.append and args.out.exists() else []
+    lines = prev + ([] if args.append else ["# Level-2 context models: bits and time", ""]) + [
              f"Command: `{cmd}`  ",
              f"Date: {datetime.date.today().isoformat()}; machine: {platform.machine()}, {args.threads} torch "
              "threads, shared 2-core VM (timings are noisy; the 1-minute load average is beside each row).  ",
