@@ -32,9 +32,9 @@ class EncoderConfig:
     context_model: str = "per_channel"
     context_k: int = 8  # neighbours of the Ball k-NN graph (GG-Conv)
     # GG-Conv neighbours: 1 = the level-1 anchors with their own decoded attributes (default:
-    # fewer bits, tools/results/context.md), 2 = the other level-2 anchors carrying their
-    # parents' attributes (the paper's graph over A_pre^(2)).
-    context_neighbour_level: int = 1
+    # fewer bits on most scenes, tools/results/context.md), 2 = the other level-2 anchors carrying
+    # their parents' attributes (the paper's graph over A_pre^(2)), "auto" = fit both, keep the smaller.
+    context_neighbour_level: int | str = 1
     # Context-model size; None: chosen from the number of level-2 anchors (context_model_size), so
     # that a small scene is not charged for a model it cannot pay back.
     context_channels: int | None = None  # GG-Conv context channels Ch (geometry table and feature MLP outputs)
@@ -75,8 +75,8 @@ class EncoderConfig:
             raise InputError("context_weight_bits must be 8 or 16")
         if not 1 <= self.context_k <= 64:
             raise InputError("context_k must be in [1, 64]")
-        if self.context_neighbour_level not in (1, 2):
-            raise InputError("context_neighbour_level must be 1 (level-1 anchors) or 2 (level-2 anchors)")
+        if self.context_neighbour_level not in (1, 2, "auto"):
+            raise InputError("context_neighbour_level must be 1 (level-1 anchors), 2 (level-2 anchors) or auto")
         for name in ("context_channels", "context_feat_hidden", "context_head_hidden"):
             if getattr(self, name) is not None and not 1 <= getattr(self, name) <= 4096:
                 raise InputError(f"{name} must be in [1, 4096], got {getattr(self, name)}")

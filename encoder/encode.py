@@ -55,7 +55,8 @@ class EncodeResult:
 
 def context_train_config(cfg: EncoderConfig, num_level2: int, progress: bool) -> GGConvTrainConfig:
     ch, feat_hidden, head_hidden, weight_bits = context_model_size(cfg, num_level2)
-    return GGConvTrainConfig(k=cfg.context_k, neighbour_level=cfg.context_neighbour_level,
+    return GGConvTrainConfig(k=cfg.context_k,
+                             neighbour_level=1 if cfg.context_neighbour_level == "auto" else cfg.context_neighbour_level,
                              ctx_channels=ch, feat_hidden=feat_hidden, head_hidden=head_hidden, lam=cfg.context_lambda,
                              float_steps=cfg.context_float_steps, qat_steps=cfg.context_qat_steps,
                              weight_bits=weight_bits, max_train_anchors=cfg.context_train_anchors,
@@ -228,19 +229,32 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
         if level == LEVEL_2 and cfg.context_model != "per_channel":
             t2 = time.perf_counter()
             targets = np.where(level_live, values[rows] / steps.astype(np.float64), 0.0)
-            fitted = fit_level2_context(cfg.context_model, coords[hier.level1_idx], q_level1, coords[rows],
-                                        hier.parent_of_level2, targets, scene.feature_dim, cfg.coarse_voxel_scale,
-                                        context_train_config(cfg, rows.size, progress))
-            unit = write_context_model_unit(fitted.model_id, fitted.params.to_arrays(), fitted.feat_layers,
-                                            fitted.head_layers)
-            model = read_context_model(unit, layout)  # exactly what the decoder will use
-            params = level2_coding_params(model, coords[hier.level1_idx], q_level1, coords[rows],
-                                          hier.parent_of_level2, cfg.coarse_voxel_scale)
-            q_ctx = np.where(level_live, quantize(values[rows], attr.effective_steps(steps, params.step_adjust),
-                                                  "attributes"), 0)
-            header = new_header()
-            header.context_model_id = fitted.model_id
-            with_context = code(header, q_ctx, params)
+            # GG-Conv with context_neighbour_level "auto": both neighbour levels are fitted, the
+            # smaller stream is kept (neither wins on every scene: tools/results/context.md).
+            levels_to_try = [1, 2] if cfg.context_model == "ggconv" and cfg.context_neighbour_level == "auto" \
+                else [cfg.context_neighbour_level]
+            with_context = unit = None
+            for nb_level in levels_to_try:
+                train_cfg = context_train_config(cfg, rows.size, progress)
+                if cfg.context_model == "ggconv":
+                    train_cfg.neighbour_level = nb_level
+                fitted = fit_level2_context(cfg.context_model, coords[hier.level1_idx], q_level1, coords[rows],
+                                            hier.parent_of_level2, targets, scene.feature_dim,
+                                            cfg.coarse_voxel_scale, train_cfg)
+                cand_unit = write_context_model_unit(fitted.model_id, fitted.params.to_arrays(), fitted.feat_layers,
+                                                     fitted.head_layers)
+                model = read_context_model(cand_unit, layout)  # exactly what the decoder will use
+                params = level2_coding_params(model, coords[hier.level1_idx], q_level1, coords[rows],
+                                              hier.parent_of_level2, cfg.coarse_voxel_scale)
+                q_ctx = np.where(level_live, quantize(values[rows], attr.effective_steps(steps, params.step_adjust),
+                                                      "attributes"), 0)
+                header = new_header()
+                header.context_model_id = fitted.model_id
+                cand = code(header, q_ctx, params)
+                if len(levels_to_try) > 1:
+                    stats[f"level2_bytes_with_ggconv_neighbour_level_{nb_level}"] = len(cand.payload) + len(cand_unit)
+                if with_context is None or len(cand.payload) + len(cand_unit) < len(with_context.payload) + len(unit):
+                    with_context, unit = cand, cand_unit
             stats["time_context_fit_s"] = time.perf_counter() - t2
             stats["level2_bytes_per_channel_prior"] = len(chosen.payload)
             stats["level2_bytes_with_context"] = len(with_context.payload) + len(unit)

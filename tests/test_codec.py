@@ -333,3 +333,16 @@ def test_context_model_that_does_not_pay_is_not_written():
     from lghcc.common.container import UnitType, read_container
     assert all(u.unit_type != UnitType.CONTEXT_MODEL for u in read_container(res.data).units)
     assert_same_scene(decode_stream(res.data).scene, res.decoded)
+
+
+def test_auto_neighbour_level_keeps_the_smaller_of_both_fits():
+    scene = make_procedural_scene(900, seed=9, feature_dim=4, num_offsets=2)
+    cfg = EncoderConfig(hierarchy=True, context_model="ggconv", context_neighbour_level="auto", context_k=4,
+                        context_float_steps=10, context_qat_steps=2, context_fallback=False)
+    res = encode_scene(scene, cfg)
+    sizes = [res.stats[f"level2_bytes_with_ggconv_neighbour_level_{lv}"] for lv in (1, 2)]
+    assert res.stats["level2_bytes_with_context"] == min(sizes)
+    dec = decode_stream(res.data)
+    assert_same_scene(dec.scene, res.decoded)
+    with pytest.raises(InputError, match="context_neighbour_level"):
+        EncoderConfig(context_neighbour_level=3).validate()
