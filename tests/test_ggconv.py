@@ -136,6 +136,9 @@ def test_level1_neighbours_hard_cases():
     got = ggconv_coding_params(p, c2, xp, 2, level1=(c1, x1))
     assert all(np.array_equal(a, b) for a, b in zip(got, reference(p, c2, xp, 2, level1=(c1, x1))))
     assert got[0].min() >= ACT_MIN and got[0].max() <= ACT_MAX
+    none = (np.zeros((0, 3), np.int64), np.zeros((0, p.num_attrs), np.int64))  # no level-1 anchor at all
+    got = ggconv_coding_params(p, c2, xp, 2, level1=none)
+    assert all(np.array_equal(a, b) for a, b in zip(got, reference(p, c2, xp, 2, level1=none)))
 
 
 def test_extreme_values_and_isolated_anchors():

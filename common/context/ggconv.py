@@ -382,6 +382,8 @@ def ggconv_coding_params(params: GGConvParams, coords2, parent_attrs, voxel_scal
     if params.neighbour_level == 2:
         data_coords, p_data = coords_t, p_query
     else:
+        if n_data == 0:  # no level-1 anchor (every slot invalid): one zero row for the masked gathers
+            c1, x1 = np.zeros((1, 3), np.int64), np.zeros((1, m), np.int64)
         data_coords = torch.from_numpy(np.ascontiguousarray(c1))
         p_data = clamp16(torch.from_numpy(np.ascontiguousarray(x1)))[:, :cf].to(torch.float64) @ lin0_x
     hs = params.h_shift
