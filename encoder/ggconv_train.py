@@ -42,7 +42,6 @@ from lghcc.common.context.ggconv import (
     ggconv_coding_params,
     head_inputs,
     neighbour_graph,
-    sigma_of_level,
 )
 from lghcc.common.intnn import ACT_MAX, ACT_MIN, BIAS_BITS, MAX_SHIFT, IntLinear, IntMLP, frac_bits_for, int_range
 

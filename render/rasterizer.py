@@ -59,7 +59,6 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
-import numpy as np
 import torch
 
 from lghcc.render.camera import Camera

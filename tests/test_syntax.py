@@ -1,8 +1,7 @@
 """Bit I/O and the syntax visitors: write, read and size are one description."""
 
-import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, strategies as st
 
 from lghcc.common.bitio import BitReader, BitWriter
 from lghcc.common.errors import BitstreamError

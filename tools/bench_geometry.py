@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from lghcc.common.procedural import make_procedural_scene, surface_points
-from lghcc.common.geometry import (IDCM_ISOLATED, _morton_perm, decode_geometry, encode_geometry,
+from lghcc.common.geometry import (IDCM_ISOLATED, decode_geometry, encode_geometry,
                                    normative_order)
 
 ROOT = Path(__file__).resolve().parents[1]

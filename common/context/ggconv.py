@@ -36,7 +36,7 @@ import torch
 from lghcc.common.attributes import STEP_ADJUST_FACTORS  # noqa: F401 (re-exported)
 from lghcc.common.context.model_unit import NamedIntArray
 from lghcc.common.intnn import ACT_MAX, ACT_MIN, IntLinear, IntMLP, WEIGHT_BITS_ALLOWED, rshift_round
-from lghcc.common.knn import MAX_EXTENT, ball_knn
+from lghcc.common.knn import ball_knn
 
 GRID_FRAC_BITS = 8  # FB: fractional bits of the grid coordinate U
 TRI_SHIFT = 3 * GRID_FRAC_BITS  # the trilinear weights sum to 2^24
