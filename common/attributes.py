@@ -226,7 +226,6 @@ def read_attribute_unit(payload: bytes, sps: SceneParameterSet, num_rows: int, l
             raise BitstreamError(f"attribute unit (level {level}) uses context model {h.context_model_id}, "
                                  "but the stream has no matching context model unit")
         params = context(h.context_model_id)
-    check_levels(np.asarray(params.level), f"attribute unit (level {level})")
     body = payload[reader.bit_position // 8:]
     sizes = [x for pair in zip(h.mask_chunk_size, h.chunk_size) for x in pair] if h.offset_mask_present \
         else list(h.chunk_size)
@@ -241,6 +240,7 @@ def read_attribute_unit(payload: bytes, sps: SceneParameterSet, num_rows: int, l
             mask[lo:hi] = decode_mask_chunk(next(pieces), hi - lo, models, f"attribute mask chunk {i}")
         live = layout.live_channels(None if mask is None else mask[lo:hi], hi - lo)
         p = params.rows(lo, hi, layout.num_channels)
+        check_levels(np.asarray(p.level), f"attribute unit (level {level})")
         q = decode_residual_chunk(next(pieces), p.level, live, f"attribute chunk {i}")
         q += p.mean
         if live is not None:

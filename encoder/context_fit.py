@@ -23,6 +23,10 @@ from lghcc.encoder.ggconv_train import GGConvTrainConfig, fit_ggconv, rd_loss
 CONTEXT_MODEL_IDS = {"parent_mlp": CONTEXT_PARENT_MLP, "ggconv": CONTEXT_GGCONV}
 
 
+class ContextFitError(Exception):
+    """The context model could not be fitted (e.g. it diverged); the encoder keeps the prior."""
+
+
 @dataclass
 class FittedContext:
     model_id: int
@@ -42,9 +46,10 @@ def fit_parent_mlp(coords2: np.ndarray, parent_attrs: np.ndarray, targets: np.nd
     local = np.mod(coords2[rows], voxel_scale).clip(0, ACT_MAX).astype(np.float64)
     xpar = np.clip(parent_attrs[rows], ACT_MIN, ACT_MAX).astype(np.float64)
     x_int = torch.from_numpy(np.concatenate([local, xpar], 1))
-    tgt = torch.from_numpy(np.asarray(targets, dtype=np.float64)[rows])
+    tgt = torch.from_numpy(np.clip(np.asarray(targets, dtype=np.float64)[rows], ACT_MIN, ACT_MAX))  # see fit_ggconv
     xp = torch.from_numpy(xpar)
-    scale = 1.0 / x_int.std(0).clamp_min(1.0)  # input normalization, folded into layer 1 at export
+    spread = x_int.std(0) if x_int.shape[0] > 1 else torch.ones(x_int.shape[1], dtype=torch.float64)
+    scale = 1.0 / spread.clamp_min(1.0)  # input normalization, folded into layer 1 at export
     hidden = cfg.head_hidden
     net = nn.Sequential(nn.Linear(3 + m, hidden), nn.ReLU(), nn.Linear(hidden, 3 * m)).double()
     with torch.no_grad():  # start from "predict the parent, spread of the residual, no step change"
@@ -83,11 +88,19 @@ def fit_level2_context(kind: str, coords1: np.ndarray, attrs1: np.ndarray, coord
     """Fit the level-2 context model ``kind`` (parent_mlp or ggconv) on the decoded level 1
     (coords1 [N1, 3], attrs1 [N1, M] quantized) and the level-2 targets (float [N2, M], in base
     steps) of the level-2 anchors at coords2 [N2, 3] with parents ``parent`` [N2] (level-1 index)."""
-    parent_attrs = attrs1[parent]
+    try:
+        return _fit(kind, coords1, attrs1, coords2, parent, targets, num_features, voxel_scale, cfg)
+    except ValueError as e:  # a float network that diverged cannot be quantized ("NaN or Inf")
+        if "NaN" in str(e) or "Inf" in str(e):
+            raise ContextFitError(f"the {kind} context model diverged while fitting ({e})") from None
+        raise
+
+
+def _fit(kind, coords1, attrs1, coords2, parent, targets, num_features, voxel_scale, cfg) -> FittedContext:
     if kind == "ggconv":
-        p = fit_ggconv(coords2, parent_attrs, targets, num_features, voxel_scale, cfg, level1=(coords1, attrs1))
+        p = fit_ggconv(coords2, parent, coords1, attrs1, targets, num_features, voxel_scale, cfg)
         return FittedContext(CONTEXT_GGCONV, p, len(p.feat_mlp.layers), len(p.head_mlp.layers))
     if kind == "parent_mlp":
-        p = fit_parent_mlp(coords2, parent_attrs, targets, num_features, voxel_scale, cfg)
+        p = fit_parent_mlp(coords2, attrs1[parent], targets, num_features, voxel_scale, cfg)
         return FittedContext(CONTEXT_PARENT_MLP, p, 0, len(p.head_mlp.layers))
     raise ValueError(f"unknown context model {kind!r}")

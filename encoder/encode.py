@@ -28,7 +28,7 @@ from lghcc.common.units import (CONTEXT_PER_CHANNEL_PRIOR, LEVEL_1, LEVEL_2, LEV
                                 MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, PRIOR_MEAN_MAX, AttributeUnitHeader, DecodedSceneHashUnit,
                                 RenderMlpHeader, SceneParameterSet)
 from lghcc.encoder.config import EncoderConfig, context_model_size
-from lghcc.encoder.context_fit import fit_level2_context
+from lghcc.encoder.context_fit import ContextFitError, fit_level2_context
 from lghcc.encoder.ggconv_train import GGConvTrainConfig
 
 UNIT_FRAMING_BYTES = UNIT_HEADER_BYTES + UNIT_CRC_BYTES
@@ -238,14 +238,18 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
                 train_cfg = context_train_config(cfg, rows.size, progress)
                 if cfg.context_model == "ggconv":
                     train_cfg.neighbour_level = nb_level
-                fitted = fit_level2_context(cfg.context_model, coords[hier.level1_idx], q_level1, coords[rows],
-                                            hier.parent_of_level2, targets, scene.feature_dim,
-                                            cfg.coarse_voxel_scale, train_cfg)
+                try:
+                    fitted = fit_level2_context(cfg.context_model, coords[hier.level1_idx], q_level1, coords[rows],
+                                                hier.parent_of_level2, targets, scene.feature_dim,
+                                                cfg.coarse_voxel_scale, train_cfg)
+                except ContextFitError as e:  # informative: the stream then uses the per-channel prior
+                    stats["context_fit_error"] = str(e)
+                    continue
                 cand_unit = write_context_model_unit(fitted.model_id, fitted.params.to_arrays(), fitted.feat_layers,
                                                      fitted.head_layers)
                 model = read_context_model(cand_unit, layout)  # exactly what the decoder will use
                 params = level2_coding_params(model, coords[hier.level1_idx], q_level1, coords[rows],
-                                              hier.parent_of_level2, cfg.coarse_voxel_scale)
+                                              hier.parent_of_level2, cfg.coarse_voxel_scale).materialize()
                 q_ctx = np.where(level_live, quantize(values[rows], attr.effective_steps(steps, params.step_adjust),
                                                       "attributes"), 0)
                 header = new_header()
@@ -257,11 +261,12 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
                     with_context, unit = cand, cand_unit
             stats["time_context_fit_s"] = time.perf_counter() - t2
             stats["level2_bytes_per_channel_prior"] = len(chosen.payload)
-            stats["level2_bytes_with_context"] = len(with_context.payload) + len(unit)
-            # A context model the scene does not benefit from is not used and costs nothing.
-            if not cfg.context_fallback or \
-                    len(with_context.payload) + len(unit) + UNIT_FRAMING_BYTES < len(chosen.payload):
-                chosen, context_payload = with_context, unit
+            if with_context is not None:
+                stats["level2_bytes_with_context"] = len(with_context.payload) + len(unit)
+                # A context model the scene does not benefit from is not used and costs nothing.
+                if not cfg.context_fallback or \
+                        len(with_context.payload) + len(unit) + UNIT_FRAMING_BYTES < len(chosen.payload):
+                    chosen, context_payload = with_context, unit
         stats[f"level{level}_context_model"] = CONTEXT_MODEL_NAMES[chosen.header.context_model_id]
         if level == LEVEL_1:
             q_level1 = chosen.q

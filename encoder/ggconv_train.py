@@ -38,6 +38,7 @@ from lghcc.common.context.ggconv import (
     STEP_ADJUST_FACTORS,
     TRI_SHIFT,
     GGConvParams,
+    check_level2_inputs,
     edge_inputs,
     ggconv_coding_params,
     head_inputs,
@@ -339,47 +340,44 @@ def rd_loss(mean, level, adj, targets, lam: float) -> tuple[torch.Tensor, torch.
 
 # -- fitting --------------------------------------------------------------------------------
 
-def fit_ggconv(coords2, parent_attrs, targets, num_features: int, voxel_scale: int,
+def fit_ggconv(coords2, parent, coords1, attrs1, targets, num_features: int, voxel_scale: int,
                config: GGConvTrainConfig | None = None,
-               neighbours: tuple[np.ndarray, np.ndarray] | None = None, level1=None) -> GGConvParams:
+               neighbours: tuple[np.ndarray, np.ndarray] | None = None) -> GGConvParams:
     """Fit GG-Conv on the level-2 anchors.
 
-    coords2: int [N2, 3] level-2 positions (level-2 order); parent_attrs: int [N2, M] their
-    parents' decoded attributes in quantization units (features first); targets: float
-    [N2, M] the level-2 attributes in base quantization steps; voxel_scale: the hierarchy's s;
-    level1: (int [N1, 3] positions, int [N1, M] decoded attributes) of the level-1 anchors,
-    needed for the config's neighbour_level 1; neighbours: the Ball k-NN graph when already
-    computed with the config's k, radius_sq and neighbour_level. Returns the quantized
-    parameters for ``ggconv_coding_params``.
+    coords2: int [N2, 3] level-2 positions (level-2 order); parent: int [N2] their level-1
+    parents; coords1 int [N1, 3] and attrs1 int [N1, M]: the level-1 positions and decoded
+    attributes in quantization units (features first) (the inputs of ``ggconv_coding_params``);
+    targets: float [N2, M] the level-2 attributes in base quantization steps; voxel_scale: the
+    hierarchy's s; neighbours: the Ball k-NN graph when already computed with the config's k,
+    radius_sq and neighbour_level. Returns the quantized parameters.
     """
-    return train_ggconv_twin(coords2, parent_attrs, targets, num_features, voxel_scale, config, neighbours,
-                             level1)[0]
+    return train_ggconv_twin(coords2, parent, coords1, attrs1, targets, num_features, voxel_scale, config,
+                             neighbours)[0]
 
 
-def train_ggconv_twin(coords2, parent_attrs, targets, num_features: int, voxel_scale: int,
+def train_ggconv_twin(coords2, parent, coords1, attrs1, targets, num_features: int, voxel_scale: int,
                       config: GGConvTrainConfig | None = None,
-                      neighbours: tuple[np.ndarray, np.ndarray] | None = None,
-                      level1=None) -> tuple[GGConvParams, GGConvFloat]:
+                      neighbours: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[GGConvParams, GGConvFloat]:
     """``fit_ggconv`` that also returns the trained float twin (in quantized mode)."""
     cfg = config or GGConvTrainConfig()
-    coords2 = np.asarray(coords2, dtype=np.int64)
-    parent_attrs = np.asarray(parent_attrs, dtype=np.int64)
-    targets = np.asarray(targets, dtype=np.float64)
-    n, m = parent_attrs.shape
-    if coords2.shape != (n, 3) or targets.shape != (n, m) or not 1 <= num_features <= m:
-        raise ValueError("coords2 [N2,3], parent_attrs [N2,M] and targets [N2,M] must agree")
+    attrs1 = np.asarray(attrs1, dtype=np.int64)
+    m = attrs1.shape[1] if attrs1.ndim == 2 else 0
+    coords2, parent, coords1, attrs1 = check_level2_inputs(m, coords2, parent, coords1, attrs1, voxel_scale)
+    # the model's mean is a 16-bit activation: targets beyond it are escapes whatever the model says,
+    # and clipping them keeps the loss finite (values 1e8 steps away made the fit diverge)
+    targets = np.clip(np.asarray(targets, dtype=np.float64), ACT_MIN, ACT_MAX)
+    n = coords2.shape[0]
+    if targets.shape != (n, m) or not 1 <= num_features <= m:
+        raise ValueError("coords2 [N2, 3], parent [N2] and targets [N2, M] must agree")
     if n == 0:
         raise ValueError("no level-2 anchors to fit on")
-    if cfg.neighbour_level == 1:
-        if level1 is None:
-            raise ValueError("neighbour_level 1 needs the level-1 positions and attributes")
-        level1 = (np.asarray(level1[0], dtype=np.int64), np.asarray(level1[1], dtype=np.int64))
-        if level1[0].shape[0] == 0:
-            raise ValueError("neighbour_level 1 needs at least one level-1 anchor")
-    elif cfg.neighbour_level != 2:
+    if cfg.neighbour_level not in (1, 2):
         raise ValueError(f"neighbour_level must be 1 or 2, got {cfg.neighbour_level}")
-    coords1 = level1[0] if cfg.neighbour_level == 1 else None
-    radius_sq = cfg.radius_sq if cfg.radius_sq is not None else default_radius_sq(coords2, cfg.k, coords1)
+    parent_attrs = attrs1[parent]  # encoder side: the training set's inputs, gathered once
+    level1 = (coords1, attrs1)
+    radius_sq = cfg.radius_sq if cfg.radius_sq is not None else \
+        default_radius_sq(coords2, cfg.k, coords1 if cfg.neighbour_level == 1 else None)
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     rows = np.sort(rng.permutation(n)[:cfg.max_train_anchors]).astype(np.int64)
@@ -426,10 +424,10 @@ def train_ggconv_twin(coords2, parent_attrs, targets, num_features: int, voxel_s
         ptq_model = copy.deepcopy(model)
         _train_phase(model, data, cfg, rng, cfg.lr * cfg.qat_lr_scale, cfg.qat_steps, bar)
         qat = export(model)
-        level1_kw = {"level1": level1} if cfg.neighbour_level == 1 else {}
-        costs = [rd_cost(p_, coords2[rows], parent_attrs[rows], targets[rows], voxel_scale, cfg.lam, **level1_kw)
-                 for p_ in (best, qat)] if cfg.neighbour_level == 1 or rows.size == n else \
-                [rd_cost(p_, coords2, parent_attrs, targets, voxel_scale, cfg.lam) for p_ in (best, qat)]
+        # on the training rows (level-1 neighbours: any subset of queries; the level-2 graph: all anchors)
+        sub = rows if cfg.neighbour_level == 1 else np.arange(n)
+        costs = [rd_cost(p_, coords2[sub], parent[sub], coords1, attrs1, targets[sub], voxel_scale, cfg.lam)
+                 for p_ in (best, qat)]
         if costs[1] <= costs[0]:
             best, best_model = qat, model
         else:
@@ -460,36 +458,35 @@ def _train_phase(model: GGConvFloat, data: _Data, cfg: GGConvTrainConfig, rng, l
             bar.set_postfix(bits_per_anchor=f"{float(bits.detach().mean()):.1f}", quant=model.quant)
 
 
-def rd_cost(params: GGConvParams, coords2, parent_attrs, targets, voxel_scale: int, lam: float,
-            level1=None) -> float:
+def rd_cost(params: GGConvParams, coords2, parent, coords1, attrs1, targets, voxel_scale: int, lam: float) -> float:
     """Exact integer-path rate (bits under the frozen tables) + lam * quantization MSE (squared
     base steps, 2^(a/2) / 12 per value), the quantity the fitting minimizes."""
-    bits, adj = estimated_rate_bits(params, coords2, parent_attrs, targets, voxel_scale, level1=level1)
+    bits, adj = estimated_rate_bits(params, coords2, parent, coords1, attrs1, targets, voxel_scale)
     return bits + lam * float((np.exp2(adj / 2.0) / 12.0).sum())
 
 
-def twin_outputs(model: GGConvFloat, coords2, parent_attrs, voxel_scale: int, neighbours=None, level1=None):
+def twin_outputs(model: GGConvFloat, coords2, parent, coords1, attrs1, voxel_scale: int, neighbours=None):
     """The twin's (quantized) outputs for every level-2 anchor, as float64 numpy arrays."""
-    n, m = np.asarray(parent_attrs).shape
-    data = _prepare(coords2, parent_attrs, np.zeros((n, m)), voxel_scale, model.c, model.k, model.radius_sq,
-                    model.d, np.arange(n, dtype=np.int64), neighbours, model.neighbour_level, level1)
+    attrs1 = np.asarray(attrs1, dtype=np.int64)
+    n, m = len(coords2), attrs1.shape[1]
+    data = _prepare(coords2, attrs1[np.asarray(parent)], np.zeros((n, m)), voxel_scale, model.c, model.k,
+                    model.radius_sq, model.d, np.arange(n, dtype=np.int64), neighbours, model.neighbour_level,
+                    (np.asarray(coords1, dtype=np.int64), attrs1))
     with torch.no_grad():
         outs = [model(_batch(data, torch.arange(lo, min(n, lo + 8192)))) for lo in range(0, n, 8192)]
     return tuple(torch.cat([o[i] for o in outs]).numpy() for i in range(3))
 
 
-def estimated_rate_bits(params: GGConvParams, coords2, parent_attrs, targets, voxel_scale: int,
-                        neighbours=None, level1=None) -> tuple[float, np.ndarray]:
+def estimated_rate_bits(params: GGConvParams, coords2, parent, coords1, attrs1, targets, voxel_scale: int,
+                        neighbours=None) -> tuple[float, np.ndarray]:
     """Bits of the level-2 attributes coded with the integer path's parameters and the frozen
     scale tables (symbols round(x / STEP_ADJUST_FACTORS[a])); also returns step_adjust."""
     from lghcc.common.entropy.symbol_coder import ideal_code_length_bits
 
-    mean, level, adj = ggconv_coding_params(params, coords2, parent_attrs, voxel_scale, neighbours, level1=level1)
+    mean, level, adj = ggconv_coding_params(params, coords2, parent, coords1, attrs1, voxel_scale, neighbours)
     f = STEP_ADJUST_FACTORS[adj].astype(np.float64)
     sym = np.floor(np.asarray(targets, dtype=np.float64) / f + 0.5).astype(np.int64)
     return ideal_code_length_bits(sym - mean, level), adj
-
-
 def zero_mean_prior_bits(targets) -> float:
     """Reference: each channel coded with one zero-mean Gaussian level fitted to its RMS."""
     from lghcc.common.entropy.symbol_coder import ideal_code_length_bits, level_for_sigma

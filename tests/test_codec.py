@@ -150,12 +150,20 @@ def test_round_trip_hard_cases(case, context):
     live = live[order]
     out_live = np.ones_like(live) if out.offset_mask is None else out.offset_mask
     assert np.array_equal(out_live, live)
-    assert out.features.tobytes() == quantized(scene.features[order], cfg.feature_step).tobytes()
-    assert out.scalings.tobytes() == quantized(scene.scalings[order], cfg.scaling_step).tobytes()
-    want_offsets = np.where(live[:, :, None], quantized(scene.offsets[order], cfg.offset_step), np.float32(0))
-    assert out.offsets.tobytes() == want_offsets.tobytes()
-    if kind == "constant_features":
-        assert (out.features == out.features[0, 0]).all()
+    ins = (scene.features[order], scene.scalings[order], np.where(live[:, :, None], scene.offsets[order], 0))
+    outs = (out.features, out.scalings, out.offsets)
+    steps = (cfg.feature_step, cfg.scaling_step, cfg.offset_step)
+    if res.stats.get("level2_context_model", "per-channel prior") == "per-channel prior":
+        for x, y, step in zip(ins, outs, steps):  # exactly float32(rint(x / step)) * step
+            want = quantized(x, step)
+            assert y.tobytes() == np.where(np.asarray(x) == 0, np.float32(0), want).astype(np.float32).tobytes()
+        if kind == "constant_features":
+            assert (out.features == out.features[0, 0]).all()
+    else:  # a context model may code a value with a coarser step (step_adjust a: factor 2^(a/4) <= 2^(7/4))
+        for x, y, step in zip(ins, outs, steps):
+            bound = 0.5 * np.float32(step) * 3.36358571 + np.abs(x).astype(np.float64) * 2.0 ** -21
+            assert (np.abs(y.astype(np.float64) - x.astype(np.float64)) <= bound).all()
+    assert np.array_equal(out.offsets[~live], np.zeros_like(out.offsets[~live]))
 
 
 def test_hard_case_generator_covers_every_case():
@@ -346,3 +354,19 @@ def test_auto_neighbour_level_keeps_the_smaller_of_both_fits():
     assert_same_scene(dec.scene, res.decoded)
     with pytest.raises(InputError, match="context_neighbour_level"):
         EncoderConfig(context_neighbour_level=3).validate()
+
+
+def test_a_context_fit_that_diverges_falls_back_to_the_prior(monkeypatch):
+    """A context model that cannot be fitted is not a failure of the encoder: level 2 keeps the
+    per-channel prior and the stats say why."""
+    import lghcc.encoder.context_fit as cf
+
+    def diverging(*args, **kwargs):
+        raise ValueError("cannot scale a tensor containing NaN or Inf")
+
+    monkeypatch.setattr(cf, "fit_ggconv", diverging)
+    scene = make_procedural_scene(600, seed=3, feature_dim=4, num_offsets=2)
+    res = encode_scene(scene, EncoderConfig(hierarchy=True, context_model="ggconv", context_fallback=False))
+    assert res.stats["level2_context_model"] == "per-channel prior"
+    assert "diverged" in res.stats["context_fit_error"]
+    assert_same_scene(decode_stream(res.data).scene, res.decoded)

@@ -33,6 +33,14 @@ def random_params(rng, c=6, koff=2, ch=5, hid=7, hid2=9, k=8, radius_sq=6, grid=
                         IntMLP([lin(ch + 4 + m, hid2, True), lin(hid2, 3 * m, False)]), neighbour_level)
 
 
+def own_parents(p: GGConvParams, coords, x, s, *args, **kw):
+    """ggconv_coding_params for a level-2 graph model given per-anchor parent attributes x:
+    each level-2 anchor is given a level-1 parent row of its own holding x (the positions of
+    those rows play no part with neighbour_level 2)."""
+    n = len(coords)
+    return ggconv_coding_params(p, coords, np.arange(n), np.zeros((n, 3), np.int64), x, s, *args, **kw)
+
+
 def reference(p: GGConvParams, coords, xpar, s, level1=None):
     """The normative text of spec/hierarchy_ggconv.md, one anchor at a time in Python integers.
     level1 = (positions, attributes) of the level-1 anchors, for neighbour_level 1."""
@@ -95,7 +103,7 @@ def test_matches_independent_reference():
         p = random_params(rng)
         c = _scene(rng)
         x = rng.integers(-300, 300, (len(c), p.num_attrs))
-        got = ggconv_coding_params(p, c, x, 3, block=7)
+        got = own_parents(p, c, x, 3, block=7)
         ref = reference(p, c, x, 3)
         for g, r in zip(got, ref):
             assert np.array_equal(g, r)
@@ -115,12 +123,12 @@ def test_level1_neighbours_match_independent_reference():
         p = random_params(rng, neighbour_level=1, radius_sq=[6, 12, 30][trial])
         c1, c2, parent = _split(rng, 80, 7, 3)
         x1 = rng.integers(-300, 300, (len(c1), p.num_attrs))
-        got = ggconv_coding_params(p, c2, x1[parent], 3, block=5, level1=(c1, x1))
+        got = ggconv_coding_params(p, c2, parent, c1, x1, 3, block=5)
         ref = reference(p, c2, x1[parent], 3, level1=(c1, x1))
         for g, r in zip(got, ref):
             assert np.array_equal(g, r)
-    with pytest.raises(ValueError, match="level-1"):
-        ggconv_coding_params(p, c2, x1[parent], 3)
+    with pytest.raises(ValueError, match="parent index"):
+        ggconv_coding_params(p, c2, parent + len(c1), c1, x1, 3)
 
 
 def test_level1_neighbours_hard_cases():
@@ -130,15 +138,16 @@ def test_level1_neighbours_hard_cases():
     c1 = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1], [50, 50, 50]])
     c2 = np.array([[0, 0, 0], [1, 1, 0], [-40, 0, 0]])  # 6 equidistant, 2 at d2 = 1, none
     x1 = rng.choice([-(2 ** 40), 2 ** 40, ACT_MIN, ACT_MAX, 0], (len(c1), p.num_attrs))
-    xp = rng.choice([ACT_MIN, ACT_MAX, 0], (len(c2), p.num_attrs))
+    parent = np.array([6, 0, 3])
     idx, valid = level2_graph(p, c2, c1)
     assert valid.sum(1).tolist() == [6, 2, 0] and idx[0, :6].tolist() == [0, 1, 2, 3, 4, 5]
-    got = ggconv_coding_params(p, c2, xp, 2, level1=(c1, x1))
-    assert all(np.array_equal(a, b) for a, b in zip(got, reference(p, c2, xp, 2, level1=(c1, x1))))
+    got = ggconv_coding_params(p, c2, parent, c1, x1, 2)
+    assert all(np.array_equal(a, b) for a, b in zip(got, reference(p, c2, x1[parent], 2, level1=(c1, x1))))
     assert got[0].min() >= ACT_MIN and got[0].max() <= ACT_MAX
-    none = (np.zeros((0, 3), np.int64), np.zeros((0, p.num_attrs), np.int64))  # no level-1 anchor at all
-    got = ggconv_coding_params(p, c2, xp, 2, level1=none)
-    assert all(np.array_equal(a, b) for a, b in zip(got, reference(p, c2, xp, 2, level1=none)))
+    # a level-1 set whose only anchor lies outside every ball: all slots invalid
+    far = (np.array([[500, 500, 500]]), x1[:1])
+    got = ggconv_coding_params(p, c2, np.zeros(3, np.int64), far[0], far[1], 2)
+    assert all(np.array_equal(a, b) for a, b in zip(got, reference(p, c2, x1[[0, 0, 0]], 2, level1=far)))
 
 
 def test_extreme_values_and_isolated_anchors():
@@ -146,7 +155,7 @@ def test_extreme_values_and_isolated_anchors():
     p = random_params(rng, wscale=2 ** 15 - 1, shift=0)
     c = np.concatenate([_scene(rng, 20, 3), [[100, 100, 100], [-100, 50, 0]]])  # two anchors with no neighbour
     x = rng.choice([-(2 ** 40), 2 ** 40, ACT_MIN, ACT_MAX, 0], (len(c), p.num_attrs))
-    mean, level, adj = ggconv_coding_params(p, c, x, 4)
+    mean, level, adj = own_parents(p, c, x, 4)
     ref = reference(p, c, x, 4)
     assert all(np.array_equal(a, b) for a, b in zip((mean, level, adj), ref))
     assert mean.min() >= ACT_MIN and mean.max() <= ACT_MAX
@@ -165,7 +174,7 @@ def test_equidistant_neighbours_and_fewer_than_k():
     idx, valid = level2_graph(p, c)
     centre = int(np.nonzero((c == 0).all(1))[0][0])
     assert valid[centre].sum() == 6 and idx[centre, :6].tolist() == sorted(set(range(7)) - {centre})
-    got = ggconv_coding_params(p, c, x, 2)
+    got = own_parents(p, c, x, 2)
     assert all(np.array_equal(a, b) for a, b in zip(got, reference(p, c, x, 2)))
 
 
@@ -178,9 +187,9 @@ def test_bit_exact_across_thread_counts():
     old = torch.get_num_threads()
     try:
         torch.set_num_threads(1)
-        a = ggconv_coding_params(p, c, x, 4, nb)
+        a = own_parents(p, c, x, 4, nb)
         torch.set_num_threads(2)
-        b = ggconv_coding_params(p, c, x, 4, nb, block=4096)
+        b = own_parents(p, c, x, 4, nb, block=4096)
     finally:
         torch.set_num_threads(old)
     assert all(np.array_equal(u, v) for u, v in zip(a, b))
@@ -189,10 +198,10 @@ def test_bit_exact_across_thread_counts():
 def test_empty_and_single_anchor():
     rng = np.random.default_rng(4)
     p = random_params(rng)
-    z = ggconv_coding_params(p, np.zeros((0, 3), np.int64), np.zeros((0, p.num_attrs), np.int64), 2)
+    z = own_parents(p, np.zeros((0, 3), np.int64), np.zeros((0, p.num_attrs), np.int64), 2)
     assert all(a.shape == (0, p.num_attrs) for a in z)
     x = rng.integers(-5, 5, (1, p.num_attrs))
-    got = ggconv_coding_params(p, np.array([[3, 4, 5]]), x, 2)
+    got = own_parents(p, np.array([[3, 4, 5]]), x, 2)
     assert all(np.array_equal(a, b) for a, b in zip(got, reference(p, np.array([[3, 4, 5]]), x, 2)))
 
 
@@ -215,7 +224,7 @@ def test_serialization_round_trip_and_errors():
     q = GGConvParams.from_arrays(arrays)
     c = _scene(rng, 60)
     x = rng.integers(-100, 100, (len(c), p.num_attrs))
-    assert all(np.array_equal(a, b) for a, b in zip(ggconv_coding_params(p, c, x, 2), ggconv_coding_params(q, c, x, 2)))
+    assert all(np.array_equal(a, b) for a, b in zip(own_parents(p, c, x, 2), own_parents(q, c, x, 2)))
     with pytest.raises(ValueError, match="missing"):
         GGConvParams.from_arrays([a for a in arrays if a.name != "h_shift"])
     with pytest.raises(ValueError, match="unknown"):
@@ -243,7 +252,7 @@ def test_step_adjust_factors_frozen():
 
 def _smooth_scene(n=3500, extent=32, c=6, koff=2, s=4, seed=0):
     """A smooth random field on random voxels, split by the hierarchy: returns the level-2
-    positions, parent attributes and targets, C, s and the level-1 (positions, attributes)."""
+    positions, parents and targets, C, s and the level-1 (positions, attributes)."""
     rng = np.random.default_rng(seed)
     coords = np.unique(rng.integers(0, extent, (n, 3)), axis=0)
     coords = coords[rng.permutation(len(coords))]
@@ -253,7 +262,7 @@ def _smooth_scene(n=3500, extent=32, c=6, koff=2, s=4, seed=0):
     vals = 20 * np.sin(coords @ freq.T + phase) + rng.normal(0, 0.3, (len(coords), m))
     h = build_hierarchy(coords, s)
     q1 = np.floor(vals[h.level1_idx] + 0.5).astype(np.int64)
-    return coords[h.level2_idx], q1[h.parent_of_level2], vals[h.level2_idx], c, s, (coords[h.level1_idx], q1)
+    return coords[h.level2_idx], h.parent_of_level2, vals[h.level2_idx], c, s, (coords[h.level1_idx], q1)
 
 
 @pytest.mark.parametrize("neighbour_level", [1, 2])
@@ -269,20 +278,20 @@ def test_fit_reduces_rate_and_twin_matches_integer_path(neighbour_level):
     c2, parent, targets, c, s, level1 = _smooth_scene()
     cfg = GGConvTrainConfig(float_steps=100, qat_steps=30, batch=384, lam=1000.0, progress=False,
                             ctx_channels=8, feat_hidden=16, head_hidden=32, neighbour_level=neighbour_level)
-    params, twin = train_ggconv_twin(c2, parent, targets, c, s, cfg, level1=level1)
+    params, twin = train_ggconv_twin(c2, parent, *level1, targets, c, s, cfg)
     assert params.neighbour_level == neighbour_level
-    bits, adj = estimated_rate_bits(params, c2, parent, targets, s, level1=level1)
+    bits, adj = estimated_rate_bits(params, c2, parent, *level1, targets, s)
     base = zero_mean_prior_bits(targets)
     assert (adj == 0).mean() > 0.99  # lambda high: same distortion as the reference
     assert bits < 0.85 * base, (bits / len(c2), base / len(c2))
-    mean_t, level_t, adj_t = twin_outputs(twin, c2, parent, s, level1=level1)
-    mean_i, level_i, adj_i = ggconv_coding_params(params, c2, parent, s, level1=level1)
+    mean_t, level_t, adj_t = twin_outputs(twin, c2, parent, *level1, s)
+    mean_i, level_i, adj_i = ggconv_coding_params(params, c2, parent, *level1, s)
     assert (np.abs(mean_t - mean_i) <= 1).mean() > 0.99
     # the quantized twin emulates the integer path exactly
     assert np.array_equal(mean_t, mean_i) and np.array_equal(level_t, level_i) and np.array_equal(adj_t, adj_i)
     # parameters survive serialization
     q = GGConvParams.from_arrays(params.to_arrays())
-    assert np.array_equal(ggconv_coding_params(q, c2, parent, s, level1=level1)[0], mean_i)
+    assert np.array_equal(ggconv_coding_params(q, c2, parent, *level1, s)[0], mean_i)
 
 
 def test_large_radius_without_offset_table_matches_reference():
@@ -291,5 +300,5 @@ def test_large_radius_without_offset_table_matches_reference():
     p = random_params(rng, radius_sq=60 ** 2, k=5)
     c = _scene(rng, 30, 40)
     x = rng.choice([ACT_MIN, ACT_MAX, 0, 7, -300], (len(c), p.num_attrs))
-    got = ggconv_coding_params(p, c, x, 5, block=4)
+    got = own_parents(p, c, x, 5, block=4)
     assert all(np.array_equal(a, b) for a, b in zip(got, reference(p, c, x, 5)))

@@ -233,7 +233,7 @@ def _hand_ggconv(units, spec: dict):
     unit = write_context_model_unit(CONTEXT_GGCONV, arrays, n_feat, n_head)
     model = read_context_model(unit, layout)
     params = level2_coding_params(model, coords[hier.level1_idx], q1, coords[hier.level2_idx], hier.parent_of_level2,
-                                  sps.coarse_voxel_scale)
+                                  sps.coarse_voxel_scale).materialize()
     assert params.step_adjust is None or not params.step_adjust.any()
     h = AttributeUnitHeader(num_channels=m, num_offsets=sps.num_offsets, offset_mask_present=h2.offset_mask_present,
                             num_rows=hier.num_level2, attribute_level=LEVEL_2, context_model_id=CONTEXT_GGCONV,

@@ -288,22 +288,23 @@ def _int_array(a, cols: int, what: str) -> np.ndarray:
     return x.astype(np.int64, copy=False)
 
 
-def _check_inputs(params: GGConvParams, coords2, parent_attrs, voxel_scale, level1):
-    c = _int_array(coords2, 3, "coords2")
-    x = _int_array(parent_attrs, params.num_attrs, "parent_attrs")
-    if x.shape[0] != c.shape[0]:
-        raise ValueError(f"parent_attrs has {x.shape[0]} rows for {c.shape[0]} level-2 anchors")
+def check_level2_inputs(num_attrs: int, coords2, parent, coords1, attrs1, voxel_scale):
+    """The inputs of a level-2 context model (Annex H, clause H.5.2) as int64 arrays, checked:
+    level-2 positions [N2, 3], parent [N2] (indices into level 1), level-1 positions [N1, 3]
+    and decoded attributes [N1, M]; ValueError naming the input otherwise."""
+    c2 = _int_array(coords2, 3, "coords2")
+    c1 = _int_array(coords1, 3, "level-1 coords")
+    x1 = _int_array(attrs1, num_attrs, "level-1 attributes")
+    par = np.asarray(parent)
+    if par.shape != (c2.shape[0],) or (par.size and not np.issubdtype(par.dtype, np.integer)):
+        raise ValueError(f"parent must be integer [N2] = [{c2.shape[0]}], got {par.dtype} {list(par.shape)}")
+    if c1.shape[0] != x1.shape[0]:
+        raise ValueError("level-1 coords and attributes differ in length")
+    if par.size and (int(par.min()) < 0 or int(par.max()) >= x1.shape[0]):
+        raise ValueError("a parent index is outside level 1")
     if isinstance(voxel_scale, bool) or not isinstance(voxel_scale, (int, np.integer)) or voxel_scale < 1:
         raise ValueError(f"voxel_scale must be an integer >= 1, got {voxel_scale!r}")
-    c1 = x1 = None
-    if params.neighbour_level == 1:
-        if level1 is None:
-            raise ValueError("a GG-Conv model with neighbour_level 1 needs the level-1 positions and attributes")
-        c1 = _int_array(level1[0], 3, "level-1 coords")
-        x1 = _int_array(level1[1], params.num_attrs, "level-1 attributes")
-        if c1.shape[0] != x1.shape[0]:
-            raise ValueError("level-1 coords and attributes differ in length")
-    return c, x, c1, x1
+    return c2, par.astype(np.int64, copy=False), c1, x1
 
 
 def _geometry_terms(dp: torch.Tensor, params: GGConvParams, table_f: torch.Tensor, lin0_u: torch.Tensor,
@@ -322,109 +323,131 @@ def _geometry_terms(dp: torch.Tensor, params: GGConvParams, table_f: torch.Tenso
 _LUT_MAX = 1 << 17  # largest (2R+1)^3 for which the geometry terms are tabulated per offset
 
 
-def ggconv_coding_params(params: GGConvParams, coords2, parent_attrs, voxel_scale: int,
+def ggconv_coding_params(params: GGConvParams, coords2, parent, coords1, attrs1, voxel_scale: int,
                          neighbours: tuple[np.ndarray, np.ndarray] | None = None,
-                         block: int = 1 << 12, level1: tuple[np.ndarray, np.ndarray] | None = None
-                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Coding parameters of the level-2 attributes.
+                         block: int = 1 << 12) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Coding parameters of the level-2 attributes (Annex H, clause H.5).
 
-    coords2: int [N2, 3] level-2 positions in level-2 order; parent_attrs: int [N2, M] the
-    decoded attributes of each one's level-1 parent (features first), in quantization units;
-    voxel_scale: the hierarchy's coarse voxel scale s; level1: (int [N1, 3] positions,
-    int [N1, M] decoded attributes) of the level-1 anchors, needed when the model's
-    neighbour_level is 1; neighbours: (idx, valid) from ``level2_graph`` (computed when None).
-    Returns mean, level, step_adjust, each int64 [N2, M]: the integer mean of each attribute
-    symbol, its scale level in [0, 64) and its step adjustment in [0, 8).
+    coords2: int [N2, 3] level-2 positions in level-2 order; parent: int [N2] each one's
+    level-1 parent (an index into level 1); coords1: int [N1, 3] and attrs1: int [N1, M] the
+    level-1 positions and decoded attributes in quantization units (features first);
+    voxel_scale: the hierarchy's coarse voxel scale s; neighbours: (idx, valid) from
+    ``level2_graph`` (computed when None).
+    Returns mean (int32), level (int8), step_adjust (int8), each [N2, M]: the integer mean of
+    each attribute symbol, its scale level in [0, 64) and its step adjustment in [0, 8).
+    (``GGConvEvaluator`` gives any range of rows; decoders use it chunk by chunk.)
+    """
+    ev = GGConvEvaluator(params, coords2, parent, coords1, attrs1, voxel_scale, neighbours)
+    return ev.rows(0, ev.num_rows, block)
+
+
+class GGConvEvaluator:
+    """GG-Conv coding parameters of any range of level-2 rows: the Ball k-NN graph, the
+    first-layer terms of the level-1 attribute vectors and the geometry table are computed
+    once, so a decoder evaluates a chunk's rows when it decodes that chunk (memory O(chunk)).
 
     Evaluation (informative; bit-exact with the normative text, see the tests against a
     one-anchor-at-a-time Python-integer reference):
     * every quantity is an integer held in float64 and every operation's exact result is an
       integer of magnitude < 2^53, so float64 arithmetic is exact (common/intnn.py);
     * the feature MLP's first layer is linear in its input, and its input is the *unclamped*
-      difference x_j - x_i: its accumulator is
-          A_ij = P_j - P_i + bias + W[:, C:] du_ij,  P_n = W[:, :C] x_n[:C]   (|P| <= C 2^30 < 2^46)
-      so P is computed once per anchor and gathered per edge (|A| < 2^48);
-    * the geometry terms depend only on the offset dp = p_j - p_i, so for small radii they are
+      difference y_j - x_i: its accumulator is
+          A_ij = P(y_j) - P(x_i) + bias + W[:, C:] du_ij,  P(x) = W[:, :C] x[:C]   (|P| <= C 2^30 < 2^46)
+      and every x_i and y_j is the attribute vector of a level-1 anchor (a parent's, or the
+      neighbour's own), so P is computed once per level-1 anchor and gathered per edge (|A| < 2^48);
+    * the geometry terms depend only on the offset dp = q_j - p_i, so for small radii they are
       tabulated once for every dp in [-R, R]^3;
     * edges are laid out densely [block, K]; invalid slots use j = 0 with dp = 0 and are masked
       to zero before the aggregation (sum of at most 64 products |w e| <= 2^30: exact).
     """
-    c, x, c1, x1 = _check_inputs(params, coords2, parent_attrs, voxel_scale, level1)
-    n, m = c.shape[0], params.num_attrs
-    if n == 0:
-        z = np.zeros((0, m), dtype=np.int64)
-        return z, z.copy(), z.copy()
-    n_data = n if params.neighbour_level == 2 else c1.shape[0]
-    if neighbours is None:
-        nbr, valid = level2_graph(params, c, c1)
-    else:
-        nbr, valid = (np.asarray(a) for a in neighbours)
-        if nbr.shape != (n, params.k) or valid.shape != (n, params.k):
-            raise ValueError(f"neighbours must be two [N2, {params.k}] arrays")
-        if valid.any() and (int(nbr[valid].min()) < 0 or int(nbr[valid].max()) >= n_data):
-            raise ValueError("neighbour index out of range")
-    k, cf, ch, r = params.k, params.num_features, params.context_channels, params.radius
-    coords_t = torch.from_numpy(np.ascontiguousarray(c))
-    xi = clamp16(torch.from_numpy(np.ascontiguousarray(x)))
-    xf = xi.to(torch.float64)
-    valid_t = torch.from_numpy(np.ascontiguousarray(valid, dtype=bool))
-    nbr_t = torch.where(valid_t, torch.from_numpy(np.ascontiguousarray(nbr, dtype=np.int64)), 0)
-    local = torch.from_numpy(np.mod(c, np.int64(voxel_scale))).clamp_(0, ACT_MAX).to(torch.float64)
-    n_valid = valid_t.sum(1).to(torch.float64)
-    table_f = torch.from_numpy(params.table.reshape(-1, ch).astype(np.float64))
-    feat0, feat_rest = params.feat_mlp.layers[0], params.feat_mlp.layers[1:]
-    # the first layer's scaled weights and bias (common/intnn.py): every term below is an integer
-    # multiple of 2^-shift of magnitude < 2^(48-shift), exact in float64
-    w0 = feat0._ws  # [C + 3, H]
-    lin0_x, lin0_u, lin0_b = w0[:cf].contiguous(), w0[cf:].contiguous(), feat0._bs
-    hdim = feat0.fan_out
-    p_query = xf[:, :cf] @ lin0_x  # [N2, H]: W[:, :C] x_n 2^-shift, exact
-    if params.neighbour_level == 2:
-        data_coords, p_data = coords_t, p_query
-    else:
-        if n_data == 0:  # no level-1 anchor (every slot invalid): one zero row for the masked gathers
-            c1, x1 = np.zeros((1, 3), np.int64), np.zeros((1, m), np.int64)
-        data_coords = torch.from_numpy(np.ascontiguousarray(c1))
-        p_data = clamp16(torch.from_numpy(np.ascontiguousarray(x1)))[:, :cf].to(torch.float64) @ lin0_x
-    hs = params.h_shift
-    w_scale = 2.0 ** -hs  # folded into the geometry weights: sum_j (w 2^-hs) e is exact (< 2^(36-hs))
 
-    side = 2 * r + 1
-    use_lut = side ** 3 <= min(_LUT_MAX, max(1 << 10, 2 * n * k))
-    if use_lut:
-        ax = torch.arange(-r, r + 1, dtype=torch.int64)
-        grid_dp = torch.stack(torch.meshgrid(ax, ax, ax, indexing="ij"), -1).reshape(-1, 3)
-        lut_lin, lut_w = _geometry_terms(grid_dp, params, table_f, lin0_u, lin0_b)
-        lut_w = torch.cat([lut_w.mul_(w_scale), torch.zeros((1, ch), dtype=torch.float64)])  # last row: invalid slot
-        invalid_code = side ** 3
-    mean = np.empty((n, m), dtype=np.int64)
-    level = np.empty((n, m), dtype=np.int64)
-    adj = np.empty((n, m), dtype=np.int64)
-    for lo in range(0, n, block):
-        hi = min(n, lo + block)
-        nb = hi - lo
-        j = nbr_t[lo:hi].reshape(-1)  # [nb K]
-        v = valid_t[lo:hi].reshape(-1)
-        dp = (data_coords.index_select(0, j).view(nb, k, 3) - coords_t[lo:hi, None, :]).view(-1, 3)
-        dp.mul_(v[:, None])  # invalid slots: dp = 0 (their terms are masked below)
-        if use_lut:
-            code = ((dp[:, 0] + r) * side + (dp[:, 1] + r)) * side + (dp[:, 2] + r)
-            g_lin = lut_lin.index_select(0, code)
-            g_w = lut_w.index_select(0, torch.where(v, code, invalid_code))
+    def __init__(self, params: GGConvParams, coords2, parent, coords1, attrs1, voxel_scale: int,
+                 neighbours: tuple[np.ndarray, np.ndarray] | None = None):
+        c, par, c1, x1 = check_level2_inputs(params.num_attrs, coords2, parent, coords1, attrs1, voxel_scale)
+        self.params, self.num_rows, self.voxel_scale, self.coords = params, c.shape[0], int(voxel_scale), c
+        if self.num_rows == 0:
+            return
+        self.level1_data = params.neighbour_level == 1  # neighbours are level-1 anchors (else level-2 ones)
+        n_data = c1.shape[0] if self.level1_data else self.num_rows
+        if neighbours is None:
+            nbr, valid = level2_graph(params, c, c1)
         else:
-            g_lin, g_w = _geometry_terms(dp, params, table_f, lin0_u, lin0_b)
-            g_w.mul_((v.to(torch.float64) * w_scale)[:, None])
-        acc = p_data.index_select(0, j).view(nb, k, hdim).sub_(p_query[lo:hi, None, :]).view(-1, hdim).add_(g_lin)
-        e = feat0.finish_f64(acc)
-        for layer in feat_rest:
-            e = layer.forward_f64(e)
-        hsum = g_w.mul_(e).view(nb, k, ch).sum(1)  # sum_j w e / 2^hs: |.| <= 64 2^30 / 2^hs, exact
-        if hs:
-            hsum.add_(0.5)
-        h = hsum.floor_().clamp_(ACT_MIN, ACT_MAX)
-        z = torch.cat([h, local[lo:hi], n_valid[lo:hi, None], xf[lo:hi]], 1)
-        o = params.head_mlp.forward_f64(z)
-        mean[lo:hi] = o[:, :m].add_(xf[lo:hi]).clamp_(ACT_MIN, ACT_MAX).numpy()
-        level[lo:hi] = o[:, m:2 * m].clamp(0, NUM_LEVELS - 1).numpy()
-        adj[lo:hi] = o[:, 2 * m:].clamp(0, NUM_STEP_ADJUST - 1).numpy()
-    return mean, level, adj
+            nbr, valid = (np.asarray(a) for a in neighbours)
+            if nbr.shape != (self.num_rows, params.k) or valid.shape != (self.num_rows, params.k):
+                raise ValueError(f"neighbours must be two [N2, {params.k}] arrays")
+            if valid.any() and (int(nbr[valid].min()) < 0 or int(nbr[valid].max()) >= n_data):
+                raise ValueError("neighbour index out of range")
+        ch = params.context_channels
+        self.coords_t = torch.from_numpy(np.ascontiguousarray(c))
+        self.parent_t = torch.from_numpy(np.ascontiguousarray(par))
+        self.valid_t = torch.from_numpy(np.ascontiguousarray(valid, dtype=bool))
+        self.nbr_t = torch.where(self.valid_t, torch.from_numpy(np.ascontiguousarray(nbr, dtype=np.int64)), 0)
+        self.n_valid = self.valid_t.sum(1).to(torch.float64)
+        self.data_coords = torch.from_numpy(np.ascontiguousarray(c1)) if self.level1_data else self.coords_t
+        self.x1f = clamp16(torch.from_numpy(np.ascontiguousarray(x1))).to(torch.float64)  # [N1, M] activations
+        self.table_f = torch.from_numpy(params.table.reshape(-1, ch).astype(np.float64))
+        # the first layer's scaled weights and bias (common/intnn.py): every term below is an integer
+        # multiple of 2^-shift of magnitude < 2^(48-shift), exact in float64
+        feat0 = params.feat_mlp.layers[0]
+        w0 = feat0._ws  # [C + 3, H]
+        cf = params.num_features
+        self.lin0_u, self.lin0_b = w0[cf:].contiguous(), feat0._bs
+        self.p1 = self.x1f[:, :cf] @ w0[:cf].contiguous()  # [N1, H]: W[:, :C] x 2^-shift of each level-1 vector
+        self.w_scale = 2.0 ** -params.h_shift  # folded into the geometry weights: sum_j (w 2^-hs) e is exact
+        r = params.radius
+        self.side = 2 * r + 1
+        self.use_lut = self.side ** 3 <= min(_LUT_MAX, max(1 << 10, 2 * self.num_rows * params.k))
+        if self.use_lut:  # geometry terms of every offset in [-R, R]^3, and a last row for invalid slots
+            ax = torch.arange(-r, r + 1, dtype=torch.int64)
+            grid_dp = torch.stack(torch.meshgrid(ax, ax, ax, indexing="ij"), -1).reshape(-1, 3)
+            self.lut_lin, lut_w = _geometry_terms(grid_dp, params, self.table_f, self.lin0_u, self.lin0_b)
+            self.lut_w = torch.cat([lut_w.mul_(self.w_scale), torch.zeros((1, ch), dtype=torch.float64)])
+            self.invalid_code = self.side ** 3
+
+    def rows(self, lo: int, hi: int, block: int = 1 << 12) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(mean int32, level int8, step_adjust int8), each [hi - lo, M], for level-2 rows lo..hi-1."""
+        params = self.params
+        m, k, ch, r = params.num_attrs, params.k, params.context_channels, params.radius
+        count = max(0, hi - lo)
+        mean = np.empty((count, m), dtype=np.int32)
+        level = np.empty((count, m), dtype=np.int8)
+        adj = np.empty((count, m), dtype=np.int8)
+        if count == 0:
+            return mean, level, adj
+        if not 0 <= lo <= hi <= self.num_rows:
+            raise ValueError(f"rows {lo}..{hi} outside the {self.num_rows} level-2 rows")
+        feat0, feat_rest = params.feat_mlp.layers[0], params.feat_mlp.layers[1:]
+        hdim = feat0.fan_out
+        for b_lo in range(lo, hi, block):
+            b_hi = min(hi, b_lo + block)
+            nb = b_hi - b_lo
+            j = self.nbr_t[b_lo:b_hi].reshape(-1)  # [nb K]
+            v = self.valid_t[b_lo:b_hi].reshape(-1)
+            dp = (self.data_coords.index_select(0, j).view(nb, k, 3) - self.coords_t[b_lo:b_hi, None, :]).view(-1, 3)
+            dp.mul_(v[:, None])  # invalid slots: dp = 0 (their terms are masked below)
+            if self.use_lut:
+                code = ((dp[:, 0] + r) * self.side + (dp[:, 1] + r)) * self.side + (dp[:, 2] + r)
+                g_lin = self.lut_lin.index_select(0, code)
+                g_w = self.lut_w.index_select(0, torch.where(v, code, self.invalid_code))
+            else:
+                g_lin, g_w = _geometry_terms(dp, params, self.table_f, self.lin0_u, self.lin0_b)
+                g_w.mul_((v.to(torch.float64) * self.w_scale)[:, None])
+            pi = self.parent_t[b_lo:b_hi]
+            xf = self.x1f.index_select(0, pi)  # [nb, M]: the parents' attributes x_i
+            y_rows = j if self.level1_data else self.parent_t.index_select(0, j)  # level-1 row of each y_j
+            acc = self.p1.index_select(0, y_rows).view(nb, k, hdim).sub_(self.p1.index_select(0, pi)[:, None, :])
+            e = feat0.finish_f64(acc.view(-1, hdim).add_(g_lin))
+            for layer in feat_rest:
+                e = layer.forward_f64(e)
+            hsum = g_w.mul_(e).view(nb, k, ch).sum(1)  # sum_j w e / 2^hs: |.| <= 64 2^30 / 2^hs, exact
+            if params.h_shift:
+                hsum.add_(0.5)
+            h = hsum.floor_().clamp_(ACT_MIN, ACT_MAX)
+            local = torch.from_numpy(np.mod(self.coords[b_lo:b_hi], np.int64(self.voxel_scale)))
+            z = torch.cat([h, local.clamp_(0, ACT_MAX).to(torch.float64), self.n_valid[b_lo:b_hi, None], xf], 1)
+            o = params.head_mlp.forward_f64(z)
+            out = slice(b_lo - lo, b_hi - lo)
+            mean[out] = o[:, :m].add_(xf).clamp_(ACT_MIN, ACT_MAX).numpy()
+            level[out] = o[:, m:2 * m].clamp_(0, NUM_LEVELS - 1).numpy()
+            adj[out] = o[:, 2 * m:].clamp_(0, NUM_STEP_ADJUST - 1).numpy()
+        return mean, level, adj

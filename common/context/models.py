@@ -58,21 +58,37 @@ def describe_context_model(model) -> str:
     return f"parent MLP, {p.num_parameters():,} parameters of {bits} bits"
 
 
+class Level2CodingParams:
+    """The coding parameters of the level-2 attribute unit, computed for the rows a caller asks
+    for (``rows``, the CodingParams interface the attribute decoder uses chunk by chunk): the
+    context model's graph and level-1 terms are prepared once, the per-row outputs only for the
+    chunk being decoded, so decoding memory grows with the chunk, not with N2."""
+
+    def __init__(self, evaluator):
+        self._evaluator = evaluator
+        self.num_rows = evaluator.num_rows
+
+    def rows(self, lo: int, hi: int, num_channels: int) -> CodingParams:
+        mean, level, adj = self._evaluator.rows(lo, hi)
+        return CodingParams(mean, level, adj)
+
+    def materialize(self) -> CodingParams:
+        """Every row at once (the encoder needs all step adjustments before coding)."""
+        return self.rows(0, self.num_rows, 0)
+
+
 def level2_coding_params(model, coords1: np.ndarray, attrs1: np.ndarray, coords2: np.ndarray,
-                         parent: np.ndarray, voxel_scale: int) -> CodingParams:
+                         parent: np.ndarray, voxel_scale: int) -> Level2CodingParams:
     """Coding parameters of the level-2 attributes from the decoded level 1.
 
     model: (model_id, params) from ``read_context_model``; coords1 int [N1, 3] and attrs1
     int [N1, M]: the level-1 positions and decoded quantized attributes (level-1 order);
     coords2 int [N2, 3]: the level-2 positions; parent int [N2]: each level-2 anchor's parent
-    as an index into level 1 (Annex H, clause H.2); voxel_scale: the coarse voxel scale s."""
+    as an index into level 1 (Annex H, clause H.2); voxel_scale: the coarse voxel scale s.
+    The model's inputs are checked here; rows are computed on demand (``Level2CodingParams``)."""
     model_id, params = model
-    parent_attrs = attrs1[parent]
     if model_id == CONTEXT_GGCONV:
-        from lghcc.common.context.ggconv import ggconv_coding_params
-        mean, level, adj = ggconv_coding_params(params, coords2, parent_attrs, voxel_scale,
-                                                level1=(coords1, attrs1))
-    else:
-        from lghcc.common.context.parent_mlp import parent_mlp_coding_params
-        mean, level, adj = parent_mlp_coding_params(params, coords2, parent_attrs, voxel_scale)
-    return CodingParams(mean, level, adj)
+        from lghcc.common.context.ggconv import GGConvEvaluator
+        return Level2CodingParams(GGConvEvaluator(params, coords2, parent, coords1, attrs1, voxel_scale))
+    from lghcc.common.context.parent_mlp import ParentMlpEvaluator
+    return Level2CodingParams(ParentMlpEvaluator(params, coords2, parent, attrs1, voxel_scale))

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from lghcc.common.context.ggconv import clamp16, split_outputs
+from lghcc.common.context.ggconv import check_level2_inputs, clamp16, split_outputs
 from lghcc.common.context.model_unit import NamedIntArray
 from lghcc.common.intnn import ACT_MAX, WEIGHT_BITS_ALLOWED, IntLinear, IntMLP
 
@@ -72,21 +72,41 @@ class ParentMlpParams:
         return cls(int(np.asarray(by["num_features"].values).ravel()[0]), IntMLP(layers))
 
 
-def parent_mlp_coding_params(params: ParentMlpParams, coords2: np.ndarray, parent_attrs: np.ndarray,
+def parent_mlp_coding_params(params: ParentMlpParams, coords2: np.ndarray, parent: np.ndarray, attrs1: np.ndarray,
                              voxel_scale: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """coords2 int [N2, 3] level-2 positions; parent_attrs int [N2, M] decoded parent attributes
-    in quantization units. Returns mean, level, step_adjust, each int64 [N2, M]."""
-    c = np.asarray(coords2, dtype=np.int64)
-    x = np.asarray(parent_attrs, dtype=np.int64)
-    m = params.num_attrs
-    if x.shape != (c.shape[0], m):
-        raise ValueError(f"parent_attrs must be [N2, {m}], got {list(x.shape)}")
-    local = torch.from_numpy(np.mod(c, np.int64(voxel_scale)).clip(0, ACT_MAX))
-    xpar = clamp16(torch.from_numpy(np.ascontiguousarray(x)))
-    outs = [params.head_mlp(torch.cat([local[lo:lo + _BLOCK], xpar[lo:lo + _BLOCK]], 1))
-            for lo in range(0, c.shape[0], _BLOCK)]
-    if not outs:
-        z = np.zeros((0, m), dtype=np.int64)
-        return z, z.copy(), z.copy()
-    mean, level, adj = split_outputs(torch.cat(outs), xpar, m)
-    return mean.numpy().copy(), level.numpy().copy(), adj.numpy().copy()
+    """coords2 int [N2, 3] level-2 positions; parent int [N2] each one's level-1 parent (an index
+    into level 1); attrs1 int [N1, M] the decoded level-1 attributes in quantization units.
+    Returns mean (int32), level (int8), step_adjust (int8), each [N2, M]."""
+    ev = ParentMlpEvaluator(params, coords2, parent, attrs1, voxel_scale)
+    return ev.rows(0, ev.num_rows)
+
+
+class ParentMlpEvaluator:
+    """Parent-MLP coding parameters of any range of level-2 rows (decoders evaluate a chunk's
+    rows when they decode that chunk: memory O(chunk))."""
+
+    def __init__(self, params: ParentMlpParams, coords2, parent, attrs1, voxel_scale: int):
+        attrs1 = np.asarray(attrs1)
+        c, par, _, x1 = check_level2_inputs(params.num_attrs, coords2, parent,
+                                            np.zeros((attrs1.shape[0] if attrs1.ndim else 0, 3), np.int64), attrs1,
+                                            voxel_scale)
+        self.params, self.coords, self.parent, self.voxel_scale = params, c, par, int(voxel_scale)
+        self.num_rows = c.shape[0]
+        self.x1c = clamp16(torch.from_numpy(np.ascontiguousarray(x1)))
+
+    def rows(self, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(mean int32, level int8, step_adjust int8), each [hi - lo, M], for level-2 rows lo..hi-1."""
+        if not 0 <= lo <= hi <= self.num_rows:
+            raise ValueError(f"rows {lo}..{hi} outside the {self.num_rows} level-2 rows")
+        m = self.params.num_attrs
+        mean = np.empty((hi - lo, m), dtype=np.int32)
+        level = np.empty((hi - lo, m), dtype=np.int8)
+        adj = np.empty((hi - lo, m), dtype=np.int8)
+        for b_lo in range(lo, hi, _BLOCK):
+            b_hi = min(hi, b_lo + _BLOCK)
+            xpar = self.x1c.index_select(0, torch.from_numpy(self.parent[b_lo:b_hi]))
+            local = torch.from_numpy(np.mod(self.coords[b_lo:b_hi], np.int64(self.voxel_scale)).clip(0, ACT_MAX))
+            out = split_outputs(self.params.head_mlp(torch.cat([local, xpar], 1)), xpar, m)
+            for dst, o in zip((mean, level, adj), out):
+                dst[b_lo - lo:b_hi - lo] = o.numpy()
+        return mean, level, adj
