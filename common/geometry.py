@@ -30,7 +30,7 @@ import numpy as np
 
 from lghcc.common.bitio import BitReader, BitWriter
 from lghcc.common.entropy.range_coder import (TOTAL_FREQUENCY, RangeDecoder, RangeEncoder,
-                                              exact_model)
+                                              binary_model)
 from lghcc.common.errors import BitstreamError
 from lghcc.common.syntax import SyntaxStructure, SyntaxVisitor
 
@@ -210,11 +210,11 @@ class _SymbolIO:
         if self.encoding:
             sv = values[order]
             for s, e, f in zip(starts.tolist(), ends.tolist(), f1.tolist()):
-                self.enc.encode(sv[s:e], exact_model(np.array([TOTAL_FREQUENCY - f, f], dtype=np.int64)))
+                self.enc.encode(sv[s:e], binary_model(f))
         else:
             sv = np.empty(n, dtype=np.int64)
             for s, e, f in zip(starts.tolist(), ends.tolist(), f1.tolist()):
-                sv[s:e] = self.dec.decode(e - s, exact_model(np.array([TOTAL_FREQUENCY - f, f], dtype=np.int64)))
+                sv[s:e] = self.dec.decode(e - s, binary_model(f))
             values = np.empty(n, dtype=np.int64)
             values[order] = sv
         values = values.astype(np.int64)

@@ -18,6 +18,7 @@ from lghcc.common.entropy.range_coder import (
     TOTAL_FREQUENCY,
     RangeDecoder,
     RangeEncoder,
+    binary_model,
     check_frequencies,
     exact_model,
 )
@@ -203,6 +204,20 @@ def test_exact_model_extreme_tables():
     data = enc.to_bytes()
     assert len(data) <= 8
     assert np.array_equal(RangeDecoder(data).decode(1000, model), np.zeros(1000))
+
+
+@settings(max_examples=40)
+@given(st.one_of(st.integers(1, TOTAL_FREQUENCY - 1), st.sampled_from([1, 2, TOTAL_FREQUENCY - 1])))
+def test_binary_model_is_the_exact_two_symbol_model(f1):
+    cum, freq = model_frequencies(binary_model(f1), 2)
+    assert freq.tolist() == [TOTAL_FREQUENCY - f1, f1] and cum.tolist() == [0, TOTAL_FREQUENCY - f1]
+    assert binary_model(f1) is binary_model(f1)  # cached
+
+
+@pytest.mark.parametrize("f1", [0, TOTAL_FREQUENCY, -1])
+def test_binary_model_rejects_frequencies_outside_the_table(f1):
+    with pytest.raises(ValueError):
+        binary_model(f1)
 
 
 @pytest.mark.parametrize("bad", [np.array([TOTAL_FREQUENCY - 1]), np.array([0, TOTAL_FREQUENCY]),

@@ -12,6 +12,8 @@ Coded words are serialized as little-endian uint32.
 
 from __future__ import annotations
 
+import functools
+
 import constriction
 import numpy as np
 
@@ -40,6 +42,16 @@ def exact_model(freqs: np.ndarray):
         # second one unit: the same code for the only symbol that can occur.
         f = np.array([TOTAL_FREQUENCY - 1, 1], dtype=np.int64)
     return constriction.stream.model.Categorical((f - 1).astype(np.float64), perfect=False)
+
+
+@functools.lru_cache(maxsize=1 << 14)
+def binary_model(f1: int):
+    """The model of a binary decision whose symbol 1 has frequency f1 (1 <= f1 < 2^24):
+    ``exact_model([2^24 - f1, f1])``, cached because adaptive contexts repeat the same few
+    frequencies thousands of times."""
+    if not 1 <= f1 < TOTAL_FREQUENCY:
+        raise ValueError(f"binary frequency {f1} outside [1, 2^{PRECISION_BITS})")
+    return exact_model(np.array([TOTAL_FREQUENCY - f1, f1], dtype=np.int64))
 
 
 def _uniform(nbits: int):

@@ -195,10 +195,9 @@ def decode_symbols(data: bytes, levels: np.ndarray, what: str = "chunk") -> np.n
                 start = end
             bins[order] = sorted_bins
         half, esc_bin = HALF_WIDTHS[lv], _ESC[lv]
-    out = bins.astype(np.int64)
+    out = np.subtract(bins, half, dtype=np.int64)  # bins become residuals (one pass)
     if bins.size:
         esc = bins == esc_bin
-        out -= half  # in place: bins become residuals
         ne = int(esc.sum())
         if ne:
             neg = dec.decode_bits(1, ne).astype(bool)
