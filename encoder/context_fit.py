@@ -18,7 +18,7 @@ from tqdm.auto import tqdm
 from lghcc.common.context.parent_mlp import ParentMlpParams
 from lghcc.common.intnn import ACT_MAX, ACT_MIN, IntMLP, frac_bits_for, quantize_linear
 from lghcc.common.units import CONTEXT_GGCONV, CONTEXT_PARENT_MLP
-from lghcc.encoder.ggconv_train import GGConvTrainConfig, fit_ggconv, rd_loss
+from lghcc.encoder.ggconv_train import GGConvTrainConfig, choose_parent_base, fit_ggconv, level_of_spread, rd_loss
 
 CONTEXT_MODEL_IDS = {"parent_mlp": CONTEXT_PARENT_MLP, "ggconv": CONTEXT_GGCONV}
 
@@ -52,18 +52,19 @@ def fit_parent_mlp(coords2: np.ndarray, parent_attrs: np.ndarray, targets: np.nd
     scale = 1.0 / spread.clamp_min(1.0)  # input normalization, folded into layer 1 at export
     hidden = cfg.head_hidden
     net = nn.Sequential(nn.Linear(3 + m, hidden), nn.ReLU(), nn.Linear(hidden, 3 * m)).double()
-    with torch.no_grad():  # start from "predict the parent, spread of the residual, no step change"
+    with torch.no_grad():  # start from the best constant prediction (parent or median), no step change
+        base, center, spread = choose_parent_base(tgt, xp)
         net[2].weight.mul_(0.1)
         net[2].bias.zero_()
-        spread = (tgt - xp).abs().mean(0) * 1.25 + 0.05
-        net[2].bias[m:2 * m] = ((spread.log() - np.log(0.11)) / (np.log(512 / 0.11) / 63)).clamp(0, 63)
+        net[2].bias[:m] = center
+        net[2].bias[m:2 * m] = level_of_spread(spread)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     steps = cfg.float_steps + cfg.qat_steps
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.lr, total_steps=max(steps, 1) + 1, pct_start=0.1)
     for _ in tqdm(range(steps), desc="fit parent MLP", disable=not cfg.progress, unit="step"):
         sel = torch.from_numpy(rng.integers(0, rows.size, min(cfg.batch, rows.size)))
         o = net(x_int[sel] * scale)
-        mean = xp[sel] + o[:, :m]
+        mean = xp[sel] * base + o[:, :m]
         level = o[:, m:2 * m].clamp(0, 63)
         adj = o[:, 2 * m:].clamp(0, 7)
         loss, _ = rd_loss(mean, level, adj, tgt[sel], cfg.lam)
@@ -79,7 +80,7 @@ def fit_parent_mlp(coords2: np.ndarray, parent_attrs: np.ndarray, targets: np.nd
         l1, _ = quantize_linear(w1, b1, f1, relu=True, weight_bits=cfg.weight_bits)
         l2, _ = quantize_linear(net[2].weight.numpy() * 2.0 ** -f1, net[2].bias.numpy(), 0, relu=False,
                                 weight_bits=cfg.weight_bits)
-    return ParentMlpParams(num_features, IntMLP([l1, l2]))
+    return ParentMlpParams(num_features, IntMLP([l1, l2]), base.round().to(torch.int64).numpy())
 
 
 def fit_level2_context(kind: str, coords1: np.ndarray, attrs1: np.ndarray, coords2: np.ndarray, parent: np.ndarray,

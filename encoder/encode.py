@@ -228,7 +228,8 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
         chosen = code(header, q, attr.prior_params(header))
         if level == LEVEL_2 and cfg.context_model != "per_channel":
             t2 = time.perf_counter()
-            targets = np.where(level_live, values[rows] / steps.astype(np.float64), 0.0)
+            # dead offsets are not coded: NaN tells the fit to leave them out of the rate
+            targets = np.where(level_live, values[rows] / steps.astype(np.float64), np.nan)
             # GG-Conv with context_neighbour_level "auto": both neighbour levels are fitted, the
             # smaller stream is kept (neither wins on every scene: tools/results/context.md).
             levels_to_try = [1, 2] if cfg.context_model == "ggconv" and cfg.context_neighbour_level == "auto" \

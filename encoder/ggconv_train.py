@@ -189,6 +189,7 @@ class GGConvFloat(nn.Module):
         self.k = cfg.k
         self.radius_sq = 0  # set by train_ggconv_twin
         self.neighbour_level = 2
+        self.register_buffer("parent_base", torch.ones(m, dtype=torch.float64))  # see init_mean_outputs
 
     # -- pieces ---------------------------------------------------------------------------
     def _qs(self, frac: int, n: int) -> torch.Tensor:
@@ -219,7 +220,7 @@ class GGConvFloat(nn.Module):
             o = self._mlp(self.head, z, torch.cat([self._qs(self.frac["h"], self.ch), self.head_q_raw]))
             lv = _inward_clamp(o[:, self.m:2 * self.m], 0, NUM_LEVELS - 1)
             adj = _inward_clamp(o[:, 2 * self.m:], 0, NUM_STEP_ADJUST - 1)
-            return _ste_clamp(batch["head_raw"][:, 4:] + o[:, :self.m], ACT_MIN, ACT_MAX), lv, adj
+            return _ste_clamp(batch["head_raw"][:, 4:] * self.parent_base + o[:, :self.m], ACT_MIN, ACT_MAX), lv, adj
         x = fin * self.feat_q
         h1 = self.feat[0](x, None, False)
         e = self.feat[1](h1, None, False)
@@ -233,7 +234,7 @@ class GGConvFloat(nn.Module):
                 collect[key] = max(collect.get(key, 0.0), float(v.abs().max()) if v.numel() else 0.0)
         lv = _inward_clamp(o[:, self.m:2 * self.m], 0, NUM_LEVELS - 1)
         adj = _inward_clamp(o[:, 2 * self.m:], 0, NUM_STEP_ADJUST - 1)
-        return batch["head_raw"][:, 4:] + o[:, :self.m], lv, adj
+        return batch["head_raw"][:, 4:] * self.parent_base + o[:, :self.m], lv, adj
 
     def start_quantization(self, stats: dict) -> None:
         """Choose every power-of-two scale from calibration maxima; switch to integer emulation."""
@@ -257,7 +258,8 @@ class GGConvFloat(nn.Module):
                        self.feat[1].export(self._qs(self.feat[0].out_frac, self.feat[0].lin.out_features))])
         head = IntMLP([self.head[0].export(torch.cat([self._qs(self.frac["h"], self.ch), self.head_q_raw])),
                        self.head[1].export(self._qs(self.head[0].out_frac, self.head[0].lin.out_features))])
-        return GGConvParams(num_features, k, radius_sq, table, self.frac["h_shift"], feat, head, neighbour_level)
+        return GGConvParams(num_features, k, radius_sq, table, self.frac["h_shift"], feat, head, neighbour_level,
+                            self.parent_base.round().to(torch.int64).numpy())
 
 
 # -- data -----------------------------------------------------------------------------------
@@ -330,11 +332,13 @@ def gaussian_bits(y: torch.Tensor, mu: torch.Tensor, sigma: torch.Tensor) -> tor
 
 
 def rd_loss(mean, level, adj, targets, lam: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """(loss, bits) per anchor, summed over channels."""
+    """(loss, bits) per anchor, summed over the coded channels (a NaN target is an entry that is
+    not coded, a dead offset: it costs nothing)."""
+    live = torch.isfinite(targets)
     sigma = torch.exp(_LOG_SIGMA0 + _LOG_SIGMA_STEP * level)
-    y = _ste_round(targets * torch.exp2(-adj / 4))
-    bits = gaussian_bits(y, mean, sigma).sum(1)
-    dist = (torch.exp2(adj / 2) / 12).sum(1)
+    y = _ste_round(torch.where(live, targets, 0.0) * torch.exp2(-adj / 4))
+    bits = (gaussian_bits(y, mean, sigma) * live).sum(1)
+    dist = (torch.exp2(adj / 2) / 12 * live).sum(1)
     return bits + lam * dist, bits
 
 
@@ -348,7 +352,8 @@ def fit_ggconv(coords2, parent, coords1, attrs1, targets, num_features: int, vox
     coords2: int [N2, 3] level-2 positions (level-2 order); parent: int [N2] their level-1
     parents; coords1 int [N1, 3] and attrs1 int [N1, M]: the level-1 positions and decoded
     attributes in quantization units (features first) (the inputs of ``ggconv_coding_params``);
-    targets: float [N2, M] the level-2 attributes in base quantization steps; voxel_scale: the
+    targets: float [N2, M] the level-2 attributes in base quantization steps (NaN: an entry that
+    is not coded, a dead offset; the fit ignores it); voxel_scale: the
     hierarchy's s; neighbours: the Ball k-NN graph when already computed with the config's k,
     radius_sq and neighbour_level. Returns the quantized parameters.
     """
@@ -397,16 +402,7 @@ def train_ggconv_twin(coords2, parent, coords1, attrs1, targets, num_features: i
     model = GGConvFloat(num_features, m, cfg, feat_q, head_q_raw)
     model.radius_sq = radius_sq
     model.neighbour_level = cfg.neighbour_level
-    # initial output biases: mean 0, level of each channel's spread (about the parent), no adjustment
-    with torch.no_grad():
-        resid = data.targets - hr[:, 4:]
-        spread = resid.abs().mean(0) * 1.25 + 0.05
-        lv = ((spread.log() - _LOG_SIGMA0) / _LOG_SIGMA_STEP).clamp(0, NUM_LEVELS - 1)
-        last = model.head[1].lin
-        last.weight.mul_(0.1)
-        last.bias.zero_()
-        last.bias[m:2 * m] = lv
-        last.bias[2 * m:] = 0.25
+    init_mean_outputs(model, data.targets, hr[:, 4:])
     # One-cycle learning rate (warm-up, then cosine decay): measured on a 20k-anchor procedural
     # scene, it converges in a quarter of the steps of a constant rate.
     bar = tqdm(total=cfg.float_steps + cfg.qat_steps, desc="fit GG-Conv", disable=not cfg.progress, unit="step")
@@ -435,6 +431,44 @@ def train_ggconv_twin(coords2, parent, coords1, attrs1, targets, num_features: i
         bar.set_postfix(kept="QAT" if best_model is model else "PTQ")
     bar.close()
     return best, best_model
+
+
+def choose_parent_base(targets: torch.Tensor, xpar: torch.Tensor
+                       ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Per channel (float [M] each): parent_base (1: the parent's value is the base of the mean,
+    chosen when it predicts the channel better, by mean absolute residual, than the channel's
+    median; on real scenes the median wins on most channels, tools/results/context.md), the
+    initial output bias of the mean (0, or the median) and the spread of the residual about
+    that prediction (the initial scale)."""
+    m = targets.shape[1]
+    one = torch.ones(m, dtype=torch.float64)
+    if not targets.shape[0]:
+        return one, torch.zeros(m, dtype=torch.float64), one
+    med = targets.nanmedian(0).values.nan_to_num(0.0)  # NaN: not coded; a channel never coded gets 0
+    r_par, r_med = (targets - xpar).abs().nanmean(0), (targets - med).abs().nanmean(0)
+    base = torch.where(r_med.isnan(), one, (r_par < r_med).to(torch.float64))
+    spread = torch.where(base > 0, r_par, r_med).nan_to_num(1.0) * 1.25 + 0.05
+    return base, med * (1 - base), spread
+
+
+def level_of_spread(spread: torch.Tensor) -> torch.Tensor:
+    """The (real-valued) scale level whose nominal sigma is ``spread`` steps."""
+    return ((spread.log() - _LOG_SIGMA0) / _LOG_SIGMA_STEP).clamp(0, NUM_LEVELS - 1)
+
+
+def init_mean_outputs(model: GGConvFloat, targets: torch.Tensor, xpar: torch.Tensor) -> None:
+    """Set the model's parent_base (``choose_parent_base``) and start its head's last layer from
+    that constant prediction and its spread, with no step adjustment."""
+    m = targets.shape[1]
+    with torch.no_grad():
+        base, center, spread = choose_parent_base(targets, xpar)
+        model.parent_base.copy_(base)
+        last = model.head[1].lin
+        last.weight.mul_(0.1)
+        last.bias.zero_()
+        last.bias[:m] = center
+        last.bias[m:2 * m] = level_of_spread(spread)
+        last.bias[2 * m:] = 0.25
 
 
 def _train_phase(model: GGConvFloat, data: _Data, cfg: GGConvTrainConfig, rng, lr: float, steps: int, bar) -> None:
@@ -485,8 +519,10 @@ def estimated_rate_bits(params: GGConvParams, coords2, parent, coords1, attrs1, 
 
     mean, level, adj = ggconv_coding_params(params, coords2, parent, coords1, attrs1, voxel_scale, neighbours)
     f = STEP_ADJUST_FACTORS[adj].astype(np.float64)
-    sym = np.floor(np.asarray(targets, dtype=np.float64) / f + 0.5).astype(np.int64)
-    return ideal_code_length_bits(sym - mean, level), adj
+    t = np.asarray(targets, dtype=np.float64)
+    live = np.isfinite(t)  # NaN: not coded
+    sym = np.floor(np.where(live, t, 0.0) / f + 0.5).astype(np.int64)
+    return ideal_code_length_bits((sym - mean)[live], level[live]), np.where(live, adj, 0)
 def zero_mean_prior_bits(targets) -> float:
     """Reference: each channel coded with one zero-mean Gaussian level fitted to its RMS."""
     from lghcc.common.entropy.symbol_coder import ideal_code_length_bits, level_for_sigma

@@ -36,7 +36,7 @@ from lghcc.common.context.ggconv import GRID_FRAC_BITS, grid_coordinate, neighbo
 from lghcc.common.geometry import normative_order
 from lghcc.common.hierarchy import build_hierarchy
 from lghcc.encoder.ggconv_train import (_LOG_SIGMA0, _LOG_SIGMA_STEP, GGConvFloat, GGConvTrainConfig, _pow2_scale,
-                                        default_radius_sq, gaussian_bits)
+                                        default_radius_sq, gaussian_bits, init_mean_outputs)
 
 
 def _ste_round(x: torch.Tensor) -> torch.Tensor:
@@ -104,13 +104,7 @@ class AnchorRateModel(nn.Module):
         head_q = torch.tensor([_pow2_scale(float(voxel_scale) / 2)] * 3 + [2.0 ** -3]
                               + [_pow2_scale(float(v)) for v in xstd], dtype=torch.float64)
         self.twin = GGConvFloat(num_features, m, cfg, feat_q, head_q)
-        with torch.no_grad():  # start from "predict the parent, with the spread of the residual"
-            resid = y[self.l2] - x1[parent]
-            spread2 = resid.abs().mean(0) * 1.25 + 0.05
-            last = self.twin.head[1].lin
-            last.weight.mul_(0.1)
-            last.bias.zero_()
-            last.bias[m:2 * m] = ((spread2.log() - _LOG_SIGMA0) / _LOG_SIGMA_STEP).clamp(0, 63)
+        init_mean_outputs(self.twin, y[self.l2], x1[parent])  # parent_base as the codec's fit chooses it
 
     @property
     def num_level1(self) -> int:

@@ -30,7 +30,8 @@ def random_params(rng, c=6, koff=2, ch=5, hid=7, hid2=9, k=8, radius_sq=6, grid=
 
     return GGConvParams(c, k, radius_sq, rng.integers(-2 ** 15, 2 ** 15, (grid, grid, grid, ch)), 15,
                         IntMLP([lin(c + 3, hid, True), lin(hid, ch, False)]),
-                        IntMLP([lin(ch + 4 + m, hid2, True), lin(hid2, 3 * m, False)]), neighbour_level)
+                        IntMLP([lin(ch + 4 + m, hid2, True), lin(hid2, 3 * m, False)]), neighbour_level,
+                        rng.integers(0, 2, m))
 
 
 def own_parents(p: GGConvParams, coords, x, s, *args, **kw):
@@ -87,7 +88,7 @@ def reference(p: GGConvParams, coords, xpar, s, level1=None):
         h = [cl(rs(v, p.h_shift)) for v in hsum]
         loc = [cl(int(coords[i][a]) % s) for a in range(3)]
         o = mlp(p.head_mlp, h + loc + [len(nb)] + x[i])
-        out.append(([cl(x[i][q] + o[q]) for q in range(m)], [min(63, max(0, v)) for v in o[m:2 * m]],
+        out.append(([cl(int(p.parent_base[q]) * x[i][q] + o[q]) for q in range(m)], [min(63, max(0, v)) for v in o[m:2 * m]],
                     [min(7, max(0, v)) for v in o[2 * m:]]))
     return [np.array([o[q] for o in out], dtype=np.int64).reshape(n, m) for q in range(3)]
 
@@ -219,7 +220,9 @@ def test_serialization_round_trip_and_errors():
     rng = np.random.default_rng(5)
     p = random_params(rng)
     arrays = p.to_arrays()
-    assert [a.name for a in arrays][:6] == ["num_features", "neighbour_level", "k", "radius_sq", "h_shift", "table"]
+    assert [a.name for a in arrays][:7] == ["num_features", "neighbour_level", "parent_base", "k", "radius_sq",
+                                            "h_shift", "table"]
+    assert {a.name: a.bits for a in arrays}["parent_base"] == 1
     assert {a.name: a.bits for a in arrays}["table"] == 16 and {a.name: a.bits for a in arrays}["feat.0.bias"] == 32
     q = GGConvParams.from_arrays(arrays)
     c = _scene(rng, 60)
@@ -237,6 +240,54 @@ def test_serialization_round_trip_and_errors():
            for a in arrays]
     with pytest.raises(ValueError, match="neighbour_level"):
         GGConvParams.from_arrays(bad)
+    for values in (np.ones(p.num_attrs - 1, np.int64), np.full(p.num_attrs, 2)):
+        bad = [NamedIntArray(a.name, values, 8, False) if a.name == "parent_base" else a for a in arrays]
+        with pytest.raises(ValueError, match="parent_base"):
+            GGConvParams.from_arrays(bad)
+
+
+def test_parent_mlp_matches_independent_reference():
+    """Spec H.6 one anchor at a time in Python integers, parent_base mixed."""
+    from lghcc.common.context.parent_mlp import ParentMlpParams, parent_mlp_coding_params
+
+    rng = np.random.default_rng(21)
+    c, m, s = 4, 4 + 6 + 6, 3
+    cl = lambda v, lo=ACT_MIN: max(lo, min(ACT_MAX, v))  # noqa: E731
+    lin = lambda i, o, relu: IntLinear(rng.integers(-3000, 3001, (o, i)), rng.integers(-50000, 50000, o), 11, relu)  # noqa: E731
+    p = ParentMlpParams(c, IntMLP([lin(3 + m, 9, True), lin(9, 3 * m, False)]), rng.integers(0, 2, m))
+    q = ParentMlpParams.from_arrays(p.to_arrays())
+    assert np.array_equal(q.parent_base, p.parent_base)
+    coords2 = rng.integers(-40, 40, (50, 3))
+    attrs1 = rng.integers(-40000, 40000, (7, m))  # beyond 16 bits: clamped as x_i
+    parent = rng.integers(0, 7, 50)
+    got = parent_mlp_coding_params(q, coords2, parent, attrs1, s)
+    for i in range(50):
+        x = [cl(int(v)) for v in attrs1[parent[i]]]
+        h = [cl(int(v) % s) for v in coords2[i]] + x
+        for layer in p.head_mlp.layers:
+            h = [cl((int(layer.bias[o]) + sum(int(layer.weight[o, j]) * h[j] for j in range(len(h)))
+                     + (1 << (layer.shift - 1))) >> layer.shift, 0 if layer.relu else ACT_MIN)
+                 for o in range(layer.fan_out)]
+        assert got[0][i].tolist() == [cl(int(p.parent_base[q_]) * x[q_] + h[q_]) for q_ in range(m)]
+        assert got[1][i].tolist() == [min(63, max(0, v)) for v in h[m:2 * m]]
+        assert got[2][i].tolist() == [min(7, max(0, v)) for v in h[2 * m:]]
+
+
+def test_parent_base_is_chosen_per_channel():
+    """Channels a parent predicts keep it as the mean's base; the others start from their median."""
+    from lghcc.encoder.ggconv_train import choose_parent_base
+
+    rng = np.random.default_rng(3)
+    xpar = torch.from_numpy(rng.normal(0, 30, (4000, 6)))
+    targets = xpar.clone()
+    targets[:, :3] += torch.from_numpy(rng.normal(0, 1, (4000, 3)))  # follow the parent
+    targets[:, 3:] = torch.from_numpy(rng.normal(7, 2, (4000, 3)))  # independent of it
+    base, center, spread = choose_parent_base(targets, xpar)
+    assert base.tolist() == [1, 1, 1, 0, 0, 0]
+    assert center[:3].abs().max() == 0 and torch.allclose(center[3:], torch.full((3,), 7.0, dtype=torch.float64), atol=0.2)
+    assert (spread[:3] < 1.5).all() and (spread[3:] > 1.5).all()
+    b0, c0, s0 = choose_parent_base(targets[:0], xpar[:0])  # no rows: the parent, unit spread
+    assert b0.tolist() == [1] * 6 and c0.abs().max() == 0
 
 
 def test_step_adjust_factors_frozen():
@@ -302,3 +353,31 @@ def test_large_radius_without_offset_table_matches_reference():
     x = rng.choice([ACT_MIN, ACT_MAX, 0, 7, -300], (len(c), p.num_attrs))
     got = own_parents(p, c, x, 5, block=4)
     assert all(np.array_equal(a, b) for a, b in zip(got, reference(p, c, x, 5)))
+
+
+def test_entries_that_are_not_coded_cost_nothing_in_the_fit():
+    """NaN targets (dead offsets) leave the rate-distortion loss and the initial prediction
+    exactly as if those entries were absent."""
+    from lghcc.encoder.ggconv_train import choose_parent_base, rd_loss
+
+    rng = np.random.default_rng(8)
+    targets = torch.from_numpy(rng.normal(3, 4, (300, 5)))
+    mean, level = torch.from_numpy(rng.normal(3, 1, (300, 5))), torch.full((300, 5), 20.0, dtype=torch.float64)
+    adj = torch.from_numpy(rng.integers(0, 3, (300, 5)).astype(np.float64))
+    dead = torch.from_numpy(rng.random((300, 5)) < 0.4)
+    with_nan = torch.where(dead, torch.nan, targets)
+    loss, bits = rd_loss(mean, level, adj, with_nan, 16.0)
+    assert torch.isfinite(loss).all()
+    for r in range(0, 300, 37):
+        live = ~dead[r]
+        l_ref, b_ref = rd_loss(mean[r:r + 1, live], level[r:r + 1, live], adj[r:r + 1, live], targets[r:r + 1, live], 16.0)
+        assert torch.allclose(loss[r], l_ref[0]) and torch.allclose(bits[r], b_ref[0])
+    xpar = torch.from_numpy(rng.normal(0, 4, (300, 5)))
+    base, center, spread = choose_parent_base(with_nan, xpar)
+    for ch in range(5):
+        live = ~dead[:, ch]
+        b1, c1, s1 = choose_parent_base(targets[live, ch:ch + 1], xpar[live, ch:ch + 1])
+        assert base[ch] == b1[0] and torch.allclose(center[ch], c1[0]) and torch.allclose(spread[ch], s1[0])
+    never = torch.full((300, 5), torch.nan, dtype=torch.float64)  # a channel never coded: finite start
+    b0, c0, s0 = choose_parent_base(never, xpar)
+    assert torch.isfinite(c0).all() and torch.isfinite(s0).all()

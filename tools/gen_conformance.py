@@ -222,7 +222,8 @@ def _hand_ggconv(units, spec: dict):
     head_layers.append(IntLinear(w, bias, 0, False, 8))
     p = GGConvParams(num_features=c, neighbour_level=int(spec.get("neighbour_level", 2)), k=int(spec.get("k", 2)),
                      radius_sq=int(spec.get("radius_sq", 64)),
-                     table=table, h_shift=0, feat_mlp=IntMLP(feat_layers), head_mlp=IntMLP(head_layers))
+                     table=table, h_shift=0, feat_mlp=IntMLP(feat_layers), head_mlp=IntMLP(head_layers),
+                     parent_base=np.arange(m) % 2)  # both kinds of channel mean (Annex H.5.3 step 6)
     arrays = []
     for a in p.to_arrays():
         v = np.asarray(a.values)
@@ -411,6 +412,7 @@ Tags of test.yaml `tools`, derived from the reference decoder's result (never wr
   hierarchy             hierarchy_enabled_flag = 1 (two attribute units)
   per_channel_prior, parent_mlp_context, ggconv_context   the context_model_id of an attribute unit
   ggconv_neighbour_level_<n>   a GG-Conv model whose neighbours are the level-n anchors (Annex H.5)
+  context_parent_base_<b>      a context model with a channel whose parent_base is b (Annex H.5.3)
   context_model_unit    a context-model unit
   offset_mask           offset_mask_present_flag = 1
   chunks                an attribute unit with more than one chunk; empty_chunk: a chunk of 0 bytes
@@ -518,6 +520,7 @@ def derive_tools(data: bytes) -> list[str]:
             model_id, params = read_context_model(u.payload, ChannelLayout(sc.feature_dim, sc.num_offsets))
             if model_id == CONTEXT_GGCONV:
                 tags.add(f"ggconv_neighbour_level_{params.neighbour_level}")
+            tags.update(f"context_parent_base_{b}" for b in np.unique(params.parent_base).tolist())
     if esc.count:
         tags.add("escape")
     infos = element_infos()

@@ -17,7 +17,8 @@ Per level-2 anchor i (rows in level-2 order), with x_i the parent's decoded attr
    feature differences are NOT clamped (17-bit inputs of the first layer, |acc| < 2^48).
 4. h_i = clamp16(rshift_round(sum_j valid_ij * w_ij * e_ij, h_shift)).
 5. o_i = head_mlp([h_i, clamp(p_i mod s, 0, 32767) (3), n_valid_i, x_i]), 3M outputs;
-   mean = clamp16(x_i + o[0:M]) (the parent's value is the base of the prediction),
+   mean = clamp16(parent_base * x_i + o[0:M]) (parent_base[m] = 1: the parent's value is the
+   base of channel m's prediction; 0: o alone, for channels a parent does not predict),
    level = clamp(o[M:2M], 0, 63), step_adjust = clamp(o[2M:3M], 0, 7).
 
 Bounds: trilinear sum |.| <= 2^24 * 2^15 = 2^39; sum_j |w e| <= MAX_K * 2^30 = 2^36; the MLPs
@@ -66,6 +67,7 @@ class GGConvParams:
     feat_mlp: IntMLP  # C + 3 -> ... -> Ch
     head_mlp: IntMLP  # Ch + 3 + 1 + M -> ... -> 3 M
     neighbour_level: int = 2  # NEIGHBOUR_LEVELS: the hierarchy level whose anchors are the neighbours
+    parent_base: np.ndarray | None = None  # int [M] of 0/1 (None: all 1), see check_parent_base
 
     def __post_init__(self) -> None:
         t = np.asarray(self.table)
@@ -100,6 +102,7 @@ class GGConvParams:
             for l, layer in enumerate(mlp.layers):
                 if layer.relu != (l < len(mlp.layers) - 1):
                     raise ValueError(f"{name} MLP: ReLU follows every layer but the last")
+        self.parent_base = check_parent_base(self.parent_base, m)
 
     @property
     def grid_size(self) -> int:
@@ -123,11 +126,12 @@ class GGConvParams:
     # -- serialization -----------------------------------------------------------------------
     def to_arrays(self) -> list[NamedIntArray]:
         """Flat list of named integer arrays with their bit widths, in a fixed order:
-        num_features (u16), neighbour_level (u8), k (u8), radius_sq (u62), h_shift (u8), table (s16 [D,D,D,Ch]),
+        num_features (u16), neighbour_level (u8), parent_base (u1 [M]), k (u8), radius_sq (u62), h_shift (u8), table (s16 [D,D,D,Ch]),
         then for mlp in (feat, head), for each layer l: {mlp}.{l}.weight (s8 or s16 [out, in]),
         {mlp}.{l}.bias (s32 [out]), {mlp}.{l}.shift (u8). ReLU follows every layer but the last."""
         out = [NamedIntArray("num_features", np.array(self.num_features, dtype=np.int64), 16, False),
                NamedIntArray("neighbour_level", np.array(self.neighbour_level, dtype=np.int64), 8, False),
+               NamedIntArray("parent_base", self.parent_base.copy(), 1, False),
                NamedIntArray("k", np.array(self.k, dtype=np.int64), 8, False),
                NamedIntArray("radius_sq", np.array(self.radius_sq, dtype=np.int64), 62, False),
                NamedIntArray("h_shift", np.array(self.h_shift, dtype=np.int64), 8, False),
@@ -179,7 +183,8 @@ class GGConvParams:
                 raise ValueError(f"the {name} MLP has no layers")
             return IntMLP([IntLinear(w, b, s, i < len(layers) - 1, wb) for i, (w, b, s, wb) in enumerate(layers)])
 
-        p = cls(num_features=get("num_features", True), neighbour_level=get("neighbour_level", True), k=get("k", True),
+        p = cls(num_features=get("num_features", True), neighbour_level=get("neighbour_level", True),
+                parent_base=get("parent_base")[0], k=get("k", True),
                 radius_sq=get("radius_sq", True), h_shift=get("h_shift", True), table=get("table")[0],
                 feat_mlp=mlp("feat"), head_mlp=mlp("head"))
         if by:
@@ -188,6 +193,20 @@ class GGConvParams:
 
 
 # -- normative building blocks, shared with the float twin (encoder/ggconv_train.py) ----------
+
+def check_parent_base(parent_base, num_attrs: int) -> np.ndarray:
+    """The per-channel parent_base flags as int64 [M] (None: every channel 1); ValueError
+    unless shape [M] with values in {0, 1}."""
+    if parent_base is None:
+        return np.ones(num_attrs, dtype=np.int64)
+    b = np.asarray(parent_base)
+    if b.shape != (num_attrs,) or (b.size and not np.issubdtype(b.dtype, np.integer) and b.dtype != bool):
+        raise ValueError(f"parent_base must be integer [M] = [{num_attrs}], got {b.dtype} {list(b.shape)}")
+    b = b.astype(np.int64)
+    if b.size and (int(b.min()) < 0 or int(b.max()) > 1):
+        raise ValueError("parent_base values must be 0 or 1")
+    return b
+
 
 def clamp16(x):
     return x.clamp(ACT_MIN, ACT_MAX) if isinstance(x, torch.Tensor) else np.clip(x, ACT_MIN, ACT_MAX)
@@ -260,9 +279,12 @@ def head_inputs(h: torch.Tensor, local_pos: torch.Tensor, n_valid: torch.Tensor,
     return torch.cat([h, local_pos.clamp(0, ACT_MAX), n_valid[:, None], xpar], 1)
 
 
-def split_outputs(o: torch.Tensor, xpar: torch.Tensor, m: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """mean = clamp16(parent value + o[0:M]); level, step_adjust: o clamped to their ranges."""
-    return (clamp16(xpar + o[:, :m]), o[:, m:2 * m].clamp(0, NUM_LEVELS - 1),
+def split_outputs(o: torch.Tensor, xpar: torch.Tensor, parent_base: np.ndarray, m: int
+                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """mean = clamp16(parent_base * parent value + o[0:M]); level, step_adjust: o clamped to
+    their ranges."""
+    base = torch.from_numpy(parent_base).to(xpar.dtype)
+    return (clamp16(xpar * base + o[:, :m]), o[:, m:2 * m].clamp(0, NUM_LEVELS - 1),
             o[:, 2 * m:].clamp(0, NUM_STEP_ADJUST - 1))
 
 
@@ -385,6 +407,7 @@ class GGConvEvaluator:
         self.n_valid = self.valid_t.sum(1).to(torch.float64)
         self.data_coords = torch.from_numpy(np.ascontiguousarray(c1)) if self.level1_data else self.coords_t
         self.x1f = clamp16(torch.from_numpy(np.ascontiguousarray(x1))).to(torch.float64)  # [N1, M] activations
+        self.base_f = torch.from_numpy(params.parent_base).to(torch.float64)
         self.table_f = torch.from_numpy(params.table.reshape(-1, ch).astype(np.float64))
         # the first layer's scaled weights and bias (common/intnn.py): every term below is an integer
         # multiple of 2^-shift of magnitude < 2^(48-shift), exact in float64
@@ -447,7 +470,7 @@ class GGConvEvaluator:
             z = torch.cat([h, local.clamp_(0, ACT_MAX).to(torch.float64), self.n_valid[b_lo:b_hi, None], xf], 1)
             o = params.head_mlp.forward_f64(z)
             out = slice(b_lo - lo, b_hi - lo)
-            mean[out] = o[:, :m].add_(xf).clamp_(ACT_MIN, ACT_MAX).numpy()
+            mean[out] = o[:, :m].add_(xf.mul_(self.base_f)).clamp_(ACT_MIN, ACT_MAX).numpy()
             level[out] = o[:, m:2 * m].clamp_(0, NUM_LEVELS - 1).numpy()
             adj[out] = o[:, 2 * m:].clamp_(0, NUM_STEP_ADJUST - 1).numpy()
         return mean, level, adj

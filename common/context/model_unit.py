@@ -37,10 +37,10 @@ def array_names(model_id: int, feat_layers: int, head_layers: int) -> list[str]:
     def mlp(name: str, layers: int) -> list[str]:
         return [f"{name}.{l}.{part}" for l in range(layers) for part in ("weight", "bias", "shift")]
     if model_id == CONTEXT_GGCONV:
-        return (["num_features", "neighbour_level", "k", "radius_sq", "h_shift", "table"]
+        return (["num_features", "neighbour_level", "parent_base", "k", "radius_sq", "h_shift", "table"]
                 + mlp("feat", feat_layers) + mlp("head", head_layers))
     if model_id == CONTEXT_PARENT_MLP:
-        return ["num_features"] + mlp("head", head_layers)
+        return ["num_features", "parent_base"] + mlp("head", head_layers)
     raise ValueError(f"context model {model_id} has no parameters")
 
 

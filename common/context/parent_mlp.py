@@ -4,7 +4,8 @@ position inside its coarse voxel and its parent's decoded attributes gives, per 
 channel, the mean, the scale level and the step adjustment:
 
     o_i = head_mlp([clamp(p_i mod s, 0, 32767) (3), x_i])       x_i = clamp16(parent attributes)
-    mean = clamp16(x_i + o[0:M]);  level = clamp(o[M:2M], 0, 63);  step_adjust = clamp(o[2M:3M], 0, 7)
+    mean = clamp16(parent_base * x_i + o[0:M]);  level = clamp(o[M:2M], 0, 63);
+    step_adjust = clamp(o[2M:3M], 0, 7)
 
 with the integer network arithmetic of common/intnn.py and the output mapping shared with
 GG-Conv (``split_outputs``).
@@ -17,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from lghcc.common.context.ggconv import check_level2_inputs, clamp16, split_outputs
+from lghcc.common.context.ggconv import check_level2_inputs, check_parent_base, clamp16, split_outputs
 from lghcc.common.context.model_unit import NamedIntArray
 from lghcc.common.intnn import ACT_MAX, WEIGHT_BITS_ALLOWED, IntLinear, IntMLP
 
@@ -29,6 +30,7 @@ _BLOCK = 1 << 16
 class ParentMlpParams:
     num_features: int
     head_mlp: IntMLP  # 3 + M -> ... -> 3 M
+    parent_base: np.ndarray | None = None  # int [M] of 0/1 (None: all 1): the parent's value is the mean's base
 
     def __post_init__(self) -> None:
         m = self.head_mlp.out_dim // 3
@@ -40,6 +42,7 @@ class ParentMlpParams:
         for l, layer in enumerate(self.head_mlp.layers):
             if layer.relu != (l < len(self.head_mlp.layers) - 1):
                 raise ValueError("head MLP: ReLU follows every layer but the last")
+        self.parent_base = check_parent_base(self.parent_base, m)
 
     @property
     def num_attrs(self) -> int:
@@ -49,7 +52,8 @@ class ParentMlpParams:
         return self.head_mlp.num_parameters()
 
     def to_arrays(self) -> list[NamedIntArray]:
-        out = [NamedIntArray("num_features", np.array(self.num_features, dtype=np.int64), 16, False)]
+        out = [NamedIntArray("num_features", np.array(self.num_features, dtype=np.int64), 16, False),
+               NamedIntArray("parent_base", self.parent_base.copy(), 1, False)]
         for l, layer in enumerate(self.head_mlp.layers):
             out += [NamedIntArray(f"head.{l}.weight", layer.weight.copy(), layer.weight_bits, True),
                     NamedIntArray(f"head.{l}.bias", layer.bias.copy(), 32, True),
@@ -59,17 +63,18 @@ class ParentMlpParams:
     @classmethod
     def from_arrays(cls, arrays: list[NamedIntArray]) -> "ParentMlpParams":
         by = {a.name: a for a in arrays}
-        if len(by) != len(arrays) or "num_features" not in by:
+        if len(by) != len(arrays) or "num_features" not in by or "parent_base" not in by:
             raise ValueError("malformed parent-MLP parameters")
         layers = []
-        n = (len(arrays) - 1) // 3
+        n = (len(arrays) - 2) // 3
         for l in range(n):
             w, b, s = by[f"head.{l}.weight"], by[f"head.{l}.bias"], by[f"head.{l}.shift"]
             if w.bits not in WEIGHT_BITS_ALLOWED or np.asarray(s.values).size != 1:
                 raise ValueError(f"head.{l}: weight bits must be one of {WEIGHT_BITS_ALLOWED} and the shift a scalar")
             layers.append(IntLinear(np.asarray(w.values), np.asarray(b.values), int(np.asarray(s.values).ravel()[0]),
                                     l < n - 1, w.bits))
-        return cls(int(np.asarray(by["num_features"].values).ravel()[0]), IntMLP(layers))
+        return cls(int(np.asarray(by["num_features"].values).ravel()[0]), IntMLP(layers),
+                   np.asarray(by["parent_base"].values))
 
 
 def parent_mlp_coding_params(params: ParentMlpParams, coords2: np.ndarray, parent: np.ndarray, attrs1: np.ndarray,
@@ -106,7 +111,7 @@ class ParentMlpEvaluator:
             b_hi = min(hi, b_lo + _BLOCK)
             xpar = self.x1c.index_select(0, torch.from_numpy(self.parent[b_lo:b_hi]))
             local = torch.from_numpy(np.mod(self.coords[b_lo:b_hi], np.int64(self.voxel_scale)).clip(0, ACT_MAX))
-            out = split_outputs(self.params.head_mlp(torch.cat([local, xpar], 1)), xpar, m)
+            out = split_outputs(self.params.head_mlp(torch.cat([local, xpar], 1)), xpar, self.params.parent_base, m)
             for dst, o in zip((mean, level, adj), out):
                 dst[b_lo - lo:b_hi - lo] = o.numpy()
         return mean, level, adj
