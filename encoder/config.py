@@ -35,6 +35,11 @@ class EncoderConfig:
     # fewer bits on most scenes, tools/results/context.md), 2 = the other level-2 anchors carrying
     # their parents' attributes (the paper's graph over A_pre^(2)), "auto" = fit both, keep the smaller.
     context_neighbour_level: int | str = 1
+    # Base of each channel's mean (parent_base, Annex H.5.3): "choose" = the parent's value where it
+    # predicts the channel better than the channel's median, else the median (one fit); "parent" =
+    # the parent's value on every channel (the paper's skip); "auto" = fit both, keep the smaller
+    # stream (twice the fit time; neither wins on every scene: tools/results/context.md).
+    context_parent_base: str = "auto"
     # Context-model size; None: chosen from the number of level-2 anchors (context_model_size), so
     # that a small scene is not charged for a model it cannot pay back.
     context_channels: int | None = None  # GG-Conv context channels Ch (geometry table and feature MLP outputs)
@@ -75,6 +80,8 @@ class EncoderConfig:
             raise InputError("context_weight_bits must be 8 or 16")
         if not 1 <= self.context_k <= 64:
             raise InputError("context_k must be in [1, 64]")
+        if self.context_parent_base not in ("choose", "parent", "auto"):
+            raise InputError("context_parent_base must be choose, parent or auto")
         if self.context_neighbour_level not in (1, 2, "auto"):
             raise InputError("context_neighbour_level must be 1 (level-1 anchors), 2 (level-2 anchors) or auto")
         for name in ("context_channels", "context_feat_hidden", "context_head_hidden"):

@@ -53,7 +53,7 @@ def fit_parent_mlp(coords2: np.ndarray, parent_attrs: np.ndarray, targets: np.nd
     hidden = cfg.head_hidden
     net = nn.Sequential(nn.Linear(3 + m, hidden), nn.ReLU(), nn.Linear(hidden, 3 * m)).double()
     with torch.no_grad():  # start from the best constant prediction (parent or median), no step change
-        base, center, spread = choose_parent_base(tgt, xp)
+        base, center, spread = choose_parent_base(tgt, xp, cfg.parent_base)
         net[2].weight.mul_(0.1)
         net[2].bias.zero_()
         net[2].bias[:m] = center

@@ -5,6 +5,7 @@ hash it carries. Everything the decoder must reproduce is computed by common/ co
 
 from __future__ import annotations
 
+import itertools
 import time
 from dataclasses import dataclass, field
 
@@ -234,9 +235,12 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
             # smaller stream is kept (neither wins on every scene: tools/results/context.md).
             levels_to_try = [1, 2] if cfg.context_model == "ggconv" and cfg.context_neighbour_level == "auto" \
                 else [cfg.context_neighbour_level]
+            # and parent_base: "auto" fits the per-channel choice and the parent on every channel
+            bases_to_try = ["choose", "parent"] if cfg.context_parent_base == "auto" else [cfg.context_parent_base]
             with_context = unit = None
-            for nb_level in levels_to_try:
+            for nb_level, base_mode in itertools.product(levels_to_try, bases_to_try):
                 train_cfg = context_train_config(cfg, rows.size, progress)
+                train_cfg.parent_base = base_mode
                 if cfg.context_model == "ggconv":
                     train_cfg.neighbour_level = nb_level
                 try:
@@ -256,10 +260,16 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
                 header = new_header()
                 header.context_model_id = fitted.model_id
                 cand = code(header, q_ctx, params)
+                cand_bytes = len(cand.payload) + len(cand_unit)
                 if len(levels_to_try) > 1:
-                    stats[f"level2_bytes_with_ggconv_neighbour_level_{nb_level}"] = len(cand.payload) + len(cand_unit)
-                if with_context is None or len(cand.payload) + len(cand_unit) < len(with_context.payload) + len(unit):
+                    key = f"level2_bytes_with_ggconv_neighbour_level_{nb_level}"
+                    stats[key] = min(stats.get(key, cand_bytes), cand_bytes)
+                if len(bases_to_try) > 1:
+                    key = f"level2_bytes_with_parent_base_{base_mode}"
+                    stats[key] = min(stats.get(key, cand_bytes), cand_bytes)
+                if with_context is None or cand_bytes < len(with_context.payload) + len(unit):
                     with_context, unit = cand, cand_unit
+                    stats["context_parent_base"] = base_mode
             stats["time_context_fit_s"] = time.perf_counter() - t2
             stats["level2_bytes_per_channel_prior"] = len(chosen.payload)
             if with_context is not None:

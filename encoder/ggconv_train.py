@@ -63,6 +63,7 @@ class GGConvTrainConfig:
     lr: float = 1e-2  # peak of the one-cycle schedule of the float phase
     qat_lr_scale: float = 0.05  # the quantization-aware phase peaks at lr * qat_lr_scale
     lam: float = 16.0  # distortion weight, bits per squared base step
+    parent_base: str = "choose"  # "choose": per channel, parent or median (choose_parent_base); "parent": all 1
     max_train_anchors: int = 200_000
     seed: int = 0
     progress: bool = True
@@ -402,7 +403,7 @@ def train_ggconv_twin(coords2, parent, coords1, attrs1, targets, num_features: i
     model = GGConvFloat(num_features, m, cfg, feat_q, head_q_raw)
     model.radius_sq = radius_sq
     model.neighbour_level = cfg.neighbour_level
-    init_mean_outputs(model, data.targets, hr[:, 4:])
+    init_mean_outputs(model, data.targets, hr[:, 4:], cfg.parent_base)
     # One-cycle learning rate (warm-up, then cosine decay): measured on a 20k-anchor procedural
     # scene, it converges in a quarter of the steps of a constant rate.
     bar = tqdm(total=cfg.float_steps + cfg.qat_steps, desc="fit GG-Conv", disable=not cfg.progress, unit="step")
@@ -433,13 +434,14 @@ def train_ggconv_twin(coords2, parent, coords1, attrs1, targets, num_features: i
     return best, best_model
 
 
-def choose_parent_base(targets: torch.Tensor, xpar: torch.Tensor
+def choose_parent_base(targets: torch.Tensor, xpar: torch.Tensor, mode: str = "choose"
                        ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Per channel (float [M] each): parent_base (1: the parent's value is the base of the mean,
     chosen when it predicts the channel better, by mean absolute residual, than the channel's
     median; on real scenes the median wins on most channels, tools/results/context.md), the
     initial output bias of the mean (0, or the median) and the spread of the residual about
-    that prediction (the initial scale)."""
+    that prediction (the initial scale). mode "parent": the parent's value on every channel
+    (scenes trained under the rate of that model, e.g. lghcc-train --rate-lambda, follow it)."""
     m = targets.shape[1]
     one = torch.ones(m, dtype=torch.float64)
     if not targets.shape[0]:
@@ -447,6 +449,10 @@ def choose_parent_base(targets: torch.Tensor, xpar: torch.Tensor
     med = targets.nanmedian(0).values.nan_to_num(0.0)  # NaN: not coded; a channel never coded gets 0
     r_par, r_med = (targets - xpar).abs().nanmean(0), (targets - med).abs().nanmean(0)
     base = torch.where(r_med.isnan(), one, (r_par < r_med).to(torch.float64))
+    if mode == "parent":
+        base = one
+    elif mode != "choose":
+        raise ValueError(f"parent_base mode must be choose or parent, got {mode!r}")
     spread = torch.where(base > 0, r_par, r_med).nan_to_num(1.0) * 1.25 + 0.05
     return base, med * (1 - base), spread
 
@@ -456,12 +462,12 @@ def level_of_spread(spread: torch.Tensor) -> torch.Tensor:
     return ((spread.log() - _LOG_SIGMA0) / _LOG_SIGMA_STEP).clamp(0, NUM_LEVELS - 1)
 
 
-def init_mean_outputs(model: GGConvFloat, targets: torch.Tensor, xpar: torch.Tensor) -> None:
+def init_mean_outputs(model: GGConvFloat, targets: torch.Tensor, xpar: torch.Tensor, mode: str = "choose") -> None:
     """Set the model's parent_base (``choose_parent_base``) and start its head's last layer from
     that constant prediction and its spread, with no step adjustment."""
     m = targets.shape[1]
     with torch.no_grad():
-        base, center, spread = choose_parent_base(targets, xpar)
+        base, center, spread = choose_parent_base(targets, xpar, mode)
         model.parent_base.copy_(base)
         last = model.head[1].lin
         last.weight.mul_(0.1)

@@ -356,6 +356,20 @@ def test_auto_neighbour_level_keeps_the_smaller_of_both_fits():
         EncoderConfig(context_neighbour_level=3).validate()
 
 
+@pytest.mark.parametrize("model", ["parent_mlp", "ggconv"])
+def test_auto_parent_base_keeps_the_smaller_of_both_fits(model):
+    scene = make_procedural_scene(900, seed=10, feature_dim=4, num_offsets=2, with_mask=True)
+    cfg = EncoderConfig(hierarchy=True, context_model=model, context_parent_base="auto", context_k=4,
+                        context_float_steps=10, context_qat_steps=2, context_fallback=False)
+    res = encode_scene(scene, cfg)
+    sizes = {b: res.stats[f"level2_bytes_with_parent_base_{b}"] for b in ("choose", "parent")}
+    assert res.stats["level2_bytes_with_context"] == min(sizes.values())
+    assert sizes[res.stats["context_parent_base"]] == min(sizes.values())
+    assert_same_scene(decode_stream(res.data).scene, res.decoded)
+    with pytest.raises(InputError, match="context_parent_base"):
+        EncoderConfig(context_parent_base="median").validate()
+
+
 def test_a_context_fit_that_diverges_falls_back_to_the_prior(monkeypatch):
     """A context model that cannot be fitted is not a failure of the encoder: level 2 keeps the
     per-channel prior and the stats say why."""
