@@ -82,6 +82,51 @@ def run_one(scene, args, **over) -> dict:
             "base": st.get("context_parent_base", "-") if cfg.context_model != "per_channel" else "-"}
 
 
+def plot_tradeoff(pts: list[tuple[str, float, float, float]], label: str, path: Path) -> str:
+    """Table (b) as a PNG (bits against fit time and against extra decode time); returns the
+    markdown line that shows it, or says why there is none."""
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return "(matplotlib not installed: no plot; `pip install -e .[tools]`, then `--replot`)"
+    fig, ax = plt.subplots(1, 2, figsize=(9, 3.5))
+    for setting, bits, fit, dec in pts:
+        ax[0].scatter(fit, bits)
+        ax[0].annotate(setting, (fit, bits), fontsize=7)
+        ax[1].scatter(dec, bits)
+        ax[1].annotate(setting, (dec, bits), fontsize=7)
+    ax[0].set_xlabel("fit (encode) s")
+    ax[1].set_xlabel("decode s over the prior's decode")
+    ax[0].set_ylabel("level-2 bits/anchor incl. model")
+    fig.suptitle(f"GG-Conv accuracy vs time, {label}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return f"![accuracy vs time]({path.name})"
+
+
+def replot(out: Path, plot: Path | None) -> int:
+    """Redraw the plot of table (b) from the markdown table already in ``out``."""
+    lines = out.read_text().split("\n")
+    head = next((i for i, l in enumerate(lines) if l.startswith("## (b)")), None)
+    if head is None:
+        raise SystemExit(f"{out}: no table (b) to plot")
+    label = lines[head].rsplit(", ", 1)[-1].rstrip(")")
+    rows = [l.split("|")[1:-1] for l in lines[head:] if l.startswith("| ") and not l.startswith("| setting")]
+    prior_dec = next(float(r[5]) for r in rows if r[0].strip() == "per-channel prior")
+    pts = [(r[0].strip(), float(r[1]), float(r[4]), float(r[5]) - prior_dec) for r in rows
+           if r[0].strip() != "per-channel prior"]
+    line = plot_tradeoff(pts, label, plot or out.with_suffix(".png"))
+    keep = [l for l in lines if not l.startswith("(matplotlib not installed") and not l.startswith("![accuracy")]
+    while keep and not keep[-1]:
+        keep.pop()
+    write_lines(out, keep + [line])
+    print(line)
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", action="append", default=[], help="Scaffold-GS folder (repeatable)")
@@ -97,7 +142,10 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "tools" / "results" / "context.md")
     ap.add_argument("--append", action="store_true", help="append this run's tables to --out")
     ap.add_argument("--plot", type=Path, default=None, help="PNG for table (b) (default: next to --out)")
+    ap.add_argument("--replot", action="store_true", help="only redraw the plot of table (b) already in --out")
     args = ap.parse_args(argv)
+    if args.replot:
+        return replot(args.out, args.plot)
 
     import torch
 
@@ -182,26 +230,7 @@ def main(argv=None) -> int:
         lines += ["", "decode s is the whole decoder; the per-channel row is the decoder without a context "
                   "model, so the difference is the k-NN plus GG-Conv inference."]
         plot = args.plot or args.out.with_suffix(".png")
-        try:
-            import matplotlib
-            matplotlib.use("Agg")
-            import matplotlib.pyplot as plt
-        except ImportError:
-            lines.append("(matplotlib not installed: no plot; `pip install -e .[tools]`)")
-        else:
-            fig, ax = plt.subplots(1, 2, figsize=(9, 3.5))
-            for setting, bits, fit, dec in pts:
-                ax[0].scatter(fit, bits)
-                ax[0].annotate(setting, (fit, bits), fontsize=7)
-                ax[1].scatter(dec, bits)
-                ax[1].annotate(setting, (dec, bits), fontsize=7)
-            ax[0].set_xlabel("fit (encode) s")
-            ax[1].set_xlabel("decode s over the prior's decode")
-            ax[0].set_ylabel("level-2 bits/anchor incl. model")
-            fig.suptitle(f"GG-Conv accuracy vs time, {label}")
-            fig.tight_layout()
-            fig.savefig(plot, dpi=110)
-            lines.append(f"![accuracy vs time]({plot.name})")
+        lines.append(plot_tradeoff(pts, label, plot))
     write_lines(args.out, lines)
     print(f"wrote {args.out}")
     return 0
