@@ -18,7 +18,8 @@ from tqdm.auto import tqdm
 from lghcc.common.context.parent_mlp import ParentMlpParams
 from lghcc.common.intnn import ACT_MAX, ACT_MIN, IntMLP, frac_bits_for, quantize_linear
 from lghcc.common.units import CONTEXT_GGCONV, CONTEXT_PARENT_MLP
-from lghcc.encoder.ggconv_train import GGConvTrainConfig, choose_parent_base, fit_ggconv, level_of_spread, rd_loss
+from lghcc.encoder.ggconv_train import (GGConvTrainConfig, choose_parent_base, fit_ggconv, level_of_spread, one_cycle,
+                                         rd_loss)
 
 CONTEXT_MODEL_IDS = {"parent_mlp": CONTEXT_PARENT_MLP, "ggconv": CONTEXT_GGCONV}
 
@@ -48,8 +49,8 @@ def fit_parent_mlp(coords2: np.ndarray, parent_attrs: np.ndarray, targets: np.nd
     x_int = torch.from_numpy(np.concatenate([local, xpar], 1))
     tgt = torch.from_numpy(np.clip(np.asarray(targets, dtype=np.float64)[rows], ACT_MIN, ACT_MAX))  # see fit_ggconv
     xp = torch.from_numpy(xpar)
-    spread = x_int.std(0) if x_int.shape[0] > 1 else torch.ones(x_int.shape[1], dtype=torch.float64)
-    scale = 1.0 / spread.clamp_min(1.0)  # input normalization, folded into layer 1 at export
+    x_spread = x_int.std(0) if x_int.shape[0] > 1 else torch.ones(x_int.shape[1], dtype=torch.float64)
+    scale = 1.0 / x_spread.clamp_min(1.0)  # input normalization, folded into layer 1 at export
     hidden = cfg.head_hidden
     net = nn.Sequential(nn.Linear(3 + m, hidden), nn.ReLU(), nn.Linear(hidden, 3 * m)).double()
     with torch.no_grad():  # start from the best constant prediction (parent or median), no step change
@@ -60,7 +61,7 @@ def fit_parent_mlp(coords2: np.ndarray, parent_attrs: np.ndarray, targets: np.nd
         net[2].bias[m:2 * m] = level_of_spread(spread)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     steps = cfg.float_steps + cfg.qat_steps
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.lr, total_steps=max(steps, 1) + 1, pct_start=0.1)
+    sched = one_cycle(opt, cfg.lr, steps)
     for _ in tqdm(range(steps), desc="fit parent MLP", disable=not cfg.progress, unit="step"):
         sel = torch.from_numpy(rng.integers(0, rows.size, min(cfg.batch, rows.size)))
         o = net(x_int[sel] * scale)

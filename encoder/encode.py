@@ -54,10 +54,12 @@ class EncodeResult:
     stats: dict = field(default_factory=dict)
 
 
-def context_train_config(cfg: EncoderConfig, num_level2: int, progress: bool) -> GGConvTrainConfig:
+def context_train_config(cfg: EncoderConfig, num_level2: int, neighbour_level: int, parent_base: str,
+                         progress: bool) -> GGConvTrainConfig:
+    """The fit of one candidate context model: its neighbour level and parent_base mode (the
+    encoder tries each the configuration's "auto" calls for), the rest from the configuration."""
     ch, feat_hidden, head_hidden, weight_bits = context_model_size(cfg, num_level2)
-    return GGConvTrainConfig(k=cfg.context_k,
-                             neighbour_level=1 if cfg.context_neighbour_level == "auto" else cfg.context_neighbour_level,
+    return GGConvTrainConfig(k=cfg.context_k, neighbour_level=neighbour_level, parent_base=parent_base,
                              ctx_channels=ch, feat_hidden=feat_hidden, head_hidden=head_hidden, lam=cfg.context_lambda,
                              float_steps=cfg.context_float_steps, qat_steps=cfg.context_qat_steps,
                              weight_bits=weight_bits, max_train_anchors=cfg.context_train_anchors,
@@ -233,16 +235,14 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
             targets = np.where(level_live, values[rows] / steps.astype(np.float64), np.nan)
             # GG-Conv with context_neighbour_level "auto": both neighbour levels are fitted, the
             # smaller stream is kept (neither wins on every scene: tools/results/context.md).
-            levels_to_try = [1, 2] if cfg.context_model == "ggconv" and cfg.context_neighbour_level == "auto" \
-                else [cfg.context_neighbour_level]
+            # (the parent MLP has no neighbours: one level, ignored)
+            levels_to_try = [1] if cfg.context_model != "ggconv" else \
+                [1, 2] if cfg.context_neighbour_level == "auto" else [cfg.context_neighbour_level]
             # and parent_base: "auto" fits the per-channel choice and the parent on every channel
             bases_to_try = ["choose", "parent"] if cfg.context_parent_base == "auto" else [cfg.context_parent_base]
             with_context = unit = None
             for nb_level, base_mode in itertools.product(levels_to_try, bases_to_try):
-                train_cfg = context_train_config(cfg, rows.size, progress)
-                train_cfg.parent_base = base_mode
-                if cfg.context_model == "ggconv":
-                    train_cfg.neighbour_level = nb_level
+                train_cfg = context_train_config(cfg, rows.size, nb_level, base_mode, progress)
                 try:
                     fitted = fit_level2_context(cfg.context_model, coords[hier.level1_idx], q_level1, coords[rows],
                                                 hier.parent_of_level2, targets, scene.feature_dim,
@@ -267,17 +267,16 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
                 if len(bases_to_try) > 1:
                     key = f"level2_bytes_with_parent_base_{base_mode}"
                     stats[key] = min(stats.get(key, cand_bytes), cand_bytes)
-                if with_context is None or cand_bytes < len(with_context.payload) + len(unit):
+                if with_context is None or cand_bytes < stats["level2_bytes_with_context"]:
                     with_context, unit = cand, cand_unit
+                    stats["level2_bytes_with_context"] = cand_bytes
                     stats["context_parent_base"] = base_mode
             stats["time_context_fit_s"] = time.perf_counter() - t2
             stats["level2_bytes_per_channel_prior"] = len(chosen.payload)
-            if with_context is not None:
-                stats["level2_bytes_with_context"] = len(with_context.payload) + len(unit)
-                # A context model the scene does not benefit from is not used and costs nothing.
-                if not cfg.context_fallback or \
-                        len(with_context.payload) + len(unit) + UNIT_FRAMING_BYTES < len(chosen.payload):
-                    chosen, context_payload = with_context, unit
+            # A context model the scene does not benefit from is not used and costs nothing.
+            if with_context is not None and (not cfg.context_fallback or stats["level2_bytes_with_context"]
+                                             + UNIT_FRAMING_BYTES < len(chosen.payload)):
+                chosen, context_payload = with_context, unit
         stats[f"level{level}_context_model"] = CONTEXT_MODEL_NAMES[chosen.header.context_model_id]
         if level == LEVEL_1:
             q_level1 = chosen.q

@@ -304,7 +304,8 @@ def _prepare(coords2, parent_attrs, targets, voxel_scale, num_features, k, radiu
                  head_raw.double(), torch.from_numpy(np.asarray(targets, dtype=np.float64)[rows]))
 
 
-def _one_cycle(opt, lr: float, steps: int):
+def one_cycle(opt, lr: float, steps: int):
+    """The one-cycle schedule (10% warm-up, cosine decay) of every context-model fit."""
     return torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=max(steps, 1) + 1, pct_start=0.1)
 
 
@@ -483,7 +484,7 @@ def _train_phase(model: GGConvFloat, data: _Data, cfg: GGConvTrainConfig, rng, l
         return
     t, m = data.targets.shape
     opt = torch.optim.Adam(model.parameters(), lr=lr)
-    sched = _one_cycle(opt, lr, steps)
+    sched = one_cycle(opt, lr, steps)
     for step in range(steps):
         sel = torch.from_numpy(rng.integers(0, t, min(cfg.batch, t)))
         b = _batch(data, sel)
@@ -520,7 +521,8 @@ def twin_outputs(model: GGConvFloat, coords2, parent, coords1, attrs1, voxel_sca
 def estimated_rate_bits(params: GGConvParams, coords2, parent, coords1, attrs1, targets, voxel_scale: int,
                         neighbours=None) -> tuple[float, np.ndarray]:
     """Bits of the level-2 attributes coded with the integer path's parameters and the frozen
-    scale tables (symbols round(x / STEP_ADJUST_FACTORS[a])); also returns step_adjust."""
+    scale tables (symbols round(x / STEP_ADJUST_FACTORS[a])); also returns the step adjustments
+    of the coded entries (flat; NaN targets are not coded)."""
     from lghcc.common.entropy.symbol_coder import ideal_code_length_bits
 
     mean, level, adj = ggconv_coding_params(params, coords2, parent, coords1, attrs1, voxel_scale, neighbours)
@@ -528,7 +530,9 @@ def estimated_rate_bits(params: GGConvParams, coords2, parent, coords1, attrs1, 
     t = np.asarray(targets, dtype=np.float64)
     live = np.isfinite(t)  # NaN: not coded
     sym = np.floor(np.where(live, t, 0.0) / f + 0.5).astype(np.int64)
-    return ideal_code_length_bits((sym - mean)[live], level[live]), np.where(live, adj, 0)
+    return ideal_code_length_bits((sym - mean)[live], level[live]), adj[live]
+
+
 def zero_mean_prior_bits(targets) -> float:
     """Reference: each channel coded with one zero-mean Gaussian level fitted to its RMS."""
     from lghcc.common.entropy.symbol_coder import ideal_code_length_bits, level_for_sigma

@@ -149,6 +149,15 @@ class TrainConfig:
     rate_neighbour_level: int = 1  # the encoder's GG-Conv neighbour level
     rate_lr: float = 0.002  # learning rate of the rate model's parameters
 
+    @property
+    def prune_iteration(self) -> int:
+        return self.prune_at if self.prune_at is not None else self.densify_until
+
+    @property
+    def rate_iteration(self) -> int:
+        """The first iteration with the rate term."""
+        return self.rate_from if self.rate_from is not None else self.densify_until
+
 
 # ------------------------------------------------------------------------------------------
 # Data
@@ -428,10 +437,6 @@ class Trainer:
         return SceneTensors(self.positions(), f, sc, off, self.mlps)
 
     # --- pruning (NAAP or opacity) -----------------------------------------------------
-    @property
-    def prune_at(self) -> int:
-        return self.cfg.prune_at if self.cfg.prune_at is not None else self.cfg.densify_until
-
     @torch.no_grad()
     def prune_anchors(self) -> None:
         """NAAP or opacity pruning of the current anchors (encoder/naap.py), importance from the
@@ -459,10 +464,6 @@ class Trainer:
         self.prune_report = str(plan.report())
 
     # --- rate-distortion phase ---------------------------------------------------------
-    @property
-    def rate_start(self) -> int:
-        return self.cfg.rate_from if self.cfg.rate_from is not None else self.cfg.densify_until
-
     def attribute_values(self) -> torch.Tensor:
         """[N, M] attributes in the codec's channel layout (features, scalings, offsets k-major)."""
         n = self.num_anchors
@@ -485,7 +486,7 @@ class Trainer:
         ch, feat_hidden, head_hidden, _ = context_model_size(EncoderConfig(), n2)
         twin = GGConvTrainConfig(neighbour_level=cfg.rate_neighbour_level, ctx_channels=ch, feat_hidden=feat_hidden,
                                  head_hidden=head_hidden, seed=cfg.seed)
-        self.rate_model = AnchorRateModel(self.coords.numpy(), np.full(m, cfg.rate_step), cfg.feature_dim,
+        self.rate_model = AnchorRateModel(coords, np.full(m, cfg.rate_step), cfg.feature_dim,
                                           cfg.rate_voxel_scale, self.attribute_values().detach().numpy(), twin)
         if scales is not None and self.rate_model.twin is not None:  # resume: the saved input scales
             self.rate_model.twin.feat_q, self.rate_model.twin.head_q_raw = scales
@@ -544,9 +545,9 @@ class Trainer:
         self.loss_ema = lv if self.loss_ema is None else 0.6 * self.loss_ema + 0.4 * lv
         if (cfg.densify_from < it <= cfg.densify_until and it % cfg.densify_interval == 0):
             self.adjust_anchors()
-        if cfg.prune != "none" and it == self.prune_at:
+        if cfg.prune != "none" and it == cfg.prune_iteration:
             self.prune_anchors()
-        if cfg.rate_lambda > 0 and self.rate_model is None and it >= self.rate_start:
+        if cfg.rate_lambda > 0 and self.rate_model is None and it >= cfg.rate_iteration:
             self._build_rate_model()  # the anchor set is final: no growing or pruning after densify_until
         return {"loss": lv, "gaussians": ng.num_gaussians}
 
@@ -916,21 +917,19 @@ def _check_config(cfg: TrainConfig) -> None:
     if cfg.prune != "none":
         if not 0 < cfg.prune_keep <= 1:
             raise InputError(f"prune-keep must be in (0, 1], got {cfg.prune_keep}")
-        at = cfg.prune_at if cfg.prune_at is not None else cfg.densify_until
+        at = cfg.prune_iteration
         if at < cfg.densify_until or at > cfg.iterations:
             raise InputError(f"prune-at ({at}) must lie between densify-until ({cfg.densify_until}) and the last "
                              f"iteration ({cfg.iterations})")
-        rate_start = cfg.rate_from if cfg.rate_from is not None else cfg.densify_until
-        if cfg.rate_lambda > 0 and rate_start < at:
-            raise InputError(f"rate-from ({rate_start}) must not come before prune-at ({at})")
+        if cfg.rate_lambda > 0 and cfg.rate_iteration < at:
+            raise InputError(f"rate-from ({cfg.rate_iteration}) must not come before prune-at ({at})")
     if not (cfg.rate_lambda >= 0 and math.isfinite(cfg.rate_lambda)):
         raise InputError(f"rate-lambda must be a non-negative number, got {cfg.rate_lambda}")
     if cfg.rate_lambda > 0:
         if not (cfg.rate_step > 0 and math.isfinite(cfg.rate_step)):
             raise InputError(f"rate-step must be a positive number, got {cfg.rate_step}")
-        start = cfg.rate_from if cfg.rate_from is not None else cfg.densify_until
-        if start < cfg.densify_until:
-            raise InputError(f"rate-from ({start}) must not come before the last growing/pruning "
+        if cfg.rate_iteration < cfg.densify_until:
+            raise InputError(f"rate-from ({cfg.rate_iteration}) must not come before the last growing/pruning "
                              f"(densify-until {cfg.densify_until}): the rate model needs a fixed anchor set")
         if cfg.rate_voxel_scale < 2 or cfg.rate_neighbour_level not in (1, 2):
             raise InputError("rate-voxel-scale must be >= 2 and rate-neighbour-level 1 or 2")
@@ -1000,7 +999,7 @@ def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, stop_after
         info = tr.step()
         tr.elapsed = time.perf_counter() - t_start
         it = tr.iteration
-        if cfg.prune != "none" and it == tr.prune_at and tr.prune_report:
+        if cfg.prune != "none" and it == cfg.prune_iteration and tr.prune_report:
             (bar.write if bar is not None else log)(f"[it {it}] pruned after growing: {tr.prune_report}")
         if bar is not None:
             bar.update(1)

@@ -126,8 +126,8 @@ class GGConvParams:
     # -- serialization -----------------------------------------------------------------------
     def to_arrays(self) -> list[NamedIntArray]:
         """Flat list of named integer arrays with their bit widths, in a fixed order:
-        num_features (u16), neighbour_level (u8), parent_base (u1 [M]), k (u8), radius_sq (u62), h_shift (u8), table (s16 [D,D,D,Ch]),
-        then for mlp in (feat, head), for each layer l: {mlp}.{l}.weight (s8 or s16 [out, in]),
+        num_features (u16), neighbour_level (u8), parent_base (u1 [M]), k (u8), radius_sq (u62),
+        h_shift (u8), table (s16 [D,D,D,Ch]), then for mlp in (feat, head), for each layer l: {mlp}.{l}.weight (s8 or s16 [out, in]),
         {mlp}.{l}.bias (s32 [out]), {mlp}.{l}.shift (u8). ReLU follows every layer but the last."""
         out = [NamedIntArray("num_features", np.array(self.num_features, dtype=np.int64), 16, False),
                NamedIntArray("neighbour_level", np.array(self.neighbour_level, dtype=np.int64), 8, False),
@@ -407,7 +407,6 @@ class GGConvEvaluator:
         self.n_valid = self.valid_t.sum(1).to(torch.float64)
         self.data_coords = torch.from_numpy(np.ascontiguousarray(c1)) if self.level1_data else self.coords_t
         self.x1f = clamp16(torch.from_numpy(np.ascontiguousarray(x1))).to(torch.float64)  # [N1, M] activations
-        self.base_f = torch.from_numpy(params.parent_base).to(torch.float64)
         self.table_f = torch.from_numpy(params.table.reshape(-1, ch).astype(np.float64))
         # the first layer's scaled weights and bias (common/intnn.py): every term below is an integer
         # multiple of 2^-shift of magnitude < 2^(48-shift), exact in float64
@@ -470,7 +469,6 @@ class GGConvEvaluator:
             z = torch.cat([h, local.clamp_(0, ACT_MAX).to(torch.float64), self.n_valid[b_lo:b_hi, None], xf], 1)
             o = params.head_mlp.forward_f64(z)
             out = slice(b_lo - lo, b_hi - lo)
-            mean[out] = o[:, :m].add_(xf.mul_(self.base_f)).clamp_(ACT_MIN, ACT_MAX).numpy()
-            level[out] = o[:, m:2 * m].clamp_(0, NUM_LEVELS - 1).numpy()
-            adj[out] = o[:, 2 * m:].clamp_(0, NUM_STEP_ADJUST - 1).numpy()
+            for dst, v in zip((mean, level, adj), split_outputs(o, xf, params.parent_base, m)):
+                dst[out] = v.numpy()
         return mean, level, adj
