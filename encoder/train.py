@@ -761,7 +761,12 @@ class Trainer:
         self._set_lr(self.iteration)
         if sd.get("rate") is not None:
             self._build_rate_model(sd["rate"]["scales"])
-            self.rate_model.load_state_dict(sd["rate"]["model"])
+            model_sd = dict(sd["rate"]["model"])
+            twin = self.rate_model.twin
+            if twin is not None and "twin.parent_base" not in model_sd:
+                # a checkpoint from before parent_base existed: its twin's mean was parent + o
+                model_sd["twin.parent_base"] = torch.ones_like(twin.parent_base)
+            self.rate_model.load_state_dict(model_sd)
             self.rate_opt.load_state_dict(sd["rate"]["optimizer"])
 
     def save_checkpoint(self) -> Path:

@@ -467,3 +467,20 @@ def test_pruning_options_are_checked(data, tmp_path):
         T.train(tiny_config(data, prune="naap", prune_keep=0.0), tmp_path / "x", progress=False, log=lambda *x: None)
     with pytest.raises(InputError, match="prune-at"):
         T.train(tiny_config(data, prune="opacity", prune_at=3), tmp_path / "y", progress=False, log=lambda *x: None)
+
+
+def test_rate_phase_resumes_a_checkpoint_from_before_parent_base(data, tmp_path):
+    """A checkpoint written before the twin had parent_base (its mean was parent + o) resumes with
+    parent_base 1 on every channel instead of failing on the missing key."""
+    kw = dict(iterations=30, densify_until=12, checkpoint_interval=5, eval_interval=30, rate_lambda=0.05,
+              rate_step=0.05, rate_voxel_scale=2)
+    cfg = tiny_config(data, **kw)
+    T.train(cfg, tmp_path / "a", stop_after=20, progress=False, log=lambda *x: None)
+    path = tmp_path / "a" / T.STATE_NAME
+    state = torch.load(path, weights_only=False)
+    assert state["rate"]["model"].pop("twin.parent_base").numel() > 0
+    torch.save(state, path)
+    res = T.train(cfg, tmp_path / "a", resume=True, progress=False, log=lambda *x: None)
+    assert res.iteration == 30
+    resumed = torch.load(path, weights_only=False)["rate"]["model"]["twin.parent_base"]
+    assert torch.equal(resumed, torch.ones_like(resumed))

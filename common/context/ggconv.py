@@ -378,7 +378,11 @@ class GGConvEvaluator:
       and every x_i and y_j is the attribute vector of a level-1 anchor (a parent's, or the
       neighbour's own), so P is computed once per level-1 anchor and gathered per edge (|A| < 2^48);
     * the geometry terms depend only on the offset dp = q_j - p_i, so for small radii they are
-      tabulated once for every dp in [-R, R]^3;
+      tabulated once for every dp in [-R, R]^3 (every partial sum of P(y_j) + G(dp_ij) - P(x_i)
+      is a partial sum of the accumulator's terms, so it is exact too);
+    * the head MLP's first layer is linear in its input as well, and its M parent-attribute
+      inputs are a level-1 anchor's vector: bias + W_head[:, Ch+4:] x is computed once per
+      level-1 anchor and gathered per row as the GEMM's addend (|.| < 2^47, exact);
     * edges are laid out densely [block, K]; invalid slots use j = 0 with dp = 0 and are masked
       to zero before the aggregation (sum of at most 64 products |w e| <= 2^30: exact).
     """
@@ -415,6 +419,10 @@ class GGConvEvaluator:
         cf = params.num_features
         self.lin0_u, self.lin0_b = w0[cf:].contiguous(), feat0._bs
         self.p1 = self.x1f[:, :cf] @ w0[:cf].contiguous()  # [N1, H]: W[:, :C] x 2^-shift of each level-1 vector
+        head0 = params.head_mlp.layers[0]
+        self.head0_z = head0._ws[:ch + 4].contiguous()  # the weights of [h, local position, n_valid]
+        self.q1 = torch.addmm(head0._bs, self.x1f, head0._ws[ch + 4:].contiguous())  # [N1, Hh]: bias + W x
+        self.local = torch.from_numpy(np.mod(c, np.int64(self.voxel_scale))).clamp_(0, ACT_MAX).to(torch.float64)
         self.w_scale = 2.0 ** -params.h_shift  # folded into the geometry weights: sum_j (w 2^-hs) e is exact
         r = params.radius
         self.side = 2 * r + 1
@@ -439,7 +447,9 @@ class GGConvEvaluator:
         if not 0 <= lo <= hi <= self.num_rows:
             raise ValueError(f"rows {lo}..{hi} outside the {self.num_rows} level-2 rows")
         feat0, feat_rest = params.feat_mlp.layers[0], params.feat_mlp.layers[1:]
+        head0, head_rest = params.head_mlp.layers[0], params.head_mlp.layers[1:]
         hdim = feat0.fan_out
+        outs = [torch.from_numpy(a) for a in (mean, level, adj)]
         for b_lo in range(lo, hi, block):
             b_hi = min(hi, b_lo + block)
             nb = b_hi - b_lo
@@ -447,6 +457,7 @@ class GGConvEvaluator:
             v = self.valid_t[b_lo:b_hi].reshape(-1)
             dp = (self.data_coords.index_select(0, j).view(nb, k, 3) - self.coords_t[b_lo:b_hi, None, :]).view(-1, 3)
             dp.mul_(v[:, None])  # invalid slots: dp = 0 (their terms are masked below)
+            pi = self.parent_t[b_lo:b_hi]
             if self.use_lut:
                 code = ((dp[:, 0] + r) * self.side + (dp[:, 1] + r)) * self.side + (dp[:, 2] + r)
                 g_lin = self.lut_lin.index_select(0, code)
@@ -454,21 +465,22 @@ class GGConvEvaluator:
             else:
                 g_lin, g_w = _geometry_terms(dp, params, self.table_f, self.lin0_u, self.lin0_b)
                 g_w.mul_((v.to(torch.float64) * self.w_scale)[:, None])
-            pi = self.parent_t[b_lo:b_hi]
-            xf = self.x1f.index_select(0, pi)  # [nb, M]: the parents' attributes x_i
             y_rows = j if self.level1_data else self.parent_t.index_select(0, j)  # level-1 row of each y_j
-            acc = self.p1.index_select(0, y_rows).view(nb, k, hdim).sub_(self.p1.index_select(0, pi)[:, None, :])
-            e = feat0.finish_f64(acc.view(-1, hdim).add_(g_lin))
+            acc = g_lin.add_(self.p1.index_select(0, y_rows)).view(nb, k, hdim)
+            acc.sub_(self.p1.index_select(0, pi)[:, None, :])
+            e = feat0.finish_f64(acc.view(-1, hdim))
             for layer in feat_rest:
                 e = layer.forward_f64(e)
             hsum = g_w.mul_(e).view(nb, k, ch).sum(1)  # sum_j w e / 2^hs: |.| <= 64 2^30 / 2^hs, exact
             if params.h_shift:
                 hsum.add_(0.5)
             h = hsum.floor_().clamp_(ACT_MIN, ACT_MAX)
-            local = torch.from_numpy(np.mod(self.coords[b_lo:b_hi], np.int64(self.voxel_scale)))
-            z = torch.cat([h, local.clamp_(0, ACT_MAX).to(torch.float64), self.n_valid[b_lo:b_hi, None], xf], 1)
-            o = params.head_mlp.forward_f64(z)
+            z = torch.cat([h, self.local[b_lo:b_hi], self.n_valid[b_lo:b_hi, None]], 1)
+            o = head0.finish_f64(torch.addmm(self.q1.index_select(0, pi), z, self.head0_z))
+            for layer in head_rest:
+                o = layer.forward_f64(o)
+            xf = self.x1f.index_select(0, pi)  # [nb, M]: the parents' attributes x_i
             out = slice(b_lo - lo, b_hi - lo)
-            for dst, v in zip((mean, level, adj), split_outputs(o, xf, params.parent_base, m)):
-                dst[out] = v.numpy()
+            for dst, val in zip(outs, split_outputs(o, xf, params.parent_base, m)):
+                dst[out] = val
         return mean, level, adj
