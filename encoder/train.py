@@ -469,7 +469,9 @@ class Trainer:
         n = self.num_anchors
         return torch.cat([self.params["features"], self.params["scalings"], self.params["offsets"].reshape(n, -1)], 1)
 
-    def _build_rate_model(self, scales=None) -> None:
+    def _build_rate_model(self, scales=None, twin_size: tuple[int, int, int] | None = None) -> None:
+        """The rate model of the current anchors; twin_size (Ch, feature hidden, head hidden): the
+        twin's size on resume (None: the encoder's size rule for this many level-2 anchors)."""
         from lghcc.encoder.ggconv_train import GGConvTrainConfig
         from lghcc.encoder.rate_model import AnchorRateModel
 
@@ -483,7 +485,7 @@ class Trainer:
         # the model the encoder will fit for this many level-2 anchors (its size rule), so the scene is
         # trained for a rate that coder can reach
         n2 = build_hierarchy(coords[normative_order(coords)], cfg.rate_voxel_scale).num_level2
-        ch, feat_hidden, head_hidden, _ = context_model_size(EncoderConfig(), n2)
+        ch, feat_hidden, head_hidden = twin_size or context_model_size(EncoderConfig(), n2)[:3]
         twin = GGConvTrainConfig(neighbour_level=cfg.rate_neighbour_level, ctx_channels=ch, feat_hidden=feat_hidden,
                                  head_hidden=head_hidden, seed=cfg.seed)
         self.rate_model = AnchorRateModel(coords, np.full(m, cfg.rate_step), cfg.feature_dim,
@@ -760,8 +762,12 @@ class Trainer:
         self.opt.load_state_dict(sd["optimizer"])
         self._set_lr(self.iteration)
         if sd.get("rate") is not None:
-            self._build_rate_model(sd["rate"]["scales"])
             model_sd = dict(sd["rate"]["model"])
+            # the twin's size as saved (the encoder's size rule may have changed since)
+            twin_size = None if "twin.table" not in model_sd else (
+                model_sd["twin.table"].shape[1], model_sd["twin.feat.0.lin.weight"].shape[0],
+                model_sd["twin.head.0.lin.weight"].shape[0])
+            self._build_rate_model(sd["rate"]["scales"], twin_size)
             twin = self.rate_model.twin
             if twin is not None and "twin.parent_base" not in model_sd:
                 # a checkpoint from before parent_base existed: its twin's mean was parent + o

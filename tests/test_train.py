@@ -469,9 +469,10 @@ def test_pruning_options_are_checked(data, tmp_path):
         T.train(tiny_config(data, prune="opacity", prune_at=3), tmp_path / "y", progress=False, log=lambda *x: None)
 
 
-def test_rate_phase_resumes_a_checkpoint_from_before_parent_base(data, tmp_path):
+def test_rate_phase_resumes_older_checkpoints(data, tmp_path, monkeypatch):
     """A checkpoint written before the twin had parent_base (its mean was parent + o) resumes with
-    parent_base 1 on every channel instead of failing on the missing key."""
+    parent_base 1 on every channel instead of failing on the missing key, and a twin sized by an
+    older size rule resumes at its saved size."""
     kw = dict(iterations=30, densify_until=12, checkpoint_interval=5, eval_interval=30, rate_lambda=0.05,
               rate_step=0.05, rate_voxel_scale=2)
     cfg = tiny_config(data, **kw)
@@ -480,7 +481,11 @@ def test_rate_phase_resumes_a_checkpoint_from_before_parent_base(data, tmp_path)
     state = torch.load(path, weights_only=False)
     assert state["rate"]["model"].pop("twin.parent_base").numel() > 0
     torch.save(state, path)
+    saved_shape = state["rate"]["model"]["twin.table"].shape
+    from lghcc.encoder import config as C
+    monkeypatch.setattr(C, "CONTEXT_MODEL_SIZES", ((None, (3, 5, 7, 16)),))  # a size rule changed since
     res = T.train(cfg, tmp_path / "a", resume=True, progress=False, log=lambda *x: None)
     assert res.iteration == 30
-    resumed = torch.load(path, weights_only=False)["rate"]["model"]["twin.parent_base"]
-    assert torch.equal(resumed, torch.ones_like(resumed))
+    resumed = torch.load(path, weights_only=False)["rate"]["model"]
+    assert torch.equal(resumed["twin.parent_base"], torch.ones_like(resumed["twin.parent_base"]))
+    assert resumed["twin.table"].shape == saved_shape != (saved_shape[0], 3)
