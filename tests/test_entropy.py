@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from lghcc.common.entropy import symbol_coder as sc
 from lghcc.common.entropy.range_coder import RangeEncoder, exact_model
 from lghcc.common.entropy.symbol_coder import (
+    best_level,
     decode_chunked,
     decode_symbols,
     encode_chunked,
@@ -225,6 +226,38 @@ def test_overhead_over_the_ideal_is_below_a_thousandth():
     # the informative float estimate agrees closely (no escapes here)
     r2 = np.rint(rng.normal(0, SCALE_SIGMAS[lv])).astype(np.int64)
     assert estimate_bits_float(r2, SCALE_SIGMAS[lv]) == pytest.approx(ideal_code_length_bits(r2, lv), rel=0.01)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.integers(-(1 << 20), 1 << 20), min_size=1, max_size=300), st.integers(0, 1000))
+def test_best_level_is_the_cheapest_of_all_levels(values, zeros):
+    """best_level is the argmin over all 64 levels of the ideal code length (lowest level on
+    ties), also for heavy-tailed inputs: many zeros and a few large values."""
+    r = np.array(values + [0] * zeros, dtype=np.int64)
+    costs = [ideal_code_length_bits(r, np.full(r.size, lv)) for lv in range(64)]
+    lv = best_level(r)
+    assert costs[lv] <= min(costs) + 1e-6 * max(1.0, min(costs))
+    assert lv == min(i for i, c in enumerate(costs) if c <= min(costs) + 1e-6 * max(1.0, min(costs)))
+
+
+def test_best_level_codes_a_heavy_tailed_channel_narrowly():
+    """Mostly zeros with 2% large values (the offsets of a rate-trained scene): a narrow level plus
+    escapes costs far less than the level of the RMS."""
+    rng = np.random.default_rng(3)
+    r = np.where(rng.random(5000) < 0.02, rng.integers(-300, 300, 5000), 0)
+    rms_level = int(level_for_sigma(np.array([np.sqrt(np.mean(r.astype(float) ** 2))]))[0])
+    lv = best_level(r)
+    assert lv < rms_level - 10
+    assert ideal_code_length_bits(r, np.full(r.size, lv)) < 0.5 * ideal_code_length_bits(r, np.full(r.size, rms_level))
+
+
+def test_code_lengths_sum_to_the_ideal_code_length():
+    rng = np.random.default_rng(4)
+    lv = rng.integers(0, 64, 2000)
+    r = np.rint(rng.normal(0, SCALE_SIGMAS[lv] * 3)).astype(np.int64)
+    per = sc.code_lengths_bits(r.reshape(40, 50), lv.reshape(40, 50))
+    assert per.shape == (40, 50) and (per > 0).all()
+    assert per.sum() == pytest.approx(ideal_code_length_bits(r, lv))
 
 
 def test_level_for_sigma():

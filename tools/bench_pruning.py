@@ -9,6 +9,10 @@ threshold, encode with the chosen preset (lghcc-enc's code path: encode_scene wi
 pruning fields of EncoderConfig), decode, and render the test views: stream bytes by part and
 test PSNR / SSIM of the decoded scene. The unpruned scene is the first row.
 
+--ablation adds two NAAP variants per keep ratio: gamma 0 (neighbourhood importance, no merge)
+and lambda 0 (the anchor's own opacity as importance, merged), which tell what the importance
+and what the merge contribute.
+
 Pruning here is post-hoc (at encode time, no fine-tuning after it); the paper prunes during
 training and trains on. Both methods get exactly the same number of anchors.
 
@@ -43,6 +47,9 @@ def main(argv=None) -> int:
     ap.add_argument("--preset", default="medium")
     ap.add_argument("--trained", action="append", default=[], metavar="LABEL=DIR",
                     help="a scene pruned during training, encoded as is (repeatable)")
+    ap.add_argument("--ablation", action="store_true",
+                    help="also NAAP without the merge (gamma 0) and NAAP with the anchor's own opacity as "
+                         "importance (lambda 0), to tell the importance from the merge")
     ap.add_argument("--background", default="white")
     ap.add_argument("--views", type=int, default=0, help="test views to render (0: all)")
     ap.add_argument("--threads", type=int, default=2)
@@ -78,8 +85,8 @@ def main(argv=None) -> int:
              "| pruning | keep | anchors | bytes | attribute bytes | geometry bytes | test PSNR dB | SSIM | "
              "encode+decode s | load |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
 
-    def row(method: str, keep: float | None, source=None) -> None:
-        over = {} if keep is None else dict(pruning=method, prune_keep_ratio=keep)
+    def row(method: str, keep: float | None, source=None, label: str | None = None, **naap) -> None:
+        over = {} if keep is None else dict(pruning=method, prune_keep_ratio=keep, **naap)
         cfg = dataclasses.replace(base_cfg, **over).validate()
         t0 = time.perf_counter()
         res = encode_scene(scene if source is None else source, cfg)
@@ -88,7 +95,7 @@ def main(argv=None) -> int:
         assert dec.stream_hash == res.scene_hash
         ev = evaluate_scene(dec.scene, cams, args.background)
         bd = res.breakdown.bytes_by_category
-        lines.append(f"| {method} | {'-' if keep is None else keep} | {dec.scene.num_anchors:,} | {len(res.data):,} | "
+        lines.append(f"| {label or method} | {'-' if keep is None else keep} | {dec.scene.num_anchors:,} | {len(res.data):,} | "
                      f"{bd.get('attributes', 0):,} | {bd.get('geometry', 0):,} | {ev['psnr']:.3f} | {ev['ssim']:.4f} | "
                      f"{dt:.1f} | {load_average()} |")
         print(lines[-1], flush=True)
@@ -98,6 +105,9 @@ def main(argv=None) -> int:
     for keep in args.keep:
         for method in ("opacity", "naap"):
             row(method, keep)
+        if args.ablation:
+            row("naap", keep, label="naap, gamma 0 (no merge)", naap_gamma=0.0)
+            row("naap", keep, label="naap, lambda 0 (own opacity, merged)", naap_lambda=0.0)
     if args.trained:
         lines += ["", "Pruned during training (lghcc-train --prune, then trained on), encoded as is:", "",
                   lines[6], lines[7]]

@@ -215,19 +215,26 @@ def decode_symbols(data: bytes, levels: np.ndarray, what: str = "chunk") -> np.n
     return out.reshape(lv_in.shape)
 
 
+def code_lengths_bits(residuals: np.ndarray, levels: np.ndarray) -> np.ndarray:
+    """Per residual, -log2 of the probability the tables give it at its level, escape class and
+    raw remainder bits included (float64, the shape of residuals)."""
+    r = _residuals(residuals)
+    lv = _levels(levels, np.shape(residuals))
+    if r.size == 0:
+        return np.zeros(r.shape, dtype=np.float64)
+    rf, lf = r.ravel(), lv.ravel()
+    bins, esc, L = _bins(rf, lf)
+    bits = _BIN_BITS[TABLES.offsets[lf] + bins]
+    if esc.any():
+        _, k, _, width = _escape_parts(rf[esc], L[esc])
+        bits[esc] += 1.0 + _CLASS_BITS[k] + width
+    return bits.reshape(r.shape)
+
+
 def ideal_code_length_bits(residuals: np.ndarray, levels: np.ndarray) -> float:
     """-log2 of the probabilities the tables give these residuals, escape class and raw
     remainder bits included: what the coder spends, up to its termination (<= 2 words)."""
-    r = _residuals(residuals).ravel()
-    lv = _levels(levels, np.shape(residuals)).ravel()
-    if r.size == 0:
-        return 0.0
-    bins, esc, L = _bins(r, lv)
-    bits = float(_BIN_BITS[TABLES.offsets[lv] + bins].sum())
-    if esc.any():
-        _, k, _, width = _escape_parts(r[esc], L[esc])
-        bits += float(k.size + _CLASS_BITS[k].sum() + width.sum())
-    return bits
+    return float(code_lengths_bits(residuals, levels).sum())
 
 
 # --- chunks ------------------------------------------------------------------------------
@@ -293,11 +300,13 @@ def estimate_bits_float(residuals: np.ndarray, sigma: np.ndarray) -> float:
 
 def best_level(residuals: np.ndarray) -> int:
     """Informative (encoder choice): the one scale level that codes these residuals in the
-    fewest ideal bits, searched around the level of their RMS."""
+    fewest ideal bits, over all 64 levels (searching only near the level of their RMS missed
+    heavy-tailed channels, mostly zeros with a few large values: on a rate-trained lego scene
+    the per-channel prior of level 1 cost 69.1 instead of 43.3 bits per anchor)."""
     r = np.asarray(residuals, dtype=np.int64).ravel()
     if r.size == 0:
         return 0
-    sigma = max(float(np.sqrt(np.mean(r.astype(np.float64) ** 2))), 1e-3)
-    centre = int(level_for_sigma(np.array([sigma]))[0])
-    candidates = range(max(0, centre - 2), min(NUM_SCALE_LEVELS - 1, centre + 2) + 1)
-    return min(candidates, key=lambda lv: ideal_code_length_bits(r, np.full(r.size, lv, dtype=np.int64)))
+    values, counts = np.unique(r, return_counts=True)
+    lv = np.repeat(np.arange(NUM_SCALE_LEVELS, dtype=np.int64), values.size)
+    bits = code_lengths_bits(np.tile(values, NUM_SCALE_LEVELS), lv).reshape(NUM_SCALE_LEVELS, -1) @ counts
+    return int(np.argmin(bits))  # the lowest level among equal costs
