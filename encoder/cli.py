@@ -71,6 +71,9 @@ def setup_args() -> argparse.ArgumentParser:
                    help="skip decoding the written stream to check it (faster)")
     p.add_argument("--report-ideal", action="store_true",
                    help="also report how close attribute coding comes to its model's ideal code length")
+    p.add_argument("--no-context-twin", action="store_true",
+                   help="ignore the GG-Conv twin lghcc-train --rate-lambda saved beside the scene "
+                        "(context_twin.pt; by default the GG-Conv fit also starts from it, the smaller stream kept)")
     p.add_argument("--json", metavar="FILE", help="also write the size breakdown and timings as JSON")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors and warnings")
     return p
@@ -152,8 +155,17 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         scene, source = _load_scene(args)
         t_load = time.perf_counter() - t0
+        twin = None
+        if args.input and not args.no_context_twin and cfg.context_model == "ggconv":
+            from lghcc.encoder.ggconv_train import find_context_twin
+            twin = find_context_twin(args.input)
         result = encode_scene(scene, cfg, progress=not args.quiet and sys.stderr.isatty(),
-                              measure_ideal=args.report_ideal)
+                              measure_ideal=args.report_ideal, context_twin=twin)
+        if twin is not None:
+            why = result.stats.get("context_twin_unused")
+            say("context twin of the training run: " + (f"not used ({why})" if why else
+                "kept (smallest stream)" if result.stats.get("context_parent_base") == "twin" else
+                "tried, a fresh fit coded smaller"))
         verified = None
         if not args.no_verify:
             decoded = decode_stream(result.data)

@@ -5,6 +5,7 @@ hash it carries. Everything the decoder must reproduce is computed by common/ co
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import time
 from dataclasses import dataclass, field
@@ -30,7 +31,7 @@ from lghcc.common.units import (CONTEXT_PER_CHANNEL_PRIOR, LEVEL_1, LEVEL_2, LEV
                                 RenderMlpHeader, SceneParameterSet)
 from lghcc.encoder.config import EncoderConfig, context_model_size
 from lghcc.encoder.context_fit import ContextFitError, fit_level2_context
-from lghcc.encoder.ggconv_train import GGConvTrainConfig
+from lghcc.encoder.ggconv_train import ContextTwin, GGConvTrainConfig
 
 UNIT_FRAMING_BYTES = UNIT_HEADER_BYTES + UNIT_CRC_BYTES
 MAX_QUANTIZED_MAGNITUDE = 2 ** 52  # |x / step| beyond this cannot be rounded exactly in float64
@@ -64,6 +65,18 @@ def context_train_config(cfg: EncoderConfig, num_level2: int, neighbour_level: i
                              float_steps=cfg.context_float_steps, qat_steps=cfg.context_qat_steps,
                              weight_bits=weight_bits, max_train_anchors=cfg.context_train_anchors,
                              progress=progress)
+
+
+def twin_train_config(cfg: EncoderConfig, twin: ContextTwin, num_level2: int, progress: bool) -> GGConvTrainConfig:
+    """The fit started from a twin trained with the scene: its sizes, graph and parent_base,
+    16-bit weights (a twin trained in float for thousands of steps lost 2x its bits at 8: on the
+    rate-trained lego, 413 against 198 bits per level-2 anchor), a shorter float phase at a
+    tenth of the rate (it starts near a solution: 198 -> 189), then the same QAT."""
+    ch, feat_hidden, head_hidden = twin.sizes
+    base = context_train_config(cfg, num_level2, twin.neighbour_level, "choose", progress)
+    return dataclasses.replace(base, ctx_channels=ch, feat_hidden=feat_hidden, head_hidden=head_hidden,
+                               radius_sq=twin.radius_sq, weight_bits=16, float_steps=cfg.context_float_steps // 2,
+                               lr=base.lr * 0.1, init=twin)
 
 
 def prune_scene(scene: AnchorScene, cfg: EncoderConfig):
@@ -146,9 +159,12 @@ def quantize_render_model(mlps: dict[str, RenderMLP], bits: int):
 
 
 def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress: bool = False,
-                 measure_ideal: bool = False) -> EncodeResult:
+                 measure_ideal: bool = False, context_twin: ContextTwin | None = None) -> EncodeResult:
     """Encode a scene. ``measure_ideal`` also computes the attribute model's ideal code length
-    (stats["attribute_ideal_bits"]), a full extra pass over the symbols."""
+    (stats["attribute_ideal_bits"]), a full extra pass over the symbols. ``context_twin``: the
+    GG-Conv twin trained with the scene (lghcc-train --rate-lambda writes it beside the scene):
+    with a GG-Conv context model, a fit started from it is one more candidate (the smallest
+    stream is kept); a twin that does not fit the configuration is reported in stats and unused."""
     cfg = (cfg or EncoderConfig()).validate()
     scene.validate()
     stats: dict = {}
@@ -240,9 +256,18 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
                 [1, 2] if cfg.context_neighbour_level == "auto" else [cfg.context_neighbour_level]
             # and parent_base: "auto" fits the per-channel choice and the parent on every channel
             bases_to_try = ["choose", "parent"] if cfg.context_parent_base == "auto" else [cfg.context_parent_base]
+            candidates = [(nb_level, base_mode, context_train_config(cfg, rows.size, nb_level, base_mode, progress))
+                          for nb_level, base_mode in itertools.product(levels_to_try, bases_to_try)]
+            if context_twin is not None and cfg.context_model == "ggconv":
+                why = context_twin.mismatch(scene.feature_dim, layout.num_channels, cfg.coarse_voxel_scale,
+                                            cfg.context_k, steps)
+                if why:
+                    stats["context_twin_unused"] = why
+                else:
+                    candidates.append((context_twin.neighbour_level, "twin",
+                                       twin_train_config(cfg, context_twin, rows.size, progress)))
             with_context = unit = None
-            for nb_level, base_mode in itertools.product(levels_to_try, bases_to_try):
-                train_cfg = context_train_config(cfg, rows.size, nb_level, base_mode, progress)
+            for nb_level, base_mode, train_cfg in candidates:
                 try:
                     fitted = fit_level2_context(cfg.context_model, coords[hier.level1_idx], q_level1, coords[rows],
                                                 hier.parent_of_level2, targets, scene.feature_dim,
@@ -264,7 +289,7 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
                 if len(levels_to_try) > 1:
                     key = f"level2_bytes_with_ggconv_neighbour_level_{nb_level}"
                     stats[key] = min(stats.get(key, cand_bytes), cand_bytes)
-                if len(bases_to_try) > 1:
+                if len(bases_to_try) > 1 or base_mode == "twin":
                     key = f"level2_bytes_with_parent_base_{base_mode}"
                     stats[key] = min(stats.get(key, cand_bytes), cand_bytes)
                 if with_context is None or cand_bytes < stats["level2_bytes_with_context"]:

@@ -22,6 +22,7 @@ lambda * 2^(a/2) / 12 (the quantization MSE in squared base steps).
 from __future__ import annotations
 
 import copy
+import io
 import math
 from dataclasses import dataclass
 
@@ -67,6 +68,96 @@ class GGConvTrainConfig:
     max_train_anchors: int = 200_000
     seed: int = 0
     progress: bool = True
+    # warm start: a twin trained with the scene (lghcc-train --rate-lambda; ``ContextTwin``): its
+    # weights, input scales and parent_base start the fit instead of a random initialization
+    init: "ContextTwin | None" = None
+
+
+@dataclass
+class ContextTwin:
+    """A GG-Conv float twin trained together with a scene (lghcc-train --rate-lambda, the paper's
+    joint rate-distortion training), saved beside the scene as ``TWIN_FILE`` so that the encoder
+    can start its context-model fit from it: the twin learned on the attributes as they were
+    shaped for it, over thousands of steps, where a fresh fit has a few hundred.
+
+    state: the GGConvFloat state dict (table, feature and head MLPs, parent_base); feat_q and
+    head_q_raw: its input column scales; the hierarchy and graph it was trained on (coarse voxel
+    scale, k, neighbour level, radius^2), the quantization step of every attribute, and the
+    channel counts (C features of M attributes)."""
+
+    state: dict
+    feat_q: torch.Tensor
+    head_q_raw: torch.Tensor
+    voxel_scale: int
+    k: int
+    neighbour_level: int
+    radius_sq: int
+    step: float
+    num_features: int
+    num_attrs: int
+
+    @property
+    def sizes(self) -> tuple[int, int, int]:
+        """(context channels Ch, feature-MLP hidden, head hidden)."""
+        return (int(self.state["table"].shape[1]), int(self.state["feat.0.lin.weight"].shape[0]),
+                int(self.state["head.0.lin.weight"].shape[0]))
+
+    def save(self, path) -> None:
+        from lghcc.common.fileio import atomic_write_bytes
+
+        buf = io.BytesIO()
+        torch.save({"version": 1, "state": {k: v.detach().clone() for k, v in self.state.items()},
+                    "feat_q": self.feat_q, "head_q_raw": self.head_q_raw,
+                    **{f: getattr(self, f) for f in ("voxel_scale", "k", "neighbour_level", "radius_sq", "step",
+                                                     "num_features", "num_attrs")}}, buf)
+        atomic_write_bytes(path, buf.getvalue())
+
+    @classmethod
+    def load(cls, path) -> "ContextTwin":
+        """ValueError naming the file when it is not a twin this version reads (tensors and
+        numbers only: never unpickles code)."""
+        try:
+            d = torch.load(path, map_location="cpu", weights_only=True)
+            if d.get("version") != 1:
+                raise ValueError(f"version {d.get('version')!r} not supported")
+            twin = cls(d["state"], d["feat_q"], d["head_q_raw"], int(d["voxel_scale"]), int(d["k"]),
+                       int(d["neighbour_level"]), int(d["radius_sq"]), float(d["step"]), int(d["num_features"]),
+                       int(d["num_attrs"]))
+            twin.sizes  # noqa: B018 (the shapes the fit needs are there)
+        except Exception as e:  # noqa: BLE001
+            raise ValueError(f"{path}: not a context twin ({e})") from None
+        return twin
+
+    def mismatch(self, num_features: int, num_attrs: int, voxel_scale: int, k: int, steps: np.ndarray) -> str | None:
+        """Why this twin cannot start a fit of this configuration (None: it can)."""
+        if (num_features, num_attrs) != (self.num_features, self.num_attrs):
+            return f"it codes {self.num_attrs} channels with {self.num_features} features"
+        if voxel_scale != self.voxel_scale:
+            return f"it was trained for coarse voxel scale {self.voxel_scale}, not {voxel_scale}"
+        if k != self.k:
+            return f"it was trained with k = {self.k}, not {k}"
+        if not np.allclose(np.asarray(steps, dtype=np.float64), self.step, rtol=1e-6, atol=0):
+            return f"it was trained for the quantization step {self.step:g}"
+        return None
+
+
+TWIN_FILE = "context_twin.pt"
+
+
+def find_context_twin(scene_path) -> ContextTwin | None:
+    """The twin saved beside a Scaffold-GS scene (a model folder, an iteration folder or its
+    PLY: ``TWIN_FILE`` in the PLY's folder), None when there is none; InputError naming the
+    file when it is there but unreadable."""
+    from lghcc.common.errors import InputError
+    from lghcc.common.scaffold_io import locate_ply
+
+    path = locate_ply(scene_path).parent / TWIN_FILE
+    if not path.is_file():
+        return None
+    try:
+        return ContextTwin.load(path)
+    except ValueError as e:
+        raise InputError(str(e)) from None
 
 
 def _ste_round(x: torch.Tensor) -> torch.Tensor:
@@ -401,10 +492,19 @@ def train_ggconv_twin(coords2, parent, coords1, attrs1, targets, num_features: i
     head_q_raw = torch.tensor([_pow2_scale(float(voxel_scale) / 2)] * 3 + [2.0 ** -3]
                               + [_pow2_scale(float(s)) for s in xstd], dtype=torch.float64)
 
+    if cfg.init is not None:
+        feat_q, head_q_raw = cfg.init.feat_q.clone(), cfg.init.head_q_raw.clone()
     model = GGConvFloat(num_features, m, cfg, feat_q, head_q_raw)
     model.radius_sq = radius_sq
     model.neighbour_level = cfg.neighbour_level
-    init_mean_outputs(model, data.targets, hr[:, 4:], cfg.parent_base)
+    if cfg.init is not None:
+        model.load_state_dict(cfg.init.state)  # the sizes come from the twin (encode.twin_train_config)
+        with torch.no_grad():  # the twin learned the rate alone: its step adjustments start at 0, as in a fresh fit
+            last = model.head[1].lin
+            last.weight[2 * m:] = 0.0
+            last.bias[2 * m:] = 0.25
+    else:
+        init_mean_outputs(model, data.targets, hr[:, 4:], cfg.parent_base)
     # One-cycle learning rate (warm-up, then cosine decay): measured on a 20k-anchor procedural
     # scene, it converges in a quarter of the steps of a constant rate.
     bar = tqdm(total=cfg.float_steps + cfg.qat_steps, desc="fit GG-Conv", disable=not cfg.progress, unit="step")

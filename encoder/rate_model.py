@@ -36,7 +36,7 @@ from torch import nn
 from lghcc.common.context.ggconv import GRID_FRAC_BITS, grid_coordinate, neighbour_graph, trilinear_corners
 from lghcc.common.geometry import normative_order
 from lghcc.common.hierarchy import build_hierarchy
-from lghcc.encoder.ggconv_train import (_LOG_SIGMA0, _LOG_SIGMA_STEP, GGConvFloat, GGConvTrainConfig, _pow2_scale,
+from lghcc.encoder.ggconv_train import (_LOG_SIGMA0, _LOG_SIGMA_STEP, ContextTwin, GGConvFloat, GGConvTrainConfig, _pow2_scale,
                                         default_radius_sq, gaussian_bits, init_mean_outputs)
 
 
@@ -78,6 +78,7 @@ class AnchorRateModel(nn.Module):
         c1, c2 = coords[order[hier.level1_idx]], coords[order[hier.level2_idx]]
         lvl = cfg.neighbour_level
         radius_sq = cfg.radius_sq or default_radius_sq(c2, cfg.k, c1 if lvl == 1 else None)
+        self.graph = (voxel_scale, cfg.k, lvl, radius_sq)  # what a ContextTwin records
         nbr, valid = neighbour_graph(cfg.k, radius_sq, lvl, c2, c1 if lvl == 1 else None)
         valid_t = torch.from_numpy(valid)
         r_loc, slot = torch.nonzero(valid_t, as_tuple=True)
@@ -106,6 +107,16 @@ class AnchorRateModel(nn.Module):
                               + [_pow2_scale(float(v)) for v in xstd], dtype=torch.float64)
         self.twin = GGConvFloat(num_features, m, cfg, feat_q, head_q)
         init_mean_outputs(self.twin, y[self.l2], x1[parent])  # parent_base by the codec's "choose" rule
+
+    def context_twin(self) -> ContextTwin | None:
+        """The trained twin with what the encoder needs to start its fit from it (None without a
+        level 2, or with per-channel steps that differ)."""
+        steps = self.steps.numpy()
+        if self.twin is None or not np.all(steps == steps[0]):
+            return None
+        voxel_scale, k, level, radius_sq = self.graph
+        return ContextTwin(dict(self.twin.state_dict()), self.twin.feat_q.clone(), self.twin.head_q_raw.clone(),
+                           voxel_scale, k, level, radius_sq, float(steps[0]), self.num_features, self.num_attrs)
 
     @property
     def num_level1(self) -> int:

@@ -776,7 +776,8 @@ class Trainer:
             self.rate_opt.load_state_dict(sd["rate"]["optimizer"])
 
     def save_checkpoint(self) -> Path:
-        folder = write_checkpoint_folder(self.to_scene(), self.out, self.iteration)
+        twin = None if self.rate_model is None else self.rate_model.context_twin()
+        folder = write_checkpoint_folder(self.to_scene(), self.out, self.iteration, twin)
         buf = io.BytesIO()
         torch.save(self.state_dict(), buf)
         atomic_write_bytes(self.out / STATE_NAME, buf.getvalue())
@@ -805,9 +806,10 @@ TMP_PREFIX = ".tmp_"  # point_cloud/.tmp_iteration_<N>_<pid>: a checkpoint folde
 OLD_PREFIX = ".old_"  # point_cloud/.old_iteration_<N>_<pid>: a replaced folder about to be removed
 
 
-def write_checkpoint_folder(scene: AnchorScene, out: Path, iteration: int) -> Path:
+def write_checkpoint_folder(scene: AnchorScene, out: Path, iteration: int, twin=None) -> Path:
     """``write_scaffold`` into a temporary sibling of ``out/point_cloud/iteration_<N>``, renamed
-    into place once complete (PLY and MLPs), so a run killed mid-write never leaves an
+    into place once complete (PLY and MLPs, and the rate phase's context twin, ``TWIN_FILE``,
+    which lghcc-enc starts its GG-Conv fit from), so a run killed mid-write never leaves an
     iteration folder without its MLPs (readers take the newest ``iteration_<N>``; the hidden
     temporary names do not match). A folder already there for N (a repeated checkpoint) is
     moved aside first and removed after. Leftovers of killed writes are removed."""
@@ -819,6 +821,10 @@ def write_checkpoint_folder(scene: AnchorScene, out: Path, iteration: int) -> Pa
     name = f"iteration_{iteration}"
     tmp_model = pc / f"{TMP_PREFIX}{name}_{os.getpid()}"
     written = write_scaffold(scene, tmp_model, iteration)  # tmp_model/point_cloud/iteration_<N>
+    if twin is not None:
+        from lghcc.encoder.ggconv_train import TWIN_FILE
+
+        twin.save(Path(written) / TWIN_FILE)
     staged = pc / f"{TMP_PREFIX}{name}_{os.getpid()}.ready"
     os.replace(written, staged)
     shutil.rmtree(tmp_model)

@@ -2,6 +2,7 @@
 reduces the loss, checkpoint + resume is exact, bad inputs raise InputError naming the
 file, and the written checkpoint reads back and encodes."""
 
+import dataclasses
 import json
 import math
 
@@ -489,3 +490,52 @@ def test_rate_phase_resumes_older_checkpoints(data, tmp_path, monkeypatch):
     resumed = torch.load(path, weights_only=False)["rate"]["model"]
     assert torch.equal(resumed["twin.parent_base"], torch.ones_like(resumed["twin.parent_base"]))
     assert resumed["twin.table"].shape == saved_shape != (saved_shape[0], 3)
+
+
+def test_rate_trained_run_saves_a_context_twin_that_the_encoder_starts_from(data, tmp_path, capsys):
+    """A run with --rate-lambda writes its GG-Conv twin beside the scene; the encoder adds a fit
+    started from it as one more candidate (never a larger stream: the smallest is kept, and the
+    stream decodes bit-exactly), reports a twin trained for other steps as unused, and names a
+    damaged twin file."""
+    from lghcc.common.scaffold_io import locate_ply
+    from lghcc.decoder.decode import decode_stream
+    from lghcc.encoder import cli
+    from lghcc.encoder.config import EncoderConfig
+    from lghcc.encoder.encode import encode_scene
+    from lghcc.encoder.ggconv_train import TWIN_FILE, find_context_twin
+
+    run = tmp_path / "run"
+    T.train(tiny_config(data, iterations=40, densify_until=12, rate_lambda=0.05, rate_step=0.05,
+                        rate_voxel_scale=2), run, progress=False, log=lambda *x: None)
+    assert (locate_ply(run).parent / TWIN_FILE).is_file()
+    twin = find_context_twin(run)
+    assert (twin.voxel_scale, twin.k, twin.step, twin.num_features, twin.num_attrs) == (2, 8, 0.05, 8, 8 + 6 + 9)
+    plain = tmp_path / "plain"
+    T.train(tiny_config(data, iterations=14), plain, progress=False, log=lambda *x: None)
+    assert find_context_twin(plain) is None  # no rate phase: no twin
+
+    scene = read_scaffold(run)
+    cfg = EncoderConfig(hierarchy=True, coarse_voxel_scale=2, context_model="ggconv", context_fallback=False,
+                        feature_step=0.05, scaling_step=0.05, offset_step=0.05, context_float_steps=40,
+                        context_qat_steps=10, context_parent_base="choose", context_neighbour_level=1)
+    fresh = encode_scene(scene, cfg)
+    warm = encode_scene(scene, cfg, context_twin=twin)
+    assert "level2_bytes_with_parent_base_twin" in warm.stats and "context_twin_unused" not in warm.stats
+    assert len(warm.data) <= len(fresh.data)
+    dec = decode_stream(warm.data)
+    assert dec.stream_hash == warm.scene_hash
+    other = encode_scene(scene, dataclasses.replace(cfg, feature_step=0.02), context_twin=twin)
+    assert "quantization step" in other.stats["context_twin_unused"]
+
+    # lghcc-enc finds the twin beside the scene and says what became of it
+    yaml_cfg = tmp_path / "cfg.yaml"
+    yaml_cfg.write_text("hierarchy: true\ncoarse_voxel_scale: 2\ncontext_model: ggconv\nfeature_step: 0.05\n"
+                        "scaling_step: 0.05\noffset_step: 0.05\ncontext_float_steps: 40\ncontext_qat_steps: 10\n")
+    assert cli.main([str(run), "-o", str(tmp_path / "a.lghcc"), "--config", str(yaml_cfg)]) == 0
+    assert "context twin of the training run:" in capsys.readouterr().out
+    assert cli.main([str(run), "-o", str(tmp_path / "b.lghcc"), "--config", str(yaml_cfg), "--no-context-twin"]) == 0
+    assert "context twin" not in capsys.readouterr().out
+
+    (locate_ply(run).parent / TWIN_FILE).write_bytes(b"not a twin")
+    with pytest.raises(InputError, match=TWIN_FILE):
+        find_context_twin(run)

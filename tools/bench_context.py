@@ -39,18 +39,24 @@ MODELS = {  # label -> encoder options
     "parent MLP": dict(context_model="parent_mlp"),
     "GG-Conv, level-2 graph (paper)": dict(context_model="ggconv", context_neighbour_level=2),
     "GG-Conv, level-1 neighbours": dict(context_model="ggconv", context_neighbour_level=1),
+    # lghcc-enc's default on a rate-trained run: the level-1 fit and one started from the twin
+    # lghcc-train saved beside the scene, the smaller kept (rows only for scenes with a twin)
+    "GG-Conv, level-1 neighbours + training twin": dict(context_model="ggconv", context_neighbour_level=1, twin=True),
 }
 
 
 def load_scene(spec: str):
+    """(scene, label, the context twin saved beside it or None)."""
     if spec.startswith("procedural:"):
         from lghcc.common.procedural import make_procedural_scene
-        return make_procedural_scene(int(spec.split(":", 1)[1]), seed=0), f"procedural {int(spec.split(':')[1]):,}"
+        return (make_procedural_scene(int(spec.split(":", 1)[1]), seed=0), f"procedural {int(spec.split(':')[1]):,}",
+                None)
     from lghcc.common.scaffold_io import read_scaffold
-    return read_scaffold(spec), Path(spec).name
+    from lghcc.encoder.ggconv_train import find_context_twin
+    return read_scaffold(spec), Path(spec).name, find_context_twin(spec)
 
 
-def run_one(scene, args, **over) -> dict:
+def run_one(scene, args, twin=None, **over) -> dict:
     import numpy as np
 
     from lghcc.decoder.decode import decode_stream
@@ -66,7 +72,7 @@ def run_one(scene, args, **over) -> dict:
     kw.update(over)
     cfg = EncoderConfig(**kw)
     t0 = time.perf_counter()
-    res = encode_scene(scene, cfg)
+    res = encode_scene(scene, cfg, context_twin=twin)
     t_enc = time.perf_counter() - t0
     st = res.stats
     t0 = time.perf_counter()
@@ -178,10 +184,15 @@ def main(argv=None) -> int:
               "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---|"]
     scenes = list(args.scene) + [f"procedural:{n}" for n in args.sizes]
     for spec in scenes:
-        scene, label = load_scene(spec)
+        scene, label, twin = load_scene(spec)
         rows = {}
         for model in args.models:
-            rows[model] = r = run_one(scene, args, **MODELS[model])
+            opts = dict(MODELS[model])
+            if opts.pop("twin", False):
+                if twin is None:
+                    continue
+                opts["twin"] = twin
+            rows[model] = r = run_one(scene, args, **opts)
             print(label, model, {k: (round(v, 3) if isinstance(v, float) else v) for k, v in r.items()}, flush=True)
         base, par = rows.get("per-channel prior"), rows.get("parent MLP")
         for model, r in rows.items():
@@ -201,7 +212,7 @@ def main(argv=None) -> int:
         write_lines(args.out, lines)
 
     if not args.no_tradeoff:
-        scene, label = load_scene(args.tradeoff_scene)
+        scene, label, _ = load_scene(args.tradeoff_scene)
         lines += ["", f"## (b) What accuracy costs in time (GG-Conv, level-1 neighbours, {label})", "",
                   "One fit per setting (parent_base 'choose'); 'auto' would fit twice.", "",
                   "| setting | L2+model bits/anchor | L2 bits/anchor | model bytes | fit s | decode s | load |",

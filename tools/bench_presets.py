@@ -56,6 +56,8 @@ def main(argv=None) -> int:
     torch.set_num_threads(args.threads)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     scene = read_scaffold(args.input) if args.input else make_procedural_scene(args.procedural, seed=0)
+    from lghcc.encoder.ggconv_train import find_context_twin
+    twin = find_context_twin(args.input) if args.input else None  # as lghcc-enc: the training's GG-Conv twin
     test = None
     if args.data:
         from lghcc.encoder.train import evaluate_scene, load_dataset
@@ -69,7 +71,7 @@ def main(argv=None) -> int:
     for name in args.presets or preset_names():
         cfg = load_config(name)
         t0 = time.perf_counter()
-        res = encode_scene(scene, cfg)
+        res = encode_scene(scene, cfg, context_twin=twin)
         t_enc = time.perf_counter() - t0
         t0 = time.perf_counter()
         dec = decode_stream(res.data)

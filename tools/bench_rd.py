@@ -84,6 +84,7 @@ def main(argv=None) -> int:
     from lghcc.decoder.decode import decode_stream
     from lghcc.encoder.config import load_config
     from lghcc.encoder.encode import encode_scene
+    from lghcc.encoder.ggconv_train import find_context_twin
     from lghcc.encoder.train import evaluate_scene, load_dataset
 
     torch.set_num_threads(args.threads)
@@ -92,17 +93,18 @@ def main(argv=None) -> int:
     for run in map(Path, args.runs):
         lam, iters = run_info(run)
         scene = read_scaffold(run)
+        twin = find_context_twin(run)  # as lghcc-enc does: the GG-Conv fit also starts from the training's twin
         own = evaluate_scene(scene, test, args.background)
         for name in args.presets:
             t0 = time.perf_counter()
-            res = encode_scene(scene, load_config(name))
+            res = encode_scene(scene, load_config(name), context_twin=twin)
             t_enc = time.perf_counter() - t0
             t0 = time.perf_counter()
             dec = decode_stream(res.data)
             t_dec = time.perf_counter() - t0
             ev = evaluate_scene(dec.scene, test, args.background)
             parts = res.breakdown.bytes_by_category
-            rows.append(dict(run=run.name, preset=name, bytes=len(res.data), anchors=scene.num_anchors,
+            rows.append(dict(run=run.name, preset=name, twin=res.stats.get("context_parent_base") == "twin", bytes=len(res.data), anchors=scene.num_anchors,
                              geom=parts["geometry"], attr=parts["attributes"], model=parts["model"], enc=t_enc, dec=t_dec, psnr=ev["psnr"],
                              ssim=ev["ssim"], own=own["psnr"], iterations=iters, **{"lambda": lam}))
             r = rows[-1]
@@ -115,11 +117,12 @@ def main(argv=None) -> int:
               f"{args.threads} torch threads; shared 2-core VM, load {load_average()} at the end (timings are noisy). "
               f"Test PSNR/SSIM: the decoded scene on the {len(test)} test views; 'uncompressed': the trained "
               "scene itself. geometry / attributes / models: bytes of those units (models: the render MLPs and "
-              "the context model), framing included.", "",
-              "| run | lambda | iterations | anchors | preset | bytes | bits/anchor | geometry | attributes | models "
+              "the context model), framing included. twin: the GG-Conv model kept is the fit started from the "
+              "training's context twin (context_twin.pt beside the scene).", "",
+              "| run | lambda | iterations | anchors | preset | twin | bytes | bits/anchor | geometry | attributes | models "
               "| test PSNR dB | test SSIM | uncompressed PSNR dB | encode s | decode s |",
-              "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    lines += [f"| {r['run']} | {r['lambda']:g} | {r['iterations']:,} | {r['anchors']:,} | {r['preset']} | "
+              "|---|---:|---:|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines += [f"| {r['run']} | {r['lambda']:g} | {r['iterations']:,} | {r['anchors']:,} | {r['preset']} | {'yes' if r['twin'] else '-'} | "
               f"{r['bytes']:,} | {8 * r['bytes'] / r['anchors']:.1f} | {r['geom']:,} | {r['attr']:,} | {r['model']:,} | "
               f"{r['psnr']:.3f} | {r['ssim']:.4f} | {r['own']:.3f} | {r['enc']:.1f} | {r['dec']:.2f} |" for r in rows]
     lines += ["", plot_rd(rows, out.with_suffix(".png"))]
