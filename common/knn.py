@@ -108,7 +108,7 @@ def ball_knn(coords, k: int, radius_sq: int, query=None, exclude_self: bool = Tr
     points at the query's own position (d2 == 0) are excluded.
     workers, initial_extra: performance knobs of the candidate generator only (initial_extra:
     candidates asked beyond k at first; None: 8 for a self query, whose dense neighbourhoods
-    tie often, and 2 for a separate query set; measured at 1M anchors in tools/results/codec.md).
+    tie often, and 2 for a separate query set; tools/results/ggconv.md measures both).
     """
     from scipy.spatial import cKDTree
 

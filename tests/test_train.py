@@ -536,6 +536,15 @@ def test_rate_trained_run_saves_a_context_twin_that_the_encoder_starts_from(data
     assert cli.main([str(run), "-o", str(tmp_path / "b.lghcc"), "--config", str(yaml_cfg), "--no-context-twin"]) == 0
     assert "context twin" not in capsys.readouterr().out
 
+    # tools/export_context_twin.py writes the same twin from the training state (runs from before the file)
+    import runpy
+    from pathlib import Path
+    (locate_ply(run).parent / TWIN_FILE).unlink()
+    tool = runpy.run_path(str(Path(__file__).resolve().parents[1] / "tools" / "export_context_twin.py"))
+    assert tool["main"]([str(run)]) == 0 and tool["main"]([str(plain)]) == 1
+    again = find_context_twin(run)
+    assert all(torch.equal(v, twin.state[k]) for k, v in again.state.items()) and again.radius_sq == twin.radius_sq
+
     (locate_ply(run).parent / TWIN_FILE).write_bytes(b"not a twin")
     with pytest.raises(InputError, match=TWIN_FILE):
         find_context_twin(run)
