@@ -286,7 +286,7 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
                 header.context_model_id = fitted.model_id
                 cand = code(header, q_ctx, params)
                 cand_bytes = len(cand.payload) + len(cand_unit)
-                if len(levels_to_try) > 1:
+                if len(levels_to_try) > 1 and base_mode != "twin":
                     key = f"level2_bytes_with_ggconv_neighbour_level_{nb_level}"
                     stats[key] = min(stats.get(key, cand_bytes), cand_bytes)
                 if len(bases_to_try) > 1 or base_mode == "twin":

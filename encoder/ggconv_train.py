@@ -123,10 +123,24 @@ class ContextTwin:
             twin = cls(d["state"], d["feat_q"], d["head_q_raw"], int(d["voxel_scale"]), int(d["k"]),
                        int(d["neighbour_level"]), int(d["radius_sq"]), float(d["step"]), int(d["num_features"]),
                        int(d["num_attrs"]))
-            twin.sizes  # noqa: B018 (the shapes the fit needs are there)
+            twin.check()
         except Exception as e:  # noqa: BLE001
             raise ValueError(f"{path}: not a context twin ({e})") from None
         return twin
+
+    def check(self) -> None:
+        """ValueError unless the settings are in range and the state is exactly a twin of these
+        sizes (so a fit can always start from it)."""
+        if self.neighbour_level not in (1, 2) or not 1 <= self.k <= 64 or self.radius_sq < 1 or self.voxel_scale < 1:
+            raise ValueError("neighbour level, k, radius^2 or voxel scale out of range")
+        if not (math.isfinite(self.step) and self.step > 0):
+            raise ValueError(f"quantization step {self.step!r}")
+        if self.feat_q.shape != (self.num_features + 3,) or self.head_q_raw.shape != (self.num_attrs + 4,):
+            raise ValueError("input scales do not match the channel counts")
+        ch, fh, hh = self.sizes
+        cfg = GGConvTrainConfig(k=self.k, neighbour_level=self.neighbour_level, ctx_channels=ch, feat_hidden=fh,
+                                head_hidden=hh)
+        GGConvFloat(self.num_features, self.num_attrs, cfg, self.feat_q, self.head_q_raw).load_state_dict(self.state)
 
     def mismatch(self, num_features: int, num_attrs: int, voxel_scale: int, k: int, steps: np.ndarray) -> str | None:
         """Why this twin cannot start a fit of this configuration (None: it can)."""

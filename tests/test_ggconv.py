@@ -381,3 +381,32 @@ def test_entries_that_are_not_coded_cost_nothing_in_the_fit():
     never = torch.full((300, 5), torch.nan, dtype=torch.float64)  # a channel never coded: finite start
     b0, c0, s0 = choose_parent_base(never, xpar)
     assert torch.isfinite(c0).all() and torch.isfinite(s0).all()
+
+
+def test_context_twin_file_round_trip_and_rejects_what_it_cannot_use(tmp_path):
+    """A ContextTwin saved and loaded is the same twin; a file whose state does not fit its sizes,
+    or whose settings are out of range, is refused with ValueError naming the file."""
+    import dataclasses
+
+    import torch
+
+    from lghcc.encoder.ggconv_train import ContextTwin, GGConvFloat, GGConvTrainConfig
+
+    c, m = 4, 4 + 6 + 6
+    cfg = GGConvTrainConfig(ctx_channels=3, feat_hidden=5, head_hidden=7)
+    model = GGConvFloat(c, m, cfg, torch.ones(c + 3, dtype=torch.float64), torch.ones(m + 4, dtype=torch.float64))
+    twin = ContextTwin(dict(model.state_dict()), model.feat_q, model.head_q_raw, 4, 8, 1, 30, 0.02, c, m)
+    twin.save(tmp_path / "t.pt")
+    back = ContextTwin.load(tmp_path / "t.pt")
+    assert back.sizes == (3, 5, 7) and (back.k, back.radius_sq, back.step) == (8, 30, 0.02)
+    assert all(torch.equal(v, twin.state[k]) for k, v in back.state.items())
+    assert back.mismatch(c, m, 4, 8, np.full(m, 0.02)) is None
+    assert "step" in back.mismatch(c, m, 4, 8, np.full(m, 0.05))
+    assert "voxel scale" in back.mismatch(c, m, 2, 8, np.full(m, 0.02))
+    bad_state = dict(twin.state)
+    bad_state["head.1.lin.bias"] = torch.zeros(5, dtype=torch.float64)
+    for bad in (dataclasses.replace(twin, state=bad_state), dataclasses.replace(twin, neighbour_level=3),
+                dataclasses.replace(twin, radius_sq=0), dataclasses.replace(twin, step=float("nan"))):
+        bad.save(tmp_path / "bad.pt")
+        with pytest.raises(ValueError, match="bad.pt"):
+            ContextTwin.load(tmp_path / "bad.pt")
