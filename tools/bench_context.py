@@ -32,7 +32,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # shared machine: no spinni
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tools"))
-from benchutil import load_average, write_lines  # noqa: E402
+from benchutil import command_line, load_average, write_lines  # noqa: E402
 
 MODELS = {  # label -> encoder options
     "per-channel prior": dict(context_model="per_channel"),
@@ -159,7 +159,7 @@ def main(argv=None) -> int:
 
     torch.set_num_threads(args.threads)
     d = EncoderConfig()
-    cmd = "python tools/bench_context.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    cmd = command_line("bench_context.py", argv)
     prev = args.out.read_text().rstrip("\n").split("\n") + [""] if args.append and args.out.exists() else []
     lines = prev + ([] if args.append else ["# Level-2 context models: bits and time", ""]) + [
              f"Command: `{cmd}`  ",

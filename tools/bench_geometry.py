@@ -30,6 +30,8 @@ from lghcc.common.procedural import make_procedural_scene, surface_points
 from lghcc.common.geometry import (IDCM_ISOLATED, decode_geometry, encode_geometry,
                                    normative_order)
 
+from benchutil import command_line  # noqa: E402  (tools/ is on the path when run as a script)
+
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT.parent / "shared" / "data"
 # G-PCC (TMC13 v23, octree + planar + IDCM), lossless, bits per voxel: figures supplied with the
@@ -203,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(r)
         print(f"{name:14s} {str(bits or '-'):>4s} {r['n']:>9d} {r['bpv']:7.2f} bpv  enc {r['enc']:6.2f} s  "
               f"dec {r['dec']:6.2f} s  zstd {r['zraw']:6.2f}", flush=True)
-    cmd = "python tools/bench_geometry.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    cmd = command_line("bench_geometry.py", argv)
     lines = [
         "# Geometry coding benchmark",
         "",

@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchutil import load_average, write_lines  # noqa: E402
+from benchutil import command_line, load_average, write_lines  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -121,7 +121,7 @@ def main(argv=None) -> int:
                          hier.num_level2 / total, g_s, g_flop, g_flop / g_s))
             print(" ".join(str(x) if not isinstance(x, float) else f"{x:.2f}" for x in rows[-1]), flush=True)
     lines = ["# GG-Conv decoding time: where it goes", "",
-             f"Command: `python tools/bench_ggconv.py {' '.join(argv if argv is not None else sys.argv[1:])}`  ",
+             f"Command: `{command_line('bench_ggconv.py', argv)}`  ",
              f"Date: {datetime.date.today()}; {args.threads} torch threads; shared 2-core VM, load {load_average()} "
              "at the end (timings are noisy). Procedural scene (seed 0), coarse voxel scale 4, K = 8, random "
              "integer weights at the encoder's model size (Ch / feature hidden / head hidden) and radius rule. "

@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from benchutil import command_line  # noqa: E402  (tools/ is on the path when run as a script)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -87,7 +89,7 @@ def main(argv=None) -> int:
     ref_ev = evaluate_scene(scene, test, args.background) if test is not None else None
     lines = [] if args.append else ["# Presets: size, time and fidelity", ""]
     lines += [f"## {source}", "",
-             f"Command: `python tools/bench_presets.py {' '.join(argv or sys.argv[1:])}`  ",
+             f"Command: `{command_line('bench_presets.py', argv)}`  ",
              f"Date: {datetime.date.today()}; {args.threads} torch threads; shared 2-core VM, load "
              f"{' '.join(f'{x:.1f}' for x in os.getloadavg())} at the end (timings are noisy).  ",
              f"Scene: {source}. Fidelity: mean PSNR of {args.views} orbit renders ({args.size} px) of the decoded "

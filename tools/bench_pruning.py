@@ -36,7 +36,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tools"))
-from benchutil import load_average, write_lines  # noqa: E402
+from benchutil import command_line, load_average, write_lines  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -74,7 +74,7 @@ def main(argv=None) -> int:
     if args.views and args.views < len(cams):
         cams = [cams[i] for i in np.linspace(0, len(cams) - 1, args.views).round().astype(int)]
     base_cfg = load_config(args.preset)
-    cmd = "python tools/bench_pruning.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    cmd = command_line("bench_pruning.py", argv)
     lines = ["# NAAP vs opacity pruning: bytes and fidelity at the same anchor count", "",
              f"Command: `{cmd}`  ",
              f"Date: {datetime.date.today().isoformat()}; {args.threads} torch threads, shared 2-core VM.  ",

@@ -27,7 +27,7 @@ import numpy as np
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchutil import load_average, write_lines  # noqa: E402
+from benchutil import command_line, load_average, write_lines  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -113,7 +113,7 @@ def main(argv=None) -> int:
     out = Path(args.out)
     lines = [] if args.append else ["# Rate-distortion in coded bytes (training lambda x encoder preset)", ""]
     lines += [f"## {Path(args.data).name}, {datetime.date.today()}", "",
-              f"Command: `python tools/bench_rd.py {' '.join(argv if argv is not None else sys.argv[1:])}`  ",
+              f"Command: `{command_line('bench_rd.py', argv)}`  ",
               f"{args.threads} torch threads; shared 2-core VM, load {load_average()} at the end (timings are noisy). "
               f"Test PSNR/SSIM: the decoded scene on the {len(test)} test views; 'uncompressed': the trained "
               "scene itself. geometry / attributes / models: bytes of those units (models: the render MLPs and "

@@ -39,6 +39,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from benchutil import command_line  # noqa: E402  (tools/ is on the path when run as a script)
+
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_LEGO = ROOT.parent / "shared" / "data" / "lego" / "lego_100"
 
@@ -203,7 +205,7 @@ def main(argv=None) -> int:
         nrows = []
         bench_neural(cams, st, nrows, a.repeat)
         nsections.append((desc, nrows))
-    cmd = "python tools/bench_render.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    cmd = command_line("bench_render.py", argv)
     lines = [
         "# Renderer benchmark (lghcc.render, pure torch on CPU)", "",
         f"Command: `{cmd.strip()}`  ",

@@ -3,7 +3,15 @@ markdown results files."""
 
 from __future__ import annotations
 
+import shlex
+import sys
 from pathlib import Path
+
+
+def command_line(tool: str, argv: list[str] | None = None) -> str:
+    """The command that reproduces a results table, quoted so that it can be pasted into a shell
+    (labels such as \"NAAP in training (keep 0.7)=...\" carry spaces and parentheses)."""
+    return shlex.join(["python", f"tools/{tool}", *(sys.argv[1:] if argv is None else argv)])
 
 
 def load_average() -> str:
