@@ -12,7 +12,7 @@
     and two model widths on one scene: level-2 bits, fit time, decode time; a PNG plot when
     matplotlib is installed (``pip install -e .[tools]``).
 
-    python tools/bench_context.py --scene /work/scenes/lego100 --sizes 10000 100000 --tradeoff-size 20000
+    python tools/bench_context.py --scene /work/scenes/lego100 --sizes 10000 100000 --tradeoff-scene procedural:20000
 
 Scenes are read-only inputs: a Scaffold-GS folder (lghcc-train output, a transcoded 3DGS PLY)
 or `procedural:N` (common/procedural.py, seed 0).
