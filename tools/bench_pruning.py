@@ -43,7 +43,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("scene", help="trained Scaffold-GS folder (with opacity_accum in its PLY)")
     ap.add_argument("data", help="the dataset it was trained on (test views are rendered)")
-    ap.add_argument("--keep", type=float, nargs="+", default=[0.9, 0.75, 0.6], help="keep ratios")
+    ap.add_argument("--keep", type=float, nargs="*", default=[0.9, 0.75, 0.6],
+                    help="keep ratios of the post-hoc rows (none: only the unpruned and --trained rows)")
     ap.add_argument("--preset", default="medium")
     ap.add_argument("--trained", action="append", default=[], metavar="LABEL=DIR",
                     help="a scene pruned during training, encoded as is (repeatable)")
