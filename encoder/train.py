@@ -952,6 +952,21 @@ def _check_config(cfg: TrainConfig) -> None:
             raise InputError("rate-voxel-scale must be >= 2 and rate-neighbour-level 1 or 2")
 
 
+def read_train_state(out: str | Path) -> dict:
+    """The training state of the run in ``out`` (``STATE_NAME``); InputError naming the file
+    when it is missing, unreadable or of another version."""
+    sp = Path(out) / STATE_NAME
+    if not sp.is_file():
+        raise InputError(f"{sp}: no training state to resume from")
+    try:
+        state = torch.load(sp, map_location="cpu", weights_only=False)
+    except Exception as e:  # noqa: BLE001
+        raise InputError(f"{sp}: cannot load ({e})") from None
+    if state.get("version") != STATE_VERSION:
+        raise InputError(f"{sp}: training state version {state.get('version')} not supported")
+    return state
+
+
 def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, stop_after: int | None = None,
           time_limit_s: float | None = None, progress: bool = True, log=print,
           iterations: int | None = None) -> TrainResult:
@@ -964,15 +979,7 @@ def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, stop_after
     out = Path(out)
     state = None
     if resume:
-        sp = out / STATE_NAME
-        if not sp.is_file():
-            raise InputError(f"{sp}: no training state to resume from")
-        try:
-            state = torch.load(sp, map_location="cpu", weights_only=False)
-        except Exception as e:  # noqa: BLE001
-            raise InputError(f"{sp}: cannot load ({e})") from None
-        if state.get("version") != STATE_VERSION:
-            raise InputError(f"{sp}: training state version {state.get('version')} not supported")
+        state = read_train_state(out)
         saved = TrainConfig(**state["config"])
         saved.threads = cfg.threads  # a resumed run may change the threads and extend the iterations
         reached = int(state["iteration"])

@@ -7,10 +7,9 @@ symbols; its progress during the decode is compared with its progress in as long
 
 from __future__ import annotations
 
+import importlib.metadata
 import threading
 import time
-
-import importlib.metadata
 
 import constriction
 import numpy as np

@@ -30,7 +30,7 @@ def main(argv=None) -> int:
     status = 0
     for run in map(Path, args.runs):
         try:
-            state = torch.load(run / T.STATE_NAME, map_location="cpu", weights_only=False)
+            state = T.read_train_state(run)
             cfg = T.TrainConfig(**state["config"])
             tr = T.Trainer(cfg, T.load_dataset(cfg.data, cfg.background, cfg.downscale, cfg.images), run)
             tr.load_state_dict(state)
