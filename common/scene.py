@@ -145,3 +145,111 @@ class AnchorScene:
             raise InputError(f"{n - uniq} anchors share a voxel with another anchor; merge them first "
                              "(lghcc-enc merges them when given --merge-duplicates)")
         return self
+
+
+SH_DEGREE_MAX = 3
+
+
+def sh_coeffs_per_channel(degree: int) -> int:
+    """(d + 1)^2 SH coefficients per colour channel for degree d = 0..3."""
+    if not 0 <= degree <= SH_DEGREE_MAX:
+        raise InputError(f"SH degree must be 0..{SH_DEGREE_MAX}, got {degree}")
+    return (degree + 1) ** 2
+
+
+@dataclass
+class GaussianScene:
+    """An explicit 3DGS scene in the INRIA PLY conventions: what 3DGS, gsplat, SuperSplat,
+    SPZ and SOG exchange, and what the decoder of an explicit-Gaussian stream outputs.
+
+    Per Gaussian: ``means`` [N, 3], ``sh`` [N, K, 3] SH coefficients (K = (d + 1)^2,
+    coefficient-major: sh[:, 0] is f_dc, sh[:, i] coefficient i of R, G, B), ``opacity`` [N]
+    (logit), ``log_scales`` [N, 3], ``rotations`` [N, 4] quaternion (w, x, y, z), any norm,
+    as 3DGS stores it; renderers normalize. All float32.
+
+    A decoded explicit stream also has the grid its positions were coded on: ``coords``
+    [N, 3] int64, ``voxel_size`` and ``origin``, with means = origin + coords * voxel_size
+    (binary32, as ``AnchorScene.positions``)."""
+
+    means: np.ndarray
+    sh: np.ndarray
+    opacity: np.ndarray
+    log_scales: np.ndarray
+    rotations: np.ndarray
+    coords: np.ndarray | None = None
+    voxel_size: float | None = None
+    origin: np.ndarray | None = None
+
+    @property
+    def num_gaussians(self) -> int:
+        return int(self.means.shape[0])
+
+    @property
+    def sh_degree(self) -> int:
+        return int(round(np.sqrt(self.sh.shape[1]))) - 1
+
+    @classmethod
+    def on_grid(cls, coords: np.ndarray, voxel_size: float, origin, sh: np.ndarray, opacity: np.ndarray,
+                log_scales: np.ndarray, rotations: np.ndarray) -> "GaussianScene":
+        """A scene whose positions are integer voxel coordinates: means = origin + coords * voxel_size."""
+        c = np.asarray(coords, dtype=np.int64)
+        o = np.asarray(origin, dtype=np.float32).reshape(3)
+        with np.errstate(over="ignore", invalid="ignore"):
+            means = (c.astype(np.float32) * np.float32(voxel_size) + o).astype(np.float32)
+        return cls(means, sh, opacity, log_scales, rotations, c, float(voxel_size), o)
+
+    def subset(self, idx: np.ndarray) -> "GaussianScene":
+        """The Gaussians ``idx`` (indices or a boolean mask), in that order."""
+        return GaussianScene(self.means[idx], self.sh[idx], self.opacity[idx], self.log_scales[idx],
+                             self.rotations[idx], None if self.coords is None else self.coords[idx],
+                             self.voxel_size, self.origin)
+
+    def with_sh_degree(self, degree: int) -> "GaussianScene":
+        """The scene with its SH cut to (or padded with zeros up to) ``degree``."""
+        k = sh_coeffs_per_channel(degree)
+        sh = np.zeros((self.num_gaussians, k, 3), np.float32)
+        m = min(k, self.sh.shape[1])
+        sh[:, :m] = self.sh[:, :m]
+        return GaussianScene(self.means, sh, self.opacity, self.log_scales, self.rotations, self.coords,
+                             self.voxel_size, self.origin)
+
+    def validate(self, what: str = "scene") -> "GaussianScene":
+        """Check shapes and values; raise InputError naming ``what`` and the first problem."""
+        n = self.means.shape[0] if self.means.ndim == 2 else -1
+        if self.means.ndim != 2 or self.means.shape[1] != 3:
+            raise InputError(f"{what}: positions must have shape [N, 3], got {list(self.means.shape)}")
+        if n == 0:
+            raise InputError(f"{what}: the scene holds no Gaussians")
+        k = self.sh.shape[1] if self.sh.ndim == 3 else -1
+        if self.sh.ndim != 3 or self.sh.shape[0] != n or self.sh.shape[2] != 3 or \
+                k not in [sh_coeffs_per_channel(d) for d in range(SH_DEGREE_MAX + 1)]:
+            raise InputError(f"{what}: SH coefficients must have shape [N, (d+1)^2, 3] for a degree d = 0..3 and "
+                             f"N = {n}, got {list(self.sh.shape)}")
+        for name, arr, shape in (("opacity", self.opacity, (n,)), ("scales", self.log_scales, (n, 3)),
+                                 ("rotations", self.rotations, (n, 4))):
+            if arr.shape != shape:
+                raise InputError(f"{what}: {name} must have shape {list(shape)}, got {list(arr.shape)}")
+        # fields named as the INRIA PLY names them
+        for name, arr in (("x/y/z", self.means), ("f_dc/f_rest", self.sh), ("opacity", self.opacity),
+                          ("scale", self.log_scales), ("rot", self.rotations)):
+            bad = ~np.isfinite(arr.reshape(n, -1)).all(axis=1)
+            if bad.any():
+                raise InputError(f"{what}: field '{name}' contains NaN or Inf (in {int(bad.sum())} Gaussians, the "
+                                 f"first is Gaussian {int(np.argmax(bad))})")
+        with np.errstate(over="ignore", under="ignore"):
+            act = np.exp(self.log_scales.astype(np.float32))
+        bad = ~((act > 0) & np.isfinite(act)).all(axis=1)
+        if bad.any():
+            raise InputError(f"{what}: {int(bad.sum())} Gaussians have a scale that is zero or infinite after "
+                             f"activation (exp of log scale {float(self.log_scales[bad][0].min()):g} .. "
+                             f"{float(self.log_scales[bad][0].max()):g}; the first is Gaussian {int(np.argmax(bad))})")
+        zero = ~(np.abs(self.rotations) > 0).any(axis=1)
+        if zero.any():
+            raise InputError(f"{what}: {int(zero.sum())} Gaussians have a zero rotation quaternion (the first is "
+                             f"Gaussian {int(np.argmax(zero))})")
+        if self.coords is not None:
+            if self.coords.shape != (n, 3) or not np.issubdtype(self.coords.dtype, np.integer):
+                raise InputError(f"{what}: grid coordinates must be integers of shape [N, 3]")
+            if not (self.voxel_size is not None and np.isfinite(self.voxel_size) and self.voxel_size > 0):
+                raise InputError(f"{what}: voxel size must be a positive finite number, got {self.voxel_size}")
+        return self

@@ -1,10 +1,7 @@
 """Plain 3DGS scenes (the INRIA PLY layout): read, write, render (informative).
 
-INRIA 3DGS ``point_cloud.ply`` per Gaussian: ``x, y, z`` (``nx, ny, nz``, unused),
-``f_dc_0..2`` (SH coefficient 0 per channel), ``f_rest_0..3(K-1)-1`` (the other
-coefficients, channel-major: f_rest_{c (K-1) + i - 1} is coefficient i of channel c,
-K = (d + 1)^2 for SH degree d; none for degree 0), ``opacity`` (logit),
-``scale_0..2`` (log), ``rot_0..3`` (quaternion w, x, y, z, any norm).
+The PLY layout is read and written by lghcc.formats.ply3dgs (into a GaussianScene); this
+module holds the activated torch tensors the renderer uses.
 
 ``render_3dgs`` evaluates the SH colour for the direction from the camera centre to each
 mean (render/sh.py) and rasterizes with render/rasterizer.py.
@@ -19,14 +16,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lghcc.common.errors import InputError
-from lghcc.common.ply import read_ply, read_ply_header_lines, write_ply
+from lghcc.common.scene import GaussianScene
+from lghcc.formats.ply3dgs import is_3dgs_ply, read_3dgs_ply  # noqa: F401  (is_3dgs_ply: re-exported)
+from lghcc.formats.ply3dgs import write_3dgs_ply as write_ply_scene
 from lghcc.render.camera import Camera
 from lghcc.render.rasterizer import RenderResult, rasterize
-from lghcc.render.sh import MAX_SH_DEGREE, num_sh_coeffs, sh_to_rgb
-
-REQUIRED_FIELDS = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
-                   "rot_0", "rot_1", "rot_2", "rot_3")
+from lghcc.render.sh import sh_to_rgb
 
 
 @dataclass
@@ -65,98 +60,35 @@ class Gaussians3DGS:
         return (lo + hi) / 2, max(float(np.linalg.norm(hi - lo) / 2), 1e-6)
 
 
-def read_ply_header(path: str | os.PathLike) -> list[str]:
-    """Property names of the first element of a PLY file, from its header only."""
-    names, seen_element = [], False
-    for line in read_ply_header_lines(path):
-        parts = line.split()
-        if parts[:1] == ["element"]:
-            if seen_element:
-                break
-            seen_element = True
-        elif parts[:1] == ["property"] and len(parts) >= 3:
-            names.append(parts[-1])
-    return names
-
-
-def is_3dgs_ply(path: str | os.PathLike) -> bool:
-    """True for a plain 3DGS PLY: a .ply file with f_dc_0 and no f_anchor_feat_0."""
-    p = Path(path)
-    if not p.is_file():
-        return False
-    try:
-        names = read_ply_header(p)
-    except InputError:
-        return False
-    return "f_dc_0" in names and "f_anchor_feat_0" not in names
+def gaussians_from_scene(scene: GaussianScene, dtype: torch.dtype = torch.float32, source: str = "") -> Gaussians3DGS:
+    """The activated tensors of a GaussianScene: unit quaternions (a zero one becomes the
+    identity), exp of the log scales, sigmoid of the opacity logits."""
+    rot = scene.rotations.astype(np.float64)
+    norm = np.linalg.norm(rot, axis=1, keepdims=True)
+    rot = np.where(norm > 0, rot / np.maximum(norm, 1e-30), np.array([1.0, 0, 0, 0]))
+    t = lambda a: torch.as_tensor(np.asarray(a, np.float64), dtype=dtype)  # noqa: E731
+    log_s = np.clip(scene.log_scales.astype(np.float64), -80, 80)
+    opac = scene.opacity.astype(np.float64)
+    return Gaussians3DGS(t(scene.means), t(rot), t(np.exp(log_s)), t(1 / (1 + np.exp(-opac))),
+                         t(scene.sh), scene.sh_degree, source)
 
 
 def load_3dgs_ply(path: str | os.PathLike, dtype: torch.dtype = torch.float32) -> Gaussians3DGS:
-    """Read an INRIA 3DGS PLY. Raises InputError naming the file and the first missing
-    or malformed field."""
-    p = Path(path)
-    cols = read_ply(p)
-    if "f_anchor_feat_0" in cols:
-        raise InputError(f"{p}: this is a Scaffold-GS anchor file (f_anchor_feat_*), not a plain 3DGS PLY")
-    for f in REQUIRED_FIELDS:
-        if f not in cols:
-            raise InputError(f"{p}: field '{f}' is missing: not a 3DGS PLY (needs {', '.join(REQUIRED_FIELDS)}, "
-                             "f_rest_* optional)")
-    rest = sorted((k for k in cols if k.startswith("f_rest_")), key=lambda k: int(k[7:]) if k[7:].isdigit() else -1)
-    for i, k in enumerate(rest):
-        if k != f"f_rest_{i}":
-            raise InputError(f"{p}: field 'f_rest_{i}' is missing (f_rest_* must be numbered 0..{len(rest) - 1})")
-    nrest = len(rest)
-    if nrest % 3 or nrest // 3 + 1 not in [num_sh_coeffs(d) for d in range(MAX_SH_DEGREE + 1)]:
-        raise InputError(f"{p}: {nrest} f_rest_* fields: expected 3((d+1)^2 - 1) = 0, 9, 24 or 45 for SH degree "
-                         f"d = 0..{MAX_SH_DEGREE}")
-    k = nrest // 3 + 1
-    degree = int(round(np.sqrt(k))) - 1
-    n = len(cols["x"])
-    if n == 0:
-        raise InputError(f"{p}: the file holds no Gaussians")
-
-    def stack(names):
-        return np.stack([np.asarray(cols[c], np.float64) for c in names], axis=1)
-
-    means = stack(["x", "y", "z"])
-    dc = stack(["f_dc_0", "f_dc_1", "f_dc_2"])
-    sh = np.zeros((n, k, 3))
-    sh[:, 0] = dc
-    if nrest:
-        sh[:, 1:] = stack(rest).reshape(n, 3, k - 1).transpose(0, 2, 1)
-    opac = np.asarray(cols["opacity"], np.float64)
-    log_s = stack(["scale_0", "scale_1", "scale_2"])
-    rot = stack(["rot_0", "rot_1", "rot_2", "rot_3"])
-    for name, a in (("x/y/z", means), ("f_dc/f_rest", sh), ("opacity", opac), ("scale", log_s), ("rot", rot)):
-        if not np.isfinite(a).all():
-            raise InputError(f"{p}: field '{name}' contains NaN or Inf "
-                             f"(in {int((~np.isfinite(a.reshape(n, -1))).any(1).sum())} Gaussians)")
-    norm = np.linalg.norm(rot, axis=1, keepdims=True)
-    rot = np.where(norm > 0, rot / np.maximum(norm, 1e-30), np.array([1.0, 0, 0, 0]))
-    t = lambda a: torch.as_tensor(a, dtype=dtype)  # noqa: E731
-    return Gaussians3DGS(t(means), t(rot), t(np.exp(np.clip(log_s, -80, 80))), t(1 / (1 + np.exp(-opac))),
-                         t(sh), degree, str(p))
+    """Read an INRIA 3DGS PLY (lghcc.formats.ply3dgs) as activated tensors. Raises InputError
+    naming the file and the first missing or malformed field."""
+    return gaussians_from_scene(read_3dgs_ply(path), dtype, str(path))
 
 
 def write_3dgs_ply(path: str | os.PathLike, means: np.ndarray, sh: np.ndarray, opacity_logits: np.ndarray,
                    log_scales: np.ndarray, quats: np.ndarray) -> None:
-    """Write an INRIA 3DGS PLY (binary little-endian float32, normals zero, the field order
-    of 3DGS's ``save_ply``): means [M, 3], sh [M, K, 3] (K = (d + 1)^2), opacity logits [M],
-    log scales [M, 3], quats [M, 4] (w, x, y, z)."""
+    """Write an INRIA 3DGS PLY from arrays: means [M, 3], sh [M, K, 3] (K = (d + 1)^2), opacity
+    logits [M], log scales [M, 3], quats [M, 4] (w, x, y, z); lghcc.formats.ply3dgs lays it out."""
     n = means.shape[0]
     k = sh.shape[1]
     if sh.shape != (n, k, 3) or opacity_logits.shape != (n,) or log_scales.shape != (n, 3) or quats.shape != (n, 4):
         raise ValueError("write_3dgs_ply: inconsistent shapes")
-    z = np.zeros(n, np.float32)
-    cols = {"x": means[:, 0], "y": means[:, 1], "z": means[:, 2], "nx": z, "ny": z, "nz": z}
-    cols.update({f"f_dc_{c}": sh[:, 0, c] for c in range(3)})
-    rest = np.asarray(sh[:, 1:, :]).transpose(0, 2, 1).reshape(n, 3 * (k - 1))
-    cols.update({f"f_rest_{i}": rest[:, i] for i in range(rest.shape[1])})
-    cols["opacity"] = opacity_logits
-    cols.update({f"scale_{i}": log_scales[:, i] for i in range(3)})
-    cols.update({f"rot_{i}": quats[:, i] for i in range(4)})
-    write_ply(path, {k_: np.asarray(v, np.float32) for k_, v in cols.items()})
+    f = lambda a: np.asarray(a, np.float32)  # noqa: E731
+    write_ply_scene(path, GaussianScene(f(means), f(sh), f(opacity_logits), f(log_scales), f(quats)))
 
 
 def render_3dgs(g: Gaussians3DGS, camera: Camera, *, background=None, backend: str = "auto", **kw) -> RenderResult:

@@ -1,0 +1,36 @@
+import numpy as np
+import torch
+
+from lghcc.render.camera import Camera
+from lghcc.render.importance import gaussian_contributions
+from lghcc.render.rasterizer import rasterize
+
+
+def _gaussians(n, seed=0):
+    rng = np.random.default_rng(seed)
+    means = torch.tensor(rng.normal(size=(n, 3)) * 0.3, dtype=torch.float32)
+    quats = torch.tensor(rng.normal(size=(n, 4)), dtype=torch.float32)
+    quats = quats / quats.norm(dim=1, keepdim=True)
+    scales = torch.tensor(rng.uniform(0.03, 0.2, size=(n, 3)), dtype=torch.float32)
+    op = torch.tensor(rng.uniform(0.05, 0.99, size=n), dtype=torch.float32)
+    return means, quats, scales, op
+
+
+def test_contributions_add_up_to_the_rendered_alpha():
+    g = _gaussians(60)
+    cams = [Camera.look_at((0, -4, 0), (0, 0, 0), width=40, height=32),
+            Camera.look_at((3, 0, 2), (0, 0, 0), width=24, height=24)]
+    c = gaussian_contributions(*g, cams)
+    alpha = sum(rasterize(*g, torch.zeros(60, 1), cam).alpha.double().sum().item() for cam in cams)
+    assert c.shape == (60,) and (c >= 0).all()
+    np.testing.assert_allclose(c.sum(), alpha, rtol=1e-5)
+
+
+def test_a_hidden_or_transparent_gaussian_contributes_nothing():
+    means, quats, scales, op = _gaussians(3)
+    means[:] = torch.tensor([[0.0, 0, 0], [0, 2.0, 0], [0, 0, 0]])  # 1 behind 0 (seen from -y), 2 transparent
+    scales[:] = 0.3
+    op[:] = torch.tensor([0.99, 0.99, 0.0])
+    cam = Camera.look_at((0, -4, 0), (0, 0, 0), width=16, height=16)
+    c = gaussian_contributions(means, quats, scales, op, [cam])
+    assert c[0] > 1 and c[1] < 0.05 * c[0] and c[2] == 0
