@@ -30,6 +30,7 @@ def test_a_hidden_or_transparent_gaussian_contributes_nothing():
     means, quats, scales, op = _gaussians(3)
     means[:] = torch.tensor([[0.0, 0, 0], [0, 2.0, 0], [0, 0, 0]])  # 1 behind 0 (seen from -y), 2 transparent
     scales[:] = 0.3
+    scales[0] = 1.0  # wide enough to hide Gaussian 1 entirely
     op[:] = torch.tensor([0.99, 0.99, 0.0])
     cam = Camera.look_at((0, -4, 0), (0, 0, 0), width=16, height=16)
     c = gaussian_contributions(means, quats, scales, op, [cam])
