@@ -128,8 +128,9 @@ def test_syntax_elements_are_located_exactly(mutator):
     for sid in mutator.ids:
         units = mutator._units[sid]
         els = mutator.elements(sid)
-        assert {e.name.split(".")[0] for e in els} >= {"scene_parameter_set", "geometry_header",
-                                                       "attribute_unit_header", "decoded_scene_hash_unit"}
+        structures = {e.name.split(".")[0] for e in els}
+        assert structures >= {"geometry_header", "attribute_unit_header", "decoded_scene_hash_unit"}
+        assert structures & {"scene_parameter_set", "gaussian_parameter_set"}
         for el in els:
             assert replace_element(units[el.unit].payload, el, el.value) == units[el.unit].payload, (sid, el)
 
