@@ -61,7 +61,10 @@ def test_hypothesis_fuzz_run_finds_no_bug(mutator, box):
     assert summary.bugs == 0
     errors = sum(n for k, n in summary.outcomes.items() if k.startswith("error"))
     assert errors > SHORT_RUN_EXAMPLES // 2 and summary.outcomes[fuzz.VALID] > 0, summary.text()
-    assert {"c003_offset_masks", "c011_hierarchy_per_channel", "c012_parent_mlp_context"} <= set(used)
+    # the draws reach many seeds, of both scene kinds and with a context model (which ones depends on
+    # the suite: derandomized hypothesis draws them from the sorted seed ids)
+    assert len(used) >= min(12, len(mutator.ids)), sorted(used)
+    assert any("gaussians" in u for u in used) and any("context" in u for u in used), sorted(used)
     assert {op for _, op in used_ops} >= set(Mutator.FIELD) | {"unit_size"}
     assert len(summary.peak_kib) == summary.cases and max(summary.peak_kib) > 0  # peak memory of every case
     assert "errors by reason" in summary.text() and "peak RSS per case" in summary.text()
