@@ -20,7 +20,7 @@
 // blended as stored (3DGS colours are display values: GAMMA_SRGB with linear tone mapping makes
 // the engine's decode-to-linear and encode-to-sRGB cancel, and blending happens on the stored
 // values, as in 3DGS), every splat drawn however small
-// (minPixelSize 0, minContribution 0), no anti-aliasing compensation, full-precision work
+// (minPixelSize 0, minContribution 0, no splat budget), no anti-aliasing compensation, full-precision work
 // buffer, SH colours re-evaluated after small camera moves.
 
 import {
@@ -169,6 +169,7 @@ function start() {
     g.alphaClipForward = 1 / 255;
     g.colorUpdateAngle = 0.5;
     g.colorUpdateDistance = 0;
+    g.splatBudget = 0;  // no budget: every splat, however many (the default budget is 1M)
     const bg = meta.background;
     for (const name of meta.panes) {
         const layer = new Layer({ name: `lghcc-${name}` });
