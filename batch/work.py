@@ -88,7 +88,13 @@ def _tar_folder(folder: Path) -> bytes:
 def unpack(prepared: bytes, into: Path) -> Path:
     """Extract a prepared tar (only plain files and folders, no absolute or '..' names)."""
     with tarfile.open(fileobj=io.BytesIO(prepared), mode="r") as tar:
-        tar.extractall(into, filter="data")
+        if hasattr(tarfile, "data_filter"):  # Python 3.10.12+, 3.11.4+
+            tar.extractall(into, filter="data")
+            return into
+        for m in tar.getmembers():
+            if not (m.isfile() or m.isdir()) or m.name.startswith("/") or ".." in Path(m.name).parts:
+                raise ValueError(f"prepared scene: unexpected member {m.name!r}")
+        tar.extractall(into)
     return into
 
 
