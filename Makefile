@@ -1,10 +1,11 @@
 # make demo : set up .venv, encode and decode the built-in procedural scene
 # make test : set up .venv, run the test suite
+# make viewer-bundle : install the pinned npm tools (tools/node) and build lghcc-view's JavaScript bundle
 VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test test-slow spec bench clean
+.PHONY: setup demo test test-slow spec bench clean node-tools viewer-bundle
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -27,6 +28,15 @@ test-slow: setup
 
 spec: setup
 	$(PY) tools/gen_spec_tables.py
+
+# npm tools pinned in tools/node/package-lock.json (npm ci: exactly those versions)
+node-tools:
+	npm ci --prefix tools/node
+
+# lghcc-view's renderer: viewer/web/viewer.mjs + the PlayCanvas engine -> viewer/assets/lghcc-viewer.js,
+# built here once (set-up time) and inlined into every page; lghcc-view never runs npm
+viewer-bundle: node-tools
+	npm run --prefix tools/node build-viewer
 
 clean:
 	rm -rf demo_out build *.egg-info

@@ -96,6 +96,9 @@ def setup_args() -> argparse.ArgumentParser:
     t.add_argument("--transcode-resolution", type=int, default=128, help="square render size for fitting (128)")
     t.add_argument("--transcode-feature-dim", type=int, default=32, help="anchor feature size C (default 32)")
     t.add_argument("--transcode-offsets", type=int, default=10, help="offsets per anchor K (default 10)")
+    t.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                   help="where transcoding renders: cpu (default), or cuda (gsplat's CUDA rasterizer: pip install "
+                        "'lghcc[gsplat]'); coding itself is the same on every machine")
     p.add_argument("-f", "--force", action="store_true", help="overwrite the output file if it exists")
     p.add_argument("--no-verify", action="store_true",
                    help="skip decoding the written stream to check it (faster)")
@@ -139,6 +142,7 @@ def _load_scene(args):
                               iterations=args.transcode_iterations, distill_steps=args.transcode_distill_steps,
                               views=args.transcode_views, resolution=args.transcode_resolution,
                               feature_dim=args.transcode_feature_dim, num_offsets=args.transcode_offsets,
+                              device=args.device,
                               progress=not args.quiet and sys.stderr.isatty())
         res = transcode_3dgs(args.input, cfg, log=say)
         say(f"transcoded in {res.stats['time_total_s']:.1f} s: {res.scene.num_anchors:,} anchors, held-out PSNR "
@@ -209,6 +213,9 @@ def main(argv: list[str] | None = None) -> int:
         for path in (args.output, args.json):
             if path:
                 check_writable_file(path)
+        if args.device != "cpu":  # checked before minutes of loading and transcoding
+            from lghcc.render.rasterizer import select_device
+            select_device(args.device)
         from lghcc.render.gaussians3dgs import is_3dgs_ply
 
         gaussians = args.input is not None and args.mode == "gaussians" and is_3dgs_ply(args.input)

@@ -507,6 +507,39 @@ def select_backend(backend: Backend = "auto") -> str:
     raise ValueError(f"unknown backend {backend!r} (auto, torch or gsplat)")
 
 
+Device = Literal["cpu", "cuda"]
+DEVICES: tuple[str, ...] = ("cpu", "cuda")
+
+
+def select_device(device: str = "cpu") -> str:
+    """The rasterizer backend for a command's ``--device`` (lghcc-train, the transcoder of
+    lghcc-enc): the one seam between a device name and ``select_backend``. 'cpu' -> 'torch'
+    (this module); 'cuda' -> 'gsplat' (gsplat's CUDA rasterizer; the MLPs, the optimizer and
+    everything else stay on the CPU, the rasterizer's inputs and outputs are copied, gradients
+    flow through the copies). Raises InputError before any work: 'no CUDA device: ...' when
+    torch sees no GPU, or naming what is missing when gsplat is not usable."""
+    from lghcc.common.errors import InputError
+
+    if device == "cpu":
+        return select_backend("torch")
+    if device != "cuda":
+        raise InputError(f"unknown device {device!r}: choose one of {', '.join(DEVICES)}")
+    if not torch.cuda.is_available():
+        build = torch.version.cuda
+        raise InputError(f"no CUDA device: torch {torch.__version__} "
+                         + (f"(built for CUDA {build}) finds no GPU" if build else "is a CPU-only build")
+                         + "; use --device cpu, or a machine with an NVIDIA GPU and a CUDA build of torch")
+    try:
+        return select_backend("gsplat")
+    except RuntimeError as e:
+        raise InputError(f"--device cuda: {e}") from None
+
+
+def rasterize_with(backend: str):
+    """``rasterize`` or ``rasterize_gsplat`` for a backend that ``select_backend`` returned."""
+    return rasterize if backend == "torch" else rasterize_gsplat
+
+
 def rasterize_gsplat(means, quats, scales, opacities, colors, camera: Camera, *, background=None,
                      tile_size: int = 16, eps2d: float = 0.3, render_depth: bool = False,
                      sigma_cutoff: float = 3.0, chunk_elements: int | None = None) -> RenderResult:
