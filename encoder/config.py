@@ -146,7 +146,8 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # simulated (0: code the source values as they are)
     fit_iterations: int = 0
     fit_lr_scale: float = 1.0
-    # weight of the estimated bits against the squared error in the fit (rate-distortion lambda)
+    # rate term of the fit: each step moves the values down the gradient of their estimated bits,
+    # lr x fit_rate_lambda x step^2 per bit (encoder/gaussian_fit.py; 0: distortion only)
     fit_rate_lambda: float = 0.0
     # Rate-distortion search of the settings above (encoder/gaussian_rd.py): lambda in dB of
     # PSNR per doubling of the stream (0: code with the preset's settings as they are), on

@@ -116,25 +116,31 @@ class _Fit:
         self.cfg = cfg
         self.means = t(scene.means)
         self.degree = scene.sh_degree
-        self.sh = t(scene.sh).requires_grad_(True)
+        self.sh_dc = t(scene.sh[:, :1]).requires_grad_(True)
+        self.sh_rest = t(scene.sh[:, 1:]).requires_grad_(True)
         self.opacity = t(np.clip(scene.opacity, -OPACITY_LOGIT_LIMIT, OPACITY_LOGIT_LIMIT)).requires_grad_(True)
         self.log_scales = t(scene.log_scales).requires_grad_(True)
         self.rotations = t(canonical_rotations(scene.rotations)).requires_grad_(True)
-        band = np.floor(np.sqrt(np.arange(self.sh.shape[1]))).astype(int)
-        steps = [cfg.sh_dc_step] + list(cfg.sh_band_steps)
-        self.sh_steps = torch.tensor([steps[b] for b in band], dtype=torch.float32)[None, :, None]
+        band = np.floor(np.sqrt(np.arange(1, self.sh_dc.shape[1] + self.sh_rest.shape[1]))).astype(int)
+        self.rest_steps = torch.tensor([cfg.sh_band_steps[b - 1] for b in band], dtype=torch.float32)[None, :, None]
         self.rate_model = None
 
+    def params(self) -> list[torch.Tensor]:
+        return [self.sh_dc, self.sh_rest, self.opacity, self.log_scales, self.rotations]
+
     def quantized(self):
+        """(SH, opacity, log scales, rotations) rounded to their steps, with straight-through gradients."""
         rot = self.rotations / self.rotations.norm(dim=1, keepdim=True).clamp_min(1e-12)
-        sh = self.sh + (torch.round(self.sh / self.sh_steps) * self.sh_steps - self.sh).detach()
+        rest = self.sh_rest + (torch.round(self.sh_rest / self.rest_steps) * self.rest_steps - self.sh_rest).detach()
+        sh = torch.cat([_ste(self.sh_dc, self.cfg.sh_dc_step), rest], 1)
         op = _ste(self.opacity.clamp(-OPACITY_LOGIT_LIMIT, OPACITY_LOGIT_LIMIT), self.cfg.opacity_step)
         return sh, op, _ste(self.log_scales, self.cfg.scale_step), _ste(rot, self.cfg.rotation_step)
 
     def values_in_steps(self, sh, op, ls, rot) -> list[torch.Tensor]:
         c = self.cfg
-        return [(sh / self.sh_steps).reshape(sh.shape[0], -1), (op / c.opacity_step)[:, None], ls / c.scale_step,
-                rot / c.rotation_step]
+        n = sh.shape[0]
+        return [(sh[:, :1] / c.sh_dc_step).reshape(n, -1), (sh[:, 1:] / self.rest_steps).reshape(n, -1),
+                (op / c.opacity_step)[:, None], ls / c.scale_step, rot / c.rotation_step]
 
     def init_rate_model(self) -> None:
         """Per channel: the median and the RMS deviation (in steps) of the quantized start values,
@@ -145,10 +151,10 @@ class _Fit:
             sigma = ((v - mu) ** 2).mean(0).sqrt().clamp(0.11, 512.0)
         self.rate_model = (mu.float(), sigma.float())
 
-    def rate_bits(self, sh, op, ls, rot) -> torch.Tensor:
+    def rate_bits(self) -> torch.Tensor:
+        """Estimated bits of the quantized values under the per-channel prior (straight-through)."""
         mu, sigma = self.rate_model
-        v = torch.cat(self.values_in_steps(sh, op, ls, rot), 1)
-        return _bits(v, mu, sigma)
+        return _bits(torch.cat(self.values_in_steps(*self.quantized()), 1), mu, sigma)
 
     def render(self, cam: Camera, sh, op, ls, rot) -> torch.Tensor:
         d = self.means - torch.as_tensor(cam.center, dtype=torch.float32)
@@ -160,14 +166,16 @@ class _Fit:
     def scene(self, grid: GaussianScene) -> GaussianScene:
         f = lambda x: x.detach().numpy().astype(np.float32)  # noqa: E731
         rot = self.rotations / self.rotations.norm(dim=1, keepdim=True).clamp_min(1e-12)
-        return GaussianScene.on_grid(grid.coords, grid.voxel_size, grid.origin, f(self.sh), f(self.opacity),
+        sh = torch.cat([self.sh_dc, self.sh_rest], 1)
+        return GaussianScene.on_grid(grid.coords, grid.voxel_size, grid.origin, f(sh), f(self.opacity),
                                      f(self.log_scales), f(rot))
 
 
-def _lrs(cfg: GaussianEncoderConfig) -> dict:
-    """Adam learning rates, about a tenth of 3DGS training's (the values start near a solution)."""
+def _lrs(cfg: GaussianEncoderConfig) -> list[float]:
+    """Adam learning rates of (SH DC, higher SH bands, opacity, log scales, rotations), about a tenth
+    of 3DGS training's (the values start near a solution); the higher bands 20x slower, as in 3DGS."""
     s = cfg.fit_lr_scale
-    return {"sh_dc": 1e-3 * s, "sh_rest": 5e-5 * s, "opacity": 5e-3 * s, "scale": 1e-3 * s, "rotation": 5e-4 * s}
+    return [1e-3 * s, 5e-5 * s, 5e-3 * s, 1e-3 * s, 5e-4 * s]
 
 
 def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, cameras: list[Camera] | None = None,
@@ -212,20 +220,18 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
         targets = [render_3dgs(g, cam, background=(0, 0, 0), backend="torch").image for cam in cams]
     fit = _Fit(grid, cfg)
     fit.init_rate_model()
-    lr = _lrs(cfg)
-    dc = fit.sh[:, :1]
-    opt = torch.optim.Adam([{"params": [fit.sh], "lr": lr["sh_dc"]}, {"params": [fit.opacity], "lr": lr["opacity"]},
-                            {"params": [fit.log_scales], "lr": lr["scale"]},
-                            {"params": [fit.rotations], "lr": lr["rotation"]}], eps=1e-15)
-    del dc
-    # the higher SH bands learn ~20x slower than the DC term, as in 3DGS
-    rest_scale = torch.ones_like(fit.sh)
-    rest_scale[:, 1:] = lr["sh_rest"] / lr["sh_dc"]
-    fit.sh.register_hook(lambda grad: grad * rest_scale)
+    groups = [{"params": [p], "lr": lr} for p, lr in zip(fit.params(), _lrs(cfg))]
+    opt = torch.optim.Adam(groups, eps=1e-15)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.fit_iterations, eta_min=0.0)
     rng = np.random.default_rng(0)
-    pixels = cfg.fit_resolution ** 2 * 3
-    lam = cfg.fit_rate_lambda / pixels  # bits weighed against the summed squared error per view
+    # The rate term is applied decoupled from Adam (as AdamW decouples weight decay): Adam
+    # normalizes each parameter's gradient, so a rate gradient added to the loss would move every
+    # parameter the picture does not depend on at the full learning rate, whatever lambda is.
+    # Each step instead moves the values down the gradient of the estimated bits by
+    # lr x fit_rate_lambda x (step^2 of the value) per bit, i.e. lambda in steps^2 per bit.
+    mu = cfg.fit_rate_lambda
+    step_sq = [torch.tensor(cfg.sh_dc_step ** 2), fit.rest_steps ** 2, torch.tensor(cfg.opacity_step ** 2),
+               torch.tensor(cfg.scale_step ** 2), torch.tensor(cfg.rotation_step ** 2)]
     bar = tqdm(range(cfg.fit_iterations), desc="fit", unit="it", disable=not progress, leave=False)
     last = time.perf_counter()
     losses = []
@@ -234,10 +240,14 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
         q = fit.quantized()
         img = fit.render(cams[j], *q)
         mse = ((img - targets[j]) ** 2).mean()
-        loss = mse + (lam * fit.rate_bits(*q) / len(cams) if lam > 0 else 0.0)
         opt.zero_grad(set_to_none=True)
-        loss.backward()
+        mse.backward()
         opt.step()
+        if mu > 0:
+            grads = torch.autograd.grad(fit.rate_bits(), fit.params())
+            with torch.no_grad():
+                for p, g, group, sq in zip(fit.params(), grads, opt.param_groups, step_sq):
+                    p -= group["lr"] * mu * sq * g
         sched.step()
         losses.append(float(mse.detach()))
         if time.perf_counter() - last > 10 or it + 1 == cfg.fit_iterations:
@@ -247,5 +257,6 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
             say(f"fit: {done}/{cfg.fit_iterations} steps, PSNR {-10 * math.log10(max(np.mean(losses[-20:]), 1e-12)):.2f} "
                 f"dB on the fit views, ETA {eta:.0f} s")
     stats["time_fit_s"] = time.perf_counter() - t1
+    stats["fit_final_mse"] = float(np.mean(losses[-20:]))  # squared error on the fit views, last steps
     stats["time_total_s"] = time.perf_counter() - t0
     return PreparedGaussians(fit.scene(grid), weights, cfg, stats)
