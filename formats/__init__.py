@@ -51,7 +51,7 @@ def _is_sog(path: Path, head: bytes) -> bool:
                 return "meta.json" in z.namelist()
         except (zipfile.BadZipFile, OSError):
             return False
-    return path.name.lower().endswith(".json") and head.lstrip().startswith(b"{")
+    return path.name.lower().endswith(".json") and head.lstrip().startswith(b"{") and b'"means"' in head
 
 
 def _write_ply(path: Path, scene: GaussianScene, comments: list[str] = ()) -> None:

@@ -254,11 +254,15 @@ def _seeds(points: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
 
 def _kmeans(points: np.ndarray, k: int, iterations: int, rng: np.random.Generator
             ) -> tuple[np.ndarray, np.ndarray]:
-    """Lloyd's k-means from k-means++ seeds; an emptied cluster moves to a random point."""
+    """Lloyd's k-means from k-means++ seeds; an emptied cluster moves to a random point. Stops
+    early once no label changes (the iterations left would change nothing)."""
     n = len(points)
     centroids = _seeds(points, k, rng)
+    labels = None
     for _ in range(iterations):
-        labels = _nearest(points, centroids)
+        previous, labels = labels, _nearest(points, centroids)
+        if previous is not None and np.array_equal(previous, labels):
+            return centroids, labels
         order = np.argsort(labels, kind="stable")
         starts = np.searchsorted(labels[order], np.arange(k))
         counts = np.diff(np.append(starts, n))

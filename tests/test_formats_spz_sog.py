@@ -583,8 +583,10 @@ def test_read_and_write_scene_by_extension_and_content(tmp_path):
     with pytest.raises(InputError, match="no such file"):
         read_scene(tmp_path / "missing.spz")
     (tmp_path / "notes.txt").write_text("hello")
-    with pytest.raises(InputError, match="not a scene this version reads"):
-        read_scene(tmp_path / "notes.txt")
+    (tmp_path / "cameras.json").write_text('{"frames": []}')
+    for other in ("notes.txt", "cameras.json"):
+        with pytest.raises(InputError, match="not a scene this version reads"):
+            read_scene(tmp_path / other)
     with pytest.raises(InputError, match="folder"):
         read_scene(tmp_path)
     (tmp_path / "empty.spz").write_bytes(b"")  # no content to sniff: the extension's reader says why
