@@ -58,7 +58,7 @@ from PIL import Image, UnidentifiedImageError
 import lghcc
 from lghcc.common.errors import InputError
 from lghcc.common.fileio import atomic_write_bytes
-from lghcc.common.scene import SH_DEGREE_MAX, GaussianScene
+from lghcc.common.scene import GaussianScene
 
 SOG_VERSION = 2
 CODEBOOK_SIZE = 256

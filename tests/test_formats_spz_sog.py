@@ -25,7 +25,7 @@ from lghcc.common.scene import GaussianScene
 from lghcc.formats import detect_format, read_scene, register_format, write_scene
 from lghcc.formats.ply3dgs import read_3dgs_ply, write_3dgs_ply
 from lghcc.formats.sog import (decode_sog, encode_sog, inverse_log_transform, log_transform, morton_order,
-                               palette_size, quantize_1d, read_sog, texture_size)
+                               palette_size, quantize_1d, texture_size)
 from lghcc.formats.spz import axis_flips, decode_spz, encode_spz, flip_axes
 
 ROOT = Path(__file__).resolve().parents[1]
