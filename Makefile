@@ -1,6 +1,7 @@
 # make demo : set up .venv, encode and decode the built-in procedural scene
 # make test : set up .venv, run the test suite
 # make viewer-bundle : install the pinned npm tools (tools/node) and build lghcc-view's JavaScript bundle
+# make node-tools : install the pinned Node tools (tools/node: splat-transform, for the format interop tests)
 VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
@@ -25,6 +26,10 @@ test: setup
 
 test-slow: setup
 	$(PY) -m pytest -m slow
+
+node-tools:
+	@if command -v npm >/dev/null 2>&1; then npm ci --prefix tools/node; \
+	else echo "npm not found: tools/node not installed (the splat-transform interop tests will skip)"; fi
 
 spec: setup
 	$(PY) tools/gen_spec_tables.py
