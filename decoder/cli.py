@@ -14,6 +14,8 @@ from pathlib import Path
 # Set before torch is imported; a user's own setting wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+import numpy as np
+
 from lghcc.common.cliargs import positive_float
 from lghcc.common.errors import HashMismatchError, LghccError
 from lghcc.common.scene import GaussianScene
@@ -65,8 +67,10 @@ def setup_args() -> argparse.ArgumentParser:
     g.add_argument("--render-scale", type=positive_float, default=1.0,
                    help="scale of the image size of file cameras, a positive number (default 1)")
     g.add_argument("--background", default="black", choices=("black", "white"), help="render background")
-    g.add_argument("--export-ply", metavar="FILE",
-                   help="also write the decoded scene as a plain 3DGS PLY (INRIA layout) for standard viewers")
+    g.add_argument("--export", "--export-ply", dest="export_ply", metavar="FILE",
+                   help="also write the decoded scene as a plain 3DGS scene for standard viewers, in the format "
+                        "of FILE's extension: .ply (INRIA 3DGS PLY), .spz (Niantic SPZ) or .sog (PlayCanvas SOG); "
+                        "--export-ply is the same option")
     g.add_argument("--export-sh-degree", type=int, choices=(0, 1, 2, 3),
                    help="SH degree of the exported colours (default: a Gaussian stream's own degree; 1 for "
                         "anchor streams, whose colours come from MLPs and are fitted)")
@@ -166,6 +170,9 @@ def main(argv: list[str] | None = None) -> int:
         for path in (args.json, args.trace, args.export_ply):
             if path:
                 check_writable_file(path)
+        if args.export_ply and Path(args.export_ply).suffix.lower() not in (".ply", ".spz", ".sog"):
+            raise LghccError(f"{args.export_ply}: --export writes .ply, .spz or .sog (the format follows the "
+                             "extension)")
         if args.render and not args.render_out:
             raise LghccError("--render needs --render-out DIR")
         if args.render_out and Path(args.render_out).exists() and not Path(args.render_out).is_dir():
@@ -205,26 +212,28 @@ def main(argv: list[str] | None = None) -> int:
             _render_views(args, result.scene, note)
         if args.export_ply:
             t1 = time.perf_counter()
+            from lghcc.formats import write_scene
+
             if isinstance(result.scene, GaussianScene):
                 sc = result.scene if args.export_sh_degree is None else result.scene.with_sh_degree(args.export_sh_degree)
-                try:
-                    write_3dgs_ply(args.export_ply, sc)
-                except OSError as e:
-                    raise write_error(args.export_ply, e) from None
-                note(f"wrote {args.export_ply}: {sc.num_gaussians:,} Gaussians (3DGS PLY, SH degree {sc.sh_degree}) "
-                     f"in {time.perf_counter() - t1:.2f} s")
+                how = ""
             else:
                 from lghcc.render.export import export_3dgs
 
                 degree = 1 if args.export_sh_degree is None else args.export_sh_degree
-                try:
-                    ex = export_3dgs(result.scene, args.export_ply, sh_degree=degree,
-                                     num_directions=args.export_directions, distance=args.export_distance)
-                except OSError as e:
-                    raise write_error(args.export_ply, e) from None
-                note(f"wrote {args.export_ply}: {ex.num_gaussians:,} Gaussians (3DGS PLY, SH degree "
-                     f"{degree}, {args.export_directions} directions at distance "
-                     f"{ex.stats['distance']:.4g}) in {time.perf_counter() - t1:.2f} s")
+                ex = export_3dgs(result.scene, None, sh_degree=degree, num_directions=args.export_directions,
+                                 distance=args.export_distance)
+                sc = GaussianScene(ex.means.astype(np.float32), ex.sh.astype(np.float32),
+                                   ex.opacity_logits.astype(np.float32), ex.log_scales.astype(np.float32),
+                                   ex.quats.astype(np.float32))
+                how = f", the MLPs evaluated in {args.export_directions} directions at distance {ex.stats['distance']:.4g}"
+            try:
+                write_scene(sc, args.export_ply)
+            except OSError as e:
+                raise write_error(args.export_ply, e) from None
+            kind = {".ply": "3DGS PLY", ".spz": "SPZ", ".sog": "SOG"}[Path(args.export_ply).suffix.lower()]
+            note(f"wrote {args.export_ply}: {sc.num_gaussians:,} Gaussians ({kind}, SH degree {sc.sh_degree}{how}) in "
+                 f"{time.perf_counter() - t1:.2f} s")
         if args.trace:
             lines = [f"{e.bit_position:>10} {e.name:<60} {e.descriptor:<8} "
                      f"{e.value.hex() if isinstance(e.value, bytes) else e.value}" for e in result.trace]

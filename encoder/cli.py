@@ -34,6 +34,7 @@ An anchor scene (Scaffold-GS / HAC checkpoint) is coded with its anchors and ren
 
 examples:
   lghcc-enc scene.ply -o scene.lghcc                   3DGS PLY, preset medium
+  lghcc-enc scene.spz -o scene.lghcc                   SPZ (or SOG) input
   lghcc-enc scene.ply --preset high -o scene.lghcc     higher fidelity, more bytes
   lghcc-enc --procedural 20000 -o demo.lghcc           built-in procedural anchor scene
   lghcc-enc outputs/garden -o garden.lghcc             Scaffold-GS model folder
@@ -46,8 +47,8 @@ def setup_args() -> argparse.ArgumentParser:
 
     p = argparse.ArgumentParser(prog="lghcc-enc", description=DESCRIPTION,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("input", nargs="?", help="a 3DGS PLY, or a Scaffold-GS model folder, iteration folder or "
-                                             "point_cloud.ply")
+    p.add_argument("input", nargs="?", help="a 3DGS scene (INRIA PLY, SPZ or SOG), or a Scaffold-GS model folder, "
+                                             "iteration folder or point_cloud.ply")
     p.add_argument("-o", "--output", required=True, help="the .lghcc file to write")
     p.add_argument("--procedural", type=int, metavar="N",
                    help="encode the built-in procedural scene with about N anchors instead of an input")
@@ -72,7 +73,7 @@ def setup_args() -> argparse.ArgumentParser:
     pr.add_argument("--prune-tau", type=float, metavar="TAU", help="or: prune anchors whose importance is below TAU")
     p.add_argument("--merge-duplicates", action="store_true",
                    help="merge anchors that fall in the same voxel (attributes averaged) instead of failing")
-    gs = p.add_argument_group("plain 3DGS input (a PLY with f_dc_0 and no f_anchor_feat_0)")
+    gs = p.add_argument_group("plain 3DGS input (an SPZ or SOG file, or a PLY with f_dc_0 and no f_anchor_feat_0)")
     gs.add_argument("--mode", choices=("gaussians", "anchors"), default="gaussians",
                     help="gaussians (default): code every Gaussian explicitly; anchors: transcode to an anchor "
                          "scene first by fitting anchors and MLPs to renders of the source (minutes; "
@@ -112,6 +113,22 @@ def setup_args() -> argparse.ArgumentParser:
     return p
 
 
+def is_gaussian_file(path) -> bool:
+    """A plain 3DGS scene file: an INRIA 3DGS PLY (not a Scaffold-GS anchor PLY), SPZ or SOG."""
+    from lghcc.formats import detect_format
+    from lghcc.render.gaussians3dgs import is_3dgs_ply
+
+    p = Path(path)
+    if is_3dgs_ply(p):
+        return True
+    if not p.exists() or (p.is_dir() and not (p / "meta.json").is_file()):
+        return False
+    try:
+        return detect_format(p).name in ("spz", "sog")
+    except LghccError:
+        return False
+
+
 def _load_scene(args):
     from lghcc.common.procedural import make_procedural_scene
     from lghcc.common.scaffold_io import MissingMlpWarning, read_scaffold
@@ -128,10 +145,10 @@ def _load_scene(args):
         raise LghccError(f"{args.input}: no such file or folder")
     from lghcc.render.gaussians3dgs import is_3dgs_ply
 
-    if is_3dgs_ply(args.input) and args.mode == "gaussians":
-        from lghcc.formats.ply3dgs import read_3dgs_ply
+    if args.mode == "gaussians" and is_gaussian_file(args.input):
+        from lghcc.formats import read_scene
 
-        return read_3dgs_ply(args.input), args.input
+        return read_scene(args.input), args.input
     if is_3dgs_ply(args.input):
         from lghcc.encoder.transcode import TranscodeConfig, transcode_3dgs
 
@@ -216,9 +233,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.device != "cpu":  # checked before minutes of loading and transcoding
             from lghcc.render.rasterizer import select_device
             select_device(args.device)
-        from lghcc.render.gaussians3dgs import is_3dgs_ply
-
-        gaussians = args.input is not None and args.mode == "gaussians" and is_3dgs_ply(args.input)
+        gaussians = args.input is not None and args.mode == "gaussians" and is_gaussian_file(args.input)
         if gaussians:
             cfg = load_config(args.preset, args.config, {
                 "rd_lambda": args.rd_lambda, "fit_iterations": args.fit_iterations, "sh_degree": args.sh_degree},
