@@ -8,11 +8,14 @@ them (PSNR, SSIM; the way MPEG's Gaussian-splat coding exploration measures):
 - SPZ, SOG and compressed PLY, each written and read back with @playcanvas/splat-transform
   (pinned in tools/node/package.json; `make node-tools` installs it into tools/node/);
 - an SPZ rate-distortion curve: SPZ of reduced scenes (fewer SH bands; fewer Gaussians by
-  importance pruning, by splat-transform's --decimate-adaptive and, on request, its uniform -d), whose
-  upper envelope (the best SPZ file at each PSNR) gives every other row its
+  importance pruning, by splat-transform's --decimate-adaptive and, on request, its uniform
+  -d), whose upper envelope (the best SPZ file at each PSNR) gives every other row its
   "bytes / SPZ bytes at equal PSNR";
-- lghcc at each preset: the installed lghcc-enc on the PLY, lghcc-dec --export-ply back to a
-  3DGS PLY (at the source's SH degree), both timed as subprocesses.
+- lghcc at each preset (``--presets``; default: the presets ``lghcc-enc --help`` lists less the
+  lghcc-* modes, per-scene GG-Conv fits made for trained anchor scenes): the installed
+  lghcc-enc on the PLY, then lghcc-dec --export-ply back to a 3DGS PLY (with
+  --export-sh-degree at the source's degree when the decoder has that option), both timed as
+  subprocesses.
 
     make node-tools                                     # once: splat-transform into tools/node/
     python tools/bench_real.py donut playbot-lod4 --presets low
@@ -21,12 +24,13 @@ them (PSNR, SSIM; the way MPEG's Gaussian-splat coding exploration measures):
 
 Scenes: the names donut, playbot-lod4, playbot-lod3, playcanvas-logo (files under --data-root,
 default ../shared/data beside the repository) or paths of 3DGS PLYs, ``LABEL=PATH`` to name the
-section (default: the file name); ``PATH@UP`` gives a scene's
-up axis (x, y, z, -x, -y, -z); ``--up`` gives it for every scene. Otherwise the named scenes use
-their recorded up axis and a path's is detected: the coordinate axis along which the scene is
-thinnest (robust 1%-99% box of the Gaussians with opacity >= 0.05), signed by the usual
-conventions (+z: Blender and other z-up tools; -y: COLMAP/OpenCV-derived captures, PlayCanvas
-and SuperSplat; +x). The table says which was used and whether it was given or detected.
+section (default: the file name); ``PATH@UP`` gives a scene's up axis (x, y, z, -x, -y, -z);
+``--up`` gives it for every scene. Otherwise the named scenes use their recorded up axis and a
+path's is detected: the coordinate axis along which the scene is thinnest (robust 1%-99% box of
+the Gaussians with opacity >= 0.05), signed by the usual conventions (+z: Blender and other
+z-up tools; -y: COLMAP/OpenCV-derived captures, PlayCanvas and SuperSplat; +x). A guess: it
+holds for donut (+z) and playbot (-y) but not for the flat PlayCanvas logo (thinnest along z,
+upright with -y), so give the axis when you know it. The table says which was used and how.
 
 Orbit: ``--views`` cameras (default 12) at ``--elevation`` degrees (20) on a circle around the
 scene's robust box (render/views.py orbit_cameras), ``--size`` px square (320), 50 degree field
@@ -40,6 +44,9 @@ Equal PSNR: the SPZ envelope is the set of SPZ points no other SPZ point beats i
 PSNR; between two of them bytes are interpolated linearly in log(bytes) against PSNR. A row
 above the envelope's top is compared with the full SPZ file (marked "above SPZ's best"); a row
 below its lowest point with the smallest SPZ file (a lower bound, marked ">=").
+
+Decoded PLYs are read with lghcc.formats.ply3dgs; opacity logits of +-inf (splat-transform writes
+compressed PLY's 8-bit opacities 0 and 1 back so) are read as +-30 and counted in the row.
 
 Cache (``--work``, default .bench_real/ in the repository, ignored by git): per scene file the
 source renders, the importance scores and every splat-transform row (SPZ, SOG, compressed PLY,
@@ -306,11 +313,17 @@ class Evaluator:
             return np.stack([render_3dgs(g, c, background=self.bg).image.clamp(0, 1).numpy() for c in self.cams])
 
     def compare(self, scene) -> tuple[float, float]:
-        from lghcc.render.metrics import psnr, ssim
+        """(mean PSNR, mean SSIM) over the views. SSIM is render/metrics.py's (3DGS's) computed in
+        float32 (ssim_torch): its float64 ``ssim`` agrees to 1e-7 and takes ~100x longer on a CPU
+        (78 s against 0.7 s for 12 views of 320 px)."""
+        import torch
+
+        from lghcc.render.metrics import psnr, ssim_torch
 
         imgs = self.render(scene)
         return (float(np.mean([psnr(a, b) for a, b in zip(imgs, self.refs)])),
-                float(np.mean([ssim(a, b) for a, b in zip(imgs, self.refs)])))
+                float(np.mean([float(ssim_torch(torch.as_tensor(a), torch.as_tensor(b)))
+                               for a, b in zip(imgs, self.refs)])))
 
     def compare_ply(self, path: Path) -> tuple[float, float, int, int, str]:
         """(PSNR, SSIM, Gaussians, SH degree, note) of a 3DGS PLY (read_back_ply)."""
@@ -876,7 +889,7 @@ def main(argv: list[str] | None = None) -> int:
                 f"field of view 50 deg, {args.background} background, up {run.up} "
                 f"({UP_WHY.get(run.up_why, run.up_why)}). "
                 "PSNR/SSIM: mean over the views of the decoded scene's renders against the source renders "
-                "(render/gaussians3dgs.py, our CPU rasterizer).  ",
+                "(render/gaussians3dgs.py, our CPU rasterizer; SSIM as 3DGS, in float32).  ",
                 "Encode/decode s: wall time of the subprocess (splat-transform: node start included, ~0.4 s"
                 + ("; lghcc: lghcc-enc with its default verification decode, then lghcc-dec --export-ply "
                    + ("with --export-sh-degree at the source's SH degree" if "--export-sh-degree" in dec_help else
