@@ -45,8 +45,15 @@ examples:
 
 
 def setup_args() -> argparse.ArgumentParser:
+    from lghcc.common.cliargs import add_version_option
+
     p = argparse.ArgumentParser(prog="lghcc-batch", description=DESCRIPTION,
+                                epilog="exit status:\n  0    every cell finished\n  1    error before any work "
+                                       "(sweep file, cluster)\n  2    bad command line, or some cells failed (see "
+                                       "results.md)\n  130  interrupted (Ctrl-C); finished cells are kept, a rerun "
+                                       "resumes\n",
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_version_option(p)
     p.add_argument("sweep", help="the sweep file (YAML)")
     p.add_argument("-o", "--output", metavar="DIR",
                    help="results folder (default: the sweep's `output`, else <sweep>_results beside it)")
@@ -59,12 +66,21 @@ def setup_args() -> argparse.ArgumentParser:
                    help="CPUs (torch threads) per task (default 1: one cell per core)")
     p.add_argument("--connect-timeout", type=float, default=15.0, metavar="S",
                    help="seconds to wait for the cluster's address to answer (default 15)")
+    p.add_argument("-y", "--overwrite", action="store_true",
+                   help="run every cell again, replacing its files (default: a cell already finished with the same "
+                        "settings is kept: the results folder is resumed, never partly overwritten)")
     p.add_argument("--dry-run", action="store_true", help="check the sweep file and list the cells; run nothing")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
+    from lghcc.common.cliargs import run_cli
+
+    return run_cli("lghcc-batch", _main, argv, "finished cells are kept; rerun to resume")
+
+
+def _main(argv: list[str] | None) -> int:
     args = setup_args().parse_args(argv)
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
     try:
@@ -84,7 +100,8 @@ def main(argv: list[str] | None = None) -> int:
                 say(f"{c.id}: {'done' if store.done(sweep, c) else 'to run'}")
             return 0
         records = run_sweep(sweep, local=args.local, address=args.address, num_cpus=args.num_cpus,
-                            cpus_per_cell=args.cpus_per_cell, connect_timeout_s=args.connect_timeout, say=say)
+                            cpus_per_cell=args.cpus_per_cell, connect_timeout_s=args.connect_timeout, say=say,
+                            redo=args.overwrite)
         md = write_report(sweep, records, argv)
     except LghccError as e:
         print(f"lghcc-batch: error: {e}", file=sys.stderr)

@@ -201,8 +201,9 @@ class Progress:
 
 def run_sweep(sweep: Sweep, *, local: bool = False, address: str | None = None, num_cpus: int | None = None,
               cpus_per_cell: int = 1, connect_timeout_s: float = 15.0, say: Callable[[str], None] = print,
-              heartbeat_s: float = 60.0) -> list[dict]:
-    """Run every cell not finished yet (module doc); return every cell's record, in sweep order."""
+              heartbeat_s: float = 60.0, redo: bool = False) -> list[dict]:
+    """Run every cell not finished yet (module doc; ``redo``: every cell, its files replaced);
+    return every cell's record, in sweep order."""
     from lghcc.batch import work
 
     store = Store(sweep.output)
@@ -210,7 +211,7 @@ def run_sweep(sweep: Sweep, *, local: bool = False, address: str | None = None, 
     records: dict[str, dict] = {}
     todo: list[CellKey] = []
     for c in cells:
-        rec = store.done(sweep, c)
+        rec = None if redo else store.done(sweep, c)
         if rec is not None:
             records[c.id] = rec
         else:

@@ -102,3 +102,37 @@ def check_writable_file(path: str | os.PathLike, what: str = "") -> None:
 def write_error(path: str | os.PathLike, e: OSError) -> LghccError:
     """The LghccError to raise for an OSError while writing path."""
     return LghccError(f"cannot write {path} ({e.strerror or e})")
+
+
+def check_overwrite(path: str | os.PathLike, overwrite: bool, what: str = "") -> None:
+    """The overwrite rule for an output file (common/cliargs.OVERWRITE_RULE): LghccError when
+    ``path`` exists and ``overwrite`` is false, or is a folder; then whether it can be written."""
+    p = Path(path)
+    label = f"{what} {p}" if what else str(p)
+    if p.is_dir():
+        raise LghccError(f"cannot write {label} (it is a folder)")
+    if p.exists() and not overwrite:
+        raise LghccError(f"{label} exists; use -y (--overwrite) to replace it")
+    check_writable_file(p, what)
+
+
+def check_output_folder(path: str | os.PathLike, overwrite: bool, what: str = "",
+                        replaced: str = "the files written there are replaced; others are left as they are") -> None:
+    """The overwrite rule for an output folder: an existing non-empty folder needs
+    ``overwrite``; an existing file is an error; a new folder must be creatable. Raises
+    LghccError before any work is done."""
+    p = Path(path)
+    label = f"{what} {p}" if what else str(p)
+    if p.exists() and not p.is_dir():
+        raise LghccError(f"cannot write {label} (it exists and is not a folder)")
+    if p.is_dir():
+        if any(p.iterdir()) and not overwrite:
+            raise LghccError(f"{label} is not empty; use -y (--overwrite) to write into it ({replaced})")
+        if not os.access(p, os.W_OK | os.X_OK):
+            raise LghccError(f"cannot write {label} (permission denied)")
+        return
+    parent = p.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise LghccError(f"cannot write {label} (cannot create a folder in {parent})")

@@ -60,10 +60,10 @@ def make_procedural_scene(num_anchors: int = 20000, seed: int = 0, feature_dim: 
     scene is the same with or without it."""
     if num_anchors < 1:
         raise ValueError("num_anchors must be at least 1")
-    from tqdm import tqdm
+    from lghcc.common.progress import progress_bar
 
     channels = 2 + feature_dim + 6 + 3 * num_offsets + (num_offsets if with_mask else 0)
-    bar = tqdm(total=channels, desc="procedural scene", unit="ch", disable=not progress, leave=False,
+    bar = progress_bar(total=channels, desc="procedural scene", unit="ch", disable=not progress, leave=False,
                file=sys.stderr)
     rng = np.random.default_rng(seed)
     # Surface area ~ 8.6 units^2: pick the voxel so that the surfaces hold ~num_anchors voxels.

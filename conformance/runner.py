@@ -384,8 +384,14 @@ def format_table(outcomes: list[Outcome], total_s: float | None = None, warm_up_
 
 
 def setup_args() -> argparse.ArgumentParser:
+    from lghcc.common.cliargs import add_version_option
+
     p = argparse.ArgumentParser(prog="lghcc-conformance", description=__doc__,
+                                epilog="exit status:\n  0    every stream passed\n  1    some stream failed\n"
+                                       "  2    bad command line, or an error before the streams ran\n"
+                                       "  130  interrupted (Ctrl-C)\n",
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_version_option(p)
     p.add_argument("ids", nargs="*", help="stream ids to run (default: all)")
     p.add_argument("--streams", default=str(STREAMS_DIR), help="folder of conformance streams")
     p.add_argument("--decoder-cmd", help="external decoder command template with {stream} (and {out} for --render); "
@@ -402,6 +408,12 @@ def setup_args() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from lghcc.common.cliargs import run_cli
+
+    return run_cli("lghcc-conformance", _main, argv)
+
+
+def _main(argv: list[str] | None) -> int:
     parser = setup_args()
     args = parser.parse_args(argv)
     if args.decoder_cmd is not None:

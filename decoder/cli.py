@@ -14,12 +14,12 @@ from pathlib import Path
 # Set before torch is imported; a user's own setting wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-import numpy as np
-
-from lghcc.common.cliargs import positive_float
+from lghcc.common.cliargs import (EXIT_HASH_MISMATCH, OVERWRITE_RULE, add_overwrite_options, add_version_option,
+                                  exit_codes_text, positive_float, run_cli)
 from lghcc.common.errors import HashMismatchError, LghccError
+from lghcc.common.fileio import (atomic_write_bytes, check_output_folder, check_output_paths, check_overwrite,
+                                 write_error)
 from lghcc.common.scene import GaussianScene
-from lghcc.common.fileio import atomic_write_bytes, check_output_paths, check_writable_file, write_error
 
 DESCRIPTION = """\
 Decode an LG-HCC stream (.lghcc). An explicit-Gaussian stream (from a 3DGS PLY) decodes
@@ -39,18 +39,25 @@ examples:
   lghcc-dec demo.lghcc --render lego/transforms_test.json --render-out views/
   lghcc-dec demo.lghcc --export-ply demo_3dgs.ply   plain 3DGS PLY for standard viewers
 
-No output may name the input stream or another output. An existing, non-empty -o folder
-is refused unless --force is given (then the decoded scene's files in it are replaced).
+--render takes orbit:N or the cameras of a dataset: a dataset folder of any layout
+(NeRF-synthetic, COLMAP sparse/0, Mip-NeRF 360, LLFF poses_bounds.npy; its test views),
+a transforms_<split>.json, a COLMAP sparse folder (all its views) or a poses_bounds.npy.
+
+No output may name the input stream or another output. An existing file, or an existing
+non-empty -o or --render-out folder, is refused unless -y (--overwrite) is given (then
+the decoded scene's files in it are replaced).
 """
 
 
 def setup_args() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="lghcc-dec", description=DESCRIPTION,
+    p = argparse.ArgumentParser(prog="lghcc-dec", description=DESCRIPTION, epilog=OVERWRITE_RULE + "\n\n"
+                                + exit_codes_text({EXIT_HASH_MISMATCH: "the decoded scene does not match the "
+                                                   "stream's hash (nothing written)"}),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_version_option(p)
     p.add_argument("stream", help="the .lghcc file to decode")
     p.add_argument("-o", "--output", metavar="DIR", help="folder to write the decoded scene to")
-    p.add_argument("-f", "--force", action="store_true",
-                   help="write into an existing non-empty -o folder (the decoded scene's files are replaced)")
+    add_overwrite_options(p, "outputs: files, and the decoded scene's files in a non-empty -o or --render-out folder")
     p.add_argument("--no-verify", action="store_true", help="do not check the decoded-scene hash")
     p.add_argument("--trace", metavar="FILE", help="write a bit trace: every syntax element with its position")
     p.add_argument("--threads", type=int, help="torch threads for inference (the output does not depend on it)")
@@ -60,8 +67,9 @@ def setup_args() -> argparse.ArgumentParser:
     p.add_argument("--json", metavar="FILE", help="also write the size breakdown as JSON")
     g = p.add_argument_group("looking at the result")
     g.add_argument("--render", metavar="CAMERAS",
-                   help="render the decoded scene: 'orbit:N' (N cameras on a circle around it), a NeRF-synthetic "
-                        "transforms_<split>.json, or a COLMAP sparse folder")
+                   help="render the decoded scene: 'orbit:N' (N cameras on a circle around it), a dataset folder "
+                        "(NeRF-synthetic, COLMAP, Mip-NeRF 360, LLFF: its test views), a transforms_<split>.json, "
+                        "a COLMAP sparse folder or a poses_bounds.npy")
     g.add_argument("--render-out", metavar="DIR", help="folder for the rendered PNGs (needed with --render)")
     g.add_argument("--render-size", default="256x256", metavar="WxH", help="image size of orbit cameras (256x256)")
     g.add_argument("--render-scale", type=positive_float, default=1.0,
@@ -82,69 +90,35 @@ def setup_args() -> argparse.ArgumentParser:
     return p
 
 
-def _render_views(args, scene, say) -> None:
+def _render_size(text: str) -> tuple[int, int]:
     import re
 
-    import torch
-
-    from lghcc.render.imageio import background_color, write_png
-    from lghcc.render.rasterizer import render_scene
-    from lghcc.render.views import cameras_from_spec
-
-    m = re.fullmatch(r"(\d+)x(\d+)", args.render_size)
+    m = re.fullmatch(r"(\d+)x(\d+)", text)
     if not m or min(int(m.group(1)), int(m.group(2))) < 1:
-        raise LghccError(f"--render-size must be WxH, got {args.render_size!r}")
-    if not args.render_out:
-        raise LghccError("--render needs --render-out DIR")
-    gaussians = isinstance(scene, GaussianScene)
-    cams = cameras_from_spec(args.render, scene.means if gaussians else scene.positions(), width=int(m.group(1)),
-                             height=int(m.group(2)), scale=args.render_scale)
+        raise LghccError(f"--render-size must be WxH, got {text!r}")
+    return int(m.group(1)), int(m.group(2))
+
+
+def _render_views(args, scene, say) -> None:
+    from lghcc.render.imageio import write_png
+    from lghcc.render.scenes import renderer, resolve_cameras
+
+    draw = renderer(scene, args.background)  # refuses a scene without render MLPs, before any file
+    cams = resolve_cameras(args.render, scene, size=_render_size(args.render_size), scale=args.render_scale)
     out = Path(args.render_out)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise write_error(out, e) from None
-    bg = background_color(args.background)
-    if gaussians:
-        from lghcc.render.gaussians3dgs import gaussians_from_scene, render_3dgs
-
-        g = gaussians_from_scene(scene)
-        render = lambda cam: render_3dgs(g, cam, background=bg)  # noqa: E731
-    else:
-        from lghcc.render.neural_gaussians import SceneTensors
-
-        st = SceneTensors.from_scene(scene)
-        render = lambda cam: render_scene(st, cam, background=bg)  # noqa: E731
     t0 = time.perf_counter()
-    with torch.no_grad():
-        for i, cam in enumerate(cams):
-            img = render(cam).image.clamp(0, 1).numpy()
-            stem = Path(cam.name).stem if cam.name else f"view_{i:03d}"
-            try:
-                write_png(out / f"{i:03d}_{stem}.png", img)
-            except OSError as e:
-                raise write_error(out / f"{i:03d}_{stem}.png", e) from None
+    for i, cam in enumerate(cams):
+        img = draw(cam)
+        stem = Path(cam.name).stem if cam.name else f"view_{i:03d}"
+        try:
+            write_png(out / f"{i:03d}_{stem}.png", img)
+        except OSError as e:
+            raise write_error(out / f"{i:03d}_{stem}.png", e) from None
     say(f"rendered {len(cams)} views into {out} in {time.perf_counter() - t0:.2f} s")
-
-
-def _check_output_folder(path: str, force: bool) -> None:
-    """-o: an existing folder must be empty unless --force; an existing file is an error; a new
-    folder must be creatable. Raises LghccError before any decoding work is done."""
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise LghccError(f"cannot write {p} (it exists and is not a folder)")
-    if p.is_dir():
-        if any(p.iterdir()) and not force:
-            raise LghccError(f"{p} is not empty; use --force to write the decoded scene into it "
-                             "(its files are replaced; other files are left as they are)")
-        if not os.access(p, os.W_OK | os.X_OK):
-            raise LghccError(f"cannot write {p} (permission denied)")
-        return
-    parent = p.parent
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent
-    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
-        raise LghccError(f"cannot write {p} (cannot create a folder in {parent})")
 
 
 def _other_iterations(path: str) -> list[str]:
@@ -153,10 +127,13 @@ def _other_iterations(path: str) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    return run_cli("lghcc-dec", _main, argv)
+
+
+def _main(argv: list[str] | None) -> int:
     args = setup_args().parse_args(argv)
-    from lghcc.common.scaffold_io import write_scaffold
     from lghcc.decoder.decode import decode_stream
-    from lghcc.formats.ply3dgs import write_3dgs_ply
+    from lghcc.formats import write_scene
 
     say = (lambda *a: None) if args.quiet else print
     note = (lambda *a: None) if args.print_hash else say  # --print-hash prints the hash alone
@@ -166,17 +143,20 @@ def main(argv: list[str] | None = None) -> int:
                             "--export-ply": args.export_ply, "--render-out": args.render_out},
                            {"input stream": args.stream})
         if args.output:
-            _check_output_folder(args.output, args.force)
+            check_output_folder(args.output, args.overwrite, replaced="the decoded scene's files are replaced; "
+                                "other files are left as they are")
         for path in (args.json, args.trace, args.export_ply):
             if path:
-                check_writable_file(path)
+                check_overwrite(path, args.overwrite)
         if args.export_ply and Path(args.export_ply).suffix.lower() not in (".ply", ".spz", ".sog"):
             raise LghccError(f"{args.export_ply}: --export writes .ply, .spz or .sog (the format follows the "
                              "extension)")
         if args.render and not args.render_out:
             raise LghccError("--render needs --render-out DIR")
-        if args.render_out and Path(args.render_out).exists() and not Path(args.render_out).is_dir():
-            raise LghccError(f"cannot write {args.render_out} (it exists and is not a folder)")
+        if args.render:
+            _render_size(args.render_size)
+        if args.render_out:
+            check_output_folder(args.render_out, args.overwrite, replaced="its PNGs of the same names are replaced")
         if args.threads is not None:
             import torch
             torch.set_num_threads(max(1, args.threads))
@@ -187,10 +167,10 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         try:
             result = decode_stream(data, verify_hash=not args.no_verify, trace=bool(args.trace),
-                                   max_anchors=args.max_anchors, progress=not args.quiet and sys.stderr.isatty())
+                                   max_anchors=args.max_anchors, progress=not args.quiet)
         except HashMismatchError as e:
             print(f"lghcc-dec: error: {args.stream}: {e}", file=sys.stderr)
-            return 3
+            return EXIT_HASH_MISMATCH
         except LghccError as e:
             raise LghccError(f"{args.stream}: {e}") from None
         t_dec = time.perf_counter() - t0
@@ -199,34 +179,24 @@ def main(argv: list[str] | None = None) -> int:
             if stale and not args.quiet:
                 print(f"lghcc-dec: warning: {args.output} also holds point_cloud/{', '.join(stale)}; readers "
                       "that take the highest iteration will not read the decoded scene", file=sys.stderr)
-            try:
-                if isinstance(result.scene, GaussianScene):  # the 3DGS layout
-                    folder = Path(args.output) / "point_cloud" / "iteration_0"
-                    folder.mkdir(parents=True, exist_ok=True)
-                    write_3dgs_ply(folder / "point_cloud.ply", result.scene)
-                else:
-                    write_scaffold(result.scene, args.output)
+            try:  # a Gaussian stream in the 3DGS layout, an anchor stream in Scaffold-GS's
+                write_scene(result.scene, args.output)
             except OSError as e:
                 raise write_error(args.output, e) from None
         if args.render:
             _render_views(args, result.scene, note)
         if args.export_ply:
             t1 = time.perf_counter()
-            from lghcc.formats import write_scene
+            from lghcc.render.scenes import to_gaussians
 
-            if isinstance(result.scene, GaussianScene):
-                sc = result.scene if args.export_sh_degree is None else result.scene.with_sh_degree(args.export_sh_degree)
-                how = ""
-            else:
-                from lghcc.render.export import export_3dgs
+            sc = to_gaussians(result.scene, args.export_sh_degree, directions=args.export_directions,
+                              distance=args.export_distance)
+            how = ""
+            if not isinstance(result.scene, GaussianScene):
+                from lghcc.render.export import default_distance
 
-                degree = 1 if args.export_sh_degree is None else args.export_sh_degree
-                ex = export_3dgs(result.scene, None, sh_degree=degree, num_directions=args.export_directions,
-                                 distance=args.export_distance)
-                sc = GaussianScene(ex.means.astype(np.float32), ex.sh.astype(np.float32),
-                                   ex.opacity_logits.astype(np.float32), ex.log_scales.astype(np.float32),
-                                   ex.quats.astype(np.float32))
-                how = f", the MLPs evaluated in {args.export_directions} directions at distance {ex.stats['distance']:.4g}"
+                dist = args.export_distance if args.export_distance is not None else default_distance(result.scene)
+                how = f", the MLPs evaluated in {args.export_directions} directions at distance {dist:.4g}"
             try:
                 write_scene(sc, args.export_ply)
             except OSError as e:

@@ -15,7 +15,7 @@ import re
 from dataclasses import dataclass, field
 
 import numpy as np
-from tqdm import tqdm
+from lghcc.common.progress import progress_bar
 
 from lghcc.common import attributes as attr
 from lghcc.common.container import Container, DataUnit, UnitType, read_container
@@ -120,7 +120,7 @@ def decode_attribute_units(attribute_units: list[DataUnit], layout, steps: np.nd
         return level2_coding_params(context_model, coords[hier.level1_idx], q_level1, coords[hier.level2_idx],
                                     hier.parent_of_level2, ps.coarse_voxel_scale)
 
-    bar = tqdm(total=n, desc="decode attributes", unit="point", disable=not progress, leave=False)
+    bar = progress_bar(total=n, desc="decode attributes", unit="point", disable=not progress, leave=False)
     for unit, (level, rows) in zip(attribute_units, levels):
         num_rows = n if rows is None else rows.size
         _, m, q = attr.read_attribute_unit(unit.payload, layout, steps, num_rows, level, values, rows,

@@ -7,16 +7,22 @@ import json
 import os
 import sys
 import time
-import warnings
 from pathlib import Path
 
 # torch's OpenMP threads wait passively: spinning against other jobs on a shared machine made a
 # transcode take 178.6 s instead of 72.1 s. Set before torch is imported; a user's own setting wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from lghcc.common.cliargs import positive_float
+from lghcc.common.cliargs import (OVERWRITE_RULE, add_overwrite_options, add_version_option, exit_codes_text,
+                                  positive_float, run_cli)
 from lghcc.common.errors import LghccError
-from lghcc.common.fileio import atomic_write_bytes, check_output_paths, check_writable_file, write_error
+from lghcc.common.fileio import atomic_write_bytes, check_output_paths, check_overwrite, write_error
+from lghcc.encoder.api import is_gaussian_file  # noqa: F401  (lghcc-enc's test of its input; kept importable here)
+
+
+def _duration(seconds: float) -> str:
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.0f} min" if seconds < 5400 else \
+        f"{seconds / 3600:.1f} h"
 
 DESCRIPTION = """\
 Compress a 3D Gaussian Splatting scene into a single .lghcc file that lghcc-dec turns back
@@ -39,14 +45,20 @@ examples:
   lghcc-enc --procedural 20000 -o demo.lghcc           built-in procedural anchor scene
   lghcc-enc outputs/garden -o garden.lghcc             Scaffold-GS model folder
   lghcc-enc point_cloud.ply --preset lghcc-medium -o g.lghcc   anchor PLY (MLPs from checkpoint.pth beside it)
+
+The lghcc-* presets fit a context model to the scene: minutes (an estimate is printed first).
+An anchor scene without its render MLPs is refused (--allow-no-mlps codes it anyway).
+Progress goes to stderr: a bar on a terminal, a line every 10 s in a log
+(LGHCC_PROGRESS_INTERVAL=S to change it).
 """
 
 
 def setup_args() -> argparse.ArgumentParser:
     from lghcc.encoder.config import preset_names
 
-    p = argparse.ArgumentParser(prog="lghcc-enc", description=DESCRIPTION,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(prog="lghcc-enc", description=DESCRIPTION, epilog=OVERWRITE_RULE + "\n\n"
+                                + exit_codes_text(), formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_version_option(p)
     p.add_argument("input", nargs="?", help="a 3DGS scene (INRIA PLY, SPZ or SOG), or a Scaffold-GS model folder, "
                                              "iteration folder or point_cloud.ply")
     p.add_argument("-o", "--output", required=True, help="the .lghcc file to write")
@@ -100,7 +112,10 @@ def setup_args() -> argparse.ArgumentParser:
     t.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                    help="where transcoding renders: cpu (default), or cuda (gsplat's CUDA rasterizer: pip install "
                         "'lghcc[gsplat]'); coding itself is the same on every machine")
-    p.add_argument("-f", "--force", action="store_true", help="overwrite the output file if it exists")
+    add_overwrite_options(p, "output files (-o, --json)")
+    p.add_argument("--allow-no-mlps", action="store_true",
+                   help="code an anchor scene that has no render MLPs (its decoded scene can then be neither "
+                        "rendered nor exported; refused by default)")
     p.add_argument("--no-verify", action="store_true",
                    help="skip decoding the written stream to check it (faster)")
     p.add_argument("--report-ideal", action="store_true",
@@ -113,107 +128,16 @@ def setup_args() -> argparse.ArgumentParser:
     return p
 
 
-def is_gaussian_file(path) -> bool:
-    """A plain 3DGS scene file: an INRIA 3DGS PLY (not a Scaffold-GS anchor PLY), SPZ or SOG."""
-    from lghcc.formats import detect_format
-    from lghcc.render.gaussians3dgs import is_3dgs_ply
-
-    p = Path(path)
-    if is_3dgs_ply(p):
-        return True
-    if not p.exists() or (p.is_dir() and not (p / "meta.json").is_file()):
-        return False
-    try:
-        return detect_format(p).name in ("spz", "sog")
-    except LghccError:
-        return False
-
-
-def _load_scene(args):
-    from lghcc.common.procedural import make_procedural_scene
-    from lghcc.common.scaffold_io import MissingMlpWarning, read_scaffold
-    from lghcc.encoder.scene_prep import merge_duplicate_anchors
-
-    if (args.input is None) == (args.procedural is None):
-        raise LghccError("give exactly one of an input path or --procedural N")
-    if args.procedural is not None:
-        if args.procedural < 1:
-            raise LghccError("--procedural needs a positive anchor count")
-        return make_procedural_scene(args.procedural, seed=args.seed,
-                                     progress=not args.quiet and sys.stderr.isatty()), "procedural"
-    if not Path(args.input).exists():
-        raise LghccError(f"{args.input}: no such file or folder")
-    from lghcc.render.gaussians3dgs import is_3dgs_ply
-
-    if args.mode == "gaussians" and is_gaussian_file(args.input):
-        from lghcc.formats import read_scene
-
-        return read_scene(args.input), args.input
-    if is_3dgs_ply(args.input):
-        from lghcc.encoder.transcode import TranscodeConfig, transcode_3dgs
-
-        say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
-        say(f"{args.input}: a plain 3DGS PLY (f_dc_0, no f_anchor_feat_0): transcoding it to an anchor scene "
-            "first, by fitting against renders of it (this takes minutes on a CPU; see --transcode-*)")
-        cfg = TranscodeConfig(anchors=args.transcode_anchors, voxel_size=args.transcode_voxel_size,
-                              iterations=args.transcode_iterations, distill_steps=args.transcode_distill_steps,
-                              views=args.transcode_views, resolution=args.transcode_resolution,
-                              feature_dim=args.transcode_feature_dim, num_offsets=args.transcode_offsets,
-                              device=args.device,
-                              progress=not args.quiet and sys.stderr.isatty())
-        res = transcode_3dgs(args.input, cfg, log=say)
-        say(f"transcoded in {res.stats['time_total_s']:.1f} s: {res.scene.num_anchors:,} anchors, held-out PSNR "
-            f"against the source renders {res.stats['psnr_final']:.2f} dB")
-        return res.scene, args.input
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", MissingMlpWarning)
-        scene = read_scaffold(args.input, voxel_size=args.voxel_size)
-    for w in caught:  # e.g. a folder without a recognised MLP file: said even with -q
-        if issubclass(w.category, MissingMlpWarning):
-            print(f"lghcc-enc: warning: {w.message}", file=sys.stderr)
-        else:
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    if args.merge_duplicates:
-        scene, merged = merge_duplicate_anchors(scene)
-        if merged and not args.quiet:
-            print(f"merged {merged} anchors that shared a voxel", file=sys.stderr)
-    return scene, args.input
-
-
-def _encode_gaussians(scene, cfg, args):
-    """Rate-aware preparation (when the settings call for it), then the explicit-Gaussian coding.
-    -> (result, the settings used: the preset's, or those the search chose)."""
-    from lghcc.encoder.gaussian_fit import prepare_gaussians
-    from lghcc.encoder.gaussians import encode_gaussian_scene
-
-    log = (lambda *a: None) if args.quiet else (lambda msg: print(f"lghcc-enc: {msg}", file=sys.stderr, flush=True))
-    progress = not args.quiet and sys.stderr.isatty()
-    t0 = time.perf_counter()
-    weights, prep_stats = None, {}
-    if cfg.rd_lambda > 0 or cfg.fit_iterations > 0 or cfg.prune_share > 0:
-        log(f"{scene.num_gaussians:,} Gaussians (SH degree {scene.sh_degree}): measuring contributions on "
-            f"{cfg.fit_views} views" + (f", choosing settings for lambda {cfg.rd_lambda:g}" if cfg.rd_lambda else "")
-            + (f", then {cfg.fit_iterations} fitting steps" if cfg.fit_iterations else ""))
-        prep = prepare_gaussians(scene, cfg, log=log, progress=progress)
-        scene, weights, cfg, prep_stats = prep.scene, prep.weights, prep.cfg, prep.stats
-    result = encode_gaussian_scene(scene, cfg, weights=weights, progress=progress, measure_ideal=args.report_ideal)
-    result.stats.update({f"prepare_{k}": v for k, v in prep_stats.items()})
-    bands = ", ".join(f"{s:.3g}" for s in cfg.sh_band_steps[:result.decoded.sh_degree])
-    result.stats["settings"] = (
-        f"pruned {prep_stats.get('gaussians_pruned', 0):,} Gaussians; position step {cfg.position_step:.3g} x the "
-        f"typical size; steps SH DC {cfg.sh_dc_step:.3g}" + (f", bands {bands}" if bands else "")
-        + f", opacity {cfg.opacity_step:.3g}, scale {cfg.scale_step:.3g}, rotation {cfg.rotation_step:.3g}")
-    result.stats["time_total_s"] = time.perf_counter() - t0
-    return result, cfg
-
-
 def main(argv: list[str] | None = None) -> int:
-    args = setup_args().parse_args(argv)
-    from lghcc.decoder.decode import decode_stream
-    from lghcc.encoder.config import load_config
-    from lghcc.encoder.encode import encode_scene
+    return run_cli("lghcc-enc", _main, argv)
 
+
+def _main(argv: list[str] | None) -> int:
+    from lghcc.encoder import api
+
+    args = setup_args().parse_args(argv)
     say = (lambda *a: None) if args.quiet else print
+    log = (lambda *a: None) if args.quiet else (lambda msg: print(f"lghcc-enc: {msg}", file=sys.stderr, flush=True))
     try:
         out = Path(args.output)
         # Every output is checked before encoding: none may overwrite the input or another output.
@@ -225,47 +149,56 @@ def main(argv: list[str] | None = None) -> int:
             except LghccError:
                 pass  # reported when the scene is read
         check_output_paths({"-o": args.output, "--json": args.json}, inputs)
-        if out.exists() and not out.is_dir() and not args.force:
-            raise LghccError(f"{out} exists; use --force to overwrite it")
-        for path in (args.output, args.json):
+        for opt, path in (("-o", args.output), ("--json", args.json)):
             if path:
-                check_writable_file(path)
+                check_overwrite(path, args.overwrite)
         if args.device != "cpu":  # checked before minutes of loading and transcoding
             from lghcc.render.rasterizer import select_device
             select_device(args.device)
-        gaussians = args.input is not None and args.mode == "gaussians" and is_gaussian_file(args.input)
+        gaussians = args.input is not None and args.mode == "gaussians" and api.is_gaussian_file(args.input)
         if gaussians:
-            cfg = load_config(args.preset, args.config, {
-                "rd_lambda": args.rd_lambda, "fit_iterations": args.fit_iterations, "sh_degree": args.sh_degree},
-                kind="gaussians")
+            overrides = {"rd_lambda": args.rd_lambda, "fit_iterations": args.fit_iterations,
+                         "sh_degree": args.sh_degree}
         else:
-            cfg = load_config(args.preset, args.config, {
-                "feature_step": args.feature_step, "scaling_step": args.scaling_step,
-                "offset_step": args.offset_step, "mlp_weight_bits": args.mlp_weight_bits, "pruning": args.prune,
-                "prune_keep_ratio": args.prune_keep, "prune_tau": args.prune_tau})
+            overrides = {"feature_step": args.feature_step, "scaling_step": args.scaling_step,
+                         "offset_step": args.offset_step, "mlp_weight_bits": args.mlp_weight_bits,
+                         "pruning": args.prune, "prune_keep_ratio": args.prune_keep, "prune_tau": args.prune_tau}
+        from lghcc.encoder.config import load_config
+        cfg = load_config(args.preset, args.config, overrides, kind="gaussians" if gaussians else "anchors")
         t0 = time.perf_counter()
-        scene, source = _load_scene(args)
+        transcode = api.TranscodeOptions(
+            anchors=args.transcode_anchors, voxel_size=args.transcode_voxel_size, iterations=args.transcode_iterations,
+            distill_steps=args.transcode_distill_steps, views=args.transcode_views,
+            resolution=args.transcode_resolution, feature_dim=args.transcode_feature_dim,
+            num_offsets=args.transcode_offsets, device=args.device)
+        scene = api.load_source(args.input, mode=args.mode, procedural=args.procedural, seed=args.seed,
+                                voxel_size=args.voxel_size, merge_duplicates=args.merge_duplicates,
+                                transcode=transcode, progress=not args.quiet,
+                                log=(lambda m: print(m, file=sys.stderr)) if not args.quiet else (lambda m: None),
+                                warn=lambda m: print(f"lghcc-enc: warning: {m}", file=sys.stderr))
+        source = args.input if args.input is not None else "procedural"
+        api.check_encodable(scene, args.allow_no_mlps, warn=lambda m: print(f"lghcc-enc: warning: {m}",
+                                                                             file=sys.stderr))
         t_load = time.perf_counter() - t0
+        estimate = api.estimate_seconds(scene, cfg)
+        if estimate is not None:
+            secs, what = estimate
+            log(f"preset {args.preset}: {what} on {min(scene.num_anchors, cfg.context_train_anchors):,} anchors, "
+                f"about {_duration(secs)} on 2 CPU threads (tools/results/presets.md); the preset "
+                f"{args.preset.removeprefix('lghcc-')} codes with the same steps in seconds. Ctrl-C stops it "
+                "and writes nothing")
         twin = None
-        if gaussians:
-            result, cfg = _encode_gaussians(scene, cfg, args)
-        else:
-            if args.input and not args.no_context_twin and cfg.context_model == "ggconv":
-                from lghcc.encoder.ggconv_train import find_context_twin
-                twin = find_context_twin(args.input)
-            result = encode_scene(scene, cfg, progress=not args.quiet and sys.stderr.isatty(),
-                                  measure_ideal=args.report_ideal, context_twin=twin)
+        if args.input and not gaussians and not args.no_context_twin and cfg.context_model == "ggconv":
+            from lghcc.encoder.ggconv_train import find_context_twin
+            twin = find_context_twin(args.input)
+        result, cfg = api.encode(scene, cfg, progress=not args.quiet, log=log, measure_ideal=args.report_ideal,
+                                 context_twin=twin, verify=not args.no_verify, allow_missing_mlps=args.allow_no_mlps)
         if twin is not None:
             why = result.stats.get("context_twin_unused")
             say("context twin of the training run: " + (f"not used ({why})" if why else
                 "kept (smallest stream)" if result.stats.get("context_parent_base") == "twin" else
                 "tried, a fresh fit coded smaller"))
-        verified = None
-        if not args.no_verify:
-            decoded = decode_stream(result.data)
-            verified = decoded.stream_hash == result.scene_hash
-            if not verified:
-                raise LghccError("internal error: the written stream does not decode to the encoded scene")
+        verified = result.stats.get("verified")
         try:
             atomic_write_bytes(out, result.data)
         except OSError as e:
@@ -302,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
         overhead = st["attribute_coded_bits"] / max(st["attribute_ideal_bits"], 1) - 1
         say(f"attribute coding: {st['attribute_coded_bits']:,} bits, {100 * overhead:+.3f}% over the model's ideal")
     say(f"time: load {t_load:.2f} s, encode {st['time_total_s']:.2f} s"
-        + ("" if verified is None else ", decoded and verified: hash matches"))
+        + ("" if not verified else ", decoded and verified: hash matches"))
     say(f"decoded scene SHA-256: {result.scene_hash.hex()}")
     return 0
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from torch import nn
-from tqdm.auto import tqdm
+from lghcc.common.progress import progress_bar
 
 from lghcc.common.context.parent_mlp import ParentMlpParams
 from lghcc.common.intnn import ACT_MAX, ACT_MIN, IntMLP, frac_bits_for, quantize_linear
@@ -62,7 +62,7 @@ def fit_parent_mlp(coords2: np.ndarray, parent_attrs: np.ndarray, targets: np.nd
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     steps = cfg.float_steps + cfg.qat_steps
     sched = one_cycle(opt, cfg.lr, steps)
-    for _ in tqdm(range(steps), desc="fit parent MLP", disable=not cfg.progress, unit="step"):
+    for _ in progress_bar(range(steps), desc="fit parent MLP", disable=not cfg.progress, unit="step"):
         sel = torch.from_numpy(rng.integers(0, rows.size, min(cfg.batch, rows.size)))
         o = net(x_int[sel] * scale)
         mean = xp[sel] * base + o[:, :m]

@@ -11,7 +11,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from tqdm import tqdm
+from lghcc.common.progress import progress_bar
 
 from lghcc.common import attributes as attr
 from lghcc.common.container import (UNIT_CRC_BYTES, UNIT_HEADER_BYTES, DataUnit, UnitType, read_container,
@@ -322,7 +322,7 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
     if n > MAX_ANCHORS:
         raise InputError(f"{n} anchors exceed the profile's limit of {MAX_ANCHORS}")
     t0 = time.perf_counter()
-    bar = tqdm(total=5, desc="encode", unit="step", disable=not progress, leave=False)
+    bar = progress_bar(total=5, desc="encode", unit="step", disable=not progress, leave=False)
 
     bar.set_postfix_str("geometry")
     order = normative_order(scene.coords)

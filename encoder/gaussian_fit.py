@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from tqdm import tqdm
+from lghcc.common.progress import progress_bar
 
 from lghcc.common.errors import InputError
 from lghcc.common.scene import GaussianScene
@@ -191,7 +191,7 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
         scene = scene.with_sh_degree(cfg.sh_degree)
     cams = fit_cameras(scene, cfg.fit_views, cfg.fit_resolution) + list(cameras or [])
     g = gaussians_from_scene(scene)
-    bar = tqdm(total=len(cams), desc="contributions", unit="view", disable=not progress, leave=False)
+    bar = progress_bar(total=len(cams), desc="contributions", unit="view", disable=not progress, leave=False)
     contrib = gaussian_contributions(g.means, g.quats, g.scales, g.opacities, cams, on_view=bar.update)
     bar.close()
     stats["time_contributions_s"] = time.perf_counter() - t0
@@ -232,7 +232,7 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
     mu = cfg.fit_rate_lambda
     step_sq = [torch.tensor(cfg.sh_dc_step ** 2), fit.rest_steps ** 2, torch.tensor(cfg.opacity_step ** 2),
                torch.tensor(cfg.scale_step ** 2), torch.tensor(cfg.rotation_step ** 2)]
-    bar = tqdm(range(cfg.fit_iterations), desc="fit", unit="it", disable=not progress, leave=False)
+    bar = progress_bar(range(cfg.fit_iterations), desc="fit", unit="it", disable=not progress, leave=False)
     last = time.perf_counter()
     losses = []
     for it in bar:

@@ -20,7 +20,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from tqdm import tqdm
+from lghcc.common.progress import progress_bar
 
 from lghcc.common import attributes as attr
 from lghcc.common.container import DataUnit, UnitType, read_container, write_container
@@ -154,7 +154,7 @@ def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | Non
     n = scene.num_gaussians
     if n > MAX_ANCHORS:
         raise InputError(f"{n} Gaussians exceed the profile's limit of {MAX_ANCHORS}")
-    bar = tqdm(total=4, desc="encode", unit="step", disable=not progress, leave=False)
+    bar = progress_bar(total=4, desc="encode", unit="step", disable=not progress, leave=False)
     bar.set_postfix_str("geometry")
     if scene.coords is None:
         voxel, origin = choose_grid(scene, cfg, weights)

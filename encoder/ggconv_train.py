@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from torch import nn
-from tqdm.auto import tqdm
+from lghcc.common.progress import progress_bar
 
 from lghcc.common.context.ggconv import (
     GRID_FRAC_BITS,
@@ -521,7 +521,7 @@ def train_ggconv_twin(coords2, parent, coords1, attrs1, targets, num_features: i
         init_mean_outputs(model, data.targets, hr[:, 4:], cfg.parent_base)
     # One-cycle learning rate (warm-up, then cosine decay): measured on a 20k-anchor procedural
     # scene, it converges in a quarter of the steps of a constant rate.
-    bar = tqdm(total=cfg.float_steps + cfg.qat_steps, desc="fit GG-Conv", disable=not cfg.progress, unit="step")
+    bar = progress_bar(total=cfg.float_steps + cfg.qat_steps, desc="fit GG-Conv", disable=not cfg.progress, unit="step")
     _train_phase(model, data, cfg, rng, cfg.lr, cfg.float_steps, bar)
     stats: dict = {}
     with torch.no_grad():

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 from torch import nn
-from tqdm.auto import tqdm
+from lghcc.common.progress import progress_bar
 
 from lghcc.common.errors import InputError
 from lghcc.common.scene import AnchorScene
@@ -210,7 +210,7 @@ def distill(st: SceneTensors, g: Gaussians3DGS, a: dict, cfg: TranscodeConfig, c
     w = live.float()
     wsum = w.sum().clamp_min(1)
     losses = []
-    bar = tqdm(range(cfg.distill_steps), desc="transcode: distill", unit="step", disable=not cfg.progress,
+    bar = progress_bar(range(cfg.distill_steps), desc="transcode: distill", unit="step", disable=not cfg.progress,
                leave=False)
     for _ in bar:
         v = torch.randn(n, 3, generator=gen)
@@ -281,7 +281,7 @@ def transcode_3dgs(source: str | Gaussians3DGS, cfg: TranscodeConfig | None = No
                           offset=0.25, prefix="test") if cfg.test_views else []
     cam_dist = float(np.linalg.norm(train[0].center - center))
     with torch.no_grad():
-        bar = tqdm(train + test, desc="transcode: render source", unit="view", disable=not cfg.progress, leave=False)
+        bar = progress_bar(train + test, desc="transcode: render source", unit="view", disable=not cfg.progress, leave=False)
         targets = [render_3dgs(g, cam, backend=backend).image.clamp(0, 1) for cam in bar]
     t_train, t_test = targets[:len(train)], targets[len(train):]
     t_render = time.perf_counter() - t0
@@ -305,7 +305,7 @@ def transcode_3dgs(source: str | Gaussians3DGS, cfg: TranscodeConfig | None = No
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, max(cfg.iterations, 1), eta_min=0.0)
     rng = np.random.default_rng(cfg.seed)
     losses = []
-    bar = tqdm(range(cfg.iterations), desc="transcode: fit", unit="it", disable=not cfg.progress, leave=False)
+    bar = progress_bar(range(cfg.iterations), desc="transcode: fit", unit="it", disable=not cfg.progress, leave=False)
     for it in bar:
         j = int(rng.integers(len(train)))
         img = render_scene(st, train[j], backend=backend).image
@@ -357,7 +357,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = TranscodeConfig(**{k: getattr(args, k) for k in ("anchors", "voxel_size", "feature_dim", "num_offsets",
                                                             "views", "test_views", "resolution", "distill_steps",
                                                             "iterations", "seed", "threads")},
-                          progress=sys.stderr.isatty())
+                          progress=True)
     try:
         res = transcode_3dgs(args.input, cfg, log=lambda *a: print(*a, flush=True))
         if args.output:

@@ -7,8 +7,13 @@ naming the file and the problem); every writer writes atomically.
 extension deciding only where the content does not (an empty or truncated file is then
 reported by the reader of its extension); ``write_scene(scene, path)`` picks the writer by
 the extension. Formats: INRIA 3DGS PLY (``.ply``), Niantic SPZ (``.spz``, v2-v4), PlayCanvas
-SOG (a ``.sog`` bundle; also read: an unbundled ``meta.json`` with its images). Another format (a folder layout, a codec stream) is
-added with ``register_format``.
+SOG (a ``.sog`` bundle; also read: an unbundled ``meta.json`` with its images), and the
+anchor scenes of Scaffold-GS / HAC (a model folder, an iteration folder, or an anchor PLY with
+its render MLPs in ``checkpoint.pth`` beside it: an ``AnchorScene``). A folder in the 3DGS
+layout (``point_cloud/iteration_<N>/point_cloud.ply``, as 3DGS and ``lghcc-dec`` write it)
+reads as the plain 3DGS scene in it. ``write_scene`` writes an ``AnchorScene`` as a
+Scaffold-GS model folder and a ``GaussianScene`` given a path without a scene extension as
+a 3DGS model folder. Another format is added with ``register_format``.
 """
 
 from __future__ import annotations
@@ -20,10 +25,12 @@ from pathlib import Path
 from typing import Any, Callable
 
 from lghcc.common.errors import InputError
-from lghcc.common.scene import GaussianScene
+from lghcc.common.scene import AnchorScene, GaussianScene
 from lghcc.formats.ply3dgs import read_3dgs_ply, write_3dgs_ply
 from lghcc.formats.sog import read_sog, write_sog
 from lghcc.formats.spz import is_spz_bytes, read_spz, write_spz
+
+Scene = AnchorScene | GaussianScene  # what read_scene returns
 
 HEAD_BYTES = 4096  # what a format's sniff sees of a file (enough to inflate the start of a gzip stream)
 
@@ -40,7 +47,7 @@ class SceneFormat:
     name: str
     suffixes: tuple[str, ...]
     sniff: Callable[[Path, bytes], bool]
-    read: Callable[[Path], GaussianScene] | None
+    read: Callable[[Path], Scene] | None
     write: Callable[..., None] | None
 
 
@@ -58,8 +65,66 @@ def _write_ply(path: Path, scene: GaussianScene, comments: list[str] = ()) -> No
     write_3dgs_ply(path, scene, comments)
 
 
+def _located_ply(path: Path) -> Path | None:
+    """The PLY a folder holds (Scaffold-GS/3DGS layout: highest iteration), None if none."""
+    from lghcc.common.scaffold_io import locate_ply
+
+    try:
+        return locate_ply(path)
+    except InputError:
+        return None
+
+
+def _ply_names(path: Path) -> list[str]:
+    from lghcc.formats.ply3dgs import ply_property_names
+
+    try:
+        return ply_property_names(path)
+    except InputError:
+        return []
+
+
+def _is_anchor_scene(path: Path, head: bytes) -> bool:
+    if path.is_dir():
+        ply = _located_ply(path)
+        return ply is not None and "f_anchor_feat_0" in _ply_names(ply)
+    return head.startswith(b"ply") and b"f_anchor_feat_0" in head
+
+
+def _read_anchor_scene(path: Path) -> AnchorScene:
+    from lghcc.common.scaffold_io import read_scaffold
+
+    return read_scaffold(path)
+
+
+def _is_3dgs_folder(path: Path, head: bytes) -> bool:
+    if not path.is_dir():
+        return False
+    ply = _located_ply(path)
+    return ply is not None and "f_dc_0" in _ply_names(ply) and "f_anchor_feat_0" not in _ply_names(ply)
+
+
+def _read_3dgs_folder(path: Path) -> GaussianScene:
+    ply = _located_ply(path)
+    if ply is None:
+        raise InputError(f"{path}: no point_cloud.ply found")
+    return read_3dgs_ply(ply)
+
+
+def write_3dgs_folder(scene: GaussianScene, folder: str | os.PathLike, iteration: int = 0) -> Path:
+    """``folder/point_cloud/iteration_<iteration>/point_cloud.ply`` (the layout of 3DGS); the PLY's path."""
+    ply = Path(folder) / "point_cloud" / f"iteration_{iteration}" / "point_cloud.ply"
+    ply.parent.mkdir(parents=True, exist_ok=True)
+    write_3dgs_ply(ply, scene)
+    return ply
+
+
 _FORMATS: list[SceneFormat] = [
-    SceneFormat("3dgs-ply", (".ply",), lambda p, head: head.startswith(b"ply"), read_3dgs_ply, _write_ply),
+    # anchor scenes first: a Scaffold-GS anchor PLY also starts with "ply"
+    SceneFormat("scaffold-gs", (), _is_anchor_scene, _read_anchor_scene, None),
+    SceneFormat("3dgs-folder", (), _is_3dgs_folder, _read_3dgs_folder, None),
+    SceneFormat("3dgs-ply", (".ply",), lambda p, head: head.startswith(b"ply") and b"f_anchor_feat_0" not in head,
+                read_3dgs_ply, _write_ply),
     SceneFormat("spz", (".spz",), lambda p, head: is_spz_bytes(head), read_spz, write_spz),
     SceneFormat("sog", (".sog",), _is_sog, read_sog, write_sog),
 ]
@@ -105,21 +170,39 @@ def detect_format(path: str | os.PathLike) -> SceneFormat:
     raise InputError(f"{p}: not a scene this version reads ({kind}); formats: {known}")
 
 
-def read_scene(path: str | os.PathLike) -> GaussianScene:
-    """Read a scene file of any known format (``detect_format``) into a validated GaussianScene."""
+def read_scene(path: str | os.PathLike) -> Scene:
+    """Read a scene of any known format (``detect_format``): a validated GaussianScene, or an
+    AnchorScene for a Scaffold-GS model (its MLPs from the checkpoint beside the PLY; a
+    ``MissingMlpWarning`` when there is none)."""
     p = Path(path)
     return detect_format(p).read(p)
 
 
-def write_scene(scene: GaussianScene, path: str | os.PathLike, **options: Any) -> None:
-    """Write ``scene`` atomically in the format named by the extension of ``path`` (``.ply``,
-    ``.spz``, ``.sog``); ``options`` go to that writer (SPZ: ``version``, ``antialiased``; SOG:
-    ``iterations``, ``palette``, ``seed``; PLY: ``comments``)."""
+def write_scene(scene: Scene, path: str | os.PathLike, **options: Any) -> Path:
+    """Write ``scene`` atomically (each file). A GaussianScene: in the format named by the
+    extension of ``path`` (``.ply``, ``.spz``, ``.sog``; ``options`` go to that writer: SPZ
+    ``version``, ``antialiased``; SOG ``iterations``, ``palette``, ``seed``; PLY ``comments``),
+    or, for a path without one of these extensions, as a 3DGS model folder
+    (``point_cloud/iteration_0/point_cloud.ply``). An AnchorScene: as a Scaffold-GS model
+    folder (``point_cloud/iteration_0/point_cloud.ply`` and ``checkpoint.pth``).
+    Returns the path written (the PLY for a folder)."""
     p = Path(path)
+    if isinstance(scene, AnchorScene):
+        from lghcc.common.scaffold_io import write_scaffold
+
+        if any(p.name.lower().endswith(s) for f in _FORMATS for s in f.suffixes):
+            raise InputError(f"{p}: an anchor scene is written as a Scaffold-GS model folder, not a {p.suffix} "
+                             "file; convert it to Gaussians first (lghcc.to_gaussians) to write one")
+        return write_scaffold(scene, p)
+    if not isinstance(scene, GaussianScene):
+        raise InputError(f"write_scene: expected an AnchorScene or a GaussianScene, got {type(scene).__name__}")
+    if p.suffix == "" or p.is_dir():
+        scene.validate(str(p))
+        return write_3dgs_folder(scene, p)
     for f in _FORMATS:
         if f.write is not None and _suffix_matches(f, p):
             scene.validate(str(p))
             f.write(p, scene, **options)
-            return
+            return p
     known = ", ".join(s for f in _FORMATS if f.write is not None for s in f.suffixes)
     raise InputError(f"{p}: cannot tell the format to write from the file name; use one of {known}")

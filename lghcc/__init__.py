@@ -1,11 +1,64 @@
-"""lghcc: reference codec for LG-HCC compression of anchor-based 3D Gaussian Splatting scenes.
+"""lghcc: reference codec for LG-HCC compression of 3D Gaussian Splatting scenes.
+
+As a library::
+
+    import lghcc
+
+    scene = lghcc.read_scene("scene.ply")             # 3DGS PLY, SPZ, SOG, Scaffold-GS model
+    data = lghcc.encode(scene, preset="medium")       # bytes of one .lghcc stream
+    decoded = lghcc.decode(data)                      # hash-checked
+    lghcc.write_scene(decoded, "decoded.spz")
+    print(lghcc.evaluate(decoded, scene, "orbit:8"))  # PSNR / SSIM against the source
+
+Functions (lghcc/api.py): ``read_scene``, ``write_scene``, ``encode``, ``decode``,
+``load_cameras``, ``load_dataset``, ``render_views``, ``evaluate``, ``to_gaussians``.
+Types: ``AnchorScene``, ``GaussianScene``, ``Camera``, ``Evaluation``; errors:
+``LghccError`` and its subclasses. ``import lghcc`` is light (no torch, no encoder); each
+function loads what it needs.
 
 Layout (source tree -> installed package):
   common/   -> lghcc.common    normative: syntax, bitstream, geometry, entropy coding, context models
   encoder/  -> lghcc.encoder   informative: quantization choices, model fitting, lghcc-enc
   decoder/  -> lghcc.decoder   normative decoding process, lghcc-dec (never imports the encoder)
-  render/   -> lghcc.render    informative: neural Gaussians, rasterizer, metrics
+  render/   -> lghcc.render    informative: neural Gaussians, rasterizer, metrics, datasets
+  formats/  -> lghcc.formats   informative: scene files (3DGS PLY, SPZ, SOG, Scaffold-GS)
   conformance/ -> lghcc.conformance  conformance streams and their runner
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from lghcc.api import (decode, encode, evaluate, load_cameras, load_dataset, read_scene, render_views, to_gaussians,
+                       write_scene)
+from lghcc.common.errors import BitstreamError, HashMismatchError, InputError, LghccError
+
 __version__ = "0.1.0"
+
+if TYPE_CHECKING:
+    from lghcc.common.scene import AnchorScene, GaussianScene
+    from lghcc.render.camera import Camera
+    from lghcc.render.scenes import Evaluation
+
+_LAZY = {
+    "AnchorScene": "lghcc.common.scene",
+    "GaussianScene": "lghcc.common.scene",
+    "Camera": "lghcc.render.camera",
+    "Evaluation": "lghcc.render.scenes",
+}
+
+__all__ = [
+    "__version__", "read_scene", "write_scene", "encode", "decode", "load_cameras", "load_dataset", "render_views",
+    "evaluate", "to_gaussians", "AnchorScene", "GaussianScene", "Camera", "Evaluation",
+    "LghccError", "InputError", "BitstreamError", "HashMismatchError",
+]
+
+
+def __getattr__(name: str) -> Any:  # the types, imported when first asked for (numpy, not at import lghcc)
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'lghcc' has no attribute {name!r}")

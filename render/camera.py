@@ -586,14 +586,17 @@ def read_colmap_model(sparse_dir: str | os.PathLike) -> ColmapModel:
 
 def load_colmap(sparse_dir: str | os.PathLike, images_dir: str | os.PathLike | None = None,
                 load_images: bool = False, near: float = 0.01, far: float = 1e10,
-                background: str | tuple = "black") -> tuple[list[Camera], ColmapModel]:
+                background: str | tuple = "black", image_paths: dict[str, Path] | None = None,
+                model: ColmapModel | None = None) -> tuple[list[Camera], ColmapModel]:
     """Cameras (sorted by image name) of a COLMAP sparse model, and the model itself (points3D).
     Loaded images with an alpha channel are composited on ``background`` ('white', 'black'
     or RGB; the trainer passes its own).
     Pinhole models are used as they are; SIMPLE_RADIAL, RADIAL and OPENCV are rendered as
     pinhole cameras with their distortion ignored (a warning is logged: undistort the images
-    with ``colmap image_undistorter`` for exact results); other models raise InputError."""
-    model = read_colmap_model(sparse_dir)
+    with ``colmap image_undistorter`` for exact results); other models raise InputError.
+    ``image_paths``: the image file of each image name (default ``images_dir / name``);
+    ``model``: the model when already read."""
+    model = model if model is not None else read_colmap_model(sparse_dir)
     if load_images and images_dir is None:
         raise InputError("load_colmap: load_images needs images_dir")
     out, warned = [], set()
@@ -613,12 +616,13 @@ def load_colmap(sparse_dir: str | os.PathLike, images_dir: str | os.PathLike | N
         w2c[:3, 3] = im.tvec
         img, w, h = None, cc.width, cc.height
         if load_images:
-            img = composite_background(read_image(Path(images_dir) / im.name), background)
+            ip = image_paths[im.name] if image_paths else Path(images_dir) / im.name
+            img = composite_background(read_image(ip), background)
             ih, iw = img.shape[:2]
             if (iw, ih) != (w, h):
                 s = iw / w
                 if abs(ih / h - s) > 0.02:
-                    raise InputError(f"{Path(images_dir) / im.name}: image is {iw}x{ih}, camera "
+                    raise InputError(f"{ip}: image is {iw}x{ih}, camera "
                                      f"{cc.camera_id} is {w}x{h}")
                 fx, fy, cx, cy, w, h = fx * s, fy * s, cx * s, cy * s, iw, ih
         out.append(Camera(w2c, fx, fy, cx, cy, w, h, near=near, far=far, name=im.name, image=img,

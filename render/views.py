@@ -1,5 +1,5 @@
-"""Camera sets for looking at results (informative): ``orbit:N``, a NeRF-synthetic
-transforms JSON, or a COLMAP sparse folder (used by ``lghcc-dec --render`` and
+"""Camera sets for looking at results (informative): ``orbit:N``, or the cameras of a
+dataset of any layout (used by ``lghcc-dec --render``, ``lghcc.render_views`` and
 tools/compare.py)."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from lghcc.common.errors import InputError
-from lghcc.render.camera import Camera, load_colmap, load_nerf_synthetic
+from lghcc.render.camera import Camera, load_colmap, load_llff, load_nerf_synthetic
 
 
 def orbit_cameras(positions: np.ndarray, n: int, *, width: int = 256, height: int = 256, fov_deg: float = 50.0,
@@ -42,10 +42,14 @@ def orbit_cameras(positions: np.ndarray, n: int, *, width: int = 256, height: in
 
 
 def cameras_from_spec(spec: str, positions: np.ndarray, *, width: int = 256, height: int = 256,
-                      scale: float = 1.0) -> list[Camera]:
-    """``orbit:N`` (around ``positions``, width x height), a NeRF-synthetic
-    ``transforms_<split>.json`` or a folder holding one (test split preferred), or a COLMAP
-    sparse folder (cameras/images .bin or .txt). File cameras are scaled by ``scale``."""
+                      scale: float = 1.0, split: str = "test") -> list[Camera]:
+    """Cameras from a spec: ``orbit:N`` (around ``positions``, width x height); a dataset
+    folder of any layout lghcc.render.datasets detects (NeRF-synthetic, COLMAP, Mip-NeRF 360,
+    LLFF), its ``split`` (test, train or all); a NeRF-synthetic ``transforms_<split>.json``; a
+    COLMAP sparse folder (cameras/images .bin or .txt: all its views); an LLFF
+    ``poses_bounds.npy`` (all its views). File cameras are scaled by ``scale``."""
+    from lghcc.render.datasets import dataset_cameras, sparse_folder
+
     m = re.fullmatch(r"orbit:(\d+)", spec.strip())
     if m:
         return orbit_cameras(positions, int(m.group(1)), width=width, height=height)
@@ -55,13 +59,20 @@ def cameras_from_spec(spec: str, positions: np.ndarray, *, width: int = 256, hei
         if not mm:
             raise InputError(f"{p}: expected a NeRF-synthetic transforms_<split>.json")
         cams = load_nerf_synthetic(p.parent, mm.group(1), load_images=False)
-    elif p.is_dir() and any((p / f"transforms_{s}.json").is_file() for s in ("test", "val", "train")):
-        split = next(s for s in ("test", "val", "train") if (p / f"transforms_{s}.json").is_file())
-        cams = load_nerf_synthetic(p, split, load_images=False)
-    elif p.is_dir():
-        cams, _ = load_colmap(p)
+    elif p.is_file() and p.name == "poses_bounds.npy":
+        cams = load_llff(p.parent, load_images=False)
+    elif p.is_dir() and (p / "transforms_train.json").is_file():
+        cams = dataset_cameras(p, split)
+    elif p.is_dir() and any((p / f"transforms_{s}.json").is_file() for s in ("test", "val")):
+        split_ = next(s for s in ("test", "val") if (p / f"transforms_{s}.json").is_file())
+        cams = load_nerf_synthetic(p, split_, load_images=False)
+    elif p.is_dir() and sparse_folder(p) is not None and sparse_folder(p) == p:
+        cams, _ = load_colmap(p)  # a bare sparse model folder: all its views
+    elif p.is_dir() and (sparse_folder(p) is not None or (p / "poses_bounds.npy").is_file()):
+        cams = dataset_cameras(p, split)
     else:
-        raise InputError(f"{spec}: not 'orbit:N', a transforms JSON or a COLMAP sparse folder")
+        raise InputError(f"{spec}: not 'orbit:N', a dataset folder (transforms_train.json, sparse/0, "
+                         "poses_bounds.npy), a transforms JSON, a COLMAP sparse folder or a poses_bounds.npy")
     if not cams:
         raise InputError(f"{spec}: no cameras")
     return [c.scaled(scale) for c in cams] if scale != 1.0 else cams

@@ -43,10 +43,16 @@ def test_refuses_to_overwrite_without_force(tmp_path, capsys):
     out = tmp_path / "x.lghcc"
     out.write_bytes(b"keep me")
     assert enc_cli.main(["--procedural", "100", "-o", str(out)]) == 1
-    assert "use --force" in capsys.readouterr().err
+    assert "exists; use -y (--overwrite)" in capsys.readouterr().err
     assert out.read_bytes() == b"keep me"
-    assert enc_cli.main(["--procedural", "100", "-o", str(out), "--force", "-q"]) == 0
-    assert out.read_bytes()[:4] == b"LGHC"
+    assert enc_cli.main(["--procedural", "100", "-o", str(out), "-n"]) == 1  # -n: the default, said explicitly
+    assert out.read_bytes() == b"keep me"
+    for flag in ("-y", "--overwrite", "-f", "--force"):  # -f/--force: the older spelling, kept
+        out.write_bytes(b"keep me")
+        assert enc_cli.main(["--procedural", "100", "-o", str(out), flag, "-q"]) == 0
+        assert out.read_bytes()[:4] == b"LGHC"
+    with pytest.raises(SystemExit):  # -y and -n contradict each other: a usage error
+        enc_cli.main(["--procedural", "100", "-o", str(out), "-y", "-n"])
 
 
 def test_input_is_never_overwritten(tmp_path, capsys):
@@ -134,8 +140,6 @@ def test_write_failing_late_is_a_clean_error(tmp_path, capsys, small_stream, mon
 
     monkeypatch.setattr(fileio.tempfile, "mkstemp", full)
     monkeypatch.setattr(fileio, "check_writable_file", lambda *a, **k: None)
-    monkeypatch.setattr(dec_cli, "check_writable_file", lambda *a, **k: None)
-    monkeypatch.setattr(enc_cli, "check_writable_file", lambda *a, **k: None)
     assert dec_cli.main([str(small_stream), "-q", "-o", str(tmp_path / "dec")]) == 1
     assert f"cannot write {tmp_path / 'dec'} (No space left on device)" in capsys.readouterr().err
     assert dec_cli.main([str(small_stream), "-q", "--json", str(tmp_path / "d.json")]) == 1
@@ -204,8 +208,8 @@ def test_decoding_into_a_used_folder_needs_force_and_never_mixes_scenes(tmp_path
     it = out / "point_cloud" / "iteration_0"
     assert (it / "checkpoint.pth").is_file()
     assert dec_cli.main([str(tmp_path / "b.lghcc"), "-o", str(out), "-q"]) == 1
-    assert "is not empty; use --force" in capsys.readouterr().err
-    assert dec_cli.main([str(tmp_path / "b.lghcc"), "-o", str(out), "-q", "--force"]) == 0
+    assert "is not empty; use -y (--overwrite)" in capsys.readouterr().err
+    assert dec_cli.main([str(tmp_path / "b.lghcc"), "-o", str(out), "-q", "-y"]) == 0
     assert not (it / "checkpoint.pth").exists()  # the first scene's MLPs are gone
     with pytest.warns(UserWarning, match="no render-MLP file recognised"):
         back = read_scaffold(out)
@@ -215,11 +219,22 @@ def test_decoding_into_a_used_folder_needs_force_and_never_mixes_scenes(tmp_path
     assert dec_cli.main([str(tmp_path / "a.lghcc"), "-o", str(tmp_path / "empty"), "-q"]) == 0
 
 
-def test_encoder_warns_about_a_folder_without_mlps(tmp_path, capsys):
+def test_encoder_refuses_a_folder_without_mlps_unless_asked(tmp_path, capsys):
+    """Its decoded scene could be neither rendered nor exported: refused (exit 1, nothing
+    written) with a message saying why and what to do; --allow-no-mlps codes it anyway."""
     folder = write_scaffold(random_scene(np.random.default_rng(4), 25, with_mlps=False), tmp_path / "m")
-    assert enc_cli.main([str(tmp_path / "m"), "-o", str(tmp_path / "x.lghcc"), "-q"]) == 0
+    assert enc_cli.main([str(tmp_path / "m"), "-o", str(tmp_path / "x.lghcc"), "-q"]) == 1
     err = capsys.readouterr().err
     assert f"lghcc-enc: warning: {folder}: no render-MLP file recognised" in err
+    assert "error: the anchor scene has no render MLPs" in err and "--allow-no-mlps" in err
+    assert not (tmp_path / "x.lghcc").exists()
+    assert enc_cli.main([str(tmp_path / "m"), "-o", str(tmp_path / "x.lghcc"), "-q", "--allow-no-mlps"]) == 0
+    # its decoded scene: rendering and export say why they cannot, before writing anything
+    assert dec_cli.main([str(tmp_path / "x.lghcc"), "--render", "orbit:1", "--render-out", str(tmp_path / "v")]) == 1
+    assert "has no opacity, cov, color MLP: it cannot be rendered" in capsys.readouterr().err
+    assert dec_cli.main([str(tmp_path / "x.lghcc"), "--export", str(tmp_path / "x.ply")]) == 1
+    assert "cannot be rendered or exported" in capsys.readouterr().err
+    assert not (tmp_path / "x.ply").exists()
 
 
 def test_decode_then_reencode_gives_the_same_scene(tmp_path, capsys):
@@ -274,7 +289,8 @@ def test_outputs_get_the_umask_mode(tmp_path, small_stream):
         assert stat.S_IMODE(f.stat().st_mode) == 0o640, f
 
 
-def test_procedural_progress_bar_does_not_change_the_scene(capsys):
+def test_procedural_progress_bar_does_not_change_the_scene(capsys, monkeypatch):
+    monkeypatch.setenv("LGHCC_PROGRESS_INTERVAL", "0")  # stderr is no terminal here: log lines, each update
     from lghcc.common.hashing import scene_digest
     from lghcc.common.procedural import make_procedural_scene
 

@@ -105,7 +105,7 @@ def test_bad_arguments_are_refused_before_any_work(small_scene, stub_bundle, tmp
     existing = tmp_path / "old.html"
     existing.write_text("keep")
     for argv, msg in ((["-o", s], "would overwrite the input stream"),
-                      (["-o", str(existing)], "use --force"),
+                      (["-o", str(existing)], "use -y (--overwrite)"),
                       (["-o", str(tmp_path / "v.html"), "--source", str(tmp_path / "none.ply")], "no such file"),
                       (["-o", str(tmp_path / "v.html"), "--up", "0,0,0"], "--up must be"),
                       (["-o", str(tmp_path / "v.html"), "--psnr-size", "big"], "--psnr-size must be WxH")):

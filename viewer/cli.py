@@ -19,7 +19,9 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from lghcc.common.errors import HashMismatchError, LghccError  # noqa: E402
-from lghcc.common.fileio import atomic_write_bytes, check_output_paths, check_writable_file, write_error  # noqa: E402
+from lghcc.common.cliargs import (EXIT_HASH_MISMATCH, OVERWRITE_RULE, add_overwrite_options,  # noqa: E402
+                                  add_version_option, exit_codes_text, run_cli)
+from lghcc.common.fileio import atomic_write_bytes, check_output_paths, check_overwrite, write_error  # noqa: E402
 
 DESCRIPTION = """\
 Write a decoded LG-HCC stream as ONE self-contained HTML page that shows the scene
@@ -60,11 +62,14 @@ def _vector(text: str, opt: str) -> np.ndarray:
 
 
 def setup_args() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="lghcc-view", description=DESCRIPTION,
+    p = argparse.ArgumentParser(prog="lghcc-view", description=DESCRIPTION, epilog=OVERWRITE_RULE + "\n\n"
+                                + exit_codes_text({EXIT_HASH_MISMATCH: "the decoded scene does not match the "
+                                                   "stream's hash (no page written)"}),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_version_option(p)
     p.add_argument("stream", help="the .lghcc file to show")
     p.add_argument("-o", "--output", required=True, metavar="HTML", help="the page to write")
-    p.add_argument("-f", "--force", action="store_true", help="replace the page if it exists")
+    add_overwrite_options(p, "page (-o)")
     p.add_argument("--source", metavar="SCENE",
                    help="the scene the stream was encoded from (plain 3DGS PLY, or Scaffold-GS model folder / PLY): "
                         "shown beside the decoded scene, same camera; PSNR/SSIM against it")
@@ -103,13 +108,17 @@ def _say_nothing(*_a, **_k) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    return run_cli("lghcc-view", _main, argv)
+
+
+def _main(argv: list[str] | None) -> int:
     args = setup_args().parse_args(argv)
     say = _say_nothing if args.quiet else (lambda *a: print(*a, flush=True))
     try:
         return _run(args, say)
     except HashMismatchError as e:
         print(f"lghcc-view: error: {args.stream}: {e}; no page written", file=sys.stderr)
-        return 3
+        return EXIT_HASH_MISMATCH
     except LghccError as e:
         print(f"lghcc-view: error: {e}", file=sys.stderr)
         return 1
@@ -125,9 +134,7 @@ def _run(args, say) -> int:
     # everything a user can get wrong is checked before minutes of decoding and rendering
     check_output_paths({"-o": args.output}, {"input stream": args.stream, "--source": args.source})
     out = Path(args.output)
-    if out.exists() and not args.force:
-        raise LghccError(f"{out} exists; use --force to replace it")
-    check_writable_file(out)
+    check_overwrite(out, args.overwrite)
     if args.views < 1:
         raise LghccError(f"--views must be at least 1, got {args.views}")
     if args.export_directions < (args.export_sh_degree + 1) ** 2:

@@ -1,0 +1,215 @@
+"""The encoder as functions (informative): what ``lghcc.encode`` and ``lghcc-enc`` both call.
+
+* ``load_source``: the scene a path names, ready for coding: a plain 3DGS scene (PLY, SPZ,
+  SOG) as a GaussianScene, or (``mode="anchors"``) transcoded to anchors; a Scaffold-GS model
+  as an AnchorScene (duplicates in a voxel merged on request); the procedural scene.
+* ``encoder_config``: a preset, a YAML file and overrides, for the kind of scene.
+* ``check_encodable``: refuses an anchor scene without render MLPs (its decoded scene could
+  be neither rendered nor exported).
+* ``estimate_seconds``: a time estimate for the presets that fit a context model.
+* ``encode``: either kind of scene -> ``EncodeResult`` (stream bytes, sizes, decoded scene,
+  hash), the stream decoded again and its hash checked unless ``verify=False``.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+from lghcc.common.errors import InputError, LghccError
+from lghcc.common.scene import AnchorScene, GaussianScene
+
+Log = Callable[[str], None]
+
+MLP_ROLES = ("opacity", "cov", "color")
+
+# Seconds per GG-Conv training step on 2 CPU threads: about 0.025 + 1e-6 x anchors, from the
+# measured encode times of tools/results/presets.md (lego 2.8k anchors, procedural 20k).
+_STEP_S, _STEP_S_PER_ANCHOR = 0.025, 1.0e-6
+
+
+def _quiet(_msg: str) -> None:
+    pass
+
+
+def is_gaussian_file(path: str | Path) -> bool:
+    """A plain 3DGS scene file: an INRIA 3DGS PLY (not a Scaffold-GS anchor PLY), SPZ or SOG."""
+    from lghcc.formats import detect_format
+    from lghcc.formats.ply3dgs import is_3dgs_ply
+
+    p = Path(path)
+    if is_3dgs_ply(p):
+        return True
+    if not p.exists() or (p.is_dir() and not (p / "meta.json").is_file()):
+        return False
+    try:
+        return detect_format(p).name in ("spz", "sog")
+    except LghccError:
+        return False
+
+
+@dataclass
+class TranscodeOptions:
+    """How ``load_source(mode="anchors")`` turns a plain 3DGS PLY into an anchor scene
+    (encoder/transcode.py: TranscodeConfig's fields; None: its default)."""
+
+    anchors: int | None = None
+    voxel_size: float | None = None
+    iterations: int = 200
+    distill_steps: int = 400
+    views: int = 32
+    resolution: int = 128
+    feature_dim: int = 32
+    num_offsets: int = 10
+    device: str = "cpu"
+
+
+def load_source(path: str | Path | None = None, *, mode: str = "gaussians", procedural: int | None = None,
+                seed: int = 0, voxel_size: float | None = None, merge_duplicates: bool = False,
+                transcode: TranscodeOptions | None = None, progress: bool = False, log: Log = _quiet,
+                warn: Log = _quiet) -> AnchorScene | GaussianScene:
+    """The scene to encode (see the module doc). ``warn`` gets the warnings a user must see
+    (a folder without render MLPs); ``log`` the progress notes."""
+    if (path is None) == (procedural is None):
+        raise InputError("give exactly one of an input path or a procedural anchor count")
+    if procedural is not None:
+        from lghcc.common.procedural import make_procedural_scene
+
+        if procedural < 1:
+            raise InputError("--procedural needs a positive anchor count")
+        return make_procedural_scene(procedural, seed=seed, progress=progress)
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"{p}: no such file or folder")
+    if mode not in ("gaussians", "anchors"):
+        raise InputError(f"mode must be gaussians or anchors, got {mode!r}")
+    from lghcc.formats.ply3dgs import is_3dgs_ply
+
+    if mode == "gaussians" and is_gaussian_file(p):
+        from lghcc.formats import read_scene
+
+        return read_scene(p)
+    if is_3dgs_ply(p):
+        from lghcc.encoder.transcode import TranscodeConfig, transcode_3dgs
+
+        o = transcode or TranscodeOptions()
+        log(f"{p}: a plain 3DGS PLY (f_dc_0, no f_anchor_feat_0): transcoding it to an anchor scene first, by "
+            "fitting against renders of it (this takes minutes on a CPU; see --transcode-*)")
+        cfg = TranscodeConfig(anchors=o.anchors, voxel_size=o.voxel_size, iterations=o.iterations,
+                              distill_steps=o.distill_steps, views=o.views, resolution=o.resolution,
+                              feature_dim=o.feature_dim, num_offsets=o.num_offsets, device=o.device, progress=progress)
+        res = transcode_3dgs(str(p), cfg, log=log)
+        log(f"transcoded in {res.stats['time_total_s']:.1f} s: {res.scene.num_anchors:,} anchors, held-out PSNR "
+            f"against the source renders {res.stats['psnr_final']:.2f} dB")
+        return res.scene
+    if mode == "anchors" and is_gaussian_file(p):
+        raise InputError(f"{p}: --mode anchors transcodes 3DGS PLY files only; convert it to .ply first "
+                         "(lghcc.write_scene) or code it as Gaussians")
+    from lghcc.common.scaffold_io import MissingMlpWarning, read_scaffold
+    from lghcc.encoder.scene_prep import merge_duplicate_anchors
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", MissingMlpWarning)
+        scene = read_scaffold(p, voxel_size=voxel_size)
+    for w in caught:
+        if issubclass(w.category, MissingMlpWarning):
+            warn(str(w.message))
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if merge_duplicates:
+        scene, merged = merge_duplicate_anchors(scene)
+        if merged:
+            log(f"merged {merged} anchors that shared a voxel")
+    return scene
+
+
+def encoder_config(scene: AnchorScene | GaussianScene, preset: str = "medium", config_file: str | Path | None = None,
+                   overrides: dict[str, Any] | None = None):
+    """EncoderConfig (anchor scene) or GaussianEncoderConfig (Gaussian scene) of ``preset``,
+    then ``config_file`` (YAML), then ``overrides`` (None values ignored)."""
+    from lghcc.encoder.config import load_config
+
+    kind = "gaussians" if isinstance(scene, GaussianScene) else "anchors"
+    return load_config(preset, config_file, overrides, kind=kind)
+
+
+def check_encodable(scene: AnchorScene | GaussianScene, allow_missing_mlps: bool = False,
+                    warn: Log = _quiet) -> None:
+    """InputError for an anchor scene without render MLPs (unless allowed): the stream would
+    decode, but the decoded scene could be neither rendered nor exported. A scene with only
+    some of the three (opacity, cov, color) is coded, with a warning."""
+    if isinstance(scene, GaussianScene):
+        return
+    if not isinstance(scene, AnchorScene):
+        raise InputError(f"expected an AnchorScene or a GaussianScene, got {type(scene).__name__}")
+    missing = [r for r in MLP_ROLES if r not in scene.mlps]
+    if not scene.mlps and not allow_missing_mlps:
+        raise InputError("the anchor scene has no render MLPs: its decoded scene could not be rendered or exported. "
+                         "Give the model folder whose checkpoint.pth holds them (opacity_mlp, cov_mlp, color_mlp), "
+                         "or code the anchors alone on purpose (lghcc-enc --allow-no-mlps; "
+                         "allow_missing_mlps=True)")
+    if scene.mlps and missing:
+        warn(f"the anchor scene has no {', '.join(missing)} MLP: its decoded scene cannot be rendered or exported")
+
+
+def estimate_seconds(scene: AnchorScene | GaussianScene, cfg) -> tuple[float, str] | None:
+    """(seconds, what takes them) for a configuration that fits a context model to the scene
+    (the lghcc-* presets), on 2 CPU threads; None when coding takes seconds."""
+    if isinstance(scene, GaussianScene) or getattr(cfg, "context_model", "per_channel") != "ggconv":
+        return None
+    fits = (2 if cfg.context_parent_base == "auto" else 1) * (2 if cfg.context_neighbour_level == "auto" else 1)
+    steps = cfg.context_float_steps + cfg.context_qat_steps
+    n = min(scene.num_anchors, cfg.context_train_anchors)
+    seconds = fits * steps * (_STEP_S + _STEP_S_PER_ANCHOR * n)
+    return seconds, f"{fits} GG-Conv fit{'s' if fits > 1 else ''} of {steps:,} steps"
+
+
+def _encode_gaussians(scene: GaussianScene, cfg, *, progress: bool, log: Log, measure_ideal: bool):
+    """Rate-aware preparation (when the settings call for it), then the explicit-Gaussian
+    coding -> (result, the settings used: the preset's, or those the search chose)."""
+    from lghcc.encoder.gaussian_fit import prepare_gaussians
+    from lghcc.encoder.gaussians import encode_gaussian_scene
+
+    t0 = time.perf_counter()
+    weights, prep_stats = None, {}
+    if cfg.rd_lambda > 0 or cfg.fit_iterations > 0 or cfg.prune_share > 0:
+        log(f"{scene.num_gaussians:,} Gaussians (SH degree {scene.sh_degree}): measuring contributions on "
+            f"{cfg.fit_views} views" + (f", choosing settings for lambda {cfg.rd_lambda:g}" if cfg.rd_lambda else "")
+            + (f", then {cfg.fit_iterations} fitting steps" if cfg.fit_iterations else ""))
+        prep = prepare_gaussians(scene, cfg, log=log, progress=progress)
+        scene, weights, cfg, prep_stats = prep.scene, prep.weights, prep.cfg, prep.stats
+    result = encode_gaussian_scene(scene, cfg, weights=weights, progress=progress, measure_ideal=measure_ideal)
+    result.stats.update({f"prepare_{k}": v for k, v in prep_stats.items()})
+    bands = ", ".join(f"{s:.3g}" for s in cfg.sh_band_steps[:result.decoded.sh_degree])
+    result.stats["settings"] = (
+        f"pruned {prep_stats.get('gaussians_pruned', 0):,} Gaussians; position step {cfg.position_step:.3g} x the "
+        f"typical size; steps SH DC {cfg.sh_dc_step:.3g}" + (f", bands {bands}" if bands else "")
+        + f", opacity {cfg.opacity_step:.3g}, scale {cfg.scale_step:.3g}, rotation {cfg.rotation_step:.3g}")
+    result.stats["time_total_s"] = time.perf_counter() - t0
+    return result, cfg
+
+
+def encode(scene: AnchorScene | GaussianScene, cfg=None, *, progress: bool = False, log: Log = _quiet,
+           measure_ideal: bool = False, context_twin=None, verify: bool = True, allow_missing_mlps: bool = False):
+    """Encode either kind of scene with ``cfg`` (``encoder_config``; None: preset medium).
+    -> (EncodeResult, the configuration used). ``verify`` decodes the stream again and
+    checks that it gives the encoded scene (its hash)."""
+    from lghcc.encoder.encode import encode_scene
+
+    check_encodable(scene, allow_missing_mlps)
+    if cfg is None:
+        cfg = encoder_config(scene)
+    if isinstance(scene, GaussianScene):
+        result, cfg = _encode_gaussians(scene, cfg, progress=progress, log=log, measure_ideal=measure_ideal)
+    else:
+        result = encode_scene(scene, cfg, progress=progress, measure_ideal=measure_ideal, context_twin=context_twin)
+    if verify:
+        from lghcc.decoder.decode import decode_stream
+
+        if decode_stream(result.data).stream_hash != result.scene_hash:
+            raise LghccError("internal error: the written stream does not decode to the encoded scene")
+        result.stats["verified"] = True
+    return result, cfg

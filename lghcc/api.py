@@ -1,0 +1,129 @@
+"""lghcc as a library: the functions ``import lghcc`` gives (see the package doc).
+
+Every function imports what it needs when called: ``import lghcc`` loads neither torch nor
+the encoder, and ``lghcc.decode`` never imports the encoder (the decoder is separable).
+Errors a caller can cause raise ``lghcc.LghccError`` (``InputError`` for a bad scene, file
+or option; ``BitstreamError`` for a bad stream; ``HashMismatchError`` when a decoded scene
+does not match the stream's hash) with a message naming what is wrong.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Sequence, Union
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from lghcc.common.scene import AnchorScene, GaussianScene
+    from lghcc.render.camera import Camera
+    from lghcc.render.datasets import Dataset
+    from lghcc.render.scenes import Evaluation
+
+    Scene = Union[AnchorScene, GaussianScene]
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+
+def read_scene(path: PathLike) -> "Scene":
+    """Read a scene, its format found by content, then extension: a 3DGS PLY, SPZ (v2-v4), SOG
+    (``.sog`` or ``meta.json``), a 3DGS model folder (``point_cloud/iteration_N/``) ->
+    ``GaussianScene``; a Scaffold-GS / HAC model (folder, iteration folder or anchor PLY, render
+    MLPs from ``checkpoint.pth`` beside it) -> ``AnchorScene``."""
+    from lghcc.formats import read_scene as _read
+
+    return _read(path)
+
+
+def write_scene(scene: "Scene", path: PathLike, **options: Any) -> Path:
+    """Write a scene (each file atomically; an existing file is replaced): a GaussianScene by
+    the extension of ``path`` (``.ply``, ``.spz``, ``.sog``; a path without one: a 3DGS model
+    folder); an AnchorScene as a Scaffold-GS model folder. Returns the path written."""
+    from lghcc.formats import write_scene as _write
+
+    return _write(scene, path, **options)
+
+
+def encode(scene: "Scene | PathLike", preset: str = "medium", *, config: PathLike | None = None,
+           verify: bool = True, progress: bool = False, allow_missing_mlps: bool = False,
+           **options: Any) -> bytes:
+    """Encode a scene (or the scene a path names, ``read_scene``) into one .lghcc stream.
+
+    ``preset``: ``low``, ``medium``, ``high`` (both kinds of scene) or ``lghcc-low``,
+    ``lghcc-medium``, ``lghcc-high`` (anchor scenes; they fit a context model: minutes).
+    ``config``: a YAML file of encoder options; ``options``: more of them (e.g.
+    ``feature_step=0.01`` for anchor scenes, ``rd_lambda=0.5`` or ``sh_degree=1`` for Gaussian
+    scenes; encoder/config.py lists them). ``verify`` decodes the stream again and checks its
+    hash. An anchor scene without render MLPs is refused unless ``allow_missing_mlps``."""
+    from lghcc.encoder import api as enc
+
+    if isinstance(scene, (str, os.PathLike)):
+        scene = read_scene(scene)
+    cfg = enc.encoder_config(scene, preset, config, options)
+    result, _ = enc.encode(scene, cfg, progress=progress, verify=verify, allow_missing_mlps=allow_missing_mlps)
+    return result.data
+
+
+def decode(data: bytes | bytearray | memoryview | PathLike, *, verify: bool = True) -> "Scene":
+    """Decode a .lghcc stream (its bytes, or a path to it) into the scene it carries: a
+    GaussianScene (a stream coded from Gaussians) or an AnchorScene. ``verify`` checks the
+    decoded scene against the hash in the stream (HashMismatchError when they differ)."""
+    from lghcc.common.errors import InputError
+    from lghcc.decoder.decode import decode_stream
+
+    if isinstance(data, (str, os.PathLike)):
+        try:
+            data = Path(data).read_bytes()
+        except OSError as e:
+            raise InputError(f"{data}: cannot read ({e.strerror})") from None
+    return decode_stream(bytes(data), verify_hash=verify).scene
+
+
+def load_cameras(spec: "str | PathLike", scene: "Scene | None" = None, *, size: tuple[int, int] = (256, 256),
+                 scale: float = 1.0, split: str = "test") -> "list[Camera]":
+    """Cameras from ``orbit:N`` (N views circling ``scene``, ``size`` = (width, height)) or from
+    a dataset: a folder of any layout (NeRF-synthetic, COLMAP bin/txt, Mip-NeRF 360, LLFF;
+    its ``split``: test, train or all), a ``transforms_<split>.json``, a COLMAP sparse folder,
+    a ``poses_bounds.npy``. File cameras are scaled by ``scale``."""
+    from lghcc.render.scenes import resolve_cameras
+
+    return resolve_cameras(str(spec), scene, size=size, scale=scale, split=split)
+
+
+def load_dataset(path: PathLike, *, downscale: int = 1, background: Any = "white", images: str | None = None,
+                 load_images: bool = True) -> "Dataset":
+    """The posed images of a dataset folder, its layout found by its files: ``.kind``,
+    ``.train`` and ``.test`` (lists of Camera with ``.image``), ``.sfm_points`` (COLMAP
+    points3D, or None). ``downscale`` N reads ``images_N/`` when present."""
+    from lghcc.render.datasets import load_dataset as _load
+
+    return _load(path, background, downscale, images, load_images=load_images)
+
+
+def render_views(scene: "Scene", cameras: "str | Sequence[Camera]" = "orbit:8", *, background: Any = "black",
+                 size: tuple[int, int] = (256, 256)) -> "list[np.ndarray]":
+    """Images (float32 [H, W, 3] in [0, 1]) of either kind of scene, rendered on the CPU from
+    ``cameras``: a list of Camera or a spec as ``load_cameras`` takes."""
+    from lghcc.render.scenes import render_views as _render
+
+    return _render(scene, cameras, background=background, size=size)
+
+
+def evaluate(scene: "Scene", reference: "Scene | None" = None, cameras: "str | Sequence[Camera]" = "orbit:8", *,
+             background: Any = "black", size: tuple[int, int] = (256, 256)) -> "Evaluation":
+    """PSNR (dB) and SSIM of ``scene`` against ``reference`` (another scene, rendered from the
+    same cameras), or, with no reference, against a dataset's test images (``cameras`` a
+    dataset folder, or Cameras carrying images). -> Evaluation(psnr, ssim, views, per view)."""
+    from lghcc.render.scenes import evaluate as _evaluate
+
+    return _evaluate(scene, reference, cameras, background=background, size=size)
+
+
+def to_gaussians(scene: "Scene", sh_degree: int | None = None, *, directions: int = 16) -> "GaussianScene":
+    """A plain 3DGS scene (for viewers, ``write_scene`` to .ply/.spz/.sog): a GaussianScene as
+    it is (at most ``sh_degree``); an AnchorScene's neural Gaussians with SH colours (degree 1
+    by default) fitted to its colour MLP over ``directions`` view directions."""
+    from lghcc.render.scenes import to_gaussians as _to
+
+    return _to(scene, sh_degree, directions=directions)
