@@ -207,10 +207,11 @@ def load_dataset(data: str | os.PathLike, background: Any = "white", downscale: 
         train = load_nerf_synthetic(root, "train", background=bg, load_images=load_images)
         if (root / "transforms_test.json").is_file():
             test = load_nerf_synthetic(root, "test", background=bg, load_images=load_images)
-            _check_sizes(test, str(root / "transforms_test.json"))
         else:
             test = train[::TEST_EVERY]
         _check_sizes(train, str(root / "transforms_train.json"))
+        if (root / "transforms_test.json").is_file():
+            _check_sizes(test, str(root / "transforms_test.json"))
         resample = downscale
     else:
         if lay.kind == "colmap":
