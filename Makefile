@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q torch==2.13.0
 	# PYTHONWARNINGS: pip prints the build backend's notices even with -q (an editable install
 	# of a package-dir mapping gets setuptools' "Editable installation" notice); lghcc's own
-	# configuration raises no warning (tests/test_packaging.py builds it with warnings as errors)
+	# configuration raises no warning (tests/test_newcomer.py::test_install_is_quiet builds a wheel and checks)
 	PYTHONWARNINGS=ignore $(PY) -m pip install -q -e '.[test]'
 	touch $(STAMP)
 

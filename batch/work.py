@@ -50,31 +50,23 @@ def orbit(positions: np.ndarray, scene: SceneSpec, ev: Evaluation) -> list:
 
 
 def _render_anchor(scene, cams, bg) -> np.ndarray:
-    import torch
+    from lghcc.render.scenes import render_fn
 
-    from lghcc.render.neural_gaussians import SceneTensors
-    from lghcc.render.rasterizer import render_scene
-
-    st = SceneTensors.from_scene(scene)
-    with torch.no_grad():
-        return np.stack([render_scene(st, c, background=bg, backend="torch").image.clamp(0, 1).numpy()
-                         for c in cams]).astype(np.float32)
+    draw = render_fn(scene)
+    return np.stack([draw(c, bg) for c in cams]).astype(np.float32)
 
 
 def _render_3dgs(path: str, cams, bg) -> tuple[np.ndarray, np.ndarray]:
-    """Renders of a plain 3DGS PLY, and the points the orbit frames (opacity >= 0.05, as compare.py)."""
-    import torch
+    """Renders of a plain 3DGS PLY, and the points the orbit frames (lghcc.render.scenes)."""
+    from lghcc.formats.ply3dgs import read_3dgs_ply
+    from lghcc.render.scenes import framing_points, render_fn
 
-    from lghcc.render.gaussians3dgs import load_3dgs_ply, render_3dgs
-
-    g = load_3dgs_ply(path)
-    op = g.opacities.numpy()
-    pos = g.means.numpy()[op >= 0.05] if (op >= 0.05).sum() >= 10 else g.means.numpy()
+    g = read_3dgs_ply(path)
+    pos = framing_points(g)
     if cams is None:
         return np.zeros(0), pos
-    with torch.no_grad():
-        return np.stack([render_3dgs(g, c, background=bg, backend="torch").image.clamp(0, 1).numpy()
-                         for c in cams]).astype(np.float32), pos
+    draw = render_fn(g)
+    return np.stack([draw(c, bg) for c in cams]).astype(np.float32), pos
 
 
 def _tar_folder(folder: Path) -> bytes:

@@ -55,36 +55,49 @@ def resolve_cameras(cameras: str | Sequence[Camera], scene: AnchorScene | Gaussi
     return cams
 
 
-def renderer(scene: AnchorScene | GaussianScene, background: Any = "black",
-             backend: str = "torch") -> Callable[[Camera], np.ndarray]:
-    """A function camera -> image [H, W, 3] float32 in [0, 1] for ``scene``. ``backend``:
-    'torch' (the CPU reference rasterizer; the default, so numbers match on every machine),
-    'gsplat' or 'auto'."""
+def framing_points(scene: AnchorScene | GaussianScene) -> np.ndarray:
+    """The points orbit cameras frame: anchor positions, or the means of the Gaussians with
+    opacity >= 0.05 (faint floaters do not widen the orbit; all of them when fewer than 10)."""
+    if isinstance(scene, GaussianScene):
+        keep = scene.opacity >= np.log(0.05 / 0.95)
+        return np.asarray(scene.means[keep] if keep.sum() >= 10 else scene.means, np.float64)
+    return scene_points(scene)
+
+
+def render_fn(scene: AnchorScene | GaussianScene, backend: str = "torch") -> Callable[[Camera, Any], np.ndarray]:
+    """A function (camera, background) -> image [H, W, 3] float32 in [0, 1] for ``scene``
+    (background: 'black', 'white', 3 numbers or a tensor). ``backend``: 'torch' (the CPU
+    reference rasterizer; the default, so numbers match on every machine), 'gsplat' or 'auto'."""
     import torch
 
     from lghcc.render.imageio import background_color
 
     check_renderable(scene)
-    bg = background if isinstance(background, torch.Tensor) else torch.as_tensor(
-        np.asarray(background_color(background), np.float32).reshape(3))
     if isinstance(scene, GaussianScene):
         from lghcc.render.gaussians3dgs import gaussians_from_scene, render_3dgs
 
         g = gaussians_from_scene(scene)
-
-        def draw(cam: Camera) -> np.ndarray:
-            with torch.no_grad():
-                return render_3dgs(g, cam, background=bg, backend=backend).image.clamp(0, 1).float().cpu().numpy()
+        draw = lambda cam, bg: render_3dgs(g, cam, background=bg, backend=backend)  # noqa: E731
     else:
         from lghcc.render.neural_gaussians import SceneTensors
         from lghcc.render.rasterizer import render_scene
 
         st = SceneTensors.from_scene(scene)
+        draw = lambda cam, bg: render_scene(st, cam, background=bg, backend=backend)  # noqa: E731
 
-        def draw(cam: Camera) -> np.ndarray:
-            with torch.no_grad():
-                return render_scene(st, cam, background=bg, backend=backend).image.clamp(0, 1).float().cpu().numpy()
-    return draw
+    def render(cam: Camera, background: Any = "black") -> np.ndarray:
+        bg = background if isinstance(background, torch.Tensor) else torch.as_tensor(
+            np.asarray(background_color(background), np.float32).reshape(3))
+        with torch.no_grad():
+            return draw(cam, bg).image.clamp(0, 1).float().cpu().numpy()
+    return render
+
+
+def renderer(scene: AnchorScene | GaussianScene, background: Any = "black",
+             backend: str = "torch") -> Callable[[Camera], np.ndarray]:
+    """``render_fn`` with the background fixed: camera -> image."""
+    fn = render_fn(scene, backend)
+    return lambda cam: fn(cam, background)
 
 
 def render_views(scene: AnchorScene | GaussianScene, cameras: str | Sequence[Camera], *, background: Any = "black",

@@ -226,3 +226,30 @@ def test_readme_commands_write_outside_the_repository():
     assert bad == [], bad
     assert "hours" in text  # the training example says how long the default takes
     assert "/out/" in (ROOT / ".gitignore").read_text() and "/runs/" in (ROOT / ".gitignore").read_text()
+
+
+def test_lghcc_presets_say_how_long_first(tmp_path, capsys, monkeypatch):
+    """A context-model preset prints its time estimate before the minutes of fitting; an
+    interrupt then leaves nothing behind (exit 130)."""
+    from lghcc.encoder import api
+    from lghcc.encoder import cli as enc
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(api, "encode", interrupted)
+    out = tmp_path / "x.lghcc"
+    assert enc.main(["--procedural", "3000", "--preset", "lghcc-medium", "-o", str(out)]) == 130
+    err = capsys.readouterr().err
+    line = next(ln for ln in err.splitlines() if "preset lghcc-medium:" in ln)
+    assert re.search(r"2 GG-Conv fits of 1,500 steps on 3,\d{3} anchors, about \d+ s on 2 CPU threads", line), line
+    assert "the preset medium codes with the same steps in seconds" in line
+    assert err.strip().endswith("lghcc-enc: interrupted") and not out.exists()
+    # the fast presets: no estimate
+    from lghcc.common.procedural import make_procedural_scene
+    from lghcc.encoder.config import load_config
+
+    scene = make_procedural_scene(200)
+    assert api.estimate_seconds(scene, load_config("medium")) is None
+    low, high = (api.estimate_seconds(scene, load_config(p))[0] for p in ("lghcc-low", "lghcc-high"))
+    assert 20 < low < high < 600

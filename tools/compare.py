@@ -26,31 +26,23 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from lghcc.common.errors import LghccError
-from lghcc.common.scaffold_io import read_scaffold
+from lghcc.common.scene import GaussianScene
 from lghcc.decoder.decode import decode_stream
-from lghcc.render.gaussians3dgs import is_3dgs_ply, load_3dgs_ply, render_3dgs
+from lghcc.formats import read_scene
 from lghcc.render.imageio import background_color, write_png
 from lghcc.render.metrics import lpips, lpips_status, psnr, ssim
-from lghcc.render.neural_gaussians import SceneTensors
-from lghcc.render.rasterizer import render_scene
+from lghcc.render.scenes import framing_points, render_fn
 from lghcc.render.views import cameras_from_spec
 
 
 def _renderer(ref: str):
     """(render(camera, bg) -> [H, W, 3] numpy, positions for orbit cameras, description)."""
-    if is_3dgs_ply(ref):
-        g = load_3dgs_ply(ref)
-        op = g.opacities.numpy()
-        pos = g.means.numpy()[op >= 0.05] if (op >= 0.05).sum() >= 10 else g.means.numpy()
-        return (lambda cam, bg: render_3dgs(g, cam, background=bg).image.clamp(0, 1).numpy(), pos,
-                f"3DGS PLY, {g.num_gaussians:,} Gaussians, SH degree {g.sh_degree}")
-    scene = read_scaffold(ref)
-    st = SceneTensors.from_scene(scene)
-    return (lambda cam, bg: render_scene(st, cam, background=bg).image.clamp(0, 1).numpy(), scene.positions(),
-            f"anchor scene, {scene.num_anchors:,} anchors")
+    scene = read_scene(ref)
+    desc = (f"3DGS scene, {scene.num_gaussians:,} Gaussians, SH degree {scene.sh_degree}"
+            if isinstance(scene, GaussianScene) else f"anchor scene, {scene.num_anchors:,} anchors")
+    return render_fn(scene), framing_points(scene), desc
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -75,21 +67,20 @@ def main(argv: list[str] | None = None) -> int:
         render_ref, pos, desc = _renderer(args.reference)
         cams = cameras_from_spec(args.views, pos, width=int(m.group(1)), height=int(m.group(2)), scale=args.scale)
         bg = background_color(args.background)
-        with torch.no_grad():
-            refs = [render_ref(c, bg) for c in cams]
+        refs = [render_ref(c, bg) for c in cams]
         use_lpips = not args.no_lpips and lpips_status()[0]
         why_no_lpips = "--no-lpips" if args.no_lpips else lpips_status()[1]
         rows = []
         for s in args.streams:
             data = Path(s).read_bytes()
             res = decode_stream(data)
-            st = SceneTensors.from_scene(res.scene)
-            with torch.no_grad():
-                imgs = [render_scene(st, c, background=bg).image.clamp(0, 1).numpy() for c in cams]
+            draw = render_fn(res.scene)
+            imgs = [draw(c, bg) for c in cams]
             ps = float(np.mean([psnr(a, b) for a, b in zip(imgs, refs)]))
             ss = float(np.mean([ssim(a, b) for a, b in zip(imgs, refs)]))
             lp = float(np.mean([lpips(a, b) for a, b in zip(imgs, refs)])) if use_lpips else None
-            rows.append((s, len(data), 8 * len(data) / res.scene.num_anchors, res.scene.num_anchors, ps, ss, lp))
+            n = res.scene.num_points  # anchors, or Gaussians of an explicit-Gaussian stream
+            rows.append((s, len(data), 8 * len(data) / n, n, ps, ss, lp))
             out_png = Path(args.out_png)
             if len(args.streams) > 1:
                 out_png = out_png.with_name(f"{out_png.stem}_{Path(s).stem}{out_png.suffix}")

@@ -22,7 +22,6 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-import torch
 
 from lghcc.common.errors import InputError
 from lghcc.common.scene import AnchorScene, GaussianScene
@@ -40,35 +39,23 @@ class ViewScene:
     export_stats: dict | None = None  # export_3dgs's stats when the Gaussians were exported
 
 
-def _render_anchor_fn(scene: AnchorScene) -> Callable:
-    from lghcc.render.neural_gaussians import SceneTensors
-    from lghcc.render.rasterizer import render_scene
-
-    st = SceneTensors.from_scene(scene)
-
-    def render(cam, bg):
-        with torch.no_grad():
-            return render_scene(st, cam, background=bg, backend="torch").image.clamp(0, 1).numpy()
-    return render
-
-
 def render_gaussians_fn(scene: GaussianScene) -> Callable:
-    """CPU render function of an explicit 3DGS scene (``render_3dgs``, SH colours per camera)."""
-    from lghcc.render.gaussians3dgs import gaussians_from_scene, render_3dgs
+    """CPU render function (camera, background) of an explicit 3DGS scene (lghcc.render.scenes)."""
+    from lghcc.render.scenes import render_fn
 
-    g = gaussians_from_scene(scene)
+    return render_fn(scene)
 
-    def render(cam, bg):
-        with torch.no_grad():
-            return render_3dgs(g, cam, background=bg, backend="torch").image.clamp(0, 1).numpy()
-    return render
+
+def _render_anchor_fn(scene: AnchorScene) -> Callable:
+    from lghcc.render.scenes import render_fn
+
+    return render_fn(scene)
 
 
 def _visible_means(scene: GaussianScene) -> np.ndarray:
-    """Means of the Gaussians with opacity >= 0.05 (sigmoid of the logit), as compare.py frames
-    a 3DGS scene: faint floaters do not widen the orbit."""
-    keep = scene.opacity >= np.log(0.05 / 0.95)
-    return scene.means[keep] if keep.sum() >= 10 else scene.means
+    from lghcc.render.scenes import framing_points
+
+    return framing_points(scene)
 
 
 def _exported(scene: AnchorScene, sh_degree: int, num_directions: int) -> tuple[GaussianScene, dict]:
@@ -95,20 +82,19 @@ def gaussians_of_decoded(decoded, *, sh_degree: int = 1, num_directions: int = 1
 
 
 def load_source(path: str | os.PathLike, *, sh_degree: int = 1, num_directions: int = 16) -> ViewScene:
-    """``--source``: a plain 3DGS PLY, or a Scaffold-GS model folder / iteration folder / PLY.
+    """``--source``: a plain 3DGS scene (PLY, SPZ, SOG), or a Scaffold-GS model folder /
+    iteration folder / PLY (lghcc.formats.read_scene).
     Raises InputError naming the file when it is neither."""
-    from lghcc.formats.ply3dgs import is_3dgs_ply, read_3dgs_ply
+    from lghcc.formats import detect_format, read_scene
 
     p = Path(path)
     if not p.exists():
         raise InputError(f"{p}: no such file or folder")
-    if is_3dgs_ply(p):
-        g = read_3dgs_ply(p)
-        return ViewScene(g, render_gaussians_fn(g), _visible_means(g),
-                         f"3DGS PLY, {g.num_gaussians:,} Gaussians, SH degree {g.sh_degree}")
-    from lghcc.common.scaffold_io import read_scaffold
-
-    scene = read_scaffold(p)
+    scene = read_scene(p)
+    if isinstance(scene, GaussianScene):
+        kind = {"3dgs-ply": "3DGS PLY", "spz": "SPZ", "sog": "SOG"}.get(detect_format(p).name, "3DGS scene")
+        return ViewScene(scene, render_gaussians_fn(scene), _visible_means(scene),
+                         f"{kind}, {scene.num_gaussians:,} Gaussians, SH degree {scene.sh_degree}")
     g, stats = _exported(scene, sh_degree, num_directions)
     return ViewScene(g, _render_anchor_fn(scene), scene.positions(),
                      f"anchor scene, {scene.num_anchors:,} anchors -> {g.num_gaussians:,} Gaussians (3DGS export)",
