@@ -42,6 +42,8 @@ examples:
 --render takes orbit:N or the cameras of a dataset: a dataset folder of any layout
 (NeRF-synthetic, COLMAP sparse/0, Mip-NeRF 360, LLFF poses_bounds.npy; its test views),
 a transforms_<split>.json, a COLMAP sparse folder (all its views) or a poses_bounds.npy.
+Dataset cameras render at the size of the dataset's images (COLMAP, LLFF: the full-resolution
+images/; --render-scale 0.25 for a quarter of it).
 
 No output may name the input stream or another output. An existing file, or an existing
 non-empty -o or --render-out folder, is refused unless -y (--overwrite) is given (then
