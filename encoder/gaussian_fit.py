@@ -195,7 +195,7 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
     contrib = gaussian_contributions(g.means, g.quats, g.scales, g.opacities, cams, on_view=bar.update)
     bar.close()
     stats["time_contributions_s"] = time.perf_counter() - t0
-    if cfg.rd_lambda > 0:
+    if cfg.rd_lambda > 0 or cfg.target_psnr > 0:
         from lghcc.encoder.gaussian_rd import search_settings
 
         t1 = time.perf_counter()

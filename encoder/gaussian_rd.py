@@ -14,8 +14,16 @@ the per-channel prior, which the coder reaches within 0.01%). So ``lambda`` is i
 doubling of the stream: the search stops where twice the bytes would buy less than lambda dB
 of PSNR. Measured in relative rate, the same lambda lands at a like point of every scene's
 rate-distortion curve, whatever its Gaussian count and SH degree.
-The search is coordinate descent in steps of sqrt(2) (the pruning share on a ladder, the SH
-degree down from the source's), from the preset's settings, until no move lowers J.
+The search: one probe per attribute group measures what doubling its step costs in D and
+saves in R; a high-rate model gives every group's step for lambda; a line search over a ladder
+of pruning shares and a check of each step a factor sqrt(2) either way follow.
+
+A fixed lambda lands at a like slope of every scene's curve, not at a like quality: on a small
+scene whose curve is shallow (playbot, 8k Gaussians: ~8 dB per doubling) lambda 10 went down to
+28 dB. So the presets give a quality instead (``target_psnr``, dB on the search views): lambda is
+the one the model says reaches it, and after the search one common factor on every step
+(bisection in log steps against real renders) moves the result onto the target, the coarsest
+settings measured that still reach it.
 """
 
 from __future__ import annotations
@@ -129,18 +137,43 @@ def _with_step(cfg: GaussianEncoderConfig, group: str, step: float) -> GaussianE
     return dataclasses.replace(cfg, **{"position_step" if group == "position" else f"{group}_step": float(step)})
 
 
-def optimal_steps(base: Trial, probes: dict[str, tuple[Trial, float]], lam: float,
-                  bounds: tuple[float, float] = (1 / 8, 8)) -> dict[str, float]:
-    """Steps minimizing J under the high-rate model: doubling group c's step adds a_c * 3
-    step^2 to D (uniform rounding noise) and saves slope_c bits (measured), so the optimum has
-    a_c step_c^2 = lambda slope_c D ln10 / (10 R ln2 ln4); solved by fixed-point iteration on
-    D and R. ``probes``: group -> (trial with that group's step doubled, the base step)."""
+def _model(base: Trial, probes: dict[str, tuple[Trial, float]]):
+    """The high-rate model's terms from the probes: per group the distortion per step^2 (a), the
+    bits saved per doubling (slope) and the probed base step; the distortion the steps leave."""
     a, slope, s0 = {}, {}, {}
     for grp, (t, step) in probes.items():
         a[grp] = max(t.mse - base.mse, 1e-18) / (3 * step * step)
         slope[grp] = max(base.bits - t.bits, 0.0)
         s0[grp] = step
     resid = max(base.mse - sum(a[g] * s0[g] ** 2 for g in a), 0.05 * base.mse)
+    return a, slope, s0, resid
+
+
+def predicted_mse(base: Trial, probes: dict[str, tuple[Trial, float]], steps: dict[str, float]) -> float:
+    a, _, _, resid = _model(base, probes)
+    return resid + sum(a[g] * steps[g] ** 2 for g in a)
+
+
+def lambda_for_target(base: Trial, probes: dict[str, tuple[Trial, float]], target_mse: float,
+                      lo: float = 0.25, hi: float = 64.0) -> float:
+    """The lambda whose model steps (``optimal_steps``) are predicted to render at target_mse:
+    bisection in log lambda (the predicted distortion grows with lambda)."""
+    for _ in range(30):
+        mid = math.sqrt(lo * hi)
+        if predicted_mse(base, probes, optimal_steps(base, probes, mid)) > target_mse:
+            hi = mid
+        else:
+            lo = mid
+    return math.sqrt(lo * hi)
+
+
+def optimal_steps(base: Trial, probes: dict[str, tuple[Trial, float]], lam: float,
+                  bounds: tuple[float, float] = (1 / 8, 8)) -> dict[str, float]:
+    """Steps minimizing J under the high-rate model: doubling group c's step adds a_c * 3
+    step^2 to D (uniform rounding noise) and saves slope_c bits (measured), so the optimum has
+    a_c step_c^2 = lambda slope_c D ln10 / (10 R ln2 ln4); solved by fixed-point iteration on
+    D and R. ``probes``: group -> (trial with that group's step doubled, the base step)."""
+    a, slope, s0, resid = _model(base, probes)
     steps = dict(s0)
     for _ in range(50):
         d = resid + sum(a[g] * steps[g] ** 2 for g in a)
@@ -167,7 +200,13 @@ def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEnco
     groups = [g for g in GROUPS if not g.startswith("sh_band") or int(g[-1]) <= scene.sh_degree]
     base = s.evaluate(cfg)
     probes = {g: (s.evaluate(_with_step(cfg, g, 2 * _step(cfg, g))), _step(cfg, g)) for g in groups}
-    steps = optimal_steps(base, probes, cfg.rd_lambda)
+    target_mse = 10 ** (-cfg.target_psnr / 10) if cfg.target_psnr > 0 else None
+    if target_mse is not None:
+        s.lam = lambda_for_target(base, probes, target_mse)
+        for t in s.trials:  # the trials so far, costed at the lambda now known
+            t.cost = 10 * math.log10(max(t.mse, 1e-12)) + s.lam * math.log2(max(t.bits, 1.0))
+        say(f"settings: lambda {s.lam:.3g} dB per doubling for {cfg.target_psnr:g} dB (model)")
+    steps = optimal_steps(base, probes, s.lam)
     best = min([base] + [p for p, _ in probes.values()], key=lambda t: t.cost)
     # the model holds at high rate; where its answer measures worse, move halfway back (in log steps)
     for _ in range(4):
@@ -198,7 +237,40 @@ def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEnco
             if t.cost < best.cost:
                 best = t
                 break
+    if target_mse is not None:
+        best = onto_target(s, best, groups, target_mse)
     say(f"settings: {len(s.trials)} trials, {time.perf_counter() - t0:.0f} s: "
         f"{-10 * math.log10(max(best.mse, 1e-12)):.2f} dB at {best.bits / n:.1f} bits/Gaussian, "
         f"pruning {100 * best.cfg.prune_share:g}% of the contribution")
     return best.cfg, s.trials
+
+
+def _scaled(cfg: GaussianEncoderConfig, groups: list[str], f: float) -> GaussianEncoderConfig:
+    for g in groups:
+        cfg = _with_step(cfg, g, _step(cfg, g) * f)
+    return cfg
+
+
+def onto_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: float,
+                evaluations: int = 6) -> Trial:
+    """Every step times one factor f so that the renders meet ``target_mse``: bisection in log f
+    (distortion grows with f), from the bracket [1/4, 4] narrowed by each measurement. Returns
+    the trial of the largest f measured that meets the target (the fewest bits at the quality
+    asked for), or the one closest to it when none does (the finest measured)."""
+    meets = [best] if best.mse <= target_mse else []
+    fails = [] if meets else [best]
+    lo, hi = (1.0, 4.0) if meets else (0.25, 1.0)
+    for _ in range(evaluations):
+        f = math.sqrt(lo * hi)
+        t = s.evaluate(_scaled(best.cfg, groups, f))
+        if t.mse <= target_mse:
+            meets.append(t)
+            lo = f
+        else:
+            fails.append(t)
+            hi = f
+        if hi / lo < 1.1:
+            break
+    if meets:
+        return min(meets, key=lambda t: t.bits)
+    return min(fails, key=lambda t: t.mse)
