@@ -160,7 +160,7 @@ def predicted_mse(base: Trial, probes: dict[str, tuple[Trial, float]], steps: di
 
 
 def lambda_for_target(base: Trial, probes: dict[str, tuple[Trial, float]], target_mse: float,
-                      lo: float = 0.25, hi: float = 64.0) -> float:
+                      lo: float = 0.05, hi: float = 64.0) -> float:
     """The lambda whose model steps (``optimal_steps``) are predicted to render at target_mse:
     bisection in log lambda (the predicted distortion grows with lambda)."""
     for _ in range(30):
@@ -203,9 +203,14 @@ def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEnco
     s = SettingsSearch(scene, contrib, cfg, cfg.rd_lambda, cfg.search_views, cfg.search_resolution)
     n = scene.num_gaussians
     groups = [g for g in GROUPS if not g.startswith("sh_band") or int(g[-1]) <= scene.sh_degree]
+    target_mse = 10 ** (-cfg.target_psnr / 10) if cfg.target_psnr > 0 else None
+    if target_mse is not None:
+        # the model explains distortion by the steps only: probed without pruning, what the steps
+        # leave is small and the lambda it gives for the target means something (the pruning
+        # ladder comes after, at that lambda)
+        cfg = dataclasses.replace(cfg, prune_share=0.0)
     base = s.evaluate(cfg)
     probes = {g: (s.evaluate(_with_step(cfg, g, 2 * _step(cfg, g))), _step(cfg, g)) for g in groups}
-    target_mse = 10 ** (-cfg.target_psnr / 10) if cfg.target_psnr > 0 else None
     if target_mse is not None:
         s.lam = lambda_for_target(base, probes, target_mse)
         for t in s.trials:  # the trials so far, costed at the lambda now known
@@ -250,6 +255,8 @@ def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEnco
             i -= 1
             best = onto_target(s, s.evaluate(dataclasses.replace(best.cfg, prune_share=PRUNE_LADDER[i])), groups,
                                target_mse)
+        # of every setting measured on the way, the fewest bits that reach the target
+        best = min([t for t in s.trials if t.mse <= target_mse] or [best], key=lambda t: t.bits)
     say(f"settings: {len(s.trials)} trials, {time.perf_counter() - t0:.0f} s: "
         f"{-10 * math.log10(max(best.mse, 1e-12)):.2f} dB at {best.bits / n:.1f} bits/Gaussian, "
         f"pruning {100 * best.cfg.prune_share:g}% of the contribution")
@@ -282,25 +289,29 @@ def _scaled(cfg: GaussianEncoderConfig, groups: list[str], f: float) -> Gaussian
 
 
 def onto_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: float,
-                evaluations: int = 6) -> Trial:
-    """Every step times one factor f so that the renders meet ``target_mse``: bisection in log f
-    (distortion grows with f), from the bracket [1/4, 4] narrowed by each measurement. Returns
-    the trial of the largest f measured that meets the target (the fewest bits at the quality
-    asked for), or the one closest to it when none does (the finest measured)."""
-    meets = [best] if best.mse <= target_mse else []
-    fails = [] if meets else [best]
-    lo, hi = (1.0, 4.0) if meets else (0.25, 1.0)
+                evaluations: int = 8) -> Trial:
+    """Every step times one factor f so that the renders meet ``target_mse``: from f = 1, f
+    doubles (or halves) until the target is crossed (the model's lambda can be far off when
+    the preset's steps were), then bisection in log f (distortion grows with f) to within a
+    factor 1.1. Returns the trial of the largest f measured that meets the target (the fewest
+    bits at the quality asked for), or the one closest to it when none does (the finest)."""
+    trials = {1.0: best}
+    f_meet = 1.0 if best.mse <= target_mse else None  # largest f measured that meets the target
+    f_fail = None if f_meet else 1.0  # smallest f measured that does not
     for _ in range(evaluations):
-        f = math.sqrt(lo * hi)
-        t = s.evaluate(_scaled(best.cfg, groups, f))
-        if t.mse <= target_mse:
-            meets.append(t)
-            lo = f
+        if f_meet is not None and f_fail is not None:
+            if f_fail / f_meet <= 1.1:
+                break
+            f = math.sqrt(f_meet * f_fail)
         else:
-            fails.append(t)
-            hi = f
-        if hi / lo < 1.1:
-            break
-    if meets:
-        return min(meets, key=lambda t: t.bits)
-    return min(fails, key=lambda t: t.mse)
+            f = f_meet * 2 if f_meet is not None else f_fail / 2
+            if not 1 / 64 <= f <= 64:
+                break
+        trials[f] = t = s.evaluate(_scaled(best.cfg, groups, f))
+        if t.mse <= target_mse:
+            f_meet = f if f_meet is None else max(f_meet, f)
+        else:
+            f_fail = f if f_fail is None else min(f_fail, f)
+    if f_meet is not None:
+        return min((t for t in trials.values() if t.mse <= target_mse), key=lambda t: t.bits)
+    return min(trials.values(), key=lambda t: t.mse)
