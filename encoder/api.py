@@ -175,9 +175,11 @@ def _encode_gaussians(scene: GaussianScene, cfg, *, progress: bool, log: Log, me
 
     t0 = time.perf_counter()
     weights, prep_stats = None, {}
-    if cfg.rd_lambda > 0 or cfg.fit_iterations > 0 or cfg.prune_share > 0:
+    if cfg.rd_lambda > 0 or cfg.target_psnr > 0 or cfg.fit_iterations > 0 or cfg.prune_share > 0:
+        goal = (f", choosing settings for {cfg.target_psnr:g} dB" if cfg.target_psnr
+                else f", choosing settings for lambda {cfg.rd_lambda:g}" if cfg.rd_lambda else "")
         log(f"{scene.num_gaussians:,} Gaussians (SH degree {scene.sh_degree}): measuring contributions on "
-            f"{cfg.fit_views} views" + (f", choosing settings for lambda {cfg.rd_lambda:g}" if cfg.rd_lambda else "")
+            f"{cfg.fit_views} views" + goal
             + (f", then {cfg.fit_iterations} fitting steps" if cfg.fit_iterations else ""))
         prep = prepare_gaussians(scene, cfg, log=log, progress=progress)
         scene, weights, cfg, prep_stats = prep.scene, prep.weights, prep.cfg, prep.stats
