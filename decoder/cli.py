@@ -14,8 +14,10 @@ from pathlib import Path
 # Set before torch is imported; a user's own setting wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+from lghcc.cli_common import (EXIT_ERROR, EXIT_INVALID_STREAM, EXIT_OK, EXIT_RESOURCE_LIMIT, EXIT_USAGE,
+                              EXIT_INTERRUPTED, exit_status_epilog, format_bytes, guarded, memory_size, with_prefix)
 from lghcc.common.cliargs import positive_float
-from lghcc.common.errors import HashMismatchError, LghccError
+from lghcc.common.errors import LghccError
 from lghcc.common.fileio import atomic_write_bytes, check_output_paths, check_writable_file, write_error
 
 DESCRIPTION = """\
@@ -35,11 +37,19 @@ examples:
 
 No output may name the input stream or another output. An existing, non-empty -o folder
 is refused unless --force is given (then the decoded scene's files in it are replaced).
+
+Before allocating anything sized by the stream, the decoder computes from its headers how
+much memory decoding it takes and refuses a stream that needs more than --max-memory
+(exit status 4), naming the amount.
 """
 
 
 def setup_args() -> argparse.ArgumentParser:
+    from lghcc.decoder.limits import DEFAULT_MAX_MEMORY
+
     p = argparse.ArgumentParser(prog="lghcc-dec", description=DESCRIPTION,
+                                epilog=exit_status_epilog(codes=(EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INVALID_STREAM,
+                                                                 EXIT_RESOURCE_LIMIT, EXIT_INTERRUPTED)),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("stream", help="the .lghcc file to decode")
     p.add_argument("-o", "--output", metavar="DIR", help="folder to write the decoded scene to")
@@ -48,7 +58,11 @@ def setup_args() -> argparse.ArgumentParser:
     p.add_argument("--no-verify", action="store_true", help="do not check the decoded-scene hash")
     p.add_argument("--trace", metavar="FILE", help="write a bit trace: every syntax element with its position")
     p.add_argument("--threads", type=int, help="torch threads for inference (the output does not depend on it)")
-    p.add_argument("--max-anchors", type=int, help="refuse streams declaring more anchors than this")
+    p.add_argument("--max-anchors", type=int, help="refuse streams declaring more anchors than this (exit status 4)")
+    p.add_argument("--max-memory", type=memory_size, default=DEFAULT_MAX_MEMORY, metavar="SIZE",
+                   help="refuse a stream whose decoding needs more memory than this, computed from its headers "
+                        f"before anything is allocated: e.g. 512M, 8G; 0 or none: no bound "
+                        f"(default {format_bytes(DEFAULT_MAX_MEMORY)}; exit status 4)")
     p.add_argument("--print-hash", action="store_true",
                    help="print only the SHA-256 of the decoded scene (spec clause 12), computed from the output")
     p.add_argument("--json", metavar="FILE", help="also write the size breakdown as JSON")
@@ -135,87 +149,85 @@ def _other_iterations(path: str) -> list[str]:
     return sorted(d.name for d in root.glob("iteration_*") if d.name != "iteration_0") if root.is_dir() else []
 
 
+@guarded("lghcc-dec")
 def main(argv: list[str] | None = None) -> int:
+    """Exit status: lghcc.cli_common (0 decoded, 1 input/output error, 2 usage, 3 invalid stream,
+    4 resource limit, 130 interrupted)."""
     args = setup_args().parse_args(argv)
     from lghcc.common.scaffold_io import write_scaffold
     from lghcc.decoder.decode import decode_stream
 
     say = (lambda *a: None) if args.quiet else print
     note = (lambda *a: None) if args.print_hash else say  # --print-hash prints the hash alone
+    # A failure is reported by @guarded: one line, and the exit status of its kind.
+    # Every output is checked before decoding: none may overwrite the stream or another output.
+    check_output_paths({"-o": args.output, "--json": args.json, "--trace": args.trace,
+                        "--export-ply": args.export_ply, "--render-out": args.render_out},
+                       {"input stream": args.stream})
+    if args.output:
+        _check_output_folder(args.output, args.force)
+    for path in (args.json, args.trace, args.export_ply):
+        if path:
+            check_writable_file(path)
+    if args.render and not args.render_out:
+        raise LghccError("--render needs --render-out DIR")
+    if args.render_out and Path(args.render_out).exists() and not Path(args.render_out).is_dir():
+        raise LghccError(f"cannot write {args.render_out} (it exists and is not a folder)")
+    if args.threads is not None:
+        import torch
+        torch.set_num_threads(max(1, args.threads))
     try:
-        # Every output is checked before decoding: none may overwrite the stream or another output.
-        check_output_paths({"-o": args.output, "--json": args.json, "--trace": args.trace,
-                            "--export-ply": args.export_ply, "--render-out": args.render_out},
-                           {"input stream": args.stream})
-        if args.output:
-            _check_output_folder(args.output, args.force)
-        for path in (args.json, args.trace, args.export_ply):
-            if path:
-                check_writable_file(path)
-        if args.render and not args.render_out:
-            raise LghccError("--render needs --render-out DIR")
-        if args.render_out and Path(args.render_out).exists() and not Path(args.render_out).is_dir():
-            raise LghccError(f"cannot write {args.render_out} (it exists and is not a folder)")
-        if args.threads is not None:
-            import torch
-            torch.set_num_threads(max(1, args.threads))
+        data = Path(args.stream).read_bytes()
+    except OSError as e:
+        raise LghccError(f"{args.stream}: cannot read ({e.strerror})") from None
+    t0 = time.perf_counter()
+    try:
+        result = decode_stream(data, verify_hash=not args.no_verify, trace=bool(args.trace),
+                               max_anchors=args.max_anchors, max_memory=args.max_memory,
+                               progress=not args.quiet and sys.stderr.isatty())
+    except LghccError as e:  # the same class (and exit status), with the stream's path
+        raise with_prefix(e, args.stream) from None
+    t_dec = time.perf_counter() - t0
+    if args.output:
+        stale = _other_iterations(args.output)
+        if stale and not args.quiet:
+            print(f"lghcc-dec: warning: {args.output} also holds point_cloud/{', '.join(stale)}; readers "
+                  "that take the highest iteration will not read the decoded scene", file=sys.stderr)
         try:
-            data = Path(args.stream).read_bytes()
+            write_scaffold(result.scene, args.output)
         except OSError as e:
-            raise LghccError(f"{args.stream}: cannot read ({e.strerror})") from None
-        t0 = time.perf_counter()
-        try:
-            result = decode_stream(data, verify_hash=not args.no_verify, trace=bool(args.trace),
-                                   max_anchors=args.max_anchors, progress=not args.quiet and sys.stderr.isatty())
-        except HashMismatchError as e:
-            print(f"lghcc-dec: error: {args.stream}: {e}", file=sys.stderr)
-            return 3
-        except LghccError as e:
-            raise LghccError(f"{args.stream}: {e}") from None
-        t_dec = time.perf_counter() - t0
-        if args.output:
-            stale = _other_iterations(args.output)
-            if stale and not args.quiet:
-                print(f"lghcc-dec: warning: {args.output} also holds point_cloud/{', '.join(stale)}; readers "
-                      "that take the highest iteration will not read the decoded scene", file=sys.stderr)
-            try:
-                write_scaffold(result.scene, args.output)
-            except OSError as e:
-                raise write_error(args.output, e) from None
-        if args.render:
-            _render_views(args, result.scene, note)
-        if args.export_ply:
-            from lghcc.render.export import export_3dgs
+            raise write_error(args.output, e) from None
+    if args.render:
+        _render_views(args, result.scene, note)
+    if args.export_ply:
+        from lghcc.render.export import export_3dgs
 
-            t1 = time.perf_counter()
-            try:
-                ex = export_3dgs(result.scene, args.export_ply, sh_degree=args.export_sh_degree,
-                                 num_directions=args.export_directions, distance=args.export_distance)
-            except OSError as e:
-                raise write_error(args.export_ply, e) from None
-            note(f"wrote {args.export_ply}: {ex.num_gaussians:,} Gaussians (3DGS PLY, SH degree "
-                f"{args.export_sh_degree}, {args.export_directions} directions at distance "
-                f"{ex.stats['distance']:.4g}) in {time.perf_counter() - t1:.2f} s")
-        if args.trace:
-            lines = [f"{e.bit_position:>10} {e.name:<60} {e.descriptor:<8} "
-                     f"{e.value.hex() if isinstance(e.value, bytes) else e.value}" for e in result.trace]
-            try:
-                atomic_write_bytes(args.trace, ("\n".join(lines) + "\n").encode())
-            except OSError as e:
-                raise write_error(args.trace, e) from None
-        s = result.scene
-        if args.json:
-            try:
-                atomic_write_bytes(args.json, json.dumps({
-                    "stream": args.stream, "num_anchors": s.num_anchors, "bytes": len(data),
-                    "breakdown": result.breakdown.bytes_by_category, "decode_s": t_dec,
-                    "hash_checked": result.hash_checked, "scene_sha256": result.stream_hash.hex()},
-                    indent=2).encode())
-            except OSError as e:
-                raise write_error(args.json, e) from None
-    except LghccError as e:
-        print(f"lghcc-dec: error: {e}", file=sys.stderr)
-        return 1
+        t1 = time.perf_counter()
+        try:
+            ex = export_3dgs(result.scene, args.export_ply, sh_degree=args.export_sh_degree,
+                             num_directions=args.export_directions, distance=args.export_distance)
+        except OSError as e:
+            raise write_error(args.export_ply, e) from None
+        note(f"wrote {args.export_ply}: {ex.num_gaussians:,} Gaussians (3DGS PLY, SH degree "
+            f"{args.export_sh_degree}, {args.export_directions} directions at distance "
+            f"{ex.stats['distance']:.4g}) in {time.perf_counter() - t1:.2f} s")
+    if args.trace:
+        lines = [f"{e.bit_position:>10} {e.name:<60} {e.descriptor:<8} "
+                 f"{e.value.hex() if isinstance(e.value, bytes) else e.value}" for e in result.trace]
+        try:
+            atomic_write_bytes(args.trace, ("\n".join(lines) + "\n").encode())
+        except OSError as e:
+            raise write_error(args.trace, e) from None
+    s = result.scene
+    if args.json:
+        try:
+            atomic_write_bytes(args.json, json.dumps({
+                "stream": args.stream, "num_anchors": s.num_anchors, "bytes": len(data),
+                "breakdown": result.breakdown.bytes_by_category, "decode_s": t_dec,
+                "hash_checked": result.hash_checked, "scene_sha256": result.stream_hash.hex()},
+                indent=2).encode())
+        except OSError as e:
+            raise write_error(args.json, e) from None
     if args.print_hash:
         from lghcc.common.hashing import scene_digest
         print(scene_digest(s).hex())

@@ -16,7 +16,7 @@ from tqdm import tqdm
 
 from lghcc.common import attributes as attr
 from lghcc.common.container import Container, DataUnit, UnitType, read_container
-from lghcc.common.errors import BitstreamError, HashMismatchError, UnsupportedStreamError
+from lghcc.common.errors import BitstreamError, HashMismatchError, ResourceLimitError, UnsupportedStreamError
 from lghcc.common.context.models import describe_context_model, level2_coding_params, read_context_model
 from lghcc.common.geometry import decode_geometry
 from lghcc.common.hashing import scene_digest
@@ -27,6 +27,7 @@ from lghcc.common.scene import AnchorScene
 from lghcc.common.syntax import TraceEntry
 from lghcc.common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ATTRIBUTE_VALUES, DecodedSceneHashUnit,
                                 SceneParameterSet)
+from lghcc.decoder.limits import DEFAULT_MAX_MEMORY, MemoryPlan
 
 _LETTER = {UnitType.SCENE_PARAMETER_SET: "S", UnitType.RENDER_MODEL: "R", UnitType.GEOMETRY: "G",
            UnitType.CONTEXT_MODEL: "C", UnitType.ATTRIBUTE: "A", UnitType.DECODED_SCENE_HASH: "H"}
@@ -70,9 +71,12 @@ def organize_units(container: Container) -> tuple[list[DataUnit], list[str]]:
 
 
 def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
-                  max_anchors: int | None = None, progress: bool = False) -> DecodeResult:
-    """Decode a whole stream. Raises a BitstreamError subclass naming the problem.
-    ``progress`` shows a bar of decoded anchors on stderr."""
+                  max_anchors: int | None = None, max_memory: int | None = DEFAULT_MAX_MEMORY,
+                  progress: bool = False) -> DecodeResult:
+    """Decode a whole stream. Raises a BitstreamError subclass naming the problem, or
+    ResourceLimitError for a stream beyond ``max_anchors`` or one whose decoding needs more than
+    ``max_memory`` bytes (None: no bound), computed from its headers before anything sized by
+    the stream is allocated (decoder/limits.py). ``progress`` shows a bar of decoded anchors."""
     entries: list[TraceEntry] | None = [] if trace else None
     container = read_container(data)
     units, skipped = organize_units(container)
@@ -88,7 +92,8 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
         raise BitstreamError(f"{n} anchors x {layout.num_channels} channels exceeds the level limit of "
                              f"{MAX_ATTRIBUTE_VALUES} attribute values")
     if max_anchors is not None and n > max_anchors:
-        raise BitstreamError(f"the stream declares {n} anchors, more than the allowed maximum {max_anchors}")
+        raise ResourceLimitError(f"the stream declares {n} anchors, more than the allowed maximum {max_anchors}")
+    memory = MemoryPlan(max_memory, sps, by_type, len(data))  # refuses before anything sized by the stream exists
     attribute_units = by_type[UnitType.ATTRIBUTE]
     if len(attribute_units) != (2 if sps.hierarchy_enabled_flag else 1):
         raise BitstreamError(f"{len(attribute_units)} attribute units with hierarchy_enabled_flag = "
@@ -126,6 +131,8 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
     bar = tqdm(total=n, desc="decode attributes", unit="anchor", disable=not progress, leave=False)
     for unit, (level, rows) in zip(attribute_units, levels):
         num_rows = n if rows is None else rows.size
+        memory.check_attribute_unit(unit.payload, num_rows, level, context_model, hier.num_level1 if rows is not None
+                                    else None)
         _, m, q = attr.read_attribute_unit(unit.payload, sps, num_rows, level, values, rows,
                                            level2_context if level == LEVEL_2 else None, entries,
                                            keep_q=level == LEVEL_1 and context_model is not None,

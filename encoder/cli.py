@@ -9,6 +9,8 @@ import time
 import warnings
 from pathlib import Path
 
+from lghcc.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK, EXIT_RESOURCE_LIMIT,
+                              EXIT_USAGE, exit_status_epilog, guarded)
 from lghcc.common.cliargs import positive_float
 from lghcc.common.errors import LghccError
 from lghcc.common.fileio import atomic_write_bytes, check_output_paths, check_writable_file, write_error
@@ -30,6 +32,14 @@ def setup_args() -> argparse.ArgumentParser:
     from lghcc.encoder.config import preset_names
 
     p = argparse.ArgumentParser(prog="lghcc-enc", description=DESCRIPTION,
+                                epilog=exit_status_epilog(
+                                    {EXIT_ERROR: "error in the input or the environment (a scene that cannot be read "
+                                                 "or coded, an output that cannot be written, an option value)",
+                                     EXIT_INVALID_STREAM: "the written stream failed its own decoding check (a bug: "
+                                                          "please report it)",
+                                     EXIT_RESOURCE_LIMIT: "the system ran out of memory"},
+                                    codes=(EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INVALID_STREAM, EXIT_RESOURCE_LIMIT,
+                                           EXIT_INTERRUPTED)),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("input", nargs="?", help="Scaffold-GS model folder, iteration folder or point_cloud.ply")
     p.add_argument("-o", "--output", required=True, help="the .lghcc file to write")
@@ -125,69 +135,69 @@ def _load_scene(args):
     return scene, args.input
 
 
+@guarded("lghcc-enc")
 def main(argv: list[str] | None = None) -> int:
+    """Exit status: lghcc.cli_common (0 written, 1 input/output error, 2 usage, 3 the stream failed its
+    own check, 4 out of memory, 130 interrupted: the output is written atomically, never in part)."""
     args = setup_args().parse_args(argv)
     from lghcc.decoder.decode import decode_stream
     from lghcc.encoder.config import load_config
     from lghcc.encoder.encode import encode_scene
 
     say = (lambda *a: None) if args.quiet else print
-    try:
-        out = Path(args.output)
-        # Every output is checked before encoding: none may overwrite the input or another output.
-        inputs = {"input": args.input, "--config file": args.config}
-        if args.input and Path(args.input).is_dir():  # a model folder: its PLY is the input
-            from lghcc.common.scaffold_io import locate_ply
-            try:
-                inputs["input PLY"] = locate_ply(args.input)
-            except LghccError:
-                pass  # reported when the scene is read
-        check_output_paths({"-o": args.output, "--json": args.json}, inputs)
-        if out.exists() and not out.is_dir() and not args.force:
-            raise LghccError(f"{out} exists; use --force to overwrite it")
-        for path in (args.output, args.json):
-            if path:
-                check_writable_file(path)
-        cfg = load_config(args.preset, args.config, {
-            "feature_step": args.feature_step, "scaling_step": args.scaling_step,
-            "offset_step": args.offset_step, "mlp_weight_bits": args.mlp_weight_bits, "pruning": args.prune,
-            "prune_keep_ratio": args.prune_keep, "prune_tau": args.prune_tau})
-        t0 = time.perf_counter()
-        scene, source = _load_scene(args)
-        t_load = time.perf_counter() - t0
-        twin = None
-        if args.input and not args.no_context_twin and cfg.context_model == "ggconv":
-            from lghcc.encoder.ggconv_train import find_context_twin
-            twin = find_context_twin(args.input)
-        result = encode_scene(scene, cfg, progress=not args.quiet and sys.stderr.isatty(),
-                              measure_ideal=args.report_ideal, context_twin=twin)
-        if twin is not None:
-            why = result.stats.get("context_twin_unused")
-            say("context twin of the training run: " + (f"not used ({why})" if why else
-                "kept (smallest stream)" if result.stats.get("context_parent_base") == "twin" else
-                "tried, a fresh fit coded smaller"))
-        verified = None
-        if not args.no_verify:
-            decoded = decode_stream(result.data)
-            verified = decoded.stream_hash == result.scene_hash
-            if not verified:
-                raise LghccError("internal error: the written stream does not decode to the encoded scene")
+    # A failure is reported by @guarded: one line, and the exit status of its kind.
+    out = Path(args.output)
+    # Every output is checked before encoding: none may overwrite the input or another output.
+    inputs = {"input": args.input, "--config file": args.config}
+    if args.input and Path(args.input).is_dir():  # a model folder: its PLY is the input
+        from lghcc.common.scaffold_io import locate_ply
         try:
-            atomic_write_bytes(out, result.data)
+            inputs["input PLY"] = locate_ply(args.input)
+        except LghccError:
+            pass  # reported when the scene is read
+    check_output_paths({"-o": args.output, "--json": args.json}, inputs)
+    if out.exists() and not out.is_dir() and not args.force:
+        raise LghccError(f"{out} exists; use --force to overwrite it")
+    for path in (args.output, args.json):
+        if path:
+            check_writable_file(path)
+    cfg = load_config(args.preset, args.config, {
+        "feature_step": args.feature_step, "scaling_step": args.scaling_step,
+        "offset_step": args.offset_step, "mlp_weight_bits": args.mlp_weight_bits, "pruning": args.prune,
+        "prune_keep_ratio": args.prune_keep, "prune_tau": args.prune_tau})
+    t0 = time.perf_counter()
+    scene, source = _load_scene(args)
+    t_load = time.perf_counter() - t0
+    twin = None
+    if args.input and not args.no_context_twin and cfg.context_model == "ggconv":
+        from lghcc.encoder.ggconv_train import find_context_twin
+        twin = find_context_twin(args.input)
+    result = encode_scene(scene, cfg, progress=not args.quiet and sys.stderr.isatty(),
+                          measure_ideal=args.report_ideal, context_twin=twin)
+    if twin is not None:
+        why = result.stats.get("context_twin_unused")
+        say("context twin of the training run: " + (f"not used ({why})" if why else
+            "kept (smallest stream)" if result.stats.get("context_parent_base") == "twin" else
+            "tried, a fresh fit coded smaller"))
+    verified = None
+    if not args.no_verify:
+        decoded = decode_stream(result.data, max_memory=None)  # the scene is in memory already
+        verified = decoded.stream_hash == result.scene_hash
+        if not verified:
+            raise LghccError("internal error: the written stream does not decode to the encoded scene")
+    try:
+        atomic_write_bytes(out, result.data)
+    except OSError as e:
+        raise write_error(out, e) from None
+    if args.json:
+        st = result.stats
+        try:
+            atomic_write_bytes(args.json, json.dumps({
+                "input": source, "output": str(out), "num_anchors": scene.num_anchors,
+                "bytes": len(result.data), "breakdown": result.breakdown.bytes_by_category, "stats": st,
+                "scene_sha256": result.scene_hash.hex(), "config": vars(cfg)}, indent=2).encode())
         except OSError as e:
-            raise write_error(out, e) from None
-        if args.json:
-            st = result.stats
-            try:
-                atomic_write_bytes(args.json, json.dumps({
-                    "input": source, "output": str(out), "num_anchors": scene.num_anchors,
-                    "bytes": len(result.data), "breakdown": result.breakdown.bytes_by_category, "stats": st,
-                    "scene_sha256": result.scene_hash.hex(), "config": vars(cfg)}, indent=2).encode())
-            except OSError as e:
-                raise write_error(args.json, e) from None
-    except LghccError as e:
-        print(f"lghcc-enc: error: {e}", file=sys.stderr)
-        return 1
+            raise write_error(args.json, e) from None
     st = result.stats
     if "pruning" in st:
         say(st["pruning"])

@@ -1086,7 +1086,14 @@ examples:
 
 def setup_args() -> argparse.ArgumentParser:
     d = TrainConfig()
+    from lghcc.cli_common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, EXIT_RESOURCE_LIMIT, EXIT_USAGE, exit_status_epilog
+
     p = argparse.ArgumentParser(prog="lghcc-train", description=DESCRIPTION,
+                                epilog=exit_status_epilog(
+                                    {EXIT_RESOURCE_LIMIT: "the system ran out of memory",
+                                     EXIT_INTERRUPTED: "interrupted (Ctrl-C); continue with --resume from the last "
+                                                       "checkpoint (every file is written atomically)"},
+                                    codes=(EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_RESOURCE_LIMIT, EXIT_INTERRUPTED)),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("data", nargs="?", help="folder with the posed images (NeRF-synthetic, LLFF or COLMAP layout)")
     p.add_argument("-o", "--output", help="output folder (the trained model and logs)")
@@ -1221,6 +1228,9 @@ def config_from_args(args: argparse.Namespace, argv: list[str] | None) -> TrainC
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Exit status: lghcc.cli_common (0, 1 input error, 2 usage, 4 out of memory, 130 interrupted)."""
+    from lghcc.cli_common import report
+
     argv = sys.argv[1:] if argv is None else list(argv)
     args = setup_args().parse_args(argv)
     try:
@@ -1251,12 +1261,8 @@ def main(argv: list[str] | None = None) -> int:
         res = train(cfg, args.output, resume=args.resume, stop_after=args.stop_after,
                     time_limit_s=None if args.time_limit is None else 60.0 * args.time_limit,
                     progress=not args.quiet, iterations=iterations)
-    except LghccError as e:
-        print(f"lghcc-train: error: {e}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("lghcc-train: interrupted; continue with --resume from the last checkpoint", file=sys.stderr)
-        return 130
+    except (LghccError, MemoryError, KeyboardInterrupt) as e:  # one line, the exit status of its kind
+        return report("lghcc-train", e, interrupted="interrupted; continue with --resume from the last checkpoint")
     last = res.history[-1] if res.history else None
     state = "finished" if res.finished else "stopped (continue with --resume)"
     print(f"{state} at iteration {res.iteration}: {res.scene.num_anchors:,} anchors"

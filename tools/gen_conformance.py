@@ -233,12 +233,24 @@ def _hand_ggconv(units, spec: dict):
         arrays.append(NamedIntArray(a.name, v, bits, a.signed))
     unit = write_context_model_unit(CONTEXT_GGCONV, arrays, n_feat, n_head)
     model = read_context_model(unit, layout)
-    params = level2_coding_params(model, coords[hier.level1_idx], q1, coords[hier.level2_idx], hier.parent_of_level2,
-                                  sps.coarse_voxel_scale).materialize()
-    assert params.step_adjust is None or not params.step_adjust.any()
     h = AttributeUnitHeader(num_channels=m, num_offsets=sps.num_offsets, offset_mask_present=h2.offset_mask_present,
                             num_rows=hier.num_level2, attribute_level=LEVEL_2, context_model_id=CONTEXT_GGCONV,
                             mask_live_prob=list(h2.mask_live_prob), rows_per_chunk_minus1=h2.rows_per_chunk_minus1)
+    if spec.get("beyond_extent"):
+        # an error stream: the decoder must stop at the extent limit (spec clause 8) before it
+        # evaluates the model, so the level-2 chunks are those of the per-channel stream, unchanged
+        from lghcc.common.bitio import BitReader
+
+        r = BitReader(units[a2].payload)
+        AttributeUnitHeader.parse(r, num_channels=m, num_offsets=sps.num_offsets,
+                                  offset_mask_present=h2.offset_mask_present, num_rows=hier.num_level2)
+        h.mask_chunk_size, h.chunk_size = list(h2.mask_chunk_size), list(h2.chunk_size)
+        units[a2] = DataUnit(UnitType.ATTRIBUTE, h.to_bytes() + units[a2].payload[r.bit_position // 8:])
+        units.insert(a1, DataUnit(UnitType.CONTEXT_MODEL, unit))
+        return
+    params = level2_coding_params(model, coords[hier.level1_idx], q1, coords[hier.level2_idx], hier.parent_of_level2,
+                                  sps.coarse_voxel_scale).materialize()
+    assert params.step_adjust is None or not params.step_adjust.any()
     units[a2] = DataUnit(UnitType.ATTRIBUTE, attr.write_attribute_unit(h, layout, q2, mask2, params))
     units.insert(a1, DataUnit(UnitType.CONTEXT_MODEL, unit))
 
