@@ -178,12 +178,26 @@ class Mutator:
     def __init__(self, seeds: dict[str, bytes]):
         if not seeds:
             raise LghccError("no seed streams to mutate")
-        self.seeds = seeds
+        self.seeds = dict(seeds)  # add_seed grows the mutator's copy, not the caller's
         self.ids = sorted(seeds)
         self._units = {k: [DataUnit(u.unit_type, u.payload) for u in read_container(v).units]
                        for k, v in seeds.items()}
         self._elements: dict[str, list[Element]] = {}
         self.ops = self.RAW + self.UNIT + self.FIELD + self.FIELD  # syntax-aware mutations twice as often
+
+    def add_seed(self, sid: str, data: bytes) -> None:
+        """One more stream to mutate (a fresh one from the scene generator of tools/fuzz_scenes.py)."""
+        self.seeds[sid] = data
+        self._units[sid] = [DataUnit(u.unit_type, u.payload) for u in read_container(data).units]
+        if sid not in self.ids:
+            self.ids.append(sid)
+
+    def drop_seed(self, sid: str) -> None:
+        self.seeds.pop(sid, None)
+        self._units.pop(sid, None)
+        self._elements.pop(sid, None)
+        if sid in self.ids:
+            self.ids.remove(sid)
 
     def elements(self, sid: str) -> list[Element]:
         if sid not in self._elements:
@@ -399,12 +413,19 @@ def apply_program(mutator: Mutator, program) -> tuple[bytes, str]:
 VALID = "valid decode"
 
 
+# the decoder's memory bound in the worker (decoder/limits.py): half the address space the sandbox
+# gives a case, so that a stream the plan admits cannot reach the sandbox's limit (a MemoryError
+# there is a bug: the plan undercounted)
+_MAX_MEMORY: list[int | None] = [None]
+
+
 def classify(data: bytes) -> tuple[str, str]:
     """Decode in this process: (kind, detail). kind: VALID, 'error: <class>' or 'BUG: <class>'."""
     from lghcc.decoder.decode import decode_stream
+    from lghcc.decoder.limits import DEFAULT_MAX_MEMORY
 
     try:
-        res = decode_stream(data)
+        res = decode_stream(data, max_memory=_MAX_MEMORY[0] or DEFAULT_MAX_MEMORY)
         if res.scene.num_anchors < 1:
             return "BUG: empty scene", "a valid decode with no anchors"
         return VALID, ""
@@ -418,10 +439,11 @@ def classify(data: bytes) -> tuple[str, str]:
         return f"BUG: {type(e).__name__}", traceback.format_exc()
 
 
-def _worker(conn, memory_bytes: int | None, threads: int) -> None:
+def _worker(conn, memory_bytes: int | None, threads: int, max_memory: int | None = None) -> None:
     import torch
 
     torch.set_num_threads(threads)
+    _MAX_MEMORY[0] = max_memory
     import lghcc.decoder.decode  # noqa: F401 - imported before the clock of the first case starts
 
     if memory_bytes:
@@ -494,6 +516,7 @@ class Sandbox:
     def __init__(self, timeout: float = 5.0, memory_mb: int | None = 2048, threads: int = 1):
         self.timeout = timeout
         self.memory_bytes = _vm_size_bytes() + memory_mb * (1 << 20) if memory_mb else None
+        self.max_memory = memory_mb * (1 << 19) if memory_mb else None  # the decoder's own bound: half of it
         self.threads = threads
         self._ctx = mp.get_context("fork")
         self._proc = None
@@ -501,7 +524,8 @@ class Sandbox:
 
     def _start(self) -> None:
         parent, child = self._ctx.Pipe()
-        self._proc = self._ctx.Process(target=_worker, args=(child, self.memory_bytes, self.threads), daemon=True)
+        self._proc = self._ctx.Process(target=_worker, args=(child, self.memory_bytes, self.threads, self.max_memory),
+                                       daemon=True)
         self._proc.start()
         child.close()
         self._conn = parent
@@ -629,21 +653,63 @@ def save_failure(folder: Path, kind: str, what: str, detail: str, data: bytes) -
     return folder / f"{name}.lghcc"
 
 
+SCENE_VALID = "scene: valid round trip"
+SCENE_REFUSED = "scene: refused by the encoder (InputError)"
+
+
+def scene_outcome(res: "CaseResult") -> "CaseResult":
+    """A fresh stream from the scene generator must decode to its own hash: anything else is a bug."""
+    if res.kind == VALID:
+        return CaseResult(SCENE_VALID, "", res.seconds, res.peak_kib, res.growth_kib)
+    kind = "BUG: round trip" if not res.kind.startswith("BUG") else f"BUG: round trip ({res.kind[5:]})"
+    return CaseResult(kind, f"{res.kind}: {res.detail}", res.seconds, res.peak_kib, res.growth_kib)
+
+
 def run_campaign(mutator: Mutator, *, seed: int = 0, cases: int | None = None, seconds: float | None = None,
                  timeout: float = 5.0, memory_mb: int | None = 2048, threads: int = 1,
-                 failures_dir: Path | None = None, progress=None) -> Summary:
-    """Run mutated cases until ``cases`` are done or ``seconds`` have passed (whichever first)."""
+                 failures_dir: Path | None = None, progress=None, scene_source=None,
+                 mutations_per_scene: int = 30, pool_size: int = 32) -> Summary:
+    """Run cases until ``cases`` are done or ``seconds`` have passed (whichever first).
+
+    ``scene_source(rng)``: a structure-aware generator (tools/fuzz_scenes.py ``scene_case``:
+    an object with ``data``, ``what``, ``refused``, ``bug``). With it, every
+    ``mutations_per_scene`` mutation cases one scene case is generated: a new stream that must
+    decode to its own hash (``scene_outcome``); each valid one joins the mutator's seeds (the
+    ``pool_size`` newest), so that byte, unit and field mutations reach the geometry, hierarchy
+    and context models it carries. A refused scene counts as a case (SCENE_REFUSED); a generator
+    exception is a bug ('BUG: encoder')."""
     if cases is None and seconds is None:
         raise ValueError("give cases or seconds")
     rng = random.Random(seed)
+    scene_rng = random.Random(f"scenes-{seed}")
     summary = Summary()
+    pool: list[str] = []
+    since_scene = mutations_per_scene
     t0 = time.perf_counter()
     with Sandbox(timeout, memory_mb, threads) as box:
         while (cases is None or summary.cases < cases) and (seconds is None or time.perf_counter() - t0 < seconds):
-            data, what = mutator.case(rng)
-            summary.add(box.run(data), what, data, failures_dir)
+            if scene_source is not None and since_scene >= mutations_per_scene:
+                since_scene = 0
+                sc = scene_source(scene_rng)
+                what = f"scene {summary.cases}: {sc.what}"
+                if sc.bug:
+                    summary.add(CaseResult("BUG: encoder", sc.bug, 0.0), what, b"", failures_dir)
+                elif sc.data is None:
+                    summary.add(CaseResult(SCENE_REFUSED, sc.refused, 0.0), what, b"")
+                else:
+                    res = scene_outcome(box.run(sc.data))
+                    summary.add(res, what, sc.data, failures_dir)
+                    if res.kind == SCENE_VALID:
+                        sid = f"scene{summary.cases}"
+                        mutator.add_seed(sid, sc.data)
+                        pool.append(sid)
+                        if len(pool) > pool_size:
+                            mutator.drop_seed(pool.pop(0))
+            else:
+                since_scene += 1
+                data, what = mutator.case(rng)
+                summary.add(box.run(data), what, data, failures_dir)
             if progress is not None:
                 progress(summary)
     summary.seconds = time.perf_counter() - t0
     return summary
-
