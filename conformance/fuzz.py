@@ -455,14 +455,14 @@ def _worker(conn, memory_bytes: int | None, threads: int, max_memory: int | None
         except EOFError:
             return
         base_kib = _reset_peak_rss()
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         try:
             kind, detail = classify(data)
         except Exception as e:  # noqa: BLE001 - e.g. MemoryError while handling another error
             kind, detail = f"BUG: {type(e).__name__}", traceback.format_exc()
-        dt = time.perf_counter() - t0
+        dt, cpu = time.perf_counter() - t0, time.process_time() - c0
         peak_kib = _status_kib("VmHWM") or resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        conn.send((kind, detail, dt, peak_kib, max(peak_kib - base_kib, 0)))
+        conn.send((kind, detail, dt, peak_kib, max(peak_kib - base_kib, 0), cpu))
 
 
 def _status_kib(key: str) -> int:
@@ -497,14 +497,18 @@ def _vm_size_bytes() -> int:
 
 
 class CaseResult(tuple):
-    """(kind, detail, seconds, peak_kib, growth_kib) with names."""
+    """(kind, detail, seconds, peak_kib, growth_kib, cpu_seconds) with names: ``seconds`` is wall
+    time, ``cpu_seconds`` the worker's CPU time for the case (on a shared machine a niced run's wall
+    time says little about the decoder; its CPU time does)."""
 
-    def __new__(cls, kind: str, detail: str, seconds: float, peak_kib: int = 0, growth_kib: int = 0):
-        return super().__new__(cls, (kind, detail, seconds, peak_kib, growth_kib))
+    def __new__(cls, kind: str, detail: str, seconds: float, peak_kib: int = 0, growth_kib: int = 0,
+                cpu_seconds: float = 0.0):
+        return super().__new__(cls, (kind, detail, seconds, peak_kib, growth_kib, cpu_seconds))
 
     kind = property(lambda self: self[0])
     detail = property(lambda self: self[1])
     seconds = property(lambda self: self[2])
+    cpu_seconds = property(lambda self: self[5])
     peak_kib = property(lambda self: self[3])
     growth_kib = property(lambda self: self[4])
 
@@ -550,12 +554,12 @@ class Sandbox:
             self._stop()
             return CaseResult("BUG: timeout", f"no result after {self.timeout:g} s", time.perf_counter() - t0)
         try:
-            kind, detail, seconds, peak_kib, growth_kib = self._conn.recv()
+            kind, detail, seconds, peak_kib, growth_kib, cpu = self._conn.recv()
         except (EOFError, OSError):
             code = self._proc.exitcode if self._proc else None
             self._stop()
             return CaseResult("BUG: worker died", f"exit code {code}", time.perf_counter() - t0)
-        return CaseResult(kind, detail, seconds, peak_kib, growth_kib)
+        return CaseResult(kind, detail, seconds, peak_kib, growth_kib, cpu)
 
     def close(self) -> None:
         if self._conn is not None:
@@ -586,7 +590,10 @@ class Summary:
     seconds: float = 0.0
     outcomes: Counter = field(default_factory=Counter)
     reasons: Counter = field(default_factory=Counter)  # (kind, message prefix) of the errors
-    slowest: tuple[float, str] = (0.0, "")
+    slowest: tuple[float, str] = (0.0, "")  # wall seconds
+    slowest_cpu: tuple[float, str] = (0.0, "")  # the worker's CPU seconds
+    slow_cpu_s: float = 5.0
+    slow: int = 0  # cases that took more than slow_cpu_s of CPU (reported, not bugs: a hang is a timeout)
     peak_kib: list[int] = field(default_factory=list)  # per case: the worker's peak RSS
     growth_kib: list[int] = field(default_factory=list)  # per case: peak RSS above the RSS before the case
     largest: tuple[int, str] = (0, "")  # the largest growth and its case
@@ -599,6 +606,10 @@ class Summary:
             self.reasons[(res.kind[len("error: "):], message_prefix(res.detail))] += 1
         if res.seconds > self.slowest[0]:
             self.slowest = (res.seconds, what)
+        if res.cpu_seconds > self.slowest_cpu[0]:
+            self.slowest_cpu = (res.cpu_seconds, what)
+        if res.cpu_seconds > self.slow_cpu_s:
+            self.slow += 1
         if res.peak_kib:
             self.peak_kib.append(res.peak_kib)
             self.growth_kib.append(res.growth_kib)
@@ -638,7 +649,9 @@ class Summary:
                          f"top {min(top_reasons, len(self.reasons))}):")
             for (kind, prefix), n in self.reasons.most_common(top_reasons):
                 lines.append(f"  {n:>7}  {kind}: {prefix}")
-        lines.append(f"slowest case: {self.slowest[0]:.3f} s ({self.slowest[1][:120]})")
+        lines.append(f"slowest case: {self.slowest[0]:.3f} s wall ({self.slowest[1][:120]}); most CPU: "
+                     f"{self.slowest_cpu[0]:.3f} s ({self.slowest_cpu[1][:120]}); cases above {self.slow_cpu_s:g} s "
+                     f"of CPU: {self.slow}")
         lines.append(self.memory_text())
         lines.append(f"bugs: {self.bugs}")
         return "\n".join(lines)
@@ -660,15 +673,15 @@ SCENE_REFUSED = "scene: refused by the encoder (InputError)"
 def scene_outcome(res: "CaseResult") -> "CaseResult":
     """A fresh stream from the scene generator must decode to its own hash: anything else is a bug."""
     if res.kind == VALID:
-        return CaseResult(SCENE_VALID, "", res.seconds, res.peak_kib, res.growth_kib)
+        return CaseResult(SCENE_VALID, "", res.seconds, res.peak_kib, res.growth_kib, res.cpu_seconds)
     kind = "BUG: round trip" if not res.kind.startswith("BUG") else f"BUG: round trip ({res.kind[5:]})"
-    return CaseResult(kind, f"{res.kind}: {res.detail}", res.seconds, res.peak_kib, res.growth_kib)
+    return CaseResult(kind, f"{res.kind}: {res.detail}", res.seconds, res.peak_kib, res.growth_kib, res.cpu_seconds)
 
 
 def run_campaign(mutator: Mutator, *, seed: int = 0, cases: int | None = None, seconds: float | None = None,
                  timeout: float = 5.0, memory_mb: int | None = 2048, threads: int = 1,
                  failures_dir: Path | None = None, progress=None, scene_source=None,
-                 mutations_per_scene: int = 30, pool_size: int = 32) -> Summary:
+                 mutations_per_scene: int = 30, pool_size: int = 32, slow_cpu_s: float = 5.0) -> Summary:
     """Run cases until ``cases`` are done or ``seconds`` have passed (whichever first).
 
     ``scene_source(rng)``: a structure-aware generator (tools/fuzz_scenes.py ``scene_case``:
@@ -682,7 +695,7 @@ def run_campaign(mutator: Mutator, *, seed: int = 0, cases: int | None = None, s
         raise ValueError("give cases or seconds")
     rng = random.Random(seed)
     scene_rng = random.Random(f"scenes-{seed}")
-    summary = Summary()
+    summary = Summary(slow_cpu_s=slow_cpu_s)
     pool: list[str] = []
     since_scene = mutations_per_scene
     t0 = time.perf_counter()
