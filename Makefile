@@ -40,8 +40,13 @@ FUZZ_SEED ?= 14
 fuzz-long: setup
 	mkdir -p fuzz_logs
 	for j in $$(seq 1 $(FUZZ_JOBS)); do \
-	  nice -n 19 $(PY) tools/fuzz_decoder.py --cases $$(( $(FUZZ_CASES) / $(FUZZ_JOBS) )) --scenes \
+	  nice -n 19 $(PY) tools/fuzz_decoder.py --cases $$(( $(FUZZ_CASES) / $(FUZZ_JOBS) )) --scenes --timeout 60 \
 	    --seed $$(( $(FUZZ_SEED) * 100 + $$j )) --failures fuzz_logs/failures_$$j --json fuzz_logs/job_$$j.json \
 	    > fuzz_logs/job_$$j.log 2>&1 & \
 	done; wait
 	$(PY) tools/fuzz_decoder.py --merge fuzz_logs/job_*.json --out tools/results/fuzz.md
+
+# Mutation testing of the decoder against the conformance suite (conformance/mutations.py): every
+# listed wrong decoder must fail some stream; rewrites the table in tools/results/conformance.md.
+mutations: setup
+	nice $(PY) tools/mutation_test.py --report

@@ -30,6 +30,7 @@ import numpy as np
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tools"))  # stream_edits
 SOURCES = ROOT / "conformance" / "sources.yaml"
 STREAMS = ROOT / "conformance" / "streams"
 
@@ -225,20 +226,24 @@ def _hand_ggconv(units, spec: dict):
                      table=table, h_shift=0, feat_mlp=IntMLP(feat_layers), head_mlp=IntMLP(head_layers),
                      parent_base=np.arange(m) % 2)  # both kinds of channel mean (Annex H.5.3 step 6)
     arrays = []
+    override = spec.get("override", {})  # error streams: arrays a conforming model cannot have
     for a in p.to_arrays():
         v = np.asarray(a.values)
         if v.ndim == 0:
             v = v.reshape(1)
         bits = 1 if a.name.endswith(".shift") or a.name == "h_shift" else a.bits
+        if a.name in override:
+            o = override[a.name]
+            v = np.full(o["shape"], o.get("fill", 0), np.int64) if isinstance(o, dict) else np.array([int(o)])
+            bits = max(bits, int(v.max()).bit_length() if v.size else 1, 1)
         arrays.append(NamedIntArray(a.name, v, bits, a.signed))
     unit = write_context_model_unit(CONTEXT_GGCONV, arrays, n_feat, n_head)
-    model = read_context_model(unit, layout)
     h = AttributeUnitHeader(num_channels=m, num_offsets=sps.num_offsets, offset_mask_present=h2.offset_mask_present,
                             num_rows=hier.num_level2, attribute_level=LEVEL_2, context_model_id=CONTEXT_GGCONV,
                             mask_live_prob=list(h2.mask_live_prob), rows_per_chunk_minus1=h2.rows_per_chunk_minus1)
-    if spec.get("beyond_extent"):
-        # an error stream: the decoder must stop at the extent limit (spec clause 8) before it
-        # evaluates the model, so the level-2 chunks are those of the per-channel stream, unchanged
+    if spec.get("unchecked"):
+        # an error stream: the decoder must stop (at a level limit or at the model's parameters)
+        # before it evaluates the model, so the level-2 chunks are those of the per-channel stream
         from lghcc.common.bitio import BitReader
 
         r = BitReader(units[a2].payload)
@@ -248,6 +253,7 @@ def _hand_ggconv(units, spec: dict):
         units[a2] = DataUnit(UnitType.ATTRIBUTE, h.to_bytes() + units[a2].payload[r.bit_position // 8:])
         units.insert(a1, DataUnit(UnitType.CONTEXT_MODEL, unit))
         return
+    model = read_context_model(unit, layout)
     params = level2_coding_params(model, coords[hier.level1_idx], q1, coords[hier.level2_idx], hier.parent_of_level2,
                                   sps.coarse_voxel_scale).materialize()
     assert params.step_adjust is None or not params.step_adjust.any()
@@ -350,6 +356,9 @@ def post_process(data: bytes, post: dict) -> bytes:
         _set_prior_mean(units, post["set_prior_mean"])
     if "set_render_mlp" in post:
         _set_render_mlp(units, post["set_render_mlp"])
+    import stream_edits  # tools/stream_edits.py: values the encoder never writes, one broken rule each
+
+    stream_edits.apply_edits(units, post)
     if "set_sps" in post:  # overwrite scene parameter set fields
         j = _unit_index(units, UnitType.SCENE_PARAMETER_SET)
         sps = SceneParameterSet.from_bytes(units[j].payload)
@@ -375,6 +384,8 @@ def post_process(data: bytes, post: dict) -> bytes:
         out = _rehash(out)
     if "insert_raw_unit" in post:
         out = _insert_raw_unit(out, post["insert_raw_unit"])
+    if "container_bytes" in post:  # container-header bytes the writer refuses (a wrong magic)
+        out = stream_edits.raw_container_edit(out, post["container_bytes"])
     if "flip_byte" in post:  # damage one byte without fixing the CRC
         b = bytearray(out)
         b[int(post["flip_byte"])] ^= 0x01
@@ -391,6 +402,20 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
     from lghcc.encoder.config import load_config
     from lghcc.encoder.encode import encode_scene
 
+    post = entry.get("post", {})
+    if entry["scene"]["generator"] == "forge_dense":  # a dense cube of zero attributes (conformance/forge.py)
+        from lghcc.conformance.forge import dense_zero_stream
+
+        s = entry["scene"]
+        data = post_process(dense_zero_stream(int(s["side"]), int(s["feature_dim"]), int(s["num_offsets"]),
+                                              exact_hash=True), post)
+        if entry.get("expect") == "error":
+            return data, None
+        from lghcc.common.container import UnitType, read_container
+        from lghcc.common.units import DecodedSceneHashUnit
+
+        unit = [u for u in read_container(data).units if u.unit_type == UnitType.DECODED_SCENE_HASH][0]
+        return data, DecodedSceneHashUnit.from_bytes(unit.payload).scene_hash.hex()
     before = torch.get_num_threads()
     torch.set_num_threads(1)  # context-model training in float must be reproducible byte for byte
     try:
@@ -398,7 +423,6 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
         result = encode_scene(build_scene(entry["scene"]), cfg)
     finally:
         torch.set_num_threads(before)
-    post = entry.get("post", {})
     data = post_process(result.data, post)
     if entry.get("expect") == "error":
         return data, None
@@ -473,6 +497,7 @@ def _structure_tags(data: bytes) -> set[str]:
     """Tags of a stream's parts that parse without decoding (container, sps, unit types)."""
     from lghcc.common import attributes as attr
     from lghcc.common.container import UnitType, read_container
+    from lghcc.common.errors import LghccError
     from lghcc.common.units import MAX_ATTRIBUTE_VALUES, SceneParameterSet
 
     units = read_container(data).units
@@ -485,8 +510,12 @@ def _structure_tags(data: bytes) -> set[str]:
     if any(u.is_ancillary for u in units):
         tags.add("ancillary_unit")
     sps_units = [u for u in units if u.unit_type == UnitType.SCENE_PARAMETER_SET]
-    if sps_units:
-        sps = SceneParameterSet.from_bytes(sps_units[0].payload)
+    try:
+        sps = SceneParameterSet.from_bytes(sps_units[0].payload) if sps_units else None
+    except LghccError:  # an sps element out of its range: the stream is rejected there
+        tags.add("scene_parameter_set")
+        sps = None
+    if sps is not None:
         if sps.hierarchy_enabled_flag:
             tags.add("hierarchy")
         if sps.offset_mask_present_flag:
