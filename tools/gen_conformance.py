@@ -403,12 +403,19 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
     from lghcc.encoder.encode import encode_scene
 
     post = entry.get("post", {})
-    if entry["scene"]["generator"] == "forge_dense":  # a dense cube of zero attributes (conformance/forge.py)
+    if entry["scene"]["generator"] in ("forge_dense", "forge_box"):  # zero attributes (conformance/forge.py)
+        from lghcc.common.geometry import normative_order
         from lghcc.conformance.forge import dense_zero_stream
 
         s = entry["scene"]
-        data = post_process(dense_zero_stream(int(s["side"]), int(s["feature_dim"]), int(s["num_offsets"]),
-                                              exact_hash=True), post)
+        coords = None
+        if s["generator"] == "forge_box":  # a box [dims] of which each voxel is kept with probability density
+            ax = [np.arange(int(d)) for d in s["dims"]]
+            box = np.stack(np.meshgrid(*ax, indexing="ij"), -1).reshape(-1, 3)
+            box = box[np.random.default_rng(int(s["seed"])).random(len(box)) < float(s["density"])]
+            coords = box[normative_order(box)]
+        data = post_process(dense_zero_stream(int(s.get("side", 1)), int(s["feature_dim"]), int(s["num_offsets"]),
+                                              exact_hash=True, coords=coords), post)
         if entry.get("expect") == "error":
             return data, None
         from lghcc.common.container import UnitType, read_container

@@ -36,7 +36,7 @@ REPORT = ROOT / "tools" / "results" / "conformance.md"
 BEGIN, END = "<!-- mutations:begin -->", "<!-- mutations:end -->"
 
 
-def _child(conn, mutation_id: str, case_ids: list[str]) -> None:
+def _child(conn, mutation_id: str, case_ids: list[str], streams: str | None = None) -> None:
     """In the forked process: patch, run the cases in order, report the first failure."""
     try:
         import torch
@@ -50,7 +50,7 @@ def _child(conn, mutation_id: str, case_ids: list[str]) -> None:
         except mutations.StaleMutation as e:
             conn.send(("stale", "", str(e)))
             return
-        cases = {c.id: c for c in runner.load_cases()}
+        cases = {c.id: c for c in runner.load_cases(Path(streams) if streams else runner.STREAMS_DIR)}
         for cid in case_ids:
             o = runner.run_case(cases[cid])
             if not o.passed:
@@ -61,10 +61,11 @@ def _child(conn, mutation_id: str, case_ids: list[str]) -> None:
         conn.send(("harness error", "", traceback.format_exc()[-300:]))
 
 
-def run_one(mutation_id: str, case_ids: list[str], timeout: float) -> tuple[str, str, str, float]:
+def run_one(mutation_id: str, case_ids: list[str], timeout: float,
+            streams: str | None = None) -> tuple[str, str, str, float]:
     ctx = mp.get_context("fork")
     parent, child = ctx.Pipe(duplex=False)
-    p = ctx.Process(target=_child, args=(child, mutation_id, case_ids), daemon=True)
+    p = ctx.Process(target=_child, args=(child, mutation_id, case_ids, streams), daemon=True)
     t0 = time.perf_counter()
     p.start()
     child.close()

@@ -383,6 +383,8 @@ def _weights(rng: np.random.Generator, kind, shape, bits: int) -> np.ndarray:
 def _bias(rng: np.random.Generator, kind, n: int) -> np.ndarray:
     if isinstance(kind, int):
         return np.full(n, kind, np.int64)
+    if isinstance(kind, dict):  # {cycle: [v0, v1, ...]}: the values in turn, channel by channel
+        return np.resize(np.asarray(kind["cycle"], np.int64), n)
     if isinstance(kind, list):  # [lo, hi]
         return rng.integers(int(kind[0]), int(kind[1]), size=n, endpoint=True)
     if kind == "zero":
