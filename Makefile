@@ -40,7 +40,8 @@ FUZZ_SEED ?= 14
 fuzz-long: setup
 	mkdir -p fuzz_logs
 	for j in $$(seq 1 $(FUZZ_JOBS)); do \
-	  nice -n 19 $(PY) tools/fuzz_decoder.py --cases $$(( $(FUZZ_CASES) / $(FUZZ_JOBS) )) --scenes --timeout 60 \
+	  nice -n 19 $(PY) tools/fuzz_decoder.py --cases $$(( $(FUZZ_CASES) / $(FUZZ_JOBS) )) --scenes --timeout 60 --weigh-seeds \
+	    --mutations-per-scene 100 \
 	    --seed $$(( $(FUZZ_SEED) * 100 + $$j )) --failures fuzz_logs/failures_$$j --json fuzz_logs/job_$$j.json \
 	    > fuzz_logs/job_$$j.log 2>&1 & \
 	done; wait

@@ -150,6 +150,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="also generate and re-encode random scenes (tools/fuzz_scenes.py), one per "
                          "--mutations-per-scene cases, and mutate the fresh streams too")
     ap.add_argument("--mutations-per-scene", type=int, default=30, help="mutation cases per scene case (default 30)")
+    ap.add_argument("--weigh-seeds", action="store_true",
+                    help="draw seeds with probability inversely proportional to their decode time (long runs: "
+                         "many more cases per hour; every seed is still mutated)")
     ap.add_argument("--pool", type=int, default=32, help="fresh scene streams kept as mutation seeds (default 32)")
     ap.add_argument("--failures", default="fuzz_failures", help="folder for failing inputs (default fuzz_failures)")
     ap.add_argument("--out", help="write the results as Markdown to this file (e.g. tools/results/fuzz.md)")
@@ -176,6 +179,16 @@ def main(argv: list[str] | None = None) -> int:
     started = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     seeds = load_seeds(Path(args.streams) if args.streams else None)
     mutator = Mutator(seeds)
+    if args.weigh_seeds:
+        from lghcc.decoder.decode import decode_stream
+
+        times = {}
+        for sid, data in seeds.items():
+            decode_stream(data)  # warm
+            t0 = time.process_time()
+            decode_stream(data)
+            times[sid] = time.process_time() - t0
+        mutator.weigh_by_time(times)
     scene_source = None
     if args.scenes:
         from fuzz_scenes import scene_case
