@@ -100,7 +100,7 @@ def markdown(results, total_s: float, n_cases: int) -> str:
         by_group[m.group][status] += 1
     lines = [BEGIN, "", "## Mutation testing (decision coverage)", "",
              "Command: `python tools/mutation_test.py --report` (`make mutations`); "
-             f"{len(results)} mutations of lghcc/conformance/mutations.py against the {n_cases} streams of the "
+             f"{len(results)} mutations of conformance/mutations.py against the {n_cases} streams of the "
              f"suite, {total_s / 60:.1f} min on the shared 2-core machine. Each mutation is one mistake a careless "
              "implementer of spec/ could make in one normative operation, applied to the reference decoder; it is "
              "killed when some stream then fails (hash, rejection class or reason, crash, hang).", "",
