@@ -42,6 +42,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import math
+import os
 import re
 import shlex
 import signal
@@ -52,12 +53,16 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-import yaml
+# the context models' inference runs torch's OpenMP kernels: passive waiting keeps threads from spinning
+# against other jobs on a shared machine (set before torch is imported; a user's own setting wins)
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from lghcc.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_RESOURCE_LIMIT, EXIT_USAGE,
-                              exit_code_for_class, report)
-from lghcc.common.errors import LghccError
+import numpy as np  # noqa: E402
+import yaml  # noqa: E402
+
+from lghcc.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_RESOURCE_LIMIT,  # noqa: E402
+                              EXIT_USAGE, exit_code_for_class, report)
+from lghcc.common.errors import LghccError  # noqa: E402
 
 STREAMS_DIR = Path(__file__).resolve().parent / "streams"
 # the error classes an error stream may expect (lghcc.common.errors); an external decoder's exit
