@@ -453,7 +453,12 @@ def classify(data: bytes) -> tuple[str, str]:
 
 
 def _worker(conn, memory_bytes: int | None, threads: int, max_memory: int | None = None) -> None:
+    import signal
+
     import torch
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C stops the campaign (the parent), not a case
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # the parent's handler is not the worker's
 
     torch.set_num_threads(threads)
     _MAX_MEMORY[0] = max_memory
@@ -607,6 +612,7 @@ class Summary:
     slowest_cpu: tuple[float, str] = (0.0, "")  # the worker's CPU seconds
     slow_cpu_s: float = 5.0
     slow: int = 0  # cases that took more than slow_cpu_s of CPU (reported, not bugs: a hang is a timeout)
+    stopped: bool = False  # the run was stopped before its budget (its figures are those of the cases done)
     peak_kib: list[int] = field(default_factory=list)  # per case: the worker's peak RSS
     growth_kib: list[int] = field(default_factory=list)  # per case: peak RSS above the RSS before the case
     largest: tuple[int, str] = (0, "")  # the largest growth and its case
@@ -709,33 +715,43 @@ def run_campaign(mutator: Mutator, *, seed: int = 0, cases: int | None = None, s
     rng = random.Random(seed)
     scene_rng = random.Random(f"scenes-{seed}")
     summary = Summary(slow_cpu_s=slow_cpu_s)
-    pool: list[str] = []
-    since_scene = mutations_per_scene
     t0 = time.perf_counter()
     with Sandbox(timeout, memory_mb, threads) as box:
-        while (cases is None or summary.cases < cases) and (seconds is None or time.perf_counter() - t0 < seconds):
-            if scene_source is not None and since_scene >= mutations_per_scene:
-                since_scene = 0
-                sc = scene_source(scene_rng)
-                what = f"scene {summary.cases}: {sc.what}"
-                if sc.bug:
-                    summary.add(CaseResult("BUG: encoder", sc.bug, 0.0), what, b"", failures_dir)
-                elif sc.data is None:
-                    summary.add(CaseResult(SCENE_REFUSED, sc.refused, 0.0), what, b"")
-                else:
-                    res = scene_outcome(box.run(sc.data))
-                    summary.add(res, what, sc.data, failures_dir)
-                    if res.kind == SCENE_VALID:
-                        sid = f"scene{summary.cases}"
-                        mutator.add_seed(sid, sc.data, res.cpu_seconds)
-                        pool.append(sid)
-                        if len(pool) > pool_size:
-                            mutator.drop_seed(pool.pop(0))
-            else:
-                since_scene += 1
-                data, what = mutator.case(rng)
-                summary.add(box.run(data), what, data, failures_dir)
-            if progress is not None:
-                progress(summary)
+        try:
+            _campaign_loop(summary, mutator, box, rng, scene_rng, cases, seconds, t0, failures_dir, progress,
+                           scene_source, mutations_per_scene, pool_size)
+        except KeyboardInterrupt:  # stopped from outside (Ctrl-C, SIGTERM): keep what was measured
+            summary.stopped = True
     summary.seconds = time.perf_counter() - t0
     return summary
+
+
+def _campaign_loop(summary, mutator, box, rng, scene_rng, cases, seconds, t0, failures_dir, progress, scene_source,
+                   mutations_per_scene, pool_size) -> None:
+    """run_campaign's cases, one at a time, into ``summary``."""
+    pool: list[str] = []
+    since_scene = mutations_per_scene
+    while (cases is None or summary.cases < cases) and (seconds is None or time.perf_counter() - t0 < seconds):
+        if scene_source is not None and since_scene >= mutations_per_scene:
+            since_scene = 0
+            sc = scene_source(scene_rng)
+            what = f"scene {summary.cases}: {sc.what}"
+            if sc.bug:
+                summary.add(CaseResult("BUG: encoder", sc.bug, 0.0), what, b"", failures_dir)
+            elif sc.data is None:
+                summary.add(CaseResult(SCENE_REFUSED, sc.refused, 0.0), what, b"")
+            else:
+                res = scene_outcome(box.run(sc.data))
+                summary.add(res, what, sc.data, failures_dir)
+                if res.kind == SCENE_VALID:
+                    sid = f"scene{summary.cases}"
+                    mutator.add_seed(sid, sc.data, res.cpu_seconds)
+                    pool.append(sid)
+                    if len(pool) > pool_size:
+                        mutator.drop_seed(pool.pop(0))
+        else:
+            since_scene += 1
+            data, what = mutator.case(rng)
+            summary.add(box.run(data), what, data, failures_dir)
+        if progress is not None:
+            progress(summary)

@@ -167,3 +167,16 @@ def test_value_mutations_reach_every_holder():
     from lghcc.common import geometry
     assert list(geometry.DENS_BUCKET) == [0, 1, 1, 2, 2, 3, 3]
     assert np.array_equal(geometry.DENS_BUCKET, [0, 1, 1, 2, 2, 3, 3])
+
+
+def test_a_stopped_campaign_keeps_its_figures():
+    """Ctrl-C or SIGTERM (tools/fuzz_decoder.py turns it into KeyboardInterrupt) ends the run with the
+    summary of the cases done, so a long run cut short still reports them."""
+    m = Mutator({k: v for k, v in load_seeds().items() if k == "c001_one_anchor"})
+
+    def interrupt_after_5(s):
+        if s.cases == 5:
+            raise KeyboardInterrupt
+
+    s = run_campaign(m, seed=1, cases=100, progress=interrupt_after_5)
+    assert s.stopped and s.cases == 5 and s.seconds > 0 and sum(s.outcomes.values()) == 5

@@ -157,7 +157,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--failures", default="fuzz_failures", help="folder for failing inputs (default fuzz_failures)")
     ap.add_argument("--out", help="write the results as Markdown to this file (e.g. tools/results/fuzz.md)")
     ap.add_argument("--checkpoint-minutes", type=float, default=10.0,
-                    help="with --out: rewrite it every this many minutes while running (default 10)")
+                    help="with --out / --json: rewrite them every this many minutes while running (default 10); "
+                         "SIGTERM or Ctrl-C stops the run and writes them for the cases done")
     ap.add_argument("--json", help="also write the summary as JSON (for --merge)")
     ap.add_argument("--merge", nargs="+", metavar="JSON",
                     help="no run: merge the --json summaries of campaigns run side by side into --out")
@@ -202,21 +203,33 @@ def main(argv: list[str] | None = None) -> int:
             last[0] = now
             print(f"{datetime.now().strftime('%H:%M:%S')} {s.cases} cases, {s.bugs} bugs, "
                   f"{s.cases / max(now - t_start, 1e-9):.1f} cases/s", file=sys.stderr, flush=True)
-        if args.out and now - last[1] > 60.0 * args.checkpoint_minutes:
+        if (args.out or args.json) and now - last[1] > 60.0 * args.checkpoint_minutes:
             last[1] = now
             s.seconds = now - t_start
-            Path(args.out).write_text(results_markdown(s, command + "   (checkpoint: still running)", started,
-                                                       len(seeds), args))
+            if args.out:
+                Path(args.out).write_text(results_markdown(s, command + "   (checkpoint: still running)", started,
+                                                           len(seeds), args))
+            if args.json:  # a partial summary that --merge can read if the run is cut short
+                Path(args.json).write_text(json.dumps(summary_to_json(s, command + "   (checkpoint)", started,
+                                                                      len(seeds), args.timeout)))
 
     print(f"seeds: {len(seeds)} conformance streams; seed {args.seed}; timeout {args.timeout:g} s; "
           f"memory limit +{args.memory_mb} MiB; torch threads {args.threads}; scenes {'on' if args.scenes else 'off'}",
           flush=True)
+    import signal
+
+    def stop(signum, frame):
+        raise KeyboardInterrupt
+    signal.signal(signal.SIGTERM, stop)
     t_start = time.perf_counter()
     summary = run_campaign(mutator, seed=args.seed, cases=args.cases, seconds=seconds, timeout=args.timeout,
                            memory_mb=args.memory_mb or None, threads=args.threads,
                            failures_dir=Path(args.failures), progress=progress, scene_source=scene_source,
                            mutations_per_scene=args.mutations_per_scene, pool_size=args.pool,
                            slow_cpu_s=args.slow_cpu)
+    if summary.stopped:
+        print(f"stopped after {summary.cases} cases (SIGTERM or Ctrl-C)")
+        command += f"   (stopped after {summary.cases:,} cases)"
     print(summary.text())
     if args.json:
         Path(args.json).write_text(json.dumps(summary_to_json(summary, command, started, len(seeds), args.timeout)))
