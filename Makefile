@@ -1,10 +1,12 @@
 # make demo : set up .venv, encode and decode the built-in procedural scene
 # make test : set up .venv, run the test suite
+# make node-tools : install the pinned npm tools (tools/node: splat-transform, PlayCanvas engine, esbuild)
+# make viewer-bundle : install them and build lghcc-view's JavaScript bundle
 VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test test-slow spec bench clean fuzz-long mutations
+.PHONY: setup demo test test-slow spec bench clean node-tools viewer-bundle fuzz-long mutations
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -27,6 +29,17 @@ test-slow: setup
 
 spec: setup
 	$(PY) tools/gen_spec_tables.py
+
+# npm tools pinned in tools/node/package-lock.json (npm ci: exactly those versions): splat-transform
+# (format interop tests, SPZ/SOG columns of the benchmarks), the PlayCanvas engine and esbuild (lghcc-view)
+node-tools:
+	@if command -v npm >/dev/null 2>&1; then npm ci --prefix tools/node; \
+	else echo "npm not found: tools/node not installed (the splat-transform interop tests will skip)"; fi
+
+# lghcc-view's renderer: viewer/web/viewer.mjs + the PlayCanvas engine -> viewer/assets/lghcc-viewer.js,
+# built here once (set-up time) and inlined into every page; lghcc-view never runs npm
+viewer-bundle: node-tools
+	npm run --prefix tools/node build-viewer
 
 clean:
 	rm -rf demo_out build *.egg-info

@@ -1,10 +1,18 @@
-"""Anchor attributes as coded symbols (spec clause 11): channel layout, reconstruction,
-and the coding of attribute-unit chunks (offset masks and residual symbols).
+"""Attributes as coded symbols (spec clause 11): channel layouts, reconstruction, cross-channel
+prediction, and the coding of attribute-unit chunks (offset masks and residual symbols).
 
 Channel layout of an anchor's attribute vector (M = C + 6 + 3K channels):
   [0, C)            feature
   [C, C + 6)        scaling (log scales)
   [C + 6, M)        offsets, offset k axis a at C + 6 + 3k + a
+
+Channel layout of a Gaussian's attribute vector (explicit-Gaussian scenes, SH degree d,
+S = (d + 1)^2 coefficients per colour, M = 3S + 8 channels):
+  [0, 3S)           SH coefficients, coefficient-major: 3i + c is coefficient i of colour c
+                    (i = 0: the DC term f_dc)
+  3S                opacity (logit)
+  [3S + 1, 3S + 4)  log scales
+  [3S + 4, 3S + 8)  rotation quaternion w, x, y, z
 
 Reconstruction (normative): value = float32(q) * float32(step of the channel's group),
 one IEEE binary32 multiplication, so every machine gets the same bits.
@@ -20,10 +28,11 @@ import numpy as np
 from lghcc.common.entropy.range_coder import TOTAL_FREQUENCY, RangeDecoder, RangeEncoder, exact_model
 from lghcc.common.entropy.symbol_coder import decode_symbols, encode_symbols
 from lghcc.common.errors import BitstreamError
-from lghcc.common.scene import NUM_SCALINGS
+from lghcc.common.scene import NUM_SCALINGS, GaussianScene, sh_coeffs_per_channel
 from lghcc.common.bitio import BitReader
 from lghcc.common.syntax import TraceEntry
-from lghcc.common.units import (CONTEXT_PER_CHANNEL_PRIOR, MASK_PROB_BITS, AttributeUnitHeader,
+from lghcc.common.units import (CHANNEL_PREDICTION_SHIFT, CONTEXT_PER_CHANNEL_PRIOR, MASK_PROB_BITS,
+                                MAX_PREDICTED_MAGNITUDE, AttributeUnitHeader, GaussianParameterSet,
                                 SceneParameterSet)
 
 # Quantization-step adjustment (context models with a step output): the step of a value is
@@ -37,8 +46,13 @@ NUM_STEP_ADJUST = len(STEP_ADJUST_FACTORS)
 
 @dataclass(frozen=True)
 class ChannelLayout:
+    """The attribute channels of an anchor scene. ``offset_mask_present`` and
+    ``channel_prediction_allowed`` are what the attribute unit's syntax depends on."""
+
     feature_dim: int
     num_offsets: int
+    offset_mask_present: int = 0
+    channel_prediction_allowed = 0
 
     @property
     def num_channels(self) -> int:
@@ -78,8 +92,159 @@ class ChannelLayout:
                 values[:, self.offset_start:].reshape(n, self.num_offsets, 3))
 
 
+@dataclass(frozen=True)
+class GaussianLayout:
+    """The attribute channels of an explicit-Gaussian scene (module doc). The SH coefficients
+    are the "features" a context model compares between neighbours."""
+
+    sh_degree: int
+    num_offsets = 0
+    offset_mask_present = 0
+    channel_prediction_allowed = 1
+
+    @property
+    def sh_channels(self) -> int:
+        return 3 * sh_coeffs_per_channel(self.sh_degree)
+
+    @property
+    def feature_dim(self) -> int:
+        return self.sh_channels
+
+    @property
+    def opacity_channel(self) -> int:
+        return self.sh_channels
+
+    @property
+    def scale_start(self) -> int:
+        return self.sh_channels + 1
+
+    @property
+    def rotation_start(self) -> int:
+        return self.sh_channels + 4
+
+    @property
+    def num_channels(self) -> int:
+        return self.sh_channels + 8
+
+    def band_of_channel(self) -> np.ndarray:
+        """int [3S]: the SH band (degree) of each SH channel."""
+        i = np.arange(self.sh_channels) // 3  # coefficient index
+        return np.floor(np.sqrt(i)).astype(np.int64)
+
+    def steps(self, gps: GaussianParameterSet) -> np.ndarray:
+        """float32 [M]: the quantization step of each channel."""
+        band_steps = [gps.sh_dc_step] + list(gps.sh_band_step)
+        s = np.empty(self.num_channels, dtype=np.float32)
+        s[:self.sh_channels] = np.asarray(band_steps, dtype=np.float32)[self.band_of_channel()]
+        s[self.opacity_channel] = np.float32(gps.opacity_step)
+        s[self.scale_start:self.rotation_start] = np.float32(gps.scale_step)
+        s[self.rotation_start:] = np.float32(gps.rotation_step)
+        return s
+
+    def live_channels(self, offset_mask, n: int) -> None:
+        return None  # every value of a Gaussian is coded
+
+    def join(self, scene: GaussianScene) -> np.ndarray:
+        n = scene.num_gaussians
+        return np.concatenate([scene.sh.reshape(n, self.sh_channels), scene.opacity.reshape(n, 1),
+                               scene.log_scales, scene.rotations], axis=1)
+
+    def split(self, values: np.ndarray):
+        """-> (sh [N, S, 3], opacity [N], log scales [N, 3], rotations [N, 4]) as views of ``values``."""
+        n = values.shape[0]
+        return (values[:, :self.sh_channels].reshape(n, -1, 3), values[:, self.opacity_channel],
+                values[:, self.scale_start:self.rotation_start], values[:, self.rotation_start:])
+
+
 def layout_of(sps: SceneParameterSet) -> ChannelLayout:
-    return ChannelLayout(sps.feature_dim, sps.num_offsets)
+    return ChannelLayout(sps.feature_dim, sps.num_offsets, sps.offset_mask_present_flag)
+
+
+def gaussian_layout_of(gps: GaussianParameterSet) -> GaussianLayout:
+    return GaussianLayout(gps.sh_degree)
+
+
+# --- cross-channel prediction (clause 11.6) --------------------------------------------------
+
+@dataclass(frozen=True)
+class ChannelPrediction:
+    """Linear prediction of a value's deviation from its mean by the deviations of earlier
+    channels of the same row: for channels c in increasing order,
+
+        q_c = r_c + mean_c + ((sum over entries (c, j, w) of w * (q_j - mean_j)) + 2^(S-1)) >> S
+
+    with S = CHANNEL_PREDICTION_SHIFT and >> the arithmetic shift (floor). Entries are
+    (target, source, weight) with source < target, in strictly increasing (target, source) order."""
+
+    targets: np.ndarray  # int64 [P]
+    sources: np.ndarray  # int64 [P]
+    weights: np.ndarray  # int64 [P]
+
+    @classmethod
+    def none(cls) -> "ChannelPrediction":
+        e = np.zeros(0, np.int64)
+        return cls(e, e.copy(), e.copy())
+
+    @classmethod
+    def from_header(cls, h: AttributeUnitHeader, what: str) -> "ChannelPrediction":
+        t = np.asarray(h.pred_target_channel, np.int64)
+        s = np.asarray(h.pred_source_channel, np.int64)
+        w = np.asarray(h.pred_weight, np.int64)
+        if t.size:
+            if (s >= t).any():
+                raise BitstreamError(f"{what}: a cross-channel prediction's source channel is not before its target")
+            key = t * h.num_channels + s
+            if (np.diff(key) <= 0).any():
+                raise BitstreamError(f"{what}: cross-channel predictions are not in strictly increasing "
+                                     "(target, source) order")
+        return cls(t, s, w)
+
+    def to_header(self, h: AttributeUnitHeader) -> None:
+        h.num_channel_predictions = int(self.targets.size)
+        h.pred_target_channel = [int(x) for x in self.targets]
+        h.pred_source_channel = [int(x) for x in self.sources]
+        h.pred_weight = [int(x) for x in self.weights]
+
+    @property
+    def empty(self) -> bool:
+        return self.targets.size == 0
+
+    def _term(self, dev: np.ndarray, c: int, entries: np.ndarray) -> np.ndarray:
+        acc = np.zeros(dev.shape[0], dtype=np.int64)
+        for e in entries:
+            acc += self.weights[e] * dev[:, self.sources[e]]
+        return (acc + (1 << (CHANNEL_PREDICTION_SHIFT - 1))) >> CHANNEL_PREDICTION_SHIFT
+
+    def reconstruct(self, r: np.ndarray, mean: np.ndarray, what: str) -> np.ndarray:
+        """Decoding: q [rows, M] from residuals r and means (broadcastable int64 arrays), checking
+        |q| <= MAX_PREDICTED_MAGNITUDE channel by channel (so no sum can overflow 64 bits)."""
+        q = r + mean
+        if self.empty:
+            _check_magnitude(q, what)
+            return q
+        dev = np.empty_like(q)
+        for c in range(q.shape[1]):
+            entries = np.nonzero(self.targets == c)[0]
+            if entries.size:
+                q[:, c] += self._term(dev, c, entries)
+            _check_magnitude(q[:, c], what)
+            dev[:, c] = q[:, c] - np.broadcast_to(mean, q.shape)[:, c]
+        return q
+
+    def residuals(self, q: np.ndarray, mean: np.ndarray) -> np.ndarray:
+        """Encoding: the residuals r that ``reconstruct`` turns back into q."""
+        mean = np.broadcast_to(mean, q.shape)
+        dev = q - mean
+        r = dev.copy()
+        for c in np.unique(self.targets):
+            r[:, c] -= self._term(dev, int(c), np.nonzero(self.targets == c)[0])
+        return r
+
+
+def _check_magnitude(q: np.ndarray, what: str) -> None:
+    if q.size and int(np.abs(q).max()) > MAX_PREDICTED_MAGNITUDE:
+        raise BitstreamError(f"{what}: a decoded value exceeds the limit of 2^40 quantization steps of a "
+                             "Gaussian scene")
 
 
 @dataclass
@@ -184,10 +349,23 @@ def prior_params(h: AttributeUnitHeader) -> CodingParams:
                         np.asarray(h.prior_level, dtype=np.int64)[None, :])
 
 
-def write_attribute_unit(h: AttributeUnitHeader, layout: ChannelLayout, q: np.ndarray,
-                         mask: np.ndarray | None, params: CodingParams) -> bytes:
-    """Code q [rows, M] (dead values ignored) in chunks; fills the header's chunk sizes.
-    ``mask`` must be given exactly when h.offset_mask_present."""
+def new_attribute_header(layout, num_rows: int, level: int) -> AttributeUnitHeader:
+    """An attribute unit header with the context its syntax depends on (from the parameter set)."""
+    return AttributeUnitHeader(num_channels=layout.num_channels, num_offsets=layout.num_offsets,
+                               offset_mask_present=layout.offset_mask_present,
+                               channel_prediction_allowed=layout.channel_prediction_allowed,
+                               num_rows=num_rows, attribute_level=level)
+
+
+def write_attribute_unit(h: AttributeUnitHeader, layout, q: np.ndarray, mask: np.ndarray | None,
+                         params: CodingParams, prediction: ChannelPrediction | None = None) -> bytes:
+    """Code q [rows, M] (dead values ignored) in chunks; fills the header's chunk sizes (and its
+    cross-channel prediction entries). ``mask`` must be given exactly when h.offset_mask_present."""
+    prediction = prediction or ChannelPrediction.none()
+    if not prediction.empty and not h.channel_prediction_allowed:
+        raise ValueError("cross-channel prediction in a scene that does not allow it")
+    if h.channel_prediction_allowed:
+        prediction.to_header(h)
     models = mask_models(h.mask_live_prob) if h.offset_mask_present else None
     chunks: list[bytes] = []
     h.mask_chunk_size, h.chunk_size = [], []
@@ -198,27 +376,31 @@ def write_attribute_unit(h: AttributeUnitHeader, layout: ChannelLayout, q: np.nd
             h.mask_chunk_size.append(len(chunks[-1]))
         live = layout.live_channels(None if mask is None else mask[lo:hi], hi - lo)
         p = params.rows(lo, hi, layout.num_channels)
-        chunks.append(encode_residual_chunk(q[lo:hi] - p.mean, p.level, live))
+        chunks.append(encode_residual_chunk(prediction.residuals(q[lo:hi], p.mean), p.level, live))
         h.chunk_size.append(len(chunks[-1]))
     return h.to_bytes() + b"".join(chunks)
 
 
-def read_attribute_unit(payload: bytes, sps: SceneParameterSet, num_rows: int, level: int,
+def read_attribute_unit(payload: bytes, layout, steps: np.ndarray, num_rows: int, level: int,
                         values_out: np.ndarray, rows: np.ndarray | None = None, context=None,
                         trace: list[TraceEntry] | None = None, keep_q: bool = False, on_chunk=None):
     """Parse and decode an attribute unit of ``num_rows`` rows at hierarchy ``level``; write
     the reconstructed values of row r to ``values_out[rows[r]]`` (``rows`` None: row r).
 
-    ``context``: a callable context_model_id -> CodingParams (None when the stream has no
-    context model). ``on_chunk(rows)`` is called after each chunk (progress). Returns
-    (header, mask bool [rows, K] or None, q int64 [rows, M] when ``keep_q`` else None). Chunk by chunk, so memory stays proportional to the output.
+    ``layout``: the scene's channel layout (ChannelLayout or GaussianLayout), ``steps`` its
+    float32 [M] quantization steps. ``context``: a callable context_model_id -> CodingParams
+    (None when the stream has no context model). ``on_chunk(rows)`` is called after each
+    chunk (progress). Returns (header, mask bool [rows, K] or None, q int64 [rows, M] when
+    ``keep_q`` else None). Chunk by chunk, so memory stays proportional to the output.
     """
-    layout = layout_of(sps)
-    reader = BitReader(payload, f"attribute unit (level {level})")
-    h = AttributeUnitHeader.parse(reader, trace, num_channels=layout.num_channels, num_offsets=sps.num_offsets,
-                                  offset_mask_present=sps.offset_mask_present_flag, num_rows=num_rows)
+    what = f"attribute unit (level {level})"
+    reader = BitReader(payload, what)
+    h = AttributeUnitHeader.parse(reader, trace, num_channels=layout.num_channels, num_offsets=layout.num_offsets,
+                                  offset_mask_present=layout.offset_mask_present,
+                                  channel_prediction_allowed=layout.channel_prediction_allowed, num_rows=num_rows)
     if h.attribute_level != level:
         raise BitstreamError(f"attribute unit: attribute_level {h.attribute_level} where level {level} is expected")
+    prediction = ChannelPrediction.from_header(h, what)
     if h.context_model_id == CONTEXT_PER_CHANNEL_PRIOR:
         params = prior_params(h)
     else:
@@ -229,10 +411,9 @@ def read_attribute_unit(payload: bytes, sps: SceneParameterSet, num_rows: int, l
     body = payload[reader.bit_position // 8:]
     sizes = [x for pair in zip(h.mask_chunk_size, h.chunk_size) for x in pair] if h.offset_mask_present \
         else list(h.chunk_size)
-    pieces = iter(split_chunks(body, sizes, f"attribute unit (level {level})"))
+    pieces = iter(split_chunks(body, sizes, what))
     models = mask_models(h.mask_live_prob) if h.offset_mask_present else None
-    steps = layout.steps(sps)
-    mask = np.ones((num_rows, sps.num_offsets), dtype=bool) if h.offset_mask_present else None
+    mask = np.ones((num_rows, layout.num_offsets), dtype=bool) if h.offset_mask_present else None
     q_all = np.zeros((num_rows, layout.num_channels), dtype=np.int64) if keep_q else None
     for i in range(h.num_chunks):
         lo, hi = i * h.rows_per_chunk, min(num_rows, (i + 1) * h.rows_per_chunk)
@@ -240,9 +421,12 @@ def read_attribute_unit(payload: bytes, sps: SceneParameterSet, num_rows: int, l
             mask[lo:hi] = decode_mask_chunk(next(pieces), hi - lo, models, f"attribute mask chunk {i}")
         live = layout.live_channels(None if mask is None else mask[lo:hi], hi - lo)
         p = params.rows(lo, hi, layout.num_channels)
-        check_levels(np.asarray(p.level), f"attribute unit (level {level})")
-        q = decode_residual_chunk(next(pieces), p.level, live, f"attribute chunk {i}")
-        q += p.mean
+        check_levels(np.asarray(p.level), what)
+        r = decode_residual_chunk(next(pieces), p.level, live, f"attribute chunk {i}")
+        if h.channel_prediction_allowed:
+            q = prediction.reconstruct(r, np.asarray(p.mean, dtype=np.int64), f"attribute chunk {i} (level {level})")
+        else:
+            q = r + p.mean
         if live is not None:
             q *= live  # values that are not coded are 0
         target = values_out[lo:hi] if rows is None else np.empty((hi - lo, layout.num_channels), np.float32)

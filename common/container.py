@@ -19,14 +19,14 @@ from lghcc.common.syntax import SyntaxStructure, SyntaxVisitor
 
 MAGIC = 0x4C474843  # "LGHC"
 VERSION_MAJOR = 0
-VERSION_MINOR = 1
+VERSION_MINOR = 2
 ANCILLARY_UNIT_TYPE_MIN = 0x80
 UNIT_HEADER_BYTES = 5
 UNIT_CRC_BYTES = 4
 
 
 class Profile(IntEnum):
-    MAIN = 1  # the only profile of version 0.1
+    MAIN = 1  # the only profile of versions 0.1 and 0.2
 
 
 class UnitType(IntEnum):
@@ -36,6 +36,7 @@ class UnitType(IntEnum):
     ATTRIBUTE = 0x04
     CONTEXT_MODEL = 0x05
     DECODED_SCENE_HASH = 0x06
+    GAUSSIAN_PARAMETER_SET = 0x07  # version 0.2: an explicit-Gaussian scene (in place of the scene parameter set)
 
 
 @dataclass

@@ -2,7 +2,13 @@
 everything the decoder outputs, so that a decoder can prove it rebuilt the scene the
 encoder meant, bit for bit (as video codecs carry a decoded picture hash).
 
-Serialization, all little-endian, in this order:
+Serialization of an explicit-Gaussian scene (``gaussian_scene_digest``), little-endian:
+  b"LGHC-gaussians-v1", num_gaussians, sh_degree (int64 each)
+  voxel_size (float32), origin (3 x float32)
+  coords [N,3] int64, in normative order
+  sh [N,S,3], opacity [N], log scales [N,3], rotations [N,4] (float32)
+
+Serialization of an anchor scene, all little-endian, in this order:
   b"LGHC-scene-v1", num_anchors, feature_dim, num_offsets (int64 each)
   voxel_size (float32), origin (3 x float32)
   coords [N,3] int64, in normative order
@@ -19,7 +25,7 @@ import hashlib
 
 import numpy as np
 
-from lghcc.common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene
+from lghcc.common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene, GaussianScene
 
 
 HASH_BLOCK_ROWS = 1 << 16
@@ -27,6 +33,31 @@ HASH_BLOCK_ROWS = 1 << 16
 
 def _i64(*values: int) -> bytes:
     return np.asarray(values, dtype="<i8").tobytes()
+
+
+def _update_rows(h, arr: np.ndarray) -> None:
+    for lo in range(0, arr.shape[0], HASH_BLOCK_ROWS):  # row blocks: no full-size copies
+        h.update(np.ascontiguousarray(arr[lo:lo + HASH_BLOCK_ROWS], dtype="<f4").data)
+
+
+def gaussian_scene_digest(scene: GaussianScene) -> bytes:
+    """SHA-256 of a decoded explicit-Gaussian scene (on its grid)."""
+    if scene.coords is None:
+        raise ValueError("the hash covers a scene on its coding grid (coords, voxel size, origin)")
+    h = hashlib.sha256()
+    h.update(b"LGHC-gaussians-v1")
+    h.update(_i64(scene.num_gaussians, scene.sh_degree))
+    h.update(np.asarray([scene.voxel_size], dtype="<f4").tobytes())
+    h.update(np.asarray(scene.origin, dtype="<f4").tobytes())
+    h.update(np.ascontiguousarray(scene.coords, dtype="<i8").data)
+    for arr in (scene.sh, scene.opacity, scene.log_scales, scene.rotations):
+        _update_rows(h, arr)
+    return h.digest()
+
+
+def digest_of(scene: AnchorScene | GaussianScene) -> bytes:
+    """The decoded-scene hash of either kind of scene."""
+    return gaussian_scene_digest(scene) if isinstance(scene, GaussianScene) else scene_digest(scene)
 
 
 def scene_digest(scene: AnchorScene) -> bytes:

@@ -9,6 +9,7 @@ from lghcc.common.container import CONTAINER_HEADER_BYTES, Container, UnitType
 
 CATEGORY_OF_UNIT = {
     UnitType.SCENE_PARAMETER_SET: "header",
+    UnitType.GAUSSIAN_PARAMETER_SET: "header",
     UnitType.DECODED_SCENE_HASH: "header",
     UnitType.GEOMETRY: "geometry",
     UnitType.ATTRIBUTE: "attributes",
@@ -20,31 +21,33 @@ CATEGORIES = ("header", "geometry", "attributes", "model", "ancillary")
 
 @dataclass
 class SizeBreakdown:
-    num_anchors: int
+    num_anchors: int  # the points of the scene: anchors, or Gaussians (``point_name``)
     bytes_by_category: dict[str, int] = field(default_factory=dict)
+    point_name: str = "anchor"
 
     @property
     def total_bytes(self) -> int:
         return sum(self.bytes_by_category.values())
 
     def table(self) -> str:
-        rows = [f"{'part':<12}{'bytes':>12}{'bits/anchor':>14}{'share':>9}"]
+        per = f"bits/{self.point_name}"
+        rows = [f"{'part':<12}{'bytes':>12}{per:>15}{'share':>9}"]
         total = max(self.total_bytes, 1)
         for cat in CATEGORIES:
             b = self.bytes_by_category.get(cat, 0)
             if cat == "ancillary" and not b:
                 continue
-            rows.append(f"{cat:<12}{b:>12,}{8 * b / self.num_anchors:>14.2f}{100 * b / total:>8.1f}%")
-        rows.append(f"{'total':<12}{self.total_bytes:>12,}{8 * self.total_bytes / self.num_anchors:>14.2f}"
+            rows.append(f"{cat:<12}{b:>12,}{8 * b / self.num_anchors:>15.2f}{100 * b / total:>8.1f}%")
+        rows.append(f"{'total':<12}{self.total_bytes:>12,}{8 * self.total_bytes / self.num_anchors:>15.2f}"
                     f"{100.0:>8.1f}%")
         return "\n".join(rows)
 
 
-def breakdown_of(container: Container, num_anchors: int) -> SizeBreakdown:
+def breakdown_of(container: Container, num_anchors: int, point_name: str = "anchor") -> SizeBreakdown:
     """Unit framing (type, size, CRC) is charged to the unit it frames; the container header to 'header'."""
     by = {c: 0 for c in CATEGORIES}
     by["header"] += CONTAINER_HEADER_BYTES
     for u in container.units:
         cat = "ancillary" if u.is_ancillary else CATEGORY_OF_UNIT.get(UnitType(u.unit_type), "header")
         by[cat] += u.size
-    return SizeBreakdown(num_anchors, by)
+    return SizeBreakdown(num_anchors, by, point_name)

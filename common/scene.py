@@ -91,6 +91,10 @@ class AnchorScene:
         return int(self.coords.shape[0])
 
     @property
+    def num_points(self) -> int:  # the points of the geometry unit, as for GaussianScene
+        return self.num_anchors
+
+    @property
     def feature_dim(self) -> int:
         return int(self.features.shape[1])
 
@@ -183,6 +187,10 @@ class GaussianScene:
     @property
     def num_gaussians(self) -> int:
         return int(self.means.shape[0])
+
+    @property
+    def num_points(self) -> int:  # the points of the geometry unit, as for AnchorScene
+        return self.num_gaussians
 
     @property
     def sh_degree(self) -> int:

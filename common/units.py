@@ -26,6 +26,13 @@ MASK_PROB_BITS = 12
 PRIOR_MEAN_MAX = (1 << 31) - 1  # |prior_mean|: the magnitudes se(v) codes (common/bitio.py)
 
 MAX_COARSE_VOXEL_SCALE = 1 << 20
+MAX_SH_DEGREE = 3
+# Cross-channel prediction (Gaussian scenes, clause 11.6): weights are se(v) in units of
+# 2^-CHANNEL_PREDICTION_SHIFT; decoded values must stay within +-MAX_PREDICTED_MAGNITUDE so that
+# every prediction sum fits in 64 bits.
+CHANNEL_PREDICTION_SHIFT = 8
+MAX_CHANNEL_PREDICTION_WEIGHT = 1 << 15
+MAX_PREDICTED_MAGNITUDE = 1 << 40
 # attribute_level values
 LEVEL_ALL = 0  # no hierarchy: one attribute unit holds every anchor
 LEVEL_1 = 1  # one anchor per coarse voxel
@@ -91,6 +98,55 @@ class SceneParameterSet(SyntaxStructure):
 
 
 @dataclass
+class GaussianParameterSet(SyntaxStructure):
+    """gps: the dimensions and quantization of an explicit-Gaussian scene (clause 7.3.9). Every
+    Gaussian is a point of the geometry unit with its SH colour, opacity, scales and rotation."""
+
+    syntax_name = "gaussian_parameter_set"
+    clause = "7.3.9"
+    num_gaussians_minus1: int = 0
+    sh_degree: int = 0
+    voxel_size: float = 1.0
+    origin: list = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    sh_dc_step: float = 1.0
+    sh_band_step: list = field(default_factory=list)
+    opacity_step: float = 1.0
+    scale_step: float = 1.0
+    rotation_step: float = 1.0
+    hierarchy_enabled_flag: int = 0
+    coarse_voxel_scale_minus1: int = 0
+
+    def syntax(self, v: SyntaxVisitor) -> None:
+        v.ue(self, "num_gaussians_minus1", hi=MAX_ANCHORS - 1)
+        v.u(2, self, "sh_degree", hi=MAX_SH_DEGREE)
+        v.f32(self, "voxel_size", positive=True)
+        for i in v.loop(3, "3", self, ("origin",)):
+            v.f32(self, "origin", i)
+        v.f32(self, "sh_dc_step", positive=True)
+        for b in v.loop(self.sh_degree, "sh_degree", self, ("sh_band_step",), index="b"):
+            v.f32(self, "sh_band_step", b, positive=True)
+        v.f32(self, "opacity_step", positive=True)
+        v.f32(self, "scale_step", positive=True)
+        v.f32(self, "rotation_step", positive=True)
+        v.flag(self, "hierarchy_enabled_flag")
+        for _ in v.when(self.hierarchy_enabled_flag, "hierarchy_enabled_flag"):
+            v.ue(self, "coarse_voxel_scale_minus1", hi=MAX_COARSE_VOXEL_SCALE - 1)
+
+    # derived values (clause 7.3.9)
+    @property
+    def num_gaussians(self) -> int:
+        return self.num_gaussians_minus1 + 1
+
+    @property
+    def num_anchors(self) -> int:  # the geometry unit's point count, as for anchor scenes
+        return self.num_gaussians
+
+    @property
+    def coarse_voxel_scale(self) -> int:
+        return self.coarse_voxel_scale_minus1 + 1
+
+
+@dataclass
 class RenderMlpHeader(SyntaxStructure):
     syntax_name = "render_mlp_header"
     clause = "7.3.3"
@@ -151,12 +207,17 @@ class AttributeUnitHeader(SyntaxStructure):
     num_offsets: int = 1
     offset_mask_present: int = 0
     num_rows: int = 1
+    channel_prediction_allowed: int = 0  # 1 in Gaussian scenes
     # syntax elements
     attribute_level: int = 0
     context_model_id: int = 0
     prior_mean: list = field(default_factory=list)
     prior_level: list = field(default_factory=list)
     mask_live_prob: list = field(default_factory=list)
+    num_channel_predictions: int = 0
+    pred_target_channel: list = field(default_factory=list)
+    pred_source_channel: list = field(default_factory=list)
+    pred_weight: list = field(default_factory=list)
     rows_per_chunk_minus1: int = 0
     mask_chunk_size: list = field(default_factory=list)
     chunk_size: list = field(default_factory=list)
@@ -180,6 +241,14 @@ class AttributeUnitHeader(SyntaxStructure):
         for _ in v.when(self.offset_mask_present, "offset_mask_present_flag"):
             for k in v.loop(self.num_offsets, "NumOffsets", self, ("mask_live_prob",), index="k"):
                 v.u(MASK_PROB_BITS, self, "mask_live_prob", k, lo=1, hi=(1 << MASK_PROB_BITS) - 1)
+        for _ in v.when(self.channel_prediction_allowed, "ChannelPredictionAllowed"):
+            m = self.num_channels
+            v.ue(self, "num_channel_predictions", hi=m * (m - 1) // 2)
+            names = ("pred_target_channel", "pred_source_channel", "pred_weight")
+            for i in v.loop(self.num_channel_predictions, "num_channel_predictions", self, names):
+                v.ue(self, "pred_target_channel", i, lo=1, hi=m - 1)
+                v.ue(self, "pred_source_channel", i, hi=m - 2)
+                v.se(self, "pred_weight", i, lo=-MAX_CHANNEL_PREDICTION_WEIGHT, hi=MAX_CHANNEL_PREDICTION_WEIGHT)
         v.ue(self, "rows_per_chunk_minus1", hi=max(self.num_rows - 1, 0))
         for i in v.loop(self.num_chunks, "NumChunks", self, ("mask_chunk_size", "chunk_size")):
             for _ in v.when(self.offset_mask_present, "offset_mask_present_flag"):

@@ -47,9 +47,12 @@ ENUMERATIONS = {
     "render_mlp_header.activation": [0, 1, 2, 3],
 }
 # integer elements with a value of their own beside minimum / other / maximum
-SPECIAL_VALUES = {"container_header.version_minor": [1]}  # the version of this document
+SPECIAL_VALUES = {"container_header.version_minor": [2]}  # the version of this document
 # upper limits that depend on earlier elements: element -> how the limit is found (see _contextual_max)
-CONTEXT_DEPENDENT_MAX = {"attribute_unit_header.rows_per_chunk_minus1": "NumRows - 1 (a single chunk)"}
+CONTEXT_DEPENDENT_MAX = {"attribute_unit_header.rows_per_chunk_minus1": "NumRows - 1 (a single chunk)",
+                         "attribute_unit_header.num_channel_predictions": "M (M - 1) / 2 (every pair)",
+                         "attribute_unit_header.pred_target_channel": "M - 1 (the last channel)",
+                         "attribute_unit_header.pred_source_channel": "M - 2"}
 ENUM_MAX_VALUES = 5  # integers with at most this many allowed values are enumerated
 FIXED_LENGTH = {"decoded_scene_hash_unit.scene_hash"}  # byte strings that cannot be empty
 UNIT_TYPE = "data_unit_header.unit_type"
@@ -65,6 +68,9 @@ IMPOSSIBLE: dict[tuple[str, str], str] = {
         "(octree leaves are distinct and decode_geometry rejects a direct-coded node holding one point "
         "twice), so level 2 is empty and the decoder rejects hierarchy_enabled_flag = 1 with an empty "
         "level 2 (stream e006_coarse_voxel_scale_one)",
+    ("gaussian_parameter_set.coarse_voxel_scale_minus1", "minimum"):
+        "as scene_parameter_set.coarse_voxel_scale_minus1: coarse voxels of 1 voxel hold one Gaussian each, "
+        "level 2 is empty, and the decoder rejects hierarchy_enabled_flag = 1 with an empty level 2",
     ("context_model_unit.coded_size", "minimum"):
         "every context model has the scalar num_features (>= 1); an empty chunk decodes every symbol as "
         "bin 0 of its table (spec 10.6.4: point = 0), i.e. the value -L_level <= -4 (every half-width "
@@ -77,6 +83,11 @@ IMPOSSIBLE: dict[tuple[str, str], str] = {
 NOT_EXERCISED: dict[tuple[str, str], str] = {
     ("scene_parameter_set.num_anchors_minus1", "maximum"):
         "2^24 anchors: a stream of tens of MB that takes minutes to encode and decode",
+    ("gaussian_parameter_set.num_gaussians_minus1", "maximum"):
+        "2^24 Gaussians: a stream of tens of MB that takes minutes to encode and decode",
+    ("attribute_unit_header.num_channel_predictions", "maximum"):
+        "every pair of channels predicted (1,596 entries at SH degree 3): the encoder predicts within groups "
+        "of related channels; entries are plain syntax, c036 exercises many of them and both weight limits",
     ("data_unit_header.unit_payload_size", "maximum"):
         "a payload of 2^32 - 1 bytes (4 GiB)",
     ("int_array_header.array_dim_minus1", "maximum"):
@@ -278,8 +289,17 @@ def _trace_values(trace):
     """(element, value, contextual maximum) for each trace entry; the maximum of
     rows_per_chunk_minus1 is NumRows - 1, reached exactly when its header lists one chunk."""
     entries = [(re.sub(r"\[\d+\]", "", e.name), e.value) for e in trace]
+    m = None  # channels of a Gaussian scene (3 (d + 1)^2 + 8), the limit of the prediction elements
     for j, (name, value) in enumerate(entries):
         ctx = None
+        if name == "gaussian_parameter_set.sh_degree":
+            m = 3 * (int(value) + 1) ** 2 + 8
+        elif m is not None and name == "attribute_unit_header.num_channel_predictions":
+            ctx = m * (m - 1) // 2
+        elif m is not None and name == "attribute_unit_header.pred_target_channel":
+            ctx = m - 1
+        elif m is not None and name == "attribute_unit_header.pred_source_channel":
+            ctx = m - 2
         if name == "attribute_unit_header.rows_per_chunk_minus1":
             chunks = 0
             for other, _ in entries[j + 1:]:

@@ -72,6 +72,7 @@ class Element:
 
 
 _STRUCTURE_UNIT = {"scene_parameter_set": UnitType.SCENE_PARAMETER_SET,
+                   "gaussian_parameter_set": UnitType.GAUSSIAN_PARAMETER_SET,
                    "render_model_unit": UnitType.RENDER_MODEL, "render_mlp_header": UnitType.RENDER_MODEL,
                    "geometry_header": UnitType.GEOMETRY, "context_model_unit": UnitType.CONTEXT_MODEL,
                    "int_array_header": UnitType.CONTEXT_MODEL, "attribute_unit_header": UnitType.ATTRIBUTE,
@@ -439,8 +440,8 @@ def classify(data: bytes) -> tuple[str, str]:
 
     try:
         res = decode_stream(data, max_memory=_MAX_MEMORY[0] or DEFAULT_MAX_MEMORY)
-        if res.scene.num_anchors < 1:
-            return "BUG: empty scene", "a valid decode with no anchors"
+        if res.scene.num_points < 1:
+            return "BUG: empty scene", "a valid decode with no anchors or Gaussians"
         return VALID, ""
     except LghccError as e:
         if not str(e):

@@ -193,11 +193,11 @@ def warm_up(render: bool = False) -> None:
 
 def decode_scene_internal(stream: Path):
     """The reference decoder: -> (decoded scene's SHA-256 hex, scene); raises LghccError."""
-    from lghcc.common.hashing import scene_digest
+    from lghcc.common.hashing import digest_of
     from lghcc.decoder.decode import decode_stream
 
     scene = decode_stream(stream.read_bytes()).scene
-    return scene_digest(scene).hex(), scene
+    return digest_of(scene).hex(), scene
 
 
 def decode_internal(stream: Path) -> str:

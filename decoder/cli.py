@@ -14,14 +14,20 @@ from pathlib import Path
 # Set before torch is imported; a user's own setting wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+import numpy as np
+
 from lghcc.cli_common import (EXIT_ERROR, EXIT_INVALID_STREAM, EXIT_OK, EXIT_RESOURCE_LIMIT, EXIT_USAGE,
                               EXIT_INTERRUPTED, exit_status_epilog, format_bytes, guarded, memory_size, with_prefix)
 from lghcc.common.cliargs import positive_float
 from lghcc.common.errors import LghccError
+from lghcc.common.scene import GaussianScene
 from lghcc.common.fileio import atomic_write_bytes, check_output_paths, check_writable_file, write_error
 
 DESCRIPTION = """\
-Decode an LG-HCC stream (.lghcc) into an anchor scene in the Scaffold-GS layout:
+Decode an LG-HCC stream (.lghcc). An explicit-Gaussian stream (from a 3DGS PLY) decodes
+to a 3DGS scene in the layout of 3DGS:
+  OUT/point_cloud/iteration_0/point_cloud.ply   Gaussians (INRIA 3DGS PLY)
+an anchor stream to an anchor scene in the Scaffold-GS layout:
   OUT/point_cloud/iteration_0/point_cloud.ply   anchors
   OUT/point_cloud/iteration_0/checkpoint.pth    render MLPs
 The decoder needs nothing but the stream. It checks the hash of the decoded scene
@@ -75,10 +81,13 @@ def setup_args() -> argparse.ArgumentParser:
     g.add_argument("--render-scale", type=positive_float, default=1.0,
                    help="scale of the image size of file cameras, a positive number (default 1)")
     g.add_argument("--background", default="black", choices=("black", "white"), help="render background")
-    g.add_argument("--export-ply", metavar="FILE",
-                   help="also write the decoded scene as a plain 3DGS PLY (INRIA layout) for standard viewers")
-    g.add_argument("--export-sh-degree", type=int, default=1, choices=(0, 1, 2, 3),
-                   help="SH degree of the exported colours (default 1)")
+    g.add_argument("--export", "--export-ply", dest="export_ply", metavar="FILE",
+                   help="also write the decoded scene as a plain 3DGS scene for standard viewers, in the format "
+                        "of FILE's extension: .ply (INRIA 3DGS PLY), .spz (Niantic SPZ) or .sog (PlayCanvas SOG); "
+                        "--export-ply is the same option")
+    g.add_argument("--export-sh-degree", type=int, choices=(0, 1, 2, 3),
+                   help="SH degree of the exported colours (default: a Gaussian stream's own degree; 1 for "
+                        "anchor streams, whose colours come from MLPs and are fitted)")
     g.add_argument("--export-directions", type=int, default=16,
                    help="view directions per anchor over which the MLPs are evaluated (default 16)")
     g.add_argument("--export-distance", type=float,
@@ -101,21 +110,29 @@ def _render_views(args, scene, say) -> None:
         raise LghccError(f"--render-size must be WxH, got {args.render_size!r}")
     if not args.render_out:
         raise LghccError("--render needs --render-out DIR")
-    cams = cameras_from_spec(args.render, scene.positions(), width=int(m.group(1)), height=int(m.group(2)),
-                             scale=args.render_scale)
+    gaussians = isinstance(scene, GaussianScene)
+    cams = cameras_from_spec(args.render, scene.means if gaussians else scene.positions(), width=int(m.group(1)),
+                             height=int(m.group(2)), scale=args.render_scale)
     out = Path(args.render_out)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise write_error(out, e) from None
     bg = background_color(args.background)
-    from lghcc.render.neural_gaussians import SceneTensors
+    if gaussians:
+        from lghcc.render.gaussians3dgs import gaussians_from_scene, render_3dgs
 
-    st = SceneTensors.from_scene(scene)
+        g = gaussians_from_scene(scene)
+        render = lambda cam: render_3dgs(g, cam, background=bg)  # noqa: E731
+    else:
+        from lghcc.render.neural_gaussians import SceneTensors
+
+        st = SceneTensors.from_scene(scene)
+        render = lambda cam: render_scene(st, cam, background=bg)  # noqa: E731
     t0 = time.perf_counter()
     with torch.no_grad():
         for i, cam in enumerate(cams):
-            img = render_scene(st, cam, background=bg).image.clamp(0, 1).numpy()
+            img = render(cam).image.clamp(0, 1).numpy()
             stem = Path(cam.name).stem if cam.name else f"view_{i:03d}"
             try:
                 write_png(out / f"{i:03d}_{stem}.png", img)
@@ -156,6 +173,7 @@ def main(argv: list[str] | None = None) -> int:
     args = setup_args().parse_args(argv)
     from lghcc.common.scaffold_io import write_scaffold
     from lghcc.decoder.decode import decode_stream
+    from lghcc.formats.ply3dgs import write_3dgs_ply
 
     say = (lambda *a: None) if args.quiet else print
     note = (lambda *a: None) if args.print_hash else say  # --print-hash prints the hash alone
@@ -169,6 +187,9 @@ def main(argv: list[str] | None = None) -> int:
     for path in (args.json, args.trace, args.export_ply):
         if path:
             check_writable_file(path)
+    if args.export_ply and Path(args.export_ply).suffix.lower() not in (".ply", ".spz", ".sog"):
+        raise LghccError(f"{args.export_ply}: --export writes .ply, .spz or .sog (the format follows the "
+                         "extension)")
     if args.render and not args.render_out:
         raise LghccError("--render needs --render-out DIR")
     if args.render_out and Path(args.render_out).exists() and not Path(args.render_out).is_dir():
@@ -194,23 +215,40 @@ def main(argv: list[str] | None = None) -> int:
             print(f"lghcc-dec: warning: {args.output} also holds point_cloud/{', '.join(stale)}; readers "
                   "that take the highest iteration will not read the decoded scene", file=sys.stderr)
         try:
-            write_scaffold(result.scene, args.output)
+            if isinstance(result.scene, GaussianScene):  # the 3DGS layout
+                folder = Path(args.output) / "point_cloud" / "iteration_0"
+                folder.mkdir(parents=True, exist_ok=True)
+                write_3dgs_ply(folder / "point_cloud.ply", result.scene)
+            else:
+                write_scaffold(result.scene, args.output)
         except OSError as e:
             raise write_error(args.output, e) from None
     if args.render:
         _render_views(args, result.scene, note)
     if args.export_ply:
-        from lghcc.render.export import export_3dgs
-
         t1 = time.perf_counter()
+        from lghcc.formats import write_scene
+
+        if isinstance(result.scene, GaussianScene):
+            sc = result.scene if args.export_sh_degree is None else result.scene.with_sh_degree(args.export_sh_degree)
+            how = ""
+        else:
+            from lghcc.render.export import export_3dgs
+
+            degree = 1 if args.export_sh_degree is None else args.export_sh_degree
+            ex = export_3dgs(result.scene, None, sh_degree=degree, num_directions=args.export_directions,
+                             distance=args.export_distance)
+            sc = GaussianScene(ex.means.astype(np.float32), ex.sh.astype(np.float32),
+                               ex.opacity_logits.astype(np.float32), ex.log_scales.astype(np.float32),
+                               ex.quats.astype(np.float32))
+            how = f", the MLPs evaluated in {args.export_directions} directions at distance {ex.stats['distance']:.4g}"
         try:
-            ex = export_3dgs(result.scene, args.export_ply, sh_degree=args.export_sh_degree,
-                             num_directions=args.export_directions, distance=args.export_distance)
+            write_scene(sc, args.export_ply)
         except OSError as e:
             raise write_error(args.export_ply, e) from None
-        note(f"wrote {args.export_ply}: {ex.num_gaussians:,} Gaussians (3DGS PLY, SH degree "
-            f"{args.export_sh_degree}, {args.export_directions} directions at distance "
-            f"{ex.stats['distance']:.4g}) in {time.perf_counter() - t1:.2f} s")
+        kind = {".ply": "3DGS PLY", ".spz": "SPZ", ".sog": "SOG"}[Path(args.export_ply).suffix.lower()]
+        note(f"wrote {args.export_ply}: {sc.num_gaussians:,} Gaussians ({kind}, SH degree {sc.sh_degree}{how}) in "
+             f"{time.perf_counter() - t1:.2f} s")
     if args.trace:
         lines = [f"{e.bit_position:>10} {e.name:<60} {e.descriptor:<8} "
                  f"{e.value.hex() if isinstance(e.value, bytes) else e.value}" for e in result.trace]
@@ -221,19 +259,25 @@ def main(argv: list[str] | None = None) -> int:
     s = result.scene
     if args.json:
         try:
+            count = {"num_gaussians": s.num_gaussians} if isinstance(s, GaussianScene) else \
+                {"num_anchors": s.num_anchors}
             atomic_write_bytes(args.json, json.dumps({
-                "stream": args.stream, "num_anchors": s.num_anchors, "bytes": len(data),
+                "stream": args.stream, **count, "bytes": len(data),
                 "breakdown": result.breakdown.bytes_by_category, "decode_s": t_dec,
                 "hash_checked": result.hash_checked, "scene_sha256": result.stream_hash.hex()},
                 indent=2).encode())
         except OSError as e:
             raise write_error(args.json, e) from None
     if args.print_hash:
-        from lghcc.common.hashing import scene_digest
-        print(scene_digest(s).hex())
+        from lghcc.common.hashing import digest_of
+        print(digest_of(s).hex())
         return 0
-    say(f"{args.stream}: {s.num_anchors:,} anchors, C={s.feature_dim}, K={s.num_offsets}, "
-        f"{len(data):,} bytes, decoded in {t_dec:.2f} s ({s.num_anchors / max(t_dec, 1e-9):,.0f} anchors/s)")
+    if isinstance(s, GaussianScene):
+        say(f"{args.stream}: {s.num_gaussians:,} Gaussians, SH degree {s.sh_degree}, {len(data):,} bytes, decoded in "
+            f"{t_dec:.2f} s ({s.num_gaussians / max(t_dec, 1e-9):,.0f} Gaussians/s)")
+    else:
+        say(f"{args.stream}: {s.num_anchors:,} anchors, C={s.feature_dim}, K={s.num_offsets}, "
+            f"{len(data):,} bytes, decoded in {t_dec:.2f} s ({s.num_anchors / max(t_dec, 1e-9):,.0f} anchors/s)")
     say(result.breakdown.table())
     if result.tools:
         say("tools: " + "; ".join(result.tools))

@@ -37,7 +37,7 @@ from lghcc.common import attributes as attr
 from lghcc.common.bitio import BitReader
 from lghcc.common.container import DataUnit, UnitType
 from lghcc.common.errors import LghccError, ResourceLimitError
-from lghcc.common.units import SceneParameterSet
+from lghcc.common.units import GaussianParameterSet, SceneParameterSet
 
 DEFAULT_MAX_MEMORY = 4 << 30  # lghcc-dec --max-memory and decode_stream(max_memory=...)
 
@@ -49,6 +49,8 @@ PERSISTENT_PER_ANCHOR = 24 + 48  # coordinates int64 [N, 3]; level indices, pare
 CHUNK_PER_VALUE_BROADCAST = 32  # per-channel prior without masks: bins int32, residuals int64, q, target (26)
 CHUNK_PER_VALUE_GENERAL = 96  # levels per value: sort order, bins, residuals, escapes, q, target (77 measured)
 CHUNK_PER_VALUE_CONTEXT = 6  # the context model's mean int32, level int8, step adjustment int8 per value
+CHUNK_PER_VALUE_PREDICTION = 24  # cross-channel prediction (clause 11.6): deviations, q and a broadcast mean, int64
+GAUSSIAN_SCENE_PER_POINT = 12 + 12  # a decoded Gaussian scene's means float32 [N, 3] and their float32 coordinates
 HASH_BLOCK_ROWS = 1 << 16  # lghcc.common.hashing.HASH_BLOCK_ROWS
 ENTROPY_PER_SYMBOL = 96  # one coded chunk of n symbols with levels per symbol (render / context model units)
 RENDER_PER_PARAMETER = 4 + 8  # decoded binary32 weights, and their integers while dequantized
@@ -123,13 +125,19 @@ def _context_model_values(unit: DataUnit | None) -> int:
 class MemoryPlan:
     """The memory decoding a stream will hold, checked against ``max_memory`` (bytes; None: no
     bound) stage by stage (module docstring). Raises ResourceLimitError on construction when the
-    parts known from the scene parameter set and the model units' headers already exceed it."""
+    parts known from the parameter set (a scene_parameter_set, or the gaussian_parameter_set of
+    an explicit-Gaussian scene, whose points are its Gaussians) and the model units' headers
+    already exceed it. ``layout``: the scene's channel layout (derived from ``sps`` if not given)."""
 
-    def __init__(self, max_memory: int | None, sps: SceneParameterSet, units: dict[int, list[DataUnit]],
-                 stream_bytes: int):
+    def __init__(self, max_memory: int | None, sps: SceneParameterSet | GaussianParameterSet,
+                 units: dict[int, list[DataUnit]], stream_bytes: int, layout=None):
         self.max_memory = max_memory
         self.sps = sps
-        n, m, k = sps.num_anchors, attr.layout_of(sps).num_channels, sps.num_offsets
+        gaussians = isinstance(sps, GaussianParameterSet)
+        if layout is None:
+            layout = attr.gaussian_layout_of(sps) if gaussians else attr.layout_of(sps)
+        self.layout = layout
+        n, m, k = sps.num_anchors, layout.num_channels, layout.num_offsets
         self.n, self.m, self.k = n, m, k
         render_params = _render_model_parameters((units.get(UnitType.RENDER_MODEL) or [None])[0])
         context_values = _context_model_values((units.get(UnitType.CONTEXT_MODEL) or [None])[0])
@@ -146,8 +154,11 @@ class MemoryPlan:
             Need(f"context model: {context_values:,} values x {CONTEXT_PER_PARAMETER} bytes",
                  CONTEXT_PER_PARAMETER * context_values),
         ]
-        if sps.offset_mask_present_flag:
+        if layout.offset_mask_present:
             self.persistent.append(Need(f"offset masks: 2 x {n:,} anchors x {k} offsets", 2 * n * k))
+        if gaussians:
+            self.persistent.append(Need(f"Gaussian positions: {n:,} Gaussians x {GAUSSIAN_SCENE_PER_POINT} bytes",
+                                        GAUSSIAN_SCENE_PER_POINT * n))
         # one stage at a time: the largest is what is added on top of the persistent parts
         self.stages = [
             Need(f"geometry decoding: {n:,} anchors x {GEOMETRY_PER_ANCHOR} bytes", GEOMETRY_PER_ANCHOR * n),
@@ -188,17 +199,20 @@ class MemoryPlan:
         header that does not parse is left to the decoding process to report."""
         from lghcc.common.units import LEVEL_1, LEVEL_2, AttributeUnitHeader
 
-        sps, m, k = self.sps, self.m, self.k
+        layout, m, k = self.layout, self.m, self.k
         try:
             h = AttributeUnitHeader.parse(BitReader(payload, "attribute unit"), None, num_channels=m, num_offsets=k,
-                                          offset_mask_present=sps.offset_mask_present_flag, num_rows=num_rows)
+                                          offset_mask_present=layout.offset_mask_present,
+                                          channel_prediction_allowed=layout.channel_prediction_allowed,
+                                          num_rows=num_rows)
         except LghccError:
             return 0
         rows = min(h.rows_per_chunk, num_rows)
         with_model = h.context_model_id != 0
-        general = with_model or bool(sps.offset_mask_present_flag)
+        general = with_model or bool(layout.offset_mask_present)
         per_value = (CHUNK_PER_VALUE_GENERAL if general else CHUNK_PER_VALUE_BROADCAST) \
-            + (CHUNK_PER_VALUE_CONTEXT if with_model else 0)
+            + (CHUNK_PER_VALUE_CONTEXT if with_model else 0) \
+            + (CHUNK_PER_VALUE_PREDICTION if h.num_channel_predictions else 0)
         persistent = list(self.persistent)
         stages = [Need(f"attribute chunk: {rows:,} rows x {m:,} channels x {per_value} bytes", per_value * rows * m)]
         if context_model is not None and level in (LEVEL_1, LEVEL_2):

@@ -14,14 +14,9 @@ from lghcc.common.errors import InputError
 
 
 @dataclass
-class EncoderConfig:
-    # Quantization steps of the attribute groups (decoded value = q * step).
-    feature_step: float = 0.02
-    scaling_step: float = 0.02
-    offset_step: float = 0.02
-    # Render MLP weights: signed integers of this many bits with a power-of-two scale per tensor.
-    mlp_weight_bits: int = 14
-    # Anchors per independently decodable attribute chunk.
+class AttributeCodingConfig:
+    """How attribute units are coded; shared by anchor and explicit-Gaussian scenes."""
+    # Anchors (or Gaussians) per independently decodable attribute chunk.
     rows_per_chunk: int = 65536
     # Rows sampled when choosing each channel's prior (informative speed/accuracy knob).
     prior_fit_rows: int = 50000
@@ -51,23 +46,8 @@ class EncoderConfig:
     context_weight_bits: int | None = None  # integer precision of the context model's weights: 8 or 16
     context_train_anchors: int = 200_000  # level-2 anchors sampled for training
     context_fallback: bool = True  # use the context model only when it saves bytes over the prior
-    # Anchor pruning before coding (informative): none, naap (Neighborhood-Aware Anchor Pruning:
-    # low-importance anchors merged into their nearest retained neighbour) or opacity (Context-GS's
-    # plain threshold, for comparison). Give a keep ratio or an importance threshold tau.
-    pruning: str = "none"
-    prune_keep_ratio: float | None = None  # keep this fraction of the anchors
-    prune_tau: float | None = None  # or: prune anchors whose importance (accumulated opacity) is below tau
-    naap_k: int = 8  # NAAP neighbours
-    naap_lambda: float = 0.5  # NAAP: weight of the neighbourhood opacity in the importance
-    naap_gamma: float = 0.2  # NAAP: share of a pruned anchor merged into its target
 
-    def validate(self) -> "EncoderConfig":
-        for name in ("feature_step", "scaling_step", "offset_step"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and v > 0 and v < float("inf")):
-                raise InputError(f"{name} must be a positive finite number, got {v!r}")
-        if not (2 <= self.mlp_weight_bits <= 24):
-            raise InputError(f"mlp_weight_bits must be in [2, 24], got {self.mlp_weight_bits}")
+    def validate(self) -> "AttributeCodingConfig":
         if self.rows_per_chunk < 1:
             raise InputError("rows_per_chunk must be at least 1")
         if not 1 <= self.coarse_voxel_scale <= (1 << 20):
@@ -90,6 +70,35 @@ class EncoderConfig:
         for name in ("context_float_steps", "context_qat_steps"):
             if getattr(self, name) < 0:
                 raise InputError(f"{name} must be >= 0")
+        if self.prior_fit_rows < 1:
+            raise InputError("prior_fit_rows must be at least 1")
+        return self
+
+
+@dataclass
+class EncoderConfig(AttributeCodingConfig):
+    """Anchor scenes (Scaffold-GS / HAC checkpoints)."""
+    # Quantization steps of the attribute groups (decoded value = q * step).
+    feature_step: float = 0.02
+    scaling_step: float = 0.02
+    offset_step: float = 0.02
+    # Render MLP weights: signed integers of this many bits with a power-of-two scale per tensor.
+    mlp_weight_bits: int = 14
+    # Anchor pruning before coding (informative): none, naap (Neighborhood-Aware Anchor Pruning:
+    # low-importance anchors merged into their nearest retained neighbour) or opacity (Context-GS's
+    # plain threshold, for comparison). Give a keep ratio or an importance threshold tau.
+    pruning: str = "none"
+    prune_keep_ratio: float | None = None  # keep this fraction of the anchors
+    prune_tau: float | None = None  # or: prune anchors whose importance (accumulated opacity) is below tau
+    naap_k: int = 8  # NAAP neighbours
+    naap_lambda: float = 0.5  # NAAP: weight of the neighbourhood opacity in the importance
+    naap_gamma: float = 0.2  # NAAP: share of a pruned anchor merged into its target
+
+    def validate(self) -> "EncoderConfig":
+        super().validate()
+        _check_steps(self, ("feature_step", "scaling_step", "offset_step"))
+        if not (2 <= self.mlp_weight_bits <= 24):
+            raise InputError(f"mlp_weight_bits must be in [2, 24], got {self.mlp_weight_bits}")
         if self.pruning not in ("none", "naap", "opacity"):
             raise InputError(f"pruning must be none, naap or opacity, got {self.pruning!r}")
         if self.pruning != "none" and (self.prune_keep_ratio is None) == (self.prune_tau is None):
@@ -98,8 +107,76 @@ class EncoderConfig:
             raise InputError(f"prune_keep_ratio must be in (0, 1], got {self.prune_keep_ratio}")
         if not 1 <= self.naap_k <= 64 or not 0 <= self.naap_lambda <= 1 or not 0 <= self.naap_gamma <= 1:
             raise InputError("naap_k must be in [1, 64], naap_lambda and naap_gamma in [0, 1]")
-        if self.prior_fit_rows < 1:
-            raise InputError("prior_fit_rows must be at least 1")
+        return self
+
+
+def _check_steps(cfg, names) -> None:
+    for name in names:
+        v = getattr(cfg, name)
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < float("inf")):
+            raise InputError(f"{name} must be a positive finite number, got {v!r}")
+
+
+@dataclass
+class GaussianEncoderConfig(AttributeCodingConfig):
+    """Explicit-Gaussian scenes (3DGS PLY, SPZ, SOG input): every Gaussian coded as a point of
+    the geometry unit with its attributes. The presets are encoder/presets/gaussians-*.yaml."""
+    # Quantization steps (decoded value = q * step): SH DC term, each higher SH band (1, 2, 3),
+    # opacity logit, log scales, rotation quaternion components.
+    sh_dc_step: float = 0.03
+    sh_band_steps: tuple = (0.06, 0.08, 0.1)
+    opacity_step: float = 0.2
+    scale_step: float = 0.1
+    rotation_step: float = 0.03
+    # Position grid: voxel size = position_step x the median size of the Gaussians that make the
+    # picture (size = exp of the mean log scale, weighted by contribution when it is known).
+    position_step: float = 0.5
+    # SH degree coded: None keeps the source's; lower values drop the higher bands.
+    sh_degree: int | None = None
+    # Cross-channel prediction (colours of an SH coefficient, the three scales, rotation).
+    channel_prediction: bool = True
+    # Rate-aware preparation (encoder/gaussian_fit.py), against renders of the source from
+    # fit_views cameras on a sphere around it at fit_resolution pixels:
+    fit_views: int = 24
+    fit_resolution: int = 160
+    # drop the least contributing Gaussians whose contributions add up to this share of the
+    # total (0: keep all but those no view shows)
+    prune_share: float = 0.0
+    # then tune the kept Gaussians' attributes for this many steps with their quantization
+    # simulated (0: code the source values as they are)
+    fit_iterations: int = 0
+    fit_lr_scale: float = 1.0
+    # rate term of the fit: each step moves the values down the gradient of their estimated bits,
+    # lr x fit_rate_lambda x step^2 per bit (encoder/gaussian_fit.py; 0: distortion only)
+    fit_rate_lambda: float = 0.0
+    # Rate-distortion search of the settings above (encoder/gaussian_rd.py): lambda in dB of
+    # PSNR per doubling of the stream (0: code with the preset's settings as they are), on
+    # search_views renders of search_resolution pixels.
+    rd_lambda: float = 0.0
+    # Quality asked for instead (the presets' way): PSNR in dB of the quantized scene against the
+    # source on the search views; the search then finds the fewest bits that reach it (lambda
+    # follows from it; 0: minimize at rd_lambda).
+    target_psnr: float = 0.0
+    search_views: int = 8
+    search_resolution: int = 128
+
+    def validate(self) -> "GaussianEncoderConfig":
+        super().validate()
+        _check_steps(self, ("sh_dc_step", "opacity_step", "scale_step", "rotation_step", "position_step"))
+        if len(self.sh_band_steps) != 3:
+            raise InputError(f"sh_band_steps must give 3 steps (bands 1, 2, 3), got {self.sh_band_steps!r}")
+        for v in self.sh_band_steps:
+            if not (isinstance(v, (int, float)) and 0 < v < float("inf")):
+                raise InputError(f"sh_band_steps must be positive finite numbers, got {self.sh_band_steps!r}")
+        if self.sh_degree is not None and self.sh_degree not in (0, 1, 2, 3):
+            raise InputError(f"sh_degree must be 0..3 or None, got {self.sh_degree!r}")
+        if not 0 <= self.prune_share < 1:
+            raise InputError(f"prune_share must be in [0, 1), got {self.prune_share}")
+        if not 0 <= self.target_psnr < 200 or not 0 <= self.rd_lambda < float("inf"):
+            raise InputError(f"target_psnr must be in [0, 200) dB and rd_lambda >= 0, got {self.target_psnr}, "
+                             f"{self.rd_lambda}")
+        if self.fit_views < 1 or self.fit_resolution < 8 or self.fit_iterations < 0:
+            raise InputError("fit_views must be >= 1, fit_resolution >= 8 and fit_iterations >= 0")
         return self
 
 
@@ -117,27 +194,42 @@ def context_model_size(cfg: EncoderConfig, num_level2: int) -> tuple[int, int, i
     return tuple(g if g is not None else a for g, a in zip(given, auto))
 
 
-def preset_names() -> list[str]:
-    return sorted(p.name[:-5] for p in resources.files("lghcc.encoder").joinpath("presets").iterdir()
-                  if p.name.endswith(".yaml"))
+GAUSSIAN_PRESET_PREFIX = "gaussians-"
 
 
-def _apply(cfg: EncoderConfig, data: dict, source: str) -> EncoderConfig:
+def preset_names(kind: str = "anchors") -> list[str]:
+    """The presets of anchor scenes (``kind`` "anchors") or explicit-Gaussian scenes ("gaussians"),
+    by the names the command line uses (a Gaussian preset's file is gaussians-<name>.yaml)."""
+    names = [p.name[:-5] for p in resources.files("lghcc.encoder").joinpath("presets").iterdir()
+             if p.name.endswith(".yaml")]
+    if kind == "gaussians":
+        return sorted(n[len(GAUSSIAN_PRESET_PREFIX):] for n in names if n.startswith(GAUSSIAN_PRESET_PREFIX))
+    return sorted(n for n in names if not n.startswith(GAUSSIAN_PRESET_PREFIX))
+
+
+def _apply(cfg, data: dict, source: str):
     if not isinstance(data, dict):
         raise InputError(f"{source}: expected a mapping of option: value")
-    fields = {f.name for f in dataclasses.fields(EncoderConfig)}
+    fields = {f.name for f in dataclasses.fields(cfg)}
     unknown = sorted(set(data) - fields)
     if unknown:
         raise InputError(f"{source}: unknown option(s) {', '.join(unknown)} (known: {', '.join(sorted(fields))})")
+    if "sh_band_steps" in data and isinstance(data["sh_band_steps"], list):
+        data = {**data, "sh_band_steps": tuple(data["sh_band_steps"])}
     return dataclasses.replace(cfg, **data)
 
 
 def load_config(preset: str = "medium", config_file: str | Path | None = None,
-                overrides: dict | None = None) -> EncoderConfig:
-    if preset not in preset_names():
-        raise InputError(f"unknown preset {preset!r}; choose one of {', '.join(preset_names())}")
-    text = resources.files("lghcc.encoder").joinpath("presets", f"{preset}.yaml").read_text()
-    cfg = _apply(EncoderConfig(), yaml.safe_load(text) or {}, f"preset {preset}")
+                overrides: dict | None = None, kind: str = "anchors"):
+    """The configuration of ``preset`` for anchor scenes (EncoderConfig) or, with ``kind``
+    "gaussians", explicit-Gaussian scenes (GaussianEncoderConfig), then the fields of
+    ``config_file`` (YAML) and ``overrides`` (None values ignored)."""
+    if preset not in preset_names(kind):
+        raise InputError(f"unknown preset {preset!r} for {kind}; choose one of {', '.join(preset_names(kind))}")
+    file = f"{GAUSSIAN_PRESET_PREFIX}{preset}.yaml" if kind == "gaussians" else f"{preset}.yaml"
+    text = resources.files("lghcc.encoder").joinpath("presets", file).read_text()
+    base = GaussianEncoderConfig() if kind == "gaussians" else EncoderConfig()
+    cfg = _apply(base, yaml.safe_load(text) or {}, f"preset {preset}")
     if config_file is not None:
         try:
             data = yaml.safe_load(Path(config_file).read_text())

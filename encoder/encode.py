@@ -24,14 +24,15 @@ from lghcc.common.geometry import encode_geometry, normative_order
 from lghcc.common.hashing import scene_digest
 from lghcc.common.render_model import dequantize, write_render_model_unit
 from lghcc.common.report import SizeBreakdown, breakdown_of
-from lghcc.common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene, RenderMLP
+from lghcc.common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene, GaussianScene, RenderMLP
 from lghcc.common.hierarchy import build_hierarchy
 from lghcc.common.units import (CONTEXT_PER_CHANNEL_PRIOR, LEVEL_1, LEVEL_2, LEVEL_ALL, MASK_PROB_BITS, MAX_ANCHORS,
-                                MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, PRIOR_MEAN_MAX, AttributeUnitHeader, DecodedSceneHashUnit,
-                                RenderMlpHeader, SceneParameterSet)
+                                MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, MAX_PREDICTED_MAGNITUDE, PRIOR_MEAN_MAX,
+                                AttributeUnitHeader, DecodedSceneHashUnit, RenderMlpHeader, SceneParameterSet)
 from lghcc.encoder.config import EncoderConfig, context_model_size
 from lghcc.encoder.context_fit import ContextFitError, fit_level2_context
 from lghcc.encoder.ggconv_train import ContextTwin, GGConvTrainConfig
+from lghcc.encoder.prediction import fit_channel_prediction
 
 UNIT_FRAMING_BYTES = UNIT_HEADER_BYTES + UNIT_CRC_BYTES
 MAX_QUANTIZED_MAGNITUDE = 2 ** 52  # |x / step| beyond this cannot be rounded exactly in float64
@@ -44,13 +45,14 @@ class LevelCoding:
     params: attr.CodingParams
     payload: bytes
     header: AttributeUnitHeader
+    prediction: attr.ChannelPrediction | None = None
 
 
 @dataclass
 class EncodeResult:
     data: bytes
     breakdown: SizeBreakdown
-    decoded: AnchorScene  # the scene the decoder will output, bit for bit
+    decoded: AnchorScene | GaussianScene  # the scene the decoder will output, bit for bit
     scene_hash: bytes
     stats: dict = field(default_factory=dict)
 
@@ -158,88 +160,73 @@ def quantize_render_model(mlps: dict[str, RenderMLP], bits: int):
     return write_render_model_unit(headers, tensors), decoded
 
 
-def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress: bool = False,
-                 measure_ideal: bool = False, context_twin: ContextTwin | None = None) -> EncodeResult:
-    """Encode a scene. ``measure_ideal`` also computes the attribute model's ideal code length
-    (stats["attribute_ideal_bits"]), a full extra pass over the symbols. ``context_twin``: the
-    GG-Conv twin trained with the scene (lghcc-train --rate-lambda writes it beside the scene):
-    with a GG-Conv context model, a fit started from it is one more candidate (the smallest
-    stream is kept); a twin that does not fit the configuration is reported in stats and unused."""
-    cfg = (cfg or EncoderConfig()).validate()
-    scene.validate()
-    stats: dict = {}
-    if cfg.pruning != "none":
-        scene, report = prune_scene(scene, cfg)
-        stats["pruning"] = str(report)
-        stats["anchors_before_pruning"] = report.num_before
-    n = scene.num_anchors
-    if n > MAX_ANCHORS:
-        raise InputError(f"{n} anchors exceed the profile's limit of {MAX_ANCHORS}")
-    t0 = time.perf_counter()
-    bar = tqdm(total=5, desc="encode", unit="step", disable=not progress, leave=False)
+@dataclass
+class CodedAttributes:
+    """The attribute units of a scene and what they decode to."""
+    payloads: list[bytes]  # one per level
+    context_payload: bytes | None
+    recon: np.ndarray  # float32 [N, M]: the decoded values, bit for bit
 
-    bar.set_postfix_str("geometry")
-    order = normative_order(scene.coords)
-    coords = scene.coords[order]
-    geometry_payload = encode_geometry(coords)
-    stats["time_geometry_s"] = time.perf_counter() - t0
-    bar.update()
 
-    bar.set_postfix_str("quantization")
-    mask = None if scene.offset_mask is None else scene.offset_mask[order].astype(bool)
-    if mask is not None and mask.all():
-        mask = None  # every offset is live: the mask tool is switched off and costs nothing
-    levels = [(LEVEL_ALL, np.arange(n))]
+def level_layout(num_points: int, cfg, coords: np.ndarray, stats: dict):
+    """-> (levels [(attribute_level, rows)], hierarchy or None): one level of every point, or
+    level 1 and level 2 when the configuration asks for the hierarchy and level 2 is not empty
+    (an empty level 2 switches the hierarchy off: it costs no bits)."""
+    levels = [(LEVEL_ALL, np.arange(num_points))]
+    hier = None
     if cfg.hierarchy:
         hier = build_hierarchy(coords, cfg.coarse_voxel_scale)
-        if hier.num_level2:  # an empty level 2 switches the hierarchy off: it costs no bits
+        if hier.num_level2:
             levels = [(LEVEL_1, hier.level1_idx), (LEVEL_2, hier.level2_idx)]
             stats["num_level1"], stats["num_level2"] = hier.num_level1, hier.num_level2
-    sps = SceneParameterSet(
-        num_anchors_minus1=n - 1, feature_dim_minus1=scene.feature_dim - 1,
-        num_offsets_minus1=scene.num_offsets - 1, voxel_size=float(scene.voxel_size),
-        origin=[float(x) for x in scene.origin], offset_mask_present_flag=int(mask is not None),
-        feature_step=cfg.feature_step, scaling_step=cfg.scaling_step, offset_step=cfg.offset_step,
-        hierarchy_enabled_flag=int(len(levels) == 2), coarse_voxel_scale_minus1=cfg.coarse_voxel_scale - 1)
-    layout = attr.ChannelLayout(scene.feature_dim, scene.num_offsets)
-    if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
-        raise InputError(f"{n} anchors x {layout.num_channels} channels exceed the profile's limit")
-    sps = SceneParameterSet.from_bytes(sps.to_bytes())  # exactly the values the decoder will see
-    steps = layout.steps(sps)
-    values = layout.join(scene.features[order], scene.scalings[order], scene.offsets[order])
-    live = layout.live_channels(mask, n)
-    if live is None:
-        live = np.ones((n, layout.num_channels), dtype=bool)
-    bar.update()
+        else:
+            hier = None
+    return levels, hier
 
-    bar.set_postfix_str("attributes")
-    t1 = time.perf_counter()
+
+def code_attributes(values: np.ndarray, live: np.ndarray, mask: np.ndarray | None, coords: np.ndarray, levels,
+                    hier, layout, steps: np.ndarray, cfg, stats: dict, *, progress: bool = False,
+                    measure_ideal: bool = False, context_twin: ContextTwin | None = None) -> CodedAttributes:
+    """Quantize and code the attribute values [N, M] (normative order) level by level: the
+    per-channel prior, and for level 2 the configured context model when it codes smaller
+    (fits of each candidate; the smallest stream is kept). ``live`` bool [N, M]: the values
+    that are coded (dead offsets are not); ``mask``: the offset mask (anchor scenes) or None.
+    Cross-channel prediction is fitted where the layout allows it (Gaussian scenes)."""
+    n = values.shape[0]
     recon = np.zeros_like(values, dtype=np.float32)
-    attribute_payloads = []
+    payloads = []
     if measure_ideal:
         stats["attribute_ideal_bits"] = 0.0
     stats["attribute_coded_bits"] = 0
     q_level1 = None
     context_payload = None
+    predict = bool(layout.channel_prediction_allowed) and getattr(cfg, "channel_prediction", False)
     for level, rows in levels:
         level_live = live[rows]
         level_mask = None if mask is None else mask[rows]
 
         def new_header() -> AttributeUnitHeader:
-            h = AttributeUnitHeader(
-                num_channels=layout.num_channels, num_offsets=scene.num_offsets,
-                offset_mask_present=int(mask is not None), num_rows=rows.size, attribute_level=level,
-                rows_per_chunk_minus1=min(cfg.rows_per_chunk, rows.size) - 1)
+            h = attr.new_attribute_header(layout, rows.size, level)
+            h.rows_per_chunk_minus1 = min(cfg.rows_per_chunk, rows.size) - 1
             if mask is not None:
                 p = np.clip(np.rint(level_mask.mean(axis=0) * (1 << MASK_PROB_BITS)), 1, (1 << MASK_PROB_BITS) - 1)
                 h.mask_live_prob = [int(x) for x in p]
             return h
 
         def code(header: AttributeUnitHeader, q: np.ndarray, params: attr.CodingParams) -> LevelCoding:
-            payload = attr.write_attribute_unit(header, layout, q, level_mask, params)
-            return LevelCoding(q, params, payload, header)
+            prediction = None
+            if predict:
+                prediction, levels_after = fit_channel_prediction(q, params, layout, level_live)
+                if header.context_model_id == CONTEXT_PER_CHANNEL_PRIOR:  # the prior's levels follow the residuals
+                    header.prior_level = levels_after.tolist()
+                    params = attr.prior_params(header)
+            payload = attr.write_attribute_unit(header, layout, q, level_mask, params, prediction)
+            return LevelCoding(q, params, payload, header, prediction)
 
         q = np.where(level_live, quantize(values[rows], steps, "attributes"), 0)
+        if layout.channel_prediction_allowed and np.abs(q).max(initial=0) > MAX_PREDICTED_MAGNITUDE:
+            raise InputError(f"a value is {float(np.abs(q).max()):.3g} quantization steps from zero, beyond the "
+                             "2^40 steps a Gaussian scene allows; use a larger step")
         header = new_header()
         means, lv = fit_per_channel_prior(q, level_live, cfg.prior_fit_rows)
         header.context_model_id = CONTEXT_PER_CHANNEL_PRIOR
@@ -258,19 +245,14 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
             bases_to_try = ["choose", "parent"] if cfg.context_parent_base == "auto" else [cfg.context_parent_base]
             candidates = [(nb_level, base_mode, context_train_config(cfg, rows.size, nb_level, base_mode, progress))
                           for nb_level, base_mode in itertools.product(levels_to_try, bases_to_try)]
-            if context_twin is not None and cfg.context_model == "ggconv":
-                why = context_twin.mismatch(scene.feature_dim, layout.num_channels, cfg.coarse_voxel_scale,
-                                            cfg.context_k, steps)
-                if why:
-                    stats["context_twin_unused"] = why
-                else:
-                    candidates.append((context_twin.neighbour_level, "twin",
-                                       twin_train_config(cfg, context_twin, rows.size, progress)))
+            if context_twin is not None:
+                candidates.append((context_twin.neighbour_level, "twin",
+                                   twin_train_config(cfg, context_twin, rows.size, progress)))
             with_context = unit = None
             for nb_level, base_mode, train_cfg in candidates:
                 try:
                     fitted = fit_level2_context(cfg.context_model, coords[hier.level1_idx], q_level1, coords[rows],
-                                                hier.parent_of_level2, targets, scene.feature_dim,
+                                                hier.parent_of_level2, targets, layout.feature_dim,
                                                 cfg.coarse_voxel_scale, train_cfg)
                 except ContextFitError as e:  # informative: the stream then uses the per-channel prior
                     stats["context_fit_error"] = str(e)
@@ -303,19 +285,86 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
                                              + UNIT_FRAMING_BYTES < len(chosen.payload)):
                 chosen, context_payload = with_context, unit
         stats[f"level{level}_context_model"] = CONTEXT_MODEL_NAMES[chosen.header.context_model_id]
+        if predict:
+            stats[f"level{level}_channel_predictions"] = chosen.header.num_channel_predictions
         if level == LEVEL_1:
             q_level1 = chosen.q
-        attribute_payloads.append(chosen.payload)
+        payloads.append(chosen.payload)
         lq, lp = chosen.q, chosen.params
         if measure_ideal:
+            res = (chosen.prediction or attr.ChannelPrediction.none()).residuals(lq, lp.mean)
             stats["attribute_ideal_bits"] += ideal_code_length_bits(
-                (lq - lp.mean)[level_live], np.broadcast_to(lp.level, lq.shape)[level_live])
+                res[level_live], np.broadcast_to(lp.level, lq.shape)[level_live])
         stats["attribute_coded_bits"] += 8 * sum(chosen.header.chunk_size)
         stats[f"attribute_bytes_level{level}"] = len(chosen.payload)
         with np.errstate(over="ignore", invalid="ignore"):
             recon[rows] = attr.reconstruct(lq, steps, lp.step_adjust)
         if not np.isfinite(recon[rows]).all():
             raise InputError("an attribute value would decode beyond the binary32 range; use a smaller value or step")
+    return CodedAttributes(payloads, context_payload, recon)
+
+
+def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress: bool = False,
+                 measure_ideal: bool = False, context_twin: ContextTwin | None = None) -> EncodeResult:
+    """Encode a scene. ``measure_ideal`` also computes the attribute model's ideal code length
+    (stats["attribute_ideal_bits"]), a full extra pass over the symbols. ``context_twin``: the
+    GG-Conv twin trained with the scene (lghcc-train --rate-lambda writes it beside the scene):
+    with a GG-Conv context model, a fit started from it is one more candidate (the smallest
+    stream is kept); a twin that does not fit the configuration is reported in stats and unused."""
+    cfg = (cfg or EncoderConfig()).validate()
+    scene.validate()
+    stats: dict = {}
+    if cfg.pruning != "none":
+        scene, report = prune_scene(scene, cfg)
+        stats["pruning"] = str(report)
+        stats["anchors_before_pruning"] = report.num_before
+    n = scene.num_anchors
+    if n > MAX_ANCHORS:
+        raise InputError(f"{n} anchors exceed the profile's limit of {MAX_ANCHORS}")
+    t0 = time.perf_counter()
+    bar = tqdm(total=5, desc="encode", unit="step", disable=not progress, leave=False)
+
+    bar.set_postfix_str("geometry")
+    order = normative_order(scene.coords)
+    coords = scene.coords[order]
+    geometry_payload = encode_geometry(coords)
+    stats["time_geometry_s"] = time.perf_counter() - t0
+    bar.update()
+
+    bar.set_postfix_str("quantization")
+    mask = None if scene.offset_mask is None else scene.offset_mask[order].astype(bool)
+    if mask is not None and mask.all():
+        mask = None  # every offset is live: the mask tool is switched off and costs nothing
+    levels, hier = level_layout(n, cfg, coords, stats)
+    sps = SceneParameterSet(
+        num_anchors_minus1=n - 1, feature_dim_minus1=scene.feature_dim - 1,
+        num_offsets_minus1=scene.num_offsets - 1, voxel_size=float(scene.voxel_size),
+        origin=[float(x) for x in scene.origin], offset_mask_present_flag=int(mask is not None),
+        feature_step=cfg.feature_step, scaling_step=cfg.scaling_step, offset_step=cfg.offset_step,
+        hierarchy_enabled_flag=int(len(levels) == 2), coarse_voxel_scale_minus1=cfg.coarse_voxel_scale - 1)
+    sps = SceneParameterSet.from_bytes(sps.to_bytes())  # exactly the values the decoder will see
+    layout = attr.layout_of(sps)
+    if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
+        raise InputError(f"{n} anchors x {layout.num_channels} channels exceed the profile's limit")
+    steps = layout.steps(sps)
+    values = layout.join(scene.features[order], scene.scalings[order], scene.offsets[order])
+    live = layout.live_channels(mask, n)
+    if live is None:
+        live = np.ones((n, layout.num_channels), dtype=bool)
+    bar.update()
+
+    bar.set_postfix_str("attributes")
+    t1 = time.perf_counter()
+    twin = None
+    if context_twin is not None and cfg.context_model == "ggconv" and hier is not None:
+        why = context_twin.mismatch(scene.feature_dim, layout.num_channels, cfg.coarse_voxel_scale, cfg.context_k,
+                                    steps)
+        if why:
+            stats["context_twin_unused"] = why
+        else:
+            twin = context_twin
+    coded = code_attributes(values, live, mask, coords, levels, hier, layout, steps, cfg, stats, progress=progress,
+                            measure_ideal=measure_ideal, context_twin=twin)
     stats["time_attributes_s"] = time.perf_counter() - t1
     bar.update()
 
@@ -328,15 +377,15 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
     bar.update()
 
     bar.set_postfix_str("hash")
-    features, scalings, offsets = layout.split(recon)
+    features, scalings, offsets = layout.split(coded.recon)
     decoded = AnchorScene(coords=coords, voxel_size=float(sps.voxel_size),
                           origin=np.asarray(sps.origin, dtype=np.float32), features=features, scalings=scalings,
                           offsets=offsets, offset_mask=mask, mlps=decoded_mlps)
     digest = scene_digest(decoded)
     units.append(DataUnit(UnitType.GEOMETRY, geometry_payload))
-    if context_payload is not None:
-        units.append(DataUnit(UnitType.CONTEXT_MODEL, context_payload))
-    units += [DataUnit(UnitType.ATTRIBUTE, p) for p in attribute_payloads]
+    if coded.context_payload is not None:
+        units.append(DataUnit(UnitType.CONTEXT_MODEL, coded.context_payload))
+    units += [DataUnit(UnitType.ATTRIBUTE, p) for p in coded.payloads]
     units.append(DataUnit(UnitType.DECODED_SCENE_HASH, DecodedSceneHashUnit(scene_hash=digest).to_bytes()))
     data = write_container(units)
     bar.update()

@@ -94,6 +94,9 @@ class TrainConfig:
     images: str = "images"  # LLFF/COLMAP image folder
     seed: int = 0
     threads: int = 2
+    # where the rasterizer runs: cpu, or cuda (gsplat; lghcc.render.rasterizer.select_device, the
+    # one seam); the MLPs and the optimizer stay on the CPU. Like threads, a resumed run may change it.
+    device: str = "cpu"
     eval_interval: int = 1000
     eval_views: int = 0  # test views used at intermediate evaluations (0: all); the final one uses all
     checkpoint_interval: int = 1000
@@ -346,7 +349,10 @@ class Trainer:
     PARAMS = ("features", "scalings", "offsets")
 
     def __init__(self, cfg: TrainConfig, ds: Dataset, out: Path):
+        from lghcc.render.rasterizer import rasterize_with, select_device
+
         self.cfg, self.ds, self.out = cfg, ds, out
+        self.rasterize = rasterize_with(select_device(cfg.device))
         self.bg = torch.as_tensor(_background(cfg.background), dtype=torch.float32)
         self.train_images = [torch.from_numpy(np.ascontiguousarray(c.image, np.float32)) for c in ds.train]
         self.spatial_lr_scale = camera_extent(ds.train)
@@ -508,8 +514,6 @@ class Trainer:
         from lghcc.render.metrics import ssim_torch
         from lghcc.render.neural_gaussians import (anchor_bounding_radii, generate_neural_gaussians,
                                                    visible_anchors)
-        from lghcc.render.rasterizer import rasterize
-
         cfg = self.cfg
         it = self.iteration + 1
         self._set_lr(it)
@@ -522,7 +526,7 @@ class Trainer:
             self.iteration = it
             return {"loss": float("nan"), "gaussians": 0}
         ng.means.retain_grad()
-        res = rasterize(ng.means, ng.quats, ng.scales, ng.opacities, ng.colors, cam, background=self.bg)
+        res = self.rasterize(ng.means, ng.quats, ng.scales, ng.opacities, ng.colors, cam, background=self.bg)
         img = res.image
         l1 = (img - gt).abs().mean()
         loss = (1 - cfg.lambda_dssim) * l1 + cfg.lambda_dssim * (1 - ssim_torch(img, gt))
@@ -922,6 +926,9 @@ class TrainResult:
 
 
 def _check_config(cfg: TrainConfig) -> None:
+    from lghcc.render.rasterizer import select_device
+
+    select_device(cfg.device)  # 'no CUDA device: ...' before the data is loaded
     for name in ("iterations", "feature_dim", "num_offsets", "init_points", "threads", "eval_interval",
                  "checkpoint_interval", "densify_interval", "downscale"):
         v = getattr(cfg, name)
@@ -982,6 +989,7 @@ def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, stop_after
         state = read_train_state(out)
         saved = TrainConfig(**state["config"])
         saved.threads = cfg.threads  # a resumed run may change the threads and extend the iterations
+        saved.device = cfg.device
         reached = int(state["iteration"])
         if iterations is not None and iterations != saved.iterations:
             if iterations < reached:
@@ -1109,6 +1117,9 @@ def setup_args() -> argparse.ArgumentParser:
     g.add_argument("--iterations", type=int, default=d.iterations, help=f"training steps, one view each (default {d.iterations})")
     g.add_argument("--seed", type=int, default=d.seed, help="random seed (default 0): same seed, same result")
     g.add_argument("--threads", type=int, default=d.threads, help=f"CPU threads for torch (default {d.threads})")
+    g.add_argument("--device", choices=("cpu", "cuda"), default=d.device,
+                   help="where the rasterizer runs: cpu (default), or cuda (gsplat's CUDA rasterizer: pip install "
+                        "'lghcc[gsplat]'; the MLPs and the optimizer stay on the CPU)")
     g.add_argument("--time-limit", type=float, metavar="MIN",
                    help="stop after this many minutes of training (checkpoint + full evaluation); resume later")
     g.add_argument("--stop-after", type=int, metavar="N",
@@ -1254,7 +1265,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.resume:
             given = explicit_options(args, argv) - {"data"}
             iterations = cfg.iterations if "iterations" in given else None
-            ignored = sorted(given - {"iterations", "threads"})
+            ignored = sorted(given - {"iterations", "threads", "device"})
             if ignored:
                 print("lghcc-train: --resume uses the run's saved settings; ignored: "
                       + ", ".join("--" + k.replace("_", "-") for k in ignored), file=sys.stderr)

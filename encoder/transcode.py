@@ -65,6 +65,9 @@ class TranscodeConfig:
     seed: int = 0
     progress: bool = False
     threads: int | None = None
+    # where the fitting's rasterizer runs: cpu or cuda (gsplat; lghcc.render.rasterizer.select_device).
+    # The held-out evaluation always renders on the CPU (evaluate_views), so reported PSNRs compare.
+    device: str = "cpu"
 
 
 @dataclass
@@ -259,8 +262,11 @@ def evaluate_views(scene, cams: list[Camera], targets: list[torch.Tensor]) -> fl
 
 def transcode_3dgs(source: str | Gaussians3DGS, cfg: TranscodeConfig | None = None, log=None) -> TranscodeResult:
     """A plain 3DGS scene (a PLY path or loaded Gaussians) -> an AnchorScene (module doc)."""
+    from lghcc.render.rasterizer import select_device
+
     cfg = cfg or TranscodeConfig()
     say = log or (lambda *a: None)
+    backend = select_device(cfg.device)  # 'no CUDA device: ...' before any work
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     t0 = time.perf_counter()
@@ -276,7 +282,7 @@ def transcode_3dgs(source: str | Gaussians3DGS, cfg: TranscodeConfig | None = No
     cam_dist = float(np.linalg.norm(train[0].center - center))
     with torch.no_grad():
         bar = tqdm(train + test, desc="transcode: render source", unit="view", disable=not cfg.progress, leave=False)
-        targets = [render_3dgs(g, cam, backend="torch").image.clamp(0, 1) for cam in bar]
+        targets = [render_3dgs(g, cam, backend=backend).image.clamp(0, 1) for cam in bar]
     t_train, t_test = targets[:len(train)], targets[len(train):]
     t_render = time.perf_counter() - t0
     a = anchorize(g, cfg)
@@ -302,7 +308,7 @@ def transcode_3dgs(source: str | Gaussians3DGS, cfg: TranscodeConfig | None = No
     bar = tqdm(range(cfg.iterations), desc="transcode: fit", unit="it", disable=not cfg.progress, leave=False)
     for it in bar:
         j = int(rng.integers(len(train)))
-        img = render_scene(st, train[j], backend="torch").image
+        img = render_scene(st, train[j], backend=backend).image
         l1 = (img - t_train[j]).abs().mean()
         loss = (1 - cfg.lambda_dssim) * l1 + cfg.lambda_dssim * (1 - ssim_torch(img, t_train[j]))
         _optimizer_step(opt, sched, loss, losses, bar)

@@ -226,6 +226,38 @@ def _coefficients(mx: torch.Tensor, my: torch.Tensor, a: torch.Tensor, b: torch.
                         -(a * mx + b * my), -(c * my + b * mx), 0.5 * a, 0.5 * c, b], -1)
 
 
+def _composite_forward(md, cn, op, ft, th, plan: TilePlan, m: int, acc: torch.Tensor | None = None,
+                       weight_sum: torch.Tensor | None = None) -> list:
+    """The front-to-back compositing of every tile batch (padded inputs, Gaussian m the pad):
+    w_i = alpha_i T_i per pixel; adds sum_i w_i f_i into ``acc`` [tiles, pixels, d] and, when
+    given, each Gaussian's sum of w_i over the pixels into ``weight_sum`` [m + 1]. Returns the
+    transmittance carries at each chunk start (the backward pass recomputes from them)."""
+    dt = md.dtype
+    ts = plan.tile_size
+    npx = ts * ts
+    basis = _pixel_basis(ts, dt)
+    carries = []
+    with torch.no_grad():
+        for tiles, length, lc in plan.batches:
+            idx, centres = _batch_index(plan, tiles, length, m)
+            carry = torch.zeros(len(tiles), npx, 1, dtype=dt)
+            saved = []
+            for s0 in range(0, length, lc):
+                saved.append(carry)
+                g = idx[:, s0:s0 + lc]
+                alpha, _, _ = _alpha(g, centres, md, cn, op, th, basis)  # [B, P, L]
+                la = torch.log1p(-alpha)
+                cs = torch.cumsum(la, 2).add_(carry)
+                w = (cs - la).clamp_(min=-80.0).exp_().mul_(alpha).mul_(cs >= LOG_T_MIN)
+                if acc is not None:
+                    acc[tiles] += torch.bmm(w, ft[g])
+                if weight_sum is not None:
+                    weight_sum.index_add_(0, g.reshape(-1), w.sum(1).reshape(-1).to(weight_sum.dtype))
+                carry = cs[:, :, -1:]
+            carries.append(saved)
+    return carries
+
+
 class _Composite(torch.autograd.Function):
     """acc[tile, pixel, :] = sum_i w_i f_i with w_i = alpha_i T_i (front to back)."""
 
@@ -233,29 +265,10 @@ class _Composite(torch.autograd.Function):
     def forward(ctx, means2d, conics, opacities, feats, thresh, plan: TilePlan):
         dt = feats.dtype
         m, d = feats.shape
-        ts = plan.tile_size
-        npx = ts * ts
-        ntiles = plan.tiles_x * plan.tiles_y
-        acc = torch.zeros(ntiles, npx, d, dtype=dt)
-        basis = _pixel_basis(ts, dt)
+        acc = torch.zeros(plan.tiles_x * plan.tiles_y, plan.tile_size ** 2, d, dtype=dt)
         # padding Gaussian at index m: never drawn (threshold below any power)
         md, cn, op, ft, th = _padded(means2d, conics, opacities, feats, thresh)
-        carries = []
-        with torch.no_grad():
-            for tiles, length, lc in plan.batches:
-                idx, centres = _batch_index(plan, tiles, length, m)
-                carry = torch.zeros(len(tiles), npx, 1, dtype=dt)
-                saved = []
-                for s0 in range(0, length, lc):
-                    saved.append(carry)
-                    g = idx[:, s0:s0 + lc]
-                    alpha, _, _ = _alpha(g, centres, md, cn, op, th, basis)  # [B, P, L]
-                    la = torch.log1p(-alpha)
-                    cs = torch.cumsum(la, 2).add_(carry)
-                    w = (cs - la).clamp_(min=-80.0).exp_().mul_(alpha).mul_(cs >= LOG_T_MIN)
-                    acc[tiles] += torch.bmm(w, ft[g])
-                    carry = cs[:, :, -1:]
-                carries.append(saved)
+        carries = _composite_forward(md, cn, op, ft, th, plan, m, acc=acc)
         ctx.plan, ctx.carries = plan, carries
         ctx.save_for_backward(means2d, conics, opacities, feats, thresh)
         return acc
@@ -398,15 +411,9 @@ def rasterize(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, op
     bg = torch.zeros(nch, dtype=dt) if background is None else torch.as_tensor(background, dtype=dt).reshape(-1)
     if bg.shape != (nch,):
         raise ValueError(f"background must have {nch} values, got {list(bg.shape)}")
-    proj = project_gaussians(means, quats, scales, camera, eps2d)
     op = opacities.to(dt)
-    with torch.no_grad():
-        o = op.detach().double()
-        finite_o = torch.isfinite(o) & (o > 0)
-        lo = torch.log(255.0 * torch.where(finite_o, o, torch.ones_like(o)).clamp(max=1.0))
-        thresh = torch.minimum(lo, torch.full_like(lo, 0.5 * sigma_cutoff ** 2))
-        thresh = torch.where(proj.valid & finite_o & (o * 255.0 >= 1.0), thresh, torch.full_like(thresh, -1.0))
-    plan, keep = _plan_tiles(proj.means2d, proj.cov2d, thresh, proj.depths, w, h, tile_size, chunk_elements)
+    proj, thresh, plan, keep = _project_and_plan(means, quats, scales, op, camera, tile_size, sigma_cutoff, eps2d,
+                                                 chunk_elements)
     kidx = torch.nonzero(keep).squeeze(1)
     # compact to the Gaussians that reach the image
     remap = torch.full((mcount + 1,), -1, dtype=torch.int64)
@@ -429,6 +436,46 @@ def rasterize(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, op
     stats = {"gaussians": mcount, "in_front": int(proj.valid.sum()), "rasterized": int(kidx.numel()),
              "tile_pairs": plan.num_pairs, "batches": len(plan.batches), "backend": "torch"}
     return RenderResult(image, alpha, depth, stats)
+
+
+def _project_and_plan(means, quats, scales, op, camera: Camera, tile_size: int, sigma_cutoff: float, eps2d: float,
+                      chunk_elements: int):
+    """Projection, each Gaussian's drawing threshold (power below ln(255 o), within the sigma
+    cutoff; -1 for those never drawn) and the tile plan: -> (projection, thresh, plan, keep)."""
+    proj = project_gaussians(means, quats, scales, camera, eps2d)
+    with torch.no_grad():
+        o = op.detach().double()
+        finite_o = torch.isfinite(o) & (o > 0)
+        lo = torch.log(255.0 * torch.where(finite_o, o, torch.ones_like(o)).clamp(max=1.0))
+        thresh = torch.minimum(lo, torch.full_like(lo, 0.5 * sigma_cutoff ** 2))
+        thresh = torch.where(proj.valid & finite_o & (o * 255.0 >= 1.0), thresh, torch.full_like(thresh, -1.0))
+    plan, keep = _plan_tiles(proj.means2d, proj.cov2d, thresh, proj.depths, camera.width, camera.height, tile_size,
+                             chunk_elements)
+    return proj, thresh, plan, keep
+
+
+def compositing_weights(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
+                        camera: Camera, *, tile_size: int = 16, sigma_cutoff: float = 3.0, eps2d: float = 0.3,
+                        chunk_elements: int = DEFAULT_CHUNK_ELEMENTS) -> torch.Tensor:
+    """float64 [M]: each Gaussian's compositing weight alpha_i T_i summed over the pixels of
+    ``camera``, as ``rasterize`` draws it (one forward pass, no gradient)."""
+    mcount = means.shape[0]
+    with torch.no_grad():
+        op = opacities.detach().float()
+        proj, thresh, plan, keep = _project_and_plan(means.detach(), quats.detach(), scales.detach(), op, camera,
+                                                     tile_size, sigma_cutoff, eps2d, chunk_elements)
+        kidx = torch.nonzero(keep).squeeze(1)
+        remap = torch.full((mcount + 1,), -1, dtype=torch.int64)
+        remap[kidx] = torch.arange(kidx.numel())
+        plan.gauss = remap[plan.gauss]
+        k = kidx.numel()
+        md, cn, opp, ft, th = _padded(proj.means2d[kidx].float(), proj.conics[kidx].float(), op[kidx].clamp(0, 1),
+                                      torch.zeros(k, 1), thresh[kidx].float())
+        ws = torch.zeros(k + 1, dtype=torch.float64)
+        _composite_forward(md, cn, opp, ft, th, plan, k, weight_sum=ws)
+        out = torch.zeros(mcount, dtype=torch.float64)
+        out[kidx] = ws[:k]
+    return out
 
 
 def render_scene(scene, camera: Camera, *, background=None, cull: bool = True, margin: float = 0.15,
@@ -505,6 +552,39 @@ def select_backend(backend: Backend = "auto") -> str:
                                "use backend='torch' or 'auto'")
         return "gsplat"
     raise ValueError(f"unknown backend {backend!r} (auto, torch or gsplat)")
+
+
+Device = Literal["cpu", "cuda"]
+DEVICES: tuple[str, ...] = ("cpu", "cuda")
+
+
+def select_device(device: str = "cpu") -> str:
+    """The rasterizer backend for a command's ``--device`` (lghcc-train, the transcoder of
+    lghcc-enc): the one seam between a device name and ``select_backend``. 'cpu' -> 'torch'
+    (this module); 'cuda' -> 'gsplat' (gsplat's CUDA rasterizer; the MLPs, the optimizer and
+    everything else stay on the CPU, the rasterizer's inputs and outputs are copied, gradients
+    flow through the copies). Raises InputError before any work: 'no CUDA device: ...' when
+    torch sees no GPU, or naming what is missing when gsplat is not usable."""
+    from lghcc.common.errors import InputError
+
+    if device == "cpu":
+        return select_backend("torch")
+    if device != "cuda":
+        raise InputError(f"unknown device {device!r}: choose one of {', '.join(DEVICES)}")
+    if not torch.cuda.is_available():
+        build = torch.version.cuda
+        raise InputError(f"no CUDA device: torch {torch.__version__} "
+                         + (f"(built for CUDA {build}) finds no GPU" if build else "is a CPU-only build")
+                         + "; use --device cpu, or a machine with an NVIDIA GPU and a CUDA build of torch")
+    try:
+        return select_backend("gsplat")
+    except RuntimeError as e:
+        raise InputError(f"--device cuda: {e}") from None
+
+
+def rasterize_with(backend: str):
+    """``rasterize`` or ``rasterize_gsplat`` for a backend that ``select_backend`` returned."""
+    return rasterize if backend == "torch" else rasterize_gsplat
 
 
 def rasterize_gsplat(means, quats, scales, opacities, colors, camera: Camera, *, background=None,

@@ -129,9 +129,9 @@ def test_a_stale_mutation_is_reported_not_skipped():
 
 @pytest.mark.parametrize("mid, killer", [
     ("entropy.escape_sign", "c004_escape_values"),
-    ("ggconv.tri_ties_down", "c035_ggconv_trilinear_ties"),
-    ("attributes.step_factor_7", "c038_ggconv_limits_every_level_and_step"),
-    ("geometry.count_limit_1023", "c042_geometry_count_limit"),
+    ("ggconv.tri_ties_down", "c044_ggconv_trilinear_ties"),
+    ("attributes.step_factor_7", "c047_ggconv_limits_every_level_and_step"),
+    ("geometry.count_limit_1023", "c051_geometry_count_limit"),
 ])
 def test_named_streams_kill_their_mutations(mid, killer):
     """The harness end to end: the mutation fails the stream written for it, and the same stream passes

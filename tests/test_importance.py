@@ -35,3 +35,15 @@ def test_a_hidden_or_transparent_gaussian_contributes_nothing():
     cam = Camera.look_at((0, -4, 0), (0, 0, 0), width=16, height=16)
     c = gaussian_contributions(means, quats, scales, op, [cam])
     assert c[0] > 1 and c[1] < 0.05 * c[0] and c[2] == 0
+
+
+def test_forward_weights_equal_the_gradient_of_the_image():
+    """compositing_weights (one forward pass) = d(sum of the image) / d(grey level of each Gaussian)."""
+    from lghcc.render.rasterizer import compositing_weights
+
+    g = _gaussians(80, seed=3)
+    cam = Camera.look_at((1, -4, 1), (0, 0, 0), width=48, height=40)
+    grey = torch.ones(80, 1, requires_grad=True)
+    rasterize(*g, grey, cam).image.sum().backward()
+    np.testing.assert_allclose(compositing_weights(*g, cam).numpy(), grey.grad[:, 0].double().numpy(),
+                               rtol=1e-5, atol=1e-6)

@@ -180,7 +180,7 @@ def test_the_plan_bounds_the_resident_memory_of_a_fresh_decoder(sid):
 
 def test_ggconv_beyond_the_extent_limit_is_a_stream_error(capsys):
     """Issue 14's crash: a bare ValueError from common/knn.py; now the level limit of clause 8."""
-    stream = STREAMS / "e015_ggconv_extent_limit" / "stream.lghcc"
+    stream = STREAMS / "e018_ggconv_extent_limit" / "stream.lghcc"
     with pytest.raises(BitstreamError, match="coordinate extent 4294967295 exceeds the level limit of 1753413056"):
         decode_stream(stream.read_bytes())
     assert dec_cli.main([str(stream)]) == EXIT_INVALID_STREAM

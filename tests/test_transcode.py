@@ -178,7 +178,8 @@ def test_encoder_cli_transcodes_a_plain_3dgs_ply(tmp_path, capsys):
     write_3dgs_ply(p, g.means.numpy(), g.sh.numpy(), lg(g.opacities.numpy()), np.log(g.scales.numpy()),
                    g.quats.numpy())
     out = tmp_path / "t.lghcc"
-    assert enc_cli.main([str(p), "-o", str(out), "--transcode-anchors", "30", "--transcode-iterations", "2",
+    assert enc_cli.main([str(p), "-o", str(out), "--mode", "anchors", "--transcode-anchors", "30",
+                         "--transcode-iterations", "2",
                          "--transcode-distill-steps", "5", "--transcode-views", "2", "--transcode-resolution", "16",
                          "--transcode-feature-dim", "4", "--transcode-offsets", "6"]) == 0
     err = capsys.readouterr()

@@ -278,8 +278,8 @@ def replace_context_model(data: bytes, decoded, rng: random.Random) -> tuple[byt
     a1 = types.index(UnitType.ATTRIBUTE)
     a2 = a1 + 1
     values = np.empty((sps.num_anchors, m), np.float32)
-    _, _, q1 = attr.read_attribute_unit(units[a1].payload, sps, hier.num_level1, LEVEL_1, values, hier.level1_idx,
-                                        keep_q=True)
+    _, _, q1 = attr.read_attribute_unit(units[a1].payload, layout, layout.steps(sps), hier.num_level1, LEVEL_1,
+                                        values, hier.level1_idx, keep_q=True)
     h2, mask2, q2 = _level2_q(units[a2].payload, sps, hier, q1, coords, units, types, values)
     model_id, params = hand_context_model(rng, sps.feature_dim, m)
     arrays = params.to_arrays()
@@ -332,8 +332,9 @@ def _level2_q(payload, sps, hier, q1, coords, units, types, values):
         def context(model_id):
             return level2_coding_params(model, coords[hier.level1_idx], q1, coords[hier.level2_idx],
                                         hier.parent_of_level2, sps.coarse_voxel_scale)
-    return attr.read_attribute_unit(payload, sps, hier.num_level2, LEVEL_2, values, hier.level2_idx, context,
-                                    keep_q=True)
+    layout = attr.layout_of(sps)
+    return attr.read_attribute_unit(payload, layout, layout.steps(sps), hier.num_level2, LEVEL_2, values,
+                                    hier.level2_idx, context, keep_q=True)
 
 
 # --- one case -----------------------------------------------------------------------------------------

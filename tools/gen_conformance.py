@@ -113,9 +113,52 @@ def random_scene(s: dict):
         features=feats, scalings=scalings, offsets=offsets, offset_mask=mask, mlps=mlps)
 
 
+def random_gaussian_scene(s: dict):
+    """Small random explicit-Gaussian scene: SH degree ``sh_degree``; with ``correlated`` the
+    colours of each SH coefficient and the three scales move together (cross-channel prediction
+    pays off); positions on a grid of ``voxel_size`` within +-``spread`` voxels."""
+    from lghcc.common.scene import GaussianScene
+
+    rng = np.random.default_rng(s["seed"])
+    n, d = s["num_gaussians"], s.get("sh_degree", 0)
+    k = (d + 1) ** 2
+    spread = int(s.get("spread", 64))
+    coords = np.unique(rng.integers(-spread, spread, size=(2 * n + 8, 3), endpoint=True), axis=0)
+    coords = coords[rng.permutation(len(coords))[:n]].astype(np.int64)
+    scale = float(s.get("value_scale", 1.0))
+    if s.get("zero_attributes"):  # every value 0 but the rotations (identity): a zero quaternion is invalid
+        sh, log_scales = np.zeros((n, k, 3)), np.zeros((n, 3))
+        rot = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+        return GaussianScene.on_grid(coords, float(s.get("voxel_size", 0.01)), s.get("origin", [0.0, 0.0, 0.0]),
+                                     sh.astype(np.float32), np.zeros(n, np.float32), log_scales.astype(np.float32),
+                                     rot.astype(np.float32))
+    if s.get("correlated"):
+        sh = rng.normal(size=(n, k, 1)) + 0.1 * rng.normal(size=(n, k, 3))
+        log_scales = rng.normal(-4, 1, size=(n, 1)) + 0.2 * rng.normal(size=(n, 3))
+    else:
+        sh = rng.normal(size=(n, k, 3))
+        log_scales = rng.normal(-4, 1, size=(n, 3))
+    sh[:, 1:] *= 0.2
+    f = lambda a: (scale * np.asarray(a)).astype(np.float32)  # noqa: E731
+    scene = GaussianScene.on_grid(coords, float(s.get("voxel_size", 0.01)), s.get("origin", [0.0, 0.0, 0.0]),
+                                  f(sh), f(rng.normal(0, 2, size=n)), f(log_scales), f(rng.normal(size=(n, 4))))
+    for row, col, value in s.get("outliers", []):  # [row, channel of the Gaussian layout, value]
+        from lghcc.common.attributes import GaussianLayout
+
+        lay = GaussianLayout(d)
+        v = lay.join(scene)
+        v[row, col] = value
+        sh2, op, ls, rot = lay.split(v)
+        scene = GaussianScene.on_grid(coords, scene.voxel_size, scene.origin, sh2.copy(), op.copy(), ls.copy(),
+                                      rot.copy())
+    return scene
+
+
 def build_scene(s: dict):
     from lghcc.common.procedural import make_procedural_scene
 
+    if s["generator"] == "gaussians":
+        return random_gaussian_scene(s)
     if s["generator"] == "procedural":
         return make_procedural_scene(s["num_anchors"], seed=s.get("seed", 0), with_mask=s.get("with_mask", False),
                                      feature_dim=s.get("feature_dim", 50), num_offsets=s.get("num_offsets", 10))
@@ -195,9 +238,10 @@ def _hand_ggconv(units, spec: dict):
     hier = build_hierarchy(coords, sps.coarse_voxel_scale)
     values = np.empty((sps.num_anchors, m), np.float32)
     a1, a2 = _unit_index(units, UnitType.ATTRIBUTE, 0), _unit_index(units, UnitType.ATTRIBUTE, 1)
-    _, _, q1 = attr.read_attribute_unit(units[a1].payload, sps, hier.num_level1, LEVEL_1, values,
+    steps = layout.steps(sps)
+    _, _, q1 = attr.read_attribute_unit(units[a1].payload, layout, steps, hier.num_level1, LEVEL_1, values,
                                         hier.level1_idx, keep_q=True)
-    h2, mask2, q2 = attr.read_attribute_unit(units[a2].payload, sps, hier.num_level2, LEVEL_2, values,
+    h2, mask2, q2 = attr.read_attribute_unit(units[a2].payload, layout, steps, hier.num_level2, LEVEL_2, values,
                                              hier.level2_idx, keep_q=True)
     ch, d = int(spec.get("channels", 1)), int(spec.get("grid", 2))
     rng = np.random.default_rng(int(spec.get("seed", 0)))
@@ -265,11 +309,11 @@ def _rehash(data: bytes) -> bytes:
     """Replace the decoded scene hash by the hash of what the stream decodes to (for edits that
     change the decoded scene on purpose; tests/test_spec_and_conformance.py checks those values)."""
     from lghcc.common.container import DataUnit, UnitType, read_container, write_container
-    from lghcc.common.hashing import scene_digest
+    from lghcc.common.hashing import digest_of
     from lghcc.common.units import DecodedSceneHashUnit
     from lghcc.decoder.decode import decode_stream
 
-    digest = scene_digest(decode_stream(data, verify_hash=False).scene)
+    digest = digest_of(decode_stream(data, verify_hash=False).scene)
     container = read_container(data)
     units = [DataUnit(u.unit_type, u.payload) for u in container.units]
     j = _unit_index(units, UnitType.DECODED_SCENE_HASH)
@@ -327,6 +371,35 @@ def _insert_raw_unit(data: bytes, spec: dict) -> bytes:
     return data[:pos] + body + zlib.crc32(body).to_bytes(4, "big") + data[pos:]
 
 
+def _rewrite_gaussian_attributes(units, edit: dict):
+    """Re-code the (single, level-0) attribute unit of a Gaussian stream: with the cross-channel
+    predictions ``entries`` [[target, source, weight], ...] in place of the encoder's (lossless: the
+    decoded scene is unchanged), and/or with the quantized value at ``set_q`` [row, channel, value]
+    changed (the hash then no longer matches: for error streams)."""
+    from lghcc.common import attributes as attr
+    from lghcc.common.container import DataUnit, UnitType
+    from lghcc.common.units import GaussianParameterSet
+
+    gps = GaussianParameterSet.from_bytes(units[_unit_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
+    layout = attr.gaussian_layout_of(gps)
+    a = _unit_index(units, UnitType.ATTRIBUTE)
+    values = np.empty((gps.num_gaussians, layout.num_channels), np.float32)
+    h, _, q = attr.read_attribute_unit(units[a].payload, layout, layout.steps(gps), gps.num_gaussians, 0, values,
+                                       keep_q=True)
+    if "set_q" in edit:
+        row, ch, value = edit["set_q"]
+        q[row, ch] = value
+    pred = attr.ChannelPrediction.from_header(h, "edit")
+    if "entries" in edit:
+        e = np.asarray(edit["entries"], np.int64).reshape(-1, 3)
+        pred = attr.ChannelPrediction(e[:, 0], e[:, 1], e[:, 2])
+    h2 = attr.new_attribute_header(layout, gps.num_gaussians, 0)
+    h2.rows_per_chunk_minus1 = h.rows_per_chunk_minus1
+    h2.prior_mean, h2.prior_level = list(h.prior_mean), list(h.prior_level)
+    units[a] = DataUnit(UnitType.ATTRIBUTE, attr.write_attribute_unit(h2, layout, q, None, attr.prior_params(h2),
+                                                                      pred))
+
+
 def post_process(data: bytes, post: dict) -> bytes:
     """Edits applied to an encoded stream, in this order: unit edits (which keep valid CRCs),
     then the rehash, then raw byte edits (which may break the framing on purpose)."""
@@ -356,6 +429,16 @@ def post_process(data: bytes, post: dict) -> bytes:
         _set_prior_mean(units, post["set_prior_mean"])
     if "set_render_mlp" in post:
         _set_render_mlp(units, post["set_render_mlp"])
+    if "gaussian_attributes" in post:
+        _rewrite_gaussian_attributes(units, post["gaussian_attributes"])
+    if "set_gps" in post:  # overwrite gaussian parameter set fields
+        from lghcc.common.units import GaussianParameterSet
+
+        j = _unit_index(units, UnitType.GAUSSIAN_PARAMETER_SET)
+        gps = GaussianParameterSet.from_bytes(units[j].payload)
+        for k, v in post["set_gps"].items():
+            setattr(gps, k, v)
+        units[j] = DataUnit(UnitType.GAUSSIAN_PARAMETER_SET, gps.to_bytes())
     import stream_edits  # tools/stream_edits.py: values the encoder never writes, one broken rule each
 
     stream_edits.apply_edits(units, post)
@@ -401,6 +484,7 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
 
     from lghcc.encoder.config import load_config
     from lghcc.encoder.encode import encode_scene
+    from lghcc.encoder.gaussians import encode_gaussian_scene
 
     post = entry.get("post", {})
     if entry["scene"]["generator"] in ("forge_dense", "forge_box"):  # zero attributes (conformance/forge.py)
@@ -426,8 +510,12 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
     before = torch.get_num_threads()
     torch.set_num_threads(1)  # context-model training in float must be reproducible byte for byte
     try:
-        cfg = load_config(entry.get("preset", "medium"), overrides=entry.get("config"))
-        result = encode_scene(build_scene(entry["scene"]), cfg)
+        if entry["scene"]["generator"] == "gaussians":  # the preset's steps; no search, no fit
+            cfg = load_config(entry.get("preset", "medium"), overrides=entry.get("config"), kind="gaussians")
+            result = encode_gaussian_scene(build_scene(entry["scene"]), cfg)
+        else:
+            cfg = load_config(entry.get("preset", "medium"), overrides=entry.get("config"))
+            result = encode_scene(build_scene(entry["scene"]), cfg)
     finally:
         torch.set_num_threads(before)
     data = post_process(result.data, post)
@@ -457,6 +545,8 @@ Tags of test.yaml `tools`, derived from the reference decoder's result (never wr
   ggconv_neighbour_level_<n>   a GG-Conv model whose neighbours are the level-n anchors (Annex H.5)
   context_parent_base_<b>      a context model with a channel whose parent_base is b (Annex H.5.3)
   context_model_unit    a context-model unit
+  gaussians             an explicit-Gaussian scene (gaussian_parameter_set), sh_degree_<d> its SH degree
+  channel_prediction    an attribute unit with cross-channel predictions (clause 11.6)
   offset_mask           offset_mask_present_flag = 1
   chunks                an attribute unit with more than one chunk; empty_chunk: a chunk of 0 bytes
   escape                the decoder decoded an escaped residual (spec 10.5) in some unit
@@ -467,7 +557,8 @@ Tags of test.yaml `tools`, derived from the reference decoder's result (never wr
   error streams: container (rejected by the container layer: framing, CRC, version, profile,
   unit types, order), hash (HashMismatchError), level_limits (N * M above the limit), the stage
   that rejected it (attributes, geometry, render_model, hierarchy, context_model: the module of
-  the innermost frame), and the tags of the parts that parse (hierarchy, offset_mask, ...)."""
+  the innermost frame; scene_parameter_set or gaussian_parameter_set: an element of the parameter
+  set out of its range), and the tags of the parts that parse (hierarchy, offset_mask, ...)."""
 
 
 class EscapeCounter:
@@ -505,7 +596,7 @@ def _structure_tags(data: bytes) -> set[str]:
     from lghcc.common import attributes as attr
     from lghcc.common.container import UnitType, read_container
     from lghcc.common.errors import LghccError
-    from lghcc.common.units import MAX_ATTRIBUTE_VALUES, SceneParameterSet
+    from lghcc.common.units import MAX_ATTRIBUTE_VALUES, GaussianParameterSet, SceneParameterSet
 
     units = read_container(data).units
     tags = set()
@@ -528,6 +619,18 @@ def _structure_tags(data: bytes) -> set[str]:
         if sps.offset_mask_present_flag:
             tags.add("offset_mask")
         if sps.num_anchors * attr.layout_of(sps).num_channels > MAX_ATTRIBUTE_VALUES:
+            tags.add("level_limits")
+    gps_units = [u for u in units if u.unit_type == UnitType.GAUSSIAN_PARAMETER_SET]
+    try:
+        gps = GaussianParameterSet.from_bytes(gps_units[0].payload) if gps_units else None
+    except LghccError:  # a gps element out of its range: the stream is rejected there
+        tags |= {"gaussians", "gaussian_parameter_set"}
+        gps = None
+    if gps is not None:
+        tags |= {"gaussians", f"sh_degree_{gps.sh_degree}"}
+        if gps.hierarchy_enabled_flag:
+            tags.add("hierarchy")
+        if gps.num_gaussians * attr.gaussian_layout_of(gps).num_channels > MAX_ATTRIBUTE_VALUES:
             tags.add("level_limits")
     return tags
 
@@ -560,12 +663,15 @@ def derive_tools(data: bytes) -> list[str]:
         tags.add("container_version")
     for u in container.units:
         if u.unit_type == UnitType.CONTEXT_MODEL:
-            from lghcc.common.attributes import ChannelLayout
+            from lghcc.common.attributes import ChannelLayout, GaussianLayout
             from lghcc.common.context.models import read_context_model
+            from lghcc.common.scene import GaussianScene
             from lghcc.common.units import CONTEXT_GGCONV
 
             sc = res.scene
-            model_id, params = read_context_model(u.payload, ChannelLayout(sc.feature_dim, sc.num_offsets))
+            layout = GaussianLayout(sc.sh_degree) if isinstance(sc, GaussianScene) else \
+                ChannelLayout(sc.feature_dim, sc.num_offsets)
+            model_id, params = read_context_model(u.payload, layout)
             if model_id == CONTEXT_GGCONV:
                 tags.add(f"ggconv_neighbour_level_{params.neighbour_level}")
             tags.update(f"context_parent_base_{b}" for b in np.unique(params.parent_base).tolist())
@@ -580,6 +686,8 @@ def derive_tools(data: bytes) -> list[str]:
             tags.add({0: "per_channel_prior", 1: "parent_mlp_context", 2: "ggconv_context"}[int(value)])
         elif name == "render_model_unit.num_mlps" and value == 0:
             tags.add("render_model_empty")
+        elif name == "attribute_unit_header.num_channel_predictions" and value > 0:
+            tags.add("channel_prediction")
         elif name == "attribute_unit_header.rows_per_chunk_minus1":
             chunk_sizes.append(0)
         elif name == "attribute_unit_header.chunk_size":
@@ -601,11 +709,11 @@ def check_expectation(entry: dict, data: bytes, decoded: str | None) -> None:
     """The reference decoder must do with the stream what sources.yaml says: decode it to
     ``decoded``, or reject it with ``expect_error`` whose message holds ``expect_message``."""
     from lghcc.common.errors import LghccError
-    from lghcc.common.hashing import scene_digest
+    from lghcc.common.hashing import digest_of
     from lghcc.decoder.decode import decode_stream
 
     try:
-        digest = scene_digest(decode_stream(data).scene).hex()
+        digest = digest_of(decode_stream(data).scene).hex()
     except LghccError as e:
         if entry.get("expect") != "error":
             raise SystemExit(f"{entry['id']}: the reference decoder rejects the stream: {e}") from None

@@ -38,8 +38,10 @@ def _level0_q(units):
     """The single (no hierarchy) attribute unit: its header, masks and quantized values."""
     sps = _sps(units)
     j = _index(units, UnitType.ATTRIBUTE)
-    values = np.empty((sps.num_anchors, attr.layout_of(sps).num_channels), np.float32)
-    h, mask, q = attr.read_attribute_unit(units[j].payload, sps, sps.num_anchors, 0, values, keep_q=True)
+    layout = attr.layout_of(sps)
+    values = np.empty((sps.num_anchors, layout.num_channels), np.float32)
+    h, mask, q = attr.read_attribute_unit(units[j].payload, layout, layout.steps(sps), sps.num_anchors, 0, values,
+                                          keep_q=True)
     return sps, j, h, mask, q
 
 
@@ -446,9 +448,10 @@ def designed_model(units, spec: dict) -> None:
     a1, a2 = _index(units, UnitType.ATTRIBUTE, 0), _index(units, UnitType.ATTRIBUTE, 1)
     if UnitType.CONTEXT_MODEL in [u.unit_type for u in units]:
         raise ValueError("designed_model starts from a stream without a context model")
-    _, _, q1 = attr.read_attribute_unit(units[a1].payload, sps, hier.num_level1, LEVEL_1, values, hier.level1_idx,
-                                        keep_q=True)
-    h2, mask2, _ = attr.read_attribute_unit(units[a2].payload, sps, hier.num_level2, LEVEL_2, values,
+    steps = layout.steps(sps)
+    _, _, q1 = attr.read_attribute_unit(units[a1].payload, layout, steps, hier.num_level1, LEVEL_1, values,
+                                        hier.level1_idx, keep_q=True)
+    h2, mask2, _ = attr.read_attribute_unit(units[a2].payload, layout, steps, hier.num_level2, LEVEL_2, values,
                                             hier.level2_idx, keep_q=True)
     rng = np.random.default_rng(int(spec.get("seed", 0)))
     base = {"ones": np.ones(m, np.int64), "zeros": np.zeros(m, np.int64),

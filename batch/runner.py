@@ -1,0 +1,326 @@
+"""Running a sweep: which cells are left, where they run (Ray or this process), what is kept.
+
+The output folder:
+
+    cells/<cell>.json      one per cell: status ok (its result) or failed (its error), and the
+                           fingerprint of the settings it was run with
+    streams/<cell>.lghcc   the stream of each finished cell
+    prepared/<scene>.tar   each prepared scene (batch/work.py), kept so that a rerun with more
+                           presets neither trains nor transcodes again
+    results.md, results.json, rd_<scene>.png   the report (batch/report.py)
+
+Resuming: a cell whose JSON says ok with the same fingerprint (its scene, lambda, preset and
+the sweep's encoder, transcode and evaluation settings) is not run again; a failed cell is
+(the next run retries it). One cell's failure is recorded in its JSON and does not stop the
+others; the run ends with a non-zero status when any cell failed.
+
+On Ray, each prepared scene is one task and each cell one task depending on it (Ray passes the
+prepared bytes through its object store: workers need not share a filesystem with the driver,
+but they read the scenes' input paths and must have lghcc installed). The driver writes every
+file; progress goes to the log as plain lines, one per finished step.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import socket
+import time
+import traceback
+from dataclasses import asdict
+from pathlib import Path
+from typing import Callable
+
+from lghcc.batch.sweep import CellKey, PrepKey, Sweep
+from lghcc.common.errors import LghccError
+from lghcc.common.fileio import atomic_write_bytes
+
+CELL_FORMAT = 1
+
+
+class ClusterError(LghccError):
+    """The Ray cluster cannot be reached or started."""
+
+
+def _fingerprint(obj) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def prep_fingerprint(sweep: Sweep, p: PrepKey) -> str:
+    s = sweep.scenes[p.scene]
+    return _fingerprint({"scene": asdict(s), "lambda": p.lam, "transcode": sweep.transcode if s.kind == "path" else {},
+                         "evaluation": asdict(sweep.evaluation)})
+
+
+def cell_fingerprint(sweep: Sweep, c: CellKey) -> str:
+    return _fingerprint({"prep": prep_fingerprint(sweep, c.prep), "preset": c.preset, "encoder": sweep.encoder})
+
+
+def one_line(e: BaseException) -> str:
+    """An exception as one line: its type and the last line of its message (a Ray task error
+    carries the remote traceback; its last line is the cause)."""
+    text = str(e).strip()
+    last = text.splitlines()[-1].strip() if text else ""
+    name = type(e).__name__
+    return last if name in last or name.startswith("RayTaskError") else f"{name}: {last}" if last else name
+
+
+class Store:
+    """The output folder (module doc)."""
+
+    def __init__(self, root: Path):
+        self.root = Path(root)
+
+    def cell_json(self, c: CellKey) -> Path:
+        return self.root / "cells" / f"{c.id}.json"
+
+    def stream(self, c: CellKey) -> Path:
+        return self.root / "streams" / f"{c.id}.lghcc"
+
+    def prepared(self, p: PrepKey) -> Path:
+        return self.root / "prepared" / f"{p.id}.tar"
+
+    def done(self, sweep: Sweep, c: CellKey) -> dict | None:
+        """The stored result of a cell finished with the same settings, else None."""
+        try:
+            rec = json.loads(self.cell_json(c).read_text())
+        except (OSError, ValueError):
+            return None
+        if rec.get("status") == "ok" and rec.get("fingerprint") == cell_fingerprint(sweep, c) \
+                and self.stream(c).is_file():
+            return rec
+        return None
+
+    def load_prepared(self, sweep: Sweep, p: PrepKey) -> tuple[bytes, dict] | None:
+        try:
+            info = json.loads(self.prepared(p).with_suffix(".json").read_text())
+            if info.get("fingerprint") != prep_fingerprint(sweep, p):
+                return None
+            return self.prepared(p).read_bytes(), info
+        except (OSError, ValueError):
+            return None
+
+    def save_prepared(self, sweep: Sweep, p: PrepKey, tar: bytes, info: dict) -> None:
+        atomic_write_bytes(self.prepared(p), tar)
+        atomic_write_bytes(self.prepared(p).with_suffix(".json"),
+                           json.dumps(dict(info, fingerprint=prep_fingerprint(sweep, p)), indent=2).encode())
+
+    def save_cell(self, sweep: Sweep, c: CellKey, result: dict | None, stream: bytes | None,
+                  error: BaseException | str | None = None) -> dict:
+        rec = {"format": CELL_FORMAT, "cell": c.id, "scene": c.prep.scene, "lambda": c.prep.lam, "preset": c.preset,
+               "fingerprint": cell_fingerprint(sweep, c)}
+        if error is None:
+            atomic_write_bytes(self.stream(c), stream)
+            rec.update(status="ok", stream=str(self.stream(c).relative_to(self.root)), **result)
+        else:
+            rec.update(status="failed", error=error if isinstance(error, str) else one_line(error),
+                       traceback=None if isinstance(error, str) else "".join(
+                           traceback.format_exception(type(error), error, error.__traceback__)))
+        atomic_write_bytes(self.cell_json(c), (json.dumps(rec, indent=2) + "\n").encode())
+        return rec
+
+
+# ---------------------------------------------------------------------------------------------
+# Ray
+# ---------------------------------------------------------------------------------------------
+
+def parse_address(address: str) -> tuple[str, int] | None:
+    """(host, port) of a Ray address 'host:port' or 'ray://host:port'; None for 'auto' or
+    'local' (Ray finds those itself)."""
+    a = address.strip()
+    if a in ("auto", "local"):
+        return None
+    if a.startswith("ray://"):
+        a = a[len("ray://"):]
+    host, sep, port = a.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ClusterError(f"--address {address!r}: expected host:port (the head node's GCS address, as "
+                           "`ray start --head` prints it, default port 6379), ray://host:port, or auto")
+    return host.strip("[]"), int(port)
+
+
+def check_reachable(address: str, timeout_s: float) -> None:
+    """Fail fast and clearly when nothing listens at the address (Ray itself retries for long)."""
+    hp = parse_address(address)
+    if hp is None:
+        return
+    host, port = hp
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s):
+            pass
+    except socket.timeout:
+        raise ClusterError(f"cannot reach the Ray cluster at {address}: no answer within {timeout_s:g} s "
+                           "(is the head node up and the port open? `ray start --head` on it)") from None
+    except OSError as e:
+        raise ClusterError(f"cannot reach the Ray cluster at {address}: {e.strerror or e} "
+                           "(is `ray start --head` running there?)") from None
+
+
+def init_ray(address: str | None, num_cpus: int | None, timeout_s: float):
+    """ray.init: a local Ray (address None) or an existing cluster; ClusterError naming the
+    address when it fails. Workers get OMP_WAIT_POLICY=PASSIVE (torch threads do not spin)."""
+    if address:
+        check_reachable(address, timeout_s)
+    try:
+        import ray
+    except ImportError:
+        raise ClusterError("Ray is not installed: pip install 'lghcc[batch]' (or run with --local)") from None
+    env = {"env_vars": {"OMP_WAIT_POLICY": "PASSIVE"}}
+    kw = dict(include_dashboard=False, log_to_driver=False, runtime_env=env, logging_level="WARNING")
+    try:
+        if address:
+            ray.init(address=address, **kw)
+        else:
+            ray.init(num_cpus=num_cpus, **kw)
+    except Exception as e:  # noqa: BLE001 - Ray raises ConnectionError, RuntimeError, ...
+        where = f"the Ray cluster at {address}" if address else "a local Ray instance"
+        raise ClusterError(f"cannot connect to {where}: {one_line(e)}") from None
+    return ray
+
+
+# ---------------------------------------------------------------------------------------------
+# The run
+# ---------------------------------------------------------------------------------------------
+
+class Progress:
+    """Plain progress lines (a log, not a terminal bar): one per finished step."""
+
+    def __init__(self, total: int, say: Callable[[str], None]):
+        self.total, self.done, self.say, self.t0 = total, 0, say, time.perf_counter()
+
+    def cell(self, rec: dict) -> None:
+        self.done += 1
+        head = f"[{self.done}/{self.total}] {rec['cell']}"
+        if rec["status"] == "ok":
+            self.say(f"{head}: {rec['bytes']:,} bytes, {rec['bits_per_anchor']:.1f} bits/anchor, PSNR "
+                     f"{rec['psnr']:.2f} dB, SSIM {rec['ssim']:.4f}; encode {rec['encode_s']:.1f} s, decode "
+                     f"{rec['decode_s']:.2f} s ({rec.get('host', '?')}, {time.perf_counter() - self.t0:.0f} s elapsed)")
+        else:
+            self.say(f"{head}: FAILED: {rec['error']}")
+
+
+def run_sweep(sweep: Sweep, *, local: bool = False, address: str | None = None, num_cpus: int | None = None,
+              cpus_per_cell: int = 1, connect_timeout_s: float = 15.0, say: Callable[[str], None] = print,
+              heartbeat_s: float = 60.0) -> list[dict]:
+    """Run every cell not finished yet (module doc); return every cell's record, in sweep order."""
+    from lghcc.batch import work
+
+    store = Store(sweep.output)
+    cells = sweep.cells()
+    records: dict[str, dict] = {}
+    todo: list[CellKey] = []
+    for c in cells:
+        rec = store.done(sweep, c)
+        if rec is not None:
+            records[c.id] = rec
+        else:
+            todo.append(c)
+    say(f"{sweep.file}: {len(cells)} cells ({len(sweep.scenes)} scenes x {len(sweep.presets)} presets"
+        + (f", lambdas {', '.join(f'{x:g}' for x in sweep.lambdas)}" if sweep.lambdas else "")
+        + f"), {len(records)} already done, {len(todo)} to run; results in {sweep.output}")
+    if not todo:
+        return [records[c.id] for c in cells]
+    ray = None if local else init_ray(address, num_cpus, connect_timeout_s)  # a cluster error comes before any file
+    sweep.output.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(sweep.output / "sweep.yaml", sweep.file.read_bytes())
+    preps: dict[PrepKey, list[CellKey]] = {}
+    for c in todo:
+        preps.setdefault(c.prep, []).append(c)
+    progress = Progress(len(todo), say)
+    ev, enc, tr = sweep.evaluation, sweep.encoder, sweep.transcode
+
+    def record(c: CellKey, result=None, stream=None, error=None) -> None:
+        rec = store.save_cell(sweep, c, result, stream, error)
+        records[c.id] = rec
+        progress.cell(rec)
+
+    def prepared_note(p: PrepKey, info: dict) -> None:
+        say(f"prepared {p.id}: {info.get('num_anchors', 0):,} anchors in {info.get('prepare_s', 0):.1f} s "
+            f"({info.get('host', '?')})")
+
+    if local:
+        for p, its in preps.items():
+            got = store.load_prepared(sweep, p)
+            if got is None:
+                try:
+                    got = work.prepare(sweep.scenes[p.scene], p.lam, ev, tr, threads=cpus_per_cell)
+                except Exception as e:  # noqa: BLE001 - any failure is this scene's, recorded
+                    for c in its:
+                        record(c, error=f"preparing {p.id} failed: {one_line(e)}")
+                    continue
+                store.save_prepared(sweep, p, *got)
+                prepared_note(p, got[1])
+            for c in its:
+                try:
+                    result, stream = work.run_cell(got[0], c.preset, ev, enc, threads=cpus_per_cell)
+                except Exception as e:  # noqa: BLE001
+                    record(c, error=e)
+                    continue
+                record(c, result, stream)
+    else:
+        _run_on_ray(ray, sweep, store, preps, address, cpus_per_cell, say, record, prepared_note, heartbeat_s)
+    return [records[c.id] for c in cells]
+
+
+def _run_on_ray(ray, sweep, store, preps, address, cpus_per_cell, say, record, prepared_note, heartbeat_s) -> None:
+    from lghcc.batch import work
+
+    try:
+        res = ray.cluster_resources()
+        say(f"Ray: {'cluster at ' + address if address else 'local'}, {int(res.get('CPU', 0))} CPUs, "
+            f"{len(ray.nodes())} node(s); {cpus_per_cell} CPU(s) per task")
+        prepare_task = ray.remote(num_cpus=cpus_per_cell, max_retries=0)(work.prepare)
+        cell_task = ray.remote(num_cpus=cpus_per_cell, max_retries=0)(work.run_cell)
+        ev, enc, tr = sweep.evaluation, sweep.encoder, sweep.transcode
+        pending: dict = {}  # ObjectRef -> ("prep", PrepKey, tar_ref) | ("cell", CellKey)
+        failed_preps: dict[PrepKey, str] = {}
+        prep_refs: dict[PrepKey, object] = {}
+        for p, its in preps.items():
+            got = store.load_prepared(sweep, p)
+            if got is not None:
+                tar_ref = ray.put(got[0])
+            else:
+                tar_ref, info_ref = prepare_task.options(num_returns=2).remote(
+                    sweep.scenes[p.scene], p.lam, ev, tr, cpus_per_cell)
+                pending[info_ref] = ("prep", p, tar_ref)
+                prep_refs[p] = info_ref
+            for c in its:
+                pending[cell_task.remote(tar_ref, c.preset, ev, enc, cpus_per_cell)] = ("cell", c)
+        last = time.perf_counter()
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1, timeout=heartbeat_s)
+            if not ready:
+                n = sum(1 for v in pending.values() if v[0] == "cell")
+                say(f"... {n} cell(s) still running or queued ({time.perf_counter() - last:.0f} s since the last "
+                    "one finished)")
+                continue
+            last = time.perf_counter()
+            ref = ready[0]
+            kind = pending.pop(ref)
+            if kind[0] == "prep":
+                p, tar_ref = kind[1], kind[2]
+                try:
+                    info = ray.get(ref)
+                    store.save_prepared(sweep, p, ray.get(tar_ref), info)
+                    prepared_note(p, info)
+                except Exception as e:  # noqa: BLE001 - the scene's cells fail with it (below)
+                    failed_preps[p] = one_line(e)
+                    say(f"preparing {p.id} FAILED: {failed_preps[p]}")
+                continue
+            c = kind[1]
+            try:
+                result, stream = ray.get(ref)
+            except Exception as e:  # noqa: BLE001 - RayTaskError, WorkerCrashedError, ...
+                if c.prep not in failed_preps and c.prep in prep_refs:  # was it the scene's preparation?
+                    try:
+                        ray.get(prep_refs[c.prep])
+                    except Exception as pe:  # noqa: BLE001
+                        failed_preps[c.prep] = one_line(pe)
+                if c.prep in failed_preps:
+                    record(c, error=f"preparing {c.prep.id} failed: {failed_preps[c.prep]}")
+                else:
+                    record(c, error=e)
+                continue
+            record(c, result, stream)
+    finally:
+        ray.shutdown()

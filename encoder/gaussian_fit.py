@@ -1,0 +1,271 @@
+"""Rate-aware preparation of an explicit-Gaussian scene before coding (informative).
+
+Against renders of the source scene from ``fit_views`` cameras on a sphere around it (plus
+any cameras the caller gives, e.g. the scene's own training views):
+
+1. each Gaussian's contribution to those pictures (render/importance.py);
+2. pruning: the least contributing Gaussians whose contributions add up to at most
+   ``prune_share`` of the total are dropped (a rate-distortion decision: each costs the same
+   bits, and these change the pictures least);
+3. the position grid (encoder/gaussians.py: ``choose_grid`` weighted by contribution) and the
+   snap to it; the positions stay there;
+4. fitting: ``fit_iterations`` Adam steps on the kept Gaussians' SH, opacity, scales and
+   rotations with their quantization simulated (straight-through rounding to the preset's
+   steps), minimizing the squared error against the source renders plus ``fit_rate_lambda``
+   times the estimated bits of the coded values (the per-channel prior's discretized Gaussian
+   with the frozen tables' scales, spec clause 10), so the values move where the decoded
+   scene renders closest to the source at the rate the stream will pay. The pruned
+   Gaussians' share of the pictures is taken over by their neighbours;
+5. with a quality asked for (``target_psnr``), the attribute steps move onto it again
+   (encoder/gaussian_rd.py ``trim_to_target``): what the fit gained becomes fewer bytes.
+
+The result is a GaussianScene on its grid that encode_gaussian_scene codes exactly as the
+fit simulated it.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from lghcc.common.errors import InputError
+from lghcc.common.scene import GaussianScene
+from lghcc.encoder.config import GaussianEncoderConfig
+from lghcc.encoder.gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid
+from lghcc.render.camera import Camera
+from lghcc.render.gaussians3dgs import gaussians_from_scene, render_3dgs
+from lghcc.render.importance import gaussian_contributions
+from lghcc.render.rasterizer import rasterize
+from lghcc.render.sh import sh_to_rgb
+
+
+@dataclass
+class PreparedGaussians:
+    scene: GaussianScene  # on its grid, pruned and fitted
+    weights: np.ndarray  # contribution of each kept Gaussian (its share of the pictures)
+    cfg: GaussianEncoderConfig  # the settings to code it with (chosen by the search when it ran)
+    stats: dict = field(default_factory=dict)
+
+
+def fibonacci_sphere(n: int, offset: float = 0.5) -> np.ndarray:
+    """n unit vectors spread evenly on the sphere (golden spiral)."""
+    i = np.arange(n, dtype=np.float64) + offset
+    z = 1 - 2 * i / n
+    r = np.sqrt(np.clip(1 - z * z, 0, 1))
+    phi = i * math.pi * (3 - math.sqrt(5))
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def fit_cameras(scene: GaussianScene, n: int, resolution: int, fov_deg: float = 50.0) -> list[Camera]:
+    """n cameras on a sphere around the scene's robust bounds (1%..99% quantiles of the
+    positions of Gaussians with opacity >= 0.05), each seeing the whole bounding sphere."""
+    m = scene.means.astype(np.float64)
+    op = 1 / (1 + np.exp(-scene.opacity.astype(np.float64)))
+    if (op >= 0.05).sum() >= 10:
+        m = m[op >= 0.05]
+    lo, hi = np.quantile(m, 0.01, axis=0), np.quantile(m, 0.99, axis=0)
+    centre, radius = (lo + hi) / 2, max(float(np.linalg.norm(hi - lo)) / 2, 1e-6)
+    dist = radius / math.sin(math.radians(fov_deg) / 2) * 1.05
+    cams = []
+    for j, d in enumerate(fibonacci_sphere(n)):
+        up = (0.0, 0.0, 1.0) if abs(d[2]) < 0.99 else (0.0, 1.0, 0.0)
+        cams.append(Camera.look_at(centre + dist * d, centre, up=up, width=resolution, height=resolution,
+                                   fov_x_deg=fov_deg, near=dist * 1e-3, far=dist * 10, name=f"fit_{j:03d}"))
+    return cams
+
+
+def prune_by_contribution(contrib: np.ndarray, share: float) -> np.ndarray:
+    """bool [N]: keep all but the least contributing Gaussians whose contributions add up to at
+    most ``share`` of the total."""
+    keep = np.ones(contrib.shape[0], dtype=bool)
+    total = float(contrib.sum())
+    if share <= 0 or total <= 0:
+        return keep
+    order = np.argsort(contrib, kind="stable")
+    cum = np.cumsum(contrib[order])
+    drop = int(np.searchsorted(cum, share * total, side="right"))
+    drop = min(drop, contrib.shape[0] - 1)  # never drop the whole scene
+    keep[order[:drop]] = False
+    return keep
+
+
+def _ste(x: torch.Tensor, step: float) -> torch.Tensor:
+    """Rounding to multiples of ``step`` with the identity's gradient (quantization as coded)."""
+    return x + (torch.round(x / step) * step - x).detach()
+
+
+_SQRT_HALF = 1.0 / math.sqrt(2.0)
+
+
+def _bits(x_steps: torch.Tensor, mu: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
+    """Ideal bits of values x (in steps) under a discretized Gaussian (mean mu, scale sigma) with
+    probabilities floored at 2^-24, as the frozen tables code them (estimate_bits_float)."""
+    a = (x_steps - mu).abs()
+    p = 0.5 * (torch.erf((0.5 - a) / sigma * _SQRT_HALF) - torch.erf((-0.5 - a) / sigma * _SQRT_HALF))
+    return -torch.log2(p.clamp_min(2.0 ** -24)).sum()
+
+
+class _Fit:
+    """The fitted parameters and their quantized values as the encoder will code them."""
+
+    def __init__(self, scene: GaussianScene, cfg: GaussianEncoderConfig):
+        t = lambda a: torch.tensor(np.asarray(a, np.float64), dtype=torch.float32)  # noqa: E731
+        self.cfg = cfg
+        self.means = t(scene.means)
+        self.degree = scene.sh_degree
+        self.sh_dc = t(scene.sh[:, :1]).requires_grad_(True)
+        self.sh_rest = t(scene.sh[:, 1:]).requires_grad_(True)
+        self.opacity = t(np.clip(scene.opacity, -OPACITY_LOGIT_LIMIT, OPACITY_LOGIT_LIMIT)).requires_grad_(True)
+        self.log_scales = t(scene.log_scales).requires_grad_(True)
+        self.rotations = t(canonical_rotations(scene.rotations)).requires_grad_(True)
+        band = np.floor(np.sqrt(np.arange(1, self.sh_dc.shape[1] + self.sh_rest.shape[1]))).astype(int)
+        self.rest_steps = torch.tensor([cfg.sh_band_steps[b - 1] for b in band], dtype=torch.float32)[None, :, None]
+        self.rate_model = None
+
+    def params(self) -> list[torch.Tensor]:
+        return [self.sh_dc, self.sh_rest, self.opacity, self.log_scales, self.rotations]
+
+    def quantized(self):
+        """(SH, opacity, log scales, rotations) rounded to their steps, with straight-through gradients."""
+        rot = self.rotations / self.rotations.norm(dim=1, keepdim=True).clamp_min(1e-12)
+        rest = self.sh_rest + (torch.round(self.sh_rest / self.rest_steps) * self.rest_steps - self.sh_rest).detach()
+        sh = torch.cat([_ste(self.sh_dc, self.cfg.sh_dc_step), rest], 1)
+        op = _ste(self.opacity.clamp(-OPACITY_LOGIT_LIMIT, OPACITY_LOGIT_LIMIT), self.cfg.opacity_step)
+        return sh, op, _ste(self.log_scales, self.cfg.scale_step), _ste(rot, self.cfg.rotation_step)
+
+    def values_in_steps(self, sh, op, ls, rot) -> list[torch.Tensor]:
+        c = self.cfg
+        n = sh.shape[0]
+        return [(sh[:, :1] / c.sh_dc_step).reshape(n, -1), (sh[:, 1:] / self.rest_steps).reshape(n, -1),
+                (op / c.opacity_step)[:, None], ls / c.scale_step, rot / c.rotation_step]
+
+    def init_rate_model(self) -> None:
+        """Per channel: the median and the RMS deviation (in steps) of the quantized start values,
+        the per-channel prior the stream will use (held fixed during the fit)."""
+        with torch.no_grad():
+            v = torch.cat(self.values_in_steps(*self.quantized()), 1).double()
+            mu = v.median(dim=0).values
+            sigma = ((v - mu) ** 2).mean(0).sqrt().clamp(0.11, 512.0)
+        self.rate_model = (mu.float(), sigma.float())
+
+    def rate_bits(self) -> torch.Tensor:
+        """Estimated bits of the quantized values under the per-channel prior (straight-through)."""
+        mu, sigma = self.rate_model
+        return _bits(torch.cat(self.values_in_steps(*self.quantized()), 1), mu, sigma)
+
+    def render(self, cam: Camera, sh, op, ls, rot) -> torch.Tensor:
+        d = self.means - torch.as_tensor(cam.center, dtype=torch.float32)
+        d = d / d.norm(dim=1, keepdim=True).clamp_min(1e-12)
+        colors = sh_to_rgb(self.degree, sh, d)
+        return rasterize(self.means, rot, torch.exp(ls), torch.sigmoid(op), colors, cam,
+                         background=torch.zeros(3)).image
+
+    def scene(self, grid: GaussianScene) -> GaussianScene:
+        f = lambda x: x.detach().numpy().astype(np.float32)  # noqa: E731
+        rot = self.rotations / self.rotations.norm(dim=1, keepdim=True).clamp_min(1e-12)
+        sh = torch.cat([self.sh_dc, self.sh_rest], 1)
+        return GaussianScene.on_grid(grid.coords, grid.voxel_size, grid.origin, f(sh), f(self.opacity),
+                                     f(self.log_scales), f(rot))
+
+
+def _lrs(cfg: GaussianEncoderConfig) -> list[float]:
+    """Adam learning rates of (SH DC, higher SH bands, opacity, log scales, rotations), about a tenth
+    of 3DGS training's (the values start near a solution); the higher bands 20x slower, as in 3DGS."""
+    s = cfg.fit_lr_scale
+    return [1e-3 * s, 5e-5 * s, 5e-3 * s, 1e-3 * s, 5e-4 * s]
+
+
+def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, cameras: list[Camera] | None = None,
+                      log=None, progress: bool = False) -> PreparedGaussians:
+    """Contribution, pruning, grid and fit (module doc). ``cameras``: extra views (the scene's
+    own) added to the sphere; ``log(msg)`` gets a line per stage (progress in logs)."""
+    say = log or (lambda *a: None)
+    cfg = cfg.validate()
+    scene.validate()
+    stats: dict = {"gaussians_in": scene.num_gaussians}
+    t0 = time.perf_counter()
+    if cfg.sh_degree is not None and cfg.sh_degree < scene.sh_degree:
+        scene = scene.with_sh_degree(cfg.sh_degree)
+    cams = fit_cameras(scene, cfg.fit_views, cfg.fit_resolution) + list(cameras or [])
+    g = gaussians_from_scene(scene)
+    bar = tqdm(total=len(cams), desc="contributions", unit="view", disable=not progress, leave=False)
+    contrib = gaussian_contributions(g.means, g.quats, g.scales, g.opacities, cams, on_view=bar.update)
+    bar.close()
+    stats["time_contributions_s"] = time.perf_counter() - t0
+    if cfg.rd_lambda > 0 or cfg.target_psnr > 0:
+        from lghcc.encoder.gaussian_rd import search_settings
+
+        t1 = time.perf_counter()
+        cfg, trials = search_settings(scene, contrib, cfg, log=say)
+        stats.update(time_search_s=time.perf_counter() - t1, search_trials=len(trials))
+    keep = prune_by_contribution(contrib, cfg.prune_share)
+    stats["gaussians_pruned"] = int((~keep).sum())
+    say(f"contributions from {len(cams)} views in {stats['time_contributions_s']:.1f} s; pruned "
+        f"{stats['gaussians_pruned']:,} of {scene.num_gaussians:,} Gaussians ({100 * cfg.prune_share:g}% of the "
+        "contribution at most)")
+    kept = scene.subset(keep)
+    weights = contrib[keep]
+    voxel, origin = choose_grid(kept, cfg, weights)
+    grid, moved = snap_to_grid(kept, voxel, origin, weights)
+    stats.update(voxel_size=voxel, gaussians_moved_off_shared_voxels=moved)
+    if cfg.fit_iterations == 0:
+        stats["time_total_s"] = time.perf_counter() - t0
+        return PreparedGaussians(grid, weights, cfg, stats)
+
+    t1 = time.perf_counter()
+    with torch.no_grad():
+        targets = [render_3dgs(g, cam, background=(0, 0, 0), backend="torch").image for cam in cams]
+    fit = _Fit(grid, cfg)
+    fit.init_rate_model()
+    groups = [{"params": [p], "lr": lr} for p, lr in zip(fit.params(), _lrs(cfg))]
+    opt = torch.optim.Adam(groups, eps=1e-15)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.fit_iterations, eta_min=0.0)
+    rng = np.random.default_rng(0)
+    # The rate term is applied decoupled from Adam (as AdamW decouples weight decay): Adam
+    # normalizes each parameter's gradient, so a rate gradient added to the loss would move every
+    # parameter the picture does not depend on at the full learning rate, whatever lambda is.
+    # Each step instead moves the values down the gradient of the estimated bits by
+    # lr x fit_rate_lambda x (step^2 of the value) per bit, i.e. lambda in steps^2 per bit.
+    mu = cfg.fit_rate_lambda
+    step_sq = [torch.tensor(cfg.sh_dc_step ** 2), fit.rest_steps ** 2, torch.tensor(cfg.opacity_step ** 2),
+               torch.tensor(cfg.scale_step ** 2), torch.tensor(cfg.rotation_step ** 2)]
+    bar = tqdm(range(cfg.fit_iterations), desc="fit", unit="it", disable=not progress, leave=False)
+    last = time.perf_counter()
+    losses = []
+    for it in bar:
+        j = int(rng.integers(len(cams)))
+        q = fit.quantized()
+        img = fit.render(cams[j], *q)
+        mse = ((img - targets[j]) ** 2).mean()
+        opt.zero_grad(set_to_none=True)
+        mse.backward()
+        opt.step()
+        if mu > 0:
+            grads = torch.autograd.grad(fit.rate_bits(), fit.params())
+            with torch.no_grad():
+                for p, g, group, sq in zip(fit.params(), grads, opt.param_groups, step_sq):
+                    p -= group["lr"] * mu * sq * g
+        sched.step()
+        losses.append(float(mse.detach()))
+        if time.perf_counter() - last > 10 or it + 1 == cfg.fit_iterations:
+            last = time.perf_counter()
+            done = it + 1
+            eta = (last - t1) / done * (cfg.fit_iterations - done)
+            say(f"fit: {done}/{cfg.fit_iterations} steps, PSNR {-10 * math.log10(max(np.mean(losses[-20:]), 1e-12)):.2f} "
+                f"dB on the fit views, ETA {eta:.0f} s")
+    stats["time_fit_s"] = time.perf_counter() - t1
+    stats["fit_final_mse"] = float(np.mean(losses[-20:]))  # squared error on the fit views, last steps
+    fitted = fit.scene(grid)
+    if cfg.target_psnr > 0:
+        from lghcc.encoder.gaussian_rd import trim_to_target
+
+        t2 = time.perf_counter()
+        cfg, before, after = trim_to_target(fitted, weights, cfg, log=say)
+        stats.update(time_trim_s=time.perf_counter() - t2, trim_bits_before=before.bits, trim_bits_after=after.bits)
+    stats["time_total_s"] = time.perf_counter() - t0
+    return PreparedGaussians(fitted, weights, cfg, stats)

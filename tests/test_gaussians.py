@@ -1,0 +1,268 @@
+"""Explicit-Gaussian scenes: round trips bit for bit, no Gaussian lost, SH degrees, cross-channel
+prediction, the rate-aware preparation, and bad input through lghcc-enc."""
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+from lghcc.common import attributes as attr
+from lghcc.common.errors import BitstreamError, InputError
+from lghcc.common.hashing import gaussian_scene_digest
+from lghcc.common.ply import write_ply
+from lghcc.common.scene import GaussianScene
+from lghcc.decoder.decode import decode_stream
+from lghcc.encoder import cli as enc_cli
+from lghcc.encoder.config import GaussianEncoderConfig, load_config
+from lghcc.encoder.gaussians import encode_gaussian_scene, separate_duplicates
+from lghcc.formats.ply3dgs import read_3dgs_ply, write_3dgs_ply
+
+
+def random_gaussians(rng, n, degree=0, extent=1.0, correlated=False):
+    k = (degree + 1) ** 2
+    base = rng.normal(size=(n, k, 1))
+    sh = base + 0.1 * rng.normal(size=(n, k, 3)) if correlated else rng.normal(size=(n, k, 3))
+    sh[:, 1:] *= 0.2
+    f = np.float32
+    return GaussianScene((extent * rng.uniform(-1, 1, size=(n, 3))).astype(f), sh.astype(f),
+                         rng.normal(0, 3, size=n).astype(f),
+                         (np.log(extent) - 4 + rng.normal(size=(n, 3))).astype(f), rng.normal(size=(n, 4)).astype(f))
+
+
+def assert_same(a: GaussianScene, b: GaussianScene):
+    assert np.array_equal(a.coords, b.coords)
+    for name in ("sh", "opacity", "log_scales", "rotations"):
+        assert getattr(a, name).tobytes() == getattr(b, name).tobytes(), name
+    assert gaussian_scene_digest(a) == gaussian_scene_digest(b)
+
+
+@st.composite
+def gaussian_scenes(draw):
+    n = draw(st.integers(1, 120))
+    degree = draw(st.integers(0, 3))
+    extent = draw(st.sampled_from([1e-3, 0.005, 1.0, 50.0, 1e4]))
+    rng = np.random.default_rng(draw(st.integers(0, 2 ** 31)))
+    scene = random_gaussians(rng, n, degree, extent, correlated=draw(st.booleans()))
+    if draw(st.booleans()) and n > 1:  # many Gaussians at one position
+        m = draw(st.integers(2, n))
+        scene.means[:m] = scene.means[0]
+    return scene
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(gaussian_scenes(), st.booleans(), st.booleans())
+def test_round_trip_is_bit_exact_and_keeps_every_gaussian(scene, hierarchy, predict):
+    cfg = GaussianEncoderConfig(hierarchy=hierarchy, coarse_voxel_scale=8, channel_prediction=predict)
+    res = encode_gaussian_scene(scene, cfg)
+    dec = decode_stream(res.data)
+    assert isinstance(dec.scene, GaussianScene)
+    assert_same(dec.scene, res.decoded)
+    assert dec.scene.num_gaussians == scene.num_gaussians  # none lost for lack of room
+    assert len(np.unique(dec.scene.coords, axis=0)) == scene.num_gaussians
+    assert dec.scene.sh_degree == scene.sh_degree
+    # every attribute within half a step (rotations: of the normalized w >= 0 quaternion)
+    layout = attr.GaussianLayout(scene.sh_degree)
+    moved = res.stats.get("gaussians_moved_off_shared_voxels", 0)
+    if moved == 0:
+        src = np.sort(scene.opacity.clip(-8, 8))
+        np.testing.assert_allclose(np.sort(dec.scene.opacity), src, atol=cfg.opacity_step / 2 * 1.0001)
+    assert dec.breakdown.total_bytes == len(res.data)
+    assert res.breakdown.point_name == "Gaussian" and layout.num_channels == 3 * (scene.sh_degree + 1) ** 2 + 8
+
+
+def test_positions_within_half_a_voxel_and_grid_follows_the_scene_scale():
+    from scipy.spatial import cKDTree
+
+    sizes = []
+    for extent in (0.005, 1.0, 1000.0):  # millimetre-spaced scenes and scenes in metres code alike
+        scene = random_gaussians(np.random.default_rng(1), 400, 0, extent)
+        res = encode_gaussian_scene(scene, GaussianEncoderConfig())
+        dec = decode_stream(res.data).scene
+        assert res.stats["gaussians_moved_off_shared_voxels"] == 0
+        # each decoded position lies within half a voxel (per axis) of a source position
+        d, _ = cKDTree(scene.means.astype(np.float64)).query(dec.means.astype(np.float64), p=np.inf)
+        assert d.max() <= 0.5 * dec.voxel_size * (1 + 1e-4) + 1e-6 * extent
+        sizes.append(len(res.data))
+    assert max(sizes) - min(sizes) <= 0.02 * max(sizes), sizes
+
+
+def test_duplicates_move_to_the_nearest_free_voxel_highest_priority_stays():
+    coords = np.zeros((27, 3), np.int64)
+    prio = np.arange(27.0)
+    out, moved = separate_duplicates(coords, prio)
+    assert moved == 26 and len(np.unique(out, axis=0)) == 27
+    assert (out[26] == 0).all()  # the highest priority keeps the voxel
+    assert np.abs(out).max() == 1  # 26 others fill the 3x3x3 block around it
+    out2, moved2 = separate_duplicates(np.arange(30).reshape(10, 3), None)
+    assert moved2 == 0 and np.array_equal(out2, np.arange(30).reshape(10, 3))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(2, 12), st.integers(1, 40), st.integers(0, 2 ** 31), st.integers(0, 20))
+def test_channel_prediction_inverts_exactly(m, rows, seed, entries):
+    rng = np.random.default_rng(seed)
+    pairs = sorted({(int(t), int(rng.integers(0, t))) for t in rng.integers(1, m, size=entries)})
+    targets = np.array([p[0] for p in pairs], np.int64)
+    sources = np.array([p[1] for p in pairs], np.int64)
+    weights = rng.integers(-(1 << 15), (1 << 15) + 1, size=len(pairs)).astype(np.int64)
+    pred = attr.ChannelPrediction(targets, sources, weights)
+    q = rng.integers(-(1 << 30), 1 << 30, size=(rows, m)).astype(np.int64)
+    mean = rng.integers(-1000, 1000, size=(1, m)).astype(np.int64)
+    r = pred.residuals(q, mean)
+    assert np.array_equal(pred.reconstruct(r, mean, "test"), q)
+
+
+def test_channel_prediction_rejects_values_beyond_the_limit_and_bad_order():
+    zero = np.zeros((1, 2), np.int64)
+    r = np.array([[1 << 40, -(1 << 40)]], np.int64)
+    assert np.array_equal(attr.ChannelPrediction.none().reconstruct(r, zero, "t"), r)  # the limit itself
+    pred = attr.ChannelPrediction(np.array([1]), np.array([0]), np.array([1 << 15]))
+    with pytest.raises(BitstreamError, match="2\\^40"):  # q[1] = 2^40 * 2^15 / 2^8 - 2^40
+        pred.reconstruct(r, zero, "t")
+    with pytest.raises(BitstreamError, match="2\\^40"):
+        pred.reconstruct(np.array([[(1 << 40) + 1, 0]], np.int64), np.zeros((1, 2), np.int64), "t")
+
+
+def test_cross_channel_prediction_saves_bits_on_correlated_colours():
+    scene = random_gaussians(np.random.default_rng(3), 3000, 2, correlated=True)
+    with_p = encode_gaussian_scene(scene, GaussianEncoderConfig(channel_prediction=True))
+    without = encode_gaussian_scene(scene, GaussianEncoderConfig(channel_prediction=False))
+    assert with_p.stats["level0_channel_predictions"] > 0
+    assert len(with_p.data) < 0.9 * len(without.data)
+    assert_same(decode_stream(with_p.data).scene, decode_stream(without.data).scene)
+
+
+def test_rate_term_of_the_fit_lowers_bits_at_a_like_distortion():
+    from lghcc.encoder.gaussian_fit import prepare_gaussians
+
+    scene = random_gaussians(np.random.default_rng(4), 300, 0, correlated=True)
+    scene.log_scales[:] = np.log(0.08)
+    base = dict(fit_iterations=60, fit_views=6, fit_resolution=32, position_step=0.5, sh_dc_step=0.05)
+    plain = prepare_gaussians(scene, GaussianEncoderConfig(**base, fit_rate_lambda=0.0))
+    rated = prepare_gaussians(scene, GaussianEncoderConfig(**base, fit_rate_lambda=100.0))
+    cfg = GaussianEncoderConfig(**base)
+    a = encode_gaussian_scene(plain.scene, cfg)
+    b = encode_gaussian_scene(rated.scene, cfg)
+    # measured: 2,338 -> 2,322 bytes, squared error 2.07e-4 -> 2.13e-4 (a short fit moves values little)
+    assert len(b.data) < len(a.data), (len(a.data), len(b.data))
+    assert rated.stats["fit_final_mse"] <= 1.25 * plain.stats["fit_final_mse"]
+
+
+# --- the command line -------------------------------------------------------------------------
+
+def _ply(path, scene):
+    write_3dgs_ply(path, scene)
+    return path
+
+
+def _no_preparation(tmp_path) -> list[str]:
+    """lghcc-enc options that code the scene as it is: the preset's steps, nothing pruned or fitted."""
+    cfg = tmp_path / "plain.yaml"
+    cfg.write_text("rd_lambda: 0\ntarget_psnr: 0\nfit_iterations: 0\nprune_share: 0\n")
+    return ["--config", str(cfg)]
+
+
+def test_cli_keeps_the_sh_degree_through_encode_and_export(tmp_path):
+    from lghcc.decoder import cli as dec_cli
+
+    scene = random_gaussians(np.random.default_rng(5), 200, 2)
+    src = _ply(tmp_path / "s.ply", scene)
+    out = tmp_path / "s.lghcc"
+    assert enc_cli.main([str(src), "-o", str(out), "-q", *_no_preparation(tmp_path)]) == 0
+    assert dec_cli.main([str(out), "--export-ply", str(tmp_path / "back.ply"), "-q"]) == 0
+    back = read_3dgs_ply(tmp_path / "back.ply")
+    assert back.sh_degree == 2 and back.num_gaussians == 200
+    assert dec_cli.main([str(out), "-o", str(tmp_path / "dec"), "-q"]) == 0
+    assert read_3dgs_ply(tmp_path / "dec" / "point_cloud" / "iteration_0" / "point_cloud.ply").sh_degree == 2
+
+
+def test_cli_encodes_spz_input_and_decodes_to_spz_and_sog(tmp_path):
+    from lghcc.decoder import cli as dec_cli
+    from lghcc.formats import read_scene, write_scene
+
+    scene = random_gaussians(np.random.default_rng(6), 150, 1)
+    write_scene(scene, tmp_path / "in.spz")
+    out = tmp_path / "s.lghcc"
+    assert enc_cli.main([str(tmp_path / "in.spz"), "-o", str(out), "-q", *_no_preparation(tmp_path)]) == 0
+    for ext in ("spz", "sog"):
+        assert dec_cli.main([str(out), "--export", str(tmp_path / f"back.{ext}"), "-q"]) == 0
+        back = read_scene(tmp_path / f"back.{ext}")
+        assert back.num_gaussians == 150 and back.sh_degree == 1
+    assert dec_cli.main([str(out), "--export", str(tmp_path / "back.xyz"), "-q"]) != 0
+    assert not (tmp_path / "back.xyz").exists()
+
+
+def _columns(n=5):
+    rng = np.random.default_rng(0)
+    cols = {k: rng.normal(size=n).astype(np.float32) for k in
+            ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
+             "rot_0", "rot_1", "rot_2", "rot_3")}
+    return cols
+
+
+@pytest.mark.parametrize("case,fragment", [
+    ("missing", "'scale_1' is missing"),
+    ("nan", "'x/y/z' contains NaN"),
+    ("inf", "'opacity' contains NaN or Inf"),
+    ("sh_layout", "match no SH degree"),
+    ("zero_scale", "zero or infinite after activation"),
+    ("zero_rotation", "zero rotation"),
+    ("empty", "holds no Gaussians"),
+])
+def test_cli_rejects_bad_input_with_one_line_and_writes_nothing(tmp_path, capsys, case, fragment):
+    cols = _columns(0 if case == "empty" else 5)
+    if case == "missing":
+        del cols["scale_1"]
+    elif case == "nan":
+        cols["y"][2] = np.nan
+    elif case == "inf":
+        cols["opacity"][1] = np.inf
+    elif case == "sh_layout":
+        for i in range(4):
+            cols[f"f_rest_{i}"] = cols["x"]
+    elif case == "zero_scale":
+        cols["scale_2"][3] = -500.0
+    elif case == "zero_rotation":
+        for r in ("rot_0", "rot_1", "rot_2", "rot_3"):
+            cols[r][0] = 0.0
+    src = tmp_path / "bad.ply"
+    write_ply(src, cols)
+    out = tmp_path / "bad.lghcc"
+    assert enc_cli.main([str(src), "-o", str(out)]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(src) in err[0] and fragment in err[0], err
+    assert not out.exists() and list(tmp_path.iterdir()) == [src]
+
+
+def test_preset_steps_buy_fidelity_in_order():
+    names = [load_config(p, kind="gaussians") for p in ("low", "medium", "high")]
+    assert 0 < names[0].target_psnr < names[1].target_psnr < names[2].target_psnr
+    assert names[0].fit_iterations <= names[1].fit_iterations <= names[2].fit_iterations
+    with pytest.raises(InputError, match="unknown preset"):
+        load_config("lghcc-medium", kind="gaussians")
+
+
+@pytest.mark.parametrize("target", [30.0, 40.0])
+def test_search_meets_the_psnr_asked_for_with_fewer_bits_than_a_finer_setting(target):
+    """target_psnr: the chosen settings render at least at the target on the search views, and
+    every step a factor 1.5 finer measures more bits (the search did not stop needlessly fine)."""
+    import dataclasses
+    import math
+
+    from lghcc.encoder.gaussian_rd import SettingsSearch, search_settings
+    from lghcc.render.importance import gaussian_contributions
+    from lghcc.encoder.gaussian_fit import fit_cameras
+    from lghcc.render.gaussians3dgs import gaussians_from_scene
+
+    scene = random_gaussians(np.random.default_rng(11), 400, 1)
+    cfg = GaussianEncoderConfig(target_psnr=target, search_views=2, search_resolution=32, fit_views=2,
+                                fit_resolution=32)
+    g = gaussians_from_scene(scene)
+    contrib = gaussian_contributions(g.means, g.quats, g.scales, g.opacities, fit_cameras(scene, 2, 32))
+    chosen, trials = search_settings(scene, contrib, cfg)
+    check = SettingsSearch(scene, contrib, cfg, 1.0, 2, 32)
+    got = check.evaluate(chosen)
+    assert -10 * math.log10(got.mse) >= target
+    finer = dataclasses.replace(chosen, **{f: getattr(chosen, f) / 1.5 for f in (
+        "position_step", "sh_dc_step", "opacity_step", "scale_step", "rotation_step")},
+        sh_band_steps=tuple(s / 1.5 for s in chosen.sh_band_steps))
+    assert check.evaluate(finer).bits > got.bits

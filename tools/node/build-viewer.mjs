@@ -1,0 +1,28 @@
+// Build lghcc-view's JavaScript bundle (run by `make viewer-bundle`, i.e. at set-up time):
+// viewer/web/viewer.mjs with the pinned PlayCanvas engine -> viewer/assets/lghcc-viewer.js,
+// one minified IIFE that every page inlines. The engine's MIT licence heads the bundle.
+import { build } from 'esbuild';
+import { readFileSync } from 'node:fs';
+import { dirname, join } from 'node:path';
+import { fileURLToPath } from 'node:url';
+
+const here = dirname(fileURLToPath(import.meta.url));
+const root = join(here, '..', '..');
+const engine = JSON.parse(readFileSync(join(here, 'node_modules', 'playcanvas', 'package.json'), 'utf8'));
+const licence = readFileSync(join(here, 'node_modules', 'playcanvas', 'LICENSE'), 'utf8').trim();
+const banner = `/*! lghcc-view bundle: viewer/web/viewer.mjs + PlayCanvas engine ${engine.version} (${engine.license}).\n` +
+    `${licence.replace(/\*\//g, '* /')}\n*/`;
+
+await build({
+    entryPoints: [join(root, 'viewer', 'web', 'viewer.mjs')],
+    outfile: join(root, 'viewer', 'assets', 'lghcc-viewer.js'),
+    nodePaths: [join(here, 'node_modules')],
+    bundle: true,
+    minify: true,
+    format: 'iife',
+    target: 'es2020',
+    legalComments: 'eof',
+    banner: { js: banner },
+    logLevel: 'warning',
+});
+console.log(`built viewer/assets/lghcc-viewer.js with playcanvas ${engine.version}`);

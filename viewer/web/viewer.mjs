@@ -1,0 +1,292 @@
+// lghcc-view's page script: one or two Gaussian-splat panes (decoded, and the source beside it)
+// rendered by the PlayCanvas engine (WebGL2), driven by ONE camera state so that the panes show
+// the same view at every frame.
+//
+// Bundled with the pinned engine at set-up time (tools/node: `make viewer-bundle`), inlined into
+// each page by lghcc.viewer.page; the page never reaches the network. The scenes arrive in the
+// page as base64 3DGS PLYs (script elements `lghcc-ply-<pane>`), the camera and settings as JSON
+// (`lghcc-meta`).
+//
+// For tests and scripts, window.lghccViewer has:
+//   ready          a Promise resolved once every pane has drawn a depth-sorted frame of its
+//                  scene (or rejected with the load error); also `firstFrame` (bool) and `error`
+//   setCamera({eye, target, up, fovX})  move every pane's camera (world coordinates, fovX in degrees)
+//   settled()      a Promise resolved once every pane has drawn a sorted frame for the current camera
+//   camera()       the current {eye, target, up, fovX}
+//   paneRects()    [{name, x, width}]: each pane's part of the canvas #lghcc-canvas (CSS pixels)
+//   state          frame and sort counters
+//
+// Rendering settings chosen to be the standard 3DGS image (what lghcc.render draws): colours
+// blended as stored (3DGS colours are display values: GAMMA_SRGB with linear tone mapping makes
+// the engine's decode-to-linear and encode-to-sRGB cancel, and blending happens on the stored
+// values, as in 3DGS), every splat drawn however small
+// (minPixelSize 0, minContribution 0, no splat budget), no anti-aliasing compensation, full-precision work
+// buffer, SH colours re-evaluated after small camera moves.
+
+import {
+    Application, Asset, Color, Entity, FILLMODE_NONE, GAMMA_SRGB, GSPLATDATA_LARGE, Layer, RESOLUTION_AUTO,
+    TONEMAP_LINEAR, Vec3, Vec4
+} from 'playcanvas';
+
+const meta = JSON.parse(document.getElementById('lghcc-meta').textContent);
+
+function base64Bytes(id) {
+    const text = document.getElementById(id).textContent.replace(/\s+/g, '');
+    if (Uint8Array.fromBase64) return Uint8Array.fromBase64(text);
+    const bin = atob(text);
+    const out = new Uint8Array(bin.length);
+    for (let i = 0; i < bin.length; i++) out[i] = bin.charCodeAt(i);
+    return out;
+}
+
+// ---------------------------------------------------------------------------------------------
+// The shared camera: eye, target, up (world), horizontal field of view in degrees.
+// ---------------------------------------------------------------------------------------------
+
+const v3 = (a) => new Vec3(a[0], a[1], a[2]);
+const home = {
+    eye: v3(meta.camera.eye), target: v3(meta.camera.target), up: v3(meta.camera.up).normalize(),
+    fovX: meta.camera.fov_x_deg
+};
+const cam = { eye: home.eye.clone(), target: home.target.clone(), up: home.up.clone(), fovX: home.fovX, version: 0 };
+
+function changed() {
+    cam.version++;
+    if (app) app.renderNextFrame = true;
+}
+
+function setCamera(c) {
+    if (c.eye) cam.eye = v3(c.eye);
+    if (c.target) cam.target = v3(c.target);
+    if (c.up) cam.up = v3(c.up).normalize();
+    if (c.fovX) cam.fovX = c.fovX;
+    changed();
+}
+
+// orbit about the target: yaw about `up`, pitch about the camera's right axis (kept off the poles)
+function orbit(dyaw, dpitch) {
+    const off = new Vec3().sub2(cam.eye, cam.target);
+    const r = off.length();
+    const up = cam.up;
+    let el = Math.asin(Math.max(-1, Math.min(1, off.dot(up) / r)));
+    const horiz = new Vec3().copy(off).sub(new Vec3().copy(up).mulScalar(off.dot(up)));
+    if (horiz.length() < 1e-9 * r) horiz.copy(Math.abs(up.x) < 0.9 ? Vec3.RIGHT : Vec3.UP);
+    horiz.normalize();
+    const side = new Vec3().cross(up, horiz).normalize();
+    const az = dyaw;
+    const h2 = new Vec3().copy(horiz).mulScalar(Math.cos(az)).add(new Vec3().copy(side).mulScalar(Math.sin(az)));
+    el = Math.max(-1.5, Math.min(1.5, el + dpitch));
+    cam.eye = new Vec3().copy(cam.target).add(h2.mulScalar(r * Math.cos(el))).add(new Vec3().copy(up).mulScalar(r * Math.sin(el)));
+    changed();
+}
+
+function pan(dx, dy, paneHeight) {
+    const fwd = new Vec3().sub2(cam.target, cam.eye);
+    const r = fwd.length();
+    fwd.normalize();
+    const right = new Vec3().cross(fwd, cam.up).normalize();
+    const camUp = new Vec3().cross(right, fwd).normalize();
+    const s = 2 * r * Math.tan((cam.fovX * Math.PI / 180) / 2) / Math.max(paneHeight, 1);
+    const d = right.mulScalar(-dx * s).add(camUp.mulScalar(dy * s));
+    cam.eye.add(d);
+    cam.target.add(d);
+    changed();
+}
+
+function zoom(factor) {
+    const off = new Vec3().sub2(cam.eye, cam.target).mulScalar(factor);
+    cam.eye = new Vec3().add2(cam.target, off);
+    changed();
+}
+
+function attachControls(canvas) {
+    let last = null;
+    canvas.addEventListener('contextmenu', (e) => e.preventDefault());
+    canvas.addEventListener('pointerdown', (e) => {
+        canvas.setPointerCapture(e.pointerId);
+        last = { x: e.clientX, y: e.clientY, pan: e.button !== 0 || e.shiftKey };
+    });
+    canvas.addEventListener('pointermove', (e) => {
+        if (!last) return;
+        const dx = e.clientX - last.x, dy = e.clientY - last.y;
+        if (last.pan) pan(dx, dy, canvas.clientHeight);
+        else orbit(-dx * 0.008, dy * 0.008);
+        last.x = e.clientX;
+        last.y = e.clientY;
+    });
+    const end = () => { last = null; };
+    canvas.addEventListener('pointerup', end);
+    canvas.addEventListener('pointercancel', end);
+    canvas.addEventListener('wheel', (e) => {
+        e.preventDefault();
+        zoom(Math.exp(e.deltaY * 0.001));
+    }, { passive: false });
+}
+
+window.addEventListener('keydown', (e) => {
+    if (e.key === 'r' || e.key === 'R') setCamera({ eye: [home.eye.x, home.eye.y, home.eye.z], target: [home.target.x, home.target.y, home.target.z] });
+});
+
+// ---------------------------------------------------------------------------------------------
+// Panes: ONE engine application on one canvas, one camera and one layer per pane, the cameras'
+// viewports side by side. (Two applications on one page do not work: with PlayCanvas 2.23 only
+// the last one created ever draws its splats.)
+// ---------------------------------------------------------------------------------------------
+
+const GAP = 2;  // CSS pixels between panes (a divider drawn by the page)
+const panes = [];
+const canvas = document.getElementById('lghcc-canvas');
+let app = null;
+const state = { frames: 0, sorts: 0, loaded: 0, appliedVersion: -1, sortsAtApply: 0, framesAfterSort: 0, framesThisVersion: 0, readyVersion: -1 };
+
+function layout() {
+    // viewport of pane i: [x0, x1) of the canvas, in CSS pixels and as the camera's rect
+    const w = canvas.clientWidth, n = panes.length;
+    const pw = (w - GAP * (n - 1)) / n;
+    panes.forEach((p, i) => {
+        const x0 = i * (pw + GAP);
+        p.x0 = x0;
+        p.width = pw;
+        p.camera.camera.rect = new Vec4(x0 / w, 0, pw / w, 1);
+        const label = document.getElementById(`lghcc-label-${p.name}`);
+        if (label) label.style.left = `${x0 + 8}px`;
+        const div = document.getElementById(`lghcc-divider-${i}`);
+        if (div) { div.style.left = `${x0 + pw}px`; div.style.width = `${GAP}px`; }
+    });
+}
+
+function start() {
+    app = new Application(canvas, { graphicsDeviceOptions: { antialias: false, alpha: false, powerPreference: 'high-performance' } });
+    app.setCanvasFillMode(FILLMODE_NONE);
+    app.setCanvasResolution(RESOLUTION_AUTO);
+    app.graphicsDevice.maxPixelRatio = window.devicePixelRatio || 1;
+    app.autoRender = false;  // draw on demand: after a camera move or when the engine asks
+    const g = app.scene.gsplat;
+    g.dataFormat = GSPLATDATA_LARGE;
+    g.minPixelSize = 0;
+    g.minContribution = 0;
+    g.antiAlias = false;
+    g.alphaClipForward = 1 / 255;
+    g.colorUpdateAngle = 0.5;
+    g.colorUpdateDistance = 0;
+    g.splatBudget = 0;  // no budget: every splat, however many (the default budget is 1M)
+    const bg = meta.background;
+    for (const name of meta.panes) {
+        const layer = new Layer({ name: `lghcc-${name}` });
+        app.scene.layers.push(layer);
+        const camera = new Entity(`camera-${name}`);
+        camera.addComponent('camera', {
+            clearColor: new Color(bg[0], bg[1], bg[2], 1), horizontalFov: true, fov: cam.fovX, layers: [layer.id],
+            nearClip: meta.camera.near, farClip: meta.camera.far, gammaCorrection: GAMMA_SRGB, toneMapping: TONEMAP_LINEAR
+        });
+        app.root.addChild(camera);
+        const pane = { name, camera, layer, loaded: false };
+        panes.push(pane);
+        const bytes = base64Bytes(`lghcc-ply-${name}`);
+        const asset = new Asset(name, 'gsplat', { url: `${name}.ply`, filename: `${name}.ply`, contents: new Response(bytes) });
+        asset.on('error', (err) => fail(`${name}: ${err}`));
+        asset.ready(() => {
+            const e = new Entity(name);
+            e.addComponent('gsplat', { asset, layers: [layer.id] });
+            app.root.addChild(e);
+            pane.loaded = true;
+            state.loaded++;
+            app.renderNextFrame = true;
+        });
+        app.assets.add(asset);
+        app.assets.load(asset);
+    }
+    app.on('update', () => {
+        if (state.appliedVersion !== cam.version) {
+            for (const p of panes) {
+                p.camera.camera.fov = cam.fovX;
+                p.camera.setPosition(cam.eye);
+                p.camera.lookAt(cam.target, cam.up);
+            }
+            state.appliedVersion = cam.version;
+            state.sortsAtApply = state.sorts;
+            state.framesAfterSort = 0;
+            state.framesThisVersion = 0;
+        }
+    });
+    app.systems.gsplat.on('frame:request', () => { app.renderNextFrame = true; });
+    app.scene.on('gsplat:sorted', () => {
+        state.sorts++;
+        app.renderNextFrame = true;
+    });
+    app.on('frameend', () => {
+        state.frames++;
+        if (state.loaded < panes.length || state.readyVersion === cam.version || state.appliedVersion !== cam.version) {
+            if (state.readyVersion !== cam.version) app.renderNextFrame = true;
+            return;
+        }
+        state.framesThisVersion++;
+        const sorted = state.sorts - state.sortsAtApply >= panes.length;  // one sort per pane's camera
+        if (sorted) state.framesAfterSort++;
+        // on screen: two frames drawn after every pane's sort for this camera came back; or, for a
+        // move too small to start a sort (the engine re-sorts after a turn of 1e-3 rad), 60 frames
+        if ((sorted && state.framesAfterSort >= 2) || state.framesThisVersion >= 60) {
+            state.readyVersion = cam.version;
+        } else {
+            app.renderNextFrame = true;
+        }
+        checkSettled();
+    });
+    const resize = () => {
+        app.resizeCanvas(canvas.clientWidth, canvas.clientHeight);
+        layout();
+        app.renderNextFrame = true;
+    };
+    new ResizeObserver(resize).observe(canvas);
+    resize();
+    attachControls(canvas);
+    app.start();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Ready / settled promises
+// ---------------------------------------------------------------------------------------------
+
+let waiters = [];
+let resolveReady, rejectReady;
+const api = {
+    firstFrame: false,
+    error: null,
+    ready: new Promise((res, rej) => { resolveReady = res; rejectReady = rej; }),
+    panes,
+    state,
+    paneRects: () => panes.map((p) => ({ name: p.name, x: p.x0, width: p.width })),
+    setCamera,
+    camera: () => ({ eye: [cam.eye.x, cam.eye.y, cam.eye.z], target: [cam.target.x, cam.target.y, cam.target.z], up: [cam.up.x, cam.up.y, cam.up.z], fovX: cam.fovX }),
+    settled: () => new Promise((res, rej) => { waiters.push({ res, rej }); checkSettled(); })
+};
+window.lghccViewer = api;
+
+function fail(msg) {
+    api.error = String(msg);
+    const el = document.getElementById('lghcc-status');
+    if (el) el.textContent = `error: ${api.error}`;
+    rejectReady(new Error(api.error));
+    for (const w of waiters) w.rej(new Error(api.error));
+    waiters = [];
+}
+
+function checkSettled() {
+    if (!panes.length || api.error) return;
+    if (state.readyVersion !== cam.version) return;
+    if (!api.firstFrame) {
+        api.firstFrame = true;
+        document.body.dataset.firstFrame = 'true';
+        const el = document.getElementById('lghcc-status');
+        if (el) el.textContent = '';
+        resolveReady();
+    }
+    for (const w of waiters) w.res();
+    waiters = [];
+}
+
+try {
+    start();
+} catch (err) {
+    fail(err && err.message ? err.message : err);
+}
