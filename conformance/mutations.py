@@ -33,7 +33,12 @@ Not listed, with the reason (each would be an *equivalent* mutation: no stream c
 * the N * M <= 2^31 comparison as >= : the stream at the limit takes 8 GiB to decode (e005 covers
   the rejection beyond it);
 * IntLinear's shift-0 case (no rounding offset): adding 0.5 before the floor of an integer is the
-  integer.
+  integer;
+* sh_degree's range 0..3 (clause 7.3.9): u(2) holds nothing else;
+* the ranges of pred_source_channel (<= M - 2), of pred_target_channel from below (>= 1) and of
+  num_channel_predictions (<= M (M - 1) / 2): an entry beyond them breaks source < target or the
+  strictly increasing order of the entries, which the decoder rejects anyway (as BitstreamError;
+  only the message would differ).
 """
 
 from __future__ import annotations
@@ -80,6 +85,7 @@ SYNTAX = "lghcc.common.syntax"
 RENDER = "lghcc.common.render_model"
 CONTAINER = "lghcc.common.container"
 DECODE = "lghcc.decoder.decode"
+HASHING = "lghcc.common.hashing"
 
 _BIAS_HALF = "(float(1 << (self.shift - 1)) if self.shift else 0.0)"
 
@@ -552,6 +558,117 @@ MUTATIONS: list[Mutation] = [
       ("if digest != hash_unit.scene_hash:", "if False:")),
     M("decode.attribute_limit", "decode", f"{DECODE}:decode_stream", "N * M above 2^31 accepted",
       ("if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:", "if False:")),
+
+    # --- explicit-Gaussian scenes (format 0.2): gaussian_parameter_set (clause 7.3.9), the Gaussian
+    # channel layout (clause 11.1), their unit order (clause 6.3) and hash (clause 12)
+    M("gaussians.num_gaussians_max", "gaussians", f"{UNITS}:GaussianParameterSet.syntax",
+      "num_gaussians_minus1 range off by one (2^24 + 1 Gaussians accepted)",
+      ('v.ue(self, "num_gaussians_minus1", hi=MAX_ANCHORS - 1)', 'v.ue(self, "num_gaussians_minus1", hi=MAX_ANCHORS)')),
+    M("gaussians.voxel_size_positive", "gaussians", f"{UNITS}:GaussianParameterSet.syntax",
+      "a gaussian_parameter_set voxel_size <= 0 accepted",
+      ('v.f32(self, "voxel_size", positive=True)', 'v.f32(self, "voxel_size")')),
+    M("gaussians.band_step_positive", "gaussians", f"{UNITS}:GaussianParameterSet.syntax",
+      "an sh_band_step <= 0 accepted",
+      ('v.f32(self, "sh_band_step", b, positive=True)', 'v.f32(self, "sh_band_step", b)')),
+    M("gaussians.coarse_voxel_scale_max", "gaussians", f"{UNITS}:GaussianParameterSet.syntax",
+      "a gaussian_parameter_set's coarse voxels of 2^20 + 1 accepted",
+      ('hi=MAX_COARSE_VOXEL_SCALE - 1)', 'hi=MAX_COARSE_VOXEL_SCALE)')),
+    M("gaussians.band_steps_count", "gaussians", f"{UNITS}:GaussianParameterSet.syntax",
+      "one sh_band_step per band including the DC band (d + 1 of them instead of d)",
+      ('v.loop(self.sh_degree, "sh_degree"', 'v.loop(self.sh_degree + 1, "sh_degree"')),
+    M("gaussians.steps_order", "gaussians", f"{UNITS}:GaussianParameterSet.syntax",
+      "scale_step read before opacity_step",
+      ('    v.f32(self, "opacity_step", positive=True)\n    v.f32(self, "scale_step", positive=True)',
+       '    v.f32(self, "scale_step", positive=True)\n    v.f32(self, "opacity_step", positive=True)')),
+    M("gaussians.coefficients_of_last_band", "gaussians", f"{ATTR}:GaussianLayout.sh_channels",
+      "S = 2d + 1 SH coefficients per colour (those of band d) instead of (d + 1)^2",
+      ("return 3 * sh_coeffs_per_channel(self.sh_degree)", "return 3 * (2 * self.sh_degree + 1)")),
+    M("gaussians.colour_major", "gaussians", f"{ATTR}:GaussianLayout.split",
+      "SH channels colour-major (channel c is coefficient c mod S of colour c / S) instead of coefficient-major",
+      ("values[:, :self.sh_channels].reshape(n, -1, 3)", "values[:, :self.sh_channels].reshape(n, 3, -1).transpose(0, 2, 1)")),
+    M("gaussians.band_by_channel", "gaussians", f"{ATTR}:GaussianLayout.band_of_channel",
+      "SH band from the channel index, floor(sqrt(c)), instead of from the coefficient index floor(c / 3)",
+      ("i = np.arange(self.sh_channels) // 3", "i = np.arange(self.sh_channels)")),
+    M("gaussians.band_step_off_by_one", "gaussians", f"{ATTR}:GaussianLayout.steps",
+      "band b > 0 takes sh_band_step[b] (one band up; the last band the DC step) instead of sh_band_step[b - 1]",
+      ("band_steps = [gps.sh_dc_step] + list(gps.sh_band_step)",
+       "band_steps = [gps.sh_dc_step] + list(gps.sh_band_step)[1:] + [gps.sh_dc_step]")),
+    M("gaussians.opacity_scale_steps_swapped", "gaussians", f"{ATTR}:GaussianLayout.steps",
+      "the opacity channel quantized with scale_step",
+      ("s[self.opacity_channel] = np.float32(gps.opacity_step)", "s[self.opacity_channel] = np.float32(gps.scale_step)")),
+    M("gaussians.rotation_xyzw", "gaussians", f"{ATTR}:GaussianLayout.split",
+      "rotation channels read as (x, y, z, w) instead of (w, x, y, z)",
+      ("values[:, self.rotation_start:])", "np.roll(values[:, self.rotation_start:], 1, axis=1))")),
+    M("gaussians.opacity_is_feature", "gaussians", f"{ATTR}:GaussianLayout.feature_dim",
+      "the opacity counted among a context model's features (C = 3S + 1 instead of 3S)",
+      ("return self.sh_channels", "return self.sh_channels + 1")),
+    M("gaussians.render_model_ok", "gaussians", f"{DECODE}:_UNIT_ORDER",
+      "a render_model unit accepted (and ignored) in an explicit-Gaussian stream",
+      value='__import__("re").compile(r"SR?GC?A{1,2}H|PR?GC?A{1,2}H")'),
+    M("gaussians.hash_field_order", "gaussians", f"{HASHING}:gaussian_scene_digest",
+      "the opacities hashed before the SH coefficients (clause 12)",
+      ("for arr in (scene.sh, scene.opacity, scene.log_scales, scene.rotations):",
+       "for arr in (scene.opacity, scene.sh, scene.log_scales, scene.rotations):")),
+
+    # --- cross-channel prediction (clause 11.6)
+    M("prediction.ignored", "prediction", f"{ATTR}:read_attribute_unit",
+      "cross-channel prediction entries parsed but not applied (q = r + mean)",
+      ("        if h.channel_prediction_allowed:\n            q = prediction.reconstruct(",
+       "        if False:\n            q = prediction.reconstruct(")),
+    M("prediction.ties_down", "prediction", f"{ATTR}:ChannelPrediction._term",
+      "prediction sum rounds ties down: (sum + 2^7 - 1) >> 8",
+      ("(acc + (1 << (CHANNEL_PREDICTION_SHIFT - 1)))", "(acc + ((1 << (CHANNEL_PREDICTION_SHIFT - 1)) - 1))")),
+    M("prediction.floor", "prediction", f"{ATTR}:ChannelPrediction._term",
+      "prediction sum floored (no rounding offset): sum >> 8", ("(acc + (1 << (CHANNEL_PREDICTION_SHIFT - 1)))", "(acc)")),
+    M("prediction.truncate", "prediction", f"{ATTR}:ChannelPrediction._term",
+      "prediction sum divided by 2^8 rounding toward zero (C's /) instead of the rounding shift",
+      ("return (acc + (1 << (CHANNEL_PREDICTION_SHIFT - 1))) >> CHANNEL_PREDICTION_SHIFT",
+       "return np.sign(acc) * (np.abs(acc) >> CHANNEL_PREDICTION_SHIFT)")),
+    M("prediction.shift_minus_one", "prediction", f"{ATTR}:ChannelPrediction._term",
+      "weights in units of 2^-7 (shift 7, off by one)",
+      (">> CHANNEL_PREDICTION_SHIFT", ">> (CHANNEL_PREDICTION_SHIFT - 1)")),
+    M("prediction.shift_plus_one", "prediction", f"{ATTR}:ChannelPrediction._term",
+      "weights in units of 2^-9 (shift 9, off by one)",
+      (">> CHANNEL_PREDICTION_SHIFT", ">> (CHANNEL_PREDICTION_SHIFT + 1)")),
+    M("prediction.weight_sign", "prediction", f"{ATTR}:ChannelPrediction._term",
+      "pred_weight applied with the opposite sign",
+      ("acc += self.weights[e] * dev[:, self.sources[e]]", "acc -= self.weights[e] * dev[:, self.sources[e]]")),
+    M("prediction.source_target_swapped", "prediction", f"{ATTR}:ChannelPrediction.from_header",
+      "pred_target_channel and pred_source_channel taken for each other",
+      ("t = np.asarray(h.pred_target_channel, np.int64)\n    s = np.asarray(h.pred_source_channel, np.int64)",
+       "t = np.asarray(h.pred_source_channel, np.int64)\n    s = np.asarray(h.pred_target_channel, np.int64)")),
+    M("prediction.source_without_mean", "prediction", f"{ATTR}:ChannelPrediction.reconstruct",
+      "the source's q instead of its deviation q - mean",
+      ("dev[:, c] = q[:, c] - np.broadcast_to(mean, q.shape)[:, c]", "dev[:, c] = q[:, c]")),
+    M("prediction.source_residual", "prediction", f"{ATTR}:ChannelPrediction.reconstruct",
+      "the source's residual r (its deviation before prediction) instead of q - mean",
+      ("dev[:, c] = q[:, c] - np.broadcast_to(mean, q.shape)[:, c]",
+       "dev[:, c] = np.broadcast_to(r, q.shape)[:, c]")),
+    M("prediction.no_source_check", "prediction", f"{ATTR}:ChannelPrediction.from_header",
+      "a prediction whose source is not before its target accepted", ("if (s >= t).any():", "if False:")),
+    M("prediction.no_order_check", "prediction", f"{ATTR}:ChannelPrediction.from_header",
+      "prediction entries in any order accepted", ("if (np.diff(key) <= 0).any():", "if False:")),
+    M("prediction.duplicates_ok", "prediction", f"{ATTR}:ChannelPrediction.from_header",
+      "entries need only be non-decreasing: the same (target, source) twice accepted",
+      ("if (np.diff(key) <= 0).any():", "if (np.diff(key) < 0).any():")),
+    M("prediction.no_magnitude_check", "prediction", f"{ATTR}:_check_magnitude",
+      "decoded values beyond 2^40 steps accepted", ("if q.size and int(np.abs(q).max()) > MAX_PREDICTED_MAGNITUDE:",
+                                                   "if False:")),
+    M("prediction.magnitude_off_by_one", "prediction", f"{ATTR}:_check_magnitude",
+      "magnitude limit off by one: |q| = 2^40 rejected",
+      ("int(np.abs(q).max()) > MAX_PREDICTED_MAGNITUDE:", "int(np.abs(q).max()) >= MAX_PREDICTED_MAGNITUDE:")),
+    M("prediction.check_before_prediction", "prediction", f"{ATTR}:ChannelPrediction.reconstruct",
+      "|q| <= 2^40 checked on r + mean only, not on the predicted value",
+      ("    q = r + mean\n    if self.empty:\n        _check_magnitude(q, what)\n",
+       "    q = r + mean\n    _check_magnitude(q, what)\n    if self.empty:\n"),
+      ("        _check_magnitude(q[:, c], what)\n", "")),
+    M("prediction.weight_range", "prediction", f"{UNITS}:AttributeUnitHeader.syntax",
+      "pred_weight of magnitude 2^15 + 1 accepted",
+      ("lo=-MAX_CHANNEL_PREDICTION_WEIGHT, hi=MAX_CHANNEL_PREDICTION_WEIGHT)",
+       "lo=-MAX_CHANNEL_PREDICTION_WEIGHT - 1, hi=MAX_CHANNEL_PREDICTION_WEIGHT + 1)")),
+    M("prediction.target_max", "prediction", f"{UNITS}:AttributeUnitHeader.syntax",
+      "pred_target_channel = M (beyond the last channel) accepted (and never applied)",
+      ('v.ue(self, "pred_target_channel", i, lo=1, hi=m - 1)', 'v.ue(self, "pred_target_channel", i, lo=1, hi=m)')),
 ]
 
 
@@ -587,6 +704,8 @@ def _holders(obj) -> list[tuple[object, str]]:
 def mutated_source(mutation: Mutation) -> str:
     """The target's source with the edits applied; StaleMutation when one does not match once."""
     _, _, _, obj = _resolve(mutation.target)
+    if isinstance(obj, property):
+        obj = obj.fget
     func = inspect.unwrap(obj.__func__ if isinstance(obj, (classmethod, staticmethod)) else obj)
     src = textwrap.dedent(inspect.getsource(func))
     for find, replace in mutation.edits:
@@ -612,6 +731,8 @@ def apply(mutation: Mutation) -> None:
         exec(compile(src, f"<mutation {mutation.id}>", "exec"), vars(module), ns)  # noqa: S102
         new = ns[name]
         if isinstance(owner, type):
+            if isinstance(obj, property) and not isinstance(new, property):  # its source without @property
+                new = property(new)
             setattr(owner, name, new)
         else:
             for holder, attr in [(module, name)] + _holders(obj):

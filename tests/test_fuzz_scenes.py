@@ -117,7 +117,8 @@ def test_every_mutation_applies_to_todays_code():
         else:
             mutations._resolve(m.target)
     groups = Counter(m.group for m in mutations.MUTATIONS)
-    for g in ("intnn", "ggconv", "parent_mlp", "knn", "hierarchy", "attributes", "entropy", "geometry", "syntax"):
+    for g in ("intnn", "ggconv", "parent_mlp", "knn", "hierarchy", "attributes", "entropy", "geometry", "syntax",
+              "gaussians", "prediction"):
         assert groups[g] >= 2, g
 
 
@@ -132,6 +133,8 @@ def test_a_stale_mutation_is_reported_not_skipped():
     ("ggconv.tri_ties_down", "c044_ggconv_trilinear_ties"),
     ("attributes.step_factor_7", "c047_ggconv_limits_every_level_and_step"),
     ("geometry.count_limit_1023", "c051_geometry_count_limit"),
+    ("prediction.magnitude_off_by_one", "c052_gaussians_value_at_limit"),
+    ("prediction.check_before_prediction", "e084_prediction_value_limit"),
 ])
 def test_named_streams_kill_their_mutations(mid, killer):
     """The harness end to end: the mutation fails the stream written for it, and the same stream passes
@@ -167,6 +170,25 @@ def test_value_mutations_reach_every_holder():
     from lghcc.common import geometry
     assert list(geometry.DENS_BUCKET) == [0, 1, 1, 2, 2, 3, 3]
     assert np.array_equal(geometry.DENS_BUCKET, [0, 1, 1, 2, 2, 3, 3])
+
+
+def test_property_mutations_replace_the_property():
+    """A derived value of a layout (a property) is mutated as a property, in a child process."""
+    import multiprocessing as mp
+
+    from lghcc.common.attributes import GaussianLayout
+
+    def child(conn):
+        mutations.apply(next(m for m in mutations.MUTATIONS if m.id == "gaussians.coefficients_of_last_band"))
+        conn.send(GaussianLayout(3).sh_channels)
+
+    ctx = mp.get_context("fork")
+    a, b = ctx.Pipe()
+    p = ctx.Process(target=child, args=(b,))
+    p.start()
+    assert a.recv() == 21  # 3 x (2d + 1) for d = 3
+    p.join()
+    assert GaussianLayout(3).sh_channels == 48  # 3 x (d + 1)^2 here
 
 
 def test_a_stopped_campaign_keeps_its_figures():

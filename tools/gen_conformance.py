@@ -375,7 +375,8 @@ def _rewrite_gaussian_attributes(units, edit: dict):
     """Re-code the (single, level-0) attribute unit of a Gaussian stream: with the cross-channel
     predictions ``entries`` [[target, source, weight], ...] in place of the encoder's (lossless: the
     decoded scene is unchanged), and/or with the quantized value at ``set_q`` [row, channel, value]
-    changed (the hash then no longer matches: for error streams)."""
+    changed (the hash then no longer matches: for error streams, or give ``rehash``); ``set_q`` may
+    also be a list of such triples."""
     from lghcc.common import attributes as attr
     from lghcc.common.container import DataUnit, UnitType
     from lghcc.common.units import GaussianParameterSet
@@ -387,8 +388,9 @@ def _rewrite_gaussian_attributes(units, edit: dict):
     h, _, q = attr.read_attribute_unit(units[a].payload, layout, layout.steps(gps), gps.num_gaussians, 0, values,
                                        keep_q=True)
     if "set_q" in edit:
-        row, ch, value = edit["set_q"]
-        q[row, ch] = value
+        triples = edit["set_q"] if isinstance(edit["set_q"][0], list) else [edit["set_q"]]
+        for row, ch, value in triples:
+            q[row, ch] = value
     pred = attr.ChannelPrediction.from_header(h, "edit")
     if "entries" in edit:
         e = np.asarray(edit["entries"], np.int64).reshape(-1, 3)
