@@ -2,7 +2,7 @@
 one line on stderr, never a traceback, and an exit status that tells the kind of failure apart,
 so that scripts and conformance harnesses can act on it without parsing messages.
 
-One rule for lghcc-enc, lghcc-dec, lghcc-conformance and lghcc-train (``exit_code_for``):
+One rule for lghcc-enc, lghcc-dec, lghcc-conformance, lghcc-train and lghcc-view (``exit_code_for``):
 
     0    success
     1    error in the input or the environment: an input file that cannot be read or used, an

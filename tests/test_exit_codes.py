@@ -107,7 +107,9 @@ def test_decoder_interrupt_and_out_of_memory(tmp_path, capsys, monkeypatch, exc,
 
 
 def test_every_program_documents_its_exit_status(capsys):
-    for main in (dec_cli.main, enc_cli.main, runner.main, train_cli.main):
+    from lghcc.viewer import cli as view_cli
+
+    for main in (dec_cli.main, enc_cli.main, runner.main, train_cli.main, view_cli.main):
         with pytest.raises(SystemExit) as e:
             main(["--help"])
         assert e.value.code == 0

@@ -18,6 +18,8 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from lghcc.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK,  # noqa: E402
+                              EXIT_RESOURCE_LIMIT, EXIT_USAGE, exit_status_epilog, guarded, report, with_prefix)
 from lghcc.common.errors import HashMismatchError, LghccError  # noqa: E402
 from lghcc.common.fileio import atomic_write_bytes, check_output_paths, check_writable_file, write_error  # noqa: E402
 
@@ -61,6 +63,13 @@ def _vector(text: str, opt: str) -> np.ndarray:
 
 def setup_args() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="lghcc-view", description=DESCRIPTION,
+                                epilog=exit_status_epilog(
+                                    {EXIT_INVALID_STREAM: "invalid stream (malformed, unsupported, or its decoded "
+                                                          "scene does not match its hash): no page is written",
+                                     EXIT_RESOURCE_LIMIT: "resource limit (the decoder's default memory bound, "
+                                                          "or the system ran out of memory)"},
+                                    codes=(EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INVALID_STREAM, EXIT_RESOURCE_LIMIT,
+                                           EXIT_INTERRUPTED)),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("stream", help="the .lghcc file to show")
     p.add_argument("-o", "--output", required=True, metavar="HTML", help="the page to write")
@@ -102,17 +111,16 @@ def _say_nothing(*_a, **_k) -> None:
     return None
 
 
+@guarded("lghcc-view")
 def main(argv: list[str] | None = None) -> int:
+    """Exit status: lghcc.cli_common (0 page written, 1 input/output error, 2 usage, 3 invalid stream
+    (malformed, or its decoded scene fails its hash: no page), 4 resource limit, 130 interrupted)."""
     args = setup_args().parse_args(argv)
     say = _say_nothing if args.quiet else (lambda *a: print(*a, flush=True))
     try:
         return _run(args, say)
     except HashMismatchError as e:
-        print(f"lghcc-view: error: {args.stream}: {e}; no page written", file=sys.stderr)
-        return 3
-    except LghccError as e:
-        print(f"lghcc-view: error: {e}", file=sys.stderr)
-        return 1
+        return report("lghcc-view", type(e)(f"{args.stream}: {e}; no page written"))
 
 
 def _run(args, say) -> int:
@@ -148,8 +156,8 @@ def _run(args, say) -> int:
         result = decode_stream(data, verify_hash=True)
     except HashMismatchError:
         raise
-    except LghccError as e:
-        raise LghccError(f"{args.stream}: {e}") from None
+    except LghccError as e:  # the same class (and exit status), with the stream's path
+        raise with_prefix(e, args.stream) from None
     t_dec = time.perf_counter() - t0
     say(f"{args.stream}: {len(data):,} bytes, decoded in {t_dec:.2f} s, hash matches")
 
