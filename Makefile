@@ -6,7 +6,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test test-slow spec bench clean node-tools viewer-bundle
+.PHONY: setup demo test test-slow spec bench clean node-tools viewer-bundle fuzz-long mutations
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -47,3 +47,24 @@ viewer-bundle: node-tools
 
 clean:
 	rm -rf demo_out build *.egg-info
+
+# Long decoder fuzzing (not part of `make test`): FUZZ_JOBS campaigns side by side, FUZZ_CASES in all,
+# mutation of the conformance streams and of freshly encoded random scenes (tools/fuzz_scenes.py);
+# nice'd, logs in fuzz_logs/, figures merged into tools/results/fuzz.md.
+FUZZ_CASES ?= 1000000
+FUZZ_JOBS ?= 2
+FUZZ_SEED ?= 14
+fuzz-long: setup
+	mkdir -p fuzz_logs
+	for j in $$(seq 1 $(FUZZ_JOBS)); do \
+	  nice -n 19 $(PY) tools/fuzz_decoder.py --cases $$(( $(FUZZ_CASES) / $(FUZZ_JOBS) )) --scenes --timeout 60 --weigh-seeds \
+	    --mutations-per-scene 100 \
+	    --seed $$(( $(FUZZ_SEED) * 100 + $$j )) --failures fuzz_logs/failures_$$j --json fuzz_logs/job_$$j.json \
+	    > fuzz_logs/job_$$j.log 2>&1 & \
+	done; wait
+	$(PY) tools/fuzz_decoder.py --merge fuzz_logs/job_*.json --out tools/results/fuzz.md
+
+# Mutation testing of the decoder against the conformance suite (conformance/mutations.py): every
+# listed wrong decoder must fail some stream; rewrites the table in tools/results/conformance.md.
+mutations: setup
+	nice $(PY) tools/mutation_test.py --report

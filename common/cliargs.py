@@ -20,23 +20,14 @@ def positive_float(text: str) -> float:
 
 # --- what every lghcc-* program shares ------------------------------------------------------------
 
-EXIT_OK = 0
-EXIT_ERROR = 1  # bad input, a bad option value, an output that may not or cannot be written
-EXIT_USAGE = 2  # the command line itself (argparse): unknown option, missing argument
-EXIT_HASH_MISMATCH = 3  # lghcc-dec, lghcc-view: the decoded scene does not match the stream's hash
-EXIT_INTERRUPTED = 130  # Ctrl-C (SIGINT), as shells report 128 + 2
+# The exit statuses and the --help table that lists them are lghcc.cli_common's (one rule for every
+# program; README "Exit status", the conformance docs); re-exported here for the programs' convenience.
+from lghcc.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK,  # noqa: E402,F401
+                              EXIT_RESOURCE_LIMIT, EXIT_USAGE, exit_status_epilog)
 
 OVERWRITE_RULE = textwrap.fill("Outputs: a file or a non-empty folder that exists is never overwritten unless -y (--overwrite) "
                   "is given; the program then stops before any work (as ffmpeg -n; -n says so explicitly). "
                   "Every file is written whole or not at all (a temporary file, renamed into place).", 88)
-
-
-def exit_codes_text(extra: dict[int, str] | None = None) -> str:
-    """The 'exit status' paragraph of a program's --help (README: the same table)."""
-    codes = {EXIT_OK: "success", EXIT_ERROR: "error (the message says what and where)",
-             EXIT_USAGE: "bad command line", **(extra or {}),
-             EXIT_INTERRUPTED: "interrupted (Ctrl-C); no partial output file is left"}
-    return "exit status:\n" + "".join(f"  {k:<4} {v}\n" for k, v in sorted(codes.items()))
 
 
 def add_version_option(p: argparse.ArgumentParser) -> None:
@@ -56,13 +47,14 @@ def add_overwrite_options(p: argparse.ArgumentParser, what: str = "output files 
 
 
 def run_cli(prog: str, body, argv, interrupted_note: str = "") -> int:
-    """Run ``body(argv)`` -> exit status, turning Ctrl-C into one line and EXIT_INTERRUPTED.
-    Outputs are written atomically, so an interrupt leaves no partial file behind."""
-    import sys
+    """Run ``body(argv)`` -> exit status under lghcc.cli_common's rule: an LghccError, a MemoryError
+    or Ctrl-C raised inside becomes one line on stderr and its exit status (``exit_code_for``: 1, 3
+    for an invalid stream, 4 for a resource limit, 130 interrupted). Outputs are written atomically,
+    so an interrupt leaves no partial file behind. Other exceptions are bugs and propagate."""
+    from lghcc.cli_common import report
+    from lghcc.common.errors import LghccError
 
     try:
         return body(argv)
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted" + (f"; {interrupted_note}" if interrupted_note else ""), file=sys.stderr,
-              flush=True)
-        return EXIT_INTERRUPTED
+    except (LghccError, MemoryError, KeyboardInterrupt) as e:
+        return report(prog, e, "interrupted" + (f"; {interrupted_note}" if interrupted_note else ""))

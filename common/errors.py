@@ -20,3 +20,8 @@ class HashMismatchError(BitstreamError):
 
 class InputError(LghccError):
     """The encoder's input (a scene, a file, an option) cannot be used; the message says why."""
+
+
+class ResourceLimitError(LghccError):
+    """The work is allowed by the spec but needs more than this run may use (``--max-memory``,
+    ``--max-anchors``): not a fault of the stream or the input, so it is not a BitstreamError."""

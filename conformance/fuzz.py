@@ -179,12 +179,38 @@ class Mutator:
     def __init__(self, seeds: dict[str, bytes]):
         if not seeds:
             raise LghccError("no seed streams to mutate")
-        self.seeds = seeds
+        self.seeds = dict(seeds)  # add_seed grows the mutator's copy, not the caller's
         self.ids = sorted(seeds)
         self._units = {k: [DataUnit(u.unit_type, u.payload) for u in read_container(v).units]
                        for k, v in seeds.items()}
         self._elements: dict[str, list[Element]] = {}
         self.ops = self.RAW + self.UNIT + self.FIELD + self.FIELD  # syntax-aware mutations twice as often
+        self.weights: dict[str, float] | None = None  # seed choice weights (None: uniform), see weigh_by_time
+
+    def weigh_by_time(self, seconds: dict[str, float], floor: float = 0.002) -> None:
+        """Draw each seed with probability inversely proportional to its decode time (``seconds``:
+        CPU seconds per seed; at least ``floor``): a 0.2 s GG-Conv seed is mutated a hundredth as
+        often as a 2 ms one, so that a long run spends its time on many cases rather than on the
+        slowest seeds, and still mutates every seed."""
+        self.weights = {sid: 1.0 / max(seconds.get(sid, floor), floor) for sid in self.ids}
+
+    def add_seed(self, sid: str, data: bytes, seconds: float | None = None) -> None:
+        """One more stream to mutate (a fresh one from the scene generator of tools/fuzz_scenes.py)."""
+        self.seeds[sid] = data
+        if self.weights is not None:
+            self.weights[sid] = 1.0 / max(seconds or 0.002, 0.002)
+        self._units[sid] = [DataUnit(u.unit_type, u.payload) for u in read_container(data).units]
+        if sid not in self.ids:
+            self.ids.append(sid)
+
+    def drop_seed(self, sid: str) -> None:
+        self.seeds.pop(sid, None)
+        self._units.pop(sid, None)
+        self._elements.pop(sid, None)
+        if self.weights is not None:
+            self.weights.pop(sid, None)
+        if sid in self.ids:
+            self.ids.remove(sid)
 
     def elements(self, sid: str) -> list[Element]:
         if sid not in self._elements:
@@ -195,7 +221,8 @@ class Mutator:
         return self._elements[sid]
 
     def case(self, rng: random.Random) -> tuple[bytes, str]:
-        sid = rng.choice(self.ids)
+        sid = rng.choice(self.ids) if self.weights is None else \
+            rng.choices(self.ids, [self.weights[i] for i in self.ids])[0]
         op = rng.choice(self.ops)
         data, what = getattr(self, "_" + op)(rng, sid)
         return data, f"{sid}: {op}: {what}"
@@ -400,12 +427,19 @@ def apply_program(mutator: Mutator, program) -> tuple[bytes, str]:
 VALID = "valid decode"
 
 
+# the decoder's memory bound in the worker (decoder/limits.py): half the address space the sandbox
+# gives a case, so that a stream the plan admits cannot reach the sandbox's limit (a MemoryError
+# there is a bug: the plan undercounted)
+_MAX_MEMORY: list[int | None] = [None]
+
+
 def classify(data: bytes) -> tuple[str, str]:
     """Decode in this process: (kind, detail). kind: VALID, 'error: <class>' or 'BUG: <class>'."""
     from lghcc.decoder.decode import decode_stream
+    from lghcc.decoder.limits import DEFAULT_MAX_MEMORY
 
     try:
-        res = decode_stream(data)
+        res = decode_stream(data, max_memory=_MAX_MEMORY[0] or DEFAULT_MAX_MEMORY)
         if res.scene.num_points < 1:
             return "BUG: empty scene", "a valid decode with no anchors or Gaussians"
         return VALID, ""
@@ -419,10 +453,16 @@ def classify(data: bytes) -> tuple[str, str]:
         return f"BUG: {type(e).__name__}", traceback.format_exc()
 
 
-def _worker(conn, memory_bytes: int | None, threads: int) -> None:
+def _worker(conn, memory_bytes: int | None, threads: int, max_memory: int | None = None) -> None:
+    import signal
+
     import torch
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C stops the campaign (the parent), not a case
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # the parent's handler is not the worker's
+
     torch.set_num_threads(threads)
+    _MAX_MEMORY[0] = max_memory
     import lghcc.decoder.decode  # noqa: F401 - imported before the clock of the first case starts
 
     if memory_bytes:
@@ -434,14 +474,14 @@ def _worker(conn, memory_bytes: int | None, threads: int) -> None:
         except EOFError:
             return
         base_kib = _reset_peak_rss()
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         try:
             kind, detail = classify(data)
         except Exception as e:  # noqa: BLE001 - e.g. MemoryError while handling another error
             kind, detail = f"BUG: {type(e).__name__}", traceback.format_exc()
-        dt = time.perf_counter() - t0
+        dt, cpu = time.perf_counter() - t0, time.process_time() - c0
         peak_kib = _status_kib("VmHWM") or resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        conn.send((kind, detail, dt, peak_kib, max(peak_kib - base_kib, 0)))
+        conn.send((kind, detail, dt, peak_kib, max(peak_kib - base_kib, 0), cpu))
 
 
 def _status_kib(key: str) -> int:
@@ -476,14 +516,18 @@ def _vm_size_bytes() -> int:
 
 
 class CaseResult(tuple):
-    """(kind, detail, seconds, peak_kib, growth_kib) with names."""
+    """(kind, detail, seconds, peak_kib, growth_kib, cpu_seconds) with names: ``seconds`` is wall
+    time, ``cpu_seconds`` the worker's CPU time for the case (on a shared machine a niced run's wall
+    time says little about the decoder; its CPU time does)."""
 
-    def __new__(cls, kind: str, detail: str, seconds: float, peak_kib: int = 0, growth_kib: int = 0):
-        return super().__new__(cls, (kind, detail, seconds, peak_kib, growth_kib))
+    def __new__(cls, kind: str, detail: str, seconds: float, peak_kib: int = 0, growth_kib: int = 0,
+                cpu_seconds: float = 0.0):
+        return super().__new__(cls, (kind, detail, seconds, peak_kib, growth_kib, cpu_seconds))
 
     kind = property(lambda self: self[0])
     detail = property(lambda self: self[1])
     seconds = property(lambda self: self[2])
+    cpu_seconds = property(lambda self: self[5])
     peak_kib = property(lambda self: self[3])
     growth_kib = property(lambda self: self[4])
 
@@ -495,6 +539,7 @@ class Sandbox:
     def __init__(self, timeout: float = 5.0, memory_mb: int | None = 2048, threads: int = 1):
         self.timeout = timeout
         self.memory_bytes = _vm_size_bytes() + memory_mb * (1 << 20) if memory_mb else None
+        self.max_memory = memory_mb * (1 << 19) if memory_mb else None  # the decoder's own bound: half of it
         self.threads = threads
         self._ctx = mp.get_context("fork")
         self._proc = None
@@ -502,7 +547,8 @@ class Sandbox:
 
     def _start(self) -> None:
         parent, child = self._ctx.Pipe()
-        self._proc = self._ctx.Process(target=_worker, args=(child, self.memory_bytes, self.threads), daemon=True)
+        self._proc = self._ctx.Process(target=_worker, args=(child, self.memory_bytes, self.threads, self.max_memory),
+                                       daemon=True)
         self._proc.start()
         child.close()
         self._conn = parent
@@ -527,12 +573,12 @@ class Sandbox:
             self._stop()
             return CaseResult("BUG: timeout", f"no result after {self.timeout:g} s", time.perf_counter() - t0)
         try:
-            kind, detail, seconds, peak_kib, growth_kib = self._conn.recv()
+            kind, detail, seconds, peak_kib, growth_kib, cpu = self._conn.recv()
         except (EOFError, OSError):
             code = self._proc.exitcode if self._proc else None
             self._stop()
             return CaseResult("BUG: worker died", f"exit code {code}", time.perf_counter() - t0)
-        return CaseResult(kind, detail, seconds, peak_kib, growth_kib)
+        return CaseResult(kind, detail, seconds, peak_kib, growth_kib, cpu)
 
     def close(self) -> None:
         if self._conn is not None:
@@ -563,7 +609,11 @@ class Summary:
     seconds: float = 0.0
     outcomes: Counter = field(default_factory=Counter)
     reasons: Counter = field(default_factory=Counter)  # (kind, message prefix) of the errors
-    slowest: tuple[float, str] = (0.0, "")
+    slowest: tuple[float, str] = (0.0, "")  # wall seconds
+    slowest_cpu: tuple[float, str] = (0.0, "")  # the worker's CPU seconds
+    slow_cpu_s: float = 5.0
+    slow: int = 0  # cases that took more than slow_cpu_s of CPU (reported, not bugs: a hang is a timeout)
+    stopped: bool = False  # the run was stopped before its budget (its figures are those of the cases done)
     peak_kib: list[int] = field(default_factory=list)  # per case: the worker's peak RSS
     growth_kib: list[int] = field(default_factory=list)  # per case: peak RSS above the RSS before the case
     largest: tuple[int, str] = (0, "")  # the largest growth and its case
@@ -576,6 +626,10 @@ class Summary:
             self.reasons[(res.kind[len("error: "):], message_prefix(res.detail))] += 1
         if res.seconds > self.slowest[0]:
             self.slowest = (res.seconds, what)
+        if res.cpu_seconds > self.slowest_cpu[0]:
+            self.slowest_cpu = (res.cpu_seconds, what)
+        if res.cpu_seconds > self.slow_cpu_s:
+            self.slow += 1
         if res.peak_kib:
             self.peak_kib.append(res.peak_kib)
             self.growth_kib.append(res.growth_kib)
@@ -615,7 +669,9 @@ class Summary:
                          f"top {min(top_reasons, len(self.reasons))}):")
             for (kind, prefix), n in self.reasons.most_common(top_reasons):
                 lines.append(f"  {n:>7}  {kind}: {prefix}")
-        lines.append(f"slowest case: {self.slowest[0]:.3f} s ({self.slowest[1][:120]})")
+        lines.append(f"slowest case: {self.slowest[0]:.3f} s wall ({self.slowest[1][:120]}); most CPU: "
+                     f"{self.slowest_cpu[0]:.3f} s ({self.slowest_cpu[1][:120]}); cases above {self.slow_cpu_s:g} s "
+                     f"of CPU: {self.slow}")
         lines.append(self.memory_text())
         lines.append(f"bugs: {self.bugs}")
         return "\n".join(lines)
@@ -630,21 +686,73 @@ def save_failure(folder: Path, kind: str, what: str, detail: str, data: bytes) -
     return folder / f"{name}.lghcc"
 
 
+SCENE_VALID = "scene: valid round trip"
+SCENE_REFUSED = "scene: refused by the encoder (InputError)"
+
+
+def scene_outcome(res: "CaseResult") -> "CaseResult":
+    """A fresh stream from the scene generator must decode to its own hash: anything else is a bug."""
+    if res.kind == VALID:
+        return CaseResult(SCENE_VALID, "", res.seconds, res.peak_kib, res.growth_kib, res.cpu_seconds)
+    kind = "BUG: round trip" if not res.kind.startswith("BUG") else f"BUG: round trip ({res.kind[5:]})"
+    return CaseResult(kind, f"{res.kind}: {res.detail}", res.seconds, res.peak_kib, res.growth_kib, res.cpu_seconds)
+
+
 def run_campaign(mutator: Mutator, *, seed: int = 0, cases: int | None = None, seconds: float | None = None,
                  timeout: float = 5.0, memory_mb: int | None = 2048, threads: int = 1,
-                 failures_dir: Path | None = None, progress=None) -> Summary:
-    """Run mutated cases until ``cases`` are done or ``seconds`` have passed (whichever first)."""
+                 failures_dir: Path | None = None, progress=None, scene_source=None,
+                 mutations_per_scene: int = 30, pool_size: int = 32, slow_cpu_s: float = 5.0) -> Summary:
+    """Run cases until ``cases`` are done or ``seconds`` have passed (whichever first).
+
+    ``scene_source(rng)``: a structure-aware generator (tools/fuzz_scenes.py ``scene_case``:
+    an object with ``data``, ``what``, ``refused``, ``bug``). With it, every
+    ``mutations_per_scene`` mutation cases one scene case is generated: a new stream that must
+    decode to its own hash (``scene_outcome``); each valid one joins the mutator's seeds (the
+    ``pool_size`` newest), so that byte, unit and field mutations reach the geometry, hierarchy
+    and context models it carries. A refused scene counts as a case (SCENE_REFUSED); a generator
+    exception is a bug ('BUG: encoder')."""
     if cases is None and seconds is None:
         raise ValueError("give cases or seconds")
     rng = random.Random(seed)
-    summary = Summary()
+    scene_rng = random.Random(f"scenes-{seed}")
+    summary = Summary(slow_cpu_s=slow_cpu_s)
     t0 = time.perf_counter()
     with Sandbox(timeout, memory_mb, threads) as box:
-        while (cases is None or summary.cases < cases) and (seconds is None or time.perf_counter() - t0 < seconds):
-            data, what = mutator.case(rng)
-            summary.add(box.run(data), what, data, failures_dir)
-            if progress is not None:
-                progress(summary)
+        try:
+            _campaign_loop(summary, mutator, box, rng, scene_rng, cases, seconds, t0, failures_dir, progress,
+                           scene_source, mutations_per_scene, pool_size)
+        except KeyboardInterrupt:  # stopped from outside (Ctrl-C, SIGTERM): keep what was measured
+            summary.stopped = True
     summary.seconds = time.perf_counter() - t0
     return summary
 
+
+def _campaign_loop(summary, mutator, box, rng, scene_rng, cases, seconds, t0, failures_dir, progress, scene_source,
+                   mutations_per_scene, pool_size) -> None:
+    """run_campaign's cases, one at a time, into ``summary``."""
+    pool: list[str] = []
+    since_scene = mutations_per_scene
+    while (cases is None or summary.cases < cases) and (seconds is None or time.perf_counter() - t0 < seconds):
+        if scene_source is not None and since_scene >= mutations_per_scene:
+            since_scene = 0
+            sc = scene_source(scene_rng)
+            what = f"scene {summary.cases}: {sc.what}"
+            if sc.bug:
+                summary.add(CaseResult("BUG: encoder", sc.bug, 0.0), what, b"", failures_dir)
+            elif sc.data is None:
+                summary.add(CaseResult(SCENE_REFUSED, sc.refused, 0.0), what, b"")
+            else:
+                res = scene_outcome(box.run(sc.data))
+                summary.add(res, what, sc.data, failures_dir)
+                if res.kind == SCENE_VALID:
+                    sid = f"scene{summary.cases}"
+                    mutator.add_seed(sid, sc.data, res.cpu_seconds)
+                    pool.append(sid)
+                    if len(pool) > pool_size:
+                        mutator.drop_seed(pool.pop(0))
+        else:
+            since_scene += 1
+            data, what = mutator.case(rng)
+            summary.add(box.run(data), what, data, failures_dir)
+        if progress is not None:
+            progress(summary)

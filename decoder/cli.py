@@ -14,9 +14,10 @@ from pathlib import Path
 # Set before torch is imported; a user's own setting wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from lghcc.common.cliargs import (EXIT_HASH_MISMATCH, OVERWRITE_RULE, add_overwrite_options, add_version_option,
-                                  exit_codes_text, positive_float, run_cli)
-from lghcc.common.errors import HashMismatchError, LghccError
+from lghcc.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK, EXIT_RESOURCE_LIMIT,
+                              EXIT_USAGE, exit_status_epilog, format_bytes, memory_size, with_prefix)
+from lghcc.common.cliargs import OVERWRITE_RULE, add_overwrite_options, add_version_option, positive_float, run_cli
+from lghcc.common.errors import LghccError
 from lghcc.common.fileio import (atomic_write_bytes, check_output_folder, check_output_paths, check_overwrite,
                                  write_error)
 from lghcc.common.scene import GaussianScene
@@ -48,13 +49,19 @@ images/; --render-scale 0.25 for a quarter of it).
 No output may name the input stream or another output. An existing file, or an existing
 non-empty -o or --render-out folder, is refused unless -y (--overwrite) is given (then
 the decoded scene's files in it are replaced).
+
+Before allocating anything sized by the stream, the decoder computes from its headers how
+much memory decoding it takes and refuses a stream that needs more than --max-memory
+(exit status 4), naming the amount.
 """
 
 
 def setup_args() -> argparse.ArgumentParser:
+    from lghcc.decoder.limits import DEFAULT_MAX_MEMORY
+
     p = argparse.ArgumentParser(prog="lghcc-dec", description=DESCRIPTION, epilog=OVERWRITE_RULE + "\n\n"
-                                + exit_codes_text({EXIT_HASH_MISMATCH: "the decoded scene does not match the "
-                                                   "stream's hash (nothing written)"}),
+                                + exit_status_epilog(codes=(EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INVALID_STREAM,
+                                                            EXIT_RESOURCE_LIMIT, EXIT_INTERRUPTED)),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     add_version_option(p)
     p.add_argument("stream", help="the .lghcc file to decode")
@@ -63,7 +70,11 @@ def setup_args() -> argparse.ArgumentParser:
     p.add_argument("--no-verify", action="store_true", help="do not check the decoded-scene hash")
     p.add_argument("--trace", metavar="FILE", help="write a bit trace: every syntax element with its position")
     p.add_argument("--threads", type=int, help="torch threads for inference (the output does not depend on it)")
-    p.add_argument("--max-anchors", type=int, help="refuse streams declaring more anchors than this")
+    p.add_argument("--max-anchors", type=int, help="refuse streams declaring more anchors than this (exit status 4)")
+    p.add_argument("--max-memory", type=memory_size, default=DEFAULT_MAX_MEMORY, metavar="SIZE",
+                   help="refuse a stream whose decoding needs more memory than this, computed from its headers "
+                        f"before anything is allocated: e.g. 512M, 8G; 0 or none: no bound "
+                        f"(default {format_bytes(DEFAULT_MAX_MEMORY)}; exit status 4)")
     p.add_argument("--print-hash", action="store_true",
                    help="print only the SHA-256 of the decoded scene (spec clause 12), computed from the output")
     p.add_argument("--json", metavar="FILE", help="also write the size breakdown as JSON")
@@ -129,6 +140,8 @@ def _other_iterations(path: str) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Exit status: lghcc.cli_common (0 decoded, 1 input/output error, 2 usage, 3 invalid stream,
+    4 resource limit, 130 interrupted), through run_cli: a failure is one line on stderr."""
     return run_cli("lghcc-dec", _main, argv)
 
 
@@ -139,95 +152,88 @@ def _main(argv: list[str] | None) -> int:
 
     say = (lambda *a: None) if args.quiet else print
     note = (lambda *a: None) if args.print_hash else say  # --print-hash prints the hash alone
+    # Every output is checked before decoding: none may overwrite the stream or another output.
+    check_output_paths({"-o": args.output, "--json": args.json, "--trace": args.trace,
+                        "--export-ply": args.export_ply, "--render-out": args.render_out},
+                       {"input stream": args.stream})
+    if args.output:
+        check_output_folder(args.output, args.overwrite, replaced="the decoded scene's files are replaced; "
+                            "other files are left as they are")
+    for path in (args.json, args.trace, args.export_ply):
+        if path:
+            check_overwrite(path, args.overwrite)
+    if args.export_ply and Path(args.export_ply).suffix.lower() not in (".ply", ".spz", ".sog"):
+        raise LghccError(f"{args.export_ply}: --export writes .ply, .spz or .sog (the format follows the "
+                         "extension)")
+    if args.render and not args.render_out:
+        raise LghccError("--render needs --render-out DIR")
+    if args.render:
+        _render_size(args.render_size)
+    if args.render_out:
+        check_output_folder(args.render_out, args.overwrite, replaced="its PNGs of the same names are replaced")
+    if args.threads is not None:
+        import torch
+        torch.set_num_threads(max(1, args.threads))
     try:
-        # Every output is checked before decoding: none may overwrite the stream or another output.
-        check_output_paths({"-o": args.output, "--json": args.json, "--trace": args.trace,
-                            "--export-ply": args.export_ply, "--render-out": args.render_out},
-                           {"input stream": args.stream})
-        if args.output:
-            check_output_folder(args.output, args.overwrite, replaced="the decoded scene's files are replaced; "
-                                "other files are left as they are")
-        for path in (args.json, args.trace, args.export_ply):
-            if path:
-                check_overwrite(path, args.overwrite)
-        if args.export_ply and Path(args.export_ply).suffix.lower() not in (".ply", ".spz", ".sog"):
-            raise LghccError(f"{args.export_ply}: --export writes .ply, .spz or .sog (the format follows the "
-                             "extension)")
-        if args.render and not args.render_out:
-            raise LghccError("--render needs --render-out DIR")
-        if args.render:
-            _render_size(args.render_size)
-        if args.render_out:
-            check_output_folder(args.render_out, args.overwrite, replaced="its PNGs of the same names are replaced")
-        if args.threads is not None:
-            import torch
-            torch.set_num_threads(max(1, args.threads))
-        try:
-            data = Path(args.stream).read_bytes()
+        data = Path(args.stream).read_bytes()
+    except OSError as e:
+        raise LghccError(f"{args.stream}: cannot read ({e.strerror})") from None
+    t0 = time.perf_counter()
+    try:  # a failure is reported by run_cli: one line, and the exit status of its kind (3 for a hash mismatch)
+        result = decode_stream(data, verify_hash=not args.no_verify, trace=bool(args.trace),
+                               max_anchors=args.max_anchors, max_memory=args.max_memory, progress=not args.quiet)
+    except LghccError as e:  # the same class (and exit status), with the stream's path
+        raise with_prefix(e, args.stream) from None
+    t_dec = time.perf_counter() - t0
+    if args.output:
+        stale = _other_iterations(args.output)
+        if stale and not args.quiet:
+            print(f"lghcc-dec: warning: {args.output} also holds point_cloud/{', '.join(stale)}; readers "
+                  "that take the highest iteration will not read the decoded scene", file=sys.stderr)
+        try:  # a Gaussian stream in the 3DGS layout, an anchor stream in Scaffold-GS's
+            write_scene(result.scene, args.output)
         except OSError as e:
-            raise LghccError(f"{args.stream}: cannot read ({e.strerror})") from None
-        t0 = time.perf_counter()
+            raise write_error(args.output, e) from None
+    if args.render:
+        _render_views(args, result.scene, note)
+    if args.export_ply:
+        t1 = time.perf_counter()
+        from lghcc.render.scenes import to_gaussians
+
+        sc = to_gaussians(result.scene, args.export_sh_degree, directions=args.export_directions,
+                          distance=args.export_distance)
+        how = ""
+        if not isinstance(result.scene, GaussianScene):
+            from lghcc.render.export import default_distance
+
+            dist = args.export_distance if args.export_distance is not None else default_distance(result.scene)
+            how = f", the MLPs evaluated in {args.export_directions} directions at distance {dist:.4g}"
         try:
-            result = decode_stream(data, verify_hash=not args.no_verify, trace=bool(args.trace),
-                                   max_anchors=args.max_anchors, progress=not args.quiet)
-        except HashMismatchError as e:
-            print(f"lghcc-dec: error: {args.stream}: {e}", file=sys.stderr)
-            return EXIT_HASH_MISMATCH
-        except LghccError as e:
-            raise LghccError(f"{args.stream}: {e}") from None
-        t_dec = time.perf_counter() - t0
-        if args.output:
-            stale = _other_iterations(args.output)
-            if stale and not args.quiet:
-                print(f"lghcc-dec: warning: {args.output} also holds point_cloud/{', '.join(stale)}; readers "
-                      "that take the highest iteration will not read the decoded scene", file=sys.stderr)
-            try:  # a Gaussian stream in the 3DGS layout, an anchor stream in Scaffold-GS's
-                write_scene(result.scene, args.output)
-            except OSError as e:
-                raise write_error(args.output, e) from None
-        if args.render:
-            _render_views(args, result.scene, note)
-        if args.export_ply:
-            t1 = time.perf_counter()
-            from lghcc.render.scenes import to_gaussians
-
-            sc = to_gaussians(result.scene, args.export_sh_degree, directions=args.export_directions,
-                              distance=args.export_distance)
-            how = ""
-            if not isinstance(result.scene, GaussianScene):
-                from lghcc.render.export import default_distance
-
-                dist = args.export_distance if args.export_distance is not None else default_distance(result.scene)
-                how = f", the MLPs evaluated in {args.export_directions} directions at distance {dist:.4g}"
-            try:
-                write_scene(sc, args.export_ply)
-            except OSError as e:
-                raise write_error(args.export_ply, e) from None
-            kind = {".ply": "3DGS PLY", ".spz": "SPZ", ".sog": "SOG"}[Path(args.export_ply).suffix.lower()]
-            note(f"wrote {args.export_ply}: {sc.num_gaussians:,} Gaussians ({kind}, SH degree {sc.sh_degree}{how}) in "
-                 f"{time.perf_counter() - t1:.2f} s")
-        if args.trace:
-            lines = [f"{e.bit_position:>10} {e.name:<60} {e.descriptor:<8} "
-                     f"{e.value.hex() if isinstance(e.value, bytes) else e.value}" for e in result.trace]
-            try:
-                atomic_write_bytes(args.trace, ("\n".join(lines) + "\n").encode())
-            except OSError as e:
-                raise write_error(args.trace, e) from None
-        s = result.scene
-        if args.json:
-            try:
-                count = {"num_gaussians": s.num_gaussians} if isinstance(s, GaussianScene) else \
-                    {"num_anchors": s.num_anchors}
-                atomic_write_bytes(args.json, json.dumps({
-                    "stream": args.stream, **count, "bytes": len(data),
-                    "breakdown": result.breakdown.bytes_by_category, "decode_s": t_dec,
-                    "hash_checked": result.hash_checked, "scene_sha256": result.stream_hash.hex()},
-                    indent=2).encode())
-            except OSError as e:
-                raise write_error(args.json, e) from None
-    except LghccError as e:
-        print(f"lghcc-dec: error: {e}", file=sys.stderr)
-        return 1
+            write_scene(sc, args.export_ply)
+        except OSError as e:
+            raise write_error(args.export_ply, e) from None
+        kind = {".ply": "3DGS PLY", ".spz": "SPZ", ".sog": "SOG"}[Path(args.export_ply).suffix.lower()]
+        note(f"wrote {args.export_ply}: {sc.num_gaussians:,} Gaussians ({kind}, SH degree {sc.sh_degree}{how}) in "
+             f"{time.perf_counter() - t1:.2f} s")
+    if args.trace:
+        lines = [f"{e.bit_position:>10} {e.name:<60} {e.descriptor:<8} "
+                 f"{e.value.hex() if isinstance(e.value, bytes) else e.value}" for e in result.trace]
+        try:
+            atomic_write_bytes(args.trace, ("\n".join(lines) + "\n").encode())
+        except OSError as e:
+            raise write_error(args.trace, e) from None
+    s = result.scene
+    if args.json:
+        try:
+            count = {"num_gaussians": s.num_gaussians} if isinstance(s, GaussianScene) else \
+                {"num_anchors": s.num_anchors}
+            atomic_write_bytes(args.json, json.dumps({
+                "stream": args.stream, **count, "bytes": len(data),
+                "breakdown": result.breakdown.bytes_by_category, "decode_s": t_dec,
+                "hash_checked": result.hash_checked, "scene_sha256": result.stream_hash.hex()},
+                indent=2).encode())
+        except OSError as e:
+            raise write_error(args.json, e) from None
     if args.print_hash:
         from lghcc.common.hashing import digest_of
         print(digest_of(s).hex())

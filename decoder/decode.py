@@ -19,7 +19,7 @@ from lghcc.common.progress import progress_bar
 
 from lghcc.common import attributes as attr
 from lghcc.common.container import Container, DataUnit, UnitType, read_container
-from lghcc.common.errors import BitstreamError, HashMismatchError, UnsupportedStreamError
+from lghcc.common.errors import BitstreamError, HashMismatchError, ResourceLimitError, UnsupportedStreamError
 from lghcc.common.context.models import describe_context_model, level2_coding_params, read_context_model
 from lghcc.common.geometry import decode_geometry
 from lghcc.common.hashing import digest_of
@@ -30,6 +30,7 @@ from lghcc.common.scene import AnchorScene, GaussianScene
 from lghcc.common.syntax import TraceEntry
 from lghcc.common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ATTRIBUTE_VALUES, DecodedSceneHashUnit,
                                 GaussianParameterSet, SceneParameterSet)
+from lghcc.decoder.limits import DEFAULT_MAX_MEMORY, MemoryPlan
 
 _LETTER = {UnitType.SCENE_PARAMETER_SET: "S", UnitType.GAUSSIAN_PARAMETER_SET: "P", UnitType.RENDER_MODEL: "R",
            UnitType.GEOMETRY: "G", UnitType.CONTEXT_MODEL: "C", UnitType.ATTRIBUTE: "A",
@@ -87,10 +88,12 @@ class _Levels:
 
 
 def decode_attribute_units(attribute_units: list[DataUnit], layout, steps: np.ndarray, coords: np.ndarray,
-                           ps, context_unit: DataUnit | None, entries, progress: bool) -> tuple[_Levels, object]:
+                           ps, context_unit: DataUnit | None, entries, progress: bool,
+                           memory: MemoryPlan | None = None) -> tuple[_Levels, object]:
     """Decode the one or two attribute units of a scene (clause 13 steps 4-6): level 1 (or every
     point) with its per-channel prior, then level 2 with the context model when there is one.
-    ``ps``: the parameter set (hierarchy flag and coarse voxel scale)."""
+    ``ps``: the parameter set (hierarchy flag and coarse voxel scale). ``memory``: the memory
+    plan each unit is checked against before it is decoded."""
     n = coords.shape[0]
     if len(attribute_units) != (2 if ps.hierarchy_enabled_flag else 1):
         raise BitstreamError(f"{len(attribute_units)} attribute units with hierarchy_enabled_flag = "
@@ -123,6 +126,9 @@ def decode_attribute_units(attribute_units: list[DataUnit], layout, steps: np.nd
     bar = progress_bar(total=n, desc="decode attributes", unit="point", disable=not progress, leave=False)
     for unit, (level, rows) in zip(attribute_units, levels):
         num_rows = n if rows is None else rows.size
+        if memory is not None:
+            memory.check_attribute_unit(unit.payload, num_rows, level, context_model,
+                                        hier.num_level1 if rows is not None else None)
         _, m, q = attr.read_attribute_unit(unit.payload, layout, steps, num_rows, level, values, rows,
                                            level2_context if level == LEVEL_2 else None, entries,
                                            keep_q=level == LEVEL_1 and context_model is not None,
@@ -145,10 +151,13 @@ def _hierarchy_tools(ps, hier: Hierarchy | None, context_model, point: str) -> l
 
 
 def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
-                  max_anchors: int | None = None, progress: bool = False) -> DecodeResult:
-    """Decode a whole stream. Raises a BitstreamError subclass naming the problem.
-    ``progress`` shows a bar of decoded points on stderr. ``max_anchors`` bounds the number of
-    points (anchors or Gaussians)."""
+                  max_anchors: int | None = None, max_memory: int | None = DEFAULT_MAX_MEMORY,
+                  progress: bool = False) -> DecodeResult:
+    """Decode a whole stream. Raises a BitstreamError subclass naming the problem, or
+    ResourceLimitError for a stream beyond ``max_anchors`` points (anchors or Gaussians) or one
+    whose decoding needs more than ``max_memory`` bytes (None: no bound), computed from its
+    headers before anything sized by the stream is allocated (decoder/limits.py). ``progress``
+    shows a bar of decoded points on stderr."""
     entries: list[TraceEntry] | None = [] if trace else None
     container = read_container(data)
     units, skipped = organize_units(container)
@@ -171,7 +180,8 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
         raise BitstreamError(f"{n} {point}s x {layout.num_channels} channels exceeds the level limit of "
                              f"{MAX_ATTRIBUTE_VALUES} attribute values")
     if max_anchors is not None and n > max_anchors:
-        raise BitstreamError(f"the stream declares {n} {point}s, more than the allowed maximum {max_anchors}")
+        raise ResourceLimitError(f"the stream declares {n} {point}s, more than the allowed maximum {max_anchors}")
+    memory = MemoryPlan(max_memory, ps, by_type, len(data), layout)  # refuses before anything sized by the stream exists
     context_unit = by_type.get(UnitType.CONTEXT_MODEL, [None])[0]
     mlps = {}
     if UnitType.RENDER_MODEL in by_type:
@@ -179,7 +189,7 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
     coords = decode_geometry(by_type[UnitType.GEOMETRY][0].payload, n, entries)
     steps = layout.steps(ps)
     dec, context_model = decode_attribute_units(by_type[UnitType.ATTRIBUTE], layout, steps, coords, ps, context_unit,
-                                                entries, progress)
+                                                entries, progress, memory)
     if gaussians:
         sh, opacity, log_scales, rotations = layout.split(dec.values)
         scene = GaussianScene.on_grid(coords, float(ps.voxel_size), ps.origin, sh, opacity, log_scales, rotations)

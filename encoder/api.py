@@ -211,7 +211,8 @@ def encode(scene: AnchorScene | GaussianScene, cfg=None, *, progress: bool = Fal
     if verify:
         from lghcc.decoder.decode import decode_stream
 
-        if decode_stream(result.data).stream_hash != result.scene_hash:
+        # max_memory=None: the scene is in memory already (the decoder's bound is for untrusted streams)
+        if decode_stream(result.data, max_memory=None).stream_hash != result.scene_hash:
             raise LghccError("internal error: the written stream does not decode to the encoded scene")
         result.stats["verified"] = True
     return result, cfg

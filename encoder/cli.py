@@ -13,8 +13,9 @@ from pathlib import Path
 # transcode take 178.6 s instead of 72.1 s. Set before torch is imported; a user's own setting wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from lghcc.common.cliargs import (OVERWRITE_RULE, add_overwrite_options, add_version_option, exit_codes_text,
-                                  positive_float, run_cli)
+from lghcc.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK, EXIT_RESOURCE_LIMIT,
+                              EXIT_USAGE, exit_status_epilog)
+from lghcc.common.cliargs import OVERWRITE_RULE, add_overwrite_options, add_version_option, positive_float, run_cli
 from lghcc.common.errors import LghccError
 from lghcc.common.fileio import atomic_write_bytes, check_output_paths, check_overwrite, write_error
 from lghcc.encoder.api import is_gaussian_file  # noqa: F401  (lghcc-enc's test of its input; kept importable here)
@@ -58,7 +59,15 @@ def setup_args() -> argparse.ArgumentParser:
     from lghcc.encoder.config import preset_names
 
     p = argparse.ArgumentParser(prog="lghcc-enc", description=DESCRIPTION, epilog=OVERWRITE_RULE + "\n\n"
-                                + exit_codes_text(), formatter_class=argparse.RawDescriptionHelpFormatter)
+                                + exit_status_epilog(
+                                    {EXIT_ERROR: "error in the input or the environment (a scene that cannot be read "
+                                                 "or coded, an output that cannot be written, an option value)",
+                                     EXIT_INVALID_STREAM: "the written stream failed its own decoding check (a bug: "
+                                                          "please report it)",
+                                     EXIT_RESOURCE_LIMIT: "the system ran out of memory"},
+                                    codes=(EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INVALID_STREAM, EXIT_RESOURCE_LIMIT,
+                                           EXIT_INTERRUPTED)),
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     add_version_option(p)
     p.add_argument("input", nargs="?", help="a 3DGS scene (INRIA PLY, SPZ or SOG), or a Scaffold-GS model folder, "
                                              "iteration folder or point_cloud.ply")
@@ -134,6 +143,8 @@ def setup_args() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Exit status: lghcc.cli_common (0 written, 1 input/output error, 2 usage, 3 the stream failed its
+    own check, 4 out of memory, 130 interrupted: the output is written atomically, never in part)."""
     return run_cli("lghcc-enc", _main, argv)
 
 
@@ -143,87 +154,84 @@ def _main(argv: list[str] | None) -> int:
     args = setup_args().parse_args(argv)
     say = (lambda *a: None) if args.quiet else print
     log = (lambda *a: None) if args.quiet else (lambda msg: print(f"lghcc-enc: {msg}", file=sys.stderr, flush=True))
-    try:
-        out = Path(args.output)
-        # Every output is checked before encoding: none may overwrite the input or another output.
-        inputs = {"input": args.input, "--config file": args.config}
-        if args.input and Path(args.input).is_dir():  # a model folder: its PLY is the input
-            from lghcc.common.scaffold_io import locate_ply
-            try:
-                inputs["input PLY"] = locate_ply(args.input)
-            except LghccError:
-                pass  # reported when the scene is read
-        check_output_paths({"-o": args.output, "--json": args.json}, inputs)
-        for opt, path in (("-o", args.output), ("--json", args.json)):
-            if path:
-                check_overwrite(path, args.overwrite)
-        if args.device != "cpu":  # checked before minutes of loading and transcoding
-            from lghcc.render.rasterizer import select_device
-            select_device(args.device)
-        gaussians = args.input is not None and args.mode == "gaussians" and api.is_gaussian_file(args.input)
-        if gaussians:
-            overrides = {"rd_lambda": args.rd_lambda, "target_psnr": args.target_psnr,
-                         "fit_iterations": args.fit_iterations, "sh_degree": args.sh_degree}
-            if args.rd_lambda is not None and args.target_psnr is None:
-                overrides["target_psnr"] = 0.0  # --lambda given: it replaces the preset's quality
-        else:
-            overrides = {"feature_step": args.feature_step, "scaling_step": args.scaling_step,
-                         "offset_step": args.offset_step, "mlp_weight_bits": args.mlp_weight_bits,
-                         "pruning": args.prune, "prune_keep_ratio": args.prune_keep, "prune_tau": args.prune_tau}
-        from lghcc.encoder.config import load_config
-        cfg = load_config(args.preset, args.config, overrides, kind="gaussians" if gaussians else "anchors")
-        t0 = time.perf_counter()
-        transcode = api.TranscodeOptions(
-            anchors=args.transcode_anchors, voxel_size=args.transcode_voxel_size, iterations=args.transcode_iterations,
-            distill_steps=args.transcode_distill_steps, views=args.transcode_views,
-            resolution=args.transcode_resolution, feature_dim=args.transcode_feature_dim,
-            num_offsets=args.transcode_offsets, device=args.device)
-        scene = api.load_source(args.input, mode=args.mode, procedural=args.procedural, seed=args.seed,
-                                voxel_size=args.voxel_size, merge_duplicates=args.merge_duplicates,
-                                transcode=transcode, progress=not args.quiet,
-                                log=(lambda m: print(m, file=sys.stderr)) if not args.quiet else (lambda m: None),
-                                warn=lambda m: print(f"lghcc-enc: warning: {m}", file=sys.stderr))
-        source = args.input if args.input is not None else "procedural"
-        api.check_encodable(scene, args.allow_no_mlps, warn=lambda m: print(f"lghcc-enc: warning: {m}",
-                                                                             file=sys.stderr))
-        t_load = time.perf_counter() - t0
-        estimate = api.estimate_seconds(scene, cfg)
-        if estimate is not None:
-            secs, what = estimate
-            log(f"preset {args.preset}: {what} on {min(scene.num_anchors, cfg.context_train_anchors):,} anchors, "
-                f"about {_duration(secs)} on 2 CPU threads (tools/results/presets.md); the preset "
-                f"{args.preset.removeprefix('lghcc-')} codes with the same steps in seconds. Ctrl-C stops it "
-                "and writes nothing")
-        twin = None
-        if args.input and not gaussians and not args.no_context_twin and cfg.context_model == "ggconv":
-            from lghcc.encoder.ggconv_train import find_context_twin
-            twin = find_context_twin(args.input)
-        result, cfg = api.encode(scene, cfg, progress=not args.quiet, log=log, measure_ideal=args.report_ideal,
-                                 context_twin=twin, verify=not args.no_verify, allow_missing_mlps=args.allow_no_mlps)
-        if twin is not None:
-            why = result.stats.get("context_twin_unused")
-            say("context twin of the training run: " + (f"not used ({why})" if why else
-                "kept (smallest stream)" if result.stats.get("context_parent_base") == "twin" else
-                "tried, a fresh fit coded smaller"))
-        verified = result.stats.get("verified")
+    # A failure is reported by run_cli: one line, and the exit status of its kind (lghcc.cli_common).
+    out = Path(args.output)
+    # Every output is checked before encoding: none may overwrite the input or another output.
+    inputs = {"input": args.input, "--config file": args.config}
+    if args.input and Path(args.input).is_dir():  # a model folder: its PLY is the input
+        from lghcc.common.scaffold_io import locate_ply
         try:
-            atomic_write_bytes(out, result.data)
+            inputs["input PLY"] = locate_ply(args.input)
+        except LghccError:
+            pass  # reported when the scene is read
+    check_output_paths({"-o": args.output, "--json": args.json}, inputs)
+    for opt, path in (("-o", args.output), ("--json", args.json)):
+        if path:
+            check_overwrite(path, args.overwrite)
+    if args.device != "cpu":  # checked before minutes of loading and transcoding
+        from lghcc.render.rasterizer import select_device
+        select_device(args.device)
+    gaussians = args.input is not None and args.mode == "gaussians" and api.is_gaussian_file(args.input)
+    if gaussians:
+        overrides = {"rd_lambda": args.rd_lambda, "target_psnr": args.target_psnr,
+                     "fit_iterations": args.fit_iterations, "sh_degree": args.sh_degree}
+        if args.rd_lambda is not None and args.target_psnr is None:
+            overrides["target_psnr"] = 0.0  # --lambda given: it replaces the preset's quality
+    else:
+        overrides = {"feature_step": args.feature_step, "scaling_step": args.scaling_step,
+                     "offset_step": args.offset_step, "mlp_weight_bits": args.mlp_weight_bits,
+                     "pruning": args.prune, "prune_keep_ratio": args.prune_keep, "prune_tau": args.prune_tau}
+    from lghcc.encoder.config import load_config
+    cfg = load_config(args.preset, args.config, overrides, kind="gaussians" if gaussians else "anchors")
+    t0 = time.perf_counter()
+    transcode = api.TranscodeOptions(
+        anchors=args.transcode_anchors, voxel_size=args.transcode_voxel_size, iterations=args.transcode_iterations,
+        distill_steps=args.transcode_distill_steps, views=args.transcode_views,
+        resolution=args.transcode_resolution, feature_dim=args.transcode_feature_dim,
+        num_offsets=args.transcode_offsets, device=args.device)
+    scene = api.load_source(args.input, mode=args.mode, procedural=args.procedural, seed=args.seed,
+                            voxel_size=args.voxel_size, merge_duplicates=args.merge_duplicates,
+                            transcode=transcode, progress=not args.quiet,
+                            log=(lambda m: print(m, file=sys.stderr)) if not args.quiet else (lambda m: None),
+                            warn=lambda m: print(f"lghcc-enc: warning: {m}", file=sys.stderr))
+    source = args.input if args.input is not None else "procedural"
+    api.check_encodable(scene, args.allow_no_mlps, warn=lambda m: print(f"lghcc-enc: warning: {m}",
+                                                                         file=sys.stderr))
+    t_load = time.perf_counter() - t0
+    estimate = api.estimate_seconds(scene, cfg)
+    if estimate is not None:
+        secs, what = estimate
+        log(f"preset {args.preset}: {what} on {min(scene.num_anchors, cfg.context_train_anchors):,} anchors, "
+            f"about {_duration(secs)} on 2 CPU threads (tools/results/presets.md); the preset "
+            f"{args.preset.removeprefix('lghcc-')} codes with the same steps in seconds. Ctrl-C stops it "
+            "and writes nothing")
+    twin = None
+    if args.input and not gaussians and not args.no_context_twin and cfg.context_model == "ggconv":
+        from lghcc.encoder.ggconv_train import find_context_twin
+        twin = find_context_twin(args.input)
+    result, cfg = api.encode(scene, cfg, progress=not args.quiet, log=log, measure_ideal=args.report_ideal,
+                             context_twin=twin, verify=not args.no_verify, allow_missing_mlps=args.allow_no_mlps)
+    if twin is not None:
+        why = result.stats.get("context_twin_unused")
+        say("context twin of the training run: " + (f"not used ({why})" if why else
+            "kept (smallest stream)" if result.stats.get("context_parent_base") == "twin" else
+            "tried, a fresh fit coded smaller"))
+    verified = result.stats.get("verified")
+    try:
+        atomic_write_bytes(out, result.data)
+    except OSError as e:
+        raise write_error(out, e) from None
+    if args.json:
+        st = result.stats
+        count = {"num_gaussians": result.decoded.num_gaussians} if gaussians else \
+            {"num_anchors": scene.num_anchors}
+        try:
+            atomic_write_bytes(args.json, json.dumps({
+                "input": source, "output": str(out), **count,
+                "bytes": len(result.data), "breakdown": result.breakdown.bytes_by_category, "stats": st,
+                "scene_sha256": result.scene_hash.hex(), "config": vars(cfg)}, indent=2).encode())
         except OSError as e:
-            raise write_error(out, e) from None
-        if args.json:
-            st = result.stats
-            count = {"num_gaussians": result.decoded.num_gaussians} if gaussians else \
-                {"num_anchors": scene.num_anchors}
-            try:
-                atomic_write_bytes(args.json, json.dumps({
-                    "input": source, "output": str(out), **count,
-                    "bytes": len(result.data), "breakdown": result.breakdown.bytes_by_category, "stats": st,
-                    "scene_sha256": result.scene_hash.hex(), "config": vars(cfg)}, indent=2).encode())
-            except OSError as e:
-                raise write_error(args.json, e) from None
-    except LghccError as e:
-        print(f"lghcc-enc: error: {e}", file=sys.stderr)
-        return 1
+            raise write_error(args.json, e) from None
     st = result.stats
     if "pruning" in st:
         say(st["pruning"])

@@ -15,7 +15,9 @@ import torch
 from torch import nn
 from lghcc.common.progress import progress_bar
 
+from lghcc.common.context.models import check_ggconv_extent
 from lghcc.common.context.parent_mlp import ParentMlpParams
+from lghcc.common.errors import BitstreamError
 from lghcc.common.intnn import ACT_MAX, ACT_MIN, IntMLP, frac_bits_for, quantize_linear
 from lghcc.common.units import CONTEXT_GGCONV, CONTEXT_PARENT_MLP
 from lghcc.encoder.ggconv_train import (GGConvTrainConfig, choose_parent_base, fit_ggconv, level_of_spread, one_cycle,
@@ -90,6 +92,11 @@ def fit_level2_context(kind: str, coords1: np.ndarray, attrs1: np.ndarray, coord
     """Fit the level-2 context model ``kind`` (parent_mlp or ggconv) on the decoded level 1
     (coords1 [N1, 3], attrs1 [N1, M] quantized) and the level-2 targets (float [N2, M], in base
     steps) of the level-2 anchors at coords2 [N2, 3] with parents ``parent`` [N2] (level-1 index)."""
+    if kind == "ggconv":  # a scene beyond GG-Conv's extent limit (spec clause 8) keeps the per-channel prior
+        try:
+            check_ggconv_extent(coords1, coords2)
+        except BitstreamError as e:
+            raise ContextFitError(str(e)) from None
     try:
         return _fit(kind, coords1, attrs1, coords2, parent, targets, num_features, voxel_scale, cfg)
     except ValueError as e:  # a float network that diverged cannot be quantized ("NaN or Inf")

@@ -1013,10 +1013,17 @@ examples:
 
 
 def setup_args() -> argparse.ArgumentParser:
-    from lghcc.common.cliargs import add_overwrite_options, add_version_option, exit_codes_text
+    from lghcc.common.cliargs import add_overwrite_options, add_version_option
 
     d = TrainConfig()
-    p = argparse.ArgumentParser(prog="lghcc-train", description=DESCRIPTION, epilog=exit_codes_text(),
+    from lghcc.cli_common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, EXIT_RESOURCE_LIMIT, EXIT_USAGE, exit_status_epilog
+
+    p = argparse.ArgumentParser(prog="lghcc-train", description=DESCRIPTION,
+                                epilog=exit_status_epilog(
+                                    {EXIT_RESOURCE_LIMIT: "the system ran out of memory",
+                                     EXIT_INTERRUPTED: "interrupted (Ctrl-C); continue with --resume from the last "
+                                                       "checkpoint (every file is written atomically)"},
+                                    codes=(EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_RESOURCE_LIMIT, EXIT_INTERRUPTED)),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     add_version_option(p)
     p.add_argument("data", nargs="?", help="folder with the posed images (NeRF-synthetic, LLFF or COLMAP layout)")
@@ -1181,6 +1188,8 @@ def _check_fresh_output(out: Path, overwrite: bool) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Exit status: lghcc.cli_common (0, 1 input error, 2 usage, 4 out of memory, 130 interrupted), through
+    run_cli: one line on stderr."""
     from lghcc.common.cliargs import run_cli
 
     return run_cli("lghcc-train", _main, argv, "continue with --resume from the last checkpoint")
@@ -1189,36 +1198,33 @@ def main(argv: list[str] | None = None) -> int:
 def _main(argv: list[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = setup_args().parse_args(argv)
-    try:
-        if args.evaluate:
-            if not args.data:
-                raise InputError("--evaluate needs the data folder")
-            torch.set_num_threads(args.threads)
-            r = evaluate_model(args.evaluate, args.data, args.background, args.downscale, args.images)
-            print(f"{r['model']}: {r['anchors']:,} anchors, test PSNR {r['psnr']:.3f} dB, SSIM {r['ssim']:.4f} "
-                  f"({r['views']} views)")
-            return 0
-        if not args.output:
-            raise InputError("give the output folder with -o")
-        cfg = config_from_args(args, argv)
-        if not args.resume and not cfg.data:
-            raise InputError("give the data folder (or --resume an existing run)")
-        if not args.resume:
-            _check_fresh_output(Path(args.output), args.overwrite)
-        iterations = None
-        if args.resume:
-            given = explicit_options(args, argv) - {"data"}
-            iterations = cfg.iterations if "iterations" in given else None
-            ignored = sorted(given - {"iterations", "threads", "device"})
-            if ignored:
-                print("lghcc-train: --resume uses the run's saved settings; ignored: "
-                      + ", ".join("--" + k.replace("_", "-") for k in ignored), file=sys.stderr)
-        res = train(cfg, args.output, resume=args.resume, stop_after=args.stop_after,
-                    time_limit_s=None if args.time_limit is None else 60.0 * args.time_limit,
-                    progress=not args.quiet, iterations=iterations)
-    except LghccError as e:
-        print(f"lghcc-train: error: {e}", file=sys.stderr)
-        return 1
+    # a failure is reported by run_cli: one line, the exit status of its kind (lghcc.cli_common)
+    if args.evaluate:
+        if not args.data:
+            raise InputError("--evaluate needs the data folder")
+        torch.set_num_threads(args.threads)
+        r = evaluate_model(args.evaluate, args.data, args.background, args.downscale, args.images)
+        print(f"{r['model']}: {r['anchors']:,} anchors, test PSNR {r['psnr']:.3f} dB, SSIM {r['ssim']:.4f} "
+              f"({r['views']} views)")
+        return 0
+    if not args.output:
+        raise InputError("give the output folder with -o")
+    cfg = config_from_args(args, argv)
+    if not args.resume and not cfg.data:
+        raise InputError("give the data folder (or --resume an existing run)")
+    if not args.resume:
+        _check_fresh_output(Path(args.output), args.overwrite)
+    iterations = None
+    if args.resume:
+        given = explicit_options(args, argv) - {"data"}
+        iterations = cfg.iterations if "iterations" in given else None
+        ignored = sorted(given - {"iterations", "threads", "device"})
+        if ignored:
+            print("lghcc-train: --resume uses the run's saved settings; ignored: "
+                  + ", ".join("--" + k.replace("_", "-") for k in ignored), file=sys.stderr)
+    res = train(cfg, args.output, resume=args.resume, stop_after=args.stop_after,
+                time_limit_s=None if args.time_limit is None else 60.0 * args.time_limit,
+                progress=not args.quiet, iterations=iterations)
     last = res.history[-1] if res.history else None
     state = "finished" if res.finished else "stopped (continue with --resume)"
     print(f"{state} at iteration {res.iteration}: {res.scene.num_anchors:,} anchors"

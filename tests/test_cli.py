@@ -70,7 +70,7 @@ def test_clear_errors(tmp_path, capsys):
     assert "no such file" in capsys.readouterr().err
     bad = tmp_path / "bad.lghcc"
     bad.write_bytes(b"LGHC\x00\x01\x01\x00" + b"\x01\x00\x00\x00\x10" + b"\x00" * 3)
-    assert dec_cli.main([str(bad), "-o", str(tmp_path / "d")]) == 1
+    assert dec_cli.main([str(bad), "-o", str(tmp_path / "d")]) == 3  # invalid stream (lghcc.cli_common)
     err = capsys.readouterr().err
     assert "bad.lghcc" in err and "Traceback" not in err
     assert not (tmp_path / "d").exists()
@@ -266,7 +266,7 @@ def test_hash_mismatch_prints_both_full_digests_and_the_stream(tmp_path, capsys,
     data[-4:] = zlib.crc32(bytes(data[unit])).to_bytes(4, "big")
     bad = tmp_path / "bad.lghcc"
     bad.write_bytes(bytes(data))
-    assert dec_cli.main([str(bad)]) == 3
+    assert dec_cli.main([str(bad)]) == 3  # invalid stream: a hash mismatch is one (lghcc.cli_common)
     err = capsys.readouterr().err
     import re
     digests = re.findall(r"\b[0-9a-f]{64}\b", err)

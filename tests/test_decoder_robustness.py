@@ -107,8 +107,12 @@ def test_huge_declared_counts_fail_before_allocating():
 
 
 def test_max_anchors_option():
-    with pytest.raises(BitstreamError, match="more than the allowed maximum 10"):
+    """A cap the caller sets is a resource limit, not a fault of the stream (exit status 4)."""
+    from lghcc.common.errors import ResourceLimitError
+
+    with pytest.raises(ResourceLimitError, match="more than the allowed maximum 10") as e:
         decode_stream(STREAM, max_anchors=10)
+    assert not isinstance(e.value, BitstreamError)
 
 
 def test_hash_mismatch_is_reported():

@@ -21,10 +21,16 @@ SHORT_RUN_LEAVES_OUT = ("c002_procedural_medium", "c013_ggconv_context")
 SHORT_RUN_EXAMPLES = 300
 
 
+# the short run mutates the streams up to c040, the explicit-Gaussian streams c032-c040 included (hypothesis
+# draws seeds from the front of a longer list far more often, and the designed context-model streams c041+
+# take 50-150 ms a decode); the long run of tools/fuzz_decoder.py mutates every stream
+SHORT_RUN_LAST = "c040"
+
+
 @pytest.fixture(scope="module")
 def mutator():
     seeds = load_seeds()
-    return Mutator({k: v for k, v in seeds.items() if k not in SHORT_RUN_LEAVES_OUT})
+    return Mutator({k: v for k, v in seeds.items() if k not in SHORT_RUN_LEAVES_OUT and k[:4] <= SHORT_RUN_LAST})
 
 
 @pytest.fixture(scope="module")

@@ -134,32 +134,41 @@ def _external(tmp_path, body: str) -> str:
 
 
 @pytest.mark.parametrize("body, note", [
-    ("sys.exit(1)", "rejected a stream that must decode"),
+    ("sys.exit(3)", "rejected a stream that must decode"),
     ("time.sleep(30)", "timed out after 2 s"),
     ("os.kill(os.getpid(), signal.SIGSEGV)", "killed by SIGSEGV"),
+    ("sys.exit(1)", "not a verdict on the stream"),
     ("sys.exit(2)", "usage error"),
+    ("sys.exit(4)", "resource limit"),
+    ("sys.exit(130)", "interrupted"),
     ("sys.exit(7)", "exit code 7"),
     ("print('not a hash')", "not a SHA-256"),
 ])
 def test_external_decoder_protocol_fails_crashes_hangs_and_blanket_rejections(tmp_path, body, note):
-    """Only exit code 1 (or 3 for a hash mismatch) counts as a rejection: a decoder that rejects
-    everything fails the decodable streams; crashes, hangs and usage errors fail every stream."""
+    """Only exit code 3 (invalid stream, lghcc.cli_common) counts as a rejection: a decoder that
+    rejects everything fails the decodable streams; crashes, hangs, usage, input and resource
+    errors fail every stream, since none of them is a verdict on the stream."""
     cmd = _external(tmp_path, body)
     cases = {c.id: c for c in runner.load_cases(ids=["c001_one_anchor", "e007_crc_mismatch"])}
     o = runner.run_case(cases["c001_one_anchor"], cmd, timeout=2)
     assert not o.passed and note in o.note, o.note
     o = runner.run_case(cases["e007_crc_mismatch"], cmd, timeout=2)
-    assert o.passed == (body == "sys.exit(1)"), o.note
-    if body != "sys.exit(1)" and "SHA" not in note:
+    assert o.passed == (body == "sys.exit(3)"), o.note
+    if body != "sys.exit(3)" and "SHA" not in note:
         assert note in o.note
 
 
-def test_external_exit_code_3_counts_only_for_hash_mismatch_streams(tmp_path):
+def test_external_rejection_is_checked_against_the_expected_class(tmp_path, monkeypatch):
+    """Exit code 3 passes every error stream of the suite (each expects a BitstreamError subclass,
+    exit code 3); an expected class with another exit code would need that code."""
     cmd = _external(tmp_path, "sys.exit(3)")
-    cases = {c.id: c for c in runner.load_cases(ids=["e002_hash_mismatch", "e007_crc_mismatch"])}
-    assert runner.run_case(cases["e002_hash_mismatch"], cmd).passed
+    cases = {c.id: c for c in runner.load_cases(ids=["e002_hash_mismatch", "e007_crc_mismatch",
+                                                     "e011_unsupported_profile"])}
+    for case in cases.values():
+        assert runner.run_case(case, cmd).passed
+    monkeypatch.setattr(runner, "exit_code_for_class", lambda name: 4)
     o = runner.run_case(cases["e007_crc_mismatch"], cmd)
-    assert not o.passed and "hash mismatch" in o.note
+    assert not o.passed and "is exit code 4" in o.note
 
 
 def test_reference_decoder_error_class_and_reason_are_checked(tmp_path, monkeypatch):

@@ -92,6 +92,18 @@ def test_hash_mismatch_writes_no_page(small_scene, stub_bundle, tmp_path, capsys
     assert not out.exists() and list(tmp_path.glob("*.tmp")) == []
 
 
+def test_malformed_stream_is_an_invalid_stream(small_scene, stub_bundle, tmp_path, capsys):
+    """The exit-status rule of every lghcc program (lghcc.cli_common): a malformed stream is 3, like a
+    hash mismatch, with the stream's path in the one line."""
+    bad = tmp_path / "cut.lghcc"
+    bad.write_bytes((small_scene / "s.lghcc").read_bytes()[:-7])
+    out = tmp_path / "v.html"
+    assert view_cli.main([str(bad), "-o", str(out), "--no-psnr"]) == 3
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and err.startswith("lghcc-view: error: ") and str(bad) in err
+    assert not out.exists()
+
+
 def test_missing_bundle_is_reported_before_any_work(small_scene, tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(page_mod, "BUNDLE", tmp_path / "nowhere" / "lghcc-viewer.js")
     monkeypatch.setattr("lghcc.decoder.decode.decode_stream", lambda *a, **k: pytest.fail("decoded anyway"))

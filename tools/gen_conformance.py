@@ -30,6 +30,7 @@ import numpy as np
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tools"))  # stream_edits
 SOURCES = ROOT / "conformance" / "sources.yaml"
 STREAMS = ROOT / "conformance" / "streams"
 
@@ -269,20 +270,37 @@ def _hand_ggconv(units, spec: dict):
                      table=table, h_shift=0, feat_mlp=IntMLP(feat_layers), head_mlp=IntMLP(head_layers),
                      parent_base=np.arange(m) % 2)  # both kinds of channel mean (Annex H.5.3 step 6)
     arrays = []
+    override = spec.get("override", {})  # error streams: arrays a conforming model cannot have
     for a in p.to_arrays():
         v = np.asarray(a.values)
         if v.ndim == 0:
             v = v.reshape(1)
         bits = 1 if a.name.endswith(".shift") or a.name == "h_shift" else a.bits
+        if a.name in override:
+            o = override[a.name]
+            v = np.full(o["shape"], o.get("fill", 0), np.int64) if isinstance(o, dict) else np.array([int(o)])
+            bits = max(bits, int(v.max()).bit_length() if v.size else 1, 1)
         arrays.append(NamedIntArray(a.name, v, bits, a.signed))
     unit = write_context_model_unit(CONTEXT_GGCONV, arrays, n_feat, n_head)
+    h = AttributeUnitHeader(num_channels=m, num_offsets=sps.num_offsets, offset_mask_present=h2.offset_mask_present,
+                            num_rows=hier.num_level2, attribute_level=LEVEL_2, context_model_id=CONTEXT_GGCONV,
+                            mask_live_prob=list(h2.mask_live_prob), rows_per_chunk_minus1=h2.rows_per_chunk_minus1)
+    if spec.get("unchecked"):
+        # an error stream: the decoder must stop (at a level limit or at the model's parameters)
+        # before it evaluates the model, so the level-2 chunks are those of the per-channel stream
+        from lghcc.common.bitio import BitReader
+
+        r = BitReader(units[a2].payload)
+        AttributeUnitHeader.parse(r, num_channels=m, num_offsets=sps.num_offsets,
+                                  offset_mask_present=h2.offset_mask_present, num_rows=hier.num_level2)
+        h.mask_chunk_size, h.chunk_size = list(h2.mask_chunk_size), list(h2.chunk_size)
+        units[a2] = DataUnit(UnitType.ATTRIBUTE, h.to_bytes() + units[a2].payload[r.bit_position // 8:])
+        units.insert(a1, DataUnit(UnitType.CONTEXT_MODEL, unit))
+        return
     model = read_context_model(unit, layout)
     params = level2_coding_params(model, coords[hier.level1_idx], q1, coords[hier.level2_idx], hier.parent_of_level2,
                                   sps.coarse_voxel_scale).materialize()
     assert params.step_adjust is None or not params.step_adjust.any()
-    h = AttributeUnitHeader(num_channels=m, num_offsets=sps.num_offsets, offset_mask_present=h2.offset_mask_present,
-                            num_rows=hier.num_level2, attribute_level=LEVEL_2, context_model_id=CONTEXT_GGCONV,
-                            mask_live_prob=list(h2.mask_live_prob), rows_per_chunk_minus1=h2.rows_per_chunk_minus1)
     units[a2] = DataUnit(UnitType.ATTRIBUTE, attr.write_attribute_unit(h, layout, q2, mask2, params))
     units.insert(a1, DataUnit(UnitType.CONTEXT_MODEL, unit))
 
@@ -357,7 +375,8 @@ def _rewrite_gaussian_attributes(units, edit: dict):
     """Re-code the (single, level-0) attribute unit of a Gaussian stream: with the cross-channel
     predictions ``entries`` [[target, source, weight], ...] in place of the encoder's (lossless: the
     decoded scene is unchanged), and/or with the quantized value at ``set_q`` [row, channel, value]
-    changed (the hash then no longer matches: for error streams)."""
+    changed (the hash then no longer matches: for error streams, or give ``rehash``); ``set_q`` may
+    also be a list of such triples."""
     from lghcc.common import attributes as attr
     from lghcc.common.container import DataUnit, UnitType
     from lghcc.common.units import GaussianParameterSet
@@ -369,8 +388,9 @@ def _rewrite_gaussian_attributes(units, edit: dict):
     h, _, q = attr.read_attribute_unit(units[a].payload, layout, layout.steps(gps), gps.num_gaussians, 0, values,
                                        keep_q=True)
     if "set_q" in edit:
-        row, ch, value = edit["set_q"]
-        q[row, ch] = value
+        triples = edit["set_q"] if isinstance(edit["set_q"][0], list) else [edit["set_q"]]
+        for row, ch, value in triples:
+            q[row, ch] = value
     pred = attr.ChannelPrediction.from_header(h, "edit")
     if "entries" in edit:
         e = np.asarray(edit["entries"], np.int64).reshape(-1, 3)
@@ -421,6 +441,9 @@ def post_process(data: bytes, post: dict) -> bytes:
         for k, v in post["set_gps"].items():
             setattr(gps, k, v)
         units[j] = DataUnit(UnitType.GAUSSIAN_PARAMETER_SET, gps.to_bytes())
+    import stream_edits  # tools/stream_edits.py: values the encoder never writes, one broken rule each
+
+    stream_edits.apply_edits(units, post)
     if "set_sps" in post:  # overwrite scene parameter set fields
         j = _unit_index(units, UnitType.SCENE_PARAMETER_SET)
         sps = SceneParameterSet.from_bytes(units[j].payload)
@@ -446,6 +469,8 @@ def post_process(data: bytes, post: dict) -> bytes:
         out = _rehash(out)
     if "insert_raw_unit" in post:
         out = _insert_raw_unit(out, post["insert_raw_unit"])
+    if "container_bytes" in post:  # container-header bytes the writer refuses (a wrong magic)
+        out = stream_edits.raw_container_edit(out, post["container_bytes"])
     if "flip_byte" in post:  # damage one byte without fixing the CRC
         b = bytearray(out)
         b[int(post["flip_byte"])] ^= 0x01
@@ -463,6 +488,27 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
     from lghcc.encoder.encode import encode_scene
     from lghcc.encoder.gaussians import encode_gaussian_scene
 
+    post = entry.get("post", {})
+    if entry["scene"]["generator"] in ("forge_dense", "forge_box"):  # zero attributes (conformance/forge.py)
+        from lghcc.common.geometry import normative_order
+        from lghcc.conformance.forge import dense_zero_stream
+
+        s = entry["scene"]
+        coords = None
+        if s["generator"] == "forge_box":  # a box [dims] of which each voxel is kept with probability density
+            ax = [np.arange(int(d)) for d in s["dims"]]
+            box = np.stack(np.meshgrid(*ax, indexing="ij"), -1).reshape(-1, 3)
+            box = box[np.random.default_rng(int(s["seed"])).random(len(box)) < float(s["density"])]
+            coords = box[normative_order(box)]
+        data = post_process(dense_zero_stream(int(s.get("side", 1)), int(s["feature_dim"]), int(s["num_offsets"]),
+                                              exact_hash=True, coords=coords), post)
+        if entry.get("expect") == "error":
+            return data, None
+        from lghcc.common.container import UnitType, read_container
+        from lghcc.common.units import DecodedSceneHashUnit
+
+        unit = [u for u in read_container(data).units if u.unit_type == UnitType.DECODED_SCENE_HASH][0]
+        return data, DecodedSceneHashUnit.from_bytes(unit.payload).scene_hash.hex()
     before = torch.get_num_threads()
     torch.set_num_threads(1)  # context-model training in float must be reproducible byte for byte
     try:
@@ -474,7 +520,6 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
             result = encode_scene(build_scene(entry["scene"]), cfg)
     finally:
         torch.set_num_threads(before)
-    post = entry.get("post", {})
     data = post_process(result.data, post)
     if entry.get("expect") == "error":
         return data, None
@@ -514,7 +559,8 @@ Tags of test.yaml `tools`, derived from the reference decoder's result (never wr
   error streams: container (rejected by the container layer: framing, CRC, version, profile,
   unit types, order), hash (HashMismatchError), level_limits (N * M above the limit), the stage
   that rejected it (attributes, geometry, render_model, hierarchy, context_model: the module of
-  the innermost frame), and the tags of the parts that parse (hierarchy, offset_mask, ...)."""
+  the innermost frame; scene_parameter_set or gaussian_parameter_set: an element of the parameter
+  set out of its range), and the tags of the parts that parse (hierarchy, offset_mask, ...)."""
 
 
 class EscapeCounter:
@@ -551,6 +597,7 @@ def _structure_tags(data: bytes) -> set[str]:
     """Tags of a stream's parts that parse without decoding (container, sps, unit types)."""
     from lghcc.common import attributes as attr
     from lghcc.common.container import UnitType, read_container
+    from lghcc.common.errors import LghccError
     from lghcc.common.units import MAX_ATTRIBUTE_VALUES, GaussianParameterSet, SceneParameterSet
 
     units = read_container(data).units
@@ -563,8 +610,12 @@ def _structure_tags(data: bytes) -> set[str]:
     if any(u.is_ancillary for u in units):
         tags.add("ancillary_unit")
     sps_units = [u for u in units if u.unit_type == UnitType.SCENE_PARAMETER_SET]
-    if sps_units:
-        sps = SceneParameterSet.from_bytes(sps_units[0].payload)
+    try:
+        sps = SceneParameterSet.from_bytes(sps_units[0].payload) if sps_units else None
+    except LghccError:  # an sps element out of its range: the stream is rejected there
+        tags.add("scene_parameter_set")
+        sps = None
+    if sps is not None:
         if sps.hierarchy_enabled_flag:
             tags.add("hierarchy")
         if sps.offset_mask_present_flag:
@@ -572,8 +623,12 @@ def _structure_tags(data: bytes) -> set[str]:
         if sps.num_anchors * attr.layout_of(sps).num_channels > MAX_ATTRIBUTE_VALUES:
             tags.add("level_limits")
     gps_units = [u for u in units if u.unit_type == UnitType.GAUSSIAN_PARAMETER_SET]
-    if gps_units:
-        gps = GaussianParameterSet.from_bytes(gps_units[0].payload)
+    try:
+        gps = GaussianParameterSet.from_bytes(gps_units[0].payload) if gps_units else None
+    except LghccError:  # a gps element out of its range: the stream is rejected there
+        tags |= {"gaussians", "gaussian_parameter_set"}
+        gps = None
+    if gps is not None:
         tags |= {"gaussians", f"sh_degree_{gps.sh_degree}"}
         if gps.hierarchy_enabled_flag:
             tags.add("hierarchy")

@@ -18,9 +18,11 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from lghcc.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK,  # noqa: E402
+                              EXIT_RESOURCE_LIMIT, EXIT_USAGE, exit_status_epilog, with_prefix)
 from lghcc.common.errors import HashMismatchError, LghccError  # noqa: E402
-from lghcc.common.cliargs import (EXIT_HASH_MISMATCH, OVERWRITE_RULE, add_overwrite_options,  # noqa: E402
-                                  add_version_option, exit_codes_text, run_cli)
+from lghcc.common.cliargs import (OVERWRITE_RULE, add_overwrite_options, add_version_option,  # noqa: E402
+                                  run_cli)
 from lghcc.common.fileio import atomic_write_bytes, check_output_paths, check_overwrite, write_error  # noqa: E402
 
 DESCRIPTION = """\
@@ -62,9 +64,14 @@ def _vector(text: str, opt: str) -> np.ndarray:
 
 
 def setup_args() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="lghcc-view", description=DESCRIPTION, epilog=OVERWRITE_RULE + "\n\n"
-                                + exit_codes_text({EXIT_HASH_MISMATCH: "the decoded scene does not match the "
-                                                   "stream's hash (no page written)"}),
+    p = argparse.ArgumentParser(prog="lghcc-view", description=DESCRIPTION,
+                                epilog=OVERWRITE_RULE + "\n\n" + exit_status_epilog(
+                                    {EXIT_INVALID_STREAM: "invalid stream (malformed, unsupported, or its decoded "
+                                                          "scene does not match its hash): no page is written",
+                                     EXIT_RESOURCE_LIMIT: "resource limit (the decoder's default memory bound, "
+                                                          "or the system ran out of memory)"},
+                                    codes=(EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INVALID_STREAM, EXIT_RESOURCE_LIMIT,
+                                           EXIT_INTERRUPTED)),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     add_version_option(p)
     p.add_argument("stream", help="the .lghcc file to show")
@@ -108,6 +115,8 @@ def _say_nothing(*_a, **_k) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Exit status: lghcc.cli_common (0 page written, 1 input/output error, 2 usage, 3 invalid stream
+    (malformed, or its decoded scene fails its hash: no page), 4 resource limit, 130 interrupted)."""
     return run_cli("lghcc-view", _main, argv)
 
 
@@ -117,11 +126,7 @@ def _main(argv: list[str] | None) -> int:
     try:
         return _run(args, say)
     except HashMismatchError as e:
-        print(f"lghcc-view: error: {args.stream}: {e}; no page written", file=sys.stderr)
-        return EXIT_HASH_MISMATCH
-    except LghccError as e:
-        print(f"lghcc-view: error: {e}", file=sys.stderr)
-        return 1
+        raise type(e)(f"{args.stream}: {e}; no page written") from None  # exit status 3 (run_cli)
 
 
 def _run(args, say) -> int:
@@ -155,8 +160,8 @@ def _run(args, say) -> int:
         result = decode_stream(data, verify_hash=True)
     except HashMismatchError:
         raise
-    except LghccError as e:
-        raise LghccError(f"{args.stream}: {e}") from None
+    except LghccError as e:  # the same class (and exit status), with the stream's path
+        raise with_prefix(e, args.stream) from None
     t_dec = time.perf_counter() - t0
     say(f"{args.stream}: {len(data):,} bytes, decoded in {t_dec:.2f} s, hash matches")
 

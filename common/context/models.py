@@ -58,6 +58,24 @@ def describe_context_model(model) -> str:
     return f"parent MLP, {p.num_parameters():,} parameters of {bits} bits"
 
 
+def check_ggconv_extent(*coords: np.ndarray) -> None:
+    """Level limit (spec clause 8, Annex H.3): a stream with a GG-Conv context model has anchors
+    whose coordinate extent (the largest over the axes of max - min, over all anchors: level 1 and
+    level 2 together, whichever level the model's neighbours are) is at most MAX_EXTENT, so every
+    squared distance of the Ball k-NN fits a signed 64-bit integer. BitstreamError naming it."""
+    from lghcc.common.knn import MAX_EXTENT
+
+    arrays = [np.asarray(c) for c in coords if np.asarray(c).size]
+    if not arrays:
+        return
+    lo = np.min([a.min(axis=0) for a in arrays], axis=0)
+    hi = np.max([a.max(axis=0) for a in arrays], axis=0)
+    extent = max(int(h) - int(l) for h, l in zip(hi, lo))  # Python ints: exact
+    if extent > MAX_EXTENT:
+        raise BitstreamError(f"the anchors' coordinate extent {extent} exceeds the level limit of {MAX_EXTENT} "
+                             "for a stream with a GG-Conv context model (spec clause 8)")
+
+
 class Level2CodingParams:
     """The coding parameters of the level-2 attribute unit, computed for the rows a caller asks
     for (``rows``, the CodingParams interface the attribute decoder uses chunk by chunk): the
@@ -89,6 +107,7 @@ def level2_coding_params(model, coords1: np.ndarray, attrs1: np.ndarray, coords2
     model_id, params = model
     if model_id == CONTEXT_GGCONV:
         from lghcc.common.context.ggconv import GGConvEvaluator
+        check_ggconv_extent(coords1, coords2)
         return Level2CodingParams(GGConvEvaluator(params, coords2, parent, coords1, attrs1, voxel_scale))
     from lghcc.common.context.parent_mlp import ParentMlpEvaluator
     return Level2CodingParams(ParentMlpEvaluator(params, coords2, parent, attrs1, voxel_scale))

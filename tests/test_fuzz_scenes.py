@@ -1,0 +1,204 @@
+"""Structure-aware fuzzing (tools/fuzz_scenes.py) and mutation testing (conformance/mutations.py,
+tools/mutation_test.py): short runs here; the long ones are `make fuzz-long` and `make mutations`."""
+
+import random
+import sys
+from collections import Counter
+from datetime import timedelta
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+from lghcc.conformance import fuzz, mutations
+from lghcc.conformance.fuzz import Mutator, Sandbox, load_seeds, run_campaign
+
+TOOLS = Path(__file__).resolve().parents[1] / "tools"
+sys.path.insert(0, str(TOOLS))
+
+import fuzz_scenes  # noqa: E402
+import mutation_test  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def box():
+    with Sandbox(timeout=60.0, memory_mb=2048) as b:
+        yield b
+
+
+def test_fresh_scene_streams_decode_to_their_own_hash(box):
+    """Hypothesis draws the generator's Random: every scene the encoder accepts decodes, in the sandbox,
+    to exactly the encoded scene; a refusal is an InputError with a message; nothing else happens."""
+    kinds = Counter()
+
+    @settings(max_examples=25, deadline=timedelta(seconds=60), derandomize=True, database=None,
+              suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+    @given(st.randoms(use_true_random=False))
+    def run(rng):
+        case = fuzz_scenes.scene_case(rng)
+        assert not case.bug, case.bug
+        if case.data is None:
+            assert case.refused, case.what
+            kinds["refused"] += 1
+            return
+        res = fuzz.scene_outcome(box.run(case.data))
+        assert res.kind == fuzz.SCENE_VALID, f"{case.what}: {res.detail}"
+        kinds["valid"] += 1
+        kinds["hierarchy"] += "'hierarchy': True" in case.what
+
+    run()
+    assert kinds["valid"] >= 15 and kinds["hierarchy"] >= 3, kinds
+
+
+def test_the_generator_reaches_the_extremes():
+    """Over a few hundred seeds: extents beyond GG-Conv's limit, C up to 1024, K up to 64, 3000 anchors,
+    every layout, hand-built context models."""
+    layouts, extents, cs, ks, ns = set(), [], [], [], []
+    for seed in range(300):
+        rng = random.Random(seed)
+        scene, what = fuzz_scenes.random_scene(rng)
+        layouts.add(what.split("(")[1].split(")")[0])
+        c = scene.coords
+        extents.append(int((c.max(axis=0) - c.min(axis=0)).max()))
+        cs.append(scene.feature_dim)
+        ks.append(scene.num_offsets)
+        ns.append(scene.num_anchors)
+    assert layouts == {"cloud", "cube", "line", "plane", "cluster_far", "corners", "huge_extent", "sparse_wide"}
+    assert max(extents) > 1_753_413_056 and min(extents) <= 2
+    assert max(cs) > 500 and min(cs) == 1 and max(ks) > 32 and max(ns) > 1000 and min(ns) == 1
+
+
+def test_hand_built_models_are_valid_at_their_extremes():
+    from lghcc.common.context.ggconv import GGConvParams
+
+    seen = Counter()
+    for seed in range(60):
+        model_id, p = fuzz_scenes.hand_context_model(random.Random(seed), 3, 3 + 6 + 3)
+        seen[model_id] += 1
+        if isinstance(p, GGConvParams):
+            seen["radius_max"] += p.radius_sq == (1 << 62) - 1
+            seen["k_64"] += p.k == 64
+    assert seen[1] and seen[2] and seen["radius_max"] and seen["k_64"]
+
+
+def test_seeds_drawn_by_decode_time():
+    seeds = {k: v for k, v in load_seeds().items() if k in ("c001_one_anchor", "c013_ggconv_context")}
+    m = Mutator(seeds)
+    m.weigh_by_time({"c001_one_anchor": 0.002, "c013_ggconv_context": 0.2})
+    rng = random.Random(1)
+    picks = Counter(m.case(rng)[1].split(":")[0] for _ in range(2000))
+    assert picks["c013_ggconv_context"] > 0 and picks["c001_one_anchor"] > 50 * picks["c013_ggconv_context"]
+
+
+def test_campaign_with_scenes_pools_fresh_streams(tmp_path):
+    m = Mutator({k: v for k, v in load_seeds().items() if k == "c001_one_anchor"})
+    s = run_campaign(m, seed=3, cases=40, timeout=60.0, scene_source=fuzz_scenes.scene_case, mutations_per_scene=4,
+                     failures_dir=tmp_path)
+    assert s.bugs == 0, s.text()
+    scenes = s.outcomes[fuzz.SCENE_VALID] + s.outcomes[fuzz.SCENE_REFUSED]
+    assert scenes >= 7 and len(m.ids) > 1  # fresh streams joined the seeds
+    assert "most CPU" in s.text()
+
+
+# --- mutation testing ---------------------------------------------------------------------------------
+
+def test_every_mutation_applies_to_todays_code():
+    import lghcc.common.context.ggconv  # noqa: F401
+    import lghcc.common.context.parent_mlp  # noqa: F401
+    import lghcc.decoder.decode  # noqa: F401
+
+    ids = [m.id for m in mutations.MUTATIONS]
+    assert len(ids) == len(set(ids)) >= 200
+    for m in mutations.MUTATIONS:
+        if m.value is None:
+            src = mutations.mutated_source(m)  # StaleMutation if an edit no longer matches exactly once
+            compile(src, m.id, "exec")
+        else:
+            mutations._resolve(m.target)
+    groups = Counter(m.group for m in mutations.MUTATIONS)
+    for g in ("intnn", "ggconv", "parent_mlp", "knn", "hierarchy", "attributes", "entropy", "geometry", "syntax",
+              "gaussians", "prediction"):
+        assert groups[g] >= 2, g
+
+
+def test_a_stale_mutation_is_reported_not_skipped():
+    m = mutations.Mutation("x", "x", "lghcc.common.intnn:rshift_round", "nothing", (("no such text", "y"),))
+    with pytest.raises(mutations.StaleMutation, match="not found"):
+        mutations.mutated_source(m)
+
+
+@pytest.mark.parametrize("mid, killer", [
+    ("entropy.escape_sign", "c004_escape_values"),
+    ("ggconv.tri_ties_down", "c044_ggconv_trilinear_ties"),
+    ("attributes.step_factor_7", "c047_ggconv_limits_every_level_and_step"),
+    ("geometry.count_limit_1023", "c051_geometry_count_limit"),
+    ("prediction.magnitude_off_by_one", "c052_gaussians_value_at_limit"),
+    ("prediction.check_before_prediction", "e084_prediction_value_limit"),
+])
+def test_named_streams_kill_their_mutations(mid, killer):
+    """The harness end to end: the mutation fails the stream written for it, and the same stream passes
+    with the unmutated decoder."""
+    import lghcc.decoder.decode  # noqa: F401 (imported before the fork, nothing decoded)
+
+    status, who, note, _ = mutation_test.run_one(mid, [killer], 120)
+    assert (status, who) == ("killed", killer), note
+    probe = mutations.Mutation("probe", "probe", "lghcc.common.entropy.range_coder:check_frequencies", "no change",
+                               (("def check_frequencies", "def check_frequencies"),))
+    mutations.MUTATIONS.append(probe)
+    try:
+        assert mutation_test.run_one("probe", [killer], 120)[0] == "survived"
+    finally:
+        mutations.MUTATIONS.remove(probe)
+
+
+def test_value_mutations_reach_every_holder():
+    """A constant imported by name elsewhere is patched there too (in a child process: for good)."""
+    import multiprocessing as mp
+
+    def child(conn):
+        from lghcc.common import geometry
+        mutations.apply(next(m for m in mutations.MUTATIONS if m.id == "geometry.dens_bucket"))
+        conn.send(list(geometry.DENS_BUCKET))
+
+    ctx = mp.get_context("fork")
+    a, b = ctx.Pipe()
+    p = ctx.Process(target=child, args=(b,))
+    p.start()
+    assert a.recv() == [0, 1, 1, 1, 2, 3, 3]
+    p.join()
+    from lghcc.common import geometry
+    assert list(geometry.DENS_BUCKET) == [0, 1, 1, 2, 2, 3, 3]
+    assert np.array_equal(geometry.DENS_BUCKET, [0, 1, 1, 2, 2, 3, 3])
+
+
+def test_property_mutations_replace_the_property():
+    """A derived value of a layout (a property) is mutated as a property, in a child process."""
+    import multiprocessing as mp
+
+    from lghcc.common.attributes import GaussianLayout
+
+    def child(conn):
+        mutations.apply(next(m for m in mutations.MUTATIONS if m.id == "gaussians.coefficients_of_last_band"))
+        conn.send(GaussianLayout(3).sh_channels)
+
+    ctx = mp.get_context("fork")
+    a, b = ctx.Pipe()
+    p = ctx.Process(target=child, args=(b,))
+    p.start()
+    assert a.recv() == 21  # 3 x (2d + 1) for d = 3
+    p.join()
+    assert GaussianLayout(3).sh_channels == 48  # 3 x (d + 1)^2 here
+
+
+def test_a_stopped_campaign_keeps_its_figures():
+    """Ctrl-C or SIGTERM (tools/fuzz_decoder.py turns it into KeyboardInterrupt) ends the run with the
+    summary of the cases done, so a long run cut short still reports them."""
+    m = Mutator({k: v for k, v in load_seeds().items() if k == "c001_one_anchor"})
+
+    def interrupt_after_5(s):
+        if s.cases == 5:
+            raise KeyboardInterrupt
+
+    s = run_campaign(m, seed=1, cases=100, progress=interrupt_after_5)
+    assert s.stopped and s.cases == 5 and s.seconds > 0 and sum(s.outcomes.values()) == 5

@@ -1,0 +1,507 @@
+"""Edits of encoded streams for conformance streams that make a decoder's decisions matter
+(issue 14): values the encoder never writes (escapes up to the limit, every scale level),
+hand-built integer context models whose means, levels and step adjustments reach every clamp
+and rounding tie, and streams that break one rule each (a syntax element just beyond its range,
+a geometry constraint, a context array out of its range ...). Used by tools/gen_conformance.py
+(``post`` keys of conformance/sources.yaml; see ``apply_edits``).
+
+Every edit is deterministic (seeded), so `gen_conformance.py --check` reproduces the streams.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lghcc.common import attributes as attr
+from lghcc.common.bitio import BitReader
+from lghcc.common.container import DataUnit, UnitType
+from lghcc.common.units import AttributeUnitHeader, SceneParameterSet
+
+
+def _index(units, unit_type, nth: int = 0) -> int:
+    return [j for j, u in enumerate(units) if u.unit_type == unit_type][nth]
+
+
+def _sps(units) -> SceneParameterSet:
+    return SceneParameterSet.from_bytes(units[_index(units, UnitType.SCENE_PARAMETER_SET)].payload)
+
+
+def _parse_attribute(payload: bytes, sps: SceneParameterSet, num_rows: int):
+    """(header, byte offset of the chunk data)."""
+    r = BitReader(payload)
+    h = AttributeUnitHeader.parse(r, num_channels=attr.layout_of(sps).num_channels, num_offsets=sps.num_offsets,
+                                  offset_mask_present=sps.offset_mask_present_flag, num_rows=num_rows)
+    return h, r.bit_position // 8
+
+
+def _level0_q(units):
+    """The single (no hierarchy) attribute unit: its header, masks and quantized values."""
+    sps = _sps(units)
+    j = _index(units, UnitType.ATTRIBUTE)
+    layout = attr.layout_of(sps)
+    values = np.empty((sps.num_anchors, layout.num_channels), np.float32)
+    h, mask, q = attr.read_attribute_unit(units[j].payload, layout, layout.steps(sps), sps.num_anchors, 0, values,
+                                          keep_q=True)
+    return sps, j, h, mask, q
+
+
+def _recode_level0(units, h, mask, q) -> None:
+    """Write the single attribute unit again with header ``h`` (prior means / levels) and values q."""
+    sps = _sps(units)
+    layout = attr.layout_of(sps)
+    j = _index(units, UnitType.ATTRIBUTE)
+    new = AttributeUnitHeader(num_channels=layout.num_channels, num_offsets=sps.num_offsets,
+                              offset_mask_present=h.offset_mask_present, num_rows=sps.num_anchors,
+                              attribute_level=h.attribute_level, context_model_id=0, prior_mean=list(h.prior_mean),
+                              prior_level=list(h.prior_level), mask_live_prob=list(h.mask_live_prob),
+                              rows_per_chunk_minus1=h.rows_per_chunk_minus1)
+    units[j] = DataUnit(UnitType.ATTRIBUTE, attr.write_attribute_unit(new, layout, q, mask, attr.prior_params(new)))
+
+
+# --- values the encoder never writes ---------------------------------------------------------------
+
+def set_q(units, spec: dict) -> None:
+    """spec: {values: [[row, channel, q], ...], prior_mean: {channel: mean}, prior_level: {channel: level},
+    every_level: bool}. Quantized values and prior parameters of the single attribute unit are
+    rewritten and the unit re-coded (rehash the stream: the decoded scene changes).
+    ``every_level``: channel c gets scale level c mod 64 (one stream exercises every table)."""
+    sps, j, h, mask, q = _level0_q(units)
+    q = q.copy()
+    for row, col, value in spec.get("values", []):
+        q[int(row), int(col)] = int(value)
+    for c, m in (spec.get("prior_mean") or {}).items():
+        h.prior_mean[int(c)] = int(m)
+    for c, lv in (spec.get("prior_level") or {}).items():
+        h.prior_level[int(c)] = int(lv)
+    if spec.get("every_level"):
+        h.prior_level = [c % 64 for c in range(len(h.prior_level))]
+    _recode_level0(units, h, mask, q)
+
+
+def escape_classes(units, spec: dict) -> None:
+    """Channel ``channel`` of rows 0.. gets a residual of every escape class k = 0..62 at its level
+    (|r| = L + 1 + m with m = 0 and m = 2^(k-1) + (2^(k-1) - 1)), both signs alternating, the
+    last one the largest codable |r| = 2^62 - 1 (clause 10.5)."""
+    from lghcc.common.entropy.tables import HALF_WIDTHS, MAX_ABS_RESIDUAL
+
+    sps, j, h, mask, q = _level0_q(units)
+    col = int(spec.get("channel", 0))
+    level = int(spec.get("level", 0))
+    h.prior_level[col], h.prior_mean[col] = level, 0
+    half = int(HALF_WIDTHS[level])
+    mags = [half + 1] + [half + 1 + (1 << (k - 1)) + (1 << (k - 1)) - 1 for k in range(1, 62)] + [MAX_ABS_RESIDUAL]
+    if len(mags) > sps.num_anchors:
+        raise ValueError(f"escape_classes needs {len(mags)} rows")
+    q = q.copy()
+    for row, mag in enumerate(mags):
+        q[row, col] = mag if row % 2 == 0 else -mag
+    _recode_level0(units, h, mask, q)
+
+
+def _chunk_pieces(units, j, sps, num_rows):
+    h, off = _parse_attribute(units[j].payload, sps, num_rows)
+    sizes = [x for pair in zip(h.mask_chunk_size, h.chunk_size) for x in pair] if h.offset_mask_present \
+        else list(h.chunk_size)
+    return h, attr.split_chunks(units[j].payload[off:], sizes, "attribute unit")
+
+
+def _reframe(units, j, h, pieces) -> None:
+    if h.offset_mask_present:
+        h.mask_chunk_size = [len(p) for p in pieces[0::2]]
+        h.chunk_size = [len(p) for p in pieces[1::2]]
+    else:
+        h.chunk_size = [len(p) for p in pieces]
+    units[j] = DataUnit(units[j].unit_type, h.to_bytes() + b"".join(pieces))
+
+
+def edit_chunk(units, spec: dict) -> None:
+    """Damage one symbol chunk of the single attribute unit, chunk sizes kept consistent:
+    {chunk: i, append_hex: '...'} (trailing bytes), or {chunk: i, failing_words: seed} (words found by
+    a seeded search on which range decoding fails, q >= 2^24 in clause 10.6.4), or
+    {chunk: i, escape_beyond_limit: true} (one escaped residual of magnitude 2^62 + L, clause 10.5)."""
+    from lghcc.common.entropy import symbol_coder
+    from lghcc.common.entropy.range_coder import RangeEncoder
+    from lghcc.common.entropy.tables import HALF_WIDTHS
+    from lghcc.common.errors import BitstreamError
+
+    sps = _sps(units)
+    j = _index(units, UnitType.ATTRIBUTE)
+    h, pieces = _chunk_pieces(units, j, sps, sps.num_anchors)
+    i = int(spec.get("chunk", 0))
+    k = 2 * i + 1 if h.offset_mask_present else i
+    rows = min(h.rows_per_chunk, sps.num_anchors - i * h.rows_per_chunk)
+    m = attr.layout_of(sps).num_channels
+    levels = np.broadcast_to(np.asarray(h.prior_level, np.int64), (rows, m))
+    if "append_hex" in spec:
+        pieces[k] = pieces[k] + bytes.fromhex(spec["append_hex"])
+    elif "failing_words" in spec:
+        rng = np.random.default_rng(int(spec["failing_words"]))
+        for _ in range(200000):
+            words = rng.integers(0, 256, size=4 * int(rng.integers(1, 4)), dtype=np.uint8).tobytes()
+            try:
+                symbol_coder.decode_symbols(words, levels)
+            except BitstreamError as e:
+                if "range decoding failed" in str(e):
+                    pieces[k] = words
+                    break
+        else:
+            raise ValueError("no failing words found")
+    elif spec.get("escape_beyond_limit"):
+        if sps.offset_mask_present_flag or len(set(h.prior_level)) != 1:
+            raise ValueError("escape_beyond_limit needs one prior level and no offset masks")
+        level = int(h.prior_level[0])
+        half = int(HALF_WIDTHS[level])
+        bins = np.full(rows * m, half, np.int32)
+        bins[0] = 2 * half + 1  # the escape bin
+        enc = RangeEncoder()
+        enc.encode(bins, symbol_coder._level_model(level))
+        enc.encode_bits(np.zeros(1, np.uint64), 1)  # sign +
+        enc.encode(np.array([62], np.int32), symbol_coder._class_model())  # class 62: m = 2^61 + rem
+        enc.encode_bits(np.array([(1 << 61) - 1], np.uint64), 61)  # m = 2^62 - 1: |r| = L + 2^62 > 2^62 - 1
+        pieces[k] = enc.to_bytes()
+    _reframe(units, j, h, pieces)
+
+
+def recode_attribute_header(units, spec: dict) -> None:
+    """Rewrite the header of attribute unit ``nth`` (default: the last), its chunks kept:
+    {context_model_id: id} for a unit that names a context model the stream does not hold."""
+    from lghcc.common.geometry import decode_geometry
+    from lghcc.common.hierarchy import build_hierarchy
+
+    sps = _sps(units)
+    nth = int(spec.get("nth", -1))
+    attribute_units = [j for j, u in enumerate(units) if u.unit_type == UnitType.ATTRIBUTE]
+    j = attribute_units[nth]
+    level = 0
+    num_rows = sps.num_anchors
+    if sps.hierarchy_enabled_flag:
+        coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, sps.num_anchors)
+        hier = build_hierarchy(coords, sps.coarse_voxel_scale)
+        level = attribute_units.index(j) + 1
+        num_rows = hier.num_level1 if level == 1 else hier.num_level2
+    h, off = _parse_attribute(units[j].payload, sps, num_rows)
+    new = AttributeUnitHeader(num_channels=h.num_channels, num_offsets=h.num_offsets,
+                              offset_mask_present=h.offset_mask_present, num_rows=num_rows, attribute_level=level,
+                              context_model_id=int(spec["context_model_id"]), prior_mean=list(h.prior_mean),
+                              prior_level=list(h.prior_level), mask_live_prob=list(h.mask_live_prob),
+                              rows_per_chunk_minus1=h.rows_per_chunk_minus1,
+                              mask_chunk_size=list(h.mask_chunk_size), chunk_size=list(h.chunk_size))
+    units[j] = DataUnit(UnitType.ATTRIBUTE, new.to_bytes() + units[j].payload[off:])
+
+
+# --- syntax elements just beyond their range ---------------------------------------------------------
+
+def set_elements(units, edits: list[dict]) -> None:
+    """[{name: 'structure.element[i]', value: v, nth: 0}, ...]: re-code syntax elements in place
+    (lghcc.conformance.fuzz.replace_element: later bits move, CRCs are recomputed by the writer).
+    f(32) values are given as numbers (or 'nan', 'inf'). Located from the decoder's trace of the
+    unedited stream."""
+    from lghcc.common.container import write_container
+    from lghcc.common.syntax import f32_bits
+    from lghcc.conformance.fuzz import replace_element, stream_elements
+
+    els = stream_elements(write_container(units))
+    picked = []
+    for e in edits:
+        matches = [el for el in els if el.name == e["name"]]
+        if len(matches) <= int(e.get("nth", 0)):
+            raise ValueError(f"no element {e['name']} (occurrence {e.get('nth', 0)})")
+        el = matches[int(e.get("nth", 0))]
+        v = e["value"]
+        picked.append((el, f32_bits(float(v)) if el.descriptor == "f(32)" else int(v)))
+    for el, v in sorted(picked, key=lambda p: (p[0].unit, -p[0].bit)):  # later elements first
+        units[el.unit] = DataUnit(units[el.unit].unit_type, replace_element(units[el.unit].payload, el, v))
+
+
+# --- geometry constraints -----------------------------------------------------------------------------
+
+def _encode_geometry_unchecked(coords: np.ndarray, shift_min: list[int] | None = None) -> bytes:
+    """encode_geometry without its checks, for payloads that break a rule on purpose: duplicate
+    points allowed, and ``shift_min`` subtracted from the bounding-box minimum (the points then do
+    not attain it). The coding itself is the reference encoder's (its source, edited)."""
+    import inspect
+    import textwrap
+
+    from lghcc.common import geometry
+
+    src = textwrap.dedent(inspect.getsource(geometry.encode_geometry))
+    src = src.replace('raise ValueError("coordinates must be unique")', "pass")
+    src = src.replace("bmin = c.min(axis=0)", "bmin = c.min(axis=0) - np.asarray(_SHIFT, dtype=np.int64)")
+    ns: dict = {}
+    exec(compile(src, "<encode_geometry unchecked>", "exec"), dict(vars(geometry), _SHIFT=shift_min or [0, 0, 0]),
+         ns)
+    return ns["encode_geometry"](coords)
+
+
+def geometry_edit(units, spec: dict) -> None:
+    """{duplicate_isolated: true}: one isolated anchor repeated (an IDCM node with the same point
+    twice, num_anchors + 1); {shift_min: [1, 0, 0]}: the box minimum one below every point;
+    {append_hex: '...'}: bytes after the coded data; {anchors_delta: d}: num_anchors changed by d
+    (the sps re-written)."""
+    from lghcc.common.geometry import decode_geometry
+
+    j = _index(units, UnitType.GEOMETRY)
+    s = _index(units, UnitType.SCENE_PARAMETER_SET)
+    sps = _sps(units)
+    coords = decode_geometry(units[j].payload, sps.num_anchors)
+    if spec.get("duplicate_isolated"):
+        far = coords[np.argmax(np.abs(coords - np.median(coords, axis=0)).sum(axis=1))]
+        dup = np.concatenate([coords, far[None]])
+        units[j] = DataUnit(UnitType.GEOMETRY, _encode_geometry_unchecked(dup))
+        sps.num_anchors_minus1 += 1
+        units[s] = DataUnit(UnitType.SCENE_PARAMETER_SET, sps.to_bytes())
+    if "shift_min" in spec:
+        units[j] = DataUnit(UnitType.GEOMETRY, _encode_geometry_unchecked(coords, spec["shift_min"]))
+    if "append_hex" in spec:
+        units[j] = DataUnit(UnitType.GEOMETRY, units[j].payload + bytes.fromhex(spec["append_hex"]))
+    if "header" in spec:  # header fields rewritten, the coded data after the byte alignment kept
+        from lghcc.common.bitio import BitWriter
+        from lghcc.common.geometry import GeometryHeader
+
+        r = BitReader(units[j].payload)
+        gh = GeometryHeader.parse(r)
+        r.byte_align()
+        for name, value in spec["header"].items():
+            setattr(gh, name, value)
+        w = BitWriter()
+        gh.write_to(w)
+        w.byte_align()
+        units[j] = DataUnit(UnitType.GEOMETRY, w.getvalue() + units[j].payload[r.bit_position // 8:])
+    if "anchors_delta" in spec:
+        sps.num_anchors_minus1 += int(spec["anchors_delta"])
+        units[s] = DataUnit(UnitType.SCENE_PARAMETER_SET, sps.to_bytes())
+
+
+# --- context-model and render-model units that break a rule ---------------------------------------------
+
+def context_unit(units, spec: dict) -> None:
+    """Replace the context-model unit's arrays: {array: name, values: [...], bits: b} (values
+    outside the width), or {oversized: true} (arrays of more than 2^24 values in all, coded data
+    empty), or {num_features_delta: d} (a model for another channel layout)."""
+    from lghcc.common.context.model_unit import (ContextModelUnit, IntArrayHeader, NamedIntArray,
+                                                 read_context_model_unit, write_context_model_unit)
+
+    j = _index(units, UnitType.CONTEXT_MODEL)
+    model_id, arrays = read_context_model_unit(units[j].payload)
+    unit = ContextModelUnit.from_bytes(units[j].payload)
+    feat = unit.feat_num_layers_minus1 + 1 if model_id == 2 else 0
+    head = unit.head_num_layers_minus1 + 1
+    if spec.get("oversized"):
+        unit.arrays = [IntArrayHeader(array_ndim=4, array_dim_minus1=[256, 256, 256, 0], array_bits_minus1=15,
+                                      array_signed_flag=1) if a.array_ndim == 4 else a for a in unit.arrays]
+        unit.coded_size, unit.coded_data = 0, b""
+        units[j] = DataUnit(UnitType.CONTEXT_MODEL, unit.to_bytes())
+        return
+    new = []
+    for a in arrays:
+        v, bits = np.asarray(a.values), a.bits
+        if a.name == spec.get("array"):
+            v = np.asarray(spec["values"], np.int64).reshape(v.shape)
+            bits = int(spec.get("bits", bits))
+        if a.name == "num_features" and "num_features_delta" in spec:
+            v = v + int(spec["num_features_delta"])
+        new.append(NamedIntArray(a.name, v, bits, a.signed))
+    units[j] = DataUnit(UnitType.CONTEXT_MODEL, write_context_model_unit(model_id, new, feat, head))
+
+
+def render_unit(units, spec: dict) -> None:
+    """Replace the render-model unit: {weight_2_24: true} (one weight integer of magnitude 2^24),
+    {duplicate_role: true} (the first MLP twice), {oversized: true} (two 4096 x 4096 layers: more
+    than 2^24 parameters, coded data empty)."""
+    from lghcc.common.entropy.symbol_coder import encode_symbols
+    from lghcc.common.units import RenderMlpHeader, RenderModelUnit
+
+    j = _index(units, UnitType.RENDER_MODEL)
+    unit = RenderModelUnit.from_bytes(units[j].payload)
+    if spec.get("oversized"):
+        h = RenderMlpHeader(mlp_role=0, num_layers_minus1=1, input_dim_minus1=4095, output_dim_minus1=[4095, 4095],
+                            activation=[1, 0], weight_exponent=[0, 0], weight_level=[0, 0], bias_exponent=[0, 0],
+                            bias_level=[0, 0])
+        unit = RenderModelUnit(num_mlps=1, mlps=[h], coded_size=0, coded_data=b"")
+    elif spec.get("duplicate_role"):
+        from lghcc.common.entropy.symbol_coder import decode_symbols
+
+        h = unit.mlps[0]
+        first = []
+        for l, (i, o) in enumerate(_shapes(h)):
+            first += [h.weight_level[l]] * (o * i) + [h.bias_level[l]] * o
+        first_levels = np.asarray(first, np.int64)
+        all_levels = _all_levels(unit)
+        q = decode_symbols(unit.coded_data, all_levels)
+        data = encode_symbols(np.concatenate([q, q[:first_levels.size]]), np.concatenate([all_levels, first_levels]))
+        unit = RenderModelUnit(num_mlps=unit.num_mlps + 1, mlps=list(unit.mlps) + [h], coded_size=len(data),
+                               coded_data=data)
+    elif spec.get("weight_2_24"):
+        from lghcc.common.entropy.symbol_coder import decode_symbols
+
+        levels = _all_levels(unit)
+        q = decode_symbols(unit.coded_data, levels)
+        q[0] = 1 << 24
+        data = encode_symbols(q, levels)
+        unit.coded_size, unit.coded_data = len(data), data
+    units[j] = DataUnit(UnitType.RENDER_MODEL, unit.to_bytes())
+
+
+def _shapes(h):
+    out, fan_in = [], h.input_dim_minus1 + 1
+    for l in range(h.num_layers_minus1 + 1):
+        out.append((fan_in, h.output_dim_minus1[l] + 1))
+        fan_in = h.output_dim_minus1[l] + 1
+    return out
+
+
+def _all_levels(unit) -> np.ndarray:
+    lv = []
+    for h in unit.mlps:
+        for l, (i, o) in enumerate(_shapes(h)):
+            lv += [h.weight_level[l]] * (o * i) + [h.bias_level[l]] * o
+    return np.asarray(lv, np.int64)
+
+
+def raw_container_edit(data: bytes, spec: dict) -> bytes:
+    """Edits of the container header's bytes that the writer refuses: {magic_hex: '4c474844'}."""
+    if "magic_hex" in spec:
+        data = bytes.fromhex(spec["magic_hex"]) + data[4:]
+    return data
+
+
+# --- designed integer context models (decodable) ------------------------------------------------------
+
+def _weights(rng: np.random.Generator, kind, shape, bits: int) -> np.ndarray:
+    lo, hi = -(1 << (bits - 1)), (1 << (bits - 1)) - 1
+    if isinstance(kind, int):
+        return np.full(shape, kind, np.int64)
+    if kind == "zero":
+        return np.zeros(shape, np.int64)
+    if kind == "small":
+        return rng.integers(-3, 4, size=shape)
+    if kind == "extreme":
+        return rng.choice([lo, hi, -1, 0, 1], size=shape)
+    if kind == "wide":
+        return rng.integers(lo, hi, size=shape, endpoint=True)
+    raise ValueError(f"unknown weight kind {kind!r}")
+
+
+def _bias(rng: np.random.Generator, kind, n: int) -> np.ndarray:
+    if isinstance(kind, int):
+        return np.full(n, kind, np.int64)
+    if isinstance(kind, dict):  # {cycle: [v0, v1, ...]}: the values in turn, channel by channel
+        return np.resize(np.asarray(kind["cycle"], np.int64), n)
+    if isinstance(kind, list):  # [lo, hi]
+        return rng.integers(int(kind[0]), int(kind[1]), size=n, endpoint=True)
+    if kind == "zero":
+        return np.zeros(n, np.int64)
+    if kind == "small":
+        return rng.integers(-100, 101, size=n)
+    if kind == "extreme":
+        return rng.choice([-(1 << 31), (1 << 31) - 1, -(1 << 20), 1 << 20, 0], size=n)
+    raise ValueError(f"unknown bias kind {kind!r}")
+
+
+def _layers(rng, specs: list[dict], fan_in: int, last_out: int, m: int | None = None):
+    """IntLinear layers from specs [{out, w, b, shift, bits}, ...]; the last one has ``last_out``
+    outputs. With ``m`` (a head: 3M outputs), the last layer's rows of means, levels and step
+    adjustments take their own weights and biases (w/b, level_w/level_b, adjust_w/adjust_b)."""
+    from lghcc.common.intnn import IntLinear
+
+    layers = []
+    for l, sp in enumerate(specs):
+        last = l == len(specs) - 1
+        out = last_out if last else int(sp["out"])
+        bits = int(sp.get("bits", 16))
+        w = _weights(rng, sp.get("w", "small"), (out, fan_in), bits)
+        b = _bias(rng, sp.get("b", "zero"), out)
+        if last and m is not None:
+            w[m:2 * m] = _weights(rng, sp.get("level_w", "zero"), (m, fan_in), bits)
+            w[2 * m:] = _weights(rng, sp.get("adjust_w", "zero"), (m, fan_in), bits)
+            b[m:2 * m] = _bias(rng, sp.get("level_b", [4, 20]), m)
+            b[2 * m:] = _bias(rng, sp.get("adjust_b", "zero"), m)
+        layers.append(IntLinear(w, b, int(sp.get("shift", 0)), not last, bits))
+        fan_in = out
+    return layers
+
+
+def designed_model(units, spec: dict) -> None:
+    """Code level 2 with a context model built from ``spec`` (seeded; every layer's weights,
+    biases, shift and width, the GG-Conv graph and table), so that its means, levels and step
+    adjustments reach the clamps and rounding ties a wrong decoder gets wrong. The level-2 values
+    the per-channel stream decoded to are re-quantized with the model's adjusted steps; the caller
+    rehashes the stream. spec: {model: ggconv | parent_mlp, seed, k, radius_sq, grid, channels,
+    h_shift, neighbour_level, table: small|extreme|wide, parent_base: random|ones|zeros,
+    feat: [layer, ...], head: [layer, ...]} with layer = {out, w, b, shift, bits} (the head's last
+    layer also level_w, level_b, adjust_w, adjust_b)."""
+    from lghcc.common.context.ggconv import GGConvParams
+    from lghcc.common.context.model_unit import write_context_model_unit
+    from lghcc.common.context.models import level2_coding_params, read_context_model
+    from lghcc.common.context.parent_mlp import ParentMlpParams
+    from lghcc.common.geometry import decode_geometry
+    from lghcc.common.hierarchy import build_hierarchy
+    from lghcc.common.intnn import IntMLP
+    from lghcc.common.units import CONTEXT_GGCONV, CONTEXT_PARENT_MLP, LEVEL_1, LEVEL_2
+
+    sps = _sps(units)
+    layout = attr.layout_of(sps)
+    m, c = layout.num_channels, sps.feature_dim
+    coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, sps.num_anchors)
+    hier = build_hierarchy(coords, sps.coarse_voxel_scale)
+    values = np.empty((sps.num_anchors, m), np.float32)
+    a1, a2 = _index(units, UnitType.ATTRIBUTE, 0), _index(units, UnitType.ATTRIBUTE, 1)
+    if UnitType.CONTEXT_MODEL in [u.unit_type for u in units]:
+        raise ValueError("designed_model starts from a stream without a context model")
+    steps = layout.steps(sps)
+    _, _, q1 = attr.read_attribute_unit(units[a1].payload, layout, steps, hier.num_level1, LEVEL_1, values,
+                                        hier.level1_idx, keep_q=True)
+    h2, mask2, _ = attr.read_attribute_unit(units[a2].payload, layout, steps, hier.num_level2, LEVEL_2, values,
+                                            hier.level2_idx, keep_q=True)
+    rng = np.random.default_rng(int(spec.get("seed", 0)))
+    base = {"ones": np.ones(m, np.int64), "zeros": np.zeros(m, np.int64),
+            "random": rng.integers(0, 2, size=m)}[spec.get("parent_base", "random")]
+    if spec.get("model", "ggconv") == "parent_mlp":
+        head = IntMLP(_layers(rng, spec["head"], 3 + m, 3 * m, m))
+        model_id, params, feat_layers = CONTEXT_PARENT_MLP, ParentMlpParams(c, head, base), 0
+    else:
+        ch, d = int(spec.get("channels", 2)), int(spec.get("grid", 2))
+        table = _weights(rng, spec.get("table", "small"), (d, d, d, ch), 16)
+        feat = IntMLP(_layers(rng, spec["feat"], c + 3, ch))
+        head = IntMLP(_layers(rng, spec["head"], ch + 4 + m, 3 * m, m))
+        params = GGConvParams(num_features=c, k=int(spec.get("k", 4)), radius_sq=int(spec.get("radius_sq", 12)),
+                              table=table, h_shift=int(spec.get("h_shift", 0)), feat_mlp=feat, head_mlp=head,
+                              neighbour_level=int(spec.get("neighbour_level", 1)), parent_base=base)
+        model_id, feat_layers = CONTEXT_GGCONV, len(feat.layers)
+    unit = write_context_model_unit(model_id, params.to_arrays(), feat_layers, len(params.head_mlp.layers))
+    model = read_context_model(unit, layout)
+    cp = level2_coding_params(model, coords[hier.level1_idx], q1, coords[hier.level2_idx], hier.parent_of_level2,
+                              sps.coarse_voxel_scale).materialize()
+    v2 = values[hier.level2_idx].astype(np.float64)
+    q2 = np.rint(v2 / attr.effective_steps(layout.steps(sps), cp.step_adjust).astype(np.float64)).astype(np.int64)
+    live = layout.live_channels(mask2, hier.num_level2)
+    if live is not None:
+        q2 = q2 * live
+    h = AttributeUnitHeader(num_channels=m, num_offsets=sps.num_offsets, offset_mask_present=h2.offset_mask_present,
+                            num_rows=hier.num_level2, attribute_level=LEVEL_2, context_model_id=model_id,
+                            mask_live_prob=list(h2.mask_live_prob), rows_per_chunk_minus1=h2.rows_per_chunk_minus1)
+    units[a2] = DataUnit(UnitType.ATTRIBUTE, attr.write_attribute_unit(h, layout, q2, mask2, cp))
+    units.insert(a1, DataUnit(UnitType.CONTEXT_MODEL, unit))
+
+
+def apply_edits(units, post: dict) -> None:
+    """The edits of this module that ``post`` asks for, in a fixed order (gen_conformance's
+    post_process calls it after its own unit edits and before the rehash)."""
+    if "designed_model" in post:
+        designed_model(units, post["designed_model"])
+    if "set_q" in post:
+        set_q(units, post["set_q"])
+    if "escape_classes" in post:
+        escape_classes(units, post["escape_classes"])
+    if "edit_chunk" in post:
+        edit_chunk(units, post["edit_chunk"])
+    if "recode_attribute_header" in post:
+        recode_attribute_header(units, post["recode_attribute_header"])
+    if "geometry_edit" in post:
+        geometry_edit(units, post["geometry_edit"])
+    if "context_unit" in post:
+        context_unit(units, post["context_unit"])
+    if "render_unit" in post:
+        render_unit(units, post["render_unit"])
+    if "set_elements" in post:
+        set_elements(units, post["set_elements"])
