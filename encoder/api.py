@@ -213,6 +213,8 @@ def encode(scene: AnchorScene | GaussianScene, cfg=None, *, progress: bool = Fal
 
         # max_memory=None: the scene is in memory already (the decoder's bound is for untrusted streams)
         if decode_stream(result.data, max_memory=None).stream_hash != result.scene_hash:
-            raise LghccError("internal error: the written stream does not decode to the encoded scene")
+            from lghcc.common.errors import HashMismatchError  # exit status 3, as lghcc-enc --help says
+
+            raise HashMismatchError("internal error: the written stream does not decode to the encoded scene")
         result.stats["verified"] = True
     return result, cfg

@@ -210,3 +210,25 @@ def test_sigint_during_decoding_exits_130_with_one_line_and_no_output(tmp_path):
     assert p.returncode == EXIT_INTERRUPTED, (p.returncode, stderr)
     assert stderr == "lghcc-dec: interrupted\n"
     assert not out.exists()
+
+
+def test_encoder_self_check_failure_exits_3_and_writes_nothing(tmp_path, monkeypatch, capsys):
+    """A written stream that does not decode to the encoded scene is the encoder's bug; lghcc-enc
+    says so in one line, exits 3 (invalid stream, as its --help says) and leaves no output."""
+    import types
+
+    from lghcc.decoder import decode as dec
+    from lghcc.encoder import cli as enc_cli
+
+    real = dec.decode_stream
+
+    def wrong_hash(data, *a, **k):
+        out = real(data, *a, **k)
+        return types.SimpleNamespace(stream_hash=b"\0" * 32, scene=getattr(out, "scene", None))
+
+    monkeypatch.setattr(dec, "decode_stream", wrong_hash)
+    out = tmp_path / "p.lghcc"
+    assert enc_cli.main(["--procedural", "50", "-o", str(out), "-q"]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "does not decode to the encoded scene" in err[0], err
+    assert list(tmp_path.iterdir()) == []
