@@ -169,7 +169,7 @@ def test_round_trip_hard_cases(case, context):
 def test_hard_case_generator_covers_every_case():
     seen = {}
 
-    @settings(max_examples=150, deadline=None, database=None)
+    @settings(max_examples=150, deadline=None, database=None, derandomize=True)  # coverage must not hang on luck
     @given(hard_cases())
     def collect(case):
         scene, hierarchy, scale, kind = case
