@@ -11,7 +11,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import argparse  # noqa: E402
 import sys  # noqa: E402
 
-from lghcc.common.errors import LghccError  # noqa: E402
+from ..common.errors import LghccError  # noqa: E402
 
 DESCRIPTION = """\
 Run a sweep: every scene of a sweep file coded with every preset (and, for scenes trained
@@ -45,7 +45,7 @@ examples:
 
 
 def setup_args() -> argparse.ArgumentParser:
-    from lghcc.common.cliargs import add_version_option
+    from ..app.cliargs import add_version_option
 
     p = argparse.ArgumentParser(prog="lghcc-batch", description=DESCRIPTION,
                                 epilog="exit status:\n  0    every cell finished\n  1    error before any work "
@@ -75,7 +75,7 @@ def setup_args() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from lghcc.common.cliargs import run_cli
+    from ..app.cliargs import run_cli
 
     return run_cli("lghcc-batch", _main, argv, "finished cells are kept; rerun to resume")
 
@@ -84,9 +84,9 @@ def _main(argv: list[str] | None) -> int:
     args = setup_args().parse_args(argv)
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
     try:
-        from lghcc.batch.report import write_report
-        from lghcc.batch.runner import Store, run_sweep
-        from lghcc.batch.sweep import load_sweep
+        from .report import write_report
+        from .runner import Store, run_sweep
+        from .sweep import load_sweep
 
         if args.cpus_per_cell < 1:
             raise LghccError(f"--cpus-per-cell must be at least 1, got {args.cpus_per_cell}")

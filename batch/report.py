@@ -12,8 +12,8 @@ import shlex
 import sys
 from pathlib import Path
 
-from lghcc.batch.sweep import Sweep
-from lghcc.common.fileio import atomic_output, atomic_write_bytes
+from .sweep import Sweep
+from ..app.fileio import atomic_output, atomic_write_bytes
 
 
 def _fmt(rec: dict, key: str, spec: str) -> str:

@@ -31,9 +31,9 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Callable
 
-from lghcc.batch.sweep import CellKey, PrepKey, Sweep
-from lghcc.common.errors import LghccError
-from lghcc.common.fileio import atomic_write_bytes
+from .sweep import CellKey, PrepKey, Sweep
+from ..common.errors import LghccError
+from ..app.fileio import atomic_write_bytes
 
 CELL_FORMAT = 1
 
@@ -204,7 +204,7 @@ def run_sweep(sweep: Sweep, *, local: bool = False, address: str | None = None, 
               heartbeat_s: float = 60.0, redo: bool = False) -> list[dict]:
     """Run every cell not finished yet (module doc; ``redo``: every cell, its files replaced);
     return every cell's record, in sweep order."""
-    from lghcc.batch import work
+    from . import work
 
     store = Store(sweep.output)
     cells = sweep.cells()
@@ -264,7 +264,7 @@ def run_sweep(sweep: Sweep, *, local: bool = False, address: str | None = None, 
 
 
 def _run_on_ray(ray, sweep, store, preps, address, cpus_per_cell, say, record, prepared_note, heartbeat_s) -> None:
-    from lghcc.batch import work
+    from . import work
 
     try:
         res = ray.cluster_resources()

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import yaml
 
-from lghcc.common.errors import InputError
+from ..common.errors import InputError
 
 
 class SweepError(InputError):
@@ -183,7 +183,7 @@ def _scene(d, i: int, base: Path, file: Path) -> SceneSpec:
     path = (base / p).resolve() if not Path(p).is_absolute() else Path(p)
     opts = ()
     if kind == "train":
-        from lghcc.encoder.train import TrainConfig
+        from ..encoder.train import TrainConfig
 
         opts = tuple(sorted(_check_fields(d.get("train_options"), TrainConfig, f"{where}.train_options", file,
                                           forbidden=("data", "rate_lambda")).items()))
@@ -226,8 +226,8 @@ def _evaluation(v, file: Path) -> Evaluation:
 def load_sweep(file: str | Path, output: str | Path | None = None) -> Sweep:
     """Read and check a sweep file (module doc). Raises SweepError naming the first problem;
     every missing scene path is named at once."""
-    from lghcc.encoder.config import EncoderConfig, load_config, preset_names
-    from lghcc.encoder.transcode import TranscodeConfig
+    from ..encoder.config import EncoderConfig, load_config, preset_names
+    from ..encoder.transcode import TranscodeConfig
 
     file = Path(file)
     try:

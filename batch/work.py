@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lghcc.batch.sweep import Evaluation, SceneSpec
+from .sweep import Evaluation, SceneSpec
 
 PREPARED_FORMAT = 1
 
@@ -44,13 +44,13 @@ def _threads(n: int | None) -> None:
 
 
 def orbit(positions: np.ndarray, scene: SceneSpec, ev: Evaluation) -> list:
-    from lghcc.render.views import orbit_cameras
+    from ..render.views import orbit_cameras
 
     return orbit_cameras(positions, ev.views, width=ev.width, height=ev.height, up=scene.up)
 
 
 def _render_anchor(scene, cams, bg) -> np.ndarray:
-    from lghcc.render.scenes import render_fn
+    from ..render.scenes import render_fn
 
     draw = render_fn(scene)
     return np.stack([draw(c, bg) for c in cams]).astype(np.float32)
@@ -58,8 +58,8 @@ def _render_anchor(scene, cams, bg) -> np.ndarray:
 
 def _render_3dgs(path: str, cams, bg) -> tuple[np.ndarray, np.ndarray]:
     """Renders of a plain 3DGS PLY, and the points the orbit frames (lghcc.render.scenes)."""
-    from lghcc.formats.ply3dgs import read_3dgs_ply
-    from lghcc.render.scenes import framing_points, render_fn
+    from ..formats.ply3dgs import read_3dgs_ply
+    from ..render.scenes import framing_points, render_fn
 
     g = read_3dgs_ply(path)
     pos = framing_points(g)
@@ -93,8 +93,8 @@ def unpack(prepared: bytes, into: Path) -> Path:
 def prepare(scene: SceneSpec, lam: float | None, ev: Evaluation, transcode: dict | None = None,
             threads: int | None = None) -> tuple[bytes, dict]:
     """The prepared scene (module doc) as tar bytes, and what was done (a JSON-able dict)."""
-    from lghcc.common.scaffold_io import read_scaffold, write_scaffold
-    from lghcc.render.imageio import background_color
+    from ..formats.scaffold_io import read_scaffold, write_scaffold
+    from ..render.imageio import background_color
 
     _threads(threads)
     bg = background_color(ev.background)
@@ -105,14 +105,14 @@ def prepare(scene: SceneSpec, lam: float | None, ev: Evaluation, transcode: dict
         model = root / "model"
         root.mkdir()
         if scene.kind == "procedural":
-            from lghcc.common.procedural import make_procedural_scene
+            from ..formats.procedural import make_procedural_scene
 
             anchors = make_procedural_scene(scene.procedural, seed=scene.seed)
             write_scaffold(anchors, model)
             cams = orbit(anchors.positions(), scene, ev)
             ref = _render_anchor(anchors, cams, bg)
         elif scene.kind == "train":
-            from lghcc.encoder.train import TrainConfig, train
+            from ..encoder.train import TrainConfig, train
 
             cfg = TrainConfig(**dict(scene.train_options), data=scene.path, rate_lambda=float(lam or 0.0),
                               threads=threads or TrainConfig().threads)
@@ -124,10 +124,10 @@ def prepare(scene: SceneSpec, lam: float | None, ev: Evaluation, transcode: dict
             cams = orbit(anchors.positions(), scene, ev)
             ref = _render_anchor(anchors, cams, bg)
         else:
-            from lghcc.formats.ply3dgs import is_3dgs_ply
+            from ..formats.ply3dgs import is_3dgs_ply
 
             if is_3dgs_ply(scene.path):
-                from lghcc.encoder.transcode import TranscodeConfig, transcode_3dgs
+                from ..encoder.transcode import TranscodeConfig, transcode_3dgs
 
                 res = transcode_3dgs(scene.path, TranscodeConfig(**(transcode or {}), threads=threads))
                 anchors = res.scene
@@ -138,8 +138,8 @@ def prepare(scene: SceneSpec, lam: float | None, ev: Evaluation, transcode: dict
                 info.update(transcode_psnr=res.stats.get("psnr_final"), source_kind="3dgs")
             else:
                 anchors = read_scaffold(scene.path)
-                from lghcc.common.scaffold_io import locate_ply
-                from lghcc.encoder.ggconv_train import TWIN_FILE
+                from ..formats.scaffold_io import locate_ply
+                from ..encoder.ggconv_train import TWIN_FILE
 
                 write_scaffold(anchors, model)
                 twin = locate_ply(scene.path).parent / TWIN_FILE
@@ -158,7 +158,7 @@ def prepare(scene: SceneSpec, lam: float | None, ev: Evaluation, transcode: dict
 
 def reference_cameras(w2c: np.ndarray, intrinsics: np.ndarray) -> list:
     """The cameras a prepared scene's reference images were rendered from."""
-    from lghcc.render.camera import Camera
+    from ..render.camera import Camera
 
     return [Camera(w, fx, fy, cx, cy, int(wd), int(ht), near, far)
             for w, (fx, fy, cx, cy, wd, ht, near, far) in zip(w2c, intrinsics)]
@@ -168,12 +168,12 @@ def run_cell(prepared: bytes, preset: str, ev: Evaluation, encoder: dict | None 
              threads: int | None = None) -> tuple[dict, bytes]:
     """Encode the prepared scene with ``preset`` (and the sweep's encoder overrides), decode it,
     evaluate it against the reference images (module doc). Raises on any failure."""
-    from lghcc.common.scaffold_io import read_scaffold
-    from lghcc.decoder.decode import decode_stream
-    from lghcc.encoder.config import load_config
-    from lghcc.encoder.encode import encode_scene
-    from lghcc.render.imageio import background_color
-    from lghcc.render.metrics import psnr, ssim
+    from ..formats.scaffold_io import read_scaffold
+    from ..decoder.decode import decode_stream
+    from ..encoder.config import load_config
+    from ..encoder.encode import encode_scene
+    from ..render.imageio import background_color
+    from ..render.metrics import psnr, ssim
 
     _threads(threads)
     with tempfile.TemporaryDirectory(prefix="lghcc-batch-") as tmp:
@@ -184,7 +184,7 @@ def run_cell(prepared: bytes, preset: str, ev: Evaluation, encoder: dict | None 
         cfg = load_config(preset, overrides=encoder or {})
         twin = None
         if cfg.context_model == "ggconv":
-            from lghcc.encoder.ggconv_train import find_context_twin
+            from ..encoder.ggconv_train import find_context_twin
 
             twin = find_context_twin(root / "model")
         t0 = time.perf_counter()

@@ -25,13 +25,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lghcc.common.entropy.range_coder import TOTAL_FREQUENCY, RangeDecoder, RangeEncoder, exact_model
-from lghcc.common.entropy.symbol_coder import decode_symbols, encode_symbols
-from lghcc.common.errors import BitstreamError
-from lghcc.common.scene import NUM_SCALINGS, GaussianScene, sh_coeffs_per_channel
-from lghcc.common.bitio import BitReader
-from lghcc.common.syntax import TraceEntry
-from lghcc.common.units import (CHANNEL_PREDICTION_SHIFT, CONTEXT_PER_CHANNEL_PRIOR, MASK_PROB_BITS,
+from .entropy.range_coder import TOTAL_FREQUENCY, RangeDecoder, RangeEncoder, exact_model
+from .entropy.symbol_coder import decode_symbols, encode_symbols
+from .errors import BitstreamError
+from .scene import NUM_SCALINGS, GaussianScene, sh_coeffs_per_channel
+from .bitio import BitReader
+from .syntax import TraceEntry
+from .units import (CHANNEL_PREDICTION_SHIFT, CONTEXT_PER_CHANNEL_PRIOR, MASK_PROB_BITS,
                                 MAX_PREDICTED_MAGNITUDE, AttributeUnitHeader, GaussianParameterSet,
                                 SceneParameterSet)
 

@@ -7,7 +7,7 @@ or corrupted stream ends in a BitstreamError that says where.
 
 from __future__ import annotations
 
-from lghcc.common.errors import BitstreamError
+from .errors import BitstreamError
 
 # ue(v) codes values up to 2^32 - 2; more leading zeros than this is corruption, not data.
 MAX_EXP_GOLOMB_PREFIX = 32

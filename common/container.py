@@ -13,9 +13,9 @@ import zlib
 from dataclasses import dataclass, field
 from enum import IntEnum
 
-from lghcc.common.bitio import BitReader, BitWriter
-from lghcc.common.errors import BitstreamError, UnsupportedStreamError
-from lghcc.common.syntax import SyntaxStructure, SyntaxVisitor
+from .bitio import BitReader, BitWriter
+from .errors import BitstreamError, UnsupportedStreamError
+from .syntax import SyntaxStructure, SyntaxVisitor
 
 MAGIC = 0x4C474843  # "LGHC"
 VERSION_MAJOR = 0

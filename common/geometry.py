@@ -28,11 +28,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lghcc.common.bitio import BitReader, BitWriter
-from lghcc.common.entropy.range_coder import (TOTAL_FREQUENCY, RangeDecoder, RangeEncoder,
+from .bitio import BitReader, BitWriter
+from .entropy.range_coder import (TOTAL_FREQUENCY, RangeDecoder, RangeEncoder,
                                               binary_model)
-from lghcc.common.errors import BitstreamError
-from lghcc.common.syntax import SyntaxStructure, SyntaxVisitor
+from .errors import BitstreamError
+from .syntax import SyntaxStructure, SyntaxVisitor
 
 COORD_MIN = -(1 << 31)
 COORD_MAX = (1 << 31) - 1

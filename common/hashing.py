@@ -25,7 +25,7 @@ import hashlib
 
 import numpy as np
 
-from lghcc.common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene, GaussianScene
+from .scene import ACTIVATIONS, MLP_ROLES, AnchorScene, GaussianScene
 
 
 HASH_BLOCK_ROWS = 1 << 16

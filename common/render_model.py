@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from lghcc.common.entropy.symbol_coder import decode_symbols, encode_symbols
-from lghcc.common.errors import BitstreamError
-from lghcc.common.scene import ACTIVATIONS, MLP_ROLES, RenderMLP
-from lghcc.common.units import RenderMlpHeader, RenderModelUnit
+from .entropy.symbol_coder import decode_symbols, encode_symbols
+from .errors import BitstreamError
+from .scene import ACTIVATIONS, MLP_ROLES, RenderMLP
+from .units import RenderMlpHeader, RenderModelUnit
 
 MAX_MODEL_PARAMETERS = 1 << 24  # level limit: all render MLPs together
 MAX_WEIGHT_MAGNITUDE = (1 << 24) - 1  # so that float32(q) is exact

@@ -13,7 +13,7 @@ from typing import Literal
 
 import numpy as np
 
-from lghcc.common.errors import InputError
+from .errors import InputError
 
 NUM_SCALINGS = 6
 DEFAULT_FEATURE_DIM = 50

@@ -3,12 +3,12 @@ A test regenerates them and fails when the committed file has drifted from the c
 
 from __future__ import annotations
 
-from lghcc.common.syntax import SyntaxStructure
+from .syntax import SyntaxStructure
 
 
 def all_structures() -> list[type[SyntaxStructure]]:
-    from lghcc.common import container, geometry, units
-    from lghcc.common.context import model_unit
+    from . import container, geometry, units
+    from .context import model_unit
 
     return [container.ContainerHeader, container.UnitHeader, units.SceneParameterSet,
             units.RenderModelUnit, units.RenderMlpHeader, geometry.GeometryHeader,

@@ -29,8 +29,8 @@ import struct as _struct
 from dataclasses import dataclass
 from typing import Any, ClassVar, Iterator
 
-from lghcc.common.bitio import BitReader, BitWriter
-from lghcc.common.errors import BitstreamError
+from .bitio import BitReader, BitWriter
+from .errors import BitstreamError
 
 
 @dataclass

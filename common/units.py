@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from lghcc.common.syntax import SyntaxStructure, SyntaxVisitor
+from .syntax import SyntaxStructure, SyntaxVisitor
 
 # Profile "main", level limits (spec clause 8). A decoder rejects streams beyond them,
 # so no allocation is ever sized by an unchecked field.

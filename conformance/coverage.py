@@ -30,9 +30,9 @@ import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from lghcc.common.container import ANCILLARY_UNIT_TYPE_MIN, MAGIC, Profile, UnitType, read_container
-from lghcc.common.spec_tables import all_structures
-from lghcc.common.syntax import TableVisitor
+from ..common.container import ANCILLARY_UNIT_TYPE_MIN, MAGIC, Profile, UnitType, read_container
+from ..common.spec_tables import all_structures
+from ..common.syntax import TableVisitor
 
 F32_MAX = struct.unpack("<f", struct.pack("<I", 0x7F7FFFFF))[0]
 F32_MIN_POSITIVE = struct.unpack("<f", struct.pack("<I", 0x00000001))[0]
@@ -314,7 +314,7 @@ def _trace_values(trace):
 def coverage_report(streams: list[Path], error_cases: list | None = None) -> CoverageReport:
     """Coverage of the decodable ``streams``; ``error_cases`` (runner Cases) are listed with the
     rejection each one exercises."""
-    from lghcc.decoder.decode import decode_stream
+    from ..decoder.decode import decode_stream
 
     infos = element_infos()
     report = CoverageReport({k: list(i.classes) for k, i in infos.items()})

@@ -16,10 +16,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from lghcc.common.container import DataUnit, UnitType, write_container
-from lghcc.common.entropy.tables import HALF_WIDTHS
-from lghcc.common.geometry import encode_geometry, normative_order
-from lghcc.common.units import AttributeUnitHeader, DecodedSceneHashUnit, SceneParameterSet
+from ..common.container import DataUnit, UnitType, write_container
+from ..common.entropy.tables import HALF_WIDTHS
+from ..common.geometry import encode_geometry, normative_order
+from ..common.units import AttributeUnitHeader, DecodedSceneHashUnit, SceneParameterSet
 
 
 def dense_cube(side: int) -> np.ndarray:
@@ -33,8 +33,8 @@ def zero_scene_digest(coords: np.ndarray, feature_dim: int, num_offsets: int) ->
     """The decoded-scene hash (spec clause 12) of anchors at ``coords`` whose attributes are all
     zero, voxel size 1, origin 0, no offset mask and no render model, without holding the
     attribute arrays (zero-stride views, hashed in row blocks by lghcc.common.hashing)."""
-    from lghcc.common.hashing import scene_digest
-    from lghcc.common.scene import AnchorScene
+    from ..common.hashing import scene_digest
+    from ..common.scene import AnchorScene
 
     n = coords.shape[0]
     zero = np.zeros(1, np.float32)

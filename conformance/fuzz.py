@@ -40,15 +40,15 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from lghcc.common.container import DataUnit, UnitType, read_container, write_container
-from lghcc.common.errors import LghccError
+from ..common.container import DataUnit, UnitType, read_container, write_container
+from ..common.errors import LghccError
 
 # --- seeds -------------------------------------------------------------------------------------
 
 
 def load_seeds(streams_dir: Path | None = None, max_bytes: int = 200_000) -> dict[str, bytes]:
     """The conformance streams that decode (expect: decode), by id; larger ones left out."""
-    from lghcc.conformance.runner import STREAMS_DIR, load_cases
+    from .runner import STREAMS_DIR, load_cases
 
     seeds = {}
     for case in load_cases(Path(streams_dir) if streams_dir else STREAMS_DIR):
@@ -100,8 +100,8 @@ def code_bits(descriptor: str, value: int) -> str:
 
 def stream_elements(data: bytes) -> list[Element]:
     """Every syntax element of a decodable stream, located in its unit (from the decoder's trace)."""
-    from lghcc.common.syntax import f32_bits
-    from lghcc.decoder.decode import decode_stream
+    from ..common.syntax import f32_bits
+    from ..decoder.decode import decode_stream
 
     units = read_container(data).units
     trace = decode_stream(data, trace=True).trace
@@ -435,8 +435,8 @@ _MAX_MEMORY: list[int | None] = [None]
 
 def classify(data: bytes) -> tuple[str, str]:
     """Decode in this process: (kind, detail). kind: VALID, 'error: <class>' or 'BUG: <class>'."""
-    from lghcc.decoder.decode import decode_stream
-    from lghcc.decoder.limits import DEFAULT_MAX_MEMORY
+    from ..decoder.decode import decode_stream
+    from ..decoder.limits import DEFAULT_MAX_MEMORY
 
     try:
         res = decode_stream(data, max_memory=_MAX_MEMORY[0] or DEFAULT_MAX_MEMORY)
@@ -463,7 +463,7 @@ def _worker(conn, memory_bytes: int | None, threads: int, max_memory: int | None
 
     torch.set_num_threads(threads)
     _MAX_MEMORY[0] = max_memory
-    import lghcc.decoder.decode  # noqa: F401 - imported before the clock of the first case starts
+    from ..decoder import decode  # noqa: F401 - imported before the clock of the first case starts
 
     if memory_bytes:
         resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))

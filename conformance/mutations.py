@@ -741,7 +741,7 @@ def apply(mutation: Mutation) -> None:
 
 
 def _clear_caches() -> None:
-    from lghcc.common.entropy import range_coder, symbol_coder
+    from ..common.entropy import range_coder, symbol_coder
 
     symbol_coder._LEVEL_MODELS[:] = [None] * len(symbol_coder._LEVEL_MODELS)
     symbol_coder._CLASS_MODEL = None

@@ -16,7 +16,7 @@ A decoder conforms when it reproduces every hash and rejects every stream marked
 Another implementation is tested with ``--decoder-cmd``, a command template: ``{stream}``
 (required) is replaced by the stream's path, ``{out}`` (needed with --render) by an empty
 folder where the decoder writes the decoded scene in the Scaffold-GS layout (as lghcc-dec -o).
-Rejection protocol (its exit status; the rule of every lghcc program, lghcc.cli_common):
+Rejection protocol (its exit status; the rule of every lghcc program, lghcc.app.cli_common):
   0        decoded: the last line of stdout is the decoded scene's SHA-256 (spec clause 12)
            as 64 hex digits
   3        the stream was rejected as invalid (non-conforming): passes the error streams whose
@@ -60,13 +60,13 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 
-from lghcc.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_RESOURCE_LIMIT,  # noqa: E402
+from ..app.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_RESOURCE_LIMIT,  # noqa: E402
                               EXIT_USAGE, exit_code_for_class)
-from lghcc.common.errors import LghccError  # noqa: E402
+from ..common.errors import LghccError  # noqa: E402
 
 STREAMS_DIR = Path(__file__).resolve().parent / "streams"
 # the error classes an error stream may expect (lghcc.common.errors); an external decoder's exit
-# status for each is lghcc.cli_common.exit_code_for_class (3, invalid stream, for all of them)
+# status for each is lghcc.app.cli_common.exit_code_for_class (3, invalid stream, for all of them)
 ERROR_KINDS = ("BitstreamError", "UnsupportedStreamError", "HashMismatchError")
 EXIT_REJECTED = EXIT_INVALID_STREAM
 _EXTERNAL_FAILS = {EXIT_ERROR: "an input or environment error, not a verdict on the stream",
@@ -184,17 +184,16 @@ def load_cases(root: Path = STREAMS_DIR, ids: list[str] | None = None) -> list[C
 
 def warm_up(render: bool = False) -> None:
     """Import the decoder (torch, the entropy tables ...) so that the first stream's time is its own."""
-    import lghcc.common.hashing  # noqa: F401
-    import lghcc.decoder.decode  # noqa: F401
+    from ..common import hashing  # noqa: F401
+    from ..decoder import decode  # noqa: F401
     if render:
-        import lghcc.render.rasterizer  # noqa: F401
-        import lghcc.render.views  # noqa: F401
+        from ..render import rasterizer, views  # noqa: F401
 
 
 def decode_scene_internal(stream: Path):
     """The reference decoder: -> (decoded scene's SHA-256 hex, scene); raises LghccError."""
-    from lghcc.common.hashing import digest_of
-    from lghcc.decoder.decode import decode_stream
+    from ..common.hashing import digest_of
+    from ..decoder.decode import decode_stream
 
     scene = decode_stream(stream.read_bytes()).scene
     return digest_of(scene).hex(), scene
@@ -265,10 +264,10 @@ def render_views(scene, cameras: str, size: str, background: str = "black") -> l
     at ``size`` ('WxH'), as lghcc-dec --render draws them (the renderer is informative)."""
     import torch
 
-    from lghcc.render.imageio import background_color
-    from lghcc.render.neural_gaussians import SceneTensors
-    from lghcc.render.rasterizer import render_scene
-    from lghcc.render.views import cameras_from_spec
+    from ..render.imageio import background_color
+    from ..render.neural_gaussians import SceneTensors
+    from ..render.rasterizer import render_scene
+    from ..render.views import cameras_from_spec
 
     w, h = (int(x) for x in size.split("x"))
     cams = cameras_from_spec(cameras, scene.positions(), width=w, height=h)
@@ -364,7 +363,7 @@ def _run_external(case: Case, template: str, timeout: float, render: bool) -> tu
             return False, f"exit code 0 but the last line of output is not a SHA-256: {ext.last_line[:40]!r}"
         scene = None
         if render and case.expect == "decode" and "renders" in case.meta and digest == case.meta["decoded_sha256"]:
-            from lghcc.common.scaffold_io import read_scaffold
+            from ..formats.scaffold_io import read_scaffold
 
             try:
                 scene = read_scaffold(out)
@@ -399,8 +398,8 @@ def format_table(outcomes: list[Outcome], total_s: float | None = None, warm_up_
 
 
 def setup_args() -> argparse.ArgumentParser:
-    from lghcc.cli_common import EXIT_OK, exit_status_epilog
-    from lghcc.common.cliargs import add_version_option
+    from ..app.cli_common import EXIT_OK, exit_status_epilog
+    from ..app.cliargs import add_version_option
 
     p = argparse.ArgumentParser(prog="lghcc-conformance", description=__doc__,
                                 epilog=exit_status_epilog(
@@ -429,7 +428,7 @@ def setup_args() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Exit status: 0 all streams passed, 1 a stream failed, 2 usage or suite error, 4 out of memory,
     130 interrupted."""
-    from lghcc.common.cliargs import run_cli
+    from ..app.cliargs import run_cli
 
     return run_cli("lghcc-conformance", _main, argv)
 
@@ -459,7 +458,7 @@ def _main(argv: list[str] | None) -> int:
         return EXIT_USAGE
     print(format_table(outcomes, total, warm_s))
     if args.coverage:
-        from lghcc.conformance.coverage import coverage_report
+        from .coverage import coverage_report
         print()
         print(coverage_report([c.stream for c in cases if c.expect == "decode"],
                               [c for c in cases if c.expect == "error"]).text())

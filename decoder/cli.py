@@ -14,13 +14,13 @@ from pathlib import Path
 # Set before torch is imported; a user's own setting wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from lghcc.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK, EXIT_RESOURCE_LIMIT,
+from ..app.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK, EXIT_RESOURCE_LIMIT,
                               EXIT_USAGE, exit_status_epilog, format_bytes, memory_size, with_prefix)
-from lghcc.common.cliargs import OVERWRITE_RULE, add_overwrite_options, add_version_option, positive_float, run_cli
-from lghcc.common.errors import LghccError
-from lghcc.common.fileio import (atomic_write_bytes, check_output_folder, check_output_paths, check_overwrite,
+from ..app.cliargs import OVERWRITE_RULE, add_overwrite_options, add_version_option, positive_float, run_cli
+from ..common.errors import LghccError
+from ..app.fileio import (atomic_write_bytes, check_output_folder, check_output_paths, check_overwrite,
                                  write_error)
-from lghcc.common.scene import GaussianScene
+from ..common.scene import GaussianScene
 
 DESCRIPTION = """\
 Decode an LG-HCC stream (.lghcc). An explicit-Gaussian stream (from a 3DGS PLY) decodes
@@ -57,7 +57,7 @@ much memory decoding it takes and refuses a stream that needs more than --max-me
 
 
 def setup_args() -> argparse.ArgumentParser:
-    from lghcc.decoder.limits import DEFAULT_MAX_MEMORY
+    from .limits import DEFAULT_MAX_MEMORY
 
     p = argparse.ArgumentParser(prog="lghcc-dec", description=DESCRIPTION, epilog=OVERWRITE_RULE + "\n\n"
                                 + exit_status_epilog(codes=(EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INVALID_STREAM,
@@ -113,8 +113,8 @@ def _render_size(text: str) -> tuple[int, int]:
 
 
 def _render_views(args, scene, say) -> None:
-    from lghcc.render.imageio import write_png
-    from lghcc.render.scenes import renderer, resolve_cameras
+    from ..render.imageio import write_png
+    from ..render.scenes import renderer, resolve_cameras
 
     draw = renderer(scene, args.background)  # refuses a scene without render MLPs, before any file
     cams = resolve_cameras(args.render, scene, size=_render_size(args.render_size), scale=args.render_scale)
@@ -140,15 +140,15 @@ def _other_iterations(path: str) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Exit status: lghcc.cli_common (0 decoded, 1 input/output error, 2 usage, 3 invalid stream,
+    """Exit status: lghcc.app.cli_common (0 decoded, 1 input/output error, 2 usage, 3 invalid stream,
     4 resource limit, 130 interrupted), through run_cli: a failure is one line on stderr."""
     return run_cli("lghcc-dec", _main, argv)
 
 
 def _main(argv: list[str] | None) -> int:
     args = setup_args().parse_args(argv)
-    from lghcc.decoder.decode import decode_stream
-    from lghcc.formats import write_scene
+    from .decode import decode_stream
+    from ..formats import write_scene
 
     say = (lambda *a: None) if args.quiet else print
     note = (lambda *a: None) if args.print_hash else say  # --print-hash prints the hash alone
@@ -198,13 +198,13 @@ def _main(argv: list[str] | None) -> int:
         _render_views(args, result.scene, note)
     if args.export_ply:
         t1 = time.perf_counter()
-        from lghcc.render.scenes import to_gaussians
+        from ..render.scenes import to_gaussians
 
         sc = to_gaussians(result.scene, args.export_sh_degree, directions=args.export_directions,
                           distance=args.export_distance)
         how = ""
         if not isinstance(result.scene, GaussianScene):
-            from lghcc.render.export import default_distance
+            from ..render.export import default_distance
 
             dist = args.export_distance if args.export_distance is not None else default_distance(result.scene)
             how = f", the MLPs evaluated in {args.export_directions} directions at distance {dist:.4g}"
@@ -235,7 +235,7 @@ def _main(argv: list[str] | None) -> int:
         except OSError as e:
             raise write_error(args.json, e) from None
     if args.print_hash:
-        from lghcc.common.hashing import digest_of
+        from ..common.hashing import digest_of
         print(digest_of(s).hex())
         return 0
     if isinstance(s, GaussianScene):

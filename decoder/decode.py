@@ -15,22 +15,22 @@ import re
 from dataclasses import dataclass, field
 
 import numpy as np
-from lghcc.common.progress import progress_bar
+from ..app.progress import progress_bar
 
-from lghcc.common import attributes as attr
-from lghcc.common.container import Container, DataUnit, UnitType, read_container
-from lghcc.common.errors import BitstreamError, HashMismatchError, ResourceLimitError, UnsupportedStreamError
-from lghcc.common.context.models import describe_context_model, level2_coding_params, read_context_model
-from lghcc.common.geometry import decode_geometry
-from lghcc.common.hashing import digest_of
-from lghcc.common.hierarchy import Hierarchy, build_hierarchy
-from lghcc.common.render_model import read_render_model_unit
-from lghcc.common.report import SizeBreakdown, breakdown_of
-from lghcc.common.scene import AnchorScene, GaussianScene
-from lghcc.common.syntax import TraceEntry
-from lghcc.common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ATTRIBUTE_VALUES, DecodedSceneHashUnit,
+from ..common import attributes as attr
+from ..common.container import Container, DataUnit, UnitType, read_container
+from ..common.errors import BitstreamError, HashMismatchError, ResourceLimitError, UnsupportedStreamError
+from ..common.context.models import describe_context_model, level2_coding_params, read_context_model
+from ..common.geometry import decode_geometry
+from ..common.hashing import digest_of
+from ..common.hierarchy import Hierarchy, build_hierarchy
+from ..common.render_model import read_render_model_unit
+from ..app.report import SizeBreakdown, breakdown_of
+from ..common.scene import AnchorScene, GaussianScene
+from ..common.syntax import TraceEntry
+from ..common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ATTRIBUTE_VALUES, DecodedSceneHashUnit,
                                 GaussianParameterSet, SceneParameterSet)
-from lghcc.decoder.limits import DEFAULT_MAX_MEMORY, MemoryPlan
+from .limits import DEFAULT_MAX_MEMORY, MemoryPlan
 
 _LETTER = {UnitType.SCENE_PARAMETER_SET: "S", UnitType.GAUSSIAN_PARAMETER_SET: "P", UnitType.RENDER_MODEL: "R",
            UnitType.GEOMETRY: "G", UnitType.CONTEXT_MODEL: "C", UnitType.ATTRIBUTE: "A",

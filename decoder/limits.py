@@ -33,11 +33,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from lghcc.common import attributes as attr
-from lghcc.common.bitio import BitReader
-from lghcc.common.container import DataUnit, UnitType
-from lghcc.common.errors import LghccError, ResourceLimitError
-from lghcc.common.units import GaussianParameterSet, SceneParameterSet
+from ..common import attributes as attr
+from ..common.bitio import BitReader
+from ..common.container import DataUnit, UnitType
+from ..common.errors import LghccError, ResourceLimitError
+from ..common.units import GaussianParameterSet, SceneParameterSet
 
 DEFAULT_MAX_MEMORY = 4 << 30  # lghcc-dec --max-memory and decode_stream(max_memory=...)
 
@@ -75,7 +75,7 @@ class Need:
 
 
 def _fmt(n: int) -> str:
-    from lghcc.cli_common import format_bytes
+    from ..app.cli_common import format_bytes
 
     return format_bytes(n)
 
@@ -88,7 +88,7 @@ def _mlp_widths(shapes: list[tuple[int, ...]]) -> list[int]:
 def _render_model_parameters(unit: DataUnit | None) -> int:
     if unit is None:
         return 0
-    from lghcc.common.units import RenderModelUnit
+    from ..common.units import RenderModelUnit
 
     try:
         r = RenderModelUnit.from_bytes(unit.payload)
@@ -107,7 +107,7 @@ def _render_model_parameters(unit: DataUnit | None) -> int:
 def _context_model_values(unit: DataUnit | None) -> int:
     if unit is None:
         return 0
-    from lghcc.common.context.model_unit import ContextModelUnit
+    from ..common.context.model_unit import ContextModelUnit
 
     try:
         c = ContextModelUnit.from_bytes(unit.payload)
@@ -197,7 +197,7 @@ class MemoryPlan:
         model's working set at level 2 (``context_model``: (model_id, params) as decoded;
         ``num_level1``: N1). Returns the bytes needed; ResourceLimitError beyond the bound. A
         header that does not parse is left to the decoding process to report."""
-        from lghcc.common.units import LEVEL_1, LEVEL_2, AttributeUnitHeader
+        from ..common.units import LEVEL_1, LEVEL_2, AttributeUnitHeader
 
         layout, m, k = self.layout, self.m, self.k
         try:
@@ -228,7 +228,7 @@ def context_working_set(context_model, n1: int, n2: int, m: int) -> list[Need]:
     """What evaluating the level-2 context model holds besides the attribute chunk: the arrays it
     keeps for all rows, and the largest of its per-block stages (GG-Conv: the Ball k-NN's
     candidate blocks, then the per-block edge tensors)."""
-    from lghcc.common.units import CONTEXT_GGCONV
+    from ..common.units import CONTEXT_GGCONV
 
     model_id, p = context_model
     if model_id != CONTEXT_GGCONV:

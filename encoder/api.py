@@ -19,8 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from lghcc.common.errors import InputError, LghccError
-from lghcc.common.scene import AnchorScene, GaussianScene
+from ..common.errors import InputError, LghccError
+from ..common.scene import AnchorScene, GaussianScene
 
 Log = Callable[[str], None]
 
@@ -37,8 +37,8 @@ def _quiet(_msg: str) -> None:
 
 def is_gaussian_file(path: str | Path) -> bool:
     """A plain 3DGS scene file: an INRIA 3DGS PLY (not a Scaffold-GS anchor PLY), SPZ or SOG."""
-    from lghcc.formats import detect_format
-    from lghcc.formats.ply3dgs import is_3dgs_ply
+    from ..formats import detect_format
+    from ..formats.ply3dgs import is_3dgs_ply
 
     p = Path(path)
     if is_3dgs_ply(p):
@@ -76,7 +76,7 @@ def load_source(path: str | Path | None = None, *, mode: str = "gaussians", proc
     if (path is None) == (procedural is None):
         raise InputError("give exactly one of an input path or a procedural anchor count")
     if procedural is not None:
-        from lghcc.common.procedural import make_procedural_scene
+        from ..formats.procedural import make_procedural_scene
 
         if procedural < 1:
             raise InputError("--procedural needs a positive anchor count")
@@ -86,14 +86,14 @@ def load_source(path: str | Path | None = None, *, mode: str = "gaussians", proc
         raise InputError(f"{p}: no such file or folder")
     if mode not in ("gaussians", "anchors"):
         raise InputError(f"mode must be gaussians or anchors, got {mode!r}")
-    from lghcc.formats.ply3dgs import is_3dgs_ply
+    from ..formats.ply3dgs import is_3dgs_ply
 
     if mode == "gaussians" and is_gaussian_file(p):
-        from lghcc.formats import read_scene
+        from ..formats import read_scene
 
         return read_scene(p)
     if is_3dgs_ply(p):
-        from lghcc.encoder.transcode import TranscodeConfig, transcode_3dgs
+        from .transcode import TranscodeConfig, transcode_3dgs
 
         o = transcode or TranscodeOptions()
         log(f"{p}: a plain 3DGS PLY (f_dc_0, no f_anchor_feat_0): transcoding it to an anchor scene first, by "
@@ -108,8 +108,8 @@ def load_source(path: str | Path | None = None, *, mode: str = "gaussians", proc
     if mode == "anchors" and is_gaussian_file(p):
         raise InputError(f"{p}: --mode anchors transcodes 3DGS PLY files only; convert it to .ply first "
                          "(lghcc.write_scene) or code it as Gaussians")
-    from lghcc.common.scaffold_io import MissingMlpWarning, read_scaffold
-    from lghcc.encoder.scene_prep import merge_duplicate_anchors
+    from ..formats.scaffold_io import MissingMlpWarning, read_scaffold
+    from .scene_prep import merge_duplicate_anchors
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", MissingMlpWarning)
@@ -130,7 +130,7 @@ def encoder_config(scene: AnchorScene | GaussianScene, preset: str = "medium", c
                    overrides: dict[str, Any] | None = None):
     """EncoderConfig (anchor scene) or GaussianEncoderConfig (Gaussian scene) of ``preset``,
     then ``config_file`` (YAML), then ``overrides`` (None values ignored)."""
-    from lghcc.encoder.config import load_config
+    from .config import load_config
 
     kind = "gaussians" if isinstance(scene, GaussianScene) else "anchors"
     return load_config(preset, config_file, overrides, kind=kind)
@@ -170,8 +170,8 @@ def estimate_seconds(scene: AnchorScene | GaussianScene, cfg) -> tuple[float, st
 def _encode_gaussians(scene: GaussianScene, cfg, *, progress: bool, log: Log, measure_ideal: bool):
     """Rate-aware preparation (when the settings call for it), then the explicit-Gaussian
     coding -> (result, the settings used: the preset's, or those the search chose)."""
-    from lghcc.encoder.gaussian_fit import prepare_gaussians
-    from lghcc.encoder.gaussians import encode_gaussian_scene
+    from .gaussian_fit import prepare_gaussians
+    from .gaussians import encode_gaussian_scene
 
     t0 = time.perf_counter()
     weights, prep_stats = None, {}
@@ -199,7 +199,7 @@ def encode(scene: AnchorScene | GaussianScene, cfg=None, *, progress: bool = Fal
     """Encode either kind of scene with ``cfg`` (``encoder_config``; None: preset medium).
     -> (EncodeResult, the configuration used). ``verify`` decodes the stream again and
     checks that it gives the encoded scene (its hash)."""
-    from lghcc.encoder.encode import encode_scene
+    from .encode import encode_scene
 
     check_encodable(scene, allow_missing_mlps)
     if cfg is None:
@@ -209,11 +209,11 @@ def encode(scene: AnchorScene | GaussianScene, cfg=None, *, progress: bool = Fal
     else:
         result = encode_scene(scene, cfg, progress=progress, measure_ideal=measure_ideal, context_twin=context_twin)
     if verify:
-        from lghcc.decoder.decode import decode_stream
+        from ..decoder.decode import decode_stream
 
         # max_memory=None: the scene is in memory already (the decoder's bound is for untrusted streams)
         if decode_stream(result.data, max_memory=None).stream_hash != result.scene_hash:
-            from lghcc.common.errors import HashMismatchError  # exit status 3, as lghcc-enc --help says
+            from ..common.errors import HashMismatchError  # exit status 3, as lghcc-enc --help says
 
             raise HashMismatchError("internal error: the written stream does not decode to the encoded scene")
         result.stats["verified"] = True

@@ -13,12 +13,12 @@ from pathlib import Path
 # transcode take 178.6 s instead of 72.1 s. Set before torch is imported; a user's own setting wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from lghcc.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK, EXIT_RESOURCE_LIMIT,
+from ..app.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK, EXIT_RESOURCE_LIMIT,
                               EXIT_USAGE, exit_status_epilog)
-from lghcc.common.cliargs import OVERWRITE_RULE, add_overwrite_options, add_version_option, positive_float, run_cli
-from lghcc.common.errors import LghccError
-from lghcc.common.fileio import atomic_write_bytes, check_output_paths, check_overwrite, write_error
-from lghcc.encoder.api import is_gaussian_file  # noqa: F401  (lghcc-enc's test of its input; kept importable here)
+from ..app.cliargs import OVERWRITE_RULE, add_overwrite_options, add_version_option, positive_float, run_cli
+from ..common.errors import LghccError
+from ..app.fileio import atomic_write_bytes, check_output_paths, check_overwrite, write_error
+from .api import is_gaussian_file  # noqa: F401  (lghcc-enc's test of its input; kept importable here)
 
 
 def _duration(seconds: float) -> str:
@@ -56,7 +56,7 @@ Progress goes to stderr: a bar on a terminal, a line every 10 s in a log
 
 
 def setup_args() -> argparse.ArgumentParser:
-    from lghcc.encoder.config import preset_names
+    from .config import preset_names
 
     p = argparse.ArgumentParser(prog="lghcc-enc", description=DESCRIPTION, epilog=OVERWRITE_RULE + "\n\n"
                                 + exit_status_epilog(
@@ -143,23 +143,23 @@ def setup_args() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Exit status: lghcc.cli_common (0 written, 1 input/output error, 2 usage, 3 the stream failed its
+    """Exit status: lghcc.app.cli_common (0 written, 1 input/output error, 2 usage, 3 the stream failed its
     own check, 4 out of memory, 130 interrupted: the output is written atomically, never in part)."""
     return run_cli("lghcc-enc", _main, argv)
 
 
 def _main(argv: list[str] | None) -> int:
-    from lghcc.encoder import api
+    from . import api
 
     args = setup_args().parse_args(argv)
     say = (lambda *a: None) if args.quiet else print
     log = (lambda *a: None) if args.quiet else (lambda msg: print(f"lghcc-enc: {msg}", file=sys.stderr, flush=True))
-    # A failure is reported by run_cli: one line, and the exit status of its kind (lghcc.cli_common).
+    # A failure is reported by run_cli: one line, and the exit status of its kind (lghcc.app.cli_common).
     out = Path(args.output)
     # Every output is checked before encoding: none may overwrite the input or another output.
     inputs = {"input": args.input, "--config file": args.config}
     if args.input and Path(args.input).is_dir():  # a model folder: its PLY is the input
-        from lghcc.common.scaffold_io import locate_ply
+        from ..formats.scaffold_io import locate_ply
         try:
             inputs["input PLY"] = locate_ply(args.input)
         except LghccError:
@@ -169,7 +169,7 @@ def _main(argv: list[str] | None) -> int:
         if path:
             check_overwrite(path, args.overwrite)
     if args.device != "cpu":  # checked before minutes of loading and transcoding
-        from lghcc.render.rasterizer import select_device
+        from ..render.rasterizer import select_device
         select_device(args.device)
     gaussians = args.input is not None and args.mode == "gaussians" and api.is_gaussian_file(args.input)
     if gaussians:
@@ -181,7 +181,7 @@ def _main(argv: list[str] | None) -> int:
         overrides = {"feature_step": args.feature_step, "scaling_step": args.scaling_step,
                      "offset_step": args.offset_step, "mlp_weight_bits": args.mlp_weight_bits,
                      "pruning": args.prune, "prune_keep_ratio": args.prune_keep, "prune_tau": args.prune_tau}
-    from lghcc.encoder.config import load_config
+    from .config import load_config
     cfg = load_config(args.preset, args.config, overrides, kind="gaussians" if gaussians else "anchors")
     t0 = time.perf_counter()
     transcode = api.TranscodeOptions(
@@ -207,7 +207,7 @@ def _main(argv: list[str] | None) -> int:
             "and writes nothing")
     twin = None
     if args.input and not gaussians and not args.no_context_twin and cfg.context_model == "ggconv":
-        from lghcc.encoder.ggconv_train import find_context_twin
+        from .ggconv_train import find_context_twin
         twin = find_context_twin(args.input)
     result, cfg = api.encode(scene, cfg, progress=not args.quiet, log=log, measure_ideal=args.report_ideal,
                              context_twin=twin, verify=not args.no_verify, allow_missing_mlps=args.allow_no_mlps)

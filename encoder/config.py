@@ -10,7 +10,7 @@ from pathlib import Path
 
 import yaml
 
-from lghcc.common.errors import InputError
+from ..common.errors import InputError
 
 
 @dataclass

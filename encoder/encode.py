@@ -11,28 +11,28 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from lghcc.common.progress import progress_bar
+from ..app.progress import progress_bar
 
-from lghcc.common import attributes as attr
-from lghcc.common.container import (UNIT_CRC_BYTES, UNIT_HEADER_BYTES, DataUnit, UnitType, read_container,
+from ..common import attributes as attr
+from ..common.container import (UNIT_CRC_BYTES, UNIT_HEADER_BYTES, DataUnit, UnitType, read_container,
                                     write_container)
-from lghcc.common.entropy.symbol_coder import best_level, ideal_code_length_bits
-from lghcc.common.errors import InputError
-from lghcc.common.context.model_unit import write_context_model_unit
-from lghcc.common.context.models import CONTEXT_MODEL_NAMES, level2_coding_params, read_context_model
-from lghcc.common.geometry import encode_geometry, normative_order
-from lghcc.common.hashing import scene_digest
-from lghcc.common.render_model import dequantize, write_render_model_unit
-from lghcc.common.report import SizeBreakdown, breakdown_of
-from lghcc.common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene, GaussianScene, RenderMLP
-from lghcc.common.hierarchy import build_hierarchy
-from lghcc.common.units import (CONTEXT_PER_CHANNEL_PRIOR, LEVEL_1, LEVEL_2, LEVEL_ALL, MASK_PROB_BITS, MAX_ANCHORS,
+from ..common.entropy.symbol_coder import best_level, ideal_code_length_bits
+from ..common.errors import InputError
+from ..common.context.model_unit import write_context_model_unit
+from ..common.context.models import CONTEXT_MODEL_NAMES, level2_coding_params, read_context_model
+from ..common.geometry import encode_geometry, normative_order
+from ..common.hashing import scene_digest
+from ..common.render_model import dequantize, write_render_model_unit
+from ..app.report import SizeBreakdown, breakdown_of
+from ..common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene, GaussianScene, RenderMLP
+from ..common.hierarchy import build_hierarchy
+from ..common.units import (CONTEXT_PER_CHANNEL_PRIOR, LEVEL_1, LEVEL_2, LEVEL_ALL, MASK_PROB_BITS, MAX_ANCHORS,
                                 MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, MAX_PREDICTED_MAGNITUDE, PRIOR_MEAN_MAX,
                                 AttributeUnitHeader, DecodedSceneHashUnit, RenderMlpHeader, SceneParameterSet)
-from lghcc.encoder.config import EncoderConfig, context_model_size
-from lghcc.encoder.context_fit import ContextFitError, fit_level2_context
-from lghcc.encoder.ggconv_train import ContextTwin, GGConvTrainConfig
-from lghcc.encoder.prediction import fit_channel_prediction
+from .config import EncoderConfig, context_model_size
+from .context_fit import ContextFitError, fit_level2_context
+from .ggconv_train import ContextTwin, GGConvTrainConfig
+from .prediction import fit_channel_prediction
 
 UNIT_FRAMING_BYTES = UNIT_HEADER_BYTES + UNIT_CRC_BYTES
 MAX_QUANTIZED_MAGNITUDE = 2 ** 52  # |x / step| beyond this cannot be rounded exactly in float64
@@ -83,7 +83,7 @@ def twin_train_config(cfg: EncoderConfig, twin: ContextTwin, num_level2: int, pr
 
 def prune_scene(scene: AnchorScene, cfg: EncoderConfig):
     """The configured pruning (NAAP or opacity threshold) -> (pruned scene, PruneReport)."""
-    from lghcc.encoder.naap import NaapConfig, naap_prune, opacity_prune
+    from .naap import NaapConfig, naap_prune, opacity_prune
 
     if cfg.pruning == "naap":
         return naap_prune(scene, NaapConfig(k=cfg.naap_k, lam=cfg.naap_lambda, gamma=cfg.naap_gamma,

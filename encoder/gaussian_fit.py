@@ -31,17 +31,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from lghcc.common.progress import progress_bar
+from ..app.progress import progress_bar
 
-from lghcc.common.errors import InputError
-from lghcc.common.scene import GaussianScene
-from lghcc.encoder.config import GaussianEncoderConfig
-from lghcc.encoder.gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid
-from lghcc.render.camera import Camera
-from lghcc.render.gaussians3dgs import gaussians_from_scene, render_3dgs
-from lghcc.render.importance import gaussian_contributions
-from lghcc.render.rasterizer import rasterize
-from lghcc.render.sh import sh_to_rgb
+from ..common.errors import InputError
+from ..common.scene import GaussianScene
+from .config import GaussianEncoderConfig
+from .gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid
+from ..render.camera import Camera
+from ..render.gaussians3dgs import gaussians_from_scene, render_3dgs
+from ..render.importance import gaussian_contributions
+from ..render.rasterizer import rasterize
+from ..render.sh import sh_to_rgb
 
 
 @dataclass
@@ -198,7 +198,7 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
     bar.close()
     stats["time_contributions_s"] = time.perf_counter() - t0
     if cfg.rd_lambda > 0 or cfg.target_psnr > 0:
-        from lghcc.encoder.gaussian_rd import search_settings
+        from .gaussian_rd import search_settings
 
         t1 = time.perf_counter()
         cfg, trials = search_settings(scene, contrib, cfg, log=say)
@@ -262,7 +262,7 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
     stats["fit_final_mse"] = float(np.mean(losses[-20:]))  # squared error on the fit views, last steps
     fitted = fit.scene(grid)
     if cfg.target_psnr > 0:
-        from lghcc.encoder.gaussian_rd import trim_to_target
+        from .gaussian_rd import trim_to_target
 
         t2 = time.perf_counter()
         cfg, before, after = trim_to_target(fitted, weights, cfg, log=say)

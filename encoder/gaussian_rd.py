@@ -36,13 +36,13 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from lghcc.common.entropy.symbol_coder import best_level, code_lengths_bits
-from lghcc.common.geometry import encode_geometry
-from lghcc.common.scene import GaussianScene
-from lghcc.encoder.config import GaussianEncoderConfig
-from lghcc.encoder.gaussian_fit import fit_cameras, prune_by_contribution
-from lghcc.encoder.gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid
-from lghcc.render.gaussians3dgs import gaussians_from_scene, render_3dgs
+from ..common.entropy.symbol_coder import best_level, code_lengths_bits
+from ..common.geometry import encode_geometry
+from ..common.scene import GaussianScene
+from .config import GaussianEncoderConfig
+from .gaussian_fit import fit_cameras, prune_by_contribution
+from .gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid
+from ..render.gaussians3dgs import gaussians_from_scene, render_3dgs
 
 PRUNE_LADDER = (0.0, 0.0005, 0.001, 0.002, 0.004, 0.008, 0.016, 0.032, 0.064)
 STEP_FIELDS = ("position_step", "sh_dc_step", "opacity_step", "scale_step", "rotation_step")

@@ -20,18 +20,18 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from lghcc.common.progress import progress_bar
+from ..app.progress import progress_bar
 
-from lghcc.common import attributes as attr
-from lghcc.common.container import DataUnit, UnitType, read_container, write_container
-from lghcc.common.errors import InputError
-from lghcc.common.geometry import COORD_MAX, encode_geometry, normative_order
-from lghcc.common.hashing import gaussian_scene_digest
-from lghcc.common.report import breakdown_of
-from lghcc.common.scene import GaussianScene
-from lghcc.common.units import MAX_ANCHORS, MAX_ATTRIBUTE_VALUES, DecodedSceneHashUnit, GaussianParameterSet
-from lghcc.encoder.config import GaussianEncoderConfig
-from lghcc.encoder.encode import EncodeResult, code_attributes, level_layout
+from ..common import attributes as attr
+from ..common.container import DataUnit, UnitType, read_container, write_container
+from ..common.errors import InputError
+from ..common.geometry import COORD_MAX, encode_geometry, normative_order
+from ..common.hashing import gaussian_scene_digest
+from ..app.report import breakdown_of
+from ..common.scene import GaussianScene
+from ..common.units import MAX_ANCHORS, MAX_ATTRIBUTE_VALUES, DecodedSceneHashUnit, GaussianParameterSet
+from .config import GaussianEncoderConfig
+from .encode import EncodeResult, code_attributes, level_layout
 
 OPACITY_LOGIT_LIMIT = 8.0
 MAX_GRID_EXTENT = 1 << 30  # voxels per axis; beyond, the grid is made coarser (far floaters)

@@ -33,10 +33,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from lghcc.common.context.ggconv import GRID_FRAC_BITS, grid_coordinate, neighbour_graph, trilinear_corners
-from lghcc.common.geometry import normative_order
-from lghcc.common.hierarchy import build_hierarchy
-from lghcc.encoder.ggconv_train import (_LOG_SIGMA0, _LOG_SIGMA_STEP, ContextTwin, GGConvFloat, GGConvTrainConfig, _pow2_scale,
+from ..common.context.ggconv import GRID_FRAC_BITS, grid_coordinate, neighbour_graph, trilinear_corners
+from ..common.geometry import normative_order
+from ..common.hierarchy import build_hierarchy
+from .ggconv_train import (_LOG_SIGMA0, _LOG_SIGMA_STEP, ContextTwin, GGConvFloat, GGConvTrainConfig, _pow2_scale,
                                         default_radius_sq, gaussian_bits, init_mean_outputs)
 
 

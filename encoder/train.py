@@ -70,10 +70,10 @@ import torch
 import yaml
 from torch import nn
 
-from lghcc.common.errors import InputError, LghccError
-from lghcc.common.fileio import atomic_write_bytes
-from lghcc.common.scaffold_io import write_scaffold
-from lghcc.common.scene import AnchorScene
+from ..common.errors import InputError, LghccError
+from ..app.fileio import atomic_write_bytes
+from ..formats.scaffold_io import write_scaffold
+from ..common.scene import AnchorScene
 
 STATE_NAME = "train_state.pth"
 STATE_VERSION = 1
@@ -167,7 +167,7 @@ class TrainConfig:
 # ------------------------------------------------------------------------------------------
 
 # Datasets: lghcc.render.datasets (layouts detected by their files; also used by lghcc-dec --render)
-from lghcc.render.datasets import Dataset, load_dataset  # noqa: E402,F401  (re-exported)
+from ..render.datasets import Dataset, load_dataset  # noqa: E402,F401  (re-exported)
 
 
 def camera_extent(cams: list) -> float:
@@ -253,7 +253,7 @@ def _knn_mean_dist(points: np.ndarray, k: int = 3) -> np.ndarray:
 # ------------------------------------------------------------------------------------------
 
 def _make_mlp(c: int, out: int, final: str):
-    from lghcc.render.neural_gaussians import TorchMLP
+    from ..render.neural_gaussians import TorchMLP
 
     return TorchMLP([nn.Linear(c + 4, c), nn.Linear(c, out)], ["relu", final])
 
@@ -270,7 +270,7 @@ class Trainer:
     PARAMS = ("features", "scalings", "offsets")
 
     def __init__(self, cfg: TrainConfig, ds: Dataset, out: Path):
-        from lghcc.render.rasterizer import rasterize_with, select_device
+        from ..render.rasterizer import rasterize_with, select_device
 
         self.cfg, self.ds, self.out = cfg, ds, out
         self.rasterize = rasterize_with(select_device(cfg.device))
@@ -353,11 +353,11 @@ class Trainer:
         return (self.coords.float() * np.float32(self.voxel_size) + torch.from_numpy(self.origin))
 
     def scene_tensors(self):
-        from lghcc.render.neural_gaussians import SceneTensors
+        from ..render.neural_gaussians import SceneTensors
 
         f, sc, off = self.params["features"], self.params["scalings"], self.params["offsets"]
         if self.rate_model is not None:  # render what the decoder will output (straight-through rounding)
-            from lghcc.encoder.rate_model import quantize_ste
+            from .rate_model import quantize_ste
 
             step = torch.tensor(self.cfg.rate_step, dtype=torch.float32)
             f, sc, off = quantize_ste(f, step), quantize_ste(sc, step), quantize_ste(off, step)
@@ -370,7 +370,7 @@ class Trainer:
         opacity accumulated since each anchor's creation; NAAP merges offsets, scalings and the
         accumulated opacity of every pruned anchor into its nearest kept neighbour (eq. 11).
         The optimizer state of the kept anchors carries over."""
-        from lghcc.encoder.naap import NaapConfig, naap_plan, opacity_plan
+        from .naap import NaapConfig, naap_plan, opacity_plan
 
         cfg = self.cfg
         acc = (self.life_opacity / self.life_views.clamp_min(1)).numpy()
@@ -399,12 +399,12 @@ class Trainer:
     def _build_rate_model(self, scales=None, twin_size: tuple[int, int, int] | None = None) -> None:
         """The rate model of the current anchors; twin_size (Ch, feature hidden, head hidden): the
         twin's size on resume (None: the encoder's size rule for this many level-2 anchors)."""
-        from lghcc.encoder.ggconv_train import GGConvTrainConfig
-        from lghcc.encoder.rate_model import AnchorRateModel
+        from .ggconv_train import GGConvTrainConfig
+        from .rate_model import AnchorRateModel
 
-        from lghcc.common.geometry import normative_order
-        from lghcc.common.hierarchy import build_hierarchy
-        from lghcc.encoder.config import EncoderConfig, context_model_size
+        from ..common.geometry import normative_order
+        from ..common.hierarchy import build_hierarchy
+        from .config import EncoderConfig, context_model_size
 
         cfg = self.cfg
         m = cfg.feature_dim + 6 + 3 * cfg.num_offsets
@@ -432,8 +432,8 @@ class Trainer:
         return self.order.pop()
 
     def step(self) -> dict:
-        from lghcc.render.metrics import ssim_torch
-        from lghcc.render.neural_gaussians import (anchor_bounding_radii, generate_neural_gaussians,
+        from ..render.metrics import ssim_torch
+        from ..render.neural_gaussians import (anchor_bounding_radii, generate_neural_gaussians,
                                                    visible_anchors)
         cfg = self.cfg
         it = self.iteration + 1
@@ -613,7 +613,7 @@ class Trainer:
     # --- evaluation ------------------------------------------------------------------
     @torch.no_grad()
     def evaluate(self, num_views: int = 0) -> dict:
-        from lghcc.render.metrics import psnr, ssim
+        from ..render.metrics import psnr, ssim
 
         test = self.ds.test
         if num_views and num_views < len(test):
@@ -747,7 +747,7 @@ def write_checkpoint_folder(scene: AnchorScene, out: Path, iteration: int, twin=
     tmp_model = pc / f"{TMP_PREFIX}{name}_{os.getpid()}"
     written = write_scaffold(scene, tmp_model, iteration)  # tmp_model/point_cloud/iteration_<N>
     if twin is not None:
-        from lghcc.encoder.ggconv_train import TWIN_FILE
+        from .ggconv_train import TWIN_FILE
 
         twin.save(Path(written) / TWIN_FILE)
     staged = pc / f"{TMP_PREFIX}{name}_{os.getpid()}.ready"
@@ -790,7 +790,7 @@ def _rows_in(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 def _background(spec) -> np.ndarray:
-    from lghcc.render.datasets import parse_background
+    from ..render.datasets import parse_background
 
     return parse_background(spec)
 
@@ -798,7 +798,7 @@ def _background(spec) -> np.ndarray:
 @torch.no_grad()
 def render_image(scene, cam, background) -> np.ndarray:
     """Render ``scene`` (AnchorScene or SceneTensors) for ``cam``; [H, W, 3] float64 clipped to [0, 1]."""
-    from lghcc.render.rasterizer import render_scene
+    from ..render.rasterizer import render_scene
 
     bg = torch.as_tensor(np.asarray(background, np.float32).reshape(3))
     # the CPU reference renderer, as in training: reported metrics do not depend on the machine
@@ -808,7 +808,7 @@ def render_image(scene, cam, background) -> np.ndarray:
 def evaluate_model(model: str | Path, data: str | Path, background: str = "white", downscale: int = 1,
                    images: str | None = None, voxel_size: float | None = None) -> dict:
     """Test-view PSNR / SSIM of a Scaffold-GS model (e.g. a decoded .lghcc) on a dataset."""
-    from lghcc.common.scaffold_io import read_scaffold
+    from ..formats.scaffold_io import read_scaffold
 
     scene = read_scaffold(model, voxel_size=voxel_size)
     ds = load_dataset(data, background, downscale, images)
@@ -818,7 +818,7 @@ def evaluate_model(model: str | Path, data: str | Path, background: str = "white
 def evaluate_scene(scene, cams: list, background: str = "white") -> dict:
     """Mean PSNR / SSIM of ``scene`` (an AnchorScene) against the images of ``cams``
     (lghcc.render.scenes.evaluate: the CPU reference renderer)."""
-    from lghcc.render.scenes import evaluate
+    from ..render.scenes import evaluate
 
     ev = evaluate(scene, None, cams, background=_background(background), backend="torch")
     return {"psnr": ev.psnr, "ssim": ev.ssim, "views": ev.views, "anchors": scene.num_anchors}
@@ -838,7 +838,7 @@ class TrainResult:
 
 
 def _check_config(cfg: TrainConfig) -> None:
-    from lghcc.render.rasterizer import select_device
+    from ..render.rasterizer import select_device
 
     select_device(cfg.device)  # 'no CUDA device: ...' before the data is loaded
     for name in ("iterations", "feature_dim", "num_offsets", "init_points", "threads", "eval_interval",
@@ -934,7 +934,7 @@ def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, stop_after
             f"voxel size {tr.voxel_size:.5g}, C={cfg.feature_dim}, K={cfg.num_offsets}")
     bar = None
     if progress:
-        from lghcc.common.progress import progress_bar
+        from ..app.progress import progress_bar
 
         bar = progress_bar(total=cfg.iterations, initial=tr.iteration, desc="train", dynamic_ncols=True, file=sys.stderr)
     finished = tr.iteration >= cfg.iterations
@@ -1013,10 +1013,10 @@ examples:
 
 
 def setup_args() -> argparse.ArgumentParser:
-    from lghcc.common.cliargs import add_overwrite_options, add_version_option
+    from ..app.cliargs import add_overwrite_options, add_version_option
 
     d = TrainConfig()
-    from lghcc.cli_common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, EXIT_RESOURCE_LIMIT, EXIT_USAGE, exit_status_epilog
+    from ..app.cli_common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, EXIT_RESOURCE_LIMIT, EXIT_USAGE, exit_status_epilog
 
     p = argparse.ArgumentParser(prog="lghcc-train", description=DESCRIPTION,
                                 epilog=exit_status_epilog(
@@ -1188,9 +1188,9 @@ def _check_fresh_output(out: Path, overwrite: bool) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Exit status: lghcc.cli_common (0, 1 input error, 2 usage, 4 out of memory, 130 interrupted), through
+    """Exit status: lghcc.app.cli_common (0, 1 input error, 2 usage, 4 out of memory, 130 interrupted), through
     run_cli: one line on stderr."""
-    from lghcc.common.cliargs import run_cli
+    from ..app.cliargs import run_cli
 
     return run_cli("lghcc-train", _main, argv, "continue with --resume from the last checkpoint")
 
@@ -1198,7 +1198,7 @@ def main(argv: list[str] | None = None) -> int:
 def _main(argv: list[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = setup_args().parse_args(argv)
-    # a failure is reported by run_cli: one line, the exit status of its kind (lghcc.cli_common)
+    # a failure is reported by run_cli: one line, the exit status of its kind (lghcc.app.cli_common)
     if args.evaluate:
         if not args.data:
             raise InputError("--evaluate needs the data folder")

@@ -43,14 +43,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lghcc.common.errors import InputError, LghccError
-from lghcc.common.fileio import atomic_write_bytes
-from lghcc.encoder.train import (TrainConfig, _background, _expon_lr, _knn_mean_dist, camera_extent,
+from ..common.errors import InputError, LghccError
+from ..app.fileio import atomic_write_bytes
+from .train import (TrainConfig, _background, _expon_lr, _knn_mean_dist, camera_extent,
                                  init_points, load_dataset)
-from lghcc.render.gaussians3dgs import write_3dgs_ply
-from lghcc.render.metrics import psnr, ssim, ssim_torch
-from lghcc.render.rasterizer import rasterize
-from lghcc.render.sh import sh_to_rgb
+from ..render.gaussians3dgs import write_3dgs_ply
+from ..render.metrics import psnr, ssim, ssim_torch
+from ..render.rasterizer import rasterize
+from ..render.sh import sh_to_rgb
 
 PARAMS = ("means", "log_scales", "quats", "opacity_logits", "sh_dc")
 
@@ -264,7 +264,7 @@ class Trainer3DGS:
 
 
 def _quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
-    from lghcc.render.rasterizer import quat_to_rotmat
+    from ..render.rasterizer import quat_to_rotmat
 
     return quat_to_rotmat(q)
 

@@ -32,16 +32,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 from torch import nn
-from lghcc.common.progress import progress_bar
+from ..app.progress import progress_bar
 
-from lghcc.common.errors import InputError
-from lghcc.common.scene import AnchorScene
-from lghcc.render.camera import Camera
-from lghcc.render.gaussians3dgs import Gaussians3DGS, load_3dgs_ply, render_3dgs
-from lghcc.render.metrics import psnr, ssim_torch
-from lghcc.render.neural_gaussians import SceneTensors, TorchMLP, evaluate_anchors
-from lghcc.render.rasterizer import render_scene
-from lghcc.render.sh import sh_to_rgb
+from ..common.errors import InputError
+from ..common.scene import AnchorScene
+from ..render.camera import Camera
+from ..render.gaussians3dgs import Gaussians3DGS, load_3dgs_ply, render_3dgs
+from ..render.metrics import psnr, ssim_torch
+from ..render.neural_gaussians import SceneTensors, TorchMLP, evaluate_anchors
+from ..render.rasterizer import render_scene
+from ..render.sh import sh_to_rgb
 
 
 @dataclass
@@ -262,7 +262,7 @@ def evaluate_views(scene, cams: list[Camera], targets: list[torch.Tensor]) -> fl
 
 def transcode_3dgs(source: str | Gaussians3DGS, cfg: TranscodeConfig | None = None, log=None) -> TranscodeResult:
     """A plain 3DGS scene (a PLY path or loaded Gaussians) -> an AnchorScene (module doc)."""
-    from lghcc.render.rasterizer import select_device
+    from ..render.rasterizer import select_device
 
     cfg = cfg or TranscodeConfig()
     say = log or (lambda *a: None)
@@ -339,8 +339,8 @@ def main(argv: list[str] | None = None) -> int:
     import json
     import sys
 
-    from lghcc.common.errors import LghccError
-    from lghcc.common.scaffold_io import write_scaffold
+    from ..common.errors import LghccError
+    from ..formats.scaffold_io import write_scaffold
 
     d = TranscodeConfig()
     p = argparse.ArgumentParser(prog="python -m lghcc.encoder.transcode", description=__doc__,

@@ -24,11 +24,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from lghcc.common.errors import InputError
-from lghcc.common.scene import AnchorScene, GaussianScene
-from lghcc.formats.ply3dgs import read_3dgs_ply, write_3dgs_ply
-from lghcc.formats.sog import read_sog, write_sog
-from lghcc.formats.spz import is_spz_bytes, read_spz, write_spz
+from ..common.errors import InputError
+from ..common.scene import AnchorScene, GaussianScene
+from .ply3dgs import read_3dgs_ply, write_3dgs_ply
+from .sog import read_sog, write_sog
+from .spz import is_spz_bytes, read_spz, write_spz
 
 Scene = AnchorScene | GaussianScene  # what read_scene returns
 
@@ -67,7 +67,7 @@ def _write_ply(path: Path, scene: GaussianScene, comments: list[str] = ()) -> No
 
 def _located_ply(path: Path) -> Path | None:
     """The PLY a folder holds (Scaffold-GS/3DGS layout: highest iteration), None if none."""
-    from lghcc.common.scaffold_io import locate_ply
+    from .scaffold_io import locate_ply
 
     try:
         return locate_ply(path)
@@ -76,7 +76,7 @@ def _located_ply(path: Path) -> Path | None:
 
 
 def _ply_names(path: Path) -> list[str]:
-    from lghcc.formats.ply3dgs import ply_property_names
+    from .ply3dgs import ply_property_names
 
     try:
         return ply_property_names(path)
@@ -92,7 +92,7 @@ def _is_anchor_scene(path: Path, head: bytes) -> bool:
 
 
 def _read_anchor_scene(path: Path) -> AnchorScene:
-    from lghcc.common.scaffold_io import read_scaffold
+    from .scaffold_io import read_scaffold
 
     return read_scaffold(path)
 
@@ -188,7 +188,7 @@ def write_scene(scene: Scene, path: str | os.PathLike, **options: Any) -> Path:
     Returns the path written (the PLY for a folder)."""
     p = Path(path)
     if isinstance(scene, AnchorScene):
-        from lghcc.common.scaffold_io import write_scaffold
+        from .scaffold_io import write_scaffold
 
         if any(p.name.lower().endswith(s) for f in _FORMATS for s in f.suffixes):
             raise InputError(f"{p}: an anchor scene is written as a Scaffold-GS model folder, not a {p.suffix} "

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lghcc.common.errors import InputError
-from lghcc.common.ply import read_ply, read_ply_header_lines, write_ply
-from lghcc.common.scene import SH_DEGREE_MAX, GaussianScene, sh_coeffs_per_channel
+from ..common.errors import InputError
+from .ply import read_ply, read_ply_header_lines, write_ply
+from ..common.scene import SH_DEGREE_MAX, GaussianScene, sh_coeffs_per_channel
 
 REQUIRED_FIELDS = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
                    "rot_0", "rot_1", "rot_2", "rot_3")

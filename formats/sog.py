@@ -55,10 +55,10 @@ from typing import Callable
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
-import lghcc
-from lghcc.common.errors import InputError
-from lghcc.common.fileio import atomic_write_bytes
-from lghcc.common.scene import GaussianScene
+from .. import __version__
+from ..common.errors import InputError
+from ..app.fileio import atomic_write_bytes
+from ..common.scene import GaussianScene
 
 SOG_VERSION = 2
 CODEBOOK_SIZE = 256
@@ -373,7 +373,7 @@ def encode_sog(scene: GaussianScene, iterations: int = KMEANS_ITERATIONS, palett
     dc_book, dc_labels = quantize_1d([s.sh[:, 0, c] for c in range(3)])
     files["sh0.webp"] = _webp(np.stack(dc_labels + [alpha_u8], axis=1), width, height)
 
-    meta = {"version": SOG_VERSION, "asset": {"generator": f"lghcc v{lghcc.__version__}"}, "count": n,
+    meta = {"version": SOG_VERSION, "asset": {"generator": f"lghcc v{__version__}"}, "count": n,
             "means": {"mins": mins.tolist(), "maxs": maxs.tolist(), "files": ["means_l.webp", "means_u.webp"]},
             "scales": {"codebook": scale_book.tolist(), "files": ["scales.webp"]},
             "quats": {"files": ["quats.webp"]},

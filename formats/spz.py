@@ -64,9 +64,9 @@ from pathlib import Path
 import numpy as np
 import zstandard
 
-from lghcc.common.errors import InputError
-from lghcc.common.fileio import atomic_write_bytes
-from lghcc.common.scene import SH_DEGREE_MAX, GaussianScene, sh_coeffs_per_channel
+from ..common.errors import InputError
+from ..app.fileio import atomic_write_bytes
+from ..common.scene import SH_DEGREE_MAX, GaussianScene, sh_coeffs_per_channel
 
 SPZ_MAGIC = 0x5053474E  # "NGSP" in file order
 SPZ_VERSION_LATEST = 4

@@ -3,10 +3,10 @@ differentiable tile-based CPU rasterizer, image metrics.
 
 Never imports lghcc.encoder (the decoder may render)."""
 
-from lghcc.render.camera import Camera, load_colmap, load_llff, load_nerf_synthetic, read_colmap_model
-from lghcc.render.metrics import lpips, psnr, ssim
-from lghcc.render.neural_gaussians import NeuralGaussians, SceneTensors, generate_neural_gaussians
-from lghcc.render.rasterizer import (RenderResult, gsplat_available, project_gaussians, rasterize, rasterize_gsplat,
+from .camera import Camera, load_colmap, load_llff, load_nerf_synthetic, read_colmap_model
+from .metrics import lpips, psnr, ssim
+from .neural_gaussians import NeuralGaussians, SceneTensors, generate_neural_gaussians
+from .rasterizer import (RenderResult, gsplat_available, project_gaussians, rasterize, rasterize_gsplat,
                                      render_scene, select_backend)
 
 __all__ = [

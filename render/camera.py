@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lghcc.common.errors import InputError
-from lghcc.render.imageio import composite_background, png_size, read_image
+from ..common.errors import InputError
+from .imageio import composite_background, png_size, read_image
 
 log = logging.getLogger(__name__)
 

@@ -32,9 +32,9 @@ from typing import Any
 
 import numpy as np
 
-from lghcc.common.errors import InputError
-from lghcc.render.camera import Camera, load_colmap, load_llff, load_nerf_synthetic
-from lghcc.render.imageio import background_color
+from ..common.errors import InputError
+from .camera import Camera, load_colmap, load_llff, load_nerf_synthetic
+from .imageio import background_color
 
 _IMAGE_EXTS = (".png", ".jpg", ".jpeg")
 TEST_EVERY = 8
@@ -215,7 +215,7 @@ def load_dataset(data: str | os.PathLike, background: Any = "white", downscale: 
         resample = downscale
     else:
         if lay.kind == "colmap":
-            from lghcc.render.camera import read_colmap_model
+            from .camera import read_colmap_model
 
             model = read_colmap_model(lay.sparse)
             paths = None

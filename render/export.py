@@ -28,12 +28,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from lghcc.common.errors import InputError
-from lghcc.common.scene import AnchorScene
-from lghcc.render.gaussians3dgs import write_3dgs_ply
-from lghcc.render.neural_gaussians import SceneTensors, evaluate_anchors, gaussian_geometry
-from lghcc.render.rasterizer import quat_to_rotmat
-from lghcc.render.sh import MAX_SH_DEGREE, num_sh_coeffs, sh_basis
+from ..common.errors import InputError
+from ..common.scene import AnchorScene
+from .gaussians3dgs import write_3dgs_ply
+from .neural_gaussians import SceneTensors, evaluate_anchors, gaussian_geometry
+from .rasterizer import quat_to_rotmat
+from .sh import MAX_SH_DEGREE, num_sh_coeffs, sh_basis
 
 
 @dataclass

@@ -16,12 +16,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lghcc.common.scene import GaussianScene
-from lghcc.formats.ply3dgs import is_3dgs_ply, read_3dgs_ply  # noqa: F401  (is_3dgs_ply: re-exported)
-from lghcc.formats.ply3dgs import write_3dgs_ply as write_ply_scene
-from lghcc.render.camera import Camera
-from lghcc.render.rasterizer import RenderResult, rasterize
-from lghcc.render.sh import sh_to_rgb
+from ..common.scene import GaussianScene
+from ..formats.ply3dgs import is_3dgs_ply, read_3dgs_ply  # noqa: F401  (is_3dgs_ply: re-exported)
+from ..formats.ply3dgs import write_3dgs_ply as write_ply_scene
+from .camera import Camera
+from .rasterizer import RenderResult, rasterize
+from .sh import sh_to_rgb
 
 
 @dataclass
@@ -94,7 +94,7 @@ def write_3dgs_ply(path: str | os.PathLike, means: np.ndarray, sh: np.ndarray, o
 def render_3dgs(g: Gaussians3DGS, camera: Camera, *, background=None, backend: str = "auto", **kw) -> RenderResult:
     """Render a plain 3DGS scene into ``camera`` (SH colours for this camera centre);
     ``backend`` as ``render_scene`` (auto: gsplat when CUDA and gsplat are usable)."""
-    from lghcc.render.rasterizer import rasterize_gsplat, select_backend
+    from .rasterizer import rasterize_gsplat, select_backend
 
     cols = g.colors(camera.center)
     fn = rasterize if select_backend(backend) == "torch" else rasterize_gsplat

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lghcc.common.errors import InputError
+from ..common.errors import InputError
 
 try:  # optional dependency
     from PIL import Image as _PILImage  # type: ignore

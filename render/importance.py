@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from lghcc.render.camera import Camera
-from lghcc.render.rasterizer import compositing_weights
+from .camera import Camera
+from .rasterizer import compositing_weights
 
 
 def gaussian_contributions(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,

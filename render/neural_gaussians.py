@@ -30,9 +30,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from lghcc.common.errors import InputError
-from lghcc.common.scene import AnchorScene, RenderMLP
-from lghcc.render.camera import Camera
+from ..common.errors import InputError
+from ..common.scene import AnchorScene, RenderMLP
+from .camera import Camera
 
 
 class TorchMLP(nn.Module):

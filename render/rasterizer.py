@@ -61,7 +61,7 @@ from typing import Literal
 
 import torch
 
-from lghcc.render.camera import Camera
+from .camera import Camera
 
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
@@ -484,7 +484,7 @@ def render_scene(scene, camera: Camera, *, background=None, cull: bool = True, m
     ``backend``: 'torch' (this module, CPU), 'gsplat' (CUDA; see ``rasterize_gsplat``) or
     'auto' (gsplat when CUDA and gsplat are usable, else torch; ``select_backend``). The
     image is on the device of the scene's tensors (the CPU for an AnchorScene) either way."""
-    from lghcc.render.neural_gaussians import generate_neural_gaussians
+    from .neural_gaussians import generate_neural_gaussians
 
     fn = rasterize if select_backend(backend) == "torch" else rasterize_gsplat
     sigma = kw.get("sigma_cutoff", 3.0)
@@ -532,7 +532,7 @@ def gsplat_available() -> bool:
     """True when gsplat imports and torch sees a CUDA device."""
     if not _GSPLAT_IMPORT:
         try:
-            import gsplat  # noqa: F401
+            import gsplat  # noqa: F401  # pyright: ignore[reportMissingImports] (optional: lghcc[gsplat])
             _GSPLAT_IMPORT.append(True)
         except Exception:  # noqa: BLE001 - ImportError, or a gsplat build that fails to load
             _GSPLAT_IMPORT.append(False)
@@ -565,7 +565,7 @@ def select_device(device: str = "cpu") -> str:
     everything else stay on the CPU, the rasterizer's inputs and outputs are copied, gradients
     flow through the copies). Raises InputError before any work: 'no CUDA device: ...' when
     torch sees no GPU, or naming what is missing when gsplat is not usable."""
-    from lghcc.common.errors import InputError
+    from ..common.errors import InputError
 
     if device == "cpu":
         return select_backend("torch")
@@ -597,7 +597,7 @@ def rasterize_gsplat(means, quats, scales, opacities, colors, camera: Camera, *,
     see the module doc for the known differences)."""
     if not gsplat_available():
         raise RuntimeError("the gsplat backend needs gsplat (pip install 'lghcc[gsplat]') and a CUDA GPU")
-    from gsplat import rasterization
+    from gsplat import rasterization  # pyright: ignore[reportMissingImports] (optional: lghcc[gsplat])
 
     out_dev, dt = colors.device, colors.dtype
     mcount, nch = _check_gaussians(means, quats, scales, opacities, colors)

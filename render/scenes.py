@@ -15,9 +15,9 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from lghcc.common.errors import InputError
-from lghcc.common.scene import AnchorScene, GaussianScene
-from lghcc.render.camera import Camera
+from ..common.errors import InputError
+from ..common.scene import AnchorScene, GaussianScene
+from .camera import Camera
 
 MLP_ROLES = ("opacity", "cov", "color")
 
@@ -45,7 +45,7 @@ def resolve_cameras(cameras: str | Sequence[Camera], scene: AnchorScene | Gaussi
     """A list of cameras from a list (as it is) or a spec (``cameras_from_spec``; ``orbit:N``
     circles ``scene``, ``size`` = (width, height))."""
     if isinstance(cameras, str) or hasattr(cameras, "__fspath__"):
-        from lghcc.render.views import cameras_from_spec
+        from .views import cameras_from_spec
 
         pts = scene_points(scene) if scene is not None else np.zeros((1, 3))
         return cameras_from_spec(str(cameras), pts, width=size[0], height=size[1], scale=scale, split=split)
@@ -70,17 +70,17 @@ def render_fn(scene: AnchorScene | GaussianScene, backend: str = "torch") -> Cal
     reference rasterizer; the default, so numbers match on every machine), 'gsplat' or 'auto'."""
     import torch
 
-    from lghcc.render.imageio import background_color
+    from .imageio import background_color
 
     check_renderable(scene)
     if isinstance(scene, GaussianScene):
-        from lghcc.render.gaussians3dgs import gaussians_from_scene, render_3dgs
+        from .gaussians3dgs import gaussians_from_scene, render_3dgs
 
         g = gaussians_from_scene(scene)
         draw = lambda cam, bg: render_3dgs(g, cam, background=bg, backend=backend)  # noqa: E731
     else:
-        from lghcc.render.neural_gaussians import SceneTensors
-        from lghcc.render.rasterizer import render_scene
+        from .neural_gaussians import SceneTensors
+        from .rasterizer import render_scene
 
         st = SceneTensors.from_scene(scene)
         draw = lambda cam, bg: render_scene(st, cam, background=bg, backend=backend)  # noqa: E731
@@ -129,10 +129,10 @@ def evaluate(scene: AnchorScene | GaussianScene, reference: AnchorScene | Gaussi
     same cameras, or (``reference`` None) against the cameras' own images (a dataset's test
     views: ``cameras`` a dataset folder, whose images are then loaded, or Cameras with
     ``image``). ``orbit:N`` circles the reference (else the scene)."""
-    from lghcc.render.metrics import psnr, ssim
+    from .metrics import psnr, ssim
 
     if reference is None and isinstance(cameras, str) and not cameras.strip().startswith("orbit:"):
-        from lghcc.render.datasets import load_dataset
+        from .datasets import load_dataset
 
         cams = load_dataset(cameras, background=background).test
     else:
@@ -162,7 +162,7 @@ def to_gaussians(scene: AnchorScene | GaussianScene, sh_degree: int | None = Non
     if isinstance(scene, GaussianScene):
         return scene if sh_degree is None else scene.with_sh_degree(sh_degree)
     check_renderable(scene)
-    from lghcc.render.export import export_3dgs
+    from .export import export_3dgs
 
     ex = export_3dgs(scene, None, sh_degree=1 if sh_degree is None else sh_degree, num_directions=directions,
                      distance=distance)

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lghcc.common.errors import InputError
-from lghcc.render.camera import Camera, load_colmap, load_llff, load_nerf_synthetic
+from ..common.errors import InputError
+from .camera import Camera, load_colmap, load_llff, load_nerf_synthetic
 
 
 def orbit_cameras(positions: np.ndarray, n: int, *, width: int = 256, height: int = 256, fov_deg: float = 50.0,
@@ -48,7 +48,7 @@ def cameras_from_spec(spec: str, positions: np.ndarray, *, width: int = 256, hei
     LLFF), its ``split`` (test, train or all); a NeRF-synthetic ``transforms_<split>.json``; a
     COLMAP sparse folder (cameras/images .bin or .txt: all its views); an LLFF
     ``poses_bounds.npy`` (all its views). File cameras are scaled by ``scale``."""
-    from lghcc.render.datasets import dataset_cameras, sparse_folder
+    from .datasets import dataset_cameras, sparse_folder
 
     m = re.fullmatch(r"orbit:(\d+)", spec.strip())
     if m:

@@ -1,4 +1,4 @@
-"""The library API (lghcc/api.py): what `import lghcc` gives, without the programs."""
+"""The library API (api.py): what `import lghcc` gives, without the programs."""
 
 import subprocess
 import sys
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import lghcc
-from lghcc.common.scaffold_io import write_scaffold
+from lghcc.formats.scaffold_io import write_scaffold
 
 from scenes import random_scene
 
@@ -49,7 +49,7 @@ def test_three_lines_from_gaussians_to_a_stream_and_back(tmp_path):
 
 
 def test_anchor_scenes_read_write_and_render(tmp_path):
-    from lghcc.common.procedural import make_procedural_scene
+    from lghcc.formats.procedural import make_procedural_scene
 
     scene = make_procedural_scene(300, seed=2)
     decoded = lghcc.decode(lghcc.encode(scene, preset="high"))

@@ -1,31 +1,124 @@
-"""Layering: the decoder (and everything it uses) never imports the encoder."""
+"""Architecture: the layering (the decoder never imports the encoder; common/ is normative and
+imports only itself), a layout in which folder paths are import paths (relative imports only inside
+the package, resolvable by a static tool from a plain checkout), and the size of every function."""
 
 import ast
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
-NORMATIVE_DIRS = ("common", "decoder", "render", "conformance")
+# The package's folders (the repository root is the package lghcc: its __init__.py and api.py are here)
+PACKAGE_DIRS = ("app", "batch", "common", "conformance", "decoder", "encoder", "formats", "render", "viewer")
+NOT_ENCODER = ("app", "common", "conformance", "decoder", "formats", "render")
+# A function in common/, encoder/, decoder/ reads as one step: at most this many lines
+# (docstring included) and cyclomatic complexity 15 (ruff's C901, configured in pyproject.toml)
+MAX_FUNCTION_LINES = 60
+
+
+def _package_files() -> list[Path]:
+    files = [ROOT / "__init__.py", ROOT / "api.py"]
+    for d in PACKAGE_DIRS:
+        files += sorted(p for p in (ROOT / d).rglob("*.py") if "node_modules" not in p.parts)
+    return files
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(["lghcc"] + (parts[:-1] if parts[-1] == "__init__" else parts))
 
 
 def _imports(path: Path) -> set[str]:
+    """Absolute names of the modules a file imports (relative imports resolved)."""
+    package = _module_name(path) if path.name == "__init__.py" else _module_name(path).rsplit(".", 1)[0]
     names = set()
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.Import):
             names |= {a.name for a in node.names}
-        elif isinstance(node, ast.ImportFrom) and node.module:
-            names.add(node.module)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                base = ".".join(anchor + ([base] if base else []))
+            names.add(base)
+            names |= {f"{base}.{a.name}" for a in node.names}
     return names
+
+
+def test_imports_inside_the_package_are_relative():
+    """An absolute `lghcc.` import resolves only through an installed package; a relative one
+    resolves from the folder layout, for any reader or static tool."""
+    offenders = []
+    for f in _package_files():
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.Import) and any(a.name.split(".")[0] == "lghcc" for a in node.names):
+                offenders.append(f"{f.relative_to(ROOT)}:{node.lineno}")
+            elif isinstance(node, ast.ImportFrom) and not node.level and (node.module or "").split(".")[0] == "lghcc":
+                offenders.append(f"{f.relative_to(ROOT)}:{node.lineno}")
+    assert not offenders, f"absolute lghcc imports inside the package: {offenders}"
 
 
 def test_no_source_file_outside_encoder_imports_it():
     offenders = []
-    for d in NORMATIVE_DIRS:
+    for d in NOT_ENCODER:
         for f in (ROOT / d).rglob("*.py"):
             if any(n.startswith("lghcc.encoder") for n in _imports(f)):
                 offenders.append(str(f.relative_to(ROOT)))
     assert not offenders, f"these import lghcc.encoder: {offenders}"
+
+
+def test_common_is_normative_only():
+    """common/ (what the spec describes) imports nothing of the package outside itself."""
+    offenders = {str(f.relative_to(ROOT)): sorted(n for n in _imports(f) if n.startswith("lghcc.")
+                                                  and not n.startswith("lghcc.common"))
+                 for f in (ROOT / "common").rglob("*.py")}
+    assert not {k: v for k, v in offenders.items() if v}
+
+
+def test_every_module_imports():
+    """With the static check (which resolves modules), this shows that every imported name exists."""
+    code = ("import importlib, pkgutil, lghcc\n"
+            "for m in pkgutil.walk_packages(lghcc.__path__, 'lghcc.'):\n"
+            "    importlib.import_module(m.name)\n"
+            "print('ok')")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd="/")
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
+
+
+def test_static_import_check():
+    """pyright (pinned in tools/node, installed by `make node-tools`) resolves every import of the
+    package from the checkout: [tool.pyright] in pyproject.toml."""
+    pyright = ROOT / "tools" / "node" / "node_modules" / ".bin" / "pyright"
+    if not pyright.exists():
+        pytest.skip("pyright is not installed (make node-tools installs it into tools/node)")
+    out = subprocess.run([str(pyright), "--pythonpath", sys.executable], capture_output=True, text=True, cwd=ROOT,
+                         timeout=600)
+    assert out.returncode == 0, out.stdout[-4000:]
+
+
+def test_complexity():
+    """ruff's C901 (max-complexity 15, pyproject.toml) over common/, encoder/, decoder/."""
+    ruff = shutil.which("ruff", path=str(Path(sys.executable).parent)) or shutil.which("ruff")
+    if ruff is None:
+        pytest.skip("ruff is not installed (it is in the [test] extra)")
+    out = subprocess.run([ruff, "check", "--select", "C901", "--output-format", "concise",
+                          "common", "encoder", "decoder"], capture_output=True, text=True, cwd=ROOT)
+    assert out.returncode == 0, out.stdout
+
+
+def test_function_length():
+    long = []
+    for d in ("common", "encoder", "decoder"):
+        for f in (ROOT / d).rglob("*.py"):
+            for node in ast.walk(ast.parse(f.read_text())):
+                if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    lines = node.end_lineno - node.lineno + 1
+                    if lines > MAX_FUNCTION_LINES:
+                        long.append(f"{f.relative_to(ROOT)}:{node.lineno} {node.name} ({lines} lines)")
+    assert not long, f"functions over {MAX_FUNCTION_LINES} lines:\n" + "\n".join(long)
 
 
 def test_importing_the_decoder_loads_no_encoder_module():

@@ -218,7 +218,7 @@ def test_missing_splat_transform_is_one_line_and_exit_3(tiny_ply, tmp_path, monk
 
 def test_infinite_opacity_logits_are_read_as_opacity_1_or_0(tiny_ply, tmp_path):
     """splat-transform writes compressed PLY's 8-bit opacities 0 and 1 back as logits -inf / +inf."""
-    from lghcc.common.ply import read_ply, write_ply
+    from lghcc.formats.ply import read_ply, write_ply
 
     cols = read_ply(tiny_ply)
     cols["opacity"][:3] = [np.inf, -np.inf, np.inf]

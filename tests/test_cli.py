@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lghcc.common.scaffold_io import read_scaffold, write_scaffold
+from lghcc.formats.scaffold_io import read_scaffold, write_scaffold
 from lghcc.decoder import cli as dec_cli
 from lghcc.encoder import cli as enc_cli
 
@@ -70,7 +70,7 @@ def test_clear_errors(tmp_path, capsys):
     assert "no such file" in capsys.readouterr().err
     bad = tmp_path / "bad.lghcc"
     bad.write_bytes(b"LGHC\x00\x01\x01\x00" + b"\x01\x00\x00\x00\x10" + b"\x00" * 3)
-    assert dec_cli.main([str(bad), "-o", str(tmp_path / "d")]) == 3  # invalid stream (lghcc.cli_common)
+    assert dec_cli.main([str(bad), "-o", str(tmp_path / "d")]) == 3  # invalid stream (lghcc.app.cli_common)
     err = capsys.readouterr().err
     assert "bad.lghcc" in err and "Traceback" not in err
     assert not (tmp_path / "d").exists()
@@ -133,7 +133,7 @@ def test_write_failing_late_is_a_clean_error(tmp_path, capsys, small_stream, mon
     # A failure only the write itself finds (disk full, a path that vanished) is reported the same way.
     import errno
 
-    from lghcc.common import fileio
+    from lghcc.app import fileio
 
     def full(*a, **k):
         raise OSError(errno.ENOSPC, "No space left on device")
@@ -251,7 +251,7 @@ def test_decode_then_reencode_gives_the_same_scene(tmp_path, capsys):
     h2 = json.loads((tmp_path / "b.json").read_text())["scene_sha256"]
     assert h1 == h2
     # Without the header comment the voxel size is guessed from float32 positions: not the same bits.
-    from lghcc.common.scaffold_io import infer_voxel_size
+    from lghcc.formats.scaffold_io import infer_voxel_size
     scene = read_scaffold(tmp_path / "dec")
     assert infer_voxel_size(scene.positions().astype(np.float64)) != scene.voxel_size
 
@@ -266,7 +266,7 @@ def test_hash_mismatch_prints_both_full_digests_and_the_stream(tmp_path, capsys,
     data[-4:] = zlib.crc32(bytes(data[unit])).to_bytes(4, "big")
     bad = tmp_path / "bad.lghcc"
     bad.write_bytes(bytes(data))
-    assert dec_cli.main([str(bad)]) == 3  # invalid stream: a hash mismatch is one (lghcc.cli_common)
+    assert dec_cli.main([str(bad)]) == 3  # invalid stream: a hash mismatch is one (lghcc.app.cli_common)
     err = capsys.readouterr().err
     import re
     digests = re.findall(r"\b[0-9a-f]{64}\b", err)
@@ -292,7 +292,7 @@ def test_outputs_get_the_umask_mode(tmp_path, small_stream):
 def test_procedural_progress_bar_does_not_change_the_scene(capsys, monkeypatch):
     monkeypatch.setenv("LGHCC_PROGRESS_INTERVAL", "0")  # stderr is no terminal here: log lines, each update
     from lghcc.common.hashing import scene_digest
-    from lghcc.common.procedural import make_procedural_scene
+    from lghcc.formats.procedural import make_procedural_scene
 
     quiet = make_procedural_scene(3000, seed=7, with_mask=True)
     shown = make_procedural_scene(3000, seed=7, with_mask=True, progress=True)

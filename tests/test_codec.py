@@ -8,7 +8,7 @@ from hypothesis import given, settings, strategies as st
 from lghcc.common.errors import InputError
 from lghcc.common.geometry import normative_order
 from lghcc.common.hashing import scene_digest
-from lghcc.common.procedural import make_procedural_scene
+from lghcc.formats.procedural import make_procedural_scene
 from lghcc.decoder.decode import decode_stream
 from lghcc.encoder.config import EncoderConfig, load_config
 from lghcc.encoder.encode import encode_scene

@@ -28,7 +28,7 @@ GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 @pytest.fixture(scope="module")
 def teacher():
-    from lghcc.common.procedural import make_procedural_scene
+    from lghcc.formats.procedural import make_procedural_scene
 
     return make_procedural_scene(200, seed=5)
 

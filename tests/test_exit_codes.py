@@ -1,4 +1,4 @@
-"""Exit codes that tell failures apart (lghcc.cli_common), for every command-line program:
+"""Exit codes that tell failures apart (lghcc.app.cli_common), for every command-line program:
 0 success, 1 input or environment error, 2 usage, 3 invalid stream, 4 resource limit,
 130 interrupted; one line on stderr, never a traceback, and no partial output."""
 
@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from lghcc import cli_common
-from lghcc.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK, EXIT_RESOURCE_LIMIT,
+from lghcc.app import cli_common
+from lghcc.app.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK, EXIT_RESOURCE_LIMIT,
                               EXIT_USAGE, exit_code_for, exit_code_for_class, parse_memory_size)
 from lghcc.common.errors import (BitstreamError, HashMismatchError, InputError, LghccError, ResourceLimitError,
                                  UnsupportedStreamError)

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from lghcc.common.errors import InputError
-from lghcc.common.procedural import make_procedural_scene
+from lghcc.formats.procedural import make_procedural_scene
 from lghcc.decoder import cli as dec_cli
 from lghcc.encoder import cli as enc_cli
 from lghcc.render.camera import Camera, ColmapCamera, ColmapImage, write_colmap_text
@@ -113,7 +113,7 @@ def test_compare_tool_writes_table_and_side_by_side(tmp_path):
     import importlib.util
     from pathlib import Path
 
-    from lghcc.common.scaffold_io import write_scaffold
+    from lghcc.formats.scaffold_io import write_scaffold
 
     spec = importlib.util.spec_from_file_location("compare", Path(__file__).parents[1] / "tools" / "compare.py")
     compare = importlib.util.module_from_spec(spec)

@@ -8,7 +8,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from lghcc.common import attributes as attr
 from lghcc.common.errors import BitstreamError, InputError
 from lghcc.common.hashing import gaussian_scene_digest
-from lghcc.common.ply import write_ply
+from lghcc.formats.ply import write_ply
 from lghcc.common.scene import GaussianScene
 from lghcc.decoder.decode import decode_stream
 from lghcc.encoder import cli as enc_cli

@@ -288,7 +288,7 @@ def test_garden_and_donut_beat_gpcc(shared_data):
     if not garden.exists() or not donut.exists():
         pytest.skip("garden or donut data missing")
     g = _voxelize(np.load(garden)["means3d"].astype(np.float64), 12)
-    from lghcc.common.ply import read_ply
+    from lghcc.formats.ply import read_ply
 
     v = read_ply(donut)
     d = _voxelize(np.stack([v["x"], v["y"], v["z"]], axis=1).astype(np.float64), 12)

@@ -12,7 +12,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from lghcc.cli_common import EXIT_INVALID_STREAM, EXIT_RESOURCE_LIMIT
+from lghcc.app.cli_common import EXIT_INVALID_STREAM, EXIT_RESOURCE_LIMIT
 from lghcc.common.errors import BitstreamError, ResourceLimitError
 from lghcc.conformance import runner
 from lghcc.conformance.forge import dense_cube, dense_zero_stream
@@ -138,7 +138,7 @@ def test_the_plan_bounds_what_numpy_allocates_for_every_suite_stream():
 def test_the_plan_bounds_a_larger_scene_within_a_factor():
     """A 30,000-anchor scene with offset masks in chunks of 4096 rows: above the measured peak,
     and not absurdly so (the constants are measured, module docstring)."""
-    from lghcc.common.procedural import make_procedural_scene
+    from lghcc.formats.procedural import make_procedural_scene
     from lghcc.encoder.encode import EncoderConfig, encode_scene
 
     data = encode_scene(make_procedural_scene(30000, seed=3, with_mask=True), EncoderConfig(rows_per_chunk=4096)).data

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from lghcc.common.errors import InputError
-from lghcc.common.procedural import make_procedural_scene
+from lghcc.formats.procedural import make_procedural_scene
 from lghcc.encoder.naap import (NaapConfig, estimate_anchor_opacity, naap_importance, naap_prune,
                                 opacity_prune)
 

@@ -160,7 +160,7 @@ def test_progress_lines_reach_a_log_and_ctrl_c_stops_cleanly(tmp_path):
 
 
 def test_log_progress_prints_percent_and_time_left(capsys, monkeypatch):
-    from lghcc.common.progress import LogProgress, progress_bar
+    from lghcc.app.progress import LogProgress, progress_bar
 
     bar = LogProgress(total=4, desc="fit", unit="step", interval=0)
     for _ in range(2):
@@ -246,7 +246,7 @@ def test_lghcc_presets_say_how_long_first(tmp_path, capsys, monkeypatch):
     assert "the preset medium codes with the same steps in seconds" in line
     assert err.strip().endswith("lghcc-enc: interrupted") and not out.exists()
     # the fast presets: no estimate
-    from lghcc.common.procedural import make_procedural_scene
+    from lghcc.formats.procedural import make_procedural_scene
     from lghcc.encoder.config import load_config
 
     scene = make_procedural_scene(200)

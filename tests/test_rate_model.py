@@ -5,7 +5,7 @@ import torch
 
 from lghcc.common.geometry import normative_order
 from lghcc.common.hierarchy import build_hierarchy
-from lghcc.common.procedural import make_procedural_scene
+from lghcc.formats.procedural import make_procedural_scene
 from lghcc.encoder.config import EncoderConfig
 from lghcc.encoder.encode import encode_scene
 from lghcc.encoder.ggconv_train import GGConvTrainConfig

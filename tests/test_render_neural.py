@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from lghcc.common.errors import InputError
-from lghcc.common.procedural import make_procedural_scene
+from lghcc.formats.procedural import make_procedural_scene
 from lghcc.common.scene import AnchorScene, RenderMLP
 from lghcc.render.camera import Camera
 from lghcc.render.neural_gaussians import SceneTensors, TorchMLP, generate_neural_gaussians

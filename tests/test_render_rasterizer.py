@@ -258,7 +258,7 @@ def test_backend_selection(monkeypatch):
 
 
 def test_auto_backend_without_cuda_is_the_cpu_path():
-    from lghcc.common.procedural import make_procedural_scene
+    from lghcc.formats.procedural import make_procedural_scene
     from lghcc.render.rasterizer import render_scene
 
     if gsplat_available():
@@ -350,7 +350,7 @@ def test_gsplat_matches_cpu_rasterizer(kind):
 
 @pytest.mark.skipif(not gsplat_available(), reason="needs gsplat (pip install 'lghcc[gsplat]') and a CUDA GPU")
 def test_auto_backend_with_cuda_uses_gsplat_and_returns_cpu_images():
-    from lghcc.common.procedural import make_procedural_scene
+    from lghcc.formats.procedural import make_procedural_scene
     from lghcc.render.rasterizer import GSPLAT_SIGMA_CUTOFF, render_scene
 
     scene = make_procedural_scene(num_anchors=300, seed=2)

@@ -8,9 +8,9 @@ import torch
 
 from lghcc.common.errors import InputError
 from lghcc.common.hashing import scene_digest
-from lghcc.common.ply import read_ply, read_ply_comments, write_ply
-from lghcc.common.procedural import make_procedural_scene
-from lghcc.common.scaffold_io import MissingMlpWarning, infer_voxel_size, read_scaffold, write_scaffold
+from lghcc.formats.ply import read_ply, read_ply_comments, write_ply
+from lghcc.formats.procedural import make_procedural_scene
+from lghcc.formats.scaffold_io import MissingMlpWarning, infer_voxel_size, read_scaffold, write_scaffold
 
 
 def test_round_trip_exact(tmp_path):
@@ -167,7 +167,7 @@ def test_read_scaffold_validates_with_the_path(tmp_path):
 
 
 def test_write_ply_in_blocks_matches_a_single_copy(tmp_path, monkeypatch):
-    from lghcc.common import ply as ply_mod
+    from lghcc.formats import ply as ply_mod
 
     rng = np.random.default_rng(0)
     cols = {"x": rng.normal(size=1000).astype(np.float32), "flag": rng.random(1000) < 0.5,

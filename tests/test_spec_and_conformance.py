@@ -145,7 +145,7 @@ def _external(tmp_path, body: str) -> str:
     ("print('not a hash')", "not a SHA-256"),
 ])
 def test_external_decoder_protocol_fails_crashes_hangs_and_blanket_rejections(tmp_path, body, note):
-    """Only exit code 3 (invalid stream, lghcc.cli_common) counts as a rejection: a decoder that
+    """Only exit code 3 (invalid stream, lghcc.app.cli_common) counts as a rejection: a decoder that
     rejects everything fails the decodable streams; crashes, hangs, usage, input and resource
     errors fail every stream, since none of them is a verdict on the stream."""
     cmd = _external(tmp_path, body)

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from lghcc.common.errors import InputError
-from lghcc.common.scaffold_io import read_scaffold
+from lghcc.formats.scaffold_io import read_scaffold
 from lghcc.common.scene import AnchorScene, RenderMLP
 from lghcc.encoder import train as T
 from lghcc.render.camera import Camera
@@ -157,7 +157,7 @@ def test_resume_is_exact(data, tmp_path):
 def test_checkpoint_folder_is_atomic(data, tmp_path, monkeypatch):
     """A run killed between the PLY and the MLP write leaves no iteration folder without MLPs:
     the newest one readable is the previous complete checkpoint; resuming cleans up."""
-    from lghcc.common import scaffold_io
+    from lghcc.formats import scaffold_io
 
     cfg = tiny_config(data, iterations=15, checkpoint_interval=5, eval_interval=100, keep_checkpoints=0)
     real = scaffold_io.atomic_output
@@ -497,7 +497,7 @@ def test_rate_trained_run_saves_a_context_twin_that_the_encoder_starts_from(data
     started from it as one more candidate (never a larger stream: the smallest is kept, and the
     stream decodes bit-exactly), reports a twin trained for other steps as unused, and names a
     damaged twin file."""
-    from lghcc.common.scaffold_io import locate_ply
+    from lghcc.formats.scaffold_io import locate_ply
     from lghcc.decoder.decode import decode_stream
     from lghcc.encoder import cli
     from lghcc.encoder.config import EncoderConfig

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from lghcc.common.errors import InputError
-from lghcc.common.ply import write_ply
+from lghcc.formats.ply import write_ply
 from lghcc.encoder import cli as enc_cli
 from lghcc.encoder.transcode import TranscodeConfig, anchorize, transcode_3dgs
 from lghcc.render.gaussians3dgs import Gaussians3DGS, is_3dgs_ply, load_3dgs_ply, write_3dgs_ply
@@ -113,7 +113,7 @@ def test_write_and_load_keep_the_inria_layout(tmp_path):
     assert g.sh_degree == 2 and g.num_gaussians == n
     np.testing.assert_allclose(g.sh.numpy(), sh, atol=1e-6)
     np.testing.assert_allclose(g.quats.numpy(), q / np.linalg.norm(q, axis=1, keepdims=True), atol=1e-6)
-    from lghcc.common.ply import read_ply
+    from lghcc.formats.ply import read_ply
     cols = read_ply(p)
     # channel-major f_rest: f_rest_{c (K-1) + i - 1} is coefficient i of channel c
     assert cols["f_rest_9"][4] == sh[4, 2, 1] and cols["f_rest_1"][0] == sh[0, 2, 0]
@@ -164,7 +164,7 @@ def test_tiny_transcode_improves_over_its_initialization():
     # a written checkpoint reads back on the same grid (voxel size inferred, no shift)
     import tempfile
 
-    from lghcc.common.scaffold_io import read_scaffold, write_scaffold
+    from lghcc.formats.scaffold_io import read_scaffold, write_scaffold
     with tempfile.TemporaryDirectory() as d:
         write_scaffold(r.scene, d)
         back = read_scaffold(d)

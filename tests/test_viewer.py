@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from lghcc.common.container import DataUnit, UnitType, read_container, write_container
-from lghcc.common.procedural import make_procedural_scene
-from lghcc.common.scaffold_io import write_scaffold
+from lghcc.formats.procedural import make_procedural_scene
+from lghcc.formats.scaffold_io import write_scaffold
 from lghcc.common.scene import GaussianScene
 from lghcc.encoder import cli as enc_cli
 from lghcc.viewer import cli as view_cli
@@ -93,7 +93,7 @@ def test_hash_mismatch_writes_no_page(small_scene, stub_bundle, tmp_path, capsys
 
 
 def test_malformed_stream_is_an_invalid_stream(small_scene, stub_bundle, tmp_path, capsys):
-    """The exit-status rule of every lghcc program (lghcc.cli_common): a malformed stream is 3, like a
+    """The exit-status rule of every lghcc program (lghcc.app.cli_common): a malformed stream is 3, like a
     hash mismatch, with the stream's path in the one line."""
     bad = tmp_path / "cut.lghcc"
     bad.write_bytes((small_scene / "s.lghcc").read_bytes()[:-7])

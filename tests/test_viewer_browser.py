@@ -54,8 +54,8 @@ SSIM_MIN = 0.94
 
 @pytest.fixture(scope="module")
 def view_page(tmp_path_factory):
-    from lghcc.common.procedural import make_procedural_scene
-    from lghcc.common.scaffold_io import write_scaffold
+    from lghcc.formats.procedural import make_procedural_scene
+    from lghcc.formats.scaffold_io import write_scaffold
     from lghcc.encoder import cli as enc_cli
     from lghcc.viewer import cli as view_cli
 

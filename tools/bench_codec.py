@@ -91,7 +91,7 @@ def main(argv=None) -> int:
 
     import torch
 
-    from lghcc.common.procedural import make_procedural_scene
+    from lghcc.formats.procedural import make_procedural_scene
     from lghcc.encoder.config import load_config
     from lghcc.encoder.encode import encode_scene
 

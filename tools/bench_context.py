@@ -48,10 +48,10 @@ MODELS = {  # label -> encoder options
 def load_scene(spec: str):
     """(scene, label, the context twin saved beside it or None)."""
     if spec.startswith("procedural:"):
-        from lghcc.common.procedural import make_procedural_scene
+        from lghcc.formats.procedural import make_procedural_scene
         return (make_procedural_scene(int(spec.split(":", 1)[1]), seed=0), f"procedural {int(spec.split(':')[1]):,}",
                 None)
-    from lghcc.common.scaffold_io import read_scaffold
+    from lghcc.formats.scaffold_io import read_scaffold
     from lghcc.encoder.ggconv_train import find_context_twin
     return read_scaffold(spec), Path(spec).name, find_context_twin(spec)
 

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lghcc.common.procedural import make_procedural_scene, surface_points
+from lghcc.formats.procedural import make_procedural_scene, surface_points
 from lghcc.common.geometry import (IDCM_ISOLATED, decode_geometry, encode_geometry,
                                    normative_order)
 

@@ -83,7 +83,7 @@ def main(argv=None) -> int:
     from lghcc.common.geometry import normative_order
     from lghcc.common.hierarchy import build_hierarchy
     from lghcc.common.knn import ball_knn
-    from lghcc.common.procedural import make_procedural_scene
+    from lghcc.formats.procedural import make_procedural_scene
 
     torch.set_num_threads(args.threads)
     ball_knn(np.zeros((2, 3), np.int64), 1, 1)  # first use: scipy's import is not the graph's time

@@ -46,8 +46,8 @@ def main(argv=None) -> int:
 
     import torch
 
-    from lghcc.common.procedural import make_procedural_scene
-    from lghcc.common.scaffold_io import read_scaffold
+    from lghcc.formats.procedural import make_procedural_scene
+    from lghcc.formats.scaffold_io import read_scaffold
     from lghcc.decoder.decode import decode_stream
     from lghcc.encoder.config import load_config, preset_names
     from lghcc.encoder.encode import encode_scene

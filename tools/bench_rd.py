@@ -80,7 +80,7 @@ def main(argv=None) -> int:
 
     import torch
 
-    from lghcc.common.scaffold_io import read_scaffold
+    from lghcc.formats.scaffold_io import read_scaffold
     from lghcc.decoder.decode import decode_stream
     from lghcc.encoder.config import load_config
     from lghcc.encoder.encode import encode_scene

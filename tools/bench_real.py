@@ -337,7 +337,7 @@ def read_back_ply(path: Path):
     splat-transform writes them for compressed PLY, whose opacity is 8-bit) are read as +-30
     (sigmoid 1 or 0 in float32) and the note counts them; any other bad value is an InputError."""
     from lghcc.common.errors import InputError
-    from lghcc.common.ply import read_ply, write_ply
+    from lghcc.formats.ply import read_ply, write_ply
     from lghcc.formats.ply3dgs import read_3dgs_ply
 
     try:

@@ -8,7 +8,7 @@ Scenes:
     (centre (0, 0, 0.35), semi-axes 0.65 x 1.1 x 0.6), scales uniform in [0.3, 0.9] x
     sqrt(area / M) (so the shell stays covered at every M), random rotations, opacities
     uniform in [0.05, 0.95], random colours; seen from lego test camera r_0 at 800x800.
-  * anchors: lghcc.common.procedural.make_procedural_scene (torus, sphere, ground plane in
+  * anchors: lghcc.formats.procedural.make_procedural_scene (torus, sphere, ground plane in
     [-1, 1]^3, Scaffold-GS MLP shapes, random weights), scaled by 0.65 and lifted by 0.35 in
     z into lego's bounding box; with the HAC offset mask. Views: the lego test cameras at
     800x800 (orbit radius about 4: the whole object is in view), and the same cameras moved
@@ -106,7 +106,7 @@ def load_bench_scene(spec: str, anchors: int):
     from lghcc.render.neural_gaussians import SceneTensors
 
     if spec == "procedural":
-        from lghcc.common.procedural import make_procedural_scene
+        from lghcc.formats.procedural import make_procedural_scene
 
         scene = make_procedural_scene(anchors, seed=0, with_mask=True)
         st = SceneTensors.from_scene(scene)
@@ -116,7 +116,7 @@ def load_bench_scene(spec: str, anchors: int):
         return st, (f"Procedural anchor scene: {st.num_anchors:,} anchors, K={scene.num_offsets} offsets, "
                     f"{int(scene.offset_mask.sum()):,} live offsets (HAC mask), scaled into lego's bounding box "
                     "(see the tool's doc)")
-    from lghcc.common.scaffold_io import read_scaffold
+    from lghcc.formats.scaffold_io import read_scaffold
 
     scene = read_scaffold(spec)
     live = scene.num_anchors * scene.num_offsets if scene.offset_mask is None else int(scene.offset_mask.sum())

@@ -27,7 +27,7 @@ def diagnose(path: str, step: float, scale: int, k: int) -> dict:
 
     from lghcc.common.geometry import normative_order
     from lghcc.common.hierarchy import build_hierarchy
-    from lghcc.common.scaffold_io import read_scaffold
+    from lghcc.formats.scaffold_io import read_scaffold
 
     s = read_scaffold(path)
     order = normative_order(s.coords)

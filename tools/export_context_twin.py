@@ -22,7 +22,7 @@ def main(argv=None) -> int:
     import torch
 
     from lghcc.common.errors import LghccError
-    from lghcc.common.scaffold_io import locate_ply
+    from lghcc.formats.scaffold_io import locate_ply
     from lghcc.encoder import train as T
     from lghcc.encoder.ggconv_train import TWIN_FILE
 

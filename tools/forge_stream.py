@@ -31,7 +31,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--offsets", type=int, default=1, help="K (default 1)")
     ap.add_argument("--exact-hash", action="store_true", help="carry the real decoded-scene hash (slow)")
     args = ap.parse_args(argv)
-    from lghcc.common.fileio import atomic_write_bytes
+    from lghcc.app.fileio import atomic_write_bytes
     from lghcc.conformance.forge import dense_zero_stream
 
     t0 = time.perf_counter()

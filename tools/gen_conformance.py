@@ -155,7 +155,7 @@ def random_gaussian_scene(s: dict):
 
 
 def build_scene(s: dict):
-    from lghcc.common.procedural import make_procedural_scene
+    from lghcc.formats.procedural import make_procedural_scene
 
     if s["generator"] == "gaussians":
         return random_gaussian_scene(s)

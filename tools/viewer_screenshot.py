@@ -24,7 +24,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     from PIL import Image
 
-    from lghcc.common.fileio import atomic_output
+    from lghcc.app.fileio import atomic_output
     from lghcc.viewer.browser import ViewerSession, browser_status
 
     ok, why = browser_status()

@@ -18,12 +18,12 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from lghcc.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK,  # noqa: E402
+from ..app.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK,  # noqa: E402
                               EXIT_RESOURCE_LIMIT, EXIT_USAGE, exit_status_epilog, with_prefix)
-from lghcc.common.errors import HashMismatchError, LghccError  # noqa: E402
-from lghcc.common.cliargs import (OVERWRITE_RULE, add_overwrite_options, add_version_option,  # noqa: E402
+from ..common.errors import HashMismatchError, LghccError  # noqa: E402
+from ..app.cliargs import (OVERWRITE_RULE, add_overwrite_options, add_version_option,  # noqa: E402
                                   run_cli)
-from lghcc.common.fileio import atomic_write_bytes, check_output_paths, check_overwrite, write_error  # noqa: E402
+from ..app.fileio import atomic_write_bytes, check_output_paths, check_overwrite, write_error  # noqa: E402
 
 DESCRIPTION = """\
 Write a decoded LG-HCC stream as ONE self-contained HTML page that shows the scene
@@ -100,7 +100,7 @@ def orbit_view(positions: np.ndarray, up: np.ndarray, *, width: int, height: int
     PSNR views and the page's first view are the same camera) and its page form: eye,
     target (the centre of the points' 1%..99% box, which orbit_cameras looks at), up,
     horizontal field of view, near and far."""
-    from lghcc.render.views import orbit_cameras
+    from ..render.views import orbit_cameras
 
     cam = orbit_cameras(positions, 1, width=width, height=height, up=tuple(up))[0]
     p = np.asarray(positions, np.float64)
@@ -115,7 +115,7 @@ def _say_nothing(*_a, **_k) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Exit status: lghcc.cli_common (0 page written, 1 input/output error, 2 usage, 3 invalid stream
+    """Exit status: lghcc.app.cli_common (0 page written, 1 input/output error, 2 usage, 3 invalid stream
     (malformed, or its decoded scene fails its hash: no page), 4 resource limit, 130 interrupted)."""
     return run_cli("lghcc-view", _main, argv)
 
@@ -130,11 +130,11 @@ def _main(argv: list[str] | None) -> int:
 
 
 def _run(args, say) -> int:
-    from lghcc.decoder.decode import decode_stream
-    from lghcc.render.imageio import background_color
-    from lghcc.viewer.page import ENGINE_NAME, ENGINE_VERSION, Pane, build_page, bundle_js, fmt_db, mean_metrics, \
+    from ..decoder.decode import decode_stream
+    from ..render.imageio import background_color
+    from .page import ENGINE_NAME, ENGINE_VERSION, Pane, build_page, bundle_js, fmt_db, mean_metrics, \
         size_table_html
-    from lghcc.viewer.scenes import gaussians_of_decoded, load_source, ply_bytes, render_gaussians_fn
+    from .scenes import gaussians_of_decoded, load_source, ply_bytes, render_gaussians_fn
 
     # everything a user can get wrong is checked before minutes of decoding and rendering
     check_output_paths({"-o": args.output}, {"input stream": args.stream, "--source": args.source})
@@ -184,7 +184,7 @@ def _run(args, say) -> int:
 
     fidelity, export = None, None
     if not args.no_psnr:
-        from lghcc.render.views import orbit_cameras
+        from ..render.views import orbit_cameras
 
         t0 = time.perf_counter()
         cams = orbit_cameras(frame, args.views, width=pw, height=ph, up=tuple(up))

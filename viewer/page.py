@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lghcc.common.errors import LghccError
+from ..common.errors import LghccError
 
 HERE = Path(__file__).resolve().parent
 TEMPLATE = HERE / "web" / "page.html"
@@ -70,7 +70,7 @@ def build_page(*, title: str, panes: list[Pane], meta: dict, summary_html: str, 
     visible under the panes."""
     if not panes:
         raise ValueError("build_page: no pane")
-    from lghcc import __version__
+    from .. import __version__
 
     meta = dict(meta, panes=[p.name for p in panes])
     pane_html = "\n".join(
@@ -116,7 +116,7 @@ def size_table_html(bytes_by_part: dict[str, int], num_anchors: int | None, num_
 
 def mean_metrics(images_a: list[np.ndarray], images_b: list[np.ndarray]) -> dict:
     """Mean PSNR (dB, of the mean squared error per view) and SSIM over views (lghcc.render.metrics)."""
-    from lghcc.render.metrics import psnr, ssim
+    from ..render.metrics import psnr, ssim
 
     ps = [psnr(a, b) for a, b in zip(images_a, images_b)]
     return {"psnr": float(np.mean(ps)), "psnr_views": [float(p) for p in ps],

@@ -23,8 +23,8 @@ from typing import Callable
 
 import numpy as np
 
-from lghcc.common.errors import InputError
-from lghcc.common.scene import AnchorScene, GaussianScene
+from ..common.errors import InputError
+from ..common.scene import AnchorScene, GaussianScene
 
 
 @dataclass
@@ -41,25 +41,25 @@ class ViewScene:
 
 def render_gaussians_fn(scene: GaussianScene) -> Callable:
     """CPU render function (camera, background) of an explicit 3DGS scene (lghcc.render.scenes)."""
-    from lghcc.render.scenes import render_fn
+    from ..render.scenes import render_fn
 
     return render_fn(scene)
 
 
 def _render_anchor_fn(scene: AnchorScene) -> Callable:
-    from lghcc.render.scenes import render_fn
+    from ..render.scenes import render_fn
 
     return render_fn(scene)
 
 
 def _visible_means(scene: GaussianScene) -> np.ndarray:
-    from lghcc.render.scenes import framing_points
+    from ..render.scenes import framing_points
 
     return framing_points(scene)
 
 
 def _exported(scene: AnchorScene, sh_degree: int, num_directions: int) -> tuple[GaussianScene, dict]:
-    from lghcc.render.export import export_3dgs
+    from ..render.export import export_3dgs
 
     ex = export_3dgs(scene, sh_degree=sh_degree, num_directions=num_directions)
     return GaussianScene(ex.means, ex.sh, ex.opacity_logits, ex.log_scales, ex.quats), ex.stats
@@ -85,7 +85,7 @@ def load_source(path: str | os.PathLike, *, sh_degree: int = 1, num_directions: 
     """``--source``: a plain 3DGS scene (PLY, SPZ, SOG), or a Scaffold-GS model folder /
     iteration folder / PLY (lghcc.formats.read_scene).
     Raises InputError naming the file when it is neither."""
-    from lghcc.formats import detect_format, read_scene
+    from ..formats import detect_format, read_scene
 
     p = Path(path)
     if not p.exists():
@@ -104,7 +104,7 @@ def load_source(path: str | os.PathLike, *, sh_degree: int = 1, num_directions: 
 def ply_bytes(scene: GaussianScene) -> bytes:
     """The scene as INRIA 3DGS PLY bytes, written by lghcc.formats.ply3dgs (the project's one
     3DGS writer) into a temporary folder."""
-    from lghcc.formats.ply3dgs import write_3dgs_ply
+    from ..formats.ply3dgs import write_3dgs_ply
 
     with tempfile.TemporaryDirectory(prefix="lghcc-view-") as d:
         f = Path(d) / "scene.ply"

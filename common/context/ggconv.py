@@ -34,10 +34,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from lghcc.common.attributes import STEP_ADJUST_FACTORS  # noqa: F401 (re-exported)
-from lghcc.common.context.model_unit import NamedIntArray
-from lghcc.common.intnn import ACT_MAX, ACT_MIN, IntLinear, IntMLP, WEIGHT_BITS_ALLOWED, rshift_round
-from lghcc.common.knn import ball_knn
+from ..attributes import STEP_ADJUST_FACTORS  # noqa: F401 (re-exported)
+from .model_unit import NamedIntArray
+from ..intnn import ACT_MAX, ACT_MIN, IntLinear, IntMLP, WEIGHT_BITS_ALLOWED, rshift_round
+from ..knn import ball_knn
 
 GRID_FRAC_BITS = 8  # FB: fractional bits of the grid coordinate U
 TRI_SHIFT = 3 * GRID_FRAC_BITS  # the trilinear weights sum to 2^24

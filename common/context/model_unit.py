@@ -11,10 +11,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lghcc.common.entropy.symbol_coder import best_level, decode_symbols, encode_symbols
-from lghcc.common.errors import BitstreamError
-from lghcc.common.syntax import SyntaxStructure, SyntaxVisitor
-from lghcc.common.units import CONTEXT_GGCONV, CONTEXT_PARENT_MLP, MAX_CONTEXT_MODEL_ID, NUM_SCALE_LEVELS_BITS
+from ..entropy.symbol_coder import best_level, decode_symbols, encode_symbols
+from ..errors import BitstreamError
+from ..syntax import SyntaxStructure, SyntaxVisitor
+from ..units import CONTEXT_GGCONV, CONTEXT_PARENT_MLP, MAX_CONTEXT_MODEL_ID, NUM_SCALE_LEVELS_BITS
 
 MAX_ARRAY_DIMS = 4
 MAX_MODEL_LAYERS = 8

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from lghcc.common.attributes import ChannelLayout, CodingParams
-from lghcc.common.context.model_unit import read_context_model_unit
-from lghcc.common.errors import BitstreamError
-from lghcc.common.units import CONTEXT_GGCONV, CONTEXT_PARENT_MLP
+from ..attributes import ChannelLayout, CodingParams
+from .model_unit import read_context_model_unit
+from ..errors import BitstreamError
+from ..units import CONTEXT_GGCONV, CONTEXT_PARENT_MLP
 
 CONTEXT_MODEL_NAMES = {0: "per-channel prior", CONTEXT_PARENT_MLP: "parent MLP (vanilla EM)",
                        CONTEXT_GGCONV: "GG-Conv"}
@@ -23,10 +23,10 @@ CONTEXT_MODEL_NAMES = {0: "per-channel prior", CONTEXT_PARENT_MLP: "parent MLP (
 def params_class(model_id: int):
     """The parameter class of a context model id (1 parent MLP, 2 GG-Conv)."""
     if model_id == CONTEXT_GGCONV:
-        from lghcc.common.context.ggconv import GGConvParams
+        from .ggconv import GGConvParams
         return GGConvParams
     if model_id == CONTEXT_PARENT_MLP:
-        from lghcc.common.context.parent_mlp import ParentMlpParams
+        from .parent_mlp import ParentMlpParams
         return ParentMlpParams
     raise BitstreamError(f"context model unit: unknown context model id {model_id}")
 
@@ -63,7 +63,7 @@ def check_ggconv_extent(*coords: np.ndarray) -> None:
     whose coordinate extent (the largest over the axes of max - min, over all anchors: level 1 and
     level 2 together, whichever level the model's neighbours are) is at most MAX_EXTENT, so every
     squared distance of the Ball k-NN fits a signed 64-bit integer. BitstreamError naming it."""
-    from lghcc.common.knn import MAX_EXTENT
+    from ..knn import MAX_EXTENT
 
     arrays = [np.asarray(c) for c in coords if np.asarray(c).size]
     if not arrays:
@@ -106,8 +106,8 @@ def level2_coding_params(model, coords1: np.ndarray, attrs1: np.ndarray, coords2
     The model's inputs are checked here; rows are computed on demand (``Level2CodingParams``)."""
     model_id, params = model
     if model_id == CONTEXT_GGCONV:
-        from lghcc.common.context.ggconv import GGConvEvaluator
+        from .ggconv import GGConvEvaluator
         check_ggconv_extent(coords1, coords2)
         return Level2CodingParams(GGConvEvaluator(params, coords2, parent, coords1, attrs1, voxel_scale))
-    from lghcc.common.context.parent_mlp import ParentMlpEvaluator
+    from .parent_mlp import ParentMlpEvaluator
     return Level2CodingParams(ParentMlpEvaluator(params, coords2, parent, attrs1, voxel_scale))

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from lghcc.common.context.ggconv import check_level2_inputs, check_parent_base, clamp16, split_outputs
-from lghcc.common.context.model_unit import NamedIntArray
-from lghcc.common.intnn import ACT_MAX, WEIGHT_BITS_ALLOWED, IntLinear, IntMLP
+from .ggconv import check_level2_inputs, check_parent_base, clamp16, split_outputs
+from .model_unit import NamedIntArray
+from ..intnn import ACT_MAX, WEIGHT_BITS_ALLOWED, IntLinear, IntMLP
 
 NUM_SCALINGS = 6
 _BLOCK = 1 << 16

@@ -17,7 +17,7 @@ import functools
 import constriction
 import numpy as np
 
-from lghcc.common.errors import BitstreamError
+from ..errors import BitstreamError
 
 PRECISION_BITS = 24
 TOTAL_FREQUENCY = 1 << PRECISION_BITS

@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from lghcc.common.entropy.range_coder import RangeDecoder, RangeEncoder, exact_model
-from lghcc.common.entropy.tables import (
+from .range_coder import RangeDecoder, RangeEncoder, exact_model
+from .tables import (
     HALF_WIDTHS,
     MAX_ABS_RESIDUAL,
     NUM_SCALE_LEVELS,
@@ -30,7 +30,7 @@ from lghcc.common.entropy.tables import (
     SCALE_SIGMAS,
     TABLES,
 )
-from lghcc.common.errors import BitstreamError
+from ..errors import BitstreamError
 
 __all__ = [
     "encode_symbols", "decode_symbols", "ideal_code_length_bits", "encode_chunked", "decode_chunked",

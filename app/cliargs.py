@@ -20,9 +20,9 @@ def positive_float(text: str) -> float:
 
 # --- what every lghcc-* program shares ------------------------------------------------------------
 
-# The exit statuses and the --help table that lists them are lghcc.cli_common's (one rule for every
+# The exit statuses and the --help table that lists them are lghcc.app.cli_common's (one rule for every
 # program; README "Exit status", the conformance docs); re-exported here for the programs' convenience.
-from lghcc.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK,  # noqa: E402,F401
+from .cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK,  # noqa: E402,F401
                               EXIT_RESOURCE_LIMIT, EXIT_USAGE, exit_status_epilog)
 
 OVERWRITE_RULE = textwrap.fill("Outputs: a file or a non-empty folder that exists is never overwritten unless -y (--overwrite) "
@@ -31,7 +31,7 @@ OVERWRITE_RULE = textwrap.fill("Outputs: a file or a non-empty folder that exist
 
 
 def add_version_option(p: argparse.ArgumentParser) -> None:
-    from lghcc import __version__
+    from .. import __version__
 
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__} (lghcc)")
 
@@ -47,12 +47,12 @@ def add_overwrite_options(p: argparse.ArgumentParser, what: str = "output files 
 
 
 def run_cli(prog: str, body, argv, interrupted_note: str = "") -> int:
-    """Run ``body(argv)`` -> exit status under lghcc.cli_common's rule: an LghccError, a MemoryError
+    """Run ``body(argv)`` -> exit status under lghcc.app.cli_common's rule: an LghccError, a MemoryError
     or Ctrl-C raised inside becomes one line on stderr and its exit status (``exit_code_for``: 1, 3
     for an invalid stream, 4 for a resource limit, 130 interrupted). Outputs are written atomically,
     so an interrupt leaves no partial file behind. Other exceptions are bugs and propagate."""
-    from lghcc.cli_common import report
-    from lghcc.common.errors import LghccError
+    from .cli_common import report
+    from ..common.errors import LghccError
 
     try:
         return body(argv)

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lghcc.common.errors import InputError
-from lghcc.common.fileio import atomic_output
+from ..common.errors import InputError
+from ..app.fileio import atomic_output
 
 _PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from lghcc.common.container import CONTAINER_HEADER_BYTES, Container, UnitType
+from ..common.container import CONTAINER_HEADER_BYTES, Container, UnitType
 
 CATEGORY_OF_UNIT = {
     UnitType.SCENE_PARAMETER_SET: "header",

@@ -13,7 +13,7 @@ One rule for lghcc-enc, lghcc-dec, lghcc-conformance, lghcc-train and lghcc-view
          hash (BitstreamError and its subclasses UnsupportedStreamError, HashMismatchError)
     4    resource limit: the work needs more than this run may use (ResourceLimitError from
          --max-memory or --max-anchors; a MemoryError from the system)
-    130  interrupted (Ctrl-C); outputs are written atomically (lghcc.common.fileio), so an
+    130  interrupted (Ctrl-C); outputs are written atomically (lghcc.app.fileio), so an
          interrupted run leaves no partial file behind
 
 lghcc-conformance uses 1 for its verdict (a stream FAILed); see its --help.
@@ -25,7 +25,7 @@ import functools
 import sys
 from typing import Callable
 
-from lghcc.common.errors import BitstreamError, LghccError, ResourceLimitError
+from ..common.errors import BitstreamError, LghccError, ResourceLimitError
 
 EXIT_OK = 0
 EXIT_ERROR = 1
@@ -64,7 +64,7 @@ def exit_code_for(exc: BaseException) -> int:
 def exit_code_for_class(name: str) -> int:
     """The exit status of an error class named in lghcc.common.errors (as a conformance test.yaml
     names it): what an external decoder following this rule exits with for it."""
-    from lghcc.common import errors
+    from ..common import errors
 
     cls = getattr(errors, name, None)
     if not (isinstance(cls, type) and issubclass(cls, LghccError)):

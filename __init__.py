@@ -10,35 +10,39 @@ As a library::
     lghcc.write_scene(decoded, "decoded.spz")
     print(lghcc.evaluate(decoded, scene, "orbit:8"))  # PSNR / SSIM against the source
 
-Functions (lghcc/api.py): ``read_scene``, ``write_scene``, ``encode``, ``decode``,
+Functions (api.py): ``read_scene``, ``write_scene``, ``encode``, ``decode``,
 ``load_cameras``, ``load_dataset``, ``render_views``, ``evaluate``, ``to_gaussians``.
 Types: ``AnchorScene``, ``GaussianScene``, ``Camera``, ``Evaluation``; errors:
 ``LghccError`` and its subclasses. ``import lghcc`` is light (no torch, no encoder); each
 function loads what it needs.
 
-Layout (source tree -> installed package):
-  common/   -> lghcc.common    normative: syntax, bitstream, geometry, entropy coding, context models
-  encoder/  -> lghcc.encoder   informative: quantization choices, model fitting, lghcc-enc
-  decoder/  -> lghcc.decoder   normative decoding process, lghcc-dec (never imports the encoder)
-  render/   -> lghcc.render    informative: neural Gaussians, rasterizer, metrics, datasets
-  formats/  -> lghcc.formats   informative: scene files (3DGS PLY, SPZ, SOG, Scaffold-GS)
-  conformance/ -> lghcc.conformance  conformance streams and their runner
+Layout: the repository root is the package ``lghcc``, so a folder path is an import path
+(common/geometry.py is lghcc.common.geometry) and every import inside the package is relative,
+resolvable from a plain checkout (docs/architecture.md):
+  common/      normative: syntax, bitstream, geometry, entropy coding, context models (spec/)
+  decoder/     normative decoding process, lghcc-dec (imports common/, never the encoder)
+  encoder/     informative: quantization choices, model fitting, lghcc-enc, lghcc-train
+  render/      informative: neural Gaussians, rasterizer, metrics, datasets
+  formats/     informative: scene files (3DGS PLY, SPZ, SOG, Scaffold-GS) and the procedural scene
+  app/         informative: command-line arguments, exit statuses, atomic files, progress, reports
+  conformance/ conformance streams, their runner, mutation list and fuzzer
+  viewer/, batch/  lghcc-view and lghcc-batch
 """
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from lghcc.api import (decode, encode, evaluate, load_cameras, load_dataset, read_scene, render_views, to_gaussians,
+from .api import (decode, encode, evaluate, load_cameras, load_dataset, read_scene, render_views, to_gaussians,
                        write_scene)
-from lghcc.common.errors import BitstreamError, HashMismatchError, InputError, LghccError
+from .common.errors import BitstreamError, HashMismatchError, InputError, LghccError
 
 __version__ = "0.1.0"
 
 if TYPE_CHECKING:
-    from lghcc.common.scene import AnchorScene, GaussianScene
-    from lghcc.render.camera import Camera
-    from lghcc.render.scenes import Evaluation
+    from .common.scene import AnchorScene, GaussianScene
+    from .render.camera import Camera
+    from .render.scenes import Evaluation
 
 _LAZY = {
     "AnchorScene": "lghcc.common.scene",

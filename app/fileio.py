@@ -14,7 +14,7 @@ import tempfile
 from pathlib import Path
 from typing import IO, Iterator
 
-from lghcc.common.errors import LghccError
+from ..common.errors import LghccError
 
 
 def default_file_mode() -> int:

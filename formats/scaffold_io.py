@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from lghcc.common.errors import InputError
-from lghcc.common.fileio import atomic_output
-from lghcc.common.ply import read_ply, read_ply_comments, write_ply
-from lghcc.common.scene import NUM_SCALINGS, AnchorScene, RenderMLP
+from ..common.errors import InputError
+from ..app.fileio import atomic_output
+from .ply import read_ply, read_ply_comments, write_ply
+from ..common.scene import NUM_SCALINGS, AnchorScene, RenderMLP
 
 # Output activation of each role in Scaffold-GS (hidden layers use ReLU).
 ROLE_FINAL_ACTIVATION = {"opacity": "tanh", "cov": "none", "color": "sigmoid", "feature_bank": "none"}

@@ -16,10 +16,10 @@ from typing import TYPE_CHECKING, Any, Sequence, Union
 if TYPE_CHECKING:
     import numpy as np
 
-    from lghcc.common.scene import AnchorScene, GaussianScene
-    from lghcc.render.camera import Camera
-    from lghcc.render.datasets import Dataset
-    from lghcc.render.scenes import Evaluation
+    from .common.scene import AnchorScene, GaussianScene
+    from .render.camera import Camera
+    from .render.datasets import Dataset
+    from .render.scenes import Evaluation
 
     Scene = Union[AnchorScene, GaussianScene]
 
@@ -31,7 +31,7 @@ def read_scene(path: PathLike) -> "Scene":
     (``.sog`` or ``meta.json``), a 3DGS model folder (``point_cloud/iteration_N/``) ->
     ``GaussianScene``; a Scaffold-GS / HAC model (folder, iteration folder or anchor PLY, render
     MLPs from ``checkpoint.pth`` beside it) -> ``AnchorScene``."""
-    from lghcc.formats import read_scene as _read
+    from .formats import read_scene as _read
 
     return _read(path)
 
@@ -40,7 +40,7 @@ def write_scene(scene: "Scene", path: PathLike, **options: Any) -> Path:
     """Write a scene (each file atomically; an existing file is replaced): a GaussianScene by
     the extension of ``path`` (``.ply``, ``.spz``, ``.sog``; a path without one: a 3DGS model
     folder); an AnchorScene as a Scaffold-GS model folder. Returns the path written."""
-    from lghcc.formats import write_scene as _write
+    from .formats import write_scene as _write
 
     return _write(scene, path, **options)
 
@@ -56,7 +56,7 @@ def encode(scene: "Scene | PathLike", preset: str = "medium", *, config: PathLik
     ``feature_step=0.01`` for anchor scenes, ``rd_lambda=0.5`` or ``sh_degree=1`` for Gaussian
     scenes; encoder/config.py lists them). ``verify`` decodes the stream again and checks its
     hash. An anchor scene without render MLPs is refused unless ``allow_missing_mlps``."""
-    from lghcc.encoder import api as enc
+    from .encoder import api as enc
 
     if isinstance(scene, (str, os.PathLike)):
         scene = read_scene(scene)
@@ -69,8 +69,8 @@ def decode(data: bytes | bytearray | memoryview | PathLike, *, verify: bool = Tr
     """Decode a .lghcc stream (its bytes, or a path to it) into the scene it carries: a
     GaussianScene (a stream coded from Gaussians) or an AnchorScene. ``verify`` checks the
     decoded scene against the hash in the stream (HashMismatchError when they differ)."""
-    from lghcc.common.errors import InputError
-    from lghcc.decoder.decode import decode_stream
+    from .common.errors import InputError
+    from .decoder.decode import decode_stream
 
     if isinstance(data, (str, os.PathLike)):
         try:
@@ -86,7 +86,7 @@ def load_cameras(spec: "str | PathLike", scene: "Scene | None" = None, *, size: 
     a dataset: a folder of any layout (NeRF-synthetic, COLMAP bin/txt, Mip-NeRF 360, LLFF;
     its ``split``: test, train or all), a ``transforms_<split>.json``, a COLMAP sparse folder,
     a ``poses_bounds.npy``. File cameras are scaled by ``scale``."""
-    from lghcc.render.scenes import resolve_cameras
+    from .render.scenes import resolve_cameras
 
     return resolve_cameras(str(spec), scene, size=size, scale=scale, split=split)
 
@@ -96,7 +96,7 @@ def load_dataset(path: PathLike, *, downscale: int = 1, background: Any = "white
     """The posed images of a dataset folder, its layout found by its files: ``.kind``,
     ``.train`` and ``.test`` (lists of Camera with ``.image``), ``.sfm_points`` (COLMAP
     points3D, or None). ``downscale`` N reads ``images_N/`` when present."""
-    from lghcc.render.datasets import load_dataset as _load
+    from .render.datasets import load_dataset as _load
 
     return _load(path, background, downscale, images, load_images=load_images)
 
@@ -105,7 +105,7 @@ def render_views(scene: "Scene", cameras: "str | Sequence[Camera]" = "orbit:8", 
                  size: tuple[int, int] = (256, 256)) -> "list[np.ndarray]":
     """Images (float32 [H, W, 3] in [0, 1]) of either kind of scene, rendered on the CPU from
     ``cameras``: a list of Camera or a spec as ``load_cameras`` takes."""
-    from lghcc.render.scenes import render_views as _render
+    from .render.scenes import render_views as _render
 
     return _render(scene, cameras, background=background, size=size)
 
@@ -115,7 +115,7 @@ def evaluate(scene: "Scene", reference: "Scene | None" = None, cameras: "str | S
     """PSNR (dB) and SSIM of ``scene`` against ``reference`` (another scene, rendered from the
     same cameras), or, with no reference, against a dataset's test images (``cameras`` a
     dataset folder, or Cameras carrying images). -> Evaluation(psnr, ssim, views, per view)."""
-    from lghcc.render.scenes import evaluate as _evaluate
+    from .render.scenes import evaluate as _evaluate
 
     return _evaluate(scene, reference, cameras, background=background, size=size)
 
@@ -124,6 +124,6 @@ def to_gaussians(scene: "Scene", sh_degree: int | None = None, *, directions: in
     """A plain 3DGS scene (for viewers, ``write_scene`` to .ply/.spz/.sog): a GaussianScene as
     it is (at most ``sh_degree``); an AnchorScene's neural Gaussians with SH colours (degree 1
     by default) fitted to its colour MLP over ``directions`` view directions."""
-    from lghcc.render.scenes import to_gaussians as _to
+    from .render.scenes import to_gaussians as _to
 
     return _to(scene, sh_degree, directions=directions)

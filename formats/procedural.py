@@ -12,7 +12,7 @@ from typing import Callable
 
 import numpy as np
 
-from lghcc.common.scene import DEFAULT_FEATURE_DIM, DEFAULT_NUM_OFFSETS, AnchorScene, RenderMLP
+from ..common.scene import DEFAULT_FEATURE_DIM, DEFAULT_NUM_OFFSETS, AnchorScene, RenderMLP
 
 
 def surface_points(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -60,7 +60,7 @@ def make_procedural_scene(num_anchors: int = 20000, seed: int = 0, feature_dim: 
     scene is the same with or without it."""
     if num_anchors < 1:
         raise ValueError("num_anchors must be at least 1")
-    from lghcc.common.progress import progress_bar
+    from ..app.progress import progress_bar
 
     channels = 2 + feature_dim + 6 + 3 * num_offsets + (num_offsets if with_mask else 0)
     bar = progress_bar(total=channels, desc="procedural scene", unit="ch", disable=not progress, leave=False,
