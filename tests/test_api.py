@@ -92,7 +92,7 @@ def test_errors_are_lghcc_errors(tmp_path):
 
 
 def test_typed_package():
-    assert (ROOT / "lghcc" / "py.typed").is_file()
+    assert (ROOT / "py.typed").is_file()
     import inspect
 
     for name in ("read_scene", "write_scene", "encode", "decode", "load_cameras", "load_dataset", "render_views",
