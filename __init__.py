@@ -33,9 +33,13 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from .api import (decode, encode, evaluate, load_cameras, load_dataset, read_scene, render_views, to_gaussians,
-                       write_scene)
-from .common.errors import BitstreamError, HashMismatchError, InputError, LghccError
+# Imported as the package (always, except: pytest imports the __init__.py of the folder it collects
+# from, here the repository root, as a lone module when the checkout's folder name is not an
+# identifier, e.g. lghcc-main; that import has no package to import from and nothing to set up).
+if __package__:
+    from .api import (decode, encode, evaluate, load_cameras, load_dataset, read_scene, render_views,
+                      to_gaussians, write_scene)
+    from .common.errors import BitstreamError, HashMismatchError, InputError, LghccError
 
 __version__ = "0.1.0"
 

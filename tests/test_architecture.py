@@ -143,3 +143,15 @@ def test_a_stream_without_context_model_decodes_without_torch():
         out = subprocess.run([sys.executable, "-c", code, str(streams / stream / "stream.lghcc")],
                              capture_output=True, text=True, check=True).stdout.strip()
         assert out == uses_torch, (stream, out)
+
+
+def test_root_init_imports_as_a_lone_module():
+    """pytest imports the __init__.py of the folder it collects from (the repository root) as a lone
+    module when the checkout's folder name is not an identifier (a clone in lghcc-main/): that must
+    not fail (it did, with 'attempted relative import with no known parent package')."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("__init__", ROOT / "__init__.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert module.__version__
