@@ -56,6 +56,9 @@ class Trainer(AnchorParameters, AnchorGrowing, RateTerm, CheckpointState):
         return self.order.pop()
 
     def step(self) -> dict:
+        """One iteration on the next training view (a random permutation per epoch); growing, pruning
+        and the start of the rate phase when their iteration comes. Returns the loss and the number
+        of neural Gaussians."""
         from ...render.neural_gaussians import generate_neural_gaussians
 
         cfg = self.cfg

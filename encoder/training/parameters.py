@@ -41,6 +41,8 @@ class AnchorParameters:
     cfg: TrainConfig
 
     def fresh(self) -> None:
+        """A new run: seeded RNGs, the initial anchors (one per voxel of the initial points), new
+        MLPs, zero statistics and Adam at iteration 0."""
         cfg = self.cfg
         torch.manual_seed(cfg.seed)
         self.np_rng = np.random.default_rng(cfg.seed)
