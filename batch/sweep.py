@@ -183,7 +183,7 @@ def _scene(d, i: int, base: Path, file: Path) -> SceneSpec:
     path = (base / p).resolve() if not Path(p).is_absolute() else Path(p)
     opts = ()
     if kind == "train":
-        from ..encoder.train import TrainConfig
+        from ..encoder.training.config import TrainConfig
 
         opts = tuple(sorted(_check_fields(d.get("train_options"), TrainConfig, f"{where}.train_options", file,
                                           forbidden=("data", "rate_lambda")).items()))

@@ -112,7 +112,8 @@ def prepare(scene: SceneSpec, lam: float | None, ev: Evaluation, transcode: dict
             cams = orbit(anchors.positions(), scene, ev)
             ref = _render_anchor(anchors, cams, bg)
         elif scene.kind == "train":
-            from ..encoder.train import TrainConfig, train
+            from ..encoder.training.config import TrainConfig
+            from ..encoder.training.loop import train
 
             cfg = TrainConfig(**dict(scene.train_options), data=scene.path, rate_lambda=float(lam or 0.0),
                               threads=threads or TrainConfig().threads)

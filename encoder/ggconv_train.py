@@ -204,7 +204,7 @@ def _inward_clamp(x: torch.Tensor, lo: float, hi: float) -> torch.Tensor:
     return _InwardClamp.apply(x, lo, hi)
 
 
-def _pow2_scale(std: float) -> float:
+def pow2_scale(std: float) -> float:
     """A power of two near 1/std (column scale of an integer input)."""
     return 2.0 ** -round(math.log2(max(std, 1e-3)))
 
@@ -427,8 +427,9 @@ def _batch(d: _Data, sel: torch.Tensor) -> dict:
 
 # -- loss -----------------------------------------------------------------------------------
 
-_LOG_SIGMA0 = math.log(0.11)
-_LOG_SIGMA_STEP = math.log(512.0 / 0.11) / 63.0
+# sigma of scale level l: exp(LOG_SIGMA0 + LOG_SIGMA_STEP * l), 0.11 at level 0 to 512 at level 63
+LOG_SIGMA0 = math.log(0.11)
+LOG_SIGMA_STEP = math.log(512.0 / 0.11) / 63.0
 
 
 def gaussian_bits(y: torch.Tensor, mu: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
@@ -442,7 +443,7 @@ def rd_loss(mean, level, adj, targets, lam: float) -> tuple[torch.Tensor, torch.
     """(loss, bits) per anchor, summed over the coded channels (a NaN target is an entry that is
     not coded, a dead offset: it costs nothing)."""
     live = torch.isfinite(targets)
-    sigma = torch.exp(_LOG_SIGMA0 + _LOG_SIGMA_STEP * level)
+    sigma = torch.exp(LOG_SIGMA0 + LOG_SIGMA_STEP * level)
     y = _ste_round(torch.where(live, targets, 0.0) * torch.exp2(-adj / 4))
     bits = (gaussian_bits(y, mean, sigma) * live).sum(1)
     dist = (torch.exp2(adj / 2) / 12 * live).sum(1)
@@ -473,19 +474,9 @@ def train_ggconv_twin(coords2, parent, coords1, attrs1, targets, num_features: i
                       neighbours: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[GGConvParams, GGConvFloat]:
     """``fit_ggconv`` that also returns the trained float twin (in quantized mode)."""
     cfg = config or GGConvTrainConfig()
-    attrs1 = np.asarray(attrs1, dtype=np.int64)
-    m = attrs1.shape[1] if attrs1.ndim == 2 else 0
-    coords2, parent, coords1, attrs1 = check_level2_inputs(m, coords2, parent, coords1, attrs1, voxel_scale)
-    # the model's mean is a 16-bit activation: targets beyond it are escapes whatever the model says,
-    # and clipping them keeps the loss finite (values 1e8 steps away made the fit diverge)
-    targets = np.clip(np.asarray(targets, dtype=np.float64), ACT_MIN, ACT_MAX)
-    n = coords2.shape[0]
-    if targets.shape != (n, m) or not 1 <= num_features <= m:
-        raise ValueError("coords2 [N2, 3], parent [N2] and targets [N2, M] must agree")
-    if n == 0:
-        raise ValueError("no level-2 anchors to fit on")
-    if cfg.neighbour_level not in (1, 2):
-        raise ValueError(f"neighbour_level must be 1 or 2, got {cfg.neighbour_level}")
+    coords2, parent, coords1, attrs1, targets = _checked_fit_inputs(coords2, parent, coords1, attrs1, targets,
+                                                                    num_features, voxel_scale, cfg)
+    n = targets.shape[0]
     parent_attrs = attrs1[parent]  # encoder side: the training set's inputs, gathered once
     level1 = (coords1, attrs1)
     radius_sq = cfg.radius_sq if cfg.radius_sq is not None else \
@@ -495,39 +486,14 @@ def train_ggconv_twin(coords2, parent, coords1, attrs1, targets, num_features: i
     rows = np.sort(rng.permutation(n)[:cfg.max_train_anchors]).astype(np.int64)
     data = _prepare(coords2, parent_attrs, targets, voxel_scale, num_features, cfg.k, radius_sq, cfg.grid,
                     rows, neighbours, cfg.neighbour_level, level1)
-    t = rows.size
-
-    # column scales (powers of two, folded into the first layers at export)
-    fi = data.feat_in
-    fstd = float(fi[:, :num_features].std()) if fi.shape[0] > 1 else 1.0
-    feat_q = torch.tensor([_pow2_scale(fstd)] * num_features + [2.0 ** -GRID_FRAC_BITS] * 3, dtype=torch.float64)
-    hr = data.head_raw
-    xstd = hr[:, 4:].std(0) if t > 1 else torch.ones(m, dtype=torch.float64)
-    head_q_raw = torch.tensor([_pow2_scale(float(voxel_scale) / 2)] * 3 + [2.0 ** -3]
-                              + [_pow2_scale(float(s)) for s in xstd], dtype=torch.float64)
-
-    if cfg.init is not None:
-        feat_q, head_q_raw = cfg.init.feat_q.clone(), cfg.init.head_q_raw.clone()
-    model = GGConvFloat(num_features, m, cfg, feat_q, head_q_raw)
+    model = _initial_twin(data, num_features, voxel_scale, cfg)
     model.radius_sq = radius_sq
     model.neighbour_level = cfg.neighbour_level
-    if cfg.init is not None:
-        model.load_state_dict(cfg.init.state)  # the sizes come from the twin (encode.twin_train_config)
-        with torch.no_grad():  # the twin learned the rate alone: its step adjustments start at 0, as in a fresh fit
-            last = model.head[1].lin
-            last.weight[2 * m:] = 0.0
-            last.bias[2 * m:] = 0.25
-    else:
-        init_mean_outputs(model, data.targets, hr[:, 4:], cfg.parent_base)
     # One-cycle learning rate (warm-up, then cosine decay): measured on a 20k-anchor procedural
     # scene, it converges in a quarter of the steps of a constant rate.
     bar = progress_bar(total=cfg.float_steps + cfg.qat_steps, desc="fit GG-Conv", disable=not cfg.progress, unit="step")
     _train_phase(model, data, cfg, rng, cfg.lr, cfg.float_steps, bar)
-    stats: dict = {}
-    with torch.no_grad():
-        for lo in range(0, t, 8192):
-            model(_batch(data, torch.arange(lo, min(t, lo + 8192))), collect=stats)
-    model.start_quantization(stats)
+    _start_quantization(model, data)
     export = lambda mdl: mdl.export(num_features, cfg.k, radius_sq, cfg.neighbour_level)  # noqa: E731
     best, best_model = export(model), model
     if cfg.qat_steps:
@@ -547,6 +513,63 @@ def train_ggconv_twin(coords2, parent, coords1, attrs1, targets, num_features: i
         bar.set_postfix(kept="QAT" if best_model is model else "PTQ")
     bar.close()
     return best, best_model
+
+
+def _checked_fit_inputs(coords2, parent, coords1, attrs1, targets, num_features: int, voxel_scale: int,
+                        cfg: GGConvTrainConfig) -> tuple:
+    """The inputs of ``fit_ggconv`` as arrays (attrs1 int64, targets float64 [N2, M] clipped to
+    the 16-bit activation range); ValueError when they disagree or there is nothing to fit."""
+    attrs1 = np.asarray(attrs1, dtype=np.int64)
+    m = attrs1.shape[1] if attrs1.ndim == 2 else 0
+    coords2, parent, coords1, attrs1 = check_level2_inputs(m, coords2, parent, coords1, attrs1, voxel_scale)
+    # the model's mean is a 16-bit activation: targets beyond it are escapes whatever the model says,
+    # and clipping them keeps the loss finite (values 1e8 steps away made the fit diverge)
+    targets = np.clip(np.asarray(targets, dtype=np.float64), ACT_MIN, ACT_MAX)
+    n = coords2.shape[0]
+    if targets.shape != (n, m) or not 1 <= num_features <= m:
+        raise ValueError("coords2 [N2, 3], parent [N2] and targets [N2, M] must agree")
+    if n == 0:
+        raise ValueError("no level-2 anchors to fit on")
+    if cfg.neighbour_level not in (1, 2):
+        raise ValueError(f"neighbour_level must be 1 or 2, got {cfg.neighbour_level}")
+    return coords2, parent, coords1, attrs1, targets
+
+
+def _initial_twin(data: _Data, num_features: int, voxel_scale: int, cfg: GGConvTrainConfig) -> GGConvFloat:
+    """The float twin before training: column scales from the training rows' spread and output
+    biases from the targets, or, with ``cfg.init``, the given twin's scales and weights."""
+    t, m = data.targets.shape
+    # column scales (powers of two, folded into the first layers at export)
+    fi = data.feat_in
+    fstd = float(fi[:, :num_features].std()) if fi.shape[0] > 1 else 1.0
+    feat_q = torch.tensor([pow2_scale(fstd)] * num_features + [2.0 ** -GRID_FRAC_BITS] * 3, dtype=torch.float64)
+    hr = data.head_raw
+    xstd = hr[:, 4:].std(0) if t > 1 else torch.ones(m, dtype=torch.float64)
+    head_q_raw = torch.tensor([pow2_scale(float(voxel_scale) / 2)] * 3 + [2.0 ** -3]
+                              + [pow2_scale(float(s)) for s in xstd], dtype=torch.float64)
+
+    if cfg.init is not None:
+        feat_q, head_q_raw = cfg.init.feat_q.clone(), cfg.init.head_q_raw.clone()
+    model = GGConvFloat(num_features, m, cfg, feat_q, head_q_raw)
+    if cfg.init is not None:
+        model.load_state_dict(cfg.init.state)  # the sizes come from the twin (encode.twin_train_config)
+        with torch.no_grad():  # the twin learned the rate alone: its step adjustments start at 0, as in a fresh fit
+            last = model.head[1].lin
+            last.weight[2 * m:] = 0.0
+            last.bias[2 * m:] = 0.25
+    else:
+        init_mean_outputs(model, data.targets, hr[:, 4:], cfg.parent_base)
+    return model
+
+
+def _start_quantization(model: GGConvFloat, data: _Data) -> None:
+    """Switch the twin to its quantized mode, with activation ranges from one pass over the training rows."""
+    t = data.targets.shape[0]
+    stats: dict = {}
+    with torch.no_grad():
+        for lo in range(0, t, 8192):
+            model(_batch(data, torch.arange(lo, min(t, lo + 8192))), collect=stats)
+    model.start_quantization(stats)
 
 
 def choose_parent_base(targets: torch.Tensor, xpar: torch.Tensor, mode: str = "choose"
@@ -574,7 +597,7 @@ def choose_parent_base(targets: torch.Tensor, xpar: torch.Tensor, mode: str = "c
 
 def level_of_spread(spread: torch.Tensor) -> torch.Tensor:
     """The (real-valued) scale level whose nominal sigma is ``spread`` steps."""
-    return ((spread.log() - _LOG_SIGMA0) / _LOG_SIGMA_STEP).clamp(0, NUM_LEVELS - 1)
+    return ((spread.log() - LOG_SIGMA0) / LOG_SIGMA_STEP).clamp(0, NUM_LEVELS - 1)
 
 
 def init_mean_outputs(model: GGConvFloat, targets: torch.Tensor, xpar: torch.Tensor, mode: str = "choose") -> None:

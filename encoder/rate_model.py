@@ -36,8 +36,11 @@ from torch import nn
 from ..common.context.ggconv import GRID_FRAC_BITS, grid_coordinate, neighbour_graph, trilinear_corners
 from ..common.geometry import normative_order
 from ..common.hierarchy import build_hierarchy
-from .ggconv_train import (_LOG_SIGMA0, _LOG_SIGMA_STEP, ContextTwin, GGConvFloat, GGConvTrainConfig, _pow2_scale,
-                                        default_radius_sq, gaussian_bits, init_mean_outputs)
+from .ggconv_train import LOG_SIGMA0 as _LOG_SIGMA0
+from .ggconv_train import LOG_SIGMA_STEP as _LOG_SIGMA_STEP
+from .ggconv_train import (ContextTwin, GGConvFloat, GGConvTrainConfig, default_radius_sq, gaussian_bits,
+                           init_mean_outputs)
+from .ggconv_train import pow2_scale as _pow2_scale
 
 
 def _ste_round(x: torch.Tensor) -> torch.Tensor:

@@ -2,7 +2,7 @@
 
 A small plain-3DGS (Kerbl et al. 2023) trainer, to compare with lghcc-train's Scaffold-GS
 scenes under the same renderer (render/rasterizer.py), data loading, initialization, loss and
-test metrics, all imported from encoder/train.py and render/metrics.py.
+test metrics, all imported from encoder/training/ (lghcc-train), render/datasets.py and render/metrics.py.
 
 * Gaussians: position, log-scale (3), quaternion (w, x, y, z), opacity logit, SH degree 0
   colour (DC coefficient; colour = max(0, C0 dc + 0.5) as 3DGS).
@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import os
 
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see encoder/train.py
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see encoder/training/__init__.py
 
 import argparse  # noqa: E402
 import json
@@ -45,8 +45,10 @@ import torch
 
 from ..common.errors import InputError, LghccError
 from ..app.fileio import atomic_write_bytes
-from .train import (TrainConfig, _background, _expon_lr, _knn_mean_dist, camera_extent,
-                                 init_points, load_dataset)
+from ..render.datasets import load_dataset, parse_background
+from .training.config import TrainConfig
+from .training.data import camera_extent, init_points, knn_mean_dist
+from .training.parameters import expon_lr
 from ..render.gaussians3dgs import write_3dgs_ply
 from ..render.metrics import psnr, ssim, ssim_torch
 from ..render.rasterizer import rasterize
@@ -88,12 +90,12 @@ class Trainer3DGS:
         self.cfg, self.ds = cfg, ds
         self.rng = np.random.default_rng(cfg.seed)
         torch.manual_seed(cfg.seed)
-        self.bg = torch.as_tensor(_background(cfg.background), dtype=torch.float32)
+        self.bg = torch.as_tensor(parse_background(cfg.background), dtype=torch.float32)
         self.extent = camera_extent(ds.train)
         self.train_images = [torch.as_tensor(np.asarray(c.image, np.float32)) for c in ds.train]
         pts = init_points(ds, TrainConfig(data=cfg.data, init="auto", init_points=cfg.init_points), self.rng)
         n = len(pts)
-        d = _knn_mean_dist(pts)
+        d = knn_mean_dist(pts)
         q = np.zeros((n, 4)); q[:, 0] = 1
         init = {"means": pts, "log_scales": np.repeat(np.log(d)[:, None], 3, 1), "quats": q,
                 "opacity_logits": np.full(n, math.log(0.1 / 0.9)), "sh_dc": np.zeros((n, 1, 3))}
@@ -137,8 +139,8 @@ class Trainer3DGS:
         it = self.iteration + 1
         for g in self.opt.param_groups:
             if g["name"] == "means":
-                g["lr"] = _expon_lr(it, cfg.position_lr_init * self.extent, cfg.position_lr_final * self.extent,
-                                    cfg.iterations)
+                g["lr"] = expon_lr(it, cfg.position_lr_init * self.extent, cfg.position_lr_final * self.extent,
+                                   cfg.iterations)
         vi = self._next_view()
         cam, gt = self.ds.train[vi], self.train_images[vi]
         img = self.render(cam)

@@ -220,23 +220,26 @@ def test_decoder_renders_and_evaluates_a_dataset_folder(tmp_path, teacher, capsy
 def test_train_init_sfm_on_a_mipnerf360_folder(tmp_path, teacher, capsys):
     """lghcc-train on sparse/0 + images_2 with --downscale 2 --init sfm: the anchors start from
     the model's points3D (it failed on an LLFF folder that had sparse/0/points3D.bin)."""
-    from lghcc.encoder import train as T
+    from lghcc.encoder import train as train_cli
+    from lghcc.encoder.training.config import TrainConfig
+    from lghcc.encoder.training.data import init_points
+    from lghcc.render.datasets import load_dataset
 
     _, pts = make_colmap(tmp_path / "data", teacher, scales=(2,), poses_bounds=True)
     argv = [str(tmp_path / "data"), "-o", str(tmp_path / "run"), "--iterations", "3", "--downscale", "2",
             "--init", "sfm", "--feature-dim", "4", "--num-offsets", "2", "--eval-interval", "3", "--threads", "1",
             "-q"]
-    assert T.main(argv) == 0
+    assert train_cli.main(argv) == 0
     out = capsys.readouterr().out
     assert "finished at iteration 3" in out
-    cfg = T.TrainConfig(data=str(tmp_path / "data"), downscale=2, init="sfm")
-    ds = T.load_dataset(cfg.data, "white", 2)
-    np.testing.assert_allclose(T.init_points(ds, cfg, np.random.default_rng(0)), pts)
+    cfg = TrainConfig(data=str(tmp_path / "data"), downscale=2, init="sfm")
+    ds = load_dataset(cfg.data, "white", 2)
+    np.testing.assert_allclose(init_points(ds, cfg, np.random.default_rng(0)), pts)
     # a dataset without points3D: --init sfm says so
     shutil.rmtree(tmp_path / "data" / "sparse")
-    ds = T.load_dataset(cfg.data, "white", 2)
+    ds = load_dataset(cfg.data, "white", 2)
     with pytest.raises(InputError, match="--init sfm needs a COLMAP model with points3D"):
-        T.init_points(ds, cfg, np.random.default_rng(0))
+        init_points(ds, cfg, np.random.default_rng(0))
 
 
 @pytest.mark.data

@@ -50,9 +50,9 @@ def test_cuda_without_gsplat_names_what_is_missing(monkeypatch):
 
 
 def test_train_refuses_cuda_before_loading_data(no_cuda, tmp_path, capsys):
-    from lghcc.encoder import train as T
+    from lghcc.encoder import train as train_cli
 
-    rc = T.main([str(tmp_path / "no_such_images"), "-o", str(tmp_path / "run"), "--device", "cuda"])
+    rc = train_cli.main([str(tmp_path / "no_such_images"), "-o", str(tmp_path / "run"), "--device", "cuda"])
     err = capsys.readouterr().err
     assert rc == 1 and "lghcc-train: error: no CUDA device:" in err and err.count("\n") == 1
     assert not (tmp_path / "run").exists()
@@ -71,11 +71,11 @@ def test_encoder_refuses_cuda_before_transcoding(no_cuda, tmp_path, capsys):
 def test_training_rasterizes_through_the_seam(fake_gpu, tmp_path):
     from test_train import make_dataset, tiny_config
 
-    from lghcc.encoder import train as T
+    from lghcc.encoder.training.loop import train
 
     data = make_dataset(tmp_path / "d", n_train=3, n_test=1)
-    res = T.train(tiny_config(data, iterations=3, device="cuda"), tmp_path / "run", progress=False,
-                  log=lambda *a: None)
+    res = train(tiny_config(data, iterations=3, device="cuda"), tmp_path / "run", progress=False,
+                log=lambda *a: None)
     assert res.iteration == 3 and len(fake_gpu) >= 3  # every training step (evaluation renders on the CPU)
     assert "device: cuda" in (tmp_path / "run" / "config.yaml").read_text()
 

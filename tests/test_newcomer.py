@@ -105,7 +105,7 @@ def test_every_decoder_output_follows_the_overwrite_rule(tmp_path, small_stream,
 
 
 def test_train_refuses_an_existing_run_unless_resume_or_overwrite(tmp_path, capsys):
-    from lghcc.encoder.train import _check_fresh_output
+    from lghcc.encoder.train import check_fresh_output
 
     run = tmp_path / "run"
     (run / "point_cloud" / "iteration_10").mkdir(parents=True)
@@ -114,8 +114,8 @@ def test_train_refuses_an_existing_run_unless_resume_or_overwrite(tmp_path, caps
     from lghcc.common.errors import InputError
 
     with pytest.raises(InputError, match="already holds a training run; use --resume .* -y"):
-        _check_fresh_output(run, overwrite=False)
-    _check_fresh_output(run, overwrite=True)
+        check_fresh_output(run, overwrite=False)
+    check_fresh_output(run, overwrite=True)
     assert sorted(p.name for p in run.iterdir()) == ["notes.txt"]  # only the run's own files went
 
 

@@ -11,9 +11,15 @@ import pytest
 import torch
 
 from lghcc.common.errors import InputError
+from lghcc.encoder import train as train_cli
+from lghcc.encoder.training.checkpoints import STATE_NAME, TMP_PREFIX, write_checkpoint_folder
+from lghcc.encoder.training.config import TrainConfig
+from lghcc.encoder.training.data import init_points
+from lghcc.encoder.training.evaluation import evaluate_model, render_image
+from lghcc.encoder.training.loop import Trainer, train
+from lghcc.render.datasets import load_dataset
 from lghcc.formats.scaffold_io import read_scaffold
 from lghcc.common.scene import AnchorScene, RenderMLP
-from lghcc.encoder import train as T
 from lghcc.render.camera import Camera
 from lghcc.render.imageio import write_png
 from lghcc.render.rasterizer import render_scene
@@ -74,25 +80,25 @@ def data(tmp_path_factory):
     return make_dataset(tmp_path_factory.mktemp("tiny"))
 
 
-def tiny_config(data, **kw) -> T.TrainConfig:
+def tiny_config(data, **kw) -> TrainConfig:
     base = dict(data=str(data), iterations=30, feature_dim=8, num_offsets=3, init_points=400, threads=1,
                 eval_interval=1000, checkpoint_interval=1000, stats_from=2, densify_from=6, densify_until=24,
                 densify_interval=6, seed=3)
     base.update(kw)
-    return T.TrainConfig(**base)
+    return TrainConfig(**base)
 
 
-def _train_psnr(tr: T.Trainer) -> float:
+def _train_psnr(tr: Trainer) -> float:
     from lghcc.render.metrics import psnr
 
     scene = tr.to_scene()
-    return float(np.mean([psnr(T.render_image(scene, c, tr.bg), c.image) for c in tr.ds.train]))
+    return float(np.mean([psnr(render_image(scene, c, tr.bg), c.image) for c in tr.ds.train]))
 
 
 def test_training_reduces_loss(data, tmp_path):
     cfg = tiny_config(data, iterations=80, densify_from=1000)  # optimization only (growing: below)
     torch.set_num_threads(1)
-    tr = T.Trainer(cfg, T.load_dataset(data), tmp_path)
+    tr = Trainer(cfg, load_dataset(data), tmp_path)
     tr.fresh()
     before = _train_psnr(tr)
     losses = [tr.step()["loss"] for _ in range(cfg.iterations)]
@@ -106,7 +112,7 @@ def test_training_reduces_loss(data, tmp_path):
 def test_growing_and_pruning_keep_optimizer_in_step(data, tmp_path):
     cfg = tiny_config(data, densify_grad_threshold=0.0, min_opacity=0.5)  # force both
     torch.set_num_threads(1)
-    tr = T.Trainer(cfg, T.load_dataset(data), tmp_path)
+    tr = Trainer(cfg, load_dataset(data), tmp_path)
     tr.fresh()
     n0 = tr.num_anchors
     counts = []
@@ -126,14 +132,14 @@ def test_growing_and_pruning_keep_optimizer_in_step(data, tmp_path):
 
 def test_resume_is_exact(data, tmp_path):
     cfg = tiny_config(data, iterations=24, checkpoint_interval=5, eval_interval=10)
-    a = T.train(cfg, tmp_path / "a", progress=False, log=lambda *x: None)
+    a = train(cfg, tmp_path / "a", progress=False, log=lambda *x: None)
     assert a.finished and a.iteration == 24
-    b1 = T.train(cfg, tmp_path / "b", stop_after=13, progress=False, log=lambda *x: None)
+    b1 = train(cfg, tmp_path / "b", stop_after=13, progress=False, log=lambda *x: None)
     assert not b1.finished and b1.iteration == 13
-    b = T.train(cfg, tmp_path / "b", resume=True, progress=False, log=lambda *x: None)
+    b = train(cfg, tmp_path / "b", resume=True, progress=False, log=lambda *x: None)
     assert b.finished and b.iteration == 24
-    sa = torch.load(tmp_path / "a" / T.STATE_NAME, weights_only=False)
-    sb = torch.load(tmp_path / "b" / T.STATE_NAME, weights_only=False)
+    sa = torch.load(tmp_path / "a" / STATE_NAME, weights_only=False)
+    sb = torch.load(tmp_path / "b" / STATE_NAME, weights_only=False)
     assert torch.equal(sa["coords"], sb["coords"])
     for k in sa["params"]:
         assert torch.equal(sa["params"][k], sb["params"][k]), k
@@ -172,14 +178,14 @@ def test_checkpoint_folder_is_atomic(data, tmp_path, monkeypatch):
 
     monkeypatch.setattr(scaffold_io, "atomic_output", dying)
     with pytest.raises(KeyboardInterrupt):
-        T.train(cfg, tmp_path / "run", progress=False, log=lambda *x: None)
+        train(cfg, tmp_path / "run", progress=False, log=lambda *x: None)
     pc = tmp_path / "run" / "point_cloud"
     assert sorted(d.name for d in pc.iterdir() if not d.name.startswith(".")) == ["iteration_5"]
-    assert any(d.name.startswith(T.TMP_PREFIX) for d in pc.iterdir())  # the half-written folder, hidden
+    assert any(d.name.startswith(TMP_PREFIX) for d in pc.iterdir())  # the half-written folder, hidden
     scene = read_scaffold(tmp_path / "run")  # the newest complete checkpoint, with its MLPs
     assert set(scene.mlps) == {"opacity", "cov", "color"}
     monkeypatch.setattr(scaffold_io, "atomic_output", real)
-    res = T.train(cfg, tmp_path / "run", resume=True, progress=False, log=lambda *x: None)
+    res = train(cfg, tmp_path / "run", resume=True, progress=False, log=lambda *x: None)
     assert res.finished and res.iteration == 15
     # resumed from iteration 5 (its state was saved before the kill); leftovers removed
     assert sorted(d.name for d in pc.iterdir()) == ["iteration_10", "iteration_15", "iteration_5"]
@@ -187,7 +193,7 @@ def test_checkpoint_folder_is_atomic(data, tmp_path, monkeypatch):
         assert (pc / f"iteration_{it}" / scaffold_io.CHECKPOINT_NAME).is_file()
     # a checkpoint written again for the same iteration replaces the folder whole
     before = (pc / "iteration_15" / "point_cloud.ply").read_bytes()
-    folder = T.write_checkpoint_folder(res.scene, tmp_path / "run", 15)
+    folder = write_checkpoint_folder(res.scene, tmp_path / "run", 15)
     assert folder == pc / "iteration_15" and (folder / "point_cloud.ply").read_bytes() == before
     assert sorted(d.name for d in pc.iterdir()) == ["iteration_10", "iteration_15", "iteration_5"]
 
@@ -197,31 +203,32 @@ def test_resume_extends_a_finished_run(data, tmp_path, capsys):
     30 whose learning-rate decays span 20; a smaller count is refused; no count: a message."""
     quiet = dict(progress=False, log=lambda *x: None)
     cfg = tiny_config(data, iterations=20, checkpoint_interval=10, eval_interval=10)
-    a = T.train(cfg, tmp_path / "a", **quiet)
+    a = train(cfg, tmp_path / "a", **quiet)
     assert a.finished and a.iteration == 20
     logs = []
-    b = T.train(cfg, tmp_path / "a", resume=True, iterations=30, progress=False, log=logs.append)
+    b = train(cfg, tmp_path / "a", resume=True, iterations=30, progress=False, log=logs.append)
     assert b.finished and b.iteration == 30 and "extended from 20 to 30" in logs[0]
     assert [h["iteration"] for h in b.history] == [10, 20, 30]
     assert "iterations: 30" in (tmp_path / "a" / "config.yaml").read_text()
-    ref = T.train(tiny_config(data, iterations=30, checkpoint_interval=10, eval_interval=10,
-                              lr_schedule_iterations=20), tmp_path / "ref", **quiet)
-    sa = torch.load(tmp_path / "a" / T.STATE_NAME, weights_only=False)
-    sr = torch.load(tmp_path / "ref" / T.STATE_NAME, weights_only=False)
+    ref = train(tiny_config(data, iterations=30, checkpoint_interval=10, eval_interval=10,
+                            lr_schedule_iterations=20), tmp_path / "ref", **quiet)
+    sa = torch.load(tmp_path / "a" / STATE_NAME, weights_only=False)
+    sr = torch.load(tmp_path / "ref" / STATE_NAME, weights_only=False)
     for k in sa["params"]:
         assert torch.equal(sa["params"][k], sr["params"][k]), k
     assert [h["psnr"] for h in b.history] == [h["psnr"] for h in ref.history]
     with pytest.raises(InputError, match="already at iteration 30; --iterations 25 cannot shorten it"):
-        T.train(cfg, tmp_path / "a", resume=True, iterations=25, **quiet)
+        train(cfg, tmp_path / "a", resume=True, iterations=25, **quiet)
     logs = []
-    c = T.train(cfg, tmp_path / "a", resume=True, progress=False, log=logs.append)
+    c = train(cfg, tmp_path / "a", resume=True, progress=False, log=logs.append)
     assert c.iteration == 30 and any("already finished at iteration 30" in m for m in logs)
     # the command line: --iterations given on --resume extends; other settings are reported as ignored
     capsys.readouterr()
-    assert T.main(["-o", str(tmp_path / "a"), "--resume", "--iterations", "36", "--feature-dim", "4", "-q"]) == 0
+    assert train_cli.main(["-o", str(tmp_path / "a"), "--resume", "--iterations", "36", "--feature-dim", "4",
+                           "-q"]) == 0
     cap = capsys.readouterr()
     assert "finished at iteration 36" in cap.out and "ignored: --feature-dim" in cap.err
-    assert T.main(["-o", str(tmp_path / "a"), "--resume", "-q"]) == 0
+    assert train_cli.main(["-o", str(tmp_path / "a"), "--resume", "-q"]) == 0
     assert "already finished at iteration 36" in capsys.readouterr().out
 
 
@@ -230,7 +237,7 @@ def test_checkpoint_reads_back_and_encodes(data, tmp_path):
     from lghcc.encoder.cli import main as enc_main
 
     cfg = tiny_config(data, iterations=12)
-    res = T.train(cfg, tmp_path / "run", progress=False, log=lambda *x: None)
+    res = train(cfg, tmp_path / "run", progress=False, log=lambda *x: None)
     # with the voxel size given, the anchor grid reads back exactly; inferred, up to float32 rounding
     exact = read_scaffold(tmp_path / "run", voxel_size=res.scene.voxel_size)
     np.testing.assert_array_equal(exact.coords, res.scene.coords)
@@ -248,7 +255,7 @@ def test_checkpoint_reads_back_and_encodes(data, tmp_path):
     assert enc_main([str(tmp_path / "run"), "-o", str(out), "-q"]) == 0
     dec = decode_stream(out.read_bytes())
     assert dec.scene.num_anchors == scene.num_anchors
-    r = T.evaluate_model(tmp_path / "run", data)
+    r = evaluate_model(tmp_path / "run", data)
     assert r["views"] == 3 and math.isfinite(r["psnr"])
     assert abs(r["psnr"] - res.history[-1]["psnr"]) < 1e-3  # what training reported for its last iteration
 
@@ -257,15 +264,15 @@ def test_bad_inputs_name_the_file(data, tmp_path):
     import shutil
 
     with pytest.raises(InputError, match="nowhere"):
-        T.load_dataset(tmp_path / "nowhere")
+        load_dataset(tmp_path / "nowhere")
     with pytest.raises(InputError, match="transforms_train.json"):
-        T.load_dataset(tmp_path)  # a folder without any known layout
+        load_dataset(tmp_path)  # a folder without any known layout
 
     bad = tmp_path / "missing_image"
     shutil.copytree(data, bad)
     (bad / "train" / "r_2.png").unlink()
     with pytest.raises(InputError, match=r"transforms_train\.json.*r_2"):
-        T.load_dataset(bad)
+        load_dataset(bad)
 
     bad = tmp_path / "bad_camera"
     shutil.copytree(data, bad)
@@ -273,18 +280,18 @@ def test_bad_inputs_name_the_file(data, tmp_path):
     meta["frames"][1]["transform_matrix"] = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]
     (bad / "transforms_train.json").write_text(json.dumps(meta))
     with pytest.raises(InputError, match=r"transforms_train\.json.*frame 1"):
-        T.load_dataset(bad)
+        load_dataset(bad)
 
     bad = tmp_path / "bad_size"
     shutil.copytree(data, bad)
     write_png(bad / "test" / "r_1.png", np.zeros((SIZE, SIZE + 4, 3)))
     with pytest.raises(InputError, match=r"transforms_test\.json.*different sizes"):
-        T.load_dataset(bad)
+        load_dataset(bad)
     write_png(bad / "train" / "r_5.png", np.zeros((SIZE // 2, SIZE // 2, 3)))  # a training image, same aspect
     write_png(bad / "train" / "r_6.png", np.zeros((SIZE, SIZE + 4, 3)))
     with pytest.raises(InputError, match=rf"transforms_train\.json: image 'r_5' is {SIZE // 2}x{SIZE // 2} but 'r_0' "
                                          rf"\(the first view\) is {SIZE}x{SIZE}: the images have different sizes"):
-        T.load_dataset(bad)
+        load_dataset(bad)
 
     bad = tmp_path / "no_angle"
     shutil.copytree(data, bad)
@@ -292,34 +299,34 @@ def test_bad_inputs_name_the_file(data, tmp_path):
     del meta["camera_angle_x"]
     (bad / "transforms_train.json").write_text(json.dumps(meta))
     with pytest.raises(InputError, match=r"transforms_train\.json"):
-        T.load_dataset(bad)
+        load_dataset(bad)
 
 
 def test_cli(data, tmp_path, capsys):
     with pytest.raises(SystemExit) as e:
-        T.main(["--help"])
+        train_cli.main(["--help"])
     assert e.value.code == 0
     assert "--resume" in capsys.readouterr().out
-    assert T.main([str(tmp_path / "nothing"), "-o", str(tmp_path / "o")]) == 1
+    assert train_cli.main([str(tmp_path / "nothing"), "-o", str(tmp_path / "o")]) == 1
     assert "nothing" in capsys.readouterr().err
     cfg = tmp_path / "c.yaml"
     cfg.write_text("iterations: 4\nfeature-dim: 8\nnum_offsets: 2\ninit_points: 200\nthreads: 1\n")
-    assert T.main([str(data), "-o", str(tmp_path / "o"), "--config", str(cfg), "--iterations", "3", "-q"]) == 0
+    assert train_cli.main([str(data), "-o", str(tmp_path / "o"), "--config", str(cfg), "--iterations", "3", "-q"]) == 0
     saved = (tmp_path / "o" / "config.yaml").read_text()
     assert "iterations: 3" in saved and "feature_dim: 8" in saved and "num_offsets: 2" in saved
     # an option given on the command line wins over the file even when it equals the default
     cfg.write_text("iterations: 4\nseed: 5\n")
-    args = T.setup_args().parse_args(argv := [str(data), "-o", "x", "--config", str(cfg), "--seed", "0"])
-    c = T.config_from_args(args, argv)
-    assert (c.seed, c.iterations, c.feature_dim) == (0, 4, T.TrainConfig().feature_dim)
+    args = train_cli.setup_args().parse_args(argv := [str(data), "-o", "x", "--config", str(cfg), "--seed", "0"])
+    c = train_cli.config_from_args(args, argv)
+    assert (c.seed, c.iterations, c.feature_dim) == (0, 4, TrainConfig().feature_dim)
     capsys.readouterr()
-    assert T.main([str(data), "--evaluate", str(tmp_path / "o"), "--threads", "1"]) == 0
+    assert train_cli.main([str(data), "--evaluate", str(tmp_path / "o"), "--threads", "1"]) == 0
     assert "test PSNR" in capsys.readouterr().out
-    assert T.main([str(data), "-o", str(tmp_path / "o"), "-q"]) == 1  # refuses to overwrite a run
+    assert train_cli.main([str(data), "-o", str(tmp_path / "o"), "-q"]) == 1  # refuses to overwrite a run
     assert "--resume" in capsys.readouterr().err
     bad = tmp_path / "bad.yaml"
     bad.write_text("iteratons: 4\n")
-    assert T.main([str(data), "-o", str(tmp_path / "p"), "--config", str(bad)]) == 1
+    assert train_cli.main([str(data), "-o", str(tmp_path / "p"), "--config", str(bad)]) == 1
     assert "iteratons" in capsys.readouterr().err
 
 
@@ -339,13 +346,13 @@ def test_llff_layout_trains(tmp_path):
                                [[SIZE], [SIZE], [cam.fx]]], 1)
         rows.append(np.concatenate([pose.reshape(-1), [1.5, 4.5]]))
     np.save(tmp_path / "poses_bounds.npy", np.array(rows))
-    ds = T.load_dataset(tmp_path, background="black")
+    ds = load_dataset(tmp_path, background="black")
     assert ds.kind == "llff" and len(ds.train) == 7 and len(ds.test) == 2
     np.testing.assert_allclose(ds.train[0].center, cams[1].center, atol=1e-9)
     cfg = tiny_config(tmp_path, iterations=4, background="black", eval_interval=4)
-    res = T.train(cfg, tmp_path / "run", progress=False, log=lambda *x: None)
+    res = train(cfg, tmp_path / "run", progress=False, log=lambda *x: None)
     assert res.finished and math.isfinite(res.history[-1]["psnr"])
-    pts = T.init_points(ds, cfg, np.random.default_rng(0))
+    pts = init_points(ds, cfg, np.random.default_rng(0))
     depth = np.array([c.world_to_camera_points(pts)[:, 2] for c in ds.train])
     assert pts.shape == (cfg.init_points, 3) and (depth.max(0) > 1.0).all()
 
@@ -388,7 +395,7 @@ def test_colmap_layout_composites_on_the_chosen_background_and_trains(shared_dat
     was always black, so a white-background run compared white renders with black truth)."""
     alphas = _lego_colmap(shared_data, tmp_path)
     for spec, want in (("white", [1.0, 1.0, 1.0]), ("black", [0.0, 0.0, 0.0]), ("0.2,0.4,0.6", [0.2, 0.4, 0.6])):
-        ds = T.load_dataset(tmp_path, background=spec)
+        ds = load_dataset(tmp_path, background=spec)
         assert ds.kind == "colmap" and len(ds.train) == 8 and len(ds.test) == 2 and ds.sfm_points.shape == (2000, 3)
         for cam in ds.train + ds.test:
             clear = alphas[cam.name] == 0
@@ -398,8 +405,8 @@ def test_colmap_layout_composites_on_the_chosen_background_and_trains(shared_dat
     cfg = tiny_config(tmp_path, iterations=40, background="white", init="sfm", eval_interval=40,
                       stats_from=1000, densify_from=1000)
     torch.set_num_threads(1)
-    res = T.train(cfg, tmp_path / "run", progress=False, log=lambda *x: None)
-    ds = T.load_dataset(tmp_path, background="white")
+    res = train(cfg, tmp_path / "run", progress=False, log=lambda *x: None)
+    ds = load_dataset(tmp_path, background="white")
     from lghcc.render.metrics import psnr
 
     white = float(np.mean([psnr(np.ones_like(c.image), c.image) for c in ds.test]))  # background only
@@ -417,17 +424,17 @@ def test_rate_distortion_phase_lowers_the_estimated_rate_and_resumes_exactly(dat
     kw = dict(iterations=40, densify_until=12, checkpoint_interval=5, eval_interval=20, rate_lambda=0.05,
               rate_step=0.05, rate_voxel_scale=2)
     cfg = tiny_config(data, **kw)
-    a = T.train(cfg, tmp_path / "a", progress=False, log=lambda *x: None)
+    a = train(cfg, tmp_path / "a", progress=False, log=lambda *x: None)
     bits = [h["rate_bits_per_anchor"] for h in a.history]
     assert len(bits) == 2 and bits[-1] < bits[0]
-    plain = T.train(tiny_config(data, **{**kw, "rate_lambda": 0.0}), tmp_path / "p", progress=False,
-                    log=lambda *x: None)
+    plain = train(tiny_config(data, **{**kw, "rate_lambda": 0.0}), tmp_path / "p", progress=False,
+                  log=lambda *x: None)
     assert "rate_bits_per_anchor" not in plain.history[-1]
-    b1 = T.train(cfg, tmp_path / "b", stop_after=27, progress=False, log=lambda *x: None)
+    b1 = train(cfg, tmp_path / "b", stop_after=27, progress=False, log=lambda *x: None)
     assert b1.iteration == 27
-    b = T.train(cfg, tmp_path / "b", resume=True, progress=False, log=lambda *x: None)
-    sa = torch.load(tmp_path / "a" / T.STATE_NAME, weights_only=False)
-    sb = torch.load(tmp_path / "b" / T.STATE_NAME, weights_only=False)
+    b = train(cfg, tmp_path / "b", resume=True, progress=False, log=lambda *x: None)
+    sa = torch.load(tmp_path / "a" / STATE_NAME, weights_only=False)
+    sb = torch.load(tmp_path / "b" / STATE_NAME, weights_only=False)
     for k in sa["params"]:
         assert torch.equal(sa["params"][k], sb["params"][k]), k
     for k, v in sa["rate"]["model"].items():
@@ -437,10 +444,10 @@ def test_rate_distortion_phase_lowers_the_estimated_rate_and_resumes_exactly(dat
 
 def test_rate_phase_must_follow_the_last_growing(data, tmp_path):
     with pytest.raises(InputError, match="fixed anchor set"):
-        T.train(tiny_config(data, rate_lambda=0.01, rate_from=5), tmp_path / "x", progress=False,
-                log=lambda *x: None)
+        train(tiny_config(data, rate_lambda=0.01, rate_from=5), tmp_path / "x", progress=False,
+              log=lambda *x: None)
     with pytest.raises(InputError, match="rate-lambda"):
-        T.train(tiny_config(data, rate_lambda=-1.0), tmp_path / "y", progress=False, log=lambda *x: None)
+        train(tiny_config(data, rate_lambda=-1.0), tmp_path / "y", progress=False, log=lambda *x: None)
 
 
 @pytest.mark.parametrize("method", ["naap", "opacity"])
@@ -450,24 +457,24 @@ def test_pruning_after_growing_keeps_the_ratio_trains_on_and_resumes_exactly(dat
     training continues on it; an interrupted run resumes bit for bit across the pruning."""
     cfg = tiny_config(data, iterations=30, densify_until=12, prune=method, prune_keep=0.5, checkpoint_interval=5,
                       eval_interval=30)
-    a = T.train(cfg, tmp_path / "a", progress=False, log=lambda *x: None)
-    ref = T.train(tiny_config(data, iterations=30, densify_until=12, checkpoint_interval=5, eval_interval=30),
-                  tmp_path / "r", stop_after=12, progress=False, log=lambda *x: None)  # the same run, unpruned
+    a = train(cfg, tmp_path / "a", progress=False, log=lambda *x: None)
+    ref = train(tiny_config(data, iterations=30, densify_until=12, checkpoint_interval=5, eval_interval=30),
+                tmp_path / "r", stop_after=12, progress=False, log=lambda *x: None)  # the same run, unpruned
     assert a.scene.num_anchors == round(0.5 * ref.scene.num_anchors)
     assert a.history[-1]["pruning"].startswith(method)
     kept = {tuple(c) for c in a.scene.coords.tolist()}
     assert kept <= {tuple(c) for c in ref.scene.coords.tolist()}
     assert np.isfinite(a.scene.offsets).all() and np.isfinite(a.scene.scalings).all()
-    T.train(cfg, tmp_path / "b", stop_after=10, progress=False, log=lambda *x: None)
-    b = T.train(cfg, tmp_path / "b", resume=True, progress=False, log=lambda *x: None)
+    train(cfg, tmp_path / "b", stop_after=10, progress=False, log=lambda *x: None)
+    b = train(cfg, tmp_path / "b", resume=True, progress=False, log=lambda *x: None)
     assert np.array_equal(a.scene.features, b.scene.features) and np.array_equal(a.scene.offsets, b.scene.offsets)
 
 
 def test_pruning_options_are_checked(data, tmp_path):
     with pytest.raises(InputError, match="prune-keep"):
-        T.train(tiny_config(data, prune="naap", prune_keep=0.0), tmp_path / "x", progress=False, log=lambda *x: None)
+        train(tiny_config(data, prune="naap", prune_keep=0.0), tmp_path / "x", progress=False, log=lambda *x: None)
     with pytest.raises(InputError, match="prune-at"):
-        T.train(tiny_config(data, prune="opacity", prune_at=3), tmp_path / "y", progress=False, log=lambda *x: None)
+        train(tiny_config(data, prune="opacity", prune_at=3), tmp_path / "y", progress=False, log=lambda *x: None)
 
 
 def test_rate_phase_resumes_older_checkpoints(data, tmp_path, monkeypatch):
@@ -477,15 +484,15 @@ def test_rate_phase_resumes_older_checkpoints(data, tmp_path, monkeypatch):
     kw = dict(iterations=30, densify_until=12, checkpoint_interval=5, eval_interval=30, rate_lambda=0.05,
               rate_step=0.05, rate_voxel_scale=2)
     cfg = tiny_config(data, **kw)
-    T.train(cfg, tmp_path / "a", stop_after=20, progress=False, log=lambda *x: None)
-    path = tmp_path / "a" / T.STATE_NAME
+    train(cfg, tmp_path / "a", stop_after=20, progress=False, log=lambda *x: None)
+    path = tmp_path / "a" / STATE_NAME
     state = torch.load(path, weights_only=False)
     assert state["rate"]["model"].pop("twin.parent_base").numel() > 0
     torch.save(state, path)
     saved_shape = state["rate"]["model"]["twin.table"].shape
     from lghcc.encoder import config as C
     monkeypatch.setattr(C, "CONTEXT_MODEL_SIZES", ((None, (3, 5, 7, 16)),))  # a size rule changed since
-    res = T.train(cfg, tmp_path / "a", resume=True, progress=False, log=lambda *x: None)
+    res = train(cfg, tmp_path / "a", resume=True, progress=False, log=lambda *x: None)
     assert res.iteration == 30
     resumed = torch.load(path, weights_only=False)["rate"]["model"]
     assert torch.equal(resumed["twin.parent_base"], torch.ones_like(resumed["twin.parent_base"]))
@@ -505,13 +512,13 @@ def test_rate_trained_run_saves_a_context_twin_that_the_encoder_starts_from(data
     from lghcc.encoder.ggconv_train import TWIN_FILE, find_context_twin
 
     run = tmp_path / "run"
-    T.train(tiny_config(data, iterations=40, densify_until=12, rate_lambda=0.05, rate_step=0.05,
-                        rate_voxel_scale=2), run, progress=False, log=lambda *x: None)
+    train(tiny_config(data, iterations=40, densify_until=12, rate_lambda=0.05, rate_step=0.05,
+                      rate_voxel_scale=2), run, progress=False, log=lambda *x: None)
     assert (locate_ply(run).parent / TWIN_FILE).is_file()
     twin = find_context_twin(run)
     assert (twin.voxel_scale, twin.k, twin.step, twin.num_features, twin.num_attrs) == (2, 8, 0.05, 8, 8 + 6 + 9)
     plain = tmp_path / "plain"
-    T.train(tiny_config(data, iterations=14), plain, progress=False, log=lambda *x: None)
+    train(tiny_config(data, iterations=14), plain, progress=False, log=lambda *x: None)
     assert find_context_twin(plain) is None  # no rate phase: no twin
 
     scene = read_scaffold(run)

@@ -62,7 +62,8 @@ def main(argv=None) -> int:
     twin = find_context_twin(args.input) if args.input else None  # as lghcc-enc: the training's GG-Conv twin
     test = None
     if args.data:
-        from lghcc.encoder.train import evaluate_scene, load_dataset
+        from lghcc.encoder.training.evaluation import evaluate_scene
+        from lghcc.render.datasets import load_dataset
 
         test = load_dataset(args.data, args.background).test
     source = args.input or f"procedural scene, {scene.num_anchors:,} anchors (seed 0)"

@@ -64,7 +64,8 @@ def main(argv=None) -> int:
     from lghcc.decoder.decode import decode_stream
     from lghcc.encoder.config import load_config
     from lghcc.encoder.encode import encode_scene
-    from lghcc.encoder.train import evaluate_scene, load_dataset
+    from lghcc.encoder.training.evaluation import evaluate_scene
+    from lghcc.render.datasets import load_dataset
 
     torch.set_num_threads(args.threads)
     scene = read_scaffold(args.scene)

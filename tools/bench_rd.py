@@ -85,7 +85,8 @@ def main(argv=None) -> int:
     from lghcc.encoder.config import load_config
     from lghcc.encoder.encode import encode_scene
     from lghcc.encoder.ggconv_train import find_context_twin
-    from lghcc.encoder.train import evaluate_scene, load_dataset
+    from lghcc.encoder.training.evaluation import evaluate_scene
+    from lghcc.render.datasets import load_dataset
 
     torch.set_num_threads(args.threads)
     test = load_dataset(args.data, args.background).test

@@ -25,7 +25,7 @@ from __future__ import annotations
 import os
 
 # Before torch is imported (OpenMP reads it once): without it, OpenMP threads spin at barriers and
-# on a shared machine a 2-thread 100k-Gaussian forward took 7.55 s instead of 1.81 s (see encoder/train.py).
+# on a shared machine a 2-thread 100k-Gaussian forward took 7.55 s instead of 1.81 s (see encoder/training/__init__.py).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import argparse  # noqa: E402

@@ -23,16 +23,19 @@ def main(argv=None) -> int:
 
     from lghcc.common.errors import LghccError
     from lghcc.formats.scaffold_io import locate_ply
-    from lghcc.encoder import train as T
+    from lghcc.encoder.training.checkpoints import read_train_state
+    from lghcc.encoder.training.config import TrainConfig
+    from lghcc.encoder.training.loop import Trainer
+    from lghcc.render.datasets import load_dataset
     from lghcc.encoder.ggconv_train import TWIN_FILE
 
     torch.set_num_threads(1)
     status = 0
     for run in map(Path, args.runs):
         try:
-            state = T.read_train_state(run)
-            cfg = T.TrainConfig(**state["config"])
-            tr = T.Trainer(cfg, T.load_dataset(cfg.data, cfg.background, cfg.downscale, cfg.images), run)
+            state = read_train_state(run)
+            cfg = TrainConfig(**state["config"])
+            tr = Trainer(cfg, load_dataset(cfg.data, cfg.background, cfg.downscale, cfg.images), run)
             tr.load_state_dict(state)
             folder = locate_ply(run).parent
         except (OSError, KeyError, LghccError) as e:
