@@ -189,7 +189,7 @@ def check_outputs(args: argparse.Namespace) -> None:
         except LghccError:
             pass  # reported when the scene is read
     check_output_paths({"-o": args.output, "--json": args.json}, inputs)
-    for opt, path in (("-o", args.output), ("--json", args.json)):
+    for path in (args.output, args.json):
         if path:
             check_overwrite(path, args.overwrite)
     if args.device != "cpu":  # checked before minutes of loading and transcoding

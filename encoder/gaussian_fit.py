@@ -33,7 +33,6 @@ import numpy as np
 import torch
 from ..app.progress import progress_bar
 
-from ..common.errors import InputError
 from ..common.scene import GaussianScene
 from .config import GaussianEncoderConfig
 from .gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid
