@@ -136,7 +136,7 @@ def prepare(scene: SceneSpec, lam: float | None, ev: Evaluation, transcode: dict
                 _, pos = _render_3dgs(scene.path, None, bg)
                 cams = orbit(pos, scene, ev)
                 ref, _ = _render_3dgs(scene.path, cams, bg)
-                info.update(transcode_psnr=res.stats.get("psnr_final"), source_kind="3dgs")
+                info.update(transcode_psnr=res.stats.psnr_final, source_kind="3dgs")
             else:
                 anchors = read_scaffold(scene.path)
                 from ..formats.scaffold_io import locate_ply

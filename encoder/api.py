@@ -102,8 +102,8 @@ def load_source(path: str | Path | None = None, *, mode: str = "gaussians", proc
                               distill_steps=o.distill_steps, views=o.views, resolution=o.resolution,
                               feature_dim=o.feature_dim, num_offsets=o.num_offsets, device=o.device, progress=progress)
         res = transcode_3dgs(str(p), cfg, log=log)
-        log(f"transcoded in {res.stats['time_total_s']:.1f} s: {res.scene.num_anchors:,} anchors, held-out PSNR "
-            f"against the source renders {res.stats['psnr_final']:.2f} dB")
+        log(f"transcoded in {res.stats.time_total_s:.1f} s: {res.scene.num_anchors:,} anchors, held-out PSNR "
+            f"against the source renders {res.stats.psnr_final:.2f} dB")
         return res.scene
     if mode == "anchors" and is_gaussian_file(p):
         raise InputError(f"{p}: --mode anchors transcodes 3DGS PLY files only; convert it to .ply first "
@@ -174,7 +174,7 @@ def _encode_gaussians(scene: GaussianScene, cfg, *, progress: bool, log: Log, me
     from .gaussians import encode_gaussian_scene
 
     t0 = time.perf_counter()
-    weights, prep_stats = None, {}
+    weights, prepared = None, None
     if cfg.rd_lambda > 0 or cfg.target_psnr > 0 or cfg.fit_iterations > 0 or cfg.prune_share > 0:
         goal = (f", choosing settings for {cfg.target_psnr:g} dB" if cfg.target_psnr
                 else f", choosing settings for lambda {cfg.rd_lambda:g}" if cfg.rd_lambda else "")
@@ -182,15 +182,15 @@ def _encode_gaussians(scene: GaussianScene, cfg, *, progress: bool, log: Log, me
             f"{cfg.fit_views} views" + goal
             + (f", then {cfg.fit_iterations} fitting steps" if cfg.fit_iterations else ""))
         prep = prepare_gaussians(scene, cfg, log=log, progress=progress)
-        scene, weights, cfg, prep_stats = prep.scene, prep.weights, prep.cfg, prep.stats
+        scene, weights, cfg, prepared = prep.scene, prep.weights, prep.cfg, prep.stats
     result = encode_gaussian_scene(scene, cfg, weights=weights, progress=progress, measure_ideal=measure_ideal)
-    result.stats.update({f"prepare_{k}": v for k, v in prep_stats.items()})
+    result.stats.prepare = prepared
     bands = ", ".join(f"{s:.3g}" for s in cfg.sh_band_steps[:result.decoded.sh_degree])
-    result.stats["settings"] = (
-        f"pruned {prep_stats.get('gaussians_pruned', 0):,} Gaussians; position step {cfg.position_step:.3g} x the "
-        f"typical size; steps SH DC {cfg.sh_dc_step:.3g}" + (f", bands {bands}" if bands else "")
+    result.stats.settings = (
+        f"pruned {prepared.gaussians_pruned if prepared else 0:,} Gaussians; position step {cfg.position_step:.3g} x "
+        f"the typical size; steps SH DC {cfg.sh_dc_step:.3g}" + (f", bands {bands}" if bands else "")
         + f", opacity {cfg.opacity_step:.3g}, scale {cfg.scale_step:.3g}, rotation {cfg.rotation_step:.3g}")
-    result.stats["time_total_s"] = time.perf_counter() - t0
+    result.stats.time_total_s = time.perf_counter() - t0
     return result, cfg
 
 
@@ -216,5 +216,5 @@ def encode(scene: AnchorScene | GaussianScene, cfg=None, *, progress: bool = Fal
             from ..common.errors import HashMismatchError  # exit status 3, as lghcc-enc --help says
 
             raise HashMismatchError("internal error: the written stream does not decode to the encoded scene")
-        result.stats["verified"] = True
+        result.stats.verified = True
     return result, cfg

@@ -8,6 +8,7 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 # torch's OpenMP threads wait passively: spinning against other jobs on a shared machine made a
 # transcode take 178.6 s instead of 72.1 s. Set before torch is imported; a user's own setting wins.
@@ -19,6 +20,10 @@ from ..app.cliargs import OVERWRITE_RULE, add_overwrite_options, add_version_opt
 from ..common.errors import LghccError
 from ..app.fileio import atomic_write_bytes, check_output_paths, check_overwrite, write_error
 from .api import is_gaussian_file  # noqa: F401  (lghcc-enc's test of its input; kept importable here)
+
+if TYPE_CHECKING:
+    from .encode import EncodeResult
+    from .stats import EncodeStats
 
 
 def _duration(seconds: float) -> str:
@@ -55,20 +60,20 @@ Progress goes to stderr: a bar on a terminal, a line every 10 s in a log
 """
 
 
-def setup_args() -> argparse.ArgumentParser:
+def _epilog() -> str:
+    return OVERWRITE_RULE + "\n\n" + exit_status_epilog(
+        {EXIT_ERROR: "error in the input or the environment (a scene that cannot be read "
+                     "or coded, an output that cannot be written, an option value)",
+         EXIT_INVALID_STREAM: "the written stream failed its own decoding check (a bug: "
+                              "please report it)",
+         EXIT_RESOURCE_LIMIT: "the system ran out of memory"},
+        codes=(EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INVALID_STREAM, EXIT_RESOURCE_LIMIT, EXIT_INTERRUPTED))
+
+
+def add_source_arguments(p: argparse.ArgumentParser) -> None:
+    """The scene, the output and the preset."""
     from .config import preset_names
 
-    p = argparse.ArgumentParser(prog="lghcc-enc", description=DESCRIPTION, epilog=OVERWRITE_RULE + "\n\n"
-                                + exit_status_epilog(
-                                    {EXIT_ERROR: "error in the input or the environment (a scene that cannot be read "
-                                                 "or coded, an output that cannot be written, an option value)",
-                                     EXIT_INVALID_STREAM: "the written stream failed its own decoding check (a bug: "
-                                                          "please report it)",
-                                     EXIT_RESOURCE_LIMIT: "the system ran out of memory"},
-                                    codes=(EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INVALID_STREAM, EXIT_RESOURCE_LIMIT,
-                                           EXIT_INTERRUPTED)),
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_version_option(p)
     p.add_argument("input", nargs="?", help="a 3DGS scene (INRIA PLY, SPZ or SOG), or a Scaffold-GS model folder, "
                                              "iteration folder or point_cloud.ply")
     p.add_argument("-o", "--output", required=True, help="the .lghcc file to write")
@@ -80,6 +85,10 @@ def setup_args() -> argparse.ArgumentParser:
                    help="rate point (default: medium). 3DGS input: " + ", ".join(preset_names("gaussians"))
                         + "; anchor scenes: " + ", ".join(preset_names()))
     p.add_argument("--config", metavar="YAML", help="YAML file overriding preset options")
+
+
+def add_anchor_arguments(p: argparse.ArgumentParser) -> None:
+    """The coding of anchor scenes: steps, voxel size, pruning, duplicates."""
     p.add_argument("--feature-step", type=float, help="quantization step of anchor features")
     p.add_argument("--scaling-step", type=float, help="quantization step of the log scalings")
     p.add_argument("--offset-step", type=float, help="quantization step of the offsets")
@@ -95,6 +104,9 @@ def setup_args() -> argparse.ArgumentParser:
     pr.add_argument("--prune-tau", type=float, metavar="TAU", help="or: prune anchors whose importance is below TAU")
     p.add_argument("--merge-duplicates", action="store_true",
                    help="merge anchors that fall in the same voxel (attributes averaged) instead of failing")
+
+
+def add_gaussian_arguments(p: argparse.ArgumentParser) -> None:
     gs = p.add_argument_group("plain 3DGS input (an SPZ or SOG file, or a PLY with f_dc_0 and no f_anchor_feat_0)")
     gs.add_argument("--mode", choices=("gaussians", "anchors"), default="gaussians",
                     help="gaussians (default): code every Gaussian explicitly; anchors: transcode to an anchor "
@@ -111,6 +123,9 @@ def setup_args() -> argparse.ArgumentParser:
     gs.add_argument("--fit-iterations", type=int, metavar="N",
                     help="steps tuning the kept Gaussians to the source renders (0: none)")
     gs.add_argument("--sh-degree", type=int, choices=(0, 1, 2, 3), help="code at most this SH degree")
+
+
+def add_transcode_arguments(p: argparse.ArgumentParser) -> None:
     t = p.add_argument_group("anchor transcoding of plain 3DGS input (--mode anchors)")
     t.add_argument("--transcode-anchors", type=int, metavar="N",
                    help="target anchor count of the transcoded scene (default: a quarter of the Gaussians)")
@@ -126,6 +141,10 @@ def setup_args() -> argparse.ArgumentParser:
     t.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                    help="where transcoding renders: cpu (default), or cuda (gsplat's CUDA rasterizer: pip install "
                         "'lghcc[gsplat]'); coding itself is the same on every machine")
+
+
+def add_run_arguments(p: argparse.ArgumentParser) -> None:
+    """Overwriting, checks, reports."""
     add_overwrite_options(p, "output files (-o, --json)")
     p.add_argument("--allow-no-mlps", action="store_true",
                    help="code an anchor scene that has no render MLPs (its decoded scene can then be neither "
@@ -139,6 +158,17 @@ def setup_args() -> argparse.ArgumentParser:
                         "(context_twin.pt; by default the GG-Conv fit also starts from it, the smaller stream kept)")
     p.add_argument("--json", metavar="FILE", help="also write the size breakdown and timings as JSON")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors and warnings")
+
+
+def setup_args() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="lghcc-enc", description=DESCRIPTION, epilog=_epilog(),
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_version_option(p)
+    add_source_arguments(p)
+    add_anchor_arguments(p)
+    add_gaussian_arguments(p)
+    add_transcode_arguments(p)
+    add_run_arguments(p)
     return p
 
 
@@ -148,15 +178,9 @@ def main(argv: list[str] | None = None) -> int:
     return run_cli("lghcc-enc", _main, argv)
 
 
-def _main(argv: list[str] | None) -> int:
-    from . import api
-
-    args = setup_args().parse_args(argv)
-    say = (lambda *a: None) if args.quiet else print
-    log = (lambda *a: None) if args.quiet else (lambda msg: print(f"lghcc-enc: {msg}", file=sys.stderr, flush=True))
-    # A failure is reported by run_cli: one line, and the exit status of its kind (lghcc.app.cli_common).
-    out = Path(args.output)
-    # Every output is checked before encoding: none may overwrite the input or another output.
+def check_outputs(args: argparse.Namespace) -> None:
+    """Every output is checked before encoding: none may overwrite the input or another output;
+    an existing one only with the overwrite option; a --device that is not there."""
     inputs = {"input": args.input, "--config file": args.config}
     if args.input and Path(args.input).is_dir():  # a model folder: its PLY is the input
         from ..formats.scaffold_io import locate_ply
@@ -165,25 +189,31 @@ def _main(argv: list[str] | None) -> int:
         except LghccError:
             pass  # reported when the scene is read
     check_output_paths({"-o": args.output, "--json": args.json}, inputs)
-    for opt, path in (("-o", args.output), ("--json", args.json)):
+    for path in (args.output, args.json):
         if path:
             check_overwrite(path, args.overwrite)
     if args.device != "cpu":  # checked before minutes of loading and transcoding
         from ..render.rasterizer import select_device
         select_device(args.device)
-    gaussians = args.input is not None and args.mode == "gaussians" and api.is_gaussian_file(args.input)
+
+
+def config_overrides(args: argparse.Namespace, gaussians: bool) -> dict:
+    """The options that override the preset, for the kind of scene."""
     if gaussians:
         overrides = {"rd_lambda": args.rd_lambda, "target_psnr": args.target_psnr,
                      "fit_iterations": args.fit_iterations, "sh_degree": args.sh_degree}
         if args.rd_lambda is not None and args.target_psnr is None:
             overrides["target_psnr"] = 0.0  # --lambda given: it replaces the preset's quality
-    else:
-        overrides = {"feature_step": args.feature_step, "scaling_step": args.scaling_step,
-                     "offset_step": args.offset_step, "mlp_weight_bits": args.mlp_weight_bits,
-                     "pruning": args.prune, "prune_keep_ratio": args.prune_keep, "prune_tau": args.prune_tau}
-    from .config import load_config
-    cfg = load_config(args.preset, args.config, overrides, kind="gaussians" if gaussians else "anchors")
-    t0 = time.perf_counter()
+        return overrides
+    return {"feature_step": args.feature_step, "scaling_step": args.scaling_step,
+            "offset_step": args.offset_step, "mlp_weight_bits": args.mlp_weight_bits,
+            "pruning": args.prune, "prune_keep_ratio": args.prune_keep, "prune_tau": args.prune_tau}
+
+
+def load_scene(args: argparse.Namespace):
+    """The scene to code (read, transcoded or procedural), checked to be encodable."""
+    from . import api
+
     transcode = api.TranscodeOptions(
         anchors=args.transcode_anchors, voxel_size=args.transcode_voxel_size, iterations=args.transcode_iterations,
         distill_steps=args.transcode_distill_steps, views=args.transcode_views,
@@ -194,10 +224,15 @@ def _main(argv: list[str] | None) -> int:
                             transcode=transcode, progress=not args.quiet,
                             log=(lambda m: print(m, file=sys.stderr)) if not args.quiet else (lambda m: None),
                             warn=lambda m: print(f"lghcc-enc: warning: {m}", file=sys.stderr))
-    source = args.input if args.input is not None else "procedural"
     api.check_encodable(scene, args.allow_no_mlps, warn=lambda m: print(f"lghcc-enc: warning: {m}",
                                                                          file=sys.stderr))
-    t_load = time.perf_counter() - t0
+    return scene
+
+
+def announce_estimate(args: argparse.Namespace, scene, cfg, log) -> None:
+    """The time a preset that fits a context model will take, before it starts."""
+    from . import api
+
     estimate = api.estimate_seconds(scene, cfg)
     if estimate is not None:
         secs, what = estimate
@@ -205,53 +240,92 @@ def _main(argv: list[str] | None) -> int:
             f"about {_duration(secs)} on 2 CPU threads (tools/results/presets.md); the preset "
             f"{args.preset.removeprefix('lghcc-')} codes with the same steps in seconds. Ctrl-C stops it "
             "and writes nothing")
-    twin = None
+
+
+def context_twin_of(args: argparse.Namespace, gaussians: bool, cfg):
+    """The GG-Conv twin lghcc-train saved beside the scene, when it may be used (else None)."""
     if args.input and not gaussians and not args.no_context_twin and cfg.context_model == "ggconv":
         from .ggconv_train import find_context_twin
-        twin = find_context_twin(args.input)
-    result, cfg = api.encode(scene, cfg, progress=not args.quiet, log=log, measure_ideal=args.report_ideal,
-                             context_twin=twin, verify=not args.no_verify, allow_missing_mlps=args.allow_no_mlps)
-    if twin is not None:
-        why = result.stats.get("context_twin_unused")
-        say("context twin of the training run: " + (f"not used ({why})" if why else
-            "kept (smallest stream)" if result.stats.get("context_parent_base") == "twin" else
-            "tried, a fresh fit coded smaller"))
-    verified = result.stats.get("verified")
+        return find_context_twin(args.input)
+    return None
+
+
+def twin_outcome(stats: EncodeStats) -> str:
+    why = stats.context_twin_unused
+    fit = stats.context_fit
+    return "context twin of the training run: " + (
+        f"not used ({why})" if why else
+        "kept (smallest stream)" if fit is not None and fit.parent_base == "twin" else
+        "tried, a fresh fit coded smaller")
+
+
+def write_outputs(args: argparse.Namespace, result: EncodeResult, scene, cfg, gaussians: bool, source: str) -> None:
+    """The stream, and the --json report."""
+    out = Path(args.output)
     try:
         atomic_write_bytes(out, result.data)
     except OSError as e:
         raise write_error(out, e) from None
-    if args.json:
-        st = result.stats
-        count = {"num_gaussians": result.decoded.num_gaussians} if gaussians else \
-            {"num_anchors": scene.num_anchors}
-        try:
-            atomic_write_bytes(args.json, json.dumps({
-                "input": source, "output": str(out), **count,
-                "bytes": len(result.data), "breakdown": result.breakdown.bytes_by_category, "stats": st,
-                "scene_sha256": result.scene_hash.hex(), "config": vars(cfg)}, indent=2).encode())
-        except OSError as e:
-            raise write_error(args.json, e) from None
+    if not args.json:
+        return
+    count = {"num_gaussians": result.decoded.num_gaussians} if gaussians else {"num_anchors": scene.num_anchors}
+    try:
+        atomic_write_bytes(args.json, json.dumps({
+            "input": source, "output": str(out), **count,
+            "bytes": len(result.data), "breakdown": result.breakdown.bytes_by_category, "stats": result.stats.to_json(),
+            "scene_sha256": result.scene_hash.hex(), "config": vars(cfg)}, indent=2).encode())
+    except OSError as e:
+        raise write_error(args.json, e) from None
+
+
+def print_summary(say, args: argparse.Namespace, result: EncodeResult, scene, gaussians: bool, source: str,
+                  t_load: float) -> None:
     st = result.stats
-    if "pruning" in st:
-        say(st["pruning"])
+    if st.pruning is not None:
+        say(st.pruning)
     if gaussians:
         d = result.decoded
-        say(f"{source}: {scene.num_gaussians:,} Gaussians (SH degree {scene.sh_degree}) -> {out}: {d.num_gaussians:,} "
-            f"Gaussians, SH degree {d.sh_degree} ({len(result.data):,} bytes, "
+        say(f"{source}: {scene.num_gaussians:,} Gaussians (SH degree {scene.sh_degree}) -> {Path(args.output)}: "
+            f"{d.num_gaussians:,} Gaussians, SH degree {d.sh_degree} ({len(result.data):,} bytes, "
             f"{8 * len(result.data) / scene.num_gaussians:.1f} bits per source Gaussian)")
-        if "settings" in st:
-            say("settings: " + st["settings"])
+        if st.settings is not None:
+            say("settings: " + st.settings)
     else:
-        say(f"{source}: {result.decoded.num_anchors:,} anchors, C={scene.feature_dim}, K={scene.num_offsets} -> {out} "
-            f"({len(result.data):,} bytes)")
+        say(f"{source}: {result.decoded.num_anchors:,} anchors, C={scene.feature_dim}, K={scene.num_offsets} -> "
+            f"{Path(args.output)} ({len(result.data):,} bytes)")
     say(result.breakdown.table())
     if args.report_ideal:
-        overhead = st["attribute_coded_bits"] / max(st["attribute_ideal_bits"], 1) - 1
-        say(f"attribute coding: {st['attribute_coded_bits']:,} bits, {100 * overhead:+.3f}% over the model's ideal")
-    say(f"time: load {t_load:.2f} s, encode {st['time_total_s']:.2f} s"
-        + ("" if not verified else ", decoded and verified: hash matches"))
+        overhead = st.attribute_coded_bits / max(st.attribute_ideal_bits, 1) - 1
+        say(f"attribute coding: {st.attribute_coded_bits:,} bits, {100 * overhead:+.3f}% over the model's ideal")
+    say(f"time: load {t_load:.2f} s, encode {st.time_total_s:.2f} s"
+        + ("" if not st.verified else ", decoded and verified: hash matches"))
     say(f"decoded scene SHA-256: {result.scene_hash.hex()}")
+
+
+def _main(argv: list[str] | None) -> int:
+    from . import api
+    from .config import load_config
+
+    args = setup_args().parse_args(argv)
+    say = (lambda *a: None) if args.quiet else print
+    log = (lambda *a: None) if args.quiet else (lambda msg: print(f"lghcc-enc: {msg}", file=sys.stderr, flush=True))
+    # A failure is reported by run_cli: one line, and the exit status of its kind (lghcc.app.cli_common).
+    check_outputs(args)
+    gaussians = args.input is not None and args.mode == "gaussians" and api.is_gaussian_file(args.input)
+    cfg = load_config(args.preset, args.config, config_overrides(args, gaussians),
+                      kind="gaussians" if gaussians else "anchors")
+    t0 = time.perf_counter()
+    scene = load_scene(args)
+    source = args.input if args.input is not None else "procedural"
+    t_load = time.perf_counter() - t0
+    announce_estimate(args, scene, cfg, log)
+    twin = context_twin_of(args, gaussians, cfg)
+    result, cfg = api.encode(scene, cfg, progress=not args.quiet, log=log, measure_ideal=args.report_ideal,
+                             context_twin=twin, verify=not args.no_verify, allow_missing_mlps=args.allow_no_mlps)
+    if twin is not None:
+        say(twin_outcome(result.stats))
+    write_outputs(args, result, scene, cfg, gaussians, source)
+    print_summary(say, args, result, scene, gaussians, source, t_load)
     return 0
 
 

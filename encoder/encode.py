@@ -8,7 +8,9 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
+from collections.abc import Iterator
 
 import numpy as np
 from ..app.progress import progress_bar
@@ -25,14 +27,16 @@ from ..common.hashing import scene_digest
 from ..common.render_model import dequantize, write_render_model_unit
 from ..app.report import SizeBreakdown, breakdown_of
 from ..common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene, GaussianScene, RenderMLP
-from ..common.hierarchy import build_hierarchy
+from ..common.hierarchy import Hierarchy, build_hierarchy
 from ..common.units import (CONTEXT_PER_CHANNEL_PRIOR, LEVEL_1, LEVEL_2, LEVEL_ALL, MASK_PROB_BITS, MAX_ANCHORS,
                                 MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, MAX_PREDICTED_MAGNITUDE, PRIOR_MEAN_MAX,
-                                AttributeUnitHeader, DecodedSceneHashUnit, RenderMlpHeader, SceneParameterSet)
-from .config import EncoderConfig, context_model_size
+                                AttributeUnitHeader, DecodedSceneHashUnit, GaussianParameterSet, RenderMlpHeader,
+                                SceneParameterSet)
+from .config import AttributeCodingConfig, EncoderConfig, context_model_size
 from .context_fit import ContextFitError, fit_level2_context
 from .ggconv_train import ContextTwin, GGConvTrainConfig
 from .prediction import fit_channel_prediction
+from .stats import ContextFitStats, EncodeStats, LevelStats
 
 UNIT_FRAMING_BYTES = UNIT_HEADER_BYTES + UNIT_CRC_BYTES
 MAX_QUANTIZED_MAGNITUDE = 2 ** 52  # |x / step| beyond this cannot be rounded exactly in float64
@@ -54,10 +58,10 @@ class EncodeResult:
     breakdown: SizeBreakdown
     decoded: AnchorScene | GaussianScene  # the scene the decoder will output, bit for bit
     scene_hash: bytes
-    stats: dict = field(default_factory=dict)
+    stats: EncodeStats = field(default_factory=EncodeStats)
 
 
-def context_train_config(cfg: EncoderConfig, num_level2: int, neighbour_level: int, parent_base: str,
+def context_train_config(cfg: AttributeCodingConfig, num_level2: int, neighbour_level: int, parent_base: str,
                          progress: bool) -> GGConvTrainConfig:
     """The fit of one candidate context model: its neighbour level and parent_base mode (the
     encoder tries each the configuration's "auto" calls for), the rest from the configuration."""
@@ -69,7 +73,7 @@ def context_train_config(cfg: EncoderConfig, num_level2: int, neighbour_level: i
                              progress=progress)
 
 
-def twin_train_config(cfg: EncoderConfig, twin: ContextTwin, num_level2: int, progress: bool) -> GGConvTrainConfig:
+def twin_train_config(cfg: AttributeCodingConfig, twin: ContextTwin, num_level2: int, progress: bool) -> GGConvTrainConfig:
     """The fit started from a twin trained with the scene: its sizes, graph and parent_base,
     16-bit weights (a twin trained in float for thousands of steps lost 2x its bits at 8: on the
     rate-trained lego, 413 against 198 bits per level-2 anchor), a shorter float phase at a
@@ -160,189 +164,101 @@ def quantize_render_model(mlps: dict[str, RenderMLP], bits: int):
     return write_render_model_unit(headers, tensors), decoded
 
 
+@contextmanager
+def stage(bar, name: str) -> Iterator[None]:
+    """One step of the encoder's progress bar: named while it runs, counted when it ends."""
+    bar.set_postfix_str(name)
+    yield
+    bar.update()
+
+
+def prune(scene: AnchorScene, cfg: EncoderConfig, stats: EncodeStats) -> AnchorScene:
+    """The configured pruning, reported in ``stats`` (none: the scene as it is)."""
+    if cfg.pruning == "none":
+        return scene
+    scene, report = prune_scene(scene, cfg)
+    stats.pruning = str(report)
+    stats.anchors_before_pruning = report.num_before
+    return scene
+
+
+def check_point_count(n: int, what: str) -> None:
+    if n > MAX_ANCHORS:
+        raise InputError(f"{n} {what} exceed the profile's limit of {MAX_ANCHORS}")
+
+
 @dataclass
-class CodedAttributes:
-    """The attribute units of a scene and what they decode to."""
-    payloads: list[bytes]  # one per level
-    context_payload: bytes | None
-    recon: np.ndarray  # float32 [N, M]: the decoded values, bit for bit
+class GeometryCoding:
+    """The points in normative order and their geometry unit."""
+    order: np.ndarray  # indices into the scene, in normative order
+    coords: np.ndarray  # the coordinates in that order
+    payload: bytes
 
 
-def level_layout(num_points: int, cfg, coords: np.ndarray, stats: dict):
-    """-> (levels [(attribute_level, rows)], hierarchy or None): one level of every point, or
-    level 1 and level 2 when the configuration asks for the hierarchy and level 2 is not empty
-    (an empty level 2 switches the hierarchy off: it costs no bits)."""
-    levels = [(LEVEL_ALL, np.arange(num_points))]
-    hier = None
+def code_geometry(coords: np.ndarray) -> GeometryCoding:
+    order = normative_order(coords)
+    ordered = coords[order]
+    return GeometryCoding(order, ordered, encode_geometry(ordered))
+
+
+@dataclass
+class LevelLayout:
+    """The attribute levels [(attribute_level, rows)] and the hierarchy that defines them (None:
+    one level of every point)."""
+    levels: list[tuple[int, np.ndarray]]
+    hier: Hierarchy | None
+
+
+def level_layout(num_points: int, cfg: AttributeCodingConfig, coords: np.ndarray,
+                 stats: EncodeStats) -> LevelLayout:
+    """One level of every point, or level 1 and level 2 when the configuration asks for the
+    hierarchy and level 2 is not empty (an empty level 2 switches the hierarchy off: it costs
+    no bits)."""
     if cfg.hierarchy:
         hier = build_hierarchy(coords, cfg.coarse_voxel_scale)
         if hier.num_level2:
-            levels = [(LEVEL_1, hier.level1_idx), (LEVEL_2, hier.level2_idx)]
-            stats["num_level1"], stats["num_level2"] = hier.num_level1, hier.num_level2
-        else:
-            hier = None
-    return levels, hier
+            stats.num_level1, stats.num_level2 = hier.num_level1, hier.num_level2
+            return LevelLayout([(LEVEL_1, hier.level1_idx), (LEVEL_2, hier.level2_idx)], hier)
+    return LevelLayout([(LEVEL_ALL, np.arange(num_points))], None)
 
 
-def code_attributes(values: np.ndarray, live: np.ndarray, mask: np.ndarray | None, coords: np.ndarray, levels,
-                    hier, layout, steps: np.ndarray, cfg, stats: dict, *, progress: bool = False,
-                    measure_ideal: bool = False, context_twin: ContextTwin | None = None) -> CodedAttributes:
-    """Quantize and code the attribute values [N, M] (normative order) level by level: the
-    per-channel prior, and for level 2 the configured context model when it codes smaller
-    (fits of each candidate; the smallest stream is kept). ``live`` bool [N, M]: the values
-    that are coded (dead offsets are not); ``mask``: the offset mask (anchor scenes) or None.
-    Cross-channel prediction is fitted where the layout allows it (Gaussian scenes)."""
-    n = values.shape[0]
-    recon = np.zeros_like(values, dtype=np.float32)
-    payloads = []
-    if measure_ideal:
-        stats["attribute_ideal_bits"] = 0.0
-    stats["attribute_coded_bits"] = 0
-    q_level1 = None
-    context_payload = None
-    predict = bool(layout.channel_prediction_allowed) and getattr(cfg, "channel_prediction", False)
-    for level, rows in levels:
-        level_live = live[rows]
-        level_mask = None if mask is None else mask[rows]
-
-        def new_header() -> AttributeUnitHeader:
-            h = attr.new_attribute_header(layout, rows.size, level)
-            h.rows_per_chunk_minus1 = min(cfg.rows_per_chunk, rows.size) - 1
-            if mask is not None:
-                p = np.clip(np.rint(level_mask.mean(axis=0) * (1 << MASK_PROB_BITS)), 1, (1 << MASK_PROB_BITS) - 1)
-                h.mask_live_prob = [int(x) for x in p]
-            return h
-
-        def code(header: AttributeUnitHeader, q: np.ndarray, params: attr.CodingParams) -> LevelCoding:
-            prediction = None
-            if predict:
-                prediction, levels_after = fit_channel_prediction(q, params, layout, level_live)
-                if header.context_model_id == CONTEXT_PER_CHANNEL_PRIOR:  # the prior's levels follow the residuals
-                    header.prior_level = levels_after.tolist()
-                    params = attr.prior_params(header)
-            payload = attr.write_attribute_unit(header, layout, q, level_mask, params, prediction)
-            return LevelCoding(q, params, payload, header, prediction)
-
-        q = np.where(level_live, quantize(values[rows], steps, "attributes"), 0)
-        if layout.channel_prediction_allowed and np.abs(q).max(initial=0) > MAX_PREDICTED_MAGNITUDE:
-            raise InputError(f"a value is {float(np.abs(q).max()):.3g} quantization steps from zero, beyond the "
-                             "2^40 steps a Gaussian scene allows; use a larger step")
-        header = new_header()
-        means, lv = fit_per_channel_prior(q, level_live, cfg.prior_fit_rows)
-        header.context_model_id = CONTEXT_PER_CHANNEL_PRIOR
-        header.prior_mean, header.prior_level = means.tolist(), lv.tolist()
-        chosen = code(header, q, attr.prior_params(header))
-        if level == LEVEL_2 and cfg.context_model != "per_channel":
-            t2 = time.perf_counter()
-            # dead offsets are not coded: NaN tells the fit to leave them out of the rate
-            targets = np.where(level_live, values[rows] / steps.astype(np.float64), np.nan)
-            # GG-Conv with context_neighbour_level "auto": both neighbour levels are fitted, the
-            # smaller stream is kept (neither wins on every scene: tools/results/context.md).
-            # (the parent MLP has no neighbours: one level, ignored)
-            levels_to_try = [1] if cfg.context_model != "ggconv" else \
-                [1, 2] if cfg.context_neighbour_level == "auto" else [cfg.context_neighbour_level]
-            # and parent_base: "auto" fits the per-channel choice and the parent on every channel
-            bases_to_try = ["choose", "parent"] if cfg.context_parent_base == "auto" else [cfg.context_parent_base]
-            candidates = [(nb_level, base_mode, context_train_config(cfg, rows.size, nb_level, base_mode, progress))
-                          for nb_level, base_mode in itertools.product(levels_to_try, bases_to_try)]
-            if context_twin is not None:
-                candidates.append((context_twin.neighbour_level, "twin",
-                                   twin_train_config(cfg, context_twin, rows.size, progress)))
-            with_context = unit = None
-            for nb_level, base_mode, train_cfg in candidates:
-                try:
-                    fitted = fit_level2_context(cfg.context_model, coords[hier.level1_idx], q_level1, coords[rows],
-                                                hier.parent_of_level2, targets, layout.feature_dim,
-                                                cfg.coarse_voxel_scale, train_cfg)
-                except ContextFitError as e:  # informative: the stream then uses the per-channel prior
-                    stats["context_fit_error"] = str(e)
-                    continue
-                cand_unit = write_context_model_unit(fitted.model_id, fitted.params.to_arrays(), fitted.feat_layers,
-                                                     fitted.head_layers)
-                model = read_context_model(cand_unit, layout)  # exactly what the decoder will use
-                params = level2_coding_params(model, coords[hier.level1_idx], q_level1, coords[rows],
-                                              hier.parent_of_level2, cfg.coarse_voxel_scale).materialize()
-                q_ctx = np.where(level_live, quantize(values[rows], attr.effective_steps(steps, params.step_adjust),
-                                                      "attributes"), 0)
-                header = new_header()
-                header.context_model_id = fitted.model_id
-                cand = code(header, q_ctx, params)
-                cand_bytes = len(cand.payload) + len(cand_unit)
-                if len(levels_to_try) > 1 and base_mode != "twin":
-                    key = f"level2_bytes_with_ggconv_neighbour_level_{nb_level}"
-                    stats[key] = min(stats.get(key, cand_bytes), cand_bytes)
-                if len(bases_to_try) > 1 or base_mode == "twin":
-                    key = f"level2_bytes_with_parent_base_{base_mode}"
-                    stats[key] = min(stats.get(key, cand_bytes), cand_bytes)
-                if with_context is None or cand_bytes < stats["level2_bytes_with_context"]:
-                    with_context, unit = cand, cand_unit
-                    stats["level2_bytes_with_context"] = cand_bytes
-                    stats["context_parent_base"] = base_mode
-            stats["time_context_fit_s"] = time.perf_counter() - t2
-            stats["level2_bytes_per_channel_prior"] = len(chosen.payload)
-            # A context model the scene does not benefit from is not used and costs nothing.
-            if with_context is not None and (not cfg.context_fallback or stats["level2_bytes_with_context"]
-                                             + UNIT_FRAMING_BYTES < len(chosen.payload)):
-                chosen, context_payload = with_context, unit
-        stats[f"level{level}_context_model"] = CONTEXT_MODEL_NAMES[chosen.header.context_model_id]
-        if predict:
-            stats[f"level{level}_channel_predictions"] = chosen.header.num_channel_predictions
-        if level == LEVEL_1:
-            q_level1 = chosen.q
-        payloads.append(chosen.payload)
-        lq, lp = chosen.q, chosen.params
-        if measure_ideal:
-            res = (chosen.prediction or attr.ChannelPrediction.none()).residuals(lq, lp.mean)
-            stats["attribute_ideal_bits"] += ideal_code_length_bits(
-                res[level_live], np.broadcast_to(lp.level, lq.shape)[level_live])
-        stats["attribute_coded_bits"] += 8 * sum(chosen.header.chunk_size)
-        stats[f"attribute_bytes_level{level}"] = len(chosen.payload)
-        with np.errstate(over="ignore", invalid="ignore"):
-            recon[rows] = attr.reconstruct(lq, steps, lp.step_adjust)
-        if not np.isfinite(recon[rows]).all():
-            raise InputError("an attribute value would decode beyond the binary32 range; use a smaller value or step")
-    return CodedAttributes(payloads, context_payload, recon)
+@dataclass
+class AttributeInput:
+    """The attribute values of a scene in normative order, and the parameter set that says how
+    they are coded."""
+    parameter_set: SceneParameterSet | GaussianParameterSet  # exactly the values the decoder will see
+    layout: attr.ChannelLayout | attr.GaussianLayout
+    steps: np.ndarray
+    values: np.ndarray  # [N, M]
+    live: np.ndarray  # bool [N, M]: the values that are coded (dead offsets are not)
+    mask: np.ndarray | None  # bool: the offset mask (anchor scenes; None: every offset live) or None
+    coords: np.ndarray  # the points, in normative order
 
 
-def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress: bool = False,
-                 measure_ideal: bool = False, context_twin: ContextTwin | None = None) -> EncodeResult:
-    """Encode a scene. ``measure_ideal`` also computes the attribute model's ideal code length
-    (stats["attribute_ideal_bits"]), a full extra pass over the symbols. ``context_twin``: the
-    GG-Conv twin trained with the scene (lghcc-train --rate-lambda writes it beside the scene):
-    with a GG-Conv context model, a fit started from it is one more candidate (the smallest
-    stream is kept); a twin that does not fit the configuration is reported in stats and unused."""
-    cfg = (cfg or EncoderConfig()).validate()
-    scene.validate()
-    stats: dict = {}
-    if cfg.pruning != "none":
-        scene, report = prune_scene(scene, cfg)
-        stats["pruning"] = str(report)
-        stats["anchors_before_pruning"] = report.num_before
-    n = scene.num_anchors
-    if n > MAX_ANCHORS:
-        raise InputError(f"{n} anchors exceed the profile's limit of {MAX_ANCHORS}")
-    t0 = time.perf_counter()
-    bar = progress_bar(total=5, desc="encode", unit="step", disable=not progress, leave=False)
-
-    bar.set_postfix_str("geometry")
-    order = normative_order(scene.coords)
-    coords = scene.coords[order]
-    geometry_payload = encode_geometry(coords)
-    stats["time_geometry_s"] = time.perf_counter() - t0
-    bar.update()
-
-    bar.set_postfix_str("quantization")
+def ordered_offset_mask(scene: AnchorScene, order: np.ndarray) -> np.ndarray | None:
     mask = None if scene.offset_mask is None else scene.offset_mask[order].astype(bool)
     if mask is not None and mask.all():
         mask = None  # every offset is live: the mask tool is switched off and costs nothing
-    levels, hier = level_layout(n, cfg, coords, stats)
+    return mask
+
+
+def scene_parameter_set(scene: AnchorScene, cfg: EncoderConfig, mask_present: bool,
+                        hierarchy: bool) -> SceneParameterSet:
     sps = SceneParameterSet(
-        num_anchors_minus1=n - 1, feature_dim_minus1=scene.feature_dim - 1,
+        num_anchors_minus1=scene.num_anchors - 1, feature_dim_minus1=scene.feature_dim - 1,
         num_offsets_minus1=scene.num_offsets - 1, voxel_size=float(scene.voxel_size),
-        origin=[float(x) for x in scene.origin], offset_mask_present_flag=int(mask is not None),
+        origin=[float(x) for x in scene.origin], offset_mask_present_flag=int(mask_present),
         feature_step=cfg.feature_step, scaling_step=cfg.scaling_step, offset_step=cfg.offset_step,
-        hierarchy_enabled_flag=int(len(levels) == 2), coarse_voxel_scale_minus1=cfg.coarse_voxel_scale - 1)
-    sps = SceneParameterSet.from_bytes(sps.to_bytes())  # exactly the values the decoder will see
+        hierarchy_enabled_flag=int(hierarchy), coarse_voxel_scale_minus1=cfg.coarse_voxel_scale - 1)
+    return SceneParameterSet.from_bytes(sps.to_bytes())  # exactly the values the decoder will see
+
+
+def anchor_attribute_input(scene: AnchorScene, geometry: GeometryCoding, levels: LevelLayout,
+                           cfg: EncoderConfig) -> AttributeInput:
+    """The parameter set, and the features, scalings and offsets as attribute values."""
+    n, order = scene.num_anchors, geometry.order
+    mask = ordered_offset_mask(scene, order)
+    sps = scene_parameter_set(scene, cfg, mask is not None, len(levels.levels) == 2)
     layout = attr.layout_of(sps)
     if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
         raise InputError(f"{n} anchors x {layout.num_channels} channels exceed the profile's limit")
@@ -351,44 +267,293 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
     live = layout.live_channels(mask, n)
     if live is None:
         live = np.ones((n, layout.num_channels), dtype=bool)
-    bar.update()
+    return AttributeInput(sps, layout, steps, values, live, mask, geometry.coords)
 
-    bar.set_postfix_str("attributes")
-    t1 = time.perf_counter()
-    twin = None
-    if context_twin is not None and cfg.context_model == "ggconv" and hier is not None:
-        why = context_twin.mismatch(scene.feature_dim, layout.num_channels, cfg.coarse_voxel_scale, cfg.context_k,
-                                    steps)
-        if why:
-            stats["context_twin_unused"] = why
-        else:
-            twin = context_twin
-    coded = code_attributes(values, live, mask, coords, levels, hier, layout, steps, cfg, stats, progress=progress,
-                            measure_ideal=measure_ideal, context_twin=twin)
-    stats["time_attributes_s"] = time.perf_counter() - t1
-    bar.update()
 
-    bar.set_postfix_str("render model")
-    units = [DataUnit(UnitType.SCENE_PARAMETER_SET, sps.to_bytes())]
-    decoded_mlps = {}
-    if scene.mlps:
-        model_payload, decoded_mlps = quantize_render_model(scene.mlps, cfg.mlp_weight_bits)
-        units.append(DataUnit(UnitType.RENDER_MODEL, model_payload))
-    bar.update()
+def usable_context_twin(context_twin: ContextTwin | None, scene: AnchorScene, inp: AttributeInput,
+                        levels: LevelLayout, cfg: EncoderConfig, stats: EncodeStats) -> ContextTwin | None:
+    """The context twin when it is one more candidate of the level-2 fit (a GG-Conv context
+    model, a hierarchy, a twin that fits the configuration; why not is reported in ``stats``)."""
+    if context_twin is None or cfg.context_model != "ggconv" or levels.hier is None:
+        return None
+    why = context_twin.mismatch(scene.feature_dim, inp.layout.num_channels, cfg.coarse_voxel_scale, cfg.context_k,
+                                inp.steps)
+    if why:
+        stats.context_twin_unused = why
+        return None
+    return context_twin
 
-    bar.set_postfix_str("hash")
-    features, scalings, offsets = layout.split(coded.recon)
-    decoded = AnchorScene(coords=coords, voxel_size=float(sps.voxel_size),
-                          origin=np.asarray(sps.origin, dtype=np.float32), features=features, scalings=scalings,
-                          offsets=offsets, offset_mask=mask, mlps=decoded_mlps)
-    digest = scene_digest(decoded)
-    units.append(DataUnit(UnitType.GEOMETRY, geometry_payload))
+
+@dataclass
+class CodedAttributes:
+    """The attribute units of a scene and what they decode to."""
+    payloads: list[bytes]  # one per level
+    context_payload: bytes | None
+    recon: np.ndarray  # float32 [N, M]: the decoded values, bit for bit
+
+
+@dataclass
+class LevelCoder:
+    """Writes the attribute units of one level: its rows, their live values and offset mask."""
+    layout: attr.ChannelLayout | attr.GaussianLayout
+    cfg: AttributeCodingConfig
+    level: int
+    rows: np.ndarray
+    live: np.ndarray
+    mask: np.ndarray | None
+    predict: bool  # cross-channel prediction is fitted (Gaussian scenes that allow it)
+
+    def new_header(self) -> AttributeUnitHeader:
+        h = attr.new_attribute_header(self.layout, self.rows.size, self.level)
+        h.rows_per_chunk_minus1 = min(self.cfg.rows_per_chunk, self.rows.size) - 1
+        if self.mask is not None:
+            p = np.clip(np.rint(self.mask.mean(axis=0) * (1 << MASK_PROB_BITS)), 1, (1 << MASK_PROB_BITS) - 1)
+            h.mask_live_prob = [int(x) for x in p]
+        return h
+
+    def code(self, header: AttributeUnitHeader, q: np.ndarray, params: attr.CodingParams) -> LevelCoding:
+        prediction = None
+        if self.predict:
+            prediction, levels_after = fit_channel_prediction(q, params, self.layout, self.live)
+            if header.context_model_id == CONTEXT_PER_CHANNEL_PRIOR:  # the prior's levels follow the residuals
+                header.prior_level = levels_after.tolist()
+                params = attr.prior_params(header)
+        payload = attr.write_attribute_unit(header, self.layout, q, self.mask, params, prediction)
+        return LevelCoding(q, params, payload, header, prediction)
+
+
+def code_with_prior(coder: LevelCoder, inp: AttributeInput) -> LevelCoding:
+    """The level coded with the per-channel prior fitted to it."""
+    q = np.where(coder.live, quantize(inp.values[coder.rows], inp.steps, "attributes"), 0)
+    if inp.layout.channel_prediction_allowed and np.abs(q).max(initial=0) > MAX_PREDICTED_MAGNITUDE:
+        raise InputError(f"a value is {float(np.abs(q).max()):.3g} quantization steps from zero, beyond the "
+                         "2^40 steps a Gaussian scene allows; use a larger step")
+    header = coder.new_header()
+    means, lv = fit_per_channel_prior(q, coder.live, coder.cfg.prior_fit_rows)
+    header.context_model_id = CONTEXT_PER_CHANNEL_PRIOR
+    header.prior_mean, header.prior_level = means.tolist(), lv.tolist()
+    return coder.code(header, q, attr.prior_params(header))
+
+
+@dataclass
+class ContextCandidate:
+    """One fit of the level-2 context model."""
+    neighbour_level: int
+    parent_base: str  # "choose", "parent", or "twin": started from the context twin
+    train_cfg: GGConvTrainConfig
+
+
+@dataclass
+class ContextCandidates:
+    candidates: list[ContextCandidate]
+    several_neighbour_levels: bool  # their sizes are compared in the stats
+    several_parent_bases: bool
+
+
+def context_candidates(cfg: AttributeCodingConfig, num_level2: int, progress: bool,
+                       twin: ContextTwin | None) -> ContextCandidates:
+    """The fits the configuration calls for. GG-Conv with context_neighbour_level "auto": both
+    neighbour levels (neither wins on every scene: tools/results/context.md; the parent MLP
+    has no neighbours: one level, ignored); parent_base "auto": the per-channel choice and the
+    parent on every channel; and a fit started from the context twin when there is one."""
+    levels_to_try = [1] if cfg.context_model != "ggconv" else \
+        [1, 2] if cfg.context_neighbour_level == "auto" else [cfg.context_neighbour_level]
+    bases_to_try = ["choose", "parent"] if cfg.context_parent_base == "auto" else [cfg.context_parent_base]
+    candidates = [ContextCandidate(nb_level, base_mode, context_train_config(cfg, num_level2, nb_level, base_mode,
+                                                                             progress))
+                  for nb_level, base_mode in itertools.product(levels_to_try, bases_to_try)]
+    if twin is not None:
+        candidates.append(ContextCandidate(twin.neighbour_level, "twin",
+                                           twin_train_config(cfg, twin, num_level2, progress)))
+    return ContextCandidates(candidates, len(levels_to_try) > 1, len(bases_to_try) > 1)
+
+
+def code_with_context_candidate(coder: LevelCoder, inp: AttributeInput, hier: Hierarchy, q_level1: np.ndarray,
+                                targets: np.ndarray, candidate: ContextCandidate) -> tuple[LevelCoding, bytes]:
+    """Fit one candidate context model -> (the level coded with it, its context model unit);
+    ContextFitError when the fit fails."""
+    cfg = coder.cfg
+    coords1, coords2 = inp.coords[hier.level1_idx], inp.coords[coder.rows]
+    fitted = fit_level2_context(cfg.context_model, coords1, q_level1, coords2, hier.parent_of_level2, targets,
+                                inp.layout.feature_dim, cfg.coarse_voxel_scale, candidate.train_cfg)
+    unit = write_context_model_unit(fitted.model_id, fitted.params.to_arrays(), fitted.feat_layers,
+                                    fitted.head_layers)
+    model = read_context_model(unit, inp.layout)  # exactly what the decoder will use
+    params = level2_coding_params(model, coords1, q_level1, coords2, hier.parent_of_level2,
+                                  cfg.coarse_voxel_scale).materialize()
+    q = np.where(coder.live, quantize(inp.values[coder.rows], attr.effective_steps(inp.steps, params.step_adjust),
+                                      "attributes"), 0)
+    header = coder.new_header()
+    header.context_model_id = fitted.model_id
+    return coder.code(header, q, params), unit
+
+
+def record_candidate(ctx: ContextFitStats, candidates: ContextCandidates, candidate: ContextCandidate,
+                     size: int) -> None:
+    if candidates.several_neighbour_levels and candidate.parent_base != "twin":
+        by_level = ctx.bytes_by_neighbour_level
+        by_level[candidate.neighbour_level] = min(by_level.get(candidate.neighbour_level, size), size)
+    if candidates.several_parent_bases or candidate.parent_base == "twin":
+        by_base = ctx.bytes_by_parent_base
+        by_base[candidate.parent_base] = min(by_base.get(candidate.parent_base, size), size)
+
+
+def code_level2_with_context(coder: LevelCoder, inp: AttributeInput, hier: Hierarchy, q_level1: np.ndarray,
+                             with_prior: LevelCoding, twin: ContextTwin | None,
+                             progress: bool) -> tuple[LevelCoding, bytes | None, ContextFitStats]:
+    """Level 2 with the smallest of the context-model fits when it codes smaller than with the
+    per-channel prior -> (the coding kept, its context model unit or None, the fits' stats)."""
+    cfg = coder.cfg
+    t0 = time.perf_counter()
+    ctx = ContextFitStats()
+    # dead offsets are not coded: NaN tells the fit to leave them out of the rate
+    targets = np.where(coder.live, inp.values[coder.rows] / inp.steps.astype(np.float64), np.nan)
+    candidates = context_candidates(cfg, coder.rows.size, progress, twin)
+    best, best_unit = None, None
+    for candidate in candidates.candidates:
+        try:
+            coding, unit = code_with_context_candidate(coder, inp, hier, q_level1, targets, candidate)
+        except ContextFitError as e:  # informative: the stream then uses the per-channel prior
+            ctx.error = str(e)
+            continue
+        size = len(coding.payload) + len(unit)
+        record_candidate(ctx, candidates, candidate, size)
+        if best is None or size < ctx.bytes_with_context:
+            best, best_unit = coding, unit
+            ctx.bytes_with_context, ctx.parent_base = size, candidate.parent_base
+    ctx.time_s = time.perf_counter() - t0
+    ctx.bytes_per_channel_prior = len(with_prior.payload)
+    # A context model the scene does not benefit from is not used and costs nothing.
+    if best is not None and (not cfg.context_fallback or ctx.bytes_with_context + UNIT_FRAMING_BYTES
+                             < len(with_prior.payload)):
+        return best, best_unit, ctx
+    return with_prior, None, ctx
+
+
+def ideal_bits(coder: LevelCoder, chosen: LevelCoding) -> float:
+    """The attribute model's ideal code length of the level as coded."""
+    res = (chosen.prediction or attr.ChannelPrediction.none()).residuals(chosen.q, chosen.params.mean)
+    return ideal_code_length_bits(res[coder.live], np.broadcast_to(chosen.params.level, chosen.q.shape)[coder.live])
+
+
+def reconstruct_level(recon: np.ndarray, rows: np.ndarray, chosen: LevelCoding, steps: np.ndarray) -> None:
+    """The level's decoded values into ``recon`` (float32), bit for bit."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        recon[rows] = attr.reconstruct(chosen.q, steps, chosen.params.step_adjust)
+    if not np.isfinite(recon[rows]).all():
+        raise InputError("an attribute value would decode beyond the binary32 range; use a smaller value or step")
+
+
+def code_attributes(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodingConfig,
+                    stats: EncodeStats, *, progress: bool = False, measure_ideal: bool = False,
+                    context_twin: ContextTwin | None = None) -> CodedAttributes:
+    """Quantize and code the attribute values level by level: the per-channel prior, and for
+    level 2 the configured context model when it codes smaller (fits of each candidate; the
+    smallest stream is kept). Cross-channel prediction is fitted where the layout allows it
+    (Gaussian scenes)."""
+    recon = np.zeros_like(inp.values, dtype=np.float32)
+    payloads = []
+    ideal = 0.0
+    stats.attribute_coded_bits = 0
+    q_level1 = None  # level 1's, the context of level 2
+    context_payload = None
+    predict = bool(inp.layout.channel_prediction_allowed) and getattr(cfg, "channel_prediction", False)
+    for level, rows in levels.levels:
+        coder = LevelCoder(inp.layout, cfg, level, rows, inp.live[rows], None if inp.mask is None else inp.mask[rows],
+                           predict)
+        chosen, context_fit = code_with_prior(coder, inp), None
+        if level == LEVEL_2 and cfg.context_model != "per_channel":
+            assert levels.hier is not None and q_level1 is not None
+            chosen, context_payload, context_fit = code_level2_with_context(coder, inp, levels.hier, q_level1, chosen,
+                                                                            context_twin, progress)
+        if level == LEVEL_1:
+            q_level1 = chosen.q
+        payloads.append(chosen.payload)
+        if measure_ideal:
+            ideal += ideal_bits(coder, chosen)
+        stats.attribute_coded_bits += 8 * sum(chosen.header.chunk_size)
+        stats.levels[level] = LevelStats(CONTEXT_MODEL_NAMES[chosen.header.context_model_id], len(chosen.payload),
+                                         chosen.header.num_channel_predictions if predict else None, context_fit)
+        reconstruct_level(recon, rows, chosen, inp.steps)
+    if measure_ideal:
+        stats.attribute_ideal_bits = ideal
+    return CodedAttributes(payloads, context_payload, recon)
+
+
+@dataclass
+class RenderModelCoding:
+    payload: bytes | None  # the render model unit (None: the scene has no MLPs)
+    decoded: dict[str, RenderMLP]  # the MLPs the decoder will output
+
+
+def code_render_model(mlps: dict[str, RenderMLP], cfg: EncoderConfig) -> RenderModelCoding:
+    if not mlps:
+        return RenderModelCoding(None, {})
+    return RenderModelCoding(*quantize_render_model(mlps, cfg.mlp_weight_bits))
+
+
+def write_stream(parameter_units: list[DataUnit], geometry_payload: bytes, coded: CodedAttributes,
+                 digest: bytes) -> bytes:
+    """The container: the parameter set (and render model), geometry, context model, attribute
+    units, decoded scene hash."""
+    units = parameter_units + [DataUnit(UnitType.GEOMETRY, geometry_payload)]
     if coded.context_payload is not None:
         units.append(DataUnit(UnitType.CONTEXT_MODEL, coded.context_payload))
     units += [DataUnit(UnitType.ATTRIBUTE, p) for p in coded.payloads]
     units.append(DataUnit(UnitType.DECODED_SCENE_HASH, DecodedSceneHashUnit(scene_hash=digest).to_bytes()))
-    data = write_container(units)
-    bar.update()
+    return write_container(units)
+
+
+def decoded_anchor_scene(inp: AttributeInput, coded: CodedAttributes, model: RenderModelCoding) -> AnchorScene:
+    """The scene the decoder will output, bit for bit."""
+    sps = inp.parameter_set
+    features, scalings, offsets = inp.layout.split(coded.recon)
+    return AnchorScene(coords=inp.coords, voxel_size=float(sps.voxel_size),
+                       origin=np.asarray(sps.origin, dtype=np.float32), features=features, scalings=scalings,
+                       offsets=offsets, offset_mask=inp.mask, mlps=model.decoded)
+
+
+def assemble_anchor_stream(inp: AttributeInput, geometry: GeometryCoding, coded: CodedAttributes,
+                           model: RenderModelCoding, stats: EncodeStats) -> EncodeResult:
+    decoded = decoded_anchor_scene(inp, coded, model)
+    digest = scene_digest(decoded)
+    parameter_units = [DataUnit(UnitType.SCENE_PARAMETER_SET, inp.parameter_set.to_bytes())]
+    if model.payload is not None:
+        parameter_units.append(DataUnit(UnitType.RENDER_MODEL, model.payload))
+    data = write_stream(parameter_units, geometry.payload, coded, digest)
+    return EncodeResult(data, breakdown_of(read_container(data), decoded.num_anchors), decoded, digest, stats)
+
+
+def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress: bool = False,
+                 measure_ideal: bool = False, context_twin: ContextTwin | None = None) -> EncodeResult:
+    """Encode a scene. ``measure_ideal`` also computes the attribute model's ideal code length
+    (stats.attribute_ideal_bits), a full extra pass over the symbols. ``context_twin``: the
+    GG-Conv twin trained with the scene (lghcc-train --rate-lambda writes it beside the scene):
+    with a GG-Conv context model, a fit started from it is one more candidate (the smallest
+    stream is kept); a twin that does not fit the configuration is reported in stats and unused."""
+    cfg = (cfg or EncoderConfig()).validate()
+    scene.validate()
+    stats = EncodeStats()
+    scene = prune(scene, cfg, stats)
+    check_point_count(scene.num_anchors, "anchors")
+    t0 = time.perf_counter()
+    bar = progress_bar(total=5, desc="encode", unit="step", disable=not progress, leave=False)
+    with stage(bar, "geometry"):
+        geometry = code_geometry(scene.coords)
+        stats.time_geometry_s = time.perf_counter() - t0
+    with stage(bar, "quantization"):
+        levels = level_layout(scene.num_anchors, cfg, geometry.coords, stats)
+        inp = anchor_attribute_input(scene, geometry, levels, cfg)
+    with stage(bar, "attributes"):
+        t1 = time.perf_counter()
+        twin = usable_context_twin(context_twin, scene, inp, levels, cfg, stats)
+        coded = code_attributes(inp, levels, cfg, stats, progress=progress, measure_ideal=measure_ideal,
+                                context_twin=twin)
+        stats.time_attributes_s = time.perf_counter() - t1
+    with stage(bar, "render model"):
+        model = code_render_model(scene.mlps, cfg)
+    with stage(bar, "hash"):
+        result = assemble_anchor_stream(inp, geometry, coded, model, stats)
     bar.close()
-    stats["time_total_s"] = time.perf_counter() - t0
-    return EncodeResult(data, breakdown_of(read_container(data), n), decoded, digest, stats)
+    stats.time_total_s = time.perf_counter() - t0
+    return result

@@ -27,18 +27,18 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 from ..app.progress import progress_bar
 
-from ..common.errors import InputError
 from ..common.scene import GaussianScene
 from .config import GaussianEncoderConfig
 from .gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid
+from .stats import PrepareStats
 from ..render.camera import Camera
-from ..render.gaussians3dgs import gaussians_from_scene, render_3dgs
+from ..render.gaussians3dgs import Gaussians3DGS, gaussians_from_scene, render_3dgs
 from ..render.importance import gaussian_contributions
 from ..render.rasterizer import rasterize
 from ..render.sh import sh_to_rgb
@@ -49,7 +49,7 @@ class PreparedGaussians:
     scene: GaussianScene  # on its grid, pruned and fitted
     weights: np.ndarray  # contribution of each kept Gaussian (its share of the pictures)
     cfg: GaussianEncoderConfig  # the settings to code it with (chosen by the search when it ran)
-    stats: dict = field(default_factory=dict)
+    stats: PrepareStats
 
 
 def fibonacci_sphere(n: int, offset: float = 0.5) -> np.ndarray:
@@ -180,6 +180,125 @@ def _lrs(cfg: GaussianEncoderConfig) -> list[float]:
     return [1e-3 * s, 5e-5 * s, 5e-3 * s, 1e-3 * s, 5e-4 * s]
 
 
+def measure_contributions(g: Gaussians3DGS, cams: list[Camera], progress: bool) -> np.ndarray:
+    """Each Gaussian's contribution to the pictures of ``cams`` (render/importance.py)."""
+    bar = progress_bar(total=len(cams), desc="contributions", unit="view", disable=not progress, leave=False)
+    contrib = gaussian_contributions(g.means, g.quats, g.scales, g.opacities, cams, on_view=bar.update)
+    bar.close()
+    return contrib
+
+
+def search_for_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, stats: PrepareStats,
+                        say) -> GaussianEncoderConfig:
+    """The settings for the quality or lambda asked for (encoder/gaussian_rd.py); the preset's
+    when neither is."""
+    if not (cfg.rd_lambda > 0 or cfg.target_psnr > 0):
+        return cfg
+    from .gaussian_rd import search_settings
+
+    t0 = time.perf_counter()
+    cfg, trials = search_settings(scene, contrib, cfg, log=say)
+    stats.time_search_s, stats.search_trials = time.perf_counter() - t0, len(trials)
+    return cfg
+
+
+def pruned_on_grid(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, stats: PrepareStats,
+                   num_views: int, say) -> tuple[GaussianScene, np.ndarray]:
+    """Pruning by contribution, then the grid weighted by contribution -> (the kept Gaussians on
+    their grid, their contributions)."""
+    keep = prune_by_contribution(contrib, cfg.prune_share)
+    stats.gaussians_pruned = int((~keep).sum())
+    say(f"contributions from {num_views} views in {stats.time_contributions_s:.1f} s; pruned "
+        f"{stats.gaussians_pruned:,} of {scene.num_gaussians:,} Gaussians ({100 * cfg.prune_share:g}% of the "
+        "contribution at most)")
+    kept = scene.subset(keep)
+    weights = contrib[keep]
+    voxel, origin = choose_grid(kept, cfg, weights)
+    grid, moved = snap_to_grid(kept, voxel, origin, weights)
+    stats.voxel_size, stats.gaussians_moved_off_shared_voxels = voxel, moved
+    return grid, weights
+
+
+@dataclass
+class _Optimizer:
+    """Adam on the fitted parameters with a cosine schedule, and the decoupled rate term."""
+    opt: torch.optim.Adam
+    sched: torch.optim.lr_scheduler.CosineAnnealingLR
+    rate_lambda: float  # fit_rate_lambda: in steps^2 per bit
+    step_sq: list[torch.Tensor]  # the square of each parameter's quantization step
+
+    @classmethod
+    def of(cls, fit: _Fit, cfg: GaussianEncoderConfig) -> _Optimizer:
+        groups = [{"params": [p], "lr": lr} for p, lr in zip(fit.params(), _lrs(cfg))]
+        opt = torch.optim.Adam(groups, eps=1e-15)
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.fit_iterations, eta_min=0.0)
+        step_sq = [torch.tensor(cfg.sh_dc_step ** 2), fit.rest_steps ** 2, torch.tensor(cfg.opacity_step ** 2),
+                   torch.tensor(cfg.scale_step ** 2), torch.tensor(cfg.rotation_step ** 2)]
+        return cls(opt, sched, cfg.fit_rate_lambda, step_sq)
+
+    def step(self, fit: _Fit, cam: Camera, target: torch.Tensor) -> float:
+        """One step on one view -> its squared error. The rate term is applied decoupled from
+        Adam (as AdamW decouples weight decay): Adam normalizes each parameter's gradient, so a
+        rate gradient added to the loss would move every parameter the picture does not depend
+        on at the full learning rate, whatever lambda is. Each step instead moves the values
+        down the gradient of the estimated bits by lr x fit_rate_lambda x (step^2 of the value)
+        per bit, i.e. lambda in steps^2 per bit."""
+        img = fit.render(cam, *fit.quantized())
+        mse = ((img - target) ** 2).mean()
+        self.opt.zero_grad(set_to_none=True)
+        mse.backward()
+        self.opt.step()
+        if self.rate_lambda > 0:
+            grads = torch.autograd.grad(fit.rate_bits(), fit.params())
+            with torch.no_grad():
+                for p, g, group, sq in zip(fit.params(), grads, self.opt.param_groups, self.step_sq):
+                    p -= group["lr"] * self.rate_lambda * sq * g
+        self.sched.step()
+        return float(mse.detach())
+
+
+def fit_to_renders(grid: GaussianScene, g: Gaussians3DGS, cams: list[Camera], cfg: GaussianEncoderConfig,
+                   stats: PrepareStats, say, progress: bool) -> GaussianScene:
+    """``fit_iterations`` steps tuning the kept Gaussians to renders of the source Gaussians
+    ``g`` with their quantization simulated and their estimated bits weighed in (module doc)."""
+    t0 = time.perf_counter()
+    with torch.no_grad():
+        targets = [render_3dgs(g, cam, background=(0, 0, 0), backend="torch").image for cam in cams]
+    fit = _Fit(grid, cfg)
+    fit.init_rate_model()
+    optimizer = _Optimizer.of(fit, cfg)
+    rng = np.random.default_rng(0)
+    bar = progress_bar(range(cfg.fit_iterations), desc="fit", unit="it", disable=not progress, leave=False)
+    last = time.perf_counter()
+    losses = []
+    for it in bar:
+        j = int(rng.integers(len(cams)))
+        losses.append(optimizer.step(fit, cams[j], targets[j]))
+        if time.perf_counter() - last > 10 or it + 1 == cfg.fit_iterations:
+            last = time.perf_counter()
+            done = it + 1
+            eta = (last - t0) / done * (cfg.fit_iterations - done)
+            say(f"fit: {done}/{cfg.fit_iterations} steps, PSNR {-10 * math.log10(max(np.mean(losses[-20:]), 1e-12)):.2f} "
+                f"dB on the fit views, ETA {eta:.0f} s")
+    stats.time_fit_s = time.perf_counter() - t0
+    stats.fit_final_mse = float(np.mean(losses[-20:]))
+    return fit.scene(grid)
+
+
+def trim_steps(fitted: GaussianScene, weights: np.ndarray, cfg: GaussianEncoderConfig, stats: PrepareStats,
+               say) -> GaussianEncoderConfig:
+    """With a quality asked for, the attribute steps moved onto it again (what the fit gained
+    becomes fewer bytes); the settings as they are otherwise."""
+    if not cfg.target_psnr > 0:
+        return cfg
+    from .gaussian_rd import trim_to_target
+
+    t0 = time.perf_counter()
+    cfg, before, after = trim_to_target(fitted, weights, cfg, log=say)
+    stats.time_trim_s, stats.trim_bits_before, stats.trim_bits_after = time.perf_counter() - t0, before.bits, after.bits
+    return cfg
+
+
 def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, cameras: list[Camera] | None = None,
                       log=None, progress: bool = False) -> PreparedGaussians:
     """Contribution, pruning, grid and fit (module doc). ``cameras``: extra views (the scene's
@@ -187,85 +306,20 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
     say = log or (lambda *a: None)
     cfg = cfg.validate()
     scene.validate()
-    stats: dict = {"gaussians_in": scene.num_gaussians}
+    stats = PrepareStats(gaussians_in=scene.num_gaussians)
     t0 = time.perf_counter()
     if cfg.sh_degree is not None and cfg.sh_degree < scene.sh_degree:
         scene = scene.with_sh_degree(cfg.sh_degree)
     cams = fit_cameras(scene, cfg.fit_views, cfg.fit_resolution) + list(cameras or [])
     g = gaussians_from_scene(scene)
-    bar = progress_bar(total=len(cams), desc="contributions", unit="view", disable=not progress, leave=False)
-    contrib = gaussian_contributions(g.means, g.quats, g.scales, g.opacities, cams, on_view=bar.update)
-    bar.close()
-    stats["time_contributions_s"] = time.perf_counter() - t0
-    if cfg.rd_lambda > 0 or cfg.target_psnr > 0:
-        from .gaussian_rd import search_settings
-
-        t1 = time.perf_counter()
-        cfg, trials = search_settings(scene, contrib, cfg, log=say)
-        stats.update(time_search_s=time.perf_counter() - t1, search_trials=len(trials))
-    keep = prune_by_contribution(contrib, cfg.prune_share)
-    stats["gaussians_pruned"] = int((~keep).sum())
-    say(f"contributions from {len(cams)} views in {stats['time_contributions_s']:.1f} s; pruned "
-        f"{stats['gaussians_pruned']:,} of {scene.num_gaussians:,} Gaussians ({100 * cfg.prune_share:g}% of the "
-        "contribution at most)")
-    kept = scene.subset(keep)
-    weights = contrib[keep]
-    voxel, origin = choose_grid(kept, cfg, weights)
-    grid, moved = snap_to_grid(kept, voxel, origin, weights)
-    stats.update(voxel_size=voxel, gaussians_moved_off_shared_voxels=moved)
+    contrib = measure_contributions(g, cams, progress)
+    stats.time_contributions_s = time.perf_counter() - t0
+    cfg = search_for_settings(scene, contrib, cfg, stats, say)
+    grid, weights = pruned_on_grid(scene, contrib, cfg, stats, len(cams), say)
     if cfg.fit_iterations == 0:
-        stats["time_total_s"] = time.perf_counter() - t0
+        stats.time_total_s = time.perf_counter() - t0
         return PreparedGaussians(grid, weights, cfg, stats)
-
-    t1 = time.perf_counter()
-    with torch.no_grad():
-        targets = [render_3dgs(g, cam, background=(0, 0, 0), backend="torch").image for cam in cams]
-    fit = _Fit(grid, cfg)
-    fit.init_rate_model()
-    groups = [{"params": [p], "lr": lr} for p, lr in zip(fit.params(), _lrs(cfg))]
-    opt = torch.optim.Adam(groups, eps=1e-15)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.fit_iterations, eta_min=0.0)
-    rng = np.random.default_rng(0)
-    # The rate term is applied decoupled from Adam (as AdamW decouples weight decay): Adam
-    # normalizes each parameter's gradient, so a rate gradient added to the loss would move every
-    # parameter the picture does not depend on at the full learning rate, whatever lambda is.
-    # Each step instead moves the values down the gradient of the estimated bits by
-    # lr x fit_rate_lambda x (step^2 of the value) per bit, i.e. lambda in steps^2 per bit.
-    mu = cfg.fit_rate_lambda
-    step_sq = [torch.tensor(cfg.sh_dc_step ** 2), fit.rest_steps ** 2, torch.tensor(cfg.opacity_step ** 2),
-               torch.tensor(cfg.scale_step ** 2), torch.tensor(cfg.rotation_step ** 2)]
-    bar = progress_bar(range(cfg.fit_iterations), desc="fit", unit="it", disable=not progress, leave=False)
-    last = time.perf_counter()
-    losses = []
-    for it in bar:
-        j = int(rng.integers(len(cams)))
-        q = fit.quantized()
-        img = fit.render(cams[j], *q)
-        mse = ((img - targets[j]) ** 2).mean()
-        opt.zero_grad(set_to_none=True)
-        mse.backward()
-        opt.step()
-        if mu > 0:
-            grads = torch.autograd.grad(fit.rate_bits(), fit.params())
-            with torch.no_grad():
-                for p, g, group, sq in zip(fit.params(), grads, opt.param_groups, step_sq):
-                    p -= group["lr"] * mu * sq * g
-        sched.step()
-        losses.append(float(mse.detach()))
-        if time.perf_counter() - last > 10 or it + 1 == cfg.fit_iterations:
-            last = time.perf_counter()
-            done = it + 1
-            eta = (last - t1) / done * (cfg.fit_iterations - done)
-            say(f"fit: {done}/{cfg.fit_iterations} steps, PSNR {-10 * math.log10(max(np.mean(losses[-20:]), 1e-12)):.2f} "
-                f"dB on the fit views, ETA {eta:.0f} s")
-    stats["time_fit_s"] = time.perf_counter() - t1
-    stats["fit_final_mse"] = float(np.mean(losses[-20:]))  # squared error on the fit views, last steps
-    fitted = fit.scene(grid)
-    if cfg.target_psnr > 0:
-        from .gaussian_rd import trim_to_target
-
-        t2 = time.perf_counter()
-        cfg, before, after = trim_to_target(fitted, weights, cfg, log=say)
-        stats.update(time_trim_s=time.perf_counter() - t2, trim_bits_before=before.bits, trim_bits_after=after.bits)
-    stats["time_total_s"] = time.perf_counter() - t0
+    fitted = fit_to_renders(grid, g, cams, cfg, stats, say, progress)
+    cfg = trim_steps(fitted, weights, cfg, stats, say)
+    stats.time_total_s = time.perf_counter() - t0
     return PreparedGaussians(fitted, weights, cfg, stats)

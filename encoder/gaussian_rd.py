@@ -192,6 +192,76 @@ def optimal_steps(base: Trial, probes: dict[str, tuple[Trial, float]], lam: floa
     return steps
 
 
+def probe_groups(s: SettingsSearch, cfg: GaussianEncoderConfig, groups: list[str], target_mse: float | None,
+                 say) -> tuple[Trial, dict[str, tuple[Trial, float]]]:
+    """The trial of ``cfg`` and one probe per group with its step doubled -> (base, {group:
+    (probe, step)}). With a target, the lambda the model gives for it, and the trials so far
+    costed at it."""
+    base = s.evaluate(cfg)
+    probes = {g: (s.evaluate(_with_step(cfg, g, 2 * _step(cfg, g))), _step(cfg, g)) for g in groups}
+    if target_mse is not None:
+        s.lam = lambda_for_target(base, probes, target_mse)
+        for t in s.trials:  # the trials so far, costed at the lambda now known
+            t.cost = 10 * math.log10(max(t.mse, 1e-12)) + s.lam * math.log2(max(t.bits, 1.0))
+        say(f"settings: lambda {s.lam:.3g} dB per doubling for {cfg.target_psnr:g} dB (model)")
+    return base, probes
+
+
+def model_step_trial(s: SettingsSearch, cfg: GaussianEncoderConfig, base: Trial,
+                     probes: dict[str, tuple[Trial, float]]) -> Trial:
+    """The best of the probes and the model's steps for lambda. The model holds at high rate;
+    where its answer measures worse, it moves halfway back (in log steps), at most 4 times."""
+    steps = optimal_steps(base, probes, s.lam)
+    best = min([base] + [p for p, _ in probes.values()], key=lambda t: t.cost)
+    for _ in range(4):
+        cur = cfg
+        for g, st in steps.items():
+            cur = _with_step(cur, g, st)
+        t = s.evaluate(cur)
+        if t.cost < best.cost:
+            return t
+        steps = {g: math.sqrt(st * _step(cfg, g)) for g, st in steps.items()}
+    return best
+
+
+def walk_pruning_ladder(s: SettingsSearch, best: Trial) -> Trial:
+    """The pruning share moved along PRUNE_LADDER, each way, while J falls."""
+    i = int(np.argmin(np.abs(np.asarray(PRUNE_LADDER) - best.cfg.prune_share)))
+    for direction in (1, -1):
+        j = i + direction
+        while 0 <= j < len(PRUNE_LADDER):
+            t = s.evaluate(dataclasses.replace(best.cfg, prune_share=PRUNE_LADDER[j]))
+            if t.cost >= best.cost:
+                break
+            best, i = t, j
+            j += direction
+    return best
+
+
+def check_steps_either_way(s: SettingsSearch, best: Trial, groups: list[str]) -> Trial:
+    """Each group's step a factor sqrt(2) up and down against real renders."""
+    for g in groups:
+        for f in (2 ** 0.5, 2 ** -0.5):
+            t = s.evaluate(_with_step(best.cfg, g, _step(best.cfg, g) * f))
+            if t.cost < best.cost:
+                best = t
+                break
+    return best
+
+
+def fewest_bits_at_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: float) -> Trial:
+    """The result moved onto the target (onto_target); pruning less while even that falls short;
+    then, of every setting measured on the way, the fewest bits that reach the target."""
+    best = onto_target(s, best, groups, target_mse)
+    # still short of the target with every step 4x finer: the pruning limits it; prune less
+    i = int(np.argmin(np.abs(np.asarray(PRUNE_LADDER) - best.cfg.prune_share)))
+    while best.mse > target_mse and i > 0:
+        i -= 1
+        best = onto_target(s, s.evaluate(dataclasses.replace(best.cfg, prune_share=PRUNE_LADDER[i])), groups,
+                           target_mse)
+    return min([t for t in s.trials if t.mse <= target_mse] or [best], key=lambda t: t.bits)
+
+
 def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, *,
                     log=None) -> tuple[GaussianEncoderConfig, list[Trial]]:
     """Choose the settings for ``cfg.rd_lambda`` (module doc): one probe per group measures how
@@ -209,54 +279,14 @@ def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEnco
         # leave is small and the lambda it gives for the target means something (the pruning
         # ladder comes after, at that lambda)
         cfg = dataclasses.replace(cfg, prune_share=0.0)
-    base = s.evaluate(cfg)
-    probes = {g: (s.evaluate(_with_step(cfg, g, 2 * _step(cfg, g))), _step(cfg, g)) for g in groups}
-    if target_mse is not None:
-        s.lam = lambda_for_target(base, probes, target_mse)
-        for t in s.trials:  # the trials so far, costed at the lambda now known
-            t.cost = 10 * math.log10(max(t.mse, 1e-12)) + s.lam * math.log2(max(t.bits, 1.0))
-        say(f"settings: lambda {s.lam:.3g} dB per doubling for {cfg.target_psnr:g} dB (model)")
-    steps = optimal_steps(base, probes, s.lam)
-    best = min([base] + [p for p, _ in probes.values()], key=lambda t: t.cost)
-    # the model holds at high rate; where its answer measures worse, move halfway back (in log steps)
-    for _ in range(4):
-        cur = cfg
-        for g, st in steps.items():
-            cur = _with_step(cur, g, st)
-        t = s.evaluate(cur)
-        if t.cost < best.cost:
-            best = t
-            break
-        steps = {g: math.sqrt(st * _step(cfg, g)) for g, st in steps.items()}
+    base, probes = probe_groups(s, cfg, groups, target_mse, say)
+    best = model_step_trial(s, cfg, base, probes)
     say(f"settings: model step {len(s.trials)} trials, {time.perf_counter() - t0:.0f} s: "
         f"{-10 * math.log10(max(best.mse, 1e-12)):.2f} dB at {best.bits / n:.1f} bits/Gaussian")
-    # pruning: walk the ladder while J falls
-    i = int(np.argmin(np.abs(np.asarray(PRUNE_LADDER) - best.cfg.prune_share)))
-    for direction in (1, -1):
-        j = i + direction
-        while 0 <= j < len(PRUNE_LADDER):
-            t = s.evaluate(dataclasses.replace(best.cfg, prune_share=PRUNE_LADDER[j]))
-            if t.cost >= best.cost:
-                break
-            best, i = t, j
-            j += direction
-    # each step a factor sqrt(2) either way
-    for g in groups:
-        for f in (2 ** 0.5, 2 ** -0.5):
-            t = s.evaluate(_with_step(best.cfg, g, _step(best.cfg, g) * f))
-            if t.cost < best.cost:
-                best = t
-                break
+    best = walk_pruning_ladder(s, best)
+    best = check_steps_either_way(s, best, groups)
     if target_mse is not None:
-        best = onto_target(s, best, groups, target_mse)
-        # still short of the target with every step 4x finer: the pruning limits it; prune less
-        i = int(np.argmin(np.abs(np.asarray(PRUNE_LADDER) - best.cfg.prune_share)))
-        while best.mse > target_mse and i > 0:
-            i -= 1
-            best = onto_target(s, s.evaluate(dataclasses.replace(best.cfg, prune_share=PRUNE_LADDER[i])), groups,
-                               target_mse)
-        # of every setting measured on the way, the fewest bits that reach the target
-        best = min([t for t in s.trials if t.mse <= target_mse] or [best], key=lambda t: t.bits)
+        best = fewest_bits_at_target(s, best, groups, target_mse)
     say(f"settings: {len(s.trials)} trials, {time.perf_counter() - t0:.0f} s: "
         f"{-10 * math.log10(max(best.mse, 1e-12)):.2f} dB at {best.bits / n:.1f} bits/Gaussian, "
         f"pruning {100 * best.cfg.prune_share:g}% of the contribution")

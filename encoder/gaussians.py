@@ -23,15 +23,17 @@ import numpy as np
 from ..app.progress import progress_bar
 
 from ..common import attributes as attr
-from ..common.container import DataUnit, UnitType, read_container, write_container
+from ..common.container import DataUnit, UnitType, read_container
 from ..common.errors import InputError
-from ..common.geometry import COORD_MAX, encode_geometry, normative_order
+from ..common.geometry import COORD_MAX
 from ..common.hashing import gaussian_scene_digest
 from ..app.report import breakdown_of
 from ..common.scene import GaussianScene
-from ..common.units import MAX_ANCHORS, MAX_ATTRIBUTE_VALUES, DecodedSceneHashUnit, GaussianParameterSet
+from ..common.units import MAX_ATTRIBUTE_VALUES, GaussianParameterSet
 from .config import GaussianEncoderConfig
-from .encode import EncodeResult, code_attributes, level_layout
+from .encode import (AttributeInput, CodedAttributes, EncodeResult, GeometryCoding, LevelLayout, check_point_count,
+                     code_attributes, code_geometry, level_layout, stage, write_stream)
+from .stats import EncodeStats
 
 OPACITY_LOGIT_LIMIT = 8.0
 MAX_GRID_EXTENT = 1 << 30  # voxels per axis; beyond, the grid is made coarser (far floaters)
@@ -138,6 +140,53 @@ def gaussian_parameter_set(n: int, sh_degree: int, voxel: float, origin, cfg: Ga
     return GaussianParameterSet.from_bytes(gps.to_bytes())  # exactly the values the decoder will see
 
 
+def with_coded_sh_degree(scene: GaussianScene, cfg: GaussianEncoderConfig, stats: EncodeStats) -> GaussianScene:
+    """The scene at the configured SH degree when that is lower than its own."""
+    if cfg.sh_degree is not None and cfg.sh_degree < scene.sh_degree:
+        stats.sh_degree_dropped_from = scene.sh_degree
+        return scene.with_sh_degree(cfg.sh_degree)
+    return scene
+
+
+def on_own_voxels(scene: GaussianScene, cfg: GaussianEncoderConfig, weights: np.ndarray | None,
+                  stats: EncodeStats) -> GaussianScene:
+    """The scene on a position grid, every Gaussian in its own voxel: a scene already on a grid
+    keeps it (Gaussians sharing a voxel are moved apart), otherwise the grid is chosen here."""
+    if scene.coords is None:
+        voxel, origin = choose_grid(scene, cfg, weights)
+        scene, stats.gaussians_moved_off_shared_voxels = snap_to_grid(scene, voxel, origin, weights)
+    elif np.unique(scene.coords, axis=0).shape[0] != scene.num_gaussians:
+        scene, stats.gaussians_moved_off_shared_voxels = snap_to_grid(scene, scene.voxel_size, scene.origin, weights)
+    return scene
+
+
+def gaussian_attribute_input(scene: GaussianScene, geometry: GeometryCoding, levels: LevelLayout,
+                             cfg: GaussianEncoderConfig) -> AttributeInput:
+    """The parameter set, and the SH, opacity (clamped), scales and rotations (canonical) as
+    attribute values."""
+    n = scene.num_gaussians
+    gps = gaussian_parameter_set(n, scene.sh_degree, scene.voxel_size, scene.origin, cfg, levels.hier is not None)
+    layout = attr.gaussian_layout_of(gps)
+    if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
+        raise InputError(f"{n} Gaussians x {layout.num_channels} channels exceed the profile's limit")
+    steps = layout.steps(gps)
+    opacity = np.clip(scene.opacity.astype(np.float64), -OPACITY_LOGIT_LIMIT, OPACITY_LOGIT_LIMIT)
+    values = layout.join(GaussianScene(scene.means, scene.sh, opacity, scene.log_scales,
+                                       canonical_rotations(scene.rotations)))[geometry.order]
+    return AttributeInput(gps, layout, steps, values, np.ones(values.shape, dtype=bool), None, geometry.coords)
+
+
+def assemble_gaussian_stream(inp: AttributeInput, coded: CodedAttributes, geometry: GeometryCoding,
+                             stats: EncodeStats) -> EncodeResult:
+    gps = inp.parameter_set
+    sh, op, log_scales, rotations = inp.layout.split(coded.recon)
+    decoded = GaussianScene.on_grid(inp.coords, gps.voxel_size, gps.origin, sh, op, log_scales, rotations)
+    digest = gaussian_scene_digest(decoded)
+    data = write_stream([DataUnit(UnitType.GAUSSIAN_PARAMETER_SET, gps.to_bytes())], geometry.payload, coded, digest)
+    return EncodeResult(data, breakdown_of(read_container(data), decoded.num_gaussians, "Gaussian"), decoded, digest,
+                        stats)
+
+
 def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | None = None, *,
                           weights: np.ndarray | None = None, progress: bool = False,
                           measure_ideal: bool = False) -> EncodeResult:
@@ -146,60 +195,24 @@ def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | Non
     Gaussian's contribution to the pictures, when known (grid size, who keeps a shared voxel)."""
     cfg = (cfg or GaussianEncoderConfig()).validate()
     scene.validate()
-    stats: dict = {}
+    stats = EncodeStats()
     t0 = time.perf_counter()
-    if cfg.sh_degree is not None and cfg.sh_degree < scene.sh_degree:
-        stats["sh_degree_dropped_from"] = scene.sh_degree
-        scene = scene.with_sh_degree(cfg.sh_degree)
-    n = scene.num_gaussians
-    if n > MAX_ANCHORS:
-        raise InputError(f"{n} Gaussians exceed the profile's limit of {MAX_ANCHORS}")
+    scene = with_coded_sh_degree(scene, cfg, stats)
+    check_point_count(scene.num_gaussians, "Gaussians")
     bar = progress_bar(total=4, desc="encode", unit="step", disable=not progress, leave=False)
-    bar.set_postfix_str("geometry")
-    if scene.coords is None:
-        voxel, origin = choose_grid(scene, cfg, weights)
-        scene, moved = snap_to_grid(scene, voxel, origin, weights)
-        stats["gaussians_moved_off_shared_voxels"] = moved
-    elif np.unique(scene.coords, axis=0).shape[0] != n:
-        scene, moved = snap_to_grid(scene, scene.voxel_size, scene.origin, weights)
-        stats["gaussians_moved_off_shared_voxels"] = moved
-    order = normative_order(scene.coords)
-    coords = scene.coords[order]
-    geometry_payload = encode_geometry(coords)
-    stats["time_geometry_s"] = time.perf_counter() - t0
-    bar.update()
-
-    bar.set_postfix_str("quantization")
-    levels, hier = level_layout(n, cfg, coords, stats)
-    gps = gaussian_parameter_set(n, scene.sh_degree, scene.voxel_size, scene.origin, cfg, hier is not None)
-    layout = attr.gaussian_layout_of(gps)
-    if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
-        raise InputError(f"{n} Gaussians x {layout.num_channels} channels exceed the profile's limit")
-    steps = layout.steps(gps)
-    opacity = np.clip(scene.opacity.astype(np.float64), -OPACITY_LOGIT_LIMIT, OPACITY_LOGIT_LIMIT)
-    values = layout.join(GaussianScene(scene.means, scene.sh, opacity, scene.log_scales,
-                                       canonical_rotations(scene.rotations)))[order]
-    live = np.ones(values.shape, dtype=bool)
-    bar.update()
-
-    bar.set_postfix_str("attributes")
-    t1 = time.perf_counter()
-    coded = code_attributes(values, live, None, coords, levels, hier, layout, steps, cfg, stats, progress=progress,
-                            measure_ideal=measure_ideal)
-    stats["time_attributes_s"] = time.perf_counter() - t1
-    bar.update()
-
-    bar.set_postfix_str("hash")
-    sh, op, log_scales, rotations = layout.split(coded.recon)
-    decoded = GaussianScene.on_grid(coords, gps.voxel_size, gps.origin, sh, op, log_scales, rotations)
-    digest = gaussian_scene_digest(decoded)
-    units = [DataUnit(UnitType.GAUSSIAN_PARAMETER_SET, gps.to_bytes()), DataUnit(UnitType.GEOMETRY, geometry_payload)]
-    if coded.context_payload is not None:
-        units.append(DataUnit(UnitType.CONTEXT_MODEL, coded.context_payload))
-    units += [DataUnit(UnitType.ATTRIBUTE, p) for p in coded.payloads]
-    units.append(DataUnit(UnitType.DECODED_SCENE_HASH, DecodedSceneHashUnit(scene_hash=digest).to_bytes()))
-    data = write_container(units)
-    bar.update()
+    with stage(bar, "geometry"):
+        scene = on_own_voxels(scene, cfg, weights, stats)
+        geometry = code_geometry(scene.coords)
+        stats.time_geometry_s = time.perf_counter() - t0
+    with stage(bar, "quantization"):
+        levels = level_layout(scene.num_gaussians, cfg, geometry.coords, stats)
+        inp = gaussian_attribute_input(scene, geometry, levels, cfg)
+    with stage(bar, "attributes"):
+        t1 = time.perf_counter()
+        coded = code_attributes(inp, levels, cfg, stats, progress=progress, measure_ideal=measure_ideal)
+        stats.time_attributes_s = time.perf_counter() - t1
+    with stage(bar, "hash"):
+        result = assemble_gaussian_stream(inp, coded, geometry, stats)
     bar.close()
-    stats["time_total_s"] = time.perf_counter() - t0
-    return EncodeResult(data, breakdown_of(read_container(data), n, "Gaussian"), decoded, digest, stats)
+    stats.time_total_s = time.perf_counter() - t0
+    return result

@@ -25,9 +25,10 @@ PSNR against the source renders on the held-out views is reported after 3 and af
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -71,9 +72,37 @@ class TranscodeConfig:
 
 
 @dataclass
+class TranscodeStats:
+    gaussians: int  # of the source
+    sh_degree: int
+    anchors: int
+    voxel_size: float
+    live_offsets: int
+    dropped_gaussians: int  # beyond K in their voxel
+    below_min_opacity: int
+    views: int
+    test_views: int
+    resolution: int
+    camera_distance: float
+    psnr_init: float  # held-out PSNR against the source renders after distillation (NaN: no held-out views)
+    psnr_final: float  # and after render fitting
+    psnr_init_train: float  # the same on the first 4 training views
+    psnr_final_train: float
+    distill_loss: float | None  # the last distillation step's (None: no steps)
+    fit_loss: list[float]  # every render-fitting step's
+    time_render_source_s: float
+    time_distill_s: float
+    time_fit_s: float
+    time_total_s: float
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+@dataclass
 class TranscodeResult:
     scene: AnchorScene
-    stats: dict = field(default_factory=dict)
+    stats: TranscodeStats
 
 
 # --- views --------------------------------------------------------------------------------
@@ -260,6 +289,61 @@ def evaluate_views(scene, cams: list[Camera], targets: list[torch.Tensor]) -> fl
     return float(np.mean(vals))
 
 
+def check_transcode_config(cfg: TranscodeConfig) -> None:
+    if cfg.num_offsets < 1 or cfg.feature_dim < 1 or cfg.views < 1 or cfg.resolution < 8:
+        raise InputError("transcode: need at least 1 offset, 1 feature, 1 view and 8x8 pixels")
+    if cfg.iterations < 0 or cfg.distill_steps < 0 or cfg.test_views < 0:
+        raise InputError("transcode: iteration, step and view counts cannot be negative")
+
+
+@dataclass
+class TranscodeViews:
+    """The training and held-out cameras and the source rendered into them."""
+    train: list[Camera]
+    test: list[Camera]
+    camera_distance: float
+    train_targets: list[torch.Tensor]
+    test_targets: list[torch.Tensor]
+
+
+def render_source_views(g: Gaussians3DGS, cfg: TranscodeConfig, backend: str) -> TranscodeViews:
+    center, radius = g.bounds()
+    train = sphere_cameras(center, radius, cfg.views, resolution=cfg.resolution, fov_deg=cfg.fov_deg, prefix="train")
+    test = sphere_cameras(center, radius, cfg.test_views, resolution=cfg.resolution, fov_deg=cfg.fov_deg,
+                          offset=0.25, prefix="test") if cfg.test_views else []
+    cam_dist = float(np.linalg.norm(train[0].center - center))
+    with torch.no_grad():
+        bar = progress_bar(train + test, desc="transcode: render source", unit="view", disable=not cfg.progress, leave=False)
+        targets = [render_3dgs(g, cam, backend=backend).image.clamp(0, 1) for cam in bar]
+    return TranscodeViews(train, test, cam_dist, targets[:len(train)], targets[len(train):])
+
+
+def fit_to_source_renders(st: SceneTensors, views: TranscodeViews, cfg: TranscodeConfig, backend: str) -> list[float]:
+    """Render fitting (module doc, 4) -> the loss of every step."""
+    groups = [{"params": [st.features], "lr": cfg.lr_features}, {"params": [st.offsets], "lr": cfg.lr_offsets},
+              {"params": [st.scalings], "lr": cfg.lr_scalings},
+              {"params": [q for r in ("opacity", "cov", "color") for q in st.mlps[r].parameters()], "lr": cfg.lr_mlp}]
+    opt = torch.optim.Adam(groups, eps=1e-15)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, max(cfg.iterations, 1), eta_min=0.0)
+    rng = np.random.default_rng(cfg.seed)
+    losses: list[float] = []
+    bar = progress_bar(range(cfg.iterations), desc="transcode: fit", unit="it", disable=not cfg.progress, leave=False)
+    for _ in bar:
+        j = int(rng.integers(len(views.train)))
+        img = render_scene(st, views.train[j], backend=backend).image
+        target = views.train_targets[j]
+        l1 = (img - target).abs().mean()
+        loss = (1 - cfg.lambda_dssim) * l1 + cfg.lambda_dssim * (1 - ssim_torch(img, target))
+        _optimizer_step(opt, sched, loss, losses, bar)
+    return losses
+
+
+def held_out_psnr(scene, views: TranscodeViews) -> tuple[float, float]:
+    """(PSNR on the held-out views (NaN: none), on the first 4 training views)."""
+    held_out = evaluate_views(scene, views.test, views.test_targets) if views.test else float("nan")
+    return held_out, evaluate_views(scene, views.train[:4], views.train_targets[:4])
+
+
 def transcode_3dgs(source: str | Gaussians3DGS, cfg: TranscodeConfig | None = None, log=None) -> TranscodeResult:
     """A plain 3DGS scene (a PLY path or loaded Gaussians) -> an AnchorScene (module doc)."""
     from ..render.rasterizer import select_device
@@ -271,19 +355,8 @@ def transcode_3dgs(source: str | Gaussians3DGS, cfg: TranscodeConfig | None = No
         torch.set_num_threads(cfg.threads)
     t0 = time.perf_counter()
     g = load_3dgs_ply(source) if not isinstance(source, Gaussians3DGS) else source
-    if cfg.num_offsets < 1 or cfg.feature_dim < 1 or cfg.views < 1 or cfg.resolution < 8:
-        raise InputError("transcode: need at least 1 offset, 1 feature, 1 view and 8x8 pixels")
-    if cfg.iterations < 0 or cfg.distill_steps < 0 or cfg.test_views < 0:
-        raise InputError("transcode: iteration, step and view counts cannot be negative")
-    center, radius = g.bounds()
-    train = sphere_cameras(center, radius, cfg.views, resolution=cfg.resolution, fov_deg=cfg.fov_deg, prefix="train")
-    test = sphere_cameras(center, radius, cfg.test_views, resolution=cfg.resolution, fov_deg=cfg.fov_deg,
-                          offset=0.25, prefix="test") if cfg.test_views else []
-    cam_dist = float(np.linalg.norm(train[0].center - center))
-    with torch.no_grad():
-        bar = progress_bar(train + test, desc="transcode: render source", unit="view", disable=not cfg.progress, leave=False)
-        targets = [render_3dgs(g, cam, backend=backend).image.clamp(0, 1) for cam in bar]
-    t_train, t_test = targets[:len(train)], targets[len(train):]
+    check_transcode_config(cfg)
+    views = render_source_views(g, cfg, backend)
     t_render = time.perf_counter() - t0
     a = anchorize(g, cfg)
     say(f"transcode: {g.num_gaussians:,} Gaussians (SH degree {g.sh_degree}) -> {len(a['coords']):,} anchors, "
@@ -291,44 +364,25 @@ def transcode_3dgs(source: str | Gaussians3DGS, cfg: TranscodeConfig | None = No
         f"{a['below_min_opacity']:,} below opacity {cfg.min_opacity}")
     st = initial_scene_tensors(g, a, cfg)
     t1 = time.perf_counter()
-    distill_losses = distill(st, g, a, cfg, cam_dist)
+    distill_losses = distill(st, g, a, cfg, views.camera_distance)
     t_distill = time.perf_counter() - t1
-    psnr_init = evaluate_views(st, test, t_test) if test else float("nan")
-    psnr_init_train = evaluate_views(st, train[:4], t_train[:4])
+    psnr_init, psnr_init_train = held_out_psnr(st, views)
     say(f"transcode: after distillation ({cfg.distill_steps} steps, {t_distill:.1f} s): held-out PSNR {psnr_init:.2f} dB")
-    # render fitting
     t2 = time.perf_counter()
-    groups = [{"params": [st.features], "lr": cfg.lr_features}, {"params": [st.offsets], "lr": cfg.lr_offsets},
-              {"params": [st.scalings], "lr": cfg.lr_scalings},
-              {"params": [q for r in ("opacity", "cov", "color") for q in st.mlps[r].parameters()], "lr": cfg.lr_mlp}]
-    opt = torch.optim.Adam(groups, eps=1e-15)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, max(cfg.iterations, 1), eta_min=0.0)
-    rng = np.random.default_rng(cfg.seed)
-    losses = []
-    bar = progress_bar(range(cfg.iterations), desc="transcode: fit", unit="it", disable=not cfg.progress, leave=False)
-    for it in bar:
-        j = int(rng.integers(len(train)))
-        img = render_scene(st, train[j], backend=backend).image
-        l1 = (img - t_train[j]).abs().mean()
-        loss = (1 - cfg.lambda_dssim) * l1 + cfg.lambda_dssim * (1 - ssim_torch(img, t_train[j]))
-        _optimizer_step(opt, sched, loss, losses, bar)
+    losses = fit_to_source_renders(st, views, cfg, backend)
     t_fit = time.perf_counter() - t2
     scene = _to_scene(st, a)
-    psnr_final = evaluate_views(scene, test, t_test) if test else float("nan")
-    psnr_final_train = evaluate_views(scene, train[:4], t_train[:4])
+    psnr_final, psnr_final_train = held_out_psnr(scene, views)
     say(f"transcode: after render fitting ({cfg.iterations} iterations, {t_fit:.1f} s): "
         f"held-out PSNR {psnr_final:.2f} dB")
-    stats = {
-        "gaussians": g.num_gaussians, "sh_degree": g.sh_degree, "anchors": scene.num_anchors,
-        "voxel_size": scene.voxel_size, "live_offsets": int(scene.offset_mask.sum()),
-        "dropped_gaussians": a["dropped"], "below_min_opacity": a["below_min_opacity"],
-        "views": len(train), "test_views": len(test), "resolution": cfg.resolution, "camera_distance": cam_dist,
-        "psnr_init": psnr_init, "psnr_final": psnr_final,
-        "psnr_init_train": psnr_init_train, "psnr_final_train": psnr_final_train,
-        "distill_loss": distill_losses[-1] if distill_losses else None, "fit_loss": losses,
-        "time_render_source_s": t_render, "time_distill_s": t_distill, "time_fit_s": t_fit,
-        "time_total_s": time.perf_counter() - t0,
-    }
+    stats = TranscodeStats(
+        gaussians=g.num_gaussians, sh_degree=g.sh_degree, anchors=scene.num_anchors, voxel_size=scene.voxel_size,
+        live_offsets=int(scene.offset_mask.sum()), dropped_gaussians=a["dropped"],
+        below_min_opacity=a["below_min_opacity"], views=len(views.train), test_views=len(views.test),
+        resolution=cfg.resolution, camera_distance=views.camera_distance, psnr_init=psnr_init, psnr_final=psnr_final,
+        psnr_init_train=psnr_init_train, psnr_final_train=psnr_final_train,
+        distill_loss=distill_losses[-1] if distill_losses else None, fit_loss=losses, time_render_source_s=t_render,
+        time_distill_s=t_distill, time_fit_s=t_fit, time_total_s=time.perf_counter() - t0)
     return TranscodeResult(scene, stats)
 
 
@@ -365,11 +419,11 @@ def main(argv: list[str] | None = None) -> int:
     except LghccError as e:
         print(f"transcode: error: {e}", file=sys.stderr)
         return 1
-    st = {k: v for k, v in res.stats.items() if k != "fit_loss"}
+    st = {k: v for k, v in res.stats.to_json().items() if k != "fit_loss"}
     print(json.dumps(st, indent=1))
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({**st, "config": {k: getattr(cfg, k) for k in vars(cfg)}, "fit_loss": res.stats["fit_loss"]},
+            json.dump({**st, "config": {k: getattr(cfg, k) for k in vars(cfg)}, "fit_loss": res.stats.fit_loss},
                       f, indent=1)
     return 0
 

@@ -45,7 +45,7 @@ def test_procedural_round_trip_and_quantization_error():
     err = np.abs(scene.features[order] - dec.scene.features[dorder]).max()
     assert err <= cfg.feature_step / 2 * (1 + 1e-5)
     # Attribute coding is within 0.1% of the model's own ideal code length.
-    assert res.stats["attribute_coded_bits"] <= res.stats["attribute_ideal_bits"] * 1.001 + 64 * 32
+    assert res.stats.attribute_coded_bits <= res.stats.attribute_ideal_bits * 1.001 + 64 * 32
 
 
 HARD_CASES = ("random", "one_anchor", "one_coarse_voxel", "far_coordinates", "constant_features", "escape")
@@ -153,7 +153,7 @@ def test_round_trip_hard_cases(case, context):
     ins = (scene.features[order], scene.scalings[order], np.where(live[:, :, None], scene.offsets[order], 0))
     outs = (out.features, out.scalings, out.offsets)
     steps = (cfg.feature_step, cfg.scaling_step, cfg.offset_step)
-    if res.stats.get("level2_context_model", "per-channel prior") == "per-channel prior":
+    if 2 not in res.stats.levels or res.stats.levels[2].context_model == "per-channel prior":
         for x, y, step in zip(ins, outs, steps):  # exactly float32(rint(x / step)) * step
             want = quantized(x, step)
             assert y.tobytes() == np.where(np.asarray(x) == 0, np.float32(0), want).astype(np.float32).tobytes()
@@ -294,7 +294,7 @@ def test_context_models_round_trip_bit_exact_across_threads(model):
                         context_qat_steps=5, context_fallback=False)
     res = encode_scene(scene, cfg)
     assert res.breakdown.bytes_by_category["model"] > 0
-    assert res.stats["level2_context_model"] != "per-channel prior"
+    assert res.stats.levels[2].context_model != "per-channel prior"
     digests = []
     before = torch.get_num_threads()
     try:
@@ -321,8 +321,8 @@ def test_a_level1_anchor_with_500_children(context):
         setattr(scene, name, getattr(scene, name)[rows])
     cfg = EncoderConfig(hierarchy=True, coarse_voxel_scale=8, context_fallback=False, **CONTEXT_MODELS[context])
     res = encode_scene(scene, cfg)
-    assert res.stats["num_level1"] == 1 and res.stats["num_level2"] == 500
-    assert res.stats["level2_context_model"] != "per-channel prior"
+    assert res.stats.num_level1 == 1 and res.stats.num_level2 == 500
+    assert res.stats.levels[2].context_model != "per-channel prior"
     dec = decode_stream(res.data)
     assert_same_scene(dec.scene, res.decoded)
 
@@ -337,7 +337,7 @@ def test_context_model_that_does_not_pay_is_not_written():
     cfg = EncoderConfig(hierarchy=True, coarse_voxel_scale=4, context_model="parent_mlp", context_float_steps=5,
                         context_qat_steps=0)
     res = encode_scene(scene, cfg)
-    assert res.stats["level2_context_model"] == "per-channel prior"
+    assert res.stats.levels[2].context_model == "per-channel prior"
     from lghcc.common.container import UnitType, read_container
     assert all(u.unit_type != UnitType.CONTEXT_MODEL for u in read_container(res.data).units)
     assert_same_scene(decode_stream(res.data).scene, res.decoded)
@@ -348,8 +348,9 @@ def test_auto_neighbour_level_keeps_the_smaller_of_both_fits():
     cfg = EncoderConfig(hierarchy=True, context_model="ggconv", context_neighbour_level="auto", context_k=4,
                         context_float_steps=10, context_qat_steps=2, context_fallback=False)
     res = encode_scene(scene, cfg)
-    sizes = [res.stats[f"level2_bytes_with_ggconv_neighbour_level_{lv}"] for lv in (1, 2)]
-    assert res.stats["level2_bytes_with_context"] == min(sizes)
+    fit = res.stats.context_fit
+    sizes = [fit.bytes_by_neighbour_level[lv] for lv in (1, 2)]
+    assert fit.bytes_with_context == min(sizes)
     dec = decode_stream(res.data)
     assert_same_scene(dec.scene, res.decoded)
     with pytest.raises(InputError, match="context_neighbour_level"):
@@ -362,9 +363,10 @@ def test_auto_parent_base_keeps_the_smaller_of_both_fits(model):
     cfg = EncoderConfig(hierarchy=True, context_model=model, context_parent_base="auto", context_k=4,
                         context_float_steps=10, context_qat_steps=2, context_fallback=False)
     res = encode_scene(scene, cfg)
-    sizes = {b: res.stats[f"level2_bytes_with_parent_base_{b}"] for b in ("choose", "parent")}
-    assert res.stats["level2_bytes_with_context"] == min(sizes.values())
-    assert sizes[res.stats["context_parent_base"]] == min(sizes.values())
+    fit = res.stats.context_fit
+    sizes = {b: fit.bytes_by_parent_base[b] for b in ("choose", "parent")}
+    assert fit.bytes_with_context == min(sizes.values())
+    assert sizes[fit.parent_base] == min(sizes.values())
     assert_same_scene(decode_stream(res.data).scene, res.decoded)
     with pytest.raises(InputError, match="context_parent_base"):
         EncoderConfig(context_parent_base="median").validate()
@@ -381,6 +383,6 @@ def test_a_context_fit_that_diverges_falls_back_to_the_prior(monkeypatch):
     monkeypatch.setattr(cf, "fit_ggconv", diverging)
     scene = make_procedural_scene(600, seed=3, feature_dim=4, num_offsets=2)
     res = encode_scene(scene, EncoderConfig(hierarchy=True, context_model="ggconv", context_fallback=False))
-    assert res.stats["level2_context_model"] == "per-channel prior"
-    assert "diverged" in res.stats["context_fit_error"]
+    assert res.stats.levels[2].context_model == "per-channel prior"
+    assert "diverged" in res.stats.context_fit.error
     assert_same_scene(decode_stream(res.data).scene, res.decoded)

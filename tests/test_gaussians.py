@@ -61,7 +61,7 @@ def test_round_trip_is_bit_exact_and_keeps_every_gaussian(scene, hierarchy, pred
     assert dec.scene.sh_degree == scene.sh_degree
     # every attribute within half a step (rotations: of the normalized w >= 0 quaternion)
     layout = attr.GaussianLayout(scene.sh_degree)
-    moved = res.stats.get("gaussians_moved_off_shared_voxels", 0)
+    moved = res.stats.gaussians_moved_off_shared_voxels or 0
     if moved == 0:
         src = np.sort(scene.opacity.clip(-8, 8))
         np.testing.assert_allclose(np.sort(dec.scene.opacity), src, atol=cfg.opacity_step / 2 * 1.0001)
@@ -77,7 +77,7 @@ def test_positions_within_half_a_voxel_and_grid_follows_the_scene_scale():
         scene = random_gaussians(np.random.default_rng(1), 400, 0, extent)
         res = encode_gaussian_scene(scene, GaussianEncoderConfig())
         dec = decode_stream(res.data).scene
-        assert res.stats["gaussians_moved_off_shared_voxels"] == 0
+        assert res.stats.gaussians_moved_off_shared_voxels == 0
         # each decoded position lies within half a voxel (per axis) of a source position
         d, _ = cKDTree(scene.means.astype(np.float64)).query(dec.means.astype(np.float64), p=np.inf)
         assert d.max() <= 0.5 * dec.voxel_size * (1 + 1e-4) + 1e-6 * extent
@@ -126,7 +126,7 @@ def test_cross_channel_prediction_saves_bits_on_correlated_colours():
     scene = random_gaussians(np.random.default_rng(3), 3000, 2, correlated=True)
     with_p = encode_gaussian_scene(scene, GaussianEncoderConfig(channel_prediction=True))
     without = encode_gaussian_scene(scene, GaussianEncoderConfig(channel_prediction=False))
-    assert with_p.stats["level0_channel_predictions"] > 0
+    assert with_p.stats.levels[0].channel_predictions > 0
     assert len(with_p.data) < 0.9 * len(without.data)
     assert_same(decode_stream(with_p.data).scene, decode_stream(without.data).scene)
 
@@ -144,7 +144,7 @@ def test_rate_term_of_the_fit_lowers_bits_at_a_like_distortion():
     b = encode_gaussian_scene(rated.scene, cfg)
     # measured: 2,338 -> 2,322 bytes, squared error 2.07e-4 -> 2.13e-4 (a short fit moves values little)
     assert len(b.data) < len(a.data), (len(a.data), len(b.data))
-    assert rated.stats["fit_final_mse"] <= 1.25 * plain.stats["fit_final_mse"]
+    assert rated.stats.fit_final_mse <= 1.25 * plain.stats.fit_final_mse
 
 
 # --- the command line -------------------------------------------------------------------------

@@ -89,4 +89,4 @@ def test_transcoding_rasterizes_through_the_seam(fake_gpu):
                           distill_steps=2, iterations=3, device="cuda")
     r = transcode_3dgs(synthetic_3dgs(80), cfg)
     # the source's targets (2 + 1 views) and the 3 fitting iterations; the held-out evaluation stays on the CPU
-    assert len(fake_gpu) == 3 + 3 and np.isfinite(r.stats["psnr_final"])
+    assert len(fake_gpu) == 3 + 3 and np.isfinite(r.stats.psnr_final)

@@ -212,6 +212,6 @@ def test_the_encoder_keeps_the_prior_for_a_scene_beyond_the_extent():
     cfg = EncoderConfig(hierarchy=True, coarse_voxel_scale=2, context_model="ggconv", context_fallback=False,
                         context_float_steps=2, context_qat_steps=0)
     res = encode_scene(scene, cfg)
-    assert "extent" in res.stats.get("context_fit_error", "")
-    assert res.stats["level2_context_model"] == "per-channel prior"
+    assert "extent" in res.stats.context_fit.error
+    assert res.stats.levels[2].context_model == "per-channel prior"
     assert decode_stream(res.data).hash_checked

@@ -88,7 +88,7 @@ def test_encoder_prunes_before_coding(method):
     full = encode_scene(scene, EncoderConfig())
     res = encode_scene(scene, EncoderConfig(pruning=method, prune_keep_ratio=0.5))
     n = scene.num_anchors
-    assert res.decoded.num_anchors == round(0.5 * n) and res.stats["anchors_before_pruning"] == n
+    assert res.decoded.num_anchors == round(0.5 * n) and res.stats.anchors_before_pruning == n
     assert len(res.data) < 0.7 * len(full.data)
     dec = decode_stream(res.data)
     assert dec.stream_hash == res.scene_hash and dec.scene.num_anchors == res.decoded.num_anchors

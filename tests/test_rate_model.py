@@ -38,7 +38,7 @@ def test_level1_estimate_tracks_the_per_channel_prior_and_differentiates():
     scene, values = _scene_values(1500)
     rm = _model(scene, values)
     res = encode_scene(scene, EncoderConfig(hierarchy=True, feature_step=0.05, scaling_step=0.05, offset_step=0.05))
-    coded = 8 * res.stats["attribute_bytes_level1"]
+    coded = 8 * res.stats.levels[1].attribute_bytes
     with torch.no_grad():
         est = float(rm(torch.from_numpy(values), noise=False)["level1"])
     assert abs(est - coded) < 0.1 * coded, (est, coded)

@@ -527,12 +527,12 @@ def test_rate_trained_run_saves_a_context_twin_that_the_encoder_starts_from(data
                         context_qat_steps=10, context_parent_base="choose", context_neighbour_level=1)
     fresh = encode_scene(scene, cfg)
     warm = encode_scene(scene, cfg, context_twin=twin)
-    assert "level2_bytes_with_parent_base_twin" in warm.stats and "context_twin_unused" not in warm.stats
+    assert "twin" in warm.stats.context_fit.bytes_by_parent_base and warm.stats.context_twin_unused is None
     assert len(warm.data) <= len(fresh.data)
     dec = decode_stream(warm.data)
     assert dec.stream_hash == warm.scene_hash
     other = encode_scene(scene, dataclasses.replace(cfg, feature_step=0.02), context_twin=twin)
-    assert "quantization step" in other.stats["context_twin_unused"]
+    assert "quantization step" in other.stats.context_twin_unused
 
     # lghcc-enc finds the twin beside the scene and says what became of it
     yaml_cfg = tmp_path / "cfg.yaml"

@@ -107,7 +107,7 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         res = encode_scene(scene, cfg)
         t_enc = time.perf_counter() - t0
-        ideal = encode_scene(scene, cfg, measure_ideal=True).stats["attribute_ideal_bits"]
+        ideal = encode_scene(scene, cfg, measure_ideal=True).stats.attribute_ideal_bits
         with tempfile.TemporaryDirectory() as tmp:
             stream = Path(tmp) / "s.lghcc"
             stream.write_bytes(res.data)
@@ -123,7 +123,7 @@ def main(argv=None) -> int:
         b = res.breakdown.bytes_by_category
         na = scene.num_anchors
         target = 3 * scene_bytes + 300e6
-        overhead = res.stats["attribute_coded_bits"] / ideal - 1
+        overhead = res.stats.attribute_coded_bits / ideal - 1
         rows[str(n)] = dict(
             anchors=na, bytes=len(res.data), geometry_bpa=8 * b["geometry"] / na,
             attribute_bpa=8 * b["attributes"] / na, model_bpa=8 * b["model"] / na, encode_aps=na / t_enc,

@@ -97,12 +97,13 @@ def run_one(scene, args, twin=None, **over) -> dict:
     t_dec = time.perf_counter() - t0
     assert dec.stream_hash == res.scene_hash and np.array_equal(dec.scene.features, res.decoded.features)
     n = scene.num_anchors
-    l1, l2 = st.get("attribute_bytes_level1", 0), st.get("attribute_bytes_level2", 0)
-    ctx = st["level2_bytes_with_context"] - l2 if cfg.context_model != "per_channel" else 0
-    return {"n": n, "n2": st.get("num_level2", 0), "l1_bits": 8 * l1 / n, "l2_bits": 8 * l2 / n,
+    l1, l2 = (st.levels[level].attribute_bytes if level in st.levels else 0 for level in (1, 2))
+    fit = st.context_fit
+    ctx = fit.bytes_with_context - l2 if fit is not None and cfg.context_model != "per_channel" else 0
+    return {"n": n, "n2": st.num_level2 or 0, "l1_bits": 8 * l1 / n, "l2_bits": 8 * l2 / n,
             "ctx_bytes": ctx, "all_bits": 8 * (l1 + l2 + ctx) / n, "enc_s": t_enc,
-            "fit_s": st.get("time_context_fit_s", 0.0), "dec_s": t_dec, "load": load_average(),
-            "base": st.get("context_parent_base", "-") if cfg.context_model != "per_channel" else "-",
+            "fit_s": fit.time_s if fit is not None else 0.0, "dec_s": t_dec, "load": load_average(),
+            "base": (fit.parent_base or "-") if fit is not None and cfg.context_model != "per_channel" else "-",
             "err": decoded_error_sq_steps(scene, dec.scene, args.step)}
 
 

@@ -84,7 +84,7 @@ def main(argv=None) -> int:
         n = scene.num_anchors
         ev = evaluate_scene(dec.scene, test, args.background) if test is not None else None
         rows.append((name, len(res.data), 8 * len(res.data) / n, t_enc, t_dec, float(p),
-                     res.stats.get("level2_context_model", "-"), ev))
+                     res.stats.levels[2].context_model if 2 in res.stats.levels else "-", ev))
         print(f"{name}: {len(res.data):,} B, enc {t_enc:.1f} s, dec {t_dec:.2f} s, render PSNR {p:.2f} dB"
               + (f", test PSNR {ev['psnr']:.3f} dB" if ev else ""), flush=True)
     ref_ev = evaluate_scene(scene, test, args.background) if test is not None else None

@@ -105,7 +105,7 @@ def main(argv=None) -> int:
             t_dec = time.perf_counter() - t0
             ev = evaluate_scene(dec.scene, test, args.background)
             parts = res.breakdown.bytes_by_category
-            rows.append(dict(run=run.name, preset=name, twin=res.stats.get("context_parent_base") == "twin", bytes=len(res.data), anchors=scene.num_anchors,
+            rows.append(dict(run=run.name, preset=name, twin=getattr(res.stats.context_fit, "parent_base", None) == "twin", bytes=len(res.data), anchors=scene.num_anchors,
                              geom=parts["geometry"], attr=parts["attributes"], model=parts["model"], enc=t_enc, dec=t_dec, psnr=ev["psnr"],
                              ssim=ev["ssim"], own=own["psnr"], iterations=iters, **{"lambda": lam}))
             r = rows[-1]

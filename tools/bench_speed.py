@@ -67,9 +67,9 @@ def encode_once(scene, preset: str) -> dict:
     t2 = time.perf_counter()
     s = prep.stats
     return {"preset": preset, "bytes": len(result.data), "kept": prep.scene.num_gaussians,
-            "contrib_s": s.get("time_contributions_s", 0.0), "search_s": s.get("time_search_s", 0.0),
-            "fit_s": s.get("time_fit_s", 0.0), "prepare_s": t1 - t0, "code_s": t2 - t1, "total_s": t2 - t0,
-            "trials": s.get("search_trials", 0)}
+            "contrib_s": s.time_contributions_s, "search_s": s.time_search_s or 0.0,
+            "fit_s": s.time_fit_s or 0.0, "prepare_s": t1 - t0, "code_s": t2 - t1, "total_s": t2 - t0,
+            "trials": s.search_trials or 0}
 
 
 def main(argv: list[str] | None = None) -> int:
