@@ -1,12 +1,13 @@
 # make demo : set up .venv, encode and decode the built-in procedural scene
 # make test : set up .venv, run the test suite
-# make node-tools : install the pinned npm tools (tools/node: splat-transform, PlayCanvas engine, esbuild)
+# make check : the architecture checks (static import resolution, complexity, function length)
+# make node-tools : install the pinned npm tools (tools/node: splat-transform, PlayCanvas engine, esbuild, pyright)
 # make viewer-bundle : install them and build lghcc-view's JavaScript bundle
 VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test test-slow spec bench clean node-tools viewer-bundle fuzz-long mutations
+.PHONY: setup demo test test-slow check spec bench clean node-tools viewer-bundle fuzz-long mutations
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -30,6 +31,11 @@ test: setup
 
 test-slow: setup
 	$(PY) -m pytest -m slow
+
+# The architecture checks alone (make test runs them too, in tests/test_architecture.py): imports
+# resolvable from the checkout (pyright, pinned in tools/node), complexity (ruff C901) and length of functions
+check: setup node-tools
+	$(PY) -m pytest -q tests/test_architecture.py
 
 spec: setup
 	$(PY) tools/gen_spec_tables.py
