@@ -25,7 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .entropy.range_coder import TOTAL_FREQUENCY, RangeDecoder, RangeEncoder, exact_model
+from .entropy.range_coder import PRECISION_BITS, TOTAL_FREQUENCY, RangeDecoder, RangeEncoder, exact_model
+from .entropy.scale_levels import NUM_SCALE_LEVELS
 from .entropy.symbol_coder import decode_symbols, encode_symbols
 from .errors import BitstreamError
 from .scene import NUM_SCALINGS, GaussianScene, sh_coeffs_per_channel
@@ -285,7 +286,7 @@ def reconstruct(q: np.ndarray, steps: np.ndarray, step_adjust: np.ndarray | None
 
 def mask_models(mask_live_prob: list[int]):
     """One binary model per offset slot: symbol 1 (live) has frequency p * 2^(24-12)."""
-    shift = 24 - MASK_PROB_BITS
+    shift = PRECISION_BITS - MASK_PROB_BITS
     models = []
     for p in mask_live_prob:
         live = int(p) << shift
@@ -338,7 +339,7 @@ def split_chunks(payload: bytes, sizes: list[int], what: str) -> list[bytes]:
 
 
 def check_levels(levels: np.ndarray, what: str) -> None:
-    if levels.size and (levels.min() < 0 or levels.max() >= 64):
+    if levels.size and (levels.min() < 0 or levels.max() >= NUM_SCALE_LEVELS):
         raise BitstreamError(f"{what}: a scale level is outside [0, 63]")
 
 

@@ -275,7 +275,7 @@ MUTATIONS: list[Mutation] = [
       "attribute_level not checked against the unit's place",
       ("if h.attribute_level != level:", "if False:")),
     M("attributes.mask_shift", "attributes", f"{ATTR}:mask_models",
-      "mask probability scaled by 2^11 instead of 2^12", ("shift = 24 - MASK_PROB_BITS", "shift = 23 - MASK_PROB_BITS")),
+      "mask probability scaled by 2^11 instead of 2^12", ("shift = PRECISION_BITS - MASK_PROB_BITS", "shift = PRECISION_BITS - 1 - MASK_PROB_BITS")),
     M("attributes.mask_symbols_swapped", "attributes", f"{ATTR}:mask_models",
       "mask model with p for symbol 0 (dead) instead of 1 (live)",
       ("np.array([TOTAL_FREQUENCY - live, live]", "np.array([live, TOTAL_FREQUENCY - live]")),

@@ -45,7 +45,9 @@ from ..common.context.ggconv import (
     head_inputs,
     neighbour_graph,
 )
+from ..common.entropy.scale_levels import LOG_SIGMA_MIN as _LOG_SIGMA0, LOG_SIGMA_STEP as _LOG_SIGMA_STEP
 from ..common.intnn import ACT_MAX, ACT_MIN, BIAS_BITS, MAX_SHIFT, IntLinear, IntMLP, frac_bits_for, int_range
+from .ste import ste_round_half_up
 
 
 @dataclass
@@ -174,11 +176,6 @@ def find_context_twin(scene_path) -> ContextTwin | None:
         raise InputError(str(e)) from None
 
 
-def _ste_round(x: torch.Tensor) -> torch.Tensor:
-    """floor(x + 1/2) forward, identity backward."""
-    return x + (torch.floor(x + 0.5) - x).detach()
-
-
 def _ste_clamp(x: torch.Tensor, lo: float, hi: float) -> torch.Tensor:
     return x + (x.clamp(lo, hi) - x).detach()
 
@@ -240,7 +237,7 @@ class _QLayer(nn.Module):
         return self.lin.weight * q[None, :]
 
     def int_params(self, q: torch.Tensor, ste: bool) -> tuple[torch.Tensor, torch.Tensor]:
-        rnd = _ste_round if ste else (lambda t: torch.floor(t + 0.5))
+        rnd = ste_round_half_up if ste else (lambda t: torch.floor(t + 0.5))
         lo, hi = int_range(self.weight_bits)
         blo, bhi = int_range(BIAS_BITS)
         w = _ste_clamp(rnd(self.w_eff(q) * 2.0 ** self.acc_frac), lo, hi)
@@ -264,7 +261,7 @@ class _QLayer(nn.Module):
             return torch.relu(y) if self.relu else y
         w, b = self.int_params(q, ste=True)
         acc = x @ w.T + b
-        y = _ste_round(acc * 2.0 ** -(self.acc_frac - self.out_frac))
+        y = ste_round_half_up(acc * 2.0 ** -(self.acc_frac - self.out_frac))
         return _ste_clamp(y, 0 if self.relu else ACT_MIN, ACT_MAX)
 
     def export(self, q: torch.Tensor) -> IntLinear:
@@ -309,7 +306,7 @@ class GGConvFloat(nn.Module):
         return x
 
     def table_int(self, ste: bool) -> torch.Tensor:
-        rnd = _ste_round if ste else (lambda t: torch.floor(t + 0.5))
+        rnd = ste_round_half_up if ste else (lambda t: torch.floor(t + 0.5))
         return _ste_clamp(rnd(self.table * 2.0 ** self.frac["table"]), ACT_MIN, ACT_MAX)
 
     def forward(self, batch: dict, collect: dict | None = None):
@@ -319,9 +316,9 @@ class GGConvFloat(nn.Module):
             e = self._mlp(self.feat, fin, self.feat_q)
             t = self.table_int(ste=True)
             cw = batch["corner_w"]
-            w = _ste_round((cw[:, :, None] * t[batch["corner_idx"]]).sum(1) * 2.0 ** -TRI_SHIFT)
+            w = ste_round_half_up((cw[:, :, None] * t[batch["corner_idx"]]).sum(1) * 2.0 ** -TRI_SHIFT)
             hsum = torch.zeros((batch["n"], self.ch), dtype=torch.float64).index_add(0, batch["row"], w * e)
-            h = _ste_clamp(_ste_round(hsum * 2.0 ** -self.frac["h_shift"]), ACT_MIN, ACT_MAX)
+            h = _ste_clamp(ste_round_half_up(hsum * 2.0 ** -self.frac["h_shift"]), ACT_MIN, ACT_MAX)
             z = torch.cat([h, batch["head_raw"]], 1)
             o = self._mlp(self.head, z, torch.cat([self._qs(self.frac["h"], self.ch), self.head_q_raw]))
             lv = _inward_clamp(o[:, self.m:2 * self.m], 0, NUM_LEVELS - 1)
@@ -427,10 +424,6 @@ def _batch(d: _Data, sel: torch.Tensor) -> dict:
 
 # -- loss -----------------------------------------------------------------------------------
 
-_LOG_SIGMA0 = math.log(0.11)
-_LOG_SIGMA_STEP = math.log(512.0 / 0.11) / 63.0
-
-
 def gaussian_bits(y: torch.Tensor, mu: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
     """Bits of integer symbols y under a discretized Gaussian (mu, sigma); floor 2^-24."""
     a = (y - mu).abs()
@@ -443,7 +436,7 @@ def rd_loss(mean, level, adj, targets, lam: float) -> tuple[torch.Tensor, torch.
     not coded, a dead offset: it costs nothing)."""
     live = torch.isfinite(targets)
     sigma = torch.exp(_LOG_SIGMA0 + _LOG_SIGMA_STEP * level)
-    y = _ste_round(torch.where(live, targets, 0.0) * torch.exp2(-adj / 4))
+    y = ste_round_half_up(torch.where(live, targets, 0.0) * torch.exp2(-adj / 4))
     bits = (gaussian_bits(y, mean, sigma) * live).sum(1)
     dist = (torch.exp2(adj / 2) / 12 * live).sum(1)
     return bits + lam * dist, bits

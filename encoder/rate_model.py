@@ -36,12 +36,10 @@ from torch import nn
 from ..common.context.ggconv import GRID_FRAC_BITS, grid_coordinate, neighbour_graph, trilinear_corners
 from ..common.geometry import normative_order
 from ..common.hierarchy import build_hierarchy
-from .ggconv_train import (_LOG_SIGMA0, _LOG_SIGMA_STEP, ContextTwin, GGConvFloat, GGConvTrainConfig, _pow2_scale,
+from ..common.entropy.scale_levels import LOG_SIGMA_MIN, LOG_SIGMA_STEP
+from .ste import ste_round_half_even
+from .ggconv_train import (ContextTwin, GGConvFloat, GGConvTrainConfig, _pow2_scale,
                                         default_radius_sq, gaussian_bits, init_mean_outputs)
-
-
-def _ste_round(x: torch.Tensor) -> torch.Tensor:
-    return x + (torch.round(x) - x).detach()
 
 
 class AnchorRateModel(nn.Module):
@@ -147,11 +145,11 @@ class AnchorRateModel(nn.Module):
             batch = {"n": self.num_level2, "feat_in": feat_in, "corner_idx": self.corner_idx,
                      "corner_w": self.corner_w, "row": self.row, "head_raw": torch.cat([self.head_fixed, xpar], 1)}
             mean, level, _ = self.twin(batch)
-            bits2 = gaussian_bits(yn[self.l2], mean, torch.exp(_LOG_SIGMA0 + _LOG_SIGMA_STEP * level)).sum()
+            bits2 = gaussian_bits(yn[self.l2], mean, torch.exp(LOG_SIGMA_MIN + LOG_SIGMA_STEP * level)).sum()
         return {"level1": bits1, "level2": bits2, "total": bits1 + bits2}
 
 
 def quantize_ste(values: torch.Tensor, steps: torch.Tensor) -> torch.Tensor:
     """round(values / step) * step forward (what decoding gives), identity backward."""
     s = steps.to(values.dtype)
-    return _ste_round(values / s) * s
+    return ste_round_half_even(values / s) * s

@@ -74,6 +74,7 @@ from ..common.errors import InputError, LghccError
 from ..app.fileio import atomic_write_bytes
 from ..formats.scaffold_io import write_scaffold
 from ..common.scene import AnchorScene
+from .config import DEFAULT_ATTRIBUTE_STEP
 
 STATE_NAME = "train_state.pth"
 STATE_VERSION = 1
@@ -147,7 +148,7 @@ class TrainConfig:
     # attributes quantized as the encoder will (steps rate_step). 0: plain Scaffold-GS.
     rate_lambda: float = 0.0
     rate_from: int | None = None  # None: densify_until
-    rate_step: float = 0.02  # the encoder's feature/scaling/offset step (0.02: preset medium)
+    rate_step: float = DEFAULT_ATTRIBUTE_STEP  # the encoder's feature/scaling/offset step (preset medium)
     rate_voxel_scale: int = 4  # the encoder's coarse voxel scale
     rate_neighbour_level: int = 1  # the encoder's GG-Conv neighbour level
     rate_lr: float = 0.002  # learning rate of the rate model's parameters

@@ -14,9 +14,9 @@ from lghcc.common.context.ggconv import (
     ggconv_coding_params,
     grid_coordinate,
     level2_graph,
-    sigma_of_level,
     trilinear_corners,
 )
+from lghcc.common.entropy.scale_levels import sigma_of_level
 from lghcc.common.hierarchy import build_hierarchy
 from lghcc.common.intnn import ACT_MAX, ACT_MIN, IntLinear, IntMLP
 
@@ -294,10 +294,8 @@ def test_step_adjust_factors_frozen():
     assert STEP_ADJUST_FACTORS.dtype == np.float32 and not STEP_ADJUST_FACTORS.flags.writeable
     assert [float(np.float32(2 ** (a / 4))) for a in range(8)] == STEP_ADJUST_FACTORS.tolist()
     assert sigma_of_level(0) == pytest.approx(0.11) and sigma_of_level(63) == pytest.approx(512)
-    try:
-        from lghcc.common.entropy.tables import SCALE_SIGMAS
-    except ImportError:  # pragma: no cover
-        return
+    from lghcc.common.entropy.tables import SCALE_SIGMAS
+
     assert np.allclose(SCALE_SIGMAS, sigma_of_level(np.arange(64)))
 
 

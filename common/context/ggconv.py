@@ -34,27 +34,20 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..attributes import STEP_ADJUST_FACTORS  # noqa: F401 (re-exported)
+from ..attributes import NUM_STEP_ADJUST, STEP_ADJUST_FACTORS  # noqa: F401 (re-exported)
+from ..entropy.scale_levels import NUM_SCALE_LEVELS as NUM_LEVELS  # the float twin imports it by this name
 from .model_unit import NamedIntArray
 from ..intnn import ACT_MAX, ACT_MIN, IntLinear, IntMLP, WEIGHT_BITS_ALLOWED, rshift_round
 from ..knn import ball_knn
+from ..scene import NUM_SCALINGS
 
 GRID_FRAC_BITS = 8  # FB: fractional bits of the grid coordinate U
 TRI_SHIFT = 3 * GRID_FRAC_BITS  # the trilinear weights sum to 2^24
 MIN_GRID, MAX_GRID = 2, 16  # allowed table size D
 MAX_K = 64
 MAX_H_SHIFT = 40
-NUM_LEVELS = 64
-NUM_STEP_ADJUST = 8
-NUM_SCALINGS = 6
 MAX_RADIUS_SQ = (1 << 62) - 1  # coded as a 62-bit unsigned value (context-model unit)
 NEIGHBOUR_LEVELS = (1, 2)  # 1: neighbours are level-1 anchors; 2: level-2 anchors (the paper's graph)
-
-
-def sigma_of_level(level) -> np.ndarray:
-    """Nominal sigma of a scale level, in quantization steps (informative; the normative
-    probabilities are the frozen tables of common/entropy/tables.py)."""
-    return 0.11 * (512.0 / 0.11) ** (np.asarray(level, dtype=np.float64) / 63.0)
 
 
 @dataclass

@@ -21,8 +21,8 @@ import torch
 from .ggconv import check_level2_inputs, check_parent_base, clamp16, split_outputs
 from .model_unit import NamedIntArray
 from ..intnn import ACT_MAX, WEIGHT_BITS_ALLOWED, IntLinear, IntMLP
+from ..scene import NUM_SCALINGS
 
-NUM_SCALINGS = 6
 _BLOCK = 1 << 16
 
 
