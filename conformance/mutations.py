@@ -266,9 +266,9 @@ MUTATIONS: list[Mutation] = [
        "z = torch.cat([h, self.n_valid[b_lo:b_hi, None], self.local[b_lo:b_hi]], 1)")),
 
     # --- attribute decoding (clause 11)
-    M("attributes.no_dead_zero", "attributes", f"{ATTR}:read_attribute_unit",
+    M("attributes.no_dead_zero", "attributes", f"{ATTR}:_decode_chunk_values",
       "values of dead offsets not set to 0 (they keep the mean)", ("q *= live", "q *= 1")),
-    M("attributes.no_finite_check", "attributes", f"{ATTR}:read_attribute_unit",
+    M("attributes.no_finite_check", "attributes", f"{ATTR}:_reconstruct_chunk",
       "a non-finite reconstruction is not rejected (clause 11.5)",
       ("if not np.isfinite(target).all():", "if False:")),
     M("attributes.no_level_check", "attributes", f"{ATTR}:read_attribute_unit",
@@ -554,8 +554,8 @@ MUTATIONS: list[Mutation] = [
     M("decode.model_id_mismatch", "decode", f"{DECODE}:decode_attribute_units",
       "the level-2 unit's context_model_id not compared with the unit's model",
       ("if context_model is None or model_id != context_model[0]:", "if context_model is None:")),
-    M("decode.no_hash_check", "decode", f"{DECODE}:decode_stream", "the decoded scene hash not compared",
-      ("if digest != hash_unit.scene_hash:", "if False:")),
+    M("decode.no_hash_check", "decode", f"{DECODE}:_check_scene_hash", "the decoded scene hash not compared",
+      ("if digest != scene_hash:", "if False:")),
     M("decode.attribute_limit", "decode", f"{DECODE}:decode_stream", "N * M above 2^31 accepted",
       ("if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:", "if False:")),
 
@@ -611,10 +611,10 @@ MUTATIONS: list[Mutation] = [
        "for arr in (scene.opacity, scene.sh, scene.log_scales, scene.rotations):")),
 
     # --- cross-channel prediction (clause 11.6)
-    M("prediction.ignored", "prediction", f"{ATTR}:read_attribute_unit",
+    M("prediction.ignored", "prediction", f"{ATTR}:_decode_chunk_values",
       "cross-channel prediction entries parsed but not applied (q = r + mean)",
-      ("        if h.channel_prediction_allowed:\n            q = prediction.reconstruct(",
-       "        if False:\n            q = prediction.reconstruct(")),
+      ("    if h.channel_prediction_allowed:\n        q = prediction.reconstruct(",
+       "    if False:\n        q = prediction.reconstruct(")),
     M("prediction.ties_down", "prediction", f"{ATTR}:ChannelPrediction._term",
       "prediction sum rounds ties down: (sum + 2^7 - 1) >> 8",
       ("(acc + (1 << (CHANNEL_PREDICTION_SHIFT - 1)))", "(acc + ((1 << (CHANNEL_PREDICTION_SHIFT - 1)) - 1))")),
