@@ -78,14 +78,6 @@ def check_extent(*arrays: np.ndarray) -> int:
     return extent
 
 
-def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Exact int64 squared distances between broadcastable [..., 3] int64 arrays (caller
-    guarantees the extent bound)."""
-    d = a - b
-    x, y, z = d[..., 0], d[..., 1], d[..., 2]
-    return x * x + y * y + z * z
-
-
 def _prepare(coords, query, k: int):
     """Checked int64 data and query points, and empty outputs (idx -1, valid False) of [M, k]."""
     c = _as_coords(coords, "coords")
@@ -221,25 +213,3 @@ def _first_by_distance_then_index(d2: np.ndarray, cidx: np.ndarray, ok: np.ndarr
         si = np.take_along_axis(key_i, order, axis=1)
         sok = np.take_along_axis(ok, order, axis=1)
     return sd, si, sok
-
-
-def ball_knn_bruteforce(coords, k: int, radius_sq: int, query=None,
-                        exclude_self: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """O(N M) reference of ``ball_knn`` (same contract), for tests and tiny inputs."""
-    c, q, self_mode, idx_out, valid_out = _prepare(coords, query, k)
-    n, m = c.shape[0], q.shape[0]
-    for r in range(m):
-        if n == 0:
-            break
-        d2 = squared_distances(c, q[r][None, :])
-        ok = d2 <= radius_sq
-        if exclude_self:
-            if self_mode:
-                ok[r] = False
-            else:
-                ok &= d2 != 0
-        j = np.nonzero(ok)[0]
-        j = j[np.lexsort((j, d2[j]))][:k]
-        idx_out[r, :j.size] = j
-        valid_out[r, :j.size] = True
-    return idx_out, valid_out

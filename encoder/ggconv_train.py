@@ -46,6 +46,7 @@ from ..common.context.ggconv import (
     neighbour_graph,
 )
 from ..common.entropy.scale_levels import LOG_SIGMA_MIN as _LOG_SIGMA0, LOG_SIGMA_STEP as _LOG_SIGMA_STEP
+from ..common.hierarchy import local_position
 from ..common.intnn import ACT_MAX, ACT_MIN, BIAS_BITS, MAX_SHIFT, IntLinear, IntMLP, frac_bits_for, int_range
 from .ste import ste_round_half_up
 
@@ -400,7 +401,7 @@ def _prepare(coords2, parent_attrs, targets, voxel_scale, num_features, k, radiu
     ed = edge_inputs(c, x, dc, dx, nbr_t, valid_t, rows_t, num_features, math.isqrt(radius_sq), grid)
     n_valid = valid_t[rows_t].sum(1).to(torch.int64)
     start = torch.cumsum(n_valid, 0) - n_valid
-    local = torch.from_numpy(np.mod(np.asarray(coords2, dtype=np.int64)[rows], np.int64(voxel_scale)))
+    local = torch.from_numpy(local_position(np.asarray(coords2, dtype=np.int64)[rows], voxel_scale))
     head_raw = head_inputs(torch.zeros((rows.size, 0), dtype=torch.int64), local, n_valid, x[rows_t])
     return _Data(ed.feat_in.double(), ed.corner_idx, ed.corner_w.double(), ed.row, start, n_valid,
                  head_raw.double(), torch.from_numpy(np.asarray(targets, dtype=np.float64)[rows]))

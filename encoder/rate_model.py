@@ -35,7 +35,7 @@ from torch import nn
 
 from ..common.context.ggconv import GRID_FRAC_BITS, grid_coordinate, neighbour_graph, trilinear_corners
 from ..common.geometry import normative_order
-from ..common.hierarchy import build_hierarchy
+from ..common.hierarchy import build_hierarchy, local_position
 from ..common.entropy.scale_levels import LOG_SIGMA_MIN, LOG_SIGMA_STEP
 from .ste import ste_round_half_even
 from .ggconv_train import (ContextTwin, GGConvFloat, GGConvTrainConfig, _pow2_scale,
@@ -93,7 +93,7 @@ class AnchorRateModel(nn.Module):
         self.register_buffer("corner_idx", ci)
         self.register_buffer("corner_w", cw.to(torch.float64))
         n_valid = valid_t.sum(1).to(torch.float64)
-        local = torch.from_numpy(np.mod(c2, voxel_scale)).to(torch.float64)
+        local = torch.from_numpy(local_position(c2, voxel_scale)).to(torch.float64)
         self.register_buffer("head_fixed", torch.cat([local, n_valid[:, None]], 1))
         # input column scales as the codec's fitting chooses them (powers of two near 1 / std)
         x1 = torch.round(y1)

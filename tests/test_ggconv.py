@@ -248,7 +248,8 @@ def test_serialization_round_trip_and_errors():
 
 def test_parent_mlp_matches_independent_reference():
     """Spec H.6 one anchor at a time in Python integers, parent_base mixed."""
-    from lghcc.common.context.parent_mlp import ParentMlpParams, parent_mlp_coding_params
+    from lghcc.common.context.parent_mlp import ParentMlpParams
+    from reference_impl import parent_mlp_coding_params
 
     rng = np.random.default_rng(21)
     c, m, s = 4, 4 + 6 + 6, 3

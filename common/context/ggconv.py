@@ -38,6 +38,7 @@ from ..attributes import NUM_STEP_ADJUST, STEP_ADJUST_FACTORS  # noqa: F401 (re-
 from ..entropy.scale_levels import NUM_SCALE_LEVELS as NUM_LEVELS  # the float twin imports it by this name
 from .model_unit import NamedIntArray
 from ..intnn import ACT_MAX, ACT_MIN, IntLinear, IntMLP, WEIGHT_BITS_ALLOWED, rshift_round
+from ..hierarchy import local_position
 from ..knn import ball_knn
 from ..scene import NUM_SCALINGS
 
@@ -415,7 +416,7 @@ class GGConvEvaluator:
         head0 = params.head_mlp.layers[0]
         self.head0_z = head0._ws[:ch + 4].contiguous()  # the weights of [h, local position, n_valid]
         self.q1 = torch.addmm(head0._bs, self.x1f, head0._ws[ch + 4:].contiguous())  # [N1, Hh]: bias + W x
-        self.local = torch.from_numpy(np.mod(c, np.int64(self.voxel_scale))).clamp_(0, ACT_MAX).to(torch.float64)
+        self.local = torch.from_numpy(local_position(c, self.voxel_scale)).clamp_(0, ACT_MAX).to(torch.float64)
         self.w_scale = 2.0 ** -params.h_shift  # folded into the geometry weights: sum_j (w 2^-hs) e is exact
         r = params.radius
         self.side = 2 * r + 1
