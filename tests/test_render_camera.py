@@ -469,3 +469,26 @@ def test_llff_errors(tmp_path):
     np.save(tmp_path / "c" / "poses_bounds.npy", np.zeros((3, 15)))
     with pytest.raises(InputError, match=r"\[N, 17\]"):
         load_llff(tmp_path / "c")
+
+
+def test_write_png_is_atomic(tmp_path, monkeypatch):
+    """A failed write leaves the previous PNG as it was and no temporary file (Pillow writes
+    into a temporary file that replaces the target only when complete)."""
+    from PIL import Image
+
+    target = tmp_path / "view.png"
+    old = np.full((4, 5, 3), 0.25, np.float32)
+    write_png(target, old)
+    before = target.read_bytes()
+
+    def failing_save(self, fp, format=None, **kw):
+        fp.write(b"\x89PNG partial")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(Image.Image, "save", failing_save)
+    with pytest.raises(OSError, match="disk full"):
+        write_png(target, np.zeros((4, 5, 3), np.float32))
+    assert target.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["view.png"]
+    monkeypatch.undo()
+    assert np.allclose(read_image(target), np.round(old * 255) / 255)
