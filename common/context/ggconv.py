@@ -36,7 +36,7 @@ import torch
 
 from ..attributes import NUM_STEP_ADJUST, STEP_ADJUST_FACTORS  # noqa: F401 (re-exported)
 from ..entropy.scale_levels import NUM_SCALE_LEVELS as NUM_LEVELS  # the float twin imports it by this name
-from .model_unit import NamedIntArray
+from .model_unit import NamedIntArray, mlp_arrays
 from ..intnn import ACT_MAX, ACT_MIN, IntLinear, IntMLP, WEIGHT_BITS_ALLOWED, rshift_round
 from ..hierarchy import local_position
 from ..knn import ball_knn
@@ -130,12 +130,7 @@ class GGConvParams:
                NamedIntArray("radius_sq", np.array(self.radius_sq, dtype=np.int64), 62, False),
                NamedIntArray("h_shift", np.array(self.h_shift, dtype=np.int64), 8, False),
                NamedIntArray("table", self.table.copy(), 16, True)]
-        for name, mlp in (("feat", self.feat_mlp), ("head", self.head_mlp)):
-            for l, layer in enumerate(mlp.layers):
-                out += [NamedIntArray(f"{name}.{l}.weight", layer.weight.copy(), layer.weight_bits, True),
-                        NamedIntArray(f"{name}.{l}.bias", layer.bias.copy(), 32, True),
-                        NamedIntArray(f"{name}.{l}.shift", np.array(layer.shift, dtype=np.int64), 8, False)]
-        return out
+        return out + mlp_arrays("feat", self.feat_mlp) + mlp_arrays("head", self.head_mlp)
 
     @classmethod
     def from_arrays(cls, arrays: list[NamedIntArray]) -> "GGConvParams":

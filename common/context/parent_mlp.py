@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from .ggconv import check_level2_inputs, check_parent_base, clamp16, split_outputs
-from .model_unit import NamedIntArray
+from .model_unit import NamedIntArray, mlp_arrays
 from ..hierarchy import local_position
 from ..intnn import ACT_MAX, WEIGHT_BITS_ALLOWED, IntLinear, IntMLP
 from ..scene import NUM_SCALINGS
@@ -53,13 +53,8 @@ class ParentMlpParams:
         return self.head_mlp.num_parameters()
 
     def to_arrays(self) -> list[NamedIntArray]:
-        out = [NamedIntArray("num_features", np.array(self.num_features, dtype=np.int64), 16, False),
-               NamedIntArray("parent_base", self.parent_base.copy(), 1, False)]
-        for l, layer in enumerate(self.head_mlp.layers):
-            out += [NamedIntArray(f"head.{l}.weight", layer.weight.copy(), layer.weight_bits, True),
-                    NamedIntArray(f"head.{l}.bias", layer.bias.copy(), 32, True),
-                    NamedIntArray(f"head.{l}.shift", np.array(layer.shift, dtype=np.int64), 8, False)]
-        return out
+        return [NamedIntArray("num_features", np.array(self.num_features, dtype=np.int64), 16, False),
+                NamedIntArray("parent_base", self.parent_base.copy(), 1, False)] + mlp_arrays("head", self.head_mlp)
 
     @classmethod
     def from_arrays(cls, arrays: list[NamedIntArray]) -> "ParentMlpParams":
