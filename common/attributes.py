@@ -25,7 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .entropy.range_coder import TOTAL_FREQUENCY, RangeDecoder, RangeEncoder, exact_model
+from .entropy.range_coder import PRECISION_BITS, TOTAL_FREQUENCY, RangeDecoder, RangeEncoder, exact_model
+from .entropy.scale_levels import NUM_SCALE_LEVELS
 from .entropy.symbol_coder import decode_symbols, encode_symbols
 from .errors import BitstreamError
 from .scene import NUM_SCALINGS, GaussianScene, sh_coeffs_per_channel
@@ -285,7 +286,7 @@ def reconstruct(q: np.ndarray, steps: np.ndarray, step_adjust: np.ndarray | None
 
 def mask_models(mask_live_prob: list[int]):
     """One binary model per offset slot: symbol 1 (live) has frequency p * 2^(24-12)."""
-    shift = 24 - MASK_PROB_BITS
+    shift = PRECISION_BITS - MASK_PROB_BITS
     models = []
     for p in mask_live_prob:
         live = int(p) << shift
@@ -338,7 +339,7 @@ def split_chunks(payload: bytes, sizes: list[int], what: str) -> list[bytes]:
 
 
 def check_levels(levels: np.ndarray, what: str) -> None:
-    if levels.size and (levels.min() < 0 or levels.max() >= 64):
+    if levels.size and (levels.min() < 0 or levels.max() >= NUM_SCALE_LEVELS):
         raise BitstreamError(f"{what}: a scale level is outside [0, 63]")
 
 
@@ -408,10 +409,7 @@ def read_attribute_unit(payload: bytes, layout, steps: np.ndarray, num_rows: int
             raise BitstreamError(f"attribute unit (level {level}) uses context model {h.context_model_id}, "
                                  "but the stream has no matching context model unit")
         params = context(h.context_model_id)
-    body = payload[reader.bit_position // 8:]
-    sizes = [x for pair in zip(h.mask_chunk_size, h.chunk_size) for x in pair] if h.offset_mask_present \
-        else list(h.chunk_size)
-    pieces = iter(split_chunks(body, sizes, what))
+    pieces = iter(split_chunks(payload[reader.bit_position // 8:], _chunk_sizes(h), what))
     models = mask_models(h.mask_live_prob) if h.offset_mask_present else None
     mask = np.ones((num_rows, layout.num_offsets), dtype=bool) if h.offset_mask_present else None
     q_all = np.zeros((num_rows, layout.num_channels), dtype=np.int64) if keep_q else None
@@ -419,22 +417,11 @@ def read_attribute_unit(payload: bytes, layout, steps: np.ndarray, num_rows: int
         lo, hi = i * h.rows_per_chunk, min(num_rows, (i + 1) * h.rows_per_chunk)
         if models is not None:
             mask[lo:hi] = decode_mask_chunk(next(pieces), hi - lo, models, f"attribute mask chunk {i}")
-        live = layout.live_channels(None if mask is None else mask[lo:hi], hi - lo)
         p = params.rows(lo, hi, layout.num_channels)
-        check_levels(np.asarray(p.level), what)
-        r = decode_residual_chunk(next(pieces), p.level, live, f"attribute chunk {i}")
-        if h.channel_prediction_allowed:
-            q = prediction.reconstruct(r, np.asarray(p.mean, dtype=np.int64), f"attribute chunk {i} (level {level})")
-        else:
-            q = r + p.mean
-        if live is not None:
-            q *= live  # values that are not coded are 0
+        q = _decode_chunk_values(next(pieces), h, layout, p, prediction, None if mask is None else mask[lo:hi],
+                                 hi - lo, i, level)
         target = values_out[lo:hi] if rows is None else np.empty((hi - lo, layout.num_channels), np.float32)
-        with np.errstate(over="ignore", invalid="ignore"):
-            reconstruct(q, steps, p.step_adjust, out=target)
-        if not np.isfinite(target).all():
-            raise BitstreamError(f"attribute chunk {i} (level {level}): a decoded value overflows binary32 "
-                                 "(a conforming stream decodes to finite values only)")
+        _reconstruct_chunk(q, steps, p.step_adjust, target, i, level)
         if rows is not None:
             values_out[rows[lo:hi]] = target
         if keep_q:
@@ -442,3 +429,35 @@ def read_attribute_unit(payload: bytes, layout, steps: np.ndarray, num_rows: int
         if on_chunk is not None:
             on_chunk(hi - lo)
     return h, mask, q_all
+
+
+def _chunk_sizes(h: AttributeUnitHeader) -> list[int]:
+    """The sizes of the unit's chunk payloads in stream order (mask chunk i before chunk i)."""
+    return [x for pair in zip(h.mask_chunk_size, h.chunk_size) for x in pair] if h.offset_mask_present \
+        else list(h.chunk_size)
+
+
+def _decode_chunk_values(data: bytes, h: AttributeUnitHeader, layout, p: CodingParams, prediction: ChannelPrediction,
+                         mask: np.ndarray | None, num_rows: int, i: int, level: int) -> np.ndarray:
+    """The quantized values q [rows, M] of chunk i: its residuals decoded with the scale levels
+    of ``p``, plus the means (and the cross-channel prediction); values not coded are 0."""
+    live = layout.live_channels(mask, num_rows)
+    check_levels(np.asarray(p.level), f"attribute unit (level {level})")
+    r = decode_residual_chunk(data, p.level, live, f"attribute chunk {i}")
+    if h.channel_prediction_allowed:
+        q = prediction.reconstruct(r, np.asarray(p.mean, dtype=np.int64), f"attribute chunk {i} (level {level})")
+    else:
+        q = r + p.mean
+    if live is not None:
+        q *= live  # values that are not coded are 0
+    return q
+
+
+def _reconstruct_chunk(q: np.ndarray, steps: np.ndarray, step_adjust: np.ndarray | None, target: np.ndarray,
+                       i: int, level: int) -> None:
+    """Reconstruction (clause 11.5) of chunk i into ``target``; every value must be finite."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        reconstruct(q, steps, step_adjust, out=target)
+    if not np.isfinite(target).all():
+        raise BitstreamError(f"attribute chunk {i} (level {level}): a decoded value overflows binary32 "
+                             "(a conforming stream decodes to finite values only)")

@@ -15,8 +15,10 @@ octree of the anchor coordinates relative to their bounding-box minimum:
   the counts of every symbol coded before in that context. Nothing about the
   probabilities is transmitted.
 
-Encoder and decoder share one code path (``_OctreeCoder``): the only difference is
-whether a binary decision's value is written or read, so they cannot drift apart.
+Encoder and decoder share the coding of every decision (``_SymbolIO`` writes or reads a
+binary decision with the same contexts and count updates; ``_code_occupancy``, the IDCM
+eligibility and context, and the node state of the next depth are one function each, used
+by both), so they cannot drift apart.
 
 The normative anchor order is Morton (z-order) of the coordinates relative to their
 bounding-box minimum, x the most significant of each bit triple (``normative_order``).
@@ -360,6 +362,43 @@ def _validate_header(h: GeometryHeader, num_anchors: int) -> None:
                              f"{h.geom_bit_depth} bits per axis")
 
 
+@dataclass
+class _NodeState:
+    """Per node of the current depth (G.5.1): sib1 (occupied children of its parent), par_nbr
+    (occupied face neighbours of its parent), par_sib1 (the parent's sib1)."""
+
+    sib1: np.ndarray
+    par_nbr: np.ndarray
+    par_sib1: np.ndarray
+
+    @classmethod
+    def root(cls) -> "_NodeState":
+        """The one node of depth 0: sib1 = 1, par_nbr = 0, par_sib1 = 1."""
+        return cls(np.ones(1, dtype=np.int64), np.zeros(1, dtype=np.int64), np.ones(1, dtype=np.int64))
+
+    def idcm_eligible(self, mode: int, remaining: int) -> np.ndarray:
+        """Indices of the nodes eligible for direct coding (G.5.2)."""
+        return np.flatnonzero(_idcm_eligible(mode, remaining, self.sib1, self.par_nbr, self.par_sib1))
+
+    def idcm_flag_context(self, nodes: np.ndarray) -> np.ndarray:
+        return _idcm_flag_context(self.sib1[nodes], self.par_sib1[nodes])
+
+    def without(self, keep: np.ndarray) -> "_NodeState":
+        """The nodes that are not direct (``keep``); only sib1 is read again at this depth."""
+        return _NodeState(self.sib1[keep], self.par_nbr, self.par_sib1)
+
+    def children(self, occ: np.ndarray, nbr_count: np.ndarray, parent: np.ndarray) -> "_NodeState":
+        """The state of the nodes of depth l + 1, children of the nodes ``parent`` (G.5.4 step 5)."""
+        return _NodeState(POPCOUNT8[occ][parent], nbr_count[parent], self.sib1[parent])
+
+
+def _idcm_flag_context(sib1: np.ndarray, par_sib1: np.ndarray) -> np.ndarray:
+    """Context of idcm_flag (G.5.2 step 1): min(sib1 - 1, 2) * 3 + min(par_sib1 - 1, 2)."""
+    return np.minimum(sib1 - 1, 2) * 3 + np.minimum(par_sib1 - 1, 2)
+
+
+# --- encoding (the same decisions, written) ---------------------------------------------------
+
 def encode_geometry(coords: np.ndarray, idcm_mode: int = IDCM_ISOLATED) -> bytes:
     """coords int64 [N,3], unique, N>=1, each coordinate in [-2**31, 2**31). Returns the geometry
     unit payload: geometry_header, byte alignment, range-coded octree data."""
@@ -369,8 +408,7 @@ def encode_geometry(coords: np.ndarray, idcm_mode: int = IDCM_ISOLATED) -> bytes
     bmin = c.min(axis=0)
     off = c - bmin
     bit_depth = _bit_depths(off)
-    dmax = max(bit_depth)
-    pts = off[_morton_perm(off, dmax)]
+    pts = off[_morton_perm(off, max(bit_depth))]
     if pts.shape[0] > 1 and not np.any(pts[1:] != pts[:-1], axis=1).all():
         raise ValueError("coordinates must be unique")
     header = GeometryHeader.for_min(bmin.tolist(), bit_depth, idcm_mode)
@@ -378,57 +416,66 @@ def encode_geometry(coords: np.ndarray, idcm_mode: int = IDCM_ISOLATED) -> bytes
     header.write_to(w)
     w.byte_align()
     enc = RangeEncoder()
-    io = _SymbolIO(encoder=enc)
+    _encode_octree(_SymbolIO(encoder=enc), pts, bit_depth, idcm_mode)
+    return w.getvalue() + enc.to_bytes()
+
+
+def _nodes_of_points(pts: np.ndarray, remaining: int) -> tuple[np.ndarray, np.ndarray]:
+    """The nodes holding the points (Morton order): coordinates of each point's node, and the
+    index of the first point of every node (the points of a node are contiguous)."""
+    q_all = pts >> remaining
+    new = np.ones(pts.shape[0], dtype=bool)
+    new[1:] = np.any(q_all[1:] != q_all[:-1], axis=1)
+    return q_all, np.flatnonzero(new)
+
+
+def _encode_octree(io: _SymbolIO, pts: np.ndarray, bit_depth: list[int], idcm_mode: int) -> None:
+    """Code the offsets ``pts`` (Morton order, unique) depth by depth (G.5, G.7)."""
     st = _ContextState()
-    # per node of the current depth: sib1 (occupied children of its parent), parent's face
-    # neighbour count, parent's sib1; the points of each node are contiguous in pts
-    sib1 = np.ones(1, dtype=np.int64)
-    par_nbr = np.zeros(1, dtype=np.int64)
-    par_sib1 = np.ones(1, dtype=np.int64)
+    nodes = _NodeState.root()
+    dmax = max(bit_depth)
     for depth in range(dmax):
         remaining = dmax - depth
-        q_all = pts >> remaining
-        new = np.ones(pts.shape[0], dtype=bool)
-        new[1:] = np.any(q_all[1:] != q_all[:-1], axis=1)
-        starts = np.flatnonzero(new)
+        q_all, starts = _nodes_of_points(pts, remaining)
         q = q_all[starts]
-        npts = np.diff(np.append(starts, pts.shape[0]))
-        # direct coding
-        elig = np.flatnonzero(_idcm_eligible(idcm_mode, remaining, sib1, par_nbr, par_sib1))
+        elig = nodes.idcm_eligible(idcm_mode, remaining)
         if elig.size:
-            flag = (npts[elig] <= 2).astype(np.int64)
-            ctx = np.minimum(sib1[elig] - 1, 2) * 3 + np.minimum(par_sib1[elig] - 1, 2)
-            io.binary(ctx, st.idcm_flag, flag)
-            direct = elig[flag == 1]
-            two = (npts[direct] == 2).astype(np.int64)
-            io.binary(np.zeros(direct.size, dtype=np.int64), st.idcm_two, two)
-            first = starts[direct]
-            sel = np.concatenate([first, first[two == 1] + 1])
-            sel.sort()
-            for a in range(3):
-                nb_a = min(remaining, bit_depth[a])
-                io.raw(nb_a, pts[sel, a] & ((1 << nb_a) - 1))
-            keep_nodes = np.ones(q.shape[0], dtype=bool)
-            keep_nodes[direct] = False
-            keep_pts = np.repeat(keep_nodes, npts)
-            pts = pts[keep_pts]
-            q, sib1 = q[keep_nodes], sib1[keep_nodes]
+            keep_nodes = _encode_direct_nodes(io, st, pts, starts, elig, nodes, remaining, bit_depth)
+            pts = pts[np.repeat(keep_nodes, np.diff(np.append(starts, pts.shape[0])))]
+            q, nodes = q[keep_nodes], nodes.without(keep_nodes)
             if pts.shape[0] == 0:
                 break
-            q_all = pts >> remaining
-            new = np.ones(pts.shape[0], dtype=bool)
-            new[1:] = np.any(q_all[1:] != q_all[:-1], axis=1)
-            starts = np.flatnonzero(new)
+            q_all, starts = _nodes_of_points(pts, remaining)
         ci = (((pts[:, 0] >> (remaining - 1)) & 1) << 2) | (((pts[:, 1] >> (remaining - 1)) & 1) << 1) \
             | ((pts[:, 2] >> (remaining - 1)) & 1)
         occ = np.bitwise_or.reduceat(np.left_shift(1, ci), starts)
         occ, nbr_count = _code_occupancy(io, st, q, depth, remaining, bit_depth, occ)
         _, parent = _children(q, occ)
-        par_sib1 = sib1[parent]
-        sib1 = POPCOUNT8[occ][parent]
-        par_nbr = nbr_count[parent]
-    return w.getvalue() + enc.to_bytes()
+        nodes = nodes.children(occ, nbr_count, parent)
 
+
+def _encode_direct_nodes(io: _SymbolIO, st: _ContextState, pts: np.ndarray, starts: np.ndarray,
+                         elig: np.ndarray, nodes: _NodeState, remaining: int, bit_depth: list[int]) -> np.ndarray:
+    """Direct coding (G.5.2) of the eligible nodes that hold one or two points: idcm_flag,
+    idcm_two_points and the low bits of their points. Returns which nodes are not direct."""
+    npts = np.diff(np.append(starts, pts.shape[0]))
+    flag = (npts[elig] <= 2).astype(np.int64)
+    io.binary(nodes.idcm_flag_context(elig), st.idcm_flag, flag)
+    direct = elig[flag == 1]
+    two = (npts[direct] == 2).astype(np.int64)
+    io.binary(np.zeros(direct.size, dtype=np.int64), st.idcm_two, two)
+    first = starts[direct]
+    sel = np.concatenate([first, first[two == 1] + 1])
+    sel.sort()
+    for a in range(3):
+        nb_a = min(remaining, bit_depth[a])
+        io.raw(nb_a, pts[sel, a] & ((1 << nb_a) - 1))
+    keep_nodes = np.ones(starts.size, dtype=bool)
+    keep_nodes[direct] = False
+    return keep_nodes
+
+
+# --- decoding (G.5) ---------------------------------------------------------------------------
 
 def decode_geometry(payload: bytes, num_anchors: int, trace: list | None = None) -> np.ndarray:
     """Decode the geometry payload of ``num_anchors`` anchors. Returns int64 [N,3] coordinates in
@@ -436,6 +483,15 @@ def decode_geometry(payload: bytes, num_anchors: int, trace: list | None = None)
     n = int(num_anchors)
     if n < 1:
         raise BitstreamError(f"num_anchors = {n}: the geometry of at least one anchor is needed")
+    header, data = _read_geometry_header(payload, n, trace)
+    dec = RangeDecoder(data, "geometry data")
+    pts = _decode_octree(_SymbolIO(decoder=dec), list(header.geom_bit_depth), header.geom_idcm_mode, n)
+    dec.check_exhausted()
+    return _output_anchors(pts, header, n)
+
+
+def _read_geometry_header(payload: bytes, n: int, trace: list | None) -> tuple[GeometryHeader, bytes]:
+    """geometry_header (G.2), checked (G.3), and the coded data after the byte alignment."""
     reader = BitReader(payload, "geometry payload")
     header = GeometryHeader.parse(reader, trace)
     reader.byte_align()
@@ -443,41 +499,25 @@ def decode_geometry(payload: bytes, num_anchors: int, trace: list | None = None)
     data = bytes(payload[reader.bit_position // 8:])
     if max(header.geom_bit_depth) == 0 and data:
         raise BitstreamError(f"geometry payload: {len(data)} bytes of coded data after a header of bit depth 0")
-    dec = RangeDecoder(data, "geometry data")
-    io = _SymbolIO(decoder=dec)
+    return header, data
+
+
+def _decode_octree(io: _SymbolIO, bit_depth: list[int], mode: int, n: int) -> np.ndarray:
+    """The offsets of the anchors (G.5.1 to G.5.4): the directly decoded points, then the leaves."""
     st = _ContextState()
-    bit_depth = list(header.geom_bit_depth)
-    mode = header.geom_idcm_mode
     dmax = max(bit_depth)
     q = np.zeros((1, 3), dtype=np.int64)
-    sib1 = np.ones(1, dtype=np.int64)
-    par_nbr = np.zeros(1, dtype=np.int64)
-    par_sib1 = np.ones(1, dtype=np.int64)
+    nodes = _NodeState.root()
     direct_pts: list[np.ndarray] = []
     num_direct = 0
     for depth in range(dmax):
         remaining = dmax - depth
-        elig = np.flatnonzero(_idcm_eligible(mode, remaining, sib1, par_nbr, par_sib1))
+        elig = nodes.idcm_eligible(mode, remaining)
         if elig.size:
-            ctx = np.minimum(sib1[elig] - 1, 2) * 3 + np.minimum(par_sib1[elig] - 1, 2)
-            flag = io.binary(ctx, st.idcm_flag)
-            direct = elig[flag == 1]
-            two = io.binary(np.zeros(direct.size, dtype=np.int64), st.idcm_two)
-            owner = np.sort(np.concatenate([direct, direct[two == 1]]))
-            if num_direct + owner.size + (q.shape[0] - direct.size) > n:
-                raise BitstreamError(f"geometry data: more than num_anchors = {n} anchors at depth {depth}")
-            low = np.stack([io.raw(min(remaining, bit_depth[a]), count=owner.size) for a in range(3)], axis=1)
-            p = (q[owner] << remaining) | low
-            if owner.size > 1:
-                same = (owner[1:] == owner[:-1]) & np.all(p[1:] == p[:-1], axis=1)
-                if same.any():
-                    raise BitstreamError(f"geometry data: a directly coded node at depth {depth} holds "
-                                         f"the same point twice")
+            p, keep = _decode_direct_nodes(io, st, q, elig, nodes, remaining, bit_depth, n, num_direct, depth)
             direct_pts.append(p)
-            num_direct += owner.size
-            keep = np.ones(q.shape[0], dtype=bool)
-            keep[direct] = False
-            q, sib1 = q[keep], sib1[keep]
+            num_direct += p.shape[0]
+            q, nodes = q[keep], nodes.without(keep)
             if q.shape[0] == 0:
                 break
         occ, nbr_count = _code_occupancy(io, st, q, depth, remaining, bit_depth, None)
@@ -486,11 +526,35 @@ def decode_geometry(payload: bytes, num_anchors: int, trace: list | None = None)
             raise BitstreamError(f"geometry data: {num_direct + num_children} anchors at depth {depth + 1}, "
                                  f"more than num_anchors = {n}")
         q, parent = _children(q, occ)
-        par_sib1 = sib1[parent]
-        sib1 = POPCOUNT8[occ][parent]
-        par_nbr = nbr_count[parent]
-    dec.check_exhausted()
-    pts = np.concatenate(direct_pts + [q]) if (dmax == 0 or q.shape[0]) else np.concatenate(direct_pts)
+        nodes = nodes.children(occ, nbr_count, parent)
+    return np.concatenate(direct_pts + [q]) if (dmax == 0 or q.shape[0]) else np.concatenate(direct_pts)
+
+
+def _decode_direct_nodes(io: _SymbolIO, st: _ContextState, q: np.ndarray, elig: np.ndarray, nodes: _NodeState,
+                         remaining: int, bit_depth: list[int], n: int, num_direct: int, depth: int
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """Direct coding (G.5.2) of the eligible nodes, ``num_direct`` points having been decoded
+    directly before. Returns the points of the direct nodes and which nodes are not direct."""
+    flag = io.binary(nodes.idcm_flag_context(elig), st.idcm_flag)
+    direct = elig[flag == 1]
+    two = io.binary(np.zeros(direct.size, dtype=np.int64), st.idcm_two)
+    owner = np.sort(np.concatenate([direct, direct[two == 1]]))
+    if num_direct + owner.size + (q.shape[0] - direct.size) > n:
+        raise BitstreamError(f"geometry data: more than num_anchors = {n} anchors at depth {depth}")
+    low = np.stack([io.raw(min(remaining, bit_depth[a]), count=owner.size) for a in range(3)], axis=1)
+    p = (q[owner] << remaining) | low
+    if owner.size > 1:
+        same = (owner[1:] == owner[:-1]) & np.all(p[1:] == p[:-1], axis=1)
+        if same.any():
+            raise BitstreamError(f"geometry data: a directly coded node at depth {depth} holds "
+                                 f"the same point twice")
+    keep = np.ones(q.shape[0], dtype=bool)
+    keep[direct] = False
+    return p, keep
+
+
+def _output_anchors(pts: np.ndarray, header: GeometryHeader, n: int) -> np.ndarray:
+    """G.5.5: exactly N points attaining the bounding-box minimum, as coordinates in normative order."""
     if pts.shape[0] != n:
         raise BitstreamError(f"geometry data holds {pts.shape[0]} anchors, num_anchors = {n}")
     bmin = np.array(header.bbox_min, dtype=np.int64)
@@ -499,4 +563,4 @@ def decode_geometry(payload: bytes, num_anchors: int, trace: list | None = None)
     coords = pts + bmin
     if int(coords.max()) > COORD_MAX:
         raise BitstreamError("geometry data: decoded coordinates exceed 2^31 - 1")
-    return coords[_morton_perm(pts, dmax)]
+    return coords[_morton_perm(pts, max(header.geom_bit_depth))]

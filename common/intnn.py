@@ -73,15 +73,6 @@ def rshift_round(x: torch.Tensor, shift: int) -> torch.Tensor:
     return (x + (1 << (shift - 1))) >> shift
 
 
-def rshift_round_np(x: np.ndarray, shift: int) -> np.ndarray:
-    """numpy twin of ``rshift_round`` (int64)."""
-    if shift < 0 or shift > 62:
-        raise ValueError(f"shift must be in [0, 62], got {shift}")
-    if shift == 0:
-        return x
-    return (x + np.int64(1 << (shift - 1))) >> np.int64(shift)
-
-
 def clamp_act(x: torch.Tensor, relu: bool = False) -> torch.Tensor:
     return x.clamp(0 if relu else ACT_MIN, ACT_MAX)
 

@@ -78,14 +78,6 @@ def check_extent(*arrays: np.ndarray) -> int:
     return extent
 
 
-def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Exact int64 squared distances between broadcastable [..., 3] int64 arrays (caller
-    guarantees the extent bound)."""
-    d = a - b
-    x, y, z = d[..., 0], d[..., 1], d[..., 2]
-    return x * x + y * y + z * z
-
-
 def _prepare(coords, query, k: int):
     """Checked int64 data and query points, and empty outputs (idx -1, valid False) of [M, k]."""
     c = _as_coords(coords, "coords")
@@ -94,6 +86,14 @@ def _prepare(coords, query, k: int):
     check_extent(c, q)
     m = q.shape[0]
     return c, q, self_mode, np.full((m, k), -1, dtype=np.int64), np.zeros((m, k), dtype=bool)
+
+
+def _check_k_radius(k, radius_sq) -> tuple[int, int]:
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 0:
+        raise ValueError(f"k must be a non-negative integer, got {k!r}")
+    if isinstance(radius_sq, bool) or not isinstance(radius_sq, (int, np.integer)) or radius_sq < 0:
+        raise ValueError(f"radius_sq must be a non-negative integer, got {radius_sq!r}")
+    return int(k), int(radius_sq)
 
 
 def ball_knn(coords, k: int, radius_sq: int, query=None, exclude_self: bool = True,
@@ -110,71 +110,62 @@ def ball_knn(coords, k: int, radius_sq: int, query=None, exclude_self: bool = Tr
     candidates asked beyond k at first; None: 8 for a self query, whose dense neighbourhoods
     tie often, and 2 for a separate query set; tools/results/ggconv.md measures both).
     """
-    from scipy.spatial import cKDTree
-
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 0:
-        raise ValueError(f"k must be a non-negative integer, got {k!r}")
-    if isinstance(radius_sq, bool) or not isinstance(radius_sq, (int, np.integer)) or radius_sq < 0:
-        raise ValueError(f"radius_sq must be a non-negative integer, got {radius_sq!r}")
-    k = int(k)
-    radius_sq = int(radius_sq)
+    k, radius_sq = _check_k_radius(k, radius_sq)
     c, q, self_mode, idx_out, valid_out = _prepare(coords, query, k)
     n, m = c.shape[0], q.shape[0]
     if n == 0 or m == 0 or k == 0:
         return idx_out, valid_out
     # Clamp the radius to the largest possible d2 so float bounds stay finite.
-    radius_sq = min(radius_sq, 3 * MAX_EXTENT * MAX_EXTENT)
+    search = _CandidateSearch(c, q, self_mode, min(radius_sq, 3 * MAX_EXTENT * MAX_EXTENT), k, exclude_self,
+                              workers)
+    if initial_extra is None:
+        initial_extra = 8 if self_mode else 2
+    ask = k + initial_extra + (1 if exclude_self else 0)
+    pending = np.arange(m, dtype=np.int64)
+    while pending.size:
+        ask = min(ask, n)
+        rest = [search.solve(pending[lo:lo + _BLOCK], ask, idx_out, valid_out)
+                for lo in range(0, pending.size, _BLOCK)]
+        pending = np.concatenate(rest)
+        assert ask < n or pending.size == 0
+        ask *= 2
+    return idx_out, valid_out
 
-    base = np.minimum(c.min(axis=0), q.min(axis=0))
-    cf = (c - base).astype(np.float64)  # exact: 0 <= value <= MAX_EXTENT < 2^53
-    qf = cf if self_mode else (q - base).astype(np.float64)
-    tree = cKDTree(cf, balanced_tree=False, compact_nodes=False)
-    bound = math.sqrt(radius_sq) * (1 + 2.0**-30) + 1e-3  # float bound strictly beyond the ball
 
-    cols = [np.ascontiguousarray(c[:, a]) for a in range(3)]
-    qcols = cols if self_mode else [np.ascontiguousarray(q[:, a]) for a in range(3)]
-    use_key = radius_sq < _BIG // (n + 1) - 1  # then d2 * (n + 1) + index fits int64
+class _CandidateSearch:
+    """The candidate generator (informative: a cKDTree over the recentred float64 coordinates)
+    and the exact answer of the rows whose candidate set provably holds it (module doc)."""
 
-    def solve(rows: np.ndarray, ask: int) -> np.ndarray:
+    def __init__(self, c: np.ndarray, q: np.ndarray, self_mode: bool, radius_sq: int, k: int,
+                 exclude_self: bool, workers: int):
+        from scipy.spatial import cKDTree
+
+        self.n, self.self_mode, self.radius_sq, self.k = c.shape[0], self_mode, radius_sq, k
+        self.exclude_self, self.workers = exclude_self, workers
+        base = np.minimum(c.min(axis=0), q.min(axis=0))
+        cf = (c - base).astype(np.float64)  # exact: 0 <= value <= MAX_EXTENT < 2^53
+        self.qf = cf if self_mode else (q - base).astype(np.float64)
+        self.tree = cKDTree(cf, balanced_tree=False, compact_nodes=False)
+        self.bound = math.sqrt(radius_sq) * (1 + 2.0**-30) + 1e-3  # float bound strictly beyond the ball
+        self.cols = [np.ascontiguousarray(c[:, a]) for a in range(3)]
+        self.qcols = self.cols if self_mode else [np.ascontiguousarray(q[:, a]) for a in range(3)]
+        self.use_key = radius_sq < _BIG // (self.n + 1) - 1  # then d2 * (n + 1) + index fits int64
+
+    def solve(self, rows: np.ndarray, ask: int, idx_out: np.ndarray, valid_out: np.ndarray) -> np.ndarray:
         """Answer the given rows from `ask` candidates each; write the complete ones into the
         outputs and return the incomplete ones."""
-        _, cand = tree.query(qf[rows], k=ask, distance_upper_bound=bound, workers=workers)
+        n, k = self.n, self.k
+        _, cand = self.tree.query(self.qf[rows], k=ask, distance_upper_bound=self.bound, workers=self.workers)
         cand = np.asarray(cand, dtype=np.int64).reshape(rows.size, ask)
         missing = cand >= n  # the tree pads with index n beyond the bound
         complete = missing.any(axis=1) if ask < n else np.ones(rows.size, dtype=bool)
-        anymiss = bool(missing.any())
-        cidx = np.where(missing, 0, cand) if anymiss else cand
-        d2 = None
-        for a in range(3):
-            d = cols[a][cidx] - qcols[a][rows][:, None]
-            d2 = d * d if d2 is None else d2 + d * d
-        if anymiss:
-            d2[missing] = -1
+        cidx, d2, ok = self.candidates_in_ball(rows, cand, missing)
         d_last = d2.max(axis=1)  # largest exact d2 among the real candidates
-        ok = d2 <= radius_sq
-        if anymiss:
-            ok &= ~missing
-        if exclude_self:
-            ok &= (cidx != rows[:, None]) if self_mode else (d2 != 0)
         take = min(k, ask)
-        if use_key:
-            # one int64 key orders exactly as the pair (d2, index)
-            key = np.where(ok, d2 * (n + 1) + cidx, _BIG)
-            key.sort(axis=1)
-            key = key[:, :take]
-            sok = key != _BIG
-            sd = key // (n + 1)
-            si = key - sd * (n + 1)
-        else:
-            key_d = np.where(ok, d2, _BIG)
-            key_i = np.where(ok, cidx, _BIG)
-            order = np.lexsort((key_i, key_d), axis=-1)[:, :take]
-            sd = np.take_along_axis(key_d, order, axis=1)
-            si = np.take_along_axis(key_i, order, axis=1)
-            sok = np.take_along_axis(ok, order, axis=1)
+        sd, si, sok = _first_by_distance_then_index(d2, cidx, ok, n, take, self.use_key)
         # T: the k-th accepted d2 (needs take == k), else the ball's radius.
         full = sok[:, k - 1] if take == k else np.zeros(rows.size, dtype=bool)
-        thresh = np.where(full, sd[:, take - 1], radius_sq)
+        thresh = np.where(full, sd[:, take - 1], self.radius_sq)
         complete |= (d_last - thresh) > (d_last >> _MARGIN_SHIFT)
         r = rows[complete]
         sok = sok[complete]
@@ -182,36 +173,43 @@ def ball_knn(coords, k: int, radius_sq: int, query=None, exclude_self: bool = Tr
         valid_out[r, :take] = sok
         return rows[~complete]
 
-    if initial_extra is None:
-        initial_extra = 8 if self_mode else 2
-    ask = k + initial_extra + (1 if exclude_self else 0)
-    pending = np.arange(m, dtype=np.int64)
-    while pending.size:
-        ask = min(ask, n)
-        rest = [solve(pending[lo:lo + _BLOCK], ask) for lo in range(0, pending.size, _BLOCK)]
-        pending = np.concatenate(rest)
-        assert ask < n or pending.size == 0
-        ask *= 2
-    return idx_out, valid_out
+    def candidates_in_ball(self, rows: np.ndarray, cand: np.ndarray, missing: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The candidates' data indices, exact squared distances d2 (-1 for missing ones) and
+        whether each is an answer candidate: in the closed ball, and not self."""
+        anymiss = bool(missing.any())
+        cidx = np.where(missing, 0, cand) if anymiss else cand
+        d2 = None
+        for a in range(3):
+            d = self.cols[a][cidx] - self.qcols[a][rows][:, None]
+            d2 = d * d if d2 is None else d2 + d * d
+        if anymiss:
+            d2[missing] = -1
+        ok = d2 <= self.radius_sq
+        if anymiss:
+            ok &= ~missing
+        if self.exclude_self:
+            ok &= (cidx != rows[:, None]) if self.self_mode else (d2 != 0)
+        return cidx, d2, ok
 
 
-def ball_knn_bruteforce(coords, k: int, radius_sq: int, query=None,
-                        exclude_self: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """O(N M) reference of ``ball_knn`` (same contract), for tests and tiny inputs."""
-    c, q, self_mode, idx_out, valid_out = _prepare(coords, query, k)
-    n, m = c.shape[0], q.shape[0]
-    for r in range(m):
-        if n == 0:
-            break
-        d2 = squared_distances(c, q[r][None, :])
-        ok = d2 <= radius_sq
-        if exclude_self:
-            if self_mode:
-                ok[r] = False
-            else:
-                ok &= d2 != 0
-        j = np.nonzero(ok)[0]
-        j = j[np.lexsort((j, d2[j]))][:k]
-        idx_out[r, :j.size] = j
-        valid_out[r, :j.size] = True
-    return idx_out, valid_out
+def _first_by_distance_then_index(d2: np.ndarray, cidx: np.ndarray, ok: np.ndarray, n: int, take: int,
+                                  use_key: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The first ``take`` accepted candidates of each row in (d2, index) order: their d2, index
+    and acceptance (rows with fewer accepted candidates end in rejected ones)."""
+    if use_key:
+        # one int64 key orders exactly as the pair (d2, index)
+        key = np.where(ok, d2 * (n + 1) + cidx, _BIG)
+        key.sort(axis=1)
+        key = key[:, :take]
+        sok = key != _BIG
+        sd = key // (n + 1)
+        si = key - sd * (n + 1)
+    else:
+        key_d = np.where(ok, d2, _BIG)
+        key_i = np.where(ok, cidx, _BIG)
+        order = np.lexsort((key_i, key_d), axis=-1)[:, :take]
+        sd = np.take_along_axis(key_d, order, axis=1)
+        si = np.take_along_axis(key_i, order, axis=1)
+        sok = np.take_along_axis(ok, order, axis=1)
+    return sd, si, sok

@@ -9,7 +9,6 @@ World position of an anchor = origin + coords * voxel_size (float32, in that ord
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
 
 import numpy as np
 
@@ -19,9 +18,7 @@ NUM_SCALINGS = 6
 DEFAULT_FEATURE_DIM = 50
 DEFAULT_NUM_OFFSETS = 10
 
-MlpRole = Literal["opacity", "cov", "color", "feature_bank"]
 MLP_ROLES: tuple[str, ...] = ("opacity", "cov", "color", "feature_bank")
-Activation = Literal["none", "relu", "tanh", "sigmoid"]
 ACTIVATIONS: tuple[str, ...] = ("none", "relu", "tanh", "sigmoid")
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from .entropy.scale_levels import SCALE_LEVEL_BITS as NUM_SCALE_LEVELS_BITS
 from .syntax import SyntaxStructure, SyntaxVisitor
 
 # Profile "main", level limits (spec clause 8). A decoder rejects streams beyond them,
@@ -21,7 +22,6 @@ MAX_MLPS = 4
 MAX_MLP_LAYERS = 8
 MAX_MLP_WIDTH = 4096
 MAX_EXPONENT = 64
-NUM_SCALE_LEVELS_BITS = 6
 MASK_PROB_BITS = 12
 PRIOR_MEAN_MAX = (1 << 31) - 1  # |prior_mean|: the magnitudes se(v) codes (common/bitio.py)
 

@@ -148,11 +148,45 @@ def main(argv: list[str] | None = None) -> int:
 def _main(argv: list[str] | None) -> int:
     args = setup_args().parse_args(argv)
     from .decode import decode_stream
-    from ..formats import write_scene
 
     say = (lambda *a: None) if args.quiet else print
     note = (lambda *a: None) if args.print_hash else say  # --print-hash prints the hash alone
-    # Every output is checked before decoding: none may overwrite the stream or another output.
+    _check_outputs(args)
+    if args.threads is not None:
+        import torch
+        torch.set_num_threads(max(1, args.threads))
+    try:
+        data = Path(args.stream).read_bytes()
+    except OSError as e:
+        raise LghccError(f"{args.stream}: cannot read ({e.strerror})") from None
+    t0 = time.perf_counter()
+    try:  # a failure is reported by run_cli: one line, and the exit status of its kind (3 for a hash mismatch)
+        result = decode_stream(data, verify_hash=not args.no_verify, trace=bool(args.trace),
+                               max_anchors=args.max_anchors, max_memory=args.max_memory, progress=not args.quiet)
+    except LghccError as e:  # the same class (and exit status), with the stream's path
+        raise with_prefix(e, args.stream) from None
+    t_dec = time.perf_counter() - t0
+    if args.output:
+        _write_decoded_scene(args, result.scene)
+    if args.render:
+        _render_views(args, result.scene, note)
+    if args.export_ply:
+        _export(args, result.scene, note)
+    if args.trace:
+        _write_trace(args.trace, result.trace)
+    if args.json:
+        _write_json(args, result, len(data), t_dec)
+    if args.print_hash:
+        from ..common.hashing import digest_of
+        print(digest_of(result.scene).hex())
+        return 0
+    _print_summary(args, result, len(data), t_dec, say)
+    return 0
+
+
+def _check_outputs(args) -> None:
+    """Every output is checked before decoding: none may overwrite the stream or another output,
+    nor an existing file without -y."""
     check_output_paths({"-o": args.output, "--json": args.json, "--trace": args.trace,
                         "--export-ply": args.export_ply, "--render-out": args.render_out},
                        {"input stream": args.stream})
@@ -171,79 +205,77 @@ def _main(argv: list[str] | None) -> int:
         _render_size(args.render_size)
     if args.render_out:
         check_output_folder(args.render_out, args.overwrite, replaced="its PNGs of the same names are replaced")
-    if args.threads is not None:
-        import torch
-        torch.set_num_threads(max(1, args.threads))
+
+
+def _write_decoded_scene(args, scene) -> None:
+    """-o: a Gaussian stream in the 3DGS layout, an anchor stream in Scaffold-GS's."""
+    from ..formats import write_scene
+
+    stale = _other_iterations(args.output)
+    if stale and not args.quiet:
+        print(f"lghcc-dec: warning: {args.output} also holds point_cloud/{', '.join(stale)}; readers "
+              "that take the highest iteration will not read the decoded scene", file=sys.stderr)
     try:
-        data = Path(args.stream).read_bytes()
+        write_scene(scene, args.output)
     except OSError as e:
-        raise LghccError(f"{args.stream}: cannot read ({e.strerror})") from None
-    t0 = time.perf_counter()
-    try:  # a failure is reported by run_cli: one line, and the exit status of its kind (3 for a hash mismatch)
-        result = decode_stream(data, verify_hash=not args.no_verify, trace=bool(args.trace),
-                               max_anchors=args.max_anchors, max_memory=args.max_memory, progress=not args.quiet)
-    except LghccError as e:  # the same class (and exit status), with the stream's path
-        raise with_prefix(e, args.stream) from None
-    t_dec = time.perf_counter() - t0
-    if args.output:
-        stale = _other_iterations(args.output)
-        if stale and not args.quiet:
-            print(f"lghcc-dec: warning: {args.output} also holds point_cloud/{', '.join(stale)}; readers "
-                  "that take the highest iteration will not read the decoded scene", file=sys.stderr)
-        try:  # a Gaussian stream in the 3DGS layout, an anchor stream in Scaffold-GS's
-            write_scene(result.scene, args.output)
-        except OSError as e:
-            raise write_error(args.output, e) from None
-    if args.render:
-        _render_views(args, result.scene, note)
-    if args.export_ply:
-        t1 = time.perf_counter()
-        from ..render.scenes import to_gaussians
+        raise write_error(args.output, e) from None
 
-        sc = to_gaussians(result.scene, args.export_sh_degree, directions=args.export_directions,
-                          distance=args.export_distance)
-        how = ""
-        if not isinstance(result.scene, GaussianScene):
-            from ..render.export import default_distance
 
-            dist = args.export_distance if args.export_distance is not None else default_distance(result.scene)
-            how = f", the MLPs evaluated in {args.export_directions} directions at distance {dist:.4g}"
-        try:
-            write_scene(sc, args.export_ply)
-        except OSError as e:
-            raise write_error(args.export_ply, e) from None
-        kind = {".ply": "3DGS PLY", ".spz": "SPZ", ".sog": "SOG"}[Path(args.export_ply).suffix.lower()]
-        note(f"wrote {args.export_ply}: {sc.num_gaussians:,} Gaussians ({kind}, SH degree {sc.sh_degree}{how}) in "
-             f"{time.perf_counter() - t1:.2f} s")
-    if args.trace:
-        lines = [f"{e.bit_position:>10} {e.name:<60} {e.descriptor:<8} "
-                 f"{e.value.hex() if isinstance(e.value, bytes) else e.value}" for e in result.trace]
-        try:
-            atomic_write_bytes(args.trace, ("\n".join(lines) + "\n").encode())
-        except OSError as e:
-            raise write_error(args.trace, e) from None
+def _export(args, scene, note) -> None:
+    """--export: the decoded scene as a plain 3DGS scene (PLY, SPZ or SOG)."""
+    from ..formats import write_scene
+    from ..render.scenes import to_gaussians
+
+    t1 = time.perf_counter()
+    sc = to_gaussians(scene, args.export_sh_degree, directions=args.export_directions, distance=args.export_distance)
+    how = ""
+    if not isinstance(scene, GaussianScene):
+        from ..render.export import default_distance
+
+        dist = args.export_distance if args.export_distance is not None else default_distance(scene)
+        how = f", the MLPs evaluated in {args.export_directions} directions at distance {dist:.4g}"
+    try:
+        write_scene(sc, args.export_ply)
+    except OSError as e:
+        raise write_error(args.export_ply, e) from None
+    kind = {".ply": "3DGS PLY", ".spz": "SPZ", ".sog": "SOG"}[Path(args.export_ply).suffix.lower()]
+    note(f"wrote {args.export_ply}: {sc.num_gaussians:,} Gaussians ({kind}, SH degree {sc.sh_degree}{how}) in "
+         f"{time.perf_counter() - t1:.2f} s")
+
+
+def _write_trace(path: str, trace) -> None:
+    """--trace: every syntax element with its bit position, descriptor and value."""
+    lines = [f"{e.bit_position:>10} {e.name:<60} {e.descriptor:<8} "
+             f"{e.value.hex() if isinstance(e.value, bytes) else e.value}" for e in trace]
+    try:
+        atomic_write_bytes(path, ("\n".join(lines) + "\n").encode())
+    except OSError as e:
+        raise write_error(path, e) from None
+
+
+def _write_json(args, result, num_bytes: int, t_dec: float) -> None:
+    """--json: the size breakdown, the decoding time and the scene hash."""
     s = result.scene
-    if args.json:
-        try:
-            count = {"num_gaussians": s.num_gaussians} if isinstance(s, GaussianScene) else \
-                {"num_anchors": s.num_anchors}
-            atomic_write_bytes(args.json, json.dumps({
-                "stream": args.stream, **count, "bytes": len(data),
-                "breakdown": result.breakdown.bytes_by_category, "decode_s": t_dec,
-                "hash_checked": result.hash_checked, "scene_sha256": result.stream_hash.hex()},
-                indent=2).encode())
-        except OSError as e:
-            raise write_error(args.json, e) from None
-    if args.print_hash:
-        from ..common.hashing import digest_of
-        print(digest_of(s).hex())
-        return 0
+    try:
+        count = {"num_gaussians": s.num_gaussians} if isinstance(s, GaussianScene) else \
+            {"num_anchors": s.num_anchors}
+        atomic_write_bytes(args.json, json.dumps({
+            "stream": args.stream, **count, "bytes": num_bytes,
+            "breakdown": result.breakdown.bytes_by_category, "decode_s": t_dec,
+            "hash_checked": result.hash_checked, "scene_sha256": result.stream_hash.hex()},
+            indent=2).encode())
+    except OSError as e:
+        raise write_error(args.json, e) from None
+
+
+def _print_summary(args, result, num_bytes: int, t_dec: float, say) -> None:
+    s = result.scene
     if isinstance(s, GaussianScene):
-        say(f"{args.stream}: {s.num_gaussians:,} Gaussians, SH degree {s.sh_degree}, {len(data):,} bytes, decoded in "
+        say(f"{args.stream}: {s.num_gaussians:,} Gaussians, SH degree {s.sh_degree}, {num_bytes:,} bytes, decoded in "
             f"{t_dec:.2f} s ({s.num_gaussians / max(t_dec, 1e-9):,.0f} Gaussians/s)")
     else:
         say(f"{args.stream}: {s.num_anchors:,} anchors, C={s.feature_dim}, K={s.num_offsets}, "
-            f"{len(data):,} bytes, decoded in {t_dec:.2f} s ({s.num_anchors / max(t_dec, 1e-9):,.0f} anchors/s)")
+            f"{num_bytes:,} bytes, decoded in {t_dec:.2f} s ({s.num_anchors / max(t_dec, 1e-9):,.0f} anchors/s)")
     say(result.breakdown.table())
     if result.tools:
         say("tools: " + "; ".join(result.tools))
@@ -253,7 +285,6 @@ def _main(argv: list[str] | None) -> int:
         + f" ({result.stream_hash.hex()})")
     if args.output:
         say(f"wrote {Path(args.output) / 'point_cloud' / 'iteration_0'}")
-    return 0
 
 
 if __name__ == "__main__":

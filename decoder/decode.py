@@ -164,17 +164,8 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
     by_type: dict[int, list[DataUnit]] = {}
     for u in units:
         by_type.setdefault(u.unit_type, []).append(u)
-
-    gaussians = UnitType.GAUSSIAN_PARAMETER_SET in by_type
-    if gaussians:
-        ps = GaussianParameterSet.from_bytes(by_type[UnitType.GAUSSIAN_PARAMETER_SET][0].payload, entries,
-                                             what="gaussian parameter set")
-        layout = attr.gaussian_layout_of(ps)
-    else:
-        ps = SceneParameterSet.from_bytes(by_type[UnitType.SCENE_PARAMETER_SET][0].payload, entries,
-                                          what="scene parameter set")
-        layout = attr.layout_of(ps)
-    point = "Gaussian" if gaussians else "anchor"
+    ps, layout = _read_parameter_set(by_type, entries)
+    point = "Gaussian" if isinstance(ps, GaussianParameterSet) else "anchor"
     n = ps.num_anchors
     if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
         raise BitstreamError(f"{n} {point}s x {layout.num_channels} channels exceeds the level limit of "
@@ -190,26 +181,50 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
     steps = layout.steps(ps)
     dec, context_model = decode_attribute_units(by_type[UnitType.ATTRIBUTE], layout, steps, coords, ps, context_unit,
                                                 entries, progress, memory)
-    if gaussians:
-        sh, opacity, log_scales, rotations = layout.split(dec.values)
-        scene = GaussianScene.on_grid(coords, float(ps.voxel_size), ps.origin, sh, opacity, log_scales, rotations)
-    else:
-        features, scalings, offsets = layout.split(dec.values)
-        scene = AnchorScene(coords=coords, voxel_size=float(ps.voxel_size),
-                            origin=np.asarray(ps.origin, dtype=np.float32), features=features,
-                            scalings=scalings, offsets=offsets, offset_mask=dec.mask, mlps=mlps)
-
+    scene = _scene_of(ps, layout, coords, dec, mlps)
     hash_unit = DecodedSceneHashUnit.from_bytes(by_type[UnitType.DECODED_SCENE_HASH][0].payload, entries,
                                                 what="decoded scene hash unit")
     if verify_hash:
-        digest = digest_of(scene)
-        if digest != hash_unit.scene_hash:
-            raise HashMismatchError("the decoded scene does not match the hash in the stream "
-                                    f"(decoded SHA-256 {digest.hex()}, stream {hash_unit.scene_hash.hex()})")
-    if gaussians:
+        _check_scene_hash(scene, hash_unit.scene_hash)
+    return DecodeResult(scene, breakdown_of(container, n, point), verify_hash, hash_unit.scene_hash, skipped,
+                        entries, _stream_tools(ps, dec, context_model, point))
+
+
+def _read_parameter_set(by_type: dict[int, list[DataUnit]], entries) -> tuple[SceneParameterSet | GaussianParameterSet,
+                                                                              object]:
+    """The stream's parameter set (an explicit-Gaussian stream's, else the anchor scene's) and
+    its channel layout."""
+    if UnitType.GAUSSIAN_PARAMETER_SET in by_type:
+        ps = GaussianParameterSet.from_bytes(by_type[UnitType.GAUSSIAN_PARAMETER_SET][0].payload, entries,
+                                             what="gaussian parameter set")
+        return ps, attr.gaussian_layout_of(ps)
+    ps = SceneParameterSet.from_bytes(by_type[UnitType.SCENE_PARAMETER_SET][0].payload, entries,
+                                      what="scene parameter set")
+    return ps, attr.layout_of(ps)
+
+
+def _scene_of(ps, layout, coords: np.ndarray, dec: _Levels, mlps: dict) -> AnchorScene | GaussianScene:
+    """The decoded scene: positions on the grid of the parameter set, attributes split by the layout."""
+    if isinstance(ps, GaussianParameterSet):
+        sh, opacity, log_scales, rotations = layout.split(dec.values)
+        return GaussianScene.on_grid(coords, float(ps.voxel_size), ps.origin, sh, opacity, log_scales, rotations)
+    features, scalings, offsets = layout.split(dec.values)
+    return AnchorScene(coords=coords, voxel_size=float(ps.voxel_size), origin=np.asarray(ps.origin, dtype=np.float32),
+                       features=features, scalings=scalings, offsets=offsets, offset_mask=dec.mask, mlps=mlps)
+
+
+def _check_scene_hash(scene: AnchorScene | GaussianScene, scene_hash: bytes) -> None:
+    """Clause 12: the SHA-256 of the decoded scene must equal the stream's decoded_scene_hash."""
+    digest = digest_of(scene)
+    if digest != scene_hash:
+        raise HashMismatchError("the decoded scene does not match the hash in the stream "
+                                f"(decoded SHA-256 {digest.hex()}, stream {scene_hash.hex()})")
+
+
+def _stream_tools(ps, dec: _Levels, context_model, point: str) -> list[str]:
+    """The coding tools the stream uses, in words (lghcc-dec prints them)."""
+    if isinstance(ps, GaussianParameterSet):
         tools = [f"explicit Gaussians (SH degree {ps.sh_degree})"]
     else:
         tools = ["offset masks"] if ps.offset_mask_present_flag else []
-    tools += _hierarchy_tools(ps, dec.hierarchy, context_model, point)
-    return DecodeResult(scene, breakdown_of(container, n, point), verify_hash, hash_unit.scene_hash, skipped,
-                        entries, tools)
+    return tools + _hierarchy_tools(ps, dec.hierarchy, context_model, point)

@@ -12,6 +12,8 @@ import yaml
 
 from ..common.errors import InputError
 
+DEFAULT_ATTRIBUTE_STEP = 0.02  # the feature, scaling and offset step of anchor scenes (preset medium)
+
 
 @dataclass
 class AttributeCodingConfig:
@@ -79,9 +81,9 @@ class AttributeCodingConfig:
 class EncoderConfig(AttributeCodingConfig):
     """Anchor scenes (Scaffold-GS / HAC checkpoints)."""
     # Quantization steps of the attribute groups (decoded value = q * step).
-    feature_step: float = 0.02
-    scaling_step: float = 0.02
-    offset_step: float = 0.02
+    feature_step: float = DEFAULT_ATTRIBUTE_STEP
+    scaling_step: float = DEFAULT_ATTRIBUTE_STEP
+    offset_step: float = DEFAULT_ATTRIBUTE_STEP
     # Render MLP weights: signed integers of this many bits with a power-of-two scale per tensor.
     mlp_weight_bits: int = 14
     # Anchor pruning before coding (informative): none, naap (Neighborhood-Aware Anchor Pruning:

@@ -18,6 +18,7 @@ from ..app.progress import progress_bar
 from ..common.context.models import check_ggconv_extent
 from ..common.context.parent_mlp import ParentMlpParams
 from ..common.errors import BitstreamError
+from ..common.hierarchy import local_position
 from ..common.intnn import ACT_MAX, ACT_MIN, IntMLP, frac_bits_for, quantize_linear
 from ..common.units import CONTEXT_GGCONV, CONTEXT_PARENT_MLP
 from .ggconv_train import (GGConvTrainConfig, choose_parent_base, fit_ggconv, level_of_spread, one_cycle,
@@ -46,7 +47,7 @@ def fit_parent_mlp(coords2: np.ndarray, parent_attrs: np.ndarray, targets: np.nd
     rng = np.random.default_rng(cfg.seed)
     torch.manual_seed(cfg.seed)
     rows = np.sort(rng.permutation(n)[:cfg.max_train_anchors])
-    local = np.mod(coords2[rows], voxel_scale).clip(0, ACT_MAX).astype(np.float64)
+    local = local_position(coords2[rows], voxel_scale).clip(0, ACT_MAX).astype(np.float64)
     xpar = np.clip(parent_attrs[rows], ACT_MIN, ACT_MAX).astype(np.float64)
     x_int = torch.from_numpy(np.concatenate([local, xpar], 1))
     tgt = torch.from_numpy(np.clip(np.asarray(targets, dtype=np.float64)[rows], ACT_MIN, ACT_MAX))  # see fit_ggconv

@@ -45,7 +45,10 @@ from ..common.context.ggconv import (
     head_inputs,
     neighbour_graph,
 )
+from ..common.entropy.scale_levels import LOG_SIGMA_MIN, LOG_SIGMA_STEP
+from ..common.hierarchy import local_position
 from ..common.intnn import ACT_MAX, ACT_MIN, BIAS_BITS, MAX_SHIFT, IntLinear, IntMLP, frac_bits_for, int_range
+from .ste import ste_round_half_up
 
 
 @dataclass
@@ -174,11 +177,6 @@ def find_context_twin(scene_path) -> ContextTwin | None:
         raise InputError(str(e)) from None
 
 
-def _ste_round(x: torch.Tensor) -> torch.Tensor:
-    """floor(x + 1/2) forward, identity backward."""
-    return x + (torch.floor(x + 0.5) - x).detach()
-
-
 def _ste_clamp(x: torch.Tensor, lo: float, hi: float) -> torch.Tensor:
     return x + (x.clamp(lo, hi) - x).detach()
 
@@ -240,7 +238,7 @@ class _QLayer(nn.Module):
         return self.lin.weight * q[None, :]
 
     def int_params(self, q: torch.Tensor, ste: bool) -> tuple[torch.Tensor, torch.Tensor]:
-        rnd = _ste_round if ste else (lambda t: torch.floor(t + 0.5))
+        rnd = ste_round_half_up if ste else (lambda t: torch.floor(t + 0.5))
         lo, hi = int_range(self.weight_bits)
         blo, bhi = int_range(BIAS_BITS)
         w = _ste_clamp(rnd(self.w_eff(q) * 2.0 ** self.acc_frac), lo, hi)
@@ -264,7 +262,7 @@ class _QLayer(nn.Module):
             return torch.relu(y) if self.relu else y
         w, b = self.int_params(q, ste=True)
         acc = x @ w.T + b
-        y = _ste_round(acc * 2.0 ** -(self.acc_frac - self.out_frac))
+        y = ste_round_half_up(acc * 2.0 ** -(self.acc_frac - self.out_frac))
         return _ste_clamp(y, 0 if self.relu else ACT_MIN, ACT_MAX)
 
     def export(self, q: torch.Tensor) -> IntLinear:
@@ -309,7 +307,7 @@ class GGConvFloat(nn.Module):
         return x
 
     def table_int(self, ste: bool) -> torch.Tensor:
-        rnd = _ste_round if ste else (lambda t: torch.floor(t + 0.5))
+        rnd = ste_round_half_up if ste else (lambda t: torch.floor(t + 0.5))
         return _ste_clamp(rnd(self.table * 2.0 ** self.frac["table"]), ACT_MIN, ACT_MAX)
 
     def forward(self, batch: dict, collect: dict | None = None):
@@ -319,9 +317,9 @@ class GGConvFloat(nn.Module):
             e = self._mlp(self.feat, fin, self.feat_q)
             t = self.table_int(ste=True)
             cw = batch["corner_w"]
-            w = _ste_round((cw[:, :, None] * t[batch["corner_idx"]]).sum(1) * 2.0 ** -TRI_SHIFT)
+            w = ste_round_half_up((cw[:, :, None] * t[batch["corner_idx"]]).sum(1) * 2.0 ** -TRI_SHIFT)
             hsum = torch.zeros((batch["n"], self.ch), dtype=torch.float64).index_add(0, batch["row"], w * e)
-            h = _ste_clamp(_ste_round(hsum * 2.0 ** -self.frac["h_shift"]), ACT_MIN, ACT_MAX)
+            h = _ste_clamp(ste_round_half_up(hsum * 2.0 ** -self.frac["h_shift"]), ACT_MIN, ACT_MAX)
             z = torch.cat([h, batch["head_raw"]], 1)
             o = self._mlp(self.head, z, torch.cat([self._qs(self.frac["h"], self.ch), self.head_q_raw]))
             lv = _inward_clamp(o[:, self.m:2 * self.m], 0, NUM_LEVELS - 1)
@@ -403,7 +401,7 @@ def _prepare(coords2, parent_attrs, targets, voxel_scale, num_features, k, radiu
     ed = edge_inputs(c, x, dc, dx, nbr_t, valid_t, rows_t, num_features, math.isqrt(radius_sq), grid)
     n_valid = valid_t[rows_t].sum(1).to(torch.int64)
     start = torch.cumsum(n_valid, 0) - n_valid
-    local = torch.from_numpy(np.mod(np.asarray(coords2, dtype=np.int64)[rows], np.int64(voxel_scale)))
+    local = torch.from_numpy(local_position(np.asarray(coords2, dtype=np.int64)[rows], voxel_scale))
     head_raw = head_inputs(torch.zeros((rows.size, 0), dtype=torch.int64), local, n_valid, x[rows_t])
     return _Data(ed.feat_in.double(), ed.corner_idx, ed.corner_w.double(), ed.row, start, n_valid,
                  head_raw.double(), torch.from_numpy(np.asarray(targets, dtype=np.float64)[rows]))
@@ -427,11 +425,6 @@ def _batch(d: _Data, sel: torch.Tensor) -> dict:
 
 # -- loss -----------------------------------------------------------------------------------
 
-# sigma of scale level l: exp(LOG_SIGMA0 + LOG_SIGMA_STEP * l), 0.11 at level 0 to 512 at level 63
-LOG_SIGMA0 = math.log(0.11)
-LOG_SIGMA_STEP = math.log(512.0 / 0.11) / 63.0
-
-
 def gaussian_bits(y: torch.Tensor, mu: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
     """Bits of integer symbols y under a discretized Gaussian (mu, sigma); floor 2^-24."""
     a = (y - mu).abs()
@@ -443,8 +436,8 @@ def rd_loss(mean, level, adj, targets, lam: float) -> tuple[torch.Tensor, torch.
     """(loss, bits) per anchor, summed over the coded channels (a NaN target is an entry that is
     not coded, a dead offset: it costs nothing)."""
     live = torch.isfinite(targets)
-    sigma = torch.exp(LOG_SIGMA0 + LOG_SIGMA_STEP * level)
-    y = _ste_round(torch.where(live, targets, 0.0) * torch.exp2(-adj / 4))
+    sigma = torch.exp(LOG_SIGMA_MIN + LOG_SIGMA_STEP * level)
+    y = ste_round_half_up(torch.where(live, targets, 0.0) * torch.exp2(-adj / 4))
     bits = (gaussian_bits(y, mean, sigma) * live).sum(1)
     dist = (torch.exp2(adj / 2) / 12 * live).sum(1)
     return bits + lam * dist, bits
@@ -597,7 +590,7 @@ def choose_parent_base(targets: torch.Tensor, xpar: torch.Tensor, mode: str = "c
 
 def level_of_spread(spread: torch.Tensor) -> torch.Tensor:
     """The (real-valued) scale level whose nominal sigma is ``spread`` steps."""
-    return ((spread.log() - LOG_SIGMA0) / LOG_SIGMA_STEP).clamp(0, NUM_LEVELS - 1)
+    return ((spread.log() - LOG_SIGMA_MIN) / LOG_SIGMA_STEP).clamp(0, NUM_LEVELS - 1)
 
 
 def init_mean_outputs(model: GGConvFloat, targets: torch.Tensor, xpar: torch.Tensor, mode: str = "choose") -> None:

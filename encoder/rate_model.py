@@ -35,16 +35,11 @@ from torch import nn
 
 from ..common.context.ggconv import GRID_FRAC_BITS, grid_coordinate, neighbour_graph, trilinear_corners
 from ..common.geometry import normative_order
-from ..common.hierarchy import build_hierarchy
-from .ggconv_train import LOG_SIGMA0 as _LOG_SIGMA0
-from .ggconv_train import LOG_SIGMA_STEP as _LOG_SIGMA_STEP
+from ..common.hierarchy import build_hierarchy, local_position
+from ..common.entropy.scale_levels import LOG_SIGMA_MIN, LOG_SIGMA_STEP
+from .ste import ste_round_half_even
 from .ggconv_train import (ContextTwin, GGConvFloat, GGConvTrainConfig, default_radius_sq, gaussian_bits,
-                           init_mean_outputs)
-from .ggconv_train import pow2_scale as _pow2_scale
-
-
-def _ste_round(x: torch.Tensor) -> torch.Tensor:
-    return x + (torch.round(x) - x).detach()
+                           init_mean_outputs, pow2_scale)
 
 
 class AnchorRateModel(nn.Module):
@@ -98,16 +93,16 @@ class AnchorRateModel(nn.Module):
         self.register_buffer("corner_idx", ci)
         self.register_buffer("corner_w", cw.to(torch.float64))
         n_valid = valid_t.sum(1).to(torch.float64)
-        local = torch.from_numpy(np.mod(c2, voxel_scale)).to(torch.float64)
+        local = torch.from_numpy(local_position(c2, voxel_scale)).to(torch.float64)
         self.register_buffer("head_fixed", torch.cat([local, n_valid[:, None]], 1))
         # input column scales as the codec's fitting chooses them (powers of two near 1 / std)
         x1 = torch.round(y1)
         df = x1[self.nbr_l1, :num_features] - x1[parent][r_loc, :num_features]
         fstd = float(df.std()) if df.numel() > 1 else 1.0
-        feat_q = torch.tensor([_pow2_scale(fstd)] * num_features + [2.0 ** -GRID_FRAC_BITS] * 3, dtype=torch.float64)
+        feat_q = torch.tensor([pow2_scale(fstd)] * num_features + [2.0 ** -GRID_FRAC_BITS] * 3, dtype=torch.float64)
         xstd = x1[parent].std(0) if len(parent) > 1 else torch.ones(m, dtype=torch.float64)
-        head_q = torch.tensor([_pow2_scale(float(voxel_scale) / 2)] * 3 + [2.0 ** -3]
-                              + [_pow2_scale(float(v)) for v in xstd], dtype=torch.float64)
+        head_q = torch.tensor([pow2_scale(float(voxel_scale) / 2)] * 3 + [2.0 ** -3]
+                              + [pow2_scale(float(v)) for v in xstd], dtype=torch.float64)
         self.twin = GGConvFloat(num_features, m, cfg, feat_q, head_q)
         init_mean_outputs(self.twin, y[self.l2], x1[parent])  # parent_base by the codec's "choose" rule
 
@@ -150,11 +145,11 @@ class AnchorRateModel(nn.Module):
             batch = {"n": self.num_level2, "feat_in": feat_in, "corner_idx": self.corner_idx,
                      "corner_w": self.corner_w, "row": self.row, "head_raw": torch.cat([self.head_fixed, xpar], 1)}
             mean, level, _ = self.twin(batch)
-            bits2 = gaussian_bits(yn[self.l2], mean, torch.exp(_LOG_SIGMA0 + _LOG_SIGMA_STEP * level)).sum()
+            bits2 = gaussian_bits(yn[self.l2], mean, torch.exp(LOG_SIGMA_MIN + LOG_SIGMA_STEP * level)).sum()
         return {"level1": bits1, "level2": bits2, "total": bits1 + bits2}
 
 
 def quantize_ste(values: torch.Tensor, steps: torch.Tensor) -> torch.Tensor:
     """round(values / step) * step forward (what decoding gives), identity backward."""
     s = steps.to(values.dtype)
-    return _ste_round(values / s) * s
+    return ste_round_half_even(values / s) * s

@@ -3,7 +3,6 @@
 import json
 import math
 import struct
-import zlib
 
 import numpy as np
 import pytest
@@ -50,45 +49,6 @@ def test_camera_rejects_bad_values():
 
 
 # --- PNG -------------------------------------------------------------------------------------
-
-def _png_bytes(img_u8: np.ndarray, filters: list[int]) -> bytes:
-    """An RGBA PNG with the given filter type per row (encoder written from the PNG spec)."""
-    h, w, c = img_u8.shape
-    bpp = c
-    rows, prev = [], np.zeros(w * c, np.int64)
-    for y in range(h):
-        line = img_u8[y].reshape(-1).astype(np.int64)
-        left = np.concatenate([np.zeros(bpp, np.int64), line[:-bpp]])
-        upleft = np.concatenate([np.zeros(bpp, np.int64), prev[:-bpp]])
-        f = filters[y % len(filters)]
-        if f == 0:
-            out = line
-        elif f == 1:
-            out = line - left
-        elif f == 2:
-            out = line - prev
-        elif f == 3:
-            out = line - (left + prev) // 2
-        else:
-            p = left + prev - upleft
-            pa, pb, pc = abs(p - left), abs(p - prev), abs(p - upleft)
-            out = line - np.where((pa <= pb) & (pa <= pc), left, np.where(pb <= pc, prev, upleft))
-        rows.append(bytes([f]) + (out & 255).astype(np.uint8).tobytes())
-        prev = line
-
-    def chunk(t, b):
-        return struct.pack(">I", len(b)) + t + b + struct.pack(">I", zlib.crc32(t + b) & 0xFFFFFFFF)
-
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 6, 0, 0, 0))
-            + chunk(b"IDAT", zlib.compress(b"".join(rows))) + chunk(b"IEND", b""))
-
-
-def test_png_reader_undoes_every_filter(tmp_path):
-    img = np.random.default_rng(0).integers(0, 256, size=(9, 7, 4), dtype=np.uint8)
-    p = tmp_path / "f.png"
-    p.write_bytes(_png_bytes(img, [0, 1, 2, 3, 4]))
-    np.testing.assert_array_equal(np.round(read_image(p) * 255).astype(np.uint8), img)
-
 
 def test_png_write_read_round_trip(tmp_path):
     img = np.random.default_rng(1).random((5, 6, 3)).astype(np.float32)
@@ -469,3 +429,26 @@ def test_llff_errors(tmp_path):
     np.save(tmp_path / "c" / "poses_bounds.npy", np.zeros((3, 15)))
     with pytest.raises(InputError, match=r"\[N, 17\]"):
         load_llff(tmp_path / "c")
+
+
+def test_write_png_is_atomic(tmp_path, monkeypatch):
+    """A failed write leaves the previous PNG as it was and no temporary file (Pillow writes
+    into a temporary file that replaces the target only when complete)."""
+    from PIL import Image
+
+    target = tmp_path / "view.png"
+    old = np.full((4, 5, 3), 0.25, np.float32)
+    write_png(target, old)
+    before = target.read_bytes()
+
+    def failing_save(self, fp, format=None, **kw):
+        fp.write(b"\x89PNG partial")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(Image.Image, "save", failing_save)
+    with pytest.raises(OSError, match="disk full"):
+        write_png(target, np.zeros((4, 5, 3), np.float32))
+    assert target.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["view.png"]
+    monkeypatch.undo()
+    assert np.allclose(read_image(target), np.round(old * 255) / 255)

@@ -93,6 +93,7 @@ def test_gen_conformance_check_rejects_unknown_ids(capsys):
 def test_derived_tools_follow_what_the_decoder_did():
     """`tools` come from the decoded result: escape exactly where an escaped residual was decoded."""
     gen = _gen_module()
+    sources = {e["id"]: e for e in gen.load_sources()}
     data = (runner.STREAMS_DIR / "c004_escape_values" / "stream.lghcc").read_bytes()
     with gen.EscapeCounter() as esc:
         from lghcc.decoder.decode import decode_stream
@@ -107,7 +108,11 @@ def test_derived_tools_follow_what_the_decoder_did():
                      ("c021_container_version_0_3", "container_version"), ("c017_empty_chunks", "empty_chunk"),
                      ("c010_ancillary_unit", "ancillary_unit"), ("e002_hash_mismatch", "hash"),
                      ("e007_crc_mismatch", "container"), ("e008_attribute_trailing_bytes", "attributes")):
-        assert tag in gen.derive_tools((runner.STREAMS_DIR / sid / "stream.lghcc").read_bytes()), (sid, tag)
+        data = (runner.STREAMS_DIR / sid / "stream.lghcc").read_bytes()
+        assert tag in gen.derive_tools(data, sources[sid].get("rejected_in")), (sid, tag)
+    assert sources["e008_attribute_trailing_bytes"]["rejected_in"] == "attributes"
+    with pytest.raises(SystemExit, match="no decoding stage rejects"):  # a stage declared for a stream that decodes
+        gen.derive_tools((runner.STREAMS_DIR / "c001_one_anchor" / "stream.lghcc").read_bytes(), "geometry")
 
 
 def test_runner_cli_and_external_decoder(capsys):

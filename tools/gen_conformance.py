@@ -11,8 +11,9 @@
 Every stream is checked against sources.yaml when generated: a stream that must decode decodes
 to the encoder's hash; an error stream is rejected by the reference decoder with
 `expect_error` and a message holding `expect_message`. test.yaml's `tools` are derived from
-what the reference decoder did with the stream (tags below); the `tools` of sources.yaml
-state the intent and must be among them.
+what the reference decoder did with the stream (tags below), and for an error stream the
+decoding stage that rejects it, which sources.yaml declares (`rejected_in`); the `tools` of
+sources.yaml state the intent and must be among them.
 
 Streams are frozen once committed: regenerate only when the bitstream format changes
 on purpose, and say so in the commit.
@@ -23,7 +24,6 @@ from __future__ import annotations
 import argparse
 import hashlib
 import sys
-import traceback
 from pathlib import Path
 
 import numpy as np
@@ -558,9 +558,9 @@ Tags of test.yaml `tools`, derived from the reference decoder's result (never wr
                         width, or the largest finite binary32; the 'maximum' class of conformance/coverage.py)
   error streams: container (rejected by the container layer: framing, CRC, version, profile,
   unit types, order), hash (HashMismatchError), level_limits (N * M above the limit), the stage
-  that rejected it (attributes, geometry, render_model, hierarchy, context_model: the module of
-  the innermost frame; scene_parameter_set or gaussian_parameter_set: an element of the parameter
-  set out of its range), and the tags of the parts that parse (hierarchy, offset_mask, ...)."""
+  that rejects it as sources.yaml declares it (rejected_in: attributes, geometry, render_model,
+  hierarchy, context_model; scene_parameter_set or gaussian_parameter_set: an element of the
+  parameter set out of its range), and the tags of the parts that parse (hierarchy, offset_mask, ...)."""
 
 
 class EscapeCounter:
@@ -637,8 +637,15 @@ def _structure_tags(data: bytes) -> set[str]:
     return tags
 
 
-def derive_tools(data: bytes) -> list[str]:
-    """The `tools` of a stream, from what the reference decoder does with it (TOOL_TAGS)."""
+REJECTION_STAGES = ("attributes", "geometry", "render_model", "hierarchy", "context_model")
+
+
+def derive_tools(data: bytes, rejected_in: str | None = None) -> list[str]:
+    """The `tools` of a stream, from what the reference decoder does with it (TOOL_TAGS);
+    ``rejected_in``: for a stream the decoder rejects, the decoding stage that rejects it, as
+    sources.yaml declares it (one of REJECTION_STAGES, or None)."""
+    if rejected_in is not None and rejected_in not in REJECTION_STAGES:
+        raise SystemExit(f"rejected_in: {rejected_in!r} is not one of {', '.join(REJECTION_STAGES)}")
     from lghcc.common.container import VERSION_MINOR, UnitType, read_container
     from lghcc.common.errors import HashMismatchError, LghccError
     from lghcc.conformance.coverage import _trace_values, element_infos, value_class
@@ -648,19 +655,16 @@ def derive_tools(data: bytes) -> list[str]:
         container = read_container(data)
         organize_units(container)
     except LghccError:
-        return ["container"]
+        return _undeclared(["container"], rejected_in)
     tags = _structure_tags(data)
     try:
         with EscapeCounter() as esc:
             res = decode_stream(data, trace=True)
     except HashMismatchError:
-        return sorted(tags | {"hash"})
-    except LghccError as e:  # the decoding stage that rejected it: the module of the innermost frame
-        stages = [Path(f.filename).stem for f in traceback.extract_tb(e.__traceback__)]
-        stage = next((m for m in reversed(stages) if m in ("attributes", "geometry", "render_model", "hierarchy",
-                                                             "model_unit", "models", "ggconv", "parent_mlp")), None)
-        return sorted(tags | ({{"model_unit": "context_model", "models": "context_model", "ggconv": "context_model",
-                               "parent_mlp": "context_model"}.get(stage, stage)} if stage else set()))
+        return _undeclared(sorted(tags | {"hash"}), rejected_in)
+    except LghccError:  # rejected while decoding: the stage sources.yaml declares
+        return sorted(tags | ({rejected_in} if rejected_in else set()))
+    _undeclared([], rejected_in)
     if container.header.version_minor != VERSION_MINOR:
         tags.add("container_version")
     for u in container.units:
@@ -705,6 +709,14 @@ def derive_tools(data: bytes) -> list[str]:
     if any(c > 1 for c in chunk_sizes):
         tags.add("chunks")
     return sorted(tags)
+
+
+def _undeclared(tools: list[str], rejected_in: str | None) -> list[str]:
+    """``tools`` of a stream that no decoding stage rejects; SystemExit when one is declared."""
+    if rejected_in is not None:
+        raise SystemExit(f"rejected_in: {rejected_in} declared for a stream that no decoding stage rejects "
+                         f"(its tools: {tools or 'those of a decoded stream'})")
+    return tools
 
 
 def check_expectation(entry: dict, data: bytes, decoded: str | None) -> None:
@@ -770,7 +782,8 @@ def write_renders(entry: dict, data: bytes, folder: Path) -> None:
 
 
 def test_yaml(entry: dict, data: bytes, decoded: str | None) -> dict:
-    meta = {"id": entry["id"], "purpose": entry["purpose"], "profile": "main", "tools": derive_tools(data),
+    meta = {"id": entry["id"], "purpose": entry["purpose"], "profile": "main",
+            "tools": derive_tools(data, entry.get("rejected_in")),
             "expect": entry.get("expect", "decode")}
     if entry.get("expect") == "error":
         meta["expect_error"] = entry["expect_error"]

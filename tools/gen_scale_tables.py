@@ -30,23 +30,19 @@ from pathlib import Path
 import numpy as np
 from scipy.special import ndtr
 
+from lghcc.common.entropy.range_coder import TOTAL_FREQUENCY as TOTAL
+from lghcc.common.entropy.scale_levels import NUM_ESCAPE_CLASSES, NUM_SCALE_LEVELS, canonical_bytes, sigma_of_level
+
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "common" / "entropy" / "scale_tables.npz"
 
-NUM_SCALE_LEVELS = 64
-SIGMA_MIN, SIGMA_MAX = 0.11, 512.0
-PRECISION_BITS = 24
-TOTAL = 1 << PRECISION_BITS
 COVERAGE_SIGMAS = 8.0
 MIN_HALF_WIDTH, MAX_HALF_WIDTH = 4, 4096
-NUM_ESCAPE_CLASSES = 63  # class k = bit length of m = |r| - L - 1 < 2^62
 ESCAPE_CLASS_RATIO = 0.75
-MAGIC = b"LGHCC scale tables v1\n"
 
 
 def sigmas() -> np.ndarray:
-    i = np.arange(NUM_SCALE_LEVELS, dtype=np.float64)
-    return SIGMA_MIN * (SIGMA_MAX / SIGMA_MIN) ** (i / (NUM_SCALE_LEVELS - 1))
+    return sigma_of_level(np.arange(NUM_SCALE_LEVELS))
 
 
 def upper_tail(x: np.ndarray) -> np.ndarray:
@@ -93,12 +89,6 @@ def escape_class_table() -> np.ndarray:
     f[order[:left]] += 1
     assert int(f.sum()) == TOTAL and int(f.min()) >= 1
     return f
-
-
-def canonical_bytes(half_widths: np.ndarray, freqs: np.ndarray, class_freqs: np.ndarray) -> bytes:
-    """The serialization the SHA-256 is taken of (spec/entropy.md)."""
-    words = np.concatenate([[half_widths.size], half_widths, freqs, [class_freqs.size], class_freqs])
-    return MAGIC + np.asarray(words, dtype=np.int64).astype("<u4").tobytes()
 
 
 def build() -> dict[str, np.ndarray]:

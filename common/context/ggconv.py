@@ -34,27 +34,21 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..attributes import STEP_ADJUST_FACTORS  # noqa: F401 (re-exported)
-from .model_unit import NamedIntArray
+from ..attributes import NUM_STEP_ADJUST, STEP_ADJUST_FACTORS  # noqa: F401 (re-exported)
+from ..entropy.scale_levels import NUM_SCALE_LEVELS as NUM_LEVELS  # the float twin imports it by this name
+from .model_unit import NamedIntArray, mlp_arrays
 from ..intnn import ACT_MAX, ACT_MIN, IntLinear, IntMLP, WEIGHT_BITS_ALLOWED, rshift_round
+from ..hierarchy import local_position
 from ..knn import ball_knn
+from ..scene import NUM_SCALINGS
 
 GRID_FRAC_BITS = 8  # FB: fractional bits of the grid coordinate U
 TRI_SHIFT = 3 * GRID_FRAC_BITS  # the trilinear weights sum to 2^24
 MIN_GRID, MAX_GRID = 2, 16  # allowed table size D
 MAX_K = 64
 MAX_H_SHIFT = 40
-NUM_LEVELS = 64
-NUM_STEP_ADJUST = 8
-NUM_SCALINGS = 6
 MAX_RADIUS_SQ = (1 << 62) - 1  # coded as a 62-bit unsigned value (context-model unit)
 NEIGHBOUR_LEVELS = (1, 2)  # 1: neighbours are level-1 anchors; 2: level-2 anchors (the paper's graph)
-
-
-def sigma_of_level(level) -> np.ndarray:
-    """Nominal sigma of a scale level, in quantization steps (informative; the normative
-    probabilities are the frozen tables of common/entropy/tables.py)."""
-    return 0.11 * (512.0 / 0.11) ** (np.asarray(level, dtype=np.float64) / 63.0)
 
 
 @dataclass
@@ -136,12 +130,7 @@ class GGConvParams:
                NamedIntArray("radius_sq", np.array(self.radius_sq, dtype=np.int64), 62, False),
                NamedIntArray("h_shift", np.array(self.h_shift, dtype=np.int64), 8, False),
                NamedIntArray("table", self.table.copy(), 16, True)]
-        for name, mlp in (("feat", self.feat_mlp), ("head", self.head_mlp)):
-            for l, layer in enumerate(mlp.layers):
-                out += [NamedIntArray(f"{name}.{l}.weight", layer.weight.copy(), layer.weight_bits, True),
-                        NamedIntArray(f"{name}.{l}.bias", layer.bias.copy(), 32, True),
-                        NamedIntArray(f"{name}.{l}.shift", np.array(layer.shift, dtype=np.int64), 8, False)]
-        return out
+        return out + mlp_arrays("feat", self.feat_mlp) + mlp_arrays("head", self.head_mlp)
 
     @classmethod
     def from_arrays(cls, arrays: list[NamedIntArray]) -> "GGConvParams":
@@ -422,7 +411,7 @@ class GGConvEvaluator:
         head0 = params.head_mlp.layers[0]
         self.head0_z = head0._ws[:ch + 4].contiguous()  # the weights of [h, local position, n_valid]
         self.q1 = torch.addmm(head0._bs, self.x1f, head0._ws[ch + 4:].contiguous())  # [N1, Hh]: bias + W x
-        self.local = torch.from_numpy(np.mod(c, np.int64(self.voxel_scale))).clamp_(0, ACT_MAX).to(torch.float64)
+        self.local = torch.from_numpy(local_position(c, self.voxel_scale)).clamp_(0, ACT_MAX).to(torch.float64)
         self.w_scale = 2.0 ** -params.h_shift  # folded into the geometry weights: sum_j (w 2^-hs) e is exact
         r = params.radius
         self.side = 2 * r + 1

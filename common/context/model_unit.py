@@ -32,6 +32,17 @@ class NamedIntArray:
     signed: bool
 
 
+def mlp_arrays(name: str, mlp) -> list[NamedIntArray]:
+    """The arrays of an integer MLP (common/intnn.py IntMLP) named ``name``, layer by layer:
+    {name}.{l}.weight (s8 or s16 [out, in]), {name}.{l}.bias (s32 [out]), {name}.{l}.shift (u8)."""
+    out: list[NamedIntArray] = []
+    for l, layer in enumerate(mlp.layers):
+        out += [NamedIntArray(f"{name}.{l}.weight", layer.weight.copy(), layer.weight_bits, True),
+                NamedIntArray(f"{name}.{l}.bias", layer.bias.copy(), 32, True),
+                NamedIntArray(f"{name}.{l}.shift", np.array(layer.shift, dtype=np.int64), 8, False)]
+    return out
+
+
 def array_names(model_id: int, feat_layers: int, head_layers: int) -> list[str]:
     """The normative order of a context model's arrays."""
     def mlp(name: str, layers: int) -> list[str]:

@@ -19,10 +19,11 @@ import numpy as np
 import torch
 
 from .ggconv import check_level2_inputs, check_parent_base, clamp16, split_outputs
-from .model_unit import NamedIntArray
+from .model_unit import NamedIntArray, mlp_arrays
+from ..hierarchy import local_position
 from ..intnn import ACT_MAX, WEIGHT_BITS_ALLOWED, IntLinear, IntMLP
+from ..scene import NUM_SCALINGS
 
-NUM_SCALINGS = 6
 _BLOCK = 1 << 16
 
 
@@ -52,13 +53,8 @@ class ParentMlpParams:
         return self.head_mlp.num_parameters()
 
     def to_arrays(self) -> list[NamedIntArray]:
-        out = [NamedIntArray("num_features", np.array(self.num_features, dtype=np.int64), 16, False),
-               NamedIntArray("parent_base", self.parent_base.copy(), 1, False)]
-        for l, layer in enumerate(self.head_mlp.layers):
-            out += [NamedIntArray(f"head.{l}.weight", layer.weight.copy(), layer.weight_bits, True),
-                    NamedIntArray(f"head.{l}.bias", layer.bias.copy(), 32, True),
-                    NamedIntArray(f"head.{l}.shift", np.array(layer.shift, dtype=np.int64), 8, False)]
-        return out
+        return [NamedIntArray("num_features", np.array(self.num_features, dtype=np.int64), 16, False),
+                NamedIntArray("parent_base", self.parent_base.copy(), 1, False)] + mlp_arrays("head", self.head_mlp)
 
     @classmethod
     def from_arrays(cls, arrays: list[NamedIntArray]) -> "ParentMlpParams":
@@ -75,15 +71,6 @@ class ParentMlpParams:
                                     l < n - 1, w.bits))
         return cls(int(np.asarray(by["num_features"].values).ravel()[0]), IntMLP(layers),
                    np.asarray(by["parent_base"].values))
-
-
-def parent_mlp_coding_params(params: ParentMlpParams, coords2: np.ndarray, parent: np.ndarray, attrs1: np.ndarray,
-                             voxel_scale: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """coords2 int [N2, 3] level-2 positions; parent int [N2] each one's level-1 parent (an index
-    into level 1); attrs1 int [N1, M] the decoded level-1 attributes in quantization units.
-    Returns mean (int32), level (int8), step_adjust (int8), each [N2, M]."""
-    ev = ParentMlpEvaluator(params, coords2, parent, attrs1, voxel_scale)
-    return ev.rows(0, ev.num_rows)
 
 
 class ParentMlpEvaluator:
@@ -110,7 +97,7 @@ class ParentMlpEvaluator:
         for b_lo in range(lo, hi, _BLOCK):
             b_hi = min(hi, b_lo + _BLOCK)
             xpar = self.x1c.index_select(0, torch.from_numpy(self.parent[b_lo:b_hi]))
-            local = torch.from_numpy(np.mod(self.coords[b_lo:b_hi], np.int64(self.voxel_scale)).clip(0, ACT_MAX))
+            local = torch.from_numpy(local_position(self.coords[b_lo:b_hi], self.voxel_scale).clip(0, ACT_MAX))
             out = split_outputs(self.params.head_mlp(torch.cat([local, xpar], 1)), xpar, self.params.parent_base, m)
             for dst, o in zip((mean, level, adj), out):
                 dst[b_lo - lo:b_hi - lo] = o.numpy()

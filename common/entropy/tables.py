@@ -15,25 +15,16 @@ from pathlib import Path
 
 import numpy as np
 
-NUM_SCALE_LEVELS = 64
-PRECISION_BITS = 24
-TOTAL_FREQUENCY = 1 << PRECISION_BITS
-NUM_ESCAPE_CLASSES = 63
+from .range_coder import PRECISION_BITS, TOTAL_FREQUENCY  # noqa: F401 (re-exported)
+from .scale_levels import (NUM_ESCAPE_CLASSES, NUM_SCALE_LEVELS, TABLES_MAGIC,  # noqa: F401 (re-exported)
+                           canonical_bytes, sigma_of_level)
+
 MAX_ABS_RESIDUAL = (1 << 62) - 1  # every |r| <= this can be coded; larger values are rejected
-TABLES_MAGIC = b"LGHCC scale tables v1\n"
 SCALE_TABLES_SHA256 = "d190e032e31f5d4f0aaca7804206cdad1b718a0fbd79e00c1f458764b3da9d87"
 TABLES_PATH = Path(__file__).with_name("scale_tables.npz")
 
 #: Nominal standard deviation of each level, in quantization steps (informative).
-SCALE_SIGMAS = 0.11 * (512.0 / 0.11) ** (np.arange(NUM_SCALE_LEVELS, dtype=np.float64) / 63.0)
-
-
-def canonical_bytes(half_widths: np.ndarray, freqs: np.ndarray, class_freqs: np.ndarray) -> bytes:
-    """TABLES_MAGIC, then little-endian uint32 words: 64, L_0..L_63, every level's
-    frequencies (level 0 first, bins in order r = -L..L, ESC), 63, the class frequencies."""
-    words = np.concatenate([[np.asarray(half_widths).size], half_widths, freqs,
-                            [np.asarray(class_freqs).size], class_freqs])
-    return TABLES_MAGIC + np.asarray(words, dtype=np.int64).astype("<u4").tobytes()
+SCALE_SIGMAS = sigma_of_level(np.arange(NUM_SCALE_LEVELS))
 
 
 class ScaleTables:

@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass
 
 from ...common.errors import InputError
+from ..config import DEFAULT_ATTRIBUTE_STEP
 
 
 @dataclass
@@ -76,7 +77,7 @@ class TrainConfig:
     # attributes quantized as the encoder will (steps rate_step). 0: plain Scaffold-GS.
     rate_lambda: float = 0.0
     rate_from: int | None = None  # None: densify_until
-    rate_step: float = 0.02  # the encoder's feature/scaling/offset step (0.02: preset medium)
+    rate_step: float = DEFAULT_ATTRIBUTE_STEP  # the encoder's feature/scaling/offset step (preset medium)
     rate_voxel_scale: int = 4  # the encoder's coarse voxel scale
     rate_neighbour_level: int = 1  # the encoder's GG-Conv neighbour level
     rate_lr: float = 0.002  # learning rate of the rate model's parameters
