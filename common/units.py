@@ -267,3 +267,20 @@ class DecodedSceneHashUnit(SyntaxStructure):
     def syntax(self, v: SyntaxVisitor) -> None:
         v.u(8, self, "hash_type", lo=HASH_TYPE_SHA256, hi=HASH_TYPE_SHA256)
         v.payload(self, "scene_hash", 32)
+
+
+@dataclass
+class SourceInfo(SyntaxStructure):
+    """source_info (ancillary unit 0x80, clause 7.3.10): informative facts about the scene the
+    encoder was given that the decoded scene does not carry. An anchor stream transcoded from
+    a 3DGS scene has no SH coefficients; ``source_sh_degree`` lets a decoder export its colours
+    at the source's degree (lghcc-dec --export) instead of guessing one. Decoding never depends
+    on it; bytes after these elements are reserved for later versions and ignored."""
+
+    syntax_name = "source_info"
+    clause = "7.3.10"
+    source_sh_degree: int = 0
+
+    def syntax(self, v: SyntaxVisitor) -> None:
+        v.u(2, self, "source_sh_degree", hi=MAX_SH_DEGREE)
+        v.byte_align()

@@ -126,18 +126,24 @@ class AnchorRateModel(nn.Module):
     def num_level2(self) -> int:
         return int(self.l2.shape[0])
 
-    def forward(self, values: torch.Tensor, noise: bool = True,
-                generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
+    def forward(self, values: torch.Tensor, noise: bool = True, generator: torch.Generator | None = None,
+                live: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """values: float [N, M] attributes (trainer row order). Returns the estimated bits of
         level 1, of level 2 and in all ("level1", "level2", "total"), differentiable in values.
-        noise: uniform noise in [-1/2, 1/2) steps (training); else the rounded values."""
+        noise: uniform noise in [-1/2, 1/2) steps (training); else the rounded values.
+        live: bool [N, M], the values the stream codes (None: all); the channels of a dead
+        offset (offset mask) are not coded and cost nothing."""
         y = values.to(torch.float64) / self.steps
         if noise:
             yn = y + (torch.rand(y.shape, generator=generator, dtype=y.dtype) - 0.5)
         else:
             yn = torch.round(y)
+        w = None if live is None else live.to(torch.float64)
         y1 = yn[self.l1]
-        bits1 = gaussian_bits(y1, self.l1_mean, self.l1_log_sigma.exp()).sum() if self.num_level1 else y.new_zeros(())
+        bits1 = y.new_zeros(())
+        if self.num_level1:
+            b1 = gaussian_bits(y1, self.l1_mean, self.l1_log_sigma.exp())
+            bits1 = (b1 if w is None else b1 * w[self.l1]).sum()
         bits2 = y.new_zeros(())
         if self.twin is not None:
             x1 = torch.round(y[self.l1]).detach()  # the decoder's context: decoded (rounded) level-1 values
@@ -147,7 +153,8 @@ class AnchorRateModel(nn.Module):
             batch = {"n": self.num_level2, "feat_in": feat_in, "corner_idx": self.corner_idx,
                      "corner_w": self.corner_w, "row": self.row, "head_raw": torch.cat([self.head_fixed, xpar], 1)}
             mean, level, _ = self.twin(batch)
-            bits2 = gaussian_bits(yn[self.l2], mean, torch.exp(_LOG_SIGMA0 + _LOG_SIGMA_STEP * level)).sum()
+            b2 = gaussian_bits(yn[self.l2], mean, torch.exp(_LOG_SIGMA0 + _LOG_SIGMA_STEP * level))
+            bits2 = (b2 if w is None else b2 * w[self.l2]).sum()
         return {"level1": bits1, "level2": bits2, "total": bits1 + bits2}
 
 
