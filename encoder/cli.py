@@ -26,10 +26,11 @@ attributes, models and a hash of the decoded scene.
 A plain 3DGS scene (INRIA PLY, as 3DGS, gsplat, nerfstudio and SuperSplat write it) is coded
 as explicit Gaussians: every Gaussian a point with its SH colour, opacity, scales and
 rotation. The encoder renders the source from views around it, measures what each Gaussian
-contributes, and chooses the pruning, the position grid and the quantization steps that
-minimize  -PSNR + lambda x log2(bytes)  (--lambda, in dB per doubling of the stream; the
-presets set it), then tunes the
-kept Gaussians to the source renders with their quantization simulated (--fit-iterations).
+contributes, and chooses the pruning, the position grid and the quantization steps that give
+the fewest bytes at the quality asked for: the presets ask for a PSNR against renders of the
+source (low 40 dB, medium 45 dB, high 50 dB; --psnr sets another), --lambda instead minimizes
+-PSNR + lambda x log2(bytes). Then it tunes the kept Gaussians to the source renders with
+their quantization simulated (--fit-iterations; medium and high), which adds about 1 dB.
 An anchor scene (Scaffold-GS / HAC checkpoint) is coded with its anchors and render MLPs.
 
 examples:
@@ -78,10 +79,14 @@ def setup_args() -> argparse.ArgumentParser:
                     help="gaussians (default): code every Gaussian explicitly; anchors: transcode to an anchor "
                          "scene first by fitting anchors and MLPs to renders of the source (minutes; "
                          "tools/results/transcode.md)")
+    gs.add_argument("--psnr", dest="target_psnr", type=float, metavar="DB",
+                    help="quality asked for: PSNR in dB of the decoded scene against renders of the source "
+                         "(views around the scene); the encoder finds the fewest bytes that reach it "
+                         "(the presets: low 40, medium 45, high 50)")
     gs.add_argument("--lambda", dest="rd_lambda", type=float, metavar="L",
-                    help="rate-distortion weight in dB of PSNR per doubling of the stream: the encoder stops "
-                         "where twice the bytes would buy less than L dB (larger: fewer bytes, lower PSNR; "
-                         "0: the preset's steps as they are, no search)")
+                    help="instead of a PSNR: rate-distortion weight in dB of PSNR per doubling of the stream; "
+                         "the encoder stops where twice the bytes would buy less than L dB (larger: fewer "
+                         "bytes, lower PSNR; 0 with --psnr 0: the preset's steps as they are, no search)")
     gs.add_argument("--fit-iterations", type=int, metavar="N",
                     help="steps tuning the kept Gaussians to the source renders (0: none)")
     gs.add_argument("--sh-degree", type=int, choices=(0, 1, 2, 3), help="code at most this SH degree")
@@ -190,9 +195,11 @@ def _encode_gaussians(scene, cfg, args):
     progress = not args.quiet and sys.stderr.isatty()
     t0 = time.perf_counter()
     weights, prep_stats = None, {}
-    if cfg.rd_lambda > 0 or cfg.fit_iterations > 0 or cfg.prune_share > 0:
+    if cfg.rd_lambda > 0 or cfg.target_psnr > 0 or cfg.fit_iterations > 0 or cfg.prune_share > 0:
+        goal = (f", choosing settings for {cfg.target_psnr:g} dB" if cfg.target_psnr
+                else f", choosing settings for lambda {cfg.rd_lambda:g}" if cfg.rd_lambda else "")
         log(f"{scene.num_gaussians:,} Gaussians (SH degree {scene.sh_degree}): measuring contributions on "
-            f"{cfg.fit_views} views" + (f", choosing settings for lambda {cfg.rd_lambda:g}" if cfg.rd_lambda else "")
+            f"{cfg.fit_views} views" + goal
             + (f", then {cfg.fit_iterations} fitting steps" if cfg.fit_iterations else ""))
         prep = prepare_gaussians(scene, cfg, log=log, progress=progress)
         scene, weights, cfg, prep_stats = prep.scene, prep.weights, prep.cfg, prep.stats
@@ -235,9 +242,11 @@ def main(argv: list[str] | None = None) -> int:
             select_device(args.device)
         gaussians = args.input is not None and args.mode == "gaussians" and is_gaussian_file(args.input)
         if gaussians:
-            cfg = load_config(args.preset, args.config, {
-                "rd_lambda": args.rd_lambda, "fit_iterations": args.fit_iterations, "sh_degree": args.sh_degree},
-                kind="gaussians")
+            overrides = {"rd_lambda": args.rd_lambda, "target_psnr": args.target_psnr,
+                         "fit_iterations": args.fit_iterations, "sh_degree": args.sh_degree}
+            if args.rd_lambda is not None and args.target_psnr is None:
+                overrides["target_psnr"] = 0.0  # --lambda given: it replaces the preset's quality
+            cfg = load_config(args.preset, args.config, overrides, kind="gaussians")
         else:
             cfg = load_config(args.preset, args.config, {
                 "feature_step": args.feature_step, "scaling_step": args.scaling_step,

@@ -153,6 +153,10 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # PSNR per doubling of the stream (0: code with the preset's settings as they are), on
     # search_views renders of search_resolution pixels.
     rd_lambda: float = 0.0
+    # Quality asked for instead (the presets' way): PSNR in dB of the quantized scene against the
+    # source on the search views; the search then finds the fewest bits that reach it (lambda
+    # follows from it; 0: minimize at rd_lambda).
+    target_psnr: float = 0.0
     search_views: int = 8
     search_resolution: int = 128
 
@@ -168,6 +172,9 @@ class GaussianEncoderConfig(AttributeCodingConfig):
             raise InputError(f"sh_degree must be 0..3 or None, got {self.sh_degree!r}")
         if not 0 <= self.prune_share < 1:
             raise InputError(f"prune_share must be in [0, 1), got {self.prune_share}")
+        if not 0 <= self.target_psnr < 200 or not 0 <= self.rd_lambda < float("inf"):
+            raise InputError(f"target_psnr must be in [0, 200) dB and rd_lambda >= 0, got {self.target_psnr}, "
+                             f"{self.rd_lambda}")
         if self.fit_views < 1 or self.fit_resolution < 8 or self.fit_iterations < 0:
             raise InputError("fit_views must be >= 1, fit_resolution >= 8 and fit_iterations >= 0")
         return self

@@ -15,7 +15,9 @@ any cameras the caller gives, e.g. the scene's own training views):
    times the estimated bits of the coded values (the per-channel prior's discretized Gaussian
    with the frozen tables' scales, spec clause 10), so the values move where the decoded
    scene renders closest to the source at the rate the stream will pay. The pruned
-   Gaussians' share of the pictures is taken over by their neighbours.
+   Gaussians' share of the pictures is taken over by their neighbours;
+5. with a quality asked for (``target_psnr``), the attribute steps move onto it again
+   (encoder/gaussian_rd.py ``trim_to_target``): what the fit gained becomes fewer bytes.
 
 The result is a GaussianScene on its grid that encode_gaussian_scene codes exactly as the
 fit simulated it.
@@ -195,7 +197,7 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
     contrib = gaussian_contributions(g.means, g.quats, g.scales, g.opacities, cams, on_view=bar.update)
     bar.close()
     stats["time_contributions_s"] = time.perf_counter() - t0
-    if cfg.rd_lambda > 0:
+    if cfg.rd_lambda > 0 or cfg.target_psnr > 0:
         from lghcc.encoder.gaussian_rd import search_settings
 
         t1 = time.perf_counter()
@@ -258,5 +260,12 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
                 f"dB on the fit views, ETA {eta:.0f} s")
     stats["time_fit_s"] = time.perf_counter() - t1
     stats["fit_final_mse"] = float(np.mean(losses[-20:]))  # squared error on the fit views, last steps
+    fitted = fit.scene(grid)
+    if cfg.target_psnr > 0:
+        from lghcc.encoder.gaussian_rd import trim_to_target
+
+        t2 = time.perf_counter()
+        cfg, before, after = trim_to_target(fitted, weights, cfg, log=say)
+        stats.update(time_trim_s=time.perf_counter() - t2, trim_bits_before=before.bits, trim_bits_after=after.bits)
     stats["time_total_s"] = time.perf_counter() - t0
-    return PreparedGaussians(fit.scene(grid), weights, cfg, stats)
+    return PreparedGaussians(fitted, weights, cfg, stats)

@@ -14,8 +14,16 @@ the per-channel prior, which the coder reaches within 0.01%). So ``lambda`` is i
 doubling of the stream: the search stops where twice the bytes would buy less than lambda dB
 of PSNR. Measured in relative rate, the same lambda lands at a like point of every scene's
 rate-distortion curve, whatever its Gaussian count and SH degree.
-The search is coordinate descent in steps of sqrt(2) (the pruning share on a ladder, the SH
-degree down from the source's), from the preset's settings, until no move lowers J.
+The search: one probe per attribute group measures what doubling its step costs in D and
+saves in R; a high-rate model gives every group's step for lambda; a line search over a ladder
+of pruning shares and a check of each step a factor sqrt(2) either way follow.
+
+A fixed lambda lands at a like slope of every scene's curve, not at a like quality: on a small
+scene whose curve is shallow (playbot, 8k Gaussians: ~8 dB per doubling) lambda 10 went down to
+28 dB. So the presets give a quality instead (``target_psnr``, dB on the search views): lambda is
+the one the model says reaches it, and after the search one common factor on every step
+(bisection in log steps against real renders) moves the result onto the target, the coarsest
+settings measured that still reach it.
 """
 
 from __future__ import annotations
@@ -76,6 +84,11 @@ class SettingsSearch:
 
     def _grid(self, share: float, position_step: float):
         key = (share, position_step)
+        if key not in self._grids and share == 0 and self.scene.coords is not None:
+            # a scene already on its grid (fitted there) keeps it, whatever position_step says
+            keep = np.ones(self.scene.num_gaussians, dtype=bool)
+            bits = 8.0 * len(encode_geometry(np.unique(self.scene.coords, axis=0)))
+            self._grids[key] = (keep, self.scene, bits)
         if key not in self._grids:
             keep = prune_by_contribution(self.contrib, share)
             kept = self.scene.subset(keep)
@@ -129,18 +142,43 @@ def _with_step(cfg: GaussianEncoderConfig, group: str, step: float) -> GaussianE
     return dataclasses.replace(cfg, **{"position_step" if group == "position" else f"{group}_step": float(step)})
 
 
-def optimal_steps(base: Trial, probes: dict[str, tuple[Trial, float]], lam: float,
-                  bounds: tuple[float, float] = (1 / 8, 8)) -> dict[str, float]:
-    """Steps minimizing J under the high-rate model: doubling group c's step adds a_c * 3
-    step^2 to D (uniform rounding noise) and saves slope_c bits (measured), so the optimum has
-    a_c step_c^2 = lambda slope_c D ln10 / (10 R ln2 ln4); solved by fixed-point iteration on
-    D and R. ``probes``: group -> (trial with that group's step doubled, the base step)."""
+def _model(base: Trial, probes: dict[str, tuple[Trial, float]]):
+    """The high-rate model's terms from the probes: per group the distortion per step^2 (a), the
+    bits saved per doubling (slope) and the probed base step; the distortion the steps leave."""
     a, slope, s0 = {}, {}, {}
     for grp, (t, step) in probes.items():
         a[grp] = max(t.mse - base.mse, 1e-18) / (3 * step * step)
         slope[grp] = max(base.bits - t.bits, 0.0)
         s0[grp] = step
     resid = max(base.mse - sum(a[g] * s0[g] ** 2 for g in a), 0.05 * base.mse)
+    return a, slope, s0, resid
+
+
+def predicted_mse(base: Trial, probes: dict[str, tuple[Trial, float]], steps: dict[str, float]) -> float:
+    a, _, _, resid = _model(base, probes)
+    return resid + sum(a[g] * steps[g] ** 2 for g in a)
+
+
+def lambda_for_target(base: Trial, probes: dict[str, tuple[Trial, float]], target_mse: float,
+                      lo: float = 0.05, hi: float = 64.0) -> float:
+    """The lambda whose model steps (``optimal_steps``) are predicted to render at target_mse:
+    bisection in log lambda (the predicted distortion grows with lambda)."""
+    for _ in range(30):
+        mid = math.sqrt(lo * hi)
+        if predicted_mse(base, probes, optimal_steps(base, probes, mid)) > target_mse:
+            hi = mid
+        else:
+            lo = mid
+    return math.sqrt(lo * hi)
+
+
+def optimal_steps(base: Trial, probes: dict[str, tuple[Trial, float]], lam: float,
+                  bounds: tuple[float, float] = (1 / 8, 8)) -> dict[str, float]:
+    """Steps minimizing J under the high-rate model: doubling group c's step adds a_c * 3
+    step^2 to D (uniform rounding noise) and saves slope_c bits (measured), so the optimum has
+    a_c step_c^2 = lambda slope_c D ln10 / (10 R ln2 ln4); solved by fixed-point iteration on
+    D and R. ``probes``: group -> (trial with that group's step doubled, the base step)."""
+    a, slope, s0, resid = _model(base, probes)
     steps = dict(s0)
     for _ in range(50):
         d = resid + sum(a[g] * steps[g] ** 2 for g in a)
@@ -165,9 +203,20 @@ def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEnco
     s = SettingsSearch(scene, contrib, cfg, cfg.rd_lambda, cfg.search_views, cfg.search_resolution)
     n = scene.num_gaussians
     groups = [g for g in GROUPS if not g.startswith("sh_band") or int(g[-1]) <= scene.sh_degree]
+    target_mse = 10 ** (-cfg.target_psnr / 10) if cfg.target_psnr > 0 else None
+    if target_mse is not None:
+        # the model explains distortion by the steps only: probed without pruning, what the steps
+        # leave is small and the lambda it gives for the target means something (the pruning
+        # ladder comes after, at that lambda)
+        cfg = dataclasses.replace(cfg, prune_share=0.0)
     base = s.evaluate(cfg)
     probes = {g: (s.evaluate(_with_step(cfg, g, 2 * _step(cfg, g))), _step(cfg, g)) for g in groups}
-    steps = optimal_steps(base, probes, cfg.rd_lambda)
+    if target_mse is not None:
+        s.lam = lambda_for_target(base, probes, target_mse)
+        for t in s.trials:  # the trials so far, costed at the lambda now known
+            t.cost = 10 * math.log10(max(t.mse, 1e-12)) + s.lam * math.log2(max(t.bits, 1.0))
+        say(f"settings: lambda {s.lam:.3g} dB per doubling for {cfg.target_psnr:g} dB (model)")
+    steps = optimal_steps(base, probes, s.lam)
     best = min([base] + [p for p, _ in probes.values()], key=lambda t: t.cost)
     # the model holds at high rate; where its answer measures worse, move halfway back (in log steps)
     for _ in range(4):
@@ -198,7 +247,71 @@ def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEnco
             if t.cost < best.cost:
                 best = t
                 break
+    if target_mse is not None:
+        best = onto_target(s, best, groups, target_mse)
+        # still short of the target with every step 4x finer: the pruning limits it; prune less
+        i = int(np.argmin(np.abs(np.asarray(PRUNE_LADDER) - best.cfg.prune_share)))
+        while best.mse > target_mse and i > 0:
+            i -= 1
+            best = onto_target(s, s.evaluate(dataclasses.replace(best.cfg, prune_share=PRUNE_LADDER[i])), groups,
+                               target_mse)
+        # of every setting measured on the way, the fewest bits that reach the target
+        best = min([t for t in s.trials if t.mse <= target_mse] or [best], key=lambda t: t.bits)
     say(f"settings: {len(s.trials)} trials, {time.perf_counter() - t0:.0f} s: "
         f"{-10 * math.log10(max(best.mse, 1e-12)):.2f} dB at {best.bits / n:.1f} bits/Gaussian, "
         f"pruning {100 * best.cfg.prune_share:g}% of the contribution")
     return best.cfg, s.trials
+
+
+def trim_to_target(scene: GaussianScene, weights: np.ndarray, cfg: GaussianEncoderConfig, *,
+                   log=None) -> tuple[GaussianEncoderConfig, Trial, Trial]:
+    """After the fit, which tuned the values to render closer to the source than the search
+    measured (about 1 dB), the attribute steps move onto ``cfg.target_psnr`` again (``onto_target``
+    on the fitted scene, its grid kept): the fit's gain becomes fewer bytes at the quality asked
+    for. -> (settings, the trial before, the trial chosen)."""
+    as_fitted = dataclasses.replace(cfg, prune_share=0.0)  # the scene is already pruned
+    s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution)
+    groups = [g for g in GROUPS if g != "position" and (not g.startswith("sh_band") or int(g[-1]) <= scene.sh_degree)]
+    before = s.evaluate(as_fitted)
+    best = onto_target(s, before, groups, 10 ** (-cfg.target_psnr / 10), evaluations=4)
+    if log:
+        log(f"settings after the fit: {-10 * math.log10(max(before.mse, 1e-12)):.2f} dB at "
+            f"{before.bits / 8:,.0f} B -> {-10 * math.log10(max(best.mse, 1e-12)):.2f} dB at {best.bits / 8:,.0f} B "
+            f"(estimated)")
+    chosen = dataclasses.replace(best.cfg, prune_share=cfg.prune_share) if best is not before else cfg
+    return chosen, before, best
+
+
+def _scaled(cfg: GaussianEncoderConfig, groups: list[str], f: float) -> GaussianEncoderConfig:
+    for g in groups:
+        cfg = _with_step(cfg, g, _step(cfg, g) * f)
+    return cfg
+
+
+def onto_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: float,
+                evaluations: int = 8) -> Trial:
+    """Every step times one factor f so that the renders meet ``target_mse``: from f = 1, f
+    doubles (or halves) until the target is crossed (the model's lambda can be far off when
+    the preset's steps were), then bisection in log f (distortion grows with f) to within a
+    factor 1.1. Returns the trial of the largest f measured that meets the target (the fewest
+    bits at the quality asked for), or the one closest to it when none does (the finest)."""
+    trials = {1.0: best}
+    f_meet = 1.0 if best.mse <= target_mse else None  # largest f measured that meets the target
+    f_fail = None if f_meet else 1.0  # smallest f measured that does not
+    for _ in range(evaluations):
+        if f_meet is not None and f_fail is not None:
+            if f_fail / f_meet <= 1.1:
+                break
+            f = math.sqrt(f_meet * f_fail)
+        else:
+            f = f_meet * 2 if f_meet is not None else f_fail / 2
+            if not 1 / 64 <= f <= 64:
+                break
+        trials[f] = t = s.evaluate(_scaled(best.cfg, groups, f))
+        if t.mse <= target_mse:
+            f_meet = f if f_meet is None else max(f_meet, f)
+        else:
+            f_fail = f if f_fail is None else min(f_fail, f)
+    if f_meet is not None:
+        return min((t for t in trials.values() if t.mse <= target_mse), key=lambda t: t.bits)
+    return min(trials.values(), key=lambda t: t.mse)

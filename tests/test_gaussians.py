@@ -157,7 +157,7 @@ def _ply(path, scene):
 def _no_preparation(tmp_path) -> list[str]:
     """lghcc-enc options that code the scene as it is: the preset's steps, nothing pruned or fitted."""
     cfg = tmp_path / "plain.yaml"
-    cfg.write_text("rd_lambda: 0\nfit_iterations: 0\nprune_share: 0\n")
+    cfg.write_text("rd_lambda: 0\ntarget_psnr: 0\nfit_iterations: 0\nprune_share: 0\n")
     return ["--config", str(cfg)]
 
 
@@ -235,7 +235,34 @@ def test_cli_rejects_bad_input_with_one_line_and_writes_nothing(tmp_path, capsys
 
 def test_preset_steps_buy_fidelity_in_order():
     names = [load_config(p, kind="gaussians") for p in ("low", "medium", "high")]
-    assert names[0].rd_lambda > names[1].rd_lambda > names[2].rd_lambda > 0
+    assert 0 < names[0].target_psnr < names[1].target_psnr < names[2].target_psnr
     assert names[0].fit_iterations <= names[1].fit_iterations <= names[2].fit_iterations
     with pytest.raises(InputError, match="unknown preset"):
         load_config("lghcc-medium", kind="gaussians")
+
+
+@pytest.mark.parametrize("target", [30.0, 40.0])
+def test_search_meets_the_psnr_asked_for_with_fewer_bits_than_a_finer_setting(target):
+    """target_psnr: the chosen settings render at least at the target on the search views, and
+    every step a factor 1.5 finer measures more bits (the search did not stop needlessly fine)."""
+    import dataclasses
+    import math
+
+    from lghcc.encoder.gaussian_rd import SettingsSearch, search_settings
+    from lghcc.render.importance import gaussian_contributions
+    from lghcc.encoder.gaussian_fit import fit_cameras
+    from lghcc.render.gaussians3dgs import gaussians_from_scene
+
+    scene = random_gaussians(np.random.default_rng(11), 400, 1)
+    cfg = GaussianEncoderConfig(target_psnr=target, search_views=2, search_resolution=32, fit_views=2,
+                                fit_resolution=32)
+    g = gaussians_from_scene(scene)
+    contrib = gaussian_contributions(g.means, g.quats, g.scales, g.opacities, fit_cameras(scene, 2, 32))
+    chosen, trials = search_settings(scene, contrib, cfg)
+    check = SettingsSearch(scene, contrib, cfg, 1.0, 2, 32)
+    got = check.evaluate(chosen)
+    assert -10 * math.log10(got.mse) >= target
+    finer = dataclasses.replace(chosen, **{f: getattr(chosen, f) / 1.5 for f in (
+        "position_step", "sh_dc_step", "opacity_step", "scale_step", "rotation_step")},
+        sh_band_steps=tuple(s / 1.5 for s in chosen.sh_band_steps))
+    assert check.evaluate(finer).bits > got.bits

@@ -1,0 +1,122 @@
+#!/usr/bin/env python3
+"""Encoding time of an explicit-Gaussian scene per preset, by stage, against a baseline measured
+in the same process (issue 12's target: a 150k-Gaussian scene at ``medium`` in <= 10 minutes
+on 2 cores).
+
+The scene: ``--gaussians`` Gaussians drawn at random (seed 0) from a 3DGS PLY (default the
+PlayCanvas logo of shared/data, 307k Gaussians), so that the count is the one the target names.
+For each preset: contributions, settings search, fit and coding times (the encoder's own
+statistics), the wall time of the whole encode, and the stream's bytes and search PSNR. The
+baseline: one forward render of the whole scene at 320x320 on the CPU rasterizer, timed before
+and after the presets (the median of 3 each); "x baseline" divides by it, which stays
+comparable when the shared machine is slower or faster.
+
+    python tools/bench_speed.py                           # 150k of the logo, low, medium, high
+    python tools/bench_speed.py --presets medium --gaussians 50000
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch: no spinning OpenMP threads
+
+import argparse  # noqa: E402
+import datetime
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from benchutil import command_line, load_average, write_lines  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_SCENE = ROOT.parent / "shared" / "data" / "playcanvas-logo" / "playcanvas_logo_307k.ply"
+
+
+def baseline_render_s(scene) -> float:
+    """Median of 3 forward renders of the scene at 320x320 from a fit camera."""
+    from lghcc.encoder.gaussian_fit import fit_cameras
+    from lghcc.render.gaussians3dgs import gaussians_from_scene, render_3dgs
+
+    g = gaussians_from_scene(scene)
+    cam = fit_cameras(scene, 1, 320)[0]
+    times = []
+    with torch.no_grad():
+        for _ in range(3):
+            t = time.perf_counter()
+            render_3dgs(g, cam, background=(0, 0, 0), backend="torch")
+            times.append(time.perf_counter() - t)
+    return float(np.median(times))
+
+
+def encode_once(scene, preset: str) -> dict:
+    from lghcc.encoder.config import load_config
+    from lghcc.encoder.gaussian_fit import prepare_gaussians
+    from lghcc.encoder.gaussians import encode_gaussian_scene
+
+    cfg = load_config(preset, kind="gaussians")
+    t0 = time.perf_counter()
+    prep = prepare_gaussians(scene, cfg, log=lambda m: print(f"bench_speed: {preset}: {m}", file=sys.stderr,
+                                                             flush=True))
+    t1 = time.perf_counter()
+    result = encode_gaussian_scene(prep.scene, prep.cfg, weights=prep.weights)
+    t2 = time.perf_counter()
+    s = prep.stats
+    return {"preset": preset, "bytes": len(result.data), "kept": prep.scene.num_gaussians,
+            "contrib_s": s.get("time_contributions_s", 0.0), "search_s": s.get("time_search_s", 0.0),
+            "fit_s": s.get("time_fit_s", 0.0), "prepare_s": t1 - t0, "code_s": t2 - t1, "total_s": t2 - t0,
+            "trials": s.get("search_trials", 0)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", type=Path, default=DEFAULT_SCENE, help="a 3DGS PLY, SPZ or SOG file")
+    ap.add_argument("--gaussians", type=int, default=150_000, help="Gaussians drawn from it (default 150000)")
+    ap.add_argument("--presets", default="low,medium,high")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--out", type=Path, default=ROOT / "tools" / "results" / "speed.md")
+    args = ap.parse_args(argv)
+    if not args.scene.is_file():
+        print(f"bench_speed: {args.scene} not found (shared/data missing? pass --scene)", file=sys.stderr)
+        return 1
+    torch.set_num_threads(args.threads)
+    from lghcc.formats import read_scene
+
+    src = read_scene(args.scene)
+    n = min(args.gaussians, src.num_gaussians)
+    keep = np.zeros(src.num_gaussians, bool)
+    keep[np.random.default_rng(0).choice(src.num_gaussians, n, replace=False)] = True
+    scene = src.subset(keep)
+    base0 = baseline_render_s(scene)
+    rows = [encode_once(scene, p) for p in args.presets.split(",")]
+    base = (base0 + baseline_render_s(scene)) / 2
+    lines = [
+        "# Encoding speed of explicit-Gaussian scenes",
+        "",
+        f"Command: `{command_line('bench_speed.py', argv)}`  ",
+        f"Date: {datetime.date.today()}; torch {torch.__version__}, {args.threads} threads, "
+        f"{platform.processor() or platform.machine()}; load {load_average()} at the end (shared machine).  ",
+        f"Scene: {n:,} of the {src.num_gaussians:,} Gaussians of `{args.scene.name}` (seed 0), SH degree "
+        f"{scene.sh_degree}. Baseline: one 320x320 forward render of it, {base:.3f} s (mean of the medians "
+        "before and after the presets). Stage times are the encoder's own; total = prepare + code "
+        "(the verification decode of lghcc-enc and reading the file are not included).",
+        "",
+        "| preset | bytes | Gaussians kept | search trials | contributions s | search s | fit s | code s "
+        "| total s | total x baseline |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        lines.append(f"| {r['preset']} | {r['bytes']:,} | {r['kept']:,} | {r['trials']} | {r['contrib_s']:.1f} | "
+                     f"{r['search_s']:.1f} | {r['fit_s']:.1f} | {r['code_s']:.1f} | {r['total_s']:.1f} | "
+                     f"{r['total_s'] / base:,.0f} |")
+    write_lines(args.out, lines)
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
