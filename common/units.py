@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from lghcc.common.bitio import BitReader
 from lghcc.common.syntax import SyntaxStructure, SyntaxVisitor
 
 # Profile "main", level limits (spec clause 8). A decoder rejects streams beyond them,
@@ -284,3 +285,10 @@ class SourceInfo(SyntaxStructure):
     def syntax(self, v: SyntaxVisitor) -> None:
         v.u(2, self, "source_sh_degree", hi=MAX_SH_DEGREE)
         v.byte_align()
+
+    @classmethod
+    def from_payload(cls, data: bytes, trace: list | None = None) -> "SourceInfo":
+        """Parse a source_info payload (clause 7.3.10): its elements, then any further bytes,
+        which later versions may define and this version ignores (unlike ``from_bytes``, which
+        rejects trailing bytes). Raises BitstreamError when the elements do not fit."""
+        return cls.parse(BitReader(data, "source_info"), trace)

@@ -72,10 +72,12 @@ def setup_args() -> argparse.ArgumentParser:
                         "of FILE's extension: .ply (INRIA 3DGS PLY), .spz (Niantic SPZ) or .sog (PlayCanvas SOG); "
                         "--export-ply is the same option")
     g.add_argument("--export-sh-degree", type=int, choices=(0, 1, 2, 3),
-                   help="SH degree of the exported colours (default: a Gaussian stream's own degree; 1 for "
-                        "anchor streams, whose colours come from MLPs and are fitted)")
-    g.add_argument("--export-directions", type=int, default=16,
-                   help="view directions per anchor over which the MLPs are evaluated (default 16)")
+                   help="SH degree of the exported colours (default: a Gaussian stream's own degree; for an "
+                        "anchor stream, whose colours come from MLPs and are fitted, the source scene's degree "
+                        "its source_info unit gives (a transcoded 3DGS scene), else 1)")
+    g.add_argument("--export-directions", type=int,
+                   help="view directions per anchor over which the MLPs are evaluated (default: 16, or twice "
+                        "the SH coefficients per channel when that is more: 18 at degree 2, 32 at degree 3)")
     g.add_argument("--export-distance", type=float,
                    help="camera distance for those views (default 2.5 x the anchors' bounding radius)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
@@ -125,6 +127,16 @@ def _render_views(args, scene, say) -> None:
             except OSError as e:
                 raise write_error(out / f"{i:03d}_{stem}.png", e) from None
     say(f"rendered {len(cams)} views into {out} in {time.perf_counter() - t0:.2f} s")
+
+
+def export_degree(asked: int | None, source_info) -> tuple[int, str]:
+    """SH degree of an anchor stream's export, and where it comes from (in words): the one
+    asked for, else the source's (source_info, clause 7.3.10), else 1."""
+    if asked is not None:
+        return asked, "the degree asked for"
+    if source_info is not None:
+        return int(source_info.source_sh_degree), "the source's degree (source_info)"
+    return 1, "the default degree of anchor streams"
 
 
 def _check_output_folder(path: str, force: bool) -> None:
@@ -220,13 +232,17 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 from lghcc.render.export import export_3dgs
 
-                degree = 1 if args.export_sh_degree is None else args.export_sh_degree
-                ex = export_3dgs(result.scene, None, sh_degree=degree, num_directions=args.export_directions,
+                degree, origin = export_degree(args.export_sh_degree, result.source_info)
+                directions = args.export_directions
+                if directions is None:
+                    directions = max(16, 2 * (degree + 1) ** 2)
+                ex = export_3dgs(result.scene, None, sh_degree=degree, num_directions=directions,
                                  distance=args.export_distance)
                 sc = GaussianScene(ex.means.astype(np.float32), ex.sh.astype(np.float32),
                                    ex.opacity_logits.astype(np.float32), ex.log_scales.astype(np.float32),
                                    ex.quats.astype(np.float32))
-                how = f", the MLPs evaluated in {args.export_directions} directions at distance {ex.stats['distance']:.4g}"
+                how = (f", {origin}; the MLPs evaluated in {directions} directions at distance "
+                       f"{ex.stats['distance']:.4g}")
             try:
                 write_scene(sc, args.export_ply)
             except OSError as e:
@@ -269,8 +285,12 @@ def main(argv: list[str] | None = None) -> int:
     say(result.breakdown.table())
     if result.tools:
         say("tools: " + "; ".join(result.tools))
+    if result.source_info is not None:
+        say(f"source_info: the source scene had SH degree {result.source_info.source_sh_degree}")
     for u in result.skipped_units:
         say(f"skipped ancillary unit {u}")
+    for note_text in result.notes:
+        print(f"lghcc-dec: warning: {note_text}", file=sys.stderr)
     say("decoded scene hash: " + ("matches the stream" if result.hash_checked else "not checked")
         + f" ({result.stream_hash.hex()})")
     if args.output:

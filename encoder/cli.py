@@ -90,14 +90,27 @@ def setup_args() -> argparse.ArgumentParser:
     gs.add_argument("--fit-iterations", type=int, metavar="N",
                     help="steps tuning the kept Gaussians to the source renders (0: none)")
     gs.add_argument("--sh-degree", type=int, choices=(0, 1, 2, 3), help="code at most this SH degree")
-    t = p.add_argument_group("anchor transcoding of plain 3DGS input (--mode anchors)")
+    t = p.add_argument_group(
+        "anchor transcoding of plain 3DGS input (--mode anchors)",
+        "The scene is fitted to anchors against renders of the source, rate-aware: the loss adds "
+        "lambda x the attribute bits the stream's entropy models estimate, with the preset's "
+        "quantization simulated and NAAP pruning in the loop. Presets (low, medium, high; lghcc-* the same): "
+        + "; ".join(f"{k} lambda {v['rate_lambda']:g}, {v['iterations']} iterations, keep {v['prune_keep']:g} of "
+                    "the anchors" for k, v in _transcode_presets().items())
+        + ". The source's SH degree goes into the stream (source_info), and lghcc-dec --export writes it back.")
     t.add_argument("--transcode-anchors", type=int, metavar="N",
-                   help="target anchor count of the transcoded scene (default: a quarter of the Gaussians)")
+                   help="target anchor count of the voxel grid (default: a quarter of the Gaussians; every "
+                        "Gaussian gets an offset slot, so the final count can be higher)")
     t.add_argument("--transcode-voxel-size", type=positive_float, metavar="V", help="anchor voxel size (overrides the count)")
-    t.add_argument("--transcode-iterations", type=int, default=200,
-                   help="render-fitting iterations (default 200; 0: distillation only)")
-    t.add_argument("--transcode-distill-steps", type=int, default=400,
-                   help="attribute-distillation steps that initialize features and MLPs (default 400)")
+    t.add_argument("--transcode-iterations", type=int,
+                   help="render-fitting iterations (default: the preset's; 0: distillation only)")
+    t.add_argument("--transcode-distill-steps", type=int,
+                   help="attribute-distillation steps that initialize features and MLPs (default: the preset's)")
+    t.add_argument("--transcode-rate-lambda", type=float, metavar="L",
+                   help="weight of the estimated bits per attribute value in the fit (default: the preset's; "
+                        "0: no rate term)")
+    t.add_argument("--transcode-prune-keep", type=float, metavar="RATIO",
+                   help="fraction of the anchors NAAP keeps during the fit (default: the preset's; 1: no pruning)")
     t.add_argument("--transcode-views", type=int, default=32, help="training views on a sphere (default 32)")
     t.add_argument("--transcode-resolution", type=int, default=128, help="square render size for fitting (128)")
     t.add_argument("--transcode-feature-dim", type=int, default=32, help="anchor feature size C (default 32)")
@@ -118,6 +131,12 @@ def setup_args() -> argparse.ArgumentParser:
     return p
 
 
+def _transcode_presets() -> dict:
+    from lghcc.encoder.config import TRANSCODE_PRESETS
+
+    return TRANSCODE_PRESETS
+
+
 def is_gaussian_file(path) -> bool:
     """A plain 3DGS scene file: an INRIA 3DGS PLY (not a Scaffold-GS anchor PLY), SPZ or SOG."""
     from lghcc.formats import detect_format
@@ -134,7 +153,36 @@ def is_gaussian_file(path) -> bool:
         return False
 
 
-def _load_scene(args):
+def _transcode(args, coding):
+    """--mode anchors on a plain 3DGS scene (PLY, SPZ or SOG): the rate-aware transcode of the
+    preset (encoder/transcode.py) -> its TranscodeResult."""
+    from lghcc.encoder.transcode import preset_transcode_config, transcode_3dgs
+    from lghcc.render.gaussians3dgs import gaussians_from_scene, is_3dgs_ply
+
+    say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr, flush=True))
+    if is_3dgs_ply(args.input):
+        source = args.input
+    else:  # SPZ or SOG
+        from lghcc.formats import read_scene
+
+        source = gaussians_from_scene(read_scene(args.input), source=str(args.input))
+    cfg = preset_transcode_config(
+        args.preset, coding, anchors=args.transcode_anchors, voxel_size=args.transcode_voxel_size,
+        iterations=args.transcode_iterations, distill_steps=args.transcode_distill_steps,
+        rate_lambda=args.transcode_rate_lambda, prune_keep=args.transcode_prune_keep,
+        views=args.transcode_views, resolution=args.transcode_resolution, feature_dim=args.transcode_feature_dim,
+        num_offsets=args.transcode_offsets, device=args.device, progress=not args.quiet and sys.stderr.isatty())
+    say(f"{args.input}: a plain 3DGS scene: transcoding it to an anchor scene first, by fitting against renders of "
+        f"it (preset {args.preset}: rate lambda {cfg.rate_lambda:g}, {cfg.distill_steps} distillation steps, "
+        f"{cfg.iterations} fitting iterations; minutes on a CPU; see --transcode-*)")
+    res = transcode_3dgs(source, cfg, log=say)
+    say(f"transcoded in {res.stats['time_total_s']:.1f} s: {res.scene.num_anchors:,} anchors, held-out PSNR "
+        f"against the source renders {res.stats['psnr_final']:.2f} dB")
+    return res
+
+
+def _load_scene(args, coding=None):
+    """-> (scene, source name, the TranscodeResult when the input was transcoded, else None)."""
     from lghcc.common.procedural import make_procedural_scene
     from lghcc.common.scaffold_io import MissingMlpWarning, read_scaffold
     from lghcc.encoder.scene_prep import merge_duplicate_anchors
@@ -145,31 +193,18 @@ def _load_scene(args):
         if args.procedural < 1:
             raise LghccError("--procedural needs a positive anchor count")
         return make_procedural_scene(args.procedural, seed=args.seed,
-                                     progress=not args.quiet and sys.stderr.isatty()), "procedural"
+                                     progress=not args.quiet and sys.stderr.isatty()), "procedural", None
     if not Path(args.input).exists():
         raise LghccError(f"{args.input}: no such file or folder")
-    from lghcc.render.gaussians3dgs import is_3dgs_ply
-
     if args.mode == "gaussians" and is_gaussian_file(args.input):
         from lghcc.formats import read_scene
 
-        return read_scene(args.input), args.input
-    if is_3dgs_ply(args.input):
-        from lghcc.encoder.transcode import TranscodeConfig, transcode_3dgs
+        return read_scene(args.input), args.input, None
+    if is_gaussian_file(args.input):
+        from lghcc.encoder.config import load_config
 
-        say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
-        say(f"{args.input}: a plain 3DGS PLY (f_dc_0, no f_anchor_feat_0): transcoding it to an anchor scene "
-            "first, by fitting against renders of it (this takes minutes on a CPU; see --transcode-*)")
-        cfg = TranscodeConfig(anchors=args.transcode_anchors, voxel_size=args.transcode_voxel_size,
-                              iterations=args.transcode_iterations, distill_steps=args.transcode_distill_steps,
-                              views=args.transcode_views, resolution=args.transcode_resolution,
-                              feature_dim=args.transcode_feature_dim, num_offsets=args.transcode_offsets,
-                              device=args.device,
-                              progress=not args.quiet and sys.stderr.isatty())
-        res = transcode_3dgs(args.input, cfg, log=say)
-        say(f"transcoded in {res.stats['time_total_s']:.1f} s: {res.scene.num_anchors:,} anchors, held-out PSNR "
-            f"against the source renders {res.stats['psnr_final']:.2f} dB")
-        return res.scene, args.input
+        res = _transcode(args, coding or load_config(args.preset))
+        return res.scene, args.input, res
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", MissingMlpWarning)
         scene = read_scaffold(args.input, voxel_size=args.voxel_size)
@@ -182,7 +217,7 @@ def _load_scene(args):
         scene, merged = merge_duplicate_anchors(scene)
         if merged and not args.quiet:
             print(f"merged {merged} anchors that shared a voxel", file=sys.stderr)
-    return scene, args.input
+    return scene, args.input, None
 
 
 def _encode_gaussians(scene, cfg, args):
@@ -253,17 +288,29 @@ def main(argv: list[str] | None = None) -> int:
                 "offset_step": args.offset_step, "mlp_weight_bits": args.mlp_weight_bits, "pruning": args.prune,
                 "prune_keep_ratio": args.prune_keep, "prune_tau": args.prune_tau})
         t0 = time.perf_counter()
-        scene, source = _load_scene(args)
+        scene, source, transcoded = _load_scene(args, None if gaussians else cfg)
         t_load = time.perf_counter() - t0
         twin = None
         if gaussians:
             result, cfg = _encode_gaussians(scene, cfg, args)
         else:
+            ancillary = []
+            if transcoded is not None:  # what the decoded anchors cannot tell: the source's SH degree
+                from lghcc.common.container import AncillaryUnitType, DataUnit
+                from lghcc.common.units import SourceInfo
+
+                info = SourceInfo(source_sh_degree=int(transcoded.stats["sh_degree"]))
+                ancillary.append(DataUnit(AncillaryUnitType.SOURCE_INFO, info.to_bytes()))
             if args.input and not args.no_context_twin and cfg.context_model == "ggconv":
-                from lghcc.encoder.ggconv_train import find_context_twin
-                twin = find_context_twin(args.input)
+                if transcoded is not None:
+                    twin = transcoded.context_twin  # trained in the transcoder's rate phase
+                else:
+                    from lghcc.encoder.ggconv_train import find_context_twin
+                    twin = find_context_twin(args.input)
             result = encode_scene(scene, cfg, progress=not args.quiet and sys.stderr.isatty(),
-                                  measure_ideal=args.report_ideal, context_twin=twin)
+                                  measure_ideal=args.report_ideal, context_twin=twin, ancillary=ancillary)
+            if transcoded is not None:
+                result.stats.update({f"transcode_{k}": v for k, v in transcoded.stats.items()})
         if twin is not None:
             why = result.stats.get("context_twin_unused")
             say("context twin of the training run: " + (f"not used ({why})" if why else

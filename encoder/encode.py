@@ -305,12 +305,18 @@ def code_attributes(values: np.ndarray, live: np.ndarray, mask: np.ndarray | Non
 
 
 def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress: bool = False,
-                 measure_ideal: bool = False, context_twin: ContextTwin | None = None) -> EncodeResult:
+                 measure_ideal: bool = False, context_twin: ContextTwin | None = None,
+                 ancillary: list[DataUnit] | None = None) -> EncodeResult:
     """Encode a scene. ``measure_ideal`` also computes the attribute model's ideal code length
     (stats["attribute_ideal_bits"]), a full extra pass over the symbols. ``context_twin``: the
     GG-Conv twin trained with the scene (lghcc-train --rate-lambda writes it beside the scene):
     with a GG-Conv context model, a fit started from it is one more candidate (the smallest
-    stream is kept); a twin that does not fit the configuration is reported in stats and unused."""
+    stream is kept); a twin that does not fit the configuration is reported in stats and unused.
+    ``ancillary``: ancillary data units (type >= 0x80, e.g. source_info) written right after
+    the scene parameter set; the decoded scene and its hash do not depend on them."""
+    for u in ancillary or []:
+        if not u.is_ancillary:
+            raise ValueError(f"unit type 0x{u.unit_type:02x} is not an ancillary unit type")
     cfg = (cfg or EncoderConfig()).validate()
     scene.validate()
     stats: dict = {}
@@ -369,7 +375,7 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
     bar.update()
 
     bar.set_postfix_str("render model")
-    units = [DataUnit(UnitType.SCENE_PARAMETER_SET, sps.to_bytes())]
+    units = [DataUnit(UnitType.SCENE_PARAMETER_SET, sps.to_bytes())] + list(ancillary or [])
     decoded_mlps = {}
     if scene.mlps:
         model_payload, decoded_mlps = quantize_render_model(scene.mlps, cfg.mlp_weight_bits)

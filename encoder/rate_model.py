@@ -50,18 +50,26 @@ class AnchorRateModel(nn.Module):
     coords: int [N, 3] voxel positions in the trainer's row order; steps: float [M], the
     quantization step of each attribute channel (features, 6 scalings, 3K offsets); values:
     float [N, M], the current attributes (for the initial means, scales and input scales);
-    voxel_scale: the hierarchy's coarse voxel scale s; cfg: the twin's architecture (k,
-    neighbour_level, widths). With fewer than 2 anchors in a level, that level's term is 0.
+    voxel_scale: the hierarchy's coarse voxel scale s, or None for a stream without the
+    hierarchy (every anchor under the per-channel prior, "level 1"); cfg: the twin's
+    architecture (k, neighbour_level, widths). With fewer than 2 anchors in a level, that
+    level's term is 0.
     """
 
-    def __init__(self, coords: np.ndarray, steps: np.ndarray, num_features: int, voxel_scale: int,
+    def __init__(self, coords: np.ndarray, steps: np.ndarray, num_features: int, voxel_scale: int | None,
                  values: np.ndarray, cfg: GGConvTrainConfig | None = None):
         super().__init__()
         cfg = cfg or GGConvTrainConfig()
         coords = np.asarray(coords, dtype=np.int64)
         n, m = np.asarray(values).shape
         order = normative_order(coords)
-        hier = build_hierarchy(coords[order], voxel_scale)
+        if voxel_scale is None:
+            from lghcc.common.hierarchy import Hierarchy
+
+            e = np.zeros(0, dtype=np.int64)
+            hier = Hierarchy(np.arange(n, dtype=np.int64), e, e.copy())
+        else:
+            hier = build_hierarchy(coords[order], voxel_scale)
         self.register_buffer("steps", torch.as_tensor(np.asarray(steps, dtype=np.float64)))
         self.register_buffer("l1", torch.from_numpy(order[hier.level1_idx].astype(np.int64)))
         self.register_buffer("l2", torch.from_numpy(order[hier.level2_idx].astype(np.int64)))

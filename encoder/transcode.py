@@ -100,11 +100,12 @@ class TranscodeConfig:
     # estimated attribute bits per attribute value (lghcc-train --rate-lambda's term and scale)
     # with the attributes quantized at rate_steps (the encoder's feature, scaling and offset
     # steps: 0.02 is preset medium and lghcc-medium) under the hierarchy of coarse voxel scale
-    # rate_voxel_scale and the GG-Conv twin of rate_k neighbours at rate_neighbour_level.
+    # rate_voxel_scale and the GG-Conv twin of rate_k neighbours at rate_neighbour_level;
+    # rate_voxel_scale None: a stream without the hierarchy (per-channel prior on every anchor).
     rate_lambda: float = 0.0
     rate_from: float = 0.25  # fraction of the fit iterations before pruning and the rate phase
     rate_steps: tuple = (0.02, 0.02, 0.02)
-    rate_voxel_scale: int = 4
+    rate_voxel_scale: int | None = 4
     rate_neighbour_level: int = 1
     rate_k: int = 8
     rate_lr: float = 0.002  # the rate model's own parameters
@@ -119,6 +120,27 @@ class TranscodeConfig:
     # where the fitting's rasterizer runs: cpu or cuda (gsplat; lghcc.render.rasterizer.select_device).
     # The held-out evaluation always renders on the CPU (evaluate_views), so reported PSNRs compare.
     device: str = "cpu"
+
+
+def preset_transcode_config(preset: str, coding, **overrides) -> TranscodeConfig:
+    """The transcoder's settings for lghcc-enc --mode anchors at ``preset`` (encoder/config.py
+    TRANSCODE_PRESETS; "lghcc-low" as "low"), with the rate model matching ``coding`` (the EncoderConfig the
+    stream will be coded with): its feature, scaling and offset steps, and its hierarchy (coarse
+    voxel scale, GG-Conv k and neighbour level) or none. ``overrides``: TranscodeConfig fields
+    (None values ignored)."""
+    from lghcc.encoder.config import TRANSCODE_PRESETS
+
+    base = preset[len("lghcc-"):] if preset.startswith("lghcc-") else preset
+    if base not in TRANSCODE_PRESETS:
+        raise InputError(f"no transcoding settings for preset {preset!r} (known: {', '.join(TRANSCODE_PRESETS)})")
+    level = coding.context_neighbour_level if coding.context_neighbour_level in (1, 2) else 1
+    fields = {**TRANSCODE_PRESETS[base], "rate_steps": (coding.feature_step, coding.scaling_step, coding.offset_step),
+              "rate_voxel_scale": coding.coarse_voxel_scale if coding.hierarchy else None,
+              "rate_k": coding.context_k, "rate_neighbour_level": level}
+    fields.update({k: v for k, v in overrides.items() if v is not None})
+    if fields.get("prune") is None and fields["prune_keep"] >= 1:
+        fields["prune"] = "none"
+    return TranscodeConfig(**fields)
 
 
 @dataclass
@@ -578,10 +600,12 @@ class RenderFit:
         from lghcc.encoder.rate_model import AnchorRateModel
 
         cfg = self.cfg
-        n2 = build_hierarchy(self.coords[normative_order(self.coords)], cfg.rate_voxel_scale).num_level2
-        ch, feat_hidden, head_hidden = context_model_size(EncoderConfig(), n2)[:3]
-        twin = GGConvTrainConfig(k=cfg.rate_k, neighbour_level=cfg.rate_neighbour_level, ctx_channels=ch,
-                                 feat_hidden=feat_hidden, head_hidden=head_hidden, seed=cfg.seed)
+        twin = None
+        if cfg.rate_voxel_scale is not None:
+            n2 = build_hierarchy(self.coords[normative_order(self.coords)], cfg.rate_voxel_scale).num_level2
+            ch, feat_hidden, head_hidden = context_model_size(EncoderConfig(), n2)[:3]
+            twin = GGConvTrainConfig(k=cfg.rate_k, neighbour_level=cfg.rate_neighbour_level, ctx_channels=ch,
+                                     feat_hidden=feat_hidden, head_hidden=head_hidden, seed=cfg.seed)
         self.rate_model = AnchorRateModel(self.coords, self.steps.numpy(), self.st.features.shape[1],
                                           cfg.rate_voxel_scale, self.attribute_values().detach().numpy(), twin)
         self.rate_opt = torch.optim.Adam(self.rate_model.parameters(), lr=cfg.rate_lr)
@@ -612,7 +636,8 @@ def _check_config(cfg: TranscodeConfig) -> None:
     steps = list(cfg.rate_steps)
     if len(steps) != 3 or not all(isinstance(x, (int, float)) and x > 0 and math.isfinite(x) for x in steps):
         raise InputError(f"transcode: rate steps are 3 positive numbers (feature, scaling, offset), got {steps}")
-    if cfg.rate_voxel_scale < 2 or cfg.rate_neighbour_level not in (1, 2) or cfg.rate_k < 1:
+    if (cfg.rate_voxel_scale is not None and cfg.rate_voxel_scale < 2) or cfg.rate_neighbour_level not in (1, 2) \
+            or cfg.rate_k < 1:
         raise InputError("transcode: rate voxel scale must be >= 2, the neighbour level 1 or 2 and k >= 1")
 
 
