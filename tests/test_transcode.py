@@ -270,19 +270,22 @@ TINY = ["--transcode-anchors", "30", "--transcode-distill-steps", "5", "--transc
         "--transcode-resolution", "16", "--transcode-feature-dim", "4", "--transcode-offsets", "6"]
 
 
-@pytest.mark.parametrize("degree", [0, 3])
-def test_sh_degree_round_trip_through_anchor_mode_and_export(tmp_path, capsys, degree):
-    """lghcc-enc --mode anchors writes the source's SH degree (source_info); lghcc-dec --export
-    writes the colours back at it by default."""
+@pytest.mark.parametrize("degree, fmt", [(0, "ply"), (3, "spz")])
+def test_sh_degree_round_trip_through_anchor_mode_and_export(tmp_path, capsys, degree, fmt):
+    """lghcc-enc --mode anchors (a PLY or SPZ source) writes the source's SH degree (source_info);
+    lghcc-dec --export writes the colours back at it by default."""
     from lghcc.common.container import AncillaryUnitType, read_container
+    from lghcc.common.scene import GaussianScene
     from lghcc.decoder import cli as dec_cli
+    from lghcc.formats import write_scene
     from lghcc.formats.ply3dgs import read_3dgs_ply
 
     g = synthetic_3dgs(150, degree=degree)
-    p = tmp_path / "plain.ply"
+    p = tmp_path / f"plain.{fmt}"
     lg = lambda a: np.log(a / (1 - a))  # noqa: E731
-    write_3dgs_ply(p, g.means.numpy(), g.sh.numpy(), lg(g.opacities.numpy()), np.log(g.scales.numpy()),
-                   g.quats.numpy())
+    f32 = lambda a: np.asarray(a, np.float32)  # noqa: E731
+    write_scene(GaussianScene(f32(g.means), f32(g.sh), f32(lg(g.opacities.numpy())), f32(np.log(g.scales.numpy())),
+                              f32(g.quats)), p)
     out = tmp_path / "t.lghcc"
     assert enc_cli.main([str(p), "-o", str(out), "--mode", "anchors", "--preset", "low", "--transcode-iterations", "4",
                          *TINY]) == 0
