@@ -96,7 +96,7 @@ def setup_args() -> argparse.ArgumentParser:
         "lambda x the attribute bits the stream's entropy models estimate, with the preset's "
         "quantization simulated and NAAP pruning in the loop. Presets (low, medium, high; lghcc-* the same): "
         + "; ".join(f"{k} lambda {v['rate_lambda']:g}, {v['iterations']} iterations, keep {v['prune_keep']:g} of "
-                    "the anchors" for k, v in _transcode_presets().items())
+                    f"the anchors, {v['resolution']} px renders" for k, v in _transcode_presets().items())
         + ". The source's SH degree goes into the stream (source_info), and lghcc-dec --export writes it back.")
     t.add_argument("--transcode-anchors", type=int, metavar="N",
                    help="target anchor count of the voxel grid (default: a quarter of the Gaussians; every "
@@ -112,7 +112,7 @@ def setup_args() -> argparse.ArgumentParser:
     t.add_argument("--transcode-prune-keep", type=float, metavar="RATIO",
                    help="fraction of the anchors NAAP keeps during the fit (default: the preset's; 1: no pruning)")
     t.add_argument("--transcode-views", type=int, default=32, help="training views on a sphere (default 32)")
-    t.add_argument("--transcode-resolution", type=int, default=128, help="square render size for fitting (128)")
+    t.add_argument("--transcode-resolution", type=int, help="square render size for fitting (default: the preset's)")
     t.add_argument("--transcode-feature-dim", type=int, default=32, help="anchor feature size C (default 32)")
     t.add_argument("--transcode-offsets", type=int, default=10, help="offsets per anchor K (default 10)")
     t.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
