@@ -97,13 +97,7 @@ NOT_EXERCISED: dict[tuple[str, str], str] = {
 # element -> the conformance stream still to be written for it. Such an element is left out of the
 # report's elements and classes (listed apart, as pending) until a stream exercises it; then the
 # entry is stale and must go (CoverageReport.stale).
-PENDING: dict[str, str] = {
-    "source_info.source_sh_degree":
-        "ancillary unit source_info (0x80, clause 7.3.10), written by lghcc-enc --mode anchors since the "
-        "'anchors' branch; its streams wait for the renumbering of the suite: an anchor scene with "
-        "source_info (source_sh_degree 3, 0 in a second stream or a trailing reserved byte) that decodes to "
-        "the same hash as without it",
-}
+PENDING: dict[str, str] = {}
 
 
 @dataclass(frozen=True)

@@ -249,15 +249,17 @@ def _stream_tools(ps, dec: _Levels, context_model, point: str) -> list[str]:
 def read_source_info(units: list[DataUnit], trace: list[TraceEntry] | None = None
                      ) -> tuple[SourceInfo | None, list[str]]:
     """The source_info unit among the known ancillary ``units`` (clause 7.3.10), and notes on
-    what was ignored: a unit whose elements do not fit its payload (or whose alignment bits
-    are not zero) and any source_info after the first. Never raises: nothing the decoded scene
-    depends on is in it. Its trace entries follow the parameter set's."""
-    info, notes = None, []
+    what was ignored (clause 6.3): the first source_info when its elements do not fit its
+    payload (or its alignment bits are not zero), and every source_info after the first, well
+    formed or not (a stream has at most one). Never raises: nothing the decoded scene depends
+    on is in it. Its trace entries follow the parameter set's."""
+    info, notes, seen = None, [], 0
     for u in units:
         if u.unit_type != AncillaryUnitType.SOURCE_INFO:
             continue
         where = f"source_info ({len(u.payload)} bytes at byte {u.offset})"
-        if info is not None:
+        seen += 1
+        if seen > 1:
             notes.append(f"{where}: a second source_info unit, ignored (a stream has at most one)")
             continue
         mark = None if trace is None else len(trace)

@@ -90,6 +90,16 @@ def test_a_second_source_info_is_ignored(plain):
     assert dec.source_info.source_sh_degree == 0 and "second source_info" in dec.notes[0]
 
 
+def test_a_well_formed_source_info_after_a_malformed_first_one_is_ignored_too(plain):
+    """A stream has at most one source_info unit (clause 7.3.10): a decoder uses the first and
+    ignores every later one, even when the first is malformed (conformance stream c061)."""
+    _, base = plain
+    units = [DataUnit(SOURCE_INFO, b""), DataUnit(SOURCE_INFO, SourceInfo(source_sh_degree=3).to_bytes())]
+    dec = decode_stream(_with_units(base.data, units))
+    assert dec.source_info is None and dec.stream_hash == base.scene_hash
+    assert len(dec.notes) == 2 and "cannot be parsed" in dec.notes[0] and "second source_info" in dec.notes[1]
+
+
 def test_an_ancillary_unit_before_the_parameter_set_is_still_an_error(plain):
     _, base = plain
     from lghcc.common.errors import BitstreamError
