@@ -39,6 +39,12 @@ class UnitType(IntEnum):
     GAUSSIAN_PARAMETER_SET = 0x07  # version 0.2: an explicit-Gaussian scene (in place of the scene parameter set)
 
 
+class AncillaryUnitType(IntEnum):
+    """Ancillary unit types this document defines (clause 6.3): informative; the decoding
+    process never depends on them and a decoder that does not know one skips it."""
+    SOURCE_INFO = 0x80  # source_info (clause 7.3.10): what the encoder's input scene was
+
+
 @dataclass
 class ContainerHeader(SyntaxStructure):
     syntax_name = "container_header"
@@ -85,10 +91,10 @@ class DataUnit:
 
     @property
     def type_name(self) -> str:
-        try:
-            return UnitType(self.unit_type).name.lower()
-        except ValueError:
-            return f"unknown_0x{self.unit_type:02x}"
+        for kind in (UnitType, AncillaryUnitType):
+            if self.unit_type in kind._value2member_map_:
+                return kind(self.unit_type).name.lower()
+        return f"unknown_0x{self.unit_type:02x}"
 
 
 CONTAINER_HEADER_BYTES = 8

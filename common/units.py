@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from .bitio import BitReader
 from .entropy.scale_levels import SCALE_LEVEL_BITS as NUM_SCALE_LEVELS_BITS
 from .syntax import SyntaxStructure, SyntaxVisitor
 
@@ -267,3 +268,27 @@ class DecodedSceneHashUnit(SyntaxStructure):
     def syntax(self, v: SyntaxVisitor) -> None:
         v.u(8, self, "hash_type", lo=HASH_TYPE_SHA256, hi=HASH_TYPE_SHA256)
         v.payload(self, "scene_hash", 32)
+
+
+@dataclass
+class SourceInfo(SyntaxStructure):
+    """source_info (ancillary unit 0x80, clause 7.3.10): informative facts about the scene the
+    encoder was given that the decoded scene does not carry. An anchor stream transcoded from
+    a 3DGS scene has no SH coefficients; ``source_sh_degree`` lets a decoder export its colours
+    at the source's degree (lghcc-dec --export) instead of guessing one. Decoding never depends
+    on it; bytes after these elements are reserved for later versions and ignored."""
+
+    syntax_name = "source_info"
+    clause = "7.3.10"
+    source_sh_degree: int = 0
+
+    def syntax(self, v: SyntaxVisitor) -> None:
+        v.u(2, self, "source_sh_degree", hi=MAX_SH_DEGREE)
+        v.byte_align()
+
+    @classmethod
+    def from_payload(cls, data: bytes, trace: list | None = None) -> "SourceInfo":
+        """Parse a source_info payload (clause 7.3.10): its elements, then any further bytes,
+        which later versions may define and this version ignores (unlike ``from_bytes``, which
+        rejects trailing bytes). Raises BitstreamError when the elements do not fit."""
+        return cls.parse(BitReader(data, "source_info"), trace)

@@ -94,6 +94,11 @@ NOT_EXERCISED: dict[tuple[str, str], str] = {
         "an array of 2^24 values (also the limit on all context-model values together): a stream of many MB",
 }
 
+# element -> the conformance stream still to be written for it. Such an element is left out of the
+# report's elements and classes (listed apart, as pending) until a stream exercises it; then the
+# entry is stale and must go (CoverageReport.stale).
+PENDING: dict[str, str] = {}
+
 
 @dataclass(frozen=True)
 class ElementInfo:
@@ -206,6 +211,9 @@ class CoverageReport:
     impossible: dict[tuple[str, object], str] = field(default_factory=lambda: dict(IMPOSSIBLE))
     not_exercised: dict[tuple[str, object], str] = field(default_factory=lambda: dict(NOT_EXERCISED))
     rejections: list[tuple[str, str, str]] = field(default_factory=list)  # (id, error class, message fragment)
+    pending: dict[str, str] = field(default_factory=dict)  # PENDING entries of elements that exist
+    pending_seen: dict[str, set] = field(default_factory=dict)  # values the streams gave them nevertheless
+    pending_unknown: list[str] = field(default_factory=list)  # PENDING entries naming no element
 
     def _possible(self, name: str) -> list:
         return [c for c in self.classes[name] if (name, c) not in self.impossible]
@@ -242,9 +250,13 @@ class CoverageReport:
                 if c in self.seen.get(k, set())]
 
     def stale(self) -> list[str]:
-        """IMPOSSIBLE / NOT_EXERCISED entries naming an element or class that does not exist."""
-        return [f"{k}: {c}" for (k, c) in list(self.impossible) + list(self.not_exercised)
-                if k not in self.classes or c not in self.classes[k]]
+        """IMPOSSIBLE / NOT_EXERCISED entries naming an element or class that does not exist, and
+        PENDING entries naming no element or one a stream now exercises."""
+        return ([f"{k}: {c}" for (k, c) in list(self.impossible) + list(self.not_exercised)
+                 if k not in self.classes or c not in self.classes[k]]
+                + [f"{k}: pending, but no such element" for k in self.pending_unknown]
+                + [f"{k}: pending, but exercised (values {sorted(v, key=str)}): remove it from PENDING"
+                   for k, v in self.pending_seen.items()])
 
     def text(self) -> str:
         n = len(self.classes)
@@ -261,6 +273,9 @@ class CoverageReport:
         if gaps:
             lines.append("not exercised, on purpose (counted as missing):")
             lines += [f"  {k}: {c}: {why}" for k, c, why in gaps]
+        if self.pending:
+            lines.append("pending: elements whose streams are still to be written (not counted):")
+            lines += [f"  {k}: {why}" for k, why in self.pending.items()]
         if self.impossible:
             lines.append("impossible by construction (not counted):")
             lines += [f"  {k}: {c}: {why}" for (k, c), why in self.impossible.items()]
@@ -317,14 +332,18 @@ def coverage_report(streams: list[Path], error_cases: list | None = None) -> Cov
     from ..decoder.decode import decode_stream
 
     infos = element_infos()
-    report = CoverageReport({k: list(i.classes) for k, i in infos.items()})
+    report = CoverageReport({k: list(i.classes) for k, i in infos.items() if k not in PENDING},
+                            pending={k: v for k, v in PENDING.items() if k in infos},
+                            pending_unknown=[k for k in PENDING if k not in infos])
     for path in streams:
         data = Path(path).read_bytes()
         for name, value in _container_values(data):
             report.seen.setdefault(name, set()).add(value_class(infos[name], value))
         for name, value, ctx in _trace_values(decode_stream(data, trace=True).trace):
             info = infos.get(name)
-            if info is not None:
+            if name in report.pending:
+                report.pending_seen.setdefault(name, set()).add(value_class(info, value, ctx))
+            elif info is not None:
                 report.seen.setdefault(name, set()).add(value_class(info, value, ctx))
     for case in error_cases or []:
         report.rejections.append((case.id, case.meta.get("expect_error", "?"), case.meta.get("expect_message", "?")))

@@ -10,6 +10,11 @@ Each stream lives in ``conformance/streams/<id>/`` as ``stream.lghcc`` and ``tes
                    of its message (the reason); both are checked for the reference decoder
   renders          (optional, informative) reference images of fixed cameras and a tolerance;
                    checked with --render (the renderer is not normative, hence no hash)
+  source_info      (streams with a source_info unit, informative: clauses 6.3, 7.3.10)
+                   source_sh_degree: what a decoder that interprets source_info outputs (null:
+                   nothing, its first source_info unit is malformed) and ignored: how many
+                   source_info units it ignores (a malformed first one, every later one); the
+                   decoded scene never depends on them. Checked for the reference decoder only
 A decoder conforms when it reproduces every hash and rejects every stream marked
 ``expect: error``.
 
@@ -133,6 +138,8 @@ def validate_meta(meta, folder: Path) -> dict:
         if expect != "decode":
             raise _bad(folder, "renders on an error stream")
         validate_renders(meta["renders"], folder)
+    if "source_info" in meta:
+        validate_source_info(meta["source_info"], folder)
     if not (folder / "stream.lghcc").is_file():
         raise _bad(folder, "no stream.lghcc beside it")
     return meta
@@ -182,6 +189,16 @@ def load_cases(root: Path = STREAMS_DIR, ids: list[str] | None = None) -> list[C
 
 # --- the reference decoder, in process ----------------------------------------------------------
 
+def validate_source_info(info, folder: Path) -> None:
+    """test.yaml's source_info: {source_sh_degree: 0..3 or null, ignored: a count}."""
+    if not isinstance(info, dict) or set(info) != {"source_sh_degree", "ignored"}:
+        raise _bad(folder, "source_info is not a mapping of source_sh_degree and ignored")
+    if info["source_sh_degree"] not in (None, 0, 1, 2, 3):
+        raise _bad(folder, f"source_info.source_sh_degree {info['source_sh_degree']!r} is not 0..3 or null")
+    if not isinstance(info["ignored"], int) or isinstance(info["ignored"], bool) or info["ignored"] < 0:
+        raise _bad(folder, f"source_info.ignored {info['ignored']!r} is not a count")
+
+
 def warm_up(render: bool = False) -> None:
     """Import the decoder (torch, the entropy tables ...) so that the first stream's time is its own."""
     from ..common import hashing  # noqa: F401
@@ -191,12 +208,13 @@ def warm_up(render: bool = False) -> None:
 
 
 def decode_scene_internal(stream: Path):
-    """The reference decoder: -> (decoded scene's SHA-256 hex, scene); raises LghccError."""
+    """The reference decoder: -> (decoded scene's SHA-256 hex, scene, its DecodeResult);
+    raises LghccError."""
     from ..common.hashing import digest_of
     from ..decoder.decode import decode_stream
 
-    scene = decode_stream(stream.read_bytes()).scene
-    return digest_of(scene).hex(), scene
+    result = decode_stream(stream.read_bytes())
+    return digest_of(result.scene).hex(), result.scene, result
 
 
 def decode_internal(stream: Path) -> str:
@@ -318,12 +336,24 @@ def _judge_error(case: Case, kind: str, message: str | None) -> tuple[bool, str]
 
 def _run_internal(case: Case, render: bool) -> tuple[bool, str]:
     try:
-        digest, scene = decode_scene_internal(case.stream)
+        digest, scene, result = decode_scene_internal(case.stream)
     except LghccError as e:
         return _judge_error(case, type(e).__name__, str(e))
     except Exception as e:  # noqa: BLE001 - any other exception is a decoder bug: a FAIL row
         return False, f"unexpected {type(e).__name__}: {e}"
-    return _judge_decoded(case, digest, scene, render)
+    ok, note = _judge_decoded(case, digest, scene, render)
+    if ok and "source_info" in case.meta:
+        return _judge_source_info(case.meta["source_info"], result, note)
+    return ok, note
+
+
+def _judge_source_info(want: dict, result, note: str) -> tuple[bool, str]:
+    """The reference decoder's source_info (clause 7.3.10) and the units it ignored (clause 6.3)."""
+    got = None if result.source_info is None else int(result.source_info.source_sh_degree)
+    if got != want["source_sh_degree"] or len(result.notes) != want["ignored"]:
+        return False, (f"{note}; source_info: source_sh_degree {got}, {len(result.notes)} ignored; expected "
+                       f"{want['source_sh_degree']}, {want['ignored']} ignored")
+    return True, f"{note}; source_info: source_sh_degree {got}, {want['ignored']} ignored"
 
 
 def _judge_decoded(case: Case, digest: str, scene, render: bool) -> tuple[bool, str]:

@@ -93,10 +93,12 @@ def setup_args() -> argparse.ArgumentParser:
                         "of FILE's extension: .ply (INRIA 3DGS PLY), .spz (Niantic SPZ) or .sog (PlayCanvas SOG); "
                         "--export-ply is the same option")
     g.add_argument("--export-sh-degree", type=int, choices=(0, 1, 2, 3),
-                   help="SH degree of the exported colours (default: a Gaussian stream's own degree; 1 for "
-                        "anchor streams, whose colours come from MLPs and are fitted)")
-    g.add_argument("--export-directions", type=int, default=16,
-                   help="view directions per anchor over which the MLPs are evaluated (default 16)")
+                   help="SH degree of the exported colours (default: a Gaussian stream's own degree; for an "
+                        "anchor stream, whose colours come from MLPs and are fitted, the source scene's degree "
+                        "its source_info unit gives (a transcoded 3DGS scene), else 1)")
+    g.add_argument("--export-directions", type=int,
+                   help="view directions per anchor over which the MLPs are evaluated (default: 16, or twice "
+                        "the SH coefficients per channel when that is more: 18 at degree 2, 32 at degree 3)")
     g.add_argument("--export-distance", type=float,
                    help="camera distance for those views (default 2.5 x the anchors' bounding radius)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
@@ -134,6 +136,16 @@ def _render_views(args, scene, say) -> None:
     say(f"rendered {len(cams)} views into {out} in {time.perf_counter() - t0:.2f} s")
 
 
+def export_degree(asked: int | None, source_info) -> tuple[int, str]:
+    """SH degree of an anchor stream's export, and where it comes from (in words): the one
+    asked for, else the source's (source_info, clause 7.3.10), else 1."""
+    if asked is not None:
+        return asked, "the degree asked for"
+    if source_info is not None:
+        return int(source_info.source_sh_degree), "the source's degree (source_info)"
+    return 1, "the default degree of anchor streams"
+
+
 def _other_iterations(path: str) -> list[str]:
     root = Path(path) / "point_cloud"
     return sorted(d.name for d in root.glob("iteration_*") if d.name != "iteration_0") if root.is_dir() else []
@@ -166,12 +178,14 @@ def _main(argv: list[str] | None) -> int:
     except LghccError as e:  # the same class (and exit status), with the stream's path
         raise with_prefix(e, args.stream) from None
     t_dec = time.perf_counter() - t0
+    for text in result.notes:  # ancillary units reported and ignored (clause 6.3)
+        print(f"lghcc-dec: warning: {text}", file=sys.stderr)
     if args.output:
         _write_decoded_scene(args, result.scene)
     if args.render:
         _render_views(args, result.scene, note)
     if args.export_ply:
-        _export(args, result.scene, note)
+        _export(args, result, note)
     if args.trace:
         _write_trace(args.trace, result.trace)
     if args.json:
@@ -221,19 +235,29 @@ def _write_decoded_scene(args, scene) -> None:
         raise write_error(args.output, e) from None
 
 
-def _export(args, scene, note) -> None:
-    """--export: the decoded scene as a plain 3DGS scene (PLY, SPZ or SOG)."""
+def export_directions(asked: int | None, degree: int) -> int:
+    """View directions over which an anchor stream's MLPs are evaluated for its export: the
+    number asked for, else 16, or twice the SH coefficients per channel when that is more."""
+    return asked if asked is not None else max(16, 2 * (degree + 1) ** 2)
+
+
+def _export(args, result, note) -> None:
+    """--export: the decoded scene as a plain 3DGS scene (PLY, SPZ or SOG); an anchor stream's
+    colours fitted at the degree export_degree gives."""
     from ..formats import write_scene
     from ..render.scenes import to_gaussians
 
     t1 = time.perf_counter()
-    sc = to_gaussians(scene, args.export_sh_degree, directions=args.export_directions, distance=args.export_distance)
-    how = ""
+    scene = result.scene
+    degree, directions, how = args.export_sh_degree, 16, ""
     if not isinstance(scene, GaussianScene):
         from ..render.export import default_distance
 
+        degree, origin = export_degree(args.export_sh_degree, result.source_info)
+        directions = export_directions(args.export_directions, degree)
         dist = args.export_distance if args.export_distance is not None else default_distance(scene)
-        how = f", the MLPs evaluated in {args.export_directions} directions at distance {dist:.4g}"
+        how = f", {origin}; the MLPs evaluated in {directions} directions at distance {dist:.4g}"
+    sc = to_gaussians(scene, degree, directions=directions, distance=args.export_distance)
     try:
         write_scene(sc, args.export_ply)
     except OSError as e:
@@ -279,6 +303,8 @@ def _print_summary(args, result, num_bytes: int, t_dec: float, say) -> None:
     say(result.breakdown.table())
     if result.tools:
         say("tools: " + "; ".join(result.tools))
+    if result.source_info is not None:
+        say(f"source_info: the source scene had SH degree {result.source_info.source_sh_degree}")
     for u in result.skipped_units:
         say(f"skipped ancillary unit {u}")
     say("decoded scene hash: " + ("matches the stream" if result.hash_checked else "not checked")

@@ -6,7 +6,10 @@ for an anchor scene, or (version 0.2)
     gaussian_parameter_set, geometry, [context_model], attribute x (1 or 2), decoded_scene_hash
 for an explicit-Gaussian scene, with two attribute units (level 1, then level 2) when the
 hierarchy is enabled. Ancillary units (type >= 0x80) may appear anywhere after the parameter
-set and are skipped.
+set. This decoder knows one, source_info (0x80, clause 7.3.10), and returns what it says
+(``DecodeResult.source_info``: the source scene's SH degree, which lghcc-dec --export uses);
+it skips the others. The decoded scene and its hash never depend on an ancillary unit: a
+source_info this decoder cannot parse, or a second one, is reported (``notes``) and ignored.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ import numpy as np
 from ..app.progress import progress_bar
 
 from ..common import attributes as attr
-from ..common.container import Container, DataUnit, UnitType, read_container
+from ..common.container import AncillaryUnitType, Container, DataUnit, UnitType, read_container
 from ..common.errors import BitstreamError, HashMismatchError, ResourceLimitError, UnsupportedStreamError
 from ..common.context.models import describe_context_model, level2_coding_params, read_context_model
 from ..common.geometry import decode_geometry
@@ -29,7 +32,7 @@ from ..app.report import SizeBreakdown, breakdown_of
 from ..common.scene import AnchorScene, GaussianScene
 from ..common.syntax import TraceEntry
 from ..common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ATTRIBUTE_VALUES, DecodedSceneHashUnit,
-                                GaussianParameterSet, SceneParameterSet)
+                            GaussianParameterSet, SceneParameterSet, SourceInfo)
 from .limits import DEFAULT_MAX_MEMORY, MemoryPlan
 
 _LETTER = {UnitType.SCENE_PARAMETER_SET: "S", UnitType.GAUSSIAN_PARAMETER_SET: "P", UnitType.RENDER_MODEL: "R",
@@ -48,17 +51,28 @@ class DecodeResult:
     skipped_units: list[str] = field(default_factory=list)
     trace: list[TraceEntry] | None = None
     tools: list[str] = field(default_factory=list)  # the coding tools the stream uses, in words
+    # the source_info unit (clause 7.3.10), when the stream has one this decoder could parse
+    source_info: SourceInfo | None = None
+    notes: list[str] = field(default_factory=list)  # ancillary units reported and ignored, in words
 
 
-def organize_units(container: Container) -> tuple[list[DataUnit], list[str]]:
-    """Check unit types and their order; return the critical units and the skipped ones."""
+_KNOWN_ANCILLARY = set(AncillaryUnitType._value2member_map_)
+
+
+def organize_units(container: Container, known: list[DataUnit] | None = None) -> tuple[list[DataUnit], list[str]]:
+    """Check unit types and their order; return the critical units and the skipped ones (the
+    ancillary units this decoder does not know). The ancillary units it knows (clause 6.3)
+    are appended to ``known`` when given, else skipped too."""
     critical: list[DataUnit] = []
     skipped: list[str] = []
     for idx, u in enumerate(container.units):
         if u.is_ancillary:
             if not critical:
                 raise BitstreamError(f"data unit {idx}: an ancillary unit precedes the scene parameter set (or gaussian parameter set)")
-            skipped.append(f"{u.type_name} ({len(u.payload)} bytes at byte {u.offset})")
+            if known is not None and u.unit_type in _KNOWN_ANCILLARY:
+                known.append(u)
+            else:
+                skipped.append(f"{u.type_name} ({len(u.payload)} bytes at byte {u.offset})")
         elif u.unit_type in _LETTER:
             critical.append(u)
         else:
@@ -160,11 +174,13 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
     shows a bar of decoded points on stderr."""
     entries: list[TraceEntry] | None = [] if trace else None
     container = read_container(data)
-    units, skipped = organize_units(container)
+    ancillary: list[DataUnit] = []
+    units, skipped = organize_units(container, ancillary)
     by_type: dict[int, list[DataUnit]] = {}
     for u in units:
         by_type.setdefault(u.unit_type, []).append(u)
     ps, layout = _read_parameter_set(by_type, entries)
+    source_info, notes = read_source_info(ancillary, entries)
     point = "Gaussian" if isinstance(ps, GaussianParameterSet) else "anchor"
     n = ps.num_anchors
     if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
@@ -187,7 +203,7 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
     if verify_hash:
         _check_scene_hash(scene, hash_unit.scene_hash)
     return DecodeResult(scene, breakdown_of(container, n, point), verify_hash, hash_unit.scene_hash, skipped,
-                        entries, _stream_tools(ps, dec, context_model, point))
+                        entries, _stream_tools(ps, dec, context_model, point), source_info, notes)
 
 
 def _read_parameter_set(by_type: dict[int, list[DataUnit]], entries) -> tuple[SceneParameterSet | GaussianParameterSet,
@@ -228,3 +244,29 @@ def _stream_tools(ps, dec: _Levels, context_model, point: str) -> list[str]:
     else:
         tools = ["offset masks"] if ps.offset_mask_present_flag else []
     return tools + _hierarchy_tools(ps, dec.hierarchy, context_model, point)
+
+
+def read_source_info(units: list[DataUnit], trace: list[TraceEntry] | None = None
+                     ) -> tuple[SourceInfo | None, list[str]]:
+    """The source_info unit among the known ancillary ``units`` (clause 7.3.10), and notes on
+    what was ignored (clause 6.3): the first source_info when its elements do not fit its
+    payload (or its alignment bits are not zero), and every source_info after the first, well
+    formed or not (a stream has at most one). Never raises: nothing the decoded scene depends
+    on is in it. Its trace entries follow the parameter set's."""
+    info, notes, seen = None, [], 0
+    for u in units:
+        if u.unit_type != AncillaryUnitType.SOURCE_INFO:
+            continue
+        where = f"source_info ({len(u.payload)} bytes at byte {u.offset})"
+        seen += 1
+        if seen > 1:
+            notes.append(f"{where}: a second source_info unit, ignored (a stream has at most one)")
+            continue
+        mark = None if trace is None else len(trace)
+        try:
+            info = SourceInfo.from_payload(u.payload, trace)
+        except BitstreamError as e:
+            if trace is not None:
+                del trace[mark:]
+            notes.append(f"{where}: cannot be parsed ({e}); ignored")
+    return info, notes

@@ -3,6 +3,9 @@
 * ``load_source``: the scene a path names, ready for coding: a plain 3DGS scene (PLY, SPZ,
   SOG) as a GaussianScene, or (``mode="anchors"``) transcoded to anchors; a Scaffold-GS model
   as an AnchorScene (duplicates in a voxel merged on request); the procedural scene.
+  ``read_source`` returns the same scene with what a transcode produced beside it (its
+  statistics, the source's SH degree, the context twin of its rate phase), which ``encode``
+  takes to write the stream's source_info unit.
 * ``encoder_config``: a preset, a YAML file and overrides, for the kind of scene.
 * ``check_encodable``: refuses an anchor scene without render MLPs (its decoded scene could
   be neither rendered nor exported).
@@ -17,10 +20,13 @@ import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from ..common.errors import InputError, LghccError
 from ..common.scene import AnchorScene, GaussianScene
+
+if TYPE_CHECKING:
+    from .transcode import TranscodeResult
 
 Log = Callable[[str], None]
 
@@ -53,26 +59,77 @@ def is_gaussian_file(path: str | Path) -> bool:
 
 @dataclass
 class TranscodeOptions:
-    """How ``load_source(mode="anchors")`` turns a plain 3DGS PLY into an anchor scene
-    (encoder/transcode.py: TranscodeConfig's fields; None: its default)."""
+    """How ``load_source(mode="anchors")`` turns a plain 3DGS scene (PLY, SPZ, SOG) into an
+    anchor scene: the transcode preset of ``preset`` (encoder/config.py TRANSCODE_PRESETS, its
+    rate model matched to the coding configuration), then these TranscodeConfig fields (None:
+    the preset's, or TranscodeConfig's default)."""
 
+    preset: str = "medium"
     anchors: int | None = None
     voxel_size: float | None = None
-    iterations: int = 200
-    distill_steps: int = 400
-    views: int = 32
-    resolution: int = 128
-    feature_dim: int = 32
-    num_offsets: int = 10
+    iterations: int | None = None
+    distill_steps: int | None = None
+    rate_lambda: float | None = None
+    prune_keep: float | None = None
+    views: int | None = None
+    resolution: int | None = None
+    feature_dim: int | None = None
+    num_offsets: int | None = None
     device: str = "cpu"
+
+
+@dataclass
+class Source:
+    """A scene ready for coding, and the transcode that made it (None: it was read as it is)."""
+
+    scene: AnchorScene | GaussianScene
+    transcoded: TranscodeResult | None = None
+
+
+def transcode_source(path: Path, options: TranscodeOptions, coding=None, *, progress: bool = False,
+                     log: Log = _quiet) -> TranscodeResult:
+    """A plain 3DGS scene file (PLY, SPZ or SOG) fitted to anchors (encoder/transcode.py) with
+    the settings of ``options`` for the coding configuration ``coding`` (None: its preset's)."""
+    from ..formats.ply3dgs import is_3dgs_ply
+    from .config import load_config
+    from .transcode import preset_transcode_config, transcode_3dgs
+
+    o = options
+    coding = coding if coding is not None else load_config(o.preset)
+    fields = {k: v for k, v in vars(o).items() if k != "preset"}
+    cfg = preset_transcode_config(o.preset, coding, **fields, progress=progress)
+    source: Any = str(path)
+    if not is_3dgs_ply(path):  # SPZ or SOG
+        from ..formats import read_scene
+        from ..render.gaussians3dgs import gaussians_from_scene
+
+        source = gaussians_from_scene(read_scene(path), source=str(path))
+    log(f"{path}: a plain 3DGS scene: transcoding it to an anchor scene first, by fitting against renders of it "
+        f"(preset {o.preset}: rate lambda {cfg.rate_lambda:g}, {cfg.distill_steps} distillation steps, "
+        f"{cfg.iterations} fitting iterations; minutes on a CPU; see --transcode-*)")
+    res = transcode_3dgs(source, cfg, log=log)
+    log(f"transcoded in {res.stats.time_total_s:.1f} s: {res.scene.num_anchors:,} anchors, held-out PSNR "
+        f"against the source renders {res.stats.psnr_final:.2f} dB")
+    return res
 
 
 def load_source(path: str | Path | None = None, *, mode: str = "gaussians", procedural: int | None = None,
                 seed: int = 0, voxel_size: float | None = None, merge_duplicates: bool = False,
-                transcode: TranscodeOptions | None = None, progress: bool = False, log: Log = _quiet,
+                transcode: TranscodeOptions | None = None, coding=None, progress: bool = False, log: Log = _quiet,
                 warn: Log = _quiet) -> AnchorScene | GaussianScene:
     """The scene to encode (see the module doc). ``warn`` gets the warnings a user must see
-    (a folder without render MLPs); ``log`` the progress notes."""
+    (a folder without render MLPs); ``log`` the progress notes. ``coding``: the configuration
+    the scene will be coded with, which a transcode's rate model matches (None: the preset's)."""
+    return read_source(path, mode=mode, procedural=procedural, seed=seed, voxel_size=voxel_size,
+                       merge_duplicates=merge_duplicates, transcode=transcode, coding=coding, progress=progress,
+                       log=log, warn=warn).scene
+
+
+def read_source(path: str | Path | None = None, *, mode: str = "gaussians", procedural: int | None = None,
+                seed: int = 0, voxel_size: float | None = None, merge_duplicates: bool = False,
+                transcode: TranscodeOptions | None = None, coding=None, progress: bool = False, log: Log = _quiet,
+                warn: Log = _quiet) -> Source:
+    """``load_source``'s scene, with the transcode that made it (``Source``)."""
     if (path is None) == (procedural is None):
         raise InputError("give exactly one of an input path or a procedural anchor count")
     if procedural is not None:
@@ -80,34 +137,24 @@ def load_source(path: str | Path | None = None, *, mode: str = "gaussians", proc
 
         if procedural < 1:
             raise InputError("--procedural needs a positive anchor count")
-        return make_procedural_scene(procedural, seed=seed, progress=progress)
+        return Source(make_procedural_scene(procedural, seed=seed, progress=progress))
     p = Path(path)
     if not p.exists():
         raise InputError(f"{p}: no such file or folder")
     if mode not in ("gaussians", "anchors"):
         raise InputError(f"mode must be gaussians or anchors, got {mode!r}")
-    from ..formats.ply3dgs import is_3dgs_ply
+    if is_gaussian_file(p):
+        if mode == "gaussians":
+            from ..formats import read_scene
 
-    if mode == "gaussians" and is_gaussian_file(p):
-        from ..formats import read_scene
+            return Source(read_scene(p))
+        res = transcode_source(p, transcode or TranscodeOptions(), coding, progress=progress, log=log)
+        return Source(res.scene, res)
+    return Source(read_model(p, voxel_size, merge_duplicates, log, warn))
 
-        return read_scene(p)
-    if is_3dgs_ply(p):
-        from .transcode import TranscodeConfig, transcode_3dgs
 
-        o = transcode or TranscodeOptions()
-        log(f"{p}: a plain 3DGS PLY (f_dc_0, no f_anchor_feat_0): transcoding it to an anchor scene first, by "
-            "fitting against renders of it (this takes minutes on a CPU; see --transcode-*)")
-        cfg = TranscodeConfig(anchors=o.anchors, voxel_size=o.voxel_size, iterations=o.iterations,
-                              distill_steps=o.distill_steps, views=o.views, resolution=o.resolution,
-                              feature_dim=o.feature_dim, num_offsets=o.num_offsets, device=o.device, progress=progress)
-        res = transcode_3dgs(str(p), cfg, log=log)
-        log(f"transcoded in {res.stats.time_total_s:.1f} s: {res.scene.num_anchors:,} anchors, held-out PSNR "
-            f"against the source renders {res.stats.psnr_final:.2f} dB")
-        return res.scene
-    if mode == "anchors" and is_gaussian_file(p):
-        raise InputError(f"{p}: --mode anchors transcodes 3DGS PLY files only; convert it to .ply first "
-                         "(lghcc.write_scene) or code it as Gaussians")
+def read_model(p: Path, voxel_size: float | None, merge_duplicates: bool, log: Log, warn: Log) -> AnchorScene:
+    """A Scaffold-GS model (folder or PLY), duplicates in a voxel merged on request."""
     from ..formats.scaffold_io import MissingMlpWarning, read_scaffold
     from .scene_prep import merge_duplicate_anchors
 
@@ -195,11 +242,15 @@ def _encode_gaussians(scene: GaussianScene, cfg, *, progress: bool, log: Log, me
 
 
 def encode(scene: AnchorScene | GaussianScene, cfg=None, *, progress: bool = False, log: Log = _quiet,
-           measure_ideal: bool = False, context_twin=None, verify: bool = True, allow_missing_mlps: bool = False):
+           measure_ideal: bool = False, context_twin=None, verify: bool = True, allow_missing_mlps: bool = False,
+           transcoded: TranscodeResult | None = None):
     """Encode either kind of scene with ``cfg`` (``encoder_config``; None: preset medium).
     -> (EncodeResult, the configuration used). ``verify`` decodes the stream again and
-    checks that it gives the encoded scene (its hash)."""
-    from .encode import encode_scene
+    checks that it gives the encoded scene (its hash). ``transcoded``: the transcode that made
+    the anchor scene (``read_source``): the stream gets a source_info unit with the source's
+    SH degree (spec clause 7.3.10) and the stats its statistics (its context twin, trained in
+    its rate phase, is ``context_twin`` when wanted)."""
+    from .encode import encode_scene, source_info_unit
 
     check_encodable(scene, allow_missing_mlps)
     if cfg is None:
@@ -207,7 +258,12 @@ def encode(scene: AnchorScene | GaussianScene, cfg=None, *, progress: bool = Fal
     if isinstance(scene, GaussianScene):
         result, cfg = _encode_gaussians(scene, cfg, progress=progress, log=log, measure_ideal=measure_ideal)
     else:
-        result = encode_scene(scene, cfg, progress=progress, measure_ideal=measure_ideal, context_twin=context_twin)
+        ancillary = []
+        if transcoded is not None:  # what the decoded anchors cannot tell: the source's SH degree
+            ancillary.append(source_info_unit(transcoded.stats.sh_degree))
+        result = encode_scene(scene, cfg, progress=progress, measure_ideal=measure_ideal, context_twin=context_twin,
+                              ancillary=ancillary)
+        result.stats.transcode = None if transcoded is None else transcoded.stats
     if verify:
         from ..decoder.decode import decode_stream
 

@@ -126,16 +126,29 @@ def add_gaussian_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def add_transcode_arguments(p: argparse.ArgumentParser) -> None:
-    t = p.add_argument_group("anchor transcoding of plain 3DGS input (--mode anchors)")
+    t = p.add_argument_group(
+        "anchor transcoding of plain 3DGS input (--mode anchors)",
+        "The scene is fitted to anchors against renders of the source, rate-aware: the loss adds "
+        "lambda x the attribute bits the stream's entropy models estimate, with the preset's "
+        "quantization simulated and NAAP pruning in the loop. Presets (low, medium, high; lghcc-* the same): "
+        + "; ".join(f"{k} lambda {v['rate_lambda']:g}, {v['iterations']} iterations, keep {v['prune_keep']:g} of "
+                    f"the anchors, {v['resolution']} px renders" for k, v in _transcode_presets().items())
+        + ". The source's SH degree goes into the stream (source_info), and lghcc-dec --export writes it back.")
     t.add_argument("--transcode-anchors", type=int, metavar="N",
-                   help="target anchor count of the transcoded scene (default: a quarter of the Gaussians)")
+                   help="target anchor count of the voxel grid (default: a quarter of the Gaussians; every "
+                        "Gaussian gets an offset slot, so the final count can be higher)")
     t.add_argument("--transcode-voxel-size", type=positive_float, metavar="V", help="anchor voxel size (overrides the count)")
-    t.add_argument("--transcode-iterations", type=int, default=200,
-                   help="render-fitting iterations (default 200; 0: distillation only)")
-    t.add_argument("--transcode-distill-steps", type=int, default=400,
-                   help="attribute-distillation steps that initialize features and MLPs (default 400)")
+    t.add_argument("--transcode-iterations", type=int,
+                   help="render-fitting iterations (default: the preset's; 0: distillation only)")
+    t.add_argument("--transcode-distill-steps", type=int,
+                   help="attribute-distillation steps that initialize features and MLPs (default: the preset's)")
+    t.add_argument("--transcode-rate-lambda", type=float, metavar="L",
+                   help="weight of the estimated bits per attribute value in the fit (default: the preset's; "
+                        "0: no rate term)")
+    t.add_argument("--transcode-prune-keep", type=float, metavar="RATIO",
+                   help="fraction of the anchors NAAP keeps during the fit (default: the preset's; 1: no pruning)")
     t.add_argument("--transcode-views", type=int, default=32, help="training views on a sphere (default 32)")
-    t.add_argument("--transcode-resolution", type=int, default=128, help="square render size for fitting (128)")
+    t.add_argument("--transcode-resolution", type=int, help="square render size for fitting (default: the preset's)")
     t.add_argument("--transcode-feature-dim", type=int, default=32, help="anchor feature size C (default 32)")
     t.add_argument("--transcode-offsets", type=int, default=10, help="offsets per anchor K (default 10)")
     t.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
@@ -158,6 +171,12 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
                         "(context_twin.pt; by default the GG-Conv fit also starts from it, the smaller stream kept)")
     p.add_argument("--json", metavar="FILE", help="also write the size breakdown and timings as JSON")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors and warnings")
+
+
+def _transcode_presets() -> dict:
+    from .config import TRANSCODE_PRESETS
+
+    return TRANSCODE_PRESETS
 
 
 def setup_args() -> argparse.ArgumentParser:
@@ -210,23 +229,27 @@ def config_overrides(args: argparse.Namespace, gaussians: bool) -> dict:
             "pruning": args.prune, "prune_keep_ratio": args.prune_keep, "prune_tau": args.prune_tau}
 
 
-def load_scene(args: argparse.Namespace):
-    """The scene to code (read, transcoded or procedural), checked to be encodable."""
+def load_scene(args: argparse.Namespace, cfg):
+    """The scene to code (read, transcoded or procedural), checked to be encodable
+    -> api.Source. A transcode (--mode anchors on a plain 3DGS scene) follows the preset and
+    matches its rate model to ``cfg``, the configuration the scene will be coded with."""
     from . import api
 
     transcode = api.TranscodeOptions(
-        anchors=args.transcode_anchors, voxel_size=args.transcode_voxel_size, iterations=args.transcode_iterations,
-        distill_steps=args.transcode_distill_steps, views=args.transcode_views,
+        preset=args.preset, anchors=args.transcode_anchors, voxel_size=args.transcode_voxel_size,
+        iterations=args.transcode_iterations, distill_steps=args.transcode_distill_steps,
+        rate_lambda=args.transcode_rate_lambda, prune_keep=args.transcode_prune_keep, views=args.transcode_views,
         resolution=args.transcode_resolution, feature_dim=args.transcode_feature_dim,
         num_offsets=args.transcode_offsets, device=args.device)
-    scene = api.load_source(args.input, mode=args.mode, procedural=args.procedural, seed=args.seed,
-                            voxel_size=args.voxel_size, merge_duplicates=args.merge_duplicates,
-                            transcode=transcode, progress=not args.quiet,
-                            log=(lambda m: print(m, file=sys.stderr)) if not args.quiet else (lambda m: None),
-                            warn=lambda m: print(f"lghcc-enc: warning: {m}", file=sys.stderr))
-    api.check_encodable(scene, args.allow_no_mlps, warn=lambda m: print(f"lghcc-enc: warning: {m}",
-                                                                         file=sys.stderr))
-    return scene
+    source = api.read_source(args.input, mode=args.mode, procedural=args.procedural, seed=args.seed,
+                             voxel_size=args.voxel_size, merge_duplicates=args.merge_duplicates,
+                             transcode=transcode, coding=cfg, progress=not args.quiet,
+                             log=(lambda m: print(m, file=sys.stderr, flush=True)) if not args.quiet
+                             else (lambda m: None),
+                             warn=lambda m: print(f"lghcc-enc: warning: {m}", file=sys.stderr))
+    api.check_encodable(source.scene, args.allow_no_mlps, warn=lambda m: print(f"lghcc-enc: warning: {m}",
+                                                                                file=sys.stderr))
+    return source
 
 
 def announce_estimate(args: argparse.Namespace, scene, cfg, log) -> None:
@@ -242,9 +265,12 @@ def announce_estimate(args: argparse.Namespace, scene, cfg, log) -> None:
             "and writes nothing")
 
 
-def context_twin_of(args: argparse.Namespace, gaussians: bool, cfg):
-    """The GG-Conv twin lghcc-train saved beside the scene, when it may be used (else None)."""
+def context_twin_of(args: argparse.Namespace, gaussians: bool, cfg, transcoded=None):
+    """The GG-Conv twin trained with the scene, when it may be used (else None): the one of the
+    transcode's rate phase (``transcoded``), or the one lghcc-train saved beside the scene."""
     if args.input and not gaussians and not args.no_context_twin and cfg.context_model == "ggconv":
+        if transcoded is not None:
+            return transcoded.context_twin
         from .ggconv_train import find_context_twin
         return find_context_twin(args.input)
     return None
@@ -315,13 +341,15 @@ def _main(argv: list[str] | None) -> int:
     cfg = load_config(args.preset, args.config, config_overrides(args, gaussians),
                       kind="gaussians" if gaussians else "anchors")
     t0 = time.perf_counter()
-    scene = load_scene(args)
+    loaded = load_scene(args, None if gaussians else cfg)
+    scene = loaded.scene
     source = args.input if args.input is not None else "procedural"
     t_load = time.perf_counter() - t0
     announce_estimate(args, scene, cfg, log)
-    twin = context_twin_of(args, gaussians, cfg)
+    twin = context_twin_of(args, gaussians, cfg, loaded.transcoded)
     result, cfg = api.encode(scene, cfg, progress=not args.quiet, log=log, measure_ideal=args.report_ideal,
-                             context_twin=twin, verify=not args.no_verify, allow_missing_mlps=args.allow_no_mlps)
+                             context_twin=twin, verify=not args.no_verify, allow_missing_mlps=args.allow_no_mlps,
+                             transcoded=loaded.transcoded)
     if twin is not None:
         say(twin_outcome(result.stats))
     write_outputs(args, result, scene, cfg, gaussians, source)

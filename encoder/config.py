@@ -196,6 +196,20 @@ def context_model_size(cfg: EncoderConfig, num_level2: int) -> tuple[int, int, i
     return tuple(g if g is not None else a for g, a in zip(given, auto))
 
 
+# lghcc-enc --mode anchors: what each preset asks of the transcoder (encoder/transcode.py, step 4
+# of its module doc). The coding preset of the same name (presets/<name>.yaml or lghcc-<name>.yaml)
+# gives the quantization steps the fit simulates and the hierarchy and context its rate term
+# models (transcode.preset_transcode_config); the lghcc-* presets share these settings. A step up
+# asks for a smaller rate weight and a longer fit (measurements: tools/results/transcode.md).
+# Fit renders are 256 px: on playbot lod4 the same stream size went from 30.0 to 32.0 dB against
+# 320 px orbit renders of the source when the fit moved from 128 to 256 px.
+TRANSCODE_PRESETS: dict[str, dict] = {
+    "low": {"rate_lambda": 0.02, "iterations": 300, "distill_steps": 300, "prune_keep": 0.8, "resolution": 256},
+    "medium": {"rate_lambda": 0.005, "iterations": 500, "distill_steps": 400, "prune_keep": 0.9, "resolution": 256},
+    "high": {"rate_lambda": 0.001, "iterations": 800, "distill_steps": 400, "prune_keep": 1.0, "resolution": 256},
+}
+
+
 GAUSSIAN_PRESET_PREFIX = "gaussians-"
 
 

@@ -16,8 +16,8 @@ import numpy as np
 from ..app.progress import progress_bar
 
 from ..common import attributes as attr
-from ..common.container import (UNIT_CRC_BYTES, UNIT_HEADER_BYTES, DataUnit, UnitType, read_container,
-                                    write_container)
+from ..common.container import (UNIT_CRC_BYTES, UNIT_HEADER_BYTES, AncillaryUnitType, DataUnit, UnitType,
+                                read_container, write_container)
 from ..common.entropy.symbol_coder import best_level, ideal_code_length_bits
 from ..common.errors import InputError
 from ..common.context.model_unit import write_context_model_unit
@@ -31,7 +31,7 @@ from ..common.hierarchy import Hierarchy, build_hierarchy
 from ..common.units import (CONTEXT_PER_CHANNEL_PRIOR, LEVEL_1, LEVEL_2, LEVEL_ALL, MASK_PROB_BITS, MAX_ANCHORS,
                                 MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, MAX_PREDICTED_MAGNITUDE, PRIOR_MEAN_MAX,
                                 AttributeUnitHeader, DecodedSceneHashUnit, GaussianParameterSet, RenderMlpHeader,
-                                SceneParameterSet)
+                                SceneParameterSet, SourceInfo)
 from .config import AttributeCodingConfig, EncoderConfig, context_model_size
 from .context_fit import ContextFitError, fit_level2_context
 from .ggconv_train import ContextTwin, GGConvTrainConfig
@@ -514,23 +514,46 @@ def decoded_anchor_scene(inp: AttributeInput, coded: CodedAttributes, model: Ren
 
 
 def assemble_anchor_stream(inp: AttributeInput, geometry: GeometryCoding, coded: CodedAttributes,
-                           model: RenderModelCoding, stats: EncodeStats) -> EncodeResult:
+                           model: RenderModelCoding, stats: EncodeStats,
+                           ancillary: list[DataUnit] | None = None) -> EncodeResult:
+    """The stream: the scene parameter set, the ancillary units (right after it), the render
+    model, geometry, context model, attribute units, decoded scene hash."""
     decoded = decoded_anchor_scene(inp, coded, model)
     digest = scene_digest(decoded)
-    parameter_units = [DataUnit(UnitType.SCENE_PARAMETER_SET, inp.parameter_set.to_bytes())]
+    parameter_units = [DataUnit(UnitType.SCENE_PARAMETER_SET, inp.parameter_set.to_bytes())] + list(ancillary or [])
     if model.payload is not None:
         parameter_units.append(DataUnit(UnitType.RENDER_MODEL, model.payload))
     data = write_stream(parameter_units, geometry.payload, coded, digest)
     return EncodeResult(data, breakdown_of(read_container(data), decoded.num_anchors), decoded, digest, stats)
 
 
+def source_info_unit(source_sh_degree: int) -> DataUnit:
+    """The ancillary source_info unit (0x80, spec clause 7.3.10) of a scene transcoded from a
+    plain 3DGS scene of SH degree ``source_sh_degree``."""
+    info = SourceInfo(source_sh_degree=int(source_sh_degree))
+    return DataUnit(AncillaryUnitType.SOURCE_INFO, info.to_bytes())
+
+
+def check_ancillary(units: list[DataUnit] | None) -> list[DataUnit]:
+    """The ancillary units given to the encoder (types >= 0x80, clause 6.3); ValueError for any
+    other type."""
+    for u in units or []:
+        if not u.is_ancillary:
+            raise ValueError(f"unit type 0x{u.unit_type:02x} is not an ancillary unit type")
+    return list(units or [])
+
+
 def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress: bool = False,
-                 measure_ideal: bool = False, context_twin: ContextTwin | None = None) -> EncodeResult:
+                 measure_ideal: bool = False, context_twin: ContextTwin | None = None,
+                 ancillary: list[DataUnit] | None = None) -> EncodeResult:
     """Encode a scene. ``measure_ideal`` also computes the attribute model's ideal code length
     (stats.attribute_ideal_bits), a full extra pass over the symbols. ``context_twin``: the
     GG-Conv twin trained with the scene (lghcc-train --rate-lambda writes it beside the scene):
     with a GG-Conv context model, a fit started from it is one more candidate (the smallest
-    stream is kept); a twin that does not fit the configuration is reported in stats and unused."""
+    stream is kept); a twin that does not fit the configuration is reported in stats and unused.
+    ``ancillary``: ancillary data units (type >= 0x80, e.g. source_info) written right after
+    the scene parameter set; the decoded scene and its hash do not depend on them."""
+    ancillary = check_ancillary(ancillary)
     cfg = (cfg or EncoderConfig()).validate()
     scene.validate()
     stats = EncodeStats()
@@ -553,7 +576,7 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
     with stage(bar, "render model"):
         model = code_render_model(scene.mlps, cfg)
     with stage(bar, "hash"):
-        result = assemble_anchor_stream(inp, geometry, coded, model, stats)
+        result = assemble_anchor_stream(inp, geometry, coded, model, stats, ancillary)
     bar.close()
     stats.time_total_s = time.perf_counter() - t0
     return result

@@ -35,7 +35,7 @@ from torch import nn
 
 from ..common.context.ggconv import GRID_FRAC_BITS, grid_coordinate, neighbour_graph, trilinear_corners
 from ..common.geometry import normative_order
-from ..common.hierarchy import build_hierarchy, local_position
+from ..common.hierarchy import Hierarchy, build_hierarchy, local_position
 from ..common.entropy.scale_levels import LOG_SIGMA_MIN, LOG_SIGMA_STEP
 from .ste import ste_round_half_even
 from .ggconv_train import (ContextTwin, GGConvFloat, GGConvTrainConfig, default_radius_sq, gaussian_bits,
@@ -48,18 +48,24 @@ class AnchorRateModel(nn.Module):
     coords: int [N, 3] voxel positions in the trainer's row order; steps: float [M], the
     quantization step of each attribute channel (features, 6 scalings, 3K offsets); values:
     float [N, M], the current attributes (for the initial means, scales and input scales);
-    voxel_scale: the hierarchy's coarse voxel scale s; cfg: the twin's architecture (k,
-    neighbour_level, widths). With fewer than 2 anchors in a level, that level's term is 0.
+    voxel_scale: the hierarchy's coarse voxel scale s, or None for a stream without the
+    hierarchy (every anchor under the per-channel prior, "level 1"); cfg: the twin's
+    architecture (k, neighbour_level, widths). With fewer than 2 anchors in a level, that
+    level's term is 0.
     """
 
-    def __init__(self, coords: np.ndarray, steps: np.ndarray, num_features: int, voxel_scale: int,
+    def __init__(self, coords: np.ndarray, steps: np.ndarray, num_features: int, voxel_scale: int | None,
                  values: np.ndarray, cfg: GGConvTrainConfig | None = None):
         super().__init__()
         cfg = cfg or GGConvTrainConfig()
         coords = np.asarray(coords, dtype=np.int64)
         n, m = np.asarray(values).shape
         order = normative_order(coords)
-        hier = build_hierarchy(coords[order], voxel_scale)
+        if voxel_scale is None:
+            e = np.zeros(0, dtype=np.int64)
+            hier = Hierarchy(np.arange(n, dtype=np.int64), e, e.copy())
+        else:
+            hier = build_hierarchy(coords[order], voxel_scale)
         self.register_buffer("steps", torch.as_tensor(np.asarray(steps, dtype=np.float64)))
         self.register_buffer("l1", torch.from_numpy(order[hier.level1_idx].astype(np.int64)))
         self.register_buffer("l2", torch.from_numpy(order[hier.level2_idx].astype(np.int64)))
@@ -124,18 +130,24 @@ class AnchorRateModel(nn.Module):
     def num_level2(self) -> int:
         return int(self.l2.shape[0])
 
-    def forward(self, values: torch.Tensor, noise: bool = True,
-                generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
+    def forward(self, values: torch.Tensor, noise: bool = True, generator: torch.Generator | None = None,
+                live: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """values: float [N, M] attributes (trainer row order). Returns the estimated bits of
         level 1, of level 2 and in all ("level1", "level2", "total"), differentiable in values.
-        noise: uniform noise in [-1/2, 1/2) steps (training); else the rounded values."""
+        noise: uniform noise in [-1/2, 1/2) steps (training); else the rounded values.
+        live: bool [N, M], the values the stream codes (None: all); the channels of a dead
+        offset (offset mask) are not coded and cost nothing."""
         y = values.to(torch.float64) / self.steps
         if noise:
             yn = y + (torch.rand(y.shape, generator=generator, dtype=y.dtype) - 0.5)
         else:
             yn = torch.round(y)
+        w = None if live is None else live.to(torch.float64)
         y1 = yn[self.l1]
-        bits1 = gaussian_bits(y1, self.l1_mean, self.l1_log_sigma.exp()).sum() if self.num_level1 else y.new_zeros(())
+        bits1 = y.new_zeros(())
+        if self.num_level1:
+            b1 = gaussian_bits(y1, self.l1_mean, self.l1_log_sigma.exp())
+            bits1 = (b1 if w is None else b1 * w[self.l1]).sum()
         bits2 = y.new_zeros(())
         if self.twin is not None:
             x1 = torch.round(y[self.l1]).detach()  # the decoder's context: decoded (rounded) level-1 values
@@ -145,7 +157,8 @@ class AnchorRateModel(nn.Module):
             batch = {"n": self.num_level2, "feat_in": feat_in, "corner_idx": self.corner_idx,
                      "corner_w": self.corner_w, "row": self.row, "head_raw": torch.cat([self.head_fixed, xpar], 1)}
             mean, level, _ = self.twin(batch)
-            bits2 = gaussian_bits(yn[self.l2], mean, torch.exp(LOG_SIGMA_MIN + LOG_SIGMA_STEP * level)).sum()
+            b2 = gaussian_bits(yn[self.l2], mean, torch.exp(LOG_SIGMA_MIN + LOG_SIGMA_STEP * level))
+            bits2 = (b2 if w is None else b2 * w[self.l2]).sum()
         return {"level1": bits1, "level2": bits2, "total": bits1 + bits2}
 
 

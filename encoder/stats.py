@@ -8,7 +8,10 @@ hierarchy, no context model fit, ...) and is left out of the JSON object.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .transcode import TranscodeStats
 
 
 def _present(items: dict[str, Any]) -> dict[str, Any]:
@@ -95,6 +98,7 @@ class EncodeStats:
     prepare: PrepareStats | None = None  # a Gaussian scene prepared before coding (lghcc.encoder.api)
     settings: str | None = None  # a Gaussian scene: the settings coded with, in words
     verified: bool = False  # the written stream was decoded again and gave the encoded scene's hash
+    transcode: TranscodeStats | None = None  # the transcode that made the anchor scene (lghcc-enc --mode anchors)
 
     @property
     def context_fit(self) -> ContextFitStats | None:
@@ -102,7 +106,8 @@ class EncodeStats:
         return next((s.context_fit for s in self.levels.values() if s.context_fit is not None), None)
 
     def to_json(self) -> dict[str, Any]:
-        """The flat JSON object (lghcc-enc --json "stats"); a prepare_ prefix on the preparation's keys."""
+        """The flat JSON object (lghcc-enc --json "stats"); a prepare_ prefix on the preparation's keys,
+        a transcode_ prefix on the transcode's."""
         out = _present({k: getattr(self, k) for k in (
             "pruning", "anchors_before_pruning", "sh_degree_dropped_from", "gaussians_moved_off_shared_voxels",
             "time_geometry_s", "num_level1", "num_level2", "context_twin_unused", "attribute_ideal_bits",
@@ -113,4 +118,6 @@ class EncodeStats:
         if self.prepare is not None:
             out.update({f"prepare_{k}": v for k, v in self.prepare.to_json().items()})
         out.update(_present({"settings": self.settings, "verified": True if self.verified else None}))
+        if self.transcode is not None:
+            out.update({f"transcode_{k}": v for k, v in self.transcode.to_json().items()})
         return out

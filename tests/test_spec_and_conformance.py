@@ -201,6 +201,8 @@ def test_reference_decoder_error_class_and_reason_are_checked(tmp_path, monkeypa
     (lambda m: m.update(expect="error"), "an error stream has a decoded_sha256"),
     (lambda m: (m.update(expect="error"), m.pop("decoded_sha256")), "expect_error None is not one of"),
     (lambda m: m.update(renders={"cameras": "orbit:2"}), "renders: missing size"),
+    (lambda m: m.update(source_info={"source_sh_degree": 4, "ignored": 0}), "is not 0..3 or null"),
+    (lambda m: m.update(source_info={"source_sh_degree": 1}), "source_info is not a mapping"),
 ])
 def test_invalid_test_yaml_is_reported_clearly(tmp_path, edit, message):
     src = runner.STREAMS_DIR / "c001_one_anchor"
@@ -213,6 +215,21 @@ def test_invalid_test_yaml_is_reported_clearly(tmp_path, edit, message):
     with pytest.raises(runner.LghccError, match=message):
         runner.load_cases(tmp_path)
     assert runner.main(["--streams", str(tmp_path)]) == 2
+
+
+def test_source_info_of_the_reference_decoder_is_checked():
+    """test.yaml's source_info (informative, clauses 6.3 and 7.3.10): what the reference decoder
+    outputs for the stream's source_info units, and how many it ignores."""
+    cases = {c.id: c for c in runner.load_cases(ids=["c059_source_info_twice", "c061_source_info_malformed_then_well_formed"])}
+    for case in cases.values():
+        assert runner.run_case(case).passed
+    twice = cases["c059_source_info_twice"]
+    assert twice.meta["source_info"] == {"source_sh_degree": 1, "ignored": 1}
+    wrong = runner.Case(twice.id, twice.folder, dict(twice.meta, source_info={"source_sh_degree": 3, "ignored": 1}))
+    o = runner.run_case(wrong)
+    assert not o.passed and "source_sh_degree 1, 1 ignored; expected 3, 1 ignored" in o.note
+    assert cases["c061_source_info_malformed_then_well_formed"].meta["source_info"] == {"source_sh_degree": None,
+                                                                                         "ignored": 2}
 
 
 def test_every_error_stream_names_its_rejection():

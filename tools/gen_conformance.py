@@ -412,9 +412,10 @@ def post_process(data: bytes, post: dict) -> bytes:
     if not post:
         return data
     units = [DataUnit(u.unit_type, u.payload) for u in read_container(data).units]
-    if "insert_unit" in post:
-        p = post["insert_unit"]
-        units.insert(p["index"], DataUnit(int(p["type"]), p["payload"].encode()))
+    if "insert_unit" in post:  # one unit or a list, inserted in order; payload as text, or hex bytes
+        for p in post["insert_unit"] if isinstance(post["insert_unit"], list) else [post["insert_unit"]]:
+            payload = bytes.fromhex(p["hex"]) if "hex" in p else p["payload"].encode()
+            units.insert(p["index"], DataUnit(int(p["type"]), payload))
     if "insert_empty_render_model" in post:  # num_mlps = 0, coded_size = 0: the same decoded scene
         units.insert(post["insert_empty_render_model"], DataUnit(UnitType.RENDER_MODEL, RenderModelUnit().to_bytes()))
     if "geometry_idcm_mode" in post:  # re-code the geometry losslessly with another IDCM mode
@@ -552,7 +553,9 @@ Tags of test.yaml `tools`, derived from the reference decoder's result (never wr
   offset_mask           offset_mask_present_flag = 1
   chunks                an attribute unit with more than one chunk; empty_chunk: a chunk of 0 bytes
   escape                the decoder decoded an escaped residual (spec 10.5) in some unit
-  ancillary_unit        an ancillary unit (skipped)
+  ancillary_unit        an ancillary unit (type >= 0x80; one the decoder does not know is skipped)
+  source_info           a source_info unit (0x80, clause 7.3.10) the decoder interpreted;
+                        source_info_ignored: one it ignored (malformed, or not the first: clause 6.3)
   container_version     a version_minor other than this document's
   maximum_values        an element at its maximum (its profile/level limit, the largest value of its
                         width, or the largest finite binary32; the 'maximum' class of conformance/coverage.py)
@@ -667,6 +670,10 @@ def derive_tools(data: bytes, rejected_in: str | None = None) -> list[str]:
     _undeclared([], rejected_in)
     if container.header.version_minor != VERSION_MINOR:
         tags.add("container_version")
+    if res.source_info is not None:
+        tags.add("source_info")
+    if res.notes:
+        tags.add("source_info_ignored")
     for u in container.units:
         if u.unit_type == UnitType.CONTEXT_MODEL:
             from lghcc.common.attributes import ChannelLayout, GaussianLayout
@@ -781,6 +788,22 @@ def write_renders(entry: dict, data: bytes, folder: Path) -> None:
         np.save(folder / name, to_uint16(img))
 
 
+def source_info_meta(data: bytes) -> dict | None:
+    """test.yaml's ``source_info`` (informative, clauses 6.3 and 7.3.10) of a stream with a
+    source_info unit: the source_sh_degree a decoder that interprets source_info outputs (that
+    of the first source_info unit when it is well formed, else null) and how many source_info
+    units it ignores (a malformed first one, and every one after the first); None for a stream
+    without one."""
+    from lghcc.common.container import AncillaryUnitType, read_container
+    from lghcc.decoder.decode import decode_stream
+
+    if not any(u.unit_type == AncillaryUnitType.SOURCE_INFO for u in read_container(data).units):
+        return None
+    res = decode_stream(data)
+    degree = None if res.source_info is None else int(res.source_info.source_sh_degree)
+    return {"source_sh_degree": degree, "ignored": len(res.notes)}
+
+
 def test_yaml(entry: dict, data: bytes, decoded: str | None) -> dict:
     meta = {"id": entry["id"], "purpose": entry["purpose"], "profile": "main",
             "tools": derive_tools(data, entry.get("rejected_in")),
@@ -792,6 +815,9 @@ def test_yaml(entry: dict, data: bytes, decoded: str | None) -> dict:
     meta["stream_sha256"] = hashlib.sha256(data).hexdigest()
     if decoded:
         meta["decoded_sha256"] = decoded
+    info = source_info_meta(data) if decoded else None
+    if info is not None:
+        meta["source_info"] = info
     r = renders_meta(entry)
     if r:
         meta["renders"] = r
