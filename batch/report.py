@@ -24,10 +24,10 @@ def _fmt(rec: dict, key: str, spec: str) -> str:
 def rd_plots(sweep: Sweep, records: list[dict]) -> tuple[list[Path], str | None]:
     """One PNG per scene with at least one finished cell; (paths, why none when skipped)."""
     try:
-        import matplotlib
+        import matplotlib  # pyright: ignore[reportMissingImports] (optional: lghcc[tools])
 
         matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        import matplotlib.pyplot as plt  # pyright: ignore[reportMissingImports] (optional: lghcc[tools])
     except ImportError:
         return [], "matplotlib is not installed (pip install 'lghcc[tools]')"
     paths = []
