@@ -409,3 +409,22 @@ def test_context_twin_file_round_trip_and_rejects_what_it_cannot_use(tmp_path):
         bad.save(tmp_path / "bad.pt")
         with pytest.raises(ValueError, match="bad.pt"):
             ContextTwin.load(tmp_path / "bad.pt")
+
+
+def test_parent_mlp_scalars_must_be_scalars():
+    """Spec 7.3.8: num_features and every shift are scalars (array_ndim 0, or shape [1]), in the
+    parent-MLP model as in GG-Conv; the decoder used to take the first value of a longer array."""
+    from lghcc.common.context.model_unit import NamedIntArray
+    from lghcc.common.context.parent_mlp import ParentMlpParams
+
+    rng = np.random.default_rng(5)
+    c, m = 2, 2 + 6 + 3
+    lin = lambda i, o, relu: IntLinear(rng.integers(-30, 31, (o, i)), rng.integers(-50, 50, o), 3, relu)  # noqa: E731
+    arrays = ParentMlpParams(c, IntMLP([lin(3 + m, 5, True), lin(5, 3 * m, False)])).to_arrays()
+    one = [NamedIntArray(a.name, a.values.reshape(1), a.bits, a.signed) if a.values.ndim == 0 else a for a in arrays]
+    assert ParentMlpParams.from_arrays(one).num_features == c  # shape [1] is a scalar too
+    for name in ("num_features", "head.1.shift"):
+        bad = [NamedIntArray(a.name, np.array([a.values, a.values]).reshape(2), a.bits, a.signed)
+               if a.name == name else a for a in arrays]
+        with pytest.raises(ValueError, match="must be a scalar"):
+            ParentMlpParams.from_arrays(bad)

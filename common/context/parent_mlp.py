@@ -61,6 +61,10 @@ class ParentMlpParams:
         by = {a.name: a for a in arrays}
         if len(by) != len(arrays) or "num_features" not in by or "parent_base" not in by:
             raise ValueError("malformed parent-MLP parameters")
+        # scalars (spec 7.3.8): array_ndim 0, or one dimension of 1, as GG-Conv's (ggconv.py from_arrays)
+        for name in ["num_features"] + [f"head.{l}.shift" for l in range((len(arrays) - 2) // 3)]:
+            if name in by and np.shape(by[name].values) not in ((), (1,)):
+                raise ValueError(f"parameter {name!r} must be a scalar")
         layers = []
         n = (len(arrays) - 2) // 3
         for l in range(n):
