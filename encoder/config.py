@@ -161,6 +161,11 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     target_psnr: float = 0.0
     search_views: int = 8
     search_resolution: int = 128
+    # The fit and search views must resolve the scene's typical Gaussian to this many pixels: when
+    # the orbit views do not, the contributions are measured on finer whole views and the fit and
+    # the search add as many magnified crops (encoder/gaussian_fit.py, "views that resolve the
+    # Gaussians"). Raise it for scenes meant to be seen closer up.
+    resolve_px: float = 0.1
 
     def validate(self) -> "GaussianEncoderConfig":
         super().validate()
@@ -177,6 +182,8 @@ class GaussianEncoderConfig(AttributeCodingConfig):
         if not 0 <= self.target_psnr < 200 or not 0 <= self.rd_lambda < float("inf"):
             raise InputError(f"target_psnr must be in [0, 200) dB and rd_lambda >= 0, got {self.target_psnr}, "
                              f"{self.rd_lambda}")
+        if not 0 <= self.resolve_px < float("inf"):
+            raise InputError(f"resolve_px must be >= 0 and finite, got {self.resolve_px}")
         if self.fit_views < 1 or self.fit_resolution < 8 or self.fit_iterations < 0:
             raise InputError("fit_views must be >= 1, fit_resolution >= 8 and fit_iterations >= 0")
         return self

@@ -21,6 +21,20 @@ any cameras the caller gives, e.g. the scene's own training views):
 
 The result is a GaussianScene on its grid that encode_gaussian_scene codes exactly as the
 fit simulated it.
+
+Views that resolve the Gaussians: the orbit views see the whole scene at ``fit_resolution``
+(``search_resolution`` for the search) pixels. On a scene of many small Gaussians (the 307k
+PlayCanvas logo: its typical Gaussian spans 0.05 px at 128 px) such views are blind to what
+the Gaussians hold, because 3DGS rendering dilates each one to at least 0.3 px^2 and the dilated
+blobs hide one another: pruning 56% of the logo's Gaussians changed 128 px renders by 62 dB PSNR
+but 320 px renders by 28 dB. So where the typical Gaussian (median of exp(mean log scale)) spans
+fewer than ``resolve_px`` pixels in the orbit views, they are magnified by
+m = resolve_px / size (at most 8): the contributions come from whole orbit views at m times the
+resolution, and the fit and the search render as many crops besides the orbit views (field of
+view m times narrower, aimed at Gaussians drawn at random, same pixel count). The default 0.1 px
+leaves every scene whose orbit views already resolve it as it was (donut 0.21 px, playbot 0.12 to
+0.21 px at 128 px); on the logo, 128 px crops at m = 2 changed by pruning as 320 px renders did
+(29.2 against 28.4 dB, 26.0 against 25.9 dB).
 """
 
 from __future__ import annotations
@@ -35,7 +49,7 @@ from ..app.progress import progress_bar
 
 from ..common.scene import GaussianScene
 from .config import GaussianEncoderConfig
-from .gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid
+from .gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid, typical_size
 from .stats import PrepareStats
 from ..render.camera import Camera
 from ..render.gaussians3dgs import Gaussians3DGS, gaussians_from_scene, render_3dgs
@@ -61,22 +75,73 @@ def fibonacci_sphere(n: int, offset: float = 0.5) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
-def fit_cameras(scene: GaussianScene, n: int, resolution: int, fov_deg: float = 50.0) -> list[Camera]:
-    """n cameras on a sphere around the scene's robust bounds (1%..99% quantiles of the
-    positions of Gaussians with opacity >= 0.05), each seeing the whole bounding sphere."""
+def _robust_bounds(scene: GaussianScene) -> tuple[np.ndarray, float, np.ndarray]:
+    """(centre, radius, positions) of the scene's robust bounds: 1%..99% quantiles of the
+    positions of the Gaussians with opacity >= 0.05 (all when fewer than 10 are)."""
     m = scene.means.astype(np.float64)
     op = 1 / (1 + np.exp(-scene.opacity.astype(np.float64)))
     if (op >= 0.05).sum() >= 10:
         m = m[op >= 0.05]
     lo, hi = np.quantile(m, 0.01, axis=0), np.quantile(m, 0.99, axis=0)
-    centre, radius = (lo + hi) / 2, max(float(np.linalg.norm(hi - lo)) / 2, 1e-6)
-    dist = radius / math.sin(math.radians(fov_deg) / 2) * 1.05
+    return (lo + hi) / 2, max(float(np.linalg.norm(hi - lo)) / 2, 1e-6), m
+
+
+def _orbit_distance(radius: float, fov_deg: float) -> float:
+    return radius / math.sin(math.radians(fov_deg) / 2) * 1.05
+
+
+def fit_cameras(scene: GaussianScene, n: int, resolution: int, fov_deg: float = 50.0) -> list[Camera]:
+    """n cameras on a sphere around the scene's robust bounds, each seeing the whole bounding sphere."""
+    centre, radius, _ = _robust_bounds(scene)
+    dist = _orbit_distance(radius, fov_deg)
     cams = []
     for j, d in enumerate(fibonacci_sphere(n)):
         up = (0.0, 0.0, 1.0) if abs(d[2]) < 0.99 else (0.0, 1.0, 0.0)
         cams.append(Camera.look_at(centre + dist * d, centre, up=up, width=resolution, height=resolution,
                                    fov_x_deg=fov_deg, near=dist * 1e-3, far=dist * 10, name=f"fit_{j:03d}"))
     return cams
+
+
+# The most the views are magnified (module doc, "views that resolve the Gaussians").
+MAX_MAGNIFICATION = 8.0
+
+
+def magnification(scene: GaussianScene, resolution: int, resolve_px: float, fov_deg: float = 50.0) -> float:
+    """How much finer than ``fit_cameras(scene, n, resolution)`` the views must sample the scene
+    for its typical Gaussian (the median of exp(mean log scale)) to span ``resolve_px`` pixels:
+    1 when it already does, at most MAX_MAGNIFICATION."""
+    centre, radius, _ = _robust_bounds(scene)
+    focal_px = 0.5 * resolution / math.tan(math.radians(fov_deg) / 2)
+    size_px = typical_size(scene) * focal_px / _orbit_distance(radius, fov_deg)
+    if not (size_px > 0 and math.isfinite(size_px)) or resolve_px <= 0:
+        return 1.0
+    return float(min(max(resolve_px / size_px, 1.0), MAX_MAGNIFICATION))
+
+
+def crop_cameras(scene: GaussianScene, n: int, resolution: int, magnification: float,
+                 fov_deg: float = 50.0, seed: int = 0) -> list[Camera]:
+    """n magnified views: cameras on the orbit sphere (directions between those of fit_cameras)
+    whose field of view is ``magnification`` times narrower, each aimed at a Gaussian drawn
+    uniformly (fixed seed) from the opaque ones, so the crops sample where the scene is."""
+    centre, radius, opaque = _robust_bounds(scene)
+    dist = _orbit_distance(radius, fov_deg)
+    crop_fov = 2 * math.degrees(math.atan(math.tan(math.radians(fov_deg) / 2) / magnification))
+    aims = opaque[np.random.default_rng(seed).integers(0, opaque.shape[0], n)]
+    cams = []
+    for j, (d, aim) in enumerate(zip(fibonacci_sphere(n, offset=0.25), aims)):
+        up = (0.0, 0.0, 1.0) if abs(d[2]) < 0.99 else (0.0, 1.0, 0.0)
+        cams.append(Camera.look_at(centre + dist * d, aim, up=up, width=resolution, height=resolution,
+                                   fov_x_deg=crop_fov, near=dist * 1e-3, far=dist * 10, name=f"crop_{j:03d}"))
+    return cams
+
+
+def resolving_views(scene: GaussianScene, n: int, resolution: int, resolve_px: float) -> list[Camera]:
+    """The n orbit views, plus n magnified crops when the orbit views at ``resolution`` do not
+    resolve the scene's typical Gaussian (``magnification`` > 1): what the fit and the settings
+    search render. A scene whose Gaussians the orbit views resolve renders only those."""
+    cams = fit_cameras(scene, n, resolution)
+    m = magnification(scene, resolution, resolve_px)
+    return cams + crop_cameras(scene, n, resolution, m) if m > 1 else cams
 
 
 def prune_by_contribution(contrib: np.ndarray, share: float) -> np.ndarray:
@@ -310,9 +375,13 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
     t0 = time.perf_counter()
     if cfg.sh_degree is not None and cfg.sh_degree < scene.sh_degree:
         scene = scene.with_sh_degree(cfg.sh_degree)
-    cams = fit_cameras(scene, cfg.fit_views, cfg.fit_resolution) + list(cameras or [])
+    # contributions from whole views fine enough to resolve the Gaussians (crops would favour
+    # the Gaussians they happen to show); the fit samples orbit views and magnified crops
+    contrib_res = round(cfg.fit_resolution * magnification(scene, cfg.fit_resolution, cfg.resolve_px))
+    extra = list(cameras or [])
     g = gaussians_from_scene(scene)
-    contrib = measure_contributions(g, cams, progress)
+    contrib = measure_contributions(g, fit_cameras(scene, cfg.fit_views, contrib_res) + extra, progress)
+    cams = resolving_views(scene, cfg.fit_views, cfg.fit_resolution, cfg.resolve_px) + extra
     stats.time_contributions_s = time.perf_counter() - t0
     cfg = search_for_settings(scene, contrib, cfg, stats, say)
     grid, weights = pruned_on_grid(scene, contrib, cfg, stats, len(cams), say)

@@ -40,7 +40,7 @@ from ..common.entropy.symbol_coder import best_level, code_lengths_bits
 from ..common.geometry import encode_geometry
 from ..common.scene import GaussianScene
 from .config import GaussianEncoderConfig
-from .gaussian_fit import fit_cameras, prune_by_contribution
+from .gaussian_fit import prune_by_contribution, resolving_views
 from .gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid
 from ..render.gaussians3dgs import gaussians_from_scene, render_3dgs
 
@@ -73,7 +73,7 @@ class SettingsSearch:
     def __init__(self, scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, lam: float,
                  views: int, resolution: int):
         self.scene, self.contrib, self.lam = scene, contrib, lam
-        self.cams = fit_cameras(scene, views, resolution)
+        self.cams = resolving_views(scene, views, resolution, cfg.resolve_px)
         g = gaussians_from_scene(scene)
         with torch.no_grad():
             self.targets = [render_3dgs(g, c, background=(0, 0, 0), backend="torch").image for c in self.cams]

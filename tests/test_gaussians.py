@@ -266,3 +266,48 @@ def test_search_meets_the_psnr_asked_for_with_fewer_bits_than_a_finer_setting(ta
         "position_step", "sh_dc_step", "opacity_step", "scale_step", "rotation_step")},
         sh_band_steps=tuple(s / 1.5 for s in chosen.sh_band_steps))
     assert check.evaluate(finer).bits > got.bits
+
+
+@settings(max_examples=40, deadline=None)
+@given(log_size=st.floats(-30, 5), n=st.integers(1, 60), resolve_px=st.floats(0.0, 2.0), seed=st.integers(0, 99))
+def test_views_are_magnified_until_the_typical_gaussian_spans_resolve_px(log_size, n, resolve_px, seed):
+    """resolving_views: the orbit views alone when they resolve the typical Gaussian; otherwise as
+    many crops besides, m times narrower (m capped at MAX_MAGNIFICATION), aimed at the scene."""
+    from lghcc.encoder.gaussian_fit import MAX_MAGNIFICATION, fit_cameras, magnification, resolving_views
+    from lghcc.encoder.gaussians import typical_size
+
+    rng = np.random.default_rng(seed)
+    scene = random_gaussians(rng, n)
+    scene.log_scales[:] = np.float32(log_size)
+    m = magnification(scene, 64, resolve_px)
+    assert 1.0 <= m <= MAX_MAGNIFICATION and np.isfinite(m)
+    orbit = fit_cameras(scene, 3, 64)
+    views = resolving_views(scene, 3, 64, resolve_px)
+    assert [(c.name, c.fx, c.center.tolist()) for c in views[:3]] == [(c.name, c.fx, c.center.tolist()) for c in orbit]
+    dist = np.linalg.norm(orbit[0].center - scene.means.mean(0))  # roughly: the orbit's radius
+    size_px = typical_size(scene) * orbit[0].fx / dist
+    if m == 1.0:
+        assert len(views) == 3
+        assert size_px >= 0.5 * resolve_px or resolve_px == 0  # resolved (up to the robust centre's offset)
+    else:
+        assert len(views) == 6
+        for crop in views[3:]:
+            assert crop.width == crop.height == 64
+            assert crop.fx == pytest.approx(m * orbit[0].fx, rel=1e-9)
+        if m < MAX_MAGNIFICATION:
+            assert size_px * m >= 0.5 * resolve_px
+
+
+def test_crops_aim_at_the_scene_and_resolve_small_gaussians():
+    """A scene of Gaussians far smaller than a pixel of the orbit views gets crops whose centre
+    ray hits one of its Gaussians."""
+    from lghcc.encoder.gaussian_fit import crop_cameras, magnification
+
+    scene = random_gaussians(np.random.default_rng(1), 500)
+    scene.log_scales[:] = np.float32(np.log(1e-4))
+    m = magnification(scene, 64, 0.1)
+    assert m > 1
+    for cam in crop_cameras(scene, 4, 64, m):
+        uv, z = cam.project(scene.means.astype(np.float64))
+        hit = (np.abs(uv - 32) < 1e-6).all(axis=1) & (z > 0)
+        assert hit.any()
