@@ -39,6 +39,34 @@ class CostIO:
         self.chunk_log2 = chunk_log2
         self.seq = seq
 
+    shift = None  # (r_fast, r_slow): sequential two-speed integer estimator instead of counts
+    states: dict = {}
+
+    def _shift(self, ctx, table, values):
+        """Per decision: p1 (16-bit) of two estimators with warm-up p += (v*2^16 - p) // min(n+2, 2^r),
+        averaged; the state lives beside ``table`` (one per table)."""
+        key = id(table)
+        if key not in self.states:
+            size = table.shape[0]
+            self.states[key] = ([32768] * size, [32768] * size, [0] * size)
+        pf, ps, cnt = self.states[key]
+        rf, rs = self.shift
+        df, ds = 1 << rf, 1 << rs
+        total = 0.0
+        lg = np.log2
+        costs = []
+        for c, v in zip(ctx.tolist(), values.tolist()):
+            p = (pf[c] + ps[c]) >> 1
+            p = min(max(p, 64), 65536 - 64)
+            costs.append(p if v else 65536 - p)
+            n = cnt[c]
+            t = v << 16
+            pf[c] += (t - pf[c]) // min(n + 2, df)
+            ps[c] += (t - ps[c]) // min(n + 2, ds)
+            cnt[c] = n + 1
+        total = float(np.sum(16 - lg(np.array(costs, dtype=np.float64))))
+        self.bits[self.tag] += total
+
     def bounds(self, n: int) -> list[int]:
         if self.seq:
             return list(range(0, n + 1, 1)) if n < 64 else None
@@ -56,6 +84,9 @@ class CostIO:
         values = np.asarray(values, dtype=np.int64)
         n = ctx.size
         if n == 0:
+            return values
+        if self.shift is not None:
+            self._shift(ctx, table, values)
             return values
         b = self.bounds(n)
         if b is None:  # sequential updates: exact cumulative counts per context (no halving within)
@@ -157,7 +188,111 @@ def ctx_full6s(k, occ, feats, dens, nbr_count):
     return (axes * 128 + pat) * 7 + nbr_count, 512 * 128 * 7
 
 
+def child_level(k, occ_known, known, nb, exists):
+    """Per axis: inward (sibling k^bit) and outward (the face neighbour's child k^bit across the
+    face) child-level neighbours of child k: each 0 empty, 1 occupied, 2 unknown (not yet coded).
+    ``known`` = mask of the coded bits of every node (padded: index -1 reads 'known empty')."""
+    ins, outs = [], []
+    pk = np.append(known, 0xFF)
+    po = np.append(occ_known, 0)
+    me = np.arange(occ_known.size)
+    for a in range(3):
+        bit = G.AXIS_BIT[a]
+        j = k ^ bit
+        side = 1 if k & bit else 0
+        nbr = nb[2 * a + side]
+        for arr, idx in ((ins, me), (outs, nbr)):
+            kn = (pk[idx] >> j) & 1
+            arr.append(np.where(kn == 1, (po[idx] >> j) & 1, 2))
+    return ins, outs
+
+
+def ctx_cl_axes(k, occ, feats, dens, nbr_count, cl):
+    ins, outs = cl
+    axes = np.zeros_like(occ)
+    for i, o in zip(ins, outs):
+        axes = axes * 9 + i * 3 + o
+    before = G.POPCOUNT8[occ & ((1 << k) - 1)]
+    return axes * 4 + np.minimum(before, 3), 729 * 4
+
+
+def ctx_cl_count(k, occ, feats, dens, nbr_count, cl):
+    ins, outs = cl
+    vals = np.stack(ins + outs)
+    occn = (vals == 1).sum(axis=0)
+    unk = (vals == 2).sum(axis=0)
+    before = G.POPCOUNT8[occ & ((1 << k) - 1)]
+    return ((occn * 7 + unk) * 4 + np.minimum(before, 3)) * 4 + dens, 49 * 16
+
+
+def ctx_cl_mix(k, occ, feats, dens, nbr_count, cl):
+    """Outward states per axis (3^3), known-occupied inward count, before, dens."""
+    ins, outs = cl
+    o = (outs[0] * 3 + outs[1]) * 3 + outs[2]
+    iocc = sum((i == 1).astype(np.int64) for i in ins)
+    before = G.POPCOUNT8[occ & ((1 << k) - 1)]
+    return ((o * 4 + iocc) * 4 + np.minimum(before, 3)) * 4 + dens, 27 * 64
+
+
+def exists_offsets(q, depth):
+    """{offset (dx, dy, dz): bool [M]} for the 26 neighbour offsets, nodes q in Morton order."""
+    keys = G._morton21(q)
+    size = 1 << depth
+    out = {}
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            for dz in (-1, 0, 1):
+                if dx == dy == dz == 0:
+                    continue
+                nq = q + np.array([dx, dy, dz])
+                ok = np.all((nq >= 0) & (nq < size), axis=1)
+                kq = G._morton21(np.where(ok[:, None], nq, 0))
+                pos = np.minimum(np.searchsorted(keys, kq), keys.size - 1)
+                out[(dx, dy, dz)] = ok & (keys[pos] == kq)
+    return out
+
+
+def octant_count(k, ex):
+    """Occupied parent-level neighbours toward child k's corner (3 face, 3 edge, 1 corner): 0..7,
+    and the face/edge/corner split."""
+    sgn = [1 if k & G.AXIS_BIT[a] else -1 for a in range(3)]
+    face = edge = corner = 0
+    for mx in (0, 1):
+        for my in (0, 1):
+            for mz in (0, 1):
+                w = mx + my + mz
+                if w == 0:
+                    continue
+                e = ex[(mx * sgn[0], my * sgn[1], mz * sgn[2])].astype(np.int64)
+                if w == 1:
+                    face = face + e
+                elif w == 2:
+                    edge = edge + e
+                else:
+                    corner = corner + e
+    return face, edge, corner
+
+
+def ctx_oct(k, occ, feats, dens, nbr_count, oc):
+    face, edge, corner = oc
+    axes = np.zeros_like(occ)
+    for f in feats:
+        axes = axes * 3 + (f["s"] + f["o"] if f["c"] else f["em"])
+    before = G.POPCOUNT8[occ & ((1 << k) - 1)]
+    return ((axes * 4 + np.minimum(before, 3)) * 4 + edge) * 2 + corner, 27 * 4 * 4 * 2
+
+
+def ctx_oct2(k, occ, feats, dens, nbr_count, oc):
+    face, edge, corner = oc
+    axes = np.zeros_like(occ)
+    for f in feats:
+        axes = axes * 3 + (f["s"] + f["o"] if f["c"] else f["em"])
+    before = G.POPCOUNT8[occ & ((1 << k) - 1)]
+    return ((axes * 4 + np.minimum(before, 3)) * 4 + dens) * 8 + face + edge + corner, 432 * 8
+
+
 VARIANTS = {"base": ctx_base, "full6": ctx_full6, "full6s": ctx_full6s}
+CL_VARIANTS = {"cl_axes": ctx_cl_axes, "cl_count": ctx_cl_count, "cl_mix": ctx_cl_mix}
 
 
 class State(G._ContextState):
@@ -172,33 +307,62 @@ class State(G._ContextState):
 
 
 def code_occupancy(io, st, q, depth, remaining, bit_depth, occ_true, opt):
-    m = q.shape[0]
     for key, t in st.tabs.items():
         G.limit_counts(t, opt["level_limit"])
     nb = G._face_neighbours(q, depth)
     exists = (nb >= 0).astype(np.int64)
     nbr_count = exists.sum(axis=0)
     dens = G.DENS_BUCKET[nbr_count]
+    if opt["ctx"].startswith("oct"):
+        st.ex = exists_offsets(q, depth)
     splits = [remaining - 1 < d for d in bit_depth]
     valid = [k for k in range(8) if all(splits[a] or not (k & G.AXIS_BIT[a]) for a in range(3))]
     last = valid[-1]
-    padded = np.append(occ_true, 0)
-    fine_fn = VARIANTS[opt["ctx"]]
-    coarse_fn = VARIANTS.get(opt.get("coarse"))
-    for k in valid:
-        occ = occ_true & ((1 << k) - 1)
-        feats = pass_features(k, occ, padded, nb, exists)
-        ctx, nctx = fine_fn(k, occ, feats, dens, nbr_count)
-        vals = (occ_true >> k) & 1
-        sel = np.flatnonzero(G.POPCOUNT8[occ] > 0) if k == last else slice(None)
-        io.tag = f"occ d{depth}"
-        if coarse_fn is None:
-            io.binary(ctx[sel], st.tab(("f", k), nctx), vals[sel], limit=opt["limit"])
-        else:
-            cc, ncc = coarse_fn(k, occ, feats, dens, nbr_count)
-            io.binary(ctx[sel], st.tab(("f", k), nctx), vals[sel], cc[sel], st.tab(("c", k), ncc),
-                      opt["K"], limit=opt["limit"])
+    ncls = opt.get("classes", 1)
+    cls = (q.sum(axis=1) & 1) if ncls == 2 else np.zeros(q.shape[0], dtype=np.int64)
+    if ncls == 8:
+        cls = (q[:, 0] & 1) * 4 + (q[:, 1] & 1) * 2 + (q[:, 2] & 1)
+    known = np.zeros(q.shape[0], dtype=np.int64)
+    for c in range(ncls):
+        mine = np.flatnonzero(cls == c)
+        for k in valid:
+            known[mine] = (1 << k) - 1
+            _code_pass(io, st, k, k == last, mine, occ_true, known, nb, exists, dens, nbr_count, depth, opt)
+        known[mine] = 0xFF
     return occ_true, nbr_count
+
+
+def _code_pass(io, st, k, is_last, mine, occ_true, known, nb, exists, dens, nbr_count, depth, opt):
+    occ_known = occ_true & known
+    occ = occ_known[mine]
+    if opt["ctx"] in CL_VARIANTS:
+        ins, outs = child_level(k, occ_known, known, nb, exists)
+        cl = ([x[mine] for x in ins], [x[mine] for x in outs])
+        ctx, nctx = CL_VARIANTS[opt["ctx"]](k, occ, None, dens[mine], nbr_count[mine], cl)
+        cl_base = True
+    elif opt["ctx"] in ("oct", "oct2"):
+        padded = np.append(occ_known, 0)
+        feats = pass_features(k, occ, padded, nb[:, mine], exists[:, mine])
+        oc = [x[mine] for x in octant_count(k, st.ex)]
+        ctx, nctx = (ctx_oct if opt["ctx"] == "oct" else ctx_oct2)(k, occ, feats, dens[mine], nbr_count[mine], oc)
+        cl_base = False
+    else:
+        padded = np.append(occ_known, 0)
+        feats = pass_features(k, occ, padded, nb[:, mine], exists[:, mine])
+        ctx, nctx = VARIANTS[opt["ctx"]](k, occ, feats, dens[mine], nbr_count[mine])
+        cl_base = False
+    vals = (occ_true[mine] >> k) & 1
+    sel = np.flatnonzero(G.POPCOUNT8[occ] > 0) if is_last else slice(None)
+    io.tag = f"occ d{depth}"
+    if opt.get("coarse") is None:
+        io.binary(ctx[sel], st.tab(("f", k), nctx), vals[sel], limit=opt["limit"])
+        return
+    if cl_base:
+        padded = np.append(occ_known, 0)
+        feats = pass_features(k, occ, padded, nb[:, mine], exists[:, mine])
+    cc, ncc = VARIANTS[opt["coarse"]](k, occ, feats, dens[mine], nbr_count[mine])
+    io.binary(ctx[sel], st.tab(("f", k), nctx), vals[sel], cc[sel], st.tab(("c", k), ncc),
+              opt["K"], limit=opt["limit"])
 
 
 def run_octree(pts_in, opt, idcm_mode=G.IDCM_ISOLATED):
@@ -208,6 +372,9 @@ def run_octree(pts_in, opt, idcm_mode=G.IDCM_ISOLATED):
     bit_depth = G._bit_depths(off)
     pts = off[G._morton_perm(off, max(bit_depth))]
     io = CostIO(chunk_log2=opt.get("chunk_log2", G.CHUNK_LOG2), seq=opt.get("seq", False))
+    if opt.get("rf"):
+        io.shift = (opt["rf"], opt["rs"])
+        io.states = {}
     st = State()
     nodes = G._NodeState.root()
     dmax = max(bit_depth)
@@ -268,6 +435,7 @@ def parse_variant(spec: str) -> dict:
     for kv in spec.split(","):
         k, v = kv.split("=")
         opt[k] = v if k in ("ctx", "coarse") else int(v)
+    opt.setdefault("K", 4)
     return opt
 
 
