@@ -42,7 +42,7 @@ class CostIO:
     shift = None  # (r_fast, r_slow): sequential two-speed integer estimator instead of counts
     states: dict = {}
 
-    def _shift(self, ctx, table, values):
+    def _shift(self, ctx, table, values, coarse=None, ctable=None, n0=4):
         """Per decision: p1 (16-bit) of two estimators with warm-up p += (v*2^16 - p) // min(n+2, 2^r),
         averaged; the state lives beside ``table`` (one per table)."""
         key = id(table)
@@ -50,12 +50,27 @@ class CostIO:
             size = table.shape[0]
             self.states[key] = ([32768] * size, [32768] * size, [0] * size)
         pf, ps, cnt = self.states[key]
+        if coarse is not None:
+            ckey = id(ctable)
+            if ckey not in self.states:
+                size = ctable.shape[0]
+                self.states[ckey] = ([32768] * size, [32768] * size, [0] * size)
+            cpf, cps, ccnt = self.states[ckey]
+            coarse = coarse.tolist()
         rf, rs = self.shift
         df, ds = 1 << rf, 1 << rs
         total = 0.0
         lg = np.log2
         costs = []
-        for c, v in zip(ctx.tolist(), values.tolist()):
+        for i, (c, v) in enumerate(zip(ctx.tolist(), values.tolist())):
+            if coarse is not None:
+                cc = coarse[i]
+                if cnt[c] == 0 and ccnt[cc] > 0:  # a new fine context starts from its coarse one
+                    pf[c], ps[c], cnt[c] = cpf[cc], cps[cc], min(ccnt[cc], n0)
+                t = v << 16
+                cpf[cc] += (t - cpf[cc]) // min(ccnt[cc] + 2, 1 << rf)
+                cps[cc] += (t - cps[cc]) // min(ccnt[cc] + 2, 1 << rs)
+                ccnt[cc] += 1
             p = (pf[c] + ps[c]) >> 1
             p = min(max(p, 64), 65536 - 64)
             costs.append(p if v else 65536 - p)
@@ -86,7 +101,7 @@ class CostIO:
         if n == 0:
             return values
         if self.shift is not None:
-            self._shift(ctx, table, values)
+            self._shift(ctx, table, values, coarse, ctable, K or 4)
             return values
         b = self.bounds(n)
         if b is None:  # sequential updates: exact cumulative counts per context (no halving within)
@@ -292,7 +307,13 @@ def ctx_oct2(k, occ, feats, dens, nbr_count, oc):
 
 
 VARIANTS = {"base": ctx_base, "full6": ctx_full6, "full6s": ctx_full6s}
-CL_VARIANTS = {"cl_axes": ctx_cl_axes, "cl_count": ctx_cl_count, "cl_mix": ctx_cl_mix}
+def ctx_cl_oct(k, occ, feats, dens, nbr_count, cl, oc):
+    c, n = ctx_cl_axes(k, occ, feats, dens, nbr_count, cl)
+    face, edge, corner = oc
+    return (c * 4 + edge) * 2 + corner, n * 8
+
+
+CL_VARIANTS = {"cl_axes": ctx_cl_axes, "cl_count": ctx_cl_count, "cl_mix": ctx_cl_mix, "cl_oct": None}
 
 
 class State(G._ContextState):
@@ -313,7 +334,7 @@ def code_occupancy(io, st, q, depth, remaining, bit_depth, occ_true, opt):
     exists = (nb >= 0).astype(np.int64)
     nbr_count = exists.sum(axis=0)
     dens = G.DENS_BUCKET[nbr_count]
-    if opt["ctx"].startswith("oct"):
+    if "oct" in opt["ctx"]:
         st.ex = exists_offsets(q, depth)
     splits = [remaining - 1 < d for d in bit_depth]
     valid = [k for k in range(8) if all(splits[a] or not (k & G.AXIS_BIT[a]) for a in range(3))]
@@ -338,7 +359,11 @@ def _code_pass(io, st, k, is_last, mine, occ_true, known, nb, exists, dens, nbr_
     if opt["ctx"] in CL_VARIANTS:
         ins, outs = child_level(k, occ_known, known, nb, exists)
         cl = ([x[mine] for x in ins], [x[mine] for x in outs])
-        ctx, nctx = CL_VARIANTS[opt["ctx"]](k, occ, None, dens[mine], nbr_count[mine], cl)
+        if opt["ctx"] == "cl_oct":
+            oc = [x[mine] for x in octant_count(k, st.ex)]
+            ctx, nctx = ctx_cl_oct(k, occ, None, dens[mine], nbr_count[mine], cl, oc)
+        else:
+            ctx, nctx = CL_VARIANTS[opt["ctx"]](k, occ, None, dens[mine], nbr_count[mine], cl)
         cl_base = True
     elif opt["ctx"] in ("oct", "oct2"):
         padded = np.append(occ_known, 0)
@@ -453,7 +478,8 @@ def main(argv=None) -> int:
         g = gpcc_cached(key, coords, cache)
         cells = []
         for v in args.variants:
-            bits = run_octree(coords, parse_variant(v))
+            o = parse_variant(v)
+            bits = run_octree(coords, o, o.get("idcm", G.IDCM_ISOLATED))
             bpv = (sum(bits.values()) + 8 * 16) / n  # + header and coder flush, about 16 bytes
             cells.append(f"{bpv:7.3f} ({bpv / g:5.3f}x)" if g else f"{bpv:7.3f}")
             if args.detail:
