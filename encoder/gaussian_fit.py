@@ -380,11 +380,12 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
     contrib_res = round(cfg.fit_resolution * magnification(scene, cfg.fit_resolution, cfg.resolve_px))
     extra = list(cameras or [])
     g = gaussians_from_scene(scene)
-    contrib = measure_contributions(g, fit_cameras(scene, cfg.fit_views, contrib_res) + extra, progress)
+    contrib_cams = fit_cameras(scene, cfg.fit_views, contrib_res) + extra
+    contrib = measure_contributions(g, contrib_cams, progress)
     cams = resolving_views(scene, cfg.fit_views, cfg.fit_resolution, cfg.resolve_px) + extra
     stats.time_contributions_s = time.perf_counter() - t0
     cfg = search_for_settings(scene, contrib, cfg, stats, say)
-    grid, weights = pruned_on_grid(scene, contrib, cfg, stats, len(cams), say)
+    grid, weights = pruned_on_grid(scene, contrib, cfg, stats, len(contrib_cams), say)
     if cfg.fit_iterations == 0:
         stats.time_total_s = time.perf_counter() - t0
         return PreparedGaussians(grid, weights, cfg, stats)
