@@ -280,6 +280,8 @@ def _hand_ggconv(units, spec: dict):
             o = override[a.name]
             v = np.full(o["shape"], o.get("fill", 0), np.int64) if isinstance(o, dict) else np.array([int(o)])
             bits = max(bits, int(v.max()).bit_length() if v.size else 1, 1)
+            if isinstance(o, dict) and "bits" in o:  # a declared width of its own (e.g. beyond the model's)
+                bits = int(o["bits"])
         arrays.append(NamedIntArray(a.name, v, bits, a.signed))
     unit = write_context_model_unit(CONTEXT_GGCONV, arrays, n_feat, n_head)
     h = AttributeUnitHeader(num_channels=m, num_offsets=sps.num_offsets, offset_mask_present=h2.offset_mask_present,
@@ -459,6 +461,13 @@ def post_process(data: bytes, post: dict) -> bytes:
     if "append_to_unit" in post:  # trailing bytes inside a payload (with a valid CRC)
         p = post["append_to_unit"]
         units[p["index"]] = DataUnit(units[p["index"]].unit_type, units[p["index"]].payload + bytes.fromhex(p["hex"]))
+    if "prepend_to_unit" in post:  # bytes before a payload's first element (with a valid CRC)
+        p = post["prepend_to_unit"]
+        units[p["index"]] = DataUnit(units[p["index"]].unit_type, bytes.fromhex(p["hex"]) + units[p["index"]].payload)
+    if "truncate_unit" in post:  # the last bytes of a payload dropped (with a valid CRC): a truncated structure
+        p = post["truncate_unit"]
+        payload = units[p["index"]].payload
+        units[p["index"]] = DataUnit(units[p["index"]].unit_type, payload[:len(payload) - int(p["bytes"])])
     if post.get("corrupt_hash"):
         i = _unit_index(units, UnitType.DECODED_SCENE_HASH)
         payload = bytearray(units[i].payload)
@@ -478,6 +487,10 @@ def post_process(data: bytes, post: dict) -> bytes:
         out = bytes(b)
     if "truncate" in post:  # drop this many bytes from the end
         out = out[:len(out) - int(post["truncate"])]
+    if "keep_bytes" in post:  # only the first bytes of the stream
+        out = out[:int(post["keep_bytes"])]
+    if "append_bytes" in post:  # bytes after the last data unit (not a whole unit)
+        out = out + bytes.fromhex(post["append_bytes"])
     return out
 
 

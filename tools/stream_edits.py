@@ -118,6 +118,7 @@ def edit_chunk(units, spec: dict) -> None:
     """Damage one symbol chunk of the single attribute unit, chunk sizes kept consistent:
     {chunk: i, append_hex: '...'} (trailing bytes), or {chunk: i, failing_words: seed} (words found by
     a seeded search on which range decoding fails, q >= 2^24 in clause 10.6.4), or
+    {chunk: i, failing_mask_words: seed} (the same for mask chunk i), or
     {chunk: i, escape_beyond_limit: true} (one escaped residual of magnitude 2^62 + L, clause 10.5)."""
     from lghcc.common.entropy import symbol_coder
     from lghcc.common.entropy.range_coder import RangeEncoder
@@ -146,6 +147,12 @@ def edit_chunk(units, spec: dict) -> None:
                     break
         else:
             raise ValueError("no failing words found")
+    elif "failing_mask_words" in spec:  # the mask chunk i instead of the symbol chunk
+        if not h.offset_mask_present:
+            raise ValueError("failing_mask_words needs offset masks")
+        models = attr.mask_models(h.mask_live_prob)
+        pieces[2 * i] = _failing_words(int(spec["failing_mask_words"]),
+                                       lambda words: attr.decode_mask_chunk(words, rows, models, "mask chunk"))
     elif spec.get("escape_beyond_limit"):
         if sps.offset_mask_present_flag or len(set(h.prior_level)) != 1:
             raise ValueError("escape_beyond_limit needs one prior level and no offset masks")
@@ -160,6 +167,44 @@ def edit_chunk(units, spec: dict) -> None:
         enc.encode_bits(np.array([(1 << 61) - 1], np.uint64), 61)  # m = 2^62 - 1: |r| = L + 2^62 > 2^62 - 1
         pieces[k] = enc.to_bytes()
     _reframe(units, j, h, pieces)
+
+
+def _failing_words(seed: int, decode) -> bytes:
+    """1 to 3 words, found by a search seeded with ``seed``, on which ``decode(words)`` (a range
+    decoding) fails with q >= 2^24 (clause 10.6.4): "range decoding failed"."""
+    from lghcc.common.errors import BitstreamError
+
+    rng = np.random.default_rng(seed)
+    for _ in range(200000):
+        words = rng.integers(0, 256, size=4 * int(rng.integers(1, 4)), dtype=np.uint8).tobytes()
+        try:
+            decode(words)
+        except BitstreamError as e:
+            if "range decoding failed" in str(e):
+                return words
+    raise ValueError("no failing words found")
+
+
+def nonzero_alignment(units, spec: dict) -> None:
+    """{unit: attribute}: the last alignment bit of the (single, level-0) attribute unit's header
+    set to 1 (clause 6.4: byte_alignment() bits are zero); the header must end unaligned."""
+    from lghcc.common.errors import BitstreamError
+
+    if spec.get("unit", "attribute") != "attribute":
+        raise ValueError("nonzero_alignment: only the attribute unit")
+    sps = _sps(units)
+    j = _index(units, UnitType.ATTRIBUTE)
+    _, off = _parse_attribute(units[j].payload, sps, sps.num_anchors)
+    payload = bytearray(units[j].payload)
+    payload[off - 1] |= 1
+    try:
+        _parse_attribute(bytes(payload), sps, sps.num_anchors)
+    except BitstreamError as e:
+        if "alignment" not in str(e):
+            raise
+    else:
+        raise ValueError("the attribute unit header ends byte-aligned: no alignment bit to set")
+    units[j] = DataUnit(units[j].unit_type, bytes(payload))
 
 
 def recode_attribute_header(units, spec: dict) -> None:
@@ -276,8 +321,11 @@ def geometry_edit(units, spec: dict) -> None:
 
 def context_unit(units, spec: dict) -> None:
     """Replace the context-model unit's arrays: {array: name, values: [...], bits: b} (values
-    outside the width), or {oversized: true} (arrays of more than 2^24 values in all, coded data
-    empty), or {num_features_delta: d} (a model for another channel layout)."""
+    outside the width; or {array: name, shape: [...], fill: v, bits: b}: another shape, or only
+    another width with neither values nor shape), or {oversized: true} (arrays of more than 2^24
+    values in all, coded data empty), or {num_features_delta: d} (a model for another channel
+    layout); or the arrays kept and the coded data damaged: {failing_words: seed} (words on which
+    range decoding fails), {coded_size_delta: d} (coded_size beyond the payload)."""
     from lghcc.common.context.model_unit import (ContextModelUnit, IntArrayHeader, NamedIntArray,
                                                  read_context_model_unit, write_context_model_unit)
 
@@ -286,6 +334,17 @@ def context_unit(units, spec: dict) -> None:
     unit = ContextModelUnit.from_bytes(units[j].payload)
     feat = unit.feat_num_layers_minus1 + 1 if model_id == 2 else 0
     head = unit.head_num_layers_minus1 + 1
+    if "failing_words" in spec or "coded_size_delta" in spec:  # the arrays kept, the coded data damaged
+        from lghcc.common.entropy.symbol_coder import decode_symbols
+
+        if "failing_words" in spec:
+            levels = np.concatenate([np.full(int(np.prod(a.shape, dtype=np.int64)), a.array_level, np.int64)
+                                     for a in unit.arrays])
+            unit.coded_data = _failing_words(int(spec["failing_words"]), lambda w: decode_symbols(w, levels))
+            unit.coded_size = len(unit.coded_data)
+        unit.coded_size += int(spec.get("coded_size_delta", 0))  # beyond the payload: a truncation
+        units[j] = DataUnit(UnitType.CONTEXT_MODEL, unit.to_bytes())
+        return
     if spec.get("oversized"):
         unit.arrays = [IntArrayHeader(array_ndim=4, array_dim_minus1=[256, 256, 256, 0], array_bits_minus1=15,
                                       array_signed_flag=1) if a.array_ndim == 4 else a for a in unit.arrays]
@@ -296,7 +355,10 @@ def context_unit(units, spec: dict) -> None:
     for a in arrays:
         v, bits = np.asarray(a.values), a.bits
         if a.name == spec.get("array"):
-            v = np.asarray(spec["values"], np.int64).reshape(v.shape)
+            if "values" in spec:
+                v = np.asarray(spec["values"], np.int64).reshape(v.shape)
+            elif "shape" in spec:  # another shape, every value ``fill``
+                v = np.full(spec["shape"], int(spec.get("fill", 0)), np.int64)
             bits = int(spec.get("bits", bits))
         if a.name == "num_features" and "num_features_delta" in spec:
             v = v + int(spec["num_features_delta"])
@@ -307,7 +369,8 @@ def context_unit(units, spec: dict) -> None:
 def render_unit(units, spec: dict) -> None:
     """Replace the render-model unit: {weight_2_24: true} (one weight integer of magnitude 2^24),
     {duplicate_role: true} (the first MLP twice), {oversized: true} (two 4096 x 4096 layers: more
-    than 2^24 parameters, coded data empty)."""
+    than 2^24 parameters, coded data empty), {failing_words: seed} (coded data on which range
+    decoding fails, q >= 2^24), {coded_size_delta: d} (coded_size beyond the payload)."""
     from lghcc.common.entropy.symbol_coder import encode_symbols
     from lghcc.common.units import RenderMlpHeader, RenderModelUnit
 
@@ -331,6 +394,14 @@ def render_unit(units, spec: dict) -> None:
         data = encode_symbols(np.concatenate([q, q[:first_levels.size]]), np.concatenate([all_levels, first_levels]))
         unit = RenderModelUnit(num_mlps=unit.num_mlps + 1, mlps=list(unit.mlps) + [h], coded_size=len(data),
                                coded_data=data)
+    elif "failing_words" in spec:
+        from lghcc.common.entropy.symbol_coder import decode_symbols
+
+        levels = _all_levels(unit)
+        unit.coded_data = _failing_words(int(spec["failing_words"]), lambda w: decode_symbols(w, levels))
+        unit.coded_size = len(unit.coded_data)
+    elif "coded_size_delta" in spec:  # coded_size beyond the payload: a truncation
+        unit.coded_size += int(spec["coded_size_delta"])
     elif spec.get("weight_2_24"):
         from lghcc.common.entropy.symbol_coder import decode_symbols
 
@@ -505,3 +576,5 @@ def apply_edits(units, post: dict) -> None:
         render_unit(units, post["render_unit"])
     if "set_elements" in post:
         set_elements(units, post["set_elements"])
+    if "nonzero_alignment" in post:
+        nonzero_alignment(units, post["nonzero_alignment"])
