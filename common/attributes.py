@@ -307,6 +307,7 @@ def decode_mask_chunk(data: bytes, rows: int, models, what: str) -> np.ndarray:
     mask = np.zeros((rows, len(models)), dtype=bool)
     for k, model in enumerate(models):
         mask[:, k] = dec.decode(rows, model).astype(bool)
+    dec.check_exhausted()  # clause 10.6.5: words left over are a corrupt chunk, as in a symbol chunk
     return mask
 
 

@@ -330,6 +330,8 @@ MUTATIONS: list[Mutation] = [
        "k = dec.decode(ne, _class_model())\n            neg = dec.decode_bits(1, ne).astype(bool)")),
     M("entropy.no_exhaustion_check", "entropy", f"{SYMBOL}:decode_symbols",
       "a chunk with words left over is accepted (clause 10.6.5)", ("    dec.check_exhausted()\n", "    pass\n")),
+    M("entropy.no_mask_exhaustion_check", "entropy", f"{ATTR}:decode_mask_chunk",
+      "a mask chunk with words left over is accepted (clause 10.6.5)", ("    dec.check_exhausted()", "    pass")),
     M("entropy.levels_descending", "entropy", f"{SYMBOL}:decode_symbols",
       "level groups decoded from level 63 down",
       ("for i in np.flatnonzero(counts):", "for i in np.flatnonzero(counts)[::-1]:")),

@@ -119,6 +119,7 @@ def edit_chunk(units, spec: dict) -> None:
     {chunk: i, append_hex: '...'} (trailing bytes), or {chunk: i, failing_words: seed} (words found by
     a seeded search on which range decoding fails, q >= 2^24 in clause 10.6.4), or
     {chunk: i, failing_mask_words: seed} (the same for mask chunk i), or
+    {chunk: i, append_mask_hex: '...'} (trailing bytes after mask chunk i), or
     {chunk: i, escape_beyond_limit: true} (one escaped residual of magnitude 2^62 + L, clause 10.5)."""
     from lghcc.common.entropy import symbol_coder
     from lghcc.common.entropy.range_coder import RangeEncoder
@@ -135,6 +136,10 @@ def edit_chunk(units, spec: dict) -> None:
     levels = np.broadcast_to(np.asarray(h.prior_level, np.int64), (rows, m))
     if "append_hex" in spec:
         pieces[k] = pieces[k] + bytes.fromhex(spec["append_hex"])
+    elif "append_mask_hex" in spec:
+        if not h.offset_mask_present:
+            raise ValueError("append_mask_hex needs offset masks")
+        pieces[2 * i] = pieces[2 * i] + bytes.fromhex(spec["append_mask_hex"])
     elif "failing_words" in spec:
         rng = np.random.default_rng(int(spec["failing_words"]))
         for _ in range(200000):
