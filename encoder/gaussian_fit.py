@@ -90,29 +90,39 @@ def _orbit_distance(radius: float, fov_deg: float) -> float:
     return radius / math.sin(math.radians(fov_deg) / 2) * 1.05
 
 
+def _sphere_camera(centre: np.ndarray, dist: float, direction: np.ndarray, aim: np.ndarray, resolution: int,
+                   fov_deg: float, name: str) -> Camera:
+    """A camera at ``dist`` from ``centre`` along ``direction``, looking at ``aim``."""
+    up = (0.0, 0.0, 1.0) if abs(direction[2]) < 0.99 else (0.0, 1.0, 0.0)
+    return Camera.look_at(centre + dist * direction, aim, up=up, width=resolution, height=resolution,
+                          fov_x_deg=fov_deg, near=dist * 1e-3, far=dist * 10, name=name)
+
+
 def fit_cameras(scene: GaussianScene, n: int, resolution: int, fov_deg: float = 50.0) -> list[Camera]:
     """n cameras on a sphere around the scene's robust bounds, each seeing the whole bounding sphere."""
     centre, radius, _ = _robust_bounds(scene)
     dist = _orbit_distance(radius, fov_deg)
-    cams = []
-    for j, d in enumerate(fibonacci_sphere(n)):
-        up = (0.0, 0.0, 1.0) if abs(d[2]) < 0.99 else (0.0, 1.0, 0.0)
-        cams.append(Camera.look_at(centre + dist * d, centre, up=up, width=resolution, height=resolution,
-                                   fov_x_deg=fov_deg, near=dist * 1e-3, far=dist * 10, name=f"fit_{j:03d}"))
-    return cams
+    return [_sphere_camera(centre, dist, d, centre, resolution, fov_deg, f"fit_{j:03d}")
+            for j, d in enumerate(fibonacci_sphere(n))]
 
 
 # The most the views are magnified (module doc, "views that resolve the Gaussians").
 MAX_MAGNIFICATION = 8.0
 
 
+def typical_size_px(scene: GaussianScene, resolution: int, fov_deg: float = 50.0) -> float:
+    """The size in pixels of the scene's typical Gaussian (the median of exp(mean log scale)) in
+    ``fit_cameras(scene, n, resolution)`` at the scene's centre."""
+    _, radius, _ = _robust_bounds(scene)
+    focal_px = 0.5 * resolution / math.tan(math.radians(fov_deg) / 2)
+    return typical_size(scene) * focal_px / _orbit_distance(radius, fov_deg)
+
+
 def magnification(scene: GaussianScene, resolution: int, resolve_px: float, fov_deg: float = 50.0) -> float:
     """How much finer than ``fit_cameras(scene, n, resolution)`` the views must sample the scene
-    for its typical Gaussian (the median of exp(mean log scale)) to span ``resolve_px`` pixels:
-    1 when it already does, at most MAX_MAGNIFICATION."""
-    centre, radius, _ = _robust_bounds(scene)
-    focal_px = 0.5 * resolution / math.tan(math.radians(fov_deg) / 2)
-    size_px = typical_size(scene) * focal_px / _orbit_distance(radius, fov_deg)
+    for its typical Gaussian to span ``resolve_px`` pixels: 1 when it already does, at most
+    MAX_MAGNIFICATION."""
+    size_px = typical_size_px(scene, resolution, fov_deg)
     if not (size_px > 0 and math.isfinite(size_px)) or resolve_px <= 0:
         return 1.0
     return float(min(max(resolve_px / size_px, 1.0), MAX_MAGNIFICATION))
@@ -127,12 +137,8 @@ def crop_cameras(scene: GaussianScene, n: int, resolution: int, magnification: f
     dist = _orbit_distance(radius, fov_deg)
     crop_fov = 2 * math.degrees(math.atan(math.tan(math.radians(fov_deg) / 2) / magnification))
     aims = opaque[np.random.default_rng(seed).integers(0, opaque.shape[0], n)]
-    cams = []
-    for j, (d, aim) in enumerate(zip(fibonacci_sphere(n, offset=0.25), aims)):
-        up = (0.0, 0.0, 1.0) if abs(d[2]) < 0.99 else (0.0, 1.0, 0.0)
-        cams.append(Camera.look_at(centre + dist * d, aim, up=up, width=resolution, height=resolution,
-                                   fov_x_deg=crop_fov, near=dist * 1e-3, far=dist * 10, name=f"crop_{j:03d}"))
-    return cams
+    return [_sphere_camera(centre, dist, d, aim, resolution, crop_fov, f"crop_{j:03d}")
+            for j, (d, aim) in enumerate(zip(fibonacci_sphere(n, offset=0.25), aims))]
 
 
 def resolving_views(scene: GaussianScene, n: int, resolution: int, resolve_px: float) -> list[Camera]:

@@ -272,30 +272,32 @@ def test_search_meets_the_psnr_asked_for_with_fewer_bits_than_a_finer_setting(ta
 @given(log_size=st.floats(-30, 5), n=st.integers(1, 60), resolve_px=st.floats(0.0, 2.0), seed=st.integers(0, 99))
 def test_views_are_magnified_until_the_typical_gaussian_spans_resolve_px(log_size, n, resolve_px, seed):
     """resolving_views: the orbit views alone when they resolve the typical Gaussian; otherwise as
-    many crops besides, m times narrower (m capped at MAX_MAGNIFICATION), aimed at the scene."""
-    from lghcc.encoder.gaussian_fit import MAX_MAGNIFICATION, fit_cameras, magnification, resolving_views
-    from lghcc.encoder.gaussians import typical_size
+    many crops besides, m = resolve_px / size times narrower (m capped at MAX_MAGNIFICATION)."""
+    from lghcc.encoder.gaussian_fit import (MAX_MAGNIFICATION, fit_cameras, magnification, resolving_views,
+                                            typical_size_px)
 
     rng = np.random.default_rng(seed)
     scene = random_gaussians(rng, n)
     scene.log_scales[:] = np.float32(log_size)
+    size_px = typical_size_px(scene, 64)
+    # the size in pixels follows the Gaussians' size and the resolution
+    bigger = GaussianScene(scene.means, scene.sh, scene.opacity, scene.log_scales + np.float32(np.log(2)),
+                           scene.rotations)
+    assert typical_size_px(bigger, 64) == pytest.approx(2 * size_px, rel=1e-5)
+    assert typical_size_px(scene, 128) == pytest.approx(2 * size_px, rel=1e-9)
     m = magnification(scene, 64, resolve_px)
     assert 1.0 <= m <= MAX_MAGNIFICATION and np.isfinite(m)
+    resolved = resolve_px == 0 or size_px >= resolve_px
+    assert (m == 1.0) == resolved
+    if not resolved and m < MAX_MAGNIFICATION:
+        assert size_px * m == pytest.approx(resolve_px, rel=1e-9)
     orbit = fit_cameras(scene, 3, 64)
     views = resolving_views(scene, 3, 64, resolve_px)
     assert [(c.name, c.fx, c.center.tolist()) for c in views[:3]] == [(c.name, c.fx, c.center.tolist()) for c in orbit]
-    dist = np.linalg.norm(orbit[0].center - scene.means.mean(0))  # roughly: the orbit's radius
-    size_px = typical_size(scene) * orbit[0].fx / dist
-    if m == 1.0:
-        assert len(views) == 3
-        assert size_px >= 0.5 * resolve_px or resolve_px == 0  # resolved (up to the robust centre's offset)
-    else:
-        assert len(views) == 6
-        for crop in views[3:]:
-            assert crop.width == crop.height == 64
-            assert crop.fx == pytest.approx(m * orbit[0].fx, rel=1e-9)
-        if m < MAX_MAGNIFICATION:
-            assert size_px * m >= 0.5 * resolve_px
+    assert len(views) == (3 if resolved else 6)
+    for crop in views[3:]:
+        assert crop.width == crop.height == 64
+        assert crop.fx == pytest.approx(m * orbit[0].fx, rel=1e-9)
 
 
 def test_crops_aim_at_the_scene_and_resolve_small_gaussians():

@@ -288,22 +288,22 @@ def octant_count(k, ex):
     return face, edge, corner
 
 
-def ctx_oct(k, occ, feats, dens, nbr_count, oc):
-    face, edge, corner = oc
+def _axes_and_before(k, occ, feats):
+    """(the three axes' face-neighbour classes, children coded before child k, capped at 3) as one index."""
     axes = np.zeros_like(occ)
     for f in feats:
         axes = axes * 3 + (f["s"] + f["o"] if f["c"] else f["em"])
-    before = G.POPCOUNT8[occ & ((1 << k) - 1)]
-    return ((axes * 4 + np.minimum(before, 3)) * 4 + edge) * 2 + corner, 27 * 4 * 4 * 2
+    return axes * 4 + np.minimum(G.POPCOUNT8[occ & ((1 << k) - 1)], 3)
+
+
+def ctx_oct(k, occ, feats, dens, nbr_count, oc):
+    face, edge, corner = oc
+    return (_axes_and_before(k, occ, feats) * 4 + edge) * 2 + corner, 27 * 4 * 4 * 2
 
 
 def ctx_oct2(k, occ, feats, dens, nbr_count, oc):
     face, edge, corner = oc
-    axes = np.zeros_like(occ)
-    for f in feats:
-        axes = axes * 3 + (f["s"] + f["o"] if f["c"] else f["em"])
-    before = G.POPCOUNT8[occ & ((1 << k) - 1)]
-    return ((axes * 4 + np.minimum(before, 3)) * 4 + dens) * 8 + face + edge + corner, 432 * 8
+    return (_axes_and_before(k, occ, feats) * 4 + dens) * 8 + face + edge + corner, 432 * 8
 
 
 VARIANTS = {"base": ctx_base, "full6": ctx_full6, "full6s": ctx_full6s}

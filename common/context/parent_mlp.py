@@ -61,12 +61,12 @@ class ParentMlpParams:
         by = {a.name: a for a in arrays}
         if len(by) != len(arrays) or "num_features" not in by or "parent_base" not in by:
             raise ValueError("malformed parent-MLP parameters")
+        n = (len(arrays) - 2) // 3
         # scalars (spec 7.3.8): array_ndim 0, or one dimension of 1, as GG-Conv's (ggconv.py from_arrays)
-        for name in ["num_features"] + [f"head.{l}.shift" for l in range((len(arrays) - 2) // 3)]:
+        for name in ["num_features"] + [f"head.{l}.shift" for l in range(n)]:
             if name in by and np.shape(by[name].values) not in ((), (1,)):
                 raise ValueError(f"parameter {name!r} must be a scalar")
         layers = []
-        n = (len(arrays) - 2) // 3
         for l in range(n):
             w, b, s = by[f"head.{l}.weight"], by[f"head.{l}.bias"], by[f"head.{l}.shift"]
             if w.bits not in WEIGHT_BITS_ALLOWED or np.asarray(s.values).size != 1:
