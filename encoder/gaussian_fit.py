@@ -26,15 +26,16 @@ Views that resolve the Gaussians: the orbit views see the whole scene at ``fit_r
 (``search_resolution`` for the search) pixels. On a scene of many small Gaussians (the 307k
 PlayCanvas logo: its typical Gaussian spans 0.05 px at 128 px) such views are blind to what
 the Gaussians hold, because 3DGS rendering dilates each one to at least 0.3 px^2 and the dilated
-blobs hide one another: pruning 56% of the logo's Gaussians changed 128 px renders by 62 dB PSNR
-but 320 px renders by 28 dB. So where the typical Gaussian (median of exp(mean log scale)) spans
+blobs hide one another: with 56% of the logo's Gaussians pruned, 128 px renders stay at 62 dB
+PSNR against the source, 320 px renders drop to 28 dB. So where the typical Gaussian (median of exp(mean log scale)) spans
 fewer than ``resolve_px`` pixels in the orbit views, they are magnified by
 m = resolve_px / size (at most 8): the contributions come from whole orbit views at m times the
 resolution, and the fit and the search render as many crops besides the orbit views (field of
 view m times narrower, aimed at Gaussians drawn at random, same pixel count). The default 0.1 px
 leaves every scene whose orbit views already resolve it as it was (donut 0.21 px, playbot 0.12 to
-0.21 px at 128 px); on the logo, 128 px crops at m = 2 changed by pruning as 320 px renders did
-(29.2 against 28.4 dB, 26.0 against 25.9 dB).
+0.21 px at 128 px; there the 128 px views stay within 0.7 to 3.7 dB of 320 px ones under pruning);
+on the logo, 128 px crops at m = 2.09 follow 320 px renders (31.3 against 28.4 dB, 27.8 against
+25.9, 23.7 against 23.0). Measured by tools/bench_resolve.py: tools/results/resolve.md.
 """
 
 from __future__ import annotations
