@@ -22,6 +22,10 @@ class AttributeCodingConfig:
     rows_per_chunk: int = 65536
     # Rows sampled when choosing each channel's prior (informative speed/accuracy knob).
     prior_fit_rows: int = 50000
+    # Tiles (format version 1): the smallest tile side (a power of two of coarse voxels) whose
+    # occupied tiles hold at least this many points on average; 0: no tiles. A scene that fits one
+    # tile has none (the tool costs it no bits). Cost and decode speed: tools/results/tiles.md.
+    tile_points: int = 32768
     # Two-level hierarchy: level 1 = one anchor per coarse voxel of this many voxels per side.
     hierarchy: bool = False
     coarse_voxel_scale: int = 4
@@ -74,6 +78,8 @@ class AttributeCodingConfig:
                 raise InputError(f"{name} must be >= 0")
         if self.prior_fit_rows < 1:
             raise InputError("prior_fit_rows must be at least 1")
+        if self.tile_points < 0:
+            raise InputError(f"tile_points must be >= 0 (0: no tiles), got {self.tile_points}")
         return self
 
 
