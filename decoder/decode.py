@@ -62,6 +62,9 @@ class DecodeResult:
     # the source_info unit (clause 7.3.10), when the stream has one this decoder could parse
     source_info: SourceInfo | None = None
     notes: list[str] = field(default_factory=list)  # ancillary units reported and ignored, in words
+    num_tiles: int = 1  # tiles in the stream (1: a stream without tiles)
+    tiles_decoded: int = 1  # of them decoded (fewer with a box)
+    preview: bool = False  # only the level-1 points were decoded (max_level 1)
 
 
 _KNOWN_ANCILLARY = set(AncillaryUnitType._value2member_map_)
@@ -367,7 +370,8 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
         stream_hash = digest_of(scene)
     checked = verify_hash and all(p.hash_checked for p in parts)
     return DecodeResult(scene, breakdown_of(container, n, point), checked, stream_hash, skipped,
-                        entries, _stream_tools(ps, dec, context_model, point, len(tiles), parts), source_info, notes)
+                        entries, _stream_tools(ps, dec, context_model, point, len(tiles), parts), source_info, notes,
+                        len(tiles), len(selected), max_level == LEVEL_1 and bool(ps.hierarchy_enabled_flag))
 
 
 def _read_parameter_set(by_type: dict[int, list[DataUnit]], entries) -> tuple[SceneParameterSet | GaussianParameterSet,

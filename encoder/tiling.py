@@ -1,7 +1,7 @@
 """Tiles (informative: how the reference encoder cuts a scene; the format is common/tiles.py).
 
-The tile side is a power of two of coarse voxels (voxels without the hierarchy): the smallest
-whose occupied tiles hold ``tile_points`` points or more on average, so that the fixed cost of a
+The tile side is a power of two of coarse voxels (voxels without the hierarchy): the one whose
+occupied tiles hold nearest ``tile_points`` points on average, so that the fixed cost of a
 tile (its attribute unit headers with their priors, a hash unit, an index entry, a geometry
 octree restarted at the tile's box) stays a small share of its bytes. A scene that fits one
 tile is not tiled: the tool costs it no bits.
@@ -32,24 +32,28 @@ MAX_TILE_LOG2 = 40
 
 
 def choose_tile_scale(coords: np.ndarray, unit: int, tile_points: int) -> int:
-    """tile_scale_minus1 + 1 (tile side in units of ``unit`` voxels; 0: no tiles) for ``tile_points``
-    points per occupied tile on average (0: no tiles)."""
+    """tile_scale_minus1 + 1 (tile side in units of ``unit`` voxels; 0: no tiles): among the power-of-two
+    sides that give two tiles or more, the one whose mean points per occupied tile is nearest
+    ``tile_points`` (by ratio); none for a scene of fewer than 2 x tile_points points, or for
+    tile_points 0."""
     n = coords.shape[0]
     if tile_points <= 0 or n < 2 * tile_points:
         return 0
+    best, best_err = 0, np.inf
     for j in range(MAX_TILE_LOG2):
         scale = 1 << j
         if scale > MAX_TILE_SCALE:
-            return 0
+            break
         cells = tile_cells(coords, scale * unit)
         if np.abs(cells).max() > SE_MAX:
             continue
         occupied = np.unique(cells, axis=0).shape[0]
         if occupied == 1:
-            return 0
-        if n / occupied >= tile_points:
-            return scale
-    return 0
+            break
+        err = abs(np.log2(n / occupied / tile_points))
+        if err < best_err:
+            best, best_err = scale, err
+    return best
 
 
 @dataclass
