@@ -304,7 +304,7 @@ def replace_context_model(data: bytes, decoded, rng: random.Random) -> tuple[byt
     if UnitType.CONTEXT_MODEL in types:
         units[types.index(UnitType.CONTEXT_MODEL)] = DataUnit(UnitType.CONTEXT_MODEL, unit)
     else:
-        units.insert(a1, DataUnit(UnitType.CONTEXT_MODEL, unit))
+        units.insert(types.index(UnitType.GEOMETRY), DataUnit(UnitType.CONTEXT_MODEL, unit))
     all_values = layout.join(decoded.features, decoded.scalings, decoded.offsets)
     all_values[hier.level2_idx] = recon
     f, s, o = layout.split(all_values)

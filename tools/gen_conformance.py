@@ -297,14 +297,14 @@ def _hand_ggconv(units, spec: dict):
                                   offset_mask_present=h2.offset_mask_present, num_rows=hier.num_level2)
         h.mask_chunk_size, h.chunk_size = list(h2.mask_chunk_size), list(h2.chunk_size)
         units[a2] = DataUnit(UnitType.ATTRIBUTE, h.to_bytes() + units[a2].payload[r.bit_position // 8:])
-        units.insert(a1, DataUnit(UnitType.CONTEXT_MODEL, unit))
+        units.insert(_unit_index(units, UnitType.GEOMETRY), DataUnit(UnitType.CONTEXT_MODEL, unit))
         return
     model = read_context_model(unit, layout)
     params = level2_coding_params(model, coords[hier.level1_idx], q1, coords[hier.level2_idx], hier.parent_of_level2,
                                   sps.coarse_voxel_scale).materialize()
     assert params.step_adjust is None or not params.step_adjust.any()
     units[a2] = DataUnit(UnitType.ATTRIBUTE, attr.write_attribute_unit(h, layout, q2, mask2, params))
-    units.insert(a1, DataUnit(UnitType.CONTEXT_MODEL, unit))
+    units.insert(_unit_index(units, UnitType.GEOMETRY), DataUnit(UnitType.CONTEXT_MODEL, unit))
 
 
 def _rehash(data: bytes) -> bytes:
@@ -404,6 +404,29 @@ def _rewrite_gaussian_attributes(units, edit: dict):
                                                                       pred))
 
 
+def _edit_tile_index(units, edits: list[dict]) -> None:
+    from lghcc.common.container import DataUnit, UnitType
+    from lghcc.common.units import TileIndex
+
+    j = _unit_index(units, UnitType.TILE_INDEX)
+    index = TileIndex.parse(__import__("lghcc.common.bitio", fromlist=["BitReader"]).BitReader(units[j].payload),
+                            num_points=1 << 24)
+    for e in edits:
+        cur = getattr(index, e["name"])
+        if e.get("drop"):  # remove tile t's entry
+            del cur[e["t"]]
+        elif e.get("add_last"):  # tile t also counts the last tile's points (the count stays N)
+            cur[e["t"]] += cur[-1] + 1
+        elif "copy" in e:  # tile t's value is tile copy's
+            cur[e["t"]] = cur[e["copy"]]
+        elif "t" in e:
+            cur[e["t"]] = e["value"] if "value" in e else cur[e["t"]] + e["add"]
+        else:
+            setattr(index, e["name"], e["value"] if "value" in e else cur + e["add"])
+    index.num_points = 1 << 24
+    units[j] = DataUnit(UnitType.TILE_INDEX, index.to_bytes())
+
+
 def post_process(data: bytes, post: dict) -> bytes:
     """Edits applied to an encoded stream, in this order: unit edits (which keep valid CRCs),
     then the rehash, then raw byte edits (which may break the framing on purpose)."""
@@ -436,6 +459,8 @@ def post_process(data: bytes, post: dict) -> bytes:
         _set_render_mlp(units, post["set_render_mlp"])
     if "gaussian_attributes" in post:
         _rewrite_gaussian_attributes(units, post["gaussian_attributes"])
+    if "tile_index" in post:  # edit elements of the tile index: [{name, t (a tile, or none), value or add}]
+        _edit_tile_index(units, post["tile_index"])
     if "set_gps" in post:  # overwrite gaussian parameter set fields
         from lghcc.common.units import GaussianParameterSet
 
@@ -556,7 +581,9 @@ TOOL_TAGS = """\
 Tags of test.yaml `tools`, derived from the reference decoder's result (never written by hand):
   geometry_idcm_<m>     geometry coded with geom_idcm_mode m
   render_model          a render-model unit (render_model_empty: one with no MLPs)
-  hierarchy             hierarchy_enabled_flag = 1 (two attribute units)
+  hierarchy             hierarchy_enabled_flag = 1 (two attribute units per tile with a level 2)
+  tiles                 a tiled stream (tile_index unit, several tiles; version 1)
+  tile_without_level2   a tile of a hierarchy stream whose level 2 is empty (one attribute unit)
   per_channel_prior, parent_mlp_context, ggconv_context   the context_model_id of an attribute unit
   ggconv_neighbour_level_<n>   a GG-Conv model whose neighbours are the level-n anchors (Annex H.5)
   context_parent_base_<b>      a context model with a channel whose parent_base is b (Annex H.5.3)
@@ -683,6 +710,11 @@ def derive_tools(data: bytes, rejected_in: str | None = None) -> list[str]:
     _undeclared([], rejected_in)
     if container.header.version_minor != VERSION_MINOR:
         tags.add("container_version")
+    if res.num_tiles > 1:
+        tags.add("tiles")
+    letters = [u.unit_type for u in container.units]
+    if letters.count(UnitType.ATTRIBUTE) < 2 * letters.count(UnitType.GEOMETRY) and "hierarchy" in tags:
+        tags.add("tile_without_level2")
     if res.source_info is not None:
         tags.add("source_info")
     if res.notes:
@@ -817,6 +849,22 @@ def source_info_meta(data: bytes) -> dict | None:
     return {"source_sh_degree": degree, "ignored": len(res.notes)}
 
 
+def partial_decodes_meta(entry: dict, data: bytes) -> list[dict] | None:
+    """test.yaml's ``partial_decodes`` (version 1, clause 13.3): for each partial decode sources.yaml
+    asks for (``box``: the tiles whose cell meets a box; ``level: 1``: the level-1 preview), the
+    SHA-256 of what the reference decoder outputs."""
+    from lghcc.common.hashing import digest_of
+    from lghcc.common.tiles import Box
+    from lghcc.decoder.decode import decode_stream
+
+    out = []
+    for p in entry.get("partial_decodes", []):
+        box = Box(tuple(p["box"][:3]), tuple(p["box"][3:])) if "box" in p else None
+        res = decode_stream(data, box=box, max_level=int(p.get("level", 2)))
+        out.append({**p, "tiles_decoded": res.tiles_decoded, "decoded_sha256": digest_of(res.scene).hex()})
+    return out or None
+
+
 def test_yaml(entry: dict, data: bytes, decoded: str | None) -> dict:
     meta = {"id": entry["id"], "purpose": entry["purpose"], "profile": "main",
             "tools": derive_tools(data, entry.get("rejected_in")),
@@ -831,6 +879,9 @@ def test_yaml(entry: dict, data: bytes, decoded: str | None) -> dict:
     info = source_info_meta(data) if decoded else None
     if info is not None:
         meta["source_info"] = info
+    partial = partial_decodes_meta(entry, data) if decoded else None
+    if partial:
+        meta["partial_decodes"] = partial
     r = renders_meta(entry)
     if r:
         meta["renders"] = r

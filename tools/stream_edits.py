@@ -557,7 +557,7 @@ def designed_model(units, spec: dict) -> None:
                             num_rows=hier.num_level2, attribute_level=LEVEL_2, context_model_id=model_id,
                             mask_live_prob=list(h2.mask_live_prob), rows_per_chunk_minus1=h2.rows_per_chunk_minus1)
     units[a2] = DataUnit(UnitType.ATTRIBUTE, attr.write_attribute_unit(h, layout, q2, mask2, cp))
-    units.insert(a1, DataUnit(UnitType.CONTEXT_MODEL, unit))
+    units.insert(_index(units, UnitType.GEOMETRY), DataUnit(UnitType.CONTEXT_MODEL, unit))
 
 
 def apply_edits(units, post: dict) -> None:
