@@ -26,6 +26,9 @@ class AttributeCodingConfig:
     # occupied tiles hold at least this many points on average; 0: no tiles. A scene that fits one
     # tile has none (the tool costs it no bits). Cost and decode speed: tools/results/tiles.md.
     tile_points: int = 32768
+    # The tile side in coarse voxels (voxels without the hierarchy), 1 .. 2^20, instead of the
+    # choice from tile_points; tiles are then used even when the scene fits one. 0: chosen.
+    tile_scale: int = 0
     # Two-level hierarchy: level 1 = one anchor per coarse voxel of this many voxels per side.
     hierarchy: bool = False
     coarse_voxel_scale: int = 4
@@ -80,6 +83,8 @@ class AttributeCodingConfig:
             raise InputError("prior_fit_rows must be at least 1")
         if self.tile_points < 0:
             raise InputError(f"tile_points must be >= 0 (0: no tiles), got {self.tile_points}")
+        if not 0 <= self.tile_scale <= (1 << 20):
+            raise InputError(f"tile_scale must be in [0, 2^20] (0: chosen from tile_points), got {self.tile_scale}")
         return self
 
 

@@ -215,15 +215,15 @@ def level_layout(num_points: int, cfg: AttributeCodingConfig, coords: np.ndarray
     """One level of every point, or level 1 and level 2 when the configuration asks for the
     hierarchy and level 2 is not empty (an empty level 2 switches the hierarchy off: it costs
     no bits); and the tile size (encoder/tiling.py)."""
-    from .tiling import choose_tile_scale
+    from .tiling import tile_scale_of
 
     if cfg.hierarchy:
         hier = build_hierarchy(coords, cfg.coarse_voxel_scale)
         if hier.num_level2:
             stats.num_level1, stats.num_level2 = hier.num_level1, hier.num_level2
-            scale = choose_tile_scale(coords, cfg.coarse_voxel_scale, cfg.tile_points)
+            scale = tile_scale_of(coords, cfg.coarse_voxel_scale, cfg)
             return LevelLayout([(LEVEL_1, hier.level1_idx), (LEVEL_2, hier.level2_idx)], hier, scale)
-    return LevelLayout([(LEVEL_ALL, np.arange(num_points))], None, choose_tile_scale(coords, 1, cfg.tile_points))
+    return LevelLayout([(LEVEL_ALL, np.arange(num_points))], None, tile_scale_of(coords, 1, cfg))
 
 
 @dataclass

@@ -31,10 +31,20 @@ from ..common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_TILE_SCALE, SE_MAX,
 MAX_TILE_LOG2 = 40
 
 
+def tile_scale_of(coords: np.ndarray, unit: int, cfg) -> int:
+    """The configured tile scale (cfg.tile_scale, checked to give codable cells), else the one
+    chosen from cfg.tile_points."""
+    if not cfg.tile_scale:
+        return choose_tile_scale(coords, unit, cfg.tile_points)
+    if coords.shape[0] and np.abs(tile_cells(coords, cfg.tile_scale * unit)).max() > SE_MAX:
+        raise InputError(f"tile_scale {cfg.tile_scale}: tile cells beyond +-(2^31 - 1); use larger tiles")
+    return int(cfg.tile_scale)
+
+
 def choose_tile_scale(coords: np.ndarray, unit: int, tile_points: int) -> int:
     """tile_scale_minus1 + 1 (tile side in units of ``unit`` voxels; 0: no tiles): among the power-of-two
     sides that give two tiles or more, the one whose mean points per occupied tile is nearest
-    ``tile_points`` (by ratio); none for a scene of fewer than 2 x tile_points points, or for
+    ``tile_points`` (by ratio; the smaller of equals); none for a scene of fewer than 2 x tile_points points, or for
     tile_points 0."""
     n = coords.shape[0]
     if tile_points <= 0 or n < 2 * tile_points:

@@ -105,7 +105,7 @@ def test_derived_tools_follow_what_the_decoder_did():
     from lghcc.common import attributes
     assert attributes.decode_symbols is symbol_coder.decode_symbols, "EscapeCounter must restore the decoder"
     for sid, tag in (("c020_idcm_mode_2", "geometry_idcm_2"), ("c015_geometry_origin_no_idcm", "geometry_idcm_0"),
-                     ("c021_container_version_0_3", "container_version"), ("c017_empty_chunks", "empty_chunk"),
+                     ("c021_container_version_1_3", "container_version"), ("c017_empty_chunks", "empty_chunk"),
                      ("c010_ancillary_unit", "ancillary_unit"), ("e002_hash_mismatch", "hash"),
                      ("e007_crc_mismatch", "container"), ("e008_attribute_trailing_bytes", "attributes")):
         data = (runner.STREAMS_DIR / sid / "stream.lghcc").read_bytes()
@@ -290,7 +290,7 @@ def test_value_classes_have_minimum_maximum_and_enumerations():
     assert cls["geometry_header.geom_idcm_mode"] == [0, 1, 2]  # each mode its own class
     assert cls["render_mlp_header.num_layers_minus1"] == ["minimum", "other", "maximum"]
     assert cls["attribute_unit_header.rows_per_chunk_minus1"] == ["minimum", "other", "maximum"]
-    assert cls["container_header.version_minor"] == ["minimum", 2, "other", "maximum"]
+    assert cls["container_header.version_minor"] == ["minimum", "other", "maximum"]  # 0, this version, is the minimum
     assert "ancillary" in cls["data_unit_header.unit_type"]
     assert cls["scene_parameter_set.voxel_size"] == ["minimum", "other", "maximum"]
     assert cls["render_model_unit.coded_size"] == ["minimum", "other"]  # ue(v) without a limit: no maximum

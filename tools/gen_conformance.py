@@ -461,7 +461,10 @@ def post_process(data: bytes, post: dict) -> bytes:
         _rewrite_gaussian_attributes(units, post["gaussian_attributes"])
     if "tile_index" in post:  # edit elements of the tile index: [{name, t (a tile, or none), value or add}]
         _edit_tile_index(units, post["tile_index"])
-    if "set_gps" in post:  # overwrite gaussian parameter set fields
+    import stream_edits  # tools/stream_edits.py: values the encoder never writes, one broken rule each
+
+    stream_edits.apply_edits(units, post)
+    if "set_gps" in post:  # overwrite gaussian parameter set fields (after the edits, as set_sps)
         from lghcc.common.units import GaussianParameterSet
 
         j = _unit_index(units, UnitType.GAUSSIAN_PARAMETER_SET)
@@ -469,9 +472,6 @@ def post_process(data: bytes, post: dict) -> bytes:
         for k, v in post["set_gps"].items():
             setattr(gps, k, v)
         units[j] = DataUnit(UnitType.GAUSSIAN_PARAMETER_SET, gps.to_bytes())
-    import stream_edits  # tools/stream_edits.py: values the encoder never writes, one broken rule each
-
-    stream_edits.apply_edits(units, post)
     if "set_sps" in post:  # overwrite scene parameter set fields
         j = _unit_index(units, UnitType.SCENE_PARAMETER_SET)
         sps = SceneParameterSet.from_bytes(units[j].payload)
@@ -582,7 +582,7 @@ Tags of test.yaml `tools`, derived from the reference decoder's result (never wr
   geometry_idcm_<m>     geometry coded with geom_idcm_mode m
   render_model          a render-model unit (render_model_empty: one with no MLPs)
   hierarchy             hierarchy_enabled_flag = 1 (two attribute units per tile with a level 2)
-  tiles                 a tiled stream (tile_index unit, several tiles; version 1)
+  tiles                 a tiled stream (tiles_enabled_flag 1, a tile_index unit; version 1)
   tile_without_level2   a tile of a hierarchy stream whose level 2 is empty (one attribute unit)
   per_channel_prior, parent_mlp_context, ggconv_context   the context_model_id of an attribute unit
   ggconv_neighbour_level_<n>   a GG-Conv model whose neighbours are the level-n anchors (Annex H.5)
@@ -710,7 +710,7 @@ def derive_tools(data: bytes, rejected_in: str | None = None) -> list[str]:
     _undeclared([], rejected_in)
     if container.header.version_minor != VERSION_MINOR:
         tags.add("container_version")
-    if res.num_tiles > 1:
+    if any(u.unit_type == UnitType.TILE_INDEX for u in container.units):
         tags.add("tiles")
     letters = [u.unit_type for u in container.units]
     if letters.count(UnitType.ATTRIBUTE) < 2 * letters.count(UnitType.GEOMETRY) and "hierarchy" in tags:
