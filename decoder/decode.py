@@ -223,24 +223,20 @@ def decode_attribute_units(attribute_units: list[DataUnit], layout, steps: np.nd
     return _Levels(values, mask, hier)
 
 
-def _hierarchy_tools(ps, hier: Hierarchy | None, context_model, point: str) -> list[str]:
-    if not ps.hierarchy_enabled_flag:
-        return []
-    return [f"two-level hierarchy (coarse voxels of {ps.coarse_voxel_scale}; {hier.num_level1:,} level-1 "
-            f"and {hier.num_level2:,} level-2 {point}s)",
-            "level-2 context: " + ("per-channel prior" if context_model is None
-                                   else describe_context_model(context_model))]
-
-
 @dataclass
 class DecodedTile:
     """What one tile decodes to: its points in normative order, their attribute values and
     offset mask, and whether its decoded_scene_hash was checked."""
-    coords: np.ndarray
-    values: np.ndarray
+    coords: np.ndarray | None  # None: written into the shared output (worker processes)
+    values: np.ndarray | None
     mask: np.ndarray | None
     hierarchy: Hierarchy | None
     hash_checked: bool
+    level_counts: tuple[int, int] | None = None  # N1, N2 of the tile's hierarchy
+
+    @property
+    def num_points(self) -> int:
+        return 0 if self.coords is None else int(self.coords.shape[0])
 
 
 def decode_tile(tile: TileUnits, t: int, ps, layout, context_model, mlps: dict, tile_size: int, *,
@@ -255,20 +251,73 @@ def decode_tile(tile: TileUnits, t: int, ps, layout, context_model, mlps: dict, 
     dec = decode_attribute_units(tile.attributes, layout, layout.steps(ps), coords, ps, context_model, entries,
                                  progress, memory, max_level)
     hash_unit = DecodedSceneHashUnit.from_bytes(tile.scene_hash.payload, entries, what="decoded scene hash unit")
-    if max_level == LEVEL_1 and dec.hierarchy is not None:
-        keep = dec.hierarchy.level1_idx
-        return DecodedTile(coords[keep], dec.values[keep], None if dec.mask is None else dec.mask[keep], None, False)
+    h = dec.hierarchy
+    counts = None if h is None else (h.num_level1, h.num_level2)
+    if max_level == LEVEL_1 and h is not None:
+        keep = h.level1_idx
+        return DecodedTile(coords[keep], dec.values[keep], None if dec.mask is None else dec.mask[keep], None, False,
+                           counts)
     if verify_hash:
         scene = _scene_of(ps, layout, coords, dec, mlps)
         _check_scene_hash(scene, hash_unit.scene_hash, "" if tile.cell is None else f"tile {t}: ")
-    return DecodedTile(coords, dec.values, dec.mask, dec.hierarchy, verify_hash)
+    return DecodedTile(coords, dec.values, dec.mask, h, verify_hash, counts)
+
+
+# The output arrays the worker processes write their tiles into: created by the parent before the
+# workers are forked, in shared anonymous memory, so a tile's values are not sent back through a
+# pipe (at 1M anchors of 86 channels they are 344 MB).
+_SHARED_OUTPUT: dict[str, np.ndarray] = {}
 
 
 def _decode_tile_job(args) -> DecodedTile:
-    """A worker process's task (lghcc-dec --jobs): one tile, from the tile's own units."""
-    tile, t, ps, layout, context_model, mlps, tile_size, verify_hash, max_level = args
-    return decode_tile(tile, t, ps, layout, context_model, mlps, tile_size, verify_hash=verify_hash,
-                       max_level=max_level)
+    """A worker process's task (lghcc-dec --jobs): one tile, from the tile's own units; with an
+    output row, its points are written into the shared output and only the verdict comes back."""
+    tile, t, ps, layout, context_model, mlps, tile_size, verify_hash, max_level, row = args
+    d = decode_tile(tile, t, ps, layout, context_model, mlps, tile_size, verify_hash=verify_hash,
+                    max_level=max_level)
+    if row is None:
+        return d
+    n = d.num_points
+    _SHARED_OUTPUT["coords"][row:row + n] = d.coords
+    _SHARED_OUTPUT["values"][row:row + n] = d.values
+    if d.mask is not None:
+        _SHARED_OUTPUT["mask"][row:row + n] = d.mask
+    return DecodedTile(None, None, None, None, d.hash_checked, d.level_counts)
+
+
+def _shared_array(shape: tuple[int, ...], dtype) -> np.ndarray:
+    import mmap
+
+    nbytes = max(int(np.prod(shape)) * np.dtype(dtype).itemsize, 1)
+    return np.frombuffer(mmap.mmap(-1, nbytes), dtype=dtype, count=int(np.prod(shape))).reshape(shape)
+
+
+def _decode_in_workers(tiles: list[TileUnits], selected: list[int], ps, layout, context_model, mlps: dict, *,
+                       verify_hash: bool, max_level: int, jobs: int) -> tuple[list[DecodedTile], dict | None]:
+    """The selected tiles decoded by ``jobs`` forked worker processes, written into shared output
+    arrays (whole tiles: their point counts are known; the preview's are not, and come back
+    through the pipe) -> (the tiles' verdicts, the output arrays or None)."""
+    fork = os.name == "posix"
+    shared = fork and max_level != LEVEL_1
+    rows: list[int | None] = [None] * len(selected)
+    if shared:
+        counts = [tiles[t].num_points for t in selected]
+        rows = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(int).tolist()
+        total = sum(counts)
+        _SHARED_OUTPUT.update(coords=_shared_array((total, 3), np.int64),
+                              values=_shared_array((total, layout.num_channels), np.float32))
+        if layout.offset_mask_present:
+            _SHARED_OUTPUT["mask"] = _shared_array((total, layout.num_offsets), np.bool_)
+    args = [(tiles[t], t, ps, layout, context_model, mlps, ps.tile_size, verify_hash, max_level, r)
+            for t, r in zip(selected, rows)]
+    ctx = __import__("multiprocessing").get_context("fork" if fork else "spawn")
+    try:
+        with ProcessPoolExecutor(max_workers=min(jobs, len(selected)), mp_context=ctx,
+                                 initializer=_worker_init) as pool:
+            parts = list(pool.map(_decode_tile_job, args))
+        return parts, (dict(_SHARED_OUTPUT) if shared else None)
+    finally:
+        _SHARED_OUTPUT.clear()
 
 
 def _worker_init() -> None:
@@ -277,18 +326,26 @@ def _worker_init() -> None:
     torch.set_num_threads(1)  # the workers are the parallelism
 
 
+@dataclass
+class DecodedTiles:
+    """The decoded tiles joined in stream order: their points, the hierarchy (a single tile's),
+    whether every tile's hash was checked, and each tile's level counts (N1, N2)."""
+    coords: np.ndarray
+    levels: _Levels
+    hash_checked: bool
+    level_counts: list[tuple[int, int]]
+
+
 def decode_tiles(tiles: list[TileUnits], selected: list[int], ps, layout, context_model, mlps: dict, *,
                  verify_hash: bool, entries, progress: bool, memory: MemoryPlan | None, max_level: int,
-                 jobs: int) -> list[DecodedTile]:
+                 jobs: int) -> DecodedTiles:
     """The selected tiles, in stream order: here, or in ``jobs`` worker processes (the result is
     the same: each tile is decoded by the same function from the same units)."""
     size = ps.tile_size
     if jobs > 1 and len(selected) > 1 and entries is None:
-        args = [(tiles[t], t, ps, layout, context_model, mlps, size, verify_hash, max_level) for t in selected]
-        ctx = __import__("multiprocessing").get_context("fork" if os.name == "posix" else "spawn")
-        with ProcessPoolExecutor(max_workers=min(jobs, len(selected)), mp_context=ctx,
-                                 initializer=_worker_init) as pool:
-            return list(pool.map(_decode_tile_job, args))
+        parts, shared = _decode_in_workers(tiles, selected, ps, layout, context_model, mlps,
+                                           verify_hash=verify_hash, max_level=max_level, jobs=jobs)
+        return _joined(parts, layout, shared)
     one = len(tiles) == 1
     bar = progress_bar(total=len(selected), desc="decode tiles", unit="tile", disable=not progress or one, leave=False)
     out = []
@@ -297,7 +354,7 @@ def decode_tiles(tiles: list[TileUnits], selected: list[int], ps, layout, contex
                                entries=entries, progress=progress and one, memory=memory, max_level=max_level))
         bar.update()
     bar.close()
-    return out
+    return _joined(out, layout)
 
 
 def selected_tiles(tiles: list[TileUnits], ps, box: Box | None) -> list[int]:
@@ -308,15 +365,21 @@ def selected_tiles(tiles: list[TileUnits], ps, box: Box | None) -> list[int]:
             if cell_intersects_box(tile.cell, ps.tile_size, float(ps.voxel_size), ps.origin, box)]
 
 
-def _joined(parts: list[DecodedTile], layout) -> _Levels:
+def _joined(parts: list[DecodedTile], layout, shared: dict | None = None) -> DecodedTiles:
+    """The tiles' points in stream order (``shared``: already written there by the workers)."""
+    counts = [p.level_counts for p in parts if p.level_counts is not None]
+    checked = all(p.hash_checked for p in parts)
+    if shared is not None:
+        return DecodedTiles(shared["coords"], _Levels(shared["values"], shared.get("mask"), None), checked, counts)
     if len(parts) == 1:
         p = parts[0]
-        return _Levels(p.values, p.mask, p.hierarchy)
+        return DecodedTiles(p.coords, _Levels(p.values, p.mask, p.hierarchy), checked, counts)
+    coords = np.concatenate([p.coords for p in parts]) if parts else np.empty((0, 3), np.int64)
     values = np.concatenate([p.values for p in parts]) if parts else np.empty((0, layout.num_channels), np.float32)
     mask = None
     if layout.offset_mask_present:
         mask = np.concatenate([p.mask for p in parts]) if parts else np.empty((0, layout.num_offsets), bool)
-    return _Levels(values, mask, None)
+    return DecodedTiles(coords, _Levels(values, mask, None), checked, counts)
 
 
 def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
@@ -358,19 +421,17 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
     context_model = read_context_model_unit(by_type.get(UnitType.CONTEXT_MODEL, [None])[0], ps, layout, entries)
     tiles, _ = tiles_of(units, by_type, n, entries)
     selected = selected_tiles(tiles, ps, box)
-    parts = decode_tiles(tiles, selected, ps, layout, context_model, mlps, verify_hash=verify_hash, entries=entries,
-                         progress=progress, memory=memory, max_level=max_level, jobs=jobs)
-    coords = np.concatenate([p.coords for p in parts]) if parts else np.empty((0, 3), np.int64)
-    dec = _joined(parts, layout)
-    scene = _scene_of(ps, layout, coords, dec, mlps)
+    decoded = decode_tiles(tiles, selected, ps, layout, context_model, mlps, verify_hash=verify_hash,
+                           entries=entries, progress=progress, memory=memory, max_level=max_level, jobs=jobs)
+    scene = _scene_of(ps, layout, decoded.coords, decoded.levels, mlps)
     whole = len(selected) == len(tiles) and max_level != LEVEL_1
     if whole and len(tiles) == 1:
         stream_hash = DecodedSceneHashUnit.from_bytes(tiles[0].scene_hash.payload).scene_hash
     else:
         stream_hash = digest_of(scene)
-    checked = verify_hash and all(p.hash_checked for p in parts)
+    checked = verify_hash and decoded.hash_checked
     return DecodeResult(scene, breakdown_of(container, n, point), checked, stream_hash, skipped,
-                        entries, _stream_tools(ps, dec, context_model, point, len(tiles), parts), source_info, notes,
+                        entries, _stream_tools(ps, decoded, context_model, point, len(tiles)), source_info, notes,
                         len(tiles), len(selected), max_level == LEVEL_1 and bool(ps.hierarchy_enabled_flag))
 
 
@@ -406,24 +467,21 @@ def _check_scene_hash(scene: AnchorScene | GaussianScene, scene_hash: bytes, whe
                                 f"(decoded SHA-256 {digest.hex()}, stream {scene_hash.hex()})")
 
 
-def _stream_tools(ps, dec: _Levels, context_model, point: str, num_tiles: int = 1,
-                  parts: list[DecodedTile] | None = None) -> list[str]:
+def _stream_tools(ps, decoded: DecodedTiles, context_model, point: str, num_tiles: int = 1) -> list[str]:
     """The coding tools the stream uses, in words (lghcc-dec prints them)."""
     if isinstance(ps, GaussianParameterSet):
         tools = [f"explicit Gaussians (SH degree {ps.sh_degree})"]
     else:
         tools = ["offset masks"] if ps.offset_mask_present_flag else []
     if ps.tiles_enabled_flag:
-        tools.append(f"{num_tiles} tiles of {ps.tile_size} voxels per side")
-    hiers = [p.hierarchy for p in parts or [] if p.hierarchy is not None]
-    if ps.hierarchy_enabled_flag and len(hiers) > 1:
-        n1, n2 = sum(h.num_level1 for h in hiers), sum(h.num_level2 for h in hiers)
-        return tools + [f"two-level hierarchy (coarse voxels of {ps.coarse_voxel_scale}; {n1:,} level-1 and "
-                        f"{n2:,} level-2 {point}s)", "level-2 context: " + (
-                            "per-channel prior" if context_model is None else describe_context_model(context_model))]
-    if ps.hierarchy_enabled_flag and not hiers:
-        return tools + [f"two-level hierarchy (coarse voxels of {ps.coarse_voxel_scale})"]
-    return tools + _hierarchy_tools(ps, hiers[0] if hiers else dec.hierarchy, context_model, point)
+        tools.append(f"{num_tiles} tile{'s' if num_tiles > 1 else ''} of {ps.tile_size} voxels per side")
+    if not ps.hierarchy_enabled_flag:
+        return tools
+    n1, n2 = sum(c[0] for c in decoded.level_counts), sum(c[1] for c in decoded.level_counts)
+    return tools + [f"two-level hierarchy (coarse voxels of {ps.coarse_voxel_scale}; {n1:,} level-1 and {n2:,} "
+                    f"level-2 {point}s)",
+                    "level-2 context: " + ("per-channel prior" if context_model is None
+                                           else describe_context_model(context_model))]
 
 
 def read_source_info(units: list[DataUnit], trace: list[TraceEntry] | None = None
