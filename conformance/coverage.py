@@ -60,13 +60,17 @@ UNIT_TYPE = "data_unit_header.unit_type"
 # (element, value class) -> why no decodable stream can exercise it (checked against the code,
 # see tests/test_spec_and_conformance.py for the executable parts of each argument).
 IMPOSSIBLE: dict[tuple[str, str], str] = {
+    ("int_array_header.array_ndim", 0):
+        "every context-model array has a fixed number of dimensions (clause 7.3.8; Annex H, clauses H.5.1 and "
+        "H.6.1): parent_base and the biases 1, the weights 2, the GG-Conv table 4; a model rejects any other "
+        "shape. The scalars are syntax elements of context_model_unit(), not arrays",
     ("int_array_header.array_ndim", 3):
-        "every context-model array has a fixed shape (Annex H, clauses H.5.1 and H.6.1): scalars (0 or 1 "
-        "dimension), biases (1), weights (2) and the GG-Conv table (4); a model rejects any other shape",
+        "as array_ndim 0: no context-model array has 3 dimensions",
     ("context_model_unit.coded_size", "minimum"):
-        "every context model has the scalar num_features (>= 1); an empty chunk decodes every symbol as "
-        "bin 0 of its table (spec 10.6.4: point = 0), i.e. the value -L_level <= -4 (every half-width "
-        "L_i >= 4), so num_features < 1 and both models reject the unit",
+        "every context model has the array parent_base (values 0 or 1, at least one value); an empty chunk "
+        "decodes every symbol as bin 0 of its table (spec 10.6.4: point = 0), i.e. the value -L_level <= -4 "
+        "(every half-width L_i >= 4), outside an unsigned width or, declared signed, outside 0 .. 1, so both "
+        "models reject the unit",
     ("context_model_unit.coded_data", "empty"):
         "coded_data is coded_size bytes; see context_model_unit.coded_size: minimum",
     ("tile_index_unit.tile_data_size", "minimum"):

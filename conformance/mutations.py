@@ -34,7 +34,11 @@ Not listed, with the reason (each would be an *equivalent* mutation: no stream c
   the rejection beyond it);
 * IntLinear's shift-0 case (no rounding offset): adding 0.5 before the floor of an integer is the
   integer;
-* sh_degree's range 0..3 (clause 7.3.9): u(2) holds nothing else;
+* sh_degree's range 0..3 (clause 7.3.9): u(2) holds nothing else; likewise a context-model layer's
+  shift, u(5), whose range is 0..31;
+* GGConvParams' own checks of k, radius_sq, h_shift and neighbour_level and IntLinear's of a
+  shift: the context-model unit's syntax rejects every value outside those ranges first (the
+  syntax.* mutations of those elements stand for them);
 * the ranges of pred_source_channel (<= M - 2), of pred_target_channel from below (>= 1) and of
   num_channel_predictions (<= M (M - 1) / 2): an entry beyond them breaks source < target or the
   strictly increasing order of the entries, which the decoder rejects anyway (as BitstreamError;
@@ -185,27 +189,12 @@ MUTATIONS: list[Mutation] = [
       ("o[:, 2 * m:].clamp(0, NUM_STEP_ADJUST - 1)", "o[:, 2 * m:].clamp(1, NUM_STEP_ADJUST - 1)")),
     M("ggconv.level_low_1", "ggconv", f"{GGCONV}:split_outputs",
       "scale level clamped to [1, 63]", ("o[:, m:2 * m].clamp(0, NUM_LEVELS - 1)", "o[:, m:2 * m].clamp(1, NUM_LEVELS - 1)")),
-    M("ggconv.k_max_63", "ggconv", f"{GGCONV}:GGConvParams.__post_init__",
-      "k limit off by one: k = 64 rejected", ("if not 1 <= int(self.k) <= MAX_K:", "if not 1 <= int(self.k) < MAX_K:")),
-    M("ggconv.no_k_check", "ggconv", f"{GGCONV}:GGConvParams.__post_init__",
-      "k not checked (k = 0 or k > 64 accepted)", ("if not 1 <= int(self.k) <= MAX_K:", "if False:")),
-    M("ggconv.no_h_shift_check", "ggconv", f"{GGCONV}:GGConvParams.__post_init__",
-      "h_shift not checked against 40", ("if not 0 <= int(self.h_shift) <= MAX_H_SHIFT:", "if False:")),
-    M("ggconv.h_shift_max_39", "ggconv", f"{GGCONV}:GGConvParams.__post_init__",
-      "h_shift limit off by one: 40 rejected",
-      ("if not 0 <= int(self.h_shift) <= MAX_H_SHIFT:", "if not 0 <= int(self.h_shift) < MAX_H_SHIFT:")),
     M("ggconv.no_grid_check", "ggconv", f"{GGCONV}:GGConvParams.__post_init__",
       "table size D not checked against [2, 16]",
       ("or not MIN_GRID <= t.shape[0] <= MAX_GRID:", "or False:")),
     M("ggconv.grid_max_15", "ggconv", f"{GGCONV}:GGConvParams.__post_init__",
       "table size limit off by one: D = 16 rejected",
       ("or not MIN_GRID <= t.shape[0] <= MAX_GRID:", "or not MIN_GRID <= t.shape[0] < MAX_GRID:")),
-    M("ggconv.no_radius_check", "ggconv", f"{GGCONV}:GGConvParams.__post_init__",
-      "radius_sq = 0 accepted", ("if not 1 <= int(self.radius_sq) <= MAX_RADIUS_SQ:", "if False:")),
-    M("ggconv.no_neighbour_level_check", "ggconv", f"{GGCONV}:GGConvParams.__post_init__",
-      "neighbour_level not checked (anything but 1 taken as 2)",
-      ("if isinstance(self.neighbour_level, bool) or int(self.neighbour_level) not in NEIGHBOUR_LEVELS:",
-       "if isinstance(self.neighbour_level, bool):")),
     M("ggconv.no_feat_shape_check", "ggconv", f"{GGCONV}:GGConvParams.__post_init__",
       "feature MLP's input and output counts not checked against C + 3 and Ch",
       ("if c < 1 or self.feat_mlp.in_dim != c + 3 or self.feat_mlp.out_dim != ch:", "if c < 1:")),
@@ -509,6 +498,30 @@ MUTATIONS: list[Mutation] = [
       ('v.ue(self, "head_num_layers_minus1", hi=MAX_MODEL_LAYERS - 1)', 'v.ue(self, "head_num_layers_minus1", hi=MAX_MODEL_LAYERS)')),
     M("syntax.model_id_zero", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax", "a context-model unit of model 0 accepted",
       ('lo=CONTEXT_PARENT_MLP, hi=MAX_CONTEXT_MODEL_ID)', 'lo=0, hi=MAX_CONTEXT_MODEL_ID)')),
+    # the context model's hyperparameters (clause 7.2; GGConvParams' own checks of k, radius_sq, h_shift and
+    # neighbour_level come after the syntax's and so cannot fail: the mistakes are made here)
+    M("syntax.num_features_zero", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax", "num_features = 0 accepted",
+      ('v.ue(self, "num_features", lo=1, hi=MAX_NUM_FEATURES)', 'v.ue(self, "num_features", hi=MAX_NUM_FEATURES)')),
+    M("syntax.num_features_max", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax",
+      "num_features range off by one: a model of C = 1024 features rejected",
+      ('v.ue(self, "num_features", lo=1, hi=MAX_NUM_FEATURES)', 'v.ue(self, "num_features", lo=1, hi=MAX_NUM_FEATURES - 1)')),
+    M("syntax.neighbour_level_unchecked", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax",
+      "neighbour_level not checked (0 and 3 accepted; anything but 1 taken as 2)",
+      ('v.u(2, self, "neighbour_level", lo=NEIGHBOUR_LEVELS[0], hi=NEIGHBOUR_LEVELS[-1])', 'v.u(2, self, "neighbour_level")')),
+    M("syntax.k_unchecked", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax", "k not checked (k = 0 or k > 64 accepted)",
+      ('v.ue(self, "k", lo=1, hi=MAX_K)', 'v.ue(self, "k")')),
+    M("syntax.k_max_63", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax", "k limit off by one: k = 64 rejected",
+      ('v.ue(self, "k", lo=1, hi=MAX_K)', 'v.ue(self, "k", lo=1, hi=MAX_K - 1)')),
+    M("syntax.k_max_65", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax", "k limit off by one: k = 65 accepted",
+      ('v.ue(self, "k", lo=1, hi=MAX_K)', 'v.ue(self, "k", lo=1, hi=MAX_K + 1)')),
+    M("syntax.radius_sq_bits_max", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax", "a radius_sq of 63 bits accepted",
+      ('hi=MAX_RADIUS_SQ_BITS - 1)', 'hi=MAX_RADIUS_SQ_BITS)')),
+    M("syntax.radius_sq_zero", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax", "radius_sq = 0 accepted",
+      ('self, "radius_sq", lo=1, hi=MAX_RADIUS_SQ,', 'self, "radius_sq", lo=0, hi=MAX_RADIUS_SQ,')),
+    M("syntax.h_shift_unchecked", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax", "h_shift not checked against 40",
+      ('v.u(H_SHIFT_BITS, self, "h_shift", hi=MAX_H_SHIFT)', 'v.u(H_SHIFT_BITS, self, "h_shift")')),
+    M("syntax.h_shift_max_39", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax", "h_shift limit off by one: 40 rejected",
+      ('v.u(H_SHIFT_BITS, self, "h_shift", hi=MAX_H_SHIFT)', 'v.u(H_SHIFT_BITS, self, "h_shift", hi=MAX_H_SHIFT - 1)')),
 
     # --- context-model unit, render model (clauses 7.3.2, 7.3.7)
     M("model_unit.no_value_range_check", "model_unit", f"{MODEL_UNIT}:read_context_model_unit",

@@ -381,8 +381,7 @@ def code_with_context_candidate(coder: LevelCoder, inp: AttributeInput, hier: Hi
     coords1, coords2 = inp.coords[hier.level1_idx], inp.coords[coder.rows]
     fitted = fit_level2_context(cfg.context_model, coords1, q_level1, coords2, hier.parent_of_level2, targets,
                                 inp.layout.feature_dim, cfg.coarse_voxel_scale, candidate.train_cfg)
-    unit = write_context_model_unit(fitted.model_id, fitted.params.to_arrays(), fitted.feat_layers,
-                                    fitted.head_layers)
+    unit = write_context_model_unit(fitted.model_id, *fitted.params.to_syntax())
     model = read_context_model(unit, inp.layout)  # exactly what the decoder will use
     params = level2_coding_params(model, coords1, q_level1, coords2, hier.parent_of_level2,
                                   cfg.coarse_voxel_scale).materialize()

@@ -282,9 +282,7 @@ def replace_context_model(data: bytes, decoded, rng: random.Random) -> tuple[byt
                                         values, hier.level1_idx, keep_q=True)
     h2, mask2, q2 = _level2_q(units[a2].payload, sps, hier, q1, coords, units, types, values)
     model_id, params = hand_context_model(rng, sps.feature_dim, m)
-    arrays = params.to_arrays()
-    feat_layers = len(params.feat_mlp.layers) if hasattr(params, "feat_mlp") else 0
-    unit = write_context_model_unit(model_id, arrays, feat_layers, len(params.head_mlp.layers))
+    unit = write_context_model_unit(model_id, *params.to_syntax())
     model = read_context_model(unit, layout)
     try:
         cp = level2_coding_params(model, coords[hier.level1_idx], q1, coords[hier.level2_idx], hier.parent_of_level2,
@@ -312,9 +310,10 @@ def replace_context_model(data: bytes, decoded, rng: random.Random) -> tuple[byt
                         offsets=o, offset_mask=decoded.offset_mask, mlps=decoded.mlps)
     j = [u.unit_type for u in units].index(UnitType.DECODED_SCENE_HASH)
     units[j] = DataUnit(UnitType.DECODED_SCENE_HASH, DecodedSceneHashUnit(scene_hash=scene_digest(scene)).to_bytes())
-    name = "GG-Conv" if feat_layers else "parent MLP"
+    ggconv = hasattr(params, "feat_mlp")
+    name = "GG-Conv" if ggconv else "parent MLP"
     extra = (f" k={params.k} radius_sq={params.radius_sq} D={params.grid_size} Ch={params.context_channels} "
-             f"h_shift={params.h_shift} neighbour_level={params.neighbour_level}") if feat_layers else ""
+             f"h_shift={params.h_shift} neighbour_level={params.neighbour_level}") if ggconv else ""
     return write_container(units), f"hand {name}{extra}"
 
 

@@ -218,9 +218,11 @@ def _ggconv_feature_inputs(c: int) -> int:
 
 def _hand_ggconv(units, spec: dict):
     """Code level 2 with a hand-built GG-Conv model instead of the per-channel prior: one-layer
-    feature and head MLPs, Ch context channels, scalars as [1]-shaped arrays and shifts as 1-bit
-    arrays (the smallest shapes and widths the syntax allows). Its step adjustment is 0, so the
-    quantized values, and the decoded scene, are those of the per-channel stream."""
+    feature and head MLPs (``feat_layers``, ``head_layers`` deeper), Ch context channels, every
+    layer's shift 0 (or ``feat_shifts``, ``head_shifts``: one per layer; a shift of the head's last
+    layer scales the levels down). Its step adjustment is 0, so the quantized values, and the decoded scene, are
+    those of the per-channel stream. ``override``: {array: {shape, fill, bits}}, arrays that a
+    conforming model cannot have (with ``unchecked``: level 2 keeps the per-channel chunks)."""
     from lghcc.common import attributes as attr
     from lghcc.common.container import DataUnit, UnitType
     from lghcc.common.context.ggconv import GGConvParams
@@ -250,7 +252,9 @@ def _hand_ggconv(units, spec: dict):
     n_feat, n_head = int(spec.get("feat_layers", 1)), int(spec.get("head_layers", 1))
     # feature MLP: small random layers (ReLU between them), Ch outputs
     widths = [feat_in] + [ch] * n_feat
-    feat_layers = [IntLinear(rng.integers(-3, 3, size=(o, i), endpoint=True), np.zeros(o, np.int64), 0,
+    feat_shifts = list(spec.get("feat_shifts", [0] * n_feat))  # every layer's shift (a syntax element)
+    head_shifts = list(spec.get("head_shifts", [0] * n_head))  # the last head layer's shift shall be 0
+    feat_layers = [IntLinear(rng.integers(-3, 3, size=(o, i), endpoint=True), np.zeros(o, np.int64), feat_shifts[l],
                              l < n_feat - 1, 8) for l, (i, o) in enumerate(zip(widths[:-1], widths[1:]))]
     # head inputs: h (Ch), local position (3), n_valid (1), parent attributes (M); outputs mean, level, adjust.
     # Deeper heads carry n_valid (>= 0, unchanged by ReLU) through 1-wide identity layers.
@@ -258,32 +262,33 @@ def _hand_ggconv(units, spec: dict):
     if n_head > 1:
         w0 = np.zeros((1, ch + 4 + m), np.int64)
         w0[0, ch + 3] = 1
-        head_layers.append(IntLinear(w0, np.zeros(1, np.int64), 0, True, 8))
-        head_layers += [IntLinear(np.ones((1, 1), np.int64), np.zeros(1, np.int64), 0, True, 8)
-                        for _ in range(n_head - 2)]
+        head_layers.append(IntLinear(w0, np.zeros(1, np.int64), head_shifts[0], True, 8))
+        head_layers += [IntLinear(np.ones((1, 1), np.int64), np.zeros(1, np.int64), head_shifts[l], True, 8)
+                        for l in range(1, n_head - 1)]
     w = np.zeros((3 * m, ch + 4 + m if n_head == 1 else 1), np.int64)
     w[m:2 * m, ch + 3 if n_head == 1 else 0] = 1  # level grows with the number of valid neighbours
     bias = np.concatenate([np.zeros(m), np.full(m, int(spec.get("level", 8))), np.zeros(m)]).astype(np.int64)
-    head_layers.append(IntLinear(w, bias, 0, False, 8))
+    head_layers.append(IntLinear(w, bias, head_shifts[-1], False, 8))
     p = GGConvParams(num_features=c, neighbour_level=int(spec.get("neighbour_level", 2)), k=int(spec.get("k", 2)),
                      radius_sq=int(spec.get("radius_sq", 64)),
                      table=table, h_shift=0, feat_mlp=IntMLP(feat_layers), head_mlp=IntMLP(head_layers),
                      parent_base=np.arange(m) % 2)  # both kinds of channel mean (Annex H.5.3 step 6)
     arrays = []
     override = spec.get("override", {})  # error streams: arrays a conforming model cannot have
-    for a in p.to_arrays():
-        v = np.asarray(a.values)
-        if v.ndim == 0:
-            v = v.reshape(1)
-        bits = 1 if a.name.endswith(".shift") or a.name == "h_shift" else a.bits
+    hp, model_arrays = p.to_syntax()
+    unknown = set(override) - {a.name for a in model_arrays}
+    if unknown:  # hyperparameters out of range: set_elements after the model is written
+        raise ValueError(f"hand_ggconv override: no array {sorted(unknown)}")
+    for a in model_arrays:
+        v, bits = np.asarray(a.values), a.bits
         if a.name in override:
             o = override[a.name]
-            v = np.full(o["shape"], o.get("fill", 0), np.int64) if isinstance(o, dict) else np.array([int(o)])
+            v = np.full(o["shape"], o.get("fill", 0), np.int64)
             bits = max(bits, int(v.max()).bit_length() if v.size else 1, 1)
-            if isinstance(o, dict) and "bits" in o:  # a declared width of its own (e.g. beyond the model's)
+            if "bits" in o:  # a declared width of its own (e.g. beyond the model's)
                 bits = int(o["bits"])
         arrays.append(NamedIntArray(a.name, v, bits, a.signed))
-    unit = write_context_model_unit(CONTEXT_GGCONV, arrays, n_feat, n_head)
+    unit = write_context_model_unit(CONTEXT_GGCONV, hp, arrays)
     h = AttributeUnitHeader(num_channels=m, num_offsets=sps.num_offsets, offset_mask_present=h2.offset_mask_present,
                             num_rows=hier.num_level2, attribute_level=LEVEL_2, context_model_id=CONTEXT_GGCONV,
                             mask_live_prob=list(h2.mask_live_prob), rows_per_chunk_minus1=h2.rows_per_chunk_minus1)
