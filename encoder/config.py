@@ -81,11 +81,14 @@ class AttributeCodingConfig:
                 raise InputError(f"{name} must be >= 0")
         if self.prior_fit_rows < 1:
             raise InputError("prior_fit_rows must be at least 1")
+        self._validate_tiles()
+        return self
+
+    def _validate_tiles(self) -> None:
         if self.tile_points < 0:
             raise InputError(f"tile_points must be >= 0 (0: no tiles), got {self.tile_points}")
         if not 0 <= self.tile_scale <= (1 << 20):
             raise InputError(f"tile_scale must be in [0, 2^20] (0: chosen from tile_points), got {self.tile_scale}")
-        return self
 
 
 @dataclass

@@ -53,6 +53,14 @@ def _timed(fn, repeats: int):
     return out, statistics.median(times)
 
 
+def _cost_cells(untiled, tiled) -> str:
+    """bytes without and with tiles, the cost, and the geometry's share of it."""
+    g0, g1 = untiled.breakdown.bytes_by_category["geometry"], tiled.breakdown.bytes_by_category["geometry"]
+    cost = 100.0 * (len(tiled.data) / len(untiled.data) - 1)
+    return (f"{len(untiled.data):,} | {len(tiled.data):,} | {cost:+.2f}% | {g0:,} | {g1:,} | "
+            f"{100.0 * (g1 / g0 - 1):+.2f}%")
+
+
 def gaussian_cost_rows(names: list[str], tile_points: list[int]) -> list[str]:
     from lghcc.encoder.config import load_config
     from lghcc.encoder.gaussians import encode_gaussian_scene
@@ -69,9 +77,8 @@ def gaussian_cost_rows(names: list[str], tile_points: list[int]) -> list[str]:
             t = time.perf_counter()
             res = encode_gaussian_scene(scene, load_config("medium", overrides={"tile_points": tp}, kind="gaussians"))
             dt = time.perf_counter() - t
-            cost = 100.0 * (len(res.data) / len(untiled.data) - 1)
             rows.append(f"| {name} (3DGS, medium steps) | {scene.num_gaussians:,} | {tp:,} | {res.stats.num_tiles} | "
-                        f"{len(untiled.data):,} | {len(res.data):,} | {cost:+.2f}% | {t_untiled:.1f} | {dt:.1f} |")
+                        + _cost_cells(untiled, res) + f" | {t_untiled:.1f} | {dt:.1f} |")
             print(rows[-1], flush=True)
         del base_cfg
     return rows
@@ -101,10 +108,8 @@ def anchor_section(n: int, tile_points: list[int], repeats: int) -> tuple[list[s
         t = time.perf_counter()
         res = encode_scene(scene, anchor_config(tp))
         dt = time.perf_counter() - t
-        cost = 100.0 * (len(res.data) / len(untiled.data) - 1)
         cost_rows.append(f"| procedural anchors (lghcc-low, GG-Conv) | {scene.num_anchors:,} | {tp:,} | "
-                         f"{res.stats.num_tiles} | {len(untiled.data):,} | {len(res.data):,} | {cost:+.2f}% | "
-                         f"{t_untiled:.1f} | {dt:.1f} |")
+                         f"{res.stats.num_tiles} | " + _cost_cells(untiled, res) + f" | {t_untiled:.1f} | {dt:.1f} |")
         print(cost_rows[-1], flush=True)
         tiled = tiled or res
     decode_stream(untiled.data)  # warm-up: imports, tables
@@ -172,9 +177,9 @@ def main(argv: list[str] | None = None) -> int:
         f"Date: {datetime.date.today()}; torch {torch.__version__}, 2 threads, {platform.machine()}, "
         f"{os.cpu_count()} CPUs (shared); load {load_before} before, {load_average()} after.", "",
         "## Tiling cost (same settings with and without tiles)", "",
-        "| scene | points | tile_points | tiles | bytes without tiles | bytes with tiles | cost | encode s without "
-        "| encode s with |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|", *cost, *anchor_cost, "",
+        "| scene | points | tile_points | tiles | bytes without tiles | bytes with tiles | cost | geometry bytes "
+        "without | with | geometry cost | encode s without | encode s with |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|", *cost, *anchor_cost, "",
         f"## Decoding the {args.anchors:,}-anchor GG-Conv scene (tiles of about {args.tile_points[0]:,} anchors)", "",
         f"Median of {args.repeats} decodes in this process (decode_stream: parse, geometry, attributes with the "
         "GG-Conv context, hash check of every tile decoded). Ratio: to the tiled stream's 1-worker decode.", "",

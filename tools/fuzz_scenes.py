@@ -13,7 +13,7 @@ out of the byte mutator's reach). Here every case is a new, valid stream:
   values from 0 to 1e12 and outliers up to 2^51 quantization steps (escapes of every class);
   constant channels, offset masks from never to always live, render MLPs of extreme magnitude,
   voxel sizes and origins up to the binary32 limits;
-* encoder settings (``random_config``): every preset's steps and extremes (1e-30 .. 3e38),
+* encoder settings (``random_config``): every preset's steps and extremes (1e-30 .. 3e38), tiles,
   MLP weight bits 2..24, chunks of 1 row to all rows, the hierarchy with coarse voxels of 2 to
   2^20, the parent MLP and GG-Conv fitted for a step or two (so the fit is cheap and the
   integer model is whatever it is);
@@ -199,6 +199,8 @@ def random_config(rng: random.Random):
                         context_neighbour_level=rng.randint(1, 2), context_k=_choice(rng, [1, 2, 8, 64]),
                         context_weight_bits=_choice(rng, [8, 16]), context_channels=rng.randint(1, 4),
                         context_feat_hidden=rng.randint(1, 8), context_head_hidden=rng.randint(1, 8))
+    if rng.random() < 0.4:  # tiles (format version 1): small ones, the scenes here are small
+        over["tile_points"] = _choice(rng, [1, 2, 5, 20, 100])
     cfg = load_config(preset, overrides=over)
     return cfg, f"{preset} {over}"
 
