@@ -55,7 +55,9 @@ class DecodeResult:
     scene: AnchorScene | GaussianScene
     breakdown: SizeBreakdown
     hash_checked: bool
-    stream_hash: bytes
+    # the scene hash the stream carries for the whole decoded scene (a stream of one tile, decoded
+    # whole); None: computed from the decoded scene when asked for (``stream_hash``)
+    scene_hash_in_stream: bytes | None
     skipped_units: list[str] = field(default_factory=list)
     trace: list[TraceEntry] | None = None
     tools: list[str] = field(default_factory=list)  # the coding tools the stream uses, in words
@@ -65,6 +67,16 @@ class DecodeResult:
     num_tiles: int = 1  # tiles in the stream (1: a stream without tiles)
     tiles_decoded: int = 1  # of them decoded (fewer with a box)
     preview: bool = False  # only the level-1 points were decoded (max_level 1)
+
+
+    @property
+    def stream_hash(self) -> bytes:
+        """The SHA-256 of the decoded scene (clause 12): the stream's own for a stream of one tile;
+        for a tiled stream (each tile checked against its own hash) or a partial decode, computed
+        from the output, once."""
+        if self.scene_hash_in_stream is None:
+            self.scene_hash_in_stream = digest_of(self.scene)
+        return self.scene_hash_in_stream
 
 
 _KNOWN_ANCILLARY = set(AncillaryUnitType._value2member_map_)
@@ -425,10 +437,9 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
                            entries=entries, progress=progress, memory=memory, max_level=max_level, jobs=jobs)
     scene = _scene_of(ps, layout, decoded.coords, decoded.levels, mlps)
     whole = len(selected) == len(tiles) and max_level != LEVEL_1
+    stream_hash = None  # a tiled stream carries no hash of the whole scene: computed when asked for
     if whole and len(tiles) == 1:
         stream_hash = DecodedSceneHashUnit.from_bytes(tiles[0].scene_hash.payload).scene_hash
-    else:
-        stream_hash = digest_of(scene)
     checked = verify_hash and decoded.hash_checked
     return DecodeResult(scene, breakdown_of(container, n, point), checked, stream_hash, skipped,
                         entries, _stream_tools(ps, decoded, context_model, point, len(tiles)), source_info, notes,

@@ -87,7 +87,7 @@ def add_source_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", metavar="YAML", help="YAML file overriding preset options")
     p.add_argument("--tile-points", type=int, metavar="N",
                    help="cut the scene into spatial tiles (each decodable alone: lghcc-dec --jobs, --box) of about "
-                        "N points each (default 32768; a scene under 2N points has no tiles); 0: no tiles")
+                        "N points each (default 16384; a scene under 2N points has no tiles); 0: no tiles")
 
 
 def add_anchor_arguments(p: argparse.ArgumentParser) -> None:

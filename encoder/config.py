@@ -25,7 +25,7 @@ class AttributeCodingConfig:
     # Tiles (format version 1): the smallest tile side (a power of two of coarse voxels) whose
     # occupied tiles hold at least this many points on average; 0: no tiles. A scene that fits one
     # tile has none (the tool costs it no bits). Cost and decode speed: tools/results/tiles.md.
-    tile_points: int = 32768
+    tile_points: int = 16384
     # The tile side in coarse voxels (voxels without the hierarchy), 1 .. 2^20, instead of the
     # choice from tile_points; tiles are then used even when the scene fits one. 0: chosen.
     tile_scale: int = 0

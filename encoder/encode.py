@@ -30,7 +30,7 @@ from ..common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene, GaussianScene, R
 from ..common.hierarchy import Hierarchy, build_hierarchy
 from ..common.units import (CONTEXT_PER_CHANNEL_PRIOR, LEVEL_1, LEVEL_2, LEVEL_ALL, MASK_PROB_BITS, MAX_ANCHORS,
                                 MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, MAX_PREDICTED_MAGNITUDE, PRIOR_MEAN_MAX,
-                                AttributeUnitHeader, DecodedSceneHashUnit, GaussianParameterSet, RenderMlpHeader,
+                                AttributeUnitHeader, GaussianParameterSet, RenderMlpHeader,
                                 SceneParameterSet, SourceInfo)
 from .config import AttributeCodingConfig, EncoderConfig, context_model_size
 from .context_fit import ContextFitError, fit_level2_context
