@@ -292,9 +292,9 @@ def usable_context_twin(context_twin: ContextTwin | None, scene: AnchorScene, in
 @dataclass
 class CodedAttributes:
     """The attribute units of a scene and what they decode to."""
-    payloads: list[bytes]  # one per level
+    payloads: list[bytes]  # one per level (none: a tiled scene without a context model, coded by tile)
     context_payload: bytes | None
-    recon: np.ndarray  # float32 [N, M]: the decoded values, bit for bit
+    recon: np.ndarray | None  # float32 [N, M]: the decoded values, bit for bit
 
 
 @dataclass
@@ -455,6 +455,8 @@ def code_attributes(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodi
     level 2 the configured context model when it codes smaller (fits of each candidate; the
     smallest stream is kept). Cross-channel prediction is fitted where the layout allows it
     (Gaussian scenes)."""
+    if levels.tile_scale and cfg.context_model == "per_channel":
+        return CodedAttributes([], None, None)  # nothing to fit: each tile codes its own units (tiling.py)
     recon = np.zeros_like(inp.values, dtype=np.float32)
     payloads = []
     ideal = 0.0
@@ -508,17 +510,20 @@ def write_stream(parameter_units: list[DataUnit], context_payload: bytes | None,
 
 
 def stream_tiles(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodingConfig, geometry: GeometryCoding,
-                 coded: CodedAttributes, make_scene, progress: bool = False):
+                 coded: CodedAttributes, make_scene, stats: EncodeStats, progress: bool = False):
     """The tiles of the stream with their hashes, and the whole decoded scene (stream order).
     Without tiles: one tile of the units already coded. With tiles: every tile coded on its own
-    (encoder/tiling.py). ``make_scene(coords, values, mask)``: the decoded scene of those points."""
-    from .tiling import TileCoding, code_tiles
+    (encoder/tiling.py; ``stats`` then counts the tiles' units). ``make_scene(coords, values,
+    mask)``: the decoded scene of those points."""
+    from .tiling import TileCoding, code_tiles, tile_level_stats
 
+    stats.num_tiles = 1
     if levels.tile_scale == 0:
         decoded = make_scene(inp.coords, coded.recon, inp.mask)
         tile = TileCoding(None, np.arange(inp.coords.shape[0]), geometry.payload, coded.payloads, digest_of(decoded))
         return [tile], decoded
     tiles, recon = code_tiles(inp, cfg, coded.context_payload, progress)
+    tile_level_stats(tiles, stats)
     for tile in tiles:
         tile.scene_hash = digest_of(make_scene(inp.coords[tile.rows], recon[tile.rows],
                                                None if inp.mask is None else inp.mask[tile.rows]))
@@ -543,8 +548,7 @@ def assemble_anchor_stream(inp: AttributeInput, levels: LevelLayout, cfg: Encode
                            ancillary: list[DataUnit] | None = None, progress: bool = False) -> EncodeResult:
     """The stream: the scene parameter set, the ancillary units (right after it), the render
     model, the context model, the tiles."""
-    tiles, decoded = stream_tiles(inp, levels, cfg, geometry, coded, anchor_scene_maker(inp, model), progress)
-    stats.num_tiles = len(tiles)
+    tiles, decoded = stream_tiles(inp, levels, cfg, geometry, coded, anchor_scene_maker(inp, model), stats, progress)
     parameter_units = [DataUnit(UnitType.SCENE_PARAMETER_SET, inp.parameter_set.to_bytes())] + list(ancillary or [])
     if model.payload is not None:
         parameter_units.append(DataUnit(UnitType.RENDER_MODEL, model.payload))

@@ -186,8 +186,7 @@ def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: Gaus
         sh, op, log_scales, rotations = inp.layout.split(values)
         return GaussianScene.on_grid(coords, gps.voxel_size, gps.origin, sh, op, log_scales, rotations)
 
-    tiles, decoded = stream_tiles(inp, levels, cfg, geometry, coded, make, progress)
-    stats.num_tiles = len(tiles)
+    tiles, decoded = stream_tiles(inp, levels, cfg, geometry, coded, make, stats, progress)
     data = write_stream([DataUnit(UnitType.GAUSSIAN_PARAMETER_SET, gps.to_bytes())], coded.context_payload, tiles,
                         decoded.num_gaussians)
     digest = tiles[0].scene_hash if len(tiles) == 1 else gaussian_scene_digest(decoded)

@@ -14,7 +14,8 @@ tile is the whole scene's restricted to it, as no coarse voxel straddles two til
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections import Counter
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -75,6 +76,8 @@ class TileCoding:
     geometry: bytes
     attributes: list[bytes]
     scene_hash: bytes = b""
+    # per attribute unit: (attribute_level, context_model_id, coded chunk bits, channel predictions)
+    unit_stats: list[tuple[int, int, int, int]] = field(default_factory=list)
 
 
 def tile_rows(coords: np.ndarray, tile_size: int) -> list[tuple[tuple[int, int, int], np.ndarray]]:
@@ -105,7 +108,8 @@ def tile_levels(coords: np.ndarray, ps) -> tuple[list[tuple[int, np.ndarray]], o
     return levels, hier
 
 
-def code_tile(inp, rows: np.ndarray, cfg, context_payload: bytes | None, recon: np.ndarray) -> list[bytes]:
+def code_tile(inp, rows: np.ndarray, cfg, context_payload: bytes | None, recon: np.ndarray,
+              unit_stats: list) -> list[bytes]:
     """The attribute units of the tile holding ``rows`` of ``inp`` (in the tile's order); its
     decoded values go to ``recon[rows]``. Level 2 with the stream's context model where it codes
     smaller than the tile's own prior."""
@@ -137,6 +141,8 @@ def code_tile(inp, rows: np.ndarray, cfg, context_payload: bytes | None, recon: 
         if level == LEVEL_1:
             q_level1 = chosen.q
         payloads.append(chosen.payload)
+        h = chosen.header
+        unit_stats.append((level, h.context_model_id, 8 * sum(h.chunk_size), h.num_channel_predictions))
         reconstruct_level(trecon, lrows, chosen, inp.steps)
     recon[rows] = trecon
     return payloads
@@ -154,10 +160,29 @@ def code_tiles(inp, cfg, context_payload: bytes | None, progress: bool = False) 
     bar = progress_bar(total=len(parts), desc="code tiles", unit="tile", disable=not progress, leave=False)
     for cell, rows in parts:
         geometry = encode_geometry(inp.coords[rows])
-        tiles.append(TileCoding(cell, rows, geometry, code_tile(inp, rows, cfg, context_payload, recon)))
+        tile = TileCoding(cell, rows, geometry, [])
+        tile.attributes = code_tile(inp, rows, cfg, context_payload, recon, tile.unit_stats)
+        tiles.append(tile)
         bar.update()
     bar.close()
     return tiles, recon
+
+
+def tile_level_stats(tiles: list[TileCoding], stats) -> None:
+    """The stats of a tiled stream's attribute units: per level, their bytes, the context used
+    (the model of most of the level's tiles, and how many use it), channel predictions."""
+    from ..common.context.models import CONTEXT_MODEL_NAMES
+    from .stats import LevelStats
+
+    stats.num_tiles = len(tiles)
+    stats.attribute_coded_bits = sum(u[2] for t in tiles for u in t.unit_stats)
+    for level in sorted({u[0] for t in tiles for u in t.unit_stats}):
+        units = [(u, len(p)) for t in tiles for u, p in zip(t.unit_stats, t.attributes) if u[0] == level]
+        (model_id, count), = Counter(u[1] for u, _ in units).most_common(1)
+        name = CONTEXT_MODEL_NAMES[model_id] + ("" if count == len(units) else f" ({count} of {len(units)} tiles)")
+        old = stats.levels.get(level)
+        preds = None if old is None or old.channel_predictions is None else sum(u[3] for u, _ in units)
+        stats.levels[level] = LevelStats(name, sum(b for _, b in units), preds, None if old is None else old.context_fit)
 
 
 def tile_units(tiles: list[TileCoding], num_points: int) -> list[DataUnit]:
