@@ -25,10 +25,16 @@ def tile_cells(coords: np.ndarray, tile_size: int) -> np.ndarray:
     return np.floor_divide(np.asarray(coords, dtype=np.int64), np.int64(tile_size))
 
 
+INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
+
+
 def cell_bounds(cell, tile_size: int) -> tuple[np.ndarray, np.ndarray]:
-    """The voxel coordinates the cell covers: lo .. hi inclusive, per axis."""
-    lo = np.asarray(cell, dtype=np.int64) * np.int64(tile_size)
-    return lo, lo + np.int64(tile_size - 1)
+    """The voxel coordinates the cell covers: lo .. hi inclusive, per axis, as int64 (bounds beyond
+    the int64 range, which a cell of a stream's index can reach, are clamped to it: every
+    coordinate is within it, so comparisons are unchanged)."""
+    lo = [min(max(int(c) * int(tile_size), INT64_MIN), INT64_MAX) for c in cell]
+    hi = [min(max(int(c) * int(tile_size) + int(tile_size) - 1, INT64_MIN), INT64_MAX) for c in cell]
+    return np.asarray(lo, dtype=np.int64), np.asarray(hi, dtype=np.int64)
 
 
 def check_tile_index(index: TileIndex, num_points: int) -> None:
@@ -64,9 +70,10 @@ class Box:
 
 
 def cell_intersects_box(cell, tile_size: int, voxel_size: float, origin, box: Box) -> bool:
-    """Whether the world-space cube of a cell (informative: voxel c at c * voxel_size + origin,
-    the cell from its lowest voxel to one past its highest) meets the box."""
-    lo, hi = cell_bounds(cell, tile_size)
-    wlo = lo.astype(np.float64) * voxel_size + np.asarray(origin, np.float64)
-    whi = (hi + 1).astype(np.float64) * voxel_size + np.asarray(origin, np.float64)
-    return bool(np.all(wlo <= np.asarray(box.hi)) and np.all(whi >= np.asarray(box.lo)))
+    """Whether the world-space cube of a cell meets the box (clause 13.3): per axis the closed
+    intervals [cell * TileSize * voxel_size + origin, (cell + 1) * TileSize * voxel_size + origin]
+    (binary64, left to right) and [lo, hi] of the box intersect."""
+    o = [float(x) for x in origin]
+    wlo = [float(int(c) * int(tile_size)) * float(voxel_size) + oa for c, oa in zip(cell, o)]
+    whi = [float((int(c) + 1) * int(tile_size)) * float(voxel_size) + oa for c, oa in zip(cell, o)]
+    return all(a <= bh and b >= bl for a, b, bl, bh in zip(wlo, whi, box.lo, box.hi))

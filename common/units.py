@@ -285,7 +285,7 @@ class AttributeUnitHeader(SyntaxStructure):
                 v.ue(self, "pred_target_channel", i, lo=1, hi=m - 1)
                 v.ue(self, "pred_source_channel", i, hi=m - 2)
                 v.se(self, "pred_weight", i, lo=-MAX_CHANNEL_PREDICTION_WEIGHT, hi=MAX_CHANNEL_PREDICTION_WEIGHT)
-        v.ue(self, "num_rows_minus1", lo=self.num_rows - 1, hi=self.num_rows - 1)
+        v.ue(self, "num_rows_minus1", hi=MAX_ANCHORS - 1)  # = NumRows - 1: checked after parsing (clause 8.3)
         v.ue(self, "rows_per_chunk_minus1", hi=self.num_rows_minus1)
         for i in v.loop(self.num_chunks, "NumChunks", self, ("mask_chunk_size", "chunk_size")):
             for _ in v.when(self.offset_mask_present, "offset_mask_present_flag"):

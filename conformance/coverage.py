@@ -93,6 +93,8 @@ NOT_EXERCISED: dict[tuple[str, str], str] = {
         "an array of 2^24 values (also the limit on all context-model values together): a stream of many MB",
     ("tile_index_unit.tile_data_size", "maximum"):
         "a tile of 2^32 - 2 bytes (4 GiB)",
+    ("attribute_unit_header.num_rows_minus1", "maximum"):
+        "a unit of 2^24 rows: every one of 2^24 points in one tile (as num_anchors_minus1: maximum)",
 }
 
 # element -> the conformance stream still to be written for it. Such an element is left out of the

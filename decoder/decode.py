@@ -159,6 +159,12 @@ def tiles_of(units: list[DataUnit], by_type: dict[int, list[DataUnit]], n: int, 
     tiles = []
     for t, g in enumerate(groups):
         end = g[-1].offset + g[-1].size
+        at = g[0].offset
+        for u in g:  # the tile's units one after the other: no ancillary unit among them
+            if u.offset != at:
+                raise BitstreamError(f"tile {t}: an ancillary unit stands among its units (at byte {at}); the tiles "
+                                     "hold only their critical units")
+            at += u.size
         if g[0].offset != pos or end - pos != index.tile_data_size[t]:
             raise BitstreamError(f"tile_index_unit: tile {t} is said to take {index.tile_data_size[t]} bytes at byte "
                                  f"{pos}, its units take {end - g[0].offset} bytes at byte {g[0].offset}")
