@@ -65,10 +65,14 @@ def encode(scene: "Scene | PathLike", preset: str = "medium", *, config: PathLik
     return result.data
 
 
-def decode(data: bytes | bytearray | memoryview | PathLike, *, verify: bool = True) -> "Scene":
+def decode(data: bytes | bytearray | memoryview | PathLike, *, verify: bool = True, jobs: int = 1,
+           box: tuple[float, float, float, float, float, float] | None = None, level: int = 2) -> "Scene":
     """Decode a .lghcc stream (its bytes, or a path to it) into the scene it carries: a
     GaussianScene (a stream coded from Gaussians) or an AnchorScene. ``verify`` checks the
-    decoded scene against the hash in the stream (HashMismatchError when they differ)."""
+    decoded scene against the hash in the stream (HashMismatchError when they differ; per tile
+    in a tiled stream). ``jobs``: worker processes for the tiles (the result does not depend on
+    it). ``box`` (x0, y0, z0, x1, y1, z1, world coordinates): only the tiles whose cell meets it.
+    ``level`` 1: the level-1 preview (not hash-checked)."""
     from .common.errors import InputError
     from .decoder.decode import decode_stream
 
@@ -77,7 +81,17 @@ def decode(data: bytes | bytearray | memoryview | PathLike, *, verify: bool = Tr
             data = Path(data).read_bytes()
         except OSError as e:
             raise InputError(f"{data}: cannot read ({e.strerror})") from None
-    return decode_stream(bytes(data), verify_hash=verify).scene
+    from .common.tiles import Box
+
+    if box is not None:
+        if len(box) != 6 or any(lo > hi for lo, hi in zip(box[:3], box[3:])):
+            raise InputError(f"box: expected (x0, y0, z0, x1, y1, z1) with x0 <= x1, y0 <= y1, z0 <= z1, got {box!r}")
+        box = Box(tuple(map(float, box[:3])), tuple(map(float, box[3:])))
+    if level not in (1, 2):
+        raise InputError(f"level: 1 (the preview) or 2 (everything), got {level!r}")
+    if jobs < 1:
+        raise InputError(f"jobs: at least 1, got {jobs!r}")
+    return decode_stream(bytes(data), verify_hash=verify, jobs=jobs, box=box, max_level=level).scene
 
 
 def load_cameras(spec: "str | PathLike", scene: "Scene | None" = None, *, size: tuple[int, int] = (256, 256),

@@ -18,6 +18,38 @@ def positive_float(text: str) -> float:
     return x
 
 
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1, with a message naming what was given."""
+    try:
+        x = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if x < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
+    return x
+
+
+def box_arg(text: str):
+    """argparse type: a box x0,y0,z0,x1,y1,z1 in world coordinates (lghcc-dec --box), each a finite
+    number and x0 <= x1, y0 <= y1, z0 <= z1."""
+    from ..common.tiles import Box
+
+    parts = text.split(",")
+    if len(parts) != 6:
+        raise argparse.ArgumentTypeError(f"expected six numbers x0,y0,z0,x1,y1,z1, got {len(parts)} in {text!r}")
+    try:
+        v = [float(x) for x in parts]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected six numbers x0,y0,z0,x1,y1,z1, got {text!r}") from None
+    if not all(math.isfinite(x) for x in v):
+        raise argparse.ArgumentTypeError(f"the box's numbers must be finite, got {text!r}")
+    bad = [a for a, lo, hi in zip("xyz", v[:3], v[3:]) if lo > hi]
+    if bad:
+        raise argparse.ArgumentTypeError(f"the box's minimum is above its maximum on {', '.join(bad)} in {text!r} "
+                                         "(x0,y0,z0 is the low corner, x1,y1,z1 the high one)")
+    return Box(tuple(v[:3]), tuple(v[3:]))
+
+
 # --- what every lghcc-* program shares ------------------------------------------------------------
 
 # The exit statuses and the --help table that lists them are lghcc.app.cli_common's (one rule for every

@@ -11,6 +11,7 @@ CATEGORY_OF_UNIT = {
     UnitType.SCENE_PARAMETER_SET: "header",
     UnitType.GAUSSIAN_PARAMETER_SET: "header",
     UnitType.DECODED_SCENE_HASH: "header",
+    UnitType.TILE_INDEX: "header",
     UnitType.GEOMETRY: "geometry",
     UnitType.ATTRIBUTE: "attributes",
     UnitType.RENDER_MODEL: "model",

@@ -402,6 +402,9 @@ def read_attribute_unit(payload: bytes, layout, steps: np.ndarray, num_rows: int
                                   channel_prediction_allowed=layout.channel_prediction_allowed, num_rows=num_rows)
     if h.attribute_level != level:
         raise BitstreamError(f"attribute unit: attribute_level {h.attribute_level} where level {level} is expected")
+    if h.num_rows_minus1 + 1 != num_rows:  # clause 8.3 rule 8
+        raise BitstreamError(f"{what}: num_rows_minus1 + 1 = {h.num_rows_minus1 + 1}, but the tile's level has "
+                             f"{num_rows} rows")
     prediction = ChannelPrediction.from_header(h, what)
     if h.context_model_id == CONTEXT_PER_CHANNEL_PRIOR:
         params = prior_params(h)

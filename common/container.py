@@ -18,8 +18,8 @@ from .errors import BitstreamError, UnsupportedStreamError
 from .syntax import SyntaxStructure, SyntaxVisitor
 
 MAGIC = 0x4C474843  # "LGHC"
-VERSION_MAJOR = 0
-VERSION_MINOR = 2
+VERSION_MAJOR = 1
+VERSION_MINOR = 0
 ANCILLARY_UNIT_TYPE_MIN = 0x80
 UNIT_HEADER_BYTES = 5
 UNIT_CRC_BYTES = 4
@@ -37,6 +37,7 @@ class UnitType(IntEnum):
     CONTEXT_MODEL = 0x05
     DECODED_SCENE_HASH = 0x06
     GAUSSIAN_PARAMETER_SET = 0x07  # version 0.2: an explicit-Gaussian scene (in place of the scene parameter set)
+    TILE_INDEX = 0x08  # version 1: where each tile's units are, its grid cell and point count (clause 7.3.11)
 
 
 class AncillaryUnitType(IntEnum):
@@ -129,7 +130,9 @@ def read_container(data: bytes) -> Container:
     if header.version_major != VERSION_MAJOR:
         raise UnsupportedStreamError(
             f"stream version {header.version_major}.{header.version_minor} is not supported "
-            f"(this decoder reads version {VERSION_MAJOR}.x)")
+            f"(this decoder reads version {VERSION_MAJOR}.x"
+            + ("; version 0 streams were written by lghcc before the tiled format: re-encode the scene)"
+               if header.version_major == 0 else ")"))
     if header.profile_idc not in Profile._value2member_map_:
         raise UnsupportedStreamError(f"profile_idc {header.profile_idc} is not supported")
     if header.reserved_zero_8bits != 0:

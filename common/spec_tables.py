@@ -13,7 +13,7 @@ def all_structures() -> list[type[SyntaxStructure]]:
     return [container.ContainerHeader, container.UnitHeader, units.SceneParameterSet,
             units.RenderModelUnit, units.RenderMlpHeader, geometry.GeometryHeader,
             units.AttributeUnitHeader, units.DecodedSceneHashUnit, model_unit.ContextModelUnit,
-            model_unit.IntArrayHeader, units.GaussianParameterSet, units.SourceInfo]
+            model_unit.IntArrayHeader, units.GaussianParameterSet, units.SourceInfo, units.TileIndex]
 
 
 def syntax_tables_markdown() -> str:

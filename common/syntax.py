@@ -77,10 +77,14 @@ class SyntaxVisitor:
     # --- elements -----------------------------------------------------------------
     def u(self, nbits: int, obj: Any, name: str, i: int | None = None, *, lo: int = 0,
           hi: int | None = None, width: str | None = None) -> int:
-        """Fixed-width unsigned integer u(n). ``width`` names a variable width in the table."""
-        return self._visit(f"u({width or nbits})", obj, name, i, lo, hi,
+        """Unsigned integer u(n) of ``nbits`` bits. ``width`` names a variable width (an expression
+        of elements parsed before) in the table; a trace records the number of bits."""
+        return self._visit(self._u_descriptor(nbits, width), obj, name, i, lo, hi,
                            lambda r, lab: r.u(nbits, lab), lambda w, v, lab: w.u(nbits, v, lab),
                            lambda v: nbits)
+
+    def _u_descriptor(self, nbits: int, width: str | None) -> str:
+        return f"u({nbits})"
 
     def flag(self, obj: Any, name: str, i: int | None = None) -> bool:
         return bool(self.u(1, obj, name, i))
@@ -267,6 +271,9 @@ class TableVisitor(SyntaxVisitor):
             return _get(obj, name, i)
         except (AttributeError, IndexError, TypeError):
             return 0
+
+    def _u_descriptor(self, nbits: int, width: str | None) -> str:
+        return f"u({width or nbits})"
 
     def payload(self, obj, name, nbytes):
         self.payload_rows.append(len(self.rows))

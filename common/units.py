@@ -27,6 +27,7 @@ MASK_PROB_BITS = 12
 PRIOR_MEAN_MAX = (1 << 31) - 1  # |prior_mean|: the magnitudes se(v) codes (common/bitio.py)
 
 MAX_COARSE_VOXEL_SCALE = 1 << 20
+MAX_TILE_SCALE = 1 << 20  # tile side in coarse voxels (clause 7.3.1)
 MAX_SH_DEGREE = 3
 # Cross-channel prediction (Gaussian scenes, clause 11.6): weights are se(v) in units of
 # 2^-CHANNEL_PREDICTION_SHIFT; decoded values must stay within +-MAX_PREDICTED_MAGNITUDE so that
@@ -47,6 +48,21 @@ MAX_CONTEXT_MODEL_ID = CONTEXT_GGCONV
 HASH_TYPE_SHA256 = 1
 
 
+def tile_syntax(ps, v: SyntaxVisitor) -> None:
+    """The tile elements ending both parameter sets (version 1, clause 7.3.1)."""
+    v.flag(ps, "tiles_enabled_flag")
+    for _ in v.when(ps.tiles_enabled_flag, "tiles_enabled_flag"):
+        v.ue(ps, "tile_scale_minus1", hi=MAX_TILE_SCALE - 1)
+
+
+def tile_size_of(ps) -> int:
+    """TileSize, the side of a tile in voxels (clause 7.3.1): tile_scale_minus1 + 1 coarse voxels
+    (voxels without the hierarchy), so that no coarse voxel straddles two tiles. 0: no tiles."""
+    if not ps.tiles_enabled_flag:
+        return 0
+    return (ps.tile_scale_minus1 + 1) * (ps.coarse_voxel_scale if ps.hierarchy_enabled_flag else 1)
+
+
 @dataclass
 class SceneParameterSet(SyntaxStructure):
     """sps: the dimensions of the scene and the quantization of its attributes."""
@@ -64,6 +80,8 @@ class SceneParameterSet(SyntaxStructure):
     offset_step: float = 1.0
     hierarchy_enabled_flag: int = 0
     coarse_voxel_scale_minus1: int = 0
+    tiles_enabled_flag: int = 0
+    tile_scale_minus1: int = 0
 
     def syntax(self, v: SyntaxVisitor) -> None:
         v.ue(self, "num_anchors_minus1", hi=MAX_ANCHORS - 1)
@@ -79,11 +97,16 @@ class SceneParameterSet(SyntaxStructure):
         v.flag(self, "hierarchy_enabled_flag")
         for _ in v.when(self.hierarchy_enabled_flag, "hierarchy_enabled_flag"):
             v.ue(self, "coarse_voxel_scale_minus1", hi=MAX_COARSE_VOXEL_SCALE - 1)
+        tile_syntax(self, v)
 
     # derived values (spec 7.4.1)
     @property
     def coarse_voxel_scale(self) -> int:
         return self.coarse_voxel_scale_minus1 + 1
+
+    @property
+    def tile_size(self) -> int:
+        return tile_size_of(self)
 
     @property
     def num_anchors(self) -> int:
@@ -116,6 +139,8 @@ class GaussianParameterSet(SyntaxStructure):
     rotation_step: float = 1.0
     hierarchy_enabled_flag: int = 0
     coarse_voxel_scale_minus1: int = 0
+    tiles_enabled_flag: int = 0
+    tile_scale_minus1: int = 0
 
     def syntax(self, v: SyntaxVisitor) -> None:
         v.ue(self, "num_gaussians_minus1", hi=MAX_ANCHORS - 1)
@@ -132,6 +157,7 @@ class GaussianParameterSet(SyntaxStructure):
         v.flag(self, "hierarchy_enabled_flag")
         for _ in v.when(self.hierarchy_enabled_flag, "hierarchy_enabled_flag"):
             v.ue(self, "coarse_voxel_scale_minus1", hi=MAX_COARSE_VOXEL_SCALE - 1)
+        tile_syntax(self, v)
 
     # derived values (clause 7.3.9)
     @property
@@ -145,6 +171,10 @@ class GaussianParameterSet(SyntaxStructure):
     @property
     def coarse_voxel_scale(self) -> int:
         return self.coarse_voxel_scale_minus1 + 1
+
+    @property
+    def tile_size(self) -> int:
+        return tile_size_of(self)
 
 
 @dataclass
@@ -219,9 +249,14 @@ class AttributeUnitHeader(SyntaxStructure):
     pred_target_channel: list = field(default_factory=list)
     pred_source_channel: list = field(default_factory=list)
     pred_weight: list = field(default_factory=list)
+    num_rows_minus1: int | None = None  # None: num_rows - 1 (the value an encoder writes)
     rows_per_chunk_minus1: int = 0
     mask_chunk_size: list = field(default_factory=list)
     chunk_size: list = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if self.num_rows_minus1 is None:
+            self.num_rows_minus1 = self.num_rows - 1
 
     @property
     def rows_per_chunk(self) -> int:
@@ -229,7 +264,7 @@ class AttributeUnitHeader(SyntaxStructure):
 
     @property
     def num_chunks(self) -> int:
-        return -(-self.num_rows // self.rows_per_chunk)
+        return -(-(self.num_rows_minus1 + 1) // self.rows_per_chunk)
 
     def syntax(self, v: SyntaxVisitor) -> None:
         v.u(2, self, "attribute_level", hi=LEVEL_2)
@@ -250,7 +285,8 @@ class AttributeUnitHeader(SyntaxStructure):
                 v.ue(self, "pred_target_channel", i, lo=1, hi=m - 1)
                 v.ue(self, "pred_source_channel", i, hi=m - 2)
                 v.se(self, "pred_weight", i, lo=-MAX_CHANNEL_PREDICTION_WEIGHT, hi=MAX_CHANNEL_PREDICTION_WEIGHT)
-        v.ue(self, "rows_per_chunk_minus1", hi=max(self.num_rows - 1, 0))
+        v.ue(self, "num_rows_minus1", hi=MAX_ANCHORS - 1)  # = NumRows - 1: checked after parsing (clause 8.3)
+        v.ue(self, "rows_per_chunk_minus1", hi=self.num_rows_minus1)
         for i in v.loop(self.num_chunks, "NumChunks", self, ("mask_chunk_size", "chunk_size")):
             for _ in v.when(self.offset_mask_present, "offset_mask_present_flag"):
                 v.ue(self, "mask_chunk_size", i)
@@ -268,6 +304,46 @@ class DecodedSceneHashUnit(SyntaxStructure):
     def syntax(self, v: SyntaxVisitor) -> None:
         v.u(8, self, "hash_type", lo=HASH_TYPE_SHA256, hi=HASH_TYPE_SHA256)
         v.payload(self, "scene_hash", 32)
+
+
+SE_MAX = (1 << 31) - 1  # the magnitudes se(v) codes (clause 2)
+MAX_TILE_DATA_SIZE = (1 << 32) - 2  # the values ue(v) codes
+
+
+@dataclass
+class TileIndex(SyntaxStructure):
+    """tile_index_unit (version 1, clause 7.3.11): the tiles of a tiled stream, in stream order.
+    Tile t is the grid cell (tile_x, tile_y, tile_z) of side TileSize voxels; its units (geometry,
+    attribute, decoded_scene_hash) take tile_data_size[t] bytes and start right after those of
+    tile t - 1 (tile 0: right after this unit), so a decoder can seek to any tile."""
+
+    syntax_name = "tile_index_unit"
+    clause = "7.3.11"
+    num_points: int = 1  # context: N from the parameter set
+    num_tiles_minus1: int = 0
+    tile_x: list = field(default_factory=list)
+    tile_y: list = field(default_factory=list)
+    tile_z: list = field(default_factory=list)
+    tile_num_points_minus1: list = field(default_factory=list)
+    tile_data_size: list = field(default_factory=list)
+
+    def syntax(self, v: SyntaxVisitor) -> None:
+        v.ue(self, "num_tiles_minus1", hi=self.num_points - 1)
+        names = ("tile_x", "tile_y", "tile_z", "tile_num_points_minus1", "tile_data_size")
+        for t in v.loop(self.num_tiles_minus1 + 1, "num_tiles_minus1 + 1", self, names, index="t"):
+            for axis in ("tile_x", "tile_y", "tile_z"):
+                v.se(self, axis, t, lo=-SE_MAX, hi=SE_MAX)
+            v.ue(self, "tile_num_points_minus1", t, hi=self.num_points - 1)
+            v.ue(self, "tile_data_size", t, hi=MAX_TILE_DATA_SIZE)
+        v.byte_align()
+
+    @property
+    def num_tiles(self) -> int:
+        return self.num_tiles_minus1 + 1
+
+    @property
+    def cells(self) -> list[tuple[int, int, int]]:
+        return list(zip(self.tile_x, self.tile_y, self.tile_z))
 
 
 @dataclass

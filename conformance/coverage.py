@@ -40,14 +40,14 @@ F32_MIN_POSITIVE = struct.unpack("<f", struct.pack("<I", 0x00000001))[0]
 # elements whose values are an enumeration (their syntax gives a wider or no range)
 ENUMERATIONS = {
     "container_header.magic": [MAGIC],
-    "container_header.version_major": [0],
+    "container_header.version_major": [1],
     "container_header.profile_idc": [int(p) for p in Profile],
     "container_header.reserved_zero_8bits": [0],
     "render_mlp_header.mlp_role": [0, 1, 2, 3],
     "render_mlp_header.activation": [0, 1, 2, 3],
 }
 # integer elements with a value of their own beside minimum / other / maximum
-SPECIAL_VALUES = {"container_header.version_minor": [2]}  # the version of this document
+SPECIAL_VALUES: dict[str, list[int]] = {}  # (version_minor 0, this document's, is its minimum)
 # upper limits that depend on earlier elements: element -> how the limit is found (see _contextual_max)
 CONTEXT_DEPENDENT_MAX = {"attribute_unit_header.rows_per_chunk_minus1": "NumRows - 1 (a single chunk)",
                          "attribute_unit_header.num_channel_predictions": "M (M - 1) / 2 (every pair)",
@@ -60,23 +60,22 @@ UNIT_TYPE = "data_unit_header.unit_type"
 # (element, value class) -> why no decodable stream can exercise it (checked against the code,
 # see tests/test_spec_and_conformance.py for the executable parts of each argument).
 IMPOSSIBLE: dict[tuple[str, str], str] = {
+    ("int_array_header.array_ndim", 0):
+        "every context-model array has a fixed number of dimensions (clause 7.3.8; Annex H, clauses H.5.1 and "
+        "H.6.1): parent_base and the biases 1, the weights 2, the GG-Conv table 4; a model rejects any other "
+        "shape. The scalars are syntax elements of context_model_unit(), not arrays",
     ("int_array_header.array_ndim", 3):
-        "every context-model array has a fixed shape (Annex H, clauses H.5.1 and H.6.1): scalars (0 or 1 "
-        "dimension), biases (1), weights (2) and the GG-Conv table (4); a model rejects any other shape",
-    ("scene_parameter_set.coarse_voxel_scale_minus1", "minimum"):
-        "coarse voxels of 1 voxel hold one anchor each, since decoded anchor coordinates are distinct "
-        "(octree leaves are distinct and decode_geometry rejects a direct-coded node holding one point "
-        "twice), so level 2 is empty and the decoder rejects hierarchy_enabled_flag = 1 with an empty "
-        "level 2 (stream e006_coarse_voxel_scale_one)",
-    ("gaussian_parameter_set.coarse_voxel_scale_minus1", "minimum"):
-        "as scene_parameter_set.coarse_voxel_scale_minus1: coarse voxels of 1 voxel hold one Gaussian each, "
-        "level 2 is empty, and the decoder rejects hierarchy_enabled_flag = 1 with an empty level 2",
+        "as array_ndim 0: no context-model array has 3 dimensions",
     ("context_model_unit.coded_size", "minimum"):
-        "every context model has the scalar num_features (>= 1); an empty chunk decodes every symbol as "
-        "bin 0 of its table (spec 10.6.4: point = 0), i.e. the value -L_level <= -4 (every half-width "
-        "L_i >= 4), so num_features < 1 and both models reject the unit",
+        "every context model has the array parent_base (values 0 or 1, at least one value); an empty chunk "
+        "decodes every symbol as bin 0 of its table (spec 10.6.4: point = 0), i.e. the value -L_level <= -4 "
+        "(every half-width L_i >= 4), outside an unsigned width or, declared signed, outside 0 .. 1, so both "
+        "models reject the unit",
     ("context_model_unit.coded_data", "empty"):
         "coded_data is coded_size bytes; see context_model_unit.coded_size: minimum",
+    ("tile_index_unit.tile_data_size", "minimum"):
+        "a tile is at least a geometry, an attribute and a decoded_scene_hash unit, each with its 5-byte header "
+        "and 4-byte CRC (clause 6.3): never 0 bytes",
 }
 
 # (element, value class) -> why the suite does not exercise it although a stream could
@@ -92,6 +91,10 @@ NOT_EXERCISED: dict[tuple[str, str], str] = {
         "a payload of 2^32 - 1 bytes (4 GiB)",
     ("int_array_header.array_dim_minus1", "maximum"):
         "an array of 2^24 values (also the limit on all context-model values together): a stream of many MB",
+    ("tile_index_unit.tile_data_size", "maximum"):
+        "a tile of 2^32 - 2 bytes (4 GiB)",
+    ("attribute_unit_header.num_rows_minus1", "maximum"):
+        "a unit of 2^24 rows: every one of 2^24 points in one tile (as num_anchors_minus1: maximum)",
 }
 
 # element -> the conformance stream still to be written for it. Such an element is left out of the

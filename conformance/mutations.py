@@ -34,7 +34,11 @@ Not listed, with the reason (each would be an *equivalent* mutation: no stream c
   the rejection beyond it);
 * IntLinear's shift-0 case (no rounding offset): adding 0.5 before the floor of an integer is the
   integer;
-* sh_degree's range 0..3 (clause 7.3.9): u(2) holds nothing else;
+* sh_degree's range 0..3 (clause 7.3.9): u(2) holds nothing else; likewise a context-model layer's
+  shift, u(5), whose range is 0..31;
+* GGConvParams' own checks of k, radius_sq, h_shift and neighbour_level and IntLinear's of a
+  shift: the context-model unit's syntax rejects every value outside those ranges first (the
+  syntax.* mutations of those elements stand for them);
 * the ranges of pred_source_channel (<= M - 2), of pred_target_channel from below (>= 1) and of
   num_channel_predictions (<= M (M - 1) / 2): an entry beyond them breaks source < target or the
   strictly increasing order of the entries, which the decoder rejects anyway (as BitstreamError;
@@ -86,6 +90,7 @@ RENDER = "lghcc.common.render_model"
 CONTAINER = "lghcc.common.container"
 DECODE = "lghcc.decoder.decode"
 HASHING = "lghcc.common.hashing"
+TILES = "lghcc.common.tiles"
 
 _BIAS_HALF = "(float(1 << (self.shift - 1)) if self.shift else 0.0)"
 
@@ -184,27 +189,12 @@ MUTATIONS: list[Mutation] = [
       ("o[:, 2 * m:].clamp(0, NUM_STEP_ADJUST - 1)", "o[:, 2 * m:].clamp(1, NUM_STEP_ADJUST - 1)")),
     M("ggconv.level_low_1", "ggconv", f"{GGCONV}:split_outputs",
       "scale level clamped to [1, 63]", ("o[:, m:2 * m].clamp(0, NUM_LEVELS - 1)", "o[:, m:2 * m].clamp(1, NUM_LEVELS - 1)")),
-    M("ggconv.k_max_63", "ggconv", f"{GGCONV}:GGConvParams.__post_init__",
-      "k limit off by one: k = 64 rejected", ("if not 1 <= int(self.k) <= MAX_K:", "if not 1 <= int(self.k) < MAX_K:")),
-    M("ggconv.no_k_check", "ggconv", f"{GGCONV}:GGConvParams.__post_init__",
-      "k not checked (k = 0 or k > 64 accepted)", ("if not 1 <= int(self.k) <= MAX_K:", "if False:")),
-    M("ggconv.no_h_shift_check", "ggconv", f"{GGCONV}:GGConvParams.__post_init__",
-      "h_shift not checked against 40", ("if not 0 <= int(self.h_shift) <= MAX_H_SHIFT:", "if False:")),
-    M("ggconv.h_shift_max_39", "ggconv", f"{GGCONV}:GGConvParams.__post_init__",
-      "h_shift limit off by one: 40 rejected",
-      ("if not 0 <= int(self.h_shift) <= MAX_H_SHIFT:", "if not 0 <= int(self.h_shift) < MAX_H_SHIFT:")),
     M("ggconv.no_grid_check", "ggconv", f"{GGCONV}:GGConvParams.__post_init__",
       "table size D not checked against [2, 16]",
       ("or not MIN_GRID <= t.shape[0] <= MAX_GRID:", "or False:")),
     M("ggconv.grid_max_15", "ggconv", f"{GGCONV}:GGConvParams.__post_init__",
       "table size limit off by one: D = 16 rejected",
       ("or not MIN_GRID <= t.shape[0] <= MAX_GRID:", "or not MIN_GRID <= t.shape[0] < MAX_GRID:")),
-    M("ggconv.no_radius_check", "ggconv", f"{GGCONV}:GGConvParams.__post_init__",
-      "radius_sq = 0 accepted", ("if not 1 <= int(self.radius_sq) <= MAX_RADIUS_SQ:", "if False:")),
-    M("ggconv.no_neighbour_level_check", "ggconv", f"{GGCONV}:GGConvParams.__post_init__",
-      "neighbour_level not checked (anything but 1 taken as 2)",
-      ("if isinstance(self.neighbour_level, bool) or int(self.neighbour_level) not in NEIGHBOUR_LEVELS:",
-       "if isinstance(self.neighbour_level, bool):")),
     M("ggconv.no_feat_shape_check", "ggconv", f"{GGCONV}:GGConvParams.__post_init__",
       "feature MLP's input and output counts not checked against C + 3 and Ch",
       ("if c < 1 or self.feat_mlp.in_dim != c + 3 or self.feat_mlp.out_dim != ch:", "if c < 1:")),
@@ -476,7 +466,8 @@ MUTATIONS: list[Mutation] = [
     M("syntax.mask_prob_zero", "syntax", f"{UNITS}:AttributeUnitHeader.syntax", "mask_live_prob = 0 accepted",
       ('lo=1, hi=(1 << MASK_PROB_BITS) - 1)', 'lo=0, hi=(1 << MASK_PROB_BITS) - 1)')),
     M("syntax.rows_per_chunk_max", "syntax", f"{UNITS}:AttributeUnitHeader.syntax",
-      "rows_per_chunk_minus1 may exceed NumRows - 1", ('hi=max(self.num_rows - 1, 0))', 'hi=self.num_rows)')),
+      "rows_per_chunk_minus1 may exceed num_rows_minus1", ('v.ue(self, "rows_per_chunk_minus1", hi=self.num_rows_minus1)',
+                                                           'v.ue(self, "rows_per_chunk_minus1", hi=self.num_rows_minus1 + 1)')),
     M("syntax.attribute_level_max", "syntax", f"{UNITS}:AttributeUnitHeader.syntax", "attribute_level 3 accepted",
       ('v.u(2, self, "attribute_level", hi=LEVEL_2)', 'v.u(2, self, "attribute_level")')),
     M("syntax.context_model_id_max", "syntax", f"{UNITS}:AttributeUnitHeader.syntax",
@@ -507,6 +498,30 @@ MUTATIONS: list[Mutation] = [
       ('v.ue(self, "head_num_layers_minus1", hi=MAX_MODEL_LAYERS - 1)', 'v.ue(self, "head_num_layers_minus1", hi=MAX_MODEL_LAYERS)')),
     M("syntax.model_id_zero", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax", "a context-model unit of model 0 accepted",
       ('lo=CONTEXT_PARENT_MLP, hi=MAX_CONTEXT_MODEL_ID)', 'lo=0, hi=MAX_CONTEXT_MODEL_ID)')),
+    # the context model's hyperparameters (clause 7.2; GGConvParams' own checks of k, radius_sq, h_shift and
+    # neighbour_level come after the syntax's and so cannot fail: the mistakes are made here)
+    M("syntax.num_features_zero", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax", "num_features = 0 accepted",
+      ('v.ue(self, "num_features", lo=1, hi=MAX_NUM_FEATURES)', 'v.ue(self, "num_features", hi=MAX_NUM_FEATURES)')),
+    M("syntax.num_features_max", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax",
+      "num_features range off by one: a model of C = 1024 features rejected",
+      ('v.ue(self, "num_features", lo=1, hi=MAX_NUM_FEATURES)', 'v.ue(self, "num_features", lo=1, hi=MAX_NUM_FEATURES - 1)')),
+    M("syntax.neighbour_level_unchecked", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax",
+      "neighbour_level not checked (0 and 3 accepted; anything but 1 taken as 2)",
+      ('v.u(2, self, "neighbour_level", lo=NEIGHBOUR_LEVELS[0], hi=NEIGHBOUR_LEVELS[-1])', 'v.u(2, self, "neighbour_level")')),
+    M("syntax.k_unchecked", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax", "k not checked (k = 0 or k > 64 accepted)",
+      ('v.ue(self, "k", lo=1, hi=MAX_K)', 'v.ue(self, "k")')),
+    M("syntax.k_max_63", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax", "k limit off by one: k = 64 rejected",
+      ('v.ue(self, "k", lo=1, hi=MAX_K)', 'v.ue(self, "k", lo=1, hi=MAX_K - 1)')),
+    M("syntax.k_max_65", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax", "k limit off by one: k = 65 accepted",
+      ('v.ue(self, "k", lo=1, hi=MAX_K)', 'v.ue(self, "k", lo=1, hi=MAX_K + 1)')),
+    M("syntax.radius_sq_bits_max", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax", "a radius_sq of 63 bits accepted",
+      ('hi=MAX_RADIUS_SQ_BITS - 1)', 'hi=MAX_RADIUS_SQ_BITS)')),
+    M("syntax.radius_sq_zero", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax", "radius_sq = 0 accepted",
+      ('self, "radius_sq", lo=1, hi=MAX_RADIUS_SQ,', 'self, "radius_sq", lo=0, hi=MAX_RADIUS_SQ,')),
+    M("syntax.h_shift_unchecked", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax", "h_shift not checked against 40",
+      ('v.u(H_SHIFT_BITS, self, "h_shift", hi=MAX_H_SHIFT)', 'v.u(H_SHIFT_BITS, self, "h_shift")')),
+    M("syntax.h_shift_max_39", "syntax", f"{MODEL_UNIT}:ContextModelUnit.syntax", "h_shift limit off by one: 40 rejected",
+      ('v.u(H_SHIFT_BITS, self, "h_shift", hi=MAX_H_SHIFT)', 'v.u(H_SHIFT_BITS, self, "h_shift", hi=MAX_H_SHIFT - 1)')),
 
     # --- context-model unit, render model (clauses 7.3.2, 7.3.7)
     M("model_unit.no_value_range_check", "model_unit", f"{MODEL_UNIT}:read_context_model_unit",
@@ -533,7 +548,7 @@ MUTATIONS: list[Mutation] = [
       ("if header.magic != MAGIC:", "if False:")),
     M("container.no_crc_check", "container", f"{CONTAINER}:read_container", "CRC-32 not checked",
       ("if zlib.crc32(data[pos:end]) != stored:", "if False:")),
-    M("container.major_version", "container", f"{CONTAINER}:read_container", "version 1.x accepted",
+    M("container.major_version", "container", f"{CONTAINER}:read_container", "version 0.x and 2.x accepted",
       ("if header.version_major != VERSION_MAJOR:", "if False:")),
     M("container.no_reserved_check", "container", f"{CONTAINER}:read_container",
       "reserved_zero_8bits not checked", ("if header.reserved_zero_8bits != 0:", "if False:")),
@@ -545,14 +560,39 @@ MUTATIONS: list[Mutation] = [
     M("decode.no_order_check", "decode", f"{DECODE}:organize_units", "critical units in any order",
       ("if not _UNIT_ORDER.fullmatch(letters):", "if False:")),
     M("decode.attribute_count", "decode", f"{DECODE}:decode_attribute_units",
-      "the number of attribute units not checked against hierarchy_enabled_flag",
-      ("if len(attribute_units) != (2 if ps.hierarchy_enabled_flag else 1):", "if False:")),
-    M("decode.context_without_hierarchy", "decode", f"{DECODE}:decode_attribute_units",
+      "the number of a tile's attribute units not checked against the hierarchy and its level 2",
+      ("if len(attribute_units) != len(levels):", "if False:")),
+    M("decode.context_without_hierarchy", "decode", f"{DECODE}:read_context_model_unit",
       "a context-model unit without the hierarchy accepted (ignored)",
-      ("        if not ps.hierarchy_enabled_flag:\n            raise BitstreamError(\"a context model unit",
-       "        if False:\n            raise BitstreamError(\"a context model unit")),
-    M("decode.empty_level2_ok", "decode", f"{DECODE}:decode_attribute_units", "an empty level 2 accepted",
-      ("if hier.num_level2 == 0:", "if False:")),
+      ("    if not ps.hierarchy_enabled_flag:\n        raise BitstreamError(\"a context model unit",
+       "    if False:\n        raise BitstreamError(\"a context model unit")),
+    M("decode.empty_level2_two_units", "decode", f"{DECODE}:decode_attribute_units",
+      "a tile with an empty level 2 expected to carry a level-2 unit anyway (version 0's rule)",
+      ("+ ([(LEVEL_2, hier.level2_idx)] if hier.num_level2 else [])", "+ [(LEVEL_2, hier.level2_idx)]")),
+    # --- tiles (version 1: clauses 7.3.11, 13.2)
+    M("tiles.no_order_check", "tiles", f"{TILES}:check_tile_index", "tile cells in any order, or twice",
+      ("if not cells[t - 1] < cells[t]:", "if False:")),
+    M("tiles.no_point_count_check", "tiles", f"{TILES}:check_tile_index", "tile point counts not added up to N",
+      ("if total != num_points:", "if False:")),
+    M("tiles.no_cell_check", "tiles", f"{TILES}:check_points_in_cell", "points outside their tile's cell accepted",
+      ("if outside.any():", "if False:")),
+    M("tiles.no_offset_check", "tiles", f"{DECODE}:tiles_of", "tile byte offsets and sizes not checked",
+      ("if g[0].offset != pos or end - pos != index.tile_data_size[t]:", "if False:")),
+    M("tiles.no_tile_count_check", "tiles", f"{DECODE}:tiles_of", "the index's tile count not compared with the tiles",
+      ("if index.num_tiles != len(groups):", "if False:")),
+    M("tiles.flag_not_checked", "tiles", f"{DECODE}:decode_stream",
+      "tiles_enabled_flag not compared with the presence of the tile index",
+      ("if (UnitType.TILE_INDEX in by_type) != bool(ps.tiles_enabled_flag):", "if False:")),
+    M("tiles.several_without_index", "tiles", f"{DECODE}:organize_units", "several tiles without a tile index accepted",
+      ('if "I" not in letters and letters.count("G") > 1:', "if False:")),
+    M("tiles.size_in_voxels", "tiles", f"{UNITS}:tile_size_of",
+      "TileSize in voxels (tile_scale_minus1 + 1) instead of coarse voxels with the hierarchy",
+      ("* (ps.coarse_voxel_scale if ps.hierarchy_enabled_flag else 1)", "* 1")),
+    M("attributes.num_rows_unchecked", "attributes", f"{ATTR}:read_attribute_unit",
+      "num_rows_minus1 not compared with the tile's NumRows",
+      ("if h.num_rows_minus1 + 1 != num_rows:", "if False:")),
+    M("tiles.ancillary_inside_tiles", "tiles", f"{DECODE}:tiles_of", "an ancillary unit inside a tile accepted",
+      ("if u.offset != at:", "if False:")),
     M("decode.model_id_mismatch", "decode", f"{DECODE}:decode_attribute_units",
       "the level-2 unit's context_model_id not compared with the unit's model",
       ("if context_model is None or model_id != context_model[0]:", "if context_model is None:")),
@@ -606,7 +646,7 @@ MUTATIONS: list[Mutation] = [
       ("return self.sh_channels", "return self.sh_channels + 1")),
     M("gaussians.render_model_ok", "gaussians", f"{DECODE}:_UNIT_ORDER",
       "a render_model unit accepted (and ignored) in an explicit-Gaussian stream",
-      value='__import__("re").compile(r"SR?GC?A{1,2}H|PR?GC?A{1,2}H")'),
+      value='__import__("re").compile(r"(SR?|PR?)C?I?(GA{1,2}H)+")'),
     M("gaussians.hash_field_order", "gaussians", f"{HASHING}:gaussian_scene_digest",
       "the opacities hashed before the SH coefficients (clause 12)",
       ("for arr in (scene.sh, scene.opacity, scene.log_scales, scene.rotations):",

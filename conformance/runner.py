@@ -10,6 +10,11 @@ Each stream lives in ``conformance/streams/<id>/`` as ``stream.lghcc`` and ``tes
                    of its message (the reason); both are checked for the reference decoder
   renders          (optional, informative) reference images of fixed cameras and a tolerance;
                    checked with --render (the renderer is not normative, hence no hash)
+  partial_decodes  (tiled streams, version 1) decodes of part of the stream, each with the SHA-256 of
+                   what it outputs: ``box`` [x0, y0, z0, x1, y1, z1]: the tiles whose cell meets the
+                   box (``tiles_decoded`` of them), ``level: 1``: the level-1 preview (clause 13.3);
+                   checked for the reference decoder, and for another with ``{options}`` in its
+                   --decoder-cmd (replaced by lghcc-dec's options: --box=..., --level 1)
   source_info      (streams with a source_info unit, informative: clauses 6.3, 7.3.10)
                    source_sh_degree: what a decoder that interprets source_info outputs (null:
                    nothing, its first source_info unit is malformed) and ignored: how many
@@ -36,7 +41,10 @@ Rejection protocol (its exit status; the rule of every lghcc program, lghcc.app.
            --timeout: FAIL
 Exit codes carry the class of a rejection only as far as the rule distinguishes it: the reference
 decoder run in process is held to the exact class and a fragment of the message.
-Example: ``lghcc-conformance --decoder-cmd "lghcc-dec {stream} --print-hash"``, or with renders
+An argument ``{options}`` is replaced by a partial decode's options (--box=X0,...,Z1 or --level 1)
+when the partial decodes of tiled streams are checked, and by nothing otherwise; without it they
+are not checked.
+Example: ``lghcc-conformance --decoder-cmd "lghcc-dec {stream} {options} --print-hash"``, or with renders
 ``lghcc-conformance --render --decoder-cmd "lghcc-dec {stream} -o {out} --print-hash"``.
 Exit status of lghcc-conformance: 0 all passed, 1 a stream failed, 2 usage or suite error
 (an unknown stream id, a damaged test.yaml), 4 out of memory, 130 interrupted.
@@ -140,9 +148,23 @@ def validate_meta(meta, folder: Path) -> dict:
         validate_renders(meta["renders"], folder)
     if "source_info" in meta:
         validate_source_info(meta["source_info"], folder)
+    if "partial_decodes" in meta:
+        validate_partial_decodes(meta["partial_decodes"], expect, folder)
     if not (folder / "stream.lghcc").is_file():
         raise _bad(folder, "no stream.lghcc beside it")
     return meta
+
+
+def validate_partial_decodes(parts, expect: str, folder: Path) -> None:
+    if expect != "decode" or not isinstance(parts, list) or not parts:
+        raise _bad(folder, "partial_decodes must be a non-empty list, on a stream that must decode")
+    for p in parts:
+        if not isinstance(p, dict) or not _HEX64.fullmatch(str(p.get("decoded_sha256", ""))):
+            raise _bad(folder, f"partial decode {p!r}: missing or malformed decoded_sha256")
+        box_ok = "box" in p and isinstance(p["box"], list) and len(p["box"]) == 6 and \
+            all(isinstance(x, (int, float)) for x in p["box"])
+        if not (box_ok or p.get("level") == 1):
+            raise _bad(folder, f"partial decode {p!r}: needs box (six numbers) or level: 1")
 
 
 def validate_renders(r, folder: Path) -> None:
@@ -259,8 +281,16 @@ def check_template(template: str, render: bool = False) -> None:
                          "writes the decoded scene (Scaffold-GS layout, as lghcc-dec -o)")
 
 
-def decode_external(template: str, stream: Path, timeout: float, out: Path | None = None) -> External:
-    cmd = [a.replace("{stream}", str(stream)).replace("{out}", str(out) if out else "") for a in shlex.split(template)]
+def decode_external(template: str, stream: Path, timeout: float, out: Path | None = None,
+                    options: list[str] | None = None) -> External:
+    """Run the decoder command: {stream}, {out} replaced, and an argument {options} by ``options``
+    (a partial decode's; none for a whole decode)."""
+    cmd = []
+    for a in shlex.split(template):
+        if a == "{options}":
+            cmd += options or []
+        else:
+            cmd.append(a.replace("{stream}", str(stream)).replace("{out}", str(out) if out else ""))
     try:
         res = subprocess.run(cmd, capture_output=True, text=True, errors="replace", timeout=timeout)
     except subprocess.TimeoutExpired:
@@ -343,8 +373,36 @@ def _run_internal(case: Case, render: bool) -> tuple[bool, str]:
         return False, f"unexpected {type(e).__name__}: {e}"
     ok, note = _judge_decoded(case, digest, scene, render)
     if ok and "source_info" in case.meta:
-        return _judge_source_info(case.meta["source_info"], result, note)
+        ok, note = _judge_source_info(case.meta["source_info"], result, note)
+    if ok and "partial_decodes" in case.meta:
+        ok, note = _judge_partial_internal(case, note)
     return ok, note
+
+
+def partial_options(p: dict) -> list[str]:
+    """lghcc-dec's options for one partial decode of test.yaml."""
+    if "box" in p:
+        return ["--box=" + ",".join(repr(float(x)) for x in p["box"])]
+    return ["--level", str(int(p["level"]))]
+
+
+def _judge_partial_internal(case: Case, note: str) -> tuple[bool, str]:
+    """The partial decodes of a tiled stream (box, level-1 preview) by the reference decoder."""
+    from ..common.hashing import digest_of
+    from ..common.tiles import Box
+    from ..decoder.decode import decode_stream
+
+    data = case.stream.read_bytes()
+    for p in case.meta["partial_decodes"]:
+        box = Box(tuple(p["box"][:3]), tuple(p["box"][3:])) if "box" in p else None
+        try:
+            res = decode_stream(data, box=box, max_level=int(p.get("level", 2)))
+        except LghccError as e:
+            return False, f"{note}; partial decode {' '.join(partial_options(p))} failed: {e}"
+        got = digest_of(res.scene).hex()
+        if got != p["decoded_sha256"]:
+            return False, f"{note}; partial decode {' '.join(partial_options(p))}: hash {got[:16]}... differs"
+    return True, f"{note}; {len(case.meta['partial_decodes'])} partial decodes match"
 
 
 def _judge_source_info(want: dict, result, note: str) -> tuple[bool, str]:
@@ -399,7 +457,14 @@ def _run_external(case: Case, template: str, timeout: float, render: bool) -> tu
                 scene = read_scaffold(out)
             except LghccError as e:
                 return False, f"hash matches; cannot read the decoder's output scene in {{out}}: {e}"
-        return _judge_decoded(case, digest, scene, render)
+        ok, note = _judge_decoded(case, digest, scene, render)
+        if ok and "partial_decodes" in case.meta and "{options}" in shlex.split(template):
+            for p in case.meta["partial_decodes"]:
+                ext = decode_external(template, case.stream, timeout, None, partial_options(p))
+                if ext.status != "exit" or ext.code != 0 or ext.last_line.lower() != p["decoded_sha256"]:
+                    return False, f"{note}; partial decode {' '.join(partial_options(p))}: {ext.describe()}"
+            note += f"; {len(case.meta['partial_decodes'])} partial decodes match"
+        return ok, note
 
 
 def run_case(case: Case, decoder_cmd: str | None = None, timeout: float = 120.0, render: bool = False) -> Outcome:

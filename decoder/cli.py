@@ -7,6 +7,7 @@ import json
 import os
 import sys
 import time
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 # Rendering (--render) runs torch's OpenMP kernels: passive waiting keeps 2 threads from spinning
@@ -16,7 +17,8 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from ..app.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK, EXIT_RESOURCE_LIMIT,
                               EXIT_USAGE, exit_status_epilog, format_bytes, memory_size, with_prefix)
-from ..app.cliargs import OVERWRITE_RULE, add_overwrite_options, add_version_option, positive_float, run_cli
+from ..app.cliargs import (OVERWRITE_RULE, add_overwrite_options, add_version_option, box_arg, positive_float,
+                           positive_int, run_cli)
 from ..common.errors import LghccError
 from ..app.fileio import (atomic_write_bytes, check_output_folder, check_output_paths, check_overwrite,
                                  write_error)
@@ -39,6 +41,15 @@ examples:
   lghcc-dec demo.lghcc --render orbit:8 --render-out views/    8 PNGs around the scene
   lghcc-dec demo.lghcc --render lego/transforms_test.json --render-out views/
   lghcc-dec demo.lghcc --export-ply demo_3dgs.ply   plain 3DGS PLY for standard viewers
+  lghcc-dec big.lghcc -o out/ --jobs 2             tiles decoded by 2 worker processes
+  lghcc-dec big.lghcc -o part/ --box -1,-1,-1,1,1,1   only the tiles that meet the box
+  lghcc-dec big.lghcc -o coarse/ --level 1          level-1 preview: one anchor per coarse voxel
+
+A stream of a large scene is cut into tiles (spatial cells, each decodable on its own).
+--jobs decodes them in parallel, with the same output bit for bit as one process; --box
+decodes only the tiles whose cell meets a box given in world coordinates (every point of
+those tiles is output, with each tile's hash checked); --level 1 stops after the level-1
+anchors of each tile (a coarse scene, not hash-checked). A stream without tiles has one.
 
 --render takes orbit:N or the cameras of a dataset: a dataset folder of any layout
 (NeRF-synthetic, COLMAP sparse/0, Mip-NeRF 360, LLFF poses_bounds.npy; its test views),
@@ -70,6 +81,15 @@ def setup_args() -> argparse.ArgumentParser:
     p.add_argument("--no-verify", action="store_true", help="do not check the decoded-scene hash")
     p.add_argument("--trace", metavar="FILE", help="write a bit trace: every syntax element with its position")
     p.add_argument("--threads", type=int, help="torch threads for inference (the output does not depend on it)")
+    p.add_argument("--jobs", type=positive_int, default=1, metavar="N",
+                   help="worker processes decoding the tiles of a tiled stream (default 1; the output does not "
+                        "depend on it)")
+    p.add_argument("--box", type=box_arg, metavar="X0,Y0,Z0,X1,Y1,Z1",
+                   help="decode only the tiles whose cell meets this box (world coordinates, low corner then "
+                        "high corner); a stream without tiles decodes whole")
+    p.add_argument("--level", type=int, choices=(1, 2), default=2,
+                   help="1: the level-1 preview (one point per coarse voxel of each tile, not hash-checked; a "
+                        "stream without the hierarchy decodes whole); 2: everything (default)")
     p.add_argument("--max-anchors", type=int, help="refuse streams declaring more anchors than this (exit status 4)")
     p.add_argument("--max-memory", type=memory_size, default=DEFAULT_MAX_MEMORY, metavar="SIZE",
                    help="refuse a stream whose decoding needs more memory than this, computed from its headers "
@@ -157,8 +177,22 @@ def main(argv: list[str] | None = None) -> int:
     return run_cli("lghcc-dec", _main, argv)
 
 
+def _box_value_attached(argv: list[str]) -> list[str]:
+    """'--box -1,-1,-1,1,1,1' as '--box=-1,...': argparse takes a value that starts with '-' and is
+    not a plain number for an option."""
+    out, i = [], 0
+    while i < len(argv):
+        if argv[i] == "--box" and i + 1 < len(argv) and argv[i + 1][:2].lstrip("-")[:1] in tuple("0123456789."):
+            out.append("--box=" + argv[i + 1])
+            i += 2
+            continue
+        out.append(argv[i])
+        i += 1
+    return out
+
+
 def _main(argv: list[str] | None) -> int:
-    args = setup_args().parse_args(argv)
+    args = setup_args().parse_args(_box_value_attached(sys.argv[1:] if argv is None else list(argv)))
     from .decode import decode_stream
 
     say = (lambda *a: None) if args.quiet else print
@@ -174,9 +208,12 @@ def _main(argv: list[str] | None) -> int:
     t0 = time.perf_counter()
     try:  # a failure is reported by run_cli: one line, and the exit status of its kind (3 for a hash mismatch)
         result = decode_stream(data, verify_hash=not args.no_verify, trace=bool(args.trace),
-                               max_anchors=args.max_anchors, max_memory=args.max_memory, progress=not args.quiet)
+                               max_anchors=args.max_anchors, max_memory=args.max_memory, progress=not args.quiet,
+                               jobs=args.jobs, box=args.box, max_level=args.level)
     except LghccError as e:  # the same class (and exit status), with the stream's path
         raise with_prefix(e, args.stream) from None
+    except BrokenProcessPool as e:  # a worker killed (by a signal, or out of memory): nothing is written
+        raise LghccError(f"{args.stream}: a decoding worker process died ({e}); try --jobs 1") from None
     t_dec = time.perf_counter() - t0
     for text in result.notes:  # ancillary units reported and ignored (clause 6.3)
         print(f"lghcc-dec: warning: {text}", file=sys.stderr)
@@ -301,6 +338,10 @@ def _print_summary(args, result, num_bytes: int, t_dec: float, say) -> None:
         say(f"{args.stream}: {s.num_anchors:,} anchors, C={s.feature_dim}, K={s.num_offsets}, "
             f"{num_bytes:,} bytes, decoded in {t_dec:.2f} s ({s.num_anchors / max(t_dec, 1e-9):,.0f} anchors/s)")
     say(result.breakdown.table())
+    if args.box is not None:
+        say(f"box: decoded {result.tiles_decoded} of {result.num_tiles} tiles (those whose cell meets the box)")
+    if result.preview:
+        say("level-1 preview: one point per coarse voxel of each tile; not hash-checked")
     if result.tools:
         say("tools: " + "; ".join(result.tools))
     if result.source_info is not None:

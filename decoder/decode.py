@@ -1,11 +1,16 @@
 """The decoding process (spec clause 13): bitstream in, scene out, nothing else needed.
 
-Critical data units come in the order (clause 6.3)
-    scene_parameter_set, [render_model], geometry, [context_model], attribute x (1 or 2), decoded_scene_hash
-for an anchor scene, or (version 0.2)
-    gaussian_parameter_set, geometry, [context_model], attribute x (1 or 2), decoded_scene_hash
-for an explicit-Gaussian scene, with two attribute units (level 1, then level 2) when the
-hierarchy is enabled. Ancillary units (type >= 0x80) may appear anywhere after the parameter
+Critical data units come in the order (clause 6.3, version 1)
+    scene_parameter_set, [render_model], [context_model], [tile_index], tile+
+for an anchor scene, or
+    gaussian_parameter_set, [context_model], [tile_index], tile+
+for an explicit-Gaussian scene, where a tile is
+    geometry, attribute x (1 or 2), decoded_scene_hash
+with two attribute units (level 1, then level 2) when the hierarchy is enabled and the tile's
+level 2 is not empty. Without tiles (tiles_enabled_flag = 0) the stream has one tile, which
+holds every point, and no tile_index unit. Each tile decodes on its own (common/tiles.py), so
+tiles can be decoded in worker processes (``jobs``), a box can select some of them, and the
+level-1 preview can stop after each tile's level-1 unit. Ancillary units (type >= 0x80) may appear anywhere after the parameter
 set. This decoder knows one, source_info (0x80, clause 7.3.10), and returns what it says
 (``DecodeResult.source_info``: the source scene's SH degree, which lghcc-dec --export uses);
 it skips the others. The decoded scene and its hash never depend on an ancillary unit: a
@@ -14,7 +19,9 @@ source_info this decoder cannot parse, or a second one, is reported (``notes``) 
 
 from __future__ import annotations
 
+import os
 import re
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,15 +38,16 @@ from ..common.render_model import read_render_model_unit
 from ..app.report import SizeBreakdown, breakdown_of
 from ..common.scene import AnchorScene, GaussianScene
 from ..common.syntax import TraceEntry
+from ..common.tiles import Box, check_points_in_cell, check_tile_index, cell_intersects_box
 from ..common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ATTRIBUTE_VALUES, DecodedSceneHashUnit,
-                            GaussianParameterSet, SceneParameterSet, SourceInfo)
+                            GaussianParameterSet, SceneParameterSet, SourceInfo, TileIndex)
 from .limits import DEFAULT_MAX_MEMORY, MemoryPlan
 
 _LETTER = {UnitType.SCENE_PARAMETER_SET: "S", UnitType.GAUSSIAN_PARAMETER_SET: "P", UnitType.RENDER_MODEL: "R",
            UnitType.GEOMETRY: "G", UnitType.CONTEXT_MODEL: "C", UnitType.ATTRIBUTE: "A",
-           UnitType.DECODED_SCENE_HASH: "H"}
-# an anchor scene, or (version 0.2) an explicit-Gaussian scene, which has no render model
-_UNIT_ORDER = re.compile(r"SR?GC?A{1,2}H|PGC?A{1,2}H")
+           UnitType.DECODED_SCENE_HASH: "H", UnitType.TILE_INDEX: "I"}
+# an anchor scene, or an explicit-Gaussian scene, which has no render model; then the tiles
+_UNIT_ORDER = re.compile(r"(SR?|P)C?I?(GA{1,2}H)+")
 
 
 @dataclass
@@ -47,13 +55,28 @@ class DecodeResult:
     scene: AnchorScene | GaussianScene
     breakdown: SizeBreakdown
     hash_checked: bool
-    stream_hash: bytes
+    # the scene hash the stream carries for the whole decoded scene (a stream of one tile, decoded
+    # whole); None: computed from the decoded scene when asked for (``stream_hash``)
+    scene_hash_in_stream: bytes | None
     skipped_units: list[str] = field(default_factory=list)
     trace: list[TraceEntry] | None = None
     tools: list[str] = field(default_factory=list)  # the coding tools the stream uses, in words
     # the source_info unit (clause 7.3.10), when the stream has one this decoder could parse
     source_info: SourceInfo | None = None
     notes: list[str] = field(default_factory=list)  # ancillary units reported and ignored, in words
+    num_tiles: int = 1  # tiles in the stream (1: a stream without tiles)
+    tiles_decoded: int = 1  # of them decoded (fewer with a box)
+    preview: bool = False  # only the level-1 points were decoded (max_level 1)
+
+
+    @property
+    def stream_hash(self) -> bytes:
+        """The SHA-256 of the decoded scene (clause 12): the stream's own for a stream of one tile;
+        for a tiled stream (each tile checked against its own hash) or a partial decode, computed
+        from the output, once."""
+        if self.scene_hash_in_stream is None:
+            self.scene_hash_in_stream = digest_of(self.scene)
+        return self.scene_hash_in_stream
 
 
 _KNOWN_ANCILLARY = set(AncillaryUnitType._value2member_map_)
@@ -87,10 +110,67 @@ def organize_units(container: Container, known: list[DataUnit] | None = None) ->
     if not _UNIT_ORDER.fullmatch(letters):
         names = ", ".join(u.type_name for u in critical)
         raise BitstreamError(f"data units are out of order or repeated: {names} (expected scene_parameter_set, "
-                             "[render_model], geometry, [context_model], attribute (1 or 2), decoded_scene_hash; "
-                             "or gaussian_parameter_set, geometry, [context_model], attribute (1 or 2), "
-                             "decoded_scene_hash)")
+                             "[render_model], [context_model], [tile_index], then per tile geometry, attribute "
+                             "(1 or 2), decoded_scene_hash; or gaussian_parameter_set, [context_model], "
+                             "[tile_index], then the tiles)")
+    if "I" not in letters and letters.count("G") > 1:
+        raise BitstreamError(f"the stream has {letters.count('G')} tiles (geometry units) but no tile_index unit")
     return critical, skipped
+
+
+@dataclass
+class TileUnits:
+    """The units of one tile (clause 7.3.11): its cell (None: the one tile of a stream without
+    tiles), its point count, geometry, attribute units and decoded_scene_hash unit."""
+    cell: tuple[int, int, int] | None
+    num_points: int
+    geometry: DataUnit
+    attributes: list[DataUnit]
+    scene_hash: DataUnit
+
+
+def _tile_groups(units: list[DataUnit]) -> list[list[DataUnit]]:
+    """The critical units from the first geometry unit on, cut after each decoded_scene_hash."""
+    start = next(i for i, u in enumerate(units) if u.unit_type == UnitType.GEOMETRY)
+    groups, cur = [], []
+    for u in units[start:]:
+        cur.append(u)
+        if u.unit_type == UnitType.DECODED_SCENE_HASH:
+            groups.append(cur)
+            cur = []
+    return groups
+
+
+def tiles_of(units: list[DataUnit], by_type: dict[int, list[DataUnit]], n: int, entries) -> tuple[list[TileUnits],
+                                                                                                   TileIndex | None]:
+    """The tiles of the stream, checked against its tile index (clause 7.3.11): each tile's units
+    start at the byte the index gives and take tile_data_size bytes, so the index can be used to
+    seek. Raises BitstreamError."""
+    groups = _tile_groups(units)
+    if UnitType.TILE_INDEX not in by_type:
+        g = groups[0]
+        return [TileUnits(None, n, g[0], g[1:-1], g[-1])], None
+    iu = by_type[UnitType.TILE_INDEX][0]
+    index = TileIndex.from_bytes(iu.payload, entries, what="tile index unit", num_points=n)
+    check_tile_index(index, n)
+    if index.num_tiles != len(groups):
+        raise BitstreamError(f"tile_index_unit lists {index.num_tiles} tiles, the stream holds {len(groups)}")
+    pos = iu.offset + iu.size
+    tiles = []
+    for t, g in enumerate(groups):
+        end = g[-1].offset + g[-1].size
+        at = g[0].offset
+        for u in g:  # the tile's units one after the other: no ancillary unit among them
+            if u.offset != at:
+                raise BitstreamError(f"tile {t}: an ancillary unit stands among its units (at byte {at}); the tiles "
+                                     "hold only their critical units")
+            at += u.size
+        if g[0].offset != pos or end - pos != index.tile_data_size[t]:
+            raise BitstreamError(f"tile_index_unit: tile {t} is said to take {index.tile_data_size[t]} bytes at byte "
+                                 f"{pos}, its units take {end - g[0].offset} bytes at byte {g[0].offset}")
+        tiles.append(TileUnits(index.cells[t], index.tile_num_points_minus1[t] + 1, g[0], g[1:-1], g[-1]))
+        pos = end
+    return tiles, index
 
 
 @dataclass
@@ -101,32 +181,38 @@ class _Levels:
     hierarchy: Hierarchy | None
 
 
+def read_context_model_unit(context_unit: DataUnit | None, ps, layout, entries):
+    """The stream's context model (None without a context_model unit). Raises BitstreamError."""
+    if context_unit is None:
+        return None
+    if not ps.hierarchy_enabled_flag:
+        raise BitstreamError("a context model unit in a stream without the hierarchy")
+    return read_context_model(context_unit.payload, layout, entries)
+
+
 def decode_attribute_units(attribute_units: list[DataUnit], layout, steps: np.ndarray, coords: np.ndarray,
-                           ps, context_unit: DataUnit | None, entries, progress: bool,
-                           memory: MemoryPlan | None = None) -> tuple[_Levels, object]:
-    """Decode the one or two attribute units of a scene (clause 13 steps 4-6): level 1 (or every
-    point) with its per-channel prior, then level 2 with the context model when there is one.
-    ``ps``: the parameter set (hierarchy flag and coarse voxel scale). ``memory``: the memory
-    plan each unit is checked against before it is decoded."""
+                           ps, context_model, entries, progress: bool,
+                           memory: MemoryPlan | None = None, max_level: int = LEVEL_2) -> _Levels:
+    """Decode the attribute units of a tile (clause 13 steps 5-7): level 1 (or every point) with
+    its per-channel prior, then level 2 with the context model when there is one; a tile whose
+    level 2 is empty has one unit. ``ps``: the parameter set (hierarchy flag and coarse voxel
+    scale). ``memory``: the memory plan each unit is checked against before it is decoded.
+    ``max_level`` 1: stop after level 1 (the preview; level-2 rows are left undefined)."""
     n = coords.shape[0]
-    if len(attribute_units) != (2 if ps.hierarchy_enabled_flag else 1):
-        raise BitstreamError(f"{len(attribute_units)} attribute units with hierarchy_enabled_flag = "
-                             f"{ps.hierarchy_enabled_flag}")
-    context_model = None
-    if context_unit is not None:
-        if not ps.hierarchy_enabled_flag:
-            raise BitstreamError("a context model unit in a stream without the hierarchy")
-        context_model = read_context_model(context_unit.payload, layout, entries)
-    values = np.empty((n, layout.num_channels), dtype=np.float32)
-    mask = np.ones((n, layout.num_offsets), dtype=bool) if layout.offset_mask_present else None
     hier = None
     if ps.hierarchy_enabled_flag:
         hier = build_hierarchy(coords, ps.coarse_voxel_scale)
-        if hier.num_level2 == 0:
-            raise BitstreamError("hierarchy_enabled_flag is 1 but level 2 is empty")
-        levels = [(LEVEL_1, hier.level1_idx), (LEVEL_2, hier.level2_idx)]
+        levels = [(LEVEL_1, hier.level1_idx)] + ([(LEVEL_2, hier.level2_idx)] if hier.num_level2 else [])
     else:
         levels = [(LEVEL_ALL, None)]
+    if len(attribute_units) != len(levels):
+        raise BitstreamError(f"a tile of {n} points with hierarchy_enabled_flag = {ps.hierarchy_enabled_flag} "
+                             + (f"and {hier.num_level2} level-2 points " if hier is not None else "")
+                             + f"has {len(attribute_units)} attribute units, not {len(levels)}")
+    if max_level == LEVEL_1:
+        levels = levels[:1]
+    values = np.empty((n, layout.num_channels), dtype=np.float32)
+    mask = np.ones((n, layout.num_offsets), dtype=bool) if layout.offset_mask_present else None
     q_level1 = None
 
     def level2_context(model_id: int) -> attr.CodingParams:
@@ -152,26 +238,181 @@ def decode_attribute_units(attribute_units: list[DataUnit], layout, steps: np.nd
         if mask is not None:
             mask[slice(None) if rows is None else rows] = m
     bar.close()
-    return _Levels(values, mask, hier), context_model
+    return _Levels(values, mask, hier)
 
 
-def _hierarchy_tools(ps, hier: Hierarchy | None, context_model, point: str) -> list[str]:
-    if not ps.hierarchy_enabled_flag:
-        return []
-    return [f"two-level hierarchy (coarse voxels of {ps.coarse_voxel_scale}; {hier.num_level1:,} level-1 "
-            f"and {hier.num_level2:,} level-2 {point}s)",
-            "level-2 context: " + ("per-channel prior" if context_model is None
-                                   else describe_context_model(context_model))]
+@dataclass
+class DecodedTile:
+    """What one tile decodes to: its points in normative order, their attribute values and
+    offset mask, and whether its decoded_scene_hash was checked."""
+    coords: np.ndarray | None  # None: written into the shared output (worker processes)
+    values: np.ndarray | None
+    mask: np.ndarray | None
+    hierarchy: Hierarchy | None
+    hash_checked: bool
+    level_counts: tuple[int, int] | None = None  # N1, N2 of the tile's hierarchy
+
+    @property
+    def num_points(self) -> int:
+        return 0 if self.coords is None else int(self.coords.shape[0])
+
+
+def decode_tile(tile: TileUnits, t: int, ps, layout, context_model, mlps: dict, tile_size: int, *,
+                verify_hash: bool = True, entries=None, progress: bool = False, memory: MemoryPlan | None = None,
+                max_level: int = LEVEL_2) -> DecodedTile:
+    """Decode one tile on its own (clause 13.2): geometry, attribute units, and its hash (the
+    hash of the tile's points as a scene). ``max_level`` 1: only the level-1 points (the
+    preview; no hash can be checked)."""
+    coords = decode_geometry(tile.geometry.payload, tile.num_points, entries)
+    if tile.cell is not None:
+        check_points_in_cell(coords, tile.cell, tile_size, t)
+    dec = decode_attribute_units(tile.attributes, layout, layout.steps(ps), coords, ps, context_model, entries,
+                                 progress, memory, max_level)
+    hash_unit = DecodedSceneHashUnit.from_bytes(tile.scene_hash.payload, entries, what="decoded scene hash unit")
+    h = dec.hierarchy
+    counts = None if h is None else (h.num_level1, h.num_level2)
+    if max_level == LEVEL_1 and h is not None:
+        keep = h.level1_idx
+        return DecodedTile(coords[keep], dec.values[keep], None if dec.mask is None else dec.mask[keep], None, False,
+                           counts)
+    if verify_hash:
+        scene = _scene_of(ps, layout, coords, dec, mlps)
+        _check_scene_hash(scene, hash_unit.scene_hash, "" if tile.cell is None else f"tile {t}: ")
+    return DecodedTile(coords, dec.values, dec.mask, h, verify_hash, counts)
+
+
+# The output arrays the worker processes write their tiles into: created by the parent before the
+# workers are forked, in shared anonymous memory, so a tile's values are not sent back through a
+# pipe (at 1M anchors of 86 channels they are 344 MB).
+_SHARED_OUTPUT: dict[str, np.ndarray] = {}
+
+
+def _decode_tile_job(args) -> DecodedTile:
+    """A worker process's task (lghcc-dec --jobs): one tile, from the tile's own units; with an
+    output row, its points are written into the shared output and only the verdict comes back."""
+    tile, t, ps, layout, context_model, mlps, tile_size, verify_hash, max_level, row = args
+    d = decode_tile(tile, t, ps, layout, context_model, mlps, tile_size, verify_hash=verify_hash,
+                    max_level=max_level)
+    if row is None:
+        return d
+    n = d.num_points
+    _SHARED_OUTPUT["coords"][row:row + n] = d.coords
+    _SHARED_OUTPUT["values"][row:row + n] = d.values
+    if d.mask is not None:
+        _SHARED_OUTPUT["mask"][row:row + n] = d.mask
+    return DecodedTile(None, None, None, None, d.hash_checked, d.level_counts)
+
+
+def _shared_array(shape: tuple[int, ...], dtype) -> np.ndarray:
+    import mmap
+
+    nbytes = max(int(np.prod(shape)) * np.dtype(dtype).itemsize, 1)
+    return np.frombuffer(mmap.mmap(-1, nbytes), dtype=dtype, count=int(np.prod(shape))).reshape(shape)
+
+
+def _decode_in_workers(tiles: list[TileUnits], selected: list[int], ps, layout, context_model, mlps: dict, *,
+                       verify_hash: bool, max_level: int, jobs: int) -> tuple[list[DecodedTile], dict | None]:
+    """The selected tiles decoded by ``jobs`` forked worker processes, written into shared output
+    arrays (whole tiles: their point counts are known; the preview's are not, and come back
+    through the pipe) -> (the tiles' verdicts, the output arrays or None)."""
+    fork = os.name == "posix"
+    shared = fork and max_level != LEVEL_1
+    rows: list[int | None] = [None] * len(selected)
+    if shared:
+        counts = [tiles[t].num_points for t in selected]
+        rows = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(int).tolist()
+        total = sum(counts)
+        _SHARED_OUTPUT.update(coords=_shared_array((total, 3), np.int64),
+                              values=_shared_array((total, layout.num_channels), np.float32))
+        if layout.offset_mask_present:
+            _SHARED_OUTPUT["mask"] = _shared_array((total, layout.num_offsets), np.bool_)
+    args = [(tiles[t], t, ps, layout, context_model, mlps, ps.tile_size, verify_hash, max_level, r)
+            for t, r in zip(selected, rows)]
+    ctx = __import__("multiprocessing").get_context("fork" if fork else "spawn")
+    try:
+        with ProcessPoolExecutor(max_workers=min(jobs, len(selected)), mp_context=ctx,
+                                 initializer=_worker_init) as pool:
+            parts = list(pool.map(_decode_tile_job, args))
+        return parts, (dict(_SHARED_OUTPUT) if shared else None)
+    finally:
+        _SHARED_OUTPUT.clear()
+
+
+def _worker_init() -> None:
+    import torch
+
+    torch.set_num_threads(1)  # the workers are the parallelism
+
+
+@dataclass
+class DecodedTiles:
+    """The decoded tiles joined in stream order: their points, the hierarchy (a single tile's),
+    whether every tile's hash was checked, and each tile's level counts (N1, N2)."""
+    coords: np.ndarray
+    levels: _Levels
+    hash_checked: bool
+    level_counts: list[tuple[int, int]]
+
+
+def decode_tiles(tiles: list[TileUnits], selected: list[int], ps, layout, context_model, mlps: dict, *,
+                 verify_hash: bool, entries, progress: bool, memory: MemoryPlan | None, max_level: int,
+                 jobs: int) -> DecodedTiles:
+    """The selected tiles, in stream order: here, or in ``jobs`` worker processes (the result is
+    the same: each tile is decoded by the same function from the same units)."""
+    size = ps.tile_size
+    if jobs > 1 and len(selected) > 1 and entries is None:
+        parts, shared = _decode_in_workers(tiles, selected, ps, layout, context_model, mlps,
+                                           verify_hash=verify_hash, max_level=max_level, jobs=jobs)
+        return _joined(parts, layout, shared)
+    one = len(tiles) == 1
+    bar = progress_bar(total=len(selected), desc="decode tiles", unit="tile", disable=not progress or one, leave=False)
+    out = []
+    for t in selected:
+        out.append(decode_tile(tiles[t], t, ps, layout, context_model, mlps, size, verify_hash=verify_hash,
+                               entries=entries, progress=progress and one, memory=memory, max_level=max_level))
+        bar.update()
+    bar.close()
+    return _joined(out, layout)
+
+
+def selected_tiles(tiles: list[TileUnits], ps, box: Box | None) -> list[int]:
+    """Every tile, or those whose cell meets the box (a stream without tiles: its one tile)."""
+    if box is None or tiles[0].cell is None:
+        return list(range(len(tiles)))
+    return [t for t, tile in enumerate(tiles)
+            if cell_intersects_box(tile.cell, ps.tile_size, float(ps.voxel_size), ps.origin, box)]
+
+
+def _joined(parts: list[DecodedTile], layout, shared: dict | None = None) -> DecodedTiles:
+    """The tiles' points in stream order (``shared``: already written there by the workers)."""
+    counts = [p.level_counts for p in parts if p.level_counts is not None]
+    checked = all(p.hash_checked for p in parts)
+    if shared is not None:
+        return DecodedTiles(shared["coords"], _Levels(shared["values"], shared.get("mask"), None), checked, counts)
+    if len(parts) == 1:
+        p = parts[0]
+        return DecodedTiles(p.coords, _Levels(p.values, p.mask, p.hierarchy), checked, counts)
+    coords = np.concatenate([p.coords for p in parts]) if parts else np.empty((0, 3), np.int64)
+    values = np.concatenate([p.values for p in parts]) if parts else np.empty((0, layout.num_channels), np.float32)
+    mask = None
+    if layout.offset_mask_present:
+        mask = np.concatenate([p.mask for p in parts]) if parts else np.empty((0, layout.num_offsets), bool)
+    return DecodedTiles(coords, _Levels(values, mask, None), checked, counts)
 
 
 def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
                   max_anchors: int | None = None, max_memory: int | None = DEFAULT_MAX_MEMORY,
-                  progress: bool = False) -> DecodeResult:
-    """Decode a whole stream. Raises a BitstreamError subclass naming the problem, or
+                  progress: bool = False, jobs: int = 1, box: Box | None = None,
+                  max_level: int = LEVEL_2) -> DecodeResult:
+    """Decode a stream. Raises a BitstreamError subclass naming the problem, or
     ResourceLimitError for a stream beyond ``max_anchors`` points (anchors or Gaussians) or one
     whose decoding needs more than ``max_memory`` bytes (None: no bound), computed from its
     headers before anything sized by the stream is allocated (decoder/limits.py). ``progress``
-    shows a bar of decoded points on stderr."""
+    shows a bar on stderr. ``jobs``: worker processes for the tiles (the output does not depend
+    on it). ``box``: decode only the tiles whose cell meets it (every point of such a tile is
+    output). ``max_level`` 1: the level-1 preview (each tile's level-1 points; not hash-checked)."""
+    if jobs < 1:
+        raise ValueError(f"jobs must be at least 1, got {jobs}")
     entries: list[TraceEntry] | None = [] if trace else None
     container = read_container(data)
     ancillary: list[DataUnit] = []
@@ -189,21 +430,26 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
     if max_anchors is not None and n > max_anchors:
         raise ResourceLimitError(f"the stream declares {n} {point}s, more than the allowed maximum {max_anchors}")
     memory = MemoryPlan(max_memory, ps, by_type, len(data), layout)  # refuses before anything sized by the stream exists
-    context_unit = by_type.get(UnitType.CONTEXT_MODEL, [None])[0]
+    if (UnitType.TILE_INDEX in by_type) != bool(ps.tiles_enabled_flag):
+        raise BitstreamError(f"tiles_enabled_flag is {ps.tiles_enabled_flag} but the stream "
+                             + ("has a tile_index unit" if ps.tiles_enabled_flag == 0 else "has no tile_index unit"))
     mlps = {}
     if UnitType.RENDER_MODEL in by_type:
         mlps = read_render_model_unit(by_type[UnitType.RENDER_MODEL][0].payload, entries)
-    coords = decode_geometry(by_type[UnitType.GEOMETRY][0].payload, n, entries)
-    steps = layout.steps(ps)
-    dec, context_model = decode_attribute_units(by_type[UnitType.ATTRIBUTE], layout, steps, coords, ps, context_unit,
-                                                entries, progress, memory)
-    scene = _scene_of(ps, layout, coords, dec, mlps)
-    hash_unit = DecodedSceneHashUnit.from_bytes(by_type[UnitType.DECODED_SCENE_HASH][0].payload, entries,
-                                                what="decoded scene hash unit")
-    if verify_hash:
-        _check_scene_hash(scene, hash_unit.scene_hash)
-    return DecodeResult(scene, breakdown_of(container, n, point), verify_hash, hash_unit.scene_hash, skipped,
-                        entries, _stream_tools(ps, dec, context_model, point), source_info, notes)
+    context_model = read_context_model_unit(by_type.get(UnitType.CONTEXT_MODEL, [None])[0], ps, layout, entries)
+    tiles, _ = tiles_of(units, by_type, n, entries)
+    selected = selected_tiles(tiles, ps, box)
+    decoded = decode_tiles(tiles, selected, ps, layout, context_model, mlps, verify_hash=verify_hash,
+                           entries=entries, progress=progress, memory=memory, max_level=max_level, jobs=jobs)
+    scene = _scene_of(ps, layout, decoded.coords, decoded.levels, mlps)
+    whole = len(selected) == len(tiles) and max_level != LEVEL_1
+    stream_hash = None  # a tiled stream carries no hash of the whole scene: computed when asked for
+    if whole and len(tiles) == 1:
+        stream_hash = DecodedSceneHashUnit.from_bytes(tiles[0].scene_hash.payload).scene_hash
+    checked = verify_hash and decoded.hash_checked
+    return DecodeResult(scene, breakdown_of(container, n, point), checked, stream_hash, skipped,
+                        entries, _stream_tools(ps, decoded, context_model, point, len(tiles)), source_info, notes,
+                        len(tiles), len(selected), max_level == LEVEL_1 and bool(ps.hierarchy_enabled_flag))
 
 
 def _read_parameter_set(by_type: dict[int, list[DataUnit]], entries) -> tuple[SceneParameterSet | GaussianParameterSet,
@@ -229,21 +475,30 @@ def _scene_of(ps, layout, coords: np.ndarray, dec: _Levels, mlps: dict) -> Ancho
                        features=features, scalings=scalings, offsets=offsets, offset_mask=dec.mask, mlps=mlps)
 
 
-def _check_scene_hash(scene: AnchorScene | GaussianScene, scene_hash: bytes) -> None:
-    """Clause 12: the SHA-256 of the decoded scene must equal the stream's decoded_scene_hash."""
+def _check_scene_hash(scene: AnchorScene | GaussianScene, scene_hash: bytes, where: str = "") -> None:
+    """Clause 12: the SHA-256 of the decoded scene (of a tile's points, in a tiled stream) must
+    equal the decoded_scene_hash of the stream (of the tile)."""
     digest = digest_of(scene)
     if digest != scene_hash:
-        raise HashMismatchError("the decoded scene does not match the hash in the stream "
+        raise HashMismatchError(f"{where}the decoded scene does not match the hash in the stream "
                                 f"(decoded SHA-256 {digest.hex()}, stream {scene_hash.hex()})")
 
 
-def _stream_tools(ps, dec: _Levels, context_model, point: str) -> list[str]:
+def _stream_tools(ps, decoded: DecodedTiles, context_model, point: str, num_tiles: int = 1) -> list[str]:
     """The coding tools the stream uses, in words (lghcc-dec prints them)."""
     if isinstance(ps, GaussianParameterSet):
         tools = [f"explicit Gaussians (SH degree {ps.sh_degree})"]
     else:
         tools = ["offset masks"] if ps.offset_mask_present_flag else []
-    return tools + _hierarchy_tools(ps, dec.hierarchy, context_model, point)
+    if ps.tiles_enabled_flag:
+        tools.append(f"{num_tiles} tile{'s' if num_tiles > 1 else ''} of {ps.tile_size} voxels per side")
+    if not ps.hierarchy_enabled_flag:
+        return tools
+    n1, n2 = sum(c[0] for c in decoded.level_counts), sum(c[1] for c in decoded.level_counts)
+    return tools + [f"two-level hierarchy (coarse voxels of {ps.coarse_voxel_scale}; {n1:,} level-1 and {n2:,} "
+                    f"level-2 {point}s)",
+                    "level-2 context: " + ("per-channel prior" if context_model is None
+                                           else describe_context_model(context_model))]
 
 
 def read_source_info(units: list[DataUnit], trace: list[TraceEntry] | None = None

@@ -156,6 +156,9 @@ class MemoryPlan:
         ]
         if layout.offset_mask_present:
             self.persistent.append(Need(f"offset masks: 2 x {n:,} anchors x {k} offsets", 2 * n * k))
+        if getattr(sps, "tiles_enabled_flag", 0):  # the tiles' arrays, then their join in stream order
+            self.persistent.append(Need(f"tiles joined: a second copy of {n:,} anchors' values, coordinates and "
+                                        "masks", 4 * n * m + 24 * n + 2 * n * k))
         if gaussians:
             self.persistent.append(Need(f"Gaussian positions: {n:,} Gaussians x {GAUSSIAN_SCENE_PER_POINT} bytes",
                                         GAUSSIAN_SCENE_PER_POINT * n))

@@ -85,6 +85,9 @@ def add_source_arguments(p: argparse.ArgumentParser) -> None:
                    help="rate point (default: medium). 3DGS input: " + ", ".join(preset_names("gaussians"))
                         + "; anchor scenes: " + ", ".join(preset_names()))
     p.add_argument("--config", metavar="YAML", help="YAML file overriding preset options")
+    p.add_argument("--tile-points", type=int, metavar="N",
+                   help="cut the scene into spatial tiles (each decodable alone: lghcc-dec --jobs, --box) of about "
+                        "N points each (default 16384; a scene under 2N points has no tiles); 0: no tiles")
 
 
 def add_anchor_arguments(p: argparse.ArgumentParser) -> None:
@@ -218,15 +221,19 @@ def check_outputs(args: argparse.Namespace) -> None:
 
 def config_overrides(args: argparse.Namespace, gaussians: bool) -> dict:
     """The options that override the preset, for the kind of scene."""
+    if args.tile_points is not None and args.tile_points < 0:
+        raise LghccError(f"--tile-points must be 0 (no tiles) or more, got {args.tile_points}")
     if gaussians:
         overrides = {"rd_lambda": args.rd_lambda, "target_psnr": args.target_psnr,
-                     "fit_iterations": args.fit_iterations, "sh_degree": args.sh_degree}
+                     "fit_iterations": args.fit_iterations, "sh_degree": args.sh_degree,
+                     "tile_points": args.tile_points}
         if args.rd_lambda is not None and args.target_psnr is None:
             overrides["target_psnr"] = 0.0  # --lambda given: it replaces the preset's quality
         return overrides
     return {"feature_step": args.feature_step, "scaling_step": args.scaling_step,
             "offset_step": args.offset_step, "mlp_weight_bits": args.mlp_weight_bits,
-            "pruning": args.prune, "prune_keep_ratio": args.prune_keep, "prune_tau": args.prune_tau}
+            "pruning": args.prune, "prune_keep_ratio": args.prune_keep, "prune_tau": args.prune_tau,
+            "tile_points": args.tile_points}
 
 
 def load_scene(args: argparse.Namespace, cfg):

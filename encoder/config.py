@@ -22,6 +22,13 @@ class AttributeCodingConfig:
     rows_per_chunk: int = 65536
     # Rows sampled when choosing each channel's prior (informative speed/accuracy knob).
     prior_fit_rows: int = 50000
+    # Tiles (format version 1): the smallest tile side (a power of two of coarse voxels) whose
+    # occupied tiles hold at least this many points on average; 0: no tiles. A scene that fits one
+    # tile has none (the tool costs it no bits). Cost and decode speed: tools/results/tiles.md.
+    tile_points: int = 16384
+    # The tile side in coarse voxels (voxels without the hierarchy), 1 .. 2^20, instead of the
+    # choice from tile_points; tiles are then used even when the scene fits one. 0: chosen.
+    tile_scale: int = 0
     # Two-level hierarchy: level 1 = one anchor per coarse voxel of this many voxels per side.
     hierarchy: bool = False
     coarse_voxel_scale: int = 4
@@ -74,7 +81,14 @@ class AttributeCodingConfig:
                 raise InputError(f"{name} must be >= 0")
         if self.prior_fit_rows < 1:
             raise InputError("prior_fit_rows must be at least 1")
+        self._validate_tiles()
         return self
+
+    def _validate_tiles(self) -> None:
+        if self.tile_points < 0:
+            raise InputError(f"tile_points must be >= 0 (0: no tiles), got {self.tile_points}")
+        if not 0 <= self.tile_scale <= (1 << 20):
+            raise InputError(f"tile_scale must be in [0, 2^20] (0: chosen from tile_points), got {self.tile_scale}")
 
 
 @dataclass

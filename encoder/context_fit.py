@@ -34,9 +34,7 @@ class ContextFitError(Exception):
 @dataclass
 class FittedContext:
     model_id: int
-    params: object  # GGConvParams | ParentMlpParams
-    feat_layers: int
-    head_layers: int
+    params: object  # GGConvParams | ParentMlpParams (to_syntax: the context model unit's content)
 
 
 def fit_parent_mlp(coords2: np.ndarray, parent_attrs: np.ndarray, targets: np.ndarray, num_features: int,
@@ -109,8 +107,8 @@ def fit_level2_context(kind: str, coords1: np.ndarray, attrs1: np.ndarray, coord
 def _fit(kind, coords1, attrs1, coords2, parent, targets, num_features, voxel_scale, cfg) -> FittedContext:
     if kind == "ggconv":
         p = fit_ggconv(coords2, parent, coords1, attrs1, targets, num_features, voxel_scale, cfg)
-        return FittedContext(CONTEXT_GGCONV, p, len(p.feat_mlp.layers), len(p.head_mlp.layers))
+        return FittedContext(CONTEXT_GGCONV, p)
     if kind == "parent_mlp":
         p = fit_parent_mlp(coords2, attrs1[parent], targets, num_features, voxel_scale, cfg)
-        return FittedContext(CONTEXT_PARENT_MLP, p, 0, len(p.head_mlp.layers))
+        return FittedContext(CONTEXT_PARENT_MLP, p)
     raise ValueError(f"unknown context model {kind!r}")

@@ -23,14 +23,14 @@ from ..common.errors import InputError
 from ..common.context.model_unit import write_context_model_unit
 from ..common.context.models import CONTEXT_MODEL_NAMES, level2_coding_params, read_context_model
 from ..common.geometry import encode_geometry, normative_order
-from ..common.hashing import scene_digest
+from ..common.hashing import digest_of
 from ..common.render_model import dequantize, write_render_model_unit
 from ..app.report import SizeBreakdown, breakdown_of
 from ..common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene, GaussianScene, RenderMLP
 from ..common.hierarchy import Hierarchy, build_hierarchy
 from ..common.units import (CONTEXT_PER_CHANNEL_PRIOR, LEVEL_1, LEVEL_2, LEVEL_ALL, MASK_PROB_BITS, MAX_ANCHORS,
                                 MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, MAX_PREDICTED_MAGNITUDE, PRIOR_MEAN_MAX,
-                                AttributeUnitHeader, DecodedSceneHashUnit, GaussianParameterSet, RenderMlpHeader,
+                                AttributeUnitHeader, GaussianParameterSet, RenderMlpHeader,
                                 SceneParameterSet, SourceInfo)
 from .config import AttributeCodingConfig, EncoderConfig, context_model_size
 from .context_fit import ContextFitError, fit_level2_context
@@ -204,22 +204,26 @@ def code_geometry(coords: np.ndarray) -> GeometryCoding:
 @dataclass
 class LevelLayout:
     """The attribute levels [(attribute_level, rows)] and the hierarchy that defines them (None:
-    one level of every point)."""
+    one level of every point), and the tiles: tile_scale_minus1 + 1 (0: no tiles)."""
     levels: list[tuple[int, np.ndarray]]
     hier: Hierarchy | None
+    tile_scale: int = 0
 
 
 def level_layout(num_points: int, cfg: AttributeCodingConfig, coords: np.ndarray,
                  stats: EncodeStats) -> LevelLayout:
     """One level of every point, or level 1 and level 2 when the configuration asks for the
     hierarchy and level 2 is not empty (an empty level 2 switches the hierarchy off: it costs
-    no bits)."""
+    no bits); and the tile size (encoder/tiling.py)."""
+    from .tiling import tile_scale_of
+
     if cfg.hierarchy:
         hier = build_hierarchy(coords, cfg.coarse_voxel_scale)
         if hier.num_level2:
             stats.num_level1, stats.num_level2 = hier.num_level1, hier.num_level2
-            return LevelLayout([(LEVEL_1, hier.level1_idx), (LEVEL_2, hier.level2_idx)], hier)
-    return LevelLayout([(LEVEL_ALL, np.arange(num_points))], None)
+            scale = tile_scale_of(coords, cfg.coarse_voxel_scale, cfg)
+            return LevelLayout([(LEVEL_1, hier.level1_idx), (LEVEL_2, hier.level2_idx)], hier, scale)
+    return LevelLayout([(LEVEL_ALL, np.arange(num_points))], None, tile_scale_of(coords, 1, cfg))
 
 
 @dataclass
@@ -243,13 +247,14 @@ def ordered_offset_mask(scene: AnchorScene, order: np.ndarray) -> np.ndarray | N
 
 
 def scene_parameter_set(scene: AnchorScene, cfg: EncoderConfig, mask_present: bool,
-                        hierarchy: bool) -> SceneParameterSet:
+                        hierarchy: bool, tile_scale: int = 0) -> SceneParameterSet:
     sps = SceneParameterSet(
         num_anchors_minus1=scene.num_anchors - 1, feature_dim_minus1=scene.feature_dim - 1,
         num_offsets_minus1=scene.num_offsets - 1, voxel_size=float(scene.voxel_size),
         origin=[float(x) for x in scene.origin], offset_mask_present_flag=int(mask_present),
         feature_step=cfg.feature_step, scaling_step=cfg.scaling_step, offset_step=cfg.offset_step,
-        hierarchy_enabled_flag=int(hierarchy), coarse_voxel_scale_minus1=cfg.coarse_voxel_scale - 1)
+        hierarchy_enabled_flag=int(hierarchy), coarse_voxel_scale_minus1=cfg.coarse_voxel_scale - 1,
+        tiles_enabled_flag=int(tile_scale > 0), tile_scale_minus1=max(tile_scale - 1, 0))
     return SceneParameterSet.from_bytes(sps.to_bytes())  # exactly the values the decoder will see
 
 
@@ -258,7 +263,7 @@ def anchor_attribute_input(scene: AnchorScene, geometry: GeometryCoding, levels:
     """The parameter set, and the features, scalings and offsets as attribute values."""
     n, order = scene.num_anchors, geometry.order
     mask = ordered_offset_mask(scene, order)
-    sps = scene_parameter_set(scene, cfg, mask is not None, len(levels.levels) == 2)
+    sps = scene_parameter_set(scene, cfg, mask is not None, len(levels.levels) == 2, levels.tile_scale)
     layout = attr.layout_of(sps)
     if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
         raise InputError(f"{n} anchors x {layout.num_channels} channels exceed the profile's limit")
@@ -287,9 +292,9 @@ def usable_context_twin(context_twin: ContextTwin | None, scene: AnchorScene, in
 @dataclass
 class CodedAttributes:
     """The attribute units of a scene and what they decode to."""
-    payloads: list[bytes]  # one per level
+    payloads: list[bytes]  # one per level (none: a tiled scene without a context model, coded by tile)
     context_payload: bytes | None
-    recon: np.ndarray  # float32 [N, M]: the decoded values, bit for bit
+    recon: np.ndarray | None  # float32 [N, M]: the decoded values, bit for bit
 
 
 @dataclass
@@ -376,8 +381,7 @@ def code_with_context_candidate(coder: LevelCoder, inp: AttributeInput, hier: Hi
     coords1, coords2 = inp.coords[hier.level1_idx], inp.coords[coder.rows]
     fitted = fit_level2_context(cfg.context_model, coords1, q_level1, coords2, hier.parent_of_level2, targets,
                                 inp.layout.feature_dim, cfg.coarse_voxel_scale, candidate.train_cfg)
-    unit = write_context_model_unit(fitted.model_id, fitted.params.to_arrays(), fitted.feat_layers,
-                                    fitted.head_layers)
+    unit = write_context_model_unit(fitted.model_id, *fitted.params.to_syntax())
     model = read_context_model(unit, inp.layout)  # exactly what the decoder will use
     params = level2_coding_params(model, coords1, q_level1, coords2, hier.parent_of_level2,
                                   cfg.coarse_voxel_scale).materialize()
@@ -451,6 +455,8 @@ def code_attributes(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodi
     level 2 the configured context model when it codes smaller (fits of each candidate; the
     smallest stream is kept). Cross-channel prediction is fitted where the layout allows it
     (Gaussian scenes)."""
+    if levels.tile_scale and cfg.context_model == "per_channel":
+        return CodedAttributes([], None, None)  # nothing to fit: each tile codes its own units (tiling.py)
     recon = np.zeros_like(inp.values, dtype=np.float32)
     payloads = []
     ideal = 0.0
@@ -492,38 +498,62 @@ def code_render_model(mlps: dict[str, RenderMLP], cfg: EncoderConfig) -> RenderM
     return RenderModelCoding(*quantize_render_model(mlps, cfg.mlp_weight_bits))
 
 
-def write_stream(parameter_units: list[DataUnit], geometry_payload: bytes, coded: CodedAttributes,
-                 digest: bytes) -> bytes:
-    """The container: the parameter set (and render model), geometry, context model, attribute
-    units, decoded scene hash."""
-    units = parameter_units + [DataUnit(UnitType.GEOMETRY, geometry_payload)]
-    if coded.context_payload is not None:
-        units.append(DataUnit(UnitType.CONTEXT_MODEL, coded.context_payload))
-    units += [DataUnit(UnitType.ATTRIBUTE, p) for p in coded.payloads]
-    units.append(DataUnit(UnitType.DECODED_SCENE_HASH, DecodedSceneHashUnit(scene_hash=digest).to_bytes()))
-    return write_container(units)
+def write_stream(parameter_units: list[DataUnit], context_payload: bytes | None, tiles: list, num_points: int) -> bytes:
+    """The container: the parameter set (and render model), the context model, then the tiles
+    (with the tile index when there are several; clause 6.3)."""
+    from .tiling import tile_units
+
+    units = list(parameter_units)
+    if context_payload is not None:
+        units.append(DataUnit(UnitType.CONTEXT_MODEL, context_payload))
+    return write_container(units + tile_units(tiles, num_points))
 
 
-def decoded_anchor_scene(inp: AttributeInput, coded: CodedAttributes, model: RenderModelCoding) -> AnchorScene:
-    """The scene the decoder will output, bit for bit."""
+def stream_tiles(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodingConfig, geometry: GeometryCoding,
+                 coded: CodedAttributes, make_scene, stats: EncodeStats, progress: bool = False):
+    """The tiles of the stream with their hashes, and the whole decoded scene (stream order).
+    Without tiles: one tile of the units already coded. With tiles: every tile coded on its own
+    (encoder/tiling.py; ``stats`` then counts the tiles' units). ``make_scene(coords, values,
+    mask)``: the decoded scene of those points."""
+    from .tiling import TileCoding, code_tiles, tile_level_stats
+
+    stats.num_tiles = 1
+    if levels.tile_scale == 0:
+        decoded = make_scene(inp.coords, coded.recon, inp.mask)
+        tile = TileCoding(None, np.arange(inp.coords.shape[0]), geometry.payload, coded.payloads, digest_of(decoded))
+        return [tile], decoded
+    tiles, recon = code_tiles(inp, cfg, coded.context_payload, progress)
+    tile_level_stats(tiles, stats)
+    for tile in tiles:
+        tile.scene_hash = digest_of(make_scene(inp.coords[tile.rows], recon[tile.rows],
+                                               None if inp.mask is None else inp.mask[tile.rows]))
+    order = np.concatenate([t.rows for t in tiles])
+    return tiles, make_scene(inp.coords[order], recon[order], None if inp.mask is None else inp.mask[order])
+
+
+def anchor_scene_maker(inp: AttributeInput, model: RenderModelCoding):
+    """make_scene for stream_tiles: the anchor scene the decoder outputs for some points."""
     sps = inp.parameter_set
-    features, scalings, offsets = inp.layout.split(coded.recon)
-    return AnchorScene(coords=inp.coords, voxel_size=float(sps.voxel_size),
-                       origin=np.asarray(sps.origin, dtype=np.float32), features=features, scalings=scalings,
-                       offsets=offsets, offset_mask=inp.mask, mlps=model.decoded)
+
+    def make(coords: np.ndarray, values: np.ndarray, mask: np.ndarray | None) -> AnchorScene:
+        features, scalings, offsets = inp.layout.split(values)
+        return AnchorScene(coords=coords, voxel_size=float(sps.voxel_size),
+                           origin=np.asarray(sps.origin, dtype=np.float32), features=features, scalings=scalings,
+                           offsets=offsets, offset_mask=mask, mlps=model.decoded)
+    return make
 
 
-def assemble_anchor_stream(inp: AttributeInput, geometry: GeometryCoding, coded: CodedAttributes,
-                           model: RenderModelCoding, stats: EncodeStats,
-                           ancillary: list[DataUnit] | None = None) -> EncodeResult:
+def assemble_anchor_stream(inp: AttributeInput, levels: LevelLayout, cfg: EncoderConfig, geometry: GeometryCoding,
+                           coded: CodedAttributes, model: RenderModelCoding, stats: EncodeStats,
+                           ancillary: list[DataUnit] | None = None, progress: bool = False) -> EncodeResult:
     """The stream: the scene parameter set, the ancillary units (right after it), the render
-    model, geometry, context model, attribute units, decoded scene hash."""
-    decoded = decoded_anchor_scene(inp, coded, model)
-    digest = scene_digest(decoded)
+    model, the context model, the tiles."""
+    tiles, decoded = stream_tiles(inp, levels, cfg, geometry, coded, anchor_scene_maker(inp, model), stats, progress)
     parameter_units = [DataUnit(UnitType.SCENE_PARAMETER_SET, inp.parameter_set.to_bytes())] + list(ancillary or [])
     if model.payload is not None:
         parameter_units.append(DataUnit(UnitType.RENDER_MODEL, model.payload))
-    data = write_stream(parameter_units, geometry.payload, coded, digest)
+    data = write_stream(parameter_units, coded.context_payload, tiles, decoded.num_anchors)
+    digest = tiles[0].scene_hash if len(tiles) == 1 else digest_of(decoded)
     return EncodeResult(data, breakdown_of(read_container(data), decoded.num_anchors), decoded, digest, stats)
 
 
@@ -575,8 +605,8 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
         stats.time_attributes_s = time.perf_counter() - t1
     with stage(bar, "render model"):
         model = code_render_model(scene.mlps, cfg)
-    with stage(bar, "hash"):
-        result = assemble_anchor_stream(inp, geometry, coded, model, stats, ancillary)
+    with stage(bar, "tiles and hash"):
+        result = assemble_anchor_stream(inp, levels, cfg, geometry, coded, model, stats, ancillary, progress)
     bar.close()
     stats.time_total_s = time.perf_counter() - t0
     return result

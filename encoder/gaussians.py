@@ -32,7 +32,7 @@ from ..common.scene import GaussianScene
 from ..common.units import MAX_ATTRIBUTE_VALUES, GaussianParameterSet
 from .config import GaussianEncoderConfig
 from .encode import (AttributeInput, CodedAttributes, EncodeResult, GeometryCoding, LevelLayout, check_point_count,
-                     code_attributes, code_geometry, level_layout, stage, write_stream)
+                     code_attributes, code_geometry, level_layout, stage, stream_tiles, write_stream)
 from .stats import EncodeStats
 
 OPACITY_LOGIT_LIMIT = 8.0
@@ -131,12 +131,13 @@ def canonical_rotations(rot: np.ndarray) -> np.ndarray:
 
 
 def gaussian_parameter_set(n: int, sh_degree: int, voxel: float, origin, cfg: GaussianEncoderConfig,
-                           hierarchy: bool) -> GaussianParameterSet:
+                           hierarchy: bool, tile_scale: int = 0) -> GaussianParameterSet:
     gps = GaussianParameterSet(
         num_gaussians_minus1=n - 1, sh_degree=sh_degree, voxel_size=voxel, origin=[float(x) for x in origin],
         sh_dc_step=cfg.sh_dc_step, sh_band_step=[float(s) for s in cfg.sh_band_steps[:sh_degree]],
         opacity_step=cfg.opacity_step, scale_step=cfg.scale_step, rotation_step=cfg.rotation_step,
-        hierarchy_enabled_flag=int(hierarchy), coarse_voxel_scale_minus1=cfg.coarse_voxel_scale - 1)
+        hierarchy_enabled_flag=int(hierarchy), coarse_voxel_scale_minus1=cfg.coarse_voxel_scale - 1,
+        tiles_enabled_flag=int(tile_scale > 0), tile_scale_minus1=max(tile_scale - 1, 0))
     return GaussianParameterSet.from_bytes(gps.to_bytes())  # exactly the values the decoder will see
 
 
@@ -165,7 +166,8 @@ def gaussian_attribute_input(scene: GaussianScene, geometry: GeometryCoding, lev
     """The parameter set, and the SH, opacity (clamped), scales and rotations (canonical) as
     attribute values."""
     n = scene.num_gaussians
-    gps = gaussian_parameter_set(n, scene.sh_degree, scene.voxel_size, scene.origin, cfg, levels.hier is not None)
+    gps = gaussian_parameter_set(n, scene.sh_degree, scene.voxel_size, scene.origin, cfg, levels.hier is not None,
+                                 levels.tile_scale)
     layout = attr.gaussian_layout_of(gps)
     if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
         raise InputError(f"{n} Gaussians x {layout.num_channels} channels exceed the profile's limit")
@@ -176,13 +178,18 @@ def gaussian_attribute_input(scene: GaussianScene, geometry: GeometryCoding, lev
     return AttributeInput(gps, layout, steps, values, np.ones(values.shape, dtype=bool), None, geometry.coords)
 
 
-def assemble_gaussian_stream(inp: AttributeInput, coded: CodedAttributes, geometry: GeometryCoding,
-                             stats: EncodeStats) -> EncodeResult:
+def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: GaussianEncoderConfig, coded: CodedAttributes,
+                             geometry: GeometryCoding, stats: EncodeStats, progress: bool = False) -> EncodeResult:
     gps = inp.parameter_set
-    sh, op, log_scales, rotations = inp.layout.split(coded.recon)
-    decoded = GaussianScene.on_grid(inp.coords, gps.voxel_size, gps.origin, sh, op, log_scales, rotations)
-    digest = gaussian_scene_digest(decoded)
-    data = write_stream([DataUnit(UnitType.GAUSSIAN_PARAMETER_SET, gps.to_bytes())], geometry.payload, coded, digest)
+
+    def make(coords: np.ndarray, values: np.ndarray, mask) -> GaussianScene:
+        sh, op, log_scales, rotations = inp.layout.split(values)
+        return GaussianScene.on_grid(coords, gps.voxel_size, gps.origin, sh, op, log_scales, rotations)
+
+    tiles, decoded = stream_tiles(inp, levels, cfg, geometry, coded, make, stats, progress)
+    data = write_stream([DataUnit(UnitType.GAUSSIAN_PARAMETER_SET, gps.to_bytes())], coded.context_payload, tiles,
+                        decoded.num_gaussians)
+    digest = tiles[0].scene_hash if len(tiles) == 1 else gaussian_scene_digest(decoded)
     return EncodeResult(data, breakdown_of(read_container(data), decoded.num_gaussians, "Gaussian"), decoded, digest,
                         stats)
 
@@ -212,7 +219,7 @@ def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | Non
         coded = code_attributes(inp, levels, cfg, stats, progress=progress, measure_ideal=measure_ideal)
         stats.time_attributes_s = time.perf_counter() - t1
     with stage(bar, "hash"):
-        result = assemble_gaussian_stream(inp, coded, geometry, stats)
+        result = assemble_gaussian_stream(inp, levels, cfg, coded, geometry, stats, progress)
     bar.close()
     stats.time_total_s = time.perf_counter() - t0
     return result

@@ -1,5 +1,6 @@
 """GG-Conv integer inference (common/context/ggconv.py) and its fitting (encoder/ggconv_train.py)."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -217,33 +218,38 @@ def test_grid_coordinate_and_trilinear_weights():
 
 
 def test_serialization_round_trip_and_errors():
+    """to_syntax / from_syntax: the hyperparameters are syntax elements, the rest arrays (spec H.5.4)."""
     rng = np.random.default_rng(5)
     p = random_params(rng)
-    arrays = p.to_arrays()
-    assert [a.name for a in arrays][:7] == ["num_features", "neighbour_level", "parent_base", "k", "radius_sq",
-                                            "h_shift", "table"]
+    hp, arrays = p.to_syntax()
+    assert (hp.num_features, hp.neighbour_level, hp.k, hp.radius_sq, hp.h_shift) == (6, 2, 8, 6, 15)
+    assert hp.feat_layer_shift == [12, 12] and hp.head_layer_shift == [12, 12]
+    assert [a.name for a in arrays] == ["parent_base", "table", "feat.0.weight", "feat.0.bias", "feat.1.weight",
+                                        "feat.1.bias", "head.0.weight", "head.0.bias", "head.1.weight", "head.1.bias"]
     assert {a.name: a.bits for a in arrays}["parent_base"] == 1
     assert {a.name: a.bits for a in arrays}["table"] == 16 and {a.name: a.bits for a in arrays}["feat.0.bias"] == 32
-    q = GGConvParams.from_arrays(arrays)
+    q = GGConvParams.from_syntax(hp, arrays)
     c = _scene(rng, 60)
     x = rng.integers(-100, 100, (len(c), p.num_attrs))
     assert all(np.array_equal(a, b) for a, b in zip(own_parents(p, c, x, 2), own_parents(q, c, x, 2)))
     with pytest.raises(ValueError, match="missing"):
-        GGConvParams.from_arrays([a for a in arrays if a.name != "h_shift"])
+        GGConvParams.from_syntax(hp, [a for a in arrays if a.name != "table"])
     with pytest.raises(ValueError, match="unknown"):
-        GGConvParams.from_arrays(arrays + [NamedIntArray("extra", np.array(1), 8, False)])
+        GGConvParams.from_syntax(hp, arrays + [NamedIntArray("extra", np.array([1]), 8, False)])
     bad = [NamedIntArray(a.name, a.values + (1 << 20) if a.name == "table" else a.values, a.bits, a.signed)
            for a in arrays]
     with pytest.raises(ValueError, match="range"):
-        GGConvParams.from_arrays(bad)
-    bad = [NamedIntArray(a.name, np.array(3) if a.name == "neighbour_level" else a.values, a.bits, a.signed)
-           for a in arrays]
+        GGConvParams.from_syntax(hp, bad)
     with pytest.raises(ValueError, match="neighbour_level"):
-        GGConvParams.from_arrays(bad)
+        GGConvParams.from_syntax(dataclasses.replace(hp, neighbour_level=3), arrays)
+    with pytest.raises(ValueError, match="shift"):
+        GGConvParams.from_syntax(dataclasses.replace(hp, feat_layer_shift=[32, 12]), arrays)
+    with pytest.raises(ValueError, match="missing"):  # three head layers: no arrays for the third
+        GGConvParams.from_syntax(dataclasses.replace(hp, head_layer_shift=[12, 12, 12]), arrays)
     for values in (np.ones(p.num_attrs - 1, np.int64), np.full(p.num_attrs, 2)):
         bad = [NamedIntArray(a.name, values, 8, False) if a.name == "parent_base" else a for a in arrays]
         with pytest.raises(ValueError, match="parent_base"):
-            GGConvParams.from_arrays(bad)
+            GGConvParams.from_syntax(hp, bad)
 
 
 def test_parent_mlp_matches_independent_reference():
@@ -256,7 +262,7 @@ def test_parent_mlp_matches_independent_reference():
     cl = lambda v, lo=ACT_MIN: max(lo, min(ACT_MAX, v))  # noqa: E731
     lin = lambda i, o, relu: IntLinear(rng.integers(-3000, 3001, (o, i)), rng.integers(-50000, 50000, o), 11, relu)  # noqa: E731
     p = ParentMlpParams(c, IntMLP([lin(3 + m, 9, True), lin(9, 3 * m, False)]), rng.integers(0, 2, m))
-    q = ParentMlpParams.from_arrays(p.to_arrays())
+    q = ParentMlpParams.from_syntax(*p.to_syntax())
     assert np.array_equal(q.parent_base, p.parent_base)
     coords2 = rng.integers(-40, 40, (50, 3))
     attrs1 = rng.integers(-40000, 40000, (7, m))  # beyond 16 bits: clamped as x_i
@@ -340,7 +346,7 @@ def test_fit_reduces_rate_and_twin_matches_integer_path(neighbour_level):
     # the quantized twin emulates the integer path exactly
     assert np.array_equal(mean_t, mean_i) and np.array_equal(level_t, level_i) and np.array_equal(adj_t, adj_i)
     # parameters survive serialization
-    q = GGConvParams.from_arrays(params.to_arrays())
+    q = GGConvParams.from_syntax(*params.to_syntax())
     assert np.array_equal(ggconv_coding_params(q, c2, parent, *level1, s)[0], mean_i)
 
 
@@ -409,22 +415,3 @@ def test_context_twin_file_round_trip_and_rejects_what_it_cannot_use(tmp_path):
         bad.save(tmp_path / "bad.pt")
         with pytest.raises(ValueError, match="bad.pt"):
             ContextTwin.load(tmp_path / "bad.pt")
-
-
-def test_parent_mlp_scalars_must_be_scalars():
-    """Spec 7.3.8: num_features and every shift are scalars (array_ndim 0, or shape [1]), in the
-    parent-MLP model as in GG-Conv; the decoder used to take the first value of a longer array."""
-    from lghcc.common.context.model_unit import NamedIntArray
-    from lghcc.common.context.parent_mlp import ParentMlpParams
-
-    rng = np.random.default_rng(5)
-    c, m = 2, 2 + 6 + 3
-    lin = lambda i, o, relu: IntLinear(rng.integers(-30, 31, (o, i)), rng.integers(-50, 50, o), 3, relu)  # noqa: E731
-    arrays = ParentMlpParams(c, IntMLP([lin(3 + m, 5, True), lin(5, 3 * m, False)])).to_arrays()
-    one = [NamedIntArray(a.name, a.values.reshape(1), a.bits, a.signed) if a.values.ndim == 0 else a for a in arrays]
-    assert ParentMlpParams.from_arrays(one).num_features == c  # shape [1] is a scalar too
-    for name in ("num_features", "head.1.shift"):
-        bad = [NamedIntArray(a.name, np.array([a.values, a.values]).reshape(2), a.bits, a.signed)
-               if a.name == name else a for a in arrays]
-        with pytest.raises(ValueError, match="must be a scalar"):
-            ParentMlpParams.from_arrays(bad)

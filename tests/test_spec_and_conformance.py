@@ -3,6 +3,7 @@ to their recorded hashes, the encoder reproduces them byte for byte, and the run
 
 import hashlib
 import importlib.util
+import itertools
 import sys
 from pathlib import Path
 
@@ -14,7 +15,8 @@ import numpy as np
 from lghcc.common import attributes as attr
 from lghcc.common.bitio import BitReader
 from lghcc.common.container import UnitType, read_container
-from lghcc.common.context.model_unit import ContextModelUnit
+from lghcc.common.context.model_unit import (ContextModelUnit, NamedIntArray, read_context_model_unit,
+                                             write_context_model_unit)
 from lghcc.common.context.models import read_context_model
 from lghcc.common.entropy.tables import HALF_WIDTHS
 from lghcc.common.errors import BitstreamError
@@ -105,7 +107,7 @@ def test_derived_tools_follow_what_the_decoder_did():
     from lghcc.common import attributes
     assert attributes.decode_symbols is symbol_coder.decode_symbols, "EscapeCounter must restore the decoder"
     for sid, tag in (("c020_idcm_mode_2", "geometry_idcm_2"), ("c015_geometry_origin_no_idcm", "geometry_idcm_0"),
-                     ("c021_container_version_0_3", "container_version"), ("c017_empty_chunks", "empty_chunk"),
+                     ("c021_container_version_1_3", "container_version"), ("c017_empty_chunks", "empty_chunk"),
                      ("c010_ancillary_unit", "ancillary_unit"), ("e002_hash_mismatch", "hash"),
                      ("e007_crc_mismatch", "container"), ("e008_attribute_trailing_bytes", "attributes")):
         data = (runner.STREAMS_DIR / sid / "stream.lghcc").read_bytes()
@@ -290,7 +292,7 @@ def test_value_classes_have_minimum_maximum_and_enumerations():
     assert cls["geometry_header.geom_idcm_mode"] == [0, 1, 2]  # each mode its own class
     assert cls["render_mlp_header.num_layers_minus1"] == ["minimum", "other", "maximum"]
     assert cls["attribute_unit_header.rows_per_chunk_minus1"] == ["minimum", "other", "maximum"]
-    assert cls["container_header.version_minor"] == ["minimum", 2, "other", "maximum"]
+    assert cls["container_header.version_minor"] == ["minimum", "other", "maximum"]  # 0, this version, is the minimum
     assert "ancillary" in cls["data_unit_header.unit_type"]
     assert cls["scene_parameter_set.voxel_size"] == ["minimum", "other", "maximum"]
     assert cls["render_model_unit.coded_size"] == ["minimum", "other"]  # ue(v) without a limit: no maximum
@@ -324,15 +326,34 @@ def _units(case_id: str):
 
 
 def test_impossible_context_model_unit_without_coded_data():
-    """IMPOSSIBLE: an empty context-model chunk decodes num_features as -L <= -4, which both models reject."""
+    """IMPOSSIBLE: an empty context-model chunk decodes parent_base (the first array of both models)
+    as -L <= -4: outside an unsigned width, and outside 0 .. 1 when declared signed."""
     assert int(HALF_WIDTHS.min()) >= 4
     for case_id in ("c012_parent_mlp_context", "c019_ggconv_minimal"):
         payload = next(u.payload for u in _units(case_id) if u.unit_type == UnitType.CONTEXT_MODEL)
-        unit = ContextModelUnit.from_bytes(payload)
-        unit.coded_size, unit.coded_data = 0, b""
         sps = SceneParameterSet.from_bytes(_units(case_id)[0].payload)
-        with pytest.raises(BitstreamError, match="num_features|outside its"):
-            read_context_model(unit.to_bytes(), attr.layout_of(sps))
+        for signed in (0, 1):
+            unit = ContextModelUnit.from_bytes(payload)
+            unit.arrays[0].array_signed_flag, unit.arrays[0].array_bits_minus1 = signed, 7
+            unit.coded_size, unit.coded_data = 0, b""
+            with pytest.raises(BitstreamError, match="parent_base|outside its"):  # (or a later array first)
+                read_context_model(unit.to_bytes(), attr.layout_of(sps))
+
+
+def test_impossible_context_model_arrays_of_0_or_3_dimensions():
+    """IMPOSSIBLE: no context-model array has 0 or 3 dimensions (the scalars are syntax elements);
+    each array of both models, given either, is rejected."""
+    for case_id in ("c012_parent_mlp_context", "c019_ggconv_minimal"):
+        payload = next(u.payload for u in _units(case_id) if u.unit_type == UnitType.CONTEXT_MODEL)
+        sps = SceneParameterSet.from_bytes(_units(case_id)[0].payload)
+        n = len(ContextModelUnit.from_bytes(payload).arrays)
+        for a, ndim in itertools.product(range(n), (0, 3)):
+            model_id, hp, arrays = read_context_model_unit(payload)
+            v = arrays[a].values
+            v = v.reshape(-1)[0] if ndim == 0 else v.reshape(1, 1, v.size)  # one value; or all in 3 dimensions
+            arrays[a] = NamedIntArray(arrays[a].name, np.asarray(v), arrays[a].bits, arrays[a].signed)
+            with pytest.raises(BitstreamError):
+                read_context_model(write_context_model_unit(model_id, hp, arrays), attr.layout_of(sps))
 
 
 def test_impossible_coarse_voxel_scale_one():

@@ -13,7 +13,7 @@ out of the byte mutator's reach). Here every case is a new, valid stream:
   values from 0 to 1e12 and outliers up to 2^51 quantization steps (escapes of every class);
   constant channels, offset masks from never to always live, render MLPs of extreme magnitude,
   voxel sizes and origins up to the binary32 limits;
-* encoder settings (``random_config``): every preset's steps and extremes (1e-30 .. 3e38),
+* encoder settings (``random_config``): every preset's steps and extremes (1e-30 .. 3e38), tiles,
   MLP weight bits 2..24, chunks of 1 row to all rows, the hierarchy with coarse voxels of 2 to
   2^20, the parent MLP and GG-Conv fitted for a step or two (so the fit is cheap and the
   integer model is whatever it is);
@@ -199,6 +199,8 @@ def random_config(rng: random.Random):
                         context_neighbour_level=rng.randint(1, 2), context_k=_choice(rng, [1, 2, 8, 64]),
                         context_weight_bits=_choice(rng, [8, 16]), context_channels=rng.randint(1, 4),
                         context_feat_hidden=rng.randint(1, 8), context_head_hidden=rng.randint(1, 8))
+    if rng.random() < 0.4:  # tiles (format version 1): small ones, the scenes here are small
+        over["tile_points"] = _choice(rng, [1, 2, 5, 20, 100])
     cfg = load_config(preset, overrides=over)
     return cfg, f"{preset} {over}"
 
@@ -282,9 +284,7 @@ def replace_context_model(data: bytes, decoded, rng: random.Random) -> tuple[byt
                                         values, hier.level1_idx, keep_q=True)
     h2, mask2, q2 = _level2_q(units[a2].payload, sps, hier, q1, coords, units, types, values)
     model_id, params = hand_context_model(rng, sps.feature_dim, m)
-    arrays = params.to_arrays()
-    feat_layers = len(params.feat_mlp.layers) if hasattr(params, "feat_mlp") else 0
-    unit = write_context_model_unit(model_id, arrays, feat_layers, len(params.head_mlp.layers))
+    unit = write_context_model_unit(model_id, *params.to_syntax())
     model = read_context_model(unit, layout)
     try:
         cp = level2_coding_params(model, coords[hier.level1_idx], q1, coords[hier.level2_idx], hier.parent_of_level2,
@@ -304,7 +304,7 @@ def replace_context_model(data: bytes, decoded, rng: random.Random) -> tuple[byt
     if UnitType.CONTEXT_MODEL in types:
         units[types.index(UnitType.CONTEXT_MODEL)] = DataUnit(UnitType.CONTEXT_MODEL, unit)
     else:
-        units.insert(a1, DataUnit(UnitType.CONTEXT_MODEL, unit))
+        units.insert(types.index(UnitType.GEOMETRY), DataUnit(UnitType.CONTEXT_MODEL, unit))
     all_values = layout.join(decoded.features, decoded.scalings, decoded.offsets)
     all_values[hier.level2_idx] = recon
     f, s, o = layout.split(all_values)
@@ -312,9 +312,10 @@ def replace_context_model(data: bytes, decoded, rng: random.Random) -> tuple[byt
                         offsets=o, offset_mask=decoded.offset_mask, mlps=decoded.mlps)
     j = [u.unit_type for u in units].index(UnitType.DECODED_SCENE_HASH)
     units[j] = DataUnit(UnitType.DECODED_SCENE_HASH, DecodedSceneHashUnit(scene_hash=scene_digest(scene)).to_bytes())
-    name = "GG-Conv" if feat_layers else "parent MLP"
+    ggconv = hasattr(params, "feat_mlp")
+    name = "GG-Conv" if ggconv else "parent MLP"
     extra = (f" k={params.k} radius_sq={params.radius_sq} D={params.grid_size} Ch={params.context_channels} "
-             f"h_shift={params.h_shift} neighbour_level={params.neighbour_level}") if feat_layers else ""
+             f"h_shift={params.h_shift} neighbour_level={params.neighbour_level}") if ggconv else ""
     return write_container(units), f"hand {name}{extra}"
 
 

@@ -218,9 +218,11 @@ def _ggconv_feature_inputs(c: int) -> int:
 
 def _hand_ggconv(units, spec: dict):
     """Code level 2 with a hand-built GG-Conv model instead of the per-channel prior: one-layer
-    feature and head MLPs, Ch context channels, scalars as [1]-shaped arrays and shifts as 1-bit
-    arrays (the smallest shapes and widths the syntax allows). Its step adjustment is 0, so the
-    quantized values, and the decoded scene, are those of the per-channel stream."""
+    feature and head MLPs (``feat_layers``, ``head_layers`` deeper), Ch context channels, every
+    layer's shift 0 (or ``feat_shifts``, ``head_shifts``: one per layer; a shift of the head's last
+    layer scales the levels down). Its step adjustment is 0, so the quantized values, and the decoded scene, are
+    those of the per-channel stream. ``override``: {array: {shape, fill, bits}}, arrays that a
+    conforming model cannot have (with ``unchecked``: level 2 keeps the per-channel chunks)."""
     from lghcc.common import attributes as attr
     from lghcc.common.container import DataUnit, UnitType
     from lghcc.common.context.ggconv import GGConvParams
@@ -250,7 +252,9 @@ def _hand_ggconv(units, spec: dict):
     n_feat, n_head = int(spec.get("feat_layers", 1)), int(spec.get("head_layers", 1))
     # feature MLP: small random layers (ReLU between them), Ch outputs
     widths = [feat_in] + [ch] * n_feat
-    feat_layers = [IntLinear(rng.integers(-3, 3, size=(o, i), endpoint=True), np.zeros(o, np.int64), 0,
+    feat_shifts = list(spec.get("feat_shifts", [0] * n_feat))  # every layer's shift (a syntax element)
+    head_shifts = list(spec.get("head_shifts", [0] * n_head))  # the last head layer's shift shall be 0
+    feat_layers = [IntLinear(rng.integers(-3, 3, size=(o, i), endpoint=True), np.zeros(o, np.int64), feat_shifts[l],
                              l < n_feat - 1, 8) for l, (i, o) in enumerate(zip(widths[:-1], widths[1:]))]
     # head inputs: h (Ch), local position (3), n_valid (1), parent attributes (M); outputs mean, level, adjust.
     # Deeper heads carry n_valid (>= 0, unchanged by ReLU) through 1-wide identity layers.
@@ -258,32 +262,33 @@ def _hand_ggconv(units, spec: dict):
     if n_head > 1:
         w0 = np.zeros((1, ch + 4 + m), np.int64)
         w0[0, ch + 3] = 1
-        head_layers.append(IntLinear(w0, np.zeros(1, np.int64), 0, True, 8))
-        head_layers += [IntLinear(np.ones((1, 1), np.int64), np.zeros(1, np.int64), 0, True, 8)
-                        for _ in range(n_head - 2)]
+        head_layers.append(IntLinear(w0, np.zeros(1, np.int64), head_shifts[0], True, 8))
+        head_layers += [IntLinear(np.ones((1, 1), np.int64), np.zeros(1, np.int64), head_shifts[l], True, 8)
+                        for l in range(1, n_head - 1)]
     w = np.zeros((3 * m, ch + 4 + m if n_head == 1 else 1), np.int64)
     w[m:2 * m, ch + 3 if n_head == 1 else 0] = 1  # level grows with the number of valid neighbours
     bias = np.concatenate([np.zeros(m), np.full(m, int(spec.get("level", 8))), np.zeros(m)]).astype(np.int64)
-    head_layers.append(IntLinear(w, bias, 0, False, 8))
+    head_layers.append(IntLinear(w, bias, head_shifts[-1], False, 8))
     p = GGConvParams(num_features=c, neighbour_level=int(spec.get("neighbour_level", 2)), k=int(spec.get("k", 2)),
                      radius_sq=int(spec.get("radius_sq", 64)),
                      table=table, h_shift=0, feat_mlp=IntMLP(feat_layers), head_mlp=IntMLP(head_layers),
                      parent_base=np.arange(m) % 2)  # both kinds of channel mean (Annex H.5.3 step 6)
     arrays = []
     override = spec.get("override", {})  # error streams: arrays a conforming model cannot have
-    for a in p.to_arrays():
-        v = np.asarray(a.values)
-        if v.ndim == 0:
-            v = v.reshape(1)
-        bits = 1 if a.name.endswith(".shift") or a.name == "h_shift" else a.bits
+    hp, model_arrays = p.to_syntax()
+    unknown = set(override) - {a.name for a in model_arrays}
+    if unknown:  # hyperparameters out of range: set_elements after the model is written
+        raise ValueError(f"hand_ggconv override: no array {sorted(unknown)}")
+    for a in model_arrays:
+        v, bits = np.asarray(a.values), a.bits
         if a.name in override:
             o = override[a.name]
-            v = np.full(o["shape"], o.get("fill", 0), np.int64) if isinstance(o, dict) else np.array([int(o)])
+            v = np.full(o["shape"], o.get("fill", 0), np.int64)
             bits = max(bits, int(v.max()).bit_length() if v.size else 1, 1)
-            if isinstance(o, dict) and "bits" in o:  # a declared width of its own (e.g. beyond the model's)
+            if "bits" in o:  # a declared width of its own (e.g. beyond the model's)
                 bits = int(o["bits"])
         arrays.append(NamedIntArray(a.name, v, bits, a.signed))
-    unit = write_context_model_unit(CONTEXT_GGCONV, arrays, n_feat, n_head)
+    unit = write_context_model_unit(CONTEXT_GGCONV, hp, arrays)
     h = AttributeUnitHeader(num_channels=m, num_offsets=sps.num_offsets, offset_mask_present=h2.offset_mask_present,
                             num_rows=hier.num_level2, attribute_level=LEVEL_2, context_model_id=CONTEXT_GGCONV,
                             mask_live_prob=list(h2.mask_live_prob), rows_per_chunk_minus1=h2.rows_per_chunk_minus1)
@@ -297,14 +302,14 @@ def _hand_ggconv(units, spec: dict):
                                   offset_mask_present=h2.offset_mask_present, num_rows=hier.num_level2)
         h.mask_chunk_size, h.chunk_size = list(h2.mask_chunk_size), list(h2.chunk_size)
         units[a2] = DataUnit(UnitType.ATTRIBUTE, h.to_bytes() + units[a2].payload[r.bit_position // 8:])
-        units.insert(a1, DataUnit(UnitType.CONTEXT_MODEL, unit))
+        units.insert(_unit_index(units, UnitType.GEOMETRY), DataUnit(UnitType.CONTEXT_MODEL, unit))
         return
     model = read_context_model(unit, layout)
     params = level2_coding_params(model, coords[hier.level1_idx], q1, coords[hier.level2_idx], hier.parent_of_level2,
                                   sps.coarse_voxel_scale).materialize()
     assert params.step_adjust is None or not params.step_adjust.any()
     units[a2] = DataUnit(UnitType.ATTRIBUTE, attr.write_attribute_unit(h, layout, q2, mask2, params))
-    units.insert(a1, DataUnit(UnitType.CONTEXT_MODEL, unit))
+    units.insert(_unit_index(units, UnitType.GEOMETRY), DataUnit(UnitType.CONTEXT_MODEL, unit))
 
 
 def _rehash(data: bytes) -> bytes:
@@ -404,6 +409,29 @@ def _rewrite_gaussian_attributes(units, edit: dict):
                                                                       pred))
 
 
+def _edit_tile_index(units, edits: list[dict]) -> None:
+    from lghcc.common.container import DataUnit, UnitType
+    from lghcc.common.units import TileIndex
+
+    j = _unit_index(units, UnitType.TILE_INDEX)
+    index = TileIndex.parse(__import__("lghcc.common.bitio", fromlist=["BitReader"]).BitReader(units[j].payload),
+                            num_points=1 << 24)
+    for e in edits:
+        cur = getattr(index, e["name"])
+        if e.get("drop"):  # remove tile t's entry
+            del cur[e["t"]]
+        elif e.get("add_last"):  # tile t also counts the last tile's points (the count stays N)
+            cur[e["t"]] += cur[-1] + 1
+        elif "copy" in e:  # tile t's value is tile copy's
+            cur[e["t"]] = cur[e["copy"]]
+        elif "t" in e:
+            cur[e["t"]] = e["value"] if "value" in e else cur[e["t"]] + e["add"]
+        else:
+            setattr(index, e["name"], e["value"] if "value" in e else cur + e["add"])
+    index.num_points = 1 << 24
+    units[j] = DataUnit(UnitType.TILE_INDEX, index.to_bytes())
+
+
 def post_process(data: bytes, post: dict) -> bytes:
     """Edits applied to an encoded stream, in this order: unit edits (which keep valid CRCs),
     then the rehash, then raw byte edits (which may break the framing on purpose)."""
@@ -436,7 +464,12 @@ def post_process(data: bytes, post: dict) -> bytes:
         _set_render_mlp(units, post["set_render_mlp"])
     if "gaussian_attributes" in post:
         _rewrite_gaussian_attributes(units, post["gaussian_attributes"])
-    if "set_gps" in post:  # overwrite gaussian parameter set fields
+    if "tile_index" in post:  # edit elements of the tile index: [{name, t (a tile, or none), value or add}]
+        _edit_tile_index(units, post["tile_index"])
+    import stream_edits  # tools/stream_edits.py: values the encoder never writes, one broken rule each
+
+    stream_edits.apply_edits(units, post)
+    if "set_gps" in post:  # overwrite gaussian parameter set fields (after the edits, as set_sps)
         from lghcc.common.units import GaussianParameterSet
 
         j = _unit_index(units, UnitType.GAUSSIAN_PARAMETER_SET)
@@ -444,9 +477,6 @@ def post_process(data: bytes, post: dict) -> bytes:
         for k, v in post["set_gps"].items():
             setattr(gps, k, v)
         units[j] = DataUnit(UnitType.GAUSSIAN_PARAMETER_SET, gps.to_bytes())
-    import stream_edits  # tools/stream_edits.py: values the encoder never writes, one broken rule each
-
-    stream_edits.apply_edits(units, post)
     if "set_sps" in post:  # overwrite scene parameter set fields
         j = _unit_index(units, UnitType.SCENE_PARAMETER_SET)
         sps = SceneParameterSet.from_bytes(units[j].payload)
@@ -556,7 +586,9 @@ TOOL_TAGS = """\
 Tags of test.yaml `tools`, derived from the reference decoder's result (never written by hand):
   geometry_idcm_<m>     geometry coded with geom_idcm_mode m
   render_model          a render-model unit (render_model_empty: one with no MLPs)
-  hierarchy             hierarchy_enabled_flag = 1 (two attribute units)
+  hierarchy             hierarchy_enabled_flag = 1 (two attribute units per tile with a level 2)
+  tiles                 a tiled stream (tiles_enabled_flag 1, a tile_index unit; version 1)
+  tile_without_level2   a tile of a hierarchy stream whose level 2 is empty (one attribute unit)
   per_channel_prior, parent_mlp_context, ggconv_context   the context_model_id of an attribute unit
   ggconv_neighbour_level_<n>   a GG-Conv model whose neighbours are the level-n anchors (Annex H.5)
   context_parent_base_<b>      a context model with a channel whose parent_base is b (Annex H.5.3)
@@ -683,6 +715,11 @@ def derive_tools(data: bytes, rejected_in: str | None = None) -> list[str]:
     _undeclared([], rejected_in)
     if container.header.version_minor != VERSION_MINOR:
         tags.add("container_version")
+    if any(u.unit_type == UnitType.TILE_INDEX for u in container.units):
+        tags.add("tiles")
+    letters = [u.unit_type for u in container.units]
+    if letters.count(UnitType.ATTRIBUTE) < 2 * letters.count(UnitType.GEOMETRY) and "hierarchy" in tags:
+        tags.add("tile_without_level2")
     if res.source_info is not None:
         tags.add("source_info")
     if res.notes:
@@ -817,6 +854,22 @@ def source_info_meta(data: bytes) -> dict | None:
     return {"source_sh_degree": degree, "ignored": len(res.notes)}
 
 
+def partial_decodes_meta(entry: dict, data: bytes) -> list[dict] | None:
+    """test.yaml's ``partial_decodes`` (version 1, clause 13.3): for each partial decode sources.yaml
+    asks for (``box``: the tiles whose cell meets a box; ``level: 1``: the level-1 preview), the
+    SHA-256 of what the reference decoder outputs."""
+    from lghcc.common.hashing import digest_of
+    from lghcc.common.tiles import Box
+    from lghcc.decoder.decode import decode_stream
+
+    out = []
+    for p in entry.get("partial_decodes", []):
+        box = Box(tuple(p["box"][:3]), tuple(p["box"][3:])) if "box" in p else None
+        res = decode_stream(data, box=box, max_level=int(p.get("level", 2)))
+        out.append({**p, "tiles_decoded": res.tiles_decoded, "decoded_sha256": digest_of(res.scene).hex()})
+    return out or None
+
+
 def test_yaml(entry: dict, data: bytes, decoded: str | None) -> dict:
     meta = {"id": entry["id"], "purpose": entry["purpose"], "profile": "main",
             "tools": derive_tools(data, entry.get("rejected_in")),
@@ -831,6 +884,9 @@ def test_yaml(entry: dict, data: bytes, decoded: str | None) -> dict:
     info = source_info_meta(data) if decoded else None
     if info is not None:
         meta["source_info"] = info
+    partial = partial_decodes_meta(entry, data) if decoded else None
+    if partial:
+        meta["partial_decodes"] = partial
     r = renders_meta(entry)
     if r:
         meta["renders"] = r

@@ -328,17 +328,15 @@ def context_unit(units, spec: dict) -> None:
     """Replace the context-model unit's arrays: {array: name, values: [...], bits: b} (values
     outside the width; or {array: name, shape: [...], fill: v, bits: b}: another shape, or only
     another width with neither values nor shape), or {oversized: true} (arrays of more than 2^24
-    values in all, coded data empty), or {num_features_delta: d} (a model for another channel
-    layout); or the arrays kept and the coded data damaged: {failing_words: seed} (words on which
-    range decoding fails), {coded_size_delta: d} (coded_size beyond the payload)."""
+    values in all, coded data empty); or the arrays kept and the coded data damaged:
+    {failing_words: seed} (words on which range decoding fails), {coded_size_delta: d} (coded_size
+    beyond the payload). The hyperparameters, syntax elements, are edited with set_elements."""
     from lghcc.common.context.model_unit import (ContextModelUnit, IntArrayHeader, NamedIntArray,
                                                  read_context_model_unit, write_context_model_unit)
 
     j = _index(units, UnitType.CONTEXT_MODEL)
-    model_id, arrays = read_context_model_unit(units[j].payload)
+    model_id, hp, arrays = read_context_model_unit(units[j].payload)
     unit = ContextModelUnit.from_bytes(units[j].payload)
-    feat = unit.feat_num_layers_minus1 + 1 if model_id == 2 else 0
-    head = unit.head_num_layers_minus1 + 1
     if "failing_words" in spec or "coded_size_delta" in spec:  # the arrays kept, the coded data damaged
         from lghcc.common.entropy.symbol_coder import decode_symbols
 
@@ -365,10 +363,8 @@ def context_unit(units, spec: dict) -> None:
             elif "shape" in spec:  # another shape, every value ``fill``
                 v = np.full(spec["shape"], int(spec.get("fill", 0)), np.int64)
             bits = int(spec.get("bits", bits))
-        if a.name == "num_features" and "num_features_delta" in spec:
-            v = v + int(spec["num_features_delta"])
         new.append(NamedIntArray(a.name, v, bits, a.signed))
-    units[j] = DataUnit(UnitType.CONTEXT_MODEL, write_context_model_unit(model_id, new, feat, head))
+    units[j] = DataUnit(UnitType.CONTEXT_MODEL, write_context_model_unit(model_id, hp, new))
 
 
 def render_unit(units, spec: dict) -> None:
@@ -534,7 +530,7 @@ def designed_model(units, spec: dict) -> None:
             "random": rng.integers(0, 2, size=m)}[spec.get("parent_base", "random")]
     if spec.get("model", "ggconv") == "parent_mlp":
         head = IntMLP(_layers(rng, spec["head"], 3 + m, 3 * m, m))
-        model_id, params, feat_layers = CONTEXT_PARENT_MLP, ParentMlpParams(c, head, base), 0
+        model_id, params = CONTEXT_PARENT_MLP, ParentMlpParams(c, head, base)
     else:
         ch, d = int(spec.get("channels", 2)), int(spec.get("grid", 2))
         table = _weights(rng, spec.get("table", "small"), (d, d, d, ch), 16)
@@ -543,8 +539,8 @@ def designed_model(units, spec: dict) -> None:
         params = GGConvParams(num_features=c, k=int(spec.get("k", 4)), radius_sq=int(spec.get("radius_sq", 12)),
                               table=table, h_shift=int(spec.get("h_shift", 0)), feat_mlp=feat, head_mlp=head,
                               neighbour_level=int(spec.get("neighbour_level", 1)), parent_base=base)
-        model_id, feat_layers = CONTEXT_GGCONV, len(feat.layers)
-    unit = write_context_model_unit(model_id, params.to_arrays(), feat_layers, len(params.head_mlp.layers))
+        model_id = CONTEXT_GGCONV
+    unit = write_context_model_unit(model_id, *params.to_syntax())
     model = read_context_model(unit, layout)
     cp = level2_coding_params(model, coords[hier.level1_idx], q1, coords[hier.level2_idx], hier.parent_of_level2,
                               sps.coarse_voxel_scale).materialize()
@@ -557,7 +553,7 @@ def designed_model(units, spec: dict) -> None:
                             num_rows=hier.num_level2, attribute_level=LEVEL_2, context_model_id=model_id,
                             mask_live_prob=list(h2.mask_live_prob), rows_per_chunk_minus1=h2.rows_per_chunk_minus1)
     units[a2] = DataUnit(UnitType.ATTRIBUTE, attr.write_attribute_unit(h, layout, q2, mask2, cp))
-    units.insert(a1, DataUnit(UnitType.CONTEXT_MODEL, unit))
+    units.insert(_index(units, UnitType.GEOMETRY), DataUnit(UnitType.CONTEXT_MODEL, unit))
 
 
 def apply_edits(units, post: dict) -> None:

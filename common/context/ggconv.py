@@ -36,7 +36,8 @@ import torch
 
 from ..attributes import NUM_STEP_ADJUST, STEP_ADJUST_FACTORS  # noqa: F401 (re-exported)
 from ..entropy.scale_levels import NUM_SCALE_LEVELS as NUM_LEVELS  # the float twin imports it by this name
-from .model_unit import NamedIntArray, mlp_arrays
+from .model_unit import (MAX_H_SHIFT, MAX_K, MAX_RADIUS_SQ, NEIGHBOUR_LEVELS, Hyperparameters,  # noqa: F401
+                         NamedIntArray, mlp_arrays)
 from ..intnn import ACT_MAX, ACT_MIN, IntLinear, IntMLP, WEIGHT_BITS_ALLOWED, rshift_round
 from ..hierarchy import local_position
 from ..knn import ball_knn
@@ -45,10 +46,6 @@ from ..scene import NUM_SCALINGS
 GRID_FRAC_BITS = 8  # FB: fractional bits of the grid coordinate U
 TRI_SHIFT = 3 * GRID_FRAC_BITS  # the trilinear weights sum to 2^24
 MIN_GRID, MAX_GRID = 2, 16  # allowed table size D
-MAX_K = 64
-MAX_H_SHIFT = 40
-MAX_RADIUS_SQ = (1 << 62) - 1  # coded as a 62-bit unsigned value (context-model unit)
-NEIGHBOUR_LEVELS = (1, 2)  # 1: neighbours are level-1 anchors; 2: level-2 anchors (the paper's graph)
 
 
 @dataclass
@@ -118,67 +115,68 @@ class GGConvParams:
         return int(self.table.size) + self.feat_mlp.num_parameters() + self.head_mlp.num_parameters()
 
     # -- serialization -----------------------------------------------------------------------
-    def to_arrays(self) -> list[NamedIntArray]:
-        """Flat list of named integer arrays with their bit widths, in a fixed order:
-        num_features (u16), neighbour_level (u8), parent_base (u1 [M]), k (u8), radius_sq (u62),
-        h_shift (u8), table (s16 [D,D,D,Ch]), then for mlp in (feat, head), for each layer l: {mlp}.{l}.weight (s8 or s16 [out, in]),
-        {mlp}.{l}.bias (s32 [out]), {mlp}.{l}.shift (u8). ReLU follows every layer but the last."""
-        out = [NamedIntArray("num_features", np.array(self.num_features, dtype=np.int64), 16, False),
-               NamedIntArray("neighbour_level", np.array(self.neighbour_level, dtype=np.int64), 8, False),
-               NamedIntArray("parent_base", self.parent_base.copy(), 1, False),
-               NamedIntArray("k", np.array(self.k, dtype=np.int64), 8, False),
-               NamedIntArray("radius_sq", np.array(self.radius_sq, dtype=np.int64), 62, False),
-               NamedIntArray("h_shift", np.array(self.h_shift, dtype=np.int64), 8, False),
-               NamedIntArray("table", self.table.copy(), 16, True)]
-        return out + mlp_arrays("feat", self.feat_mlp) + mlp_arrays("head", self.head_mlp)
+    def to_syntax(self) -> tuple[Hyperparameters, list[NamedIntArray]]:
+        """The context-model unit's content (spec clause 7.3.7, Annex H.5.4): the hyperparameters
+        num_features, neighbour_level, k, radius_sq, h_shift and every layer's shift (syntax
+        elements), and the arrays parent_base (u1 [M]), table (s16 [D,D,D,Ch]), then for mlp in
+        (feat, head), for each layer l: {mlp}.{l}.weight (s8 or s16 [out, in]), {mlp}.{l}.bias
+        (s32 [out]). ReLU follows every layer but the last."""
+        hp = Hyperparameters(int(self.num_features), [layer.shift for layer in self.head_mlp.layers],
+                             [layer.shift for layer in self.feat_mlp.layers], self.neighbour_level, self.k,
+                             self.radius_sq, self.h_shift)
+        arrays = [NamedIntArray("parent_base", self.parent_base.copy(), 1, False),
+                  NamedIntArray("table", self.table.copy(), 16, True)]
+        return hp, arrays + mlp_arrays("feat", self.feat_mlp) + mlp_arrays("head", self.head_mlp)
 
     @classmethod
-    def from_arrays(cls, arrays: list[NamedIntArray]) -> "GGConvParams":
-        """Inverse of ``to_arrays``; ValueError on a missing, misplaced or malformed entry."""
-        by = {}
-        for a in arrays:
-            if a.name in by:
-                raise ValueError(f"duplicate parameter {a.name!r}")
-            v = np.asarray(a.values)
-            if v.size and not np.issubdtype(v.dtype, np.integer):
-                raise ValueError(f"parameter {a.name!r} is not integer")
-            lo, hi = (-(1 << (a.bits - 1)), (1 << (a.bits - 1)) - 1) if a.signed else (0, (1 << a.bits) - 1)
-            if v.size and (int(v.min()) < lo or int(v.max()) > hi):
-                raise ValueError(f"parameter {a.name!r} outside its {a.bits}-bit range")
-            by[a.name] = (v.astype(np.int64), a.bits)
-
-        def get(name: str, scalar: bool = False):
-            if name not in by:
-                raise ValueError(f"missing parameter {name!r}")
-            v = by.pop(name)
-            if scalar:
-                if v[0].shape not in ((), (1,)):
-                    raise ValueError(f"parameter {name!r} must be a scalar")
-                return int(v[0].reshape(-1)[0])
-            return v
-
-        def mlp(name: str) -> IntMLP:
-            layers = []
-            l = 0
-            while f"{name}.{l}.weight" in by:
-                w, wb = get(f"{name}.{l}.weight")
-                b, _ = get(f"{name}.{l}.bias")
-                s = get(f"{name}.{l}.shift", scalar=True)
-                if wb not in WEIGHT_BITS_ALLOWED:
-                    raise ValueError(f"{name}.{l}.weight: weight bits must be one of {WEIGHT_BITS_ALLOWED}")
-                layers.append((w, b, s, wb))
-                l += 1
-            if not layers:
-                raise ValueError(f"the {name} MLP has no layers")
-            return IntMLP([IntLinear(w, b, s, i < len(layers) - 1, wb) for i, (w, b, s, wb) in enumerate(layers)])
-
-        p = cls(num_features=get("num_features", True), neighbour_level=get("neighbour_level", True),
-                parent_base=get("parent_base")[0], k=get("k", True),
-                radius_sq=get("radius_sq", True), h_shift=get("h_shift", True), table=get("table")[0],
-                feat_mlp=mlp("feat"), head_mlp=mlp("head"))
+    def from_syntax(cls, hp: Hyperparameters, arrays: list[NamedIntArray]) -> "GGConvParams":
+        """Inverse of ``to_syntax``; ValueError on a missing, unknown or malformed array, or a
+        model whose parts do not fit together (the message names the parameter)."""
+        by = arrays_by_name(arrays)
+        p = cls(num_features=hp.num_features, neighbour_level=hp.neighbour_level, k=hp.k, radius_sq=hp.radius_sq,
+                h_shift=hp.h_shift, parent_base=take_array(by, "parent_base").values,
+                table=take_array(by, "table").values, feat_mlp=mlp_from_arrays(by, "feat", hp.feat_layer_shift),
+                head_mlp=mlp_from_arrays(by, "head", hp.head_layer_shift))
         if by:
             raise ValueError(f"unknown parameters: {sorted(by)}")
         return p
+
+
+def arrays_by_name(arrays: list[NamedIntArray]) -> dict[str, NamedIntArray]:
+    """The arrays by name, values as int64; ValueError on a duplicate name, a value that is not an
+    integer, or one outside the array's declared width."""
+    by = {}
+    for a in arrays:
+        if a.name in by:
+            raise ValueError(f"duplicate parameter {a.name!r}")
+        v = np.asarray(a.values)
+        if v.size and not np.issubdtype(v.dtype, np.integer):
+            raise ValueError(f"parameter {a.name!r} is not integer")
+        lo, hi = (-(1 << (a.bits - 1)), (1 << (a.bits - 1)) - 1) if a.signed else (0, (1 << a.bits) - 1)
+        if v.size and (int(v.min()) < lo or int(v.max()) > hi):
+            raise ValueError(f"parameter {a.name!r} outside its {a.bits}-bit range")
+        by[a.name] = NamedIntArray(a.name, v.astype(np.int64), a.bits, a.signed)
+    return by
+
+
+def take_array(by: dict[str, NamedIntArray], name: str) -> NamedIntArray:
+    if name not in by:
+        raise ValueError(f"missing parameter {name!r}")
+    return by.pop(name)
+
+
+def mlp_from_arrays(by: dict[str, NamedIntArray], name: str, shifts) -> IntMLP:
+    """The integer MLP ``name`` from its arrays {name}.{l}.weight / .bias (taken out of ``by``)
+    and the layers' shifts (syntax elements); ReLU after every layer but the last."""
+    if not shifts:
+        raise ValueError(f"the {name} MLP has no layers")
+    layers = []
+    for l, shift in enumerate(shifts):
+        w, b = take_array(by, f"{name}.{l}.weight"), take_array(by, f"{name}.{l}.bias")
+        if w.bits not in WEIGHT_BITS_ALLOWED:
+            raise ValueError(f"{name}.{l}.weight: weight bits must be one of {WEIGHT_BITS_ALLOWED}")
+        layers.append(IntLinear(w.values, b.values, int(shift), l < len(shifts) - 1, w.bits))
+    return IntMLP(layers)
 
 
 # -- normative building blocks, shared with the float twin (encoder/ggconv_train.py) ----------

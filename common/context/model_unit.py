@@ -1,8 +1,14 @@
-"""The context-model unit (spec clause 7.3.7): the integer parameters of the level-2
-context model (R_model). Each parameter is an integer array with a shape, a bit width
-and a signedness; all values are entropy coded in one chunk, mean 0, one scale level
-per array. Array names are not written: they follow from the model and its layer counts,
-in the fixed order of ``array_names``.
+"""The context-model unit (spec clause 7.3.7): the level-2 context model (R_model).
+
+Its scalar hyperparameters are syntax elements of ``context_model_unit()``, each with its
+descriptor and its allowed range (checked as it is parsed; spec clause 7.2): ``num_features``,
+for GG-Conv ``neighbour_level``, ``k``, ``radius_sq`` and ``h_shift``, and the shift of every
+MLP layer. A parent-MLP unit has no GG-Conv element, so a scene without GG-Conv spends no bit
+on them. The model's arrays (``parent_base``, GG-Conv's table, every layer's weights and
+biases) are integer arrays with a shape, a bit width and a signedness (``int_array_header()``);
+their values are entropy coded in one chunk, mean 0, one scale level per array. Array names
+are not written: they follow from the model and its layer counts, in the fixed order of
+``array_names``.
 """
 
 from __future__ import annotations
@@ -14,17 +20,27 @@ import numpy as np
 from ..entropy.symbol_coder import best_level, decode_symbols, encode_symbols
 from ..errors import BitstreamError
 from ..syntax import SyntaxStructure, SyntaxVisitor
-from ..units import CONTEXT_GGCONV, CONTEXT_PARENT_MLP, MAX_CONTEXT_MODEL_ID, NUM_SCALE_LEVELS_BITS
+from ..units import (CONTEXT_GGCONV, CONTEXT_PARENT_MLP, MAX_CONTEXT_MODEL_ID, MAX_FEATURE_DIM,
+                     NUM_SCALE_LEVELS_BITS)
 
 MAX_ARRAY_DIMS = 4
 MAX_MODEL_LAYERS = 8
 MAX_CONTEXT_PARAMETERS = 1 << 24  # level limit
 MAX_VALUE_BITS = 62  # |value| < 2^62: the symbol coder's range
+# ranges of the hyperparameters (spec clause 7.2; Annex H.4, H.5.1, H.6.1)
+MAX_NUM_FEATURES = MAX_FEATURE_DIM  # num_features = C of the scene (clause 8.3)
+NEIGHBOUR_LEVELS = (1, 2)  # 1: neighbours are level-1 anchors; 2: level-2 anchors (the paper's graph)
+MAX_K = 64
+MAX_RADIUS_SQ_BITS = 62
+MAX_RADIUS_SQ = (1 << MAX_RADIUS_SQ_BITS) - 1
+H_SHIFT_BITS = 6
+MAX_H_SHIFT = 40
+LAYER_SHIFT_BITS = 5  # a layer's shift: u(5), every value of [0, 31] (intnn.MAX_SHIFT)
 
 
 @dataclass(frozen=True)
 class NamedIntArray:
-    """One parameter: integer values of ``bits`` bits, signed or unsigned."""
+    """One parameter array: integer values of ``bits`` bits, signed or unsigned."""
 
     name: str
     values: np.ndarray  # int64, any shape
@@ -32,26 +48,40 @@ class NamedIntArray:
     signed: bool
 
 
+@dataclass
+class Hyperparameters:
+    """A context model's scalar hyperparameters, the syntax elements of context_model_unit()
+    (clause 7.3.7); those of GG-Conv alone are None in a parent-MLP model. The layer counts of
+    the model's MLPs are the lengths of the shift lists."""
+
+    num_features: int
+    head_layer_shift: list[int]
+    feat_layer_shift: list[int] | None = None  # GG-Conv
+    neighbour_level: int | None = None  # GG-Conv
+    k: int | None = None  # GG-Conv
+    radius_sq: int | None = None  # GG-Conv
+    h_shift: int | None = None  # GG-Conv
+
+
 def mlp_arrays(name: str, mlp) -> list[NamedIntArray]:
     """The arrays of an integer MLP (common/intnn.py IntMLP) named ``name``, layer by layer:
-    {name}.{l}.weight (s8 or s16 [out, in]), {name}.{l}.bias (s32 [out]), {name}.{l}.shift (u8)."""
+    {name}.{l}.weight (s8 or s16 [out, in]), {name}.{l}.bias (s32 [out]). Each layer's shift is
+    a syntax element (``Hyperparameters``)."""
     out: list[NamedIntArray] = []
     for l, layer in enumerate(mlp.layers):
         out += [NamedIntArray(f"{name}.{l}.weight", layer.weight.copy(), layer.weight_bits, True),
-                NamedIntArray(f"{name}.{l}.bias", layer.bias.copy(), 32, True),
-                NamedIntArray(f"{name}.{l}.shift", np.array(layer.shift, dtype=np.int64), 8, False)]
+                NamedIntArray(f"{name}.{l}.bias", layer.bias.copy(), 32, True)]
     return out
 
 
 def array_names(model_id: int, feat_layers: int, head_layers: int) -> list[str]:
     """The normative order of a context model's arrays."""
     def mlp(name: str, layers: int) -> list[str]:
-        return [f"{name}.{l}.{part}" for l in range(layers) for part in ("weight", "bias", "shift")]
+        return [f"{name}.{l}.{part}" for l in range(layers) for part in ("weight", "bias")]
     if model_id == CONTEXT_GGCONV:
-        return (["num_features", "neighbour_level", "parent_base", "k", "radius_sq", "h_shift", "table"]
-                + mlp("feat", feat_layers) + mlp("head", head_layers))
+        return ["parent_base", "table"] + mlp("feat", feat_layers) + mlp("head", head_layers)
     if model_id == CONTEXT_PARENT_MLP:
-        return ["num_features", "parent_base"] + mlp("head", head_layers)
+        return ["parent_base"] + mlp("head", head_layers)
     raise ValueError(f"context model {model_id} has no parameters")
 
 
@@ -85,34 +115,79 @@ class ContextModelUnit(SyntaxStructure):
     context_model_id: int = CONTEXT_GGCONV
     feat_num_layers_minus1: int = 0
     head_num_layers_minus1: int = 0
+    num_features: int = 1
+    neighbour_level: int = 1
+    k: int = 1
+    radius_sq_bits_minus1: int = 0
+    radius_sq: int = 1
+    h_shift: int = 0
+    feat_layer_shift: list = field(default_factory=list)
+    head_layer_shift: list = field(default_factory=list)
     arrays: list = field(default_factory=list)
     coded_size: int = 0
     coded_data: bytes = b""
 
     @property
+    def num_feat_layers(self) -> int:
+        return self.feat_num_layers_minus1 + 1 if self.context_model_id == CONTEXT_GGCONV else 0
+
+    @property
     def num_arrays(self) -> int:
-        feat = self.feat_num_layers_minus1 + 1 if self.context_model_id == CONTEXT_GGCONV else 0
-        return len(array_names(self.context_model_id, feat, self.head_num_layers_minus1 + 1))
+        return len(array_names(self.context_model_id, self.num_feat_layers, self.head_num_layers_minus1 + 1))
 
     def syntax(self, v: SyntaxVisitor) -> None:
         v.u(3, self, "context_model_id", lo=CONTEXT_PARENT_MLP, hi=MAX_CONTEXT_MODEL_ID)
         for _ in v.when(self.context_model_id == CONTEXT_GGCONV, "context_model_id == 2"):
             v.ue(self, "feat_num_layers_minus1", hi=MAX_MODEL_LAYERS - 1)
         v.ue(self, "head_num_layers_minus1", hi=MAX_MODEL_LAYERS - 1)
+        v.ue(self, "num_features", lo=1, hi=MAX_NUM_FEATURES)
+        for _ in v.when(self.context_model_id == CONTEXT_GGCONV, "context_model_id == 2"):
+            v.u(2, self, "neighbour_level", lo=NEIGHBOUR_LEVELS[0], hi=NEIGHBOUR_LEVELS[-1])
+            v.ue(self, "k", lo=1, hi=MAX_K)
+            v.u(6, self, "radius_sq_bits_minus1", hi=MAX_RADIUS_SQ_BITS - 1)
+            v.u(self.radius_sq_bits_minus1 + 1, self, "radius_sq", lo=1, hi=MAX_RADIUS_SQ,
+                width="radius_sq_bits_minus1 + 1")
+            v.u(H_SHIFT_BITS, self, "h_shift", hi=MAX_H_SHIFT)
+            for l in v.loop(self.feat_num_layers_minus1 + 1, "feat_num_layers_minus1 + 1", self,
+                            ("feat_layer_shift",), index="l"):
+                v.u(LAYER_SHIFT_BITS, self, "feat_layer_shift", l)
+        for l in v.loop(self.head_num_layers_minus1 + 1, "head_num_layers_minus1 + 1", self,
+                        ("head_layer_shift",), index="l"):
+            v.u(LAYER_SHIFT_BITS, self, "head_layer_shift", l)
         for a in v.loop(self.num_arrays, "NumArrays", self, ("arrays",), index="a"):
             v.struct(self, "arrays", a, IntArrayHeader)
         v.ue(self, "coded_size")
         v.byte_align()
         v.payload(self, "coded_data", self.coded_size)
 
+    def hyperparameters(self) -> Hyperparameters:
+        if self.context_model_id != CONTEXT_GGCONV:
+            return Hyperparameters(self.num_features, list(self.head_layer_shift))
+        return Hyperparameters(self.num_features, list(self.head_layer_shift), list(self.feat_layer_shift),
+                               self.neighbour_level, self.k, self.radius_sq, self.h_shift)
 
-def write_context_model_unit(model_id: int, arrays: list[NamedIntArray], feat_layers: int,
-                             head_layers: int) -> bytes:
-    names = array_names(model_id, feat_layers, head_layers)
+    def set_hyperparameters(self, hp: Hyperparameters) -> None:
+        """The elements of ``hp`` (layer counts from its shift lists; radius_sq in the fewest bits)."""
+        self.num_features = int(hp.num_features)
+        self.head_num_layers_minus1 = len(hp.head_layer_shift) - 1
+        self.head_layer_shift = [int(s) for s in hp.head_layer_shift]
+        if self.context_model_id != CONTEXT_GGCONV:
+            return
+        self.feat_num_layers_minus1 = len(hp.feat_layer_shift or []) - 1
+        self.feat_layer_shift = [int(s) for s in hp.feat_layer_shift or []]
+        self.neighbour_level, self.k, self.h_shift = int(hp.neighbour_level), int(hp.k), int(hp.h_shift)
+        self.radius_sq = int(hp.radius_sq)
+        self.radius_sq_bits_minus1 = max(self.radius_sq.bit_length(), 1) - 1
+
+
+def write_context_model_unit(model_id: int, hp: Hyperparameters, arrays: list[NamedIntArray]) -> bytes:
+    """The context-model unit of a model: its hyperparameters as syntax elements (ValueError when
+    one is outside its range) and its arrays, in the order of ``array_names``."""
+    unit = ContextModelUnit(context_model_id=model_id)
+    unit.set_hyperparameters(hp)
+    names = array_names(model_id, unit.num_feat_layers, unit.head_num_layers_minus1 + 1)
     if [a.name for a in arrays] != names:
         raise ValueError(f"context model arrays must come in the order {names}")
-    unit = ContextModelUnit(context_model_id=model_id, feat_num_layers_minus1=max(feat_layers - 1, 0),
-                            head_num_layers_minus1=head_layers - 1)
     symbols, levels = [], []
     for a in arrays:
         v = np.asarray(a.values, dtype=np.int64).reshape(-1)
@@ -130,10 +205,11 @@ def write_context_model_unit(model_id: int, arrays: list[NamedIntArray], feat_la
     return unit.to_bytes()
 
 
-def read_context_model_unit(payload: bytes, trace=None) -> tuple[int, list[NamedIntArray]]:
+def read_context_model_unit(payload: bytes, trace=None) -> tuple[int, Hyperparameters, list[NamedIntArray]]:
+    """-> (context_model_id, hyperparameters, arrays); BitstreamError on an element outside its
+    range, an array beyond the level limit or a value outside its array's declared width."""
     unit = ContextModelUnit.from_bytes(payload, trace, what="context model unit")
-    feat = unit.feat_num_layers_minus1 + 1 if unit.context_model_id == CONTEXT_GGCONV else 0
-    names = array_names(unit.context_model_id, feat, unit.head_num_layers_minus1 + 1)
+    names = array_names(unit.context_model_id, unit.num_feat_layers, unit.head_num_layers_minus1 + 1)
     sizes = []
     for a in unit.arrays:
         if any(d > MAX_CONTEXT_PARAMETERS for d in a.shape):
@@ -153,4 +229,4 @@ def read_context_model_unit(payload: bytes, trace=None) -> tuple[int, list[Named
         if v.size and (int(v.min()) < lo or int(v.max()) > hi):
             raise BitstreamError(f"context model unit: {name} has values outside its {bits}-bit range")
         out.append(NamedIntArray(name, v, bits, bool(a.array_signed_flag)))
-    return unit.context_model_id, out
+    return unit.context_model_id, unit.hyperparameters(), out

@@ -1,7 +1,7 @@
 """The level-2 context models behind one interface (normative): read the context-model
 unit into parameters, and turn the decoded level 1 into level-2 coding parameters.
-A new context model plugs in here: an id, a parameter class with to_arrays/from_arrays,
-and a function giving (mean, level, step_adjust).
+A new context model plugs in here: an id, a parameter class with to_syntax/from_syntax
+(its hyperparameters as syntax elements, its arrays), and a function giving (mean, level, step_adjust).
 
 The models' inference uses torch; it is imported only when a stream carries a context model,
 so decoding a stream without one never loads it (time and memory: only what the stream calls for).
@@ -33,9 +33,9 @@ def params_class(model_id: int):
 
 def read_context_model(payload: bytes, layout: ChannelLayout, trace=None):
     """-> (model_id, params). Checks that the model fits the scene's channel layout."""
-    model_id, arrays = read_context_model_unit(payload, trace)
+    model_id, hp, arrays = read_context_model_unit(payload, trace)
     try:
-        params = params_class(model_id).from_arrays(arrays)
+        params = params_class(model_id).from_syntax(hp, arrays)
     except ValueError as e:
         raise BitstreamError(f"context model unit: {e}") from None
     if params.num_attrs != layout.num_channels or params.num_features != layout.feature_dim:

@@ -18,10 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from .ggconv import check_level2_inputs, check_parent_base, clamp16, split_outputs
-from .model_unit import NamedIntArray, mlp_arrays
+from .ggconv import (arrays_by_name, check_level2_inputs, check_parent_base, clamp16, mlp_from_arrays,
+                     split_outputs, take_array)
+from .model_unit import Hyperparameters, NamedIntArray, mlp_arrays
 from ..hierarchy import local_position
-from ..intnn import ACT_MAX, WEIGHT_BITS_ALLOWED, IntLinear, IntMLP
+from ..intnn import ACT_MAX, IntMLP
 from ..scene import NUM_SCALINGS
 
 _BLOCK = 1 << 16
@@ -52,29 +53,23 @@ class ParentMlpParams:
     def num_parameters(self) -> int:
         return self.head_mlp.num_parameters()
 
-    def to_arrays(self) -> list[NamedIntArray]:
-        return [NamedIntArray("num_features", np.array(self.num_features, dtype=np.int64), 16, False),
-                NamedIntArray("parent_base", self.parent_base.copy(), 1, False)] + mlp_arrays("head", self.head_mlp)
+    def to_syntax(self) -> tuple[Hyperparameters, list[NamedIntArray]]:
+        """The context-model unit's content (spec clause 7.3.7, Annex H.6.3): the hyperparameters
+        num_features and every head layer's shift (syntax elements), and the arrays parent_base
+        (u1 [M]), then for each head layer l: head.{l}.weight (s8 or s16 [out, in]), head.{l}.bias (s32)."""
+        hp = Hyperparameters(int(self.num_features), [layer.shift for layer in self.head_mlp.layers])
+        return hp, [NamedIntArray("parent_base", self.parent_base.copy(), 1, False)] + mlp_arrays("head", self.head_mlp)
 
     @classmethod
-    def from_arrays(cls, arrays: list[NamedIntArray]) -> "ParentMlpParams":
-        by = {a.name: a for a in arrays}
-        if len(by) != len(arrays) or "num_features" not in by or "parent_base" not in by:
-            raise ValueError("malformed parent-MLP parameters")
-        n = (len(arrays) - 2) // 3
-        # scalars (spec 7.3.8): array_ndim 0, or one dimension of 1, as GG-Conv's (ggconv.py from_arrays)
-        for name in ["num_features"] + [f"head.{l}.shift" for l in range(n)]:
-            if name in by and np.shape(by[name].values) not in ((), (1,)):
-                raise ValueError(f"parameter {name!r} must be a scalar")
-        layers = []
-        for l in range(n):
-            w, b, s = by[f"head.{l}.weight"], by[f"head.{l}.bias"], by[f"head.{l}.shift"]
-            if w.bits not in WEIGHT_BITS_ALLOWED or np.asarray(s.values).size != 1:
-                raise ValueError(f"head.{l}: weight bits must be one of {WEIGHT_BITS_ALLOWED} and the shift a scalar")
-            layers.append(IntLinear(np.asarray(w.values), np.asarray(b.values), int(np.asarray(s.values).ravel()[0]),
-                                    l < n - 1, w.bits))
-        return cls(int(np.asarray(by["num_features"].values).ravel()[0]), IntMLP(layers),
-                   np.asarray(by["parent_base"].values))
+    def from_syntax(cls, hp: Hyperparameters, arrays: list[NamedIntArray]) -> "ParentMlpParams":
+        """Inverse of ``to_syntax``; ValueError on a missing, unknown or malformed array, or a
+        model whose parts do not fit together."""
+        by = arrays_by_name(arrays)
+        parent_base = take_array(by, "parent_base").values
+        p = cls(int(hp.num_features), mlp_from_arrays(by, "head", hp.head_layer_shift), parent_base)
+        if by:
+            raise ValueError(f"unknown parameters: {sorted(by)}")
+        return p
 
 
 class ParentMlpEvaluator:

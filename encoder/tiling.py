@@ -1,0 +1,206 @@
+"""Tiles (informative: how the reference encoder cuts a scene; the format is common/tiles.py).
+
+The tile side is a power of two of coarse voxels (voxels without the hierarchy): the one whose
+occupied tiles hold nearest ``tile_points`` points on average, so that the fixed cost of a
+tile (its attribute unit headers with their priors, a hash unit, an index entry, a geometry
+octree restarted at the tile's box) stays a small share of its bytes. A scene that fits one
+tile is not tiled: the tool costs it no bits.
+
+The context model is fitted once, over the whole scene (encode.py); each tile then codes its
+level 2 with it, or with its own per-channel prior where that is smaller (a level-2 unit may
+use context_model_id 0 in a stream with a context model unit, clause 8.3). The hierarchy of a
+tile is the whole scene's restricted to it, as no coarse voxel straddles two tiles.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..common import attributes as attr
+from ..common.context.models import level2_coding_params, read_context_model
+from ..common.container import DataUnit, UnitType
+from ..common.errors import InputError
+from ..common.geometry import encode_geometry, normative_order
+from ..common.hierarchy import build_hierarchy
+from ..common.tiles import tile_cells
+from ..common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_TILE_SCALE, SE_MAX, DecodedSceneHashUnit, TileIndex,
+                            tile_size_of)
+
+MAX_TILE_LOG2 = 40
+
+
+def tile_scale_of(coords: np.ndarray, unit: int, cfg) -> int:
+    """The configured tile scale (cfg.tile_scale, checked to give codable cells), else the one
+    chosen from cfg.tile_points."""
+    if not cfg.tile_scale:
+        return choose_tile_scale(coords, unit, cfg.tile_points)
+    if coords.shape[0] and np.abs(tile_cells(coords, cfg.tile_scale * unit)).max() > SE_MAX:
+        raise InputError(f"tile_scale {cfg.tile_scale}: tile cells beyond +-(2^31 - 1); use larger tiles")
+    return int(cfg.tile_scale)
+
+
+def choose_tile_scale(coords: np.ndarray, unit: int, tile_points: int) -> int:
+    """tile_scale_minus1 + 1 (tile side in units of ``unit`` voxels; 0: no tiles): among the power-of-two
+    sides that give two tiles or more, the one whose mean points per occupied tile is nearest
+    ``tile_points`` (by ratio; the smaller of equals); none for a scene of fewer than 2 x tile_points points, or for
+    tile_points 0."""
+    n = coords.shape[0]
+    if tile_points <= 0 or n < 2 * tile_points:
+        return 0
+    best, best_err = 0, np.inf
+    for j in range(MAX_TILE_LOG2):
+        scale = 1 << j
+        if scale > MAX_TILE_SCALE:
+            break
+        cells = tile_cells(coords, scale * unit)
+        if np.abs(cells).max() > SE_MAX:
+            continue
+        occupied = np.unique(cells, axis=0).shape[0]
+        if occupied == 1:
+            break
+        err = abs(np.log2(n / occupied / tile_points))
+        if err < best_err:
+            best, best_err = scale, err
+    return best
+
+
+@dataclass
+class TileCoding:
+    """One tile as coded: its cell, the stream rows it holds (indices into the whole scene's
+    normative order, in the tile's normative order), and its units' payloads."""
+    cell: tuple[int, int, int] | None
+    rows: np.ndarray
+    geometry: bytes
+    attributes: list[bytes]
+    scene_hash: bytes = b""
+    # per attribute unit: (attribute_level, context_model_id, coded chunk bits, channel predictions)
+    unit_stats: list[tuple[int, int, int, int]] = field(default_factory=list)
+
+
+def tile_rows(coords: np.ndarray, tile_size: int) -> list[tuple[tuple[int, int, int], np.ndarray]]:
+    """[(cell, rows)] in stream order (cells in increasing lexicographic order), each tile's rows
+    in its normative order."""
+    cells = tile_cells(coords, tile_size)
+    uniq, inverse = np.unique(cells, axis=0, return_inverse=True)  # lexicographic order of cells
+    inverse = inverse.reshape(-1)
+    order = np.argsort(inverse, kind="stable")
+    bounds = np.searchsorted(inverse[order], np.arange(uniq.shape[0] + 1))
+    out = []
+    for t in range(uniq.shape[0]):
+        rows = order[bounds[t]:bounds[t + 1]]
+        rows = rows[normative_order(coords[rows])]
+        out.append((tuple(int(x) for x in uniq[t]), rows))
+    return out
+
+
+def tile_levels(coords: np.ndarray, ps) -> tuple[list[tuple[int, np.ndarray]], object]:
+    """The attribute levels of a tile (rows within the tile) and its hierarchy: level 2 only when
+    the tile has level-2 points (clause 13.2)."""
+    if not ps.hierarchy_enabled_flag:
+        return [(LEVEL_ALL, np.arange(coords.shape[0]))], None
+    hier = build_hierarchy(coords, ps.coarse_voxel_scale)
+    levels = [(LEVEL_1, hier.level1_idx)]
+    if hier.num_level2:
+        levels.append((LEVEL_2, hier.level2_idx))
+    return levels, hier
+
+
+def code_tile(inp, rows: np.ndarray, cfg, context_payload: bytes | None, recon: np.ndarray,
+              unit_stats: list) -> list[bytes]:
+    """The attribute units of the tile holding ``rows`` of ``inp`` (in the tile's order); its
+    decoded values go to ``recon[rows]``. Level 2 with the stream's context model where it codes
+    smaller than the tile's own prior."""
+    from .encode import AttributeInput, LevelCoder, code_with_prior, quantize, reconstruct_level
+
+    ps = inp.parameter_set
+    coords = inp.coords[rows]
+    tinp = AttributeInput(ps, inp.layout, inp.steps, inp.values[rows], inp.live[rows],
+                          None if inp.mask is None else inp.mask[rows], coords)
+    levels, hier = tile_levels(coords, ps)
+    predict = bool(inp.layout.channel_prediction_allowed) and getattr(cfg, "channel_prediction", False)
+    model = None if context_payload is None else read_context_model(context_payload, inp.layout)
+    trecon = np.zeros_like(tinp.values, dtype=np.float32)
+    payloads, q_level1 = [], None
+    for level, lrows in levels:
+        coder = LevelCoder(inp.layout, cfg, level, lrows, tinp.live[lrows],
+                           None if tinp.mask is None else tinp.mask[lrows], predict)
+        chosen = code_with_prior(coder, tinp)
+        if level == LEVEL_2 and model is not None:
+            params = level2_coding_params(model, coords[hier.level1_idx], q_level1, coords[lrows],
+                                          hier.parent_of_level2, ps.coarse_voxel_scale).materialize()
+            q = np.where(coder.live, quantize(tinp.values[lrows], attr.effective_steps(inp.steps, params.step_adjust),
+                                              "attributes"), 0)
+            header = coder.new_header()
+            header.context_model_id = model[0]
+            with_model = coder.code(header, q, params)
+            if len(with_model.payload) < len(chosen.payload):
+                chosen = with_model
+        if level == LEVEL_1:
+            q_level1 = chosen.q
+        payloads.append(chosen.payload)
+        h = chosen.header
+        unit_stats.append((level, h.context_model_id, 8 * sum(h.chunk_size), h.num_channel_predictions))
+        reconstruct_level(trecon, lrows, chosen, inp.steps)
+    recon[rows] = trecon
+    return payloads
+
+
+def code_tiles(inp, cfg, context_payload: bytes | None, progress: bool = False) -> tuple[list[TileCoding], np.ndarray]:
+    """Every tile of the scene -> (the tiles in stream order, the decoded values [N, M] in the
+    whole scene's normative order)."""
+    from ..app.progress import progress_bar
+
+    size = tile_size_of(inp.parameter_set)
+    recon = np.zeros_like(inp.values, dtype=np.float32)
+    tiles = []
+    parts = tile_rows(inp.coords, size)
+    bar = progress_bar(total=len(parts), desc="code tiles", unit="tile", disable=not progress, leave=False)
+    for cell, rows in parts:
+        geometry = encode_geometry(inp.coords[rows])
+        tile = TileCoding(cell, rows, geometry, [])
+        tile.attributes = code_tile(inp, rows, cfg, context_payload, recon, tile.unit_stats)
+        tiles.append(tile)
+        bar.update()
+    bar.close()
+    return tiles, recon
+
+
+def tile_level_stats(tiles: list[TileCoding], stats) -> None:
+    """The stats of a tiled stream's attribute units: per level, their bytes, the context used
+    (the model of most of the level's tiles, and how many use it), channel predictions."""
+    from ..common.context.models import CONTEXT_MODEL_NAMES
+    from .stats import LevelStats
+
+    stats.num_tiles = len(tiles)
+    stats.attribute_coded_bits = sum(u[2] for t in tiles for u in t.unit_stats)
+    for level in sorted({u[0] for t in tiles for u in t.unit_stats}):
+        units = [(u, len(p)) for t in tiles for u, p in zip(t.unit_stats, t.attributes) if u[0] == level]
+        (model_id, count), = Counter(u[1] for u, _ in units).most_common(1)
+        name = CONTEXT_MODEL_NAMES[model_id] + ("" if count == len(units) else f" ({count} of {len(units)} tiles)")
+        old = stats.levels.get(level)
+        preds = None if old is None or old.channel_predictions is None else sum(u[3] for u, _ in units)
+        stats.levels[level] = LevelStats(name, sum(b for _, b in units), preds, None if old is None else old.context_fit)
+
+
+def tile_units(tiles: list[TileCoding], num_points: int) -> list[DataUnit]:
+    """The tile_index unit (when there are several tiles) and every tile's units."""
+    body = []
+    sizes = []
+    for tile in tiles:
+        units = [DataUnit(UnitType.GEOMETRY, tile.geometry)] + [DataUnit(UnitType.ATTRIBUTE, p)
+                                                               for p in tile.attributes]
+        units.append(DataUnit(UnitType.DECODED_SCENE_HASH, DecodedSceneHashUnit(scene_hash=tile.scene_hash).to_bytes()))
+        sizes.append(sum(u.size for u in units))
+        body += units
+    if len(tiles) == 1 and tiles[0].cell is None:
+        return body
+    cells = [t.cell for t in tiles]
+    index = TileIndex(num_points=num_points, num_tiles_minus1=len(tiles) - 1, tile_x=[c[0] for c in cells],
+                      tile_y=[c[1] for c in cells], tile_z=[c[2] for c in cells],
+                      tile_num_points_minus1=[t.rows.size - 1 for t in tiles], tile_data_size=sizes)
+    if max(sizes) > (1 << 32) - 2:
+        raise InputError("a tile's units exceed 2^32 - 2 bytes; use smaller tiles (tile_points)")
+    return [DataUnit(UnitType.TILE_INDEX, index.to_bytes())] + body
