@@ -180,24 +180,48 @@ def decode_symbols(data: bytes, levels: np.ndarray, what: str = "chunk") -> np.n
         row = _levels(lv_in[0])
         bins = _decode_bins_by_column(dec, row, lv_in.shape[0])
         half, esc_bin = HALF_WIDTHS[row], _ESC[row].astype(np.int32)  # per column, broadcast over rows
+        out = np.subtract(bins, half, dtype=np.int64)  # bins become residuals (one pass)
+        esc = bins == esc_bin
+        _finish_escapes(dec, out, esc, lambda: np.broadcast_to(half, bins.shape)[esc], what)
     else:
         lv = _levels(lv_in).ravel()
-        n = lv.size
-        bins = np.empty(n, dtype=np.int64)
-        if n:
-            order = np.argsort(lv, kind="stable")
-            counts = np.bincount(lv, minlength=NUM_SCALE_LEVELS)
-            sorted_bins = np.empty(n, dtype=np.int64)
-            start = 0
-            for i in np.flatnonzero(counts):
-                end = start + int(counts[i])
-                sorted_bins[start:end] = dec.decode(end - start, _level_model(int(i)))
-                start = end
-            bins[order] = sorted_bins
-        half, esc_bin = HALF_WIDTHS[lv], _ESC[lv]
-    out = np.subtract(bins, half, dtype=np.int64)  # bins become residuals (one pass)
-    if bins.size:
-        esc = bins == esc_bin
+        out, esc = _decode_residuals_by_level(dec, lv)
+        _finish_escapes(dec, out, esc, lambda: HALF_WIDTHS[lv[esc]], what)
+    dec.check_exhausted()
+    return out.reshape(lv_in.shape)
+
+
+def _decode_residuals_by_level(dec: RangeDecoder, lv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Symbols with a level each (uint8, row-major): the group of level i (its symbols in
+    row-major order) is decoded with table i, groups in increasing level; -> (bins made
+    residuals, int64; escape flags), in row-major order. The residual and the escape test are
+    computed per group, with the group's constants, before the one scatter back to row-major."""
+    n = lv.size
+    out = np.empty(n, dtype=np.int64)
+    esc = np.empty(n, dtype=bool)
+    if not n:
+        return out, esc
+    order = np.argsort(lv, kind="stable")  # uint8: a radix sort
+    counts = np.bincount(lv, minlength=NUM_SCALE_LEVELS)
+    sorted_res = np.empty(n, dtype=np.int64)
+    sorted_esc = np.empty(n, dtype=bool)
+    start = 0
+    for i in np.flatnonzero(counts):
+        end = start + int(counts[i])
+        seg = dec.decode(end - start, _level_model(int(i)))
+        np.subtract(seg, HALF_WIDTHS[i], out=sorted_res[start:end], casting="unsafe")
+        np.equal(seg, _ESC[i], out=sorted_esc[start:end])
+        start = end
+    out[order] = sorted_res
+    esc[order] = sorted_esc
+    return out, esc
+
+
+def _finish_escapes(dec: RangeDecoder, out: np.ndarray, esc: np.ndarray, half_of_escaped, what: str) -> None:
+    """The escape section of a chunk (clause 10.5): sign, class and remainder of every escaped
+    symbol, in row-major order, into ``out``. ``half_of_escaped()``: the half-widths L of the
+    escaped symbols' levels."""
+    if out.size:
         ne = int(esc.sum())
         if ne:
             neg = dec.decode_bits(1, ne).astype(bool)
@@ -206,13 +230,11 @@ def decode_symbols(data: bytes, levels: np.ndarray, what: str = "chunk") -> np.n
             rem = dec.decode_bits(width)
             # k <= 62 and rem < 2^(k-1): m < 2^62, magnitude < 2^62 + 2^13, no overflow
             m = np.where(k > 0, np.left_shift(np.uint64(1), width.astype(np.uint64)) + rem, np.uint64(0))
-            mag = m + (np.broadcast_to(half, bins.shape)[esc] + 1).astype(np.uint64)
+            mag = m + (half_of_escaped() + 1).astype(np.uint64)
             if int(mag.max()) > MAX_ABS_RESIDUAL:
                 raise BitstreamError(f"{what}: escaped residual magnitude {int(mag.max())} exceeds 2^62 - 1")
             mag = mag.astype(np.int64)
             out[esc] = np.where(neg, -mag, mag)
-    dec.check_exhausted()
-    return out.reshape(lv_in.shape)
 
 
 def code_lengths_bits(residuals: np.ndarray, levels: np.ndarray) -> np.ndarray:
