@@ -348,8 +348,13 @@ def _print_summary(args, result, num_bytes: int, t_dec: float, say) -> None:
         say(f"source_info: the source scene had SH degree {result.source_info.source_sh_degree}")
     for u in result.skipped_units:
         say(f"skipped ancillary unit {u}")
-    say("decoded scene hash: " + ("matches the stream" if result.hash_checked else "not checked")
-        + f" ({result.stream_hash.hex()})")
+    if result.num_tiles > 1:  # each tile carries the hash of its own points
+        say(f"decoded scene hash: {result.stream_hash.hex()} ("
+            + (f"the {result.tiles_decoded} tile hashes decoded match the stream" if result.hash_checked
+               else "tile hashes not checked") + ")")
+    else:
+        say("decoded scene hash: " + ("matches the stream" if result.hash_checked else "not checked")
+            + f" ({result.stream_hash.hex()})")
     if args.output:
         say(f"wrote {Path(args.output) / 'point_cloud' / 'iteration_0'}")
 
