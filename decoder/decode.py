@@ -19,6 +19,7 @@ source_info this decoder cannot parse, or a second one, is reported (``notes``) 
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import re
 from concurrent.futures import ProcessPoolExecutor
@@ -248,7 +249,6 @@ class DecodedTile:
     coords: np.ndarray | None  # None: written into the shared output (worker processes)
     values: np.ndarray | None
     mask: np.ndarray | None
-    hierarchy: Hierarchy | None
     hash_checked: bool
     level_counts: tuple[int, int] | None = None  # N1, N2 of the tile's hierarchy
 
@@ -273,12 +273,11 @@ def decode_tile(tile: TileUnits, t: int, ps, layout, context_model, mlps: dict, 
     counts = None if h is None else (h.num_level1, h.num_level2)
     if max_level == LEVEL_1 and h is not None:
         keep = h.level1_idx
-        return DecodedTile(coords[keep], dec.values[keep], None if dec.mask is None else dec.mask[keep], None, False,
-                           counts)
+        return DecodedTile(coords[keep], dec.values[keep], None if dec.mask is None else dec.mask[keep], False, counts)
     if verify_hash:
         scene = _scene_of(ps, layout, coords, dec, mlps)
         _check_scene_hash(scene, hash_unit.scene_hash, "" if tile.cell is None else f"tile {t}: ")
-    return DecodedTile(coords, dec.values, dec.mask, h, verify_hash, counts)
+    return DecodedTile(coords, dec.values, dec.mask, verify_hash, counts)
 
 
 # The output arrays the worker processes write their tiles into: created by the parent before the
@@ -300,7 +299,7 @@ def _decode_tile_job(args) -> DecodedTile:
     _SHARED_OUTPUT["values"][row:row + n] = d.values
     if d.mask is not None:
         _SHARED_OUTPUT["mask"][row:row + n] = d.mask
-    return DecodedTile(None, None, None, None, d.hash_checked, d.level_counts)
+    return DecodedTile(None, None, None, d.hash_checked, d.level_counts)
 
 
 def _shared_array(shape: tuple[int, ...], dtype) -> np.ndarray:
@@ -328,7 +327,7 @@ def _decode_in_workers(tiles: list[TileUnits], selected: list[int], ps, layout, 
             _SHARED_OUTPUT["mask"] = _shared_array((total, layout.num_offsets), np.bool_)
     args = [(tiles[t], t, ps, layout, context_model, mlps, ps.tile_size, verify_hash, max_level, r)
             for t, r in zip(selected, rows)]
-    ctx = __import__("multiprocessing").get_context("fork" if fork else "spawn")
+    ctx = multiprocessing.get_context("fork" if fork else "spawn")
     try:
         with ProcessPoolExecutor(max_workers=min(jobs, len(selected)), mp_context=ctx,
                                  initializer=_worker_init) as pool:
@@ -346,8 +345,8 @@ def _worker_init() -> None:
 
 @dataclass
 class DecodedTiles:
-    """The decoded tiles joined in stream order: their points, the hierarchy (a single tile's),
-    whether every tile's hash was checked, and each tile's level counts (N1, N2)."""
+    """The decoded tiles joined in stream order: their points, whether every tile's hash was
+    checked, and each tile's level counts (N1, N2)."""
     coords: np.ndarray
     levels: _Levels
     hash_checked: bool
@@ -391,7 +390,7 @@ def _joined(parts: list[DecodedTile], layout, shared: dict | None = None) -> Dec
         return DecodedTiles(shared["coords"], _Levels(shared["values"], shared.get("mask"), None), checked, counts)
     if len(parts) == 1:
         p = parts[0]
-        return DecodedTiles(p.coords, _Levels(p.values, p.mask, p.hierarchy), checked, counts)
+        return DecodedTiles(p.coords, _Levels(p.values, p.mask, None), checked, counts)
     coords = np.concatenate([p.coords for p in parts]) if parts else np.empty((0, 3), np.int64)
     values = np.concatenate([p.values for p in parts]) if parts else np.empty((0, layout.num_channels), np.float32)
     mask = None

@@ -383,13 +383,20 @@ def code_with_context_candidate(coder: LevelCoder, inp: AttributeInput, hier: Hi
                                 inp.layout.feature_dim, cfg.coarse_voxel_scale, candidate.train_cfg)
     unit = write_context_model_unit(fitted.model_id, *fitted.params.to_syntax())
     model = read_context_model(unit, inp.layout)  # exactly what the decoder will use
-    params = level2_coding_params(model, coords1, q_level1, coords2, hier.parent_of_level2,
-                                  cfg.coarse_voxel_scale).materialize()
+    return code_with_model(coder, inp, hier, q_level1, model), unit
+
+
+def code_with_model(coder: LevelCoder, inp: AttributeInput, hier: Hierarchy, q_level1: np.ndarray,
+                    model) -> LevelCoding:
+    """Level 2 coded with a context model (as ``read_context_model`` returns it): its means,
+    levels and step adjustment from the decoded level 1, the values quantized with those steps."""
+    params = level2_coding_params(model, inp.coords[hier.level1_idx], q_level1, inp.coords[coder.rows],
+                                  hier.parent_of_level2, inp.parameter_set.coarse_voxel_scale).materialize()
     q = np.where(coder.live, quantize(inp.values[coder.rows], attr.effective_steps(inp.steps, params.step_adjust),
                                       "attributes"), 0)
     header = coder.new_header()
-    header.context_model_id = fitted.model_id
-    return coder.code(header, q, params), unit
+    header.context_model_id = model[0]
+    return coder.code(header, q, params)
 
 
 def record_candidate(ctx: ContextFitStats, candidates: ContextCandidates, candidate: ContextCandidate,

@@ -19,8 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..common import attributes as attr
-from ..common.context.models import level2_coding_params, read_context_model
+from ..common.context.models import read_context_model
 from ..common.container import DataUnit, UnitType
 from ..common.errors import InputError
 from ..common.geometry import encode_geometry, normative_order
@@ -113,7 +112,7 @@ def code_tile(inp, rows: np.ndarray, cfg, context_payload: bytes | None, recon: 
     """The attribute units of the tile holding ``rows`` of ``inp`` (in the tile's order); its
     decoded values go to ``recon[rows]``. Level 2 with the stream's context model where it codes
     smaller than the tile's own prior."""
-    from .encode import AttributeInput, LevelCoder, code_with_prior, quantize, reconstruct_level
+    from .encode import AttributeInput, LevelCoder, code_with_model, code_with_prior, reconstruct_level
 
     ps = inp.parameter_set
     coords = inp.coords[rows]
@@ -129,13 +128,7 @@ def code_tile(inp, rows: np.ndarray, cfg, context_payload: bytes | None, recon: 
                            None if tinp.mask is None else tinp.mask[lrows], predict)
         chosen = code_with_prior(coder, tinp)
         if level == LEVEL_2 and model is not None:
-            params = level2_coding_params(model, coords[hier.level1_idx], q_level1, coords[lrows],
-                                          hier.parent_of_level2, ps.coarse_voxel_scale).materialize()
-            q = np.where(coder.live, quantize(tinp.values[lrows], attr.effective_steps(inp.steps, params.step_adjust),
-                                              "attributes"), 0)
-            header = coder.new_header()
-            header.context_model_id = model[0]
-            with_model = coder.code(header, q, params)
+            with_model = code_with_model(coder, tinp, hier, q_level1, model)
             if len(with_model.payload) < len(chosen.payload):
                 chosen = with_model
         if level == LEVEL_1:
@@ -186,7 +179,7 @@ def tile_level_stats(tiles: list[TileCoding], stats) -> None:
 
 
 def tile_units(tiles: list[TileCoding], num_points: int) -> list[DataUnit]:
-    """The tile_index unit (when there are several tiles) and every tile's units."""
+    """The tile_index unit (when the stream has tiles) and every tile's units."""
     body = []
     sizes = []
     for tile in tiles:

@@ -72,14 +72,19 @@ def test_small_scenes_have_no_tiles_and_pay_nothing():
 
 
 def test_tile_size_is_chosen_from_the_points():
-    """The side is a power of two of coarse voxels; the mean points per tile is nearest the target."""
+    """The side is a power of two of coarse voxels whose mean points per occupied tile is nearer
+    the target (by ratio) than the mean of every other power of two that gives two tiles or more."""
     rng = np.random.default_rng(1)
     coords = rng.integers(0, 256, size=(40000, 3))
-    for unit in (1, 4):
-        scale = choose_tile_scale(coords, unit, 5000)
-        assert scale & (scale - 1) == 0
+
+    def miss(scale, unit, target):
         occupied = len(np.unique(tile_cells(coords, scale * unit), axis=0))
-        assert 40000 / occupied / 5000 == pytest.approx(1.0, rel=1.0)  # within a factor 2
+        return abs(np.log2(len(coords) / occupied / target)) if occupied > 1 else np.inf
+
+    for unit, target in ((1, 5000), (4, 5000), (1, 300), (2, 12000)):
+        scale = choose_tile_scale(coords, unit, target)
+        assert scale >= 1 and scale & (scale - 1) == 0
+        assert all(miss(scale, unit, target) <= miss(1 << j, unit, target) for j in range(10))
     assert choose_tile_scale(coords, 1, 0) == 0 and choose_tile_scale(coords, 1, 30000) == 0
 
 
