@@ -422,10 +422,10 @@ def read_attribute_unit(payload: bytes, layout, steps: np.ndarray, num_rows: int
         if models is not None:
             mask[lo:hi] = decode_mask_chunk(next(pieces), hi - lo, models, f"attribute mask chunk {i}")
         p = params.rows(lo, hi, layout.num_channels)
-        q = _decode_chunk_values(next(pieces), h, layout, p, prediction, None if mask is None else mask[lo:hi],
+        q = decode_chunk_values(next(pieces), h, layout, p, prediction, None if mask is None else mask[lo:hi],
                                  hi - lo, i, level)
         target = values_out[lo:hi] if rows is None else np.empty((hi - lo, layout.num_channels), np.float32)
-        _reconstruct_chunk(q, steps, p.step_adjust, target, i, level)
+        reconstruct_chunk(q, steps, p.step_adjust, target, i, level)
         if rows is not None:
             values_out[rows[lo:hi]] = target
         if keep_q:
@@ -441,7 +441,7 @@ def _chunk_sizes(h: AttributeUnitHeader) -> list[int]:
         else list(h.chunk_size)
 
 
-def _decode_chunk_values(data: bytes, h: AttributeUnitHeader, layout, p: CodingParams, prediction: ChannelPrediction,
+def decode_chunk_values(data: bytes, h: AttributeUnitHeader, layout, p: CodingParams, prediction: ChannelPrediction,
                          mask: np.ndarray | None, num_rows: int, i: int, level: int) -> np.ndarray:
     """The quantized values q [rows, M] of chunk i: its residuals decoded with the scale levels
     of ``p``, plus the means (and the cross-channel prediction); values not coded are 0."""
@@ -457,7 +457,7 @@ def _decode_chunk_values(data: bytes, h: AttributeUnitHeader, layout, p: CodingP
     return q
 
 
-def _reconstruct_chunk(q: np.ndarray, steps: np.ndarray, step_adjust: np.ndarray | None, target: np.ndarray,
+def reconstruct_chunk(q: np.ndarray, steps: np.ndarray, step_adjust: np.ndarray | None, target: np.ndarray,
                        i: int, level: int) -> None:
     """Reconstruction (clause 11.5) of chunk i into ``target``; every value must be finite."""
     with np.errstate(over="ignore", invalid="ignore"):

@@ -19,7 +19,7 @@ from .syntax import SyntaxStructure, SyntaxVisitor
 
 MAGIC = 0x4C474843  # "LGHC"
 VERSION_MAJOR = 1
-VERSION_MINOR = 0
+VERSION_MINOR = 1
 ANCILLARY_UNIT_TYPE_MIN = 0x80
 UNIT_HEADER_BYTES = 5
 UNIT_CRC_BYTES = 4
@@ -38,6 +38,7 @@ class UnitType(IntEnum):
     DECODED_SCENE_HASH = 0x06
     GAUSSIAN_PARAMETER_SET = 0x07  # version 0.2: an explicit-Gaussian scene (in place of the scene parameter set)
     TILE_INDEX = 0x08  # version 1: where each tile's units are, its grid cell and point count (clause 7.3.11)
+    NEIGHBOUR_PREDICTION = 0x09  # version 1.1: LoD coding of Gaussian attributes from their neighbours (7.3.12)
 
 
 class AncillaryUnitType(IntEnum):

@@ -44,6 +44,10 @@ CONTEXT_PER_CHANNEL_PRIOR = 0
 CONTEXT_PARENT_MLP = 1  # Context-GS style "vanilla EM": an MLP over the parent's decoded attributes
 CONTEXT_GGCONV = 2  # LG-HCC: GG-Conv over the Ball k-NN graph of level 2
 MAX_CONTEXT_MODEL_ID = CONTEXT_GGCONV
+# Neighbour prediction (version 1.1, clause 7.3.12): levels of detail, neighbours, activity buckets
+MAX_LOD_LEVELS = 16
+MAX_PREDICTION_NEIGHBOURS = 32
+MAX_ACTIVITY_BUCKETS = 16
 
 HASH_TYPE_SHA256 = 1
 
@@ -251,6 +255,9 @@ class AttributeUnitHeader(SyntaxStructure):
     pred_weight: list = field(default_factory=list)
     num_rows_minus1: int | None = None  # None: num_rows - 1 (the value an encoder writes)
     rows_per_chunk_minus1: int = 0
+    # context (clause 7.3.12): the number of LoDs when the stream has a neighbour_prediction unit
+    # (each LoD's rows are chunked on their own), 0 otherwise
+    num_lods: int = 0
     mask_chunk_size: list = field(default_factory=list)
     chunk_size: list = field(default_factory=list)
 
@@ -264,7 +271,12 @@ class AttributeUnitHeader(SyntaxStructure):
 
     @property
     def num_chunks(self) -> int:
-        return -(-(self.num_rows_minus1 + 1) // self.rows_per_chunk)
+        """NumChunks: ceil(NumRows / rows_per_chunk), or with LoDs the sum of that over the LoDs'
+        row counts (clause 7.3.12), computed without materializing the rows."""
+        rows, rpc = self.num_rows_minus1 + 1, self.rows_per_chunk
+        if not self.num_lods:
+            return -(-rows // rpc)
+        return sum(-(-size // rpc) for size in lod_sizes_of(rows, self.num_lods))
 
     def syntax(self, v: SyntaxVisitor) -> None:
         v.u(2, self, "attribute_level", hi=LEVEL_2)
@@ -292,6 +304,58 @@ class AttributeUnitHeader(SyntaxStructure):
                 v.ue(self, "mask_chunk_size", i)
             v.ue(self, "chunk_size", i)
         v.byte_align()
+
+
+def lod_sizes_of(num_rows: int, num_lods: int) -> list[int]:
+    """The number of rows of each LoD (clause 7.3.12): LoD 0 holds the multiples of 2^(L-1),
+    LoD l >= 1 the rows i with ctz(i) = L - 1 - l."""
+    if num_lods == 1:
+        return [num_rows]
+    top = 1 << (num_lods - 1)
+    sizes = [-(-num_rows // top)]
+    for level in range(1, num_lods):
+        t = num_lods - 1 - level  # rows with exactly t trailing zeros: multiples of 2^t, not of 2^(t+1)
+        sizes.append(-(-num_rows // (1 << t)) - -(-num_rows // (1 << (t + 1))))
+    return sizes
+
+
+@dataclass
+class NeighbourPredictionUnit(SyntaxStructure):
+    """neighbour_prediction unit (0x09, version 1.1, clause 7.3.12): the attribute units of a
+    Gaussian stream without the hierarchy code their rows in levels of detail, each row of
+    LoD >= 1 with a mean and scale level from its k nearest coarser neighbours (clause 11.7)."""
+
+    syntax_name = "neighbour_prediction_unit"
+    clause = "7.3.12"
+    num_channels: int = 1  # context: NumChannels of the parameter set
+    num_lods_minus1: int = 0
+    num_neighbours_minus1: int = 0
+    num_buckets_minus1: int = 0
+    neighbour_mean_flag: list = field(default_factory=list)
+    bucket_level: list = field(default_factory=list)
+
+    def syntax(self, v: SyntaxVisitor) -> None:
+        v.u(4, self, "num_lods_minus1", hi=MAX_LOD_LEVELS - 1)
+        v.u(5, self, "num_neighbours_minus1", hi=MAX_PREDICTION_NEIGHBOURS - 1)
+        v.u(4, self, "num_buckets_minus1", hi=MAX_ACTIVITY_BUCKETS - 1)
+        for c in v.loop(self.num_channels, "NumChannels", self, ("neighbour_mean_flag",), index="c"):
+            v.flag(self, "neighbour_mean_flag", c)
+        count = self.num_channels * (self.num_buckets_minus1 + 1)
+        for i in v.loop(count, "NumChannels * (num_buckets_minus1 + 1)", self, ("bucket_level",)):
+            v.u(NUM_SCALE_LEVELS_BITS, self, "bucket_level", i)
+        v.byte_align()
+
+    @property
+    def num_lods(self) -> int:
+        return self.num_lods_minus1 + 1
+
+    @property
+    def num_neighbours(self) -> int:
+        return self.num_neighbours_minus1 + 1
+
+    @property
+    def num_buckets(self) -> int:
+        return self.num_buckets_minus1 + 1
 
 
 @dataclass

@@ -256,9 +256,9 @@ MUTATIONS: list[Mutation] = [
        "z = torch.cat([h, self.n_valid[b_lo:b_hi, None], self.local[b_lo:b_hi]], 1)")),
 
     # --- attribute decoding (clause 11)
-    M("attributes.no_dead_zero", "attributes", f"{ATTR}:_decode_chunk_values",
+    M("attributes.no_dead_zero", "attributes", f"{ATTR}:decode_chunk_values",
       "values of dead offsets not set to 0 (they keep the mean)", ("q *= live", "q *= 1")),
-    M("attributes.no_finite_check", "attributes", f"{ATTR}:_reconstruct_chunk",
+    M("attributes.no_finite_check", "attributes", f"{ATTR}:reconstruct_chunk",
       "a non-finite reconstruction is not rejected (clause 11.5)",
       ("if not np.isfinite(target).all():", "if False:")),
     M("attributes.no_level_check", "attributes", f"{ATTR}:read_attribute_unit",
@@ -652,7 +652,7 @@ MUTATIONS: list[Mutation] = [
        "for arr in (scene.opacity, scene.sh, scene.log_scales, scene.rotations):")),
 
     # --- cross-channel prediction (clause 11.6)
-    M("prediction.ignored", "prediction", f"{ATTR}:_decode_chunk_values",
+    M("prediction.ignored", "prediction", f"{ATTR}:decode_chunk_values",
       "cross-channel prediction entries parsed but not applied (q = r + mean)",
       ("    if h.channel_prediction_allowed:\n        q = prediction.reconstruct(",
        "    if False:\n        q = prediction.reconstruct(")),

@@ -40,15 +40,17 @@ from ..app.report import SizeBreakdown, breakdown_of
 from ..common.scene import AnchorScene, GaussianScene
 from ..common.syntax import TraceEntry
 from ..common.tiles import Box, check_points_in_cell, check_tile_index, cell_intersects_box
+from ..common.neighbour_prediction import read_predicted_attribute_unit
 from ..common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ATTRIBUTE_VALUES, DecodedSceneHashUnit,
-                            GaussianParameterSet, SceneParameterSet, SourceInfo, TileIndex)
+                            GaussianParameterSet, NeighbourPredictionUnit, SceneParameterSet, SourceInfo, TileIndex)
 from .limits import DEFAULT_MAX_MEMORY, MemoryPlan
 
 _LETTER = {UnitType.SCENE_PARAMETER_SET: "S", UnitType.GAUSSIAN_PARAMETER_SET: "P", UnitType.RENDER_MODEL: "R",
            UnitType.GEOMETRY: "G", UnitType.CONTEXT_MODEL: "C", UnitType.ATTRIBUTE: "A",
-           UnitType.DECODED_SCENE_HASH: "H", UnitType.TILE_INDEX: "I"}
-# an anchor scene, or an explicit-Gaussian scene, which has no render model; then the tiles
-_UNIT_ORDER = re.compile(r"(SR?|P)C?I?(GA{1,2}H)+")
+           UnitType.DECODED_SCENE_HASH: "H", UnitType.TILE_INDEX: "I", UnitType.NEIGHBOUR_PREDICTION: "N"}
+# an anchor scene, or an explicit-Gaussian scene, which has no render model but may have neighbour
+# prediction; then the tiles
+_UNIT_ORDER = re.compile(r"(SR?|PN?)C?I?(GA{1,2}H)+")
 
 
 @dataclass
@@ -112,7 +114,7 @@ def organize_units(container: Container, known: list[DataUnit] | None = None) ->
         names = ", ".join(u.type_name for u in critical)
         raise BitstreamError(f"data units are out of order or repeated: {names} (expected scene_parameter_set, "
                              "[render_model], [context_model], [tile_index], then per tile geometry, attribute "
-                             "(1 or 2), decoded_scene_hash; or gaussian_parameter_set, [context_model], "
+                             "(1 or 2), decoded_scene_hash; or gaussian_parameter_set, [neighbour_prediction], [context_model], "
                              "[tile_index], then the tiles)")
     if "I" not in letters and letters.count("G") > 1:
         raise BitstreamError(f"the stream has {letters.count('G')} tiles (geometry units) but no tile_index unit")
@@ -191,6 +193,16 @@ def read_context_model_unit(context_unit: DataUnit | None, ps, layout, entries):
     return read_context_model(context_unit.payload, layout, entries)
 
 
+def read_neighbour_prediction_unit(unit: DataUnit | None, ps, layout, entries) -> NeighbourPredictionUnit | None:
+    """The stream's neighbour_prediction unit (None without one). Raises BitstreamError."""
+    if unit is None:
+        return None
+    if ps.hierarchy_enabled_flag:
+        raise BitstreamError("a neighbour_prediction unit in a stream with the hierarchy (hierarchy_enabled_flag 1)")
+    return NeighbourPredictionUnit.from_bytes(unit.payload, entries, what="neighbour prediction unit",
+                                              num_channels=layout.num_channels)
+
+
 def decode_attribute_units(attribute_units: list[DataUnit], layout, steps: np.ndarray, coords: np.ndarray,
                            ps, context_model, entries, progress: bool,
                            memory: MemoryPlan | None = None, max_level: int = LEVEL_2) -> _Levels:
@@ -198,8 +210,22 @@ def decode_attribute_units(attribute_units: list[DataUnit], layout, steps: np.nd
     its per-channel prior, then level 2 with the context model when there is one; a tile whose
     level 2 is empty has one unit. ``ps``: the parameter set (hierarchy flag and coarse voxel
     scale). ``memory``: the memory plan each unit is checked against before it is decoded.
-    ``max_level`` 1: stop after level 1 (the preview; level-2 rows are left undefined)."""
+    ``max_level`` 1: stop after level 1 (the preview; level-2 rows are left undefined).
+    ``context_model``: the stream's context model as decoded, or its neighbour_prediction unit (a
+    stream has at most one of them: one needs the hierarchy, the other its absence)."""
     n = coords.shape[0]
+    if isinstance(context_model, NeighbourPredictionUnit):
+        if len(attribute_units) != 1:
+            raise BitstreamError(f"a tile of {n} points without the hierarchy has {len(attribute_units)} attribute "
+                                 "units, not 1")
+        values = np.empty((n, layout.num_channels), dtype=np.float32)
+        if memory is not None:
+            memory.check_predicted_attribute_unit(n, context_model)
+        bar = progress_bar(total=n, desc="decode attributes", unit="point", disable=not progress, leave=False)
+        read_predicted_attribute_unit(attribute_units[0].payload, layout, steps, coords, context_model, values,
+                                      entries, on_chunk=bar.update)
+        bar.close()
+        return _Levels(values, None, None)
     hier = None
     if ps.hierarchy_enabled_flag:
         hier = build_hierarchy(coords, ps.coarse_voxel_scale)
@@ -436,6 +462,10 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
     if UnitType.RENDER_MODEL in by_type:
         mlps = read_render_model_unit(by_type[UnitType.RENDER_MODEL][0].payload, entries)
     context_model = read_context_model_unit(by_type.get(UnitType.CONTEXT_MODEL, [None])[0], ps, layout, entries)
+    neighbour = read_neighbour_prediction_unit(by_type.get(UnitType.NEIGHBOUR_PREDICTION, [None])[0], ps, layout,
+                                               entries)
+    if neighbour is not None:
+        context_model = neighbour  # the attribute units' context (the stream has no context model)
     tiles, _ = tiles_of(units, by_type, n, entries)
     selected = selected_tiles(tiles, ps, box)
     decoded = decode_tiles(tiles, selected, ps, layout, context_model, mlps, verify_hash=verify_hash,
@@ -491,6 +521,9 @@ def _stream_tools(ps, decoded: DecodedTiles, context_model, point: str, num_tile
         tools = ["offset masks"] if ps.offset_mask_present_flag else []
     if ps.tiles_enabled_flag:
         tools.append(f"{num_tiles} tile{'s' if num_tiles > 1 else ''} of {ps.tile_size} voxels per side")
+    if isinstance(context_model, NeighbourPredictionUnit):
+        tools.append(f"neighbour prediction ({context_model.num_lods} levels of detail, "
+                     f"{context_model.num_neighbours} neighbours, {context_model.num_buckets} activity buckets)")
     if not ps.hierarchy_enabled_flag:
         return tools
     n1, n2 = sum(c[0] for c in decoded.level_counts), sum(c[1] for c in decoded.level_counts)

@@ -226,6 +226,20 @@ class MemoryPlan:
                 persistent += context_working_set(context_model, n1, num_rows, m)
         return self.check(persistent, stages)
 
+    def check_predicted_attribute_unit(self, num_rows: int, unit) -> int:
+        """Before decoding a tile's attribute unit coded with neighbour prediction (``unit``): the
+        quantized values of every row and the neighbour graph, kept while the LoDs decode, and
+        one LoD's parameters and neighbour values (at most half the rows are of the finest LoD)."""
+        m, k = self.m, unit.num_neighbours
+        persistent = self.persistent + [
+            Need(f"neighbour prediction: {num_rows:,} rows x {m:,} channels x 8 bytes of quantized values and "
+                 f"{k} neighbours x 8 bytes", 8 * num_rows * (m + k))]
+        lod = (num_rows + 1) // 2
+        stages = self.stages + [Need(f"neighbour prediction of one LoD: {lod:,} rows x {k} neighbours x {m:,} "
+                                     "channels x 8 bytes and the chunk", 8 * lod * m * (k + 4)
+                                     + CHUNK_PER_VALUE_GENERAL * lod * m)]
+        return self.check(persistent, stages)
+
 
 def context_working_set(context_model, n1: int, n2: int, m: int) -> list[Need]:
     """What evaluating the level-2 context model holds besides the attribute chunk: the arrays it

@@ -151,6 +151,14 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     sh_degree: int | None = None
     # Cross-channel prediction (colours of an SH coefficient, the three scales, rotation).
     channel_prediction: bool = True
+    # Neighbour prediction (version 1.1, without the hierarchy): rows coded in prediction_lods
+    # levels of detail, each value from the mean of its prediction_neighbours nearest coarser
+    # points with a scale level per activity bucket (prediction_buckets); used where it codes
+    # smaller than the per-channel prior (encoder/neighbour_coding.py).
+    neighbour_prediction: bool = True
+    prediction_lods: int = 6
+    prediction_neighbours: int = 6
+    prediction_buckets: int = 5
     # Rate-aware preparation (encoder/gaussian_fit.py), against renders of the source from
     # fit_views cameras on a sphere around it at fit_resolution pixels:
     fit_views: int = 24
@@ -189,6 +197,10 @@ class GaussianEncoderConfig(AttributeCodingConfig):
         for v in self.sh_band_steps:
             if not (isinstance(v, (int, float)) and 0 < v < float("inf")):
                 raise InputError(f"sh_band_steps must be positive finite numbers, got {self.sh_band_steps!r}")
+        for name, hi in (("prediction_lods", 16), ("prediction_neighbours", 32), ("prediction_buckets", 16)):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and 1 <= v <= hi):
+                raise InputError(f"{name} must be an integer in [1, {hi}], got {v!r}")
         if self.sh_degree is not None and self.sh_degree not in (0, 1, 2, 3):
             raise InputError(f"sh_degree must be 0..3 or None, got {self.sh_degree!r}")
         if not 0 <= self.prune_share < 1:

@@ -30,11 +30,12 @@ from ..common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene, GaussianScene, R
 from ..common.hierarchy import Hierarchy, build_hierarchy
 from ..common.units import (CONTEXT_PER_CHANNEL_PRIOR, LEVEL_1, LEVEL_2, LEVEL_ALL, MASK_PROB_BITS, MAX_ANCHORS,
                                 MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, MAX_PREDICTED_MAGNITUDE, PRIOR_MEAN_MAX,
-                                AttributeUnitHeader, GaussianParameterSet, RenderMlpHeader,
+                                AttributeUnitHeader, GaussianParameterSet, NeighbourPredictionUnit, RenderMlpHeader,
                                 SceneParameterSet, SourceInfo)
 from .config import AttributeCodingConfig, EncoderConfig, context_model_size
 from .context_fit import ContextFitError, fit_level2_context
 from .ggconv_train import ContextTwin, GGConvTrainConfig
+from .neighbour_coding import NeighbourCoding, usable as neighbour_usable
 from .prediction import fit_channel_prediction
 from .stats import ContextFitStats, EncodeStats, LevelStats
 
@@ -295,6 +296,7 @@ class CodedAttributes:
     payloads: list[bytes]  # one per level (none: a tiled scene without a context model, coded by tile)
     context_payload: bytes | None
     recon: np.ndarray | None  # float32 [N, M]: the decoded values, bit for bit
+    neighbour_unit: NeighbourPredictionUnit | None = None  # the stream's neighbour_prediction unit, if any
 
 
 @dataclass
@@ -327,12 +329,39 @@ class LevelCoder:
         return LevelCoding(q, params, payload, header, prediction)
 
 
-def code_with_prior(coder: LevelCoder, inp: AttributeInput) -> LevelCoding:
-    """The level coded with the per-channel prior fitted to it."""
+def quantized_level(coder: LevelCoder, inp: AttributeInput) -> np.ndarray:
+    """The level's quantized values (0 where not coded)."""
     q = np.where(coder.live, quantize(inp.values[coder.rows], inp.steps, "attributes"), 0)
     if inp.layout.channel_prediction_allowed and np.abs(q).max(initial=0) > MAX_PREDICTED_MAGNITUDE:
         raise InputError(f"a value is {float(np.abs(q).max()):.3g} quantization steps from zero, beyond the "
                          "2^40 steps a Gaussian scene allows; use a larger step")
+    return q
+
+
+def neighbour_prediction_wanted(cfg: AttributeCodingConfig, levels: "LevelLayout", inp: AttributeInput) -> bool:
+    """Whether the configuration asks for neighbour prediction and the scene admits it (a Gaussian
+    scene without the hierarchy, within the extent limit)."""
+    return (getattr(cfg, "neighbour_prediction", False) and levels.hier is None
+            and isinstance(inp.layout, attr.GaussianLayout) and neighbour_usable(inp.coords))
+
+
+def neighbour_coding_of(q: np.ndarray, coords: np.ndarray, cfg, layout, predict: bool,
+                        unit: NeighbourPredictionUnit | None = None) -> NeighbourCoding:
+    return NeighbourCoding(q, coords, cfg.prediction_lods, cfg.prediction_neighbours, cfg.prediction_buckets, predict,
+                           layout, unit)
+
+
+def code_with_neighbours(coder: LevelCoder, q: np.ndarray, nc: NeighbourCoding) -> LevelCoding:
+    """The level (every point of a tile) coded with neighbour prediction."""
+    header = coder.new_header()
+    header.context_model_id = CONTEXT_PER_CHANNEL_PRIOR
+    payload = nc.write(header)
+    return LevelCoding(q, attr.prior_params(header), payload, header, nc.prediction)
+
+
+def code_with_prior(coder: LevelCoder, inp: AttributeInput) -> LevelCoding:
+    """The level coded with the per-channel prior fitted to it."""
+    q = quantized_level(coder, inp)
     header = coder.new_header()
     means, lv = fit_per_channel_prior(q, coder.live, coder.cfg.prior_fit_rows)
     header.context_model_id = CONTEXT_PER_CHANNEL_PRIOR
@@ -462,6 +491,9 @@ def code_attributes(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodi
     level 2 the configured context model when it codes smaller (fits of each candidate; the
     smallest stream is kept). Cross-channel prediction is fitted where the layout allows it
     (Gaussian scenes)."""
+    predict = bool(inp.layout.channel_prediction_allowed) and getattr(cfg, "channel_prediction", False)
+    if neighbour_prediction_wanted(cfg, levels, inp):
+        return code_neighbours_or_prior(inp, levels, cfg, stats, predict, measure_ideal)
     if levels.tile_scale and cfg.context_model == "per_channel":
         return CodedAttributes([], None, None)  # nothing to fit: each tile codes its own units (tiling.py)
     recon = np.zeros_like(inp.values, dtype=np.float32)
@@ -470,7 +502,6 @@ def code_attributes(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodi
     stats.attribute_coded_bits = 0
     q_level1 = None  # level 1's, the context of level 2
     context_payload = None
-    predict = bool(inp.layout.channel_prediction_allowed) and getattr(cfg, "channel_prediction", False)
     for level, rows in levels.levels:
         coder = LevelCoder(inp.layout, cfg, level, rows, inp.live[rows], None if inp.mask is None else inp.mask[rows],
                            predict)
@@ -491,6 +522,35 @@ def code_attributes(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodi
     if measure_ideal:
         stats.attribute_ideal_bits = ideal
     return CodedAttributes(payloads, context_payload, recon)
+
+
+def code_neighbours_or_prior(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodingConfig, stats: EncodeStats,
+                             predict: bool, measure_ideal: bool) -> CodedAttributes:
+    """A Gaussian scene without the hierarchy: every point coded with neighbour prediction or with
+    the per-channel prior, whichever is smaller (with tiles: by the whole scene's ideal code
+    lengths, the unit being shared by every tile; each tile then codes its own units)."""
+    level, rows = levels.levels[0]
+    coder = LevelCoder(inp.layout, cfg, level, rows, inp.live[rows], None, predict)
+    q = quantized_level(coder, inp)
+    nc = neighbour_coding_of(q, inp.coords, cfg, inp.layout, predict)
+    unit_bytes = UNIT_FRAMING_BYTES + len(nc.unit.to_bytes())
+    with_prior = code_with_prior(coder, inp)
+    if levels.tile_scale:
+        use = nc.ideal_bits() / 8 + unit_bytes < ideal_bits(coder, with_prior) / 8
+        stats.neighbour_prediction = bool(use)
+        return CodedAttributes([], None, None, nc.unit if use else None)
+    with_neighbours = code_with_neighbours(coder, q, nc)
+    use = len(with_neighbours.payload) + unit_bytes < len(with_prior.payload)
+    chosen = with_neighbours if use else with_prior
+    stats.neighbour_prediction = bool(use)
+    stats.attribute_coded_bits = 8 * sum(chosen.header.chunk_size)
+    if measure_ideal:
+        stats.attribute_ideal_bits = nc.ideal_bits() if use else ideal_bits(coder, with_prior)
+    stats.levels[level] = LevelStats("neighbour prediction" if use else CONTEXT_MODEL_NAMES[0], len(chosen.payload),
+                                     chosen.header.num_channel_predictions if predict else None, None)
+    recon = np.zeros_like(inp.values, dtype=np.float32)
+    reconstruct_level(recon, rows, chosen, inp.steps)
+    return CodedAttributes([chosen.payload], None, recon, nc.unit if use else None)
 
 
 @dataclass
@@ -529,7 +589,7 @@ def stream_tiles(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodingC
         decoded = make_scene(inp.coords, coded.recon, inp.mask)
         tile = TileCoding(None, np.arange(inp.coords.shape[0]), geometry.payload, coded.payloads, digest_of(decoded))
         return [tile], decoded
-    tiles, recon = code_tiles(inp, cfg, coded.context_payload, progress)
+    tiles, recon = code_tiles(inp, cfg, coded.context_payload, progress, coded.neighbour_unit)
     tile_level_stats(tiles, stats)
     for tile in tiles:
         tile.scene_hash = digest_of(make_scene(inp.coords[tile.rows], recon[tile.rows],

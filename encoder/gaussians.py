@@ -187,8 +187,10 @@ def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: Gaus
         return GaussianScene.on_grid(coords, gps.voxel_size, gps.origin, sh, op, log_scales, rotations)
 
     tiles, decoded = stream_tiles(inp, levels, cfg, geometry, coded, make, stats, progress)
-    data = write_stream([DataUnit(UnitType.GAUSSIAN_PARAMETER_SET, gps.to_bytes())], coded.context_payload, tiles,
-                        decoded.num_gaussians)
+    parameter_units = [DataUnit(UnitType.GAUSSIAN_PARAMETER_SET, gps.to_bytes())]
+    if coded.neighbour_unit is not None:
+        parameter_units.append(DataUnit(UnitType.NEIGHBOUR_PREDICTION, coded.neighbour_unit.to_bytes()))
+    data = write_stream(parameter_units, coded.context_payload, tiles, decoded.num_gaussians)
     digest = tiles[0].scene_hash if len(tiles) == 1 else gaussian_scene_digest(decoded)
     return EncodeResult(data, breakdown_of(read_container(data), decoded.num_gaussians, "Gaussian"), decoded, digest,
                         stats)

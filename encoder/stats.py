@@ -90,6 +90,7 @@ class EncodeStats:
     num_level1: int | None = None  # the hierarchy, when used
     num_level2: int | None = None
     num_tiles: int = 1  # tiles of the stream (format version 1; 1: no tiles)
+    neighbour_prediction: bool | None = None  # a Gaussian scene without the hierarchy: the tool is used (1.1)
     context_twin_unused: str | None = None  # why the context twin given does not fit the configuration
     attribute_ideal_bits: float | None = None  # the model's ideal code length (measure_ideal)
     attribute_coded_bits: int = 0  # the attribute chunks as coded
@@ -111,7 +112,7 @@ class EncodeStats:
         a transcode_ prefix on the transcode's."""
         out = _present({k: getattr(self, k) for k in (
             "pruning", "anchors_before_pruning", "sh_degree_dropped_from", "gaussians_moved_off_shared_voxels",
-            "time_geometry_s", "num_level1", "num_level2", "num_tiles", "context_twin_unused", "attribute_ideal_bits",
+            "time_geometry_s", "num_level1", "num_level2", "num_tiles", "neighbour_prediction", "context_twin_unused", "attribute_ideal_bits",
             "attribute_coded_bits")})
         for level, level_stats in self.levels.items():
             out.update(level_stats.to_json(level))

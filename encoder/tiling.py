@@ -108,11 +108,13 @@ def tile_levels(coords: np.ndarray, ps) -> tuple[list[tuple[int, np.ndarray]], o
 
 
 def code_tile(inp, rows: np.ndarray, cfg, context_payload: bytes | None, recon: np.ndarray,
-              unit_stats: list) -> list[bytes]:
+              unit_stats: list, neighbour_unit=None) -> list[bytes]:
     """The attribute units of the tile holding ``rows`` of ``inp`` (in the tile's order); its
     decoded values go to ``recon[rows]``. Level 2 with the stream's context model where it codes
-    smaller than the tile's own prior."""
-    from .encode import AttributeInput, LevelCoder, code_with_model, code_with_prior, reconstruct_level
+    smaller than the tile's own prior; with the stream's neighbour_prediction unit, the tile's
+    one unit is coded with it."""
+    from .encode import (AttributeInput, LevelCoder, code_with_model, code_with_neighbours, code_with_prior,
+                         neighbour_coding_of, quantized_level, reconstruct_level)
 
     ps = inp.parameter_set
     coords = inp.coords[rows]
@@ -126,7 +128,12 @@ def code_tile(inp, rows: np.ndarray, cfg, context_payload: bytes | None, recon: 
     for level, lrows in levels:
         coder = LevelCoder(inp.layout, cfg, level, lrows, tinp.live[lrows],
                            None if tinp.mask is None else tinp.mask[lrows], predict)
-        chosen = code_with_prior(coder, tinp)
+        if neighbour_unit is not None:
+            q = quantized_level(coder, tinp)
+            chosen = code_with_neighbours(coder, q, neighbour_coding_of(q, coords, cfg, inp.layout, predict,
+                                                                       neighbour_unit))
+        else:
+            chosen = code_with_prior(coder, tinp)
         if level == LEVEL_2 and model is not None:
             with_model = code_with_model(coder, tinp, hier, q_level1, model)
             if len(with_model.payload) < len(chosen.payload):
@@ -141,7 +148,8 @@ def code_tile(inp, rows: np.ndarray, cfg, context_payload: bytes | None, recon: 
     return payloads
 
 
-def code_tiles(inp, cfg, context_payload: bytes | None, progress: bool = False) -> tuple[list[TileCoding], np.ndarray]:
+def code_tiles(inp, cfg, context_payload: bytes | None, progress: bool = False,
+               neighbour_unit=None) -> tuple[list[TileCoding], np.ndarray]:
     """Every tile of the scene -> (the tiles in stream order, the decoded values [N, M] in the
     whole scene's normative order)."""
     from ..app.progress import progress_bar
@@ -154,7 +162,7 @@ def code_tiles(inp, cfg, context_payload: bytes | None, progress: bool = False) 
     for cell, rows in parts:
         geometry = encode_geometry(inp.coords[rows])
         tile = TileCoding(cell, rows, geometry, [])
-        tile.attributes = code_tile(inp, rows, cfg, context_payload, recon, tile.unit_stats)
+        tile.attributes = code_tile(inp, rows, cfg, context_payload, recon, tile.unit_stats, neighbour_unit)
         tiles.append(tile)
         bar.update()
     bar.close()

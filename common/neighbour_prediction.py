@@ -1,0 +1,222 @@
+"""Neighbour prediction of an explicit-Gaussian tile's attributes (normative; spec clause 11.7).
+
+A Gaussian's attributes resemble those of the Gaussians around it (a surface's colour, its
+Gaussians' sizes and orientations). With the neighbour_prediction unit (version 1.1), the
+attribute unit of a tile without the hierarchy codes its rows in levels of detail:
+
+* LoD(i) of row i (0 <= i < N) for L levels: 0 when i is a multiple of 2^(L-1) (row 0
+  included), else L - 1 - ctz(i), with ctz the number of trailing zero bits. The rows are in
+  the geometry's normative (Morton) order, so every LoD is spread over the whole tile and each
+  finer LoD doubles the density.
+* LoD 0 is coded with the unit header's per-channel prior. A row of LoD l >= 1 is coded with
+  a mean and a scale level from its neighbours: the (at most) k points of LoD < l nearest to
+  it (canonical Ball k-NN, common/knn.py, with the ball covering the whole extent), whose
+  values are already decoded:
+
+      n     = number of neighbours found (>= 1: row 0 is of LoD 0)
+      mean  = floor((sum of the neighbours' q + floor(n / 2)) / n)        per channel c with
+              neighbour_mean_flag[c] = 1; the header's prior_mean[c] otherwise
+      a     = max - min of the neighbours' q                                per channel
+      bucket = min(bit_length(a), B - 1)
+      level = bucket_level[c * B + bucket]
+
+  so where the neighbours agree the residual is coded with a narrow distribution, where they
+  differ (an edge) with a wide one.
+
+All of it is integer arithmetic; |q| <= 2^40 and k <= 32 keep every sum within 64 bits.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .attributes import (ChannelPrediction, CodingParams, decode_chunk_values, encode_residual_chunk, prior_params,
+                         reconstruct_chunk, split_chunks)
+from .bitio import BitReader
+from .errors import BitstreamError
+from .knn import MAX_EXTENT, ball_knn
+from .syntax import TraceEntry
+from .units import CONTEXT_PER_CHANNEL_PRIOR, LEVEL_ALL, AttributeUnitHeader, NeighbourPredictionUnit
+
+# the whole extent of a tile lies in this ball (every d2 of an admissible tile is below it)
+WHOLE_EXTENT_RADIUS_SQ = 3 * MAX_EXTENT * MAX_EXTENT
+
+
+def lod_of_rows(num_rows: int, num_lods: int) -> np.ndarray:
+    """LoD of each row: 0 for multiples of 2^(L-1), else L - 1 - ctz(i) (int64 [N])."""
+    i = np.arange(num_rows, dtype=np.int64)
+    lod = np.full(num_rows, num_lods - 1, dtype=np.int64)
+    for t in range(1, num_lods):  # rows divisible by 2^t are at LoD L - 1 - t or coarser
+        lod[i % (1 << t) == 0] = num_lods - 1 - t
+    return lod
+
+
+def lod_rows(num_rows: int, num_lods: int) -> list[np.ndarray]:
+    """The rows of each LoD, ascending (the coding order is LoD 0's rows, then LoD 1's, ...)."""
+    lod = lod_of_rows(num_rows, num_lods)
+    return [np.nonzero(lod == level)[0] for level in range(num_lods)]
+
+
+def level_table(unit: NeighbourPredictionUnit) -> np.ndarray:
+    """bucket_level as int64 [NumChannels, B]."""
+    return np.asarray(unit.bucket_level, dtype=np.int64).reshape(unit.num_channels, unit.num_buckets)
+
+
+def mean_flags(unit: NeighbourPredictionUnit) -> np.ndarray:
+    return np.asarray(unit.neighbour_mean_flag, dtype=bool)
+
+
+@dataclass
+class NeighbourGraph:
+    """Per LoD: its rows and, for LoD >= 1, each row's neighbours (rows of coarser LoDs, int64
+    [n_l, k], -1 where fewer than k exist) in (distance, row) order."""
+    rows: list[np.ndarray]
+    neighbours: list[np.ndarray | None]
+
+    @property
+    def coding_order(self) -> np.ndarray:
+        return np.concatenate(self.rows) if self.rows else np.zeros(0, np.int64)
+
+
+def check_extent(coords: np.ndarray, what: str) -> str | None:
+    """Why the tile's points are beyond the neighbour graph's extent limit (clause 8.1), or None."""
+    if coords.shape[0] == 0:
+        return None
+    extent = int((coords.max(axis=0) - coords.min(axis=0)).max())
+    if extent > MAX_EXTENT:
+        return f"{what}: the points span {extent} voxels along an axis, beyond the neighbour prediction's " \
+               f"limit of {MAX_EXTENT}"
+    return None
+
+
+def neighbour_graph(coords: np.ndarray, num_lods: int, k: int) -> NeighbourGraph:
+    """The LoDs of the tile's points (rows in normative order) and each finer row's k nearest
+    coarser points. ValueError beyond the extent limit (check_extent first)."""
+    rows = lod_rows(coords.shape[0], num_lods)
+    neighbours: list[np.ndarray | None] = [None]
+    coarser = rows[0]
+    for level in range(1, num_lods):
+        cur = rows[level]
+        if cur.size == 0:
+            neighbours.append(np.zeros((0, k), np.int64))
+            continue
+        idx, valid = ball_knn(coords[coarser], k, WHOLE_EXTENT_RADIUS_SQ, query=coords[cur], exclude_self=False)
+        neighbours.append(np.where(valid, coarser[np.where(valid, idx, 0)], -1))
+        coarser = np.sort(np.concatenate([coarser, cur]))  # ball_knn breaks ties by the lower data index
+    return NeighbourGraph(rows, neighbours)
+
+
+def bit_length(a: np.ndarray) -> np.ndarray:
+    """bit_length of non-negative int64 values (0 for 0), exact."""
+    x = a.copy()
+    k = np.zeros(x.shape, dtype=np.int64)
+    for s in (32, 16, 8, 4, 2, 1):
+        big = x >= (1 << s)
+        k[big] += s
+        x[big] >>= s
+    return k + (x > 0)
+
+
+def lod_coding_params(q: np.ndarray, neighbours: np.ndarray, bucket_level: np.ndarray, num_buckets: int,
+                      neighbour_mean: np.ndarray, prior_mean: np.ndarray) -> CodingParams:
+    """Mean and scale level of each value of a LoD's rows from their neighbours' decoded values
+    ``q`` [N, M] (int64; rows of coarser LoDs filled). ``bucket_level`` int64 [M, B];
+    ``neighbour_mean`` bool [M] (the channels whose mean is the neighbours'), ``prior_mean``
+    int64 [M] (the others')."""
+    valid = neighbours >= 0
+    n = valid.sum(axis=1, keepdims=True).astype(np.int64)  # >= 1
+    nq = q[np.where(valid, neighbours, 0)]  # [n_l, k, M]
+    v = valid[:, :, None]
+    total = np.where(v, nq, 0).sum(axis=1)
+    mean = np.where(neighbour_mean[None, :], (total + n // 2) // n, prior_mean[None, :])  # floor division
+    big = np.iinfo(np.int64).max
+    spread = np.where(v, nq, -big).max(axis=1) - np.where(v, nq, big).min(axis=1)
+    bucket = np.minimum(bit_length(spread), num_buckets - 1)
+    level = np.take_along_axis(bucket_level.T, bucket, axis=0) if bucket.size else np.zeros(bucket.shape, np.int64)
+    return CodingParams(mean, level)
+
+
+# --- the attribute unit of a tile coded with neighbour prediction ---------------------------
+
+def chunk_segments(h: AttributeUnitHeader, graph: NeighbourGraph):
+    """(LoD, first and last+1 index into the LoD's rows) of each chunk, in stream order: each
+    LoD's rows are cut into chunks of rows_per_chunk on their own (clause 7.3.12)."""
+    rpc = h.rows_per_chunk
+    for level, rows in enumerate(graph.rows):
+        for lo in range(0, rows.size, rpc):
+            yield level, lo, min(rows.size, lo + rpc)
+
+
+def _lod_params(level: int, q: np.ndarray, graph: NeighbourGraph, prior: CodingParams, table: np.ndarray,
+                flags: np.ndarray, num_buckets: int) -> CodingParams:
+    if level == 0:
+        return prior
+    return lod_coding_params(q, graph.neighbours[level], table, num_buckets, flags, prior.mean[0])
+
+
+def write_predicted_attribute_unit(h: AttributeUnitHeader, layout, q: np.ndarray, graph: NeighbourGraph,
+                                   unit: NeighbourPredictionUnit,
+                                   prediction: ChannelPrediction | None = None) -> bytes:
+    """Code q [N, M] (rows in the tile's normative order) LoD by LoD; LoD 0 with the header's
+    per-channel prior. Fills the header's chunk sizes (and cross-channel prediction entries)."""
+    prediction = prediction or ChannelPrediction.none()
+    if h.channel_prediction_allowed:
+        prediction.to_header(h)
+    h.num_lods = unit.num_lods
+    table, prior = level_table(unit), prior_params(h)
+    chunks: list[bytes] = []
+    h.mask_chunk_size, h.chunk_size = [], []
+    params = None
+    for level, lo, hi in chunk_segments(h, graph):
+        if lo == 0:
+            params = _lod_params(level, q, graph, prior, table, mean_flags(unit), unit.num_buckets)
+        rows = graph.rows[level][lo:hi]
+        p = params.rows(lo, hi, layout.num_channels)
+        chunks.append(encode_residual_chunk(prediction.residuals(q[rows], p.mean), p.level, None))
+        h.chunk_size.append(len(chunks[-1]))
+    return h.to_bytes() + b"".join(chunks)
+
+
+def read_predicted_attribute_unit(payload: bytes, layout, steps: np.ndarray, coords: np.ndarray,
+                                  unit: NeighbourPredictionUnit, values_out: np.ndarray,
+                                  trace: list[TraceEntry] | None = None, on_chunk=None) -> AttributeUnitHeader:
+    """Parse and decode the attribute unit of a tile of ``coords`` (normative order) coded with
+    neighbour prediction (clause 13.2 with 11.7): the values of row i go to values_out[i]."""
+    n = coords.shape[0]
+    what = "attribute unit (neighbour prediction)"
+    reader = BitReader(payload, what)
+    h = AttributeUnitHeader.parse(reader, trace, num_channels=layout.num_channels, num_offsets=layout.num_offsets,
+                                  offset_mask_present=layout.offset_mask_present,
+                                  channel_prediction_allowed=layout.channel_prediction_allowed, num_rows=n,
+                                  num_lods=unit.num_lods)
+    if h.attribute_level != LEVEL_ALL:
+        raise BitstreamError(f"{what}: attribute_level {h.attribute_level} where level 0 is expected")
+    if h.num_rows_minus1 + 1 != n:  # clause 8.3 rule 8
+        raise BitstreamError(f"{what}: num_rows_minus1 + 1 = {h.num_rows_minus1 + 1}, but the tile has {n} rows")
+    if h.context_model_id != CONTEXT_PER_CHANNEL_PRIOR:
+        raise BitstreamError(f"{what}: context_model_id {h.context_model_id}; a stream with neighbour prediction "
+                             "codes LoD 0 with the per-channel prior (context_model_id 0)")
+    why = check_extent(coords, what)
+    if why:
+        raise BitstreamError(why)
+    prediction = ChannelPrediction.from_header(h, what)
+    graph = neighbour_graph(coords, unit.num_lods, unit.num_neighbours)
+    table, prior = level_table(unit), prior_params(h)
+    pieces = iter(split_chunks(payload[reader.bit_position // 8:], list(h.chunk_size), what))
+    q_all = np.zeros((n, layout.num_channels), dtype=np.int64)
+    params = None
+    for i, (level, lo, hi) in enumerate(chunk_segments(h, graph)):
+        if lo == 0:
+            params = _lod_params(level, q_all, graph, prior, table, mean_flags(unit), unit.num_buckets)
+        rows = graph.rows[level][lo:hi]
+        p = params.rows(lo, hi, layout.num_channels)
+        q = decode_chunk_values(next(pieces), h, layout, p, prediction, None, hi - lo, i, LEVEL_ALL)
+        q_all[rows] = q
+        target = np.empty((hi - lo, layout.num_channels), np.float32)
+        reconstruct_chunk(q, steps, None, target, i, LEVEL_ALL)
+        values_out[rows] = target
+        if on_chunk is not None:
+            on_chunk(hi - lo)
+    return h
