@@ -154,8 +154,9 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # Neighbour prediction (version 1.1, without the hierarchy): rows coded in prediction_lods
     # levels of detail, each value from the mean of its prediction_neighbours nearest coarser
     # points with a scale level per activity bucket (prediction_buckets); used where it codes
-    # smaller than the per-channel prior (encoder/neighbour_coding.py).
-    neighbour_prediction: bool = True
+    # smaller than the per-channel prior (encoder/neighbour_coding.py); "always": wherever the
+    # scene admits it (tests, conformance streams); False: never.
+    neighbour_prediction: bool | str = True
     prediction_lods: int = 6
     prediction_neighbours: int = 6
     prediction_buckets: int = 5
@@ -197,6 +198,8 @@ class GaussianEncoderConfig(AttributeCodingConfig):
         for v in self.sh_band_steps:
             if not (isinstance(v, (int, float)) and 0 < v < float("inf")):
                 raise InputError(f"sh_band_steps must be positive finite numbers, got {self.sh_band_steps!r}")
+        if self.neighbour_prediction not in (True, False, "always"):
+            raise InputError(f"neighbour_prediction must be true, false or always, got {self.neighbour_prediction!r}")
         for name, hi in (("prediction_lods", 16), ("prediction_neighbours", 32), ("prediction_buckets", 16)):
             v = getattr(self, name)
             if not (isinstance(v, int) and 1 <= v <= hi):

@@ -341,7 +341,7 @@ def quantized_level(coder: LevelCoder, inp: AttributeInput) -> np.ndarray:
 def neighbour_prediction_wanted(cfg: AttributeCodingConfig, levels: "LevelLayout", inp: AttributeInput) -> bool:
     """Whether the configuration asks for neighbour prediction and the scene admits it (a Gaussian
     scene without the hierarchy, within the extent limit)."""
-    return (getattr(cfg, "neighbour_prediction", False) and levels.hier is None
+    return (getattr(cfg, "neighbour_prediction", False) is not False and levels.hier is None
             and isinstance(inp.layout, attr.GaussianLayout) and neighbour_usable(inp.coords))
 
 
@@ -535,12 +535,13 @@ def code_neighbours_or_prior(inp: AttributeInput, levels: LevelLayout, cfg: Attr
     nc = neighbour_coding_of(q, inp.coords, cfg, inp.layout, predict)
     unit_bytes = UNIT_FRAMING_BYTES + len(nc.unit.to_bytes())
     with_prior = code_with_prior(coder, inp)
+    always = cfg.neighbour_prediction == "always"
     if levels.tile_scale:
-        use = nc.ideal_bits() / 8 + unit_bytes < ideal_bits(coder, with_prior) / 8
+        use = always or nc.ideal_bits() / 8 + unit_bytes < ideal_bits(coder, with_prior) / 8
         stats.neighbour_prediction = bool(use)
         return CodedAttributes([], None, None, nc.unit if use else None)
     with_neighbours = code_with_neighbours(coder, q, nc)
-    use = len(with_neighbours.payload) + unit_bytes < len(with_prior.payload)
+    use = always or len(with_neighbours.payload) + unit_bytes < len(with_prior.payload)
     chosen = with_neighbours if use else with_prior
     stats.neighbour_prediction = bool(use)
     stats.attribute_coded_bits = 8 * sum(chosen.header.chunk_size)

@@ -37,11 +37,13 @@ import numpy as np
 import torch
 
 from ..common.entropy.symbol_coder import best_level, code_lengths_bits
-from ..common.geometry import encode_geometry
+from ..common.geometry import encode_geometry, normative_order
+from ..common.neighbour_prediction import neighbour_graph
 from ..common.scene import GaussianScene
 from .config import GaussianEncoderConfig
 from .gaussian_fit import prune_by_contribution, resolving_views
 from .gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid
+from .neighbour_coding import NeighbourCoding, usable as neighbour_usable
 from ..render.gaussians3dgs import gaussians_from_scene, render_3dgs
 
 PRUNE_LADDER = (0.0, 0.0005, 0.001, 0.002, 0.004, 0.008, 0.016, 0.032, 0.064)
@@ -56,10 +58,13 @@ class Trial:
     cost: float
 
 
-def _quantize(v: np.ndarray, step: float) -> tuple[np.ndarray, float]:
-    """Dequantized values and their ideal bits under a per-channel prior (median, best level)."""
+def _quantize(v: np.ndarray, step: float, out: list | None = None) -> tuple[np.ndarray, float]:
+    """Dequantized values and their ideal bits under a per-channel prior (median, best level);
+    the quantized values [N, channels] are appended to ``out`` when given."""
     q = np.rint(v.astype(np.float64) / step).astype(np.int64)
     q2 = q.reshape(q.shape[0], -1)
+    if out is not None:
+        out.append(q2)
     bits = 0.0
     for c in range(q2.shape[1]):
         r = q2[:, c] - int(np.median(q2[:, c]))
@@ -79,8 +84,31 @@ class SettingsSearch:
             self.targets = [render_3dgs(g, c, background=(0, 0, 0), backend="torch").image for c in self.cams]
         self.rot = canonical_rotations(scene.rotations).astype(np.float32)
         self.opacity = np.clip(scene.opacity, -OPACITY_LOGIT_LIMIT, OPACITY_LOGIT_LIMIT)
+        self.cfg = cfg
         self._grids: dict = {}
+        self._graphs: dict = {}
         self.trials: list[Trial] = []
+
+    def _graph(self, key, grid: GaussianScene):
+        """The normative order of the grid's points and their neighbour graph (cached per grid)."""
+        if key not in self._graphs:
+            order = normative_order(grid.coords)
+            graph = neighbour_graph(grid.coords[order], self.cfg.prediction_lods, self.cfg.prediction_neighbours) \
+                if self.cfg.neighbour_prediction and neighbour_usable(grid.coords) else None
+            self._graphs[key] = (order, graph)
+        return self._graphs[key]
+
+    def _attribute_bits(self, key, grid: GaussianScene, q: np.ndarray, prior_bits: float) -> float:
+        """The attribute bits the encoder will spend: the per-channel prior's, or neighbour
+        prediction's where it is smaller (encoder/neighbour_coding.py; cross-channel prediction,
+        which both can add, is left out of the estimate)."""
+        order, graph = self._graph(key, grid)
+        if graph is None:
+            return prior_bits
+        qo = q[order]
+        nc = NeighbourCoding(qo, grid.coords[order], self.cfg.prediction_lods, self.cfg.prediction_neighbours,
+                             self.cfg.prediction_buckets, False, None, graph=graph)
+        return min(prior_bits, nc.ideal_stream_bits())
 
     def _grid(self, share: float, position_step: float):
         key = (share, position_step)
@@ -99,21 +127,25 @@ class SettingsSearch:
         return self._grids[key]
 
     def evaluate(self, cfg: GaussianEncoderConfig) -> Trial:
-        keep, grid, bits = self._grid(cfg.prune_share, cfg.position_step)
+        key = (cfg.prune_share, cfg.position_step)
+        keep, grid, geometry_bits = self._grid(*key)
         degree = self.scene.sh_degree if cfg.sh_degree is None else min(cfg.sh_degree, self.scene.sh_degree)
         sh = self.scene.sh[keep][:, :(degree + 1) ** 2]
         band = np.floor(np.sqrt(np.arange(sh.shape[1]))).astype(int)
         steps = [cfg.sh_dc_step] + list(cfg.sh_band_steps)
         shq = np.empty_like(sh)
+        bits = 0.0
+        qs: list[np.ndarray] = []
         for b in range(degree + 1):
-            shq[:, band == b], bb = _quantize(sh[:, band == b], steps[b])
+            shq[:, band == b], bb = _quantize(sh[:, band == b], steps[b], qs)
             bits += bb
-        op, bb = _quantize(self.opacity[keep], cfg.opacity_step)
+        op, bb = _quantize(self.opacity[keep], cfg.opacity_step, qs)
         bits += bb
-        ls, bb = _quantize(self.scene.log_scales[keep], cfg.scale_step)
+        ls, bb = _quantize(self.scene.log_scales[keep], cfg.scale_step, qs)
         bits += bb
-        rot, bb = _quantize(self.rot[keep], cfg.rotation_step)
+        rot, bb = _quantize(self.rot[keep], cfg.rotation_step, qs)
         bits += bb
+        bits = geometry_bits + self._attribute_bits(key, grid, np.concatenate(qs, axis=1), bits)
         dec = GaussianScene(grid.means, shq, op, ls, rot)
         g = gaussians_from_scene(dec)
         with torch.no_grad():

@@ -21,8 +21,11 @@ from ..common import attributes as attr
 from ..common.entropy.symbol_coder import best_level, code_lengths_bits, ideal_code_length_bits
 from ..common.neighbour_prediction import (NeighbourGraph, check_extent, level_table, lod_coding_params, mean_flags,
                                            neighbour_graph, write_predicted_attribute_unit)
+from ..common.container import UNIT_CRC_BYTES, UNIT_HEADER_BYTES
 from ..common.units import PRIOR_MEAN_MAX, NeighbourPredictionUnit
 from .prediction import fit_channel_prediction
+
+UNIT_FRAMING_BYTES = UNIT_HEADER_BYTES + UNIT_CRC_BYTES
 
 
 def _coding_params(q: np.ndarray, graph: NeighbourGraph, num_buckets: int,
@@ -87,10 +90,11 @@ class NeighbourCoding:
     fitted unit, prior and cross-channel prediction."""
 
     def __init__(self, q: np.ndarray, coords: np.ndarray, num_lods: int, num_neighbours: int, num_buckets: int,
-                 channel_prediction: bool, layout, unit: NeighbourPredictionUnit | None = None):
+                 channel_prediction: bool, layout, unit: NeighbourPredictionUnit | None = None,
+                 graph: NeighbourGraph | None = None):
         n, m = q.shape
         self.q, self.layout = q, layout
-        self.graph = neighbour_graph(coords, num_lods, num_neighbours)
+        self.graph = graph if graph is not None else neighbour_graph(coords, num_lods, num_neighbours)
         lod0 = self.graph.rows[0]
         prior_mean = np.clip(np.rint(np.median(q[lod0], axis=0)), -PRIOR_MEAN_MAX, PRIOR_MEAN_MAX).astype(np.int64)
         neighbour_mean, bucket = _coding_params(q, self.graph, num_buckets, prior_mean)
@@ -116,6 +120,10 @@ class NeighbourCoding:
 
     def ideal_bits(self) -> float:
         return ideal_code_length_bits(self.residuals, self.levels)
+
+    def ideal_stream_bits(self) -> float:
+        """The ideal bits of the values and the unit that carries the table."""
+        return self.ideal_bits() + 8 * (UNIT_FRAMING_BYTES + len(self.unit.to_bytes()))
 
     def write(self, header) -> bytes:
         header.prior_mean = self.prior_mean.tolist()
