@@ -126,6 +126,10 @@ def add_gaussian_arguments(p: argparse.ArgumentParser) -> None:
     gs.add_argument("--fit-iterations", type=int, metavar="N",
                     help="steps tuning the kept Gaussians to the source renders (0: none)")
     gs.add_argument("--sh-degree", type=int, choices=(0, 1, 2, 3), help="code at most this SH degree")
+    gs.add_argument("--neighbour-prediction", choices=("auto", "always", "never"),
+                    help="code each Gaussian's attributes from its nearest already-decoded neighbours (format "
+                         "1.1; auto, the default: where that codes smaller than without, which it does on "
+                         "dense scenes; never: streams a version-1.0 decoder reads)")
 
 
 def add_transcode_arguments(p: argparse.ArgumentParser) -> None:
@@ -226,7 +230,9 @@ def config_overrides(args: argparse.Namespace, gaussians: bool) -> dict:
     if gaussians:
         overrides = {"rd_lambda": args.rd_lambda, "target_psnr": args.target_psnr,
                      "fit_iterations": args.fit_iterations, "sh_degree": args.sh_degree,
-                     "tile_points": args.tile_points}
+                     "tile_points": args.tile_points,
+                     "neighbour_prediction": {"auto": True, "always": "always", "never": False, None: None}[
+                         args.neighbour_prediction]}
         if args.rd_lambda is not None and args.target_psnr is None:
             overrides["target_psnr"] = 0.0  # --lambda given: it replaces the preset's quality
         return overrides
