@@ -13,7 +13,8 @@ def all_structures() -> list[type[SyntaxStructure]]:
     return [container.ContainerHeader, container.UnitHeader, units.SceneParameterSet,
             units.RenderModelUnit, units.RenderMlpHeader, geometry.GeometryHeader,
             units.AttributeUnitHeader, units.DecodedSceneHashUnit, model_unit.ContextModelUnit,
-            model_unit.IntArrayHeader, units.GaussianParameterSet, units.SourceInfo, units.TileIndex]
+            model_unit.IntArrayHeader, units.GaussianParameterSet, units.SourceInfo, units.TileIndex,
+            units.NeighbourPredictionUnit]
 
 
 def syntax_tables_markdown() -> str:

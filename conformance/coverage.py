@@ -8,7 +8,7 @@ bit trace, and from the container layer for its headers. Value classes of an ele
   values such as the magic number, and integers with at most 5 allowed values): each value;
   other integers: 'minimum' (its lowest allowed value), 'maximum' (its profile/level limit or,
   for u(n) without one, the largest value of its width; a context-dependent limit for
-  rows_per_chunk_minus1: NumRows - 1, one chunk), 'other' (strictly between); ue(v) elements
+  rows_per_chunk_minus1: num_rows_minus1, one chunk per LoD), 'other' (strictly between); ue(v) elements
   without an upper limit (byte counts) have no 'maximum';
   se(v): 'minimum', 'maximum', and 'negative' / 'zero' / 'positive' strictly between;
   f(32) > 0: 'minimum' (2^-149, the smallest subnormal), 'maximum' (the largest finite
@@ -47,7 +47,7 @@ ENUMERATIONS = {
     "render_mlp_header.activation": [0, 1, 2, 3],
 }
 # integer elements with a value of their own beside minimum / other / maximum
-SPECIAL_VALUES: dict[str, list[int]] = {}  # (version_minor 0, this document's, is its minimum)
+SPECIAL_VALUES: dict[str, list[int]] = {}  # (version_minor: 0 is its minimum; this document's, 1, is other)
 # upper limits that depend on earlier elements: element -> how the limit is found (see _contextual_max)
 CONTEXT_DEPENDENT_MAX = {"attribute_unit_header.rows_per_chunk_minus1": "NumRows - 1 (a single chunk)",
                          "attribute_unit_header.num_channel_predictions": "M (M - 1) / 2 (every pair)",
@@ -305,10 +305,12 @@ def _container_values(data: bytes):
 
 def _trace_values(trace):
     """(element, value, contextual maximum) for each trace entry; the maximum of
-    rows_per_chunk_minus1 is NumRows - 1, reached exactly when its header lists one chunk."""
+    rows_per_chunk_minus1 is NumRows - 1 = num_rows_minus1 (one chunk without LoDs; with neighbour
+    prediction, one chunk per LoD)."""
     entries = [(re.sub(r"\[\d+\]", "", e.name), e.value) for e in trace]
     m = None  # channels of a Gaussian scene (3 (d + 1)^2 + 8), the limit of the prediction elements
-    for j, (name, value) in enumerate(entries):
+    num_rows_minus1 = None
+    for name, value in entries:
         ctx = None
         if name == "gaussian_parameter_set.sh_degree":
             m = 3 * (int(value) + 1) ** 2 + 8
@@ -318,14 +320,10 @@ def _trace_values(trace):
             ctx = m - 1
         elif m is not None and name == "attribute_unit_header.pred_source_channel":
             ctx = m - 2
+        if name == "attribute_unit_header.num_rows_minus1":
+            num_rows_minus1 = int(value)
         if name == "attribute_unit_header.rows_per_chunk_minus1":
-            chunks = 0
-            for other, _ in entries[j + 1:]:
-                if other == "attribute_unit_header.chunk_size":
-                    chunks += 1
-                elif other != "attribute_unit_header.mask_chunk_size":
-                    break
-            ctx = value if chunks == 1 else value + 1  # one chunk: the value is NumRows - 1
+            ctx = num_rows_minus1  # parsed just before it (version 1): its maximum, S = NumRows
         yield name, value, ctx
 
 

@@ -203,6 +203,25 @@ def read_neighbour_prediction_unit(unit: DataUnit | None, ps, layout, entries) -
                                               num_channels=layout.num_channels)
 
 
+def decode_predicted_attribute_units(attribute_units: list[DataUnit], layout, steps: np.ndarray, coords: np.ndarray,
+                                    unit: NeighbourPredictionUnit, entries, progress: bool,
+                                    memory: MemoryPlan | None = None) -> _Levels:
+    """The attribute unit of a tile of a stream with a neighbour_prediction unit (clause 11.7):
+    exactly one per tile."""
+    n = coords.shape[0]
+    if len(attribute_units) != 1:
+        raise BitstreamError(f"a tile of {n} points without the hierarchy has {len(attribute_units)} attribute "
+                             "units, not 1")
+    values = np.empty((n, layout.num_channels), dtype=np.float32)
+    if memory is not None:
+        memory.check_predicted_attribute_unit(n, unit)
+    bar = progress_bar(total=n, desc="decode attributes", unit="point", disable=not progress, leave=False)
+    read_predicted_attribute_unit(attribute_units[0].payload, layout, steps, coords, unit, values, entries,
+                                  on_chunk=bar.update)
+    bar.close()
+    return _Levels(values, None, None)
+
+
 def decode_attribute_units(attribute_units: list[DataUnit], layout, steps: np.ndarray, coords: np.ndarray,
                            ps, context_model, entries, progress: bool,
                            memory: MemoryPlan | None = None, max_level: int = LEVEL_2) -> _Levels:
@@ -215,17 +234,8 @@ def decode_attribute_units(attribute_units: list[DataUnit], layout, steps: np.nd
     stream has at most one of them: one needs the hierarchy, the other its absence)."""
     n = coords.shape[0]
     if isinstance(context_model, NeighbourPredictionUnit):
-        if len(attribute_units) != 1:
-            raise BitstreamError(f"a tile of {n} points without the hierarchy has {len(attribute_units)} attribute "
-                                 "units, not 1")
-        values = np.empty((n, layout.num_channels), dtype=np.float32)
-        if memory is not None:
-            memory.check_predicted_attribute_unit(n, context_model)
-        bar = progress_bar(total=n, desc="decode attributes", unit="point", disable=not progress, leave=False)
-        read_predicted_attribute_unit(attribute_units[0].payload, layout, steps, coords, context_model, values,
-                                      entries, on_chunk=bar.update)
-        bar.close()
-        return _Levels(values, None, None)
+        return decode_predicted_attribute_units(attribute_units, layout, steps, coords, context_model, entries,
+                                                progress, memory)
     hier = None
     if ps.hierarchy_enabled_flag:
         hier = build_hierarchy(coords, ps.coarse_voxel_scale)

@@ -62,6 +62,8 @@ KNN_PER_DATA_POINT = 128  # k-d tree and float64 / int64 copies of the data poin
 GGCONV_BLOCK_ROWS = 1 << 12  # GGConvEvaluator.rows(block=...)
 GGCONV_LUT_MAX = 1 << 17  # lghcc.common.context.ggconv._LUT_MAX
 PARENT_MLP_BLOCK_ROWS = 1 << 16  # lghcc.common.context.parent_mlp._BLOCK
+NEIGHBOUR_PER_VALUE = 20  # neighbour prediction, per value and neighbour of one LoD: the neighbours' values int64
+# and one masked copy at a time (548 B per value measured with 32 neighbours, 128 B with 6: counted 720 and 200)
 F64 = 8
 FIXED = 1 << 20  # whatever the stream: geometry count tables, frequency models, small arrays (65 kB measured)
 
@@ -228,16 +230,29 @@ class MemoryPlan:
 
     def check_predicted_attribute_unit(self, num_rows: int, unit) -> int:
         """Before decoding a tile's attribute unit coded with neighbour prediction (``unit``): the
-        quantized values of every row and the neighbour graph, kept while the LoDs decode, and
-        one LoD's parameters and neighbour values (at most half the rows are of the finest LoD)."""
+        quantized values of every row and the neighbour graph, kept while the LoDs decode; then,
+        one after the other, the Ball k-NN of the largest LoD (its candidate blocks, twice the
+        first ask as for GG-Conv), the neighbours' values of one LoD while its means and levels
+        are computed, and one LoD's means and levels with a chunk."""
+        from ..common.units import lod_sizes_of
+
         m, k = self.m, unit.num_neighbours
         persistent = self.persistent + [
             Need(f"neighbour prediction: {num_rows:,} rows x {m:,} channels x 8 bytes of quantized values and "
                  f"{k} neighbours x 8 bytes", 8 * num_rows * (m + k))]
-        lod = (num_rows + 1) // 2
-        stages = self.stages + [Need(f"neighbour prediction of one LoD: {lod:,} rows x {k} neighbours x {m:,} "
-                                     "channels x 8 bytes and the chunk", 8 * lod * m * (k + 4)
-                                     + CHUNK_PER_VALUE_GENERAL * lod * m)]
+        sizes = lod_sizes_of(num_rows, unit.num_lods)
+        lod = max(sizes)
+        finer = max(sizes[1:], default=0)
+        ask = 2 * (k + 2)
+        stages = self.stages + [
+            Need(f"neighbour search of one LoD: {finer:,} rows x {ask} candidates x {KNN_PER_CANDIDATE} bytes and "
+                 f"{num_rows:,} points x {KNN_PER_DATA_POINT} bytes",
+                 finer * ask * KNN_PER_CANDIDATE + KNN_PER_DATA_POINT * num_rows),
+            Need(f"neighbour values of one LoD: {finer:,} rows x {k} neighbours x {m:,} channels x "
+                 f"{NEIGHBOUR_PER_VALUE} bytes", NEIGHBOUR_PER_VALUE * finer * m * (k + 4)),
+            Need(f"means and levels of one LoD and its chunk: {lod:,} rows x {m:,} channels x "
+                 f"{16 + CHUNK_PER_VALUE_GENERAL + CHUNK_PER_VALUE_PREDICTION} bytes",
+                 (16 + CHUNK_PER_VALUE_GENERAL + CHUNK_PER_VALUE_PREDICTION) * lod * m)]
         return self.check(persistent, stages)
 
 

@@ -118,7 +118,7 @@ def test_every_mutation_applies_to_todays_code():
             mutations._resolve(m.target)
     groups = Counter(m.group for m in mutations.MUTATIONS)
     for g in ("intnn", "ggconv", "parent_mlp", "knn", "hierarchy", "attributes", "entropy", "geometry", "syntax",
-              "gaussians", "prediction"):
+              "gaussians", "prediction", "neighbour"):
         assert groups[g] >= 2, g
 
 
@@ -135,6 +135,7 @@ def test_a_stale_mutation_is_reported_not_skipped():
     ("geometry.count_limit_1023", "c051_geometry_count_limit"),
     ("prediction.magnitude_off_by_one", "c052_gaussians_value_at_limit"),
     ("prediction.check_before_prediction", "e084_prediction_value_limit"),
+    ("neighbour.lod_sizes_floor", "c082_neighbour_prediction_small_chunks"),
 ])
 def test_named_streams_kill_their_mutations(mid, killer):
     """The harness end to end: the mutation fails the stream written for it, and the same stream passes

@@ -292,7 +292,7 @@ def test_value_classes_have_minimum_maximum_and_enumerations():
     assert cls["geometry_header.geom_idcm_mode"] == [0, 1, 2]  # each mode its own class
     assert cls["render_mlp_header.num_layers_minus1"] == ["minimum", "other", "maximum"]
     assert cls["attribute_unit_header.rows_per_chunk_minus1"] == ["minimum", "other", "maximum"]
-    assert cls["container_header.version_minor"] == ["minimum", "other", "maximum"]  # 0, this version, is the minimum
+    assert cls["container_header.version_minor"] == ["minimum", "other", "maximum"]  # 0 (version 1.0) is the minimum
     assert "ancillary" in cls["data_unit_header.unit_type"]
     assert cls["scene_parameter_set.voxel_size"] == ["minimum", "other", "maximum"]
     assert cls["render_model_unit.coded_size"] == ["minimum", "other"]  # ue(v) without a limit: no maximum

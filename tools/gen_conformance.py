@@ -132,6 +132,8 @@ def random_gaussian_scene(s: dict):
         return GaussianScene.on_grid(coords, float(s.get("voxel_size", 0.01)), s.get("origin", [0.0, 0.0, 0.0]),
                                      sh.astype(np.float32), np.zeros(n, np.float32), log_scales.astype(np.float32),
                                      rot.astype(np.float32))
+    if s.get("smooth"):
+        return _smooth_gaussian_scene(s, rng, coords, spread)
     if s.get("correlated"):
         sh = rng.normal(size=(n, k, 1)) + 0.1 * rng.normal(size=(n, k, 3))
         log_scales = rng.normal(-4, 1, size=(n, 1)) + 0.2 * rng.normal(size=(n, 3))
@@ -152,6 +154,38 @@ def random_gaussian_scene(s: dict):
         scene = GaussianScene.on_grid(coords, scene.voxel_size, scene.origin, sh2.copy(), op.copy(), ls.copy(),
                                       rot.copy())
     return scene
+
+
+def _smooth_gaussian_scene(s: dict, rng, coords: np.ndarray, spread: int):
+    """Attributes that vary smoothly with the position (neighbour prediction, version 1.1, pays
+    off): every channel a sum of two plane waves over the scene (wavelengths of about the scene's
+    size) plus ``noise`` (relative) of its own (with ``correlated``, the colours of each SH
+    coefficient and the three scales follow one channel's field); the channels of ``noise_channels`` (indices of the
+    Gaussian layout, clause 11.1) are white noise alone (their neighbours do not predict them).
+    ``extra_coords`` replace the first positions (e.g. far corners: the extent limit)."""
+    from lghcc.common.attributes import GaussianLayout
+    from lghcc.common.scene import GaussianScene
+
+    lay = GaussianLayout(s.get("sh_degree", 0))
+    m, n = lay.num_channels, coords.shape[0]
+    for j, xyz in enumerate(s.get("extra_coords", [])):
+        coords[j] = xyz
+    if len(np.unique(coords, axis=0)) != n:
+        raise ValueError("extra_coords repeat a coordinate of the scene")
+    x = (coords - coords.mean(axis=0)) / max(spread, 1)
+    waves = sum(np.sin(x @ (np.pi * rng.normal(size=(3, m))) + rng.uniform(0, 2 * np.pi, size=m))
+                for _ in range(2))
+    v = waves + float(s.get("noise", 0.05)) * rng.normal(size=(n, m))
+    if s.get("correlated"):  # the colours of each SH coefficient, and the three scales, move together
+        for lo, hi in [(c, c + 3) for c in range(0, lay.sh_channels, 3)] + [(lay.scale_start, lay.rotation_start)]:
+            v[:, lo + 1:hi] = v[:, lo:lo + 1] + 0.2 * v[:, lo + 1:hi]
+    v[:, list(s.get("noise_channels", []))] = rng.normal(size=(n, len(s.get("noise_channels", []))))
+    v *= float(s.get("value_scale", 1.0))
+    v[:, lay.scale_start:lay.rotation_start] -= 4.0  # log scales around e^-4
+    v[:, lay.rotation_start] += 2.0  # rotations away from the zero quaternion
+    sh, op, ls, rot = lay.split(v.astype(np.float32))
+    return GaussianScene.on_grid(coords, float(s.get("voxel_size", 0.01)), s.get("origin", [0.0, 0.0, 0.0]),
+                                 sh.copy(), op.copy(), ls.copy(), rot.copy())
 
 
 def build_scene(s: dict):
@@ -486,6 +520,9 @@ def post_process(data: bytes, post: dict) -> bytes:
     if "swap_units" in post:
         a, b = post["swap_units"]
         units[a], units[b] = units[b], units[a]
+    if "duplicate_unit" in post:  # a copy of unit i inserted right after it
+        i = int(post["duplicate_unit"])
+        units.insert(i + 1, DataUnit(units[i].unit_type, units[i].payload))
     if "drop_unit" in post:
         del units[post["drop_unit"]]
     if "append_to_unit" in post:  # trailing bytes inside a payload (with a valid CRC)
@@ -557,7 +594,10 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
     torch.set_num_threads(1)  # context-model training in float must be reproducible byte for byte
     try:
         if entry["scene"]["generator"] == "gaussians":  # the preset's steps; no search, no fit
-            cfg = load_config(entry.get("preset", "medium"), overrides=entry.get("config"), kind="gaussians")
+            # neighbour prediction (version 1.1) only where the entry asks for it: the streams of
+            # version 1.0 keep their coding
+            overrides = {"neighbour_prediction": False, **(entry.get("config") or {})}
+            cfg = load_config(entry.get("preset", "medium"), overrides=overrides, kind="gaussians")
             result = encode_gaussian_scene(build_scene(entry["scene"]), cfg)
         else:
             cfg = load_config(entry.get("preset", "medium"), overrides=entry.get("config"))
@@ -593,6 +633,7 @@ Tags of test.yaml `tools`, derived from the reference decoder's result (never wr
   ggconv_neighbour_level_<n>   a GG-Conv model whose neighbours are the level-n anchors (Annex H.5)
   context_parent_base_<b>      a context model with a channel whose parent_base is b (Annex H.5.3)
   context_model_unit    a context-model unit
+  neighbour_prediction  a neighbour_prediction unit (version 1.1, clause 7.3.12): attributes coded by LoD
   gaussians             an explicit-Gaussian scene (gaussian_parameter_set), sh_degree_<d> its SH degree
   channel_prediction    an attribute unit with cross-channel predictions (clause 11.6)
   offset_mask           offset_mask_present_flag = 1
@@ -655,6 +696,8 @@ def _structure_tags(data: bytes) -> set[str]:
         tags.add("render_model")
     if UnitType.CONTEXT_MODEL in types:
         tags.add("context_model_unit")
+    if UnitType.NEIGHBOUR_PREDICTION in types:
+        tags.add("neighbour_prediction")
     if any(u.is_ancillary for u in units):
         tags.add("ancillary_unit")
     sps_units = [u for u in units if u.unit_type == UnitType.SCENE_PARAMETER_SET]

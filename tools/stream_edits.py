@@ -556,6 +556,96 @@ def designed_model(units, spec: dict) -> None:
     units.insert(_index(units, UnitType.GEOMETRY), DataUnit(UnitType.CONTEXT_MODEL, unit))
 
 
+# --- neighbour prediction (version 1.1, clauses 7.3.12 and 11.7) ------------------------------------------
+
+def neighbour_prediction(units, spec: dict) -> None:
+    """Re-code the single attribute unit of an explicit-Gaussian stream (no tiles, no hierarchy, coded
+    with the per-channel prior) with neighbour prediction and insert the neighbour_prediction unit
+    after the parameter set. Lossless: the quantized values, hence the decoded scene and its hash,
+    stay. spec: {lods, neighbours, buckets (the unit's L, k, B), flags: [neighbour_mean_flag per
+    channel] (default: the encoder's choice), bucket_level: {index: level} (entries of the encoder's
+    table replaced; any level decodes the same values), rows_per_chunk, channel_prediction: bool,
+    fault: chunks_across_lods (the chunks cut every rows_per_chunk rows of the coding order, across
+    the LoDs, padded with empty chunks to NumChunks) | context_model_id_1 (the header names context
+    model 1, its chunks kept) | no_graph (points beyond the extent limit: no graph is built, every
+    chunk empty)}."""
+    from lghcc.common.geometry import decode_geometry
+    from lghcc.common.units import GaussianParameterSet, NeighbourPredictionUnit
+    from lghcc.encoder.neighbour_coding import NeighbourCoding
+
+    gps = GaussianParameterSet.from_bytes(units[_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
+    if gps.hierarchy_enabled_flag or gps.tiles_enabled_flag:
+        raise ValueError("neighbour_prediction edits a stream without the hierarchy and without tiles")
+    layout = attr.gaussian_layout_of(gps)
+    n, m = gps.num_gaussians, layout.num_channels
+    j = _index(units, UnitType.ATTRIBUTE)
+    values = np.empty((n, m), np.float32)
+    h0, _, q = attr.read_attribute_unit(units[j].payload, layout, layout.steps(gps), n, 0, values, keep_q=True)
+    coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, n)
+    lods, k, b = int(spec["lods"]), int(spec["neighbours"]), int(spec["buckets"])
+    h = attr.new_attribute_header(layout, n, 0)
+    h.rows_per_chunk_minus1 = min(int(spec.get("rows_per_chunk", n)), n) - 1
+    fault = spec.get("fault")
+    if fault == "no_graph":
+        unit = NeighbourPredictionUnit(num_channels=m, num_lods_minus1=lods - 1, num_neighbours_minus1=k - 1,
+                                       num_buckets_minus1=b - 1, neighbour_mean_flag=[1] * m,
+                                       bucket_level=[10] * (m * b))
+        h.prior_mean, h.prior_level, h.num_lods = list(h0.prior_mean), list(h0.prior_level), lods
+        h.chunk_size = [0] * h.num_chunks
+        payload = h.to_bytes()
+    else:
+        nc = NeighbourCoding(q, coords, lods, k, b, bool(spec.get("channel_prediction", False)), layout)
+        unit = nc.unit
+        if "flags" in spec or "bucket_level" in spec:
+            unit.neighbour_mean_flag = [int(f) for f in spec.get("flags", unit.neighbour_mean_flag)]
+            for i, level in (spec.get("bucket_level") or {}).items():
+                unit.bucket_level[int(i)] = int(level)
+            nc = NeighbourCoding(q, coords, lods, k, b, bool(spec.get("channel_prediction", False)), layout, unit)
+        payload = nc.write(h)
+        if fault == "chunks_across_lods":
+            payload = _chunks_across_lods(h, nc)
+        elif fault == "context_model_id_1":
+            body = payload[len(h.to_bytes()):]
+            h.context_model_id = 1
+            payload = h.to_bytes() + body
+        elif fault is not None:
+            raise ValueError(f"neighbour_prediction: unknown fault {fault!r}")
+    units[j] = DataUnit(UnitType.ATTRIBUTE, payload)
+    units.insert(_index(units, UnitType.GAUSSIAN_PARAMETER_SET) + 1,
+                 DataUnit(UnitType.NEIGHBOUR_PREDICTION, unit.to_bytes()))
+
+
+def _chunks_across_lods(h: AttributeUnitHeader, nc) -> bytes:
+    """The attribute unit of ``nc`` (already written into ``h``) with its rows, in coding order, cut
+    every rows_per_chunk rows regardless of the LoDs (a version-1.0 chunking of the LoD-major order),
+    then empty chunks up to the NumChunks of clause 7.3.12."""
+    from lghcc.common.neighbour_prediction import (
+        level_table,
+        lod_coding_params,
+        mean_flags,
+    )
+
+    order, graph, unit = nc.graph.coding_order, nc.graph, nc.unit
+    prior = attr.prior_params(h)
+    mean = np.empty(nc.q.shape, np.int64)
+    level = np.empty(nc.q.shape, np.int64)
+    mean[graph.rows[0]], level[graph.rows[0]] = prior.mean[0], prior.level[0]
+    for lod in range(1, len(graph.rows)):
+        rows = graph.rows[lod]
+        if rows.size:
+            p = lod_coding_params(nc.q, graph.neighbours[lod], level_table(unit), unit.num_buckets, mean_flags(unit),
+                                  prior.mean[0])
+            mean[rows], level[rows] = p.mean, p.level
+    r = nc.prediction.residuals(nc.q[order], mean[order])
+    s = h.rows_per_chunk
+    chunks = [attr.encode_residual_chunk(r[lo:lo + s], level[order][lo:lo + s], None) for lo in range(0, len(order), s)]
+    if len(chunks) > h.num_chunks:
+        raise ValueError("chunks_across_lods: more chunks than NumChunks")
+    chunks += [b""] * (h.num_chunks - len(chunks))
+    h.chunk_size = [len(c) for c in chunks]
+    return h.to_bytes() + b"".join(chunks)
+
+
 def apply_edits(units, post: dict) -> None:
     """The edits of this module that ``post`` asks for, in a fixed order (gen_conformance's
     post_process calls it after its own unit edits and before the rehash)."""
@@ -575,6 +665,8 @@ def apply_edits(units, post: dict) -> None:
         context_unit(units, post["context_unit"])
     if "render_unit" in post:
         render_unit(units, post["render_unit"])
+    if "neighbour_prediction" in post:
+        neighbour_prediction(units, post["neighbour_prediction"])
     if "set_elements" in post:
         set_elements(units, post["set_elements"])
     if "nonzero_alignment" in post:
