@@ -281,19 +281,17 @@ def check_steps_either_way(s: SettingsSearch, best: Trial, groups: list[str]) ->
 
 
 def fewest_bits_at_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: float) -> Trial:
-    """The result moved onto the target (onto_target); pruning less while even that falls short;
-    then, of every setting measured on the way, the fewest bits that reach the target."""
-    start = best
-    best = onto_target(s, best, groups, target_mse)
-    # still short of the target with every step finer: the pruning limits it; prune less, from the
-    # steps the search had chosen (not from the finest steps tried, which the next onto_target
-    # could not coarsen enough in its evaluations: on the logo, medium ended 8.8 dB above its target)
-    i = int(np.argmin(np.abs(np.asarray(PRUNE_LADDER) - best.cfg.prune_share)))
-    while best.mse > target_mse and i > 0:
-        i -= 1
-        best = onto_target(s, s.evaluate(dataclasses.replace(start.cfg, prune_share=PRUNE_LADDER[i])), groups,
-                           target_mse)
-    return min([t for t in s.trials if t.mse <= target_mse] or [best], key=lambda t: t.bits)
+    """The steps moved onto the target (``onto_target``) at every pruning share of the ladder,
+    from the steps the search chose; then, of every setting measured on the way, the fewest bits
+    that reach the target. Pruning and coarser steps trade against each other differently on
+    every scene: on a trained lego (SH degree 3) the share that J preferred at the model's steps
+    left no setting at the target but the preset's own, 109,866 bytes, while 1.6% pruned with
+    the steps moved onto the target gave 81,190 (-26%)."""
+    for share in PRUNE_LADDER:
+        start = best if share == best.cfg.prune_share else s.evaluate(dataclasses.replace(best.cfg, prune_share=share))
+        onto_target(s, start, groups, target_mse, evaluations=5)
+    meeting = [t for t in s.trials if t.mse <= target_mse]
+    return min(meeting, key=lambda t: t.bits) if meeting else min(s.trials, key=lambda t: t.mse)
 
 
 def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, *,
