@@ -21,9 +21,9 @@ pruning shares and a check of each step a factor sqrt(2) either way follow.
 A fixed lambda lands at a like slope of every scene's curve, not at a like quality: on a small
 scene whose curve is shallow (playbot, 8k Gaussians: ~8 dB per doubling) lambda 10 went down to
 28 dB. So the presets give a quality instead (``target_psnr``, dB on the search views): lambda is
-the one the model says reaches it, and after the search one common factor on every step
-(bisection in log steps against real renders) moves the result onto the target, the coarsest
-settings measured that still reach it.
+the one the model says reaches it, and after the search, at every pruning share of the ladder,
+one common factor on every step (bisection in log steps against real renders) moves the result
+onto the target; the fewest bits measured that reach it are kept.
 """
 
 from __future__ import annotations
