@@ -35,6 +35,7 @@ import numpy as np
 from .attributes import (ChannelPrediction, CodingParams, decode_chunk_values, encode_residual_chunk, prior_params,
                          reconstruct_chunk, split_chunks)
 from .bitio import BitReader
+from .entropy.symbol_coder import escape_class
 from .errors import BitstreamError
 from .knn import MAX_EXTENT, ball_knn
 from .syntax import TraceEntry
@@ -108,23 +109,12 @@ def neighbour_graph(coords: np.ndarray, num_lods: int, k: int) -> NeighbourGraph
     return NeighbourGraph(rows, neighbours)
 
 
-def bit_length(a: np.ndarray) -> np.ndarray:
-    """bit_length of non-negative int64 values (0 for 0), exact."""
-    x = a.copy()
-    k = np.zeros(x.shape, dtype=np.int64)
-    for s in (32, 16, 8, 4, 2, 1):
-        big = x >= (1 << s)
-        k[big] += s
-        x[big] >>= s
-    return k + (x > 0)
-
-
-def lod_coding_params(q: np.ndarray, neighbours: np.ndarray, bucket_level: np.ndarray, num_buckets: int,
-                      neighbour_mean: np.ndarray, prior_mean: np.ndarray) -> CodingParams:
-    """Mean and scale level of each value of a LoD's rows from their neighbours' decoded values
-    ``q`` [N, M] (int64; rows of coarser LoDs filled). ``bucket_level`` int64 [M, B];
-    ``neighbour_mean`` bool [M] (the channels whose mean is the neighbours'), ``prior_mean``
-    int64 [M] (the others')."""
+def neighbour_means_and_buckets(q: np.ndarray, neighbours: np.ndarray, num_buckets: int, neighbour_mean: np.ndarray,
+                                prior_mean: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and activity bucket of each value of a LoD's rows from their neighbours' decoded
+    values ``q`` [N, M] (int64; rows of coarser LoDs filled). ``neighbour_mean`` bool [M]: the
+    channels whose mean is the neighbours'; ``prior_mean`` int64 [M]: the others'. -> int64
+    [n_l, M] each."""
     valid = neighbours >= 0
     n = valid.sum(axis=1, keepdims=True).astype(np.int64)  # >= 1
     nq = q[np.where(valid, neighbours, 0)]  # [n_l, k, M]
@@ -133,7 +123,14 @@ def lod_coding_params(q: np.ndarray, neighbours: np.ndarray, bucket_level: np.nd
     mean = np.where(neighbour_mean[None, :], (total + n // 2) // n, prior_mean[None, :])  # floor division
     big = np.iinfo(np.int64).max
     spread = np.where(v, nq, -big).max(axis=1) - np.where(v, nq, big).min(axis=1)
-    bucket = np.minimum(bit_length(spread), num_buckets - 1)
+    return mean, np.minimum(escape_class(spread), num_buckets - 1)  # escape_class(a) = bit_length(a)
+
+
+def lod_coding_params(q: np.ndarray, neighbours: np.ndarray, bucket_level: np.ndarray, num_buckets: int,
+                      neighbour_mean: np.ndarray, prior_mean: np.ndarray) -> CodingParams:
+    """Mean and scale level (``bucket_level`` int64 [M, B] at the value's bucket) of each value
+    of a LoD's rows (neighbour_means_and_buckets)."""
+    mean, bucket = neighbour_means_and_buckets(q, neighbours, num_buckets, neighbour_mean, prior_mean)
     level = np.take_along_axis(bucket_level.T, bucket, axis=0) if bucket.size else np.zeros(bucket.shape, np.int64)
     return CodingParams(mean, level)
 

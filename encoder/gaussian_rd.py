@@ -285,8 +285,9 @@ def fewest_bits_at_target(s: SettingsSearch, best: Trial, groups: list[str], tar
     from the steps the search chose; then, of every setting measured on the way, the fewest bits
     that reach the target. Pruning and coarser steps trade against each other differently on
     every scene: on a trained lego (SH degree 3) the share that J preferred at the model's steps
-    left no setting at the target but the preset's own, 109,866 bytes, while 1.6% pruned with
-    the steps moved onto the target gave 81,190 (-26%)."""
+    left no setting at the target but the preset's own (104,929 bytes from lghcc-enc --preset
+    low), while 1.6% pruned with the steps moved onto the target gives 75,020 bytes (the scene
+    and how to make it: tools/results/real_scenes.md, section lego-trained)."""
     for share in PRUNE_LADDER:
         start = best if share == best.cfg.prune_share else s.evaluate(dataclasses.replace(best.cfg, prune_share=share))
         onto_target(s, start, groups, target_mse, evaluations=5)

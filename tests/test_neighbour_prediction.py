@@ -10,7 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from lghcc.common.container import UnitType, read_container
-from lghcc.common.neighbour_prediction import (bit_length, lod_coding_params, lod_of_rows, lod_rows,
+from lghcc.common.neighbour_prediction import (lod_coding_params, lod_of_rows, lod_rows,
                                                neighbour_graph)
 from lghcc.common.scene import GaussianScene
 from lghcc.common.units import lod_sizes_of
@@ -66,7 +66,6 @@ def test_mean_and_activity_bucket_are_exact_integers(values, buckets):
         assert p.mean[0, c] == mean
         bucket = min((max(col) - min(col)).bit_length(), buckets - 1)
         assert p.level[0, c] == table[c, bucket]
-    assert bit_length(np.array([0, 1, 2, 3, 2 ** 41, 2 ** 62], np.int64)).tolist() == [0, 1, 2, 2, 42, 63]
 
 
 def _smooth_scene(n: int, degree: int, seed: int = 0) -> GaussianScene:
@@ -154,7 +153,7 @@ def test_hard_cases_round_trip(case):
     cfg = GaussianEncoderConfig(neighbour_prediction="always", prediction_buckets=16, prediction_neighbours=32)
     res = encode_gaussian_scene(scene, cfg)
     dec = decode_stream(res.data)
-    assert dec.hash_checked and _uses_tool(res.data) == (n >= 1)
+    assert dec.hash_checked and _uses_tool(res.data)
     assert_same(dec.scene, res.decoded)
     assert np.isfinite(dec.scene.sh).all()
 
