@@ -3,7 +3,9 @@
 Against renders of the source scene from ``fit_views`` cameras on a sphere around it (plus
 any cameras the caller gives, e.g. the scene's own training views):
 
-1. each Gaussian's contribution to those pictures (render/importance.py);
+1. each Gaussian's contribution to those pictures (render/importance.py), and the pictures'
+   sensitivity to each of its values for rate-distortion optimized quantization
+   (encoder/rdoq.py; used by the search, the trim and the coding);
 2. pruning: the least contributing Gaussians whose contributions add up to at most
    ``prune_share`` of the total are dropped (a rate-distortion decision: each costs the same
    bits, and these change the pictures least);

@@ -10,7 +10,9 @@ measures instead of guessing. It minimizes
 over the settings, with D the mean squared error of renders of the quantized scene against
 renders of the source (the ``search_views`` fit cameras at ``search_resolution`` pixels) and
 R the bits the stream spends (geometry coded for real; attributes as ideal code lengths under
-the per-channel prior, which the coder reaches within 0.01%). So ``lambda`` is in dB per
+the per-channel prior, which the coder reaches within 0.01%, or under neighbour prediction where
+that is smaller; the values chosen by rate-distortion optimized quantization, encoder/rdoq.py,
+when the sensitivities are given, as the coder will choose them). So ``lambda`` is in dB per
 doubling of the stream: the search stops where twice the bytes would buy less than lambda dB
 of PSNR. Measured in relative rate, the same lambda lands at a like point of every scene's
 rate-distortion curve, whatever its Gaussian count and SH degree.
