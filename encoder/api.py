@@ -221,7 +221,7 @@ def _encode_gaussians(scene: GaussianScene, cfg, *, progress: bool, log: Log, me
     from .gaussians import encode_gaussian_scene
 
     t0 = time.perf_counter()
-    weights, prepared = None, None
+    weights, sensitivity, prepared = None, None, None
     if cfg.rd_lambda > 0 or cfg.target_psnr > 0 or cfg.fit_iterations > 0 or cfg.prune_share > 0:
         goal = (f", choosing settings for {cfg.target_psnr:g} dB" if cfg.target_psnr
                 else f", choosing settings for lambda {cfg.rd_lambda:g}" if cfg.rd_lambda else "")
@@ -229,8 +229,9 @@ def _encode_gaussians(scene: GaussianScene, cfg, *, progress: bool, log: Log, me
             f"{cfg.fit_views} views" + goal
             + (f", then {cfg.fit_iterations} fitting steps" if cfg.fit_iterations else ""))
         prep = prepare_gaussians(scene, cfg, log=log, progress=progress)
-        scene, weights, cfg, prepared = prep.scene, prep.weights, prep.cfg, prep.stats
-    result = encode_gaussian_scene(scene, cfg, weights=weights, progress=progress, measure_ideal=measure_ideal)
+        scene, weights, sensitivity, cfg, prepared = prep.scene, prep.weights, prep.sensitivity, prep.cfg, prep.stats
+    result = encode_gaussian_scene(scene, cfg, weights=weights, sensitivity=sensitivity, progress=progress,
+                                   measure_ideal=measure_ideal)
     result.stats.prepare = prepared
     bands = ", ".join(f"{s:.3g}" for s in cfg.sh_band_steps[:result.decoded.sh_degree])
     result.stats.settings = (

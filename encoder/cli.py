@@ -130,6 +130,11 @@ def add_gaussian_arguments(p: argparse.ArgumentParser) -> None:
                     help="code each Gaussian's attributes from its nearest already-decoded neighbours (format "
                          "1.1; auto, the default: where that codes smaller than without, which it does on "
                          "dense scenes; never: streams a version-1.0 decoder reads)")
+    gs.add_argument("--rd-quantization", type=float, metavar="W",
+                    help="rate-distortion optimized quantization: each value rounded or moved one step towards "
+                         "its prediction, by how much the pictures show it against the bits saved; W weighs "
+                         "the bits (default 1; 0: plain rounding). Used where the encoder measures the "
+                         "pictures (--psnr, --lambda, fitting or pruning)")
 
 
 def add_transcode_arguments(p: argparse.ArgumentParser) -> None:
@@ -230,7 +235,7 @@ def config_overrides(args: argparse.Namespace, gaussians: bool) -> dict:
     if gaussians:
         overrides = {"rd_lambda": args.rd_lambda, "target_psnr": args.target_psnr,
                      "fit_iterations": args.fit_iterations, "sh_degree": args.sh_degree,
-                     "tile_points": args.tile_points,
+                     "tile_points": args.tile_points, "rd_quantization": args.rd_quantization,
                      "neighbour_prediction": {"auto": True, "always": "always", "never": False, None: None}[
                          args.neighbour_prediction]}
         if args.rd_lambda is not None and args.target_psnr is None:

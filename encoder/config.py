@@ -160,6 +160,11 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     prediction_lods: int = 6
     prediction_neighbours: int = 6
     prediction_buckets: int = 5
+    # Rate-distortion optimized quantization (encoder/rdoq.py): each value rounded, moved one step
+    # towards its prediction, or set to it, by the pictures' sensitivity to it against the bits
+    # saved; this weighs the bits (1: the slope of each group's own step; 0: plain rounding).
+    # Needs the sensitivities, which the rate-aware preparation measures.
+    rd_quantization: float = 1.0
     # Rate-aware preparation (encoder/gaussian_fit.py), against renders of the source from
     # fit_views cameras on a sphere around it at fit_resolution pixels:
     fit_views: int = 24
@@ -204,6 +209,8 @@ class GaussianEncoderConfig(AttributeCodingConfig):
             v = getattr(self, name)
             if not (isinstance(v, int) and 1 <= v <= hi):
                 raise InputError(f"{name} must be an integer in [1, {hi}], got {v!r}")
+        if not (isinstance(self.rd_quantization, (int, float)) and 0 <= self.rd_quantization < float("inf")):
+            raise InputError(f"rd_quantization must be a number >= 0, got {self.rd_quantization!r}")
         if self.sh_degree is not None and self.sh_degree not in (0, 1, 2, 3):
             raise InputError(f"sh_degree must be 0..3 or None, got {self.sh_degree!r}")
         if not 0 <= self.prune_share < 1:

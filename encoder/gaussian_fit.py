@@ -3,7 +3,9 @@
 Against renders of the source scene from ``fit_views`` cameras on a sphere around it (plus
 any cameras the caller gives, e.g. the scene's own training views):
 
-1. each Gaussian's contribution to those pictures (render/importance.py);
+1. each Gaussian's contribution to those pictures (render/importance.py), and the pictures'
+   sensitivity to each of its values for rate-distortion optimized quantization
+   (encoder/rdoq.py; used by the search, the trim and the coding);
 2. pruning: the least contributing Gaussians whose contributions add up to at most
    ``prune_share`` of the total are dropped (a rate-distortion decision: each costs the same
    bits, and these change the pictures least);
@@ -63,6 +65,7 @@ from ..render.sh import sh_to_rgb
 class PreparedGaussians:
     scene: GaussianScene  # on its grid, pruned and fitted
     weights: np.ndarray  # contribution of each kept Gaussian (its share of the pictures)
+    sensitivity: np.ndarray | None  # the pictures' sensitivity to each kept Gaussian's values (encoder/rdoq.py)
     cfg: GaussianEncoderConfig  # the settings to code it with (chosen by the search when it ran)
     stats: PrepareStats
 
@@ -260,8 +263,24 @@ def measure_contributions(g: Gaussians3DGS, cams: list[Camera], progress: bool) 
     return contrib
 
 
-def search_for_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, stats: PrepareStats,
-                        say) -> GaussianEncoderConfig:
+def measure_sensitivities(scene: GaussianScene, cams: list[Camera], cfg: GaussianEncoderConfig, stats: PrepareStats,
+                          progress: bool) -> np.ndarray | None:
+    """The pictures' sensitivity to each value (encoder/rdoq.py) on the fit views, for
+    rate-distortion optimized quantization (None when ``cfg.rd_quantization`` is 0)."""
+    if not cfg.rd_quantization > 0:
+        return None
+    from .rdoq import SENSITIVITY_PROBES, sensitivities
+
+    t0 = time.perf_counter()
+    bar = progress_bar(total=len(cams), desc="sensitivities", unit="view", disable=not progress, leave=False)
+    f = sensitivities(scene, cams, probes=SENSITIVITY_PROBES, on_view=bar.update)
+    bar.close()
+    stats.time_sensitivities_s = time.perf_counter() - t0
+    return f
+
+
+def search_for_settings(scene: GaussianScene, contrib: np.ndarray, sensitivity: np.ndarray | None,
+                        cfg: GaussianEncoderConfig, stats: PrepareStats, say) -> GaussianEncoderConfig:
     """The settings for the quality or lambda asked for (encoder/gaussian_rd.py); the preset's
     when neither is."""
     if not (cfg.rd_lambda > 0 or cfg.target_psnr > 0):
@@ -269,15 +288,15 @@ def search_for_settings(scene: GaussianScene, contrib: np.ndarray, cfg: Gaussian
     from .gaussian_rd import search_settings
 
     t0 = time.perf_counter()
-    cfg, trials = search_settings(scene, contrib, cfg, log=say)
+    cfg, trials = search_settings(scene, contrib, cfg, sensitivity=sensitivity, log=say)
     stats.time_search_s, stats.search_trials = time.perf_counter() - t0, len(trials)
     return cfg
 
 
 def pruned_on_grid(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, stats: PrepareStats,
-                   num_views: int, say) -> tuple[GaussianScene, np.ndarray]:
+                   num_views: int, say) -> tuple[GaussianScene, np.ndarray, np.ndarray]:
     """Pruning by contribution, then the grid weighted by contribution -> (the kept Gaussians on
-    their grid, their contributions)."""
+    their grid, their contributions, which Gaussians were kept)."""
     keep = prune_by_contribution(contrib, cfg.prune_share)
     stats.gaussians_pruned = int((~keep).sum())
     say(f"contributions from {num_views} views in {stats.time_contributions_s:.1f} s; pruned "
@@ -288,7 +307,7 @@ def pruned_on_grid(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncod
     voxel, origin = choose_grid(kept, cfg, weights)
     grid, moved = snap_to_grid(kept, voxel, origin, weights)
     stats.voxel_size, stats.gaussians_moved_off_shared_voxels = voxel, moved
-    return grid, weights
+    return grid, weights, keep
 
 
 @dataclass
@@ -357,8 +376,8 @@ def fit_to_renders(grid: GaussianScene, g: Gaussians3DGS, cams: list[Camera], cf
     return fit.scene(grid)
 
 
-def trim_steps(fitted: GaussianScene, weights: np.ndarray, cfg: GaussianEncoderConfig, stats: PrepareStats,
-               say) -> GaussianEncoderConfig:
+def trim_steps(fitted: GaussianScene, weights: np.ndarray, sensitivity: np.ndarray | None, cfg: GaussianEncoderConfig,
+               stats: PrepareStats, say) -> GaussianEncoderConfig:
     """With a quality asked for, the attribute steps moved onto it again (what the fit gained
     becomes fewer bytes); the settings as they are otherwise."""
     if not cfg.target_psnr > 0:
@@ -366,7 +385,7 @@ def trim_steps(fitted: GaussianScene, weights: np.ndarray, cfg: GaussianEncoderC
     from .gaussian_rd import trim_to_target
 
     t0 = time.perf_counter()
-    cfg, before, after = trim_to_target(fitted, weights, cfg, log=say)
+    cfg, before, after = trim_to_target(fitted, weights, cfg, sensitivity=sensitivity, log=say)
     stats.time_trim_s, stats.trim_bits_before, stats.trim_bits_after = time.perf_counter() - t0, before.bits, after.bits
     return cfg
 
@@ -391,12 +410,14 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
     contrib = measure_contributions(g, contrib_cams, progress)
     cams = resolving_views(scene, cfg.fit_views, cfg.fit_resolution, cfg.resolve_px) + extra
     stats.time_contributions_s = time.perf_counter() - t0
-    cfg = search_for_settings(scene, contrib, cfg, stats, say)
-    grid, weights = pruned_on_grid(scene, contrib, cfg, stats, len(contrib_cams), say)
+    sensitivity = measure_sensitivities(scene, cams, cfg, stats, progress)
+    cfg = search_for_settings(scene, contrib, sensitivity, cfg, stats, say)
+    grid, weights, keep = pruned_on_grid(scene, contrib, cfg, stats, len(contrib_cams), say)
+    sensitivity = None if sensitivity is None else sensitivity[keep]
     if cfg.fit_iterations == 0:
         stats.time_total_s = time.perf_counter() - t0
-        return PreparedGaussians(grid, weights, cfg, stats)
+        return PreparedGaussians(grid, weights, sensitivity, cfg, stats)
     fitted = fit_to_renders(grid, g, cams, cfg, stats, say, progress)
-    cfg = trim_steps(fitted, weights, cfg, stats, say)
+    cfg = trim_steps(fitted, weights, sensitivity, cfg, stats, say)
     stats.time_total_s = time.perf_counter() - t0
-    return PreparedGaussians(fitted, weights, cfg, stats)
+    return PreparedGaussians(fitted, weights, sensitivity, cfg, stats)

@@ -10,7 +10,9 @@ measures instead of guessing. It minimizes
 over the settings, with D the mean squared error of renders of the quantized scene against
 renders of the source (the ``search_views`` fit cameras at ``search_resolution`` pixels) and
 R the bits the stream spends (geometry coded for real; attributes as ideal code lengths under
-the per-channel prior, which the coder reaches within 0.01%). So ``lambda`` is in dB per
+the per-channel prior, which the coder reaches within 0.01%, or under neighbour prediction where
+that is smaller; the values chosen by rate-distortion optimized quantization, encoder/rdoq.py,
+when the sensitivities are given, as the coder will choose them). So ``lambda`` is in dB per
 doubling of the stream: the search stops where twice the bytes would buy less than lambda dB
 of PSNR. Measured in relative rate, the same lambda lands at a like point of every scene's
 rate-distortion curve, whatever its Gaussian count and SH degree.
@@ -44,6 +46,7 @@ from .config import GaussianEncoderConfig
 from .gaussian_fit import prune_by_contribution, resolving_views
 from .gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid
 from .neighbour_coding import NeighbourCoding, usable as neighbour_usable
+from .rdoq import channel_groups, channel_steps, group_slopes, rd_quantize, sh_degree_subset
 from ..render.gaussians3dgs import gaussians_from_scene, render_3dgs
 
 PRUNE_LADDER = (0.0, 0.0005, 0.001, 0.002, 0.004, 0.008, 0.016, 0.032, 0.064)
@@ -58,26 +61,12 @@ class Trial:
     cost: float
 
 
-def _quantize(v: np.ndarray, step: float, out: list | None = None) -> tuple[np.ndarray, float]:
-    """Dequantized values and their ideal bits under a per-channel prior (median, best level);
-    the quantized values [N, channels] are appended to ``out`` when given."""
-    q = np.rint(v.astype(np.float64) / step).astype(np.int64)
-    q2 = q.reshape(q.shape[0], -1)
-    if out is not None:
-        out.append(q2)
-    bits = 0.0
-    for c in range(q2.shape[1]):
-        r = q2[:, c] - int(np.median(q2[:, c]))
-        bits += float(code_lengths_bits(r, np.full(r.shape, best_level(r), np.int64)).sum())
-    return (q * step).astype(np.float32), bits
-
-
 class SettingsSearch:
     """Evaluates settings on one scene; caches what depends only on pruning and the grid."""
 
     def __init__(self, scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, lam: float,
-                 views: int, resolution: int):
-        self.scene, self.contrib, self.lam = scene, contrib, lam
+                 views: int, resolution: int, sensitivity: np.ndarray | None = None):
+        self.scene, self.contrib, self.lam, self.sensitivity = scene, contrib, lam, sensitivity
         self.cams = resolving_views(scene, views, resolution, cfg.resolve_px)
         g = gaussians_from_scene(scene)
         with torch.no_grad():
@@ -130,22 +119,26 @@ class SettingsSearch:
         key = (cfg.prune_share, cfg.position_step)
         keep, grid, geometry_bits = self._grid(*key)
         degree = self.scene.sh_degree if cfg.sh_degree is None else min(cfg.sh_degree, self.scene.sh_degree)
+        n = int(keep.sum())
         sh = self.scene.sh[keep][:, :(degree + 1) ** 2]
-        band = np.floor(np.sqrt(np.arange(sh.shape[1]))).astype(int)
-        steps = [cfg.sh_dc_step] + list(cfg.sh_band_steps)
-        shq = np.empty_like(sh)
-        bits = 0.0
-        qs: list[np.ndarray] = []
-        for b in range(degree + 1):
-            shq[:, band == b], bb = _quantize(sh[:, band == b], steps[b], qs)
-            bits += bb
-        op, bb = _quantize(self.opacity[keep], cfg.opacity_step, qs)
-        bits += bb
-        ls, bb = _quantize(self.scene.log_scales[keep], cfg.scale_step, qs)
-        bits += bb
-        rot, bb = _quantize(self.rot[keep], cfg.rotation_step, qs)
-        bits += bb
-        bits = geometry_bits + self._attribute_bits(key, grid, np.concatenate(qs, axis=1), bits)
+        values = np.concatenate([sh.reshape(n, -1), self.opacity[keep][:, None], self.scene.log_scales[keep],
+                                 self.rot[keep]], axis=1).astype(np.float64)
+        steps = channel_steps(cfg, degree)
+        x = values / steps
+        q = np.rint(x).astype(np.int64)
+        if self.sensitivity is not None and cfg.rd_quantization > 0:
+            order, graph = self._graph(key, grid)
+            f = sh_degree_subset(self.sensitivity[keep], degree)
+            mu = group_slopes(f, channel_groups(degree), cfg.rd_quantization)
+            q[order] = rd_quantize(x[order], f[order], mu, grid.coords[order], graph, cfg.prediction_buckets)
+        prior_bits = 0.0
+        for c in range(q.shape[1]):
+            r = q[:, c] - int(np.median(q[:, c]))
+            prior_bits += float(code_lengths_bits(r, np.full(r.shape, best_level(r), np.int64)).sum())
+        bits = geometry_bits + self._attribute_bits(key, grid, q, prior_bits)
+        v = (q * steps).astype(np.float32)
+        shq, op, ls, rot = v[:, :sh.shape[1] * 3].reshape(sh.shape), v[:, sh.shape[1] * 3], \
+            v[:, sh.shape[1] * 3 + 1:sh.shape[1] * 3 + 4], v[:, sh.shape[1] * 3 + 4:]
         dec = GaussianScene(grid.means, shq, op, ls, rot)
         g = gaussians_from_scene(dec)
         with torch.no_grad():
@@ -296,14 +289,14 @@ def fewest_bits_at_target(s: SettingsSearch, best: Trial, groups: list[str], tar
 
 
 def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, *,
-                    log=None) -> tuple[GaussianEncoderConfig, list[Trial]]:
+                    sensitivity: np.ndarray | None = None, log=None) -> tuple[GaussianEncoderConfig, list[Trial]]:
     """Choose the settings for ``cfg.rd_lambda`` (module doc): one probe per group measures how
     much doubling its step costs in D and saves in R, the high-rate model gives the steps, every
     share of the pruning ladder is measured, and each group's step is then checked a
     factor sqrt(2) up and down against real renders. -> (settings, every trial)."""
     say = log or (lambda *a: None)
     t0 = time.perf_counter()
-    s = SettingsSearch(scene, contrib, cfg, cfg.rd_lambda, cfg.search_views, cfg.search_resolution)
+    s = SettingsSearch(scene, contrib, cfg, cfg.rd_lambda, cfg.search_views, cfg.search_resolution, sensitivity)
     n = scene.num_gaussians
     groups = [g for g in GROUPS if not g.startswith("sh_band") or int(g[-1]) <= scene.sh_degree]
     target_mse = 10 ** (-cfg.target_psnr / 10) if cfg.target_psnr > 0 else None
@@ -327,13 +320,13 @@ def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEnco
 
 
 def trim_to_target(scene: GaussianScene, weights: np.ndarray, cfg: GaussianEncoderConfig, *,
-                   log=None) -> tuple[GaussianEncoderConfig, Trial, Trial]:
+                   sensitivity: np.ndarray | None = None, log=None) -> tuple[GaussianEncoderConfig, Trial, Trial]:
     """After the fit, which tuned the values to render closer to the source than the search
     measured (about 1 dB), the attribute steps move onto ``cfg.target_psnr`` again (``onto_target``
     on the fitted scene, its grid kept): the fit's gain becomes fewer bytes at the quality asked
     for. -> (settings, the trial before, the trial chosen)."""
     as_fitted = dataclasses.replace(cfg, prune_share=0.0)  # the scene is already pruned
-    s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution)
+    s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution, sensitivity)
     groups = [g for g in GROUPS if g != "position" and (not g.startswith("sh_band") or int(g[-1]) <= scene.sh_degree)]
     before = s.evaluate(as_fitted)
     best = onto_target(s, before, groups, 10 ** (-cfg.target_psnr / 10), evaluations=4)

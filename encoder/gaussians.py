@@ -17,6 +17,7 @@ The encoder's choices, none of which the decoder needs to know:
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -28,11 +29,13 @@ from ..common.errors import InputError
 from ..common.geometry import COORD_MAX
 from ..common.hashing import gaussian_scene_digest
 from ..app.report import breakdown_of
+from ..common.neighbour_prediction import neighbour_graph
 from ..common.scene import GaussianScene
 from ..common.units import MAX_ATTRIBUTE_VALUES, GaussianParameterSet
 from .config import GaussianEncoderConfig
 from .encode import (AttributeInput, CodedAttributes, EncodeResult, GeometryCoding, LevelLayout, check_point_count,
-                     code_attributes, code_geometry, level_layout, stage, stream_tiles, write_stream)
+                     code_attributes, code_geometry, level_layout, neighbour_prediction_wanted, stage, stream_tiles,
+                     write_stream)
 from .stats import EncodeStats
 
 OPACITY_LOGIT_LIMIT = 8.0
@@ -178,6 +181,24 @@ def gaussian_attribute_input(scene: GaussianScene, geometry: GeometryCoding, lev
     return AttributeInput(gps, layout, steps, values, np.ones(values.shape, dtype=bool), None, geometry.coords)
 
 
+def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: LevelLayout,
+                       cfg: GaussianEncoderConfig) -> AttributeInput:
+    """The attribute values moved onto the quantized values rate-distortion optimized
+    quantization chooses (encoder/rdoq.py; ``sensitivity`` rows in coding order), which the
+    coder's rounding then reproduces exactly. The choice uses the whole scene's neighbour
+    graph, also where tiles code their own."""
+    from .rdoq import channel_groups, group_slopes, rd_quantize, sh_degree_subset
+
+    degree = inp.layout.sh_degree
+    f = sh_degree_subset(sensitivity, degree)
+    graph = neighbour_graph(inp.coords, cfg.prediction_lods, cfg.prediction_neighbours) \
+        if neighbour_prediction_wanted(cfg, levels, inp) else None
+    x = inp.values.astype(np.float64) / inp.steps.astype(np.float64)
+    q = rd_quantize(x, f, group_slopes(f, channel_groups(degree), cfg.rd_quantization), inp.coords, graph,
+                    cfg.prediction_buckets)
+    return dataclasses.replace(inp, values=q * inp.steps.astype(np.float64))
+
+
 def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: GaussianEncoderConfig, coded: CodedAttributes,
                              geometry: GeometryCoding, stats: EncodeStats, progress: bool = False) -> EncodeResult:
     gps = inp.parameter_set
@@ -197,13 +218,18 @@ def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: Gaus
 
 
 def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | None = None, *,
-                          weights: np.ndarray | None = None, progress: bool = False,
-                          measure_ideal: bool = False) -> EncodeResult:
+                          weights: np.ndarray | None = None, sensitivity: np.ndarray | None = None,
+                          progress: bool = False, measure_ideal: bool = False) -> EncodeResult:
     """Encode an explicit-Gaussian scene. A scene already on a grid (``coords`` set, e.g. from
     encoder/gaussian_fit.py) keeps it; otherwise the grid is chosen here. ``weights``: each
-    Gaussian's contribution to the pictures, when known (grid size, who keeps a shared voxel)."""
+    Gaussian's contribution to the pictures, when known (grid size, who keeps a shared voxel).
+    ``sensitivity``: the pictures' sensitivity to each value (encoder/rdoq.py, [N, M] at the
+    scene's SH degree or above), when known: the values are then chosen by rate-distortion
+    optimized quantization (``cfg.rd_quantization``) instead of rounded."""
     cfg = (cfg or GaussianEncoderConfig()).validate()
     scene.validate()
+    if sensitivity is not None and sensitivity.shape[0] != scene.num_gaussians:
+        raise ValueError(f"sensitivity has {sensitivity.shape[0]} rows for {scene.num_gaussians} Gaussians")
     stats = EncodeStats()
     t0 = time.perf_counter()
     scene = with_coded_sh_degree(scene, cfg, stats)
@@ -216,6 +242,8 @@ def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | Non
     with stage(bar, "quantization"):
         levels = level_layout(scene.num_gaussians, cfg, geometry.coords, stats)
         inp = gaussian_attribute_input(scene, geometry, levels, cfg)
+        if sensitivity is not None and cfg.rd_quantization > 0:
+            inp = rd_quantized_input(inp, sensitivity[geometry.order], levels, cfg)
     with stage(bar, "attributes"):
         t1 = time.perf_counter()
         coded = code_attributes(inp, levels, cfg, stats, progress=progress, measure_ideal=measure_ideal)

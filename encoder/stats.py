@@ -63,6 +63,7 @@ class PrepareStats:
     """The rate-aware preparation of a Gaussian scene (encoder/gaussian_fit.py)."""
     gaussians_in: int
     time_contributions_s: float = 0.0
+    time_sensitivities_s: float | None = None  # for rate-distortion optimized quantization (encoder/rdoq.py)
     time_search_s: float | None = None  # the settings search (a quality or lambda asked for)
     search_trials: int | None = None
     gaussians_pruned: int = 0

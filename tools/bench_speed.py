@@ -63,7 +63,7 @@ def encode_once(scene, preset: str) -> dict:
     prep = prepare_gaussians(scene, cfg, log=lambda m: print(f"bench_speed: {preset}: {m}", file=sys.stderr,
                                                              flush=True))
     t1 = time.perf_counter()
-    result = encode_gaussian_scene(prep.scene, prep.cfg, weights=prep.weights)
+    result = encode_gaussian_scene(prep.scene, prep.cfg, weights=prep.weights, sensitivity=prep.sensitivity)
     t2 = time.perf_counter()
     s = prep.stats
     return {"preset": preset, "bytes": len(result.data), "kept": prep.scene.num_gaussians,

@@ -1,0 +1,83 @@
+"""Rate-distortion optimized quantization (encoder/rdoq.py) against plain rounding, at fixed steps.
+
+For a 3DGS scene and a preset: the preset's steps times each factor of ``--factors``, coded with
+each RDOQ weight of ``--weights`` (0: plain rounding), measured as the settings search measures
+its trials (encoder/gaussian_rd.py SettingsSearch: PSNR of the quantized scene's renders against
+the source's on the search views, bits = geometry coded + attributes as ideal code lengths under
+neighbour prediction or the prior). Equal-PSNR comparisons read across rows: RDOQ wins where its
+row reaches a PSNR with fewer bits than plain rounding's curve (the factor rows at weight 0).
+The whole encoder's numbers against orbit renders are tools/bench_real.py's.
+
+    python tools/bench_rdoq.py ../shared/data/playbot/playbot_lod4_8k.ply --preset low --out out/rdoq.md
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch: idle threads must not spin
+
+import argparse
+import dataclasses
+import math
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchutil import command_line, load_average, write_lines  # noqa: E402
+
+import torch  # noqa: E402
+
+from lghcc.encoder.config import load_config  # noqa: E402
+from lghcc.encoder.gaussian_fit import fit_cameras, measure_contributions, resolving_views  # noqa: E402
+from lghcc.encoder.gaussian_rd import GROUPS, SettingsSearch, _scaled  # noqa: E402
+from lghcc.encoder.rdoq import SENSITIVITY_PROBES, sensitivities  # noqa: E402
+from lghcc.formats.ply3dgs import read_3dgs_ply  # noqa: E402
+from lghcc.render.gaussians3dgs import gaussians_from_scene  # noqa: E402
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("scene", help="a 3DGS PLY")
+    p.add_argument("--preset", default="low", help="the steps, pruning share and views of this preset (default low)")
+    p.add_argument("--factors", default="0.84,1,1.19,1.41", help="factors on every attribute step")
+    p.add_argument("--weights", default="0,0.25,0.5,1", help="RDOQ weights (0: plain rounding)")
+    p.add_argument("--probes", type=int, default=SENSITIVITY_PROBES,
+                   help=f"random images per view for the sensitivities (default {SENSITIVITY_PROBES}, the encoder's)")
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--out", type=Path, default=Path("out/rdoq.md"))
+    args = p.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    scene = read_3dgs_ply(args.scene)
+    cfg = load_config(args.preset, kind="gaussians")
+    t0 = time.perf_counter()
+    g = gaussians_from_scene(scene)
+    contrib = measure_contributions(g, fit_cameras(scene, cfg.fit_views, cfg.fit_resolution), False)
+    cams = resolving_views(scene, cfg.fit_views, cfg.fit_resolution, cfg.resolve_px)
+    f = sensitivities(scene, cams, probes=args.probes)
+    t_sens = time.perf_counter() - t0
+    s = SettingsSearch(scene, contrib, cfg, 0.0, cfg.search_views, cfg.search_resolution, sensitivity=f)
+    groups = [grp for grp in GROUPS if grp != "position" and (not grp.startswith("sh_band")
+                                                               or int(grp[-1]) <= scene.sh_degree)]
+    lines = [f"Command: `{command_line('bench_rdoq.py', argv)}`  ",
+             f"Scene: {args.scene}, {scene.num_gaussians:,} Gaussians, SH degree {scene.sh_degree}; preset "
+             f"{args.preset} (pruning share {cfg.prune_share:g}); contributions and sensitivities "
+             f"({len(cams)} views, {args.probes} probes each) in {t_sens:.1f} s. Load at the end: see below.",
+             "", "| step factor | RDOQ weight | PSNR dB (search views) | bytes | bytes / rounding at this factor |",
+             "|---:|---:|---:|---:|---:|"]
+    for fac in (float(x) for x in args.factors.split(",")):
+        ref = None
+        for w in (float(x) for x in args.weights.split(",")):
+            t = s.evaluate(dataclasses.replace(_scaled(cfg, groups, fac), rd_quantization=w))
+            ref = ref or t.bits
+            lines.append(f"| {fac:g} | {w:g} | {-10 * math.log10(max(t.mse, 1e-12)):.2f} | {t.bits / 8:,.0f} | "
+                         f"{t.bits / ref:.3f} |")
+            print(lines[-1], flush=True)
+    lines += ["", f"Load average at the end: {load_average()}."]
+    write_lines(args.out, lines)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
