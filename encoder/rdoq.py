@@ -36,7 +36,7 @@ import math
 import numpy as np
 import torch
 
-from ..common.entropy.symbol_coder import code_lengths_bits
+from ..common.entropy.symbol_coder import best_level, code_lengths_bits
 from ..common.neighbour_prediction import NeighbourGraph, neighbour_means_and_buckets
 from ..common.scene import GaussianScene
 from ..render.camera import Camera
@@ -123,7 +123,6 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
     if graph is None:
         graph = NeighbourGraph([np.arange(n)], [None])
         prior_mean = np.rint(np.median(q0, axis=0)).astype(np.int64)
-        from ..common.entropy.symbol_coder import best_level
         prior_level = np.array([best_level(q0[:, c] - prior_mean[c]) for c in range(m)], dtype=np.int64)
         flags, table = np.zeros(m, dtype=bool), np.zeros((m, num_buckets), dtype=np.int64)
     else:

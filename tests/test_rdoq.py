@@ -168,3 +168,17 @@ def test_encoder_codes_the_chosen_values_exactly_and_spends_fewer_bytes(predict)
     assert off.data == plain.data  # 0: plain rounding, the same stream
     with pytest.raises(ValueError, match="rows"):
         encode_gaussian_scene(scene, cfg, sensitivity=f[:-1])
+
+
+@pytest.mark.parametrize("value", [-1.0, float("nan"), float("inf")])
+def test_a_bad_weight_is_refused_with_one_line_and_nothing_written(tmp_path, capsys, value):
+    from lghcc.encoder import cli as enc_cli
+    from lghcc.formats.ply3dgs import write_3dgs_ply
+
+    src = tmp_path / "scene.ply"
+    write_3dgs_ply(src, _scene(20))
+    out = tmp_path / "scene.lghcc"
+    assert enc_cli.main([str(src), "-o", str(out), "--rd-quantization", str(value)]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "rd_quantization" in err[0], err
+    assert not out.exists()
