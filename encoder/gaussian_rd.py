@@ -303,8 +303,8 @@ def fewest_bits_at_target(s: SettingsSearch, best: Trial, groups: list[str], tar
     share that J preferred at the model's steps left no setting at the target but the preset's
     own (104,929 bytes from lghcc-enc --preset low), while 1.6% pruned with the steps moved onto
     the target gives 75,020 bytes (the scene and how to make it: tools/results/real_scenes.md,
-    section lego-trained). Moving every share onto the target took 45 of the 75 trials of a
-    search (150k Gaussians at medium: 23 min, tools/results/speed.md)."""
+    section lego-trained). Moving every share onto the target found the same settings on playbot
+    lod4 (low, medium), that lego and the donut (low) in 65-79 trials where this takes 41-52."""
     starts = {share: best if share == best.cfg.prune_share else
               s.evaluate(dataclasses.replace(best.cfg, prune_share=share)) for share in PRUNE_LADDER}
     ranked = sorted(starts, key=lambda share: bits_at_target(starts[share], base, probes, target_mse))
