@@ -321,6 +321,7 @@ def test_pruning_less_restarts_from_the_chosen_steps_and_lands_near_the_target()
     overshooting it (before, each level started from the finest steps the previous one tried, and
     the logo's medium ended 8.8 dB above its target). A model search: distortion = steps^2 plus a
     floor from pruning, bits fall with log steps."""
+    import dataclasses
     import math
 
     from lghcc.encoder import gaussian_rd as rd
@@ -341,7 +342,9 @@ def test_pruning_less_restarts_from_the_chosen_steps_and_lands_near_the_target()
     s = ModelSearch()
     target_mse = 10 ** (-45 / 10)  # 45 dB: needs step ~0.0056 without pruning
     cfg = GaussianEncoderConfig(sh_dc_step=0.0063, prune_share=0.008)  # 44 dB steps, pruned: short of 45
-    best = rd.fewest_bits_at_target(s, s.evaluate(cfg), ["sh_dc"], target_mse)
+    base = s.evaluate(dataclasses.replace(cfg, prune_share=0.0))
+    probes = {"sh_dc": (s.evaluate(dataclasses.replace(cfg, prune_share=0.0, sh_dc_step=2 * 0.0063)), 0.0063)}
+    best = rd.fewest_bits_at_target(s, s.evaluate(cfg), ["sh_dc"], target_mse, base, probes)
     psnr = -10 * math.log10(best.mse)
     assert best.mse <= target_mse
     assert psnr < 45 + 1.0, psnr  # on the target (within bisection's factor 1.1 on the step); was 170 dB
