@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..common.attributes import GaussianLayout
 from ..common.entropy.symbol_coder import best_level, code_lengths_bits
 from ..common.geometry import encode_geometry, normative_order
 from ..common.neighbour_prediction import neighbour_graph
@@ -120,10 +121,10 @@ class SettingsSearch:
         key = (cfg.prune_share, cfg.position_step)
         keep, grid, geometry_bits = self._grid(*key)
         degree = self.scene.sh_degree if cfg.sh_degree is None else min(cfg.sh_degree, self.scene.sh_degree)
-        n = int(keep.sum())
         sh = self.scene.sh[keep][:, :(degree + 1) ** 2]
-        values = np.concatenate([sh.reshape(n, -1), self.opacity[keep][:, None], self.scene.log_scales[keep],
-                                 self.rot[keep]], axis=1).astype(np.float64)
+        layout = GaussianLayout(degree)
+        values = layout.join(GaussianScene(grid.means, sh, self.opacity[keep], self.scene.log_scales[keep],
+                                           self.rot[keep])).astype(np.float64)
         steps = channel_steps(cfg, degree)
         x = values / steps
         q = np.rint(x).astype(np.int64)
@@ -137,10 +138,7 @@ class SettingsSearch:
             r = q[:, c] - int(np.median(q[:, c]))
             prior_bits += float(code_lengths_bits(r, np.full(r.shape, best_level(r), np.int64)).sum())
         bits = geometry_bits + self._attribute_bits(key, grid, q, prior_bits)
-        v = (q * steps).astype(np.float32)
-        shq, op, ls, rot = v[:, :sh.shape[1] * 3].reshape(sh.shape), v[:, sh.shape[1] * 3], \
-            v[:, sh.shape[1] * 3 + 1:sh.shape[1] * 3 + 4], v[:, sh.shape[1] * 3 + 4:]
-        dec = GaussianScene(grid.means, shq, op, ls, rot)
+        dec = GaussianScene(grid.means, *layout.split((q * steps).astype(np.float32)))
         g = gaussians_from_scene(dec)
         with torch.no_grad():
             mse = float(np.mean([((render_3dgs(g, c, background=(0, 0, 0), backend="torch").image - t) ** 2)

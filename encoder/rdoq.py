@@ -36,12 +36,14 @@ import math
 import numpy as np
 import torch
 
-from ..common.entropy.symbol_coder import best_level, code_lengths_bits
+from ..common.attributes import GaussianLayout
+from ..common.entropy.symbol_coder import code_lengths_bits
 from ..common.neighbour_prediction import NeighbourGraph, neighbour_means_and_buckets
 from ..common.scene import GaussianScene
 from ..render.camera import Camera
 from ..render.rasterizer import rasterize
 from ..render.sh import sh_to_rgb
+from .encode import fit_per_channel_prior
 from .gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations
 from .neighbour_coding import NeighbourCoding
 
@@ -92,10 +94,10 @@ def group_slopes(f: np.ndarray, group_of_channel: np.ndarray, strength: float) -
 # two within 0.3% of the bytes and 0.04 dB (tools/results/rdoq.md), for half the backward renders.
 SENSITIVITY_PROBES = 1
 # The largest move, in steps, from the rounded value: the sensitivities are derivatives, good for
-# small moves only. Measured on playbot lod4 (SH degree 2) at the low preset's steps: letting a
-# value jump to its prediction from anywhere cost 2.7 dB on the SH DC term alone for 0.1% of the
-# bytes (a colour clamped at 0 by the renderer has no derivative, yet moving it to a brighter
-# mean shows), while one step at most gives 2.8-4.6% fewer bytes at equal PSNR.
+# small moves only (a colour clamped at 0 by the renderer has no derivative, yet moving it to a
+# brighter mean shows). Measured on playbot lod4 (SH degree 2) at the low preset's steps: letting a
+# value jump to its prediction from anywhere cost 3.9 dB for 15% of the bytes, while one step at
+# most gives 2.6-4.8% fewer bytes at equal PSNR, and two steps the same (tools/results/rdoq.md).
 MAX_JUMP = 1
 
 
@@ -120,12 +122,11 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
     n, m = q0.shape
     if n == 0:
         return q0
-    if graph is None:
+    if graph is None:  # one LoD coded with the per-channel prior, fitted as the coder fits it
         graph = NeighbourGraph([np.arange(n)], [None])
-        prior_mean = np.rint(np.median(q0, axis=0)).astype(np.int64)
-        prior_level = np.array([best_level(q0[:, c] - prior_mean[c]) for c in range(m)], dtype=np.int64)
+        prior_mean, prior_level = fit_per_channel_prior(q0, np.ones(q0.shape, dtype=bool), n)
         flags, table = np.zeros(m, dtype=bool), np.zeros((m, num_buckets), dtype=np.int64)
-    else:
+    else:  # the unit the coder would fit to the rounded values (the graph fixes L and k)
         nc = NeighbourCoding(q0, coords, len(graph.rows), 1, num_buckets, False, None, graph=graph)
         prior_mean, prior_level = nc.prior_mean, nc.prior_level
         flags = np.asarray(nc.unit.neighbour_mean_flag, dtype=bool)
@@ -146,16 +147,14 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
 
 def channel_steps(cfg, sh_degree: int) -> np.ndarray:
     """float64 [M]: the quantization step of each coded channel (GaussianLayout order) in ``cfg``."""
-    band = np.floor(np.sqrt(np.arange((sh_degree + 1) ** 2))).astype(np.int64)
     band_steps = np.array([cfg.sh_dc_step] + list(cfg.sh_band_steps), dtype=np.float64)
-    return np.concatenate([np.repeat(band_steps[band], 3), [cfg.opacity_step], [cfg.scale_step] * 3,
-                           [cfg.rotation_step] * 4])
+    return np.concatenate([band_steps[GaussianLayout(sh_degree).band_of_channel()], [cfg.opacity_step],
+                           [cfg.scale_step] * 3, [cfg.rotation_step] * 4])
 
 
 def channel_groups(sh_degree: int) -> np.ndarray:
     """int [M]: each coded channel's step group (0-3: SH band, 4 opacity, 5 scales, 6 rotation)."""
-    band = np.floor(np.sqrt(np.arange((sh_degree + 1) ** 2))).astype(np.int64)
-    return np.concatenate([np.repeat(band, 3), [4], [5] * 3, [6] * 4])
+    return np.concatenate([GaussianLayout(sh_degree).band_of_channel(), [4], [5] * 3, [6] * 4])
 
 
 def sh_degree_subset(f: np.ndarray, sh_degree: int) -> np.ndarray:

@@ -32,6 +32,7 @@ import torch  # noqa: E402
 from lghcc.encoder.config import load_config  # noqa: E402
 from lghcc.encoder.gaussian_fit import fit_cameras, measure_contributions, resolving_views  # noqa: E402
 from lghcc.encoder.gaussian_rd import GROUPS, SettingsSearch, _scaled  # noqa: E402
+from lghcc.encoder import rdoq  # noqa: E402
 from lghcc.encoder.rdoq import SENSITIVITY_PROBES, sensitivities  # noqa: E402
 from lghcc.formats.ply3dgs import read_3dgs_ply  # noqa: E402
 from lghcc.render.gaussians3dgs import gaussians_from_scene  # noqa: E402
@@ -45,9 +46,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--weights", default="0,0.25,0.5,1", help="RDOQ weights (0: plain rounding)")
     p.add_argument("--probes", type=int, default=SENSITIVITY_PROBES,
                    help=f"random images per view for the sensitivities (default {SENSITIVITY_PROBES}, the encoder's)")
+    p.add_argument("--max-jump", type=int, default=rdoq.MAX_JUMP,
+                   help=f"the largest move from the rounded value, in steps (default {rdoq.MAX_JUMP}, the encoder's)")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("out/rdoq.md"))
     args = p.parse_args(argv)
+    rdoq.MAX_JUMP = args.max_jump
     torch.set_num_threads(args.threads)
     scene = read_3dgs_ply(args.scene)
     cfg = load_config(args.preset, kind="gaussians")
@@ -63,7 +67,8 @@ def main(argv: list[str] | None = None) -> int:
     lines = [f"Command: `{command_line('bench_rdoq.py', argv)}`  ",
              f"Scene: {args.scene}, {scene.num_gaussians:,} Gaussians, SH degree {scene.sh_degree}; preset "
              f"{args.preset} (pruning share {cfg.prune_share:g}); contributions and sensitivities "
-             f"({len(cams)} views, {args.probes} probes each) in {t_sens:.1f} s. Load at the end: see below.",
+             f"({len(cams)} views, {args.probes} probes each) in {t_sens:.1f} s; values moved at most "
+             f"{args.max_jump} step(s).",
              "", "| step factor | RDOQ weight | PSNR dB (search views) | bytes | bytes / rounding at this factor |",
              "|---:|---:|---:|---:|---:|"]
     for fac in (float(x) for x in args.factors.split(",")):
