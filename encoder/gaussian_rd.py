@@ -132,7 +132,8 @@ class SettingsSearch:
             order, graph = self._graph(key, grid)
             f = sh_degree_subset(self.sensitivity[keep], degree)
             mu = group_slopes(f, channel_groups(degree), cfg.rd_quantization)
-            q[order] = rd_quantize(x[order], f[order], mu, grid.coords[order], graph, cfg.prediction_buckets)
+            q[order] = rd_quantize(x[order], f[order], mu, grid.coords[order], graph, cfg.prediction_buckets,
+                                   slice(layout.rotation_start, layout.num_channels))
         prior_bits = 0.0
         for c in range(q.shape[1]):
             r = q[:, c] - int(np.median(q[:, c]))

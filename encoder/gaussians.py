@@ -195,7 +195,7 @@ def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: Lev
         if neighbour_prediction_wanted(cfg, levels, inp) else None
     x = inp.values.astype(np.float64) / inp.steps.astype(np.float64)
     q = rd_quantize(x, f, group_slopes(f, channel_groups(degree), cfg.rd_quantization), inp.coords, graph,
-                    cfg.prediction_buckets)
+                    cfg.prediction_buckets, slice(inp.layout.rotation_start, inp.layout.num_channels))
     return dataclasses.replace(inp, values=q * inp.steps.astype(np.float64))
 
 

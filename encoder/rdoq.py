@@ -22,6 +22,14 @@ the step of each group sets the precision of the values that matter, and each Ga
 sensitivity decides how much of it it gets: a per-Gaussian quantization without a per-Gaussian
 step in the stream.
 
+A rotation is read as a direction: the decoder keeps the quaternion as coded and renderers
+normalize it (spec clause 11.1), so its length is the encoder's to choose. A shorter quaternion
+rounds to fewer, smaller integers with a coarser direction: per-Gaussian precision for the
+rotation. Before the values are chosen, each Gaussian's quaternion is given the length of
+ROTATION_NORMS (1 down to 1/8) whose rounded multiple costs least in F (x - d)^2 + mu bits, d
+the rounded quaternion's direction at the original length; its sensitivities scale by 1 / rho^2
+(the pictures see the direction). A zero quaternion, which has no direction, is never chosen.
+
 The means of a finer LoD depend on the values chosen for the coarser ones, so the LoDs are
 chosen in coding order. The scale levels are those fitted to the rounded values (the coder
 fits its own to the values chosen). Cross-channel prediction is left out of the costs.
@@ -99,6 +107,10 @@ SENSITIVITY_PROBES = 1
 # value jump to its prediction from anywhere cost 3.9 dB for 15% of the bytes, while one step at
 # most gives 2.6-4.8% fewer bytes at equal PSNR, and two steps the same (tools/results/rdoq.md).
 MAX_JUMP = 1
+# The lengths a rotation quaternion may be given (module doc): shorter ones round to fewer, smaller
+# integers with a coarser direction. Longer ones were measured to cost bytes for nothing (playbot
+# lod4, low steps: 1.7% fewer bytes with lengths 2 and sqrt 2 allowed, 2.1% without).
+ROTATION_NORMS = (1.0, 2 ** -0.5, 0.5, 2 ** -1.5, 0.25, 2 ** -2.5, 0.125)
 
 
 def _choose(x: np.ndarray, q0: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarray,
@@ -113,11 +125,51 @@ def _choose(x: np.ndarray, q0: np.ndarray, mean: np.ndarray, level: np.ndarray, 
     return best
 
 
+def _rotation_norms(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarray, mu: float) -> np.ndarray:
+    """float64 [n]: per row of unit quaternions ``x`` [n, 4] (in steps), the factor of
+    ROTATION_NORMS whose rounded multiple costs least in F (x - direction)^2 + mu bits, the
+    direction being the rounded quaternion normalized back to the length of x (module doc)."""
+    best, best_cost = np.ones(x.shape[0]), np.full(x.shape[0], np.inf)
+    if not mu > 0:  # no rate term: plain rounding, as for every other value
+        return best
+    length = np.linalg.norm(x, axis=1, keepdims=True)
+    for rho in ROTATION_NORMS:
+        v = np.rint(rho * x)
+        vlen = np.linalg.norm(v, axis=1, keepdims=True)
+        err = x - v * (length / np.maximum(vlen, 1e-300))
+        cost = (f * err * err).sum(1) + mu * code_lengths_bits((v - mean).astype(np.int64), level).sum(1)
+        better = (vlen[:, 0] > 0) & (cost < best_cost)
+        best, best_cost = np.where(better, rho, best), np.where(better, cost, best_cost)
+    return best
+
+
+def _choose_rows(x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarray, mu: np.ndarray,
+                 rotation: slice | None) -> np.ndarray:
+    """The values chosen for rows ``x`` [n, M] given their coding's means and scale levels: the
+    rotation's length first (when ``rotation`` names its columns), then each value."""
+    x_unit = x
+    if rotation is not None:
+        rho = _rotation_norms(x[:, rotation], f[:, rotation], mean[:, rotation], level[:, rotation],
+                              float(mu[0, rotation].max(initial=0.0)))
+        x, f = x.copy(), f.copy()
+        x[:, rotation] *= rho[:, None]
+        f[:, rotation] /= (rho * rho)[:, None]  # the pictures see the direction: d/dx scales by 1 / rho
+    q = _choose(x, np.rint(x).astype(np.int64), mean, level, f, mu)
+    if rotation is not None:  # never a zero quaternion (it has no direction): the rounded one instead
+        zero = ~q[:, rotation].any(axis=1)
+        if zero.any():
+            r = np.rint(x_unit[zero][:, rotation]).astype(np.int64)
+            r[~r.any(axis=1), 0] = 1
+            q[np.flatnonzero(zero)[:, None], np.arange(q.shape[1])[rotation][None, :]] = r
+    return q
+
+
 def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray, graph: NeighbourGraph | None,
-                num_buckets: int) -> np.ndarray:
+                num_buckets: int, rotation: slice | None = None) -> np.ndarray:
     """int64 [N, M]: the values chosen for ``x`` (float [N, M], in steps, rows in coding order)
     with sensitivities ``f`` [N, M] and slopes ``mu`` [M] (module doc). ``graph``: the neighbour
-    graph of ``coords`` when neighbour prediction codes the rows (None: the per-channel prior)."""
+    graph of ``coords`` when neighbour prediction codes the rows (None: the per-channel prior).
+    ``rotation``: the columns of unit rotation quaternions, whose length is chosen per row."""
     q0 = np.rint(x).astype(np.int64)
     n, m = q0.shape
     if n == 0:
@@ -133,15 +185,15 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
         table = np.asarray(nc.unit.bucket_level, dtype=np.int64).reshape(m, num_buckets)
     q = q0.copy()
     rows0 = graph.rows[0]
-    q[rows0] = _choose(x[rows0], q0[rows0], np.broadcast_to(prior_mean, (rows0.size, m)),
-                       np.broadcast_to(prior_level, (rows0.size, m)), f[rows0], mu[None, :])
+    q[rows0] = _choose_rows(x[rows0], np.broadcast_to(prior_mean, (rows0.size, m)),
+                            np.broadcast_to(prior_level, (rows0.size, m)), f[rows0], mu[None, :], rotation)
     for lod in range(1, len(graph.rows)):
         rows = graph.rows[lod]
         if rows.size == 0:
             continue
         mean, bucket = neighbour_means_and_buckets(q, graph.neighbours[lod], num_buckets, flags, prior_mean)
         level = np.take_along_axis(table.T, bucket, axis=0)
-        q[rows] = _choose(x[rows], q0[rows], mean, level, f[rows], mu[None, :])
+        q[rows] = _choose_rows(x[rows], mean, level, f[rows], mu[None, :], rotation)
     return q
 
 

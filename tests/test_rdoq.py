@@ -14,7 +14,8 @@ from lghcc.decoder.decode import decode_stream
 from lghcc.encoder.config import GaussianEncoderConfig
 from lghcc.encoder.gaussian_fit import fit_cameras
 from lghcc.encoder.gaussians import encode_gaussian_scene
-from lghcc.encoder.rdoq import (MAX_JUMP, channel_groups, channel_steps, group_slopes, rd_quantize,
+from lghcc.encoder import rdoq
+from lghcc.encoder.rdoq import (MAX_JUMP, ROTATION_NORMS, channel_groups, channel_steps, group_slopes, rd_quantize,
                                 sensitivities, sh_degree_subset)
 from lghcc.render.rasterizer import rasterize
 from lghcc.render.sh import sh_to_rgb
@@ -119,6 +120,69 @@ def test_hard_cases_one_point_constant_values_and_huge_magnitudes():
     np.testing.assert_array_equal(rd_quantize(x, np.zeros_like(x), np.ones(2), c, neighbour_graph(c, 6, 6), 5), 7)
     empty = np.zeros((0, 3))
     assert rd_quantize(empty, empty, np.ones(3), np.zeros((0, 3), np.int64), None, 5).shape == (0, 3)
+
+
+def _unit_quaternions(rng, n):
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return np.where(q[:, :1] < 0, -q, q)
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(1, 150), step=st.sampled_from([0.005, 0.04, 0.3, 1.0, 3.0]), mu=st.floats(0, 100),
+       zero_share=st.floats(0, 1), predict=st.booleans(), seed=st.integers(0, 2 ** 31))
+def test_rotation_lengths_keep_a_direction_and_cost_no_more_than_unit_length(n, step, mu, zero_share, predict,
+                                                                            seed):
+    """A rotation may be coded at any of ROTATION_NORMS' lengths (the decoder reads a direction):
+    never as a zero quaternion, whatever the step; with the prior (fixed means) and no jumps towards
+    it, the length chosen costs at most unit length's F (x - direction)^2 + mu bits; mu = 0 keeps
+    unit length and plain rounding."""
+    rng = np.random.default_rng(seed)
+    x = _unit_quaternions(rng, n) / step
+    f = rng.exponential(1.0, (n, 4)) * (rng.uniform(size=(n, 4)) >= zero_share)
+    coords = np.unique(rng.integers(0, 64, (n, 3)), axis=0)
+    x, f = x[:coords.shape[0]], f[:coords.shape[0]]
+    graph = neighbour_graph(coords, 4, 3) if predict else None
+    q = rd_quantize(x, f, np.full(4, mu), coords, graph, 5, slice(0, 4))
+    assert q.shape == x.shape and np.all(q.any(axis=1))
+    np.testing.assert_array_equal(rd_quantize(x, f, np.zeros(4), coords, graph, 5, slice(0, 4)),
+                                  np.where(np.rint(x).any(axis=1, keepdims=True), np.rint(x), [[1, 0, 0, 0]]))
+    if graph is None:
+        mean = np.rint(np.median(np.rint(x), axis=0)).astype(np.int64)
+        level = np.broadcast_to([best_level(np.rint(x[:, c]).astype(np.int64) - mean[c]) for c in range(4)], q.shape)
+
+        def cost(v):
+            vlen = np.linalg.norm(v, axis=1, keepdims=True)
+            err = x - v * np.linalg.norm(x, axis=1, keepdims=True) / np.maximum(vlen, 1e-300)
+            return (f * err ** 2).sum(1) + mu * code_lengths_bits(v - mean, level).sum(1)
+        rounded = np.rint(x).astype(np.int64)
+        rho = rdoq._rotation_norms(x, f, mean, level, mu)
+        assert set(np.unique(rho)) <= set(ROTATION_NORMS)
+        chosen = np.rint(rho[:, None] * x).astype(np.int64)
+        ok = rounded.any(axis=1)  # a step so coarse that the rounding is zero: the guard's identity
+        assert np.all(chosen.any(axis=1)[ok])
+        assert np.all(cost(chosen)[ok] <= cost(rounded)[ok] * (1 + 1e-9) + 1e-9)
+
+
+def test_rotations_the_pictures_barely_show_are_coded_shorter_and_in_fewer_bits():
+    rng = np.random.default_rng(5)
+    n = 400
+    x = _unit_quaternions(rng, n) / 0.04
+    coords = np.unique(rng.integers(0, 1000, (n, 3)), axis=0)[:n]
+    x = x[:coords.shape[0]]
+    f = np.full(x.shape, 1e-3)
+    q = rd_quantize(x, f, np.ones(4), coords, None, 5, slice(0, 4))
+    assert np.median(np.linalg.norm(q, axis=1)) < 0.5 * np.median(np.linalg.norm(x, axis=1))
+    assert min(ROTATION_NORMS) > 0 and max(ROTATION_NORMS) == 1.0
+    sensitive = rd_quantize(x, np.full(x.shape, 1e9), np.ones(4), coords, None, 5, slice(0, 4))
+
+    def direction_error(v):
+        return np.linalg.norm(v / np.linalg.norm(v, axis=1, keepdims=True) - x / np.linalg.norm(x, axis=1,
+                                                                                                keepdims=True), axis=1)
+    # no direction worse than the rounding's (a shorter multiple of it, such as (6, 10, 2, -3) for
+    # (12, 20, 4, -6), gives the same direction for fewer bits)
+    assert np.all(direction_error(sensitive) <= direction_error(np.rint(x)) + 1e-12)
+    assert np.any(np.linalg.norm(sensitive, axis=1) < np.linalg.norm(np.rint(x), axis=1))
 
 
 def test_group_slopes_and_channel_maps():

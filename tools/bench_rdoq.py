@@ -48,10 +48,14 @@ def main(argv: list[str] | None = None) -> int:
                    help=f"random images per view for the sensitivities (default {SENSITIVITY_PROBES}, the encoder's)")
     p.add_argument("--max-jump", type=int, default=rdoq.MAX_JUMP,
                    help=f"the largest move from the rounded value, in steps (default {rdoq.MAX_JUMP}, the encoder's)")
+    p.add_argument("--rotation-lengths", default=",".join(f"{r:.4g}" for r in rdoq.ROTATION_NORMS),
+                   help="the lengths a rotation quaternion may be given, comma-separated (default the "
+                        "encoder's; 1 alone keeps every quaternion at unit length)")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("out/rdoq.md"))
     args = p.parse_args(argv)
     rdoq.MAX_JUMP = args.max_jump
+    rdoq.ROTATION_NORMS = tuple(float(r) for r in args.rotation_lengths.split(","))
     torch.set_num_threads(args.threads)
     scene = read_3dgs_ply(args.scene)
     cfg = load_config(args.preset, kind="gaussians")
@@ -68,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
              f"Scene: {args.scene}, {scene.num_gaussians:,} Gaussians, SH degree {scene.sh_degree}; preset "
              f"{args.preset} (pruning share {cfg.prune_share:g}); contributions and sensitivities "
              f"({len(cams)} views, {args.probes} probes each) in {t_sens:.1f} s; values moved at most "
-             f"{args.max_jump} step(s).",
+             f"{args.max_jump} step(s); rotation lengths {args.rotation_lengths}.",
              "", "| step factor | RDOQ weight | PSNR dB (search views) | bytes | bytes / rounding at this factor |",
              "|---:|---:|---:|---:|---:|"]
     for fac in (float(x) for x in args.factors.split(",")):
