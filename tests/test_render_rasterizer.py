@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from lghcc.render.camera import Camera
-from lghcc.render.rasterizer import (ALPHA_MAX, composite_reference, project_gaussians, rasterize,
+from lghcc.render.rasterizer import (ALPHA_MAX, composite_reference, compositing_weights, project_gaussians, rasterize,
                                      rasterize_gsplat, gsplat_available)
 
 F64 = torch.float64
@@ -111,9 +111,23 @@ def test_gradients_match_finite_differences():
 def test_image_does_not_depend_on_tile_size_float32():
     cam = Camera.look_at([0, -3, 0.5], [0, 0, 0], width=50, height=41, fov_x_deg=50)
     params = _random_gaussians(300, seed=2, dtype=torch.float32, scale=(0.01, 0.2))
-    imgs = [rasterize(*params, cam, tile_size=t).image for t in (16, 8, 32)]
+    imgs = [rasterize(*params, cam, tile_size=t).image for t in (16, 8, 32, 4, None)]
     for im in imgs[1:]:
         torch.testing.assert_close(im, imgs[0], atol=2e-5, rtol=0)
+
+
+@pytest.mark.parametrize("scale,expected", [((0.0005, 0.001), 4), ((0.5, 0.8), 16)])
+def test_the_tile_size_follows_the_footprints(scale, expected):
+    """Footprints of a pixel or two get 4-pixel tiles (a 16-pixel tile would compute 256 pixels
+    for each); footprints wider than the image get 16-pixel tiles (fewer pairs); the chosen
+    tiles draw the same image as fixed ones."""
+    cam = Camera.look_at([0, -3, 0.5], [0, 0, 0], width=96, height=80, fov_x_deg=50)
+    params = _random_gaussians(400, seed=4, dtype=torch.float32, scale=scale)
+    auto = rasterize(*params, cam)
+    assert auto.stats["tile_size"] == expected
+    torch.testing.assert_close(auto.image, rasterize(*params, cam, tile_size=16).image, atol=2e-5, rtol=0)
+    weights = compositing_weights(*params[:4], cam)
+    torch.testing.assert_close(weights, compositing_weights(*params[:4], cam, tile_size=8), atol=1e-4, rtol=1e-4)
 
 
 def test_depth_is_alpha_weighted_camera_depth():
