@@ -169,6 +169,54 @@ def bench_neural(cams, st, rows_out, repeat):
                   f"{acc['gaussians'] / n:,.0f}, neural {t_gen / n:.3f} s, raster {t_ras / n:.3f} s", flush=True)
 
 
+def bench_tile_sides(specs: list[str], repeat: int) -> list[str]:
+    """The rasterizer's tile side (16, 8, 4 px, or its own choice) on real 3DGS scenes, through the
+    encoder's views (encoder/gaussian_fit.py resolving_views: 8 sphere views, and magnified crops
+    where the Gaussians are below a pixel). ``specs``: PATH[:N]@PX (N: Gaussians drawn, seed 0)."""
+    from lghcc.encoder.gaussian_fit import resolving_views
+    from lghcc.formats import read_scene
+    from lghcc.render.rasterizer import rasterize
+    from lghcc.render.sh import sh_to_rgb
+
+    lines = ["| scene | Gaussians | px | views | tile side | Gaussian-tile pairs | forward (no grad) s "
+             "| forward + backward s | forward + backward / 16 px |", "|---|---:|---:|---:|---|---:|---:|---:|---:|"]
+    for spec in specs:
+        path_n, px = spec.rsplit("@", 1)
+        path, _, n = path_n.partition(":")
+        scene = read_scene(path)
+        if n and int(n) < scene.num_gaussians:
+            keep = np.zeros(scene.num_gaussians, bool)
+            keep[np.random.default_rng(0).choice(scene.num_gaussians, int(n), replace=False)] = True
+            scene = scene.subset(keep)
+        cams = resolving_views(scene, 8, int(px), 0.1)
+        t = lambda a: torch.tensor(np.asarray(a, np.float64), dtype=torch.float32)  # noqa: E731
+        means, sh = t(scene.means), t(scene.sh).requires_grad_(True)
+        op, ls, rot = t(scene.opacity).requires_grad_(True), t(scene.log_scales), t(scene.rotations)
+
+        def render(cam, side):
+            colors = sh_to_rgb(scene.sh_degree, sh, means - torch.as_tensor(cam.center, dtype=torch.float32))
+            return rasterize(means, rot, torch.exp(ls), torch.sigmoid(op), colors, cam, tile_size=side)
+
+        base = None
+        for side in (16, 8, 4, None):
+            def forward():
+                with torch.no_grad():
+                    return [render(c, side) for c in cams]
+
+            def both():
+                for c in cams:
+                    render(c, side).image.sum().backward()
+            tf, results = _timed(forward, repeat)
+            tb, _ = _timed(both, repeat)
+            base = base or tb
+            chosen = sorted({r.stats["tile_size"] for r in results})
+            label = f"{side} px" if side else "chosen: " + ", ".join(f"{c} px" for c in chosen)
+            lines.append(f"| {Path(path).name} | {scene.num_gaussians:,} | {px} | {len(cams)} | {label} | "
+                         f"{sum(r.stats['tile_pairs'] for r in results):,} | {tf:.2f} | {tb:.2f} | {tb / base:.2f} |")
+            print(lines[-1], flush=True)
+    return lines
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sizes", default="10000,100000,1000000",
@@ -186,6 +234,9 @@ def main(argv=None) -> int:
     ap.add_argument("--scene", action="append", metavar="DIR",
                     help="anchor scene for the culling/masking section: 'procedural' (default) or a Scaffold-GS "
                          "model folder (e.g. a lghcc-train output); repeat for several")
+    ap.add_argument("--tile-sides", action="append", metavar="PATH[:N]@PX",
+                    help="time the rasterizer's tile sides (16, 8, 4 px and its own choice) on a 3DGS scene (N of "
+                         "its Gaussians, seed 0) through the encoder's views at PX pixels; repeatable")
     ap.add_argument("--out", type=Path, default=ROOT / "tools" / "results" / "render.md",
                     help="markdown report (default %(default)s)")
     a = ap.parse_args(argv)
@@ -205,6 +256,7 @@ def main(argv=None) -> int:
         nrows = []
         bench_neural(cams, st, nrows, a.repeat)
         nsections.append((desc, nrows))
+    tile_lines = bench_tile_sides(a.tile_sides, a.repeat) if a.tile_sides else []
     cmd = command_line("bench_render.py", argv)
     lines = [
         "# Renderer benchmark (lghcc.render, pure torch on CPU)", "",
@@ -232,6 +284,11 @@ def main(argv=None) -> int:
                   "|---|---|---:|---:|---:|---:|---:|---:|"]
         for v, name, av, gb, dr, pr, tg, tr in nrows:
             lines.append(f"| {v} | {name} | {av:,.0f} | {gb:,.0f} | {dr:,.0f} | {pr:,.0f} | {tg:.3f} | {tr:.3f} |")
+    if tile_lines:
+        lines += ["", "## Tile side on real scenes, the encoder's views", "",
+                  "Each (Gaussian, tile) pair costs the tile's pixels plus a fixed overhead, so footprints of a "
+                  "pixel or two want small tiles (render/rasterizer.py choose_tile_size picks the side of least "
+                  f"work per view). Best of {a.repeat}; backward: `image.sum().backward()` per view.", ""] + tile_lines
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text("\n".join(lines) + "\n")
     print(f"wrote {a.out}")
