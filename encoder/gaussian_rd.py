@@ -24,9 +24,8 @@ A fixed lambda lands at a like slope of every scene's curve, not at a like quali
 scene whose curve is shallow (playbot, 8k Gaussians: ~8 dB per doubling) lambda 10 went down to
 28 dB. So the presets give a quality instead (``target_psnr``, dB on the search views): lambda is
 the one the model says reaches it, and after the search, every pruning share of the ladder is
-measured at the chosen steps and, at the three shares the model predicts fewest bits at the
-target for, one common factor on every step (bisection in log steps against real renders) moves
-the result onto the target; the fewest bits measured that reach it are kept.
+measured at the chosen steps and moved onto the target there by one common factor on every step
+(bisection in log steps against real renders); the fewest bits measured that reach it are kept.
 """
 
 from __future__ import annotations
@@ -273,41 +272,20 @@ def check_steps_either_way(s: SettingsSearch, best: Trial, groups: list[str]) ->
     return best
 
 
-# The pruning shares the steps are moved onto the target at: those whose bits at the target the
-# model predicts fewest (each costs up to 5 trials of renders).
-ONTO_TARGET_SHARES = 3
-
-
-def bits_at_target(t: Trial, base: Trial, probes: dict[str, tuple[Trial, float]], target_mse: float) -> float:
-    """The bits the high-rate model predicts for ``t``'s settings with every step times one factor
-    f that meets ``target_mse``: the steps' distortion A f^2 (``_model`` at t's steps) on top of
-    what the pruning adds (t's measured distortion less A), the bits falling by the probes'
-    slopes per doubling of f. Infinite where the pruning alone exceeds the target."""
-    a, slope, _, _ = _model(base, probes)
-    steps_mse = sum(a[g] * _step(t.cfg, g) ** 2 for g in a)
-    pruned_mse = max(t.mse - steps_mse, 0.0)
-    if pruned_mse >= target_mse or steps_mse <= 0:
-        return math.inf
-    f = math.sqrt((target_mse - pruned_mse) / steps_mse)
-    return t.bits - sum(slope.values()) * math.log2(f)
-
-
-def fewest_bits_at_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: float, base: Trial,
-                          probes: dict[str, tuple[Trial, float]]) -> Trial:
-    """Every pruning share of the ladder measured at the steps the search chose; at the
-    ONTO_TARGET_SHARES shares the model predicts fewest bits at the target for (``bits_at_target``),
-    and at the chosen share, the steps moved onto the target (``onto_target``); then, of every
-    setting measured on the way, the fewest bits that reach the target. Pruning and coarser steps
-    trade against each other differently on every scene: on a trained lego (SH degree 3) the
-    share that J preferred at the model's steps left no setting at the target but the preset's
-    own (104,929 bytes from lghcc-enc --preset low), while 1.6% pruned with the steps moved onto
-    the target gives 75,020 bytes (the scene and how to make it: tools/results/real_scenes.md,
-    section lego-trained). Moving every share onto the target found the same settings on playbot
-    lod4 (low, medium), that lego and the donut (low) in 65-79 trials where this takes 41-52."""
+def fewest_bits_at_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: float) -> Trial:
+    """Every pruning share of the ladder measured at the steps the search chose, with the steps
+    moved onto the target at each (``onto_target``); then, of every setting measured on the way,
+    the fewest bits that reach the target. Pruning and coarser steps trade against each other
+    differently on every scene: on a trained lego (SH degree 3) the share that J preferred at the
+    model's steps left no setting at the target but the preset's own (104,929 bytes from lghcc-enc
+    --preset low), while 1.6% pruned with the steps moved onto the target gives 75,020 bytes (the
+    scene and how to make it: tools/results/real_scenes.md, section lego-trained). Every share is
+    moved: ranking the shares by the high-rate model's bits at the target and moving only the best
+    3 cost the donut's medium 27% more bytes (223,707 against 175,730 at 1.6% pruned), its start
+    being 5 dB below the target, where the model predicts none of them to get there."""
     starts = {share: best if share == best.cfg.prune_share else
               s.evaluate(dataclasses.replace(best.cfg, prune_share=share)) for share in PRUNE_LADDER}
-    ranked = sorted(starts, key=lambda share: bits_at_target(starts[share], base, probes, target_mse))
-    for share in dict.fromkeys([best.cfg.prune_share] + ranked[:ONTO_TARGET_SHARES]):
+    for share in dict.fromkeys([best.cfg.prune_share] + list(PRUNE_LADDER)):
         onto_target(s, starts[share], groups, target_mse, evaluations=5)
     meeting = [t for t in s.trials if t.mse <= target_mse]
     return min(meeting, key=lambda t: t.bits) if meeting else min(s.trials, key=lambda t: t.mse)
@@ -337,7 +315,7 @@ def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEnco
     best = walk_pruning_ladder(s, best)
     best = check_steps_either_way(s, best, groups)
     if target_mse is not None:
-        best = fewest_bits_at_target(s, best, groups, target_mse, base, probes)
+        best = fewest_bits_at_target(s, best, groups, target_mse)
     say(f"settings: {len(s.trials)} trials, {time.perf_counter() - t0:.0f} s: "
         f"{-10 * math.log10(max(best.mse, 1e-12)):.2f} dB at {best.bits / n:.1f} bits/Gaussian, "
         f"pruning {100 * best.cfg.prune_share:g}% of the contribution")

@@ -342,28 +342,7 @@ def test_pruning_less_restarts_from_the_chosen_steps_and_lands_near_the_target()
     s = ModelSearch()
     target_mse = 10 ** (-45 / 10)  # 45 dB: needs step ~0.0056 without pruning
     cfg = GaussianEncoderConfig(sh_dc_step=0.0063, prune_share=0.008)  # 44 dB steps, pruned: short of 45
-    base = s.evaluate(dataclasses.replace(cfg, prune_share=0.0))
-    probes = {"sh_dc": (s.evaluate(dataclasses.replace(cfg, prune_share=0.0, sh_dc_step=2 * 0.0063)), 0.0063)}
-    best = rd.fewest_bits_at_target(s, s.evaluate(cfg), ["sh_dc"], target_mse, base, probes)
+    best = rd.fewest_bits_at_target(s, s.evaluate(cfg), ["sh_dc"], target_mse)
     psnr = -10 * math.log10(best.mse)
     assert best.mse <= target_mse
     assert psnr < 45 + 1.0, psnr  # on the target (within bisection's factor 1.1 on the step); was 170 dB
-
-
-def test_bits_at_target_follows_the_high_rate_model():
-    """The shares moved onto the target are ranked by this prediction: the steps' error a f^2
-    on top of what the pruning adds, the bits falling by the probes' slope per doubling of f."""
-    import dataclasses
-
-    from lghcc.encoder.gaussian_rd import Trial, _with_step, bits_at_target
-
-    cfg = GaussianEncoderConfig()
-    base = Trial(cfg, 1e-4, 1e6, 0.0)
-    probes = {"sh_dc": (Trial(_with_step(cfg, "sh_dc", 2 * cfg.sh_dc_step), 4e-4, 0.9e6, 0.0), cfg.sh_dc_step)}
-    assert bits_at_target(base, base, probes, 1e-4) == pytest.approx(1e6)  # already there: f = 1
-    assert bits_at_target(base, base, probes, 4e-4) == pytest.approx(0.9e6)  # f = 2: one slope saved
-    assert bits_at_target(base, base, probes, 0.25e-4) == pytest.approx(1.1e6)  # f = 1/2: one slope spent
-    pruned = Trial(dataclasses.replace(cfg, prune_share=0.01), 2.5e-4, 0.8e6, 0.0)  # pruning adds 1.5e-4
-    assert bits_at_target(pruned, base, probes, 1e-4) == float("inf")  # pruning alone misses the target
-    assert bits_at_target(pruned, base, probes, 2.5e-4) == pytest.approx(0.8e6)
-    assert bits_at_target(pruned, base, probes, 5.5e-4) == pytest.approx(0.7e6)
