@@ -108,8 +108,9 @@ SENSITIVITY_PROBES = 1
 # most gives 2.6-4.8% fewer bytes at equal PSNR, and two steps the same (tools/results/rdoq.md).
 MAX_JUMP = 1
 # The lengths a rotation quaternion may be given (module doc): shorter ones round to fewer, smaller
-# integers with a coarser direction. Longer ones were measured to cost bytes for nothing (playbot
-# lod4, low steps: 1.7% fewer bytes with lengths 2 and sqrt 2 allowed, 2.1% without).
+# integers with a coarser direction. Longer ones (finer directions) were measured to give less:
+# playbot lod4 at the low steps, 1.7% fewer bytes than unit length with 2 and sqrt 2 allowed, 2.0%
+# without (tools/bench_rdoq.py --rotation-lengths, tools/results/rdoq.md).
 ROTATION_NORMS = (1.0, 2 ** -0.5, 0.5, 2 ** -1.5, 0.25, 2 ** -2.5, 0.125)
 
 
@@ -158,9 +159,9 @@ def _choose_rows(x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarr
     if rotation is not None:  # never a zero quaternion (it has no direction): the rounded one instead
         zero = ~q[:, rotation].any(axis=1)
         if zero.any():
-            r = np.rint(x_unit[zero][:, rotation]).astype(np.int64)
+            r = np.rint(x_unit[zero, rotation]).astype(np.int64)
             r[~r.any(axis=1), 0] = 1
-            q[np.flatnonzero(zero)[:, None], np.arange(q.shape[1])[rotation][None, :]] = r
+            q[zero, rotation] = r
     return q
 
 

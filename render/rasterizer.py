@@ -465,8 +465,7 @@ def rasterize(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, op
 
 
 def _project_and_plan(means, quats, scales, op, camera: Camera, tile_size: int | None, sigma_cutoff: float,
-                      eps2d: float,
-                      chunk_elements: int):
+                      eps2d: float, chunk_elements: int):
     """Projection, each Gaussian's drawing threshold (power below ln(255 o), within the sigma
     cutoff; -1 for those never drawn) and the tile plan: -> (projection, thresh, plan, keep)."""
     proj = project_gaussians(means, quats, scales, camera, eps2d)

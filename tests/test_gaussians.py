@@ -321,7 +321,6 @@ def test_pruning_less_restarts_from_the_chosen_steps_and_lands_near_the_target()
     overshooting it (before, each level started from the finest steps the previous one tried, and
     the logo's medium ended 8.8 dB above its target). A model search: distortion = steps^2 plus a
     floor from pruning, bits fall with log steps."""
-    import dataclasses
     import math
 
     from lghcc.encoder import gaussian_rd as rd
