@@ -260,6 +260,22 @@ def test_code_lengths_sum_to_the_ideal_code_length():
     assert per.sum() == pytest.approx(ideal_code_length_bits(r, lv))
 
 
+@settings(max_examples=60, deadline=None)
+@given(r=st.lists(st.one_of(st.integers(-1030, 1030), st.integers(-(2 ** 62) + 1, 2 ** 62 - 1)), min_size=1,
+                  max_size=60),
+       seed=st.integers(0, 2 ** 32 - 1))
+def test_code_lengths_from_the_lookup_table_equal_the_tables_bit_for_bit(r, seed):
+    """code_lengths_bits reads residuals within +-_LUT_R from a table built with the same formula
+    and computes the others: every value equal to the formula's, escapes and table edges included."""
+    r = np.array(r + [sc._LUT_R, -sc._LUT_R, sc._LUT_R + 1, -sc._LUT_R - 1], dtype=np.int64)
+    lv = np.random.default_rng(seed).integers(0, 64, r.size)
+    np.testing.assert_array_equal(sc.code_lengths_bits(r, lv), sc._code_lengths_bits(r, lv.astype(np.uint8)))
+    with pytest.raises(ValueError, match="codable range"):
+        sc.code_lengths_bits(np.array([2 ** 62]), np.array([3]))
+    with pytest.raises(ValueError, match="levels must lie"):
+        sc.code_lengths_bits(np.array([1]), np.array([64]))
+
+
 def test_level_for_sigma():
     assert np.array_equal(level_for_sigma(SCALE_SIGMAS), np.arange(64))
     assert np.array_equal(level_for_sigma(SCALE_SIGMAS * 1.05), np.arange(64))

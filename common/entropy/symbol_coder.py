@@ -237,6 +237,23 @@ def _finish_escapes(dec: RangeDecoder, out: np.ndarray, esc: np.ndarray, half_of
             out[esc] = np.where(neg, -mag, mag)
 
 
+def _code_lengths_bits(r: np.ndarray, lv: np.ndarray) -> np.ndarray:
+    """code_lengths_bits of checked flat residuals (int64) and levels (uint8)."""
+    bins, esc, L = _bins(r, lv)
+    bits = _BIN_BITS[TABLES.offsets[lv] + bins]
+    if esc.any():
+        _, k, _, width = _escape_parts(r[esc], L[esc])
+        bits[esc] += 1.0 + _CLASS_BITS[k] + width
+    return bits
+
+
+# informative: the code length of every residual |r| <= _LUT_R at every level, row per level
+# (the encoder's rate estimates look up millions of them per trial)
+_LUT_R = 1024
+_LUT = _code_lengths_bits(np.tile(np.arange(-_LUT_R, _LUT_R + 1, dtype=np.int64), NUM_SCALE_LEVELS),
+                          np.repeat(np.arange(NUM_SCALE_LEVELS, dtype=np.uint8), 2 * _LUT_R + 1))
+
+
 def code_lengths_bits(residuals: np.ndarray, levels: np.ndarray) -> np.ndarray:
     """Per residual, -log2 of the probability the tables give it at its level, escape class and
     raw remainder bits included (float64, the shape of residuals)."""
@@ -245,11 +262,10 @@ def code_lengths_bits(residuals: np.ndarray, levels: np.ndarray) -> np.ndarray:
     if r.size == 0:
         return np.zeros(r.shape, dtype=np.float64)
     rf, lf = r.ravel(), lv.ravel()
-    bins, esc, L = _bins(rf, lf)
-    bits = _BIN_BITS[TABLES.offsets[lf] + bins]
-    if esc.any():
-        _, k, _, width = _escape_parts(rf[esc], L[esc])
-        bits[esc] += 1.0 + _CLASS_BITS[k] + width
+    far = np.abs(rf) > _LUT_R
+    bits = _LUT[lf.astype(np.int64) * (2 * _LUT_R + 1) + np.clip(rf, -_LUT_R, _LUT_R) + _LUT_R]
+    if far.any():
+        bits[far] = _code_lengths_bits(rf[far], lf[far])
     return bits.reshape(r.shape)
 
 
