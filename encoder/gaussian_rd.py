@@ -47,7 +47,7 @@ from .config import GaussianEncoderConfig
 from .gaussian_fit import prune_by_contribution, resolving_views
 from .gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid
 from .neighbour_coding import NeighbourCoding, usable as neighbour_usable
-from .rdoq import channel_groups, channel_steps, group_slopes, rd_quantize, sh_degree_subset
+from .rdoq import channel_groups, channel_steps, group_slopes, orientation_columns, rd_quantize, sh_degree_subset
 from ..render.gaussians3dgs import gaussians_from_scene, render_3dgs
 
 PRUNE_LADDER = (0.0, 0.0005, 0.001, 0.002, 0.004, 0.008, 0.016, 0.032, 0.064)
@@ -132,7 +132,7 @@ class SettingsSearch:
             f = sh_degree_subset(self.sensitivity[keep], degree)
             mu = group_slopes(f, channel_groups(degree), cfg.rd_quantization)
             q[order] = rd_quantize(x[order], f[order], mu, grid.coords[order], graph, cfg.prediction_buckets,
-                                   slice(layout.rotation_start, layout.num_channels))
+                                   orientation_columns(layout))
         prior_bits = 0.0
         for c in range(q.shape[1]):
             r = q[:, c] - int(np.median(q[:, c]))

@@ -22,13 +22,24 @@ the step of each group sets the precision of the values that matter, and each Ga
 sensitivity decides how much of it it gets: a per-Gaussian quantization without a per-Gaussian
 step in the stream.
 
+A Gaussian's orientation is the encoder's to choose as well. Its covariance R S^2 R^T is the
+same for the quaternion q and -q, and for q g with the log scales permuted to follow the axes,
+g any of the 24 turns that map the coordinate axes onto the axes (half-turns about an axis,
+quarter-turns, turns about a diagonal): 48 ways to write one Gaussian, every one rendering the
+same picture. Before the values are chosen, each Gaussian takes the way that codes cheapest
+under its coding's means and scale levels: the 24 turns are ranked by the bits of their rounded
+scales and rotation (the sign of each the one nearer the mean), and the TURN_CANDIDATES best
+and the Gaussian's own are then costed in full, with the rotation's length (below). On scenes
+whose rotations the neighbours do not predict, this writes them the way the prior expects; on
+scenes whose neighbours do predict them, the way the neighbours already took.
+
 A rotation is read as a direction: the decoder keeps the quaternion as coded and renderers
 normalize it (spec clause 11.1), so its length is the encoder's to choose. A shorter quaternion
 rounds to fewer, smaller integers with a coarser direction: per-Gaussian precision for the
-rotation. Before the values are chosen, each Gaussian's quaternion is given the length of
-ROTATION_NORMS (1 down to 1/8) whose rounded multiple costs least in F (x - d)^2 + mu bits, d
-the rounded quaternion's direction at the original length; its sensitivities scale by 1 / rho^2
-(the pictures see the direction). A zero quaternion, which has no direction, is never chosen.
+rotation. Each Gaussian's quaternion is given the length of ROTATION_NORMS (1 down to 1/8)
+whose rounded multiple costs least in F (x - d)^2 + mu bits, d the rounded quaternion's
+direction at the original length; its sensitivities scale by 1 / rho^2 (the pictures see the
+direction). A zero quaternion, which has no direction, is never chosen.
 
 The means of a finer LoD depend on the values chosen for the coarser ones, so the LoDs are
 chosen in coding order. The scale levels are those fitted to the rounded values (the coder
@@ -126,51 +137,124 @@ def _choose(x: np.ndarray, q0: np.ndarray, mean: np.ndarray, level: np.ndarray, 
     return best
 
 
-def _rotation_norms(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarray, mu: float) -> np.ndarray:
-    """float64 [n]: per row of unit quaternions ``x`` [n, 4] (in steps), the factor of
-    ROTATION_NORMS whose rounded multiple costs least in F (x - direction)^2 + mu bits, the
-    direction being the rounded quaternion normalized back to the length of x (module doc)."""
+# How many of the 24 turns, ranked by the bits of their rounded scales and rotation at unit
+# length, are costed in full with every rotation length (besides the Gaussian's own). Playbot lod4
+# at the low preset's steps: 3 keep half of the 3.5% that all 24 save, 8 all of it.
+TURN_CANDIDATES = 8
+
+
+def _axis_turns() -> tuple[np.ndarray, np.ndarray]:
+    """The 24 unit quaternions g, one of each +-g, whose rotations map the coordinate axes onto
+    the axes: (float64 [24, 4, 4] the matrices of q -> q g (Hamilton product, (w, x, y, z)),
+    int [24, 3] the permutation p that takes the scales along: axis a of q g is axis p[a] of q).
+    The identity comes first."""
+    gs = [np.eye(4)[i] for i in range(4)]  # the identity and the half-turns about the axes
+    gs += [np.array([1.0, *(1 - 2 * b for b in s)]) / 2 for s in np.ndindex(2, 2, 2)]  # about the body diagonals
+    gs += [(np.eye(4)[a] + sb * np.eye(4)[b]) * 2 ** -0.5  # quarter-turns; half-turns about face diagonals
+           for a in range(4) for b in range(a + 1, 4) for sb in (1, -1)]
+    mats, perms = [], []
+    for w, x, y, z in gs:
+        mats.append(np.array([[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]]))
+        r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                      [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+        perms.append(np.argmax(np.abs(r), axis=0))
+    return np.stack(mats), np.stack(perms)
+
+
+AXIS_TURNS, AXIS_TURN_PERMS = _axis_turns()
+_ONES4 = np.ones(4)
+
+
+def _rotation_norms(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarray, mu: float
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Per row of unit quaternions ``x`` [n, 4] (in steps): the factor of ROTATION_NORMS whose
+    rounded multiple costs least in F (x - direction)^2 + mu bits, the direction being the
+    rounded quaternion normalized back to the length of x (module doc), and that cost
+    (float64 [n] each)."""
     best, best_cost = np.ones(x.shape[0]), np.full(x.shape[0], np.inf)
-    if not mu > 0:  # no rate term: plain rounding, as for every other value
-        return best
     length = np.linalg.norm(x, axis=1, keepdims=True)
     for rho in ROTATION_NORMS:
         v = np.rint(rho * x)
         vlen = np.linalg.norm(v, axis=1, keepdims=True)
         err = x - v * (length / np.maximum(vlen, 1e-300))
-        cost = (f * err * err).sum(1) + mu * code_lengths_bits((v - mean).astype(np.int64), level).sum(1)
+        cost = (f * err * err) @ _ONES4 + mu * (code_lengths_bits((v - mean).astype(np.int64), level) @ _ONES4)
         better = (vlen[:, 0] > 0) & (cost < best_cost)
         best, best_cost = np.where(better, rho, best), np.where(better, cost, best_cost)
-    return best
+    return best, best_cost
+
+
+def _orientation(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarray, mu: np.ndarray,
+                 scales: slice, rotation: slice) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rows ``x`` [n, M] (in steps) with sensitivities ``f``, their coding's means and scale
+    levels and the slopes ``mu`` [M], each Gaussian written the way that codes cheapest (module
+    doc): (x, f) with the scale and rotation columns turned, the rotation scaled to its length,
+    and that length (float64 [n])."""
+    n = x.shape[0]
+    mu_r = float(mu[rotation].max(initial=0.0))
+    if not mu_r > 0:  # no rate term: plain rounding, as for every other value
+        return x, f, np.ones(n)
+    xs, fs, xr, fr = x[:, scales], f[:, scales], x[:, rotation], f[:, rotation]
+    mean_r, level_r = mean[:, rotation], level[:, rotation]
+    perms, perm_of_turn = np.unique(AXIS_TURN_PERMS, axis=0, return_inverse=True)
+    scale_bits = np.stack([code_lengths_bits((np.rint(xs[:, p]) - mean[:, scales]).astype(np.int64),
+                                             level[:, scales]) @ mu[scales] for p in perms], 1)
+    ranking, signs = np.empty((n, len(AXIS_TURNS))), np.empty((n, len(AXIS_TURNS)))
+    for t, m4 in enumerate(AXIS_TURNS):
+        xg = xr @ m4.T
+        signs[:, t] = np.where(np.einsum("ij,ij->i", xg, mean_r) < 0, -1.0, 1.0)  # the one nearer the mean
+        v = np.rint(xg * signs[:, t:t + 1])
+        ranking[:, t] = scale_bits[:, perm_of_turn[t]] + mu_r * (
+            code_lengths_bits((v - mean_r).astype(np.int64), level_r) @ _ONES4)
+    candidates = np.argsort(ranking, axis=1, kind="stable")[:, :TURN_CANDIDATES]
+    rows = np.arange(n)
+    best = best_cost = None
+    for t in [np.zeros(n, dtype=np.int64)] + list(candidates.T):  # the Gaussian's own turn first
+        m_rows = AXIS_TURNS[t] * signs[rows, t][:, None, None]
+        xt = np.einsum("nij,nj->ni", m_rows, xr)
+        ft = np.einsum("nij,nj->ni", m_rows * m_rows, fr)  # the diagonal of M diag(f) M^T
+        rho, cost = _rotation_norms(xt, ft, mean_r, level_r, mu_r)
+        cost += scale_bits[rows, perm_of_turn[t]]
+        cand = (xt, ft, rho, AXIS_TURN_PERMS[t])
+        if best is None:
+            best, best_cost = cand, cost
+            continue
+        better = cost < best_cost
+        best_cost = np.where(better, cost, best_cost)
+        best = tuple(np.where(better.reshape((n,) + (1,) * (c.ndim - 1)), c, b) for c, b in zip(cand, best))
+    xt, ft, rho, perm = best
+    x, f = x.copy(), f.copy()
+    x[:, scales], f[:, scales] = np.take_along_axis(xs, perm, 1), np.take_along_axis(fs, perm, 1)
+    x[:, rotation] = xt * rho[:, None]
+    f[:, rotation] = ft / (rho * rho)[:, None]  # the pictures see the direction: d/dx scales by 1 / rho
+    return x, f, rho
 
 
 def _choose_rows(x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarray, mu: np.ndarray,
-                 rotation: slice | None) -> np.ndarray:
+                 orientation: tuple[slice, slice] | None) -> np.ndarray:
     """The values chosen for rows ``x`` [n, M] given their coding's means and scale levels: the
-    rotation's length first (when ``rotation`` names its columns), then each value."""
-    x_unit = x
-    if rotation is not None:
-        rho = _rotation_norms(x[:, rotation], f[:, rotation], mean[:, rotation], level[:, rotation],
-                              float(mu[0, rotation].max(initial=0.0)))
-        x, f = x.copy(), f.copy()
-        x[:, rotation] *= rho[:, None]
-        f[:, rotation] /= (rho * rho)[:, None]  # the pictures see the direction: d/dx scales by 1 / rho
+    orientation and the rotation's length first (when ``orientation`` names the scale and
+    rotation columns), then each value."""
+    if orientation is not None:
+        scales, rotation = orientation
+        x, f, rho = _orientation(x, f, mean, level, mu[0], scales, rotation)
     q = _choose(x, np.rint(x).astype(np.int64), mean, level, f, mu)
-    if rotation is not None:  # never a zero quaternion (it has no direction): the rounded one instead
+    if orientation is not None:  # never a zero quaternion (it has no direction): the rounded one instead
         zero = ~q[:, rotation].any(axis=1)
         if zero.any():
-            r = np.rint(x_unit[zero, rotation]).astype(np.int64)
+            r = np.rint(x[zero, rotation] / rho[zero, None]).astype(np.int64)
             r[~r.any(axis=1), 0] = 1
             q[zero, rotation] = r
     return q
 
 
 def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray, graph: NeighbourGraph | None,
-                num_buckets: int, rotation: slice | None = None) -> np.ndarray:
+                num_buckets: int, orientation: tuple[slice, slice] | None = None) -> np.ndarray:
     """int64 [N, M]: the values chosen for ``x`` (float [N, M], in steps, rows in coding order)
     with sensitivities ``f`` [N, M] and slopes ``mu`` [M] (module doc). ``graph``: the neighbour
     graph of ``coords`` when neighbour prediction codes the rows (None: the per-channel prior).
-    ``rotation``: the columns of unit rotation quaternions, whose length is chosen per row."""
+    ``orientation``: the columns of the log scales and of the unit rotation quaternions
+    (``orientation_columns``), whose orientation and rotation length are chosen per row."""
     q0 = np.rint(x).astype(np.int64)
     n, m = q0.shape
     if n == 0:
@@ -187,15 +271,20 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
     q = q0.copy()
     rows0 = graph.rows[0]
     q[rows0] = _choose_rows(x[rows0], np.broadcast_to(prior_mean, (rows0.size, m)),
-                            np.broadcast_to(prior_level, (rows0.size, m)), f[rows0], mu[None, :], rotation)
+                            np.broadcast_to(prior_level, (rows0.size, m)), f[rows0], mu[None, :], orientation)
     for lod in range(1, len(graph.rows)):
         rows = graph.rows[lod]
         if rows.size == 0:
             continue
         mean, bucket = neighbour_means_and_buckets(q, graph.neighbours[lod], num_buckets, flags, prior_mean)
         level = np.take_along_axis(table.T, bucket, axis=0)
-        q[rows] = _choose_rows(x[rows], mean, level, f[rows], mu[None, :], rotation)
+        q[rows] = _choose_rows(x[rows], mean, level, f[rows], mu[None, :], orientation)
     return q
+
+
+def orientation_columns(layout: GaussianLayout) -> tuple[slice, slice]:
+    """The columns of the log scales and of the rotation quaternion (rd_quantize's ``orientation``)."""
+    return slice(layout.scale_start, layout.rotation_start), slice(layout.rotation_start, layout.num_channels)
 
 
 def channel_steps(cfg, sh_degree: int) -> np.ndarray:

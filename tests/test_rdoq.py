@@ -128,61 +128,122 @@ def _unit_quaternions(rng, n):
     return np.where(q[:, :1] < 0, -q, q)
 
 
+SCALES, ROTATION = slice(0, 3), slice(3, 7)  # the orientation columns of the tests' [n, 7] rows
+
+
+def _shapes(rng, n, step):
+    """[n, 7] rows in steps: log scales around e^-3 (elongated ones too), unit quaternions."""
+    return np.concatenate([rng.normal(-3, 1, (n, 3)) / step, _unit_quaternions(rng, n) / step], 1)
+
+
+def _covariances(x, scale_step):
+    from lghcc.render.rasterizer import quat_to_rotmat
+    r = quat_to_rotmat(torch.from_numpy(x[:, ROTATION])).numpy()
+    return np.einsum("nij,nj,nkj->nik", r, np.exp(2 * x[:, SCALES] * scale_step), r)
+
+
+def test_axis_turns_are_the_24_turns_of_the_axes_and_keep_every_covariance():
+    rng = np.random.default_rng(0)
+    x = _shapes(rng, 64, 0.1)
+    images = {tuple(np.round(m @ [1.0, 0, 0, 0], 9)) for m in rdoq.AXIS_TURNS}
+    assert len(rdoq.AXIS_TURNS) == 24 and len({tuple(-np.array(g)) for g in images} | images) == 48
+    np.testing.assert_array_equal(rdoq.AXIS_TURNS[0], np.eye(4))
+    for m4, perm in zip(rdoq.AXIS_TURNS, rdoq.AXIS_TURN_PERMS):
+        assert sorted(perm) == [0, 1, 2]
+        np.testing.assert_allclose(m4 @ m4.T, np.eye(4), atol=1e-15)  # a length-keeping map of quaternions
+        y = x.copy()
+        y[:, SCALES], y[:, ROTATION] = x[:, SCALES][:, perm], -x[:, ROTATION] @ m4.T
+        np.testing.assert_allclose(_covariances(y, 0.1), _covariances(x, 0.1), rtol=1e-9, atol=1e-18)
+
+
 @settings(max_examples=40, deadline=None)
 @given(n=st.integers(1, 150), step=st.sampled_from([0.005, 0.04, 0.3, 1.0, 3.0]), mu=st.floats(0, 100),
        zero_share=st.floats(0, 1), predict=st.booleans(), seed=st.integers(0, 2 ** 31))
-def test_rotation_lengths_keep_a_direction_and_cost_no_more_than_unit_length(n, step, mu, zero_share, predict,
-                                                                            seed):
-    """A rotation may be coded at any of ROTATION_NORMS' lengths (the decoder reads a direction):
-    never as a zero quaternion, whatever the step; with the prior (fixed means) and no jumps towards
-    it, the length chosen costs at most unit length's F (x - direction)^2 + mu bits; mu = 0 keeps
-    unit length and plain rounding."""
+def test_orientation_writes_the_same_gaussian_costs_no_more_and_never_a_zero_quaternion(n, step, mu, zero_share,
+                                                                                        predict, seed):
+    """Each Gaussian may be written 48 ways (+-q g with the scales permuted) and its rotation at any
+    of ROTATION_NORMS' lengths (the decoder reads a direction): the way chosen is the same
+    covariance; with the prior's fixed means it costs at most what the Gaussian's own way costs at
+    its best length (scale bits + F (x - direction)^2 + mu bits); the coded quaternion is never
+    zero, whatever the step; mu = 0 is plain rounding."""
     rng = np.random.default_rng(seed)
-    x = _unit_quaternions(rng, n) / step
-    f = rng.exponential(1.0, (n, 4)) * (rng.uniform(size=(n, 4)) >= zero_share)
+    x = _shapes(rng, n, step)
+    f = rng.exponential(1.0, (n, 7)) * (rng.uniform(size=(n, 7)) >= zero_share)
     coords = np.unique(rng.integers(0, 64, (n, 3)), axis=0)
     x, f = x[:coords.shape[0]], f[:coords.shape[0]]
     graph = neighbour_graph(coords, 4, 3) if predict else None
-    q = rd_quantize(x, f, np.full(4, mu), coords, graph, 5, slice(0, 4))
-    assert q.shape == x.shape and np.all(q.any(axis=1))
-    np.testing.assert_array_equal(rd_quantize(x, f, np.zeros(4), coords, graph, 5, slice(0, 4)),
-                                  np.where(np.rint(x).any(axis=1, keepdims=True), np.rint(x), [[1, 0, 0, 0]]))
-    if graph is None:
-        mean = np.rint(np.median(np.rint(x), axis=0)).astype(np.int64)
-        level = np.broadcast_to([best_level(np.rint(x[:, c]).astype(np.int64) - mean[c]) for c in range(4)], q.shape)
+    q = rd_quantize(x, f, np.full(7, mu), coords, graph, 5, (SCALES, ROTATION))
+    assert q.shape == x.shape and np.all(q[:, ROTATION].any(axis=1))
+    plain = np.rint(x)
+    plain[~plain[:, ROTATION].any(axis=1), 3] = 1
+    np.testing.assert_array_equal(rd_quantize(x, f, np.zeros(7), coords, graph, 5, (SCALES, ROTATION)), plain)
 
-        def cost(v):
-            vlen = np.linalg.norm(v, axis=1, keepdims=True)
-            err = x - v * np.linalg.norm(x, axis=1, keepdims=True) / np.maximum(vlen, 1e-300)
-            return (f * err ** 2).sum(1) + mu * code_lengths_bits(v - mean, level).sum(1)
-        rounded = np.rint(x).astype(np.int64)
-        rho = rdoq._rotation_norms(x, f, mean, level, mu)
-        assert set(np.unique(rho)) <= set(ROTATION_NORMS)
-        chosen = np.rint(rho[:, None] * x).astype(np.int64)
-        ok = rounded.any(axis=1)  # a step so coarse that the rounding is zero: the guard's identity
-        assert np.all(chosen.any(axis=1)[ok])
-        assert np.all(cost(chosen)[ok] <= cost(rounded)[ok] * (1 + 1e-9) + 1e-9)
+    mean = np.rint(np.median(np.rint(x), axis=0)).astype(np.int64)
+    level = np.broadcast_to([best_level(np.rint(x[:, c]).astype(np.int64) - mean[c]) for c in range(7)], x.shape)
+    mean = np.broadcast_to(mean, x.shape)
+    mus = np.full(7, mu)
+    y, fy, rho = rdoq._orientation(x, f, mean, level, mus, SCALES, ROTATION)
+    assert set(np.unique(rho)) <= set(ROTATION_NORMS)
+    np.testing.assert_allclose(np.linalg.norm(y[:, ROTATION], axis=1), rho * np.linalg.norm(x[:, ROTATION], axis=1))
+    np.testing.assert_allclose(_covariances(y, step), _covariances(x, step), rtol=1e-9, atol=1e-300)
+    if mu > 0:
+        def cost(v, fv, vmean):  # the Gaussian's way v (unit length) at its best length, scales included
+            s_bits = code_lengths_bits((np.rint(v[:, SCALES]) - vmean[:, SCALES]).astype(np.int64),
+                                       level[:, SCALES]).sum(1)
+            return mu * s_bits + rdoq._rotation_norms(v[:, ROTATION], fv[:, ROTATION], vmean[:, ROTATION],
+                                                      level[:, ROTATION], mu)[1]
+        unit = y.copy()
+        unit[:, ROTATION] /= rho[:, None]
+        assert np.all(cost(unit, fy * np.concatenate([np.ones((len(rho), 3)), (rho ** 2)[:, None].repeat(4, 1)], 1),
+                           mean) <= cost(x, f, mean) * (1 + 1e-9) + 1e-9)
 
 
 def test_rotations_the_pictures_barely_show_are_coded_shorter_and_in_fewer_bits():
     rng = np.random.default_rng(5)
     n = 400
-    x = _unit_quaternions(rng, n) / 0.04
+    x = _shapes(rng, n, 0.04)
     coords = np.unique(rng.integers(0, 1000, (n, 3)), axis=0)[:n]
     x = x[:coords.shape[0]]
     f = np.full(x.shape, 1e-3)
-    q = rd_quantize(x, f, np.ones(4), coords, None, 5, slice(0, 4))
-    assert np.median(np.linalg.norm(q, axis=1)) < 0.5 * np.median(np.linalg.norm(x, axis=1))
+    q = rd_quantize(x, f, np.ones(7), coords, None, 5, (SCALES, ROTATION))
+    assert np.median(np.linalg.norm(q[:, ROTATION], axis=1)) < 0.5 * np.median(np.linalg.norm(x[:, ROTATION], axis=1))
     assert min(ROTATION_NORMS) > 0 and max(ROTATION_NORMS) == 1.0
-    sensitive = rd_quantize(x, np.full(x.shape, 1e9), np.ones(4), coords, None, 5, slice(0, 4))
+    sensitive = rd_quantize(x, np.full(x.shape, 1e9), np.ones(7), coords, None, 5, (SCALES, ROTATION))
 
-    def direction_error(v):
-        return np.linalg.norm(v / np.linalg.norm(v, axis=1, keepdims=True) - x / np.linalg.norm(x, axis=1,
-                                                                                                keepdims=True), axis=1)
-    # no direction worse than the rounding's (a shorter multiple of it, such as (6, 10, 2, -3) for
-    # (12, 20, 4, -6), gives the same direction for fewer bits)
-    assert np.all(direction_error(sensitive) <= direction_error(np.rint(x)) + 1e-12)
-    assert np.any(np.linalg.norm(sensitive, axis=1) < np.linalg.norm(np.rint(x), axis=1))
+    # covariances as close as the rounding's (a shorter multiple of a rotation, such as (6, 10, 2, -3)
+    # for (12, 20, 4, -6), gives the same one for fewer bits; another way of writing the Gaussian
+    # rounds differently, chosen by F's diagonal, which leaves out the cross terms)
+    def covariance_error(v):
+        return np.abs(_covariances(v.astype(np.float64), 0.04) - _covariances(x, 0.04)).max(axis=(1, 2))
+    assert covariance_error(sensitive).mean() <= 1.02 * covariance_error(np.rint(x)).mean()
+    assert np.any(np.linalg.norm(sensitive[:, ROTATION], axis=1) < np.linalg.norm(np.rint(x[:, ROTATION]), axis=1))
+
+
+def test_orientation_follows_the_prior_for_random_rotations_and_the_neighbours_for_aligned_ones():
+    """Random orientations coded with the prior: fewer bits than each Gaussian's own way. Aligned
+    ones (every Gaussian the same shape and turn, as on a surface) stay in the way their
+    neighbours took: the bits do not grow."""
+    rng = np.random.default_rng(7)
+    n, step = 3000, 0.05
+    coords = np.unique(rng.integers(0, 200, (n, 3)), axis=0)
+    n = coords.shape[0]
+    graph = neighbour_graph(coords, 4, 6)
+    for aligned in (False, True):
+        x = _shapes(rng, n, step)
+        if aligned:
+            x[:, SCALES] = np.array([-2.0, -3.0, -4.5]) / step + rng.normal(0, 0.3, (n, 3))
+            q0 = np.array([0.2, 0.9, 0.3, -0.2])
+            x[:, ROTATION] = (q0 / np.linalg.norm(q0) + rng.normal(0, 0.01, (n, 4))) / step
+        f = np.full(x.shape, 20.0)
+        mu = np.full(7, 0.5)
+        own = rd_quantize(x, f, mu, coords, graph, 5, None)
+        turned = rd_quantize(x, f, mu, coords, graph, 5, (SCALES, ROTATION))
+
+        def bits(q):
+            from lghcc.encoder.neighbour_coding import NeighbourCoding
+            nc = NeighbourCoding(q, coords, len(graph.rows), 1, 5, False, None, graph=graph)
+            return sum(code_lengths_bits(nc.residuals[:, c], nc.levels[:, c]).sum() for c in range(7))
+        assert bits(turned) <= (1.0 if aligned else 0.97) * bits(own), (aligned, bits(turned), bits(own))
 
 
 def test_group_slopes_and_channel_maps():
@@ -222,8 +283,9 @@ def test_encoder_codes_the_chosen_values_exactly_and_spends_fewer_bytes(predict)
     assert dec.hash_checked
     # the decoded values are those the encoder reported, within one step of plain rounding
     steps = channel_steps(cfg, 1)
-    a = np.concatenate([dec.scene.sh.reshape(len(dec.scene.sh), -1), dec.scene.log_scales], 1)
-    b = np.concatenate([plain.decoded.sh.reshape(len(a), -1), plain.decoded.log_scales], 1)
+    # (the scales up to their order: RDOQ may turn a Gaussian's axes, encoder/rdoq.py)
+    a = np.concatenate([dec.scene.sh.reshape(len(dec.scene.sh), -1), np.sort(dec.scene.log_scales, 1)], 1)
+    b = np.concatenate([plain.decoded.sh.reshape(len(a), -1), np.sort(plain.decoded.log_scales, 1)], 1)
     assert np.array_equal(dec.scene.sh, chosen.decoded.sh)
     diff = np.abs(a - b) / np.concatenate([steps[:12], steps[13:16]])
     assert diff.max() <= MAX_JUMP + 1e-3 and diff.max() > 0.5

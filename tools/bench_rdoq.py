@@ -48,6 +48,9 @@ def main(argv: list[str] | None = None) -> int:
                    help=f"random images per view for the sensitivities (default {SENSITIVITY_PROBES}, the encoder's)")
     p.add_argument("--max-jump", type=int, default=rdoq.MAX_JUMP,
                    help=f"the largest move from the rounded value, in steps (default {rdoq.MAX_JUMP}, the encoder's)")
+    p.add_argument("--turn-candidates", type=int, default=rdoq.TURN_CANDIDATES,
+                   help=f"how many of the 24 ways of turning a Gaussian's axes are costed in full besides its own "
+                        f"(default {rdoq.TURN_CANDIDATES}, the encoder's; 0: every Gaussian kept as it is)")
     p.add_argument("--rotation-lengths", default=",".join(f"{r:.4g}" for r in rdoq.ROTATION_NORMS),
                    help="the lengths a rotation quaternion may be given, comma-separated (default the "
                         "encoder's; 1 alone keeps every quaternion at unit length)")
@@ -56,6 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     rdoq.MAX_JUMP = args.max_jump
     rdoq.ROTATION_NORMS = tuple(float(r) for r in args.rotation_lengths.split(","))
+    rdoq.TURN_CANDIDATES = args.turn_candidates
     torch.set_num_threads(args.threads)
     scene = read_3dgs_ply(args.scene)
     cfg = load_config(args.preset, kind="gaussians")
@@ -72,7 +76,8 @@ def main(argv: list[str] | None = None) -> int:
              f"Scene: {args.scene}, {scene.num_gaussians:,} Gaussians, SH degree {scene.sh_degree}; preset "
              f"{args.preset} (pruning share {cfg.prune_share:g}); contributions and sensitivities "
              f"({len(cams)} views, {args.probes} probes each) in {t_sens:.1f} s; values moved at most "
-             f"{args.max_jump} step(s); rotation lengths {args.rotation_lengths}.",
+             f"{args.max_jump} step(s); rotation lengths {args.rotation_lengths}; {args.turn_candidates} turn "
+             "candidates.",
              "", "| step factor | RDOQ weight | PSNR dB (search views) | bytes | bytes / rounding at this factor |",
              "|---:|---:|---:|---:|---:|"]
     for fac in (float(x) for x in args.factors.split(",")):
