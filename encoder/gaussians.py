@@ -10,9 +10,8 @@ The encoder's choices, none of which the decoder needs to know:
 - Gaussians that round to one voxel: all but the most contributing one move to the nearest
   free voxel (one voxel away as a rule: the error grows from half a voxel to about one and a
   half), so none is lost for lack of room;
-- rotations are normalized to the largest |w| among q, q i, q j, q k (half-turns about the
-  Gaussian's axes, the same covariance) with w >= 0 (q and -q are one rotation); RDOQ may then
-  write a Gaussian in another of its equivalent ways (encoder/rdoq.py); opacity logits clamped to
+- rotations are normalized with w >= 0 (q and -q are one rotation; RDOQ may write a Gaussian
+  in another of its equivalent ways, encoder/rdoq.py), opacity logits clamped to
   [-OPACITY_LOGIT_LIMIT, OPACITY_LOGIT_LIMIT] (beyond, alpha differs from 0 or 1 by < 3.4e-4);
 - quantization steps from the preset; cross-channel prediction where it saves bits.
 """
@@ -128,17 +127,10 @@ def snap_to_grid(scene: GaussianScene, voxel: float, origin: np.ndarray,
 
 
 def canonical_rotations(rot: np.ndarray) -> np.ndarray:
-    """Unit quaternions, each the one with the largest |w| of q, q i, q j and q k (a half-turn about
-    an axis of the Gaussian: the same covariance R S^2 R^T for any scales), with w >= 0 (q and -q
-    are one rotation); a zero quaternion becomes the identity. So that the encoder starts from
-    rotations as near the identity as the Gaussians allow (encoder/rdoq.py then chooses among all
-    the ways of writing each one)."""
+    """Unit quaternions with w >= 0 (a zero quaternion becomes the identity)."""
     r = rot.astype(np.float64)
     norm = np.linalg.norm(r, axis=1, keepdims=True)
     r = np.where(norm > 0, r / np.maximum(norm, 1e-300), np.array([1.0, 0, 0, 0]))
-    w, x, y, z = r.T
-    ways = np.stack([r, np.stack([-x, w, z, -y], 1), np.stack([-y, -z, w, x], 1), np.stack([-z, y, -x, w], 1)])
-    r = ways[np.argmax(np.abs(ways[:, :, 0]), axis=0), np.arange(r.shape[0])]
     return np.where(r[:, :1] < 0, -r, r)
 
 
