@@ -186,6 +186,28 @@ def _rotation_norms(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.nd
     return best, best_cost
 
 
+_TURNS_T = np.concatenate([m.T for m in AXIS_TURNS], 1)  # [4, 96]: x @ _TURNS_T = every q g at once
+
+
+def _turn_ranking(xr: np.ndarray, mean_r: np.ndarray, level_r: np.ndarray, mu_r: float, block: int = 16384
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """For unit quaternions ``xr`` [n, 4] (in steps, contiguous) and their coding's means and
+    levels: (float64 [n, 24] mu_r x the bits of each turn's rounded quaternion, float64 [n, 24] the
+    sign each turn takes: the one nearer the mean). All 24 turns in one product, rows by blocks."""
+    n, nt = xr.shape[0], len(AXIS_TURNS)
+    bits, signs = np.empty((n, nt)), np.empty((n, nt))
+    for lo in range(0, n, block):
+        hi = min(n, lo + block)
+        xg = (xr[lo:hi] @ _TURNS_T).reshape(hi - lo, nt, 4)
+        m = mean_r[lo:hi, None, :]
+        s = np.where(np.einsum("ntc,nc->nt", xg, mean_r[lo:hi]) < 0, -1.0, 1.0)
+        r = (np.rint(xg * s[:, :, None]) - m).astype(np.int64)
+        lv = np.broadcast_to(level_r[lo:hi, None, :], r.shape)
+        bits[lo:hi] = mu_r * (code_lengths_bits(r, lv) @ _ONES4)
+        signs[lo:hi] = s
+    return bits, signs
+
+
 def _orientation(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarray, mu: np.ndarray,
                  scales: slice, rotation: slice) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rows ``x`` [n, M] (in steps) with sensitivities ``f``, their coding's means and scale
@@ -201,13 +223,9 @@ def _orientation(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarr
     perms, perm_of_turn = np.unique(AXIS_TURN_PERMS, axis=0, return_inverse=True)
     scale_bits = np.stack([code_lengths_bits((np.rint(xs[:, p]) - mean[:, scales]).astype(np.int64),
                                              level[:, scales]) @ mu[scales] for p in perms], 1)
-    ranking, signs = np.empty((n, len(AXIS_TURNS))), np.empty((n, len(AXIS_TURNS)))
-    for t, m4 in enumerate(AXIS_TURNS):
-        xg = xr @ m4.T
-        signs[:, t] = np.where(np.einsum("ij,ij->i", xg, mean_r) < 0, -1.0, 1.0)  # the one nearer the mean
-        v = np.rint(xg * signs[:, t:t + 1])
-        ranking[:, t] = scale_bits[:, perm_of_turn[t]] + mu_r * (
-            code_lengths_bits((v - mean_r).astype(np.int64), level_r) @ _ONES4)
+    ranking, signs = _turn_ranking(np.ascontiguousarray(xr), np.ascontiguousarray(mean_r),
+                                   np.ascontiguousarray(level_r), mu_r)
+    ranking += scale_bits[:, perm_of_turn]
     candidates = np.argsort(ranking, axis=1, kind="stable")[:, :TURN_CANDIDATES]
     rows = np.arange(n)
     best = best_cost = None
