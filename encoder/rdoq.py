@@ -209,45 +209,58 @@ def _turn_ranking(xr: np.ndarray, mean_r: np.ndarray, level_r: np.ndarray, mu_r:
 
 
 def _orientation(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarray, mu: np.ndarray,
-                 scales: slice, rotation: slice) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 scales: slice, rotation: slice, ways: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Rows ``x`` [n, M] (in steps) with sensitivities ``f``, their coding's means and scale
     levels and the slopes ``mu`` [M], each Gaussian written the way that codes cheapest (module
-    doc): (x, f) with the scale and rotation columns turned, the rotation scaled to its length,
-    and that length (float64 [n])."""
+    doc), or the way ``ways`` [n] gives where it is >= 0 (rd_quantize): (x, f) with the scale
+    and rotation columns turned, the rotation scaled to its length, that length (float64 [n])
+    and the ways (int64 [n]: turn + 24 where the quaternion is negated)."""
     n = x.shape[0]
     mu_r = float(mu[rotation].max(initial=0.0))
     if not mu_r > 0:  # no rate term: plain rounding, as for every other value
-        return x, f, np.ones(n)
+        return x, f, np.ones(n), np.zeros(n, dtype=np.int64)
     xs, fs, xr, fr = x[:, scales], f[:, scales], x[:, rotation], f[:, rotation]
     mean_r, level_r = mean[:, rotation], level[:, rotation]
     perms, perm_of_turn = np.unique(AXIS_TURN_PERMS, axis=0, return_inverse=True)
     scale_bits = np.stack([code_lengths_bits((np.rint(xs[:, p]) - mean[:, scales]).astype(np.int64),
                                              level[:, scales]) @ mu[scales] for p in perms], 1)
-    ranking, signs = _turn_ranking(np.ascontiguousarray(xr), np.ascontiguousarray(mean_r),
-                                   np.ascontiguousarray(level_r), mu_r)
-    ranking += scale_bits[:, perm_of_turn]
-    candidates = np.argsort(ranking, axis=1, kind="stable")[:, :TURN_CANDIDATES]
     rows = np.arange(n)
+    fixed = np.zeros(n, dtype=bool) if ways is None else np.asarray(ways) >= 0
+    turns, signs = np.zeros((n, 1), dtype=np.int64), np.ones((n, len(AXIS_TURNS)))
+    if fixed.any():
+        turns[fixed, 0] = ways[fixed] % len(AXIS_TURNS)
+        signs[fixed] = np.where(ways[fixed] >= len(AXIS_TURNS), -1.0, 1.0)[:, None]
+    free = np.flatnonzero(~fixed)
+    if free.size:
+        ranking, signs[free] = _turn_ranking(np.ascontiguousarray(xr[free]), np.ascontiguousarray(mean_r[free]),
+                                             np.ascontiguousarray(level_r[free]), mu_r)
+        ranking += scale_bits[free][:, perm_of_turn]
+        candidates = np.zeros((n, 1 + TURN_CANDIDATES), dtype=np.int64)  # the Gaussian's own turn first
+        candidates[:, 0] = turns[:, 0]
+        candidates[free, 1:] = np.argsort(ranking, axis=1, kind="stable")[:, :TURN_CANDIDATES]
+        candidates[fixed, 1:] = turns[fixed]  # (the same turn again: never better)
+        turns = candidates
     best = best_cost = None
-    for t in [np.zeros(n, dtype=np.int64)] + list(candidates.T):  # the Gaussian's own turn first
+    for t in turns.T:
         m_rows = AXIS_TURNS[t] * signs[rows, t][:, None, None]
         xt = np.einsum("nij,nj->ni", m_rows, xr)
         ft = np.einsum("nij,nj->ni", m_rows * m_rows, fr)  # the diagonal of M diag(f) M^T
         rho, cost = _rotation_norms(xt, ft, mean_r, level_r, mu_r)
         cost += scale_bits[rows, perm_of_turn[t]]
-        cand = (xt, ft, rho, AXIS_TURN_PERMS[t])
+        cand = (xt, ft, rho, AXIS_TURN_PERMS[t], t + np.where(signs[rows, t] < 0, len(AXIS_TURNS), 0))
         if best is None:
             best, best_cost = cand, cost
             continue
         better = cost < best_cost
         best_cost = np.where(better, cost, best_cost)
         best = tuple(np.where(better.reshape((n,) + (1,) * (c.ndim - 1)), c, b) for c, b in zip(cand, best))
-    xt, ft, rho, perm = best
+    xt, ft, rho, perm, way = best
     x, f = x.copy(), f.copy()
     x[:, scales], f[:, scales] = np.take_along_axis(xs, perm, 1), np.take_along_axis(fs, perm, 1)
     x[:, rotation] = xt * rho[:, None]
     f[:, rotation] = ft / (rho * rho)[:, None]  # the pictures see the direction: d/dx scales by 1 / rho
-    return x, f, rho
+    return x, f, rho, way
 
 
 def _half_turned(x: np.ndarray, f: np.ndarray, rotation: slice) -> tuple[np.ndarray, np.ndarray]:
@@ -268,13 +281,15 @@ def _half_turned(x: np.ndarray, f: np.ndarray, rotation: slice) -> tuple[np.ndar
 
 
 def _choose_rows(x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarray, mu: np.ndarray,
-                 orientation: tuple[slice, slice] | None) -> np.ndarray:
+                 orientation: tuple[slice, slice] | None, ways: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray | None]:
     """The values chosen for rows ``x`` [n, M] given their coding's means and scale levels: the
     orientation and the rotation's length first (when ``orientation`` names the scale and
-    rotation columns), then each value."""
+    rotation columns; ``ways`` as _orientation's), then each value. Returns them and the ways."""
+    way = None
     if orientation is not None:
         scales, rotation = orientation
-        x, f, rho = _orientation(x, f, mean, level, mu[0], scales, rotation)
+        x, f, rho, way = _orientation(x, f, mean, level, mu[0], scales, rotation, ways)
     q = _choose(x, np.rint(x).astype(np.int64), mean, level, f, mu)
     if orientation is not None:  # never a zero quaternion (it has no direction): the rounded one instead
         zero = ~q[:, rotation].any(axis=1)
@@ -282,16 +297,20 @@ def _choose_rows(x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarr
             r = np.rint(x[zero, rotation] / rho[zero, None]).astype(np.int64)
             r[~r.any(axis=1), 0] = 1
             q[zero, rotation] = r
-    return q
+    return q, way
 
 
 def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray, graph: NeighbourGraph | None,
-                num_buckets: int, orientation: tuple[slice, slice] | None = None) -> np.ndarray:
+                num_buckets: int, orientation: tuple[slice, slice] | None = None,
+                ways: np.ndarray | None = None) -> np.ndarray:
     """int64 [N, M]: the values chosen for ``x`` (float [N, M], in steps, rows in coding order)
     with sensitivities ``f`` [N, M] and slopes ``mu`` [M] (module doc). ``graph``: the neighbour
     graph of ``coords`` when neighbour prediction codes the rows (None: the per-channel prior).
     ``orientation``: the columns of the log scales and of the unit rotation quaternions
-    (``orientation_columns``), whose orientation and rotation length are chosen per row."""
+    (``orientation_columns``), whose orientation and rotation length are chosen per row.
+    ``ways``: int [N], the way each Gaussian is to be written (0..47, from the half-turn start;
+    what an earlier call chose), -1 where it is to be chosen; the ways chosen are written into
+    it (the settings search keeps them from trial to trial: the choice is most of RDOQ's time)."""
     if orientation is not None and x.shape[0] and float(np.max(mu[orientation[1]], initial=0.0)) > 0:
         x, f = _half_turned(x, f, orientation[1])
     q0 = np.rint(x).astype(np.int64)
@@ -308,16 +327,18 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
         flags = np.asarray(nc.unit.neighbour_mean_flag, dtype=bool)
         table = np.asarray(nc.unit.bucket_level, dtype=np.int64).reshape(m, num_buckets)
     q = q0.copy()
-    rows0 = graph.rows[0]
-    q[rows0] = _choose_rows(x[rows0], np.broadcast_to(prior_mean, (rows0.size, m)),
-                            np.broadcast_to(prior_level, (rows0.size, m)), f[rows0], mu[None, :], orientation)
-    for lod in range(1, len(graph.rows)):
-        rows = graph.rows[lod]
+    for lod, rows in enumerate(graph.rows):
         if rows.size == 0:
             continue
-        mean, bucket = neighbour_means_and_buckets(q, graph.neighbours[lod], num_buckets, flags, prior_mean)
-        level = np.take_along_axis(table.T, bucket, axis=0)
-        q[rows] = _choose_rows(x[rows], mean, level, f[rows], mu[None, :], orientation)
+        if lod == 0:
+            mean, level = np.broadcast_to(prior_mean, (rows.size, m)), np.broadcast_to(prior_level, (rows.size, m))
+        else:
+            mean, bucket = neighbour_means_and_buckets(q, graph.neighbours[lod], num_buckets, flags, prior_mean)
+            level = np.take_along_axis(table.T, bucket, axis=0)
+        q[rows], way = _choose_rows(x[rows], mean, level, f[rows], mu[None, :], orientation,
+                                    None if ways is None else ways[rows])
+        if ways is not None and way is not None:
+            ways[rows] = way
     return q
 
 

@@ -174,6 +174,13 @@ def test_orientation_writes_the_same_gaussian_costs_no_more_and_never_a_zero_qua
     graph = neighbour_graph(coords, 4, 3) if predict else None
     q = rd_quantize(x, f, np.full(7, mu), coords, graph, 5, (SCALES, ROTATION))
     assert q.shape == x.shape and np.all(q[:, ROTATION].any(axis=1))
+    # the ways chosen, kept and given back (as the settings search does), choose the same values
+    ways = np.full(len(x), -1)
+    np.testing.assert_array_equal(rd_quantize(x, f, np.full(7, mu), coords, graph, 5, (SCALES, ROTATION), ways), q)
+    assert ways.min() >= 0 and ways.max() < 48
+    kept = ways.copy()
+    np.testing.assert_array_equal(rd_quantize(x, f, np.full(7, mu), coords, graph, 5, (SCALES, ROTATION), ways), q)
+    np.testing.assert_array_equal(ways, kept)
     plain = np.rint(x)
     plain[~plain[:, ROTATION].any(axis=1), 3] = 1
     np.testing.assert_array_equal(rd_quantize(x, f, np.zeros(7), coords, graph, 5, (SCALES, ROTATION)), plain)
@@ -182,7 +189,7 @@ def test_orientation_writes_the_same_gaussian_costs_no_more_and_never_a_zero_qua
     level = np.broadcast_to([best_level(np.rint(x[:, c]).astype(np.int64) - mean[c]) for c in range(7)], x.shape)
     mean = np.broadcast_to(mean, x.shape)
     mus = np.full(7, mu)
-    y, fy, rho = rdoq._orientation(x, f, mean, level, mus, SCALES, ROTATION)
+    y, fy, rho, _ = rdoq._orientation(x, f, mean, level, mus, SCALES, ROTATION)
     assert set(np.unique(rho)) <= set(ROTATION_NORMS)
     np.testing.assert_allclose(np.linalg.norm(y[:, ROTATION], axis=1), rho * np.linalg.norm(x[:, ROTATION], axis=1))
     np.testing.assert_allclose(_covariances(y, step), _covariances(x, step), rtol=1e-9, atol=1e-300)

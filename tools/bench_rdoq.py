@@ -83,6 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     for fac in (float(x) for x in args.factors.split(",")):
         ref = None
         for w in (float(x) for x in args.weights.split(",")):
+            s.ways[:] = -1  # each Gaussian's way chosen afresh at these steps, as the coding chooses it
             t = s.evaluate(dataclasses.replace(_scaled(cfg, groups, fac), rd_quantization=w))
             ref = ref or t.bits
             lines.append(f"| {fac:g} | {w:g} | {-10 * math.log10(max(t.mse, 1e-12)):.2f} | {t.bits / 8:,.0f} | "
