@@ -227,28 +227,29 @@ def _orientation(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarr
                                              level[:, scales]) @ mu[scales] for p in perms], 1)
     rows = np.arange(n)
     fixed = np.zeros(n, dtype=bool) if ways is None else np.asarray(ways) >= 0
-    turns, signs = np.zeros((n, 1), dtype=np.int64), np.ones((n, len(AXIS_TURNS)))
+    # candidates per row: (turn, sign); the first is the Gaussian as given, or the way given
+    turns, cand_signs = np.zeros((n, 1), dtype=np.int64), np.ones((n, 1))
     if fixed.any():
         turns[fixed, 0] = ways[fixed] % len(AXIS_TURNS)
-        signs[fixed] = np.where(ways[fixed] >= len(AXIS_TURNS), -1.0, 1.0)[:, None]
+        cand_signs[fixed, 0] = np.where(ways[fixed] >= len(AXIS_TURNS), -1.0, 1.0)
     free = np.flatnonzero(~fixed)
-    if free.size:
-        ranking, signs[free] = _turn_ranking(np.ascontiguousarray(xr[free]), np.ascontiguousarray(mean_r[free]),
-                                             np.ascontiguousarray(level_r[free]), mu_r)
+    if free.size and TURN_CANDIDATES > 0:
+        ranking, signs = _turn_ranking(np.ascontiguousarray(xr[free]), np.ascontiguousarray(mean_r[free]),
+                                       np.ascontiguousarray(level_r[free]), mu_r)
         ranking += scale_bits[free][:, perm_of_turn]
-        candidates = np.zeros((n, 1 + TURN_CANDIDATES), dtype=np.int64)  # the Gaussian's own turn first
-        candidates[:, 0] = turns[:, 0]
-        candidates[free, 1:] = np.argsort(ranking, axis=1, kind="stable")[:, :TURN_CANDIDATES]
-        candidates[fixed, 1:] = turns[fixed]  # (the same turn again: never better)
-        turns = candidates
+        best_turns = np.argsort(ranking, axis=1, kind="stable")[:, :TURN_CANDIDATES]
+        turns = np.repeat(turns, 1 + best_turns.shape[1], axis=1)  # fixed rows: the same way again, never better
+        cand_signs = np.repeat(cand_signs, turns.shape[1], axis=1)
+        turns[free, 1:] = best_turns
+        cand_signs[free, 1:] = np.take_along_axis(signs, best_turns, 1)
     best = best_cost = None
-    for t in turns.T:
-        m_rows = AXIS_TURNS[t] * signs[rows, t][:, None, None]
+    for t, sign in zip(turns.T, cand_signs.T):
+        m_rows = AXIS_TURNS[t] * sign[:, None, None]
         xt = np.einsum("nij,nj->ni", m_rows, xr)
         ft = np.einsum("nij,nj->ni", m_rows * m_rows, fr)  # the diagonal of M diag(f) M^T
         rho, cost = _rotation_norms(xt, ft, mean_r, level_r, mu_r)
         cost += scale_bits[rows, perm_of_turn[t]]
-        cand = (xt, ft, rho, AXIS_TURN_PERMS[t], t + np.where(signs[rows, t] < 0, len(AXIS_TURNS), 0))
+        cand = (xt, ft, rho, AXIS_TURN_PERMS[t], t + np.where(sign < 0, len(AXIS_TURNS), 0))
         if best is None:
             best, best_cost = cand, cost
             continue
