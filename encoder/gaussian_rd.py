@@ -77,7 +77,8 @@ class SettingsSearch:
         self.cfg = cfg
         # the way RDOQ writes each Gaussian (encoder/rdoq.py), chosen at its first trial and kept:
         # choosing it is most of RDOQ's time, and it moves little with the steps (the coding does choose
-        # afresh: at fixed steps on playbot lod4 and the donut, kept ways give about 80% of its gain)
+        # afresh: at fixed steps on playbot lod4 and the donut, ways kept from another step give 75-94% of
+        # its gain; tools/bench_rdoq.py --keep-ways, tools/results/rdoq.md)
         self.ways = np.full(scene.num_gaussians, -1, dtype=np.int64)
         self._grids: dict = {}
         self._graphs: dict = {}

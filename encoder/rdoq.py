@@ -62,7 +62,7 @@ from ..common.entropy.symbol_coder import code_lengths_bits
 from ..common.neighbour_prediction import NeighbourGraph, neighbour_means_and_buckets
 from ..common.scene import GaussianScene
 from ..render.camera import Camera
-from ..render.rasterizer import rasterize
+from ..render.rasterizer import quat_to_rotmat, rasterize
 from ..render.sh import sh_to_rgb
 from .encode import fit_per_channel_prior
 from .gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations
@@ -154,14 +154,10 @@ def _axis_turns() -> tuple[np.ndarray, np.ndarray]:
     gs += [np.array([1.0, *(1 - 2 * b for b in s)]) / 2 for s in np.ndindex(2, 2, 2)]  # about the body diagonals
     gs += [(np.eye(4)[a] + sb * np.eye(4)[b]) * 2 ** -0.5  # quarter-turns; half-turns about face diagonals
            for a in range(4) for b in range(a + 1, 4) for sb in (1, -1)]
-    mats, perms = [], []
-    for w, x, y, z in gs:
-        mats.append(np.array([[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]]))
-        r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                      [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-        perms.append(np.argmax(np.abs(r), axis=0))
-    return np.stack(mats), np.stack(perms)
+    mats = [np.array([[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]]) for w, x, y, z in gs]
+    r = quat_to_rotmat(torch.from_numpy(np.stack(gs))).numpy()
+    perms = np.argmax(np.abs(r), axis=1)  # column a of R(g) is +-axis p[a]
+    return np.stack(mats), perms
 
 
 AXIS_TURNS, AXIS_TURN_PERMS = _axis_turns()
@@ -184,6 +180,12 @@ def _rotation_norms(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.nd
         better = (vlen[:, 0] > 0) & (cost < best_cost)
         best, best_cost = np.where(better, rho, best), np.where(better, cost, best_cost)
     return best, best_cost
+
+
+def _turned(m_rows: np.ndarray, xr: np.ndarray, fr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Quaternions ``xr`` [n, 4] turned by the per-row matrices ``m_rows`` [n, 4, 4], and their
+    sensitivities: the diagonal of M diag(f) M^T (exact for the signed permutations)."""
+    return np.einsum("nij,nj->ni", m_rows, xr), np.einsum("nij,nj->ni", m_rows * m_rows, fr)
 
 
 _TURNS_T = np.concatenate([m.T for m in AXIS_TURNS], 1)  # [4, 96]: x @ _TURNS_T = every q g at once
@@ -218,44 +220,41 @@ def _orientation(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarr
     and the ways (int64 [n]: turn + 24 where the quaternion is negated)."""
     n = x.shape[0]
     mu_r = float(mu[rotation].max(initial=0.0))
-    if not mu_r > 0:  # no rate term: plain rounding, as for every other value
-        return x, f, np.ones(n), np.zeros(n, dtype=np.int64)
+    if not mu_r > 0:  # no rate term: plain rounding, as for every other value (no way chosen)
+        return x, f, np.ones(n), np.full(n, -1, dtype=np.int64)
     xs, fs, xr, fr = x[:, scales], f[:, scales], x[:, rotation], f[:, rotation]
     mean_r, level_r = mean[:, rotation], level[:, rotation]
     perms, perm_of_turn = np.unique(AXIS_TURN_PERMS, axis=0, return_inverse=True)
     scale_bits = np.stack([code_lengths_bits((np.rint(xs[:, p]) - mean[:, scales]).astype(np.int64),
                                              level[:, scales]) @ mu[scales] for p in perms], 1)
-    rows = np.arange(n)
+    nt = len(AXIS_TURNS)
     fixed = np.zeros(n, dtype=bool) if ways is None else np.asarray(ways) >= 0
-    # candidates per row: (turn, sign); the first is the Gaussian as given, or the way given
-    turns, cand_signs = np.zeros((n, 1), dtype=np.int64), np.ones((n, 1))
-    if fixed.any():
-        turns[fixed, 0] = ways[fixed] % len(AXIS_TURNS)
-        cand_signs[fixed, 0] = np.where(ways[fixed] >= len(AXIS_TURNS), -1.0, 1.0)
+    # the first candidate of every row: the Gaussian as given, or the way given
+    turn = np.where(fixed, np.maximum(ways, 0) % nt, 0) if ways is not None else np.zeros(n, dtype=np.int64)
+    sign = np.where(fixed & (np.maximum(ways, 0) >= nt), -1.0, 1.0) if ways is not None else np.ones(n)
+    candidates = [(np.arange(n), turn, sign)]
     free = np.flatnonzero(~fixed)
-    if free.size and TURN_CANDIDATES > 0:
+    if free.size and TURN_CANDIDATES > 0:  # then the best-ranked turns of the rows still to choose
         ranking, signs = _turn_ranking(np.ascontiguousarray(xr[free]), np.ascontiguousarray(mean_r[free]),
                                        np.ascontiguousarray(level_r[free]), mu_r)
         ranking += scale_bits[free][:, perm_of_turn]
         best_turns = np.argsort(ranking, axis=1, kind="stable")[:, :TURN_CANDIDATES]
-        turns = np.repeat(turns, 1 + best_turns.shape[1], axis=1)  # fixed rows: the same way again, never better
-        cand_signs = np.repeat(cand_signs, turns.shape[1], axis=1)
-        turns[free, 1:] = best_turns
-        cand_signs[free, 1:] = np.take_along_axis(signs, best_turns, 1)
+        best_signs = np.take_along_axis(signs, best_turns, 1)
+        candidates += [(free, best_turns[:, k], best_signs[:, k]) for k in range(best_turns.shape[1])]
     best = best_cost = None
-    for t, sign in zip(turns.T, cand_signs.T):
-        m_rows = AXIS_TURNS[t] * sign[:, None, None]
-        xt = np.einsum("nij,nj->ni", m_rows, xr)
-        ft = np.einsum("nij,nj->ni", m_rows * m_rows, fr)  # the diagonal of M diag(f) M^T
-        rho, cost = _rotation_norms(xt, ft, mean_r, level_r, mu_r)
-        cost += scale_bits[rows, perm_of_turn[t]]
-        cand = (xt, ft, rho, AXIS_TURN_PERMS[t], t + np.where(sign < 0, len(AXIS_TURNS), 0))
+    for idx, t, sg in candidates:
+        xt, ft = _turned(AXIS_TURNS[t] * sg[:, None, None], xr[idx], fr[idx])
+        rho, cost = _rotation_norms(xt, ft, mean_r[idx], level_r[idx], mu_r)
+        cost += scale_bits[idx, perm_of_turn[t]]
+        cand = (xt, ft, rho, AXIS_TURN_PERMS[t], t + np.where(sg < 0, nt, 0))
         if best is None:
             best, best_cost = cand, cost
             continue
-        better = cost < best_cost
-        best_cost = np.where(better, cost, best_cost)
-        best = tuple(np.where(better.reshape((n,) + (1,) * (c.ndim - 1)), c, b) for c, b in zip(cand, best))
+        better = cost < best_cost[idx]
+        rows = idx[better]
+        best_cost[rows] = cost[better]
+        for b, c in zip(best, cand):
+            b[rows] = c[better]
     xt, ft, rho, perm, way = best
     x, f = x.copy(), f.copy()
     x[:, scales], f[:, scales] = np.take_along_axis(xs, perm, 1), np.take_along_axis(fs, perm, 1)
@@ -272,12 +271,10 @@ def _half_turned(x: np.ndarray, f: np.ndarray, rotation: slice) -> tuple[np.ndar
     from the rotations as given)."""
     xr = x[:, rotation]
     turn = np.argmax(np.abs(np.einsum("tij,nj->nti", AXIS_TURNS[:4], xr)[:, :, 0]), axis=1)
-    m_rows = AXIS_TURNS[:4][turn]
-    xt = np.einsum("nij,nj->ni", m_rows, xr)
-    sign = np.where(xt[:, :1] < 0, -1.0, 1.0)
+    xt, ft = _turned(AXIS_TURNS[:4][turn], xr, f[:, rotation])
     x, f = x.copy(), f.copy()
-    x[:, rotation] = xt * sign
-    f[:, rotation] = np.einsum("nij,nj->ni", m_rows * m_rows, f[:, rotation])  # a signed permutation: exact
+    x[:, rotation] = np.where(xt[:, :1] < 0, -xt, xt)
+    f[:, rotation] = ft
     return x, f
 
 

@@ -51,6 +51,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--turn-candidates", type=int, default=rdoq.TURN_CANDIDATES,
                    help=f"how many of the 24 ways of turning a Gaussian's axes are costed in full besides its own "
                         f"(default {rdoq.TURN_CANDIDATES}, the encoder's; 0: every Gaussian kept as it is)")
+    p.add_argument("--keep-ways", action="store_true",
+                   help="keep the way each Gaussian is written from the first row on, as the settings search "
+                        "does (default: chosen afresh at every row, as the coding chooses it)")
     p.add_argument("--rotation-lengths", default=",".join(f"{r:.4g}" for r in rdoq.ROTATION_NORMS),
                    help="the lengths a rotation quaternion may be given, comma-separated (default the "
                         "encoder's; 1 alone keeps every quaternion at unit length)")
@@ -83,7 +86,8 @@ def main(argv: list[str] | None = None) -> int:
     for fac in (float(x) for x in args.factors.split(",")):
         ref = None
         for w in (float(x) for x in args.weights.split(",")):
-            s.ways[:] = -1  # each Gaussian's way chosen afresh at these steps, as the coding chooses it
+            if not args.keep_ways:
+                s.ways[:] = -1  # each Gaussian's way chosen afresh at these steps, as the coding chooses it
             t = s.evaluate(dataclasses.replace(_scaled(cfg, groups, fac), rd_quantization=w))
             ref = ref or t.bits
             lines.append(f"| {fac:g} | {w:g} | {-10 * math.log10(max(t.mse, 1e-12)):.2f} | {t.bits / 8:,.0f} | "
