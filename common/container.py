@@ -19,7 +19,7 @@ from .syntax import SyntaxStructure, SyntaxVisitor
 
 MAGIC = 0x4C474843  # "LGHC"
 VERSION_MAJOR = 1
-VERSION_MINOR = 1
+VERSION_MINOR = 2
 ANCILLARY_UNIT_TYPE_MIN = 0x80
 UNIT_HEADER_BYTES = 5
 UNIT_CRC_BYTES = 4
@@ -39,6 +39,7 @@ class UnitType(IntEnum):
     GAUSSIAN_PARAMETER_SET = 0x07  # version 0.2: an explicit-Gaussian scene (in place of the scene parameter set)
     TILE_INDEX = 0x08  # version 1: where each tile's units are, its grid cell and point count (clause 7.3.11)
     NEIGHBOUR_PREDICTION = 0x09  # version 1.1: LoD coding of Gaussian attributes from their neighbours (7.3.12)
+    STEP_ADJUST = 0x0A  # version 1.2: a step-adjustment index per Gaussian (7.3.13)
 
 
 class AncillaryUnitType(IntEnum):
@@ -102,9 +103,19 @@ class DataUnit:
 CONTAINER_HEADER_BYTES = 8
 
 
+# A stream's version_minor is the lowest whose tools it uses (clause 6.2): a stream without a
+# step_adjust unit is a version 1.1 stream, which a decoder of version 1.1 decodes.
+FIRST_MINOR_OF_UNIT = {UnitType.STEP_ADJUST: 2}
+BASE_VERSION_MINOR = 1
+
+
+def version_minor_of(units: list[DataUnit]) -> int:
+    return max([BASE_VERSION_MINOR] + [FIRST_MINOR_OF_UNIT.get(u.unit_type, 0) for u in units])
+
+
 def write_container(units: list[DataUnit], header: ContainerHeader | None = None) -> bytes:
     w = BitWriter()
-    (header or ContainerHeader()).write_to(w)
+    (header or ContainerHeader(version_minor=version_minor_of(units))).write_to(w)
     for unit in units:
         start = len(w.getvalue())
         UnitHeader(unit.unit_type, len(unit.payload)).write_to(w)

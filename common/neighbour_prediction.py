@@ -35,11 +35,11 @@ import numpy as np
 from .attributes import (ChannelPrediction, CodingParams, decode_chunk_values, encode_residual_chunk, prior_params,
                          reconstruct_chunk, split_chunks)
 from .bitio import BitReader
-from .entropy.symbol_coder import escape_class
+from .entropy.symbol_coder import decode_symbols, encode_symbols, escape_class
 from .errors import BitstreamError
 from .knn import MAX_EXTENT, ball_knn
 from .syntax import TraceEntry
-from .units import CONTEXT_PER_CHANNEL_PRIOR, LEVEL_ALL, AttributeUnitHeader, NeighbourPredictionUnit
+from .units import CONTEXT_PER_CHANNEL_PRIOR, LEVEL_ALL, AttributeUnitHeader, NeighbourPredictionUnit, StepAdjustUnit
 
 # the whole extent of a tile lies in this ball (every d2 of an admissible tile is below it)
 WHOLE_EXTENT_RADIUS_SQ = 3 * MAX_EXTENT * MAX_EXTENT
@@ -109,12 +109,44 @@ def neighbour_graph(coords: np.ndarray, num_lods: int, k: int) -> NeighbourGraph
     return NeighbourGraph(rows, neighbours)
 
 
+# Step adjustment (version 1.2, clause 11.8): row i's values are in steps of
+# step(c) * STEP_ADJUST_FACTORS[a_i]. Neighbours in other steps are compared in fixed point:
+# ADJUST_FIXED_POINT[a] = round(2^12 * 2^(a/4)) (a value q of a row with index a is q * FP[a] in
+# 1/4096 of its channel's step).
+ADJUST_FIXED_POINT = np.array([4096, 4871, 5793, 6889, 8192, 9742, 11585, 13777], dtype=np.int64)
+ADJUST_FIXED_POINT.setflags(write=False)
+# The scale level of a prior-coded value of a row with index a is max(0, level - shift[a]): a
+# step 2^(a/4) times coarser narrows the distribution by as many levels (5.17 levels per octave).
+ADJUST_LEVEL_SHIFT = np.array([0, 1, 3, 4, 5, 6, 8, 9], dtype=np.int64)
+ADJUST_LEVEL_SHIFT.setflags(write=False)
+
+
+def _round_div(num: np.ndarray, den: np.ndarray) -> np.ndarray:
+    """floor((num + floor(den / 2)) / den) for den >= 1 (int64)."""
+    return (num + den // 2) // den
+
+
+def adjusted_prior(prior: CodingParams, adjust: np.ndarray) -> CodingParams:
+    """The per-channel prior of rows with step-adjustment indices ``adjust`` [n]: the mean in the
+    rows' steps (floor((mean * 4096 + floor(FP[a] / 2)) / FP[a])), the level lowered by
+    ADJUST_LEVEL_SHIFT[a] (not below 0). -> arrays [n, M]."""
+    fp = ADJUST_FIXED_POINT[adjust][:, None]
+    mean = _round_div(np.asarray(prior.mean, np.int64) * ADJUST_FIXED_POINT[0], fp)
+    level = np.maximum(np.asarray(prior.level, np.int64) - ADJUST_LEVEL_SHIFT[adjust][:, None], 0)
+    return CodingParams(mean, level)
+
+
 def neighbour_means_and_buckets(q: np.ndarray, neighbours: np.ndarray, num_buckets: int, neighbour_mean: np.ndarray,
-                                prior_mean: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                                prior_mean: np.ndarray, adjust: np.ndarray | None = None,
+                                row_adjust: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Mean and activity bucket of each value of a LoD's rows from their neighbours' decoded
     values ``q`` [N, M] (int64; rows of coarser LoDs filled). ``neighbour_mean`` bool [M]: the
-    channels whose mean is the neighbours'; ``prior_mean`` int64 [M]: the others'. -> int64
-    [n_l, M] each."""
+    channels whose mean is the neighbours'; ``prior_mean`` int64 [M]: the others'. With step
+    adjustment, ``adjust`` int64 [N] holds every row's index and ``row_adjust`` [n_l] the LoD's
+    rows': the neighbours' values, in fixed point, are summed and spread in the row's own steps.
+    -> int64 [n_l, M] each."""
+    if adjust is not None:
+        return _adjusted_means_and_buckets(q, neighbours, num_buckets, neighbour_mean, prior_mean, adjust, row_adjust)
     valid = neighbours >= 0
     n = valid.sum(axis=1, keepdims=True).astype(np.int64)  # >= 1
     nq = q[np.where(valid, neighbours, 0)]  # [n_l, k, M]
@@ -126,11 +158,30 @@ def neighbour_means_and_buckets(q: np.ndarray, neighbours: np.ndarray, num_bucke
     return mean, np.minimum(escape_class(spread), num_buckets - 1)  # escape_class(a) = bit_length(a)
 
 
+def _adjusted_means_and_buckets(q, neighbours, num_buckets, neighbour_mean, prior_mean, adjust, row_adjust):
+    """neighbour_means_and_buckets with step adjustment (clause 11.8): |q| <= 2^40, FP < 2^14
+    and k <= 32 keep every sum within 2^59."""
+    valid = neighbours >= 0
+    n = valid.sum(axis=1, keepdims=True).astype(np.int64)
+    safe = np.where(valid, neighbours, 0)
+    nq = q[safe] * ADJUST_FIXED_POINT[adjust[safe]][:, :, None]  # [n_l, k, M] in 1/4096 steps
+    v = valid[:, :, None]
+    fp = ADJUST_FIXED_POINT[row_adjust][:, None]
+    total = np.where(v, nq, 0).sum(axis=1)
+    own_prior = _round_div(prior_mean[None, :] * ADJUST_FIXED_POINT[0], fp)
+    mean = np.where(neighbour_mean[None, :], _round_div(total, n * fp), own_prior)
+    big = np.iinfo(np.int64).max
+    spread = (np.where(v, nq, -big).max(axis=1) - np.where(v, nq, big).min(axis=1)) // fp
+    return mean, np.minimum(escape_class(spread), num_buckets - 1)
+
+
 def lod_coding_params(q: np.ndarray, neighbours: np.ndarray, bucket_level: np.ndarray, num_buckets: int,
-                      neighbour_mean: np.ndarray, prior_mean: np.ndarray) -> CodingParams:
+                      neighbour_mean: np.ndarray, prior_mean: np.ndarray, adjust: np.ndarray | None = None,
+                      row_adjust: np.ndarray | None = None) -> CodingParams:
     """Mean and scale level (``bucket_level`` int64 [M, B] at the value's bucket) of each value
     of a LoD's rows (neighbour_means_and_buckets)."""
-    mean, bucket = neighbour_means_and_buckets(q, neighbours, num_buckets, neighbour_mean, prior_mean)
+    mean, bucket = neighbour_means_and_buckets(q, neighbours, num_buckets, neighbour_mean, prior_mean, adjust,
+                                               row_adjust)
     level = np.take_along_axis(bucket_level.T, bucket, axis=0) if bucket.size else np.zeros(bucket.shape, np.int64)
     return CodingParams(mean, level)
 
@@ -153,24 +204,50 @@ def _lod_params(level: int, q: np.ndarray, graph: NeighbourGraph, prior: CodingP
     return lod_coding_params(q, graph.neighbours[level], table, num_buckets, flags, prior.mean[0])
 
 
+def _adjusted_chunk_params(level: int, lo: int, hi: int, q: np.ndarray, graph: NeighbourGraph, prior: CodingParams,
+                           table: np.ndarray, flags: np.ndarray, num_buckets: int, adjust: np.ndarray) -> CodingParams:
+    """With step adjustment (clause 11.8): the parameters of rows lo..hi-1 of the LoD, each in its
+    own steps (``adjust``: every row's index, those of coarser LoDs and of these rows filled)."""
+    rows = graph.rows[level][lo:hi]
+    if level == 0:
+        return adjusted_prior(prior, adjust[rows])
+    return lod_coding_params(q, graph.neighbours[level][lo:hi], table, num_buckets, flags, prior.mean[0], adjust,
+                             adjust[rows])
+
+
+def _adjust_levels(h: AttributeUnitHeader, n: int) -> np.ndarray:
+    return np.full((n, 1), h.adjust_level, dtype=np.int64)
+
+
 def write_predicted_attribute_unit(h: AttributeUnitHeader, layout, q: np.ndarray, graph: NeighbourGraph,
                                    unit: NeighbourPredictionUnit,
-                                   prediction: ChannelPrediction | None = None) -> bytes:
+                                   prediction: ChannelPrediction | None = None,
+                                   adjust: np.ndarray | None = None) -> bytes:
     """Code q [N, M] (rows in the tile's normative order) LoD by LoD; LoD 0 with the header's
-    per-channel prior. Fills the header's chunk sizes (and cross-channel prediction entries)."""
+    per-channel prior. Fills the header's chunk sizes (and cross-channel prediction entries).
+    ``adjust``: each row's step-adjustment index (h.step_adjust_present, with the header's
+    adjust_mean and adjust_level set), coded in a chunk before each chunk of values."""
     prediction = prediction or ChannelPrediction.none()
     if h.channel_prediction_allowed:
         prediction.to_header(h)
+    if (adjust is not None) != bool(h.step_adjust_present):
+        raise ValueError("step-adjustment indices must be given exactly when the header has StepAdjustPresent")
     h.num_lods = unit.num_lods
     table, prior = level_table(unit), prior_params(h)
     chunks: list[bytes] = []
-    h.mask_chunk_size, h.chunk_size = [], []
+    h.mask_chunk_size, h.adjust_chunk_size, h.chunk_size = [], [], []
     params = None
     for level, lo, hi in chunk_segments(h, graph):
-        if lo == 0:
-            params = _lod_params(level, q, graph, prior, table, mean_flags(unit), unit.num_buckets)
         rows = graph.rows[level][lo:hi]
-        p = params.rows(lo, hi, layout.num_channels)
+        if adjust is not None:
+            chunks.append(encode_symbols(adjust[rows, None] - h.adjust_mean, _adjust_levels(h, rows.size)))
+            h.adjust_chunk_size.append(len(chunks[-1]))
+            p = _adjusted_chunk_params(level, lo, hi, q, graph, prior, table, mean_flags(unit), unit.num_buckets,
+                                       adjust)
+        else:
+            if lo == 0:
+                params = _lod_params(level, q, graph, prior, table, mean_flags(unit), unit.num_buckets)
+            p = params.rows(lo, hi, layout.num_channels)
         chunks.append(encode_residual_chunk(prediction.residuals(q[rows], p.mean), p.level, None))
         h.chunk_size.append(len(chunks[-1]))
     return h.to_bytes() + b"".join(chunks)
@@ -178,16 +255,19 @@ def write_predicted_attribute_unit(h: AttributeUnitHeader, layout, q: np.ndarray
 
 def read_predicted_attribute_unit(payload: bytes, layout, steps: np.ndarray, coords: np.ndarray,
                                   unit: NeighbourPredictionUnit, values_out: np.ndarray,
-                                  trace: list[TraceEntry] | None = None, on_chunk=None) -> AttributeUnitHeader:
+                                  trace: list[TraceEntry] | None = None, on_chunk=None,
+                                  step_adjust: StepAdjustUnit | None = None) -> AttributeUnitHeader:
     """Parse and decode the attribute unit of a tile of ``coords`` (normative order) coded with
-    neighbour prediction (clause 13.2 with 11.7): the values of row i go to values_out[i]."""
+    neighbour prediction (clause 13.2 with 11.7): the values of row i go to values_out[i]. With
+    the stream's ``step_adjust`` unit, each chunk of values follows the chunk of its rows'
+    step-adjustment indices (clause 11.8)."""
     n = coords.shape[0]
     what = "attribute unit (neighbour prediction)"
     reader = BitReader(payload, what)
     h = AttributeUnitHeader.parse(reader, trace, num_channels=layout.num_channels, num_offsets=layout.num_offsets,
                                   offset_mask_present=layout.offset_mask_present,
                                   channel_prediction_allowed=layout.channel_prediction_allowed, num_rows=n,
-                                  num_lods=unit.num_lods)
+                                  num_lods=unit.num_lods, step_adjust_present=int(step_adjust is not None))
     if h.attribute_level != LEVEL_ALL:
         raise BitstreamError(f"{what}: attribute_level {h.attribute_level} where level 0 is expected")
     if h.num_rows_minus1 + 1 != n:  # clause 8.3 rule 8
@@ -201,18 +281,33 @@ def read_predicted_attribute_unit(payload: bytes, layout, steps: np.ndarray, coo
     prediction = ChannelPrediction.from_header(h, what)
     graph = neighbour_graph(coords, unit.num_lods, unit.num_neighbours)
     table, prior = level_table(unit), prior_params(h)
-    pieces = iter(split_chunks(payload[reader.bit_position // 8:], list(h.chunk_size), what))
+    sizes = list(h.chunk_size) if step_adjust is None else \
+        [x for pair in zip(h.adjust_chunk_size, h.chunk_size) for x in pair]
+    pieces = iter(split_chunks(payload[reader.bit_position // 8:], sizes, what))
     q_all = np.zeros((n, layout.num_channels), dtype=np.int64)
+    adjust = None if step_adjust is None else np.zeros(n, dtype=np.int64)
     params = None
     for i, (level, lo, hi) in enumerate(chunk_segments(h, graph)):
-        if lo == 0:
-            params = _lod_params(level, q_all, graph, prior, table, mean_flags(unit), unit.num_buckets)
         rows = graph.rows[level][lo:hi]
-        p = params.rows(lo, hi, layout.num_channels)
+        row_adjust = None
+        if adjust is not None:
+            a = decode_symbols(next(pieces), _adjust_levels(h, hi - lo), f"step-adjustment chunk {i}")[:, 0] \
+                + h.adjust_mean
+            if a.size and (a.min() < 0 or a.max() > step_adjust.max_step_adjust):
+                raise BitstreamError(f"step-adjustment chunk {i}: an index is outside [0, max_step_adjust = "
+                                     f"{step_adjust.max_step_adjust}]")
+            adjust[rows] = a
+            row_adjust = a[:, None]
+            p = _adjusted_chunk_params(level, lo, hi, q_all, graph, prior, table, mean_flags(unit),
+                                       unit.num_buckets, adjust)
+        else:
+            if lo == 0:
+                params = _lod_params(level, q_all, graph, prior, table, mean_flags(unit), unit.num_buckets)
+            p = params.rows(lo, hi, layout.num_channels)
         q = decode_chunk_values(next(pieces), h, layout, p, prediction, None, hi - lo, i, LEVEL_ALL)
         q_all[rows] = q
         target = np.empty((hi - lo, layout.num_channels), np.float32)
-        reconstruct_chunk(q, steps, None, target, i, LEVEL_ALL)
+        reconstruct_chunk(q, steps, row_adjust, target, i, LEVEL_ALL)
         values_out[rows] = target
         if on_chunk is not None:
             on_chunk(hi - lo)

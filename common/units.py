@@ -48,6 +48,9 @@ MAX_CONTEXT_MODEL_ID = CONTEXT_GGCONV
 MAX_LOD_LEVELS = 16
 MAX_PREDICTION_NEIGHBOURS = 32
 MAX_ACTIVITY_BUCKETS = 16
+# Step adjustment (version 1.2, clause 7.3.13): per-row indices into STEP_ADJUST_FACTORS (0..7)
+MAX_STEP_ADJUST = 7
+STEP_ADJUST_BITS = 3
 
 HASH_TYPE_SHA256 = 1
 
@@ -258,7 +261,12 @@ class AttributeUnitHeader(SyntaxStructure):
     # context (clause 7.3.12): the number of LoDs when the stream has a neighbour_prediction unit
     # (each LoD's rows are chunked on their own), 0 otherwise
     num_lods: int = 0
+    # context (clause 7.3.13): 1 when the stream has a step_adjust unit
+    step_adjust_present: int = 0
+    adjust_mean: int = 0
+    adjust_level: int = 0
     mask_chunk_size: list = field(default_factory=list)
+    adjust_chunk_size: list = field(default_factory=list)
     chunk_size: list = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -297,11 +305,16 @@ class AttributeUnitHeader(SyntaxStructure):
                 v.ue(self, "pred_target_channel", i, lo=1, hi=m - 1)
                 v.ue(self, "pred_source_channel", i, hi=m - 2)
                 v.se(self, "pred_weight", i, lo=-MAX_CHANNEL_PREDICTION_WEIGHT, hi=MAX_CHANNEL_PREDICTION_WEIGHT)
+        for _ in v.when(self.step_adjust_present, "StepAdjustPresent"):
+            v.u(STEP_ADJUST_BITS, self, "adjust_mean")
+            v.u(NUM_SCALE_LEVELS_BITS, self, "adjust_level")
         v.ue(self, "num_rows_minus1", hi=MAX_ANCHORS - 1)  # = NumRows - 1: checked after parsing (clause 8.3)
         v.ue(self, "rows_per_chunk_minus1", hi=self.num_rows_minus1)
-        for i in v.loop(self.num_chunks, "NumChunks", self, ("mask_chunk_size", "chunk_size")):
+        for i in v.loop(self.num_chunks, "NumChunks", self, ("mask_chunk_size", "adjust_chunk_size", "chunk_size")):
             for _ in v.when(self.offset_mask_present, "offset_mask_present_flag"):
                 v.ue(self, "mask_chunk_size", i)
+            for _ in v.when(self.step_adjust_present, "StepAdjustPresent"):
+                v.ue(self, "adjust_chunk_size", i)
             v.ue(self, "chunk_size", i)
         v.byte_align()
 
@@ -333,6 +346,8 @@ class NeighbourPredictionUnit(SyntaxStructure):
     num_buckets_minus1: int = 0
     neighbour_mean_flag: list = field(default_factory=list)
     bucket_level: list = field(default_factory=list)
+    # context (clause 7.3.13): the stream's step_adjust unit, None without one (not a syntax element)
+    step_adjust: object = None
 
     def syntax(self, v: SyntaxVisitor) -> None:
         v.u(4, self, "num_lods_minus1", hi=MAX_LOD_LEVELS - 1)
@@ -356,6 +371,21 @@ class NeighbourPredictionUnit(SyntaxStructure):
     @property
     def num_buckets(self) -> int:
         return self.num_buckets_minus1 + 1
+
+
+@dataclass
+class StepAdjustUnit(SyntaxStructure):
+    """step_adjust unit (0x0A, version 1.2, clause 7.3.13): every row of a Gaussian stream coded
+    with neighbour prediction carries a step-adjustment index a in [0, max_step_adjust]; its
+    values are in steps of float32(step) * STEP_ADJUST_FACTORS[a] (clause 11.8)."""
+
+    syntax_name = "step_adjust_unit"
+    clause = "7.3.13"
+    max_step_adjust: int = MAX_STEP_ADJUST
+
+    def syntax(self, v: SyntaxVisitor) -> None:
+        v.u(STEP_ADJUST_BITS, self, "max_step_adjust")
+        v.byte_align()
 
 
 @dataclass

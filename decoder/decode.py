@@ -42,15 +42,17 @@ from ..common.syntax import TraceEntry
 from ..common.tiles import Box, check_points_in_cell, check_tile_index, cell_intersects_box
 from ..common.neighbour_prediction import read_predicted_attribute_unit
 from ..common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ATTRIBUTE_VALUES, DecodedSceneHashUnit,
-                            GaussianParameterSet, NeighbourPredictionUnit, SceneParameterSet, SourceInfo, TileIndex)
+                            GaussianParameterSet, NeighbourPredictionUnit, SceneParameterSet, SourceInfo, StepAdjustUnit,
+                            TileIndex)
 from .limits import DEFAULT_MAX_MEMORY, MemoryPlan
 
 _LETTER = {UnitType.SCENE_PARAMETER_SET: "S", UnitType.GAUSSIAN_PARAMETER_SET: "P", UnitType.RENDER_MODEL: "R",
            UnitType.GEOMETRY: "G", UnitType.CONTEXT_MODEL: "C", UnitType.ATTRIBUTE: "A",
-           UnitType.DECODED_SCENE_HASH: "H", UnitType.TILE_INDEX: "I", UnitType.NEIGHBOUR_PREDICTION: "N"}
+           UnitType.DECODED_SCENE_HASH: "H", UnitType.TILE_INDEX: "I", UnitType.NEIGHBOUR_PREDICTION: "N",
+           UnitType.STEP_ADJUST: "Q"}
 # an anchor scene, or an explicit-Gaussian scene, which has no render model but may have neighbour
-# prediction; then the tiles
-_UNIT_ORDER = re.compile(r"(SR?|PN?)C?I?(GA{1,2}H)+")
+# prediction (and with it step adjustment); then the tiles
+_UNIT_ORDER = re.compile(r"(SR?|P(NQ?)?)C?I?(GA{1,2}H)+")
 
 
 @dataclass
@@ -114,7 +116,8 @@ def organize_units(container: Container, known: list[DataUnit] | None = None) ->
         names = ", ".join(u.type_name for u in critical)
         raise BitstreamError(f"data units are out of order or repeated: {names} (expected scene_parameter_set, "
                              "[render_model], [context_model], [tile_index], then per tile geometry, attribute "
-                             "(1 or 2), decoded_scene_hash; or gaussian_parameter_set, [neighbour_prediction], [context_model], "
+                             "(1 or 2), decoded_scene_hash; or gaussian_parameter_set, [neighbour_prediction [step_adjust]], "
+                             "[context_model], "
                              "[tile_index], then the tiles)")
     if "I" not in letters and letters.count("G") > 1:
         raise BitstreamError(f"the stream has {letters.count('G')} tiles (geometry units) but no tile_index unit")
@@ -193,14 +196,20 @@ def read_context_model_unit(context_unit: DataUnit | None, ps, layout, entries):
     return read_context_model(context_unit.payload, layout, entries)
 
 
-def read_neighbour_prediction_unit(unit: DataUnit | None, ps, layout, entries) -> NeighbourPredictionUnit | None:
-    """The stream's neighbour_prediction unit (None without one). Raises BitstreamError."""
+def read_neighbour_prediction_unit(unit: DataUnit | None, ps, layout, entries,
+                                   step_adjust_unit: DataUnit | None = None) -> NeighbourPredictionUnit | None:
+    """The stream's neighbour_prediction unit (None without one), with the stream's step_adjust
+    unit as its context (the unit order puts it only after a neighbour_prediction unit). Raises
+    BitstreamError."""
     if unit is None:
         return None
     if ps.hierarchy_enabled_flag:
         raise BitstreamError("a neighbour_prediction unit in a stream with the hierarchy (hierarchy_enabled_flag 1)")
-    return NeighbourPredictionUnit.from_bytes(unit.payload, entries, what="neighbour prediction unit",
-                                              num_channels=layout.num_channels)
+    neighbour = NeighbourPredictionUnit.from_bytes(unit.payload, entries, what="neighbour prediction unit",
+                                                   num_channels=layout.num_channels)
+    if step_adjust_unit is not None:
+        neighbour.step_adjust = StepAdjustUnit.from_bytes(step_adjust_unit.payload, entries, what="step_adjust unit")
+    return neighbour
 
 
 def decode_predicted_attribute_units(attribute_units: list[DataUnit], layout, steps: np.ndarray, coords: np.ndarray,
@@ -217,7 +226,7 @@ def decode_predicted_attribute_units(attribute_units: list[DataUnit], layout, st
         memory.check_predicted_attribute_unit(n, unit)
     bar = progress_bar(total=n, desc="decode attributes", unit="point", disable=not progress, leave=False)
     read_predicted_attribute_unit(attribute_units[0].payload, layout, steps, coords, unit, values, entries,
-                                  on_chunk=bar.update)
+                                  on_chunk=bar.update, step_adjust=unit.step_adjust)
     bar.close()
     return _Levels(values, None, None)
 
@@ -473,7 +482,7 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
         mlps = read_render_model_unit(by_type[UnitType.RENDER_MODEL][0].payload, entries)
     context_model = read_context_model_unit(by_type.get(UnitType.CONTEXT_MODEL, [None])[0], ps, layout, entries)
     neighbour = read_neighbour_prediction_unit(by_type.get(UnitType.NEIGHBOUR_PREDICTION, [None])[0], ps, layout,
-                                               entries)
+                                               entries, by_type.get(UnitType.STEP_ADJUST, [None])[0])
     if neighbour is not None:
         context_model = neighbour  # the attribute units' context (the stream has no context model)
     tiles, _ = tiles_of(units, by_type, n, entries)
@@ -534,6 +543,9 @@ def _stream_tools(ps, decoded: DecodedTiles, context_model, point: str, num_tile
     if isinstance(context_model, NeighbourPredictionUnit):
         tools.append(f"neighbour prediction ({context_model.num_lods} levels of detail, "
                      f"{context_model.num_neighbours} neighbours, {context_model.num_buckets} activity buckets)")
+        if context_model.step_adjust is not None:
+            tools.append(f"step adjustment (a step per Gaussian, up to 2^({context_model.step_adjust.max_step_adjust}"
+                         "/4) times its channel's)")
     if not ps.hierarchy_enabled_flag:
         return tools
     n1, n2 = sum(c[0] for c in decoded.level_counts), sum(c[1] for c in decoded.level_counts)

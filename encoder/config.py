@@ -165,6 +165,12 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # saved; this weighs the bits (1: the slope of each group's own step; 0: plain rounding).
     # Needs the sensitivities, which the rate-aware preparation measures.
     rd_quantization: float = 1.0
+    # Step adjustment (version 1.2, clause 11.8; encoder/rdoq.py step_adjust_indices): each
+    # Gaussian's steps made 2^(a/4) times coarser, a in [0, step_adjust_max], by how little the
+    # pictures see it: the Gaussians above the step_adjust_quantile of visibility keep the steps.
+    # Needs the sensitivities and neighbour prediction (0: off).
+    step_adjust_max: int = 0
+    step_adjust_quantile: float = 0.9
     # Rate-aware preparation (encoder/gaussian_fit.py), against renders of the source from
     # fit_views cameras on a sphere around it at fit_resolution pixels:
     fit_views: int = 24
@@ -211,6 +217,10 @@ class GaussianEncoderConfig(AttributeCodingConfig):
                 raise InputError(f"{name} must be an integer in [1, {hi}], got {v!r}")
         if not (isinstance(self.rd_quantization, (int, float)) and 0 <= self.rd_quantization < float("inf")):
             raise InputError(f"rd_quantization must be a number >= 0, got {self.rd_quantization!r}")
+        if not (isinstance(self.step_adjust_max, int) and 0 <= self.step_adjust_max <= 7) \
+                or not 0 < self.step_adjust_quantile <= 1:
+            raise InputError(f"step_adjust_max must be an integer in [0, 7] and step_adjust_quantile in (0, 1], got "
+                             f"{self.step_adjust_max!r}, {self.step_adjust_quantile!r}")
         if self.sh_degree is not None and self.sh_degree not in (0, 1, 2, 3):
             raise InputError(f"sh_degree must be 0..3 or None, got {self.sh_degree!r}")
         if not 0 <= self.prune_share < 1:

@@ -238,6 +238,8 @@ class AttributeInput:
     live: np.ndarray  # bool [N, M]: the values that are coded (dead offsets are not)
     mask: np.ndarray | None  # bool: the offset mask (anchor scenes; None: every offset live) or None
     coords: np.ndarray  # the points, in normative order
+    # int64 [N]: each point's step-adjustment index (clause 11.8, with neighbour prediction), or None
+    step_adjust: np.ndarray | None = None
 
 
 def ordered_offset_mask(scene: AnchorScene, order: np.ndarray) -> np.ndarray | None:
@@ -331,7 +333,9 @@ class LevelCoder:
 
 def quantized_level(coder: LevelCoder, inp: AttributeInput) -> np.ndarray:
     """The level's quantized values (0 where not coded)."""
-    q = np.where(coder.live, quantize(inp.values[coder.rows], inp.steps, "attributes"), 0)
+    steps = inp.steps if inp.step_adjust is None else \
+        attr.effective_steps(inp.steps, inp.step_adjust[coder.rows][:, None])
+    q = np.where(coder.live, quantize(inp.values[coder.rows], steps, "attributes"), 0)
     if inp.layout.channel_prediction_allowed and np.abs(q).max(initial=0) > MAX_PREDICTED_MAGNITUDE:
         raise InputError(f"a value is {float(np.abs(q).max()):.3g} quantization steps from zero, beyond the "
                          "2^40 steps a Gaussian scene allows; use a larger step")
@@ -346,17 +350,22 @@ def neighbour_prediction_wanted(cfg: AttributeCodingConfig, levels: "LevelLayout
 
 
 def neighbour_coding_of(q: np.ndarray, coords: np.ndarray, cfg, layout, predict: bool,
-                        unit: NeighbourPredictionUnit | None = None) -> NeighbourCoding:
+                        unit: NeighbourPredictionUnit | None = None,
+                        step_adjust: np.ndarray | None = None) -> NeighbourCoding:
     return NeighbourCoding(q, coords, cfg.prediction_lods, cfg.prediction_neighbours, cfg.prediction_buckets, predict,
-                           layout, unit)
+                           layout, unit, adjust=step_adjust)
 
 
 def code_with_neighbours(coder: LevelCoder, q: np.ndarray, nc: NeighbourCoding) -> LevelCoding:
-    """The level (every point of a tile) coded with neighbour prediction."""
+    """The level (every point of a tile) coded with neighbour prediction (and each point's step
+    adjustment when the coding has one)."""
     header = coder.new_header()
     header.context_model_id = CONTEXT_PER_CHANNEL_PRIOR
     payload = nc.write(header)
-    return LevelCoding(q, attr.prior_params(header), payload, header, nc.prediction)
+    params = attr.prior_params(header)
+    if nc.adjust is not None:  # what reconstruction needs: each row's step
+        params = attr.CodingParams(params.mean, params.level, nc.adjust[:, None])
+    return LevelCoding(q, params, payload, header, nc.prediction)
 
 
 def code_with_prior(coder: LevelCoder, inp: AttributeInput) -> LevelCoding:
@@ -532,12 +541,13 @@ def code_neighbours_or_prior(inp: AttributeInput, levels: LevelLayout, cfg: Attr
     level, rows = levels.levels[0]
     coder = LevelCoder(inp.layout, cfg, level, rows, inp.live[rows], None, predict)
     q = quantized_level(coder, inp)
-    nc = neighbour_coding_of(q, inp.coords, cfg, inp.layout, predict)
+    nc = neighbour_coding_of(q, inp.coords, cfg, inp.layout, predict, step_adjust=inp.step_adjust)
     unit_bytes = UNIT_FRAMING_BYTES + len(nc.unit.to_bytes())
-    with_prior = code_with_prior(coder, inp)
-    always = cfg.neighbour_prediction == "always"
+    with_prior = code_with_prior(coder, inp) if inp.step_adjust is None else None
+    # step adjustment needs neighbour prediction (the values were chosen in the adjusted steps)
+    always = cfg.neighbour_prediction == "always" or inp.step_adjust is not None
     if levels.tile_scale:
-        use = always or nc.ideal_bits() / 8 + unit_bytes < ideal_bits(coder, with_prior) / 8
+        use = always or nc.ideal_stream_bits() / 8 < ideal_bits(coder, with_prior) / 8
         stats.neighbour_prediction = bool(use)
         return CodedAttributes([], None, None, nc.unit if use else None)
     with_neighbours = code_with_neighbours(coder, q, nc)

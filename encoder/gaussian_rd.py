@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..common.attributes import GaussianLayout
+from ..common.attributes import STEP_ADJUST_FACTORS, GaussianLayout
 from ..common.entropy.symbol_coder import best_level, code_lengths_bits
 from ..common.geometry import encode_geometry, normative_order
 from ..common.neighbour_prediction import neighbour_graph
@@ -47,7 +47,8 @@ from .config import GaussianEncoderConfig
 from .gaussian_fit import prune_by_contribution, resolving_views
 from .gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid
 from .neighbour_coding import NeighbourCoding, usable as neighbour_usable
-from .rdoq import channel_groups, channel_steps, group_slopes, orientation_columns, rd_quantize, sh_degree_subset
+from .rdoq import (channel_groups, channel_steps, group_slopes, orientation_columns, rd_quantize, sh_degree_subset,
+                   step_adjust_choice)
 from ..render.gaussians3dgs import gaussians_from_scene, render_3dgs
 
 PRUNE_LADDER = (0.0, 0.0005, 0.001, 0.002, 0.004, 0.008, 0.016, 0.032, 0.064)
@@ -93,17 +94,20 @@ class SettingsSearch:
             self._graphs[key] = (order, graph)
         return self._graphs[key]
 
-    def _attribute_bits(self, key, grid: GaussianScene, q: np.ndarray, prior_bits: float) -> float:
+    def _attribute_bits(self, key, grid: GaussianScene, q: np.ndarray, prior_bits: float,
+                        adjust: np.ndarray | None = None) -> float:
         """The attribute bits the encoder will spend: the per-channel prior's, or neighbour
         prediction's where it is smaller (encoder/neighbour_coding.py; cross-channel prediction,
-        which both can add, is left out of the estimate)."""
+        which both can add, is left out of the estimate). With step adjustment (``adjust``, rows
+        in the scene's order), neighbour prediction's."""
         order, graph = self._graph(key, grid)
         if graph is None:
             return prior_bits
         qo = q[order]
         nc = NeighbourCoding(qo, grid.coords[order], self.cfg.prediction_lods, self.cfg.prediction_neighbours,
-                             self.cfg.prediction_buckets, False, None, graph=graph)
-        return min(prior_bits, nc.ideal_stream_bits())
+                             self.cfg.prediction_buckets, False, None, graph=graph,
+                             adjust=None if adjust is None else adjust[order])
+        return nc.ideal_stream_bits() if adjust is not None else min(prior_bits, nc.ideal_stream_bits())
 
     def _grid(self, share: float, position_step: float):
         key = (share, position_step)
@@ -121,6 +125,21 @@ class SettingsSearch:
             self._grids[key] = (keep, grid, 8.0 * len(encode_geometry(np.unique(grid.coords, axis=0))))
         return self._grids[key]
 
+    def _adjust(self, key, grid: GaussianScene, keep: np.ndarray, x: np.ndarray, degree: int,
+                cfg: GaussianEncoderConfig) -> np.ndarray | None:
+        """Each kept Gaussian's step-adjustment index (scene order; encoder/rdoq.py
+        step_adjust_choice), or None without the tool (it needs the sensitivities and neighbour
+        prediction)."""
+        order, graph = self._graph(key, grid)
+        if cfg.step_adjust_max <= 0 or self.sensitivity is None or cfg.rd_quantization <= 0 or graph is None:
+            return None
+        f = sh_degree_subset(self.sensitivity[keep], degree)
+        mu = group_slopes(f, channel_groups(degree), cfg.rd_quantization)
+        adjust = np.empty(x.shape[0], dtype=np.int64)
+        adjust[order] = step_adjust_choice(x[order], f[order], mu, grid.coords[order], graph, cfg.prediction_buckets,
+                                           cfg.step_adjust_max)
+        return adjust
+
     def evaluate(self, cfg: GaussianEncoderConfig) -> Trial:
         key = (cfg.prune_share, cfg.position_step)
         keep, grid, geometry_bits = self._grid(*key)
@@ -131,7 +150,9 @@ class SettingsSearch:
                                            self.rot[keep])).astype(np.float64)
         steps = channel_steps(cfg, degree)
         x = values / steps
-        q = np.rint(x).astype(np.int64)
+        adjust = self._adjust(key, grid, keep, x, degree, cfg)
+        factor = 1.0 if adjust is None else STEP_ADJUST_FACTORS[adjust].astype(np.float64)[:, None]
+        q = np.rint(x / factor).astype(np.int64)
         if self.sensitivity is not None and cfg.rd_quantization > 0:
             order, graph = self._graph(key, grid)
             f = sh_degree_subset(self.sensitivity[keep], degree)
@@ -139,14 +160,14 @@ class SettingsSearch:
             rows = np.flatnonzero(keep)[order]  # the scene's Gaussians in coding order
             ways = self.ways[rows]
             q[order] = rd_quantize(x[order], f[order], mu, grid.coords[order], graph, cfg.prediction_buckets,
-                                   orientation_columns(layout), ways)
+                                   orientation_columns(layout), ways, None if adjust is None else adjust[order])
             self.ways[rows] = ways
         prior_bits = 0.0
         for c in range(q.shape[1]):
             r = q[:, c] - int(np.median(q[:, c]))
             prior_bits += float(code_lengths_bits(r, np.full(r.shape, best_level(r), np.int64)).sum())
-        bits = geometry_bits + self._attribute_bits(key, grid, q, prior_bits)
-        dec = GaussianScene(grid.means, *layout.split((q * steps).astype(np.float32)))
+        bits = geometry_bits + self._attribute_bits(key, grid, q, prior_bits, adjust)
+        dec = GaussianScene(grid.means, *layout.split((q * steps * factor).astype(np.float32)))
         g = gaussians_from_scene(dec)
         with torch.no_grad():
             mse = float(np.mean([((render_3dgs(g, c, background=(0, 0, 0), backend="torch").image - t) ** 2)

@@ -32,7 +32,7 @@ from ..common.hashing import gaussian_scene_digest
 from ..app.report import breakdown_of
 from ..common.neighbour_prediction import neighbour_graph
 from ..common.scene import GaussianScene
-from ..common.units import MAX_ATTRIBUTE_VALUES, GaussianParameterSet
+from ..common.units import MAX_ATTRIBUTE_VALUES, GaussianParameterSet, StepAdjustUnit
 from .config import GaussianEncoderConfig
 from .encode import (AttributeInput, CodedAttributes, EncodeResult, GeometryCoding, LevelLayout, check_point_count,
                      code_attributes, code_geometry, level_layout, neighbour_prediction_wanted, stage, stream_tiles,
@@ -188,16 +188,25 @@ def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: Lev
     quantization chooses (encoder/rdoq.py; ``sensitivity`` rows in coding order), which the
     coder's rounding then reproduces exactly. The choice uses the whole scene's neighbour
     graph, also where tiles code their own."""
-    from .rdoq import channel_groups, group_slopes, orientation_columns, rd_quantize, sh_degree_subset
+    from .rdoq import (channel_groups, group_slopes, orientation_columns, rd_quantize, sh_degree_subset,
+                       step_adjust_choice)
 
     degree = inp.layout.sh_degree
     f = sh_degree_subset(sensitivity, degree)
     graph = neighbour_graph(inp.coords, cfg.prediction_lods, cfg.prediction_neighbours) \
         if neighbour_prediction_wanted(cfg, levels, inp) else None
     x = inp.values.astype(np.float64) / inp.steps.astype(np.float64)
-    q = rd_quantize(x, f, group_slopes(f, channel_groups(degree), cfg.rd_quantization), inp.coords, graph,
-                    cfg.prediction_buckets, orientation_columns(inp.layout))
-    return dataclasses.replace(inp, values=q * inp.steps.astype(np.float64))
+    mu = group_slopes(f, channel_groups(degree), cfg.rd_quantization)
+    adjust = None
+    if graph is not None and cfg.step_adjust_max > 0:
+        adjust = step_adjust_choice(x, f, mu, inp.coords, graph, cfg.prediction_buckets, cfg.step_adjust_max)
+        if not adjust.any():
+            adjust = None  # every Gaussian at its channels' steps: the tool costs nothing
+    q = rd_quantize(x, f, mu, inp.coords, graph, cfg.prediction_buckets, orientation_columns(inp.layout),
+                    adjust=adjust)
+    steps = inp.steps.astype(np.float64) if adjust is None else \
+        attr.effective_steps(inp.steps, adjust[:, None]).astype(np.float64)
+    return dataclasses.replace(inp, values=q * steps, step_adjust=adjust)
 
 
 def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: GaussianEncoderConfig, coded: CodedAttributes,
@@ -212,6 +221,9 @@ def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: Gaus
     parameter_units = [DataUnit(UnitType.GAUSSIAN_PARAMETER_SET, gps.to_bytes())]
     if coded.neighbour_unit is not None:
         parameter_units.append(DataUnit(UnitType.NEIGHBOUR_PREDICTION, coded.neighbour_unit.to_bytes()))
+        if inp.step_adjust is not None:
+            unit = StepAdjustUnit(max_step_adjust=int(inp.step_adjust.max()))
+            parameter_units.append(DataUnit(UnitType.STEP_ADJUST, unit.to_bytes()))
     data = write_stream(parameter_units, coded.context_payload, tiles, decoded.num_gaussians)
     digest = tiles[0].scene_hash if len(tiles) == 1 else gaussian_scene_digest(decoded)
     return EncodeResult(data, breakdown_of(read_container(data), decoded.num_gaussians, "Gaussian"), decoded, digest,

@@ -18,9 +18,11 @@ import numpy as np
 
 from ..common import attributes as attr
 from ..common.entropy.symbol_coder import best_level, code_lengths_bits, ideal_code_length_bits
-from ..common.neighbour_prediction import (NeighbourGraph, check_extent, level_table, mean_flags,
-                                           neighbour_graph, neighbour_means_and_buckets,
+from ..common.entropy.scale_levels import NUM_SCALE_LEVELS
+from ..common.neighbour_prediction import (ADJUST_FIXED_POINT, ADJUST_LEVEL_SHIFT, NeighbourGraph, adjusted_prior, check_extent,
+                                           level_table, mean_flags, neighbour_graph, neighbour_means_and_buckets,
                                            write_predicted_attribute_unit)
+from ..common.attributes import NUM_STEP_ADJUST
 from ..common.container import UNIT_CRC_BYTES, UNIT_HEADER_BYTES
 from ..common.units import PRIOR_MEAN_MAX, NeighbourPredictionUnit
 from .prediction import fit_channel_prediction
@@ -28,20 +30,39 @@ from .prediction import fit_channel_prediction
 UNIT_FRAMING_BYTES = UNIT_HEADER_BYTES + UNIT_CRC_BYTES
 
 
-def _coding_params(q: np.ndarray, graph: NeighbourGraph, num_buckets: int,
-                   prior_mean: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _coding_params(q: np.ndarray, graph: NeighbourGraph, num_buckets: int, prior_mean: np.ndarray,
+                   adjust: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per row: the neighbours' mean of each channel (LoD 0: the prior's) and its activity bucket
-    (LoD 0: -1)."""
+    (LoD 0: -1). ``adjust``: every row's step-adjustment index (clause 11.8), or None."""
     n, m = q.shape
-    mean = np.broadcast_to(prior_mean, (n, m)).copy()
+    mean = prior_rows(prior_mean, n, adjust)
     bucket = np.full((n, m), -1, dtype=np.int64)
     every = np.ones(m, dtype=bool)
     for level in range(1, len(graph.rows)):
         rows = graph.rows[level]
         if rows.size:
-            mean[rows], bucket[rows] = neighbour_means_and_buckets(q, graph.neighbours[level], num_buckets, every,
-                                                                   prior_mean)
+            mean[rows], bucket[rows] = neighbour_means_and_buckets(
+                q, graph.neighbours[level], num_buckets, every, prior_mean, adjust,
+                None if adjust is None else adjust[rows])
     return mean, bucket
+
+
+def prior_rows(prior_mean: np.ndarray, n: int, adjust: np.ndarray | None) -> np.ndarray:
+    """int64 [n, M]: the prior mean in each row's steps."""
+    if adjust is None:
+        return np.broadcast_to(prior_mean, (n, prior_mean.size)).copy()
+    return adjusted_prior(attr.CodingParams(prior_mean[None, :], np.zeros((1, prior_mean.size), np.int64)),
+                          adjust).mean
+
+
+def best_prior_level(r: np.ndarray, adjust: np.ndarray | None) -> int:
+    """The prior level that codes one channel's residuals ``r`` of LoD 0 in the fewest bits, each
+    row's level lowered by its step adjustment's shift."""
+    if adjust is None or not adjust.any():
+        return best_level(r)
+    shift = ADJUST_LEVEL_SHIFT[adjust]
+    costs = [float(code_lengths_bits(r, np.maximum(lv - shift, 0)).sum()) for lv in range(NUM_SCALE_LEVELS)]
+    return int(np.argmin(costs))
 
 
 def _bucket_bits(r: np.ndarray, bucket: np.ndarray, num_buckets: int) -> float:
@@ -59,11 +80,12 @@ def _mean_flags(q: np.ndarray, neighbour_mean: np.ndarray, prior_mean: np.ndarra
     """Per channel: whether the neighbours' mean codes it in fewer bits than the prior's (noisy
     channels, e.g. higher SH bands of a sparse scene, are not predicted by their neighbours)."""
     fine = bucket[:, 0] >= 0
+    prior = np.broadcast_to(prior_mean, q.shape)  # [M] or, with step adjustment, [N, M]
     flags = np.zeros(q.shape[1], dtype=bool)
     for c in range(q.shape[1]):
         b = bucket[fine, c]
         flags[c] = _bucket_bits(q[fine, c] - neighbour_mean[fine, c], b, num_buckets) \
-            < _bucket_bits(q[fine, c] - prior_mean[c], b, num_buckets)
+            < _bucket_bits(q[fine, c] - prior[fine, c], b, num_buckets)
     return flags
 
 
@@ -79,32 +101,39 @@ def _table(r: np.ndarray, bucket: np.ndarray, num_buckets: int) -> np.ndarray:
     return table
 
 
-def _levels(bucket: np.ndarray, table: np.ndarray, prior_level: np.ndarray) -> np.ndarray:
-    lv = np.where(bucket >= 0, np.take_along_axis(table.T, np.maximum(bucket, 0), axis=0), prior_level[None, :])
+def _levels(bucket: np.ndarray, table: np.ndarray, prior_level: np.ndarray, adjust: np.ndarray | None = None
+            ) -> np.ndarray:
+    prior = prior_level[None, :] if adjust is None else np.maximum(prior_level[None, :] - ADJUST_LEVEL_SHIFT[adjust][:, None], 0)
+    lv = np.where(bucket >= 0, np.take_along_axis(table.T, np.maximum(bucket, 0), axis=0), prior)
     return lv.astype(np.int64)
 
 
 class NeighbourCoding:
     """The neighbour prediction of one tile (or scene): its graph, the means and buckets, the
-    fitted unit, prior and cross-channel prediction."""
+    fitted unit, prior and cross-channel prediction. ``adjust``: each row's step-adjustment
+    index (clause 11.8), None without the tool."""
 
     def __init__(self, q: np.ndarray, coords: np.ndarray, num_lods: int, num_neighbours: int, num_buckets: int,
                  channel_prediction: bool, layout, unit: NeighbourPredictionUnit | None = None,
-                 graph: NeighbourGraph | None = None):
+                 graph: NeighbourGraph | None = None, adjust: np.ndarray | None = None):
         n, m = q.shape
-        self.q, self.layout = q, layout
+        self.q, self.layout, self.adjust = q, layout, adjust
         self.graph = graph if graph is not None else neighbour_graph(coords, num_lods, num_neighbours)
         lod0 = self.graph.rows[0]
-        prior_mean = np.clip(np.rint(np.median(q[lod0], axis=0)), -PRIOR_MEAN_MAX, PRIOR_MEAN_MAX).astype(np.int64)
-        neighbour_mean, bucket = _coding_params(q, self.graph, num_buckets, prior_mean)
-        flags = _mean_flags(q, neighbour_mean, prior_mean, bucket, num_buckets) if unit is None else mean_flags(unit)
-        mean = np.where(flags[None, :] & (bucket >= 0), neighbour_mean, prior_mean[None, :])
+        a0 = None if adjust is None else adjust[lod0]
+        base = q[lod0] if adjust is None else q[lod0] * ADJUST_FIXED_POINT[a0][:, None] / ADJUST_FIXED_POINT[0]
+        prior_mean = np.clip(np.rint(np.median(base, axis=0)), -PRIOR_MEAN_MAX, PRIOR_MEAN_MAX).astype(np.int64)
+        neighbour_mean, bucket = _coding_params(q, self.graph, num_buckets, prior_mean, adjust)
+        own_prior = prior_rows(prior_mean, n, adjust)
+        flags = _mean_flags(q, neighbour_mean, own_prior, bucket, num_buckets) if unit is None else mean_flags(unit)
+        mean = np.where(flags[None, :] & (bucket >= 0), neighbour_mean, own_prior)
         self.prediction = attr.ChannelPrediction.none()
         live = np.ones(q.shape, dtype=bool)
         if channel_prediction and layout.channel_prediction_allowed:
             table0 = _table(q - mean, bucket, num_buckets) if unit is None else level_table(unit)
-            prior0 = np.array([best_level(q[lod0, c] - prior_mean[c]) for c in range(m)], dtype=np.int64)
-            params = attr.CodingParams(mean, _levels(bucket, table0, prior0))
+            prior0 = np.array([best_prior_level(q[lod0, c] - own_prior[lod0, c], a0) for c in range(m)],
+                              dtype=np.int64)
+            params = attr.CodingParams(mean, _levels(bucket, table0, prior0, adjust))
             self.prediction, _ = fit_channel_prediction(q, params, layout, live)
         r = self.prediction.residuals(q, mean)
         if unit is None:
@@ -113,21 +142,38 @@ class NeighbourCoding:
                                            neighbour_mean_flag=flags.astype(int).tolist(), bucket_level=_table(r, bucket, num_buckets).ravel().tolist())
         self.unit = unit
         self.prior_mean = prior_mean
-        self.prior_level = np.array([best_level(r[lod0, c]) for c in range(m)], dtype=np.int64)
-        self.levels = _levels(bucket, level_table(unit), self.prior_level)
+        self.prior_level = np.array([best_prior_level(r[lod0, c], a0) for c in range(m)], dtype=np.int64)
+        self.levels = _levels(bucket, level_table(unit), self.prior_level, adjust)
         self.residuals = r
 
     def ideal_bits(self) -> float:
         return ideal_code_length_bits(self.residuals, self.levels)
 
     def ideal_stream_bits(self) -> float:
-        """The ideal bits of the values and the unit that carries the table."""
-        return self.ideal_bits() + 8 * (UNIT_FRAMING_BYTES + len(self.unit.to_bytes()))
+        """The ideal bits of the values, their step-adjustment indices and the unit that carries
+        the table."""
+        return self.ideal_bits() + self.adjust_bits() + 8 * (UNIT_FRAMING_BYTES + len(self.unit.to_bytes()))
+
+    def adjust_model(self) -> tuple[int, int]:
+        """The step-adjustment indices' mean and scale level (the tile's attribute unit header)."""
+        a = self.adjust
+        mean = int(np.clip(np.rint(np.median(a)), 0, NUM_STEP_ADJUST - 1))
+        return mean, best_level(a - mean)
+
+    def adjust_bits(self) -> float:
+        if self.adjust is None:
+            return 0.0
+        mean, level = self.adjust_model()
+        return ideal_code_length_bits(self.adjust - mean, np.full(self.adjust.shape, level, np.int64))
 
     def write(self, header) -> bytes:
         header.prior_mean = self.prior_mean.tolist()
         header.prior_level = self.prior_level.tolist()
-        return write_predicted_attribute_unit(header, self.layout, self.q, self.graph, self.unit, self.prediction)
+        if self.adjust is not None:
+            header.step_adjust_present = 1
+            header.adjust_mean, header.adjust_level = self.adjust_model()
+        return write_predicted_attribute_unit(header, self.layout, self.q, self.graph, self.unit, self.prediction,
+                                              self.adjust)
 
 
 def usable(coords: np.ndarray) -> bool:

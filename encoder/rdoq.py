@@ -57,9 +57,10 @@ import math
 import numpy as np
 import torch
 
-from ..common.attributes import GaussianLayout
+from ..common.attributes import STEP_ADJUST_FACTORS, CodingParams, GaussianLayout
 from ..common.entropy.symbol_coder import code_lengths_bits
-from ..common.neighbour_prediction import NeighbourGraph, neighbour_means_and_buckets
+from ..common.neighbour_prediction import (ADJUST_LEVEL_SHIFT, NeighbourGraph, adjusted_prior,
+                                           neighbour_means_and_buckets)
 from ..common.scene import GaussianScene
 from ..render.camera import Camera
 from ..render.rasterizer import quat_to_rotmat, rasterize
@@ -300,7 +301,7 @@ def _choose_rows(x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarr
 
 def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray, graph: NeighbourGraph | None,
                 num_buckets: int, orientation: tuple[slice, slice] | None = None,
-                ways: np.ndarray | None = None) -> np.ndarray:
+                ways: np.ndarray | None = None, adjust: np.ndarray | None = None) -> np.ndarray:
     """int64 [N, M]: the values chosen for ``x`` (float [N, M], in steps, rows in coding order)
     with sensitivities ``f`` [N, M] and slopes ``mu`` [M] (module doc). ``graph``: the neighbour
     graph of ``coords`` when neighbour prediction codes the rows (None: the per-channel prior).
@@ -308,7 +309,12 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
     (``orientation_columns``), whose orientation and rotation length are chosen per row.
     ``ways``: int [N], the way each Gaussian is to be written (0..47, from the half-turn start;
     what an earlier call chose), -1 where it is to be chosen; the ways chosen are written into
-    it (the settings search keeps them from trial to trial: the choice is most of RDOQ's time)."""
+    it (the settings search keeps them from trial to trial: the choice is most of RDOQ's time).
+    ``adjust``: int [N], each row's step-adjustment index (clause 11.8; needs ``graph``): ``x`` is
+    then in the channels' steps and the values chosen are in each row's own."""
+    if adjust is not None:
+        factor = STEP_ADJUST_FACTORS[adjust].astype(np.float64)[:, None]
+        x, f = x / factor, f * factor ** 2
     if orientation is not None and x.shape[0] and float(np.max(mu[orientation[1]], initial=0.0)) > 0:
         x, f = _half_turned(x, f, orientation[1])
     q0 = np.rint(x).astype(np.int64)
@@ -320,7 +326,7 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
         prior_mean, prior_level = fit_per_channel_prior(q0, np.ones(q0.shape, dtype=bool), n)
         flags, table = np.zeros(m, dtype=bool), np.zeros((m, num_buckets), dtype=np.int64)
     else:  # the unit the coder would fit to the rounded values (the graph fixes L and k)
-        nc = NeighbourCoding(q0, coords, len(graph.rows), 1, num_buckets, False, None, graph=graph)
+        nc = NeighbourCoding(q0, coords, len(graph.rows), 1, num_buckets, False, None, graph=graph, adjust=adjust)
         prior_mean, prior_level = nc.prior_mean, nc.prior_level
         flags = np.asarray(nc.unit.neighbour_mean_flag, dtype=bool)
         table = np.asarray(nc.unit.bucket_level, dtype=np.int64).reshape(m, num_buckets)
@@ -328,16 +334,49 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
     for lod, rows in enumerate(graph.rows):
         if rows.size == 0:
             continue
-        if lod == 0:
+        if lod == 0 and adjust is not None:
+            p = adjusted_prior(CodingParams(prior_mean[None, :], prior_level[None, :]), adjust[rows])
+            mean, level = p.mean, p.level
+        elif lod == 0:
             mean, level = np.broadcast_to(prior_mean, (rows.size, m)), np.broadcast_to(prior_level, (rows.size, m))
         else:
-            mean, bucket = neighbour_means_and_buckets(q, graph.neighbours[lod], num_buckets, flags, prior_mean)
+            mean, bucket = neighbour_means_and_buckets(q, graph.neighbours[lod], num_buckets, flags, prior_mean,
+                                                       adjust, None if adjust is None else adjust[rows])
             level = np.take_along_axis(table.T, bucket, axis=0)
         q[rows], way = _choose_rows(x[rows], mean, level, f[rows], mu[None, :], orientation,
                                     None if ways is None else ways[rows])
         if ways is not None and way is not None:
             ways[rows] = way
     return q
+
+
+def step_adjust_choice(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray, graph: NeighbourGraph,
+                       num_buckets: int, max_index: int) -> np.ndarray:
+    """int64 [N]: each row's step-adjustment index (clause 11.8), rows in coding order: the a in
+    [0, max_index] whose rounding costs least in sum_c F (x - q 2^(a/4))^2 + mu bits(q - mean_a),
+    x in the channels' steps. The means and scale levels are those the coder fits to the rounded
+    values at a = 0, carried to the coarser steps as the coding carries them: the mean divided by
+    the factor, the level lowered by ADJUST_LEVEL_SHIFT[a] (a coarser step narrows the
+    distribution). A Gaussian the pictures barely see thus takes a coarse step for all of its
+    values, one they see well keeps its channels' steps (module doc)."""
+    n = x.shape[0]
+    if max_index <= 0 or n == 0:
+        return np.zeros(n, dtype=np.int64)
+    q0 = np.rint(x).astype(np.int64)
+    nc = NeighbourCoding(q0, coords, len(graph.rows), 1, num_buckets, False, None, graph=graph)
+    mean0, level0 = (q0 - nc.residuals).astype(np.float64), nc.levels
+    best_cost = np.full(n, np.inf)
+    best = np.zeros(n, dtype=np.int64)
+    for a in range(max_index + 1):
+        factor = float(STEP_ADJUST_FACTORS[a])
+        q = np.rint(x / factor)
+        mean = np.rint(mean0 / factor)
+        level = np.maximum(level0 - int(ADJUST_LEVEL_SHIFT[a]), 0)
+        cost = (f * (x - q * factor) ** 2).sum(axis=1) \
+            + (mu[None, :] * code_lengths_bits((q - mean).astype(np.int64), level)).sum(axis=1)
+        better = cost < best_cost
+        best_cost[better], best[better] = cost[better], a
+    return best
 
 
 def orientation_columns(layout: GaussianLayout) -> tuple[slice, slice]:
@@ -361,3 +400,4 @@ def sh_degree_subset(f: np.ndarray, sh_degree: int) -> np.ndarray:
     """The columns of ``f`` [N, M] (any SH degree) that a scene of ``sh_degree`` codes."""
     sh = 3 * (sh_degree + 1) ** 2
     return np.concatenate([f[:, :sh], f[:, -8:]], axis=1)
+

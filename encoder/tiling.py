@@ -119,7 +119,8 @@ def code_tile(inp, rows: np.ndarray, cfg, context_payload: bytes | None, recon: 
     ps = inp.parameter_set
     coords = inp.coords[rows]
     tinp = AttributeInput(ps, inp.layout, inp.steps, inp.values[rows], inp.live[rows],
-                          None if inp.mask is None else inp.mask[rows], coords)
+                          None if inp.mask is None else inp.mask[rows], coords,
+                          None if inp.step_adjust is None else inp.step_adjust[rows])
     levels, hier = tile_levels(coords, ps)
     predict = bool(inp.layout.channel_prediction_allowed) and getattr(cfg, "channel_prediction", False)
     model = None if context_payload is None else read_context_model(context_payload, inp.layout)
@@ -131,7 +132,7 @@ def code_tile(inp, rows: np.ndarray, cfg, context_payload: bytes | None, recon: 
         if neighbour_unit is not None:
             q = quantized_level(coder, tinp)
             chosen = code_with_neighbours(coder, q, neighbour_coding_of(q, coords, cfg, inp.layout, predict,
-                                                                       neighbour_unit))
+                                                                       neighbour_unit, tinp.step_adjust))
         else:
             chosen = code_with_prior(coder, tinp)
         if level == LEVEL_2 and model is not None:
