@@ -50,6 +50,7 @@ import numpy as np
 import torch
 from ..app.progress import progress_bar
 
+from ..common.attributes import STEP_ADJUST_FACTORS
 from ..common.scene import GaussianScene
 from .config import GaussianEncoderConfig
 from .gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid, typical_size
@@ -169,7 +170,7 @@ def prune_by_contribution(contrib: np.ndarray, share: float) -> np.ndarray:
     return keep
 
 
-def _ste(x: torch.Tensor, step: float) -> torch.Tensor:
+def _ste(x: torch.Tensor, step) -> torch.Tensor:
     """Rounding to multiples of ``step`` with the identity's gradient (quantization as coded)."""
     return x + (torch.round(x / step) * step - x).detach()
 
@@ -188,9 +189,12 @@ def _bits(x_steps: torch.Tensor, mu: torch.Tensor, sigma: torch.Tensor) -> torch
 class _Fit:
     """The fitted parameters and their quantized values as the encoder will code them."""
 
-    def __init__(self, scene: GaussianScene, cfg: GaussianEncoderConfig):
+    def __init__(self, scene: GaussianScene, cfg: GaussianEncoderConfig, step_adjust: np.ndarray | None = None):
         t = lambda a: torch.tensor(np.asarray(a, np.float64), dtype=torch.float32)  # noqa: E731
         self.cfg = cfg
+        # each Gaussian's factor on its steps (step adjustment, clause 11.8; 1 without it)
+        self.factor = torch.ones(scene.num_gaussians, 1) if step_adjust is None else \
+            torch.from_numpy(STEP_ADJUST_FACTORS[step_adjust].astype(np.float32))[:, None]
         self.means = t(scene.means)
         self.degree = scene.sh_degree
         self.sh_dc = t(scene.sh[:, :1]).requires_grad_(True)
@@ -207,17 +211,19 @@ class _Fit:
 
     def quantized(self):
         """(SH, opacity, log scales, rotations) rounded to their steps, with straight-through gradients."""
+        c, k = self.cfg, self.factor
         rot = self.rotations / self.rotations.norm(dim=1, keepdim=True).clamp_min(1e-12)
-        rest = self.sh_rest + (torch.round(self.sh_rest / self.rest_steps) * self.rest_steps - self.sh_rest).detach()
-        sh = torch.cat([_ste(self.sh_dc, self.cfg.sh_dc_step), rest], 1)
-        op = _ste(self.opacity.clamp(-OPACITY_LOGIT_LIMIT, OPACITY_LOGIT_LIMIT), self.cfg.opacity_step)
-        return sh, op, _ste(self.log_scales, self.cfg.scale_step), _ste(rot, self.cfg.rotation_step)
+        sh = torch.cat([_ste(self.sh_dc, c.sh_dc_step * k[:, :, None]),
+                        _ste(self.sh_rest, self.rest_steps * k[:, :, None])], 1)
+        op = _ste(self.opacity.clamp(-OPACITY_LOGIT_LIMIT, OPACITY_LOGIT_LIMIT), c.opacity_step * k[:, 0])
+        return sh, op, _ste(self.log_scales, c.scale_step * k), _ste(rot, c.rotation_step * k)
 
     def values_in_steps(self, sh, op, ls, rot) -> list[torch.Tensor]:
-        c = self.cfg
+        c, k = self.cfg, self.factor
         n = sh.shape[0]
-        return [(sh[:, :1] / c.sh_dc_step).reshape(n, -1), (sh[:, 1:] / self.rest_steps).reshape(n, -1),
-                (op / c.opacity_step)[:, None], ls / c.scale_step, rot / c.rotation_step]
+        return [(sh[:, :1] / (c.sh_dc_step * k[:, :, None])).reshape(n, -1),
+                (sh[:, 1:] / (self.rest_steps * k[:, :, None])).reshape(n, -1),
+                (op / (c.opacity_step * k[:, 0]))[:, None], ls / (c.scale_step * k), rot / (c.rotation_step * k)]
 
     def init_rate_model(self) -> None:
         """Per channel: the median and the RMS deviation (in steps) of the quantized start values,
@@ -349,13 +355,15 @@ class _Optimizer:
 
 
 def fit_to_renders(grid: GaussianScene, g: Gaussians3DGS, cams: list[Camera], cfg: GaussianEncoderConfig,
-                   stats: PrepareStats, say, progress: bool) -> GaussianScene:
+                   stats: PrepareStats, say, progress: bool, sensitivity: np.ndarray | None = None) -> GaussianScene:
     """``fit_iterations`` steps tuning the kept Gaussians to renders of the source Gaussians
     ``g`` with their quantization simulated and their estimated bits weighed in (module doc)."""
     t0 = time.perf_counter()
     with torch.no_grad():
         targets = [render_3dgs(g, cam, background=(0, 0, 0), backend="torch").image for cam in cams]
-    fit = _Fit(grid, cfg)
+    from .gaussian_rd import scene_step_adjust
+
+    fit = _Fit(grid, cfg, scene_step_adjust(grid, sensitivity, cfg))
     fit.init_rate_model()
     optimizer = _Optimizer.of(fit, cfg)
     rng = np.random.default_rng(0)
@@ -417,7 +425,7 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
     if cfg.fit_iterations == 0:
         stats.time_total_s = time.perf_counter() - t0
         return PreparedGaussians(grid, weights, sensitivity, cfg, stats)
-    fitted = fit_to_renders(grid, g, cams, cfg, stats, say, progress)
+    fitted = fit_to_renders(grid, g, cams, cfg, stats, say, progress, sensitivity)
     cfg = trim_steps(fitted, weights, sensitivity, cfg, stats, say)
     stats.time_total_s = time.perf_counter() - t0
     return PreparedGaussians(fitted, weights, sensitivity, cfg, stats)

@@ -127,18 +127,12 @@ class SettingsSearch:
 
     def _adjust(self, key, grid: GaussianScene, keep: np.ndarray, x: np.ndarray, degree: int,
                 cfg: GaussianEncoderConfig) -> np.ndarray | None:
-        """Each kept Gaussian's step-adjustment index (scene order; encoder/rdoq.py
-        step_adjust_choice), or None without the tool (it needs the sensitivities and neighbour
-        prediction)."""
+        """Each kept Gaussian's step-adjustment index (scene order), or None without the tool."""
         order, graph = self._graph(key, grid)
-        if cfg.step_adjust_max <= 0 or self.sensitivity is None or cfg.rd_quantization <= 0 or graph is None:
+        if not step_adjust_wanted(cfg, self.sensitivity) or graph is None:
             return None
-        f = sh_degree_subset(self.sensitivity[keep], degree)
-        mu = group_slopes(f, channel_groups(degree), cfg.rd_quantization)
-        adjust = np.empty(x.shape[0], dtype=np.int64)
-        adjust[order] = step_adjust_choice(x[order], f[order], mu, grid.coords[order], graph, cfg.prediction_buckets,
-                                           cfg.step_adjust_max)
-        return adjust
+        return adjust_on_graph(x, sh_degree_subset(self.sensitivity[keep], degree), degree, grid.coords, order, graph,
+                               cfg)
 
     def evaluate(self, cfg: GaussianEncoderConfig) -> Trial:
         key = (cfg.prune_share, cfg.position_step)
@@ -176,6 +170,42 @@ class SettingsSearch:
         trial = Trial(cfg, mse, bits, cost)
         self.trials.append(trial)
         return trial
+
+
+def step_adjust_wanted(cfg: GaussianEncoderConfig, sensitivity: np.ndarray | None) -> bool:
+    """Step adjustment needs the sensitivities and RDOQ (and, checked by the callers, neighbour
+    prediction)."""
+    return cfg.step_adjust_max > 0 and sensitivity is not None and cfg.rd_quantization > 0
+
+
+def adjust_on_graph(x: np.ndarray, f: np.ndarray, degree: int, coords: np.ndarray, order: np.ndarray, graph,
+                    cfg: GaussianEncoderConfig) -> np.ndarray:
+    """int64 [N] (scene order): the step-adjustment indices encoder/rdoq.py step_adjust_choice
+    gives values ``x`` [N, M] (in the channels' steps) with sensitivities ``f``, ``graph`` being
+    the neighbour graph of ``coords[order]`` (the normative order)."""
+    mu = group_slopes(f, channel_groups(degree), cfg.rd_quantization)
+    adjust = np.empty(x.shape[0], dtype=np.int64)
+    adjust[order] = step_adjust_choice(x[order], f[order], mu, coords[order], graph, cfg.prediction_buckets,
+                                       cfg.step_adjust_max)
+    return adjust
+
+
+def scene_step_adjust(scene: GaussianScene, sensitivity: np.ndarray | None,
+                      cfg: GaussianEncoderConfig) -> np.ndarray | None:
+    """The step-adjustment indices of a scene on its grid at cfg's steps (scene order), as the
+    coding will choose them; None where the tool is off or the scene does not admit neighbour
+    prediction."""
+    if not step_adjust_wanted(cfg, sensitivity) or not cfg.neighbour_prediction or not neighbour_usable(scene.coords):
+        return None
+    degree = scene.sh_degree
+    order = normative_order(scene.coords)
+    graph = neighbour_graph(scene.coords[order], cfg.prediction_lods, cfg.prediction_neighbours)
+    layout = GaussianLayout(degree)
+    values = layout.join(GaussianScene(scene.means, scene.sh, np.clip(scene.opacity, -OPACITY_LOGIT_LIMIT,
+                                                                       OPACITY_LOGIT_LIMIT),
+                                       scene.log_scales, canonical_rotations(scene.rotations))).astype(np.float64)
+    return adjust_on_graph(values / channel_steps(cfg, degree), sh_degree_subset(sensitivity, degree), degree,
+                           scene.coords, order, graph, cfg)
 
 
 GROUPS = ("position", "sh_dc", "sh_band1", "sh_band2", "sh_band3", "opacity", "scale", "rotation")

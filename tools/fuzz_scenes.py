@@ -270,9 +270,11 @@ def replace_context_model(data: bytes, decoded, rng: random.Random) -> tuple[byt
 
     units = [DataUnit(u.unit_type, u.payload) for u in read_container(data).units]
     types = [u.unit_type for u in units]
-    if types.count(UnitType.ATTRIBUTE) != 2:
-        return None
+    if types.count(UnitType.ATTRIBUTE) != 2 or types.count(UnitType.GEOMETRY) != 1:
+        return None  # one tile with its two levels (two tiles without the hierarchy also have two units)
     sps = SceneParameterSet.from_bytes(units[0].payload)
+    if not sps.hierarchy_enabled_flag:
+        return None
     layout = attr.layout_of(sps)
     m = layout.num_channels
     coords = decoded.coords

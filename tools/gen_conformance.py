@@ -561,6 +561,19 @@ def post_process(data: bytes, post: dict) -> bytes:
     return out
 
 
+def synthetic_sensitivity(scene, spec: dict | None) -> np.ndarray | None:
+    """The pictures' sensitivity to each value (encoder/rdoq.py) as an entry's ``sensitivity``
+    gives it, so that RDOQ and step adjustment run without renders: per Gaussian a visibility
+    10^(spread * u), u uniform in [-1, 0] (seeded), times a per-channel level drawn once. None
+    without the key (plain rounding, as every stream of version 1.1)."""
+    if not spec:
+        return None
+    rng = np.random.default_rng(int(spec["seed"]))
+    n, m = scene.num_gaussians, 3 * (scene.sh_degree + 1) ** 2 + 8
+    visibility = 10.0 ** (float(spec.get("spread", 3)) * -rng.random(n))
+    return visibility[:, None] * 10.0 ** rng.uniform(2, 4, size=m)[None, :]
+
+
 def generate(entry: dict) -> tuple[bytes, str | None]:
     """-> (stream bytes, decoded scene SHA-256 hex or None when the stream must be rejected)."""
     import torch
@@ -598,7 +611,8 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
             # version 1.0 keep their coding
             overrides = {"neighbour_prediction": False, **(entry.get("config") or {})}
             cfg = load_config(entry.get("preset", "medium"), overrides=overrides, kind="gaussians")
-            result = encode_gaussian_scene(build_scene(entry["scene"]), cfg)
+            scene = build_scene(entry["scene"])
+            result = encode_gaussian_scene(scene, cfg, sensitivity=synthetic_sensitivity(scene, entry.get("sensitivity")))
         else:
             cfg = load_config(entry.get("preset", "medium"), overrides=entry.get("config"))
             result = encode_scene(build_scene(entry["scene"]), cfg)
@@ -634,6 +648,7 @@ Tags of test.yaml `tools`, derived from the reference decoder's result (never wr
   context_parent_base_<b>      a context model with a channel whose parent_base is b (Annex H.5.3)
   context_model_unit    a context-model unit
   neighbour_prediction  a neighbour_prediction unit (version 1.1, clause 7.3.12): attributes coded by LoD
+  step_adjust           a step_adjust unit (version 1.2, clause 7.3.13): a step-adjustment index per Gaussian
   gaussians             an explicit-Gaussian scene (gaussian_parameter_set), sh_degree_<d> its SH degree
   channel_prediction    an attribute unit with cross-channel predictions (clause 11.6)
   offset_mask           offset_mask_present_flag = 1
@@ -698,6 +713,8 @@ def _structure_tags(data: bytes) -> set[str]:
         tags.add("context_model_unit")
     if UnitType.NEIGHBOUR_PREDICTION in types:
         tags.add("neighbour_prediction")
+    if UnitType.STEP_ADJUST in types:
+        tags.add("step_adjust")
     if any(u.is_ancillary for u in units):
         tags.add("ancillary_unit")
     sps_units = [u for u in units if u.unit_type == UnitType.SCENE_PARAMETER_SET]
@@ -737,7 +754,7 @@ def derive_tools(data: bytes, rejected_in: str | None = None) -> list[str]:
     sources.yaml declares it (one of REJECTION_STAGES, or None)."""
     if rejected_in is not None and rejected_in not in REJECTION_STAGES:
         raise SystemExit(f"rejected_in: {rejected_in!r} is not one of {', '.join(REJECTION_STAGES)}")
-    from lghcc.common.container import VERSION_MINOR, UnitType, read_container
+    from lghcc.common.container import UnitType, read_container, version_minor_of
     from lghcc.common.errors import HashMismatchError, LghccError
     from lghcc.conformance.coverage import _trace_values, element_infos, value_class
     from lghcc.decoder.decode import decode_stream, organize_units
@@ -756,7 +773,7 @@ def derive_tools(data: bytes, rejected_in: str | None = None) -> list[str]:
     except LghccError:  # rejected while decoding: the stage sources.yaml declares
         return sorted(tags | ({rejected_in} if rejected_in else set()))
     _undeclared([], rejected_in)
-    if container.header.version_minor != VERSION_MINOR:
+    if container.header.version_minor != version_minor_of(container.units):
         tags.add("container_version")
     if any(u.unit_type == UnitType.TILE_INDEX for u in container.units):
         tags.add("tiles")

@@ -615,6 +615,51 @@ def neighbour_prediction(units, spec: dict) -> None:
                  DataUnit(UnitType.NEIGHBOUR_PREDICTION, unit.to_bytes()))
 
 
+def step_adjust(units, spec: dict) -> None:
+    """Give every row of the single attribute unit of an explicit-Gaussian stream coded with
+    neighbour prediction (no tiles) a step-adjustment index and insert the step_adjust unit after
+    the neighbour_prediction unit (version 1.2, clause 7.3.13). The quantized values stay, so the
+    decoded values scale by their rows' factors (rehash the stream). spec: {max (max_step_adjust),
+    indices: zero | cycle (row i gets i mod (max + 1)) | cycle:<n> (i mod n, beyond max when n > max
+    + 1: a fault), adjust_mean, adjust_level (default the encoder's)}."""
+    from lghcc.common.geometry import decode_geometry
+    from lghcc.common.units import GaussianParameterSet, NeighbourPredictionUnit, StepAdjustUnit
+    from lghcc.encoder.neighbour_coding import NeighbourCoding
+
+    gps = GaussianParameterSet.from_bytes(units[_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
+    if gps.hierarchy_enabled_flag or gps.tiles_enabled_flag:
+        raise ValueError("step_adjust edits a stream without the hierarchy and without tiles")
+    layout = attr.gaussian_layout_of(gps)
+    n = gps.num_gaussians
+    k = _index(units, UnitType.NEIGHBOUR_PREDICTION)
+    unit = NeighbourPredictionUnit.from_bytes(units[k].payload, num_channels=layout.num_channels)
+    coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, n)
+    j = _index(units, UnitType.ATTRIBUTE)
+    values = np.empty((n, layout.num_channels), np.float32)
+    q = np.empty((n, layout.num_channels), np.int64)
+    from lghcc.common.neighbour_prediction import read_predicted_attribute_unit
+
+    h0 = read_predicted_attribute_unit(units[j].payload, layout, layout.steps(gps), coords, unit, values)
+    q[:] = np.rint(values / layout.steps(gps)).astype(np.int64)  # index 0 throughout: exact
+    top = int(spec["max"])
+    kind = str(spec.get("indices", "cycle"))
+    period = 1 if kind == "zero" else int(kind.split(":")[1]) if ":" in kind else top + 1
+    adjust = np.arange(n, dtype=np.int64) % period
+    nc = NeighbourCoding(q, coords, unit.num_lods, unit.num_neighbours, unit.num_buckets,
+                         bool(h0.num_channel_predictions), layout, unit, adjust=adjust)
+    h = attr.new_attribute_header(layout, n, 0)
+    h.rows_per_chunk_minus1 = h0.rows_per_chunk_minus1
+    payload = nc.write(h)
+    if "adjust_mean" in spec or "adjust_level" in spec:  # recoded with the given model
+        from lghcc.common.neighbour_prediction import write_predicted_attribute_unit
+
+        h.adjust_mean = int(spec.get("adjust_mean", h.adjust_mean))
+        h.adjust_level = int(spec.get("adjust_level", h.adjust_level))
+        payload = write_predicted_attribute_unit(h, layout, q, nc.graph, unit, nc.prediction, adjust)
+    units[j] = DataUnit(UnitType.ATTRIBUTE, payload)
+    units.insert(k + 1, DataUnit(UnitType.STEP_ADJUST, StepAdjustUnit(max_step_adjust=top).to_bytes()))
+
+
 def _chunks_across_lods(h: AttributeUnitHeader, nc) -> bytes:
     """The attribute unit of ``nc`` (already written into ``h``) with its rows, in coding order, cut
     every rows_per_chunk rows regardless of the LoDs (a version-1.0 chunking of the LoD-major order),
@@ -667,6 +712,8 @@ def apply_edits(units, post: dict) -> None:
         render_unit(units, post["render_unit"])
     if "neighbour_prediction" in post:
         neighbour_prediction(units, post["neighbour_prediction"])
+    if "step_adjust" in post:
+        step_adjust(units, post["step_adjust"])
     if "set_elements" in post:
         set_elements(units, post["set_elements"])
     if "nonzero_alignment" in post:

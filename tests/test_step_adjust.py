@@ -1,0 +1,159 @@
+"""Step adjustment (format 1.2, clauses 7.3.13 and 11.8): the fixed-point means and buckets against
+exact integer arithmetic (and against version 1.1's with every index 0), bit-exact round trips
+with tiles and cross-channel prediction, the version a stream declares, the encoder's choice of
+indices, and the hard cases."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+from lghcc.common.attributes import STEP_ADJUST_FACTORS, CodingParams, GaussianLayout
+from lghcc.common.geometry import normative_order
+from lghcc.common.container import UnitType, read_container
+from lghcc.common.neighbour_prediction import (ADJUST_FIXED_POINT, ADJUST_LEVEL_SHIFT, adjusted_prior,
+                                               lod_coding_params, neighbour_graph)
+from lghcc.decoder.decode import decode_stream
+from lghcc.encoder.config import GaussianEncoderConfig
+from lghcc.encoder.gaussians import canonical_rotations, encode_gaussian_scene
+from lghcc.encoder.rdoq import channel_groups, channel_steps, group_slopes, step_adjust_choice
+from test_gaussians import assert_same, random_gaussians
+from test_neighbour_prediction import _smooth_scene
+
+
+def test_fixed_point_factors_and_level_shifts_are_the_rounded_rules():
+    a = np.arange(8)
+    assert ADJUST_FIXED_POINT.tolist() == [round(4096 * 2 ** (i / 4)) for i in a]
+    assert ADJUST_LEVEL_SHIFT.tolist() == [round(i / 4 * 63 / np.log2(512 / 0.11)) for i in a]
+    assert np.allclose(STEP_ADJUST_FACTORS, 2.0 ** (a / 4), rtol=1e-7)
+
+
+@given(st.lists(st.tuples(st.lists(st.integers(-2 ** 40, 2 ** 40), min_size=3, max_size=3), st.integers(0, 7)),
+                min_size=1, max_size=32),
+       st.integers(0, 7), st.integers(1, 16))
+def test_adjusted_mean_and_bucket_are_exact_integers(neighbours, own, buckets):
+    """Clause 11.8 with Python's unbounded integers as the reference: 32 neighbours at +-2^40 with
+    the largest factor stay within int64."""
+    q = np.array([v for v, _ in neighbours] + [[0, 0, 0]], dtype=np.int64)
+    adjust = np.array([a for _, a in neighbours] + [own], dtype=np.int64)
+    nb = np.arange(len(neighbours))[None, :]
+    table = np.arange(3 * buckets, dtype=np.int64).reshape(3, buckets) % 64
+    flags = np.array([True, False, True])
+    prior = np.array([5, -7, 2 ** 31 - 1], dtype=np.int64)
+    p = lod_coding_params(q, nb, table, buckets, flags, prior, adjust, adjust[-1:])
+    fp = [round(4096 * 2 ** (i / 4)) for i in range(8)]
+    f, n = fp[own], len(neighbours)
+    for c in range(3):
+        v = [x[c] * fp[a] for x, a in neighbours]
+        mean = (sum(v) + (n * f) // 2) // (n * f) if flags[c] else (int(prior[c]) * 4096 + f // 2) // f
+        assert p.mean[0, c] == mean
+        bucket = min(((max(v) - min(v)) // f).bit_length(), buckets - 1)
+        assert p.level[0, c] == table[c, bucket]
+
+
+@given(st.lists(st.lists(st.integers(-2 ** 40, 2 ** 40), min_size=2, max_size=2), min_size=1, max_size=12),
+       st.integers(1, 16))
+def test_index_zero_everywhere_is_version_1_1(values, buckets):
+    q = np.vstack([np.asarray(values, np.int64), np.zeros((1, 2), np.int64)])
+    nb = np.arange(len(values))[None, :]
+    table = np.arange(2 * buckets, dtype=np.int64).reshape(2, buckets) % 64
+    flags, prior = np.array([True, False]), np.array([3, -4], np.int64)
+    plain = lod_coding_params(q, nb, table, buckets, flags, prior)
+    zero = lod_coding_params(q, nb, table, buckets, flags, prior, np.zeros(len(q), np.int64), np.zeros(1, np.int64))
+    assert np.array_equal(plain.mean, zero.mean) and np.array_equal(plain.level, zero.level)
+
+
+def test_adjusted_prior_rounds_the_mean_and_lowers_the_level():
+    prior = CodingParams(np.array([[100, -101, 0, 7]]), np.array([[20, 5, 0, 63]]))
+    p = adjusted_prior(prior, np.arange(8))
+    for a in range(8):
+        f = round(4096 * 2 ** (a / 4))
+        assert p.mean[a].tolist() == [(m * 4096 + f // 2) // f for m in (100, -101, 0, 7)]
+        assert p.level[a].tolist() == [max(0, lv - int(ADJUST_LEVEL_SHIFT[a])) for lv in (20, 5, 0, 63)]
+
+
+def _sensitivity(scene, rng, spread: float = 4.0) -> np.ndarray:
+    """Per Gaussian a visibility over ``spread`` decades, times a level per channel."""
+    m = 3 * (scene.sh_degree + 1) ** 2 + 8
+    return (10.0 ** (-spread * rng.random(scene.num_gaussians)))[:, None] * 10.0 ** rng.uniform(2, 4, m)[None, :]
+
+
+def _tool(data: bytes) -> bool:
+    return any(u.unit_type == UnitType.STEP_ADJUST for u in read_container(data).units)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.integers(2, 300), st.integers(0, 3), st.integers(1, 7), st.booleans(), st.sampled_from([0, 60]),
+       st.sampled_from([5, 65536]), st.integers(0, 2 ** 31))
+def test_round_trip_with_step_adjustment_is_bit_exact(n, degree, top, predict, tile_points, rows_per_chunk, seed):
+    rng = np.random.default_rng(seed)
+    scene = _smooth_scene(n, degree, seed) if seed % 2 else random_gaussians(rng, n, degree)
+    cfg = GaussianEncoderConfig(neighbour_prediction="always", step_adjust_max=top, channel_prediction=predict,
+                                tile_points=tile_points, rows_per_chunk=rows_per_chunk)
+    res = encode_gaussian_scene(scene, cfg, sensitivity=_sensitivity(scene, rng))
+    dec = decode_stream(res.data, jobs=2 if tile_points and seed % 3 == 0 else 1)
+    assert dec.hash_checked
+    assert_same(dec.scene, res.decoded)
+    header = read_container(res.data).header
+    assert header.version_minor == (2 if _tool(res.data) else 1)
+
+
+def test_invisible_gaussians_take_the_coarsest_steps_and_visible_ones_keep_theirs():
+    scene = _smooth_scene(3000, 1, seed=4)
+    rng = np.random.default_rng(4)
+    f = _sensitivity(scene, rng)
+    f[:1000] = 0.0  # the pictures do not show these at all
+    f[1000:1100] = 100 * f.max(axis=0)  # and these very well
+    cfg = GaussianEncoderConfig(neighbour_prediction="always", channel_prediction=False)
+    on = encode_gaussian_scene(scene, dataclasses.replace(cfg, step_adjust_max=7), sensitivity=f)
+    off = encode_gaussian_scene(scene, cfg, sensitivity=f)
+    assert _tool(on.data) and not _tool(off.data)
+    assert len(on.data) < 0.9 * len(off.data)
+    assert decode_stream(on.data).hash_checked
+    # the choice itself, on the values in steps as the coding sees them
+    layout = GaussianLayout(1)
+    x = layout.join(dataclasses.replace(scene, rotations=canonical_rotations(scene.rotations))) / channel_steps(cfg, 1)
+    coords = np.rint(scene.means / 0.01).astype(np.int64)
+    order = normative_order(coords)
+    graph = neighbour_graph(coords[order], cfg.prediction_lods, cfg.prediction_neighbours)
+    mu = group_slopes(f, channel_groups(1), 1.0)
+    a = np.empty(3000, np.int64)
+    a[order] = step_adjust_choice(x[order], f[order], mu, coords[order], graph, cfg.prediction_buckets, 7)
+    # the visible ones mostly keep their steps (a coarser one wins where its rounding happens to land
+    # near the values)
+    assert (a[1000:1100] == 0).mean() > 0.5 and a[1000:1100].mean() < 1
+    assert (a[:1000] > 0).mean() > 0.95  # the fewest bits, wherever they are (ties go to the finer step)
+    assert a[:1000].mean() > a[1100:].mean() > a[1000:1100].mean()
+
+
+def test_every_index_zero_costs_nothing_and_writes_a_version_1_1_stream(monkeypatch):
+    """Where the choice gives every Gaussian index 0, no unit is written: the same bytes as without
+    the tool, a version 1.1 stream."""
+    import lghcc.encoder.rdoq as rdoq
+
+    scene = _smooth_scene(1500, 0, seed=6)
+    f = _sensitivity(scene, np.random.default_rng(6))
+    cfg = GaussianEncoderConfig(neighbour_prediction="always")
+    monkeypatch.setattr(rdoq, "step_adjust_choice", lambda x, *a: np.zeros(x.shape[0], np.int64))
+    on = encode_gaussian_scene(scene, dataclasses.replace(cfg, step_adjust_max=7), sensitivity=f)
+    off = encode_gaussian_scene(scene, cfg, sensitivity=f)
+    assert on.data == off.data and not _tool(on.data)
+    assert read_container(on.data).header.version_minor == 1
+
+
+@pytest.mark.parametrize("case", ["one_gaussian", "all_invisible", "two_far_apart"])
+def test_hard_cases_round_trip(case):
+    rng = np.random.default_rng(9)
+    n = {"one_gaussian": 1, "all_invisible": 200, "two_far_apart": 2}[case]
+    scene = random_gaussians(rng, n, 1)
+    if case == "two_far_apart":
+        scene.means[1] = scene.means[0] + np.float32(1e4)
+    f = np.zeros((n, 20)) if case == "all_invisible" else _sensitivity(scene, rng)
+    cfg = GaussianEncoderConfig(neighbour_prediction="always", step_adjust_max=7)
+    res = encode_gaussian_scene(scene, cfg, sensitivity=f)
+    dec = decode_stream(res.data)
+    assert dec.hash_checked and dec.scene.num_gaussians == n
+    assert np.isfinite(dec.scene.sh).all() and np.isfinite(dec.scene.rotations).all()
+    if case == "all_invisible":  # no sensitivity anywhere gives no slope to weigh bits by: plain rounding
+        assert not _tool(res.data)
