@@ -135,6 +135,10 @@ def add_gaussian_arguments(p: argparse.ArgumentParser) -> None:
                          "its prediction, by how much the pictures show it against the bits saved; W weighs "
                          "the bits (default 1; 0: plain rounding). Used where the encoder measures the "
                          "pictures (--psnr, --lambda, fitting or pruning)")
+    gs.add_argument("--step-adjust", type=int, metavar="A", choices=range(8),
+                    help="step adjustment (format 1.2): each Gaussian's steps made up to 2^(A/4) times coarser "
+                         "where the pictures barely show it, chosen with the rate-distortion optimized "
+                         "quantization (default 7, the presets'; 0: off, streams a version-1.1 decoder reads)")
 
 
 def add_transcode_arguments(p: argparse.ArgumentParser) -> None:
@@ -236,6 +240,7 @@ def config_overrides(args: argparse.Namespace, gaussians: bool) -> dict:
         overrides = {"rd_lambda": args.rd_lambda, "target_psnr": args.target_psnr,
                      "fit_iterations": args.fit_iterations, "sh_degree": args.sh_degree,
                      "tile_points": args.tile_points, "rd_quantization": args.rd_quantization,
+                     "step_adjust_max": args.step_adjust,
                      "neighbour_prediction": {"auto": True, "always": "always", "never": False, None: None}[
                          args.neighbour_prediction]}
         if args.rd_lambda is not None and args.target_psnr is None:
