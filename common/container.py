@@ -19,7 +19,8 @@ from .syntax import SyntaxStructure, SyntaxVisitor
 
 MAGIC = 0x4C474843  # "LGHC"
 VERSION_MAJOR = 1
-VERSION_MINOR = 2
+VERSION_MINOR = 2  # this decoder's version: 1.2
+BASE_VERSION_MINOR = 1  # the version of a stream that uses no tool of a later minor version (clause 6.2)
 ANCILLARY_UNIT_TYPE_MIN = 0x80
 UNIT_HEADER_BYTES = 5
 UNIT_CRC_BYTES = 4
@@ -54,7 +55,7 @@ class ContainerHeader(SyntaxStructure):
     clause = "6.2"
     magic: int = MAGIC
     version_major: int = VERSION_MAJOR
-    version_minor: int = VERSION_MINOR
+    version_minor: int = BASE_VERSION_MINOR
     profile_idc: int = int(Profile.MAIN)
     reserved_zero_8bits: int = 0
 
@@ -106,7 +107,6 @@ CONTAINER_HEADER_BYTES = 8
 # A stream's version_minor is the lowest whose tools it uses (clause 6.2): a stream without a
 # step_adjust unit is a version 1.1 stream, which a decoder of version 1.1 decodes.
 FIRST_MINOR_OF_UNIT = {UnitType.STEP_ADJUST: 2}
-BASE_VERSION_MINOR = 1
 
 
 def version_minor_of(units: list[DataUnit]) -> int:

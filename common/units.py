@@ -310,7 +310,9 @@ class AttributeUnitHeader(SyntaxStructure):
             v.u(NUM_SCALE_LEVELS_BITS, self, "adjust_level")
         v.ue(self, "num_rows_minus1", hi=MAX_ANCHORS - 1)  # = NumRows - 1: checked after parsing (clause 8.3)
         v.ue(self, "rows_per_chunk_minus1", hi=self.num_rows_minus1)
-        for i in v.loop(self.num_chunks, "NumChunks", self, ("mask_chunk_size", "adjust_chunk_size", "chunk_size")):
+        sizes = ("mask_chunk_size",) * bool(self.offset_mask_present) \
+            + ("adjust_chunk_size",) * bool(self.step_adjust_present) + ("chunk_size",)
+        for i in v.loop(self.num_chunks, "NumChunks", self, sizes):
             for _ in v.when(self.offset_mask_present, "offset_mask_present_flag"):
                 v.ue(self, "mask_chunk_size", i)
             for _ in v.when(self.step_adjust_present, "StepAdjustPresent"):

@@ -620,8 +620,10 @@ def step_adjust(units, spec: dict) -> None:
     neighbour prediction (no tiles) a step-adjustment index and insert the step_adjust unit after
     the neighbour_prediction unit (version 1.2, clause 7.3.13). The quantized values stay, so the
     decoded values scale by their rows' factors (rehash the stream). spec: {max (max_step_adjust),
-    indices: zero | cycle (row i gets i mod (max + 1)) | cycle:<n> (i mod n, beyond max when n > max
-    + 1: a fault), adjust_mean, adjust_level (default the encoder's)}."""
+    indices: zero | const:<a> | cycle (row i gets i mod (max + 1)) | cycle:<n> (i mod n, beyond max
+    when n > max + 1: a fault), adjust_mean, adjust_level (default the encoder's),
+    empty_adjust_chunks (every chunk of indices 0 bytes: each index decodes as bin 0 of the
+    level's table, -L + adjust_mean)}."""
     from lghcc.common.geometry import decode_geometry
     from lghcc.common.units import GaussianParameterSet, NeighbourPredictionUnit, StepAdjustUnit
     from lghcc.encoder.neighbour_coding import NeighbourCoding
@@ -643,8 +645,11 @@ def step_adjust(units, spec: dict) -> None:
     q[:] = np.rint(values / layout.steps(gps)).astype(np.int64)  # index 0 throughout: exact
     top = int(spec["max"])
     kind = str(spec.get("indices", "cycle"))
-    period = 1 if kind == "zero" else int(kind.split(":")[1]) if ":" in kind else top + 1
-    adjust = np.arange(n, dtype=np.int64) % period
+    if kind.startswith("const:"):
+        adjust = np.full(n, int(kind.split(":")[1]), dtype=np.int64)
+    else:
+        period = 1 if kind == "zero" else int(kind.split(":")[1]) if ":" in kind else top + 1
+        adjust = np.arange(n, dtype=np.int64) % period
     nc = NeighbourCoding(q, coords, unit.num_lods, unit.num_neighbours, unit.num_buckets,
                          bool(h0.num_channel_predictions), layout, unit, adjust=adjust)
     h = attr.new_attribute_header(layout, n, 0)
@@ -656,6 +661,14 @@ def step_adjust(units, spec: dict) -> None:
         h.adjust_mean = int(spec.get("adjust_mean", h.adjust_mean))
         h.adjust_level = int(spec.get("adjust_level", h.adjust_level))
         payload = write_predicted_attribute_unit(h, layout, q, nc.graph, unit, nc.prediction, adjust)
+    if spec.get("empty_adjust_chunks"):  # every chunk of indices empty: each decodes as bin 0 of its table
+        body = payload[len(h.to_bytes()):]
+        pieces, pos = [], 0
+        for a_size, v_size in zip(h.adjust_chunk_size, h.chunk_size):
+            pieces.append(body[pos + a_size:pos + a_size + v_size])
+            pos += a_size + v_size
+        h.adjust_chunk_size = [0] * len(pieces)
+        payload = h.to_bytes() + b"".join(pieces)
     units[j] = DataUnit(UnitType.ATTRIBUTE, payload)
     units.insert(k + 1, DataUnit(UnitType.STEP_ADJUST, StepAdjustUnit(max_step_adjust=top).to_bytes()))
 
