@@ -43,11 +43,20 @@ whose rounded multiple costs least in F (x - d)^2 + mu bits, d the rounded quate
 direction at the original length; its sensitivities scale by 1 / rho^2 (the pictures see the
 direction). A zero quaternion, which has no direction, is never chosen.
 
+With step adjustment (format 1.2, clause 11.8; ``step_adjust_choice``), each Gaussian's steps
+are 2^(a/4) times its channels', a = 0..7 chosen per Gaussian before the values: the a whose plain
+rounding costs least in sum_c F (x - q 2^(a/4))^2 + mu bits(q), with the means and levels fitted to
+the rounding at a = 0 carried to the coarser step. RDOQ's one step is a per-value choice within
+one precision; this is a per-Gaussian precision, which the pictures call for where a Gaussian is
+barely seen (a uniform quantizer's best step goes as F^(-1/2)). The values are then chosen as
+above in each Gaussian's own steps (x divided by its factor, F multiplied by its square).
+
 The means of a finer LoD depend on the values chosen for the coarser ones, so the LoDs are
 chosen in coding order. The scale levels are those fitted to the rounded values (the coder
 fits its own to the values chosen). Cross-channel prediction is left out of the costs.
 
-The decoder is unchanged: the stream holds the chosen values like any others.
+The decoder is unchanged by RDOQ: the stream holds the chosen values like any others (step
+adjustment alone is a coding tool, signalled in the stream).
 """
 
 from __future__ import annotations

@@ -57,6 +57,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rotation-lengths", default=",".join(f"{r:.4g}" for r in rdoq.ROTATION_NORMS),
                    help="the lengths a rotation quaternion may be given, comma-separated (default the "
                         "encoder's; 1 alone keeps every quaternion at unit length)")
+    p.add_argument("--step-adjust", default="0",
+                   help="largest step-adjustment indices to measure, comma-separated (format 1.2; default 0: "
+                        "every Gaussian at its channels' steps; the presets use 7)")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("out/rdoq.md"))
     args = p.parse_args(argv)
@@ -81,18 +84,23 @@ def main(argv: list[str] | None = None) -> int:
              f"({len(cams)} views, {args.probes} probes each) in {t_sens:.1f} s; values moved at most "
              f"{args.max_jump} step(s); rotation lengths {args.rotation_lengths}; {args.turn_candidates} turn "
              "candidates.",
-             "", "| step factor | RDOQ weight | PSNR dB (search views) | bytes | bytes / rounding at this factor |",
-             "|---:|---:|---:|---:|---:|"]
+             "", "| step factor | RDOQ weight | step adjustment up to | PSNR dB (search views) | bytes | "
+             "bytes / rounding at this factor |",
+             "|---:|---:|---:|---:|---:|---:|"]
     for fac in (float(x) for x in args.factors.split(",")):
         ref = None
         for w in (float(x) for x in args.weights.split(",")):
-            if not args.keep_ways:
-                s.ways[:] = -1  # each Gaussian's way chosen afresh at these steps, as the coding chooses it
-            t = s.evaluate(dataclasses.replace(_scaled(cfg, groups, fac), rd_quantization=w))
-            ref = ref or t.bits
-            lines.append(f"| {fac:g} | {w:g} | {-10 * math.log10(max(t.mse, 1e-12)):.2f} | {t.bits / 8:,.0f} | "
-                         f"{t.bits / ref:.3f} |")
-            print(lines[-1], flush=True)
+            for top in (int(x) for x in args.step_adjust.split(",")):
+                if w == 0 and top:
+                    continue  # step adjustment is chosen with RDOQ's costs
+                if not args.keep_ways:
+                    s.ways[:] = -1  # each Gaussian's way chosen afresh at these steps, as the coding chooses it
+                t = s.evaluate(dataclasses.replace(_scaled(cfg, groups, fac), rd_quantization=w,
+                                                   step_adjust_max=top))
+                ref = ref or t.bits
+                lines.append(f"| {fac:g} | {w:g} | {top} | {-10 * math.log10(max(t.mse, 1e-12)):.2f} | "
+                             f"{t.bits / 8:,.0f} | {t.bits / ref:.3f} |")
+                print(lines[-1], flush=True)
     lines += ["", f"Load average at the end: {load_average()}."]
     write_lines(args.out, lines)
     return 0
