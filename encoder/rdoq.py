@@ -374,18 +374,17 @@ def step_adjust_choice(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.
     q0 = np.rint(x).astype(np.int64)
     nc = NeighbourCoding(q0, coords, len(graph.rows), 1, num_buckets, False, None, graph=graph)
     mean0, level0 = (q0 - nc.residuals).astype(np.float64), nc.levels
-    best_cost = np.full(n, np.inf)
-    best = np.zeros(n, dtype=np.int64)
+    costs = np.empty((max_index + 1, n))
     for a in range(max_index + 1):
         factor = float(STEP_ADJUST_FACTORS[a])
         q = np.rint(x / factor)
         mean = np.rint(mean0 / factor)
         level = np.maximum(level0 - int(ADJUST_LEVEL_SHIFT[a]), 0)
-        cost = (f * (x - q * factor) ** 2).sum(axis=1) \
+        costs[a] = (f * (x - q * factor) ** 2).sum(axis=1) \
             + (mu[None, :] * code_lengths_bits((q - mean).astype(np.int64), level)).sum(axis=1)
-        better = cost < best_cost
-        best_cost[better], best[better] = cost[better], a
-    return best
+    # (weighing the indices' own bits in, by their marginal over a first choice, changed the bytes by
+    # -0.1 to +0.4% on playbot lod4: not done)
+    return np.argmin(costs, axis=0).astype(np.int64)  # ties: the finer step
 
 
 def orientation_columns(layout: GaussianLayout) -> tuple[slice, slice]:
