@@ -111,11 +111,13 @@ def _levels(bucket: np.ndarray, table: np.ndarray, prior_level: np.ndarray, adju
 class NeighbourCoding:
     """The neighbour prediction of one tile (or scene): its graph, the means and buckets, the
     fitted unit, prior and cross-channel prediction. ``adjust``: each row's step-adjustment
-    index (clause 11.8), None without the tool."""
+    index (clause 11.8), None without the tool. ``choose_mean_flags`` False: every channel's mean
+    from its neighbours, for estimates that need no unit."""
 
     def __init__(self, q: np.ndarray, coords: np.ndarray, num_lods: int, num_neighbours: int, num_buckets: int,
                  channel_prediction: bool, layout, unit: NeighbourPredictionUnit | None = None,
-                 graph: NeighbourGraph | None = None, adjust: np.ndarray | None = None):
+                 graph: NeighbourGraph | None = None, adjust: np.ndarray | None = None,
+                 choose_mean_flags: bool = True):
         n, m = q.shape
         self.q, self.layout, self.adjust = q, layout, adjust
         self.graph = graph if graph is not None else neighbour_graph(coords, num_lods, num_neighbours)
@@ -125,7 +127,12 @@ class NeighbourCoding:
         prior_mean = np.clip(np.rint(np.median(base, axis=0)), -PRIOR_MEAN_MAX, PRIOR_MEAN_MAX).astype(np.int64)
         neighbour_mean, bucket = _coding_params(q, self.graph, num_buckets, prior_mean, adjust)
         own_prior = prior_rows(prior_mean, n, adjust)
-        flags = _mean_flags(q, neighbour_mean, own_prior, bucket, num_buckets) if unit is None else mean_flags(unit)
+        if unit is not None:
+            flags = mean_flags(unit)
+        elif choose_mean_flags:
+            flags = _mean_flags(q, neighbour_mean, own_prior, bucket, num_buckets)
+        else:  # every channel from its neighbours (a quick estimate: the flags are a third of the fit's time)
+            flags = np.ones(m, dtype=bool)
         mean = np.where(flags[None, :] & (bucket >= 0), neighbour_mean, own_prior)
         self.prediction = attr.ChannelPrediction.none()
         live = np.ones(q.shape, dtype=bool)

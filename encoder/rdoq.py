@@ -372,7 +372,8 @@ def step_adjust_choice(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.
     if max_index <= 0 or n == 0:
         return np.zeros(n, dtype=np.int64)
     q0 = np.rint(x).astype(np.int64)
-    nc = NeighbourCoding(q0, coords, len(graph.rows), 1, num_buckets, False, None, graph=graph)
+    nc = NeighbourCoding(q0, coords, len(graph.rows), 1, num_buckets, False, None, graph=graph,
+                         choose_mean_flags=False)
     mean0, level0 = (q0 - nc.residuals).astype(np.float64), nc.levels
     costs = np.empty((max_index + 1, n))
     for a in range(max_index + 1):
