@@ -35,7 +35,7 @@ from lghcc.encoder.gaussian_rd import GROUPS, SettingsSearch, _scaled  # noqa: E
 from lghcc.encoder import rdoq  # noqa: E402
 from lghcc.encoder.rdoq import SENSITIVITY_PROBES, sensitivities  # noqa: E402
 from lghcc.formats.ply3dgs import read_3dgs_ply  # noqa: E402
-from lghcc.render.gaussians3dgs import gaussians_from_scene  # noqa: E402
+from lghcc.render.gaussians3dgs import gaussians_from_scene, render_3dgs  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -60,6 +60,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--step-adjust", default="0",
                    help="largest step-adjustment indices to measure, comma-separated (format 1.2; default 0: "
                         "every Gaussian at its channels' steps; the presets use 7)")
+    p.add_argument("--orbit-up", default=None,
+                   help="also measure each row on tools/bench_real.py's 12 orbit views at 320 px around this up "
+                        "axis (x, y, z, -x, -y, -z): views the sensitivities and the search never saw")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("out/rdoq.md"))
     args = p.parse_args(argv)
@@ -78,15 +81,25 @@ def main(argv: list[str] | None = None) -> int:
     s = SettingsSearch(scene, contrib, cfg, 0.0, cfg.search_views, cfg.search_resolution, sensitivity=f)
     groups = [grp for grp in GROUPS if grp != "position" and (not grp.startswith("sh_band")
                                                                or int(grp[-1]) <= scene.sh_degree)]
+    orbit_search = None
+    if args.orbit_up:  # the same trials rendered from the orbit of tools/bench_real.py
+        from bench_real import orbit
+
+        orbit_search = SettingsSearch(scene, contrib, cfg, 0.0, cfg.search_views, cfg.search_resolution,
+                                      sensitivity=f)
+        orbit_search.cams = orbit(scene.means, 12, 320, args.orbit_up)
+        with torch.no_grad():
+            orbit_search.targets = [render_3dgs(g, c, background=(0, 0, 0), backend="torch").image
+                                    for c in orbit_search.cams]
     lines = [f"Command: `{command_line('bench_rdoq.py', argv)}`  ",
              f"Scene: {args.scene}, {scene.num_gaussians:,} Gaussians, SH degree {scene.sh_degree}; preset "
              f"{args.preset} (pruning share {cfg.prune_share:g}); contributions and sensitivities "
              f"({len(cams)} views, {args.probes} probes each) in {t_sens:.1f} s; values moved at most "
              f"{args.max_jump} step(s); rotation lengths {args.rotation_lengths}; {args.turn_candidates} turn "
              "candidates.",
-             "", "| step factor | RDOQ weight | step adjustment up to | PSNR dB (search views) | bytes | "
-             "bytes / rounding at this factor |",
-             "|---:|---:|---:|---:|---:|---:|"]
+             "", "| step factor | RDOQ weight | step adjustment up to | PSNR dB (search views) | "
+             + ("PSNR dB (orbit, 320 px) | " if orbit_search else "") + "bytes | bytes / rounding at this factor |",
+             "|---:|---:|---:|---:|---:|---:|" + ("---:|" if orbit_search else "")]
     for fac in (float(x) for x in args.factors.split(",")):
         ref = None
         for w in (float(x) for x in args.weights.split(",")):
@@ -95,10 +108,14 @@ def main(argv: list[str] | None = None) -> int:
                     continue  # step adjustment is chosen with RDOQ's costs
                 if not args.keep_ways:
                     s.ways[:] = -1  # each Gaussian's way chosen afresh at these steps, as the coding chooses it
-                t = s.evaluate(dataclasses.replace(_scaled(cfg, groups, fac), rd_quantization=w,
-                                                   step_adjust_max=top))
+                trial_cfg = dataclasses.replace(_scaled(cfg, groups, fac), rd_quantization=w, step_adjust_max=top)
+                t = s.evaluate(trial_cfg)
                 ref = ref or t.bits
-                lines.append(f"| {fac:g} | {w:g} | {top} | {-10 * math.log10(max(t.mse, 1e-12)):.2f} | "
+                seen = ""
+                if orbit_search is not None:
+                    orbit_search.ways[:] = s.ways  # the same values, rendered from the orbit
+                    seen = f"{-10 * math.log10(max(orbit_search.evaluate(trial_cfg).mse, 1e-12)):.2f} | "
+                lines.append(f"| {fac:g} | {w:g} | {top} | {-10 * math.log10(max(t.mse, 1e-12)):.2f} | {seen}"
                              f"{t.bits / 8:,.0f} | {t.bits / ref:.3f} |")
                 print(lines[-1], flush=True)
     lines += ["", f"Load average at the end: {load_average()}."]
