@@ -179,15 +179,16 @@ def step_adjust_wanted(cfg: GaussianEncoderConfig, sensitivity: np.ndarray | Non
 
 
 def adjust_on_graph(x: np.ndarray, f: np.ndarray, degree: int, coords: np.ndarray, order: np.ndarray, graph,
-                    cfg: GaussianEncoderConfig) -> np.ndarray:
+                    cfg: GaussianEncoderConfig) -> np.ndarray | None:
     """int64 [N] (scene order): the step-adjustment indices encoder/rdoq.py step_adjust_choice
     gives values ``x`` [N, M] (in the channels' steps) with sensitivities ``f``, ``graph`` being
-    the neighbour graph of ``coords[order]`` (the normative order)."""
+    the neighbour graph of ``coords[order]`` (the normative order); None where every index is 0
+    (the stream then carries nothing of the tool)."""
     mu = group_slopes(f, channel_groups(degree), cfg.rd_quantization)
     adjust = np.empty(x.shape[0], dtype=np.int64)
     adjust[order] = step_adjust_choice(x[order], f[order], mu, coords[order], graph, cfg.prediction_buckets,
                                        cfg.step_adjust_max)
-    return adjust
+    return adjust if adjust.any() else None
 
 
 def scene_step_adjust(scene: GaussianScene, sensitivity: np.ndarray | None,

@@ -188,22 +188,19 @@ def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: Lev
     quantization chooses (encoder/rdoq.py; ``sensitivity`` rows in coding order), which the
     coder's rounding then reproduces exactly. The choice uses the whole scene's neighbour
     graph, also where tiles code their own."""
-    from .rdoq import (channel_groups, group_slopes, orientation_columns, rd_quantize, sh_degree_subset,
-                       step_adjust_choice)
+    from .gaussian_rd import adjust_on_graph
+    from .rdoq import channel_groups, group_slopes, orientation_columns, rd_quantize, sh_degree_subset
 
     degree = inp.layout.sh_degree
     f = sh_degree_subset(sensitivity, degree)
     graph = neighbour_graph(inp.coords, cfg.prediction_lods, cfg.prediction_neighbours) \
         if neighbour_prediction_wanted(cfg, levels, inp) else None
     x = inp.values.astype(np.float64) / inp.steps.astype(np.float64)
-    mu = group_slopes(f, channel_groups(degree), cfg.rd_quantization)
-    adjust = None
+    adjust = None  # the rows are in coding order already
     if graph is not None and cfg.step_adjust_max > 0:
-        adjust = step_adjust_choice(x, f, mu, inp.coords, graph, cfg.prediction_buckets, cfg.step_adjust_max)
-        if not adjust.any():
-            adjust = None  # every Gaussian at its channels' steps: the tool costs nothing
-    q = rd_quantize(x, f, mu, inp.coords, graph, cfg.prediction_buckets, orientation_columns(inp.layout),
-                    adjust=adjust)
+        adjust = adjust_on_graph(x, f, degree, inp.coords, np.arange(x.shape[0]), graph, cfg)
+    q = rd_quantize(x, f, group_slopes(f, channel_groups(degree), cfg.rd_quantization), inp.coords, graph,
+                    cfg.prediction_buckets, orientation_columns(inp.layout), adjust=adjust)
     steps = inp.steps.astype(np.float64) if adjust is None else \
         attr.effective_steps(inp.steps, adjust[:, None]).astype(np.float64)
     return dataclasses.replace(inp, values=q * steps, step_adjust=adjust)
