@@ -126,14 +126,24 @@ def _round_div(num: np.ndarray, den: np.ndarray) -> np.ndarray:
     return (num + den // 2) // den
 
 
+def prior_mean_in_steps(prior_mean: np.ndarray, adjust: np.ndarray) -> np.ndarray:
+    """int64 [n, M]: the prior means [M] (or [1, M]) in the steps of rows with step-adjustment
+    indices ``adjust`` [n]: floor((mean * 4096 + floor(FP[a] / 2)) / FP[a]) (clause 11.8)."""
+    prior_mean = np.asarray(prior_mean, np.int64).reshape(1, -1)
+    return _round_div(prior_mean * ADJUST_FIXED_POINT[0], ADJUST_FIXED_POINT[adjust][:, None])
+
+
+def prior_level_in_steps(level, adjust):
+    """max(0, level - ADJUST_LEVEL_SHIFT[a]) (clause 11.8), broadcast: levels [M] (or [1, M]) and
+    indices [n, 1] give [n, M]; a scalar index lowers every level alike."""
+    return np.maximum(np.asarray(level, np.int64) - ADJUST_LEVEL_SHIFT[adjust], 0)
+
+
 def adjusted_prior(prior: CodingParams, adjust: np.ndarray) -> CodingParams:
-    """The per-channel prior of rows with step-adjustment indices ``adjust`` [n]: the mean in the
-    rows' steps (floor((mean * 4096 + floor(FP[a] / 2)) / FP[a])), the level lowered by
-    ADJUST_LEVEL_SHIFT[a] (not below 0). -> arrays [n, M]."""
-    fp = ADJUST_FIXED_POINT[adjust][:, None]
-    mean = _round_div(np.asarray(prior.mean, np.int64) * ADJUST_FIXED_POINT[0], fp)
-    level = np.maximum(np.asarray(prior.level, np.int64) - ADJUST_LEVEL_SHIFT[adjust][:, None], 0)
-    return CodingParams(mean, level)
+    """The per-channel prior of rows with step-adjustment indices ``adjust`` [n]: the mean and the
+    level in the rows' steps. -> arrays [n, M]."""
+    return CodingParams(prior_mean_in_steps(prior.mean, adjust),
+                        prior_level_in_steps(np.asarray(prior.level).reshape(1, -1), adjust[:, None]))
 
 
 def neighbour_means_and_buckets(q: np.ndarray, neighbours: np.ndarray, num_buckets: int, neighbour_mean: np.ndarray,
@@ -142,37 +152,28 @@ def neighbour_means_and_buckets(q: np.ndarray, neighbours: np.ndarray, num_bucke
     """Mean and activity bucket of each value of a LoD's rows from their neighbours' decoded
     values ``q`` [N, M] (int64; rows of coarser LoDs filled). ``neighbour_mean`` bool [M]: the
     channels whose mean is the neighbours'; ``prior_mean`` int64 [M]: the others'. With step
-    adjustment, ``adjust`` int64 [N] holds every row's index and ``row_adjust`` [n_l] the LoD's
-    rows': the neighbours' values, in fixed point, are summed and spread in the row's own steps.
-    -> int64 [n_l, M] each."""
-    if adjust is not None:
-        return _adjusted_means_and_buckets(q, neighbours, num_buckets, neighbour_mean, prior_mean, adjust, row_adjust)
+    adjustment (clause 11.8), ``adjust`` int64 [N] holds every row's index and ``row_adjust``
+    [n_l] the LoD's rows': the neighbours' values are taken in fixed point (q * FP[a], 1/4096 of a
+    step), their mean and spread in the row's own steps (F = FP of the row's index); without it
+    F = 1 and the values are q itself: the same formulas. |q| <= 2^40, FP < 2^14 and k <= 32 keep
+    every sum within 2^59. -> int64 [n_l, M] each."""
     valid = neighbours >= 0
     n = valid.sum(axis=1, keepdims=True).astype(np.int64)  # >= 1
-    nq = q[np.where(valid, neighbours, 0)]  # [n_l, k, M]
+    safe = np.where(valid, neighbours, 0)
+    nq = q[safe]  # [n_l, k, M]
+    unit = None if adjust is None else ADJUST_FIXED_POINT[row_adjust][:, None]  # F (None: 1)
+    if adjust is not None:
+        nq = nq * ADJUST_FIXED_POINT[adjust[safe]][:, :, None]
+    own_prior = prior_mean[None, :] if adjust is None else prior_mean_in_steps(prior_mean, row_adjust)
     v = valid[:, :, None]
     total = np.where(v, nq, 0).sum(axis=1)
-    mean = np.where(neighbour_mean[None, :], (total + n // 2) // n, prior_mean[None, :])  # floor division
+    den = n if unit is None else n * unit
+    mean = np.where(neighbour_mean[None, :], (total + den // 2) // den, own_prior)  # floor division
     big = np.iinfo(np.int64).max
     spread = np.where(v, nq, -big).max(axis=1) - np.where(v, nq, big).min(axis=1)
+    if unit is not None:
+        spread //= unit
     return mean, np.minimum(escape_class(spread), num_buckets - 1)  # escape_class(a) = bit_length(a)
-
-
-def _adjusted_means_and_buckets(q, neighbours, num_buckets, neighbour_mean, prior_mean, adjust, row_adjust):
-    """neighbour_means_and_buckets with step adjustment (clause 11.8): |q| <= 2^40, FP < 2^14
-    and k <= 32 keep every sum within 2^59."""
-    valid = neighbours >= 0
-    n = valid.sum(axis=1, keepdims=True).astype(np.int64)
-    safe = np.where(valid, neighbours, 0)
-    nq = q[safe] * ADJUST_FIXED_POINT[adjust[safe]][:, :, None]  # [n_l, k, M] in 1/4096 steps
-    v = valid[:, :, None]
-    fp = ADJUST_FIXED_POINT[row_adjust][:, None]
-    total = np.where(v, nq, 0).sum(axis=1)
-    own_prior = _round_div(prior_mean[None, :] * ADJUST_FIXED_POINT[0], fp)
-    mean = np.where(neighbour_mean[None, :], _round_div(total, n * fp), own_prior)
-    big = np.iinfo(np.int64).max
-    spread = (np.where(v, nq, -big).max(axis=1) - np.where(v, nq, big).min(axis=1)) // fp
-    return mean, np.minimum(escape_class(spread), num_buckets - 1)
 
 
 def lod_coding_params(q: np.ndarray, neighbours: np.ndarray, bucket_level: np.ndarray, num_buckets: int,

@@ -45,7 +45,7 @@ from ..common.neighbour_prediction import neighbour_graph
 from ..common.scene import GaussianScene
 from .config import GaussianEncoderConfig
 from .gaussian_fit import prune_by_contribution, resolving_views
-from .gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid
+from .gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, coded_values, snap_to_grid
 from .neighbour_coding import NeighbourCoding, usable as neighbour_usable
 from .rdoq import (channel_groups, channel_steps, group_slopes, orientation_columns, rd_quantize, sh_degree_subset,
                    step_adjust_choice)
@@ -201,11 +201,7 @@ def scene_step_adjust(scene: GaussianScene, sensitivity: np.ndarray | None,
     degree = scene.sh_degree
     order = normative_order(scene.coords)
     graph = neighbour_graph(scene.coords[order], cfg.prediction_lods, cfg.prediction_neighbours)
-    layout = GaussianLayout(degree)
-    values = layout.join(GaussianScene(scene.means, scene.sh, np.clip(scene.opacity, -OPACITY_LOGIT_LIMIT,
-                                                                       OPACITY_LOGIT_LIMIT),
-                                       scene.log_scales, canonical_rotations(scene.rotations))).astype(np.float64)
-    return adjust_on_graph(values / channel_steps(cfg, degree), sh_degree_subset(sensitivity, degree), degree,
+    return adjust_on_graph(coded_values(scene).astype(np.float64) / channel_steps(cfg, degree), sh_degree_subset(sensitivity, degree), degree,
                            scene.coords, order, graph, cfg)
 
 

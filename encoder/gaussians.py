@@ -25,6 +25,7 @@ import numpy as np
 from ..app.progress import progress_bar
 
 from ..common import attributes as attr
+from ..common.attributes import GaussianLayout
 from ..common.container import DataUnit, UnitType, read_container
 from ..common.errors import InputError
 from ..common.geometry import COORD_MAX
@@ -165,6 +166,14 @@ def on_own_voxels(scene: GaussianScene, cfg: GaussianEncoderConfig, weights: np.
     return scene
 
 
+def coded_values(scene: GaussianScene) -> np.ndarray:
+    """[N, M] (scene order, GaussianLayout): the values the encoder codes, opacity logits clamped
+    and rotations canonical."""
+    opacity = np.clip(scene.opacity.astype(np.float64), -OPACITY_LOGIT_LIMIT, OPACITY_LOGIT_LIMIT)
+    return GaussianLayout(scene.sh_degree).join(GaussianScene(scene.means, scene.sh, opacity, scene.log_scales,
+                                                              canonical_rotations(scene.rotations)))
+
+
 def gaussian_attribute_input(scene: GaussianScene, geometry: GeometryCoding, levels: LevelLayout,
                              cfg: GaussianEncoderConfig) -> AttributeInput:
     """The parameter set, and the SH, opacity (clamped), scales and rotations (canonical) as
@@ -176,9 +185,7 @@ def gaussian_attribute_input(scene: GaussianScene, geometry: GeometryCoding, lev
     if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
         raise InputError(f"{n} Gaussians x {layout.num_channels} channels exceed the profile's limit")
     steps = layout.steps(gps)
-    opacity = np.clip(scene.opacity.astype(np.float64), -OPACITY_LOGIT_LIMIT, OPACITY_LOGIT_LIMIT)
-    values = layout.join(GaussianScene(scene.means, scene.sh, opacity, scene.log_scales,
-                                       canonical_rotations(scene.rotations)))[geometry.order]
+    values = coded_values(scene)[geometry.order]
     return AttributeInput(gps, layout, steps, values, np.ones(values.shape, dtype=bool), None, geometry.coords)
 
 

@@ -19,8 +19,9 @@ import numpy as np
 from ..common import attributes as attr
 from ..common.entropy.symbol_coder import best_level, code_lengths_bits, ideal_code_length_bits
 from ..common.entropy.scale_levels import NUM_SCALE_LEVELS
-from ..common.neighbour_prediction import (ADJUST_FIXED_POINT, ADJUST_LEVEL_SHIFT, NeighbourGraph, adjusted_prior, check_extent,
-                                           level_table, mean_flags, neighbour_graph, neighbour_means_and_buckets,
+from ..common.neighbour_prediction import (ADJUST_FIXED_POINT, NeighbourGraph, check_extent, level_table,
+                                           mean_flags, neighbour_graph, neighbour_means_and_buckets,
+                                           prior_level_in_steps, prior_mean_in_steps,
                                            write_predicted_attribute_unit)
 from ..common.attributes import NUM_STEP_ADJUST
 from ..common.container import UNIT_CRC_BYTES, UNIT_HEADER_BYTES
@@ -51,8 +52,7 @@ def prior_rows(prior_mean: np.ndarray, n: int, adjust: np.ndarray | None) -> np.
     """int64 [n, M]: the prior mean in each row's steps."""
     if adjust is None:
         return np.broadcast_to(prior_mean, (n, prior_mean.size)).copy()
-    return adjusted_prior(attr.CodingParams(prior_mean[None, :], np.zeros((1, prior_mean.size), np.int64)),
-                          adjust).mean
+    return prior_mean_in_steps(prior_mean, adjust)
 
 
 def best_prior_level(r: np.ndarray, adjust: np.ndarray | None) -> int:
@@ -60,8 +60,7 @@ def best_prior_level(r: np.ndarray, adjust: np.ndarray | None) -> int:
     row's level lowered by its step adjustment's shift."""
     if adjust is None or not adjust.any():
         return best_level(r)
-    shift = ADJUST_LEVEL_SHIFT[adjust]
-    costs = [float(code_lengths_bits(r, np.maximum(lv - shift, 0)).sum()) for lv in range(NUM_SCALE_LEVELS)]
+    costs = [float(code_lengths_bits(r, prior_level_in_steps(lv, adjust)).sum()) for lv in range(NUM_SCALE_LEVELS)]
     return int(np.argmin(costs))
 
 
@@ -103,7 +102,7 @@ def _table(r: np.ndarray, bucket: np.ndarray, num_buckets: int) -> np.ndarray:
 
 def _levels(bucket: np.ndarray, table: np.ndarray, prior_level: np.ndarray, adjust: np.ndarray | None = None
             ) -> np.ndarray:
-    prior = prior_level[None, :] if adjust is None else np.maximum(prior_level[None, :] - ADJUST_LEVEL_SHIFT[adjust][:, None], 0)
+    prior = prior_level[None, :] if adjust is None else prior_level_in_steps(prior_level[None, :], adjust[:, None])
     lv = np.where(bucket >= 0, np.take_along_axis(table.T, np.maximum(bucket, 0), axis=0), prior)
     return lv.astype(np.int64)
 

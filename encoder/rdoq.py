@@ -68,8 +68,8 @@ import torch
 
 from ..common.attributes import STEP_ADJUST_FACTORS, CodingParams, GaussianLayout
 from ..common.entropy.symbol_coder import code_lengths_bits
-from ..common.neighbour_prediction import (ADJUST_LEVEL_SHIFT, NeighbourGraph, adjusted_prior,
-                                           neighbour_means_and_buckets)
+from ..common.neighbour_prediction import (NeighbourGraph, adjusted_prior, neighbour_means_and_buckets,
+                                           prior_level_in_steps)
 from ..common.scene import GaussianScene
 from ..render.camera import Camera
 from ..render.rasterizer import quat_to_rotmat, rasterize
@@ -380,7 +380,7 @@ def step_adjust_choice(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.
         factor = float(STEP_ADJUST_FACTORS[a])
         q = np.rint(x / factor)
         mean = np.rint(mean0 / factor)
-        level = np.maximum(level0 - int(ADJUST_LEVEL_SHIFT[a]), 0)
+        level = prior_level_in_steps(level0, a)  # every level, as a coarser step narrows any distribution
         costs[a] = (f * (x - q * factor) ** 2).sum(axis=1) \
             + (mu[None, :] * code_lengths_bits((q - mean).astype(np.int64), level)).sum(axis=1)
     # (weighing the indices' own bits in, by their marginal over a first choice, changed the bytes by

@@ -16,7 +16,7 @@ from lghcc.common.neighbour_prediction import (ADJUST_FIXED_POINT, ADJUST_LEVEL_
                                                lod_coding_params, neighbour_graph)
 from lghcc.decoder.decode import decode_stream
 from lghcc.encoder.config import GaussianEncoderConfig
-from lghcc.encoder.gaussians import canonical_rotations, encode_gaussian_scene
+from lghcc.encoder.gaussians import coded_values, encode_gaussian_scene
 from lghcc.encoder.rdoq import channel_groups, channel_steps, group_slopes, step_adjust_choice
 from test_gaussians import assert_same, random_gaussians
 from test_neighbour_prediction import _smooth_scene
@@ -75,7 +75,7 @@ def test_adjusted_prior_rounds_the_mean_and_lowers_the_level():
 
 def _sensitivity(scene, rng, spread: float = 4.0) -> np.ndarray:
     """Per Gaussian a visibility over ``spread`` decades, times a level per channel."""
-    m = 3 * (scene.sh_degree + 1) ** 2 + 8
+    m = GaussianLayout(scene.sh_degree).num_channels
     return (10.0 ** (-spread * rng.random(scene.num_gaussians)))[:, None] * 10.0 ** rng.uniform(2, 4, m)[None, :]
 
 
@@ -112,8 +112,7 @@ def test_invisible_gaussians_take_the_coarsest_steps_and_visible_ones_keep_their
     assert len(on.data) < 0.9 * len(off.data)
     assert decode_stream(on.data).hash_checked
     # the choice itself, on the values in steps as the coding sees them
-    layout = GaussianLayout(1)
-    x = layout.join(dataclasses.replace(scene, rotations=canonical_rotations(scene.rotations))) / channel_steps(cfg, 1)
+    x = coded_values(scene) / channel_steps(cfg, 1)
     coords = np.rint(scene.means / 0.01).astype(np.int64)
     order = normative_order(coords)
     graph = neighbour_graph(coords[order], cfg.prediction_lods, cfg.prediction_neighbours)

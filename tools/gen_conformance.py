@@ -569,7 +569,9 @@ def synthetic_sensitivity(scene, spec: dict | None) -> np.ndarray | None:
     if not spec:
         return None
     rng = np.random.default_rng(int(spec["seed"]))
-    n, m = scene.num_gaussians, 3 * (scene.sh_degree + 1) ** 2 + 8
+    from lghcc.common.attributes import GaussianLayout
+
+    n, m = scene.num_gaussians, GaussianLayout(scene.sh_degree).num_channels
     visibility = 10.0 ** (float(spec.get("spread", 3)) * -rng.random(n))
     return visibility[:, None] * 10.0 ** rng.uniform(2, 4, size=m)[None, :]
 
