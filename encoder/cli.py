@@ -327,6 +327,16 @@ def write_outputs(args: argparse.Namespace, result: EncodeResult, scene, cfg, ga
         raise write_error(args.json, e) from None
 
 
+def step_adjust_summary(st, num_gaussians: int) -> str:
+    """One line on the step-adjustment indices (format 1.2): their bytes, and how many Gaussians
+    have each index (index a: steps 2^(a/4) times the channels')."""
+    bits = st.step_adjust_coded_bits
+    share = 100 * bits / max(bits + st.attribute_coded_bits, 1)
+    counts = ", ".join(f"{a}: {c:,}" for a, c in enumerate(st.step_adjust_counts or []))
+    return (f"step adjustment: indices {bits // 8:,} bytes ({bits / max(num_gaussians, 1):.2f} bits per Gaussian, "
+            f"{share:.1f}% of the attribute chunks); Gaussians per index {counts}")
+
+
 def print_summary(say, args: argparse.Namespace, result: EncodeResult, scene, gaussians: bool, source: str,
                   t_load: float) -> None:
     st = result.stats
@@ -343,6 +353,8 @@ def print_summary(say, args: argparse.Namespace, result: EncodeResult, scene, ga
         say(f"{source}: {result.decoded.num_anchors:,} anchors, C={scene.feature_dim}, K={scene.num_offsets} -> "
             f"{Path(args.output)} ({len(result.data):,} bytes)")
     say(result.breakdown.table())
+    if st.step_adjust_coded_bits is not None:
+        say(step_adjust_summary(st, result.decoded.num_gaussians))
     if args.report_ideal:
         overhead = st.attribute_coded_bits / max(st.attribute_ideal_bits, 1) - 1
         say(f"attribute coding: {st.attribute_coded_bits:,} bits, {100 * overhead:+.3f}% over the model's ideal")

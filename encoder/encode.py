@@ -555,6 +555,8 @@ def code_neighbours_or_prior(inp: AttributeInput, levels: LevelLayout, cfg: Attr
     chosen = with_neighbours if use else with_prior
     stats.neighbour_prediction = bool(use)
     stats.attribute_coded_bits = 8 * sum(chosen.header.chunk_size)
+    if inp.step_adjust is not None:
+        stats.step_adjust_coded_bits = 8 * sum(chosen.header.adjust_chunk_size)
     if measure_ideal:
         stats.attribute_ideal_bits = nc.ideal_bits() if use else ideal_bits(coder, with_prior)
     stats.levels[level] = LevelStats("neighbour prediction" if use else CONTEXT_MODEL_NAMES[0], len(chosen.payload),

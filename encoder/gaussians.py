@@ -227,6 +227,7 @@ def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: Gaus
         parameter_units.append(DataUnit(UnitType.NEIGHBOUR_PREDICTION, coded.neighbour_unit.to_bytes()))
         if inp.step_adjust is not None:
             unit = StepAdjustUnit(max_step_adjust=int(inp.step_adjust.max()))
+            stats.step_adjust_counts = np.bincount(inp.step_adjust, minlength=unit.max_step_adjust + 1).tolist()
             parameter_units.append(DataUnit(UnitType.STEP_ADJUST, unit.to_bytes()))
     data = write_stream(parameter_units, coded.context_payload, tiles, decoded.num_gaussians)
     digest = tiles[0].scene_hash if len(tiles) == 1 else gaussian_scene_digest(decoded)

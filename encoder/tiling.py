@@ -76,7 +76,8 @@ class TileCoding:
     attributes: list[bytes]
     scene_hash: bytes = b""
     # per attribute unit: (attribute_level, context_model_id, coded chunk bits, channel predictions)
-    unit_stats: list[tuple[int, int, int, int]] = field(default_factory=list)
+    # per attribute unit: level, context model id, value bits, channel predictions, step-adjustment index bits
+    unit_stats: list[tuple[int, int, int, int, int]] = field(default_factory=list)
 
 
 def tile_rows(coords: np.ndarray, tile_size: int) -> list[tuple[tuple[int, int, int], np.ndarray]]:
@@ -143,7 +144,8 @@ def code_tile(inp, rows: np.ndarray, cfg, context_payload: bytes | None, recon: 
             q_level1 = chosen.q
         payloads.append(chosen.payload)
         h = chosen.header
-        unit_stats.append((level, h.context_model_id, 8 * sum(h.chunk_size), h.num_channel_predictions))
+        unit_stats.append((level, h.context_model_id, 8 * sum(h.chunk_size), h.num_channel_predictions,
+                           8 * sum(h.adjust_chunk_size)))
         reconstruct_level(trecon, lrows, chosen, inp.steps)
     recon[rows] = trecon
     return payloads
@@ -178,6 +180,8 @@ def tile_level_stats(tiles: list[TileCoding], stats) -> None:
 
     stats.num_tiles = len(tiles)
     stats.attribute_coded_bits = sum(u[2] for t in tiles for u in t.unit_stats)
+    if any(u[4] for t in tiles for u in t.unit_stats):
+        stats.step_adjust_coded_bits = sum(u[4] for t in tiles for u in t.unit_stats)
     for level in sorted({u[0] for t in tiles for u in t.unit_stats}):
         units = [(u, len(p)) for t in tiles for u, p in zip(t.unit_stats, t.attributes) if u[0] == level]
         (model_id, count), = Counter(u[1] for u, _ in units).most_common(1)

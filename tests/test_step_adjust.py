@@ -15,6 +15,7 @@ from lghcc.common.container import UnitType, read_container
 from lghcc.common.neighbour_prediction import (ADJUST_FIXED_POINT, ADJUST_LEVEL_SHIFT, adjusted_prior,
                                                lod_coding_params, neighbour_graph)
 from lghcc.decoder.decode import decode_stream
+from lghcc.encoder.cli import step_adjust_summary
 from lghcc.encoder.config import GaussianEncoderConfig
 from lghcc.encoder.gaussians import coded_values, encode_gaussian_scene
 from lghcc.encoder.rdoq import channel_groups, channel_steps, group_slopes, step_adjust_choice
@@ -97,6 +98,13 @@ def test_round_trip_with_step_adjustment_is_bit_exact(n, degree, top, predict, t
     assert_same(dec.scene, res.decoded)
     header = read_container(res.data).header
     assert header.version_minor == (2 if _tool(res.data) else 1)
+    # what lghcc-enc reports of the tool: every Gaussian counted once, the index chunks' bytes
+    counts, bits = res.stats.step_adjust_counts, res.stats.step_adjust_coded_bits
+    if _tool(res.data):
+        assert sum(counts) == res.decoded.num_gaussians and len(counts) <= top + 1 and counts[-1] > 0
+        assert bits % 8 == 0 and 0 < bits < 8 * len(res.data)
+    else:
+        assert counts is None and bits is None
 
 
 def test_invisible_gaussians_take_the_coarsest_steps_and_visible_ones_keep_theirs():
@@ -111,6 +119,9 @@ def test_invisible_gaussians_take_the_coarsest_steps_and_visible_ones_keep_their
     assert _tool(on.data) and not _tool(off.data)
     assert len(on.data) < 0.9 * len(off.data)
     assert decode_stream(on.data).hash_checked
+    line = step_adjust_summary(on.stats, on.decoded.num_gaussians)  # lghcc-enc's report of the tool
+    assert f"indices {on.stats.step_adjust_coded_bits // 8:,} bytes" in line
+    assert f"7: {on.stats.step_adjust_counts[7]:,}" in line and on.stats.step_adjust_counts[7] > 0
     # the choice itself, on the values in steps as the coding sees them
     x = coded_values(scene) / channel_steps(cfg, 1)
     coords = np.rint(scene.means / 0.01).astype(np.int64)
