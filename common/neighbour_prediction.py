@@ -165,12 +165,15 @@ def neighbour_means_and_buckets(q: np.ndarray, neighbours: np.ndarray, num_bucke
     if adjust is not None:
         nq = nq * ADJUST_FIXED_POINT[adjust[safe]][:, :, None]
     own_prior = prior_mean[None, :] if adjust is None else prior_mean_in_steps(prior_mean, row_adjust)
-    v = valid[:, :, None]
-    total = np.where(v, nq, 0).sum(axis=1)
+    if valid.all():  # every row has k neighbours (the masks below would change nothing)
+        total, spread = nq.sum(axis=1), nq.max(axis=1) - nq.min(axis=1)
+    else:
+        v = valid[:, :, None]
+        big = np.iinfo(np.int64).max
+        total = np.where(v, nq, 0).sum(axis=1)
+        spread = np.where(v, nq, -big).max(axis=1) - np.where(v, nq, big).min(axis=1)
     den = n if unit is None else n * unit
     mean = np.where(neighbour_mean[None, :], (total + den // 2) // den, own_prior)  # floor division
-    big = np.iinfo(np.int64).max
-    spread = np.where(v, nq, -big).max(axis=1) - np.where(v, nq, big).min(axis=1)
     if unit is not None:
         spread //= unit
     return mean, np.minimum(escape_class(spread), num_buckets - 1)  # escape_class(a) = bit_length(a)

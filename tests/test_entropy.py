@@ -199,6 +199,16 @@ def test_escape_class_is_the_bit_length():
                         rng.integers(0, 2**62, 1000)]).astype(np.int64)
     m = m[m >= 0]
     assert escape_class(m).tolist() == [int(x).bit_length() for x in m.tolist()]
+    small = m[m < 2**53]  # the float64 path
+    assert escape_class(small).tolist() == [int(x).bit_length() for x in small.tolist()]
+    assert escape_class(np.zeros((0, 3), np.int64)).shape == (0, 3)
+
+
+@given(st.lists(st.one_of(st.integers(0, 2**53 + 2), st.integers(0, 2**63 - 1)), min_size=1, max_size=40))
+def test_escape_class_is_the_bit_length_on_both_paths(values):
+    m = np.array(values, dtype=np.uint64).reshape(-1, 1)
+    assert escape_class(m).ravel().tolist() == [int(x).bit_length() for x in values]
+    assert escape_class(m.astype(np.int64)).ravel().tolist() == [int(x).bit_length() for x in values]
 
 
 # --- the code length -------------------------------------------------------------------------

@@ -92,8 +92,16 @@ def _residuals(residuals: np.ndarray) -> np.ndarray:
     return r
 
 
+_EXACT_IN_FLOAT64 = 1 << 53
+
+
 def escape_class(m: np.ndarray) -> np.ndarray:
     """k = bit length of m (0 for m = 0), for 0 <= m < 2^63; exact integer arithmetic."""
+    x = np.asarray(m)
+    if x.size and int(x.max()) < _EXACT_IN_FLOAT64:
+        # below 2^53 a float64 holds m exactly and frexp's exponent is its bit length (17x faster:
+        # the rate estimates take it of every value's neighbour spread)
+        return np.frexp(x.astype(np.float64))[1].astype(np.int64)
     x = np.asarray(m, dtype=np.uint64).copy()
     k = np.zeros(x.shape, dtype=np.int64)
     for s in (32, 16, 8, 4, 2, 1):
@@ -254,6 +262,9 @@ _LUT = _code_lengths_bits(np.tile(np.arange(-_LUT_R, _LUT_R + 1, dtype=np.int64)
                           np.repeat(np.arange(NUM_SCALE_LEVELS, dtype=np.uint8), 2 * _LUT_R + 1))
 
 
+_LUT_BY_LEVEL = _LUT.reshape(NUM_SCALE_LEVELS, 2 * _LUT_R + 1)
+
+
 def code_lengths_bits(residuals: np.ndarray, levels: np.ndarray) -> np.ndarray:
     """Per residual, -log2 of the probability the tables give it at its level, escape class and
     raw remainder bits included (float64, the shape of residuals)."""
@@ -344,6 +355,12 @@ def best_level(residuals: np.ndarray) -> int:
     r = np.asarray(residuals, dtype=np.int64).ravel()
     if r.size == 0:
         return 0
+    lo, hi = int(r.min()), int(r.max())
+    if -_LUT_R <= lo and hi <= _LUT_R:  # the same values and counts as np.unique's, without its sort
+        counts = np.bincount(r - lo)
+        values = np.flatnonzero(counts)
+        bits = _LUT_BY_LEVEL[:, values + (lo + _LUT_R)] @ counts[values]
+        return int(np.argmin(bits))
     values, counts = np.unique(r, return_counts=True)
     lv = np.repeat(np.arange(NUM_SCALE_LEVELS, dtype=np.int64), values.size)
     bits = code_lengths_bits(np.tile(values, NUM_SCALE_LEVELS), lv).reshape(NUM_SCALE_LEVELS, -1) @ counts
