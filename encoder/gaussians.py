@@ -97,7 +97,7 @@ def separate_duplicates(coords: np.ndarray, priority: np.ndarray | None = None) 
     movers = order[dup]
     if movers.size == 0:
         return c, 0
-    taken = set(map(tuple, np.unique(c, axis=0).tolist()))
+    taken = set(map(tuple, cs[~dup].tolist()))  # the occupied voxels (cs is sorted: no np.unique)
     for i in movers[np.argsort(-pr[movers], kind="stable")]:
         base = c[i]
         r = 1

@@ -17,7 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..common import attributes as attr
-from ..common.entropy.symbol_coder import best_level, code_lengths_bits, ideal_code_length_bits
+from ..common.entropy.symbol_coder import (best_level, best_level_and_bits, code_lengths_bits,
+                                           ideal_code_length_bits)
 from ..common.entropy.scale_levels import NUM_SCALE_LEVELS
 from ..common.neighbour_prediction import (ADJUST_FIXED_POINT, NeighbourGraph, check_extent, level_table,
                                            mean_flags, neighbour_graph, neighbour_means_and_buckets,
@@ -70,7 +71,7 @@ def _bucket_bits(r: np.ndarray, bucket: np.ndarray, num_buckets: int) -> float:
     for b in range(num_buckets):
         sel = bucket == b
         if sel.any():
-            total += float(code_lengths_bits(r[sel], np.full(int(sel.sum()), best_level(r[sel]), np.int64)).sum())
+            total += best_level_and_bits(r[sel])[1]
     return total
 
 

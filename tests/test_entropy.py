@@ -16,6 +16,7 @@ from lghcc.common.entropy import symbol_coder as sc
 from lghcc.common.entropy.range_coder import RangeEncoder, exact_model
 from lghcc.common.entropy.symbol_coder import (
     best_level,
+    best_level_and_bits,
     decode_chunked,
     decode_symbols,
     encode_chunked,
@@ -239,15 +240,20 @@ def test_overhead_over_the_ideal_is_below_a_thousandth():
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.lists(st.integers(-(1 << 20), 1 << 20), min_size=1, max_size=300), st.integers(0, 1000))
-def test_best_level_is_the_cheapest_of_all_levels(values, zeros):
+@given(st.lists(st.integers(-(1 << 20), 1 << 20), min_size=1, max_size=300), st.integers(0, 1000), st.booleans())
+def test_best_level_is_the_cheapest_of_all_levels(values, zeros, narrow):
     """best_level is the argmin over all 64 levels of the ideal code length (lowest level on
-    ties), also for heavy-tailed inputs: many zeros and a few large values."""
+    ties), also for heavy-tailed inputs: many zeros and a few large values; best_level_and_bits
+    gives that length too. ``narrow``: every |r| <= 1024 (counted without a sort)."""
     r = np.array(values + [0] * zeros, dtype=np.int64)
+    if narrow:
+        r = np.clip(r, -1024, 1024)
     costs = [ideal_code_length_bits(r, np.full(r.size, lv)) for lv in range(64)]
     lv = best_level(r)
     assert costs[lv] <= min(costs) + 1e-6 * max(1.0, min(costs))
     assert lv == min(i for i, c in enumerate(costs) if c <= min(costs) + 1e-6 * max(1.0, min(costs)))
+    level, bits = best_level_and_bits(r)
+    assert level == lv and bits == pytest.approx(costs[lv], rel=1e-12)
 
 
 def test_best_level_codes_a_heavy_tailed_channel_narrowly():

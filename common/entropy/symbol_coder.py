@@ -34,7 +34,7 @@ from ..errors import BitstreamError
 
 __all__ = [
     "encode_symbols", "decode_symbols", "ideal_code_length_bits", "encode_chunked", "decode_chunked",
-    "level_for_sigma", "estimate_bits_float", "escape_class",
+    "level_for_sigma", "estimate_bits_float", "escape_class", "best_level", "best_level_and_bits",
 ]
 
 _ESC = 2 * HALF_WIDTHS + 1                      # escape bin index per level
@@ -352,16 +352,22 @@ def best_level(residuals: np.ndarray) -> int:
     fewest ideal bits, over all 64 levels (searching only near the level of their RMS missed
     heavy-tailed channels, mostly zeros with a few large values: on a rate-trained lego scene
     the per-channel prior of level 1 cost 69.1 instead of 43.3 bits per anchor)."""
+    return best_level_and_bits(residuals)[0]
+
+
+def best_level_and_bits(residuals: np.ndarray) -> tuple[int, float]:
+    """best_level and the ideal bits of the residuals at that level."""
     r = np.asarray(residuals, dtype=np.int64).ravel()
     if r.size == 0:
-        return 0
+        return 0, 0.0
     lo, hi = int(r.min()), int(r.max())
     if -_LUT_R <= lo and hi <= _LUT_R:  # the same values and counts as np.unique's, without its sort
         counts = np.bincount(r - lo)
         values = np.flatnonzero(counts)
         bits = _LUT_BY_LEVEL[:, values + (lo + _LUT_R)] @ counts[values]
-        return int(np.argmin(bits))
-    values, counts = np.unique(r, return_counts=True)
-    lv = np.repeat(np.arange(NUM_SCALE_LEVELS, dtype=np.int64), values.size)
-    bits = code_lengths_bits(np.tile(values, NUM_SCALE_LEVELS), lv).reshape(NUM_SCALE_LEVELS, -1) @ counts
-    return int(np.argmin(bits))  # the lowest level among equal costs
+    else:
+        values, counts = np.unique(r, return_counts=True)
+        lv = np.repeat(np.arange(NUM_SCALE_LEVELS, dtype=np.int64), values.size)
+        bits = code_lengths_bits(np.tile(values, NUM_SCALE_LEVELS), lv).reshape(NUM_SCALE_LEVELS, -1) @ counts
+    level = int(np.argmin(bits))  # the lowest level among equal costs
+    return level, float(bits[level])
