@@ -97,6 +97,26 @@ def test_duplicates_move_to_the_nearest_free_voxel_highest_priority_stays():
 
 
 @settings(max_examples=60, deadline=None)
+@given(st.integers(1, 300), st.integers(1, 6), st.integers(0, 2 ** 31), st.booleans())
+def test_separated_points_keep_free_voxels_and_the_first_claim(n, span, seed, ties):
+    """Every point ends in its own voxel; in each voxel the point of highest priority stays, and
+    a point that moves never lands on a voxel some point started in."""
+    rng = np.random.default_rng(seed)
+    coords = rng.integers(-span, span + 1, (n, 3)) + np.array([0, 1 << 30, -(1 << 30)])
+    prio = np.zeros(n) if ties else rng.random(n)
+    out, moved = separate_duplicates(coords, prio)
+    start = {tuple(c) for c in coords.tolist()}
+    assert len({tuple(c) for c in out.tolist()}) == n and moved == n - len(start)
+    stayed = (out == coords).all(axis=1)
+    assert stayed.sum() == len(start)  # one per voxel started in
+    assert not ({tuple(c) for c in out[~stayed].tolist()} & start)
+    if not ties:
+        for c in start:
+            here = (coords == c).all(axis=1)
+            assert stayed[np.flatnonzero(here)[np.argmax(prio[here])]]
+
+
+@settings(max_examples=60, deadline=None)
 @given(st.integers(2, 12), st.integers(1, 40), st.integers(0, 2 ** 31), st.integers(0, 20))
 def test_channel_prediction_inverts_exactly(m, rows, seed, entries):
     rng = np.random.default_rng(seed)
