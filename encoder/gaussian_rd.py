@@ -45,7 +45,7 @@ from ..common.neighbour_prediction import neighbour_graph
 from ..common.scene import GaussianScene
 from .config import GaussianEncoderConfig
 from .gaussian_fit import prune_by_contribution, resolving_views
-from .gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, coded_values, snap_to_grid
+from .gaussians import choose_grid, coded_values, snap_to_grid
 from .neighbour_coding import NeighbourCoding, usable as neighbour_usable
 from .rdoq import (channel_groups, channel_steps, group_slopes, orientation_columns, rd_quantize, sh_degree_subset,
                    step_adjust_choice)
@@ -73,8 +73,7 @@ class SettingsSearch:
         g = gaussians_from_scene(scene)
         with torch.no_grad():
             self.targets = [render_3dgs(g, c, background=(0, 0, 0), backend="torch").image for c in self.cams]
-        self.rot = canonical_rotations(scene.rotations).astype(np.float32)
-        self.opacity = np.clip(scene.opacity, -OPACITY_LOGIT_LIMIT, OPACITY_LOGIT_LIMIT)
+        self.values = coded_values(scene).astype(np.float64)  # at the scene's SH degree
         self.cfg = cfg
         # the way RDOQ writes each Gaussian (encoder/rdoq.py), chosen at its first trial and kept:
         # choosing it is most of RDOQ's time, and it moves little with the steps (the coding does choose
@@ -138,12 +137,9 @@ class SettingsSearch:
         key = (cfg.prune_share, cfg.position_step)
         keep, grid, geometry_bits = self._grid(*key)
         degree = self.scene.sh_degree if cfg.sh_degree is None else min(cfg.sh_degree, self.scene.sh_degree)
-        sh = self.scene.sh[keep][:, :(degree + 1) ** 2]
         layout = GaussianLayout(degree)
-        values = layout.join(GaussianScene(grid.means, sh, self.opacity[keep], self.scene.log_scales[keep],
-                                           self.rot[keep])).astype(np.float64)
         steps = channel_steps(cfg, degree)
-        x = values / steps
+        x = sh_degree_subset(self.values[keep], degree) / steps
         adjust = self._adjust(key, grid, keep, x, degree, cfg)
         factor = 1.0 if adjust is None else STEP_ADJUST_FACTORS[adjust].astype(np.float64)[:, None]
         q = np.rint(x / factor).astype(np.int64)
@@ -201,8 +197,8 @@ def scene_step_adjust(scene: GaussianScene, sensitivity: np.ndarray | None,
     degree = scene.sh_degree
     order = normative_order(scene.coords)
     graph = neighbour_graph(scene.coords[order], cfg.prediction_lods, cfg.prediction_neighbours)
-    return adjust_on_graph(coded_values(scene).astype(np.float64) / channel_steps(cfg, degree), sh_degree_subset(sensitivity, degree), degree,
-                           scene.coords, order, graph, cfg)
+    x = coded_values(scene).astype(np.float64) / channel_steps(cfg, degree)
+    return adjust_on_graph(x, sh_degree_subset(sensitivity, degree), degree, scene.coords, order, graph, cfg)
 
 
 GROUPS = ("position", "sh_dc", "sh_band1", "sh_band2", "sh_band3", "opacity", "scale", "rotation")

@@ -75,7 +75,6 @@ class TileCoding:
     geometry: bytes
     attributes: list[bytes]
     scene_hash: bytes = b""
-    # per attribute unit: (attribute_level, context_model_id, coded chunk bits, channel predictions)
     # per attribute unit: level, context model id, value bits, channel predictions, step-adjustment index bits
     unit_stats: list[tuple[int, int, int, int, int]] = field(default_factory=list)
 
