@@ -31,8 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .bitio import BitReader, BitWriter
-from .entropy.range_coder import (TOTAL_FREQUENCY, RangeDecoder, RangeEncoder,
-                                              binary_model)
+from .entropy.range_coder import TOTAL_FREQUENCY, RangeDecoder, RangeEncoder
 from .errors import BitstreamError
 from .syntax import SyntaxStructure, SyntaxVisitor
 
@@ -204,21 +203,15 @@ class _SymbolIO:
 
     def _binary_chunk(self, ctx: np.ndarray, table: np.ndarray, values: np.ndarray | None) -> np.ndarray:
         n = int(ctx.size)
-        order = np.argsort(ctx, kind="stable")
-        sc = ctx[order]
-        starts = np.flatnonzero(np.concatenate(([True], sc[1:] != sc[:-1])))
-        ends = np.append(starts[1:], n)
-        f1 = binary_frequency(table[sc[starts]])
+        # a stable sort groups the decisions by context, each group in its original order (radix
+        # sort on 16-bit keys: every context table here is far smaller than 2^16)
+        order = np.argsort(ctx.astype(np.uint16) if table.shape[0] <= 1 << 16 else ctx, kind="stable")
+        f1 = binary_frequency(table)[ctx[order]]  # each decision with its context's frequency
         if self.encoding:
-            sv = values[order]
-            for s, e, f in zip(starts.tolist(), ends.tolist(), f1.tolist()):
-                self.enc.encode(sv[s:e], binary_model(f))
+            self.enc.encode_binary(values[order], f1)
         else:
-            sv = np.empty(n, dtype=np.int64)
-            for s, e, f in zip(starts.tolist(), ends.tolist(), f1.tolist()):
-                sv[s:e] = self.dec.decode(e - s, binary_model(f))
             values = np.empty(n, dtype=np.int64)
-            values[order] = sv
+            values[order] = self.dec.decode_binary(f1)
         values = values.astype(np.int64)
         table += np.bincount(ctx.astype(np.int64) * 2 + values, minlength=table.size).reshape(table.shape)
         limit_counts(table, COUNT_LIMIT)

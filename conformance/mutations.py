@@ -333,6 +333,9 @@ MUTATIONS: list[Mutation] = [
     M("entropy.model_weights", "entropy", f"{RANGE}:exact_model",
       "frequencies used as constriction weights without the unit each symbol gets (f instead of f - 1)",
       ("Categorical((f - 1).astype(np.float64), perfect=False)", "Categorical(f.astype(np.float64), perfect=False)")),
+    M("entropy.binary_weights", "entropy", f"{RANGE}:binary_weights",
+      "binary models' frequencies used as constriction weights without the unit each symbol gets",
+      ("w[:, 0] = TOTAL_FREQUENCY - 1 - f\n    w[:, 1] = f - 1", "w[:, 0] = TOTAL_FREQUENCY - f\n    w[:, 1] = f")),
     M("entropy.raw_pieces_msb_first", "entropy", f"{RANGE}:RangeDecoder.decode_bits",
       "raw values reassembled with the first 16-bit piece as the most significant",
       ("out[sel] |= piece << np.uint64(shift)",
@@ -380,7 +383,8 @@ MUTATIONS: list[Mutation] = [
       ("size *= 2", "size += 1 << CHUNK_LOG2")),
     M("geometry.contexts_descending", "geometry", f"{GEOM}:_SymbolIO._binary_chunk",
       "a chunk's context groups decoded in decreasing context order",
-      ("order = np.argsort(ctx, kind=\"stable\")", "order = np.argsort(-ctx, kind=\"stable\")")),
+      ("order = np.argsort(ctx.astype(np.uint16) if table.shape[0] <= 1 << 16 else ctx, kind=\"stable\")",
+       "order = np.argsort(-ctx, kind=\"stable\")")),
     M("geometry.before_cap_2", "geometry", f"{GEOM}:_code_occupancy",
       "occupancy context counts at most 2 earlier siblings (min(before, 2))",
       ("ctx = ((axes * 4 + np.minimum(before, 3)) * 4 + dens)", "ctx = ((axes * 4 + np.minimum(before, 2)) * 4 + dens)")),
@@ -923,8 +927,7 @@ def apply(mutation: Mutation) -> None:
 
 
 def _clear_caches() -> None:
-    from ..common.entropy import range_coder, symbol_coder
+    from ..common.entropy import symbol_coder
 
     symbol_coder._LEVEL_MODELS[:] = [None] * len(symbol_coder._LEVEL_MODELS)
     symbol_coder._CLASS_MODEL = None
-    range_coder.binary_model.cache_clear()

@@ -18,7 +18,7 @@ from lghcc.common.entropy.range_coder import (
     TOTAL_FREQUENCY,
     RangeDecoder,
     RangeEncoder,
-    binary_model,
+    binary_weights,
     check_frequencies,
     exact_model,
 )
@@ -206,18 +206,52 @@ def test_exact_model_extreme_tables():
     assert np.array_equal(RangeDecoder(data).decode(1000, model), np.zeros(1000))
 
 
+BINARY_FREQUENCIES = st.one_of(st.integers(1, TOTAL_FREQUENCY - 1),
+                               st.sampled_from([1, 2, TOTAL_FREQUENCY - 2, TOTAL_FREQUENCY - 1]))
+
+
 @settings(max_examples=40)
-@given(st.one_of(st.integers(1, TOTAL_FREQUENCY - 1), st.sampled_from([1, 2, TOTAL_FREQUENCY - 1])))
-def test_binary_model_is_the_exact_two_symbol_model(f1):
-    cum, freq = model_frequencies(binary_model(f1), 2)
-    assert freq.tolist() == [TOTAL_FREQUENCY - f1, f1] and cum.tolist() == [0, TOTAL_FREQUENCY - f1]
-    assert binary_model(f1) is binary_model(f1)  # cached
+@given(BINARY_FREQUENCIES)
+def test_binary_weights_give_the_exact_two_symbol_model(f1):
+    """A row of binary_weights, through constriction's model family, codes with exactly
+    [2^24 - f1, f1], read from the coder's own state as for exact_model."""
+    family = constriction.stream.model.Categorical(perfect=False)
+    enc = constriction.stream.queue.RangeEncoder()
+    for s, (cum, freq) in enumerate([(0, TOTAL_FREQUENCY - f1), (TOTAL_FREQUENCY - f1, f1)]):
+        enc.clear()
+        enc.encode(np.array([s], dtype=np.int32), family, binary_weights([f1]))
+        pos, (lower, rng) = enc.pos()
+        assert pos == 0 and (lower // SCALE0, rng // SCALE0) == (cum, freq)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 1), BINARY_FREQUENCIES), min_size=0, max_size=300))
+def test_binary_decisions_round_trip_as_one_model_per_decision(pairs):
+    """encode_binary codes the same words as one exact_model per decision, and decode_binary
+    reads them back."""
+    bits = np.array([b for b, _ in pairs], dtype=np.int64)
+    f1 = np.array([f for _, f in pairs], dtype=np.int64)
+    enc = RangeEncoder()
+    enc.encode_binary(bits, f1)
+    data = enc.to_bytes()
+    one_by_one = RangeEncoder()
+    for b, f in pairs:
+        one_by_one.encode(np.array([b]), exact_model(np.array([TOTAL_FREQUENCY - f, f])))
+    assert data == one_by_one.to_bytes()
+    dec = RangeDecoder(data)
+    assert np.array_equal(dec.decode_binary(f1), bits)
+    dec.check_exhausted()
 
 
 @pytest.mark.parametrize("f1", [0, TOTAL_FREQUENCY, -1])
-def test_binary_model_rejects_frequencies_outside_the_table(f1):
+def test_binary_weights_reject_frequencies_outside_the_table(f1):
     with pytest.raises(ValueError):
-        binary_model(f1)
+        binary_weights([5, f1])
+
+
+def test_encode_binary_rejects_a_decision_that_is_not_a_bit():
+    with pytest.raises(ValueError, match="not 0 or 1"):
+        RangeEncoder().encode_binary(np.array([0, 2]), np.array([5, 5]))
 
 
 @pytest.mark.parametrize("bad", [np.array([TOTAL_FREQUENCY - 1]), np.array([0, TOTAL_FREQUENCY]),
