@@ -195,6 +195,12 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     target_psnr: float = 0.0
     search_views: int = 8
     search_resolution: int = 128
+    # A smaller scene renders faster, so the search looks at it more closely: a scene of N
+    # Gaussians gets s = search_reference_gaussians / N times the pixels (1 <= s <=
+    # search_max_scale), sqrt(s) times the views (at most twice) and the rest as resolution
+    # (encoder/gaussian_rd.py, search_view_plan; 0: the views above on every scene).
+    search_reference_gaussians: int = 150_000
+    search_max_scale: float = 8.0
     # The fit and search views must resolve the scene's typical Gaussian to this many pixels: when
     # the orbit views do not, the contributions are measured on finer whole views and the fit and
     # the search add as many magnified crops (encoder/gaussian_fit.py, "views that resolve the
@@ -228,6 +234,12 @@ class GaussianEncoderConfig(AttributeCodingConfig):
         if not 0 <= self.target_psnr < 200 or not 0 <= self.rd_lambda < float("inf"):
             raise InputError(f"target_psnr must be in [0, 200) dB and rd_lambda >= 0, got {self.target_psnr}, "
                              f"{self.rd_lambda}")
+        if self.search_views < 1 or self.search_resolution < 8:
+            raise InputError(f"search_views must be >= 1 and search_resolution >= 8, got {self.search_views} and "
+                             f"{self.search_resolution}")
+        if self.search_reference_gaussians < 0 or not 1 <= self.search_max_scale <= 64:
+            raise InputError(f"search_reference_gaussians must be >= 0 and search_max_scale in [1, 64], got "
+                             f"{self.search_reference_gaussians} and {self.search_max_scale}")
         if not 0 <= self.resolve_px < float("inf"):
             raise InputError(f"resolve_px must be >= 0 and finite, got {self.resolve_px}")
         if self.fit_views < 1 or self.fit_resolution < 8 or self.fit_iterations < 0:

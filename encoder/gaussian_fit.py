@@ -42,6 +42,8 @@ on the logo, 128 px crops at m = 2.09 follow 320 px renders (31.3 against 28.4 d
 
 from __future__ import annotations
 
+import dataclasses
+
 import math
 import time
 from dataclasses import dataclass
@@ -291,8 +293,11 @@ def search_for_settings(scene: GaussianScene, contrib: np.ndarray, sensitivity: 
     when neither is."""
     if not (cfg.rd_lambda > 0 or cfg.target_psnr > 0):
         return cfg
-    from .gaussian_rd import search_settings
+    from .gaussian_rd import search_settings, search_view_plan
 
+    views, resolution = search_view_plan(cfg, scene.num_gaussians)
+    say(f"settings: searched on {views} views of {resolution} px")
+    cfg = dataclasses.replace(cfg, search_views=views, search_resolution=resolution, search_reference_gaussians=0)
     t0 = time.perf_counter()
     cfg, trials = search_settings(scene, contrib, cfg, sensitivity=sensitivity, log=say)
     stats.time_search_s, stats.search_trials = time.perf_counter() - t0, len(trials)

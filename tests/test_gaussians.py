@@ -365,3 +365,33 @@ def test_pruning_less_restarts_from_the_chosen_steps_and_lands_near_the_target()
     psnr = -10 * math.log10(best.mse)
     assert best.mse <= target_mse
     assert psnr < 45 + 1.0, psnr  # on the target (within bisection's factor 1.1 on the step); was 170 dB
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(1, 10_000_000), st.integers(1, 10_000_000), st.integers(1, 32), st.integers(8, 512),
+       st.floats(1, 64))
+def test_search_view_plan_gives_smaller_scenes_more_pixels_within_the_bounds(n1, n2, views, res, max_scale):
+    """The search sees a scene of N Gaussians on s = reference / N times the pixels (1 <= s <=
+    search_max_scale), at most twice the views; a larger scene gets no more pixels (but for the
+    rounding of the resolution)."""
+    from lghcc.encoder.gaussian_rd import search_view_plan
+
+    cfg = GaussianEncoderConfig(search_views=views, search_resolution=res, search_max_scale=max_scale)
+    base = views * res ** 2
+    plans = [search_view_plan(cfg, n) for n in sorted((n1, n2))]
+    for n, (v, r) in zip(sorted((n1, n2)), plans):
+        s = min(max(cfg.search_reference_gaussians / n, 1.0), max_scale)
+        assert views <= v <= 2 * views + 1 and r >= res
+        assert v * r * r == pytest.approx(s * base, rel=0.15)  # r is rounded
+        if s == 1.0:
+            assert (v, r) == (views, res)
+    assert plans[0][0] * plans[0][1] ** 2 >= 0.85 * plans[1][0] * plans[1][1] ** 2
+    off = GaussianEncoderConfig(search_views=views, search_resolution=res, search_reference_gaussians=0)
+    assert search_view_plan(off, n1) == (views, res)
+
+
+@pytest.mark.parametrize("field,value", [("search_views", 0), ("search_resolution", 4), ("search_max_scale", 0.5),
+                                         ("search_reference_gaussians", -1)])
+def test_search_view_settings_out_of_range_are_rejected(field, value):
+    with pytest.raises(InputError, match=field):
+        GaussianEncoderConfig(**{field: value}).validate()
