@@ -234,6 +234,11 @@ class GaussianEncoderConfig(AttributeCodingConfig):
         if not 0 <= self.target_psnr < 200 or not 0 <= self.rd_lambda < float("inf"):
             raise InputError(f"target_psnr must be in [0, 200) dB and rd_lambda >= 0, got {self.target_psnr}, "
                              f"{self.rd_lambda}")
+        self._validate_views()
+        return self
+
+    def _validate_views(self) -> None:
+        """The views of the fit and of the search."""
         if self.search_views < 1 or self.search_resolution < 8:
             raise InputError(f"search_views must be >= 1 and search_resolution >= 8, got {self.search_views} and "
                              f"{self.search_resolution}")
@@ -244,7 +249,6 @@ class GaussianEncoderConfig(AttributeCodingConfig):
             raise InputError(f"resolve_px must be >= 0 and finite, got {self.resolve_px}")
         if self.fit_views < 1 or self.fit_resolution < 8 or self.fit_iterations < 0:
             raise InputError("fit_views must be >= 1, fit_resolution >= 8 and fit_iterations >= 0")
-        return self
 
 
 # Context-model sizes by number of level-2 anchors: (Ch, feature hidden, head hidden, weight bits).
