@@ -43,7 +43,6 @@ on the logo, 128 px crops at m = 2.09 follow 320 px renders (31.3 against 28.4 d
 from __future__ import annotations
 
 import dataclasses
-
 import math
 import time
 from dataclasses import dataclass
