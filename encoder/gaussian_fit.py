@@ -296,6 +296,7 @@ def search_for_settings(scene: GaussianScene, contrib: np.ndarray, sensitivity: 
 
     views, resolution = search_view_plan(cfg, scene.num_gaussians)
     say(f"settings: searched on {views} views of {resolution} px")
+    # the plan, applied once: trim_to_target after the fit reads these views from the settings
     cfg = dataclasses.replace(cfg, search_views=views, search_resolution=resolution, search_reference_gaussians=0)
     t0 = time.perf_counter()
     cfg, trials = search_settings(scene, contrib, cfg, sensitivity=sensitivity, log=say)
