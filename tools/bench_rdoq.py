@@ -6,8 +6,9 @@ its trials (encoder/gaussian_rd.py SettingsSearch: PSNR of the quantized scene's
 the source's on the preset's search views, ``search_views`` x ``search_resolution``, 8 of 128 px:
 not the encoder's ``search_view_plan``, which gives scenes under 150,000 Gaussians more, so
 that the tables of tools/results/rdoq.md stay comparable; bits = geometry coded + attributes as
-ideal code lengths under neighbour prediction or the prior). Equal-PSNR comparisons read across rows: RDOQ wins where its
-row reaches a PSNR with fewer bits than plain rounding's curve (the factor rows at weight 0).
+ideal code lengths under neighbour prediction or the prior). Equal-PSNR comparisons read
+across rows: RDOQ wins where its row reaches a PSNR with fewer bits than plain rounding's curve
+(the factor rows at weight 0).
 The whole encoder's numbers against orbit renders are tools/bench_real.py's.
 
     python tools/bench_rdoq.py ../shared/data/playbot/playbot_lod4_8k.ply --preset low --out out/rdoq.md
