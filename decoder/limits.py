@@ -59,7 +59,7 @@ KNN_PER_CANDIDATE = 80  # Ball k-NN, per candidate of one row: distances, indice
 # candidate of the first ask measured on a tie-heavy grid; the plan counts twice the first ask)
 KNN_BLOCK_ROWS = 1 << 17  # lghcc.common.knn._BLOCK
 KNN_PER_DATA_POINT = 128  # k-d tree and float64 / int64 copies of the data points
-GGCONV_BLOCK_ROWS = 1 << 9  # lghcc.common.context.ggconv.BLOCK_ROWS
+GGCONV_BLOCK_ROWS = 1 << 12  # lghcc.common.context.ggconv.MAX_BLOCK_ROWS
 GGCONV_LUT_MAX = 1 << 17  # lghcc.common.context.ggconv._LUT_MAX
 PARENT_MLP_BLOCK_ROWS = 1 << 16  # lghcc.common.context.parent_mlp._BLOCK
 NEIGHBOUR_PER_VALUE = 20  # neighbour prediction, per value and neighbour of one LoD: the neighbours' values int64

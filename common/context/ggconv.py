@@ -330,15 +330,22 @@ def _geometry_terms(dp: torch.Tensor, params: GGConvParams, table_f: torch.Tenso
 
 
 _LUT_MAX = 1 << 17  # largest (2R+1)^3 for which the geometry terms are tabulated per offset
-# rows evaluated at once: a block's edge tensors (512 x K x H float64, 1 MiB at K = 8, H = 32) stay
-# in a core's L2 cache; 4096 rows took 5.8 s of a 1M-anchor decode's context evaluation, 512 rows
-# 4.3-4.5 s, 128 rows 5.2 s (one thread, tools/results/tiles.md)
-BLOCK_ROWS = 1 << 9
+# rows evaluated at once: 512 per torch thread, so that a thread's share of a block's edge tensors
+# (512 x K x H float64, 1 MiB at K = 8, H = 32) stays in its core's L2 cache. On the 1M-anchor
+# decode (tools/results/tiles.md): one thread, 4096 rows 5.8 s of context evaluation, 512 rows
+# 4.3-4.5 s, 128 rows 5.2 s; two worker processes of one thread 10.2 -> 9.8 s in all; two threads
+# in one process, 1024 rows 13.0 s against 13.4 s with 4096
+BLOCK_ROWS_PER_THREAD = 1 << 9
+MAX_BLOCK_ROWS = 1 << 12
+
+
+def block_rows() -> int:
+    return min(BLOCK_ROWS_PER_THREAD * torch.get_num_threads(), MAX_BLOCK_ROWS)
 
 
 def ggconv_coding_params(params: GGConvParams, coords2, parent, coords1, attrs1, voxel_scale: int,
                          neighbours: tuple[np.ndarray, np.ndarray] | None = None,
-                         block: int = BLOCK_ROWS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                         block: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Coding parameters of the level-2 attributes (Annex H, clause H.5).
 
     coords2: int [N2, 3] level-2 positions in level-2 order; parent: int [N2] each one's
@@ -425,8 +432,10 @@ class GGConvEvaluator:
             self.lut_w = torch.cat([lut_w.mul_(self.w_scale), torch.zeros((1, ch), dtype=torch.float64)])
             self.invalid_code = self.side ** 3
 
-    def rows(self, lo: int, hi: int, block: int = BLOCK_ROWS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(mean int32, level int8, step_adjust int8), each [hi - lo, M], for level-2 rows lo..hi-1."""
+    def rows(self, lo: int, hi: int, block: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(mean int32, level int8, step_adjust int8), each [hi - lo, M], for level-2 rows lo..hi-1,
+        evaluated ``block`` rows at a time (default ``block_rows()``; the result does not depend on it)."""
+        block = block or block_rows()
         params = self.params
         m, k, ch, r = params.num_attrs, params.k, params.context_channels, params.radius
         count = max(0, hi - lo)
