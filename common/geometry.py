@@ -228,6 +228,23 @@ class _SymbolIO:
 
 # --- neighbours -------------------------------------------------------------------------------
 
+_SPREAD_MASK = np.uint64(0x1249249249249249)  # bits 0, 3, ..., 60: one axis of a Morton key
+_AXIS_MASKS = [_SPREAD_MASK << np.uint64(2 - a) for a in range(3)]  # x, y, z (x most significant)
+
+
+def _morton_step(keys: np.ndarray, a: int, delta: int) -> np.ndarray:
+    """Morton keys of the nodes one step (delta = -1 or +1) along axis a from ``keys``, by dilated
+    integer arithmetic on the axis' bits (the other axes' bits are kept); the caller keeps only
+    nodes whose neighbour is inside the grid, so no carry or borrow leaves the axis' bits."""
+    mask = _AXIS_MASKS[a]
+    rest = keys & ~mask
+    if delta > 0:
+        moved = ((keys | ~mask) + np.uint64(1)) & mask
+    else:
+        moved = ((keys & mask) - np.uint64(1)) & mask
+    return moved | rest
+
+
 def _face_neighbours(q: np.ndarray, depth: int) -> np.ndarray:
     """Index of the node at q -/+ e_a among the nodes q (Morton order, unique), or -1.
     Returns int64 [6, M] for the directions -x, +x, -y, +y, -z, +z."""
@@ -250,11 +267,11 @@ def _face_neighbours(q: np.ndarray, depth: int) -> np.ndarray:
             if not ok.any():
                 continue
             idx = np.flatnonzero(ok)
-            qq = q[idx].copy()
-            qq[:, a] = nq[idx]
             if perm is None:
-                kq = _morton21(qq)
+                kq = _morton_step(keys[idx], a, delta)
             else:
+                qq = q[idx].copy()
+                qq[:, a] = nq[idx]
                 kq = np.ascontiguousarray(qq.astype(">u4")).view("S12").ravel()
             pos = np.searchsorted(keys, kq)
             pos_c = np.minimum(pos, m - 1)

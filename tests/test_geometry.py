@@ -170,6 +170,22 @@ def test_normative_order_is_morton(c):
     np.testing.assert_array_equal(order, reference_order(c))
 
 
+@settings(max_examples=80, deadline=None)
+@given(st.lists(st.tuples(*[st.integers(0, (1 << 21) - 1)] * 3), min_size=1, max_size=40),
+       st.integers(0, 2), st.sampled_from([-1, 1]))
+def test_morton_step_is_the_key_of_the_neighbour(points, axis, delta):
+    """The dilated-arithmetic step (the face neighbours' keys) equals the Morton key of the
+    stepped coordinates, up to the edges of the 21-bit grid, where carries would leave the axis."""
+    from lghcc.common.geometry import _morton21, _morton_step
+
+    q = np.array(points, dtype=np.int64)
+    moved = q.copy()
+    moved[:, axis] += delta
+    inside = (moved[:, axis] >= 0) & (moved[:, axis] < 1 << 21)
+    got = _morton_step(_morton21(q)[inside], axis, delta)
+    np.testing.assert_array_equal(got, _morton21(moved[inside]))
+
+
 def test_normative_order_deep_bounding_box():
     c = np.array([[COORD_MAX, 0, 0], [COORD_MIN, 5, 0], [0, COORD_MAX, COORD_MIN], [1, 1, 1]], dtype=np.int64)
     np.testing.assert_array_equal(normative_order(c), reference_order(c))
