@@ -270,7 +270,7 @@ class CodingParams:
 def effective_steps(steps: np.ndarray, step_adjust: np.ndarray | None) -> np.ndarray:
     """float32 steps per value: float32(step(c)) * STEP_ADJUST_FACTORS[a]."""
     s = steps.astype(np.float32)
-    if step_adjust is None:
+    if step_adjust is None or not np.any(step_adjust):  # factor 1.0: the product is the step itself
         return s
     return (s * STEP_ADJUST_FACTORS[step_adjust]).astype(np.float32)
 
