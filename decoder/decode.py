@@ -372,11 +372,16 @@ def _decode_in_workers(tiles: list[TileUnits], selected: list[int], ps, layout, 
             _SHARED_OUTPUT["mask"] = _shared_array((total, layout.num_offsets), np.bool_)
     args = [(tiles[t], t, ps, layout, context_model, mlps, ps.tile_size, verify_hash, max_level, r)
             for t, r in zip(selected, rows)]
+    # the largest tiles first, so that no large tile is left to one worker at the end
+    order = sorted(range(len(args)), key=lambda i: -tiles[selected[i]].num_points)
     ctx = multiprocessing.get_context("fork" if fork else "spawn")
     try:
         with ProcessPoolExecutor(max_workers=min(jobs, len(selected)), mp_context=ctx,
                                  initializer=_worker_init) as pool:
-            parts = list(pool.map(_decode_tile_job, args))
+            done = list(pool.map(_decode_tile_job, [args[i] for i in order]))
+        parts: list[DecodedTile] = [None] * len(args)  # type: ignore[list-item]
+        for i, part in zip(order, done):
+            parts[i] = part
         return parts, (dict(_SHARED_OUTPUT) if shared else None)
     finally:
         _SHARED_OUTPUT.clear()
