@@ -108,7 +108,23 @@ def box_holding(points: np.ndarray, share: float):
     return Box(tuple(centre - b), tuple(centre + b))
 
 
-def anchor_section(n: int, tile_points: list[int], repeats: int) -> tuple[list[str], list[str]]:
+def box_reach_rows(coords: np.ndarray, voxel_size: float, origin, box, unit: int, scales: list[int]) -> list[str]:
+    """For tile sides of ``scales`` x ``unit`` voxels: the tiles a box meets (the decoder's own test,
+    common/tiles.cell_intersects_box) and the share of the points they hold, which is what a box
+    decode costs (no encoding needed: the tiles are cells of the grid)."""
+    from lghcc.common.tiles import cell_intersects_box, tile_cells
+
+    rows = []
+    for scale in scales:
+        size = scale * unit
+        cells, counts = np.unique(tile_cells(coords, size), axis=0, return_counts=True)
+        meets = np.array([cell_intersects_box(c, size, voxel_size, origin, box) for c in cells])
+        rows.append(f"| {size} | {cells.shape[0]:,} | {coords.shape[0] / cells.shape[0]:,.0f} | {int(meets.sum())} | "
+                    f"{counts[meets].sum() / coords.shape[0]:.1%} |")
+    return rows
+
+
+def anchor_section(n: int, tile_points: list[int], repeats: int) -> tuple[list[str], list[str], list[str]]:
     from lghcc.decoder.decode import decode_stream
     from lghcc.encoder.encode import encode_scene
     from lghcc.formats.procedural import make_procedural_scene
@@ -129,6 +145,9 @@ def anchor_section(n: int, tile_points: list[int], repeats: int) -> tuple[list[s
         tiled = tiled or res
     decode_stream(untiled.data)  # warm-up: imports, tables
     box = box_holding(scene.coords * scene.voxel_size + scene.origin, 0.1)
+    unit = anchor_config(0).coarse_voxel_scale  # tile sides are multiples of the coarse voxel
+    reach = box_reach_rows(scene.coords, float(scene.voxel_size), scene.origin, box, unit,
+                           [8, 12, 16, 24, 32, 48, 64])
     cases = [("untiled stream, 1 process", untiled.data, {}),
              ("tiled, --jobs 1", tiled.data, {}),
              ("tiled, --jobs 2", tiled.data, {"jobs": 2}),
@@ -145,7 +164,7 @@ def anchor_section(n: int, tile_points: list[int], repeats: int) -> tuple[list[s
         dec_rows.append(f"| {label} | {res.tiles_decoded} of {res.num_tiles} | {res.scene.num_anchors:,} | "
                         f"{dt:.2f} | {res.scene.num_anchors / dt:,.0f} | {ratio} |")
         print(dec_rows[-1], flush=True)
-    return cost_rows, dec_rows
+    return cost_rows, dec_rows, reach
 
 
 def preview_rows(n: int) -> list[str]:
@@ -180,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(2)
     load_before = load_average()
     cost = gaussian_cost_rows(args.scenes, args.tile_points)
-    anchor_cost, decode = anchor_section(args.anchors, args.tile_points, args.repeats)
+    anchor_cost, decode, reach = anchor_section(args.anchors, args.tile_points, args.repeats)
     preview = preview_rows(args.preview_anchors)
     lines = [
         "# Tiles: cost in bytes, decoding in parallel, by box, and the level-1 preview", "",
@@ -195,6 +214,10 @@ def main(argv: list[str] | None = None) -> int:
         f"Median of {args.repeats} decodes in this process (decode_stream: parse, geometry, attributes with the "
         "GG-Conv context, hash check of every tile decoded). Ratio: to the tiled stream's 1-worker decode.", "",
         "| decode | tiles | anchors out | s | anchors/s | ratio |", "|---|---:|---:|---:|---:|---:|", *decode, "",
+        "What the box decode reads, by tile side: the tiles the same box meets and the share of the anchors they "
+        "hold (no decoding; a box decode's time follows that share).", "",
+        "| tile side, voxels | tiles | anchors per tile | tiles the box meets | anchors in them |",
+        "|---:|---:|---:|---:|---:|", *reach, "",
         "## The level-1 preview", "",
         "Renders of the preview against renders of the full decode (8 orbit views, 256x256, mean PSNR).", "",
         "| stream | anchors | full decode s | preview anchors | preview s | PSNR of the preview, dB |",
