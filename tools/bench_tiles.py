@@ -12,7 +12,9 @@
    anchor nearest the point 30% of the way along each axis of the bounding box, grown until it
    holds 10% of them)
    (--box) and the level-1 preview (--level 1). Each time the median of ``--repeats`` runs in
-   this process; ratios are to the tiled 1-worker decode of the same run.
+   this process; ratios are to the tiled 1-worker decode of the same run. Beside it, for tile
+   sides from 32 to 256 voxels, the tiles that box meets and the share of the anchors they hold
+   (the grid's cells only, nothing coded): what a box decode reads at each tile size.
 3. The preview's quality: a smaller procedural anchor scene (``--preview-anchors``), rendered
    from 8 orbit views at 256 px, preview against the full decode (PSNR), with both times.
 
