@@ -21,10 +21,13 @@ size with those already there, and the table shows them all.
 
 from __future__ import annotations
 
+import os
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch: no spinning OpenMP threads
+
 import argparse
 import datetime
 import json
-import os
 import platform
 import subprocess
 import sys

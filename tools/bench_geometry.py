@@ -25,9 +25,12 @@ and skipped, never silently replaced.
 
 from __future__ import annotations
 
+import os
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch: no spinning OpenMP threads
+
 import argparse
 import datetime
-import os
 import platform
 import subprocess
 import sys

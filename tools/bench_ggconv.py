@@ -13,9 +13,14 @@ on the values) and the encoder's radius rule; the decoder's own code path
 * GEMM floor: the three float64 matrix products the rows cannot avoid (the feature MLP's
   second layer on every edge, the head's two layers on every anchor, less the head input
   folded per level-1 anchor), timed alone on the same shapes: what exact float64 arithmetic
-  costs on these cores whatever the surrounding code does.
+  costs on these cores whatever the surrounding code does;
+* with ``--blocks``: the rows again with each of those block sizes (rows evaluated at once;
+  the result does not depend on it), the sizes alternated over ``--repeats`` rounds in this
+  process, median of each, in a second table.
 
     python tools/bench_ggconv.py --sizes 100000 1000000 --threads 2
+    python tools/bench_ggconv.py --sizes 100000 1000000 --threads 1 --blocks 128 512 1024 4096 \
+        --out tools/results/ggconv_blocks.md
 
 Results: tools/results/ggconv.md (table and command).
 """
@@ -24,12 +29,14 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import os
 import sys
 import time
 from pathlib import Path
 
-import numpy as np
-import torch
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch: no spinning OpenMP threads
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchutil import command_line, load_average, write_lines  # noqa: E402
@@ -76,10 +83,13 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sizes", type=int, nargs="+", default=[100_000, 1_000_000], help="procedural anchor counts")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--blocks", type=int, nargs="*", default=[],
+                    help="also time the rows with each of these block sizes (default: none)")
+    ap.add_argument("--repeats", type=int, default=3, help="rounds of the --blocks timings (median)")
     ap.add_argument("--out", default=str(ROOT / "tools" / "results" / "ggconv.md"))
     args = ap.parse_args(argv)
 
-    from lghcc.common.context.ggconv import GGConvEvaluator, level2_graph
+    from lghcc.common.context.ggconv import GGConvEvaluator, block_rows, level2_graph
     from lghcc.common.geometry import normative_order
     from lghcc.common.hierarchy import build_hierarchy
     from lghcc.common.knn import ball_knn
@@ -87,7 +97,7 @@ def main(argv=None) -> int:
 
     torch.set_num_threads(args.threads)
     ball_knn(np.zeros((2, 3), np.int64), 1, 1)  # first use: scipy's import is not the graph's time
-    rows = []
+    rows, block_lines = [], []
     for n in args.sizes:
         scene = make_procedural_scene(n, seed=0)
         c = scene.coords[normative_order(scene.coords)]
@@ -120,6 +130,17 @@ def main(argv=None) -> int:
                          f"{p.head_mlp.layers[0].fan_out}", t_knn, t_knn8, t_init, t_rows, total,
                          hier.num_level2 / total, g_s, g_flop, g_flop / g_s))
             print(" ".join(str(x) if not isinstance(x, float) else f"{x:.2f}" for x in rows[-1]), flush=True)
+            times: dict[int, list[float]] = {b: [] for b in args.blocks}
+            for _ in range(args.repeats if args.blocks else 0):
+                for b in args.blocks:
+                    t = time.perf_counter()
+                    ev.rows(0, ev.num_rows, b)
+                    times[b].append(time.perf_counter() - t)
+            for b, ts in times.items():
+                mark = " (default)" if b == block_rows() else ""
+                block_lines.append(f"| {n:,} | {level} | {b}{mark} | {float(np.median(ts)):.2f} | "
+                                   f"{' / '.join(f'{x:.2f}' for x in ts)} |")
+                print(block_lines[-1], flush=True)
     lines = ["# GG-Conv decoding time: where it goes", "",
              f"Command: `{command_line('bench_ggconv.py', argv)}`  ",
              f"Date: {datetime.date.today()}; {args.threads} torch threads; shared 2-core VM, load {load_average()} "
@@ -132,6 +153,11 @@ def main(argv=None) -> int:
              "|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     lines += [f"| {r[0]:,} | {r[1]:,} | {r[2]} | {r[3]} | {r[4]} | {r[5]:.2f} | {r[6]:.2f} | {r[7]:.2f} | "
               f"{r[8]:.2f} | {r[9]:.2f} | {r[10]:,.0f} | {r[11]:.2f} | {r[12]:.1f} | {r[13]:.1f} |" for r in rows]
+    if block_lines:
+        lines += ["", f"Rows by block size (rows evaluated at once; {args.threads} torch threads; the sizes "
+                  f"alternated over {args.repeats} rounds, median):", "",
+                  "| anchors | neighbour level | block rows | rows s | each round, s |", "|---:|---:|---:|---:|---|",
+                  *block_lines]
     write_lines(Path(args.out), lines)
     print(f"wrote {args.out}")
     return 0

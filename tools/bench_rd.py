@@ -16,9 +16,12 @@ checkpoint is the scene); results go to tools/results/rd.md (--append adds a sec
 
 from __future__ import annotations
 
+import os
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch: no spinning OpenMP threads
+
 import argparse
 import datetime
-import os
 import sys
 import time
 from pathlib import Path

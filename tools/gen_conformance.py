@@ -21,6 +21,10 @@ on purpose, and say so in the commit.
 
 from __future__ import annotations
 
+import os
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch: no spinning OpenMP threads
+
 import argparse
 import hashlib
 import sys
