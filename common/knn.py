@@ -45,6 +45,26 @@ MAX_EXTENT = math.isqrt((2**63 - 1) // 3)  # 1_753_413_056: 3 * E^2 fits int64
 _MARGIN_SHIFT = 40
 _BIG = np.iinfo(np.int64).max
 _BLOCK = 1 << 17  # rows per candidate query (memory bound only)
+# threads of the candidate generator when a caller names none (-1: one per CPU); a decoder's
+# worker processes set 1, since they are the parallelism (set_candidate_threads)
+_default_threads = -1
+
+
+def set_candidate_threads(n: int) -> None:
+    """Threads the candidate generator uses when ``ball_knn`` is given no ``workers`` (-1: one
+    per CPU). Informative: the answer does not depend on it."""
+    global _default_threads
+    if isinstance(n, bool) or not isinstance(n, int) or (n < 1 and n != -1):
+        raise ValueError(f"threads must be a positive integer or -1, got {n!r}")
+    _default_threads = n
+
+
+def candidate_generator():
+    """The candidate generator's tree class (scipy's cKDTree), imported on first use: a decoder
+    loads it before forking its workers, which then share it (each would take 0.25 s)."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree
 
 
 def _as_coords(a, what: str) -> np.ndarray:
@@ -97,7 +117,7 @@ def _check_k_radius(k, radius_sq) -> tuple[int, int]:
 
 
 def ball_knn(coords, k: int, radius_sq: int, query=None, exclude_self: bool = True,
-             workers: int = -1, initial_extra: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+             workers: int | None = None, initial_extra: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Canonical Ball k-NN.
 
     coords: int [N, 3] data points; query: int [M, 3] or None (then query = coords, M = N).
@@ -106,7 +126,8 @@ def ball_knn(coords, k: int, radius_sq: int, query=None, exclude_self: bool = Tr
 
     exclude_self: with query None, row i never contains index i; with a query given, data
     points at the query's own position (d2 == 0) are excluded.
-    workers, initial_extra: performance knobs of the candidate generator only (initial_extra:
+    workers, initial_extra: performance knobs of the candidate generator only (workers: its
+    threads, None: set_candidate_threads's, by default one per CPU; initial_extra:
     candidates asked beyond k at first; None: 8 for a self query, whose dense neighbourhoods
     tie often, and 2 for a separate query set; tools/results/ggconv.md measures both).
     """
@@ -117,7 +138,7 @@ def ball_knn(coords, k: int, radius_sq: int, query=None, exclude_self: bool = Tr
         return idx_out, valid_out
     # Clamp the radius to the largest possible d2 so float bounds stay finite.
     search = _CandidateSearch(c, q, self_mode, min(radius_sq, 3 * MAX_EXTENT * MAX_EXTENT), k, exclude_self,
-                              workers)
+                              _default_threads if workers is None else workers)
     if initial_extra is None:
         initial_extra = 8 if self_mode else 2
     ask = k + initial_extra + (1 if exclude_self else 0)
@@ -138,14 +159,12 @@ class _CandidateSearch:
 
     def __init__(self, c: np.ndarray, q: np.ndarray, self_mode: bool, radius_sq: int, k: int,
                  exclude_self: bool, workers: int):
-        from scipy.spatial import cKDTree
-
         self.n, self.self_mode, self.radius_sq, self.k = c.shape[0], self_mode, radius_sq, k
         self.exclude_self, self.workers = exclude_self, workers
         base = np.minimum(c.min(axis=0), q.min(axis=0))
         cf = (c - base).astype(np.float64)  # exact: 0 <= value <= MAX_EXTENT < 2^53
         self.qf = cf if self_mode else (q - base).astype(np.float64)
-        self.tree = cKDTree(cf, balanced_tree=False, compact_nodes=False)
+        self.tree = candidate_generator()(cf, balanced_tree=False, compact_nodes=False)
         self.bound = math.sqrt(radius_sq) * (1 + 2.0**-30) + 1e-3  # float bound strictly beyond the ball
         self.cols = [np.ascontiguousarray(c[:, a]) for a in range(3)]
         self.qcols = self.cols if self_mode else [np.ascontiguousarray(q[:, a]) for a in range(3)]

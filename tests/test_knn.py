@@ -5,7 +5,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lghcc.common.knn import MAX_EXTENT, ball_knn
+from lghcc.common import knn
+from lghcc.common.knn import MAX_EXTENT, ball_knn, set_candidate_threads
 from reference_impl import ball_knn_bruteforce
 
 
@@ -114,6 +115,23 @@ def test_random_cloud_matches_bruteforce():
     c = np.unique(rng.integers(0, 30, (1500, 3)), axis=0)
     c = c[rng.permutation(len(c))]
     _same(ball_knn(c, 8, 20, initial_extra=1), ball_knn_bruteforce(c, 8, 20))
+
+
+def test_candidate_threads_do_not_change_the_answer():
+    rng = np.random.default_rng(5)
+    c = rng.integers(0, 25, (3000, 3))
+    expected = ball_knn_bruteforce(c, 6, 12)
+    try:
+        for n in (1, 2, -1):
+            set_candidate_threads(n)
+            _same(ball_knn(c, 6, 12), expected)
+        _same(ball_knn(c, 6, 12, workers=3), expected)  # an explicit count overrides the default
+    finally:
+        set_candidate_threads(-1)
+    for bad in (0, -2, 1.5, True, "2"):
+        with pytest.raises(ValueError, match="threads"):
+            set_candidate_threads(bad)
+    assert knn._default_threads == -1
 
 
 @pytest.mark.slow
