@@ -390,11 +390,16 @@ def _decode_in_workers(tiles: list[TileUnits], selected: list[int], ps, layout, 
         _SHARED_OUTPUT.clear()
 
 
+# The k-NN candidate generator's threads in each worker: the workers are the parallelism, and one
+# thread per CPU in each oversubscribes the cores (tools/bench_tiles.py times both, alternated).
+WORKER_CANDIDATE_THREADS = 1
+
+
 def _worker_init() -> None:
     import torch
 
     torch.set_num_threads(1)  # the workers are the parallelism
-    set_candidate_threads(1)  # (two threads per worker: 10% slower with 2 workers on 2 cores)
+    set_candidate_threads(WORKER_CANDIDATE_THREADS)
 
 
 @dataclass

@@ -8,11 +8,12 @@
    choice of steps); a procedural anchor scene of ``--anchors`` anchors with the hierarchy and
    GG-Conv (lghcc-low, short context training: the decoder's speed does not depend on it).
 2. Decoding the anchor scene: the untiled stream in one process; the tiled one with 1 and 2
-   worker processes (lghcc-dec --jobs), a box holding 10% of the anchors (a cube around the
-   anchor nearest the point 30% of the way along each axis of the bounding box, grown until it
-   holds 10% of them)
-   (--box) and the level-1 preview (--level 1). Each time the median of ``--repeats`` runs in
-   this process; ratios are to the tiled 1-worker decode of the same run. Beside it, for tile
+   worker processes (lghcc-dec --jobs; and again with each worker's k-NN candidate generator on
+   one thread per CPU, the setting before commit 1047ba9), a box holding 10% of the anchors (a
+   cube around the anchor nearest the point 30% of the way along each axis of the bounding box,
+   grown until it holds 10% of them) (--box) and the level-1 preview (--level 1). Each time the
+   median of ``--repeats`` runs in this process, the cases alternated; ratios are to the tiled
+   1-worker decode of the same run. Beside it, for tile
    sides from 32 to 256 voxels, the tiles that box meets and the share of the anchors they hold
    (the grid's cells only, nothing coded): what a box decode reads at each tile size.
 3. The preview's quality: a smaller procedural anchor scene (``--preview-anchors``), rendered
@@ -150,23 +151,43 @@ def anchor_section(n: int, tile_points: list[int], repeats: int) -> tuple[list[s
     unit = anchor_config(0).coarse_voxel_scale  # tile sides are multiples of the coarse voxel
     reach = box_reach_rows(scene.coords, float(scene.voxel_size), scene.origin, box, unit,
                            [8, 12, 16, 24, 32, 48, 64])
-    cases = [("untiled stream, 1 process", untiled.data, {}),
-             ("tiled, --jobs 1", tiled.data, {}),
-             ("tiled, --jobs 2", tiled.data, {"jobs": 2}),
-             ("tiled, --box (a cube holding 10% of the anchors), --jobs 1", tiled.data, {"box": box}),
-             ("tiled, --level 1 (preview), --jobs 1", tiled.data, {"max_level": 1}),
-             ("tiled, --level 1 (preview), --jobs 2", tiled.data, {"max_level": 1, "jobs": 2})]
-    base = None
-    for label, data, kw in cases:
-        res, dt = _timed(lambda: decode_stream(data, **kw), repeats)
-        if label == "tiled, --jobs 1":
-            base = dt
+    # (label, stream, decode_stream's arguments, the workers' k-NN threads)
+    cases = [("untiled stream, 1 process", untiled.data, {}, None),
+             ("tiled, --jobs 1", tiled.data, {}, None),
+             ("tiled, --jobs 2", tiled.data, {"jobs": 2}, None),
+             ("tiled, --jobs 2, each worker's k-NN on one thread per CPU (before 1047ba9)", tiled.data, {"jobs": 2},
+              -1),
+             ("tiled, --box (a cube holding 10% of the anchors), --jobs 1", tiled.data, {"box": box}, None),
+             ("tiled, --level 1 (preview), --jobs 1", tiled.data, {"max_level": 1}, None),
+             ("tiled, --level 1 (preview), --jobs 2", tiled.data, {"max_level": 1, "jobs": 2}, None)]
+    times: list[list[float]] = [[] for _ in cases]
+    results = [None] * len(cases)
+    for _ in range(repeats):  # the cases alternated, so that the machine's drift falls on all of them
+        for i, (_, data, kw, threads) in enumerate(cases):
+            results[i], dt = _timed(lambda: _decode_with_worker_threads(data, kw, threads), 1)
+            times[i].append(dt)
+    base = statistics.median(times[1])  # the tiled 1-worker decode
+    for (label, data, kw, _), res, ts in zip(cases, results, times):
+        dt = statistics.median(ts)
         assert kw or res.stream_hash == (untiled.scene_hash if data is untiled.data else tiled.scene_hash)
-        ratio = f"{dt / base:.2f}" if base else "-"
+        ratio = "-" if data is untiled.data else f"{dt / base:.2f}"
         dec_rows.append(f"| {label} | {res.tiles_decoded} of {res.num_tiles} | {res.scene.num_anchors:,} | "
                         f"{dt:.2f} | {res.scene.num_anchors / dt:,.0f} | {ratio} |")
         print(dec_rows[-1], flush=True)
     return cost_rows, dec_rows, reach
+
+
+def _decode_with_worker_threads(data: bytes, kw: dict, threads: int | None):
+    """decode_stream(data, **kw), its workers' k-NN on ``threads`` threads (None: the decoder's
+    setting); the forked workers read the setting from this process."""
+    from lghcc.decoder import decode
+
+    default = decode.WORKER_CANDIDATE_THREADS
+    decode.WORKER_CANDIDATE_THREADS = default if threads is None else threads
+    try:
+        return decode.decode_stream(data, **kw)
+    finally:
+        decode.WORKER_CANDIDATE_THREADS = default
 
 
 def preview_rows(n: int) -> list[str]:
@@ -213,7 +234,7 @@ def main(argv: list[str] | None = None) -> int:
         "without | with | geometry cost | encode s without | encode s with |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|", *cost, *anchor_cost, "",
         f"## Decoding the {args.anchors:,}-anchor GG-Conv scene (tile_points {args.tile_points[0]:,})", "",
-        f"Median of {args.repeats} decodes in this process (decode_stream: parse, geometry, attributes with the "
+        f"Median of {args.repeats} decodes in this process, the cases alternated (decode_stream: parse, geometry, attributes with the "
         "GG-Conv context, hash check of every tile decoded). Ratio: to the tiled stream's 1-worker decode.", "",
         "| decode | tiles | anchors out | s | anchors/s | ratio |", "|---|---:|---:|---:|---:|---:|", *decode, "",
         "What the box decode reads, by tile side: the tiles the same box meets and the share of the anchors they "
