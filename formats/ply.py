@@ -20,22 +20,14 @@ _PLY_TYPES = {
 MAX_HEADER_BYTES = 1 << 20
 
 
-def read_ply(path: str | os.PathLike, element: str = "vertex") -> dict[str, np.ndarray]:
-    """Return {property name: array} for one element. Raises InputError naming the file."""
-    path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as e:
-        raise InputError(f"{path}: cannot read ({e.strerror})") from None
-    end = raw.find(b"end_header", 0, MAX_HEADER_BYTES)
-    if not raw.startswith(b"ply") or end < 0:
+def _parse_header(path: Path, head: bytes) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]], int]:
+    """(format, [(element, count, [(dtype or 'list', property)])], byte offset of the body)."""
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
         raise InputError(f"{path}: not a PLY file (no 'ply' magic or no end_header)")
-    body_start = raw.index(b"\n", end) + 1
-    lines = raw[:end].decode("ascii", "replace").splitlines()
     fmt = None
     elements: list[tuple[str, int, list[tuple[str, str]]]] = []
-    for line in lines[1:]:
-        parts = line.split()
+    for parts in (line.split() for line in head[:end].decode("ascii", "replace").splitlines()[1:]):
         if not parts or parts[0] in ("comment", "obj_info"):
             continue
         if parts[0] == "format":
@@ -45,39 +37,62 @@ def read_ply(path: str | os.PathLike, element: str = "vertex") -> dict[str, np.n
         elif parts[0] == "property":
             if not elements:
                 raise InputError(f"{path}: property before any element")
-            if parts[1] == "list":
-                elements[-1][2].append(("list", parts[-1]))
-                continue
-            if parts[1] not in _PLY_TYPES:
-                raise InputError(f"{path}: unknown property type {parts[1]!r}")
-            elements[-1][2].append((_PLY_TYPES[parts[1]], parts[2]))
+            elements[-1][2].append(_property(path, parts))
     if fmt not in ("binary_little_endian", "binary_big_endian", "ascii"):
         raise InputError(f"{path}: unsupported PLY format {fmt!r}")
-    offset = body_start
-    for name, count, props in elements:
-        if any(t == "list" for t, _ in props):
-            if name == element:
-                raise InputError(f"{path}: element {element!r} has list properties, which are not supported")
-            raise InputError(f"{path}: element {name!r} with list properties precedes {element!r}")
-        if fmt == "ascii":
-            if name != element:
-                raise InputError(f"{path}: ASCII PLY with elements before {element!r} is not supported")
-            text = raw[body_start:].decode("ascii", "replace").split()
-            vals = np.asarray(text[: count * len(props)], dtype=np.float64)
-            if vals.size != count * len(props):
-                raise InputError(f"{path}: file ends before {count} {element} rows")
-            vals = vals.reshape(count, len(props))
-            return {p: vals[:, i].astype(t) for i, (t, p) in enumerate(props)}
-        endian = "<" if fmt == "binary_little_endian" else ">"
-        dtype = np.dtype([(p, endian + t) for t, p in props])
-        nbytes = dtype.itemsize * count
-        if name == element:
-            if offset + nbytes > len(raw):
-                raise InputError(f"{path}: file is truncated ({len(raw) - offset} bytes for {count} rows of "
-                                 f"{dtype.itemsize} bytes)")
-            arr = np.frombuffer(raw, dtype=dtype, count=count, offset=offset)
-            return {p: arr[p].astype(arr[p].dtype.newbyteorder("=")) for _, p in props}
-        offset += nbytes
+    return fmt, elements, head.index(b"\n", end) + 1
+
+
+def _property(path: Path, parts: list[str]) -> tuple[str, str]:
+    if parts[1] == "list":
+        return "list", parts[-1]
+    if parts[1] not in _PLY_TYPES:
+        raise InputError(f"{path}: unknown property type {parts[1]!r}")
+    return _PLY_TYPES[parts[1]], parts[2]
+
+
+def _read_ascii(path: Path, body: bytes, element: str, count: int, props: list[tuple[str, str]]) -> dict[str, np.ndarray]:
+    vals = np.asarray(body.decode("ascii", "replace").split()[: count * len(props)], dtype=np.float64)
+    if vals.size != count * len(props):
+        raise InputError(f"{path}: file ends before {count} {element} rows")
+    vals = vals.reshape(count, len(props))
+    return {p: vals[:, i].astype(t) for i, (t, p) in enumerate(props)}
+
+
+def _read_binary(path: Path, f, offset: int, size: int, count: int, dtype: np.dtype) -> dict[str, np.ndarray]:
+    """The element's rows only (np.fromfile at its offset: the rest of the file is never read)."""
+    nbytes = dtype.itemsize * count
+    if offset + nbytes > size:
+        raise InputError(f"{path}: file is truncated ({size - offset} bytes for {count} rows of "
+                         f"{dtype.itemsize} bytes)")
+    f.seek(offset)
+    arr = np.fromfile(f, dtype=dtype, count=count)
+    return {p: arr[p].astype(arr[p].dtype.newbyteorder("=")) for p in dtype.names}
+
+
+def read_ply(path: str | os.PathLike, element: str = "vertex") -> dict[str, np.ndarray]:
+    """Return {property name: array} for one element. Raises InputError naming the file."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            fmt, elements, offset = _parse_header(path, f.read(MAX_HEADER_BYTES))
+            size = os.fstat(f.fileno()).st_size
+            for name, count, props in elements:
+                if any(t == "list" for t, _ in props):
+                    if name == element:
+                        raise InputError(f"{path}: element {element!r} has list properties, which are not supported")
+                    raise InputError(f"{path}: element {name!r} with list properties precedes {element!r}")
+                if fmt == "ascii":
+                    if name != element:
+                        raise InputError(f"{path}: ASCII PLY with elements before {element!r} is not supported")
+                    f.seek(offset)
+                    return _read_ascii(path, f.read(), element, count, props)
+                dtype = np.dtype([(p, ("<" if fmt == "binary_little_endian" else ">") + t) for t, p in props])
+                if name == element:
+                    return _read_binary(path, f, offset, size, count, dtype)
+                offset += dtype.itemsize * count
+    except OSError as e:
+        raise InputError(f"{path}: cannot read ({e.strerror})") from None
     raise InputError(f"{path}: no element {element!r}")
 
 
