@@ -202,6 +202,81 @@ def _image_size(path: Path) -> tuple[int, int]:
     return img.shape[1], img.shape[0]
 
 
+_INTRINSIC_KINDS = {"camera_angle_x": "angle", "camera_angle_y": "angle", "fl_x": "positive", "fl_y": "positive",
+                    "cx": "finite", "cy": "finite", "w": "size", "h": "size"}
+
+
+def _read_transforms(jp: Path) -> tuple[dict, dict, tuple[int, int] | None]:
+    """(the file's JSON, its intrinsics checked, its (w, h) or None); InputError naming the file."""
+    if not jp.is_file():
+        raise InputError(f"{jp}: file not found")
+    try:
+        meta = json.loads(jp.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise InputError(f"{jp}: not valid JSON ({e})") from None
+    if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list):
+        raise InputError(f"{jp}: no 'frames' list")
+    if "camera_angle_x" not in meta and "fl_x" not in meta:
+        raise InputError(f"{jp}: neither 'camera_angle_x' nor 'fl_x' given")
+    intr = {k: _json_number(meta, k, jp, kind) for k, kind in _INTRINSIC_KINDS.items() if k in meta}
+    if ("w" in intr) != ("h" in intr):
+        raise InputError(f"{jp}: 'w' and 'h' must be given together")
+    return meta, intr, ((int(intr["w"]), int(intr["h"])) if "w" in intr else None)
+
+
+def _frame_pose(jp: Path, i: int, fr) -> tuple[str, np.ndarray]:
+    """(file_path, camera-to-world 4x4) of frame ``i``, checked."""
+    if not isinstance(fr, dict) or "file_path" not in fr or "transform_matrix" not in fr:
+        raise InputError(f"{jp}: frame {i} needs 'file_path' and 'transform_matrix'")
+    fp = fr["file_path"]
+    if not isinstance(fp, str) or not fp.strip():
+        raise InputError(f"{jp}: frame {i}: 'file_path' must be a non-empty string, got {fp!r}")
+    try:
+        c2w = np.asarray(fr["transform_matrix"], np.float64)
+    except (ValueError, TypeError):
+        c2w = np.zeros(0)
+    if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
+        raise InputError(f"{jp}: frame {i} transform_matrix is not a finite 4x4 matrix")
+    return fp, c2w
+
+
+def _frame_image(jp: Path, ip: Path, load_images: bool, background, size0) -> tuple[np.ndarray | None, int, int]:
+    """(the composited image or None, width, height): the image's own size where there is one."""
+    if load_images:
+        img = composite_background(read_image(ip), background)
+        return img, img.shape[1], img.shape[0]
+    if ip.is_file():
+        return None, *_image_size(ip)
+    if size0 is not None:
+        return None, *size0
+    raise InputError(f"{jp}: image {ip} not found")
+
+
+def _size_scale(jp: Path, i: int, ip: Path, w: int, h: int, size0) -> tuple[float, float]:
+    """The factors from the file's w x h to the image's (a downscaled copy); another aspect ratio
+    raises InputError."""
+    if size0 is None or (w, h) == size0:
+        return 1.0, 1.0
+    sx, sy = w / size0[0], h / size0[1]
+    if abs(sx / sy - 1.0) > 0.01:
+        raise InputError(f"{jp}: frame {i}: image {ip} is {w}x{h}, but the file gives w={size0[0]}, "
+                         f"h={size0[1]} (another aspect ratio); fix 'w'/'h' or the image")
+    return sx, sy
+
+
+def _pixel_intrinsics(intr: dict, w: int, h: int, sx: float, sy: float) -> tuple[float, float, float, float]:
+    """(fx, fy, cx, cy) in pixels of the w x h image."""
+    if "fl_x" in intr:
+        fx = intr["fl_x"] * sx
+        fy = intr.get("fl_y", intr["fl_x"]) * sy
+    else:
+        fx = 0.5 * w / math.tan(0.5 * intr["camera_angle_x"])
+        fy = 0.5 * h / math.tan(0.5 * intr["camera_angle_y"]) if "camera_angle_y" in intr else fx
+    cx = intr["cx"] * sx if "cx" in intr else w / 2
+    cy = intr["cy"] * sy if "cy" in intr else h / 2
+    return fx, fy, cx, cy
+
+
 def load_nerf_synthetic(root: str | os.PathLike, split: str = "test", background: str | tuple = "white",
                         load_images: bool = True, near: float = 0.01, far: float = 1e10,
                         max_frames: int | None = None) -> list[Camera]:
@@ -216,63 +291,17 @@ def load_nerf_synthetic(root: str | os.PathLike, split: str = "test", background
     scaled to it; another aspect ratio raises InputError."""
     root = Path(root)
     jp = root / f"transforms_{split}.json"
-    if not jp.is_file():
-        raise InputError(f"{jp}: file not found")
-    try:
-        meta = json.loads(jp.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(f"{jp}: not valid JSON ({e})") from None
-    if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list):
-        raise InputError(f"{jp}: no 'frames' list")
-    if "camera_angle_x" not in meta and "fl_x" not in meta:
-        raise InputError(f"{jp}: neither 'camera_angle_x' nor 'fl_x' given")
-    kinds = {"camera_angle_x": "angle", "camera_angle_y": "angle", "fl_x": "positive", "fl_y": "positive",
-             "cx": "finite", "cy": "finite", "w": "size", "h": "size"}
-    intr = {k: _json_number(meta, k, jp, kind) for k, kind in kinds.items() if k in meta}
-    if ("w" in intr) != ("h" in intr):
-        raise InputError(f"{jp}: 'w' and 'h' must be given together")
-    size0 = (int(intr["w"]), int(intr["h"])) if "w" in intr else None
+    meta, intr, size0 = _read_transforms(jp)
     frames = meta["frames"][:max_frames] if max_frames else meta["frames"]
     cams = []
     for i, fr in enumerate(frames):
-        if not isinstance(fr, dict) or "file_path" not in fr or "transform_matrix" not in fr:
-            raise InputError(f"{jp}: frame {i} needs 'file_path' and 'transform_matrix'")
-        fp = fr["file_path"]
-        if not isinstance(fp, str) or not fp.strip():
-            raise InputError(f"{jp}: frame {i}: 'file_path' must be a non-empty string, got {fp!r}")
-        try:
-            c2w = np.asarray(fr["transform_matrix"], np.float64)
-        except (ValueError, TypeError):
-            c2w = np.zeros(0)
-        if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
-            raise InputError(f"{jp}: frame {i} transform_matrix is not a finite 4x4 matrix")
+        fp, c2w = _frame_pose(jp, i, fr)
         ip = _resolve_image(root, fp, jp)
-        img = None
-        if load_images:
-            img = composite_background(read_image(ip), background)
-            h, w = img.shape[:2]
-        elif ip.is_file():
-            w, h = _image_size(ip)
-        elif size0 is not None:
-            w, h = size0
-        else:
-            raise InputError(f"{jp}: image {ip} not found")
-        sx = sy = 1.0
-        if size0 is not None and (w, h) != size0:
-            sx, sy = w / size0[0], h / size0[1]
-            if abs(sx / sy - 1.0) > 0.01:
-                raise InputError(f"{jp}: frame {i}: image {ip} is {w}x{h}, but the file gives w={size0[0]}, "
-                                 f"h={size0[1]} (another aspect ratio); fix 'w'/'h' or the image")
-            if not cams:
-                log.info("%s: images are %dx%d, the file says %dx%d: intrinsics scaled by %.4g", jp, w, h, *size0, sx)
-        if "fl_x" in intr:
-            fx = intr["fl_x"] * sx
-            fy = intr.get("fl_y", intr["fl_x"]) * sy
-        else:
-            fx = 0.5 * w / math.tan(0.5 * intr["camera_angle_x"])
-            fy = 0.5 * h / math.tan(0.5 * intr["camera_angle_y"]) if "camera_angle_y" in intr else fx
-        cx = intr["cx"] * sx if "cx" in intr else w / 2
-        cy = intr["cy"] * sy if "cy" in intr else h / 2
+        img, w, h = _frame_image(jp, ip, load_images, background, size0)
+        sx, sy = _size_scale(jp, i, ip, w, h, size0)
+        if not cams and (sx, sy) != (1.0, 1.0):
+            log.info("%s: images are %dx%d, the file says %dx%d: intrinsics scaled by %.4g", jp, w, h, *size0, sx)
+        fx, fy, cx, cy = _pixel_intrinsics(intr, w, h, sx, sy)
         if size0 is None and not (0 <= cx <= w and 0 <= cy <= h):
             raise InputError(f"{jp}: frame {i}: principal point ({cx:g}, {cy:g}) lies outside the {w}x{h} image "
                              f"{ip.name}: the intrinsics are for another image size; give 'w' and 'h'")
