@@ -199,15 +199,8 @@ class Progress:
             self.say(f"{head}: FAILED: {rec['error']}")
 
 
-def run_sweep(sweep: Sweep, *, local: bool = False, address: str | None = None, num_cpus: int | None = None,
-              cpus_per_cell: int = 1, connect_timeout_s: float = 15.0, say: Callable[[str], None] = print,
-              heartbeat_s: float = 60.0, redo: bool = False) -> list[dict]:
-    """Run every cell not finished yet (module doc; ``redo``: every cell, its files replaced);
-    return every cell's record, in sweep order."""
-    from . import work
-
-    store = Store(sweep.output)
-    cells = sweep.cells()
+def _done_and_todo(store: Store, sweep: Sweep, cells: list[CellKey], redo: bool) -> tuple[dict[str, dict], list[CellKey]]:
+    """The records of the cells already finished (none with ``redo``), and the cells to run."""
     records: dict[str, dict] = {}
     todo: list[CellKey] = []
     for c in cells:
@@ -216,6 +209,42 @@ def run_sweep(sweep: Sweep, *, local: bool = False, address: str | None = None, 
             records[c.id] = rec
         else:
             todo.append(c)
+    return records, todo
+
+
+def _run_locally(sweep: Sweep, store: Store, preps: dict, cpus_per_cell: int, record, prepared_note) -> None:
+    """Every scene prepared (or its stored preparation read), then its cells, in this process."""
+    from . import work
+
+    ev, enc, tr = sweep.evaluation, sweep.encoder, sweep.transcode
+    for p, its in preps.items():
+        got = store.load_prepared(sweep, p)
+        if got is None:
+            try:
+                got = work.prepare(sweep.scenes[p.scene], p.lam, ev, tr, threads=cpus_per_cell)
+            except Exception as e:  # noqa: BLE001 - any failure is this scene's, recorded
+                for c in its:
+                    record(c, error=f"preparing {p.id} failed: {one_line(e)}")
+                continue
+            store.save_prepared(sweep, p, *got)
+            prepared_note(p, got[1])
+        for c in its:
+            try:
+                result, stream = work.run_cell(got[0], c.preset, ev, enc, threads=cpus_per_cell)
+            except Exception as e:  # noqa: BLE001
+                record(c, error=e)
+                continue
+            record(c, result, stream)
+
+
+def run_sweep(sweep: Sweep, *, local: bool = False, address: str | None = None, num_cpus: int | None = None,
+              cpus_per_cell: int = 1, connect_timeout_s: float = 15.0, say: Callable[[str], None] = print,
+              heartbeat_s: float = 60.0, redo: bool = False) -> list[dict]:
+    """Run every cell not finished yet (module doc; ``redo``: every cell, its files replaced);
+    return every cell's record, in sweep order."""
+    store = Store(sweep.output)
+    cells = sweep.cells()
+    records, todo = _done_and_todo(store, sweep, cells, redo)
     say(f"{sweep.file}: {len(cells)} cells ({len(sweep.scenes)} scenes x {len(sweep.presets)} presets"
         + (f", lambdas {', '.join(f'{x:g}' for x in sweep.lambdas)}" if sweep.lambdas else "")
         + f"), {len(records)} already done, {len(todo)} to run; results in {sweep.output}")
@@ -228,7 +257,6 @@ def run_sweep(sweep: Sweep, *, local: bool = False, address: str | None = None, 
     for c in todo:
         preps.setdefault(c.prep, []).append(c)
     progress = Progress(len(todo), say)
-    ev, enc, tr = sweep.evaluation, sweep.encoder, sweep.transcode
 
     def record(c: CellKey, result=None, stream=None, error=None) -> None:
         rec = store.save_cell(sweep, c, result, stream, error)
@@ -240,27 +268,23 @@ def run_sweep(sweep: Sweep, *, local: bool = False, address: str | None = None, 
             f"({info.get('host', '?')})")
 
     if local:
-        for p, its in preps.items():
-            got = store.load_prepared(sweep, p)
-            if got is None:
-                try:
-                    got = work.prepare(sweep.scenes[p.scene], p.lam, ev, tr, threads=cpus_per_cell)
-                except Exception as e:  # noqa: BLE001 - any failure is this scene's, recorded
-                    for c in its:
-                        record(c, error=f"preparing {p.id} failed: {one_line(e)}")
-                    continue
-                store.save_prepared(sweep, p, *got)
-                prepared_note(p, got[1])
-            for c in its:
-                try:
-                    result, stream = work.run_cell(got[0], c.preset, ev, enc, threads=cpus_per_cell)
-                except Exception as e:  # noqa: BLE001
-                    record(c, error=e)
-                    continue
-                record(c, result, stream)
+        _run_locally(sweep, store, preps, cpus_per_cell, record, prepared_note)
     else:
         _run_on_ray(ray, sweep, store, preps, address, cpus_per_cell, say, record, prepared_note, heartbeat_s)
     return [records[c.id] for c in cells]
+
+
+def _cell_failure(ray, c: CellKey, e: Exception, failed_preps: dict, prep_refs: dict):
+    """What a failed cell records: its scene's failed preparation where that was the cause, else
+    its own error."""
+    if c.prep not in failed_preps and c.prep in prep_refs:  # was it the scene's preparation?
+        try:
+            ray.get(prep_refs[c.prep])
+        except Exception as pe:  # noqa: BLE001
+            failed_preps[c.prep] = one_line(pe)
+    if c.prep in failed_preps:
+        return f"preparing {c.prep.id} failed: {failed_preps[c.prep]}"
+    return e
 
 
 def _run_on_ray(ray, sweep, store, preps, address, cpus_per_cell, say, record, prepared_note, heartbeat_s) -> None:
@@ -312,15 +336,7 @@ def _run_on_ray(ray, sweep, store, preps, address, cpus_per_cell, say, record, p
             try:
                 result, stream = ray.get(ref)
             except Exception as e:  # noqa: BLE001 - RayTaskError, WorkerCrashedError, ...
-                if c.prep not in failed_preps and c.prep in prep_refs:  # was it the scene's preparation?
-                    try:
-                        ray.get(prep_refs[c.prep])
-                    except Exception as pe:  # noqa: BLE001
-                        failed_preps[c.prep] = one_line(pe)
-                if c.prep in failed_preps:
-                    record(c, error=f"preparing {c.prep.id} failed: {failed_preps[c.prep]}")
-                else:
-                    record(c, error=e)
+                record(c, error=_cell_failure(ray, c, e, failed_preps, prep_refs))
                 continue
             record(c, result, stream)
     finally:

@@ -223,13 +223,8 @@ def _evaluation(v, file: Path) -> Evaluation:
     return Evaluation(views, int(m.group(1)), int(m.group(2)), bg)
 
 
-def load_sweep(file: str | Path, output: str | Path | None = None) -> Sweep:
-    """Read and check a sweep file (module doc). Raises SweepError naming the first problem;
-    every missing scene path is named at once."""
-    from ..encoder.config import EncoderConfig, load_config, preset_names
-    from ..encoder.transcode import TranscodeConfig
-
-    file = Path(file)
+def _read_yaml(file: Path):
+    """The sweep file's data; SweepError naming the file (and the line of a YAML error)."""
     try:
         data = yaml.safe_load(file.read_text())
     except OSError as e:
@@ -240,9 +235,11 @@ def load_sweep(file: str | Path, output: str | Path | None = None) -> Sweep:
         raise SweepError(f"{file}: not valid YAML: {what}{where}") from None
     if data is None:
         raise SweepError(f"{file}: the sweep file is empty; it needs at least `scenes:`")
-    _check_keys(data, TOP_KEYS, "", file)
-    base = file.resolve().parent
-    scenes_in = data.get("scenes")
+    return data
+
+
+def _scenes(scenes_in, base: Path, file: Path) -> dict[str, SceneSpec]:
+    """The scenes by name: each checked, no name twice, every missing path named at once."""
     if not isinstance(scenes_in, list) or not scenes_in:
         raise SweepError(f"{file}: scenes must be a non-empty list of scenes (name and one of "
                          f"{', '.join(SCENE_KINDS)})")
@@ -256,17 +253,42 @@ def load_sweep(file: str | Path, output: str | Path | None = None) -> Sweep:
     if missing:
         raise SweepError(f"{file}: {len(missing)} scene{'s' if len(missing) > 1 else ''} not found: "
                          + "; ".join(missing))
-    presets = data.get("presets", ["medium"])
+    return scenes
+
+
+def _presets(presets, known: list[str], file: Path) -> list[str]:
     if isinstance(presets, str):
         presets = [presets]
     if not isinstance(presets, list) or not presets:
         raise SweepError(f"{file}: presets must be a non-empty list, got {presets!r}")
-    known = preset_names()
     for p in presets:
         if p not in known:
             raise SweepError(f"{file}: unknown preset {p!r} in presets; known: {', '.join(known)}")
     if len(set(presets)) != len(presets):
         raise SweepError(f"{file}: presets lists a preset twice: {presets}")
+    return list(presets)
+
+
+def _output_path(file: Path, base: Path, output, data: dict) -> Path:
+    """--output as given; else the file's `output:` (relative to the sweep file); else <stem>_results."""
+    out = output if output is not None else data.get("output")
+    if out is None:
+        return file.resolve().parent / f"{file.stem}_results"
+    return Path(out) if output is not None or Path(out).is_absolute() else base / out
+
+
+def load_sweep(file: str | Path, output: str | Path | None = None) -> Sweep:
+    """Read and check a sweep file (module doc). Raises SweepError naming the first problem;
+    every missing scene path is named at once."""
+    from ..encoder.config import EncoderConfig, load_config, preset_names
+    from ..encoder.transcode import TranscodeConfig
+
+    file = Path(file)
+    data = _read_yaml(file)
+    _check_keys(data, TOP_KEYS, "", file)
+    base = file.resolve().parent
+    scenes = _scenes(data.get("scenes"), base, file)
+    presets = _presets(data.get("presets", ["medium"]), preset_names(), file)
     lambdas = _lambdas(data.get("lambdas"), file)
     if lambdas and not any(s.kind == "train" for s in scenes.values()):
         raise SweepError(f"{file}: lambdas are rate lambdas of training (lghcc-train --rate-lambda) and no scene "
@@ -279,10 +301,6 @@ def load_sweep(file: str | Path, output: str | Path | None = None) -> Sweep:
             raise SweepError(f"{file}: encoder with preset {p}: {e}") from None
     transcode = _check_fields(data.get("transcode"), TranscodeConfig, "transcode", file,
                               forbidden=("progress",))
-    out = output if output is not None else data.get("output")
-    if out is None:
-        out_path = file.resolve().parent / f"{file.stem}_results"
-    else:
-        out_path = Path(out) if output is not None or Path(out).is_absolute() else base / out
-    return Sweep(file, out_path, scenes, list(presets), lambdas, encoder, transcode, _evaluation(data.get("evaluation"),
-                                                                                                 file))
+    return Sweep(file, _output_path(file, base, output, data), scenes, presets, lambdas, encoder, transcode,
+                 _evaluation(data.get("evaluation"), file))
+

@@ -90,10 +90,73 @@ def unpack(prepared: bytes, into: Path) -> Path:
     return into
 
 
+def _prepare_procedural(scene: SceneSpec, ev: Evaluation, bg, model: Path) -> tuple:
+    from ..formats.procedural import make_procedural_scene
+    from ..formats.scaffold_io import write_scaffold
+
+    anchors = make_procedural_scene(scene.procedural, seed=scene.seed)
+    write_scaffold(anchors, model)
+    cams = orbit(anchors.positions(), scene, ev)
+    return anchors, cams, _render_anchor(anchors, cams, bg), {}
+
+
+def _prepare_trained(scene: SceneSpec, ev: Evaluation, bg, model: Path, tmp: Path, lam, threads) -> tuple:
+    from ..encoder.training.config import TrainConfig
+    from ..encoder.training.loop import train
+
+    cfg = TrainConfig(**dict(scene.train_options), data=scene.path, rate_lambda=float(lam or 0.0),
+                      threads=threads or TrainConfig().threads)
+    res = train(cfg, tmp / "run", progress=False, log=lambda *a: None)
+    final = tmp / "run" / "point_cloud" / f"iteration_{res.iteration}"
+    shutil.copytree(final, model / "point_cloud" / "iteration_0")
+    cams = orbit(res.scene.positions(), scene, ev)
+    return res.scene, cams, _render_anchor(res.scene, cams, bg), dict(train_iteration=res.iteration,
+                                                                      train_finished=res.finished)
+
+
+def _prepare_transcoded(scene: SceneSpec, ev: Evaluation, bg, model: Path, transcode: dict | None, threads) -> tuple:
+    from ..encoder.transcode import TranscodeConfig, transcode_3dgs
+    from ..formats.scaffold_io import write_scaffold
+
+    res = transcode_3dgs(scene.path, TranscodeConfig(**(transcode or {}), threads=threads))
+    write_scaffold(res.scene, model)
+    _, pos = _render_3dgs(scene.path, None, bg)
+    cams = orbit(pos, scene, ev)
+    ref, _ = _render_3dgs(scene.path, cams, bg)
+    return res.scene, cams, ref, dict(transcode_psnr=res.stats.psnr_final, source_kind="3dgs")
+
+
+def _prepare_model(scene: SceneSpec, ev: Evaluation, bg, model: Path) -> tuple:
+    """A Scaffold-GS model as it is; the training run's context twin goes with it."""
+    from ..encoder.ggconv_train import TWIN_FILE
+    from ..formats.scaffold_io import locate_ply, read_scaffold, write_scaffold
+
+    anchors = read_scaffold(scene.path)
+    write_scaffold(anchors, model)
+    twin = locate_ply(scene.path).parent / TWIN_FILE
+    if twin.is_file():
+        written = next((model / "point_cloud").glob("iteration_*"))
+        shutil.copy2(twin, written / TWIN_FILE)
+    cams = orbit(anchors.positions(), scene, ev)
+    return anchors, cams, _render_anchor(anchors, cams, bg), {}
+
+
+def _prepared_anchors(scene: SceneSpec, ev: Evaluation, bg, model: Path, tmp: Path, lam, transcode, threads) -> tuple:
+    """(anchors, cameras, reference images, what was done) of a scene of any kind."""
+    if scene.kind == "procedural":
+        return _prepare_procedural(scene, ev, bg, model)
+    if scene.kind == "train":
+        return _prepare_trained(scene, ev, bg, model, tmp, lam, threads)
+    from ..formats.ply3dgs import is_3dgs_ply
+
+    if is_3dgs_ply(scene.path):
+        return _prepare_transcoded(scene, ev, bg, model, transcode, threads)
+    return _prepare_model(scene, ev, bg, model)
+
+
 def prepare(scene: SceneSpec, lam: float | None, ev: Evaluation, transcode: dict | None = None,
             threads: int | None = None) -> tuple[bytes, dict]:
     """The prepared scene (module doc) as tar bytes, and what was done (a JSON-able dict)."""
-    from ..formats.scaffold_io import read_scaffold, write_scaffold
     from ..render.imageio import background_color
 
     _threads(threads)
@@ -104,51 +167,8 @@ def prepare(scene: SceneSpec, lam: float | None, ev: Evaluation, transcode: dict
         root = Path(tmp) / "prepared"
         model = root / "model"
         root.mkdir()
-        if scene.kind == "procedural":
-            from ..formats.procedural import make_procedural_scene
-
-            anchors = make_procedural_scene(scene.procedural, seed=scene.seed)
-            write_scaffold(anchors, model)
-            cams = orbit(anchors.positions(), scene, ev)
-            ref = _render_anchor(anchors, cams, bg)
-        elif scene.kind == "train":
-            from ..encoder.training.config import TrainConfig
-            from ..encoder.training.loop import train
-
-            cfg = TrainConfig(**dict(scene.train_options), data=scene.path, rate_lambda=float(lam or 0.0),
-                              threads=threads or TrainConfig().threads)
-            res = train(cfg, Path(tmp) / "run", progress=False, log=lambda *a: None)
-            final = Path(tmp) / "run" / "point_cloud" / f"iteration_{res.iteration}"
-            shutil.copytree(final, model / "point_cloud" / "iteration_0")
-            anchors = res.scene
-            info.update(train_iteration=res.iteration, train_finished=res.finished)
-            cams = orbit(anchors.positions(), scene, ev)
-            ref = _render_anchor(anchors, cams, bg)
-        else:
-            from ..formats.ply3dgs import is_3dgs_ply
-
-            if is_3dgs_ply(scene.path):
-                from ..encoder.transcode import TranscodeConfig, transcode_3dgs
-
-                res = transcode_3dgs(scene.path, TranscodeConfig(**(transcode or {}), threads=threads))
-                anchors = res.scene
-                write_scaffold(anchors, model)
-                _, pos = _render_3dgs(scene.path, None, bg)
-                cams = orbit(pos, scene, ev)
-                ref, _ = _render_3dgs(scene.path, cams, bg)
-                info.update(transcode_psnr=res.stats.psnr_final, source_kind="3dgs")
-            else:
-                anchors = read_scaffold(scene.path)
-                from ..formats.scaffold_io import locate_ply
-                from ..encoder.ggconv_train import TWIN_FILE
-
-                write_scaffold(anchors, model)
-                twin = locate_ply(scene.path).parent / TWIN_FILE
-                if twin.is_file():  # the training run's context twin goes with the scene
-                    written = next((model / "point_cloud").glob("iteration_*"))
-                    shutil.copy2(twin, written / TWIN_FILE)
-                cams = orbit(anchors.positions(), scene, ev)
-                ref = _render_anchor(anchors, cams, bg)
+        anchors, cams, ref, done = _prepared_anchors(scene, ev, bg, model, Path(tmp), lam, transcode, threads)
+        info.update(done)
         np.savez_compressed(root / "reference.npz", images=ref, format=PREPARED_FORMAT,
                             world_to_camera=np.stack([c.world_to_camera for c in cams]),
                             intrinsics=np.array([[c.fx, c.fy, c.cx, c.cy, c.width, c.height, c.near, c.far]
