@@ -132,14 +132,32 @@ def morton_order(means: np.ndarray) -> np.ndarray:
 
 # --- codebooks ----------------------------------------------------------------------------
 
-def _optimal_centroids(values: np.ndarray, k: int, alpha: float) -> np.ndarray:
-    """splat-transform's ``quantizeFinite``: bin the sorted values into min(1024, N) bins placed
-    by a blend of rank and value (more rank the heavier the tails), weight each bin by
-    count^alpha, and choose the k centroids of least weighted squared error by dynamic
-    programming over the bins. The same arithmetic and the same first-best splits as its
-    O(k h^2) loop, so the same codebook, found in O(k h log h)."""
-    n = len(values)
-    v = values.astype(np.float64)
+class _BinCosts:
+    """Prefix sums of the weighted bins: the weighted squared error and the mean of one centroid
+    over a run of bins, in O(1) each."""
+
+    def __init__(self, centers: np.ndarray, weights: np.ndarray):
+        self.centers = centers
+        self.pw = np.concatenate([[0.0], np.cumsum(weights)])
+        self.pwx = np.concatenate([[0.0], np.cumsum(weights * centers)])
+        self.pwxx = np.concatenate([[0.0], np.cumsum(weights * centers * centers)])
+
+    def cost(self, s: np.ndarray, j: np.ndarray) -> np.ndarray:
+        """Weighted squared error of one centroid over bins s + 1 .. j (s < j)."""
+        pw, pwx, pwxx = self.pw, self.pwx, self.pwxx
+        w, wx, wxx = pw[j + 1] - pw[s + 1], pwx[j + 1] - pwx[s + 1], pwxx[j + 1] - pwxx[s + 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(w > 0, wxx - wx * wx / w, 0.0)
+
+    def mean(self, a: int, b: int) -> float:
+        ww = self.pw[b + 1] - self.pw[a]
+        return (self.centers[a] + self.centers[b]) * 0.5 if ww <= 0 else (self.pwx[b + 1] - self.pwx[a]) / ww
+
+
+def _weighted_bins(v: np.ndarray, alpha: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(counts, centers, weights) of the min(1024, N) bins of the sorted values ``v``, placed by a
+    blend of rank and value (more rank the heavier the tails), each weighted count^alpha."""
+    n = len(v)
     vmin, vmax = v[0], v[-1]
     h = min(1024, n)
     vrange = vmax - vmin
@@ -150,53 +168,53 @@ def _optimal_centroids(values: np.ndarray, k: int, alpha: float) -> np.ndarray:
     counts = np.bincount(bins, minlength=h).astype(np.float64)
     sums = np.bincount(bins, weights=v, minlength=h)
     centers = np.where(counts > 0, sums / np.maximum(counts, 1), vmin + (np.arange(h) + 0.5) / h * vrange)
-    weights = np.where(counts > 0, counts ** alpha, 0.0)
-    pw = np.concatenate([[0.0], np.cumsum(weights)])
-    pwx = np.concatenate([[0.0], np.cumsum(weights * centers)])
-    pwxx = np.concatenate([[0.0], np.cumsum(weights * centers * centers)])
+    return counts, centers, np.where(counts > 0, counts ** alpha, 0.0)
 
-    def cost(s: np.ndarray, j: np.ndarray) -> np.ndarray:
-        """Weighted squared error of one centroid over bins s + 1 .. j (s < j)."""
-        w, wx, wxx = pw[j + 1] - pw[s + 1], pwx[j + 1] - pwx[s + 1], pwxx[j + 1] - pwxx[s + 1]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(w > 0, wxx - wx * wx / w, 0.0)
 
+def _next_centroid(dp: np.ndarray, costs: _BinCosts, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """dp'[j] = min over s in [m - 2, j) of dp[s] + cost(s, j), for j >= m - 1, and its first best
+    s. That s never decreases with j (the cost is a Monge array), so solve by divide and conquer,
+    all segments of a level at once: O(h log h) per m instead of O(h^2)."""
+    h = len(dp)
+    new_dp, split = np.full(h, 1e30), np.zeros(h, np.int64)
+    jl, jr, sl, sr = (np.array([v]) for v in (m - 1, h - 1, m - 2, h - 2))
+    while len(jl):
+        mid = (jl + jr) // 2
+        hi = np.minimum(sr, mid - 1)
+        n_cand = hi - sl + 1
+        seg = np.repeat(np.arange(len(mid)), n_cand)
+        first = np.concatenate([[0], np.cumsum(n_cand)[:-1]])
+        cand = sl[seg] + np.arange(len(seg)) - first[seg]
+        val = dp[cand] + costs.cost(cand, mid[seg])
+        best = np.minimum.reduceat(val, first)
+        hit = np.flatnonzero(val == best[seg])
+        _, at = np.unique(seg[hit], return_index=True)
+        opt = cand[hit[at]]
+        new_dp[mid], split[mid] = best, opt
+        left, right = jl <= mid - 1, mid + 1 <= jr
+        jl, jr, sl, sr = (np.concatenate([a[left], b[right]]) for a, b in
+                          ((jl, mid + 1), (mid - 1, jr), (sl, opt), (opt, sr)))
+    return new_dp, split
+
+
+def _optimal_centroids(values: np.ndarray, k: int, alpha: float) -> np.ndarray:
+    """splat-transform's ``quantizeFinite``: bin the sorted values (``_weighted_bins``) and choose
+    the k centroids of least weighted squared error by dynamic programming over the bins. The
+    same arithmetic and the same first-best splits as its O(k h^2) loop, so the same codebook,
+    found in O(k h log h)."""
+    counts, centers, weights = _weighted_bins(values.astype(np.float64), alpha)
+    h = len(counts)
+    costs = _BinCosts(centers, weights)
     k = min(k, int((counts > 0).sum()))
-    dp = cost(np.full(h, -1), np.arange(h))  # dp[j]: least error of m centroids over bins 0 .. j
+    dp = costs.cost(np.full(h, -1), np.arange(h))  # dp[j]: least error of m centroids over bins 0 .. j
     splits = [None, None]
     for m in range(2, k + 1):
-        # dp'[j] = min over s in [m - 2, j) of dp[s] + cost(s, j), for j >= m - 1. The first best
-        # s never decreases with j (the cost is a Monge array), so solve by divide and conquer,
-        # all segments of a level at once: O(h log h) per m instead of O(h^2).
-        new_dp, split = np.full(h, 1e30), np.zeros(h, np.int64)
-        jl, jr, sl, sr = (np.array([v]) for v in (m - 1, h - 1, m - 2, h - 2))
-        while len(jl):
-            mid = (jl + jr) // 2
-            hi = np.minimum(sr, mid - 1)
-            n_cand = hi - sl + 1
-            seg = np.repeat(np.arange(len(mid)), n_cand)
-            first = np.concatenate([[0], np.cumsum(n_cand)[:-1]])
-            cand = sl[seg] + np.arange(len(seg)) - first[seg]
-            val = dp[cand] + cost(cand, mid[seg])
-            best = np.minimum.reduceat(val, first)
-            hit = np.flatnonzero(val == best[seg])
-            _, at = np.unique(seg[hit], return_index=True)
-            opt = cand[hit[at]]
-            new_dp[mid], split[mid] = best, opt
-            left, right = jl <= mid - 1, mid + 1 <= jr
-            jl, jr, sl, sr = (np.concatenate([a[left], b[right]]) for a, b in
-                              ((jl, mid + 1), (mid - 1, jr), (sl, opt), (opt, sr)))
-        dp = new_dp
+        dp, split = _next_centroid(dp, costs, m)
         splits.append(split)
-
-    def mean(a: int, b: int) -> float:
-        ww = pw[b + 1] - pw[a]
-        return (centers[a] + centers[b]) * 0.5 if ww <= 0 else (pwx[b + 1] - pwx[a]) / ww
-
     out, j = np.empty(k), h - 1
     for m in range(k, 0, -1):
         s = int(splits[m][j]) if m > 1 else -1
-        out[m - 1] = mean(s + 1, j)
+        out[m - 1] = costs.mean(s + 1, j)
         j = s
     return np.sort(out.astype(np.float32))
 
@@ -330,6 +348,48 @@ def _decode_webp(data: bytes, name: str, what: str) -> np.ndarray:
 
 # --- writing ------------------------------------------------------------------------------
 
+def _means_images(s: GaussianScene, width: int, height: int, opaque: np.ndarray) -> tuple[dict, dict]:
+    """(images, meta section) of the positions: log-transformed, 16 bits over two images."""
+    lm = log_transform(s.means.astype(np.float64))
+    mins, maxs = lm.min(axis=0), lm.max(axis=0)
+    span = maxs - mins
+    q = np.round(65535 * np.divide(lm - mins, span, out=np.zeros_like(lm), where=span > 0)).astype(np.uint16)
+    files = {"means_l.webp": _webp(np.hstack([(q & 0xFF).astype(np.uint8), opaque]), width, height),
+             "means_u.webp": _webp(np.hstack([(q >> 8).astype(np.uint8), opaque]), width, height)}
+    return files, {"mins": mins.tolist(), "maxs": maxs.tolist(), "files": ["means_l.webp", "means_u.webp"]}
+
+
+def _quats_image(s: GaussianScene, width: int, height: int) -> bytes:
+    """Smallest three components at 8 bits, the largest one's index in alpha."""
+    rot = s.rotations.astype(np.float64)
+    rot /= np.linalg.norm(rot, axis=1, keepdims=True)
+    largest = np.argmax(np.abs(rot), axis=1)
+    rot *= np.where(np.take_along_axis(rot, largest[:, None], 1) < 0, -1.0, 1.0)
+    others = np.array([[j for j in range(4) if j != i] for i in range(4)])[largest]
+    small = np.take_along_axis(rot, others, 1)
+    quats = np.clip(np.round(255 * (small * math.sqrt(2) * 0.5 + 0.5)), 0, 255).astype(np.uint8)
+    return _webp(np.hstack([quats, (QUAT_TAG + largest).astype(np.uint8)[:, None]]), width, height)
+
+
+def _sh_rest_images(s: GaussianScene, width: int, height: int, palette: int | None, iterations: int,
+                    seed: int) -> tuple[dict, dict]:
+    """(images, meta section 'shN') of the higher SH bands: a k-means palette of the
+    channel-major (f_rest order) vectors, its entries' values through a 1D codebook."""
+    n, degree = s.num_gaussians, s.sh_degree
+    coeffs = SH_COEFFS[degree]
+    rest = s.sh[:, 1:, :].transpose(0, 2, 1).reshape(n, 3 * coeffs)
+    centroids, labels = sh_palette(rest, palette or palette_size(n), iterations, seed)
+    book, cols = quantize_1d([centroids[:, i] for i in range(3 * coeffs)])
+    m = len(centroids)
+    texel = np.stack([np.stack(cols[c * coeffs:(c + 1) * coeffs], axis=1) for c in range(3)], axis=2)
+    cent_px = np.concatenate([texel, np.full((m, coeffs, 1), 255, np.uint8)], axis=2).reshape(m * coeffs, 4)
+    lab = np.stack([labels & 0xFF, labels >> 8, np.zeros(n, np.int64), np.full(n, 255)], axis=1)
+    files = {"shN_centroids.webp": _webp(cent_px, PALETTE_ROW * coeffs, math.ceil(m / PALETTE_ROW)),
+             "shN_labels.webp": _webp(lab.astype(np.uint8), width, height)}
+    return files, {"count": m, "bands": degree, "codebook": book.tolist(),
+                   "files": ["shN_centroids.webp", "shN_labels.webp"]}
+
+
 def encode_sog(scene: GaussianScene, iterations: int = KMEANS_ITERATIONS, palette: int | None = None,
                seed: int = 0) -> bytes:
     """The ``.sog`` bundle (zip of meta.json and WebP images, version 2) of ``scene``, its
@@ -338,63 +398,29 @@ def encode_sog(scene: GaussianScene, iterations: int = KMEANS_ITERATIONS, palett
     scene.validate("SOG writer")
     if palette is not None and not 1 <= palette <= 1 << 16:
         raise InputError(f"SOG writer: the SH palette must have 1 to 65536 entries (16-bit labels), got {palette}")
-    n, degree = scene.num_gaussians, scene.sh_degree
+    n = scene.num_gaussians
     width, height = texture_size(n)
     if max(width, height) > MAX_TEXTURE_SIDE:
         raise InputError(f"SOG writer: {n} Gaussians need {width} x {height} images, beyond WebP's "
                          f"{MAX_TEXTURE_SIDE} pixels a side")
-    order = morton_order(scene.means)
-    s = scene.subset(order)
-    files: dict[str, bytes] = {}
-
-    lm = log_transform(s.means.astype(np.float64))
-    mins, maxs = lm.min(axis=0), lm.max(axis=0)
-    span = maxs - mins
-    q = np.round(65535 * np.divide(lm - mins, span, out=np.zeros_like(lm), where=span > 0)).astype(np.uint16)
+    s = scene.subset(morton_order(scene.means))
     opaque = np.full((n, 1), 255, np.uint8)
-    files["means_l.webp"] = _webp(np.hstack([(q & 0xFF).astype(np.uint8), opaque]), width, height)
-    files["means_u.webp"] = _webp(np.hstack([(q >> 8).astype(np.uint8), opaque]), width, height)
-
-    rot = s.rotations.astype(np.float64)
-    rot /= np.linalg.norm(rot, axis=1, keepdims=True)
-    largest = np.argmax(np.abs(rot), axis=1)
-    rot *= np.where(np.take_along_axis(rot, largest[:, None], 1) < 0, -1.0, 1.0)
-    others = np.array([[j for j in range(4) if j != i] for i in range(4)])[largest]
-    small = np.take_along_axis(rot, others, 1)
-    quats = np.clip(np.round(255 * (small * math.sqrt(2) * 0.5 + 0.5)), 0, 255).astype(np.uint8)
-    files["quats.webp"] = _webp(np.hstack([quats, (QUAT_TAG + largest).astype(np.uint8)[:, None]]), width, height)
-
+    files, means = _means_images(s, width, height, opaque)
+    files["quats.webp"] = _quats_image(s, width, height)
     scale_book, scale_labels = quantize_1d([s.log_scales[:, i] for i in range(3)])
     files["scales.webp"] = _webp(np.stack(scale_labels + [opaque[:, 0]], axis=1), width, height)
-
     with np.errstate(over="ignore"):
         alpha = 1 / (1 + np.exp(-s.opacity.astype(np.float64)))
     alpha_u8 = np.clip(np.round(alpha * 255), 0, 255).astype(np.uint8)
     dc_book, dc_labels = quantize_1d([s.sh[:, 0, c] for c in range(3)])
     files["sh0.webp"] = _webp(np.stack(dc_labels + [alpha_u8], axis=1), width, height)
-
-    meta = {"version": SOG_VERSION, "asset": {"generator": f"lghcc v{__version__}"}, "count": n,
-            "means": {"mins": mins.tolist(), "maxs": maxs.tolist(), "files": ["means_l.webp", "means_u.webp"]},
+    meta = {"version": SOG_VERSION, "asset": {"generator": f"lghcc v{__version__}"}, "count": n, "means": means,
             "scales": {"codebook": scale_book.tolist(), "files": ["scales.webp"]},
             "quats": {"files": ["quats.webp"]},
             "sh0": {"codebook": dc_book.tolist(), "files": ["sh0.webp"]}}
-    if degree > 0:
-        coeffs = SH_COEFFS[degree]
-        k = palette or palette_size(n)
-        # channel-major (f_rest order) vectors of the 3 x coeffs higher coefficients
-        rest = s.sh[:, 1:, :].transpose(0, 2, 1).reshape(n, 3 * coeffs)
-        centroids, labels = sh_palette(rest, k, iterations, seed)
-        book, cols = quantize_1d([centroids[:, i] for i in range(3 * coeffs)])
-        m = len(centroids)
-        texel = np.stack([np.stack(cols[c * coeffs:(c + 1) * coeffs], axis=1) for c in range(3)], axis=2)
-        cent_px = np.concatenate([texel, np.full((m, coeffs, 1), 255, np.uint8)], axis=2).reshape(m * coeffs, 4)
-        rows = math.ceil(m / PALETTE_ROW)
-        files["shN_centroids.webp"] = _webp(cent_px, PALETTE_ROW * coeffs, rows)
-        lab = np.stack([labels & 0xFF, labels >> 8, np.zeros(n, np.int64), np.full(n, 255)], axis=1)
-        files["shN_labels.webp"] = _webp(lab.astype(np.uint8), width, height)
-        meta["shN"] = {"count": m, "bands": degree, "codebook": book.tolist(),
-                       "files": ["shN_centroids.webp", "shN_labels.webp"]}
-
+    if s.sh_degree > 0:
+        sh_files, meta["shN"] = _sh_rest_images(s, width, height, palette, iterations, seed)
+        files.update(sh_files)
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as z:
         for name, data in [*files.items(), ("meta.json", json.dumps(meta).encode())]:
@@ -432,105 +458,134 @@ def _lookup(book: np.ndarray, index: np.ndarray, what: str, field: str) -> np.nd
     return book[index]
 
 
-def decode_sog(meta: dict, load: Callable[[str], bytes], what: str) -> GaussianScene:
-    """The validated scene described by a parsed ``meta.json``; ``load(name)`` returns the bytes
-    of an image it names (or raises InputError)."""
-    if not isinstance(meta, dict):
-        raise InputError(f"{what}: meta.json is not a JSON object")
-    version = meta.get("version")
-    if version not in (None, SOG_VERSION):
-        raise InputError(f"{what}: unsupported SOG version {version!r}; versions 1 (no 'version') and 2 are read")
+class _SogMeta:
+    """A parsed ``meta.json`` with the images it names: each part of the scene read and checked
+    on its own (InputError naming ``what`` and the field)."""
 
-    def section(key: str, nfiles: int) -> dict:
-        sec = meta.get(key)
+    def __init__(self, meta: dict, load: Callable[[str], bytes], what: str):
+        if not isinstance(meta, dict):
+            raise InputError(f"{what}: meta.json is not a JSON object")
+        self.version = meta.get("version")
+        if self.version not in (None, SOG_VERSION):
+            raise InputError(f"{what}: unsupported SOG version {self.version!r}; versions 1 (no 'version') and 2 "
+                             "are read")
+        self.meta, self.load, self.what = meta, load, what
+        self.v2 = self.version == SOG_VERSION
+
+    def section(self, key: str, nfiles: int) -> dict:
+        sec = self.meta.get(key)
         files = sec.get("files") if isinstance(sec, dict) else None
         if not (isinstance(files, list) and len(files) >= nfiles and all(isinstance(f, str) for f in files)):
-            raise InputError(f"{what}: meta.json needs '{key}' with {nfiles} image file name(s) in 'files'")
+            raise InputError(f"{self.what}: meta.json needs '{key}' with {nfiles} image file name(s) in 'files'")
         return sec
 
-    def image(name: str, count: int) -> np.ndarray:
-        px = _decode_webp(load(name), name, what)
+    def image(self, name: str, count: int) -> np.ndarray:
+        px = _decode_webp(self.load(name), name, self.what)
         if px.shape[0] * px.shape[1] < count:
-            raise InputError(f"{what}: {name} has {px.shape[1]} x {px.shape[0]} pixels, fewer than the {count} "
+            raise InputError(f"{self.what}: {name} has {px.shape[1]} x {px.shape[0]} pixels, fewer than the {count} "
                              "Gaussians")
         return px.reshape(-1, 4)[:count].astype(np.int64)
 
-    means, quats, scales, sh0 = section("means", 2), section("quats", 1), section("scales", 1), section("sh0", 1)
-    if version == SOG_VERSION:
-        n = meta.get("count")
-    else:
-        shape = means.get("shape")
-        n = shape[0] if isinstance(shape, list) and shape else None
-    if not isinstance(n, int) or isinstance(n, bool) or n <= 0:
-        where = "'count'" if version == SOG_VERSION else "'means.shape[0]'"
-        raise InputError(f"{what}: meta.json {where} must be a positive Gaussian count, got {n!r}")
+    def numbers(self, sec: dict, key: str, field: str, count: int | None) -> np.ndarray:
+        return _numbers(sec.get(key), count, self.what, field)
 
-    lo = image(means["files"][0], n)
-    hi = image(means["files"][1], n)
-    mins = _numbers(means.get("mins"), 3, what, "means.mins")
-    span = _numbers(means.get("maxs"), 3, what, "means.maxs") - mins
-    span[span == 0] = 1  # splat-transform's `|| 1`
-    xyz = inverse_log_transform(mins + span * (((hi[:, :3] << 8) | lo[:, :3]) / 65535))
+    def count(self, means: dict) -> int:
+        if self.v2:
+            n = self.meta.get("count")
+        else:
+            shape = means.get("shape")
+            n = shape[0] if isinstance(shape, list) and shape else None
+        if not isinstance(n, int) or isinstance(n, bool) or n <= 0:
+            where = "'count'" if self.v2 else "'means.shape[0]'"
+            raise InputError(f"{self.what}: meta.json {where} must be a positive Gaussian count, got {n!r}")
+        return n
 
-    qp = image(quats["files"][0], n)
-    tag = qp[:, 3] - QUAT_TAG
-    if ((tag < 0) | (tag > 3)).any():
-        bad = int(((tag < 0) | (tag > 3)).sum())
-        raise InputError(f"{what}: {quats['files'][0]}: {bad} Gaussians have no valid largest-component tag "
-                         f"(alpha {QUAT_TAG}-{QUAT_TAG + 3})")
-    small = (qp[:, :3] / 255 * 2 - 1) / math.sqrt(2)
-    rot = np.zeros((n, 4))
-    others = np.array([[j for j in range(4) if j != i] for i in range(4)])[tag]
-    np.put_along_axis(rot, others, small, 1)
-    rot[np.arange(n), tag] = np.sqrt(np.maximum(0.0, 1 - (small * small).sum(axis=1)))
+    def positions(self, means: dict, n: int) -> np.ndarray:
+        lo, hi = self.image(means["files"][0], n), self.image(means["files"][1], n)
+        mins = self.numbers(means, "mins", "means.mins", 3)
+        span = self.numbers(means, "maxs", "means.maxs", 3) - mins
+        span[span == 0] = 1  # splat-transform's `|| 1`
+        return inverse_log_transform(mins + span * (((hi[:, :3] << 8) | lo[:, :3]) / 65535))
 
-    sp = image(scales["files"][0], n)
-    cp = image(sh0["files"][0], n)
-    if version == SOG_VERSION:
-        log_scales = _lookup(_numbers(scales.get("codebook"), 0, what, "scales.codebook"), sp[:, :3], what,
-                             "scales.codebook")
-        dc = _lookup(_numbers(sh0.get("codebook"), 0, what, "sh0.codebook"), cp[:, :3], what, "sh0.codebook")
-        a = np.clip(cp[:, 3] / 255, OPACITY_EPS, 1 - OPACITY_EPS)
-        opacity = np.log(a / (1 - a))
-    else:
-        smin = _numbers(scales.get("mins"), 3, what, "scales.mins")
-        log_scales = smin + (_numbers(scales.get("maxs"), 3, what, "scales.maxs") - smin) * (sp[:, :3] / 255)
-        cmin = _numbers(sh0.get("mins"), 4, what, "sh0.mins")
-        lin = cmin + (_numbers(sh0.get("maxs"), 4, what, "sh0.maxs") - cmin) * (cp / 255)
-        dc, opacity = lin[:, :3], lin[:, 3]
+    def rotations(self, quats: dict, n: int) -> np.ndarray:
+        qp = self.image(quats["files"][0], n)
+        tag = qp[:, 3] - QUAT_TAG
+        if ((tag < 0) | (tag > 3)).any():
+            bad = int(((tag < 0) | (tag > 3)).sum())
+            raise InputError(f"{self.what}: {quats['files'][0]}: {bad} Gaussians have no valid largest-component "
+                             f"tag (alpha {QUAT_TAG}-{QUAT_TAG + 3})")
+        small = (qp[:, :3] / 255 * 2 - 1) / math.sqrt(2)
+        rot = np.zeros((n, 4))
+        others = np.array([[j for j in range(4) if j != i] for i in range(4)])[tag]
+        np.put_along_axis(rot, others, small, 1)
+        rot[np.arange(n), tag] = np.sqrt(np.maximum(0.0, 1 - (small * small).sum(axis=1)))
+        return rot
 
-    degree = 0
-    rest = None
-    if isinstance(meta.get("shN"), dict):
-        shn = section("shN", 2)
-        cent = _decode_webp(load(shn["files"][0]), shn["files"][0], what)
-        if version == SOG_VERSION:
+    def scales_colour_opacity(self, scales: dict, sh0: dict, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(log scales, DC colour, opacity logit): codebooks in version 2, linear ranges in 1."""
+        sp, cp = self.image(scales["files"][0], n), self.image(sh0["files"][0], n)
+        if self.v2:
+            log_scales = _lookup(self.numbers(scales, "codebook", "scales.codebook", 0), sp[:, :3], self.what,
+                                 "scales.codebook")
+            dc = _lookup(self.numbers(sh0, "codebook", "sh0.codebook", 0), cp[:, :3], self.what, "sh0.codebook")
+            a = np.clip(cp[:, 3] / 255, OPACITY_EPS, 1 - OPACITY_EPS)
+            return log_scales, dc, np.log(a / (1 - a))
+        smin = self.numbers(scales, "mins", "scales.mins", 3)
+        log_scales = smin + (self.numbers(scales, "maxs", "scales.maxs", 3) - smin) * (sp[:, :3] / 255)
+        cmin = self.numbers(sh0, "mins", "sh0.mins", 4)
+        lin = cmin + (self.numbers(sh0, "maxs", "sh0.maxs", 4) - cmin) * (cp / 255)
+        return log_scales, lin[:, :3], lin[:, 3]
+
+    def palette_degree(self, shn: dict, cent: np.ndarray) -> int:
+        """The SH degree of the palette: 'bands' in version 2, the palette image's width in 1."""
+        if self.v2:
             degree = shn.get("bands")
             if degree not in (1, 2, 3):
-                raise InputError(f"{what}: meta.json 'shN.bands' must be 1, 2 or 3, got {degree!r}")
+                raise InputError(f"{self.what}: meta.json 'shN.bands' must be 1, 2 or 3, got {degree!r}")
         else:
             degree = {PALETTE_ROW * c: d for d, c in enumerate(SH_COEFFS) if c}.get(cent.shape[1], 0)
+        if degree == 0 or cent.shape[1] != PALETTE_ROW * SH_COEFFS[degree]:
+            raise InputError(f"{self.what}: {shn['files'][0]} is {cent.shape[1]} pixels wide, SH palettes are 192, "
+                             "512 or 960 (64 entries of 3, 8 or 15 coefficients)")
+        return degree
+
+    def sh_rest(self, n: int) -> tuple[int, np.ndarray | None]:
+        """(SH degree, the higher coefficients [N, coeffs, 3] or None) from the palette 'shN'."""
+        if not isinstance(self.meta.get("shN"), dict):
+            return 0, None
+        shn = self.section("shN", 2)
+        cent = _decode_webp(self.load(shn["files"][0]), shn["files"][0], self.what)
+        degree = self.palette_degree(shn, cent)
         coeffs = SH_COEFFS[degree]
-        if degree == 0 or cent.shape[1] != PALETTE_ROW * coeffs:
-            raise InputError(f"{what}: {shn['files'][0]} is {cent.shape[1]} pixels wide, SH palettes are 192, 512 "
-                             "or 960 (64 entries of 3, 8 or 15 coefficients)")
         slots = cent.shape[0] * PALETTE_ROW
-        count = shn.get("count") if version == SOG_VERSION else slots
+        count = shn.get("count") if self.v2 else slots
         if not isinstance(count, int) or isinstance(count, bool) or count <= 0:
-            raise InputError(f"{what}: meta.json 'shN.count' must be a positive palette size, got {count!r}")
-        lab = image(shn["files"][1], n)
+            raise InputError(f"{self.what}: meta.json 'shN.count' must be a positive palette size, got {count!r}")
+        lab = self.image(shn["files"][1], n)
         label = lab[:, 0] | (lab[:, 1] << 8)
         if label.max() >= min(count, slots):
-            raise InputError(f"{what}: {shn['files'][1]}: palette index {int(label.max())} past the "
+            raise InputError(f"{self.what}: {shn['files'][1]}: palette index {int(label.max())} past the "
                              f"{min(count, slots)} palette entries")
         entries = cent.reshape(slots, coeffs, 4)[label, :, :3].astype(np.int64)  # [N, coeffs, channel]
-        if version == SOG_VERSION:
-            rest = _lookup(_numbers(shn.get("codebook"), 0, what, "shN.codebook"), entries, what, "shN.codebook")
-        else:
-            lo_ = _numbers(shn.get("mins"), None, what, "shN.mins")
-            rest = lo_ + (_numbers(shn.get("maxs"), None, what, "shN.maxs") - lo_) * (entries / 255)
-    k = (degree + 1) ** 2
-    sh = np.zeros((n, k, 3))
+        if self.v2:
+            return degree, _lookup(self.numbers(shn, "codebook", "shN.codebook", 0), entries, self.what,
+                                   "shN.codebook")
+        lo = self.numbers(shn, "mins", "shN.mins", None)
+        return degree, lo + (self.numbers(shn, "maxs", "shN.maxs", None) - lo) * (entries / 255)
+
+
+def decode_sog(meta: dict, load: Callable[[str], bytes], what: str) -> GaussianScene:
+    """The validated scene described by a parsed ``meta.json``; ``load(name)`` returns the bytes
+    of an image it names (or raises InputError)."""
+    m = _SogMeta(meta, load, what)
+    means, quats = m.section("means", 2), m.section("quats", 1)
+    scales, sh0 = m.section("scales", 1), m.section("sh0", 1)
+    n = m.count(means)
+    xyz = m.positions(means, n)
+    rot = m.rotations(quats, n)
+    log_scales, dc, opacity = m.scales_colour_opacity(scales, sh0, n)
+    degree, rest = m.sh_rest(n)
+    sh = np.zeros((n, (degree + 1) ** 2, 3))
     sh[:, 0] = dc
     if rest is not None:
         sh[:, 1:] = rest
