@@ -73,11 +73,8 @@ def rotmat_to_quat(r: np.ndarray) -> np.ndarray:
     return q * np.where(q[:, :1] < 0, -1.0, 1.0)
 
 
-@torch.no_grad()
-def export_3dgs(scene: AnchorScene, path: str | os.PathLike | None = None, *, sh_degree: int = 1,
-                num_directions: int = 16, distance: float | None = None, chunk_anchors: int = 2048) -> Exported3DGS:
-    """Convert an anchor scene to plain 3DGS Gaussians (module doc); write them to ``path``
-    as an INRIA PLY when given."""
+def _check_export(scene: AnchorScene, sh_degree: int, num_directions: int, distance: float | None) -> float:
+    """The export distance; InputError for a setting or a scene that cannot be exported."""
     if not 0 <= sh_degree <= MAX_SH_DEGREE:
         raise InputError(f"SH degree must be 0..{MAX_SH_DEGREE}, got {sh_degree}")
     nb = num_sh_coeffs(sh_degree)
@@ -89,65 +86,82 @@ def export_3dgs(scene: AnchorScene, path: str | os.PathLike | None = None, *, sh
     dist = float(distance) if distance is not None else default_distance(scene)
     if not (math.isfinite(dist) and dist > 0):
         raise InputError(f"the export distance must be positive, got {distance}")
+    return dist
+
+
+def _weighted_covariance(st: SceneTensors, anchor: torch.Tensor, ki: torch.Tensor, cov_g: torch.Tensor,
+                         wg: torch.Tensor, nd: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(means [m, 3], eigenvalues [m, 3], right-handed eigenvectors [m, 3, 3]) of the covariance
+    averaged over the directions by opacity, with the renderer's own formulas per direction."""
+    m = anchor.numel()
+    means, scales, quats = gaussian_geometry(st, anchor.repeat_interleave(nd), ki.repeat_interleave(nd), cov_g)
+    rot = quat_to_rotmat(quats)  # [m nd, 3, 3]
+    sig = (rot * scales[:, None, :] ** 2) @ rot.transpose(1, 2)
+    wn = wg / wg.sum(1, keepdim=True)
+    sig = (sig.reshape(m, nd, 3, 3) * wn[..., None, None]).sum(1)
+    lam, vec = torch.linalg.eigh(0.5 * (sig + sig.transpose(1, 2)))
+    vec = torch.where(torch.linalg.det(vec)[:, None, None] < 0, vec * torch.tensor([1.0, 1.0, -1.0]), vec)
+    return means.reshape(m, nd, 3)[:, 0], lam, vec
+
+
+def _fit_sh(u: torch.Tensor, colour: torch.Tensor, wg: torch.Tensor, sh_degree: int) -> torch.Tensor:
+    """SH coefficients [m, nb, 3] with colour = B(u) c + 0.5 in the weighted least-squares sense
+    (a small ridge on the bands above DC)."""
+    nb = num_sh_coeffs(sh_degree)
+    b = sh_basis(sh_degree, u)  # [m, nd, nb]
+    ww = wg + 1e-3
+    bw = b * ww[..., None]
+    ata = bw.transpose(1, 2) @ b
+    ridge = torch.full((nb,), 1e-4, dtype=torch.float64)
+    ridge[0] = 1e-9
+    ata = ata + torch.diag(ridge)[None] * ww.sum(1)[:, None, None]
+    return torch.linalg.solve(ata, bw.transpose(1, 2) @ (colour - 0.5))
+
+
+def _export_chunk(st: SceneTensors, idx: torch.Tensor, dirs: torch.Tensor, dist: float, live: torch.Tensor,
+                  sh_degree: int) -> dict | None:
+    """The Gaussians of anchors ``idx`` (live offsets with an opacity above 0 from some direction)."""
+    na, nd, k = idx.numel(), dirs.shape[0], st.num_offsets
+    op, cov, col = evaluate_anchors(st, idx.repeat_interleave(nd), dirs.repeat(na, 1),
+                                    torch.full((na * nd, 1), dist, dtype=torch.float64))
+    op, cov, col = op.reshape(na, nd, k), cov.reshape(na, nd, k, 7), col.reshape(na, nd, k, 3)
+    w = op.clamp_min(0)  # [na, nd, k]
+    mean_op = w.mean(1)  # [na, k]
+    ai, ki = torch.nonzero(live[idx] & (mean_op > 0), as_tuple=True)
+    if ai.numel() == 0:
+        return None
+    anchor, wg = idx[ai], w[ai, :, ki]  # wg: [m, nd]
+    means, lam, vec = _weighted_covariance(st, anchor, ki, cov[ai, :, ki].reshape(-1, 7), wg, nd)
+    # SH fit: u from the camera centre to the mean
+    u = means[:, None, :] - (st.positions[anchor][:, None, :] - dist * dirs[None])
+    u = u / torch.linalg.vector_norm(u, dim=-1, keepdim=True).clamp_min(1e-300)
+    return {"means": means, "sh": _fit_sh(u, col[ai, :, ki], wg, sh_degree), "op": mean_op[ai, ki],
+            "scales": torch.sqrt(lam.clamp_min(1e-30)), "rot": vec}
+
+
+@torch.no_grad()
+def export_3dgs(scene: AnchorScene, path: str | os.PathLike | None = None, *, sh_degree: int = 1,
+                num_directions: int = 16, distance: float | None = None, chunk_anchors: int = 2048) -> Exported3DGS:
+    """Convert an anchor scene to plain 3DGS Gaussians (module doc); write them to ``path``
+    as an INRIA PLY when given."""
+    dist = _check_export(scene, sh_degree, num_directions, distance)
     st = SceneTensors.from_scene(scene, torch.float64)
-    n, k, nd = st.num_anchors, st.num_offsets, num_directions
-    dirs = torch.as_tensor(fibonacci_directions(nd))
-    live_all = st.offset_mask if st.offset_mask is not None else torch.ones(n, k, dtype=torch.bool)
-    out = {"means": [], "sh": [], "op": [], "scales": [], "rot": []}
-    for a0 in range(0, n, chunk_anchors):
-        idx = torch.arange(a0, min(n, a0 + chunk_anchors))
-        na = idx.numel()
-        rep = idx.repeat_interleave(nd)
-        view = dirs.repeat(na, 1)
-        op, cov, col = evaluate_anchors(st, rep, view, torch.full((na * nd, 1), dist, dtype=torch.float64))
-        op, cov, col = op.reshape(na, nd, k), cov.reshape(na, nd, k, 7), col.reshape(na, nd, k, 3)
-        w = op.clamp_min(0)  # [na, nd, k]
-        mean_op = w.mean(1)  # [na, k]
-        keep = live_all[idx] & (mean_op > 0)
-        ai, ki = torch.nonzero(keep, as_tuple=True)
-        if ai.numel() == 0:
-            continue
-        anchor = idx[ai]
-        m = ai.numel()
-        # geometry per direction, with the renderer's own formulas
-        cov_g = cov[ai, :, ki].reshape(m * nd, 7)
-        means, scales, quats = gaussian_geometry(st, anchor.repeat_interleave(nd), ki.repeat_interleave(nd), cov_g)
-        means = means.reshape(m, nd, 3)[:, 0]
-        rot = quat_to_rotmat(quats)  # [m nd, 3, 3]
-        sig = (rot * scales[:, None, :] ** 2) @ rot.transpose(1, 2)
-        wg = w[ai, :, ki]  # [m, nd]
-        wn = wg / wg.sum(1, keepdim=True)
-        sig = (sig.reshape(m, nd, 3, 3) * wn[..., None, None]).sum(1)
-        lam, vec = torch.linalg.eigh(0.5 * (sig + sig.transpose(1, 2)))
-        vec = torch.where(torch.linalg.det(vec)[:, None, None] < 0, vec * torch.tensor([1.0, 1.0, -1.0]), vec)
-        # SH fit: colour = B(u) c + 0.5, u from the camera centre to the mean
-        centres = st.positions[anchor][:, None, :] - dist * dirs[None]  # [m, nd, 3]
-        u = means[:, None, :] - centres
-        u = u / torch.linalg.vector_norm(u, dim=-1, keepdim=True).clamp_min(1e-300)
-        b = sh_basis(sh_degree, u)  # [m, nd, nb]
-        ww = wg + 1e-3
-        bw = b * ww[..., None]
-        ata = bw.transpose(1, 2) @ b
-        ridge = torch.full((nb,), 1e-4, dtype=torch.float64)
-        ridge[0] = 1e-9
-        ata = ata + torch.diag(ridge)[None] * ww.sum(1)[:, None, None]
-        target = col[ai, :, ki] - 0.5  # [m, nd, 3]
-        coef = torch.linalg.solve(ata, bw.transpose(1, 2) @ target)  # [m, nb, 3]
-        out["means"].append(means)
-        out["sh"].append(coef)
-        out["op"].append(mean_op[ai, ki])
-        out["scales"].append(torch.sqrt(lam.clamp_min(1e-30)))
-        out["rot"].append(vec)
-    if not out["means"]:
+    n = st.num_anchors
+    dirs = torch.as_tensor(fibonacci_directions(num_directions))
+    live_all = st.offset_mask if st.offset_mask is not None else torch.ones(n, st.num_offsets, dtype=torch.bool)
+    chunks = [_export_chunk(st, torch.arange(a0, min(n, a0 + chunk_anchors)), dirs, dist, live_all, sh_degree)
+              for a0 in range(0, n, chunk_anchors)]
+    chunks = [c for c in chunks if c is not None]
+    if not chunks:
         raise InputError("no Gaussian of the scene has a positive opacity from any direction: nothing to export")
-    cat = {key: torch.cat(v).numpy() for key, v in out.items()}
+    cat = {key: torch.cat([c[key] for c in chunks]).numpy() for key in chunks[0]}
     o = np.clip(cat["op"], 1e-6, 1 - 1e-6)
     res = Exported3DGS(
         means=cat["means"].astype(np.float32), sh=cat["sh"].astype(np.float32),
         opacity_logits=np.log(o / (1 - o)).astype(np.float32), log_scales=np.log(cat["scales"]).astype(np.float32),
         quats=rotmat_to_quat(cat["rot"]).astype(np.float32),
         stats={"anchors": n, "live_offsets": int(live_all.sum()), "gaussians": int(cat["means"].shape[0]),
-               "sh_degree": sh_degree, "directions": nd, "distance": dist})
+               "sh_degree": sh_degree, "directions": num_directions, "distance": dist})
     if path is not None:
         write_3dgs_ply(path, res.means, res.sh, res.opacity_logits, res.log_scales, res.quats)
     return res
