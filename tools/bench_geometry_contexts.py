@@ -1,12 +1,13 @@
 #!/usr/bin/env python
-"""Scratch (informative, research only): where the bits of lossless geometry go, and what
+"""Geometry coding research (informative): where the bits of lossless geometry go, and what
 context / adaptation changes would save, measured as ideal code lengths (sum of -log2 p of
 every decision with the adaptive integer probabilities, + raw bits) of variants of the octree
 coder of lghcc.common.geometry. Nothing here is normative; common/ is untouched.
 
 The baseline variant reproduces common/geometry.py exactly (its ideal length is checked against
 the real payload size: within a few bytes).
-Usage: python tools/scratch_geometry.py [--variants base ...] [--sets garden6 ...]
+Usage: python tools/bench_geometry_contexts.py [--variants base ...] [--sets garden6 ...]
+Its findings: tools/results/geometry_research.md (the table there is this command's output).
 """
 
 from __future__ import annotations
