@@ -250,10 +250,11 @@ def test_decode_then_reencode_gives_the_same_scene(tmp_path, capsys):
     h1 = json.loads((tmp_path / "a.json").read_text())["scene_sha256"]
     h2 = json.loads((tmp_path / "b.json").read_text())["scene_sha256"]
     assert h1 == h2
-    # Without the header comment the voxel size is guessed from float32 positions: not the same bits.
+    # Without the header comment (origin 0) the voxel size inferred from the float32 positions is the
+    # float32 the scene multiplies by: the same bits.
     from lghcc.formats.scaffold_io import infer_voxel_size
     scene = read_scaffold(tmp_path / "dec")
-    assert infer_voxel_size(scene.positions().astype(np.float64)) != scene.voxel_size
+    assert infer_voxel_size(scene.positions().astype(np.float64)) == scene.voxel_size
 
 
 def test_hash_mismatch_prints_both_full_digests_and_the_stream(tmp_path, capsys, small_stream):
