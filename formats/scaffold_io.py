@@ -25,8 +25,8 @@ import math
 import os
 import re
 import warnings
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -224,15 +224,8 @@ def anchor_grid(ply: Path, positions: np.ndarray, voxel_size: float | None,
         raise InputError(f"{ply}: {e}") from None
 
 
-def read_scaffold(path: str | os.PathLike, voxel_size: float | None = None, origin: np.ndarray | None = None,
-                  log: Callable[[str], None] | None = None) -> AnchorScene:
-    """Read a Scaffold-GS PLY (and the MLPs beside it) and validate the scene; every error names
-    the file. The voxel size and origin: ``anchor_grid``; ``log`` is told the voxel size and where
-    it came from. Anchors sharing a voxel are allowed here (the encoder rejects or merges them)."""
-    if voxel_size is not None and not (np.isfinite(voxel_size) and voxel_size > 0):
-        raise InputError(f"the voxel size must be a positive finite number, got {voxel_size}")
-    ply = locate_ply(path)
-    cols = read_ply(ply)
+def _anchor_properties(ply: Path, cols: dict[str, np.ndarray]) -> tuple[list[str], list[str], list[str]]:
+    """The feature, offset and scaling properties of a Scaffold-GS anchor PLY, checked."""
     for req in ("x", "y", "z"):
         if req not in cols:
             raise InputError(f"{ply}: no '{req}' property: not an anchor point cloud")
@@ -246,6 +239,19 @@ def read_scaffold(path: str | os.PathLike, voxel_size: float | None = None, orig
         raise InputError(f"{ply}: expected 3K f_offset_* properties, found {len(offs)}")
     if len(scales) != NUM_SCALINGS:
         raise InputError(f"{ply}: expected scale_0..5, found {len(scales)} scale properties")
+    return feats, offs, scales
+
+
+def read_scaffold(path: str | os.PathLike, voxel_size: float | None = None, origin: np.ndarray | None = None,
+                  log: Callable[[str], None] | None = None) -> AnchorScene:
+    """Read a Scaffold-GS PLY (and the MLPs beside it) and validate the scene; every error names
+    the file. The voxel size and origin: ``anchor_grid``; ``log`` is told the voxel size and where
+    it came from. Anchors sharing a voxel are allowed here (the encoder rejects or merges them)."""
+    if voxel_size is not None and not (np.isfinite(voxel_size) and voxel_size > 0):
+        raise InputError(f"the voxel size must be a positive finite number, got {voxel_size}")
+    ply = locate_ply(path)
+    cols = read_ply(ply)
+    feats, offs, scales = _anchor_properties(ply, cols)
     n = len(cols["x"])
     k = len(offs) // 3
     positions = np.stack([cols["x"], cols["y"], cols["z"]], axis=1).astype(np.float64)
@@ -253,7 +259,7 @@ def read_scaffold(path: str | os.PathLike, voxel_size: float | None = None, orig
         raise InputError(f"{ply}: anchor positions contain NaN or Inf")
     vs, origin, source = anchor_grid(ply, positions, voxel_size, origin)
     if log is not None:
-        log(f"{ply}: voxel size {str(np.float32(vs))} {source}")  # the float32 the scene codes
+        log(f"{ply}: voxel size {np.float32(vs)!s} {source}")  # the float32 the scene codes
     try:
         coords = quantize_positions(positions, vs, origin)
     except InputError as e:

@@ -60,9 +60,8 @@ def write_scaffold_gs_model(model, coords: np.ndarray, voxel_size: float, *, fea
     from pathlib import Path
 
     import torch
-    from torch import nn
-
     from lghcc.formats.ply import write_ply
+    from torch import nn
 
     model = Path(model)
     folder = model / "point_cloud" / f"iteration_{iteration}"
