@@ -183,9 +183,9 @@ def stated_voxel_size(ply: Path) -> tuple[float | None, str]:
     """The voxel size that the cfg_args of the model folder holding ``ply``
     (<model>/point_cloud/iteration_<N>/) states, and that file; (None, why not) when none does.
     Scaffold-GS and HAC take voxel_size <= 0 to mean one chosen from the points: not stated."""
-    cfg = ply.parent.parent.parent / CFG_ARGS_NAME
-    if not (re.fullmatch(r"iteration_\d+", ply.parent.name) and ply.parent.parent.name == "point_cloud"
-            and cfg.is_file()):
+    folder = ply.absolute().parent  # a relative path may stop inside the model folder
+    cfg = folder.parent.parent / CFG_ARGS_NAME
+    if not (re.fullmatch(r"iteration_\d+", folder.name) and folder.parent.name == "point_cloud" and cfg.is_file()):
         return None, "no cfg_args in the model folder"
     try:
         v = read_cfg_args(cfg).get("voxel_size")

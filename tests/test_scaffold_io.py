@@ -214,7 +214,7 @@ def _anchor_grid(seed: int, voxel: float, extent: float) -> np.ndarray:
 
 
 @pytest.mark.filterwarnings("ignore:`torch.jit.load` is deprecated:DeprecationWarning")
-def test_a_model_in_scaffold_gs_layout(tmp_path):
+def test_a_model_in_scaffold_gs_layout(tmp_path, monkeypatch):
     """cfg_args, point_cloud/iteration_<N>/point_cloud.ply with no lghcc header comments, the MLPs
     as traced modules: the voxel size is cfg_args', every voxel index and MLP comes back."""
     k = _anchor_grid(0, 0.001, 30.0)
@@ -229,6 +229,10 @@ def test_a_model_in_scaffold_gs_layout(tmp_path):
     traced = torch.jit.load(str(folder / "color_mlp.pt")).state_dict()
     assert np.array_equal(scene.mlps["color"].weights[1], traced["2.weight"].numpy())
     assert scene.mlps["color"].activations == ["relu", "sigmoid"] and scene.mlps["cov"].activations[-1] == "none"
+    monkeypatch.chdir(folder.parent)  # a relative path from inside the model folder finds its cfg_args too
+    said.clear()
+    read_scaffold(folder.name, log=said.append)
+    assert said == [f"{folder.name}/point_cloud.ply: voxel size 0.001 from {tmp_path / 'm' / 'cfg_args'}"]
     # the 'unite' mode: checkpoints.pth beside the PLY
     unite = write_scaffold_gs_model(tmp_path / "u", k, 0.001, mlps="unite")
     assert set(read_scaffold(unite / "point_cloud.ply").mlps) == {"opacity", "cov", "color"}
