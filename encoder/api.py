@@ -160,7 +160,7 @@ def read_model(p: Path, voxel_size: float | None, merge_duplicates: bool, log: L
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", MissingMlpWarning)
-        scene = read_scaffold(p, voxel_size=voxel_size)
+        scene = read_scaffold(p, voxel_size=voxel_size, log=log)
     for w in caught:
         if issubclass(w.category, MissingMlpWarning):
             warn(str(w.message))

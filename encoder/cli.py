@@ -97,7 +97,8 @@ def add_anchor_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--offset-step", type=float, help="quantization step of the offsets")
     p.add_argument("--mlp-weight-bits", type=int, help="bits per quantized render-MLP weight (2..24)")
     p.add_argument("--voxel-size", type=positive_float,
-                   help="anchor voxel size (default: inferred from the anchor grid of the input)")
+                   help="anchor voxel size (default: lghcc's PLY header comment, else voxel_size in the model's "
+                        "cfg_args, else inferred from the anchor grid; the log says which)")
     pr = p.add_argument_group("anchor pruning before coding (default: none)")
     pr.add_argument("--prune", choices=("none", "naap", "opacity"),
                     help="naap: Neighborhood-Aware Anchor Pruning (importance from each anchor's opacity and its "

@@ -2,6 +2,7 @@
 
     <model>/point_cloud/iteration_<N>/point_cloud.ply   anchors
     <model>/point_cloud/iteration_<N>/checkpoint.pth    {'opacity_mlp': state_dict, 'cov_mlp': ..., 'color_mlp': ...}
+    <model>/cfg_args                                     Namespace(..., voxel_size=0.001, ...) (Scaffold-GS, HAC)
 
 PLY fields per anchor: x,y,z, nx,ny,nz, f_offset_0..3K-1 (index = axis*K + k),
 f_anchor_feat_0..C-1, opacity, scale_0..5 (log), rot_0..3; HAC adds f_mask_0..K-1.
@@ -11,22 +12,27 @@ or as traced modules (opacity_mlp.pt, ...) from older Scaffold-GS versions.
 lghcc writes the scene's voxel size and origin into the PLY header as comment lines
 (``comment lghcc voxel_size 0x1.0c9b1ep-4``, ``comment lghcc origin X Y Z``, exact
 float.hex values), which Scaffold-GS tools ignore; reading them back makes decode then
-re-encode give the same scene, where re-guessing the voxel size from float32 positions
-could be off in the last bits.
+re-encode give the same scene, whatever the origin. A model without them states its voxel size
+in cfg_args (the training arguments Scaffold-GS and HAC save); else the voxel size is inferred
+from the float32 anchor positions (grid_inference: a grid through the origin).
 """
 
 from __future__ import annotations
 
+import ast
 import io
+import math
 import os
 import re
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from ..common.errors import InputError
 from ..app.fileio import atomic_output
+from .grid_inference import grid_error, infer_voxel_size, on_grid
 from .ply import read_ply, read_ply_comments, write_ply
 from ..common.scene import NUM_SCALINGS, AnchorScene, RenderMLP
 
@@ -43,6 +49,8 @@ CHECKPOINT_NAME = "checkpoint.pth"
 CHECKPOINT_NAMES = (CHECKPOINT_NAME, "checkpoints.pth")  # read in this order; the first found is used
 TRACED_MLP_NAMES = tuple(f"{names[0]}.pt" for names in STATE_DICT_NAMES.values())
 PLY_COMMENT_PREFIX = "lghcc "
+CFG_ARGS_NAME = "cfg_args"  # Scaffold-GS's and HAC's training arguments in the model folder: a printed Namespace
+CFG_ARGS_MAX_BYTES = 1 << 20
 
 
 class MissingMlpWarning(UserWarning):
@@ -67,30 +75,6 @@ def locate_ply(path: str | os.PathLike) -> Path:
         return its[-1][1] / PLY_NAME
     raise InputError(f"{p}: no {PLY_NAME} found (give a .ply file, an iteration folder or a Scaffold-GS "
                      "model folder with point_cloud/iteration_<N>/)")
-
-
-def infer_voxel_size(positions: np.ndarray) -> float:
-    """Scaffold-GS anchors sit on a grid of the voxel size: find the smallest spacing
-    that explains every coordinate within 1e-3 voxel."""
-    p = positions.astype(np.float64)
-    extent = float(np.ptp(p, axis=0).max()) if len(p) > 1 else 0.0
-    if extent == 0.0:
-        return 1.0
-    cands = []
-    for a in range(3):
-        u = np.unique(p[:, a])
-        d = np.diff(u)
-        d = d[d > extent * 1e-7]
-        if d.size:
-            cands.append(d.min())
-    if not cands:
-        return 1.0
-    v = float(min(cands))
-    err = np.abs(p / v - np.round(p / v)).max()
-    if err > 1e-3:
-        raise InputError(f"anchor positions are not on a regular grid (best spacing {v:.6g} leaves an error of "
-                         f"{err:.3g} voxels); pass the voxel size explicitly (--voxel-size)")
-    return v
 
 
 def quantize_positions(positions: np.ndarray, voxel_size: float, origin: np.ndarray) -> np.ndarray:
@@ -174,17 +158,74 @@ def _header_grid(ply: Path) -> tuple[float | None, np.ndarray | None]:
     return voxel, origin
 
 
-def read_scaffold(path: str | os.PathLike, voxel_size: float | None = None,
-                  origin: np.ndarray | None = None) -> AnchorScene:
-    """Read a Scaffold-GS PLY (and the MLPs beside it) and validate the scene; every error names
-    the file. The voxel size and origin are, in order of preference: the arguments, the values
-    lghcc wrote into the PLY header, else inferred from the anchor grid (origin 0). Anchors
-    sharing a voxel are allowed here (the encoder rejects or merges them)."""
-    if voxel_size is not None and not (np.isfinite(voxel_size) and voxel_size > 0):
-        raise InputError(f"the voxel size must be a positive finite number, got {voxel_size}")
-    ply = locate_ply(path)
-    cols = read_ply(ply)
+def read_cfg_args(path: Path) -> dict[str, object]:
+    """The keyword values of a printed argparse Namespace (Scaffold-GS's and HAC's cfg_args,
+    ``Namespace(..., voxel_size=0.001, ...)``): parsed, never evaluated; a value that is no Python
+    literal is left out. InputError when the file is no such text."""
+    try:
+        if path.stat().st_size > CFG_ARGS_MAX_BYTES:
+            raise ValueError(f"over {CFG_ARGS_MAX_BYTES} bytes")
+        call = ast.parse(path.read_text(encoding="utf-8"), mode="eval").body
+    except (OSError, UnicodeDecodeError, SyntaxError, ValueError, RecursionError) as e:
+        raise InputError(f"{path}: unreadable ({e})") from None
+    if not (isinstance(call, ast.Call) and isinstance(call.func, ast.Name) and call.func.id == "Namespace"):
+        raise InputError(f"{path}: not a printed argparse Namespace(...)")
+    values: dict[str, object] = {}
+    for kw in call.keywords:
+        try:
+            values[str(kw.arg)] = ast.literal_eval(kw.value)
+        except (ValueError, TypeError, SyntaxError, RecursionError):
+            pass
+    return values
+
+
+def stated_voxel_size(ply: Path) -> tuple[float | None, str]:
+    """The voxel size that the cfg_args of the model folder holding ``ply``
+    (<model>/point_cloud/iteration_<N>/) states, and that file; (None, why not) when none does.
+    Scaffold-GS and HAC take voxel_size <= 0 to mean one chosen from the points: not stated."""
+    folder = ply.absolute().parent  # a relative path may stop inside the model folder
+    cfg = folder.parent.parent / CFG_ARGS_NAME
+    if not (re.fullmatch(r"iteration_\d+", folder.name) and folder.parent.name == "point_cloud" and cfg.is_file()):
+        return None, "no cfg_args in the model folder"
+    try:
+        v = read_cfg_args(cfg).get("voxel_size")
+    except InputError as e:
+        return None, str(e)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
+        return None, f"{cfg} states no positive voxel_size (voxel_size={v!r})"
+    return float(v), str(cfg)
+
+
+def anchor_grid(ply: Path, positions: np.ndarray, voxel_size: float | None,
+                origin: np.ndarray | None) -> tuple[float, np.ndarray, str]:
+    """(voxel size, origin, where the voxel size came from) of the anchors of ``ply``. The voxel size:
+    the argument, else lghcc's header comment, else the model's cfg_args (the positions must lie on
+    its grid), else inferred from the positions. The origin: the argument, the header comment, or 0."""
     header_voxel, header_origin = _header_grid(ply)
+    if origin is None:
+        origin = np.zeros(3) if header_origin is None else header_origin
+    origin = np.asarray(origin, dtype=np.float64)
+    if origin.shape != (3,) or not np.isfinite(origin).all():
+        raise InputError(f"the origin must be 3 finite numbers, got {origin}")
+    if voxel_size is not None:
+        return float(voxel_size), origin, "as given (--voxel-size)"
+    if header_voxel is not None:
+        return header_voxel, origin, "from lghcc's header comment in the PLY"
+    stated, cfg = stated_voxel_size(ply)
+    if stated is not None:
+        if not on_grid(positions, stated, origin):
+            raise InputError(f"{cfg}: voxel_size={stated!r}, but the anchor positions of {ply} are not on a grid of "
+                             f"that spacing (an error of {grid_error(positions - origin, stated):.3g} voxels, more "
+                             "than float32 storage explains); pass the voxel size explicitly (--voxel-size)")
+        return stated, origin, f"from {cfg}"
+    try:
+        return infer_voxel_size(positions, origin), origin, f"inferred from the anchor grid ({cfg})"
+    except InputError as e:
+        raise InputError(f"{ply}: {e}") from None
+
+
+def _anchor_properties(ply: Path, cols: dict[str, np.ndarray]) -> tuple[list[str], list[str], list[str]]:
+    """The feature, offset and scaling properties of a Scaffold-GS anchor PLY, checked."""
     for req in ("x", "y", "z"):
         if req not in cols:
             raise InputError(f"{ply}: no '{req}' property: not an anchor point cloud")
@@ -198,22 +239,27 @@ def read_scaffold(path: str | os.PathLike, voxel_size: float | None = None,
         raise InputError(f"{ply}: expected 3K f_offset_* properties, found {len(offs)}")
     if len(scales) != NUM_SCALINGS:
         raise InputError(f"{ply}: expected scale_0..5, found {len(scales)} scale properties")
+    return feats, offs, scales
+
+
+def read_scaffold(path: str | os.PathLike, voxel_size: float | None = None, origin: np.ndarray | None = None,
+                  log: Callable[[str], None] | None = None) -> AnchorScene:
+    """Read a Scaffold-GS PLY (and the MLPs beside it) and validate the scene; every error names
+    the file. The voxel size and origin: ``anchor_grid``; ``log`` is told the voxel size and where
+    it came from. Anchors sharing a voxel are allowed here (the encoder rejects or merges them)."""
+    if voxel_size is not None and not (np.isfinite(voxel_size) and voxel_size > 0):
+        raise InputError(f"the voxel size must be a positive finite number, got {voxel_size}")
+    ply = locate_ply(path)
+    cols = read_ply(ply)
+    feats, offs, scales = _anchor_properties(ply, cols)
     n = len(cols["x"])
     k = len(offs) // 3
     positions = np.stack([cols["x"], cols["y"], cols["z"]], axis=1).astype(np.float64)
     if not np.isfinite(positions).all():
         raise InputError(f"{ply}: anchor positions contain NaN or Inf")
-    if origin is None:
-        origin = np.zeros(3) if header_origin is None else header_origin
-    origin = np.asarray(origin, dtype=np.float64)
-    if origin.shape != (3,) or not np.isfinite(origin).all():
-        raise InputError(f"the origin must be 3 finite numbers, got {origin}")
-    vs = float(voxel_size) if voxel_size is not None else header_voxel
-    if vs is None:
-        try:
-            vs = infer_voxel_size(positions - origin)
-        except InputError as e:
-            raise InputError(f"{ply}: {e}") from None
+    vs, origin, source = anchor_grid(ply, positions, voxel_size, origin)
+    if log is not None:
+        log(f"{ply}: voxel size {np.float32(vs)!s} {source}")  # the float32 the scene codes
     try:
         coords = quantize_positions(positions, vs, origin)
     except InputError as e:

@@ -41,3 +41,58 @@ def scenes(draw):
     if draw(st.booleans()):
         s.features[:] = draw(st.sampled_from([0.0, 1.0, -7.5]))
     return s
+
+
+def scaffold_gs_positions(coords: np.ndarray, voxel_size: float) -> np.ndarray:
+    """Anchor positions as Scaffold-GS computes them (voxelize_sample: float32 voxel indices times
+    the voxel size, in float32)."""
+    return coords.astype(np.float32) * np.float32(voxel_size)
+
+
+def write_scaffold_gs_model(model, coords: np.ndarray, voxel_size: float, *, feat_dim: int = 8, n_offsets: int = 4,
+                            iteration: int = 30000, cfg_args: bool = True, mlps: str = "split", seed: int = 0):
+    """A model folder as Scaffold-GS writes it -> its iteration folder: <model>/cfg_args (the printed
+    argparse Namespace of its training arguments), <model>/point_cloud/iteration_<N>/point_cloud.ply
+    (its attribute order, float32, no lghcc header comments) and the render MLPs beside it, as traced
+    modules (its save_mlp_checkpoints mode 'split') or as checkpoints.pth (mode 'unite')."""
+    import argparse
+    import warnings
+    from pathlib import Path
+
+    import torch
+    from lghcc.formats.ply import write_ply
+    from torch import nn
+
+    model = Path(model)
+    folder = model / "point_cloud" / f"iteration_{iteration}"
+    rng = np.random.default_rng(seed)
+    n, k, c = len(coords), n_offsets, feat_dim
+    pos = scaffold_gs_positions(coords, voxel_size)
+    cols = {"x": pos[:, 0], "y": pos[:, 1], "z": pos[:, 2], **{f"n{a}": np.zeros(n, np.float32) for a in "xyz"}}
+    cols.update({f"f_offset_{i}": rng.normal(size=n).astype(np.float32) for i in range(3 * k)})
+    cols.update({f"f_anchor_feat_{i}": rng.normal(size=n).astype(np.float32) for i in range(c)})
+    cols["opacity"] = np.zeros(n, np.float32)
+    cols.update({f"scale_{i}": np.float32(np.log(voxel_size)) + rng.normal(size=n).astype(np.float32) for i in range(6)})
+    cols.update({f"rot_{i}": np.full(n, float(i == 0), np.float32) for i in range(4)})
+    write_ply(folder / "point_cloud.ply", cols)
+    torch.manual_seed(seed)
+    nets = {"opacity_mlp": nn.Sequential(nn.Linear(c + 3, c), nn.ReLU(True), nn.Linear(c, k), nn.Tanh()),
+            "cov_mlp": nn.Sequential(nn.Linear(c + 3, c), nn.ReLU(True), nn.Linear(c, 7 * k)),
+            "color_mlp": nn.Sequential(nn.Linear(c + 3, c), nn.ReLU(True), nn.Linear(c, 3 * k), nn.Sigmoid())}
+    if mlps == "split":
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)  # torch.jit.trace, as Scaffold-GS still uses it
+            for name, net in nets.items():
+                torch.jit.trace(net.eval(), torch.rand(1, c + 3)).save(str(folder / f"{name}.pt"))
+    else:
+        torch.save({name: net.state_dict() for name, net in nets.items()}, folder / "checkpoints.pth")
+    if cfg_args:
+        args = argparse.Namespace(sh_degree=3, feat_dim=c, n_offsets=k, voxel_size=voxel_size, update_depth=3,
+                                  update_init_factor=16, update_hierachy_factor=4, use_feat_bank=False,
+                                  source_path="data/mipnerf360/garden (copy, 2)", model_path=str(model),
+                                  images="images", resolution=-1, white_background=False, data_device="cuda",
+                                  eval=True, lod=0, appearance_dim=0, lowpoly=False, ds=1, ratio=1,
+                                  undistorted=False, add_opacity_dist=False, add_cov_dist=False,
+                                  add_color_dist=False)
+        (model / "cfg_args").write_text(str(args))
+    return folder

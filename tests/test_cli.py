@@ -9,7 +9,7 @@ from lghcc.formats.scaffold_io import read_scaffold, write_scaffold
 from lghcc.decoder import cli as dec_cli
 from lghcc.encoder import cli as enc_cli
 
-from scenes import random_scene
+from scenes import random_scene, scaffold_gs_positions, write_scaffold_gs_model
 
 
 def test_procedural_demo_round_trip(tmp_path, capsys):
@@ -250,10 +250,36 @@ def test_decode_then_reencode_gives_the_same_scene(tmp_path, capsys):
     h1 = json.loads((tmp_path / "a.json").read_text())["scene_sha256"]
     h2 = json.loads((tmp_path / "b.json").read_text())["scene_sha256"]
     assert h1 == h2
-    # Without the header comment the voxel size is guessed from float32 positions: not the same bits.
+    # Without the header comment (origin 0) the voxel size inferred from the float32 positions is the
+    # float32 the scene multiplies by: the same bits.
     from lghcc.formats.scaffold_io import infer_voxel_size
     scene = read_scaffold(tmp_path / "dec")
-    assert infer_voxel_size(scene.positions().astype(np.float64)) != scene.voxel_size
+    assert infer_voxel_size(scene.positions().astype(np.float64)) == scene.voxel_size
+
+
+def test_same_stream_whether_the_voxel_size_is_stated_inferred_or_given(tmp_path, capsys):
+    """A model as Scaffold-GS writes it (voxel size 0.001, float32 positions, no lghcc header
+    comments) codes to the same stream whether its voxel size comes from its cfg_args, from
+    --voxel-size or from the anchor grid; the log says which, and the geometry comes back exactly."""
+    rng = np.random.default_rng(0)
+    k = np.vstack([np.unique(rng.integers(-6, 7, size=(400, 3)), axis=0), [[200_000, -150_000, 3_000]]])
+    write_scaffold_gs_model(tmp_path / "m", k, 0.001, mlps="unite")
+    ply = tmp_path / "m" / "point_cloud" / "iteration_30000" / "point_cloud.ply"
+    streams = {}
+    for how, extra, said in (
+            ("cfg_args", [], f"{ply}: voxel size 0.001 from {tmp_path / 'm' / 'cfg_args'}"),
+            ("given", ["--voxel-size", "0.001"], f"{ply}: voxel size 0.001 as given (--voxel-size)"),
+            ("inferred", [], f"{ply}: voxel size 0.001 inferred from the anchor grid (no cfg_args in the model folder)")):
+        if how == "inferred":
+            (tmp_path / "m" / "cfg_args").unlink()
+        out = tmp_path / f"{how}.lghcc"
+        assert enc_cli.main([str(tmp_path / "m"), "-o", str(out), "--preset", "low", *extra]) == 0
+        assert said in capsys.readouterr().err
+        streams[how] = out.read_bytes()
+    assert streams["cfg_args"] == streams["given"] == streams["inferred"]
+    assert dec_cli.main([str(tmp_path / "inferred.lghcc"), "-o", str(tmp_path / "dec"), "-q"]) == 0
+    back = read_scaffold(tmp_path / "dec").positions()
+    assert np.array_equal(np.unique(back, axis=0), np.unique(scaffold_gs_positions(k, 0.001), axis=0))
 
 
 def test_hash_mismatch_prints_both_full_digests_and_the_stream(tmp_path, capsys, small_stream):

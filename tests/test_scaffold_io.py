@@ -10,7 +10,10 @@ from lghcc.common.errors import InputError
 from lghcc.common.hashing import scene_digest
 from lghcc.formats.ply import read_ply, read_ply_comments, write_ply
 from lghcc.formats.procedural import make_procedural_scene
-from lghcc.formats.scaffold_io import MissingMlpWarning, infer_voxel_size, read_scaffold, write_scaffold
+from lghcc.formats.scaffold_io import (MissingMlpWarning, infer_voxel_size, read_cfg_args, read_scaffold,
+                                      write_scaffold)
+
+from scenes import scaffold_gs_positions, write_scaffold_gs_model
 
 
 def test_round_trip_exact(tmp_path):
@@ -56,7 +59,7 @@ def test_hac_variant_mask_logits_and_names(tmp_path):
 def test_voxel_size_inference_and_off_grid_input():
     rng = np.random.default_rng(0)
     coords = rng.integers(-1000, 1000, size=(500, 3))
-    assert infer_voxel_size(coords * 0.013) == pytest.approx(0.013, rel=1e-9)
+    assert infer_voxel_size(coords * 0.013) == pytest.approx(0.013, rel=2.0 ** -24)  # the float32 the scene codes
     with pytest.raises(InputError, match="not on a regular grid"):
         infer_voxel_size(rng.normal(size=(500, 3)))
 
@@ -200,3 +203,92 @@ def test_written_files_get_the_umask_mode(tmp_path):
     for f in (folder / "point_cloud.ply", folder / "checkpoint.pth"):
         assert stat.S_IMODE(f.stat().st_mode) == 0o664
     assert not [p for p in folder.iterdir() if p.name.startswith(".")]  # no temporary files left
+
+
+def _anchor_grid(seed: int, voxel: float, extent: float) -> np.ndarray:
+    """A voxelized surface patch near the origin and anchors scattered to +-extent metres."""
+    rng = np.random.default_rng(seed)
+    kmax = int(extent / voxel)
+    patch = np.unique(rng.integers(-5, 6, size=(150, 3)), axis=0)
+    return np.vstack([patch, rng.integers(-kmax, kmax + 1, size=(100, 3)), [[kmax, -kmax, kmax]]])
+
+
+@pytest.mark.filterwarnings("ignore:`torch.jit.load` is deprecated:DeprecationWarning")
+def test_a_model_in_scaffold_gs_layout(tmp_path, monkeypatch):
+    """cfg_args, point_cloud/iteration_<N>/point_cloud.ply with no lghcc header comments, the MLPs
+    as traced modules: the voxel size is cfg_args', every voxel index and MLP comes back."""
+    k = _anchor_grid(0, 0.001, 30.0)
+    write_scaffold_gs_model(tmp_path / "m", k, 0.001, iteration=7000, cfg_args=False)  # an older iteration
+    folder = write_scaffold_gs_model(tmp_path / "m", k, 0.001, iteration=30000, feat_dim=32, n_offsets=10)
+    said = []
+    scene = read_scaffold(tmp_path / "m", log=said.append)
+    assert said == [f"{folder / 'point_cloud.ply'}: voxel size 0.001 from {tmp_path / 'm' / 'cfg_args'}"]
+    assert scene.voxel_size == 0.001 and np.array_equal(scene.coords, k)
+    assert np.array_equal(scene.positions(), scaffold_gs_positions(k, 0.001))  # the very float32 positions
+    assert (scene.feature_dim, scene.num_offsets) == (32, 10)
+    traced = torch.jit.load(str(folder / "color_mlp.pt")).state_dict()
+    assert np.array_equal(scene.mlps["color"].weights[1], traced["2.weight"].numpy())
+    assert scene.mlps["color"].activations == ["relu", "sigmoid"] and scene.mlps["cov"].activations[-1] == "none"
+    monkeypatch.chdir(folder.parent)  # a relative path from inside the model folder finds its cfg_args too
+    said.clear()
+    read_scaffold(folder.name, log=said.append)
+    assert said == [f"{folder.name}/point_cloud.ply: voxel size 0.001 from {tmp_path / 'm' / 'cfg_args'}"]
+    # the 'unite' mode: checkpoints.pth beside the PLY
+    unite = write_scaffold_gs_model(tmp_path / "u", k, 0.001, mlps="unite")
+    assert set(read_scaffold(unite / "point_cloud.ply").mlps) == {"opacity", "cov", "color"}
+
+
+@pytest.mark.parametrize("voxel", [0.0005, 0.001, 0.004, 0.05])
+@pytest.mark.parametrize("stated", [True, False])
+def test_scaffold_gs_grids_to_200_m_with_and_without_cfg_args(tmp_path, voxel, stated):
+    k = _anchor_grid(1, voxel, 200.0)
+    write_scaffold_gs_model(tmp_path, k, voxel, cfg_args=stated, mlps="unite")
+    said = []
+    scene = read_scaffold(tmp_path, log=said.append)
+    assert np.array_equal(scene.coords, k)
+    assert np.float32(scene.voxel_size) == np.float32(voxel)
+    assert ("from " if stated else "inferred from the anchor grid") in said[0]
+
+
+def test_cfg_args_is_parsed_never_evaluated(tmp_path):
+    cfg = tmp_path / "cfg_args"
+    cfg.write_text("Namespace(voxel_size=0.004, source_path='a, b (c)=d', lod=[1, 2], eval=True, "
+                   "device=torch.device('cuda'), hook=__import__('os').system('touch " + str(tmp_path / "x") + "'))")
+    assert read_cfg_args(cfg) == {"voxel_size": 0.004, "source_path": "a, b (c)=d", "lod": [1, 2], "eval": True}
+    assert not (tmp_path / "x").exists()
+    for text, message in (("voxel_size=0.001", "unreadable"), ("Namespace(voxel_size=", "unreadable"),
+                          ("os.system('ls')", "not a printed argparse Namespace"), ("[1, 2]", "not a printed")):
+        cfg.write_text(text)
+        with pytest.raises(InputError, match=f"^{re.escape(str(cfg))}: {message}"):
+            read_cfg_args(cfg)
+
+
+def test_what_cfg_args_cannot_say_is_inferred_and_what_it_says_is_checked(tmp_path):
+    k = _anchor_grid(2, 0.004, 20.0)
+    folder = write_scaffold_gs_model(tmp_path, k, 0.004, mlps="unite")
+    cfg = tmp_path / "cfg_args"
+    text = cfg.read_text()
+    for stated, note in (("0.0", "states no positive voxel_size (voxel_size=0.0)"),  # Scaffold-GS: chosen from the points
+                         ("'auto'", "states no positive voxel_size (voxel_size='auto')")):
+        cfg.write_text(text.replace("voxel_size=0.004", f"voxel_size={stated}"))
+        said = []
+        assert np.array_equal(read_scaffold(tmp_path, log=said.append).coords, k)
+        assert said[0].endswith(f"voxel size 0.004 inferred from the anchor grid ({cfg} {note})")
+    cfg.write_text("Namespace(voxel_size=0.004")
+    said = []
+    assert np.array_equal(read_scaffold(tmp_path, log=said.append).coords, k)
+    assert f"inferred from the anchor grid ({cfg}: unreadable" in said[0]
+    # a stated voxel size that the anchors are not on is an error naming both files
+    cfg.write_text(text.replace("voxel_size=0.004", "voxel_size=0.003"))
+    with pytest.raises(InputError, match=f"^{re.escape(str(cfg))}: voxel_size=0.003, but the anchor positions of "
+                                         f"{re.escape(str(folder / 'point_cloud.ply'))} are not on a grid"):
+        read_scaffold(tmp_path)
+    # --voxel-size and lghcc's own header comment come first
+    said = []
+    assert read_scaffold(tmp_path, voxel_size=0.004, log=said.append).voxel_size == 0.004
+    assert said[0].endswith("voxel size 0.004 as given (--voxel-size)")
+    scene = read_scaffold(tmp_path, voxel_size=0.004)
+    write_scaffold(scene, tmp_path, iteration=30000)
+    said = []
+    assert read_scaffold(tmp_path, log=said.append).voxel_size == float(np.float32(0.004))
+    assert said[0].endswith("voxel size 0.004 from lghcc's header comment in the PLY")
