@@ -12,6 +12,8 @@ import { LUT_SHIFT } from './tables.mjs';
 
 const TWO24 = 16777216;
 const TWO16 = 65536;
+const INV24 = 1 / TWO24; // power-of-two scalings are exact: no division in the hot paths
+const INV16 = 1 / TWO16;
 const MAX_Q = TWO24; // q >= 2^24: non-conforming (clause 10.6.4)
 const LUT_SIZE = (1 << (24 - LUT_SHIFT)) + 1;
 
@@ -48,13 +50,12 @@ export class RangeDecoder {
     /** q = D // scale, exactly; sets this.q and this.r. */
     _quantile() {
         const S = this.rhi, dhi = this.dhi, dlo = this.dlo;
+        if (dhi >= S) this._fail(); // D >= 2^24 * scale
         let q = Math.floor((dhi * TWO24 + dlo) / S);
-        if (q > MAX_Q + 1) this._fail();
-        const sh = Math.floor(S / TWO16), sl = S - sh * TWO16;
+        const sh = Math.floor(S * INV16), sl = S - sh * TWO16;
         let r = (dhi * 256 - q * sh) * TWO16 + (dlo - q * sl);
         while (r < 0) { q--; r += S; }
         while (r >= S) { q++; r -= S; }
-        if (q >= MAX_Q) this._fail();
         this.q = q;
         this.r = r;
         return q;
@@ -63,24 +64,29 @@ export class RangeDecoder {
     /** After _quantile(): the symbol with cumulative c and frequency f was decoded. */
     _advance(c, f) {
         const S = this.rhi;
-        const sh = Math.floor(S / TWO24), sl = S - sh * TWO24;
+        const sh = Math.floor(S * INV24), sl = S - sh * TWO24;
         // R' = f * S
-        const t = f * sl, th = Math.floor(t / TWO24);
+        const t = f * sl, th = Math.floor(t * INV24);
         const rhi = f * sh + th, rlo = t - th * TWO24;
         // D' = r + (q - c) * S
-        const g = this.q - c, u = g * sl, uh = Math.floor(u / TWO24);
-        const r = this.r, rh = Math.floor(r / TWO24);
+        const g = this.q - c, u = g * sl, uh = Math.floor(u * INV24);
+        const r = this.r, rh = Math.floor(r * INV24);
         let lo = (u - uh * TWO24) + (r - rh * TWO24);
         let hi = g * sh + uh + rh;
         if (lo >= TWO24) { lo -= TWO24; hi += 1; }
-        if (rhi < 256) { // R' < 2^32: shift in the next word
+        this._set(rhi, rlo, hi, lo);
+    }
+
+    /** New state R = (rhi, rlo), D = (dhi, dlo), renormalized when R < 2^32. */
+    _set(rhi, rlo, dhi, dlo) {
+        if (rhi < 256) { // R < 2^32: shift in the next word
             const w = this._word();
             this.rhi = (rhi * TWO24 + rlo) * 256;
             this.rlo = 0;
-            this.dhi = (hi * TWO24 + lo) * 256 + (w >>> 24);
+            this.dhi = (dhi * TWO24 + dlo) * 256 + (w >>> 24);
             this.dlo = w & 0xFFFFFF;
         } else {
-            this.rhi = rhi; this.rlo = rlo; this.dhi = hi; this.dlo = lo;
+            this.rhi = rhi; this.rlo = rlo; this.dhi = dhi; this.dlo = dlo;
         }
     }
 
@@ -97,10 +103,21 @@ export class RangeDecoder {
 
     /** A binary decision with frequency f1 of symbol 1 ({0: 2^24 - f1, 1: f1}, symbol 0 first). */
     decodeBinary(f1) {
-        const q = this._quantile();
+        // q < c1 exactly when D < c1 * scale: compared in the hi/lo form, no division
+        const S = this.rhi, dhi = this.dhi, dlo = this.dlo;
+        if (dhi >= S) this._fail();
+        const sh = Math.floor(S * INV24), sl = S - sh * TWO24;
         const c1 = TWO24 - f1;
-        if (q < c1) { this._advance(0, c1); return 0; }
-        this._advance(c1, f1);
+        let t = c1 * sl, th = Math.floor(t * INV24);
+        const xh = c1 * sh + th, xl = t - th * TWO24; // X = c1 * scale
+        if (dhi < xh || (dhi === xh && dlo < xl)) {
+            this._set(xh, xl, dhi, dlo);
+            return 0;
+        }
+        t = f1 * sl; th = Math.floor(t * INV24);
+        let lo = dlo - xl, hi = dhi - xh;
+        if (lo < 0) { lo += TWO24; hi -= 1; }
+        this._set(f1 * sh + th, t - th * TWO24, hi, lo);
         return 1;
     }
 
