@@ -8,7 +8,7 @@ parentPort.on('message', async ({ bytes, box }) => {
         const count = r.tiles.reduce((a, t) => a + t.n, 0);
         parentPort.postMessage({ hash: sceneDigestHex(r.ps, r.tiles), count, tiles: r.tiles.length });
     } catch (e) {
-        const kind = e && e.constructor ? e.constructor.name : 'Error';
+        const kind = e && e.name ? e.name : 'Error';
         parentPort.postMessage({ error: e && e.message ? e.message : String(e), kind, stack: kind === 'Error' || kind === 'TypeError' || kind === 'RangeError' ? e.stack : undefined });
     }
 });

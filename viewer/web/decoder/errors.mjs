@@ -1,6 +1,6 @@
 // Error classes of spec clause 8.2 (the reference decoder's common/errors.py).
 export class LghccError extends Error {
-    constructor(message) { super(message); this.name = this.constructor.name; }
+    constructor(message) { super(message); }
 }
 /** The stream is non-conforming (truncated, corrupted, or violating a constraint). */
 export class BitstreamError extends LghccError {}
@@ -10,3 +10,10 @@ export class UnsupportedStreamError extends BitstreamError {}
 export class HashMismatchError extends BitstreamError {}
 /** A conforming stream that needs more than this decoder is configured to hold (not a BitstreamError). */
 export class ResourceLimitError extends LghccError {}
+
+// names that survive minification (the worker bundle reports the class by name)
+for (const [cls, name] of [[LghccError, 'LghccError'], [BitstreamError, 'BitstreamError'],
+    [UnsupportedStreamError, 'UnsupportedStreamError'], [HashMismatchError, 'HashMismatchError'],
+    [ResourceLimitError, 'ResourceLimitError']]) {
+    Object.defineProperty(cls.prototype, 'name', { value: name });
+}

@@ -2,9 +2,10 @@
 // as the bytes arrive: {type: 'tile', t, tiles, count, arrays} per decoded, hash-checked tile
 // (positions, sh, opacities, scales, rotations: transferred typed arrays, no PLY), then
 // {type: 'done', count, tiles, seconds, digest} once the whole stream passed every check, or
-// {type: 'error', kind, message}.
+// {type: 'error', kind, message}. With {digest: true} 'done' carries the decoded scene's SHA-256
+// (clause 12); with {bytes, box} only the tiles the box selects are decoded.
 import { ProgressiveDecoder, sceneArrays } from './progressive.mjs';
-import { sceneDigestHex } from './decoder.mjs';
+import { decodeStream, sceneDigestHex } from './decoder.mjs';
 
 async function* chunksOf(msg) {
     if (msg.bytes) { yield msg.bytes; return; }
@@ -18,7 +19,20 @@ async function* chunksOf(msg) {
     }
 }
 
+// {bytes, box, digest: true}: the tiles a box selects (clause 13.3), decoded at once
+async function decodeBox(msg) {
+    const t0 = performance.now();
+    try {
+        const r = await decodeStream(msg.bytes, { box: msg.box });
+        const count = r.tiles.reduce((a, t) => a + t.n, 0);
+        self.postMessage({ type: 'done', count, tiles: r.tiles.length, seconds: (performance.now() - t0) / 1000, digest: sceneDigestHex(r.ps, r.tiles) });
+    } catch (err) {
+        self.postMessage({ type: 'error', kind: err && err.name ? err.name : 'Error', message: String(err && err.message ? err.message : err) });
+    }
+}
+
 self.onmessage = async (e) => {
+    if (e.data.box) { await decodeBox(e.data); return; }
     const t0 = performance.now();
     let count = 0;
     const dec = new ProgressiveDecoder({
@@ -35,6 +49,6 @@ self.onmessage = async (e) => {
         const digest = e.data.digest ? sceneDigestHex(r.ps, r.tiles) : null;
         self.postMessage({ type: 'done', count, tiles: r.tiles.length, seconds: (performance.now() - t0) / 1000, digest });
     } catch (err) {
-        self.postMessage({ type: 'error', kind: err && err.constructor ? err.constructor.name : 'Error', message: String(err && err.message ? err.message : err) });
+        self.postMessage({ type: 'error', kind: err && err.name ? err.name : 'Error', message: String(err && err.message ? err.message : err) });
     }
 };
