@@ -44,6 +44,9 @@ decoder run in process is held to the exact class and a fragment of the message.
 An argument ``{options}`` is replaced by a partial decode's options (--box=X0,...,Z1 or --level 1)
 when the partial decodes of tiled streams are checked, and by nothing otherwise; without it they
 are not checked.
+``--js`` runs the project's JavaScript decoder (viewer/web/decoder/cli.mjs, with Node) as such an external
+decoder on the streams of the explicit-Gaussian profile (spec clause 8.4; the profile's rule is
+viewer/web/decoder/profile.mjs, which lists them) and says how many streams lie outside it.
 Example: ``lghcc-conformance --decoder-cmd "lghcc-dec {stream} {options} --print-hash"``, or with renders
 ``lghcc-conformance --render --decoder-cmd "lghcc-dec {stream} -o {out} --print-hash"``.
 Exit status of lghcc-conformance: 0 all passed, 1 a stream failed, 2 usage or suite error
@@ -58,6 +61,7 @@ import math
 import os
 import re
 import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -78,6 +82,7 @@ from ..app.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM,
 from ..common.errors import LghccError  # noqa: E402
 
 STREAMS_DIR = Path(__file__).resolve().parent / "streams"
+JS_DECODER_DIR = Path(__file__).resolve().parent.parent / "viewer" / "web" / "decoder"
 # the error classes an error stream may expect (lghcc.common.errors); an external decoder's exit
 # status for each is lghcc.app.cli_common.exit_code_for_class (3, invalid stream, for all of them)
 ERROR_KINDS = ("BitstreamError", "UnsupportedStreamError", "HashMismatchError")
@@ -305,6 +310,30 @@ def decode_external(template: str, stream: Path, timeout: float, out: Path | Non
     return External("exit", res.returncode, last, err[-1][:80] if err else "")
 
 
+# --- the JavaScript decoder (explicit-Gaussian profile) -------------------------------------------
+
+def node_path() -> str:
+    node = shutil.which("node")
+    if node is None:
+        raise LghccError("--js needs Node.js (node) on the PATH: the JavaScript decoder runs in it")
+    return node
+
+
+def js_decoder_cmd() -> str:
+    """The --decoder-cmd template of the JavaScript decoder."""
+    return f"{shlex.quote(node_path())} {shlex.quote(str(JS_DECODER_DIR / 'cli.mjs'))} {{stream}} {{options}}"
+
+
+def js_profile_ids(streams: Path) -> list[str]:
+    """Ids of the streams of the explicit-Gaussian profile (spec clause 8.4), as the JavaScript decoder's
+    runner decides them (viewer/web/decoder/profile.mjs: one rule, in one place)."""
+    res = subprocess.run([node_path(), str(JS_DECODER_DIR / "conformance.mjs"), "--streams", str(streams), "--list"],
+                         capture_output=True, text=True, errors="replace", timeout=120)
+    if res.returncode != 0:
+        raise LghccError(f"the JavaScript decoder's runner cannot list the profile: {res.stderr.strip()[-300:]}")
+    return [line.split()[1] for line in res.stdout.splitlines() if line.startswith("in ")]
+
+
 # --- renders (informative) ---------------------------------------------------------------------------
 
 def render_views(scene, cameras: str, size: str, background: str = "black") -> list[np.ndarray]:
@@ -509,6 +538,9 @@ def setup_args() -> argparse.ArgumentParser:
     p.add_argument("--streams", default=str(STREAMS_DIR), help="folder of conformance streams")
     p.add_argument("--decoder-cmd", help="external decoder command template with {stream} (and {out} for --render); "
                                          "see the rejection protocol above")
+    p.add_argument("--js", action="store_true",
+                   help="run the JavaScript decoder (viewer/web/decoder, with Node) on the streams of the "
+                        "explicit-Gaussian profile (spec clause 8.4) as an external decoder")
     p.add_argument("--timeout", type=float, default=120.0,
                    help="seconds per stream for an external decoder; a decoder still running then FAILs (120)")
     p.add_argument("--threads", type=int, help="torch threads for the reference decoder")
@@ -531,16 +563,25 @@ def main(argv: list[str] | None = None) -> int:
 def _main(argv: list[str] | None) -> int:
     parser = setup_args()
     args = parser.parse_args(argv)
+    if args.js and (args.decoder_cmd is not None or args.render):
+        parser.error("--js runs the JavaScript decoder: it takes no --decoder-cmd and no --render")
     if args.decoder_cmd is not None:
         try:
             check_template(args.decoder_cmd, args.render)
         except LghccError as e:
             parser.error(str(e))  # exit status 2
+    outside = 0
     try:
+        if args.js:
+            args.decoder_cmd = js_decoder_cmd()
         if args.threads:
             import torch
             torch.set_num_threads(args.threads)
         cases = load_cases(Path(args.streams), args.ids or None)
+        if args.js:
+            profile = set(js_profile_ids(Path(args.streams)))
+            outside = sum(c.id not in profile for c in cases)
+            cases = [c for c in cases if c.id in profile]
         t0 = time.perf_counter()
         if args.decoder_cmd is None or args.render:
             warm_up(args.render)
@@ -552,6 +593,8 @@ def _main(argv: list[str] | None) -> int:
         print(f"lghcc-conformance: error: {e}", file=sys.stderr)
         return EXIT_USAGE
     print(format_table(outcomes, total, warm_s))
+    if args.js:
+        print(f"JavaScript decoder: {len(outcomes)} streams of the explicit-Gaussian profile run, {outside} outside it")
     if args.coverage:
         from .coverage import coverage_report
         print()

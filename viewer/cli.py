@@ -110,6 +110,19 @@ def orbit_view(positions: np.ndarray, up: np.ndarray, *, width: int, height: int
                  "far": cam.far}
 
 
+def in_js_profile(data: bytes) -> bool:
+    """Whether the page's JavaScript decoder (viewer/web/decoder) decodes this stream: a
+    gaussian_parameter_set without the hierarchy (the explicit-Gaussian profile, spec clause 8.4)."""
+    from ..common.bitio import BitReader
+    from ..common.container import UnitType, read_container
+    from ..common.units import GaussianParameterSet
+
+    first = next(u for u in read_container(data).units if u.unit_type < 0x80)
+    if first.unit_type != UnitType.GAUSSIAN_PARAMETER_SET:
+        return False
+    return not GaussianParameterSet.parse(BitReader(first.payload, "gaussian_parameter_set")).hierarchy_enabled_flag
+
+
 def _say_nothing(*_a, **_k) -> None:
     return None
 
@@ -232,7 +245,10 @@ def _run(args, say) -> int:
     details.append(f"<div class='hash'>decoded scene SHA-256 (checked): {result.stream_hash.hex()}</div>")
     details.append(f"<div>renderer: {ENGINE_NAME} {ENGINE_VERSION} (WebGL2), bundled in this page</div>")
 
-    panes = [Pane("decoded", "decoded", ply_bytes(decoded.gaussians))]
+    # an explicit-Gaussian stream the page's own decoder takes (spec clause 8.4) travels as itself and is
+    # decoded in the page; any other as the decoded scene's PLY
+    panes = [Pane("decoded", "decoded", stream=data) if in_js_profile(data)
+             else Pane("decoded", "decoded", ply_bytes(decoded.gaussians))]
     if source is not None:
         panes.insert(0, Pane("source", "source", ply_bytes(source.gaussians)))
     page = build_page(title=args.title or f"{name} (lghcc)", panes=panes,

@@ -1,7 +1,9 @@
 """The viewer page: one self-contained HTML file (informative).
 
 The page is ``web/page.html`` filled in one pass: the stream's numbers (in HTML), the camera
-and settings (JSON), one base64 3DGS PLY per pane, and the JavaScript bundle (``assets/
+and settings (JSON), per pane a base64 3DGS PLY or the base64 .lghcc stream itself (explicit-Gaussian
+streams, decoded in the page by ``web/decoder`` in a Web Worker: ``assets/lghcc-decoder-worker.js``,
+inlined as text), and the JavaScript bundle (``assets/
 lghcc-viewer.js``: ``web/viewer.mjs`` with the PlayCanvas engine, built once at set-up time by
 ``make viewer-bundle``, never at view time). Nothing in the page names a network address.
 """
@@ -23,6 +25,7 @@ from ..common.errors import LghccError
 HERE = Path(__file__).resolve().parent
 TEMPLATE = HERE / "web" / "page.html"
 BUNDLE = HERE / "assets" / "lghcc-viewer.js"
+WORKER = HERE / "assets" / "lghcc-decoder-worker.js"  # viewer/web/decoder's Web Worker, built beside BUNDLE
 # The renderer the bundle is built from: tools/node/package.json pins it (a test checks the two agree).
 ENGINE_NAME = "playcanvas"
 ENGINE_VERSION = "2.23.3"
@@ -42,11 +45,23 @@ def bundle_js() -> str:
     return js.replace("</script", "<\\/script")
 
 
+def worker_js() -> str:
+    """The stream decoder's Web Worker (viewer/web/decoder, built with the bundle); a clear error when
+    the set-up step has not been run."""
+    try:
+        js = WORKER.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise LghccError(f"the viewer's decoder worker {WORKER} is missing: build it once with `make viewer-bundle`") \
+            from None
+    return js.replace("</script", "<\\/script")
+
+
 @dataclass
 class Pane:
-    name: str  # "decoded" or "source": element ids lghcc-label-<name>, lghcc-ply-<name>
+    name: str  # "decoded" or "source": element ids lghcc-label-<name>, lghcc-ply-<name> or lghcc-stream-<name>
     label: str  # shown over the pane
-    ply: bytes  # INRIA 3DGS PLY
+    ply: bytes | None = None  # INRIA 3DGS PLY
+    stream: bytes | None = None  # or an .lghcc stream the page decodes itself (explicit-Gaussian profile)
 
 
 def _fill(template: str, values: dict[str, str]) -> str:
@@ -77,14 +92,14 @@ def build_page(*, title: str, panes: list[Pane], meta: dict, summary_html: str, 
         [f'  <div class="label" id="lghcc-label-{p.name}">{html.escape(p.label)}</div>' for p in panes]
         + [f'  <div class="divider" id="lghcc-divider-{i}"></div>' for i in range(len(panes) - 1)])
     ply_scripts = "\n".join(
-        f'<script id="lghcc-ply-{p.name}" type="application/octet-stream">'
-        f'{base64.b64encode(p.ply).decode("ascii")}</script>' for p in panes)
+        f'<script id="lghcc-{"stream" if p.stream is not None else "ply"}-{p.name}" type="application/octet-stream">'
+        f'{base64.b64encode(p.stream if p.stream is not None else p.ply).decode("ascii")}</script>' for p in panes)
     return _fill(TEMPLATE.read_text(encoding="utf-8"), {
         "VERSION": __version__, "ENGINE_VERSION": ENGINE_VERSION, "TITLE": html.escape(title),
         "SUMMARY": summary_html, "NUM_PANES": str(len(panes)), "PANES": pane_html, "DETAILS": details_html,
         "NOTE": f" · {html.escape(note)}" if note else "",
         "SYNC_HELP": " · the panes share one camera" if len(panes) > 1 else "",
-        "META": _json_script(meta), "PLY_SCRIPTS": ply_scripts, "BUNDLE": bundle_js()})
+        "META": _json_script(meta), "PLY_SCRIPTS": ply_scripts, "WORKER": worker_js(), "BUNDLE": bundle_js()})
 
 
 # ---------------------------------------------------------------------------------------------

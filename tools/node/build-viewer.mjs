@@ -25,4 +25,15 @@ await build({
     banner: { js: banner },
     logLevel: 'warning',
 });
-console.log(`built viewer/assets/lghcc-viewer.js with playcanvas ${engine.version}`);
+// the stream decoder's Web Worker (viewer/web/decoder, no dependency): inlined into every page as
+// text and started from a blob: URL, so that pages decode their .lghcc stream off the main thread
+await build({
+    entryPoints: [join(root, 'viewer', 'web', 'decoder', 'worker.mjs')],
+    outfile: join(root, 'viewer', 'assets', 'lghcc-decoder-worker.js'),
+    bundle: true,
+    minify: true,
+    format: 'iife',
+    target: 'es2020',
+    logLevel: 'warning',
+});
+console.log(`built viewer/assets/lghcc-viewer.js with playcanvas ${engine.version} and viewer/assets/lghcc-decoder-worker.js`);

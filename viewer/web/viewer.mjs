@@ -4,8 +4,12 @@
 //
 // Bundled with the pinned engine at set-up time (tools/node: `make viewer-bundle`), inlined into
 // each page by lghcc.viewer.page; the page never reaches the network. The scenes arrive in the
-// page as base64 3DGS PLYs (script elements `lghcc-ply-<pane>`), the camera and settings as JSON
-// (`lghcc-meta`).
+// page as base64 3DGS PLYs (script elements `lghcc-ply-<pane>`) or as the .lghcc stream itself
+// (`lghcc-stream-<pane>`: explicit-Gaussian streams, decoded in the page by viewer/web/decoder in a
+// Web Worker, whose bundle is the text of `lghcc-worker`, tile by tile, each tile's hash checked;
+// the renderer gets typed arrays, no PLY), the camera and settings as JSON (`lghcc-meta`). A
+// .lghcc file dropped on the page, or named by #stream=URL (fetched as it arrives), is decoded the
+// same way into the decoded pane.
 //
 // For tests and scripts, window.lghccViewer has:
 //   ready          a Promise resolved once every pane has drawn a depth-sorted frame of its
@@ -15,6 +19,7 @@
 //   camera()       the current {eye, target, up, fovX}
 //   paneRects()    [{name, x, width}]: each pane's part of the canvas #lghcc-canvas (CSS pixels)
 //   state          frame and sort counters
+//   decodes        per decoded stream: {pane, tiles, count, seconds, hashChecked} (or {pane, error})
 //
 // Rendering settings chosen to be the standard 3DGS image (what lghcc.render draws): colours
 // blended as stored (3DGS colours are display values: GAMMA_SRGB with linear tone mapping makes
@@ -24,8 +29,8 @@
 // buffer, SH colours re-evaluated after small camera moves.
 
 import {
-    Application, Asset, Color, Entity, FILLMODE_NONE, GAMMA_SRGB, GSPLATDATA_LARGE, Layer, RESOLUTION_AUTO,
-    TONEMAP_LINEAR, Vec3, Vec4
+    Application, Asset, Color, Entity, FILLMODE_NONE, GAMMA_SRGB, GSPLATDATA_LARGE, GSplatData, GSplatResource, Layer,
+    RESOLUTION_AUTO, TONEMAP_LINEAR, Vec3, Vec4
 } from 'playcanvas';
 
 const meta = JSON.parse(document.getElementById('lghcc-meta').textContent);
@@ -182,6 +187,10 @@ function start() {
         app.root.addChild(camera);
         const pane = { name, camera, layer, loaded: false };
         panes.push(pane);
+        if (document.getElementById(`lghcc-stream-${name}`)) {
+            decodeInto(pane, { bytes: base64Bytes(`lghcc-stream-${name}`) }, 'embedded stream');
+            continue;
+        }
         const bytes = base64Bytes(`lghcc-ply-${name}`);
         const asset = new Asset(name, 'gsplat', { url: `${name}.ply`, filename: `${name}.ply`, contents: new Response(bytes) });
         asset.on('error', (err) => fail(`${name}: ${err}`));
@@ -189,13 +198,14 @@ function start() {
             const e = new Entity(name);
             e.addComponent('gsplat', { asset, layers: [layer.id] });
             app.root.addChild(e);
-            pane.loaded = true;
-            state.loaded++;
-            app.renderNextFrame = true;
+            paneLoaded(pane, e);
         });
         app.assets.add(asset);
         app.assets.load(asset);
     }
+    const url = /[#&]stream=([^&]+)/.exec(location.hash);
+    if (url) decodeInto(decodedPane(), { url: decodeURIComponent(url[1]) }, decodeURIComponent(url[1]));
+    attachDrop();
     app.on('update', () => {
         if (state.appliedVersion !== cam.version) {
             for (const p of panes) {
@@ -244,6 +254,107 @@ function start() {
 }
 
 // ---------------------------------------------------------------------------------------------
+// Streams decoded in the page (viewer/web/decoder in a Web Worker)
+// ---------------------------------------------------------------------------------------------
+
+function paneLoaded(pane, entity) {
+    if (pane.entity) pane.entity.destroy();
+    pane.entity = entity;
+    if (!pane.loaded) { pane.loaded = true; state.loaded++; }
+    state.readyVersion = -1;
+    app.renderNextFrame = true;
+}
+
+function decodedPane() { return panes.find((p) => p.name === 'decoded') || panes[panes.length - 1]; }
+
+function setCheck(text, bad = false) {
+    const el = document.getElementById('lghcc-check');
+    if (el) { el.textContent = text; el.style.color = bad ? '#f66' : ''; }
+}
+
+// the decoder's typed arrays -> the engine's splat data (the PLY property names, f_rest channel-major)
+function splatData(parts) {
+    const count = parts.reduce((a, p) => a + p.opacities.length, 0);
+    const S3 = parts.length ? parts[0].sh.length / Math.max(parts[0].opacities.length, 1) : 3;
+    const S = S3 / 3;
+    const names = ['x', 'y', 'z', 'f_dc_0', 'f_dc_1', 'f_dc_2'];
+    for (let i = 0; i < 3 * (S - 1); i++) names.push(`f_rest_${i}`);
+    names.push('opacity', 'scale_0', 'scale_1', 'scale_2', 'rot_0', 'rot_1', 'rot_2', 'rot_3');
+    const col = Object.fromEntries(names.map((n) => [n, new Float32Array(count)]));
+    let o = 0;
+    for (const p of parts) {
+        const n = p.opacities.length;
+        for (let i = 0; i < n; i++, o++) {
+            col.x[o] = p.positions[3 * i]; col.y[o] = p.positions[3 * i + 1]; col.z[o] = p.positions[3 * i + 2];
+            for (let ch = 0; ch < 3; ch++) {
+                col[`f_dc_${ch}`][o] = p.sh[S3 * i + ch];
+                for (let j = 1; j < S; j++) col[`f_rest_${ch * (S - 1) + j - 1}`][o] = p.sh[S3 * i + 3 * j + ch];
+            }
+            col.opacity[o] = p.opacities[i];
+            for (let a = 0; a < 3; a++) col[`scale_${a}`][o] = p.scales[3 * i + a];
+            for (let j = 0; j < 4; j++) col[`rot_${j}`][o] = p.rotations[4 * i + j];
+        }
+    }
+    const data = new GSplatData([{ name: 'vertex', count, properties: names.map((name) => ({ name, type: 'float', byteSize: 4, storage: col[name] })) }]);
+    data.reorderData();
+    return data;
+}
+
+function showSplats(pane, parts) {
+    const resource = new GSplatResource(app.graphicsDevice, splatData(parts));
+    const e = new Entity(`${pane.name}-decoded`);
+    e.addComponent('gsplat', { resource, layers: [pane.layer.id] });
+    app.root.addChild(e);
+    paneLoaded(pane, e);
+}
+
+let worker = null;
+function makeWorker() {
+    if (worker) worker.terminate(); // a new stream replaces one still decoding
+    const src = document.getElementById('lghcc-worker').textContent;
+    worker = new Worker(URL.createObjectURL(new Blob([src], { type: 'text/javascript' })));
+    return worker;
+}
+
+function decodeInto(pane, msg, what) {
+    const w = makeWorker();
+    const parts = [];
+    setCheck(`decoding ${what}…`);
+    w.onmessage = (ev) => {
+        const m = ev.data;
+        if (m.type === 'tile') {
+            parts.push(m.arrays);
+            setCheck(`decoding ${what}: tile ${m.t + 1} of ${m.tiles} (${m.count.toLocaleString()} Gaussians, hash of each tile checked)`);
+        } else if (m.type === 'done') {
+            w.terminate();
+            showSplats(pane, parts);
+            const r = { pane: pane.name, tiles: m.tiles, count: m.count, seconds: m.seconds, hashChecked: true };
+            api.decodes.push(r);
+            setCheck(`decoded in this page: ${m.count.toLocaleString()} Gaussians, ${m.tiles} tile${m.tiles > 1 ? 's' : ''}, ` +
+                `${m.seconds.toFixed(2)} s, hash ✓`);
+        } else if (m.type === 'error') {
+            w.terminate();
+            api.decodes.push({ pane: pane.name, error: `${m.kind}: ${m.message}` });
+            setCheck(`✗ ${what}: not a valid stream`, true);
+            fail(`${what}: stream rejected (${m.kind}): ${m.message}`);
+        }
+    };
+    w.onerror = (ev) => fail(`${what}: the decoder stopped: ${ev.message}`);
+    w.postMessage(msg, msg.bytes ? [msg.bytes.buffer] : []);
+}
+
+function attachDrop() {
+    window.addEventListener('dragover', (e) => e.preventDefault());
+    window.addEventListener('drop', async (e) => {
+        e.preventDefault();
+        const f = e.dataTransfer && e.dataTransfer.files[0];
+        if (!f) return;
+        api.error = null;
+        decodeInto(decodedPane(), { bytes: new Uint8Array(await f.arrayBuffer()) }, f.name);
+    });
+}
+
+// ---------------------------------------------------------------------------------------------
 // Ready / settled promises
 // ---------------------------------------------------------------------------------------------
 
@@ -255,6 +366,7 @@ const api = {
     ready: new Promise((res, rej) => { resolveReady = res; rejectReady = rej; }),
     panes,
     state,
+    decodes: [],
     paneRects: () => panes.map((p) => ({ name: p.name, x: p.x0, width: p.width })),
     setCamera,
     camera: () => ({ eye: [cam.eye.x, cam.eye.y, cam.eye.z], target: [cam.target.x, cam.target.y, cam.target.z], up: [cam.up.x, cam.up.y, cam.up.z], fovX: cam.fovX }),

@@ -1,0 +1,179 @@
+"""The JavaScript decoder of the explicit-Gaussian profile (viewer/web/decoder, spec clause 8.4),
+run with Node: every conformance stream of the profile bit-exact or rejected, through its own
+runner and through lghcc-conformance --js; its range decoder against the reference coder on random
+chunks (escapes up to 2^62 - 1 included); and corrupted streams, which it must reject or decode
+exactly as the reference decoder does, never hang. Skips with the reason where node is absent."""
+
+import json
+import shutil
+import subprocess
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lghcc.conformance import runner
+from lghcc.common.entropy.symbol_coder import encode_symbols
+from lghcc.common.errors import LghccError
+
+NODE = shutil.which("node")
+pytestmark = pytest.mark.skipif(NODE is None, reason="node (Node.js) is not on the PATH: the JavaScript decoder runs in it")
+JS = runner.JS_DECODER_DIR
+STREAMS = runner.STREAMS_DIR
+
+
+def node(script: str, stdin: str = "", timeout: float = 300) -> str:
+    res = subprocess.run([NODE, "--input-type=module", "-e", script], input=stdin, capture_output=True, text=True,
+                         cwd=JS, timeout=timeout)
+    assert res.returncode == 0, res.stderr[-2000:]
+    return res.stdout
+
+
+def test_node_runner_passes_every_profile_stream():
+    res = subprocess.run([NODE, str(JS / "conformance.mjs")], capture_output=True, text=True, timeout=900)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-2000:]
+    last = res.stdout.strip().splitlines()[-1]
+    passed, total = (int(x) for x in last.split()[0].split("/"))
+    assert passed == total >= 54, last
+    assert "FAIL" not in res.stdout
+
+
+def test_profile_membership():
+    ids = set(runner.js_profile_ids(STREAMS))
+    # decodable streams of every tool of the profile, and error streams of Gaussian streams
+    for want in ("c032_gaussians_sh0", "c078_neighbour_prediction_tiles", "c084_neighbour_prediction_extent_at_the_limit",
+                 "c086_step_adjust_tiles", "e148_step_adjust_index_above_max", "e085_stream_shorter_than_header"):
+        assert want in ids
+    # anchor streams, the hierarchy and context models are outside it
+    for not_in in ("c001_one_anchor", "c034_gaussians_hierarchy_parent_mlp", "c063_tiles_gaussians",
+                   "e137_neighbour_prediction_with_hierarchy", "e007_crc_mismatch"):
+        assert not_in not in ids
+
+
+def test_lghcc_conformance_js(capsys):
+    rc = runner.main(["--js", "c033_gaussians_sh3_prediction", "c086_step_adjust_tiles", "e084_prediction_value_limit",
+                      "c001_one_anchor"])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    assert "3 passed, 0 failed" in out and "3 streams of the explicit-Gaussian profile run, 1 outside it" in out
+    assert "partial decodes match" in out  # c086's box decode through {options}
+
+
+def test_js_rejects_decoder_cmd_together(capsys):
+    with pytest.raises(SystemExit) as e:
+        runner.main(["--js", "--decoder-cmd", "x {stream}"])
+    assert e.value.code == 2
+
+
+DECODE_CHUNKS = """
+import { decodeSymbolChunk } from './symbols.mjs';
+let text = '';
+process.stdin.on('data', (d) => { text += d; });
+process.stdin.on('end', () => {
+    const out = [];
+    for (const c of JSON.parse(text)) {
+        const bytes = Uint8Array.from(Buffer.from(c.hex, 'hex'));
+        const levels = Uint8Array.from(c.levels), res = new Float64Array(levels.length), wide = new Map();
+        try {
+            decodeSymbolChunk(bytes, levels, levels.length, res, wide, 'chunk');
+            out.push(Array.from(res, (v, j) => (wide.has(j) ? wide.get(j) : BigInt(v)).toString()));
+        } catch (e) { out.push(e.constructor.name); }
+    }
+    console.log(JSON.stringify(out));
+});
+"""
+
+
+def test_range_decoder_matches_reference_coder():
+    rng = np.random.default_rng(7)
+    chunks, want = [], []
+    for trial in range(40):
+        n = int(rng.integers(1, 400))
+        levels = rng.integers(0, 64, n)
+        sigma = np.exp(rng.uniform(-2, 8, n))
+        r = np.rint(rng.normal(0, sigma)).astype(np.int64)
+        if trial % 3 == 0:  # escapes of every class, up to the largest magnitude
+            k = rng.integers(0, n, 5)
+            r[k] = rng.choice([1 << 20, (1 << 53) + 1, (1 << 62) - 1, -(1 << 61) - 12345, -5000], 5)
+        chunks.append({"hex": encode_symbols(r, levels).hex(), "levels": levels.tolist()})
+        want.append([str(int(x)) for x in r])
+    # the reference coder's verdicts on damaged chunks: one word more is read into point and passes
+    # the exhaustion check (clause 10.6.5) here, two words more do not, a cut chunk does not
+    good = encode_symbols(np.arange(-50, 50), np.full(100, 20))
+    for data in (good + b"\xff" * 4, good + b"\x01\x02\x03\x04" * 2, good[:-4]):
+        chunks.append({"hex": data.hex(), "levels": [20] * 100})
+    got = json.loads(node(DECODE_CHUNKS, json.dumps(chunks)))
+    assert got[:-3] == want
+    assert got[-3:] == [[str(x) for x in range(-50, 50)], "BitstreamError", "BitstreamError"]
+
+
+DECODE_FILES = """
+import { readFileSync } from 'node:fs';
+import { decodeStream, sceneDigestHex } from './decoder.mjs';
+const out = [];
+for (const f of JSON.parse(readFileSync(0, 'utf8'))) {
+    try {
+        const r = await decodeStream(new Uint8Array(readFileSync(f)));
+        out.push(sceneDigestHex(r.ps, r.tiles));
+    } catch (e) { out.push(e.constructor.name); }
+}
+console.log(JSON.stringify(out));
+"""
+
+
+def _corrupt(data: bytes, rng) -> bytes:
+    """Flip a byte inside one unit's payload and fix the unit's CRC, so the fault reaches decoding."""
+    units, pos = [], 8
+    while pos + 9 <= len(data):
+        size = int.from_bytes(data[pos + 1:pos + 5], "big")
+        units.append((pos, size))
+        pos += 9 + size
+    start, size = units[int(rng.integers(0, len(units)))]
+    if size == 0:
+        return data
+    b = bytearray(data)
+    b[start + 5 + int(rng.integers(0, size))] ^= 1 << int(rng.integers(0, 8))
+    b[start + 5 + size:start + 9 + size] = zlib.crc32(bytes(b[start:start + 5 + size])).to_bytes(4, "big")
+    return bytes(b)
+
+
+def test_corrupted_streams_agree_with_reference_decoder(tmp_path):
+    from lghcc.common.hashing import digest_of
+    from lghcc.decoder.decode import decode_stream
+
+    rng = np.random.default_rng(11)
+    sources = ["c032_gaussians_sh0", "c076_neighbour_prediction", "c085_step_adjust", "c078_neighbour_prediction_tiles"]
+    files, ref = [], []
+    for i in range(24):
+        data = _corrupt((STREAMS / sources[i % len(sources)] / "stream.lghcc").read_bytes(), rng)
+        f = tmp_path / f"m{i}.lghcc"
+        f.write_bytes(data)
+        files.append(str(f))
+        try:
+            ref.append(digest_of(decode_stream(data).scene).hex())
+        except LghccError:
+            ref.append(None)
+    got = json.loads(node(DECODE_FILES, json.dumps(files), timeout=600))
+    for f, g, r in zip(files, got, ref):
+        if r is None:
+            assert g in ("BitstreamError", "UnsupportedStreamError", "HashMismatchError"), (f, g)
+        else:
+            assert g == r, (f, g, r)
+
+
+def test_cli_exit_codes(tmp_path):
+    cli = str(JS / "cli.mjs")
+    s = str(STREAMS / "c033_gaussians_sh3_prediction" / "stream.lghcc")
+    res = subprocess.run([NODE, cli, s], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0 and res.stdout.strip().splitlines()[-1] == \
+        runner.load_cases(STREAMS, ["c033_gaussians_sh3_prediction"])[0].meta["decoded_sha256"]
+    res = subprocess.run([NODE, cli, s, "--max-memory", "1000"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 4 and "resource limit" in res.stderr and "MiB" in res.stderr
+    res = subprocess.run([NODE, cli, str(STREAMS / "e148_step_adjust_index_above_max" / "stream.lghcc")],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 3 and "max_step_adjust" in res.stderr
+    res = subprocess.run([NODE, cli, str(tmp_path / "missing.lghcc")], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 1
+    res = subprocess.run([NODE, cli], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2

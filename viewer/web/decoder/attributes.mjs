@@ -1,0 +1,260 @@
+// Attribute decoding of explicit-Gaussian tiles (spec clause 11): the per-channel prior, chunks,
+// cross-channel prediction (11.6), neighbour prediction (11.7), step adjustment (11.8) and
+// reconstruction in binary32 (11.5). Integers are exact doubles; the rare values beyond 2^53
+// (escapes near 2^62, predictions of huge deviations, step-adjusted sums of huge values) take an
+// exact BigInt path.
+import { BitstreamError } from './errors.mjs';
+import { buildTree, EXACT_EXTENT, nearest, nearestExact } from './knn.mjs';
+import { RangeDecoder } from './range.mjs';
+import { decodeSymbolChunk } from './symbols.mjs';
+
+export const STEP_ADJUST_FACTORS = [1.0, 1.18920708, 1.41421354, 1.68179286, 2.0, 2.37841415, 2.82842708, 3.36358571].map(Math.fround);
+export const ADJUST_FIXED_POINT = [4096, 4871, 5793, 6889, 8192, 9742, 11585, 13777];
+export const ADJUST_LEVEL_SHIFT = [0, 1, 3, 4, 5, 6, 8, 9];
+export const MAX_EXTENT = 1753413056;
+const Q_LIMIT = 2 ** 40;
+const SAFE_DEV = 2 ** 31; // |q - mean| below this: a row's prediction sum stays below 2^52
+const SAFE_SA = 2 ** 33; // |q| below this: step-adjusted neighbour sums stay below 2^53
+
+function bitLength(a) {
+    return a < 4294967296 ? 32 - Math.clz32(a) : 64 - Math.clz32(Math.floor(a / 4294967296));
+}
+
+function floorDiv(a, b) { // exact for integers a, b > 0 with |a| < 2^53
+    let m = Math.floor(a / b);
+    if (m * b > a) m--; else if ((m + 1) * b <= a) m++;
+    return m;
+}
+
+/** The rows of each LoD (clause 11.7.1), in increasing order. */
+export function lodRows(n, L) {
+    const out = [];
+    const step0 = 2 ** (L - 1);
+    const r0 = [];
+    for (let i = 0; i < n; i += step0) r0.push(i);
+    out.push(Int32Array.from(r0));
+    for (let l = 1; l < L; l++) {
+        const t = L - 1 - l, s = 2 ** t, rows = [];
+        for (let i = s; i < n; i += 2 * s) rows.push(i);
+        out.push(Int32Array.from(rows));
+    }
+    return out;
+}
+
+function checkExtent(x, y, z, n) {
+    let ext = 0;
+    for (const c of [x, y, z]) {
+        let mn = Infinity, mx = -Infinity;
+        for (let i = 0; i < n; i++) { if (c[i] < mn) mn = c[i]; if (c[i] > mx) mx = c[i]; }
+        ext = Math.max(ext, mx - mn);
+    }
+    if (ext > MAX_EXTENT) throw new BitstreamError(`the tile's points span ${ext} voxels, beyond MAX_EXTENT = ${MAX_EXTENT} (clause 8.1, E64)`);
+    return ext;
+}
+
+/** Neighbours (clause 11.7.2) of the rows of LoD l among the rows of LoDs < l: {idx: Int32Array [n_l * k], cnt}. */
+function lodNeighbours(lods, l, k, coords, exact) {
+    const { x, y, z } = coords;
+    let total = 0;
+    for (let m = 0; m < l; m++) total += lods[m].length;
+    const ids = new Int32Array(total);
+    let o = 0;
+    for (let m = 0; m < l; m++) { ids.set(lods[m], o); o += lods[m].length; }
+    ids.sort();
+    const rows = lods[l];
+    const idx = new Int32Array(rows.length * k), cnt = new Uint8Array(rows.length);
+    if (exact) {
+        const px = Array.from(ids, (i) => x[i]), py = Array.from(ids, (i) => y[i]), pz = Array.from(ids, (i) => z[i]);
+        for (let r = 0; r < rows.length; r++) cnt[r] = nearestExact(px, py, pz, ids, x[rows[r]], y[rows[r]], z[rows[r]], k, idx, r * k);
+        return { idx, cnt };
+    }
+    const tree = buildTree(Array.from(ids, (i) => x[i]), Array.from(ids, (i) => y[i]), Array.from(ids, (i) => z[i]), ids);
+    const hd = new Float64Array(k), hi = new Int32Array(k), stack = new Float64Array(3 * 256);
+    for (let r = 0; r < rows.length; r++) {
+        const i = rows[r];
+        cnt[r] = nearest(tree, x[i], y[i], z[i], k, idx, r * k, hd, hi, stack);
+    }
+    return { idx, cnt };
+}
+
+class TileAttributeDecoder {
+    constructor(payload, h, coords, ctx) {
+        this.payload = payload; this.h = h; this.coords = coords; this.ctx = ctx;
+        this.M = ctx.M; this.n = h.numRows;
+        this.q = new Float64Array(this.n * this.M);
+        this.adj = new Uint8Array(this.n);
+        this.off = h.dataOffset;
+        this.chunk = 0;
+        const S = h.rowsPerChunk, M = this.M;
+        const cap = Math.min(S, this.n) * M;
+        this.mean = new Float64Array(cap); this.level = new Uint8Array(cap); this.res = new Float64Array(cap);
+        // predictions grouped by target (they are sorted by target, clause 7.3.5)
+        this.pStart = new Int32Array(M + 1);
+        for (let i = 0; i < h.predTarget.length; i++) this.pStart[h.predTarget[i] + 1]++;
+        for (let c = 0; c < M; c++) this.pStart[c + 1] += this.pStart[c];
+    }
+
+    take(size, what) {
+        const b = this.payload.subarray(this.off, this.off + size);
+        this.off += size;
+        return b;
+    }
+
+    run() {
+        const { np } = this.ctx;
+        const lods = np ? lodRows(this.n, np.L) : [null];
+        let exact = false;
+        if (np) exact = checkExtent(this.coords.x, this.coords.y, this.coords.z, this.n) > EXACT_EXTENT;
+        for (let l = 0; l < lods.length; l++) {
+            const rows = lods[l];
+            const nl = rows ? rows.length : this.n;
+            const nb = l > 0 ? lodNeighbours(lods, l, np.k, this.coords, exact) : null;
+            const S = this.h.rowsPerChunk;
+            for (let m = 0; m * S < nl; m++) {
+                const lo = m * S, hi = Math.min(nl, lo + S);
+                this.decodeChunk(rows, lo, hi, nb);
+            }
+        }
+        return this.q;
+    }
+
+    decodeChunk(rows, lo, hi, nb) {
+        const i = this.chunk++;
+        const nr = hi - lo, M = this.M, h = this.h;
+        const rowAt = rows ? (t) => rows[t] : (t) => t;
+        if (this.ctx.stepAdjust) this.decodeIndices(i, rowAt, lo, hi);
+        for (let t = lo; t < hi; t++) this.rowParameters(rowAt(t), (t - lo) * M, nb, t);
+        const wide = new Map();
+        const bytes = this.take(h.chunkSize[i]);
+        decodeSymbolChunk(bytes, this.level, nr * M, this.res, wide, `attribute chunk ${i}`);
+        for (let t = lo; t < hi; t++) this.rowValues(rowAt(t), (t - lo) * M, wide);
+    }
+
+    decodeIndices(i, rowAt, lo, hi) {
+        const h = this.h, nr = hi - lo;
+        const bytes = this.take(h.adjustSize[i]);
+        const levels = new Uint8Array(nr).fill(h.adjustLevel);
+        const r = new Float64Array(nr);
+        decodeSymbolChunk(bytes, levels, nr, r, new Map(), `step-adjustment chunk ${i}`);
+        const max = this.ctx.stepAdjust.maxStepAdjust;
+        for (let t = 0; t < nr; t++) {
+            const a = r[t] + h.adjustMean;
+            if (!(a >= 0 && a <= max)) throw new BitstreamError(`step-adjustment chunk ${i}: an index is outside [0, max_step_adjust = ${max}] (clause 11.8, E65)`);
+            this.adj[rowAt(lo + t)] = a;
+        }
+    }
+
+    /** mean[c] and level[c] of row `row` (clauses 11.3, 11.7.3, 11.8) at base in the chunk buffers. */
+    rowParameters(row, base, nb, t) {
+        const M = this.M, h = this.h, np = this.ctx.np, sa = this.ctx.stepAdjust;
+        const F = ADJUST_FIXED_POINT[this.adj[row]];
+        if (!nb) {
+            for (let c = 0; c < M; c++) {
+                if (sa) {
+                    this.mean[base + c] = floorDiv(h.priorMean[c] * 4096 + Math.floor(F / 2), F);
+                    this.level[base + c] = Math.max(0, h.priorLevel[c] - ADJUST_LEVEL_SHIFT[this.adj[row]]);
+                } else {
+                    this.mean[base + c] = h.priorMean[c];
+                    this.level[base + c] = h.priorLevel[c];
+                }
+            }
+            return;
+        }
+        const k = np.k, r = t, n = nb.cnt[r], B = np.B, q = this.q;
+        let wide = false;
+        if (sa) for (let m = 0; m < n; m++) for (let c = 0; c < M; c++) if (Math.abs(q[nb.idx[r * k + m] * M + c]) >= SAFE_SA) wide = true;
+        if (wide) { this.rowParametersExact(row, base, nb.idx.subarray(r * k, r * k + n)); return; }
+        for (let c = 0; c < M; c++) {
+            let sum = 0, mx = -Infinity, mn = Infinity;
+            for (let m = 0; m < n; m++) {
+                const j = nb.idx[r * k + m];
+                const v = sa ? q[j * M + c] * ADJUST_FIXED_POINT[this.adj[j]] : q[j * M + c];
+                sum += v;
+                if (v > mx) mx = v;
+                if (v < mn) mn = v;
+            }
+            let mean, act;
+            if (sa) {
+                mean = np.meanFlag[c] ? floorDiv(sum + Math.floor(n * F / 2), n * F) : floorDiv(h.priorMean[c] * 4096 + Math.floor(F / 2), F);
+                act = floorDiv(mx - mn, F);
+            } else {
+                mean = np.meanFlag[c] ? floorDiv(sum + Math.floor(n / 2), n) : h.priorMean[c];
+                act = mx - mn;
+            }
+            this.mean[base + c] = mean;
+            this.level[base + c] = np.bucketLevel[c * B + Math.min(bitLength(act), B - 1)];
+        }
+    }
+
+    rowParametersExact(row, base, nbr) {
+        const M = this.M, h = this.h, np = this.ctx.np, q = this.q;
+        const F = BigInt(ADJUST_FIXED_POINT[this.adj[row]]);
+        const n = BigInt(nbr.length);
+        const fdiv = (a, b) => { const d = a / b; return (a % b !== 0n && (a < 0n) !== (b < 0n)) ? d - 1n : d; };
+        for (let c = 0; c < M; c++) {
+            const v = Array.from(nbr, (j) => BigInt(q[j * M + c]) * BigInt(ADJUST_FIXED_POINT[this.adj[j]]));
+            let sum = 0n, mx = v[0], mn = v[0];
+            for (const x of v) { sum += x; if (x > mx) mx = x; if (x < mn) mn = x; }
+            const mean = np.meanFlag[c] ? fdiv(sum + (n * F) / 2n, n * F) : fdiv(BigInt(h.priorMean[c]) * 4096n + F / 2n, F);
+            const act = fdiv(mx - mn, F);
+            this.mean[base + c] = Number(mean);
+            this.level[base + c] = np.bucketLevel[c * np.B + Math.min(act.toString(2).length - (act === 0n ? 1 : 0), np.B - 1)];
+        }
+    }
+
+    /** q of one row (clauses 11.4 step 3, 11.6): residual + mean + prediction, |q| <= 2^40 checked. */
+    rowValues(row, base, wide) {
+        const M = this.M, h = this.h, q = this.q, mean = this.mean, res = this.res;
+        const qb = row * M, ps = this.pStart, src = h.predSource, w = h.predWeight;
+        for (let c = 0; c < M; c++) {
+            const rv = res[base + c];
+            let ok = Math.abs(rv) < 2 ** 52; // false for NaN: a wide residual
+            let p = 0;
+            for (let i = ps[c]; i < ps[c + 1] && ok; i++) {
+                const dev = q[qb + src[i]] - mean[base + src[i]];
+                if (Math.abs(dev) >= SAFE_DEV) ok = false;
+                p += w[i] * dev;
+            }
+            let v;
+            if (ok) v = rv + mean[base + c] + Math.floor((p + 128) / 256);
+            else v = this.valueExact(qb, base, c, wide);
+            if (!(Math.abs(v) <= Q_LIMIT)) {
+                throw new BitstreamError(`a quantized value ${v} of row ${row}, channel ${c} is beyond 2^40 (clause 11.6, E51)`);
+            }
+            q[qb + c] = v;
+        }
+    }
+
+    valueExact(qb, base, c, wide) {
+        const h = this.h, q = this.q, mean = this.mean;
+        const rv = wide.has(base + c) ? wide.get(base + c) : BigInt(this.res[base + c]);
+        let p = 0n;
+        for (let i = this.pStart[c]; i < this.pStart[c + 1]; i++) {
+            p += BigInt(h.predWeight[i]) * (BigInt(q[qb + h.predSource[i]]) - BigInt(mean[base + h.predSource[i]]));
+        }
+        const v = rv + BigInt(mean[base + c]) + ((p + 128n) >> 8n);
+        if (v > 2n ** 40n || v < -(2n ** 40n)) return Infinity;
+        return Number(v);
+    }
+}
+
+/**
+ * Decode the attribute unit of a tile: returns the reconstructed values, Float32Array [n * M]
+ * (row-major, channel order of clause 11.1).
+ */
+export function decodeTileAttributes(payload, header, coords, ctx) {
+    const dec = new TileAttributeDecoder(payload, header, coords, ctx);
+    const q = dec.run();
+    const M = ctx.M, n = header.numRows;
+    const scales = STEP_ADJUST_FACTORS.map((f) => Float64Array.from(ctx.steps, (s) => Math.fround(s * f)));
+    const out = new Float32Array(n * M);
+    for (let i = 0; i < n; i++) {
+        const s = scales[dec.adj[i]];
+        for (let c = 0; c < M; c++) {
+            const v = Math.fround(Math.fround(q[i * M + c]) * s[c]);
+            if (!Number.isFinite(v)) throw new BitstreamError(`row ${i}, channel ${c}: the reconstructed value is not finite (clause 11.5, E52)`);
+            out[i * M + c] = v;
+        }
+    }
+    return out;
+}

@@ -1,0 +1,192 @@
+// The decoding process of spec clause 13 for the explicit-Gaussian profile (see README.md):
+// container, parameter set, neighbour prediction and step adjustment units, tile index, then
+// every tile (geometry, attributes, hash check).
+import { decodeTileAttributes } from './attributes.mjs';
+import { parseContainer, unitStructure, UNIT } from './container.mjs';
+import { BitstreamError, HashMismatchError, ResourceLimitError, UnsupportedStreamError } from './errors.mjs';
+import { decodeGeometry } from './geometry.mjs';
+import { Sha256, sha256Parts, toHex } from './sha256.mjs';
+import { scaleTables } from './tables.mjs';
+import {
+    parseAttributeHeader, parseGaussianParameterSet, parseHashUnit, parseNeighbourPrediction, parseStepAdjust, parseTileIndex,
+} from './units.mjs';
+
+export { BitstreamError, HashMismatchError, ResourceLimitError, UnsupportedStreamError };
+export const DEFAULT_MAX_MEMORY = 2 ** 31; // bytes a decode may hold (decodeStream's maxMemory)
+
+/**
+ * Parse everything before the tiles (clause 13.1 steps 1 to 5). Returns the stream's context:
+ * {ps, np, stepAdjust, tiles: [{units, points, cell}], M, steps}.
+ */
+export function parseStream(bytes, { maxMemory = DEFAULT_MAX_MEMORY } = {}) {
+    scaleTables(); // digest of clause 10.2.2 checked before anything is decoded
+    const container = parseContainer(bytes);
+    const s = unitStructure(container.units);
+    const ps = parseGaussianParameterSet(s.ps.payload);
+    if (s.np && ps.hierarchyEnabled) throw new BitstreamError('a neighbour_prediction unit in a stream with the hierarchy (clause 7.3.12, E60)');
+    if (s.cm && !ps.hierarchyEnabled) throw new BitstreamError('a context_model unit with hierarchy_enabled_flag = 0 (clause 8.3, E16)');
+    if (ps.hierarchyEnabled) throw new UnsupportedStreamError('hierarchy_enabled_flag = 1: the two-level hierarchy is outside the explicit-Gaussian profile this decoder implements');
+    const ctx = { ps, M: ps.M, steps: ps.steps, np: null, stepAdjust: null };
+    if (s.np) ctx.np = parseNeighbourPrediction(s.np.payload, ps.M);
+    if (s.sa) ctx.stepAdjust = parseStepAdjust(s.sa.payload);
+    ctx.tiles = tileList(container.units, s, ps);
+    checkMemory(ctx, bytes.length, maxMemory);
+    return ctx;
+}
+
+function tileList(units, s, ps) {
+    if (!!s.ti !== !!ps.tilesEnabled) {
+        throw new BitstreamError(`tiles_enabled_flag = ${ps.tilesEnabled} ${s.ti ? 'with' : 'without'} a tile_index unit (clause 7.3.11, E54)`);
+    }
+    if (!s.ti) {
+        if (s.tiles.length !== 1) throw new BitstreamError(`${s.tiles.length} tiles without a tile_index unit (E54)`);
+        return [{ units: s.tiles[0].units, points: ps.numGaussians, cell: null }];
+    }
+    const index = parseTileIndex(s.ti.payload, ps.numGaussians);
+    if (index.length !== s.tiles.length) throw new BitstreamError(`the tile index lists ${index.length} tiles, the stream holds ${s.tiles.length} (clause 7.3.11, E55)`);
+    let pos = s.ti.end;
+    index.forEach((t, i) => {
+        const tile = s.tiles[i];
+        if (tile.start !== pos || tile.end !== pos + t.size) {
+            throw new BitstreamError(`tile ${i} does not start at byte ${pos} and take tile_data_size = ${t.size} bytes (clause 7.3.11, E55)`);
+        }
+        pos += t.size;
+    });
+    if (units.some((u) => u.type >= 0x80 && u.start >= s.ti.end && u.start < pos)) {
+        throw new BitstreamError('an ancillary unit between the tile index and the end of the last tile (clause 7.3.11, E55)');
+    }
+    return index.map((t, i) => ({ units: s.tiles[i].units, points: t.points, cell: t.cell }));
+}
+
+/** Refuse before allocating a stream whose declared sizes need more than maxMemory (ResourceLimitError). */
+function checkMemory(ctx, streamBytes, maxMemory) {
+    const N = ctx.ps.numGaussians, M = ctx.M;
+    const largest = Math.max(...ctx.tiles.map((t) => t.points));
+    const k = ctx.np ? ctx.np.k : 0;
+    // output: coordinates (int32) and values (binary32); per tile: q (float64), values, geometry and k-NN working sets
+    const need = streamBytes + N * (12 + 4 * M) + largest * (8 * M + 4 * M + 160 + 4 * k + 64);
+    if (need > maxMemory) {
+        throw new ResourceLimitError(`decoding needs about ${Math.ceil(need / 2 ** 20)} MiB (N = ${N}, M = ${M}, largest tile ${largest} points), more than the bound of ${Math.floor(maxMemory / 2 ** 20)} MiB`);
+    }
+}
+
+/** Decode tile t of the stream context (clause 13.2). Returns {x, y, z, values, n}. */
+export async function decodeTile(ctx, t, { checkHash = true } = {}) {
+    const tile = ctx.tiles[t];
+    const [G, ...rest] = tile.units;
+    const H = rest.pop();
+    const A = rest;
+    const n = tile.points;
+    const coords = decodeGeometry(G.payload, n);
+    if (tile.cell) checkCell(coords, n, tile.cell, ctx.ps.tileSize, t);
+    if (A.length !== 1) throw new BitstreamError(`tile ${t} has ${A.length} attribute units; without the hierarchy it has 1 (clause 6.3, ${ctx.np ? 'E63' : 'E15'})`);
+    const sceneHash = parseHashUnit(H.payload);
+    const h = parseAttributeHeader(A[0].payload, ctx);
+    if (h.numRows !== n) throw new BitstreamError(`attribute unit of tile ${t}: num_rows_minus1 + 1 = ${h.numRows}, the tile has ${n} points (clause 8.3, E59)`);
+    const values = decodeTileAttributes(A[0].payload, h, coords, ctx);
+    const out = { x: coords.x, y: coords.y, z: coords.z, values, n };
+    if (checkHash) {
+        const digest = await sha256Parts(serializeParts(ctx.ps, [out]));
+        if (toHex(digest) !== toHex(sceneHash)) throw new HashMismatchError(`tile ${t}: the decoded scene does not match its scene_hash (clause 12, E53)`);
+    }
+    return out;
+}
+
+function checkCell(coords, n, cell, T, t) {
+    const c = [coords.x, coords.y, coords.z];
+    for (let a = 0; a < 3; a++) {
+        const lo = cell[a] * T, hi = lo + T - 1;
+        for (let i = 0; i < n; i++) {
+            const v = c[a][i];
+            if (v < lo || v > hi) throw new BitstreamError(`tile ${t}: a decoded point lies outside the tile's cell (clause 7.3.11, E58)`);
+        }
+    }
+}
+
+/** The serialization of clause 12 of tiles' points (in order), as a list of byte views. */
+export function serializeParts(ps, tiles) {
+    const N = tiles.reduce((a, t) => a + t.n, 0), M = ps.M, S3 = 3 * ps.S;
+    const head = new ArrayBuffer(17 + 16 + 16);
+    const hb = new Uint8Array(head), dv = new DataView(head);
+    hb.set(new TextEncoder().encode('LGHC-gaussians-v1'));
+    dv.setBigInt64(17, BigInt(N), true);
+    dv.setBigInt64(25, BigInt(ps.shDegree), true);
+    dv.setFloat32(33, ps.voxelSize, true);
+    for (let i = 0; i < 3; i++) dv.setFloat32(37 + 4 * i, ps.origin[i], true);
+    const coords = new Int32Array(N * 6); // int64 little-endian as (low, high) int32 pairs
+    const groups = [[0, S3], [S3, S3 + 1], [S3 + 1, S3 + 4], [S3 + 4, M]].map(([a, b]) => ({ a, b, arr: new Float32Array(N * (b - a)) }));
+    let o = 0;
+    for (const t of tiles) {
+        for (let i = 0; i < t.n; i++, o++) {
+            const xyz = [t.x[i], t.y[i], t.z[i]];
+            for (let a = 0; a < 3; a++) { coords[6 * o + 2 * a] = xyz[a]; coords[6 * o + 2 * a + 1] = xyz[a] < 0 ? -1 : 0; }
+            for (const g of groups) {
+                const w = g.b - g.a;
+                for (let c = 0; c < w; c++) g.arr[o * w + c] = t.values[i * M + g.a + c];
+            }
+        }
+    }
+    if (new Uint8Array(new Uint16Array([1]).buffer)[0] !== 1) throw new Error('big-endian hosts are not supported');
+    return [hb, new Uint8Array(coords.buffer), ...groups.map((g) => new Uint8Array(g.arr.buffer))];
+}
+
+/** Hex SHA-256 of the clause-12 serialization of the tiles' points. */
+export function sceneDigestHex(ps, tiles) {
+    const h = new Sha256();
+    for (const p of serializeParts(ps, tiles)) h.update(p);
+    return toHex(h.digest());
+}
+
+/** Tiles a box selects (clause 13.3): box = [x0, y0, z0, x1, y1, z1] in world coordinates. */
+export function tilesInBox(ctx, box) {
+    const ps = ctx.ps;
+    return ctx.tiles.map((t, i) => i).filter((i) => {
+        const cell = ctx.tiles[i].cell;
+        if (!cell) return true;
+        for (let a = 0; a < 3; a++) {
+            const lo = cell[a] * ps.tileSize * ps.voxelSize + ps.origin[a];
+            const hi = (cell[a] + 1) * ps.tileSize * ps.voxelSize + ps.origin[a];
+            if (lo > box[a + 3] || hi < box[a]) return false;
+        }
+        return true;
+    });
+}
+
+/**
+ * Decode a whole stream (or the tiles a box selects). Returns {ps, tiles: [{x, y, z, values, n}]}.
+ * onTile(t, tileResult) is called after each tile is decoded and hash-checked.
+ */
+export async function decodeStream(bytes, { box = null, maxMemory = DEFAULT_MAX_MEMORY, onTile = null } = {}) {
+    const ctx = parseStream(bytes, { maxMemory });
+    const selected = box ? tilesInBox(ctx, box) : ctx.tiles.map((_, i) => i);
+    const tiles = [];
+    for (const t of selected) {
+        const r = await decodeTile(ctx, t);
+        tiles.push(r);
+        if (onTile) onTile(t, r, ctx);
+    }
+    return { ps: ctx.ps, ctx, tiles };
+}
+
+/** The decoded scene as renderer arrays (no PLY): positions (world, float32), SH, opacity, log scales, rotations. */
+export function sceneArrays(ps, tiles) {
+    const N = tiles.reduce((a, t) => a + t.n, 0), M = ps.M, S3 = 3 * ps.S;
+    const out = {
+        count: N, shDegree: ps.shDegree, positions: new Float32Array(3 * N), sh: new Float32Array(S3 * N),
+        opacities: new Float32Array(N), scales: new Float32Array(3 * N), rotations: new Float32Array(4 * N),
+    };
+    let o = 0;
+    const vs = Math.fround(ps.voxelSize);
+    for (const t of tiles) {
+        for (let i = 0; i < t.n; i++, o++) {
+            const xyz = [t.x[i], t.y[i], t.z[i]];
+            for (let a = 0; a < 3; a++) out.positions[3 * o + a] = Math.fround(Math.fround(Math.fround(xyz[a]) * vs) + ps.origin[a]);
+            const b = i * M;
+            for (let c = 0; c < S3; c++) out.sh[S3 * o + c] = t.values[b + c];
+            out.opacities[o] = t.values[b + S3];
+            for (let a = 0; a < 3; a++) out.scales[3 * o + a] = t.values[b + S3 + 1 + a];
+            for (let j = 0; j < 4; j++) out.rotations[4 * o + j] = t.values[b + S3 + 4 + j];
+        }
+    }
+    return out;
+}

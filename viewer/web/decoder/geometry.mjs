@@ -1,0 +1,300 @@
+// Geometry decoding (spec/geometry.md, clauses G.2 to G.6): the octree with direct coding (IDCM)
+// and binary decisions with adaptive integer probabilities, output in the normative Morton order.
+import { BitReader, checkRange } from './bitreader.mjs';
+import { BitstreamError } from './errors.mjs';
+import { RangeDecoder } from './range.mjs';
+
+const TWO24 = 1 << 24;
+const NUM_OCC_CONTEXTS = 432;
+const DENS = [0, 1, 1, 2, 2, 3, 3];
+const AXIS_BIT = [4, 2, 1];
+const COUNT_LIMIT = 1024;
+const LEVEL_COUNT_LIMIT = 64;
+const POPCOUNT8 = Uint8Array.from({ length: 256 }, (_, v) => { let c = 0; for (; v; v &= v - 1) c++; return c; });
+
+/** geometry_header() (G.2, G.3), checked; returns {bboxMin, bitDepth, idcmMode, dataOffset}. */
+export function parseGeometryHeader(payload, n) {
+    const r = new BitReader(payload, 'geometry_header');
+    const bboxMin = [0, 0, 0], bitDepth = [0, 0, 0];
+    for (let i = 0; i < 3; i++) {
+        const sign = r.u(1, `geom_bbox_min_sign_flag[${i}]`);
+        const abs = checkRange('geometry_header', `geom_bbox_min_abs[${i}]`, r.ue(`geom_bbox_min_abs[${i}]`), 0, 2 ** 31);
+        if (!sign && abs > 2 ** 31 - 1) {
+            throw new BitstreamError(`geometry_header.geom_bbox_min_abs[${i}] = ${abs} puts the bounding-box minimum outside [-2^31, 2^31) (G.3, E26)`);
+        }
+        bboxMin[i] = sign ? -abs : abs;
+        bitDepth[i] = checkRange('geometry_header', `geom_bit_depth[${i}]`, r.u(6, `geom_bit_depth[${i}]`), 0, 32);
+    }
+    const idcmMode = checkRange('geometry_header', 'geom_idcm_mode', r.ue('geom_idcm_mode'), 0, 2);
+    r.byteAlign();
+    if (n > 2 ** (bitDepth[0] + bitDepth[1] + bitDepth[2])) {
+        throw new BitstreamError(`geometry: ${n} points cannot be distinct in a bounding box of ${bitDepth} bits per axis (G.3, E27)`);
+    }
+    const dataOffset = r.bitPosition >>> 3;
+    if (Math.max(...bitDepth) === 0 && dataOffset < payload.length) {
+        throw new BitstreamError(`geometry: ${payload.length - dataOffset} bytes of coded data after a header of bit depth 0 (G.3, E28)`);
+    }
+    return { bboxMin, bitDepth, idcmMode, dataOffset };
+}
+
+/** The binary procedure of G.6.1 over decisions with contexts ctx[0..n-1] and counts T (Int32Array [C * 2]). */
+function decodeBinarySequence(dec, ctx, n, T, numCtx, out) {
+    const count = new Int32Array(numCtx + 1);
+    const order = new Int32Array(Math.min(n, 1 << 30));
+    const bounds = [0];
+    for (let size = 256; size < n; size *= 2) bounds.push(size);
+    if (n > 0) bounds.push(n);
+    for (let b = 0; b + 1 < bounds.length; b++) {
+        const c0 = bounds[b], c1 = bounds[b + 1];
+        count.fill(0);
+        for (let j = c0; j < c1; j++) count[ctx[j] + 1]++;
+        for (let c = 0; c < numCtx; c++) count[c + 1] += count[c];
+        for (let j = c0; j < c1; j++) order[count[ctx[j]]++] = j;
+        let start = 0;
+        for (let c = 0; c < numCtx; c++) {
+            const end = count[c];
+            if (end === start) continue;
+            const n0 = T[2 * c], n1 = T[2 * c + 1];
+            let f1 = Math.floor((2 * n1 + 1) * TWO24 / (2 * (n0 + n1) + 2));
+            if (f1 < 1) f1 = 1; else if (f1 > TWO24 - 1) f1 = TWO24 - 1;
+            for (let t = start; t < end; t++) out[order[t]] = dec.decodeBinary(f1);
+            start = end;
+        }
+        for (let j = c0; j < c1; j++) T[2 * ctx[j] + out[j]]++;
+        limitCounts(T, numCtx, COUNT_LIMIT);
+    }
+}
+
+function limitCounts(T, numCtx, limit) {
+    for (let c = 0; c < numCtx; c++) {
+        while (T[2 * c] + T[2 * c + 1] > limit) {
+            T[2 * c] = (T[2 * c] + 1) >> 1;
+            T[2 * c + 1] = (T[2 * c + 1] + 1) >> 1;
+        }
+    }
+}
+
+function hashOf(x, y, z) {
+    return (Math.imul(x, 0x9E3779B1) ^ Math.imul(y, 0x85EBCA77) ^ Math.imul(z, 0xC2B2AE3D)) >>> 0;
+}
+
+/** Face neighbours (G.5.3): nb[6 * i + 2a] the node at q - e_a, nb[6 * i + 2a + 1] at q + e_a, or -1. */
+function faceNeighbours(qx, qy, qz, m, depth) {
+    let cap = 16;
+    while (cap < 2 * m) cap *= 2;
+    const shift = 32 - Math.log2(cap);
+    const table = new Int32Array(cap).fill(-1);
+    const mask = cap - 1;
+    for (let i = 0; i < m; i++) {
+        let h = hashOf(qx[i], qy[i], qz[i]) >>> shift;
+        while (table[h] >= 0) h = (h + 1) & mask;
+        table[h] = i;
+    }
+    const nb = new Int32Array(6 * m).fill(-1);
+    const size = 2 ** depth;
+    const find = (x, y, z) => {
+        if (x < 0 || y < 0 || z < 0 || x >= size || y >= size || z >= size) return -1;
+        let h = hashOf(x, y, z) >>> shift;
+        for (;;) {
+            const j = table[h];
+            if (j < 0) return -1;
+            if (qx[j] === x && qy[j] === y && qz[j] === z) return j;
+            h = (h + 1) & mask;
+        }
+    };
+    for (let i = 0; i < m; i++) {
+        const x = qx[i], y = qy[i], z = qz[i];
+        nb[6 * i] = find(x - 1, y, z); nb[6 * i + 1] = find(x + 1, y, z);
+        nb[6 * i + 2] = find(x, y - 1, z); nb[6 * i + 3] = find(x, y + 1, z);
+        nb[6 * i + 4] = find(x, y, z - 1); nb[6 * i + 5] = find(x, y, z + 1);
+    }
+    return nb;
+}
+
+class Nodes {
+    constructor(m) {
+        this.m = m;
+        this.qx = new Float64Array(m); this.qy = new Float64Array(m); this.qz = new Float64Array(m);
+        this.sib1 = new Uint8Array(m); this.parNbr = new Uint8Array(m); this.parSib1 = new Uint8Array(m);
+    }
+}
+
+/** Direct coding (G.5.2). Returns the nodes that are not direct; pushes the direct points. */
+function directCoding(dec, st, nodes, R, bitDepth, mode, n, direct) {
+    const m = nodes.m;
+    const elig = [];
+    for (let i = 0; i < m; i++) {
+        const ok = mode === 1 ? (nodes.sib1[i] === 1 && nodes.parNbr[i] === 0 && nodes.parSib1[i] <= 2) : nodes.parNbr[i] === 0;
+        if (ok) elig.push(i);
+    }
+    if (!elig.length) return nodes;
+    const ctx = Int32Array.from(elig, (i) => Math.min(nodes.sib1[i] - 1, 2) * 3 + Math.min(nodes.parSib1[i] - 1, 2));
+    const flag = new Int32Array(elig.length);
+    decodeBinarySequence(dec, ctx, elig.length, st.idcm, 9, flag);
+    const dnodes = elig.filter((_, e) => flag[e] === 1);
+    const two = new Int32Array(dnodes.length);
+    decodeBinarySequence(dec, new Int32Array(dnodes.length), dnodes.length, st.two, 1, two);
+    const owners = [];
+    dnodes.forEach((i, e) => { owners.push(i); if (two[e]) owners.push(i); });
+    if (direct.count + owners.length + (m - dnodes.length) > n) {
+        throw new BitstreamError(`geometry data: more than N = ${n} points (G.5.2 step 3, E29)`);
+    }
+    const P = owners.length;
+    const low = [0, 1, 2].map((a) => dec.decodeBitsSame(Math.min(R, bitDepth[a]), P));
+    const scale = 2 ** R;
+    const q = [nodes.qx, nodes.qy, nodes.qz];
+    for (let o = 0; o < P; o++) {
+        const i = owners[o];
+        const p = [0, 1, 2].map((a) => q[a][i] * scale + low[a][o]);
+        if (o > 0 && owners[o - 1] === i) {
+            const prev = direct.count - 1;
+            if (direct.x[prev] === p[0] && direct.y[prev] === p[1] && direct.z[prev] === p[2]) {
+                throw new BitstreamError('geometry data: the two points of a two-point direct node are equal (G.5.2, E30)');
+            }
+        }
+        direct.push(p[0], p[1], p[2]);
+    }
+    const isDirect = new Uint8Array(m);
+    for (const i of dnodes) isDirect[i] = 1;
+    const keep = new Nodes(m - dnodes.length);
+    for (let i = 0, j = 0; i < m; i++) {
+        if (isDirect[i]) continue;
+        keep.qx[j] = nodes.qx[i]; keep.qy[j] = nodes.qy[i]; keep.qz[j] = nodes.qz[i];
+        keep.sib1[j] = nodes.sib1[i]; keep.parNbr[j] = nodes.parNbr[i]; keep.parSib1[j] = nodes.parSib1[i];
+        j++;
+    }
+    return keep;
+}
+
+/** Occupancy (G.5.4); returns the nodes of depth l + 1. */
+function occupancy(dec, st, nodes, depth, R, bitDepth, n, numDirect) {
+    const m = nodes.m;
+    for (let k = 0; k < 8; k++) limitCounts(st.occ[k], NUM_OCC_CONTEXTS, LEVEL_COUNT_LIMIT);
+    const nb = faceNeighbours(nodes.qx, nodes.qy, nodes.qz, m, depth);
+    const nbrCount = new Uint8Array(m);
+    for (let i = 0; i < m; i++) { let c = 0; for (let d = 0; d < 6; d++) if (nb[6 * i + d] >= 0) c++; nbrCount[i] = c; }
+    const splits = bitDepth.map((d) => R - 1 < d);
+    const valid = [];
+    for (let k = 0; k < 8; k++) if ([0, 1, 2].every((a) => splits[a] || !(k & AXIS_BIT[a]))) valid.push(k);
+    const last = valid[valid.length - 1];
+    const occ = new Uint8Array(m);
+    const ctx = new Int32Array(m), coded = new Int32Array(m), vals = new Int32Array(m);
+    for (const k of valid) {
+        let nc = 0;
+        for (let i = 0; i < m; i++) {
+            let axes = 0;
+            const o = occ[i];
+            for (let a = 0; a < 3; a++) {
+                const bit = AXIS_BIT[a];
+                let s;
+                if (k & bit) {
+                    const j = k ^ bit, mi = nb[6 * i + 2 * a + 1];
+                    s = ((o >> j) & 1) + (mi >= 0 ? (occ[mi] >> j) & 1 : 0);
+                } else {
+                    s = nb[6 * i + 2 * a] >= 0 ? 1 : 0;
+                }
+                axes = axes * 3 + s;
+            }
+            const before = POPCOUNT8[o & ((1 << k) - 1)];
+            if (k === last && before === 0) { vals[i] = -1; continue; } // inferred occupied
+            ctx[nc] = (axes * 4 + Math.min(before, 3)) * 4 + DENS[nbrCount[i]];
+            coded[nc++] = i;
+            vals[i] = 0;
+        }
+        const dv = new Int32Array(nc);
+        decodeBinarySequence(dec, ctx, nc, st.occ[k], NUM_OCC_CONTEXTS, dv);
+        for (let t = 0; t < nc; t++) occ[coded[t]] |= dv[t] << k;
+        if (k === last) for (let i = 0; i < m; i++) if (vals[i] === -1) occ[i] |= 1 << k;
+    }
+    let children = 0;
+    for (let i = 0; i < m; i++) children += POPCOUNT8[occ[i]];
+    if (numDirect + children > n) {
+        throw new BitstreamError(`geometry data: ${numDirect + children} points at depth ${depth + 1}, more than N = ${n} (G.5.4, E31)`);
+    }
+    const next = new Nodes(children);
+    for (let i = 0, j = 0; i < m; i++) {
+        const o = occ[i];
+        for (let k = 0; k < 8; k++) {
+            if (!((o >> k) & 1)) continue;
+            next.qx[j] = 2 * nodes.qx[i] + ((k >> 2) & 1);
+            next.qy[j] = 2 * nodes.qy[i] + ((k >> 1) & 1);
+            next.qz[j] = 2 * nodes.qz[i] + (k & 1);
+            next.sib1[j] = POPCOUNT8[o]; next.parNbr[j] = nbrCount[i]; next.parSib1[j] = nodes.sib1[i];
+            j++;
+        }
+    }
+    return next;
+}
+
+class PointList {
+    constructor() { this.x = []; this.y = []; this.z = []; this.count = 0; }
+    push(x, y, z) { this.x.push(x); this.y.push(y); this.z.push(z); this.count++; }
+}
+
+function lessMsb(a, b) { return a < b && a < ((a ^ b) >>> 0); }
+
+/** Morton order comparison of offsets (G.4): x bits before y before z at each bit position. */
+function mortonCompare(ax, ay, az, bx, by, bz) {
+    let axis = 0, best = (ax ^ bx) >>> 0;
+    const ty = (ay ^ by) >>> 0, tz = (az ^ bz) >>> 0;
+    if (lessMsb(best, ty)) { axis = 1; best = ty; }
+    if (lessMsb(best, tz)) { axis = 2; best = tz; }
+    if (axis === 0) return ax - bx;
+    return axis === 1 ? ay - by : az - bz;
+}
+
+/**
+ * Decode a geometry payload of n points (G.2 to G.5). Returns {x, y, z} (Int32Array each: voxel
+ * coordinates in normative order) and the header.
+ */
+export function decodeGeometry(payload, n) {
+    const h = parseGeometryHeader(payload, n);
+    const dec = new RangeDecoder(payload.subarray(h.dataOffset), 'geometry data');
+    const D = Math.max(...h.bitDepth);
+    const st = { occ: Array.from({ length: 8 }, () => new Int32Array(2 * NUM_OCC_CONTEXTS)), idcm: new Int32Array(18), two: new Int32Array(2) };
+    let nodes = new Nodes(1);
+    nodes.sib1[0] = 1; nodes.parSib1[0] = 1;
+    const direct = new PointList();
+    for (let l = 0; l < D; l++) {
+        const R = D - l;
+        if (h.idcmMode !== 0 && R >= 2) nodes = directCoding(dec, st, nodes, R, h.bitDepth, h.idcmMode, n, direct);
+        if (nodes.m === 0) break;
+        nodes = occupancy(dec, st, nodes, l, R, h.bitDepth, n, direct.count);
+    }
+    dec.checkExhausted();
+    return { ...outputPoints(nodes, direct, h, n), header: h };
+}
+
+function outputPoints(leaves, direct, h, n) {
+    const total = direct.count + leaves.m;
+    if (total !== n) throw new BitstreamError(`geometry data holds ${total} points, N = ${n} (G.5.5, E32)`);
+    const dorder = Array.from({ length: direct.count }, (_, i) => i);
+    dorder.sort((a, b) => mortonCompare(direct.x[a], direct.y[a], direct.z[a], direct.x[b], direct.y[b], direct.z[b]));
+    const ox = new Float64Array(n), oy = new Float64Array(n), oz = new Float64Array(n);
+    let i = 0, j = 0, o = 0;
+    while (o < n) { // merge the sorted direct points with the leaves (already in Morton order)
+        let takeDirect;
+        if (i >= dorder.length) takeDirect = false;
+        else if (j >= leaves.m) takeDirect = true;
+        else {
+            const d = dorder[i];
+            takeDirect = mortonCompare(direct.x[d], direct.y[d], direct.z[d], leaves.qx[j], leaves.qy[j], leaves.qz[j]) < 0;
+        }
+        if (takeDirect) { const d = dorder[i++]; ox[o] = direct.x[d]; oy[o] = direct.y[d]; oz[o] = direct.z[d]; }
+        else { ox[o] = leaves.qx[j]; oy[o] = leaves.qy[j]; oz[o] = leaves.qz[j]; j++; }
+        o++;
+    }
+    const out = [ox, oy, oz].map((c, a) => {
+        let mn = Infinity;
+        for (let t = 0; t < n; t++) if (c[t] < mn) mn = c[t];
+        if (mn !== 0) throw new BitstreamError('geometry data: the decoded points do not attain the bounding-box minimum (G.5.5, E33)');
+        const r = new Int32Array(n);
+        for (let t = 0; t < n; t++) {
+            const v = c[t] + h.bboxMin[a];
+            if (v > 2 ** 31 - 1) throw new BitstreamError('geometry data: decoded coordinates exceed 2^31 - 1 (G.5.5, E34)');
+            r[t] = v;
+        }
+        return r;
+    });
+    return { x: out[0], y: out[1], z: out[2] };
+}

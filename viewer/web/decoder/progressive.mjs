@@ -1,0 +1,120 @@
+// Progressive decoding (spec clause 6.1): tiles are decoded, and hash-checked, as soon as their
+// bytes have arrived; the scene is final only once the whole stream has passed the checks of
+// clauses 6 and 13.1 (parseStream on every byte). A stream rejected then is rejected whole.
+import { crc32 } from './crc32.mjs';
+import { decodeTile, parseStream, sceneArrays, DEFAULT_MAX_MEMORY } from './decoder.mjs';
+import { BitstreamError } from './errors.mjs';
+import { parseGaussianParameterSet, parseNeighbourPrediction, parseStepAdjust, parseTileIndex } from './units.mjs';
+import { UNIT } from './container.mjs';
+
+export class ProgressiveDecoder {
+    /** onTile(t, tile, info): a tile decoded and hash-checked (provisional until finish()). */
+    constructor({ onTile = null, maxMemory = DEFAULT_MAX_MEMORY } = {}) {
+        this.onTile = onTile;
+        this.maxMemory = maxMemory;
+        this.buf = new Uint8Array(1 << 16);
+        this.len = 0;
+        this.units = []; // complete units seen so far: {type, start, end, payload}
+        this.scan = 8;
+        this.ctx = null; // the prelude, once parsed
+        this.tiles = []; // decoded tiles, in order
+        this.busy = Promise.resolve();
+    }
+
+    /** Add the next bytes of the stream; decodes the tiles they complete. */
+    push(chunk) {
+        if (this.len + chunk.length > this.buf.length) {
+            let cap = this.buf.length;
+            while (cap < this.len + chunk.length) cap *= 2;
+            const b = new Uint8Array(cap);
+            b.set(this.buf.subarray(0, this.len));
+            this.buf = b;
+        }
+        this.buf.set(chunk, this.len);
+        this.len += chunk.length;
+        this.busy = this.busy.then(() => this._advance());
+        return this.busy;
+    }
+
+    _scanUnits() {
+        const b = this.buf;
+        while (this.scan + 9 <= this.len) {
+            const p = this.scan;
+            const size = ((b[p + 1] << 24) | (b[p + 2] << 16) | (b[p + 3] << 8) | b[p + 4]) >>> 0;
+            if (p + 9 + size > this.len) break;
+            const end = p + 5 + size;
+            const stored = ((b[end] << 24) | (b[end + 1] << 16) | (b[end + 2] << 8) | b[end + 3]) >>> 0;
+            if (crc32(b, p, end) !== stored) throw new BitstreamError(`data unit at byte ${p} fails its CRC-32 check (E9)`);
+            this.units.push({ type: b[p], start: p, end: end + 4, payload: b.slice(p + 5, end) });
+            this.scan = end + 4;
+        }
+    }
+
+    // the prelude (parameter set, neighbour prediction, step adjustment, tile index) from the units so far
+    _prelude() {
+        const crit = this.units.filter((u) => u.type < 0x80);
+        if (!crit.length || crit[0].type !== UNIT.GAUSSIAN_PARAMETER_SET) return null;
+        const ps = parseGaussianParameterSet(crit[0].payload);
+        if (ps.hierarchyEnabled) return null; // rejected by finish()
+        let i = 1;
+        const ctx = { ps, M: ps.M, steps: ps.steps, np: null, stepAdjust: null };
+        if (crit[i] && crit[i].type === UNIT.NEIGHBOUR_PREDICTION) {
+            ctx.np = parseNeighbourPrediction(crit[i++].payload, ps.M);
+            if (crit[i] && crit[i].type === UNIT.STEP_ADJUST) ctx.stepAdjust = parseStepAdjust(crit[i++].payload);
+        }
+        if (!crit[i]) return null;
+        if (ps.tilesEnabled) {
+            if (crit[i].type !== UNIT.TILE_INDEX) return null;
+            const ti = crit[i];
+            let pos = ti.end;
+            ctx.tiles = parseTileIndex(ti.payload, ps.numGaussians).map((t) => {
+                const r = { points: t.points, cell: t.cell, start: pos, end: pos + t.size };
+                pos += t.size;
+                return r;
+            });
+        } else {
+            ctx.tiles = [{ points: ps.numGaussians, cell: null, start: crit[i].start, end: Infinity }];
+        }
+        return ctx;
+    }
+
+    async _advance() {
+        this._scanUnits();
+        if (!this.ctx) {
+            this.ctx = this._prelude();
+            if (!this.ctx) return;
+        }
+        const ctx = this.ctx;
+        while (this.tiles.length < ctx.tiles.length) {
+            const t = this.tiles.length, tile = ctx.tiles[t];
+            const units = this.units.filter((u) => u.type < 0x80 && u.start >= tile.start && u.end <= tile.end);
+            const last = units[units.length - 1];
+            const complete = last && last.type === UNIT.DECODED_SCENE_HASH && (tile.end === Infinity || last.end === tile.end);
+            if (!complete) return;
+            tile.units = units;
+            const r = await decodeTile(ctx, t);
+            this.tiles.push(r);
+            if (this.onTile) this.onTile(t, r, { tiles: ctx.tiles.length, ps: ctx.ps });
+        }
+    }
+
+    /**
+     * The stream is complete: every check of clauses 6 and 13.1 on all its bytes, the tiles not
+     * decoded yet decoded. Returns {ps, tiles}; throws for a stream that is not conforming.
+     */
+    async finish() {
+        await this.busy;
+        const bytes = this.buf.subarray(0, this.len);
+        const ctx = parseStream(bytes, { maxMemory: this.maxMemory });
+        // the tiles decoded early were cut by the index this full parse has now checked
+        if (this.ctx && this.ctx.tiles.length !== ctx.tiles.length) throw new BitstreamError('the tiles changed between the progressive and the full parse');
+        for (let t = this.tiles.length; t < ctx.tiles.length; t++) {
+            const r = await decodeTile(ctx, t);
+            this.tiles.push(r);
+            if (this.onTile) this.onTile(t, r, { tiles: ctx.tiles.length, ps: ctx.ps });
+        }
+        return { ps: ctx.ps, tiles: this.tiles };
+    }
+}
+
+export { sceneArrays };
