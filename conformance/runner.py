@@ -121,6 +121,31 @@ def _bad(folder: Path, what: str) -> LghccError:
     return LghccError(f"{folder / 'test.yaml'}: {what}")
 
 
+def _validate_hashes(meta: dict, expect: str, folder: Path) -> None:
+    for key in ("stream_sha256",) + (("decoded_sha256",) if expect == "decode" else ()):
+        v = meta.get(key)
+        if v is None:
+            raise _bad(folder, f"missing {key}")
+        if not isinstance(v, str) or not _HEX64.fullmatch(v):
+            raise _bad(folder, f"{key} is not 64 lower-case hex digits: {v!r}")
+    if not isinstance(meta.get("stream_bytes"), int):
+        raise _bad(folder, "missing or non-integer stream_bytes")
+
+
+def _validate_expected_error(meta: dict, expect: str, folder: Path) -> None:
+    """An error stream names its class and a fragment of the message; a decode stream neither."""
+    if expect != "error":
+        if "expect_error" in meta or "expect_message" in meta:
+            raise _bad(folder, "expect_error / expect_message on a stream that must decode")
+        return
+    if "decoded_sha256" in meta:
+        raise _bad(folder, "an error stream has a decoded_sha256")
+    if meta.get("expect_error") not in ERROR_KINDS:
+        raise _bad(folder, f"expect_error {meta.get('expect_error')!r} is not one of {', '.join(ERROR_KINDS)}")
+    if not isinstance(meta.get("expect_message"), str) or not meta["expect_message"].strip():
+        raise _bad(folder, "missing expect_message (a fragment of the reference decoder's message)")
+
+
 def validate_meta(meta, folder: Path) -> dict:
     """Check one test.yaml; raise LghccError naming the file and the problem."""
     if not isinstance(meta, dict):
@@ -130,23 +155,8 @@ def validate_meta(meta, folder: Path) -> dict:
     expect = meta.get("expect", "decode")
     if expect not in ("decode", "error"):
         raise _bad(folder, f"unknown expect value {expect!r} (decode or error)")
-    for key in ("stream_sha256",) + (("decoded_sha256",) if expect == "decode" else ()):
-        v = meta.get(key)
-        if v is None:
-            raise _bad(folder, f"missing {key}")
-        if not isinstance(v, str) or not _HEX64.fullmatch(v):
-            raise _bad(folder, f"{key} is not 64 lower-case hex digits: {v!r}")
-    if not isinstance(meta.get("stream_bytes"), int):
-        raise _bad(folder, "missing or non-integer stream_bytes")
-    if expect == "error":
-        if "decoded_sha256" in meta:
-            raise _bad(folder, "an error stream has a decoded_sha256")
-        if meta.get("expect_error") not in ERROR_KINDS:
-            raise _bad(folder, f"expect_error {meta.get('expect_error')!r} is not one of {', '.join(ERROR_KINDS)}")
-        if not isinstance(meta.get("expect_message"), str) or not meta["expect_message"].strip():
-            raise _bad(folder, "missing expect_message (a fragment of the reference decoder's message)")
-    elif "expect_error" in meta or "expect_message" in meta:
-        raise _bad(folder, "expect_error / expect_message on a stream that must decode")
+    _validate_hashes(meta, expect, folder)
+    _validate_expected_error(meta, expect, folder)
     if "renders" in meta:
         if expect != "decode":
             raise _bad(folder, "renders on an error stream")

@@ -142,17 +142,13 @@ def _main(argv: list[str] | None) -> int:
         raise type(e)(f"{args.stream}: {e}; no page written") from None  # exit status 3 (run_cli)
 
 
-def _run(args, say) -> int:
-    from ..decoder.decode import decode_stream
-    from ..render.imageio import background_color
-    from .page import ENGINE_NAME, ENGINE_VERSION, Pane, build_page, bundle_js, fmt_db, mean_metrics, \
-        size_table_html
-    from .scenes import gaussians_of_decoded, load_source, ply_bytes, render_gaussians_fn
+def _check_args(args) -> tuple[int, int, np.ndarray]:
+    """Everything a user can get wrong, checked before minutes of decoding and rendering:
+    (PSNR width, height, up vector)."""
+    from .page import bundle_js
 
-    # everything a user can get wrong is checked before minutes of decoding and rendering
     check_output_paths({"-o": args.output}, {"input stream": args.stream, "--source": args.source})
-    out = Path(args.output)
-    check_overwrite(out, args.overwrite)
+    check_overwrite(Path(args.output), args.overwrite)
     if args.views < 1:
         raise LghccError(f"--views must be at least 1, got {args.views}")
     if args.export_directions < (args.export_sh_degree + 1) ** 2:
@@ -163,6 +159,12 @@ def _run(args, say) -> int:
     if args.source and not Path(args.source).exists():
         raise LghccError(f"--source {args.source}: no such file or folder")
     bundle_js()  # a missing set-up step is reported now, not after the work
+    return pw, ph, up
+
+
+def _decode(args, say):
+    """(the stream's bytes, its decode with the hash checked, seconds)."""
+    from ..decoder.decode import decode_stream
 
     try:
         data = Path(args.stream).read_bytes()
@@ -177,46 +179,57 @@ def _run(args, say) -> int:
         raise with_prefix(e, args.stream) from None
     t_dec = time.perf_counter() - t0
     say(f"{args.stream}: {len(data):,} bytes, decoded in {t_dec:.2f} s, hash matches")
+    return data, result, t_dec
+
+
+def _scenes(args, result, say):
+    """(the decoded scene as Gaussians, the --source scene or None)."""
+    from .scenes import gaussians_of_decoded, load_source
 
     t0 = time.perf_counter()
     decoded = gaussians_of_decoded(result.scene, sh_degree=args.export_sh_degree,
                                    num_directions=args.export_directions)
     say(f"decoded scene: {decoded.description} ({time.perf_counter() - t0:.2f} s)")
-    source = None
-    if args.source:
-        t0 = time.perf_counter()
-        try:
-            source = load_source(args.source, sh_degree=args.export_sh_degree, num_directions=args.export_directions)
-        except LghccError as e:
-            raise LghccError(f"--source {args.source}: {e}") from None
-        say(f"source: {source.description} ({time.perf_counter() - t0:.2f} s)")
+    if not args.source:
+        return decoded, None
+    t0 = time.perf_counter()
+    try:
+        source = load_source(args.source, sh_degree=args.export_sh_degree, num_directions=args.export_directions)
+    except LghccError as e:
+        raise LghccError(f"--source {args.source}: {e}") from None
+    say(f"source: {source.description} ({time.perf_counter() - t0:.2f} s)")
+    return decoded, source
 
-    frame = source.positions if source is not None else decoded.positions
-    _, camera = orbit_view(frame, up, width=pw, height=ph)
-    bg = background_color(args.background)
 
+def _fidelity(args, decoded, source, frame, size: tuple[int, int], up, bg, say):
+    """(decoded against source, shown Gaussians against the decoded scene): mean metrics over the
+    orbit views, each None where it does not apply."""
+    from ..render.views import orbit_cameras
+    from .page import mean_metrics
+    from .scenes import render_gaussians_fn
+
+    if args.no_psnr:
+        return None, None
     fidelity, export = None, None
-    if not args.no_psnr:
-        from ..render.views import orbit_cameras
+    t0 = time.perf_counter()
+    cams = orbit_cameras(frame, args.views, width=size[0], height=size[1], up=tuple(up))
+    dec_imgs = [decoded.render(c, bg) for c in cams]
+    if source is not None:
+        fidelity = mean_metrics(dec_imgs, [source.render(c, bg) for c in cams])
+    if decoded.export_stats is not None:  # what the page shows against what the decoder rebuilds
+        shown = render_gaussians_fn(decoded.gaussians)
+        export = mean_metrics([shown(c, bg) for c in cams], dec_imgs)
+    say(f"rendered {len(cams)} views of {size[0]}x{size[1]} on the CPU in {time.perf_counter() - t0:.2f} s: "
+        + ", ".join(x for x in (
+            f"PSNR vs source {fidelity['psnr']:.2f} dB" if fidelity else "",
+            f"export PSNR {export['psnr']:.2f} dB" if export else "") if x))
+    return fidelity, export
 
-        t0 = time.perf_counter()
-        cams = orbit_cameras(frame, args.views, width=pw, height=ph, up=tuple(up))
-        dec_imgs = [decoded.render(c, bg) for c in cams]
-        if source is not None:
-            fidelity = mean_metrics(dec_imgs, [source.render(c, bg) for c in cams])
-        if decoded.export_stats is not None:  # what the page shows against what the decoder rebuilds
-            shown = render_gaussians_fn(decoded.gaussians)
-            export = mean_metrics([shown(c, bg) for c in cams], dec_imgs)
-        say(f"rendered {len(cams)} views of {pw}x{ph} on the CPU in {time.perf_counter() - t0:.2f} s: "
-            + ", ".join(x for x in (
-                f"PSNR vs source {fidelity['psnr']:.2f} dB" if fidelity else "",
-                f"export PSNR {export['psnr']:.2f} dB" if export else "") if x))
 
-    s = result.scene
-    num_anchors = getattr(s, "num_anchors", None)
-    ng = decoded.gaussians.num_gaussians
+def _summary_html(args, data: bytes, num_anchors, ng: int, fidelity) -> str:
+    from .page import fmt_db
+
     nbits = 8 * len(data)
-    name = Path(args.stream).name
     summary = [f"<b>{len(data):,} bytes</b>"]
     if num_anchors:
         summary.append(f"{nbits / num_anchors:.1f} bits/anchor ({num_anchors:,} anchors)")
@@ -228,7 +241,13 @@ def _run(args, say) -> int:
     else:
         summary.append("PSNR: no --source given")
     summary.append("hash ✓")
-    details = [size_table_html(result.breakdown.bytes_by_category, num_anchors, ng),
+    return " · ".join(summary)
+
+
+def _details_html(args, result, decoded, source, t_dec: float, fidelity, export, size, num_anchors) -> str:
+    from .page import ENGINE_NAME, ENGINE_VERSION, fmt_db, size_table_html
+
+    details = [size_table_html(result.breakdown.bytes_by_category, num_anchors, decoded.gaussians.num_gaussians),
                f"<div>decoded: {html.escape(decoded.description)}; decoded in {t_dec:.2f} s</div>"]
     if result.tools:
         details.append(f"<div>tools: {html.escape('; '.join(result.tools))}</div>")
@@ -237,23 +256,41 @@ def _run(args, say) -> int:
     if fidelity:
         per_view = ", ".join(f"{p:.2f}" for p in fidelity["psnr_views"])
         details.append(f"<div>decoded vs source: PSNR {fmt_db(fidelity['psnr'])} (per view: {per_view}), "
-                       f"SSIM {fidelity['ssim']:.4f}: {args.views} orbit views of {pw}x{ph}, rendered on the CPU "
-                       "by lghcc.render (the decoded scene as the decoder rebuilds it)</div>")
+                       f"SSIM {fidelity['ssim']:.4f}: {args.views} orbit views of {size[0]}x{size[1]}, rendered "
+                       "on the CPU by lghcc.render (the decoded scene as the decoder rebuilds it)</div>")
     if export:
         details.append(f"<div>export PSNR {fmt_db(export['psnr'])}, SSIM {export['ssim']:.4f}: the 3DGS Gaussians "
                        "shown here against the decoded anchor scene, same views</div>")
     details.append(f"<div class='hash'>decoded scene SHA-256 (checked): {result.stream_hash.hex()}</div>")
     details.append(f"<div>renderer: {ENGINE_NAME} {ENGINE_VERSION} (WebGL2), bundled in this page</div>")
+    return "\n".join(details)
 
+
+def _run(args, say) -> int:
+    from ..render.imageio import background_color
+    from .page import Pane, build_page
+    from .scenes import ply_bytes
+
+    pw, ph, up = _check_args(args)
+    out = Path(args.output)
+    data, result, t_dec = _decode(args, say)
+    decoded, source = _scenes(args, result, say)
+    frame = source.positions if source is not None else decoded.positions
+    _, camera = orbit_view(frame, up, width=pw, height=ph)
+    bg = background_color(args.background)
+    fidelity, export = _fidelity(args, decoded, source, frame, (pw, ph), up, bg, say)
+    num_anchors = getattr(result.scene, "num_anchors", None)
     # an explicit-Gaussian stream the page's own decoder takes (spec clause 8.4) travels as itself and is
     # decoded in the page; any other as the decoded scene's PLY
     panes = [Pane("decoded", "decoded", stream=data) if in_js_profile(data)
              else Pane("decoded", "decoded", ply_bytes(decoded.gaussians))]
     if source is not None:
         panes.insert(0, Pane("source", "source", ply_bytes(source.gaussians)))
-    page = build_page(title=args.title or f"{name} (lghcc)", panes=panes,
+    page = build_page(title=args.title or f"{Path(args.stream).name} (lghcc)", panes=panes,
                       meta={"camera": camera, "background": [float(x) for x in bg]},
-                      summary_html=" · ".join(summary), details_html="\n".join(details), note=args.note)
+                      summary_html=_summary_html(args, data, num_anchors, decoded.gaussians.num_gaussians, fidelity),
+                      details_html=_details_html(args, result, decoded, source, t_dec, fidelity, export, (pw, ph),
+                                                 num_anchors), note=args.note)
     try:
         atomic_write_bytes(out, page.encode("utf-8"))
     except OSError as e:
