@@ -17,7 +17,6 @@ could be off in the last bits.
 
 from __future__ import annotations
 
-import io
 import os
 import re
 import warnings
@@ -255,8 +254,9 @@ def read_scaffold(path: str | os.PathLike, voxel_size: float | None = None,
 def write_scaffold(scene: AnchorScene, model_dir: str | os.PathLike, iteration: int = 0) -> Path:
     """Write the Scaffold-GS layout; returns the folder holding the PLY and the MLPs. MLP files
     left in that folder by an earlier scene (checkpoint.pth when this scene has no MLPs,
-    checkpoints.pth, traced modules) are removed, so the folder never mixes two scenes."""
-    import torch
+    checkpoints.pth, traced modules) are removed, so the folder never mixes two scenes. The MLPs
+    are written without importing torch (formats/torch_checkpoint.py)."""
+    from .torch_checkpoint import checkpoint_bytes
 
     folder = Path(model_dir) / "point_cloud" / f"iteration_{iteration}"
     n, k = scene.num_anchors, scene.num_offsets
@@ -286,11 +286,10 @@ def write_scaffold(scene: AnchorScene, model_dir: str | os.PathLike, iteration: 
         for role, mlp in scene.mlps.items():
             sd = {}
             for l, (w, b) in enumerate(zip(mlp.weights, mlp.biases)):
-                sd[f"{2 * l}.weight"] = torch.from_numpy(np.array(w))
-                sd[f"{2 * l}.bias"] = torch.from_numpy(np.array(b))
+                sd[f"{2 * l}.weight"] = np.asarray(w)
+                sd[f"{2 * l}.bias"] = np.asarray(b)
             state[STATE_DICT_NAMES[role][0]] = sd
-        buf = io.BytesIO()
-        torch.save(state, buf)
+        data = checkpoint_bytes(state)
         with atomic_output(folder / CHECKPOINT_NAME) as f:
-            f.write(buf.getvalue())
+            f.write(data)
     return folder
