@@ -2,7 +2,7 @@
 importing torch (informative). lghcc-dec writes an anchor scene's render MLPs as checkpoint.pth;
 importing torch for it took longer than decoding a one-tile box of a 100k-anchor stream
 (tools/results/decode.md), so the decoder's path does not load it. torch.load(...,
-weights_only=True) reads the result as it reads torch.save's (tests/test_formats_checkpoint.py).
+weights_only=True) reads the result as it reads torch.save's (tests/test_decode_jobs.py).
 
 The format: a stored (uncompressed) zip whose records sit under one folder, ``archive/``:
 data.pkl (the object, pickle protocol 2, each tensor a call of torch._utils._rebuild_tensor_v2
