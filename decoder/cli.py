@@ -91,20 +91,7 @@ def setup_args() -> argparse.ArgumentParser:
     p.add_argument("--no-verify", action="store_true", help="do not check the decoded-scene hash")
     p.add_argument("--trace", metavar="FILE", help="write a bit trace: every syntax element with its position")
     p.add_argument("--threads", type=int, help="torch threads for inference (the output does not depend on it)")
-    p.add_argument("--jobs", type=jobs_arg, default=None, metavar="N|auto",
-                   help="worker processes decoding the tiles of a tiled stream: auto (the default) uses as many "
-                        "as pay, up to the CPUs, by an estimate of each tile's time (its points, channels and "
-                        "coding tool) against a worker's start; N: as many as pay, at most N; 1: this process "
-                        "alone. The log says how many ran and why. The output does not depend on it")
-    p.add_argument("--box", type=box_arg, metavar="X0,Y0,Z0,X1,Y1,Z1",
-                   help="decode only the tiles whose cell meets this box (world coordinates, low corner then "
-                        "high corner), every point of those tiles, each tile hash-checked; the other tiles are "
-                        "not decoded (their units' CRCs and the tile index are still checked); a stream "
-                        "without tiles decodes whole")
-    p.add_argument("--level", type=int, choices=(1, 2), default=2,
-                   help="1: the level-1 preview of a stream with the hierarchy (the lghcc-* presets; one point "
-                        "per coarse voxel of each tile, not hash-checked); a stream without it (the other "
-                        "presets) has no preview and is refused (exit status 2); 2: everything (default)")
+    _add_tile_options(p)
     p.add_argument("--max-anchors", type=int, help="refuse streams declaring more anchors than this (exit status 4)")
     p.add_argument("--max-memory", type=memory_size, default=DEFAULT_MAX_MEMORY, metavar="SIZE",
                    help="refuse a stream whose decoding needs more memory than this, computed from its headers "
@@ -138,6 +125,24 @@ def setup_args() -> argparse.ArgumentParser:
                    help="camera distance for those views (default 2.5 x the anchors' bounding radius)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
     return p
+
+
+def _add_tile_options(p: argparse.ArgumentParser) -> None:
+    """--jobs, --box and --level: what a tiled stream allows (DESCRIPTION says it per stream kind)."""
+    p.add_argument("--jobs", type=jobs_arg, default=None, metavar="N|auto",
+                   help="worker processes decoding the tiles of a tiled stream: auto (the default) uses as many "
+                        "as pay, up to the CPUs, by an estimate of each tile's time (its points, channels and "
+                        "coding tool) against a worker's start; N: as many as pay, at most N; 1: this process "
+                        "alone. The log says how many ran and why. The output does not depend on it")
+    p.add_argument("--box", type=box_arg, metavar="X0,Y0,Z0,X1,Y1,Z1",
+                   help="decode only the tiles whose cell meets this box (world coordinates, low corner then "
+                        "high corner), every point of those tiles, each tile hash-checked; the other tiles are "
+                        "not decoded (their units' CRCs and the tile index are still checked); a stream "
+                        "without tiles decodes whole")
+    p.add_argument("--level", type=int, choices=(1, 2), default=2,
+                   help="1: the level-1 preview of a stream with the hierarchy (the lghcc-* presets; one point "
+                        "per coarse voxel of each tile, not hash-checked); a stream without it (the other "
+                        "presets) has no preview and is refused (exit status 2); 2: everything (default)")
 
 
 def _render_size(text: str) -> tuple[int, int]:
