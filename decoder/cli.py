@@ -48,11 +48,12 @@ examples:
 A stream of a large scene is cut into tiles (spatial cells, each decodable on its own; the
 encoder cuts scenes of 32,768 points or more). What the tile options do, by kind of stream:
   --jobs auto   (default) tiles go to worker processes only where the estimate says it pays:
-                GG-Conv tiles (lghcc-* presets) are costly and pay from a few tiles on; tiles
-                coded with the per-channel prior (low/medium/high presets) or neighbour
-                prediction (3DGS input) are cheap and pay only in larger scenes. The output is
-                the same bit for bit; the log says how many workers ran and why. A stream
-                without tiles is one tile: one process.
+                each tile's points x channels at the cost of its coding tool (per value, GG-Conv
+                of the lghcc-* presets and the neighbour prediction of 3DGS input cost more than
+                the per-channel prior of the low/medium/high presets) against a worker's start;
+                small scenes of a few tiles stay in one process. The output is the same bit for
+                bit; the log says how many workers ran and why. A stream without tiles is one
+                tile: one process.
   --box         decodes only the tiles whose cell meets a box given in world coordinates
                 (every point of those tiles is output, each tile's hash checked), any kind of
                 stream; a stream without tiles decodes whole.

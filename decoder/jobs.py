@@ -21,24 +21,29 @@ import heapq
 import os
 from dataclasses import dataclass
 
-# Seconds, measured by tools/bench_decode.py --calibrate (tools/results/decode.md, "calibration").
-# Forking one worker of a decoder process (with numpy, the decoder and, for context models, torch
-# loaded) and its first round trip; paid once per worker, mostly before any tile is decoded.
+# Seconds on a quiet 2-core machine. tools/results/decode.md measured them under a load of 10 to
+# 13 on 2 cores, where everything took about 9 times as long as quiet (a 100k-anchor low-preset
+# decode 8.3 s, about 0.9 s quiet); the decision compares start against work, so what counts is
+# their ratio, which that run measured alike. Forking one worker (the decoder and torch loaded)
+# and its first round trip: 150 ms there, about 17 ms quiet; taken as 60 ms so that a close call
+# stays in one process (a wrong "1" costs a little time, a wrong "2" can cost more).
 WORKER_START_S = 0.060
-# One tile handed to a worker and its verdict back (a queue round trip, a pickled tile of units).
-TASK_S = 0.003
-# A tile's fixed work: its units' headers, tables, the hash of its points.
+# One tile handed to a worker and its verdict back: 0.9 ms there, 0.1 ms quiet; taken high.
+TASK_S = 0.001
+# A tile's fixed work: its units' headers, tables, the hash of its points (tiles.md: 13 ms per
+# tile of a 1M-anchor GG-Conv stream, quiet).
 TILE_S = 0.004
-# Per point: the geometry (octree) decode and the hash, whatever the attribute coding.
-POINT_S = 1.5e-6
-# Per attribute value (a point's channel), by the coding tool of the tile's attribute units: range
-# decoding with the per-channel prior (also a hierarchy's level 1 and level 2 without a context
-# model); neighbour prediction (its k-NN and means per row); the parent MLP and GG-Conv (the
-# level-2 network's inference, spread over all the tile's values).
-VALUE_S = {"per-channel prior": 1.0e-7, "neighbour prediction": 2.5e-7, "parent MLP": 3.0e-7,
-           "GG-Conv": 1.2e-6}
-
-
+# Per point: the geometry (octree) decode and the hash, whatever the attribute coding (a profile
+# of a 107,759-anchor medium stream: geometry 0.33 s of 0.98 s).
+POINT_S = 2.0e-6
+# Per attribute value (a point's channel), by the coding tool of the tile's attribute units, as
+# their ratios in decode.md (1 process, per point: low 8.3e-5, lghcc-low 1.2e-4, gaussians-medium
+# 7.2e-5 s of 20 channels, under the load above): range decoding with the per-channel prior (also
+# a hierarchy's levels without a context model); GG-Conv (its level-2 network, spread over all the
+# tile's values: 1.45 times the prior's per point); neighbour prediction (its k-NN and means per
+# row: 3 times the prior's per value). The parent MLP is not measured: taken as GG-Conv.
+VALUE_S = {"per-channel prior": 1.0e-7, "neighbour prediction": 3.0e-7, "parent MLP": 1.6e-7,
+           "GG-Conv": 1.6e-7}
 # The level-1 preview decodes the values of one point per coarse voxel with the per-channel prior:
 # about a fifth of the points (13% of the 100k and 21% of the 1M procedural scenes of
 # tools/results/tiles.md at coarse voxels of 4), taken high.

@@ -18,7 +18,7 @@ the centre of the largest tile's cell: it reads 1 of n tiles. The cases alternat
 
 ``--calibrate`` measures decoder/jobs.py's constants in this process: a worker's start (a fork
 pool of 2 workers with the decoder and torch loaded, two no-op tasks), a task's round trip, and
-each tile's decode time against its points, by coding tool (least squares over the tiles).
+the tiles' decode time per point and per value, by coding tool (the tiles one after the other).
 
     python tools/bench_decode.py                        # writes tools/results/decode.md
     python tools/bench_decode.py --calibrate --large
@@ -179,22 +179,17 @@ def calibrate(paths: list[tuple[str, Path]]) -> list[str]:
     from lghcc.decoder.decode import attribute_tool, decode_tile, parse_stream
 
     lines = [_worker_start(), ""]
-    lines += ["| stream | tool | tiles | channels | s per tile (intercept) | s per point | s per value |",
-              "|---|---|---:|---:|---:|---:|---:|"]
+    print(lines[0], flush=True)
+    lines += ["| stream | tool | tiles | points | channels | s | s per point | s per value |",
+              "|---|---|---:|---:|---:|---:|---:|---:|"]
     for name, path in paths:
         s = parse_stream(path.read_bytes())
-        pts, secs = [], []
+        t0 = time.perf_counter()
         for t, tile in enumerate(s.tiles):
-            t0 = time.perf_counter()
             decode_tile(tile, t, s.ps, s.layout, s.context_model, s.mlps, s.ps.tile_size)
-            secs.append(time.perf_counter() - t0)
-            pts.append(tile.num_points)
-        a = np.vstack([np.ones(len(pts)), pts]).T
-        (icpt, slope), *_ = np.linalg.lstsq(a, np.array(secs), rcond=None) if len(pts) > 1 else \
-            ((0.0, secs[0] / pts[0]),)
-        ch = s.layout.num_channels
-        lines.append(f"| {name} | {attribute_tool(s.ps, s.context_model)} | {len(pts)} | {ch} | {icpt:.4f} | "
-                     f"{slope:.3g} | {slope / ch:.3g} |")
+        secs, pts, ch = time.perf_counter() - t0, sum(t.num_points for t in s.tiles), s.layout.num_channels
+        lines.append(f"| {name} | {attribute_tool(s.ps, s.context_model)} | {len(s.tiles)} | {pts:,} | {ch} | "
+                     f"{secs:.2f} | {secs / pts:.3g} | {secs / pts / ch:.3g} |")
         print(lines[-1], flush=True)
     return lines
 
