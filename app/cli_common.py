@@ -8,7 +8,8 @@ One rule for lghcc-enc, lghcc-dec, lghcc-conformance, lghcc-train and lghcc-view
     1    error in the input or the environment: an input file that cannot be read or used, an
          output that cannot be written, a bad option value found after parsing (LghccError,
          InputError)
-    2    usage error: the command line is wrong (argparse)
+    2    usage error: the command line is wrong (argparse), or wrong for this input (UsageError:
+         lghcc-dec --level 1 on a stream without the hierarchy, which has no preview)
     3    invalid stream: the bitstream is malformed, unsupported or does not decode to its own
          hash (BitstreamError and its subclasses UnsupportedStreamError, HashMismatchError)
     4    resource limit: the work needs more than this run may use (ResourceLimitError from
@@ -25,7 +26,7 @@ import functools
 import sys
 from typing import Callable
 
-from ..common.errors import BitstreamError, LghccError, ResourceLimitError
+from ..common.errors import BitstreamError, LghccError, ResourceLimitError, UsageError
 
 EXIT_OK = 0
 EXIT_ERROR = 1
@@ -58,6 +59,8 @@ def exit_code_for(exc: BaseException) -> int:
         return EXIT_RESOURCE_LIMIT
     if isinstance(exc, BitstreamError):
         return EXIT_INVALID_STREAM
+    if isinstance(exc, UsageError):
+        return EXIT_USAGE
     return EXIT_ERROR
 
 

@@ -29,6 +29,12 @@ def positive_int(text: str) -> int:
     return x
 
 
+def jobs_arg(text: str) -> int | None:
+    """argparse type: 'auto' (None: as many workers as pay, up to the CPUs) or an integer >= 1 (at
+    most that many)."""
+    return None if text.strip().lower() == "auto" else positive_int(text)
+
+
 def box_arg(text: str):
     """argparse type: a box x0,y0,z0,x1,y1,z1 in world coordinates (lghcc-dec --box), each a finite
     number and x0 <= x1, y0 <= y1, z0 <= z1."""

@@ -25,3 +25,8 @@ class InputError(LghccError):
 class ResourceLimitError(LghccError):
     """The work is allowed by the spec but needs more than this run may use (``--max-memory``,
     ``--max-anchors``): not a fault of the stream or the input, so it is not a BitstreamError."""
+
+
+class UsageError(LghccError):
+    """A valid input asked for something it cannot give (the level-1 preview of a stream coded
+    without the hierarchy): the command line is wrong for this input, exit status 2."""

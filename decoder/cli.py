@@ -17,8 +17,8 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from ..app.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK, EXIT_RESOURCE_LIMIT,
                               EXIT_USAGE, exit_status_epilog, format_bytes, memory_size, with_prefix)
-from ..app.cliargs import (OVERWRITE_RULE, add_overwrite_options, add_version_option, box_arg, positive_float,
-                           positive_int, run_cli)
+from ..app.cliargs import (OVERWRITE_RULE, add_overwrite_options, add_version_option, box_arg, jobs_arg,
+                           positive_float, run_cli)
 from ..common.errors import LghccError
 from ..app.fileio import (atomic_write_bytes, check_output_folder, check_output_paths, check_overwrite,
                                  write_error)
@@ -41,15 +41,26 @@ examples:
   lghcc-dec demo.lghcc --render orbit:8 --render-out views/    8 PNGs around the scene
   lghcc-dec demo.lghcc --render lego/transforms_test.json --render-out views/
   lghcc-dec demo.lghcc --export-ply demo_3dgs.ply   plain 3DGS PLY for standard viewers
-  lghcc-dec big.lghcc -o out/ --jobs 2             tiles decoded by 2 worker processes
+  lghcc-dec big.lghcc -o out/ --jobs 2             at most 2 worker processes (as many as pay)
   lghcc-dec big.lghcc -o part/ --box -1,-1,-1,1,1,1   only the tiles that meet the box
-  lghcc-dec big.lghcc -o coarse/ --level 1          level-1 preview: one anchor per coarse voxel
+  lghcc-dec big.lghcc -o coarse/ --level 1          level-1 preview (streams with the hierarchy)
 
-A stream of a large scene is cut into tiles (spatial cells, each decodable on its own).
---jobs decodes them in parallel, with the same output bit for bit as one process; --box
-decodes only the tiles whose cell meets a box given in world coordinates (every point of
-those tiles is output, with each tile's hash checked); --level 1 stops after the level-1
-anchors of each tile (a coarse scene, not hash-checked). A stream without tiles has one.
+A stream of a large scene is cut into tiles (spatial cells, each decodable on its own; the
+encoder cuts scenes of 32,768 points or more). What the tile options do, by kind of stream:
+  --jobs auto   (default) tiles go to worker processes only where the estimate says it pays:
+                each tile's points x channels at the cost of its coding tool (per value, GG-Conv
+                of the lghcc-* presets and the neighbour prediction of 3DGS input cost more than
+                the per-channel prior of the low/medium/high presets) against a worker's start;
+                small scenes of a few tiles stay in one process. The output is the same bit for
+                bit; the log says how many workers ran and why. A stream without tiles is one
+                tile: one process.
+  --box         decodes only the tiles whose cell meets a box given in world coordinates
+                (every point of those tiles is output, each tile's hash checked), any kind of
+                stream; a stream without tiles decodes whole.
+  --level 1     the level-1 preview of a stream with the hierarchy (lghcc-* presets): each
+                tile's level-1 anchors, one per coarse voxel (a coarse scene, not hash-checked).
+                A stream without the hierarchy (low/medium/high, 3DGS presets) has no preview:
+                refused with exit status 2, nothing decoded.
 
 --render takes orbit:N or the cameras of a dataset: a dataset folder of any layout
 (NeRF-synthetic, COLMAP sparse/0, Mip-NeRF 360, LLFF poses_bounds.npy; its test views),
@@ -81,15 +92,7 @@ def setup_args() -> argparse.ArgumentParser:
     p.add_argument("--no-verify", action="store_true", help="do not check the decoded-scene hash")
     p.add_argument("--trace", metavar="FILE", help="write a bit trace: every syntax element with its position")
     p.add_argument("--threads", type=int, help="torch threads for inference (the output does not depend on it)")
-    p.add_argument("--jobs", type=positive_int, default=1, metavar="N",
-                   help="worker processes decoding the tiles of a tiled stream (default 1; the output does not "
-                        "depend on it)")
-    p.add_argument("--box", type=box_arg, metavar="X0,Y0,Z0,X1,Y1,Z1",
-                   help="decode only the tiles whose cell meets this box (world coordinates, low corner then "
-                        "high corner); a stream without tiles decodes whole")
-    p.add_argument("--level", type=int, choices=(1, 2), default=2,
-                   help="1: the level-1 preview (one point per coarse voxel of each tile, not hash-checked; a "
-                        "stream without the hierarchy decodes whole); 2: everything (default)")
+    _add_tile_options(p)
     p.add_argument("--max-anchors", type=int, help="refuse streams declaring more anchors than this (exit status 4)")
     p.add_argument("--max-memory", type=memory_size, default=DEFAULT_MAX_MEMORY, metavar="SIZE",
                    help="refuse a stream whose decoding needs more memory than this, computed from its headers "
@@ -123,6 +126,24 @@ def setup_args() -> argparse.ArgumentParser:
                    help="camera distance for those views (default 2.5 x the anchors' bounding radius)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
     return p
+
+
+def _add_tile_options(p: argparse.ArgumentParser) -> None:
+    """--jobs, --box and --level: what a tiled stream allows (DESCRIPTION says it per stream kind)."""
+    p.add_argument("--jobs", type=jobs_arg, default=None, metavar="N|auto",
+                   help="worker processes decoding the tiles of a tiled stream: auto (the default) uses as many "
+                        "as pay, up to the CPUs, by an estimate of each tile's time (its points, channels and "
+                        "coding tool) against a worker's start; N: as many as pay, at most N; 1: this process "
+                        "alone. The log says how many ran and why. The output does not depend on it")
+    p.add_argument("--box", type=box_arg, metavar="X0,Y0,Z0,X1,Y1,Z1",
+                   help="decode only the tiles whose cell meets this box (world coordinates, low corner then "
+                        "high corner), every point of those tiles, each tile hash-checked; the other tiles are "
+                        "not decoded (their units' CRCs and the tile index are still checked); a stream "
+                        "without tiles decodes whole")
+    p.add_argument("--level", type=int, choices=(1, 2), default=2,
+                   help="1: the level-1 preview of a stream with the hierarchy (the lghcc-* presets; one point "
+                        "per coarse voxel of each tile, not hash-checked); a stream without it (the other "
+                        "presets) has no preview and is refused (exit status 2); 2: everything (default)")
 
 
 def _render_size(text: str) -> tuple[int, int]:
@@ -217,8 +238,10 @@ def _main(argv: list[str] | None) -> int:
     t_dec = time.perf_counter() - t0
     for text in result.notes:  # ancillary units reported and ignored (clause 6.3)
         print(f"lghcc-dec: warning: {text}", file=sys.stderr)
+    t1 = time.perf_counter()
     if args.output:
         _write_decoded_scene(args, result.scene)
+    result.timings["write"] = time.perf_counter() - t1
     if args.render:
         _render_views(args, result.scene, note)
     if args.export_ply:
@@ -315,7 +338,8 @@ def _write_trace(path: str, trace) -> None:
 
 
 def _write_json(args, result, num_bytes: int, t_dec: float) -> None:
-    """--json: the size breakdown, the decoding time and the scene hash."""
+    """--json: the size breakdown, the decoding time and the scene hash, the workers, and the seconds
+    of parsing (clause 13.1 steps 1-5), decoding the tiles and writing -o."""
     s = result.scene
     try:
         count = {"num_gaussians": s.num_gaussians} if isinstance(s, GaussianScene) else \
@@ -323,7 +347,10 @@ def _write_json(args, result, num_bytes: int, t_dec: float) -> None:
         atomic_write_bytes(args.json, json.dumps({
             "stream": args.stream, **count, "bytes": num_bytes,
             "breakdown": result.breakdown.bytes_by_category, "decode_s": t_dec,
-            "hash_checked": result.hash_checked, "scene_sha256": result.stream_hash.hex()},
+            "hash_checked": result.hash_checked, "scene_sha256": result.stream_hash.hex(),
+            "workers": result.workers.workers, "workers_reason": result.workers.reason,
+            "tiles": result.num_tiles, "tiles_decoded": result.tiles_decoded,
+            "seconds": {k: round(v, 6) for k, v in result.timings.items()}},
             indent=2).encode())
     except OSError as e:
         raise write_error(args.json, e) from None
@@ -342,6 +369,8 @@ def _print_summary(args, result, num_bytes: int, t_dec: float, say) -> None:
         say(f"box: decoded {result.tiles_decoded} of {result.num_tiles} tiles (those whose cell meets the box)")
     if result.preview:
         say("level-1 preview: one point per coarse voxel of each tile; not hash-checked")
+    if result.num_tiles > 1:
+        say(f"workers: {result.workers.reason}")
     if result.tools:
         say("tools: " + "; ".join(result.tools))
     if result.source_info is not None:

@@ -22,6 +22,8 @@ from __future__ import annotations
 import multiprocessing
 import os
 import re
+import sys
+import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 
@@ -30,7 +32,8 @@ from ..app.progress import progress_bar
 
 from ..common import attributes as attr
 from ..common.container import AncillaryUnitType, Container, DataUnit, UnitType, read_container
-from ..common.errors import BitstreamError, HashMismatchError, ResourceLimitError, UnsupportedStreamError
+from ..common.errors import (BitstreamError, HashMismatchError, ResourceLimitError, UnsupportedStreamError,
+                             UsageError)
 from ..common.context.models import describe_context_model, level2_coding_params, read_context_model
 from ..common.geometry import decode_geometry
 from ..common.hashing import digest_of
@@ -42,9 +45,10 @@ from ..common.scene import AnchorScene, GaussianScene
 from ..common.syntax import TraceEntry
 from ..common.tiles import Box, check_points_in_cell, check_tile_index, cell_intersects_box
 from ..common.neighbour_prediction import read_predicted_attribute_unit
-from ..common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ATTRIBUTE_VALUES, DecodedSceneHashUnit,
+from ..common.units import (CONTEXT_GGCONV, LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ATTRIBUTE_VALUES, DecodedSceneHashUnit,
                             GaussianParameterSet, NeighbourPredictionUnit, SceneParameterSet, SourceInfo, StepAdjustUnit,
                             TileIndex)
+from .jobs import PREVIEW_VALUE_SHARE, WorkerPlan, available_cpus, plan_workers, tile_seconds
 from .limits import DEFAULT_MAX_MEMORY, MemoryPlan
 
 _LETTER = {UnitType.SCENE_PARAMETER_SET: "S", UnitType.GAUSSIAN_PARAMETER_SET: "P", UnitType.RENDER_MODEL: "R",
@@ -73,7 +77,9 @@ class DecodeResult:
     num_tiles: int = 1  # tiles in the stream (1: a stream without tiles)
     tiles_decoded: int = 1  # of them decoded (fewer with a box)
     preview: bool = False  # only the level-1 points were decoded (max_level 1)
-
+    # the worker processes that decoded the tiles and why (decoder/jobs.py)
+    workers: WorkerPlan = field(default_factory=lambda: WorkerPlan(1, "1 process"))
+    timings: dict[str, float] = field(default_factory=dict)  # seconds: parse (clause 13.1 steps 1-5), decode
 
     @property
     def stream_hash(self) -> bytes:
@@ -332,11 +338,13 @@ def decode_tile(tile: TileUnits, t: int, ps, layout, context_model, mlps: dict, 
 _SHARED_OUTPUT: dict[str, np.ndarray] = {}
 
 
-def _decode_tile_job(args) -> DecodedTile:
-    """A worker process's task (lghcc-dec --jobs): one tile, from the tile's own units; with an
-    output row, its points are written into the shared output and only the verdict comes back."""
-    tile, t, ps, layout, context_model, mlps, tile_size, verify_hash, max_level, row = args
-    d = decode_tile(tile, t, ps, layout, context_model, mlps, tile_size, verify_hash=verify_hash,
+def _decode_tile_job(job: tuple[int, int | None]) -> DecodedTile:
+    """A worker process's task (lghcc-dec --jobs): one tile, from the tile's own units (the stream's
+    state came with the worker, ``_worker_init``); with an output row, its points are written into
+    the shared output and only the verdict comes back."""
+    t, row = job
+    tiles, ps, layout, context_model, mlps, verify_hash, max_level = _WORKER_STATE
+    d = decode_tile(tiles[t], t, ps, layout, context_model, mlps, ps.tile_size, verify_hash=verify_hash,
                     max_level=max_level)
     if row is None:
         return d
@@ -356,8 +364,8 @@ def _shared_array(shape: tuple[int, ...], dtype) -> np.ndarray:
 
 
 def _decode_in_workers(tiles: list[TileUnits], selected: list[int], ps, layout, context_model, mlps: dict, *,
-                       verify_hash: bool, max_level: int, jobs: int) -> tuple[list[DecodedTile], dict | None]:
-    """The selected tiles decoded by ``jobs`` forked worker processes, written into shared output
+                       verify_hash: bool, max_level: int, workers: int) -> tuple[list[DecodedTile], dict | None]:
+    """The selected tiles decoded by ``workers`` forked worker processes, written into shared output
     arrays (whole tiles: their point counts are known; the preview's are not, and come back
     through the pipe) -> (the tiles' verdicts, the output arrays or None)."""
     fork = os.name == "posix"
@@ -371,18 +379,19 @@ def _decode_in_workers(tiles: list[TileUnits], selected: list[int], ps, layout, 
                               values=_shared_array((total, layout.num_channels), np.float32))
         if layout.offset_mask_present:
             _SHARED_OUTPUT["mask"] = _shared_array((total, layout.num_offsets), np.bool_)
-    args = [(tiles[t], t, ps, layout, context_model, mlps, ps.tile_size, verify_hash, max_level, r)
-            for t, r in zip(selected, rows)]
+    jobs = list(zip(selected, rows))
     # the largest tiles first, so that no large tile is left to one worker at the end
-    order = sorted(range(len(args)), key=lambda i: -tiles[selected[i]].num_points)
+    order = sorted(range(len(jobs)), key=lambda i: -tiles[selected[i]].num_points)
     ctx = multiprocessing.get_context("fork" if fork else "spawn")
     if fork and context_model is not None:
         candidate_generator()  # loaded once here, shared by the forked workers
+    # the stream's state goes to each worker once (forked: not even copied), a task is a tile number
+    state = (tiles, ps, layout, context_model, mlps, verify_hash, max_level)
     try:
-        with ProcessPoolExecutor(max_workers=min(jobs, len(selected)), mp_context=ctx,
-                                 initializer=_worker_init) as pool:
-            done = list(pool.map(_decode_tile_job, [args[i] for i in order]))
-        parts: list[DecodedTile] = [None] * len(args)  # type: ignore[list-item]
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
+                                 initargs=(state,)) as pool:
+            done = list(pool.map(_decode_tile_job, [jobs[i] for i in order]))
+        parts: list[DecodedTile] = [None] * len(jobs)  # type: ignore[list-item]
         for i, part in zip(order, done):
             parts[i] = part
         return parts, (dict(_SHARED_OUTPUT) if shared else None)
@@ -393,12 +402,17 @@ def _decode_in_workers(tiles: list[TileUnits], selected: list[int], ps, layout, 
 # The k-NN candidate generator's threads in each worker: the workers are the parallelism, and one
 # thread per CPU in each oversubscribes the cores (tools/bench_tiles.py times both, alternated).
 WORKER_CANDIDATE_THREADS = 1
+# A worker's stream: the tiles, parameter set, layout, context model, render MLPs, verify_hash and
+# max_level (set by _worker_init).
+_WORKER_STATE: tuple = ()
 
 
-def _worker_init() -> None:
-    import torch
-
-    torch.set_num_threads(1)  # the workers are the parallelism
+def _worker_init(state: tuple) -> None:
+    global _WORKER_STATE
+    _WORKER_STATE = state
+    torch = sys.modules.get("torch")  # loaded by the parent where the stream's tools need it, else not at all
+    if torch is not None:
+        torch.set_num_threads(1)  # the workers are the parallelism
     set_candidate_threads(WORKER_CANDIDATE_THREADS)
 
 
@@ -414,13 +428,13 @@ class DecodedTiles:
 
 def decode_tiles(tiles: list[TileUnits], selected: list[int], ps, layout, context_model, mlps: dict, *,
                  verify_hash: bool, entries, progress: bool, memory: MemoryPlan | None, max_level: int,
-                 jobs: int) -> DecodedTiles:
-    """The selected tiles, in stream order: here, or in ``jobs`` worker processes (the result is
+                 workers: int = 1) -> DecodedTiles:
+    """The selected tiles, in stream order: here, or in ``workers`` worker processes (the result is
     the same: each tile is decoded by the same function from the same units)."""
     size = ps.tile_size
-    if jobs > 1 and len(selected) > 1 and entries is None:
+    if workers > 1 and len(selected) > 1 and entries is None:
         parts, shared = _decode_in_workers(tiles, selected, ps, layout, context_model, mlps,
-                                           verify_hash=verify_hash, max_level=max_level, jobs=jobs)
+                                           verify_hash=verify_hash, max_level=max_level, workers=workers)
         return _joined(parts, layout, shared)
     one = len(tiles) == 1
     bar = progress_bar(total=len(selected), desc="decode tiles", unit="tile", disable=not progress or one, leave=False)
@@ -431,6 +445,33 @@ def decode_tiles(tiles: list[TileUnits], selected: list[int], ps, layout, contex
         bar.update()
     bar.close()
     return _joined(out, layout)
+
+
+def attribute_tool(ps, context_model) -> str:
+    """The coding tool of the tiles' attribute units, in the words of decoder/jobs.py's costs."""
+    if isinstance(context_model, NeighbourPredictionUnit):
+        return "neighbour prediction"
+    if context_model is None:
+        return "per-channel prior"
+    return "GG-Conv" if context_model[0] == CONTEXT_GGCONV else "parent MLP"
+
+
+def worker_plan(tiles: list[TileUnits], selected: list[int], ps, layout, context_model, *, jobs: int | None,
+                exact_jobs: bool = False, max_level: int = LEVEL_2, tracing: bool = False) -> WorkerPlan:
+    """How many worker processes decode the selected tiles (decoder/jobs.py): ``jobs`` None: as many
+    as pay, up to the CPUs; N: as many as pay, up to N; with ``exact_jobs``, N (or one per tile)."""
+    if tracing:
+        return WorkerPlan(1, "1 process (the bit trace follows the stream's order)")
+    if exact_jobs and jobs is not None:
+        n = max(1, min(jobs, len(selected)))
+        return WorkerPlan(n, f"{n} worker process{'es' if n > 1 else ''} as asked" if n > 1 else "1 process as asked")
+    bound = available_cpus() if jobs is None else jobs
+    asked = f"--jobs auto, {bound} CPUs" if jobs is None else f"--jobs {jobs}: at most {jobs}"
+    preview = max_level == LEVEL_1
+    tool = "per-channel prior" if preview else attribute_tool(ps, context_model)
+    share = PREVIEW_VALUE_SHARE if preview else 1.0
+    costs = [tile_seconds(tiles[t].num_points, layout.num_channels, tool, share) for t in selected]
+    return plan_workers(costs, bound, asked)
 
 
 def selected_tiles(tiles: list[TileUnits], ps, box: Box | None) -> list[int]:
@@ -458,20 +499,33 @@ def _joined(parts: list[DecodedTile], layout, shared: dict | None = None) -> Dec
     return DecodedTiles(coords, _Levels(values, mask, None), checked, counts)
 
 
-def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
-                  max_anchors: int | None = None, max_memory: int | None = DEFAULT_MAX_MEMORY,
-                  progress: bool = False, jobs: int = 1, box: Box | None = None,
-                  max_level: int = LEVEL_2) -> DecodeResult:
-    """Decode a stream. Raises a BitstreamError subclass naming the problem, or
-    ResourceLimitError for a stream beyond ``max_anchors`` points (anchors or Gaussians) or one
-    whose decoding needs more than ``max_memory`` bytes (None: no bound), computed from its
-    headers before anything sized by the stream is allocated (decoder/limits.py). ``progress``
-    shows a bar on stderr. ``jobs``: worker processes for the tiles (the output does not depend
-    on it). ``box``: decode only the tiles whose cell meets it (every point of such a tile is
-    output). ``max_level`` 1: the level-1 preview (each tile's level-1 points; not hash-checked)."""
-    if jobs < 1:
-        raise ValueError(f"jobs must be at least 1, got {jobs}")
-    entries: list[TraceEntry] | None = [] if trace else None
+@dataclass
+class ParsedStream:
+    """What clause 13.1 steps 1 to 5 give before any tile is decoded: the container, the critical
+    units (and the skipped ones), the parameter set and channel layout, the render MLPs, the
+    attribute units' context (context model or neighbour_prediction unit) and the tiles."""
+    container: Container
+    skipped: list[str]
+    ps: SceneParameterSet | GaussianParameterSet
+    layout: object
+    mlps: dict
+    context_model: object
+    tiles: list[TileUnits]
+    memory: MemoryPlan
+    source_info: SourceInfo | None
+    notes: list[str]
+
+    @property
+    def point(self) -> str:
+        return "Gaussian" if isinstance(self.ps, GaussianParameterSet) else "anchor"
+
+
+def parse_stream(data: bytes, entries: list[TraceEntry] | None = None, *, max_anchors: int | None = None,
+                 max_memory: int | None = DEFAULT_MAX_MEMORY, max_level: int = LEVEL_2) -> ParsedStream:
+    """Clause 13.1 steps 1 to 5, made alike for a full and a partial decode: the container, the
+    unit order, the parameter set and its limits, the models and the tile index. ``max_level`` 1
+    on a stream without the hierarchy raises UsageError (clause 13.3: such a stream has no
+    preview) once its parameter set is read."""
     container = read_container(data)
     ancillary: list[DataUnit] = []
     units, skipped = organize_units(container, ancillary)
@@ -479,14 +533,10 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
     for u in units:
         by_type.setdefault(u.unit_type, []).append(u)
     ps, layout = _read_parameter_set(by_type, entries)
+    if max_level == LEVEL_1 and not ps.hierarchy_enabled_flag:
+        raise UsageError(NO_PREVIEW)
     source_info, notes = read_source_info(ancillary, entries)
-    point = "Gaussian" if isinstance(ps, GaussianParameterSet) else "anchor"
-    n = ps.num_anchors
-    if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
-        raise BitstreamError(f"{n} {point}s x {layout.num_channels} channels exceeds the level limit of "
-                             f"{MAX_ATTRIBUTE_VALUES} attribute values")
-    if max_anchors is not None and n > max_anchors:
-        raise ResourceLimitError(f"the stream declares {n} {point}s, more than the allowed maximum {max_anchors}")
+    _check_limits(ps, layout, max_anchors)
     memory = MemoryPlan(max_memory, ps, by_type, len(data), layout)  # refuses before anything sized by the stream exists
     if (UnitType.TILE_INDEX in by_type) != bool(ps.tiles_enabled_flag):
         raise BitstreamError(f"tiles_enabled_flag is {ps.tiles_enabled_flag} but the stream "
@@ -499,19 +549,64 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
                                                entries, by_type.get(UnitType.STEP_ADJUST, [None])[0])
     if neighbour is not None:
         context_model = neighbour  # the attribute units' context (the stream has no context model)
-    tiles, _ = tiles_of(units, by_type, n, entries)
+    tiles, _ = tiles_of(units, by_type, ps.num_anchors, entries)
+    return ParsedStream(container, skipped, ps, layout, mlps, context_model, tiles, memory, source_info, notes)
+
+
+# lghcc-dec --level 1 on a stream without the hierarchy (clause 13.3)
+NO_PREVIEW = ("the stream has no level-1 preview: it was coded without the hierarchy (hierarchy_enabled_flag 0; "
+              "the lghcc-* presets code one), so --level 1 would decode the whole scene; decode it whole "
+              "(--level 2, the default) or a part of it with --box")
+
+
+def _check_limits(ps, layout, max_anchors: int | None) -> None:
+    """The level limit on attribute values (clause 8) and the caller's bound on points."""
+    point = "Gaussian" if isinstance(ps, GaussianParameterSet) else "anchor"
+    n = ps.num_anchors
+    if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
+        raise BitstreamError(f"{n} {point}s x {layout.num_channels} channels exceeds the level limit of "
+                             f"{MAX_ATTRIBUTE_VALUES} attribute values")
+    if max_anchors is not None and n > max_anchors:
+        raise ResourceLimitError(f"the stream declares {n} {point}s, more than the allowed maximum {max_anchors}")
+
+
+def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
+                  max_anchors: int | None = None, max_memory: int | None = DEFAULT_MAX_MEMORY,
+                  progress: bool = False, jobs: int | None = 1, exact_jobs: bool = False, box: Box | None = None,
+                  max_level: int = LEVEL_2) -> DecodeResult:
+    """Decode a stream. Raises a BitstreamError subclass naming the problem, or
+    ResourceLimitError for a stream beyond ``max_anchors`` points (anchors or Gaussians) or one
+    whose decoding needs more than ``max_memory`` bytes (None: no bound), computed from its
+    headers before anything sized by the stream is allocated (decoder/limits.py). ``progress``
+    shows a bar on stderr. ``jobs``: at most this many worker processes for the tiles, as many as
+    pay by decoder/jobs.py's estimate (None: up to the CPUs; ``exact_jobs``: this many); the
+    output does not depend on it. ``box``: decode only the tiles whose cell meets it (every point
+    of such a tile is output). ``max_level`` 1: the level-1 preview (each tile's level-1 points;
+    not hash-checked); UsageError for a stream without the hierarchy, which has none."""
+    if jobs is not None and jobs < 1:
+        raise ValueError(f"jobs must be at least 1, got {jobs}")
+    t0 = time.perf_counter()
+    entries: list[TraceEntry] | None = [] if trace else None
+    s = parse_stream(data, entries, max_anchors=max_anchors, max_memory=max_memory, max_level=max_level)
+    tiles, ps, layout = s.tiles, s.ps, s.layout
     selected = selected_tiles(tiles, ps, box)
-    decoded = decode_tiles(tiles, selected, ps, layout, context_model, mlps, verify_hash=verify_hash,
-                           entries=entries, progress=progress, memory=memory, max_level=max_level, jobs=jobs)
-    scene = _scene_of(ps, layout, decoded.coords, decoded.levels, mlps)
+    plan = worker_plan(tiles, selected, ps, layout, s.context_model, jobs=jobs, exact_jobs=exact_jobs,
+                       max_level=max_level, tracing=entries is not None)
+    t1 = time.perf_counter()
+    decoded = decode_tiles(tiles, selected, ps, layout, s.context_model, s.mlps, verify_hash=verify_hash,
+                           entries=entries, progress=progress, memory=s.memory, max_level=max_level,
+                           workers=plan.workers)
+    scene = _scene_of(ps, layout, decoded.coords, decoded.levels, s.mlps)
     whole = len(selected) == len(tiles) and max_level != LEVEL_1
     stream_hash = None  # a tiled stream carries no hash of the whole scene: computed when asked for
     if whole and len(tiles) == 1:
         stream_hash = DecodedSceneHashUnit.from_bytes(tiles[0].scene_hash.payload).scene_hash
-    checked = verify_hash and decoded.hash_checked
-    return DecodeResult(scene, breakdown_of(container, n, point), checked, stream_hash, skipped,
-                        entries, _stream_tools(ps, decoded, context_model, point, len(tiles)), source_info, notes,
-                        len(tiles), len(selected), max_level == LEVEL_1 and bool(ps.hierarchy_enabled_flag))
+    n = ps.num_anchors
+    return DecodeResult(scene, breakdown_of(s.container, n, s.point), verify_hash and decoded.hash_checked,
+                        stream_hash, s.skipped, entries, _stream_tools(ps, decoded, s.context_model, s.point,
+                                                                      len(tiles)),
+                        s.source_info, s.notes, len(tiles), len(selected), max_level == LEVEL_1, plan,
+                        {"parse": t1 - t0, "decode": time.perf_counter() - t1})
 
 
 def _read_parameter_set(by_type: dict[int, list[DataUnit]], entries) -> tuple[SceneParameterSet | GaussianParameterSet,

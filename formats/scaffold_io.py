@@ -20,7 +20,6 @@ from the float32 anchor positions (grid_inference: a grid through the origin).
 from __future__ import annotations
 
 import ast
-import io
 import math
 import os
 import re
@@ -301,8 +300,9 @@ def read_scaffold(path: str | os.PathLike, voxel_size: float | None = None, orig
 def write_scaffold(scene: AnchorScene, model_dir: str | os.PathLike, iteration: int = 0) -> Path:
     """Write the Scaffold-GS layout; returns the folder holding the PLY and the MLPs. MLP files
     left in that folder by an earlier scene (checkpoint.pth when this scene has no MLPs,
-    checkpoints.pth, traced modules) are removed, so the folder never mixes two scenes."""
-    import torch
+    checkpoints.pth, traced modules) are removed, so the folder never mixes two scenes. The MLPs
+    are written without importing torch (formats/torch_checkpoint.py)."""
+    from .torch_checkpoint import checkpoint_bytes
 
     folder = Path(model_dir) / "point_cloud" / f"iteration_{iteration}"
     n, k = scene.num_anchors, scene.num_offsets
@@ -332,11 +332,10 @@ def write_scaffold(scene: AnchorScene, model_dir: str | os.PathLike, iteration: 
         for role, mlp in scene.mlps.items():
             sd = {}
             for l, (w, b) in enumerate(zip(mlp.weights, mlp.biases)):
-                sd[f"{2 * l}.weight"] = torch.from_numpy(np.array(w))
-                sd[f"{2 * l}.bias"] = torch.from_numpy(np.array(b))
+                sd[f"{2 * l}.weight"] = np.asarray(w)
+                sd[f"{2 * l}.bias"] = np.asarray(b)
             state[STATE_DICT_NAMES[role][0]] = sd
-        buf = io.BytesIO()
-        torch.save(state, buf)
+        data = checkpoint_bytes(state)
         with atomic_output(folder / CHECKPOINT_NAME) as f:
-            f.write(buf.getvalue())
+            f.write(data)
     return folder

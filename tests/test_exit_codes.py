@@ -15,7 +15,7 @@ from lghcc.app import cli_common
 from lghcc.app.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK, EXIT_RESOURCE_LIMIT,
                               EXIT_USAGE, exit_code_for, exit_code_for_class, parse_memory_size)
 from lghcc.common.errors import (BitstreamError, HashMismatchError, InputError, LghccError, ResourceLimitError,
-                                 UnsupportedStreamError)
+                                 UnsupportedStreamError, UsageError)
 from lghcc.conformance import runner
 from lghcc.decoder import cli as dec_cli
 from lghcc.encoder import cli as enc_cli
@@ -36,7 +36,7 @@ def _one_line(err: str) -> str:
 @pytest.mark.parametrize("exc, code", [
     (LghccError("x"), EXIT_ERROR), (InputError("x"), EXIT_ERROR), (BitstreamError("x"), EXIT_INVALID_STREAM),
     (UnsupportedStreamError("x"), EXIT_INVALID_STREAM), (HashMismatchError("x"), EXIT_INVALID_STREAM),
-    (ResourceLimitError("x"), EXIT_RESOURCE_LIMIT), (MemoryError(), EXIT_RESOURCE_LIMIT),
+    (ResourceLimitError("x"), EXIT_RESOURCE_LIMIT), (MemoryError(), EXIT_RESOURCE_LIMIT), (UsageError("x"), EXIT_USAGE),
     (KeyboardInterrupt(), EXIT_INTERRUPTED)])
 def test_one_rule_maps_every_failure_class(exc, code):
     assert exit_code_for(exc) == code
