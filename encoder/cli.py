@@ -54,11 +54,16 @@ examples:
   lghcc-enc --procedural 20000 -o demo.lghcc           built-in procedural anchor scene
   lghcc-enc outputs/garden -o garden.lghcc             Scaffold-GS model folder
   lghcc-enc point_cloud.ply --preset lghcc-medium -o g.lghcc   anchor PLY (MLPs from checkpoint.pth beside it)
+  lghcc-enc big.ply -o big.lghcc --jobs auto          tiles coded in one worker process per CPU
+  lghcc-enc big.ply -o big.lghcc --ray --address HEAD_IP:6379
+                                                       tiles as tasks on a Ray cluster (`ray start --head` on
+                                                       HEAD_IP, `ray start --address HEAD_IP:6379` on the others)
 
 The lghcc-* presets fit a context model to the scene: minutes (an estimate is printed first).
 An anchor scene without its render MLPs is refused (--allow-no-mlps codes it anyway).
 Progress goes to stderr: a bar on a terminal, a line every 10 s in a log
-(LGHCC_PROGRESS_INTERVAL=S to change it).
+(LGHCC_PROGRESS_INTERVAL=S to change it), each stage with its share done and the time left.
+The stream does not depend on --jobs or --ray: the tiles are coded alone, wherever they run.
 """
 
 
