@@ -43,6 +43,21 @@ def tile_scale_of(coords: np.ndarray, unit: int, cfg) -> int:
     return int(cfg.tile_scale)
 
 
+def cell_keys(cells: np.ndarray) -> np.ndarray:
+    """One int64 per row of ``cells`` (int64 [N, 3]), equal for equal rows and ordered as the
+    rows in lexicographic order (the rows' ranks when their box is too large for one int64). np.unique on rows sorts them as structured values: 1.2 s for 100k rows,
+    and the tile size is chosen over up to 20 sizes (17 of 20 s of a 100k encode)."""
+    if cells.shape[0] == 0:
+        return np.zeros(0, np.int64)
+    lo = cells.min(axis=0)
+    span = cells.max(axis=0) - lo + 1
+    if float(span[0]) * float(span[1]) * float(span[2]) >= 2.0 ** 62:
+        _, inverse = np.unique(cells, axis=0, return_inverse=True)
+        return inverse.reshape(-1).astype(np.int64)
+    c = cells - lo
+    return (c[:, 0] * span[1] + c[:, 1]) * span[2] + c[:, 2]
+
+
 def choose_tile_scale(coords: np.ndarray, unit: int, tile_points: int) -> int:
     """tile_scale_minus1 + 1 (tile side in units of ``unit`` voxels; 0: no tiles): among the power-of-two
     sides that give two tiles or more, the one whose mean points per occupied tile is nearest
@@ -59,7 +74,7 @@ def choose_tile_scale(coords: np.ndarray, unit: int, tile_points: int) -> int:
         cells = tile_cells(coords, scale * unit)
         if np.abs(cells).max() > SE_MAX:
             continue
-        occupied = np.unique(cells, axis=0).shape[0]
+        occupied = int(np.unique(cell_keys(cells)).size)
         if occupied == 1:
             break
         err = abs(np.log2(n / occupied / tile_points))
@@ -85,15 +100,15 @@ def tile_rows(coords: np.ndarray, tile_size: int) -> list[tuple[tuple[int, int, 
     """[(cell, rows)] in stream order (cells in increasing lexicographic order), each tile's rows
     in its normative order."""
     cells = tile_cells(coords, tile_size)
-    uniq, inverse = np.unique(cells, axis=0, return_inverse=True)  # lexicographic order of cells
+    _, inverse = np.unique(cell_keys(cells), return_inverse=True)  # lexicographic order of cells
     inverse = inverse.reshape(-1)
     order = np.argsort(inverse, kind="stable")
-    bounds = np.searchsorted(inverse[order], np.arange(uniq.shape[0] + 1))
+    bounds = np.searchsorted(inverse[order], np.arange(int(inverse.max(initial=-1)) + 2))
     out = []
-    for t in range(uniq.shape[0]):
+    for t in range(bounds.size - 1):
         rows = order[bounds[t]:bounds[t + 1]]
-        rows = rows[normative_order(coords[rows])]
-        out.append((tuple(int(x) for x in uniq[t]), rows))
+        cell = tuple(int(x) for x in cells[rows[0]])
+        out.append((cell, rows[normative_order(coords[rows])]))
     return out
 
 

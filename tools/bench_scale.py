@@ -149,6 +149,7 @@ class ScaleRow:
     decode: dict = field(default_factory=dict)  # "1", "2" -> Measured as a dict
     spz_cell: str = "n/a"
     note: str = ""
+    memory_estimate: int = 0  # lghcc-enc --max-memory's estimate (bytes)
 
 
 def encode_row(run, n: int, preset: str, args, enc: list[str], dec: list[str], work: Path) -> ScaleRow:
@@ -200,15 +201,26 @@ def spz_envelope(run, keeps: list[int]) -> tuple[list, int | None]:
 
 # --- the scenes ------------------------------------------------------------------------------
 
-def scene_file(n: int, sources: list, work: Path) -> tuple[Path, str]:
-    """The PLY of the scene of ``n`` Gaussians (written once into ``work``) and how it is built."""
+def scene_file(n: int, sources: list, work: Path) -> tuple[Path, str, object]:
+    """The PLY of the scene of ``n`` Gaussians (written once into ``work``), how it is built, the scene."""
     from lghcc.formats.ply3dgs import write_3dgs_ply
 
     scene, pieces = scale_scenes.build_scene(n, sources)
     path = work / f"scale-{label(n)}.ply"
     if not path.exists():
         write_3dgs_ply(path, scene)
-    return path, scale_scenes.describe(pieces)
+    return path, scale_scenes.describe(pieces), scene
+
+
+def memory_estimate(scene, preset: str, jobs: int) -> int:
+    """lghcc-enc --max-memory's estimate for the scene and preset (encoder/memory.py)."""
+    from lghcc.encoder.config import load_config
+    from lghcc.encoder.memory import encode_memory
+    from lghcc.encoder.tile_workers import TileWorkers
+
+    over = {"target_psnr": 0.0, "rd_lambda": 0.0, "prune_share": 0.0, "fit_iterations": 0} if preset == "plain" else {}
+    cfg = load_config("low" if preset == "plain" else preset, None, over, kind="gaussians")
+    return encode_memory(scene, cfg, TileWorkers(jobs=jobs)).total
 
 
 def scene_run(path: Path, n: int, args, st, why):
@@ -235,17 +247,17 @@ def stage_cell(r: ScaleRow) -> str:
 
 def table(rows: list[ScaleRow], jobs: int) -> list[str]:
     out = ["| preset | Gaussians | encode s | us / Gaussian | us / Gaussian, stages only | encoder stages (share of "
-           f"the wall time) | encoder peak RSS MiB | encoder tree peak MiB ({jobs} jobs) | bytes | bits / Gaussian | "
+           f"the wall time) | encoder peak RSS MiB | encoder tree peak MiB ({jobs} jobs) | --max-memory estimate MiB | bytes | bits / Gaussian | "
            "PSNR dB | bytes / SPZ at equal PSNR | decode s (1 / 2 workers) | decoder peak RSS MiB (1 / 2 workers) |",
-           "|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---|---:|---:|"]
+           "|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---|---:|---:|"]
     for r in rows:
         e, d1, d2 = r.encode, r.decode.get("1", {}), r.decode.get("2", {})
         if r.note:
-            out.append(f"| {r.preset} | {r.n:,} | {e.get('wall_s', 0):.1f} | - | - | {r.note} | | | | | | | | |")
+            out.append(f"| {r.preset} | {r.n:,} | {e.get('wall_s', 0):.1f} | - | - | {r.note} | | | | | | | | | |")
             continue
         out.append(f"| {r.preset} | {r.n:,} | {e['wall_s']:.1f} | {1e6 * e['wall_s'] / r.n:.0f} | "
                    f"{1e6 * sum(r.stages.values()) / r.n:.0f} | {stage_cell(r)} | {_mib(e['peak_rss'])} | "
-                   f"{_mib(e['tree_peak'])} | {r.bytes:,} | {8 * r.bytes / r.n:.2f} | {r.psnr:.2f} | {r.spz_cell} | "
+                   f"{_mib(e['tree_peak'])} | {_mib(r.memory_estimate)} | {r.bytes:,} | {8 * r.bytes / r.n:.2f} | {r.psnr:.2f} | {r.spz_cell} | "
                    f"{d1['wall_s']:.1f} / {d2['wall_s']:.1f} | {_mib(d1['peak_rss'])} / {_mib(d2['peak_rss'])} |")
     return out
 
@@ -278,6 +290,40 @@ def plot(rows: list[ScaleRow], path: Path) -> str:
     return f"![time per Gaussian]({path.name})"
 
 
+def _near(rows: list[ScaleRow], n: int, preset: str | None = None) -> ScaleRow | None:
+    """The row of the size nearest ``n`` (within 10%) and the preset (None: any), measured."""
+    ok = [r for r in rows if not r.note and abs(r.n - n) <= 0.1 * n and (preset is None or r.preset == preset)]
+    return ok[0] if ok else None
+
+
+def _verdict(value: float | None, limit: float, unit: str) -> str:
+    if value is None:
+        return "not measured in this run"
+    if value <= limit:
+        return f"met: {value:,.1f} {unit} (target {limit:,.1f})"
+    return f"MISSED by {100 * (value / limit - 1):.0f}%: {value:,.1f} {unit} (target {limit:,.1f})"
+
+
+def targets(rows: list[ScaleRow]) -> list[str]:
+    """Issue 32's targets that these rows measure, each met or missed by how much."""
+    gib = 2 ** 30
+    m1 = _near(rows, 10 ** 6, "medium")
+    out = ["Targets (issue 32; 2 cores):", "",
+           f"- 1M Gaussians at medium encoded in <= 10 min: {_verdict(m1 and m1.encode['wall_s'] / 60, 10, 'min')}"]
+    for preset in dict.fromkeys(r.preset for r in rows):
+        a, b = _near(rows, 3 * 10 ** 5, preset), _near(rows, 3 * 10 ** 6, preset)
+        per = (lambda r: 1e6 * r.encode["wall_s"] / r.n)
+        out.append(f"- {preset}: time per Gaussian at 3M no higher than at 300k: "
+                   + (_verdict(per(b), per(a), "us") if a and b else "not measured in this run (needs 300k and 3M)"))
+    for n, limit in ((10 ** 6, 4), (3 * 10 ** 6, 10)):
+        peaks = [r.encode["peak_rss"] / gib for r in rows if not r.note and abs(r.n - n) <= 0.1 * n]
+        out.append(f"- encoder peak memory at {label(n)} <= {limit} GiB (largest over the presets): "
+                   + _verdict(max(peaks) if peaks else None, limit, "GiB"))
+    d1 = [r.decode["2"]["wall_s"] for r in rows if not r.note and abs(r.n - 10 ** 6) <= 10 ** 5]
+    out.append("- 1M Gaussians decoded in <= 10 s with 2 workers: " + _verdict(min(d1) if d1 else None, 10, "s"))
+    return out
+
+
 def report(rows: list[ScaleRow], built: dict[int, str], args, argv, plot_line: str, spz_note: str) -> list[str]:
     import torch
 
@@ -297,7 +343,7 @@ def report(rows: list[ScaleRow], built: dict[int, str], args, argv, plot_line: s
               "process (os.wait4; with workers, the parent), tree peak: the largest sum of PSS over the process and "
               "its workers, sampled every 0.2 s (it can miss a short peak). us / Gaussian, stages only: the "
               "encoder's stages without the start and the PLY read.",
-              "", *table(rows, args.jobs), "", plot_line]
+              "", *table(rows, args.jobs), "", plot_line, "", *targets(rows)]
     return lines
 
 
@@ -341,11 +387,12 @@ def main(argv: list[str] | None = None) -> int:
     enc, dec = br.lghcc_commands()
     rows, built = [], {}
     for n in sizes:
-        path, built[n] = scene_file(n, sources, args.work)
+        path, built[n], scene = scene_file(n, sources, args.work)
         run = scene_run(path, n, args, st, why)
         env, full = spz_envelope(run, keeps) if st else ([], None)
         for preset in presets:
             row = encode_row(run, n, preset, args, enc, dec, args.work)
+            row.memory_estimate = memory_estimate(scene, preset, args.jobs)
             if not row.note and st:
                 row.spz_cell = br.equal_psnr_cell(row.bytes, row.psnr, env, full)
             rows.append(row)
