@@ -285,7 +285,7 @@ def encode(scene: AnchorScene | GaussianScene, cfg=None, *, progress: bool = Fal
 
         t0 = time.perf_counter()
         # max_memory=None: the scene is in memory already (the decoder's bound is for untrusted streams)
-        decoded = decode_stream(result.data, max_memory=None, jobs=_verify_jobs(workers))
+        decoded = decode_stream(result.data, max_memory=None, jobs=_verify_jobs(workers), progress=progress)
         result.stats.stage_times_s["verify"] = time.perf_counter() - t0
         if decoded.stream_hash != result.scene_hash:
             from ..common.errors import HashMismatchError  # exit status 3, as lghcc-enc --help says

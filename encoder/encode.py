@@ -166,15 +166,17 @@ def quantize_render_model(mlps: dict[str, RenderMLP], bits: int):
 
 
 @contextmanager
-def stage(bar, name: str, stats: EncodeStats | None = None) -> Iterator[None]:
-    """One step of the encoder's progress bar: named while it runs, counted when it ends; its
-    time goes to ``stats.stage_times_s`` (lghcc-enc --json, tools/bench_scale.py's shares)."""
+def stage(bar, name: str, stats: EncodeStats | None = None, weight: float = 1) -> Iterator[None]:
+    """One step of the encoder's progress bar: named while it runs, counted (``weight``: its
+    share of the bar) when it ends; its time goes to ``stats.stage_times_s`` (lghcc-enc --json,
+    tools/bench_scale.py's shares)."""
     bar.set_postfix_str(name)
     t0 = time.perf_counter()
     yield
     if stats is not None:
         stats.stage_times_s[name] = stats.stage_times_s.get(name, 0.0) + time.perf_counter() - t0
-    bar.update()
+    bar.set_postfix_str(f"{name} done")
+    bar.update(weight)
 
 
 def prune(scene: AnchorScene, cfg: EncoderConfig, stats: EncodeStats) -> AnchorScene:
