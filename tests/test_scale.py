@@ -217,3 +217,35 @@ def test_scale_plan_of_the_real_sizes():
     assert len(plan_3m) == 24 and plan_3m[-1] == (2, 237_112)
     with pytest.raises(ValueError):
         ss.plan(0, sizes)
+
+
+# --- tools/bench_scale.py --------------------------------------------------------------------------
+
+def _bench_scale():
+    sys.path.insert(0, str(ROOT / "tools"))
+    spec = importlib.util.spec_from_file_location("bench_scale", ROOT / "tools" / "bench_scale.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["bench_scale"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_bench_scale_sizes_and_targets():
+    bs = _bench_scale()
+    assert [bs.parse_size(t) for t in ("100k", "1M", "2.5M", "300000")] == [100_000, 10 ** 6, 2_500_000, 300_000]
+    for bad in ("lots", "0", "-1k"):
+        with pytest.raises(Exception):
+            bs.parse_size(bad)
+
+    def row(n, preset, wall, peak_gib, dec2):
+        m = {"rc": 0, "wall_s": wall, "peak_rss": int(peak_gib * 2 ** 30), "tree_peak": 0}
+        return bs.ScaleRow(n, preset, 1000, 40.0, m, {"geometry": wall / 2}, {"1": m, "2": dict(m, wall_s=dec2)})
+    rows = [row(300_000, "medium", 60.0, 1.0, 3.0), row(10 ** 6, "medium", 900.0, 5.0, 8.0),
+            row(3 * 10 ** 6, "medium", 540.0, 9.0, 20.0)]
+    text = "\n".join(bs.targets(rows))
+    assert "10 min: MISSED by 50%: 15.0 min" in text
+    assert "medium: time per Gaussian at 3M no higher than at 300k: met: 180.0 us (target 200.0)" in text
+    assert "at 1M <= 4 GiB (largest over the presets): MISSED by 25%" in text
+    assert "at 3M <= 10 GiB (largest over the presets): met" in text
+    assert "decoded in <= 10 s with 2 workers: met: 8.0 s" in text
+    assert "not measured" in "\n".join(bs.targets(rows[:1]))

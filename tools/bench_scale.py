@@ -17,7 +17,7 @@ and written as 3DGS PLYs into --work. Per size and preset:
   else the column says n/a).
 
 Memory: every encoder and decoder runs in its own subprocess. "peak RSS" is the kernel's maximum
-resident set of that process (os.wait4's ru_maxrss); with worker processes, "tree peak" is the
+resident set of that process (GNU time's %M); with worker processes, "tree peak" is the
 largest sum of the proportional set sizes (PSS: pages shared after fork counted once) of the
 process and its descendants, sampled every 0.2 s.
 
@@ -116,10 +116,19 @@ class Measured:
     tree_peak: int  # bytes, sampled sum of PSS over the process tree (0: not sampled)
 
 
-def measured(cmd: list[str], env: dict) -> Measured:
-    """Run ``cmd`` (its stdout to our stderr) and measure its wall time and memory (module doc)."""
+TIME = "/usr/bin/time"  # GNU time: forks from its own small process, so the child's peak is its own
+
+
+def measured(cmd: list[str], env: dict, scratch: Path) -> Measured:
+    """Run ``cmd`` (its stdout to our stderr) and measure its wall time and memory (module doc).
+    The peak RSS comes from GNU time (-f %M): Linux keeps a process's RSS high-water mark across
+    exec, so a child forked straight from this process, which holds the renders and torch, would
+    report this process's peak as its own. Without /usr/bin/time the column is left empty."""
+    out = scratch / "maxrss.txt"
+    out.unlink(missing_ok=True)
+    wrap = [TIME, "-f", "%M", "-o", str(out)] if os.path.exists(TIME) else []
     t0 = time.perf_counter()
-    p = subprocess.Popen(cmd, stdout=sys.stderr, env=env)
+    p = subprocess.Popen([*wrap, *cmd], stdout=sys.stderr, env=env)
     peak = [0]
     done = threading.Event()
 
@@ -128,12 +137,15 @@ def measured(cmd: list[str], env: dict) -> Measured:
             peak[0] = max(peak[0], sum(_pss(q) for q in _descendants(p.pid)))
     th = threading.Thread(target=sample, daemon=True)
     th.start()
-    _, status, ru = os.wait4(p.pid, 0)
+    p.wait()
     wall = time.perf_counter() - t0
     done.set()
     th.join()
-    p.returncode = os.waitstatus_to_exitcode(status)
-    return Measured(p.returncode, wall, int(ru.ru_maxrss) * 1024, peak[0])
+    rss = 0
+    if wrap and out.exists():
+        lines = [ln for ln in out.read_text().split() if ln.isdigit()]
+        rss = int(lines[-1]) * 1024 if lines else 0
+    return Measured(p.returncode, wall, rss, peak[0])
 
 
 # --- rows ------------------------------------------------------------------------------------
@@ -164,7 +176,7 @@ def encode_row(run, n: int, preset: str, args, enc: list[str], dec: list[str], w
     env = dict(os.environ, OMP_WAIT_POLICY="PASSIVE", LGHCC_PROGRESS_INTERVAL="60")
     log(f"{label(n)} {preset}: encoding ...")
     m = measured([*enc, str(run.spec.path), "-o", str(stream), "-y", *opts, "--jobs", str(args.jobs), "--no-verify",
-                  "--json", str(js), *args.enc_args], env)
+                  "--json", str(js), *args.enc_args], env, work)
     row.encode = asdict(m)
     if m.rc != 0:
         row.note = f"lghcc-enc failed (exit {m.rc})"
@@ -175,7 +187,7 @@ def encode_row(run, n: int, preset: str, args, enc: list[str], dec: list[str], w
     back = work / f"{label(n)}-{preset}.back.ply"
     for jobs in (1, 2):
         log(f"{label(n)} {preset}: decoding with {jobs} worker(s) ...")
-        d = measured([*dec, str(stream), "--export-ply", str(back), "-y", "--jobs", str(jobs), "-q"], env)
+        d = measured([*dec, str(stream), "--export-ply", str(back), "-y", "--jobs", str(jobs), "-q"], env, work)
         row.decode[str(jobs)] = asdict(d)
         if d.rc != 0:
             row.note = f"lghcc-dec --jobs {jobs} failed (exit {d.rc})"
@@ -340,7 +352,7 @@ def report(rows: list[ScaleRow], built: dict[int, str], args, argv, plot_line: s
               "shares from lghcc-enc --json stage_times_s. Decode: lghcc-dec --export-ply --jobs 1 and --jobs 2. "
               f"PSNR: mean over {args.views} orbit views of {args.size} px (tools/bench_real.py's cameras, up "
               f"{UP}) of the decoded scene against the source's renders. {spz_note} Memory: peak RSS of the "
-              "process (os.wait4; with workers, the parent), tree peak: the largest sum of PSS over the process and "
+              "process (GNU time's %M; with workers, the largest process), tree peak: the largest sum of PSS over the process and "
               "its workers, sampled every 0.2 s (it can miss a short peak). us / Gaussian, stages only: the "
               "encoder's stages without the start and the PLY read.",
               "", *table(rows, args.jobs), "", plot_line, "", *targets(rows)]
@@ -385,20 +397,27 @@ def main(argv: list[str] | None = None) -> int:
     args.work.mkdir(parents=True, exist_ok=True)
     sources = scale_scenes.load_sources(data_root)
     enc, dec = br.lghcc_commands()
-    rows, built = [], {}
-    for n in sizes:
+    rows, built, runs = [], {}, {}
+    for n in sizes:  # the scenes, their renders and SPZ rows first (cached in --work)
         path, built[n], scene = scene_file(n, sources, args.work)
         run = scene_run(path, n, args, st, why)
-        env, full = spz_envelope(run, keeps) if st else ([], None)
-        for preset in presets:
+        runs[n] = (run, *(spz_envelope(run, keeps) if st else ([], None)), scene)
+    for preset in presets:  # every size of a preset before the next, slower preset
+        for n in sizes:
+            run, env, full, scene = runs[n]
             row = encode_row(run, n, preset, args, enc, dec, args.work)
             row.memory_estimate = memory_estimate(scene, preset, args.jobs)
             if not row.note and st:
                 row.spz_cell = br.equal_psnr_cell(row.bytes, row.psnr, env, full)
             rows.append(row)
             (args.work / "rows.json").write_text(json.dumps([asdict(r) for r in rows], indent=1))
-    plot_line = plot(rows, args.out.with_suffix(".png"))
-    write_lines(args.out, report(rows, built, args, argv, plot_line, spz_note))
+            # written after every row: a run stopped part way keeps what it measured, and says so
+            left = len(sizes) * len(presets) - len(rows)
+            lines = report(rows, built, args, argv, plot(rows, args.out.with_suffix(".png")), spz_note)
+            if left:
+                lines[3:3] = [f"Part of the run: {len(rows)} of {len(rows) + left} rows measured when this was "
+                              "written.", ""]
+            write_lines(args.out, lines)
     log(f"wrote {args.out}")
     return 0
 
