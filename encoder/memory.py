@@ -29,7 +29,10 @@ PER_VALUE_BYTES = 90  # per point and channel: the scene read, float64 values, i
 # Gaussians, sensitivities and the search's trial scenes (tools/results/scale.md, preset low)
 PREPARE_PER_POINT_BYTES = 1400
 PREPARE_PER_VALUE_BYTES = 24
-WORKER_BYTES = 120 << 20  # a forked worker's own pages: torch's thread pools, its tile's arrays
+# A forked worker's own pages (torch's thread pools, its tile's arrays): a margin, as the peak is in
+# the whole-scene stages before the tiles: 200k Gaussians at SH 0 peaked at 503 MB of PSS over the
+# process tree with --jobs 1 and with --jobs 2 alike (tools/bench_scale.py's sampler)
+WORKER_BYTES = 64 << 20
 RAY_BYTES = 600 << 20  # a local Ray instance's processes (raylet, GCS, a worker per CPU)
 
 
