@@ -43,8 +43,9 @@ from .stats import EncodeStats
 OPACITY_LOGIT_LIMIT = 8.0
 # Each stage's share (percent) of the coding's time, so that the encoder's bar, and its estimate
 # of the time left, advance as the time goes: a tiled scene at low's steps without the render-based
-# preparation, 100k and 300k Gaussians, 2 worker processes (tools/results/scale.md)
-STAGE_SHARES = {"geometry": 5, "quantization": 10, "attributes": 40, "tiles and hash": 45}
+# preparation, 100k and 300k Gaussians, 2 worker processes (tools/results/scale.md: 8/8/48/35 and
+# 7/14/43/36 percent of the stages' time)
+STAGE_SHARES = {"geometry": 8, "quantization": 11, "attributes": 45, "tiles and hash": 36}
 MAX_GRID_EXTENT = 1 << 30  # voxels per axis; beyond, the grid is made coarser (far floaters)
 
 

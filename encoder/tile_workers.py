@@ -19,10 +19,12 @@ from __future__ import annotations
 import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 
 import numpy as np
 
+from ..common.errors import LghccError
 from .tiling import TileCoding, TileJob, code_one_tile, tile_input
 
 
@@ -140,7 +142,10 @@ def _in_workers(inp, job: TileJob, parts: list, jobs: int, bar) -> tuple[list[Ti
                         pool.submit(_spawned_tile, (job, cell, rows, tile_input(inp, rows)))] = i
             for f in as_completed(futures):
                 i = futures[f]
-                got = f.result()
+                try:
+                    got = f.result()
+                except BrokenProcessPool as e:  # killed (out of memory?) or crashed
+                    raise LghccError(f"a tile worker process died ({e}); try --jobs 1") from None
                 if fork:
                     tiles[i] = got
                 else:

@@ -249,3 +249,16 @@ def test_bench_scale_sizes_and_targets():
     assert "at 3M <= 10 GiB (largest over the presets): met" in text
     assert "decoded in <= 10 s with 2 workers: met: 8.0 s" in text
     assert "not measured" in "\n".join(bs.targets(rows[:1]))
+
+
+def test_a_dying_tile_worker_is_a_clear_error(monkeypatch):
+    import os
+
+    import lghcc.encoder.tile_workers as tw
+    from lghcc.common.errors import LghccError
+
+    if os.name != "posix":
+        pytest.skip("the workers are forked on POSIX only: a patched function reaches them there")
+    monkeypatch.setattr(tw, "code_one_tile", lambda *a: os._exit(9))
+    with pytest.raises(LghccError, match="a tile worker process died.*try --jobs 1"):
+        encode_gaussian_scene(gaussian_scene(1500), plain_config(tile_points=300), workers=TileWorkers(jobs=2))
