@@ -423,6 +423,9 @@ def tile_workers_of(args: argparse.Namespace):
         raise LghccError("--jobs and --ray are two ways of coding the tiles: give one")
     if args.ray_cpus is not None and (not args.ray or args.address):
         raise LghccError("--ray-cpus sizes a local Ray instance: give it with --ray and without --address")
+    if args.address:  # an unreachable cluster is an error before minutes of work, not after
+        from ..app.cluster import check_reachable
+        check_reachable(args.address, TileWorkers.connect_timeout_s)
     return TileWorkers(jobs=args.jobs, ray=args.ray, address=args.address, ray_cpus=args.ray_cpus)
 
 

@@ -355,7 +355,13 @@ def report(rows: list[ScaleRow], built: dict[int, str], args, argv, plot_line: s
               "process (GNU time's %M; with workers, the largest process), tree peak: the largest sum of PSS over the process and "
               "its workers, sampled every 0.2 s (it can miss a short peak). us / Gaussian, stages only: the "
               "encoder's stages without the start and the PLY read.",
-              "", *table(rows, args.jobs), "", plot_line, "", *targets(rows)]
+              "", *table(rows, args.jobs), "", plot_line, "", *targets(rows), "",
+              "What runs in parallel: the tiles (geometry, attributes and hash of each; --jobs, --ray). The "
+              "whole-scene stages run in one process before them: the render-based preparation (contributions, "
+              "sensitivities, the settings search, the fit), the grid and normative order, the rate-distortion "
+              "optimized quantization on the whole scene's neighbour graph, and the choice of the stream's "
+              "neighbour_prediction unit (a k-NN graph of the whole scene); the per Gaussian cost of a preset "
+              "that prepares is mostly theirs."]
     return lines
 
 
