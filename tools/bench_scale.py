@@ -286,12 +286,16 @@ def plot(rows: list[ScaleRow], path: Path) -> str:
         return msg
     fig, ax = plt.subplots(figsize=(6, 4))
     for preset in dict.fromkeys(r.preset for r in rows):
-        pts = sorted((r.n, 1e6 * r.encode["wall_s"] / r.n) for r in rows if r.preset == preset and not r.note)
-        if pts:
-            ax.plot(*zip(*pts), marker="o", label=preset)
+        done = sorted((r for r in rows if r.preset == preset and not r.note), key=lambda r: r.n)
+        if done:
+            line, = ax.plot([r.n for r in done], [1e6 * r.encode["wall_s"] / r.n for r in done], marker="o",
+                            label=f"{preset} (wall time)")
+            ax.plot([r.n for r in done], [1e6 * sum(r.stages.values()) / r.n for r in done], marker="o",
+                    linestyle="--", color=line.get_color(), label=f"{preset} (stages, without start and read)")
     ax.set_xscale("log")
     ax.set_xlabel("Gaussians")
     ax.set_ylabel("encode time per Gaussian (us)")
+    ax.set_ylim(bottom=0)
     ax.set_title("lghcc-enc: time per Gaussian against scene size")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
