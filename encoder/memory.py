@@ -27,10 +27,11 @@ PER_POINT_BYTES = 480  # coordinates, orders, the neighbour graph, the tiles' in
 PER_VALUE_BYTES = 90  # per point and channel: the scene read, float64 values, int64 q, float32 decoded, copies
 # The render-based preparation (a PSNR or lambda asked for, fitting, pruning): projected
 # Gaussians, contributions, sensitivities and the search's trial scenes. Measured at one size: preset
-# low on the 100k scene of tools/scale_scenes.py (SH 0) reached a high-water mark of 1,000 MB in its
-# search against 438 MB without the preparation, 5.6 KB per Gaussian; 6.5 KB leaves a margin. The
-# per-value term (the sensitivities, float64 [N, M], and their copies) is not measured beyond SH 0.
-PREPARE_PER_POINT_BYTES = 6500
+# low on the 100k scene of tools/scale_scenes.py (SH 0) had reached a high-water mark of 1,104 MB
+# after 34 min of its search (stopped there, on a loaded machine) against 438 MB without the
+# preparation: 6.7 KB per Gaussian and rising slowly; 9 KB leaves a margin. The per-value term
+# (the sensitivities, float64 [N, M], and their copies) is not measured beyond SH 0.
+PREPARE_PER_POINT_BYTES = 9000
 PREPARE_PER_VALUE_BYTES = 24
 # A forked worker's own pages (torch's thread pools, its tile's arrays): a margin, as the peak is in
 # the whole-scene stages before the tiles: 200k Gaussians at SH 0 peaked at 503 MB of PSS over the
