@@ -214,7 +214,7 @@ def estimate_seconds(scene: AnchorScene | GaussianScene, cfg) -> tuple[float, st
     return seconds, f"{fits} GG-Conv fit{'s' if fits > 1 else ''} of {steps:,} steps"
 
 
-def _encode_gaussians(scene: GaussianScene, cfg, *, progress: bool, log: Log, measure_ideal: bool):
+def _encode_gaussians(scene: GaussianScene, cfg, *, progress: bool, log: Log, measure_ideal: bool, workers=None):
     """Rate-aware preparation (when the settings call for it), then the explicit-Gaussian
     coding -> (result, the settings used: the preset's, or those the search chose)."""
     from .gaussian_fit import prepare_gaussians
@@ -231,8 +231,10 @@ def _encode_gaussians(scene: GaussianScene, cfg, *, progress: bool, log: Log, me
         prep = prepare_gaussians(scene, cfg, log=log, progress=progress)
         scene, weights, sensitivity, cfg, prepared = prep.scene, prep.weights, prep.sensitivity, prep.cfg, prep.stats
     result = encode_gaussian_scene(scene, cfg, weights=weights, sensitivity=sensitivity, progress=progress,
-                                   measure_ideal=measure_ideal)
+                                   measure_ideal=measure_ideal, workers=workers)
     result.stats.prepare = prepared
+    if prepared is not None:  # the first stage, before the coding's own
+        result.stats.stage_times_s = {"prepare": prepared.time_total_s, **result.stats.stage_times_s}
     bands = ", ".join(f"{s:.3g}" for s in cfg.sh_band_steps[:result.decoded.sh_degree])
     result.stats.settings = (
         f"pruned {prepared.gaussians_pruned if prepared else 0:,} Gaussians; position step {cfg.position_step:.3g} x "
@@ -242,34 +244,50 @@ def _encode_gaussians(scene: GaussianScene, cfg, *, progress: bool, log: Log, me
     return result, cfg
 
 
+def _verify_jobs(workers) -> int:
+    """The decoder's worker processes for the check of the written stream: the encoder's (--jobs;
+    auto: one per CPU), one process when the tiles went to Ray."""
+    if workers is None or workers.ray:
+        return 1
+    from .tile_workers import available_cpus
+
+    return workers.jobs or available_cpus()
+
+
 def encode(scene: AnchorScene | GaussianScene, cfg=None, *, progress: bool = False, log: Log = _quiet,
            measure_ideal: bool = False, context_twin=None, verify: bool = True, allow_missing_mlps: bool = False,
-           transcoded: TranscodeResult | None = None):
+           transcoded: TranscodeResult | None = None, workers=None):
     """Encode either kind of scene with ``cfg`` (``encoder_config``; None: preset medium).
     -> (EncodeResult, the configuration used). ``verify`` decodes the stream again and
     checks that it gives the encoded scene (its hash). ``transcoded``: the transcode that made
     the anchor scene (``read_source``): the stream gets a source_info unit with the source's
     SH degree (spec clause 7.3.10) and the stats its statistics (its context twin, trained in
-    its rate phase, is ``context_twin`` when wanted)."""
+    its rate phase, is ``context_twin`` when wanted). ``workers`` (encoder/tile_workers.py
+    TileWorkers; None: this process): where a tiled scene's tiles are coded (worker processes,
+    Ray); the stream does not depend on it."""
     from .encode import encode_scene, source_info_unit
 
     check_encodable(scene, allow_missing_mlps)
     if cfg is None:
         cfg = encoder_config(scene)
     if isinstance(scene, GaussianScene):
-        result, cfg = _encode_gaussians(scene, cfg, progress=progress, log=log, measure_ideal=measure_ideal)
+        result, cfg = _encode_gaussians(scene, cfg, progress=progress, log=log, measure_ideal=measure_ideal,
+                                        workers=workers)
     else:
         ancillary = []
         if transcoded is not None:  # what the decoded anchors cannot tell: the source's SH degree
             ancillary.append(source_info_unit(transcoded.stats.sh_degree))
         result = encode_scene(scene, cfg, progress=progress, measure_ideal=measure_ideal, context_twin=context_twin,
-                              ancillary=ancillary)
+                              ancillary=ancillary, workers=workers)
         result.stats.transcode = None if transcoded is None else transcoded.stats
     if verify:
         from ..decoder.decode import decode_stream
 
+        t0 = time.perf_counter()
         # max_memory=None: the scene is in memory already (the decoder's bound is for untrusted streams)
-        if decode_stream(result.data, max_memory=None).stream_hash != result.scene_hash:
+        decoded = decode_stream(result.data, max_memory=None, jobs=_verify_jobs(workers), progress=progress)
+        result.stats.stage_times_s["verify"] = time.perf_counter() - t0
+        if decoded.stream_hash != result.scene_hash:
             from ..common.errors import HashMismatchError  # exit status 3, as lghcc-enc --help says
 
             raise HashMismatchError("internal error: the written stream does not decode to the encoded scene")

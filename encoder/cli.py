@@ -16,7 +16,9 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from ..app.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_OK, EXIT_RESOURCE_LIMIT,
                               EXIT_USAGE, exit_status_epilog)
-from ..app.cliargs import OVERWRITE_RULE, add_overwrite_options, add_version_option, positive_float, run_cli
+from ..app.cli_common import format_bytes, memory_size
+from ..app.cliargs import (OVERWRITE_RULE, add_overwrite_options, add_version_option, positive_float, positive_int,
+                           run_cli)
 from ..common.errors import LghccError
 from ..app.fileio import atomic_write_bytes, check_output_paths, check_overwrite, write_error
 from .api import is_gaussian_file  # noqa: F401  (lghcc-enc's test of its input; kept importable here)
@@ -52,11 +54,16 @@ examples:
   lghcc-enc --procedural 20000 -o demo.lghcc           built-in procedural anchor scene
   lghcc-enc outputs/garden -o garden.lghcc             Scaffold-GS model folder
   lghcc-enc point_cloud.ply --preset lghcc-medium -o g.lghcc   anchor PLY (MLPs from checkpoint.pth beside it)
+  lghcc-enc big.ply -o big.lghcc --jobs auto          tiles coded in one worker process per CPU
+  lghcc-enc big.ply -o big.lghcc --ray --address HEAD_IP:6379
+                                                       tiles as tasks on a Ray cluster (`ray start --head` on
+                                                       HEAD_IP, `ray start --address HEAD_IP:6379` on the others)
 
 The lghcc-* presets fit a context model to the scene: minutes (an estimate is printed first).
 An anchor scene without its render MLPs is refused (--allow-no-mlps codes it anyway).
 Progress goes to stderr: a bar on a terminal, a line every 10 s in a log
-(LGHCC_PROGRESS_INTERVAL=S to change it).
+(LGHCC_PROGRESS_INTERVAL=S to change it), each stage with its share done and the time left.
+The stream does not depend on --jobs or --ray: the tiles are coded alone, wherever they run.
 """
 
 
@@ -66,7 +73,8 @@ def _epilog() -> str:
                      "or coded, an output that cannot be written, an option value)",
          EXIT_INVALID_STREAM: "the written stream failed its own decoding check (a bug: "
                               "please report it)",
-         EXIT_RESOURCE_LIMIT: "the system ran out of memory"},
+         EXIT_RESOURCE_LIMIT: "the scene would need more memory than --max-memory (refused before "
+                              "any work), or the system ran out of memory"},
         codes=(EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INVALID_STREAM, EXIT_RESOURCE_LIMIT, EXIT_INTERRUPTED))
 
 
@@ -173,6 +181,35 @@ def add_transcode_arguments(p: argparse.ArgumentParser) -> None:
                         "'lghcc[gsplat]'); coding itself is the same on every machine")
 
 
+def jobs_arg(text: str) -> int:
+    """argparse type of --jobs: a whole number >= 1, or auto (0)."""
+    return 0 if text.strip().lower() == "auto" else positive_int(text)
+
+
+def add_execution_arguments(p: argparse.ArgumentParser) -> None:
+    """Where the tiles are coded, and the memory bound."""
+    x = p.add_argument_group(
+        "execution at scale (none of these changes a byte of the stream)",
+        "A tiled scene (--tile-points) codes each tile on its own: in worker processes (--jobs) or as "
+        "Ray tasks (--ray), on this machine or a cluster.")
+    x.add_argument("--jobs", type=jobs_arg, default=1, metavar="N",
+                   help="code the tiles in N worker processes (default 1: this process; auto: one per CPU, "
+                        "one process for a scene under 2 tiles of 16,384 points)")
+    x.add_argument("--ray", action="store_true",
+                   help="code the tiles as Ray tasks, one per tile: on a local Ray instance, or on the cluster "
+                        "of --address (pip install 'lghcc[batch]'; the workers need lghcc installed, no shared "
+                        "filesystem: each task gets its tile through Ray's object store)")
+    x.add_argument("--address", metavar="HOST:PORT",
+                   help="with --ray: a running Ray cluster (its head's address as `ray start --head` prints it; "
+                        "ray://HOST:PORT for Ray Client; auto: the cluster this machine belongs to)")
+    x.add_argument("--ray-cpus", type=positive_int, metavar="N",
+                   help="with --ray and no --address: CPUs of the local Ray instance (default: all)")
+    x.add_argument("--max-memory", type=memory_size, default=None, metavar="SIZE",
+                   help="refuse, before any work, a scene whose encoding would need more memory than SIZE "
+                        "(e.g. 4G, 512M; exit status 4); the estimate counts the scene, the encoder's arrays "
+                        "and the worker processes (tools/results/scale.md); default: no bound")
+
+
 def add_run_arguments(p: argparse.ArgumentParser) -> None:
     """Overwriting, checks, reports."""
     add_overwrite_options(p, "output files (-o, --json)")
@@ -204,6 +241,7 @@ def setup_args() -> argparse.ArgumentParser:
     add_anchor_arguments(p)
     add_gaussian_arguments(p)
     add_transcode_arguments(p)
+    add_execution_arguments(p)
     add_run_arguments(p)
     return p
 
@@ -289,6 +327,17 @@ def announce_estimate(args: argparse.Namespace, scene, cfg, log) -> None:
             "and writes nothing")
 
 
+def check_memory(scene, cfg, workers, max_memory: int | None, source: str, log) -> None:
+    """Refuse a scene whose encoding would need more than ``max_memory`` (ResourceLimitError, exit
+    status 4), before the work starts; with a bound, say what the estimate is."""
+    if max_memory is None:
+        return
+    from .memory import check_encode_memory
+
+    need = check_encode_memory(scene, cfg, workers, max_memory, source)
+    log(f"memory: about {format_bytes(need)} needed, within --max-memory {format_bytes(max_memory)}")
+
+
 def context_twin_of(args: argparse.Namespace, gaussians: bool, cfg, transcoded=None):
     """The GG-Conv twin trained with the scene, when it may be used (else None): the one of the
     transcode's rate phase (``transcoded``), or the one lghcc-train saved beside the scene."""
@@ -364,6 +413,23 @@ def print_summary(say, args: argparse.Namespace, result: EncodeResult, scene, ga
     say(f"decoded scene SHA-256: {result.scene_hash.hex()}")
 
 
+def tile_workers_of(args: argparse.Namespace):
+    """Where the tiles are coded (--jobs, --ray, --address, --ray-cpus); a usage error when the
+    options contradict each other."""
+    from .tile_workers import TileWorkers
+
+    if args.address and not args.ray:
+        args.ray = True  # --address names a Ray cluster: it asks for Ray
+    if args.ray and args.jobs != 1:
+        raise LghccError("--jobs and --ray are two ways of coding the tiles: give one")
+    if args.ray_cpus is not None and (not args.ray or args.address):
+        raise LghccError("--ray-cpus sizes a local Ray instance: give it with --ray and without --address")
+    if args.address:  # an unreachable cluster is an error before minutes of work, not after
+        from ..app.cluster import check_reachable
+        check_reachable(args.address, TileWorkers.connect_timeout_s)
+    return TileWorkers(jobs=args.jobs, ray=args.ray, address=args.address, ray_cpus=args.ray_cpus)
+
+
 def _main(argv: list[str] | None) -> int:
     from . import api
     from .config import load_config
@@ -373,6 +439,7 @@ def _main(argv: list[str] | None) -> int:
     log = (lambda *a: None) if args.quiet else (lambda msg: print(f"lghcc-enc: {msg}", file=sys.stderr, flush=True))
     # A failure is reported by run_cli: one line, and the exit status of its kind (lghcc.app.cli_common).
     check_outputs(args)
+    workers = tile_workers_of(args)
     gaussians = args.input is not None and args.mode == "gaussians" and api.is_gaussian_file(args.input)
     cfg = load_config(args.preset, args.config, config_overrides(args, gaussians),
                       kind="gaussians" if gaussians else "anchors")
@@ -381,11 +448,12 @@ def _main(argv: list[str] | None) -> int:
     scene = loaded.scene
     source = args.input if args.input is not None else "procedural"
     t_load = time.perf_counter() - t0
+    check_memory(scene, cfg, workers, args.max_memory, source, log)
     announce_estimate(args, scene, cfg, log)
     twin = context_twin_of(args, gaussians, cfg, loaded.transcoded)
     result, cfg = api.encode(scene, cfg, progress=not args.quiet, log=log, measure_ideal=args.report_ideal,
                              context_twin=twin, verify=not args.no_verify, allow_missing_mlps=args.allow_no_mlps,
-                             transcoded=loaded.transcoded)
+                             transcoded=loaded.transcoded, workers=workers)
     if twin is not None:
         say(twin_outcome(result.stats))
     write_outputs(args, result, scene, cfg, gaussians, source)

@@ -166,11 +166,17 @@ def quantize_render_model(mlps: dict[str, RenderMLP], bits: int):
 
 
 @contextmanager
-def stage(bar, name: str) -> Iterator[None]:
-    """One step of the encoder's progress bar: named while it runs, counted when it ends."""
+def stage(bar, name: str, stats: EncodeStats | None = None, weight: float = 1) -> Iterator[None]:
+    """One step of the encoder's progress bar: named while it runs, counted (``weight``: its
+    share of the bar) when it ends; its time goes to ``stats.stage_times_s`` (lghcc-enc --json,
+    tools/bench_scale.py's shares)."""
     bar.set_postfix_str(name)
+    t0 = time.perf_counter()
     yield
-    bar.update()
+    if stats is not None:
+        stats.stage_times_s[name] = stats.stage_times_s.get(name, 0.0) + time.perf_counter() - t0
+    bar.set_postfix_str(f"{name} done")
+    bar.update(weight)
 
 
 def prune(scene: AnchorScene, cfg: EncoderConfig, stats: EncodeStats) -> AnchorScene:
@@ -190,16 +196,22 @@ def check_point_count(n: int, what: str) -> None:
 
 @dataclass
 class GeometryCoding:
-    """The points in normative order and their geometry unit."""
+    """The points in normative order and their geometry unit (coded when first asked for: a tiled
+    stream codes each tile's geometry instead, and never needs the whole scene's)."""
     order: np.ndarray  # indices into the scene, in normative order
     coords: np.ndarray  # the coordinates in that order
-    payload: bytes
+    _payload: bytes | None = None
+
+    @property
+    def payload(self) -> bytes:
+        if self._payload is None:
+            self._payload = encode_geometry(self.coords)
+        return self._payload
 
 
 def code_geometry(coords: np.ndarray) -> GeometryCoding:
     order = normative_order(coords)
-    ordered = coords[order]
-    return GeometryCoding(order, ordered, encode_geometry(ordered))
+    return GeometryCoding(order, coords[order])
 
 
 @dataclass
@@ -590,45 +602,47 @@ def write_stream(parameter_units: list[DataUnit], context_payload: bytes | None,
 
 
 def stream_tiles(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodingConfig, geometry: GeometryCoding,
-                 coded: CodedAttributes, make_scene, stats: EncodeStats, progress: bool = False):
+                 coded: CodedAttributes, make_scene, stats: EncodeStats, progress: bool = False, workers=None):
     """The tiles of the stream with their hashes, and the whole decoded scene (stream order).
     Without tiles: one tile of the units already coded. With tiles: every tile coded on its own
-    (encoder/tiling.py; ``stats`` then counts the tiles' units). ``make_scene(coords, values,
-    mask)``: the decoded scene of those points."""
-    from .tiling import TileCoding, code_tiles, tile_level_stats
+    (encoder/tiling.py; ``stats`` then counts the tiles' units), where ``workers`` says
+    (encoder/tile_workers.py; None: this process). ``make_scene(coords, values, mask)``: the
+    decoded scene of those points."""
+    from .tiling import TileCoding, TileJob, code_tiles, tile_level_stats
 
     stats.num_tiles = 1
     if levels.tile_scale == 0:
         decoded = make_scene(inp.coords, coded.recon, inp.mask)
         tile = TileCoding(None, np.arange(inp.coords.shape[0]), geometry.payload, coded.payloads, digest_of(decoded))
         return [tile], decoded
-    tiles, recon = code_tiles(inp, cfg, coded.context_payload, progress, coded.neighbour_unit)
+    job = TileJob(cfg, coded.context_payload, coded.neighbour_unit, make_scene)
+    tiles, recon = code_tiles(inp, job, progress, workers)
     tile_level_stats(tiles, stats)
-    for tile in tiles:
-        tile.scene_hash = digest_of(make_scene(inp.coords[tile.rows], recon[tile.rows],
-                                               None if inp.mask is None else inp.mask[tile.rows]))
     order = np.concatenate([t.rows for t in tiles])
     return tiles, make_scene(inp.coords[order], recon[order], None if inp.mask is None else inp.mask[order])
 
 
 def anchor_scene_maker(inp: AttributeInput, model: RenderModelCoding):
-    """make_scene for stream_tiles: the anchor scene the decoder outputs for some points."""
-    sps = inp.parameter_set
+    """make_scene for stream_tiles: the anchor scene the decoder outputs for some points (it holds
+    the layout, the parameter set and the MLPs, not the scene: it travels to worker processes)."""
+    layout, voxel_size, origin, mlps = inp.layout, float(inp.parameter_set.voxel_size), inp.parameter_set.origin, \
+        model.decoded
 
     def make(coords: np.ndarray, values: np.ndarray, mask: np.ndarray | None) -> AnchorScene:
-        features, scalings, offsets = inp.layout.split(values)
-        return AnchorScene(coords=coords, voxel_size=float(sps.voxel_size),
-                           origin=np.asarray(sps.origin, dtype=np.float32), features=features, scalings=scalings,
-                           offsets=offsets, offset_mask=mask, mlps=model.decoded)
+        features, scalings, offsets = layout.split(values)
+        return AnchorScene(coords=coords, voxel_size=voxel_size, origin=np.asarray(origin, dtype=np.float32),
+                           features=features, scalings=scalings, offsets=offsets, offset_mask=mask, mlps=mlps)
     return make
 
 
 def assemble_anchor_stream(inp: AttributeInput, levels: LevelLayout, cfg: EncoderConfig, geometry: GeometryCoding,
                            coded: CodedAttributes, model: RenderModelCoding, stats: EncodeStats,
-                           ancillary: list[DataUnit] | None = None, progress: bool = False) -> EncodeResult:
+                           ancillary: list[DataUnit] | None = None, progress: bool = False,
+                           workers=None) -> EncodeResult:
     """The stream: the scene parameter set, the ancillary units (right after it), the render
     model, the context model, the tiles."""
-    tiles, decoded = stream_tiles(inp, levels, cfg, geometry, coded, anchor_scene_maker(inp, model), stats, progress)
+    tiles, decoded = stream_tiles(inp, levels, cfg, geometry, coded, anchor_scene_maker(inp, model), stats, progress,
+                                  workers)
     parameter_units = [DataUnit(UnitType.SCENE_PARAMETER_SET, inp.parameter_set.to_bytes())] + list(ancillary or [])
     if model.payload is not None:
         parameter_units.append(DataUnit(UnitType.RENDER_MODEL, model.payload))
@@ -655,14 +669,16 @@ def check_ancillary(units: list[DataUnit] | None) -> list[DataUnit]:
 
 def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress: bool = False,
                  measure_ideal: bool = False, context_twin: ContextTwin | None = None,
-                 ancillary: list[DataUnit] | None = None) -> EncodeResult:
+                 ancillary: list[DataUnit] | None = None, workers=None) -> EncodeResult:
     """Encode a scene. ``measure_ideal`` also computes the attribute model's ideal code length
     (stats.attribute_ideal_bits), a full extra pass over the symbols. ``context_twin``: the
     GG-Conv twin trained with the scene (lghcc-train --rate-lambda writes it beside the scene):
     with a GG-Conv context model, a fit started from it is one more candidate (the smallest
     stream is kept); a twin that does not fit the configuration is reported in stats and unused.
     ``ancillary``: ancillary data units (type >= 0x80, e.g. source_info) written right after
-    the scene parameter set; the decoded scene and its hash do not depend on them."""
+    the scene parameter set; the decoded scene and its hash do not depend on them. ``workers``
+    (encoder/tile_workers.py TileWorkers; None: this process): where a tiled scene's tiles are
+    coded; the stream does not depend on it."""
     ancillary = check_ancillary(ancillary)
     cfg = (cfg or EncoderConfig()).validate()
     scene.validate()
@@ -671,22 +687,23 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
     check_point_count(scene.num_anchors, "anchors")
     t0 = time.perf_counter()
     bar = progress_bar(total=5, desc="encode", unit="step", disable=not progress, leave=False)
-    with stage(bar, "geometry"):
+    with stage(bar, "geometry", stats):
         geometry = code_geometry(scene.coords)
         stats.time_geometry_s = time.perf_counter() - t0
-    with stage(bar, "quantization"):
+    with stage(bar, "quantization", stats):
         levels = level_layout(scene.num_anchors, cfg, geometry.coords, stats)
         inp = anchor_attribute_input(scene, geometry, levels, cfg)
-    with stage(bar, "attributes"):
+    with stage(bar, "attributes", stats):
         t1 = time.perf_counter()
         twin = usable_context_twin(context_twin, scene, inp, levels, cfg, stats)
         coded = code_attributes(inp, levels, cfg, stats, progress=progress, measure_ideal=measure_ideal,
                                 context_twin=twin)
         stats.time_attributes_s = time.perf_counter() - t1
-    with stage(bar, "render model"):
+    with stage(bar, "render model", stats):
         model = code_render_model(scene.mlps, cfg)
-    with stage(bar, "tiles and hash"):
-        result = assemble_anchor_stream(inp, levels, cfg, geometry, coded, model, stats, ancillary, progress)
+    with stage(bar, "tiles and hash", stats):
+        result = assemble_anchor_stream(inp, levels, cfg, geometry, coded, model, stats, ancillary, progress,
+                                        workers)
     bar.close()
     stats.time_total_s = time.perf_counter() - t0
     return result

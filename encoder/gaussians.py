@@ -41,6 +41,11 @@ from .encode import (AttributeInput, CodedAttributes, EncodeResult, GeometryCodi
 from .stats import EncodeStats
 
 OPACITY_LOGIT_LIMIT = 8.0
+# Each stage's share (percent) of the coding's time, so that the encoder's bar, and its estimate
+# of the time left, advance as the time goes: a tiled scene at low's steps without the render-based
+# preparation, 100k and 300k Gaussians, 2 worker processes (tools/results/scale.md: 8/8/48/35 and
+# 7/14/43/36 percent of the stages' time)
+STAGE_SHARES = {"geometry": 8, "quantization": 11, "attributes": 45, "tiles and hash": 36}
 MAX_GRID_EXTENT = 1 << 30  # voxels per axis; beyond, the grid is made coarser (far floaters)
 
 
@@ -214,14 +219,15 @@ def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: Lev
 
 
 def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: GaussianEncoderConfig, coded: CodedAttributes,
-                             geometry: GeometryCoding, stats: EncodeStats, progress: bool = False) -> EncodeResult:
-    gps = inp.parameter_set
+                             geometry: GeometryCoding, stats: EncodeStats, progress: bool = False,
+                             workers=None) -> EncodeResult:
+    gps, layout = inp.parameter_set, inp.layout
 
-    def make(coords: np.ndarray, values: np.ndarray, mask) -> GaussianScene:
-        sh, op, log_scales, rotations = inp.layout.split(values)
+    def make(coords: np.ndarray, values: np.ndarray, mask) -> GaussianScene:  # holds no scene: sent to workers
+        sh, op, log_scales, rotations = layout.split(values)
         return GaussianScene.on_grid(coords, gps.voxel_size, gps.origin, sh, op, log_scales, rotations)
 
-    tiles, decoded = stream_tiles(inp, levels, cfg, geometry, coded, make, stats, progress)
+    tiles, decoded = stream_tiles(inp, levels, cfg, geometry, coded, make, stats, progress, workers)
     parameter_units = [DataUnit(UnitType.GAUSSIAN_PARAMETER_SET, gps.to_bytes())]
     if coded.neighbour_unit is not None:
         parameter_units.append(DataUnit(UnitType.NEIGHBOUR_PREDICTION, coded.neighbour_unit.to_bytes()))
@@ -237,13 +243,15 @@ def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: Gaus
 
 def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | None = None, *,
                           weights: np.ndarray | None = None, sensitivity: np.ndarray | None = None,
-                          progress: bool = False, measure_ideal: bool = False) -> EncodeResult:
+                          progress: bool = False, measure_ideal: bool = False, workers=None) -> EncodeResult:
     """Encode an explicit-Gaussian scene. A scene already on a grid (``coords`` set, e.g. from
     encoder/gaussian_fit.py) keeps it; otherwise the grid is chosen here. ``weights``: each
     Gaussian's contribution to the pictures, when known (grid size, who keeps a shared voxel).
     ``sensitivity``: the pictures' sensitivity to each value (encoder/rdoq.py, [N, M] at the
     scene's SH degree or above), when known: the values are then chosen by rate-distortion
-    optimized quantization (``cfg.rd_quantization``) instead of rounded."""
+    optimized quantization (``cfg.rd_quantization``) instead of rounded. ``workers``
+    (encoder/tile_workers.py TileWorkers; None: this process): where a tiled scene's tiles are
+    coded; the stream does not depend on it."""
     cfg = (cfg or GaussianEncoderConfig()).validate()
     scene.validate()
     if sensitivity is not None and sensitivity.shape[0] != scene.num_gaussians:
@@ -252,22 +260,23 @@ def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | Non
     t0 = time.perf_counter()
     scene = with_coded_sh_degree(scene, cfg, stats)
     check_point_count(scene.num_gaussians, "Gaussians")
-    bar = progress_bar(total=4, desc="encode", unit="step", disable=not progress, leave=False)
-    with stage(bar, "geometry"):
+    bar = progress_bar(total=sum(STAGE_SHARES.values()), desc="encode", unit="%", disable=not progress, leave=False)
+    with stage(bar, "geometry", stats, STAGE_SHARES["geometry"]):
         scene = on_own_voxels(scene, cfg, weights, stats)
         geometry = code_geometry(scene.coords)
         stats.time_geometry_s = time.perf_counter() - t0
-    with stage(bar, "quantization"):
+    with stage(bar, "quantization", stats, STAGE_SHARES["quantization"]):
         levels = level_layout(scene.num_gaussians, cfg, geometry.coords, stats)
         inp = gaussian_attribute_input(scene, geometry, levels, cfg)
+        del scene  # the grid's copy of the scene: its values are in ``inp`` now (peak memory)
         if sensitivity is not None and cfg.rd_quantization > 0:
             inp = rd_quantized_input(inp, sensitivity[geometry.order], levels, cfg)
-    with stage(bar, "attributes"):
+    with stage(bar, "attributes", stats, STAGE_SHARES["attributes"]):
         t1 = time.perf_counter()
         coded = code_attributes(inp, levels, cfg, stats, progress=progress, measure_ideal=measure_ideal)
         stats.time_attributes_s = time.perf_counter() - t1
-    with stage(bar, "hash"):
-        result = assemble_gaussian_stream(inp, levels, cfg, coded, geometry, stats, progress)
+    with stage(bar, "tiles and hash", stats, STAGE_SHARES["tiles and hash"]):
+        result = assemble_gaussian_stream(inp, levels, cfg, coded, geometry, stats, progress, workers)
     bar.close()
     stats.time_total_s = time.perf_counter() - t0
     return result

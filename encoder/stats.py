@@ -100,6 +100,7 @@ class EncodeStats:
     levels: dict[int, LevelStats] = field(default_factory=dict)  # by attribute level
     time_attributes_s: float = 0.0
     time_total_s: float = 0.0
+    stage_times_s: dict[str, float] = field(default_factory=dict)  # by stage of the coding (encode.stage)
     prepare: PrepareStats | None = None  # a Gaussian scene prepared before coding (lghcc.encoder.api)
     settings: str | None = None  # a Gaussian scene: the settings coded with, in words
     verified: bool = False  # the written stream was decoded again and gave the encoded scene's hash
@@ -120,6 +121,8 @@ class EncodeStats:
         for level, level_stats in self.levels.items():
             out.update(level_stats.to_json(level))
         out.update(time_attributes_s=self.time_attributes_s, time_total_s=self.time_total_s)
+        if self.stage_times_s:
+            out["stage_times_s"] = dict(self.stage_times_s)
         if self.prepare is not None:
             out.update({f"prepare_{k}": v for k, v in self.prepare.to_json().items()})
         out.update(_present({"settings": self.settings, "verified": True if self.verified else None}))

@@ -128,6 +128,9 @@ def test_encoder_exit_codes(tmp_path, capsys, monkeypatch):
     assert enc_cli.main(["--procedural", "60", "-o", str(out), "-q"]) == EXIT_OK
     assert enc_cli.main([str(tmp_path / "missing"), "-o", str(tmp_path / "x.lghcc")]) == EXIT_ERROR
     assert "no such file" in _one_line(capsys.readouterr().err)
+    assert enc_cli.main(["--procedural", "60", "-o", str(tmp_path / "m.lghcc"), "--max-memory", "1K"]) \
+        == EXIT_RESOURCE_LIMIT  # refused before any work: the scene needs more than --max-memory
+    assert "needs about" in _one_line(capsys.readouterr().err) and not (tmp_path / "m.lghcc").exists()
     with pytest.raises(SystemExit) as e:
         enc_cli.main(["--procedural", "60"])  # -o is required
     assert e.value.code == EXIT_USAGE and "required: -o" in capsys.readouterr().err

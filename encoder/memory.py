@@ -1,0 +1,99 @@
+"""The encoder's memory, estimated before it starts (informative; lghcc-enc --max-memory).
+
+The encoder's peak resident memory grows linearly with the scene: the program itself (Python,
+NumPy, torch), then per point its arrays (the scene read, the values in coding order in float64,
+their quantized integers, the neighbour graph, each tile's working copy, the decoded values)
+and, per value of a point, the arrays sized N x M. The constants are the kernel's peak RSS of
+lghcc-enc on the scenes tools/scale_scenes.py builds, fitted as a line in N (50k-300k Gaussians,
+SH degree 0 and the same scenes padded to degree 3: tools/results/scale.md, "Memory"), rounded
+up; they bound the measured peaks of those runs. Each worker process (--jobs) adds its own
+runtime and its tile's arrays (fork shares the scene); Ray (--ray) adds a copy of every tile's
+input in the object store and the local instance's processes. A bound on memory is a property
+of this encoder, not of the format.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..app.cli_common import format_bytes
+from ..common.errors import ResourceLimitError
+from ..common.scene import AnchorScene, GaussianScene
+
+PROGRAM_BYTES = 320 << 20  # Python, NumPy, torch and the encoder's modules (300 MiB measured at N -> 0)
+# Fitted on the peaks of 100k-300k Gaussians at SH 0 (11 channels: 1,376 B per Gaussian) and
+# SH 3 (59 channels: 5,433 B): 446 B per point and 84.5 B per value, rounded up.
+PER_POINT_BYTES = 480  # coordinates, orders, the neighbour graph, the tiles' indices, hash rows
+PER_VALUE_BYTES = 90  # per point and channel: the scene read, float64 values, int64 q, float32 decoded, copies
+# The render-based preparation (a PSNR or lambda asked for, fitting, pruning): projected
+# Gaussians, contributions, sensitivities and the search's trial scenes. Measured at one size: preset
+# low on the 100k scene of tools/scale_scenes.py (SH 0) had reached a high-water mark of 1,104 MB
+# after 34 min of its search (stopped there, on a loaded machine) against 438 MB without the
+# preparation: 6.7 KB per Gaussian and rising slowly; 9 KB leaves a margin. The per-value term
+# (the sensitivities, float64 [N, M], and their copies) is not measured beyond SH 0.
+PREPARE_PER_POINT_BYTES = 9000
+PREPARE_PER_VALUE_BYTES = 24
+# A forked worker's own pages (torch's thread pools, its tile's arrays): a margin, as the peak is in
+# the whole-scene stages before the tiles: 200k Gaussians at SH 0 peaked at 503 MB of PSS over the
+# process tree with --jobs 1 and with --jobs 2 alike (tools/bench_scale.py's sampler)
+WORKER_BYTES = 64 << 20
+RAY_BYTES = 600 << 20  # a local Ray instance's processes (raylet, GCS, a worker per CPU)
+
+
+@dataclass
+class MemoryEstimate:
+    """The encoder's estimated peak and its largest parts (name -> bytes)."""
+    total: int
+    parts: dict[str, int]
+
+    def largest(self) -> str:
+        name, size = max(self.parts.items(), key=lambda kv: kv[1])
+        return f"{name} {format_bytes(size)}"
+
+
+def _points_and_channels(scene: AnchorScene | GaussianScene, cfg) -> tuple[int, int]:
+    if isinstance(scene, GaussianScene):
+        from ..common.attributes import GaussianLayout
+
+        degree = scene.sh_degree if cfg.sh_degree is None else min(cfg.sh_degree, scene.sh_degree)
+        return scene.num_gaussians, GaussianLayout(degree).num_channels
+    return scene.num_anchors, scene.feature_dim + 6 + 3 * scene.num_offsets
+
+
+def prepares(scene, cfg) -> bool:
+    """Whether the render-based preparation runs (api._encode_gaussians' rule)."""
+    return isinstance(scene, GaussianScene) and (cfg.rd_lambda > 0 or cfg.target_psnr > 0 or cfg.fit_iterations > 0
+                                                 or cfg.prune_share > 0)
+
+
+def encode_memory(scene: AnchorScene | GaussianScene, cfg, workers=None) -> MemoryEstimate:
+    """The estimated peak resident memory of encoding ``scene`` with ``cfg`` where ``workers``
+    (tile_workers.TileWorkers; None: this process) says."""
+    from .tile_workers import available_cpus
+
+    n, m = _points_and_channels(scene, cfg)
+    parts = {"program": PROGRAM_BYTES, "scene and coding arrays": n * (PER_POINT_BYTES + PER_VALUE_BYTES * m)}
+    if prepares(scene, cfg):
+        parts["render-based preparation"] = n * (PREPARE_PER_POINT_BYTES + PREPARE_PER_VALUE_BYTES * m)
+    if workers is not None and workers.ray:
+        parts["Ray: tile inputs in the object store"] = n * (8 * m + 40)
+        if not workers.address:
+            parts["Ray: the local instance"] = RAY_BYTES
+    elif workers is not None and workers.jobs != 1:
+        jobs = workers.jobs or available_cpus()
+        parts[f"{jobs} worker processes"] = jobs * WORKER_BYTES
+    return MemoryEstimate(sum(parts.values()), parts)
+
+
+def check_encode_memory(scene: AnchorScene | GaussianScene, cfg, workers, max_memory: int, name: str) -> int:
+    """The estimate (bytes) when within ``max_memory``; else ResourceLimitError naming the scene,
+    what it needs (and its largest part) and the limit."""
+    est = encode_memory(scene, cfg, workers)
+    if est.total > max_memory:
+        n, _ = _points_and_channels(scene, cfg)
+        what = "Gaussians" if isinstance(scene, GaussianScene) else "anchors"
+        raise ResourceLimitError(
+            f"{name}: encoding {n:,} {what} needs about {format_bytes(est.total)} (largest part: {est.largest()}), "
+            f"more than --max-memory {format_bytes(max_memory)}; raise the limit, or encode on a machine with more "
+            "memory")
+    return est.total
