@@ -21,36 +21,25 @@ from ..common.container import (UNIT_CRC_BYTES, UNIT_HEADER_BYTES, AncillaryUnit
 from ..common.entropy.symbol_coder import best_level, ideal_code_length_bits
 from ..common.errors import InputError
 from ..common.context.model_unit import write_context_model_unit
-from ..common.context.models import CONTEXT_MODEL_NAMES, level2_coding_params, read_context_model
+from ..common.context.models import CONTEXT_MODEL_NAMES, read_context_model
 from ..common.geometry import encode_geometry, normative_order
 from ..common.hashing import digest_of
 from ..common.render_model import dequantize, write_render_model_unit
 from ..app.report import SizeBreakdown, breakdown_of
 from ..common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene, GaussianScene, RenderMLP
 from ..common.hierarchy import Hierarchy, build_hierarchy
-from ..common.units import (CONTEXT_PER_CHANNEL_PRIOR, LEVEL_1, LEVEL_2, LEVEL_ALL, MASK_PROB_BITS, MAX_ANCHORS,
-                                MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, MAX_PREDICTED_MAGNITUDE, PRIOR_MEAN_MAX,
-                                AttributeUnitHeader, GaussianParameterSet, NeighbourPredictionUnit, RenderMlpHeader,
+from ..common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ANCHORS,
+                                MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, NeighbourPredictionUnit, RenderMlpHeader,
                                 SceneParameterSet, SourceInfo)
 from .config import AttributeCodingConfig, EncoderConfig, context_model_size
 from .context_fit import ContextFitError, fit_level2_context
 from .ggconv_train import ContextTwin, GGConvTrainConfig
-from .neighbour_coding import NeighbourCoding, usable as neighbour_usable
-from .prediction import fit_channel_prediction
+from .neighbour_coding import usable as neighbour_usable
+from .level_coding import (AttributeInput, LevelCoder, LevelCoding, code_with_model,
+                           code_with_neighbours, code_with_prior, neighbour_coding_of, quantized_level, reconstruct_level)
 from .stats import ContextFitStats, EncodeStats, LevelStats
 
 UNIT_FRAMING_BYTES = UNIT_HEADER_BYTES + UNIT_CRC_BYTES
-MAX_QUANTIZED_MAGNITUDE = 2 ** 52  # |x / step| beyond this cannot be rounded exactly in float64
-
-
-@dataclass
-class LevelCoding:
-    """One way of coding the attributes of a hierarchy level."""
-    q: np.ndarray
-    params: attr.CodingParams
-    payload: bytes
-    header: AttributeUnitHeader
-    prediction: attr.ChannelPrediction | None = None
 
 
 @dataclass
@@ -94,31 +83,6 @@ def prune_scene(scene: AnchorScene, cfg: EncoderConfig):
         return naap_prune(scene, NaapConfig(k=cfg.naap_k, lam=cfg.naap_lambda, gamma=cfg.naap_gamma,
                                             tau=cfg.prune_tau, keep_ratio=cfg.prune_keep_ratio))
     return opacity_prune(scene, tau=cfg.prune_tau, keep_ratio=cfg.prune_keep_ratio)
-
-
-def quantize(values: np.ndarray, steps: np.ndarray, what: str) -> np.ndarray:
-    scaled = values.astype(np.float64) / steps.astype(np.float64)
-    worst = float(np.abs(scaled).max(initial=0))
-    if not worst < MAX_QUANTIZED_MAGNITUDE:
-        raise InputError(f"{what}: a value is {worst:.3g} quantization steps from zero, beyond the coding "
-                         f"range of 2^52 steps; use a larger step")
-    return np.rint(scaled).astype(np.int64)
-
-
-def fit_per_channel_prior(q: np.ndarray, live: np.ndarray, sample_rows: int, seed: int = 0):
-    """Per channel: integer mean (median) and the scale level that codes it best."""
-    n, m = q.shape
-    rows = np.arange(n) if n <= sample_rows else np.sort(
-        np.random.default_rng(seed).choice(n, sample_rows, replace=False))
-    qs, ls = q[rows], live[rows]
-    means = np.zeros(m, dtype=np.int64)
-    levels = np.zeros(m, dtype=np.int64)
-    for c in range(m):
-        vals = qs[ls[:, c], c]
-        if vals.size:  # the prior mean is a prediction: clamped to its syntax range, escapes code the rest
-            means[c] = int(np.clip(np.median(vals).round(), -PRIOR_MEAN_MAX, PRIOR_MEAN_MAX))
-            levels[c] = best_level(vals - means[c])
-    return means, levels
 
 
 def quantize_mlp_tensor(t: np.ndarray, bits: int) -> tuple[np.ndarray, int]:
@@ -239,21 +203,6 @@ def level_layout(num_points: int, cfg: AttributeCodingConfig, coords: np.ndarray
     return LevelLayout([(LEVEL_ALL, np.arange(num_points))], None, tile_scale_of(coords, 1, cfg))
 
 
-@dataclass
-class AttributeInput:
-    """The attribute values of a scene in normative order, and the parameter set that says how
-    they are coded."""
-    parameter_set: SceneParameterSet | GaussianParameterSet  # exactly the values the decoder will see
-    layout: attr.ChannelLayout | attr.GaussianLayout
-    steps: np.ndarray
-    values: np.ndarray  # [N, M]
-    live: np.ndarray  # bool [N, M]: the values that are coded (dead offsets are not)
-    mask: np.ndarray | None  # bool: the offset mask (anchor scenes; None: every offset live) or None
-    coords: np.ndarray  # the points, in normative order
-    # int64 [N]: each point's step-adjustment index (clause 11.8, with neighbour prediction), or None
-    step_adjust: np.ndarray | None = None
-
-
 def ordered_offset_mask(scene: AnchorScene, order: np.ndarray) -> np.ndarray | None:
     mask = None if scene.offset_mask is None else scene.offset_mask[order].astype(bool)
     if mask is not None and mask.all():
@@ -313,81 +262,11 @@ class CodedAttributes:
     neighbour_unit: NeighbourPredictionUnit | None = None  # the stream's neighbour_prediction unit, if any
 
 
-@dataclass
-class LevelCoder:
-    """Writes the attribute units of one level: its rows, their live values and offset mask."""
-    layout: attr.ChannelLayout | attr.GaussianLayout
-    cfg: AttributeCodingConfig
-    level: int
-    rows: np.ndarray
-    live: np.ndarray
-    mask: np.ndarray | None
-    predict: bool  # cross-channel prediction is fitted (Gaussian scenes that allow it)
-
-    def new_header(self) -> AttributeUnitHeader:
-        h = attr.new_attribute_header(self.layout, self.rows.size, self.level)
-        h.rows_per_chunk_minus1 = min(self.cfg.rows_per_chunk, self.rows.size) - 1
-        if self.mask is not None:
-            p = np.clip(np.rint(self.mask.mean(axis=0) * (1 << MASK_PROB_BITS)), 1, (1 << MASK_PROB_BITS) - 1)
-            h.mask_live_prob = [int(x) for x in p]
-        return h
-
-    def code(self, header: AttributeUnitHeader, q: np.ndarray, params: attr.CodingParams) -> LevelCoding:
-        prediction = None
-        if self.predict:
-            prediction, levels_after = fit_channel_prediction(q, params, self.layout, self.live)
-            if header.context_model_id == CONTEXT_PER_CHANNEL_PRIOR:  # the prior's levels follow the residuals
-                header.prior_level = levels_after.tolist()
-                params = attr.prior_params(header)
-        payload = attr.write_attribute_unit(header, self.layout, q, self.mask, params, prediction)
-        return LevelCoding(q, params, payload, header, prediction)
-
-
-def quantized_level(coder: LevelCoder, inp: AttributeInput) -> np.ndarray:
-    """The level's quantized values (0 where not coded)."""
-    steps = inp.steps if inp.step_adjust is None else \
-        attr.effective_steps(inp.steps, inp.step_adjust[coder.rows][:, None])
-    q = np.where(coder.live, quantize(inp.values[coder.rows], steps, "attributes"), 0)
-    if inp.layout.channel_prediction_allowed and np.abs(q).max(initial=0) > MAX_PREDICTED_MAGNITUDE:
-        raise InputError(f"a value is {float(np.abs(q).max()):.3g} quantization steps from zero, beyond the "
-                         "2^40 steps a Gaussian scene allows; use a larger step")
-    return q
-
-
 def neighbour_prediction_wanted(cfg: AttributeCodingConfig, levels: "LevelLayout", inp: AttributeInput) -> bool:
     """Whether the configuration asks for neighbour prediction and the scene admits it (a Gaussian
     scene without the hierarchy, within the extent limit)."""
     return (getattr(cfg, "neighbour_prediction", False) is not False and levels.hier is None
             and isinstance(inp.layout, attr.GaussianLayout) and neighbour_usable(inp.coords))
-
-
-def neighbour_coding_of(q: np.ndarray, coords: np.ndarray, cfg, layout, predict: bool,
-                        unit: NeighbourPredictionUnit | None = None,
-                        step_adjust: np.ndarray | None = None) -> NeighbourCoding:
-    return NeighbourCoding(q, coords, cfg.prediction_lods, cfg.prediction_neighbours, cfg.prediction_buckets, predict,
-                           layout, unit, adjust=step_adjust)
-
-
-def code_with_neighbours(coder: LevelCoder, q: np.ndarray, nc: NeighbourCoding) -> LevelCoding:
-    """The level (every point of a tile) coded with neighbour prediction (and each point's step
-    adjustment when the coding has one)."""
-    header = coder.new_header()
-    header.context_model_id = CONTEXT_PER_CHANNEL_PRIOR
-    payload = nc.write(header)
-    params = attr.prior_params(header)
-    if nc.adjust is not None:  # what reconstruction needs: each row's step
-        params = attr.CodingParams(params.mean, params.level, nc.adjust[:, None])
-    return LevelCoding(q, params, payload, header, nc.prediction)
-
-
-def code_with_prior(coder: LevelCoder, inp: AttributeInput) -> LevelCoding:
-    """The level coded with the per-channel prior fitted to it."""
-    q = quantized_level(coder, inp)
-    header = coder.new_header()
-    means, lv = fit_per_channel_prior(q, coder.live, coder.cfg.prior_fit_rows)
-    header.context_model_id = CONTEXT_PER_CHANNEL_PRIOR
-    header.prior_mean, header.prior_level = means.tolist(), lv.tolist()
-    return coder.code(header, q, attr.prior_params(header))
 
 
 @dataclass
@@ -436,19 +315,6 @@ def code_with_context_candidate(coder: LevelCoder, inp: AttributeInput, hier: Hi
     return code_with_model(coder, inp, hier, q_level1, model), unit
 
 
-def code_with_model(coder: LevelCoder, inp: AttributeInput, hier: Hierarchy, q_level1: np.ndarray,
-                    model) -> LevelCoding:
-    """Level 2 coded with a context model (as ``read_context_model`` returns it): its means,
-    levels and step adjustment from the decoded level 1, the values quantized with those steps."""
-    params = level2_coding_params(model, inp.coords[hier.level1_idx], q_level1, inp.coords[coder.rows],
-                                  hier.parent_of_level2, inp.parameter_set.coarse_voxel_scale).materialize()
-    q = np.where(coder.live, quantize(inp.values[coder.rows], attr.effective_steps(inp.steps, params.step_adjust),
-                                      "attributes"), 0)
-    header = coder.new_header()
-    header.context_model_id = model[0]
-    return coder.code(header, q, params)
-
-
 def record_candidate(ctx: ContextFitStats, candidates: ContextCandidates, candidate: ContextCandidate,
                      size: int) -> None:
     if candidates.several_neighbour_levels and candidate.parent_base != "twin":
@@ -495,14 +361,6 @@ def ideal_bits(coder: LevelCoder, chosen: LevelCoding) -> float:
     """The attribute model's ideal code length of the level as coded."""
     res = (chosen.prediction or attr.ChannelPrediction.none()).residuals(chosen.q, chosen.params.mean)
     return ideal_code_length_bits(res[coder.live], np.broadcast_to(chosen.params.level, chosen.q.shape)[coder.live])
-
-
-def reconstruct_level(recon: np.ndarray, rows: np.ndarray, chosen: LevelCoding, steps: np.ndarray) -> None:
-    """The level's decoded values into ``recon`` (float32), bit for bit."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        recon[rows] = attr.reconstruct(chosen.q, steps, chosen.params.step_adjust)
-    if not np.isfinite(recon[rows]).all():
-        raise InputError("an attribute value would decode beyond the binary32 range; use a smaller value or step")
 
 
 def code_attributes(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodingConfig,
@@ -608,7 +466,8 @@ def stream_tiles(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodingC
     (encoder/tiling.py; ``stats`` then counts the tiles' units), where ``workers`` says
     (encoder/tile_workers.py; None: this process). ``make_scene(coords, values, mask)``: the
     decoded scene of those points."""
-    from .tiling import TileCoding, TileJob, code_tiles, tile_level_stats
+    from .tile_workers import code_tiles
+    from .tiling import TileCoding, TileJob, tile_level_stats
 
     stats.num_tiles = 1
     if levels.tile_scale == 0:

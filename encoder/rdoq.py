@@ -74,7 +74,7 @@ from ..common.scene import GaussianScene
 from ..render.camera import Camera
 from ..render.rasterizer import quat_to_rotmat, rasterize
 from ..render.sh import sh_to_rgb
-from .encode import fit_per_channel_prior
+from .level_coding import fit_per_channel_prior
 from .gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations
 from .neighbour_coding import NeighbourCoding
 

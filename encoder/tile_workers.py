@@ -25,7 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..common.errors import LghccError
-from .tiling import TileCoding, TileJob, code_one_tile, tile_input
+from ..common.units import tile_size_of
+from .tiling import TileCoding, TileJob, code_one_tile, tile_input, tile_rows
 
 
 def available_cpus() -> int:
@@ -189,3 +190,11 @@ def _on_ray(w: TileWorkers, inp, job: TileJob, parts: list, bar) -> tuple[list[T
         return tiles, recon
     finally:
         ray.shutdown()
+
+
+def code_tiles(inp, job: TileJob, progress: bool = False, workers=None) -> tuple[list[TileCoding], np.ndarray]:
+    """Every tile of the scene -> (the tiles in stream order with their hashes, the decoded values
+    [N, M] in the whole scene's normative order). ``workers`` (TileWorkers; None: this
+    process): where the tiles are coded; the stream is the same."""
+    parts = tile_rows(inp.coords, tile_size_of(inp.parameter_set))
+    return (workers or TileWorkers()).code(inp, job, parts, progress)

@@ -27,8 +27,9 @@ from ..common.geometry import encode_geometry, normative_order
 from ..common.hashing import digest_of
 from ..common.hierarchy import build_hierarchy
 from ..common.tiles import tile_cells
-from ..common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_TILE_SCALE, SE_MAX, DecodedSceneHashUnit, TileIndex,
-                            tile_size_of)
+from .level_coding import (AttributeInput, LevelCoder, code_with_model, code_with_neighbours, code_with_prior,
+                           neighbour_coding_of, quantized_level, reconstruct_level)
+from ..common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_TILE_SCALE, SE_MAX, DecodedSceneHashUnit, TileIndex)
 
 MAX_TILE_LOG2 = 40
 
@@ -126,8 +127,6 @@ def tile_levels(coords: np.ndarray, ps) -> tuple[list[tuple[int, np.ndarray]], o
 
 def tile_input(inp, rows: np.ndarray):
     """The AttributeInput of the tile holding ``rows`` of ``inp`` (in the tile's order)."""
-    from .encode import AttributeInput
-
     def part(a):
         return None if a is None else a[rows]
     return AttributeInput(inp.parameter_set, inp.layout, inp.steps, inp.values[rows], inp.live[rows], part(inp.mask),
@@ -139,9 +138,6 @@ def code_tile(tinp, cfg, context_payload: bytes | None, unit_stats: list,
     """The attribute units of a tile (``tinp``: its AttributeInput) and its decoded values. Level 2
     with the stream's context model where it codes smaller than the tile's own prior; with the
     stream's neighbour_prediction unit, the tile's one unit is coded with it."""
-    from .encode import (LevelCoder, code_with_model, code_with_neighbours, code_with_prior, neighbour_coding_of,
-                         quantized_level, reconstruct_level)
-
     coords = tinp.coords
     levels, hier = tile_levels(coords, tinp.parameter_set)
     predict = bool(tinp.layout.channel_prediction_allowed) and getattr(cfg, "channel_prediction", False)
@@ -189,16 +185,6 @@ def code_one_tile(job: TileJob, cell, rows: np.ndarray, tinp) -> tuple[TileCodin
     tile.attributes, trecon = code_tile(tinp, job.cfg, job.context_payload, tile.unit_stats, job.neighbour_unit)
     tile.scene_hash = digest_of(job.make_scene(tinp.coords, trecon, tinp.mask))
     return tile, trecon
-
-
-def code_tiles(inp, job: TileJob, progress: bool = False, workers=None) -> tuple[list[TileCoding], np.ndarray]:
-    """Every tile of the scene -> (the tiles in stream order with their hashes, the decoded values
-    [N, M] in the whole scene's normative order). ``workers`` (encoder/tile_workers.py
-    TileWorkers; None: this process): where the tiles are coded; the stream is the same."""
-    from .tile_workers import TileWorkers
-
-    parts = tile_rows(inp.coords, tile_size_of(inp.parameter_set))
-    return (workers or TileWorkers()).code(inp, job, parts, progress)
 
 
 def tile_level_stats(tiles: list[TileCoding], stats) -> None:
