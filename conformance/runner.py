@@ -76,6 +76,7 @@ import yaml  # noqa: E402
 from ..app.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_RESOURCE_LIMIT,  # noqa: E402
                               EXIT_USAGE, exit_code_for_class)
 from ..common.errors import LghccError  # noqa: E402
+from .conditions import CONDITION_ID  # noqa: E402
 
 STREAMS_DIR = Path(__file__).resolve().parent / "streams"
 # the error classes an error stream may expect (lghcc.common.errors); an external decoder's exit
@@ -142,6 +143,9 @@ def validate_meta(meta, folder: Path) -> dict:
             raise _bad(folder, "missing expect_message (a fragment of the reference decoder's message)")
     elif "expect_error" in meta or "expect_message" in meta:
         raise _bad(folder, "expect_error / expect_message on a stream that must decode")
+    if "condition" in meta and (expect != "error" or not isinstance(meta["condition"], str)
+                                or not CONDITION_ID.fullmatch(meta["condition"])):
+        raise _bad(folder, f"condition {meta['condition']!r}: a row of spec clause 8.2 (E1 .. E65), on an error stream")
     if "renders" in meta:
         if expect != "decode":
             raise _bad(folder, "renders on an error stream")
