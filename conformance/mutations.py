@@ -67,10 +67,12 @@ class Mutation:
     edits: tuple[tuple[str, str], ...] = ()
     value: str | None = None
     kills_with: tuple[str, ...] = field(default=())  # informative: streams written to kill it
+    # (target, edits) of the same mistake where the reference decoder checks the same rule a second time
+    also: tuple[tuple[str, tuple[tuple[str, str], ...]], ...] = field(default=())
 
 
-def M(id, group, target, description, *edits, value=None, kills_with=()):
-    return Mutation(id, group, target, description, tuple(edits), value, tuple(kills_with))
+def M(id, group, target, description, *edits, value=None, kills_with=(), also=()):
+    return Mutation(id, group, target, description, tuple(edits), value, tuple(kills_with), tuple(also))
 
 
 INTNN = "lghcc.common.intnn"
@@ -844,6 +846,16 @@ MUTATIONS: list[Mutation] = [
     M("check.E21", "check", f"{SYNTAX}:SyntaxStructure.from_bytes",
       "whole bytes after the last element of a unit's structure ignored (E21)",
       ("if reader.bits_left >= 8:", "if False:")),
+    M("check.E40", "check", f"{MODEL_UNIT}:read_context_model_unit",
+      "context-array values outside their declared width accepted, here and where GG-Conv reads its arrays (E40)",
+      ("if v.size and (int(v.min()) < lo or int(v.max()) > hi):", "if False:"),
+      also=((f"{GGCONV}:arrays_by_name", (("if v.size and (int(v.min()) < lo or int(v.max()) > hi):", "if False:"),)),)),
+    M("check.E44", "check", f"{MODELS}:check_ggconv_extent",
+      "the GG-Conv extent limit not checked, here nor in the Ball k-NN (E44)", ("if extent > MAX_EXTENT:", "if False:"),
+      also=((f"{KNN}:check_extent", (("if extent > MAX_EXTENT:", "if False:"),)),)),
+    M("check.E64", "check", f"{NEIGHBOUR}:read_predicted_attribute_unit",
+      "the neighbour prediction's extent limit not checked, here nor in the k-NN (E64)", ("    if why:\n", "    if False:\n"),
+      also=((f"{KNN}:check_extent", (("if extent > MAX_EXTENT:", "if False:"),)),)),
     M("check.E45", "check", f"{ATTR}:read_attribute_unit",
       "attribute_level not compared with the level the unit's position requires (E45)",
       ("if h.attribute_level != level:", "if False:")),
@@ -942,6 +954,8 @@ def mutated_source(mutation: Mutation) -> str:
 def apply(mutation: Mutation) -> None:
     """Patch the running decoder (for good: run it in a child process). Caches built from the
     patched code are cleared (frequency models, binary models)."""
+    for target, edits in mutation.also:  # the second check of the same rule goes too
+        apply(Mutation(mutation.id, mutation.group, target, mutation.description, tuple(edits)))
     module, owner, name, obj = _resolve(mutation.target)
     if mutation.value is not None:
         new = eval(mutation.value, {"v": obj, "np": __import__("numpy")})  # noqa: S307 - our own list

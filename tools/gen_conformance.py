@@ -645,7 +645,12 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
             result = encode_scene(build_scene(entry["scene"]), cfg)
     finally:
         torch.set_num_threads(before)
-    data = post_process(result.data, post)
+    if entry.get("edit_without_check"):  # an isolated stream whose edit computes beyond the check
+        from lghcc.conformance.conditions import CHECK_REMOVALS, call_without_check
+
+        data = call_without_check(CHECK_REMOVALS[entry["condition"]], post_process, result.data, post)
+    else:
+        data = post_process(result.data, post)
     if entry.get("condition"):
         data = isolate(entry, result.data, data)
     if entry.get("expect") == "error":
@@ -674,6 +679,10 @@ def isolate(entry: dict, encoded: bytes, data: bytes) -> bytes:
         raise SystemExit(f"{entry['id']}: not isolated: without the check of {cond} ({mutation}) the decoder "
                          f"still rejects it: {res.describe()}")
     if cond != HASH_CONDITION:
+        if entry.get("edit_without_check"):
+            from lghcc.conformance.conditions import call_without_check
+
+            return call_without_check(mutation, post_process, encoded, entry.get("post", {}), res.digests)
         data = post_process(encoded, entry.get("post", {}), res.digests)
     return data
 
