@@ -75,8 +75,10 @@ NOT_ISOLATED: dict[str, str] = {
     "E41": "not isolated yet: e061's model (a table of 257^3 values) also breaks E42 and E40; a model of more than "
            "2^24 values within every shape rule is not built yet",
     "E46": "no decoding of a level-0 or level-1 unit with a context model is defined (clause 11)",
-    "E60": "no neighbour prediction is defined for a hierarchy's levels (clause 11.7)",
-    "E62": "with neighbour prediction there is no context model to decode a unit with context_model_id 1 or 2",
+    "E60": "with the hierarchy a tile's units are of level 1 (and 2), with neighbour prediction its one unit is of "
+           "level 0 (clause 8.3 rule 15): every such stream breaks E45 or E63 as well",
+    "E62": "a stream with neighbour prediction has no context_model unit (clause 8.3 rule 14): a unit with "
+           "context_model_id 1 or 2 breaks E47 (or E46) as well",
 }
 
 
