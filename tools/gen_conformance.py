@@ -620,9 +620,7 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
             coords = box[normative_order(box)]
         encoded = dense_zero_stream(int(s.get("side", 1)), int(s["feature_dim"]), int(s["num_offsets"]),
                                     exact_hash=True, coords=coords)
-        data = post_process(encoded, post)
-        if entry.get("condition"):
-            data = isolate(entry, encoded, data)
+        data = edit_stream(entry, encoded)
         if entry.get("expect") == "error":
             return data, None
         from lghcc.common.container import UnitType, read_container
@@ -645,14 +643,7 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
             result = encode_scene(build_scene(entry["scene"]), cfg)
     finally:
         torch.set_num_threads(before)
-    if entry.get("edit_without_check"):  # an isolated stream whose edit computes beyond the check
-        from lghcc.conformance.conditions import CHECK_REMOVALS, call_without_check
-
-        data = call_without_check(CHECK_REMOVALS[entry["condition"]], post_process, result.data, post)
-    else:
-        data = post_process(result.data, post)
-    if entry.get("condition"):
-        data = isolate(entry, result.data, data)
+    data = edit_stream(entry, result.data)
     if entry.get("expect") == "error":
         return data, None
     if post.get("rehash"):  # the edit changed the decoded scene: the stream carries its new hash
@@ -664,27 +655,34 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
     return data, result.scene_hash.hex()
 
 
-def isolate(entry: dict, encoded: bytes, data: bytes) -> bytes:
-    """An isolated error stream (issue 35, conformance/conditions.py): the stream ``data`` that
-    ``post`` made from ``encoded``, with the decoded scene hashes (one per tile) that the decoder
-    without the check of ``condition`` computes, so that this decoder accepts it. The hashes of
-    E53's stream (the hash itself) stay; SystemExit when that decoder rejects the stream for
-    another reason (the stream breaks more than its condition)."""
-    from lghcc.conformance.conditions import CHECK_REMOVALS, HASH_CONDITION, mutant_decode
+def edit_stream(entry: dict, encoded: bytes) -> bytes:
+    """The entry's ``post`` edits of the encoded stream; an isolated error stream (``condition``)
+    with the hashes of the decoder without that check (``isolate``)."""
+    return isolate(entry, encoded) if entry.get("condition") else post_process(encoded, entry.get("post", {}))
 
-    cond = entry["condition"]
+
+def isolate(entry: dict, encoded: bytes) -> bytes:
+    """An isolated error stream (issue 35, conformance/conditions.py): the stream that ``post``
+    makes from ``encoded``, with the decoded scene hashes (one per tile) that the decoder without
+    the check of ``condition`` computes, so that this decoder accepts it. ``edit_without_check``:
+    the edits themselves run with the check removed. E53's stream (the hash itself) keeps its
+    hashes. SystemExit when that decoder rejects the stream (it breaks more than its condition)."""
+    from lghcc.conformance.conditions import CHECK_REMOVALS, HASH_CONDITION, call_without_check, mutant_decode
+
+    cond, post = entry["condition"], entry.get("post", {})
     mutation = CHECK_REMOVALS[cond]
+
+    def edited(hashes: tuple[bytes, ...] | None = None) -> bytes:
+        if entry.get("edit_without_check"):  # e.g. a k-NN of points beyond the extent limit
+            return call_without_check(mutation, post_process, encoded, post, hashes)
+        return post_process(encoded, post, hashes)
+
+    data = edited()
     res = mutant_decode(mutation, data)
     if not res.decoded:
         raise SystemExit(f"{entry['id']}: not isolated: without the check of {cond} ({mutation}) the decoder "
                          f"still rejects it: {res.describe()}")
-    if cond != HASH_CONDITION:
-        if entry.get("edit_without_check"):
-            from lghcc.conformance.conditions import call_without_check
-
-            return call_without_check(mutation, post_process, encoded, entry.get("post", {}), res.digests)
-        data = post_process(encoded, entry.get("post", {}), res.digests)
-    return data
+    return data if cond == HASH_CONDITION else edited(res.digests)
 
 
 def load_sources() -> list[dict]:
