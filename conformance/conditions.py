@@ -141,6 +141,9 @@ def _child(conn, mutation_id: str, data: bytes) -> None:
 
 def _call_child(conn, mutation_id: str, fn, args) -> None:
     try:
+        import torch
+
+        torch.set_num_threads(1)  # a forked child must not use the parent's OpenMP pool (it hangs)
         from . import mutations
 
         mutations.apply(next(m for m in mutations.MUTATIONS if m.id == mutation_id))

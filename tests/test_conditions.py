@@ -44,6 +44,15 @@ def test_every_condition_has_its_isolated_stream_or_a_reason():
     assert set(conditions.CHECK_REMOVALS.values()) <= ids
 
 
+def test_second_checks_of_a_mutation_apply_to_todays_code():
+    """``also``: the edits that remove a rule's second check match the code once each."""
+    with_also = [m for m in mutations.MUTATIONS if m.also]
+    assert {m.id for m in with_also} >= {"check.E40", "check.E44", "check.E64"}
+    for m in with_also:
+        for target, edits in m.also:
+            compile(mutations.mutated_source(mutations.Mutation(m.id, m.group, target, "", edits)), m.id, "exec")
+
+
 def test_reference_decoder_rejects_every_isolated_stream():
     cases = [c for c in runner.load_cases() if c.meta.get("condition")]
     assert len(cases) == len(conditions.isolated_streams()) >= 30
