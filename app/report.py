@@ -49,6 +49,6 @@ def breakdown_of(container: Container, num_anchors: int, point_name: str = "anch
     by = {c: 0 for c in CATEGORIES}
     by["header"] += CONTAINER_HEADER_BYTES
     for u in container.units:
-        cat = "ancillary" if u.is_ancillary else CATEGORY_OF_UNIT.get(UnitType(u.unit_type), "header")
+        cat = "ancillary" if u.is_ancillary else CATEGORY_OF_UNIT.get(u.unit_type, "header")  # an unknown type: "header"
         by[cat] += u.size
     return SizeBreakdown(num_anchors, by, point_name)

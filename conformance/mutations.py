@@ -67,10 +67,12 @@ class Mutation:
     edits: tuple[tuple[str, str], ...] = ()
     value: str | None = None
     kills_with: tuple[str, ...] = field(default=())  # informative: streams written to kill it
+    # (target, edits) of the same mistake where the reference decoder checks the same rule a second time
+    also: tuple[tuple[str, tuple[tuple[str, str], ...]], ...] = field(default=())
 
 
-def M(id, group, target, description, *edits, value=None, kills_with=()):
-    return Mutation(id, group, target, description, tuple(edits), value, tuple(kills_with))
+def M(id, group, target, description, *edits, value=None, kills_with=(), also=()):
+    return Mutation(id, group, target, description, tuple(edits), value, tuple(kills_with), tuple(also))
 
 
 INTNN = "lghcc.common.intnn"
@@ -811,6 +813,52 @@ MUTATIONS: list[Mutation] = [
     M("neighbour.unit_after_tile_index", "neighbour", f"{DECODE}:_UNIT_ORDER",
       "the neighbour_prediction unit accepted after the tile index",
       value="__import__('re').compile(r'(SR?|PN?)C?I?N?(GA{1,2}H)+')"),
+    # --- checks of clause 8.2 that no mutation above removes (issue 35: each condition's isolated stream
+    # kills the mutation that removes its check through acceptance; conformance/conditions.py)
+    M("check.E1", "check", f"{CONTAINER}:read_container",
+      "a stream shorter than the container header not refused up front (E1)",
+      ("if len(data) < CONTAINER_HEADER_BYTES:", "if False:")),
+    M("check.E4", "check", f"{CONTAINER}:read_container", "any profile_idc accepted (E4)",
+      ("if header.profile_idc not in Profile._value2member_map_:", "if False:")),
+    M("check.E6", "check", f"{CONTAINER}:read_container",
+      "1 to 8 bytes after the last data unit ignored as padding (E6)",
+      ('            raise BitstreamError(f"stream ends inside the header of data unit {len(units)} at byte {pos}")',
+       "            break")),
+    M("check.E7", "check", f"{CONTAINER}:UnitHeader.syntax", "unit_type 0 accepted (E7)",
+      ('v.u(8, self, "unit_type", lo=1)', 'v.u(8, self, "unit_type")')),
+    M("check.E8", "check", f"{CONTAINER}:read_container",
+      "a data unit extending beyond the end of the stream not refused up front (E8)",
+      ("if end + UNIT_CRC_BYTES > len(data):", "if False:")),
+    M("check.E12", "check", f"{DECODE}:organize_units", "a stream without a parameter set not refused up front (E12)",
+      ('if "S" not in letters and "P" not in letters:', "if False:")),
+    M("check.E13", "check", f"{DECODE}:organize_units",
+      "a stream without a geometry, attribute or decoded_scene_hash unit not refused up front (E13)",
+      ("        if _LETTER[t] not in letters:", "        if False:")),
+    M("check.E17", "check", "lghcc.common.bitio:BitReader.u",
+      "a structure read beyond its payload: the missing bits read as 0 (E17)",
+      ("    self._need(nbits, name)\n", ""),
+      ("byte = self._data[pos >> 3]", "byte = self._data[pos >> 3] if pos >> 3 < len(self._data) else 0")),
+    M("check.E18", "check", "lghcc.common.bitio:BitReader.ue",
+      "Exp-Golomb codes with 32 or more leading zero bits accepted (E18)",
+      ("if zeros >= MAX_EXP_GOLOMB_PREFIX:", "if False:")),
+    M("check.E20", "check", "lghcc.common.bitio:BitReader.byte_align", "non-zero byte_alignment() bits accepted (E20)",
+      ('if pad and self.u(pad, "alignment_zero_bits") != 0:', 'if pad and self.u(pad, "alignment_zero_bits") < 0:')),
+    M("check.E21", "check", f"{SYNTAX}:SyntaxStructure.from_bytes",
+      "whole bytes after the last element of a unit's structure ignored (E21)",
+      ("if reader.bits_left >= 8:", "if False:")),
+    M("check.E40", "check", f"{MODEL_UNIT}:read_context_model_unit",
+      "context-array values outside their declared width accepted, here and where GG-Conv reads its arrays (E40)",
+      ("if v.size and (int(v.min()) < lo or int(v.max()) > hi):", "if False:"),
+      also=((f"{GGCONV}:arrays_by_name", (("if v.size and (int(v.min()) < lo or int(v.max()) > hi):", "if False:"),)),)),
+    M("check.E44", "check", f"{MODELS}:check_ggconv_extent",
+      "the GG-Conv extent limit not checked, here nor in the Ball k-NN (E44)", ("if extent > MAX_EXTENT:", "if False:"),
+      also=((f"{KNN}:check_extent", (("if extent > MAX_EXTENT:", "if False:"),)),)),
+    M("check.E64", "check", f"{NEIGHBOUR}:read_predicted_attribute_unit",
+      "the neighbour prediction's extent limit not checked, here nor in the k-NN (E64)", ("    if why:\n", "    if False:\n"),
+      also=((f"{KNN}:check_extent", (("if extent > MAX_EXTENT:", "if False:"),)),)),
+    M("check.E45", "check", f"{ATTR}:read_attribute_unit",
+      "attribute_level not compared with the level the unit's position requires (E45)",
+      ("if h.attribute_level != level:", "if False:")),
     # --- step adjustment (version 1.2, clauses 7.3.13 and 11.8)
     M("step_adjust.fixed_point_floor", "step_adjust", f"{NEIGHBOUR}:ADJUST_FIXED_POINT",
       "the fixed-point factors floor(2^12 * 2^(a/4)) instead of rounded (4870 for 4871 ...)",
@@ -906,6 +954,8 @@ def mutated_source(mutation: Mutation) -> str:
 def apply(mutation: Mutation) -> None:
     """Patch the running decoder (for good: run it in a child process). Caches built from the
     patched code are cleared (frequency models, binary models)."""
+    for target, edits in mutation.also:  # the second check of the same rule goes too
+        apply(Mutation(mutation.id, mutation.group, target, mutation.description, tuple(edits)))
     module, owner, name, obj = _resolve(mutation.target)
     if mutation.value is not None:
         new = eval(mutation.value, {"v": obj, "np": __import__("numpy")})  # noqa: S307 - our own list

@@ -80,6 +80,7 @@ import yaml  # noqa: E402
 from ..app.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_RESOURCE_LIMIT,  # noqa: E402
                               EXIT_USAGE, exit_code_for_class)
 from ..common.errors import LghccError  # noqa: E402
+from .conditions import CONDITION_ID  # noqa: E402
 
 STREAMS_DIR = Path(__file__).resolve().parent / "streams"
 JS_DECODER_DIR = Path(__file__).resolve().parent.parent / "viewer" / "web" / "decoder"
@@ -157,6 +158,9 @@ def validate_meta(meta, folder: Path) -> dict:
         raise _bad(folder, f"unknown expect value {expect!r} (decode or error)")
     _validate_hashes(meta, expect, folder)
     _validate_expected_error(meta, expect, folder)
+    if "condition" in meta and (expect != "error" or not isinstance(meta["condition"], str)
+                                or not CONDITION_ID.fullmatch(meta["condition"])):
+        raise _bad(folder, f"condition {meta['condition']!r}: a row of spec clause 8.2 (E1 .. E65), on an error stream")
     if "renders" in meta:
         if expect != "decode":
             raise _bad(folder, "renders on an error stream")

@@ -260,7 +260,8 @@ def _hand_ggconv(units, spec: dict):
     layer's shift 0 (or ``feat_shifts``, ``head_shifts``: one per layer; a shift of the head's last
     layer scales the levels down). Its step adjustment is 0, so the quantized values, and the decoded scene, are
     those of the per-channel stream. ``override``: {array: {shape, fill, bits}}, arrays that a
-    conforming model cannot have (with ``unchecked``: level 2 keeps the per-channel chunks)."""
+    conforming model cannot have (with ``unchecked``: level 2 keeps the per-channel chunks; with
+    ``model_only``: only the context_model unit is added, which level 2 does not use)."""
     from lghcc.common import attributes as attr
     from lghcc.common.container import DataUnit, UnitType
     from lghcc.common.context.ggconv import GGConvParams
@@ -327,6 +328,9 @@ def _hand_ggconv(units, spec: dict):
                 bits = int(o["bits"])
         arrays.append(NamedIntArray(a.name, v, bits, a.signed))
     unit = write_context_model_unit(CONTEXT_GGCONV, hp, arrays)
+    if spec.get("model_only"):  # the unit alone: no level-2 unit uses it (clause 8.3 rule 3)
+        units.insert(_unit_index(units, UnitType.GEOMETRY), DataUnit(UnitType.CONTEXT_MODEL, unit))
+        return
     h = AttributeUnitHeader(num_channels=m, num_offsets=sps.num_offsets, offset_mask_present=h2.offset_mask_present,
                             num_rows=hier.num_level2, attribute_level=LEVEL_2, context_model_id=CONTEXT_GGCONV,
                             mask_live_prob=list(h2.mask_live_prob), rows_per_chunk_minus1=h2.rows_per_chunk_minus1)
@@ -470,9 +474,21 @@ def _edit_tile_index(units, edits: list[dict]) -> None:
     units[j] = DataUnit(UnitType.TILE_INDEX, index.to_bytes())
 
 
-def post_process(data: bytes, post: dict) -> bytes:
+def _set_scene_hashes(units, hashes: tuple[bytes, ...]) -> None:
+    """Write ``hashes`` into the decoded_scene_hash units, in stream order (one per tile); the
+    rest of each payload (hash_type, any trailing byte) stays as the edits left it."""
+    from lghcc.common.container import DataUnit, UnitType
+
+    at = [j for j, u in enumerate(units) if u.unit_type == UnitType.DECODED_SCENE_HASH]
+    for j, digest in zip(at, hashes):
+        p = units[j].payload
+        units[j] = DataUnit(UnitType.DECODED_SCENE_HASH, p[:1] + digest + p[33:])
+
+
+def post_process(data: bytes, post: dict, hashes: tuple[bytes, ...] | None = None) -> bytes:
     """Edits applied to an encoded stream, in this order: unit edits (which keep valid CRCs),
-    then the rehash, then raw byte edits (which may break the framing on purpose)."""
+    then the rehash, then raw byte edits (which may break the framing on purpose). ``hashes``:
+    the scene hashes written after the unit edits (an isolated error stream, ``isolate``)."""
     from lghcc.common.container import ContainerHeader, DataUnit, UnitType, read_container, write_container
     from lghcc.common.geometry import decode_geometry, encode_geometry
     from lghcc.common.units import RenderModelUnit, SceneParameterSet
@@ -544,6 +560,8 @@ def post_process(data: bytes, post: dict) -> bytes:
         payload = bytearray(units[i].payload)
         payload[-1] ^= 0xFF
         units[i] = DataUnit(units[i].unit_type, bytes(payload))
+    if hashes is not None:
+        _set_scene_hashes(units, hashes)
     header = ContainerHeader(**post["container_header"]) if "container_header" in post else None
     out = write_container(units, header)
     if post.get("rehash"):
@@ -600,8 +618,9 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
             box = np.stack(np.meshgrid(*ax, indexing="ij"), -1).reshape(-1, 3)
             box = box[np.random.default_rng(int(s["seed"])).random(len(box)) < float(s["density"])]
             coords = box[normative_order(box)]
-        data = post_process(dense_zero_stream(int(s.get("side", 1)), int(s["feature_dim"]), int(s["num_offsets"]),
-                                              exact_hash=True, coords=coords), post)
+        encoded = dense_zero_stream(int(s.get("side", 1)), int(s["feature_dim"]), int(s["num_offsets"]),
+                                    exact_hash=True, coords=coords)
+        data = edit_stream(entry, encoded)
         if entry.get("expect") == "error":
             return data, None
         from lghcc.common.container import UnitType, read_container
@@ -624,7 +643,7 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
             result = encode_scene(build_scene(entry["scene"]), cfg)
     finally:
         torch.set_num_threads(before)
-    data = post_process(result.data, post)
+    data = edit_stream(entry, result.data)
     if entry.get("expect") == "error":
         return data, None
     if post.get("rehash"):  # the edit changed the decoded scene: the stream carries its new hash
@@ -634,6 +653,36 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
         unit = [u for u in read_container(data).units if u.unit_type == UnitType.DECODED_SCENE_HASH][0]
         return data, DecodedSceneHashUnit.from_bytes(unit.payload).scene_hash.hex()
     return data, result.scene_hash.hex()
+
+
+def edit_stream(entry: dict, encoded: bytes) -> bytes:
+    """The entry's ``post`` edits of the encoded stream; an isolated error stream (``condition``)
+    with the hashes of the decoder without that check (``isolate``)."""
+    return isolate(entry, encoded) if entry.get("condition") else post_process(encoded, entry.get("post", {}))
+
+
+def isolate(entry: dict, encoded: bytes) -> bytes:
+    """An isolated error stream (issue 35, conformance/conditions.py): the stream that ``post``
+    makes from ``encoded``, with the decoded scene hashes (one per tile) that the decoder without
+    the check of ``condition`` computes, so that this decoder accepts it. ``edit_without_check``:
+    the edits themselves run with the check removed. E53's stream (the hash itself) keeps its
+    hashes. SystemExit when that decoder rejects the stream (it breaks more than its condition)."""
+    from lghcc.conformance.conditions import CHECK_REMOVALS, HASH_CONDITION, call_without_check, mutant_decode
+
+    cond, post = entry["condition"], entry.get("post", {})
+    mutation = CHECK_REMOVALS[cond]
+
+    def edited(hashes: tuple[bytes, ...] | None = None) -> bytes:
+        if entry.get("edit_without_check"):  # e.g. a k-NN of points beyond the extent limit
+            return call_without_check(mutation, post_process, encoded, post, hashes)
+        return post_process(encoded, post, hashes)
+
+    data = edited()
+    res = mutant_decode(mutation, data)
+    if not res.decoded:
+        raise SystemExit(f"{entry['id']}: not isolated: without the check of {cond} ({mutation}) the decoder "
+                         f"still rejects it: {res.describe()}")
+    return data if cond == HASH_CONDITION else edited(res.digests)
 
 
 def load_sources() -> list[dict]:
@@ -943,6 +992,8 @@ def test_yaml(entry: dict, data: bytes, decoded: str | None) -> dict:
     if entry.get("expect") == "error":
         meta["expect_error"] = entry["expect_error"]
         meta["expect_message"] = entry["expect_message"]
+    if entry.get("condition"):  # an isolated error stream: the one condition of clause 8.2 it breaks
+        meta["condition"] = entry["condition"]
     meta["stream_bytes"] = len(data)
     meta["stream_sha256"] = hashlib.sha256(data).hexdigest()
     if decoded:

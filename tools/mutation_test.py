@@ -12,6 +12,11 @@ is killed as a hang. A mutation whose edit no longer matches the code is *stale*
     python tools/mutation_test.py ggconv knn            # only these groups (or mutation ids / id prefixes)
     python tools/mutation_test.py --report              # also rewrite the section of tools/results/conformance.md
     make mutations                                      # the same as --report
+    python tools/mutation_test.py --conditions          # per condition of spec clause 8.2 (issue 35): is the
+                                                        # mutation that removes its check killed by its own
+                                                        # isolated stream through acceptance?
+    python tools/mutation_test.py --conditions E17 E42  # only these conditions
+    python tools/mutation_test.py --conditions --report # also rewrite that section of the report
 
 Exit status: 0 when every mutation is killed, 1 when one survives or is stale, 2 usage error.
 """
@@ -34,6 +39,8 @@ from pathlib import Path  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 REPORT = ROOT / "tools" / "results" / "conformance.md"
 BEGIN, END = "<!-- mutations:begin -->", "<!-- mutations:end -->"
+COND_BEGIN, COND_END = "<!-- conditions:begin -->", "<!-- conditions:end -->"
+ACCEPTED = "decoded a stream that must be rejected"  # the runner's note when a decoder accepts an error stream
 
 
 def _child(conn, mutation_id: str, case_ids: list[str], streams: str | None = None) -> None:
@@ -120,10 +127,50 @@ def markdown(results, total_s: float, n_cases: int) -> str:
     return "\n".join(lines)
 
 
-def write_report(text: str) -> None:
+def condition_rows(chosen: list[str], timeout: float) -> list[tuple[str, str, str, str, str]]:
+    """Per condition of clause 8.2: (condition, mutation, isolated stream, killed by acceptance
+    'yes'/'no'/'-', what the mutant did). The mutant runs only its own stream (conformance/conditions.py)."""
+    from lghcc.conformance import conditions, runner
+
+    streams = conditions.isolated_streams()
+    rows = []
+    for cond in chosen:
+        mutation = conditions.CHECK_REMOVALS.get(cond, "")
+        if cond not in streams:
+            rows.append((cond, mutation, "none", "-", conditions.NOT_ISOLATED.get(cond, "no isolated stream")))
+            continue
+        status, killer, note, _ = run_one(mutation, [streams[cond]], timeout)
+        accepted = status == "killed" and killer == streams[cond] and note.startswith(ACCEPTED)
+        rows.append((cond, mutation, streams[cond], "yes" if accepted else "no",
+                     note if status == "killed" else f"{status}: the mutant passes its stream"))
+        print(f"{cond:4s} {mutation:36s} {streams[cond]:44s} {'yes' if accepted else 'NO'}  {note[:70]}", flush=True)
+    return rows
+
+
+def conditions_markdown(rows, total_s: float) -> str:
+    n = sum(r[3] == "yes" for r in rows)
+    isolated = sum(r[2] != "none" for r in rows)
+    lines = [COND_BEGIN, "", "## Clause 8.2 conditions: isolated streams and their check-removal mutants", "",
+             "Command: `python tools/mutation_test.py --conditions --report`; "
+             f"{total_s / 60:.1f} min on the shared 2-core machine. For each rejection condition of spec clause "
+             "8.2, the mutation that removes its check (conformance/conditions.py `CHECK_REMOVALS`) runs against "
+             "the condition's isolated error stream only (test.yaml `condition`): it is *killed by acceptance* "
+             "when it decodes that stream without an error (the runner: \"decoded a stream that must be "
+             "rejected\"); a rejection for another reason does not count. A condition without an isolated "
+             "stream says why (`NOT_ISOLATED`; spec clause 8.2).", "",
+             f"{n} of {isolated} isolated streams kill their mutant by acceptance; {len(rows) - isolated} of "
+             f"{len(rows)} conditions cannot be isolated.", "",
+             "| condition | mutation | isolated stream | killed by acceptance | note |", "|---|---|---|---|---|"]
+    for cond, mutation, stream, yes, note in rows:
+        lines.append(f"| {cond} | `{mutation or '-'}` | {stream} | {yes} | {note[:160].replace('|', '/')} |")
+    lines += ["", COND_END]
+    return "\n".join(lines)
+
+
+def write_report(text: str, begin: str = BEGIN, end: str = END) -> None:
     old = REPORT.read_text()
-    if BEGIN in old and END in old:
-        new = old[:old.index(BEGIN)] + text + old[old.index(END) + len(END):]
+    if begin in old and end in old:
+        new = old[:old.index(begin)] + text + old[old.index(end) + len(end):]
     else:
         new = old.rstrip("\n") + "\n\n" + text + "\n"
     REPORT.write_text(new)
@@ -135,8 +182,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--timeout", type=float, default=240.0, help="seconds per mutation before it counts as a hang")
     ap.add_argument("--report", action="store_true", help=f"rewrite the mutation section of {REPORT.relative_to(ROOT)}")
     ap.add_argument("--list", action="store_true", help="list the mutations and exit")
+    ap.add_argument("--conditions", action="store_true",
+                    help="per condition of spec clause 8.2 (the selection: condition names, default all): is the "
+                         "mutation removing its check killed by its isolated stream through acceptance?")
     args = ap.parse_args(argv)
     from lghcc.conformance import mutations, runner
+
+    if args.conditions:
+        return main_conditions(args)
 
     chosen = select(mutations.MUTATIONS, args.select)
     if args.list:
@@ -181,6 +234,28 @@ def main(argv: list[str] | None = None) -> int:
             write_report(markdown(results, total, len(cases)))
             print(f"wrote the mutation section of {REPORT.relative_to(ROOT)}")
     return 0 if not survivors else 1
+
+
+def main_conditions(args) -> int:
+    """--conditions: exit status 0 when every isolated stream kills its mutant by acceptance."""
+    from lghcc.conformance import conditions
+
+    chosen = args.select or conditions.CONDITIONS
+    unknown = sorted(set(chosen) - set(conditions.CONDITIONS))
+    if unknown:
+        raise SystemExit(f"mutation_test: error: no condition {', '.join(unknown)} in spec clause 8.2")
+    t0 = time.perf_counter()
+    rows = condition_rows(list(chosen), args.timeout)
+    failed = [r[0] for r in rows if r[3] == "no"]
+    print(f"\n{sum(r[3] == 'yes' for r in rows)} of {sum(r[2] != 'none' for r in rows)} isolated streams kill "
+          f"their mutant by acceptance" + (f"; not: {', '.join(failed)}" if failed else ""))
+    if args.report:
+        if args.select:
+            print("mutation_test: --report needs every condition (no selection); not written", file=sys.stderr)
+        else:
+            write_report(conditions_markdown(rows, time.perf_counter() - t0), COND_BEGIN, COND_END)
+            print(f"wrote the conditions section of {REPORT.relative_to(ROOT)}")
+    return 1 if failed else 0
 
 
 def run_one_baseline(case_ids: list[str], timeout: float) -> str:

@@ -285,7 +285,7 @@ def _encode_geometry_unchecked(coords: np.ndarray, shift_min: list[int] | None =
 
 def geometry_edit(units, spec: dict) -> None:
     """{duplicate_isolated: true}: one isolated anchor repeated (an IDCM node with the same point
-    twice, num_anchors + 1); {shift_min: [1, 0, 0]}: the box minimum one below every point;
+    twice, num_anchors + 1; with ``with_row``, the attribute unit re-coded with a row for it); {shift_min: [1, 0, 0]}: the box minimum one below every point;
     {append_hex: '...'}: bytes after the coded data; {anchors_delta: d}: num_anchors changed by d
     (the sps re-written)."""
     from lghcc.common.geometry import decode_geometry
@@ -295,11 +295,15 @@ def geometry_edit(units, spec: dict) -> None:
     sps = _sps(units)
     coords = decode_geometry(units[j].payload, sps.num_anchors)
     if spec.get("duplicate_isolated"):
+        rows = _level0_q(units) if spec.get("with_row") else None  # the attributes of the N points
         far = coords[np.argmax(np.abs(coords - np.median(coords, axis=0)).sum(axis=1))]
         dup = np.concatenate([coords, far[None]])
         units[j] = DataUnit(UnitType.GEOMETRY, _encode_geometry_unchecked(dup))
         sps.num_anchors_minus1 += 1
         units[s] = DataUnit(UnitType.SCENE_PARAMETER_SET, sps.to_bytes())
+        if rows is not None:  # with_row: a row for the repeated point too (the last row again)
+            _, _, h, mask, q = rows
+            _recode_level0(units, h, None if mask is None else np.vstack([mask, mask[-1:]]), np.vstack([q, q[-1:]]))
     if "shift_min" in spec:
         units[j] = DataUnit(UnitType.GEOMETRY, _encode_geometry_unchecked(coords, spec["shift_min"]))
     if "append_hex" in spec:
@@ -704,6 +708,58 @@ def _chunks_across_lods(h: AttributeUnitHeader, nc) -> bytes:
     return h.to_bytes() + b"".join(chunks)
 
 
+def swap_tiles(units, pair: list[int]) -> None:
+    """Tiles a and b exchanged with their tile_index entries (cell, point count, size): every
+    tile's points still lie in its cell and the index still gives each tile's bytes, but the
+    cells are out of their increasing order (clause 7.3.11)."""
+    from lghcc.common.units import TileIndex
+
+    i = _index(units, UnitType.TILE_INDEX)
+    index = TileIndex.parse(BitReader(units[i].payload), num_points=1 << 24)
+    starts = [j for j, u in enumerate(units) if u.unit_type == UnitType.GEOMETRY]
+    ends = [j for j, u in enumerate(units) if u.unit_type == UnitType.DECODED_SCENE_HASH]
+    groups = [units[s:e + 1] for s, e in zip(starts, ends)]
+    a, b = (int(t) for t in pair)
+    groups[a], groups[b] = groups[b], groups[a]
+    for name in ("tile_x", "tile_y", "tile_z", "tile_num_points_minus1", "tile_data_size"):
+        values = getattr(index, name)
+        values[a], values[b] = values[b], values[a]
+    units[i] = DataUnit(UnitType.TILE_INDEX, index.to_bytes())
+    units[starts[0]:ends[-1] + 1] = [u for g in groups for u in g]
+
+
+def flatten_hierarchy(units, spec: dict) -> None:
+    """hierarchy_enabled_flag 0, the level-1 and level-2 units (both with the per-channel prior)
+    replaced by one level-0 unit of every row with the level-1 unit's prior: the same decoded
+    scene without the hierarchy. Any context_model unit stays (clause 6.3: then an error)."""
+    from lghcc.common.geometry import decode_geometry
+    from lghcc.common.hierarchy import build_hierarchy
+    from lghcc.common.units import LEVEL_1, LEVEL_2
+
+    sps = _sps(units)
+    layout = attr.layout_of(sps)
+    coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, sps.num_anchors)
+    hier = build_hierarchy(coords, sps.coarse_voxel_scale)
+    values = np.empty((sps.num_anchors, layout.num_channels), np.float32)
+    q = np.zeros((sps.num_anchors, layout.num_channels), np.int64)
+    mask = np.ones((sps.num_anchors, layout.num_offsets), bool) if sps.offset_mask_present_flag else None
+    a1, a2 = _index(units, UnitType.ATTRIBUTE, 0), _index(units, UnitType.ATTRIBUTE, 1)
+    headers = []
+    for j, level, rows in ((a1, LEVEL_1, hier.level1_idx), (a2, LEVEL_2, hier.level2_idx)):
+        h, m, ql = attr.read_attribute_unit(units[j].payload, layout, layout.steps(sps), rows.size, level, values,
+                                            rows, keep_q=True)
+        q[rows] = ql
+        if mask is not None:
+            mask[rows] = m
+        headers.append(h)
+    h1 = headers[0]
+    del units[a2]
+    sps.hierarchy_enabled_flag = 0
+    units[_index(units, UnitType.SCENE_PARAMETER_SET)] = DataUnit(UnitType.SCENE_PARAMETER_SET, sps.to_bytes())
+    h1.attribute_level = 0
+    _recode_level0(units, h1, mask, q)
+
+
 def apply_edits(units, post: dict) -> None:
     """The edits of this module that ``post`` asks for, in a fixed order (gen_conformance's
     post_process calls it after its own unit edits and before the rehash)."""
@@ -729,5 +785,9 @@ def apply_edits(units, post: dict) -> None:
         step_adjust(units, post["step_adjust"])
     if "set_elements" in post:
         set_elements(units, post["set_elements"])
+    if "flatten_hierarchy" in post:
+        flatten_hierarchy(units, post["flatten_hierarchy"])
+    if "swap_tiles" in post:
+        swap_tiles(units, post["swap_tiles"])
     if "nonzero_alignment" in post:
         nonzero_alignment(units, post["nonzero_alignment"])

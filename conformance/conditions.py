@@ -1,0 +1,195 @@
+"""The rejection conditions of spec clause 8.2 and their isolated error streams (issue 35).
+
+An error stream made by editing a valid stream keeps the source's decoded hash: a decoder that
+lacks the check the edit targets usually still rejects it, later, for another reason (a hash
+mismatch, an exhausted chunk). An *isolated* error stream breaks one condition only: every
+other element, its CRCs and counts, and the decoded scene hashes (one per tile) are those a
+decoder that skips exactly that check computes, so such a decoder accepts it, and the suite
+catches it through acceptance.
+
+``CHECK_REMOVALS`` names, for each condition, the mutation of conformance/mutations.py that
+removes its check; ``NOT_ISOLATED`` says why a condition has no isolated stream (another check
+must fail first). ``mutant_decode`` runs the reference decoder with one mutation applied, in a
+forked process, and returns the hashes it decodes (tools/gen_conformance.py writes them into an
+isolated stream; tools/mutation_test.py --conditions checks the mutant accepts the stream).
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import re
+import traceback
+from dataclasses import dataclass
+
+# every row of the table of clause 8.2
+CONDITIONS: list[str] = [f"E{i}" for i in range(1, 66)]
+
+# condition -> the mutation that removes its check (conformance/mutations.py)
+CHECK_REMOVALS: dict[str, str] = {
+    "E1": "check.E1", "E2": "container.no_magic_check", "E3": "container.major_version", "E4": "check.E4",
+    "E5": "container.no_reserved_check", "E6": "check.E6", "E7": "check.E7", "E8": "check.E8",
+    "E9": "container.no_crc_check", "E10": "decode.unknown_critical_skipped", "E11": "decode.ancillary_first_ok",
+    "E12": "check.E12", "E13": "check.E13", "E14": "decode.no_order_check", "E15": "decode.attribute_count",
+    "E16": "decode.context_without_hierarchy", "E17": "check.E17", "E18": "check.E18", "E19": "syntax.hash_type",
+    "E20": "check.E20", "E21": "check.E21", "E22": "decode.attribute_limit",
+    "E23": "render_model.no_duplicate_role_check", "E24": "render_model.no_parameter_limit",
+    "E25": "render_model.no_weight_limit", "E26": "geometry.no_bbox_sign_check",
+    "E27": "geometry.no_box_capacity_check", "E28": "geometry.no_depth0_data_check",
+    "E29": "geometry.no_idcm_count_check", "E30": "geometry.no_duplicate_point_check",
+    "E31": "geometry.no_depth_count_check", "E32": "geometry.fewer_points_ok",
+    "E33": "geometry.no_min_attained_check", "E34": "geometry.no_coordinate_max_check",
+    "E35": "entropy.no_word_alignment_check", "E36": "entropy.decode_error_unreported",
+    "E37": "entropy.no_escape_limit", "E38": "entropy.no_exhaustion_check",
+    "E40": "check.E40", "E41": "model_unit.no_parameter_limit", "E42": "ggconv.no_grid_check",
+    "E43": "model_unit.no_model_fit_check", "E44": "check.E44", "E45": "check.E45",
+    "E47": "decode.model_id_mismatch", "E48": "prediction.no_source_check", "E49": "prediction.no_order_check",
+    "E50": "attributes.trailing_bytes", "E51": "prediction.no_magnitude_check", "E52": "attributes.no_finite_check",
+    "E53": "decode.no_hash_check", "E54": "tiles.flag_not_checked", "E55": "tiles.no_offset_check",
+    "E56": "tiles.no_order_check", "E57": "tiles.no_point_count_check", "E58": "tiles.no_cell_check",
+    "E59": "neighbour.no_num_rows_check", "E60": "neighbour.with_hierarchy", "E61": "neighbour.unit_repeated",
+    "E62": "neighbour.no_context_model_check", "E63": "neighbour.unit_count", "E64": "check.E64",
+    "E65": "step_adjust.index_range_unchecked",
+}
+
+# condition -> why it has no isolated stream: the check that fails first in every stream that
+# meets it (spec clause 8.2 says the same), or what is still to build
+NOT_ISOLATED: dict[str, str] = {
+    "E1": "a stream of fewer than 8 bytes has no complete container header: reading it runs out (E17)",
+    "E7": "a unit of type 0 is a critical type (bit 7 clear) that no version defines: without E7 it is E10",
+    "E8": "the CRC-32 of a unit that extends beyond the end is missing or holds payload bytes: E9 (and E17)",
+    "E12": "the units of a stream without a parameter set are out of the order of clause 6.3 (E14); nothing "
+           "gives N, C or M",
+    "E13": "a stream without a geometry, attribute or decoded_scene_hash unit has no tile of the order of "
+           "clause 6.3 (E14)",
+    "E18": "a ue(v) of 32 or more leading zeros is >= 2^32 - 1: beyond the range of every ue(v)/se(v) element "
+           "(E19), or a chunk or coded_size beyond its payload (E17, E50)",
+    "E22": "N * M > 2^31 attribute values take more than 8 GiB to decode: no stream breaks only it within the "
+           "memory a conformance run has (the reference decoder refuses it as a resource limit first)",
+    "E26": "a positive bounding-box minimum of 2^31 puts every decoded coordinate above 2^31 - 1 (E34)",
+    "E27": "N distinct points do not fit a box of fewer than N voxels: the geometry decodes to fewer (E32) or "
+           "leaves data over (E38)",
+    "E29": "more than N points from direct coding leave more than N points at the end (E32)",
+    "E31": "the point count never decreases with depth: more than N at a depth is more than N at the end (E32)",
+    "E36": "once q >= 2^24 no symbol is defined: a decoder that goes on has no value to output",
+    "E39": "a condition of version 0 only (in version 1: E15)",
+    "E41": "not isolated yet: e061's model (a table of 257^3 values) also breaks E42 and E40; a model of more than "
+           "2^24 values within every shape rule is not built yet",
+    "E46": "no decoding of a level-0 or level-1 unit with a context model is defined (clause 11)",
+    "E60": "with the hierarchy a tile's units are of level 1 (and 2), with neighbour prediction its one unit is of "
+           "level 0 (clause 8.3 rule 15): every such stream breaks E45 or E63 as well",
+    "E62": "a stream with neighbour prediction has no context_model unit (clause 8.3 rule 14): a unit with "
+           "context_model_id 1 or 2 breaks E47 (or E46) as well",
+}
+
+
+def isolated_streams(root=None) -> dict[str, str]:
+    """condition -> the id of its isolated error stream (test.yaml ``condition``)."""
+    import yaml
+
+    from .runner import STREAMS_DIR
+
+    out = {}
+    for meta_file in sorted((root or STREAMS_DIR).glob("*/test.yaml")):
+        meta = yaml.safe_load(meta_file.read_text())
+        if meta.get("condition"):
+            out[meta["condition"]] = meta["id"]
+    return out
+
+CONDITION_ID = re.compile(r"E[1-9][0-9]?")
+
+# E53's defect is the hash itself: its stream keeps the hash that does not match
+HASH_CONDITION = "E53"
+
+
+@dataclass(frozen=True)
+class MutantResult:
+    """What the decoder with one mutation applied did with a stream: ``digests`` (the decoded
+    scene hash of each tile, in stream order) when it decoded, else the error's class and message."""
+
+    decoded: bool
+    digests: tuple[bytes, ...] = ()
+    error: str = ""
+    message: str = ""
+
+    def describe(self) -> str:
+        return f"decoded ({len(self.digests)} hashes)" if self.decoded else f"{self.error}: {self.message}"
+
+
+def _child(conn, mutation_id: str, data: bytes) -> None:
+    """In the forked process: apply the mutation, decode, record each tile's decoded scene hash
+    in place of comparing it (clause 12)."""
+    try:
+        import torch
+
+        torch.set_num_threads(1)
+        from ..common.hashing import digest_of
+        from ..decoder import decode
+        from . import mutations
+
+        mutations.apply(next(m for m in mutations.MUTATIONS if m.id == mutation_id))
+        digests: list[bytes] = []
+        decode._check_scene_hash = lambda scene, scene_hash, where="": digests.append(digest_of(scene))
+        try:
+            decode.decode_stream(data)
+        except Exception as e:  # noqa: BLE001 - the mutant's verdict on the stream, reported as such
+            conn.send(MutantResult(False, error=type(e).__name__, message=str(e)[:300]))
+            return
+        conn.send(MutantResult(True, tuple(digests)))
+    except Exception:  # noqa: BLE001 - the harness itself failed
+        conn.send(MutantResult(False, error="harness error", message=traceback.format_exc()[-300:]))
+
+
+def _call_child(conn, mutation_id: str, fn, args) -> None:
+    try:
+        import torch
+
+        torch.set_num_threads(1)  # a forked child must not use the parent's OpenMP pool (it hangs)
+        from . import mutations
+
+        mutations.apply(next(m for m in mutations.MUTATIONS if m.id == mutation_id))
+        conn.send((True, fn(*args)))
+    except Exception as e:  # noqa: BLE001 - reported to the caller
+        conn.send((False, f"{type(e).__name__}: {e}"))
+
+
+def call_without_check(mutation_id: str, fn, *args, timeout: float = 600.0):
+    """``fn(*args)`` in a forked child with the mutation applied: the edit of an isolated stream
+    that needs the arithmetic beyond the check (e.g. the k-NN of points beyond the extent limit,
+    which the encoder computes with the same common/ code). RuntimeError when it fails."""
+    ctx = mp.get_context("fork")
+    parent, child = ctx.Pipe(duplex=False)
+    p = ctx.Process(target=_call_child, args=(child, mutation_id, fn, args), daemon=True)
+    p.start()
+    child.close()
+    try:
+        if not parent.poll(timeout):
+            raise RuntimeError(f"no result within {timeout:g} s")
+        ok, value = parent.recv()
+    finally:
+        if p.is_alive():
+            p.kill()
+        p.join()
+    if not ok:
+        raise RuntimeError(value)
+    return value
+
+
+def mutant_decode(mutation_id: str, data: bytes, timeout: float = 120.0) -> MutantResult:
+    """Decode ``data`` with the reference decoder and mutation ``mutation_id`` applied (in a
+    forked child: the mutation never reaches this process)."""
+    ctx = mp.get_context("fork")
+    parent, child = ctx.Pipe(duplex=False)
+    p = ctx.Process(target=_child, args=(child, mutation_id, data), daemon=True)
+    p.start()
+    child.close()
+    try:
+        if not parent.poll(timeout):
+            return MutantResult(False, error="hang", message=f"no result within {timeout:g} s")
+        try:
+            return parent.recv()
+        except EOFError:
+            return MutantResult(False, error="died", message=f"exit code {p.exitcode}")
+    finally:
+        if p.is_alive():
+            p.kill()
+        p.join()

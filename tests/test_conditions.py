@@ -1,0 +1,100 @@
+"""Isolated error streams (issue 35): every rejection condition of spec clause 8.2 has an error
+stream that breaks it alone (test.yaml ``condition``), or a stated reason why none can; the
+reference decoder rejects each; the decoder without exactly that check accepts it."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+from lghcc.common.container import CONTAINER_HEADER_BYTES, UNIT_CRC_BYTES, UNIT_HEADER_BYTES, UnitType
+from lghcc.conformance import conditions, mutations, runner
+
+SPEC = Path(__file__).resolve().parents[1] / "spec" / "lghcc_v0.md"
+
+
+def _spec_rows() -> dict[str, list[str]]:
+    """The rows of the table of clause 8.2: condition -> its cells."""
+    text = SPEC.read_text()
+    section = text[text.index("### 8.2 "):text.index("### 8.3 ")]
+    rows = {}
+    for line in section.splitlines():
+        m = re.match(r"\| (E\d+) \|", line)
+        if m:
+            rows[m.group(1)] = [c.strip() for c in re.split(r"(?<!\\)\|", line)[1:-1]]
+    return rows
+
+
+def test_every_condition_has_its_isolated_stream_or_a_reason():
+    rows = _spec_rows()
+    assert list(rows) == conditions.CONDITIONS
+    streams = conditions.isolated_streams()
+    ids = {m.id for m in mutations.MUTATIONS}
+    for cond in conditions.CONDITIONS:
+        isolated = rows[cond][-1]
+        if cond in streams:
+            assert cond not in conditions.NOT_ISOLATED, cond
+            assert isolated.startswith(streams[cond].split("_")[0]), (cond, isolated)
+            assert conditions.CHECK_REMOVALS[cond] in ids, cond
+        else:
+            assert conditions.NOT_ISOLATED.get(cond), f"{cond}: no isolated stream and no reason"
+            assert isolated.startswith("no"), (cond, isolated)
+    assert set(conditions.CHECK_REMOVALS) <= set(conditions.CONDITIONS)
+    assert set(conditions.CHECK_REMOVALS.values()) <= ids
+
+
+def test_second_checks_of_a_mutation_apply_to_todays_code():
+    """``also``: the edits that remove a rule's second check match the code once each."""
+    with_also = [m for m in mutations.MUTATIONS if m.also]
+    assert {m.id for m in with_also} >= {"check.E40", "check.E44", "check.E64"}
+    for m in with_also:
+        for target, edits in m.also:
+            compile(mutations.mutated_source(mutations.Mutation(m.id, m.group, target, "", edits)), m.id, "exec")
+
+
+def test_reference_decoder_rejects_every_isolated_stream():
+    cases = [c for c in runner.load_cases() if c.meta.get("condition")]
+    assert len(cases) == len(conditions.isolated_streams()) >= 30
+    for case in cases:
+        assert case.expect == "error"
+        outcome = runner.run_case(case)
+        assert outcome.passed, (case.id, outcome.note)
+
+
+def _stored_hashes(stream: Path) -> tuple[bytes, ...]:
+    """The scene hashes in the stream's decoded_scene_hash units, read from the unit framing
+    alone (an isolated stream may break the container's own checks: magic, CRC, trailing bytes)."""
+    data, pos, out = stream.read_bytes(), CONTAINER_HEADER_BYTES, []
+    while pos + UNIT_HEADER_BYTES <= len(data):
+        size = int.from_bytes(data[pos + 1:pos + UNIT_HEADER_BYTES], "big")
+        if data[pos] == UnitType.DECODED_SCENE_HASH:
+            out.append(data[pos + UNIT_HEADER_BYTES + 1:pos + UNIT_HEADER_BYTES + 33])
+        pos += UNIT_HEADER_BYTES + size + UNIT_CRC_BYTES
+    return tuple(out)
+
+
+def _accepts(cond: str) -> None:
+    stream = runner.STREAMS_DIR / conditions.isolated_streams()[cond] / "stream.lghcc"
+    res = conditions.mutant_decode(conditions.CHECK_REMOVALS[cond], stream.read_bytes())
+    assert res.decoded, (cond, res.describe())
+    if cond != conditions.HASH_CONDITION:
+        assert res.digests == _stored_hashes(stream), cond  # the stream carries that decoder's hashes
+
+
+@pytest.mark.parametrize("cond", ["E9", "E21", "E45", "E57"])
+def test_decoder_without_the_check_accepts_its_isolated_stream(cond):
+    _accepts(cond)
+
+
+def test_another_check_removed_still_rejects_for_the_condition():
+    """With some other check removed, the isolated stream is still rejected, for its condition."""
+    stream = runner.STREAMS_DIR / conditions.isolated_streams()["E21"] / "stream.lghcc"
+    res = conditions.mutant_decode("container.no_magic_check", stream.read_bytes())  # another check removed
+    assert not res.decoded and "unexpected trailing bytes" in res.message
+
+
+@pytest.mark.slow
+def test_every_check_removal_accepts_its_isolated_stream():
+    for cond in conditions.isolated_streams():
+        _accepts(cond)
