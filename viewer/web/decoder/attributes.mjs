@@ -90,6 +90,8 @@ class TileAttributeDecoder {
         this.mean = new Float64Array(cap); this.level = new Uint8Array(cap); this.res = new Float64Array(cap);
         // predictions grouped by target (they are sorted by target, clause 7.3.5)
         this.pStart = new Int32Array(M + 1);
+        const k = ctx.np ? ctx.np.k : 0;
+        this.nbRow = new Float64Array(k); this.nbFactor = new Float64Array(k); // a row's neighbours: j * M and F(adj[j])
         for (let i = 0; i < h.predTarget.length; i++) this.pStart[h.predTarget[i] + 1]++;
         for (let c = 0; c < M; c++) this.pStart[c + 1] += this.pStart[c];
     }
@@ -160,15 +162,14 @@ class TileAttributeDecoder {
             }
             return;
         }
-        const k = np.k, r = t, n = nb.cnt[r], B = np.B, q = this.q;
+        const k = np.k, n = nb.cnt[t], B = np.B, q = this.q, jm = this.nbRow, fac = this.nbFactor;
+        for (let m = 0; m < n; m++) { const j = nb.idx[t * k + m]; jm[m] = j * M; fac[m] = sa ? ADJUST_FIXED_POINT[this.adj[j]] : 1; }
         let wide = false;
-        if (sa) for (let m = 0; m < n; m++) for (let c = 0; c < M; c++) if (Math.abs(q[nb.idx[r * k + m] * M + c]) >= SAFE_SA) wide = true;
-        if (wide) { this.rowParametersExact(row, base, nb.idx.subarray(r * k, r * k + n)); return; }
         for (let c = 0; c < M; c++) {
             let sum = 0, mx = -Infinity, mn = Infinity;
             for (let m = 0; m < n; m++) {
-                const j = nb.idx[r * k + m];
-                const v = sa ? q[j * M + c] * ADJUST_FIXED_POINT[this.adj[j]] : q[j * M + c];
+                const qv = q[jm[m] + c], v = qv * fac[m];
+                if (qv >= SAFE_SA || qv <= -SAFE_SA) wide = true;
                 sum += v;
                 if (v > mx) mx = v;
                 if (v < mn) mn = v;
@@ -184,6 +185,8 @@ class TileAttributeDecoder {
             this.mean[base + c] = mean;
             this.level[base + c] = np.bucketLevel[c * B + Math.min(bitLength(act), B - 1)];
         }
+        // step-adjusted sums of |q| >= 2^33 may pass 2^53: the exact path redoes the whole row
+        if (sa && wide) this.rowParametersExact(row, base, nb.idx.subarray(t * k, t * k + n));
     }
 
     rowParametersExact(row, base, nbr) {
