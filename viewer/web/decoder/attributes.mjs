@@ -69,7 +69,7 @@ function lodNeighbours(lods, l, k, coords, exact) {
         return { idx, cnt };
     }
     const tree = buildTree(Array.from(ids, (i) => x[i]), Array.from(ids, (i) => y[i]), Array.from(ids, (i) => z[i]), ids);
-    const hd = new Float64Array(k), hi = new Int32Array(k), stack = new Float64Array(3 * 256);
+    const hd = new Float64Array(k), hi = new Int32Array(k), stack = new Float64Array(5 * 256);
     for (let r = 0; r < rows.length; r++) {
         const i = rows[r];
         cnt[r] = nearest(tree, x[i], y[i], z[i], k, idx, r * k, hd, hi, stack);
