@@ -164,6 +164,8 @@ class TileAttributeDecoder {
         }
         const k = np.k, n = nb.cnt[t], B = np.B, q = this.q, jm = this.nbRow, fac = this.nbFactor;
         for (let m = 0; m < n; m++) { const j = nb.idx[t * k + m]; jm[m] = j * M; fac[m] = sa ? ADJUST_FIXED_POINT[this.adj[j]] : 1; }
+        const meanOut = this.mean, levelOut = this.level, meanFlag = np.meanFlag, bucketLevel = np.bucketLevel, priorMean = h.priorMean;
+        const half = Math.floor(n * F / 2), halfN = Math.floor(n / 2), halfF = Math.floor(F / 2);
         let wide = false;
         for (let c = 0; c < M; c++) {
             let sum = 0, mx = -Infinity, mn = Infinity;
@@ -176,14 +178,15 @@ class TileAttributeDecoder {
             }
             let mean, act;
             if (sa) {
-                mean = np.meanFlag[c] ? floorDiv(sum + Math.floor(n * F / 2), n * F) : floorDiv(h.priorMean[c] * 4096 + Math.floor(F / 2), F);
+                mean = meanFlag[c] ? floorDiv(sum + half, n * F) : floorDiv(priorMean[c] * 4096 + halfF, F);
                 act = floorDiv(mx - mn, F);
             } else {
-                mean = np.meanFlag[c] ? floorDiv(sum + Math.floor(n / 2), n) : h.priorMean[c];
+                mean = meanFlag[c] ? floorDiv(sum + halfN, n) : priorMean[c];
                 act = mx - mn;
             }
-            this.mean[base + c] = mean;
-            this.level[base + c] = np.bucketLevel[c * B + Math.min(bitLength(act), B - 1)];
+            meanOut[base + c] = mean;
+            const b = bitLength(act);
+            levelOut[base + c] = bucketLevel[c * B + (b < B - 1 ? b : B - 1)];
         }
         // step-adjusted sums of |q| >= 2^33 may pass 2^53: the exact path redoes the whole row
         if (sa && wide) this.rowParametersExact(row, base, nb.idx.subarray(t * k, t * k + n));
