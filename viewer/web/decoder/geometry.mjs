@@ -131,36 +131,39 @@ class Nodes {
 function directCoding(dec, st, nodes, R, bitDepth, mode, n, direct) {
     const m = nodes.m;
     const elig = [];
+    const sib1 = nodes.sib1, parNbr = nodes.parNbr, parSib1 = nodes.parSib1;
     for (let i = 0; i < m; i++) {
-        const ok = mode === 1 ? (nodes.sib1[i] === 1 && nodes.parNbr[i] === 0 && nodes.parSib1[i] <= 2) : nodes.parNbr[i] === 0;
+        const ok = mode === 1 ? (sib1[i] === 1 && parNbr[i] === 0 && parSib1[i] <= 2) : parNbr[i] === 0;
         if (ok) elig.push(i);
     }
     if (!elig.length) return nodes;
-    const ctx = Int32Array.from(elig, (i) => Math.min(nodes.sib1[i] - 1, 2) * 3 + Math.min(nodes.parSib1[i] - 1, 2));
+    const ctx = new Int32Array(elig.length);
+    for (let e = 0; e < elig.length; e++) { const i = elig[e]; ctx[e] = Math.min(sib1[i] - 1, 2) * 3 + Math.min(parSib1[i] - 1, 2); }
     const flag = new Int32Array(elig.length);
     decodeBinarySequence(dec, ctx, elig.length, st.idcm, 9, flag);
-    const dnodes = elig.filter((_, e) => flag[e] === 1);
+    const dnodes = [];
+    for (let e = 0; e < elig.length; e++) if (flag[e] === 1) dnodes.push(elig[e]);
     const two = new Int32Array(dnodes.length);
     decodeBinarySequence(dec, new Int32Array(dnodes.length), dnodes.length, st.two, 1, two);
     const owners = [];
-    dnodes.forEach((i, e) => { owners.push(i); if (two[e]) owners.push(i); });
+    for (let e = 0; e < dnodes.length; e++) { owners.push(dnodes[e]); if (two[e]) owners.push(dnodes[e]); }
     if (direct.count + owners.length + (m - dnodes.length) > n) {
         throw new BitstreamError(`geometry data: more than N = ${n} points (G.5.2 step 3, E29)`);
     }
     const P = owners.length;
     const low = [0, 1, 2].map((a) => dec.decodeBitsSame(Math.min(R, bitDepth[a]), P));
     const scale = 2 ** R;
-    const q = [nodes.qx, nodes.qy, nodes.qz];
+    const qx = nodes.qx, qy = nodes.qy, qz = nodes.qz, [lx, ly, lz] = low;
     for (let o = 0; o < P; o++) {
         const i = owners[o];
-        const p = [0, 1, 2].map((a) => q[a][i] * scale + low[a][o]);
+        const px = qx[i] * scale + lx[o], py = qy[i] * scale + ly[o], pz = qz[i] * scale + lz[o];
         if (o > 0 && owners[o - 1] === i) {
             const prev = direct.count - 1;
-            if (direct.x[prev] === p[0] && direct.y[prev] === p[1] && direct.z[prev] === p[2]) {
+            if (direct.x[prev] === px && direct.y[prev] === py && direct.z[prev] === pz) {
                 throw new BitstreamError('geometry data: the two points of a two-point direct node are equal (G.5.2, E30)');
             }
         }
-        direct.push(p[0], p[1], p[2]);
+        direct.push(px, py, pz);
     }
     const isDirect = new Uint8Array(m);
     for (const i of dnodes) isDirect[i] = 1;
