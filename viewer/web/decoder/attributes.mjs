@@ -69,7 +69,7 @@ function lodNeighbours(lods, l, k, coords, exact) {
         return { idx, cnt };
     }
     const tree = buildTree(Array.from(ids, (i) => x[i]), Array.from(ids, (i) => y[i]), Array.from(ids, (i) => z[i]), ids);
-    const hd = new Float64Array(k), hi = new Int32Array(k), stack = new Float64Array(3 * 256);
+    const hd = new Float64Array(k), hi = new Int32Array(k), stack = new Float64Array(5 * 256);
     for (let r = 0; r < rows.length; r++) {
         const i = rows[r];
         cnt[r] = nearest(tree, x[i], y[i], z[i], k, idx, r * k, hd, hi, stack);
@@ -90,6 +90,8 @@ class TileAttributeDecoder {
         this.mean = new Float64Array(cap); this.level = new Uint8Array(cap); this.res = new Float64Array(cap);
         // predictions grouped by target (they are sorted by target, clause 7.3.5)
         this.pStart = new Int32Array(M + 1);
+        const k = ctx.np ? ctx.np.k : 0;
+        this.nbRow = new Float64Array(k); this.nbFactor = new Float64Array(k); // a row's neighbours: j * M and F(adj[j])
         for (let i = 0; i < h.predTarget.length; i++) this.pStart[h.predTarget[i] + 1]++;
         for (let c = 0; c < M; c++) this.pStart[c + 1] += this.pStart[c];
     }
@@ -160,30 +162,34 @@ class TileAttributeDecoder {
             }
             return;
         }
-        const k = np.k, r = t, n = nb.cnt[r], B = np.B, q = this.q;
+        const k = np.k, n = nb.cnt[t], B = np.B, q = this.q, jm = this.nbRow, fac = this.nbFactor;
+        for (let m = 0; m < n; m++) { const j = nb.idx[t * k + m]; jm[m] = j * M; fac[m] = sa ? ADJUST_FIXED_POINT[this.adj[j]] : 1; }
+        const meanOut = this.mean, levelOut = this.level, meanFlag = np.meanFlag, bucketLevel = np.bucketLevel, priorMean = h.priorMean;
+        const half = Math.floor(n * F / 2), halfN = Math.floor(n / 2), halfF = Math.floor(F / 2);
         let wide = false;
-        if (sa) for (let m = 0; m < n; m++) for (let c = 0; c < M; c++) if (Math.abs(q[nb.idx[r * k + m] * M + c]) >= SAFE_SA) wide = true;
-        if (wide) { this.rowParametersExact(row, base, nb.idx.subarray(r * k, r * k + n)); return; }
         for (let c = 0; c < M; c++) {
             let sum = 0, mx = -Infinity, mn = Infinity;
             for (let m = 0; m < n; m++) {
-                const j = nb.idx[r * k + m];
-                const v = sa ? q[j * M + c] * ADJUST_FIXED_POINT[this.adj[j]] : q[j * M + c];
+                const qv = q[jm[m] + c], v = qv * fac[m];
+                if (qv >= SAFE_SA || qv <= -SAFE_SA) wide = true;
                 sum += v;
                 if (v > mx) mx = v;
                 if (v < mn) mn = v;
             }
             let mean, act;
             if (sa) {
-                mean = np.meanFlag[c] ? floorDiv(sum + Math.floor(n * F / 2), n * F) : floorDiv(h.priorMean[c] * 4096 + Math.floor(F / 2), F);
+                mean = meanFlag[c] ? floorDiv(sum + half, n * F) : floorDiv(priorMean[c] * 4096 + halfF, F);
                 act = floorDiv(mx - mn, F);
             } else {
-                mean = np.meanFlag[c] ? floorDiv(sum + Math.floor(n / 2), n) : h.priorMean[c];
+                mean = meanFlag[c] ? floorDiv(sum + halfN, n) : priorMean[c];
                 act = mx - mn;
             }
-            this.mean[base + c] = mean;
-            this.level[base + c] = np.bucketLevel[c * B + Math.min(bitLength(act), B - 1)];
+            meanOut[base + c] = mean;
+            const b = bitLength(act);
+            levelOut[base + c] = bucketLevel[c * B + (b < B - 1 ? b : B - 1)];
         }
+        // step-adjusted sums of |q| >= 2^33 may pass 2^53: the exact path redoes the whole row
+        if (sa && wide) this.rowParametersExact(row, base, nb.idx.subarray(t * k, t * k + n));
     }
 
     rowParametersExact(row, base, nbr) {

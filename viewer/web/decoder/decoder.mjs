@@ -117,14 +117,16 @@ export function serializeParts(ps, tiles) {
     const groups = [[0, S3], [S3, S3 + 1], [S3 + 1, S3 + 4], [S3 + 4, M]].map(([a, b]) => ({ a, b, arr: new Float32Array(N * (b - a)) }));
     let o = 0;
     for (const t of tiles) {
-        for (let i = 0; i < t.n; i++, o++) {
-            const xyz = [t.x[i], t.y[i], t.z[i]];
-            for (let a = 0; a < 3; a++) { coords[6 * o + 2 * a] = xyz[a]; coords[6 * o + 2 * a + 1] = xyz[a] < 0 ? -1 : 0; }
-            for (const g of groups) {
-                const w = g.b - g.a;
-                for (let c = 0; c < w; c++) g.arr[o * w + c] = t.values[i * M + g.a + c];
-            }
+        const xyz = [t.x, t.y, t.z];
+        for (let a = 0; a < 3; a++) {
+            const v = xyz[a];
+            for (let i = 0; i < t.n; i++) { coords[6 * (o + i) + 2 * a] = v[i]; coords[6 * (o + i) + 2 * a + 1] = v[i] < 0 ? -1 : 0; }
         }
+        for (const g of groups) {
+            const w = g.b - g.a, arr = g.arr, vals = t.values;
+            for (let i = 0; i < t.n; i++) for (let c = 0; c < w; c++) arr[(o + i) * w + c] = vals[i * M + g.a + c];
+        }
+        o += t.n;
     }
     if (new Uint8Array(new Uint16Array([1]).buffer)[0] !== 1) throw new Error('big-endian hosts are not supported');
     return [hb, new Uint8Array(coords.buffer), ...groups.map((g) => new Uint8Array(g.arr.buffer))];

@@ -37,15 +37,16 @@ export function parseGeometryHeader(payload, n) {
     return { bboxMin, bitDepth, idcmMode, dataOffset };
 }
 
+/** Scratch arrays of decodeBinarySequence for up to n decisions over numCtx contexts. */
+function binaryScratch(n, numCtx) {
+    return { count: new Int32Array(numCtx + 1), order: new Int32Array(n) };
+}
+
 /** The binary procedure of G.6.1 over decisions with contexts ctx[0..n-1] and counts T (Int32Array [C * 2]). */
-function decodeBinarySequence(dec, ctx, n, T, numCtx, out) {
-    const count = new Int32Array(numCtx + 1);
-    const order = new Int32Array(Math.min(n, 1 << 30));
-    const bounds = [0];
-    for (let size = 256; size < n; size *= 2) bounds.push(size);
-    if (n > 0) bounds.push(n);
-    for (let b = 0; b + 1 < bounds.length; b++) {
-        const c0 = bounds[b], c1 = bounds[b + 1];
+function decodeBinarySequence(dec, ctx, n, T, numCtx, out, scratch = binaryScratch(n, numCtx)) {
+    const { count, order } = scratch;
+    for (let c0 = 0; c0 < n;) {
+        const c1 = Math.min(n, c0 === 0 ? 256 : 2 * c0); // blocks [0, 256), [256, 512), [512, 1024), ...
         count.fill(0);
         for (let j = c0; j < c1; j++) count[ctx[j] + 1]++;
         for (let c = 0; c < numCtx; c++) count[c + 1] += count[c];
@@ -62,6 +63,7 @@ function decodeBinarySequence(dec, ctx, n, T, numCtx, out) {
         }
         for (let j = c0; j < c1; j++) T[2 * ctx[j] + out[j]]++;
         limitCounts(T, numCtx, COUNT_LIMIT);
+        c0 = c1;
     }
 }
 
@@ -91,24 +93,30 @@ function faceNeighbours(qx, qy, qz, m, depth) {
         table[h] = i;
     }
     const nb = new Int32Array(6 * m).fill(-1);
-    const size = 2 ** depth;
-    const find = (x, y, z) => {
-        if (x < 0 || y < 0 || z < 0 || x >= size || y >= size || z >= size) return -1;
-        let h = hashOf(x, y, z) >>> shift;
-        for (;;) {
-            const j = table[h];
-            if (j < 0) return -1;
-            if (qx[j] === x && qy[j] === y && qz[j] === z) return j;
-            h = (h + 1) & mask;
-        }
-    };
+    const hs = { table, shift, mask, qx, qy, qz };
+    const top = 2 ** depth - 1;
     for (let i = 0; i < m; i++) {
-        const x = qx[i], y = qy[i], z = qz[i];
-        nb[6 * i] = find(x - 1, y, z); nb[6 * i + 1] = find(x + 1, y, z);
-        nb[6 * i + 2] = find(x, y - 1, z); nb[6 * i + 3] = find(x, y + 1, z);
-        nb[6 * i + 4] = find(x, y, z - 1); nb[6 * i + 5] = find(x, y, z + 1);
+        const x = qx[i], y = qy[i], z = qz[i], b = 6 * i;
+        if (x > 0) nb[b] = find(hs, x - 1, y, z);
+        if (x < top) nb[b + 1] = find(hs, x + 1, y, z);
+        if (y > 0) nb[b + 2] = find(hs, x, y - 1, z);
+        if (y < top) nb[b + 3] = find(hs, x, y + 1, z);
+        if (z > 0) nb[b + 4] = find(hs, x, y, z - 1);
+        if (z < top) nb[b + 5] = find(hs, x, y, z + 1);
     }
     return nb;
+}
+
+/** The node at (x, y, z) in the open-addressing table of faceNeighbours, or -1. */
+function find(hs, x, y, z) {
+    const table = hs.table, qx = hs.qx, qy = hs.qy, qz = hs.qz, mask = hs.mask;
+    let h = hashOf(x, y, z) >>> hs.shift;
+    for (;;) {
+        const j = table[h];
+        if (j < 0) return -1;
+        if (qx[j] === x && qy[j] === y && qz[j] === z) return j;
+        h = (h + 1) & mask;
+    }
 }
 
 class Nodes {
@@ -123,36 +131,39 @@ class Nodes {
 function directCoding(dec, st, nodes, R, bitDepth, mode, n, direct) {
     const m = nodes.m;
     const elig = [];
+    const sib1 = nodes.sib1, parNbr = nodes.parNbr, parSib1 = nodes.parSib1;
     for (let i = 0; i < m; i++) {
-        const ok = mode === 1 ? (nodes.sib1[i] === 1 && nodes.parNbr[i] === 0 && nodes.parSib1[i] <= 2) : nodes.parNbr[i] === 0;
+        const ok = mode === 1 ? (sib1[i] === 1 && parNbr[i] === 0 && parSib1[i] <= 2) : parNbr[i] === 0;
         if (ok) elig.push(i);
     }
     if (!elig.length) return nodes;
-    const ctx = Int32Array.from(elig, (i) => Math.min(nodes.sib1[i] - 1, 2) * 3 + Math.min(nodes.parSib1[i] - 1, 2));
+    const ctx = new Int32Array(elig.length);
+    for (let e = 0; e < elig.length; e++) { const i = elig[e]; ctx[e] = Math.min(sib1[i] - 1, 2) * 3 + Math.min(parSib1[i] - 1, 2); }
     const flag = new Int32Array(elig.length);
     decodeBinarySequence(dec, ctx, elig.length, st.idcm, 9, flag);
-    const dnodes = elig.filter((_, e) => flag[e] === 1);
+    const dnodes = [];
+    for (let e = 0; e < elig.length; e++) if (flag[e] === 1) dnodes.push(elig[e]);
     const two = new Int32Array(dnodes.length);
     decodeBinarySequence(dec, new Int32Array(dnodes.length), dnodes.length, st.two, 1, two);
     const owners = [];
-    dnodes.forEach((i, e) => { owners.push(i); if (two[e]) owners.push(i); });
+    for (let e = 0; e < dnodes.length; e++) { owners.push(dnodes[e]); if (two[e]) owners.push(dnodes[e]); }
     if (direct.count + owners.length + (m - dnodes.length) > n) {
         throw new BitstreamError(`geometry data: more than N = ${n} points (G.5.2 step 3, E29)`);
     }
     const P = owners.length;
     const low = [0, 1, 2].map((a) => dec.decodeBitsSame(Math.min(R, bitDepth[a]), P));
     const scale = 2 ** R;
-    const q = [nodes.qx, nodes.qy, nodes.qz];
+    const qx = nodes.qx, qy = nodes.qy, qz = nodes.qz, [lx, ly, lz] = low;
     for (let o = 0; o < P; o++) {
         const i = owners[o];
-        const p = [0, 1, 2].map((a) => q[a][i] * scale + low[a][o]);
+        const px = qx[i] * scale + lx[o], py = qy[i] * scale + ly[o], pz = qz[i] * scale + lz[o];
         if (o > 0 && owners[o - 1] === i) {
             const prev = direct.count - 1;
-            if (direct.x[prev] === p[0] && direct.y[prev] === p[1] && direct.z[prev] === p[2]) {
+            if (direct.x[prev] === px && direct.y[prev] === py && direct.z[prev] === pz) {
                 throw new BitstreamError('geometry data: the two points of a two-point direct node are equal (G.5.2, E30)');
             }
         }
-        direct.push(p[0], p[1], p[2]);
+        direct.push(px, py, pz);
     }
     const isDirect = new Uint8Array(m);
     for (const i of dnodes) isDirect[i] = 1;
@@ -171,40 +182,28 @@ function occupancy(dec, st, nodes, depth, R, bitDepth, n, numDirect) {
     const m = nodes.m;
     for (let k = 0; k < 8; k++) limitCounts(st.occ[k], NUM_OCC_CONTEXTS, LEVEL_COUNT_LIMIT);
     const nb = faceNeighbours(nodes.qx, nodes.qy, nodes.qz, m, depth);
-    const nbrCount = new Uint8Array(m);
-    for (let i = 0; i < m; i++) { let c = 0; for (let d = 0; d < 6; d++) if (nb[6 * i + d] >= 0) c++; nbrCount[i] = c; }
+    const nbrCount = new Uint8Array(m), dens = new Uint8Array(m);
+    // per node: the + neighbours by axis, and the term of each axis whose child bit is 0 (q - e_a exists)
+    const up = new Int32Array(3 * m), lowTerm = new Uint8Array(3 * m);
+    for (let i = 0; i < m; i++) {
+        let c = 0;
+        for (let d = 0; d < 6; d++) if (nb[6 * i + d] >= 0) c++;
+        nbrCount[i] = c; dens[i] = DENS[c];
+        for (let a = 0; a < 3; a++) { up[3 * i + a] = nb[6 * i + 2 * a + 1]; lowTerm[3 * i + a] = nb[6 * i + 2 * a] >= 0 ? 1 : 0; }
+    }
     const splits = bitDepth.map((d) => R - 1 < d);
     const valid = [];
     for (let k = 0; k < 8; k++) if ([0, 1, 2].every((a) => splits[a] || !(k & AXIS_BIT[a]))) valid.push(k);
     const last = valid[valid.length - 1];
     const occ = new Uint8Array(m);
-    const ctx = new Int32Array(m), coded = new Int32Array(m), vals = new Int32Array(m);
+    const ctx = new Int32Array(m), coded = new Int32Array(m), dv = new Int32Array(m);
+    const scratch = binaryScratch(m, NUM_OCC_CONTEXTS);
     for (const k of valid) {
-        let nc = 0;
-        for (let i = 0; i < m; i++) {
-            let axes = 0;
-            const o = occ[i];
-            for (let a = 0; a < 3; a++) {
-                const bit = AXIS_BIT[a];
-                let s;
-                if (k & bit) {
-                    const j = k ^ bit, mi = nb[6 * i + 2 * a + 1];
-                    s = ((o >> j) & 1) + (mi >= 0 ? (occ[mi] >> j) & 1 : 0);
-                } else {
-                    s = nb[6 * i + 2 * a] >= 0 ? 1 : 0;
-                }
-                axes = axes * 3 + s;
-            }
-            const before = POPCOUNT8[o & ((1 << k) - 1)];
-            if (k === last && before === 0) { vals[i] = -1; continue; } // inferred occupied
-            ctx[nc] = (axes * 4 + Math.min(before, 3)) * 4 + DENS[nbrCount[i]];
-            coded[nc++] = i;
-            vals[i] = 0;
-        }
-        const dv = new Int32Array(nc);
-        decodeBinarySequence(dec, ctx, nc, st.occ[k], NUM_OCC_CONTEXTS, dv);
-        for (let t = 0; t < nc; t++) occ[coded[t]] |= dv[t] << k;
-        if (k === last) for (let i = 0; i < m; i++) if (vals[i] === -1) occ[i] |= 1 << k;
+        const nc = occupancyContexts(k, k === last, m, occ, up, lowTerm, dens, ctx, coded);
+        decodeBinarySequence(dec, ctx, nc, st.occ[k], NUM_OCC_CONTEXTS, dv, scratch);
+        const bit = 1 << k;
+        for (let t = 0; t < nc; t++) if (dv[t]) occ[coded[t]] |= bit;
+        if (k === last) for (let i = 0; i < m; i++) if (!(occ[i] & (bit - 1))) occ[i] |= bit; // inferred occupied
     }
     let children = 0;
     for (let i = 0; i < m; i++) children += POPCOUNT8[occ[i]];
@@ -224,6 +223,26 @@ function occupancy(dec, st, nodes, depth, R, bitDepth, n, numDirect) {
         }
     }
     return next;
+}
+
+/** The contexts of child k (G.5.4) of the nodes whose bit k is coded: ctx[0..nc-1], coded[0..nc-1] the nodes; returns nc. */
+function occupancyContexts(k, isLast, m, occ, up, lowTerm, dens, ctx, coded) {
+    const kx = k & 4, ky = k & 2, kz = k & 1, below = (1 << k) - 1;
+    const jx = k ^ 4, jy = k ^ 2, jz = k ^ 1;
+    let nc = 0;
+    for (let i = 0; i < m; i++) {
+        const o = occ[i];
+        const before = POPCOUNT8[o & below];
+        if (isLast && before === 0) continue;
+        const b = 3 * i;
+        let sx = lowTerm[b], sy = lowTerm[b + 1], sz = lowTerm[b + 2], u;
+        if (kx) { u = up[b]; sx = ((o >> jx) & 1) + (u >= 0 ? (occ[u] >> jx) & 1 : 0); }
+        if (ky) { u = up[b + 1]; sy = ((o >> jy) & 1) + (u >= 0 ? (occ[u] >> jy) & 1 : 0); }
+        if (kz) { u = up[b + 2]; sz = ((o >> jz) & 1) + (u >= 0 ? (occ[u] >> jz) & 1 : 0); }
+        ctx[nc] = (((sx * 3 + sy) * 3 + sz) * 4 + (before < 3 ? before : 3)) * 4 + dens[i];
+        coded[nc++] = i;
+    }
+    return nc;
 }
 
 class PointList {

@@ -63,16 +63,18 @@ function select(t, a, left, right, k) {
 
 /**
  * The k nearest data points of the query (qx, qy, qz): writes their ids to out[base ..] in order
- * (nearest first, ties by id) and returns their count min(k, n). heapD/heapI: scratch of size k.
+ * (nearest first, ties by id) and returns their count min(k, n). heapD/heapI: scratch of size k; stack: Float64Array of 5 * 256.
  */
 export function nearest(t, qx, qy, qz, k, out, base, heapD, heapI, stack) {
     let size = 0;
     const X = t.x, Y = t.y, Z = t.z, ID = t.id, AX = t.axis;
+    // a stack entry: lo, hi and the squared distances from the query to the subtree's cell along each axis
     let sp = 0;
-    stack[sp++] = 0; stack[sp++] = t.n; stack[sp++] = 0;
+    stack[sp++] = 0; stack[sp++] = t.n; stack[sp++] = 0; stack[sp++] = 0; stack[sp++] = 0;
     while (sp) {
-        const md = stack[--sp], hi = stack[--sp], lo = stack[--sp];
-        if (size === k && md > heapD[0]) continue;
+        sp -= 5;
+        const lo = stack[sp], hi = stack[sp + 1], ox = stack[sp + 2], oy = stack[sp + 3], oz = stack[sp + 4];
+        if (size === k && ox + oy + oz > heapD[0]) continue;
         if (hi - lo <= LEAF) {
             for (let i = lo; i < hi; i++) size = offer(X[i] - qx, Y[i] - qy, Z[i] - qz, ID[i], size, k, heapD, heapI);
             continue;
@@ -80,15 +82,15 @@ export function nearest(t, qx, qy, qz, k, out, base, heapD, heapI, stack) {
         const mid = (lo + hi) >>> 1, a = AX[mid];
         const dx = X[mid] - qx, dy = Y[mid] - qy, dz = Z[mid] - qz;
         size = offer(dx, dy, dz, ID[mid], size, k, heapD, heapI);
-        const d = a === 0 ? dx : a === 1 ? dy : dz; // split - query
+        const d = a === 0 ? dx : a === 1 ? dy : dz; // split - query: the far child is at least |d| away along a
         const pd = d * d;
-        if (d > 0) { // query on the low side
-            stack[sp++] = mid + 1; stack[sp++] = hi; stack[sp++] = Math.max(md, pd);
-            stack[sp++] = lo; stack[sp++] = mid; stack[sp++] = md;
-        } else {
-            stack[sp++] = lo; stack[sp++] = mid; stack[sp++] = Math.max(md, pd);
-            stack[sp++] = mid + 1; stack[sp++] = hi; stack[sp++] = md;
-        }
+        // far child first (popped last), with axis a's distance replaced by pd; then the near child
+        if (d > 0) { stack[sp] = mid + 1; stack[sp + 1] = hi; } else { stack[sp] = lo; stack[sp + 1] = mid; }
+        stack[sp + 2] = a === 0 ? pd : ox; stack[sp + 3] = a === 1 ? pd : oy; stack[sp + 4] = a === 2 ? pd : oz;
+        sp += 5;
+        if (d > 0) { stack[sp] = lo; stack[sp + 1] = mid; } else { stack[sp] = mid + 1; stack[sp + 1] = hi; }
+        stack[sp + 2] = ox; stack[sp + 3] = oy; stack[sp + 4] = oz;
+        sp += 5;
     }
     // heap -> sorted ascending by (d, id)
     for (let m = size - 1; m >= 0; m--) {
