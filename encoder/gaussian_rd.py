@@ -395,7 +395,7 @@ def trim_to_target(scene: GaussianScene, weights: np.ndarray, cfg: GaussianEncod
     for. -> (settings, the trial before, the trial chosen)."""
     as_fitted = dataclasses.replace(cfg, prune_share=0.0)  # the scene is already pruned
     s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution, sensitivity)
-    groups = [g for g in GROUPS if g != "position" and (not g.startswith("sh_band") or int(g[-1]) <= scene.sh_degree)]
+    groups = _attribute_groups(scene)
     before = s.evaluate(as_fitted)
     best = onto_target(s, before, groups, 10 ** (-cfg.target_psnr / 10), evaluations=4)
     if log:
@@ -439,3 +439,53 @@ def onto_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: f
     if f_meet is not None:
         return min((t for t in trials.values() if t.mse <= target_mse), key=lambda t: t.bits)
     return min(trials.values(), key=lambda t: t.mse)
+
+
+# Whole-scene trials the check of a sampled choice may add to move it onto the target (each
+# renders and codes the whole scene): halving every step, then the factor between.
+WHOLE_SCENE_MOVES = 2
+
+
+def _attribute_groups(scene: GaussianScene) -> list[str]:
+    return [g for g in GROUPS if g != "position" and (not g.startswith("sh_band") or int(g[-1]) <= scene.sh_degree)]
+
+
+def sample_distortion_ratio(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, sample: np.ndarray,
+                            sensitivity: np.ndarray | None = None) -> float:
+    """The whole scene's squared error over the sample's (``sample``, encoder/search_sample.py) at
+    ``cfg``'s steps without pruning, on the search views of each: the sample covers fewer pixels
+    of the orbit views, so the same steps measure less error on it. The search asks the sample for
+    the target's error divided by this ratio."""
+    base = dataclasses.replace(cfg, prune_share=0.0)
+    part_sens = None if sensitivity is None else sensitivity[sample]
+    whole = SettingsSearch(scene, contrib, base, 0.0, cfg.search_views, cfg.search_resolution, sensitivity)
+    part = SettingsSearch(scene.subset(sample), contrib[sample], base, 0.0, cfg.search_views, cfg.search_resolution,
+                          part_sens)
+    return max(whole.evaluate(base).mse, 1e-12) / max(part.evaluate(base).mse, 1e-12)
+
+
+def on_sample(cfg: GaussianEncoderConfig, ratio: float) -> GaussianEncoderConfig:
+    """``cfg`` with its target moved to the sample's error (the whole scene's over ``ratio``)."""
+    if not cfg.target_psnr > 0:
+        return cfg
+    return dataclasses.replace(cfg, target_psnr=cfg.target_psnr + 10 * math.log10(max(ratio, 1e-12)))
+
+
+def meet_on_whole_scene(scene: GaussianScene, weights: np.ndarray, cfg: GaussianEncoderConfig, *,
+                        sensitivity: np.ndarray | None = None, log=None) -> tuple[GaussianEncoderConfig, list[Trial]]:
+    """The check of settings chosen on a sample against ``cfg.target_psnr`` on the whole (fitted,
+    pruned) scene: one trial; where it misses, every attribute step times one common factor onto
+    the target (``onto_target``, at most WHOLE_SCENE_MOVES trials more). -> (settings, trials)."""
+    as_fitted = dataclasses.replace(cfg, prune_share=0.0)  # the scene is already pruned
+    s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution, sensitivity)
+    target_mse = 10 ** (-cfg.target_psnr / 10)
+    before = s.evaluate(as_fitted)
+    best = before if before.mse <= target_mse else \
+        onto_target(s, before, _attribute_groups(scene), target_mse, evaluations=WHOLE_SCENE_MOVES)
+    if log:
+        log(f"settings on the whole scene: {-10 * math.log10(max(before.mse, 1e-12)):.2f} dB at "
+            f"{before.bits / 8:,.0f} B" + ("" if best is before else
+                                          f" -> {-10 * math.log10(max(best.mse, 1e-12)):.2f} dB at "
+                                          f"{best.bits / 8:,.0f} B") + " (estimated)")
+    chosen = dataclasses.replace(best.cfg, prune_share=cfg.prune_share) if best is not before else cfg
+    return chosen, s.trials
