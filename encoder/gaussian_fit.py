@@ -463,6 +463,12 @@ def whole_scene_check(scene: GaussianScene, weights: np.ndarray, sensitivity: np
     return cfg
 
 
+def needs_preparation(cfg: GaussianEncoderConfig) -> bool:
+    """Whether the settings ask for anything that renders (a search, pruning, a fit); the fast
+    preset asks for none and is coded as it comes."""
+    return cfg.rd_lambda > 0 or cfg.target_psnr > 0 or cfg.fit_iterations > 0 or cfg.prune_share > 0
+
+
 def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, cameras: list[Camera] | None = None,
                       log=None, progress: bool = False) -> PreparedGaussians:
     """Contribution, pruning, grid and fit (module doc). ``cameras``: extra views (the scene's
