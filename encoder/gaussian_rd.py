@@ -413,12 +413,13 @@ def _scaled(cfg: GaussianEncoderConfig, groups: list[str], f: float) -> Gaussian
 
 
 def onto_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: float,
-                evaluations: int = 8) -> Trial:
+                evaluations: int = 8, first: float | None = None) -> Trial:
     """Every step times one factor f so that the renders meet ``target_mse``: from f = 1, f
     doubles (or halves) until the target is crossed (the model's lambda can be far off when
     the preset's steps were), then bisection in log f (distortion grows with f) to within a
     factor 1.1. Returns the trial of the largest f measured that meets the target (the fewest
-    bits at the quality asked for), or the one closest to it when none does (the finest)."""
+    bits at the quality asked for), or the one closest to it when none does (the finest).
+    ``first``: the first factor tried instead of 2 or 1/2 (a model's guess)."""
     trials = {1.0: best}
     f_meet = 1.0 if best.mse <= target_mse else None  # largest f measured that meets the target
     f_fail = None if f_meet else 1.0  # smallest f measured that does not
@@ -429,6 +430,8 @@ def onto_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: f
             f = math.sqrt(f_meet * f_fail)
         else:
             f = f_meet * 2 if f_meet is not None else f_fail / 2
+            if first is not None and len(trials) == 1:
+                f = first
             if not 1 / 64 <= f <= 64:
                 break
         trials[f] = t = s.evaluate(_scaled(best.cfg, groups, f))
@@ -444,6 +447,9 @@ def onto_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: f
 # Whole-scene trials the check of a sampled choice may add to move it onto the target (each
 # renders and codes the whole scene): halving every step, then the factor between.
 WHOLE_SCENE_MOVES = 2
+# How far above the target (dB) the whole scene may render before the check moves the steps
+# coarser (a miss below the target is always moved).
+WHOLE_SCENE_TOLERANCE = 0.25
 
 
 def _attribute_groups(scene: GaussianScene) -> list[str]:
@@ -474,14 +480,19 @@ def on_sample(cfg: GaussianEncoderConfig, ratio: float) -> GaussianEncoderConfig
 def meet_on_whole_scene(scene: GaussianScene, weights: np.ndarray, cfg: GaussianEncoderConfig, *,
                         sensitivity: np.ndarray | None = None, log=None) -> tuple[GaussianEncoderConfig, list[Trial]]:
     """The check of settings chosen on a sample against ``cfg.target_psnr`` on the whole (fitted,
-    pruned) scene: one trial; where it misses, every attribute step times one common factor onto
-    the target (``onto_target``, at most WHOLE_SCENE_MOVES trials more). -> (settings, trials)."""
+    pruned) scene: one trial; where it is off the target by more than WHOLE_SCENE_TOLERANCE, every
+    attribute step times one common factor onto it (``onto_target``, at most WHOLE_SCENE_MOVES
+    trials more, the first at sqrt(target / error), what the error would need were it all the
+    steps': a safe first move coarser, a first move finer that bisection completes).
+    -> (settings, trials)."""
     as_fitted = dataclasses.replace(cfg, prune_share=0.0)  # the scene is already pruned
     s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution, sensitivity)
     target_mse = 10 ** (-cfg.target_psnr / 10)
     before = s.evaluate(as_fitted)
-    best = before if before.mse <= target_mse else \
-        onto_target(s, before, _attribute_groups(scene), target_mse, evaluations=WHOLE_SCENE_MOVES)
+    off_db = 10 * math.log10(max(before.mse, 1e-12) / target_mse)
+    best = before if -WHOLE_SCENE_TOLERANCE <= off_db <= 0 else \
+        onto_target(s, before, _attribute_groups(scene), target_mse, evaluations=WHOLE_SCENE_MOVES,
+                    first=min(max(10 ** (-off_db / 20), 1 / 4), 4.0))
     if log:
         log(f"settings on the whole scene: {-10 * math.log10(max(before.mse, 1e-12)):.2f} dB at "
             f"{before.bits / 8:,.0f} B" + ("" if best is before else
