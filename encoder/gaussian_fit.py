@@ -293,8 +293,8 @@ class SearchSample:
     ratio: float  # the whole scene's squared error over the sample's at the same settings
 
 
-def _search_sample(scene: GaussianScene, contrib: np.ndarray, sensitivity: np.ndarray | None,
-                   cfg: GaussianEncoderConfig, say) -> SearchSample | None:
+def _search_sample(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig,
+                   say) -> SearchSample | None:
     """The sample the search measures on a scene above ``search_sample_gaussians`` (None below),
     with the ratio of the whole scene's error to the sample's when a target is asked for."""
     from .gaussian_rd import sample_distortion_ratio
@@ -303,7 +303,7 @@ def _search_sample(scene: GaussianScene, contrib: np.ndarray, sensitivity: np.nd
     members = search_sample(scene.means, cfg.search_sample_gaussians)
     if members is None:
         return None
-    ratio = sample_distortion_ratio(scene, contrib, cfg, members, sensitivity) if cfg.target_psnr > 0 else 1.0
+    ratio = sample_distortion_ratio(scene, contrib, cfg, members) if cfg.target_psnr > 0 else 1.0
     say(f"settings: searched on a sample of {int(members.sum()):,} of {scene.num_gaussians:,} Gaussians (whole "
         f"scene's error {ratio:.3g} x the sample's)")
     return SearchSample(members, ratio)
@@ -324,7 +324,7 @@ def search_for_settings(scene: GaussianScene, contrib: np.ndarray, sensitivity: 
     # the plan, applied once: trim_to_target after the fit reads these views from the settings
     cfg = dataclasses.replace(cfg, search_views=views, search_resolution=resolution, search_reference_gaussians=0)
     t0 = time.perf_counter()
-    sample = _search_sample(scene, contrib, sensitivity, cfg, say)
+    sample = _search_sample(scene, contrib, cfg, say)
     if sample is None:
         cfg, trials = search_settings(scene, contrib, cfg, sensitivity=sensitivity, log=say)
     else:

@@ -147,6 +147,25 @@ class SettingsSearch:
         return adjust_on_graph(x, sh_degree_subset(self.sensitivity[keep], degree), degree, grid.coords, order, graph,
                                cfg)
 
+    def _mse(self, dec: GaussianScene) -> float:
+        """The squared error of renders of ``dec`` against the source's, mean over the views."""
+        g = gaussians_from_scene(dec)
+        with torch.no_grad():
+            return float(np.mean([((render_3dgs(g, c, background=(0, 0, 0), backend="torch").image - t) ** 2)
+                                  .double().mean().item() for c, t in zip(self.cams, self.targets)]))
+
+    def rounding_distortion(self, cfg: GaussianEncoderConfig) -> float:
+        """The squared error of the scene on its grid at ``cfg``'s position step, every value
+        rounded at ``cfg``'s steps (no pruning, no RDOQ or step adjustment, no bits counted): a
+        trial's distortion at a fraction of its cost, for comparing two scenes."""
+        kept = self.scene
+        voxel, origin = choose_grid(kept, GaussianEncoderConfig(position_step=cfg.position_step), self.contrib)
+        grid, _ = snap_to_grid(kept, voxel, origin, self.contrib)
+        layout = GaussianLayout(self.scene.sh_degree)
+        steps = channel_steps(cfg, self.scene.sh_degree)
+        return self._mse(GaussianScene(grid.means, *layout.split((np.rint(self.values / steps) * steps)
+                                                                 .astype(np.float32))))
+
     def evaluate(self, cfg: GaussianEncoderConfig) -> Trial:
         key = (cfg.prune_share, cfg.position_step)
         keep, grid, geometry_bits = self._grid(*key)
@@ -171,11 +190,7 @@ class SettingsSearch:
             r = q[:, c] - int(np.median(q[:, c]))
             prior_bits += float(code_lengths_bits(r, np.full(r.shape, best_level(r), np.int64)).sum())
         bits = geometry_bits + self._attribute_bits(key, grid, q, prior_bits, adjust)
-        dec = GaussianScene(grid.means, *layout.split((q * steps * factor).astype(np.float32)))
-        g = gaussians_from_scene(dec)
-        with torch.no_grad():
-            mse = float(np.mean([((render_3dgs(g, c, background=(0, 0, 0), backend="torch").image - t) ** 2)
-                                 .double().mean().item() for c, t in zip(self.cams, self.targets)]))
+        mse = self._mse(GaussianScene(grid.means, *layout.split((q * steps * factor).astype(np.float32))))
         cost = 10 * math.log10(max(mse, 1e-12)) + self.lam * math.log2(max(bits, 1.0))
         trial = Trial(cfg, mse, bits, cost)
         self.trials.append(trial)
@@ -456,18 +471,16 @@ def _attribute_groups(scene: GaussianScene) -> list[str]:
     return [g for g in GROUPS if g != "position" and (not g.startswith("sh_band") or int(g[-1]) <= scene.sh_degree)]
 
 
-def sample_distortion_ratio(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, sample: np.ndarray,
-                            sensitivity: np.ndarray | None = None) -> float:
+def sample_distortion_ratio(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig,
+                            sample: np.ndarray) -> float:
     """The whole scene's squared error over the sample's (``sample``, encoder/search_sample.py) at
-    ``cfg``'s steps without pruning, on the search views of each: the sample covers fewer pixels
-    of the orbit views, so the same steps measure less error on it. The search asks the sample for
+    ``cfg``'s steps, plainly rounded without pruning (``rounding_distortion``: a whole-scene trial
+    would code the whole scene), on the search views of each: the sample covers fewer pixels of
+    the orbit views, so the same steps measure less error on it. The search asks the sample for
     the target's error divided by this ratio."""
-    base = dataclasses.replace(cfg, prune_share=0.0)
-    part_sens = None if sensitivity is None else sensitivity[sample]
-    whole = SettingsSearch(scene, contrib, base, 0.0, cfg.search_views, cfg.search_resolution, sensitivity)
-    part = SettingsSearch(scene.subset(sample), contrib[sample], base, 0.0, cfg.search_views, cfg.search_resolution,
-                          part_sens)
-    return max(whole.evaluate(base).mse, 1e-12) / max(part.evaluate(base).mse, 1e-12)
+    whole = SettingsSearch(scene, contrib, cfg, 0.0, cfg.search_views, cfg.search_resolution)
+    part = SettingsSearch(scene.subset(sample), contrib[sample], cfg, 0.0, cfg.search_views, cfg.search_resolution)
+    return max(whole.rounding_distortion(cfg), 1e-12) / max(part.rounding_distortion(cfg), 1e-12)
 
 
 def on_sample(cfg: GaussianEncoderConfig, ratio: float) -> GaussianEncoderConfig:
