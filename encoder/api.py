@@ -217,12 +217,12 @@ def estimate_seconds(scene: AnchorScene | GaussianScene, cfg) -> tuple[float, st
 def _encode_gaussians(scene: GaussianScene, cfg, *, progress: bool, log: Log, measure_ideal: bool, workers=None):
     """Rate-aware preparation (when the settings call for it), then the explicit-Gaussian
     coding -> (result, the settings used: the preset's, or those the search chose)."""
-    from .gaussian_fit import prepare_gaussians
+    from .gaussian_fit import needs_preparation, prepare_gaussians
     from .gaussians import encode_gaussian_scene
 
     t0 = time.perf_counter()
     weights, sensitivity, prepared = None, None, None
-    if cfg.rd_lambda > 0 or cfg.target_psnr > 0 or cfg.fit_iterations > 0 or cfg.prune_share > 0:
+    if needs_preparation(cfg):
         goal = (f", choosing settings for {cfg.target_psnr:g} dB" if cfg.target_psnr
                 else f", choosing settings for lambda {cfg.rd_lambda:g}" if cfg.rd_lambda else "")
         log(f"{scene.num_gaussians:,} Gaussians (SH degree {scene.sh_degree}): measuring contributions on "

@@ -45,12 +45,15 @@ the fewest bytes at the quality asked for: the presets ask for a PSNR against re
 source (low 40 dB, medium 45 dB, high 50 dB; --psnr sets another), --lambda instead minimizes
 -PSNR + lambda x log2(bytes). Then it tunes the kept Gaussians to the source renders with
 their quantization simulated (--fit-iterations; medium and high), which adds about 1 dB.
+A scene above 100,000 Gaussians is searched on a spatial sample of them and the choice checked
+on the whole scene. The fast preset renders nothing: the scene is coded at fixed steps.
 An anchor scene (Scaffold-GS / HAC checkpoint) is coded with its anchors and render MLPs.
 
 examples:
   lghcc-enc scene.ply -o scene.lghcc                   3DGS PLY, preset medium
   lghcc-enc scene.spz -o scene.lghcc                   SPZ (or SOG) input
   lghcc-enc scene.ply --preset high -o scene.lghcc     higher fidelity, more bytes
+  lghcc-enc scene.ply --preset fast -o scene.lghcc     no renders: SPZ-like turnaround, more bytes
   lghcc-enc --procedural 20000 -o demo.lghcc           built-in procedural anchor scene
   lghcc-enc outputs/garden -o garden.lghcc             Scaffold-GS model folder
   lghcc-enc point_cloud.ply --preset lghcc-medium -o g.lghcc   anchor PLY (MLPs from checkpoint.pth beside it)

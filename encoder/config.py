@@ -201,6 +201,17 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # (encoder/gaussian_rd.py, search_view_plan; 0: the views above on every scene).
     search_reference_gaussians: int = 150_000
     search_max_scale: float = 8.0
+    # A larger scene than this is searched on a sample of about this many Gaussians in whole cells
+    # of space (encoder/search_sample.py), on the views its whole would get; the choice is then
+    # checked on the whole scene (after the fit) and moved onto the target there by one common
+    # factor on the steps if it misses (encoder/gaussian_rd.py, meet_on_whole_scene). 0: the whole
+    # scene, whatever its size. The search's time stops growing with the scene here.
+    search_sample_gaussians: int = 100_000
+    # The sensitivities and the fit render every Gaussian for each view or step: a scene of N above
+    # this many Gaussians gets fit_views x this / N views for its sensitivities (at least
+    # MIN_SENSITIVITY_VIEWS, encoder/gaussian_fit.py) and fit_iterations x this / N fitting steps,
+    # so that neither costs more than on a scene of this size (0: the full views and steps).
+    fit_reference_gaussians: int = 150_000
     # The fit and search views must resolve the scene's typical Gaussian to this many pixels: when
     # the orbit views do not, the contributions are measured on finer whole views and the fit and
     # the search add as many magnified crops (encoder/gaussian_fit.py, "views that resolve the
@@ -242,6 +253,9 @@ class GaussianEncoderConfig(AttributeCodingConfig):
         if self.search_views < 1 or self.search_resolution < 8:
             raise InputError(f"search_views must be >= 1 and search_resolution >= 8, got {self.search_views} and "
                              f"{self.search_resolution}")
+        if self.search_sample_gaussians < 0 or self.fit_reference_gaussians < 0:
+            raise InputError(f"search_sample_gaussians and fit_reference_gaussians must be >= 0 (0: the whole scene), "
+                             f"got {self.search_sample_gaussians} and {self.fit_reference_gaussians}")
         if self.search_reference_gaussians < 0 or not 1 <= self.search_max_scale <= 64:
             raise InputError(f"search_reference_gaussians must be >= 0 and search_max_scale in [1, 64], got "
                              f"{self.search_reference_gaussians} and {self.search_max_scale}")

@@ -286,22 +286,55 @@ def measure_sensitivities(scene: GaussianScene, cams: list[Camera], cfg: Gaussia
     return f
 
 
+@dataclass
+class SearchSample:
+    """The part of a large scene the settings search measured (encoder/search_sample.py)."""
+    members: np.ndarray  # bool [N]: the sampled Gaussians of the scene as it came in
+    ratio: float  # the whole scene's squared error over the sample's at the same settings
+
+
+def _search_sample(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig,
+                   say) -> SearchSample | None:
+    """The sample the search measures on a scene above ``search_sample_gaussians`` (None below),
+    with the ratio of the whole scene's error to the sample's when a target is asked for."""
+    from .gaussian_rd import sample_distortion_ratio
+    from .search_sample import search_sample
+
+    members = search_sample(scene.means, cfg.search_sample_gaussians)
+    if members is None:
+        return None
+    ratio = sample_distortion_ratio(scene, contrib, cfg, members) if cfg.target_psnr > 0 else 1.0
+    say(f"settings: searched on a sample of {int(members.sum()):,} of {scene.num_gaussians:,} Gaussians (whole "
+        f"scene's error {ratio:.3g} x the sample's)")
+    return SearchSample(members, ratio)
+
+
 def search_for_settings(scene: GaussianScene, contrib: np.ndarray, sensitivity: np.ndarray | None,
-                        cfg: GaussianEncoderConfig, stats: PrepareStats, say) -> GaussianEncoderConfig:
-    """The settings for the quality or lambda asked for (encoder/gaussian_rd.py); the preset's
-    when neither is."""
+                        cfg: GaussianEncoderConfig, stats: PrepareStats,
+                        say) -> tuple[GaussianEncoderConfig, SearchSample | None]:
+    """The settings for the quality or lambda asked for (encoder/gaussian_rd.py), measured on a
+    sample of a scene above ``search_sample_gaussians`` (with the sample); the preset's when
+    neither is asked for."""
     if not (cfg.rd_lambda > 0 or cfg.target_psnr > 0):
-        return cfg
-    from .gaussian_rd import search_settings, search_view_plan
+        return cfg, None
+    from .gaussian_rd import on_sample, search_settings, search_view_plan
 
     views, resolution = search_view_plan(cfg, scene.num_gaussians)
     say(f"settings: searched on {views} views of {resolution} px")
     # the plan, applied once: trim_to_target after the fit reads these views from the settings
     cfg = dataclasses.replace(cfg, search_views=views, search_resolution=resolution, search_reference_gaussians=0)
     t0 = time.perf_counter()
-    cfg, trials = search_settings(scene, contrib, cfg, sensitivity=sensitivity, log=say)
+    sample = _search_sample(scene, contrib, cfg, say)
+    if sample is None:
+        cfg, trials = search_settings(scene, contrib, cfg, sensitivity=sensitivity, log=say)
+    else:
+        m = sample.members
+        chosen, trials = search_settings(scene.subset(m), contrib[m], on_sample(cfg, sample.ratio),
+                                         sensitivity=None if sensitivity is None else sensitivity[m], log=say)
+        cfg = dataclasses.replace(chosen, target_psnr=cfg.target_psnr)
+        stats.search_sample_gaussians, stats.search_sample_ratio = int(m.sum()), sample.ratio
     stats.time_search_s, stats.search_trials = time.perf_counter() - t0, len(trials)
-    return cfg
+    return cfg, sample
 
 
 def pruned_on_grid(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, stats: PrepareStats,
@@ -364,8 +397,13 @@ def fit_to_renders(grid: GaussianScene, g: Gaussians3DGS, cams: list[Camera], cf
     """``fit_iterations`` steps tuning the kept Gaussians to renders of the source Gaussians
     ``g`` with their quantization simulated and their estimated bits weighed in (module doc)."""
     t0 = time.perf_counter()
-    with torch.no_grad():
-        targets = [render_3dgs(g, cam, background=(0, 0, 0), backend="torch").image for cam in cams]
+    targets: dict[int, torch.Tensor] = {}  # the source's render of each view the steps draw, made once
+
+    def target(j: int) -> torch.Tensor:
+        if j not in targets:
+            with torch.no_grad():
+                targets[j] = render_3dgs(g, cams[j], background=(0, 0, 0), backend="torch").image
+        return targets[j]
     from .gaussian_rd import scene_step_adjust
 
     fit = _Fit(grid, cfg, scene_step_adjust(grid, sensitivity, cfg))
@@ -377,7 +415,7 @@ def fit_to_renders(grid: GaussianScene, g: Gaussians3DGS, cams: list[Camera], cf
     losses = []
     for it in bar:
         j = int(rng.integers(len(cams)))
-        losses.append(optimizer.step(fit, cams[j], targets[j]))
+        losses.append(optimizer.step(fit, cams[j], target(j)))
         if time.perf_counter() - last > 10 or it + 1 == cfg.fit_iterations:
             last = time.perf_counter()
             done = it + 1
@@ -390,17 +428,45 @@ def fit_to_renders(grid: GaussianScene, g: Gaussians3DGS, cams: list[Camera], cf
 
 
 def trim_steps(fitted: GaussianScene, weights: np.ndarray, sensitivity: np.ndarray | None, cfg: GaussianEncoderConfig,
-               stats: PrepareStats, say) -> GaussianEncoderConfig:
+               stats: PrepareStats, say, sample: np.ndarray | None = None, ratio: float = 1.0) -> GaussianEncoderConfig:
     """With a quality asked for, the attribute steps moved onto it again (what the fit gained
-    becomes fewer bytes); the settings as they are otherwise."""
+    becomes fewer bytes); the settings as they are otherwise. With a search ``sample`` (bool over
+    the fitted Gaussians; ``ratio`` the whole scene's error over the sample's), moved on the sample
+    and then checked on the whole scene (``whole_scene_check``)."""
     if not cfg.target_psnr > 0:
         return cfg
-    from .gaussian_rd import trim_to_target
+    from .gaussian_rd import on_sample, trim_to_target
 
     t0 = time.perf_counter()
-    cfg, before, after = trim_to_target(fitted, weights, cfg, sensitivity=sensitivity, log=say)
+    if sample is None:
+        cfg, before, after = trim_to_target(fitted, weights, cfg, sensitivity=sensitivity, log=say)
+    else:
+        part_sens = None if sensitivity is None else sensitivity[sample]
+        trimmed, before, after = trim_to_target(fitted.subset(sample), weights[sample], on_sample(cfg, ratio),
+                                                sensitivity=part_sens, log=say)
+        cfg = dataclasses.replace(trimmed, target_psnr=cfg.target_psnr)
     stats.time_trim_s, stats.trim_bits_before, stats.trim_bits_after = time.perf_counter() - t0, before.bits, after.bits
     return cfg
+
+
+def whole_scene_check(scene: GaussianScene, weights: np.ndarray, sensitivity: np.ndarray | None,
+                      cfg: GaussianEncoderConfig, stats: PrepareStats, say) -> GaussianEncoderConfig:
+    """Settings chosen on a sample, checked against the target on the whole prepared scene and
+    moved onto it where they miss (encoder/gaussian_rd.py ``meet_on_whole_scene``)."""
+    if not cfg.target_psnr > 0:
+        return cfg
+    from .gaussian_rd import meet_on_whole_scene
+
+    t0 = time.perf_counter()
+    cfg, trials = meet_on_whole_scene(scene, weights, cfg, sensitivity=sensitivity, log=say)
+    stats.time_whole_check_s, stats.whole_check_trials = time.perf_counter() - t0, len(trials)
+    return cfg
+
+
+def needs_preparation(cfg: GaussianEncoderConfig) -> bool:
+    """Whether the settings ask for anything that renders (a search, pruning, a fit); the fast
+    preset asks for none and is coded as it comes."""
+    return cfg.rd_lambda > 0 or cfg.target_psnr > 0 or cfg.fit_iterations > 0 or cfg.prune_share > 0
 
 
 def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, cameras: list[Camera] | None = None,
@@ -423,14 +489,43 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
     contrib = measure_contributions(g, contrib_cams, progress)
     cams = resolving_views(scene, cfg.fit_views, cfg.fit_resolution, cfg.resolve_px) + extra
     stats.time_contributions_s = time.perf_counter() - t0
-    sensitivity = measure_sensitivities(scene, cams, cfg, stats, progress)
-    cfg = search_for_settings(scene, contrib, sensitivity, cfg, stats, say)
+    sens_views = sensitivity_views(cfg, scene.num_gaussians)
+    sens_cams = cams if sens_views == cfg.fit_views else \
+        resolving_views(scene, sens_views, cfg.fit_resolution, cfg.resolve_px) + extra
+    sensitivity = measure_sensitivities(scene, sens_cams, cfg, stats, progress)
+    cfg, sample = search_for_settings(scene, contrib, sensitivity, cfg, stats, say)
     grid, weights, keep = pruned_on_grid(scene, contrib, cfg, stats, len(contrib_cams), say)
     sensitivity = None if sensitivity is None else sensitivity[keep]
-    if cfg.fit_iterations == 0:
-        stats.time_total_s = time.perf_counter() - t0
-        return PreparedGaussians(grid, weights, sensitivity, cfg, stats)
-    fitted = fit_to_renders(grid, g, cams, cfg, stats, say, progress, sensitivity)
-    cfg = trim_steps(fitted, weights, sensitivity, cfg, stats, say)
+    if cfg.fit_iterations > 0:
+        grid = fit_to_renders(grid, g, cams, fit_steps(cfg, grid.num_gaussians), stats, say, progress, sensitivity)
+        cfg = trim_steps(grid, weights, sensitivity, cfg, stats, say, None if sample is None else sample.members[keep],
+                         1.0 if sample is None else sample.ratio)
+    if sample is not None:
+        cfg = whole_scene_check(grid, weights, sensitivity, cfg, stats, say)
     stats.time_total_s = time.perf_counter() - t0
-    return PreparedGaussians(fitted, weights, sensitivity, cfg, stats)
+    return PreparedGaussians(grid, weights, sensitivity, cfg, stats)
+
+
+# The fewest views (orbit views, and as many crops where they are added) of the sensitivities on a
+# large scene (``sensitivity_views``).
+MIN_SENSITIVITY_VIEWS = 8
+
+
+def sensitivity_views(cfg: GaussianEncoderConfig, num_gaussians: int) -> int:
+    """The orbit views of the sensitivities: ``fit_views``, cut on a scene above
+    ``fit_reference_gaussians`` to fit_views x reference / N (at least MIN_SENSITIVITY_VIEWS), each
+    view rendering every Gaussian forward and backward."""
+    ref = cfg.fit_reference_gaussians
+    if ref <= 0 or num_gaussians <= ref:
+        return cfg.fit_views
+    return min(cfg.fit_views, max(MIN_SENSITIVITY_VIEWS, math.floor(cfg.fit_views * ref / num_gaussians + 0.5)))
+
+
+def fit_steps(cfg: GaussianEncoderConfig, num_gaussians: int) -> GaussianEncoderConfig:
+    """``cfg`` with the fit's steps for a scene of ``num_gaussians``: fit_iterations, cut on a scene
+    above ``fit_reference_gaussians`` to fit_iterations x reference / N (each step renders every
+    Gaussian forward and backward)."""
+    ref = cfg.fit_reference_gaussians
+    if ref <= 0 or num_gaussians <= ref:
+        return cfg
+    return dataclasses.replace(cfg, fit_iterations=max(1, math.floor(cfg.fit_iterations * ref / num_gaussians + 0.5)))

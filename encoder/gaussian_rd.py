@@ -147,6 +147,25 @@ class SettingsSearch:
         return adjust_on_graph(x, sh_degree_subset(self.sensitivity[keep], degree), degree, grid.coords, order, graph,
                                cfg)
 
+    def _mse(self, dec: GaussianScene) -> float:
+        """The squared error of renders of ``dec`` against the source's, mean over the views."""
+        g = gaussians_from_scene(dec)
+        with torch.no_grad():
+            return float(np.mean([((render_3dgs(g, c, background=(0, 0, 0), backend="torch").image - t) ** 2)
+                                  .double().mean().item() for c, t in zip(self.cams, self.targets)]))
+
+    def rounding_distortion(self, cfg: GaussianEncoderConfig) -> float:
+        """The squared error of the scene on its grid at ``cfg``'s position step, every value
+        rounded at ``cfg``'s steps (no pruning, no RDOQ or step adjustment, no bits counted): a
+        trial's distortion at a fraction of its cost, for comparing two scenes."""
+        kept = self.scene
+        voxel, origin = choose_grid(kept, GaussianEncoderConfig(position_step=cfg.position_step), self.contrib)
+        grid, _ = snap_to_grid(kept, voxel, origin, self.contrib)
+        layout = GaussianLayout(self.scene.sh_degree)
+        steps = channel_steps(cfg, self.scene.sh_degree)
+        return self._mse(GaussianScene(grid.means, *layout.split((np.rint(self.values / steps) * steps)
+                                                                 .astype(np.float32))))
+
     def evaluate(self, cfg: GaussianEncoderConfig) -> Trial:
         key = (cfg.prune_share, cfg.position_step)
         keep, grid, geometry_bits = self._grid(*key)
@@ -171,11 +190,7 @@ class SettingsSearch:
             r = q[:, c] - int(np.median(q[:, c]))
             prior_bits += float(code_lengths_bits(r, np.full(r.shape, best_level(r), np.int64)).sum())
         bits = geometry_bits + self._attribute_bits(key, grid, q, prior_bits, adjust)
-        dec = GaussianScene(grid.means, *layout.split((q * steps * factor).astype(np.float32)))
-        g = gaussians_from_scene(dec)
-        with torch.no_grad():
-            mse = float(np.mean([((render_3dgs(g, c, background=(0, 0, 0), backend="torch").image - t) ** 2)
-                                 .double().mean().item() for c, t in zip(self.cams, self.targets)]))
+        mse = self._mse(GaussianScene(grid.means, *layout.split((q * steps * factor).astype(np.float32))))
         cost = 10 * math.log10(max(mse, 1e-12)) + self.lam * math.log2(max(bits, 1.0))
         trial = Trial(cfg, mse, bits, cost)
         self.trials.append(trial)
@@ -395,7 +410,7 @@ def trim_to_target(scene: GaussianScene, weights: np.ndarray, cfg: GaussianEncod
     for. -> (settings, the trial before, the trial chosen)."""
     as_fitted = dataclasses.replace(cfg, prune_share=0.0)  # the scene is already pruned
     s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution, sensitivity)
-    groups = [g for g in GROUPS if g != "position" and (not g.startswith("sh_band") or int(g[-1]) <= scene.sh_degree)]
+    groups = _attribute_groups(scene)
     before = s.evaluate(as_fitted)
     best = onto_target(s, before, groups, 10 ** (-cfg.target_psnr / 10), evaluations=4)
     if log:
@@ -413,12 +428,13 @@ def _scaled(cfg: GaussianEncoderConfig, groups: list[str], f: float) -> Gaussian
 
 
 def onto_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: float,
-                evaluations: int = 8) -> Trial:
+                evaluations: int = 8, first: float | None = None) -> Trial:
     """Every step times one factor f so that the renders meet ``target_mse``: from f = 1, f
     doubles (or halves) until the target is crossed (the model's lambda can be far off when
     the preset's steps were), then bisection in log f (distortion grows with f) to within a
     factor 1.1. Returns the trial of the largest f measured that meets the target (the fewest
-    bits at the quality asked for), or the one closest to it when none does (the finest)."""
+    bits at the quality asked for), or the one closest to it when none does (the finest).
+    ``first``: the first factor tried instead of 2 or 1/2 (a model's guess)."""
     trials = {1.0: best}
     f_meet = 1.0 if best.mse <= target_mse else None  # largest f measured that meets the target
     f_fail = None if f_meet else 1.0  # smallest f measured that does not
@@ -429,6 +445,8 @@ def onto_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: f
             f = math.sqrt(f_meet * f_fail)
         else:
             f = f_meet * 2 if f_meet is not None else f_fail / 2
+            if first is not None and len(trials) == 1:
+                f = first
             if not 1 / 64 <= f <= 64:
                 break
         trials[f] = t = s.evaluate(_scaled(best.cfg, groups, f))
@@ -439,3 +457,59 @@ def onto_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: f
     if f_meet is not None:
         return min((t for t in trials.values() if t.mse <= target_mse), key=lambda t: t.bits)
     return min(trials.values(), key=lambda t: t.mse)
+
+
+# Whole-scene trials the check of a sampled choice may add to move it onto the target (each
+# renders and codes the whole scene): halving every step, then the factor between.
+WHOLE_SCENE_MOVES = 2
+# How far above the target (dB) the whole scene may render before the check moves the steps
+# coarser (a miss below the target is always moved).
+WHOLE_SCENE_TOLERANCE = 0.25
+
+
+def _attribute_groups(scene: GaussianScene) -> list[str]:
+    return [g for g in GROUPS if g != "position" and (not g.startswith("sh_band") or int(g[-1]) <= scene.sh_degree)]
+
+
+def sample_distortion_ratio(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig,
+                            sample: np.ndarray) -> float:
+    """The whole scene's squared error over the sample's (``sample``, encoder/search_sample.py) at
+    ``cfg``'s steps, plainly rounded without pruning (``rounding_distortion``: a whole-scene trial
+    would code the whole scene), on the search views of each: the sample covers fewer pixels of
+    the orbit views, so the same steps measure less error on it. The search asks the sample for
+    the target's error divided by this ratio."""
+    whole = SettingsSearch(scene, contrib, cfg, 0.0, cfg.search_views, cfg.search_resolution)
+    part = SettingsSearch(scene.subset(sample), contrib[sample], cfg, 0.0, cfg.search_views, cfg.search_resolution)
+    return max(whole.rounding_distortion(cfg), 1e-12) / max(part.rounding_distortion(cfg), 1e-12)
+
+
+def on_sample(cfg: GaussianEncoderConfig, ratio: float) -> GaussianEncoderConfig:
+    """``cfg`` with its target moved to the sample's error (the whole scene's over ``ratio``)."""
+    if not cfg.target_psnr > 0:
+        return cfg
+    return dataclasses.replace(cfg, target_psnr=cfg.target_psnr + 10 * math.log10(max(ratio, 1e-12)))
+
+
+def meet_on_whole_scene(scene: GaussianScene, weights: np.ndarray, cfg: GaussianEncoderConfig, *,
+                        sensitivity: np.ndarray | None = None, log=None) -> tuple[GaussianEncoderConfig, list[Trial]]:
+    """The check of settings chosen on a sample against ``cfg.target_psnr`` on the whole (fitted,
+    pruned) scene: one trial; where it is off the target by more than WHOLE_SCENE_TOLERANCE, every
+    attribute step times one common factor onto it (``onto_target``, at most WHOLE_SCENE_MOVES
+    trials more, the first at sqrt(target / error), what the error would need were it all the
+    steps': a safe first move coarser, a first move finer that bisection completes).
+    -> (settings, trials)."""
+    as_fitted = dataclasses.replace(cfg, prune_share=0.0)  # the scene is already pruned
+    s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution, sensitivity)
+    target_mse = 10 ** (-cfg.target_psnr / 10)
+    before = s.evaluate(as_fitted)
+    off_db = 10 * math.log10(max(before.mse, 1e-12) / target_mse)
+    best = before if -WHOLE_SCENE_TOLERANCE <= off_db <= 0 else \
+        onto_target(s, before, _attribute_groups(scene), target_mse, evaluations=WHOLE_SCENE_MOVES,
+                    first=min(max(10 ** (-off_db / 20), 1 / 4), 4.0))
+    if log:
+        log(f"settings on the whole scene: {-10 * math.log10(max(before.mse, 1e-12)):.2f} dB at "
+            f"{before.bits / 8:,.0f} B" + ("" if best is before else
+                                          f" -> {-10 * math.log10(max(best.mse, 1e-12)):.2f} dB at "
+                                          f"{best.bits / 8:,.0f} B") + " (estimated)")
+    chosen = dataclasses.replace(best.cfg, prune_share=cfg.prune_share) if best is not before else cfg
+    return chosen, s.trials

@@ -66,6 +66,10 @@ class PrepareStats:
     time_sensitivities_s: float | None = None  # for rate-distortion optimized quantization (encoder/rdoq.py)
     time_search_s: float | None = None  # the settings search (a quality or lambda asked for)
     search_trials: int | None = None
+    search_sample_gaussians: int | None = None  # searched on a sample of the scene (encoder/search_sample.py)
+    search_sample_ratio: float | None = None  # the whole scene's squared error over the sample's, same settings
+    time_whole_check_s: float | None = None  # the sampled choice checked (and moved) on the whole scene
+    whole_check_trials: int | None = None
     gaussians_pruned: int = 0
     voxel_size: float = 0.0
     gaussians_moved_off_shared_voxels: int = 0

@@ -1,0 +1,119 @@
+"""The settings search on a large scene: its sample (encoder/search_sample.py), the views and steps
+that stop growing with the scene (encoder/gaussian_fit.py), the check on the whole scene, and the
+``fast`` preset."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from lghcc.common.hashing import gaussian_scene_digest
+from lghcc.decoder.decode import decode_stream
+from lghcc.encoder.config import GaussianEncoderConfig, load_config
+from lghcc.encoder.gaussian_fit import MIN_SENSITIVITY_VIEWS, fit_steps, prepare_gaussians, sensitivity_views
+from lghcc.encoder.search_sample import SAMPLE_CELLS, morton_keys, search_sample, spatial_cells
+from test_gaussians import random_gaussians
+
+# the settings of a search small enough for a test (2 views of 32 px, a few fitting steps)
+SMALL = dict(target_psnr=35.0, search_views=2, search_resolution=32, fit_views=2, fit_resolution=32,
+             fit_iterations=3, search_reference_gaussians=0, resolve_px=0.0, step_adjust_max=7)
+
+
+def _clusters(rng, n, k=6):
+    """n points in k separate blobs (a scene with empty space between its parts)."""
+    centres = rng.uniform(-10, 10, size=(k, 3))
+    return (centres[rng.integers(0, k, n)] + rng.normal(0, 0.5, size=(n, 3))).astype(np.float32)
+
+
+@settings(max_examples=25, deadline=None)
+@given(n=st.integers(2_000, 20_000), size=st.integers(200, 1_500), seed=st.integers(0, 999))
+def test_sample_is_deterministic_whole_cells_and_about_its_size(n, size, seed):
+    rng = np.random.default_rng(seed)
+    means = _clusters(rng, n) if seed % 2 else rng.uniform(-1, 1, size=(n, 3)).astype(np.float32)
+    a = search_sample(means, size)
+    assert a is not None and a.dtype == bool and a.shape == (n,)
+    assert np.array_equal(a, search_sample(means.copy(), size))  # the same scene: the same sample
+    cell = spatial_cells(means, max(size / SAMPLE_CELLS, 1.0))
+    taken = np.unique(cell[a])
+    assert np.array_equal(np.isin(cell, taken), a)  # whole cells: a cell is in or out with all its Gaussians
+    largest = np.bincount(cell).max()
+    assert abs(int(a.sum()) - size) <= largest  # error diffusion: off by less than a cell
+
+
+def test_sample_spreads_over_the_scene():
+    """Stratified: every eighth of a uniform cube holds about an eighth of the sample."""
+    rng = np.random.default_rng(3)
+    means = rng.uniform(-1, 1, size=(64_000, 3))
+    a = search_sample(means, 8_000)
+    octant = ((means[a] > 0) * [1, 2, 4]).sum(axis=1)
+    counts = np.bincount(octant, minlength=8)
+    assert counts.min() >= 0.6 * a.sum() / 8 and counts.max() <= 1.4 * a.sum() / 8, counts
+
+
+def test_no_sample_at_or_below_its_size_or_without_cells():
+    rng = np.random.default_rng(0)
+    means = rng.uniform(size=(1000, 3))
+    assert search_sample(means, 1000) is None and search_sample(means, 0) is None
+    assert search_sample(np.zeros((5000, 3)), 100) is None  # one point: no cell separates the Gaussians
+
+
+def test_morton_keys_interleave_the_axes():
+    cells = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [3, 0, 0], [(1 << 21) - 1] * 3])
+    assert morton_keys(cells).tolist() == [1, 2, 4, 9, (1 << 63) - 1]
+
+
+def test_views_and_steps_stop_growing_with_the_scene():
+    cfg = GaussianEncoderConfig(fit_views=24, fit_iterations=100, fit_reference_gaussians=150_000)
+    assert sensitivity_views(cfg, 150_000) == 24 and fit_steps(cfg, 150_000) is cfg
+    assert sensitivity_views(cfg, 300_000) == 12 and fit_steps(cfg, 300_000).fit_iterations == 50
+    assert sensitivity_views(cfg, 3_000_000) == MIN_SENSITIVITY_VIEWS and fit_steps(cfg, 3_000_000).fit_iterations == 5
+    off = GaussianEncoderConfig(fit_reference_gaussians=0, fit_iterations=100)
+    assert sensitivity_views(off, 10 ** 7) == off.fit_views and fit_steps(off, 10 ** 7) is off
+
+
+def test_search_under_the_sample_size_chooses_as_the_whole_scene_search():
+    """A scene at or below search_sample_gaussians is searched whole: the same settings and stream
+    as with sampling off."""
+    scene = random_gaussians(np.random.default_rng(5), 300, 1)
+    whole = prepare_gaussians(scene, GaussianEncoderConfig(**SMALL, search_sample_gaussians=0))
+    under = prepare_gaussians(scene, GaussianEncoderConfig(**SMALL, search_sample_gaussians=300))
+    assert dataclasses.replace(under.cfg, search_sample_gaussians=0) == whole.cfg
+    assert under.stats.search_sample_gaussians is None
+    assert gaussian_scene_digest(under.scene) == gaussian_scene_digest(whole.scene)
+
+
+def test_sampled_search_is_deterministic_and_checked_on_the_whole_scene():
+    """A scene above the sample size: searched on a sample, the same settings twice, and the whole
+    scene checked against the target once at least (then moved onto it where it missed)."""
+    from lghcc.encoder.gaussian_rd import SettingsSearch
+
+    rng = np.random.default_rng(7)
+    scene = random_gaussians(rng, 1200, 0)
+    scene.means[:] = _clusters(rng, 1200) / 10
+    cfg = GaussianEncoderConfig(**SMALL, search_sample_gaussians=400)
+    a, b = prepare_gaussians(scene, cfg), prepare_gaussians(scene, cfg)
+    assert a.cfg == b.cfg and gaussian_scene_digest(a.scene) == gaussian_scene_digest(b.scene)
+    assert 0 < a.stats.search_sample_gaussians < 1200 and a.stats.search_sample_ratio > 0
+    assert a.stats.whole_check_trials >= 1
+    check = SettingsSearch(a.scene, a.weights, a.cfg, 0.0, a.cfg.search_views, a.cfg.search_resolution, a.sensitivity)
+    trial = check.evaluate(a.cfg)
+    met = -10 * math.log10(trial.mse) >= cfg.target_psnr
+    assert met or a.stats.whole_check_trials > 1  # a miss was moved on
+
+
+@pytest.mark.parametrize("degree", [0, 2])
+def test_fast_preset_renders_nothing_and_round_trips(degree):
+    cfg = load_config("fast", kind="gaussians")
+    assert cfg.target_psnr == 0 and cfg.rd_lambda == 0 and cfg.fit_iterations == 0 and cfg.prune_share == 0
+    from lghcc.encoder import api
+
+    scene = random_gaussians(np.random.default_rng(degree), 2000, degree)
+    result, used = api.encode(scene, cfg)  # verify=True: decoded again and its hash checked
+    assert result.stats.prepare is None  # no renders: contributions, search and fit all skipped
+    decoded = decode_stream(result.data).scene
+    assert decoded.num_gaussians == scene.num_gaussians and decoded.sh_degree == degree
+    assert gaussian_scene_digest(decoded) == gaussian_scene_digest(result.decoded)
+    raw = scene.num_gaussians * (3 + 3 * (degree + 1) ** 2 + 8) * 4
+    assert len(result.data) < raw / 3  # coded at the preset's steps, not copied
