@@ -86,7 +86,7 @@ def isolated_streams(root=None) -> dict[str, str]:
     """condition -> the id of its isolated error stream (test.yaml ``condition``)."""
     import yaml
 
-    from .runner import STREAMS_DIR
+    from . import STREAMS_DIR
 
     out = {}
     for meta_file in sorted((root or STREAMS_DIR).glob("*/test.yaml")):

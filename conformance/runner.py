@@ -82,7 +82,7 @@ from ..app.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM,
 from ..common.errors import LghccError  # noqa: E402
 from .conditions import CONDITION_ID  # noqa: E402
 
-STREAMS_DIR = Path(__file__).resolve().parent / "streams"
+from . import STREAMS_DIR  # noqa: E402
 JS_DECODER_DIR = Path(__file__).resolve().parent.parent / "viewer" / "web" / "decoder"
 # the error classes an error stream may expect (lghcc.common.errors); an external decoder's exit
 # status for each is lghcc.app.cli_common.exit_code_for_class (3, invalid stream, for all of them)

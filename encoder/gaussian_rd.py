@@ -44,12 +44,11 @@ from ..common.geometry import encode_geometry, normative_order
 from ..common.neighbour_prediction import neighbour_graph
 from ..common.scene import GaussianScene
 from .config import GaussianEncoderConfig
-from .gaussian_fit import prune_by_contribution, resolving_views
-from .gaussians import choose_grid, coded_values, snap_to_grid
+from .gaussian_grid import choose_grid, coded_values, snap_to_grid
+from .gaussian_views import prune_by_contribution, resolving_views
 from .neighbour_coding import NeighbourCoding, usable as neighbour_usable
-from .rdoq import (channel_groups, channel_steps, group_slopes, orientation_columns, rd_quantize, sh_degree_subset,
-                   step_adjust_choice)
-from ..render.gaussians3dgs import gaussians_from_scene, render_3dgs
+from .rdoq import (adjust_on_graph, channel_groups, channel_steps, group_slopes, orientation_columns, rd_quantize,
+                   sh_degree_subset)
 
 PRUNE_LADDER = (0.0, 0.0005, 0.001, 0.002, 0.004, 0.008, 0.016, 0.032, 0.064)
 STEP_FIELDS = ("position_step", "sh_dc_step", "opacity_step", "scale_step", "rotation_step")
@@ -201,19 +200,6 @@ def step_adjust_wanted(cfg: GaussianEncoderConfig, sensitivity: np.ndarray | Non
     """Step adjustment needs the sensitivities and RDOQ (and, checked by the callers, neighbour
     prediction)."""
     return cfg.step_adjust_max > 0 and sensitivity is not None and cfg.rd_quantization > 0
-
-
-def adjust_on_graph(x: np.ndarray, f: np.ndarray, degree: int, coords: np.ndarray, order: np.ndarray, graph,
-                    cfg: GaussianEncoderConfig) -> np.ndarray | None:
-    """int64 [N] (scene order): the step-adjustment indices encoder/rdoq.py step_adjust_choice
-    gives values ``x`` [N, M] (in the channels' steps) with sensitivities ``f``, ``graph`` being
-    the neighbour graph of ``coords[order]`` (the normative order); None where every index is 0
-    (the stream then carries nothing of the tool)."""
-    mu = group_slopes(f, channel_groups(degree), cfg.rd_quantization)
-    adjust = np.empty(x.shape[0], dtype=np.int64)
-    adjust[order] = step_adjust_choice(x[order], f[order], mu, coords[order], graph, cfg.prediction_buckets,
-                                       cfg.step_adjust_max)
-    return adjust if adjust.any() else None
 
 
 def scene_step_adjust(scene: GaussianScene, sensitivity: np.ndarray | None,

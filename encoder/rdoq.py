@@ -75,7 +75,7 @@ from ..render.camera import Camera
 from ..render.rasterizer import quat_to_rotmat, rasterize
 from ..render.sh import sh_to_rgb
 from .level_coding import fit_per_channel_prior
-from .gaussians import OPACITY_LOGIT_LIMIT, canonical_rotations
+from .gaussian_grid import OPACITY_LOGIT_LIMIT, canonical_rotations
 from .neighbour_coding import NeighbourCoding
 
 
@@ -410,3 +410,15 @@ def sh_degree_subset(f: np.ndarray, sh_degree: int) -> np.ndarray:
     sh = 3 * (sh_degree + 1) ** 2
     return np.concatenate([f[:, :sh], f[:, -8:]], axis=1)
 
+
+def adjust_on_graph(x: np.ndarray, f: np.ndarray, degree: int, coords: np.ndarray, order: np.ndarray, graph,
+                    cfg) -> np.ndarray | None:
+    """int64 [N] (scene order): the step-adjustment indices encoder/rdoq.py step_adjust_choice
+    gives values ``x`` [N, M] (in the channels' steps) with sensitivities ``f``, ``graph`` being
+    the neighbour graph of ``coords[order]`` (the normative order); None where every index is 0
+    (the stream then carries nothing of the tool)."""
+    mu = group_slopes(f, channel_groups(degree), cfg.rd_quantization)
+    adjust = np.empty(x.shape[0], dtype=np.int64)
+    adjust[order] = step_adjust_choice(x[order], f[order], mu, coords[order], graph, cfg.prediction_buckets,
+                                       cfg.step_adjust_max)
+    return adjust if adjust.any() else None

@@ -13,7 +13,8 @@ from lghcc.common.scene import GaussianScene
 from lghcc.decoder.decode import decode_stream
 from lghcc.encoder import cli as enc_cli
 from lghcc.encoder.config import GaussianEncoderConfig, load_config
-from lghcc.encoder.gaussians import encode_gaussian_scene, separate_duplicates
+from lghcc.encoder.gaussian_grid import separate_duplicates
+from lghcc.encoder.gaussians import encode_gaussian_scene
 from lghcc.formats.ply3dgs import read_3dgs_ply, write_3dgs_ply
 
 
@@ -270,7 +271,7 @@ def test_search_meets_the_psnr_asked_for_with_fewer_bits_than_a_finer_setting(ta
 
     from lghcc.encoder.gaussian_rd import SettingsSearch, search_settings
     from lghcc.render.importance import gaussian_contributions
-    from lghcc.encoder.gaussian_fit import fit_cameras
+    from lghcc.encoder.gaussian_views import fit_cameras
     from lghcc.render.gaussians3dgs import gaussians_from_scene
 
     scene = random_gaussians(np.random.default_rng(11), 400, 1)
@@ -293,8 +294,8 @@ def test_search_meets_the_psnr_asked_for_with_fewer_bits_than_a_finer_setting(ta
 def test_views_are_magnified_until_the_typical_gaussian_spans_resolve_px(log_size, n, resolve_px, seed):
     """resolving_views: the orbit views alone when they resolve the typical Gaussian; otherwise as
     many crops besides, m = resolve_px / size times narrower (m capped at MAX_MAGNIFICATION)."""
-    from lghcc.encoder.gaussian_fit import (MAX_MAGNIFICATION, fit_cameras, magnification, resolving_views,
-                                            typical_size_px)
+    from lghcc.encoder.gaussian_views import (MAX_MAGNIFICATION, fit_cameras, magnification, resolving_views,
+                                              typical_size_px)
 
     rng = np.random.default_rng(seed)
     scene = random_gaussians(rng, n)
@@ -323,7 +324,7 @@ def test_views_are_magnified_until_the_typical_gaussian_spans_resolve_px(log_siz
 def test_crops_aim_at_the_scene_and_resolve_small_gaussians():
     """A scene of Gaussians far smaller than a pixel of the orbit views gets crops whose centre
     ray hits one of its Gaussians."""
-    from lghcc.encoder.gaussian_fit import crop_cameras, magnification
+    from lghcc.encoder.gaussian_views import crop_cameras, magnification
 
     scene = random_gaussians(np.random.default_rng(1), 500)
     scene.log_scales[:] = np.float32(np.log(1e-4))

@@ -12,7 +12,7 @@ from lghcc.common.neighbour_prediction import neighbour_graph
 from lghcc.common.scene import GaussianScene
 from lghcc.decoder.decode import decode_stream
 from lghcc.encoder.config import GaussianEncoderConfig
-from lghcc.encoder.gaussian_fit import fit_cameras
+from lghcc.encoder.gaussian_views import fit_cameras
 from lghcc.encoder.gaussians import encode_gaussian_scene
 from lghcc.encoder import rdoq
 from lghcc.encoder.rdoq import (MAX_JUMP, ROTATION_NORMS, channel_groups, channel_steps, group_slopes, rd_quantize,
@@ -36,7 +36,7 @@ def test_sensitivities_estimate_the_diagonal_of_jtj():
     cam = fit_cameras(scene, 1, 12)
     est = sensitivities(scene, cam, probes=600)
 
-    from lghcc.encoder.gaussians import canonical_rotations
+    from lghcc.encoder.gaussian_grid import canonical_rotations
 
     means = torch.tensor(scene.means)
     d = means - torch.as_tensor(cam[0].center, dtype=torch.float32)

@@ -17,7 +17,8 @@ from lghcc.common.neighbour_prediction import (ADJUST_FIXED_POINT, ADJUST_LEVEL_
 from lghcc.decoder.decode import decode_stream
 from lghcc.encoder.cli import step_adjust_summary
 from lghcc.encoder.config import GaussianEncoderConfig
-from lghcc.encoder.gaussians import coded_values, encode_gaussian_scene
+from lghcc.encoder.gaussian_grid import coded_values
+from lghcc.encoder.gaussians import encode_gaussian_scene
 from lghcc.encoder.rdoq import channel_groups, channel_steps, group_slopes, step_adjust_choice
 from test_gaussians import assert_same, random_gaussians
 from test_neighbour_prediction import _smooth_scene

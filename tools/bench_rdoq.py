@@ -33,7 +33,8 @@ from benchutil import command_line, load_average, write_lines  # noqa: E402
 import torch  # noqa: E402
 
 from lghcc.encoder.config import load_config  # noqa: E402
-from lghcc.encoder.gaussian_fit import fit_cameras, measure_contributions, resolving_views  # noqa: E402
+from lghcc.encoder.gaussian_fit import measure_contributions  # noqa: E402
+from lghcc.encoder.gaussian_views import fit_cameras, resolving_views  # noqa: E402
 from lghcc.encoder.gaussian_rd import GROUPS, SettingsSearch, _scaled  # noqa: E402
 from lghcc.encoder import rdoq  # noqa: E402
 from lghcc.encoder.rdoq import SENSITIVITY_PROBES, sensitivities  # noqa: E402

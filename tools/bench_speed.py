@@ -43,7 +43,7 @@ DEFAULT_SCENE = ROOT.parent / "shared" / "data" / "playcanvas-logo" / "playcanva
 
 def baseline_render_s(scene) -> float:
     """Median of 3 forward renders of the scene at 320x320 from a fit camera."""
-    from lghcc.encoder.gaussian_fit import fit_cameras
+    from lghcc.encoder.gaussian_views import fit_cameras
     from lghcc.render.gaussians3dgs import gaussians_from_scene, render_3dgs
 
     g = gaussians_from_scene(scene)
