@@ -49,6 +49,7 @@ from .gaussian_views import prune_by_contribution, resolving_views
 from .neighbour_coding import NeighbourCoding, usable as neighbour_usable
 from .rdoq import (adjust_on_graph, channel_groups, channel_steps, group_slopes, orientation_columns, rd_quantize,
                    sh_degree_subset)
+from ..render.gaussians3dgs import gaussians_from_scene, render_3dgs
 
 PRUNE_LADDER = (0.0, 0.0005, 0.001, 0.002, 0.004, 0.008, 0.016, 0.032, 0.064)
 STEP_FIELDS = ("position_step", "sh_dc_step", "opacity_step", "scale_step", "rotation_step")

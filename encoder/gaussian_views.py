@@ -11,16 +11,8 @@ import numpy as np
 
 from ..common.scene import GaussianScene
 from ..render.camera import Camera
+from ..render.views import fibonacci_sphere
 from .gaussian_grid import typical_size
-
-
-def fibonacci_sphere(n: int, offset: float = 0.5) -> np.ndarray:
-    """n unit vectors spread evenly on the sphere (golden spiral)."""
-    i = np.arange(n, dtype=np.float64) + offset
-    z = 1 - 2 * i / n
-    r = np.sqrt(np.clip(1 - z * z, 0, 1))
-    phi = i * math.pi * (3 - math.sqrt(5))
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
 def _robust_bounds(scene: GaussianScene) -> tuple[np.ndarray, float, np.ndarray]:

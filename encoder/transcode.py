@@ -76,6 +76,7 @@ from ..render.metrics import psnr, ssim_torch  # noqa: E402
 from ..render.neural_gaussians import SceneTensors, TorchMLP, evaluate_anchors  # noqa: E402
 from ..render.rasterizer import render_scene  # noqa: E402
 from ..render.sh import sh_to_rgb  # noqa: E402
+from ..render.views import fibonacci_sphere  # noqa: E402
 
 if TYPE_CHECKING:
     from .ggconv_train import ContextTwin
@@ -194,15 +195,6 @@ class TranscodeResult:
 
 
 # --- views --------------------------------------------------------------------------------
-
-def fibonacci_sphere(n: int, offset: float = 0.5) -> np.ndarray:
-    """n unit vectors spread evenly on the sphere (golden spiral; ``offset`` shifts the spiral)."""
-    i = np.arange(n, dtype=np.float64) + offset
-    z = 1 - 2 * i / n
-    r = np.sqrt(np.clip(1 - z * z, 0, 1))
-    phi = i * math.pi * (3 - math.sqrt(5))
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
-
 
 def sphere_cameras(center: np.ndarray, radius: float, n: int, *, resolution: int = 128, fov_deg: float = 50.0,
                    offset: float = 0.5, prefix: str = "view") -> list[Camera]:

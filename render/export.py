@@ -34,6 +34,7 @@ from .gaussians3dgs import write_3dgs_ply
 from .neural_gaussians import SceneTensors, evaluate_anchors, gaussian_geometry
 from .rasterizer import quat_to_rotmat
 from .sh import MAX_SH_DEGREE, num_sh_coeffs, sh_basis
+from .views import fibonacci_sphere
 
 
 @dataclass
@@ -48,14 +49,6 @@ class Exported3DGS:
     @property
     def num_gaussians(self) -> int:
         return int(self.means.shape[0])
-
-
-def fibonacci_directions(n: int) -> np.ndarray:
-    i = np.arange(n, dtype=np.float64) + 0.5
-    z = 1 - 2 * i / n
-    r = np.sqrt(np.clip(1 - z * z, 0, 1))
-    phi = i * math.pi * (3 - math.sqrt(5))
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
 def default_distance(scene: AnchorScene) -> float:
@@ -147,7 +140,7 @@ def export_3dgs(scene: AnchorScene, path: str | os.PathLike | None = None, *, sh
     dist = _check_export(scene, sh_degree, num_directions, distance)
     st = SceneTensors.from_scene(scene, torch.float64)
     n = st.num_anchors
-    dirs = torch.as_tensor(fibonacci_directions(num_directions))
+    dirs = torch.as_tensor(fibonacci_sphere(num_directions))
     live_all = st.offset_mask if st.offset_mask is not None else torch.ones(n, st.num_offsets, dtype=torch.bool)
     chunks = [_export_chunk(st, torch.arange(a0, min(n, a0 + chunk_anchors)), dirs, dist, live_all, sh_degree)
               for a0 in range(0, n, chunk_anchors)]

@@ -14,6 +14,15 @@ from ..common.errors import InputError
 from .camera import Camera, load_colmap, load_llff, load_nerf_synthetic
 
 
+def fibonacci_sphere(n: int, offset: float = 0.5) -> np.ndarray:
+    """n unit vectors spread evenly on the sphere (golden spiral; ``offset`` shifts the spiral)."""
+    i = np.arange(n, dtype=np.float64) + offset
+    z = 1 - 2 * i / n
+    r = np.sqrt(np.clip(1 - z * z, 0, 1))
+    phi = i * math.pi * (3 - math.sqrt(5))
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
 def orbit_cameras(positions: np.ndarray, n: int, *, width: int = 256, height: int = 256, fov_deg: float = 50.0,
                   elevation_deg: float = 20.0, up: tuple = (0.0, 0.0, 1.0)) -> list[Camera]:
     """n cameras on a circle around points (robust box: 1%..99% quantiles), ``elevation_deg``
