@@ -586,7 +586,7 @@ MUTATIONS: list[Mutation] = [
       ("if g[0].offset != pos or end - pos != index.tile_data_size[t]:", "if False:")),
     M("tiles.no_tile_count_check", "tiles", f"{DECODE}:tiles_of", "the index's tile count not compared with the tiles",
       ("if index.num_tiles != len(groups):", "if False:")),
-    M("tiles.flag_not_checked", "tiles", f"{DECODE}:decode_stream",
+    M("tiles.flag_not_checked", "tiles", f"{DECODE}:parse_stream",
       "tiles_enabled_flag not compared with the presence of the tile index",
       ("if (UnitType.TILE_INDEX in by_type) != bool(ps.tiles_enabled_flag):", "if False:")),
     M("tiles.several_without_index", "tiles", f"{DECODE}:organize_units", "several tiles without a tile index accepted",
@@ -604,7 +604,7 @@ MUTATIONS: list[Mutation] = [
       ("if context_model is None or model_id != context_model[0]:", "if context_model is None:")),
     M("decode.no_hash_check", "decode", f"{DECODE}:_check_scene_hash", "the decoded scene hash not compared",
       ("if digest != scene_hash:", "if False:")),
-    M("decode.attribute_limit", "decode", f"{DECODE}:decode_stream", "N * M above 2^31 accepted",
+    M("decode.attribute_limit", "decode", f"{DECODE}:_check_limits", "N * M above 2^31 accepted",
       ("if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:", "if False:")),
 
     # --- explicit-Gaussian scenes (format 0.2): gaussian_parameter_set (clause 7.3.9), the Gaussian

@@ -141,12 +141,12 @@ def test_invisible_gaussians_take_the_coarsest_steps_and_visible_ones_keep_their
 def test_every_index_zero_costs_nothing_and_writes_a_version_1_1_stream(monkeypatch):
     """Where the choice gives every Gaussian index 0, no unit is written: the same bytes as without
     the tool, a version 1.1 stream."""
-    import lghcc.encoder.gaussian_rd as gaussian_rd
+    import lghcc.encoder.rdoq as rdoq
 
     scene = _smooth_scene(1500, 0, seed=6)
     f = _sensitivity(scene, np.random.default_rng(6))
     cfg = GaussianEncoderConfig(neighbour_prediction="always")
-    monkeypatch.setattr(gaussian_rd, "step_adjust_choice", lambda x, *a: np.zeros(x.shape[0], np.int64))
+    monkeypatch.setattr(rdoq, "step_adjust_choice", lambda x, *a: np.zeros(x.shape[0], np.int64))
     on = encode_gaussian_scene(scene, dataclasses.replace(cfg, step_adjust_max=7), sensitivity=f)
     off = encode_gaussian_scene(scene, cfg, sensitivity=f)
     assert on.data == off.data and not _tool(on.data)
