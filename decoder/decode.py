@@ -48,7 +48,8 @@ from ..common.neighbour_prediction import read_predicted_attribute_unit
 from ..common.units import (CONTEXT_GGCONV, LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ATTRIBUTE_VALUES, DecodedSceneHashUnit,
                             GaussianParameterSet, NeighbourPredictionUnit, SceneParameterSet, SourceInfo, StepAdjustUnit,
                             TileIndex)
-from .jobs import PREVIEW_VALUE_SHARE, WorkerPlan, available_cpus, plan_workers, tile_seconds
+from ..app.workers import available_cpus, shared_array
+from .jobs import PREVIEW_VALUE_SHARE, WorkerPlan, plan_workers, tile_seconds
 from .limits import DEFAULT_MAX_MEMORY, MemoryPlan
 
 _LETTER = {UnitType.SCENE_PARAMETER_SET: "S", UnitType.GAUSSIAN_PARAMETER_SET: "P", UnitType.RENDER_MODEL: "R",
@@ -356,13 +357,6 @@ def _decode_tile_job(job: tuple[int, int | None]) -> DecodedTile:
     return DecodedTile(None, None, None, d.hash_checked, d.level_counts)
 
 
-def _shared_array(shape: tuple[int, ...], dtype) -> np.ndarray:
-    import mmap
-
-    nbytes = max(int(np.prod(shape)) * np.dtype(dtype).itemsize, 1)
-    return np.frombuffer(mmap.mmap(-1, nbytes), dtype=dtype, count=int(np.prod(shape))).reshape(shape)
-
-
 def _decode_in_workers(tiles: list[TileUnits], selected: list[int], ps, layout, context_model, mlps: dict, *,
                        verify_hash: bool, max_level: int, workers: int) -> tuple[list[DecodedTile], dict | None]:
     """The selected tiles decoded by ``workers`` forked worker processes, written into shared output
@@ -375,10 +369,10 @@ def _decode_in_workers(tiles: list[TileUnits], selected: list[int], ps, layout, 
         counts = [tiles[t].num_points for t in selected]
         rows = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(int).tolist()
         total = sum(counts)
-        _SHARED_OUTPUT.update(coords=_shared_array((total, 3), np.int64),
-                              values=_shared_array((total, layout.num_channels), np.float32))
+        _SHARED_OUTPUT.update(coords=shared_array((total, 3), np.int64),
+                              values=shared_array((total, layout.num_channels), np.float32))
         if layout.offset_mask_present:
-            _SHARED_OUTPUT["mask"] = _shared_array((total, layout.num_offsets), np.bool_)
+            _SHARED_OUTPUT["mask"] = shared_array((total, layout.num_offsets), np.bool_)
     jobs = list(zip(selected, rows))
     # the largest tiles first, so that no large tile is left to one worker at the end
     order = sorted(range(len(jobs)), key=lambda i: -tiles[selected[i]].num_points)

@@ -18,7 +18,6 @@ bits.
 from __future__ import annotations
 
 import heapq
-import os
 from dataclasses import dataclass
 
 # Seconds on a quiet 2-core machine. tools/results/decode.md measured them under a load of 10 to
@@ -63,14 +62,6 @@ def makespan(costs: list[float], workers: int) -> float:
     for c in sorted(costs, reverse=True):
         heapq.heapreplace(free, free[0] + c)
     return max(free)
-
-
-def available_cpus() -> int:
-    """The CPUs this process may run on (its affinity where the system tells it)."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
 
 
 @dataclass(frozen=True)

@@ -249,7 +249,7 @@ def _verify_jobs(workers) -> int:
     auto: one per CPU), one process when the tiles went to Ray."""
     if workers is None or workers.ray:
         return 1
-    from .tile_workers import available_cpus
+    from ..app.workers import available_cpus
 
     return workers.jobs or available_cpus()
 

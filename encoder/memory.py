@@ -69,7 +69,7 @@ def prepares(scene, cfg) -> bool:
 def encode_memory(scene: AnchorScene | GaussianScene, cfg, workers=None) -> MemoryEstimate:
     """The estimated peak resident memory of encoding ``scene`` with ``cfg`` where ``workers``
     (tile_workers.TileWorkers; None: this process) says."""
-    from .tile_workers import available_cpus
+    from ..app.workers import available_cpus
 
     n, m = _points_and_channels(scene, cfg)
     parts = {"program": PROGRAM_BYTES, "scene and coding arrays": n * (PER_POINT_BYTES + PER_VALUE_BYTES * m)}

@@ -25,16 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..common.errors import LghccError
+from ..app.workers import available_cpus, shared_array
 from ..common.units import tile_size_of
 from .tiling import TileCoding, TileJob, code_one_tile, tile_input, tile_rows
-
-
-def available_cpus() -> int:
-    """The CPUs this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        return os.cpu_count() or 1
 
 
 def auto_jobs(num_tiles: int, num_points: int, cpus: int | None = None) -> int:
@@ -116,20 +109,12 @@ def _spawned_tile(args) -> tuple[TileCoding, np.ndarray]:
     return code_one_tile(job, cell, rows, tinp)
 
 
-def _shared_array(shape: tuple[int, ...], dtype) -> np.ndarray:
-    import mmap
-
-    count = int(np.prod(shape))
-    nbytes = max(count * np.dtype(dtype).itemsize, 1)
-    return np.frombuffer(mmap.mmap(-1, nbytes), dtype=dtype, count=count).reshape(shape)
-
-
 def _in_workers(inp, job: TileJob, parts: list, jobs: int, bar) -> tuple[list[TileCoding], np.ndarray]:
     fork = os.name == "posix"
     ctx = multiprocessing.get_context("fork" if fork else "spawn")
     tiles: list[TileCoding] = [None] * len(parts)  # type: ignore[list-item]
     if fork:
-        recon = _shared_array(inp.values.shape, np.float32)
+        recon = shared_array(inp.values.shape, np.float32)
         _FORKED.update(inp=inp, job=job, recon=recon)
     else:
         recon = np.zeros_like(inp.values, dtype=np.float32)
