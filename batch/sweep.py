@@ -280,8 +280,8 @@ def _output_path(file: Path, base: Path, output, data: dict) -> Path:
 def load_sweep(file: str | Path, output: str | Path | None = None) -> Sweep:
     """Read and check a sweep file (module doc). Raises SweepError naming the first problem;
     every missing scene path is named at once."""
-    from ..encoder.config import EncoderConfig, load_config, preset_names
-    from ..encoder.transcode import TranscodeConfig
+    from ..encoder.stream.config import EncoderConfig, load_config, preset_names
+    from ..encoder.anchors.transcode import TranscodeConfig
 
     file = Path(file)
     data = _read_yaml(file)

@@ -7,7 +7,7 @@ scenes' input paths, which every worker reads):
 
 ``prepare(scene, lam, sweep options)``: the anchor scene to code, and the reference images
     to evaluate against: the procedural scene; an anchor model as read; a plain 3DGS PLY
-    transcoded once (lghcc.encoder.transcode); or a scene trained from posed images under rate
+    transcoded once (lghcc.encoder.anchors.transcode); or a scene trained from posed images under rate
     lambda ``lam`` (lghcc-train). Returned as a tar of a folder: the Scaffold-GS model
     (``model/``, with the training run's context twin when there is one) and
     ``reference.npz``: the source rendered from the fixed orbit cameras (the input itself:
@@ -115,7 +115,7 @@ def _prepare_trained(scene: SceneSpec, ev: Evaluation, bg, model: Path, tmp: Pat
 
 
 def _prepare_transcoded(scene: SceneSpec, ev: Evaluation, bg, model: Path, transcode: dict | None, threads) -> tuple:
-    from ..encoder.transcode import TranscodeConfig, transcode_3dgs
+    from ..encoder.anchors.transcode import TranscodeConfig, transcode_3dgs
     from ..formats.scaffold_io import write_scaffold
 
     res = transcode_3dgs(scene.path, TranscodeConfig(**(transcode or {}), threads=threads))
@@ -128,7 +128,7 @@ def _prepare_transcoded(scene: SceneSpec, ev: Evaluation, bg, model: Path, trans
 
 def _prepare_model(scene: SceneSpec, ev: Evaluation, bg, model: Path) -> tuple:
     """A Scaffold-GS model as it is; the training run's context twin goes with it."""
-    from ..encoder.ggconv_train import TWIN_FILE
+    from ..encoder.context.ggconv_train import TWIN_FILE
     from ..formats.scaffold_io import locate_ply, read_scaffold, write_scaffold
 
     anchors = read_scaffold(scene.path)
@@ -191,8 +191,8 @@ def run_cell(prepared: bytes, preset: str, ev: Evaluation, encoder: dict | None 
     evaluate it against the reference images (module doc). Raises on any failure."""
     from ..formats.scaffold_io import read_scaffold
     from ..decoder.decode import decode_stream
-    from ..encoder.config import load_config
-    from ..encoder.encode import encode_scene
+    from ..encoder.stream.config import load_config
+    from ..encoder.stream.encode import encode_scene
     from ..render.imageio import background_color
     from ..render.metrics import psnr, ssim
 
@@ -205,7 +205,7 @@ def run_cell(prepared: bytes, preset: str, ev: Evaluation, encoder: dict | None 
         cfg = load_config(preset, overrides=encoder or {})
         twin = None
         if cfg.context_model == "ggconv":
-            from ..encoder.ggconv_train import find_context_twin
+            from ..encoder.context.ggconv_train import find_context_twin
 
             twin = find_context_twin(root / "model")
         t0 = time.perf_counter()

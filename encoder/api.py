@@ -26,7 +26,7 @@ from ..common.errors import InputError, LghccError
 from ..common.scene import AnchorScene, GaussianScene
 
 if TYPE_CHECKING:
-    from .transcode import TranscodeResult
+    from .anchors.transcode import TranscodeResult
 
 Log = Callable[[str], None]
 
@@ -91,8 +91,8 @@ def transcode_source(path: Path, options: TranscodeOptions, coding=None, *, prog
     """A plain 3DGS scene file (PLY, SPZ or SOG) fitted to anchors (encoder/transcode.py) with
     the settings of ``options`` for the coding configuration ``coding`` (None: its preset's)."""
     from ..formats.ply3dgs import is_3dgs_ply
-    from .config import load_config
-    from .transcode import preset_transcode_config, transcode_3dgs
+    from .stream.config import load_config
+    from .anchors.transcode import preset_transcode_config, transcode_3dgs
 
     o = options
     coding = coding if coding is not None else load_config(o.preset)
@@ -156,7 +156,7 @@ def read_source(path: str | Path | None = None, *, mode: str = "gaussians", proc
 def read_model(p: Path, voxel_size: float | None, merge_duplicates: bool, log: Log, warn: Log) -> AnchorScene:
     """A Scaffold-GS model (folder or PLY), duplicates in a voxel merged on request."""
     from ..formats.scaffold_io import MissingMlpWarning, read_scaffold
-    from .scene_prep import merge_duplicate_anchors
+    from .anchors.scene_prep import merge_duplicate_anchors
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", MissingMlpWarning)
@@ -177,7 +177,7 @@ def encoder_config(scene: AnchorScene | GaussianScene, preset: str = "medium", c
                    overrides: dict[str, Any] | None = None):
     """EncoderConfig (anchor scene) or GaussianEncoderConfig (Gaussian scene) of ``preset``,
     then ``config_file`` (YAML), then ``overrides`` (None values ignored)."""
-    from .config import load_config
+    from .stream.config import load_config
 
     kind = "gaussians" if isinstance(scene, GaussianScene) else "anchors"
     return load_config(preset, config_file, overrides, kind=kind)
@@ -217,8 +217,8 @@ def estimate_seconds(scene: AnchorScene | GaussianScene, cfg) -> tuple[float, st
 def _encode_gaussians(scene: GaussianScene, cfg, *, progress: bool, log: Log, measure_ideal: bool, workers=None):
     """Rate-aware preparation (when the settings call for it), then the explicit-Gaussian
     coding -> (result, the settings used: the preset's, or those the search chose)."""
-    from .gaussian_fit import needs_preparation, prepare_gaussians
-    from .gaussians import encode_gaussian_scene
+    from .gaussians.gaussian_fit import needs_preparation, prepare_gaussians
+    from .gaussians.gaussians import encode_gaussian_scene
 
     t0 = time.perf_counter()
     weights, sensitivity, prepared = None, None, None
@@ -265,7 +265,7 @@ def encode(scene: AnchorScene | GaussianScene, cfg=None, *, progress: bool = Fal
     its rate phase, is ``context_twin`` when wanted). ``workers`` (encoder/tile_workers.py
     TileWorkers; None: this process): where a tiled scene's tiles are coded (worker processes,
     Ray); the stream does not depend on it."""
-    from .encode import encode_scene, source_info_unit
+    from .stream.encode import encode_scene, source_info_unit
 
     check_encodable(scene, allow_missing_mlps)
     if cfg is None:

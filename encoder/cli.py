@@ -24,8 +24,8 @@ from ..app.fileio import atomic_write_bytes, check_output_paths, check_overwrite
 from .api import is_gaussian_file  # noqa: F401  (lghcc-enc's test of its input; kept importable here)
 
 if TYPE_CHECKING:
-    from .encode import EncodeResult
-    from .stats import EncodeStats
+    from .stream.encode import EncodeResult
+    from .stream.stats import EncodeStats
 
 
 def _duration(seconds: float) -> str:
@@ -84,7 +84,7 @@ def _epilog() -> str:
 
 def add_source_arguments(p: argparse.ArgumentParser) -> None:
     """The scene, the output and the preset."""
-    from .config import preset_names
+    from .stream.config import preset_names
 
     p.add_argument("input", nargs="?", help="a 3DGS scene (INRIA PLY, SPZ or SOG), or a Scaffold-GS model folder, "
                                              "iteration folder or point_cloud.ply")
@@ -232,7 +232,7 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _transcode_presets() -> dict:
-    from .config import TRANSCODE_PRESETS
+    from .stream.config import TRANSCODE_PRESETS
 
     return TRANSCODE_PRESETS
 
@@ -336,7 +336,7 @@ def check_memory(scene, cfg, workers, max_memory: int | None, source: str, log) 
     status 4), before the work starts; with a bound, say what the estimate is."""
     if max_memory is None:
         return
-    from .memory import check_encode_memory
+    from .stream.memory import check_encode_memory
 
     need = check_encode_memory(scene, cfg, workers, max_memory, source)
     log(f"memory: about {format_bytes(need)} needed, within --max-memory {format_bytes(max_memory)}")
@@ -348,7 +348,7 @@ def context_twin_of(args: argparse.Namespace, gaussians: bool, cfg, transcoded=N
     if args.input and not gaussians and not args.no_context_twin and cfg.context_model == "ggconv":
         if transcoded is not None:
             return transcoded.context_twin
-        from .ggconv_train import find_context_twin
+        from .context.ggconv_train import find_context_twin
         return find_context_twin(args.input)
     return None
 
@@ -420,7 +420,7 @@ def print_summary(say, args: argparse.Namespace, result: EncodeResult, scene, ga
 def tile_workers_of(args: argparse.Namespace):
     """Where the tiles are coded (--jobs, --ray, --address, --ray-cpus); a usage error when the
     options contradict each other."""
-    from .tile_workers import TileWorkers
+    from .stream.tile_workers import TileWorkers
 
     if args.address and not args.ray:
         args.ray = True  # --address names a Ray cluster: it asks for Ray
@@ -436,7 +436,7 @@ def tile_workers_of(args: argparse.Namespace):
 
 def _main(argv: list[str] | None) -> int:
     from . import api
-    from .config import load_config
+    from .stream.config import load_config
 
     args = setup_args().parse_args(argv)
     say = (lambda *a: None) if args.quiet else print

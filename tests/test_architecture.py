@@ -186,6 +186,33 @@ def test_no_import_cycle_between_modules():
     assert not cycles, "import cycles:\n" + "\n".join(" <-> ".join(c) for c in cycles)
 
 
+# encoder/'s top level: the library API and the console scripts (lghcc-enc, lghcc-train), over its rooms
+ENCODER_TOP = {"__init__.py", "api.py", "cli.py", "train.py"}
+# Each room uses only the rooms below it (docs/architecture.md, "encoder/ by route")
+ENCODER_ROOMS = {"context": set(), "stream": {"context"}, "gaussians": {"stream", "context"},
+                 "anchors": {"stream", "context"}, "training": {"anchors", "stream", "context"}}
+# The imports that still go up, each for a reason: stream/encode.py's encode_scene is the anchor
+# route's stream and prunes with NAAP (in prune_scene); EncodeStats holds a TranscodeStats (a type only)
+ENCODER_UPWARD = {("lghcc.encoder.stream.encode", "lghcc.encoder.anchors.naap"),
+                  ("lghcc.encoder.stream.stats", "lghcc.encoder.anchors.transcode")}
+
+
+def test_encoder_top_level_holds_the_api_and_the_rooms():
+    here = {p.name for p in (ROOT / "encoder").iterdir() if p.suffix == ".py" or p.is_dir()} - {"__pycache__"}
+    assert here == ENCODER_TOP | set(ENCODER_ROOMS) | {"presets"}
+
+
+def _encoder_room(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[2] if parts[:2] == ["lghcc", "encoder"] and len(parts) > 2 else None
+
+
+def test_encoder_rooms_import_only_the_rooms_below():
+    up = {(name, d) for name, deps in _import_graph().items() if _encoder_room(name) in ENCODER_ROOMS
+          for d in deps if _encoder_room(d) not in (None, _encoder_room(name), *ENCODER_ROOMS[_encoder_room(name)])}
+    assert up == ENCODER_UPWARD
+
+
 def test_importing_the_decoder_loads_no_encoder_module():
     code = ("import sys, lghcc.decoder.cli, lghcc.decoder.decode; "
             "print(sorted(m for m in sys.modules if m.startswith('lghcc.encoder')))")

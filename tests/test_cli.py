@@ -201,7 +201,7 @@ def test_decoding_into_a_used_folder_needs_force_and_never_mixes_scenes(tmp_path
     with_mlps = random_scene(np.random.default_rng(2), 30, with_mlps=True)
     without = random_scene(np.random.default_rng(3), 40, with_mlps=False)
     for name, scene in (("a", with_mlps), ("b", without)):
-        from lghcc.encoder.encode import encode_scene
+        from lghcc.encoder.stream.encode import encode_scene
         (tmp_path / f"{name}.lghcc").write_bytes(encode_scene(scene).data)
     out = tmp_path / "dec"
     assert dec_cli.main([str(tmp_path / "a.lghcc"), "-o", str(out), "-q"]) == 0

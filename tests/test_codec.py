@@ -10,9 +10,9 @@ from lghcc.common.geometry import normative_order
 from lghcc.common.hashing import scene_digest
 from lghcc.formats.procedural import make_procedural_scene
 from lghcc.decoder.decode import decode_stream
-from lghcc.encoder.config import EncoderConfig, load_config
-from lghcc.encoder.encode import encode_scene
-from lghcc.encoder.scene_prep import merge_duplicate_anchors
+from lghcc.encoder.stream.config import EncoderConfig, load_config
+from lghcc.encoder.stream.encode import encode_scene
+from lghcc.encoder.anchors.scene_prep import merge_duplicate_anchors
 
 from scenes import random_scene, scenes
 
@@ -375,7 +375,7 @@ def test_auto_parent_base_keeps_the_smaller_of_both_fits(model):
 def test_a_context_fit_that_diverges_falls_back_to_the_prior(monkeypatch):
     """A context model that cannot be fitted is not a failure of the encoder: level 2 keeps the
     per-channel prior and the stats say why."""
-    import lghcc.encoder.context_fit as cf
+    import lghcc.encoder.context.context_fit as cf
 
     def diverging(*args, **kwargs):
         raise ValueError("cannot scale a tensor containing NaN or Inf")

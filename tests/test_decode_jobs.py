@@ -15,8 +15,8 @@ from lghcc.decoder import cli
 from lghcc.decoder import decode as decode_mod
 from lghcc.decoder.decode import decode_stream, parse_stream, selected_tiles, worker_plan
 from lghcc.decoder.jobs import VALUE_S, makespan, plan_workers, tile_seconds
-from lghcc.encoder.config import EncoderConfig
-from lghcc.encoder.encode import encode_scene
+from lghcc.encoder.stream.config import EncoderConfig
+from lghcc.encoder.stream.encode import encode_scene
 
 from scenes import random_scene
 

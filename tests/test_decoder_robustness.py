@@ -12,7 +12,7 @@ from lghcc.common.container import DataUnit, UnitType, read_container, write_con
 from lghcc.common.errors import BitstreamError, LghccError, UnsupportedStreamError
 from lghcc.common.units import SceneParameterSet
 from lghcc.decoder.decode import decode_stream
-from lghcc.encoder.encode import EncoderConfig, encode_scene
+from lghcc.encoder.stream.encode import EncoderConfig, encode_scene
 
 from scenes import random_scene
 

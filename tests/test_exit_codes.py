@@ -134,7 +134,7 @@ def test_encoder_exit_codes(tmp_path, capsys, monkeypatch):
     with pytest.raises(SystemExit) as e:
         enc_cli.main(["--procedural", "60"])  # -o is required
     assert e.value.code == EXIT_USAGE and "required: -o" in capsys.readouterr().err
-    import lghcc.encoder.encode as enc
+    import lghcc.encoder.stream.encode as enc
     import lghcc.decoder.decode as dec
 
     for target, attr, exc, code, fragment in (

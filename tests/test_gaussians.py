@@ -12,9 +12,9 @@ from lghcc.formats.ply import write_ply
 from lghcc.common.scene import GaussianScene
 from lghcc.decoder.decode import decode_stream
 from lghcc.encoder import cli as enc_cli
-from lghcc.encoder.config import GaussianEncoderConfig, load_config
-from lghcc.encoder.gaussian_grid import separate_duplicates
-from lghcc.encoder.gaussians import encode_gaussian_scene
+from lghcc.encoder.stream.config import GaussianEncoderConfig, load_config
+from lghcc.encoder.gaussians.gaussian_grid import separate_duplicates
+from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
 from lghcc.formats.ply3dgs import read_3dgs_ply, write_3dgs_ply
 
 
@@ -153,7 +153,7 @@ def test_cross_channel_prediction_saves_bits_on_correlated_colours():
 
 
 def test_rate_term_of_the_fit_lowers_bits_at_a_like_distortion():
-    from lghcc.encoder.gaussian_fit import prepare_gaussians
+    from lghcc.encoder.gaussians.gaussian_fit import prepare_gaussians
 
     scene = random_gaussians(np.random.default_rng(4), 300, 0, correlated=True)
     scene.log_scales[:] = np.log(0.08)
@@ -269,9 +269,9 @@ def test_search_meets_the_psnr_asked_for_with_fewer_bits_than_a_finer_setting(ta
     import dataclasses
     import math
 
-    from lghcc.encoder.gaussian_rd import SettingsSearch, search_settings
+    from lghcc.encoder.gaussians.gaussian_rd import SettingsSearch, search_settings
     from lghcc.render.importance import gaussian_contributions
-    from lghcc.encoder.gaussian_views import fit_cameras
+    from lghcc.encoder.gaussians.gaussian_views import fit_cameras
     from lghcc.render.gaussians3dgs import gaussians_from_scene
 
     scene = random_gaussians(np.random.default_rng(11), 400, 1)
@@ -294,7 +294,7 @@ def test_search_meets_the_psnr_asked_for_with_fewer_bits_than_a_finer_setting(ta
 def test_views_are_magnified_until_the_typical_gaussian_spans_resolve_px(log_size, n, resolve_px, seed):
     """resolving_views: the orbit views alone when they resolve the typical Gaussian; otherwise as
     many crops besides, m = resolve_px / size times narrower (m capped at MAX_MAGNIFICATION)."""
-    from lghcc.encoder.gaussian_views import (MAX_MAGNIFICATION, fit_cameras, magnification, resolving_views,
+    from lghcc.encoder.gaussians.gaussian_views import (MAX_MAGNIFICATION, fit_cameras, magnification, resolving_views,
                                               typical_size_px)
 
     rng = np.random.default_rng(seed)
@@ -324,7 +324,7 @@ def test_views_are_magnified_until_the_typical_gaussian_spans_resolve_px(log_siz
 def test_crops_aim_at_the_scene_and_resolve_small_gaussians():
     """A scene of Gaussians far smaller than a pixel of the orbit views gets crops whose centre
     ray hits one of its Gaussians."""
-    from lghcc.encoder.gaussian_views import crop_cameras, magnification
+    from lghcc.encoder.gaussians.gaussian_views import crop_cameras, magnification
 
     scene = random_gaussians(np.random.default_rng(1), 500)
     scene.log_scales[:] = np.float32(np.log(1e-4))
@@ -344,7 +344,7 @@ def test_pruning_less_restarts_from_the_chosen_steps_and_lands_near_the_target()
     floor from pruning, bits fall with log steps."""
     import math
 
-    from lghcc.encoder import gaussian_rd as rd
+    from lghcc.encoder.gaussians import gaussian_rd as rd
 
     class ModelSearch:
         def __init__(self):
@@ -375,7 +375,7 @@ def test_search_view_plan_gives_smaller_scenes_more_pixels_within_the_bounds(n1,
     """The search sees a scene of N Gaussians on s = reference / N times the pixels (1 <= s <=
     search_max_scale), at most twice the views; a larger scene gets no more pixels (but for the
     rounding of the resolution)."""
-    from lghcc.encoder.gaussian_rd import search_view_plan
+    from lghcc.encoder.gaussians.gaussian_rd import search_view_plan
 
     cfg = GaussianEncoderConfig(search_views=views, search_resolution=res, search_max_scale=max_scale)
     base = views * res ** 2

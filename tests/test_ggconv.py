@@ -282,7 +282,7 @@ def test_parent_mlp_matches_independent_reference():
 
 def test_parent_base_is_chosen_per_channel():
     """Channels a parent predicts keep it as the mean's base; the others start from their median."""
-    from lghcc.encoder.ggconv_train import choose_parent_base
+    from lghcc.encoder.context.ggconv_train import choose_parent_base
 
     rng = np.random.default_rng(3)
     xpar = torch.from_numpy(rng.normal(0, 30, (4000, 6)))
@@ -323,7 +323,7 @@ def _smooth_scene(n=3500, extent=32, c=6, koff=2, s=4, seed=0):
 
 @pytest.mark.parametrize("neighbour_level", [1, 2])
 def test_fit_reduces_rate_and_twin_matches_integer_path(neighbour_level):
-    from lghcc.encoder.ggconv_train import (
+    from lghcc.encoder.context.ggconv_train import (
         GGConvTrainConfig,
         estimated_rate_bits,
         train_ggconv_twin,
@@ -363,7 +363,7 @@ def test_large_radius_without_offset_table_matches_reference():
 def test_entries_that_are_not_coded_cost_nothing_in_the_fit():
     """NaN targets (dead offsets) leave the rate-distortion loss and the initial prediction
     exactly as if those entries were absent."""
-    from lghcc.encoder.ggconv_train import choose_parent_base, rd_loss
+    from lghcc.encoder.context.ggconv_train import choose_parent_base, rd_loss
 
     rng = np.random.default_rng(8)
     targets = torch.from_numpy(rng.normal(3, 4, (300, 5)))
@@ -395,7 +395,7 @@ def test_context_twin_file_round_trip_and_rejects_what_it_cannot_use(tmp_path):
 
     import torch
 
-    from lghcc.encoder.ggconv_train import ContextTwin, GGConvFloat, GGConvTrainConfig
+    from lghcc.encoder.context.ggconv_train import ContextTwin, GGConvFloat, GGConvTrainConfig
 
     c, m = 4, 4 + 6 + 6
     cfg = GGConvTrainConfig(ctx_channels=3, feat_hidden=5, head_hidden=7)

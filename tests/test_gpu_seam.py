@@ -83,7 +83,7 @@ def test_training_rasterizes_through_the_seam(fake_gpu, tmp_path):
 def test_transcoding_rasterizes_through_the_seam(fake_gpu):
     from test_transcode import synthetic_3dgs
 
-    from lghcc.encoder.transcode import TranscodeConfig, transcode_3dgs
+    from lghcc.encoder.anchors.transcode import TranscodeConfig, transcode_3dgs
 
     cfg = TranscodeConfig(anchors=20, feature_dim=4, num_offsets=4, views=2, test_views=1, resolution=16,
                           distill_steps=2, iterations=3, device="cuda")

@@ -139,7 +139,7 @@ def test_the_plan_bounds_a_larger_scene_within_a_factor():
     """A 30,000-anchor scene with offset masks in chunks of 4096 rows: above the measured peak,
     and not absurdly so (the constants are measured, module docstring)."""
     from lghcc.formats.procedural import make_procedural_scene
-    from lghcc.encoder.encode import EncoderConfig, encode_scene
+    from lghcc.encoder.stream.encode import EncoderConfig, encode_scene
 
     data = encode_scene(make_procedural_scene(30000, seed=3, with_mask=True), EncoderConfig(rows_per_chunk=4096)).data
     plan, peak = _decode_peak(data)
@@ -201,7 +201,7 @@ def test_the_extent_check_is_exact_at_the_limit():
 
 def test_the_encoder_keeps_the_prior_for_a_scene_beyond_the_extent():
     """The encoder never writes such a stream: GG-Conv is not fitted, level 2 keeps the prior."""
-    from lghcc.encoder.encode import EncoderConfig, encode_scene
+    from lghcc.encoder.stream.encode import EncoderConfig, encode_scene
 
     from scenes import random_scene
 

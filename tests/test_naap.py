@@ -5,7 +5,7 @@ import pytest
 
 from lghcc.common.errors import InputError
 from lghcc.formats.procedural import make_procedural_scene
-from lghcc.encoder.naap import (NaapConfig, estimate_anchor_opacity, naap_importance, naap_prune,
+from lghcc.encoder.anchors.naap import (NaapConfig, estimate_anchor_opacity, naap_importance, naap_prune,
                                 opacity_prune)
 
 from scenes import random_scene
@@ -81,8 +81,8 @@ def test_opacity_from_the_mlp():
 def test_encoder_prunes_before_coding(method):
     """lghcc-enc's pruning option: the stream holds the kept anchors, decoded bit-exactly."""
     from lghcc.decoder.decode import decode_stream
-    from lghcc.encoder.config import EncoderConfig
-    from lghcc.encoder.encode import encode_scene
+    from lghcc.encoder.stream.config import EncoderConfig
+    from lghcc.encoder.stream.encode import encode_scene
 
     scene = make_procedural_scene(600, seed=1, feature_dim=8, num_offsets=3)
     full = encode_scene(scene, EncoderConfig())
@@ -98,7 +98,7 @@ def test_encoder_prunes_before_coding(method):
 
 
 def test_encoder_pruning_options_are_checked():
-    from lghcc.encoder.config import EncoderConfig
+    from lghcc.encoder.stream.config import EncoderConfig
 
     with pytest.raises(InputError, match="exactly one"):
         EncoderConfig(pruning="naap").validate()

@@ -15,8 +15,8 @@ from lghcc.common.neighbour_prediction import (lod_coding_params, lod_of_rows, l
 from lghcc.common.scene import GaussianScene
 from lghcc.common.units import lod_sizes_of
 from lghcc.decoder.decode import decode_stream
-from lghcc.encoder.config import GaussianEncoderConfig
-from lghcc.encoder.gaussians import encode_gaussian_scene
+from lghcc.encoder.stream.config import GaussianEncoderConfig
+from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
 from reference_impl import squared_distances
 from test_gaussians import assert_same, random_gaussians
 

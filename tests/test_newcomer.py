@@ -247,7 +247,7 @@ def test_lghcc_presets_say_how_long_first(tmp_path, capsys, monkeypatch):
     assert err.strip().endswith("lghcc-enc: interrupted") and not out.exists()
     # the fast presets: no estimate
     from lghcc.formats.procedural import make_procedural_scene
-    from lghcc.encoder.config import load_config
+    from lghcc.encoder.stream.config import load_config
 
     scene = make_procedural_scene(200)
     assert api.estimate_seconds(scene, load_config("medium")) is None

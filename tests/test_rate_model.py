@@ -6,10 +6,10 @@ import torch
 from lghcc.common.geometry import normative_order
 from lghcc.common.hierarchy import build_hierarchy
 from lghcc.formats.procedural import make_procedural_scene
-from lghcc.encoder.config import EncoderConfig
-from lghcc.encoder.encode import encode_scene
-from lghcc.encoder.ggconv_train import GGConvTrainConfig
-from lghcc.encoder.rate_model import AnchorRateModel, quantize_ste
+from lghcc.encoder.stream.config import EncoderConfig
+from lghcc.encoder.stream.encode import encode_scene
+from lghcc.encoder.context.ggconv_train import GGConvTrainConfig
+from lghcc.encoder.anchors.rate_model import AnchorRateModel, quantize_ste
 
 
 def _scene_values(n=800, seed=3):

@@ -11,11 +11,11 @@ from lghcc.common.entropy.symbol_coder import best_level, code_lengths_bits
 from lghcc.common.neighbour_prediction import neighbour_graph
 from lghcc.common.scene import GaussianScene
 from lghcc.decoder.decode import decode_stream
-from lghcc.encoder.config import GaussianEncoderConfig
-from lghcc.encoder.gaussian_views import fit_cameras
-from lghcc.encoder.gaussians import encode_gaussian_scene
-from lghcc.encoder import rdoq
-from lghcc.encoder.rdoq import (MAX_JUMP, ROTATION_NORMS, channel_groups, channel_steps, group_slopes, rd_quantize,
+from lghcc.encoder.stream.config import GaussianEncoderConfig
+from lghcc.encoder.gaussians.gaussian_views import fit_cameras
+from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
+from lghcc.encoder.gaussians import rdoq
+from lghcc.encoder.gaussians.rdoq import (MAX_JUMP, ROTATION_NORMS, channel_groups, channel_steps, group_slopes, rd_quantize,
                                 sensitivities, sh_degree_subset)
 from lghcc.render.rasterizer import rasterize
 from lghcc.render.sh import sh_to_rgb
@@ -36,7 +36,7 @@ def test_sensitivities_estimate_the_diagonal_of_jtj():
     cam = fit_cameras(scene, 1, 12)
     est = sensitivities(scene, cam, probes=600)
 
-    from lghcc.encoder.gaussian_grid import canonical_rotations
+    from lghcc.encoder.gaussians.gaussian_grid import canonical_rotations
 
     means = torch.tensor(scene.means)
     d = means - torch.as_tensor(cam[0].center, dtype=torch.float32)
@@ -258,7 +258,7 @@ def test_orientation_follows_the_prior_for_random_rotations_and_the_neighbours_f
         turned = rd_quantize(x, f, mu, coords, graph, 5, (SCALES, ROTATION))
 
         def bits(q):
-            from lghcc.encoder.neighbour_coding import NeighbourCoding
+            from lghcc.encoder.stream.neighbour_coding import NeighbourCoding
             nc = NeighbourCoding(q, coords, len(graph.rows), 1, 5, False, None, graph=graph)
             return sum(code_lengths_bits(nc.residuals[:, c], nc.levels[:, c]).sum() for c in range(7))
         assert bits(turned) <= (1.0 if aligned else 0.97) * bits(own), (aligned, bits(turned), bits(own))

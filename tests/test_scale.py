@@ -16,11 +16,11 @@ from lghcc.app.cli_common import EXIT_ERROR, EXIT_OK, EXIT_RESOURCE_LIMIT
 from lghcc.common.scene import GaussianScene
 from lghcc.decoder.decode import decode_stream
 from lghcc.encoder import cli as enc_cli
-from lghcc.encoder.config import EncoderConfig, GaussianEncoderConfig, load_config
-from lghcc.encoder.encode import encode_scene
-from lghcc.encoder.gaussians import encode_gaussian_scene
-from lghcc.encoder.memory import encode_memory
-from lghcc.encoder.tile_workers import TileWorkers, auto_jobs
+from lghcc.encoder.stream.config import EncoderConfig, GaussianEncoderConfig, load_config
+from lghcc.encoder.stream.encode import encode_scene
+from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
+from lghcc.encoder.stream.memory import encode_memory
+from lghcc.encoder.stream.tile_workers import TileWorkers, auto_jobs
 from lghcc.formats.ply3dgs import write_3dgs_ply
 
 from scenes import random_scene
@@ -254,7 +254,7 @@ def test_bench_scale_sizes_and_targets():
 def test_a_dying_tile_worker_is_a_clear_error(monkeypatch):
     import os
 
-    import lghcc.encoder.tile_workers as tw
+    import lghcc.encoder.stream.tile_workers as tw
     from lghcc.common.errors import LghccError
 
     if os.name != "posix":

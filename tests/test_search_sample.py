@@ -11,9 +11,9 @@ from hypothesis import given, settings, strategies as st
 
 from lghcc.common.hashing import gaussian_scene_digest
 from lghcc.decoder.decode import decode_stream
-from lghcc.encoder.config import GaussianEncoderConfig, load_config
-from lghcc.encoder.gaussian_fit import MIN_SENSITIVITY_VIEWS, fit_steps, prepare_gaussians, sensitivity_views
-from lghcc.encoder.search_sample import SAMPLE_CELLS, morton_keys, search_sample, spatial_cells
+from lghcc.encoder.stream.config import GaussianEncoderConfig, load_config
+from lghcc.encoder.gaussians.gaussian_fit import MIN_SENSITIVITY_VIEWS, fit_steps, prepare_gaussians, sensitivity_views
+from lghcc.encoder.gaussians.search_sample import SAMPLE_CELLS, morton_keys, search_sample, spatial_cells
 from test_gaussians import random_gaussians
 
 # the settings of a search small enough for a test (2 views of 32 px, a few fitting steps)
@@ -87,7 +87,7 @@ def test_search_under_the_sample_size_chooses_as_the_whole_scene_search():
 def test_sampled_search_is_deterministic_and_checked_on_the_whole_scene():
     """A scene above the sample size: searched on a sample, the same settings twice, and the whole
     scene checked against the target once at least (then moved onto it where it missed)."""
-    from lghcc.encoder.gaussian_rd import SettingsSearch
+    from lghcc.encoder.gaussians.gaussian_rd import SettingsSearch
 
     rng = np.random.default_rng(7)
     scene = random_gaussians(rng, 1200, 0)

@@ -12,8 +12,8 @@ from lghcc.formats.procedural import make_procedural_scene
 from lghcc.common.units import SourceInfo
 from lghcc.decoder import cli as dec_cli
 from lghcc.decoder.decode import decode_stream, organize_units
-from lghcc.encoder.config import load_config
-from lghcc.encoder.encode import encode_scene
+from lghcc.encoder.stream.config import load_config
+from lghcc.encoder.stream.encode import encode_scene
 
 SOURCE_INFO = AncillaryUnitType.SOURCE_INFO
 

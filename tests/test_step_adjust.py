@@ -16,10 +16,10 @@ from lghcc.common.neighbour_prediction import (ADJUST_FIXED_POINT, ADJUST_LEVEL_
                                                lod_coding_params, neighbour_graph)
 from lghcc.decoder.decode import decode_stream
 from lghcc.encoder.cli import step_adjust_summary
-from lghcc.encoder.config import GaussianEncoderConfig
-from lghcc.encoder.gaussian_grid import coded_values
-from lghcc.encoder.gaussians import encode_gaussian_scene
-from lghcc.encoder.rdoq import channel_groups, channel_steps, group_slopes, step_adjust_choice
+from lghcc.encoder.stream.config import GaussianEncoderConfig
+from lghcc.encoder.gaussians.gaussian_grid import coded_values
+from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
+from lghcc.encoder.gaussians.rdoq import channel_groups, channel_steps, group_slopes, step_adjust_choice
 from test_gaussians import assert_same, random_gaussians
 from test_neighbour_prediction import _smooth_scene
 
@@ -141,7 +141,7 @@ def test_invisible_gaussians_take_the_coarsest_steps_and_visible_ones_keep_their
 def test_every_index_zero_costs_nothing_and_writes_a_version_1_1_stream(monkeypatch):
     """Where the choice gives every Gaussian index 0, no unit is written: the same bytes as without
     the tool, a version 1.1 stream."""
-    import lghcc.encoder.rdoq as rdoq
+    import lghcc.encoder.gaussians.rdoq as rdoq
 
     scene = _smooth_scene(1500, 0, seed=6)
     f = _sensitivity(scene, np.random.default_rng(6))

@@ -18,9 +18,9 @@ from lghcc.common.units import SceneParameterSet, TileIndex
 from lghcc.decoder import decode as decode_mod
 from lghcc.decoder import jobs as jobs_mod
 from lghcc.decoder.decode import decode_stream
-from lghcc.encoder.config import EncoderConfig
-from lghcc.encoder.encode import encode_scene
-from lghcc.encoder.tiling import choose_tile_scale
+from lghcc.encoder.stream.config import EncoderConfig
+from lghcc.encoder.stream.encode import encode_scene
+from lghcc.encoder.stream.tiling import choose_tile_scale
 
 from scenes import random_scene
 

@@ -490,7 +490,7 @@ def test_rate_phase_resumes_older_checkpoints(data, tmp_path, monkeypatch):
     assert state["rate"]["model"].pop("twin.parent_base").numel() > 0
     torch.save(state, path)
     saved_shape = state["rate"]["model"]["twin.table"].shape
-    from lghcc.encoder import config as C
+    from lghcc.encoder.stream import config as C
     monkeypatch.setattr(C, "CONTEXT_MODEL_SIZES", ((None, (3, 5, 7, 16)),))  # a size rule changed since
     res = train(cfg, tmp_path / "a", resume=True, progress=False, log=lambda *x: None)
     assert res.iteration == 30
@@ -507,9 +507,9 @@ def test_rate_trained_run_saves_a_context_twin_that_the_encoder_starts_from(data
     from lghcc.formats.scaffold_io import locate_ply
     from lghcc.decoder.decode import decode_stream
     from lghcc.encoder import cli
-    from lghcc.encoder.config import EncoderConfig
-    from lghcc.encoder.encode import encode_scene
-    from lghcc.encoder.ggconv_train import TWIN_FILE, find_context_twin
+    from lghcc.encoder.stream.config import EncoderConfig
+    from lghcc.encoder.stream.encode import encode_scene
+    from lghcc.encoder.context.ggconv_train import TWIN_FILE, find_context_twin
 
     run = tmp_path / "run"
     train(tiny_config(data, iterations=40, densify_until=12, rate_lambda=0.05, rate_step=0.05,

@@ -8,7 +8,7 @@ import numpy as np
 import torch
 from test_train import make_dataset
 
-from lghcc.encoder import train_3dgs as G
+from lghcc.encoder.training import train_3dgs as G
 from lghcc.render.datasets import load_dataset
 from lghcc.render.gaussians3dgs import load_3dgs_ply
 

@@ -12,7 +12,7 @@ from lghcc.encoder import cli as enc_cli
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from lghcc.encoder.transcode import (TranscodeConfig, anchorize, assign_to_voxels, transcode_3dgs, voxel_search_interval,
+from lghcc.encoder.anchors.transcode import (TranscodeConfig, anchorize, assign_to_voxels, transcode_3dgs, voxel_search_interval,
                                      voxel_size_for_count)
 from lghcc.render.gaussians3dgs import Gaussians3DGS, is_3dgs_ply, load_3dgs_ply, write_3dgs_ply
 from lghcc.render.sh import C0, C1, eval_sh, sh_basis, sh_degree_from_count, sh_to_rgb
@@ -305,9 +305,9 @@ def test_rate_aware_fit_lowers_the_coded_rate_at_similar_distortion():
     """The same small transcode with and without the rate term (quantization simulated at the
     coding preset's steps, per-channel prior as preset medium codes it): the rate term codes the
     attributes in fewer bytes for a small loss of PSNR against the source renders."""
-    from lghcc.encoder.config import load_config
-    from lghcc.encoder.encode import encode_scene
-    from lghcc.encoder.transcode import preset_transcode_config
+    from lghcc.encoder.stream.config import load_config
+    from lghcc.encoder.stream.encode import encode_scene
+    from lghcc.encoder.anchors.transcode import preset_transcode_config
 
     g = synthetic_3dgs(400, degree=1)
     coding = load_config("medium")
@@ -328,8 +328,8 @@ def test_rate_aware_fit_lowers_the_coded_rate_at_similar_distortion():
 
 
 def test_transcode_presets_follow_the_coding_preset():
-    from lghcc.encoder.config import TRANSCODE_PRESETS, load_config
-    from lghcc.encoder.transcode import preset_transcode_config
+    from lghcc.encoder.stream.config import TRANSCODE_PRESETS, load_config
+    from lghcc.encoder.anchors.transcode import preset_transcode_config
 
     low, lhigh = preset_transcode_config("low", load_config("low")), preset_transcode_config(
         "lghcc-high", load_config("lghcc-high"))

@@ -95,8 +95,8 @@ def main(argv=None) -> int:
     import torch
 
     from lghcc.formats.procedural import make_procedural_scene
-    from lghcc.encoder.config import load_config
-    from lghcc.encoder.encode import encode_scene
+    from lghcc.encoder.stream.config import load_config
+    from lghcc.encoder.stream.encode import encode_scene
 
     torch.set_num_threads(args.threads)
     cfg = load_config(args.preset)

@@ -52,7 +52,7 @@ def load_scene(spec: str):
         return (make_procedural_scene(int(spec.split(":", 1)[1]), seed=0), f"procedural {int(spec.split(':')[1]):,}",
                 None)
     from lghcc.formats.scaffold_io import read_scaffold
-    from lghcc.encoder.ggconv_train import find_context_twin
+    from lghcc.encoder.context.ggconv_train import find_context_twin
     return read_scaffold(spec), Path(spec).name, find_context_twin(spec)
 
 
@@ -77,8 +77,8 @@ def run_one(scene, args, twin=None, **over) -> dict:
     import numpy as np
 
     from lghcc.decoder.decode import decode_stream
-    from lghcc.encoder.config import EncoderConfig
-    from lghcc.encoder.encode import encode_scene
+    from lghcc.encoder.stream.config import EncoderConfig
+    from lghcc.encoder.stream.encode import encode_scene
 
     kw = dict(hierarchy=True, coarse_voxel_scale=args.scale, context_fallback=False, feature_step=args.step,
               scaling_step=args.step, offset_step=args.step)
@@ -174,7 +174,7 @@ def main(argv=None) -> int:
 
     import torch
 
-    from lghcc.encoder.config import EncoderConfig
+    from lghcc.encoder.stream.config import EncoderConfig
 
     torch.set_num_threads(args.threads)
     d = EncoderConfig()

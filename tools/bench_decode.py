@@ -58,15 +58,15 @@ def encode(kind: str, n: int):
     """-> stream bytes of a procedural scene of about n points for a preset kind."""
     if kind.startswith("gaussians"):
         from gen_conformance import random_gaussian_scene
-        from lghcc.encoder.config import load_config
-        from lghcc.encoder.gaussians import encode_gaussian_scene
+        from lghcc.encoder.stream.config import load_config
+        from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
 
         spread = int(round((n * 4) ** (1 / 3)))  # positions on a grid of (2 spread)^3 cells, n of them occupied
         scene = random_gaussian_scene({"num_gaussians": n, "sh_degree": 1, "seed": 5, "smooth": True,
                                        "spread": spread})
         return encode_gaussian_scene(scene, load_config(kind.removeprefix("gaussians-"), kind="gaussians")).data
-    from lghcc.encoder.config import load_config
-    from lghcc.encoder.encode import encode_scene
+    from lghcc.encoder.stream.config import load_config
+    from lghcc.encoder.stream.encode import encode_scene
     from lghcc.formats.procedural import make_procedural_scene
 
     scene = make_procedural_scene(n, seed=0, feature_dim=32, num_offsets=10)

@@ -47,8 +47,8 @@ ROOT = Path(__file__).resolve().parents[1]
 def random_model(rng: np.random.Generator, num_features: int, m: int, n2: int, coords2, coords1, level: int):
     from lghcc.common.context.ggconv import GGConvParams
     from lghcc.common.intnn import IntLinear, IntMLP
-    from lghcc.encoder.config import EncoderConfig, context_model_size
-    from lghcc.encoder.ggconv_train import default_radius_sq
+    from lghcc.encoder.stream.config import EncoderConfig, context_model_size
+    from lghcc.encoder.context.ggconv_train import default_radius_sq
 
     ch, fh, hh, bits = context_model_size(EncoderConfig(), n2)
 

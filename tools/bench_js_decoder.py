@@ -32,8 +32,8 @@ SCENES = {"donut": DATA / "donut" / "donut.ply", "playbot_lod3": DATA / "playbot
 def stream_for(name: str, ply: Path, out: Path, preset: str) -> Path:
     path = out / f"{name}_{preset}_steps.lghcc"
     if not path.is_file():
-        from lghcc.encoder.config import load_config
-        from lghcc.encoder.gaussians import encode_gaussian_scene
+        from lghcc.encoder.stream.config import load_config
+        from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
         from lghcc.formats.ply3dgs import read_3dgs_ply
 
         cfg = load_config(preset, kind="gaussians")

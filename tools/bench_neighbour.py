@@ -33,8 +33,8 @@ from benchutil import command_line, load_average, write_lines  # noqa: E402
 from lghcc.common.container import UnitType, read_container  # noqa: E402
 from lghcc.common.units import GaussianParameterSet  # noqa: E402
 from lghcc.decoder.decode import decode_stream  # noqa: E402
-from lghcc.encoder.config import GaussianEncoderConfig  # noqa: E402
-from lghcc.encoder.gaussians import encode_gaussian_scene  # noqa: E402
+from lghcc.encoder.stream.config import GaussianEncoderConfig  # noqa: E402
+from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene  # noqa: E402
 
 
 def same_settings(data: bytes, tile_points: int) -> GaussianEncoderConfig:

@@ -49,8 +49,8 @@ def main(argv=None) -> int:
     from lghcc.formats.procedural import make_procedural_scene
     from lghcc.formats.scaffold_io import read_scaffold
     from lghcc.decoder.decode import decode_stream
-    from lghcc.encoder.config import load_config, preset_names
-    from lghcc.encoder.encode import encode_scene
+    from lghcc.encoder.stream.config import load_config, preset_names
+    from lghcc.encoder.stream.encode import encode_scene
     from lghcc.render.metrics import psnr
     from lghcc.render.rasterizer import render_scene
     from lghcc.render.views import orbit_cameras
@@ -58,7 +58,7 @@ def main(argv=None) -> int:
     torch.set_num_threads(args.threads)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     scene = read_scaffold(args.input) if args.input else make_procedural_scene(args.procedural, seed=0)
-    from lghcc.encoder.ggconv_train import find_context_twin
+    from lghcc.encoder.context.ggconv_train import find_context_twin
     twin = find_context_twin(args.input) if args.input else None  # as lghcc-enc: the training's GG-Conv twin
     test = None
     if args.data:

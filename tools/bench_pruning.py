@@ -62,8 +62,8 @@ def main(argv=None) -> int:
 
     from lghcc.formats.scaffold_io import read_scaffold
     from lghcc.decoder.decode import decode_stream
-    from lghcc.encoder.config import load_config
-    from lghcc.encoder.encode import encode_scene
+    from lghcc.encoder.stream.config import load_config
+    from lghcc.encoder.stream.encode import encode_scene
     from lghcc.encoder.training.evaluation import evaluate_scene
     from lghcc.render.datasets import load_dataset
 

@@ -32,12 +32,12 @@ from benchutil import command_line, load_average, write_lines  # noqa: E402
 
 import torch  # noqa: E402
 
-from lghcc.encoder.config import load_config  # noqa: E402
-from lghcc.encoder.gaussian_fit import measure_contributions  # noqa: E402
-from lghcc.encoder.gaussian_views import fit_cameras, resolving_views  # noqa: E402
-from lghcc.encoder.gaussian_rd import GROUPS, SettingsSearch, _scaled  # noqa: E402
-from lghcc.encoder import rdoq  # noqa: E402
-from lghcc.encoder.rdoq import SENSITIVITY_PROBES, sensitivities  # noqa: E402
+from lghcc.encoder.stream.config import load_config  # noqa: E402
+from lghcc.encoder.gaussians.gaussian_fit import measure_contributions  # noqa: E402
+from lghcc.encoder.gaussians.gaussian_views import fit_cameras, resolving_views  # noqa: E402
+from lghcc.encoder.gaussians.gaussian_rd import GROUPS, SettingsSearch, _scaled  # noqa: E402
+from lghcc.encoder.gaussians import rdoq  # noqa: E402
+from lghcc.encoder.gaussians.rdoq import SENSITIVITY_PROBES, sensitivities  # noqa: E402
 from lghcc.formats.ply3dgs import read_3dgs_ply  # noqa: E402
 from lghcc.render.gaussians3dgs import gaussians_from_scene, render_3dgs  # noqa: E402
 

@@ -484,7 +484,7 @@ class SceneRun:
         path = self.cache.base / f"importance_{self.args.importance_views}x{self.args.importance_size}.npy"
         if path.exists():
             return np.load(path)
-        from lghcc.encoder.transcode import sphere_cameras
+        from lghcc.encoder.anchors.transcode import sphere_cameras
         from lghcc.render.gaussians3dgs import gaussians_from_scene
         from lghcc.render.importance import gaussian_contributions
 

@@ -173,7 +173,7 @@ def bench_tile_sides(specs: list[str], repeat: int) -> list[str]:
     """The rasterizer's tile side (16, 8, 4 px, or its own choice) on real 3DGS scenes, through the
     encoder's views (encoder/gaussian_fit.py resolving_views: 8 sphere views, and magnified crops
     where the Gaussians are below a pixel). ``specs``: PATH[:N]@PX (N: Gaussians drawn, seed 0)."""
-    from lghcc.encoder.gaussian_views import resolving_views
+    from lghcc.encoder.gaussians.gaussian_views import resolving_views
     from lghcc.formats import read_scene
     from lghcc.render.rasterizer import rasterize
     from lghcc.render.sh import sh_to_rgb

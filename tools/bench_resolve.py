@@ -28,9 +28,9 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from lghcc.encoder.config import GaussianEncoderConfig  # noqa: E402
-from lghcc.encoder.gaussian_fit import measure_contributions  # noqa: E402
-from lghcc.encoder.gaussian_views import (crop_cameras, fit_cameras, magnification,  # noqa: E402
+from lghcc.encoder.stream.config import GaussianEncoderConfig  # noqa: E402
+from lghcc.encoder.gaussians.gaussian_fit import measure_contributions  # noqa: E402
+from lghcc.encoder.gaussians.gaussian_views import (crop_cameras, fit_cameras, magnification,  # noqa: E402
                                           prune_by_contribution, typical_size_px)
 from lghcc.formats.ply3dgs import read_3dgs_ply  # noqa: E402
 from lghcc.render.gaussians3dgs import gaussians_from_scene, render_3dgs  # noqa: E402

@@ -226,9 +226,9 @@ def scene_file(n: int, sources: list, work: Path) -> tuple[Path, str, object]:
 
 def memory_estimate(scene, preset: str, jobs: int) -> int:
     """lghcc-enc --max-memory's estimate for the scene and preset (encoder/memory.py)."""
-    from lghcc.encoder.config import load_config
-    from lghcc.encoder.memory import encode_memory
-    from lghcc.encoder.tile_workers import TileWorkers
+    from lghcc.encoder.stream.config import load_config
+    from lghcc.encoder.stream.memory import encode_memory
+    from lghcc.encoder.stream.tile_workers import TileWorkers
 
     over = {"target_psnr": 0.0, "rd_lambda": 0.0, "prune_share": 0.0, "fit_iterations": 0} if preset == "plain" else {}
     cfg = load_config("low" if preset == "plain" else preset, None, over, kind="gaussians")

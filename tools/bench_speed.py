@@ -43,7 +43,7 @@ DEFAULT_SCENE = ROOT.parent / "shared" / "data" / "playcanvas-logo" / "playcanva
 
 def baseline_render_s(scene) -> float:
     """Median of 3 forward renders of the scene at 320x320 from a fit camera."""
-    from lghcc.encoder.gaussian_views import fit_cameras
+    from lghcc.encoder.gaussians.gaussian_views import fit_cameras
     from lghcc.render.gaussians3dgs import gaussians_from_scene, render_3dgs
 
     g = gaussians_from_scene(scene)
@@ -58,10 +58,10 @@ def baseline_render_s(scene) -> float:
 
 
 def encode_once(scene, preset: str) -> dict:
-    from lghcc.encoder.config import load_config
-    from lghcc.encoder.gaussian_fit import needs_preparation, prepare_gaussians
-    from lghcc.encoder.gaussians import encode_gaussian_scene
-    from lghcc.encoder.stats import PrepareStats
+    from lghcc.encoder.stream.config import load_config
+    from lghcc.encoder.gaussians.gaussian_fit import needs_preparation, prepare_gaussians
+    from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
+    from lghcc.encoder.stream.stats import PrepareStats
 
     cfg = load_config(preset, kind="gaussians")
     t0, cpu0 = time.perf_counter(), time.process_time()

@@ -66,8 +66,8 @@ def _cost_cells(untiled, tiled) -> str:
 
 
 def gaussian_cost_rows(names: list[str], tile_points: list[int]) -> list[str]:
-    from lghcc.encoder.config import load_config
-    from lghcc.encoder.gaussians import encode_gaussian_scene
+    from lghcc.encoder.stream.config import load_config
+    from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
     from lghcc.formats.ply3dgs import read_3dgs_ply
 
     rows = []
@@ -89,7 +89,7 @@ def gaussian_cost_rows(names: list[str], tile_points: list[int]) -> list[str]:
 
 
 def anchor_config(tile_points: int):
-    from lghcc.encoder.config import load_config
+    from lghcc.encoder.stream.config import load_config
 
     return load_config("lghcc-low", overrides={
         "tile_points": tile_points, "context_neighbour_level": 1, "context_parent_base": "choose",
@@ -129,7 +129,7 @@ def box_reach_rows(coords: np.ndarray, voxel_size: float, origin, box, unit: int
 
 def anchor_section(n: int, tile_points: list[int], repeats: int) -> tuple[list[str], list[str], list[str]]:
     from lghcc.decoder.decode import decode_stream
-    from lghcc.encoder.encode import encode_scene
+    from lghcc.encoder.stream.encode import encode_scene
     from lghcc.formats.procedural import make_procedural_scene
 
     scene = make_procedural_scene(n, seed=0)
@@ -192,7 +192,7 @@ def _decode_with_worker_threads(data: bytes, kw: dict, threads: int | None):
 
 def preview_rows(n: int) -> list[str]:
     from lghcc.decoder.decode import decode_stream
-    from lghcc.encoder.encode import encode_scene
+    from lghcc.encoder.stream.encode import encode_scene
     from lghcc.formats.procedural import make_procedural_scene
     from lghcc.render.metrics import psnr
     from lghcc.render.scenes import render_views, resolve_cameras

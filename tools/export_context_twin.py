@@ -27,7 +27,7 @@ def main(argv=None) -> int:
     from lghcc.encoder.training.config import TrainConfig
     from lghcc.encoder.training.loop import Trainer
     from lghcc.render.datasets import load_dataset
-    from lghcc.encoder.ggconv_train import TWIN_FILE
+    from lghcc.encoder.context.ggconv_train import TWIN_FILE
 
     torch.set_num_threads(1)
     status = 0

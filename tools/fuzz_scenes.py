@@ -179,7 +179,7 @@ def random_scene(rng: random.Random, steps: tuple[float, float, float] = (0.02, 
 
 def random_config(rng: random.Random):
     """-> (EncoderConfig, description)."""
-    from lghcc.encoder.config import load_config
+    from lghcc.encoder.stream.config import load_config
 
     preset = _choice(rng, ["low", "medium", "high"])
     over: dict = {}
@@ -345,7 +345,7 @@ def _level2_q(payload, sps, hier, q1, coords, units, types, values):
 def scene_case(rng: random.Random) -> SceneCase:
     """Build, encode (and sometimes re-code level 2 with a hand-built model) one random scene."""
     from lghcc.common.errors import InputError
-    from lghcc.encoder.encode import encode_scene
+    from lghcc.encoder.stream.encode import encode_scene
 
     cfg, cwhat = random_config(rng)
     # chunks of a few rows cost the decoder ~1 ms each with a context model: a few hundred anchors

@@ -602,9 +602,9 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
     """-> (stream bytes, decoded scene SHA-256 hex or None when the stream must be rejected)."""
     import torch
 
-    from lghcc.encoder.config import load_config
-    from lghcc.encoder.encode import encode_scene
-    from lghcc.encoder.gaussians import encode_gaussian_scene
+    from lghcc.encoder.stream.config import load_config
+    from lghcc.encoder.stream.encode import encode_scene
+    from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
 
     post = entry.get("post", {})
     if entry["scene"]["generator"] in ("forge_dense", "forge_box"):  # zero attributes (conformance/forge.py)

@@ -575,7 +575,7 @@ def neighbour_prediction(units, spec: dict) -> None:
     chunk empty)}."""
     from lghcc.common.geometry import decode_geometry
     from lghcc.common.units import GaussianParameterSet, NeighbourPredictionUnit
-    from lghcc.encoder.neighbour_coding import NeighbourCoding
+    from lghcc.encoder.stream.neighbour_coding import NeighbourCoding
 
     gps = GaussianParameterSet.from_bytes(units[_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
     if gps.hierarchy_enabled_flag or gps.tiles_enabled_flag:
@@ -630,7 +630,7 @@ def step_adjust(units, spec: dict) -> None:
     level's table, -L + adjust_mean)}."""
     from lghcc.common.geometry import decode_geometry
     from lghcc.common.units import GaussianParameterSet, NeighbourPredictionUnit, StepAdjustUnit
-    from lghcc.encoder.neighbour_coding import NeighbourCoding
+    from lghcc.encoder.stream.neighbour_coding import NeighbourCoding
 
     gps = GaussianParameterSet.from_bytes(units[_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
     if gps.hierarchy_enabled_flag or gps.tiles_enabled_flag:

@@ -131,7 +131,7 @@ def write_checkpoint_folder(scene: AnchorScene, out: Path, iteration: int, twin=
     tmp_model = pc / f"{TMP_PREFIX}{name}_{os.getpid()}"
     written = write_scaffold(scene, tmp_model, iteration)  # tmp_model/point_cloud/iteration_<N>
     if twin is not None:
-        from ..ggconv_train import TWIN_FILE
+        from ..context.ggconv_train import TWIN_FILE
 
         twin.save(Path(written) / TWIN_FILE)
     staged = pc / f"{TMP_PREFIX}{name}_{os.getpid()}.ready"

@@ -6,7 +6,7 @@ import math
 from dataclasses import dataclass
 
 from ...common.errors import InputError
-from ..config import DEFAULT_ATTRIBUTE_STEP
+from ..stream.config import DEFAULT_ATTRIBUTE_STEP
 
 
 @dataclass

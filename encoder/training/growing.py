@@ -123,7 +123,7 @@ class AnchorGrowing:
         opacity accumulated since each anchor's creation; NAAP merges offsets, scalings and the
         accumulated opacity of every pruned anchor into its nearest kept neighbour (eq. 11).
         The optimizer state of the kept anchors carries over."""
-        from ..naap import NaapConfig, naap_plan, opacity_plan
+        from ..anchors.naap import NaapConfig, naap_plan, opacity_plan
 
         cfg = self.cfg
         acc = (self.life_opacity / self.life_views.clamp_min(1)).numpy()

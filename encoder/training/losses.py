@@ -31,9 +31,9 @@ class RateTerm:
         twin's size on resume (None: the encoder's size rule for this many level-2 anchors)."""
         from ...common.geometry import normative_order
         from ...common.hierarchy import build_hierarchy
-        from ..config import EncoderConfig, context_model_size
-        from ..ggconv_train import GGConvTrainConfig
-        from ..rate_model import AnchorRateModel
+        from ..stream.config import EncoderConfig, context_model_size
+        from ..context.ggconv_train import GGConvTrainConfig
+        from ..anchors.rate_model import AnchorRateModel
 
         cfg = self.cfg
         m = cfg.feature_dim + 6 + 3 * cfg.num_offsets

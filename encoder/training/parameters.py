@@ -111,7 +111,7 @@ class AnchorParameters:
 
         f, sc, off = self.params["features"], self.params["scalings"], self.params["offsets"]
         if self.rate_model is not None:  # render what the decoder will output (straight-through rounding)
-            from ..rate_model import quantize_ste
+            from ..anchors.rate_model import quantize_ste
 
             step = torch.tensor(self.cfg.rate_step, dtype=torch.float32)
             f, sc, off = quantize_ste(f, step), quantize_ste(sc, step), quantize_ste(off, step)

@@ -38,18 +38,18 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..common.attributes import STEP_ADJUST_FACTORS, GaussianLayout
-from ..common.entropy.symbol_coder import best_level, code_lengths_bits
-from ..common.geometry import encode_geometry, normative_order
-from ..common.neighbour_prediction import neighbour_graph
-from ..common.scene import GaussianScene
-from .config import GaussianEncoderConfig
+from ...common.attributes import STEP_ADJUST_FACTORS, GaussianLayout
+from ...common.entropy.symbol_coder import best_level, code_lengths_bits
+from ...common.geometry import encode_geometry, normative_order
+from ...common.neighbour_prediction import neighbour_graph
+from ...common.scene import GaussianScene
+from ..stream.config import GaussianEncoderConfig
 from .gaussian_grid import choose_grid, coded_values, snap_to_grid
 from .gaussian_views import prune_by_contribution, resolving_views
-from .neighbour_coding import NeighbourCoding, usable as neighbour_usable
+from ..stream.neighbour_coding import NeighbourCoding, usable as neighbour_usable
 from .rdoq import (adjust_on_graph, channel_groups, channel_steps, group_slopes, orientation_columns, rd_quantize,
                    sh_degree_subset)
-from ..render.gaussians3dgs import gaussians_from_scene, render_3dgs
+from ...render.gaussians3dgs import gaussians_from_scene, render_3dgs
 
 PRUNE_LADDER = (0.0, 0.0005, 0.001, 0.002, 0.004, 0.008, 0.016, 0.032, 0.064)
 STEP_FIELDS = ("position_step", "sh_dc_step", "opacity_step", "scale_step", "rotation_step")

@@ -10,12 +10,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..common import attributes as attr
-from ..common.context.models import level2_coding_params
-from ..common.entropy.symbol_coder import best_level
-from ..common.errors import InputError
-from ..common.hierarchy import Hierarchy
-from ..common.units import (CONTEXT_PER_CHANNEL_PRIOR, MASK_PROB_BITS, MAX_PREDICTED_MAGNITUDE, PRIOR_MEAN_MAX,
+from ...common import attributes as attr
+from ...common.context.models import level2_coding_params
+from ...common.entropy.symbol_coder import best_level
+from ...common.errors import InputError
+from ...common.hierarchy import Hierarchy
+from ...common.units import (CONTEXT_PER_CHANNEL_PRIOR, MASK_PROB_BITS, MAX_PREDICTED_MAGNITUDE, PRIOR_MEAN_MAX,
                             AttributeUnitHeader, GaussianParameterSet, NeighbourPredictionUnit, SceneParameterSet)
 from .config import AttributeCodingConfig
 from .neighbour_coding import NeighbourCoding

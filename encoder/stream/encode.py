@@ -13,27 +13,27 @@ from dataclasses import dataclass, field
 from collections.abc import Iterator
 
 import numpy as np
-from ..app.progress import progress_bar
+from ...app.progress import progress_bar
 
-from ..common import attributes as attr
-from ..common.container import (UNIT_CRC_BYTES, UNIT_HEADER_BYTES, AncillaryUnitType, DataUnit, UnitType,
+from ...common import attributes as attr
+from ...common.container import (UNIT_CRC_BYTES, UNIT_HEADER_BYTES, AncillaryUnitType, DataUnit, UnitType,
                                 read_container, write_container)
-from ..common.entropy.symbol_coder import best_level, ideal_code_length_bits
-from ..common.errors import InputError
-from ..common.context.model_unit import write_context_model_unit
-from ..common.context.models import CONTEXT_MODEL_NAMES, read_context_model
-from ..common.geometry import encode_geometry, normative_order
-from ..common.hashing import digest_of
-from ..common.render_model import dequantize, write_render_model_unit
-from ..app.report import SizeBreakdown, breakdown_of
-from ..common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene, GaussianScene, RenderMLP
-from ..common.hierarchy import Hierarchy, build_hierarchy
-from ..common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ANCHORS,
+from ...common.entropy.symbol_coder import best_level, ideal_code_length_bits
+from ...common.errors import InputError
+from ...common.context.model_unit import write_context_model_unit
+from ...common.context.models import CONTEXT_MODEL_NAMES, read_context_model
+from ...common.geometry import encode_geometry, normative_order
+from ...common.hashing import digest_of
+from ...common.render_model import dequantize, write_render_model_unit
+from ...app.report import SizeBreakdown, breakdown_of
+from ...common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene, GaussianScene, RenderMLP
+from ...common.hierarchy import Hierarchy, build_hierarchy
+from ...common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ANCHORS,
                                 MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, NeighbourPredictionUnit, RenderMlpHeader,
                                 SceneParameterSet, SourceInfo)
 from .config import AttributeCodingConfig, EncoderConfig, context_model_size
-from .context_fit import ContextFitError, fit_level2_context
-from .ggconv_train import ContextTwin, GGConvTrainConfig
+from ..context.context_fit import ContextFitError, fit_level2_context
+from ..context.ggconv_train import ContextTwin, GGConvTrainConfig
 from .neighbour_coding import usable as neighbour_usable
 from .level_coding import (AttributeInput, LevelCoder, LevelCoding, code_with_model,
                            code_with_neighbours, code_with_prior, neighbour_coding_of, quantized_level, reconstruct_level)
@@ -77,7 +77,7 @@ def twin_train_config(cfg: AttributeCodingConfig, twin: ContextTwin, num_level2:
 
 def prune_scene(scene: AnchorScene, cfg: EncoderConfig):
     """The configured pruning (NAAP or opacity threshold) -> (pruned scene, PruneReport)."""
-    from .naap import NaapConfig, naap_prune, opacity_prune
+    from ..anchors.naap import NaapConfig, naap_prune, opacity_prune
 
     if cfg.pruning == "naap":
         return naap_prune(scene, NaapConfig(k=cfg.naap_k, lam=cfg.naap_lambda, gamma=cfg.naap_gamma,

@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..common.attributes import ChannelPrediction, CodingParams, GaussianLayout
-from ..common.entropy.symbol_coder import best_level, code_lengths_bits
-from ..common.units import CHANNEL_PREDICTION_SHIFT, MAX_CHANNEL_PREDICTION_WEIGHT
+from ...common.attributes import ChannelPrediction, CodingParams, GaussianLayout
+from ...common.entropy.symbol_coder import best_level, code_lengths_bits
+from ...common.units import CHANNEL_PREDICTION_SHIFT, MAX_CHANNEL_PREDICTION_WEIGHT
 
 FIT_ROWS = 50_000  # rows sampled for the least-squares fit and the bit counts
 ENTRY_COST_BITS = 24.0  # about ue(target) + ue(source) + se(weight)

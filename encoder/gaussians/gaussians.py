@@ -22,22 +22,22 @@ import dataclasses
 import time
 
 import numpy as np
-from ..app.progress import progress_bar
+from ...app.progress import progress_bar
 
-from ..common import attributes as attr
-from ..common.container import DataUnit, UnitType, read_container
-from ..common.errors import InputError
-from ..common.hashing import gaussian_scene_digest
-from ..app.report import breakdown_of
-from ..common.neighbour_prediction import neighbour_graph
-from ..common.scene import GaussianScene
-from ..common.units import MAX_ATTRIBUTE_VALUES, GaussianParameterSet, StepAdjustUnit
-from .config import GaussianEncoderConfig
-from .encode import (AttributeInput, CodedAttributes, EncodeResult, GeometryCoding, LevelLayout, check_point_count,
+from ...common import attributes as attr
+from ...common.container import DataUnit, UnitType, read_container
+from ...common.errors import InputError
+from ...common.hashing import gaussian_scene_digest
+from ...app.report import breakdown_of
+from ...common.neighbour_prediction import neighbour_graph
+from ...common.scene import GaussianScene
+from ...common.units import MAX_ATTRIBUTE_VALUES, GaussianParameterSet, StepAdjustUnit
+from ..stream.config import GaussianEncoderConfig
+from ..stream.encode import (AttributeInput, CodedAttributes, EncodeResult, GeometryCoding, LevelLayout, check_point_count,
                      code_attributes, code_geometry, level_layout, neighbour_prediction_wanted, stage, stream_tiles,
                      write_stream)
 from .gaussian_grid import choose_grid, coded_values, snap_to_grid
-from .stats import EncodeStats
+from ..stream.stats import EncodeStats
 
 # Each stage's share (percent) of the coding's time, so that the encoder's bar, and its estimate
 # of the time left, advance as the time goes: a tiled scene at low's steps without the render-based

@@ -59,7 +59,7 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-# ``python -m lghcc.encoder.transcode`` is an entry point: torch's OpenMP threads wait passively
+# ``python -m lghcc.encoder.anchors.transcode`` is an entry point: torch's OpenMP threads wait passively
 # (set before torch is imported; as lghcc-enc and lghcc-train do; a user's own setting wins).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
@@ -67,19 +67,19 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from torch import nn  # noqa: E402
 
-from ..app.progress import progress_bar  # noqa: E402
-from ..common.errors import InputError  # noqa: E402
-from ..common.scene import AnchorScene  # noqa: E402
-from ..render.camera import Camera  # noqa: E402
-from ..render.gaussians3dgs import Gaussians3DGS, load_3dgs_ply, render_3dgs  # noqa: E402
-from ..render.metrics import psnr, ssim_torch  # noqa: E402
-from ..render.neural_gaussians import SceneTensors, TorchMLP, evaluate_anchors  # noqa: E402
-from ..render.rasterizer import render_scene  # noqa: E402
-from ..render.sh import sh_to_rgb  # noqa: E402
-from ..render.views import fibonacci_sphere  # noqa: E402
+from ...app.progress import progress_bar  # noqa: E402
+from ...common.errors import InputError  # noqa: E402
+from ...common.scene import AnchorScene  # noqa: E402
+from ...render.camera import Camera  # noqa: E402
+from ...render.gaussians3dgs import Gaussians3DGS, load_3dgs_ply, render_3dgs  # noqa: E402
+from ...render.metrics import psnr, ssim_torch  # noqa: E402
+from ...render.neural_gaussians import SceneTensors, TorchMLP, evaluate_anchors  # noqa: E402
+from ...render.rasterizer import render_scene  # noqa: E402
+from ...render.sh import sh_to_rgb  # noqa: E402
+from ...render.views import fibonacci_sphere  # noqa: E402
 
 if TYPE_CHECKING:
-    from .ggconv_train import ContextTwin
+    from ..context.ggconv_train import ContextTwin
 
 
 @dataclass
@@ -134,7 +134,7 @@ def preset_transcode_config(preset: str, coding, **overrides) -> TranscodeConfig
     stream will be coded with): its feature, scaling and offset steps, and its hierarchy (coarse
     voxel scale, GG-Conv k and neighbour level) or none. ``overrides``: TranscodeConfig fields
     (None values ignored)."""
-    from .config import TRANSCODE_PRESETS
+    from ..stream.config import TRANSCODE_PRESETS
 
     base = preset[len("lghcc-"):] if preset.startswith("lghcc-") else preset
     if base not in TRANSCODE_PRESETS:
@@ -477,7 +477,7 @@ class RenderFit:
     model lghcc-train --rate-lambda trains with)."""
 
     def __init__(self, st: SceneTensors, a: dict, cfg: TranscodeConfig, backend: str):
-        from ..render.rasterizer import rasterize_with
+        from ...render.rasterizer import rasterize_with
 
         self.st, self.cfg = st, cfg
         self.coords = a["coords"].copy()
@@ -524,7 +524,7 @@ class RenderFit:
         return SceneTensors(st.positions, f, s, o, dict(st.mlps), st.offset_mask)
 
     def step(self, cam: Camera, target: torch.Tensor, losses: list) -> None:
-        from ..render.neural_gaussians import generate_neural_gaussians
+        from ...render.neural_gaussians import generate_neural_gaussians
 
         cfg = self.cfg
         ng = generate_neural_gaussians(self.scene_tensors(), cam)
@@ -602,10 +602,10 @@ class RenderFit:
     def start_rate_phase(self) -> None:
         """The rate model of the (final) anchor set, with the GG-Conv twin of the size the encoder
         will fit for this many level-2 anchors, as lghcc-train builds it."""
-        from ..common.geometry import normative_order
-        from ..common.hierarchy import build_hierarchy
-        from .config import EncoderConfig, context_model_size
-        from .ggconv_train import GGConvTrainConfig
+        from ...common.geometry import normative_order
+        from ...common.hierarchy import build_hierarchy
+        from ..stream.config import EncoderConfig, context_model_size
+        from ..context.ggconv_train import GGConvTrainConfig
         from .rate_model import AnchorRateModel
 
         cfg = self.cfg
@@ -722,7 +722,7 @@ def _say_anchorized(say, g: Gaussians3DGS, a: dict, cfg: TranscodeConfig) -> Non
 
 def transcode_3dgs(source: str | Gaussians3DGS, cfg: TranscodeConfig | None = None, log=None) -> TranscodeResult:
     """A plain 3DGS scene (a PLY path or loaded Gaussians) -> an AnchorScene (module doc)."""
-    from ..render.rasterizer import select_device
+    from ...render.rasterizer import select_device
 
     cfg = cfg or TranscodeConfig()
     say = log or (lambda *a: None)
@@ -776,7 +776,7 @@ def _arguments():
     import argparse
 
     d = TranscodeConfig()
-    p = argparse.ArgumentParser(prog="python -m lghcc.encoder.transcode", description=__doc__,
+    p = argparse.ArgumentParser(prog="python -m lghcc.encoder.anchors.transcode", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("input", help="plain 3DGS PLY (INRIA layout)")
     p.add_argument("-o", "--output", help="Scaffold-GS model folder to write (with context_twin.pt after a rate "
@@ -793,14 +793,14 @@ def _arguments():
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m lghcc.encoder.transcode SCENE.ply -o MODEL_DIR``: transcode and write the
+    """``python -m lghcc.encoder.anchors.transcode SCENE.ply -o MODEL_DIR``: transcode and write the
     Scaffold-GS layout (and the statistics as JSON)."""
     import json
     import sys
 
-    from ..common.errors import LghccError
-    from ..formats.scaffold_io import locate_ply, write_scaffold
-    from .ggconv_train import TWIN_FILE
+    from ...common.errors import LghccError
+    from ...formats.scaffold_io import locate_ply, write_scaffold
+    from ..context.ggconv_train import TWIN_FILE
 
     args = _arguments().parse_args(argv)
     cfg = TranscodeConfig(**{k: getattr(args, k) for k in _CLI_FIELDS}, prune=args.prune,

@@ -24,9 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..common.errors import LghccError
-from ..app.workers import available_cpus, shared_array
-from ..common.units import tile_size_of
+from ...common.errors import LghccError
+from ...app.workers import available_cpus, shared_array
+from ...common.units import tile_size_of
 from .tiling import TileCoding, TileJob, code_one_tile, tile_input, tile_rows
 
 
@@ -54,7 +54,7 @@ class TileWorkers:
     def code(self, inp, job: TileJob, parts: list, progress: bool) -> tuple[list[TileCoding], np.ndarray]:
         """The tiles ``parts`` ([(cell, rows)] in stream order) -> (their codings in stream order,
         the decoded values of the whole scene)."""
-        from ..app.progress import progress_bar
+        from ...app.progress import progress_bar
 
         bar = progress_bar(total=len(parts), desc="code tiles", unit="tile", disable=not progress, leave=False)
         try:
@@ -151,7 +151,7 @@ def _ray_tile(job: TileJob, cell, rows: np.ndarray, tinp) -> tuple[TileCoding, n
 
 
 def _on_ray(w: TileWorkers, inp, job: TileJob, parts: list, bar) -> tuple[list[TileCoding], np.ndarray]:
-    from ..app.cluster import ClusterError, init_ray, one_line
+    from ...app.cluster import ClusterError, init_ray, one_line
 
     ray = init_ray(w.address, w.ray_cpus, w.connect_timeout_s,
                    missing="pip install 'lghcc[batch]', or code the tiles in processes (--jobs)")

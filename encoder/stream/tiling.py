@@ -20,16 +20,16 @@ from typing import Callable
 
 import numpy as np
 
-from ..common.context.models import read_context_model
-from ..common.container import DataUnit, UnitType
-from ..common.errors import InputError
-from ..common.geometry import encode_geometry, normative_order
-from ..common.hashing import digest_of
-from ..common.hierarchy import build_hierarchy
-from ..common.tiles import tile_cells
+from ...common.context.models import read_context_model
+from ...common.container import DataUnit, UnitType
+from ...common.errors import InputError
+from ...common.geometry import encode_geometry, normative_order
+from ...common.hashing import digest_of
+from ...common.hierarchy import build_hierarchy
+from ...common.tiles import tile_cells
 from .level_coding import (AttributeInput, LevelCoder, code_with_model, code_with_neighbours, code_with_prior,
                            neighbour_coding_of, quantized_level, reconstruct_level)
-from ..common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_TILE_SCALE, SE_MAX, DecodedSceneHashUnit, TileIndex)
+from ...common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_TILE_SCALE, SE_MAX, DecodedSceneHashUnit, TileIndex)
 
 MAX_TILE_LOG2 = 40
 
@@ -190,7 +190,7 @@ def code_one_tile(job: TileJob, cell, rows: np.ndarray, tinp) -> tuple[TileCodin
 def tile_level_stats(tiles: list[TileCoding], stats) -> None:
     """The stats of a tiled stream's attribute units: per level, their bytes, the context used
     (the model of most of the level's tiles, and how many use it), channel predictions."""
-    from ..common.context.models import CONTEXT_MODEL_NAMES
+    from ...common.context.models import CONTEXT_MODEL_NAMES
     from .stats import LevelStats
 
     stats.num_tiles = len(tiles)

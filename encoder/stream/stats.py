@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from .transcode import TranscodeStats
+    from ..anchors.transcode import TranscodeStats
 
 
 def _present(items: dict[str, Any]) -> dict[str, Any]:

@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..common.attributes import GaussianLayout
-from ..common.errors import InputError
-from ..common.geometry import COORD_MAX
-from ..common.scene import GaussianScene
-from .config import GaussianEncoderConfig
+from ...common.attributes import GaussianLayout
+from ...common.errors import InputError
+from ...common.geometry import COORD_MAX
+from ...common.scene import GaussianScene
+from ..stream.config import GaussianEncoderConfig
 
 _RING_CACHE: dict[int, np.ndarray] = {}
 

@@ -43,16 +43,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..common.errors import InputError, LghccError
-from ..app.fileio import atomic_write_bytes
-from ..render.datasets import load_dataset, parse_background
-from .training.config import TrainConfig
-from .training.data import camera_extent, init_points, knn_mean_dist
-from .training.parameters import expon_lr
-from ..render.gaussians3dgs import write_3dgs_ply
-from ..render.metrics import psnr, ssim, ssim_torch
-from ..render.rasterizer import rasterize
-from ..render.sh import sh_to_rgb
+from ...common.errors import InputError, LghccError
+from ...app.fileio import atomic_write_bytes
+from ...render.datasets import load_dataset, parse_background
+from .config import TrainConfig
+from .data import camera_extent, init_points, knn_mean_dist
+from .parameters import expon_lr
+from ...render.gaussians3dgs import write_3dgs_ply
+from ...render.metrics import psnr, ssim, ssim_torch
+from ...render.rasterizer import rasterize
+from ...render.sh import sh_to_rgb
 
 PARAMS = ("means", "log_scales", "quats", "opacity_logits", "sh_dc")
 
@@ -266,7 +266,7 @@ class Trainer3DGS:
 
 
 def _quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
-    from ..render.rasterizer import quat_to_rotmat
+    from ...render.rasterizer import quat_to_rotmat
 
     return quat_to_rotmat(q)
 
@@ -315,7 +315,7 @@ def train_3dgs(cfg: Config3DGS, out: str | os.PathLike | None = None, log=print)
 
 def setup_args() -> argparse.ArgumentParser:
     d = Config3DGS()
-    p = argparse.ArgumentParser(prog="python -m lghcc.encoder.train_3dgs",
+    p = argparse.ArgumentParser(prog="python -m lghcc.encoder.training.train_3dgs",
                                 description="Plain 3DGS baseline trained on the CPU with lghcc's renderer.")
     p.add_argument("data", help="folder with the posed images (as lghcc-train)")
     p.add_argument("-o", "--output", required=True, help="output folder (point_cloud.ply, metrics.json)")

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..common.errors import InputError
-from ..common.scene import AnchorScene
+from ...common.errors import InputError
+from ...common.scene import AnchorScene
 
 
 @dataclass

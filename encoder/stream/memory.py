@@ -16,9 +16,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..app.cli_common import format_bytes
-from ..common.errors import ResourceLimitError
-from ..common.scene import AnchorScene, GaussianScene
+from ...app.cli_common import format_bytes
+from ...common.errors import ResourceLimitError
+from ...common.scene import AnchorScene, GaussianScene
 
 PROGRAM_BYTES = 320 << 20  # Python, NumPy, torch and the encoder's modules (300 MiB measured at N -> 0)
 # Fitted on the peaks of 100k-300k Gaussians at SH 0 (11 channels: 1,376 B per Gaussian) and
@@ -53,7 +53,7 @@ class MemoryEstimate:
 
 def _points_and_channels(scene: AnchorScene | GaussianScene, cfg) -> tuple[int, int]:
     if isinstance(scene, GaussianScene):
-        from ..common.attributes import GaussianLayout
+        from ...common.attributes import GaussianLayout
 
         degree = scene.sh_degree if cfg.sh_degree is None else min(cfg.sh_degree, scene.sh_degree)
         return scene.num_gaussians, GaussianLayout(degree).num_channels
@@ -69,7 +69,7 @@ def prepares(scene, cfg) -> bool:
 def encode_memory(scene: AnchorScene | GaussianScene, cfg, workers=None) -> MemoryEstimate:
     """The estimated peak resident memory of encoding ``scene`` with ``cfg`` where ``workers``
     (tile_workers.TileWorkers; None: this process) says."""
-    from ..app.workers import available_cpus
+    from ...app.workers import available_cpus
 
     n, m = _points_and_channels(scene, cfg)
     parts = {"program": PROGRAM_BYTES, "scene and coding arrays": n * (PER_POINT_BYTES + PER_VALUE_BYTES * m)}

@@ -29,9 +29,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from torch import nn
-from ..app.progress import progress_bar
+from ...app.progress import progress_bar
 
-from ..common.context.ggconv import (
+from ...common.context.ggconv import (
     GRID_FRAC_BITS,
     MAX_H_SHIFT,
     NUM_LEVELS,
@@ -45,9 +45,9 @@ from ..common.context.ggconv import (
     head_inputs,
     neighbour_graph,
 )
-from ..common.entropy.scale_levels import LOG_SIGMA_MIN, LOG_SIGMA_STEP
-from ..common.hierarchy import local_position
-from ..common.intnn import ACT_MAX, ACT_MIN, BIAS_BITS, MAX_SHIFT, IntLinear, IntMLP, frac_bits_for, int_range
+from ...common.entropy.scale_levels import LOG_SIGMA_MIN, LOG_SIGMA_STEP
+from ...common.hierarchy import local_position
+from ...common.intnn import ACT_MAX, ACT_MIN, BIAS_BITS, MAX_SHIFT, IntLinear, IntMLP, frac_bits_for, int_range
 from .ste import ste_round_half_up
 
 
@@ -106,7 +106,7 @@ class ContextTwin:
                 int(self.state["head.0.lin.weight"].shape[0]))
 
     def save(self, path) -> None:
-        from ..app.fileio import atomic_write_bytes
+        from ...app.fileio import atomic_write_bytes
 
         buf = io.BytesIO()
         torch.save({"version": 1, "state": {k: v.detach().clone() for k, v in self.state.items()},
@@ -165,8 +165,8 @@ def find_context_twin(scene_path) -> ContextTwin | None:
     """The twin saved beside a Scaffold-GS scene (a model folder, an iteration folder or its
     PLY: ``TWIN_FILE`` in the PLY's folder), None when there is none; InputError naming the
     file when it is there but unreadable."""
-    from ..common.errors import InputError
-    from ..formats.scaffold_io import locate_ply
+    from ...common.errors import InputError
+    from ...formats.scaffold_io import locate_ply
 
     path = locate_ply(scene_path).parent / TWIN_FILE
     if not path.is_file():
@@ -653,7 +653,7 @@ def estimated_rate_bits(params: GGConvParams, coords2, parent, coords1, attrs1, 
     """Bits of the level-2 attributes coded with the integer path's parameters and the frozen
     scale tables (symbols round(x / STEP_ADJUST_FACTORS[a])); also returns the step adjustments
     of the coded entries (flat; NaN targets are not coded)."""
-    from ..common.entropy.symbol_coder import ideal_code_length_bits
+    from ...common.entropy.symbol_coder import ideal_code_length_bits
 
     mean, level, adj = ggconv_coding_params(params, coords2, parent, coords1, attrs1, voxel_scale, neighbours)
     f = STEP_ADJUST_FACTORS[adj].astype(np.float64)
@@ -665,7 +665,7 @@ def estimated_rate_bits(params: GGConvParams, coords2, parent, coords1, attrs1, 
 
 def zero_mean_prior_bits(targets) -> float:
     """Reference: each channel coded with one zero-mean Gaussian level fitted to its RMS."""
-    from ..common.entropy.symbol_coder import ideal_code_length_bits, level_for_sigma
+    from ...common.entropy.symbol_coder import ideal_code_length_bits, level_for_sigma
 
     x = np.asarray(targets, dtype=np.float64)
     sym = np.floor(x + 0.5).astype(np.int64)

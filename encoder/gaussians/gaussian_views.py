@@ -9,9 +9,9 @@ import math
 
 import numpy as np
 
-from ..common.scene import GaussianScene
-from ..render.camera import Camera
-from ..render.views import fibonacci_sphere
+from ...common.scene import GaussianScene
+from ...render.camera import Camera
+from ...render.views import fibonacci_sphere
 from .gaussian_grid import typical_size
 
 

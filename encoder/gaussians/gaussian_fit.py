@@ -49,19 +49,19 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from ..app.progress import progress_bar
+from ...app.progress import progress_bar
 
-from ..common.attributes import STEP_ADJUST_FACTORS
-from ..common.scene import GaussianScene
-from .config import GaussianEncoderConfig
+from ...common.attributes import STEP_ADJUST_FACTORS
+from ...common.scene import GaussianScene
+from ..stream.config import GaussianEncoderConfig
 from .gaussian_grid import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid
 from .gaussian_views import fit_cameras, magnification, prune_by_contribution, resolving_views
-from .stats import PrepareStats
-from ..render.camera import Camera
-from ..render.gaussians3dgs import Gaussians3DGS, gaussians_from_scene, render_3dgs
-from ..render.importance import gaussian_contributions
-from ..render.rasterizer import rasterize
-from ..render.sh import sh_to_rgb
+from ..stream.stats import PrepareStats
+from ...render.camera import Camera
+from ...render.gaussians3dgs import Gaussians3DGS, gaussians_from_scene, render_3dgs
+from ...render.importance import gaussian_contributions
+from ...render.rasterizer import rasterize
+from ...render.sh import sh_to_rgb
 
 
 @dataclass

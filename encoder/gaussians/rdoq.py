@@ -66,17 +66,17 @@ import math
 import numpy as np
 import torch
 
-from ..common.attributes import STEP_ADJUST_FACTORS, CodingParams, GaussianLayout
-from ..common.entropy.symbol_coder import code_lengths_bits
-from ..common.neighbour_prediction import (NeighbourGraph, adjusted_prior, neighbour_means_and_buckets,
+from ...common.attributes import STEP_ADJUST_FACTORS, CodingParams, GaussianLayout
+from ...common.entropy.symbol_coder import code_lengths_bits
+from ...common.neighbour_prediction import (NeighbourGraph, adjusted_prior, neighbour_means_and_buckets,
                                            prior_level_in_steps)
-from ..common.scene import GaussianScene
-from ..render.camera import Camera
-from ..render.rasterizer import quat_to_rotmat, rasterize
-from ..render.sh import sh_to_rgb
-from .level_coding import fit_per_channel_prior
+from ...common.scene import GaussianScene
+from ...render.camera import Camera
+from ...render.rasterizer import quat_to_rotmat, rasterize
+from ...render.sh import sh_to_rgb
+from ..stream.level_coding import fit_per_channel_prior
 from .gaussian_grid import OPACITY_LOGIT_LIMIT, canonical_rotations
-from .neighbour_coding import NeighbourCoding
+from ..stream.neighbour_coding import NeighbourCoding
 
 
 def sensitivities(scene: GaussianScene, cams: list[Camera], probes: int = 1, seed: int = 0,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..common.scene import AnchorScene
+from ...common.scene import AnchorScene
 
 
 def merge_duplicate_anchors(scene: AnchorScene) -> tuple[AnchorScene, int]:

@@ -16,17 +16,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..common import attributes as attr
-from ..common.entropy.symbol_coder import (best_level, best_level_and_bits, code_lengths_bits,
+from ...common import attributes as attr
+from ...common.entropy.symbol_coder import (best_level, best_level_and_bits, code_lengths_bits,
                                            ideal_code_length_bits)
-from ..common.entropy.scale_levels import NUM_SCALE_LEVELS
-from ..common.neighbour_prediction import (ADJUST_FIXED_POINT, NeighbourGraph, check_extent, level_table,
+from ...common.entropy.scale_levels import NUM_SCALE_LEVELS
+from ...common.neighbour_prediction import (ADJUST_FIXED_POINT, NeighbourGraph, check_extent, level_table,
                                            mean_flags, neighbour_graph, neighbour_means_and_buckets,
                                            prior_level_in_steps, prior_mean_in_steps,
                                            write_predicted_attribute_unit)
-from ..common.attributes import NUM_STEP_ADJUST
-from ..common.container import UNIT_CRC_BYTES, UNIT_HEADER_BYTES
-from ..common.units import PRIOR_MEAN_MAX, NeighbourPredictionUnit
+from ...common.attributes import NUM_STEP_ADJUST
+from ...common.container import UNIT_CRC_BYTES, UNIT_HEADER_BYTES
+from ...common.units import PRIOR_MEAN_MAX, NeighbourPredictionUnit
 from .prediction import fit_channel_prediction
 
 UNIT_FRAMING_BYTES = UNIT_HEADER_BYTES + UNIT_CRC_BYTES

@@ -33,12 +33,12 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..common.context.ggconv import GRID_FRAC_BITS, grid_coordinate, neighbour_graph, trilinear_corners
-from ..common.geometry import normative_order
-from ..common.hierarchy import Hierarchy, build_hierarchy, local_position
-from ..common.entropy.scale_levels import LOG_SIGMA_MIN, LOG_SIGMA_STEP
-from .ste import ste_round_half_even
-from .ggconv_train import (ContextTwin, GGConvFloat, GGConvTrainConfig, default_radius_sq, gaussian_bits,
+from ...common.context.ggconv import GRID_FRAC_BITS, grid_coordinate, neighbour_graph, trilinear_corners
+from ...common.geometry import normative_order
+from ...common.hierarchy import Hierarchy, build_hierarchy, local_position
+from ...common.entropy.scale_levels import LOG_SIGMA_MIN, LOG_SIGMA_STEP
+from ..context.ste import ste_round_half_even
+from ..context.ggconv_train import (ContextTwin, GGConvFloat, GGConvTrainConfig, default_radius_sq, gaussian_bits,
                            init_mean_outputs, pow2_scale)
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import yaml
 
-from ..common.errors import InputError
+from ...common.errors import InputError
 
 DEFAULT_ATTRIBUTE_STEP = 0.02  # the feature, scaling and offset step of anchor scenes (preset medium)
 
