@@ -485,101 +485,186 @@ def _set_scene_hashes(units, hashes: tuple[bytes, ...]) -> None:
         units[j] = DataUnit(UnitType.DECODED_SCENE_HASH, p[:1] + digest + p[33:])
 
 
+def _insert_units(units, spec) -> None:
+    """One unit or a list, inserted in order; payload as text, or hex bytes."""
+    from lghcc.common.container import DataUnit
+
+    for p in spec if isinstance(spec, list) else [spec]:
+        payload = bytes.fromhex(p["hex"]) if "hex" in p else p["payload"].encode()
+        units.insert(p["index"], DataUnit(int(p["type"]), payload))
+
+
+def _insert_empty_render_model(units, index: int) -> None:
+    """num_mlps = 0, coded_size = 0: the same decoded scene."""
+    from lghcc.common.container import DataUnit, UnitType
+    from lghcc.common.units import RenderModelUnit
+
+    units.insert(index, DataUnit(UnitType.RENDER_MODEL, RenderModelUnit().to_bytes()))
+
+
+def _recode_geometry(units, idcm_mode: int) -> None:
+    """The geometry coded again, losslessly, with another IDCM mode."""
+    from lghcc.common.container import DataUnit, UnitType
+    from lghcc.common.geometry import decode_geometry, encode_geometry
+    from lghcc.common.units import SceneParameterSet
+
+    j = _unit_index(units, UnitType.GEOMETRY)
+    n = SceneParameterSet.from_bytes(units[0].payload).num_anchors
+    coords = decode_geometry(units[j].payload, n)
+    units[j] = DataUnit(UnitType.GEOMETRY, encode_geometry(coords, int(idcm_mode)))
+    assert np.array_equal(decode_geometry(units[j].payload, n), coords)
+
+
+def _set_parameter_set(unit_type, units, fields: dict) -> None:
+    """Fields of the parameter set in the unit of ``unit_type`` overwritten."""
+    from lghcc.common.container import DataUnit, UnitType
+    from lghcc.common.units import GaussianParameterSet, SceneParameterSet
+
+    cls = GaussianParameterSet if unit_type == UnitType.GAUSSIAN_PARAMETER_SET else SceneParameterSet
+    j = _unit_index(units, unit_type)
+    ps = cls.from_bytes(units[j].payload)
+    for k, v in fields.items():
+        setattr(ps, k, v)
+    units[j] = DataUnit(unit_type, ps.to_bytes())
+
+
+def _set_gps(units, fields: dict) -> None:
+    from lghcc.common.container import UnitType
+
+    _set_parameter_set(UnitType.GAUSSIAN_PARAMETER_SET, units, fields)
+
+
+def _set_sps(units, fields: dict) -> None:
+    from lghcc.common.container import UnitType
+
+    _set_parameter_set(UnitType.SCENE_PARAMETER_SET, units, fields)
+
+
+def _swap_units(units, pair) -> None:
+    a, b = pair
+    units[a], units[b] = units[b], units[a]
+
+
+def _duplicate_unit(units, i) -> None:
+    """A copy of unit i inserted right after it."""
+    from lghcc.common.container import DataUnit
+
+    i = int(i)
+    units.insert(i + 1, DataUnit(units[i].unit_type, units[i].payload))
+
+
+def _drop_unit(units, i) -> None:
+    del units[i]
+
+
+def _edit_payload(units, index: int, edit) -> None:
+    from lghcc.common.container import DataUnit
+
+    units[index] = DataUnit(units[index].unit_type, edit(units[index].payload))
+
+
+def _append_to_unit(units, p: dict) -> None:
+    """Trailing bytes inside a payload (with a valid CRC)."""
+    _edit_payload(units, p["index"], lambda payload: payload + bytes.fromhex(p["hex"]))
+
+
+def _prepend_to_unit(units, p: dict) -> None:
+    """Bytes before a payload's first element (with a valid CRC)."""
+    _edit_payload(units, p["index"], lambda payload: bytes.fromhex(p["hex"]) + payload)
+
+
+def _truncate_unit(units, p: dict) -> None:
+    """The last bytes of a payload dropped (with a valid CRC): a truncated structure."""
+    _edit_payload(units, p["index"], lambda payload: payload[:len(payload) - int(p["bytes"])])
+
+
+def _corrupt_hash(units, wanted) -> None:
+    from lghcc.common.container import DataUnit, UnitType
+
+    if not wanted:
+        return
+    i = _unit_index(units, UnitType.DECODED_SCENE_HASH)
+    payload = bytearray(units[i].payload)
+    payload[-1] ^= 0xFF
+    units[i] = DataUnit(units[i].unit_type, bytes(payload))
+
+
+def _apply_stream_edits(units, post: dict) -> None:
+    import stream_edits  # tools/stream_edits.py: values the encoder never writes, one broken rule each
+
+    stream_edits.apply_edits(units, post)
+
+
+def _flip_byte(out: bytes, at) -> bytes:
+    """One byte damaged without fixing the CRC."""
+    b = bytearray(out)
+    b[int(at)] ^= 0x01
+    return bytes(b)
+
+
+def _container_bytes(out: bytes, spec) -> bytes:
+    """Container-header bytes the writer refuses (a wrong magic)."""
+    import stream_edits
+
+    return stream_edits.raw_container_edit(out, spec)
+
+
+# The edits of an entry's `post`, each (key, edit), in the order they apply. Edits of the units
+# (with valid CRCs) first; None: the edits of tools/stream_edits.py, which read the whole `post`.
+UNIT_EDITS = (
+    ("insert_unit", _insert_units),
+    ("insert_empty_render_model", _insert_empty_render_model),
+    ("geometry_idcm_mode", _recode_geometry),
+    ("empty_chunks", _empty_chunks),
+    ("hand_ggconv", _hand_ggconv),
+    ("set_prior_mean", _set_prior_mean),
+    ("set_render_mlp", _set_render_mlp),
+    ("gaussian_attributes", _rewrite_gaussian_attributes),
+    ("tile_index", _edit_tile_index),  # [{name, t (a tile, or none), value or add}]
+    (None, _apply_stream_edits),
+    ("set_gps", _set_gps),  # after the edits, as set_sps
+    ("set_sps", _set_sps),
+    ("swap_units", _swap_units),
+    ("duplicate_unit", _duplicate_unit),
+    ("drop_unit", _drop_unit),
+    ("append_to_unit", _append_to_unit),
+    ("prepend_to_unit", _prepend_to_unit),
+    ("truncate_unit", _truncate_unit),
+    ("corrupt_hash", _corrupt_hash),
+)
+# Then, on the written container's bytes (these may break the framing on purpose)
+BYTE_EDITS = (
+    ("rehash", lambda out, wanted: _rehash(out) if wanted else out),
+    ("insert_raw_unit", _insert_raw_unit),
+    ("container_bytes", _container_bytes),
+    ("flip_byte", _flip_byte),
+    ("truncate", lambda out, n: out[:len(out) - int(n)]),  # this many bytes dropped from the end
+    ("keep_bytes", lambda out, n: out[:int(n)]),  # only the first bytes of the stream
+    ("append_bytes", lambda out, hex_: out + bytes.fromhex(hex_)),  # bytes after the last unit (not a whole one)
+)
+
+
 def post_process(data: bytes, post: dict, hashes: tuple[bytes, ...] | None = None) -> bytes:
     """Edits applied to an encoded stream, in this order: unit edits (which keep valid CRCs),
     then the rehash, then raw byte edits (which may break the framing on purpose). ``hashes``:
     the scene hashes written after the unit edits (an isolated error stream, ``isolate``)."""
-    from lghcc.common.container import ContainerHeader, DataUnit, UnitType, read_container, write_container
-    from lghcc.common.geometry import decode_geometry, encode_geometry
-    from lghcc.common.units import RenderModelUnit, SceneParameterSet
+    from lghcc.common.container import ContainerHeader, DataUnit, read_container, write_container
 
     if not post:
         return data
     units = [DataUnit(u.unit_type, u.payload) for u in read_container(data).units]
-    if "insert_unit" in post:  # one unit or a list, inserted in order; payload as text, or hex bytes
-        for p in post["insert_unit"] if isinstance(post["insert_unit"], list) else [post["insert_unit"]]:
-            payload = bytes.fromhex(p["hex"]) if "hex" in p else p["payload"].encode()
-            units.insert(p["index"], DataUnit(int(p["type"]), payload))
-    if "insert_empty_render_model" in post:  # num_mlps = 0, coded_size = 0: the same decoded scene
-        units.insert(post["insert_empty_render_model"], DataUnit(UnitType.RENDER_MODEL, RenderModelUnit().to_bytes()))
-    if "geometry_idcm_mode" in post:  # re-code the geometry losslessly with another IDCM mode
-        j = _unit_index(units, UnitType.GEOMETRY)
-        n = SceneParameterSet.from_bytes(units[0].payload).num_anchors
-        coords = decode_geometry(units[j].payload, n)
-        units[j] = DataUnit(UnitType.GEOMETRY, encode_geometry(coords, int(post["geometry_idcm_mode"])))
-        assert np.array_equal(decode_geometry(units[j].payload, n), coords)
-    if "empty_chunks" in post:
-        _empty_chunks(units, post["empty_chunks"])
-    if "hand_ggconv" in post:
-        _hand_ggconv(units, post["hand_ggconv"])
-    if "set_prior_mean" in post:
-        _set_prior_mean(units, post["set_prior_mean"])
-    if "set_render_mlp" in post:
-        _set_render_mlp(units, post["set_render_mlp"])
-    if "gaussian_attributes" in post:
-        _rewrite_gaussian_attributes(units, post["gaussian_attributes"])
-    if "tile_index" in post:  # edit elements of the tile index: [{name, t (a tile, or none), value or add}]
-        _edit_tile_index(units, post["tile_index"])
-    import stream_edits  # tools/stream_edits.py: values the encoder never writes, one broken rule each
-
-    stream_edits.apply_edits(units, post)
-    if "set_gps" in post:  # overwrite gaussian parameter set fields (after the edits, as set_sps)
-        from lghcc.common.units import GaussianParameterSet
-
-        j = _unit_index(units, UnitType.GAUSSIAN_PARAMETER_SET)
-        gps = GaussianParameterSet.from_bytes(units[j].payload)
-        for k, v in post["set_gps"].items():
-            setattr(gps, k, v)
-        units[j] = DataUnit(UnitType.GAUSSIAN_PARAMETER_SET, gps.to_bytes())
-    if "set_sps" in post:  # overwrite scene parameter set fields
-        j = _unit_index(units, UnitType.SCENE_PARAMETER_SET)
-        sps = SceneParameterSet.from_bytes(units[j].payload)
-        for k, v in post["set_sps"].items():
-            setattr(sps, k, v)
-        units[j] = DataUnit(UnitType.SCENE_PARAMETER_SET, sps.to_bytes())
-    if "swap_units" in post:
-        a, b = post["swap_units"]
-        units[a], units[b] = units[b], units[a]
-    if "duplicate_unit" in post:  # a copy of unit i inserted right after it
-        i = int(post["duplicate_unit"])
-        units.insert(i + 1, DataUnit(units[i].unit_type, units[i].payload))
-    if "drop_unit" in post:
-        del units[post["drop_unit"]]
-    if "append_to_unit" in post:  # trailing bytes inside a payload (with a valid CRC)
-        p = post["append_to_unit"]
-        units[p["index"]] = DataUnit(units[p["index"]].unit_type, units[p["index"]].payload + bytes.fromhex(p["hex"]))
-    if "prepend_to_unit" in post:  # bytes before a payload's first element (with a valid CRC)
-        p = post["prepend_to_unit"]
-        units[p["index"]] = DataUnit(units[p["index"]].unit_type, bytes.fromhex(p["hex"]) + units[p["index"]].payload)
-    if "truncate_unit" in post:  # the last bytes of a payload dropped (with a valid CRC): a truncated structure
-        p = post["truncate_unit"]
-        payload = units[p["index"]].payload
-        units[p["index"]] = DataUnit(units[p["index"]].unit_type, payload[:len(payload) - int(p["bytes"])])
-    if post.get("corrupt_hash"):
-        i = _unit_index(units, UnitType.DECODED_SCENE_HASH)
-        payload = bytearray(units[i].payload)
-        payload[-1] ^= 0xFF
-        units[i] = DataUnit(units[i].unit_type, bytes(payload))
+    for key, edit in UNIT_EDITS:
+        if key is None:
+            edit(units, post)
+        elif key in post:
+            edit(units, post[key])
     if hashes is not None:
         _set_scene_hashes(units, hashes)
     header = ContainerHeader(**post["container_header"]) if "container_header" in post else None
     out = write_container(units, header)
-    if post.get("rehash"):
-        out = _rehash(out)
-    if "insert_raw_unit" in post:
-        out = _insert_raw_unit(out, post["insert_raw_unit"])
-    if "container_bytes" in post:  # container-header bytes the writer refuses (a wrong magic)
-        out = stream_edits.raw_container_edit(out, post["container_bytes"])
-    if "flip_byte" in post:  # damage one byte without fixing the CRC
-        b = bytearray(out)
-        b[int(post["flip_byte"])] ^= 0x01
-        out = bytes(b)
-    if "truncate" in post:  # drop this many bytes from the end
-        out = out[:len(out) - int(post["truncate"])]
-    if "keep_bytes" in post:  # only the first bytes of the stream
-        out = out[:int(post["keep_bytes"])]
-    if "append_bytes" in post:  # bytes after the last data unit (not a whole unit)
-        out = out + bytes.fromhex(post["append_bytes"])
+    for key, edit in BYTE_EDITS:
+        if key in post:
+            out = edit(out, post[key])
     return out
 
 
@@ -809,9 +894,8 @@ def derive_tools(data: bytes, rejected_in: str | None = None) -> list[str]:
     sources.yaml declares it (one of REJECTION_STAGES, or None)."""
     if rejected_in is not None and rejected_in not in REJECTION_STAGES:
         raise SystemExit(f"rejected_in: {rejected_in!r} is not one of {', '.join(REJECTION_STAGES)}")
-    from lghcc.common.container import UnitType, read_container, version_minor_of
+    from lghcc.common.container import read_container
     from lghcc.common.errors import HashMismatchError, LghccError
-    from lghcc.conformance.coverage import _trace_values, element_infos, value_class
     from lghcc.decoder.decode import decode_stream, organize_units
 
     try:
@@ -828,59 +912,84 @@ def derive_tools(data: bytes, rejected_in: str | None = None) -> list[str]:
     except LghccError:  # rejected while decoding: the stage sources.yaml declares
         return sorted(tags | ({rejected_in} if rejected_in else set()))
     _undeclared([], rejected_in)
+    tags |= _unit_tags(container, res, "hierarchy" in tags) | _context_model_tags(container, res.scene)
+    if esc.count:
+        tags.add("escape")
+    return sorted(tags | _trace_tags(res.trace))
+
+
+def _unit_tags(container, res, hierarchy: bool) -> set[str]:
+    """Tags of the decoded stream's units: its version, tiles, source_info."""
+    from lghcc.common.container import UnitType, version_minor_of
+
+    tags = set()
     if container.header.version_minor != version_minor_of(container.units):
         tags.add("container_version")
     if any(u.unit_type == UnitType.TILE_INDEX for u in container.units):
         tags.add("tiles")
     letters = [u.unit_type for u in container.units]
-    if letters.count(UnitType.ATTRIBUTE) < 2 * letters.count(UnitType.GEOMETRY) and "hierarchy" in tags:
+    if letters.count(UnitType.ATTRIBUTE) < 2 * letters.count(UnitType.GEOMETRY) and hierarchy:
         tags.add("tile_without_level2")
     if res.source_info is not None:
         tags.add("source_info")
     if res.notes:
         tags.add("source_info_ignored")
+    return tags
+
+
+def _context_model_tags(container, sc) -> set[str]:
+    """Tags of the context-model units: GG-Conv's neighbour level, the channels' parent bases."""
+    from lghcc.common.attributes import ChannelLayout, GaussianLayout
+    from lghcc.common.container import UnitType
+    from lghcc.common.context.models import read_context_model
+    from lghcc.common.scene import GaussianScene
+    from lghcc.common.units import CONTEXT_GGCONV
+
+    tags = set()
     for u in container.units:
         if u.unit_type == UnitType.CONTEXT_MODEL:
-            from lghcc.common.attributes import ChannelLayout, GaussianLayout
-            from lghcc.common.context.models import read_context_model
-            from lghcc.common.scene import GaussianScene
-            from lghcc.common.units import CONTEXT_GGCONV
-
-            sc = res.scene
             layout = GaussianLayout(sc.sh_degree) if isinstance(sc, GaussianScene) else \
                 ChannelLayout(sc.feature_dim, sc.num_offsets)
             model_id, params = read_context_model(u.payload, layout)
             if model_id == CONTEXT_GGCONV:
                 tags.add(f"ggconv_neighbour_level_{params.neighbour_level}")
             tags.update(f"context_parent_base_{b}" for b in np.unique(params.parent_base).tolist())
-    if esc.count:
-        tags.add("escape")
+    return tags
+
+
+# Tags of single syntax elements in the decoder's trace: element name -> tag of its value (or None)
+TRACE_TAGS = {
+    "geometry_header.geom_idcm_mode": lambda v: f"geometry_idcm_{v}",
+    "attribute_unit_header.context_model_id":
+        lambda v: {0: "per_channel_prior", 1: "parent_mlp_context", 2: "ggconv_context"}[int(v)],
+    "render_model_unit.num_mlps": lambda v: "render_model_empty" if v == 0 else None,
+    "attribute_unit_header.num_channel_predictions": lambda v: "channel_prediction" if v > 0 else None,
+    "attribute_unit_header.mask_chunk_size": lambda v: "empty_chunk" if v == 0 else None,
+}
+
+
+def _trace_tags(trace) -> set[str]:
+    """Tags of the syntax elements the decoder read: modes, ids, chunks, values at their maximum."""
+    from lghcc.conformance.coverage import _trace_values, element_infos, value_class
+
     infos = element_infos()
-    chunk_sizes: list[int] = []
-    for name, value, ctx in _trace_values(res.trace):
-        if name == "geometry_header.geom_idcm_mode":
-            tags.add(f"geometry_idcm_{value}")
-        elif name == "attribute_unit_header.context_model_id":
-            tags.add({0: "per_channel_prior", 1: "parent_mlp_context", 2: "ggconv_context"}[int(value)])
-        elif name == "render_model_unit.num_mlps" and value == 0:
-            tags.add("render_model_empty")
-        elif name == "attribute_unit_header.num_channel_predictions" and value > 0:
-            tags.add("channel_prediction")
+    tags, chunk_sizes = set(), []
+    for name, value, ctx in _trace_values(trace):
+        if name in TRACE_TAGS:
+            tags.add(TRACE_TAGS[name](value))
         elif name == "attribute_unit_header.rows_per_chunk_minus1":
             chunk_sizes.append(0)
         elif name == "attribute_unit_header.chunk_size":
             chunk_sizes[-1] += 1
             if value == 0:
                 tags.add("empty_chunk")
-        elif name == "attribute_unit_header.mask_chunk_size" and value == 0:
-            tags.add("empty_chunk")
         info = infos.get(name)
         if info is not None and info.kind not in ("enum", "bytes") and value_class(info, value, ctx) == "maximum" \
                 and name != "attribute_unit_header.rows_per_chunk_minus1":
             tags.add("maximum_values")
     if any(c > 1 for c in chunk_sizes):
         tags.add("chunks")
-    return sorted(tags)
+    return tags - {None}
 
 
 def _undeclared(tools: list[str], rejected_in: str | None) -> list[str]:
