@@ -54,7 +54,7 @@ def encode(scene: "Scene | PathLike", preset: str = "medium", *, config: PathLik
     ``lghcc-medium``, ``lghcc-high`` (anchor scenes; they fit a context model: minutes).
     ``config``: a YAML file of encoder options; ``options``: more of them (e.g.
     ``feature_step=0.01`` for anchor scenes, ``rd_lambda=0.5`` or ``sh_degree=1`` for Gaussian
-    scenes; encoder/config.py lists them). ``verify`` decodes the stream again and checks its
+    scenes; encoder/stream/config.py lists them). ``verify`` decodes the stream again and checks its
     hash. An anchor scene without render MLPs is refused unless ``allow_missing_mlps``."""
     from .encoder import api as enc
 

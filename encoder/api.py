@@ -60,7 +60,7 @@ def is_gaussian_file(path: str | Path) -> bool:
 @dataclass
 class TranscodeOptions:
     """How ``load_source(mode="anchors")`` turns a plain 3DGS scene (PLY, SPZ, SOG) into an
-    anchor scene: the transcode preset of ``preset`` (encoder/config.py TRANSCODE_PRESETS, its
+    anchor scene: the transcode preset of ``preset`` (encoder/stream/config.py TRANSCODE_PRESETS, its
     rate model matched to the coding configuration), then these TranscodeConfig fields (None:
     the preset's, or TranscodeConfig's default)."""
 
@@ -88,7 +88,7 @@ class Source:
 
 def transcode_source(path: Path, options: TranscodeOptions, coding=None, *, progress: bool = False,
                      log: Log = _quiet) -> TranscodeResult:
-    """A plain 3DGS scene file (PLY, SPZ or SOG) fitted to anchors (encoder/transcode.py) with
+    """A plain 3DGS scene file (PLY, SPZ or SOG) fitted to anchors (encoder/anchors/transcode.py) with
     the settings of ``options`` for the coding configuration ``coding`` (None: its preset's)."""
     from ..formats.ply3dgs import is_3dgs_ply
     from .stream.config import load_config
@@ -262,7 +262,7 @@ def encode(scene: AnchorScene | GaussianScene, cfg=None, *, progress: bool = Fal
     checks that it gives the encoded scene (its hash). ``transcoded``: the transcode that made
     the anchor scene (``read_source``): the stream gets a source_info unit with the source's
     SH degree (spec clause 7.3.10) and the stats its statistics (its context twin, trained in
-    its rate phase, is ``context_twin`` when wanted). ``workers`` (encoder/tile_workers.py
+    its rate phase, is ``context_twin`` when wanted). ``workers`` (encoder/stream/tile_workers.py
     TileWorkers; None: this process): where a tiled scene's tiles are coded (worker processes,
     Ray); the stream does not depend on it."""
     from .stream.encode import encode_scene, source_info_unit

@@ -1,4 +1,4 @@
-"""GG-Conv integer inference (common/context/ggconv.py) and its fitting (encoder/ggconv_train.py)."""
+"""GG-Conv integer inference (common/context/ggconv.py) and its fitting (encoder/context/ggconv_train.py)."""
 
 import dataclasses
 import math

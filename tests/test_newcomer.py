@@ -207,6 +207,9 @@ def test_install_is_quiet(tmp_path):
     names = zipfile.ZipFile(whl).namelist()
     assert "lghcc/py.typed" in names and any(n.endswith("licenses/LICENSE") for n in names)
     assert "lghcc/conformance/streams/c001_one_anchor/stream.lghcc" in names
+    # every package folder ships (pyproject lists each: a new subpackage missing there would not)
+    inits = {f"lghcc/{f}" for f in files if f.endswith("__init__.py") and not f.startswith(("tests/", "tools/"))}
+    assert inits - set(names) == set()
 
 
 def test_readme_commands_write_outside_the_repository():

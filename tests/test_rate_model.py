@@ -1,4 +1,4 @@
-"""The attribute-rate estimate used by rate-distortion training (encoder/rate_model.py)."""
+"""The attribute-rate estimate used by rate-distortion training (encoder/anchors/rate_model.py)."""
 
 import numpy as np
 import torch

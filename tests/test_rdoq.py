@@ -1,4 +1,4 @@
-"""Rate-distortion optimized quantization (encoder/rdoq.py): the sensitivities against the exact
+"""Rate-distortion optimized quantization (encoder/gaussians/rdoq.py): the sensitivities against the exact
 Jacobian, the choice's bounds and costs (property tests, hard cases), and the encoder coding
 exactly the values it chose."""
 
@@ -301,7 +301,7 @@ def test_encoder_codes_the_chosen_values_exactly_and_spends_fewer_bytes(predict)
     assert dec.hash_checked
     # the decoded values are those the encoder reported, within one step of plain rounding
     steps = channel_steps(cfg, 1)
-    # (the scales up to their order: RDOQ may turn a Gaussian's axes, encoder/rdoq.py)
+    # (the scales up to their order: RDOQ may turn a Gaussian's axes, encoder/gaussians/rdoq.py)
     a = np.concatenate([dec.scene.sh.reshape(len(dec.scene.sh), -1), np.sort(dec.scene.log_scales, 1)], 1)
     b = np.concatenate([plain.decoded.sh.reshape(len(a), -1), np.sort(plain.decoded.log_scales, 1)], 1)
     assert np.array_equal(dec.scene.sh, chosen.decoded.sh)

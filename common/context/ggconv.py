@@ -179,7 +179,7 @@ def mlp_from_arrays(by: dict[str, NamedIntArray], name: str, shifts) -> IntMLP:
     return IntMLP(layers)
 
 
-# -- normative building blocks, shared with the float twin (encoder/ggconv_train.py) ----------
+# -- normative building blocks, shared with the float twin (encoder/context/ggconv_train.py) ----------
 
 def check_parent_base(parent_base, num_attrs: int) -> np.ndarray:
     """The per-channel parent_base flags as int64 [M] (None: every channel 1); ValueError

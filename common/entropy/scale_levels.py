@@ -28,7 +28,7 @@ def sigma_of_level(level) -> np.ndarray:
 
 
 # The same rule in the log domain, ln sigma_i = LOG_SIGMA_MIN + i LOG_SIGMA_STEP, for the
-# encoder's differentiable rate estimates (encoder/ggconv_train.py, encoder/rate_model.py).
+# encoder's differentiable rate estimates (encoder/context/ggconv_train.py, encoder/anchors/rate_model.py).
 LOG_SIGMA_MIN = math.log(SIGMA_MIN)
 LOG_SIGMA_STEP = math.log(SIGMA_MAX / SIGMA_MIN) / (NUM_SCALE_LEVELS - 1)
 

@@ -15,7 +15,7 @@ attributes of a fixed anchor set, with the structure the stream uses:
   (common/hierarchy.py), so level 1 and level 2 are the sets the codec will code;
 * level 1: a per-channel discretized Gaussian (learned mean and log scale, in steps), the
   per-channel prior of the level-1 attribute unit;
-* level 2: the GG-Conv float twin (encoder/ggconv_train.py) over the canonical Ball k-NN graph
+* level 2: the GG-Conv float twin (encoder/context/ggconv_train.py) over the canonical Ball k-NN graph
   of the configured neighbour level, conditioned, as a decoder is, on the *rounded* level-1
   values; its mean and scale give the level-2 bits.
 

@@ -40,7 +40,7 @@
    attributes quantized at the encoder's steps (straight-through rounding) and the loss
    gains rate_lambda x the estimated bits per attribute value of the live attributes under
    the codec's hierarchy, per-channel prior (level 1) and GG-Conv twin (level 2)
-   (encoder/rate_model.py), whose parameters are trained alongside. The twin is returned
+   (encoder/anchors/rate_model.py), whose parameters are trained alongside. The twin is returned
    (``TranscodeResult.context_twin``) so that the encoder's GG-Conv fit can start from it.
    Progress (``progress``, app/progress.py): a bar per phase on a terminal, else a line with
    the time left at most every LGHCC_PROGRESS_INTERVAL seconds.
@@ -129,7 +129,7 @@ class TranscodeConfig:
 
 
 def preset_transcode_config(preset: str, coding, **overrides) -> TranscodeConfig:
-    """The transcoder's settings for lghcc-enc --mode anchors at ``preset`` (encoder/config.py
+    """The transcoder's settings for lghcc-enc --mode anchors at ``preset`` (encoder/stream/config.py
     TRANSCODE_PRESETS; "lghcc-low" as "low"), with the rate model matching ``coding`` (the EncoderConfig the
     stream will be coded with): its feature, scaling and offset steps, and its hierarchy (coarse
     voxel scale, GG-Conv k and neighbour level) or none. ``overrides``: TranscodeConfig fields
@@ -473,7 +473,7 @@ class RenderFit:
     source renders; at ``rate_iteration`` the anchors are pruned (``prune``) and, with
     ``rate_lambda`` > 0, the rate phase starts: the scene renders with its attributes quantized
     as the encoder will quantize them (straight-through rounding) and the loss gains
-    rate_lambda x the estimated attribute bits per attribute value (encoder/rate_model.py, the
+    rate_lambda x the estimated attribute bits per attribute value (encoder/anchors/rate_model.py, the
     model lghcc-train --rate-lambda trains with)."""
 
     def __init__(self, st: SceneTensors, a: dict, cfg: TranscodeConfig, backend: str):

@@ -1,6 +1,6 @@
 """Fitting the level-2 context model (informative, encoder side).
 
-``fit_level2_context`` dispatches on the model: GG-Conv (encoder/ggconv_train.py: float
+``fit_level2_context`` dispatches on the model: GG-Conv (encoder/context/ggconv_train.py: float
 twin, then quantization-aware training that emulates the integer path) or the parent MLP
 (the paper's "vanilla EM"; below: float training with the same rate-distortion loss, then
 post-training quantization with per-layer power-of-two scales).

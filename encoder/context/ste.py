@@ -3,10 +3,10 @@ forward pass, the identity in the backward pass. Two tie rules on purpose, each 
 operation the trained value will go through:
 
 * ``ste_round_half_up``: floor(x + 1/2), ties toward +inf, the rounding shift of the integer
-  networks (common/intnn.py ``rshift_round``): the GG-Conv float twin (encoder/ggconv_train.py)
+  networks (common/intnn.py ``rshift_round``): the GG-Conv float twin (encoder/context/ggconv_train.py)
   rounds as the normative integer inference will;
 * ``ste_round_half_even``: ties to even, as np.rint in the encoder's attribute quantization
-  (encoder/encode.py ``quantize``): the rate model (encoder/rate_model.py) sees the values
+  (encoder/stream/encode.py ``quantize``): the rate model (encoder/anchors/rate_model.py) sees the values
   the encoder will code.
 """
 

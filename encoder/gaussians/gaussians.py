@@ -11,7 +11,7 @@ The encoder's choices, none of which the decoder needs to know:
   free voxel (one voxel away as a rule: the error grows from half a voxel to about one and a
   half), so none is lost for lack of room;
 - rotations are normalized with w >= 0 (q and -q are one rotation; RDOQ may write a Gaussian
-  in another of its equivalent ways, encoder/rdoq.py), opacity logits clamped to
+  in another of its equivalent ways, encoder/gaussians/rdoq.py), opacity logits clamped to
   [-OPACITY_LOGIT_LIMIT, OPACITY_LOGIT_LIMIT] (beyond, alpha differs from 0 or 1 by < 3.4e-4);
 - quantization steps from the preset; cross-channel prediction where it saves bits.
 """
@@ -97,7 +97,7 @@ def gaussian_attribute_input(scene: GaussianScene, geometry: GeometryCoding, lev
 def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: LevelLayout,
                        cfg: GaussianEncoderConfig) -> AttributeInput:
     """The attribute values moved onto the quantized values rate-distortion optimized
-    quantization chooses (encoder/rdoq.py; ``sensitivity`` rows in coding order), which the
+    quantization chooses (encoder/gaussians/rdoq.py; ``sensitivity`` rows in coding order), which the
     coder's rounding then reproduces exactly. The choice uses the whole scene's neighbour
     graph, also where tiles code their own."""
     from .rdoq import adjust_on_graph, channel_groups, group_slopes, orientation_columns, rd_quantize, sh_degree_subset
@@ -144,12 +144,12 @@ def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | Non
                           weights: np.ndarray | None = None, sensitivity: np.ndarray | None = None,
                           progress: bool = False, measure_ideal: bool = False, workers=None) -> EncodeResult:
     """Encode an explicit-Gaussian scene. A scene already on a grid (``coords`` set, e.g. from
-    encoder/gaussian_fit.py) keeps it; otherwise the grid is chosen here. ``weights``: each
+    encoder/gaussians/gaussian_fit.py) keeps it; otherwise the grid is chosen here. ``weights``: each
     Gaussian's contribution to the pictures, when known (grid size, who keeps a shared voxel).
-    ``sensitivity``: the pictures' sensitivity to each value (encoder/rdoq.py, [N, M] at the
+    ``sensitivity``: the pictures' sensitivity to each value (encoder/gaussians/rdoq.py, [N, M] at the
     scene's SH degree or above), when known: the values are then chosen by rate-distortion
     optimized quantization (``cfg.rd_quantization``) instead of rounded. ``workers``
-    (encoder/tile_workers.py TileWorkers; None: this process): where a tiled scene's tiles are
+    (encoder/stream/tile_workers.py TileWorkers; None: this process): where a tiled scene's tiles are
     coded; the stream does not depend on it."""
     cfg = (cfg or GaussianEncoderConfig()).validate()
     scene.validate()

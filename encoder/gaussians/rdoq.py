@@ -413,7 +413,7 @@ def sh_degree_subset(f: np.ndarray, sh_degree: int) -> np.ndarray:
 
 def adjust_on_graph(x: np.ndarray, f: np.ndarray, degree: int, coords: np.ndarray, order: np.ndarray, graph,
                     cfg) -> np.ndarray | None:
-    """int64 [N] (scene order): the step-adjustment indices encoder/rdoq.py step_adjust_choice
+    """int64 [N] (scene order): the step-adjustment indices encoder/gaussians/rdoq.py step_adjust_choice
     gives values ``x`` [N, M] (in the channels' steps) with sensitivities ``f``, ``graph`` being
     the neighbour graph of ``coords[order]`` (the normative order); None where every index is 0
     (the stream then carries nothing of the tool)."""

@@ -154,24 +154,24 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # Neighbour prediction (version 1.1, without the hierarchy): rows coded in prediction_lods
     # levels of detail, each value from the mean of its prediction_neighbours nearest coarser
     # points with a scale level per activity bucket (prediction_buckets); used where it codes
-    # smaller than the per-channel prior (encoder/neighbour_coding.py); "always": wherever the
+    # smaller than the per-channel prior (encoder/stream/neighbour_coding.py); "always": wherever the
     # scene admits it (tests, conformance streams); False: never.
     neighbour_prediction: bool | str = True
     prediction_lods: int = 6
     prediction_neighbours: int = 6
     prediction_buckets: int = 5
-    # Rate-distortion optimized quantization (encoder/rdoq.py): each value rounded, moved one step
+    # Rate-distortion optimized quantization (encoder/gaussians/rdoq.py): each value rounded, moved one step
     # towards its prediction, or set to it, by the pictures' sensitivity to it against the bits
     # saved; this weighs the bits (1: the slope of each group's own step; 0: plain rounding).
     # Needs the sensitivities, which the rate-aware preparation measures.
     rd_quantization: float = 1.0
-    # Step adjustment (version 1.2, clause 11.8; encoder/rdoq.py step_adjust_indices): each
+    # Step adjustment (version 1.2, clause 11.8; encoder/gaussians/rdoq.py step_adjust_indices): each
     # Gaussian's steps made 2^(a/4) times coarser, a in [0, step_adjust_max], by how little the
     # pictures see it: the Gaussians above the step_adjust_quantile of visibility keep the steps.
     # Needs the sensitivities and neighbour prediction (0: off).
     step_adjust_max: int = 0
     step_adjust_quantile: float = 0.9
-    # Rate-aware preparation (encoder/gaussian_fit.py), against renders of the source from
+    # Rate-aware preparation (encoder/gaussians/gaussian_fit.py), against renders of the source from
     # fit_views cameras on a sphere around it at fit_resolution pixels:
     fit_views: int = 24
     fit_resolution: int = 160
@@ -183,9 +183,9 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     fit_iterations: int = 0
     fit_lr_scale: float = 1.0
     # rate term of the fit: each step moves the values down the gradient of their estimated bits,
-    # lr x fit_rate_lambda x step^2 per bit (encoder/gaussian_fit.py; 0: distortion only)
+    # lr x fit_rate_lambda x step^2 per bit (encoder/gaussians/gaussian_fit.py; 0: distortion only)
     fit_rate_lambda: float = 0.0
-    # Rate-distortion search of the settings above (encoder/gaussian_rd.py): lambda in dB of
+    # Rate-distortion search of the settings above (encoder/gaussians/gaussian_rd.py): lambda in dB of
     # PSNR per doubling of the stream (0: code with the preset's settings as they are), on
     # search_views renders of search_resolution pixels.
     rd_lambda: float = 0.0
@@ -198,13 +198,13 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # A smaller scene renders faster, so the search looks at it more closely: a scene of N
     # Gaussians gets s = search_reference_gaussians / N times the pixels (1 <= s <=
     # search_max_scale), sqrt(s) times the views (at most twice) and the rest as resolution
-    # (encoder/gaussian_rd.py, search_view_plan; 0: the views above on every scene).
+    # (encoder/gaussians/gaussian_rd.py, search_view_plan; 0: the views above on every scene).
     search_reference_gaussians: int = 150_000
     search_max_scale: float = 8.0
     # A larger scene than this is searched on a sample of about this many Gaussians in whole cells
-    # of space (encoder/search_sample.py), on the views its whole would get; the choice is then
+    # of space (encoder/gaussians/search_sample.py), on the views its whole would get; the choice is then
     # checked on the whole scene (after the fit) and moved onto the target there by one common
-    # factor on the steps if it misses (encoder/gaussian_rd.py, meet_on_whole_scene). 0: the whole
+    # factor on the steps if it misses (encoder/gaussians/gaussian_rd.py, meet_on_whole_scene). 0: the whole
     # scene, whatever its size. The search's time stops growing with the scene here. Off by default:
     # measured on the logo (307k, sample 100k) it cost 31% more bytes at equal PSNR than the whole
     # search, the donut +61% with a forced 20k sample (tools/results/search_sampling.md: cells cut
@@ -212,12 +212,12 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     search_sample_gaussians: int = 0
     # The sensitivities and the fit render every Gaussian for each view or step: a scene of N above
     # this many Gaussians gets fit_views x this / N views for its sensitivities (at least
-    # MIN_SENSITIVITY_VIEWS, encoder/gaussian_fit.py) and fit_iterations x this / N fitting steps,
+    # MIN_SENSITIVITY_VIEWS, encoder/gaussians/gaussian_fit.py) and fit_iterations x this / N fitting steps,
     # so that neither costs more than on a scene of this size (0: the full views and steps).
     fit_reference_gaussians: int = 150_000
     # The fit and search views must resolve the scene's typical Gaussian to this many pixels: when
     # the orbit views do not, the contributions are measured on finer whole views and the fit and
-    # the search add as many magnified crops (encoder/gaussian_fit.py, "views that resolve the
+    # the search add as many magnified crops (encoder/gaussians/gaussian_fit.py, "views that resolve the
     # Gaussians"). Raise it for scenes meant to be seen closer up.
     resolve_px: float = 0.1
 
@@ -282,7 +282,7 @@ def context_model_size(cfg: EncoderConfig, num_level2: int) -> tuple[int, int, i
     return tuple(g if g is not None else a for g, a in zip(given, auto))
 
 
-# lghcc-enc --mode anchors: what each preset asks of the transcoder (encoder/transcode.py, step 4
+# lghcc-enc --mode anchors: what each preset asks of the transcoder (encoder/anchors/transcode.py, step 4
 # of its module doc). The coding preset of the same name (presets/<name>.yaml or lghcc-<name>.yaml)
 # gives the quantization steps the fit simulates and the hierarchy and context its rate term
 # models (transcode.preset_transcode_config); the lghcc-* presets share these settings. A step up

@@ -191,7 +191,7 @@ def level_layout(num_points: int, cfg: AttributeCodingConfig, coords: np.ndarray
                  stats: EncodeStats) -> LevelLayout:
     """One level of every point, or level 1 and level 2 when the configuration asks for the
     hierarchy and level 2 is not empty (an empty level 2 switches the hierarchy off: it costs
-    no bits); and the tile size (encoder/tiling.py)."""
+    no bits); and the tile size (encoder/stream/tiling.py)."""
     from .tiling import tile_scale_of
 
     if cfg.hierarchy:
@@ -463,8 +463,8 @@ def stream_tiles(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodingC
                  coded: CodedAttributes, make_scene, stats: EncodeStats, progress: bool = False, workers=None):
     """The tiles of the stream with their hashes, and the whole decoded scene (stream order).
     Without tiles: one tile of the units already coded. With tiles: every tile coded on its own
-    (encoder/tiling.py; ``stats`` then counts the tiles' units), where ``workers`` says
-    (encoder/tile_workers.py; None: this process). ``make_scene(coords, values, mask)``: the
+    (encoder/stream/tiling.py; ``stats`` then counts the tiles' units), where ``workers`` says
+    (encoder/stream/tile_workers.py; None: this process). ``make_scene(coords, values, mask)``: the
     decoded scene of those points."""
     from .tile_workers import code_tiles
     from .tiling import TileCoding, TileJob, tile_level_stats
@@ -536,7 +536,7 @@ def encode_scene(scene: AnchorScene, cfg: EncoderConfig | None = None, progress:
     stream is kept); a twin that does not fit the configuration is reported in stats and unused.
     ``ancillary``: ancillary data units (type >= 0x80, e.g. source_info) written right after
     the scene parameter set; the decoded scene and its hash do not depend on them. ``workers``
-    (encoder/tile_workers.py TileWorkers; None: this process): where a tiled scene's tiles are
+    (encoder/stream/tile_workers.py TileWorkers; None: this process): where a tiled scene's tiles are
     coded; the stream does not depend on it."""
     ancillary = check_ancillary(ancillary)
     cfg = (cfg or EncoderConfig()).validate()

@@ -60,13 +60,13 @@ class LevelStats:
 
 @dataclass
 class PrepareStats:
-    """The rate-aware preparation of a Gaussian scene (encoder/gaussian_fit.py)."""
+    """The rate-aware preparation of a Gaussian scene (encoder/gaussians/gaussian_fit.py)."""
     gaussians_in: int
     time_contributions_s: float = 0.0
-    time_sensitivities_s: float | None = None  # for rate-distortion optimized quantization (encoder/rdoq.py)
+    time_sensitivities_s: float | None = None  # for rate-distortion optimized quantization (encoder/gaussians/rdoq.py)
     time_search_s: float | None = None  # the settings search (a quality or lambda asked for)
     search_trials: int | None = None
-    search_sample_gaussians: int | None = None  # searched on a sample of the scene (encoder/search_sample.py)
+    search_sample_gaussians: int | None = None  # searched on a sample of the scene (encoder/gaussians/search_sample.py)
     search_sample_ratio: float | None = None  # the whole scene's squared error over the sample's, same settings
     time_whole_check_s: float | None = None  # the sampled choice checked (and moved) on the whole scene
     whole_check_trials: int | None = None

@@ -180,7 +180,7 @@ class TileJob:
 
 def code_one_tile(job: TileJob, cell, rows: np.ndarray, tinp) -> tuple[TileCoding, np.ndarray]:
     """One tile, from its own input alone -> (its coding with its hash, its decoded values): the
-    same in this process, a worker process or a Ray task (encoder/tile_workers.py)."""
+    same in this process, a worker process or a Ray task (encoder/stream/tile_workers.py)."""
     tile = TileCoding(cell, rows, encode_geometry(tinp.coords), [])
     tile.attributes, trecon = code_tile(tinp, job.cfg, job.context_payload, tile.unit_stats, job.neighbour_unit)
     tile.scene_hash = digest_of(job.make_scene(tinp.coords, trecon, tinp.mask))

@@ -35,7 +35,7 @@ What it does (Scaffold-GS, Lu et al. 2024, with the differences listed here):
   mean summed neural opacity per view is below ``--min-opacity`` are removed (never all).
 * Statistics saved with the scene: ``scene.extra["opacity_accum"]`` = mean over the views
   that saw the anchor (since its creation) and over its K offsets of max(0, neural opacity):
-  the quantity NAAP (encoder/naap.py) uses; written as the PLY column ``opacity_accum``.
+  the quantity NAAP (encoder/anchors/naap.py) uses; written as the PLY column ``opacity_accum``.
 * Output: ``<out>/point_cloud/iteration_<N>/`` (the Scaffold-GS layout lghcc-enc reads),
   ``<out>/train_state.pth`` (everything needed to resume exactly: parameters, Adam state,
   statistics, RNG states), ``<out>/metrics.json`` / ``metrics.csv`` (test PSNR/SSIM curve),

@@ -73,7 +73,7 @@ class TrainConfig:
     # Rate-distortion training (LG-HCC eq. 12: L = L_render + lambda L_anchor): from rate_from
     # on (after the last growing/pruning, so the anchor set is fixed), the loss adds
     # rate_lambda x the estimated bits per attribute value of the anchors under the codec's
-    # hierarchy and context model (encoder/rate_model.py), and the scene renders with its
+    # hierarchy and context model (encoder/anchors/rate_model.py), and the scene renders with its
     # attributes quantized as the encoder will (steps rate_step). 0: plain Scaffold-GS.
     rate_lambda: float = 0.0
     rate_from: int | None = None  # None: densify_until

@@ -1,6 +1,6 @@
 """Anchor growing and pruning of lghcc-train (Scaffold-GS; see the package docstring): the
 statistics gathered per iteration, the growing and pruning every ``densify_interval``
-iterations, and the pruning after growing (NAAP or opacity, encoder/naap.py)."""
+iterations, and the pruning after growing (NAAP or opacity, encoder/anchors/naap.py)."""
 
 from __future__ import annotations
 
@@ -119,7 +119,7 @@ class AnchorGrowing:
     # --- pruning (NAAP or opacity) -----------------------------------------------------
     @torch.no_grad()
     def prune_anchors(self) -> None:
-        """NAAP or opacity pruning of the current anchors (encoder/naap.py), importance from the
+        """NAAP or opacity pruning of the current anchors (encoder/anchors/naap.py), importance from the
         opacity accumulated since each anchor's creation; NAAP merges offsets, scalings and the
         accumulated opacity of every pruned anchor into its nearest kept neighbour (eq. 11).
         The optimizer state of the kept anchors carries over."""

@@ -44,7 +44,7 @@ class Trainer(AnchorParameters, AnchorGrowing, RateTerm, CheckpointState):
         self.loss_ema = None
         self.grown = 0  # anchors added by growing / removed by pruning, since the start
         self.pruned = 0
-        self.rate_model = None  # encoder/rate_model.AnchorRateModel, built when the rate phase starts
+        self.rate_model = None  # encoder/anchors/rate_model.AnchorRateModel, built when the rate phase starts
         self.rate_opt = None
         self.rate_bits = None  # last estimate of the attribute bits per anchor
         self.prune_report = None  # what prune_anchors did

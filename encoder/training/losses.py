@@ -1,6 +1,6 @@
 """The loss of lghcc-train: the image term (by default 0.8 L1 + 0.2 (1 - SSIM) + 0.01 x mean
 volume of the neural Gaussians, Scaffold-GS) and, in the rate-distortion phase, the rate term (LG-HCC eq.
-12: lambda x the estimated bits per attribute value, encoder/rate_model.py) with its rate model."""
+12: lambda x the estimated bits per attribute value, encoder/anchors/rate_model.py) with its rate model."""
 
 from __future__ import annotations
 
