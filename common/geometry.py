@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .bitio import BitReader, BitWriter
-from .entropy.range_coder import TOTAL_FREQUENCY, RangeDecoder, RangeEncoder
+from .entropy.range_coder import TOTAL_FREQUENCY, RangeDecoder, RangeEncoder, binary_weights
 from .errors import BitstreamError
 from .syntax import SyntaxStructure, SyntaxVisitor
 
@@ -150,10 +150,10 @@ def normative_order(coords: np.ndarray) -> np.ndarray:
 def binary_frequency(counts: np.ndarray) -> np.ndarray:
     """Frequency (of 2^24) of symbol 1 from counts [..., 2] = (n0, n1): the integer KT estimate
     floor((2*n1 + 1) * 2^24 / (2*(n0 + n1) + 2)), clipped to [1, 2^24 - 1] (spec G.6)."""
-    n0 = counts[..., 0].astype(np.int64)
-    n1 = counts[..., 1].astype(np.int64)
+    n0 = counts[..., 0].astype(np.int64, copy=False)
+    n1 = counts[..., 1].astype(np.int64, copy=False)
     f1 = ((2 * n1 + 1) * TOTAL_FREQUENCY) // (2 * (n0 + n1) + 2)
-    return np.clip(f1, 1, TOTAL_FREQUENCY - 1)
+    return np.minimum(np.maximum(f1, 1), TOTAL_FREQUENCY - 1)  # the clip, without np.clip's overhead
 
 
 def chunk_bounds(n: int) -> list[int]:
@@ -172,8 +172,8 @@ def chunk_bounds(n: int) -> list[int]:
 def limit_counts(table: np.ndarray, limit: int) -> None:
     """Halve (rounding up) both counts of every context whose n0 + n1 exceeds limit, repeatedly."""
     while True:
-        big = table.sum(axis=1) > limit
-        if not big.any():
+        big = table[:, 0] + table[:, 1] > limit  # n0 + n1 (called per chunk: no reduction)
+        if not np.logical_or.reduce(big):
             return
         table[big] = (table[big] + 1) >> 1
 
@@ -206,14 +206,15 @@ class _SymbolIO:
         # a stable sort groups the decisions by context, each group in its original order (radix
         # sort on 16-bit keys: every context table here is far smaller than 2^16)
         order = np.argsort(ctx.astype(np.uint16) if table.shape[0] <= 1 << 16 else ctx, kind="stable")
-        f1 = binary_frequency(table)[ctx[order]]  # each decision with its context's frequency
+        # each decision with its context's model: the models of the table's contexts, gathered
+        models = binary_weights(binary_frequency(table), check=False)[ctx[order]]  # clipped: in range
         if self.encoding:
-            self.enc.encode_binary(values[order], f1)
+            values = values.astype(np.int64, copy=False)
+            self.enc.encode_binary_models(values[order], models)
         else:
             values = np.empty(n, dtype=np.int64)
-            values[order] = self.dec.decode_binary(f1)
-        values = values.astype(np.int64)
-        table += np.bincount(ctx.astype(np.int64) * 2 + values, minlength=table.size).reshape(table.shape)
+            values[order] = self.dec.decode_binary_models(models)
+        table += np.bincount(ctx.astype(np.int64, copy=False) * 2 + values, minlength=table.size).reshape(table.shape)
         limit_counts(table, COUNT_LIMIT)
         return values
 
@@ -305,13 +306,16 @@ def _idcm_eligible(mode: int, remaining: int, sib1: np.ndarray, par_nbr: np.ndar
 
 
 def _code_occupancy(io: _SymbolIO, st: _ContextState, q: np.ndarray, depth: int, remaining: int,
-                    bit_depth: list[int], occ_true: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """Code the occupancy bytes of the nodes q at ``depth`` (children at depth + 1).
+                    bit_depth: list[int], occ_true: np.ndarray | None,
+                    nb: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Code the occupancy bytes of the nodes q at ``depth`` (children at depth + 1); ``nb``: their
+    face neighbours when known (``_NodeState.nb``), else searched (``_face_neighbours``).
     Returns (occupancy uint8-valued int64 [M], number of occupied face neighbours [M])."""
     m = q.shape[0]
     for k in range(8):
         limit_counts(st.occ[k], LEVEL_COUNT_LIMIT)
-    nb = _face_neighbours(q, depth)
+    if nb is None:
+        nb = _face_neighbours(q, depth)
     exists = (nb >= 0).astype(np.int64)
     nbr_count = exists.sum(axis=0)
     dens = DENS_BUCKET[nbr_count]
@@ -372,19 +376,57 @@ def _validate_header(h: GeometryHeader, num_anchors: int) -> None:
                              f"{h.geom_bit_depth} bits per axis")
 
 
+# NTH_BIT[b, r]: the index of the r-th set bit of the byte b (0 where b has fewer)
+NTH_BIT = np.zeros((256, 8), dtype=np.int64)
+for _b in range(256):
+    _set = [j for j in range(8) if _b >> j & 1]
+    NTH_BIT[_b, :len(_set)] = _set
+
+
+def _child_neighbours(nb: np.ndarray, occ: np.ndarray, parent: np.ndarray) -> np.ndarray:
+    """The face neighbours (as ``_face_neighbours``, [6, M']) of the children of nodes with face
+    neighbours ``nb`` [6, M] and occupancy ``occ``, the children in Morton order (``parent``: each
+    one's parent), from the parents' (informative: the same answer without a search). Along axis
+    a a child's neighbour is its sibling with child index k ^ bit_a when that lies toward the
+    neighbour, else the child k ^ bit_a of the parent's neighbour on that side; it exists where
+    that node's occupancy has bit k ^ bit_a."""
+    count = POPCOUNT8[occ]
+    first = np.cumsum(count) - count  # index of each node's first child
+    k = NTH_BIT[occ[parent], np.arange(parent.size) - first[parent]]
+    occ_p, first_p = np.append(occ, 0), np.append(first, -1)  # index -1 (no node): nothing occupied
+    out = np.empty((6, parent.size), dtype=np.int64)
+    for a in range(3):
+        upper = (k & AXIS_BIT[a]) != 0  # the child is on its parent's + side along a
+        j = k ^ AXIS_BIT[a]
+        for side, sibling in ((0, upper), (1, ~upper)):
+            owner = np.where(sibling, parent, nb[2 * a + side][parent])
+            o = occ_p[owner]
+            out[2 * a + side] = np.where(((o >> j) & 1) == 1, first_p[owner] + POPCOUNT8[o & ((1 << j) - 1)], -1)
+    return out
+
+
+def _kept_neighbours(nb: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Face neighbours among the nodes ``keep`` (bool [M]) from those among all M nodes."""
+    new = np.append(np.where(keep, np.cumsum(keep) - 1, -1), -1)  # index -1 (no node) stays -1
+    return new[nb[:, keep]]
+
+
 @dataclass
 class _NodeState:
     """Per node of the current depth (G.5.1): sib1 (occupied children of its parent), par_nbr
-    (occupied face neighbours of its parent), par_sib1 (the parent's sib1)."""
+    (occupied face neighbours of its parent), par_sib1 (the parent's sib1); and nb, the index of
+    each face neighbour among the nodes, or -1 ([6, M], ``_face_neighbours``'s order)."""
 
     sib1: np.ndarray
     par_nbr: np.ndarray
     par_sib1: np.ndarray
+    nb: np.ndarray | None = None
 
     @classmethod
     def root(cls) -> "_NodeState":
-        """The one node of depth 0: sib1 = 1, par_nbr = 0, par_sib1 = 1."""
-        return cls(np.ones(1, dtype=np.int64), np.zeros(1, dtype=np.int64), np.ones(1, dtype=np.int64))
+        """The one node of depth 0: sib1 = 1, par_nbr = 0, par_sib1 = 1, no neighbours."""
+        return cls(np.ones(1, dtype=np.int64), np.zeros(1, dtype=np.int64), np.ones(1, dtype=np.int64),
+                   np.full((6, 1), -1, dtype=np.int64))
 
     def idcm_eligible(self, mode: int, remaining: int) -> np.ndarray:
         """Indices of the nodes eligible for direct coding (G.5.2)."""
@@ -395,11 +437,13 @@ class _NodeState:
 
     def without(self, keep: np.ndarray) -> "_NodeState":
         """The nodes that are not direct (``keep``); only sib1 is read again at this depth."""
-        return _NodeState(self.sib1[keep], self.par_nbr, self.par_sib1)
+        return _NodeState(self.sib1[keep], self.par_nbr, self.par_sib1,
+                          None if self.nb is None else _kept_neighbours(self.nb, keep))
 
     def children(self, occ: np.ndarray, nbr_count: np.ndarray, parent: np.ndarray) -> "_NodeState":
         """The state of the nodes of depth l + 1, children of the nodes ``parent`` (G.5.4 step 5)."""
-        return _NodeState(POPCOUNT8[occ][parent], nbr_count[parent], self.sib1[parent])
+        nb = None if self.nb is None else _child_neighbours(self.nb, occ, parent)
+        return _NodeState(POPCOUNT8[occ][parent], nbr_count[parent], self.sib1[parent], nb)
 
 
 def _idcm_flag_context(sib1: np.ndarray, par_sib1: np.ndarray) -> np.ndarray:
@@ -459,7 +503,7 @@ def _encode_octree(io: _SymbolIO, pts: np.ndarray, bit_depth: list[int], idcm_mo
         ci = (((pts[:, 0] >> (remaining - 1)) & 1) << 2) | (((pts[:, 1] >> (remaining - 1)) & 1) << 1) \
             | ((pts[:, 2] >> (remaining - 1)) & 1)
         occ = np.bitwise_or.reduceat(np.left_shift(1, ci), starts)
-        occ, nbr_count = _code_occupancy(io, st, q, depth, remaining, bit_depth, occ)
+        occ, nbr_count = _code_occupancy(io, st, q, depth, remaining, bit_depth, occ, nodes.nb)
         _, parent = _children(q, occ)
         nodes = nodes.children(occ, nbr_count, parent)
 
@@ -530,7 +574,7 @@ def _decode_octree(io: _SymbolIO, bit_depth: list[int], mode: int, n: int) -> np
             q, nodes = q[keep], nodes.without(keep)
             if q.shape[0] == 0:
                 break
-        occ, nbr_count = _code_occupancy(io, st, q, depth, remaining, bit_depth, None)
+        occ, nbr_count = _code_occupancy(io, st, q, depth, remaining, bit_depth, None, nodes.nb)
         num_children = int(POPCOUNT8[occ].sum())
         if num_direct + num_children > n:
             raise BitstreamError(f"geometry data: {num_direct + num_children} anchors at depth {depth + 1}, "

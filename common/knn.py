@@ -99,13 +99,14 @@ def check_extent(*arrays: np.ndarray) -> int:
 
 
 def _prepare(coords, query, k: int):
-    """Checked int64 data and query points, and empty outputs (idx -1, valid False) of [M, k]."""
+    """Checked int64 data and query points, their extent E, and empty outputs (idx -1, valid False)
+    of [M, k]."""
     c = _as_coords(coords, "coords")
     self_mode = query is None
     q = c if self_mode else _as_coords(query, "query")
-    check_extent(c, q)
+    extent = check_extent(c, q)
     m = q.shape[0]
-    return c, q, self_mode, np.full((m, k), -1, dtype=np.int64), np.zeros((m, k), dtype=bool)
+    return c, q, self_mode, extent, np.full((m, k), -1, dtype=np.int64), np.zeros((m, k), dtype=bool)
 
 
 def _check_k_radius(k, radius_sq) -> tuple[int, int]:
@@ -132,12 +133,13 @@ def ball_knn(coords, k: int, radius_sq: int, query=None, exclude_self: bool = Tr
     tie often, and 2 for a separate query set; tools/results/ggconv.md measures both).
     """
     k, radius_sq = _check_k_radius(k, radius_sq)
-    c, q, self_mode, idx_out, valid_out = _prepare(coords, query, k)
+    c, q, self_mode, extent, idx_out, valid_out = _prepare(coords, query, k)
     n, m = c.shape[0], q.shape[0]
     if n == 0 or m == 0 or k == 0:
         return idx_out, valid_out
-    # Clamp the radius to the largest possible d2 so float bounds stay finite.
-    search = _CandidateSearch(c, q, self_mode, min(radius_sq, 3 * MAX_EXTENT * MAX_EXTENT), k, exclude_self,
+    # Clamp the radius to the largest d2 of these points, 3 E^2 (the same ball): float bounds stay
+    # finite, and a ball that covers everything still orders by one int64 key (use_key)
+    search = _CandidateSearch(c, q, self_mode, min(radius_sq, 3 * extent * extent), k, exclude_self,
                               _default_threads if workers is None else workers)
     if initial_extra is None:
         initial_extra = 8 if self_mode else 2

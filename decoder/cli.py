@@ -305,19 +305,22 @@ def _export(args, result, note) -> None:
     """--export: the decoded scene as a plain 3DGS scene (PLY, SPZ or SOG); an anchor stream's
     colours fitted at the degree export_degree gives."""
     from ..formats import write_scene
-    from ..render.scenes import to_gaussians
 
     t1 = time.perf_counter()
     scene = result.scene
-    degree, directions, how = args.export_sh_degree, 16, ""
-    if not isinstance(scene, GaussianScene):
+    degree, how = args.export_sh_degree, ""
+    if isinstance(scene, GaussianScene):
+        # to_gaussians' rule for a 3DGS scene, without importing render/ (which loads torch: seconds)
+        sc = scene if degree is None else scene.with_sh_degree(degree)
+    else:
         from ..render.export import default_distance
+        from ..render.scenes import to_gaussians
 
         degree, origin = export_degree(args.export_sh_degree, result.source_info)
         directions = export_directions(args.export_directions, degree)
         dist = args.export_distance if args.export_distance is not None else default_distance(scene)
         how = f", {origin}; the MLPs evaluated in {directions} directions at distance {dist:.4g}"
-    sc = to_gaussians(scene, degree, directions=directions, distance=args.export_distance)
+        sc = to_gaussians(scene, degree, directions=directions, distance=args.export_distance)
     try:
         write_scene(sc, args.export_ply)
     except OSError as e:

@@ -29,7 +29,7 @@ def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def ball_knn_bruteforce(coords, k: int, radius_sq: int, query=None,
                         exclude_self: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """O(N M) reference of common/knn.py ``ball_knn`` (same contract)."""
-    c, q, self_mode, idx_out, valid_out = _prepare(coords, query, k)
+    c, q, self_mode, _, idx_out, valid_out = _prepare(coords, query, k)
     n, m = c.shape[0], q.shape[0]
     for r in range(m):
         if n == 0:

@@ -186,6 +186,31 @@ def test_morton_step_is_the_key_of_the_neighbour(points, axis, delta):
     np.testing.assert_array_equal(got, _morton21(moved[inside]))
 
 
+@settings(max_examples=40, deadline=None)
+@given(point_sets(), st.sampled_from([IDCM_OFF, IDCM_ISOLATED, IDCM_NO_NEIGHBOURS]))
+def test_face_neighbours_from_the_parents_equal_the_search(c, mode):
+    """The decoder and the encoder carry each node's face neighbours from its parent's
+    (_NodeState.nb: _child_neighbours, _kept_neighbours after direct nodes leave); at every depth
+    of both they equal the search among the depth's nodes (_face_neighbours), and the round trip
+    holds. Deep boxes (beyond 21 bits per axis) take the search's other key."""
+    from lghcc.common import geometry as G
+
+    seen = []
+    real = G._code_occupancy
+
+    def checked(io, st_, q, depth, remaining, bit_depth, occ_true, nb=None):
+        np.testing.assert_array_equal(nb, G._face_neighbours(q, depth))
+        seen.append(depth)
+        return real(io, st_, q, depth, remaining, bit_depth, occ_true, nb)
+
+    G._code_occupancy = checked
+    try:
+        roundtrip(c, idcm_mode=mode)
+    finally:
+        G._code_occupancy = real
+    assert seen or c.shape[0] == 1
+
+
 def test_normative_order_deep_bounding_box():
     c = np.array([[COORD_MAX, 0, 0], [COORD_MIN, 5, 0], [0, COORD_MAX, COORD_MIN], [1, 1, 1]], dtype=np.int64)
     np.testing.assert_array_equal(normative_order(c), reference_order(c))

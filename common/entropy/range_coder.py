@@ -49,11 +49,12 @@ def exact_model(freqs: np.ndarray):
 _BINARY_FAMILY = constriction.stream.model.Categorical(perfect=False)
 
 
-def binary_weights(f1: np.ndarray) -> np.ndarray:
+def binary_weights(f1: np.ndarray, check: bool = True) -> np.ndarray:
     """The constriction weights [n, 2] of the binary models whose symbol 1 has frequency
-    f1 (1 <= f1 < 2^24): row j codes with exactly the frequencies [2^24 - f1[j], f1[j]]."""
+    f1 (1 <= f1 < 2^24): row j codes with exactly the frequencies [2^24 - f1[j], f1[j]].
+    ``check`` False: f1 is known to be in range (a caller that clipped it, once per chunk)."""
     f = np.asarray(f1, dtype=np.int64).ravel()
-    if f.size and (int(f.min()) < 1 or int(f.max()) >= TOTAL_FREQUENCY):
+    if check and f.size and (int(f.min()) < 1 or int(f.max()) >= TOTAL_FREQUENCY):
         raise ValueError(f"binary frequency outside [1, 2^{PRECISION_BITS}): {int(f.min())}..{int(f.max())}")
     w = np.empty((f.size, 2), dtype=np.float64)
     w[:, 0] = TOTAL_FREQUENCY - 1 - f
@@ -80,11 +81,16 @@ class RangeEncoder:
 
     def encode_binary(self, symbols: np.ndarray, f1: np.ndarray) -> None:
         """Code binary decisions (0 or 1), decision j with frequency f1[j] of symbol 1 (of 2^24)."""
+        self.encode_binary_models(symbols, binary_weights(f1))
+
+    def encode_binary_models(self, symbols: np.ndarray, models: np.ndarray) -> None:
+        """Code binary decisions, decision j with the model of row j of ``models`` (rows of
+        ``binary_weights``: a coder of many decisions computes each context's row once)."""
         s = np.ascontiguousarray(symbols, dtype=np.int32).ravel()
         if s.size:
             if int(s.min()) < 0 or int(s.max()) > 1:
                 raise ValueError("a binary decision is not 0 or 1")
-            self._enc.encode(s, _BINARY_FAMILY, binary_weights(f1))
+            self._enc.encode(s, _BINARY_FAMILY, models)
 
     def encode_bits(self, values: np.ndarray, nbits: np.ndarray | int) -> None:
         """Code unsigned integers of ``nbits`` bits each (0..64) with uniform probabilities."""
@@ -134,7 +140,10 @@ class RangeDecoder:
 
     def decode_binary(self, f1: np.ndarray) -> np.ndarray:
         """One binary decision per entry of f1 (frequency of symbol 1, of 2^24); int32."""
-        w = binary_weights(f1)
+        return self.decode_binary_models(binary_weights(f1))
+
+    def decode_binary_models(self, w: np.ndarray) -> np.ndarray:
+        """One binary decision per row of ``w`` (rows of ``binary_weights``); int32."""
         if not w.shape[0]:
             return np.zeros(0, dtype=np.int32)
         try:
