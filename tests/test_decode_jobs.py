@@ -150,3 +150,35 @@ def test_writing_a_decoded_anchor_scene_does_not_import_torch(tmp_path):
     from lghcc.common.hashing import digest_of
 
     assert digest_of(read_scene(str(tmp_path / "out"))) == decode_stream(stream.read_bytes()).stream_hash
+
+
+def test_exporting_a_decoded_3dgs_stream_does_not_import_torch(tmp_path):
+    """--export-ply of an explicit-Gaussian stream needs no renderer: render/ (and with it torch,
+    seconds and ~180 MiB) stays unimported, and the PLY holds the decoded scene."""
+    import subprocess
+    import sys
+
+    from lghcc.common.hashing import gaussian_scene_digest
+    from lghcc.common.scene import GaussianScene
+    from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
+    from lghcc.encoder.stream.config import GaussianEncoderConfig
+    from lghcc.formats.ply3dgs import read_3dgs_ply
+
+    rng, f = np.random.default_rng(3), np.float32
+    n = 500
+    scene = GaussianScene(rng.uniform(-1, 1, (n, 3)).astype(f), rng.normal(size=(n, 1, 3)).astype(f),
+                          rng.normal(0, 3, n).astype(f), (-4 + rng.normal(size=(n, 3))).astype(f),
+                          rng.normal(size=(n, 4)).astype(f))
+    stream = tmp_path / "g.lghcc"
+    stream.write_bytes(encode_gaussian_scene(scene, GaussianEncoderConfig()).data)
+    out = tmp_path / "g.ply"
+    code = ("import sys; from lghcc.decoder.cli import main; rc = main([sys.argv[1], '--export-ply', sys.argv[2], "
+            "'-q']); assert rc == 0; assert 'torch' not in sys.modules, 'torch imported'")
+    subprocess.run([sys.executable, "-c", code, str(stream), str(out)], check=True)
+    decoded = decode_stream(stream.read_bytes()).scene
+    back = read_3dgs_ply(out)
+    assert back.num_gaussians == n
+    np.testing.assert_array_equal(back.means, decoded.means)
+    np.testing.assert_array_equal(back.sh, decoded.sh)
+    np.testing.assert_array_equal(back.opacity, decoded.opacity)
+    assert gaussian_scene_digest(decoded) == decode_stream(stream.read_bytes()).stream_hash
