@@ -4,7 +4,7 @@
 // (escapes near 2^62, predictions of huge deviations, step-adjusted sums of huge values) take an
 // exact BigInt path.
 import { BitstreamError } from './errors.mjs';
-import { buildTree, EXACT_EXTENT, nearest, nearestExact } from './knn.mjs';
+import { EXACT_EXTENT, gridNeighbours, nearestExact } from './knn.mjs';
 import { RangeDecoder } from './range.mjs';
 import { decodeSymbolChunk } from './symbols.mjs';
 
@@ -41,39 +41,33 @@ export function lodRows(n, L) {
     return out;
 }
 
-function checkExtent(x, y, z, n) {
-    let ext = 0;
-    for (const c of [x, y, z]) {
+/** The per-axis minima and extents of the tile's points; throws E64 beyond MAX_EXTENT. */
+function tileBounds(x, y, z, n) {
+    const lo = [0, 0, 0], ext = [0, 0, 0];
+    [x, y, z].forEach((c, a) => {
         let mn = Infinity, mx = -Infinity;
         for (let i = 0; i < n; i++) { if (c[i] < mn) mn = c[i]; if (c[i] > mx) mx = c[i]; }
-        ext = Math.max(ext, mx - mn);
-    }
-    if (ext > MAX_EXTENT) throw new BitstreamError(`the tile's points span ${ext} voxels, beyond MAX_EXTENT = ${MAX_EXTENT} (clause 8.1, E64)`);
-    return ext;
+        lo[a] = mn; ext[a] = mx - mn;
+    });
+    const e = Math.max(...ext);
+    if (e > MAX_EXTENT) throw new BitstreamError(`the tile's points span ${e} voxels, beyond MAX_EXTENT = ${MAX_EXTENT} (clause 8.1, E64)`);
+    return { lo, ext, exact: e > EXACT_EXTENT };
 }
 
 /** Neighbours (clause 11.7.2) of the rows of LoD l among the rows of LoDs < l: {idx: Int32Array [n_l * k], cnt}. */
-function lodNeighbours(lods, l, k, coords, exact) {
+function lodNeighbours(lods, l, k, coords, bounds, n) {
     const { x, y, z } = coords;
-    let total = 0;
-    for (let m = 0; m < l; m++) total += lods[m].length;
-    const ids = new Int32Array(total);
-    let o = 0;
-    for (let m = 0; m < l; m++) { ids.set(lods[m], o); o += lods[m].length; }
-    ids.sort();
+    const step = 2 ** (lods.length - l); // the rows of LoDs < l are the multiples of 2^(L - l)
+    const ids = new Int32Array(Math.ceil(n / step));
+    for (let t = 0; t < ids.length; t++) ids[t] = t * step;
     const rows = lods[l];
     const idx = new Int32Array(rows.length * k), cnt = new Uint8Array(rows.length);
-    if (exact) {
+    if (bounds.exact) {
         const px = Array.from(ids, (i) => x[i]), py = Array.from(ids, (i) => y[i]), pz = Array.from(ids, (i) => z[i]);
         for (let r = 0; r < rows.length; r++) cnt[r] = nearestExact(px, py, pz, ids, x[rows[r]], y[rows[r]], z[rows[r]], k, idx, r * k);
         return { idx, cnt };
     }
-    const tree = buildTree(Array.from(ids, (i) => x[i]), Array.from(ids, (i) => y[i]), Array.from(ids, (i) => z[i]), ids);
-    const hd = new Float64Array(k), hi = new Int32Array(k), stack = new Float64Array(5 * 256);
-    for (let r = 0; r < rows.length; r++) {
-        const i = rows[r];
-        cnt[r] = nearest(tree, x[i], y[i], z[i], k, idx, r * k, hd, hi, stack);
-    }
+    gridNeighbours(x, y, z, bounds.lo, bounds.ext, ids, rows, k, idx, cnt);
     return { idx, cnt };
 }
 
@@ -105,12 +99,11 @@ class TileAttributeDecoder {
     run() {
         const { np } = this.ctx;
         const lods = np ? lodRows(this.n, np.L) : [null];
-        let exact = false;
-        if (np) exact = checkExtent(this.coords.x, this.coords.y, this.coords.z, this.n) > EXACT_EXTENT;
+        const bounds = np ? tileBounds(this.coords.x, this.coords.y, this.coords.z, this.n) : null;
         for (let l = 0; l < lods.length; l++) {
             const rows = lods[l];
             const nl = rows ? rows.length : this.n;
-            const nb = l > 0 ? lodNeighbours(lods, l, np.k, this.coords, exact) : null;
+            const nb = l > 0 ? lodNeighbours(lods, l, np.k, this.coords, bounds, this.n) : null;
             const S = this.h.rowsPerChunk;
             for (let m = 0; m * S < nl; m++) {
                 const lo = m * S, hi = Math.min(nl, lo + S);
