@@ -14,7 +14,7 @@ export const ADJUST_LEVEL_SHIFT = [0, 1, 3, 4, 5, 6, 8, 9];
 export const MAX_EXTENT = 1753413056;
 const Q_LIMIT = 2 ** 40;
 const SAFE_DEV = 2 ** 31; // |q - mean| below this: a row's prediction sum stays below 2^52
-const SAFE_SA = 2 ** 33; // |q| below this: step-adjusted neighbour sums stay below 2^53
+const SAFE_SA_SUM = 2 ** 45; // |q F| below this (so |q| < 2^33 when F >= 4096): step-adjusted sums of k <= 32 neighbours stay below 2^50
 
 function bitLength(a) {
     return a < 4294967296 ? 32 - Math.clz32(a) : 64 - Math.clz32(Math.floor(a / 4294967296));
@@ -86,6 +86,7 @@ class TileAttributeDecoder {
         this.pStart = new Int32Array(M + 1);
         const k = ctx.np ? ctx.np.k : 0;
         this.nbRow = new Float64Array(k); this.nbFactor = new Float64Array(k); // a row's neighbours: j * M and F(adj[j])
+        this.nbSum = new Float64Array(M); this.nbMax = new Float64Array(M); this.nbMin = new Float64Array(M);
         for (let i = 0; i < h.predTarget.length; i++) this.pStart[h.predTarget[i] + 1]++;
         for (let c = 0; c < M; c++) this.pStart[c + 1] += this.pStart[c];
     }
@@ -155,34 +156,51 @@ class TileAttributeDecoder {
             }
             return;
         }
-        const k = np.k, n = nb.cnt[t], B = np.B, q = this.q, jm = this.nbRow, fac = this.nbFactor;
+        const k = np.k, n = nb.cnt[t], q = this.q, jm = this.nbRow, fac = this.nbFactor;
         for (let m = 0; m < n; m++) { const j = nb.idx[t * k + m]; jm[m] = j * M; fac[m] = sa ? ADJUST_FIXED_POINT[this.adj[j]] : 1; }
-        const meanOut = this.mean, levelOut = this.level, meanFlag = np.meanFlag, bucketLevel = np.bucketLevel, priorMean = h.priorMean;
-        const half = Math.floor(n * F / 2), halfN = Math.floor(n / 2), halfF = Math.floor(F / 2);
-        let wide = false;
-        for (let c = 0; c < M; c++) {
-            let sum = 0, mx = -Infinity, mn = Infinity;
-            for (let m = 0; m < n; m++) {
-                const qv = q[jm[m] + c], v = qv * fac[m];
-                if (qv >= SAFE_SA || qv <= -SAFE_SA) wide = true;
-                sum += v;
-                if (v > mx) mx = v;
-                if (v < mn) mn = v;
+        // sum, max and min of the neighbours' (step-adjusted) values, neighbour by neighbour: rows are contiguous
+        const sum = this.nbSum, mx = this.nbMax, mn = this.nbMin;
+        for (let c = 0, j = jm[0], f = fac[0]; c < M; c++) { const v = q[j + c] * f; sum[c] = v; mx[c] = v; mn[c] = v; }
+        for (let m = 1; m < n; m++) {
+            const j = jm[m], f = fac[m];
+            for (let c = 0; c < M; c++) {
+                const v = q[j + c] * f;
+                sum[c] += v;
+                if (v > mx[c]) mx[c] = v;
+                if (v < mn[c]) mn[c] = v;
             }
-            let mean, act;
-            if (sa) {
-                mean = meanFlag[c] ? floorDiv(sum + half, n * F) : floorDiv(priorMean[c] * 4096 + halfF, F);
-                act = floorDiv(mx - mn, F);
-            } else {
-                mean = meanFlag[c] ? floorDiv(sum + halfN, n) : priorMean[c];
-                act = mx - mn;
-            }
-            meanOut[base + c] = mean;
-            const b = bitLength(act);
-            levelOut[base + c] = bucketLevel[c * B + (b < B - 1 ? b : B - 1)];
         }
-        // step-adjusted sums of |q| >= 2^33 may pass 2^53: the exact path redoes the whole row
-        if (sa && wide) this.rowParametersExact(row, base, nb.idx.subarray(t * k, t * k + n));
+        if (sa ? this.meansAdjusted(base, n, F) : this.means(base, n)) this.rowParametersExact(row, base, nb.idx.subarray(t * k, t * k + n));
+    }
+
+    /** mean and level from nbSum/Max/Min of n neighbours (clause 11.7.3). */
+    means(base, n) {
+        const np = this.ctx.np, B = np.B, meanFlag = np.meanFlag, bucketLevel = np.bucketLevel, priorMean = this.h.priorMean;
+        const sum = this.nbSum, mx = this.nbMax, mn = this.nbMin, halfN = Math.floor(n / 2);
+        for (let c = 0; c < this.M; c++) {
+            this.mean[base + c] = meanFlag[c] ? floorDiv(sum[c] + halfN, n) : priorMean[c];
+            const b = bitLength(mx[c] - mn[c]);
+            this.level[base + c] = bucketLevel[c * B + (b < B - 1 ? b : B - 1)];
+        }
+        return false;
+    }
+
+    /**
+     * The same with step adjustment (clause 11.8), F the row's fixed-point factor. Returns true when
+     * a neighbour's value reached 2^45 in magnitude (|q| >= 2^33 for some): sums may then pass 2^53,
+     * and the exact path redoes the row.
+     */
+    meansAdjusted(base, n, F) {
+        const np = this.ctx.np, B = np.B, meanFlag = np.meanFlag, bucketLevel = np.bucketLevel, priorMean = this.h.priorMean;
+        const sum = this.nbSum, mx = this.nbMax, mn = this.nbMin, half = Math.floor(n * F / 2), halfF = Math.floor(F / 2);
+        let wide = false;
+        for (let c = 0; c < this.M; c++) {
+            if (mx[c] >= SAFE_SA_SUM || mn[c] <= -SAFE_SA_SUM) wide = true;
+            this.mean[base + c] = meanFlag[c] ? floorDiv(sum[c] + half, n * F) : floorDiv(priorMean[c] * 4096 + halfF, F);
+            const b = bitLength(floorDiv(mx[c] - mn[c], F));
+            this.level[base + c] = bucketLevel[c * B + (b < B - 1 ? b : B - 1)];
+        }
+        return wide;
     }
 
     rowParametersExact(row, base, nbr) {
