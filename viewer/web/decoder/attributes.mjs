@@ -85,7 +85,7 @@ class TileAttributeDecoder {
         // predictions grouped by target (they are sorted by target, clause 7.3.5)
         this.pStart = new Int32Array(M + 1);
         const k = ctx.np ? ctx.np.k : 0;
-        this.nbRow = new Float64Array(k); this.nbFactor = new Float64Array(k); // a row's neighbours: j * M and F(adj[j])
+        this.nbRow = new Int32Array(k); this.nbFactor = new Float64Array(k); // a row's neighbours: j * M and F(adj[j])
         this.nbSum = new Float64Array(M); this.nbMax = new Float64Array(M); this.nbMin = new Float64Array(M);
         for (let i = 0; i < h.predTarget.length; i++) this.pStart[h.predTarget[i] + 1]++;
         for (let c = 0; c < M; c++) this.pStart[c + 1] += this.pStart[c];
