@@ -84,20 +84,26 @@ function limitCounts(T, numCtx, limit) {
  */
 function childNeighbours(nodes, occ, first, children) {
     const m = nodes.m, pnb = nodes.nb, nb = new Int32Array(6 * children);
-    const childOf = (i, k) => (i < 0 || !((occ[i] >> k) & 1) ? -1 : first[i] + POPCOUNT8[occ[i] & ((1 << k) - 1)]);
     for (let i = 0, j = 0; i < m; i++) {
         const o = occ[i];
         for (let k = 0; k < 8; k++) {
             if (!((o >> k) & 1)) continue;
             for (let a = 0; a < 3; a++) {
-                const bit = AXIS_BIT[a], b = 6 * j + 2 * a;
-                if (k & bit) { nb[b] = childOf(i, k ^ bit); nb[b + 1] = childOf(pnb[6 * i + 2 * a + 1], k ^ bit); }
-                else { nb[b] = childOf(pnb[6 * i + 2 * a], k | bit); nb[b + 1] = childOf(i, k | bit); }
+                const bit = AXIS_BIT[a], b = 6 * j + 2 * a, u = pnb[6 * i + 2 * a + ((k & bit) ? 1 : 0)];
+                // the sibling on the other side of the axis, and the child across the parent's face
+                const sib = childIndex(occ, first, i, k ^ bit), across = u < 0 ? -1 : childIndex(occ, first, u, k ^ bit);
+                if (k & bit) { nb[b] = sib; nb[b + 1] = across; } else { nb[b] = across; nb[b + 1] = sib; }
             }
             j++;
         }
     }
     return nb;
+}
+
+/** The index of child k of node i (first[i] the index of its first child), or -1. */
+function childIndex(occ, first, i, k) {
+    const o = occ[i];
+    return (o >> k) & 1 ? first[i] + POPCOUNT8[o & ((1 << k) - 1)] : -1;
 }
 
 class Nodes {
