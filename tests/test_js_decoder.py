@@ -85,6 +85,47 @@ process.stdin.on('end', () => {
 """
 
 
+KNN = """
+import { gridNeighbours } from './knn.mjs';
+import { readFileSync } from 'node:fs';
+const out = [];
+for (const c of JSON.parse(readFileSync(0, 'utf8'))) {
+    const [x, y, z] = [0, 1, 2].map((a) => Int32Array.from(c.points, (p) => p[a]));
+    const lo = [0, 1, 2].map((a) => Math.min(...[x, y, z][a])), ext = [0, 1, 2].map((a) => Math.max(...[x, y, z][a]) - lo[a]);
+    const idx = new Int32Array(c.queries.length * c.k).fill(-1), cnt = new Uint8Array(c.queries.length);
+    gridNeighbours(x, y, z, lo, ext, Int32Array.from(c.data), Int32Array.from(c.queries), c.k, idx, cnt);
+    out.push(Array.from(idx));
+}
+console.log(JSON.stringify(out));
+"""
+
+
+def test_grid_knn_matches_reference_ball_knn():
+    """The JS decoder's grid k-NN (clause 11.7.2) against common/knn.py's canonical Ball k-NN on
+    point sets full of equal distances (small lattices, flat and needle-shaped tiles, clusters far
+    apart, one data point), data = the rows of LoD < l as the decoder's, ties by lower row."""
+    from lghcc.common.knn import ball_knn
+    from lghcc.common.neighbour_prediction import WHOLE_EXTENT_RADIUS_SQ
+    rng = np.random.default_rng(11)
+    shapes = [(6, 6, 6), (40, 3, 1), (1, 1, 500), (2000, 2000, 2), (5, 5, 5)]
+    cases, want = [], []
+    for trial in range(25):
+        span = np.array(shapes[trial % len(shapes)])
+        n = int(rng.integers(1, min(400, int(np.prod(span))) + 1))
+        flat = rng.choice(int(np.prod(span)), n, replace=False)  # distinct points, as a tile's
+        pts = np.stack(np.unravel_index(flat, span), 1).astype(np.int64) - 3
+        if trial % 5 == 4:
+            pts[: n // 2] += 10**6  # two clusters far apart
+        step = int(2 ** rng.integers(0, 5))
+        rows = np.arange(n)
+        data, queries = rows[rows % step == 0], rows[rows % step != 0] if step > 1 else rows[1:]
+        k = int(rng.integers(1, 9))
+        idx, valid = ball_knn(pts[data], k, WHOLE_EXTENT_RADIUS_SQ, query=pts[queries], exclude_self=False)
+        want.append(np.where(valid, data[np.maximum(idx, 0)], -1).reshape(-1).tolist())
+        cases.append({"points": pts.tolist(), "data": data.tolist(), "queries": queries.tolist(), "k": k})
+    assert json.loads(node(KNN, json.dumps(cases))) == want
+
+
 def test_range_decoder_matches_reference_coder():
     rng = np.random.default_rng(7)
     chunks, want = [], []

@@ -4,7 +4,7 @@
 // (escapes near 2^62, predictions of huge deviations, step-adjusted sums of huge values) take an
 // exact BigInt path.
 import { BitstreamError } from './errors.mjs';
-import { buildTree, EXACT_EXTENT, nearest, nearestExact } from './knn.mjs';
+import { EXACT_EXTENT, gridNeighbours, nearestExact } from './knn.mjs';
 import { RangeDecoder } from './range.mjs';
 import { decodeSymbolChunk } from './symbols.mjs';
 
@@ -14,7 +14,7 @@ export const ADJUST_LEVEL_SHIFT = [0, 1, 3, 4, 5, 6, 8, 9];
 export const MAX_EXTENT = 1753413056;
 const Q_LIMIT = 2 ** 40;
 const SAFE_DEV = 2 ** 31; // |q - mean| below this: a row's prediction sum stays below 2^52
-const SAFE_SA = 2 ** 33; // |q| below this: step-adjusted neighbour sums stay below 2^53
+const SAFE_SA_SUM = 2 ** 45; // |q F| below this (so |q| < 2^33 when F >= 4096): step-adjusted sums of k <= 32 neighbours stay below 2^50
 
 function bitLength(a) {
     return a < 4294967296 ? 32 - Math.clz32(a) : 64 - Math.clz32(Math.floor(a / 4294967296));
@@ -41,39 +41,33 @@ export function lodRows(n, L) {
     return out;
 }
 
-function checkExtent(x, y, z, n) {
-    let ext = 0;
-    for (const c of [x, y, z]) {
+/** The per-axis minima and extents of the tile's points; throws E64 beyond MAX_EXTENT. */
+function tileBounds(x, y, z, n) {
+    const lo = [0, 0, 0], ext = [0, 0, 0];
+    [x, y, z].forEach((c, a) => {
         let mn = Infinity, mx = -Infinity;
         for (let i = 0; i < n; i++) { if (c[i] < mn) mn = c[i]; if (c[i] > mx) mx = c[i]; }
-        ext = Math.max(ext, mx - mn);
-    }
-    if (ext > MAX_EXTENT) throw new BitstreamError(`the tile's points span ${ext} voxels, beyond MAX_EXTENT = ${MAX_EXTENT} (clause 8.1, E64)`);
-    return ext;
+        lo[a] = mn; ext[a] = mx - mn;
+    });
+    const e = Math.max(...ext);
+    if (e > MAX_EXTENT) throw new BitstreamError(`the tile's points span ${e} voxels, beyond MAX_EXTENT = ${MAX_EXTENT} (clause 8.1, E64)`);
+    return { lo, ext, exact: e > EXACT_EXTENT };
 }
 
 /** Neighbours (clause 11.7.2) of the rows of LoD l among the rows of LoDs < l: {idx: Int32Array [n_l * k], cnt}. */
-function lodNeighbours(lods, l, k, coords, exact) {
+function lodNeighbours(lods, l, k, coords, bounds, n) {
     const { x, y, z } = coords;
-    let total = 0;
-    for (let m = 0; m < l; m++) total += lods[m].length;
-    const ids = new Int32Array(total);
-    let o = 0;
-    for (let m = 0; m < l; m++) { ids.set(lods[m], o); o += lods[m].length; }
-    ids.sort();
+    const step = 2 ** (lods.length - l); // the rows of LoDs < l are the multiples of 2^(L - l)
+    const ids = new Int32Array(Math.ceil(n / step));
+    for (let t = 0; t < ids.length; t++) ids[t] = t * step;
     const rows = lods[l];
     const idx = new Int32Array(rows.length * k), cnt = new Uint8Array(rows.length);
-    if (exact) {
+    if (bounds.exact) {
         const px = Array.from(ids, (i) => x[i]), py = Array.from(ids, (i) => y[i]), pz = Array.from(ids, (i) => z[i]);
         for (let r = 0; r < rows.length; r++) cnt[r] = nearestExact(px, py, pz, ids, x[rows[r]], y[rows[r]], z[rows[r]], k, idx, r * k);
         return { idx, cnt };
     }
-    const tree = buildTree(Array.from(ids, (i) => x[i]), Array.from(ids, (i) => y[i]), Array.from(ids, (i) => z[i]), ids);
-    const hd = new Float64Array(k), hi = new Int32Array(k), stack = new Float64Array(5 * 256);
-    for (let r = 0; r < rows.length; r++) {
-        const i = rows[r];
-        cnt[r] = nearest(tree, x[i], y[i], z[i], k, idx, r * k, hd, hi, stack);
-    }
+    gridNeighbours(x, y, z, bounds.lo, bounds.ext, ids, rows, k, idx, cnt);
     return { idx, cnt };
 }
 
@@ -91,7 +85,8 @@ class TileAttributeDecoder {
         // predictions grouped by target (they are sorted by target, clause 7.3.5)
         this.pStart = new Int32Array(M + 1);
         const k = ctx.np ? ctx.np.k : 0;
-        this.nbRow = new Float64Array(k); this.nbFactor = new Float64Array(k); // a row's neighbours: j * M and F(adj[j])
+        this.nbRow = new Int32Array(k); this.nbFactor = new Float64Array(k); // a row's neighbours: j * M and F(adj[j])
+        this.nbSum = new Float64Array(M); this.nbMax = new Float64Array(M); this.nbMin = new Float64Array(M);
         for (let i = 0; i < h.predTarget.length; i++) this.pStart[h.predTarget[i] + 1]++;
         for (let c = 0; c < M; c++) this.pStart[c + 1] += this.pStart[c];
     }
@@ -105,12 +100,11 @@ class TileAttributeDecoder {
     run() {
         const { np } = this.ctx;
         const lods = np ? lodRows(this.n, np.L) : [null];
-        let exact = false;
-        if (np) exact = checkExtent(this.coords.x, this.coords.y, this.coords.z, this.n) > EXACT_EXTENT;
+        const bounds = np ? tileBounds(this.coords.x, this.coords.y, this.coords.z, this.n) : null;
         for (let l = 0; l < lods.length; l++) {
             const rows = lods[l];
             const nl = rows ? rows.length : this.n;
-            const nb = l > 0 ? lodNeighbours(lods, l, np.k, this.coords, exact) : null;
+            const nb = l > 0 ? lodNeighbours(lods, l, np.k, this.coords, bounds, this.n) : null;
             const S = this.h.rowsPerChunk;
             for (let m = 0; m * S < nl; m++) {
                 const lo = m * S, hi = Math.min(nl, lo + S);
@@ -162,34 +156,51 @@ class TileAttributeDecoder {
             }
             return;
         }
-        const k = np.k, n = nb.cnt[t], B = np.B, q = this.q, jm = this.nbRow, fac = this.nbFactor;
+        const k = np.k, n = nb.cnt[t], q = this.q, jm = this.nbRow, fac = this.nbFactor;
         for (let m = 0; m < n; m++) { const j = nb.idx[t * k + m]; jm[m] = j * M; fac[m] = sa ? ADJUST_FIXED_POINT[this.adj[j]] : 1; }
-        const meanOut = this.mean, levelOut = this.level, meanFlag = np.meanFlag, bucketLevel = np.bucketLevel, priorMean = h.priorMean;
-        const half = Math.floor(n * F / 2), halfN = Math.floor(n / 2), halfF = Math.floor(F / 2);
-        let wide = false;
-        for (let c = 0; c < M; c++) {
-            let sum = 0, mx = -Infinity, mn = Infinity;
-            for (let m = 0; m < n; m++) {
-                const qv = q[jm[m] + c], v = qv * fac[m];
-                if (qv >= SAFE_SA || qv <= -SAFE_SA) wide = true;
-                sum += v;
-                if (v > mx) mx = v;
-                if (v < mn) mn = v;
+        // sum, max and min of the neighbours' (step-adjusted) values, neighbour by neighbour: rows are contiguous
+        const sum = this.nbSum, mx = this.nbMax, mn = this.nbMin;
+        for (let c = 0, j = jm[0], f = fac[0]; c < M; c++) { const v = q[j + c] * f; sum[c] = v; mx[c] = v; mn[c] = v; }
+        for (let m = 1; m < n; m++) {
+            const j = jm[m], f = fac[m];
+            for (let c = 0; c < M; c++) {
+                const v = q[j + c] * f;
+                sum[c] += v;
+                if (v > mx[c]) mx[c] = v;
+                if (v < mn[c]) mn[c] = v;
             }
-            let mean, act;
-            if (sa) {
-                mean = meanFlag[c] ? floorDiv(sum + half, n * F) : floorDiv(priorMean[c] * 4096 + halfF, F);
-                act = floorDiv(mx - mn, F);
-            } else {
-                mean = meanFlag[c] ? floorDiv(sum + halfN, n) : priorMean[c];
-                act = mx - mn;
-            }
-            meanOut[base + c] = mean;
-            const b = bitLength(act);
-            levelOut[base + c] = bucketLevel[c * B + (b < B - 1 ? b : B - 1)];
         }
-        // step-adjusted sums of |q| >= 2^33 may pass 2^53: the exact path redoes the whole row
-        if (sa && wide) this.rowParametersExact(row, base, nb.idx.subarray(t * k, t * k + n));
+        if (sa ? this.meansAdjusted(base, n, F) : this.means(base, n)) this.rowParametersExact(row, base, nb.idx.subarray(t * k, t * k + n));
+    }
+
+    /** mean and level from nbSum/Max/Min of n neighbours (clause 11.7.3). */
+    means(base, n) {
+        const np = this.ctx.np, B = np.B, meanFlag = np.meanFlag, bucketLevel = np.bucketLevel, priorMean = this.h.priorMean;
+        const sum = this.nbSum, mx = this.nbMax, mn = this.nbMin, halfN = Math.floor(n / 2);
+        for (let c = 0; c < this.M; c++) {
+            this.mean[base + c] = meanFlag[c] ? floorDiv(sum[c] + halfN, n) : priorMean[c];
+            const b = bitLength(mx[c] - mn[c]);
+            this.level[base + c] = bucketLevel[c * B + (b < B - 1 ? b : B - 1)];
+        }
+        return false;
+    }
+
+    /**
+     * The same with step adjustment (clause 11.8), F the row's fixed-point factor. Returns true when
+     * a neighbour's value reached 2^45 in magnitude (|q| >= 2^33 for some): sums may then pass 2^53,
+     * and the exact path redoes the row.
+     */
+    meansAdjusted(base, n, F) {
+        const np = this.ctx.np, B = np.B, meanFlag = np.meanFlag, bucketLevel = np.bucketLevel, priorMean = this.h.priorMean;
+        const sum = this.nbSum, mx = this.nbMax, mn = this.nbMin, half = Math.floor(n * F / 2), halfF = Math.floor(F / 2);
+        let wide = false;
+        for (let c = 0; c < this.M; c++) {
+            if (mx[c] >= SAFE_SA_SUM || mn[c] <= -SAFE_SA_SUM) wide = true;
+            this.mean[base + c] = meanFlag[c] ? floorDiv(sum[c] + half, n * F) : floorDiv(priorMean[c] * 4096 + halfF, F);
+            const b = bitLength(floorDiv(mx[c] - mn[c], F));
+            this.level[base + c] = bucketLevel[c * B + (b < B - 1 ? b : B - 1)];
+        }
+        return wide;
     }
 
     rowParametersExact(row, base, nbr) {

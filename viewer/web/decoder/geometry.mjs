@@ -76,47 +76,34 @@ function limitCounts(T, numCtx, limit) {
     }
 }
 
-function hashOf(x, y, z) {
-    return (Math.imul(x, 0x9E3779B1) ^ Math.imul(y, 0x85EBCA77) ^ Math.imul(z, 0xC2B2AE3D)) >>> 0;
-}
-
-/** Face neighbours (G.5.3): nb[6 * i + 2a] the node at q - e_a, nb[6 * i + 2a + 1] at q + e_a, or -1. */
-function faceNeighbours(qx, qy, qz, m, depth) {
-    let cap = 16;
-    while (cap < 2 * m) cap *= 2;
-    const shift = 32 - Math.log2(cap);
-    const table = new Int32Array(cap).fill(-1);
-    const mask = cap - 1;
-    for (let i = 0; i < m; i++) {
-        let h = hashOf(qx[i], qy[i], qz[i]) >>> shift;
-        while (table[h] >= 0) h = (h + 1) & mask;
-        table[h] = i;
-    }
-    const nb = new Int32Array(6 * m).fill(-1);
-    const hs = { table, shift, mask, qx, qy, qz };
-    const top = 2 ** depth - 1;
-    for (let i = 0; i < m; i++) {
-        const x = qx[i], y = qy[i], z = qz[i], b = 6 * i;
-        if (x > 0) nb[b] = find(hs, x - 1, y, z);
-        if (x < top) nb[b + 1] = find(hs, x + 1, y, z);
-        if (y > 0) nb[b + 2] = find(hs, x, y - 1, z);
-        if (y < top) nb[b + 3] = find(hs, x, y + 1, z);
-        if (z > 0) nb[b + 4] = find(hs, x, y, z - 1);
-        if (z < top) nb[b + 5] = find(hs, x, y, z + 1);
+/**
+ * Face neighbours (G.5.3) of the children of `nodes` (occupancy occ, first[i] the index of node
+ * i's first child): the neighbour of a child across a face is a sibling, or a child of the
+ * parent's neighbour across the same face. nb[6 j + 2a] is the node at q - e_a, nb[6 j + 2a + 1]
+ * at q + e_a, or -1.
+ */
+function childNeighbours(nodes, occ, first, children) {
+    const m = nodes.m, pnb = nodes.nb, nb = new Int32Array(6 * children);
+    for (let i = 0, j = 0; i < m; i++) {
+        const o = occ[i];
+        for (let k = 0; k < 8; k++) {
+            if (!((o >> k) & 1)) continue;
+            for (let a = 0; a < 3; a++) {
+                const bit = AXIS_BIT[a], b = 6 * j + 2 * a, u = pnb[6 * i + 2 * a + ((k & bit) ? 1 : 0)];
+                // the sibling on the other side of the axis, and the child across the parent's face
+                const sib = childIndex(occ, first, i, k ^ bit), across = u < 0 ? -1 : childIndex(occ, first, u, k ^ bit);
+                if (k & bit) { nb[b] = sib; nb[b + 1] = across; } else { nb[b] = across; nb[b + 1] = sib; }
+            }
+            j++;
+        }
     }
     return nb;
 }
 
-/** The node at (x, y, z) in the open-addressing table of faceNeighbours, or -1. */
-function find(hs, x, y, z) {
-    const table = hs.table, qx = hs.qx, qy = hs.qy, qz = hs.qz, mask = hs.mask;
-    let h = hashOf(x, y, z) >>> hs.shift;
-    for (;;) {
-        const j = table[h];
-        if (j < 0) return -1;
-        if (qx[j] === x && qy[j] === y && qz[j] === z) return j;
-        h = (h + 1) & mask;
-    }
+/** The index of child k of node i (first[i] the index of its first child), or -1. */
+function childIndex(occ, first, i, k) {
+    const o = occ[i];
+    return (o >> k) & 1 ? first[i] + POPCOUNT8[o & ((1 << k) - 1)] : -1;
 }
 
 class Nodes {
@@ -124,6 +111,7 @@ class Nodes {
         this.m = m;
         this.qx = new Float64Array(m); this.qy = new Float64Array(m); this.qz = new Float64Array(m);
         this.sib1 = new Uint8Array(m); this.parNbr = new Uint8Array(m); this.parSib1 = new Uint8Array(m);
+        this.nb = null; // face neighbours (G.5.3), as childNeighbours
     }
 }
 
@@ -167,12 +155,20 @@ function directCoding(dec, st, nodes, R, bitDepth, mode, n, direct) {
     }
     const isDirect = new Uint8Array(m);
     for (const i of dnodes) isDirect[i] = 1;
-    const keep = new Nodes(m - dnodes.length);
+    const keep = new Nodes(m - dnodes.length), index = new Int32Array(m);
     for (let i = 0, j = 0; i < m; i++) {
+        index[i] = isDirect[i] ? -1 : j;
         if (isDirect[i]) continue;
         keep.qx[j] = nodes.qx[i]; keep.qy[j] = nodes.qy[i]; keep.qz[j] = nodes.qz[i];
         keep.sib1[j] = nodes.sib1[i]; keep.parNbr[j] = nodes.parNbr[i]; keep.parSib1[j] = nodes.parSib1[i];
         j++;
+    }
+    // the face neighbours among the nodes that are not direct (G.5.3)
+    keep.nb = new Int32Array(6 * keep.m);
+    for (let i = 0; i < m; i++) {
+        if (isDirect[i]) continue;
+        const b = 6 * index[i];
+        for (let d = 0; d < 6; d++) { const u = nodes.nb[6 * i + d]; keep.nb[b + d] = u < 0 ? -1 : index[u]; }
     }
     return keep;
 }
@@ -181,7 +177,7 @@ function directCoding(dec, st, nodes, R, bitDepth, mode, n, direct) {
 function occupancy(dec, st, nodes, depth, R, bitDepth, n, numDirect) {
     const m = nodes.m;
     for (let k = 0; k < 8; k++) limitCounts(st.occ[k], NUM_OCC_CONTEXTS, LEVEL_COUNT_LIMIT);
-    const nb = faceNeighbours(nodes.qx, nodes.qy, nodes.qz, m, depth);
+    const nb = nodes.nb;
     const nbrCount = new Uint8Array(m), dens = new Uint8Array(m);
     // per node: the + neighbours by axis, and the term of each axis whose child bit is 0 (q - e_a exists)
     const up = new Int32Array(3 * m), lowTerm = new Uint8Array(3 * m);
@@ -210,9 +206,10 @@ function occupancy(dec, st, nodes, depth, R, bitDepth, n, numDirect) {
     if (numDirect + children > n) {
         throw new BitstreamError(`geometry data: ${numDirect + children} points at depth ${depth + 1}, more than N = ${n} (G.5.4, E31)`);
     }
-    const next = new Nodes(children);
+    const next = new Nodes(children), first = new Int32Array(m);
     for (let i = 0, j = 0; i < m; i++) {
         const o = occ[i];
+        first[i] = j;
         for (let k = 0; k < 8; k++) {
             if (!((o >> k) & 1)) continue;
             next.qx[j] = 2 * nodes.qx[i] + ((k >> 2) & 1);
@@ -222,6 +219,7 @@ function occupancy(dec, st, nodes, depth, R, bitDepth, n, numDirect) {
             j++;
         }
     }
+    next.nb = childNeighbours(nodes, occ, first, children);
     return next;
 }
 
@@ -272,7 +270,7 @@ export function decodeGeometry(payload, n) {
     const D = Math.max(...h.bitDepth);
     const st = { occ: Array.from({ length: 8 }, () => new Int32Array(2 * NUM_OCC_CONTEXTS)), idcm: new Int32Array(18), two: new Int32Array(2) };
     let nodes = new Nodes(1);
-    nodes.sib1[0] = 1; nodes.parSib1[0] = 1;
+    nodes.sib1[0] = 1; nodes.parSib1[0] = 1; nodes.nb = new Int32Array(6).fill(-1);
     const direct = new PointList();
     for (let l = 0; l < D; l++) {
         const R = D - l;

@@ -1,135 +1,130 @@
 // The canonical k nearest neighbours of spec clause 11.7.2 (Annex H.3 with a ball holding the
 // whole tile): for each query, the first k data points in increasing order of (d2, index), d2
-// the exact squared Euclidean distance of integer coordinates. A k-d tree finds them; pruning
-// keeps every subtree whose plane distance is <= the current k-th distance, so points at equal
-// distance compete by index exactly. Distances are exact doubles when 3 E^2 < 2^53 (E the
-// coordinates' extent); wider tiles take an exact BigInt search.
-const LEAF = 8;
+// the exact squared Euclidean distance of integer coordinates. The data points are binned in a
+// dense uniform grid of cubic cells (side 2^b); a query visits the cells in growing shells
+// around its own and stops once every unvisited point is provably farther than its k-th nearest
+// (strictly, so that points at equal distance compete by index exactly). Distances are exact
+// doubles when 3 E^2 < 2^53 (E the coordinates' extent); wider tiles take an exact BigInt search.
 export const EXACT_EXTENT = Math.floor(Math.sqrt((2 ** 53 - 1) / 3));
-
-/** Build a k-d tree over points (x, y, z arrays) with ids (their row indices). */
-export function buildTree(x, y, z, ids) {
-    const n = ids.length;
-    const t = { n, x: Float64Array.from(x), y: Float64Array.from(y), z: Float64Array.from(z), id: Int32Array.from(ids), axis: new Uint8Array(n) };
-    const stack = [0, n];
-    while (stack.length) {
-        const hi = stack.pop(), lo = stack.pop();
-        if (hi - lo <= LEAF) continue;
-        const a = widestAxis(t, lo, hi);
-        const mid = (lo + hi) >>> 1;
-        select(t, a, lo, hi - 1, mid);
-        t.axis[mid] = a;
-        stack.push(lo, mid, mid + 1, hi);
-    }
-    return t;
-}
-
-function coordArray(t, a) { return a === 0 ? t.x : a === 1 ? t.y : t.z; }
-
-function widestAxis(t, lo, hi) {
-    let best = 0, bestSpread = -1;
-    for (let a = 0; a < 3; a++) {
-        const c = coordArray(t, a);
-        let mn = Infinity, mx = -Infinity;
-        for (let i = lo; i < hi; i++) { const v = c[i]; if (v < mn) mn = v; if (v > mx) mx = v; }
-        if (mx - mn > bestSpread) { bestSpread = mx - mn; best = a; }
-    }
-    return best;
-}
-
-function swap(t, i, j) {
-    let v = t.x[i]; t.x[i] = t.x[j]; t.x[j] = v;
-    v = t.y[i]; t.y[i] = t.y[j]; t.y[j] = v;
-    v = t.z[i]; t.z[i] = t.z[j]; t.z[j] = v;
-    v = t.id[i]; t.id[i] = t.id[j]; t.id[j] = v;
-}
-
-// nth_element on axis a over [left, right] (inclusive): c[k] is the k-th smallest, left of it <=, right of it >=
-function select(t, a, left, right, k) {
-    const c = coordArray(t, a);
-    while (right > left) {
-        const pivot = c[(left + right) >>> 1];
-        let i = left, j = right;
-        while (i <= j) {
-            while (c[i] < pivot) i++;
-            while (c[j] > pivot) j--;
-            if (i <= j) { swap(t, i, j); i++; j--; }
-        }
-        if (k <= j) right = j;
-        else if (k >= i) left = i;
-        else return;
-    }
-}
+const CELLS_PER_POINT = 2; // grid size: at most this many cells per data point (and 4096)
 
 /**
- * The k nearest data points of the query (qx, qy, qz): writes their ids to out[base ..] in order
- * (nearest first, ties by id) and returns their count min(k, n). heapD/heapI: scratch of size k; stack: Float64Array of 5 * 256.
+ * The neighbours of the query rows among the data rows (ascending) of the tile's points x, y, z
+ * (lo: their per-axis minima, ext: their per-axis extents): ids to idx[r * k ..] nearest first,
+ * counts to cnt[r].
  */
-export function nearest(t, qx, qy, qz, k, out, base, heapD, heapI, stack) {
-    let size = 0;
-    const X = t.x, Y = t.y, Z = t.z, ID = t.id, AX = t.axis;
-    // a stack entry: lo, hi and the squared distances from the query to the subtree's cell along each axis
-    let sp = 0;
-    stack[sp++] = 0; stack[sp++] = t.n; stack[sp++] = 0; stack[sp++] = 0; stack[sp++] = 0;
-    while (sp) {
-        sp -= 5;
-        const lo = stack[sp], hi = stack[sp + 1], ox = stack[sp + 2], oy = stack[sp + 3], oz = stack[sp + 4];
-        if (size === k && ox + oy + oz > heapD[0]) continue;
-        if (hi - lo <= LEAF) {
-            for (let i = lo; i < hi; i++) size = offer(X[i] - qx, Y[i] - qy, Z[i] - qz, ID[i], size, k, heapD, heapI);
-            continue;
-        }
-        const mid = (lo + hi) >>> 1, a = AX[mid];
-        const dx = X[mid] - qx, dy = Y[mid] - qy, dz = Z[mid] - qz;
-        size = offer(dx, dy, dz, ID[mid], size, k, heapD, heapI);
-        const d = a === 0 ? dx : a === 1 ? dy : dz; // split - query: the far child is at least |d| away along a
-        const pd = d * d;
-        // far child first (popped last), with axis a's distance replaced by pd; then the near child
-        if (d > 0) { stack[sp] = mid + 1; stack[sp + 1] = hi; } else { stack[sp] = lo; stack[sp + 1] = mid; }
-        stack[sp + 2] = a === 0 ? pd : ox; stack[sp + 3] = a === 1 ? pd : oy; stack[sp + 4] = a === 2 ? pd : oz;
-        sp += 5;
-        if (d > 0) { stack[sp] = lo; stack[sp + 1] = mid; } else { stack[sp] = mid + 1; stack[sp + 1] = hi; }
-        stack[sp + 2] = ox; stack[sp + 3] = oy; stack[sp + 4] = oz;
-        sp += 5;
+export function gridNeighbours(x, y, z, lo, ext, data, queries, k, idx, cnt) {
+    const g = new Grid(x, y, z, lo, ext, data);
+    const hd = new Float64Array(k), hi = new Int32Array(k);
+    for (let r = 0; r < queries.length; r++) {
+        const i = queries[r];
+        const size = g.search(x[i] - lo[0], y[i] - lo[1], z[i] - lo[2], k, hd, hi);
+        for (let m = 0; m < size; m++) idx[r * k + m] = hi[m];
+        cnt[r] = size;
     }
-    // heap -> sorted ascending by (d, id)
-    for (let m = size - 1; m >= 0; m--) {
-        out[base + m] = heapI[0];
-        const ld = heapD[m], li = heapI[m];
-        heapD[0] = ld; heapI[0] = li;
-        siftDown(heapD, heapI, 0, m);
-    }
-    return size;
 }
 
-function offer(dx, dy, dz, id, size, k, hd, hi) {
-    const d = dx * dx + dy * dy + dz * dz;
-    if (size < k) { // sift up
-        let i = size++;
-        while (i > 0) {
-            const p = (i - 1) >> 1;
-            if (hd[p] > d || (hd[p] === d && hi[p] > id)) break;
-            hd[i] = hd[p]; hi[i] = hi[p]; i = p;
+class Grid {
+    constructor(x, y, z, lo, ext, data) {
+        const n = data.length, limit = Math.max(4096, CELLS_PER_POINT * n);
+        let b = 0;
+        while (((ext[0] >> b) + 1) * ((ext[1] >> b) + 1) * ((ext[2] >> b) + 1) > limit) b++;
+        this.b = b; this.side = 2 ** b;
+        this.nx = (ext[0] >> b) + 1; this.ny = (ext[1] >> b) + 1; this.nz = (ext[2] >> b) + 1;
+        const start = new Int32Array(this.nx * this.ny * this.nz + 1), cell = new Int32Array(n);
+        for (let t = 0; t < n; t++) {
+            const j = data[t];
+            cell[t] = (((x[j] - lo[0]) >> b) * this.ny + ((y[j] - lo[1]) >> b)) * this.nz + ((z[j] - lo[2]) >> b);
+            start[cell[t] + 1]++;
         }
-        hd[i] = d; hi[i] = id;
+        for (let c = 1; c < start.length; c++) start[c] += start[c - 1];
+        // the points sorted by cell (stable), as offsets from lo
+        const px = new Int32Array(n), py = new Int32Array(n), pz = new Int32Array(n), id = new Int32Array(n);
+        const fill = start.slice(0, -1);
+        for (let t = 0; t < n; t++) {
+            const j = data[t], o = fill[cell[t]]++;
+            px[o] = x[j] - lo[0]; py[o] = y[j] - lo[1]; pz[o] = z[j] - lo[2]; id[o] = j;
+        }
+        this.start = start; this.px = px; this.py = py; this.pz = pz; this.id = id;
+    }
+
+    /** The k nearest of (qx, qy, qz) (offsets from lo) sorted by (d2, id) into hd/hi; returns their count. */
+    search(qx, qy, qz, k, hd, hi) {
+        const b = this.b, cx = qx >> b, cy = qy >> b, cz = qz >> b;
+        let size = this.visitCell((cx * this.ny + cy) * this.nz + cz, qx, qy, qz, k, 0, hd, hi);
+        for (let s = 1; ; s++) {
+            size = this.visitShell(cx, cy, cz, s, qx, qy, qz, k, size, hd, hi);
+            const bound = this.unvisitedBound(cx, cy, cz, s, qx, qy, qz);
+            if (bound < 0 || (size === k && hd[k - 1] < bound * bound)) return size;
+        }
+    }
+
+    /** The least distance along one axis from the query to a point outside the block of radius s; -1 if the block covers the grid. */
+    unvisitedBound(cx, cy, cz, s, qx, qy, qz) {
+        const S = this.side;
+        let bound = Infinity;
+        if (cx - s > 0) bound = Math.min(bound, qx - (cx - s) * S + 1);
+        if (cx + s < this.nx - 1) bound = Math.min(bound, (cx + s + 1) * S - qx);
+        if (cy - s > 0) bound = Math.min(bound, qy - (cy - s) * S + 1);
+        if (cy + s < this.ny - 1) bound = Math.min(bound, (cy + s + 1) * S - qy);
+        if (cz - s > 0) bound = Math.min(bound, qz - (cz - s) * S + 1);
+        if (cz + s < this.nz - 1) bound = Math.min(bound, (cz + s + 1) * S - qz);
+        return bound === Infinity ? -1 : bound;
+    }
+
+    /** The cells at Chebyshev distance s from (cx, cy, cz), clipped to the grid; a cell wholly farther than the k-th is skipped. */
+    visitShell(cx, cy, cz, s, qx, qy, qz, k, size, hd, hi) {
+        const ny = this.ny, nz = this.nz;
+        const x0 = Math.max(0, cx - s), x1 = Math.min(this.nx - 1, cx + s);
+        const y0 = Math.max(0, cy - s), y1 = Math.min(ny - 1, cy + s);
+        const z0 = Math.max(0, cz - s), z1 = Math.min(nz - 1, cz + s);
+        for (let X = x0; X <= x1; X++) {
+            const fx = X === cx - s || X === cx + s, ex = this.gap(X, cx, qx);
+            for (let Y = y0; Y <= y1; Y++) {
+                const row = (X * ny + Y) * nz, exy = ex + this.gap(Y, cy, qy);
+                if (size === k && exy > hd[k - 1]) continue;
+                if (fx || Y === cy - s || Y === cy + s) {
+                    for (let Z = z0; Z <= z1; Z++) size = this.visitNear(row, Z, cz, qx, qy, qz, exy, k, size, hd, hi);
+                } else {
+                    if (cz - s >= 0) size = this.visitNear(row, cz - s, cz, qx, qy, qz, exy, k, size, hd, hi);
+                    if (cz + s < nz) size = this.visitNear(row, cz + s, cz, qx, qy, qz, exy, k, size, hd, hi);
+                }
+            }
+        }
         return size;
     }
-    if (d > hd[0] || (d === hd[0] && id > hi[0])) return size;
-    hd[0] = d; hi[0] = id;
-    siftDown(hd, hi, 0, size);
-    return size;
+
+    /** The squared distance along one axis from the query (cell c, offset q) to cell C. */
+    gap(C, c, q) {
+        const d = C < c ? q - (C + 1) * this.side + 1 : C > c ? C * this.side - q : 0;
+        return d * d;
+    }
+
+    visitNear(row, Z, cz, qx, qy, qz, exy, k, size, hd, hi) {
+        if (size === k && exy + this.gap(Z, cz, qz) > hd[k - 1]) return size;
+        return this.visitCell(row + Z, qx, qy, qz, k, size, hd, hi);
+    }
+
+    visitCell(c, qx, qy, qz, k, size, hd, hi) {
+        const px = this.px, py = this.py, pz = this.pz, id = this.id;
+        for (let p = this.start[c], e = this.start[c + 1]; p < e; p++) {
+            const dx = px[p] - qx, dy = py[p] - qy, dz = pz[p] - qz;
+            size = offer(dx * dx + dy * dy + dz * dz, id[p], size, k, hd, hi);
+        }
+        return size;
+    }
 }
 
-function siftDown(hd, hi, i, size) {
-    const d = hd[i], id = hi[i];
-    for (;;) {
-        let c = 2 * i + 1;
-        if (c >= size) break;
-        if (c + 1 < size && (hd[c + 1] > hd[c] || (hd[c + 1] === hd[c] && hi[c + 1] > hi[c]))) c++;
-        if (hd[c] < d || (hd[c] === d && hi[c] < id)) break;
-        hd[i] = hd[c]; hi[i] = hi[c]; i = c;
-    }
-    hd[i] = d; hi[i] = id;
+/** Insert (d, id) into the ascending list hd/hi of at most k entries; returns its new size. */
+function offer(d, id, size, k, hd, hi) {
+    if (size === k) {
+        const ld = hd[k - 1];
+        if (d > ld || (d === ld && id > hi[k - 1])) return size;
+    } else size++;
+    let j = size - 1;
+    while (j > 0 && (hd[j - 1] > d || (hd[j - 1] === d && hi[j - 1] > id))) { hd[j] = hd[j - 1]; hi[j] = hi[j - 1]; j--; }
+    hd[j] = d; hi[j] = id;
+    return size;
 }
 
 /** Exact search for wide tiles (BigInt distances; brute force over the data points). */
