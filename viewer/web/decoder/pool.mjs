@@ -30,12 +30,12 @@ export class TilePool {
         this.queue = [];
     }
 
-    /** The prelude is known (ctx.payloads): start the helpers, at most one per tile. */
+    /** The prelude is known (ctx.payloads): start the helpers, at most one per tile after the first (decoded by the caller). */
     start(ctx) {
         if (this.workers) return;
         const p = ctx.payloads;
         const init = { ps: own(p.ps), np: p.np && own(p.np), sa: p.sa && own(p.sa) };
-        this.workers = Array.from({ length: Math.min(this.size, ctx.tiles.length) }, () => {
+        this.workers = Array.from({ length: Math.min(this.size, ctx.tiles.length - 1) }, () => {
             const w = new Worker(this.url);
             w.job = null;
             w.onmessage = (e) => this._done(w, e.data);

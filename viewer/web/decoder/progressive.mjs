@@ -116,9 +116,15 @@ export class ProgressiveDecoder {
         if (this.pool) this.pool.start(ctx);
     }
 
-    // tile t decoded (here or by the pool), kept and reported
+    // tile t decoded (here or by the pool), kept and reported. With a pool, tile 0 is decoded here,
+    // once the tiles complete so far have been handed out: the first tile does not wait for a
+    // helper to start (load and compile its script), and this worker is otherwise idle.
     _start(ctx, t) {
-        const p = (this.pool ? this.pool.decode(ctx, t) : decodeTile(ctx, t)).then((r) => {
+        let p;
+        if (!this.pool) p = decodeTile(ctx, t);
+        else if (t === 0) p = new Promise((res) => setTimeout(res, 0)).then(() => decodeTile(ctx, 0));
+        else p = this.pool.decode(ctx, t);
+        p = p.then((r) => {
             this.tiles[t] = r;
             if (this.onTile) this.onTile(t, r, { tiles: ctx.tiles.length, ps: ctx.ps });
         });
