@@ -218,3 +218,41 @@ def test_cli_exit_codes(tmp_path):
     assert res.returncode == 1
     res = subprocess.run([NODE, cli], capture_output=True, text=True, timeout=120)
     assert res.returncode == 2
+
+
+PROGRESSIVE = """
+import { readFileSync } from 'node:fs';
+import { ProgressiveDecoder } from './progressive.mjs';
+import { decodeStream, decodeTile, sceneDigestHex } from './decoder.mjs';
+import { HashMismatchError } from './errors.mjs';
+const { path, failTile } = JSON.parse(readFileSync(0, 'utf8'));
+const bytes = new Uint8Array(readFileSync(path));
+// a pool as pool.mjs's, in this process: tiles finish in reverse order of their start
+const pool = { started: 0, start(ctx) { this.started++; }, decode(ctx, t) {
+    const delay = 40 - 4 * t;
+    return new Promise((res, rej) => setTimeout(() => t === failTile
+        ? rej(new HashMismatchError(`tile ${t}`)) : decodeTile(ctx, t).then(res, rej), delay));
+} };
+const order = [];
+const dec = new ProgressiveDecoder({ pool, onTile: (t) => order.push(t) });
+let out;
+try {
+    for (let p = 0; p < bytes.length; p += 997) await dec.push(bytes.subarray(p, p + 997));
+    const r = await dec.finish();
+    const ref = await decodeStream(bytes);
+    out = { digest: sceneDigestHex(r.ps, r.tiles), ref: sceneDigestHex(ref.ps, ref.tiles), order, started: pool.started };
+} catch (err) { out = { error: err.name }; }
+console.log(JSON.stringify(out));
+"""
+
+
+@pytest.mark.parametrize("name", ["c078_neighbour_prediction_tiles", "c086_step_adjust_tiles"])
+def test_progressive_decoding_with_a_tile_pool(name):
+    """Tiles handed to a pool as their bytes arrive (997-byte chunks) and finished out of order give
+    the same scene as decodeStream; a tile the pool rejects rejects the stream with its class."""
+    path = str(STREAMS / name / "stream.lghcc")
+    got = json.loads(node(PROGRESSIVE, json.dumps({"path": path, "failTile": -1})))
+    tiles = len(got["order"])
+    assert got["digest"] == got["ref"] and tiles >= 2 and got["started"] == 1
+    assert sorted(got["order"]) == list(range(tiles)) and got["order"] != sorted(got["order"])
+    assert json.loads(node(PROGRESSIVE, json.dumps({"path": path, "failTile": 1}))) == {"error": "HashMismatchError"}

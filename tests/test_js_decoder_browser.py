@@ -36,7 +36,7 @@ function run(c) {
         const bytes = Uint8Array.from(atob(c.b64), (ch) => ch.charCodeAt(0));
         w.onmessage = (e) => { if (e.data.type === 'tile') return; clearTimeout(timer); w.terminate(); resolve(e.data); };
         w.onerror = (e) => { clearTimeout(timer); w.terminate(); resolve({type: 'error', kind: 'crash', message: e.message}); };
-        w.postMessage({bytes, box: c.box || null, digest: true}, [bytes.buffer]);
+        w.postMessage({bytes, box: c.box || null, digest: true, workers: c.workers || 0, source: src}, [bytes.buffer]);
     });
 }
 window.results = (async () => { const out = []; for (const c of cases) out.push(await run(c)); return out; })();
@@ -63,6 +63,9 @@ def test_profile_conformance_in_chromium(tmp_path):
         b64 = base64.b64encode(c.stream.read_bytes()).decode("ascii")
         cases.append({"id": c.id, "b64": b64})
         want.append((c.id, c.expect, c.meta.get("decoded_sha256")))
+        # the same stream with its tiles decoded by a pool of 3 helper workers (pool.mjs)
+        cases.append({"id": c.id + " pool", "b64": b64, "workers": 3})
+        want.append((c.id + " pool", c.expect, c.meta.get("decoded_sha256")))
         for p in c.meta.get("partial_decodes", []):
             if "box" in p:
                 cases.append({"id": c.id + " box", "b64": b64, "box": p["box"]})
@@ -80,7 +83,10 @@ def test_profile_conformance_in_chromium(tmp_path):
             if expect == "error" else (r.get("type") == "done" and r.get("digest") == digest)
         if not ok:
             failed.append((cid, r))
-    assert len(got) == len(want) >= 54 and not failed, failed
+    assert len(got) == len(want) >= 2 * 54 and not failed, failed
+    pooled = {cid for (cid, _, _), r in zip(want, got) if r.get("helpers")}
+    assert {"c078_neighbour_prediction_tiles pool", "c086_step_adjust_tiles pool"} <= pooled, pooled
+    assert "c032_gaussians_sh0 pool" not in pooled  # one tile: decoded by the worker itself
 
 
 def _gaussian_page(tmp_path: Path, stream: Path) -> Path:
@@ -108,8 +114,9 @@ def test_page_decodes_its_stream_and_draws_it(tmp_path):
         check = s.page.inner_text("#lghcc-check")
         shot = s.images()["decoded"]
         requests = list(s.requests)
-    assert decodes == [{"pane": "decoded", "tiles": 8, "count": scene.num_gaussians,
-                        "seconds": decodes[0]["seconds"], "hashChecked": True}]
+    assert decodes == [{"pane": "decoded", "tiles": 8, "count": scene.num_gaussians, "seconds": decodes[0]["seconds"],
+                        "firstTileSeconds": decodes[0]["firstTileSeconds"], "hashChecked": True}]
+    assert 0 < decodes[0]["firstTileSeconds"] <= decodes[0]["seconds"]
     assert "hash ✓" in check and f"{scene.num_gaussians:,}" in check
     assert all(r.startswith(("file:", "blob:", "data:")) for r in requests), requests
     c = meta["camera"]

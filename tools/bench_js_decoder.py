@@ -3,12 +3,16 @@ scenes coded at a preset's steps (no search, no fit: the preset's quantization, 
 prediction where it pays, tiles of about 16k Gaussians as lghcc-enc writes them).
 
     OMP_WAIT_POLICY=PASSIVE nice -n 10 .venv/bin/python tools/bench_js_decoder.py [--out DIR] [--repeat R]
+        [--workers W] [--stream FILE.lghcc ...] [--no-reference]
 
 Writes the streams to --out (kept between runs: a stream already there is reused), decodes each in
 Node (viewer/web/decoder/bench.mjs: best of R, tables loaded, page and process start excluded), in
 headless Chromium (the page's Web Worker, lghcc-decoder-worker.js: best of R, the stream's bytes
-already in the page; also when the first tile arrived) and once with the reference decoder in this
-process, and prints a markdown table (Gaussians/s). The results are in tools/results/js_decoder.md."""
+already in the page; also when the first tile arrived), once more in Chromium with the tiles decoded
+by a pool of W helper workers (the page's default: navigator.hardwareConcurrency; pool.mjs), and once
+with the reference decoder in this process, and prints a markdown table (Gaussians/s). --stream adds
+coded streams (e.g. a 1M-Gaussian scene of tools/scale_scenes.py), --no-reference skips the reference
+decoder. The results are in tools/results/js_decoder.md."""
 from __future__ import annotations
 
 import os
@@ -51,21 +55,24 @@ function once() {
     return new Promise((resolve) => {
         const w = new Worker(URL.createObjectURL(new Blob([src], {type: 'text/javascript'})));
         const bytes = Uint8Array.from(atob(b64), (ch) => ch.charCodeAt(0));
+        const workers = %WORKERS% < 0 ? navigator.hardwareConcurrency : %WORKERS%;
         let first = null;
         w.onmessage = (e) => {
             if (e.data.type === 'tile') { if (first === null) first = e.data.ms; return; }
             w.terminate();
-            resolve({...e.data, first});
+            resolve({...e.data, first, workers});
         };
-        w.postMessage({bytes}, [bytes.buffer]);
+        w.postMessage({bytes, workers, source: src}, [bytes.buffer]);
     });
 }
 window.results = (async () => { const out = []; for (let i = 0; i < %REPEAT%; i++) out.push(await once()); return out; })();
 </script></body></html>"""
 
 
-def chromium_decode(stream: Path, repeat: int, tmp: Path) -> dict:
-    """Best of ``repeat`` decodes in headless Chromium's worker: {seconds, first_tile_s, count}."""
+def chromium_decode(stream: Path, repeat: int, tmp: Path, workers: int = 0) -> dict:
+    """Best of ``repeat`` decodes in headless Chromium's worker, its tiles decoded by ``workers`` helper
+    workers (0: by the worker itself; -1: navigator.hardwareConcurrency): {seconds, first_tile_s, first_s,
+    count, helpers}; first_s: the first decode's seconds (a page decodes once)."""
     import base64
 
     from playwright.sync_api import sync_playwright
@@ -74,7 +81,7 @@ def chromium_decode(stream: Path, repeat: int, tmp: Path) -> dict:
     from lghcc.viewer.page import worker_js
 
     page_file = tmp / "bench.html"
-    page_file.write_text(CHROMIUM_PAGE.replace("%WORKER%", worker_js()).replace("%REPEAT%", str(repeat))
+    page_file.write_text(CHROMIUM_PAGE.replace("%WORKER%", worker_js()).replace("%REPEAT%", str(repeat)).replace("%WORKERS%", str(workers))
                          .replace("%STREAM%", base64.b64encode(stream.read_bytes()).decode("ascii")))
     pw = sync_playwright().start()
     try:
@@ -89,7 +96,44 @@ def chromium_decode(stream: Path, repeat: int, tmp: Path) -> dict:
     if any(r["type"] != "done" for r in runs):
         raise RuntimeError(f"{stream}: {runs}")
     best = min(runs, key=lambda r: r["seconds"])
-    return {"seconds": best["seconds"], "first_tile_s": best["first"] / 1000, "count": best["count"]}
+    return {"seconds": best["seconds"], "first_tile_s": best["first"] / 1000, "first_s": runs[0]["seconds"],
+            "count": best["count"], "helpers": best["helpers"]}
+
+
+def chromium_cells(ch: dict | None, n: int) -> str:
+    """Table cells of one Chromium measurement: seconds (best), Gaussians/s, first tile, first decode."""
+    if ch is None:
+        return "- | - | - | -"
+    assert ch["count"] == n, (ch, n)
+    return f"{ch['seconds']:.3f} | {n / ch['seconds'] / 1e6:.3f} M | {ch['first_tile_s']:.3f} | {ch['first_s']:.3f}"
+
+
+def measure(label: str, s: Path, args, node: str, use_chromium: bool) -> str:
+    """One table row: the stream decoded by Node, Chromium's worker, Chromium's pool, the reference."""
+    import tempfile
+
+    res = subprocess.run([node, str(ROOT / "viewer/web/decoder/bench.mjs"), str(s), "--repeat", str(args.repeat)],
+                         capture_output=True, text=True, check=True)
+    js = json.loads(res.stdout.strip().splitlines()[-1])
+    n = js["count"]
+    one = pool = None
+    if use_chromium:
+        with tempfile.TemporaryDirectory() as t:
+            one = chromium_decode(s, args.repeat, Path(t))
+        with tempfile.TemporaryDirectory() as t:
+            pool = chromium_decode(s, args.repeat, Path(t), workers=args.workers)
+    ref = "- | -"
+    if not args.no_reference:
+        from lghcc.decoder.decode import decode_stream
+
+        t0 = time.perf_counter()
+        scene = decode_stream(s.read_bytes()).scene
+        tr = time.perf_counter() - t0
+        assert scene.num_gaussians == n
+        ref = f"{tr:.2f} | {n / tr / 1e6:.3f} M"
+    helpers = pool["helpers"] if pool else "-"
+    return (f"| {label} | {n} | {s.stat().st_size} | {js['seconds']:.3f} | {n / js['seconds'] / 1e6:.3f} M | "
+            f"{js['first']:.3f} | {chromium_cells(one, n)} | {helpers} | {chromium_cells(pool, n)} | {ref} |")
 
 
 def main() -> int:
@@ -97,7 +141,12 @@ def main() -> int:
     ap.add_argument("--out", default="/tmp/lghcc-bench-js", help="folder for the coded streams")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--preset", default="medium")
-    ap.add_argument("scenes", nargs="*", default=list(SCENES))
+    ap.add_argument("--workers", type=int, default=-1,
+                    help="helper workers of the pool measurement (default -1: navigator.hardwareConcurrency)")
+    ap.add_argument("--stream", action="append", default=[], help="also measure this coded stream (repeatable)")
+    ap.add_argument("--no-reference", action="store_true", help="skip the reference decoder (slow on big streams)")
+    ap.add_argument("scenes", nargs="*", default=None, help=f"scenes to code and measure (default: {', '.join(SCENES)};"
+                    " none when --stream is given)")
     args = ap.parse_args()
     node = shutil.which("node")
     if node is None:
@@ -105,38 +154,23 @@ def main() -> int:
         return 1
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    from lghcc.decoder.decode import decode_stream
-
-    import tempfile
-
     from lghcc.viewer.browser import browser_status
 
     use_chromium, why = browser_status()
     if not use_chromium:
         print(f"no Chromium measurement: {why}", file=sys.stderr)
-    print("| scene | Gaussians | bytes | Node s | Node Gaussians/s | Chromium s | Chromium Gaussians/s | "
-          "Chromium first tile s | reference s | reference Gaussians/s |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for name in args.scenes:
+    print("| scene | Gaussians | bytes | Node s | Node Gaussians/s | Node first decode s | Chromium s | "
+          "Chromium Gaussians/s | Chromium first tile s | Chromium first decode s | pool helpers | pool s | "
+          "pool Gaussians/s | pool first tile s | pool first decode s | reference s | reference Gaussians/s |")
+    print("|" + "---|" * 17)
+    scenes = args.scenes or ([] if args.stream else list(SCENES))
+    for name in scenes:
         if not SCENES[name].is_file():
             print(f"{name}: {SCENES[name]} is missing", file=sys.stderr)
             continue
-        s = stream_for(name, SCENES[name], out, args.preset)
-        res = subprocess.run([node, str(ROOT / "viewer/web/decoder/bench.mjs"), str(s), "--repeat", str(args.repeat)],
-                             capture_output=True, text=True, check=True)
-        js = json.loads(res.stdout.strip().splitlines()[-1])
-        ch = None
-        if use_chromium:
-            with tempfile.TemporaryDirectory() as t:
-                ch = chromium_decode(s, args.repeat, Path(t))
-        t0 = time.perf_counter()
-        ref = decode_stream(s.read_bytes())
-        tr = time.perf_counter() - t0
-        n = ref.scene.num_gaussians
-        assert js["count"] == n and (ch is None or ch["count"] == n)
-        chc = (f"{ch['seconds']:.3f} | {n / ch['seconds'] / 1e6:.3f} M | {ch['first_tile_s']:.3f}" if ch else "- | - | -")
-        print(f"| {name} | {n} | {s.stat().st_size} | {js['seconds']:.3f} | {n / js['seconds'] / 1e6:.3f} M | {chc} | "
-              f"{tr:.2f} | {n / tr / 1e6:.3f} M |", flush=True)
+        print(measure(name, stream_for(name, SCENES[name], out, args.preset), args, node, use_chromium), flush=True)
+    for path in map(Path, args.stream):
+        print(measure(path.name, path, args, node, use_chromium), flush=True)
     return 0
 
 

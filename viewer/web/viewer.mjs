@@ -6,8 +6,9 @@
 // each page by lghcc.viewer.page; the page never reaches the network. The scenes arrive in the
 // page as base64 3DGS PLYs (script elements `lghcc-ply-<pane>`) or as the .lghcc stream itself
 // (`lghcc-stream-<pane>`: explicit-Gaussian streams, decoded in the page by viewer/web/decoder in a
-// Web Worker, whose bundle is the text of `lghcc-worker`, tile by tile, each tile's hash checked;
-// the renderer gets typed arrays, no PLY), the camera and settings as JSON (`lghcc-meta`). A
+// Web Worker, whose bundle is the text of `lghcc-worker`, tile by tile, each tile's hash checked,
+// the tiles of a tiled stream in parallel helper workers and drawn as they arrive; the renderer
+// gets typed arrays, no PLY), the camera and settings as JSON (`lghcc-meta`). A
 // .lghcc file dropped on the page, or named by #stream=URL (fetched as it arrives), is decoded the
 // same way into the decoded pane.
 //
@@ -185,7 +186,7 @@ function start() {
             nearClip: meta.camera.near, farClip: meta.camera.far, gammaCorrection: GAMMA_SRGB, toneMapping: TONEMAP_LINEAR
         });
         app.root.addChild(camera);
-        const pane = { name, camera, layer, loaded: false };
+        const pane = { name, camera, layer, loaded: false, partial: [] };
         panes.push(pane);
         if (document.getElementById(`lghcc-stream-${name}`)) {
             decodeInto(pane, { bytes: base64Bytes(`lghcc-stream-${name}`) }, 'embedded stream');
@@ -308,39 +309,63 @@ function showSplats(pane, parts) {
     paneLoaded(pane, e);
 }
 
+// a tile's splats drawn as the tile arrives (sorted within the tile only); the whole scene, sorted
+// as one, replaces them once the stream has passed every check
+function showTile(pane, arrays) {
+    const e = new Entity(`${pane.name}-tile`);
+    e.addComponent('gsplat', { resource: new GSplatResource(app.graphicsDevice, splatData([arrays])), layers: [pane.layer.id] });
+    app.root.addChild(e);
+    pane.partial.push(e);
+    app.renderNextFrame = true;
+}
+
+function dropTiles(pane) {
+    for (const e of pane.partial || []) e.destroy();
+    pane.partial = [];
+}
+
 let worker = null;
+function workerSource() { return document.getElementById('lghcc-worker').textContent; }
 function makeWorker() {
-    if (worker) worker.terminate(); // a new stream replaces one still decoding
-    const src = document.getElementById('lghcc-worker').textContent;
-    worker = new Worker(URL.createObjectURL(new Blob([src], { type: 'text/javascript' })));
+    if (worker) worker.terminate(); // a new stream replaces one still decoding (and its helpers)
+    worker = new Worker(URL.createObjectURL(new Blob([workerSource()], { type: 'text/javascript' })));
     return worker;
 }
+
+// helper workers that decode a tiled stream's tiles in parallel (the decoding worker starts them)
+const DECODE_WORKERS = Math.max(1, navigator.hardwareConcurrency || 1);
 
 function decodeInto(pane, msg, what) {
     const w = makeWorker();
     const parts = [];
+    let firstTile = null;
+    dropTiles(pane);
     setCheck(`decoding ${what}…`);
     w.onmessage = (ev) => {
         const m = ev.data;
         if (m.type === 'tile') {
             parts.push(m.arrays);
-            setCheck(`decoding ${what}: tile ${m.t + 1} of ${m.tiles} (${m.count.toLocaleString()} Gaussians, hash of each tile checked)`);
+            if (firstTile === null) firstTile = m.ms / 1000;
+            if (m.tiles > 1) showTile(pane, m.arrays);
+            setCheck(`decoding ${what}: ${parts.length} of ${m.tiles} tiles (${m.count.toLocaleString()} Gaussians, hash of each tile checked)`);
         } else if (m.type === 'done') {
             w.terminate();
+            dropTiles(pane);
             showSplats(pane, parts);
-            const r = { pane: pane.name, tiles: m.tiles, count: m.count, seconds: m.seconds, hashChecked: true };
+            const r = { pane: pane.name, tiles: m.tiles, count: m.count, seconds: m.seconds, firstTileSeconds: firstTile, hashChecked: true };
             api.decodes.push(r);
             setCheck(`decoded in this page: ${m.count.toLocaleString()} Gaussians, ${m.tiles} tile${m.tiles > 1 ? 's' : ''}, ` +
                 `${m.seconds.toFixed(2)} s, hash ✓`);
         } else if (m.type === 'error') {
             w.terminate();
+            dropTiles(pane);
             api.decodes.push({ pane: pane.name, error: `${m.kind}: ${m.message}` });
             setCheck(`✗ ${what}: not a valid stream`, true);
             fail(`${what}: stream rejected (${m.kind}): ${m.message}`);
         }
     };
-    w.onerror = (ev) => fail(`${what}: the decoder stopped: ${ev.message}`);
-    w.postMessage(msg, msg.bytes ? [msg.bytes.buffer] : []);
+    w.onerror = (ev) => { dropTiles(pane); fail(`${what}: the decoder stopped: ${ev.message}`); };
+    w.postMessage({ ...msg, workers: DECODE_WORKERS, source: workerSource() }, msg.bytes ? [msg.bytes.buffer] : []);
 }
 
 function attachDrop() {

@@ -26,7 +26,8 @@ export function parseStream(bytes, { maxMemory = DEFAULT_MAX_MEMORY } = {}) {
     if (s.np && ps.hierarchyEnabled) throw new BitstreamError('a neighbour_prediction unit in a stream with the hierarchy (clause 7.3.12, E60)');
     if (s.cm && !ps.hierarchyEnabled) throw new BitstreamError('a context_model unit with hierarchy_enabled_flag = 0 (clause 8.3, E16)');
     if (ps.hierarchyEnabled) throw new UnsupportedStreamError('hierarchy_enabled_flag = 1: the two-level hierarchy is outside the explicit-Gaussian profile this decoder implements');
-    const ctx = { ps, M: ps.M, steps: ps.steps, np: null, stepAdjust: null };
+    // payloads: the prelude's units, which a worker decoding tiles in parallel parses itself
+    const ctx = { ps, M: ps.M, steps: ps.steps, np: null, stepAdjust: null, payloads: { ps: s.ps.payload, np: s.np?.payload ?? null, sa: s.sa?.payload ?? null } };
     if (s.np) ctx.np = parseNeighbourPrediction(s.np.payload, ps.M);
     if (s.sa) ctx.stepAdjust = parseStepAdjust(s.sa.payload);
     ctx.tiles = tileList(container.units, s, ps);

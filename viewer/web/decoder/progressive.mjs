@@ -8,16 +8,23 @@ import { parseGaussianParameterSet, parseNeighbourPrediction, parseStepAdjust, p
 import { UNIT } from './container.mjs';
 
 export class ProgressiveDecoder {
-    /** onTile(t, tile, info): a tile decoded and hash-checked (provisional until finish()). */
-    constructor({ onTile = null, maxMemory = DEFAULT_MAX_MEMORY } = {}) {
+    /**
+     * onTile(t, tile, info): a tile decoded and hash-checked (provisional until finish()).
+     * pool: null (tiles decoded here, one after the other, in order) or an object whose
+     * decode(ctx, t) promises tile t's result (tiles in parallel workers: onTile in any order).
+     */
+    constructor({ onTile = null, maxMemory = DEFAULT_MAX_MEMORY, pool = null } = {}) {
         this.onTile = onTile;
         this.maxMemory = maxMemory;
+        this.pool = pool;
+        this.pending = []; // per tile started, the promise of its result
+        this.failed = null; // the first tile that failed
         this.buf = new Uint8Array(1 << 16);
         this.len = 0;
         this.units = []; // complete units seen so far: {type, start, end, payload}
         this.scan = 8;
         this.ctx = null; // the prelude, once parsed
-        this.tiles = []; // decoded tiles, in order
+        this.tiles = []; // decoded tiles, by tile number
         this.busy = Promise.resolve();
     }
 
@@ -57,10 +64,14 @@ export class ProgressiveDecoder {
         const ps = parseGaussianParameterSet(crit[0].payload);
         if (ps.hierarchyEnabled) return null; // rejected by finish()
         let i = 1;
-        const ctx = { ps, M: ps.M, steps: ps.steps, np: null, stepAdjust: null };
+        const ctx = { ps, M: ps.M, steps: ps.steps, np: null, stepAdjust: null, payloads: { ps: crit[0].payload, np: null, sa: null } };
         if (crit[i] && crit[i].type === UNIT.NEIGHBOUR_PREDICTION) {
+            ctx.payloads.np = crit[i].payload;
             ctx.np = parseNeighbourPrediction(crit[i++].payload, ps.M);
-            if (crit[i] && crit[i].type === UNIT.STEP_ADJUST) ctx.stepAdjust = parseStepAdjust(crit[i++].payload);
+            if (crit[i] && crit[i].type === UNIT.STEP_ADJUST) {
+                ctx.payloads.sa = crit[i].payload;
+                ctx.stepAdjust = parseStepAdjust(crit[i++].payload);
+            }
         }
         if (!crit[i]) return null;
         if (ps.tilesEnabled) {
@@ -79,23 +90,47 @@ export class ProgressiveDecoder {
     }
 
     async _advance() {
+        if (this.failed) throw this.failed; // a tile the pool rejected: the stream is rejected now
         this._scanUnits();
         if (!this.ctx) {
             this.ctx = this._prelude();
             if (!this.ctx) return;
+            this._startPool(this.ctx);
         }
         const ctx = this.ctx;
-        while (this.tiles.length < ctx.tiles.length) {
-            const t = this.tiles.length, tile = ctx.tiles[t];
+        while (this.pending.length < ctx.tiles.length) {
+            const t = this.pending.length, tile = ctx.tiles[t];
             const units = this.units.filter((u) => u.type < 0x80 && u.start >= tile.start && u.end <= tile.end);
             const last = units[units.length - 1];
             const complete = last && last.type === UNIT.DECODED_SCENE_HASH && (tile.end === Infinity || last.end === tile.end);
             if (!complete) return;
             tile.units = units;
-            const r = await decodeTile(ctx, t);
-            this.tiles.push(r);
-            if (this.onTile) this.onTile(t, r, { tiles: ctx.tiles.length, ps: ctx.ps });
+            const p = this._start(ctx, t);
+            if (!this.pool) await p; // one after the other: tile 0 is shown before tile 1 is started
         }
+    }
+
+    // a pool pays only for several tiles; one tile is decoded here
+    _startPool(ctx) {
+        if (this.pool && ctx.tiles.length < 2) this.pool = null;
+        if (this.pool) this.pool.start(ctx);
+    }
+
+    // tile t decoded (here or by the pool), kept and reported. With a pool, tile 0 is decoded here,
+    // once the tiles complete so far have been handed out: the first tile does not wait for a
+    // helper to start (load and compile its script), and this worker is otherwise idle.
+    _start(ctx, t) {
+        let p;
+        if (!this.pool) p = decodeTile(ctx, t);
+        else if (t === 0) p = new Promise((res) => setTimeout(res, 0)).then(() => decodeTile(ctx, 0));
+        else p = this.pool.decode(ctx, t);
+        p = p.then((r) => {
+            this.tiles[t] = r;
+            if (this.onTile) this.onTile(t, r, { tiles: ctx.tiles.length, ps: ctx.ps });
+        });
+        p.catch((err) => { this.failed = this.failed || err; }); // reported by the next push() or finish()
+        this.pending.push(p);
+        return p;
     }
 
     /**
@@ -108,11 +143,12 @@ export class ProgressiveDecoder {
         const ctx = parseStream(bytes, { maxMemory: this.maxMemory });
         // the tiles decoded early were cut by the index this full parse has now checked
         if (this.ctx && this.ctx.tiles.length !== ctx.tiles.length) throw new BitstreamError('the tiles changed between the progressive and the full parse');
-        for (let t = this.tiles.length; t < ctx.tiles.length; t++) {
-            const r = await decodeTile(ctx, t);
-            this.tiles.push(r);
-            if (this.onTile) this.onTile(t, r, { tiles: ctx.tiles.length, ps: ctx.ps });
+        if (!this.ctx) this._startPool(ctx);
+        for (let t = this.pending.length; t < ctx.tiles.length; t++) {
+            const p = this._start(ctx, t);
+            if (!this.pool) await p;
         }
+        await Promise.all(this.pending);
         return { ps: ctx.ps, tiles: this.tiles };
     }
 }

@@ -1,11 +1,15 @@
 // The decoder in a Web Worker: {bytes} (a Uint8Array) or {url} (fetched as a stream) in; out,
 // as the bytes arrive: {type: 'tile', t, tiles, count, arrays} per decoded, hash-checked tile
 // (positions, sh, opacities, scales, rotations: transferred typed arrays, no PLY), then
-// {type: 'done', count, tiles, seconds, digest} once the whole stream passed every check, or
+// {type: 'done', count, tiles, seconds, digest, helpers} once the whole stream passed every check, or
 // {type: 'error', kind, message}. With {digest: true} 'done' carries the decoded scene's SHA-256
-// (clause 12); with {bytes, box} only the tiles the box selects are decoded.
+// (clause 12); with {bytes, box} only the tiles the box selects are decoded. With {workers: W, source}
+// (W >= 1, e.g. navigator.hardwareConcurrency; source: this script's text) the tiles of a tiled stream are decoded by W helper
+// workers of this same script in parallel (pool.mjs; where a worker cannot start workers, tile after
+// tile), and 'tile' messages come in the order tiles finish.
 import { ProgressiveDecoder, sceneArrays } from './progressive.mjs';
 import { decodeStream, sceneDigestHex } from './decoder.mjs';
+import { TilePool, arrayBuffers, helperMessage } from './pool.mjs';
 
 async function* chunksOf(msg) {
     if (msg.bytes) { yield msg.bytes; return; }
@@ -31,24 +35,38 @@ async function decodeBox(msg) {
     }
 }
 
+// the helpers' script: this worker's own, from the source text the page passes ({source}: a page on
+// file: has an opaque origin, and a worker may not start another from the page's blob: URL)
+function helperUrl(msg) {
+    return msg.source ? URL.createObjectURL(new Blob([msg.source], { type: 'text/javascript' })) : self.location.href;
+}
+
 self.onmessage = async (e) => {
+    if (e.data.init || e.data.job) { await helperMessage(e.data); return; }
     if (e.data.box) { await decodeBox(e.data); return; }
     const t0 = performance.now();
     let count = 0;
+    const url = e.data.workers >= 1 && typeof Worker !== 'undefined' ? helperUrl(e.data) : null;
+    const pool = url ? new TilePool(e.data.workers, url, { keep: !!e.data.digest }) : null;
     const dec = new ProgressiveDecoder({
+        pool,
         onTile: (t, tile, info) => {
-            const arrays = sceneArrays(info.ps, [tile]);
+            const arrays = tile.arrays || sceneArrays(info.ps, [tile]);
+            delete tile.arrays;
             count += tile.n;
-            self.postMessage({ type: 'tile', t, tiles: info.tiles, count, arrays, ms: performance.now() - t0 },
-                [arrays.positions.buffer, arrays.sh.buffer, arrays.opacities.buffer, arrays.scales.buffer, arrays.rotations.buffer]);
+            self.postMessage({ type: 'tile', t, tiles: info.tiles, count, arrays, ms: performance.now() - t0 }, arrayBuffers(arrays));
         },
     });
     try {
         for await (const chunk of chunksOf(e.data)) await dec.push(chunk);
         const r = await dec.finish();
         const digest = e.data.digest ? sceneDigestHex(r.ps, r.tiles) : null;
-        self.postMessage({ type: 'done', count, tiles: r.tiles.length, seconds: (performance.now() - t0) / 1000, digest });
+        const helpers = pool && pool.workers ? pool.workers.length : 0; // helper workers that decoded tiles
+        self.postMessage({ type: 'done', count, tiles: r.tiles.length, seconds: (performance.now() - t0) / 1000, digest, helpers });
     } catch (err) {
         self.postMessage({ type: 'error', kind: err && err.name ? err.name : 'Error', message: String(err && err.message ? err.message : err) });
+    } finally {
+        if (pool) pool.close();
+        if (url && url !== self.location.href) URL.revokeObjectURL(url);
     }
 };

@@ -1,0 +1,113 @@
+// Tiles decoded in parallel (clause 13.2: a tile's decoding needs only the prelude and its own
+// units): a pool of Web Workers that run this same worker script. The decoding worker hands each
+// complete tile to an idle helper ({job}); a helper parses the prelude once ({init}), decodes and
+// hash-checks the tile and sends back the renderer's arrays (and, for a digest, the decoded tile).
+import { decodeTile, sceneArrays } from './decoder.mjs';
+import * as errors from './errors.mjs';
+import { scaleTables } from './tables.mjs';
+import { parseGaussianParameterSet, parseNeighbourPrediction, parseStepAdjust } from './units.mjs';
+
+// a typed array that owns its whole buffer (a view into a larger one would clone all of it)
+function own(a) { return a.byteOffset === 0 && a.byteLength === a.buffer.byteLength ? a : a.slice(); }
+
+function arrayBuffers(arrays) { return [arrays.positions, arrays.sh, arrays.opacities, arrays.scales, arrays.rotations].map((a) => a.buffer); }
+
+// the helper's error as the same class (the page reports the class name)
+function remoteError({ name, message }) {
+    const C = Object.prototype.hasOwnProperty.call(errors, name) ? errors[name] : Error;
+    const e = new C(message);
+    if (e.name !== name) Object.defineProperty(e, 'name', { value: name });
+    return e;
+}
+
+export class TilePool {
+    /** size helpers of the worker script at url; keep: helpers send the decoded tiles back (for a digest). */
+    constructor(size, url, { keep = false } = {}) {
+        this.size = size;
+        this.url = url;
+        this.keep = keep;
+        this.workers = null;
+        this.queue = [];
+    }
+
+    /** The prelude is known (ctx.payloads): start the helpers, at most one per tile after the first (decoded by the caller). */
+    start(ctx) {
+        if (this.workers) return;
+        const p = ctx.payloads;
+        const init = { ps: own(p.ps), np: p.np && own(p.np), sa: p.sa && own(p.sa) };
+        this.workers = Array.from({ length: Math.min(this.size, ctx.tiles.length - 1) }, () => {
+            const w = new Worker(this.url);
+            w.job = null;
+            w.onmessage = (e) => this._done(w, e.data);
+            w.onerror = (e) => { e.preventDefault(); this._done(w, { error: { name: 'Error', message: `a decoding worker stopped: ${e.message}` } }); };
+            w.postMessage({ init });
+            return w;
+        });
+    }
+
+    /** Promise of tile t's result {n, arrays, x, y, z, values (with keep)}. */
+    decode(ctx, t) {
+        const tile = ctx.tiles[t];
+        const units = tile.units.map((u) => ({ type: u.type, payload: u.payload.slice() }));
+        const job = { t, points: tile.points, cell: tile.cell, units, keep: this.keep };
+        return new Promise((resolve, reject) => {
+            this.queue.push({ job, resolve, reject });
+            this._next();
+        });
+    }
+
+    _next() {
+        for (const w of this.workers) {
+            if (w.job || !this.queue.length) continue;
+            w.job = this.queue.shift();
+            const job = w.job.job;
+            w.postMessage({ job }, job.units.map((u) => u.payload.buffer));
+        }
+    }
+
+    _done(w, m) {
+        const { resolve, reject } = w.job;
+        w.job = null;
+        if (m.error) reject(remoteError(m.error));
+        else resolve({ ...m.tile, arrays: m.arrays });
+        this._next();
+    }
+
+    close() {
+        for (const w of this.workers || []) w.terminate();
+        this.workers = [];
+    }
+}
+
+let helperCtx = null;
+
+/** A helper's side: {init} (the prelude's payloads) once, then {job} per tile. */
+export async function helperMessage(data) {
+    if (data.init) {
+        scaleTables();
+        const ps = parseGaussianParameterSet(data.init.ps);
+        helperCtx = {
+            ps, M: ps.M, steps: ps.steps, tiles: [], np: data.init.np ? parseNeighbourPrediction(data.init.np, ps.M) : null,
+            stepAdjust: data.init.sa ? parseStepAdjust(data.init.sa) : null,
+        };
+        return;
+    }
+    const { t, points, cell, units, keep } = data.job;
+    try {
+        helperCtx.tiles[t] = { units, points, cell };
+        const r = await decodeTile(helperCtx, t);
+        helperCtx.tiles[t] = null;
+        const arrays = sceneArrays(helperCtx.ps, [r]);
+        const transfer = arrayBuffers(arrays);
+        let tile = { n: r.n };
+        if (keep) {
+            tile = { n: r.n, x: own(r.x), y: own(r.y), z: own(r.z), values: own(r.values) };
+            transfer.push(tile.x.buffer, tile.y.buffer, tile.z.buffer, tile.values.buffer);
+        }
+        self.postMessage({ t, tile, arrays }, transfer);
+    } catch (err) {
+        self.postMessage({ t, error: { name: err && err.name ? err.name : 'Error', message: String(err && err.message ? err.message : err) } });
+    }
+}
+
+export { arrayBuffers };
