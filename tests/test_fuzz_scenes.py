@@ -46,9 +46,29 @@ def test_fresh_scene_streams_decode_to_their_own_hash(box):
         assert res.kind == fuzz.SCENE_VALID, f"{case.what}: {res.detail}"
         kinds["valid"] += 1
         kinds["hierarchy"] += "'hierarchy': True" in case.what
+        kinds["gaussians"] += case.what.startswith("Gaussians")
 
-    run()
-    assert kinds["valid"] >= 15 and kinds["hierarchy"] >= 3, kinds
+    run()  # a third of the cases are explicit-Gaussian scenes (fewer anchor scenes with the hierarchy)
+    assert kinds["valid"] >= 12 and kinds["hierarchy"] >= 2 and kinds["gaussians"] >= 3, kinds
+
+
+def test_gaussian_scenes_with_neighbour_prediction_step_adjustment_and_tiles_round_trip(box):
+    """The explicit-Gaussian cases: neighbour prediction, step adjustment and several tiles; every
+    stream the encoder writes decodes, in the sandbox, to its own hash."""
+    kinds = Counter()
+    for seed in range(10):
+        case = fuzz_scenes.gaussian_scene_case(random.Random(seed))
+        assert not case.bug, case.bug
+        if case.data is None:
+            assert case.refused, case.what
+            continue
+        res = fuzz.scene_outcome(box.run(case.data))
+        assert res.kind == fuzz.SCENE_VALID, f"{case.what}: {res.detail}"
+        kinds["valid"] += 1
+        kinds["neighbour"] += "'neighbour_prediction': True" in case.what
+        kinds["step_adjust"] += "'step_adjust_max': 0" not in case.what and "step_adjust_max" in case.what
+        kinds["tiles"] += "tile_points" in case.what
+    assert kinds["valid"] >= 6 and kinds["neighbour"] >= 4 and kinds["step_adjust"] >= 1 and kinds["tiles"] >= 3, kinds
 
 
 def test_the_generator_reaches_the_extremes():

@@ -340,10 +340,86 @@ def _level2_q(payload, sps, hier, q1, coords, units, types, values):
                                     hier.level2_idx, context, keep_q=True)
 
 
+# --- explicit-Gaussian scenes (neighbour prediction, step adjustment, tiles) -----------------------------
+
+def random_gaussian_scene(rng: random.Random, max_points: int = 3000):
+    """-> (GaussianScene on a grid, description): SH degree 0..3, values as random_values draws them
+    (constant, outliers, escapes), voxel sizes and origins up to the binary32 limits."""
+    from lghcc.common.attributes import GaussianLayout
+    from lghcc.common.scene import GaussianScene
+
+    g = np.random.default_rng(rng.getrandbits(64))
+    n = min(max_points, _choice(rng, [1, rng.randint(2, 16), rng.randint(17, 300), rng.randint(301, 3000)],
+                                [5, 30, 45, 20]))
+    coords, layout = random_coords(rng, n)
+    n, degree = coords.shape[0], rng.randint(0, 3)
+    lay = GaussianLayout(degree)
+    # SH and opacity as random_values draws them; scales and rotations within what the encoder takes
+    # (a finite positive scale, a non-zero quaternion), mostly, with constant and outlier channels
+    values = np.concatenate([random_values(rng, g, (n, lay.sh_channels + 1), 0.03),
+                             g.uniform(-12, 4, size=(n, 3)) if rng.random() < 0.9 else random_values(rng, g, (n, 3), 0.1),
+                             g.normal(size=(n, 4)) + (rng.random() < 0.2)], axis=1).astype(np.float32)
+    sh, opacity, log_scales, rotations = lay.split(values)
+    voxel = float(_choice(rng, [1e-6, 0.01, 1.0, 1e6], [10, 70, 15, 5]))
+    origin = [_choice(rng, [0.0, 1e6, -1e6, 3e30], [60, 15, 15, 10]) for _ in range(3)]
+    scene = GaussianScene.on_grid(coords, voxel, origin, sh.copy(), opacity.copy(), log_scales.copy(), rotations.copy())
+    return scene, f"Gaussians N={n} ({layout}) sh_degree={degree}"
+
+
+def random_gaussian_config(rng: random.Random):
+    """-> (GaussianEncoderConfig, description): neighbour prediction (LoDs, neighbours, buckets at
+    their extremes), step adjustment up to max 7, several small tiles, chunks of 1 row to all."""
+    from lghcc.encoder.stream.config import load_config
+
+    over: dict = {"rows_per_chunk": _choice(rng, [1, 7, 64, 65536], [10, 20, 20, 50]),
+                  "channel_prediction": rng.random() < 0.5}
+    if rng.random() < 0.8:
+        over.update(neighbour_prediction=True, prediction_lods=rng.randint(1, 16),
+                    prediction_neighbours=_choice(rng, [1, 2, 6, 32]), prediction_buckets=rng.randint(1, 16))
+        if rng.random() < 0.6:
+            over.update(step_adjust_max=rng.randint(0, 7), step_adjust_quantile=_choice(rng, [0.01, 0.5, 0.9, 1.0]))
+    else:
+        over["neighbour_prediction"] = False
+    if rng.random() < 0.6:
+        over["tile_points"] = _choice(rng, [1, 5, 30, 200])
+    return load_config(_choice(rng, ["low", "medium", "high"]), overrides=over, kind="gaussians"), f"{over}"
+
+
+def gaussian_scene_case(rng: random.Random) -> SceneCase:
+    """Build and encode one random explicit-Gaussian scene, with a random sensitivity (so that RDOQ
+    and step adjustment choose per Gaussian) when step adjustment is on."""
+    from lghcc.common.errors import InputError
+    from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
+
+    cfg, cwhat = random_gaussian_config(rng)
+    scene, what = random_gaussian_scene(rng, max_points=3000 if cfg.rows_per_chunk > 7 else 400)
+    what = f"{what}; {cwhat}"
+    g = np.random.default_rng(rng.getrandbits(64))
+    m = scene.sh.shape[1] * 3 + 8
+    sens = None
+    if cfg.step_adjust_max or rng.random() < 0.3:
+        sens = (10.0 ** (-3 * g.random((scene.num_gaussians, 1)))) * g.uniform(0.1, 10, size=(1, m))
+    try:
+        data = encode_gaussian_scene(scene, cfg, sensitivity=sens).data
+    except InputError as e:
+        return SceneCase(None, what, refused=str(e))
+    except Exception:  # noqa: BLE001 - an encoder (or generator) bug: reported with its traceback
+        return SceneCase(None, what, bug=traceback.format_exc())
+    return SceneCase(data, what)
+
+
 # --- one case -----------------------------------------------------------------------------------------
 
 def scene_case(rng: random.Random) -> SceneCase:
-    """Build, encode (and sometimes re-code level 2 with a hand-built model) one random scene."""
+    """Build, encode (and sometimes re-code level 2 with a hand-built model) one random scene: an
+    anchor scene, or (a third of the cases) an explicit-Gaussian one."""
+    if rng.random() < 1 / 3:
+        return gaussian_scene_case(rng)
+    return anchor_scene_case(rng)
+
+
+def anchor_scene_case(rng: random.Random) -> SceneCase:
+    """One random anchor scene, encoded (and sometimes level 2 re-coded with a hand-built model)."""
     from lghcc.common.errors import InputError
     from lghcc.encoder.stream.encode import encode_scene
 
