@@ -71,6 +71,25 @@ def test_gaussian_scenes_with_neighbour_prediction_step_adjustment_and_tiles_rou
     assert kinds["valid"] >= 6 and kinds["neighbour"] >= 4 and kinds["step_adjust"] >= 1 and kinds["tiles"] >= 3, kinds
 
 
+def test_box_preview_and_worker_decodes_of_fresh_streams(box):
+    """The scene cases' extra decodes (clause 13.3): a box around a tile's cell, a box meeting no
+    cell, the level-1 preview (of the box too) and 2 tile workers all succeed; a box decode that
+    is not the full decode's rows of its tiles is found."""
+    from lghcc.common.tiles import Box
+    from lghcc.decoder.decode import decode_stream
+
+    from lghcc.conformance import STREAMS_DIR
+
+    data = (STREAMS_DIR / "c063_tiles_gaussians" / "stream.lghcc").read_bytes()  # tiles and the hierarchy
+    opts = fuzz_scenes.partial_decodes(random.Random(5), data)
+    assert {tuple(sorted(o)) for o in opts} == {("box",), ("max_level",), ("box", "max_level"), ("exact_jobs", "jobs")}
+    for o in opts:
+        assert fuzz.scene_outcome(box.run(data, o), fuzz.SCENE_PARTIAL).kind == fuzz.SCENE_PARTIAL, o
+    one = Box((0.05,) * 3, (0.1,) * 3)
+    assert fuzz.partial_mismatch(data, one, decode_stream(data, box=one).scene) == ""
+    assert "differ" in fuzz.partial_mismatch(data, one, decode_stream(data, box=Box((-0.1,) * 3, (-0.05,) * 3)).scene)
+
+
 def test_the_generator_reaches_the_extremes():
     """Over a few hundred seeds: extents beyond GG-Conv's limit, C up to 1024, K up to 64, 3000 anchors,
     every layout, hand-built context models."""

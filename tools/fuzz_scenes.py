@@ -38,7 +38,7 @@ from __future__ import annotations
 import math
 import random
 import traceback
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -55,6 +55,7 @@ class SceneCase:
     what: str
     refused: str = ""
     bug: str = ""
+    decodes: list = field(default_factory=list)  # decode_stream options of its box/preview/worker decodes
 
 
 def _choice(rng: random.Random, options, weights=None):
@@ -401,11 +402,38 @@ def gaussian_scene_case(rng: random.Random) -> SceneCase:
         sens = (10.0 ** (-3 * g.random((scene.num_gaussians, 1)))) * g.uniform(0.1, 10, size=(1, m))
     try:
         data = encode_gaussian_scene(scene, cfg, sensitivity=sens).data
+        decodes = partial_decodes(rng, data)
     except InputError as e:
         return SceneCase(None, what, refused=str(e))
     except Exception:  # noqa: BLE001 - an encoder (or generator) bug: reported with its traceback
         return SceneCase(None, what, bug=traceback.format_exc())
-    return SceneCase(data, what)
+    return SceneCase(data, what, decodes=decodes)
+
+
+# --- partial decodes and tile workers --------------------------------------------------------------------
+
+def partial_decodes(rng: random.Random, data: bytes) -> list[dict]:
+    """decode_stream options to try on a fresh tiled stream besides its full decode (clause 13.3):
+    a box around one random tile's cell (its faces on the cell's faces, or within it), a box that
+    meets no cell, the level-1 preview (with the hierarchy; of the box too), and the tiles decoded
+    by 2 worker processes."""
+    from lghcc.common.tiles import Box
+    from lghcc.decoder.decode import parse_stream
+
+    s = parse_stream(data)
+    if len(s.tiles) < 2:
+        return []
+    ps, cell = s.ps, s.tiles[rng.randrange(len(s.tiles))].cell
+    o, ts, vs = [float(x) for x in ps.origin], ps.tile_size, float(ps.voxel_size)
+    lo = [float(c * ts) * vs + oa for c, oa in zip(cell, o)]
+    hi = [float((c + 1) * ts) * vs + oa for c, oa in zip(cell, o)]
+    if rng.random() < 0.5:  # strictly inside the cell, or its faces exactly
+        lo, hi = [a + (b - a) / 4 for a, b in zip(lo, hi)], [b - (b - a) / 4 for a, b in zip(lo, hi)]
+    out = [{"box": Box(tuple(lo), tuple(hi))}, {"box": Box((1.0e308,) * 3, (1.7976931348623157e308,) * 3)}]
+    if ps.hierarchy_enabled_flag:
+        out += [{"max_level": 1}, {"max_level": 1, "box": out[0]["box"]}]
+    out.append({"jobs": 2, "exact_jobs": True})
+    return out
 
 
 # --- one case -----------------------------------------------------------------------------------------
@@ -438,8 +466,9 @@ def anchor_scene_case(rng: random.Random) -> SceneCase:
             if out is not None:
                 data, hwhat = out
                 what += f"; {hwhat}"
+        decodes = partial_decodes(rng, data)
     except InputError as e:
         return SceneCase(None, what, refused=str(e))
     except Exception:  # noqa: BLE001 - an encoder (or generator) bug: reported with its traceback
         return SceneCase(None, what, bug=traceback.format_exc())
-    return SceneCase(data, what)
+    return SceneCase(data, what, decodes=decodes)
