@@ -23,6 +23,14 @@ out of the byte mutator's reach). Here every case is a new, valid stream:
   the level-2 unit is re-coded with their means, levels and step adjustments (which reach every
   clamp), and the stream's hash is recomputed.
 
+* explicit-Gaussian scenes (``gaussian_scene_case``, a third of the cases): SH degree 0..3,
+  neighbour prediction (1..16 LoDs, 1..32 neighbours, 1..16 buckets), step adjustment (max 0..7,
+  from a random sensitivity), tiles of 1 to 200 points, chunks of 1 row to all;
+* beside each fresh tiled stream's full decode (``partial_decodes``): a box around one tile's cell
+  (inside it or on its faces), a box meeting no cell, the level-1 preview (of the box too) and
+  the tiles decoded by 2 worker processes; a box decode must be the full decode's rows of the
+  tiles it selects (conformance/fuzz.py ``partial_mismatch``).
+
 Oracle: a fresh stream must decode, in the sandbox, to its own hash (the encoder's decoded scene);
 anything else is a bug of the encoder or the decoder. The encoder may refuse a scene (InputError:
 a value beyond 2^52 steps, a world position beyond binary32); an encoder exception of another
