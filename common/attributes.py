@@ -151,9 +151,10 @@ class GaussianLayout:
                                scene.log_scales, scene.rotations], axis=1)
 
     def split(self, values: np.ndarray):
-        """-> (sh [N, S, 3], opacity [N], log scales [N, 3], rotations [N, 4]) as views of ``values``."""
+        """-> (sh [N, S, 3], opacity [N], log scales [N, 3], rotations [N, 4]) as views of ``values``
+        (S named: N may be 0, a box that selects no tile)."""
         n = values.shape[0]
-        return (values[:, :self.sh_channels].reshape(n, -1, 3), values[:, self.opacity_channel],
+        return (values[:, :self.sh_channels].reshape(n, self.sh_channels // 3, 3), values[:, self.opacity_channel],
                 values[:, self.scale_start:self.rotation_start], values[:, self.rotation_start:])
 
 

@@ -40,6 +40,8 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from ..common.container import DataUnit, UnitType, read_container, write_container
 from ..common.errors import LghccError
 
@@ -433,15 +435,22 @@ VALID = "valid decode"
 _MAX_MEMORY: list[int | None] = [None]
 
 
-def classify(data: bytes) -> tuple[str, str]:
-    """Decode in this process: (kind, detail). kind: VALID, 'error: <class>' or 'BUG: <class>'."""
+def classify(data: bytes, options: dict | None = None) -> tuple[str, str]:
+    """Decode in this process: (kind, detail). kind: VALID, 'error: <class>' or 'BUG: <class>'.
+    ``options``: decode_stream's box, max_level, jobs and exact_jobs (a partial decode, or tiles
+    decoded by worker processes); a box decode must output the full decode's points of the tiles
+    it selects, row for row."""
     from ..decoder.decode import decode_stream
     from ..decoder.limits import DEFAULT_MAX_MEMORY
 
     try:
-        res = decode_stream(data, max_memory=_MAX_MEMORY[0] or DEFAULT_MAX_MEMORY)
-        if res.scene.num_points < 1:
+        res = decode_stream(data, max_memory=_MAX_MEMORY[0] or DEFAULT_MAX_MEMORY, **(options or {}))
+        if res.scene.num_points < 1 and not (options or {}).get("box"):
             return "BUG: empty scene", "a valid decode with no anchors or Gaussians"
+        if (options or {}).get("box") and (options or {}).get("max_level", 2) == 2:
+            wrong = partial_mismatch(data, options["box"], res.scene)
+            if wrong:
+                return "BUG: box decode differs from the full decode", wrong
         return VALID, ""
     except LghccError as e:
         if not str(e):
@@ -453,10 +462,35 @@ def classify(data: bytes) -> tuple[str, str]:
         return f"BUG: {type(e).__name__}", traceback.format_exc()
 
 
+# the arrays of a decoded scene with one row per point (anchor or explicit-Gaussian scene)
+_ROW_ARRAYS = ("coords", "features", "scalings", "offsets", "offset_mask", "sh", "opacity", "log_scales", "rotations")
+
+
+def partial_mismatch(data: bytes, box, part) -> str:
+    """'' when ``part`` (a box decode of ``data``) holds exactly the full decode's rows of the tiles
+    the box selects (clause 13.3), else what differs."""
+    from ..decoder.decode import decode_stream, parse_stream, selected_tiles
+
+    s = parse_stream(data)
+    starts = np.concatenate([[0], np.cumsum([t.num_points for t in s.tiles])]).astype(np.int64)
+    sel = selected_tiles(s.tiles, s.ps, box)
+    rows = np.concatenate([np.arange(starts[t], starts[t + 1]) for t in sel]) if sel else np.zeros(0, np.int64)
+    full = decode_stream(data, max_memory=_MAX_MEMORY[0]).scene
+    for name in _ROW_ARRAYS:
+        a, b = getattr(full, name, None), getattr(part, name, None)
+        if (a is None) != (b is None) or (a is not None and not np.array_equal(a[rows], b, equal_nan=True)):
+            return f"{name}: the box decode's {len(sel)} tiles differ from the full decode's"
+    return ""
+
+
 def _worker(conn, memory_bytes: int | None, threads: int, max_memory: int | None = None) -> None:
     import signal
 
     import torch
+
+    # a case may decode its tiles in worker processes (decode_stream's jobs): this process, which the
+    # sandbox kills itself, may have children
+    mp.current_process().daemon = False
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C stops the campaign (the parent), not a case
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # the parent's handler is not the worker's
@@ -470,13 +504,13 @@ def _worker(conn, memory_bytes: int | None, threads: int, max_memory: int | None
     conn.send("ready")
     while True:
         try:
-            data = conn.recv_bytes()
+            data, options = conn.recv()
         except EOFError:
             return
         base_kib = _reset_peak_rss()
         t0, c0 = time.perf_counter(), time.process_time()
         try:
-            kind, detail = classify(data)
+            kind, detail = classify(data) if options is None else classify(data, options)
         except Exception as e:  # noqa: BLE001 - e.g. MemoryError while handling another error
             kind, detail = f"BUG: {type(e).__name__}", traceback.format_exc()
         dt, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -562,13 +596,14 @@ class Sandbox:
             self._conn.close()
         self._proc = self._conn = None
 
-    def run(self, data: bytes) -> "CaseResult":
-        """Decode one case in the worker: (kind, detail, seconds, peak RSS KiB, peak above the RSS
-        before the case KiB); the memory figures are 0 when the worker timed out or died."""
+    def run(self, data: bytes, options: dict | None = None) -> "CaseResult":
+        """Decode one case in the worker (``options``: see classify): (kind, detail, seconds, peak
+        RSS KiB, peak above the RSS before the case KiB); the memory figures are 0 when the worker
+        timed out or died."""
         if self._proc is None or not self._proc.is_alive():
             self._start()
         t0 = time.perf_counter()
-        self._conn.send_bytes(data)
+        self._conn.send((data, options))
         if not self._conn.poll(self.timeout):
             self._stop()
             return CaseResult("BUG: timeout", f"no result after {self.timeout:g} s", time.perf_counter() - t0)
@@ -688,12 +723,14 @@ def save_failure(folder: Path, kind: str, what: str, detail: str, data: bytes) -
 
 SCENE_VALID = "scene: valid round trip"
 SCENE_REFUSED = "scene: refused by the encoder (InputError)"
+SCENE_PARTIAL = "scene: valid box, preview or worker decode"
 
 
-def scene_outcome(res: "CaseResult") -> "CaseResult":
-    """A fresh stream from the scene generator must decode to its own hash: anything else is a bug."""
+def scene_outcome(res: "CaseResult", valid: str = SCENE_VALID) -> "CaseResult":
+    """A fresh stream from the scene generator must decode to its own hash (and its box, preview
+    and worker decodes must succeed: ``valid`` SCENE_PARTIAL): anything else is a bug."""
     if res.kind == VALID:
-        return CaseResult(SCENE_VALID, "", res.seconds, res.peak_kib, res.growth_kib, res.cpu_seconds)
+        return CaseResult(valid, "", res.seconds, res.peak_kib, res.growth_kib, res.cpu_seconds)
     kind = "BUG: round trip" if not res.kind.startswith("BUG") else f"BUG: round trip ({res.kind[5:]})"
     return CaseResult(kind, f"{res.kind}: {res.detail}", res.seconds, res.peak_kib, res.growth_kib, res.cpu_seconds)
 
@@ -744,6 +781,9 @@ def _campaign_loop(summary, mutator, box, rng, scene_rng, cases, seconds, t0, fa
             else:
                 res = scene_outcome(box.run(sc.data))
                 summary.add(res, what, sc.data, failures_dir)
+                for opts in getattr(sc, "decodes", ()) if res.kind == SCENE_VALID else ():
+                    summary.add(scene_outcome(box.run(sc.data, opts), SCENE_PARTIAL), f"{what}; decode {opts}",
+                                sc.data, failures_dir)
                 if res.kind == SCENE_VALID:
                     sid = f"scene{summary.cases}"
                     mutator.add_seed(sid, sc.data, res.cpu_seconds)

@@ -12,9 +12,11 @@ Each stream lives in ``conformance/streams/<id>/`` as ``stream.lghcc`` and ``tes
                    checked with --render (the renderer is not normative, hence no hash)
   partial_decodes  (tiled streams, version 1) decodes of part of the stream, each with the SHA-256 of
                    what it outputs: ``box`` [x0, y0, z0, x1, y1, z1]: the tiles whose cell meets the
-                   box (``tiles_decoded`` of them), ``level: 1``: the level-1 preview (clause 13.3);
-                   checked for the reference decoder, and for another with ``{options}`` in its
-                   --decoder-cmd (replaced by lghcc-dec's options: --box=..., --level 1)
+                   box (``tiles_decoded`` of them, ``tiles``: their indices in stream order; none: the
+                   empty scene), ``level: 1``: the level-1 preview (clause 13.3), both: the preview
+                   of the tiles the box selects; ``purpose`` says what the box tests. Checked for the
+                   reference decoder (hash and tile count), and for another with ``{options}`` in
+                   its --decoder-cmd (replaced by lghcc-dec's options: --box=..., --level 1)
   source_info      (streams with a source_info unit, informative: clauses 6.3, 7.3.10)
                    source_sh_degree: what a decoder that interprets source_info outputs (null:
                    nothing, its first source_info unit is malformed) and ignored: how many
@@ -182,8 +184,18 @@ def validate_partial_decodes(parts, expect: str, folder: Path) -> None:
             raise _bad(folder, f"partial decode {p!r}: missing or malformed decoded_sha256")
         box_ok = "box" in p and isinstance(p["box"], list) and len(p["box"]) == 6 and \
             all(isinstance(x, (int, float)) for x in p["box"])
-        if not (box_ok or p.get("level") == 1):
-            raise _bad(folder, f"partial decode {p!r}: needs box (six numbers) or level: 1")
+        if not (box_ok or p.get("level") == 1) or p.get("level", 1) != 1:
+            raise _bad(folder, f"partial decode {p!r}: needs box (six numbers) or level: 1, or both")
+        if not isinstance(p.get("tiles_decoded", 0), int) or ("tiles" in p and not _tiles_ok(p)):
+            raise _bad(folder, f"partial decode {p!r}: tiles_decoded is not a count, or tiles not "
+                               "tiles_decoded increasing tile indices")
+
+
+def _tiles_ok(p: dict) -> bool:
+    """A partial decode's ``tiles``: tiles_decoded tile indices in increasing order."""
+    t = p["tiles"]
+    return (isinstance(t, list) and all(isinstance(i, int) and i >= 0 for i in t) and len(t) == p.get("tiles_decoded")
+            and all(a < b for a, b in zip(t, t[1:])))
 
 
 def validate_renders(r, folder: Path) -> None:
@@ -424,9 +436,8 @@ def _run_internal(case: Case, render: bool) -> tuple[bool, str]:
 
 def partial_options(p: dict) -> list[str]:
     """lghcc-dec's options for one partial decode of test.yaml."""
-    if "box" in p:
-        return ["--box=" + ",".join(repr(float(x)) for x in p["box"])]
-    return ["--level", str(int(p["level"]))]
+    box = ["--box=" + ",".join(repr(float(x)) for x in p["box"])] if "box" in p else []
+    return box + (["--level", str(int(p["level"]))] if "level" in p else [])
 
 
 def _judge_partial_internal(case: Case, note: str) -> tuple[bool, str]:
@@ -445,6 +456,9 @@ def _judge_partial_internal(case: Case, note: str) -> tuple[bool, str]:
         got = digest_of(res.scene).hex()
         if got != p["decoded_sha256"]:
             return False, f"{note}; partial decode {' '.join(partial_options(p))}: hash {got[:16]}... differs"
+        if res.tiles_decoded != p.get("tiles_decoded", res.tiles_decoded):
+            return False, (f"{note}; partial decode {' '.join(partial_options(p))}: {res.tiles_decoded} tiles "
+                           f"decoded, {p['tiles_decoded']} expected")
     return True, f"{note}; {len(case.meta['partial_decodes'])} partial decodes match"
 
 

@@ -239,6 +239,10 @@ def _main(argv: list[str] | None) -> int:
     for text in result.notes:  # ancillary units reported and ignored (clause 6.3)
         print(f"lghcc-dec: warning: {text}", file=sys.stderr)
     t1 = time.perf_counter()
+    if result.tiles_decoded == 0 and (args.output or args.render or args.export_ply):
+        raise LghccError(f"{args.stream}: the box meets none of the stream's {result.num_tiles} tiles' cells "
+                         "(clause 13.3): the decoded scene is empty, there is nothing to write or draw "
+                         "(--print-hash prints the empty scene's hash)")
     if args.output:
         _write_decoded_scene(args, result.scene)
     result.timings["write"] = time.perf_counter() - t1

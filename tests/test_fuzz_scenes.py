@@ -46,9 +46,48 @@ def test_fresh_scene_streams_decode_to_their_own_hash(box):
         assert res.kind == fuzz.SCENE_VALID, f"{case.what}: {res.detail}"
         kinds["valid"] += 1
         kinds["hierarchy"] += "'hierarchy': True" in case.what
+        kinds["gaussians"] += case.what.startswith("Gaussians")
 
-    run()
-    assert kinds["valid"] >= 15 and kinds["hierarchy"] >= 3, kinds
+    run()  # a third of the cases are explicit-Gaussian scenes (fewer anchor scenes with the hierarchy)
+    assert kinds["valid"] >= 12 and kinds["hierarchy"] >= 2 and kinds["gaussians"] >= 3, kinds
+
+
+def test_gaussian_scenes_with_neighbour_prediction_step_adjustment_and_tiles_round_trip(box):
+    """The explicit-Gaussian cases: neighbour prediction, step adjustment and several tiles; every
+    stream the encoder writes decodes, in the sandbox, to its own hash."""
+    kinds = Counter()
+    for seed in range(10):
+        case = fuzz_scenes.gaussian_scene_case(random.Random(seed))
+        assert not case.bug, case.bug
+        if case.data is None:
+            assert case.refused, case.what
+            continue
+        res = fuzz.scene_outcome(box.run(case.data))
+        assert res.kind == fuzz.SCENE_VALID, f"{case.what}: {res.detail}"
+        kinds["valid"] += 1
+        kinds["neighbour"] += "'neighbour_prediction': True" in case.what
+        kinds["step_adjust"] += "'step_adjust_max': 0" not in case.what and "step_adjust_max" in case.what
+        kinds["tiles"] += "tile_points" in case.what
+    assert kinds["valid"] >= 6 and kinds["neighbour"] >= 4 and kinds["step_adjust"] >= 1 and kinds["tiles"] >= 3, kinds
+
+
+def test_box_preview_and_worker_decodes_of_fresh_streams(box):
+    """The scene cases' extra decodes (clause 13.3): a box around a tile's cell, a box meeting no
+    cell, the level-1 preview (of the box too) and 2 tile workers all succeed; a box decode that
+    is not the full decode's rows of its tiles is found."""
+    from lghcc.common.tiles import Box
+    from lghcc.decoder.decode import decode_stream
+
+    from lghcc.conformance import STREAMS_DIR
+
+    data = (STREAMS_DIR / "c063_tiles_gaussians" / "stream.lghcc").read_bytes()  # tiles and the hierarchy
+    opts = fuzz_scenes.partial_decodes(random.Random(5), data)
+    assert {tuple(sorted(o)) for o in opts} == {("box",), ("max_level",), ("box", "max_level"), ("exact_jobs", "jobs")}
+    for o in opts:
+        assert fuzz.scene_outcome(box.run(data, o), fuzz.SCENE_PARTIAL).kind == fuzz.SCENE_PARTIAL, o
+    one = Box((0.05,) * 3, (0.1,) * 3)
+    assert fuzz.partial_mismatch(data, one, decode_stream(data, box=one).scene) == ""
+    assert "differ" in fuzz.partial_mismatch(data, one, decode_stream(data, box=Box((-0.1,) * 3, (-0.05,) * 3)).scene)
 
 
 def test_the_generator_reaches_the_extremes():

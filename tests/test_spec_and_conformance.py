@@ -422,3 +422,65 @@ def test_decoding_is_identical_with_1_and_2_torch_threads():
         if c.expect == "error":
             assert results[1][c.id].startswith(c.meta["expect_error"] + ": "), (c.id, results[1][c.id])
             assert c.meta["expect_message"] in results[1][c.id], c.id
+
+
+def _box_decodes():
+    """(case, its parsed stream, partial decode) for every box of the suite's partial_decodes."""
+    from lghcc.decoder.decode import parse_stream
+
+    for case in runner.load_cases():
+        boxes = [p for p in case.meta.get("partial_decodes", []) if "box" in p]
+        if boxes:
+            s = parse_stream(case.stream.read_bytes())
+            for p in boxes:
+                yield case, s, p
+
+
+def test_partial_decode_boxes_select_a_strict_subset_of_the_tiles():
+    """Issue 35: every box selects a proper subset of its stream's tiles (empty exactly where its
+    purpose says 'no tile'), so a decoder that ignores the box, or gets the tile test wrong, fails;
+    and the boxes vary: one tile, a few, none, previews of a part."""
+    from lghcc.common.tiles import Box
+    from lghcc.decoder.decode import selected_tiles
+
+    sizes, previews = [], 0
+    for case, s, p in _box_decodes():
+        where = f"{case.id} box {p['box']}"
+        tiles = p["tiles"]
+        assert set(tiles) < set(range(len(s.tiles))), f"{where}: selects every tile of {len(s.tiles)}"
+        assert len(tiles) == p["tiles_decoded"], where
+        assert (not tiles) == p["purpose"].startswith("no tile"), f"{where}: {len(tiles)} tiles, {p['purpose']!r}"
+        assert tiles == selected_tiles(s.tiles, s.ps, Box(tuple(p["box"][:3]), tuple(p["box"][3:]))), where
+        whole = case.meta["decoded_sha256"] if "level" not in p else \
+            next(q for q in case.meta["partial_decodes"] if q.get("level") == 1 and "box" not in q)["decoded_sha256"]
+        assert p["decoded_sha256"] != whole, f"{where}: the hash of the unselected decode"
+        sizes.append(len(tiles))
+        previews += "level" in p
+    assert sizes.count(0) >= 4 and sizes.count(1) >= 4 and sum(n > 1 for n in sizes) >= 6 and previews >= 4
+
+
+def test_partial_decode_tile_count_is_checked(tmp_path):
+    """The runner holds the reference decoder to tiles_decoded, and test.yaml's tiles to it."""
+    case = runner.load_cases(ids=["c078_neighbour_prediction_tiles"])[0]
+    parts = [dict(p) for p in case.meta["partial_decodes"]]
+    parts[0]["tiles_decoded"] += 1
+    o = runner.run_case(runner.Case(case.id, case.folder, dict(case.meta, partial_decodes=parts)))
+    assert not o.passed and "tiles decoded" in o.note
+    parts[0]["tiles"] = [0, 0]
+    with pytest.raises(runner.LghccError, match="increasing tile indices"):
+        runner.validate_partial_decodes(parts, "decode", case.folder)
+
+
+def test_a_box_that_selects_no_tile_outputs_the_empty_scene():
+    """Clause 13.3: no tile selected is no error; the output is the scene of N = 0 with the stream's
+    header (for an explicit-Gaussian stream, an anchor stream and a level-1 preview)."""
+    from lghcc.common.hashing import digest_of
+    from lghcc.common.tiles import Box
+    from lghcc.decoder.decode import decode_stream
+
+    far = Box((1e308,) * 3, (1.7976931348623157e308,) * 3)
+    for sid, level in (("c078_neighbour_prediction_tiles", 2), ("c062_tiles_ggconv", 2), ("c063_tiles_gaussians", 1)):
+        data = (runner.STREAMS_DIR / sid / "stream.lghcc").read_bytes()
+        res = decode_stream(data, box=far, max_level=level, jobs=2, exact_jobs=True)
+        assert res.tiles_decoded == 0 and len(res.scene.coords) == 0, sid
+        assert len(digest_of(res.scene).hex()) == 64

@@ -168,3 +168,22 @@ def test_hard_cases_round_trip(case):
     assert np.isfinite(dec.scene.sh).all() and np.isfinite(dec.scene.rotations).all()
     if case == "all_invisible":  # no sensitivity anywhere gives no slope to weigh bits by: plain rounding
         assert not _tool(res.data)
+
+
+def test_a_value_beyond_2_40_steps_is_refused_before_rdoq():
+    """Found by the scene fuzzer (issue 35): with a sensitivity and step adjustment, a value 1e20 steps
+    from zero reached RDOQ's cast to int64 (ValueError: residual -2^63 ...); it is the InputError of
+    any Gaussian value beyond 2^40 steps."""
+    from lghcc.common.errors import InputError
+    from lghcc.common.scene import GaussianScene
+    from lghcc.encoder.stream.config import load_config
+
+    g = np.random.default_rng(1)
+    c = np.stack(np.meshgrid(*[np.arange(4)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    sh = g.normal(size=(64, 16, 3)).astype(np.float32)
+    sh[7, 0, 0] = 5e18
+    scene = GaussianScene.on_grid(c, 0.01, [0, 0, 0], sh, g.normal(size=64).astype(np.float32),
+                                  g.uniform(-5, 0, (64, 3)).astype(np.float32), g.normal(size=(64, 4)).astype(np.float32))
+    cfg = load_config("medium", overrides={"neighbour_prediction": True, "step_adjust_max": 3}, kind="gaussians")
+    with pytest.raises(InputError, match="beyond the 2\\^40 steps a Gaussian scene allows"):
+        encode_gaussian_scene(scene, cfg, sensitivity=np.ones((64, 56)))

@@ -204,3 +204,19 @@ def test_negative_box_corner_needs_no_equals_sign(tiled, tmp_path, capsys):
     stream.write_bytes(tiled[1].data)
     assert cli.main([str(stream), "--box", "-0.5,-0.5,-0.5,-0.1,-0.1,-0.1"]) == 0
     assert "box: decoded" in capsys.readouterr().out
+
+
+def test_a_box_that_meets_no_tile_decodes_to_the_empty_scene(tmp_path, capsys):
+    """Clause 13.3: the empty scene (its hash is test.yaml's); lghcc-dec has nothing to write and says why."""
+    import yaml
+
+    from lghcc.conformance import STREAMS_DIR
+    from lghcc.decoder import cli
+
+    folder = STREAMS_DIR / "c086_step_adjust_tiles"
+    part = next(p for p in yaml.safe_load((folder / "test.yaml").read_text())["partial_decodes"] if not p["tiles"])
+    box = "--box=" + ",".join(repr(float(x)) for x in part["box"])
+    assert cli.main([str(folder / "stream.lghcc"), box, "--print-hash"]) == 0
+    assert capsys.readouterr().out.split()[-1] == part["decoded_sha256"]
+    assert cli.main([str(folder / "stream.lghcc"), box, "-o", str(tmp_path / "x.ply")]) == 1
+    assert "meets none of the stream's 8 tiles" in capsys.readouterr().err and not (tmp_path / "x.ply").exists()

@@ -78,6 +78,27 @@ def merge_json(paths: list[str]) -> tuple[Summary, list[str], str, int]:
     return total, commands, started, seeds
 
 
+def _commit() -> str:
+    """The commit the run's code is at (with '+ changes' when the work tree differs from it)."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True,
+                              check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown (not a git checkout)"
+    return head + (" + uncommitted changes" if dirty else "")
+
+
+def _format_version() -> str:
+    from lghcc.common.container import VERSION_MAJOR, VERSION_MINOR
+
+    return f"{VERSION_MAJOR}.{VERSION_MINOR}"
+
+
 def results_markdown(summary, command: str, started: str, seeds: int, args, jobs: int = 1) -> str:
     """tools/results/fuzz.md: the command, the figures, outcomes, reasons and memory."""
     bugs = {k: n for k, n in summary.outcomes.items() if k.startswith("BUG")}
@@ -96,6 +117,9 @@ def results_markdown(summary, command: str, started: str, seeds: int, args, jobs
         f"side); machine: {os.cpu_count()} shared CPU cores, no GPU "
         f"(load average at the end {load:.1f}); the run was niced. Seed streams: {seeds} conformance streams "
         f"that decode, plus the fresh scene streams (the {args.pool} newest at a time).",
+        "",
+        f"Code: commit {_commit()}; bitstream format version {_format_version()} (the decoder's; the scene "
+        "cases cover anchor and explicit-Gaussian scenes, neighbour prediction, step adjustment and tiles).",
         "",
         "Command" + ("s (run side by side, `make fuzz-long`; figures added up):" if jobs > 1 else ":"),
         "",

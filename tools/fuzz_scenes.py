@@ -23,6 +23,14 @@ out of the byte mutator's reach). Here every case is a new, valid stream:
   the level-2 unit is re-coded with their means, levels and step adjustments (which reach every
   clamp), and the stream's hash is recomputed.
 
+* explicit-Gaussian scenes (``gaussian_scene_case``, a third of the cases): SH degree 0..3,
+  neighbour prediction (1..16 LoDs, 1..32 neighbours, 1..16 buckets), step adjustment (max 0..7,
+  from a random sensitivity), tiles of 1 to 200 points, chunks of 1 row to all;
+* beside each fresh tiled stream's full decode (``partial_decodes``): a box around one tile's cell
+  (inside it or on its faces), a box meeting no cell, the level-1 preview (of the box too) and
+  the tiles decoded by 2 worker processes; a box decode must be the full decode's rows of the
+  tiles it selects (conformance/fuzz.py ``partial_mismatch``).
+
 Oracle: a fresh stream must decode, in the sandbox, to its own hash (the encoder's decoded scene);
 anything else is a bug of the encoder or the decoder. The encoder may refuse a scene (InputError:
 a value beyond 2^52 steps, a world position beyond binary32); an encoder exception of another
@@ -38,7 +46,7 @@ from __future__ import annotations
 import math
 import random
 import traceback
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -55,6 +63,7 @@ class SceneCase:
     what: str
     refused: str = ""
     bug: str = ""
+    decodes: list = field(default_factory=list)  # decode_stream options of its box/preview/worker decodes
 
 
 def _choice(rng: random.Random, options, weights=None):
@@ -340,10 +349,113 @@ def _level2_q(payload, sps, hier, q1, coords, units, types, values):
                                     hier.level2_idx, context, keep_q=True)
 
 
+# --- explicit-Gaussian scenes (neighbour prediction, step adjustment, tiles) -----------------------------
+
+def random_gaussian_scene(rng: random.Random, max_points: int = 3000):
+    """-> (GaussianScene on a grid, description): SH degree 0..3, values as random_values draws them
+    (constant, outliers, escapes), voxel sizes and origins up to the binary32 limits."""
+    from lghcc.common.attributes import GaussianLayout
+    from lghcc.common.scene import GaussianScene
+
+    g = np.random.default_rng(rng.getrandbits(64))
+    n = min(max_points, _choice(rng, [1, rng.randint(2, 16), rng.randint(17, 300), rng.randint(301, 3000)],
+                                [5, 30, 45, 20]))
+    coords, layout = random_coords(rng, n)
+    n, degree = coords.shape[0], rng.randint(0, 3)
+    lay = GaussianLayout(degree)
+    # SH and opacity as random_values draws them; scales and rotations within what the encoder takes
+    # (a finite positive scale, a non-zero quaternion), mostly, with constant and outlier channels
+    values = np.concatenate([random_values(rng, g, (n, lay.sh_channels + 1), 0.03),
+                             g.uniform(-12, 4, size=(n, 3)) if rng.random() < 0.9 else random_values(rng, g, (n, 3), 0.1),
+                             g.normal(size=(n, 4)) + (rng.random() < 0.2)], axis=1).astype(np.float32)
+    sh, opacity, log_scales, rotations = lay.split(values)
+    voxel = float(_choice(rng, [1e-6, 0.01, 1.0, 1e6], [10, 70, 15, 5]))
+    origin = [_choice(rng, [0.0, 1e6, -1e6, 3e30], [60, 15, 15, 10]) for _ in range(3)]
+    scene = GaussianScene.on_grid(coords, voxel, origin, sh.copy(), opacity.copy(), log_scales.copy(), rotations.copy())
+    return scene, f"Gaussians N={n} ({layout}) sh_degree={degree}"
+
+
+def random_gaussian_config(rng: random.Random):
+    """-> (GaussianEncoderConfig, description): neighbour prediction (LoDs, neighbours, buckets at
+    their extremes), step adjustment up to max 7, several small tiles, chunks of 1 row to all."""
+    from lghcc.encoder.stream.config import load_config
+
+    over: dict = {"rows_per_chunk": _choice(rng, [1, 7, 64, 65536], [10, 20, 20, 50]),
+                  "channel_prediction": rng.random() < 0.5}
+    if rng.random() < 0.8:
+        over.update(neighbour_prediction=True, prediction_lods=rng.randint(1, 16),
+                    prediction_neighbours=_choice(rng, [1, 2, 6, 32]), prediction_buckets=rng.randint(1, 16))
+        if rng.random() < 0.6:
+            over.update(step_adjust_max=rng.randint(0, 7), step_adjust_quantile=_choice(rng, [0.01, 0.5, 0.9, 1.0]))
+    else:
+        over["neighbour_prediction"] = False
+    if rng.random() < 0.6:
+        over["tile_points"] = _choice(rng, [1, 5, 30, 200])
+    return load_config(_choice(rng, ["low", "medium", "high"]), overrides=over, kind="gaussians"), f"{over}"
+
+
+def gaussian_scene_case(rng: random.Random) -> SceneCase:
+    """Build and encode one random explicit-Gaussian scene, with a random sensitivity (so that RDOQ
+    and step adjustment choose per Gaussian) when step adjustment is on."""
+    from lghcc.common.errors import InputError
+    from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
+
+    cfg, cwhat = random_gaussian_config(rng)
+    scene, what = random_gaussian_scene(rng, max_points=3000 if cfg.rows_per_chunk > 7 else 400)
+    what = f"{what}; {cwhat}"
+    g = np.random.default_rng(rng.getrandbits(64))
+    m = scene.sh.shape[1] * 3 + 8
+    sens = None
+    if cfg.step_adjust_max or rng.random() < 0.3:
+        sens = (10.0 ** (-3 * g.random((scene.num_gaussians, 1)))) * g.uniform(0.1, 10, size=(1, m))
+    try:
+        data = encode_gaussian_scene(scene, cfg, sensitivity=sens).data
+        decodes = partial_decodes(rng, data)
+    except InputError as e:
+        return SceneCase(None, what, refused=str(e))
+    except Exception:  # noqa: BLE001 - an encoder (or generator) bug: reported with its traceback
+        return SceneCase(None, what, bug=traceback.format_exc())
+    return SceneCase(data, what, decodes=decodes)
+
+
+# --- partial decodes and tile workers --------------------------------------------------------------------
+
+def partial_decodes(rng: random.Random, data: bytes) -> list[dict]:
+    """decode_stream options to try on a fresh tiled stream besides its full decode (clause 13.3):
+    a box around one random tile's cell (its faces on the cell's faces, or within it), a box that
+    meets no cell, the level-1 preview (with the hierarchy; of the box too), and the tiles decoded
+    by 2 worker processes."""
+    from lghcc.common.tiles import Box
+    from lghcc.decoder.decode import parse_stream
+
+    s = parse_stream(data)
+    if len(s.tiles) < 2:
+        return []
+    ps, cell = s.ps, s.tiles[rng.randrange(len(s.tiles))].cell
+    o, ts, vs = [float(x) for x in ps.origin], ps.tile_size, float(ps.voxel_size)
+    lo = [float(c * ts) * vs + oa for c, oa in zip(cell, o)]
+    hi = [float((c + 1) * ts) * vs + oa for c, oa in zip(cell, o)]
+    if rng.random() < 0.5:  # strictly inside the cell, or its faces exactly
+        lo, hi = [a + (b - a) / 4 for a, b in zip(lo, hi)], [b - (b - a) / 4 for a, b in zip(lo, hi)]
+    out = [{"box": Box(tuple(lo), tuple(hi))}, {"box": Box((1.0e308,) * 3, (1.7976931348623157e308,) * 3)}]
+    if ps.hierarchy_enabled_flag:
+        out += [{"max_level": 1}, {"max_level": 1, "box": out[0]["box"]}]
+    out.append({"jobs": 2, "exact_jobs": True})
+    return out
+
+
 # --- one case -----------------------------------------------------------------------------------------
 
 def scene_case(rng: random.Random) -> SceneCase:
-    """Build, encode (and sometimes re-code level 2 with a hand-built model) one random scene."""
+    """Build, encode (and sometimes re-code level 2 with a hand-built model) one random scene: an
+    anchor scene, or (a third of the cases) an explicit-Gaussian one."""
+    if rng.random() < 1 / 3:
+        return gaussian_scene_case(rng)
+    return anchor_scene_case(rng)
+
+
+def anchor_scene_case(rng: random.Random) -> SceneCase:
+    """One random anchor scene, encoded (and sometimes level 2 re-coded with a hand-built model)."""
     from lghcc.common.errors import InputError
     from lghcc.encoder.stream.encode import encode_scene
 
@@ -362,8 +474,9 @@ def scene_case(rng: random.Random) -> SceneCase:
             if out is not None:
                 data, hwhat = out
                 what += f"; {hwhat}"
+        decodes = partial_decodes(rng, data)
     except InputError as e:
         return SceneCase(None, what, refused=str(e))
     except Exception:  # noqa: BLE001 - an encoder (or generator) bug: reported with its traceback
         return SceneCase(None, what, bug=traceback.format_exc())
-    return SceneCase(data, what)
+    return SceneCase(data, what, decodes=decodes)

@@ -1080,17 +1080,22 @@ def source_info_meta(data: bytes) -> dict | None:
 
 def partial_decodes_meta(entry: dict, data: bytes) -> list[dict] | None:
     """test.yaml's ``partial_decodes`` (version 1, clause 13.3): for each partial decode sources.yaml
-    asks for (``box``: the tiles whose cell meets a box; ``level: 1``: the level-1 preview), the
-    SHA-256 of what the reference decoder outputs."""
+    asks for (``box``: the tiles whose cell meets a box; ``level: 1``: the level-1 preview; both: the
+    preview of those tiles), how many tiles the reference decoder decodes, with a box which ones
+    (``tiles``: their indices in stream order), and the SHA-256 of what it outputs."""
     from lghcc.common.hashing import digest_of
     from lghcc.common.tiles import Box
-    from lghcc.decoder.decode import decode_stream
+    from lghcc.decoder.decode import decode_stream, parse_stream, selected_tiles
 
     out = []
     for p in entry.get("partial_decodes", []):
         box = Box(tuple(p["box"][:3]), tuple(p["box"][3:])) if "box" in p else None
         res = decode_stream(data, box=box, max_level=int(p.get("level", 2)))
-        out.append({**p, "tiles_decoded": res.tiles_decoded, "decoded_sha256": digest_of(res.scene).hex()})
+        meta = {**p, "tiles_decoded": res.tiles_decoded}
+        if box is not None:
+            s = parse_stream(data)
+            meta["tiles"] = selected_tiles(s.tiles, s.ps, box)
+        out.append({**meta, "decoded_sha256": digest_of(res.scene).hex()})
     return out or None
 
 

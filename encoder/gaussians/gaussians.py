@@ -33,6 +33,7 @@ from ...common.neighbour_prediction import neighbour_graph
 from ...common.scene import GaussianScene
 from ...common.units import MAX_ATTRIBUTE_VALUES, GaussianParameterSet, StepAdjustUnit
 from ..stream.config import GaussianEncoderConfig
+from ..stream.level_coding import check_predicted_magnitude
 from ..stream.encode import (AttributeInput, CodedAttributes, EncodeResult, GeometryCoding, LevelLayout, check_point_count,
                      code_attributes, code_geometry, level_layout, neighbour_prediction_wanted, stage, stream_tiles,
                      write_stream)
@@ -107,6 +108,7 @@ def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: Lev
     graph = neighbour_graph(inp.coords, cfg.prediction_lods, cfg.prediction_neighbours) \
         if neighbour_prediction_wanted(cfg, levels, inp) else None
     x = inp.values.astype(np.float64) / inp.steps.astype(np.float64)
+    check_predicted_magnitude(np.rint(x), inp.layout)  # before RDOQ casts the values to int64
     adjust = None  # the rows are in coding order already
     if graph is not None and cfg.step_adjust_max > 0:
         adjust = adjust_on_graph(x, f, degree, inp.coords, np.arange(x.shape[0]), graph, cfg)

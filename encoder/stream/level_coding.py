@@ -109,10 +109,16 @@ def quantized_level(coder: LevelCoder, inp: AttributeInput) -> np.ndarray:
     steps = inp.steps if inp.step_adjust is None else \
         attr.effective_steps(inp.steps, inp.step_adjust[coder.rows][:, None])
     q = np.where(coder.live, quantize(inp.values[coder.rows], steps, "attributes"), 0)
-    if inp.layout.channel_prediction_allowed and np.abs(q).max(initial=0) > MAX_PREDICTED_MAGNITUDE:
+    check_predicted_magnitude(q, inp.layout)
+    return q
+
+
+def check_predicted_magnitude(q: np.ndarray, layout) -> None:
+    """InputError for a quantized value beyond the 2^40 steps of a layout with cross-channel
+    prediction (an explicit-Gaussian scene; clause 11.6)."""
+    if layout.channel_prediction_allowed and np.abs(q).max(initial=0) > MAX_PREDICTED_MAGNITUDE:
         raise InputError(f"a value is {float(np.abs(q).max()):.3g} quantization steps from zero, beyond the "
                          "2^40 steps a Gaussian scene allows; use a larger step")
-    return q
 
 
 def neighbour_coding_of(q: np.ndarray, coords: np.ndarray, cfg, layout, predict: bool,
