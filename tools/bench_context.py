@@ -186,7 +186,7 @@ def main(argv=None) -> int:
              "threads, shared 2-core VM (timings are noisy; the 1-minute load average is beside each row).  ",
              f"Every model codes the same anchors with the same steps ({args.step} for features, scalings and "
              f"offsets), coarse voxel scale s={args.scale}, K={d.context_k} neighbours, context-model size "
-             "chosen by the encoder from the level-2 count (encoder/config.py CONTEXT_MODEL_SIZES) unless stated; "
+             "chosen by the encoder from the level-2 count (encoder/stream/config.py CONTEXT_MODEL_SIZES) unless stated; "
              f"fit {args.float_steps or d.context_float_steps} float + "
              f"{args.qat_steps if args.qat_steps is not None else d.context_qat_steps} QAT steps, lambda "
              f"{d.context_lambda}. Bytes are real coded bytes (encode_scene); decode is decode_stream on the "

@@ -2,7 +2,7 @@
 
 For the procedural scene at each size (common/procedural.py, seed 0, coarse voxel scale 4) and
 each neighbour level, a GG-Conv model of the size the encoder gives that many level-2 anchors
-(encoder/config.py CONTEXT_MODEL_SIZES) with random integer weights (the time does not depend
+(encoder/stream/config.py CONTEXT_MODEL_SIZES) with random integer weights (the time does not depend
 on the values) and the encoder's radius rule; the decoder's own code path
 (``GGConvEvaluator``) is timed in its parts:
 

@@ -1,8 +1,8 @@
-"""Rate-distortion optimized quantization (encoder/rdoq.py) against plain rounding, at fixed steps.
+"""Rate-distortion optimized quantization (encoder/gaussians/rdoq.py) against plain rounding, at fixed steps.
 
 For a 3DGS scene and a preset: the preset's steps times each factor of ``--factors``, coded with
 each RDOQ weight of ``--weights`` (0: plain rounding), measured as the settings search measures
-its trials (encoder/gaussian_rd.py SettingsSearch: PSNR of the quantized scene's renders against
+its trials (encoder/gaussians/gaussian_rd.py SettingsSearch: PSNR of the quantized scene's renders against
 the source's on the preset's search views, ``search_views`` x ``search_resolution``, 8 of 128 px:
 not the encoder's ``search_view_plan``, which gives scenes under 150,000 Gaussians more, so
 that the tables of tools/results/rdoq.md stay comparable; bits = geometry coded + attributes as

@@ -38,7 +38,7 @@ of view, black background; PSNR and SSIM are the means over the views.
 
 Importance pruning keeps the top x% of Gaussians by contribution (sum over views and pixels of
 alpha T, render/importance.py) seen from ``--importance-views`` cameras on a Fibonacci sphere
-(encoder/transcode.py sphere_cameras): not the evaluation orbit.
+(encoder/anchors/transcode.py sphere_cameras): not the evaluation orbit.
 
 Equal PSNR: the SPZ envelope is the set of SPZ points no other SPZ point beats in both bytes and
 PSNR; between two of them bytes are interpolated linearly in log(bytes) against PSNR. A row

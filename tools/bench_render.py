@@ -171,7 +171,7 @@ def bench_neural(cams, st, rows_out, repeat):
 
 def bench_tile_sides(specs: list[str], repeat: int) -> list[str]:
     """The rasterizer's tile side (16, 8, 4 px, or its own choice) on real 3DGS scenes, through the
-    encoder's views (encoder/gaussian_fit.py resolving_views: 8 sphere views, and magnified crops
+    encoder's views (encoder/gaussians/gaussian_fit.py resolving_views: 8 sphere views, and magnified crops
     where the Gaussians are below a pixel). ``specs``: PATH[:N]@PX (N: Gaussians drawn, seed 0)."""
     from lghcc.encoder.gaussians.gaussian_views import resolving_views
     from lghcc.formats import read_scene

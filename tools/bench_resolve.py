@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Do the encoder's views see what pruning removes? (informative; encoder/gaussian_fit.py,
+"""Do the encoder's views see what pruning removes? (informative; encoder/gaussians/gaussian_fit.py,
 "views that resolve the Gaussians").
 
 For each scene (a 3DGS PLY): the typical Gaussian's size in pixels of the orbit views at the

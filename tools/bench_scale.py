@@ -225,7 +225,7 @@ def scene_file(n: int, sources: list, work: Path) -> tuple[Path, str, object]:
 
 
 def memory_estimate(scene, preset: str, jobs: int) -> int:
-    """lghcc-enc --max-memory's estimate for the scene and preset (encoder/memory.py)."""
+    """lghcc-enc --max-memory's estimate for the scene and preset (encoder/stream/memory.py)."""
     from lghcc.encoder.stream.config import load_config
     from lghcc.encoder.stream.memory import encode_memory
     from lghcc.encoder.stream.tile_workers import TileWorkers

@@ -669,7 +669,7 @@ def post_process(data: bytes, post: dict, hashes: tuple[bytes, ...] | None = Non
 
 
 def synthetic_sensitivity(scene, spec: dict | None) -> np.ndarray | None:
-    """The pictures' sensitivity to each value (encoder/rdoq.py) as an entry's ``sensitivity``
+    """The pictures' sensitivity to each value (encoder/gaussians/rdoq.py) as an entry's ``sensitivity``
     gives it, so that RDOQ and step adjustment run without renders: per Gaussian a visibility
     10^(spread * u), u uniform in [-1, 0] (seeded), times a per-channel level drawn once. None
     without the key (plain rounding, as every stream of version 1.1)."""
