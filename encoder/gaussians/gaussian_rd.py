@@ -51,6 +51,7 @@ from .rdoq import (adjust_on_graph, channel_groups, channel_steps, group_slopes,
                    sh_degree_subset)
 from ...render.gaussians3dgs import Gaussians3DGS, gaussians_from_scene, render_3dgs
 from ...render.rasterizer import rasterize
+from ...render.sh import sh_to_rgb
 
 PRUNE_LADDER = (0.0, 0.0005, 0.001, 0.002, 0.004, 0.008, 0.016, 0.032, 0.064)
 STEP_FIELDS = ("position_step", "sh_dc_step", "opacity_step", "scale_step", "rotation_step")
@@ -88,6 +89,57 @@ class Backdrop:
     members: np.ndarray  # bool [N]
 
 
+# Tiles (px a side) of the footprint test of the held Gaussians (``held_in_footprint``), and the
+# margin (tiles) a trial's Gaussians may grow into: quantized scales and snapped positions move them.
+FOOTPRINT_TILE = 16
+FOOTPRINT_MARGIN = 1
+
+
+def _directions(means: torch.Tensor, center) -> torch.Tensor:
+    d = means - torch.as_tensor(np.asarray(center, np.float64), dtype=means.dtype)
+    return d / torch.linalg.vector_norm(d, dim=1, keepdim=True).clamp_min(1e-12)
+
+
+def _tile_boxes(g: Gaussians3DGS, cam) -> np.ndarray:
+    """int64 [M, 4]: each Gaussian's tiles (x0, y0, x1, y1, inclusive) within 3 sigma of its
+    largest scale (an upper bound of what the rasterizer draws), clipped to the image; x1 < x0
+    for one behind the camera or off the image."""
+    uv, z = cam.project(g.means.double().numpy())
+    radius = 3 * g.scales.double().numpy().max(axis=1) * max(cam.fx, cam.fy) / np.maximum(z, cam.near) + 1
+    nx, ny = -(-cam.width // FOOTPRINT_TILE), -(-cam.height // FOOTPRINT_TILE)
+    with np.errstate(invalid="ignore"):
+        lo = np.floor((uv - radius[:, None]) / FOOTPRINT_TILE)
+        hi = np.floor((uv + radius[:, None]) / FOOTPRINT_TILE)
+    box = np.stack([np.clip(lo[:, 0], 0, nx), np.clip(lo[:, 1], 0, ny),
+                    np.clip(hi[:, 0], -1, nx - 1), np.clip(hi[:, 1], -1, ny - 1)], axis=1)
+    box = np.nan_to_num(box, nan=-1).astype(np.int64)
+    box[~(z > cam.near), 2] = -1
+    return box
+
+
+def held_in_footprint(sample: Gaussians3DGS, held: Gaussians3DGS, cam) -> torch.Tensor:
+    """The held Gaussians that reach the tiles of view ``cam`` the sample's Gaussians reach (grown by
+    FOOTPRINT_MARGIN): elsewhere a trial renders the source's pixels whatever it holds, so the
+    others change no error and are left out of the renders."""
+    nx, ny = -(-cam.width // FOOTPRINT_TILE), -(-cam.height // FOOTPRINT_TILE)
+    s = _tile_boxes(sample, cam)
+    s = s[(s[:, 2] >= s[:, 0]) & (s[:, 3] >= s[:, 1])]
+    m = FOOTPRINT_MARGIN
+    x0, y0 = np.maximum(s[:, 0] - m, 0), np.maximum(s[:, 1] - m, 0)
+    x1, y1 = np.minimum(s[:, 2] + m, nx - 1) + 1, np.minimum(s[:, 3] + m, ny - 1) + 1
+    mask = np.zeros((ny + 1, nx + 1), np.int64)  # difference array of the sample's tiles
+    for y, x, v in ((y0, x0, 1), (y0, x1, -1), (y1, x0, -1), (y1, x1, 1)):
+        np.add.at(mask, (y, x), v)
+    covered = (mask.cumsum(0).cumsum(1)[:ny, :nx] > 0).astype(np.int64)
+    area = np.zeros((ny + 1, nx + 1), np.int64)  # summed-area table of the covered tiles
+    area[1:, 1:] = covered.cumsum(0).cumsum(1)
+    b = _tile_boxes(held, cam)
+    ok = (b[:, 2] >= b[:, 0]) & (b[:, 3] >= b[:, 1])
+    b = np.where(ok[:, None], b, 0)
+    hits = area[b[:, 3] + 1, b[:, 2] + 1] - area[b[:, 1], b[:, 2] + 1] - area[b[:, 3] + 1, b[:, 0]] + area[b[:, 1], b[:, 0]]
+    return torch.from_numpy(np.flatnonzero(ok & (hits > 0)))
+
+
 class SettingsSearch:
     """Evaluates settings on one scene (the sample of a ``backdrop``, with one); caches what
     depends only on pruning and the grid."""
@@ -97,9 +149,10 @@ class SettingsSearch:
                  backdrop: Backdrop | None = None):
         self.scene, self.contrib, self.lam, self.sensitivity = scene, contrib, lam, sensitivity
         self.cams = resolving_views(scene if backdrop is None else backdrop.whole, views, resolution, cfg.resolve_px)
-        self.held = None if backdrop is None else gaussians_from_scene(backdrop.whole.subset(~backdrop.members))
-        self._held_colors: dict[int, torch.Tensor] = {}
         g = gaussians_from_scene(scene)
+        self.held = None if backdrop is None else gaussians_from_scene(backdrop.whole.subset(~backdrop.members))
+        self._held_rows = [] if backdrop is None else [held_in_footprint(g, self.held, c) for c in self.cams]
+        self._held_colors: dict[int, torch.Tensor] = {}
         with torch.no_grad():
             self.targets = [self._render(g, j) for j in range(len(self.cams))]
         self.values = coded_values(scene).astype(np.float64)  # at the scene's SH degree
@@ -167,12 +220,13 @@ class SettingsSearch:
         cam = self.cams[j]
         if self.held is None:
             return render_3dgs(g, cam, background=(0, 0, 0), backend="torch").image
-        h = self.held
+        rows = self._held_rows[j]
+        h = [self.held.means[rows], self.held.quats[rows], self.held.scales[rows], self.held.opacities[rows]]
         if j not in self._held_colors:
-            self._held_colors[j] = h.colors(cam.center)
-        return rasterize(torch.cat([g.means, h.means]), torch.cat([g.quats, h.quats]), torch.cat([g.scales, h.scales]),
-                         torch.cat([g.opacities, h.opacities]), torch.cat([g.colors(cam.center), self._held_colors[j]]),
-                         cam, background=torch.zeros(3)).image
+            self._held_colors[j] = sh_to_rgb(self.held.sh_degree, self.held.sh[rows],
+                                             _directions(h[0], cam.center))
+        return rasterize(*(torch.cat([a, b]) for a, b in zip([g.means, g.quats, g.scales, g.opacities], h)),
+                         torch.cat([g.colors(cam.center), self._held_colors[j]]), cam, background=torch.zeros(3)).image
 
     def _mse(self, dec: GaussianScene) -> float:
         """The squared error of renders of ``dec`` against the source's, mean over the views."""
