@@ -117,3 +117,53 @@ def test_fast_preset_renders_nothing_and_round_trips(degree):
     assert gaussian_scene_digest(decoded) == gaussian_scene_digest(result.decoded)
     raw = scene.num_gaussians * (3 + 3 * (degree + 1) ** 2 + 8) * 4
     assert len(result.data) < raw / 3  # coded at the preset's steps, not copied
+
+
+def _shell_with_inside(rng):
+    """An opaque sphere of overlapping Gaussians around bright Gaussians it hides from every view,
+    and a second sphere beside it."""
+    from lghcc.common.scene import GaussianScene
+
+    d = rng.normal(size=(700, 3))
+    shell = d / np.linalg.norm(d, axis=1, keepdims=True)
+    inside = rng.uniform(-0.4, 0.4, size=(150, 3))
+    means = np.concatenate([shell, inside, shell + [0, 0, 5]])
+    n = means.shape[0]
+    sh = np.concatenate([np.full((700, 1, 3), -1.0), np.full((150, 1, 3), 3.0), np.full((700, 1, 3), 0.5)])
+    log_scales = np.log(np.repeat([0.12, 0.08, 0.12], [700, 150, 700]))[:, None].repeat(3, 1)
+    return GaussianScene(means.astype(np.float32), sh.astype(np.float32), np.full(n, 6.0, np.float32),
+                         log_scales.astype(np.float32), np.tile(np.float32([1, 0, 0, 0]), (n, 1))), \
+        (np.arange(n) >= 700) & (np.arange(n) < 850)
+
+
+def test_sample_renders_in_the_whole_scene(monkeypatch):
+    """A sample cut out of a closed surface shows its inside when rendered alone; in the whole
+    scene (``Backdrop``) it renders the whole scene's source pictures, and pruning the Gaussians the
+    whole scene hides costs nothing there, while it costs the sample alone dearly. Leaving out the
+    held Gaussians outside the sample's footprint changes no error."""
+    from lghcc.encoder.gaussians import gaussian_rd
+    from lghcc.encoder.gaussians.gaussian_rd import Backdrop, SettingsSearch
+
+    scene, inside = _shell_with_inside(np.random.default_rng(11))
+    half = ((scene.means[:, 0] > 0) & (scene.means[:, 2] < 2)) | inside  # half the first sphere, cut open
+    contrib = np.where(inside, 0.0, 1.0)  # the whole scene's: the inside contributes nothing
+    cfg = GaussianEncoderConfig(**SMALL)
+    args = (scene.subset(half), contrib[half], cfg, 0.0, 4, 128)
+    held = SettingsSearch(*args, backdrop=Backdrop(scene, half))
+    alone = SettingsSearch(*args)
+    fine = dataclasses.replace(cfg, position_step=1e-4, sh_dc_step=1e-3, opacity_step=1e-3, scale_step=1e-3,
+                               rotation_step=1e-3)
+    pruned = dataclasses.replace(fine, prune_share=1e-9)  # drops exactly the inside (contribution 0)
+    held_cost = held.evaluate(pruned).mse - held.evaluate(fine).mse
+    alone_cost = alone.evaluate(pruned).mse - alone.evaluate(fine).mse
+    assert alone_cost > 1e-3  # the inside is seen through the cut
+    assert abs(held_cost) < 1e-3 * alone_cost
+    assert any(len(r) < int((~half).sum()) for r in held._held_rows)  # some held Gaussians left out
+
+    monkeypatch.setattr(gaussian_rd, "FOOTPRINT_MARGIN", 10 ** 6)  # every tile: every held Gaussian
+    every = SettingsSearch(*args, backdrop=Backdrop(scene, half))
+    whole = SettingsSearch(scene, contrib, cfg, 0.0, 4, 128)
+    for a, b in zip(every.targets, whole.targets):  # the whole scene's pictures, from its views
+        assert float((a - b).abs().max()) < 1e-4
+    for c in (fine, pruned, dataclasses.replace(cfg, scale_step=0.5, prune_share=0.2)):
+        assert every.evaluate(c).mse == pytest.approx(held.evaluate(c).mse, rel=1e-6)

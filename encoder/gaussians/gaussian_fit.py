@@ -219,7 +219,7 @@ def search_for_settings(scene: GaussianScene, contrib: np.ndarray, sensitivity: 
     neither is asked for."""
     if not (cfg.rd_lambda > 0 or cfg.target_psnr > 0):
         return cfg, None
-    from .gaussian_rd import on_sample, search_settings, search_view_plan
+    from .gaussian_rd import Backdrop, on_sample, search_settings, search_view_plan
 
     views, resolution = search_view_plan(cfg, scene.num_gaussians)
     say(f"settings: searched on {views} views of {resolution} px")
@@ -232,7 +232,8 @@ def search_for_settings(scene: GaussianScene, contrib: np.ndarray, sensitivity: 
     else:
         m = sample.members
         chosen, trials = search_settings(scene.subset(m), contrib[m], on_sample(cfg, sample.ratio),
-                                         sensitivity=None if sensitivity is None else sensitivity[m], log=say)
+                                         sensitivity=None if sensitivity is None else sensitivity[m], log=say,
+                                         backdrop=Backdrop(scene, m))
         cfg = dataclasses.replace(chosen, target_psnr=cfg.target_psnr)
         stats.search_sample_gaussians, stats.search_sample_ratio = int(m.sum()), sample.ratio
     stats.time_search_s, stats.search_trials = time.perf_counter() - t0, len(trials)
@@ -337,7 +338,7 @@ def trim_steps(fitted: GaussianScene, weights: np.ndarray, sensitivity: np.ndarr
     and then checked on the whole scene (``whole_scene_check``)."""
     if not cfg.target_psnr > 0:
         return cfg
-    from .gaussian_rd import on_sample, trim_to_target
+    from .gaussian_rd import Backdrop, on_sample, trim_to_target
 
     t0 = time.perf_counter()
     if sample is None:
@@ -345,7 +346,7 @@ def trim_steps(fitted: GaussianScene, weights: np.ndarray, sensitivity: np.ndarr
     else:
         part_sens = None if sensitivity is None else sensitivity[sample]
         trimmed, before, after = trim_to_target(fitted.subset(sample), weights[sample], on_sample(cfg, ratio),
-                                                sensitivity=part_sens, log=say)
+                                                sensitivity=part_sens, log=say, backdrop=Backdrop(fitted, sample))
         cfg = dataclasses.replace(trimmed, target_psnr=cfg.target_psnr)
     stats.time_trim_s, stats.trim_bits_before, stats.trim_bits_after = time.perf_counter() - t0, before.bits, after.bits
     return cfg

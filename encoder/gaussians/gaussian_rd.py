@@ -49,7 +49,9 @@ from .gaussian_views import prune_by_contribution, resolving_views
 from ..stream.neighbour_coding import NeighbourCoding, usable as neighbour_usable
 from .rdoq import (adjust_on_graph, channel_groups, channel_steps, group_slopes, orientation_columns, rd_quantize,
                    sh_degree_subset)
-from ...render.gaussians3dgs import gaussians_from_scene, render_3dgs
+from ...render.gaussians3dgs import Gaussians3DGS, gaussians_from_scene, render_3dgs
+from ...render.rasterizer import rasterize
+from ...render.sh import sh_to_rgb
 
 PRUNE_LADDER = (0.0, 0.0005, 0.001, 0.002, 0.004, 0.008, 0.016, 0.032, 0.064)
 STEP_FIELDS = ("position_step", "sh_dc_step", "opacity_step", "scale_step", "rotation_step")
@@ -77,16 +79,82 @@ def search_view_plan(cfg: GaussianEncoderConfig, num_gaussians: int) -> tuple[in
     return views, math.floor(cfg.search_resolution * math.sqrt(s * cfg.search_views / views) + 0.5)
 
 
+@dataclass
+class Backdrop:
+    """A search on a sample (encoder/search_sample.py): the whole scene and which of its Gaussians
+    the sample is. The search's views are the whole scene's, and every render shows the sample in
+    the whole scene, the other Gaussians held at their values: cells cut closed surfaces open, and
+    the sample alone would show what the whole scene hides (and hide nothing it shows)."""
+    whole: GaussianScene
+    members: np.ndarray  # bool [N]
+
+
+# Tiles (px a side) of the footprint test of the held Gaussians (``held_in_footprint``), and the
+# margin (tiles) a trial's Gaussians may grow into: quantized scales and snapped positions move them.
+FOOTPRINT_TILE = 16
+FOOTPRINT_MARGIN = 1
+
+
+def _directions(means: torch.Tensor, center) -> torch.Tensor:
+    d = means - torch.as_tensor(np.asarray(center, np.float64), dtype=means.dtype)
+    return d / torch.linalg.vector_norm(d, dim=1, keepdim=True).clamp_min(1e-12)
+
+
+def _tile_boxes(g: Gaussians3DGS, cam) -> np.ndarray:
+    """int64 [M, 4]: each Gaussian's tiles (x0, y0, x1, y1, inclusive) within 3 sigma of its
+    largest scale (an upper bound of what the rasterizer draws), clipped to the image; x1 < x0
+    for one behind the camera or off the image."""
+    uv, z = cam.project(g.means.double().numpy())
+    radius = 3 * g.scales.double().numpy().max(axis=1) * max(cam.fx, cam.fy) / np.maximum(z, cam.near) + 1
+    nx, ny = -(-cam.width // FOOTPRINT_TILE), -(-cam.height // FOOTPRINT_TILE)
+    with np.errstate(invalid="ignore"):
+        lo = np.floor((uv - radius[:, None]) / FOOTPRINT_TILE)
+        hi = np.floor((uv + radius[:, None]) / FOOTPRINT_TILE)
+    box = np.stack([np.clip(lo[:, 0], 0, nx), np.clip(lo[:, 1], 0, ny),
+                    np.clip(hi[:, 0], -1, nx - 1), np.clip(hi[:, 1], -1, ny - 1)], axis=1)
+    box = np.nan_to_num(box, nan=-1).astype(np.int64)
+    box[~(z > cam.near), 2] = -1
+    return box
+
+
+def held_in_footprint(sample: Gaussians3DGS, held: Gaussians3DGS, cam) -> torch.Tensor:
+    """The held Gaussians that reach the tiles of view ``cam`` the sample's Gaussians reach (grown by
+    FOOTPRINT_MARGIN): elsewhere a trial renders the source's pixels whatever it holds, so the
+    others change no error and are left out of the renders."""
+    nx, ny = -(-cam.width // FOOTPRINT_TILE), -(-cam.height // FOOTPRINT_TILE)
+    s = _tile_boxes(sample, cam)
+    s = s[(s[:, 2] >= s[:, 0]) & (s[:, 3] >= s[:, 1])]
+    m = FOOTPRINT_MARGIN
+    x0, y0 = np.maximum(s[:, 0] - m, 0), np.maximum(s[:, 1] - m, 0)
+    x1, y1 = np.minimum(s[:, 2] + m, nx - 1) + 1, np.minimum(s[:, 3] + m, ny - 1) + 1
+    mask = np.zeros((ny + 1, nx + 1), np.int64)  # difference array of the sample's tiles
+    for y, x, v in ((y0, x0, 1), (y0, x1, -1), (y1, x0, -1), (y1, x1, 1)):
+        np.add.at(mask, (y, x), v)
+    covered = (mask.cumsum(0).cumsum(1)[:ny, :nx] > 0).astype(np.int64)
+    area = np.zeros((ny + 1, nx + 1), np.int64)  # summed-area table of the covered tiles
+    area[1:, 1:] = covered.cumsum(0).cumsum(1)
+    b = _tile_boxes(held, cam)
+    ok = (b[:, 2] >= b[:, 0]) & (b[:, 3] >= b[:, 1])
+    b = np.where(ok[:, None], b, 0)
+    hits = area[b[:, 3] + 1, b[:, 2] + 1] - area[b[:, 1], b[:, 2] + 1] - area[b[:, 3] + 1, b[:, 0]] + area[b[:, 1], b[:, 0]]
+    return torch.from_numpy(np.flatnonzero(ok & (hits > 0)))
+
+
 class SettingsSearch:
-    """Evaluates settings on one scene; caches what depends only on pruning and the grid."""
+    """Evaluates settings on one scene (the sample of a ``backdrop``, with one); caches what
+    depends only on pruning and the grid."""
 
     def __init__(self, scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, lam: float,
-                 views: int, resolution: int, sensitivity: np.ndarray | None = None):
+                 views: int, resolution: int, sensitivity: np.ndarray | None = None,
+                 backdrop: Backdrop | None = None):
         self.scene, self.contrib, self.lam, self.sensitivity = scene, contrib, lam, sensitivity
-        self.cams = resolving_views(scene, views, resolution, cfg.resolve_px)
+        self.cams = resolving_views(scene if backdrop is None else backdrop.whole, views, resolution, cfg.resolve_px)
         g = gaussians_from_scene(scene)
+        self.held = None if backdrop is None else gaussians_from_scene(backdrop.whole.subset(~backdrop.members))
+        self._held_rows = [] if backdrop is None else [held_in_footprint(g, self.held, c) for c in self.cams]
+        self._held_colors: dict[int, torch.Tensor] = {}
         with torch.no_grad():
-            self.targets = [render_3dgs(g, c, background=(0, 0, 0), backend="torch").image for c in self.cams]
+            self.targets = [self._render(g, j) for j in range(len(self.cams))]
         self.values = coded_values(scene).astype(np.float64)  # at the scene's SH degree
         self.cfg = cfg
         # the way RDOQ writes each Gaussian (encoder/rdoq.py), chosen at its first trial and kept:
@@ -147,12 +215,25 @@ class SettingsSearch:
         return adjust_on_graph(x, sh_degree_subset(self.sensitivity[keep], degree), degree, grid.coords, order, graph,
                                cfg)
 
+    def _render(self, g: Gaussians3DGS, j: int) -> torch.Tensor:
+        """View j of ``g``, among the held Gaussians where there are any (``Backdrop``)."""
+        cam = self.cams[j]
+        if self.held is None:
+            return render_3dgs(g, cam, background=(0, 0, 0), backend="torch").image
+        rows = self._held_rows[j]
+        h = [self.held.means[rows], self.held.quats[rows], self.held.scales[rows], self.held.opacities[rows]]
+        if j not in self._held_colors:
+            self._held_colors[j] = sh_to_rgb(self.held.sh_degree, self.held.sh[rows],
+                                             _directions(h[0], cam.center))
+        return rasterize(*(torch.cat([a, b]) for a, b in zip([g.means, g.quats, g.scales, g.opacities], h)),
+                         torch.cat([g.colors(cam.center), self._held_colors[j]]), cam, background=torch.zeros(3)).image
+
     def _mse(self, dec: GaussianScene) -> float:
         """The squared error of renders of ``dec`` against the source's, mean over the views."""
         g = gaussians_from_scene(dec)
         with torch.no_grad():
-            return float(np.mean([((render_3dgs(g, c, background=(0, 0, 0), backend="torch").image - t) ** 2)
-                                  .double().mean().item() for c, t in zip(self.cams, self.targets)]))
+            return float(np.mean([((self._render(g, j) - t) ** 2).double().mean().item()
+                                  for j, t in enumerate(self.targets)]))
 
     def rounding_distortion(self, cfg: GaussianEncoderConfig) -> float:
         """The squared error of the scene on its grid at ``cfg``'s position step, every value
@@ -359,14 +440,17 @@ def fewest_bits_at_target(s: SettingsSearch, best: Trial, groups: list[str], tar
 
 
 def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, *,
-                    sensitivity: np.ndarray | None = None, log=None) -> tuple[GaussianEncoderConfig, list[Trial]]:
+                    sensitivity: np.ndarray | None = None, log=None,
+                    backdrop: Backdrop | None = None) -> tuple[GaussianEncoderConfig, list[Trial]]:
     """Choose the settings for ``cfg.rd_lambda`` (module doc): one probe per group measures how
     much doubling its step costs in D and saves in R, the high-rate model gives the steps, every
     share of the pruning ladder is measured, and each group's step is then checked a
-    factor sqrt(2) up and down against real renders. -> (settings, every trial)."""
+    factor sqrt(2) up and down against real renders. ``backdrop``: ``scene`` is a sample of it.
+    -> (settings, every trial)."""
     say = log or (lambda *a: None)
     t0 = time.perf_counter()
-    s = SettingsSearch(scene, contrib, cfg, cfg.rd_lambda, cfg.search_views, cfg.search_resolution, sensitivity)
+    s = SettingsSearch(scene, contrib, cfg, cfg.rd_lambda, cfg.search_views, cfg.search_resolution, sensitivity,
+                       backdrop)
     n = scene.num_gaussians
     groups = [g for g in GROUPS if not g.startswith("sh_band") or int(g[-1]) <= scene.sh_degree]
     target_mse = 10 ** (-cfg.target_psnr / 10) if cfg.target_psnr > 0 else None
@@ -390,13 +474,15 @@ def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEnco
 
 
 def trim_to_target(scene: GaussianScene, weights: np.ndarray, cfg: GaussianEncoderConfig, *,
-                   sensitivity: np.ndarray | None = None, log=None) -> tuple[GaussianEncoderConfig, Trial, Trial]:
+                   sensitivity: np.ndarray | None = None, log=None,
+                   backdrop: Backdrop | None = None) -> tuple[GaussianEncoderConfig, Trial, Trial]:
     """After the fit, which tuned the values to render closer to the source than the search
     measured (about 1 dB), the attribute steps move onto ``cfg.target_psnr`` again (``onto_target``
     on the fitted scene, its grid kept): the fit's gain becomes fewer bytes at the quality asked
-    for. -> (settings, the trial before, the trial chosen)."""
+    for (``backdrop``: ``scene`` is a sample of it). -> (settings, the trial before, the trial chosen)."""
     as_fitted = dataclasses.replace(cfg, prune_share=0.0)  # the scene is already pruned
-    s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution, sensitivity)
+    s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution, sensitivity,
+                       backdrop)
     groups = _attribute_groups(scene)
     before = s.evaluate(as_fitted)
     best = onto_target(s, before, groups, 10 ** (-cfg.target_psnr / 10), evaluations=4)
@@ -462,11 +548,12 @@ def sample_distortion_ratio(scene: GaussianScene, contrib: np.ndarray, cfg: Gaus
                             sample: np.ndarray) -> float:
     """The whole scene's squared error over the sample's (``sample``, encoder/search_sample.py) at
     ``cfg``'s steps, plainly rounded without pruning (``rounding_distortion``: a whole-scene trial
-    would code the whole scene), on the search views of each: the sample covers fewer pixels of
-    the orbit views, so the same steps measure less error on it. The search asks the sample for
-    the target's error divided by this ratio."""
+    would code the whole scene), on the search views, the sample rendered in the whole scene
+    (``Backdrop``): it covers fewer pixels of the views than the whole, so the same steps measure
+    less error on it. The search asks the sample for the target's error divided by this ratio."""
     whole = SettingsSearch(scene, contrib, cfg, 0.0, cfg.search_views, cfg.search_resolution)
-    part = SettingsSearch(scene.subset(sample), contrib[sample], cfg, 0.0, cfg.search_views, cfg.search_resolution)
+    part = SettingsSearch(scene.subset(sample), contrib[sample], cfg, 0.0, cfg.search_views, cfg.search_resolution,
+                          backdrop=Backdrop(scene, sample))
     return max(whole.rounding_distortion(cfg), 1e-12) / max(part.rounding_distortion(cfg), 1e-12)
 
 
