@@ -1,5 +1,5 @@
-"""The settings search on a large scene: its sample (encoder/search_sample.py), the views and steps
-that stop growing with the scene (encoder/gaussian_fit.py), the check on the whole scene, and the
+"""The settings search on a large scene: its sample (encoder/gaussians/search_sample.py), the views and steps
+that stop growing with the scene (encoder/gaussians/gaussian_fit.py), the check on the whole scene, and the
 ``fast`` preset."""
 
 import dataclasses

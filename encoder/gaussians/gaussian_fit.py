@@ -5,11 +5,11 @@ any cameras the caller gives, e.g. the scene's own training views):
 
 1. each Gaussian's contribution to those pictures (render/importance.py), and the pictures'
    sensitivity to each of its values for rate-distortion optimized quantization
-   (encoder/rdoq.py; used by the search, the trim and the coding);
+   (encoder/gaussians/rdoq.py; used by the search, the trim and the coding);
 2. pruning: the least contributing Gaussians whose contributions add up to at most
    ``prune_share`` of the total are dropped (a rate-distortion decision: each costs the same
    bits, and these change the pictures least);
-3. the position grid (encoder/gaussians.py: ``choose_grid`` weighted by contribution) and the
+3. the position grid (encoder/gaussians/gaussians.py: ``choose_grid`` weighted by contribution) and the
    snap to it; the positions stay there;
 4. fitting: ``fit_iterations`` Adam steps on the kept Gaussians' SH, opacity, scales and
    rotations with their quantization simulated (straight-through rounding to the preset's
@@ -19,7 +19,7 @@ any cameras the caller gives, e.g. the scene's own training views):
    scene renders closest to the source at the rate the stream will pay. The pruned
    Gaussians' share of the pictures is taken over by their neighbours;
 5. with a quality asked for (``target_psnr``), the attribute steps move onto it again
-   (encoder/gaussian_rd.py ``trim_to_target``): what the fit gained becomes fewer bytes.
+   (encoder/gaussians/gaussian_rd.py ``trim_to_target``): what the fit gained becomes fewer bytes.
 
 The result is a GaussianScene on its grid that encode_gaussian_scene codes exactly as the
 fit simulated it.
@@ -68,7 +68,7 @@ from ...render.sh import sh_to_rgb
 class PreparedGaussians:
     scene: GaussianScene  # on its grid, pruned and fitted
     weights: np.ndarray  # contribution of each kept Gaussian (its share of the pictures)
-    sensitivity: np.ndarray | None  # the pictures' sensitivity to each kept Gaussian's values (encoder/rdoq.py)
+    sensitivity: np.ndarray | None  # the pictures' sensitivity to each kept Gaussian's values (encoder/gaussians/rdoq.py)
     cfg: GaussianEncoderConfig  # the settings to code it with (chosen by the search when it ran)
     stats: PrepareStats
 
@@ -174,7 +174,7 @@ def measure_contributions(g: Gaussians3DGS, cams: list[Camera], progress: bool) 
 
 def measure_sensitivities(scene: GaussianScene, cams: list[Camera], cfg: GaussianEncoderConfig, stats: PrepareStats,
                           progress: bool) -> np.ndarray | None:
-    """The pictures' sensitivity to each value (encoder/rdoq.py) on the fit views, for
+    """The pictures' sensitivity to each value (encoder/gaussians/rdoq.py) on the fit views, for
     rate-distortion optimized quantization (None when ``cfg.rd_quantization`` is 0)."""
     if not cfg.rd_quantization > 0:
         return None
@@ -190,7 +190,7 @@ def measure_sensitivities(scene: GaussianScene, cams: list[Camera], cfg: Gaussia
 
 @dataclass
 class SearchSample:
-    """The part of a large scene the settings search measured (encoder/search_sample.py)."""
+    """The part of a large scene the settings search measured (encoder/gaussians/search_sample.py)."""
     members: np.ndarray  # bool [N]: the sampled Gaussians of the scene as it came in
     ratio: float  # the whole scene's squared error over the sample's at the same settings
 
@@ -214,7 +214,7 @@ def _search_sample(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncod
 def search_for_settings(scene: GaussianScene, contrib: np.ndarray, sensitivity: np.ndarray | None,
                         cfg: GaussianEncoderConfig, stats: PrepareStats,
                         say) -> tuple[GaussianEncoderConfig, SearchSample | None]:
-    """The settings for the quality or lambda asked for (encoder/gaussian_rd.py), measured on a
+    """The settings for the quality or lambda asked for (encoder/gaussians/gaussian_rd.py), measured on a
     sample of a scene above ``search_sample_gaussians`` (with the sample); the preset's when
     neither is asked for."""
     if not (cfg.rd_lambda > 0 or cfg.target_psnr > 0):
@@ -355,7 +355,7 @@ def trim_steps(fitted: GaussianScene, weights: np.ndarray, sensitivity: np.ndarr
 def whole_scene_check(scene: GaussianScene, weights: np.ndarray, sensitivity: np.ndarray | None,
                       cfg: GaussianEncoderConfig, stats: PrepareStats, say) -> GaussianEncoderConfig:
     """Settings chosen on a sample, checked against the target on the whole prepared scene and
-    moved onto it where they miss (encoder/gaussian_rd.py ``meet_on_whole_scene``)."""
+    moved onto it where they miss (encoder/gaussians/gaussian_rd.py ``meet_on_whole_scene``)."""
     if not cfg.target_psnr > 0:
         return cfg
     from .gaussian_rd import meet_on_whole_scene

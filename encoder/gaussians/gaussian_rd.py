@@ -11,7 +11,7 @@ over the settings, with D the mean squared error of renders of the quantized sce
 renders of the source (the ``search_view_plan`` fit cameras: more and larger on a small scene) and
 R the bits the stream spends (geometry coded for real; attributes as ideal code lengths under
 the per-channel prior, which the coder reaches within 0.01%, or under neighbour prediction where
-that is smaller; the values chosen by rate-distortion optimized quantization, encoder/rdoq.py,
+that is smaller; the values chosen by rate-distortion optimized quantization, encoder/gaussians/rdoq.py,
 when the sensitivities are given, as the coder will choose them). So ``lambda`` is in dB per
 doubling of the stream: the search stops where twice the bytes would buy less than lambda dB
 of PSNR. Measured in relative rate, the same lambda lands at a like point of every scene's
@@ -81,7 +81,7 @@ def search_view_plan(cfg: GaussianEncoderConfig, num_gaussians: int) -> tuple[in
 
 @dataclass
 class Backdrop:
-    """A search on a sample (encoder/search_sample.py): the whole scene and which of its Gaussians
+    """A search on a sample (encoder/gaussians/search_sample.py): the whole scene and which of its Gaussians
     the sample is. The search's views are the whole scene's, and every render shows the sample in
     the whole scene, the other Gaussians held at their values: cells cut closed surfaces open, and
     the sample alone would show what the whole scene hides (and hide nothing it shows)."""
@@ -157,7 +157,7 @@ class SettingsSearch:
             self.targets = [self._render(g, j) for j in range(len(self.cams))]
         self.values = coded_values(scene).astype(np.float64)  # at the scene's SH degree
         self.cfg = cfg
-        # the way RDOQ writes each Gaussian (encoder/rdoq.py), chosen at its first trial and kept:
+        # the way RDOQ writes each Gaussian (encoder/gaussians/rdoq.py), chosen at its first trial and kept:
         # choosing it is most of RDOQ's time, and it moves little with the steps (the coding does choose
         # afresh: at fixed steps on playbot lod4 and the donut, ways kept from another step give 75-94% of
         # its gain; tools/bench_rdoq.py --keep-ways, tools/results/rdoq.md)
@@ -178,7 +178,7 @@ class SettingsSearch:
     def _attribute_bits(self, key, grid: GaussianScene, q: np.ndarray, prior_bits: float,
                         adjust: np.ndarray | None = None) -> float:
         """The attribute bits the encoder will spend: the per-channel prior's, or neighbour
-        prediction's where it is smaller (encoder/neighbour_coding.py; cross-channel prediction,
+        prediction's where it is smaller (encoder/stream/neighbour_coding.py; cross-channel prediction,
         which both can add, is left out of the estimate). With step adjustment (``adjust``, rows
         in the scene's order), neighbour prediction's."""
         order, graph = self._graph(key, grid)
@@ -546,7 +546,7 @@ def _attribute_groups(scene: GaussianScene) -> list[str]:
 
 def sample_distortion_ratio(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig,
                             sample: np.ndarray) -> float:
-    """The whole scene's squared error over the sample's (``sample``, encoder/search_sample.py) at
+    """The whole scene's squared error over the sample's (``sample``, encoder/gaussians/search_sample.py) at
     ``cfg``'s steps, plainly rounded without pruning (``rounding_distortion``: a whole-scene trial
     would code the whole scene), on the search views, the sample rendered in the whole scene
     (``Backdrop``): it covers fewer pixels of the views than the whole, so the same steps measure

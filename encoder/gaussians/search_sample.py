@@ -1,8 +1,8 @@
 """The part of a large explicit-Gaussian scene the settings search measures (informative).
 
-The settings search (encoder/gaussian_rd.py) renders and codes every trial: its cost grows with
+The settings search (encoder/gaussians/gaussian_rd.py) renders and codes every trial: its cost grows with
 the scene. Above ``search_sample_gaussians`` it measures a sample instead, and the chosen settings
-are applied to the whole scene (encoder/gaussian_fit.py, ``search_for_settings``). What the
+are applied to the whole scene (encoder/gaussians/gaussian_fit.py, ``search_for_settings``). What the
 settings trade is local: the grid step against the Gaussians' sizes, the neighbour prediction
 between nearby Gaussians, RDOQ per Gaussian. So the sample is made of whole cells of space, which
 keep each neighbourhood's density and structure as it is (Gaussians drawn one by one would thin
