@@ -397,7 +397,6 @@ def random_gaussian_config(rng: random.Random):
 def gaussian_scene_case(rng: random.Random) -> SceneCase:
     """Build and encode one random explicit-Gaussian scene, with a random sensitivity (so that RDOQ
     and step adjustment choose per Gaussian) when step adjustment is on."""
-    from lghcc.common.errors import InputError
     from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
 
     cfg, cwhat = random_gaussian_config(rng)
@@ -408,14 +407,22 @@ def gaussian_scene_case(rng: random.Random) -> SceneCase:
     sens = None
     if cfg.step_adjust_max or rng.random() < 0.3:
         sens = (10.0 ** (-3 * g.random((scene.num_gaussians, 1)))) * g.uniform(0.1, 10, size=(1, m))
+    return encoded_case(rng, [what], lambda _: encode_gaussian_scene(scene, cfg, sensitivity=sens).data)
+
+
+def encoded_case(rng: random.Random, whats: list[str], encode) -> SceneCase:
+    """The case of ``encode(whats)`` (the stream; it may append to ``whats``, the case's description)
+    with its partial decodes; or the encoder's refusal (InputError), or its bug with the traceback."""
+    from lghcc.common.errors import InputError
+
     try:
-        data = encode_gaussian_scene(scene, cfg, sensitivity=sens).data
+        data = encode(whats)
         decodes = partial_decodes(rng, data)
     except InputError as e:
-        return SceneCase(None, what, refused=str(e))
+        return SceneCase(None, "; ".join(whats), refused=str(e))
     except Exception:  # noqa: BLE001 - an encoder (or generator) bug: reported with its traceback
-        return SceneCase(None, what, bug=traceback.format_exc())
-    return SceneCase(data, what, decodes=decodes)
+        return SceneCase(None, "; ".join(whats), bug=traceback.format_exc())
+    return SceneCase(data, "; ".join(whats), decodes=decodes)
 
 
 # --- partial decodes and tile workers --------------------------------------------------------------------
@@ -456,7 +463,6 @@ def scene_case(rng: random.Random) -> SceneCase:
 
 def anchor_scene_case(rng: random.Random) -> SceneCase:
     """One random anchor scene, encoded (and sometimes level 2 re-coded with a hand-built model)."""
-    from lghcc.common.errors import InputError
     from lghcc.encoder.stream.encode import encode_scene
 
     cfg, cwhat = random_config(rng)
@@ -466,17 +472,14 @@ def anchor_scene_case(rng: random.Random) -> SceneCase:
                                max_anchors=3000 if cfg.rows_per_chunk > 7 else 400)
     what = f"{what}; {cwhat}"
     hand = rng.random() < 0.5
-    try:
+
+    def encode(whats: list[str]) -> bytes:
         res = encode_scene(scene, cfg)
-        data = res.data
         if hand and cfg.hierarchy:
-            out = replace_context_model(data, res.decoded, rng)
+            out = replace_context_model(res.data, res.decoded, rng)
             if out is not None:
-                data, hwhat = out
-                what += f"; {hwhat}"
-        decodes = partial_decodes(rng, data)
-    except InputError as e:
-        return SceneCase(None, what, refused=str(e))
-    except Exception:  # noqa: BLE001 - an encoder (or generator) bug: reported with its traceback
-        return SceneCase(None, what, bug=traceback.format_exc())
-    return SceneCase(data, what, decodes=decodes)
+                whats.append(out[1])
+                return out[0]
+        return res.data
+
+    return encoded_case(rng, [what], encode)
