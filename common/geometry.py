@@ -308,15 +308,13 @@ def _idcm_eligible(mode: int, remaining: int, sib1: np.ndarray, par_nbr: np.ndar
 
 def _code_occupancy(io: _SymbolIO, st: _ContextState, q: np.ndarray, depth: int, remaining: int,
                     bit_depth: list[int], occ_true: np.ndarray | None,
-                    nb: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                    nb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Code the occupancy bytes of the nodes q at ``depth`` (children at depth + 1); ``nb``: their
-    face neighbours when known (``_NodeState.nb``), else searched (``_face_neighbours``).
+    face neighbours (``_NodeState.nb``, carried from the parents; ``_face_neighbours`` defines them).
     Returns (occupancy uint8-valued int64 [M], number of occupied face neighbours [M])."""
     m = q.shape[0]
     for k in range(8):
         limit_counts(st.occ[k], LEVEL_COUNT_LIMIT)
-    if nb is None:
-        nb = _face_neighbours(q, depth)
     exists = (nb >= 0).astype(np.int64)
     nbr_count = exists.sum(axis=0)
     dens = DENS_BUCKET[nbr_count]
@@ -421,7 +419,7 @@ class _NodeState:
     sib1: np.ndarray
     par_nbr: np.ndarray
     par_sib1: np.ndarray
-    nb: np.ndarray | None = None
+    nb: np.ndarray
 
     @classmethod
     def root(cls) -> "_NodeState":
@@ -438,13 +436,12 @@ class _NodeState:
 
     def without(self, keep: np.ndarray) -> "_NodeState":
         """The nodes that are not direct (``keep``); only sib1 is read again at this depth."""
-        return _NodeState(self.sib1[keep], self.par_nbr, self.par_sib1,
-                          None if self.nb is None else _kept_neighbours(self.nb, keep))
+        return _NodeState(self.sib1[keep], self.par_nbr, self.par_sib1, _kept_neighbours(self.nb, keep))
 
     def children(self, occ: np.ndarray, nbr_count: np.ndarray, parent: np.ndarray) -> "_NodeState":
         """The state of the nodes of depth l + 1, children of the nodes ``parent`` (G.5.4 step 5)."""
-        nb = None if self.nb is None else _child_neighbours(self.nb, occ, parent)
-        return _NodeState(POPCOUNT8[occ][parent], nbr_count[parent], self.sib1[parent], nb)
+        return _NodeState(POPCOUNT8[occ][parent], nbr_count[parent], self.sib1[parent],
+                          _child_neighbours(self.nb, occ, parent))
 
 
 def _idcm_flag_context(sib1: np.ndarray, par_sib1: np.ndarray) -> np.ndarray:

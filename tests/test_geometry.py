@@ -198,7 +198,7 @@ def test_face_neighbours_from_the_parents_equal_the_search(c, mode):
     seen = []
     real = G._code_occupancy
 
-    def checked(io, st_, q, depth, remaining, bit_depth, occ_true, nb=None):
+    def checked(io, st_, q, depth, remaining, bit_depth, occ_true, nb):
         np.testing.assert_array_equal(nb, G._face_neighbours(q, depth))
         seen.append(depth)
         return real(io, st_, q, depth, remaining, bit_depth, occ_true, nb)
