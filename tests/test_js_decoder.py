@@ -256,3 +256,14 @@ def test_progressive_decoding_with_a_tile_pool(name):
     assert got["digest"] == got["ref"] and tiles >= 2 and got["started"] == 1
     assert sorted(got["order"]) == list(range(tiles)) and got["order"] != sorted(got["order"])
     assert json.loads(node(PROGRESSIVE, json.dumps({"path": path, "failTile": 1}))) == {"error": "HashMismatchError"}
+
+
+ASC = runner.JS_DECODER_DIR.parents[2] / "tools" / "node" / "node_modules" / "assemblyscript"
+
+
+@pytest.mark.skipif(not ASC.is_dir(), reason="AssemblyScript is not installed (make node-tools)")
+def test_wasm_module_rebuilds_byte_for_byte():
+    """The committed wasm_module.mjs is what the pinned AssemblyScript makes of wasm/decoder.ts."""
+    res = subprocess.run([NODE, "build-wasm.mjs", "--check"], capture_output=True, text=True,
+                         cwd=ASC.parents[1], timeout=300)
+    assert res.returncode == 0, res.stdout + res.stderr[-2000:]
