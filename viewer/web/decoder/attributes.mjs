@@ -4,8 +4,7 @@
 // (escapes near 2^62, predictions of huge deviations, step-adjusted sums of huge values) take an
 // exact BigInt path.
 import { BitstreamError } from './errors.mjs';
-import { EXACT_EXTENT, gridNeighbours, nearestExact } from './knn.mjs';
-import { RangeDecoder } from './range.mjs';
+import { gridNeighbours } from './knn.mjs';
 import { decodeSymbolChunk } from './symbols.mjs';
 
 export const STEP_ADJUST_FACTORS = [1.0, 1.18920708, 1.41421354, 1.68179286, 2.0, 2.37841415, 2.82842708, 3.36358571].map(Math.fround);
@@ -51,23 +50,17 @@ function tileBounds(x, y, z, n) {
     });
     const e = Math.max(...ext);
     if (e > MAX_EXTENT) throw new BitstreamError(`the tile's points span ${e} voxels, beyond MAX_EXTENT = ${MAX_EXTENT} (clause 8.1, E64)`);
-    return { lo, ext, exact: e > EXACT_EXTENT };
+    return { lo, ext };
 }
 
 /** Neighbours (clause 11.7.2) of the rows of LoD l among the rows of LoDs < l: {idx: Int32Array [n_l * k], cnt}. */
 function lodNeighbours(lods, l, k, coords, bounds, n) {
-    const { x, y, z } = coords;
     const step = 2 ** (lods.length - l); // the rows of LoDs < l are the multiples of 2^(L - l)
     const ids = new Int32Array(Math.ceil(n / step));
     for (let t = 0; t < ids.length; t++) ids[t] = t * step;
     const rows = lods[l];
     const idx = new Int32Array(rows.length * k), cnt = new Uint8Array(rows.length);
-    if (bounds.exact) {
-        const px = Array.from(ids, (i) => x[i]), py = Array.from(ids, (i) => y[i]), pz = Array.from(ids, (i) => z[i]);
-        for (let r = 0; r < rows.length; r++) cnt[r] = nearestExact(px, py, pz, ids, x[rows[r]], y[rows[r]], z[rows[r]], k, idx, r * k);
-        return { idx, cnt };
-    }
-    gridNeighbours(x, y, z, bounds.lo, bounds.ext, ids, rows, k, idx, cnt);
+    gridNeighbours(coords.x, coords.y, coords.z, bounds.lo, bounds.ext, ids, rows, k, idx, cnt);
     return { idx, cnt };
 }
 

@@ -7,11 +7,15 @@
 // ---------------------------------------------------------------- arena
 
 let top: usize = 0;
+let floor: usize = 0; // the end of what stays (the scale tables), set by keep()
 
 function heapStart(): usize { return (__heap_base + 15) & ~(<usize>15); }
 
-/** Forget every allocation (the next alloc starts at the heap base). */
-export function reset(): void { top = heapStart(); }
+/** Forget every allocation since keep() (or all). */
+export function reset(): void { top = floor ? floor : heapStart(); }
+
+/** Keep every allocation made so far across later resets. */
+export function keep(): void { floor = top; }
 
 /** `bytes` of zeroed memory, 16-byte aligned; grows the memory when needed. */
 export function alloc(bytes: i32): usize {
@@ -42,6 +46,7 @@ const ERR_TOTAL: i32 = 6;      // G.5.5, E32 (errA points)
 const ERR_MIN: i32 = 7;        // G.5.5, E33
 const ERR_MAX: i32 = 8;        // G.5.5, E34
 const ERR_MEMORY: i32 = 9;     // linear memory could not grow
+const ERR_ESCAPE: i32 = 10;    // escaped magnitude beyond 2^62 - 1 (10.5; errorWide() the magnitude)
 
 let err: i32 = 0;
 let errA: i32 = 0;
@@ -49,6 +54,8 @@ let errB: i32 = 0;
 export function errorCode(): i32 { return err; }
 export function errorA(): i32 { return errA; }
 export function errorB(): i32 { return errB; }
+let errWide: u64 = 0;
+export function errorWide(): u64 { return errWide; }
 
 function fail(code: i32, a: i32, b: i32): void {
     err = code; errA = a; errB = b;
@@ -441,5 +448,240 @@ function offsetAxis(c: usize, n: i32, bmin: i32): void {
         const v = <i64><u32>i32At(c, t) + <i64>bmin;
         if (v > 0x7FFFFFFF) fail(ERR_MAX, 0, 0);
         setI32(c, t, <i32>v);
+    }
+}
+
+// ---------------------------------------------------------------- k nearest neighbours (11.7.2)
+
+// The canonical k-NN (Annex H.3 with a ball holding the whole tile): for each query, the first k
+// data points in increasing order of (d2, index), d2 the exact squared distance (u64: offsets
+// are below MAX_EXTENT < 2^31, so d2 < 3 * 2^62). The data points are binned in a dense grid of
+// cubic cells (side 2^b); a query visits the cells in growing shells around its own and stops
+// once every unvisited point is provably (strictly) farther than its k-th, so points at equal
+// distance compete by index exactly.
+const CELLS_PER_POINT: i32 = 2; // grid size: at most this many cells per data point (and 4096)
+
+let gB: i32 = 0; let gSide: i64 = 0; let gNx: i32 = 0; let gNy: i32 = 0; let gNz: i32 = 0;
+let gStart: usize = 0; let gPx: usize = 0; let gPy: usize = 0; let gPz: usize = 0; let gId: usize = 0;
+let hD: usize = 0; let hI: usize = 0; let kK: i32 = 0;
+
+@inline function u64At(p: usize, i: i32): u64 { return load<u64>(p + (<usize>i << 3)); }
+@inline function setU64(p: usize, i: i32, v: u64): void { store<u64>(p + (<usize>i << 3), v); }
+
+/**
+ * Neighbours of the query rows (qs [nq]) among the data rows (ds [nd], ascending) of the tile's
+ * points x, y, z (i32 [*]; lo: their minima, e: their extents): ids to idx [nq * k] nearest first,
+ * counts to cnt (u8 [nq]).
+ */
+export function gridNeighbours(x: usize, y: usize, z: usize, lo0: i32, lo1: i32, lo2: i32, e0: i32, e1: i32, e2: i32,
+    ds: usize, nd: i32, qs: usize, nq: i32, k: i32, idx: usize, cnt: usize): void {
+    err = 0;
+    buildGrid(x, y, z, lo0, lo1, lo2, e0, e1, e2, ds, nd);
+    hD = alloc(k << 3); hI = alloc(k << 2); kK = k;
+    for (let r = 0; r < nq; r++) {
+        const i = i32At(qs, r);
+        const size = search(i32At(x, i) - lo0, i32At(y, i) - lo1, i32At(z, i) - lo2);
+        for (let m = 0; m < size; m++) setI32(idx, r * k + m, i32At(hI, m));
+        setU8(cnt, r, size);
+    }
+}
+
+function buildGrid(x: usize, y: usize, z: usize, lo0: i32, lo1: i32, lo2: i32, e0: i32, e1: i32, e2: i32, ds: usize, n: i32): void {
+    const limit = <f64>max(4096, CELLS_PER_POINT * n);
+    let b = 0;
+    while (<f64>((e0 >> b) + 1) * <f64>((e1 >> b) + 1) * <f64>((e2 >> b) + 1) > limit) b++;
+    gB = b; gSide = <i64>1 << b;
+    gNx = (e0 >> b) + 1; gNy = (e1 >> b) + 1; gNz = (e2 >> b) + 1;
+    const cells = gNx * gNy * gNz;
+    const start = alloc((cells + 1) << 2), cell = alloc(n << 2);
+    for (let t = 0; t < n; t++) {
+        const j = i32At(ds, t);
+        const c = (((i32At(x, j) - lo0) >> b) * gNy + ((i32At(y, j) - lo1) >> b)) * gNz + ((i32At(z, j) - lo2) >> b);
+        setI32(cell, t, c);
+        setI32(start, c + 1, i32At(start, c + 1) + 1);
+    }
+    for (let c = 1; c <= cells; c++) setI32(start, c, i32At(start, c) + i32At(start, c - 1));
+    // the points sorted by cell (stable), as offsets from lo
+    gPx = alloc(n << 2); gPy = alloc(n << 2); gPz = alloc(n << 2); gId = alloc(n << 2);
+    const fill = alloc(cells << 2);
+    memory.copy(fill, start, <usize>cells << 2);
+    for (let t = 0; t < n; t++) {
+        const j = i32At(ds, t), c = i32At(cell, t), o = i32At(fill, c);
+        setI32(fill, c, o + 1);
+        setI32(gPx, o, i32At(x, j) - lo0); setI32(gPy, o, i32At(y, j) - lo1); setI32(gPz, o, i32At(z, j) - lo2); setI32(gId, o, j);
+    }
+    gStart = start;
+}
+
+/** The k nearest of (qx, qy, qz) (offsets from lo) sorted by (d2, id) into hD/hI; returns their count. */
+function search(qx: i32, qy: i32, qz: i32): i32 {
+    const b = gB, cx = qx >> b, cy = qy >> b, cz = qz >> b, k = kK;
+    let size = visitCell((cx * gNy + cy) * gNz + cz, qx, qy, qz, 0);
+    for (let s = 1; ; s++) {
+        size = visitShell(cx, cy, cz, s, qx, qy, qz, size);
+        const bound = unvisitedBound(cx, cy, cz, s, qx, qy, qz);
+        if (bound < 0 || (size == k && u64At(hD, k - 1) < <u64>(bound * bound))) break;
+    }
+    return size;
+}
+
+/** The least distance along one axis from the query to a point outside the block of radius s; -1 if the block covers the grid. */
+function unvisitedBound(cx: i32, cy: i32, cz: i32, s: i32, qx: i32, qy: i32, qz: i32): i64 {
+    const S = gSide;
+    let bound: i64 = i64.MAX_VALUE;
+    if (cx - s > 0) bound = min(bound, <i64>qx - <i64>(cx - s) * S + 1);
+    if (cx + s < gNx - 1) bound = min(bound, <i64>(cx + s + 1) * S - <i64>qx);
+    if (cy - s > 0) bound = min(bound, <i64>qy - <i64>(cy - s) * S + 1);
+    if (cy + s < gNy - 1) bound = min(bound, <i64>(cy + s + 1) * S - <i64>qy);
+    if (cz - s > 0) bound = min(bound, <i64>qz - <i64>(cz - s) * S + 1);
+    if (cz + s < gNz - 1) bound = min(bound, <i64>(cz + s + 1) * S - <i64>qz);
+    return bound == i64.MAX_VALUE ? -1 : bound;
+}
+
+/** The squared distance along one axis from the query (cell c, offset q) to cell C. */
+@inline function gap(C: i32, c: i32, q: i32): u64 {
+    const d: i64 = C < c ? <i64>q - <i64>(C + 1) * gSide + 1 : C > c ? <i64>C * gSide - <i64>q : 0;
+    return <u64>(d * d);
+}
+
+/** The cells at Chebyshev distance s from (cx, cy, cz), clipped to the grid; a cell wholly farther than the k-th is skipped. */
+function visitShell(cx: i32, cy: i32, cz: i32, s: i32, qx: i32, qy: i32, qz: i32, size: i32): i32 {
+    const ny = gNy, nz = gNz, k = kK;
+    const x0 = max(0, cx - s), x1 = min(gNx - 1, cx + s);
+    const y0 = max(0, cy - s), y1 = min(ny - 1, cy + s);
+    const z0 = max(0, cz - s), z1 = min(nz - 1, cz + s);
+    for (let X = x0; X <= x1; X++) {
+        const fx = X == cx - s || X == cx + s, ex = gap(X, cx, qx);
+        for (let Y = y0; Y <= y1; Y++) {
+            const row = (X * ny + Y) * nz, exy = ex + gap(Y, cy, qy);
+            if (size == k && exy > u64At(hD, k - 1)) continue;
+            if (fx || Y == cy - s || Y == cy + s) {
+                for (let Z = z0; Z <= z1; Z++) size = visitNear(row, Z, cz, qx, qy, qz, exy, size);
+            } else {
+                if (cz - s >= 0) size = visitNear(row, cz - s, cz, qx, qy, qz, exy, size);
+                if (cz + s < nz) size = visitNear(row, cz + s, cz, qx, qy, qz, exy, size);
+            }
+        }
+    }
+    return size;
+}
+
+@inline function visitNear(row: i32, Z: i32, cz: i32, qx: i32, qy: i32, qz: i32, exy: u64, size: i32): i32 {
+    if (size == kK && exy + gap(Z, cz, qz) > u64At(hD, kK - 1)) return size;
+    return visitCell(row + Z, qx, qy, qz, size);
+}
+
+function visitCell(c: i32, qx: i32, qy: i32, qz: i32, size: i32): i32 {
+    for (let p = i32At(gStart, c), e = i32At(gStart, c + 1); p < e; p++) {
+        const dx = <i64>i32At(gPx, p) - <i64>qx, dy = <i64>i32At(gPy, p) - <i64>qy, dz = <i64>i32At(gPz, p) - <i64>qz;
+        size = offer(<u64>(dx * dx) + <u64>(dy * dy) + <u64>(dz * dz), i32At(gId, p), size);
+    }
+    return size;
+}
+
+/** Insert (d, id) into the ascending list hD/hI of at most k entries; returns its new size. */
+function offer(d: u64, id: i32, size: i32): i32 {
+    const k = kK;
+    if (size == k) {
+        const ld = u64At(hD, k - 1);
+        if (d > ld || (d == ld && id > i32At(hI, k - 1))) return size;
+    } else size++;
+    let j = size - 1;
+    while (j > 0) {
+        const pd = u64At(hD, j - 1), pi = i32At(hI, j - 1);
+        if (!(pd > d || (pd == d && pi > id))) break;
+        setU64(hD, j, pd); setI32(hI, j, pi); j--;
+    }
+    setU64(hD, j, d); setI32(hI, j, id);
+    return size;
+}
+
+// ---------------------------------------------------------------- symbol chunks (10.4, 10.5, 10.7)
+
+const LUT_SHIFT: u64 = 12; // symbol search starts at lut[q >> 12] (tables.mjs's ModelSet)
+const LUT_SIZE: i32 = 4097;
+const MAX_RESIDUAL: u64 = 0x3FFFFFFFFFFFFFFF; // 2^62 - 1
+const TWO53: u64 = 0x20000000000000;
+
+// the 64 level tables and the escape class table, as tables.mjs's ModelSet (cum, off, lut); half widths L_i
+let lvCum: usize = 0; let lvOff: usize = 0; let lvLut: usize = 0; let lvHalf: usize = 0;
+let clCum: usize = 0; let clOff: usize = 0; let clLut: usize = 0;
+
+export function setTables(a: usize, b: usize, c: usize, d: usize, e: usize, f: usize, g: usize): void {
+    lvCum = a; lvOff = b; lvLut = c; lvHalf = d; clCum = e; clOff = f; clLut = g;
+}
+
+/** One symbol of model m of a model set (10.6.1). */
+function decodeModel(cum: usize, off: usize, lut: usize, m: i32): i32 {
+    const scale = rR >> 24, q = quantile(scale), o = i32At(off, m);
+    let s = <i32>load<u16>(lut + ((<usize>(m * LUT_SIZE) + <usize>(q >> LUT_SHIFT)) << 1));
+    while (<u64>i32At(cum, o + s + 1) <= q) s++;
+    const c = <u64>i32At(cum, o + s);
+    setState((<u64>i32At(cum, o + s + 1) - c) * scale, rD - c * scale);
+    return s;
+}
+
+/**
+ * The symbol chunk of nbytes at p holding n residuals of levels lv (u8 [n]): the bins grouped by
+ * level, then the escape section (signs, magnitude classes, remainders); checks the chunk is
+ * exhausted. Residuals to out (f64 [n]; NaN where |r| >= 2^53) and wide (i64 [n], every escaped
+ * one). Returns the number of escapes.
+ */
+export function decodeSymbols(p: usize, nbytes: i32, lv: usize, n: i32, out: usize, wide: usize): i32 {
+    err = 0;
+    rangeStart(p, nbytes);
+    const count = alloc(65 << 2), order = alloc(n << 2), esc = alloc(n);
+    for (let j = 0; j < n; j++) { const c = u8At(lv, j) + 1; setI32(count, c, i32At(count, c) + 1); }
+    for (let i = 0; i < 64; i++) setI32(count, i + 1, i32At(count, i + 1) + i32At(count, i));
+    for (let j = 0; j < n; j++) { const c = u8At(lv, j), o = i32At(count, c); setI32(order, o, j); setI32(count, c, o + 1); }
+    // count[i] is now the end of level i's group
+    let nesc = 0, start = 0;
+    for (let i = 0; i < 64; i++) {
+        const end = i32At(count, i);
+        if (end == start) continue;
+        const L = i32At(lvHalf, i), ESC = 2 * L + 1;
+        for (let t = start; t < end; t++) {
+            const j = i32At(order, t), b = decodeModel(lvCum, lvOff, lvLut, i);
+            if (b == ESC) { setU8(esc, j, 1); nesc++; } else store<f64>(out + (<usize>j << 3), <f64>(b - L));
+        }
+        start = end;
+    }
+    if (nesc) decodeEscapes(lv, n, out, wide, esc, nesc);
+    checkExhausted();
+    return nesc;
+}
+
+/** Raw values (10.6.3) of widths w[0..n-1] (0..64 bits) to v (u64 [n]), in 16-bit pieces grouped by width. */
+function decodeBits(w: usize, n: i32, v: usize): void {
+    let maxw = 0;
+    for (let j = 0; j < n; j++) maxw = max(maxw, i32At(w, j));
+    for (let shift = 0; shift < maxw; shift += 16) {
+        for (let piece = 1; piece <= 16; piece++) {
+            for (let j = 0; j < n; j++) {
+                const wj = i32At(w, j);
+                if (wj <= shift || min(wj - shift, 16) != piece) continue;
+                setU64(v, j, u64At(v, j) | (<u64>decodeUniform(piece) << <u64>shift));
+            }
+        }
+    }
+}
+
+function decodeEscapes(lv: usize, n: i32, out: usize, wide: usize, esc: usize, nesc: i32): void {
+    const idx = alloc(nesc << 2), sign = alloc(nesc), k = alloc(nesc << 2), width = alloc(nesc << 2), rem = alloc(nesc << 3);
+    for (let j = 0, e = 0; j < n; j++) if (u8At(esc, j)) setI32(idx, e++, j);
+    for (let e = 0; e < nesc; e++) setU8(sign, e, <i32>decodeUniform(1));
+    for (let e = 0; e < nesc; e++) {
+        const c = decodeModel(clCum, clOff, clLut, 0);
+        setI32(k, e, c); setI32(width, e, max(c - 1, 0));
+    }
+    decodeBits(width, nesc, rem);
+    for (let e = 0; e < nesc; e++) {
+        const j = i32At(idx, e), c = i32At(k, e), L = <u64>i32At(lvHalf, u8At(lv, j));
+        const m: u64 = c == 0 ? 0 : (<u64>1 << <u64>(c - 1)) + u64At(rem, e); // c <= 62: below 2^62
+        const mag = L + 1 + m;
+        if (mag > MAX_RESIDUAL) { errWide = mag; fail(ERR_ESCAPE, 0, 0); }
+        const r: i64 = u8At(sign, e) ? -<i64>mag : <i64>mag;
+        store<i64>(wide + (<usize>j << 3), r);
+        store<f64>(out + (<usize>j << 3), mag < TWO53 ? <f64>r : NaN);
     }
 }
