@@ -2,19 +2,7 @@
 // by scale level, then the escape section (signs, magnitude classes, remainders). Decoded in
 // WebAssembly (wasm/decoder.ts: decodeSymbols and the range decoder of 10.6 with 64-bit integers).
 import { BitstreamError } from './errors.mjs';
-import { scaleTables } from './tables.mjs';
 import { callWasm, wasm } from './wasm.mjs';
-
-let tablesIn = false; // the scale tables are in the module's memory (kept across resets)
-
-function loadTables(w) {
-    const T = scaleTables();
-    w.reset();
-    const at = (arr) => { const p = w.alloc(arr.byteLength); new arr.constructor(w.memory.buffer, p, arr.length).set(arr); return p; };
-    w.setTables(at(T.levels.cum), at(T.levels.off), at(T.levels.lut), at(T.half), at(T.classes.cum), at(T.classes.off), at(T.classes.lut));
-    w.keep();
-    tablesIn = true;
-}
 
 function chunkError(what, code, w) {
     if (code === 1) return new BitstreamError(`${what}: range decoding failed: q >= 2^24 (clause 10.6.4)`);
@@ -34,7 +22,6 @@ export function decodeSymbolChunk(bytes, levels, n, out, wide, what) {
         throw new BitstreamError(`${what}: length ${bytes.length} is not a whole number of 32-bit words (clause 10.6.6)`);
     }
     const w = wasm();
-    if (!tablesIn) loadTables(w);
     w.reset();
     const p = w.alloc(bytes.length), pl = w.alloc(n), po = w.alloc(8 * n), pw = w.alloc(8 * n);
     new Uint8Array(w.memory.buffer, p, bytes.length).set(bytes);

@@ -1,6 +1,8 @@
 // The WebAssembly part of the decoder (wasm/decoder.ts, built into wasm_module.mjs by
 // tools/node/build-wasm.mjs): instantiated once per thread, synchronously (decoding runs in Node or
-// in a Web Worker, where synchronous compilation of any size is allowed), with no imports.
+// in a Web Worker, where synchronous compilation of any size is allowed), with no imports. The
+// scale tables of clause 10.2 are copied into its memory once, below everything reset() releases.
+import { scaleTables } from './tables.mjs';
 import { DECODER_WASM_BASE64 } from './wasm_module.mjs';
 
 let exports = null;
@@ -9,9 +11,26 @@ let exports = null;
 export function wasm() {
     if (!exports) {
         const bytes = Uint8Array.from(atob(DECODER_WASM_BASE64), (c) => c.charCodeAt(0));
-        exports = new WebAssembly.Instance(new WebAssembly.Module(bytes), {}).exports;
+        const w = new WebAssembly.Instance(new WebAssembly.Module(bytes), {}).exports;
+        loadTables(w);
+        exports = w;
     }
     return exports;
+}
+
+/** Copy arr (a typed array) into the module's arena; returns its address. */
+export function copyIn(w, arr) {
+    const p = w.alloc(Math.max(arr.byteLength, 1));
+    new arr.constructor(w.memory.buffer, p, arr.length).set(arr);
+    return p;
+}
+
+function loadTables(w) {
+    const T = scaleTables();
+    w.reset();
+    const t = [T.levels.cum, T.levels.off, T.levels.lut, T.half, T.classes.cum, T.classes.off, T.classes.lut];
+    w.setTables(...t.map((a) => copyIn(w, a)));
+    w.keep();
 }
 
 /** Copy bytes into a fresh arena (the previous call's memory is released); returns their address. */

@@ -14,8 +14,11 @@ function heapStart(): usize { return (__heap_base + 15) & ~(<usize>15); }
 /** Forget every allocation since keep() (or all). */
 export function reset(): void { top = floor ? floor : heapStart(); }
 
-/** Keep every allocation made so far across later resets. */
-export function keep(): void { floor = top; }
+/** Keep every allocation made so far across later resets; returns the previous mark for release(). */
+export function keep(): usize { const prev = floor; floor = top; return prev; }
+
+/** Drop what keep() kept since the mark `prev`. */
+export function release(prev: usize): void { floor = prev; top = prev ? prev : heapStart(); }
 
 /** `bytes` of zeroed memory, 16-byte aligned; grows the memory when needed. */
 export function alloc(bytes: i32): usize {
@@ -683,5 +686,72 @@ function decodeEscapes(lv: usize, n: i32, out: usize, wide: usize, esc: usize, n
         const r: i64 = u8At(sign, e) ? -<i64>mag : <i64>mag;
         store<i64>(wide + (<usize>j << 3), r);
         store<f64>(out + (<usize>j << 3), mag < TWO53 ? <f64>r : NaN);
+    }
+}
+
+// ---------------------------------------------------------------- neighbour prediction parameters (11.7.3, 11.8)
+
+@inline function floorDivI(a: i64, b: i64): i64 { // b > 0
+    const d = a / b;
+    return (a % b != 0 && a < 0) ? d - 1 : d;
+}
+
+@inline function floorDivF(a: f64, b: f64): f64 { // tables.mjs's floorDiv on exact binary64 integers (the prior's mean)
+    let m = Math.floor(a / b);
+    if (m * b > a) m--; else if ((m + 1) * b <= a) m++;
+    return m;
+}
+
+/** The prior's mean of channel c (11.3), scaled by the row's step adjustment F (11.8) when sa. */
+@inline function priorMean(prior: usize, c: i32, sa: i32, F: i64): f64 {
+    const p = load<f64>(prior + (<usize>c << 3));
+    return sa ? floorDivF(p * 4096 + <f64>(F >> 1), <f64>F) : p;
+}
+
+/**
+ * The mean and level of every channel of nr rows (11.3, 11.7.3; step-adjusted, 11.8, when sa):
+ * row rows[r] has cnt[r] neighbours idx[r * k ..] (none: the prior's mean and level); q (f64 [*, M],
+ * integers with |q| <= 2^40) the values decoded so far, adj (u8) the rows' step-adjustment
+ * indices, fix (i32 [8]) their fixed-point factors F and shift (i32 [8]) their level shifts;
+ * meanFlag (u8 [M]), bucket (u8 [M * B]) the bucket levels, prior (f64 [M]) and priorLevel (u8 [M]).
+ * Sums of up to 32 q F stay below 2^59: exact in i64. Results to mean (f64 [nr * M]) and level (u8 [nr * M]).
+ */
+export function rowMeans(q: usize, M: i32, rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, adj: usize, sa: i32, fix: usize,
+    shift: usize, meanFlag: usize, bucket: usize, B: i32, prior: usize, priorLevel: usize, mean: usize, level: usize): void {
+    err = 0;
+    const sum = alloc(M << 3), mx = alloc(M << 3), mn = alloc(M << 3);
+    for (let r = 0; r < nr; r++) {
+        const n = u8At(cnt, r), a = u8At(adj, i32At(rows, r)), F: i64 = sa ? <i64>i32At(fix, a) : 1, base = r * M;
+        if (n == 0) {
+            const sh = sa ? i32At(shift, a) : 0;
+            for (let c = 0; c < M; c++) {
+                store<f64>(mean + (<usize>(base + c) << 3), priorMean(prior, c, sa, F));
+                setU8(level, base + c, max(0, u8At(priorLevel, c) - sh));
+            }
+            continue;
+        }
+        // sum, max and min of the neighbours' (step-adjusted) values: the first neighbour, then the others
+        let j = i32At(idx, r * k), f: i64 = sa ? <i64>i32At(fix, u8At(adj, j)) : 1, qj = q + (<usize>(j * M) << 3);
+        for (let c = 0; c < M; c++) {
+            const o = <usize>c << 3, v = <i64>load<f64>(qj + o) * f;
+            store<i64>(sum + o, v); store<i64>(mx + o, v); store<i64>(mn + o, v);
+        }
+        for (let m = 1; m < n; m++) {
+            j = i32At(idx, r * k + m); f = sa ? <i64>i32At(fix, u8At(adj, j)) : 1; qj = q + (<usize>(j * M) << 3);
+            for (let c = 0; c < M; c++) {
+                const o = <usize>c << 3, v = <i64>load<f64>(qj + o) * f;
+                store<i64>(sum + o, load<i64>(sum + o) + v);
+                if (v > load<i64>(mx + o)) store<i64>(mx + o, v);
+                if (v < load<i64>(mn + o)) store<i64>(mn + o, v);
+            }
+        }
+        const nF = <i64>n * F;
+        for (let c = 0; c < M; c++) {
+            const o = <usize>c << 3;
+            const mu = u8At(meanFlag, c) ? <f64>floorDivI(load<i64>(sum + o) + (nF >> 1), nF) : priorMean(prior, c, sa, F);
+            store<f64>(mean + (<usize>(base + c) << 3), mu);
+            const act = floorDivI(load<i64>(mx + o) - load<i64>(mn + o), F); // >= 0
+            setU8(level, base + c, u8At(bucket, c * B + min(<i32>(64 - clz<i64>(act)), B - 1)));
+        }
     }
 }
