@@ -7,7 +7,7 @@
 import { BitstreamError } from './errors.mjs';
 import { gridNeighbours } from './knn.mjs';
 import { decodeSymbolChunk } from './symbols.mjs';
-import { copyIn, wasm } from './wasm.mjs';
+import { alloc, callWasm, copyIn, wasm } from './wasm.mjs';
 
 export const STEP_ADJUST_FACTORS = [1.0, 1.18920708, 1.41421354, 1.68179286, 2.0, 2.37841415, 2.82842708, 3.36358571].map(Math.fround);
 export const ADJUST_FIXED_POINT = [4096, 4871, 5793, 6889, 8192, 9742, 11585, 13777];
@@ -63,7 +63,7 @@ class TileAttributeDecoder {
         // q in the module's memory, kept across its calls until release()
         const w = this.w = wasm();
         w.reset();
-        this.qAddr = w.alloc(8 * this.n * this.M);
+        this.qAddr = alloc(w, 8 * this.n * this.M);
         this.mark = w.keep();
         this.qView = null;
         this.adj = new Uint8Array(this.n);
@@ -146,8 +146,8 @@ class TileAttributeDecoder {
         const meanFlag = np ? np.meanFlag : new Uint8Array(M), bucket = np ? np.bucketLevel : new Uint8Array(1);
         const args = [at(this.adj), this.ctx.stepAdjust ? 1 : 0, at(FIXED_POINT), at(LEVEL_SHIFT), at(meanFlag), at(bucket), np ? np.B : 1,
             at(h.priorMean), at(h.priorLevel)];
-        const pMean = w.alloc(8 * nr * M), pLevel = w.alloc(nr * M);
-        w.rowMeans(this.qAddr, M, pRows, nr, pIdx, pCnt, k, ...args, pMean, pLevel);
+        const pMean = alloc(w, 8 * nr * M), pLevel = alloc(w, nr * M);
+        callWasm(() => w.rowMeans(this.qAddr, M, pRows, nr, pIdx, pCnt, k, ...args, pMean, pLevel), () => null);
         this.mean.set(new Float64Array(w.memory.buffer, pMean, nr * M));
         this.level.set(new Uint8Array(w.memory.buffer, pLevel, nr * M));
     }

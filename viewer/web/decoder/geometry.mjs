@@ -42,7 +42,6 @@ function geometryError(code, a, b, n) {
         7: 'geometry data: the decoded points do not attain the bounding-box minimum (G.5.5, E33)',
         8: 'geometry data: decoded coordinates exceed 2^31 - 1 (G.5.5, E34)',
     };
-    if (code === 9) return new RangeError('geometry data: out of WebAssembly memory');
     return new BitstreamError(messages[code]);
 }
 

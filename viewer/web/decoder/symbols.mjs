@@ -2,13 +2,12 @@
 // by scale level, then the escape section (signs, magnitude classes, remainders). Decoded in
 // WebAssembly (wasm/decoder.ts: decodeSymbols and the range decoder of 10.6 with 64-bit integers).
 import { BitstreamError } from './errors.mjs';
-import { callWasm, wasm } from './wasm.mjs';
+import { alloc, callWasm, wasm } from './wasm.mjs';
 
 function chunkError(what, code, w) {
     if (code === 1) return new BitstreamError(`${what}: range decoding failed: q >= 2^24 (clause 10.6.4)`);
     if (code === 2) return new BitstreamError(`${what}: data left over after decoding (clause 10.6.5)`);
-    if (code === 10) return new BitstreamError(`${what}: escaped residual magnitude ${BigInt.asUintN(64, w.errorWide())} exceeds 2^62 - 1 (clause 10.5)`);
-    return new RangeError(`${what}: out of WebAssembly memory`);
+    return new BitstreamError(`${what}: escaped residual magnitude ${BigInt.asUintN(64, w.errorWide())} exceeds 2^62 - 1 (clause 10.5)`);
 }
 
 /**
@@ -23,7 +22,7 @@ export function decodeSymbolChunk(bytes, levels, n, out, wide, what) {
     }
     const w = wasm();
     w.reset();
-    const p = w.alloc(bytes.length), pl = w.alloc(n), po = w.alloc(8 * n), pw = w.alloc(8 * n);
+    const p = alloc(w, bytes.length), pl = alloc(w, n), po = alloc(w, 8 * n), pw = alloc(w, 8 * n);
     new Uint8Array(w.memory.buffer, p, bytes.length).set(bytes);
     new Uint8Array(w.memory.buffer, pl, n).set(levels.subarray(0, n));
     const nesc = callWasm(() => w.decodeSymbols(p, bytes.length, pl, n, po, pw), (code) => chunkError(what, code, w));

@@ -22,6 +22,7 @@ export function release(prev: usize): void { floor = prev; top = prev ? prev : h
 
 /** `bytes` of zeroed memory, 16-byte aligned; grows the memory when needed. */
 export function alloc(bytes: i32): usize {
+    err = 0; // a trap after this without fail() is no decoding error
     if (top == 0) top = heapStart();
     const p = top;
     top = (p + <usize>bytes + 15) & ~(<usize>15);
