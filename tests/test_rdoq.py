@@ -326,3 +326,105 @@ def test_a_bad_weight_is_refused_with_one_line_and_nothing_written(tmp_path, cap
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "rd_quantization" in err[0], err
     assert not out.exists()
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(1, 120), mu=st.floats(0, 10), zero_share=st.floats(0, 1), seed=st.integers(0, 2 ** 31))
+def test_sh_rest_snap_sets_values_to_the_prediction_only_where_that_costs_less(n, mu, zero_share, seed):
+    """With the per-channel prior (fixed means), sh_rest moves SH-rest values (and only those) to
+    their prediction, and only where F (x - q)^2 + mu bits falls: the colour error it adds is
+    paid for by the bits it saves, at the slope mu; the other columns are as without it."""
+    rng = np.random.default_rng(seed)
+    m, rest = 9, slice(3, 9)
+    x = rng.normal(0, 3, (n, m)) + rng.normal(0, 3, m)
+    f = rng.exponential(1.0, (n, m)) * (rng.uniform(size=(n, m)) >= zero_share)
+    coords = np.unique(rng.integers(0, 64, (n, 3)), axis=0)
+    x, f = x[:coords.shape[0]], f[:coords.shape[0]]
+    mus = np.full(m, mu)
+    by_value = rd_quantize(x, f, mus, coords, None, 5)
+    snapped = rd_quantize(x, f, mus, coords, None, 5, sh_rest=rest)
+    np.testing.assert_array_equal(snapped[:, :3], by_value[:, :3])
+    before, mean = _prior_costs(x, by_value, f, mus)
+    after, _ = _prior_costs(x, snapped, f, mus)
+    moved = snapped != by_value
+    assert np.all(snapped[moved] == np.broadcast_to(mean, x.shape)[moved])
+    assert np.all(after <= before + 1e-9) and np.all(after[moved] < before[moved])
+    if mu == 0:
+        np.testing.assert_array_equal(snapped, np.rint(x))
+
+
+def test_sh_rest_the_views_do_not_show_is_coded_as_its_prediction():
+    rng = np.random.default_rng(11)
+    n = 400
+    x = rng.normal(0, 6, (n, 9))
+    coords = np.unique(rng.integers(0, 1000, (n, 3)), axis=0)[:n]
+    x = x[:coords.shape[0]]
+    f = np.full(x.shape, 1e6)
+    f[::2, 3:] = 0.0  # every other Gaussian's view-dependent colour unseen
+    q = rd_quantize(x, f, np.ones(9), coords, None, 5, sh_rest=slice(3, 9))
+    mean = np.rint(np.median(np.rint(x), axis=0)).astype(np.int64)
+    assert np.all(q[::2, 3:] == mean[3:])
+    np.testing.assert_array_equal(q[1::2], np.rint(x[1::2]))  # seen: rounded, whatever it costs
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(1, 60), spread=st.sampled_from([0.0, 0.01, 0.1, 1.0, 5.0]), seed=st.integers(0, 2 ** 31))
+def test_rotation_change_bound_holds_for_any_two_rotations(n, spread, seed):
+    """No change of rotation moves a Gaussian's covariance by more than rotation_change_bound
+    (relative, Frobenius): a rotation snapped under free_rotations stays within its bound."""
+    rng = np.random.default_rng(seed)
+    step = 0.1
+    x = _shapes(rng, n, step)
+    x[:, SCALES] = (-3 + spread * rng.normal(size=(n, 3))) / step
+    y = x.copy()
+    y[:, ROTATION] = _unit_quaternions(rng, n) / step
+    bound = rdoq.rotation_change_bound(x[:, SCALES] * step)
+    a, b = _covariances(x, step), _covariances(y, step)
+    change = np.linalg.norm(a - b, axis=(1, 2)) / np.linalg.norm(a, axis=(1, 2))
+    assert np.all(change <= bound * (1 + 1e-9) + 1e-12)
+    assert np.all(bound >= 0) and np.all(bound <= 2 * np.sqrt(2 / 3) + 1e-12)
+    np.testing.assert_array_equal(rdoq.free_rotations(x[:, SCALES] * step, 0.3), bound <= 0.3)
+    if spread == 0.0:
+        np.testing.assert_allclose(bound, 0.0, atol=1e-12)  # a sphere: any rotation is free
+
+
+def test_free_rotations_go_to_their_prediction_and_the_others_do_not():
+    """Spheres whose rotation the sensitivities call unseen take the prior's quaternion (residuals
+    0); Gaussians outside free_rotation keep RDOQ's choice, and no quaternion is zero."""
+    rng = np.random.default_rng(13)
+    n, step = 300, 0.05
+    x = _shapes(rng, n, step)
+    x[:, SCALES] = -3 / step
+    coords = np.unique(rng.integers(0, 1000, (n, 3)), axis=0)[:n]
+    x = x[:coords.shape[0]]
+    f = np.full(x.shape, 1.0)
+    f[:, ROTATION] = 1e-4
+    free = rdoq.free_rotations(x[:, SCALES] * step, 0.1)
+    assert free.all()
+    free[1::2] = False
+    plain = rd_quantize(x, f, np.ones(7), coords, None, 5, (SCALES, ROTATION))
+    q = rd_quantize(x, f, np.ones(7), coords, None, 5, (SCALES, ROTATION), free_rotation=free)
+    np.testing.assert_array_equal(q[1::2], plain[1::2])
+    assert np.all(q[:, ROTATION].any(axis=1))
+    snapped = q[::2, ROTATION]
+    assert (snapped == snapped[0]).all(axis=1).mean() > 0.9  # one quaternion: the prior's mean
+    assert _prior_bits(q[:, ROTATION]) < _prior_bits(plain[:, ROTATION])
+
+
+def test_encoder_with_snaps_decodes_to_its_own_reconstruction():
+    """sh_rest_snap and rotation_snap_bound write ordinary streams: the decoder reproduces the
+    encoder's scene (hash checked), and the snaps spend no more bytes where the views see little."""
+    scene = _scene()
+    cfg = GaussianEncoderConfig(position_step=0.3, sh_dc_step=0.15, sh_band_steps=(0.15, 0.15, 0.15), opacity_step=0.5,
+                                scale_step=0.2, rotation_step=0.25)
+    f = np.ones((scene.num_gaussians, 20))
+    f[: scene.num_gaussians // 2, 3:12] = 1e-3  # half the Gaussians' view-dependent colour barely seen
+    base = encode_gaussian_scene(scene, cfg, sensitivity=f)
+    snap_cfg = GaussianEncoderConfig(**{**cfg.__dict__, "sh_rest_snap": True, "rotation_snap_bound": 2.0})
+    snapped = encode_gaussian_scene(scene, snap_cfg, sensitivity=f)
+    dec = decode_stream(snapped.data)
+    assert dec.hash_checked and dec.scene_hash_in_stream == snapped.scene_hash
+    np.testing.assert_array_equal(dec.scene.sh, snapped.decoded.sh)
+    assert len(snapped.data) < len(base.data), (len(base.data), len(snapped.data))
+    with pytest.raises(Exception, match="rotation_snap_bound"):
+        GaussianEncoderConfig(rotation_snap_bound=-1.0).validate()

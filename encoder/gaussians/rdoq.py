@@ -288,17 +288,84 @@ def _half_turned(x: np.ndarray, f: np.ndarray, rotation: slice) -> tuple[np.ndar
     return x, f
 
 
+def _snap_sh_rest(q: np.ndarray, x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarray,
+                  mu: np.ndarray, cols: slice) -> np.ndarray:
+    """``q`` with each row's SH-rest columns ``cols`` set to their prediction ``mean`` (residuals
+    0, the cheapest code) where that costs less in sum_c F (x - q)^2 + mu bits(q - mean) than the
+    values chosen one by one (module doc, 'SH where the views need it'). The colour is linear
+    in the SH coefficients, so F's quadratic form holds for the whole jump (up to the cross terms
+    between coefficients and the renderer's clamp at 0)."""
+    xs, qs, ms, lv, fs, m = x[:, cols], q[:, cols], mean[:, cols], level[:, cols], f[:, cols], mu[:, cols]
+    keep = fs * (xs - qs) ** 2 + m * code_lengths_bits(qs - ms, lv)
+    snap = SH_SNAP_DISTORTION * fs * (xs - ms) ** 2 + m * code_lengths_bits(np.zeros_like(qs), lv)
+    if SH_SNAP_WHOLE:
+        keep, snap = keep.sum(axis=1, keepdims=True), snap.sum(axis=1, keepdims=True)
+    better = snap < keep
+    q = q.copy()
+    q[:, cols] = np.where(better, ms, qs)
+    return q
+
+
+SH_SNAP_WHOLE = False
+SH_SNAP_DISTORTION = 1.0
+
+
+def _direction_error(x: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """float64 [n, 4]: x minus the direction of quaternions ``v`` (either sign, the nearer) at x's
+    length; inf where v is zero (no direction)."""
+    vlen = np.linalg.norm(v, axis=1, keepdims=True)
+    sign = np.where(np.einsum("nc,nc->n", x, v)[:, None] < 0, -1.0, 1.0)
+    err = x - sign * v * (np.linalg.norm(x, axis=1, keepdims=True) / np.maximum(vlen, 1e-300))
+    return np.where(vlen > 0, err, np.inf)
+
+
+def _snap_rotation(q: np.ndarray, x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarray,
+                   mu: np.ndarray, cols: slice, free: np.ndarray) -> np.ndarray:
+    """``q`` with the rotation of each ``free`` row (near-isotropic: ``free_rotations``) set to its
+    prediction where that costs less in F (x - direction)^2 + mu bits than the rotation chosen."""
+    xr, qr, mr, lv, fr, m = x[:, cols], q[:, cols], mean[:, cols], level[:, cols], f[:, cols], mu[:, cols]
+    keep = (fr * _direction_error(xr, qr) ** 2 + m * code_lengths_bits(qr - mr, lv)).sum(axis=1)
+    snap = (fr * _direction_error(xr, mr) ** 2 + m * code_lengths_bits(np.zeros_like(qr), lv)).sum(axis=1)
+    better = free & (snap < keep)
+    if better.any():
+        q = q.copy()
+        q[better, cols] = mr[better]
+    return q
+
+
+def free_rotations(log_scales: np.ndarray, bound: float) -> np.ndarray:
+    """bool [N]: the Gaussians whose covariance R S^2 R^T changes by at most ``bound`` (relative,
+    Frobenius norm) whatever their rotation R: Sigma - s^2 I = R (S^2 - s^2 I) R^T with s^2 the
+    mean of S^2, so any two rotations differ by at most 2 |S^2 - s^2 I| (``rotation_change_bound``)."""
+    return rotation_change_bound(log_scales) <= bound
+
+
+def rotation_change_bound(log_scales: np.ndarray) -> np.ndarray:
+    """float64 [N]: 2 |S^2 - mean(S^2) I|_F / |S^2|_F, the largest relative change of a Gaussian's
+    covariance that any change of its rotation can make (``free_rotations``)."""
+    s2 = np.exp(2 * (np.asarray(log_scales, np.float64) - np.max(log_scales, axis=1, keepdims=True)))
+    return 2 * np.linalg.norm(s2 - s2.mean(axis=1, keepdims=True), axis=1) / np.linalg.norm(s2, axis=1)
+
+
 def _choose_rows(x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarray, mu: np.ndarray,
-                 orientation: tuple[slice, slice] | None, ways: np.ndarray | None = None
+                 orientation: tuple[slice, slice] | None, ways: np.ndarray | None = None,
+                 snaps: tuple[slice | None, np.ndarray | None] = (None, None)
                  ) -> tuple[np.ndarray, np.ndarray | None]:
     """The values chosen for rows ``x`` [n, M] given their coding's means and scale levels: the
     orientation and the rotation's length first (when ``orientation`` names the scale and
-    rotation columns; ``ways`` as _orientation's), then each value. Returns them and the ways."""
+    rotation columns; ``ways`` as _orientation's), then each value, then the SH rest and the
+    rotations of ``snaps`` (rd_quantize) set whole to their prediction where that costs less.
+    Returns them and the ways."""
     way = None
     if orientation is not None:
         scales, rotation = orientation
         x, f, rho, way = _orientation(x, f, mean, level, mu[0], scales, rotation, ways)
     q = _choose(x, np.rint(x).astype(np.int64), mean, level, f, mu)
+    sh_rest, free = snaps
+    if sh_rest is not None:
+        q = _snap_sh_rest(q, x, mean, level, f, mu, sh_rest)
+    if free is not None and orientation is not None:
+        q = _snap_rotation(q, x, mean, level, f, mu, orientation[1], free)
     if orientation is not None:  # never a zero quaternion (it has no direction): the rounded one instead
         zero = ~q[:, rotation].any(axis=1)
         if zero.any():
@@ -310,7 +377,8 @@ def _choose_rows(x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarr
 
 def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray, graph: NeighbourGraph | None,
                 num_buckets: int, orientation: tuple[slice, slice] | None = None,
-                ways: np.ndarray | None = None, adjust: np.ndarray | None = None) -> np.ndarray:
+                ways: np.ndarray | None = None, adjust: np.ndarray | None = None, sh_rest: slice | None = None,
+                free_rotation: np.ndarray | None = None) -> np.ndarray:
     """int64 [N, M]: the values chosen for ``x`` (float [N, M], in steps, rows in coding order)
     with sensitivities ``f`` [N, M] and slopes ``mu`` [M] (module doc). ``graph``: the neighbour
     graph of ``coords`` when neighbour prediction codes the rows (None: the per-channel prior).
@@ -320,7 +388,10 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
     what an earlier call chose), -1 where it is to be chosen; the ways chosen are written into
     it (the settings search keeps them from trial to trial: the choice is most of RDOQ's time).
     ``adjust``: int [N], each row's step-adjustment index (clause 11.8; needs ``graph``): ``x`` is
-    then in the channels' steps and the values chosen are in each row's own."""
+    then in the channels' steps and the values chosen are in each row's own. ``sh_rest``: the SH-rest
+    columns, each row's set whole to their prediction where that costs less (None: value by value
+    only); ``free_rotation``: bool [N], the rows whose rotation may be set to its prediction
+    (``free_rotations``; needs ``orientation``)."""
     if adjust is not None:
         factor = STEP_ADJUST_FACTORS[adjust].astype(np.float64)[:, None]
         x, f = x / factor, f * factor ** 2
@@ -353,7 +424,8 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
                                                        adjust, None if adjust is None else adjust[rows])
             level = np.take_along_axis(table.T, bucket, axis=0)
         q[rows], way = _choose_rows(x[rows], mean, level, f[rows], mu[None, :], orientation,
-                                    None if ways is None else ways[rows])
+                                    None if ways is None else ways[rows],
+                                    (sh_rest, None if free_rotation is None else free_rotation[rows]))
         if ways is not None and way is not None:
             ways[rows] = way
     return q
@@ -386,6 +458,17 @@ def step_adjust_choice(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.
     # (weighing the indices' own bits in, by their marginal over a first choice, changed the bytes by
     # -0.1 to +0.4% on playbot lod4: not done)
     return np.argmin(costs, axis=0).astype(np.int64)  # ties: the finer step
+
+
+def snap_arguments(cfg, layout: GaussianLayout, x: np.ndarray, steps: np.ndarray) -> dict:
+    """rd_quantize's ``sh_rest`` and ``free_rotation`` for values ``x`` [N, M] in the channels'
+    ``steps`` [M] (cfg.sh_rest_snap, cfg.rotation_snap_bound; None where off)."""
+    sh_rest = slice(3, layout.sh_channels) if cfg.sh_rest_snap and layout.sh_channels > 3 else None
+    free = None
+    if cfg.rotation_snap_bound > 0:
+        scales = slice(layout.scale_start, layout.rotation_start)
+        free = free_rotations(x[:, scales] * steps[scales], cfg.rotation_snap_bound)
+    return {"sh_rest": sh_rest, "free_rotation": free}
 
 
 def orientation_columns(layout: GaussianLayout) -> tuple[slice, slice]:
