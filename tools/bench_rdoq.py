@@ -48,7 +48,8 @@ def snap_settings(snap: str) -> dict:
     rdoq.SH_SNAP_WHOLE = "shwhole" in parts
     pen = [p for p in parts if p.startswith("shx")]
     rdoq.SH_SNAP_DISTORTION = float(pen[0][3:]) if pen else 1.0
-    parts = {"sh" if p == "shwhole" or p.startswith("shx") else p for p in parts}
+    rdoq.REFIT_PASSES = 2 if "refit" in parts else 1
+    parts = {"sh" if p == "shwhole" or p.startswith("shx") else p for p in parts} - {"refit"}
     rot = [p for p in parts if p.startswith("rot:")]
     if parts - {"none", "sh"} - set(rot) or len(rot) > 1:
         raise SystemExit(f"--snap: unknown variant {snap!r} (none, sh, shwhole, shxW, rot:B, sh+rot:B)")

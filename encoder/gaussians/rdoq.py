@@ -310,41 +310,48 @@ SH_SNAP_WHOLE = False
 SH_SNAP_DISTORTION = 1.0
 
 
-def _direction_error(x: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """float64 [n, 4]: x minus the direction of quaternions ``v`` (either sign, the nearer) at x's
-    length; inf where v is zero (no direction)."""
-    vlen = np.linalg.norm(v, axis=1, keepdims=True)
-    sign = np.where(np.einsum("nc,nc->n", x, v)[:, None] < 0, -1.0, 1.0)
-    err = x - sign * v * (np.linalg.norm(x, axis=1, keepdims=True) / np.maximum(vlen, 1e-300))
-    return np.where(vlen > 0, err, np.inf)
+def _axial_turn(x: np.ndarray, mean: np.ndarray, axis: np.ndarray, rotation: slice) -> np.ndarray:
+    """``x`` with the quaternion of each row whose Gaussian is symmetric about body ``axis`` (0..2,
+    in the order of its scale columns; -1: none) turned about that axis to the direction nearest
+    its prediction ``mean``: the turns q (cos t, sin t e_a) span the plane of q and q e_a, and the
+    nearest point of that circle to m is m's projection onto the plane (either sign: q and -q are
+    one rotation). The covariance changes by at most ``axial_change_bound``."""
+    rows = np.flatnonzero(axis >= 0)
+    if rows.size == 0:
+        return x
+    q = x[rows, rotation]
+    length = np.linalg.norm(q, axis=1, keepdims=True)
+    u = q / np.maximum(length, 1e-300)
+    p = np.einsum("nij,nj->ni", AXIS_TURNS[1 + axis[rows]], u)  # q e_a: unit, orthogonal to q
+    m = np.asarray(mean[rows, rotation], np.float64)
+    proj = np.einsum("nc,nc->n", m, u)[:, None] * u + np.einsum("nc,nc->n", m, p)[:, None] * p
+    plen = np.linalg.norm(proj, axis=1, keepdims=True)
+    ok = (plen[:, 0] > 0) & (length[:, 0] > 0)
+    x = x.copy()
+    x[rows[ok], rotation] = proj[ok] * (length[ok] / plen[ok])
+    return x
 
 
-def _snap_rotation(q: np.ndarray, x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarray,
-                   mu: np.ndarray, cols: slice, free: np.ndarray) -> np.ndarray:
-    """``q`` with the rotation of each ``free`` row (near-isotropic: ``free_rotations``) set to its
-    prediction where that costs less in F (x - direction)^2 + mu bits than the rotation chosen."""
-    xr, qr, mr, lv, fr, m = x[:, cols], q[:, cols], mean[:, cols], level[:, cols], f[:, cols], mu[:, cols]
-    keep = (fr * _direction_error(xr, qr) ** 2 + m * code_lengths_bits(qr - mr, lv)).sum(axis=1)
-    snap = (fr * _direction_error(xr, mr) ** 2 + m * code_lengths_bits(np.zeros_like(qr), lv)).sum(axis=1)
-    better = free & (snap < keep)
-    if better.any():
-        q = q.copy()
-        q[better, cols] = mr[better]
-    return q
+def axial_change_bound(log_scales: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(int [N] the body axis a of each Gaussian whose two other squared scales are nearest in
+    ratio, float64 [N] sqrt 2 |s_b^2 - s_c^2| / |(s_b^2, s_c^2)|): the largest relative change
+    (Frobenius) that a turn about axis a can make to the b-c block of its covariance, the only
+    part it moves (diag(s_b^2, s_c^2) - s^2 I turned, s^2 their mean, has norm |s_b^2 - s_c^2| /
+    sqrt 2 either way), and so also to the whole covariance. Relative to the pair, not to the
+    largest scale: a needle's cross-section shows, however thin."""
+    ls = np.asarray(log_scales, np.float64)
+    s2 = np.exp(2 * (ls - ls.max(axis=1, keepdims=True)))
+    pairs = ((1, 2), (0, 2), (0, 1))
+    gaps = np.stack([np.abs(s2[:, b] - s2[:, c]) / np.maximum(np.hypot(s2[:, b], s2[:, c]), 1e-300)
+                     for b, c in pairs], 1)
+    axis = np.argmin(gaps, axis=1)
+    return axis, math.sqrt(2) * gaps[np.arange(len(ls)), axis]
 
 
-def free_rotations(log_scales: np.ndarray, bound: float) -> np.ndarray:
-    """bool [N]: the Gaussians whose covariance R S^2 R^T changes by at most ``bound`` (relative,
-    Frobenius norm) whatever their rotation R: Sigma - s^2 I = R (S^2 - s^2 I) R^T with s^2 the
-    mean of S^2, so any two rotations differ by at most 2 |S^2 - s^2 I| (``rotation_change_bound``)."""
-    return rotation_change_bound(log_scales) <= bound
-
-
-def rotation_change_bound(log_scales: np.ndarray) -> np.ndarray:
-    """float64 [N]: 2 |S^2 - mean(S^2) I|_F / |S^2|_F, the largest relative change of a Gaussian's
-    covariance that any change of its rotation can make (``free_rotations``)."""
-    s2 = np.exp(2 * (np.asarray(log_scales, np.float64) - np.max(log_scales, axis=1, keepdims=True)))
-    return 2 * np.linalg.norm(s2 - s2.mean(axis=1, keepdims=True), axis=1) / np.linalg.norm(s2, axis=1)
+def free_axes(log_scales: np.ndarray, bound: float) -> np.ndarray:
+    """int [N]: the axis of ``axial_change_bound`` where its bound is at most ``bound``, else -1."""
+    axis, change = axial_change_bound(log_scales)
+    return np.where(change <= bound, axis, -1)
 
 
 def _choose_rows(x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarray, mu: np.ndarray,
@@ -357,15 +364,17 @@ def _choose_rows(x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarr
     rotations of ``snaps`` (rd_quantize) set whole to their prediction where that costs less.
     Returns them and the ways."""
     way = None
+    sh_rest, axis = snaps
     if orientation is not None:
         scales, rotation = orientation
         x, f, rho, way = _orientation(x, f, mean, level, mu[0], scales, rotation, ways)
+        if axis is not None and way[0] >= 0:  # the axes as the way chosen numbers them
+            inverse = np.argsort(AXIS_TURN_PERMS[way % len(AXIS_TURNS)], axis=1)
+            x = _axial_turn(x, mean, np.where(axis >= 0, inverse[np.arange(len(axis)), np.maximum(axis, 0)], -1),
+                            rotation)
     q = _choose(x, np.rint(x).astype(np.int64), mean, level, f, mu)
-    sh_rest, free = snaps
     if sh_rest is not None:
         q = _snap_sh_rest(q, x, mean, level, f, mu, sh_rest)
-    if free is not None and orientation is not None:
-        q = _snap_rotation(q, x, mean, level, f, mu, orientation[1], free)
     if orientation is not None:  # never a zero quaternion (it has no direction): the rounded one instead
         zero = ~q[:, rotation].any(axis=1)
         if zero.any():
@@ -378,7 +387,7 @@ def _choose_rows(x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarr
 def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray, graph: NeighbourGraph | None,
                 num_buckets: int, orientation: tuple[slice, slice] | None = None,
                 ways: np.ndarray | None = None, adjust: np.ndarray | None = None, sh_rest: slice | None = None,
-                free_rotation: np.ndarray | None = None) -> np.ndarray:
+                free_axis: np.ndarray | None = None) -> np.ndarray:
     """int64 [N, M]: the values chosen for ``x`` (float [N, M], in steps, rows in coding order)
     with sensitivities ``f`` [N, M] and slopes ``mu`` [M] (module doc). ``graph``: the neighbour
     graph of ``coords`` when neighbour prediction codes the rows (None: the per-channel prior).
@@ -390,8 +399,9 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
     ``adjust``: int [N], each row's step-adjustment index (clause 11.8; needs ``graph``): ``x`` is
     then in the channels' steps and the values chosen are in each row's own. ``sh_rest``: the SH-rest
     columns, each row's set whole to their prediction where that costs less (None: value by value
-    only); ``free_rotation``: bool [N], the rows whose rotation may be set to its prediction
-    (``free_rotations``; needs ``orientation``)."""
+    only); ``free_axis``: int [N], the body axis about which each row's Gaussian is symmetric
+    enough that its rotation is turned about it to the one nearest its prediction (``free_axes``;
+    -1: none; needs ``orientation``)."""
     if adjust is not None:
         factor = STEP_ADJUST_FACTORS[adjust].astype(np.float64)[:, None]
         x, f = x / factor, f * factor ** 2
@@ -401,16 +411,43 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
     n, m = q0.shape
     if n == 0:
         return q0
-    if graph is None:  # one LoD coded with the per-channel prior, fitted as the coder fits it
+    if graph is None:  # one LoD coded with the per-channel prior
         graph = NeighbourGraph([np.arange(n)], [None])
-        prior_mean, prior_level = fit_per_channel_prior(q0, np.ones(q0.shape, dtype=bool), n)
-        flags, table = np.zeros(m, dtype=bool), np.zeros((m, num_buckets), dtype=np.int64)
-    else:  # the unit the coder would fit to the rounded values (the graph fixes L and k)
-        nc = NeighbourCoding(q0, coords, len(graph.rows), 1, num_buckets, False, None, graph=graph, adjust=adjust)
-        prior_mean, prior_level = nc.prior_mean, nc.prior_level
-        flags = np.asarray(nc.unit.neighbour_mean_flag, dtype=bool)
-        table = np.asarray(nc.unit.bucket_level, dtype=np.int64).reshape(m, num_buckets)
-    q = q0.copy()
+        prior = True
+    else:
+        prior = False
+    q = q0
+    for _ in range(REFIT_PASSES):
+        fitted = _fitted_coding(q, coords, graph, prior, num_buckets, adjust)
+        q = _choose_lods(x, f, mu, q, graph, fitted, num_buckets, orientation, ways, adjust,
+                         (sh_rest, free_axis))
+    return q
+
+
+# How many times the values are chosen, each time with the coding fitted to the values of the
+# time before (the first: to the rounded values).
+REFIT_PASSES = 1
+
+
+def _fitted_coding(q: np.ndarray, coords: np.ndarray, graph: NeighbourGraph, prior: bool, num_buckets: int,
+                   adjust: np.ndarray | None) -> tuple:
+    """(prior mean, prior level, neighbour-mean flags, bucket level table [M, B]) the coder fits to
+    the values ``q`` (with the per-channel prior where ``prior``)."""
+    n, m = q.shape
+    if prior:
+        prior_mean, prior_level = fit_per_channel_prior(q, np.ones(q.shape, dtype=bool), n)
+        return prior_mean, prior_level, np.zeros(m, dtype=bool), np.zeros((m, num_buckets), dtype=np.int64)
+    nc = NeighbourCoding(q, coords, len(graph.rows), 1, num_buckets, False, None, graph=graph, adjust=adjust)
+    return (nc.prior_mean, nc.prior_level, np.asarray(nc.unit.neighbour_mean_flag, dtype=bool),
+            np.asarray(nc.unit.bucket_level, dtype=np.int64).reshape(m, num_buckets))
+
+
+def _choose_lods(x, f, mu, q_fit, graph, fitted, num_buckets, orientation, ways, adjust, snaps) -> np.ndarray:
+    """The values chosen LoD by LoD (rd_quantize) under the coding ``fitted`` (_fitted_coding)."""
+    prior_mean, prior_level, flags, table = fitted
+    m = q_fit.shape[1]
+    sh_rest, free_axis = snaps
+    q = q_fit.copy()
     for lod, rows in enumerate(graph.rows):
         if rows.size == 0:
             continue
@@ -425,7 +462,7 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
             level = np.take_along_axis(table.T, bucket, axis=0)
         q[rows], way = _choose_rows(x[rows], mean, level, f[rows], mu[None, :], orientation,
                                     None if ways is None else ways[rows],
-                                    (sh_rest, None if free_rotation is None else free_rotation[rows]))
+                                    (sh_rest, None if free_axis is None else free_axis[rows]))
         if ways is not None and way is not None:
             ways[rows] = way
     return q
@@ -461,14 +498,14 @@ def step_adjust_choice(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.
 
 
 def snap_arguments(cfg, layout: GaussianLayout, x: np.ndarray, steps: np.ndarray) -> dict:
-    """rd_quantize's ``sh_rest`` and ``free_rotation`` for values ``x`` [N, M] in the channels'
+    """rd_quantize's ``sh_rest`` and ``free_axis`` for values ``x`` [N, M] in the channels'
     ``steps`` [M] (cfg.sh_rest_snap, cfg.rotation_snap_bound; None where off)."""
     sh_rest = slice(3, layout.sh_channels) if cfg.sh_rest_snap and layout.sh_channels > 3 else None
     free = None
     if cfg.rotation_snap_bound > 0:
         scales = slice(layout.scale_start, layout.rotation_start)
-        free = free_rotations(x[:, scales] * steps[scales], cfg.rotation_snap_bound)
-    return {"sh_rest": sh_rest, "free_rotation": free}
+        free = free_axes(x[:, scales] * steps[scales], cfg.rotation_snap_bound)
+    return {"sh_rest": sh_rest, "free_axis": free}
 
 
 def orientation_columns(layout: GaussianLayout) -> tuple[slice, slice]:

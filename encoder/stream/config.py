@@ -175,9 +175,9 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # set whole to its prediction (residuals 0) where RDOQ's cost says the views do not need it.
     # Needs RDOQ. No syntax: an ordinary stream.
     sh_rest_snap: bool = False
-    # Rotations of near-isotropic Gaussians (encoder/gaussians/rdoq.py free_rotations): set to their
-    # prediction where RDOQ's cost says so, for the Gaussians whose covariance no rotation changes
-    # by more than this (relative, Frobenius norm); 0: off. Needs RDOQ.
+    # Rotations of Gaussians symmetric about an axis (encoder/gaussians/rdoq.py free_axes): turned about
+    # it to the rotation nearest their prediction, where such a turn changes the covariance by at
+    # most this (relative, Frobenius norm); 0: off. Needs RDOQ.
     rotation_snap_bound: float = 0.0
     # Rate-aware preparation (encoder/gaussians/gaussian_fit.py), against renders of the source from
     # fit_views cameras on a sphere around it at fit_resolution pixels:
