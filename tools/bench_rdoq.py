@@ -43,16 +43,11 @@ from lghcc.render.gaussians3dgs import gaussians_from_scene, render_3dgs  # noqa
 
 
 def snap_settings(snap: str) -> dict:
-    """The config fields of one --snap variant (and rdoq's SH_SNAP_WHOLE, SH_SNAP_DISTORTION)."""
+    """The config fields of one --snap variant."""
     parts = set(snap.split("+"))
-    rdoq.SH_SNAP_WHOLE = "shwhole" in parts
-    pen = [p for p in parts if p.startswith("shx")]
-    rdoq.SH_SNAP_DISTORTION = float(pen[0][3:]) if pen else 1.0
-    rdoq.REFIT_PASSES = 2 if "refit" in parts else 1
-    parts = {"sh" if p == "shwhole" or p.startswith("shx") else p for p in parts} - {"refit"}
     rot = [p for p in parts if p.startswith("rot:")]
     if parts - {"none", "sh"} - set(rot) or len(rot) > 1:
-        raise SystemExit(f"--snap: unknown variant {snap!r} (none, sh, shwhole, shxW, rot:B, sh+rot:B)")
+        raise SystemExit(f"--snap: unknown variant {snap!r} (none, sh, rot:B, sh+rot:B)")
     return {"sh_rest_snap": "sh" in parts, "rotation_snap_bound": float(rot[0][4:]) if rot else 0.0}
 
 
@@ -79,9 +74,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="largest step-adjustment indices to measure, comma-separated (format 1.2; default 0: "
                         "every Gaussian at its channels' steps; the presets use 7)")
     p.add_argument("--snap", default="none",
-                   help="whole-block snaps to the prediction to measure, comma-separated: none, sh (SH rest, "
-                        "sh_rest_snap), rot:B (rotations of the Gaussians whose covariance no rotation changes "
-                        "by more than B, rotation_snap_bound), sh+rot:B")
+                   help="RDOQ's snaps to the prediction to measure, comma-separated: none, sh (each Gaussian's SH "
+                        "rest whole, sh_rest_snap), rot:B (rotations turned about an axis of near-symmetry, where "
+                        "that changes the covariance by at most B, rotation_snap_bound), sh+rot:B")
     p.add_argument("--orbit-up", default=None,
                    help="also measure each row on tools/bench_real.py's 12 orbit views at 320 px around this up "
                         "axis (x, y, z, -x, -y, -z): views the sensitivities and the search never saw")

@@ -296,18 +296,13 @@ def _snap_sh_rest(q: np.ndarray, x: np.ndarray, mean: np.ndarray, level: np.ndar
     in the SH coefficients, so F's quadratic form holds for the whole jump (up to the cross terms
     between coefficients and the renderer's clamp at 0)."""
     xs, qs, ms, lv, fs, m = x[:, cols], q[:, cols], mean[:, cols], level[:, cols], f[:, cols], mu[:, cols]
-    keep = fs * (xs - qs) ** 2 + m * code_lengths_bits(qs - ms, lv)
-    snap = SH_SNAP_DISTORTION * fs * (xs - ms) ** 2 + m * code_lengths_bits(np.zeros_like(qs), lv)
-    if SH_SNAP_WHOLE:
-        keep, snap = keep.sum(axis=1, keepdims=True), snap.sum(axis=1, keepdims=True)
+    keep = (fs * (xs - qs) ** 2 + m * code_lengths_bits(qs - ms, lv)).sum(axis=1)
+    snap = (fs * (xs - ms) ** 2 + m * code_lengths_bits(np.zeros_like(qs), lv)).sum(axis=1)
     better = snap < keep
-    q = q.copy()
-    q[:, cols] = np.where(better, ms, qs)
+    if better.any():
+        q = q.copy()
+        q[better, cols] = ms[better]
     return q
-
-
-SH_SNAP_WHOLE = False
-SH_SNAP_DISTORTION = 1.0
 
 
 def _axial_turn(x: np.ndarray, mean: np.ndarray, axis: np.ndarray, rotation: slice) -> np.ndarray:
@@ -416,23 +411,16 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
         prior = True
     else:
         prior = False
-    q = q0
-    for _ in range(REFIT_PASSES):
-        fitted = _fitted_coding(q, coords, graph, prior, num_buckets, adjust)
-        q = _choose_lods(x, f, mu, q, graph, fitted, num_buckets, orientation, ways, adjust,
-                         (sh_rest, free_axis))
-    return q
-
-
-# How many times the values are chosen, each time with the coding fitted to the values of the
-# time before (the first: to the rounded values).
-REFIT_PASSES = 1
+    fitted = _fitted_coding(q0, coords, graph, prior, num_buckets, adjust)
+    return _choose_lods(x, f, mu, q0, graph, fitted, num_buckets, orientation, ways, adjust, (sh_rest, free_axis))
 
 
 def _fitted_coding(q: np.ndarray, coords: np.ndarray, graph: NeighbourGraph, prior: bool, num_buckets: int,
                    adjust: np.ndarray | None) -> tuple:
     """(prior mean, prior level, neighbour-mean flags, bucket level table [M, B]) the coder fits to
-    the values ``q`` (with the per-channel prior where ``prior``)."""
+    the values ``q`` (with the per-channel prior where ``prior``). rd_quantize fits them to the
+    rounded values; fitting them again to the values it chose and choosing once more (twice the
+    time) gave no gain on playbot lod4 (tools/results/sh_rotation_snaps.md)."""
     n, m = q.shape
     if prior:
         prior_mean, prior_level = fit_per_channel_prior(q, np.ones(q.shape, dtype=bool), n)
