@@ -403,14 +403,12 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
     if orientation is not None and x.shape[0] and float(np.max(mu[orientation[1]], initial=0.0)) > 0:
         x, f = _half_turned(x, f, orientation[1])
     q0 = np.rint(x).astype(np.int64)
-    n, m = q0.shape
+    n = q0.shape[0]
     if n == 0:
         return q0
-    if graph is None:  # one LoD coded with the per-channel prior
+    prior = graph is None  # one LoD coded with the per-channel prior
+    if prior:
         graph = NeighbourGraph([np.arange(n)], [None])
-        prior = True
-    else:
-        prior = False
     fitted = _fitted_coding(q0, coords, graph, prior, num_buckets, adjust)
     return _choose_lods(x, f, mu, q0, graph, fitted, num_buckets, orientation, ways, adjust, (sh_rest, free_axis))
 
