@@ -147,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
              "", "| step factor | RDOQ weight | step adjustment up to | snap | PSNR dB (search views) | "
              + ("PSNR dB (orbit, 320 px) | " if orbit_search else "") + "bytes | bytes / rounding at this factor | bits per Gaussian: SH rest, DC, opacity, scales, rotation, "
              "geometry; SH rest if every residual were 0 |",
-             "|---:|---:|---:|---|---:|---:|---:|---|" + ("---:|" if orbit_search else "")]
+             "|---:|---:|---:|---|---:|" + ("---:|" if orbit_search else "") + "---:|---:|---|"]
     for fac in (float(x) for x in args.factors.split(",")):
         ref = None
         for w in (float(x) for x in args.weights.split(",")):

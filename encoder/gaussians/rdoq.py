@@ -51,6 +51,14 @@ one precision; this is a per-Gaussian precision, which the pictures call for whe
 barely seen (a uniform quantizer's best step goes as F^(-1/2)). The values are then chosen as
 above in each Gaussian's own steps (x divided by its factor, F multiplied by its square).
 
+Two choices go beyond one step, each off by default (config.py sh_rest_snap, rotation_snap_bound):
+a Gaussian's SH rest set whole to its prediction where the sum of the cost over its values falls,
+and a Gaussian symmetric about a body axis turned about it to the quaternion nearest its
+prediction, where that turn changes its covariance by at most the bound. Neither changed the bytes
+at equal PSNR on playbot lod4 (tools/results/sh_rotation_snaps.md): a residual 0 still costs what
+its level says (38.5 of 56.3 SH-rest bits per Gaussian at low), few Gaussians are symmetric, and
+F, a derivative, underrates long jumps on views it was not measured on.
+
 The means of a finer LoD depend on the values chosen for the coarser ones, so the LoDs are
 chosen in coding order. The scale levels are those fitted to the rounded values (the coder
 fits its own to the values chosen). Cross-channel prediction is left out of the costs.
