@@ -56,7 +56,7 @@ a Gaussian's SH rest set whole to its prediction where the sum of the cost over 
 and a Gaussian symmetric about a body axis turned about it to the quaternion nearest its
 prediction, where that turn changes its covariance by at most the bound. Neither changed the bytes
 at equal PSNR on playbot lod4 (tools/results/sh_rotation_snaps.md): a residual 0 still costs what
-its level says (38.5 of 56.3 SH-rest bits per Gaussian at low), few Gaussians are symmetric, and
+its level says (12.3 of 24.4 SH-rest bits per Gaussian at low), few Gaussians are symmetric, and
 F, a derivative, underrates long jumps on views it was not measured on.
 
 The means of a finer LoD depend on the values chosen for the coarser ones, so the LoDs are

@@ -249,7 +249,8 @@ class GaussianEncoderConfig(AttributeCodingConfig):
                 or not 0 < self.step_adjust_quantile <= 1:
             raise InputError(f"step_adjust_max must be an integer in [0, 7] and step_adjust_quantile in (0, 1], got "
                              f"{self.step_adjust_max!r}, {self.step_adjust_quantile!r}")
-        if not isinstance(self.sh_rest_snap, bool) or not 0 <= self.rotation_snap_bound <= 2:
+        if not isinstance(self.sh_rest_snap, bool) or not isinstance(self.rotation_snap_bound, (int, float)) \
+                or not 0 <= self.rotation_snap_bound <= 2:
             raise InputError(f"sh_rest_snap must be true or false and rotation_snap_bound in [0, 2], got "
                              f"{self.sh_rest_snap!r}, {self.rotation_snap_bound!r}")
         if self.sh_degree is not None and self.sh_degree not in (0, 1, 2, 3):
