@@ -71,15 +71,6 @@ def record_parts(search: SettingsSearch) -> dict:
     return parts
 
 
-def snap_settings(snap: str) -> dict:
-    """The config fields of one --snap variant."""
-    parts = set(snap.split("+"))
-    rot = [p for p in parts if p.startswith("rot:")]
-    if parts - {"none", "sh"} - set(rot) or len(rot) > 1:
-        raise SystemExit(f"--snap: unknown variant {snap!r} (none, sh, rot:B, sh+rot:B)")
-    return {"sh_rest_snap": "sh" in parts, "rotation_snap_bound": float(rot[0][4:]) if rot else 0.0}
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("scene", help="a 3DGS PLY")
@@ -102,10 +93,6 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--step-adjust", default="0",
                    help="largest step-adjustment indices to measure, comma-separated (format 1.2; default 0: "
                         "every Gaussian at its channels' steps; the presets use 7)")
-    p.add_argument("--snap", default="none",
-                   help="RDOQ's snaps to the prediction to measure, comma-separated: none, sh (each Gaussian's SH "
-                        "rest whole, sh_rest_snap), rot:B (rotations turned about an axis of near-symmetry, where "
-                        "that changes the covariance by at most B, rotation_snap_bound), sh+rot:B")
     p.add_argument("--orbit-up", default=None,
                    help="also measure each row on tools/bench_real.py's 12 orbit views at 320 px around this up "
                         "axis (x, y, z, -x, -y, -z): views the sensitivities and the search never saw")
@@ -144,27 +131,26 @@ def main(argv: list[str] | None = None) -> int:
              f"({len(cams)} views, {args.probes} probes each) in {t_sens:.1f} s; values moved at most "
              f"{args.max_jump} step(s); rotation lengths {args.rotation_lengths}; {args.turn_candidates} turn "
              "candidates.",
-             "", "| step factor | RDOQ weight | step adjustment up to | snap | PSNR dB (search views) | "
+             "", "| step factor | RDOQ weight | step adjustment up to | PSNR dB (search views) | "
              + ("PSNR dB (orbit, 320 px) | " if orbit_search else "") + "bytes | bytes / rounding at this factor | bits per Gaussian: SH rest, DC, opacity, scales, rotation, "
              "geometry; SH rest if every residual were 0 |",
-             "|---:|---:|---:|---|---:|" + ("---:|" if orbit_search else "") + "---:|---:|---|"]
+             "|---:|---:|---:|---:|" + ("---:|" if orbit_search else "") + "---:|---:|---|"]
     for fac in (float(x) for x in args.factors.split(",")):
         ref = None
         for w in (float(x) for x in args.weights.split(",")):
-            for top, snap in ((int(x), sn) for x in args.step_adjust.split(",") for sn in args.snap.split(",")):
-                if w == 0 and (top or snap != "none"):
-                    continue  # step adjustment and the snaps are chosen with RDOQ's costs
+            for top in (int(x) for x in args.step_adjust.split(",")):
+                if w == 0 and top:
+                    continue  # step adjustment is chosen with RDOQ's costs
                 if not args.keep_ways:
                     s.ways[:] = -1  # each Gaussian's way chosen afresh at these steps, as the coding chooses it
-                trial_cfg = dataclasses.replace(_scaled(cfg, groups, fac), rd_quantization=w, step_adjust_max=top,
-                                                **snap_settings(snap))
+                trial_cfg = dataclasses.replace(_scaled(cfg, groups, fac), rd_quantization=w, step_adjust_max=top)
                 t = s.evaluate(trial_cfg)
                 ref = ref or t.bits
                 seen = ""
                 if orbit_search is not None:
                     orbit_search.ways[:] = s.ways  # the same values, rendered from the orbit
                     seen = f"{-10 * math.log10(max(orbit_search.evaluate(trial_cfg).mse, 1e-12)):.2f} | "
-                lines.append(f"| {fac:g} | {w:g} | {top} | {snap} | {-10 * math.log10(max(t.mse, 1e-12)):.2f} | {seen}"
+                lines.append(f"| {fac:g} | {w:g} | {top} | {-10 * math.log10(max(t.mse, 1e-12)):.2f} | {seen}"
                              f"{t.bits / 8:,.0f} | {t.bits / ref:.3f} | "
                              f"{', '.join(f'{v:.1f}' for v in parts.values()) if parts else '-'} |")
                 print(lines[-1], flush=True)

@@ -48,7 +48,7 @@ from .gaussian_grid import choose_grid, coded_values, snap_to_grid
 from .gaussian_views import prune_by_contribution, resolving_views
 from ..stream.neighbour_coding import NeighbourCoding, usable as neighbour_usable
 from .rdoq import (adjust_on_graph, channel_groups, channel_steps, group_slopes, orientation_columns, rd_quantize,
-                   sh_degree_subset, snap_arguments)
+                   sh_degree_subset)
 from ...render.gaussians3dgs import Gaussians3DGS, gaussians_from_scene, render_3dgs
 from ...render.rasterizer import rasterize
 from ...render.sh import sh_to_rgb
@@ -263,9 +263,8 @@ class SettingsSearch:
             mu = group_slopes(f, channel_groups(degree), cfg.rd_quantization)
             rows = np.flatnonzero(keep)[order]  # the scene's Gaussians in coding order
             ways = self.ways[rows]
-            snaps = snap_arguments(cfg, layout, x[order], steps)
             q[order] = rd_quantize(x[order], f[order], mu, grid.coords[order], graph, cfg.prediction_buckets,
-                                   orientation_columns(layout), ways, None if adjust is None else adjust[order], **snaps)
+                                   orientation_columns(layout), ways, None if adjust is None else adjust[order])
             self.ways[rows] = ways
         prior_bits = 0.0
         for c in range(q.shape[1]):

@@ -101,8 +101,7 @@ def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: Lev
     quantization chooses (encoder/gaussians/rdoq.py; ``sensitivity`` rows in coding order), which the
     coder's rounding then reproduces exactly. The choice uses the whole scene's neighbour
     graph, also where tiles code their own."""
-    from .rdoq import (adjust_on_graph, channel_groups, group_slopes, orientation_columns, rd_quantize, sh_degree_subset,
-                       snap_arguments)
+    from .rdoq import adjust_on_graph, channel_groups, group_slopes, orientation_columns, rd_quantize, sh_degree_subset
 
     degree = inp.layout.sh_degree
     f = sh_degree_subset(sensitivity, degree)
@@ -114,8 +113,7 @@ def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: Lev
     if graph is not None and cfg.step_adjust_max > 0:
         adjust = adjust_on_graph(x, f, degree, inp.coords, np.arange(x.shape[0]), graph, cfg)
     q = rd_quantize(x, f, group_slopes(f, channel_groups(degree), cfg.rd_quantization), inp.coords, graph,
-                    cfg.prediction_buckets, orientation_columns(inp.layout), adjust=adjust,
-                    **snap_arguments(cfg, inp.layout, x, inp.steps.astype(np.float64)))
+                    cfg.prediction_buckets, orientation_columns(inp.layout), adjust=adjust)
     steps = inp.steps.astype(np.float64) if adjust is None else \
         attr.effective_steps(inp.steps, adjust[:, None]).astype(np.float64)
     return dataclasses.replace(inp, values=q * steps, step_adjust=adjust)

@@ -51,13 +51,12 @@ one precision; this is a per-Gaussian precision, which the pictures call for whe
 barely seen (a uniform quantizer's best step goes as F^(-1/2)). The values are then chosen as
 above in each Gaussian's own steps (x divided by its factor, F multiplied by its square).
 
-Two choices go beyond one step, each off by default (config.py sh_rest_snap, rotation_snap_bound):
-a Gaussian's SH rest set whole to its prediction where the sum of the cost over its values falls,
-and a Gaussian symmetric about a body axis turned about it to the quaternion nearest its
-prediction, where that turn changes its covariance by at most the bound. Neither changed the bytes
-at equal PSNR on playbot lod4 (tools/results/sh_rotation_snaps.md): a residual 0 still costs what
-its level says (12.3 of 24.4 SH-rest bits per Gaussian at low), few Gaussians are symmetric, and
-F, a derivative, underrates long jumps on views it was not measured on.
+Measured and left out (tools/results/sh_rotation_snaps.md; the code is at commit 91a5d73): a
+Gaussian's SH rest set whole to its prediction, and a Gaussian symmetric about a body axis
+turned about it towards its predicted rotation, each where RDOQ's cost falls. Neither changed
+the bytes at equal PSNR on playbot lod4: a residual 0 still costs what its level says (12.3 of
+24.4 SH-rest bits per Gaussian at low), few Gaussians are symmetric, and F, a derivative,
+underrates long jumps on views it was not measured on.
 
 The means of a finer LoD depend on the values chosen for the coarser ones, so the LoDs are
 chosen in coding order. The scale levels are those fitted to the rounded values (the coder
@@ -296,88 +295,17 @@ def _half_turned(x: np.ndarray, f: np.ndarray, rotation: slice) -> tuple[np.ndar
     return x, f
 
 
-def _snap_sh_rest(q: np.ndarray, x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarray,
-                  mu: np.ndarray, cols: slice) -> np.ndarray:
-    """``q`` with each row's SH-rest columns ``cols`` set to their prediction ``mean`` (residuals
-    0, the cheapest code) where that costs less in sum_c F (x - q)^2 + mu bits(q - mean) than the
-    values chosen one by one (module doc, 'SH where the views need it'). The colour is linear
-    in the SH coefficients, so F's quadratic form holds for the whole jump (up to the cross terms
-    between coefficients and the renderer's clamp at 0)."""
-    xs, qs, ms, lv, fs, m = x[:, cols], q[:, cols], mean[:, cols], level[:, cols], f[:, cols], mu[:, cols]
-    keep = (fs * (xs - qs) ** 2 + m * code_lengths_bits(qs - ms, lv)).sum(axis=1)
-    snap = (fs * (xs - ms) ** 2 + m * code_lengths_bits(np.zeros_like(qs), lv)).sum(axis=1)
-    better = snap < keep
-    if better.any():
-        q = q.copy()
-        q[better, cols] = ms[better]
-    return q
-
-
-def _axial_turn(x: np.ndarray, mean: np.ndarray, axis: np.ndarray, rotation: slice) -> np.ndarray:
-    """``x`` with the quaternion of each row whose Gaussian is symmetric about body ``axis`` (0..2,
-    in the order of its scale columns; -1: none) turned about that axis to the direction nearest
-    its prediction ``mean``: the turns q (cos t, sin t e_a) span the plane of q and q e_a, and the
-    nearest point of that circle to m is m's projection onto the plane (either sign: q and -q are
-    one rotation). The covariance changes by at most ``axial_change_bound``."""
-    rows = np.flatnonzero(axis >= 0)
-    if rows.size == 0:
-        return x
-    q = x[rows, rotation]
-    length = np.linalg.norm(q, axis=1, keepdims=True)
-    u = q / np.maximum(length, 1e-300)
-    p = np.einsum("nij,nj->ni", AXIS_TURNS[1 + axis[rows]], u)  # q e_a: unit, orthogonal to q
-    m = np.asarray(mean[rows, rotation], np.float64)
-    proj = np.einsum("nc,nc->n", m, u)[:, None] * u + np.einsum("nc,nc->n", m, p)[:, None] * p
-    plen = np.linalg.norm(proj, axis=1, keepdims=True)
-    ok = (plen[:, 0] > 0) & (length[:, 0] > 0)
-    x = x.copy()
-    x[rows[ok], rotation] = proj[ok] * (length[ok] / plen[ok])
-    return x
-
-
-def axial_change_bound(log_scales: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(int [N] the body axis a of each Gaussian whose two other squared scales are nearest in
-    ratio, float64 [N] sqrt 2 |s_b^2 - s_c^2| / |(s_b^2, s_c^2)|): the largest relative change
-    (Frobenius) that a turn about axis a can make to the b-c block of its covariance, the only
-    part it moves (diag(s_b^2, s_c^2) - s^2 I turned, s^2 their mean, has norm |s_b^2 - s_c^2| /
-    sqrt 2 either way), and so also to the whole covariance. Relative to the pair, not to the
-    largest scale: a needle's cross-section shows, however thin."""
-    ls = np.asarray(log_scales, np.float64)
-    s2 = np.exp(2 * (ls - ls.max(axis=1, keepdims=True)))
-    pairs = ((1, 2), (0, 2), (0, 1))
-    gaps = np.stack([np.abs(s2[:, b] - s2[:, c]) / np.maximum(np.hypot(s2[:, b], s2[:, c]), 1e-300)
-                     for b, c in pairs], 1)
-    axis = np.argmin(gaps, axis=1)
-    return axis, math.sqrt(2) * gaps[np.arange(len(ls)), axis]
-
-
-def free_axes(log_scales: np.ndarray, bound: float) -> np.ndarray:
-    """int [N]: the axis of ``axial_change_bound`` where its bound is at most ``bound``, else -1."""
-    axis, change = axial_change_bound(log_scales)
-    return np.where(change <= bound, axis, -1)
-
-
 def _choose_rows(x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarray, mu: np.ndarray,
-                 orientation: tuple[slice, slice] | None, ways: np.ndarray | None = None,
-                 snaps: tuple[slice | None, np.ndarray | None] = (None, None)
+                 orientation: tuple[slice, slice] | None, ways: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray | None]:
     """The values chosen for rows ``x`` [n, M] given their coding's means and scale levels: the
     orientation and the rotation's length first (when ``orientation`` names the scale and
-    rotation columns; ``ways`` as _orientation's), then each value, then the SH rest and the
-    rotations of ``snaps`` (rd_quantize) set whole to their prediction where that costs less.
-    Returns them and the ways."""
+    rotation columns; ``ways`` as _orientation's), then each value. Returns them and the ways."""
     way = None
-    sh_rest, axis = snaps
     if orientation is not None:
         scales, rotation = orientation
         x, f, rho, way = _orientation(x, f, mean, level, mu[0], scales, rotation, ways)
-        if axis is not None and way[0] >= 0:  # the axes as the way chosen numbers them
-            inverse = np.argsort(AXIS_TURN_PERMS[way % len(AXIS_TURNS)], axis=1)
-            x = _axial_turn(x, mean, np.where(axis >= 0, inverse[np.arange(len(axis)), np.maximum(axis, 0)], -1),
-                            rotation)
     q = _choose(x, np.rint(x).astype(np.int64), mean, level, f, mu)
-    if sh_rest is not None:
-        q = _snap_sh_rest(q, x, mean, level, f, mu, sh_rest)
     if orientation is not None:  # never a zero quaternion (it has no direction): the rounded one instead
         zero = ~q[:, rotation].any(axis=1)
         if zero.any():
@@ -389,8 +317,7 @@ def _choose_rows(x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarr
 
 def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray, graph: NeighbourGraph | None,
                 num_buckets: int, orientation: tuple[slice, slice] | None = None,
-                ways: np.ndarray | None = None, adjust: np.ndarray | None = None, sh_rest: slice | None = None,
-                free_axis: np.ndarray | None = None) -> np.ndarray:
+                ways: np.ndarray | None = None, adjust: np.ndarray | None = None) -> np.ndarray:
     """int64 [N, M]: the values chosen for ``x`` (float [N, M], in steps, rows in coding order)
     with sensitivities ``f`` [N, M] and slopes ``mu`` [M] (module doc). ``graph``: the neighbour
     graph of ``coords`` when neighbour prediction codes the rows (None: the per-channel prior).
@@ -400,48 +327,26 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
     what an earlier call chose), -1 where it is to be chosen; the ways chosen are written into
     it (the settings search keeps them from trial to trial: the choice is most of RDOQ's time).
     ``adjust``: int [N], each row's step-adjustment index (clause 11.8; needs ``graph``): ``x`` is
-    then in the channels' steps and the values chosen are in each row's own. ``sh_rest``: the SH-rest
-    columns, each row's set whole to their prediction where that costs less (None: value by value
-    only); ``free_axis``: int [N], the body axis about which each row's Gaussian is symmetric
-    enough that its rotation is turned about it to the one nearest its prediction (``free_axes``;
-    -1: none; needs ``orientation``)."""
+    then in the channels' steps and the values chosen are in each row's own."""
     if adjust is not None:
         factor = STEP_ADJUST_FACTORS[adjust].astype(np.float64)[:, None]
         x, f = x / factor, f * factor ** 2
     if orientation is not None and x.shape[0] and float(np.max(mu[orientation[1]], initial=0.0)) > 0:
         x, f = _half_turned(x, f, orientation[1])
     q0 = np.rint(x).astype(np.int64)
-    n = q0.shape[0]
+    n, m = q0.shape
     if n == 0:
         return q0
-    prior = graph is None  # one LoD coded with the per-channel prior
-    if prior:
+    if graph is None:  # one LoD coded with the per-channel prior, fitted as the coder fits it
         graph = NeighbourGraph([np.arange(n)], [None])
-    fitted = _fitted_coding(q0, coords, graph, prior, num_buckets, adjust)
-    return _choose_lods(x, f, mu, q0, graph, fitted, num_buckets, orientation, ways, adjust, (sh_rest, free_axis))
-
-
-def _fitted_coding(q: np.ndarray, coords: np.ndarray, graph: NeighbourGraph, prior: bool, num_buckets: int,
-                   adjust: np.ndarray | None) -> tuple:
-    """(prior mean, prior level, neighbour-mean flags, bucket level table [M, B]) the coder fits to
-    the values ``q`` (with the per-channel prior where ``prior``). rd_quantize fits them to the
-    rounded values; fitting them again to the values it chose and choosing once more (twice the
-    time) gave no gain on playbot lod4 (tools/results/sh_rotation_snaps.md)."""
-    n, m = q.shape
-    if prior:
-        prior_mean, prior_level = fit_per_channel_prior(q, np.ones(q.shape, dtype=bool), n)
-        return prior_mean, prior_level, np.zeros(m, dtype=bool), np.zeros((m, num_buckets), dtype=np.int64)
-    nc = NeighbourCoding(q, coords, len(graph.rows), 1, num_buckets, False, None, graph=graph, adjust=adjust)
-    return (nc.prior_mean, nc.prior_level, np.asarray(nc.unit.neighbour_mean_flag, dtype=bool),
-            np.asarray(nc.unit.bucket_level, dtype=np.int64).reshape(m, num_buckets))
-
-
-def _choose_lods(x, f, mu, q_fit, graph, fitted, num_buckets, orientation, ways, adjust, snaps) -> np.ndarray:
-    """The values chosen LoD by LoD (rd_quantize) under the coding ``fitted`` (_fitted_coding)."""
-    prior_mean, prior_level, flags, table = fitted
-    m = q_fit.shape[1]
-    sh_rest, free_axis = snaps
-    q = q_fit.copy()
+        prior_mean, prior_level = fit_per_channel_prior(q0, np.ones(q0.shape, dtype=bool), n)
+        flags, table = np.zeros(m, dtype=bool), np.zeros((m, num_buckets), dtype=np.int64)
+    else:  # the unit the coder would fit to the rounded values (the graph fixes L and k)
+        nc = NeighbourCoding(q0, coords, len(graph.rows), 1, num_buckets, False, None, graph=graph, adjust=adjust)
+        prior_mean, prior_level = nc.prior_mean, nc.prior_level
+        flags = np.asarray(nc.unit.neighbour_mean_flag, dtype=bool)
+        table = np.asarray(nc.unit.bucket_level, dtype=np.int64).reshape(m, num_buckets)
+    q = q0.copy()
     for lod, rows in enumerate(graph.rows):
         if rows.size == 0:
             continue
@@ -455,8 +360,7 @@ def _choose_lods(x, f, mu, q_fit, graph, fitted, num_buckets, orientation, ways,
                                                        adjust, None if adjust is None else adjust[rows])
             level = np.take_along_axis(table.T, bucket, axis=0)
         q[rows], way = _choose_rows(x[rows], mean, level, f[rows], mu[None, :], orientation,
-                                    None if ways is None else ways[rows],
-                                    (sh_rest, None if free_axis is None else free_axis[rows]))
+                                    None if ways is None else ways[rows])
         if ways is not None and way is not None:
             ways[rows] = way
     return q
@@ -489,17 +393,6 @@ def step_adjust_choice(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.
     # (weighing the indices' own bits in, by their marginal over a first choice, changed the bytes by
     # -0.1 to +0.4% on playbot lod4: not done)
     return np.argmin(costs, axis=0).astype(np.int64)  # ties: the finer step
-
-
-def snap_arguments(cfg, layout: GaussianLayout, x: np.ndarray, steps: np.ndarray) -> dict:
-    """rd_quantize's ``sh_rest`` and ``free_axis`` for values ``x`` [N, M] in the channels'
-    ``steps`` [M] (cfg.sh_rest_snap, cfg.rotation_snap_bound; None where off)."""
-    sh_rest = slice(3, layout.sh_channels) if cfg.sh_rest_snap and layout.sh_channels > 3 else None
-    free = None
-    if cfg.rotation_snap_bound > 0:
-        scales = slice(layout.scale_start, layout.rotation_start)
-        free = free_axes(x[:, scales] * steps[scales], cfg.rotation_snap_bound)
-    return {"sh_rest": sh_rest, "free_axis": free}
 
 
 def orientation_columns(layout: GaussianLayout) -> tuple[slice, slice]:

@@ -171,14 +171,6 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # Needs the sensitivities and neighbour prediction (0: off).
     step_adjust_max: int = 0
     step_adjust_quantile: float = 0.9
-    # SH where the views need it (encoder/gaussians/rdoq.py _snap_sh_rest): each Gaussian's SH rest
-    # set whole to its prediction (residuals 0) where RDOQ's cost says the views do not need it.
-    # Needs RDOQ. No syntax: an ordinary stream.
-    sh_rest_snap: bool = False
-    # Rotations of Gaussians symmetric about an axis (encoder/gaussians/rdoq.py free_axes): turned about
-    # it to the rotation nearest their prediction, where such a turn changes the covariance by at
-    # most this (relative, Frobenius norm); 0: off. Needs RDOQ.
-    rotation_snap_bound: float = 0.0
     # Rate-aware preparation (encoder/gaussians/gaussian_fit.py), against renders of the source from
     # fit_views cameras on a sphere around it at fit_resolution pixels:
     fit_views: int = 24
@@ -249,10 +241,6 @@ class GaussianEncoderConfig(AttributeCodingConfig):
                 or not 0 < self.step_adjust_quantile <= 1:
             raise InputError(f"step_adjust_max must be an integer in [0, 7] and step_adjust_quantile in (0, 1], got "
                              f"{self.step_adjust_max!r}, {self.step_adjust_quantile!r}")
-        if not isinstance(self.sh_rest_snap, bool) or not isinstance(self.rotation_snap_bound, (int, float)) \
-                or not 0 <= self.rotation_snap_bound <= 2:
-            raise InputError(f"sh_rest_snap must be true or false and rotation_snap_bound in [0, 2], got "
-                             f"{self.sh_rest_snap!r}, {self.rotation_snap_bound!r}")
         if self.sh_degree is not None and self.sh_degree not in (0, 1, 2, 3):
             raise InputError(f"sh_degree must be 0..3 or None, got {self.sh_degree!r}")
         if not 0 <= self.prune_share < 1:
