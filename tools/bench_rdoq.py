@@ -33,6 +33,7 @@ from benchutil import command_line, load_average, write_lines  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from lghcc.common.attributes import GaussianLayout  # noqa: E402
 from lghcc.encoder.stream.config import load_config  # noqa: E402
 from lghcc.encoder.gaussians.gaussian_fit import measure_contributions  # noqa: E402
 from lghcc.encoder.gaussians.gaussian_views import fit_cameras, resolving_views  # noqa: E402
@@ -55,7 +56,8 @@ def record_parts(search: SettingsSearch) -> dict:
 
     def attribute_bits(key, grid, q, prior_bits, adjust=None):
         order, graph = search._graph(key, grid)
-        n, sh = q.shape[0], q.shape[1] - 8
+        n, layout = q.shape[0], GaussianLayout(search.scene.sh_degree)
+        sh, rot = layout.opacity_channel, layout.rotation_start
         if graph is not None:
             nc = NeighbourCoding(q[order], grid.coords[order], search.cfg.prediction_lods,
                                  search.cfg.prediction_neighbours, search.cfg.prediction_buckets, False, None,
@@ -63,7 +65,7 @@ def record_parts(search: SettingsSearch) -> dict:
             bits = code_lengths_bits(nc.residuals, nc.levels).sum(axis=0) / n
             zeros = code_lengths_bits(np.zeros_like(nc.residuals[:, 3:sh]), nc.levels[:, 3:sh]).sum() / n
             parts.update({"SH rest": bits[3:sh].sum(), "DC": bits[:3].sum(), "opacity": bits[sh],
-                          "scales": bits[sh + 1:sh + 4].sum(), "rotation": bits[sh + 4:].sum(),
+                          "scales": bits[layout.scale_start:rot].sum(), "rotation": bits[rot:].sum(),
                           "geometry": search._grid(*key)[2] / n, "SH rest if every residual were 0": zeros})
         return inner(key, grid, q, prior_bits, adjust)
 
