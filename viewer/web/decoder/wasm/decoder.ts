@@ -690,69 +690,139 @@ function decodeEscapes(lv: usize, n: i32, out: usize, wide: usize, esc: usize, n
     }
 }
 
-// ---------------------------------------------------------------- neighbour prediction parameters (11.7.3, 11.8)
+// ---------------------------------------------------------------- attribute chunks (11.3-11.8)
+
+// The tile's attribute parameters (attributeTile): q (i64 [n * M], the values decoded so far), the rows'
+// step-adjustment indices adj (u8 [n]), the fixed-point factors fix (i32 [8]) and level shifts shift
+// (i32 [8]) of 11.8 when sa, the neighbour_mean_flag (u8 [M]) and bucket_level (u8 [M * B]) of
+// 11.7.3, the prior (f64 [M] means, u8 [M] levels) and the predictions of 11.6 grouped by target
+// (pStart i32 [M + 1]; pSrc, pW i32 per prediction).
+let aQ: usize = 0; let aM: i32 = 0; let aAdj: usize = 0; let aSa: i32 = 0; let aFix: usize = 0; let aShift: usize = 0;
+let aMeanFlag: usize = 0; let aBucket: usize = 0; let aB: i32 = 1; let aPrior: usize = 0; let aPriorLevel: usize = 0;
+let aPStart: usize = 0; let aPSrc: usize = 0; let aPW: usize = 0;
+
+export function attributeTile(q: usize, M: i32, adj: usize, sa: i32, fix: usize, shift: usize, meanFlag: usize, bucket: usize, B: i32,
+    prior: usize, priorLevel: usize, pStart: usize, pSrc: usize, pW: usize): void {
+    aQ = q; aM = M; aAdj = adj; aSa = sa; aFix = fix; aShift = shift; aMeanFlag = meanFlag; aBucket = bucket; aB = B;
+    aPrior = prior; aPriorLevel = priorLevel; aPStart = pStart; aPSrc = pSrc; aPW = pW;
+}
+
+const ERR_Q_LIMIT: i32 = 11;   // |q| > 2^40 (11.6, E51; errA the row, errB the channel, errorWide() q)
+const ERR_NOT_FINITE: i32 = 12; // a reconstructed value not finite (11.5, E52; errA the row, errB the channel)
+const Q_LIMIT: i64 = 0x10000000000; // 2^40
 
 @inline function floorDivI(a: i64, b: i64): i64 { // b > 0
     const d = a / b;
     return (a % b != 0 && a < 0) ? d - 1 : d;
 }
 
-@inline function floorDivF(a: f64, b: f64): f64 { // tables.mjs's floorDiv on exact binary64 integers (the prior's mean)
-    let m = Math.floor(a / b);
-    if (m * b > a) m--; else if ((m + 1) * b <= a) m++;
-    return m;
-}
+@inline function i64At(p: usize, i: i32): i64 { return load<i64>(p + (<usize>i << 3)); }
+@inline function setI64(p: usize, i: i32, v: i64): void { store<i64>(p + (<usize>i << 3), v); }
 
-/** The prior's mean of channel c (11.3), scaled by the row's step adjustment F (11.8) when sa. */
-@inline function priorMean(prior: usize, c: i32, sa: i32, F: i64): f64 {
-    const p = load<f64>(prior + (<usize>c << 3));
-    return sa ? floorDivF(p * 4096 + <f64>(F >> 1), <f64>F) : p;
+/** The prior's mean of channel c (11.3; |prior_mean| < 2^31), scaled by the row's step adjustment F (11.8) when sa. */
+@inline function priorMean(c: i32, F: i64): i64 {
+    const p = <i64>load<f64>(aPrior + (<usize>c << 3));
+    return aSa ? floorDivI(p * 4096 + (F >> 1), F) : p;
 }
 
 /**
- * The mean and level of every channel of nr rows (11.3, 11.7.3; step-adjusted, 11.8, when sa):
- * row rows[r] has cnt[r] neighbours idx[r * k ..] (none: the prior's mean and level); q (f64 [*, M],
- * integers with |q| <= 2^40) the values decoded so far, adj (u8) the rows' step-adjustment
- * indices, fix (i32 [8]) their fixed-point factors F and shift (i32 [8]) their level shifts;
- * meanFlag (u8 [M]), bucket (u8 [M * B]) the bucket levels, prior (f64 [M]) and priorLevel (u8 [M]).
- * Sums of up to 32 q F stay below 2^59: exact in i64. Results to mean (f64 [nr * M]) and level (u8 [nr * M]).
+ * Chunk of nr rows (rows: i32 [nr]) with symbol data of nbytes at p: the rows' means and levels
+ * (11.3, 11.7.3, 11.8; row r has cnt[r] neighbours idx[r * k ..], none: the prior's), the symbols
+ * (10.7) and the values q (11.6) into the tile's q. Returns the number of escapes.
  */
-export function rowMeans(q: usize, M: i32, rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, adj: usize, sa: i32, fix: usize,
-    shift: usize, meanFlag: usize, bucket: usize, B: i32, prior: usize, priorLevel: usize, mean: usize, level: usize): void {
+export function attributeChunk(p: usize, nbytes: i32, rows: usize, nr: i32, idx: usize, cnt: usize, k: i32): i32 {
     err = 0;
-    const sum = alloc(M << 3), mx = alloc(M << 3), mn = alloc(M << 3);
+    const M = aM, n = nr * M;
+    const mean = alloc(n << 3), level = alloc(n), res = alloc(n << 3), wide = alloc(n << 3);
+    rowMeans(rows, nr, idx, cnt, k, mean, level);
+    const nesc = decodeSymbols(p, nbytes, level, n, res, wide);
+    for (let r = 0; r < nr; r++) rowValues(i32At(rows, r), r * M, mean, res, wide);
+    return nesc;
+}
+
+/**
+ * q of one row (11.4 step 3, 11.6): residual + mean + prediction from the channels before, each
+ * checked against |q| <= 2^40 as it is computed. Exact in i64: residuals below 2^62, means below
+ * 2^42 and at most M - 1 terms of |weight| <= 2^15 times |q - mean| < 2^43.
+ */
+function rowValues(row: i32, base: i32, mean: usize, res: usize, wide: usize): void {
+    const M = aM, qb = aQ + (<usize>(row * M) << 3), mb = mean + (<usize>base << 3);
+    for (let c = 0; c < M; c++) {
+        const rf = load<f64>(res + (<usize>(base + c) << 3));
+        const rv: i64 = rf == rf ? <i64>rf : i64At(wide, base + c); // NaN: an escape beyond 2^53
+        let pr: i64 = 0;
+        for (let i = i32At(aPStart, c), e = i32At(aPStart, c + 1); i < e; i++) {
+            const s = i32At(aPSrc, i);
+            pr += <i64>i32At(aPW, i) * (i64At(qb, s) - i64At(mb, s));
+        }
+        const v = rv + i64At(mb, c) + ((pr + 128) >> 8);
+        if (v > Q_LIMIT || v < -Q_LIMIT) { errWide = <u64>v; fail(ERR_Q_LIMIT, row, c); }
+        setI64(qb, c, v);
+    }
+}
+
+/**
+ * The mean (i64) and level (u8) of every channel of nr rows to mean [nr * M] and level [nr * M].
+ * Sums of up to 32 q F (|q| <= 2^40, F < 2^14) stay below 2^59: exact in i64.
+ */
+function rowMeans(rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, mean: usize, level: usize): void {
+    const M = aM, sum = alloc(M << 3), mx = alloc(M << 3), mn = alloc(M << 3);
     for (let r = 0; r < nr; r++) {
-        const n = u8At(cnt, r), a = u8At(adj, i32At(rows, r)), F: i64 = sa ? <i64>i32At(fix, a) : 1, base = r * M;
-        if (n == 0) {
-            const sh = sa ? i32At(shift, a) : 0;
-            for (let c = 0; c < M; c++) {
-                store<f64>(mean + (<usize>(base + c) << 3), priorMean(prior, c, sa, F));
-                setU8(level, base + c, max(0, u8At(priorLevel, c) - sh));
-            }
-            continue;
-        }
-        // sum, max and min of the neighbours' (step-adjusted) values: the first neighbour, then the others
-        let j = i32At(idx, r * k), f: i64 = sa ? <i64>i32At(fix, u8At(adj, j)) : 1, qj = q + (<usize>(j * M) << 3);
-        for (let c = 0; c < M; c++) {
-            const o = <usize>c << 3, v = <i64>load<f64>(qj + o) * f;
-            store<i64>(sum + o, v); store<i64>(mx + o, v); store<i64>(mn + o, v);
-        }
-        for (let m = 1; m < n; m++) {
-            j = i32At(idx, r * k + m); f = sa ? <i64>i32At(fix, u8At(adj, j)) : 1; qj = q + (<usize>(j * M) << 3);
-            for (let c = 0; c < M; c++) {
-                const o = <usize>c << 3, v = <i64>load<f64>(qj + o) * f;
-                store<i64>(sum + o, load<i64>(sum + o) + v);
-                if (v > load<i64>(mx + o)) store<i64>(mx + o, v);
-                if (v < load<i64>(mn + o)) store<i64>(mn + o, v);
-            }
-        }
+        const n = u8At(cnt, r), F: i64 = aSa ? <i64>i32At(aFix, u8At(aAdj, i32At(rows, r))) : 1, base = r * M;
+        if (n == 0) { priorRow(mean, level, base, F, i32At(rows, r)); continue; }
+        neighbourStats(idx + (<usize>(r * k) << 2), n, sum, mx, mn);
         const nF = <i64>n * F;
         for (let c = 0; c < M; c++) {
             const o = <usize>c << 3;
-            const mu = u8At(meanFlag, c) ? <f64>floorDivI(load<i64>(sum + o) + (nF >> 1), nF) : priorMean(prior, c, sa, F);
-            store<f64>(mean + (<usize>(base + c) << 3), mu);
+            setI64(mean, base + c, u8At(aMeanFlag, c) ? floorDivI(load<i64>(sum + o) + (nF >> 1), nF) : priorMean(c, F));
             const act = floorDivI(load<i64>(mx + o) - load<i64>(mn + o), F); // >= 0
-            setU8(level, base + c, u8At(bucket, c * B + min(<i32>(64 - clz<i64>(act)), B - 1)));
+            setU8(level, base + c, u8At(aBucket, c * aB + min(<i32>(64 - clz<i64>(act)), aB - 1)));
+        }
+    }
+}
+
+/** The prior's means and levels (11.3; 11.8 when sa) of a row with no neighbours. */
+function priorRow(mean: usize, level: usize, base: i32, F: i64, row: i32): void {
+    const sh = aSa ? i32At(aShift, u8At(aAdj, row)) : 0;
+    for (let c = 0; c < aM; c++) {
+        setI64(mean, base + c, priorMean(c, F));
+        setU8(level, base + c, max(0, u8At(aPriorLevel, c) - sh));
+    }
+}
+
+/** Sum, max and min per channel of the n neighbours' (step-adjusted) values q F. */
+function neighbourStats(ids: usize, n: i32, sum: usize, mx: usize, mn: usize): void {
+    const M = aM;
+    let j = i32At(ids, 0), f: i64 = aSa ? <i64>i32At(aFix, u8At(aAdj, j)) : 1, qj = aQ + (<usize>(j * M) << 3);
+    for (let c = 0; c < M; c++) {
+        const o = <usize>c << 3, v = load<i64>(qj + o) * f;
+        store<i64>(sum + o, v); store<i64>(mx + o, v); store<i64>(mn + o, v);
+    }
+    for (let m = 1; m < n; m++) {
+        j = i32At(ids, m); f = aSa ? <i64>i32At(aFix, u8At(aAdj, j)) : 1; qj = aQ + (<usize>(j * M) << 3);
+        for (let c = 0; c < M; c++) {
+            const o = <usize>c << 3, v = load<i64>(qj + o) * f;
+            store<i64>(sum + o, load<i64>(sum + o) + v);
+            if (v > load<i64>(mx + o)) store<i64>(mx + o, v);
+            if (v < load<i64>(mn + o)) store<i64>(mn + o, v);
+        }
+    }
+}
+
+/**
+ * Reconstruction in binary32 (11.5) of the tile's n rows into out (f32 [n * M]): float32(q) times
+ * the binary32 step scale[a * M + c] (f32 [8 * M]: float32(step(c)) * STEP_ADJUST_FACTORS[a]) of
+ * the row's index a; a value that is not finite fails (E52).
+ */
+export function reconstruct(n: i32, scale: usize, out: usize): void {
+    err = 0;
+    const M = aM;
+    for (let i = 0; i < n; i++) {
+        const s = scale + (<usize>(u8At(aAdj, i) * M) << 2), qb = aQ + (<usize>(i * M) << 3), ob = out + (<usize>(i * M) << 2);
+        for (let c = 0; c < M; c++) {
+            const v = <f32>load<i64>(qb + (<usize>c << 3)) * load<f32>(s + (<usize>c << 2));
+            if (v - v != 0) fail(ERR_NOT_FINITE, i, c); // inf - inf and NaN - NaN are NaN
+            store<f32>(ob + (<usize>c << 2), v);
         }
     }
 }
