@@ -711,18 +711,13 @@ const ERR_Q_LIMIT: i32 = 11;   // |q| > 2^40 (11.6, E51; errA the row, errB the 
 const ERR_NOT_FINITE: i32 = 12; // a reconstructed value not finite (11.5, E52; errA the row, errB the channel)
 const Q_LIMIT: i64 = 0x10000000000; // 2^40
 
-@inline function floorDivI(a: i64, b: i64): i64 { // b > 0
-    const d = a / b;
-    return (a % b != 0 && a < 0) ? d - 1 : d;
-}
-
 @inline function i64At(p: usize, i: i32): i64 { return load<i64>(p + (<usize>i << 3)); }
 @inline function setI64(p: usize, i: i32, v: i64): void { store<i64>(p + (<usize>i << 3), v); }
 
 /** The prior's mean of channel c (11.3; |prior_mean| < 2^31), scaled by the row's step adjustment F (11.8) when sa. */
 @inline function priorMean(c: i32, F: i64): i64 {
     const p = <i64>load<f64>(aPrior + (<usize>c << 3));
-    return aSa ? floorDivI(p * 4096 + (F >> 1), F) : p;
+    return aSa ? floorDiv(p * 4096 + (F >> 1), F) : p;
 }
 
 /**
@@ -762,23 +757,70 @@ function rowValues(row: i32, base: i32, mean: usize, res: usize, wide: usize): v
 }
 
 /**
+ * Floor division a // b (b > 0, |a| < 2^62) from a binary64 estimate, corrected to the exact
+ * quotient with the remainder (i64 division is several times slower than this).
+ */
+@inline function floorDiv(a: i64, b: i64): i64 {
+    let d = <i64>Math.floor(<f64>a / <f64>b), r = a - d * b;
+    while (r < 0) { d--; r += b; }
+    while (r >= b) { d++; r -= b; }
+    return d;
+}
+
+/**
  * The mean (i64) and level (u8) of every channel of nr rows to mean [nr * M] and level [nr * M].
  * Sums of up to 32 q F (|q| <= 2^40, F < 2^14) stay below 2^59: exact in i64.
  */
 function rowMeans(rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, mean: usize, level: usize): void {
-    const M = aM, sum = alloc(M << 3), mx = alloc(M << 3), mn = alloc(M << 3);
+    const M = aM, qa = alloc(k << 2), fa = alloc(k << 3);
     for (let r = 0; r < nr; r++) {
         const n = u8At(cnt, r), F: i64 = aSa ? <i64>i32At(aFix, u8At(aAdj, i32At(rows, r))) : 1, base = r * M;
         if (n == 0) { priorRow(mean, level, base, F, i32At(rows, r)); continue; }
-        neighbourStats(idx + (<usize>(r * k) << 2), n, sum, mx, mn);
-        const nF = <i64>n * F;
-        for (let c = 0; c < M; c++) {
-            const o = <usize>c << 3;
-            setI64(mean, base + c, u8At(aMeanFlag, c) ? floorDivI(load<i64>(sum + o) + (nF >> 1), nF) : priorMean(c, F));
-            const act = floorDivI(load<i64>(mx + o) - load<i64>(mn + o), F); // >= 0
-            setU8(level, base + c, u8At(aBucket, c * aB + min(<i32>(64 - clz<i64>(act)), aB - 1)));
+        for (let m = 0; m < n; m++) { // the neighbours' rows of q and factors
+            const j = i32At(idx, r * k + m);
+            setI32(qa, m, <i32>(aQ + (<usize>(j * M) << 3)));
+            setI64(fa, m, aSa ? <i64>i32At(aFix, u8At(aAdj, j)) : 1);
         }
+        let c = 0;
+        for (; c + 1 < M; c += 2) neighbourPair(qa, fa, n, c, F, mean, level, base);
+        if (c < M) neighbourOne(qa, fa, n, c, F, mean, level, base);
     }
+}
+
+/** Channels c and c + 1 of a row with n neighbours (rows of q at qa, factors fa): sum, max and min of q F two lanes at a time. */
+@inline function neighbourPair(qa: usize, fa: usize, n: i32, c: i32, F: i64, mean: usize, level: usize, base: i32): void {
+    const o = <usize>c << 3;
+    let v = v128.load(<usize>i32At(qa, 0) + o);
+    if (aSa) v = i64x2.mul(v, i64x2.splat(i64At(fa, 0)));
+    let sum = v, mx = v, mn = v;
+    for (let m = 1; m < n; m++) {
+        v = v128.load(<usize>i32At(qa, m) + o);
+        if (aSa) v = i64x2.mul(v, i64x2.splat(i64At(fa, m)));
+        sum = i64x2.add(sum, v);
+        mx = v128.bitselect(v, mx, i64x2.gt_s(v, mx));
+        mn = v128.bitselect(v, mn, i64x2.lt_s(v, mn));
+    }
+    channelParameters(c, i64x2.extract_lane(sum, 0), i64x2.extract_lane(mx, 0), i64x2.extract_lane(mn, 0), n, F, mean, level, base);
+    channelParameters(c + 1, i64x2.extract_lane(sum, 1), i64x2.extract_lane(mx, 1), i64x2.extract_lane(mn, 1), n, F, mean, level, base);
+}
+
+/** Channel c of a row with n neighbours, one lane. */
+@inline function neighbourOne(qa: usize, fa: usize, n: i32, c: i32, F: i64, mean: usize, level: usize, base: i32): void {
+    const o = <usize>c << 3;
+    let sum: i64 = 0, mx: i64 = i64.MIN_VALUE, mn: i64 = i64.MAX_VALUE;
+    for (let m = 0; m < n; m++) {
+        const v = load<i64>(<usize>i32At(qa, m) + o) * i64At(fa, m);
+        sum += v; mx = max(mx, v); mn = min(mn, v);
+    }
+    channelParameters(c, sum, mx, mn, n, F, mean, level, base);
+}
+
+/** Mean and level of channel c (11.7.3, 11.8) from the neighbours' sum, max and min of q F. */
+@inline function channelParameters(c: i32, sum: i64, mx: i64, mn: i64, n: i32, F: i64, mean: usize, level: usize, base: i32): void {
+    const nF = <i64>n * F;
+    setI64(mean, base + c, u8At(aMeanFlag, c) ? floorDiv(sum + (nF >> 1), nF) : priorMean(c, F));
+    const act = F == 1 ? mx - mn : floorDiv(mx - mn, F); // >= 0
+    setU8(level, base + c, u8At(aBucket, c * aB + min(<i32>(64 - clz<i64>(act)), aB - 1)));
 }
 
 /** The prior's means and levels (11.3; 11.8 when sa) of a row with no neighbours. */
@@ -787,25 +829,6 @@ function priorRow(mean: usize, level: usize, base: i32, F: i64, row: i32): void 
     for (let c = 0; c < aM; c++) {
         setI64(mean, base + c, priorMean(c, F));
         setU8(level, base + c, max(0, u8At(aPriorLevel, c) - sh));
-    }
-}
-
-/** Sum, max and min per channel of the n neighbours' (step-adjusted) values q F. */
-function neighbourStats(ids: usize, n: i32, sum: usize, mx: usize, mn: usize): void {
-    const M = aM;
-    let j = i32At(ids, 0), f: i64 = aSa ? <i64>i32At(aFix, u8At(aAdj, j)) : 1, qj = aQ + (<usize>(j * M) << 3);
-    for (let c = 0; c < M; c++) {
-        const o = <usize>c << 3, v = load<i64>(qj + o) * f;
-        store<i64>(sum + o, v); store<i64>(mx + o, v); store<i64>(mn + o, v);
-    }
-    for (let m = 1; m < n; m++) {
-        j = i32At(ids, m); f = aSa ? <i64>i32At(aFix, u8At(aAdj, j)) : 1; qj = aQ + (<usize>(j * M) << 3);
-        for (let c = 0; c < M; c++) {
-            const o = <usize>c << 3, v = load<i64>(qj + o) * f;
-            store<i64>(sum + o, load<i64>(sum + o) + v);
-            if (v > load<i64>(mx + o)) store<i64>(mx + o, v);
-            if (v < load<i64>(mn + o)) store<i64>(mn + o, v);
-        }
     }
 }
 
