@@ -59,15 +59,26 @@ function tileList(units, s, ps) {
     return index.map((t, i) => ({ units: s.tiles[i].units, points: t.points, cell: t.cell }));
 }
 
-/** Refuse before allocating a stream whose declared sizes need more than maxMemory (ResourceLimitError). */
+// the WebAssembly memory one tile may use: the module's sizes are 32-bit (wasm.mjs, wasm/decoder.ts)
+export const WASM_TILE_MEMORY = 2 ** 31 - 2 ** 24;
+
+/**
+ * Refuse before allocating a stream whose declared sizes need more than maxMemory, or a tile that
+ * needs more than the module can address (ResourceLimitError).
+ */
 function checkMemory(ctx, streamBytes, maxMemory) {
     const N = ctx.ps.numGaussians, M = ctx.M;
     const largest = Math.max(...ctx.tiles.map((t) => t.points));
     const k = ctx.np ? ctx.np.k : 0;
-    // output: coordinates (int32) and values (binary32); per tile: q (float64), values, geometry and k-NN working sets
-    const need = streamBytes + N * (12 + 4 * M) + largest * (8 * M + 4 * M + 160 + 4 * k + 64);
+    // output: coordinates (int32) and values (binary32); per tile (in the module): q (int64), values, geometry and k-NN working sets
+    const tile = largest * (8 * M + 4 * M + 160 + 4 * k + 64);
+    const need = streamBytes + N * (12 + 4 * M) + tile;
+    const mib = (b) => Math.ceil(b / 2 ** 20);
     if (need > maxMemory) {
-        throw new ResourceLimitError(`decoding needs about ${Math.ceil(need / 2 ** 20)} MiB (N = ${N}, M = ${M}, largest tile ${largest} points), more than the bound of ${Math.floor(maxMemory / 2 ** 20)} MiB`);
+        throw new ResourceLimitError(`decoding needs about ${mib(need)} MiB (N = ${N}, M = ${M}, largest tile ${largest} points), more than the bound of ${Math.floor(maxMemory / 2 ** 20)} MiB`);
+    }
+    if (tile > WASM_TILE_MEMORY) {
+        throw new ResourceLimitError(`a tile of ${largest} points (M = ${M}) needs about ${mib(tile)} MiB of WebAssembly memory, more than the ${mib(WASM_TILE_MEMORY)} MiB the decoder's module addresses per tile`);
     }
 }
 
