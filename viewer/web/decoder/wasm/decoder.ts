@@ -466,7 +466,8 @@ function offsetAxis(c: usize, n: i32, bmin: i32): void {
 const CELLS_PER_POINT: i32 = 2; // grid size: at most this many cells per data point (and 4096)
 
 let gB: i32 = 0; let gSide: i64 = 0; let gNx: i32 = 0; let gNy: i32 = 0; let gNz: i32 = 0;
-let gStart: usize = 0; let gPx: usize = 0; let gPy: usize = 0; let gPz: usize = 0; let gId: usize = 0;
+let gStart: usize = 0; let gP: usize = 0; // gP: per point of the grid, in cell order, (x, y, z, id) as i32 (one cache line holds 4)
+let worst: u64 = 0; // the k-th distance of hD once it holds k, else the largest u64
 let hD: usize = 0; let hI: usize = 0; let kK: i32 = 0;
 
 @inline function u64At(p: usize, i: i32): u64 { return load<u64>(p + (<usize>i << 3)); }
@@ -506,25 +507,26 @@ function buildGrid(x: usize, y: usize, z: usize, lo0: i32, lo1: i32, lo2: i32, e
     }
     for (let c = 1; c <= cells; c++) setI32(start, c, i32At(start, c) + i32At(start, c - 1));
     // the points sorted by cell (stable), as offsets from lo
-    gPx = alloc(n << 2); gPy = alloc(n << 2); gPz = alloc(n << 2); gId = alloc(n << 2);
+    gP = alloc(n << 4);
     const fill = alloc(cells << 2);
     memory.copy(fill, start, <usize>cells << 2);
     for (let t = 0; t < n; t++) {
         const j = i32At(ds, t), c = i32At(cell, t), o = i32At(fill, c);
         setI32(fill, c, o + 1);
-        setI32(gPx, o, i32At(x, j) - lo0); setI32(gPy, o, i32At(y, j) - lo1); setI32(gPz, o, i32At(z, j) - lo2); setI32(gId, o, j);
+        setI32(gP, 4 * o, i32At(x, j) - lo0); setI32(gP, 4 * o + 1, i32At(y, j) - lo1); setI32(gP, 4 * o + 2, i32At(z, j) - lo2); setI32(gP, 4 * o + 3, j);
     }
     gStart = start;
 }
 
 /** The k nearest of (qx, qy, qz) (offsets from lo) sorted by (d2, id) into hD/hI; returns their count. */
 function search(qx: i32, qy: i32, qz: i32): i32 {
-    const b = gB, cx = qx >> b, cy = qy >> b, cz = qz >> b, k = kK;
+    const b = gB, cx = qx >> b, cy = qy >> b, cz = qz >> b;
+    worst = u64.MAX_VALUE;
     let size = visitCell((cx * gNy + cy) * gNz + cz, qx, qy, qz, 0);
     for (let s = 1; ; s++) {
         size = visitShell(cx, cy, cz, s, qx, qy, qz, size);
         const bound = unvisitedBound(cx, cy, cz, s, qx, qy, qz);
-        if (bound < 0 || (size == k && u64At(hD, k - 1) < <u64>(bound * bound))) break;
+        if (bound < 0 || worst < <u64>(bound * bound)) break; // worst < MAX: size == k
     }
     return size;
 }
@@ -558,7 +560,7 @@ function visitShell(cx: i32, cy: i32, cz: i32, s: i32, qx: i32, qy: i32, qz: i32
         const fx = X == cx - s || X == cx + s, ex = gap(X, cx, qx);
         for (let Y = y0; Y <= y1; Y++) {
             const row = (X * ny + Y) * nz, exy = ex + gap(Y, cy, qy);
-            if (size == k && exy > u64At(hD, k - 1)) continue;
+            if (exy > worst) continue;
             if (fx || Y == cy - s || Y == cy + s) {
                 for (let Z = z0; Z <= z1; Z++) size = visitNear(row, Z, cz, qx, qy, qz, exy, size);
             } else {
@@ -571,14 +573,16 @@ function visitShell(cx: i32, cy: i32, cz: i32, s: i32, qx: i32, qy: i32, qz: i32
 }
 
 @inline function visitNear(row: i32, Z: i32, cz: i32, qx: i32, qy: i32, qz: i32, exy: u64, size: i32): i32 {
-    if (size == kK && exy + gap(Z, cz, qz) > u64At(hD, kK - 1)) return size;
+    if (exy + gap(Z, cz, qz) > worst) return size;
     return visitCell(row + Z, qx, qy, qz, size);
 }
 
 function visitCell(c: i32, qx: i32, qy: i32, qz: i32, size: i32): i32 {
     for (let p = i32At(gStart, c), e = i32At(gStart, c + 1); p < e; p++) {
-        const dx = <i64>i32At(gPx, p) - <i64>qx, dy = <i64>i32At(gPy, p) - <i64>qy, dz = <i64>i32At(gPz, p) - <i64>qz;
-        size = offer(<u64>(dx * dx) + <u64>(dy * dy) + <u64>(dz * dz), i32At(gId, p), size);
+        const r = gP + (<usize>p << 4);
+        const dx = <i64>load<i32>(r) - <i64>qx, dy = <i64>load<i32>(r, 4) - <i64>qy, dz = <i64>load<i32>(r, 8) - <i64>qz;
+        const d = <u64>(dx * dx) + <u64>(dy * dy) + <u64>(dz * dz);
+        if (d <= worst) size = offer(d, load<i32>(r, 12), size);
     }
     return size;
 }
@@ -597,6 +601,7 @@ function offer(d: u64, id: i32, size: i32): i32 {
         setU64(hD, j, pd); setI32(hI, j, pi); j--;
     }
     setU64(hD, j, d); setI32(hI, j, id);
+    if (size == k) worst = u64At(hD, k - 1);
     return size;
 }
 
