@@ -206,6 +206,25 @@ def test_corrupted_streams_agree_with_reference_decoder(tmp_path):
             assert g == r, (f, g, r)
 
 
+def big_tile_stream(tmp_path):
+    """c032 (one tile, SH 0) declaring 2^24 Gaussians: within E22 and a raised --max-memory, but its
+    tile needs more WebAssembly memory than the module addresses; refused before any allocation."""
+    from lghcc.common.container import DataUnit, UnitType, read_container, write_container
+    from lghcc.common.units import GaussianParameterSet
+
+    c = read_container((STREAMS / "c032_gaussians_sh0" / "stream.lghcc").read_bytes())
+    units = []
+    for u in c.units:
+        if u.unit_type == UnitType.GAUSSIAN_PARAMETER_SET:
+            ps = GaussianParameterSet.from_bytes(u.payload)
+            ps.num_gaussians_minus1 = 2 ** 24 - 1
+            u = DataUnit(u.unit_type, ps.to_bytes())
+        units.append(u)
+    path = tmp_path / "big_tile.lghcc"
+    path.write_bytes(write_container(units, c.header))
+    return path
+
+
 def test_cli_exit_codes(tmp_path):
     cli = str(JS / "cli.mjs")
     s = str(STREAMS / "c033_gaussians_sh3_prediction" / "stream.lghcc")
@@ -214,6 +233,9 @@ def test_cli_exit_codes(tmp_path):
         runner.load_cases(STREAMS, ["c033_gaussians_sh3_prediction"])[0].meta["decoded_sha256"]
     res = subprocess.run([NODE, cli, s, "--max-memory", "1000"], capture_output=True, text=True, timeout=120)
     assert res.returncode == 4 and "resource limit" in res.stderr and "MiB" in res.stderr
+    res = subprocess.run([NODE, cli, str(big_tile_stream(tmp_path)), "--max-memory", str(2 ** 40)], capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 4 and "WebAssembly memory" in res.stderr and "16777216 points" in res.stderr, res.stderr
     res = subprocess.run([NODE, cli, str(STREAMS / "e148_step_adjust_index_above_max" / "stream.lghcc")],
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 3 and "max_step_adjust" in res.stderr
@@ -231,7 +253,7 @@ import { HashMismatchError } from './errors.mjs';
 const { path, failTile } = JSON.parse(readFileSync(0, 'utf8'));
 const bytes = new Uint8Array(readFileSync(path));
 // a pool as pool.mjs's, in this process: tiles finish in reverse order of their start
-const pool = { started: 0, start(ctx) { this.started++; }, decode(ctx, t) {
+const pool = { started: 0, start(ctx) { this.started++; }, runHere(f) { return new Promise((res) => setTimeout(res, 0)).then(f); }, decode(ctx, t) {
     const delay = 40 - 4 * t;
     return new Promise((res, rej) => setTimeout(() => t === failTile
         ? rej(new HashMismatchError(`tile ${t}`)) : decodeTile(ctx, t).then(res, rej), delay));

@@ -3,16 +3,18 @@ scenes coded at a preset's steps (no search, no fit: the preset's quantization, 
 prediction where it pays, tiles of about 16k Gaussians as lghcc-enc writes them).
 
     OMP_WAIT_POLICY=PASSIVE nice -n 10 .venv/bin/python tools/bench_js_decoder.py [--out DIR] [--repeat R]
-        [--workers W] [--stream FILE.lghcc ...] [--no-reference]
+        [--workers W] [--stream FILE.lghcc ...] [--no-reference] [--tree DIR]
 
 Writes the streams to --out (kept between runs: a stream already there is reused), decodes each in
 Node (viewer/web/decoder/bench.mjs: best of R, tables loaded, page and process start excluded), in
 headless Chromium (the page's Web Worker, lghcc-decoder-worker.js: best of R, the stream's bytes
 already in the page; also when the first tile arrived), once more in Chromium with the tiles decoded
-by a pool of W helper workers (the page's default: navigator.hardwareConcurrency; pool.mjs), and once
-with the reference decoder in this process, and prints a markdown table (Gaussians/s). --stream adds
-coded streams (e.g. a 1M-Gaussian scene of tools/scale_scenes.py), --no-reference skips the reference
-decoder. The results are in tools/results/js_decoder.md."""
+by a pool of W threads (the page's default: navigator.hardwareConcurrency; the worker and W - 1 helper
+workers, pool.mjs), and once with the reference decoder in this process, and prints a markdown table
+(Gaussians/s). --stream adds coded streams (e.g. a 1M-Gaussian scene of tools/scale_scenes.py),
+--no-reference skips the reference decoder. --tree DIR measures the decoder of another tree (e.g. an
+older commit's `git archive` with its worker bundle built by its tools/node/build-viewer.mjs), for
+old-against-new ratios in the same window. The results are in tools/results/js_decoder.md."""
 from __future__ import annotations
 
 import os
@@ -69,10 +71,10 @@ window.results = (async () => { const out = []; for (let i = 0; i < %REPEAT%; i+
 </script></body></html>"""
 
 
-def chromium_decode(stream: Path, repeat: int, tmp: Path, workers: int = 0) -> dict:
+def chromium_decode(stream: Path, repeat: int, tmp: Path, workers: int = 0, tree: Path = ROOT) -> dict:
     """Best of ``repeat`` decodes in headless Chromium's worker, its tiles decoded by ``workers`` helper
     workers (0: by the worker itself; -1: navigator.hardwareConcurrency): {seconds, first_tile_s, first_s,
-    count, helpers}; first_s: the first decode's seconds (a page decodes once)."""
+    count, helpers}; first_s: the first decode's seconds (a page decodes once). tree: whose worker bundle."""
     import base64
 
     from playwright.sync_api import sync_playwright
@@ -81,7 +83,8 @@ def chromium_decode(stream: Path, repeat: int, tmp: Path, workers: int = 0) -> d
     from lghcc.viewer.page import worker_js
 
     page_file = tmp / "bench.html"
-    page_file.write_text(CHROMIUM_PAGE.replace("%WORKER%", worker_js()).replace("%REPEAT%", str(repeat)).replace("%WORKERS%", str(workers))
+    worker = worker_js() if tree == ROOT else (tree / "viewer/assets/lghcc-decoder-worker.js").read_text(encoding="utf-8")
+    page_file.write_text(CHROMIUM_PAGE.replace("%WORKER%", worker.replace("</script", "<\\/script")).replace("%REPEAT%", str(repeat)).replace("%WORKERS%", str(workers))
                          .replace("%STREAM%", base64.b64encode(stream.read_bytes()).decode("ascii")))
     pw = sync_playwright().start()
     try:
@@ -112,16 +115,16 @@ def measure(label: str, s: Path, args, node: str, use_chromium: bool) -> str:
     """One table row: the stream decoded by Node, Chromium's worker, Chromium's pool, the reference."""
     import tempfile
 
-    res = subprocess.run([node, str(ROOT / "viewer/web/decoder/bench.mjs"), str(s), "--repeat", str(args.repeat)],
+    res = subprocess.run([node, str(args.tree / "viewer/web/decoder/bench.mjs"), str(s), "--repeat", str(args.repeat)],
                          capture_output=True, text=True, check=True)
     js = json.loads(res.stdout.strip().splitlines()[-1])
     n = js["count"]
     one = pool = None
     if use_chromium:
         with tempfile.TemporaryDirectory() as t:
-            one = chromium_decode(s, args.repeat, Path(t))
+            one = chromium_decode(s, args.repeat, Path(t), tree=args.tree)
         with tempfile.TemporaryDirectory() as t:
-            pool = chromium_decode(s, args.repeat, Path(t), workers=args.workers)
+            pool = chromium_decode(s, args.repeat, Path(t), workers=args.workers, tree=args.tree)
     ref = "- | -"
     if not args.no_reference:
         from lghcc.decoder.decode import decode_stream
@@ -142,7 +145,9 @@ def main() -> int:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--preset", default="medium")
     ap.add_argument("--workers", type=int, default=-1,
-                    help="helper workers of the pool measurement (default -1: navigator.hardwareConcurrency)")
+                    help="decoding threads of the pool measurement, the worker included (default -1: "
+                    "navigator.hardwareConcurrency)")
+    ap.add_argument("--tree", type=Path, default=ROOT, help="the tree whose decoder is measured (default: this one)")
     ap.add_argument("--stream", action="append", default=[], help="also measure this coded stream (repeatable)")
     ap.add_argument("--no-reference", action="store_true", help="skip the reference decoder (slow on big streams)")
     ap.add_argument("scenes", nargs="*", default=None, help=f"scenes to code and measure (default: {', '.join(SCENES)};"

@@ -11,7 +11,7 @@ import { fileURLToPath } from 'node:url';
 const here = dirname(fileURLToPath(import.meta.url));
 const dir = join(here, '..', '..', 'viewer', 'web', 'decoder');
 const target = join(dir, 'wasm_module.mjs');
-const args = ['wasm/decoder.ts', '-O3', '--runtime', 'stub', '--noAssert', '--use', 'abort=', '--outFile', 'decoder.wasm'];
+const args = ['wasm/decoder.ts', '-O3', '--runtime', 'stub', '--noAssert', '--enable', 'simd', '--use', 'abort=', '--outFile', 'decoder.wasm'];
 let wasm = null;
 const { error, stderr } = await asc.main(args, {
     readFile: (name, base) => { try { return readFileSync(join(dir, base, name), 'utf8'); } catch { return null; } },

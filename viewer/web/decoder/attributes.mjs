@@ -1,20 +1,20 @@
 // Attribute decoding of explicit-Gaussian tiles (spec clause 11): the per-channel prior, chunks,
 // cross-channel prediction (11.6), neighbour prediction (11.7), step adjustment (11.8) and
-// reconstruction in binary32 (11.5). The rows' means and levels (11.3, 11.7.3, 11.8) are computed
-// in WebAssembly (wasm/decoder.ts: rowMeans, exact in 64-bit integers) on the values q, which live in
-// the module's memory while the tile decodes. Elsewhere integers are exact doubles; the rare values
-// beyond 2^53 (escapes near 2^62, predictions of huge deviations) take an exact BigInt path.
+// reconstruction in binary32 (11.5). Per chunk, one call of the WebAssembly module
+// (wasm/decoder.ts: attributeChunk) computes the rows' means and levels, decodes the symbols and
+// the values q, exact in 64-bit integers; q and the rows' step-adjustment indices live in the
+// module's memory while the tile decodes, and the module reconstructs the binary32 values at the
+// end (reconstruct). JS parses, finds the neighbours (knn.mjs) and turns the module's failures into
+// the spec's errors.
 import { BitstreamError } from './errors.mjs';
 import { gridNeighbours } from './knn.mjs';
-import { decodeSymbolChunk } from './symbols.mjs';
+import { decodeSymbolChunk, symbolError } from './symbols.mjs';
 import { alloc, callWasm, copyIn, wasm } from './wasm.mjs';
 
 export const STEP_ADJUST_FACTORS = [1.0, 1.18920708, 1.41421354, 1.68179286, 2.0, 2.37841415, 2.82842708, 3.36358571].map(Math.fround);
 export const ADJUST_FIXED_POINT = [4096, 4871, 5793, 6889, 8192, 9742, 11585, 13777];
 export const ADJUST_LEVEL_SHIFT = [0, 1, 3, 4, 5, 6, 8, 9];
 export const MAX_EXTENT = 1753413056;
-const Q_LIMIT = 2 ** 40;
-const SAFE_DEV = 2 ** 31; // |q - mean| below this: a row's prediction sum stays below 2^52
 const FIXED_POINT = Int32Array.from(ADJUST_FIXED_POINT), LEVEL_SHIFT = Int32Array.from(ADJUST_LEVEL_SHIFT);
 
 /** The rows of each LoD (clause 11.7.1), in increasing order. */
@@ -60,34 +60,28 @@ class TileAttributeDecoder {
     constructor(payload, h, coords, ctx) {
         this.payload = payload; this.h = h; this.coords = coords; this.ctx = ctx;
         this.M = ctx.M; this.n = h.numRows;
-        // q in the module's memory, kept across its calls until release()
-        const w = this.w = wasm();
-        w.reset();
-        this.qAddr = alloc(w, 8 * this.n * this.M);
-        this.mark = w.keep();
-        this.qView = null;
-        this.adj = new Uint8Array(this.n);
         this.off = h.dataOffset;
         this.chunk = 0;
-        const S = h.rowsPerChunk, M = this.M;
-        const cap = Math.min(S, this.n) * M;
-        this.mean = new Float64Array(cap); this.level = new Uint8Array(cap); this.res = new Float64Array(cap);
+        // kept in the module's memory until release(): q (i64 [n * M]), the indices (u8 [n]), the tile's parameters
+        const w = this.w = wasm(), M = this.M, np = ctx.np;
+        w.reset();
+        this.qAddr = alloc(w, 8 * this.n * M);
+        this.adjAddr = alloc(w, this.n);
         // predictions grouped by target (they are sorted by target, clause 7.3.5)
-        this.pStart = new Int32Array(M + 1);
-        for (let i = 0; i < h.predTarget.length; i++) this.pStart[h.predTarget[i] + 1]++;
-        for (let c = 0; c < M; c++) this.pStart[c + 1] += this.pStart[c];
+        const pStart = new Int32Array(M + 1);
+        for (let i = 0; i < h.predTarget.length; i++) pStart[h.predTarget[i] + 1]++;
+        for (let c = 0; c < M; c++) pStart[c + 1] += pStart[c];
+        const at = (arr) => copyIn(w, arr);
+        w.attributeTile(this.qAddr, M, this.adjAddr, ctx.stepAdjust ? 1 : 0, at(FIXED_POINT), at(LEVEL_SHIFT),
+            at(np ? np.meanFlag : new Uint8Array(M)), at(np ? np.bucketLevel : new Uint8Array(1)), np ? np.B : 1,
+            at(h.priorMean), at(h.priorLevel), at(pStart), at(h.predSource), at(Int32Array.from(h.predWeight)));
+        this.mark = w.keep();
     }
 
-    /** The values q (Float64Array [n * M]), a view renewed when the module's memory grew. */
-    get q() {
-        if (!this.qView || this.qView.buffer !== this.w.memory.buffer) this.qView = new Float64Array(this.w.memory.buffer, this.qAddr, this.n * this.M);
-        return this.qView;
-    }
+    /** Give the module's memory of the tile back. */
+    release() { this.w.release(this.mark); }
 
-    /** Give the module's memory of q back (after the last use of q). */
-    release() { this.w.release(this.mark); this.qView = null; }
-
-    take(size, what) {
+    take(size) {
         const b = this.payload.subarray(this.off, this.off + size);
         this.off += size;
         return b;
@@ -98,94 +92,58 @@ class TileAttributeDecoder {
         const lods = np ? lodRows(this.n, np.L) : [null];
         const bounds = np ? tileBounds(this.coords.x, this.coords.y, this.coords.z, this.n) : null;
         for (let l = 0; l < lods.length; l++) {
-            const rows = lods[l];
-            const nl = rows ? rows.length : this.n;
+            const rows = lods[l] ?? Int32Array.from({ length: this.n }, (_, t) => t);
             const nb = l > 0 ? lodNeighbours(lods, l, np.k, this.coords, bounds, this.n) : null;
             const S = this.h.rowsPerChunk;
-            for (let m = 0; m * S < nl; m++) {
-                const lo = m * S, hi = Math.min(nl, lo + S);
-                this.decodeChunk(rows, lo, hi, nb);
-            }
+            for (let m = 0; m * S < rows.length; m++) this.decodeChunk(rows.subarray(m * S, Math.min(rows.length, (m + 1) * S)), nb, m * S);
         }
     }
 
-    decodeChunk(rows, lo, hi, nb) {
-        const i = this.chunk++;
-        const nr = hi - lo, M = this.M, h = this.h;
-        const rowAt = rows ? (t) => rows[t] : (t) => t;
-        if (this.ctx.stepAdjust) this.decodeIndices(i, rowAt, lo, hi);
-        this.rowParameters(rows, lo, hi, nb);
-        const wide = new Map();
-        const bytes = this.take(h.chunkSize[i]);
-        decodeSymbolChunk(bytes, this.level, nr * M, this.res, wide, `attribute chunk ${i}`);
-        for (let t = lo; t < hi; t++) this.rowValues(rowAt(t), (t - lo) * M, wide);
+    /** Chunk i of the rows `rows` (the lo-th onwards of their LoD; clause 11.4, 11.7.5, 11.8). */
+    decodeChunk(rows, nb, lo) {
+        const i = this.chunk++, nr = rows.length, w = this.w, k = nb ? this.ctx.np.k : 0;
+        if (this.ctx.stepAdjust) this.decodeIndices(i, rows);
+        const bytes = this.take(this.h.chunkSize[i]);
+        if (bytes.length % 4) throw new BitstreamError(`attribute chunk ${i}: length ${bytes.length} is not a whole number of 32-bit words (clause 10.6.6)`);
+        w.reset();
+        const at = (arr) => copyIn(w, arr);
+        const pBytes = at(bytes), pRows = at(rows);
+        const pIdx = nb ? at(nb.idx.subarray(lo * k, (lo + nr) * k)) : at(new Int32Array(0));
+        const pCnt = nb ? at(nb.cnt.subarray(lo, lo + nr)) : at(new Uint8Array(nr));
+        callWasm(() => w.attributeChunk(pBytes, bytes.length, pRows, nr, pIdx, pCnt, k), (code, a, b) => chunkError(`attribute chunk ${i}`, code, a, b, w));
     }
 
-    decodeIndices(i, rowAt, lo, hi) {
-        const h = this.h, nr = hi - lo;
+    /** The step-adjustment indices of the chunk's rows (clause 11.8), into the module's memory. */
+    decodeIndices(i, rows) {
+        const h = this.h, nr = rows.length;
         const bytes = this.take(h.adjustSize[i]);
-        const levels = new Uint8Array(nr).fill(h.adjustLevel);
         const r = new Float64Array(nr);
-        decodeSymbolChunk(bytes, levels, nr, r, new Map(), `step-adjustment chunk ${i}`);
-        const max = this.ctx.stepAdjust.maxStepAdjust;
+        decodeSymbolChunk(bytes, new Uint8Array(nr).fill(h.adjustLevel), nr, r, new Map(), `step-adjustment chunk ${i}`);
+        const max = this.ctx.stepAdjust.maxStepAdjust, adj = new Uint8Array(this.w.memory.buffer, this.adjAddr, this.n);
         for (let t = 0; t < nr; t++) {
             const a = r[t] + h.adjustMean;
             if (!(a >= 0 && a <= max)) throw new BitstreamError(`step-adjustment chunk ${i}: an index is outside [0, max_step_adjust = ${max}] (clause 11.8, E65)`);
-            this.adj[rowAt(lo + t)] = a;
+            adj[rows[t]] = a;
         }
     }
 
-    /** mean and level of the rows lo..hi-1 (clauses 11.3, 11.7.3, 11.8) into the chunk buffers, by the module's rowMeans. */
-    rowParameters(rows, lo, hi, nb) {
-        const w = this.w, M = this.M, h = this.h, np = this.ctx.np, nr = hi - lo, k = nb ? np.k : 0;
+    /** Reconstruction in binary32 (clause 11.5) of the tile's values, by the module: Float32Array [n * M]. */
+    reconstruct() {
+        const w = this.w, n = this.n, M = this.M;
+        const scale = Float32Array.from({ length: 8 * M }, (_, j) => Math.fround(this.ctx.steps[j % M] * STEP_ADJUST_FACTORS[Math.floor(j / M)]));
         w.reset();
-        const at = (arr) => copyIn(w, arr);
-        const pRows = rows ? at(rows.subarray(lo, hi)) : at(Int32Array.from({ length: nr }, (_, t) => lo + t));
-        const pIdx = nb ? at(nb.idx.subarray(lo * k, hi * k)) : at(new Int32Array(0));
-        const pCnt = nb ? at(nb.cnt.subarray(lo, hi)) : at(new Uint8Array(nr));
-        const meanFlag = np ? np.meanFlag : new Uint8Array(M), bucket = np ? np.bucketLevel : new Uint8Array(1);
-        const args = [at(this.adj), this.ctx.stepAdjust ? 1 : 0, at(FIXED_POINT), at(LEVEL_SHIFT), at(meanFlag), at(bucket), np ? np.B : 1,
-            at(h.priorMean), at(h.priorLevel)];
-        const pMean = alloc(w, 8 * nr * M), pLevel = alloc(w, nr * M);
-        callWasm(() => w.rowMeans(this.qAddr, M, pRows, nr, pIdx, pCnt, k, ...args, pMean, pLevel), () => null);
-        this.mean.set(new Float64Array(w.memory.buffer, pMean, nr * M));
-        this.level.set(new Uint8Array(w.memory.buffer, pLevel, nr * M));
+        const pScale = copyIn(w, scale), out = alloc(w, 4 * n * M);
+        callWasm(() => w.reconstruct(n, pScale, out), (code, row, c) => new BitstreamError(`row ${row}, channel ${c}: the reconstructed value is not finite (clause 11.5, E52)`));
+        return new Float32Array(w.memory.buffer, out, n * M).slice();
     }
+}
 
-    /** q of one row (clauses 11.4 step 3, 11.6): residual + mean + prediction, |q| <= 2^40 checked. */
-    rowValues(row, base, wide) {
-        const M = this.M, h = this.h, q = this.q, mean = this.mean, res = this.res;
-        const qb = row * M, ps = this.pStart, src = h.predSource, w = h.predWeight;
-        for (let c = 0; c < M; c++) {
-            const rv = res[base + c];
-            let ok = Math.abs(rv) < 2 ** 52; // false for NaN: a wide residual
-            let p = 0;
-            for (let i = ps[c]; i < ps[c + 1] && ok; i++) {
-                const dev = q[qb + src[i]] - mean[base + src[i]];
-                if (Math.abs(dev) >= SAFE_DEV) ok = false;
-                p += w[i] * dev;
-            }
-            let v;
-            if (ok) v = rv + mean[base + c] + Math.floor((p + 128) / 256);
-            else v = this.valueExact(qb, base, c, wide);
-            if (!(Math.abs(v) <= Q_LIMIT)) {
-                throw new BitstreamError(`a quantized value ${v} of row ${row}, channel ${c} is beyond 2^40 (clause 11.6, E51)`);
-            }
-            q[qb + c] = v;
-        }
-    }
+const ERR_Q_LIMIT = 11; // decoder.ts: |q| > 2^40
 
-    valueExact(qb, base, c, wide) {
-        const h = this.h, q = this.q, mean = this.mean;
-        const rv = wide.has(base + c) ? wide.get(base + c) : BigInt(this.res[base + c]);
-        let p = 0n;
-        for (let i = this.pStart[c]; i < this.pStart[c + 1]; i++) {
-            p += BigInt(h.predWeight[i]) * (BigInt(q[qb + h.predSource[i]]) - BigInt(mean[base + h.predSource[i]]));
-        }
-        const v = rv + BigInt(mean[base + c]) + ((p + 128n) >> 8n);
-        if (v > 2n ** 40n || v < -(2n ** 40n)) return Infinity;
-        return Number(v);
-    }
+/** The spec's error for the module's failure `code` in an attribute chunk. */
+function chunkError(what, code, a, b, w) {
+    if (code === ERR_Q_LIMIT) return new BitstreamError(`a quantized value ${BigInt.asIntN(64, w.errorWide())} of row ${a}, channel ${b} is beyond 2^40 (clause 11.6, E51)`);
+    return symbolError(what, code, w);
 }
 
 /**
@@ -196,24 +154,8 @@ export function decodeTileAttributes(payload, header, coords, ctx) {
     const dec = new TileAttributeDecoder(payload, header, coords, ctx);
     try {
         dec.run();
-        return reconstruct(dec, ctx, header.numRows);
+        return dec.reconstruct();
     } finally {
         dec.release();
     }
-}
-
-/** Reconstruction in binary32 (clause 11.5) of the tile's values q. */
-function reconstruct(dec, ctx, n) {
-    const M = ctx.M, q = dec.q;
-    const scales = STEP_ADJUST_FACTORS.map((f) => Float64Array.from(ctx.steps, (s) => Math.fround(s * f)));
-    const out = new Float32Array(n * M);
-    for (let i = 0; i < n; i++) {
-        const s = scales[dec.adj[i]];
-        for (let c = 0; c < M; c++) {
-            const v = Math.fround(Math.fround(q[i * M + c]) * s[c]);
-            if (!Number.isFinite(v)) throw new BitstreamError(`row ${i}, channel ${c}: the reconstructed value is not finite (clause 11.5, E52)`);
-            out[i * M + c] = v;
-        }
-    }
-    return out;
 }

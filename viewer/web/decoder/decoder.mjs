@@ -5,7 +5,7 @@ import { decodeTileAttributes } from './attributes.mjs';
 import { parseContainer, unitStructure, UNIT } from './container.mjs';
 import { BitstreamError, HashMismatchError, ResourceLimitError, UnsupportedStreamError } from './errors.mjs';
 import { decodeGeometry } from './geometry.mjs';
-import { Sha256, sha256Parts, toHex } from './sha256.mjs';
+import { Sha256, sha256, toHex } from './sha256.mjs';
 import { scaleTables } from './tables.mjs';
 import {
     parseAttributeHeader, parseGaussianParameterSet, parseHashUnit, parseNeighbourPrediction, parseStepAdjust, parseTileIndex,
@@ -59,15 +59,26 @@ function tileList(units, s, ps) {
     return index.map((t, i) => ({ units: s.tiles[i].units, points: t.points, cell: t.cell }));
 }
 
-/** Refuse before allocating a stream whose declared sizes need more than maxMemory (ResourceLimitError). */
+// the WebAssembly memory one tile may use: the module's sizes are 32-bit (wasm.mjs, wasm/decoder.ts)
+export const WASM_TILE_MEMORY = 2 ** 31 - 2 ** 24;
+
+/**
+ * Refuse before allocating a stream whose declared sizes need more than maxMemory, or a tile that
+ * needs more than the module can address (ResourceLimitError).
+ */
 function checkMemory(ctx, streamBytes, maxMemory) {
     const N = ctx.ps.numGaussians, M = ctx.M;
     const largest = Math.max(...ctx.tiles.map((t) => t.points));
     const k = ctx.np ? ctx.np.k : 0;
-    // output: coordinates (int32) and values (binary32); per tile: q (float64), values, geometry and k-NN working sets
-    const need = streamBytes + N * (12 + 4 * M) + largest * (8 * M + 4 * M + 160 + 4 * k + 64);
+    // output: coordinates (int32) and values (binary32); per tile (in the module): q (int64), values, geometry and k-NN working sets
+    const tile = largest * (8 * M + 4 * M + 160 + 4 * k + 64);
+    const need = streamBytes + N * (12 + 4 * M) + tile;
+    const mib = (b) => Math.ceil(b / 2 ** 20);
     if (need > maxMemory) {
-        throw new ResourceLimitError(`decoding needs about ${Math.ceil(need / 2 ** 20)} MiB (N = ${N}, M = ${M}, largest tile ${largest} points), more than the bound of ${Math.floor(maxMemory / 2 ** 20)} MiB`);
+        throw new ResourceLimitError(`decoding needs about ${mib(need)} MiB (N = ${N}, M = ${M}, largest tile ${largest} points), more than the bound of ${Math.floor(maxMemory / 2 ** 20)} MiB`);
+    }
+    if (tile > WASM_TILE_MEMORY) {
+        throw new ResourceLimitError(`a tile of ${largest} points (M = ${M}) needs about ${mib(tile)} MiB of WebAssembly memory, more than the ${mib(WASM_TILE_MEMORY)} MiB the decoder's module addresses per tile`);
     }
 }
 
@@ -87,7 +98,7 @@ export async function decodeTile(ctx, t, { checkHash = true } = {}) {
     const values = decodeTileAttributes(A[0].payload, h, coords, ctx);
     const out = { x: coords.x, y: coords.y, z: coords.z, values, n };
     if (checkHash) {
-        const digest = await sha256Parts(serializeParts(ctx.ps, [out]));
+        const digest = await sha256(serialize(ctx.ps, [out]));
         if (toHex(digest) !== toHex(sceneHash)) throw new HashMismatchError(`tile ${t}: the decoded scene does not match its scene_hash (clause 12, E53)`);
     }
     return out;
@@ -104,18 +115,24 @@ function checkCell(coords, n, cell, T, t) {
     }
 }
 
-/** The serialization of clause 12 of tiles' points (in order), as a list of byte views. */
-export function serializeParts(ps, tiles) {
+/** The serialization of clause 12 of tiles' points (in order), as one byte array. */
+export function serialize(ps, tiles) {
     const N = tiles.reduce((a, t) => a + t.n, 0), M = ps.M, S3 = 3 * ps.S;
-    const head = new ArrayBuffer(17 + 16 + 16);
-    const hb = new Uint8Array(head), dv = new DataView(head);
+    const PAD = 3, HEAD = 17 + 16 + 16; // 3 bytes before the 49-byte header align what follows to 4 bytes
+    const buf = new ArrayBuffer(PAD + HEAD + N * (24 + 4 * M));
+    const hb = new Uint8Array(buf, PAD, HEAD), dv = new DataView(buf, PAD, HEAD);
     hb.set(new TextEncoder().encode('LGHC-gaussians-v1'));
     dv.setBigInt64(17, BigInt(N), true);
     dv.setBigInt64(25, BigInt(ps.shDegree), true);
     dv.setFloat32(33, ps.voxelSize, true);
     for (let i = 0; i < 3; i++) dv.setFloat32(37 + 4 * i, ps.origin[i], true);
-    const coords = new Int32Array(N * 6); // int64 little-endian as (low, high) int32 pairs
-    const groups = [[0, S3], [S3, S3 + 1], [S3 + 1, S3 + 4], [S3 + 4, M]].map(([a, b]) => ({ a, b, arr: new Float32Array(N * (b - a)) }));
+    const coords = new Int32Array(buf, PAD + HEAD, N * 6); // int64 little-endian as (low, high) int32 pairs
+    let at = PAD + HEAD + 24 * N;
+    const groups = [[0, S3], [S3, S3 + 1], [S3 + 1, S3 + 4], [S3 + 4, M]].map(([a, b]) => {
+        const arr = new Float32Array(buf, at, N * (b - a));
+        at += arr.byteLength;
+        return { a, b, arr };
+    });
     let o = 0;
     for (const t of tiles) {
         const xyz = [t.x, t.y, t.z];
@@ -130,13 +147,13 @@ export function serializeParts(ps, tiles) {
         o += t.n;
     }
     if (new Uint8Array(new Uint16Array([1]).buffer)[0] !== 1) throw new Error('big-endian hosts are not supported');
-    return [hb, new Uint8Array(coords.buffer), ...groups.map((g) => new Uint8Array(g.arr.buffer))];
+    return new Uint8Array(buf, PAD);
 }
 
 /** Hex SHA-256 of the clause-12 serialization of the tiles' points. */
 export function sceneDigestHex(ps, tiles) {
     const h = new Sha256();
-    for (const p of serializeParts(ps, tiles)) h.update(p);
+    h.update(serialize(ps, tiles));
     return toHex(h.digest());
 }
 

@@ -20,12 +20,20 @@ function remoteError({ name, message }) {
     return e;
 }
 
+const AHEAD = 2; // jobs a helper holds (one running, one waiting): it never waits for this thread between tiles
+
 export class TilePool {
-    /** size helpers of the worker script at url; keep: helpers send the decoded tiles back (for a digest). */
-    constructor(size, url, { keep = false } = {}) {
+    /**
+     * size helpers of the worker script at url; keep: helpers send the decoded tiles back (for a
+     * digest). This thread is a decoder too: it decodes tile 0 (runHere) and, when idle, takes
+     * queued tiles (decodeHere(ctx, t) promises the result), so W decoding threads need W - 1 helpers.
+     */
+    constructor(size, url, { keep = false, decodeHere = null } = {}) {
         this.size = size;
         this.url = url;
         this.keep = keep;
+        this.decodeHere = decodeHere;
+        this.hereBusy = false;
         this.workers = null;
         this.queue = [];
     }
@@ -37,9 +45,9 @@ export class TilePool {
         const init = { ps: own(p.ps), np: p.np && own(p.np), sa: p.sa && own(p.sa) };
         this.workers = Array.from({ length: Math.min(this.size, ctx.tiles.length - 1) }, () => {
             const w = new Worker(this.url);
-            w.job = null;
+            w.jobs = [];
             w.onmessage = (e) => this._done(w, e.data);
-            w.onerror = (e) => { e.preventDefault(); this._done(w, { error: { name: 'Error', message: `a decoding worker stopped: ${e.message}` } }); };
+            w.onerror = (e) => { e.preventDefault(); this._failAll(w, `a decoding worker stopped: ${e.message}`); };
             w.postMessage({ init });
             return w;
         });
@@ -47,30 +55,53 @@ export class TilePool {
 
     /** Promise of tile t's result {n, arrays, x, y, z, values (with keep)}. */
     decode(ctx, t) {
-        const tile = ctx.tiles[t];
-        const units = tile.units.map((u) => ({ type: u.type, payload: u.payload.slice() }));
-        const job = { t, points: tile.points, cell: tile.cell, units, keep: this.keep };
         return new Promise((resolve, reject) => {
-            this.queue.push({ job, resolve, reject });
+            this.queue.push({ ctx, t, resolve, reject });
             this._next();
         });
     }
 
+    /** Promise of f()'s result, run on this thread once it is free (after the jobs handed out so far are posted). */
+    runHere(f) {
+        this.hereBusy = true;
+        const p = new Promise((res) => setTimeout(res, 0)).then(f);
+        p.finally(() => { this.hereBusy = false; this._next(); }).catch(() => null);
+        return p;
+    }
+
+    // the queued tile with the most points: the last tiles to finish are small ones
+    _take() {
+        let b = 0;
+        for (let i = 1; i < this.queue.length; i++) if (this.queue[i].ctx.tiles[this.queue[i].t].points > this.queue[b].ctx.tiles[this.queue[b].t].points) b = i;
+        return this.queue.splice(b, 1)[0];
+    }
+
     _next() {
-        for (const w of this.workers) {
-            if (w.job || !this.queue.length) continue;
-            w.job = this.queue.shift();
-            const job = w.job.job;
-            w.postMessage({ job }, job.units.map((u) => u.payload.buffer));
+        for (const w of this.workers || []) {
+            while (w.jobs.length < AHEAD && this.queue.length) {
+                const job = this._take();
+                w.jobs.push(job);
+                const tile = job.ctx.tiles[job.t];
+                const units = tile.units.map((u) => ({ type: u.type, payload: u.payload.slice() }));
+                w.postMessage({ job: { t: job.t, points: tile.points, cell: tile.cell, units, keep: this.keep } }, units.map((u) => u.payload.buffer));
+            }
+        }
+        if (this.decodeHere && !this.hereBusy && this.queue.length) {
+            const job = this._take();
+            this.runHere(() => this.decodeHere(job.ctx, job.t)).then(job.resolve, job.reject);
         }
     }
 
     _done(w, m) {
-        const { resolve, reject } = w.job;
-        w.job = null;
+        const i = w.jobs.findIndex((j) => j.t === m.t);
+        const { resolve, reject } = w.jobs.splice(i, 1)[0];
         if (m.error) reject(remoteError(m.error));
         else resolve({ ...m.tile, arrays: m.arrays });
         this._next();
+    }
+
+    _failAll(w, message) {
+        for (const j of w.jobs.splice(0)) j.reject(remoteError({ name: 'Error', message }));
     }
 
     close() {

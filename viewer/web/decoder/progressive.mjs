@@ -122,7 +122,7 @@ export class ProgressiveDecoder {
     _start(ctx, t) {
         let p;
         if (!this.pool) p = decodeTile(ctx, t);
-        else if (t === 0) p = new Promise((res) => setTimeout(res, 0)).then(() => decodeTile(ctx, 0));
+        else if (t === 0) p = this.pool.runHere(() => decodeTile(ctx, 0));
         else p = this.pool.decode(ctx, t);
         p = p.then((r) => {
             this.tiles[t] = r;

@@ -86,18 +86,9 @@ export function toHex(bytes) {
     return s;
 }
 
-/** One-shot SHA-256 of a list of byte views: native Web Crypto where present, else this module. */
-export async function sha256Parts(parts) {
+/** One-shot SHA-256 of a byte array: native Web Crypto where present, else this module. */
+export async function sha256(bytes) {
     const subtle = globalThis.crypto && globalThis.crypto.subtle;
-    if (subtle) {
-        let total = 0;
-        for (const p of parts) total += p.byteLength;
-        const all = new Uint8Array(total);
-        let o = 0;
-        for (const p of parts) { all.set(new Uint8Array(p.buffer, p.byteOffset, p.byteLength), o); o += p.byteLength; }
-        return new Uint8Array(await subtle.digest('SHA-256', all));
-    }
-    const h = new Sha256();
-    for (const p of parts) h.update(p);
-    return h.digest();
+    if (subtle) return new Uint8Array(await subtle.digest('SHA-256', bytes));
+    return new Sha256().update(bytes).digest();
 }

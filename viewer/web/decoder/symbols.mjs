@@ -4,7 +4,8 @@
 import { BitstreamError } from './errors.mjs';
 import { alloc, callWasm, wasm } from './wasm.mjs';
 
-function chunkError(what, code, w) {
+/** The spec's error for the module's failure `code` in the symbol chunk `what`. */
+export function symbolError(what, code, w) {
     if (code === 1) return new BitstreamError(`${what}: range decoding failed: q >= 2^24 (clause 10.6.4)`);
     if (code === 2) return new BitstreamError(`${what}: data left over after decoding (clause 10.6.5)`);
     return new BitstreamError(`${what}: escaped residual magnitude ${BigInt.asUintN(64, w.errorWide())} exceeds 2^62 - 1 (clause 10.5)`);
@@ -25,7 +26,7 @@ export function decodeSymbolChunk(bytes, levels, n, out, wide, what) {
     const p = alloc(w, bytes.length), pl = alloc(w, n), po = alloc(w, 8 * n), pw = alloc(w, 8 * n);
     new Uint8Array(w.memory.buffer, p, bytes.length).set(bytes);
     new Uint8Array(w.memory.buffer, pl, n).set(levels.subarray(0, n));
-    const nesc = callWasm(() => w.decodeSymbols(p, bytes.length, pl, n, po, pw), (code) => chunkError(what, code, w));
+    const nesc = callWasm(() => w.decodeSymbols(p, bytes.length, pl, n, po, pw), (code) => symbolError(what, code, w));
     const res = new Float64Array(w.memory.buffer, po, n);
     out.set(res);
     if (nesc) {

@@ -22,6 +22,7 @@ const ERR_MEMORY = 9; // decoder.ts: linear memory could not grow
 
 /** `bytes` of the module's arena; returns their address. */
 export function alloc(w, bytes) {
+    if (!(bytes >= 0 && bytes < 2 ** 31)) throw new ResourceLimitError(`decoding needs ${bytes} bytes at once, beyond the 2 GiB the decoder's WebAssembly module addresses`);
     return callWasm(() => w.alloc(bytes), () => null);
 }
 

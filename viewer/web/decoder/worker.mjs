@@ -4,11 +4,11 @@
 // {type: 'done', count, tiles, seconds, digest, helpers} once the whole stream passed every check, or
 // {type: 'error', kind, message}. With {digest: true} 'done' carries the decoded scene's SHA-256
 // (clause 12); with {bytes, box} only the tiles the box selects are decoded. With {workers: W, source}
-// (W >= 1, e.g. navigator.hardwareConcurrency; source: this script's text) the tiles of a tiled stream are decoded by W helper
-// workers of this same script in parallel (pool.mjs; where a worker cannot start workers, tile after
-// tile), and 'tile' messages come in the order tiles finish.
+// (W >= 2, e.g. navigator.hardwareConcurrency; source: this script's text) the tiles of a tiled stream are decoded by W
+// threads in parallel: this worker and W - 1 helper workers of this same script (pool.mjs; where a
+// worker cannot start workers, tile after tile), and 'tile' messages come in the order tiles finish.
 import { ProgressiveDecoder, sceneArrays } from './progressive.mjs';
-import { decodeStream, sceneDigestHex } from './decoder.mjs';
+import { decodeStream, decodeTile, sceneDigestHex } from './decoder.mjs';
 import { TilePool, arrayBuffers, helperMessage } from './pool.mjs';
 
 async function* chunksOf(msg) {
@@ -46,8 +46,8 @@ self.onmessage = async (e) => {
     if (e.data.box) { await decodeBox(e.data); return; }
     const t0 = performance.now();
     let count = 0;
-    const url = e.data.workers >= 1 && typeof Worker !== 'undefined' ? helperUrl(e.data) : null;
-    const pool = url ? new TilePool(e.data.workers, url, { keep: !!e.data.digest }) : null;
+    const url = e.data.workers >= 2 && typeof Worker !== 'undefined' ? helperUrl(e.data) : null;
+    const pool = url ? new TilePool(e.data.workers - 1, url, { keep: !!e.data.digest, decodeHere: decodeTile }) : null;
     const dec = new ProgressiveDecoder({
         pool,
         onTile: (t, tile, info) => {

@@ -466,7 +466,8 @@ function offsetAxis(c: usize, n: i32, bmin: i32): void {
 const CELLS_PER_POINT: i32 = 2; // grid size: at most this many cells per data point (and 4096)
 
 let gB: i32 = 0; let gSide: i64 = 0; let gNx: i32 = 0; let gNy: i32 = 0; let gNz: i32 = 0;
-let gStart: usize = 0; let gPx: usize = 0; let gPy: usize = 0; let gPz: usize = 0; let gId: usize = 0;
+let gStart: usize = 0; let gP: usize = 0; // gP: per point of the grid, in cell order, (x, y, z, id) as i32 (one cache line holds 4)
+let worst: u64 = 0; // the k-th distance of hD once it holds k, else the largest u64
 let hD: usize = 0; let hI: usize = 0; let kK: i32 = 0;
 
 @inline function u64At(p: usize, i: i32): u64 { return load<u64>(p + (<usize>i << 3)); }
@@ -506,25 +507,26 @@ function buildGrid(x: usize, y: usize, z: usize, lo0: i32, lo1: i32, lo2: i32, e
     }
     for (let c = 1; c <= cells; c++) setI32(start, c, i32At(start, c) + i32At(start, c - 1));
     // the points sorted by cell (stable), as offsets from lo
-    gPx = alloc(n << 2); gPy = alloc(n << 2); gPz = alloc(n << 2); gId = alloc(n << 2);
+    gP = alloc(n << 4);
     const fill = alloc(cells << 2);
     memory.copy(fill, start, <usize>cells << 2);
     for (let t = 0; t < n; t++) {
         const j = i32At(ds, t), c = i32At(cell, t), o = i32At(fill, c);
         setI32(fill, c, o + 1);
-        setI32(gPx, o, i32At(x, j) - lo0); setI32(gPy, o, i32At(y, j) - lo1); setI32(gPz, o, i32At(z, j) - lo2); setI32(gId, o, j);
+        setI32(gP, 4 * o, i32At(x, j) - lo0); setI32(gP, 4 * o + 1, i32At(y, j) - lo1); setI32(gP, 4 * o + 2, i32At(z, j) - lo2); setI32(gP, 4 * o + 3, j);
     }
     gStart = start;
 }
 
 /** The k nearest of (qx, qy, qz) (offsets from lo) sorted by (d2, id) into hD/hI; returns their count. */
 function search(qx: i32, qy: i32, qz: i32): i32 {
-    const b = gB, cx = qx >> b, cy = qy >> b, cz = qz >> b, k = kK;
+    const b = gB, cx = qx >> b, cy = qy >> b, cz = qz >> b;
+    worst = u64.MAX_VALUE;
     let size = visitCell((cx * gNy + cy) * gNz + cz, qx, qy, qz, 0);
     for (let s = 1; ; s++) {
         size = visitShell(cx, cy, cz, s, qx, qy, qz, size);
         const bound = unvisitedBound(cx, cy, cz, s, qx, qy, qz);
-        if (bound < 0 || (size == k && u64At(hD, k - 1) < <u64>(bound * bound))) break;
+        if (bound < 0 || worst < <u64>(bound * bound)) break; // worst < MAX: size == k
     }
     return size;
 }
@@ -558,7 +560,7 @@ function visitShell(cx: i32, cy: i32, cz: i32, s: i32, qx: i32, qy: i32, qz: i32
         const fx = X == cx - s || X == cx + s, ex = gap(X, cx, qx);
         for (let Y = y0; Y <= y1; Y++) {
             const row = (X * ny + Y) * nz, exy = ex + gap(Y, cy, qy);
-            if (size == k && exy > u64At(hD, k - 1)) continue;
+            if (exy > worst) continue;
             if (fx || Y == cy - s || Y == cy + s) {
                 for (let Z = z0; Z <= z1; Z++) size = visitNear(row, Z, cz, qx, qy, qz, exy, size);
             } else {
@@ -571,14 +573,16 @@ function visitShell(cx: i32, cy: i32, cz: i32, s: i32, qx: i32, qy: i32, qz: i32
 }
 
 @inline function visitNear(row: i32, Z: i32, cz: i32, qx: i32, qy: i32, qz: i32, exy: u64, size: i32): i32 {
-    if (size == kK && exy + gap(Z, cz, qz) > u64At(hD, kK - 1)) return size;
+    if (exy + gap(Z, cz, qz) > worst) return size;
     return visitCell(row + Z, qx, qy, qz, size);
 }
 
 function visitCell(c: i32, qx: i32, qy: i32, qz: i32, size: i32): i32 {
     for (let p = i32At(gStart, c), e = i32At(gStart, c + 1); p < e; p++) {
-        const dx = <i64>i32At(gPx, p) - <i64>qx, dy = <i64>i32At(gPy, p) - <i64>qy, dz = <i64>i32At(gPz, p) - <i64>qz;
-        size = offer(<u64>(dx * dx) + <u64>(dy * dy) + <u64>(dz * dz), i32At(gId, p), size);
+        const r = gP + (<usize>p << 4);
+        const dx = <i64>load<i32>(r) - <i64>qx, dy = <i64>load<i32>(r, 4) - <i64>qy, dz = <i64>load<i32>(r, 8) - <i64>qz;
+        const d = <u64>(dx * dx) + <u64>(dy * dy) + <u64>(dz * dz);
+        if (d <= worst) size = offer(d, load<i32>(r, 12), size);
     }
     return size;
 }
@@ -597,6 +601,7 @@ function offer(d: u64, id: i32, size: i32): i32 {
         setU64(hD, j, pd); setI32(hI, j, pi); j--;
     }
     setU64(hD, j, d); setI32(hI, j, id);
+    if (size == k) worst = u64At(hD, k - 1);
     return size;
 }
 
@@ -690,69 +695,162 @@ function decodeEscapes(lv: usize, n: i32, out: usize, wide: usize, esc: usize, n
     }
 }
 
-// ---------------------------------------------------------------- neighbour prediction parameters (11.7.3, 11.8)
+// ---------------------------------------------------------------- attribute chunks (11.3-11.8)
 
-@inline function floorDivI(a: i64, b: i64): i64 { // b > 0
-    const d = a / b;
-    return (a % b != 0 && a < 0) ? d - 1 : d;
+// The tile's attribute parameters (attributeTile): q (i64 [n * M], the values decoded so far), the rows'
+// step-adjustment indices adj (u8 [n]), the fixed-point factors fix (i32 [8]) and level shifts shift
+// (i32 [8]) of 11.8 when sa, the neighbour_mean_flag (u8 [M]) and bucket_level (u8 [M * B]) of
+// 11.7.3, the prior (f64 [M] means, u8 [M] levels) and the predictions of 11.6 grouped by target
+// (pStart i32 [M + 1]; pSrc, pW i32 per prediction).
+let aQ: usize = 0; let aM: i32 = 0; let aAdj: usize = 0; let aSa: i32 = 0; let aFix: usize = 0; let aShift: usize = 0;
+let aMeanFlag: usize = 0; let aBucket: usize = 0; let aB: i32 = 1; let aPrior: usize = 0; let aPriorLevel: usize = 0;
+let aPStart: usize = 0; let aPSrc: usize = 0; let aPW: usize = 0;
+
+export function attributeTile(q: usize, M: i32, adj: usize, sa: i32, fix: usize, shift: usize, meanFlag: usize, bucket: usize, B: i32,
+    prior: usize, priorLevel: usize, pStart: usize, pSrc: usize, pW: usize): void {
+    aQ = q; aM = M; aAdj = adj; aSa = sa; aFix = fix; aShift = shift; aMeanFlag = meanFlag; aBucket = bucket; aB = B;
+    aPrior = prior; aPriorLevel = priorLevel; aPStart = pStart; aPSrc = pSrc; aPW = pW;
 }
 
-@inline function floorDivF(a: f64, b: f64): f64 { // tables.mjs's floorDiv on exact binary64 integers (the prior's mean)
-    let m = Math.floor(a / b);
-    if (m * b > a) m--; else if ((m + 1) * b <= a) m++;
-    return m;
-}
+const ERR_Q_LIMIT: i32 = 11;   // |q| > 2^40 (11.6, E51; errA the row, errB the channel, errorWide() q)
+const ERR_NOT_FINITE: i32 = 12; // a reconstructed value not finite (11.5, E52; errA the row, errB the channel)
+const Q_LIMIT: i64 = 0x10000000000; // 2^40
 
-/** The prior's mean of channel c (11.3), scaled by the row's step adjustment F (11.8) when sa. */
-@inline function priorMean(prior: usize, c: i32, sa: i32, F: i64): f64 {
-    const p = load<f64>(prior + (<usize>c << 3));
-    return sa ? floorDivF(p * 4096 + <f64>(F >> 1), <f64>F) : p;
+@inline function i64At(p: usize, i: i32): i64 { return load<i64>(p + (<usize>i << 3)); }
+@inline function setI64(p: usize, i: i32, v: i64): void { store<i64>(p + (<usize>i << 3), v); }
+
+/** The prior's mean of channel c (11.3; |prior_mean| < 2^31), scaled by the row's step adjustment F (11.8) when sa. */
+@inline function priorMean(c: i32, F: i64): i64 {
+    const p = <i64>load<f64>(aPrior + (<usize>c << 3));
+    return aSa ? floorDiv(p * 4096 + (F >> 1), F) : p;
 }
 
 /**
- * The mean and level of every channel of nr rows (11.3, 11.7.3; step-adjusted, 11.8, when sa):
- * row rows[r] has cnt[r] neighbours idx[r * k ..] (none: the prior's mean and level); q (f64 [*, M],
- * integers with |q| <= 2^40) the values decoded so far, adj (u8) the rows' step-adjustment
- * indices, fix (i32 [8]) their fixed-point factors F and shift (i32 [8]) their level shifts;
- * meanFlag (u8 [M]), bucket (u8 [M * B]) the bucket levels, prior (f64 [M]) and priorLevel (u8 [M]).
- * Sums of up to 32 q F stay below 2^59: exact in i64. Results to mean (f64 [nr * M]) and level (u8 [nr * M]).
+ * Chunk of nr rows (rows: i32 [nr]) with symbol data of nbytes at p: the rows' means and levels
+ * (11.3, 11.7.3, 11.8; row r has cnt[r] neighbours idx[r * k ..], none: the prior's), the symbols
+ * (10.7) and the values q (11.6) into the tile's q. Returns the number of escapes.
  */
-export function rowMeans(q: usize, M: i32, rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, adj: usize, sa: i32, fix: usize,
-    shift: usize, meanFlag: usize, bucket: usize, B: i32, prior: usize, priorLevel: usize, mean: usize, level: usize): void {
+export function attributeChunk(p: usize, nbytes: i32, rows: usize, nr: i32, idx: usize, cnt: usize, k: i32): i32 {
     err = 0;
-    const sum = alloc(M << 3), mx = alloc(M << 3), mn = alloc(M << 3);
+    const M = aM, n = nr * M;
+    const mean = alloc(n << 3), level = alloc(n), res = alloc(n << 3), wide = alloc(n << 3);
+    rowMeans(rows, nr, idx, cnt, k, mean, level);
+    const nesc = decodeSymbols(p, nbytes, level, n, res, wide);
+    for (let r = 0; r < nr; r++) rowValues(i32At(rows, r), r * M, mean, res, wide);
+    return nesc;
+}
+
+/**
+ * q of one row (11.4 step 3, 11.6): residual + mean + prediction from the channels before, each
+ * checked against |q| <= 2^40 as it is computed. Exact in i64: residuals below 2^62, means below
+ * 2^42 and at most M - 1 terms of |weight| <= 2^15 times |q - mean| < 2^43.
+ */
+function rowValues(row: i32, base: i32, mean: usize, res: usize, wide: usize): void {
+    const M = aM, qb = aQ + (<usize>(row * M) << 3), mb = mean + (<usize>base << 3);
+    for (let c = 0; c < M; c++) {
+        const rf = load<f64>(res + (<usize>(base + c) << 3));
+        const rv: i64 = rf == rf ? <i64>rf : i64At(wide, base + c); // NaN: an escape beyond 2^53
+        let pr: i64 = 0;
+        for (let i = i32At(aPStart, c), e = i32At(aPStart, c + 1); i < e; i++) {
+            const s = i32At(aPSrc, i);
+            pr += <i64>i32At(aPW, i) * (i64At(qb, s) - i64At(mb, s));
+        }
+        const v = rv + i64At(mb, c) + ((pr + 128) >> 8);
+        if (v > Q_LIMIT || v < -Q_LIMIT) { errWide = <u64>v; fail(ERR_Q_LIMIT, row, c); }
+        setI64(qb, c, v);
+    }
+}
+
+/**
+ * Floor division a // b (b > 0, |a| < 2^62) from a binary64 estimate, corrected to the exact
+ * quotient with the remainder (i64 division is several times slower than this).
+ */
+@inline function floorDiv(a: i64, b: i64): i64 {
+    let d = <i64>Math.floor(<f64>a / <f64>b), r = a - d * b;
+    while (r < 0) { d--; r += b; }
+    while (r >= b) { d++; r -= b; }
+    return d;
+}
+
+/**
+ * The mean (i64) and level (u8) of every channel of nr rows to mean [nr * M] and level [nr * M].
+ * Sums of up to 32 q F (|q| <= 2^40, F < 2^14) stay below 2^59: exact in i64.
+ */
+function rowMeans(rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, mean: usize, level: usize): void {
+    const M = aM, qa = alloc(k << 2), fa = alloc(k << 3);
     for (let r = 0; r < nr; r++) {
-        const n = u8At(cnt, r), a = u8At(adj, i32At(rows, r)), F: i64 = sa ? <i64>i32At(fix, a) : 1, base = r * M;
-        if (n == 0) {
-            const sh = sa ? i32At(shift, a) : 0;
-            for (let c = 0; c < M; c++) {
-                store<f64>(mean + (<usize>(base + c) << 3), priorMean(prior, c, sa, F));
-                setU8(level, base + c, max(0, u8At(priorLevel, c) - sh));
-            }
-            continue;
+        const n = u8At(cnt, r), F: i64 = aSa ? <i64>i32At(aFix, u8At(aAdj, i32At(rows, r))) : 1, base = r * M;
+        if (n == 0) { priorRow(mean, level, base, F, i32At(rows, r)); continue; }
+        for (let m = 0; m < n; m++) { // the neighbours' rows of q and factors
+            const j = i32At(idx, r * k + m);
+            setI32(qa, m, <i32>(aQ + (<usize>(j * M) << 3)));
+            setI64(fa, m, aSa ? <i64>i32At(aFix, u8At(aAdj, j)) : 1);
         }
-        // sum, max and min of the neighbours' (step-adjusted) values: the first neighbour, then the others
-        let j = i32At(idx, r * k), f: i64 = sa ? <i64>i32At(fix, u8At(adj, j)) : 1, qj = q + (<usize>(j * M) << 3);
+        let c = 0;
+        for (; c + 1 < M; c += 2) neighbourPair(qa, fa, n, c, F, mean, level, base);
+        if (c < M) neighbourOne(qa, fa, n, c, F, mean, level, base);
+    }
+}
+
+/** Channels c and c + 1 of a row with n neighbours (rows of q at qa, factors fa): sum, max and min of q F two lanes at a time. */
+@inline function neighbourPair(qa: usize, fa: usize, n: i32, c: i32, F: i64, mean: usize, level: usize, base: i32): void {
+    const o = <usize>c << 3;
+    let v = v128.load(<usize>i32At(qa, 0) + o);
+    if (aSa) v = i64x2.mul(v, i64x2.splat(i64At(fa, 0)));
+    let sum = v, mx = v, mn = v;
+    for (let m = 1; m < n; m++) {
+        v = v128.load(<usize>i32At(qa, m) + o);
+        if (aSa) v = i64x2.mul(v, i64x2.splat(i64At(fa, m)));
+        sum = i64x2.add(sum, v);
+        mx = v128.bitselect(v, mx, i64x2.gt_s(v, mx));
+        mn = v128.bitselect(v, mn, i64x2.lt_s(v, mn));
+    }
+    channelParameters(c, i64x2.extract_lane(sum, 0), i64x2.extract_lane(mx, 0), i64x2.extract_lane(mn, 0), n, F, mean, level, base);
+    channelParameters(c + 1, i64x2.extract_lane(sum, 1), i64x2.extract_lane(mx, 1), i64x2.extract_lane(mn, 1), n, F, mean, level, base);
+}
+
+/** Channel c of a row with n neighbours, one lane. */
+@inline function neighbourOne(qa: usize, fa: usize, n: i32, c: i32, F: i64, mean: usize, level: usize, base: i32): void {
+    const o = <usize>c << 3;
+    let sum: i64 = 0, mx: i64 = i64.MIN_VALUE, mn: i64 = i64.MAX_VALUE;
+    for (let m = 0; m < n; m++) {
+        const v = load<i64>(<usize>i32At(qa, m) + o) * i64At(fa, m);
+        sum += v; mx = max(mx, v); mn = min(mn, v);
+    }
+    channelParameters(c, sum, mx, mn, n, F, mean, level, base);
+}
+
+/** Mean and level of channel c (11.7.3, 11.8) from the neighbours' sum, max and min of q F. */
+@inline function channelParameters(c: i32, sum: i64, mx: i64, mn: i64, n: i32, F: i64, mean: usize, level: usize, base: i32): void {
+    const nF = <i64>n * F;
+    setI64(mean, base + c, u8At(aMeanFlag, c) ? floorDiv(sum + (nF >> 1), nF) : priorMean(c, F));
+    const act = F == 1 ? mx - mn : floorDiv(mx - mn, F); // >= 0
+    setU8(level, base + c, u8At(aBucket, c * aB + min(<i32>(64 - clz<i64>(act)), aB - 1)));
+}
+
+/** The prior's means and levels (11.3; 11.8 when sa) of a row with no neighbours. */
+function priorRow(mean: usize, level: usize, base: i32, F: i64, row: i32): void {
+    const sh = aSa ? i32At(aShift, u8At(aAdj, row)) : 0;
+    for (let c = 0; c < aM; c++) {
+        setI64(mean, base + c, priorMean(c, F));
+        setU8(level, base + c, max(0, u8At(aPriorLevel, c) - sh));
+    }
+}
+
+/**
+ * Reconstruction in binary32 (11.5) of the tile's n rows into out (f32 [n * M]): float32(q) times
+ * the binary32 step scale[a * M + c] (f32 [8 * M]: float32(step(c)) * STEP_ADJUST_FACTORS[a]) of
+ * the row's index a; a value that is not finite fails (E52).
+ */
+export function reconstruct(n: i32, scale: usize, out: usize): void {
+    err = 0;
+    const M = aM;
+    for (let i = 0; i < n; i++) {
+        const s = scale + (<usize>(u8At(aAdj, i) * M) << 2), qb = aQ + (<usize>(i * M) << 3), ob = out + (<usize>(i * M) << 2);
         for (let c = 0; c < M; c++) {
-            const o = <usize>c << 3, v = <i64>load<f64>(qj + o) * f;
-            store<i64>(sum + o, v); store<i64>(mx + o, v); store<i64>(mn + o, v);
-        }
-        for (let m = 1; m < n; m++) {
-            j = i32At(idx, r * k + m); f = sa ? <i64>i32At(fix, u8At(adj, j)) : 1; qj = q + (<usize>(j * M) << 3);
-            for (let c = 0; c < M; c++) {
-                const o = <usize>c << 3, v = <i64>load<f64>(qj + o) * f;
-                store<i64>(sum + o, load<i64>(sum + o) + v);
-                if (v > load<i64>(mx + o)) store<i64>(mx + o, v);
-                if (v < load<i64>(mn + o)) store<i64>(mn + o, v);
-            }
-        }
-        const nF = <i64>n * F;
-        for (let c = 0; c < M; c++) {
-            const o = <usize>c << 3;
-            const mu = u8At(meanFlag, c) ? <f64>floorDivI(load<i64>(sum + o) + (nF >> 1), nF) : priorMean(prior, c, sa, F);
-            store<f64>(mean + (<usize>(base + c) << 3), mu);
-            const act = floorDivI(load<i64>(mx + o) - load<i64>(mn + o), F); // >= 0
-            setU8(level, base + c, u8At(bucket, c * B + min(<i32>(64 - clz<i64>(act)), B - 1)));
+            const v = <f32>load<i64>(qb + (<usize>c << 3)) * load<f32>(s + (<usize>c << 2));
+            if (v - v != 0) fail(ERR_NOT_FINITE, i, c); // inf - inf and NaN - NaN are NaN
+            store<f32>(ob + (<usize>c << 2), v);
         }
     }
 }
