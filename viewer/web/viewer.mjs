@@ -332,7 +332,7 @@ function makeWorker() {
     return worker;
 }
 
-// helper workers that decode a tiled stream's tiles in parallel (the decoding worker starts them)
+// decoding threads for a tiled stream's tiles: the decoding worker itself and DECODE_WORKERS - 1 helpers it starts
 const DECODE_WORKERS = Math.max(1, navigator.hardwareConcurrency || 1);
 
 function decodeInto(pane, msg, what) {
