@@ -218,10 +218,11 @@ def _encode_gaussians(scene: GaussianScene, cfg, *, progress: bool, log: Log, me
     """Rate-aware preparation (when the settings call for it), then the explicit-Gaussian
     coding -> (result, the settings used: the preset's, or those the search chose)."""
     from .gaussians.gaussian_fit import needs_preparation, prepare_gaussians
-    from .gaussians.gaussians import encode_gaussian_scene
+    from .gaussians.gaussians import encode_gaussian_scene, without_invisible
 
     t0 = time.perf_counter()
     weights, sensitivity, prepared = None, None, None
+    scene, invisible = without_invisible(scene, cfg)
     if needs_preparation(cfg):
         goal = (f", choosing settings for {cfg.target_psnr:g} dB" if cfg.target_psnr
                 else f", choosing settings for lambda {cfg.rd_lambda:g}" if cfg.rd_lambda else "")
@@ -237,8 +238,10 @@ def _encode_gaussians(scene: GaussianScene, cfg, *, progress: bool, log: Log, me
         result.stats.stage_times_s = {"prepare": prepared.time_total_s, **result.stats.stage_times_s}
     bands = ", ".join(f"{s:.3g}" for s in cfg.sh_band_steps[:result.decoded.sh_degree])
     result.stats.settings = (
-        f"pruned {prepared.gaussians_pruned if prepared else 0:,} Gaussians; position step {cfg.position_step:.3g} x "
-        f"the typical size; steps SH DC {cfg.sh_dc_step:.3g}" + (f", bands {bands}" if bands else "")
+        f"pruned {(prepared.gaussians_pruned if prepared else 0) + invisible:,} Gaussians"
+        + (f" ({invisible:,} of opacity below {cfg.min_opacity:.3g})" if invisible else "")
+        + f"; position step {cfg.position_step:.3g} x the typical size; steps SH DC {cfg.sh_dc_step:.3g}"
+        + (f", bands {bands}" if bands else "")
         + f", opacity {cfg.opacity_step:.3g}, scale {cfg.scale_step:.3g}, rotation {cfg.rotation_step:.3g}")
     result.stats.time_total_s = time.perf_counter() - t0
     return result, cfg

@@ -47,7 +47,8 @@ source (low 40 dB, medium 45 dB, high 50 dB; --psnr sets another), --lambda inst
 their quantization simulated (--fit-iterations; medium and high), which adds about 1 dB.
 A large scene can be searched on a spatial sample (a YAML --config with search_sample_gaussians:
 100000; off by default: it cost 31% more bytes on a 307k scene, tools/results/search_sampling.md).
-The fast preset renders nothing: the scene is coded at fixed steps.
+The fast preset renders nothing: the Gaussians of opacity below 1/255 (which no rasterizer
+draws) are dropped and the rest coded at fixed steps.
 An anchor scene (Scaffold-GS / HAC checkpoint) is coded with its anchors and render MLPs.
 
 examples:

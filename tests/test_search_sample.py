@@ -113,10 +113,31 @@ def test_fast_preset_renders_nothing_and_round_trips(degree):
     result, used = api.encode(scene, cfg)  # verify=True: decoded again and its hash checked
     assert result.stats.prepare is None  # no renders: contributions, search and fit all skipped
     decoded = decode_stream(result.data).scene
-    assert decoded.num_gaussians == scene.num_gaussians and decoded.sh_degree == degree
+    visible = 1 / (1 + np.exp(-scene.opacity.astype(np.float64))) >= cfg.min_opacity  # alpha >= 1/255: kept
+    assert cfg.min_opacity == pytest.approx(1 / 255) and 0 < visible.sum() < scene.num_gaussians
+    assert decoded.num_gaussians == visible.sum() and decoded.sh_degree == degree
     assert gaussian_scene_digest(decoded) == gaussian_scene_digest(result.decoded)
     raw = scene.num_gaussians * (3 + 3 * (degree + 1) ** 2 + 8) * 4
     assert len(result.data) < raw / 3  # coded at the preset's steps, not copied
+
+
+def test_min_opacity_drops_only_what_no_rasterizer_draws():
+    """Gaussians below min_opacity (after the sigmoid) are dropped, the rest kept in order; a scene
+    with none above it keeps its most opaque Gaussian (a stream holds at least one)."""
+    from lghcc.encoder.gaussians.gaussians import without_invisible
+
+    cfg = load_config("fast", kind="gaussians")
+    scene = random_gaussians(np.random.default_rng(3), 500, 0)
+    kept, dropped = without_invisible(scene, cfg)
+    alpha = 1 / (1 + np.exp(-scene.opacity.astype(np.float64)))
+    assert dropped == int((alpha < 1 / 255).sum()) > 0
+    assert np.array_equal(kept.means, scene.means[alpha >= 1 / 255])
+    faint = scene.subset(np.arange(5))
+    faint.opacity[:] = np.array([-9, -7, -8, -12, -10], np.float32)
+    one, dropped = without_invisible(faint, cfg)
+    assert one.num_gaussians == 1 and dropped == 4 and one.opacity[0] == -7
+    same, dropped = without_invisible(scene, dataclasses.replace(cfg, min_opacity=0.0))
+    assert same is scene and dropped == 0
 
 
 def _shell_with_inside(rng):

@@ -89,6 +89,30 @@ def test_tile_size_is_chosen_from_the_points():
     assert choose_tile_scale(coords, 1, 0) == 0 and choose_tile_scale(coords, 1, 30000) == 0
 
 
+def brute_force_tile_scale(coords, unit, target):
+    """choose_tile_scale by its definition: every power-of-two side's occupied cells counted anew."""
+    best, best_err = 0, np.inf
+    for j in range(21):
+        occupied = len(np.unique(tile_cells(coords, (1 << j) * unit), axis=0))
+        if occupied == 1:
+            break
+        err = abs(np.log2(len(coords) / occupied / target))
+        if err < best_err:
+            best, best_err = 1 << j, err
+    return best
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_tile_size_of_negative_and_clustered_points_and_odd_units(seed):
+    """The sides' cells derived from the side below (floor(floor(c / s) / 2) = floor(c / 2s)) count
+    what counting each side anew counts: negative coordinates, clusters, coarse voxels of 3 and 5."""
+    rng = np.random.default_rng(seed)
+    centres = rng.integers(-5000, 5000, size=(7, 3))
+    coords = centres[rng.integers(0, 7, 3000)] + rng.integers(-40, 40, size=(3000, 3)) * (seed + 1)
+    for unit, target in ((1, 100), (3, 250), (5, 40)):
+        assert choose_tile_scale(coords, unit, target) == brute_force_tile_scale(coords, unit, target)
+
+
 @pytest.fixture(scope="module")
 def tiled():
     scene = random_scene(np.random.default_rng(7), 3000, spread=60, mask=True)

@@ -69,8 +69,11 @@ def encode_once(scene, preset: str) -> dict:
         prep = prepare_gaussians(scene, cfg, log=lambda m: print(f"bench_speed: {preset}: {m}", file=sys.stderr,
                                                                  flush=True))
         scene, cfg, weights, sensitivity, s = prep.scene, prep.cfg, prep.weights, prep.sensitivity, prep.stats
-    else:  # the fast preset: coded as it comes (encoder/api.py)
+    else:  # the fast preset: coded as it comes, less what no rasterizer draws (encoder/api.py)
+        from lghcc.encoder.gaussians.gaussians import without_invisible
+
         weights, sensitivity, s = None, None, PrepareStats(gaussians_in=scene.num_gaussians)
+        scene, _ = without_invisible(scene, cfg)
     t1 = time.perf_counter()
     result = encode_gaussian_scene(scene, cfg, weights=weights, sensitivity=sensitivity)
     t2 = time.perf_counter()

@@ -68,6 +68,18 @@ def with_coded_sh_degree(scene: GaussianScene, cfg: GaussianEncoderConfig, stats
     return scene
 
 
+def without_invisible(scene: GaussianScene, cfg: GaussianEncoderConfig) -> tuple[GaussianScene, int]:
+    """The scene less its Gaussians of opacity below ``cfg.min_opacity`` (after the sigmoid; the
+    most opaque one stays if none reaches it: a stream holds at least one) -> (scene, dropped)."""
+    if cfg.min_opacity <= 0:
+        return scene, 0
+    alpha = 1.0 / (1.0 + np.exp(-scene.opacity.astype(np.float64)))
+    keep = alpha >= cfg.min_opacity
+    if not keep.any():
+        keep[int(np.argmax(alpha))] = True
+    return (scene, 0) if keep.all() else (scene.subset(keep), int((~keep).sum()))
+
+
 def on_own_voxels(scene: GaussianScene, cfg: GaussianEncoderConfig, weights: np.ndarray | None,
                   stats: EncodeStats) -> GaussianScene:
     """The scene on a position grid, every Gaussian in its own voxel: a scene already on a grid

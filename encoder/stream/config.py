@@ -171,6 +171,10 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # Needs the sensitivities and neighbour prediction (0: off).
     step_adjust_max: int = 0
     step_adjust_quantile: float = 0.9
+    # Drop before anything else the Gaussians whose opacity (after the sigmoid) is below this: at
+    # 1/255 those that 3DGS rasterizers never draw (alpha < 1/255 is skipped, render/rasterizer.py),
+    # found without renders (the fast preset; 0: keep all)
+    min_opacity: float = 0.0
     # Rate-aware preparation (encoder/gaussians/gaussian_fit.py), against renders of the source from
     # fit_views cameras on a sphere around it at fit_resolution pixels:
     fit_views: int = 24
@@ -243,6 +247,8 @@ class GaussianEncoderConfig(AttributeCodingConfig):
                              f"{self.step_adjust_max!r}, {self.step_adjust_quantile!r}")
         if self.sh_degree is not None and self.sh_degree not in (0, 1, 2, 3):
             raise InputError(f"sh_degree must be 0..3 or None, got {self.sh_degree!r}")
+        if not 0 <= self.min_opacity < 1:
+            raise InputError(f"min_opacity must be in [0, 1), got {self.min_opacity}")
         if not 0 <= self.prune_share < 1:
             raise InputError(f"prune_share must be in [0, 1), got {self.prune_share}")
         if not 0 <= self.target_psnr < 200 or not 0 <= self.rd_lambda < float("inf"):

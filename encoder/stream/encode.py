@@ -413,7 +413,8 @@ def code_neighbours_or_prior(inp: AttributeInput, levels: LevelLayout, cfg: Attr
     q = quantized_level(coder, inp)
     nc = neighbour_coding_of(q, inp.coords, cfg, inp.layout, predict, step_adjust=inp.step_adjust)
     unit_bytes = UNIT_FRAMING_BYTES + len(nc.unit.to_bytes())
-    with_prior = code_with_prior(coder, inp) if inp.step_adjust is None else None
+    # with tiles only its ideal bits are compared: the whole scene's unit is never written
+    with_prior = code_with_prior(coder, inp, write=not levels.tile_scale) if inp.step_adjust is None else None
     # step adjustment needs neighbour prediction (the values were chosen in the adjusted steps)
     always = cfg.neighbour_prediction == "always" or inp.step_adjust is not None
     if levels.tile_scale:

@@ -93,14 +93,16 @@ class LevelCoder:
             h.mask_live_prob = [int(x) for x in p]
         return h
 
-    def code(self, header: AttributeUnitHeader, q: np.ndarray, params: attr.CodingParams) -> LevelCoding:
+    def code(self, header: AttributeUnitHeader, q: np.ndarray, params: attr.CodingParams,
+             write: bool = True) -> LevelCoding:
+        """``write`` False: everything but the payload (b""), for a size estimate (ideal bits)."""
         prediction = None
         if self.predict:
             prediction, levels_after = fit_channel_prediction(q, params, self.layout, self.live)
             if header.context_model_id == CONTEXT_PER_CHANNEL_PRIOR:  # the prior's levels follow the residuals
                 header.prior_level = levels_after.tolist()
                 params = attr.prior_params(header)
-        payload = attr.write_attribute_unit(header, self.layout, q, self.mask, params, prediction)
+        payload = attr.write_attribute_unit(header, self.layout, q, self.mask, params, prediction) if write else b""
         return LevelCoding(q, params, payload, header, prediction)
 
 
@@ -140,14 +142,14 @@ def code_with_neighbours(coder: LevelCoder, q: np.ndarray, nc: NeighbourCoding) 
     return LevelCoding(q, params, payload, header, nc.prediction)
 
 
-def code_with_prior(coder: LevelCoder, inp: AttributeInput) -> LevelCoding:
-    """The level coded with the per-channel prior fitted to it."""
+def code_with_prior(coder: LevelCoder, inp: AttributeInput, write: bool = True) -> LevelCoding:
+    """The level coded with the per-channel prior fitted to it (``write`` False: without its payload)."""
     q = quantized_level(coder, inp)
     header = coder.new_header()
     means, lv = fit_per_channel_prior(q, coder.live, coder.cfg.prior_fit_rows)
     header.context_model_id = CONTEXT_PER_CHANNEL_PRIOR
     header.prior_mean, header.prior_level = means.tolist(), lv.tolist()
-    return coder.code(header, q, attr.prior_params(header))
+    return coder.code(header, q, attr.prior_params(header), write)
 
 
 def code_with_model(coder: LevelCoder, inp: AttributeInput, hier: Hierarchy, q_level1: np.ndarray,

@@ -65,13 +65,21 @@ def best_prior_level(r: np.ndarray, adjust: np.ndarray | None) -> int:
     return int(np.argmin(costs))
 
 
-def _bucket_bits(r: np.ndarray, bucket: np.ndarray, num_buckets: int) -> float:
+def _bucket_groups(bucket: np.ndarray, num_buckets: int) -> tuple[np.ndarray, np.ndarray]:
+    """(the rows in order of their bucket, where each bucket -1 .. num_buckets - 1 starts and ends
+    in it): one sort per channel instead of a mask per bucket (the values of a bucket come in
+    another order, which changes no level and no bit count)."""
+    order = np.argsort(bucket, kind="stable")
+    return order, np.searchsorted(bucket[order], np.arange(-1, num_buckets + 1))
+
+
+def _bucket_bits(r: np.ndarray, groups: tuple[np.ndarray, np.ndarray], num_buckets: int) -> float:
     """Ideal bits of one channel's residuals of LoD >= 1 with the best level per bucket."""
+    order, bounds = groups
     total = 0.0
     for b in range(num_buckets):
-        sel = bucket == b
-        if sel.any():
-            total += best_level_and_bits(r[sel])[1]
+        if bounds[b + 2] > bounds[b + 1]:
+            total += best_level_and_bits(r[order[bounds[b + 1]:bounds[b + 2]]])[1]
     return total
 
 
@@ -83,9 +91,9 @@ def _mean_flags(q: np.ndarray, neighbour_mean: np.ndarray, prior_mean: np.ndarra
     prior = np.broadcast_to(prior_mean, q.shape)  # [M] or, with step adjustment, [N, M]
     flags = np.zeros(q.shape[1], dtype=bool)
     for c in range(q.shape[1]):
-        b = bucket[fine, c]
-        flags[c] = _bucket_bits(q[fine, c] - neighbour_mean[fine, c], b, num_buckets) \
-            < _bucket_bits(q[fine, c] - prior[fine, c], b, num_buckets)
+        groups = _bucket_groups(bucket[fine, c], num_buckets)
+        flags[c] = _bucket_bits(q[fine, c] - neighbour_mean[fine, c], groups, num_buckets) \
+            < _bucket_bits(q[fine, c] - prior[fine, c], groups, num_buckets)
     return flags
 
 
@@ -94,10 +102,10 @@ def _table(r: np.ndarray, bucket: np.ndarray, num_buckets: int) -> np.ndarray:
     m = r.shape[1]
     table = np.zeros((m, num_buckets), dtype=np.int64)
     for c in range(m):
+        order, bounds = _bucket_groups(bucket[:, c], num_buckets)
         for b in range(num_buckets):
-            sel = bucket[:, c] == b
-            if sel.any():
-                table[c, b] = best_level(r[sel, c])
+            if bounds[b + 2] > bounds[b + 1]:
+                table[c, b] = best_level(r[order[bounds[b + 1]:bounds[b + 2]], c])
     return table
 
 

@@ -59,23 +59,34 @@ def cell_keys(cells: np.ndarray) -> np.ndarray:
     return (c[:, 0] * span[1] + c[:, 1]) * span[2] + c[:, 2]
 
 
+def unique_cells(cells: np.ndarray) -> np.ndarray:
+    """The distinct rows of ``cells`` (int64 [N, 3])."""
+    if cells.shape[0] == 0:
+        return cells
+    _, first = np.unique(cell_keys(cells), return_index=True)
+    return cells[first]
+
+
 def choose_tile_scale(coords: np.ndarray, unit: int, tile_points: int) -> int:
     """tile_scale_minus1 + 1 (tile side in units of ``unit`` voxels; 0: no tiles): among the power-of-two
     sides that give two tiles or more, the one whose mean points per occupied tile is nearest
     ``tile_points`` (by ratio; the smaller of equals); none for a scene of fewer than 2 x tile_points points, or for
-    tile_points 0."""
+    tile_points 0. The occupied cells of each side come from those of the side below (floor(floor(c / s) / 2)
+    = floor(c / 2s)): one pass over the points, then over ever fewer cells."""
     n = coords.shape[0]
     if tile_points <= 0 or n < 2 * tile_points:
         return 0
     best, best_err = 0, np.inf
+    cells = unique_cells(tile_cells(coords, unit))
     for j in range(MAX_TILE_LOG2):
         scale = 1 << j
         if scale > MAX_TILE_SCALE:
             break
-        cells = tile_cells(coords, scale * unit)
+        if j:
+            cells = unique_cells(cells >> 1)  # arithmetic shift: floor division by 2
         if np.abs(cells).max() > SE_MAX:
             continue
-        occupied = int(np.unique(cell_keys(cells)).size)
+        occupied = int(cells.shape[0])
         if occupied == 1:
             break
         err = abs(np.log2(n / occupied / tile_points))
