@@ -41,7 +41,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 
 from benchutil import command_line, load_average, write_lines  # noqa: E402
 
