@@ -178,7 +178,7 @@ def _tile_boxes(g: Gaussians3DGS, cam) -> np.ndarray:
 def held_in_footprint(sample: Gaussians3DGS, held: Gaussians3DGS, cam) -> torch.Tensor:
     """The held Gaussians that reach the tiles of view ``cam`` the sample's Gaussians reach (grown by
     FOOTPRINT_MARGIN): elsewhere a trial renders the source's pixels whatever it holds, so the
-    others change no error and are left out of the renders."""
+    others change no error and are left out of the layers (``view_layers``)."""
     nx, ny = -(-cam.width // FOOTPRINT_TILE), -(-cam.height // FOOTPRINT_TILE)
     s = _tile_boxes(sample, cam)
     s = s[(s[:, 2] >= s[:, 0]) & (s[:, 3] >= s[:, 1])]
@@ -599,9 +599,9 @@ def sample_distortion_ratio(scene: GaussianScene, contrib: np.ndarray, cfg: Gaus
                             sample: np.ndarray) -> float:
     """The whole scene's squared error over the sample's (``sample``, encoder/gaussians/search_sample.py) at
     ``cfg``'s steps, plainly rounded without pruning (``rounding_distortion``: a whole-scene trial
-    would code the whole scene), on the search views, the sample rendered in the whole scene
-    (``Backdrop``): it covers fewer pixels of the views than the whole, so the same steps measure
-    less error on it. The search asks the sample for the target's error divided by this ratio."""
+    would code the whole scene), on the search views, the sample's error in the whole scene as
+    the trials measure it (``Backdrop``, ``ViewLayers``): it covers fewer pixels of the views than the
+    whole, so the same steps measure less error on it (and the layers' bias cancels). The search asks the sample for the target's error divided by this ratio."""
     whole = SettingsSearch(scene, contrib, cfg, 0.0, cfg.search_views, cfg.search_resolution)
     part = SettingsSearch(scene.subset(sample), contrib[sample], cfg, 0.0, cfg.search_views, cfg.search_resolution,
                           backdrop=Backdrop(scene, sample))
