@@ -100,7 +100,8 @@ class ViewLayers:
     a held Gaussian goes by the sample's depth at its centre pixel (in front where the sample is
     not). Against whole-scene renders of real trials it measured 3-15% less squared error on the
     donut and playbot lod4, 25-31% on the logo, nearly the same at every setting; the whole-to-sample
-    ratio (``sample_distortion_ratio``) is measured the same way and takes it out."""
+    ratio (``sample_distortion_ratio``) is measured the same way, but on plain rounding the donut's
+    is 36% low, and that does not cancel (tools/results/search_sampling.md, section (e))."""
     sample0: torch.Tensor  # [H, W, 3] the source sample's colour on black
     alpha0: torch.Tensor  # [H, W] its alpha
     front_t: torch.Tensor  # [H, W, 1] TF
@@ -601,7 +602,7 @@ def sample_distortion_ratio(scene: GaussianScene, contrib: np.ndarray, cfg: Gaus
     ``cfg``'s steps, plainly rounded without pruning (``rounding_distortion``: a whole-scene trial
     would code the whole scene), on the search views, the sample's error in the whole scene as
     the trials measure it (``Backdrop``, ``ViewLayers``): it covers fewer pixels of the views than the
-    whole, so the same steps measure less error on it (and the layers' bias cancels). The search asks the sample for the target's error divided by this ratio."""
+    whole, so the same steps measure less error on it. The search asks the sample for the target's error divided by this ratio."""
     whole = SettingsSearch(scene, contrib, cfg, 0.0, cfg.search_views, cfg.search_resolution)
     part = SettingsSearch(scene.subset(sample), contrib[sample], cfg, 0.0, cfg.search_views, cfg.search_resolution,
                           backdrop=Backdrop(scene, sample))
