@@ -602,7 +602,8 @@ def sample_distortion_ratio(scene: GaussianScene, contrib: np.ndarray, cfg: Gaus
     ``cfg``'s steps, plainly rounded without pruning (``rounding_distortion``: a whole-scene trial
     would code the whole scene), on the search views, the sample's error in the whole scene as
     the trials measure it (``Backdrop``, ``ViewLayers``): it covers fewer pixels of the views than the
-    whole, so the same steps measure less error on it. The search asks the sample for the target's error divided by this ratio."""
+    whole, so the same steps measure less error on it. The search asks the sample for the target's
+    error divided by this ratio."""
     whole = SettingsSearch(scene, contrib, cfg, 0.0, cfg.search_views, cfg.search_resolution)
     part = SettingsSearch(scene.subset(sample), contrib[sample], cfg, 0.0, cfg.search_views, cfg.search_resolution,
                           backdrop=Backdrop(scene, sample))
