@@ -4,12 +4,10 @@ tools/mutation_test.py): short runs here; the long ones are `make fuzz-long` and
 import random
 import sys
 from collections import Counter
-from datetime import timedelta
 from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
 
 from lghcc.conformance import fuzz, mutations
 from lghcc.conformance.fuzz import Mutator, Sandbox, load_seeds, run_campaign
@@ -28,28 +26,26 @@ def box():
 
 
 def test_fresh_scene_streams_decode_to_their_own_hash(box):
-    """Hypothesis draws the generator's Random: every scene the encoder accepts decodes, in the sandbox,
-    to exactly the encoded scene; a refusal is an InputError with a message; nothing else happens."""
+    """25 generator draws from fixed seeds: every scene the encoder accepts decodes, in the sandbox,
+    to exactly the encoded scene; a refusal is an InputError with a message; nothing else happens.
+    Fixed seeds, not Hypothesis: its derandomized draws depended on what had run before in the
+    process (10 valid cases instead of 22 after tests/test_geometry.py; likely its pool of constants
+    from the loaded modules), so the coverage counts below failed in some test orders."""
     kinds = Counter()
-
-    @settings(max_examples=25, deadline=timedelta(seconds=60), derandomize=True, database=None,
-              suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-    @given(st.randoms(use_true_random=False))
-    def run(rng):
-        case = fuzz_scenes.scene_case(rng)
+    for seed in range(1000, 1025):
+        case = fuzz_scenes.scene_case(random.Random(seed))
         assert not case.bug, case.bug
         if case.data is None:
             assert case.refused, case.what
             kinds["refused"] += 1
-            return
+            continue
         res = fuzz.scene_outcome(box.run(case.data))
         assert res.kind == fuzz.SCENE_VALID, f"{case.what}: {res.detail}"
         kinds["valid"] += 1
         kinds["hierarchy"] += "'hierarchy': True" in case.what
         kinds["gaussians"] += case.what.startswith("Gaussians")
-
-    run()  # a third of the cases are explicit-Gaussian scenes (fewer anchor scenes with the hierarchy)
-    assert kinds["valid"] >= 12 and kinds["hierarchy"] >= 2 and kinds["gaussians"] >= 3, kinds
+    # a third of the draws are explicit-Gaussian scenes (fewer anchor scenes with the hierarchy)
+    assert kinds["valid"] >= 20 and kinds["hierarchy"] >= 5 and kinds["gaussians"] >= 3, kinds
 
 
 def test_gaussian_scenes_with_neighbour_prediction_step_adjustment_and_tiles_round_trip(box):

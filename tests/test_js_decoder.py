@@ -103,7 +103,8 @@ console.log(JSON.stringify(out));
 def test_grid_knn_matches_reference_ball_knn():
     """The JS decoder's grid k-NN (clause 11.7.2) against common/knn.py's canonical Ball k-NN on
     point sets full of equal distances (small lattices, flat and needle-shaped tiles, clusters far
-    apart, one data point), data = the rows of LoD < l as the decoder's, ties by lower row."""
+    apart, clusters near MAX_EXTENT apart where d2 passes 2^53, one data point), data = the rows of
+    LoD < l as the decoder's, ties by lower row."""
     from lghcc.common.knn import ball_knn
     from lghcc.common.neighbour_prediction import WHOLE_EXTENT_RADIUS_SQ
     rng = np.random.default_rng(11)
@@ -116,6 +117,8 @@ def test_grid_knn_matches_reference_ball_knn():
         pts = np.stack(np.unravel_index(flat, span), 1).astype(np.int64) - 3
         if trial % 5 == 4:
             pts[: n // 2] += 10**6  # two clusters far apart
+        if trial % 5 == 3:
+            pts[: n // 3] += 1_750_000_000  # extent near MAX_EXTENT: squared distances beyond 2^53
         step = int(2 ** rng.integers(0, 5))
         rows = np.arange(n)
         data, queries = rows[rows % step == 0], rows[rows % step != 0] if step > 1 else rows[1:]
@@ -256,3 +259,14 @@ def test_progressive_decoding_with_a_tile_pool(name):
     assert got["digest"] == got["ref"] and tiles >= 2 and got["started"] == 1
     assert sorted(got["order"]) == list(range(tiles)) and got["order"] != sorted(got["order"])
     assert json.loads(node(PROGRESSIVE, json.dumps({"path": path, "failTile": 1}))) == {"error": "HashMismatchError"}
+
+
+ASC = runner.JS_DECODER_DIR.parents[2] / "tools" / "node" / "node_modules" / "assemblyscript"
+
+
+@pytest.mark.skipif(not ASC.is_dir(), reason="AssemblyScript is not installed (make node-tools)")
+def test_wasm_module_rebuilds_byte_for_byte():
+    """The committed wasm_module.mjs is what the pinned AssemblyScript makes of wasm/decoder.ts."""
+    res = subprocess.run([NODE, "build-wasm.mjs", "--check"], capture_output=True, text=True,
+                         cwd=ASC.parents[1], timeout=300)
+    assert res.returncode == 0, res.stdout + res.stderr[-2000:]

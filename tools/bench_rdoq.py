@@ -30,6 +30,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchutil import command_line, load_average, write_lines  # noqa: E402
 
+import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from lghcc.encoder.stream.config import load_config  # noqa: E402
@@ -38,8 +39,36 @@ from lghcc.encoder.gaussians.gaussian_views import fit_cameras, resolving_views 
 from lghcc.encoder.gaussians.gaussian_rd import GROUPS, SettingsSearch, _scaled  # noqa: E402
 from lghcc.encoder.gaussians import rdoq  # noqa: E402
 from lghcc.encoder.gaussians.rdoq import SENSITIVITY_PROBES, sensitivities  # noqa: E402
+from lghcc.encoder.stream.neighbour_coding import NeighbourCoding  # noqa: E402
+from lghcc.common.entropy.symbol_coder import code_lengths_bits  # noqa: E402
 from lghcc.formats.ply3dgs import read_3dgs_ply  # noqa: E402
 from lghcc.render.gaussians3dgs import gaussians_from_scene, render_3dgs  # noqa: E402
+
+
+def record_parts(search: SettingsSearch) -> dict:
+    """Makes ``search`` record the ideal bits per Gaussian of each part of its next trial (neighbour
+    prediction's residuals at their levels, as the search estimates the attributes; cross-channel
+    prediction and the units' headers left out; geometry as coded), and what the SH rest would
+    cost were every residual of it 0 at the same levels, into the dict returned."""
+    parts: dict = {}
+    inner = search._attribute_bits
+
+    def attribute_bits(key, grid, q, prior_bits, adjust=None):
+        order, graph = search._graph(key, grid)
+        n, sh = q.shape[0], q.shape[1] - 8
+        if graph is not None:
+            nc = NeighbourCoding(q[order], grid.coords[order], search.cfg.prediction_lods,
+                                 search.cfg.prediction_neighbours, search.cfg.prediction_buckets, False, None,
+                                 graph=graph, adjust=None if adjust is None else adjust[order])
+            bits = code_lengths_bits(nc.residuals, nc.levels).sum(axis=0) / n
+            zeros = code_lengths_bits(np.zeros_like(nc.residuals[:, 3:sh]), nc.levels[:, 3:sh]).sum() / n
+            parts.update({"SH rest": bits[3:sh].sum(), "DC": bits[:3].sum(), "opacity": bits[sh],
+                          "scales": bits[sh + 1:sh + 4].sum(), "rotation": bits[sh + 4:].sum(),
+                          "geometry": search._grid(*key)[2] / n, "SH rest if every residual were 0": zeros})
+        return inner(key, grid, q, prior_bits, adjust)
+
+    search._attribute_bits = attribute_bits
+    return parts
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -83,6 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     f = sensitivities(scene, cams, probes=args.probes)
     t_sens = time.perf_counter() - t0
     s = SettingsSearch(scene, contrib, cfg, 0.0, cfg.search_views, cfg.search_resolution, sensitivity=f)
+    parts = record_parts(s)
     groups = [grp for grp in GROUPS if grp != "position" and (not grp.startswith("sh_band")
                                                                or int(grp[-1]) <= scene.sh_degree)]
     orbit_search = None
@@ -102,8 +132,9 @@ def main(argv: list[str] | None = None) -> int:
              f"{args.max_jump} step(s); rotation lengths {args.rotation_lengths}; {args.turn_candidates} turn "
              "candidates.",
              "", "| step factor | RDOQ weight | step adjustment up to | PSNR dB (search views) | "
-             + ("PSNR dB (orbit, 320 px) | " if orbit_search else "") + "bytes | bytes / rounding at this factor |",
-             "|---:|---:|---:|---:|---:|---:|" + ("---:|" if orbit_search else "")]
+             + ("PSNR dB (orbit, 320 px) | " if orbit_search else "") + "bytes | bytes / rounding at this factor | bits per Gaussian: SH rest, DC, opacity, scales, rotation, "
+             "geometry; SH rest if every residual were 0 |",
+             "|---:|---:|---:|---:|" + ("---:|" if orbit_search else "") + "---:|---:|---|"]
     for fac in (float(x) for x in args.factors.split(",")):
         ref = None
         for w in (float(x) for x in args.weights.split(",")):
@@ -120,7 +151,8 @@ def main(argv: list[str] | None = None) -> int:
                     orbit_search.ways[:] = s.ways  # the same values, rendered from the orbit
                     seen = f"{-10 * math.log10(max(orbit_search.evaluate(trial_cfg).mse, 1e-12)):.2f} | "
                 lines.append(f"| {fac:g} | {w:g} | {top} | {-10 * math.log10(max(t.mse, 1e-12)):.2f} | {seen}"
-                             f"{t.bits / 8:,.0f} | {t.bits / ref:.3f} |")
+                             f"{t.bits / 8:,.0f} | {t.bits / ref:.3f} | "
+                             f"{', '.join(f'{v:.1f}' for v in parts.values()) if parts else '-'} |")
                 print(lines[-1], flush=True)
     lines += ["", f"Load average at the end: {load_average()}."]
     write_lines(args.out, lines)

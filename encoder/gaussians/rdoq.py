@@ -51,6 +51,13 @@ one precision; this is a per-Gaussian precision, which the pictures call for whe
 barely seen (a uniform quantizer's best step goes as F^(-1/2)). The values are then chosen as
 above in each Gaussian's own steps (x divided by its factor, F multiplied by its square).
 
+Measured and left out (tools/results/sh_rotation_snaps.md; the code is at commit 91a5d73): a
+Gaussian's SH rest set whole to its prediction, and a Gaussian symmetric about a body axis
+turned about it towards its predicted rotation, each where RDOQ's cost falls. Neither changed
+the bytes at equal PSNR on playbot lod4: a residual 0 still costs what its level says (12.3 of
+24.4 SH-rest bits per Gaussian at low), few Gaussians are symmetric, and F, a derivative,
+underrates long jumps on views it was not measured on.
+
 The means of a finer LoD depend on the values chosen for the coarser ones, so the LoDs are
 chosen in coding order. The scale levels are those fitted to the rounded values (the coder
 fits its own to the values chosen). Cross-channel prediction is left out of the costs.

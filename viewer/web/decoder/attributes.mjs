@@ -1,12 +1,13 @@
 // Attribute decoding of explicit-Gaussian tiles (spec clause 11): the per-channel prior, chunks,
 // cross-channel prediction (11.6), neighbour prediction (11.7), step adjustment (11.8) and
-// reconstruction in binary32 (11.5). Integers are exact doubles; the rare values beyond 2^53
-// (escapes near 2^62, predictions of huge deviations, step-adjusted sums of huge values) take an
-// exact BigInt path.
+// reconstruction in binary32 (11.5). The rows' means and levels (11.3, 11.7.3, 11.8) are computed
+// in WebAssembly (wasm/decoder.ts: rowMeans, exact in 64-bit integers) on the values q, which live in
+// the module's memory while the tile decodes. Elsewhere integers are exact doubles; the rare values
+// beyond 2^53 (escapes near 2^62, predictions of huge deviations) take an exact BigInt path.
 import { BitstreamError } from './errors.mjs';
-import { EXACT_EXTENT, gridNeighbours, nearestExact } from './knn.mjs';
-import { RangeDecoder } from './range.mjs';
+import { gridNeighbours } from './knn.mjs';
 import { decodeSymbolChunk } from './symbols.mjs';
+import { alloc, callWasm, copyIn, wasm } from './wasm.mjs';
 
 export const STEP_ADJUST_FACTORS = [1.0, 1.18920708, 1.41421354, 1.68179286, 2.0, 2.37841415, 2.82842708, 3.36358571].map(Math.fround);
 export const ADJUST_FIXED_POINT = [4096, 4871, 5793, 6889, 8192, 9742, 11585, 13777];
@@ -14,17 +15,7 @@ export const ADJUST_LEVEL_SHIFT = [0, 1, 3, 4, 5, 6, 8, 9];
 export const MAX_EXTENT = 1753413056;
 const Q_LIMIT = 2 ** 40;
 const SAFE_DEV = 2 ** 31; // |q - mean| below this: a row's prediction sum stays below 2^52
-const SAFE_SA_SUM = 2 ** 45; // |q F| below this (so |q| < 2^33 when F >= 4096): step-adjusted sums of k <= 32 neighbours stay below 2^50
-
-function bitLength(a) {
-    return a < 4294967296 ? 32 - Math.clz32(a) : 64 - Math.clz32(Math.floor(a / 4294967296));
-}
-
-function floorDiv(a, b) { // exact for integers a, b > 0 with |a| < 2^53
-    let m = Math.floor(a / b);
-    if (m * b > a) m--; else if ((m + 1) * b <= a) m++;
-    return m;
-}
+const FIXED_POINT = Int32Array.from(ADJUST_FIXED_POINT), LEVEL_SHIFT = Int32Array.from(ADJUST_LEVEL_SHIFT);
 
 /** The rows of each LoD (clause 11.7.1), in increasing order. */
 export function lodRows(n, L) {
@@ -51,23 +42,17 @@ function tileBounds(x, y, z, n) {
     });
     const e = Math.max(...ext);
     if (e > MAX_EXTENT) throw new BitstreamError(`the tile's points span ${e} voxels, beyond MAX_EXTENT = ${MAX_EXTENT} (clause 8.1, E64)`);
-    return { lo, ext, exact: e > EXACT_EXTENT };
+    return { lo, ext };
 }
 
 /** Neighbours (clause 11.7.2) of the rows of LoD l among the rows of LoDs < l: {idx: Int32Array [n_l * k], cnt}. */
 function lodNeighbours(lods, l, k, coords, bounds, n) {
-    const { x, y, z } = coords;
     const step = 2 ** (lods.length - l); // the rows of LoDs < l are the multiples of 2^(L - l)
     const ids = new Int32Array(Math.ceil(n / step));
     for (let t = 0; t < ids.length; t++) ids[t] = t * step;
     const rows = lods[l];
     const idx = new Int32Array(rows.length * k), cnt = new Uint8Array(rows.length);
-    if (bounds.exact) {
-        const px = Array.from(ids, (i) => x[i]), py = Array.from(ids, (i) => y[i]), pz = Array.from(ids, (i) => z[i]);
-        for (let r = 0; r < rows.length; r++) cnt[r] = nearestExact(px, py, pz, ids, x[rows[r]], y[rows[r]], z[rows[r]], k, idx, r * k);
-        return { idx, cnt };
-    }
-    gridNeighbours(x, y, z, bounds.lo, bounds.ext, ids, rows, k, idx, cnt);
+    gridNeighbours(coords.x, coords.y, coords.z, bounds.lo, bounds.ext, ids, rows, k, idx, cnt);
     return { idx, cnt };
 }
 
@@ -75,7 +60,12 @@ class TileAttributeDecoder {
     constructor(payload, h, coords, ctx) {
         this.payload = payload; this.h = h; this.coords = coords; this.ctx = ctx;
         this.M = ctx.M; this.n = h.numRows;
-        this.q = new Float64Array(this.n * this.M);
+        // q in the module's memory, kept across its calls until release()
+        const w = this.w = wasm();
+        w.reset();
+        this.qAddr = alloc(w, 8 * this.n * this.M);
+        this.mark = w.keep();
+        this.qView = null;
         this.adj = new Uint8Array(this.n);
         this.off = h.dataOffset;
         this.chunk = 0;
@@ -84,12 +74,18 @@ class TileAttributeDecoder {
         this.mean = new Float64Array(cap); this.level = new Uint8Array(cap); this.res = new Float64Array(cap);
         // predictions grouped by target (they are sorted by target, clause 7.3.5)
         this.pStart = new Int32Array(M + 1);
-        const k = ctx.np ? ctx.np.k : 0;
-        this.nbRow = new Int32Array(k); this.nbFactor = new Float64Array(k); // a row's neighbours: j * M and F(adj[j])
-        this.nbSum = new Float64Array(M); this.nbMax = new Float64Array(M); this.nbMin = new Float64Array(M);
         for (let i = 0; i < h.predTarget.length; i++) this.pStart[h.predTarget[i] + 1]++;
         for (let c = 0; c < M; c++) this.pStart[c + 1] += this.pStart[c];
     }
+
+    /** The values q (Float64Array [n * M]), a view renewed when the module's memory grew. */
+    get q() {
+        if (!this.qView || this.qView.buffer !== this.w.memory.buffer) this.qView = new Float64Array(this.w.memory.buffer, this.qAddr, this.n * this.M);
+        return this.qView;
+    }
+
+    /** Give the module's memory of q back (after the last use of q). */
+    release() { this.w.release(this.mark); this.qView = null; }
 
     take(size, what) {
         const b = this.payload.subarray(this.off, this.off + size);
@@ -111,7 +107,6 @@ class TileAttributeDecoder {
                 this.decodeChunk(rows, lo, hi, nb);
             }
         }
-        return this.q;
     }
 
     decodeChunk(rows, lo, hi, nb) {
@@ -119,7 +114,7 @@ class TileAttributeDecoder {
         const nr = hi - lo, M = this.M, h = this.h;
         const rowAt = rows ? (t) => rows[t] : (t) => t;
         if (this.ctx.stepAdjust) this.decodeIndices(i, rowAt, lo, hi);
-        for (let t = lo; t < hi; t++) this.rowParameters(rowAt(t), (t - lo) * M, nb, t);
+        this.rowParameters(rows, lo, hi, nb);
         const wide = new Map();
         const bytes = this.take(h.chunkSize[i]);
         decodeSymbolChunk(bytes, this.level, nr * M, this.res, wide, `attribute chunk ${i}`);
@@ -140,83 +135,21 @@ class TileAttributeDecoder {
         }
     }
 
-    /** mean[c] and level[c] of row `row` (clauses 11.3, 11.7.3, 11.8) at base in the chunk buffers. */
-    rowParameters(row, base, nb, t) {
-        const M = this.M, h = this.h, np = this.ctx.np, sa = this.ctx.stepAdjust;
-        const F = ADJUST_FIXED_POINT[this.adj[row]];
-        if (!nb) {
-            for (let c = 0; c < M; c++) {
-                if (sa) {
-                    this.mean[base + c] = floorDiv(h.priorMean[c] * 4096 + Math.floor(F / 2), F);
-                    this.level[base + c] = Math.max(0, h.priorLevel[c] - ADJUST_LEVEL_SHIFT[this.adj[row]]);
-                } else {
-                    this.mean[base + c] = h.priorMean[c];
-                    this.level[base + c] = h.priorLevel[c];
-                }
-            }
-            return;
-        }
-        const k = np.k, n = nb.cnt[t], q = this.q, jm = this.nbRow, fac = this.nbFactor;
-        for (let m = 0; m < n; m++) { const j = nb.idx[t * k + m]; jm[m] = j * M; fac[m] = sa ? ADJUST_FIXED_POINT[this.adj[j]] : 1; }
-        // sum, max and min of the neighbours' (step-adjusted) values, neighbour by neighbour: rows are contiguous
-        const sum = this.nbSum, mx = this.nbMax, mn = this.nbMin;
-        for (let c = 0, j = jm[0], f = fac[0]; c < M; c++) { const v = q[j + c] * f; sum[c] = v; mx[c] = v; mn[c] = v; }
-        for (let m = 1; m < n; m++) {
-            const j = jm[m], f = fac[m];
-            for (let c = 0; c < M; c++) {
-                const v = q[j + c] * f;
-                sum[c] += v;
-                if (v > mx[c]) mx[c] = v;
-                if (v < mn[c]) mn[c] = v;
-            }
-        }
-        if (sa ? this.meansAdjusted(base, n, F) : this.means(base, n)) this.rowParametersExact(row, base, nb.idx.subarray(t * k, t * k + n));
-    }
-
-    /** mean and level from nbSum/Max/Min of n neighbours (clause 11.7.3). */
-    means(base, n) {
-        const np = this.ctx.np, B = np.B, meanFlag = np.meanFlag, bucketLevel = np.bucketLevel, priorMean = this.h.priorMean;
-        const sum = this.nbSum, mx = this.nbMax, mn = this.nbMin, halfN = Math.floor(n / 2);
-        for (let c = 0; c < this.M; c++) {
-            this.mean[base + c] = meanFlag[c] ? floorDiv(sum[c] + halfN, n) : priorMean[c];
-            const b = bitLength(mx[c] - mn[c]);
-            this.level[base + c] = bucketLevel[c * B + (b < B - 1 ? b : B - 1)];
-        }
-        return false;
-    }
-
-    /**
-     * The same with step adjustment (clause 11.8), F the row's fixed-point factor. Returns true when
-     * a neighbour's value reached 2^45 in magnitude (|q| >= 2^33 for some): sums may then pass 2^53,
-     * and the exact path redoes the row.
-     */
-    meansAdjusted(base, n, F) {
-        const np = this.ctx.np, B = np.B, meanFlag = np.meanFlag, bucketLevel = np.bucketLevel, priorMean = this.h.priorMean;
-        const sum = this.nbSum, mx = this.nbMax, mn = this.nbMin, half = Math.floor(n * F / 2), halfF = Math.floor(F / 2);
-        let wide = false;
-        for (let c = 0; c < this.M; c++) {
-            if (mx[c] >= SAFE_SA_SUM || mn[c] <= -SAFE_SA_SUM) wide = true;
-            this.mean[base + c] = meanFlag[c] ? floorDiv(sum[c] + half, n * F) : floorDiv(priorMean[c] * 4096 + halfF, F);
-            const b = bitLength(floorDiv(mx[c] - mn[c], F));
-            this.level[base + c] = bucketLevel[c * B + (b < B - 1 ? b : B - 1)];
-        }
-        return wide;
-    }
-
-    rowParametersExact(row, base, nbr) {
-        const M = this.M, h = this.h, np = this.ctx.np, q = this.q;
-        const F = BigInt(ADJUST_FIXED_POINT[this.adj[row]]);
-        const n = BigInt(nbr.length);
-        const fdiv = (a, b) => { const d = a / b; return (a % b !== 0n && (a < 0n) !== (b < 0n)) ? d - 1n : d; };
-        for (let c = 0; c < M; c++) {
-            const v = Array.from(nbr, (j) => BigInt(q[j * M + c]) * BigInt(ADJUST_FIXED_POINT[this.adj[j]]));
-            let sum = 0n, mx = v[0], mn = v[0];
-            for (const x of v) { sum += x; if (x > mx) mx = x; if (x < mn) mn = x; }
-            const mean = np.meanFlag[c] ? fdiv(sum + (n * F) / 2n, n * F) : fdiv(BigInt(h.priorMean[c]) * 4096n + F / 2n, F);
-            const act = fdiv(mx - mn, F);
-            this.mean[base + c] = Number(mean);
-            this.level[base + c] = np.bucketLevel[c * np.B + Math.min(act.toString(2).length - (act === 0n ? 1 : 0), np.B - 1)];
-        }
+    /** mean and level of the rows lo..hi-1 (clauses 11.3, 11.7.3, 11.8) into the chunk buffers, by the module's rowMeans. */
+    rowParameters(rows, lo, hi, nb) {
+        const w = this.w, M = this.M, h = this.h, np = this.ctx.np, nr = hi - lo, k = nb ? np.k : 0;
+        w.reset();
+        const at = (arr) => copyIn(w, arr);
+        const pRows = rows ? at(rows.subarray(lo, hi)) : at(Int32Array.from({ length: nr }, (_, t) => lo + t));
+        const pIdx = nb ? at(nb.idx.subarray(lo * k, hi * k)) : at(new Int32Array(0));
+        const pCnt = nb ? at(nb.cnt.subarray(lo, hi)) : at(new Uint8Array(nr));
+        const meanFlag = np ? np.meanFlag : new Uint8Array(M), bucket = np ? np.bucketLevel : new Uint8Array(1);
+        const args = [at(this.adj), this.ctx.stepAdjust ? 1 : 0, at(FIXED_POINT), at(LEVEL_SHIFT), at(meanFlag), at(bucket), np ? np.B : 1,
+            at(h.priorMean), at(h.priorLevel)];
+        const pMean = alloc(w, 8 * nr * M), pLevel = alloc(w, nr * M);
+        callWasm(() => w.rowMeans(this.qAddr, M, pRows, nr, pIdx, pCnt, k, ...args, pMean, pLevel), () => null);
+        this.mean.set(new Float64Array(w.memory.buffer, pMean, nr * M));
+        this.level.set(new Uint8Array(w.memory.buffer, pLevel, nr * M));
     }
 
     /** q of one row (clauses 11.4 step 3, 11.6): residual + mean + prediction, |q| <= 2^40 checked. */
@@ -261,8 +194,17 @@ class TileAttributeDecoder {
  */
 export function decodeTileAttributes(payload, header, coords, ctx) {
     const dec = new TileAttributeDecoder(payload, header, coords, ctx);
-    const q = dec.run();
-    const M = ctx.M, n = header.numRows;
+    try {
+        dec.run();
+        return reconstruct(dec, ctx, header.numRows);
+    } finally {
+        dec.release();
+    }
+}
+
+/** Reconstruction in binary32 (clause 11.5) of the tile's values q. */
+function reconstruct(dec, ctx, n) {
+    const M = ctx.M, q = dec.q;
     const scales = STEP_ADJUST_FACTORS.map((f) => Float64Array.from(ctx.steps, (s) => Math.fround(s * f)));
     const out = new Float32Array(n * M);
     for (let i = 0; i < n; i++) {

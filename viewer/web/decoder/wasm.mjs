@@ -1,0 +1,72 @@
+// The WebAssembly part of the decoder (wasm/decoder.ts, built into wasm_module.mjs by
+// tools/node/build-wasm.mjs): instantiated once per thread, synchronously (decoding runs in Node or
+// in a Web Worker, where synchronous compilation of any size is allowed), with no imports. The
+// scale tables of clause 10.2 are copied into its memory once, below everything reset() releases.
+import { ResourceLimitError } from './errors.mjs';
+import { scaleTables } from './tables.mjs';
+import { DECODER_WASM_BASE64 } from './wasm_module.mjs';
+
+let exports = null;
+
+/** The module's exports (reset, alloc, decodeGeometry, ...; memory). */
+export function wasm() {
+    if (!exports) {
+        const bytes = Uint8Array.from(atob(DECODER_WASM_BASE64), (c) => c.charCodeAt(0));
+        exports = new WebAssembly.Instance(new WebAssembly.Module(bytes), {}).exports;
+        loadTables(exports);
+    }
+    return exports;
+}
+
+const ERR_MEMORY = 9; // decoder.ts: linear memory could not grow
+
+/** `bytes` of the module's arena; returns their address. */
+export function alloc(w, bytes) {
+    return callWasm(() => w.alloc(bytes), () => null);
+}
+
+/** Copy arr (a typed array) into the module's arena; returns its address. */
+export function copyIn(w, arr) {
+    const p = alloc(w, Math.max(arr.byteLength, 1));
+    new arr.constructor(w.memory.buffer, p, arr.length).set(arr);
+    return p;
+}
+
+function loadTables(w) {
+    const T = scaleTables();
+    w.reset();
+    const t = [T.levels.cum, T.levels.off, T.levels.lut, T.half, T.classes.cum, T.classes.off, T.classes.lut];
+    w.setTables(...t.map((a) => copyIn(w, a)));
+    w.keep();
+}
+
+/** Copy bytes into a fresh arena (the previous call's memory is released); returns their address. */
+export function arenaWith(bytes) {
+    const w = wasm();
+    w.reset();
+    const p = alloc(w, bytes.length);
+    new Uint8Array(w.memory.buffer, p, bytes.length).set(bytes);
+    return p;
+}
+
+/**
+ * Run f() (a call into the module); a trap with an error code set (`fail` in decoder.ts) is
+ * rethrown as describe(code, a, b), the spec's error (ResourceLimitError when memory ran out).
+ */
+export function callWasm(f, describe) {
+    const w = wasm();
+    try {
+        return f(w);
+    } catch (e) {
+        if (!(e instanceof WebAssembly.RuntimeError)) throw e;
+        const code = w.errorCode();
+        if (!code) throw e;
+        if (code === ERR_MEMORY) throw new ResourceLimitError(`decoding needs more WebAssembly memory than this runtime gives (${w.memory.buffer.byteLength >> 20} MiB in use)`);
+        throw describe(code, w.errorA(), w.errorB());
+    }
+}
+
+/** A copy of n int32 at address p of the module's memory. */
+export function int32Copy(p, n) {
+    return new Int32Array(wasm().memory.buffer, p, n).slice();
+}

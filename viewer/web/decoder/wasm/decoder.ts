@@ -1,0 +1,758 @@
+// The decoder's hot loops in WebAssembly (AssemblyScript; built by tools/node/build-wasm.mjs into
+// ../wasm_module.mjs): the range decoder of spec/entropy.md clause 10.6 with native 64-bit
+// integers, and geometry decoding (spec/geometry.md G.5, G.6). No managed objects: every array
+// lives in an arena of linear memory that the caller resets per call (reset / alloc). A failure
+// sets `err` (and errA, errB) and traps; the JS side turns the code into the spec's error.
+
+// ---------------------------------------------------------------- arena
+
+let top: usize = 0;
+let floor: usize = 0; // the end of what stays (the scale tables), set by keep()
+
+function heapStart(): usize { return (__heap_base + 15) & ~(<usize>15); }
+
+/** Forget every allocation since keep() (or all). */
+export function reset(): void { top = floor ? floor : heapStart(); }
+
+/** Keep every allocation made so far across later resets; returns the previous mark for release(). */
+export function keep(): usize { const prev = floor; floor = top; return prev; }
+
+/** Drop what keep() kept since the mark `prev`. */
+export function release(prev: usize): void { floor = prev; top = prev ? prev : heapStart(); }
+
+/** `bytes` of zeroed memory, 16-byte aligned; grows the memory when needed. */
+export function alloc(bytes: i32): usize {
+    err = 0; // a trap after this without fail() is no decoding error
+    if (top == 0) top = heapStart();
+    const p = top;
+    top = (p + <usize>bytes + 15) & ~(<usize>15);
+    const have = <usize>memory.size() << 16;
+    if (top > have) {
+        if (memory.grow(<i32>((top - have + 0xFFFF) >> 16)) < 0) fail(ERR_MEMORY, 0, 0);
+    }
+    memory.fill(p, 0, <usize>bytes);
+    return p;
+}
+
+@inline function i32At(p: usize, i: i32): i32 { return load<i32>(p + (<usize>i << 2)); }
+@inline function setI32(p: usize, i: i32, v: i32): void { store<i32>(p + (<usize>i << 2), v); }
+@inline function u8At(p: usize, i: i32): i32 { return <i32>load<u8>(p + <usize>i); }
+@inline function setU8(p: usize, i: i32, v: i32): void { store<u8>(p + <usize>i, <u8>v); }
+
+// ---------------------------------------------------------------- errors
+
+const ERR_RANGE: i32 = 1;      // q >= 2^24 (10.6.4)
+const ERR_EXHAUSTED: i32 = 2;  // data left over (10.6.5)
+const ERR_DIRECT_COUNT: i32 = 3; // G.5.2 step 3, E29
+const ERR_DIRECT_EQUAL: i32 = 4; // G.5.2, E30
+const ERR_OCC_COUNT: i32 = 5;  // G.5.4, E31 (errA points at depth errB)
+const ERR_TOTAL: i32 = 6;      // G.5.5, E32 (errA points)
+const ERR_MIN: i32 = 7;        // G.5.5, E33
+const ERR_MAX: i32 = 8;        // G.5.5, E34
+const ERR_MEMORY: i32 = 9;     // linear memory could not grow
+const ERR_ESCAPE: i32 = 10;    // escaped magnitude beyond 2^62 - 1 (10.5; errorWide() the magnitude)
+
+let err: i32 = 0;
+let errA: i32 = 0;
+let errB: i32 = 0;
+export function errorCode(): i32 { return err; }
+export function errorA(): i32 { return errA; }
+export function errorB(): i32 { return errB; }
+let errWide: u64 = 0;
+export function errorWide(): u64 { return errWide; }
+
+function fail(code: i32, a: i32, b: i32): void {
+    err = code; errA = a; errB = b;
+    unreachable();
+}
+
+// ---------------------------------------------------------------- range decoder (10.6)
+
+// State as D = (point - lower) mod 2^64 and R = range (10.6.4 uses point, lower and range; only
+// their difference enters decoding and the exhaustion check of 10.6.5).
+let rBytes: usize = 0;
+let rWords: i32 = 0;
+let rPos: i32 = 0;
+let rD: u64 = 0;
+let rR: u64 = 0;
+
+function word(): u64 {
+    if (rPos >= rWords) return 0; // missing words read as 0 (10.6.6)
+    const w = <u64>load<u32>(rBytes + (<usize>rPos << 2));
+    rPos++;
+    return w;
+}
+
+/** Start decoding the chunk of nbytes (a multiple of 4, checked by the caller) at p. */
+export function rangeStart(p: usize, nbytes: i32): void {
+    rBytes = p; rWords = nbytes >> 2; rPos = 0;
+    const w0 = word();
+    rD = (w0 << 32) | word();
+    rR = 0xFFFFFFFFFFFFFFFF;
+}
+
+@inline function setState(R: u64, D: u64): void {
+    if (R < 0x100000000) { // R < 2^32: shift in the next word
+        rR = R << 32;
+        rD = (D << 32) | word();
+    } else { rR = R; rD = D; }
+}
+
+/** A binary decision with frequency f1 of symbol 1 ({0: 2^24 - f1, 1: f1}, symbol 0 first). */
+function decodeBinary(f1: u64): i32 {
+    const scale = rR >> 24, D = rD;
+    if (D >> 24 >= scale) fail(ERR_RANGE, 0, 0); // q >= 2^24
+    const X = (0x1000000 - f1) * scale;
+    if (D < X) { setState(X, D); return 0; }
+    setState(f1 * scale, D - X);
+    return 1;
+}
+
+/** The quantile q = D / scale of a model decode, checked < 2^24. */
+@inline function quantile(scale: u64): u64 {
+    const q = rD / scale;
+    if (q >= 0x1000000) fail(ERR_RANGE, 0, 0);
+    return q;
+}
+
+/** A symbol of Uniform(2^w), 1 <= w <= 16. */
+function decodeUniform(w: i32): u32 {
+    const scale = rR >> 24, q = quantile(scale), sh = <u64>(24 - w);
+    const s = q >> sh;
+    setState(scale << sh, rD - ((s << sh) * scale));
+    return <u32>s;
+}
+
+/** Clause 10.6.5: every word consumed, and no symbol decoded or (point - lower) < 2^33 - 1. */
+function checkExhausted(): void {
+    if (rPos < rWords || !(rR == 0xFFFFFFFFFFFFFFFF || rD < 0x1FFFFFFFF)) fail(ERR_EXHAUSTED, 0, 0);
+}
+
+// ---------------------------------------------------------------- geometry (G.5, G.6)
+
+const NUM_OCC_CONTEXTS: i32 = 432;
+const COUNT_LIMIT: i32 = 1024;
+const LEVEL_COUNT_LIMIT: i32 = 64;
+
+@inline function popcnt8(v: i32): i32 { return <i32>popcnt<u32>(<u32>v); }
+
+/** The binary procedure of G.6.1 over decisions with contexts ctx[0..n-1] and counts T (i32 [2 C]) into out. */
+function decodeBinarySequence(ctx: usize, n: i32, T: usize, numCtx: i32, out: usize, count: usize, order: usize): void {
+    for (let c0 = 0; c0 < n;) {
+        const c1 = min(n, c0 == 0 ? 256 : 2 * c0); // blocks [0, 256), [256, 512), [512, 1024), ...
+        memory.fill(count, 0, <usize>(numCtx + 1) << 2);
+        for (let j = c0; j < c1; j++) { const c = i32At(ctx, j) + 1; setI32(count, c, i32At(count, c) + 1); }
+        for (let c = 0; c < numCtx; c++) setI32(count, c + 1, i32At(count, c + 1) + i32At(count, c));
+        for (let j = c0; j < c1; j++) { const c = i32At(ctx, j), o = i32At(count, c); setI32(order, o, j); setI32(count, c, o + 1); }
+        let start = 0;
+        for (let c = 0; c < numCtx; c++) {
+            const end = i32At(count, c);
+            if (end == start) continue;
+            const n0 = <i64>i32At(T, 2 * c), n1 = <i64>i32At(T, 2 * c + 1);
+            let f1 = ((2 * n1 + 1) << 24) / (2 * (n0 + n1) + 2);
+            if (f1 < 1) f1 = 1; else if (f1 > 0xFFFFFF) f1 = 0xFFFFFF;
+            for (let t = start; t < end; t++) setI32(out, i32At(order, t), decodeBinary(<u64>f1));
+            start = end;
+        }
+        for (let j = c0; j < c1; j++) { const a = 2 * i32At(ctx, j) + i32At(out, j); setI32(T, a, i32At(T, a) + 1); }
+        limitCounts(T, numCtx, COUNT_LIMIT);
+        c0 = c1;
+    }
+}
+
+function limitCounts(T: usize, numCtx: i32, limit: i32): void {
+    for (let c = 0; c < numCtx; c++) {
+        let a = i32At(T, 2 * c), b = i32At(T, 2 * c + 1);
+        while (a + b > limit) { a = (a + 1) >> 1; b = (b + 1) >> 1; }
+        setI32(T, 2 * c, a); setI32(T, 2 * c + 1, b);
+    }
+}
+
+/** The nodes of one level: coordinates q, sib1, parNbr, parSib1 and face neighbours nb (6 per node, -1 none). */
+@unmanaged class Nodes {
+    m: i32;
+    qx: usize; qy: usize; qz: usize; sib1: usize; parNbr: usize; parSib1: usize; nb: usize;
+}
+
+/** Nodes of capacity cap, in the arena. */
+function newNodes(cap: i32): Nodes {
+    const s = changetype<Nodes>(alloc(<i32>offsetof<Nodes>()));
+    s.qx = alloc(cap << 2); s.qy = alloc(cap << 2); s.qz = alloc(cap << 2);
+    s.sib1 = alloc(cap); s.parNbr = alloc(cap); s.parSib1 = alloc(cap);
+    s.nb = alloc(24 * cap);
+    return s;
+}
+
+// scratch of capacity n (the most nodes a level can have), allocated per decode
+let sOcc: usize = 0; let sCtx: usize = 0; let sCoded: usize = 0; let sDv: usize = 0;
+let sNbrCount: usize = 0; let sDens: usize = 0; let sFirst: usize = 0; let sIndex: usize = 0;
+let sCount: usize = 0; let sOrder: usize = 0; let sOwners: usize = 0;
+let sLowX: usize = 0; let sLowY: usize = 0; let sLowZ: usize = 0;
+let stOcc: usize = 0; let stIdcm: usize = 0; let stTwo: usize = 0;
+let dx: usize = 0; let dy: usize = 0; let dz: usize = 0; let dCount: i32 = 0;
+let outX: usize = 0; let outY: usize = 0; let outZ: usize = 0;
+let gN: i32 = 0;
+
+export function resultX(): usize { return outX; }
+export function resultY(): usize { return outY; }
+export function resultZ(): usize { return outZ; }
+
+/**
+ * Geometry decoding (G.5) of n points from the coded data at p (nbytes, after the header): bit
+ * depths b0..b2, IDCM mode, bounding-box minimum. Leaves x, y, z (i32 [n], normative order) at
+ * resultX/Y/Z().
+ */
+export function decodeGeometry(p: usize, nbytes: i32, n: i32, b0: i32, b1: i32, b2: i32, idcmMode: i32, m0: i32, m1: i32, m2: i32): void {
+    err = 0;
+    gN = n;
+    const cap = n + 1;
+    sOcc = alloc(cap); sCtx = alloc(cap << 2); sCoded = alloc(cap << 2); sDv = alloc(cap << 2);
+    sNbrCount = alloc(cap); sDens = alloc(cap); sFirst = alloc(cap << 2); sIndex = alloc(cap << 2);
+    sCount = alloc((NUM_OCC_CONTEXTS + 1) << 2); sOrder = alloc(cap << 2); sOwners = alloc((2 * cap) << 2);
+    sLowX = alloc((2 * cap) << 2); sLowY = alloc((2 * cap) << 2); sLowZ = alloc((2 * cap) << 2);
+    stOcc = alloc(8 * 2 * NUM_OCC_CONTEXTS * 4); stIdcm = alloc(18 * 4); stTwo = alloc(2 * 4);
+    dx = alloc(cap << 2); dy = alloc(cap << 2); dz = alloc(cap << 2); dCount = 0;
+    let a = newNodes(cap), b = newNodes(cap);
+    a.m = 1; setU8(a.sib1, 0, 1); setU8(a.parSib1, 0, 1);
+    for (let d = 0; d < 6; d++) setI32(a.nb, d, -1);
+    rangeStart(p, nbytes);
+    const D = max(b0, max(b1, b2));
+    for (let l = 0; l < D; l++) {
+        const R = D - l;
+        if (idcmMode != 0 && R >= 2 && directCoding(a, b, R, b0, b1, b2, idcmMode)) { const t = a; a = b; b = t; }
+        if (a.m == 0) break;
+        occupancy(a, b, l, R, b0, b1, b2);
+        const t = a; a = b; b = t;
+    }
+    checkExhausted();
+    outputPoints(a, m0, m1, m2);
+}
+
+/** Direct coding (G.5.2) of the nodes `nodes`: pushes the direct points; returns true with the others in `keep`, false if none is eligible. */
+function directCoding(nodes: Nodes, keep: Nodes, R: i32, b0: i32, b1: i32, b2: i32, mode: i32): bool {
+    const m = nodes.m, sib1 = nodes.sib1, parNbr = nodes.parNbr, parSib1 = nodes.parSib1;
+    const elig = sCoded, ctx = sCtx, flag = sDv;
+    let ne = 0;
+    for (let i = 0; i < m; i++) {
+        const ok = mode == 1 ? (u8At(sib1, i) == 1 && u8At(parNbr, i) == 0 && u8At(parSib1, i) <= 2) : u8At(parNbr, i) == 0;
+        if (ok) {
+            setI32(elig, ne, i);
+            setI32(ctx, ne, min(u8At(sib1, i) - 1, 2) * 3 + min(u8At(parSib1, i) - 1, 2));
+            ne++;
+        }
+    }
+    if (ne == 0) return false;
+    decodeBinarySequence(ctx, ne, stIdcm, 9, flag, sCount, sOrder);
+    // the direct nodes, in place of elig; isDirect in sOcc
+    const isDirect = sOcc;
+    memory.fill(isDirect, 0, <usize>m);
+    let nd = 0;
+    for (let e = 0; e < ne; e++) if (i32At(flag, e) == 1) { const i = i32At(elig, e); setI32(elig, nd++, i); setU8(isDirect, i, 1); }
+    memory.fill(ctx, 0, <usize>nd << 2);
+    decodeBinarySequence(ctx, nd, stTwo, 1, flag, sCount, sOrder);
+    let P = 0;
+    for (let e = 0; e < nd; e++) {
+        const i = i32At(elig, e);
+        setI32(sOwners, P++, i);
+        if (i32At(flag, e)) setI32(sOwners, P++, i);
+    }
+    if (<i64>dCount + P + (m - nd) > <i64>gN) fail(ERR_DIRECT_COUNT, 0, 0);
+    decodeBitsSame(min(R, b0), P, sLowX);
+    decodeBitsSame(min(R, b1), P, sLowY);
+    decodeBitsSame(min(R, b2), P, sLowZ);
+    for (let o = 0; o < P; o++) {
+        const i = i32At(sOwners, o);
+        const px = (i32At(nodes.qx, i) << R) + i32At(sLowX, o);
+        const py = (i32At(nodes.qy, i) << R) + i32At(sLowY, o);
+        const pz = (i32At(nodes.qz, i) << R) + i32At(sLowZ, o);
+        if (o > 0 && i32At(sOwners, o - 1) == i) {
+            const prev = dCount - 1;
+            if (i32At(dx, prev) == px && i32At(dy, prev) == py && i32At(dz, prev) == pz) fail(ERR_DIRECT_EQUAL, 0, 0);
+        }
+        setI32(dx, dCount, px); setI32(dy, dCount, py); setI32(dz, dCount, pz); dCount++;
+    }
+    const index = sIndex;
+    let j = 0;
+    for (let i = 0; i < m; i++) {
+        if (u8At(isDirect, i)) { setI32(index, i, -1); continue; }
+        setI32(index, i, j);
+        setI32(keep.qx, j, i32At(nodes.qx, i)); setI32(keep.qy, j, i32At(nodes.qy, i)); setI32(keep.qz, j, i32At(nodes.qz, i));
+        setU8(keep.sib1, j, u8At(sib1, i)); setU8(keep.parNbr, j, u8At(parNbr, i)); setU8(keep.parSib1, j, u8At(parSib1, i));
+        j++;
+    }
+    keep.m = j;
+    // the face neighbours among the nodes that are not direct (G.5.3)
+    for (let i = 0; i < m; i++) {
+        if (u8At(isDirect, i)) continue;
+        const bk = 6 * i32At(index, i);
+        for (let d = 0; d < 6; d++) { const u = i32At(nodes.nb, 6 * i + d); setI32(keep.nb, bk + d, u < 0 ? -1 : i32At(index, u)); }
+    }
+    return true;
+}
+
+/** P values of n bits each (G.6.3) into out (i32, as u32), 16-bit pieces low first. */
+function decodeBitsSame(n: i32, count: i32, out: usize): void {
+    memory.fill(out, 0, <usize>count << 2);
+    for (let shift = 0; shift < n; shift += 16) {
+        const w = min(n - shift, 16);
+        for (let j = 0; j < count; j++) setI32(out, j, i32At(out, j) | <i32>(decodeUniform(w) << shift));
+    }
+}
+
+/** Occupancy (G.5.4) of `nodes` at depth `depth`; the nodes of depth + 1 go to `next`. */
+function occupancy(nodes: Nodes, next: Nodes, depth: i32, R: i32, b0: i32, b1: i32, b2: i32): void {
+    const m = nodes.m, nb = nodes.nb;
+    for (let k = 0; k < 8; k++) limitCounts(stOcc + <usize>(k * 2 * NUM_OCC_CONTEXTS * 4), NUM_OCC_CONTEXTS, LEVEL_COUNT_LIMIT);
+    for (let i = 0; i < m; i++) {
+        let c = 0;
+        for (let d = 0; d < 6; d++) if (i32At(nb, 6 * i + d) >= 0) c++;
+        setU8(sNbrCount, i, c); setU8(sDens, i, (c + 1) >> 1); // DENS = [0, 1, 1, 2, 2, 3, 3]
+    }
+    // the child bits k whose axes all split (an axis of bit depth <= R - 1 does not)
+    const sx = R - 1 < b0, sy = R - 1 < b1, sz = R - 1 < b2;
+    let last = 0;
+    for (let k = 0; k < 8; k++) if ((sx || !(k & 4)) && (sy || !(k & 2)) && (sz || !(k & 1))) last = k;
+    const occ = sOcc;
+    memory.fill(occ, 0, <usize>m);
+    for (let k = 0; k < 8; k++) {
+        if (!((sx || !(k & 4)) && (sy || !(k & 2)) && (sz || !(k & 1)))) continue;
+        const nc = occupancyContexts(k, k == last, m, occ, nb);
+        decodeBinarySequence(sCtx, nc, stOcc + <usize>(k * 2 * NUM_OCC_CONTEXTS * 4), NUM_OCC_CONTEXTS, sDv, sCount, sOrder);
+        const bit = 1 << k;
+        for (let t = 0; t < nc; t++) if (i32At(sDv, t)) { const i = i32At(sCoded, t); setU8(occ, i, u8At(occ, i) | bit); }
+        if (k == last) for (let i = 0; i < m; i++) if (!(u8At(occ, i) & (bit - 1))) setU8(occ, i, u8At(occ, i) | bit); // inferred occupied
+    }
+    let children = 0;
+    for (let i = 0; i < m; i++) children += popcnt8(u8At(occ, i));
+    if (<i64>dCount + children > <i64>gN) fail(ERR_OCC_COUNT, dCount + children, depth + 1);
+    for (let i = 0, j = 0; i < m; i++) {
+        const o = u8At(occ, i);
+        setI32(sFirst, i, j);
+        const x2 = i32At(nodes.qx, i) << 1, y2 = i32At(nodes.qy, i) << 1, z2 = i32At(nodes.qz, i) << 1;
+        const pc = popcnt8(o), nbc = u8At(sNbrCount, i), s1 = u8At(nodes.sib1, i);
+        for (let k = 0; k < 8; k++) {
+            if (!((o >> k) & 1)) continue;
+            setI32(next.qx, j, x2 + ((k >> 2) & 1)); setI32(next.qy, j, y2 + ((k >> 1) & 1)); setI32(next.qz, j, z2 + (k & 1));
+            setU8(next.sib1, j, pc); setU8(next.parNbr, j, nbc); setU8(next.parSib1, j, s1);
+            j++;
+        }
+    }
+    next.m = children;
+    childNeighbours(nodes, next, occ);
+}
+
+/** The contexts of child k (G.5.4) of the nodes whose bit k is coded: sCtx/sCoded [0..nc-1]; returns nc. */
+function occupancyContexts(k: i32, isLast: bool, m: i32, occ: usize, nb: usize): i32 {
+    const kx = k & 4, ky = k & 2, kz = k & 1, below = (1 << k) - 1;
+    const jx = k ^ 4, jy = k ^ 2, jz = k ^ 1;
+    let nc = 0;
+    for (let i = 0; i < m; i++) {
+        const o = u8At(occ, i);
+        const before = popcnt8(o & below);
+        if (isLast && before == 0) continue;
+        const b = 6 * i;
+        let sx: i32, sy: i32, sz: i32, u: i32;
+        if (kx) { u = i32At(nb, b + 1); sx = ((o >> jx) & 1) + (u >= 0 ? (u8At(occ, u) >> jx) & 1 : 0); } else sx = i32At(nb, b) >= 0 ? 1 : 0;
+        if (ky) { u = i32At(nb, b + 3); sy = ((o >> jy) & 1) + (u >= 0 ? (u8At(occ, u) >> jy) & 1 : 0); } else sy = i32At(nb, b + 2) >= 0 ? 1 : 0;
+        if (kz) { u = i32At(nb, b + 5); sz = ((o >> jz) & 1) + (u >= 0 ? (u8At(occ, u) >> jz) & 1 : 0); } else sz = i32At(nb, b + 4) >= 0 ? 1 : 0;
+        setI32(sCtx, nc, (((sx * 3 + sy) * 3 + sz) * 4 + (before < 3 ? before : 3)) * 4 + u8At(sDens, i));
+        setI32(sCoded, nc++, i);
+    }
+    return nc;
+}
+
+/** The index of child k of node i, or -1. */
+@inline function childIndex(occ: usize, i: i32, k: i32): i32 {
+    const o = u8At(occ, i);
+    return (o >> k) & 1 ? i32At(sFirst, i) + popcnt8(o & ((1 << k) - 1)) : -1;
+}
+
+/**
+ * Face neighbours (G.5.3) of the children: the neighbour of a child across a face is a sibling,
+ * or a child of the parent's neighbour across the same face.
+ */
+function childNeighbours(nodes: Nodes, next: Nodes, occ: usize): void {
+    const m = nodes.m, pnb = nodes.nb, nb = next.nb;
+    for (let i = 0, j = 0; i < m; i++) {
+        const o = u8At(occ, i);
+        for (let k = 0; k < 8; k++) {
+            if (!((o >> k) & 1)) continue;
+            for (let a = 0; a < 3; a++) {
+                const bit = 4 >> a, b = 6 * j + 2 * a, up = (k & bit) ? 1 : 0;
+                const u = i32At(pnb, 6 * i + 2 * a + up);
+                const sib = childIndex(occ, i, k ^ bit), across = u < 0 ? -1 : childIndex(occ, u, k ^ bit);
+                if (up) { setI32(nb, b, sib); setI32(nb, b + 1, across); } else { setI32(nb, b, across); setI32(nb, b + 1, sib); }
+            }
+            j++;
+        }
+    }
+}
+
+@inline function lessMsb(a: u32, b: u32): bool { return a < b && a < (a ^ b); }
+
+/** Morton order (G.4) of offsets: x bits before y before z at each bit position; a < b. */
+function mortonLess(ax: u32, ay: u32, az: u32, bx: u32, by: u32, bz: u32): bool {
+    let best = ax ^ bx;
+    const ty = ay ^ by, tz = az ^ bz;
+    let axis = 0;
+    if (lessMsb(best, ty)) { axis = 1; best = ty; }
+    if (lessMsb(best, tz)) axis = 2;
+    if (axis == 0) return ax < bx;
+    return axis == 1 ? ay < by : az < bz;
+}
+
+@inline function directLess(a: i32, b: i32): bool {
+    return mortonLess(<u32>i32At(dx, a), <u32>i32At(dy, a), <u32>i32At(dz, a), <u32>i32At(dx, b), <u32>i32At(dy, b), <u32>i32At(dz, b));
+}
+
+/** The direct points' indices sorted in Morton order (bottom-up merge sort; the points are distinct). */
+function sortDirect(): usize {
+    let src = alloc(dCount << 2), dst = alloc(dCount << 2);
+    for (let i = 0; i < dCount; i++) setI32(src, i, i);
+    for (let w = 1; w < dCount; w <<= 1) {
+        for (let lo = 0; lo < dCount; lo += 2 * w) {
+            const mid = min(lo + w, dCount), hi = min(lo + 2 * w, dCount);
+            let i = lo, j = mid, o = lo;
+            while (i < mid && j < hi) setI32(dst, o++, directLess(i32At(src, j), i32At(src, i)) ? i32At(src, j++) : i32At(src, i++));
+            while (i < mid) setI32(dst, o++, i32At(src, i++));
+            while (j < hi) setI32(dst, o++, i32At(src, j++));
+        }
+        const t = src; src = dst; dst = t;
+    }
+    return src;
+}
+
+/** G.5.5: the direct points merged with the leaves in Morton order, offset by the bounding-box minimum. */
+function outputPoints(leaves: Nodes, m0: i32, m1: i32, m2: i32): void {
+    const n = gN, total = dCount + leaves.m;
+    if (total != n) fail(ERR_TOTAL, total, 0);
+    const order = sortDirect();
+    outX = alloc(n << 2); outY = alloc(n << 2); outZ = alloc(n << 2);
+    let i = 0, j = 0;
+    for (let o = 0; o < n; o++) {
+        let takeDirect: bool;
+        if (i >= dCount) takeDirect = false;
+        else if (j >= leaves.m) takeDirect = true;
+        else {
+            const d = i32At(order, i);
+            takeDirect = mortonLess(<u32>i32At(dx, d), <u32>i32At(dy, d), <u32>i32At(dz, d),
+                <u32>i32At(leaves.qx, j), <u32>i32At(leaves.qy, j), <u32>i32At(leaves.qz, j));
+        }
+        if (takeDirect) { const d = i32At(order, i++); setI32(outX, o, i32At(dx, d)); setI32(outY, o, i32At(dy, d)); setI32(outZ, o, i32At(dz, d)); }
+        else { setI32(outX, o, i32At(leaves.qx, j)); setI32(outY, o, i32At(leaves.qy, j)); setI32(outZ, o, i32At(leaves.qz, j)); j++; }
+    }
+    offsetAxis(outX, n, m0); offsetAxis(outY, n, m1); offsetAxis(outZ, n, m2);
+}
+
+function offsetAxis(c: usize, n: i32, bmin: i32): void {
+    let mn: u32 = 0xFFFFFFFF;
+    for (let t = 0; t < n; t++) { const v = <u32>i32At(c, t); if (v < mn) mn = v; }
+    if (mn != 0) fail(ERR_MIN, 0, 0);
+    for (let t = 0; t < n; t++) {
+        const v = <i64><u32>i32At(c, t) + <i64>bmin;
+        if (v > 0x7FFFFFFF) fail(ERR_MAX, 0, 0);
+        setI32(c, t, <i32>v);
+    }
+}
+
+// ---------------------------------------------------------------- k nearest neighbours (11.7.2)
+
+// The canonical k-NN (Annex H.3 with a ball holding the whole tile): for each query, the first k
+// data points in increasing order of (d2, index), d2 the exact squared distance (u64: offsets
+// are below MAX_EXTENT < 2^31, so d2 < 3 * 2^62). The data points are binned in a dense grid of
+// cubic cells (side 2^b); a query visits the cells in growing shells around its own and stops
+// once every unvisited point is provably (strictly) farther than its k-th, so points at equal
+// distance compete by index exactly.
+const CELLS_PER_POINT: i32 = 2; // grid size: at most this many cells per data point (and 4096)
+
+let gB: i32 = 0; let gSide: i64 = 0; let gNx: i32 = 0; let gNy: i32 = 0; let gNz: i32 = 0;
+let gStart: usize = 0; let gPx: usize = 0; let gPy: usize = 0; let gPz: usize = 0; let gId: usize = 0;
+let hD: usize = 0; let hI: usize = 0; let kK: i32 = 0;
+
+@inline function u64At(p: usize, i: i32): u64 { return load<u64>(p + (<usize>i << 3)); }
+@inline function setU64(p: usize, i: i32, v: u64): void { store<u64>(p + (<usize>i << 3), v); }
+
+/**
+ * Neighbours of the query rows (qs [nq]) among the data rows (ds [nd], ascending) of the tile's
+ * points x, y, z (i32 [*]; lo: their minima, e: their extents): ids to idx [nq * k] nearest first,
+ * counts to cnt (u8 [nq]).
+ */
+export function gridNeighbours(x: usize, y: usize, z: usize, lo0: i32, lo1: i32, lo2: i32, e0: i32, e1: i32, e2: i32,
+    ds: usize, nd: i32, qs: usize, nq: i32, k: i32, idx: usize, cnt: usize): void {
+    err = 0;
+    buildGrid(x, y, z, lo0, lo1, lo2, e0, e1, e2, ds, nd);
+    hD = alloc(k << 3); hI = alloc(k << 2); kK = k;
+    for (let r = 0; r < nq; r++) {
+        const i = i32At(qs, r);
+        const size = search(i32At(x, i) - lo0, i32At(y, i) - lo1, i32At(z, i) - lo2);
+        for (let m = 0; m < size; m++) setI32(idx, r * k + m, i32At(hI, m));
+        setU8(cnt, r, size);
+    }
+}
+
+function buildGrid(x: usize, y: usize, z: usize, lo0: i32, lo1: i32, lo2: i32, e0: i32, e1: i32, e2: i32, ds: usize, n: i32): void {
+    const limit = <f64>max(4096, CELLS_PER_POINT * n);
+    let b = 0;
+    while (<f64>((e0 >> b) + 1) * <f64>((e1 >> b) + 1) * <f64>((e2 >> b) + 1) > limit) b++;
+    gB = b; gSide = <i64>1 << b;
+    gNx = (e0 >> b) + 1; gNy = (e1 >> b) + 1; gNz = (e2 >> b) + 1;
+    const cells = gNx * gNy * gNz;
+    const start = alloc((cells + 1) << 2), cell = alloc(n << 2);
+    for (let t = 0; t < n; t++) {
+        const j = i32At(ds, t);
+        const c = (((i32At(x, j) - lo0) >> b) * gNy + ((i32At(y, j) - lo1) >> b)) * gNz + ((i32At(z, j) - lo2) >> b);
+        setI32(cell, t, c);
+        setI32(start, c + 1, i32At(start, c + 1) + 1);
+    }
+    for (let c = 1; c <= cells; c++) setI32(start, c, i32At(start, c) + i32At(start, c - 1));
+    // the points sorted by cell (stable), as offsets from lo
+    gPx = alloc(n << 2); gPy = alloc(n << 2); gPz = alloc(n << 2); gId = alloc(n << 2);
+    const fill = alloc(cells << 2);
+    memory.copy(fill, start, <usize>cells << 2);
+    for (let t = 0; t < n; t++) {
+        const j = i32At(ds, t), c = i32At(cell, t), o = i32At(fill, c);
+        setI32(fill, c, o + 1);
+        setI32(gPx, o, i32At(x, j) - lo0); setI32(gPy, o, i32At(y, j) - lo1); setI32(gPz, o, i32At(z, j) - lo2); setI32(gId, o, j);
+    }
+    gStart = start;
+}
+
+/** The k nearest of (qx, qy, qz) (offsets from lo) sorted by (d2, id) into hD/hI; returns their count. */
+function search(qx: i32, qy: i32, qz: i32): i32 {
+    const b = gB, cx = qx >> b, cy = qy >> b, cz = qz >> b, k = kK;
+    let size = visitCell((cx * gNy + cy) * gNz + cz, qx, qy, qz, 0);
+    for (let s = 1; ; s++) {
+        size = visitShell(cx, cy, cz, s, qx, qy, qz, size);
+        const bound = unvisitedBound(cx, cy, cz, s, qx, qy, qz);
+        if (bound < 0 || (size == k && u64At(hD, k - 1) < <u64>(bound * bound))) break;
+    }
+    return size;
+}
+
+/** The least distance along one axis from the query to a point outside the block of radius s; -1 if the block covers the grid. */
+function unvisitedBound(cx: i32, cy: i32, cz: i32, s: i32, qx: i32, qy: i32, qz: i32): i64 {
+    const S = gSide;
+    let bound: i64 = i64.MAX_VALUE;
+    if (cx - s > 0) bound = min(bound, <i64>qx - <i64>(cx - s) * S + 1);
+    if (cx + s < gNx - 1) bound = min(bound, <i64>(cx + s + 1) * S - <i64>qx);
+    if (cy - s > 0) bound = min(bound, <i64>qy - <i64>(cy - s) * S + 1);
+    if (cy + s < gNy - 1) bound = min(bound, <i64>(cy + s + 1) * S - <i64>qy);
+    if (cz - s > 0) bound = min(bound, <i64>qz - <i64>(cz - s) * S + 1);
+    if (cz + s < gNz - 1) bound = min(bound, <i64>(cz + s + 1) * S - <i64>qz);
+    return bound == i64.MAX_VALUE ? -1 : bound;
+}
+
+/** The squared distance along one axis from the query (cell c, offset q) to cell C. */
+@inline function gap(C: i32, c: i32, q: i32): u64 {
+    const d: i64 = C < c ? <i64>q - <i64>(C + 1) * gSide + 1 : C > c ? <i64>C * gSide - <i64>q : 0;
+    return <u64>(d * d);
+}
+
+/** The cells at Chebyshev distance s from (cx, cy, cz), clipped to the grid; a cell wholly farther than the k-th is skipped. */
+function visitShell(cx: i32, cy: i32, cz: i32, s: i32, qx: i32, qy: i32, qz: i32, size: i32): i32 {
+    const ny = gNy, nz = gNz, k = kK;
+    const x0 = max(0, cx - s), x1 = min(gNx - 1, cx + s);
+    const y0 = max(0, cy - s), y1 = min(ny - 1, cy + s);
+    const z0 = max(0, cz - s), z1 = min(nz - 1, cz + s);
+    for (let X = x0; X <= x1; X++) {
+        const fx = X == cx - s || X == cx + s, ex = gap(X, cx, qx);
+        for (let Y = y0; Y <= y1; Y++) {
+            const row = (X * ny + Y) * nz, exy = ex + gap(Y, cy, qy);
+            if (size == k && exy > u64At(hD, k - 1)) continue;
+            if (fx || Y == cy - s || Y == cy + s) {
+                for (let Z = z0; Z <= z1; Z++) size = visitNear(row, Z, cz, qx, qy, qz, exy, size);
+            } else {
+                if (cz - s >= 0) size = visitNear(row, cz - s, cz, qx, qy, qz, exy, size);
+                if (cz + s < nz) size = visitNear(row, cz + s, cz, qx, qy, qz, exy, size);
+            }
+        }
+    }
+    return size;
+}
+
+@inline function visitNear(row: i32, Z: i32, cz: i32, qx: i32, qy: i32, qz: i32, exy: u64, size: i32): i32 {
+    if (size == kK && exy + gap(Z, cz, qz) > u64At(hD, kK - 1)) return size;
+    return visitCell(row + Z, qx, qy, qz, size);
+}
+
+function visitCell(c: i32, qx: i32, qy: i32, qz: i32, size: i32): i32 {
+    for (let p = i32At(gStart, c), e = i32At(gStart, c + 1); p < e; p++) {
+        const dx = <i64>i32At(gPx, p) - <i64>qx, dy = <i64>i32At(gPy, p) - <i64>qy, dz = <i64>i32At(gPz, p) - <i64>qz;
+        size = offer(<u64>(dx * dx) + <u64>(dy * dy) + <u64>(dz * dz), i32At(gId, p), size);
+    }
+    return size;
+}
+
+/** Insert (d, id) into the ascending list hD/hI of at most k entries; returns its new size. */
+function offer(d: u64, id: i32, size: i32): i32 {
+    const k = kK;
+    if (size == k) {
+        const ld = u64At(hD, k - 1);
+        if (d > ld || (d == ld && id > i32At(hI, k - 1))) return size;
+    } else size++;
+    let j = size - 1;
+    while (j > 0) {
+        const pd = u64At(hD, j - 1), pi = i32At(hI, j - 1);
+        if (!(pd > d || (pd == d && pi > id))) break;
+        setU64(hD, j, pd); setI32(hI, j, pi); j--;
+    }
+    setU64(hD, j, d); setI32(hI, j, id);
+    return size;
+}
+
+// ---------------------------------------------------------------- symbol chunks (10.4, 10.5, 10.7)
+
+const LUT_SHIFT: u64 = 12; // symbol search starts at lut[q >> 12] (tables.mjs's ModelSet)
+const LUT_SIZE: i32 = 4097;
+const MAX_RESIDUAL: u64 = 0x3FFFFFFFFFFFFFFF; // 2^62 - 1
+const TWO53: u64 = 0x20000000000000;
+
+// the 64 level tables and the escape class table, as tables.mjs's ModelSet (cum, off, lut); half widths L_i
+let lvCum: usize = 0; let lvOff: usize = 0; let lvLut: usize = 0; let lvHalf: usize = 0;
+let clCum: usize = 0; let clOff: usize = 0; let clLut: usize = 0;
+
+export function setTables(a: usize, b: usize, c: usize, d: usize, e: usize, f: usize, g: usize): void {
+    lvCum = a; lvOff = b; lvLut = c; lvHalf = d; clCum = e; clOff = f; clLut = g;
+}
+
+/** One symbol of model m of a model set (10.6.1). */
+function decodeModel(cum: usize, off: usize, lut: usize, m: i32): i32 {
+    const scale = rR >> 24, q = quantile(scale), o = i32At(off, m);
+    let s = <i32>load<u16>(lut + ((<usize>(m * LUT_SIZE) + <usize>(q >> LUT_SHIFT)) << 1));
+    while (<u64>i32At(cum, o + s + 1) <= q) s++;
+    const c = <u64>i32At(cum, o + s);
+    setState((<u64>i32At(cum, o + s + 1) - c) * scale, rD - c * scale);
+    return s;
+}
+
+/**
+ * The symbol chunk of nbytes at p holding n residuals of levels lv (u8 [n]): the bins grouped by
+ * level, then the escape section (signs, magnitude classes, remainders); checks the chunk is
+ * exhausted. Residuals to out (f64 [n]; NaN where |r| >= 2^53) and wide (i64 [n], every escaped
+ * one). Returns the number of escapes.
+ */
+export function decodeSymbols(p: usize, nbytes: i32, lv: usize, n: i32, out: usize, wide: usize): i32 {
+    err = 0;
+    rangeStart(p, nbytes);
+    const count = alloc(65 << 2), order = alloc(n << 2), esc = alloc(n);
+    for (let j = 0; j < n; j++) { const c = u8At(lv, j) + 1; setI32(count, c, i32At(count, c) + 1); }
+    for (let i = 0; i < 64; i++) setI32(count, i + 1, i32At(count, i + 1) + i32At(count, i));
+    for (let j = 0; j < n; j++) { const c = u8At(lv, j), o = i32At(count, c); setI32(order, o, j); setI32(count, c, o + 1); }
+    // count[i] is now the end of level i's group
+    let nesc = 0, start = 0;
+    for (let i = 0; i < 64; i++) {
+        const end = i32At(count, i);
+        if (end == start) continue;
+        const L = i32At(lvHalf, i), ESC = 2 * L + 1;
+        for (let t = start; t < end; t++) {
+            const j = i32At(order, t), b = decodeModel(lvCum, lvOff, lvLut, i);
+            if (b == ESC) { setU8(esc, j, 1); nesc++; } else store<f64>(out + (<usize>j << 3), <f64>(b - L));
+        }
+        start = end;
+    }
+    if (nesc) decodeEscapes(lv, n, out, wide, esc, nesc);
+    checkExhausted();
+    return nesc;
+}
+
+/** Raw values (10.6.3) of widths w[0..n-1] (0..64 bits) to v (u64 [n]), in 16-bit pieces grouped by width. */
+function decodeBits(w: usize, n: i32, v: usize): void {
+    let maxw = 0;
+    for (let j = 0; j < n; j++) maxw = max(maxw, i32At(w, j));
+    for (let shift = 0; shift < maxw; shift += 16) {
+        for (let piece = 1; piece <= 16; piece++) {
+            for (let j = 0; j < n; j++) {
+                const wj = i32At(w, j);
+                if (wj <= shift || min(wj - shift, 16) != piece) continue;
+                setU64(v, j, u64At(v, j) | (<u64>decodeUniform(piece) << <u64>shift));
+            }
+        }
+    }
+}
+
+function decodeEscapes(lv: usize, n: i32, out: usize, wide: usize, esc: usize, nesc: i32): void {
+    const idx = alloc(nesc << 2), sign = alloc(nesc), k = alloc(nesc << 2), width = alloc(nesc << 2), rem = alloc(nesc << 3);
+    for (let j = 0, e = 0; j < n; j++) if (u8At(esc, j)) setI32(idx, e++, j);
+    for (let e = 0; e < nesc; e++) setU8(sign, e, <i32>decodeUniform(1));
+    for (let e = 0; e < nesc; e++) {
+        const c = decodeModel(clCum, clOff, clLut, 0);
+        setI32(k, e, c); setI32(width, e, max(c - 1, 0));
+    }
+    decodeBits(width, nesc, rem);
+    for (let e = 0; e < nesc; e++) {
+        const j = i32At(idx, e), c = i32At(k, e), L = <u64>i32At(lvHalf, u8At(lv, j));
+        const m: u64 = c == 0 ? 0 : (<u64>1 << <u64>(c - 1)) + u64At(rem, e); // c <= 62: below 2^62
+        const mag = L + 1 + m;
+        if (mag > MAX_RESIDUAL) { errWide = mag; fail(ERR_ESCAPE, 0, 0); }
+        const r: i64 = u8At(sign, e) ? -<i64>mag : <i64>mag;
+        store<i64>(wide + (<usize>j << 3), r);
+        store<f64>(out + (<usize>j << 3), mag < TWO53 ? <f64>r : NaN);
+    }
+}
+
+// ---------------------------------------------------------------- neighbour prediction parameters (11.7.3, 11.8)
+
+@inline function floorDivI(a: i64, b: i64): i64 { // b > 0
+    const d = a / b;
+    return (a % b != 0 && a < 0) ? d - 1 : d;
+}
+
+@inline function floorDivF(a: f64, b: f64): f64 { // tables.mjs's floorDiv on exact binary64 integers (the prior's mean)
+    let m = Math.floor(a / b);
+    if (m * b > a) m--; else if ((m + 1) * b <= a) m++;
+    return m;
+}
+
+/** The prior's mean of channel c (11.3), scaled by the row's step adjustment F (11.8) when sa. */
+@inline function priorMean(prior: usize, c: i32, sa: i32, F: i64): f64 {
+    const p = load<f64>(prior + (<usize>c << 3));
+    return sa ? floorDivF(p * 4096 + <f64>(F >> 1), <f64>F) : p;
+}
+
+/**
+ * The mean and level of every channel of nr rows (11.3, 11.7.3; step-adjusted, 11.8, when sa):
+ * row rows[r] has cnt[r] neighbours idx[r * k ..] (none: the prior's mean and level); q (f64 [*, M],
+ * integers with |q| <= 2^40) the values decoded so far, adj (u8) the rows' step-adjustment
+ * indices, fix (i32 [8]) their fixed-point factors F and shift (i32 [8]) their level shifts;
+ * meanFlag (u8 [M]), bucket (u8 [M * B]) the bucket levels, prior (f64 [M]) and priorLevel (u8 [M]).
+ * Sums of up to 32 q F stay below 2^59: exact in i64. Results to mean (f64 [nr * M]) and level (u8 [nr * M]).
+ */
+export function rowMeans(q: usize, M: i32, rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, adj: usize, sa: i32, fix: usize,
+    shift: usize, meanFlag: usize, bucket: usize, B: i32, prior: usize, priorLevel: usize, mean: usize, level: usize): void {
+    err = 0;
+    const sum = alloc(M << 3), mx = alloc(M << 3), mn = alloc(M << 3);
+    for (let r = 0; r < nr; r++) {
+        const n = u8At(cnt, r), a = u8At(adj, i32At(rows, r)), F: i64 = sa ? <i64>i32At(fix, a) : 1, base = r * M;
+        if (n == 0) {
+            const sh = sa ? i32At(shift, a) : 0;
+            for (let c = 0; c < M; c++) {
+                store<f64>(mean + (<usize>(base + c) << 3), priorMean(prior, c, sa, F));
+                setU8(level, base + c, max(0, u8At(priorLevel, c) - sh));
+            }
+            continue;
+        }
+        // sum, max and min of the neighbours' (step-adjusted) values: the first neighbour, then the others
+        let j = i32At(idx, r * k), f: i64 = sa ? <i64>i32At(fix, u8At(adj, j)) : 1, qj = q + (<usize>(j * M) << 3);
+        for (let c = 0; c < M; c++) {
+            const o = <usize>c << 3, v = <i64>load<f64>(qj + o) * f;
+            store<i64>(sum + o, v); store<i64>(mx + o, v); store<i64>(mn + o, v);
+        }
+        for (let m = 1; m < n; m++) {
+            j = i32At(idx, r * k + m); f = sa ? <i64>i32At(fix, u8At(adj, j)) : 1; qj = q + (<usize>(j * M) << 3);
+            for (let c = 0; c < M; c++) {
+                const o = <usize>c << 3, v = <i64>load<f64>(qj + o) * f;
+                store<i64>(sum + o, load<i64>(sum + o) + v);
+                if (v > load<i64>(mx + o)) store<i64>(mx + o, v);
+                if (v < load<i64>(mn + o)) store<i64>(mn + o, v);
+            }
+        }
+        const nF = <i64>n * F;
+        for (let c = 0; c < M; c++) {
+            const o = <usize>c << 3;
+            const mu = u8At(meanFlag, c) ? <f64>floorDivI(load<i64>(sum + o) + (nF >> 1), nF) : priorMean(prior, c, sa, F);
+            store<f64>(mean + (<usize>(base + c) << 3), mu);
+            const act = floorDivI(load<i64>(mx + o) - load<i64>(mn + o), F); // >= 0
+            setU8(level, base + c, u8At(bucket, c * B + min(<i32>(64 - clz<i64>(act)), B - 1)));
+        }
+    }
+}
