@@ -212,3 +212,52 @@ def test_layered_error_is_the_whole_scenes_where_the_sample_is_between(eye_z):
     layered = layers.error(render_on_black(gaussians_from_scene(trial), cam))
     assert float(exact.abs().max()) > 0.05  # the trial changes the pictures
     assert float((layered - exact).abs().max()) < 1e-5
+
+
+def test_sampled_errors_are_the_whole_scenes_on_each_shares_first_trial_and_offset_after():
+    """A sample interleaved in depth with the held Gaussians (every other Gaussian of two spheres),
+    where the layers are far off: the first trial of each pruning share measures the whole scene
+    rendered exactly; every later one of that share the layers' error plus what they missed on
+    that first trial. The whole-to-sample ratio's sample side is the whole scene rendered with only
+    the sample rounded."""
+    from lghcc.encoder.gaussians.gaussian_rd import (Backdrop, SettingsSearch, plainly_rounded, render_on_black,
+                                                     sample_distortion_ratio, whole_scene_error, with_held)
+    from lghcc.render.gaussians3dgs import gaussians_from_scene
+
+    scene, _ = _shell_with_inside(np.random.default_rng(5))
+    members = np.arange(scene.num_gaussians) % 2 == 0
+    contrib = np.arange(scene.num_gaussians, dtype=np.float64)  # a strict order: pruning takes the first rows
+    cfg = GaussianEncoderConfig(**SMALL)
+    backdrop = Backdrop(scene, members)
+    s = SettingsSearch(scene.subset(members), contrib[members], cfg, 0.0, 4, 64, backdrop=backdrop)
+    decoded = []
+    real_mse = s._mse
+    s._mse = lambda dec, share=0.0: decoded.append(dec) or real_mse(dec, share)
+
+    def measured_exact_layered(c):
+        t = s.evaluate(c)
+        g = gaussians_from_scene(decoded[-1])
+        with torch.no_grad():
+            layered = np.mean([(v.error(render_on_black(g, cam)) ** 2).double().mean().item()
+                               for cam, v in zip(s.cams, s.layers)])
+        return t.mse, whole_scene_error(backdrop, decoded[-1], s.cams), layered
+
+    coarse = dataclasses.replace(cfg, sh_dc_step=0.4, opacity_step=0.4, scale_step=0.4, rotation_step=0.4)
+    measured, exact, layered = measured_exact_layered(cfg)
+    assert measured == pytest.approx(exact, rel=1e-9) and abs(layered / exact - 1) > 0.05  # the layers are off
+    assert list(s.offsets) == [0.0] and s.offsets[0.0] == pytest.approx(exact - layered, rel=1e-6)
+    measured, exact, layered = measured_exact_layered(coarse)
+    assert measured == pytest.approx(layered + s.offsets[0.0], rel=1e-6) and measured > 2 * s.offsets[0.0]
+    measured, exact, layered = measured_exact_layered(dataclasses.replace(coarse, prune_share=0.1))  # a new share
+    assert measured == pytest.approx(exact, rel=1e-9) and sorted(s.offsets) == [0.0, 0.1]
+
+    ratio = sample_distortion_ratio(scene, contrib, dataclasses.replace(cfg, search_views=4, search_resolution=64),
+                                    members)
+    whole = SettingsSearch(scene, contrib, cfg, 0.0, 4, 64)
+    part = plainly_rounded(scene.subset(members), contrib[members], cfg)
+    g, src = gaussians_from_scene(with_held(part, backdrop)), gaussians_from_scene(scene)
+    with torch.no_grad():
+        exact = np.mean([((render_on_black(g, c).image - render_on_black(src, c).image) ** 2).double().mean().item()
+                         for c in whole.cams])
+    assert ratio == pytest.approx(whole.rounding_distortion(cfg) / exact, rel=1e-9)
+    assert 1.2 < ratio < 4  # half the Gaussians: about half the error, not hidden by the other half
