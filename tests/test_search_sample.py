@@ -261,3 +261,15 @@ def test_sampled_errors_are_the_whole_scenes_on_each_shares_first_trial_and_offs
                          for c in whole.cams])
     assert ratio == pytest.approx(whole.rounding_distortion(cfg) / exact, rel=1e-9)
     assert 1.2 < ratio < 4  # half the Gaussians: about half the error, not hidden by the other half
+
+
+def test_whole_scene_moves_follow_the_miss():
+    """A miss moves every step finer by target / error, a surplus coarser by sqrt(target / error),
+    within a factor 4: a small miss is a small move (the check once halved every step after one)."""
+    from lghcc.encoder.gaussians.gaussian_rd import whole_scene_move
+
+    assert whole_scene_move(0.23) == pytest.approx(10 ** -0.023)  # 0.23 dB below the target: 5% finer
+    assert whole_scene_move(-1.0) == pytest.approx(10 ** 0.05)  # 1 dB above it: 12% coarser
+    assert whole_scene_move(30.0) == 0.25 and whole_scene_move(-30.0) == 4.0
+    for off in (0.01, 0.5, 3.0):
+        assert whole_scene_move(off) < 1 < whole_scene_move(-off)
