@@ -327,12 +327,13 @@ class SettingsSearch:
         what the grid's snap costs (sample and held Gaussians interleave in depth where cells are
         cut, and a move there changes which hides which), and little else: on the donut (20k
         sample) they measured 61-66% of the error at the preset's steps, 64% of what doubling the
-        position step added, but 92-98% of what coarser attribute steps added and 98% of what
+        position step added, but 80-98% of what coarser or finer attribute steps added and 99% of what
         pruning 3.2% added; the exact minus layered error stayed at 1.65-1.68e-6 with and without
-        pruning. So the offset is added, not a factor (one factor of the first trial put
-        later trials off by -4 to +30%, the offset by -6 to +2%; tools/results/search_sampling.md,
-        section (f)), once per share: at most one whole-scene render per view per share of the
-        pruning ladder, whatever the number of trials."""
+        pruning. So the offset is added, not a factor (one factor of the first trial put later
+        trials off by -4 to +49%; the offset -6 to +4% where the attribute steps move, but -16 to
+        -24% where the position step does; tools/results/search_sampling.md, section (f)), once per
+        share: at most one whole-scene render per view per share of the pruning ladder, whatever
+        the number of trials."""
         g = gaussians_from_scene(dec)
         with torch.no_grad():
             if self.layers is None:
