@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+import torch
 from hypothesis import given, settings, strategies as st
 
 from lghcc.common.hashing import gaussian_scene_digest
@@ -179,12 +180,117 @@ def test_sample_renders_in_the_whole_scene(monkeypatch):
     alone_cost = alone.evaluate(pruned).mse - alone.evaluate(fine).mse
     assert alone_cost > 1e-3  # the inside is seen through the cut
     assert abs(held_cost) < 1e-3 * alone_cost
-    assert any(len(r) < int((~half).sum()) for r in held._held_rows)  # some held Gaussians left out
 
     monkeypatch.setattr(gaussian_rd, "FOOTPRINT_MARGIN", 10 ** 6)  # every tile: every held Gaussian
     every = SettingsSearch(*args, backdrop=Backdrop(scene, half))
-    whole = SettingsSearch(scene, contrib, cfg, 0.0, 4, 128)
-    for a, b in zip(every.targets, whole.targets):  # the whole scene's pictures, from its views
-        assert float((a - b).abs().max()) < 1e-4
     for c in (fine, pruned, dataclasses.replace(cfg, scale_step=0.5, prune_share=0.2)):
         assert every.evaluate(c).mse == pytest.approx(held.evaluate(c).mse, rel=1e-6)
+
+
+def _plane(z, half_width, n, value, opacity, rng):
+    """n small Gaussians in the square |x|, |y| <= half_width at depth z."""
+    from lghcc.common.scene import GaussianScene
+
+    xy = rng.uniform(-half_width, half_width, size=(n, 2))
+    means = np.column_stack([xy, np.full(n, z)]).astype(np.float32)
+    sh = (value + rng.normal(0, 0.3, size=(n, 1, 3))).astype(np.float32)
+    return GaussianScene(means, sh, np.full(n, opacity, np.float32),
+                         np.log(rng.uniform(0.03, 0.08, size=(n, 3))).astype(np.float32),
+                         np.tile(np.float32([1, 0, 0, 0]), (n, 1)))
+
+
+def _joined(*scenes):
+    from lghcc.common.scene import GaussianScene
+
+    return GaussianScene(*(np.concatenate([getattr(s, f) for s in scenes])
+                           for f in ("means", "sh", "opacity", "log_scales", "rotations")))
+
+
+@pytest.mark.parametrize("eye_z", [-10.0, 10.0])
+def test_layered_error_is_the_whole_scenes_where_the_sample_is_between(eye_z):
+    """Held Gaussians wholly in front of and behind the sample (a plane between two planes, seen
+    from either side): a trial's error from the sample alone and the layers made once equals the
+    difference of the whole scene's renders with the trial's sample and with the source's."""
+    from lghcc.common.scene import GaussianScene
+    from lghcc.encoder.gaussians.gaussian_rd import render_on_black, view_layers
+    from lghcc.render.camera import Camera
+    from lghcc.render.gaussians3dgs import gaussians_from_scene
+
+    rng = np.random.default_rng(3)
+    sample = _plane(0.0, 1.6, 300, 0.4, -0.5, rng)
+    held = _joined(_plane(-2.0, 1.0, 200, -0.3, -0.8, rng), _plane(2.0, 1.0, 200, 1.0, 0.0, rng))
+    trial = GaussianScene(sample.means + rng.normal(0, 0.01, size=(300, 3)).astype(np.float32) * [1, 1, 0],
+                          sample.sh + rng.normal(0, 0.2, size=sample.sh.shape).astype(np.float32),
+                          sample.opacity + rng.normal(0, 0.5, size=300).astype(np.float32),
+                          sample.log_scales + rng.normal(0, 0.1, size=(300, 3)).astype(np.float32), sample.rotations)
+    cam = Camera.look_at((0.0, 0.0, eye_z), (0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), width=64, height=64, fov_x_deg=30,
+                         near=0.1, far=100)
+    g, h = gaussians_from_scene(sample), gaussians_from_scene(held)
+    layers = view_layers(g, h, torch.arange(held.num_gaussians), cam)
+    assert 0.05 < float(layers.front_t.min()) < 0.99 and float(layers.back.abs().max()) > 0.1  # both layers seen
+    exact = render_on_black(gaussians_from_scene(_joined(trial, held)), cam).image - \
+        render_on_black(gaussians_from_scene(_joined(sample, held)), cam).image
+    layered = layers.error(render_on_black(gaussians_from_scene(trial), cam))
+    assert float(exact.abs().max()) > 0.05  # the trial changes the pictures
+    assert float((layered - exact).abs().max()) < 1e-5
+
+
+def test_sampled_errors_are_the_whole_scenes_on_each_shares_first_trial_and_offset_after():
+    """A sample interleaved in depth with the held Gaussians (every other Gaussian of two spheres),
+    where the layers are far off: the first trial of each pruning share measures the whole scene
+    rendered exactly; every later one of that share the layers' error plus what they missed on
+    that first trial. The whole-to-sample ratio's sample side is the whole scene rendered with only
+    the sample rounded."""
+    from lghcc.encoder.gaussians.gaussian_rd import (Backdrop, SettingsSearch, plainly_rounded, render_on_black,
+                                                     sample_distortion_ratio, whole_scene_error, with_held)
+    from lghcc.render.gaussians3dgs import gaussians_from_scene
+
+    scene, _ = _shell_with_inside(np.random.default_rng(5))
+    members = np.arange(scene.num_gaussians) % 2 == 0
+    contrib = np.arange(scene.num_gaussians, dtype=np.float64)  # a strict order: pruning takes the first rows
+    cfg = GaussianEncoderConfig(**SMALL)
+    backdrop = Backdrop(scene, members)
+    s = SettingsSearch(scene.subset(members), contrib[members], cfg, 0.0, 4, 64, backdrop=backdrop)
+    decoded = []
+    real_mse = s._mse
+    s._mse = lambda dec, share=0.0: decoded.append(dec) or real_mse(dec, share)
+
+    def measured_exact_layered(c):
+        t = s.evaluate(c)
+        g = gaussians_from_scene(decoded[-1])
+        with torch.no_grad():
+            layered = np.mean([(v.error(render_on_black(g, cam)) ** 2).double().mean().item()
+                               for cam, v in zip(s.cams, s.layers)])
+        return t.mse, whole_scene_error(backdrop, decoded[-1], s.cams), layered
+
+    coarse = dataclasses.replace(cfg, sh_dc_step=0.4, opacity_step=0.4, scale_step=0.4, rotation_step=0.4)
+    measured, exact, layered = measured_exact_layered(cfg)
+    assert measured == pytest.approx(exact, rel=1e-9) and abs(layered / exact - 1) > 0.05  # the layers are off
+    assert list(s.offsets) == [0.0] and s.offsets[0.0] == pytest.approx(exact - layered, rel=1e-6)
+    measured, exact, layered = measured_exact_layered(coarse)
+    assert measured == pytest.approx(layered + s.offsets[0.0], rel=1e-6) and measured > 2 * s.offsets[0.0]
+    measured, exact, layered = measured_exact_layered(dataclasses.replace(coarse, prune_share=0.1))  # a new share
+    assert measured == pytest.approx(exact, rel=1e-9) and sorted(s.offsets) == [0.0, 0.1]
+
+    ratio = sample_distortion_ratio(scene, contrib, dataclasses.replace(cfg, search_views=4, search_resolution=64),
+                                    members)
+    whole = SettingsSearch(scene, contrib, cfg, 0.0, 4, 64)
+    part = plainly_rounded(scene.subset(members), contrib[members], cfg)
+    g, src = gaussians_from_scene(with_held(part, backdrop)), gaussians_from_scene(scene)
+    with torch.no_grad():
+        exact = np.mean([((render_on_black(g, c).image - render_on_black(src, c).image) ** 2).double().mean().item()
+                         for c in whole.cams])
+    assert ratio == pytest.approx(whole.rounding_distortion(cfg) / exact, rel=1e-9)
+    assert 1.2 < ratio < 4  # half the Gaussians: about half the error, not hidden by the other half
+
+
+def test_whole_scene_moves_follow_the_miss():
+    """A miss moves every step finer by target / error, a surplus coarser by sqrt(target / error),
+    within a factor 4: a small miss is a small move (the check once halved every step after one)."""
+    from lghcc.encoder.gaussians.gaussian_rd import whole_scene_move
+
+    assert whole_scene_move(0.23) == pytest.approx(10 ** -0.023)  # 0.23 dB below the target: 5% finer
+    assert whole_scene_move(-1.0) == pytest.approx(10 ** 0.05)  # 1 dB above it: 12% coarser
+    assert whole_scene_move(30.0) == 0.25 and whole_scene_move(-30.0) == 4.0
+    for off in (0.01, 0.5, 3.0):
+        assert whole_scene_move(off) < 1 < whole_scene_move(-off)
