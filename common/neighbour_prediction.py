@@ -162,7 +162,8 @@ def neighbour_means_and_buckets(q: np.ndarray, neighbours: np.ndarray, num_bucke
     safe = np.where(valid, neighbours, 0)
     unit = None if adjust is None else ADJUST_FIXED_POINT[row_adjust][:, None]  # F (None: 1)
     own_prior = prior_mean[None, :] if adjust is None else prior_mean_in_steps(prior_mean, row_adjust)
-    total, spread = _neighbour_sum_and_spread(q, safe, valid, adjust)
+    factor = None if adjust is None else ADJUST_FIXED_POINT[adjust[safe]]  # [n_l, k]: each neighbour's FP
+    total, spread = _neighbour_sum_and_spread(q, safe, valid, factor)
     den = n if unit is None else n * unit
     mean = np.where(neighbour_mean[None, :], (total + den // 2) // den, own_prior)  # floor division
     if unit is not None:
@@ -171,17 +172,17 @@ def neighbour_means_and_buckets(q: np.ndarray, neighbours: np.ndarray, num_bucke
 
 
 def _neighbour_sum_and_spread(q: np.ndarray, safe: np.ndarray, valid: np.ndarray,
-                              adjust: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+                              factor: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """Sum and max - min over each row's valid neighbours of their values (in fixed point with step
-    adjustment), one neighbour column at a time: [n_l, M] arrays throughout (a reduction over the
+    adjustment: times ``factor`` [n_l, k], each neighbour's FP), one neighbour column at a time: [n_l, M] arrays throughout (a reduction over the
     k axis of an [n_l, k, M] gather took twice as long)."""
     big = np.iinfo(np.int64).max
     every = bool(valid.all())
     total = hi = lo = None
     for j in range(safe.shape[1]):
         v = np.take(q, safe[:, j], axis=0)  # q[safe[:, j]], gathered many times faster
-        if adjust is not None:
-            v = v * ADJUST_FIXED_POINT[adjust[safe[:, j]]][:, None]
+        if factor is not None:
+            v = v * factor[:, j, None]
         ok = None if every else valid[:, j, None]
         add, vh, vl = (v, v, v) if ok is None else (np.where(ok, v, 0), np.where(ok, v, -big), np.where(ok, v, big))
         if total is None:
