@@ -45,8 +45,8 @@ the fewest bytes at the quality asked for: the presets ask for a PSNR against re
 source (low 40 dB, medium 45 dB, high 50 dB; --psnr sets another), --lambda instead minimizes
 -PSNR + lambda x log2(bytes). Then it tunes the kept Gaussians to the source renders with
 their quantization simulated (--fit-iterations; medium and high), which adds about 1 dB.
-A large scene can be searched on a spatial sample (a YAML --config with search_sample_gaussians:
-100000; off by default: it cost 31% more bytes on a 307k scene, tools/results/search_sampling.md).
+Above 100,000 Gaussians the settings search runs on a spatial sample (search_sample_gaussians in a
+YAML --config; 0 searches the whole scene, hours at a million; tools/results/search_sampling.md (f)).
 The fast preset renders nothing: the Gaussians of opacity below 1/255 (which no rasterizer
 draws) are dropped and the rest coded at fixed steps.
 An anchor scene (Scaffold-GS / HAC checkpoint) is coded with its anchors and render MLPs.

@@ -209,11 +209,13 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # of space (encoder/gaussians/search_sample.py), on the views its whole would get; the choice is then
     # checked on the whole scene (after the fit) and moved onto the target there by one common
     # factor on the steps if it misses (encoder/gaussians/gaussian_rd.py, meet_on_whole_scene). 0: the whole
-    # scene, whatever its size. The search's time stops growing with the scene here. Off by default:
-    # measured on the logo (307k, sample 100k) it cost 31% more bytes at equal PSNR than the whole
-    # search, the donut +61% with a forced 20k sample (tools/results/search_sampling.md: cells cut
-    # closed surfaces open); set it (e.g. 100000 in --config) to trade those bytes for time.
-    search_sample_gaussians: int = 0
+    # scene, whatever its size. The search's time stops growing with the scene here. On at 100,000
+    # (tools/results/search_sampling.md (f)): on the whole search's own curve at equal PSNR the sample
+    # cost the logo (307k) -0.1%, the donut, playbot lod3 and lod4 (forced samples of 20k, 20k, 3k)
+    # +0.5 to +0.9%; against SPZ's envelope the logo read +4.8% (its whole-scene check stopped 1.7 dB
+    # above the target), the others -1.1 to +0.1%. Where the whole search would take hours (1M: hours,
+    # the sample about 15 min, tools/results/scale.md) it is the only practical one.
+    search_sample_gaussians: int = 100000
     # The sensitivities and the fit render every Gaussian for each view or step: a scene of N above
     # this many Gaussians gets fit_views x this / N views for its sensitivities (at least
     # MIN_SENSITIVITY_VIEWS, encoder/gaussians/gaussian_fit.py) and fit_iterations x this / N fitting steps,
