@@ -174,8 +174,9 @@ def neighbour_means_and_buckets(q: np.ndarray, neighbours: np.ndarray, num_bucke
 def _neighbour_sum_and_spread(q: np.ndarray, safe: np.ndarray, valid: np.ndarray,
                               factor: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """Sum and max - min over each row's valid neighbours of their values (in fixed point with step
-    adjustment: times ``factor`` [n_l, k], each neighbour's FP), one neighbour column at a time: [n_l, M] arrays throughout (a reduction over the
-    k axis of an [n_l, k, M] gather took twice as long)."""
+    adjustment: times ``factor`` [n_l, k], each neighbour's FP), one neighbour column at a time:
+    [n_l, M] arrays throughout (a reduction over the k axis of an [n_l, k, M] gather took twice as
+    long)."""
     big = np.iinfo(np.int64).max
     every = bool(valid.all())
     total = hi = lo = None

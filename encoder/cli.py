@@ -46,7 +46,7 @@ source (low 40 dB, medium 45 dB, high 50 dB; --psnr sets another), --lambda inst
 -PSNR + lambda x log2(bytes). Then it tunes the kept Gaussians to the source renders with
 their quantization simulated (--fit-iterations; medium and high), which adds about 1 dB.
 Above 100,000 Gaussians the settings search runs on a spatial sample (search_sample_gaussians in a
-YAML --config; 0 searches the whole scene, hours at a million; tools/results/search_sampling.md (f)).
+YAML --config; 0 searches the whole scene, every trial on every Gaussian; tools/results/search_sampling.md (f)).
 The fast preset renders nothing: the Gaussians of opacity below 1/255 (which no rasterizer
 draws) are dropped and the rest coded at fixed steps.
 An anchor scene (Scaffold-GS / HAC checkpoint) is coded with its anchors and render MLPs.

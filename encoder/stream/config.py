@@ -213,8 +213,9 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # (tools/results/search_sampling.md (f)): on the whole search's own curve at equal PSNR the sample
     # cost the logo (307k) -0.1%, the donut, playbot lod3 and lod4 (forced samples of 20k, 20k, 3k)
     # +0.5 to +0.9%; against SPZ's envelope the logo read +4.8% (its whole-scene check stopped 1.7 dB
-    # above the target), the others -1.1 to +0.1%. Where the whole search would take hours (1M: hours,
-    # the sample about 15 min, tools/results/scale.md) it is the only practical one.
+    # above the target), the others -1.1 to +0.1%. At 1M the sampled medium took about 15 min of a quiet
+    # machine's time (tools/results/scale.md, before (f)); the whole search there was never run: its
+    # trials render and code every Gaussian, about 10x the sample's each.
     search_sample_gaussians: int = 100000
     # The sensitivities and the fit render every Gaussian for each view or step: a scene of N above
     # this many Gaussians gets fit_views x this / N views for its sensitivities (at least

@@ -67,8 +67,8 @@ def best_prior_level(r: np.ndarray, adjust: np.ndarray | None) -> int:
 
 def _bucket_groups(bucket: np.ndarray, num_buckets: int) -> tuple[np.ndarray, np.ndarray]:
     """(the rows in order of their bucket, where each bucket -1 .. num_buckets - 1 starts and ends
-    in it): one sort per channel instead of a mask per bucket (the values of a bucket come in
-    another order, which changes no level and no bit count)."""
+    in it): one sort per channel instead of a mask per bucket (stable: a bucket's rows keep their
+    order, so its levels and bit sums are the mask's to the last bit)."""
     order = np.argsort(bucket, kind="stable")
     return order, np.searchsorted(bucket[order], np.arange(-1, num_buckets + 1))
 
