@@ -98,14 +98,13 @@ export function rangeStart(p: usize, nbytes: i32): void {
     } else { rR = R; rD = D; }
 }
 
-/** A binary decision with frequency f1 of symbol 1 ({0: 2^24 - f1, 1: f1}, symbol 0 first). */
-function decodeBinary(f1: u64): i32 {
+/** A binary decision with frequencies f0 = 2^24 - f1 of symbol 0 and f1 of symbol 1 (symbol 0 first); no branch on the symbol. */
+@inline function decodeBinary(f0: u64, f1: u64): i32 {
     const scale = rR >> 24, D = rD;
     if (D >> 24 >= scale) fail(ERR_RANGE, 0, 0); // q >= 2^24
-    const X = (0x1000000 - f1) * scale;
-    if (D < X) { setState(X, D); return 0; }
-    setState(f1 * scale, D - X);
-    return 1;
+    const X = f0 * scale, one = D >= X;
+    setState(select<u64>(f1 * scale, X, one), select<u64>(D - X, D, one));
+    return <i32>one;
 }
 
 /** The quantile q = D / scale of a model decode, checked < 2^24. */
@@ -136,35 +135,99 @@ const LEVEL_COUNT_LIMIT: i32 = 64;
 
 @inline function popcnt8(v: i32): i32 { return <i32>popcnt<u32>(<u32>v); }
 
-/** The binary procedure of G.6.1 over decisions with contexts ctx[0..n-1] and counts T (i32 [2 C]) into out. */
-function decodeBinarySequence(ctx: usize, n: i32, T: usize, numCtx: i32, out: usize, count: usize, order: usize): void {
-    for (let c0 = 0; c0 < n;) {
-        const c1 = min(n, c0 == 0 ? 256 : 2 * c0); // blocks [0, 256), [256, 512), [512, 1024), ...
-        memory.fill(count, 0, <usize>(numCtx + 1) << 2);
-        for (let j = c0; j < c1; j++) { const c = i32At(ctx, j) + 1; setI32(count, c, i32At(count, c) + 1); }
-        for (let c = 0; c < numCtx; c++) setI32(count, c + 1, i32At(count, c + 1) + i32At(count, c));
-        for (let j = c0; j < c1; j++) { const c = i32At(ctx, j), o = i32At(count, c); setI32(order, o, j); setI32(count, c, o + 1); }
-        let start = 0;
-        for (let c = 0; c < numCtx; c++) {
-            const end = i32At(count, c);
-            if (end == start) continue;
-            const n0 = <i64>i32At(T, 2 * c), n1 = <i64>i32At(T, 2 * c + 1);
-            let f1 = ((2 * n1 + 1) << 24) / (2 * (n0 + n1) + 2);
+// The binary procedure of G.6.1 by chains: the decisions of a chunk are linked per context in
+// sequence order (chainAdd) as their contexts are computed; at the chunk's end (chainDecode) the
+// contexts present are visited in increasing order, each chain decoded in order, and each
+// context's counts updated and limited as soon as its decisions are known (the frequency of
+// one context never depends on another's counts, so this is the order of G.6.1 steps 1 to 3).
+let chHead: usize = 0;    // i32 per context: the first id of its chain
+let chTail: usize = 0;    // i32 per context: the address of its chain's open link
+let chCount: usize = 0;   // i32 per context: its decisions in the chunk
+let chPresent: usize = 0; // u32 bitmap of the contexts present in the chunk
+let chNext: usize = 0;    // i32 per id: the next id of the same context
+const CHAIN_WORDS: i32 = (NUM_OCC_CONTEXTS + 31) >> 5;
+
+/** Chain scratch for ids below cap. */
+function chainAlloc(cap: i32): void {
+    chHead = alloc(NUM_OCC_CONTEXTS << 2); chTail = alloc(NUM_OCC_CONTEXTS << 2); chCount = alloc(NUM_OCC_CONTEXTS << 2);
+    chPresent = alloc(CHAIN_WORDS << 2); chNext = alloc(cap << 2);
+    for (let c = 0; c < NUM_OCC_CONTEXTS; c++) setI32(chTail, c, <i32>(chHead + (<usize>c << 2)));
+}
+
+/** Append decision `id` (its place in the output) with context c to the current chunk. */
+@inline function chainAdd(id: i32, c: i32): void {
+    const cc = <usize>c << 2;
+    store<i32>(<usize>load<i32>(chTail + cc), id);
+    store<i32>(chTail + cc, <i32>(chNext + (<usize>id << 2)));
+    store<i32>(chCount + cc, load<i32>(chCount + cc) + 1);
+    const pw = chPresent + (<usize>(c >> 5) << 2);
+    store<u32>(pw, load<u32>(pw) | (<u32>1 << <u32>(c & 31)));
+}
+
+/**
+ * Decode the current chunk with count table T: decision v of id to out[id] |= v << shift (u8);
+ * the contexts whose counts changed are marked in the bitmap `dirty`.
+ */
+function chainDecode(T: usize, out: usize, shift: i32, dirty: usize): void {
+    for (let w = 0; w < CHAIN_WORDS; w++) {
+        const pw = chPresent + (<usize>w << 2);
+        let bits = load<u32>(pw);
+        if (!bits) continue;
+        store<u32>(pw, 0);
+        const dw = dirty + (<usize>w << 2);
+        store<u32>(dw, load<u32>(dw) | bits);
+        while (bits) {
+            const c = (w << 5) + <i32>ctz(bits);
+            bits &= bits - 1;
+            const cc = <usize>c << 2, n = load<i32>(chCount + cc);
+            const n0 = i32At(T, 2 * c), n1 = i32At(T, 2 * c + 1);
+            let f1 = ((2 * <i64>n1 + 1) << 24) / (2 * (<i64>n0 + <i64>n1) + 2);
             if (f1 < 1) f1 = 1; else if (f1 > 0xFFFFFF) f1 = 0xFFFFFF;
-            for (let t = start; t < end; t++) setI32(out, i32At(order, t), decodeBinary(<u64>f1));
-            start = end;
+            const f0 = <u64>(0x1000000 - f1);
+            let id = load<i32>(chHead + cc), ones = 0;
+            for (let t = 0; t < n; t++) {
+                const v = decodeBinary(f0, <u64>f1);
+                const o = out + <usize>id;
+                store<u8>(o, load<u8>(o) | <u8>(v << shift));
+                ones += v;
+                id = i32At(chNext, id);
+            }
+            store<i32>(chCount + cc, 0);
+            store<i32>(chTail + cc, <i32>(chHead + cc));
+            let a = n0 + n - ones, b = n1 + ones;
+            while (a + b > COUNT_LIMIT) { a = (a + 1) >> 1; b = (b + 1) >> 1; }
+            setI32(T, 2 * c, a); setI32(T, 2 * c + 1, b);
         }
-        for (let j = c0; j < c1; j++) { const a = 2 * i32At(ctx, j) + i32At(out, j); setI32(T, a, i32At(T, a) + 1); }
-        limitCounts(T, numCtx, COUNT_LIMIT);
+    }
+}
+
+/** The end of the chunk that starts at sequence index c0 (G.6.1: 0, 256, 512, 1024, ...). */
+@inline function chunkEnd(c0: i32): i32 { return c0 == 0 ? 256 : 2 * c0; }
+
+/** The binary procedure (G.6.1) over n decisions with contexts ctx (i32 [n]) and table T: decisions to out (u8 [n]). */
+function decodeBinarySequence(ctx: usize, n: i32, T: usize, out: usize): void {
+    memory.fill(out, 0, <usize>n);
+    for (let c0 = 0; c0 < n;) {
+        const c1 = min(n, chunkEnd(c0));
+        for (let j = c0; j < c1; j++) chainAdd(j, i32At(ctx, j));
+        chainDecode(T, out, 0, sDirtyNone);
         c0 = c1;
     }
 }
 
-function limitCounts(T: usize, numCtx: i32, limit: i32): void {
-    for (let c = 0; c < numCtx; c++) {
-        let a = i32At(T, 2 * c), b = i32At(T, 2 * c + 1);
-        while (a + b > limit) { a = (a + 1) >> 1; b = (b + 1) >> 1; }
-        setI32(T, 2 * c, a); setI32(T, 2 * c + 1, b);
+/** The count limit (G.6.2) with L to the contexts of T marked in `dirty` (the others are within L already); clears the marks. */
+function limitDirty(T: usize, dirty: usize, limit: i32): void {
+    for (let w = 0; w < CHAIN_WORDS; w++) {
+        const pw = dirty + (<usize>w << 2);
+        let bits = load<u32>(pw);
+        store<u32>(pw, 0);
+        while (bits) {
+            const c = (w << 5) + <i32>ctz(bits);
+            bits &= bits - 1;
+            let a = i32At(T, 2 * c), b = i32At(T, 2 * c + 1);
+            while (a + b > limit) { a = (a + 1) >> 1; b = (b + 1) >> 1; }
+            setI32(T, 2 * c, a); setI32(T, 2 * c + 1, b);
+        }
     }
 }
 
@@ -186,7 +249,7 @@ function newNodes(cap: i32): Nodes {
 // scratch of capacity n (the most nodes a level can have), allocated per decode
 let sOcc: usize = 0; let sCtx: usize = 0; let sCoded: usize = 0; let sDv: usize = 0;
 let sNbrCount: usize = 0; let sDens: usize = 0; let sFirst: usize = 0; let sIndex: usize = 0;
-let sCount: usize = 0; let sOrder: usize = 0; let sOwners: usize = 0;
+let sOwners: usize = 0; let sDirtyNone: usize = 0; let stOccDirty: usize = 0;
 let sLowX: usize = 0; let sLowY: usize = 0; let sLowZ: usize = 0;
 let stOcc: usize = 0; let stIdcm: usize = 0; let stTwo: usize = 0;
 let dx: usize = 0; let dy: usize = 0; let dz: usize = 0; let dCount: i32 = 0;
@@ -206,9 +269,10 @@ export function decodeGeometry(p: usize, nbytes: i32, n: i32, b0: i32, b1: i32, 
     err = 0;
     gN = n;
     const cap = n + 1;
-    sOcc = alloc(cap); sCtx = alloc(cap << 2); sCoded = alloc(cap << 2); sDv = alloc(cap << 2);
+    sOcc = alloc(cap + 1); sCtx = alloc(cap << 2); sCoded = alloc(cap << 2); sDv = alloc(cap);
     sNbrCount = alloc(cap); sDens = alloc(cap); sFirst = alloc(cap << 2); sIndex = alloc(cap << 2);
-    sCount = alloc((NUM_OCC_CONTEXTS + 1) << 2); sOrder = alloc(cap << 2); sOwners = alloc((2 * cap) << 2);
+    sOwners = alloc((2 * cap) << 2); chainAlloc(cap);
+    sDirtyNone = alloc(CHAIN_WORDS << 2); stOccDirty = alloc(8 * CHAIN_WORDS << 2);
     sLowX = alloc((2 * cap) << 2); sLowY = alloc((2 * cap) << 2); sLowZ = alloc((2 * cap) << 2);
     stOcc = alloc(8 * 2 * NUM_OCC_CONTEXTS * 4); stIdcm = alloc(18 * 4); stTwo = alloc(2 * 4);
     dx = alloc(cap << 2); dy = alloc(cap << 2); dz = alloc(cap << 2); dCount = 0;
@@ -242,19 +306,19 @@ function directCoding(nodes: Nodes, keep: Nodes, R: i32, b0: i32, b1: i32, b2: i
         }
     }
     if (ne == 0) return false;
-    decodeBinarySequence(ctx, ne, stIdcm, 9, flag, sCount, sOrder);
+    decodeBinarySequence(ctx, ne, stIdcm, flag);
     // the direct nodes, in place of elig; isDirect in sOcc
     const isDirect = sOcc;
     memory.fill(isDirect, 0, <usize>m);
     let nd = 0;
-    for (let e = 0; e < ne; e++) if (i32At(flag, e) == 1) { const i = i32At(elig, e); setI32(elig, nd++, i); setU8(isDirect, i, 1); }
+    for (let e = 0; e < ne; e++) if (u8At(flag, e) == 1) { const i = i32At(elig, e); setI32(elig, nd++, i); setU8(isDirect, i, 1); }
     memory.fill(ctx, 0, <usize>nd << 2);
-    decodeBinarySequence(ctx, nd, stTwo, 1, flag, sCount, sOrder);
+    decodeBinarySequence(ctx, nd, stTwo, flag);
     let P = 0;
     for (let e = 0; e < nd; e++) {
         const i = i32At(elig, e);
         setI32(sOwners, P++, i);
-        if (i32At(flag, e)) setI32(sOwners, P++, i);
+        if (u8At(flag, e)) setI32(sOwners, P++, i);
     }
     if (<i64>dCount + P + (m - nd) > <i64>gN) fail(ERR_DIRECT_COUNT, 0, 0);
     decodeBitsSame(min(R, b0), P, sLowX);
@@ -302,7 +366,7 @@ function decodeBitsSame(n: i32, count: i32, out: usize): void {
 /** Occupancy (G.5.4) of `nodes` at depth `depth`; the nodes of depth + 1 go to `next`. */
 function occupancy(nodes: Nodes, next: Nodes, depth: i32, R: i32, b0: i32, b1: i32, b2: i32): void {
     const m = nodes.m, nb = nodes.nb;
-    for (let k = 0; k < 8; k++) limitCounts(stOcc + <usize>(k * 2 * NUM_OCC_CONTEXTS * 4), NUM_OCC_CONTEXTS, LEVEL_COUNT_LIMIT);
+    for (let k = 0; k < 8; k++) limitDirty(stOcc + <usize>(k * 2 * NUM_OCC_CONTEXTS * 4), stOccDirty + <usize>(k * CHAIN_WORDS * 4), LEVEL_COUNT_LIMIT);
     for (let i = 0; i < m; i++) {
         let c = 0;
         for (let d = 0; d < 6; d++) if (i32At(nb, 6 * i + d) >= 0) c++;
@@ -313,77 +377,69 @@ function occupancy(nodes: Nodes, next: Nodes, depth: i32, R: i32, b0: i32, b1: i
     let last = 0;
     for (let k = 0; k < 8; k++) if ((sx || !(k & 4)) && (sy || !(k & 2)) && (sz || !(k & 1))) last = k;
     const occ = sOcc;
-    memory.fill(occ, 0, <usize>m);
+    memory.fill(occ, 0, <usize>m + 1); // occ[m] = 0: the occupancy of a missing neighbour
     for (let k = 0; k < 8; k++) {
         if (!((sx || !(k & 4)) && (sy || !(k & 2)) && (sz || !(k & 1)))) continue;
-        const nc = occupancyContexts(k, k == last, m, occ, nb);
-        decodeBinarySequence(sCtx, nc, stOcc + <usize>(k * 2 * NUM_OCC_CONTEXTS * 4), NUM_OCC_CONTEXTS, sDv, sCount, sOrder);
-        const bit = 1 << k;
-        for (let t = 0; t < nc; t++) if (i32At(sDv, t)) { const i = i32At(sCoded, t); setU8(occ, i, u8At(occ, i) | bit); }
-        if (k == last) for (let i = 0; i < m; i++) if (!(u8At(occ, i) & (bit - 1))) setU8(occ, i, u8At(occ, i) | bit); // inferred occupied
+        occupancyPass(k, k == last, m, occ, nb);
     }
     let children = 0;
-    for (let i = 0; i < m; i++) children += popcnt8(u8At(occ, i));
+    for (let i = 0; i < m; i++) { setI32(sFirst, i, children); children += popcnt8(u8At(occ, i)); }
     if (<i64>dCount + children > <i64>gN) fail(ERR_OCC_COUNT, dCount + children, depth + 1);
-    for (let i = 0, j = 0; i < m; i++) {
-        const o = u8At(occ, i);
-        setI32(sFirst, i, j);
-        const x2 = i32At(nodes.qx, i) << 1, y2 = i32At(nodes.qy, i) << 1, z2 = i32At(nodes.qz, i) << 1;
-        const pc = popcnt8(o), nbc = u8At(sNbrCount, i), s1 = u8At(nodes.sib1, i);
-        for (let k = 0; k < 8; k++) {
-            if (!((o >> k) & 1)) continue;
-            setI32(next.qx, j, x2 + ((k >> 2) & 1)); setI32(next.qy, j, y2 + ((k >> 1) & 1)); setI32(next.qz, j, z2 + (k & 1));
-            setU8(next.sib1, j, pc); setU8(next.parNbr, j, nbc); setU8(next.parSib1, j, s1);
-            j++;
-        }
-    }
     next.m = children;
-    childNeighbours(nodes, next, occ);
+    nextLevel(nodes, next, occ);
 }
 
-/** The contexts of child k (G.5.4) of the nodes whose bit k is coded: sCtx/sCoded [0..nc-1]; returns nc. */
-function occupancyContexts(k: i32, isLast: bool, m: i32, occ: usize, nb: usize): i32 {
-    const kx = k & 4, ky = k & 2, kz = k & 1, below = (1 << k) - 1;
+/** The occupancy bits of a node's neighbour u (-1: none, whose bits are 0: occ[m]). */
+@inline function occOf(occ: usize, u: i32, m: i32): i32 { return u8At(occ, select<i32>(m, u, u < 0)); }
+
+/**
+ * Pass k of G.5.4 step 3: each node's context as it comes (bits j < k only, so no decision of this
+ * pass changes another's context), the decisions by chains per G.6.1 chunk, bit k into occ.
+ */
+function occupancyPass(k: i32, isLast: bool, m: i32, occ: usize, nb: usize): void {
+    const kx = k & 4, ky = k & 2, kz = k & 1, below = (1 << k) - 1, bit = 1 << k;
     const jx = k ^ 4, jy = k ^ 2, jz = k ^ 1;
-    let nc = 0;
+    const T = stOcc + <usize>(k * 2 * NUM_OCC_CONTEXTS * 4), dirty = stOccDirty + <usize>(k * CHAIN_WORDS * 4);
+    let t = 0, start = 0, end = 256; // decisions so far; the current chunk [start, end)
     for (let i = 0; i < m; i++) {
         const o = u8At(occ, i);
         const before = popcnt8(o & below);
-        if (isLast && before == 0) continue;
+        if (isLast && before == 0) { setU8(occ, i, o | bit); continue; } // inferred occupied
         const b = 6 * i;
-        let sx: i32, sy: i32, sz: i32, u: i32;
-        if (kx) { u = i32At(nb, b + 1); sx = ((o >> jx) & 1) + (u >= 0 ? (u8At(occ, u) >> jx) & 1 : 0); } else sx = i32At(nb, b) >= 0 ? 1 : 0;
-        if (ky) { u = i32At(nb, b + 3); sy = ((o >> jy) & 1) + (u >= 0 ? (u8At(occ, u) >> jy) & 1 : 0); } else sy = i32At(nb, b + 2) >= 0 ? 1 : 0;
-        if (kz) { u = i32At(nb, b + 5); sz = ((o >> jz) & 1) + (u >= 0 ? (u8At(occ, u) >> jz) & 1 : 0); } else sz = i32At(nb, b + 4) >= 0 ? 1 : 0;
-        setI32(sCtx, nc, (((sx * 3 + sy) * 3 + sz) * 4 + (before < 3 ? before : 3)) * 4 + u8At(sDens, i));
-        setI32(sCoded, nc++, i);
+        const sx = kx ? ((o >> jx) & 1) + ((occOf(occ, i32At(nb, b + 1), m) >> jx) & 1) : <i32>(i32At(nb, b) >= 0);
+        const sy = ky ? ((o >> jy) & 1) + ((occOf(occ, i32At(nb, b + 3), m) >> jy) & 1) : <i32>(i32At(nb, b + 2) >= 0);
+        const sz = kz ? ((o >> jz) & 1) + ((occOf(occ, i32At(nb, b + 5), m) >> jz) & 1) : <i32>(i32At(nb, b + 4) >= 0);
+        chainAdd(i, (((sx * 3 + sy) * 3 + sz) * 4 + min(before, 3)) * 4 + u8At(sDens, i));
+        if (++t == end) { chainDecode(T, occ, k, dirty); start = end; end = chunkEnd(end); }
     }
-    return nc;
+    if (t > start) chainDecode(T, occ, k, dirty);
 }
 
-/** The index of child k of node i, or -1. */
-@inline function childIndex(occ: usize, i: i32, k: i32): i32 {
-    const o = u8At(occ, i);
-    return (o >> k) & 1 ? i32At(sFirst, i) + popcnt8(o & ((1 << k) - 1)) : -1;
+/** The index of child j of a node with occupancy o whose first child is `first`, or -1. */
+@inline function childAt(o: i32, first: i32, j: i32): i32 {
+    return select<i32>(first + popcnt8(o & ((1 << j) - 1)), -1, (o >> j) & 1);
 }
 
 /**
- * Face neighbours (G.5.3) of the children: the neighbour of a child across a face is a sibling,
- * or a child of the parent's neighbour across the same face.
+ * The nodes of depth + 1 (G.5.4 step 5) and their face neighbours (G.5.3): the neighbour of a
+ * child across a face is a sibling, or a child of the parent's neighbour across the same face.
  */
-function childNeighbours(nodes: Nodes, next: Nodes, occ: usize): void {
+function nextLevel(nodes: Nodes, next: Nodes, occ: usize): void {
     const m = nodes.m, pnb = nodes.nb, nb = next.nb;
     for (let i = 0, j = 0; i < m; i++) {
-        const o = u8At(occ, i);
-        for (let k = 0; k < 8; k++) {
-            if (!((o >> k) & 1)) continue;
+        const o = u8At(occ, i), first = i32At(sFirst, i);
+        const x2 = i32At(nodes.qx, i) << 1, y2 = i32At(nodes.qy, i) << 1, z2 = i32At(nodes.qz, i) << 1;
+        const pc = popcnt8(o), nbc = u8At(sNbrCount, i), s1 = u8At(nodes.sib1, i);
+        for (let bits = o; bits; bits &= bits - 1, j++) {
+            const k = <i32>ctz(bits);
+            setI32(next.qx, j, x2 + ((k >> 2) & 1)); setI32(next.qy, j, y2 + ((k >> 1) & 1)); setI32(next.qz, j, z2 + (k & 1));
+            setU8(next.sib1, j, pc); setU8(next.parNbr, j, nbc); setU8(next.parSib1, j, s1);
             for (let a = 0; a < 3; a++) {
-                const bit = 4 >> a, b = 6 * j + 2 * a, up = (k & bit) ? 1 : 0;
-                const u = i32At(pnb, 6 * i + 2 * a + up);
-                const sib = childIndex(occ, i, k ^ bit), across = u < 0 ? -1 : childIndex(occ, u, k ^ bit);
-                if (up) { setI32(nb, b, sib); setI32(nb, b + 1, across); } else { setI32(nb, b, across); setI32(nb, b + 1, sib); }
+                const bit = 4 >> a, up = (k & bit) != 0, sibling = k ^ bit;
+                const u = i32At(pnb, 6 * i + 2 * a + <i32>up), uu = select<i32>(m, u, u < 0); // occ[m] = 0: no neighbour
+                const sib = childAt(o, first, sibling), across = childAt(u8At(occ, uu), i32At(sFirst, uu), sibling);
+                setI32(nb, 6 * j + 2 * a, select<i32>(sib, across, up)); setI32(nb, 6 * j + 2 * a + 1, select<i32>(across, sib, up));
             }
-            j++;
         }
     }
 }
