@@ -253,6 +253,7 @@ let sOwners: usize = 0; let sDirtyNone: usize = 0; let stOccDirty: usize = 0;
 let sLowX: usize = 0; let sLowY: usize = 0; let sLowZ: usize = 0;
 let stOcc: usize = 0; let stIdcm: usize = 0; let stTwo: usize = 0;
 let dx: usize = 0; let dy: usize = 0; let dz: usize = 0; let dCount: i32 = 0;
+let sRuns: usize = 0; let nRuns: i32 = 0; // the ends of the direct points' runs
 let outX: usize = 0; let outY: usize = 0; let outZ: usize = 0;
 let gN: i32 = 0;
 
@@ -276,6 +277,7 @@ export function decodeGeometry(p: usize, nbytes: i32, n: i32, b0: i32, b1: i32, 
     sLowX = alloc((2 * cap) << 2); sLowY = alloc((2 * cap) << 2); sLowZ = alloc((2 * cap) << 2);
     stOcc = alloc(8 * 2 * NUM_OCC_CONTEXTS * 4); stIdcm = alloc(18 * 4); stTwo = alloc(2 * 4);
     dx = alloc(cap << 2); dy = alloc(cap << 2); dz = alloc(cap << 2); dCount = 0;
+    sRuns = alloc(33 << 2); nRuns = 0; // at most one run per level, D <= 32
     let a = newNodes(cap), b = newNodes(cap);
     a.m = 1; setU8(a.sib1, 0, 1); setU8(a.parSib1, 0, 1);
     for (let d = 0; d < 6; d++) setI32(a.nb, d, -1);
@@ -321,6 +323,7 @@ function directCoding(nodes: Nodes, keep: Nodes, R: i32, b0: i32, b1: i32, b2: i
         if (u8At(flag, e)) setI32(sOwners, P++, i);
     }
     if (<i64>dCount + P + (m - nd) > <i64>gN) fail(ERR_DIRECT_COUNT, 0, 0);
+    if (nd == 0) return false; // the node list is unchanged
     decodeBitsSame(min(R, b0), P, sLowX);
     decodeBitsSame(min(R, b1), P, sLowY);
     decodeBitsSame(min(R, b2), P, sLowZ);
@@ -329,12 +332,14 @@ function directCoding(nodes: Nodes, keep: Nodes, R: i32, b0: i32, b1: i32, b2: i
         const px = (i32At(nodes.qx, i) << R) + i32At(sLowX, o);
         const py = (i32At(nodes.qy, i) << R) + i32At(sLowY, o);
         const pz = (i32At(nodes.qz, i) << R) + i32At(sLowZ, o);
-        if (o > 0 && i32At(sOwners, o - 1) == i) {
-            const prev = dCount - 1;
-            if (i32At(dx, prev) == px && i32At(dy, prev) == py && i32At(dz, prev) == pz) fail(ERR_DIRECT_EQUAL, 0, 0);
-        }
         setI32(dx, dCount, px); setI32(dy, dCount, py); setI32(dz, dCount, pz); dCount++;
+        if (o > 0 && i32At(sOwners, o - 1) == i) { // a node's second point: the two differ; kept in Morton order
+            const prev = dCount - 2;
+            if (i32At(dx, prev) == px && i32At(dy, prev) == py && i32At(dz, prev) == pz) fail(ERR_DIRECT_EQUAL, 0, 0);
+            if (directLess(prev + 1, prev)) { swapI32(dx, prev); swapI32(dy, prev); swapI32(dz, prev); }
+        }
     }
+    setI32(sRuns, nRuns++, dCount); // this level's direct points: in Morton order (its nodes are, and their cells are disjoint)
     const index = sIndex;
     let j = 0;
     for (let i = 0; i < m; i++) {
@@ -461,18 +466,26 @@ function mortonLess(ax: u32, ay: u32, az: u32, bx: u32, by: u32, bz: u32): bool 
     return mortonLess(<u32>i32At(dx, a), <u32>i32At(dy, a), <u32>i32At(dz, a), <u32>i32At(dx, b), <u32>i32At(dy, b), <u32>i32At(dz, b));
 }
 
-/** The direct points' indices sorted in Morton order (bottom-up merge sort; the points are distinct). */
+@inline function swapI32(p: usize, i: i32): void { const t = i32At(p, i); setI32(p, i, i32At(p, i + 1)); setI32(p, i + 1, t); }
+
+/**
+ * The direct points' indices sorted in Morton order: the runs of sRuns (one per level, each in
+ * order) merged pairwise until one is left (the points are distinct).
+ */
 function sortDirect(): usize {
     let src = alloc(dCount << 2), dst = alloc(dCount << 2);
     for (let i = 0; i < dCount; i++) setI32(src, i, i);
-    for (let w = 1; w < dCount; w <<= 1) {
-        for (let lo = 0; lo < dCount; lo += 2 * w) {
-            const mid = min(lo + w, dCount), hi = min(lo + 2 * w, dCount);
+    for (let runs = nRuns; runs > 1;) {
+        let out = 0;
+        for (let r = 0; r < runs; r += 2) {
+            const lo = r == 0 ? 0 : i32At(sRuns, r - 1), mid = i32At(sRuns, r), hi = r + 1 < runs ? i32At(sRuns, r + 1) : mid;
             let i = lo, j = mid, o = lo;
             while (i < mid && j < hi) setI32(dst, o++, directLess(i32At(src, j), i32At(src, i)) ? i32At(src, j++) : i32At(src, i++));
             while (i < mid) setI32(dst, o++, i32At(src, i++));
             while (j < hi) setI32(dst, o++, i32At(src, j++));
+            setI32(sRuns, out++, hi);
         }
+        runs = out;
         const t = src; src = dst; dst = t;
     }
     return src;
