@@ -591,11 +591,36 @@ function buildGrid(x: usize, y: usize, z: usize, lo0: i32, lo1: i32, lo2: i32, e
 function search(qx: i32, qy: i32, qz: i32): i32 {
     const b = gB, cx = qx >> b, cy = qy >> b, cz = qz >> b;
     worst = u64.MAX_VALUE;
-    let size = visitCell((cx * gNy + cy) * gNz + cz, qx, qy, qz, 0);
+    let size = visitBlock(cx, cy, cz, qx, qy, qz);
     for (let s = 1; ; s++) {
-        size = visitShell(cx, cy, cz, s, qx, qy, qz, size);
+        if (s > 1) size = visitShell(cx, cy, cz, s, qx, qy, qz, size);
         const bound = unvisitedBound(cx, cy, cz, s, qx, qy, qz);
         if (bound < 0 || worst < <u64>(bound * bound)) break; // worst < MAX: size == k
+    }
+    return size;
+}
+
+/**
+ * The cells within Chebyshev distance 1 of the query's, the query's own first: for each (X, Y)
+ * the cells Z = cz - 1 .. cz + 1 are consecutive, and so are their points: one run per (X, Y),
+ * less its end cells that lie wholly farther than the k-th (or the whole run). Returns the list's size.
+ */
+function visitBlock(cx: i32, cy: i32, cz: i32, qx: i32, qy: i32, qz: i32): i32 {
+    const ny = gNy, nz = gNz, own = (cx * ny + cy) * nz + cz;
+    const below = cz > 0, above = cz + 1 < nz, gBelow = gap(cz - 1, cz, qz), gAbove = gap(cz + 1, cz, qz);
+    let size = visitCell(own, qx, qy, qz, 0);
+    for (let X = max(0, cx - 1), x1 = min(gNx - 1, cx + 1); X <= x1; X++) {
+        const ex = gap(X, cx, qx);
+        for (let Y = max(0, cy - 1), y1 = min(ny - 1, cy + 1); Y <= y1; Y++) {
+            const exy = ex + gap(Y, cy, qy);
+            if (exy > worst) continue;
+            const row = (X * ny + Y) * nz;
+            const z0 = below && exy + gBelow <= worst ? cz - 1 : cz, z1 = above && exy + gAbove <= worst ? cz + 1 : cz;
+            if (row + cz == own) { // the own cell is done
+                if (z0 < cz) size = visitCell(row + z0, qx, qy, qz, size);
+                if (z1 > cz) size = visitCell(row + z1, qx, qy, qz, size);
+            } else size = visitPoints(i32At(gStart, row + z0), i32At(gStart, row + z1 + 1), qx, qy, qz, size);
+        }
     }
     return size;
 }
@@ -646,8 +671,13 @@ function visitShell(cx: i32, cy: i32, cz: i32, s: i32, qx: i32, qy: i32, qz: i32
     return visitCell(row + Z, qx, qy, qz, size);
 }
 
-function visitCell(c: i32, qx: i32, qy: i32, qz: i32, size: i32): i32 {
-    for (let p = i32At(gStart, c), e = i32At(gStart, c + 1); p < e; p++) {
+@inline function visitCell(c: i32, qx: i32, qy: i32, qz: i32, size: i32): i32 {
+    return visitPoints(i32At(gStart, c), i32At(gStart, c + 1), qx, qy, qz, size);
+}
+
+/** The grid's points p0 .. p1 - 1 offered to the list (those within the k-th distance). */
+function visitPoints(p0: i32, p1: i32, qx: i32, qy: i32, qz: i32, size: i32): i32 {
+    for (let p = p0; p < p1; p++) {
         const r = gP + (<usize>p << 4);
         const dx = <i64>load<i32>(r) - <i64>qx, dy = <i64>load<i32>(r, 4) - <i64>qy, dz = <i64>load<i32>(r, 8) - <i64>qz;
         const d = <u64>(dx * dx) + <u64>(dy * dy) + <u64>(dz * dz);
