@@ -655,8 +655,11 @@ function visitShell(cx: i32, cy: i32, cz: i32, s: i32, qx: i32, qy: i32, qz: i32
         for (let Y = y0; Y <= y1; Y++) {
             const row = (X * ny + Y) * nz, exy = ex + gap(Y, cy, qy);
             if (exy > worst) continue;
-            if (fx || Y == cy - s || Y == cy + s) {
-                for (let Z = z0; Z <= z1; Z++) size = visitNear(row, Z, cz, qx, qy, qz, exy, size);
+            if (fx || Y == cy - s || Y == cy + s) { // the whole row: one run, less its end cells wholly farther than the k-th
+                let a = z0, b = z1;
+                while (a < cz && exy + gap(a, cz, qz) > worst) a++;
+                while (b > cz && exy + gap(b, cz, qz) > worst) b--;
+                size = visitPoints(i32At(gStart, row + a), i32At(gStart, row + b + 1), qx, qy, qz, size);
             } else {
                 if (cz - s >= 0) size = visitNear(row, cz - s, cz, qx, qy, qz, exy, size);
                 if (cz + s < nz) size = visitNear(row, cz + s, cz, qx, qy, qz, exy, size);
