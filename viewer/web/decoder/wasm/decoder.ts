@@ -609,21 +609,25 @@ function visitBlock(cx: i32, cy: i32, cz: i32, qx: i32, qy: i32, qz: i32): i32 {
     const ny = gNy, nz = gNz, own = (cx * ny + cy) * nz + cz;
     const below = cz > 0, above = cz + 1 < nz, gBelow = gap(cz - 1, cz, qz), gAbove = gap(cz + 1, cz, qz);
     let size = visitCell(own, qx, qy, qz, 0);
-    for (let X = max(0, cx - 1), x1 = min(gNx - 1, cx + 1); X <= x1; X++) {
-        const ex = gap(X, cx, qx);
-        for (let Y = max(0, cy - 1), y1 = min(ny - 1, cy + 1); Y <= y1; Y++) {
-            const exy = ex + gap(Y, cy, qy);
-            if (exy > worst) continue;
-            const row = (X * ny + Y) * nz;
-            const z0 = below && exy + gBelow <= worst ? cz - 1 : cz, z1 = above && exy + gAbove <= worst ? cz + 1 : cz;
-            if (row + cz == own) { // the own cell is done
-                if (z0 < cz) size = visitCell(row + z0, qx, qy, qz, size);
-                if (z1 > cz) size = visitCell(row + z1, qx, qy, qz, size);
-            } else size = visitPoints(i32At(gStart, row + z0), i32At(gStart, row + z1 + 1), qx, qy, qz, size);
-        }
+    const half = gSide >> 1; // the rows on the query's nearer sides first: the k-th distance falls sooner
+    const sx: i32 = <i64>qx - (<i64>cx << gB) >= half ? 1 : -1, sy: i32 = <i64>qy - (<i64>cy << gB) >= half ? 1 : -1;
+    for (let t = 0; t < 9; t++) {
+        const X = cx + sx * unchecked(ROWS1[2 * t]), Y = cy + sy * unchecked(ROWS1[2 * t + 1]);
+        if (<u32>X >= <u32>gNx || <u32>Y >= <u32>ny) continue;
+        const exy = gap(X, cx, qx) + gap(Y, cy, qy);
+        if (exy > worst) continue;
+        const row = (X * ny + Y) * nz;
+        const z0 = below && exy + gBelow <= worst ? cz - 1 : cz, z1 = above && exy + gAbove <= worst ? cz + 1 : cz;
+        if (t == 0) { // the own cell is done
+            if (z0 < cz) size = visitCell(row + z0, qx, qy, qz, size);
+            if (z1 > cz) size = visitCell(row + z1, qx, qy, qz, size);
+        } else size = visitPoints(i32At(gStart, row + z0), i32At(gStart, row + z1 + 1), qx, qy, qz, size);
     }
     return size;
 }
+
+// The rows (X, Y) of visitBlock as steps towards the query's nearer sides: its own, the faces, the diagonals.
+const ROWS1: StaticArray<i32> = [0, 0, 1, 0, 0, 1, -1, 0, 0, -1, 1, 1, 1, -1, -1, 1, -1, -1];
 
 /** The least distance along one axis from the query to a point outside the block of radius s; -1 if the block covers the grid. */
 function unvisitedBound(cx: i32, cy: i32, cz: i32, s: i32, qx: i32, qy: i32, qz: i32): i64 {
