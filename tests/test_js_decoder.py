@@ -102,8 +102,9 @@ console.log(JSON.stringify(out));
 def test_grid_knn_matches_reference_ball_knn():
     """The JS decoder's grid k-NN (clause 11.7.2) against common/knn.py's canonical Ball k-NN on
     point sets full of equal distances (small lattices, flat and needle-shaped tiles, clusters far
-    apart, clusters near MAX_EXTENT apart where d2 passes 2^53, one data point), data = the rows of
-    LoD < l as the decoder's, ties by lower row."""
+    apart, clusters near MAX_EXTENT apart where d2 passes 2^53, one data point, cubes whose corners
+    are at the largest extent of the 32-bit distances and one beyond), data = the rows of LoD < l as
+    the decoder's, ties by lower row."""
     from lghcc.common.knn import ball_knn
     from lghcc.common.neighbour_prediction import WHOLE_EXTENT_RADIUS_SQ
     rng = np.random.default_rng(11)
@@ -125,6 +126,13 @@ def test_grid_knn_matches_reference_ball_knn():
         idx, valid = ball_knn(pts[data], k, WHOLE_EXTENT_RADIUS_SQ, query=pts[queries], exclude_self=False)
         want.append(np.where(valid, data[np.maximum(idx, 0)], -1).reshape(-1).tolist())
         cases.append({"points": pts.tolist(), "data": data.tolist(), "queries": queries.tolist(), "k": k})
+    for side in (37837, 37838):  # the largest extent whose squared distances the search keeps in 32 bits, and one beyond
+        corners = np.array([[a, b, c] for a in (0, side) for b in (0, side) for c in (0, side)])
+        pts = np.concatenate([corners, rng.integers(1, side, (40, 3))])  # corner 7 = (side, side, side)
+        data, queries = np.arange(7), np.arange(7, len(pts))  # k = 7: every query reaches the far corners (d2 up to 3 side^2)
+        idx, valid = ball_knn(pts[data], 7, WHOLE_EXTENT_RADIUS_SQ, query=pts[queries], exclude_self=False)
+        want.append(np.where(valid, data[np.maximum(idx, 0)], -1).reshape(-1).tolist())
+        cases.append({"points": pts.tolist(), "data": data.tolist(), "queries": queries.tolist(), "k": 7})
     assert json.loads(node(KNN, json.dumps(cases))) == want
 
 

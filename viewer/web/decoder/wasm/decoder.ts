@@ -536,8 +536,12 @@ const CELLS_PER_POINT: i32 = 4; // grid size: at most this many cells per data p
 
 let gB: i32 = 0; let gSide: i64 = 0; let gNx: i32 = 0; let gNy: i32 = 0; let gNz: i32 = 0;
 let gStart: usize = 0; let gP: usize = 0; // gP: per point of the grid, in cell order, (x, y, z, id) as i32 (one cache line holds 4)
-let worst: u64 = 0; // the k-th distance of hD once it holds k, else the largest u64
-let hD: usize = 0; let hI: usize = 0; let kK: i32 = 0;
+let worst: u64 = 0; // the k-th distance of the list once it holds k, else the largest u64
+let hD: usize = 0; let hI: usize = 0; let kK: i32 = 0; // the list: distances hD (u64) and ids hI (i32), or keys hD when gPacked
+// Extents up to PACKED_EXTENT (3 e^2 < 2^32, every tile seen in practice): the list holds keys
+// d2 * 2^32 + id (u64), whose order is the (d2, index) order, and d2 is computed in 32 bits.
+const PACKED_EXTENT: i32 = 37837;
+let gPacked: bool = false;
 
 @inline function u64At(p: usize, i: i32): u64 { return load<u64>(p + (<usize>i << 3)); }
 @inline function setU64(p: usize, i: i32, v: u64): void { store<u64>(p + (<usize>i << 3), v); }
@@ -552,10 +556,11 @@ export function gridNeighbours(x: usize, y: usize, z: usize, lo0: i32, lo1: i32,
     err = 0;
     buildGrid(x, y, z, lo0, lo1, lo2, e0, e1, e2, ds, nd);
     hD = alloc(k << 3); hI = alloc(k << 2); kK = k;
+    gPacked = max(e0, max(e1, e2)) <= PACKED_EXTENT;
     for (let r = 0; r < nq; r++) {
         const i = i32At(qs, r);
         const size = search(i32At(x, i) - lo0, i32At(y, i) - lo1, i32At(z, i) - lo2);
-        for (let m = 0; m < size; m++) setI32(idx, r * k + m, i32At(hI, m));
+        for (let m = 0; m < size; m++) setI32(idx, r * k + m, gPacked ? <i32>u64At(hD, m) : i32At(hI, m));
         setU8(cnt, r, size);
     }
 }
@@ -684,6 +689,39 @@ function visitShell(cx: i32, cy: i32, cz: i32, s: i32, qx: i32, qy: i32, qz: i32
 
 /** The grid's points p0 .. p1 - 1 offered to the list (those within the k-th distance). */
 function visitPoints(p0: i32, p1: i32, qx: i32, qy: i32, qz: i32, size: i32): i32 {
+    return gPacked ? visitPacked(p0, p1, qx, qy, qz, size) : visitWide(p0, p1, qx, qy, qz, size);
+}
+
+/** The largest key within the k-th distance (ties included: the ids decide in offerKey). */
+@inline function keyLimit(): u64 { return worst == u64.MAX_VALUE ? worst : (worst << 32) | 0xFFFFFFFF; }
+
+function visitPacked(p0: i32, p1: i32, qx: i32, qy: i32, qz: i32, size: i32): i32 {
+    let limit = keyLimit();
+    for (let p = p0; p < p1; p++) {
+        const r = gP + (<usize>p << 4);
+        const dx = load<i32>(r) - qx, dy = load<i32>(r, 4) - qy, dz = load<i32>(r, 8) - qz;
+        const key = (<u64><u32>(dx * dx + dy * dy + dz * dz) << 32) | <u64><u32>load<i32>(r, 12); // each square < 2^31, the sum < 2^32
+        if (key <= limit) { size = offerKey(key, size); limit = keyLimit(); }
+    }
+    return size;
+}
+
+/** Insert key into the ascending list hD of at most k keys (keys are distinct: the ids are); returns its new size. */
+function offerKey(key: u64, size: i32): i32 {
+    const k = kK;
+    if (size == k) { if (key > u64At(hD, k - 1)) return size; } else size++;
+    let j = size - 1;
+    for (; j > 0; j--) {
+        const pk = u64At(hD, j - 1);
+        if (pk < key) break;
+        setU64(hD, j, pk);
+    }
+    setU64(hD, j, key);
+    if (size == k) worst = u64At(hD, k - 1) >> 32;
+    return size;
+}
+
+function visitWide(p0: i32, p1: i32, qx: i32, qy: i32, qz: i32, size: i32): i32 {
     for (let p = p0; p < p1; p++) {
         const r = gP + (<usize>p << 4);
         const dx = <i64>load<i32>(r) - <i64>qx, dy = <i64>load<i32>(r, 4) - <i64>qy, dz = <i64>load<i32>(r, 8) - <i64>qz;
