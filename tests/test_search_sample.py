@@ -294,3 +294,31 @@ def test_whole_scene_moves_follow_the_miss():
     assert whole_scene_move(30.0) == 0.25 and whole_scene_move(-30.0) == 4.0
     for off in (0.01, 0.5, 3.0):
         assert whole_scene_move(off) < 1 < whole_scene_move(-off)
+
+
+def test_the_whole_scenes_renders_are_made_once_for_the_ratio_and_the_search(monkeypatch):
+    """The sample's ratio and the search's first offset measure against the same renders of the
+    whole scene in the same views (``SceneRenders``): they are rendered once, and the search measures
+    the same error as with renders of its own."""
+    from lghcc.encoder.gaussians import gaussian_rd
+    from lghcc.encoder.gaussians.gaussian_rd import Backdrop, SceneRenders, SettingsSearch, sample_distortion_ratio
+
+    scene, _ = _shell_with_inside(np.random.default_rng(7))
+    members = np.arange(scene.num_gaussians) % 2 == 0
+    contrib = np.ones(scene.num_gaussians)
+    cfg = GaussianEncoderConfig(**SMALL)
+    renders = SceneRenders(scene)
+    made = []
+    real = gaussian_rd.whole_scene_renders
+    monkeypatch.setattr(gaussian_rd, "whole_scene_renders", lambda sc, cams: made.append(sc) or real(sc, cams))
+    ratio = sample_distortion_ratio(scene, contrib, cfg, members, renders)
+    shared = SettingsSearch(scene.subset(members), contrib[members], cfg, 0.0, cfg.search_views, cfg.search_resolution,
+                            backdrop=Backdrop(scene, members, renders))
+    coarse = dataclasses.replace(cfg, sh_dc_step=0.3)
+    mse = [shared.evaluate(c).mse for c in (cfg, coarse)]
+    assert sum(sc is scene for sc in made) == 1 and len(renders.cams((2, 32, 0.0))) == len(shared.cams) >= 2
+    assert ratio == sample_distortion_ratio(scene, contrib, cfg, members)
+    own = SettingsSearch(scene.subset(members), contrib[members], cfg, 0.0, cfg.search_views, cfg.search_resolution,
+                         backdrop=Backdrop(scene, members))
+    assert [own.evaluate(c).mse for c in (cfg, coarse)] == mse and mse[1] > mse[0] > 0
+    assert sum(sc is scene for sc in made) == 3  # the ratio and the search without a shared one: their own

@@ -78,15 +78,42 @@ def search_view_plan(cfg: GaussianEncoderConfig, num_gaussians: int) -> tuple[in
     return views, math.floor(cfg.search_resolution * math.sqrt(s * cfg.search_views / views) + 0.5)
 
 
+class SceneRenders:
+    """A scene's search views (``resolving_views``) and its renders on black in them, made once per
+    view plan (views, resolution, resolve_px) and shared by whoever measures against them: on a
+    sampled search the ratio and the search's offsets measure against the source's, the trim's
+    offsets and the whole-scene check against the fitted scene's (each pair rendered them twice)."""
+
+    def __init__(self, scene: GaussianScene):
+        self.scene = scene
+        self._cams: dict[tuple, list] = {}
+        self._images: dict[tuple, list[torch.Tensor]] = {}
+
+    def cams(self, plan: tuple[int, int, float]) -> list:
+        if plan not in self._cams:
+            self._cams[plan] = resolving_views(self.scene, *plan)
+        return self._cams[plan]
+
+    def images(self, plan: tuple[int, int, float]) -> list[torch.Tensor]:
+        if plan not in self._images:
+            self._images[plan] = whole_scene_renders(self.scene, self.cams(plan))
+        return self._images[plan]
+
+
 @dataclass
 class Backdrop:
     """A search on a sample (encoder/gaussians/search_sample.py): the whole scene and which of its Gaussians
     the sample is. The search's views are the whole scene's, and every error is the sample's in
     the whole scene, the other Gaussians held at their values (``ViewLayers``): cells cut closed
     surfaces open, and the sample alone would show what the whole scene hides (and hide nothing it
-    shows)."""
+    shows). ``renders``: the whole scene's (made here when not given)."""
     whole: GaussianScene
     members: np.ndarray  # bool [N]
+    renders: SceneRenders | None = None
+
+    def __post_init__(self):
+        if self.renders is None:
+            self.renders = SceneRenders(self.whole)
 
     @property
     def held(self) -> GaussianScene:
@@ -245,16 +272,19 @@ class SettingsSearch:
 
     def __init__(self, scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, lam: float,
                  views: int, resolution: int, sensitivity: np.ndarray | None = None,
-                 backdrop: Backdrop | None = None):
+                 backdrop: Backdrop | None = None, renders: SceneRenders | None = None):
+        """``renders``: ``scene``'s, where another measurement shares them (without a ``backdrop``;
+        with one, its own)."""
         self.scene, self.contrib, self.lam, self.sensitivity = scene, contrib, lam, sensitivity
-        self.cams = resolving_views(scene if backdrop is None else backdrop.whole, views, resolution, cfg.resolve_px)
+        self.whole = backdrop.renders if backdrop is not None else renders or SceneRenders(scene)
+        self.plan = (views, resolution, cfg.resolve_px)
+        self.cams = self.whole.cams(self.plan)
         g = gaussians_from_scene(scene)
         self.backdrop = backdrop
         self.offsets: dict[float, float] = {}  # pruning share -> exact minus layered error (``_mse``)
-        self._whole_targets: list[torch.Tensor] | None = None  # the whole scene's renders, made once
         with torch.no_grad():
             if backdrop is None:
-                self.targets = [render_on_black(g, cam).image for cam in self.cams]
+                self.targets = self.whole.images(self.plan)
                 self.layers = None
             else:
                 held = gaussians_from_scene(backdrop.held)
@@ -342,9 +372,7 @@ class SettingsSearch:
             layered = float(np.mean([(v.error(render_on_black(g, cam)) ** 2).double().mean().item()
                                      for cam, v in zip(self.cams, self.layers)]))
         if share not in self.offsets:
-            if self._whole_targets is None:
-                self._whole_targets = whole_scene_renders(self.backdrop.whole, self.cams)
-            self.offsets[share] = whole_scene_error(self.backdrop, dec, self.cams, self._whole_targets) - layered
+            self.offsets[share] = whole_scene_error(self.backdrop, dec, self.cams, self.whole.images(self.plan)) - layered
         return max(layered + self.offsets[share], 0.0)
 
     def rounding_distortion(self, cfg: GaussianEncoderConfig) -> float:
@@ -579,15 +607,16 @@ def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEnco
 
 
 def trim_to_target(scene: GaussianScene, weights: np.ndarray, cfg: GaussianEncoderConfig, *,
-                   sensitivity: np.ndarray | None = None, log=None,
-                   backdrop: Backdrop | None = None) -> tuple[GaussianEncoderConfig, Trial, Trial]:
+                   sensitivity: np.ndarray | None = None, log=None, backdrop: Backdrop | None = None,
+                   renders: SceneRenders | None = None) -> tuple[GaussianEncoderConfig, Trial, Trial]:
     """After the fit, which tuned the values to render closer to the source than the search
     measured (about 1 dB), the attribute steps move onto ``cfg.target_psnr`` again (``onto_target``
     on the fitted scene, its grid kept): the fit's gain becomes fewer bytes at the quality asked
-    for (``backdrop``: ``scene`` is a sample of it). -> (settings, the trial before, the trial chosen)."""
+    for (``backdrop``: ``scene`` is a sample of it; ``renders``: ``scene``'s, without one).
+    -> (settings, the trial before, the trial chosen)."""
     as_fitted = dataclasses.replace(cfg, prune_share=0.0)  # the scene is already pruned
     s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution, sensitivity,
-                       backdrop)
+                       backdrop, renders)
     groups = _attribute_groups(scene)
     before = s.evaluate(as_fitted)
     best = onto_target(s, before, groups, 10 ** (-cfg.target_psnr / 10), evaluations=4)
@@ -647,16 +676,16 @@ def _attribute_groups(scene: GaussianScene) -> list[str]:
 
 
 def sample_distortion_ratio(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig,
-                            sample: np.ndarray) -> float:
+                            sample: np.ndarray, renders: SceneRenders | None = None) -> float:
     """The whole scene's squared error over the sample's (``sample``, encoder/gaussians/search_sample.py) at
     ``cfg``'s steps, plainly rounded without pruning (``plainly_rounded``: a whole-scene trial would
     code the whole scene), on the search views; the sample's error is that of the whole scene
     rendered with only the sample rounded: it covers fewer pixels of the views than the whole, so
-    the same steps measure less error on it. The search asks the sample for the target's error
+    the same steps measure less error on it (``renders``: the scene's, shared with the search's offsets). The search asks the sample for the target's error
     divided by this ratio. Measured on the layers instead, plain rounding's error came out 39% low
     on the donut (20k sample), the ratio 3.80 instead of 2.33 (an RDOQ trial at the same steps on
     whole renders: 2.31), and the search aimed 1-2 dB above the target (search_sampling.md (e), (f))."""
-    whole = SettingsSearch(scene, contrib, cfg, 0.0, cfg.search_views, cfg.search_resolution)
+    whole = SettingsSearch(scene, contrib, cfg, 0.0, cfg.search_views, cfg.search_resolution, renders=renders)
     part = plainly_rounded(scene.subset(sample), contrib[sample], cfg)
     return max(whole.rounding_distortion(cfg), 1e-12) / max(whole._mse(with_held(part, Backdrop(scene, sample))), 1e-12)
 
@@ -681,14 +710,16 @@ def whole_scene_move(off_db: float) -> float:
 
 
 def meet_on_whole_scene(scene: GaussianScene, weights: np.ndarray, cfg: GaussianEncoderConfig, *,
-                        sensitivity: np.ndarray | None = None, log=None) -> tuple[GaussianEncoderConfig, list[Trial]]:
+                        sensitivity: np.ndarray | None = None, log=None,
+                        renders: SceneRenders | None = None) -> tuple[GaussianEncoderConfig, list[Trial]]:
     """The check of settings chosen on a sample against ``cfg.target_psnr`` on the whole (fitted,
     pruned) scene: one trial; while it is off the target by more than WHOLE_SCENE_TOLERANCE, every
     attribute step times one common factor from the last trial's miss (``whole_scene_move``, at
     most WHOLE_SCENE_MOVES trials more). Of the trials that meet the target, the fewest bits; the
-    least error where none does. -> (settings, trials)."""
+    least error where none does (``renders``: the scene's, where the trim made them). -> (settings, trials)."""
     as_fitted = dataclasses.replace(cfg, prune_share=0.0)  # the scene is already pruned
-    s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution, sensitivity)
+    s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution, sensitivity,
+                       renders=renders)
     target_mse = 10 ** (-cfg.target_psnr / 10)
     groups = _attribute_groups(scene)
     before = last = s.evaluate(as_fitted)
