@@ -568,8 +568,14 @@ def fewest_bits_at_target(s: SettingsSearch, best: Trial, groups: list[str], tar
     for share in PRUNE_LADDER:
         start = best if share == best.cfg.prune_share else s.evaluate(dataclasses.replace(best.cfg, prune_share=share))
         onto_target(s, start, groups, target_mse, evaluations=5)
-    meeting = [t for t in s.trials if t.mse <= target_mse]
-    return min(meeting, key=lambda t: t.bits) if meeting else min(s.trials, key=lambda t: t.mse)
+    return fewest_bits_meeting(s.trials, target_mse)
+
+
+def fewest_bits_meeting(trials: list[Trial], target_mse: float) -> Trial:
+    """Of the ``trials`` that meet the target, the one of fewest bits; the one of least error where
+    none does."""
+    meeting = [t for t in trials if t.mse <= target_mse]
+    return min(meeting, key=lambda t: t.bits) if meeting else min(trials, key=lambda t: t.mse)
 
 
 def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, *,
@@ -658,17 +664,69 @@ def onto_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: f
             f_meet = f if f_meet is None else max(f_meet, f)
         else:
             f_fail = f if f_fail is None else min(f_fail, f)
-    if f_meet is not None:
-        return min((t for t in trials.values() if t.mse <= target_mse), key=lambda t: t.bits)
-    return min(trials.values(), key=lambda t: t.mse)
+    return fewest_bits_meeting(list(trials.values()), target_mse)
 
 
 # Whole-scene trials the check of a sampled choice may add to move it onto the target (each
-# renders and codes the whole scene).
-WHOLE_SCENE_MOVES = 2
+# renders and codes the whole scene): at most 1 + 3 whole-scene trials.
+WHOLE_SCENE_MOVES = 3
 # How far above the target (dB) the whole scene may render before the check moves the steps
-# coarser (a miss below the target is always moved).
+# coarser (a miss below the target is always moved); its moves aim at the middle of this band.
 WHOLE_SCENE_TOLERANCE = 0.25
+# The exponent k of error ~ f^k (f: the common factor on the attribute steps) the check's first move
+# assumes; later moves measure it on the check's own trials. On the logo (307k, medium) it was about
+# 0.7 (48.76 dB on the whole scene fell to 46.67 over two moves of sqrt(target / error)): pruning,
+# the fit and the position grid leave an error the attribute steps do not scale.
+WHOLE_SCENE_FIRST_EXPONENT = 1.0
+# The most one move of the check changes the steps by, and the range of the exponents it measures.
+WHOLE_SCENE_MAX_MOVE = 4.0
+WHOLE_SCENE_EXPONENTS = (0.25, 4.0)
+
+
+def _measured_exponent(f1: float, e1: float, f2: float, e2: float) -> float:
+    """k of e ~ f^k through two trials (factor, error), within WHOLE_SCENE_EXPONENTS."""
+    lo, hi = WHOLE_SCENE_EXPONENTS
+    k = math.log(max(e2, 1e-30) / max(e1, 1e-30)) / math.log(f2 / f1)
+    return min(max(k, lo), hi)
+
+
+def whole_scene_move(measured: dict[float, float], target_mse: float) -> float | None:
+    """The common factor (on the first trial's attribute steps) of the whole-scene check's next
+    trial, from its trials so far (factor -> error); None when the largest factor that meets the
+    target is within WHOLE_SCENE_TOLERANCE of it, or when the trials bracket the target within 1%
+    in factor. The error taken as c f^k: k through the two trials that bracket the target, else
+    through the two nearest it on its one side (all too good, or all missing), else
+    WHOLE_SCENE_FIRST_EXPONENT (the full target / error); the move aims at the middle of the band,
+    stays inside a bracket and within a factor WHOLE_SCENE_MAX_MOVE of the trial it starts from.
+    The check once moved coarser by sqrt(target / error) (k = 2): on the logo two moves stopped
+    1.7 dB above the target, +4.8% bytes (tools/results/search_sampling.md (f), (h))."""
+    meet = sorted(f for f, e in measured.items() if e <= target_mse)
+    fail = sorted(f for f, e in measured.items() if e > target_mse)
+    if meet and measured[meet[-1]] * 10 ** (WHOLE_SCENE_TOLERANCE / 10) >= target_mse:
+        return None
+    aim = target_mse * 10 ** (-WHOLE_SCENE_TOLERANCE / 20)
+    if meet and fail:
+        a, b = meet[-1], fail[0]
+        if b <= a * 1.01:
+            return None
+        f = a * (aim / measured[a]) ** (1 / _measured_exponent(a, measured[a], b, measured[b]))
+        return min(max(f, a * (b / a) ** 0.1), a * (b / a) ** 0.9)
+    near = meet[::-1] if meet else fail  # the nearest the target first
+    a = near[0]
+    k = _measured_exponent(a, measured[a], near[1], measured[near[1]]) if len(near) > 1 else WHOLE_SCENE_FIRST_EXPONENT
+    return min(max(a * (aim / measured[a]) ** (1 / k), a / WHOLE_SCENE_MAX_MOVE), a * WHOLE_SCENE_MAX_MOVE)
+
+
+def common_factor_trials(measure, target_mse: float) -> dict[float, Trial]:
+    """The whole-scene check's trials, factor -> Trial (``measure(f)``: the trial with every
+    attribute step times f): f = 1, then at most WHOLE_SCENE_MOVES more from ``whole_scene_move``."""
+    trials = {1.0: measure(1.0)}
+    for _ in range(WHOLE_SCENE_MOVES):
+        f = whole_scene_move({f: t.mse for f, t in trials.items()}, target_mse)
+        if f is None or f in trials:
+            break
+        trials[f] = measure(f)
+    return trials
 
 
 def _attribute_groups(scene: GaussianScene) -> list[str]:
@@ -697,43 +755,27 @@ def on_sample(cfg: GaussianEncoderConfig, ratio: float) -> GaussianEncoderConfig
     return dataclasses.replace(cfg, target_psnr=cfg.target_psnr + 10 * math.log10(max(ratio, 1e-12)))
 
 
-def whole_scene_move(off_db: float) -> float:
-    """The common factor on every attribute step of the whole-scene check's next trial, from how far
-    (dB) the last one's error is above the target: finer by target / error on a miss (the error
-    falls more slowly than the steps squared: what pruning and the fit left stays), coarser by
-    sqrt(target / error) where it is better than needed (the error grows at most as the steps
-    squared: a safe move); within a factor 4. The check halved every step after a first move
-    that still missed: on the donut a miss of 0.23 dB became 7.5 dB above the target and 30% more
-    bytes (tools/results/search_sampling.md, section (f))."""
-    f = 10 ** (-off_db / 10) if off_db > 0 else 10 ** (-off_db / 20)
-    return min(max(f, 1 / 4), 4.0)
-
-
 def meet_on_whole_scene(scene: GaussianScene, weights: np.ndarray, cfg: GaussianEncoderConfig, *,
                         sensitivity: np.ndarray | None = None, log=None,
                         renders: SceneRenders | None = None) -> tuple[GaussianEncoderConfig, list[Trial]]:
     """The check of settings chosen on a sample against ``cfg.target_psnr`` on the whole (fitted,
-    pruned) scene: one trial; while it is off the target by more than WHOLE_SCENE_TOLERANCE, every
-    attribute step times one common factor from the last trial's miss (``whole_scene_move``, at
-    most WHOLE_SCENE_MOVES trials more). Of the trials that meet the target, the fewest bits; the
-    least error where none does (``renders``: the scene's, where the trim made them). -> (settings, trials)."""
+    pruned) scene: one trial; while the fewest bits that meet the target are off it by more than
+    WHOLE_SCENE_TOLERANCE (or none meets it), every attribute step times one common factor
+    (``whole_scene_move``, at most WHOLE_SCENE_MOVES trials more: at most 4 whole-scene trials). Of
+    the trials that meet the target, the fewest bits; the least error where none does (``renders``:
+    the scene's, where the trim made them). -> (settings, trials)."""
     as_fitted = dataclasses.replace(cfg, prune_share=0.0)  # the scene is already pruned
     s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution, sensitivity,
                        renders=renders)
     target_mse = 10 ** (-cfg.target_psnr / 10)
     groups = _attribute_groups(scene)
-    before = last = s.evaluate(as_fitted)
-    for _ in range(WHOLE_SCENE_MOVES):
-        off_db = 10 * math.log10(max(last.mse, 1e-12) / target_mse)
-        if -WHOLE_SCENE_TOLERANCE <= off_db <= 0:
-            break
-        last = s.evaluate(_scaled(last.cfg, groups, whole_scene_move(off_db)))
-    meeting = [t for t in s.trials if t.mse <= target_mse]
-    best = min(meeting, key=lambda t: t.bits) if meeting else min(s.trials, key=lambda t: t.mse)
+    tried = common_factor_trials(lambda f: s.evaluate(_scaled(as_fitted, groups, f)), target_mse)
+    before, best = tried[1.0], fewest_bits_meeting(s.trials, target_mse)
     if log:
         log(f"settings on the whole scene: {-10 * math.log10(max(before.mse, 1e-12)):.2f} dB at "
             f"{before.bits / 8:,.0f} B" + ("" if best is before else
                                           f" -> {-10 * math.log10(max(best.mse, 1e-12)):.2f} dB at "
-                                          f"{best.bits / 8:,.0f} B") + f" (estimated, {len(s.trials)} trials)")
+                                          f"{best.bits / 8:,.0f} B") + f" (estimated, {len(s.trials)} trials: " +
+            ", ".join(f"steps x{f:.3g} {-10 * math.log10(max(t.mse, 1e-12)):.2f} dB" for f, t in tried.items()) + ")")
     chosen = dataclasses.replace(best.cfg, prune_share=cfg.prune_share) if best is not before else cfg
     return chosen, s.trials
