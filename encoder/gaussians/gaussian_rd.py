@@ -668,19 +668,23 @@ def onto_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: f
 
 
 # Whole-scene trials the check of a sampled choice may add to move it onto the target (each
-# renders and codes the whole scene): at most 1 + 3 whole-scene trials.
-WHOLE_SCENE_MOVES = 3
+# renders and codes the whole prepared scene: about 12 s on the logo, 307k): at most 1 + 5 in all.
+WHOLE_SCENE_MOVES = 5
 # How far above the target (dB) the whole scene may render before the check moves the steps
 # coarser (a miss below the target is always moved); its moves aim at the middle of this band.
 WHOLE_SCENE_TOLERANCE = 0.25
 # The exponent k of error ~ f^k (f: the common factor on the attribute steps) the check's first move
-# assumes; later moves measure it on the check's own trials. On the logo (307k, medium) it was about
-# 0.7 (48.76 dB on the whole scene fell to 46.67 over two moves of sqrt(target / error)): pruning,
-# the fit and the position grid leave an error the attribute steps do not scale.
-WHOLE_SCENE_FIRST_EXPONENT = 1.0
+# assumes; later moves measure it on the check's own trials. Measured: the logo (307k, medium) 2.5
+# to 4.5 coarser (48.76 dB at x1, 45.78 at x1.31, 44.61 at x1.39, 37.60 at x2.31: k = 1, the full
+# target / error, overshot by 7.4 dB), the donut (20k sample, 4 views of 64 px) 3.0 finer, playbot
+# lod4 (3k sample, the same views) 2.1 finer (tools/results/search_sampling.md (h)).
+WHOLE_SCENE_FIRST_EXPONENT = 2.0
 # The most one move of the check changes the steps by, and the range of the exponents it measures.
 WHOLE_SCENE_MAX_MOVE = 4.0
 WHOLE_SCENE_EXPONENTS = (0.25, 4.0)
+# Where in a bracket (log f) a move may land at the least and the most: the secant, kept off its
+# ends, shrinks the bracket by a quarter at least (the logo's error is not a smooth power of f).
+WHOLE_SCENE_BRACKET = (0.25, 0.75)
 
 
 def _measured_exponent(f1: float, e1: float, f2: float, e2: float) -> float:
@@ -696,10 +700,10 @@ def whole_scene_move(measured: dict[float, float], target_mse: float) -> float |
     target is within WHOLE_SCENE_TOLERANCE of it, or when the trials bracket the target within 1%
     in factor. The error taken as c f^k: k through the two trials that bracket the target, else
     through the two nearest it on its one side (all too good, or all missing), else
-    WHOLE_SCENE_FIRST_EXPONENT (the full target / error); the move aims at the middle of the band,
-    stays inside a bracket and within a factor WHOLE_SCENE_MAX_MOVE of the trial it starts from.
-    The check once moved coarser by sqrt(target / error) (k = 2): on the logo two moves stopped
-    1.7 dB above the target, +4.8% bytes (tools/results/search_sampling.md (f), (h))."""
+    WHOLE_SCENE_FIRST_EXPONENT; the move aims at the middle of the band, stays inside a bracket
+    (WHOLE_SCENE_BRACKET) and within a factor WHOLE_SCENE_MAX_MOVE of the trial it starts from.
+    The check once had 2 moves, the second finer by the full target / error after a miss: on the
+    logo it stopped 1.7 dB above the target, +4.8% bytes (tools/results/search_sampling.md (f), (h))."""
     meet = sorted(f for f, e in measured.items() if e <= target_mse)
     fail = sorted(f for f, e in measured.items() if e > target_mse)
     if meet and measured[meet[-1]] * 10 ** (WHOLE_SCENE_TOLERANCE / 10) >= target_mse:
@@ -710,7 +714,8 @@ def whole_scene_move(measured: dict[float, float], target_mse: float) -> float |
         if b <= a * 1.01:
             return None
         f = a * (aim / measured[a]) ** (1 / _measured_exponent(a, measured[a], b, measured[b]))
-        return min(max(f, a * (b / a) ** 0.1), a * (b / a) ** 0.9)
+        lo, hi = WHOLE_SCENE_BRACKET
+        return min(max(f, a * (b / a) ** lo), a * (b / a) ** hi)
     near = meet[::-1] if meet else fail  # the nearest the target first
     a = near[0]
     k = _measured_exponent(a, measured[a], near[1], measured[near[1]]) if len(near) > 1 else WHOLE_SCENE_FIRST_EXPONENT
@@ -761,7 +766,7 @@ def meet_on_whole_scene(scene: GaussianScene, weights: np.ndarray, cfg: Gaussian
     """The check of settings chosen on a sample against ``cfg.target_psnr`` on the whole (fitted,
     pruned) scene: one trial; while the fewest bits that meet the target are off it by more than
     WHOLE_SCENE_TOLERANCE (or none meets it), every attribute step times one common factor
-    (``whole_scene_move``, at most WHOLE_SCENE_MOVES trials more: at most 4 whole-scene trials). Of
+    (``whole_scene_move``, at most WHOLE_SCENE_MOVES trials more: at most 6 whole-scene trials). Of
     the trials that meet the target, the fewest bits; the least error where none does (``renders``:
     the scene's, where the trim made them). -> (settings, trials)."""
     as_fitted = dataclasses.replace(cfg, prune_share=0.0)  # the scene is already pruned
