@@ -668,7 +668,8 @@ def onto_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: f
 
 
 # Whole-scene trials the check of a sampled choice may add to move it onto the target (each
-# renders and codes the whole prepared scene: about 12 s on the logo, 307k): at most 1 + 5 in all.
+# renders and codes the whole prepared scene: 12-23 s each on the logo, 307k, at load 3-5): at most
+# 1 + 5 in all.
 WHOLE_SCENE_MOVES = 5
 # How far above the target (dB) the whole scene may render before the check moves the steps
 # coarser (a miss below the target is always moved); its moves aim at the middle of this band.
