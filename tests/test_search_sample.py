@@ -284,13 +284,91 @@ def test_sampled_errors_are_the_whole_scenes_on_each_shares_first_trial_and_offs
     assert 1.2 < ratio < 4  # half the Gaussians: about half the error, not hidden by the other half
 
 
-def test_whole_scene_moves_follow_the_miss():
-    """A miss moves every step finer by target / error, a surplus coarser by sqrt(target / error),
-    within a factor 4: a small miss is a small move (the check once halved every step after one)."""
+def test_whole_scene_moves_take_sqrt_of_the_miss_first_then_the_measured_exponent():
+    """The check's first move scales every step by sqrt(target / error) (error ~ f^2; aiming at
+    the middle of the 0.25 dB band), either way, within a factor 4; later ones measure the exponent
+    of error ~ f^k on its own trials (the logo's 2.5 to 4.5); inside a bracket they stay off its
+    ends; within the band, or a bracket under 1%, it stops."""
     from lghcc.encoder.gaussians.gaussian_rd import whole_scene_move
 
-    assert whole_scene_move(0.23) == pytest.approx(10 ** -0.023)  # 0.23 dB below the target: 5% finer
-    assert whole_scene_move(-1.0) == pytest.approx(10 ** 0.05)  # 1 dB above it: 12% coarser
-    assert whole_scene_move(30.0) == 0.25 and whole_scene_move(-30.0) == 4.0
-    for off in (0.01, 0.5, 3.0):
-        assert whole_scene_move(off) < 1 < whole_scene_move(-off)
+    t = 1e-4
+    db = lambda d: t * 10 ** (d / 10)  # noqa: E731  the error d dB above the target's
+    assert whole_scene_move({1.0: db(-0.2)}, t) is None and whole_scene_move({1.0: db(-0.25)}, t) is None
+    assert whole_scene_move({1.0: db(-3.76)}, t) == pytest.approx(10 ** ((3.76 - 0.125) / 20))  # coarser, k = 2
+    assert whole_scene_move({1.0: db(1.0)}, t) == pytest.approx(10 ** (-1.125 / 20))  # finer, k = 2
+    assert whole_scene_move({1.0: db(-30)}, t) == 4.0 and whole_scene_move({1.0: db(30)}, t) == 0.25
+    e = lambda f: db(-3.76) * f ** 0.7  # noqa: E731
+    f = whole_scene_move({1.0: e(1.0), 2.0: e(2.0)}, t)  # both too good: k measured 0.7
+    assert e(f) == pytest.approx(db(-0.125))
+    f = whole_scene_move({1.0: db(-2.0), 2.0: db(1.0)}, t)  # a bracket: k = 3 dB / log(2)
+    assert 1.0 < f < 2.0 and 10 * math.log10(db(-2.0) * f ** (0.3 / math.log10(2)) / t) == pytest.approx(-0.125)
+    assert whole_scene_move({1.0: db(-20.0), 2.0: db(1.0)}, t) == pytest.approx(2 ** 0.75)  # off a bracket's end
+    assert whole_scene_move({1.0: db(-0.3), 2.0: db(20.0)}, t) == pytest.approx(2 ** 0.25)
+    assert whole_scene_move({1.0: db(-2.0), 1.005: db(1.0)}, t) is None
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(0.5, 2.5), st.floats(-4.0, 2.0))
+def test_the_whole_scene_check_lands_in_the_band_on_a_power_law(k, off_db):
+    """Where the error is a power of the common step factor (exponent 0.5 to 2.5) and the first
+    trial 4 dB too good to 2 dB short, the check's fewest bits that meet the target land within
+    0.25 dB of it, in at most 1 + WHOLE_SCENE_MOVES trials."""
+    from lghcc.encoder.gaussians.gaussian_rd import (WHOLE_SCENE_MOVES, Trial, common_factor_trials,
+                                                     fewest_bits_meeting)
+
+    t = 1e-4
+    tried = common_factor_trials(lambda f: Trial(None, t * 10 ** (off_db / 10) * f ** k, 1e6 / f, 0.0), t)
+    best = fewest_bits_meeting(list(tried.values()), t)
+    assert len(tried) <= 1 + WHOLE_SCENE_MOVES and best.mse <= t
+    assert 10 * math.log10(t / best.mse) <= 0.25 + 1e-9
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.lists(st.tuples(st.floats(-6.0, 6.0), st.floats(1e3, 1e7)), min_size=8, max_size=8))
+def test_the_whole_scene_check_keeps_the_fewest_bits_that_meet_the_target(measured):
+    """Whatever the trials measure (noisy, not monotone): at most 1 + WHOLE_SCENE_MOVES of them,
+    each within a factor 4 of the steps of one before; the one kept meets the target when any
+    did, with no more bits than any other that did; the least error when none did."""
+    from lghcc.encoder.gaussians.gaussian_rd import (WHOLE_SCENE_MOVES, Trial, common_factor_trials,
+                                                     fewest_bits_meeting)
+
+    t = 1e-4
+    given_ = iter(measured)
+    tried = common_factor_trials(lambda f: Trial(f, t * 10 ** ((d := next(given_))[0] / 10), d[1], 0.0), t)
+    best = fewest_bits_meeting(list(tried.values()), t)
+    assert 1 <= len(tried) <= 1 + WHOLE_SCENE_MOVES and list(tried)[0] == 1.0
+    assert all(min(abs(math.log(f / g)) for g in list(tried)[:i]) <= math.log(4) + 1e-9
+               for i, f in enumerate(tried) if i > 0)
+    meeting = [x for x in tried.values() if x.mse <= t]
+    if meeting:
+        assert best.mse <= t and all(best.bits <= x.bits for x in meeting)
+    else:
+        assert best.mse == min(x.mse for x in tried.values())
+
+
+def test_the_whole_scenes_renders_are_made_once_for_the_ratio_and_the_search(monkeypatch):
+    """The sample's ratio and the search's first offset measure against the same renders of the
+    whole scene in the same views (``SceneRenders``): they are rendered once, and the search measures
+    the same error as with renders of its own."""
+    from lghcc.encoder.gaussians import gaussian_rd
+    from lghcc.encoder.gaussians.gaussian_rd import Backdrop, SceneRenders, SettingsSearch, sample_distortion_ratio
+
+    scene, _ = _shell_with_inside(np.random.default_rng(7))
+    members = np.arange(scene.num_gaussians) % 2 == 0
+    contrib = np.ones(scene.num_gaussians)
+    cfg = GaussianEncoderConfig(**SMALL)
+    renders = SceneRenders(scene)
+    made = []
+    real = gaussian_rd.whole_scene_renders
+    monkeypatch.setattr(gaussian_rd, "whole_scene_renders", lambda sc, cams: made.append(sc) or real(sc, cams))
+    ratio = sample_distortion_ratio(scene, contrib, cfg, members, renders)
+    shared = SettingsSearch(scene.subset(members), contrib[members], cfg, 0.0, cfg.search_views, cfg.search_resolution,
+                            backdrop=Backdrop(scene, members, renders))
+    coarse = dataclasses.replace(cfg, sh_dc_step=0.3)
+    mse = [shared.evaluate(c).mse for c in (cfg, coarse)]
+    assert sum(sc is scene for sc in made) == 1 and len(renders.cams((2, 32, 0.0))) == len(shared.cams) >= 2
+    assert ratio == sample_distortion_ratio(scene, contrib, cfg, members)
+    own = SettingsSearch(scene.subset(members), contrib[members], cfg, 0.0, cfg.search_views, cfg.search_resolution,
+                         backdrop=Backdrop(scene, members))
+    assert [own.evaluate(c).mse for c in (cfg, coarse)] == mse and mse[1] > mse[0] > 0
+    assert sum(sc is scene for sc in made) == 3  # the ratio and the search without a shared one: their own

@@ -46,6 +46,7 @@ import dataclasses
 import math
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -62,6 +63,9 @@ from ...render.gaussians3dgs import Gaussians3DGS, gaussians_from_scene, render_
 from ...render.importance import gaussian_contributions
 from ...render.rasterizer import rasterize
 from ...render.sh import sh_to_rgb
+
+if TYPE_CHECKING:
+    from .gaussian_rd import SceneRenders
 
 
 @dataclass
@@ -193,22 +197,24 @@ class SearchSample:
     """The part of a large scene the settings search measured (encoder/gaussians/search_sample.py)."""
     members: np.ndarray  # bool [N]: the sampled Gaussians of the scene as it came in
     ratio: float  # the whole scene's squared error over the sample's at the same settings
+    renders: SceneRenders  # the scene's search renders as it came in: the ratio's, reused by the search
 
 
 def _search_sample(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig,
                    say) -> SearchSample | None:
     """The sample the search measures on a scene above ``search_sample_gaussians`` (None below),
     with the ratio of the whole scene's error to the sample's when a target is asked for."""
-    from .gaussian_rd import sample_distortion_ratio
+    from .gaussian_rd import SceneRenders, sample_distortion_ratio
     from .search_sample import search_sample
 
     members = search_sample(scene.means, cfg.search_sample_gaussians)
     if members is None:
         return None
-    ratio = sample_distortion_ratio(scene, contrib, cfg, members) if cfg.target_psnr > 0 else 1.0
+    renders = SceneRenders(scene)
+    ratio = sample_distortion_ratio(scene, contrib, cfg, members, renders) if cfg.target_psnr > 0 else 1.0
     say(f"settings: searched on a sample of {int(members.sum()):,} of {scene.num_gaussians:,} Gaussians (whole "
         f"scene's error {ratio:.3g} x the sample's)")
-    return SearchSample(members, ratio)
+    return SearchSample(members, ratio, renders)
 
 
 def search_for_settings(scene: GaussianScene, contrib: np.ndarray, sensitivity: np.ndarray | None,
@@ -233,7 +239,7 @@ def search_for_settings(scene: GaussianScene, contrib: np.ndarray, sensitivity: 
         m = sample.members
         chosen, trials = search_settings(scene.subset(m), contrib[m], on_sample(cfg, sample.ratio),
                                          sensitivity=None if sensitivity is None else sensitivity[m], log=say,
-                                         backdrop=Backdrop(scene, m))
+                                         backdrop=Backdrop(scene, m, sample.renders))
         cfg = dataclasses.replace(chosen, target_psnr=cfg.target_psnr)
         stats.search_sample_gaussians, stats.search_sample_ratio = int(m.sum()), sample.ratio
     stats.time_search_s, stats.search_trials = time.perf_counter() - t0, len(trials)
@@ -331,37 +337,42 @@ def fit_to_renders(grid: GaussianScene, g: Gaussians3DGS, cams: list[Camera], cf
 
 
 def trim_steps(fitted: GaussianScene, weights: np.ndarray, sensitivity: np.ndarray | None, cfg: GaussianEncoderConfig,
-               stats: PrepareStats, say, sample: np.ndarray | None = None, ratio: float = 1.0) -> GaussianEncoderConfig:
+               stats: PrepareStats, say, sample: np.ndarray | None = None, ratio: float = 1.0,
+               renders: SceneRenders | None = None) -> GaussianEncoderConfig:
     """With a quality asked for, the attribute steps moved onto it again (what the fit gained
     becomes fewer bytes); the settings as they are otherwise. With a search ``sample`` (bool over
     the fitted Gaussians; ``ratio`` the whole scene's error over the sample's), moved on the sample
-    and then checked on the whole scene (``whole_scene_check``)."""
+    and then checked on the whole scene (``whole_scene_check``, sharing ``renders``, the fitted
+    scene's)."""
     if not cfg.target_psnr > 0:
         return cfg
     from .gaussian_rd import Backdrop, on_sample, trim_to_target
 
     t0 = time.perf_counter()
     if sample is None:
-        cfg, before, after = trim_to_target(fitted, weights, cfg, sensitivity=sensitivity, log=say)
+        cfg, before, after = trim_to_target(fitted, weights, cfg, sensitivity=sensitivity, log=say, renders=renders)
     else:
         part_sens = None if sensitivity is None else sensitivity[sample]
         trimmed, before, after = trim_to_target(fitted.subset(sample), weights[sample], on_sample(cfg, ratio),
-                                                sensitivity=part_sens, log=say, backdrop=Backdrop(fitted, sample))
+                                                sensitivity=part_sens, log=say,
+                                                backdrop=Backdrop(fitted, sample, renders))
         cfg = dataclasses.replace(trimmed, target_psnr=cfg.target_psnr)
     stats.time_trim_s, stats.trim_bits_before, stats.trim_bits_after = time.perf_counter() - t0, before.bits, after.bits
     return cfg
 
 
 def whole_scene_check(scene: GaussianScene, weights: np.ndarray, sensitivity: np.ndarray | None,
-                      cfg: GaussianEncoderConfig, stats: PrepareStats, say) -> GaussianEncoderConfig:
+                      cfg: GaussianEncoderConfig, stats: PrepareStats, say,
+                      renders: SceneRenders | None = None) -> GaussianEncoderConfig:
     """Settings chosen on a sample, checked against the target on the whole prepared scene and
-    moved onto it where they miss (encoder/gaussians/gaussian_rd.py ``meet_on_whole_scene``)."""
+    moved onto it where they miss (encoder/gaussians/gaussian_rd.py ``meet_on_whole_scene``;
+    ``renders``: the scene's, where the trim made them)."""
     if not cfg.target_psnr > 0:
         return cfg
     from .gaussian_rd import meet_on_whole_scene
 
     t0 = time.perf_counter()
-    cfg, trials = meet_on_whole_scene(scene, weights, cfg, sensitivity=sensitivity, log=say)
+    cfg, trials = meet_on_whole_scene(scene, weights, cfg, sensitivity=sensitivity, log=say, renders=renders)
     stats.time_whole_check_s, stats.whole_check_trials = time.perf_counter() - t0, len(trials)
     return cfg
 
@@ -401,10 +412,13 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
     sensitivity = None if sensitivity is None else sensitivity[keep]
     if cfg.fit_iterations > 0:
         grid = fit_to_renders(grid, g, cams, fit_steps(cfg, grid.num_gaussians), stats, say, progress, sensitivity)
+    from .gaussian_rd import SceneRenders
+    renders = SceneRenders(grid)  # the prepared scene's search renders: the trim's and the check's, made once
+    if cfg.fit_iterations > 0:
         cfg = trim_steps(grid, weights, sensitivity, cfg, stats, say, None if sample is None else sample.members[keep],
-                         1.0 if sample is None else sample.ratio)
+                         1.0 if sample is None else sample.ratio, renders)
     if sample is not None:
-        cfg = whole_scene_check(grid, weights, sensitivity, cfg, stats, say)
+        cfg = whole_scene_check(grid, weights, sensitivity, cfg, stats, say, renders)
     stats.time_total_s = time.perf_counter() - t0
     return PreparedGaussians(grid, weights, sensitivity, cfg, stats)
 

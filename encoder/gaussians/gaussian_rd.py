@@ -78,15 +78,42 @@ def search_view_plan(cfg: GaussianEncoderConfig, num_gaussians: int) -> tuple[in
     return views, math.floor(cfg.search_resolution * math.sqrt(s * cfg.search_views / views) + 0.5)
 
 
+class SceneRenders:
+    """A scene's search views (``resolving_views``) and its renders on black in them, made once per
+    view plan (views, resolution, resolve_px) and shared by whoever measures against them: on a
+    sampled search the ratio and the search's offsets measure against the source's, the trim's
+    offsets and the whole-scene check against the fitted scene's (each pair rendered them twice)."""
+
+    def __init__(self, scene: GaussianScene):
+        self.scene = scene
+        self._cams: dict[tuple, list] = {}
+        self._images: dict[tuple, list[torch.Tensor]] = {}
+
+    def cams(self, plan: tuple[int, int, float]) -> list:
+        if plan not in self._cams:
+            self._cams[plan] = resolving_views(self.scene, *plan)
+        return self._cams[plan]
+
+    def images(self, plan: tuple[int, int, float]) -> list[torch.Tensor]:
+        if plan not in self._images:
+            self._images[plan] = whole_scene_renders(self.scene, self.cams(plan))
+        return self._images[plan]
+
+
 @dataclass
 class Backdrop:
     """A search on a sample (encoder/gaussians/search_sample.py): the whole scene and which of its Gaussians
     the sample is. The search's views are the whole scene's, and every error is the sample's in
     the whole scene, the other Gaussians held at their values (``ViewLayers``): cells cut closed
     surfaces open, and the sample alone would show what the whole scene hides (and hide nothing it
-    shows)."""
+    shows). ``renders``: the whole scene's (made here when not given)."""
     whole: GaussianScene
     members: np.ndarray  # bool [N]
+    renders: SceneRenders | None = None
+
+    def __post_init__(self):
+        if self.renders is None:
+            self.renders = SceneRenders(self.whole)
 
     @property
     def held(self) -> GaussianScene:
@@ -245,16 +272,19 @@ class SettingsSearch:
 
     def __init__(self, scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, lam: float,
                  views: int, resolution: int, sensitivity: np.ndarray | None = None,
-                 backdrop: Backdrop | None = None):
+                 backdrop: Backdrop | None = None, renders: SceneRenders | None = None):
+        """``renders``: ``scene``'s, where another measurement shares them (without a ``backdrop``;
+        with one, its own)."""
         self.scene, self.contrib, self.lam, self.sensitivity = scene, contrib, lam, sensitivity
-        self.cams = resolving_views(scene if backdrop is None else backdrop.whole, views, resolution, cfg.resolve_px)
+        self.whole = backdrop.renders if backdrop is not None else renders or SceneRenders(scene)
+        self.plan = (views, resolution, cfg.resolve_px)
+        self.cams = self.whole.cams(self.plan)
         g = gaussians_from_scene(scene)
         self.backdrop = backdrop
         self.offsets: dict[float, float] = {}  # pruning share -> exact minus layered error (``_mse``)
-        self._whole_targets: list[torch.Tensor] | None = None  # the whole scene's renders, made once
         with torch.no_grad():
             if backdrop is None:
-                self.targets = [render_on_black(g, cam).image for cam in self.cams]
+                self.targets = self.whole.images(self.plan)
                 self.layers = None
             else:
                 held = gaussians_from_scene(backdrop.held)
@@ -342,9 +372,7 @@ class SettingsSearch:
             layered = float(np.mean([(v.error(render_on_black(g, cam)) ** 2).double().mean().item()
                                      for cam, v in zip(self.cams, self.layers)]))
         if share not in self.offsets:
-            if self._whole_targets is None:
-                self._whole_targets = whole_scene_renders(self.backdrop.whole, self.cams)
-            self.offsets[share] = whole_scene_error(self.backdrop, dec, self.cams, self._whole_targets) - layered
+            self.offsets[share] = whole_scene_error(self.backdrop, dec, self.cams, self.whole.images(self.plan)) - layered
         return max(layered + self.offsets[share], 0.0)
 
     def rounding_distortion(self, cfg: GaussianEncoderConfig) -> float:
@@ -540,8 +568,14 @@ def fewest_bits_at_target(s: SettingsSearch, best: Trial, groups: list[str], tar
     for share in PRUNE_LADDER:
         start = best if share == best.cfg.prune_share else s.evaluate(dataclasses.replace(best.cfg, prune_share=share))
         onto_target(s, start, groups, target_mse, evaluations=5)
-    meeting = [t for t in s.trials if t.mse <= target_mse]
-    return min(meeting, key=lambda t: t.bits) if meeting else min(s.trials, key=lambda t: t.mse)
+    return fewest_bits_meeting(s.trials, target_mse)
+
+
+def fewest_bits_meeting(trials: list[Trial], target_mse: float) -> Trial:
+    """Of the ``trials`` that meet the target, the one of fewest bits; the one of least error where
+    none does."""
+    meeting = [t for t in trials if t.mse <= target_mse]
+    return min(meeting, key=lambda t: t.bits) if meeting else min(trials, key=lambda t: t.mse)
 
 
 def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, *,
@@ -579,15 +613,16 @@ def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEnco
 
 
 def trim_to_target(scene: GaussianScene, weights: np.ndarray, cfg: GaussianEncoderConfig, *,
-                   sensitivity: np.ndarray | None = None, log=None,
-                   backdrop: Backdrop | None = None) -> tuple[GaussianEncoderConfig, Trial, Trial]:
+                   sensitivity: np.ndarray | None = None, log=None, backdrop: Backdrop | None = None,
+                   renders: SceneRenders | None = None) -> tuple[GaussianEncoderConfig, Trial, Trial]:
     """After the fit, which tuned the values to render closer to the source than the search
     measured (about 1 dB), the attribute steps move onto ``cfg.target_psnr`` again (``onto_target``
     on the fitted scene, its grid kept): the fit's gain becomes fewer bytes at the quality asked
-    for (``backdrop``: ``scene`` is a sample of it). -> (settings, the trial before, the trial chosen)."""
+    for (``backdrop``: ``scene`` is a sample of it; ``renders``: ``scene``'s, without one).
+    -> (settings, the trial before, the trial chosen)."""
     as_fitted = dataclasses.replace(cfg, prune_share=0.0)  # the scene is already pruned
     s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution, sensitivity,
-                       backdrop)
+                       backdrop, renders)
     groups = _attribute_groups(scene)
     before = s.evaluate(as_fitted)
     best = onto_target(s, before, groups, 10 ** (-cfg.target_psnr / 10), evaluations=4)
@@ -629,17 +664,75 @@ def onto_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: f
             f_meet = f if f_meet is None else max(f_meet, f)
         else:
             f_fail = f if f_fail is None else min(f_fail, f)
-    if f_meet is not None:
-        return min((t for t in trials.values() if t.mse <= target_mse), key=lambda t: t.bits)
-    return min(trials.values(), key=lambda t: t.mse)
+    return fewest_bits_meeting(list(trials.values()), target_mse)
 
 
 # Whole-scene trials the check of a sampled choice may add to move it onto the target (each
-# renders and codes the whole scene).
-WHOLE_SCENE_MOVES = 2
+# renders and codes the whole prepared scene: 12-23 s each on the logo, 307k, at load 3-5): at most
+# 1 + 5 in all.
+WHOLE_SCENE_MOVES = 5
 # How far above the target (dB) the whole scene may render before the check moves the steps
-# coarser (a miss below the target is always moved).
+# coarser (a miss below the target is always moved); its moves aim at the middle of this band.
 WHOLE_SCENE_TOLERANCE = 0.25
+# The exponent k of error ~ f^k (f: the common factor on the attribute steps) the check's first move
+# assumes; later moves measure it on the check's own trials. Measured: the logo (307k, medium) 2.5
+# to 4.5 coarser (48.76 dB at x1, 45.78 at x1.31, 44.61 at x1.39, 37.60 at x2.31: k = 1, the full
+# target / error, overshot by 7.4 dB), the donut (20k sample, 4 views of 64 px) 3.0 finer, playbot
+# lod4 (3k sample, the same views) 2.1 finer (tools/results/search_sampling.md (h)).
+WHOLE_SCENE_FIRST_EXPONENT = 2.0
+# The most one move of the check changes the steps by, and the range of the exponents it measures.
+WHOLE_SCENE_MAX_MOVE = 4.0
+WHOLE_SCENE_EXPONENTS = (0.25, 4.0)
+# Where in a bracket (log f) a move may land at the least and the most: the secant, kept off its
+# ends, shrinks the bracket by a quarter at least (the logo's error is not a smooth power of f).
+WHOLE_SCENE_BRACKET = (0.25, 0.75)
+
+
+def _measured_exponent(f1: float, e1: float, f2: float, e2: float) -> float:
+    """k of e ~ f^k through two trials (factor, error), within WHOLE_SCENE_EXPONENTS."""
+    lo, hi = WHOLE_SCENE_EXPONENTS
+    k = math.log(max(e2, 1e-30) / max(e1, 1e-30)) / math.log(f2 / f1)
+    return min(max(k, lo), hi)
+
+
+def whole_scene_move(measured: dict[float, float], target_mse: float) -> float | None:
+    """The common factor (on the first trial's attribute steps) of the whole-scene check's next
+    trial, from its trials so far (factor -> error); None when the largest factor that meets the
+    target is within WHOLE_SCENE_TOLERANCE of it, or when the trials bracket the target within 1%
+    in factor. The error taken as c f^k: k through the two trials that bracket the target, else
+    through the two nearest it on its one side (all too good, or all missing), else
+    WHOLE_SCENE_FIRST_EXPONENT; the move aims at the middle of the band, stays inside a bracket
+    (WHOLE_SCENE_BRACKET) and within a factor WHOLE_SCENE_MAX_MOVE of the trial it starts from.
+    The check once had 2 moves, the second finer by the full target / error after a miss: on the
+    logo it stopped 1.7 dB above the target, +4.8% bytes (tools/results/search_sampling.md (f), (h))."""
+    meet = sorted(f for f, e in measured.items() if e <= target_mse)
+    fail = sorted(f for f, e in measured.items() if e > target_mse)
+    if meet and measured[meet[-1]] * 10 ** (WHOLE_SCENE_TOLERANCE / 10) >= target_mse:
+        return None
+    aim = target_mse * 10 ** (-WHOLE_SCENE_TOLERANCE / 20)
+    if meet and fail:
+        a, b = meet[-1], fail[0]
+        if b <= a * 1.01:
+            return None
+        f = a * (aim / measured[a]) ** (1 / _measured_exponent(a, measured[a], b, measured[b]))
+        lo, hi = WHOLE_SCENE_BRACKET
+        return min(max(f, a * (b / a) ** lo), a * (b / a) ** hi)
+    near = meet[::-1] if meet else fail  # the nearest the target first
+    a = near[0]
+    k = _measured_exponent(a, measured[a], near[1], measured[near[1]]) if len(near) > 1 else WHOLE_SCENE_FIRST_EXPONENT
+    return min(max(a * (aim / measured[a]) ** (1 / k), a / WHOLE_SCENE_MAX_MOVE), a * WHOLE_SCENE_MAX_MOVE)
+
+
+def common_factor_trials(measure, target_mse: float) -> dict[float, Trial]:
+    """The whole-scene check's trials, factor -> Trial (``measure(f)``: the trial with every
+    attribute step times f): f = 1, then at most WHOLE_SCENE_MOVES more from ``whole_scene_move``."""
+    trials = {1.0: measure(1.0)}
+    for _ in range(WHOLE_SCENE_MOVES):
+        f = whole_scene_move({f: t.mse for f, t in trials.items()}, target_mse)
+        if f is None or f in trials:
+            break
+        trials[f] = measure(f)
+    return trials
 
 
 def _attribute_groups(scene: GaussianScene) -> list[str]:
@@ -647,16 +740,16 @@ def _attribute_groups(scene: GaussianScene) -> list[str]:
 
 
 def sample_distortion_ratio(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig,
-                            sample: np.ndarray) -> float:
+                            sample: np.ndarray, renders: SceneRenders | None = None) -> float:
     """The whole scene's squared error over the sample's (``sample``, encoder/gaussians/search_sample.py) at
     ``cfg``'s steps, plainly rounded without pruning (``plainly_rounded``: a whole-scene trial would
     code the whole scene), on the search views; the sample's error is that of the whole scene
     rendered with only the sample rounded: it covers fewer pixels of the views than the whole, so
-    the same steps measure less error on it. The search asks the sample for the target's error
+    the same steps measure less error on it (``renders``: the scene's, shared with the search's offsets). The search asks the sample for the target's error
     divided by this ratio. Measured on the layers instead, plain rounding's error came out 39% low
     on the donut (20k sample), the ratio 3.80 instead of 2.33 (an RDOQ trial at the same steps on
     whole renders: 2.31), and the search aimed 1-2 dB above the target (search_sampling.md (e), (f))."""
-    whole = SettingsSearch(scene, contrib, cfg, 0.0, cfg.search_views, cfg.search_resolution)
+    whole = SettingsSearch(scene, contrib, cfg, 0.0, cfg.search_views, cfg.search_resolution, renders=renders)
     part = plainly_rounded(scene.subset(sample), contrib[sample], cfg)
     return max(whole.rounding_distortion(cfg), 1e-12) / max(whole._mse(with_held(part, Backdrop(scene, sample))), 1e-12)
 
@@ -668,41 +761,27 @@ def on_sample(cfg: GaussianEncoderConfig, ratio: float) -> GaussianEncoderConfig
     return dataclasses.replace(cfg, target_psnr=cfg.target_psnr + 10 * math.log10(max(ratio, 1e-12)))
 
 
-def whole_scene_move(off_db: float) -> float:
-    """The common factor on every attribute step of the whole-scene check's next trial, from how far
-    (dB) the last one's error is above the target: finer by target / error on a miss (the error
-    falls more slowly than the steps squared: what pruning and the fit left stays), coarser by
-    sqrt(target / error) where it is better than needed (the error grows at most as the steps
-    squared: a safe move); within a factor 4. The check halved every step after a first move
-    that still missed: on the donut a miss of 0.23 dB became 7.5 dB above the target and 30% more
-    bytes (tools/results/search_sampling.md, section (f))."""
-    f = 10 ** (-off_db / 10) if off_db > 0 else 10 ** (-off_db / 20)
-    return min(max(f, 1 / 4), 4.0)
-
-
 def meet_on_whole_scene(scene: GaussianScene, weights: np.ndarray, cfg: GaussianEncoderConfig, *,
-                        sensitivity: np.ndarray | None = None, log=None) -> tuple[GaussianEncoderConfig, list[Trial]]:
+                        sensitivity: np.ndarray | None = None, log=None,
+                        renders: SceneRenders | None = None) -> tuple[GaussianEncoderConfig, list[Trial]]:
     """The check of settings chosen on a sample against ``cfg.target_psnr`` on the whole (fitted,
-    pruned) scene: one trial; while it is off the target by more than WHOLE_SCENE_TOLERANCE, every
-    attribute step times one common factor from the last trial's miss (``whole_scene_move``, at
-    most WHOLE_SCENE_MOVES trials more). Of the trials that meet the target, the fewest bits; the
-    least error where none does. -> (settings, trials)."""
+    pruned) scene: one trial; while the fewest bits that meet the target are off it by more than
+    WHOLE_SCENE_TOLERANCE (or none meets it), every attribute step times one common factor
+    (``whole_scene_move``, at most WHOLE_SCENE_MOVES trials more: at most 6 whole-scene trials). Of
+    the trials that meet the target, the fewest bits; the least error where none does (``renders``:
+    the scene's, where the trim made them). -> (settings, trials)."""
     as_fitted = dataclasses.replace(cfg, prune_share=0.0)  # the scene is already pruned
-    s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution, sensitivity)
+    s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution, sensitivity,
+                       renders=renders)
     target_mse = 10 ** (-cfg.target_psnr / 10)
     groups = _attribute_groups(scene)
-    before = last = s.evaluate(as_fitted)
-    for _ in range(WHOLE_SCENE_MOVES):
-        off_db = 10 * math.log10(max(last.mse, 1e-12) / target_mse)
-        if -WHOLE_SCENE_TOLERANCE <= off_db <= 0:
-            break
-        last = s.evaluate(_scaled(last.cfg, groups, whole_scene_move(off_db)))
-    meeting = [t for t in s.trials if t.mse <= target_mse]
-    best = min(meeting, key=lambda t: t.bits) if meeting else min(s.trials, key=lambda t: t.mse)
+    tried = common_factor_trials(lambda f: s.evaluate(_scaled(as_fitted, groups, f)), target_mse)
+    before, best = tried[1.0], fewest_bits_meeting(s.trials, target_mse)
     if log:
         log(f"settings on the whole scene: {-10 * math.log10(max(before.mse, 1e-12)):.2f} dB at "
             f"{before.bits / 8:,.0f} B" + ("" if best is before else
                                           f" -> {-10 * math.log10(max(best.mse, 1e-12)):.2f} dB at "
-                                          f"{best.bits / 8:,.0f} B") + f" (estimated, {len(s.trials)} trials)")
+                                          f"{best.bits / 8:,.0f} B") + f" (estimated, {len(s.trials)} trials: " +
+            ", ".join(f"steps x{f:.3g} {-10 * math.log10(max(t.mse, 1e-12)):.2f} dB" for f, t in tried.items()) + ")")
     chosen = dataclasses.replace(best.cfg, prune_share=cfg.prune_share) if best is not before else cfg
     return chosen, s.trials
