@@ -466,8 +466,8 @@ def decode_chunk_values(data: bytes, h: AttributeUnitHeader, layout, p: CodingPa
         q = prediction.reconstruct(r, np.asarray(p.mean, dtype=np.int64), f"attribute chunk {i} (level {level})", live)
     else:
         q = r + p.mean
-    if live is not None:
-        q *= live  # values that are not coded are 0
+        if live is not None:
+            q *= live  # values that are not coded are 0 (with cross-channel prediction: reconstruct's rule)
     return q
 
 

@@ -724,7 +724,9 @@ def sh_degree(units, spec: dict) -> None:
     become 0, so the decoded scene changes (rehash the stream). spec: {degrees: a rule of
     sh_degrees_of_rule (default energy), zero_chunks: [i] (the rows of chunk i get degree 0),
     probabilities: extreme (degree_flag_prob[i] 0 for even i, 4095 for odd i) or a list (default:
-    the encoder's, from the flags' counts), and the faults of _degree_chunk_faults}."""
+    the encoder's, from the flags' counts), predictions: [[target, source, weight]] (the unit's
+    cross-channel predictions, e.g. from channels a row may not code), and the faults of
+    _degree_chunk_faults}."""
     from lghcc.common.geometry import decode_geometry
     from lghcc.common.neighbour_prediction import chunk_segments, read_predicted_attribute_unit
     from lghcc.common.units import NUM_DEGREE_CONTEXTS, GaussianParameterSet, NeighbourPredictionUnit, ShDegreeUnit
@@ -759,6 +761,9 @@ def sh_degree(units, spec: dict) -> None:
                                            if probs == "extreme" else [int(p) for p in probs])
     nc = NeighbourCoding(q, coords, unit.num_lods, unit.num_neighbours, unit.num_buckets,
                          bool(h0.num_channel_predictions), layout, unit, graph=nc.graph, degrees=degrees)
+    if "predictions" in spec:  # [[target, source, weight]]: cross-channel predictions of the stream's choosing
+        t, src, w = (np.asarray(col, np.int64) for col in zip(*spec["predictions"]))
+        nc.prediction = attr.ChannelPrediction(t, src, w)
     payload = _degree_chunk_faults(h, nc.write(h), spec)
     units[j] = DataUnit(UnitType.ATTRIBUTE, payload)
     units.insert(k + 1, DataUnit(UnitType.SH_DEGREE, nc.degree_unit.to_bytes()))
