@@ -217,10 +217,14 @@ class ChannelPrediction:
             acc += self.weights[e] * dev[:, self.sources[e]]
         return (acc + (1 << (CHANNEL_PREDICTION_SHIFT - 1))) >> CHANNEL_PREDICTION_SHIFT
 
-    def reconstruct(self, r: np.ndarray, mean: np.ndarray, what: str) -> np.ndarray:
+    def reconstruct(self, r: np.ndarray, mean: np.ndarray, what: str, coded: np.ndarray | None = None) -> np.ndarray:
         """Decoding: q [rows, M] from residuals r and means (broadcastable int64 arrays), checking
-        |q| <= MAX_PREDICTED_MAGNITUDE channel by channel (so no sum can overflow 64 bits)."""
+        |q| <= MAX_PREDICTED_MAGNITUDE channel by channel (so no sum can overflow 64 bits).
+        ``coded`` (bool [rows, M], clause 11.9; None: every value): a value not coded is q = 0
+        whatever its mean and predictions, and a term whose source is not coded is 0."""
         q = r + mean
+        if coded is not None:
+            q *= coded
         if self.empty:
             _check_magnitude(q, what)
             return q
@@ -229,14 +233,21 @@ class ChannelPrediction:
             entries = np.nonzero(self.targets == c)[0]
             if entries.size:
                 q[:, c] += self._term(dev, c, entries)
+                if coded is not None:
+                    q[:, c] *= coded[:, c]
             _check_magnitude(q[:, c], what)
             dev[:, c] = q[:, c] - np.broadcast_to(mean, q.shape)[:, c]
+            if coded is not None:
+                dev[:, c] *= coded[:, c]
         return q
 
-    def residuals(self, q: np.ndarray, mean: np.ndarray) -> np.ndarray:
-        """Encoding: the residuals r that ``reconstruct`` turns back into q."""
+    def residuals(self, q: np.ndarray, mean: np.ndarray, coded: np.ndarray | None = None) -> np.ndarray:
+        """Encoding: the residuals r that ``reconstruct`` turns back into q (with ``coded``: those
+        of the coded values; an uncoded source's deviation counts 0)."""
         mean = np.broadcast_to(mean, q.shape)
         dev = q - mean
+        if coded is not None:
+            dev *= coded
         r = dev.copy()
         for c in np.unique(self.targets):
             r[:, c] -= self._term(dev, int(c), np.nonzero(self.targets == c)[0])
@@ -443,18 +454,20 @@ def _chunk_sizes(h: AttributeUnitHeader) -> list[int]:
 
 
 def decode_chunk_values(data: bytes, h: AttributeUnitHeader, layout, p: CodingParams, prediction: ChannelPrediction,
-                         mask: np.ndarray | None, num_rows: int, i: int, level: int) -> np.ndarray:
+                         mask: np.ndarray | None, num_rows: int, i: int, level: int,
+                         coded: np.ndarray | None = None) -> np.ndarray:
     """The quantized values q [rows, M] of chunk i: its residuals decoded with the scale levels
-    of ``p``, plus the means (and the cross-channel prediction); values not coded are 0."""
-    live = layout.live_channels(mask, num_rows)
+    of ``p``, plus the means (and the cross-channel prediction); values not coded are 0. ``coded``:
+    the rows' coded channels of a stream with an sh_degree unit (clause 11.9), None otherwise."""
+    live = layout.live_channels(mask, num_rows) if coded is None else coded
     check_levels(np.asarray(p.level), f"attribute unit (level {level})")
     r = decode_residual_chunk(data, p.level, live, f"attribute chunk {i}")
     if h.channel_prediction_allowed:
-        q = prediction.reconstruct(r, np.asarray(p.mean, dtype=np.int64), f"attribute chunk {i} (level {level})")
+        q = prediction.reconstruct(r, np.asarray(p.mean, dtype=np.int64), f"attribute chunk {i} (level {level})", live)
     else:
         q = r + p.mean
-    if live is not None:
-        q *= live  # values that are not coded are 0
+        if live is not None:
+            q *= live  # values that are not coded are 0 (with cross-channel prediction: reconstruct's rule)
     return q
 
 

@@ -19,7 +19,7 @@ from .syntax import SyntaxStructure, SyntaxVisitor
 
 MAGIC = 0x4C474843  # "LGHC"
 VERSION_MAJOR = 1
-VERSION_MINOR = 2  # this decoder's version: 1.2
+VERSION_MINOR = 3  # this decoder's version: 1.3
 BASE_VERSION_MINOR = 1  # the version of a stream that uses no tool of a later minor version (clause 6.2)
 ANCILLARY_UNIT_TYPE_MIN = 0x80
 UNIT_HEADER_BYTES = 5
@@ -41,6 +41,7 @@ class UnitType(IntEnum):
     TILE_INDEX = 0x08  # version 1: where each tile's units are, its grid cell and point count (clause 7.3.11)
     NEIGHBOUR_PREDICTION = 0x09  # version 1.1: LoD coding of Gaussian attributes from their neighbours (7.3.12)
     STEP_ADJUST = 0x0A  # version 1.2: a step-adjustment index per Gaussian (7.3.13)
+    SH_DEGREE = 0x0B  # version 1.3: an SH degree per Gaussian (7.3.14)
 
 
 class AncillaryUnitType(IntEnum):
@@ -105,8 +106,9 @@ CONTAINER_HEADER_BYTES = 8
 
 
 # A stream's version_minor is the lowest whose tools it uses (clause 6.2): a stream without a
-# step_adjust unit is a version 1.1 stream, which a decoder of version 1.1 decodes.
-FIRST_MINOR_OF_UNIT = {UnitType.STEP_ADJUST: 2}
+# step_adjust unit is a version 1.1 stream, which a decoder of version 1.1 decodes (and one
+# without an sh_degree unit a version 1.2 stream at most).
+FIRST_MINOR_OF_UNIT = {UnitType.STEP_ADJUST: 2, UnitType.SH_DEGREE: 3}
 
 
 def version_minor_of(units: list[DataUnit]) -> int:

@@ -38,8 +38,10 @@ from .bitio import BitReader
 from .entropy.symbol_coder import decode_symbols, encode_symbols, escape_class
 from .errors import BitstreamError
 from .knn import MAX_EXTENT, ball_knn
+from .sh_degree import coded_channels, decode_degree_chunk, encode_degree_chunk, neighbour_degrees
 from .syntax import TraceEntry
-from .units import CONTEXT_PER_CHANNEL_PRIOR, LEVEL_ALL, AttributeUnitHeader, NeighbourPredictionUnit, StepAdjustUnit
+from .units import (CONTEXT_PER_CHANNEL_PRIOR, LEVEL_ALL, AttributeUnitHeader, NeighbourPredictionUnit, ShDegreeUnit,
+                    StepAdjustUnit)
 
 # the whole extent of a tile lies in this ball (every d2 of an admissible tile is below it)
 WHOLE_EXTENT_RADIUS_SQ = 3 * MAX_EXTENT * MAX_EXTENT
@@ -239,23 +241,47 @@ def _adjust_levels(h: AttributeUnitHeader, n: int) -> np.ndarray:
     return np.full((n, 1), h.adjust_level, dtype=np.int64)
 
 
+def chunk_neighbours(graph: NeighbourGraph, level: int, lo: int, hi: int) -> np.ndarray | None:
+    """The neighbours of rows lo..hi-1 of LoD ``level`` (None for LoD 0, which has none)."""
+    return None if level == 0 else graph.neighbours[level][lo:hi]
+
+
+def chunk_coded_channels(layout, row_degrees: np.ndarray) -> np.ndarray | None:
+    """The coded channels of a chunk's rows (clause 11.9); None when every channel of every row is
+    coded (the rows all have D = d), so that the symbols take the paths without a mask."""
+    if not row_degrees.size or int(row_degrees.min()) == layout.sh_degree:
+        return None
+    return coded_channels(layout.sh_channels, layout.num_channels, row_degrees)
+
+
+def _check_chunk_options(h: AttributeUnitHeader, adjust, degrees, degree_unit) -> None:
+    if (adjust is not None) != bool(h.step_adjust_present):
+        raise ValueError("step-adjustment indices must be given exactly when the header has StepAdjustPresent")
+    if (degrees is not None) != bool(h.sh_degree_present) or (degrees is None) != (degree_unit is None):
+        raise ValueError("SH degrees and the sh_degree unit must be given exactly when the header has "
+                         "ShDegreePresent")
+
+
 def write_predicted_attribute_unit(h: AttributeUnitHeader, layout, q: np.ndarray, graph: NeighbourGraph,
                                    unit: NeighbourPredictionUnit,
                                    prediction: ChannelPrediction | None = None,
-                                   adjust: np.ndarray | None = None) -> bytes:
+                                   adjust: np.ndarray | None = None, degrees: np.ndarray | None = None,
+                                   degree_unit: ShDegreeUnit | None = None) -> bytes:
     """Code q [N, M] (rows in the tile's normative order) LoD by LoD; LoD 0 with the header's
     per-channel prior. Fills the header's chunk sizes (and cross-channel prediction entries).
     ``adjust``: each row's step-adjustment index (h.step_adjust_present, with the header's
-    adjust_mean and adjust_level set), coded in a chunk before each chunk of values."""
+    adjust_mean and adjust_level set), coded in a chunk before each chunk of values. ``degrees``:
+    each row's SH degree (h.sh_degree_present, with the stream's ``degree_unit``), coded in a chunk
+    before each chunk of values, which then holds only the rows' coded channels (the values of the
+    others must be 0 in q)."""
     prediction = prediction or ChannelPrediction.none()
     if h.channel_prediction_allowed:
         prediction.to_header(h)
-    if (adjust is not None) != bool(h.step_adjust_present):
-        raise ValueError("step-adjustment indices must be given exactly when the header has StepAdjustPresent")
+    _check_chunk_options(h, adjust, degrees, degree_unit)
     h.num_lods = unit.num_lods
     table, prior = level_table(unit), prior_params(h)
     chunks: list[bytes] = []
-    h.mask_chunk_size, h.adjust_chunk_size, h.chunk_size = [], [], []
+    h.mask_chunk_size, h.adjust_chunk_size, h.degree_chunk_size, h.chunk_size = [], [], [], []
     params = None
     for level, lo, hi in chunk_segments(h, graph):
         rows = graph.rows[level][lo:hi]
@@ -268,26 +294,61 @@ def write_predicted_attribute_unit(h: AttributeUnitHeader, layout, q: np.ndarray
             if lo == 0:
                 params = _lod_params(level, q, graph, prior, table, mean_flags(unit), unit.num_buckets)
             p = params.rows(lo, hi, layout.num_channels)
-        chunks.append(encode_residual_chunk(prediction.residuals(q[rows], p.mean), p.level, None))
+        coded = None
+        if degrees is not None:
+            nd = neighbour_degrees(chunk_neighbours(graph, level, lo, hi), degrees)
+            chunks.append(encode_degree_chunk(degrees[rows], nd, degree_unit))
+            h.degree_chunk_size.append(len(chunks[-1]))
+            coded = chunk_coded_channels(layout, degrees[rows])
+        chunks.append(encode_residual_chunk(prediction.residuals(q[rows], p.mean, coded), p.level, coded))
         h.chunk_size.append(len(chunks[-1]))
     return h.to_bytes() + b"".join(chunks)
+
+
+def chunk_piece_sizes(h: AttributeUnitHeader) -> list[int]:
+    """The sizes of the unit's chunk data in stream order: per chunk, [its step-adjustment data],
+    [its SH-degree data], then its symbol data (clause 7.3.5)."""
+    columns = [h.adjust_chunk_size] * bool(h.step_adjust_present) + [h.degree_chunk_size] * bool(h.sh_degree_present)
+    return [x for sizes in zip(*columns, h.chunk_size) for x in sizes]
+
+
+def _decode_chunk_degrees(piece: bytes, graph: NeighbourGraph, level: int, lo: int, hi: int, degrees: np.ndarray,
+                          unit: ShDegreeUnit, layout, i: int) -> np.ndarray | None:
+    """Chunk i's SH degrees into ``degrees`` (clause 11.9) -> its rows' coded channels (None: all)."""
+    nd = neighbour_degrees(chunk_neighbours(graph, level, lo, hi), degrees)
+    d = decode_degree_chunk(piece, hi - lo, nd, unit, f"SH-degree chunk {i}")
+    degrees[graph.rows[level][lo:hi]] = d
+    return chunk_coded_channels(layout, d)
+
+
+def _decode_chunk_adjust(piece: bytes, h: AttributeUnitHeader, step_adjust: StepAdjustUnit, num_rows: int,
+                         i: int) -> np.ndarray:
+    """The step-adjustment indices (int64 [num_rows]) of chunk i (clause 11.8; above max_step_adjust: E65)."""
+    a = decode_symbols(piece, _adjust_levels(h, num_rows), f"step-adjustment chunk {i}")[:, 0] + h.adjust_mean
+    if a.size and (a.min() < 0 or a.max() > step_adjust.max_step_adjust):
+        raise BitstreamError(f"step-adjustment chunk {i}: an index is outside [0, max_step_adjust = "
+                             f"{step_adjust.max_step_adjust}]")
+    return a
 
 
 def read_predicted_attribute_unit(payload: bytes, layout, steps: np.ndarray, coords: np.ndarray,
                                   unit: NeighbourPredictionUnit, values_out: np.ndarray,
                                   trace: list[TraceEntry] | None = None, on_chunk=None,
-                                  step_adjust: StepAdjustUnit | None = None) -> AttributeUnitHeader:
+                                  step_adjust: StepAdjustUnit | None = None,
+                                  sh_degree: ShDegreeUnit | None = None) -> AttributeUnitHeader:
     """Parse and decode the attribute unit of a tile of ``coords`` (normative order) coded with
     neighbour prediction (clause 13.2 with 11.7): the values of row i go to values_out[i]. With
     the stream's ``step_adjust`` unit, each chunk of values follows the chunk of its rows'
-    step-adjustment indices (clause 11.8)."""
+    step-adjustment indices (clause 11.8); with its ``sh_degree`` unit, the chunk of their SH
+    degrees (clause 11.9)."""
     n = coords.shape[0]
     what = "attribute unit (neighbour prediction)"
     reader = BitReader(payload, what)
     h = AttributeUnitHeader.parse(reader, trace, num_channels=layout.num_channels, num_offsets=layout.num_offsets,
                                   offset_mask_present=layout.offset_mask_present,
                                   channel_prediction_allowed=layout.channel_prediction_allowed, num_rows=n,
-                                  num_lods=unit.num_lods, step_adjust_present=int(step_adjust is not None))
+                                  num_lods=unit.num_lods, step_adjust_present=int(step_adjust is not None),
+                                  sh_degree_present=int(sh_degree is not None))
     if h.attribute_level != LEVEL_ALL:
         raise BitstreamError(f"{what}: attribute_level {h.attribute_level} where level 0 is expected")
     if h.num_rows_minus1 + 1 != n:  # clause 8.3 rule 8
@@ -301,21 +362,16 @@ def read_predicted_attribute_unit(payload: bytes, layout, steps: np.ndarray, coo
     prediction = ChannelPrediction.from_header(h, what)
     graph = neighbour_graph(coords, unit.num_lods, unit.num_neighbours)
     table, prior = level_table(unit), prior_params(h)
-    sizes = list(h.chunk_size) if step_adjust is None else \
-        [x for pair in zip(h.adjust_chunk_size, h.chunk_size) for x in pair]
-    pieces = iter(split_chunks(payload[reader.bit_position // 8:], sizes, what))
+    pieces = iter(split_chunks(payload[reader.bit_position // 8:], chunk_piece_sizes(h), what))
     q_all = np.zeros((n, layout.num_channels), dtype=np.int64)
     adjust = None if step_adjust is None else np.zeros(n, dtype=np.int64)
+    degrees = None if sh_degree is None else np.zeros(n, dtype=np.int64)
     params = None
     for i, (level, lo, hi) in enumerate(chunk_segments(h, graph)):
         rows = graph.rows[level][lo:hi]
         row_adjust = None
         if adjust is not None:
-            a = decode_symbols(next(pieces), _adjust_levels(h, hi - lo), f"step-adjustment chunk {i}")[:, 0] \
-                + h.adjust_mean
-            if a.size and (a.min() < 0 or a.max() > step_adjust.max_step_adjust):
-                raise BitstreamError(f"step-adjustment chunk {i}: an index is outside [0, max_step_adjust = "
-                                     f"{step_adjust.max_step_adjust}]")
+            a = _decode_chunk_adjust(next(pieces), h, step_adjust, hi - lo, i)
             adjust[rows] = a
             row_adjust = a[:, None]
             p = _adjusted_chunk_params(level, lo, hi, q_all, graph, prior, table, mean_flags(unit),
@@ -324,7 +380,9 @@ def read_predicted_attribute_unit(payload: bytes, layout, steps: np.ndarray, coo
             if lo == 0:
                 params = _lod_params(level, q_all, graph, prior, table, mean_flags(unit), unit.num_buckets)
             p = params.rows(lo, hi, layout.num_channels)
-        q = decode_chunk_values(next(pieces), h, layout, p, prediction, None, hi - lo, i, LEVEL_ALL)
+        coded = None if degrees is None else \
+            _decode_chunk_degrees(next(pieces), graph, level, lo, hi, degrees, sh_degree, layout, i)
+        q = decode_chunk_values(next(pieces), h, layout, p, prediction, None, hi - lo, i, LEVEL_ALL, coded)
         q_all[rows] = q
         target = np.empty((hi - lo, layout.num_channels), np.float32)
         reconstruct_chunk(q, steps, row_adjust, target, i, LEVEL_ALL)

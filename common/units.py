@@ -51,6 +51,10 @@ MAX_ACTIVITY_BUCKETS = 16
 # Step adjustment (version 1.2, clause 7.3.13): per-row indices into STEP_ADJUST_FACTORS (0..7)
 MAX_STEP_ADJUST = 7
 STEP_ADJUST_BITS = 3
+# Per-Gaussian SH degree (version 1.3, clause 7.3.14): binary band flags, one probability per band
+# and context, u(12) in units of 2^-12
+NUM_DEGREE_CONTEXTS = 6
+DEGREE_PROB_BITS = 12
 
 HASH_TYPE_SHA256 = 1
 
@@ -265,8 +269,11 @@ class AttributeUnitHeader(SyntaxStructure):
     step_adjust_present: int = 0
     adjust_mean: int = 0
     adjust_level: int = 0
+    # context (clause 7.3.14): 1 when the stream has an sh_degree unit
+    sh_degree_present: int = 0
     mask_chunk_size: list = field(default_factory=list)
     adjust_chunk_size: list = field(default_factory=list)
+    degree_chunk_size: list = field(default_factory=list)
     chunk_size: list = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -311,12 +318,15 @@ class AttributeUnitHeader(SyntaxStructure):
         v.ue(self, "num_rows_minus1", hi=MAX_ANCHORS - 1)  # = NumRows - 1: checked after parsing (clause 8.3)
         v.ue(self, "rows_per_chunk_minus1", hi=self.num_rows_minus1)
         sizes = ("mask_chunk_size",) * bool(self.offset_mask_present) \
-            + ("adjust_chunk_size",) * bool(self.step_adjust_present) + ("chunk_size",)
+            + ("adjust_chunk_size",) * bool(self.step_adjust_present) \
+            + ("degree_chunk_size",) * bool(self.sh_degree_present) + ("chunk_size",)
         for i in v.loop(self.num_chunks, "NumChunks", self, sizes):
             for _ in v.when(self.offset_mask_present, "offset_mask_present_flag"):
                 v.ue(self, "mask_chunk_size", i)
             for _ in v.when(self.step_adjust_present, "StepAdjustPresent"):
                 v.ue(self, "adjust_chunk_size", i)
+            for _ in v.when(self.sh_degree_present, "ShDegreePresent"):
+                v.ue(self, "degree_chunk_size", i)
             v.ue(self, "chunk_size", i)
         v.byte_align()
 
@@ -350,6 +360,8 @@ class NeighbourPredictionUnit(SyntaxStructure):
     bucket_level: list = field(default_factory=list)
     # context (clause 7.3.13): the stream's step_adjust unit, None without one (not a syntax element)
     step_adjust: object = None
+    # context (clause 7.3.14): the stream's sh_degree unit, None without one (not a syntax element)
+    sh_degree_unit: object = None
 
     def syntax(self, v: SyntaxVisitor) -> None:
         v.u(4, self, "num_lods_minus1", hi=MAX_LOD_LEVELS - 1)
@@ -387,6 +399,25 @@ class StepAdjustUnit(SyntaxStructure):
 
     def syntax(self, v: SyntaxVisitor) -> None:
         v.u(STEP_ADJUST_BITS, self, "max_step_adjust")
+        v.byte_align()
+
+
+@dataclass
+class ShDegreeUnit(SyntaxStructure):
+    """sh_degree unit (0x0B, version 1.3, clause 7.3.14): every row of a Gaussian stream coded
+    with neighbour prediction has an SH degree D in [0, sh_degree], coded as binary band flags
+    (clause 11.9); ``degree_flag_prob[(b - 1) * NumDegreeContexts + x]`` is the probability (in
+    2^-12, plus half a unit) of band b's flag in context x."""
+
+    syntax_name = "sh_degree_unit"
+    clause = "7.3.14"
+    sh_degree: int = 0  # context: d of the gaussian_parameter_set
+    degree_flag_prob: list = field(default_factory=list)
+
+    def syntax(self, v: SyntaxVisitor) -> None:
+        count = self.sh_degree * NUM_DEGREE_CONTEXTS
+        for i in v.loop(count, "sh_degree * NumDegreeContexts", self, ("degree_flag_prob",)):
+            v.u(DEGREE_PROB_BITS, self, "degree_flag_prob", i)
         v.byte_align()
 
 

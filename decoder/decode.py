@@ -46,7 +46,8 @@ from ..common.syntax import TraceEntry
 from ..common.tiles import Box, check_points_in_cell, check_tile_index, cell_intersects_box
 from ..common.neighbour_prediction import read_predicted_attribute_unit
 from ..common.units import (CONTEXT_GGCONV, LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ATTRIBUTE_VALUES, DecodedSceneHashUnit,
-                            GaussianParameterSet, NeighbourPredictionUnit, SceneParameterSet, SourceInfo, StepAdjustUnit,
+                            GaussianParameterSet, NeighbourPredictionUnit, SceneParameterSet, ShDegreeUnit, SourceInfo,
+                            StepAdjustUnit,
                             TileIndex)
 from ..app.workers import available_cpus, shared_array
 from .jobs import PREVIEW_VALUE_SHARE, WorkerPlan, plan_workers, tile_seconds
@@ -55,10 +56,10 @@ from .limits import DEFAULT_MAX_MEMORY, MemoryPlan
 _LETTER = {UnitType.SCENE_PARAMETER_SET: "S", UnitType.GAUSSIAN_PARAMETER_SET: "P", UnitType.RENDER_MODEL: "R",
            UnitType.GEOMETRY: "G", UnitType.CONTEXT_MODEL: "C", UnitType.ATTRIBUTE: "A",
            UnitType.DECODED_SCENE_HASH: "H", UnitType.TILE_INDEX: "I", UnitType.NEIGHBOUR_PREDICTION: "N",
-           UnitType.STEP_ADJUST: "Q"}
+           UnitType.STEP_ADJUST: "Q", UnitType.SH_DEGREE: "B"}
 # an anchor scene, or an explicit-Gaussian scene, which has no render model but may have neighbour
-# prediction (and with it step adjustment); then the tiles
-_UNIT_ORDER = re.compile(r"(SR?|P(NQ?)?)C?I?(GA{1,2}H)+")
+# prediction (and with it step adjustment and the SH degrees); then the tiles
+_UNIT_ORDER = re.compile(r"(SR?|P(NQ?B?)?)C?I?(GA{1,2}H)+")
 
 
 @dataclass
@@ -124,7 +125,7 @@ def organize_units(container: Container, known: list[DataUnit] | None = None) ->
         names = ", ".join(u.type_name for u in critical)
         raise BitstreamError(f"data units are out of order or repeated: {names} (expected scene_parameter_set, "
                              "[render_model], [context_model], [tile_index], then per tile geometry, attribute "
-                             "(1 or 2), decoded_scene_hash; or gaussian_parameter_set, [neighbour_prediction [step_adjust]], "
+                             "(1 or 2), decoded_scene_hash; or gaussian_parameter_set, [neighbour_prediction [step_adjust] [sh_degree]], "
                              "[context_model], "
                              "[tile_index], then the tiles)")
     if "I" not in letters and letters.count("G") > 1:
@@ -205,10 +206,11 @@ def read_context_model_unit(context_unit: DataUnit | None, ps, layout, entries):
 
 
 def read_neighbour_prediction_unit(unit: DataUnit | None, ps, layout, entries,
-                                   step_adjust_unit: DataUnit | None = None) -> NeighbourPredictionUnit | None:
+                                   step_adjust_unit: DataUnit | None = None,
+                                   sh_degree_unit: DataUnit | None = None) -> NeighbourPredictionUnit | None:
     """The stream's neighbour_prediction unit (None without one), with the stream's step_adjust
-    unit as its context (the unit order puts it only after a neighbour_prediction unit). Raises
-    BitstreamError."""
+    and sh_degree units as its context (the unit order puts them only after a neighbour_prediction
+    unit). Raises BitstreamError."""
     if unit is None:
         return None
     if ps.hierarchy_enabled_flag:
@@ -217,6 +219,9 @@ def read_neighbour_prediction_unit(unit: DataUnit | None, ps, layout, entries,
                                                    num_channels=layout.num_channels)
     if step_adjust_unit is not None:
         neighbour.step_adjust = StepAdjustUnit.from_bytes(step_adjust_unit.payload, entries, what="step_adjust unit")
+    if sh_degree_unit is not None:
+        neighbour.sh_degree_unit = ShDegreeUnit.from_bytes(sh_degree_unit.payload, entries, what="sh_degree unit",
+                                                           sh_degree=ps.sh_degree)
     return neighbour
 
 
@@ -234,7 +239,7 @@ def decode_predicted_attribute_units(attribute_units: list[DataUnit], layout, st
         memory.check_predicted_attribute_unit(n, unit)
     bar = progress_bar(total=n, desc="decode attributes", unit="point", disable=not progress, leave=False)
     read_predicted_attribute_unit(attribute_units[0].payload, layout, steps, coords, unit, values, entries,
-                                  on_chunk=bar.update, step_adjust=unit.step_adjust)
+                                  on_chunk=bar.update, step_adjust=unit.step_adjust, sh_degree=unit.sh_degree_unit)
     bar.close()
     return _Levels(values, None, None)
 
@@ -540,7 +545,8 @@ def parse_stream(data: bytes, entries: list[TraceEntry] | None = None, *, max_an
         mlps = read_render_model_unit(by_type[UnitType.RENDER_MODEL][0].payload, entries)
     context_model = read_context_model_unit(by_type.get(UnitType.CONTEXT_MODEL, [None])[0], ps, layout, entries)
     neighbour = read_neighbour_prediction_unit(by_type.get(UnitType.NEIGHBOUR_PREDICTION, [None])[0], ps, layout,
-                                               entries, by_type.get(UnitType.STEP_ADJUST, [None])[0])
+                                               entries, by_type.get(UnitType.STEP_ADJUST, [None])[0],
+                                               by_type.get(UnitType.SH_DEGREE, [None])[0])
     if neighbour is not None:
         context_model = neighbour  # the attribute units' context (the stream has no context model)
     tiles, _ = tiles_of(units, by_type, ps.num_anchors, entries)
@@ -649,6 +655,8 @@ def _stream_tools(ps, decoded: DecodedTiles, context_model, point: str, num_tile
         if context_model.step_adjust is not None:
             tools.append(f"step adjustment (a step per Gaussian, up to 2^({context_model.step_adjust.max_step_adjust}"
                          "/4) times its channel's)")
+        if context_model.sh_degree_unit is not None:
+            tools.append(f"per-Gaussian SH degree (0 to {context_model.sh_degree_unit.sh_degree})")
     if not ps.hierarchy_enabled_flag:
         return tools
     n1, n2 = sum(c[0] for c in decoded.level_counts), sum(c[1] for c in decoded.level_counts)

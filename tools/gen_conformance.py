@@ -683,6 +683,18 @@ def synthetic_sensitivity(scene, spec: dict | None) -> np.ndarray | None:
     return visibility[:, None] * 10.0 ** rng.uniform(2, 4, size=m)[None, :]
 
 
+def synthetic_sh_degrees(scene, spec: dict | None) -> np.ndarray | None:
+    """Each Gaussian's SH degree (format 1.3) as an entry's ``sh_degrees`` gives it: {rule} of
+    tools/stream_edits.py sh_degrees_of_rule, from the source's SH-rest energy (the sum of the
+    squares of its coefficients of bands 1 .. d). None without the key (every band coded)."""
+    if not spec:
+        return None
+    from stream_edits import sh_degrees_of_rule
+
+    energy = (scene.sh[:, 1:].astype(np.float64) ** 2).sum(axis=(1, 2))
+    return sh_degrees_of_rule(energy, scene.sh_degree, str(spec.get("rule", "energy")))
+
+
 def generate(entry: dict) -> tuple[bytes, str | None]:
     """-> (stream bytes, decoded scene SHA-256 hex or None when the stream must be rejected)."""
     import torch
@@ -722,7 +734,8 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
             overrides = {"neighbour_prediction": False, **(entry.get("config") or {})}
             cfg = load_config(entry.get("preset", "medium"), overrides=overrides, kind="gaussians")
             scene = build_scene(entry["scene"])
-            result = encode_gaussian_scene(scene, cfg, sensitivity=synthetic_sensitivity(scene, entry.get("sensitivity")))
+            result = encode_gaussian_scene(scene, cfg, sensitivity=synthetic_sensitivity(scene, entry.get("sensitivity")),
+                                           sh_degrees=synthetic_sh_degrees(scene, entry.get("sh_degrees")))
         else:
             cfg = load_config(entry.get("preset", "medium"), overrides=entry.get("config"))
             result = encode_scene(build_scene(entry["scene"]), cfg)
@@ -789,6 +802,7 @@ Tags of test.yaml `tools`, derived from the reference decoder's result (never wr
   context_model_unit    a context-model unit
   neighbour_prediction  a neighbour_prediction unit (version 1.1, clause 7.3.12): attributes coded by LoD
   step_adjust           a step_adjust unit (version 1.2, clause 7.3.13): a step-adjustment index per Gaussian
+  sh_degree             an sh_degree unit (version 1.3, clause 7.3.14): an SH degree per Gaussian
   gaussians             an explicit-Gaussian scene (gaussian_parameter_set), sh_degree_<d> its SH degree
   channel_prediction    an attribute unit with cross-channel predictions (clause 11.6)
   offset_mask           offset_mask_present_flag = 1
@@ -855,6 +869,8 @@ def _structure_tags(data: bytes) -> set[str]:
         tags.add("neighbour_prediction")
     if UnitType.STEP_ADJUST in types:
         tags.add("step_adjust")
+    if UnitType.SH_DEGREE in types:
+        tags.add("sh_degree")
     if any(u.is_ancillary for u in units):
         tags.add("ancillary_unit")
     sps_units = [u for u in units if u.unit_type == UnitType.SCENE_PARAMETER_SET]

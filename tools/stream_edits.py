@@ -677,6 +677,98 @@ def step_adjust(units, spec: dict) -> None:
     units.insert(k + 1, DataUnit(UnitType.STEP_ADJUST, StepAdjustUnit(max_step_adjust=top).to_bytes()))
 
 
+def sh_degrees_of_rule(sh_rest_energy: np.ndarray, sh_degree: int, rule: str) -> np.ndarray:
+    """Each Gaussian's SH degree (int64 [n]) by a conformance entry's rule: ``energy`` (the Gaussian
+    of rank r among n by its SH-rest energy, ties by index, gets floor((d + 1) r / n): the degrees
+    mixed, higher where the colour changes more with the view), ``const:<D>`` (every Gaussian D) or
+    ``cycle`` (row i gets i mod (d + 1))."""
+    n = sh_rest_energy.shape[0]
+    if rule == "energy":
+        rank = np.empty(n, np.int64)
+        rank[np.argsort(sh_rest_energy, kind="stable")] = np.arange(n)
+        return (sh_degree + 1) * rank // max(n, 1)
+    if rule.startswith("const:"):
+        return np.full(n, int(rule.split(":")[1]), np.int64)
+    if rule == "cycle":
+        return np.arange(n, dtype=np.int64) % (sh_degree + 1)
+    raise ValueError(f"sh_degrees: unknown rule {rule!r}")
+
+
+def _degree_chunk_faults(h: AttributeUnitHeader, payload: bytes, spec: dict) -> bytes:
+    """The attribute unit ``payload`` (header ``h`` as written) with some of its SH-degree chunks
+    emptied (``empty_degree_chunks``: [i], degree_chunk_size[i] 0), words appended to one
+    (``append_degree_hex``: {chunk, hex}, sizes kept consistent) or ``degree_chunk_size_add`` bytes
+    added to degree_chunk_size[0] alone (the sizes then miss the payload)."""
+    from lghcc.common.neighbour_prediction import chunk_piece_sizes
+
+    sizes = chunk_piece_sizes(h)
+    body, pos, pieces = payload[len(h.to_bytes()):], 0, []
+    for size in sizes:
+        pieces.append(body[pos:pos + size])
+        pos += size
+    per = len(sizes) // len(h.chunk_size)  # pieces per chunk: the degree data is the one before the symbols
+    for i in spec.get("empty_degree_chunks", []):
+        pieces[per * i + per - 2] = b""
+    if "append_degree_hex" in spec:
+        a = spec["append_degree_hex"]
+        pieces[per * int(a["chunk"]) + per - 2] += bytes.fromhex(a["hex"])
+    h.degree_chunk_size = [len(pieces[per * i + per - 2]) for i in range(len(h.chunk_size))]
+    h.degree_chunk_size[0] += int(spec.get("degree_chunk_size_add", 0))
+    return h.to_bytes() + b"".join(pieces)
+
+
+def sh_degree(units, spec: dict) -> None:
+    """Give every row of the single attribute unit of an explicit-Gaussian stream coded with
+    neighbour prediction (no tiles, no step adjustment) an SH degree and insert the sh_degree unit
+    after the neighbour_prediction unit (version 1.3, clause 7.3.14). The bands above a row's degree
+    become 0, so the decoded scene changes (rehash the stream). spec: {degrees: a rule of
+    sh_degrees_of_rule (default energy), zero_chunks: [i] (the rows of chunk i get degree 0),
+    probabilities: extreme (degree_flag_prob[i] 0 for even i, 4095 for odd i) or a list (default:
+    the encoder's, from the flags' counts), predictions: [[target, source, weight]] (the unit's
+    cross-channel predictions, e.g. from channels a row may not code), and the faults of
+    _degree_chunk_faults}."""
+    from lghcc.common.geometry import decode_geometry
+    from lghcc.common.neighbour_prediction import chunk_segments, read_predicted_attribute_unit
+    from lghcc.common.units import NUM_DEGREE_CONTEXTS, GaussianParameterSet, NeighbourPredictionUnit, ShDegreeUnit
+    from lghcc.encoder.stream.neighbour_coding import NeighbourCoding
+
+    gps = GaussianParameterSet.from_bytes(units[_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
+    if gps.hierarchy_enabled_flag or gps.tiles_enabled_flag or any(u.unit_type == UnitType.STEP_ADJUST for u in units):
+        raise ValueError("sh_degree edits a stream without the hierarchy, tiles or step adjustment")
+    layout = attr.gaussian_layout_of(gps)
+    n, m, d = gps.num_gaussians, layout.num_channels, gps.sh_degree
+    k = _index(units, UnitType.NEIGHBOUR_PREDICTION)
+    unit = NeighbourPredictionUnit.from_bytes(units[k].payload, num_channels=m)
+    coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, n)
+    j = _index(units, UnitType.ATTRIBUTE)
+    values = np.empty((n, m), np.float32)
+    h0 = read_predicted_attribute_unit(units[j].payload, layout, layout.steps(gps), coords, unit, values)
+    q = np.rint(values / layout.steps(gps)).astype(np.int64)
+    degrees = sh_degrees_of_rule((values[:, 3:layout.sh_channels].astype(np.float64) ** 2).sum(axis=1), d,
+                                 str(spec.get("degrees", "energy")))
+    h = attr.new_attribute_header(layout, n, 0)
+    h.rows_per_chunk_minus1, h.num_lods = h0.rows_per_chunk_minus1, unit.num_lods
+    nc = NeighbourCoding(q, coords, unit.num_lods, unit.num_neighbours, unit.num_buckets,
+                         bool(h0.num_channel_predictions), layout, unit)
+    segments = list(chunk_segments(h, nc.graph))
+    for i in spec.get("zero_chunks", []):
+        level, lo, hi = segments[int(i)]
+        degrees[nc.graph.rows[level][lo:hi]] = 0
+    probs = spec.get("probabilities")
+    if probs is not None:  # the stream's probabilities given: the neighbour unit carries them to the coding
+        count = d * NUM_DEGREE_CONTEXTS
+        unit.sh_degree_unit = ShDegreeUnit(sh_degree=d, degree_flag_prob=[4095 * (i % 2) for i in range(count)]
+                                           if probs == "extreme" else [int(p) for p in probs])
+    nc = NeighbourCoding(q, coords, unit.num_lods, unit.num_neighbours, unit.num_buckets,
+                         bool(h0.num_channel_predictions), layout, unit, graph=nc.graph, degrees=degrees)
+    if "predictions" in spec:  # [[target, source, weight]]: cross-channel predictions of the stream's choosing
+        t, src, w = (np.asarray(col, np.int64) for col in zip(*spec["predictions"]))
+        nc.prediction = attr.ChannelPrediction(t, src, w)
+    payload = _degree_chunk_faults(h, nc.write(h), spec)
+    units[j] = DataUnit(UnitType.ATTRIBUTE, payload)
+    units.insert(k + 1, DataUnit(UnitType.SH_DEGREE, nc.degree_unit.to_bytes()))
+
+
 def _chunks_across_lods(h: AttributeUnitHeader, nc) -> bytes:
     """The attribute unit of ``nc`` (already written into ``h``) with its rows, in coding order, cut
     every rows_per_chunk rows regardless of the LoDs (a version-1.0 chunking of the LoD-major order),
@@ -783,6 +875,8 @@ def apply_edits(units, post: dict) -> None:
         neighbour_prediction(units, post["neighbour_prediction"])
     if "step_adjust" in post:
         step_adjust(units, post["step_adjust"])
+    if "sh_degree" in post:
+        sh_degree(units, post["sh_degree"])
     if "set_elements" in post:
         set_elements(units, post["set_elements"])
     if "flatten_hierarchy" in post:

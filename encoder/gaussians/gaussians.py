@@ -148,6 +148,9 @@ def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: Gaus
             unit = StepAdjustUnit(max_step_adjust=int(inp.step_adjust.max()))
             stats.step_adjust_counts = np.bincount(inp.step_adjust, minlength=unit.max_step_adjust + 1).tolist()
             parameter_units.append(DataUnit(UnitType.STEP_ADJUST, unit.to_bytes()))
+        if inp.sh_degrees is not None:  # the unit fitted by the neighbour coding (clause 7.3.14)
+            stats.sh_degree_counts = np.bincount(inp.sh_degrees, minlength=layout.sh_degree + 1).tolist()
+            parameter_units.append(DataUnit(UnitType.SH_DEGREE, coded.neighbour_unit.sh_degree_unit.to_bytes()))
     data = write_stream(parameter_units, coded.context_payload, tiles, decoded.num_gaussians)
     digest = tiles[0].scene_hash if len(tiles) == 1 else gaussian_scene_digest(decoded)
     return EncodeResult(data, breakdown_of(read_container(data), decoded.num_gaussians, "Gaussian"), decoded, digest,
@@ -156,7 +159,8 @@ def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: Gaus
 
 def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | None = None, *,
                           weights: np.ndarray | None = None, sensitivity: np.ndarray | None = None,
-                          progress: bool = False, measure_ideal: bool = False, workers=None) -> EncodeResult:
+                          progress: bool = False, measure_ideal: bool = False, workers=None,
+                          sh_degrees: np.ndarray | None = None) -> EncodeResult:
     """Encode an explicit-Gaussian scene. A scene already on a grid (``coords`` set, e.g. from
     encoder/gaussians/gaussian_fit.py) keeps it; otherwise the grid is chosen here. ``weights``: each
     Gaussian's contribution to the pictures, when known (grid size, who keeps a shared voxel).
@@ -164,11 +168,14 @@ def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | Non
     scene's SH degree or above), when known: the values are then chosen by rate-distortion
     optimized quantization (``cfg.rd_quantization``) instead of rounded. ``workers``
     (encoder/stream/tile_workers.py TileWorkers; None: this process): where a tiled scene's tiles are
-    coded; the stream does not depend on it."""
+    coded; the stream does not depend on it. ``sh_degrees``: each Gaussian's SH degree in [0, the
+    coded SH degree] (format 1.3, clause 11.9; None: every band of every Gaussian coded, no
+    sh_degree unit); the bands above it are not coded and decode to 0."""
     cfg = (cfg or GaussianEncoderConfig()).validate()
     scene.validate()
-    if sensitivity is not None and sensitivity.shape[0] != scene.num_gaussians:
-        raise ValueError(f"sensitivity has {sensitivity.shape[0]} rows for {scene.num_gaussians} Gaussians")
+    for name, a in (("sensitivity", sensitivity), ("sh_degrees", sh_degrees)):
+        if a is not None and a.shape[0] != scene.num_gaussians:
+            raise ValueError(f"{name} has {a.shape[0]} rows for {scene.num_gaussians} Gaussians")
     stats = EncodeStats()
     t0 = time.perf_counter()
     scene = with_coded_sh_degree(scene, cfg, stats)
@@ -181,6 +188,8 @@ def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | Non
     with stage(bar, "quantization", stats, STAGE_SHARES["quantization"]):
         levels = level_layout(scene.num_gaussians, cfg, geometry.coords, stats)
         inp = gaussian_attribute_input(scene, geometry, levels, cfg)
+        if sh_degrees is not None:
+            inp = dataclasses.replace(inp, sh_degrees=np.asarray(sh_degrees)[geometry.order])
         del scene  # the grid's copy of the scene: its values are in ``inp`` now (peak memory)
         if sensitivity is not None and cfg.rd_quantization > 0:
             inp = rd_quantized_input(inp, sensitivity[geometry.order], levels, cfg)

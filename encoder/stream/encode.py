@@ -373,6 +373,9 @@ def code_attributes(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodi
     predict = bool(inp.layout.channel_prediction_allowed) and getattr(cfg, "channel_prediction", False)
     if neighbour_prediction_wanted(cfg, levels, inp):
         return code_neighbours_or_prior(inp, levels, cfg, stats, predict, measure_ideal)
+    if inp.sh_degrees is not None:
+        raise ValueError("per-Gaussian SH degrees need neighbour prediction (a Gaussian scene without the "
+                         "hierarchy, within its extent limit, with neighbour_prediction on)")
     if levels.tile_scale and cfg.context_model == "per_channel":
         return CodedAttributes([], None, None)  # nothing to fit: each tile codes its own units (tiling.py)
     recon = np.zeros_like(inp.values, dtype=np.float32)
@@ -411,12 +414,15 @@ def code_neighbours_or_prior(inp: AttributeInput, levels: LevelLayout, cfg: Attr
     level, rows = levels.levels[0]
     coder = LevelCoder(inp.layout, cfg, level, rows, inp.live[rows], None, predict)
     q = quantized_level(coder, inp)
-    nc = neighbour_coding_of(q, inp.coords, cfg, inp.layout, predict, step_adjust=inp.step_adjust)
+    nc = neighbour_coding_of(q, inp.coords, cfg, inp.layout, predict, step_adjust=inp.step_adjust,
+                             sh_degrees=inp.sh_degrees)
+    nc.unit.sh_degree_unit = nc.degree_unit  # the stream's sh_degree unit (None without the tool), for its tiles
     unit_bytes = UNIT_FRAMING_BYTES + len(nc.unit.to_bytes())
+    # step adjustment and SH degrees need neighbour prediction (the values were chosen with them)
+    needed = inp.step_adjust is not None or inp.sh_degrees is not None
+    always = cfg.neighbour_prediction == "always" or needed
     # with tiles only its ideal bits are compared: the whole scene's unit is never written
-    with_prior = code_with_prior(coder, inp, write=not levels.tile_scale) if inp.step_adjust is None else None
-    # step adjustment needs neighbour prediction (the values were chosen in the adjusted steps)
-    always = cfg.neighbour_prediction == "always" or inp.step_adjust is not None
+    with_prior = code_with_prior(coder, inp, write=not levels.tile_scale) if not needed else None
     if levels.tile_scale:
         use = always or nc.ideal_stream_bits() / 8 < ideal_bits(coder, with_prior) / 8
         stats.neighbour_prediction = bool(use)
@@ -428,6 +434,8 @@ def code_neighbours_or_prior(inp: AttributeInput, levels: LevelLayout, cfg: Attr
     stats.attribute_coded_bits = 8 * sum(chosen.header.chunk_size)
     if inp.step_adjust is not None:
         stats.step_adjust_coded_bits = 8 * sum(chosen.header.adjust_chunk_size)
+    if inp.sh_degrees is not None:
+        stats.sh_degree_coded_bits = 8 * sum(chosen.header.degree_chunk_size)
     if measure_ideal:
         stats.attribute_ideal_bits = nc.ideal_bits() if use else ideal_bits(coder, with_prior)
     stats.levels[level] = LevelStats("neighbour prediction" if use else CONTEXT_MODEL_NAMES[0], len(chosen.payload),

@@ -15,6 +15,7 @@ from ...common.context.models import level2_coding_params
 from ...common.entropy.symbol_coder import best_level
 from ...common.errors import InputError
 from ...common.hierarchy import Hierarchy
+from ...common.sh_degree import coded_channels
 from ...common.units import (CONTEXT_PER_CHANNEL_PRIOR, MASK_PROB_BITS, MAX_PREDICTED_MAGNITUDE, PRIOR_MEAN_MAX,
                             AttributeUnitHeader, GaussianParameterSet, NeighbourPredictionUnit, SceneParameterSet)
 from .config import AttributeCodingConfig
@@ -72,6 +73,25 @@ class AttributeInput:
     coords: np.ndarray  # the points, in normative order
     # int64 [N]: each point's step-adjustment index (clause 11.8, with neighbour prediction), or None
     step_adjust: np.ndarray | None = None
+    # int [N]: each Gaussian's SH degree in [0, sh_degree] (clause 11.9, with neighbour prediction;
+    # the bands above it are not coded: ``live`` is narrowed to the coded channels), or None (the tool
+    # off: every band coded, no sh_degree unit)
+    sh_degrees: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.sh_degrees is None:
+            return
+        if not isinstance(self.layout, attr.GaussianLayout):
+            raise ValueError("sh_degrees are for explicit-Gaussian scenes")
+        d = np.asarray(self.sh_degrees)
+        n = self.values.shape[0]
+        if d.shape != (n,) or not np.issubdtype(d.dtype, np.integer):
+            raise ValueError(f"sh_degrees must be an integer array of one degree per Gaussian ({n}), got "
+                             f"{d.dtype} {d.shape}")
+        if d.size and (int(d.min()) < 0 or int(d.max()) > self.layout.sh_degree):
+            raise ValueError(f"sh_degrees must be in [0, {self.layout.sh_degree}] (the scene's SH degree)")
+        self.sh_degrees = d.astype(np.int64)
+        self.live = self.live & coded_channels(self.layout.sh_channels, self.layout.num_channels, self.sh_degrees)
 
 
 @dataclass
@@ -125,9 +145,9 @@ def check_predicted_magnitude(q: np.ndarray, layout) -> None:
 
 def neighbour_coding_of(q: np.ndarray, coords: np.ndarray, cfg, layout, predict: bool,
                         unit: NeighbourPredictionUnit | None = None,
-                        step_adjust: np.ndarray | None = None) -> NeighbourCoding:
+                        step_adjust: np.ndarray | None = None, sh_degrees: np.ndarray | None = None) -> NeighbourCoding:
     return NeighbourCoding(q, coords, cfg.prediction_lods, cfg.prediction_neighbours, cfg.prediction_buckets, predict,
-                           layout, unit, adjust=step_adjust)
+                           layout, unit, adjust=step_adjust, degrees=sh_degrees)
 
 
 def code_with_neighbours(coder: LevelCoder, q: np.ndarray, nc: NeighbourCoding) -> LevelCoding:

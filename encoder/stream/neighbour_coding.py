@@ -26,7 +26,8 @@ from ...common.neighbour_prediction import (ADJUST_FIXED_POINT, NeighbourGraph, 
                                            write_predicted_attribute_unit)
 from ...common.attributes import NUM_STEP_ADJUST
 from ...common.container import UNIT_CRC_BYTES, UNIT_HEADER_BYTES
-from ...common.units import PRIOR_MEAN_MAX, NeighbourPredictionUnit
+from ...common.sh_degree import FLAG_PROB_UNIT, band_flags, coded_channels, neighbour_degrees
+from ...common.units import DEGREE_PROB_BITS, NUM_DEGREE_CONTEXTS, PRIOR_MEAN_MAX, NeighbourPredictionUnit, ShDegreeUnit
 from .prediction import fit_channel_prediction
 
 UNIT_FRAMING_BYTES = UNIT_HEADER_BYTES + UNIT_CRC_BYTES
@@ -97,8 +98,37 @@ def _mean_flags(q: np.ndarray, neighbour_mean: np.ndarray, prior_mean: np.ndarra
     return flags
 
 
+def degree_flag_counts(graph: NeighbourGraph, degrees: np.ndarray, sh_degree: int) -> np.ndarray:
+    """int64 [d, NumDegreeContexts, 2]: how many SH-degree flags of each band and context are 0 and 1
+    (clause 11.9; a flag's context depends on its row's neighbours only, not on the chunking)."""
+    counts = np.zeros((sh_degree, NUM_DEGREE_CONTEXTS, 2), np.int64)
+    for level, rows in enumerate(graph.rows):
+        nd = neighbour_degrees(graph.neighbours[level], degrees) if level else None
+        for band, x, flags in band_flags(degrees[rows], nd, sh_degree):
+            np.add.at(counts[band - 1], (x, flags), 1)
+    return counts
+
+
+def degree_unit_of(counts: np.ndarray) -> ShDegreeUnit:
+    """The sh_degree unit whose flag probabilities code the counted flags in the fewest bits: f[1] =
+    4096 p + 2048 nearest the flags' share of ones (p = floor(4096 * ones / flags)); 2048 where a
+    context has no flag."""
+    total = counts.sum(axis=2)
+    top = (1 << DEGREE_PROB_BITS) - 1
+    p = np.where(total > 0, np.minimum((counts[..., 1] << DEGREE_PROB_BITS) // np.maximum(total, 1), top), 1 << 11)
+    return ShDegreeUnit(sh_degree=counts.shape[0], degree_flag_prob=[int(x) for x in p.ravel()])
+
+
+def degree_flag_bits(counts: np.ndarray, unit: ShDegreeUnit) -> float:
+    """The ideal code length of the counted flags with the unit's probabilities."""
+    f1 = FLAG_PROB_UNIT * np.asarray(unit.degree_flag_prob, np.float64).reshape(counts.shape[:2]) + FLAG_PROB_UNIT / 2
+    p1 = f1 / (FLAG_PROB_UNIT << DEGREE_PROB_BITS)
+    return float(-(counts[..., 1] * np.log2(p1)).sum() - (counts[..., 0] * np.log2(1 - p1)).sum())
+
+
 def _table(r: np.ndarray, bucket: np.ndarray, num_buckets: int) -> np.ndarray:
-    """The best scale level of each (channel, bucket)'s residuals (0 where a bucket is empty)."""
+    """The best scale level of each (channel, bucket)'s residuals (0 where a bucket is empty; values
+    of bucket -2, those not coded, count in none)."""
     m = r.shape[1]
     table = np.zeros((m, num_buckets), dtype=np.int64)
     for c in range(m):
@@ -125,49 +155,90 @@ class NeighbourCoding:
     def __init__(self, q: np.ndarray, coords: np.ndarray, num_lods: int, num_neighbours: int, num_buckets: int,
                  channel_prediction: bool, layout, unit: NeighbourPredictionUnit | None = None,
                  graph: NeighbourGraph | None = None, adjust: np.ndarray | None = None,
-                 choose_mean_flags: bool = True):
+                 choose_mean_flags: bool = True, degrees: np.ndarray | None = None):
         n, m = q.shape
-        self.q, self.layout, self.adjust = q, layout, adjust
         self.graph = graph if graph is not None else neighbour_graph(coords, num_lods, num_neighbours)
+        self._set_degrees(degrees, layout, unit)
+        if self.coded is not None:
+            q = q * self.coded  # a value not coded is q = 0, also in its neighbours' sums (clause 11.9)
+        self.q, self.layout, self.adjust = q, layout, adjust
         lod0 = self.graph.rows[0]
         a0 = None if adjust is None else adjust[lod0]
         base = q[lod0] if adjust is None else q[lod0] * ADJUST_FIXED_POINT[a0][:, None] / ADJUST_FIXED_POINT[0]
-        prior_mean = np.clip(np.rint(np.median(base, axis=0)), -PRIOR_MEAN_MAX, PRIOR_MEAN_MAX).astype(np.int64)
+        prior_mean = np.clip(np.rint(self._medians(base)), -PRIOR_MEAN_MAX, PRIOR_MEAN_MAX).astype(np.int64)
         neighbour_mean, bucket = _coding_params(q, self.graph, num_buckets, prior_mean, adjust)
         own_prior = prior_rows(prior_mean, n, adjust)
+        fit_bucket = bucket if self.coded is None else np.where(self.coded, bucket, -2)  # fits: coded values only
         if unit is not None:
             flags = mean_flags(unit)
         elif choose_mean_flags:
-            flags = _mean_flags(q, neighbour_mean, own_prior, bucket, num_buckets)
+            flags = _mean_flags(q, neighbour_mean, own_prior, fit_bucket, num_buckets)
         else:  # every channel from its neighbours (a quick estimate: the flags are a third of the fit's time)
             flags = np.ones(m, dtype=bool)
         mean = np.where(flags[None, :] & (bucket >= 0), neighbour_mean, own_prior)
         self.prediction = attr.ChannelPrediction.none()
-        live = np.ones(q.shape, dtype=bool)
+        live = np.ones(q.shape, dtype=bool) if self.coded is None else self.coded
         if channel_prediction and layout.channel_prediction_allowed:
-            table0 = _table(q - mean, bucket, num_buckets) if unit is None else level_table(unit)
-            prior0 = np.array([best_prior_level(q[lod0, c] - own_prior[lod0, c], a0) for c in range(m)],
-                              dtype=np.int64)
+            table0 = _table(q - mean, fit_bucket, num_buckets) if unit is None else level_table(unit)
+            prior0 = self._prior_levels(q - own_prior, a0)
             params = attr.CodingParams(mean, _levels(bucket, table0, prior0, adjust))
             self.prediction, _ = fit_channel_prediction(q, params, layout, live)
-        r = self.prediction.residuals(q, mean)
+        r = self.prediction.residuals(q, mean, self.coded)
         if unit is None:
             unit = NeighbourPredictionUnit(num_channels=m, num_lods_minus1=num_lods - 1,
                                            num_neighbours_minus1=num_neighbours - 1, num_buckets_minus1=num_buckets - 1,
-                                           neighbour_mean_flag=flags.astype(int).tolist(), bucket_level=_table(r, bucket, num_buckets).ravel().tolist())
+                                           neighbour_mean_flag=flags.astype(int).tolist(), bucket_level=_table(r, fit_bucket, num_buckets).ravel().tolist())
         self.unit = unit
         self.prior_mean = prior_mean
-        self.prior_level = np.array([best_prior_level(r[lod0, c], a0) for c in range(m)], dtype=np.int64)
+        self.prior_level = self._prior_levels(r, a0)
         self.levels = _levels(bucket, level_table(unit), self.prior_level, adjust)
         self.residuals = r
 
+    def _set_degrees(self, degrees: np.ndarray | None, layout, unit: NeighbourPredictionUnit | None) -> None:
+        """Each row's SH degree (clause 11.9) and with it the coded channels, the flags' counts and the
+        sh_degree unit: the stream's (``unit``'s context, for a tile), else the one fitted here."""
+        self.degrees, self.coded, self.degree_unit, self.degree_counts = None, None, None, None
+        if degrees is None:
+            return
+        self.degrees = np.asarray(degrees, np.int64)
+        self.coded = coded_channels(layout.sh_channels, layout.num_channels, self.degrees)
+        self.degree_counts = degree_flag_counts(self.graph, self.degrees, layout.sh_degree)
+        given = None if unit is None else unit.sh_degree_unit
+        self.degree_unit = given if given is not None else degree_unit_of(self.degree_counts)
+
+    def _medians(self, base: np.ndarray) -> np.ndarray:
+        """Each channel's median of LoD 0's values ``base`` [n_0, M] (coded values only; 0 where none)."""
+        if self.coded is None:
+            return np.median(base, axis=0)
+        ok = self.coded[self.graph.rows[0]]
+        return np.array([np.median(base[ok[:, c], c]) if ok[:, c].any() else 0.0 for c in range(base.shape[1])])
+
+    def _prior_levels(self, r: np.ndarray, a0: np.ndarray | None) -> np.ndarray:
+        """The best prior level of each channel's residuals ``r`` [N, M] of LoD 0 (coded values only)."""
+        lod0 = self.graph.rows[0]
+        out = np.zeros(r.shape[1], dtype=np.int64)
+        for c in range(r.shape[1]):
+            ok = slice(None) if self.coded is None else self.coded[lod0, c]
+            out[c] = best_prior_level(r[lod0, c][ok], None if a0 is None else a0[ok])
+        return out
+
     def ideal_bits(self) -> float:
-        return ideal_code_length_bits(self.residuals, self.levels)
+        """The ideal bits of the coded values."""
+        if self.coded is None:
+            return ideal_code_length_bits(self.residuals, self.levels)
+        return ideal_code_length_bits(self.residuals[self.coded], self.levels[self.coded])
 
     def ideal_stream_bits(self) -> float:
-        """The ideal bits of the values, their step-adjustment indices and the unit that carries
-        the table."""
-        return self.ideal_bits() + self.adjust_bits() + 8 * (UNIT_FRAMING_BYTES + len(self.unit.to_bytes()))
+        """The ideal bits of the values, their step-adjustment indices, their SH degrees and the
+        units that carry the table and the flags' probabilities."""
+        unit_bytes = UNIT_FRAMING_BYTES + len(self.unit.to_bytes())
+        if self.degree_unit is not None:
+            unit_bytes += UNIT_FRAMING_BYTES + len(self.degree_unit.to_bytes())
+        return self.ideal_bits() + self.adjust_bits() + self.degree_bits() + 8 * unit_bytes
+
+    def degree_bits(self) -> float:
+        """The ideal bits of the SH-degree flags (0 without them)."""
+        return 0.0 if self.degrees is None else degree_flag_bits(self.degree_counts, self.degree_unit)
 
     def adjust_model(self) -> tuple[int, int]:
         """The step-adjustment indices' mean and scale level (the tile's attribute unit header)."""
@@ -187,8 +258,9 @@ class NeighbourCoding:
         if self.adjust is not None:
             header.step_adjust_present = 1
             header.adjust_mean, header.adjust_level = self.adjust_model()
+        header.sh_degree_present = int(self.degrees is not None)
         return write_predicted_attribute_unit(header, self.layout, self.q, self.graph, self.unit, self.prediction,
-                                              self.adjust)
+                                              self.adjust, self.degrees, self.degree_unit)
 
 
 def usable(coords: np.ndarray) -> bool:

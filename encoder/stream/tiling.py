@@ -104,8 +104,9 @@ class TileCoding:
     geometry: bytes
     attributes: list[bytes]
     scene_hash: bytes = b""
-    # per attribute unit: level, context model id, value bits, channel predictions, step-adjustment index bits
-    unit_stats: list[tuple[int, int, int, int, int]] = field(default_factory=list)
+    # per attribute unit: level, context model id, value bits, channel predictions, step-adjustment index
+    # bits, SH-degree flag bits
+    unit_stats: list[tuple[int, int, int, int, int, int]] = field(default_factory=list)
 
 
 def tile_rows(coords: np.ndarray, tile_size: int) -> list[tuple[tuple[int, int, int], np.ndarray]]:
@@ -141,7 +142,7 @@ def tile_input(inp, rows: np.ndarray):
     def part(a):
         return None if a is None else a[rows]
     return AttributeInput(inp.parameter_set, inp.layout, inp.steps, inp.values[rows], inp.live[rows], part(inp.mask),
-                          inp.coords[rows], part(inp.step_adjust))
+                          inp.coords[rows], part(inp.step_adjust), part(inp.sh_degrees))
 
 
 def code_tile(tinp, cfg, context_payload: bytes | None, unit_stats: list,
@@ -161,7 +162,8 @@ def code_tile(tinp, cfg, context_payload: bytes | None, unit_stats: list,
         if neighbour_unit is not None:
             q = quantized_level(coder, tinp)
             chosen = code_with_neighbours(coder, q, neighbour_coding_of(q, coords, cfg, tinp.layout, predict,
-                                                                       neighbour_unit, tinp.step_adjust))
+                                                                       neighbour_unit, tinp.step_adjust,
+                                                                       tinp.sh_degrees))
         else:
             chosen = code_with_prior(coder, tinp)
         if level == LEVEL_2 and model is not None:
@@ -173,7 +175,7 @@ def code_tile(tinp, cfg, context_payload: bytes | None, unit_stats: list,
         payloads.append(chosen.payload)
         h = chosen.header
         unit_stats.append((level, h.context_model_id, 8 * sum(h.chunk_size), h.num_channel_predictions,
-                           8 * sum(h.adjust_chunk_size)))
+                           8 * sum(h.adjust_chunk_size), 8 * sum(h.degree_chunk_size)))
         reconstruct_level(trecon, lrows, chosen, tinp.steps)
     return payloads, trecon
 
@@ -208,6 +210,8 @@ def tile_level_stats(tiles: list[TileCoding], stats) -> None:
     stats.attribute_coded_bits = sum(u[2] for t in tiles for u in t.unit_stats)
     if any(u[4] for t in tiles for u in t.unit_stats):
         stats.step_adjust_coded_bits = sum(u[4] for t in tiles for u in t.unit_stats)
+    if any(u[5] for t in tiles for u in t.unit_stats):
+        stats.sh_degree_coded_bits = sum(u[5] for t in tiles for u in t.unit_stats)
     for level in sorted({u[0] for t in tiles for u in t.unit_stats}):
         units = [(u, len(p)) for t in tiles for u, p in zip(t.unit_stats, t.attributes) if u[0] == level]
         (model_id, count), = Counter(u[1] for u, _ in units).most_common(1)
