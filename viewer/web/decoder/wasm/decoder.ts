@@ -756,8 +756,35 @@ export function attributeChunk(p: usize, nbytes: i32, rows: usize, nr: i32, idx:
     rowMeans(rows, nr, idx, cnt, k, mean, level);
     const ns = aDeg ? codedLevels(rows, nr, level) : n;
     const nesc = decodeSymbols(p, nbytes, level, ns, res, wide);
-    for (let r = 0, j = 0; r < nr; r++) j = rowValues(i32At(rows, r), r * M, j, mean, res, wide);
+    if (aDeg) for (let r = 0, j = 0; r < nr; r++) j = rowValuesCoded(i32At(rows, r), r * M, j, mean, res, wide);
+    else for (let r = 0; r < nr; r++) rowValues(i32At(rows, r), r * M, mean, res, wide);
     return nesc;
+}
+
+/**
+ * q of one row (11.4 step 3, 11.6): residual + mean + prediction from the channels before, each
+ * checked against |q| <= 2^40 as it is computed. Exact in i64: residuals below 2^62, means below
+ * 2^42 and at most M - 1 terms of |weight| <= 2^15 times |q - mean| < 2^43. Without the SH-degree
+ * tool every channel is coded: this loop has no coded-channel tests (rowValuesCoded's cost 8-15%
+ * on the logo's stream).
+ */
+function rowValues(row: i32, base: i32, mean: usize, res: usize, wide: usize): void {
+    const M = aM, qb = aQ + (<usize>(row * M) << 3), mb = mean + (<usize>base << 3);
+    for (let c = 0; c < M; c++) {
+        const rf = load<f64>(res + (<usize>(base + c) << 3));
+        const rv: i64 = rf == rf ? <i64>rf : i64At(wide, base + c); // NaN: an escape beyond 2^53
+        let pr: i64 = 0;
+        for (let i = i32At(aPStart, c), e = i32At(aPStart, c + 1); i < e; i++) {
+            const s = i32At(aPSrc, i);
+            pr += <i64>i32At(aPW, i) * (i64At(qb, s) - i64At(mb, s));
+        }
+        storeValue(qb, row, c, rv + i64At(mb, c) + ((pr + 128) >> 8));
+    }
+}
+
+@inline function storeValue(qb: usize, row: i32, c: i32, v: i64): void {
+    if (v > Q_LIMIT || v < -Q_LIMIT) { errWide = <u64>v; fail(ERR_Q_LIMIT, row, c); }
+    setI64(qb, c, v);
 }
 
 /** The end of the coded SH channels of a row (11.9): 3 (D + 1)^2, or all of them (M - 8) without the tool. */
@@ -768,13 +795,11 @@ export function attributeChunk(p: usize, nbytes: i32, rows: usize, nr: i32, idx:
 }
 
 /**
- * q of one row (11.4 step 3, 11.6): residual + mean + prediction from the channels before, each
- * checked against |q| <= 2^40 as it is computed. Exact in i64: residuals below 2^62, means below
- * 2^42 and at most M - 1 terms of |weight| <= 2^15 times |q - mean| < 2^43. The row's residuals
- * are res[j ..] (its coded channels'); the channels e <= c < M - 8 it does not code (11.9) have
- * q = 0 and give no prediction term. Returns j after the row's residuals.
+ * q of one row as rowValues, in a stream with the SH-degree tool (11.9): the row's residuals are
+ * res[j ..] (its coded channels'); the channels e <= c < M - 8 it does not code have q = 0 and give
+ * no prediction term. Returns j after the row's residuals.
  */
-function rowValues(row: i32, base: i32, j: i32, mean: usize, res: usize, wide: usize): i32 {
+function rowValuesCoded(row: i32, base: i32, j: i32, mean: usize, res: usize, wide: usize): i32 {
     const M = aM, qb = aQ + (<usize>(row * M) << 3), mb = mean + (<usize>base << 3);
     const e = codedEnd(row), gap = <u32>(M - 8 - e); // c is not coded when <u32>(c - e) < gap
     for (let c = 0; c < M; c++) {
@@ -788,9 +813,7 @@ function rowValues(row: i32, base: i32, j: i32, mean: usize, res: usize, wide: u
             if (<u32>(s - e) < gap) continue;
             pr += <i64>i32At(aPW, i) * (i64At(qb, s) - i64At(mb, s));
         }
-        const v = rv + i64At(mb, c) + ((pr + 128) >> 8);
-        if (v > Q_LIMIT || v < -Q_LIMIT) { errWide = <u64>v; fail(ERR_Q_LIMIT, row, c); }
-        setI64(qb, c, v);
+        storeValue(qb, row, c, rv + i64At(mb, c) + ((pr + 128) >> 8));
     }
     return j;
 }
