@@ -11,6 +11,7 @@ import zlib
 
 import numpy as np
 import pytest
+import yaml
 
 from lghcc.conformance import runner
 from lghcc.common.entropy.symbol_coder import encode_symbols
@@ -255,15 +256,18 @@ def test_cli_exit_codes(tmp_path):
 PROGRESSIVE = """
 import { readFileSync } from 'node:fs';
 import { ProgressiveDecoder } from './progressive.mjs';
-import { decodeStream, decodeTile, sceneDigestHex } from './decoder.mjs';
+import { decodeStream, decodeTile, preludeContext, sceneDigestHex } from './decoder.mjs';
 import { HashMismatchError } from './errors.mjs';
+import { parseGaussianParameterSet } from './units.mjs';
 const { path, failTile } = JSON.parse(readFileSync(0, 'utf8'));
 const bytes = new Uint8Array(readFileSync(path));
-// a pool as pool.mjs's, in this process: tiles finish in reverse order of their start
+// a pool as pool.mjs's, in this process: tiles finish in reverse order of their start, each decoded
+// with the context a helper builds from the prelude's payloads
+const helper = (ctx) => ({ ...preludeContext(parseGaussianParameterSet(ctx.payloads.ps), ctx.payloads), tiles: ctx.tiles });
 const pool = { started: 0, start(ctx) { this.started++; }, runHere(f) { return new Promise((res) => setTimeout(res, 0)).then(f); }, decode(ctx, t) {
     const delay = 40 - 4 * t;
     return new Promise((res, rej) => setTimeout(() => t === failTile
-        ? rej(new HashMismatchError(`tile ${t}`)) : decodeTile(ctx, t).then(res, rej), delay));
+        ? rej(new HashMismatchError(`tile ${t}`)) : decodeTile(helper(ctx), t).then(res, rej), delay));
 } };
 const order = [];
 const dec = new ProgressiveDecoder({ pool, onTile: (t) => order.push(t) });
@@ -278,14 +282,16 @@ console.log(JSON.stringify(out));
 """
 
 
-@pytest.mark.parametrize("name", ["c078_neighbour_prediction_tiles", "c086_step_adjust_tiles"])
+@pytest.mark.parametrize("name", ["c078_neighbour_prediction_tiles", "c086_step_adjust_tiles", "c092_sh_degree_tiles"])
 def test_progressive_decoding_with_a_tile_pool(name):
-    """Tiles handed to a pool as their bytes arrive (997-byte chunks) and finished out of order give
-    the same scene as decodeStream; a tile the pool rejects rejects the stream with its class."""
+    """Tiles handed to a pool as their bytes arrive (997-byte chunks) and finished out of order,
+    each with the context a helper parses from the prelude's payloads, give the scene of test.yaml
+    (as decodeStream); a tile the pool rejects rejects the stream with its class."""
     path = str(STREAMS / name / "stream.lghcc")
     got = json.loads(node(PROGRESSIVE, json.dumps({"path": path, "failTile": -1})))
     tiles = len(got["order"])
-    assert got["digest"] == got["ref"] and tiles >= 2 and got["started"] == 1
+    expected = yaml.safe_load((STREAMS / name / "test.yaml").read_text())["decoded_sha256"]
+    assert got["digest"] == got["ref"] == expected and tiles >= 2 and got["started"] == 1
     assert sorted(got["order"]) == list(range(tiles)) and got["order"] != sorted(got["order"])
     assert json.loads(node(PROGRESSIVE, json.dumps({"path": path, "failTile": 1}))) == {"error": "HashMismatchError"}
 

@@ -1,9 +1,10 @@
 // Attribute decoding of explicit-Gaussian tiles (spec clause 11): the per-channel prior, chunks,
-// cross-channel prediction (11.6), neighbour prediction (11.7), step adjustment (11.8) and
-// reconstruction in binary32 (11.5). Per chunk, one call of the WebAssembly module
-// (wasm/decoder.ts: attributeChunk) computes the rows' means and levels, decodes the symbols and
-// the values q, exact in 64-bit integers; q and the rows' step-adjustment indices live in the
-// module's memory while the tile decodes, and the module reconstructs the binary32 values at the
+// cross-channel prediction (11.6), neighbour prediction (11.7), step adjustment (11.8), the
+// per-Gaussian SH degree (11.9) and reconstruction in binary32 (11.5). Per chunk, one call of the
+// WebAssembly module (wasm/decoder.ts: attributeChunk) decodes the rows' SH degrees, computes their
+// means and levels, decodes the symbols of their coded channels and the values q, exact in 64-bit
+// integers; q, the rows' step-adjustment indices and SH degrees live in the module's memory while
+// the tile decodes, and the module reconstructs the binary32 values at the
 // end (reconstruct). JS parses, finds the neighbours (knn.mjs) and turns the module's failures into
 // the spec's errors.
 import { BitstreamError } from './errors.mjs';
@@ -62,7 +63,7 @@ class TileAttributeDecoder {
         this.M = ctx.M; this.n = h.numRows;
         this.off = h.dataOffset;
         this.chunk = 0;
-        // kept in the module's memory until release(): q (i64 [n * M]), the indices (u8 [n]), the tile's parameters
+        // kept in the module's memory until release(): q (i64 [n * M]), the indices and degrees (u8 [n] each), the tile's parameters
         const w = this.w = wasm(), M = this.M, np = ctx.np;
         w.reset();
         this.qAddr = alloc(w, 8 * this.n * M);
@@ -75,6 +76,7 @@ class TileAttributeDecoder {
         w.attributeTile(this.qAddr, M, this.adjAddr, ctx.stepAdjust ? 1 : 0, at(FIXED_POINT), at(LEVEL_SHIFT),
             at(np ? np.meanFlag : new Uint8Array(M)), at(np ? np.bucketLevel : new Uint8Array(1)), np ? np.B : 1,
             at(h.priorMean), at(h.priorLevel), at(pStart), at(h.predSource), at(Int32Array.from(h.predWeight)));
+        if (ctx.shDegreeUnit) w.attributeDegrees(alloc(w, this.n), ctx.ps.shDegree, at(ctx.shDegreeUnit.freq));
         this.mark = w.keep();
     }
 
@@ -99,18 +101,26 @@ class TileAttributeDecoder {
         }
     }
 
-    /** Chunk i of the rows `rows` (the lo-th onwards of their LoD; clause 11.4, 11.7.5, 11.8). */
+    /** Chunk i of the rows `rows` (the lo-th onwards of their LoD; clause 11.4, 11.7.5, 11.8, 11.9). */
     decodeChunk(rows, nb, lo) {
         const i = this.chunk++, nr = rows.length, w = this.w, k = nb ? this.ctx.np.k : 0;
         if (this.ctx.stepAdjust) this.decodeIndices(i, rows);
-        const bytes = this.take(this.h.chunkSize[i]);
-        if (bytes.length % 4) throw new BitstreamError(`attribute chunk ${i}: length ${bytes.length} is not a whole number of 32-bit words (clause 10.6.6)`);
+        const degrees = this.ctx.shDegreeUnit ? this.takeWords(this.h.degreeSize[i], `SH-degree chunk ${i}`) : new Uint8Array(0);
+        const bytes = this.takeWords(this.h.chunkSize[i], `attribute chunk ${i}`);
         w.reset();
         const at = (arr) => copyIn(w, arr);
-        const pBytes = at(bytes), pRows = at(rows);
+        const pBytes = at(bytes), pRows = at(rows), pDegrees = at(degrees);
         const pIdx = nb ? at(nb.idx.subarray(lo * k, (lo + nr) * k)) : at(new Int32Array(0));
         const pCnt = nb ? at(nb.cnt.subarray(lo, lo + nr)) : at(new Uint8Array(nr));
-        callWasm(() => w.attributeChunk(pBytes, bytes.length, pRows, nr, pIdx, pCnt, k), (code, a, b) => chunkError(`attribute chunk ${i}`, code, a, b, w));
+        callWasm(() => w.attributeChunk(pBytes, bytes.length, pRows, nr, pIdx, pCnt, k, pDegrees, degrees.length),
+            (code, a, b) => chunkError(w.errorStage() === STAGE_FLAGS ? `SH-degree chunk ${i}` : `attribute chunk ${i}`, code, a, b, w));
+    }
+
+    /** The next range-coded chunk of `size` bytes, a whole number of 32-bit words (clause 10.6.6, E35). */
+    takeWords(size, what) {
+        const bytes = this.take(size);
+        if (bytes.length % 4) throw new BitstreamError(`${what}: length ${bytes.length} is not a whole number of 32-bit words (clause 10.6.6)`);
+        return bytes;
     }
 
     /** The step-adjustment indices of the chunk's rows (clause 11.8), into the module's memory. */
@@ -139,6 +149,7 @@ class TileAttributeDecoder {
 }
 
 const ERR_Q_LIMIT = 11; // decoder.ts: |q| > 2^40
+const STAGE_FLAGS = 1; // decoder.ts: errorStage() of a failure in the SH-degree data
 
 /** The spec's error for the module's failure `code` in an attribute chunk. */
 function chunkError(what, code, a, b, w) {

@@ -1,5 +1,5 @@
 // The decoding process of spec clause 13 for the explicit-Gaussian profile (see README.md):
-// container, parameter set, neighbour prediction and step adjustment units, tile index, then
+// container, parameter set, neighbour prediction, step adjustment and SH degree units, tile index, then
 // every tile (geometry, attributes, hash check).
 import { decodeTileAttributes } from './attributes.mjs';
 import { parseContainer, unitStructure, UNIT } from './container.mjs';
@@ -8,7 +8,7 @@ import { decodeGeometry } from './geometry.mjs';
 import { Sha256, sha256, toHex } from './sha256.mjs';
 import { scaleTables } from './tables.mjs';
 import {
-    parseAttributeHeader, parseGaussianParameterSet, parseHashUnit, parseNeighbourPrediction, parseStepAdjust, parseTileIndex,
+    parseAttributeHeader, parseGaussianParameterSet, parseHashUnit, parseNeighbourPrediction, parseShDegree, parseStepAdjust, parseTileIndex,
 } from './units.mjs';
 
 export { BitstreamError, HashMismatchError, ResourceLimitError, UnsupportedStreamError };
@@ -16,7 +16,7 @@ export const DEFAULT_MAX_MEMORY = 2 ** 31; // bytes a decode may hold (decodeStr
 
 /**
  * Parse everything before the tiles (clause 13.1 steps 1 to 5). Returns the stream's context:
- * {ps, np, stepAdjust, tiles: [{units, points, cell}], M, steps}.
+ * {ps, np, stepAdjust, shDegreeUnit, tiles: [{units, points, cell}], M, steps, payloads}.
  */
 export function parseStream(bytes, { maxMemory = DEFAULT_MAX_MEMORY } = {}) {
     scaleTables(); // digest of clause 10.2.2 checked before anything is decoded
@@ -26,13 +26,25 @@ export function parseStream(bytes, { maxMemory = DEFAULT_MAX_MEMORY } = {}) {
     if (s.np && ps.hierarchyEnabled) throw new BitstreamError('a neighbour_prediction unit in a stream with the hierarchy (clause 7.3.12, E60)');
     if (s.cm && !ps.hierarchyEnabled) throw new BitstreamError('a context_model unit with hierarchy_enabled_flag = 0 (clause 8.3, E16)');
     if (ps.hierarchyEnabled) throw new UnsupportedStreamError('hierarchy_enabled_flag = 1: the two-level hierarchy is outside the explicit-Gaussian profile this decoder implements');
-    // payloads: the prelude's units, which a worker decoding tiles in parallel parses itself
-    const ctx = { ps, M: ps.M, steps: ps.steps, np: null, stepAdjust: null, payloads: { ps: s.ps.payload, np: s.np?.payload ?? null, sa: s.sa?.payload ?? null } };
-    if (s.np) ctx.np = parseNeighbourPrediction(s.np.payload, ps.M);
-    if (s.sa) ctx.stepAdjust = parseStepAdjust(s.sa.payload);
+    const payload = (u) => u?.payload ?? null;
+    const ctx = preludeContext(ps, { ps: s.ps.payload, np: payload(s.np), sa: payload(s.sa), sd: payload(s.sd) });
     ctx.tiles = tileList(container.units, s, ps);
     checkMemory(ctx, bytes.length, maxMemory);
     return ctx;
+}
+
+/**
+ * The stream's context (clause 13.1 step 4) from the prelude's payloads {ps, np, sa, sd} (parameter
+ * set, neighbour_prediction, step_adjust and sh_degree units; null when absent), ps parsed. The
+ * payloads stay in it: a worker decoding tiles in parallel parses them itself.
+ */
+export function preludeContext(ps, payloads) {
+    return {
+        ps, M: ps.M, steps: ps.steps, payloads,
+        np: payloads.np ? parseNeighbourPrediction(payloads.np, ps.M) : null,
+        stepAdjust: payloads.sa ? parseStepAdjust(payloads.sa) : null,
+        shDegreeUnit: payloads.sd ? parseShDegree(payloads.sd, ps.shDegree) : null,
+    };
 }
 
 function tileList(units, s, ps) {

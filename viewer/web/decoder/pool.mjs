@@ -2,10 +2,10 @@
 // units): a pool of Web Workers that run this same worker script. The decoding worker hands each
 // complete tile to an idle helper ({job}); a helper parses the prelude once ({init}), decodes and
 // hash-checks the tile and sends back the renderer's arrays (and, for a digest, the decoded tile).
-import { decodeTile, sceneArrays } from './decoder.mjs';
+import { decodeTile, preludeContext, sceneArrays } from './decoder.mjs';
 import * as errors from './errors.mjs';
 import { scaleTables } from './tables.mjs';
-import { parseGaussianParameterSet, parseNeighbourPrediction, parseStepAdjust } from './units.mjs';
+import { parseGaussianParameterSet } from './units.mjs';
 
 // a typed array that owns its whole buffer (a view into a larger one would clone all of it)
 function own(a) { return a.byteOffset === 0 && a.byteLength === a.buffer.byteLength ? a : a.slice(); }
@@ -42,7 +42,7 @@ export class TilePool {
     start(ctx) {
         if (this.workers) return;
         const p = ctx.payloads;
-        const init = { ps: own(p.ps), np: p.np && own(p.np), sa: p.sa && own(p.sa) };
+        const init = { ps: own(p.ps), np: p.np && own(p.np), sa: p.sa && own(p.sa), sd: p.sd && own(p.sd) };
         this.workers = Array.from({ length: Math.min(this.size, ctx.tiles.length - 1) }, () => {
             const w = new Worker(this.url);
             w.jobs = [];
@@ -117,10 +117,7 @@ export async function helperMessage(data) {
     if (data.init) {
         scaleTables();
         const ps = parseGaussianParameterSet(data.init.ps);
-        helperCtx = {
-            ps, M: ps.M, steps: ps.steps, tiles: [], np: data.init.np ? parseNeighbourPrediction(data.init.np, ps.M) : null,
-            stepAdjust: data.init.sa ? parseStepAdjust(data.init.sa) : null,
-        };
+        helperCtx = { ...preludeContext(ps, data.init), tiles: [] };
         return;
     }
     const { t, points, cell, units, keep } = data.job;

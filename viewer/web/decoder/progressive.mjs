@@ -2,9 +2,9 @@
 // bytes have arrived; the scene is final only once the whole stream has passed the checks of
 // clauses 6 and 13.1 (parseStream on every byte). A stream rejected then is rejected whole.
 import { crc32 } from './crc32.mjs';
-import { decodeTile, parseStream, sceneArrays, DEFAULT_MAX_MEMORY } from './decoder.mjs';
+import { decodeTile, parseStream, preludeContext, sceneArrays, DEFAULT_MAX_MEMORY } from './decoder.mjs';
 import { BitstreamError } from './errors.mjs';
-import { parseGaussianParameterSet, parseNeighbourPrediction, parseStepAdjust, parseTileIndex } from './units.mjs';
+import { parseGaussianParameterSet, parseTileIndex } from './units.mjs';
 import { UNIT } from './container.mjs';
 
 export class ProgressiveDecoder {
@@ -57,22 +57,18 @@ export class ProgressiveDecoder {
         }
     }
 
-    // the prelude (parameter set, neighbour prediction, step adjustment, tile index) from the units so far
+    // the prelude (parameter set, neighbour prediction, step adjustment, SH degree, tile index) from the units so far
     _prelude() {
         const crit = this.units.filter((u) => u.type < 0x80);
         if (!crit.length || crit[0].type !== UNIT.GAUSSIAN_PARAMETER_SET) return null;
         const ps = parseGaussianParameterSet(crit[0].payload);
         if (ps.hierarchyEnabled) return null; // rejected by finish()
         let i = 1;
-        const ctx = { ps, M: ps.M, steps: ps.steps, np: null, stepAdjust: null, payloads: { ps: crit[0].payload, np: null, sa: null } };
-        if (crit[i] && crit[i].type === UNIT.NEIGHBOUR_PREDICTION) {
-            ctx.payloads.np = crit[i].payload;
-            ctx.np = parseNeighbourPrediction(crit[i++].payload, ps.M);
-            if (crit[i] && crit[i].type === UNIT.STEP_ADJUST) {
-                ctx.payloads.sa = crit[i].payload;
-                ctx.stepAdjust = parseStepAdjust(crit[i++].payload);
-            }
-        }
+        const payloads = { ps: crit[0].payload, np: null, sa: null, sd: null };
+        const next = (type) => (crit[i] && crit[i].type === type ? crit[i++].payload : null);
+        payloads.np = next(UNIT.NEIGHBOUR_PREDICTION);
+        if (payloads.np) { payloads.sa = next(UNIT.STEP_ADJUST); payloads.sd = next(UNIT.SH_DEGREE); }
+        const ctx = preludeContext(ps, payloads);
         if (!crit[i]) return null;
         if (ps.tilesEnabled) {
             if (crit[i].type !== UNIT.TILE_INDEX) return null;

@@ -4,6 +4,7 @@ import { BitReader, checkPositive, checkRange } from './bitreader.mjs';
 import { BitstreamError } from './errors.mjs';
 
 const UE_MAX = 2 ** 32 - 2;
+const NUM_DEGREE_CONTEXTS = 6; // clause 7.3.14
 
 /** gaussian_parameter_set() (clause 7.3.9). */
 export function parseGaussianParameterSet(payload) {
@@ -71,6 +72,15 @@ export function parseStepAdjust(payload) {
     return { maxStepAdjust };
 }
 
+/** sh_degree_unit() (clause 7.3.14) of sh_degree d: the flags' frequencies f[1] = 4096 degree_flag_prob + 2048 (Int32Array [d * 6]). */
+export function parseShDegree(payload, d) {
+    const r = new BitReader(payload, 'sh_degree_unit');
+    const freq = Int32Array.from({ length: d * NUM_DEGREE_CONTEXTS }, (_, i) => 4096 * r.u(12, `degree_flag_prob[${i}]`) + 2048);
+    r.byteAlign();
+    r.expectEnd();
+    return { freq };
+}
+
 /** tile_index_unit() (clause 7.3.11), with the checks on its own elements (E56, E57). */
 export function parseTileIndex(payload, N) {
     const W = 'tile_index_unit';
@@ -118,7 +128,7 @@ export function lodSizes(rows, L) {
 
 /**
  * attribute_unit_header() (clause 7.3.5) of an explicit-Gaussian stream without the hierarchy:
- * NumChannels = M, no offsets, ChannelPredictionAllowed = 1. ctx: {M, np (or null), stepAdjust}.
+ * NumChannels = M, no offsets, ChannelPredictionAllowed = 1. ctx: {M, np (or null), stepAdjust, shDegreeUnit}.
  */
 export function parseAttributeHeader(payload, ctx) {
     const W = 'attribute_unit_header';
@@ -152,15 +162,17 @@ export function parseAttributeHeader(payload, ctx) {
     h.lods = ctx.np ? lodSizes(h.numRows, ctx.np.L) : [h.numRows];
     const numChunks = h.lods.reduce((a, n) => a + Math.ceil(n / h.rowsPerChunk), 0);
     h.adjustSize = ctx.stepAdjust ? new Float64Array(numChunks) : null;
+    h.degreeSize = ctx.shDegreeUnit ? new Float64Array(numChunks) : null;
     h.chunkSize = new Float64Array(numChunks);
     for (let i = 0; i < numChunks; i++) {
         if (ctx.stepAdjust) h.adjustSize[i] = checkRange(W, `adjust_chunk_size[${i}]`, r.ue(`adjust_chunk_size[${i}]`), 0, UE_MAX);
+        if (ctx.shDegreeUnit) h.degreeSize[i] = checkRange(W, `degree_chunk_size[${i}]`, r.ue(`degree_chunk_size[${i}]`), 0, UE_MAX);
         h.chunkSize[i] = checkRange(W, `chunk_size[${i}]`, r.ue(`chunk_size[${i}]`), 0, UE_MAX);
     }
     r.byteAlign();
     h.dataOffset = r.bitPosition >>> 3;
     let total = 0;
-    for (let i = 0; i < numChunks; i++) total += h.chunkSize[i] + (ctx.stepAdjust ? h.adjustSize[i] : 0);
+    for (let i = 0; i < numChunks; i++) total += h.chunkSize[i] + (ctx.stepAdjust ? h.adjustSize[i] : 0) + (ctx.shDegreeUnit ? h.degreeSize[i] : 0);
     if (total !== payload.length - h.dataOffset) {
         throw new BitstreamError(`attribute unit: the chunk sizes add up to ${total} bytes, the payload holds ${payload.length - h.dataOffset} after the header (clause 6.4, E50)`);
     }

@@ -854,7 +854,23 @@ export function attributeTile(q: usize, M: i32, adj: usize, sa: i32, fix: usize,
     prior: usize, priorLevel: usize, pStart: usize, pSrc: usize, pW: usize): void {
     aQ = q; aM = M; aAdj = adj; aSa = sa; aFix = fix; aShift = shift; aMeanFlag = meanFlag; aBucket = bucket; aB = B;
     aPrior = prior; aPriorLevel = priorLevel; aPStart = pStart; aPSrc = pSrc; aPW = pW;
+    aDeg = 0;
 }
+
+// The per-Gaussian SH degree (11.9, version 1.3; attributeDegrees after attributeTile, when the stream
+// has an sh_degree unit): the rows' degrees D (u8 [n], decoded chunk by chunk), d = sh_degree and the
+// flags' frequencies f[1] = 4096 degree_flag_prob + 2048 (i32 [d * 6], band-major). aDeg 0: no tool.
+let aDeg: usize = 0; let aD: i32 = 0; let aFreq: usize = 0;
+
+export function attributeDegrees(deg: usize, d: i32, freq: usize): void {
+    aDeg = deg; aD = d; aFreq = freq;
+}
+
+// which range-coded chunk of an attribute chunk failed (errorStage(), after a trap)
+const STAGE_SYMBOLS: i32 = 0;
+const STAGE_FLAGS: i32 = 1;
+let stage: i32 = STAGE_SYMBOLS;
+export function errorStage(): i32 { return stage; }
 
 const ERR_Q_LIMIT: i32 = 11;   // |q| > 2^40 (11.6, E51; errA the row, errB the channel, errorWide() q)
 const ERR_NOT_FINITE: i32 = 12; // a reconstructed value not finite (11.5, E52; errA the row, errB the channel)
@@ -870,24 +886,31 @@ const Q_LIMIT: i64 = 0x10000000000; // 2^40
 }
 
 /**
- * Chunk of nr rows (rows: i32 [nr]) with symbol data of nbytes at p: the rows' means and levels
- * (11.3, 11.7.3, 11.8; row r has cnt[r] neighbours idx[r * k ..], none: the prior's), the symbols
+ * Chunk of nr rows (rows: i32 [nr]) with symbol data of nbytes at p and, with the SH-degree tool,
+ * SH-degree data of dbytes at dp: the rows' degrees (11.9), means and levels (11.3, 11.7.3, 11.8;
+ * row r has cnt[r] neighbours idx[r * k ..], none: the prior's), the symbols of the coded channels
  * (10.7) and the values q (11.6) into the tile's q. Returns the number of escapes.
  */
-export function attributeChunk(p: usize, nbytes: i32, rows: usize, nr: i32, idx: usize, cnt: usize, k: i32): i32 {
+export function attributeChunk(p: usize, nbytes: i32, rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, dp: usize, dbytes: i32): i32 {
     err = 0;
+    if (aDeg) { stage = STAGE_FLAGS; decodeDegrees(dp, dbytes, rows, nr, idx, cnt, k); }
+    stage = STAGE_SYMBOLS;
     const M = aM, n = nr * M;
     const mean = alloc(n << 3), level = alloc(n), res = alloc(n << 3), wide = alloc(n << 3);
     rowMeans(rows, nr, idx, cnt, k, mean, level);
-    const nesc = decodeSymbols(p, nbytes, level, n, res, wide);
-    for (let r = 0; r < nr; r++) rowValues(i32At(rows, r), r * M, mean, res, wide);
+    const ns = aDeg ? codedLevels(rows, nr, level) : n;
+    const nesc = decodeSymbols(p, nbytes, level, ns, res, wide);
+    if (aDeg) for (let r = 0, j = 0; r < nr; r++) j = rowValuesCoded(i32At(rows, r), r * M, j, mean, res, wide);
+    else for (let r = 0; r < nr; r++) rowValues(i32At(rows, r), r * M, mean, res, wide);
     return nesc;
 }
 
 /**
  * q of one row (11.4 step 3, 11.6): residual + mean + prediction from the channels before, each
  * checked against |q| <= 2^40 as it is computed. Exact in i64: residuals below 2^62, means below
- * 2^42 and at most M - 1 terms of |weight| <= 2^15 times |q - mean| < 2^43.
+ * 2^42 and at most M - 1 terms of |weight| <= 2^15 times |q - mean| < 2^43. Without the SH-degree
+ * tool every channel is coded: this loop has no coded-channel tests (rowValuesCoded's cost 8-15%
+ * on the logo's stream).
  */
 function rowValues(row: i32, base: i32, mean: usize, res: usize, wide: usize): void {
     const M = aM, qb = aQ + (<usize>(row * M) << 3), mb = mean + (<usize>base << 3);
@@ -899,10 +922,85 @@ function rowValues(row: i32, base: i32, mean: usize, res: usize, wide: usize): v
             const s = i32At(aPSrc, i);
             pr += <i64>i32At(aPW, i) * (i64At(qb, s) - i64At(mb, s));
         }
-        const v = rv + i64At(mb, c) + ((pr + 128) >> 8);
-        if (v > Q_LIMIT || v < -Q_LIMIT) { errWide = <u64>v; fail(ERR_Q_LIMIT, row, c); }
-        setI64(qb, c, v);
+        storeValue(qb, row, c, rv + i64At(mb, c) + ((pr + 128) >> 8));
     }
+}
+
+@inline function storeValue(qb: usize, row: i32, c: i32, v: i64): void {
+    if (v > Q_LIMIT || v < -Q_LIMIT) { errWide = <u64>v; fail(ERR_Q_LIMIT, row, c); }
+    setI64(qb, c, v);
+}
+
+/** The end of the coded SH channels of a row (11.9): 3 (D + 1)^2, or all of them (M - 8) without the tool. */
+@inline function codedEnd(row: i32): i32 {
+    if (!aDeg) return aM - 8;
+    const D1 = u8At(aDeg, row) + 1;
+    return 3 * D1 * D1;
+}
+
+/**
+ * q of one row as rowValues, in a stream with the SH-degree tool (11.9): the row's residuals are
+ * res[j ..] (its coded channels'); the channels e <= c < M - 8 it does not code have q = 0 and give
+ * no prediction term. Returns j after the row's residuals.
+ */
+function rowValuesCoded(row: i32, base: i32, j: i32, mean: usize, res: usize, wide: usize): i32 {
+    const M = aM, qb = aQ + (<usize>(row * M) << 3), mb = mean + (<usize>base << 3);
+    const e = codedEnd(row), gap = <u32>(M - 8 - e); // c is not coded when <u32>(c - e) < gap
+    for (let c = 0; c < M; c++) {
+        if (<u32>(c - e) < gap) { setI64(qb, c, 0); continue; }
+        const rf = load<f64>(res + (<usize>j << 3));
+        const rv: i64 = rf == rf ? <i64>rf : i64At(wide, j); // NaN: an escape beyond 2^53
+        j++;
+        let pr: i64 = 0;
+        for (let i = i32At(aPStart, c), ie = i32At(aPStart, c + 1); i < ie; i++) {
+            const s = i32At(aPSrc, i);
+            if (<u32>(s - e) < gap) continue;
+            pr += <i64>i32At(aPW, i) * (i64At(qb, s) - i64At(mb, s));
+        }
+        storeValue(qb, row, c, rv + i64At(mb, c) + ((pr + 128) >> 8));
+    }
+    return j;
+}
+
+/**
+ * The SH degrees (11.9) of the chunk's rows from its SH-degree data (nbytes at p): binary flags in
+ * band-major order, band b's flag of each row that has every band below b, with the context of the
+ * share of the row's neighbours (rows of coarser LoDs, whose degrees are known) that have band b.
+ */
+function decodeDegrees(p: usize, nbytes: i32, rows: usize, nr: i32, idx: usize, cnt: usize, k: i32): void {
+    rangeStart(p, nbytes);
+    for (let r = 0; r < nr; r++) setU8(aDeg, i32At(rows, r), 0);
+    for (let b = 1; b <= aD; b++) {
+        const f = aFreq + (<usize>((b - 1) * 6) << 2);
+        for (let r = 0; r < nr; r++) {
+            const row = i32At(rows, r);
+            if (u8At(aDeg, row) != b - 1) continue;
+            const f1 = <u64>i32At(f, degreeContext(r, b, idx, cnt, k));
+            if (decodeBinary(0x1000000 - f1, f1)) setU8(aDeg, row, b);
+        }
+    }
+    checkExhausted();
+}
+
+/** The context x (0 .. 5) of band b's flag of the chunk's row r (11.9). */
+@inline function degreeContext(r: i32, b: i32, idx: usize, cnt: usize, k: i32): i32 {
+    const n = u8At(cnt, r);
+    if (n == 0) return 0; // LoD 0 (a row of a finer LoD has at least one neighbour)
+    let m = 0;
+    for (let t = 0; t < n; t++) if (u8At(aDeg, i32At(idx, r * k + t)) >= b) m++;
+    return m == 0 ? 1 : m == n ? 5 : 2 + (3 * m) / n;
+}
+
+/** The levels of the rows' coded channels (11.9), row after row in increasing c, moved to the front of level; returns their number. */
+function codedLevels(rows: usize, nr: i32, level: usize): i32 {
+    const M = aM;
+    let j = 0;
+    for (let r = 0; r < nr; r++) {
+        const e = codedEnd(i32At(rows, r)), base = r * M;
+        for (let c = 0; c < e; c++) setU8(level, j++, u8At(level, base + c));
+        for (let c = M - 8; c < M; c++) setU8(level, j++, u8At(level, base + c));
+    }
+    return j;
 }
 
 /**
@@ -917,7 +1015,7 @@ function rowValues(row: i32, base: i32, mean: usize, res: usize, wide: usize): v
 }
 
 /**
- * The mean (i64) and level (u8) of every channel of nr rows to mean [nr * M] and level [nr * M].
+ * The mean (i64) and level (u8) of every coded channel (11.9) of nr rows to mean [nr * M] and level [nr * M].
  * Sums of up to 32 q F (|q| <= 2^40, F < 2^14) stay below 2^59: exact in i64.
  */
 function rowMeans(rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, mean: usize, level: usize): void {
@@ -930,10 +1028,17 @@ function rowMeans(rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, mean: us
             setI32(qa, m, <i32>(aQ + (<usize>(j * M) << 3)));
             setI64(fa, m, aSa ? <i64>i32At(aFix, u8At(aAdj, j)) : 1);
         }
-        let c = 0;
-        for (; c + 1 < M; c += 2) neighbourPair(qa, fa, n, c, F, mean, level, base);
-        if (c < M) neighbourOne(qa, fa, n, c, F, mean, level, base);
+        const e = codedEnd(i32At(rows, r)); // only the coded channels' (11.9)
+        if (e == M - 8) neighbourRange(qa, fa, n, 0, M, F, mean, level, base);
+        else { neighbourRange(qa, fa, n, 0, e, F, mean, level, base); neighbourRange(qa, fa, n, M - 8, M, F, mean, level, base); }
     }
+}
+
+/** Channels c0 .. c1 - 1 of a row with n neighbours, two at a time. */
+@inline function neighbourRange(qa: usize, fa: usize, n: i32, c0: i32, c1: i32, F: i64, mean: usize, level: usize, base: i32): void {
+    let c = c0;
+    for (; c + 1 < c1; c += 2) neighbourPair(qa, fa, n, c, F, mean, level, base);
+    if (c < c1) neighbourOne(qa, fa, n, c, F, mean, level, base);
 }
 
 /** Channels c and c + 1 of a row with n neighbours (rows of q at qa, factors fa): sum, max and min of q F two lanes at a time. */
