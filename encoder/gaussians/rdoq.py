@@ -491,21 +491,22 @@ def _degree_costs(gains: np.ndarray, flags: np.ndarray) -> np.ndarray:
 
 def sh_degree_choice(x: np.ndarray, q: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray,
                      graph: NeighbourGraph, num_buckets: int, layout: GaussianLayout,
-                     adjust: np.ndarray | None = None) -> np.ndarray:
+                     adjust: np.ndarray | None = None, coding: NeighbourCoding | None = None) -> np.ndarray:
     """int64 [N]: each row's SH degree (format 1.3, clause 11.9), rows in coding order: the D in
     [0, d] of least cost in bits, the pictures' error of the bands above D decoded as 0 instead
     of the values ``q`` chosen (RDOQ's, in each row's own steps) over the bands' slopes ``mu``
     [M], less those bands' residual bits, plus the bits of the flags D codes. ``x`` (in the
     channels' steps) and ``f`` as rd_quantize's. The residuals' bits are those of the coding
     fitted to ``q``; the flags' bits those of the probabilities and contexts of the round before
-    (DEGREE_ROUNDS). A Gaussian whose colour the views do not see change keeps no band."""
+    (DEGREE_ROUNDS); ``coding``: that coding when the caller has it. A Gaussian whose colour the
+    views do not see change keeps no band."""
     n, d = x.shape[0], layout.sh_degree
     if d == 0 or n == 0:
         return np.full(n, d, dtype=np.int64)
     if adjust is not None:
         factor = STEP_ADJUST_FACTORS[adjust].astype(np.float64)[:, None]
         x, f = x / factor, f * factor ** 2
-    nc = NeighbourCoding(q, coords, len(graph.rows), 1, num_buckets, False, None, graph=graph, adjust=adjust)
+    nc = coding or NeighbourCoding(q, coords, len(graph.rows), 1, num_buckets, False, None, graph=graph, adjust=adjust)
     gains = _band_gains(x, q, f, mu, code_lengths_bits(nc.residuals, nc.levels), layout)
     degrees = None
     for _ in range(DEGREE_ROUNDS):
@@ -536,13 +537,14 @@ def degrees_on_graph(x: np.ndarray, q: np.ndarray, f: np.ndarray, layout: Gaussi
     mu = group_slopes(f, channel_groups(layout.sh_degree), cfg.rd_quantization)
     a = None if adjust is None else adjust[order]
     xo, qo, co = x[order], q[order], coords[order]
-    chosen = sh_degree_choice(xo, qo, f[order], mu, co, graph, cfg.prediction_buckets, layout, a)
+    args = (co, len(graph.rows), 1, cfg.prediction_buckets, False, layout)
+    without = NeighbourCoding(qo, *args, graph=graph, adjust=a)
+    chosen = sh_degree_choice(xo, qo, f[order], mu, co, graph, cfg.prediction_buckets, layout, a, without)
     if (chosen == layout.sh_degree).all():
         return None
-    args = (co, len(graph.rows), 1, cfg.prediction_buckets, False, layout)
     with_tool = NeighbourCoding(without_dropped_bands(qo, chosen, layout), *args, graph=graph, adjust=a,
-                                degrees=chosen).ideal_stream_bits()
-    if with_tool >= NeighbourCoding(qo, *args, graph=graph, adjust=a).ideal_stream_bits():
+                                degrees=chosen)
+    if with_tool.ideal_stream_bits() >= without.ideal_stream_bits():
         return None
     degrees = np.empty(x.shape[0], dtype=np.int64)
     degrees[order] = chosen
