@@ -175,7 +175,8 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # each Gaussian's SH bands above its own degree are not coded (they decode to 0) where the
     # pictures' error of dropping them costs less than their bits and flags by RDOQ's slopes; the
     # stream carries the tool only where some Gaussian drops a band and it codes smaller. Needs the
-    # sensitivities, RDOQ and neighbour prediction (False: every band of every Gaussian coded).
+    # sensitivities, RDOQ and neighbour prediction (False: every band of every Gaussian coded). On in
+    # the low preset only (tools/results/sh_degree.md).
     sh_degree_choice: bool = False
     # Drop before anything else the Gaussians whose opacity (after the sigmoid) is below this: at
     # 1/255 those that 3DGS rasterizers never draw (alpha < 1/255 is skipped, render/rasterizer.py),
