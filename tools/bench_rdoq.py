@@ -54,20 +54,27 @@ def record_parts(search: SettingsSearch) -> dict:
     parts: dict = {}
     inner = search._attribute_bits
 
-    def attribute_bits(key, grid, q, prior_bits, adjust=None):
+    def attribute_bits(key, grid, q, prior_bits, adjust=None, degrees=None, layout=None):
         order, graph = search._graph(key, grid)
-        n, layout = q.shape[0], GaussianLayout(search.scene.sh_degree)
+        n, layout = q.shape[0], layout or GaussianLayout(search.scene.sh_degree)
         sh, rot = layout.opacity_channel, layout.rotation_start
         if graph is not None:
             nc = NeighbourCoding(q[order], grid.coords[order], search.cfg.prediction_lods,
-                                 search.cfg.prediction_neighbours, search.cfg.prediction_buckets, False, None,
-                                 graph=graph, adjust=None if adjust is None else adjust[order])
-            bits = code_lengths_bits(nc.residuals, nc.levels).sum(axis=0) / n
-            zeros = code_lengths_bits(np.zeros_like(nc.residuals[:, 3:sh]), nc.levels[:, 3:sh]).sum() / n
+                                 search.cfg.prediction_neighbours, search.cfg.prediction_buckets, False, layout,
+                                 graph=graph, adjust=None if adjust is None else adjust[order],
+                                 degrees=None if degrees is None else degrees[order])
+            coded = np.ones(q.shape, dtype=bool) if nc.coded is None else nc.coded
+            per_value = np.where(coded, code_lengths_bits(nc.residuals, nc.levels), 0.0)
+            bits = per_value.sum(axis=0) / n
+            zeros = np.where(coded[:, 3:sh], code_lengths_bits(np.zeros_like(nc.residuals[:, 3:sh]),
+                                                               nc.levels[:, 3:sh]), 0.0).sum() / n
+            shares = "-" if degrees is None else "/".join(
+                f"{c / n:.0%}" for c in np.bincount(degrees, minlength=layout.sh_degree + 1))
             parts.update({"SH rest": bits[3:sh].sum(), "DC": bits[:3].sum(), "opacity": bits[sh],
                           "scales": bits[layout.scale_start:rot].sum(), "rotation": bits[rot:].sum(),
-                          "geometry": search._grid(*key)[2] / n, "SH rest if every residual were 0": zeros})
-        return inner(key, grid, q, prior_bits, adjust)
+                          "geometry": search._grid(*key)[2] / n, "SH rest if every residual were 0": zeros,
+                          "SH-degree flags": nc.degree_bits() / n, "share of each SH degree": shares})
+        return inner(key, grid, q, prior_bits, adjust, degrees, layout)
 
     search._attribute_bits = attribute_bits
     return parts
@@ -95,6 +102,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--step-adjust", default="0",
                    help="largest step-adjustment indices to measure, comma-separated (format 1.2; default 0: "
                         "every Gaussian at its channels' steps; the presets use 7)")
+    p.add_argument("--sh-degrees", default="off",
+                   help="per-Gaussian SH degree (format 1.3, config sh_degree_choice) to measure, comma-separated: "
+                        "off, on (default off)")
+    p.add_argument("--degree-weight", type=float, default=rdoq.DEGREE_DISTORTION_WEIGHT,
+                   help="the weight of a dropped SH band's error against its bits in the SH-degree choice "
+                        f"(default {rdoq.DEGREE_DISTORTION_WEIGHT:g}, the encoder's)")
     p.add_argument("--orbit-up", default=None,
                    help="also measure each row on tools/bench_real.py's 12 orbit views at 320 px around this up "
                         "axis (x, y, z, -x, -y, -z): views the sensitivities and the search never saw")
@@ -104,6 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     rdoq.MAX_JUMP = args.max_jump
     rdoq.ROTATION_NORMS = tuple(float(r) for r in args.rotation_lengths.split(","))
     rdoq.TURN_CANDIDATES = args.turn_candidates
+    rdoq.DEGREE_DISTORTION_WEIGHT = args.degree_weight
     torch.set_num_threads(args.threads)
     scene = read_3dgs_ply(args.scene)
     cfg = load_config(args.preset, kind="gaussians")
@@ -133,28 +147,30 @@ def main(argv: list[str] | None = None) -> int:
              f"({len(cams)} views, {args.probes} probes each) in {t_sens:.1f} s; values moved at most "
              f"{args.max_jump} step(s); rotation lengths {args.rotation_lengths}; {args.turn_candidates} turn "
              "candidates.",
-             "", "| step factor | RDOQ weight | step adjustment up to | PSNR dB (search views) | "
+             "", "| step factor | RDOQ weight | step adjustment up to | SH degree per Gaussian | PSNR dB (search views) | "
              + ("PSNR dB (orbit, 320 px) | " if orbit_search else "") + "bytes | bytes / rounding at this factor | bits per Gaussian: SH rest, DC, opacity, scales, rotation, "
-             "geometry; SH rest if every residual were 0 |",
-             "|---:|---:|---:|---:|" + ("---:|" if orbit_search else "") + "---:|---:|---|"]
+             "geometry; SH rest if every residual were 0; SH-degree flags; share of each SH degree |",
+             "|---:|---:|---:|---:|---:|" + ("---:|" if orbit_search else "") + "---:|---:|---|"]
     for fac in (float(x) for x in args.factors.split(",")):
         ref = None
         for w in (float(x) for x in args.weights.split(",")):
-            for top in (int(x) for x in args.step_adjust.split(",")):
-                if w == 0 and top:
-                    continue  # step adjustment is chosen with RDOQ's costs
+            for top, degrees in ((int(a), b == "on") for a in args.step_adjust.split(",")
+                                 for b in args.sh_degrees.split(",")):
+                if w == 0 and (top or degrees):
+                    continue  # step adjustment and the SH degrees are chosen with RDOQ's costs
                 if not args.keep_ways:
                     s.ways[:] = -1  # each Gaussian's way chosen afresh at these steps, as the coding chooses it
-                trial_cfg = dataclasses.replace(_scaled(cfg, groups, fac), rd_quantization=w, step_adjust_max=top)
+                trial_cfg = dataclasses.replace(_scaled(cfg, groups, fac), rd_quantization=w, step_adjust_max=top,
+                                                sh_degree_choice=degrees)
                 t = s.evaluate(trial_cfg)
                 ref = ref or t.bits
                 seen = ""
                 if orbit_search is not None:
                     orbit_search.ways[:] = s.ways  # the same values, rendered from the orbit
                     seen = f"{-10 * math.log10(max(orbit_search.evaluate(trial_cfg).mse, 1e-12)):.2f} | "
-                lines.append(f"| {fac:g} | {w:g} | {top} | {-10 * math.log10(max(t.mse, 1e-12)):.2f} | {seen}"
+                lines.append(f"| {fac:g} | {w:g} | {top} | {'on' if degrees else 'off'} | {-10 * math.log10(max(t.mse, 1e-12)):.2f} | {seen}"
                              f"{t.bits / 8:,.0f} | {t.bits / ref:.3f} | "
-                             f"{', '.join(f'{v:.1f}' for v in parts.values()) if parts else '-'} |")
+                             f"{', '.join(v if isinstance(v, str) else f'{v:.1f}' for v in parts.values()) if parts else '-'} |")
                 print(lines[-1], flush=True)
     lines += ["", f"Load average at the end: {load_average()}."]
     write_lines(args.out, lines)

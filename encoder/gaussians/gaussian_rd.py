@@ -47,8 +47,8 @@ from ..stream.config import GaussianEncoderConfig
 from .gaussian_grid import choose_grid, coded_values, snap_to_grid
 from .gaussian_views import prune_by_contribution, resolving_views
 from ..stream.neighbour_coding import NeighbourCoding, usable as neighbour_usable
-from .rdoq import (adjust_on_graph, channel_groups, channel_steps, group_slopes, orientation_columns, rd_quantize,
-                   sh_degree_subset)
+from .rdoq import (adjust_on_graph, channel_groups, channel_steps, degrees_on_graph, group_slopes, orientation_columns,
+                   rd_quantize, sh_degree_subset, sh_degrees_wanted, without_dropped_bands)
 from ...render.gaussians3dgs import Gaussians3DGS, gaussians_from_scene
 from ...render.rasterizer import rasterize
 
@@ -310,19 +310,23 @@ class SettingsSearch:
         return self._graphs[key]
 
     def _attribute_bits(self, key, grid: GaussianScene, q: np.ndarray, prior_bits: float,
-                        adjust: np.ndarray | None = None) -> float:
+                        adjust: np.ndarray | None = None, degrees: np.ndarray | None = None,
+                        layout: GaussianLayout | None = None) -> float:
         """The attribute bits the encoder will spend: the per-channel prior's, or neighbour
         prediction's where it is smaller (encoder/stream/neighbour_coding.py; cross-channel prediction,
         which both can add, is left out of the estimate). With step adjustment (``adjust``, rows
-        in the scene's order), neighbour prediction's."""
+        in the scene's order) or SH degrees (``degrees``, with the ``layout``), neighbour
+        prediction's."""
         order, graph = self._graph(key, grid)
         if graph is None:
             return prior_bits
         qo = q[order]
         nc = NeighbourCoding(qo, grid.coords[order], self.cfg.prediction_lods, self.cfg.prediction_neighbours,
-                             self.cfg.prediction_buckets, False, None, graph=graph,
-                             adjust=None if adjust is None else adjust[order])
-        return nc.ideal_stream_bits() if adjust is not None else min(prior_bits, nc.ideal_stream_bits())
+                             self.cfg.prediction_buckets, False, layout, graph=graph,
+                             adjust=None if adjust is None else adjust[order],
+                             degrees=None if degrees is None else degrees[order])
+        needed = adjust is not None or degrees is not None
+        return nc.ideal_stream_bits() if needed else min(prior_bits, nc.ideal_stream_bits())
 
     def _grid(self, share: float, position_step: float):
         key = (share, position_step)
@@ -348,6 +352,26 @@ class SettingsSearch:
             return None
         return adjust_on_graph(x, sh_degree_subset(self.sensitivity[keep], degree), degree, grid.coords, order, graph,
                                cfg)
+
+    def _rd_quantized(self, key, grid: GaussianScene, keep: np.ndarray, x: np.ndarray, layout: GaussianLayout,
+                      cfg: GaussianEncoderConfig, adjust: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+        """The values RDOQ chooses for the kept Gaussians (scene order, each row's own steps), the
+        bands above each one's SH degree set to 0, and the degrees (None without the tool), as
+        the coding will choose them (encoder/gaussians/rdoq.py)."""
+        order, graph = self._graph(key, grid)
+        degree = layout.sh_degree
+        f = sh_degree_subset(self.sensitivity[keep], degree)
+        mu = group_slopes(f, channel_groups(degree), cfg.rd_quantization)
+        rows = np.flatnonzero(keep)[order]  # the scene's Gaussians in coding order
+        ways = self.ways[rows]
+        q = np.empty(x.shape, dtype=np.int64)
+        q[order] = rd_quantize(x[order], f[order], mu, grid.coords[order], graph, cfg.prediction_buckets,
+                               orientation_columns(layout), ways, None if adjust is None else adjust[order])
+        self.ways[rows] = ways
+        degrees = None
+        if sh_degrees_wanted(cfg, self.sensitivity, degree) and graph is not None:
+            degrees = degrees_on_graph(x, q, f, layout, grid.coords, order, graph, cfg, adjust)
+        return (q, None) if degrees is None else (without_dropped_bands(q, degrees, layout), degrees)
 
     def _mse(self, dec: GaussianScene, share: float = 0.0) -> float:
         """The squared error of renders of ``dec`` against the source's, mean over the views. With a
@@ -388,21 +412,14 @@ class SettingsSearch:
         x = sh_degree_subset(self.values[keep], degree) / steps
         adjust = self._adjust(key, grid, keep, x, degree, cfg)
         factor = 1.0 if adjust is None else STEP_ADJUST_FACTORS[adjust].astype(np.float64)[:, None]
-        q = np.rint(x / factor).astype(np.int64)
+        q, degrees = np.rint(x / factor).astype(np.int64), None
         if self.sensitivity is not None and cfg.rd_quantization > 0:
-            order, graph = self._graph(key, grid)
-            f = sh_degree_subset(self.sensitivity[keep], degree)
-            mu = group_slopes(f, channel_groups(degree), cfg.rd_quantization)
-            rows = np.flatnonzero(keep)[order]  # the scene's Gaussians in coding order
-            ways = self.ways[rows]
-            q[order] = rd_quantize(x[order], f[order], mu, grid.coords[order], graph, cfg.prediction_buckets,
-                                   orientation_columns(layout), ways, None if adjust is None else adjust[order])
-            self.ways[rows] = ways
+            q, degrees = self._rd_quantized(key, grid, keep, x, layout, cfg, adjust)
         prior_bits = 0.0
         for c in range(q.shape[1]):
             r = q[:, c] - int(np.median(q[:, c]))
             prior_bits += float(code_lengths_bits(r, np.full(r.shape, best_level(r), np.int64)).sum())
-        bits = geometry_bits + self._attribute_bits(key, grid, q, prior_bits, adjust)
+        bits = geometry_bits + self._attribute_bits(key, grid, q, prior_bits, adjust, degrees, layout)
         dec = GaussianScene(grid.means, *layout.split((q * steps * factor).astype(np.float32)))
         mse = self._mse(dec, cfg.prune_share)
         cost = 10 * math.log10(max(mse, 1e-12)) + self.lam * math.log2(max(bits, 1.0))

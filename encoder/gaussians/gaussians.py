@@ -113,7 +113,8 @@ def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: Lev
     quantization chooses (encoder/gaussians/rdoq.py; ``sensitivity`` rows in coding order), which the
     coder's rounding then reproduces exactly. The choice uses the whole scene's neighbour
     graph, also where tiles code their own."""
-    from .rdoq import adjust_on_graph, channel_groups, group_slopes, orientation_columns, rd_quantize, sh_degree_subset
+    from .rdoq import (adjust_on_graph, channel_groups, degrees_on_graph, group_slopes, orientation_columns, rd_quantize,
+                       sh_degree_subset, sh_degrees_wanted, without_dropped_bands)
 
     degree = inp.layout.sh_degree
     f = sh_degree_subset(sensitivity, degree)
@@ -126,9 +127,14 @@ def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: Lev
         adjust = adjust_on_graph(x, f, degree, inp.coords, np.arange(x.shape[0]), graph, cfg)
     q = rd_quantize(x, f, group_slopes(f, channel_groups(degree), cfg.rd_quantization), inp.coords, graph,
                     cfg.prediction_buckets, orientation_columns(inp.layout), adjust=adjust)
+    degrees = None
+    if graph is not None and inp.sh_degrees is None and sh_degrees_wanted(cfg, sensitivity, degree):
+        degrees = degrees_on_graph(x, q, f, inp.layout, inp.coords, np.arange(x.shape[0]), graph, cfg, adjust)
+        q = q if degrees is None else without_dropped_bands(q, degrees, inp.layout)
     steps = inp.steps.astype(np.float64) if adjust is None else \
         attr.effective_steps(inp.steps, adjust[:, None]).astype(np.float64)
-    return dataclasses.replace(inp, values=q * steps, step_adjust=adjust)
+    return dataclasses.replace(inp, values=q * steps, step_adjust=adjust,
+                               sh_degrees=inp.sh_degrees if degrees is None else degrees)
 
 
 def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: GaussianEncoderConfig, coded: CodedAttributes,

@@ -78,12 +78,14 @@ from ...common.entropy.symbol_coder import code_lengths_bits
 from ...common.neighbour_prediction import (NeighbourGraph, adjusted_prior, neighbour_means_and_buckets,
                                            prior_level_in_steps)
 from ...common.scene import GaussianScene
+from ...common.sh_degree import FLAG_PROB_UNIT, coded_channels, flag_contexts, neighbour_degrees
+from ...common.units import DEGREE_PROB_BITS
 from ...render.camera import Camera
 from ...render.rasterizer import quat_to_rotmat, rasterize
 from ...render.sh import sh_to_rgb
 from ..stream.level_coding import fit_per_channel_prior
 from .gaussian_grid import OPACITY_LOGIT_LIMIT, canonical_rotations
-from ..stream.neighbour_coding import NeighbourCoding
+from ..stream.neighbour_coding import NeighbourCoding, degree_flag_counts, degree_unit_of
 
 
 def sensitivities(scene: GaussianScene, cams: list[Camera], probes: int = 1, seed: int = 0,
@@ -429,3 +431,121 @@ def adjust_on_graph(x: np.ndarray, f: np.ndarray, degree: int, coords: np.ndarra
     adjust[order] = step_adjust_choice(x[order], f[order], mu, coords[order], graph, cfg.prediction_buckets,
                                        cfg.step_adjust_max)
     return adjust if adjust.any() else None
+
+
+# Rounds of the SH-degree choice (sh_degree_choice): the first prices the flags at one bit each,
+# every later one at the flags' probabilities and contexts of the round before.
+DEGREE_ROUNDS = 2
+# The weight of the pictures' error of a dropped band against its bits (1: RDOQ's slopes). F, a
+# derivative from the fit views, underrates what a whole band's loss shows on other views: on
+# playbot lod4 (tools/bench_rdoq.py --sh-degrees on, tools/results/sh_degree.md) weight 1 gave
+# 2.3% fewer bytes at equal PSNR on the search views but 0.9% on the orbit at low; weights 2-4
+# gave 1.5-2.6% on both at low, medium and high (within about 0.3% of each other).
+DEGREE_DISTORTION_WEIGHT = 2.0
+
+
+def _band_gains(x: np.ndarray, q: np.ndarray, f: np.ndarray, mu: np.ndarray, bits: np.ndarray,
+                layout: GaussianLayout) -> np.ndarray:
+    """float64 [N, d]: per row and band b = 1 .. d, in bits, what dropping the band costs: the
+    pictures' error of its values decoded as 0 instead of q (F-weighted, over the band's slope mu)
+    less the bits of its residuals. A band whose slope is 0 (the views see none of its values):
+    no distortion where F is 0 too, else never dropped."""
+    band = layout.band_of_channel()
+    gains = np.empty((x.shape[0], layout.sh_degree))
+    for b in range(1, layout.sh_degree + 1):
+        c = np.flatnonzero(band == b)
+        added = (f[:, c] * (x[:, c] ** 2 - (x[:, c] - q[:, c]) ** 2)).sum(axis=1)
+        slope = float(mu[c].max())
+        per_bit = DEGREE_DISTORTION_WEIGHT * added / slope if slope > 0 else np.where(added > 0, np.inf, 0.0)
+        gains[:, b - 1] = per_bit - bits[:, c].sum(axis=1)
+    return gains
+
+
+def _flag_bits(degrees: np.ndarray | None, graph: NeighbourGraph, sh_degree: int) -> np.ndarray:
+    """float64 [N, d, 2]: per row and band, the bits of a flag 0 and of a flag 1 (clause 11.9) under
+    the probabilities the coder fits to ``degrees`` and the contexts their neighbours give; one
+    bit each where ``degrees`` is None."""
+    n = graph.rows[0].size + sum(r.size for r in graph.rows[1:])
+    if degrees is None:
+        return np.ones((n, sh_degree, 2))
+    p = np.asarray(degree_unit_of(degree_flag_counts(graph, degrees, sh_degree)).degree_flag_prob, np.float64)
+    p1 = ((FLAG_PROB_UNIT * p + FLAG_PROB_UNIT / 2) / (FLAG_PROB_UNIT << DEGREE_PROB_BITS)).reshape(sh_degree, -1)
+    bits = np.empty((n, sh_degree, 2))
+    for lod, rows in enumerate(graph.rows):
+        nd = neighbour_degrees(graph.neighbours[lod], degrees) if lod else None
+        for b in range(1, sh_degree + 1):
+            one = p1[b - 1][flag_contexts(b, nd, np.arange(rows.size))]
+            bits[rows, b - 1, 0], bits[rows, b - 1, 1] = -np.log2(1 - one), -np.log2(one)
+    return bits
+
+
+def _degree_costs(gains: np.ndarray, flags: np.ndarray) -> np.ndarray:
+    """float64 [N, d + 1]: the cost in bits of each degree D, relative to keeping every band: the
+    gains of the bands above D plus the flags D codes (ones for bands 1 .. D, a zero for D + 1)."""
+    n = gains.shape[0]
+    dropped = np.concatenate([np.cumsum(gains[:, ::-1], axis=1)[:, ::-1], np.zeros((n, 1))], axis=1)
+    ones = np.concatenate([np.zeros((n, 1)), np.cumsum(flags[:, :, 1], axis=1)], axis=1)
+    zero = np.concatenate([flags[:, :, 0], np.zeros((n, 1))], axis=1)
+    return dropped + ones + zero
+
+
+def sh_degree_choice(x: np.ndarray, q: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray,
+                     graph: NeighbourGraph, num_buckets: int, layout: GaussianLayout,
+                     adjust: np.ndarray | None = None, coding: NeighbourCoding | None = None) -> np.ndarray:
+    """int64 [N]: each row's SH degree (format 1.3, clause 11.9), rows in coding order: the D in
+    [0, d] of least cost in bits, the pictures' error of the bands above D decoded as 0 instead
+    of the values ``q`` chosen (RDOQ's, in each row's own steps) over the bands' slopes ``mu``
+    [M], less those bands' residual bits, plus the bits of the flags D codes. ``x`` (in the
+    channels' steps) and ``f`` as rd_quantize's. The residuals' bits are those of the coding
+    fitted to ``q``; the flags' bits those of the probabilities and contexts of the round before
+    (DEGREE_ROUNDS); ``coding``: that coding when the caller has it. A Gaussian whose colour the
+    views do not see change keeps no band."""
+    n, d = x.shape[0], layout.sh_degree
+    if d == 0 or n == 0:
+        return np.full(n, d, dtype=np.int64)
+    if adjust is not None:
+        factor = STEP_ADJUST_FACTORS[adjust].astype(np.float64)[:, None]
+        x, f = x / factor, f * factor ** 2
+    nc = coding or NeighbourCoding(q, coords, len(graph.rows), 1, num_buckets, False, None, graph=graph, adjust=adjust)
+    gains = _band_gains(x, q, f, mu, code_lengths_bits(nc.residuals, nc.levels), layout)
+    degrees = None
+    for _ in range(DEGREE_ROUNDS):
+        costs = _degree_costs(gains, _flag_bits(degrees, graph, d))
+        degrees = d - np.argmin(costs[:, ::-1], axis=1)  # ties: the higher degree
+    return degrees.astype(np.int64)
+
+
+def sh_degrees_wanted(cfg, sensitivity: np.ndarray | None, degree: int) -> bool:
+    """The per-Gaussian SH degree needs an SH rest, the sensitivities and RDOQ (and, checked by the
+    callers, neighbour prediction)."""
+    return cfg.sh_degree_choice and degree > 0 and sensitivity is not None and cfg.rd_quantization > 0
+
+
+def without_dropped_bands(q: np.ndarray, degrees: np.ndarray, layout: GaussianLayout) -> np.ndarray:
+    """``q`` [N, M] with the values of every band above each row's degree set to 0 (clause 11.9)."""
+    return q * coded_channels(layout.sh_channels, layout.num_channels, degrees)
+
+
+def degrees_on_graph(x: np.ndarray, q: np.ndarray, f: np.ndarray, layout: GaussianLayout, coords: np.ndarray,
+                     order: np.ndarray, graph, cfg, adjust: np.ndarray | None = None) -> np.ndarray | None:
+    """int64 [N] (scene order): each Gaussian's SH degree by sh_degree_choice, for values ``x``
+    [N, M] (channels' steps), their RDOQ'd values ``q`` (own steps) and sensitivities ``f``
+    (``adjust`` in scene order), ``graph`` the neighbour graph of ``coords[order]``; None where
+    every Gaussian keeps every band, or where the attributes' ideal bits with the degrees (their
+    flags and unit included) are not fewer than without (a scene the tool does not help pays
+    nothing for it)."""
+    mu = group_slopes(f, channel_groups(layout.sh_degree), cfg.rd_quantization)
+    a = None if adjust is None else adjust[order]
+    xo, qo, co = x[order], q[order], coords[order]
+    args = (co, len(graph.rows), 1, cfg.prediction_buckets, False, layout)
+    without = NeighbourCoding(qo, *args, graph=graph, adjust=a)
+    chosen = sh_degree_choice(xo, qo, f[order], mu, co, graph, cfg.prediction_buckets, layout, a, without)
+    if (chosen == layout.sh_degree).all():
+        return None
+    with_tool = NeighbourCoding(without_dropped_bands(qo, chosen, layout), *args, graph=graph, adjust=a,
+                                degrees=chosen)
+    if with_tool.ideal_stream_bits() >= without.ideal_stream_bits():
+        return None
+    degrees = np.empty(x.shape[0], dtype=np.int64)
+    degrees[order] = chosen
+    return degrees

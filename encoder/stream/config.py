@@ -171,6 +171,13 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # Needs the sensitivities and neighbour prediction (0: off).
     step_adjust_max: int = 0
     step_adjust_quantile: float = 0.9
+    # Per-Gaussian SH degree (version 1.3, clause 11.9; encoder/gaussians/rdoq.py sh_degree_choice):
+    # each Gaussian's SH bands above its own degree are not coded (they decode to 0) where the
+    # pictures' error of dropping them costs less than their bits and flags by RDOQ's slopes; the
+    # stream carries the tool only where some Gaussian drops a band and it codes smaller. Needs the
+    # sensitivities, RDOQ and neighbour prediction (False: every band of every Gaussian coded). On in
+    # the low preset only (tools/results/sh_degree.md).
+    sh_degree_choice: bool = False
     # Drop before anything else the Gaussians whose opacity (after the sigmoid) is below this: at
     # 1/255 those that 3DGS rasterizers never draw (alpha < 1/255 is skipped, render/rasterizer.py),
     # found without renders (the fast preset; 0: keep all)
@@ -249,6 +256,8 @@ class GaussianEncoderConfig(AttributeCodingConfig):
                 or not 0 < self.step_adjust_quantile <= 1:
             raise InputError(f"step_adjust_max must be an integer in [0, 7] and step_adjust_quantile in (0, 1], got "
                              f"{self.step_adjust_max!r}, {self.step_adjust_quantile!r}")
+        if not isinstance(self.sh_degree_choice, bool):
+            raise InputError(f"sh_degree_choice must be true or false, got {self.sh_degree_choice!r}")
         if self.sh_degree is not None and self.sh_degree not in (0, 1, 2, 3):
             raise InputError(f"sh_degree must be 0..3 or None, got {self.sh_degree!r}")
         if not 0 <= self.min_opacity < 1:
