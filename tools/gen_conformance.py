@@ -861,16 +861,10 @@ def _structure_tags(data: bytes) -> set[str]:
     units = read_container(data).units
     tags = set()
     types = {u.unit_type for u in units}
-    if UnitType.RENDER_MODEL in types:
-        tags.add("render_model")
-    if UnitType.CONTEXT_MODEL in types:
-        tags.add("context_model_unit")
-    if UnitType.NEIGHBOUR_PREDICTION in types:
-        tags.add("neighbour_prediction")
-    if UnitType.STEP_ADJUST in types:
-        tags.add("step_adjust")
-    if UnitType.SH_DEGREE in types:
-        tags.add("sh_degree")
+    unit_tags = {UnitType.RENDER_MODEL: "render_model", UnitType.CONTEXT_MODEL: "context_model_unit",
+                 UnitType.NEIGHBOUR_PREDICTION: "neighbour_prediction", UnitType.STEP_ADJUST: "step_adjust",
+                 UnitType.SH_DEGREE: "sh_degree"}
+    tags.update(tag for unit_type, tag in unit_tags.items() if unit_type in types)
     if any(u.is_ancillary for u in units):
         tags.add("ancillary_unit")
     sps_units = [u for u in units if u.unit_type == UnitType.SCENE_PARAMETER_SET]

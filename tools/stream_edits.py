@@ -855,33 +855,14 @@ def flatten_hierarchy(units, spec: dict) -> None:
 def apply_edits(units, post: dict) -> None:
     """The edits of this module that ``post`` asks for, in a fixed order (gen_conformance's
     post_process calls it after its own unit edits and before the rehash)."""
-    if "designed_model" in post:
-        designed_model(units, post["designed_model"])
-    if "set_q" in post:
-        set_q(units, post["set_q"])
-    if "escape_classes" in post:
-        escape_classes(units, post["escape_classes"])
-    if "edit_chunk" in post:
-        edit_chunk(units, post["edit_chunk"])
-    if "recode_attribute_header" in post:
-        recode_attribute_header(units, post["recode_attribute_header"])
-    if "geometry_edit" in post:
-        geometry_edit(units, post["geometry_edit"])
-    if "context_unit" in post:
-        context_unit(units, post["context_unit"])
-    if "render_unit" in post:
-        render_unit(units, post["render_unit"])
-    if "neighbour_prediction" in post:
-        neighbour_prediction(units, post["neighbour_prediction"])
-    if "step_adjust" in post:
-        step_adjust(units, post["step_adjust"])
-    if "sh_degree" in post:
-        sh_degree(units, post["sh_degree"])
-    if "set_elements" in post:
-        set_elements(units, post["set_elements"])
-    if "flatten_hierarchy" in post:
-        flatten_hierarchy(units, post["flatten_hierarchy"])
-    if "swap_tiles" in post:
-        swap_tiles(units, post["swap_tiles"])
-    if "nonzero_alignment" in post:
-        nonzero_alignment(units, post["nonzero_alignment"])
+    for edit in _EDITS_IN_ORDER:
+        if edit.__name__ in post:
+            edit(units, post[edit.__name__])
+
+
+# the order in which apply_edits makes the edits a stream's ``post`` names (each keyed by its name)
+_EDITS_IN_ORDER = (
+    designed_model, set_q, escape_classes, edit_chunk, recode_attribute_header,
+    geometry_edit, context_unit, render_unit, neighbour_prediction, step_adjust,
+    sh_degree, set_elements, flatten_hierarchy, swap_tiles, nonzero_alignment,
+)
