@@ -12,7 +12,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..common.scene import DEFAULT_FEATURE_DIM, DEFAULT_NUM_OFFSETS, AnchorScene, RenderMLP
+from ..common.scene import DEFAULT_FEATURE_DIM, DEFAULT_NUM_OFFSETS, AnchorScene, GaussianScene, RenderMLP
 
 
 def surface_points(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -100,3 +100,19 @@ def make_procedural_scene(num_anchors: int = 20000, seed: int = 0, feature_dim: 
         offset_mask=mask,
         mlps=mlps,
     )
+
+
+def smooth_gaussian_scene(n: int, degree: int, seed: int = 0) -> GaussianScene:
+    """n Gaussians of SH degree ``degree`` on a surface whose attributes vary slowly (what
+    neighbour prediction is for; used by the tests and tools/bench_sh_degree_decode.py)."""
+    rng = np.random.default_rng(seed)
+    u, v = rng.uniform(0, 1, n), rng.uniform(0, 1, n)
+    means = np.stack([u, v, 0.2 * np.sin(6 * u)], 1).astype(np.float32)
+    k = (degree + 1) ** 2
+    sh = (np.sin(4 * u)[:, None, None] + 0.5 * np.cos(3 * v)[:, None, None] * np.ones((1, k, 3))
+          + 0.05 * rng.normal(size=(n, k, 3))).astype(np.float32)
+    sh[:, 1:] *= 0.1
+    f = np.float32
+    return GaussianScene(means, sh, (2 * np.cos(5 * v) + 0.1 * rng.normal(size=n)).astype(f),
+                         (-4 + np.sin(3 * u)[:, None] + 0.1 * rng.normal(size=(n, 3))).astype(f),
+                         np.column_stack([np.ones(n), 0.3 * np.sin(2 * u), 0.2 * v, 0.1 * rng.normal(size=n)]).astype(f))

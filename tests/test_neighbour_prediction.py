@@ -12,11 +12,11 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from lghcc.common.container import UnitType, read_container
 from lghcc.common.neighbour_prediction import (lod_coding_params, lod_of_rows, lod_rows,
                                                neighbour_graph)
-from lghcc.common.scene import GaussianScene
 from lghcc.common.units import lod_sizes_of
 from lghcc.decoder.decode import decode_stream
 from lghcc.encoder.stream.config import GaussianEncoderConfig
 from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
+from lghcc.formats.procedural import smooth_gaussian_scene as _smooth_scene
 from reference_impl import squared_distances
 from test_gaussians import assert_same, random_gaussians
 
@@ -66,21 +66,6 @@ def test_mean_and_activity_bucket_are_exact_integers(values, buckets):
         assert p.mean[0, c] == mean
         bucket = min((max(col) - min(col)).bit_length(), buckets - 1)
         assert p.level[0, c] == table[c, bucket]
-
-
-def _smooth_scene(n: int, degree: int, seed: int = 0) -> GaussianScene:
-    """Gaussians on a surface whose attributes vary slowly: what neighbour prediction is for."""
-    rng = np.random.default_rng(seed)
-    u, v = rng.uniform(0, 1, n), rng.uniform(0, 1, n)
-    means = np.stack([u, v, 0.2 * np.sin(6 * u)], 1).astype(np.float32)
-    k = (degree + 1) ** 2
-    sh = (np.sin(4 * u)[:, None, None] + 0.5 * np.cos(3 * v)[:, None, None] * np.ones((1, k, 3))
-          + 0.05 * rng.normal(size=(n, k, 3))).astype(np.float32)
-    sh[:, 1:] *= 0.1
-    f = np.float32
-    return GaussianScene(means, sh, (2 * np.cos(5 * v) + 0.1 * rng.normal(size=n)).astype(f),
-                         (-4 + np.sin(3 * u)[:, None] + 0.1 * rng.normal(size=(n, 3))).astype(f),
-                         np.column_stack([np.ones(n), 0.3 * np.sin(2 * u), 0.2 * v, 0.1 * rng.normal(size=n)]).astype(f))
 
 
 def _uses_tool(data: bytes) -> bool:

@@ -18,25 +18,10 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from lghcc.common.scene import GaussianScene  # noqa: E402
 from lghcc.decoder.decode import decode_stream  # noqa: E402
 from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene  # noqa: E402
 from lghcc.encoder.stream.config import GaussianEncoderConfig  # noqa: E402
-
-
-def smooth_scene(n: int, degree: int, seed: int) -> GaussianScene:
-    """Gaussians on a surface whose attributes vary slowly (as tests/test_neighbour_prediction.py)."""
-    rng = np.random.default_rng(seed)
-    u, v = rng.uniform(0, 1, n), rng.uniform(0, 1, n)
-    means = np.stack([u, v, 0.2 * np.sin(6 * u)], 1).astype(np.float32)
-    k = (degree + 1) ** 2
-    sh = (np.sin(4 * u)[:, None, None] + 0.5 * np.cos(3 * v)[:, None, None] * np.ones((1, k, 3))
-          + 0.05 * rng.normal(size=(n, k, 3))).astype(np.float32)
-    sh[:, 1:] *= 0.1
-    f = np.float32
-    return GaussianScene(means, sh, (2 * np.cos(5 * v) + 0.1 * rng.normal(size=n)).astype(f),
-                         (-4 + np.sin(3 * u)[:, None] + 0.1 * rng.normal(size=(n, 3))).astype(f),
-                         np.column_stack([np.ones(n), 0.3 * np.sin(2 * u), 0.2 * v, 0.1 * rng.normal(size=n)]).astype(f))
+from lghcc.formats.procedural import smooth_gaussian_scene  # noqa: E402
 
 
 def main() -> None:
@@ -45,7 +30,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
     n = args.n
-    scene = smooth_scene(n, 3, 1)
+    scene = smooth_gaussian_scene(n, 3, 1)
     energy = (scene.sh[:, 1:].astype(np.float64) ** 2).sum(axis=(1, 2))
     rank = np.empty(n, np.int64)
     rank[np.argsort(energy, kind="stable")] = np.arange(n)
