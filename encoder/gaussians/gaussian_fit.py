@@ -56,7 +56,8 @@ from ...common.attributes import STEP_ADJUST_FACTORS
 from ...common.scene import GaussianScene
 from ..stream.config import GaussianEncoderConfig
 from .gaussian_grid import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid
-from .gaussian_views import fit_cameras, magnification, prune_by_contribution, resolving_views
+from .gaussian_views import fit_cameras, magnification, resolving_views
+from .merging import pruned_scene
 from ..stream.stats import PrepareStats
 from ...render.camera import Camera
 from ...render.gaussians3dgs import Gaussians3DGS, gaussians_from_scene, render_3dgs
@@ -248,15 +249,14 @@ def search_for_settings(scene: GaussianScene, contrib: np.ndarray, sensitivity: 
 
 def pruned_on_grid(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, stats: PrepareStats,
                    num_views: int, say) -> tuple[GaussianScene, np.ndarray, np.ndarray]:
-    """Pruning by contribution, then the grid weighted by contribution -> (the kept Gaussians on
-    their grid, their contributions, which Gaussians were kept)."""
-    keep = prune_by_contribution(contrib, cfg.prune_share)
+    """Pruning by contribution (the pruned dropped or merged, ``prune_mode``), then the grid
+    weighted by contribution -> (the kept Gaussians on their grid, their contributions, which
+    Gaussians were kept)."""
+    keep, kept, weights = pruned_scene(scene, contrib, cfg.prune_share, cfg.prune_mode)
     stats.gaussians_pruned = int((~keep).sum())
     say(f"contributions from {num_views} views in {stats.time_contributions_s:.1f} s; pruned "
         f"{stats.gaussians_pruned:,} of {scene.num_gaussians:,} Gaussians ({100 * cfg.prune_share:g}% of the "
-        "contribution at most)")
-    kept = scene.subset(keep)
-    weights = contrib[keep]
+        f"contribution at most, {cfg.prune_mode})")
     voxel, origin = choose_grid(kept, cfg, weights)
     grid, moved = snap_to_grid(kept, voxel, origin, weights)
     stats.voxel_size, stats.gaussians_moved_off_shared_voxels = voxel, moved

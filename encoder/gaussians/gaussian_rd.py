@@ -45,7 +45,8 @@ from ...common.neighbour_prediction import neighbour_graph
 from ...common.scene import GaussianScene
 from ..stream.config import GaussianEncoderConfig
 from .gaussian_grid import choose_grid, coded_values, snap_to_grid
-from .gaussian_views import prune_by_contribution, resolving_views
+from .gaussian_views import resolving_views
+from .merging import pruned_scene
 from ..stream.neighbour_coding import NeighbourCoding, usable as neighbour_usable
 from .rdoq import (adjust_on_graph, channel_groups, channel_steps, degrees_on_graph, group_slopes, orientation_columns,
                    rd_quantize, sh_degree_subset, sh_degrees_wanted, without_dropped_bands)
@@ -334,14 +335,16 @@ class SettingsSearch:
             # a scene already on its grid (fitted there) keeps it, whatever position_step says
             keep = np.ones(self.scene.num_gaussians, dtype=bool)
             bits = 8.0 * len(encode_geometry(np.unique(self.scene.coords, axis=0)))
-            self._grids[key] = (keep, self.scene, bits)
+            self._grids[key] = (keep, self.scene, bits, self.values)
         if key not in self._grids:
-            keep = prune_by_contribution(self.contrib, share)
-            kept = self.scene.subset(keep)
+            keep, kept, weights = pruned_scene(self.scene, self.contrib, share, self.cfg.prune_mode)
             cfg = GaussianEncoderConfig(position_step=position_step)
-            voxel, origin = choose_grid(kept, cfg, self.contrib[keep])
-            grid, _ = snap_to_grid(kept, voxel, origin, self.contrib[keep])
-            self._grids[key] = (keep, grid, 8.0 * len(encode_geometry(np.unique(grid.coords, axis=0))))
+            voxel, origin = choose_grid(kept, cfg, weights)
+            grid, _ = snap_to_grid(kept, voxel, origin, weights)
+            # merged Gaussians carry their groups' values (drop: the scene's, as coded_values of the subset)
+            values = self.values[keep] if keep.all() or self.cfg.prune_mode == "drop" else \
+                coded_values(kept).astype(np.float64)
+            self._grids[key] = (keep, grid, 8.0 * len(encode_geometry(np.unique(grid.coords, axis=0))), values)
         return self._grids[key]
 
     def _adjust(self, key, grid: GaussianScene, keep: np.ndarray, x: np.ndarray, degree: int,
@@ -405,11 +408,11 @@ class SettingsSearch:
 
     def evaluate(self, cfg: GaussianEncoderConfig) -> Trial:
         key = (cfg.prune_share, cfg.position_step)
-        keep, grid, geometry_bits = self._grid(*key)
+        keep, grid, geometry_bits, values = self._grid(*key)
         degree = self.scene.sh_degree if cfg.sh_degree is None else min(cfg.sh_degree, self.scene.sh_degree)
         layout = GaussianLayout(degree)
         steps = channel_steps(cfg, degree)
-        x = sh_degree_subset(self.values[keep], degree) / steps
+        x = sh_degree_subset(values, degree) / steps
         adjust = self._adjust(key, grid, keep, x, degree, cfg)
         factor = 1.0 if adjust is None else STEP_ADJUST_FACTORS[adjust].astype(np.float64)[:, None]
         q, degrees = np.rint(x / factor).astype(np.int64), None

@@ -189,6 +189,9 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # drop the least contributing Gaussians whose contributions add up to this share of the
     # total (0: keep all but those no view shows)
     prune_share: float = 0.0
+    # what becomes of them: "drop" removes them, "merge" merges each into its nearest kept
+    # neighbour within reach with the pair's moments kept (encoder/gaussians/merging.py)
+    prune_mode: str = "drop"
     # then tune the kept Gaussians' attributes for this many steps with their quantization
     # simulated (0: code the source values as they are)
     fit_iterations: int = 0
@@ -264,6 +267,8 @@ class GaussianEncoderConfig(AttributeCodingConfig):
             raise InputError(f"min_opacity must be in [0, 1), got {self.min_opacity}")
         if not 0 <= self.prune_share < 1:
             raise InputError(f"prune_share must be in [0, 1), got {self.prune_share}")
+        if self.prune_mode not in ("drop", "merge"):
+            raise InputError(f"prune_mode must be drop or merge, got {self.prune_mode!r}")
         if not 0 <= self.target_psnr < 200 or not 0 <= self.rd_lambda < float("inf"):
             raise InputError(f"target_psnr must be in [0, 200) dB and rd_lambda >= 0, got {self.target_psnr}, "
                              f"{self.rd_lambda}")

@@ -1,0 +1,178 @@
+"""Merging instead of dropping (informative): the Gaussians the pruning removes are merged into
+their nearest kept neighbour with the moments of the group kept, as LG-HCC's NAAP merges
+low-importance anchors into salient ones (``prune_mode: merge``; ``drop`` removes them).
+
+Each pruned Gaussian i goes to its nearest kept Gaussian k (Euclidean distance of the means)
+when they are within MERGE_REACH x (largest scale of i + largest scale of k), and is dropped
+otherwise. A kept Gaussian k with its merged ones G = {k} + {i -> k} becomes:
+
+- weight w_j = opacity_j x (s1 s2 s3)^(2/3): the opacity times the area of the sphere of the
+  same volume. A picture sees a Gaussian through its projected footprint, which grows with the
+  square of its size, not the cube: volume weights let a large faint Gaussian outweigh a small
+  opaque one that the views see more of;
+- mean mu = sum w_j mu_j / W (W = sum w_j);
+- covariance Sigma = sum w_j (Sigma_j + (mu_j - mu)(mu_j - mu)^T) / W, written as scales and a
+  rotation by its eigendecomposition in float64 (eigenvalues floored at MIN_EIGEN_RATIO of the
+  largest, so a flat or degenerate group stays a valid Gaussian; a near-isotropic one takes any
+  orthonormal eigenvectors, which render the same);
+- opacity 1 - prod(1 - a_j), the coverage of the group, at most the group's mass spread over
+  the merged footprint (sum a_j area_j / area, so the larger Gaussian does not cover more
+  than its parts did), and at most the coded opacity's limit;
+- SH (DC and rest) the w-weighted mean.
+
+A group whose weights are all zero (transparent or zero-sized Gaussians) leaves k as it was.
+Kept Gaussians that nothing merges into are returned bit for bit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from ...common.scene import GaussianScene
+from .gaussian_grid import OPACITY_LOGIT_LIMIT
+from .gaussian_views import prune_by_contribution
+
+# A pruned Gaussian merges into a kept one within this many times the sum of their largest scales.
+MERGE_REACH = 2.0
+# Eigenvalues of a merged covariance are at least this share of its largest one.
+MIN_EIGEN_RATIO = 1e-8
+
+
+def merge_targets(scene: GaussianScene, keep: np.ndarray) -> np.ndarray:
+    """int64 [N]: for each pruned Gaussian (``~keep``), the index (into the scene) of the kept
+    Gaussian it merges into, -1 where none is within reach; -1 for the kept ones."""
+    target = np.full(scene.num_gaussians, -1, dtype=np.int64)
+    kept, pruned = np.flatnonzero(keep), np.flatnonzero(~keep)
+    if kept.size == 0 or pruned.size == 0:
+        return target
+    m = scene.means.astype(np.float64)
+    dist, j = cKDTree(m[kept]).query(m[pruned], k=1)
+    reach = np.exp(scene.log_scales.astype(np.float64)).max(axis=1)
+    close = dist <= MERGE_REACH * (reach[pruned] + reach[kept[j]])
+    target[pruned[close]] = kept[j[close]]
+    return target
+
+
+def merge_weights(scene: GaussianScene) -> np.ndarray:
+    """float64 [N]: opacity x (s1 s2 s3)^(2/3) of each Gaussian (module doc), finite and >= 0."""
+    alpha = 1 / (1 + np.exp(-scene.opacity.astype(np.float64)))
+    area = np.exp(np.clip(scene.log_scales.astype(np.float64).sum(axis=1) * (2 / 3), -700, 700))
+    w = alpha * area
+    return np.where(np.isfinite(w), w, 0.0)
+
+
+def covariances(scene: GaussianScene) -> np.ndarray:
+    """float64 [N, 3, 3]: R S^2 R^T of each Gaussian."""
+    q = scene.rotations.astype(np.float64)
+    r = Rotation.from_quat(np.concatenate([q[:, 1:], q[:, :1]], axis=1)).as_matrix()
+    s2 = np.exp(2 * scene.log_scales.astype(np.float64))
+    return np.einsum("nij,nj,nkj->nik", r, s2, r)
+
+
+def scales_and_rotations(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Symmetric positive semi-definite [M, 3, 3] (float64) -> (log scales [M, 3], unit quaternions
+    [M, 4] (w, x, y, z), w >= 0), eigenvalues floored at MIN_EIGEN_RATIO of the largest."""
+    lam, vec = np.linalg.eigh(0.5 * (cov + np.swapaxes(cov, 1, 2)))
+    top = np.maximum(lam[:, -1:], np.finfo(np.float64).tiny)
+    lam = np.maximum(lam, top * MIN_EIGEN_RATIO)
+    vec[:, :, 2] *= np.sign(np.linalg.det(vec))[:, None]  # a proper rotation
+    q = Rotation.from_matrix(vec).as_quat()  # (x, y, z, w)
+    q = np.concatenate([q[:, 3:], q[:, :3]], axis=1)
+    q = np.where(q[:, :1] < 0, -q, q)
+    return 0.5 * np.log(lam), q
+
+
+def _group_sums(target: np.ndarray, w: np.ndarray, x: np.ndarray, n: int) -> np.ndarray:
+    """Per group (indexed by ``target``; -1 counts nowhere): sum of w_j x_j."""
+    out = np.zeros((n,) + x.shape[1:], np.float64)
+    on = target >= 0
+    np.add.at(out, target[on], w[on].reshape((-1,) + (1,) * (x.ndim - 1)) * x[on])
+    return out
+
+
+def merged_moments(scene: GaussianScene, group: np.ndarray, w: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(W, mean, covariance) per group: ``group`` [N] the index of each Gaussian's group (-1: in
+    none; a group's index is its kept Gaussian's), ``w`` its weight. The means are taken relative
+    to the group's kept Gaussian, so a scene far from the origin loses no digits."""
+    n = scene.num_gaussians
+    m = scene.means.astype(np.float64)
+    anchor = np.where(group >= 0, group, np.arange(n))
+    d = m - m[anchor]  # relative to the kept Gaussian of the group
+    total = _group_sums(group, w, np.ones(n), n)
+    safe = np.where(total > 0, total, 1.0)
+    delta = _group_sums(group, w, d, n) / safe[:, None]
+    second = _group_sums(group, w, covariances(scene) + np.einsum("ni,nj->nij", d, d), n) / safe[:, None, None]
+    cov = second - np.einsum("ni,nj->nij", delta, delta)
+    return total, m + delta, cov
+
+
+def merged_opacity(scene: GaussianScene, group: np.ndarray, log_scales: np.ndarray) -> np.ndarray:
+    """Logit [N] per group: 1 - prod(1 - a_j), at most sum a_j area_j / area of the merged
+    Gaussian (``log_scales``) and the coded limit (module doc)."""
+    n = scene.num_gaussians
+    x = scene.opacity.astype(np.float64)
+    log_clear = -_group_sums(group, np.ones(n), np.logaddexp(0.0, x), n)  # sum log(1 - a_j)
+    log_cover = np.log(-np.expm1(np.minimum(log_clear, -1e-300)))
+    mass = _group_sums(group, merge_weights(scene), np.ones(n), n)
+    area = np.exp(log_scales.sum(axis=1) * (2 / 3))
+    cover = np.minimum(np.exp(log_cover), mass / np.maximum(area, np.finfo(np.float64).tiny))
+    cover = np.clip(cover, 1e-300, 1.0)
+    logit = np.log(cover) - np.log1p(-np.minimum(cover, 1 - 1e-16))
+    return np.minimum(logit, OPACITY_LOGIT_LIMIT)
+
+
+def merge_pruned(scene: GaussianScene, keep: np.ndarray, target: np.ndarray | None = None) -> GaussianScene:
+    """The kept Gaussians (in scene order) with the pruned ones merged into them (module doc);
+    ``target``: ``merge_targets(scene, keep)`` where the caller has it. A scene on a grid comes
+    back off it where a mean moved."""
+    keep = np.asarray(keep, dtype=bool)
+    target = merge_targets(scene, keep) if target is None else target
+    group = np.where(keep, np.arange(scene.num_gaussians), target)
+    w = merge_weights(scene)
+    total, mean, cov = merged_moments(scene, group, w)
+    changed = np.zeros(scene.num_gaussians, dtype=bool)
+    changed[target[target >= 0]] = True
+    changed &= total > 0
+    if not changed.any():
+        return scene.subset(keep)
+    out = GaussianScene(*(getattr(scene, f).copy() for f in ("means", "sh", "opacity", "log_scales", "rotations")))
+    _write_merged(scene, out, group, w, total, mean, cov, changed)
+    return out.subset(keep)
+
+
+def _write_merged(scene: GaussianScene, out: GaussianScene, group: np.ndarray, w: np.ndarray, total: np.ndarray,
+                  mean: np.ndarray, cov: np.ndarray, changed: np.ndarray) -> None:
+    """Writes the merged groups' values into ``out`` (rows ``changed``)."""
+    c = np.flatnonzero(changed)
+    log_scales, quats = scales_and_rotations(cov[c])
+    sh = _group_sums(group, w, scene.sh.astype(np.float64), scene.num_gaussians)[c] / total[c, None, None]
+    all_scales = np.zeros((scene.num_gaussians, 3))
+    all_scales[c] = log_scales
+    out.means[c] = mean[c]
+    out.log_scales[c] = log_scales
+    out.rotations[c] = quats
+    out.sh[c] = sh
+    out.opacity[c] = merged_opacity(scene, group, all_scales)[c]
+
+
+def merged_weights(contrib: np.ndarray, keep: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """The contribution of each kept Gaussian with those merged into it added (scene order of the kept)."""
+    total = np.asarray(contrib, np.float64).copy()
+    on = target >= 0
+    np.add.at(total, target[on], total[on])
+    return total[keep].astype(np.asarray(contrib).dtype)
+
+
+def pruned_scene(scene: GaussianScene, contrib: np.ndarray, share: float,
+                 mode: str) -> tuple[np.ndarray, GaussianScene, np.ndarray]:
+    """Pruning by contribution (``prune_by_contribution``), the pruned Gaussians dropped (``mode``
+    "drop") or merged into their kept neighbours ("merge") -> (which Gaussians were kept, the kept
+    scene, their contributions: under merge with those merged into each added)."""
+    keep = prune_by_contribution(contrib, share)
+    if mode != "merge" or keep.all():
+        return keep, scene.subset(keep), contrib[keep]
+    target = merge_targets(scene, keep)
+    return keep, merge_pruned(scene, keep, target), merged_weights(contrib, keep, target)
