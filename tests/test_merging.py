@@ -135,3 +135,20 @@ def test_an_encode_with_merging_decodes_to_what_it_coded():
     assert not np.array_equal(merged.scene.log_scales, dropped.scene.log_scales)
     res = encode_gaussian_scene(merged.scene, merged.cfg)
     assert_same(decode_stream(res.data).scene, res.decoded)
+
+
+def test_a_covariance_is_written_on_the_axes_of_the_frame_it_came_from():
+    from scipy.spatial.transform import Rotation
+
+    from lghcc.encoder.gaussians.merging import scales_and_rotations
+
+    rng = np.random.default_rng(0)
+    r = Rotation.random(50, random_state=1).as_matrix()
+    s = np.exp(rng.normal(size=(50, 3)))
+    cov = np.einsum("nij,nj,nkj->nik", r, s ** 2, r)
+    log_scales, q = scales_and_rotations(cov, r)
+    np.testing.assert_allclose(np.exp(log_scales), s, rtol=1e-9)  # not eigh's ascending order
+    back = Rotation.from_quat(np.concatenate([q[:, 1:], q[:, :1]], axis=1)).as_matrix()
+    np.testing.assert_allclose(back, r, atol=1e-9)
+    unaligned, _ = scales_and_rotations(cov)
+    assert (np.diff(unaligned, axis=1) >= 0).all()
