@@ -5,11 +5,17 @@ the same count and the same steps.
 For a 3DGS scene and a preset: for each pruning share of ``--shares``, the scene prepared as the
 encoder prepares it (encoder/gaussians/gaussian_fit.py prepare_gaussians: contributions, the
 pruning dropping or merging, the grid, ``--fit`` steps of the fit; no settings search, the
-preset's steps) with ``prune_mode`` drop and merge, coded (encode_gaussian_scene), decoded, and
+preset's steps) with ``prune_mode`` drop and merge, coded as lghcc-enc codes it (encode_gaussian_scene
+with the contributions and sensitivities: RDOQ and the preset's per-Gaussian tools), decoded, and
 rendered from bench_real's orbit (12 views of 320 px at 20 degrees, black background; up axis as
 bench_real records it for the named scenes): PSNR against the source's renders, bytes, and the
 CPU seconds of the preparation. Both modes keep the same Gaussians, so the rows differ only in
 the kept Gaussians' values.
+
+``--search``: the whole preparation as lghcc-enc runs it at the preset (its quality target, the
+settings search walking the pruning ladder with ``prune_mode`` drop or merge, the trim), one row
+per mode; ``share pruned`` is then the share the search chose. The rows reach different PSNRs:
+compare them at equal PSNR by the scene's bytes per dB (the fixed-count rows give it).
 
     python tools/bench_merging.py playbot-lod4 donut --preset low --shares 0.008,0.03,0.1
 """
@@ -58,14 +64,14 @@ def psnr(images: list[torch.Tensor], targets: list[torch.Tensor]) -> float:
     return -10 * math.log10(max(mse, 1e-12))
 
 
-def row(scene, targets, cams, cfg, mode: str) -> tuple[int, int, float, float]:
-    """(kept, bytes, orbit PSNR, prepare CPU s) of the scene prepared and coded with ``mode``."""
+def row(scene, targets, cams, cfg, mode: str) -> tuple[int, int, float, float, float]:
+    """(kept, bytes, orbit PSNR, prepare CPU s, share pruned) of the scene prepared and coded with ``mode``."""
     t0 = time.process_time()
     prep = prepare_gaussians(scene, dataclasses.replace(cfg, prune_mode=mode))
     cpu = time.process_time() - t0
-    res = encode_gaussian_scene(prep.scene, prep.cfg)
+    res = encode_gaussian_scene(prep.scene, prep.cfg, weights=prep.weights, sensitivity=prep.sensitivity)
     dec = decode_stream(res.data).scene
-    return prep.scene.num_gaussians, len(res.data), psnr(renders(dec, cams), targets), cpu
+    return prep.scene.num_gaussians, len(res.data), psnr(renders(dec, cams), targets), cpu, prep.cfg.prune_share
 
 
 def scene_rows(name: str, args) -> list[str]:
@@ -73,14 +79,17 @@ def scene_rows(name: str, args) -> list[str]:
     scene = read_3dgs_ply(args.data_root / path)
     cams = orbit(scene.means, 12, 320, up)
     targets = renders(scene, cams)
-    base = dataclasses.replace(load_config(args.preset, kind="gaussians"), target_psnr=0.0, rd_lambda=0.0)
+    base = load_config(args.preset, kind="gaussians")
+    if not args.search:
+        base = dataclasses.replace(base, target_psnr=0.0, rd_lambda=0.0)
     out = []
-    for share in args.shares:
-        cfg = dataclasses.replace(base, prune_share=share, fit_iterations=args.fit)
+    for share in ["search"] if args.search else args.shares:
+        cfg = base if args.search else dataclasses.replace(base, prune_share=share, fit_iterations=args.fit)
         for mode in ("drop", "merge"):
-            kept, nbytes, p, cpu = row(scene, targets, cams, cfg, mode)
-            print(f"{name} {share} {mode}: {kept} kept, {nbytes} B, {p:.3f} dB, {cpu:.1f} s", flush=True)
-            out.append(f"| {name} | {args.preset} | {share:g} | {args.fit} | {mode} | {kept:,} | {nbytes:,} | "
+            kept, nbytes, p, cpu, chosen = row(scene, targets, cams, cfg, mode)
+            label = f"{chosen:g} (search)" if args.search else f"{share:g}"
+            print(f"{name} {label} {mode}: {kept} kept, {nbytes} B, {p:.3f} dB, {cpu:.1f} s", flush=True)
+            out.append(f"| {name} | {args.preset} | {label} | {cfg.fit_iterations} | {mode} | {kept:,} | {nbytes:,} | "
                        f"{p:.3f} | {cpu:.1f} |")
     return out
 
@@ -92,6 +101,8 @@ def main(argv=None) -> int:
     ap.add_argument("--shares", type=lambda s: [float(x) for x in s.split(",")], default=[0.008, 0.03, 0.1],
                     help="pruning shares of the contribution (comma-separated)")
     ap.add_argument("--fit", type=int, default=0, help="fit steps after the pruning (default 0)")
+    ap.add_argument("--search", action="store_true",
+                    help="the preset's whole preparation, its settings search choosing the share (module doc)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--data-root", type=Path, default=ROOT.parent / "shared" / "data")
     ap.add_argument("--out", type=Path, default=None, help="markdown file for the table (default: stdout only)")
