@@ -284,27 +284,27 @@ def test_sampled_errors_are_the_whole_scenes_on_each_shares_first_trial_and_offs
     assert 1.2 < ratio < 4  # half the Gaussians: about half the error, not hidden by the other half
 
 
-def test_whole_scene_moves_take_sqrt_of_the_miss_first_then_the_measured_exponent():
+def test_common_factor_moves_take_sqrt_of_the_miss_first_then_the_measured_exponent():
     """The check's first move scales every step by sqrt(target / error) (error ~ f^2; aiming at
     the middle of the 0.25 dB band), either way, within a factor 4; later ones measure the exponent
     of error ~ f^k on its own trials (the logo's 2.5 to 4.5); inside a bracket they stay off its
     ends; within the band, or a bracket under 1%, it stops."""
-    from lghcc.encoder.gaussians.gaussian_rd import whole_scene_move
+    from lghcc.encoder.gaussians.gaussian_rd import common_factor_move
 
     t = 1e-4
     db = lambda d: t * 10 ** (d / 10)  # noqa: E731  the error d dB above the target's
-    assert whole_scene_move({1.0: db(-0.2)}, t) is None and whole_scene_move({1.0: db(-0.25)}, t) is None
-    assert whole_scene_move({1.0: db(-3.76)}, t) == pytest.approx(10 ** ((3.76 - 0.125) / 20))  # coarser, k = 2
-    assert whole_scene_move({1.0: db(1.0)}, t) == pytest.approx(10 ** (-1.125 / 20))  # finer, k = 2
-    assert whole_scene_move({1.0: db(-30)}, t) == 4.0 and whole_scene_move({1.0: db(30)}, t) == 0.25
+    assert common_factor_move({1.0: db(-0.2)}, t) is None and common_factor_move({1.0: db(-0.25)}, t) is None
+    assert common_factor_move({1.0: db(-3.76)}, t) == pytest.approx(10 ** ((3.76 - 0.125) / 20))  # coarser, k = 2
+    assert common_factor_move({1.0: db(1.0)}, t) == pytest.approx(10 ** (-1.125 / 20))  # finer, k = 2
+    assert common_factor_move({1.0: db(-30)}, t) == 4.0 and common_factor_move({1.0: db(30)}, t) == 0.25
     e = lambda f: db(-3.76) * f ** 0.7  # noqa: E731
-    f = whole_scene_move({1.0: e(1.0), 2.0: e(2.0)}, t)  # both too good: k measured 0.7
+    f = common_factor_move({1.0: e(1.0), 2.0: e(2.0)}, t)  # both too good: k measured 0.7
     assert e(f) == pytest.approx(db(-0.125))
-    f = whole_scene_move({1.0: db(-2.0), 2.0: db(1.0)}, t)  # a bracket: k = 3 dB / log(2)
+    f = common_factor_move({1.0: db(-2.0), 2.0: db(1.0)}, t)  # a bracket: k = 3 dB / log(2)
     assert 1.0 < f < 2.0 and 10 * math.log10(db(-2.0) * f ** (0.3 / math.log10(2)) / t) == pytest.approx(-0.125)
-    assert whole_scene_move({1.0: db(-20.0), 2.0: db(1.0)}, t) == pytest.approx(2 ** 0.75)  # off a bracket's end
-    assert whole_scene_move({1.0: db(-0.3), 2.0: db(20.0)}, t) == pytest.approx(2 ** 0.25)
-    assert whole_scene_move({1.0: db(-2.0), 1.005: db(1.0)}, t) is None
+    assert common_factor_move({1.0: db(-20.0), 2.0: db(1.0)}, t) == pytest.approx(2 ** 0.75)  # off a bracket's end
+    assert common_factor_move({1.0: db(-0.3), 2.0: db(20.0)}, t) == pytest.approx(2 ** 0.25)
+    assert common_factor_move({1.0: db(-2.0), 1.005: db(1.0)}, t) is None
 
 
 @settings(max_examples=60, deadline=None)
