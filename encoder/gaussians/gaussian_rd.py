@@ -18,14 +18,15 @@ of PSNR. Measured in relative rate, the same lambda lands at a like point of eve
 rate-distortion curve, whatever its Gaussian count and SH degree.
 The search: one probe per attribute group measures what doubling its step costs in D and
 saves in R; a high-rate model gives every group's step for lambda; every share of a ladder of
-pruning shares and a check of each step a factor sqrt(2) either way follow.
+pruning shares (with no target) and a check of each step a factor sqrt(2) either way follow.
 
 A fixed lambda lands at a like slope of every scene's curve, not at a like quality: on a small
 scene whose curve is shallow (playbot, 8k Gaussians: ~8 dB per doubling) lambda 10 went down to
 28 dB. So the presets give a quality instead (``target_psnr``, dB on the search views): lambda is
 the one the model says reaches it, and after the search, every pruning share of the ladder is
-measured at the chosen steps and moved onto the target there by one common factor on every step
-(bisection in log steps against real renders); the fewest bits measured that reach it are kept.
+moved onto the target by one common factor on every step (``common_factor_move``: a secant in
+log steps with the measured exponent of error ~ f^k, against real renders); the fewest bits
+measured that reach it are kept.
 """
 
 from __future__ import annotations
