@@ -306,7 +306,7 @@ def test_common_factor_moves_take_sqrt_of_the_miss_first_then_the_measured_expon
     assert common_factor_move({1.0: db(-0.3), 2.0: db(20.0)}, t) == pytest.approx(2 ** 0.25)
     assert common_factor_move({1.0: db(-2.0), 1.005: db(1.0)}, t) is None
     # the trials' noise: finer steps measured worse (1M, 44.88 dB at x1, 44.64 at x0.972): no
-    # exponent of the wrong sign (clamped, it once moved x0.64, 4.7 dB past the target), the prior
+    # exponent of the wrong sign (clamped, the next move went to x0.622, 49.32 dB for 45), the prior
     assert common_factor_move({1.0: db(0.12), 0.972: db(0.36)}, t) == pytest.approx(0.972 * 10 ** (-0.485 / 20))
     assert common_factor_move({1.0: db(-3.76)}, t, 4.0) == pytest.approx(10 ** (3.635 / 40))  # a measured prior
     assert common_factor_move({1.0: 0.0}, t) == 4.0  # an exact trial (error 0): the largest move, no NaN

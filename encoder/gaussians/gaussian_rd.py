@@ -594,7 +594,7 @@ def fewest_bits_at_target(s: SettingsSearch, best: Trial, groups: list[str], tar
         tried = onto_target_trials(s, start, groups, target_mse, SHARE_MOVES, exponent)
         landed = fewest_bits_meeting(list(tried.values()), target_mse)
         start_cfg = landed.cfg if landed.mse <= target_mse else best.cfg
-        exponent = bracket_exponent(tried, target_mse) or exponent
+        exponent = bracket_exponent({f: t.mse for f, t in tried.items()}, target_mse) or exponent
     return fewest_bits_meeting(s.trials, target_mse)
 
 
@@ -722,6 +722,18 @@ def _measured_exponent(f1: float, e1: float, f2: float, e2: float) -> float:
     return min(max(k, lo), hi)
 
 
+def bracket_exponent(measured: dict[float, float], target_mse: float) -> float | None:
+    """k of error ~ f^k through the two trials that bracket the target most closely (factor ->
+    error; None without a bracket): the secant of a move inside the bracket, and what the next
+    move onto a like target may assume first."""
+    meet = [f for f, e in measured.items() if e <= target_mse]
+    fail = [f for f, e in measured.items() if e > target_mse]
+    if not meet or not fail:
+        return None
+    a, b = max(meet), min(fail)
+    return _measured_exponent(a, measured[a], b, measured[b])
+
+
 def common_factor_move(measured: dict[float, float], target_mse: float,
                        first_exponent: float | None = None) -> float | None:
     """The common factor (on the first trial's attribute steps) of the next trial onto the target,
@@ -729,9 +741,9 @@ def common_factor_move(measured: dict[float, float], target_mse: float,
     is within TARGET_TOLERANCE of it, or when the trials bracket the target within 1% in factor.
     The error taken as c f^k: k through the two trials that bracket the target, else through the
     two nearest it on its one side (all too good, or all missing) where the error grows with f,
-    else ``first_exponent``
-    (TARGET_FIRST_EXPONENT by default); the move aims at the middle of the band, stays inside a
-    bracket (TARGET_BRACKET) and within a factor TARGET_MAX_MOVE of the trial it starts from.
+    else ``first_exponent`` (TARGET_FIRST_EXPONENT by default); the move aims at the middle of the
+    band, stays inside a bracket (TARGET_BRACKET) and within a factor TARGET_MAX_MOVE of the trial
+    it starts from.
     The whole-scene check once had 2 moves, the second finer by the full target / error after a
     miss: on the logo it stopped 1.7 dB above the target, +4.8% bytes
     (tools/results/search_sampling.md (f), (h))."""
@@ -744,7 +756,7 @@ def common_factor_move(measured: dict[float, float], target_mse: float,
         a, b = meet[-1], fail[0]
         if b <= a * 1.01:
             return None
-        f = a * (aim / max(measured[a], 1e-30)) ** (1 / _measured_exponent(a, measured[a], b, measured[b]))
+        f = a * (aim / max(measured[a], 1e-30)) ** (1 / bracket_exponent(measured, target_mse))
         lo, hi = TARGET_BRACKET
         return min(max(f, a * (b / a) ** lo), a * (b / a) ** hi)
     near = meet[::-1] if meet else fail  # the nearest the target first
@@ -768,17 +780,6 @@ def common_factor_trials(measure, target_mse: float, moves: int = WHOLE_SCENE_MO
             break
         trials[f] = measure(f)
     return trials
-
-
-def bracket_exponent(trials: dict[float, Trial], target_mse: float) -> float | None:
-    """k of error ~ f^k through the two trials that bracket the target most closely (None without
-    a bracket): what the next move onto a like target may assume first."""
-    meet = [f for f, t in trials.items() if t.mse <= target_mse]
-    fail = [f for f, t in trials.items() if t.mse > target_mse]
-    if not meet or not fail:
-        return None
-    a, b = max(meet), min(fail)
-    return _measured_exponent(a, trials[a].mse, b, trials[b].mse)
 
 
 def _attribute_groups(scene: GaussianScene) -> list[str]:
