@@ -259,13 +259,17 @@ def _composite_forward(md, cn, op, ft, th, plan: TilePlan, m: int, acc: torch.Te
     given, each Gaussian's sum of w_i over the pixels into ``weight_sum`` [m + 1]. Returns the
     transmittance carries at each chunk start (the backward pass recomputes from them)."""
     dt = md.dtype
-    ts = plan.tile_size
-    npx = ts * ts
-    basis = _pixel_basis(ts, dt)
+    npx = plan.tile_size ** 2
+    basis = _pixel_basis(plan.tile_size, dt)
     carries = []
     with torch.no_grad():
         for tiles, length, lc in plan.batches:
             idx, centres = _batch_index(plan, tiles, length, m)
+            if lc == length and length >= 2 * PART_GAUSSIANS:
+                w = _batch_weights_in_parts(idx, centres, plan.tile_count[tiles], md, cn, op, th, basis)
+                _add_weighted(w, idx, tiles, ft, acc, weight_sum)
+                carries.append([torch.zeros(len(tiles), npx, 1, dtype=dt)])
+                continue
             carry = torch.zeros(len(tiles), npx, 1, dtype=dt)
             saved = []
             for s0 in range(0, length, lc):
@@ -274,14 +278,59 @@ def _composite_forward(md, cn, op, ft, th, plan: TilePlan, m: int, acc: torch.Te
                 alpha, _, _ = _alpha(g, centres, md, cn, op, th, basis)  # [B, P, L]
                 la = torch.log1p(-alpha)
                 cs = torch.cumsum(la, 2).add_(carry)
-                w = (cs - la).clamp_(min=-80.0).exp_().mul_(alpha).mul_(cs >= LOG_T_MIN)
-                if acc is not None:
-                    acc[tiles] += torch.bmm(w, ft[g])
-                if weight_sum is not None:
-                    weight_sum.index_add_(0, g.reshape(-1), w.sum(1).reshape(-1).to(weight_sum.dtype))
+                _add_weighted(_weights(cs, la, alpha), g, tiles, ft, acc, weight_sum)
                 carry = cs[:, :, -1:]
             carries.append(saved)
     return carries
+
+
+def _weights(cs: torch.Tensor, la: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
+    """w_i = alpha_i T_i from the log transmittance after each Gaussian (``cs``) and its log(1 - alpha_i)."""
+    return (cs - la).clamp_(min=-80.0).exp_().mul_(alpha).mul_(cs >= LOG_T_MIN)
+
+
+def _add_weighted(w, g, tiles, ft, acc, weight_sum) -> None:
+    if acc is not None:
+        acc[tiles] += torch.bmm(w, ft[g])
+    if weight_sum is not None:
+        weight_sum.index_add_(0, g.reshape(-1), w.sum(1).reshape(-1).to(weight_sum.dtype))
+
+
+# A batch of tiles longer than twice this is composited in at most BATCH_PARTS parts along depth,
+# each this long at least (``_batch_weights_in_parts``): at least 12, where torch's CPU matrix
+# product gives each column the bits it gives it in a longer one; more parts drop used-up tiles
+# sooner, fewer cost less in calls.
+PART_GAUSSIANS = 64
+BATCH_PARTS = 16
+
+
+def _batch_weights_in_parts(idx, centres, counts, md, cn, op, th, basis) -> torch.Tensor:
+    """w [B, P, L] of one batch (``_composite_forward``'s single-chunk case) in equal parts along
+    depth (PART_GAUSSIANS, BATCH_PARTS), the last taking the remainder: after each part the tiles whose
+    transmittance fell below T_MIN at every pixel, or whose Gaussians ran out (the rest is padding),
+    leave the batch; their later weights are 0, as the whole batch at once computes them. The
+    log transmittance runs on in float64 from part to part, as torch's CPU cumsum accumulates a
+    float32 one, so every weight has the bits of the single pass (tests/test_render_rasterizer.py).
+    On the search's views (128 px, 4-pixel tiles) a third of the (tile, Gaussian) slots of a sample's
+    batches were padding and a third behind used-up transmittance."""
+    nb, length = idx.shape
+    w = torch.zeros(nb, basis.shape[1], length, dtype=md.dtype)
+    rows = torch.arange(nb)
+    run = torch.zeros(nb, basis.shape[1], 1, dtype=torch.float64)  # log T so far, as cumsum holds it
+    parts = min(length // PART_GAUSSIANS, BATCH_PARTS)
+    size = length // parts
+    for i in range(parts):
+        s0, s1 = i * size, length if i == parts - 1 else (i + 1) * size
+        alpha, _, _ = _alpha(idx[rows, s0:s1], centres[rows], md, cn, op, th, basis)
+        la = torch.log1p(-alpha)
+        run = torch.cumsum(torch.cat([run, la.double()], 2), 2)[:, :, 1:]
+        cs = run.to(md.dtype)
+        w[rows, :, s0:s1] = _weights(cs, la, alpha)
+        live = (cs[:, :, -1] >= LOG_T_MIN).any(1) & (counts[rows] > s1)
+        rows, run = rows[live], run[:, :, -1:][live]
+        if rows.numel() == 0:
+            break
+    return w
 
 
 class _Composite(torch.autograd.Function):

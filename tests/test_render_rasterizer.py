@@ -116,6 +116,33 @@ def test_image_does_not_depend_on_tile_size_float32():
         torch.testing.assert_close(im, imgs[0], atol=2e-5, rtol=0)
 
 
+@pytest.mark.parametrize("opac", [(0.05, 0.3), (0.6, 1.0)])
+def test_long_tiles_composited_in_parts_keep_every_bit(monkeypatch, opac):
+    """Batches of long tiles are composited in parts along depth, dropping the tiles whose
+    transmittance ran out or whose Gaussians did (``_batch_weights_in_parts``): the image, the
+    alpha, the compositing weights and the gradients have the bits of the one pass over each whole
+    batch, with faint Gaussians (few tiles used up) and near-opaque ones (most)."""
+    from lghcc.render import rasterizer as R
+
+    cam = Camera.look_at([0, -3, 0.5], [0, 0, 0], width=24, height=20, fov_x_deg=50)
+    params = _random_gaussians(3000, seed=5, dtype=torch.float32, spread=0.3, scale=(0.01, 0.3), opac=opac)
+    bg = torch.tensor([0.2, 0.3, 0.4])
+
+    def run():
+        ps = [p.clone().requires_grad_() for p in params]
+        r = rasterize(*ps, cam, background=bg, tile_size=4)
+        grads = torch.autograd.grad((r.image ** 2).sum() + r.alpha.sum(), ps)
+        return [r.image, r.alpha, compositing_weights(*params[:4], cam, tile_size=4), *grads], r.stats
+
+    parted, stats = run()
+    assert stats["tile_pairs"] / (6 * 5) >= 2 * R.PART_GAUSSIANS  # the tiles are long enough to be parted
+    monkeypatch.setattr(R, "PART_GAUSSIANS", 10 ** 9)  # every batch in one pass
+    whole, _ = run()
+    for name, a, b in zip(("image", "alpha", "weights", "means", "quats", "scales", "opacities", "colors"),
+                          parted, whole):
+        assert torch.equal(a, b), name
+
+
 @pytest.mark.parametrize("scale,expected", [((0.0005, 0.001), 4), ((0.5, 0.8), 16)])
 def test_the_tile_size_follows_the_footprints(scale, expected):
     """Footprints of a pixel or two get 4-pixel tiles (a 16-pixel tile would compute 256 pixels
