@@ -143,6 +143,33 @@ def test_long_tiles_composited_in_parts_keep_every_bit(monkeypatch, opac):
         assert torch.equal(a, b), name
 
 
+def test_gaussians_that_cannot_reach_the_image_are_culled_before_the_projection(monkeypatch):
+    """A narrow view of a wide cloud: the Gaussians whose footprint cannot reach the image are
+    culled before the projection (``_may_reach_image``), large ones just off the edge that reach
+    into it are not; image, alpha, depth, gradients, compositing weights and the counts have the
+    bits of projecting them all."""
+    from lghcc.render import rasterizer as R
+
+    cam = Camera.look_at([0, -3, 0.2], [0, 0, 0], width=30, height=22, fov_x_deg=12)
+    params = _random_gaussians(4000, seed=6, dtype=torch.float32, spread=1.0, scale=(0.005, 0.25), opac=(0.2, 0.95))
+
+    def run():
+        ps = [p.clone().requires_grad_() for p in params]
+        r = R.rasterize(*ps, cam, background=torch.tensor([0.1, 0.2, 0.3]), render_depth=True)
+        grads = torch.autograd.grad((r.image ** 2).sum() + r.alpha.sum() + 1e-3 * r.depth.sum(), ps)
+        return [r.image, r.alpha, r.depth, R.compositing_weights(*params[:4], cam), *grads], r.stats
+
+    rows = R._may_reach_image(params[0], params[2], cam, 3.0, 0.3, None)
+    assert rows is not None and 0 < rows.numel() < 0.5 * params[0].shape[0]
+    culled, stats = run()
+    monkeypatch.setattr(R, "_may_reach_image", lambda *a: None)
+    every, stats_every = run()
+    assert stats == stats_every and stats["rasterized"] > rows.numel() / 4
+    for name, a, b in zip(("image", "alpha", "depth", "weights", "means", "quats", "scales", "opacities", "colors"),
+                          culled, every):
+        assert torch.equal(a, b), name
+
+
 @pytest.mark.parametrize("scale,expected", [((0.0005, 0.001), 4), ((0.5, 0.8), 16)])
 def test_the_tile_size_follows_the_footprints(scale, expected):
     """Footprints of a pixel or two get 4-pixel tiles (a 16-pixel tile would compute 256 pixels
