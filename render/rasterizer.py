@@ -12,17 +12,20 @@ Stages:
    ``sigma_cutoff`` (3) standard deviations and where alpha >= 1/255 (3DGS's skip rule,
    here exact). The bounding box of that ellipse gives the tiles it touches (square, 4, 8
    or 16 pixels a side, the side of least work chosen per view: ``choose_tile_size``);
-   Gaussians touching none are culled. As the cutoff is applied per pixel, the image does
-   not depend on the tile size but for float rounding (in 3DGS it does slightly).
+   Gaussians touching none are culled; those whose footprint cannot reach the image by a
+   bound from their largest scale are culled before the projection (``_may_reach_image``).
+   As the cutoff is applied per pixel, the image does not depend on the tile size but for
+   float rounding (in 3DGS it does slightly).
 3. ``_Composite`` (custom autograd Function): per tile, Gaussians sorted by depth,
    front-to-back alpha compositing with alpha = min(0.99, o exp(-power)), early
    termination where the transmittance would fall below 1e-4 (the Gaussian that would
    bring it there is not drawn, as in 3DGS). Tiles are processed in batches padded to
    the same length (tiles grouped by their Gaussian count; very long tiles are split
    along depth carrying the transmittance), with the power of every (Gaussian, pixel)
-   pair from one matrix product against a quadratic pixel basis. The backward pass
-   recomputes each batch and applies the 3DGS gradient formulas (no per-pixel state is
-   kept between passes).
+   pair from one matrix product against a quadratic pixel basis; a batch of long tiles goes
+   in parts along depth, each tile leaving it where its transmittance or its Gaussians ran out
+   (``_batch_weights_in_parts``; the same bits). The backward pass recomputes each batch and
+   applies the 3DGS gradient formulas (no per-pixel state is kept between passes).
 
 ``rasterize`` returns the image on a background colour, the accumulated alpha and
 optionally the alpha-weighted depth; gradients reach means, quats, scales, opacities
