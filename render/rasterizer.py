@@ -12,17 +12,20 @@ Stages:
    ``sigma_cutoff`` (3) standard deviations and where alpha >= 1/255 (3DGS's skip rule,
    here exact). The bounding box of that ellipse gives the tiles it touches (square, 4, 8
    or 16 pixels a side, the side of least work chosen per view: ``choose_tile_size``);
-   Gaussians touching none are culled. As the cutoff is applied per pixel, the image does
-   not depend on the tile size but for float rounding (in 3DGS it does slightly).
+   Gaussians touching none are culled; those whose footprint cannot reach the image by a
+   bound from their largest scale are culled before the projection (``_may_reach_image``).
+   As the cutoff is applied per pixel, the image does not depend on the tile size but for
+   float rounding (in 3DGS it does slightly).
 3. ``_Composite`` (custom autograd Function): per tile, Gaussians sorted by depth,
    front-to-back alpha compositing with alpha = min(0.99, o exp(-power)), early
    termination where the transmittance would fall below 1e-4 (the Gaussian that would
    bring it there is not drawn, as in 3DGS). Tiles are processed in batches padded to
    the same length (tiles grouped by their Gaussian count; very long tiles are split
    along depth carrying the transmittance), with the power of every (Gaussian, pixel)
-   pair from one matrix product against a quadratic pixel basis. The backward pass
-   recomputes each batch and applies the 3DGS gradient formulas (no per-pixel state is
-   kept between passes).
+   pair from one matrix product against a quadratic pixel basis; a batch of long tiles goes
+   in parts along depth, each tile leaving it where its transmittance or its Gaussians ran out
+   (``_batch_weights_in_parts``; the same bits). The backward pass recomputes each batch and
+   applies the 3DGS gradient formulas (no per-pixel state is kept between passes).
 
 ``rasterize`` returns the image on a background colour, the accumulated alpha and
 optionally the alpha-weighted depth; gradients reach means, quats, scales, opacities
@@ -182,10 +185,18 @@ def _tile_ranges(md: torch.Tensor, ex: torch.Tensor, ey: torch.Tensor, width: in
 def choose_tile_size(md: torch.Tensor, ex: torch.Tensor, ey: torch.Tensor, drawn: torch.Tensor, width: int,
                      height: int) -> int:
     """The side of TILE_SIZES with the least compositing work: pairs x (pixels per tile + PAIR_OVERHEAD_PX)."""
-    def work(ts: int) -> float:
-        _, _, nx, ny, _, _ = _tile_ranges(md, ex, ey, width, height, ts)
-        return float((nx * ny)[drawn].sum()) * (ts * ts + PAIR_OVERHEAD_PX)
-    return min(TILE_SIZES, key=work)
+    return _least_work_ranges(md, ex, ey, drawn, width, height)[0]
+
+
+def _least_work_ranges(md, ex, ey, drawn, width: int, height: int) -> tuple[int, tuple]:
+    """(``choose_tile_size``'s side, its ``_tile_ranges``): the plan reuses the ranges measured."""
+    best = None
+    for ts in TILE_SIZES:
+        ranges = _tile_ranges(md, ex, ey, width, height, ts)
+        work = float((ranges[2] * ranges[3])[drawn].sum()) * (ts * ts + PAIR_OVERHEAD_PX)
+        if best is None or work < best[0]:
+            best = (work, ts, ranges)
+    return best[1], best[2]
 
 
 def _plan_tiles(means2d: torch.Tensor, cov2d: torch.Tensor, thresh: torch.Tensor, depths: torch.Tensor,
@@ -200,8 +211,10 @@ def _plan_tiles(means2d: torch.Tensor, cov2d: torch.Tensor, thresh: torch.Tensor
         ex = torch.sqrt(2 * tt * cv[:, 0])
         ey = torch.sqrt(2 * tt * cv[:, 2])
         if tile_size is None:
-            tile_size = choose_tile_size(md, ex, ey, thresh > 0, width, height)
-        x0, y0, nx, ny, tiles_x, tiles_y = _tile_ranges(md, ex, ey, width, height, tile_size)
+            tile_size, ranges = _least_work_ranges(md, ex, ey, thresh > 0, width, height)
+        else:
+            ranges = _tile_ranges(md, ex, ey, width, height, tile_size)
+        x0, y0, nx, ny, tiles_x, tiles_y = ranges
         keep = (thresh > 0) & (nx > 0) & (ny > 0)
         kidx = torch.nonzero(keep).squeeze(1)
         # depth order among the kept Gaussians
@@ -259,13 +272,17 @@ def _composite_forward(md, cn, op, ft, th, plan: TilePlan, m: int, acc: torch.Te
     given, each Gaussian's sum of w_i over the pixels into ``weight_sum`` [m + 1]. Returns the
     transmittance carries at each chunk start (the backward pass recomputes from them)."""
     dt = md.dtype
-    ts = plan.tile_size
-    npx = ts * ts
-    basis = _pixel_basis(ts, dt)
+    npx = plan.tile_size ** 2
+    basis = _pixel_basis(plan.tile_size, dt)
     carries = []
     with torch.no_grad():
         for tiles, length, lc in plan.batches:
             idx, centres = _batch_index(plan, tiles, length, m)
+            if lc == length and length >= 2 * PART_GAUSSIANS:
+                w = _batch_weights_in_parts(idx, centres, plan.tile_count[tiles], md, cn, op, th, basis)
+                _add_weighted(w, idx, tiles, ft, acc, weight_sum)
+                carries.append([torch.zeros(len(tiles), npx, 1, dtype=dt)])
+                continue
             carry = torch.zeros(len(tiles), npx, 1, dtype=dt)
             saved = []
             for s0 in range(0, length, lc):
@@ -274,14 +291,59 @@ def _composite_forward(md, cn, op, ft, th, plan: TilePlan, m: int, acc: torch.Te
                 alpha, _, _ = _alpha(g, centres, md, cn, op, th, basis)  # [B, P, L]
                 la = torch.log1p(-alpha)
                 cs = torch.cumsum(la, 2).add_(carry)
-                w = (cs - la).clamp_(min=-80.0).exp_().mul_(alpha).mul_(cs >= LOG_T_MIN)
-                if acc is not None:
-                    acc[tiles] += torch.bmm(w, ft[g])
-                if weight_sum is not None:
-                    weight_sum.index_add_(0, g.reshape(-1), w.sum(1).reshape(-1).to(weight_sum.dtype))
+                _add_weighted(_weights(cs, la, alpha), g, tiles, ft, acc, weight_sum)
                 carry = cs[:, :, -1:]
             carries.append(saved)
     return carries
+
+
+def _weights(cs: torch.Tensor, la: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
+    """w_i = alpha_i T_i from the log transmittance after each Gaussian (``cs``) and its log(1 - alpha_i)."""
+    return (cs - la).clamp_(min=-80.0).exp_().mul_(alpha).mul_(cs >= LOG_T_MIN)
+
+
+def _add_weighted(w, g, tiles, ft, acc, weight_sum) -> None:
+    if acc is not None:
+        acc[tiles] += torch.bmm(w, ft[g])
+    if weight_sum is not None:
+        weight_sum.index_add_(0, g.reshape(-1), w.sum(1).reshape(-1).to(weight_sum.dtype))
+
+
+# A batch of tiles longer than twice this is composited in at most BATCH_PARTS parts along depth,
+# each this long at least (``_batch_weights_in_parts``): at least 12, where torch's CPU matrix
+# product gives each column the bits it gives it in a longer one; more parts drop used-up tiles
+# sooner, fewer cost less in calls.
+PART_GAUSSIANS = 64
+BATCH_PARTS = 16
+
+
+def _batch_weights_in_parts(idx, centres, counts, md, cn, op, th, basis) -> torch.Tensor:
+    """w [B, P, L] of one batch (``_composite_forward``'s single-chunk case) in equal parts along
+    depth (PART_GAUSSIANS, BATCH_PARTS), the last taking the remainder: after each part the tiles whose
+    transmittance fell below T_MIN at every pixel, or whose Gaussians ran out (the rest is padding),
+    leave the batch; their later weights are 0, as the whole batch at once computes them. The
+    log transmittance runs on in float64 from part to part, as torch's CPU cumsum accumulates a
+    float32 one, so every weight has the bits of the single pass (tests/test_render_rasterizer.py).
+    On the search's views (128 px, 4-pixel tiles) a third of the (tile, Gaussian) slots of a sample's
+    batches were padding and a third behind used-up transmittance."""
+    nb, length = idx.shape
+    w = torch.zeros(nb, basis.shape[1], length, dtype=md.dtype)
+    rows = torch.arange(nb)
+    run = torch.zeros(nb, basis.shape[1], 1, dtype=torch.float64)  # log T so far, as cumsum holds it
+    parts = min(length // PART_GAUSSIANS, BATCH_PARTS)
+    size = length // parts
+    for i in range(parts):
+        s0, s1 = i * size, length if i == parts - 1 else (i + 1) * size
+        alpha, _, _ = _alpha(idx[rows, s0:s1], centres[rows], md, cn, op, th, basis)
+        la = torch.log1p(-alpha)
+        run = torch.cumsum(torch.cat([run, la.double()], 2), 2)[:, :, 1:]
+        cs = run.to(md.dtype)
+        w[rows, :, s0:s1] = _weights(cs, la, alpha)
+        live = (cs[:, :, -1] >= LOG_T_MIN).any(1) & (counts[rows] > s1)
+        rows, run = rows[live], run[:, :, -1:][live]
+        if rows.numel() == 0:
+            break
+    return w
 
 
 class _Composite(torch.autograd.Function):
@@ -438,46 +500,100 @@ def rasterize(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, op
     if bg.shape != (nch,):
         raise ValueError(f"background must have {nch} values, got {list(bg.shape)}")
     op = opacities.to(dt)
-    proj, thresh, plan, keep = _project_and_plan(means, quats, scales, op, camera, tile_size, sigma_cutoff, eps2d,
-                                                 chunk_elements)
-    kidx = torch.nonzero(keep).squeeze(1)
-    # compact to the Gaussians that reach the image
-    remap = torch.full((mcount + 1,), -1, dtype=torch.int64)
-    remap[kidx] = torch.arange(kidx.numel())
-    plan.gauss = remap[plan.gauss]
+    drawn = _project_and_plan(means, quats, scales, op, camera, tile_size, sigma_cutoff, eps2d, chunk_elements)
+    kidx, plan = drawn.kidx, drawn.plan
     feats = colors[kidx].to(dt)
     feats = torch.where(torch.isfinite(feats), feats, torch.zeros_like(feats))
     extra = [torch.ones(kidx.numel(), 1, dtype=dt)]
     if render_depth:
-        extra.append(proj.depths[kidx].to(dt)[:, None])
+        extra.append(drawn.depths.to(dt)[:, None])
     feats = torch.cat([feats] + extra, 1)
-    acc = _Composite.apply(proj.means2d[kidx].to(dt), proj.conics[kidx].to(dt), op[kidx].clamp(0, 1), feats,
-                           thresh[kidx].to(dt), plan)
+    acc = _Composite.apply(drawn.means2d.to(dt), drawn.conics.to(dt), op[kidx].clamp(0, 1), feats,
+                           drawn.thresh.to(dt), plan)
     ts = plan.tile_size
     img = acc.reshape(plan.tiles_y, plan.tiles_x, ts, ts, -1).permute(0, 2, 1, 3, 4)
     img = img.reshape(plan.tiles_y * ts, plan.tiles_x * ts, -1)[:h, :w]
     alpha = img[..., nch]
     image = img[..., :nch] + (1 - alpha)[..., None] * bg
     depth = img[..., nch + 1] if render_depth else None
-    stats = {"gaussians": mcount, "in_front": int(proj.valid.sum()), "rasterized": int(kidx.numel()),
+    stats = {"gaussians": mcount, "in_front": drawn.in_front, "rasterized": int(kidx.numel()),
              "tile_size": plan.tile_size, "tile_pairs": plan.num_pairs, "batches": len(plan.batches), "backend": "torch"}
     return RenderResult(image, alpha, depth, stats)
 
 
+@dataclass
+class _Drawn:
+    """The Gaussians a view draws (``_project_and_plan``): their indices into the input, their
+    projection and drawing threshold in that order, and the tile plan over them (indices into them)."""
+    kidx: torch.Tensor
+    means2d: torch.Tensor
+    conics: torch.Tensor
+    depths: torch.Tensor
+    thresh: torch.Tensor
+    plan: TilePlan
+    in_front: int  # Gaussians in front of the camera (the projection's ``valid``)
+
+
 def _project_and_plan(means, quats, scales, op, camera: Camera, tile_size: int | None, sigma_cutoff: float,
-                      eps2d: float, chunk_elements: int):
-    """Projection, each Gaussian's drawing threshold (power below ln(255 o), within the sigma
-    cutoff; -1 for those never drawn) and the tile plan: -> (projection, thresh, plan, keep)."""
-    proj = project_gaussians(means, quats, scales, camera, eps2d)
+                      eps2d: float, chunk_elements: int) -> _Drawn:
+    """Projection of the Gaussians that may reach the image (``_may_reach_image``), each one's
+    drawing threshold (power below ln(255 o), within the sigma cutoff; -1 for those never drawn)
+    and the tile plan, compacted to the Gaussians it draws."""
+    rows = _may_reach_image(means, scales, camera, sigma_cutoff, eps2d, tile_size)
+    part = (lambda t: t) if rows is None else (lambda t: t[rows])
+    proj = project_gaussians(part(means), part(quats), part(scales), camera, eps2d)
     with torch.no_grad():
-        o = op.detach().double()
+        o = part(op).detach().double()
         finite_o = torch.isfinite(o) & (o > 0)
         lo = torch.log(255.0 * torch.where(finite_o, o, torch.ones_like(o)).clamp(max=1.0))
         thresh = torch.minimum(lo, torch.full_like(lo, 0.5 * sigma_cutoff ** 2))
         thresh = torch.where(proj.valid & finite_o & (o * 255.0 >= 1.0), thresh, torch.full_like(thresh, -1.0))
     plan, keep = _plan_tiles(proj.means2d, proj.cov2d, thresh, proj.depths, camera.width, camera.height, tile_size,
                              chunk_elements)
-    return proj, thresh, plan, keep
+    k = torch.nonzero(keep).squeeze(1)
+    remap = torch.full((keep.numel() + 1,), -1, dtype=torch.int64)
+    remap[k] = torch.arange(k.numel())
+    plan.gauss = remap[plan.gauss]
+    culled = 0 if rows is None else means.shape[0] - rows.numel()
+    return _Drawn(k if rows is None else rows[k], proj.means2d[k], proj.conics[k], proj.depths[k], thresh[k], plan,
+                  int(proj.valid.sum()) + culled)
+
+
+def _may_reach_image(means, scales, camera: Camera, sigma_cutoff: float, eps2d: float,
+                     tile_size: int | None) -> torch.Tensor | None:
+    """int64 [M']: all but the Gaussians in front of the camera whose footprint cannot reach the
+    image's tiles, or None where that is all of them. The footprint's half-width is at most
+    sigma_cutoff sqrt(cov2d_xx) (``_plan_tiles``) and cov2d_xx at most |J row 0|^2 max(scale)^2 +
+    eps2d, J's row clamped as ``project_gaussians`` clamps it (likewise in y); with 1% and a pixel
+    to spare, the culled ones are those ``_plan_tiles`` would drop, and the others project with the
+    bits they had among all. In the magnified crops of the search's views of a large scene 4-27%
+    of the Gaussians reach the image."""
+    with torch.no_grad():
+        pc = means.detach().double() @ torch.as_tensor(camera.rotation, dtype=torch.float64).T + \
+            torch.as_tensor(camera.translation, dtype=torch.float64)
+        x, y, z = pc.unbind(1)
+        s = scales.detach().double()
+        smax = torch.where(torch.isfinite(s), s.abs(), torch.full_like(s, math.inf)).amax(1)
+        front = (z > camera.near) & (z < camera.far)
+        zs = torch.where(front, z, torch.ones_like(z))
+        margin = max(TILE_SIZES + (tile_size or 0,)) + 1.0
+        out = torch.zeros_like(front)
+        for p, f, c, size, lim in ((x, camera.fx, camera.cx, camera.width, _jacobian_limit(camera, 0)),
+                                   (y, camera.fy, camera.cy, camera.height, _jacobian_limit(camera, 1))):
+            half = 1.01 * sigma_cutoff * torch.sqrt((abs(f) / zs) ** 2 * (1 + lim ** 2) * smax ** 2 + eps2d) + 1.0
+            u = f * p / zs + c
+            out |= (u + half < -1.0) | (u - half > size + margin)
+        out &= front
+        return None if not bool(out.any()) else torch.nonzero(~out).squeeze(1)
+
+
+def _jacobian_limit(camera: Camera, axis: int) -> float:
+    """The largest |x / z| (axis 0) or |y / z| (axis 1) ``project_gaussians`` lets the Jacobian see."""
+    if axis == 0:
+        tan_x = 0.5 * camera.width / camera.fx
+        return max(abs((camera.width - camera.cx) / camera.fx), abs(camera.cx / camera.fx)) + 0.3 * abs(tan_x)
+    tan_y = 0.5 * camera.height / camera.fy
+    return max(abs((camera.height - camera.cy) / camera.fy), abs(camera.cy / camera.fy)) + 0.3 * abs(tan_y)
 
 
 def compositing_weights(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
@@ -488,17 +604,14 @@ def compositing_weights(means: torch.Tensor, quats: torch.Tensor, scales: torch.
     mcount = means.shape[0]
     with torch.no_grad():
         op = opacities.detach().float()
-        proj, thresh, plan, keep = _project_and_plan(means.detach(), quats.detach(), scales.detach(), op, camera,
-                                                     tile_size, sigma_cutoff, eps2d, chunk_elements)
-        kidx = torch.nonzero(keep).squeeze(1)
-        remap = torch.full((mcount + 1,), -1, dtype=torch.int64)
-        remap[kidx] = torch.arange(kidx.numel())
-        plan.gauss = remap[plan.gauss]
+        drawn = _project_and_plan(means.detach(), quats.detach(), scales.detach(), op, camera, tile_size,
+                                  sigma_cutoff, eps2d, chunk_elements)
+        kidx = drawn.kidx
         k = kidx.numel()
-        md, cn, opp, ft, th = _padded(proj.means2d[kidx].float(), proj.conics[kidx].float(), op[kidx].clamp(0, 1),
-                                      torch.zeros(k, 1), thresh[kidx].float())
+        md, cn, opp, ft, th = _padded(drawn.means2d.float(), drawn.conics.float(), op[kidx].clamp(0, 1),
+                                      torch.zeros(k, 1), drawn.thresh.float())
         ws = torch.zeros(k + 1, dtype=torch.float64)
-        _composite_forward(md, cn, opp, ft, th, plan, k, weight_sum=ws)
+        _composite_forward(md, cn, opp, ft, th, drawn.plan, k, weight_sum=ws)
         out = torch.zeros(mcount, dtype=torch.float64)
         out[kidx] = ws[:k]
     return out

@@ -365,7 +365,10 @@ def test_pruning_less_restarts_from_the_chosen_steps_and_lands_near_the_target()
     best = rd.fewest_bits_at_target(s, s.evaluate(cfg), ["sh_dc"], target_mse)
     psnr = -10 * math.log10(best.mse)
     assert best.mse <= target_mse
-    assert psnr < 45 + 1.0, psnr  # on the target (within bisection's factor 1.1 on the step); was 170 dB
+    assert psnr <= 45 + rd.TARGET_TOLERANCE, psnr  # in the band above the target; once 170 dB
+    # each share starts where the one before met the target: 34 trials (bisection from every
+    # share's own start took 53 and landed 0.52 dB above)
+    assert len(s.trials) <= 36, len(s.trials)
 
 
 @settings(max_examples=200, deadline=None)

@@ -116,6 +116,60 @@ def test_image_does_not_depend_on_tile_size_float32():
         torch.testing.assert_close(im, imgs[0], atol=2e-5, rtol=0)
 
 
+@pytest.mark.parametrize("opac", [(0.05, 0.3), (0.6, 1.0)])
+def test_long_tiles_composited_in_parts_keep_every_bit(monkeypatch, opac):
+    """Batches of long tiles are composited in parts along depth, dropping the tiles whose
+    transmittance ran out or whose Gaussians did (``_batch_weights_in_parts``): the image, the
+    alpha, the compositing weights and the gradients have the bits of the one pass over each whole
+    batch, with faint Gaussians (few tiles used up) and near-opaque ones (most)."""
+    from lghcc.render import rasterizer as R
+
+    cam = Camera.look_at([0, -3, 0.5], [0, 0, 0], width=24, height=20, fov_x_deg=50)
+    params = _random_gaussians(3000, seed=5, dtype=torch.float32, spread=0.3, scale=(0.01, 0.3), opac=opac)
+    bg = torch.tensor([0.2, 0.3, 0.4])
+
+    def run():
+        ps = [p.clone().requires_grad_() for p in params]
+        r = rasterize(*ps, cam, background=bg, tile_size=4)
+        grads = torch.autograd.grad((r.image ** 2).sum() + r.alpha.sum(), ps)
+        return [r.image, r.alpha, compositing_weights(*params[:4], cam, tile_size=4), *grads], r.stats
+
+    parted, stats = run()
+    assert stats["tile_pairs"] / (6 * 5) >= 2 * R.PART_GAUSSIANS  # the tiles are long enough to be parted
+    monkeypatch.setattr(R, "PART_GAUSSIANS", 10 ** 9)  # every batch in one pass
+    whole, _ = run()
+    for name, a, b in zip(("image", "alpha", "weights", "means", "quats", "scales", "opacities", "colors"),
+                          parted, whole):
+        assert torch.equal(a, b), name
+
+
+def test_gaussians_that_cannot_reach_the_image_are_culled_before_the_projection(monkeypatch):
+    """A narrow view of a wide cloud: the Gaussians whose footprint cannot reach the image are
+    culled before the projection (``_may_reach_image``), large ones just off the edge that reach
+    into it are not; image, alpha, depth, gradients, compositing weights and the counts have the
+    bits of projecting them all."""
+    from lghcc.render import rasterizer as R
+
+    cam = Camera.look_at([0, -3, 0.2], [0, 0, 0], width=30, height=22, fov_x_deg=12)
+    params = _random_gaussians(4000, seed=6, dtype=torch.float32, spread=1.0, scale=(0.005, 0.25), opac=(0.2, 0.95))
+
+    def run():
+        ps = [p.clone().requires_grad_() for p in params]
+        r = R.rasterize(*ps, cam, background=torch.tensor([0.1, 0.2, 0.3]), render_depth=True)
+        grads = torch.autograd.grad((r.image ** 2).sum() + r.alpha.sum() + 1e-3 * r.depth.sum(), ps)
+        return [r.image, r.alpha, r.depth, R.compositing_weights(*params[:4], cam), *grads], r.stats
+
+    rows = R._may_reach_image(params[0], params[2], cam, 3.0, 0.3, None)
+    assert rows is not None and 0 < rows.numel() < 0.5 * params[0].shape[0]
+    culled, stats = run()
+    monkeypatch.setattr(R, "_may_reach_image", lambda *a: None)
+    every, stats_every = run()
+    assert stats == stats_every and stats["rasterized"] > rows.numel() / 4
+    for name, a, b in zip(("image", "alpha", "depth", "weights", "means", "quats", "scales", "opacities", "colors"),
+                          culled, every):
+        assert torch.equal(a, b), name
+
+
 @pytest.mark.parametrize("scale,expected", [((0.0005, 0.001), 4), ((0.5, 0.8), 16)])
 def test_the_tile_size_follows_the_footprints(scale, expected):
     """Footprints of a pixel or two get 4-pixel tiles (a 16-pixel tile would compute 256 pixels

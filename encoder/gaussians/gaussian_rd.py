@@ -18,14 +18,15 @@ of PSNR. Measured in relative rate, the same lambda lands at a like point of eve
 rate-distortion curve, whatever its Gaussian count and SH degree.
 The search: one probe per attribute group measures what doubling its step costs in D and
 saves in R; a high-rate model gives every group's step for lambda; every share of a ladder of
-pruning shares and a check of each step a factor sqrt(2) either way follow.
+pruning shares (with no target) and a check of each step a factor sqrt(2) either way follow.
 
 A fixed lambda lands at a like slope of every scene's curve, not at a like quality: on a small
 scene whose curve is shallow (playbot, 8k Gaussians: ~8 dB per doubling) lambda 10 went down to
 28 dB. So the presets give a quality instead (``target_psnr``, dB on the search views): lambda is
 the one the model says reaches it, and after the search, every pruning share of the ladder is
-measured at the chosen steps and moved onto the target there by one common factor on every step
-(bisection in log steps against real renders); the fewest bits measured that reach it are kept.
+moved onto the target by one common factor on every step (``common_factor_move``: a secant in
+log steps with the measured exponent of error ~ f^k, against real renders); the fewest bits
+measured that reach it are kept.
 """
 
 from __future__ import annotations
@@ -575,19 +576,28 @@ def check_steps_either_way(s: SettingsSearch, best: Trial, groups: list[str]) ->
 
 
 def fewest_bits_at_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: float) -> Trial:
-    """Every pruning share of the ladder measured at the steps the search chose, with the steps
-    moved onto the target at each (``onto_target``); then, of every setting measured on the way,
-    the fewest bits that reach the target. Pruning and coarser steps trade against each other
-    differently on every scene: on a trained lego (SH degree 3) the share that J preferred at the
-    model's steps left no setting at the target but the preset's own (104,929 bytes from lghcc-enc
-    --preset low), while 1.6% pruned with the steps moved onto the target gives 75,020 bytes (the
-    scene and how to make it: tools/results/real_scenes.md, section lego-trained). Every share is
-    moved: ranking the shares by the high-rate model's bits at the target and moving only the best
-    3 cost the donut's medium 27% more bytes (223,707 against 175,730 at 1.6% pruned), its start
-    being 5 dB below the target, where the model predicts none of them to get there."""
+    """Every pruning share of the ladder moved onto the target (``onto_target``); then, of every
+    setting measured on the way, the fewest bits that reach the target. Pruning and coarser steps
+    trade against each other differently on every scene: on a trained lego (SH degree 3) the share
+    that J preferred at the model's steps left no setting at the target but the preset's own
+    (104,929 bytes from lghcc-enc --preset low), while 1.6% pruned with the steps moved onto the
+    target gives 75,020 bytes (the scene and how to make it: tools/results/real_scenes.md, section
+    lego-trained). Every share is moved: ranking the shares by the high-rate model's bits at the
+    target and moving only the best 3 cost the donut's medium 27% more bytes (223,707 against
+    175,730 at 1.6% pruned), its start being 5 dB below the target, where the model predicts none
+    of them to get there.
+    Each share starts from the steps where the share before it met the target, with the exponent
+    of error ~ f^k measured there (the shares differ by a little pruning, so one move mostly lands
+    in the band), else from the steps the search chose (starting from the finest steps a share had
+    tried, the logo's medium once ended 8.8 dB above its target)."""
+    start_cfg, exponent = best.cfg, TARGET_FIRST_EXPONENT
     for share in PRUNE_LADDER:
-        start = best if share == best.cfg.prune_share else s.evaluate(dataclasses.replace(best.cfg, prune_share=share))
-        onto_target(s, start, groups, target_mse, evaluations=5)
+        cfg = dataclasses.replace(start_cfg, prune_share=share)
+        start = best if cfg == best.cfg else s.evaluate(cfg)
+        tried = onto_target_trials(s, start, groups, target_mse, SHARE_MOVES, exponent)
+        landed = fewest_bits_meeting(list(tried.values()), target_mse)
+        start_cfg = landed.cfg if landed.mse <= target_mse else best.cfg
+        exponent = bracket_exponent({f: t.mse for f, t in tried.items()}, target_mse) or exponent
     return fewest_bits_meeting(s.trials, target_mse)
 
 
@@ -622,9 +632,12 @@ def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEnco
     best = model_step_trial(s, cfg, base, probes)
     say(f"settings: model step {len(s.trials)} trials, {time.perf_counter() - t0:.0f} s: "
         f"{-10 * math.log10(max(best.mse, 1e-12)):.2f} dB at {best.bits / n:.1f} bits/Gaussian")
-    best = walk_pruning_ladder(s, best)
+    if target_mse is None:
+        best = walk_pruning_ladder(s, best)
     best = check_steps_either_way(s, best, groups)
     if target_mse is not None:
+        # every share is measured at the target here: the walk at the model's lambda (8 trials)
+        # would only choose the share where the steps are checked either way
         best = fewest_bits_at_target(s, best, groups, target_mse)
     say(f"settings: {len(s.trials)} trials, {time.perf_counter() - t0:.0f} s: "
         f"{-10 * math.log10(max(best.mse, 1e-12)):.2f} dB at {best.bits / n:.1f} bits/Gaussian, "
@@ -645,7 +658,7 @@ def trim_to_target(scene: GaussianScene, weights: np.ndarray, cfg: GaussianEncod
                        backdrop, renders)
     groups = _attribute_groups(scene)
     before = s.evaluate(as_fitted)
-    best = onto_target(s, before, groups, 10 ** (-cfg.target_psnr / 10), evaluations=4)
+    best = onto_target(s, before, groups, 10 ** (-cfg.target_psnr / 10), moves=4)
     if log:
         log(f"settings after the fit: {-10 * math.log10(max(before.mse, 1e-12)):.2f} dB at "
             f"{before.bits / 8:,.0f} B -> {-10 * math.log10(max(best.mse, 1e-12)):.2f} dB at {best.bits / 8:,.0f} B "
@@ -660,95 +673,112 @@ def _scaled(cfg: GaussianEncoderConfig, groups: list[str], f: float) -> Gaussian
     return cfg
 
 
-def onto_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: float,
-                evaluations: int = 8) -> Trial:
-    """Every step times one factor f so that the renders meet ``target_mse``: from f = 1, f
-    doubles (or halves) until the target is crossed (the model's lambda can be far off when
-    the preset's steps were), then bisection in log f (distortion grows with f) to within a
-    factor 1.1. Returns the trial of the largest f measured that meets the target (the fewest
-    bits at the quality asked for), or the one closest to it when none does (the finest)."""
-    trials = {1.0: best}
-    f_meet = 1.0 if best.mse <= target_mse else None  # largest f measured that meets the target
-    f_fail = None if f_meet else 1.0  # smallest f measured that does not
-    for _ in range(evaluations):
-        if f_meet is not None and f_fail is not None:
-            if f_fail / f_meet <= 1.1:
-                break
-            f = math.sqrt(f_meet * f_fail)
-        else:
-            f = f_meet * 2 if f_meet is not None else f_fail / 2
-            if not 1 / 64 <= f <= 64:
-                break
-        trials[f] = t = s.evaluate(_scaled(best.cfg, groups, f))
-        if t.mse <= target_mse:
-            f_meet = f if f_meet is None else max(f_meet, f)
-        else:
-            f_fail = f if f_fail is None else min(f_fail, f)
-    return fewest_bits_meeting(list(trials.values()), target_mse)
+def onto_target_trials(s: SettingsSearch, best: Trial, groups: list[str], target_mse: float, moves: int,
+                       first_exponent: float | None = None) -> dict[float, Trial]:
+    """``best`` and the trials of every step times one common factor f that move it onto
+    ``target_mse`` (``common_factor_trials``), factor -> Trial."""
+    return common_factor_trials(lambda f: best if f == 1.0 else s.evaluate(_scaled(best.cfg, groups, f)),
+                                target_mse, moves, first_exponent)
 
 
-# Whole-scene trials the check of a sampled choice may add to move it onto the target (each
-# renders and codes the whole prepared scene: 12-23 s each on the logo, 307k, at load 3-5): at most
-# 1 + 5 in all.
+def onto_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: float, moves: int = 4) -> Trial:
+    """Every step times one common factor f so that the renders meet ``target_mse`` within
+    TARGET_TOLERANCE (``common_factor_move``, at most ``moves`` trials after ``best``). Returns the
+    trial of fewest bits that meets the target, or the one of least error when none does. It once
+    doubled or halved f until the target was crossed, then bisected to within a factor 1.1: 4-5
+    trials a share, landing up to 0.8 dB above the target (f 1.1 is 0.8 dB at k = 2)."""
+    return fewest_bits_meeting(list(onto_target_trials(s, best, groups, target_mse, moves).values()), target_mse)
+
+
+# The common-factor moves onto a quality target, in the sample's search (each pruning share, the
+# trim after the fit) and in the whole-scene check. The check's trials render and code the whole
+# prepared scene (12-23 s each on the logo, 307k, at load 3-5; 30 s at 1M): at most 1 + 5 in all.
 WHOLE_SCENE_MOVES = 5
-# How far above the target (dB) the whole scene may render before the check moves the steps
-# coarser (a miss below the target is always moved); its moves aim at the middle of this band.
-WHOLE_SCENE_TOLERANCE = 0.25
-# The exponent k of error ~ f^k (f: the common factor on the attribute steps) the check's first move
-# assumes; later moves measure it on the check's own trials. Measured: the logo (307k, medium) 2.5
+# How far below the target (dB) the whole-scene check accepts its trial: the trials' own noise (at
+# 1M: 44.88 dB at x1, 44.64 at the finer x0.972; the check chased 0.12 dB with 5 more trials, 150 s).
+# The check's band is then 0.1 below to 0.15 above the target.
+WHOLE_SCENE_MISS = 0.1
+# The moves of each pruning share in the search: the share before it hands over its steps and the
+# exponent it measured, so one move mostly lands in the band.
+SHARE_MOVES = 3
+# How far above the target (dB) the renders may be before a move makes the steps coarser (a miss
+# below the target is always moved); moves aim at the middle of this band.
+TARGET_TOLERANCE = 0.25
+# The exponent k of error ~ f^k (f: the common factor on the attribute steps) a first move
+# assumes; later moves measure it on their own trials. Measured: the logo (307k, medium) 2.5
 # to 4.5 coarser (48.76 dB at x1, 45.78 at x1.31, 44.61 at x1.39, 37.60 at x2.31: k = 1, the full
 # target / error, overshot by 7.4 dB), the donut (20k sample, 4 views of 64 px) 3.0 finer, playbot
 # lod4 (3k sample, the same views) 2.1 finer (tools/results/search_sampling.md (h)).
-WHOLE_SCENE_FIRST_EXPONENT = 2.0
-# The most one move of the check changes the steps by, and the range of the exponents it measures.
-WHOLE_SCENE_MAX_MOVE = 4.0
-WHOLE_SCENE_EXPONENTS = (0.25, 4.0)
+TARGET_FIRST_EXPONENT = 2.0
+# The most one move changes the steps by, and the range of the exponents it measures.
+TARGET_MAX_MOVE = 4.0
+TARGET_EXPONENTS = (0.25, 4.0)
 # Where in a bracket (log f) a move may land at the least and the most: the secant, kept off its
 # ends, shrinks the bracket by a quarter at least (the logo's error is not a smooth power of f).
-WHOLE_SCENE_BRACKET = (0.25, 0.75)
+TARGET_BRACKET = (0.25, 0.75)
 
 
 def _measured_exponent(f1: float, e1: float, f2: float, e2: float) -> float:
-    """k of e ~ f^k through two trials (factor, error), within WHOLE_SCENE_EXPONENTS."""
-    lo, hi = WHOLE_SCENE_EXPONENTS
+    """k of e ~ f^k through two trials (factor, error), within TARGET_EXPONENTS."""
+    lo, hi = TARGET_EXPONENTS
     k = math.log(max(e2, 1e-30) / max(e1, 1e-30)) / math.log(f2 / f1)
     return min(max(k, lo), hi)
 
 
-def whole_scene_move(measured: dict[float, float], target_mse: float) -> float | None:
-    """The common factor (on the first trial's attribute steps) of the whole-scene check's next
-    trial, from its trials so far (factor -> error); None when the largest factor that meets the
-    target is within WHOLE_SCENE_TOLERANCE of it, or when the trials bracket the target within 1%
-    in factor. The error taken as c f^k: k through the two trials that bracket the target, else
-    through the two nearest it on its one side (all too good, or all missing), else
-    WHOLE_SCENE_FIRST_EXPONENT; the move aims at the middle of the band, stays inside a bracket
-    (WHOLE_SCENE_BRACKET) and within a factor WHOLE_SCENE_MAX_MOVE of the trial it starts from.
-    The check once had 2 moves, the second finer by the full target / error after a miss: on the
-    logo it stopped 1.7 dB above the target, +4.8% bytes (tools/results/search_sampling.md (f), (h))."""
+def bracket_exponent(measured: dict[float, float], target_mse: float) -> float | None:
+    """k of error ~ f^k through the two trials that bracket the target most closely (factor ->
+    error; None without a bracket): the secant of a move inside the bracket, and what the next
+    move onto a like target may assume first."""
+    meet = [f for f, e in measured.items() if e <= target_mse]
+    fail = [f for f, e in measured.items() if e > target_mse]
+    if not meet or not fail:
+        return None
+    a, b = max(meet), min(fail)
+    return _measured_exponent(a, measured[a], b, measured[b])
+
+
+def common_factor_move(measured: dict[float, float], target_mse: float,
+                       first_exponent: float | None = None) -> float | None:
+    """The common factor (on the first trial's attribute steps) of the next trial onto the target,
+    from the trials so far (factor -> error); None when the largest factor that meets the target
+    is within TARGET_TOLERANCE of it, or when the trials bracket the target within 1% in factor.
+    The error taken as c f^k: k through the two trials that bracket the target, else through the
+    two nearest it on its one side (all too good, or all missing) where the error grows with f,
+    else ``first_exponent`` (TARGET_FIRST_EXPONENT by default); the move aims at the middle of the
+    band, stays inside a bracket (TARGET_BRACKET) and within a factor TARGET_MAX_MOVE of the trial
+    it starts from.
+    The whole-scene check once had 2 moves, the second finer by the full target / error after a
+    miss: on the logo it stopped 1.7 dB above the target, +4.8% bytes
+    (tools/results/search_sampling.md (f), (h))."""
     meet = sorted(f for f, e in measured.items() if e <= target_mse)
     fail = sorted(f for f, e in measured.items() if e > target_mse)
-    if meet and measured[meet[-1]] * 10 ** (WHOLE_SCENE_TOLERANCE / 10) >= target_mse:
+    if meet and measured[meet[-1]] * 10 ** (TARGET_TOLERANCE / 10) >= target_mse:
         return None
-    aim = target_mse * 10 ** (-WHOLE_SCENE_TOLERANCE / 20)
+    aim = target_mse * 10 ** (-TARGET_TOLERANCE / 20)
     if meet and fail:
         a, b = meet[-1], fail[0]
         if b <= a * 1.01:
             return None
-        f = a * (aim / measured[a]) ** (1 / _measured_exponent(a, measured[a], b, measured[b]))
-        lo, hi = WHOLE_SCENE_BRACKET
+        f = a * (aim / max(measured[a], 1e-30)) ** (1 / bracket_exponent(measured, target_mse))
+        lo, hi = TARGET_BRACKET
         return min(max(f, a * (b / a) ** lo), a * (b / a) ** hi)
     near = meet[::-1] if meet else fail  # the nearest the target first
     a = near[0]
-    k = _measured_exponent(a, measured[a], near[1], measured[near[1]]) if len(near) > 1 else WHOLE_SCENE_FIRST_EXPONENT
-    return min(max(a * (aim / measured[a]) ** (1 / k), a / WHOLE_SCENE_MAX_MOVE), a * WHOLE_SCENE_MAX_MOVE)
+    k = first_exponent or TARGET_FIRST_EXPONENT
+    if len(near) > 1 and (measured[near[1]] - measured[a]) * (near[1] - a) > 0:
+        # two trials on one side; where the error fell as the steps grew, that was the trials'
+        # noise, not the slope (at 1M: steps x0.972 measured 0.24 dB worse than x1), so the prior
+        k = _measured_exponent(a, measured[a], near[1], measured[near[1]])
+    return min(max(a * (aim / max(measured[a], 1e-30)) ** (1 / k), a / TARGET_MAX_MOVE), a * TARGET_MAX_MOVE)
 
 
-def common_factor_trials(measure, target_mse: float) -> dict[float, Trial]:
-    """The whole-scene check's trials, factor -> Trial (``measure(f)``: the trial with every
-    attribute step times f): f = 1, then at most WHOLE_SCENE_MOVES more from ``whole_scene_move``."""
+def common_factor_trials(measure, target_mse: float, moves: int = WHOLE_SCENE_MOVES,
+                         first_exponent: float | None = None) -> dict[float, Trial]:
+    """Trials onto the target, factor -> Trial (``measure(f)``: the trial with every attribute
+    step times f): f = 1, then at most ``moves`` more from ``common_factor_move``."""
     trials = {1.0: measure(1.0)}
-    for _ in range(WHOLE_SCENE_MOVES):
-        f = whole_scene_move({f: t.mse for f, t in trials.items()}, target_mse)
+    for _ in range(moves):
+        f = common_factor_move({f: t.mse for f, t in trials.items()}, target_mse, first_exponent)
         if f is None or f in trials:
             break
         trials[f] = measure(f)
@@ -785,15 +815,15 @@ def meet_on_whole_scene(scene: GaussianScene, weights: np.ndarray, cfg: Gaussian
                         sensitivity: np.ndarray | None = None, log=None,
                         renders: SceneRenders | None = None) -> tuple[GaussianEncoderConfig, list[Trial]]:
     """The check of settings chosen on a sample against ``cfg.target_psnr`` on the whole (fitted,
-    pruned) scene: one trial; while the fewest bits that meet the target are off it by more than
-    WHOLE_SCENE_TOLERANCE (or none meets it), every attribute step times one common factor
-    (``whole_scene_move``, at most WHOLE_SCENE_MOVES trials more: at most 6 whole-scene trials). Of
+    pruned) scene, less WHOLE_SCENE_MISS: one trial; while the fewest bits that meet it are off it
+    by more than TARGET_TOLERANCE (or none meets it), every attribute step times one common factor
+    (``common_factor_move``, at most WHOLE_SCENE_MOVES trials more: at most 6 whole-scene trials). Of
     the trials that meet the target, the fewest bits; the least error where none does (``renders``:
     the scene's, where the trim made them). -> (settings, trials)."""
     as_fitted = dataclasses.replace(cfg, prune_share=0.0)  # the scene is already pruned
     s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution, sensitivity,
                        renders=renders)
-    target_mse = 10 ** (-cfg.target_psnr / 10)
+    target_mse = 10 ** (-(cfg.target_psnr - WHOLE_SCENE_MISS) / 10)
     groups = _attribute_groups(scene)
     tried = common_factor_trials(lambda f: s.evaluate(_scaled(as_fitted, groups, f)), target_mse)
     before, best = tried[1.0], fewest_bits_meeting(s.trials, target_mse)
