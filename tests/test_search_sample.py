@@ -81,13 +81,15 @@ def test_search_under_the_sample_size_chooses_as_the_whole_scene_search():
     whole = prepare_gaussians(scene, GaussianEncoderConfig(**SMALL, search_sample_gaussians=0))
     under = prepare_gaussians(scene, GaussianEncoderConfig(**SMALL, search_sample_gaussians=300))
     assert dataclasses.replace(under.cfg, search_sample_gaussians=0) == whole.cfg
-    assert under.stats.search_sample_gaussians is None
+    assert under.stats.search_sample_gaussians is None and under.stats.whole_check_trials is None
+    assert under.stats.time_trim_s is not None
     assert gaussian_scene_digest(under.scene) == gaussian_scene_digest(whole.scene)
 
 
 def test_sampled_search_is_deterministic_and_checked_on_the_whole_scene():
     """A scene above the sample size: searched on a sample, the same settings twice, and the whole
-    scene checked against the target once at least (then moved onto it where it missed)."""
+    scene checked against the target once at least (then moved onto it where it missed), in the
+    place of the trim after the fit (which runs without a sample)."""
     from lghcc.encoder.gaussians.gaussian_rd import SettingsSearch
 
     rng = np.random.default_rng(7)
@@ -97,7 +99,7 @@ def test_sampled_search_is_deterministic_and_checked_on_the_whole_scene():
     a, b = prepare_gaussians(scene, cfg), prepare_gaussians(scene, cfg)
     assert a.cfg == b.cfg and gaussian_scene_digest(a.scene) == gaussian_scene_digest(b.scene)
     assert 0 < a.stats.search_sample_gaussians < 1200 and a.stats.search_sample_ratio > 0
-    assert a.stats.whole_check_trials >= 1
+    assert a.stats.whole_check_trials >= 1 and a.stats.time_trim_s is None
     check = SettingsSearch(a.scene, a.weights, a.cfg, 0.0, a.cfg.search_views, a.cfg.search_resolution, a.sensitivity)
     trial = check.evaluate(a.cfg)
     met = -10 * math.log10(trial.mse) >= cfg.target_psnr

@@ -82,8 +82,8 @@ def search_view_plan(cfg: GaussianEncoderConfig, num_gaussians: int) -> tuple[in
 class SceneRenders:
     """A scene's search views (``resolving_views``) and its renders on black in them, made once per
     view plan (views, resolution, resolve_px) and shared by whoever measures against them: on a
-    sampled search the ratio and the search's offsets measure against the source's, the trim's
-    offsets and the whole-scene check against the fitted scene's (each pair rendered them twice)."""
+    sampled search the ratio and the search's offsets measure against the source's (the pair rendered
+    them twice); the whole-scene check, or the trim without a sample, against the fitted scene's."""
 
     def __init__(self, scene: GaussianScene):
         self.scene = scene
@@ -643,16 +643,16 @@ def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEnco
 
 
 def trim_to_target(scene: GaussianScene, weights: np.ndarray, cfg: GaussianEncoderConfig, *,
-                   sensitivity: np.ndarray | None = None, log=None, backdrop: Backdrop | None = None,
+                   sensitivity: np.ndarray | None = None, log=None,
                    renders: SceneRenders | None = None) -> tuple[GaussianEncoderConfig, Trial, Trial]:
     """After the fit, which tuned the values to render closer to the source than the search
     measured (about 1 dB), the attribute steps move onto ``cfg.target_psnr`` again (``onto_target``
     on the fitted scene, its grid kept): the fit's gain becomes fewer bytes at the quality asked
-    for (``backdrop``: ``scene`` is a sample of it; ``renders``: ``scene``'s, without one).
-    -> (settings, the trial before, the trial chosen)."""
+    for (``renders``: ``scene``'s). After a search on a sample the whole-scene check does this
+    instead (``meet_on_whole_scene``). -> (settings, the trial before, the trial chosen)."""
     as_fitted = dataclasses.replace(cfg, prune_share=0.0)  # the scene is already pruned
     s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution, sensitivity,
-                       backdrop, renders)
+                       renders=renders)
     groups = _attribute_groups(scene)
     before = s.evaluate(as_fitted)
     best = onto_target(s, before, groups, 10 ** (-cfg.target_psnr / 10), moves=4)
@@ -687,8 +687,8 @@ def onto_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: f
     return fewest_bits_meeting(list(onto_target_trials(s, best, groups, target_mse, moves).values()), target_mse)
 
 
-# The common-factor moves onto a quality target, in the sample's search (each pruning share, the
-# trim after the fit) and in the whole-scene check. The check's trials render and code the whole
+# The common-factor moves onto a quality target, in the search (each pruning share), the trim after
+# the fit (without a sample) and the whole-scene check (after a search on a sample). The check's trials render and code the whole
 # prepared scene (12-23 s each on the logo, 307k, at load 3-5; 30 s at 1M): at most 1 + 5 in all.
 WHOLE_SCENE_MOVES = 5
 # How far below the target (dB) the whole-scene check accepts its trial: the trials' own noise (at
@@ -816,7 +816,10 @@ def meet_on_whole_scene(scene: GaussianScene, weights: np.ndarray, cfg: Gaussian
     by more than TARGET_TOLERANCE (or none meets it), every attribute step times one common factor
     (``common_factor_move``, at most WHOLE_SCENE_MOVES trials more: at most 6 whole-scene trials). Of
     the trials that meet the target, the fewest bits; the least error where none does (``renders``:
-    the scene's, where the trim made them). -> (settings, trials)."""
+    the scene's). It starts from the search's settings: a trim on the sample before it moved the same
+    common factor against the ratio measured before the fit, which the fit moves (at 1M its settings
+    measured 1.2 dB short here), for two whole renders per view and 5 trials of the sample
+    (tools/results/scale.md). -> (settings, trials)."""
     as_fitted = dataclasses.replace(cfg, prune_share=0.0)  # the scene is already pruned
     s = SettingsSearch(scene, weights, as_fitted, 0.0, cfg.search_views, cfg.search_resolution, sensitivity,
                        renders=renders)
