@@ -695,6 +695,13 @@ WHOLE_SCENE_MOVES = 5
 # 1M: 44.88 dB at x1, 44.64 at the finer x0.972; the check chased 0.12 dB with 5 more trials, 150 s).
 # The check's band is then 0.1 below to 0.15 above the target.
 WHOLE_SCENE_MISS = 0.1
+# The exponent k (error ~ f^k) the whole-scene check's first move assumes: measured on whole prepared
+# scenes 2.7 on the logo (x1 48.76 dB, x1.52 43.85), 2.87 and 2.73 at 1M (x1 43.77, x0.865 45.58; x1 42.40,
+# x0.739 45.98), 3.0 at 300k (x1 45.44, x1.11 44.10) and 2.4 on the donut (20k sample: x1 44.77, x0.794
+# 47.16). With the search's k = 2 the second 1M check's first move overshot by 0.9 dB and took a third
+# trial (tools/results/scale.md); on a power law with 0.1-0.2 dB noise and k 2.4-3.0 this prior takes
+# 3.1-3.3 trials on average against 3.5-3.7 (/tmp/t32/sim2.py, a session script).
+WHOLE_SCENE_FIRST_EXPONENT = 2.7
 # The moves of each pruning share in the search: the share before it hands over its steps and the
 # exponent it measured, so one move mostly lands in the band.
 SHARE_MOVES = 3
@@ -814,7 +821,8 @@ def meet_on_whole_scene(scene: GaussianScene, weights: np.ndarray, cfg: Gaussian
     """The check of settings chosen on a sample against ``cfg.target_psnr`` on the whole (fitted,
     pruned) scene, less WHOLE_SCENE_MISS: one trial; while the fewest bits that meet it are off it
     by more than TARGET_TOLERANCE (or none meets it), every attribute step times one common factor
-    (``common_factor_move``, at most WHOLE_SCENE_MOVES trials more: at most 6 whole-scene trials). Of
+    (``common_factor_move``, first with k = WHOLE_SCENE_FIRST_EXPONENT, at most WHOLE_SCENE_MOVES
+    trials more: at most 6 whole-scene trials). Of
     the trials that meet the target, the fewest bits; the least error where none does (``renders``:
     the scene's). It starts from the search's settings: a trim on the sample before it moved the same
     common factor against the ratio measured before the fit, which the fit moves (at 1M its settings
@@ -825,7 +833,8 @@ def meet_on_whole_scene(scene: GaussianScene, weights: np.ndarray, cfg: Gaussian
                        renders=renders)
     target_mse = 10 ** (-(cfg.target_psnr - WHOLE_SCENE_MISS) / 10)
     groups = _attribute_groups(scene)
-    tried = common_factor_trials(lambda f: s.evaluate(_scaled(as_fitted, groups, f)), target_mse)
+    tried = common_factor_trials(lambda f: s.evaluate(_scaled(as_fitted, groups, f)), target_mse,
+                                 first_exponent=WHOLE_SCENE_FIRST_EXPONENT)
     before, best = tried[1.0], fewest_bits_meeting(s.trials, target_mse)
     if log:
         log(f"settings on the whole scene: {-10 * math.log10(max(before.mse, 1e-12)):.2f} dB at "
