@@ -688,8 +688,9 @@ def onto_target(s: SettingsSearch, best: Trial, groups: list[str], target_mse: f
 
 
 # The common-factor moves onto a quality target, in the search (each pruning share), the trim after
-# the fit (without a sample) and the whole-scene check (after a search on a sample). The check's trials render and code the whole
-# prepared scene (12-23 s each on the logo, 307k, at load 3-5; 30 s at 1M): at most 1 + 5 in all.
+# the fit (without a sample) and the whole-scene check (after a search on a sample). The check's
+# trials render and code the whole prepared scene (12-23 s each on the logo, 307k, at load 3-5; 30 s
+# at 1M): at most 1 + 5 in all.
 WHOLE_SCENE_MOVES = 5
 # How far below the target (dB) the whole-scene check accepts its trial: the trials' own noise (at
 # 1M: 44.88 dB at x1, 44.64 at the finer x0.972; the check chased 0.12 dB with 5 more trials, 150 s).
@@ -700,7 +701,7 @@ WHOLE_SCENE_MISS = 0.1
 # x0.739 45.98), 3.0 at 300k (x1 45.44, x1.11 44.10) and 2.4 on the donut (20k sample: x1 44.77, x0.794
 # 47.16). With the search's k = 2 the second 1M check's first move overshot by 0.9 dB and took a third
 # trial (tools/results/scale.md); on a power law with 0.1-0.2 dB noise and k 2.4-3.0 this prior takes
-# 3.1-3.3 trials on average against 3.5-3.7 (/tmp/t32/sim2.py, a session script).
+# 3.1-3.3 trials on average against 3.5-3.7 (a simulation of ``common_factor_trials``, same file).
 WHOLE_SCENE_FIRST_EXPONENT = 2.7
 # The moves of each pruning share in the search: the share before it hands over its steps and the
 # exponent it measured, so one move mostly lands in the band.
