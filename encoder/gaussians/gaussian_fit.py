@@ -19,7 +19,9 @@ any cameras the caller gives, e.g. the scene's own training views):
    scene renders closest to the source at the rate the stream will pay. The pruned
    Gaussians' share of the pictures is taken over by their neighbours;
 5. with a quality asked for (``target_psnr``), the attribute steps move onto it again
-   (encoder/gaussians/gaussian_rd.py ``trim_to_target``): what the fit gained becomes fewer bytes.
+   (encoder/gaussians/gaussian_rd.py ``trim_to_target``): what the fit gained becomes fewer bytes;
+   after a search on a sample, the whole-scene check does this on the whole prepared scene
+   (``meet_on_whole_scene``).
 
 The result is a GaussianScene on its grid that encode_gaussian_scene codes exactly as the
 fit simulated it.
@@ -337,26 +339,15 @@ def fit_to_renders(grid: GaussianScene, g: Gaussians3DGS, cams: list[Camera], cf
 
 
 def trim_steps(fitted: GaussianScene, weights: np.ndarray, sensitivity: np.ndarray | None, cfg: GaussianEncoderConfig,
-               stats: PrepareStats, say, sample: np.ndarray | None = None, ratio: float = 1.0,
-               renders: SceneRenders | None = None) -> GaussianEncoderConfig:
+               stats: PrepareStats, say, renders: SceneRenders | None = None) -> GaussianEncoderConfig:
     """With a quality asked for, the attribute steps moved onto it again (what the fit gained
-    becomes fewer bytes); the settings as they are otherwise. With a search ``sample`` (bool over
-    the fitted Gaussians; ``ratio`` the whole scene's error over the sample's), moved on the sample
-    and then checked on the whole scene (``whole_scene_check``, sharing ``renders``, the fitted
-    scene's)."""
+    becomes fewer bytes; ``renders``: the fitted scene's); the settings as they are otherwise."""
     if not cfg.target_psnr > 0:
         return cfg
-    from .gaussian_rd import Backdrop, on_sample, trim_to_target
+    from .gaussian_rd import trim_to_target
 
     t0 = time.perf_counter()
-    if sample is None:
-        cfg, before, after = trim_to_target(fitted, weights, cfg, sensitivity=sensitivity, log=say, renders=renders)
-    else:
-        part_sens = None if sensitivity is None else sensitivity[sample]
-        trimmed, before, after = trim_to_target(fitted.subset(sample), weights[sample], on_sample(cfg, ratio),
-                                                sensitivity=part_sens, log=say,
-                                                backdrop=Backdrop(fitted, sample, renders))
-        cfg = dataclasses.replace(trimmed, target_psnr=cfg.target_psnr)
+    cfg, before, after = trim_to_target(fitted, weights, cfg, sensitivity=sensitivity, log=say, renders=renders)
     stats.time_trim_s, stats.trim_bits_before, stats.trim_bits_after = time.perf_counter() - t0, before.bits, after.bits
     return cfg
 
@@ -366,7 +357,7 @@ def whole_scene_check(scene: GaussianScene, weights: np.ndarray, sensitivity: np
                       renders: SceneRenders | None = None) -> GaussianEncoderConfig:
     """Settings chosen on a sample, checked against the target on the whole prepared scene and
     moved onto it where they miss (encoder/gaussians/gaussian_rd.py ``meet_on_whole_scene``;
-    ``renders``: the scene's, where the trim made them)."""
+    ``renders``: the scene's); it takes the place of the trim (``trim_steps``)."""
     if not cfg.target_psnr > 0:
         return cfg
     from .gaussian_rd import meet_on_whole_scene
@@ -413,12 +404,14 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
     if cfg.fit_iterations > 0:
         grid = fit_to_renders(grid, g, cams, fit_steps(cfg, grid.num_gaussians), stats, say, progress, sensitivity)
     from .gaussian_rd import SceneRenders
-    renders = SceneRenders(grid)  # the prepared scene's search renders: the trim's and the check's, made once
-    if cfg.fit_iterations > 0:
-        cfg = trim_steps(grid, weights, sensitivity, cfg, stats, say, None if sample is None else sample.members[keep],
-                         1.0 if sample is None else sample.ratio, renders)
+    renders = SceneRenders(grid)  # the prepared scene's search renders: the trim's or the check's
     if sample is not None:
+        # no trim on the sample first: it moved the attribute steps by one common factor, as the
+        # check does, against the ratio measured before the fit (off by -0.4 to +1.4 dB after it at
+        # 300k and 1M), and cost 2 whole renders per view besides its trials (tools/results/scale.md)
         cfg = whole_scene_check(grid, weights, sensitivity, cfg, stats, say, renders)
+    elif cfg.fit_iterations > 0:
+        cfg = trim_steps(grid, weights, sensitivity, cfg, stats, say, renders)
     stats.time_total_s = time.perf_counter() - t0
     return PreparedGaussians(grid, weights, sensitivity, cfg, stats)
 
