@@ -4,8 +4,9 @@
 // hash-checks the tile and sends back the renderer's arrays (and, for a digest, the decoded tile).
 import { decodeTile, preludeContext, sceneArrays } from './decoder.mjs';
 import * as errors from './errors.mjs';
-import { scaleTables } from './tables.mjs';
+import { adoptScaleTables, scaleTables } from './tables.mjs';
 import { parseGaussianParameterSet } from './units.mjs';
+import { adoptWasmModule, wasmModule } from './wasm.mjs';
 
 // a typed array that owns its whole buffer (a view into a larger one would clone all of it)
 function own(a) { return a.byteOffset === 0 && a.byteLength === a.buffer.byteLength ? a : a.slice(); }
@@ -18,6 +19,16 @@ function remoteError({ name, message }) {
     const e = new C(message);
     if (e.name !== name) Object.defineProperty(e, 'name', { value: name });
     return e;
+}
+
+/** Milliseconds since the epoch of the page's clock (comparable across workers: the timeline). */
+export function clock() { return performance.timeOrigin + performance.now(); }
+
+/** f()'s result (a promise of a decoded tile) with its span on the timeline: {thread, start, end}. */
+export async function timed(thread, f) {
+    const start = clock();
+    const r = await f();
+    return { ...r, span: { thread, start, end: clock() } };
 }
 
 const AHEAD = 2; // jobs a helper holds (one running, one waiting): it never waits for this thread between tiles
@@ -34,6 +45,7 @@ export class TilePool {
         this.keep = keep;
         this.decodeHere = decodeHere;
         this.hereBusy = false;
+        this.dispatching = false;
         this.workers = null;
         this.queue = [];
     }
@@ -42,13 +54,14 @@ export class TilePool {
     start(ctx) {
         if (this.workers) return;
         const p = ctx.payloads;
-        const init = { ps: own(p.ps), np: p.np && own(p.np), sa: p.sa && own(p.sa), sd: p.sd && own(p.sd) };
-        this.workers = Array.from({ length: Math.min(this.size, ctx.tiles.length - 1) }, () => {
+        // the module and the scale tables as this thread compiled and checked them: a helper neither compiles nor builds them again
+        const init = { ps: own(p.ps), np: p.np && own(p.np), sa: p.sa && own(p.sa), sd: p.sd && own(p.sd), module: wasmModule(), tables: scaleTables() };
+        this.workers = Array.from({ length: Math.min(this.size, ctx.tiles.length - 1) }, (_, i) => {
             const w = new Worker(this.url);
             w.jobs = [];
             w.onmessage = (e) => this._done(w, e.data);
             w.onerror = (e) => { e.preventDefault(); this._failAll(w, `a decoding worker stopped: ${e.message}`); };
-            w.postMessage({ init });
+            w.postMessage({ init, helper: i + 1 });
             return w;
         });
     }
@@ -57,14 +70,18 @@ export class TilePool {
     decode(ctx, t) {
         return new Promise((resolve, reject) => {
             this.queue.push({ ctx, t, resolve, reject });
-            this._next();
+            // handed out once the tiles that arrived together are all queued: the largest go first
+            if (!this.dispatching) {
+                this.dispatching = true;
+                queueMicrotask(() => { this.dispatching = false; this._next(); });
+            }
         });
     }
 
     /** Promise of f()'s result, run on this thread once it is free (after the jobs handed out so far are posted). */
     runHere(f) {
         this.hereBusy = true;
-        const p = new Promise((res) => setTimeout(res, 0)).then(f);
+        const p = new Promise((res) => setTimeout(res, 0)).then(() => timed('worker', f));
         p.finally(() => { this.hereBusy = false; this._next(); }).catch(() => null);
         return p;
     }
@@ -111,25 +128,27 @@ export class TilePool {
 }
 
 let helperCtx = null;
+const helperLoaded = clock(); // this script evaluated (the timeline's helper start)
 
 /** A helper's side: {init} (the prelude's payloads) once, then {job} per tile. */
 export async function helperMessage(data) {
     if (data.init) {
-        scaleTables();
+        adoptWasmModule(data.init.module);
+        adoptScaleTables(data.init.tables);
         const ps = parseGaussianParameterSet(data.init.ps);
-        helperCtx = { ...preludeContext(ps, data.init), tiles: [] };
+        helperCtx = { ...preludeContext(ps, data.init), tiles: [], id: data.helper, ready: [helperLoaded, clock()] };
         return;
     }
     const { t, points, cell, units, keep } = data.job;
     try {
         helperCtx.tiles[t] = { units, points, cell };
-        const r = await decodeTile(helperCtx, t);
+        const r = await timed(`helper ${helperCtx.id}`, () => decodeTile(helperCtx, t));
         helperCtx.tiles[t] = null;
         const arrays = sceneArrays(helperCtx.ps, [r]);
         const transfer = arrayBuffers(arrays);
-        let tile = { n: r.n };
+        let tile = { n: r.n, span: { ...r.span, ready: helperCtx.ready } };
         if (keep) {
-            tile = { n: r.n, x: own(r.x), y: own(r.y), z: own(r.z), values: own(r.values) };
+            tile = { ...tile, x: own(r.x), y: own(r.y), z: own(r.z), values: own(r.values) };
             transfer.push(tile.x.buffer, tile.y.buffer, tile.z.buffer, tile.values.buffer);
         }
         self.postMessage({ t, tile, arrays }, transfer);

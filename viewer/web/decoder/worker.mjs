@@ -9,7 +9,7 @@
 // worker cannot start workers, tile after tile), and 'tile' messages come in the order tiles finish.
 import { ProgressiveDecoder, sceneArrays } from './progressive.mjs';
 import { decodeStream, decodeTile, sceneDigestHex } from './decoder.mjs';
-import { TilePool, arrayBuffers, helperMessage } from './pool.mjs';
+import { TilePool, arrayBuffers, clock, helperMessage } from './pool.mjs';
 
 async function* chunksOf(msg) {
     if (msg.bytes) { yield msg.bytes; return; }
@@ -45,6 +45,7 @@ self.onmessage = async (e) => {
     if (e.data.init || e.data.job) { await helperMessage(e.data); return; }
     if (e.data.box) { await decodeBox(e.data); return; }
     const t0 = performance.now();
+    const timeline = { start: clock(), tiles: [] }; // when each tile was decoded, by which thread (pool.mjs)
     let count = 0;
     const url = e.data.workers >= 2 && typeof Worker !== 'undefined' ? helperUrl(e.data) : null;
     const pool = url ? new TilePool(e.data.workers - 1, url, { keep: !!e.data.digest, decodeHere: decodeTile }) : null;
@@ -52,7 +53,9 @@ self.onmessage = async (e) => {
         pool,
         onTile: (t, tile, info) => {
             const arrays = tile.arrays || sceneArrays(info.ps, [tile]);
+            if (tile.span) timeline.tiles.push({ t, points: tile.n, ...tile.span });
             delete tile.arrays;
+            delete tile.span;
             count += tile.n;
             self.postMessage({ type: 'tile', t, tiles: info.tiles, count, arrays, ms: performance.now() - t0 }, arrayBuffers(arrays));
         },
@@ -62,7 +65,8 @@ self.onmessage = async (e) => {
         const r = await dec.finish();
         const digest = e.data.digest ? sceneDigestHex(r.ps, r.tiles) : null;
         const helpers = pool && pool.workers ? pool.workers.length : 0; // helper workers that decoded tiles
-        self.postMessage({ type: 'done', count, tiles: r.tiles.length, seconds: (performance.now() - t0) / 1000, digest, helpers });
+        timeline.end = clock();
+        self.postMessage({ type: 'done', count, tiles: r.tiles.length, seconds: (performance.now() - t0) / 1000, digest, helpers, timeline });
     } catch (err) {
         self.postMessage({ type: 'error', kind: err && err.name ? err.name : 'Error', message: String(err && err.message ? err.message : err) });
     } finally {

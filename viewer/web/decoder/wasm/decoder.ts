@@ -1103,3 +1103,35 @@ export function reconstruct(n: i32, scale: usize, out: usize): void {
         }
     }
 }
+
+// ---------------------------------------------------------------- serialization (clause 12)
+
+/**
+ * The body of clause 12's serialization of one tile's n points (after the 49-byte header) into out:
+ * the coordinates (x, y, z at x, y, z: i32 [n]) as int64, then the values (f32 [n * M], channel
+ * order of 11.1) in the groups SH (S3 channels), opacity (1), scales (3) and rotations (M - S3 - 4),
+ * each group point-major. A scene's serialization is these parts of its tiles, in tile order.
+ */
+export function serializeTile(x: usize, y: usize, z: usize, values: usize, n: i32, M: i32, S3: i32, out: usize): void {
+    for (let i = 0; i < n; i++) {
+        const p = out + <usize>i * 24, o = <usize>i << 2;
+        store<i64>(p, <i64>load<i32>(x + o));
+        store<i64>(p + 8, <i64>load<i32>(y + o));
+        store<i64>(p + 16, <i64>load<i32>(z + o));
+    }
+    let at = out + <usize>n * 24;
+    at = serializeGroup(values, n, M, 0, S3, at);
+    at = serializeGroup(values, n, M, S3, S3 + 1, at);
+    at = serializeGroup(values, n, M, S3 + 1, S3 + 4, at);
+    serializeGroup(values, n, M, S3 + 4, M, at);
+}
+
+/** Channels a .. b - 1 of n rows of M values, point-major, at `at`; returns the end. */
+function serializeGroup(values: usize, n: i32, M: i32, a: i32, b: i32, at: usize): usize {
+    const w = b - a;
+    for (let i = 0; i < n; i++) {
+        const src = values + (<usize>(i * M + a) << 2), dst = at + (<usize>(i * w) << 2);
+        for (let c = 0; c < w; c++) store<u32>(dst + (<usize>c << 2), load<u32>(src + (<usize>c << 2)));
+    }
+    return at + (<usize>(n * w) << 2);
+}
