@@ -9,8 +9,8 @@ Writes the streams to --out (kept between runs: a stream already there is reused
 Node (viewer/web/decoder/bench.mjs: best of R, tables loaded, page and process start excluded), in
 headless Chromium (the page's Web Worker, lghcc-decoder-worker.js: best of R, the stream's bytes
 already in the page; also when the first tile arrived), once more in Chromium with the tiles decoded
-by a pool of W threads (the page's default: navigator.hardwareConcurrency; the worker and W - 1 helper
-workers, pool.mjs), and once with the reference decoder in this process, and prints a markdown table
+by a pool of W threads (the page's default: navigator.hardwareConcurrency; W helper workers, the
+worker decoding tile 0 and handing out the rest, pool.mjs), and once with the reference decoder in this process, and prints a markdown table
 (Gaussians/s). --stream adds coded streams (e.g. a 1M-Gaussian scene of tools/scale_scenes.py),
 --no-reference skips the reference decoder. --tree DIR measures the decoder of another tree (e.g. an
 older commit's `git archive` with its worker bundle built by its tools/node/build-viewer.mjs), for
@@ -145,7 +145,7 @@ def main() -> int:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--preset", default="medium")
     ap.add_argument("--workers", type=int, default=-1,
-                    help="decoding threads of the pool measurement, the worker included (default -1: "
+                    help="decoding threads of the pool measurement (helper workers; default -1: "
                     "navigator.hardwareConcurrency)")
     ap.add_argument("--tree", type=Path, default=ROOT, help="the tree whose decoder is measured (default: this one)")
     ap.add_argument("--stream", action="append", default=[], help="also measure this coded stream (repeatable)")

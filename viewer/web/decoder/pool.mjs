@@ -36,21 +36,21 @@ const AHEAD = 2; // jobs a helper holds (one running, one waiting): it never wai
 export class TilePool {
     /**
      * size helpers of the worker script at url; keep: helpers send the decoded tiles back (for a
-     * digest). This thread is a decoder too: it decodes tile 0 (runHere) and, when idle, takes
-     * queued tiles (decodeHere(ctx, t) promises the result), so W decoding threads need W - 1 helpers.
+     * digest). This thread decodes tile 0 (runHere: the first tile does not wait for a helper to
+     * start) and otherwise only hands tiles out and takes results: a thread that decoded tiles
+     * too would answer a helper only between its own tiles, and the helper would wait (round 7 of
+     * tools/results/js_decoder.md). So W decoding threads are W helpers.
      */
-    constructor(size, url, { keep = false, decodeHere = null } = {}) {
+    constructor(size, url, { keep = false } = {}) {
         this.size = size;
         this.url = url;
         this.keep = keep;
-        this.decodeHere = decodeHere;
-        this.hereBusy = false;
         this.dispatching = false;
         this.workers = null;
         this.queue = [];
     }
 
-    /** The prelude is known (ctx.payloads): start the helpers, at most one per tile after the first (decoded by the caller). */
+    /** The prelude is known (ctx.payloads): start the helpers, at most one per tile after the first (decoded here). */
     start(ctx) {
         if (this.workers) return;
         const p = ctx.payloads;
@@ -80,10 +80,7 @@ export class TilePool {
 
     /** Promise of f()'s result, run on this thread once it is free (after the jobs handed out so far are posted). */
     runHere(f) {
-        this.hereBusy = true;
-        const p = new Promise((res) => setTimeout(res, 0)).then(() => timed('worker', f));
-        p.finally(() => { this.hereBusy = false; this._next(); }).catch(() => null);
-        return p;
+        return new Promise((res) => setTimeout(res, 0)).then(() => timed('worker', f));
     }
 
     // the queued tile with the most points: the last tiles to finish are small ones
@@ -102,10 +99,6 @@ export class TilePool {
                 const units = tile.units.map((u) => ({ type: u.type, payload: u.payload.slice() }));
                 w.postMessage({ job: { t: job.t, points: tile.points, cell: tile.cell, units, keep: this.keep } }, units.map((u) => u.payload.buffer));
             }
-        }
-        if (this.decodeHere && !this.hereBusy && this.queue.length) {
-            const job = this._take();
-            this.runHere(() => this.decodeHere(job.ctx, job.t)).then(job.resolve, job.reject);
         }
     }
 

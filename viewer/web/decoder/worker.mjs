@@ -1,14 +1,15 @@
 // The decoder in a Web Worker: {bytes} (a Uint8Array) or {url} (fetched as a stream) in; out,
 // as the bytes arrive: {type: 'tile', t, tiles, count, arrays} per decoded, hash-checked tile
 // (positions, sh, opacities, scales, rotations: transferred typed arrays, no PLY), then
-// {type: 'done', count, tiles, seconds, digest, helpers} once the whole stream passed every check, or
+// {type: 'done', count, tiles, seconds, digest, helpers, timeline} once the whole stream passed every check, or
 // {type: 'error', kind, message}. With {digest: true} 'done' carries the decoded scene's SHA-256
 // (clause 12); with {bytes, box} only the tiles the box selects are decoded. With {workers: W, source}
 // (W >= 2, e.g. navigator.hardwareConcurrency; source: this script's text) the tiles of a tiled stream are decoded by W
-// threads in parallel: this worker and W - 1 helper workers of this same script (pool.mjs; where a
+// helper workers of this same script in parallel, this worker decoding tile 0 and handing out the others (pool.mjs; where a
 // worker cannot start workers, tile after tile), and 'tile' messages come in the order tiles finish.
+// timeline: {start, end, tiles: [{t, points, thread, start, end}]}, milliseconds of performance.timeOrigin + now().
 import { ProgressiveDecoder, sceneArrays } from './progressive.mjs';
-import { decodeStream, decodeTile, sceneDigestHex } from './decoder.mjs';
+import { decodeStream, sceneDigestHex } from './decoder.mjs';
 import { TilePool, arrayBuffers, clock, helperMessage } from './pool.mjs';
 
 async function* chunksOf(msg) {
@@ -48,7 +49,7 @@ self.onmessage = async (e) => {
     const timeline = { start: clock(), tiles: [] }; // when each tile was decoded, by which thread (pool.mjs)
     let count = 0;
     const url = e.data.workers >= 2 && typeof Worker !== 'undefined' ? helperUrl(e.data) : null;
-    const pool = url ? new TilePool(e.data.workers - 1, url, { keep: !!e.data.digest, decodeHere: decodeTile }) : null;
+    const pool = url ? new TilePool(e.data.workers, url, { keep: !!e.data.digest }) : null;
     const dec = new ProgressiveDecoder({
         pool,
         onTile: (t, tile, info) => {
