@@ -103,7 +103,7 @@ export async function decodeTile(ctx, t, { checkHash = true } = {}) {
     const A = rest;
     const n = tile.points;
     const coords = decodeGeometry(G.payload, n);
-    if (tile.cell) checkCell(coords, n, tile.cell, ctx.ps.tileSize, t);
+    if (tile.cell) checkCell(coords, tile.cell, ctx.ps.tileSize, t);
     if (A.length !== 1) throw new BitstreamError(`tile ${t} has ${A.length} attribute units; without the hierarchy it has 1 (clause 6.3, ${ctx.np ? 'E63' : 'E15'})`);
     const sceneHash = parseHashUnit(H.payload);
     const h = parseAttributeHeader(A[0].payload, ctx);
@@ -117,14 +117,11 @@ export async function decodeTile(ctx, t, { checkHash = true } = {}) {
     return out;
 }
 
-function checkCell(coords, n, cell, T, t) {
-    const c = [coords.x, coords.y, coords.z];
+// E58 from the points' per-axis bounds (decodeGeometry's min and max)
+function checkCell(coords, cell, T, t) {
     for (let a = 0; a < 3; a++) {
         const lo = cell[a] * T, hi = lo + T - 1;
-        for (let i = 0; i < n; i++) {
-            const v = c[a][i];
-            if (v < lo || v > hi) throw new BitstreamError(`tile ${t}: a decoded point lies outside the tile's cell (clause 7.3.11, E58)`);
-        }
+        if (coords.min[a] < lo || coords.max[a] > hi) throw new BitstreamError(`tile ${t}: a decoded point lies outside the tile's cell (clause 7.3.11, E58)`);
     }
 }
 
