@@ -296,6 +296,34 @@ def test_progressive_decoding_with_a_tile_pool(name):
     assert json.loads(node(PROGRESSIVE, json.dumps({"path": path, "failTile": 1}))) == {"error": "HashMismatchError"}
 
 
+CELL_CHECK = """
+import { readFileSync } from 'node:fs';
+import { decodeTile, parseStream } from './decoder.mjs';
+const ctx = parseStream(new Uint8Array(readFileSync(readFileSync(0, 'utf8'))));
+const out = [];
+for (const t of [0, ctx.tiles.length - 1]) {
+    const cell = ctx.tiles[t].cell;
+    for (const shift of [null, [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]]) {
+        ctx.tiles[t].cell = shift ? cell.map((c, a) => c + shift[a]) : cell;
+        try { await decodeTile(ctx, t); out.push('ok'); } catch (e) { out.push(e.name + ': ' + e.message); }
+    }
+    ctx.tiles[t].cell = cell;
+}
+console.log(JSON.stringify(out));
+"""
+
+
+def test_points_outside_their_tile_cell_are_rejected():
+    """E58 (clause 7.3.11) from the decoded points' per-axis bounds: a tiled stream's tiles decode in
+    their own cells and are rejected in a cell moved by one along any axis, either way (the points
+    then leave it through its lower or its upper face)."""
+    path = str(STREAMS / "c078_neighbour_prediction_tiles" / "stream.lghcc")
+    got = json.loads(node(CELL_CHECK, stdin=path))
+    assert len(got) == 14 and got[0] == got[7] == "ok", got
+    for r in got[1:7] + got[8:]:
+        assert r.startswith("BitstreamError") and "E58" in r, r
+
+
 ASC = runner.JS_DECODER_DIR.parents[2] / "tools" / "node" / "node_modules" / "assemblyscript"
 
 

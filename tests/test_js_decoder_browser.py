@@ -63,7 +63,7 @@ def test_profile_conformance_in_chromium(tmp_path):
         b64 = base64.b64encode(c.stream.read_bytes()).decode("ascii")
         cases.append({"id": c.id, "b64": b64})
         want.append((c.id, c.expect, c.meta.get("decoded_sha256")))
-        # the same stream with its tiles decoded by a pool of 3 threads: the worker and 2 helper workers (pool.mjs)
+        # the same stream with its tiles decoded by a pool of 3 helper workers, the worker decoding tile 0 (pool.mjs)
         cases.append({"id": c.id + " pool", "b64": b64, "workers": 3})
         want.append((c.id + " pool", c.expect, c.meta.get("decoded_sha256")))
         for p in c.meta.get("partial_decodes", []):

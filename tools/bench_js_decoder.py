@@ -9,8 +9,9 @@ Writes the streams to --out (kept between runs: a stream already there is reused
 Node (viewer/web/decoder/bench.mjs: best of R, tables loaded, page and process start excluded), in
 headless Chromium (the page's Web Worker, lghcc-decoder-worker.js: best of R, the stream's bytes
 already in the page; also when the first tile arrived), once more in Chromium with the tiles decoded
-by a pool of W threads (the page's default: navigator.hardwareConcurrency; the worker and W - 1 helper
-workers, pool.mjs), and once with the reference decoder in this process, and prints a markdown table
+by a pool of W threads (the page's default: navigator.hardwareConcurrency; W helper workers, the
+worker decoding tile 0 and handing out the rest, pool.mjs; each thread's tiles and busy time to
+stderr), and once with the reference decoder in this process, and prints a markdown table
 (Gaussians/s). --stream adds coded streams (e.g. a 1M-Gaussian scene of tools/scale_scenes.py),
 --no-reference skips the reference decoder. --tree DIR measures the decoder of another tree (e.g. an
 older commit's `git archive` with its worker bundle built by its tools/node/build-viewer.mjs), for
@@ -99,8 +100,20 @@ def chromium_decode(stream: Path, repeat: int, tmp: Path, workers: int = 0, tree
     if any(r["type"] != "done" for r in runs):
         raise RuntimeError(f"{stream}: {runs}")
     best = min(runs, key=lambda r: r["seconds"])
+    if workers and best.get("timeline"):
+        print(f"{stream.name}: pool of the best decode: {pool_balance(best['timeline'])}", file=sys.stderr)
     return {"seconds": best["seconds"], "first_tile_s": best["first"] / 1000, "first_s": runs[0]["seconds"],
             "count": best["count"], "helpers": best["helpers"]}
+
+
+def pool_balance(timeline: dict) -> str:
+    """Per decoding thread of a pool decode's timeline (worker.mjs's 'done'): tiles, points and busy ms."""
+    threads: dict[str, list] = {}
+    for x in timeline["tiles"]:
+        threads.setdefault(x["thread"], []).append(x)
+    return "; ".join(f"{th} {len(xs)} tiles, {sum(x['points'] for x in xs)} points, busy "
+                     f"{sum(x['end'] - x['start'] for x in xs):.0f} ms" for th, xs in sorted(threads.items())) + \
+        f" (decode {timeline['end'] - timeline['start']:.0f} ms)"
 
 
 def chromium_cells(ch: dict | None, n: int) -> str:
@@ -145,7 +158,7 @@ def main() -> int:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--preset", default="medium")
     ap.add_argument("--workers", type=int, default=-1,
-                    help="decoding threads of the pool measurement, the worker included (default -1: "
+                    help="decoding threads of the pool measurement (helper workers; default -1: "
                     "navigator.hardwareConcurrency)")
     ap.add_argument("--tree", type=Path, default=ROOT, help="the tree whose decoder is measured (default: this one)")
     ap.add_argument("--stream", action="append", default=[], help="also measure this coded stream (repeatable)")

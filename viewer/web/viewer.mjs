@@ -332,7 +332,7 @@ function makeWorker() {
     return worker;
 }
 
-// decoding threads for a tiled stream's tiles: the decoding worker itself and DECODE_WORKERS - 1 helpers it starts
+// decoding threads for a tiled stream's tiles: DECODE_WORKERS helpers the decoding worker starts (it decodes tile 0 and hands out the rest)
 const DECODE_WORKERS = Math.max(1, navigator.hardwareConcurrency || 1);
 
 function decodeInto(pane, msg, what) {

@@ -18,29 +18,21 @@ export const ADJUST_LEVEL_SHIFT = [0, 1, 3, 4, 5, 6, 8, 9];
 export const MAX_EXTENT = 1753413056;
 const FIXED_POINT = Int32Array.from(ADJUST_FIXED_POINT), LEVEL_SHIFT = Int32Array.from(ADJUST_LEVEL_SHIFT);
 
-/** The rows of each LoD (clause 11.7.1), in increasing order. */
+/** The rows of each LoD (clause 11.7.1), in increasing order: LoD 0 the multiples of 2^(L-1), LoD l >= 1 the odd multiples of 2^(L-1-l). */
 export function lodRows(n, L) {
-    const out = [];
-    const step0 = 2 ** (L - 1);
-    const r0 = [];
-    for (let i = 0; i < n; i += step0) r0.push(i);
-    out.push(Int32Array.from(r0));
-    for (let l = 1; l < L; l++) {
-        const t = L - 1 - l, s = 2 ** t, rows = [];
-        for (let i = s; i < n; i += 2 * s) rows.push(i);
-        out.push(Int32Array.from(rows));
-    }
+    const rows = (first, step) => {
+        const r = new Int32Array(n > first ? Math.floor((n - 1 - first) / step) + 1 : 0);
+        for (let t = 0; t < r.length; t++) r[t] = first + t * step;
+        return r;
+    };
+    const out = [rows(0, 2 ** (L - 1))];
+    for (let l = 1; l < L; l++) out.push(rows(2 ** (L - 1 - l), 2 ** (L - l)));
     return out;
 }
 
-/** The per-axis minima and extents of the tile's points; throws E64 beyond MAX_EXTENT. */
-function tileBounds(x, y, z, n) {
-    const lo = [0, 0, 0], ext = [0, 0, 0];
-    [x, y, z].forEach((c, a) => {
-        let mn = Infinity, mx = -Infinity;
-        for (let i = 0; i < n; i++) { if (c[i] < mn) mn = c[i]; if (c[i] > mx) mx = c[i]; }
-        lo[a] = mn; ext[a] = mx - mn;
-    });
+/** The per-axis minima and extents of the tile's points (decodeGeometry's min and max); throws E64 beyond MAX_EXTENT. */
+function tileBounds(coords) {
+    const lo = coords.min.slice(), ext = [0, 1, 2].map((a) => coords.max[a] - coords.min[a]);
     const e = Math.max(...ext);
     if (e > MAX_EXTENT) throw new BitstreamError(`the tile's points span ${e} voxels, beyond MAX_EXTENT = ${MAX_EXTENT} (clause 8.1, E64)`);
     return { lo, ext };
@@ -92,7 +84,7 @@ class TileAttributeDecoder {
     run() {
         const { np } = this.ctx;
         const lods = np ? lodRows(this.n, np.L) : [null];
-        const bounds = np ? tileBounds(this.coords.x, this.coords.y, this.coords.z, this.n) : null;
+        const bounds = np ? tileBounds(this.coords) : null;
         for (let l = 0; l < lods.length; l++) {
             const rows = lods[l] ?? Int32Array.from({ length: this.n }, (_, t) => t);
             const nb = l > 0 ? lodNeighbours(lods, l, np.k, this.coords, bounds, this.n) : null;

@@ -7,6 +7,7 @@ import { BitstreamError, HashMismatchError, ResourceLimitError, UnsupportedStrea
 import { decodeGeometry } from './geometry.mjs';
 import { Sha256, sha256, toHex } from './sha256.mjs';
 import { scaleTables } from './tables.mjs';
+import { alloc, copyIn, wasm } from './wasm.mjs';
 import {
     parseAttributeHeader, parseGaussianParameterSet, parseHashUnit, parseNeighbourPrediction, parseShDegree, parseStepAdjust, parseTileIndex,
 } from './units.mjs';
@@ -102,7 +103,7 @@ export async function decodeTile(ctx, t, { checkHash = true } = {}) {
     const A = rest;
     const n = tile.points;
     const coords = decodeGeometry(G.payload, n);
-    if (tile.cell) checkCell(coords, n, tile.cell, ctx.ps.tileSize, t);
+    if (tile.cell) checkCell(coords, tile.cell, ctx.ps.tileSize, t);
     if (A.length !== 1) throw new BitstreamError(`tile ${t} has ${A.length} attribute units; without the hierarchy it has 1 (clause 6.3, ${ctx.np ? 'E63' : 'E15'})`);
     const sceneHash = parseHashUnit(H.payload);
     const h = parseAttributeHeader(A[0].payload, ctx);
@@ -110,62 +111,61 @@ export async function decodeTile(ctx, t, { checkHash = true } = {}) {
     const values = decodeTileAttributes(A[0].payload, h, coords, ctx);
     const out = { x: coords.x, y: coords.y, z: coords.z, values, n };
     if (checkHash) {
-        const digest = await sha256(serialize(ctx.ps, [out]));
+        const digest = await sha256(serializeTile(ctx.ps, out)); // Web Crypto copies the bytes at the call
         if (toHex(digest) !== toHex(sceneHash)) throw new HashMismatchError(`tile ${t}: the decoded scene does not match its scene_hash (clause 12, E53)`);
     }
     return out;
 }
 
-function checkCell(coords, n, cell, T, t) {
-    const c = [coords.x, coords.y, coords.z];
+// E58 from the points' per-axis bounds (decodeGeometry's min and max)
+function checkCell(coords, cell, T, t) {
     for (let a = 0; a < 3; a++) {
         const lo = cell[a] * T, hi = lo + T - 1;
-        for (let i = 0; i < n; i++) {
-            const v = c[a][i];
-            if (v < lo || v > hi) throw new BitstreamError(`tile ${t}: a decoded point lies outside the tile's cell (clause 7.3.11, E58)`);
-        }
+        if (coords.min[a] < lo || coords.max[a] > hi) throw new BitstreamError(`tile ${t}: a decoded point lies outside the tile's cell (clause 7.3.11, E58)`);
     }
 }
 
-/** The serialization of clause 12 of tiles' points (in order), as one byte array. */
-export function serialize(ps, tiles) {
-    const N = tiles.reduce((a, t) => a + t.n, 0), M = ps.M, S3 = 3 * ps.S;
-    const PAD = 3, HEAD = 17 + 16 + 16; // 3 bytes before the 49-byte header align what follows to 4 bytes
-    const buf = new ArrayBuffer(PAD + HEAD + N * (24 + 4 * M));
-    const hb = new Uint8Array(buf, PAD, HEAD), dv = new DataView(buf, PAD, HEAD);
+const HEAD = 17 + 16 + 16; // clause 12's header: tag, N and sh_degree (int64), voxel size and origin (float32)
+
+/** The header of clause 12's serialization of a scene of N points. */
+function serialHeader(ps, N) {
+    const hb = new Uint8Array(HEAD), dv = new DataView(hb.buffer);
     hb.set(new TextEncoder().encode('LGHC-gaussians-v1'));
     dv.setBigInt64(17, BigInt(N), true);
     dv.setBigInt64(25, BigInt(ps.shDegree), true);
     dv.setFloat32(33, ps.voxelSize, true);
     for (let i = 0; i < 3; i++) dv.setFloat32(37 + 4 * i, ps.origin[i], true);
-    const coords = new Int32Array(buf, PAD + HEAD, N * 6); // int64 little-endian as (low, high) int32 pairs
-    let at = PAD + HEAD + 24 * N;
-    const groups = [[0, S3], [S3, S3 + 1], [S3 + 1, S3 + 4], [S3 + 4, M]].map(([a, b]) => {
-        const arr = new Float32Array(buf, at, N * (b - a));
-        at += arr.byteLength;
-        return { a, b, arr };
-    });
-    let o = 0;
-    for (const t of tiles) {
-        const xyz = [t.x, t.y, t.z];
-        for (let a = 0; a < 3; a++) {
-            const v = xyz[a];
-            for (let i = 0; i < t.n; i++) { coords[6 * (o + i) + 2 * a] = v[i]; coords[6 * (o + i) + 2 * a + 1] = v[i] < 0 ? -1 : 0; }
-        }
-        for (const g of groups) {
-            const w = g.b - g.a, arr = g.arr, vals = t.values;
-            for (let i = 0; i < t.n; i++) for (let c = 0; c < w; c++) arr[(o + i) * w + c] = vals[i * M + g.a + c];
-        }
-        o += t.n;
-    }
-    if (new Uint8Array(new Uint16Array([1]).buffer)[0] !== 1) throw new Error('big-endian hosts are not supported');
-    return new Uint8Array(buf, PAD);
+    return hb;
 }
 
-/** Hex SHA-256 of the clause-12 serialization of the tiles' points. */
+/**
+ * Clause 12's serialization of one tile's points as a scene, made by the module (serializeTile):
+ * a view of the module's memory, valid until the next call into it (hash it at once). With
+ * `parts`, the body's parts [coordinates, SH, opacity, scales, rotations] as copies instead.
+ */
+function serializeTile(ps, t, parts = false) {
+    const w = wasm(), M = ps.M, S3 = 3 * ps.S, n = t.n, lead = 3 + HEAD; // 3 bytes before the header align the body to 4
+    const body = n * (24 + 4 * M);
+    w.reset();
+    const out = alloc(w, lead + body);
+    const px = copyIn(w, t.x), py = copyIn(w, t.y), pz = copyIn(w, t.z), pv = copyIn(w, t.values);
+    w.serializeTile(px, py, pz, pv, n, M, S3, out + lead);
+    if (parts) {
+        const ends = [24, 4 * S3, 4, 12, 4 * (M - S3 - 4)];
+        let at = out + lead;
+        return ends.map((size) => { at += size * n; return new Uint8Array(w.memory.buffer, at - size * n, size * n).slice(); });
+    }
+    const bytes = new Uint8Array(w.memory.buffer, out + 3, HEAD + body);
+    bytes.set(serialHeader(ps, n));
+    return bytes;
+}
+
+/** Hex SHA-256 of the clause-12 serialization of the tiles' points: the header, then each part of the body over the tiles in order. */
 export function sceneDigestHex(ps, tiles) {
     const h = new Sha256();
-    h.update(serialize(ps, tiles));
+    h.update(serialHeader(ps, tiles.reduce((a, t) => a + t.n, 0)));
+    const parts = tiles.map((t) => serializeTile(ps, t, true));
+    for (let j = 0; j < 5; j++) for (const p of parts) h.update(p[j]);
     return toHex(h.digest());
 }
 
@@ -207,18 +207,22 @@ export function sceneArrays(ps, tiles) {
         count: N, shDegree: ps.shDegree, positions: new Float32Array(3 * N), sh: new Float32Array(S3 * N),
         opacities: new Float32Array(N), scales: new Float32Array(3 * N), rotations: new Float32Array(4 * N),
     };
-    let o = 0;
-    const vs = Math.fround(ps.voxelSize);
+    const vs = Math.fround(ps.voxelSize), { positions, sh, opacities, scales, rotations } = out;
+    let o = 0; // the channel order of clause 11.1: SH, opacity, 3 log scales, 4 rotation components
     for (const t of tiles) {
-        for (let i = 0; i < t.n; i++, o++) {
-            const xyz = [t.x[i], t.y[i], t.z[i]];
-            for (let a = 0; a < 3; a++) out.positions[3 * o + a] = Math.fround(Math.fround(Math.fround(xyz[a]) * vs) + ps.origin[a]);
-            const b = i * M;
-            for (let c = 0; c < S3; c++) out.sh[S3 * o + c] = t.values[b + c];
-            out.opacities[o] = t.values[b + S3];
-            for (let a = 0; a < 3; a++) out.scales[3 * o + a] = t.values[b + S3 + 1 + a];
-            for (let j = 0; j < 4; j++) out.rotations[4 * o + j] = t.values[b + S3 + 4 + j];
+        const v = t.values, n = t.n;
+        [t.x, t.y, t.z].forEach((c, a) => {
+            const org = ps.origin[a];
+            for (let i = 0; i < n; i++) positions[3 * (o + i) + a] = Math.fround(Math.fround(Math.fround(c[i]) * vs) + org);
+        });
+        for (let i = 0; i < n; i++) {
+            const b = i * M, p = o + i;
+            for (let c = 0; c < S3; c++) sh[S3 * p + c] = v[b + c];
+            opacities[p] = v[b + S3];
+            scales[3 * p] = v[b + S3 + 1]; scales[3 * p + 1] = v[b + S3 + 2]; scales[3 * p + 2] = v[b + S3 + 3];
+            for (let j = 0; j < 4; j++) rotations[4 * p + j] = v[b + S3 + 4 + j];
         }
+        o += n;
     }
     return out;
 }

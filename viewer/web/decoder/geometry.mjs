@@ -47,7 +47,8 @@ function geometryError(code, a, b, n) {
 
 /**
  * Decode a geometry payload of n points (G.2 to G.5). Returns {x, y, z} (Int32Array each: voxel
- * coordinates in normative order) and the header.
+ * coordinates in normative order), the header, and min, max: per axis the smallest (the
+ * bounding-box minimum, which the points attain: G.5.5) and the largest coordinate.
  */
 export function decodeGeometry(payload, n) {
     const h = parseGeometryHeader(payload, n);
@@ -59,6 +60,7 @@ export function decodeGeometry(payload, n) {
     const [b0, b1, b2] = h.bitDepth, [m0, m1, m2] = h.bboxMin;
     return callWasm((w) => {
         w.decodeGeometry(p, data.length, n, b0, b1, b2, h.idcmMode, m0, m1, m2);
-        return { x: int32Copy(w.resultX(), n), y: int32Copy(w.resultY(), n), z: int32Copy(w.resultZ(), n), header: h };
+        const max = [0, 1, 2].map((a) => w.resultMax(a));
+        return { x: int32Copy(w.resultX(), n), y: int32Copy(w.resultY(), n), z: int32Copy(w.resultZ(), n), header: h, min: h.bboxMin, max };
     }, (code, a, b) => geometryError(code, a, b, n));
 }

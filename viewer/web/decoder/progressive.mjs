@@ -6,6 +6,7 @@ import { decodeTile, parseStream, preludeContext, sceneArrays, DEFAULT_MAX_MEMOR
 import { BitstreamError } from './errors.mjs';
 import { parseGaussianParameterSet, parseTileIndex } from './units.mjs';
 import { UNIT } from './container.mjs';
+import { timed } from './pool.mjs';
 
 export class ProgressiveDecoder {
     /**
@@ -117,7 +118,7 @@ export class ProgressiveDecoder {
     // helper to start (load and compile its script), and this worker is otherwise idle.
     _start(ctx, t) {
         let p;
-        if (!this.pool) p = decodeTile(ctx, t);
+        if (!this.pool) p = timed('worker', () => decodeTile(ctx, t));
         else if (t === 0) p = this.pool.runHere(() => decodeTile(ctx, 0));
         else p = this.pool.decode(ctx, t);
         p = p.then((r) => {

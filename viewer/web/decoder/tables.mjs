@@ -79,6 +79,12 @@ function canonicalDigest(levels) {
 
 let TABLES = null;
 
+/**
+ * Use tables another thread built and checked (a helper worker of pool.mjs gets them in its init
+ * message: structured clones of scaleTables()'s typed arrays), instead of building them again.
+ */
+export function adoptScaleTables(tables) { TABLES = TABLES || tables; }
+
 /** {levels: ModelSet of the 64 level tables, classes: ModelSet of the escape class table, half: Int32Array}. */
 export function scaleTables() {
     if (TABLES) return TABLES;

@@ -6,13 +6,25 @@ import { ResourceLimitError } from './errors.mjs';
 import { scaleTables } from './tables.mjs';
 import { DECODER_WASM_BASE64 } from './wasm_module.mjs';
 
+let module = null;
 let exports = null;
+
+/**
+ * The compiled module (compiled once per thread, or adopted: a WebAssembly.Module posted to a
+ * helper worker shares its compiled, and tiered-up, code instead of compiling it again).
+ */
+export function wasmModule() {
+    if (!module) module = new WebAssembly.Module(Uint8Array.from(atob(DECODER_WASM_BASE64), (c) => c.charCodeAt(0)));
+    return module;
+}
+
+/** Use a module compiled by another thread (before the first wasm()). */
+export function adoptWasmModule(m) { module = module || m; }
 
 /** The module's exports (reset, alloc, decodeGeometry, ...; memory). */
 export function wasm() {
     if (!exports) {
-        const bytes = Uint8Array.from(atob(DECODER_WASM_BASE64), (c) => c.charCodeAt(0));
-        exports = new WebAssembly.Instance(new WebAssembly.Module(bytes), {}).exports;
+        exports = new WebAssembly.Instance(wasmModule(), {}).exports;
         loadTables(exports);
     }
     return exports;

@@ -1,15 +1,16 @@
 // The decoder in a Web Worker: {bytes} (a Uint8Array) or {url} (fetched as a stream) in; out,
 // as the bytes arrive: {type: 'tile', t, tiles, count, arrays} per decoded, hash-checked tile
 // (positions, sh, opacities, scales, rotations: transferred typed arrays, no PLY), then
-// {type: 'done', count, tiles, seconds, digest, helpers} once the whole stream passed every check, or
+// {type: 'done', count, tiles, seconds, digest, helpers, timeline} once the whole stream passed every check, or
 // {type: 'error', kind, message}. With {digest: true} 'done' carries the decoded scene's SHA-256
 // (clause 12); with {bytes, box} only the tiles the box selects are decoded. With {workers: W, source}
 // (W >= 2, e.g. navigator.hardwareConcurrency; source: this script's text) the tiles of a tiled stream are decoded by W
-// threads in parallel: this worker and W - 1 helper workers of this same script (pool.mjs; where a
+// helper workers of this same script in parallel, this worker decoding tile 0 and handing out the others (pool.mjs; where a
 // worker cannot start workers, tile after tile), and 'tile' messages come in the order tiles finish.
+// timeline: {start, end, tiles: [{t, points, thread, start, end}]}, milliseconds of performance.timeOrigin + now().
 import { ProgressiveDecoder, sceneArrays } from './progressive.mjs';
-import { decodeStream, decodeTile, sceneDigestHex } from './decoder.mjs';
-import { TilePool, arrayBuffers, helperMessage } from './pool.mjs';
+import { decodeStream, sceneDigestHex } from './decoder.mjs';
+import { TilePool, arrayBuffers, clock, helperMessage } from './pool.mjs';
 
 async function* chunksOf(msg) {
     if (msg.bytes) { yield msg.bytes; return; }
@@ -45,14 +46,17 @@ self.onmessage = async (e) => {
     if (e.data.init || e.data.job) { await helperMessage(e.data); return; }
     if (e.data.box) { await decodeBox(e.data); return; }
     const t0 = performance.now();
+    const timeline = { start: clock(), tiles: [] }; // when each tile was decoded, by which thread (pool.mjs)
     let count = 0;
     const url = e.data.workers >= 2 && typeof Worker !== 'undefined' ? helperUrl(e.data) : null;
-    const pool = url ? new TilePool(e.data.workers - 1, url, { keep: !!e.data.digest, decodeHere: decodeTile }) : null;
+    const pool = url ? new TilePool(e.data.workers, url, { keep: !!e.data.digest }) : null;
     const dec = new ProgressiveDecoder({
         pool,
         onTile: (t, tile, info) => {
             const arrays = tile.arrays || sceneArrays(info.ps, [tile]);
+            if (tile.span) timeline.tiles.push({ t, points: tile.n, ...tile.span });
             delete tile.arrays;
+            delete tile.span;
             count += tile.n;
             self.postMessage({ type: 'tile', t, tiles: info.tiles, count, arrays, ms: performance.now() - t0 }, arrayBuffers(arrays));
         },
@@ -62,7 +66,8 @@ self.onmessage = async (e) => {
         const r = await dec.finish();
         const digest = e.data.digest ? sceneDigestHex(r.ps, r.tiles) : null;
         const helpers = pool && pool.workers ? pool.workers.length : 0; // helper workers that decoded tiles
-        self.postMessage({ type: 'done', count, tiles: r.tiles.length, seconds: (performance.now() - t0) / 1000, digest, helpers });
+        timeline.end = clock();
+        self.postMessage({ type: 'done', count, tiles: r.tiles.length, seconds: (performance.now() - t0) / 1000, digest, helpers, timeline });
     } catch (err) {
         self.postMessage({ type: 'error', kind: err && err.name ? err.name : 'Error', message: String(err && err.message ? err.message : err) });
     } finally {

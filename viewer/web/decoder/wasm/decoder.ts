@@ -260,6 +260,8 @@ let gN: i32 = 0;
 export function resultX(): usize { return outX; }
 export function resultY(): usize { return outY; }
 export function resultZ(): usize { return outZ; }
+let outMax: StaticArray<i32> = [0, 0, 0]; // per axis, the largest decoded coordinate (the smallest is the bounding-box minimum, G.5.5)
+export function resultMax(axis: i32): i32 { return outMax[axis]; }
 
 /**
  * Geometry decoding (G.5) of n points from the coded data at p (nbytes, after the header): bit
@@ -510,18 +512,17 @@ function outputPoints(leaves: Nodes, m0: i32, m1: i32, m2: i32): void {
         if (takeDirect) { const d = i32At(order, i++); setI32(outX, o, i32At(dx, d)); setI32(outY, o, i32At(dy, d)); setI32(outZ, o, i32At(dz, d)); }
         else { setI32(outX, o, i32At(leaves.qx, j)); setI32(outY, o, i32At(leaves.qy, j)); setI32(outZ, o, i32At(leaves.qz, j)); j++; }
     }
-    offsetAxis(outX, n, m0); offsetAxis(outY, n, m1); offsetAxis(outZ, n, m2);
+    outMax[0] = offsetAxis(outX, n, m0); outMax[1] = offsetAxis(outY, n, m1); outMax[2] = offsetAxis(outZ, n, m2);
 }
 
-function offsetAxis(c: usize, n: i32, bmin: i32): void {
-    let mn: u32 = 0xFFFFFFFF;
-    for (let t = 0; t < n; t++) { const v = <u32>i32At(c, t); if (v < mn) mn = v; }
+/** The offsets c (u32 [n]) plus bmin, in place; returns the largest coordinate. */
+function offsetAxis(c: usize, n: i32, bmin: i32): i32 {
+    let mn: u32 = 0xFFFFFFFF, mx: u32 = 0;
+    for (let t = 0; t < n; t++) { const v = <u32>i32At(c, t); mn = min(mn, v); mx = max(mx, v); }
     if (mn != 0) fail(ERR_MIN, 0, 0);
-    for (let t = 0; t < n; t++) {
-        const v = <i64><u32>i32At(c, t) + <i64>bmin;
-        if (v > 0x7FFFFFFF) fail(ERR_MAX, 0, 0);
-        setI32(c, t, <i32>v);
-    }
+    if (<i64>mx + <i64>bmin > 0x7FFFFFFF) fail(ERR_MAX, 0, 0);
+    for (let t = 0; t < n; t++) setI32(c, t, i32At(c, t) + bmin);
+    return <i32>(<i64>mx + <i64>bmin);
 }
 
 // ---------------------------------------------------------------- k nearest neighbours (11.7.2)
@@ -1102,4 +1103,36 @@ export function reconstruct(n: i32, scale: usize, out: usize): void {
             store<f32>(ob + (<usize>c << 2), v);
         }
     }
+}
+
+// ---------------------------------------------------------------- serialization (clause 12)
+
+/**
+ * The body of clause 12's serialization of one tile's n points (after the 49-byte header) into out:
+ * the coordinates (x, y, z at x, y, z: i32 [n]) as int64, then the values (f32 [n * M], channel
+ * order of 11.1) in the groups SH (S3 channels), opacity (1), scales (3) and rotations (M - S3 - 4),
+ * each group point-major. A scene's serialization is these parts of its tiles, in tile order.
+ */
+export function serializeTile(x: usize, y: usize, z: usize, values: usize, n: i32, M: i32, S3: i32, out: usize): void {
+    for (let i = 0; i < n; i++) {
+        const p = out + <usize>i * 24, o = <usize>i << 2;
+        store<i64>(p, <i64>load<i32>(x + o));
+        store<i64>(p + 8, <i64>load<i32>(y + o));
+        store<i64>(p + 16, <i64>load<i32>(z + o));
+    }
+    let at = out + <usize>n * 24;
+    at = serializeGroup(values, n, M, 0, S3, at);
+    at = serializeGroup(values, n, M, S3, S3 + 1, at);
+    at = serializeGroup(values, n, M, S3 + 1, S3 + 4, at);
+    serializeGroup(values, n, M, S3 + 4, M, at);
+}
+
+/** Channels a .. b - 1 of n rows of M values, point-major, at `at`; returns the end. */
+function serializeGroup(values: usize, n: i32, M: i32, a: i32, b: i32, at: usize): usize {
+    const w = b - a;
+    for (let i = 0; i < n; i++) {
+        const src = values + (<usize>(i * M + a) << 2), dst = at + (<usize>(i * w) << 2);
+        for (let c = 0; c < w; c++) store<u32>(dst + (<usize>c << 2), load<u32>(src + (<usize>c << 2)));
+    }
+    return at + (<usize>(n * w) << 2);
 }
