@@ -42,7 +42,7 @@ export class TilePool {
     start(ctx) {
         if (this.workers) return;
         const p = ctx.payloads;
-        const init = { ps: own(p.ps), np: p.np && own(p.np), sa: p.sa && own(p.sa), sd: p.sd && own(p.sd) };
+        const init = { ps: own(p.ps), np: p.np && own(p.np), sa: p.sa && own(p.sa), sd: p.sd && own(p.sd), rl: p.rl && own(p.rl) };
         this.workers = Array.from({ length: Math.min(this.size, ctx.tiles.length - 1) }, () => {
             const w = new Worker(this.url);
             w.jobs = [];
