@@ -777,7 +777,7 @@ def rotation_length(units, spec: dict) -> None:
     rotation length index of a rule, and the unit the maximum ``max`` (version 1.4, clauses 7.3.15,
     11.10). x, y and z stay, so the implied w changes (rehash the stream). spec: {indices: cycle:<n>
     (row i gets i mod n; beyond ``max``, or negative with ``offset``, a fault), offset (added to
-    every index, default 0), max}."""
+    every index, default 0), max, rows: {row: [qx, qy, qz]} (those rows' quantized x, y, z)}."""
     from lghcc.common.geometry import decode_geometry
     from lghcc.common.neighbour_prediction import read_predicted_attribute_unit
     from lghcc.common.units import GaussianParameterSet, NeighbourPredictionUnit, RotationLengthUnit
@@ -799,6 +799,8 @@ def rotation_length(units, spec: dict) -> None:
     q = np.rint(values / layout.steps(gps)).astype(np.int64)  # exact but for column w, replaced here
     period = int(str(spec["indices"]).split(":")[1])
     q[:, w] = np.arange(n, dtype=np.int64) % period + int(spec.get("offset", 0))
+    for row, xyz in (spec.get("rows") or {}).items():  # given x, y, z of some rows (normative order)
+        q[int(row), w + 1:w + 4] = xyz
     top = int(spec["max"])
     layout = dataclasses.replace(layout, max_rotation_length_index=top)
     h = attr.new_attribute_header(layout, n, 0)
