@@ -147,7 +147,7 @@ class TileAttributeDecoder {
         callWasm(() => w.reconstruct(n, pScale, out), (code, row, c) => new BitstreamError(`row ${row}, channel ${c}: the reconstructed value is not finite (clause 11.5, E52)`));
         const values = new Float32Array(w.memory.buffer, out, n * M).slice();
         const rl = this.ctx.rotationLength;
-        if (rl) impliedRotations(values, new BigInt64Array(w.memory.buffer, this.qAddr, n * M), n, M, M - 4, rl.maxIndex);
+        if (rl) impliedRotations(values, new Int32Array(w.memory.buffer, this.qAddr, 2 * n * M), n, M, M - 4, rl.maxIndex);
         return values;
     }
 }
