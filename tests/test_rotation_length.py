@@ -165,7 +165,10 @@ def test_unit_errors_are_rejected():
             decode_stream(_with_units(data, edit), verify_hash=False)
 
 
-def test_index_above_the_unit_s_maximum_is_rejected():
+def test_index_above_the_unit_s_maximum_is_rejected(monkeypatch):
+    from lghcc.encoder.gaussians import rdoq
+
+    monkeypatch.setattr(rdoq, "LENGTH_INDICES", (0, 1, 2, 3))  # the presets give every Gaussian k = 0
     rng = np.random.default_rng(7)
     scene = random_gaussians(rng, 200, 0)  # rotations the neighbours do not predict
     f = _sensitivity(scene, rng)

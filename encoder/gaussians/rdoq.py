@@ -204,12 +204,13 @@ def _rotation_norms(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.nd
 def _length_indices(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarray, mu: float
                     ) -> tuple[np.ndarray, np.ndarray]:
     """_rotation_norms for rotations coded as a length index and x, y, z (format 1.4, clause
-    11.10; ``x`` with w >= 0): the length 2^(-k/2) = ROTATION_NORMS[k] of least cost in F (x -
+    11.10; ``x`` with w >= 0): the length 2^(-k/2), k in LENGTH_INDICES, of least cost in F (x -
     direction)^2 + mu bits, the direction being (implied w, rounded x, y, z) at that length, the
     bits those of k and of x, y, z (float64 [n] each: the factor, the cost)."""
     best, best_cost = np.ones(x.shape[0]), np.full(x.shape[0], np.inf)
     length2 = (x * x) @ _ONES4
-    for k, rho in enumerate(ROTATION_NORMS):
+    for k in LENGTH_INDICES:
+        rho = 2.0 ** (-k / 2)
         v = np.rint(rho * x[:, 1:])
         w = np.sqrt(np.maximum(rho * rho * length2 - (v * v).sum(axis=1), 0.0))
         err = x - np.concatenate([w[:, None], v], axis=1) / rho
@@ -220,6 +221,13 @@ def _length_indices(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.nd
     return best, best_cost
 
 
+# The length indices k (lengths 2^(-k/2)) RDOQ may give format-1.4 rotations. With w implied, the
+# unit length alone codes best: through RDOQ at the low preset's fixed steps (tools/bench_rotations.py,
+# tools/results/rotations.md section 3) playbot lod4 80,240 B with k = 0 only against 80,285-80,450 B
+# with k = 0..6 (the index priced at levels 6-13), the donut 187,158 B against 187,287-188,992 B, at
+# the same PSNR: the shorter lengths' coarser x, y, z no longer pay for their index. The format
+# keeps the index (0 .. 15): it costs nothing where every Gaussian has k = 0.
+LENGTH_INDICES = (0,)
 # The scale level at which RDOQ prices a rotation length index before the coding is fitted to the
 # indices chosen (rd_quantize): that of residuals 0 and 1 in equal shares
 INDEX_LEVEL = best_level(np.array([0, 1]))
