@@ -104,8 +104,6 @@ def gaussian_attribute_input(scene: GaussianScene, geometry: GeometryCoding, lev
         raise InputError(f"{n} Gaussians x {layout.num_channels} channels exceed the profile's limit")
     steps = layout.steps(gps)
     values = coded_values(scene)[geometry.order]
-    if cfg.rotation_length:  # length index 0 (unit length; the rotations are normalized, w >= 0) until RDOQ
-        values[:, layout.rotation_start] = 0
     return AttributeInput(gps, layout, steps, values, np.ones(values.shape, dtype=bool), None, geometry.coords)
 
 
@@ -208,6 +206,8 @@ def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | Non
         del scene  # the grid's copy of the scene: its values are in ``inp`` now (peak memory)
         if sensitivity is not None and cfg.rd_quantization > 0:
             inp = rd_quantized_input(inp, sensitivity[geometry.order], levels, cfg)
+        elif cfg.rotation_length:  # index 0, unit length (the rotations are normalized, w >= 0)
+            inp.values[:, inp.layout.rotation_start] = 0
     with stage(bar, "attributes", stats, STAGE_SHARES["attributes"]):
         t1 = time.perf_counter()
         coded = code_attributes(inp, levels, cfg, stats, progress=progress, measure_ideal=measure_ideal)
