@@ -12,7 +12,8 @@ S = (d + 1)^2 coefficients per colour, M = 3S + 8 channels):
                     (i = 0: the DC term f_dc)
   3S                opacity (logit)
   [3S + 1, 3S + 4)  log scales
-  [3S + 4, 3S + 8)  rotation quaternion w, x, y, z
+  [3S + 4, 3S + 8)  rotation quaternion w, x, y, z (with a rotation_length unit, format 1.4:
+                    the length index k in place of w, and w implied, clause 11.10)
 
 Reconstruction (normative): value = float32(q) * float32(step of the channel's group),
 one IEEE binary32 multiplication, so every machine gets the same bits.
@@ -33,7 +34,7 @@ from .scene import NUM_SCALINGS, GaussianScene, sh_coeffs_per_channel
 from .bitio import BitReader
 from .syntax import TraceEntry
 from .units import (CHANNEL_PREDICTION_SHIFT, CONTEXT_PER_CHANNEL_PRIOR, MASK_PROB_BITS,
-                                MAX_PREDICTED_MAGNITUDE, AttributeUnitHeader, GaussianParameterSet,
+                                MAX_PREDICTED_MAGNITUDE, MAX_ROTATION_LENGTH_INDEX, AttributeUnitHeader, GaussianParameterSet,
                                 SceneParameterSet)
 
 # Quantization-step adjustment (context models with a step output): the step of a value is
@@ -54,6 +55,7 @@ class ChannelLayout:
     num_offsets: int
     offset_mask_present: int = 0
     channel_prediction_allowed = 0
+    max_rotation_length_index = -1  # anchors have no rotation channels
 
     @property
     def num_channels(self) -> int:
@@ -99,6 +101,9 @@ class GaussianLayout:
     are the "features" a context model compares between neighbours."""
 
     sh_degree: int
+    # >= 0 with a rotation_length unit (its max_rotation_length_index): channel rotation_start then
+    # carries the length index k and w is implied (clause 11.10); -1 without one
+    max_rotation_length_index: int = -1
     num_offsets = 0
     offset_mask_present = 0
     channel_prediction_allowed = 1
@@ -162,8 +167,39 @@ def layout_of(sps: SceneParameterSet) -> ChannelLayout:
     return ChannelLayout(sps.feature_dim, sps.num_offsets, sps.offset_mask_present_flag)
 
 
-def gaussian_layout_of(gps: GaussianParameterSet) -> GaussianLayout:
-    return GaussianLayout(gps.sh_degree)
+def gaussian_layout_of(gps: GaussianParameterSet, max_rotation_length_index: int = -1) -> GaussianLayout:
+    return GaussianLayout(gps.sh_degree, max_rotation_length_index)
+
+
+# --- rotations as a length index and x, y, z (clause 11.10, format 1.4) ------------------------
+
+# The squared lengths 2^-k of the index k, exact in binary64: the lengths are 2^(-k/2)
+ROTATION_LENGTH_SQ = tuple(2.0 ** -k for k in range(MAX_ROTATION_LENGTH_INDEX + 1))
+
+
+def check_rotation_length_index(k: np.ndarray, max_index: int, what: str) -> None:
+    if k.size and (int(k.min()) < 0 or int(k.max()) > max_index):
+        raise BitstreamError(f"{what}: a rotation length index outside [0, max_rotation_length_index = {max_index}]")
+
+
+def implied_w(k: np.ndarray, xyz: np.ndarray) -> np.ndarray:
+    """float32 [n]: the rotation's w component from the length indices ``k`` (int [n], checked) and
+    the reconstructed x, y, z (float32 [n, 3]): float32(sqrt(max(0, 2^-k - ((x*x + y*y) + z*z)))),
+    every operation in binary64 (correctly rounded, so every machine gets the same bits)."""
+    x, y, z = (xyz[:, a].astype(np.float64) for a in range(3))
+    t = np.asarray(ROTATION_LENGTH_SQ)[k] - ((x * x + y * y) + z * z)
+    return np.sqrt(np.maximum(t, 0.0)).astype(np.float32)
+
+
+def reconstruct_rotations(q: np.ndarray, values: np.ndarray, layout, what: str) -> None:
+    """Clause 11.10, in place: with a rotation_length unit (``layout.max_rotation_length_index`` >=
+    0), channel w of the reconstructed ``values`` [n, M] becomes the implied w of each row's index
+    q[:, w]."""
+    if layout.max_rotation_length_index < 0:
+        return
+    w = layout.rotation_start
+    check_rotation_length_index(q[:, w], layout.max_rotation_length_index, what)
+    values[:, w] = implied_w(q[:, w], values[:, w + 1:w + 4])
 
 
 # --- cross-channel prediction (clause 11.6) --------------------------------------------------
@@ -437,7 +473,7 @@ def read_attribute_unit(payload: bytes, layout, steps: np.ndarray, num_rows: int
         q = decode_chunk_values(next(pieces), h, layout, p, prediction, None if mask is None else mask[lo:hi],
                                  hi - lo, i, level)
         target = values_out[lo:hi] if rows is None else np.empty((hi - lo, layout.num_channels), np.float32)
-        reconstruct_chunk(q, steps, p.step_adjust, target, i, level)
+        reconstruct_chunk(q, steps, p.step_adjust, target, i, level, layout)
         if rows is not None:
             values_out[rows[lo:hi]] = target
         if keep_q:
@@ -472,10 +508,13 @@ def decode_chunk_values(data: bytes, h: AttributeUnitHeader, layout, p: CodingPa
 
 
 def reconstruct_chunk(q: np.ndarray, steps: np.ndarray, step_adjust: np.ndarray | None, target: np.ndarray,
-                       i: int, level: int) -> None:
-    """Reconstruction (clause 11.5) of chunk i into ``target``; every value must be finite."""
+                       i: int, level: int, layout=None) -> None:
+    """Reconstruction (clause 11.5) of chunk i into ``target``; every value must be finite. Then,
+    with a rotation_length unit, the rotations' w (clause 11.10; ``layout`` the scene's)."""
     with np.errstate(over="ignore", invalid="ignore"):
         reconstruct(q, steps, step_adjust, out=target)
     if not np.isfinite(target).all():
         raise BitstreamError(f"attribute chunk {i} (level {level}): a decoded value overflows binary32 "
                              "(a conforming stream decodes to finite values only)")
+    if layout is not None:
+        reconstruct_rotations(q, target, layout, f"attribute chunk {i} (level {level})")

@@ -385,7 +385,7 @@ def read_predicted_attribute_unit(payload: bytes, layout, steps: np.ndarray, coo
         q = decode_chunk_values(next(pieces), h, layout, p, prediction, None, hi - lo, i, LEVEL_ALL, coded)
         q_all[rows] = q
         target = np.empty((hi - lo, layout.num_channels), np.float32)
-        reconstruct_chunk(q, steps, row_adjust, target, i, LEVEL_ALL)
+        reconstruct_chunk(q, steps, row_adjust, target, i, LEVEL_ALL, layout)
         values_out[rows] = target
         if on_chunk is not None:
             on_chunk(hi - lo)

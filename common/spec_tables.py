@@ -14,7 +14,7 @@ def all_structures() -> list[type[SyntaxStructure]]:
             units.RenderModelUnit, units.RenderMlpHeader, geometry.GeometryHeader,
             units.AttributeUnitHeader, units.DecodedSceneHashUnit, model_unit.ContextModelUnit,
             model_unit.IntArrayHeader, units.GaussianParameterSet, units.SourceInfo, units.TileIndex,
-            units.NeighbourPredictionUnit, units.StepAdjustUnit, units.ShDegreeUnit]
+            units.NeighbourPredictionUnit, units.StepAdjustUnit, units.ShDegreeUnit, units.RotationLengthUnit]
 
 
 def syntax_tables_markdown() -> str:

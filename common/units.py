@@ -51,6 +51,8 @@ MAX_ACTIVITY_BUCKETS = 16
 # Step adjustment (version 1.2, clause 7.3.13): per-row indices into STEP_ADJUST_FACTORS (0..7)
 MAX_STEP_ADJUST = 7
 STEP_ADJUST_BITS = 3
+MAX_ROTATION_LENGTH_INDEX = 15  # clause 11.10: lengths 2^(-k/2), k = 0 .. 15
+ROTATION_LENGTH_BITS = 4
 # Per-Gaussian SH degree (version 1.3, clause 7.3.14): binary band flags, one probability per band
 # and context, u(12) in units of 2^-12
 NUM_DEGREE_CONTEXTS = 6
@@ -418,6 +420,21 @@ class ShDegreeUnit(SyntaxStructure):
         count = self.sh_degree * NUM_DEGREE_CONTEXTS
         for i in v.loop(count, "sh_degree * NumDegreeContexts", self, ("degree_flag_prob",)):
             v.u(DEGREE_PROB_BITS, self, "degree_flag_prob", i)
+        v.byte_align()
+
+
+@dataclass
+class RotationLengthUnit(SyntaxStructure):
+    """rotation_length unit (0x0C, version 1.4, clause 7.3.15): the rotation channel w of every
+    Gaussian carries a length index k in [0, max_rotation_length_index], and the rotation's w
+    component is implied by k and x, y, z (clause 11.10)."""
+
+    syntax_name = "rotation_length_unit"
+    clause = "7.3.15"
+    max_rotation_length_index: int = 0
+
+    def syntax(self, v: SyntaxVisitor) -> None:
+        v.u(ROTATION_LENGTH_BITS, self, "max_rotation_length_index")
         v.byte_align()
 
 

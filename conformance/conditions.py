@@ -22,7 +22,7 @@ import traceback
 from dataclasses import dataclass
 
 # every row of the table of clause 8.2
-CONDITIONS: list[str] = [f"E{i}" for i in range(1, 66)]
+CONDITIONS: list[str] = [f"E{i}" for i in range(1, 67)]
 
 # condition -> the mutation that removes its check (conformance/mutations.py)
 CHECK_REMOVALS: dict[str, str] = {
@@ -48,7 +48,7 @@ CHECK_REMOVALS: dict[str, str] = {
     "E56": "tiles.no_order_check", "E57": "tiles.no_point_count_check", "E58": "tiles.no_cell_check",
     "E59": "neighbour.no_num_rows_check", "E60": "neighbour.with_hierarchy", "E61": "neighbour.unit_repeated",
     "E62": "neighbour.no_context_model_check", "E63": "neighbour.unit_count", "E64": "check.E64",
-    "E65": "step_adjust.index_range_unchecked",
+    "E65": "step_adjust.index_range_unchecked", "E66": "rotation_length.index_range_unchecked",
 }
 
 # condition -> why it has no isolated stream: the check that fails first in every stream that

@@ -19,6 +19,7 @@ source_info this decoder cannot parse, or a second one, is reported (``notes``) 
 
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing
 import os
 import re
@@ -46,7 +47,8 @@ from ..common.syntax import TraceEntry
 from ..common.tiles import Box, check_points_in_cell, check_tile_index, cell_intersects_box
 from ..common.neighbour_prediction import read_predicted_attribute_unit
 from ..common.units import (CONTEXT_GGCONV, LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ATTRIBUTE_VALUES, DecodedSceneHashUnit,
-                            GaussianParameterSet, NeighbourPredictionUnit, SceneParameterSet, ShDegreeUnit, SourceInfo,
+                            GaussianParameterSet, NeighbourPredictionUnit, RotationLengthUnit, SceneParameterSet,
+                            ShDegreeUnit, SourceInfo,
                             StepAdjustUnit,
                             TileIndex)
 from ..app.workers import available_cpus, shared_array
@@ -56,10 +58,10 @@ from .limits import DEFAULT_MAX_MEMORY, MemoryPlan
 _LETTER = {UnitType.SCENE_PARAMETER_SET: "S", UnitType.GAUSSIAN_PARAMETER_SET: "P", UnitType.RENDER_MODEL: "R",
            UnitType.GEOMETRY: "G", UnitType.CONTEXT_MODEL: "C", UnitType.ATTRIBUTE: "A",
            UnitType.DECODED_SCENE_HASH: "H", UnitType.TILE_INDEX: "I", UnitType.NEIGHBOUR_PREDICTION: "N",
-           UnitType.STEP_ADJUST: "Q", UnitType.SH_DEGREE: "B"}
+           UnitType.STEP_ADJUST: "Q", UnitType.SH_DEGREE: "B", UnitType.ROTATION_LENGTH: "W"}
 # an anchor scene, or an explicit-Gaussian scene, which has no render model but may have neighbour
-# prediction (and with it step adjustment and the SH degrees); then the tiles
-_UNIT_ORDER = re.compile(r"(SR?|P(NQ?B?)?)C?I?(GA{1,2}H)+")
+# prediction (and with it step adjustment and the SH degrees) and rotation lengths; then the tiles
+_UNIT_ORDER = re.compile(r"(SR?|P(NQ?B?)?W?)C?I?(GA{1,2}H)+")
 
 
 @dataclass
@@ -126,6 +128,7 @@ def organize_units(container: Container, known: list[DataUnit] | None = None) ->
         raise BitstreamError(f"data units are out of order or repeated: {names} (expected scene_parameter_set, "
                              "[render_model], [context_model], [tile_index], then per tile geometry, attribute "
                              "(1 or 2), decoded_scene_hash; or gaussian_parameter_set, [neighbour_prediction [step_adjust] [sh_degree]], "
+                             "[rotation_length], "
                              "[context_model], "
                              "[tile_index], then the tiles)")
     if "I" not in letters and letters.count("G") > 1:
@@ -549,6 +552,7 @@ def parse_stream(data: bytes, entries: list[TraceEntry] | None = None, *, max_an
                                                by_type.get(UnitType.SH_DEGREE, [None])[0])
     if neighbour is not None:
         context_model = neighbour  # the attribute units' context (the stream has no context model)
+    layout = with_rotation_length(layout, by_type.get(UnitType.ROTATION_LENGTH, [None])[0], entries)
     tiles, _ = tiles_of(units, by_type, ps.num_anchors, entries)
     return ParsedStream(container, skipped, ps, layout, mlps, context_model, tiles, memory, source_info, notes)
 
@@ -604,9 +608,18 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
     n = ps.num_anchors
     return DecodeResult(scene, breakdown_of(s.container, n, s.point), verify_hash and decoded.hash_checked,
                         stream_hash, s.skipped, entries, _stream_tools(ps, decoded, s.context_model, s.point,
-                                                                      len(tiles)),
+                                                                      len(tiles), s.layout),
                         s.source_info, s.notes, len(tiles), len(selected), max_level == LEVEL_1, plan,
                         {"parse": t1 - t0, "decode": time.perf_counter() - t1})
+
+
+def with_rotation_length(layout, unit: DataUnit | None, entries):
+    """The layout of a stream with a rotation_length unit (clause 7.3.15): its channel w carries
+    the length index (clause 11.10); ``layout`` itself without one."""
+    if unit is None:
+        return layout
+    rl = RotationLengthUnit.from_bytes(unit.payload, entries, what="rotation_length unit")
+    return dataclasses.replace(layout, max_rotation_length_index=rl.max_rotation_length_index)
 
 
 def _read_parameter_set(by_type: dict[int, list[DataUnit]], entries) -> tuple[SceneParameterSet | GaussianParameterSet,
@@ -641,10 +654,13 @@ def _check_scene_hash(scene: AnchorScene | GaussianScene, scene_hash: bytes, whe
                                 f"(decoded SHA-256 {digest.hex()}, stream {scene_hash.hex()})")
 
 
-def _stream_tools(ps, decoded: DecodedTiles, context_model, point: str, num_tiles: int = 1) -> list[str]:
+def _stream_tools(ps, decoded: DecodedTiles, context_model, point: str, num_tiles: int = 1,
+                  layout=None) -> list[str]:
     """The coding tools the stream uses, in words (lghcc-dec prints them)."""
     if isinstance(ps, GaussianParameterSet):
         tools = [f"explicit Gaussians (SH degree {ps.sh_degree})"]
+        if layout is not None and layout.max_rotation_length_index >= 0:
+            tools.append(f"rotations as a length index (0 to {layout.max_rotation_length_index}) and x, y, z")
     else:
         tools = ["offset masks"] if ps.offset_mask_present_flag else []
     if ps.tiles_enabled_flag:

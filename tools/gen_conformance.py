@@ -729,9 +729,9 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
     torch.set_num_threads(1)  # context-model training in float must be reproducible byte for byte
     try:
         if entry["scene"]["generator"] == "gaussians":  # the preset's steps; no search, no fit
-            # neighbour prediction (version 1.1) only where the entry asks for it: the streams of
-            # version 1.0 keep their coding
-            overrides = {"neighbour_prediction": False, **(entry.get("config") or {})}
+            # neighbour prediction (version 1.1) and rotation lengths (version 1.4) only where the
+            # entry asks for them: the streams of the versions before keep their coding
+            overrides = {"neighbour_prediction": False, "rotation_length": False, **(entry.get("config") or {})}
             cfg = load_config(entry.get("preset", "medium"), overrides=overrides, kind="gaussians")
             scene = build_scene(entry["scene"])
             result = encode_gaussian_scene(scene, cfg, sensitivity=synthetic_sensitivity(scene, entry.get("sensitivity")),
@@ -803,6 +803,7 @@ Tags of test.yaml `tools`, derived from the reference decoder's result (never wr
   neighbour_prediction  a neighbour_prediction unit (version 1.1, clause 7.3.12): attributes coded by LoD
   step_adjust           a step_adjust unit (version 1.2, clause 7.3.13): a step-adjustment index per Gaussian
   sh_degree             an sh_degree unit (version 1.3, clause 7.3.14): an SH degree per Gaussian
+  rotation_length       a rotation_length unit (version 1.4, clause 7.3.15): rotations as a length index and x, y, z
   gaussians             an explicit-Gaussian scene (gaussian_parameter_set), sh_degree_<d> its SH degree
   channel_prediction    an attribute unit with cross-channel predictions (clause 11.6)
   offset_mask           offset_mask_present_flag = 1
@@ -863,7 +864,7 @@ def _structure_tags(data: bytes) -> set[str]:
     types = {u.unit_type for u in units}
     unit_tags = {UnitType.RENDER_MODEL: "render_model", UnitType.CONTEXT_MODEL: "context_model_unit",
                  UnitType.NEIGHBOUR_PREDICTION: "neighbour_prediction", UnitType.STEP_ADJUST: "step_adjust",
-                 UnitType.SH_DEGREE: "sh_degree"}
+                 UnitType.SH_DEGREE: "sh_degree", UnitType.ROTATION_LENGTH: "rotation_length"}
     tags.update(tag for unit_type, tag in unit_tags.items() if unit_type in types)
     if any(u.is_ancillary for u in units):
         tags.add("ancillary_unit")

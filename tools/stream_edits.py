@@ -10,6 +10,8 @@ Every edit is deterministic (seeded), so `gen_conformance.py --check` reproduces
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from lghcc.common import attributes as attr
@@ -769,6 +771,46 @@ def sh_degree(units, spec: dict) -> None:
     units.insert(k + 1, DataUnit(UnitType.SH_DEGREE, nc.degree_unit.to_bytes()))
 
 
+def rotation_length(units, spec: dict) -> None:
+    """Give every row of the single attribute unit of an explicit-Gaussian stream coded with the
+    rotation_length unit and neighbour prediction (no tiles, no step adjustment, no SH degrees) the
+    rotation length index of a rule, and the unit the maximum ``max`` (version 1.4, clauses 7.3.15,
+    11.10). x, y and z stay, so the implied w changes (rehash the stream). spec: {indices: cycle:<n>
+    (row i gets i mod n; beyond ``max``, or negative with ``offset``, a fault), offset (added to
+    every index, default 0), max, rows: {row: [qx, qy, qz]} (those rows' quantized x, y, z)}."""
+    from lghcc.common.geometry import decode_geometry
+    from lghcc.common.neighbour_prediction import read_predicted_attribute_unit
+    from lghcc.common.units import GaussianParameterSet, NeighbourPredictionUnit, RotationLengthUnit
+    from lghcc.encoder.stream.neighbour_coding import NeighbourCoding
+
+    gps = GaussianParameterSet.from_bytes(units[_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
+    if gps.hierarchy_enabled_flag or gps.tiles_enabled_flag or \
+            any(u.unit_type in (UnitType.STEP_ADJUST, UnitType.SH_DEGREE) for u in units):
+        raise ValueError("rotation_length edits a stream without the hierarchy, tiles, step adjustment or SH degrees")
+    r = _index(units, UnitType.ROTATION_LENGTH)
+    layout = attr.gaussian_layout_of(gps, RotationLengthUnit.from_bytes(units[r].payload).max_rotation_length_index)
+    n, m, w = gps.num_gaussians, layout.num_channels, layout.rotation_start
+    k = _index(units, UnitType.NEIGHBOUR_PREDICTION)
+    unit = NeighbourPredictionUnit.from_bytes(units[k].payload, num_channels=m)
+    coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, n)
+    j = _index(units, UnitType.ATTRIBUTE)
+    values = np.empty((n, m), np.float32)
+    h0 = read_predicted_attribute_unit(units[j].payload, layout, layout.steps(gps), coords, unit, values)
+    q = np.rint(values / layout.steps(gps)).astype(np.int64)  # exact but for column w, replaced here
+    period = int(str(spec["indices"]).split(":")[1])
+    q[:, w] = np.arange(n, dtype=np.int64) % period + int(spec.get("offset", 0))
+    for row, xyz in (spec.get("rows") or {}).items():  # given x, y, z of some rows (normative order)
+        q[int(row), w + 1:w + 4] = xyz
+    top = int(spec["max"])
+    layout = dataclasses.replace(layout, max_rotation_length_index=top)
+    h = attr.new_attribute_header(layout, n, 0)
+    h.rows_per_chunk_minus1, h.num_lods = h0.rows_per_chunk_minus1, unit.num_lods
+    nc = NeighbourCoding(q, coords, unit.num_lods, unit.num_neighbours, unit.num_buckets,
+                         bool(h0.num_channel_predictions), layout, unit)
+    units[j] = DataUnit(UnitType.ATTRIBUTE, nc.write(h))
+    units[r] = DataUnit(UnitType.ROTATION_LENGTH, RotationLengthUnit(max_rotation_length_index=top).to_bytes())
+
+
 def _chunks_across_lods(h: AttributeUnitHeader, nc) -> bytes:
     """The attribute unit of ``nc`` (already written into ``h``) with its rows, in coding order, cut
     every rows_per_chunk rows regardless of the LoDs (a version-1.0 chunking of the LoD-major order),
@@ -864,5 +906,5 @@ def apply_edits(units, post: dict) -> None:
 _EDITS_IN_ORDER = (
     designed_model, set_q, escape_classes, edit_chunk, recode_attribute_header,
     geometry_edit, context_unit, render_unit, neighbour_prediction, step_adjust,
-    sh_degree, set_elements, flatten_hierarchy, swap_tiles, nonzero_alignment,
+    sh_degree, rotation_length, set_elements, flatten_hierarchy, swap_tiles, nonzero_alignment,
 )

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ...common.attributes import STEP_ADJUST_FACTORS, GaussianLayout
+from ...common.attributes import STEP_ADJUST_FACTORS, GaussianLayout, implied_w
 from ...common.entropy.symbol_coder import best_level, code_lengths_bits
 from ...common.geometry import encode_geometry, normative_order
 from ...common.neighbour_prediction import neighbour_graph
@@ -370,7 +370,8 @@ class SettingsSearch:
         ways = self.ways[rows]
         q = np.empty(x.shape, dtype=np.int64)
         q[order] = rd_quantize(x[order], f[order], mu, grid.coords[order], graph, cfg.prediction_buckets,
-                               orientation_columns(layout), ways, None if adjust is None else adjust[order])
+                               orientation_columns(layout), ways, None if adjust is None else adjust[order],
+                               cfg.rotation_length)
         self.ways[rows] = ways
         degrees = None
         if sh_degrees_wanted(cfg, self.sensitivity, degree) and graph is not None:
@@ -417,6 +418,8 @@ class SettingsSearch:
         adjust = self._adjust(key, grid, keep, x, degree, cfg)
         factor = 1.0 if adjust is None else STEP_ADJUST_FACTORS[adjust].astype(np.float64)[:, None]
         q, degrees = np.rint(x / factor).astype(np.int64), None
+        if cfg.rotation_length:  # unit lengths (index 0) where RDOQ does not choose them
+            q[:, layout.rotation_start] = 0
         if self.sensitivity is not None and cfg.rd_quantization > 0:
             q, degrees = self._rd_quantized(key, grid, keep, x, layout, cfg, adjust)
         prior_bits = 0.0
@@ -424,7 +427,11 @@ class SettingsSearch:
             r = q[:, c] - int(np.median(q[:, c]))
             prior_bits += float(code_lengths_bits(r, np.full(r.shape, best_level(r), np.int64)).sum())
         bits = geometry_bits + self._attribute_bits(key, grid, q, prior_bits, adjust, degrees, layout)
-        dec = GaussianScene(grid.means, *layout.split((q * steps * factor).astype(np.float32)))
+        values = (q * steps * factor).astype(np.float32)
+        if cfg.rotation_length:
+            w = layout.rotation_start
+            values[:, w] = implied_w(q[:, w], values[:, w + 1:w + 4])
+        dec = GaussianScene(grid.means, *layout.split(values))
         mse = self._mse(dec, cfg.prune_share)
         cost = 10 * math.log10(max(mse, 1e-12)) + self.lam * math.log2(max(bits, 1.0))
         trial = Trial(cfg, mse, bits, cost)

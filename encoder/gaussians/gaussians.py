@@ -31,7 +31,7 @@ from ...common.hashing import gaussian_scene_digest
 from ...app.report import breakdown_of
 from ...common.neighbour_prediction import neighbour_graph
 from ...common.scene import GaussianScene
-from ...common.units import MAX_ATTRIBUTE_VALUES, GaussianParameterSet, StepAdjustUnit
+from ...common.units import MAX_ATTRIBUTE_VALUES, GaussianParameterSet, RotationLengthUnit, StepAdjustUnit
 from ..stream.config import GaussianEncoderConfig
 from ..stream.level_coding import check_predicted_magnitude
 from ..stream.encode import (AttributeInput, CodedAttributes, EncodeResult, GeometryCoding, LevelLayout, check_point_count,
@@ -99,7 +99,7 @@ def gaussian_attribute_input(scene: GaussianScene, geometry: GeometryCoding, lev
     n = scene.num_gaussians
     gps = gaussian_parameter_set(n, scene.sh_degree, scene.voxel_size, scene.origin, cfg, levels.hier is not None,
                                  levels.tile_scale)
-    layout = attr.gaussian_layout_of(gps)
+    layout = attr.gaussian_layout_of(gps, 0 if cfg.rotation_length else -1)
     if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
         raise InputError(f"{n} Gaussians x {layout.num_channels} channels exceed the profile's limit")
     steps = layout.steps(gps)
@@ -126,14 +126,18 @@ def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: Lev
     if graph is not None and cfg.step_adjust_max > 0:
         adjust = adjust_on_graph(x, f, degree, inp.coords, np.arange(x.shape[0]), graph, cfg)
     q = rd_quantize(x, f, group_slopes(f, channel_groups(degree), cfg.rd_quantization), inp.coords, graph,
-                    cfg.prediction_buckets, orientation_columns(inp.layout), adjust=adjust)
+                    cfg.prediction_buckets, orientation_columns(inp.layout), adjust=adjust,
+                    length_index=cfg.rotation_length)
+    layout = inp.layout
+    if cfg.rotation_length:  # the largest index used is the unit's (clause 7.3.15)
+        layout = dataclasses.replace(layout, max_rotation_length_index=int(q[:, layout.rotation_start].max(initial=0)))
     degrees = None
     if graph is not None and inp.sh_degrees is None and sh_degrees_wanted(cfg, sensitivity, degree):
         degrees = degrees_on_graph(x, q, f, inp.layout, inp.coords, np.arange(x.shape[0]), graph, cfg, adjust)
         q = q if degrees is None else without_dropped_bands(q, degrees, inp.layout)
     steps = inp.steps.astype(np.float64) if adjust is None else \
         attr.effective_steps(inp.steps, adjust[:, None]).astype(np.float64)
-    return dataclasses.replace(inp, values=q * steps, step_adjust=adjust,
+    return dataclasses.replace(inp, layout=layout, values=q * steps, step_adjust=adjust,
                                sh_degrees=inp.sh_degrees if degrees is None else degrees)
 
 
@@ -157,6 +161,9 @@ def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: Gaus
         if inp.sh_degrees is not None:  # the unit fitted by the neighbour coding (clause 7.3.14)
             stats.sh_degree_counts = np.bincount(inp.sh_degrees, minlength=layout.sh_degree + 1).tolist()
             parameter_units.append(DataUnit(UnitType.SH_DEGREE, coded.neighbour_unit.sh_degree_unit.to_bytes()))
+    if layout.max_rotation_length_index >= 0:
+        unit = RotationLengthUnit(max_rotation_length_index=layout.max_rotation_length_index)
+        parameter_units.append(DataUnit(UnitType.ROTATION_LENGTH, unit.to_bytes()))
     data = write_stream(parameter_units, coded.context_payload, tiles, decoded.num_gaussians)
     digest = tiles[0].scene_hash if len(tiles) == 1 else gaussian_scene_digest(decoded)
     return EncodeResult(data, breakdown_of(read_container(data), decoded.num_gaussians, "Gaussian"), decoded, digest,
@@ -199,6 +206,8 @@ def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | Non
         del scene  # the grid's copy of the scene: its values are in ``inp`` now (peak memory)
         if sensitivity is not None and cfg.rd_quantization > 0:
             inp = rd_quantized_input(inp, sensitivity[geometry.order], levels, cfg)
+        elif cfg.rotation_length:  # index 0, unit length (the rotations are normalized, w >= 0)
+            inp.values[:, inp.layout.rotation_start] = 0
     with stage(bar, "attributes", stats, STAGE_SHARES["attributes"]):
         t1 = time.perf_counter()
         coded = code_attributes(inp, levels, cfg, stats, progress=progress, measure_ideal=measure_ideal)

@@ -74,7 +74,7 @@ import numpy as np
 import torch
 
 from ...common.attributes import STEP_ADJUST_FACTORS, CodingParams, GaussianLayout
-from ...common.entropy.symbol_coder import code_lengths_bits
+from ...common.entropy.symbol_coder import best_level, code_lengths_bits
 from ...common.neighbour_prediction import (NeighbourGraph, adjusted_prior, neighbour_means_and_buckets,
                                            prior_level_in_steps)
 from ...common.scene import GaussianScene
@@ -201,6 +201,54 @@ def _rotation_norms(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.nd
     return best, best_cost
 
 
+def _length_indices(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarray, mu: float
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """_rotation_norms for rotations coded as a length index and x, y, z (format 1.4, clause
+    11.10; ``x`` with w >= 0): the length 2^(-k/2), k in LENGTH_INDICES, of least cost in F (x -
+    direction)^2 + mu bits, the direction being (implied w, rounded x, y, z) at that length, the
+    bits those of k and of x, y, z (float64 [n] each: the factor, the cost)."""
+    best, best_cost = np.ones(x.shape[0]), np.full(x.shape[0], np.inf)
+    length2 = (x * x) @ _ONES4
+    for k in LENGTH_INDICES:
+        rho = 2.0 ** (-k / 2)
+        v = np.rint(rho * x[:, 1:])
+        w = np.sqrt(np.maximum(rho * rho * length2 - (v * v).sum(axis=1), 0.0))
+        err = x - np.concatenate([w[:, None], v], axis=1) / rho
+        r = np.concatenate([np.full((x.shape[0], 1), float(k)), v], axis=1) - mean
+        cost = (f * err * err) @ _ONES4 + mu * (code_lengths_bits(r.astype(np.int64), level) @ _ONES4)
+        better = cost < best_cost
+        best, best_cost = np.where(better, rho, best), np.where(better, cost, best_cost)
+    return best, best_cost
+
+
+# The length indices k (lengths 2^(-k/2)) RDOQ may give format-1.4 rotations. With w implied, the
+# unit length alone codes best: through RDOQ at the low preset's fixed steps (tools/bench_rotations.py,
+# tools/results/rotations.md section 3) playbot lod4 80,240 B with k = 0 only against 80,285-80,450 B
+# with k = 0..6 (the index priced at levels 6-13), the donut 187,158 B against 187,287-188,992 B, at
+# the same PSNR: the shorter lengths' coarser x, y, z no longer pay for their index. The format
+# keeps the index (0 .. 15): it costs nothing where every Gaussian has k = 0.
+LENGTH_INDICES = (0,)
+# The scale level at which RDOQ prices a rotation length index before the coding is fitted to the
+# indices chosen (rd_quantize): that of residuals 0 and 1 in equal shares
+INDEX_LEVEL = best_level(np.array([0, 1]))
+# The sensitivity given a length index (format 1.4) so that RDOQ's per-value choice never moves it:
+# a move changes the quaternion's length, and with it the implied w, by far more than one step
+FIXED = 1e30
+
+
+def _as_length_index(x: np.ndarray, f: np.ndarray, rho: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations ``x`` [n, 4] (in steps, w >= 0, scaled to their lengths ``rho``) and their
+    sensitivities as coded with a length index (clause 11.10): column w holds the index k of rho,
+    fixed; a step of x, y or z also moves the implied w by v / w steps, which their
+    sensitivities take in."""
+    k = np.rint(-2 * np.log2(rho))
+    w = np.maximum(x[:, :1], 0.5)  # (a w under half a step: the coupling bounded)
+    x, f = x.copy(), f.copy()
+    f[:, 1:] += f[:, :1] * (x[:, 1:] / w) ** 2
+    x[:, 0], f[:, 0] = k, FIXED
+    return x, f
+
+
 def _turned(m_rows: np.ndarray, xr: np.ndarray, fr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Quaternions ``xr`` [n, 4] turned by the per-row matrices ``m_rows`` [n, 4, 4], and their
     sensitivities: the diagonal of M diag(f) M^T (exact for the signed permutations)."""
@@ -210,36 +258,43 @@ def _turned(m_rows: np.ndarray, xr: np.ndarray, fr: np.ndarray) -> tuple[np.ndar
 _TURNS_T = np.concatenate([m.T for m in AXIS_TURNS], 1)  # [4, 96]: x @ _TURNS_T = every q g at once
 
 
-def _turn_ranking(xr: np.ndarray, mean_r: np.ndarray, level_r: np.ndarray, mu_r: float, block: int = 16384
-                  ) -> tuple[np.ndarray, np.ndarray]:
+def _turn_ranking(xr: np.ndarray, mean_r: np.ndarray, level_r: np.ndarray, mu_r: float, block: int = 16384,
+                  length_index: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """For unit quaternions ``xr`` [n, 4] (in steps, contiguous) and their coding's means and
     levels: (float64 [n, 24] mu_r x the bits of each turn's rounded quaternion, float64 [n, 24] the
-    sign each turn takes: the one nearer the mean). All 24 turns in one product, rows by blocks."""
+    sign each turn takes: the one nearer the mean). All 24 turns in one product, rows by blocks.
+    ``length_index`` (format 1.4): the bits of x, y, z alone, the sign the one of w >= 0."""
     n, nt = xr.shape[0], len(AXIS_TURNS)
     bits, signs = np.empty((n, nt)), np.empty((n, nt))
+    counted = np.array([0.0, 1, 1, 1]) if length_index else _ONES4
     for lo in range(0, n, block):
         hi = min(n, lo + block)
         xg = (xr[lo:hi] @ _TURNS_T).reshape(hi - lo, nt, 4)
         m = mean_r[lo:hi, None, :]
-        s = np.where(np.einsum("ntc,nc->nt", xg, mean_r[lo:hi]) < 0, -1.0, 1.0)
+        toward = xg[:, :, 0] if length_index else np.einsum("ntc,nc->nt", xg, mean_r[lo:hi])
+        s = np.where(toward < 0, -1.0, 1.0)
         r = (np.rint(xg * s[:, :, None]) - m).astype(np.int64)
         lv = np.broadcast_to(level_r[lo:hi, None, :], r.shape)
-        bits[lo:hi] = mu_r * (code_lengths_bits(r, lv) @ _ONES4)
+        bits[lo:hi] = mu_r * (code_lengths_bits(r, lv) @ counted)
         signs[lo:hi] = s
     return bits, signs
 
 
 def _orientation(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarray, mu: np.ndarray,
-                 scales: slice, rotation: slice, ways: np.ndarray | None = None
+                 scales: slice, rotation: slice, ways: np.ndarray | None = None, length_index: bool = False
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Rows ``x`` [n, M] (in steps) with sensitivities ``f``, their coding's means and scale
     levels and the slopes ``mu`` [M], each Gaussian written the way that codes cheapest (module
     doc), or the way ``ways`` [n] gives where it is >= 0 (rd_quantize): (x, f) with the scale
     and rotation columns turned, the rotation scaled to its length, that length (float64 [n])
-    and the ways (int64 [n]: turn + 24 where the quaternion is negated)."""
+    and the ways (int64 [n]: turn + 24 where the quaternion is negated). ``length_index``: the
+    rotations coded as a length index and x, y, z (format 1.4): w >= 0, and column w the index."""
     n = x.shape[0]
     mu_r = float(mu[rotation].max(initial=0.0))
     if not mu_r > 0:  # no rate term: plain rounding, as for every other value (no way chosen)
+        if length_index:  # unit length (k = 0), w >= 0 already (the canonical rotations)
+            x, f = x.copy(), f.copy()
+            x[:, rotation], f[:, rotation] = _as_length_index(x[:, rotation], f[:, rotation], np.ones(n))
         return x, f, np.ones(n), np.full(n, -1, dtype=np.int64)
     xs, fs, xr, fr = x[:, scales], f[:, scales], x[:, rotation], f[:, rotation]
     mean_r, level_r = mean[:, rotation], level[:, rotation]
@@ -255,7 +310,7 @@ def _orientation(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarr
     free = np.flatnonzero(~fixed)
     if free.size and TURN_CANDIDATES > 0:  # then the best-ranked turns of the rows still to choose
         ranking, signs = _turn_ranking(np.ascontiguousarray(xr[free]), np.ascontiguousarray(mean_r[free]),
-                                       np.ascontiguousarray(level_r[free]), mu_r)
+                                       np.ascontiguousarray(level_r[free]), mu_r, length_index=length_index)
         ranking += scale_bits[free][:, perm_of_turn]
         best_turns = np.argsort(ranking, axis=1, kind="stable")[:, :TURN_CANDIDATES]
         best_signs = np.take_along_axis(signs, best_turns, 1)
@@ -263,7 +318,10 @@ def _orientation(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarr
     best = best_cost = None
     for idx, t, sg in candidates:
         xt, ft = _turned(AXIS_TURNS[t] * sg[:, None, None], xr[idx], fr[idx])
-        rho, cost = _rotation_norms(xt, ft, mean_r[idx], level_r[idx], mu_r)
+        if length_index:  # w is implied >= 0: the sign that makes it so
+            neg = xt[:, 0] < 0
+            xt[neg], sg = -xt[neg], np.where(neg, -sg, sg)
+        rho, cost = (_length_indices if length_index else _rotation_norms)(xt, ft, mean_r[idx], level_r[idx], mu_r)
         cost += scale_bits[idx, perm_of_turn[t]]
         cand = (xt, ft, rho, AXIS_TURN_PERMS[t], t + np.where(sg < 0, nt, 0))
         if best is None:
@@ -279,6 +337,8 @@ def _orientation(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarr
     x[:, scales], f[:, scales] = np.take_along_axis(xs, perm, 1), np.take_along_axis(fs, perm, 1)
     x[:, rotation] = xt * rho[:, None]
     f[:, rotation] = ft / (rho * rho)[:, None]  # the pictures see the direction: d/dx scales by 1 / rho
+    if length_index:
+        x[:, rotation], f[:, rotation] = _as_length_index(x[:, rotation], f[:, rotation], rho)
     return x, f, rho, way
 
 
@@ -298,17 +358,18 @@ def _half_turned(x: np.ndarray, f: np.ndarray, rotation: slice) -> tuple[np.ndar
 
 
 def _choose_rows(x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarray, mu: np.ndarray,
-                 orientation: tuple[slice, slice] | None, ways: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, np.ndarray | None]:
+                 orientation: tuple[slice, slice] | None, ways: np.ndarray | None = None,
+                 length_index: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
     """The values chosen for rows ``x`` [n, M] given their coding's means and scale levels: the
     orientation and the rotation's length first (when ``orientation`` names the scale and
-    rotation columns; ``ways`` as _orientation's), then each value. Returns them and the ways."""
+    rotation columns; ``ways`` and ``length_index`` as _orientation's), then each value. Returns
+    them and the ways."""
     way = None
     if orientation is not None:
         scales, rotation = orientation
-        x, f, rho, way = _orientation(x, f, mean, level, mu[0], scales, rotation, ways)
+        x, f, rho, way = _orientation(x, f, mean, level, mu[0], scales, rotation, ways, length_index)
     q = _choose(x, np.rint(x).astype(np.int64), mean, level, f, mu)
-    if orientation is not None:  # never a zero quaternion (it has no direction): the rounded one instead
+    if orientation is not None and not length_index:  # never a zero quaternion (it has no direction): the rounded one instead
         zero = ~q[:, rotation].any(axis=1)
         if zero.any():
             r = np.rint(x[zero, rotation] / rho[zero, None]).astype(np.int64)
@@ -319,7 +380,8 @@ def _choose_rows(x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarr
 
 def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray, graph: NeighbourGraph | None,
                 num_buckets: int, orientation: tuple[slice, slice] | None = None,
-                ways: np.ndarray | None = None, adjust: np.ndarray | None = None) -> np.ndarray:
+                ways: np.ndarray | None = None, adjust: np.ndarray | None = None,
+                length_index: bool = False) -> np.ndarray:
     """int64 [N, M]: the values chosen for ``x`` (float [N, M], in steps, rows in coding order)
     with sensitivities ``f`` [N, M] and slopes ``mu`` [M] (module doc). ``graph``: the neighbour
     graph of ``coords`` when neighbour prediction codes the rows (None: the per-channel prior).
@@ -329,13 +391,17 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
     what an earlier call chose), -1 where it is to be chosen; the ways chosen are written into
     it (the settings search keeps them from trial to trial: the choice is most of RDOQ's time).
     ``adjust``: int [N], each row's step-adjustment index (clause 11.8; needs ``graph``): ``x`` is
-    then in the channels' steps and the values chosen are in each row's own."""
+    then in the channels' steps and the values chosen are in each row's own. ``length_index``: the
+    rotations coded as a length index and x, y, z (format 1.4, clause 11.10; needs ``orientation``):
+    the rotation's column w of the values chosen is then the index k of its length 2^(-k/2)."""
     if adjust is not None:
         factor = STEP_ADJUST_FACTORS[adjust].astype(np.float64)[:, None]
         x, f = x / factor, f * factor ** 2
     if orientation is not None and x.shape[0] and float(np.max(mu[orientation[1]], initial=0.0)) > 0:
         x, f = _half_turned(x, f, orientation[1])
     q0 = np.rint(x).astype(np.int64)
+    if length_index and orientation is not None:
+        q0[:, orientation[1].start] = 0  # the coding first fitted with unit lengths (index 0) in column w
     n, m = q0.shape
     if n == 0:
         return q0
@@ -348,6 +414,10 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
         prior_mean, prior_level = nc.prior_mean, nc.prior_level
         flags = np.asarray(nc.unit.neighbour_mean_flag, dtype=bool)
         table = np.asarray(nc.unit.bucket_level, dtype=np.int64).reshape(m, num_buckets)
+    if length_index and orientation is not None:  # the coding, fitted to unit lengths only, would price out
+        w = orientation[1].start  # every other length: the index is priced as an even choice of two instead
+        prior_level, table = prior_level.copy(), table.copy()
+        prior_level[w] = table[w] = INDEX_LEVEL
     q = q0.copy()
     for lod, rows in enumerate(graph.rows):
         if rows.size == 0:
@@ -362,7 +432,7 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
                                                        adjust, None if adjust is None else adjust[rows])
             level = np.take_along_axis(table.T, bucket, axis=0)
         q[rows], way = _choose_rows(x[rows], mean, level, f[rows], mu[None, :], orientation,
-                                    None if ways is None else ways[rows])
+                                    None if ways is None else ways[rows], length_index)
         if ways is not None and way is not None:
             ways[rows] = way
     return q

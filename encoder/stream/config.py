@@ -178,6 +178,10 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # sensitivities, RDOQ and neighbour prediction (False: every band of every Gaussian coded). On in
     # the low preset only (tools/results/sh_degree.md).
     sh_degree_choice: bool = False
+    # Rotations as a length index and x, y, z (version 1.4, clause 11.10; encoder/gaussians/rdoq.py):
+    # channel w carries the index k of the quaternion's length 2^(-k/2), RDOQ's choice of length
+    # per Gaussian, and w is implied by it and x, y, z (False: the four components coded).
+    rotation_length: bool = False
     # Drop before anything else the Gaussians whose opacity (after the sigmoid) is below this: at
     # 1/255 those that 3DGS rasterizers never draw (alpha < 1/255 is skipped, render/rasterizer.py),
     # found without renders (the fast preset; 0: keep all)
@@ -261,6 +265,8 @@ class GaussianEncoderConfig(AttributeCodingConfig):
                              f"{self.step_adjust_max!r}, {self.step_adjust_quantile!r}")
         if not isinstance(self.sh_degree_choice, bool):
             raise InputError(f"sh_degree_choice must be true or false, got {self.sh_degree_choice!r}")
+        if not isinstance(self.rotation_length, bool):
+            raise InputError(f"rotation_length must be true or false, got {self.rotation_length!r}")
         if self.sh_degree is not None and self.sh_degree not in (0, 1, 2, 3):
             raise InputError(f"sh_degree must be 0..3 or None, got {self.sh_degree!r}")
         if not 0 <= self.min_opacity < 1:

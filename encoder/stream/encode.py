@@ -400,7 +400,7 @@ def code_attributes(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodi
         stats.attribute_coded_bits += 8 * sum(chosen.header.chunk_size)
         stats.levels[level] = LevelStats(CONTEXT_MODEL_NAMES[chosen.header.context_model_id], len(chosen.payload),
                                          chosen.header.num_channel_predictions if predict else None, context_fit)
-        reconstruct_level(recon, rows, chosen, inp.steps)
+        reconstruct_level(recon, rows, chosen, inp.steps, inp.layout)
     if measure_ideal:
         stats.attribute_ideal_bits = ideal
     return CodedAttributes(payloads, context_payload, recon)
@@ -441,7 +441,7 @@ def code_neighbours_or_prior(inp: AttributeInput, levels: LevelLayout, cfg: Attr
     stats.levels[level] = LevelStats("neighbour prediction" if use else CONTEXT_MODEL_NAMES[0], len(chosen.payload),
                                      chosen.header.num_channel_predictions if predict else None, None)
     recon = np.zeros_like(inp.values, dtype=np.float32)
-    reconstruct_level(recon, rows, chosen, inp.steps)
+    reconstruct_level(recon, rows, chosen, inp.steps, inp.layout)
     return CodedAttributes([chosen.payload], None, recon, nc.unit if use else None)
 
 

@@ -185,9 +185,12 @@ def code_with_model(coder: LevelCoder, inp: AttributeInput, hier: Hierarchy, q_l
     return coder.code(header, q, params)
 
 
-def reconstruct_level(recon: np.ndarray, rows: np.ndarray, chosen: LevelCoding, steps: np.ndarray) -> None:
-    """The level's decoded values into ``recon`` (float32), bit for bit."""
+def reconstruct_level(recon: np.ndarray, rows: np.ndarray, chosen: LevelCoding, steps: np.ndarray, layout) -> None:
+    """The level's decoded values into ``recon`` (float32), bit for bit (with a rotation_length
+    unit, the rotations' implied w: clause 11.10)."""
     with np.errstate(over="ignore", invalid="ignore"):
-        recon[rows] = attr.reconstruct(chosen.q, steps, chosen.params.step_adjust)
-    if not np.isfinite(recon[rows]).all():
+        values = attr.reconstruct(chosen.q, steps, chosen.params.step_adjust)
+    if not np.isfinite(values).all():
         raise InputError("an attribute value would decode beyond the binary32 range; use a smaller value or step")
+    attr.reconstruct_rotations(chosen.q, values, layout, "attributes")
+    recon[rows] = values

@@ -176,7 +176,7 @@ def code_tile(tinp, cfg, context_payload: bytes | None, unit_stats: list,
         h = chosen.header
         unit_stats.append((level, h.context_model_id, 8 * sum(h.chunk_size), h.num_channel_predictions,
                            8 * sum(h.adjust_chunk_size), 8 * sum(h.degree_chunk_size)))
-        reconstruct_level(trecon, lrows, chosen, tinp.steps)
+        reconstruct_level(trecon, lrows, chosen, tinp.steps, tinp.layout)
     return payloads, trecon
 
 

@@ -1,6 +1,6 @@
 // Attribute decoding of explicit-Gaussian tiles (spec clause 11): the per-channel prior, chunks,
 // cross-channel prediction (11.6), neighbour prediction (11.7), step adjustment (11.8), the
-// per-Gaussian SH degree (11.9) and reconstruction in binary32 (11.5). Per chunk, one call of the
+// per-Gaussian SH degree (11.9), reconstruction in binary32 (11.5) and the implied rotation w (11.10). Per chunk, one call of the
 // WebAssembly module (wasm/decoder.ts: attributeChunk) decodes the rows' SH degrees, computes their
 // means and levels, decodes the symbols of their coded channels and the values q, exact in 64-bit
 // integers; q, the rows' step-adjustment indices and SH degrees live in the module's memory while
@@ -9,6 +9,7 @@
 // the spec's errors.
 import { BitstreamError } from './errors.mjs';
 import { gridNeighbours } from './knn.mjs';
+import { impliedRotations } from './rotation.mjs';
 import { decodeSymbolChunk, symbolError } from './symbols.mjs';
 import { alloc, callWasm, copyIn, wasm } from './wasm.mjs';
 
@@ -136,7 +137,10 @@ class TileAttributeDecoder {
         w.reset();
         const pScale = copyIn(w, scale), out = alloc(w, 4 * n * M);
         callWasm(() => w.reconstruct(n, pScale, out), (code, row, c) => new BitstreamError(`row ${row}, channel ${c}: the reconstructed value is not finite (clause 11.5, E52)`));
-        return new Float32Array(w.memory.buffer, out, n * M).slice();
+        const values = new Float32Array(w.memory.buffer, out, n * M).slice();
+        const rl = this.ctx.rotationLength;
+        if (rl) impliedRotations(values, new Int32Array(w.memory.buffer, this.qAddr, 2 * n * M), n, M, M - 4, rl.maxIndex);
+        return values;
     }
 }
 

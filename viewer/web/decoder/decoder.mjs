@@ -1,5 +1,5 @@
 // The decoding process of spec clause 13 for the explicit-Gaussian profile (see README.md):
-// container, parameter set, neighbour prediction, step adjustment and SH degree units, tile index, then
+// container, parameter set, neighbour prediction, step adjustment, SH degree and rotation length units, tile index, then
 // every tile (geometry, attributes, hash check).
 import { decodeTileAttributes } from './attributes.mjs';
 import { parseContainer, unitStructure, UNIT } from './container.mjs';
@@ -9,7 +9,7 @@ import { Sha256, sha256, toHex } from './sha256.mjs';
 import { scaleTables } from './tables.mjs';
 import { alloc, copyIn, wasm } from './wasm.mjs';
 import {
-    parseAttributeHeader, parseGaussianParameterSet, parseHashUnit, parseNeighbourPrediction, parseShDegree, parseStepAdjust, parseTileIndex,
+    parseAttributeHeader, parseGaussianParameterSet, parseHashUnit, parseNeighbourPrediction, parseRotationLength, parseShDegree, parseStepAdjust, parseTileIndex,
 } from './units.mjs';
 
 export { BitstreamError, HashMismatchError, ResourceLimitError, UnsupportedStreamError };
@@ -17,7 +17,7 @@ export const DEFAULT_MAX_MEMORY = 2 ** 31; // bytes a decode may hold (decodeStr
 
 /**
  * Parse everything before the tiles (clause 13.1 steps 1 to 5). Returns the stream's context:
- * {ps, np, stepAdjust, shDegreeUnit, tiles: [{units, points, cell}], M, steps, payloads}.
+ * {ps, np, stepAdjust, shDegreeUnit, rotationLength, tiles: [{units, points, cell}], M, steps, payloads}.
  */
 export function parseStream(bytes, { maxMemory = DEFAULT_MAX_MEMORY } = {}) {
     scaleTables(); // digest of clause 10.2.2 checked before anything is decoded
@@ -28,15 +28,15 @@ export function parseStream(bytes, { maxMemory = DEFAULT_MAX_MEMORY } = {}) {
     if (s.cm && !ps.hierarchyEnabled) throw new BitstreamError('a context_model unit with hierarchy_enabled_flag = 0 (clause 8.3, E16)');
     if (ps.hierarchyEnabled) throw new UnsupportedStreamError('hierarchy_enabled_flag = 1: the two-level hierarchy is outside the explicit-Gaussian profile this decoder implements');
     const payload = (u) => u?.payload ?? null;
-    const ctx = preludeContext(ps, { ps: s.ps.payload, np: payload(s.np), sa: payload(s.sa), sd: payload(s.sd) });
+    const ctx = preludeContext(ps, { ps: s.ps.payload, np: payload(s.np), sa: payload(s.sa), sd: payload(s.sd), rl: payload(s.rl) });
     ctx.tiles = tileList(container.units, s, ps);
     checkMemory(ctx, bytes.length, maxMemory);
     return ctx;
 }
 
 /**
- * The stream's context (clause 13.1 step 4) from the prelude's payloads {ps, np, sa, sd} (parameter
- * set, neighbour_prediction, step_adjust and sh_degree units; null when absent), ps parsed. The
+ * The stream's context (clause 13.1 step 4) from the prelude's payloads {ps, np, sa, sd, rl} (parameter
+ * set, neighbour_prediction, step_adjust, sh_degree and rotation_length units; null when absent), ps parsed. The
  * payloads stay in it: a worker decoding tiles in parallel parses them itself.
  */
 export function preludeContext(ps, payloads) {
@@ -45,6 +45,7 @@ export function preludeContext(ps, payloads) {
         np: payloads.np ? parseNeighbourPrediction(payloads.np, ps.M) : null,
         stepAdjust: payloads.sa ? parseStepAdjust(payloads.sa) : null,
         shDegreeUnit: payloads.sd ? parseShDegree(payloads.sd, ps.shDegree) : null,
+        rotationLength: payloads.rl ? parseRotationLength(payloads.rl) : null,
     };
 }
 

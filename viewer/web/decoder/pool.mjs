@@ -55,7 +55,7 @@ export class TilePool {
         if (this.workers) return;
         const p = ctx.payloads;
         // the module and the scale tables as this thread compiled and checked them: a helper neither compiles nor builds them again
-        const init = { ps: own(p.ps), np: p.np && own(p.np), sa: p.sa && own(p.sa), sd: p.sd && own(p.sd), module: wasmModule(), tables: scaleTables() };
+        const init = { ps: own(p.ps), np: p.np && own(p.np), sa: p.sa && own(p.sa), sd: p.sd && own(p.sd), rl: p.rl && own(p.rl), module: wasmModule(), tables: scaleTables() };
         this.workers = Array.from({ length: Math.min(this.size, ctx.tiles.length - 1) }, (_, i) => {
             const w = new Worker(this.url);
             w.jobs = [];

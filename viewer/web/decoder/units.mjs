@@ -72,6 +72,15 @@ export function parseStepAdjust(payload) {
     return { maxStepAdjust };
 }
 
+/** rotation_length_unit() (clause 7.3.15): the largest rotation length index a row may have. */
+export function parseRotationLength(payload) {
+    const r = new BitReader(payload, 'rotation_length_unit');
+    const maxIndex = r.u(4, 'max_rotation_length_index');
+    r.byteAlign();
+    r.expectEnd();
+    return { maxIndex };
+}
+
 /** sh_degree_unit() (clause 7.3.14) of sh_degree d: the flags' frequencies f[1] = 4096 degree_flag_prob + 2048 (Int32Array [d * 6]). */
 export function parseShDegree(payload, d) {
     const r = new BitReader(payload, 'sh_degree_unit');
