@@ -263,23 +263,26 @@ class GaussianEncoderConfig(AttributeCodingConfig):
                 or not 0 < self.step_adjust_quantile <= 1:
             raise InputError(f"step_adjust_max must be an integer in [0, 7] and step_adjust_quantile in (0, 1], got "
                              f"{self.step_adjust_max!r}, {self.step_adjust_quantile!r}")
-        if not isinstance(self.sh_degree_choice, bool):
-            raise InputError(f"sh_degree_choice must be true or false, got {self.sh_degree_choice!r}")
-        if not isinstance(self.rotation_length, bool):
-            raise InputError(f"rotation_length must be true or false, got {self.rotation_length!r}")
+        for name in ("sh_degree_choice", "rotation_length"):
+            if not isinstance(getattr(self, name), bool):
+                raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.sh_degree is not None and self.sh_degree not in (0, 1, 2, 3):
             raise InputError(f"sh_degree must be 0..3 or None, got {self.sh_degree!r}")
+        if not 0 <= self.target_psnr < 200 or not 0 <= self.rd_lambda < float("inf"):
+            raise InputError(f"target_psnr must be in [0, 200) dB and rd_lambda >= 0, got {self.target_psnr}, "
+                             f"{self.rd_lambda}")
+        self._validate_pruning()
+        self._validate_views()
+        return self
+
+    def _validate_pruning(self) -> None:
+        """What is removed before the coding, and how."""
         if not 0 <= self.min_opacity < 1:
             raise InputError(f"min_opacity must be in [0, 1), got {self.min_opacity}")
         if not 0 <= self.prune_share < 1:
             raise InputError(f"prune_share must be in [0, 1), got {self.prune_share}")
         if self.prune_mode not in ("drop", "merge"):
             raise InputError(f"prune_mode must be drop or merge, got {self.prune_mode!r}")
-        if not 0 <= self.target_psnr < 200 or not 0 <= self.rd_lambda < float("inf"):
-            raise InputError(f"target_psnr must be in [0, 200) dB and rd_lambda >= 0, got {self.target_psnr}, "
-                             f"{self.rd_lambda}")
-        self._validate_views()
-        return self
 
     def _validate_views(self) -> None:
         """The views of the fit and of the search."""
