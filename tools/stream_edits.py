@@ -729,22 +729,16 @@ def sh_degree(units, spec: dict) -> None:
     the encoder's, from the flags' counts), predictions: [[target, source, weight]] (the unit's
     cross-channel predictions, e.g. from channels a row may not code), and the faults of
     _degree_chunk_faults}."""
-    from lghcc.common.geometry import decode_geometry
-    from lghcc.common.neighbour_prediction import chunk_segments, read_predicted_attribute_unit
-    from lghcc.common.units import NUM_DEGREE_CONTEXTS, GaussianParameterSet, NeighbourPredictionUnit, ShDegreeUnit
+    from lghcc.common.neighbour_prediction import chunk_segments
+    from lghcc.common.units import NUM_DEGREE_CONTEXTS, GaussianParameterSet, ShDegreeUnit
     from lghcc.encoder.stream.neighbour_coding import NeighbourCoding
 
     gps = GaussianParameterSet.from_bytes(units[_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
     if gps.hierarchy_enabled_flag or gps.tiles_enabled_flag or any(u.unit_type == UnitType.STEP_ADJUST for u in units):
         raise ValueError("sh_degree edits a stream without the hierarchy, tiles or step adjustment")
     layout = attr.gaussian_layout_of(gps)
-    n, m, d = gps.num_gaussians, layout.num_channels, gps.sh_degree
-    k = _index(units, UnitType.NEIGHBOUR_PREDICTION)
-    unit = NeighbourPredictionUnit.from_bytes(units[k].payload, num_channels=m)
-    coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, n)
-    j = _index(units, UnitType.ATTRIBUTE)
-    values = np.empty((n, m), np.float32)
-    h0 = read_predicted_attribute_unit(units[j].payload, layout, layout.steps(gps), coords, unit, values)
+    n, d = gps.num_gaussians, gps.sh_degree
+    k, unit, coords, j, h0, values = _predicted_attribute_unit(units, gps, layout)
     q = np.rint(values / layout.steps(gps)).astype(np.int64)
     degrees = sh_degrees_of_rule((values[:, 3:layout.sh_channels].astype(np.float64) ** 2).sum(axis=1), d,
                                  str(spec.get("degrees", "energy")))
@@ -771,6 +765,24 @@ def sh_degree(units, spec: dict) -> None:
     units.insert(k + 1, DataUnit(UnitType.SH_DEGREE, nc.degree_unit.to_bytes()))
 
 
+def _predicted_attribute_unit(units, gps, layout):
+    """The single neighbour-predicted attribute unit of an explicit-Gaussian stream, decoded:
+    (index of the neighbour_prediction unit, that unit, the positions, index of the attribute unit,
+    its header, the decoded values [N, M])."""
+    from lghcc.common.geometry import decode_geometry
+    from lghcc.common.neighbour_prediction import read_predicted_attribute_unit
+    from lghcc.common.units import NeighbourPredictionUnit
+
+    n = gps.num_gaussians
+    k = _index(units, UnitType.NEIGHBOUR_PREDICTION)
+    unit = NeighbourPredictionUnit.from_bytes(units[k].payload, num_channels=layout.num_channels)
+    coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, n)
+    j = _index(units, UnitType.ATTRIBUTE)
+    values = np.empty((n, layout.num_channels), np.float32)
+    h0 = read_predicted_attribute_unit(units[j].payload, layout, layout.steps(gps), coords, unit, values)
+    return k, unit, coords, j, h0, values
+
+
 def rotation_length(units, spec: dict) -> None:
     """Give every row of the single attribute unit of an explicit-Gaussian stream coded with the
     rotation_length unit and neighbour prediction (no tiles, no step adjustment, no SH degrees) the
@@ -778,9 +790,7 @@ def rotation_length(units, spec: dict) -> None:
     11.10). x, y and z stay, so the implied w changes (rehash the stream). spec: {indices: cycle:<n>
     (row i gets i mod n; beyond ``max``, or negative with ``offset``, a fault), offset (added to
     every index, default 0), max, rows: {row: [qx, qy, qz]} (those rows' quantized x, y, z)}."""
-    from lghcc.common.geometry import decode_geometry
-    from lghcc.common.neighbour_prediction import read_predicted_attribute_unit
-    from lghcc.common.units import GaussianParameterSet, NeighbourPredictionUnit, RotationLengthUnit
+    from lghcc.common.units import GaussianParameterSet, RotationLengthUnit
     from lghcc.encoder.stream.neighbour_coding import NeighbourCoding
 
     gps = GaussianParameterSet.from_bytes(units[_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
@@ -789,13 +799,8 @@ def rotation_length(units, spec: dict) -> None:
         raise ValueError("rotation_length edits a stream without the hierarchy, tiles, step adjustment or SH degrees")
     r = _index(units, UnitType.ROTATION_LENGTH)
     layout = attr.gaussian_layout_of(gps, RotationLengthUnit.from_bytes(units[r].payload).max_rotation_length_index)
-    n, m, w = gps.num_gaussians, layout.num_channels, layout.rotation_start
-    k = _index(units, UnitType.NEIGHBOUR_PREDICTION)
-    unit = NeighbourPredictionUnit.from_bytes(units[k].payload, num_channels=m)
-    coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, n)
-    j = _index(units, UnitType.ATTRIBUTE)
-    values = np.empty((n, m), np.float32)
-    h0 = read_predicted_attribute_unit(units[j].payload, layout, layout.steps(gps), coords, unit, values)
+    n, w = gps.num_gaussians, layout.rotation_start
+    k, unit, coords, j, h0, values = _predicted_attribute_unit(units, gps, layout)
     q = np.rint(values / layout.steps(gps)).astype(np.int64)  # exact but for column w, replaced here
     period = int(str(spec["indices"]).split(":")[1])
     q[:, w] = np.arange(n, dtype=np.int64) % period + int(spec.get("offset", 0))
