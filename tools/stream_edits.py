@@ -630,8 +630,7 @@ def step_adjust(units, spec: dict) -> None:
     when n > max + 1: a fault), adjust_mean, adjust_level (default the encoder's),
     empty_adjust_chunks (every chunk of indices 0 bytes: each index decodes as bin 0 of the
     level's table, -L + adjust_mean)}."""
-    from lghcc.common.geometry import decode_geometry
-    from lghcc.common.units import GaussianParameterSet, NeighbourPredictionUnit, StepAdjustUnit
+    from lghcc.common.units import GaussianParameterSet, StepAdjustUnit
     from lghcc.encoder.stream.neighbour_coding import NeighbourCoding
 
     gps = GaussianParameterSet.from_bytes(units[_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
@@ -639,16 +638,8 @@ def step_adjust(units, spec: dict) -> None:
         raise ValueError("step_adjust edits a stream without the hierarchy and without tiles")
     layout = attr.gaussian_layout_of(gps)
     n = gps.num_gaussians
-    k = _index(units, UnitType.NEIGHBOUR_PREDICTION)
-    unit = NeighbourPredictionUnit.from_bytes(units[k].payload, num_channels=layout.num_channels)
-    coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, n)
-    j = _index(units, UnitType.ATTRIBUTE)
-    values = np.empty((n, layout.num_channels), np.float32)
-    q = np.empty((n, layout.num_channels), np.int64)
-    from lghcc.common.neighbour_prediction import read_predicted_attribute_unit
-
-    h0 = read_predicted_attribute_unit(units[j].payload, layout, layout.steps(gps), coords, unit, values)
-    q[:] = np.rint(values / layout.steps(gps)).astype(np.int64)  # index 0 throughout: exact
+    k, unit, coords, j, h0, values = _predicted_attribute_unit(units, gps, layout)
+    q = np.rint(values / layout.steps(gps)).astype(np.int64)  # index 0 throughout: exact
     top = int(spec["max"])
     kind = str(spec.get("indices", "cycle"))
     if kind.startswith("const:"):
