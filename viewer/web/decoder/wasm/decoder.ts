@@ -1015,67 +1015,81 @@ function codedLevels(rows: usize, nr: i32, level: usize): i32 {
     return d;
 }
 
+/** floorDiv(a, b) with inv = 1 / b: the estimate from a product (the correction makes it exact; |a / b| < 2^45 here). */
+@inline function floorDivInv(a: i64, b: i64, inv: f64): i64 {
+    let d = <i64>Math.floor(<f64>a * inv), r = a - d * b;
+    while (r < 0) { d--; r += b; }
+    while (r >= b) { d++; r -= b; }
+    return d;
+}
+
 /**
  * The mean (i64) and level (u8) of every coded channel (11.9) of nr rows to mean [nr * M] and level [nr * M].
  * Sums of up to 32 q F (|q| <= 2^40, F < 2^14) stay below 2^59: exact in i64.
  */
 function rowMeans(rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, mean: usize, level: usize): void {
-    const M = aM, qa = alloc(k << 2), fa = alloc(k << 3);
+    const M = aM, sa = aSa, qa = alloc(k << 2), fa = alloc(k << 4);
     for (let r = 0; r < nr; r++) {
-        const n = u8At(cnt, r), F: i64 = aSa ? <i64>i32At(aFix, u8At(aAdj, i32At(rows, r))) : 1, base = r * M;
+        const n = u8At(cnt, r), F: i64 = sa ? <i64>i32At(aFix, u8At(aAdj, i32At(rows, r))) : 1, base = r * M;
         if (n == 0) { priorRow(mean, level, base, F, i32At(rows, r)); continue; }
-        for (let m = 0; m < n; m++) { // the neighbours' rows of q and factors
+        for (let m = 0; m < n; m++) { // the neighbours' rows of q and factors (both lanes)
             const j = i32At(idx, r * k + m);
             setI32(qa, m, <i32>(aQ + (<usize>(j * M) << 3)));
-            setI64(fa, m, aSa ? <i64>i32At(aFix, u8At(aAdj, j)) : 1);
+            v128.store(fa + (<usize>m << 4), i64x2.splat(sa ? <i64>i32At(aFix, u8At(aAdj, j)) : 1));
         }
-        const e = codedEnd(i32At(rows, r)); // only the coded channels' (11.9)
-        if (e == M - 8) neighbourRange(qa, fa, n, 0, M, F, mean, level, base);
-        else { neighbourRange(qa, fa, n, 0, e, F, mean, level, base); neighbourRange(qa, fa, n, M - 8, M, F, mean, level, base); }
+        const nF = <i64>n * F, inv = 1.0 / <f64>nF, e = codedEnd(i32At(rows, r)); // only the coded channels' (11.9)
+        if (e == M - 8) neighbourRange(qa, fa, n, 0, M, F, nF, inv, mean, level, base);
+        else { neighbourRange(qa, fa, n, 0, e, F, nF, inv, mean, level, base); neighbourRange(qa, fa, n, M - 8, M, F, nF, inv, mean, level, base); }
     }
 }
 
 /** Channels c0 .. c1 - 1 of a row with n neighbours, two at a time. */
-@inline function neighbourRange(qa: usize, fa: usize, n: i32, c0: i32, c1: i32, F: i64, mean: usize, level: usize, base: i32): void {
+@inline function neighbourRange(qa: usize, fa: usize, n: i32, c0: i32, c1: i32, F: i64, nF: i64, inv: f64, mean: usize, level: usize, base: i32): void {
     let c = c0;
-    for (; c + 1 < c1; c += 2) neighbourPair(qa, fa, n, c, F, mean, level, base);
-    if (c < c1) neighbourOne(qa, fa, n, c, F, mean, level, base);
+    for (; c + 1 < c1; c += 2) neighbourPair(qa, fa, n, c, F, nF, inv, mean, level, base);
+    if (c < c1) neighbourOne(qa, fa, n, c, F, nF, inv, mean, level, base);
 }
 
 /** Channels c and c + 1 of a row with n neighbours (rows of q at qa, factors fa): sum, max and min of q F two lanes at a time. */
-@inline function neighbourPair(qa: usize, fa: usize, n: i32, c: i32, F: i64, mean: usize, level: usize, base: i32): void {
+@inline function neighbourPair(qa: usize, fa: usize, n: i32, c: i32, F: i64, nF: i64, inv: f64, mean: usize, level: usize, base: i32): void {
     const o = <usize>c << 3;
-    let v = v128.load(<usize>i32At(qa, 0) + o);
-    if (aSa) v = i64x2.mul(v, i64x2.splat(i64At(fa, 0)));
+    let v = i64x2.mul(v128.load(<usize>i32At(qa, 0) + o), v128.load(fa));
     let sum = v, mx = v, mn = v;
     for (let m = 1; m < n; m++) {
-        v = v128.load(<usize>i32At(qa, m) + o);
-        if (aSa) v = i64x2.mul(v, i64x2.splat(i64At(fa, m)));
+        v = i64x2.mul(v128.load(<usize>i32At(qa, m) + o), v128.load(fa + (<usize>m << 4)));
         sum = i64x2.add(sum, v);
         mx = v128.bitselect(v, mx, i64x2.gt_s(v, mx));
         mn = v128.bitselect(v, mn, i64x2.lt_s(v, mn));
     }
-    channelParameters(c, i64x2.extract_lane(sum, 0), i64x2.extract_lane(mx, 0), i64x2.extract_lane(mn, 0), n, F, mean, level, base);
-    channelParameters(c + 1, i64x2.extract_lane(sum, 1), i64x2.extract_lane(mx, 1), i64x2.extract_lane(mn, 1), n, F, mean, level, base);
+    const act = i64x2.sub(mx, mn);
+    channelParameters(c, i64x2.extract_lane(sum, 0), i64x2.extract_lane(act, 0), F, nF, inv, mean, level, base);
+    channelParameters(c + 1, i64x2.extract_lane(sum, 1), i64x2.extract_lane(act, 1), F, nF, inv, mean, level, base);
 }
 
 /** Channel c of a row with n neighbours, one lane. */
-@inline function neighbourOne(qa: usize, fa: usize, n: i32, c: i32, F: i64, mean: usize, level: usize, base: i32): void {
+@inline function neighbourOne(qa: usize, fa: usize, n: i32, c: i32, F: i64, nF: i64, inv: f64, mean: usize, level: usize, base: i32): void {
     const o = <usize>c << 3;
     let sum: i64 = 0, mx: i64 = i64.MIN_VALUE, mn: i64 = i64.MAX_VALUE;
     for (let m = 0; m < n; m++) {
-        const v = load<i64>(<usize>i32At(qa, m) + o) * i64At(fa, m);
+        const v = load<i64>(<usize>i32At(qa, m) + o) * load<i64>(fa + (<usize>m << 4));
         sum += v; mx = max(mx, v); mn = min(mn, v);
     }
-    channelParameters(c, sum, mx, mn, n, F, mean, level, base);
+    channelParameters(c, sum, mx - mn, F, nF, inv, mean, level, base);
 }
 
-/** Mean and level of channel c (11.7.3, 11.8) from the neighbours' sum, max and min of q F. */
-@inline function channelParameters(c: i32, sum: i64, mx: i64, mn: i64, n: i32, F: i64, mean: usize, level: usize, base: i32): void {
-    const nF = <i64>n * F;
-    setI64(mean, base + c, u8At(aMeanFlag, c) ? floorDiv(sum + (nF >> 1), nF) : priorMean(c, F));
-    const act = F == 1 ? mx - mn : floorDiv(mx - mn, F); // >= 0
-    setU8(level, base + c, u8At(aBucket, c * aB + min(<i32>(64 - clz<i64>(act)), aB - 1)));
+/**
+ * Mean and level of channel c (11.7.3, 11.8) from the neighbours' sum of q F and its spread
+ * (max - min >= 0); nF = n F and inv = 1 / nF.
+ */
+@inline function channelParameters(c: i32, sum: i64, spread: i64, F: i64, nF: i64, inv: f64, mean: usize, level: usize, base: i32): void {
+    setI64(mean, base + c, u8At(aMeanFlag, c) ? floorDivInv(sum + (nF >> 1), nF, inv) : priorMean(c, F));
+    setU8(level, base + c, u8At(aBucket, c * aB + min(quotientBits(spread, F), aB - 1)));
+}
+
+/** bit_length(a // F) for 0 <= a < 2^62 and 1 <= F < 2^14, with no division: a // F >= 2^s exactly when a >= F * 2^s. */
+@inline function quotientBits(a: i64, F: i64): i32 {
+    const s = <i32>(clz<i64>(F) - clz<i64>(a)); // bit_length(a) - bit_length(F): the answer is s or s + 1
+    return s < 0 ? 0 : s + <i32>(a >= (F << s));
 }
 
 /** The prior's means and levels (11.3; 11.8 when sa) of a row with no neighbours. */
