@@ -536,13 +536,15 @@ function offsetAxis(c: usize, n: i32, bmin: i32): i32 {
 const CELLS_PER_POINT: i32 = 4; // grid size: at most this many cells per data point (and 4096); 4 beat 2 on surface-like tiles once rows are visited as runs
 
 let gB: i32 = 0; let gSide: i64 = 0; let gNx: i32 = 0; let gNy: i32 = 0; let gNz: i32 = 0;
-let gStart: usize = 0; let gP: usize = 0; // gP: per point of the grid, in cell order, (x, y, z, id) as i32 (one cache line holds 4)
+// the grid's points in cell order: offsets gPx, gPy, gPz and ids gPid (i32 each, 3 more read past the end by visitPacked)
+let gStart: usize = 0; let gPx: usize = 0; let gPy: usize = 0; let gPz: usize = 0; let gPid: usize = 0;
 let worst: u64 = 0; // the k-th distance of the list once it holds k, else the largest u64
 let hD: usize = 0; let hI: usize = 0; let kK: i32 = 0; // the list: distances hD (u64) and ids hI (i32), or keys hD when gPacked
 // Extents up to PACKED_EXTENT (3 e^2 < 2^32, every tile seen in practice): the list holds keys
 // d2 * 2^32 + id (u64), whose order is the (d2, index) order, and d2 is computed in 32 bits.
 const PACKED_EXTENT: i32 = 37837;
 let gPacked: bool = false;
+let gLanes: usize = 0; // 16 bytes: the d2 of visitPacked's four points
 
 @inline function u64At(p: usize, i: i32): u64 { return load<u64>(p + (<usize>i << 3)); }
 @inline function setU64(p: usize, i: i32, v: u64): void { store<u64>(p + (<usize>i << 3), v); }
@@ -556,7 +558,7 @@ export function gridNeighbours(x: usize, y: usize, z: usize, lo0: i32, lo1: i32,
     ds: usize, nd: i32, qs: usize, nq: i32, k: i32, idx: usize, cnt: usize): void {
     err = 0;
     buildGrid(x, y, z, lo0, lo1, lo2, e0, e1, e2, ds, nd);
-    hD = alloc(k << 3); hI = alloc(k << 2); kK = k;
+    hD = alloc(k << 3); hI = alloc(k << 2); kK = k; gLanes = alloc(16);
     gPacked = max(e0, max(e1, e2)) <= PACKED_EXTENT;
     for (let r = 0; r < nq; r++) {
         const i = i32At(qs, r);
@@ -582,13 +584,13 @@ function buildGrid(x: usize, y: usize, z: usize, lo0: i32, lo1: i32, lo2: i32, e
     }
     for (let c = 1; c <= cells; c++) setI32(start, c, i32At(start, c) + i32At(start, c - 1));
     // the points sorted by cell (stable), as offsets from lo
-    gP = alloc(n << 4);
+    gPx = alloc((n + 3) << 2); gPy = alloc((n + 3) << 2); gPz = alloc((n + 3) << 2); gPid = alloc(n << 2);
     const fill = alloc(cells << 2);
     memory.copy(fill, start, <usize>cells << 2);
     for (let t = 0; t < n; t++) {
         const j = i32At(ds, t), c = i32At(cell, t), o = i32At(fill, c);
         setI32(fill, c, o + 1);
-        setI32(gP, 4 * o, i32At(x, j) - lo0); setI32(gP, 4 * o + 1, i32At(y, j) - lo1); setI32(gP, 4 * o + 2, i32At(z, j) - lo2); setI32(gP, 4 * o + 3, j);
+        setI32(gPx, o, i32At(x, j) - lo0); setI32(gPy, o, i32At(y, j) - lo1); setI32(gPz, o, i32At(z, j) - lo2); setI32(gPid, o, j);
     }
     gStart = start;
 }
@@ -693,16 +695,26 @@ function visitPoints(p0: i32, p1: i32, qx: i32, qy: i32, qz: i32, size: i32): i3
     return gPacked ? visitPacked(p0, p1, qx, qy, qz, size) : visitWide(p0, p1, qx, qy, qz, size);
 }
 
-/** The largest key within the k-th distance (ties included: the ids decide in offerKey). */
-@inline function keyLimit(): u64 { return worst == u64.MAX_VALUE ? worst : (worst << 32) | 0xFFFFFFFF; }
-
+/**
+ * Four points at a time: their d2 (each square < 2^31, the sum < 2^32: exact in u32 lanes), and
+ * those within the k-th distance (as it was before the four; offerKey checks again) offered.
+ */
 function visitPacked(p0: i32, p1: i32, qx: i32, qy: i32, qz: i32, size: i32): i32 {
-    let limit = keyLimit();
-    for (let p = p0; p < p1; p++) {
-        const r = gP + (<usize>p << 4);
-        const dx = load<i32>(r) - qx, dy = load<i32>(r, 4) - qy, dz = load<i32>(r, 8) - qz;
-        const key = (<u64><u32>(dx * dx + dy * dy + dz * dz) << 32) | <u64><u32>load<i32>(r, 12); // each square < 2^31, the sum < 2^32
-        if (key <= limit) { size = offerKey(key, size); limit = keyLimit(); }
+    const vx = i32x4.splat(qx), vy = i32x4.splat(qy), vz = i32x4.splat(qz), lanes = gLanes;
+    for (let p = p0; p < p1; p += 4) {
+        const o = <usize>p << 2;
+        const dx = i32x4.sub(v128.load(gPx + o), vx), dy = i32x4.sub(v128.load(gPy + o), vy), dz = i32x4.sub(v128.load(gPz + o), vz);
+        const d2 = i32x4.add(i32x4.add(i32x4.mul(dx, dx), i32x4.mul(dy, dy)), i32x4.mul(dz, dz));
+        let bits = i32x4.bitmask(i32x4.le_u(d2, i32x4.splat(<i32>min<u64>(worst, 0xFFFFFFFF))));
+        const rest = p1 - p;
+        if (rest < 4) bits &= (1 << rest) - 1;
+        if (!bits) continue;
+        v128.store(lanes, d2);
+        do {
+            const t = <i32>ctz(bits);
+            bits &= bits - 1;
+            size = offerKey((<u64>load<u32>(lanes + (<usize>t << 2)) << 32) | <u64><u32>i32At(gPid, p + t), size);
+        } while (bits);
     }
     return size;
 }
@@ -724,10 +736,9 @@ function offerKey(key: u64, size: i32): i32 {
 
 function visitWide(p0: i32, p1: i32, qx: i32, qy: i32, qz: i32, size: i32): i32 {
     for (let p = p0; p < p1; p++) {
-        const r = gP + (<usize>p << 4);
-        const dx = <i64>load<i32>(r) - <i64>qx, dy = <i64>load<i32>(r, 4) - <i64>qy, dz = <i64>load<i32>(r, 8) - <i64>qz;
+        const dx = <i64>i32At(gPx, p) - <i64>qx, dy = <i64>i32At(gPy, p) - <i64>qy, dz = <i64>i32At(gPz, p) - <i64>qz;
         const d = <u64>(dx * dx) + <u64>(dy * dy) + <u64>(dz * dz);
-        if (d <= worst) size = offer(d, load<i32>(r, 12), size);
+        if (d <= worst) size = offer(d, i32At(gPid, p), size);
     }
     return size;
 }
