@@ -8,7 +8,7 @@
 // end (reconstruct). JS parses, finds the neighbours (knn.mjs) and turns the module's failures into
 // the spec's errors.
 import { BitstreamError } from './errors.mjs';
-import { gridNeighbours } from './knn.mjs';
+import { neighboursInModule } from './knn.mjs';
 import { impliedRotations } from './rotation.mjs';
 import { decodeSymbolChunk, symbolError } from './symbols.mjs';
 import { alloc, callWasm, copyIn, wasm } from './wasm.mjs';
@@ -39,15 +39,15 @@ function tileBounds(coords) {
     return { lo, ext };
 }
 
-/** Neighbours (clause 11.7.2) of the rows of LoD l among the rows of LoDs < l: {idx: Int32Array [n_l * k], cnt}. */
-function lodNeighbours(lods, l, k, coords, bounds, n) {
+/**
+ * Neighbours (clause 11.7.2) of the rows of LoD l among the rows of LoDs < l, the tile's coordinates
+ * at p in the module's memory: {idx, cnt}, addresses in the module's memory (knn.mjs).
+ */
+function lodNeighbours(lods, l, k, p, bounds, n) {
     const step = 2 ** (lods.length - l); // the rows of LoDs < l are the multiples of 2^(L - l)
     const ids = new Int32Array(Math.ceil(n / step));
     for (let t = 0; t < ids.length; t++) ids[t] = t * step;
-    const rows = lods[l];
-    const idx = new Int32Array(rows.length * k), cnt = new Uint8Array(rows.length);
-    gridNeighbours(coords.x, coords.y, coords.z, bounds.lo, bounds.ext, ids, rows, k, idx, cnt);
-    return { idx, cnt };
+    return neighboursInModule(p, bounds.lo, bounds.ext, ids, lods[l], k);
 }
 
 class TileAttributeDecoder {
@@ -56,7 +56,7 @@ class TileAttributeDecoder {
         this.M = ctx.M; this.n = h.numRows;
         this.off = h.dataOffset;
         this.chunk = 0;
-        // kept in the module's memory until release(): q (i64 [n * M]), the indices and degrees (u8 [n] each), the tile's parameters
+        // kept in the module's memory until release(): q (i64 [n * M]), the indices and degrees (u8 [n] each), the tile's parameters, its coordinates
         const w = this.w = wasm(), M = this.M, np = ctx.np;
         w.reset();
         this.qAddr = alloc(w, 8 * this.n * M);
@@ -70,6 +70,7 @@ class TileAttributeDecoder {
             at(np ? np.meanFlag : new Uint8Array(M)), at(np ? np.bucketLevel : new Uint8Array(1)), np ? np.B : 1,
             at(h.priorMean), at(h.priorLevel), at(pStart), at(h.predSource), at(Int32Array.from(h.predWeight)));
         if (ctx.shDegreeUnit) w.attributeDegrees(alloc(w, this.n), ctx.ps.shDegree, at(ctx.shDegreeUnit.freq));
+        this.coordsAddr = ctx.np ? [coords.x, coords.y, coords.z].map(at) : null; // the k-NN's points, copied once
         this.mark = w.keep();
     }
 
@@ -88,9 +89,12 @@ class TileAttributeDecoder {
         const bounds = np ? tileBounds(this.coords) : null;
         for (let l = 0; l < lods.length; l++) {
             const rows = lods[l] ?? Int32Array.from({ length: this.n }, (_, t) => t);
-            const nb = l > 0 ? lodNeighbours(lods, l, np.k, this.coords, bounds, this.n) : null;
+            this.w.reset();
+            // the LoD's neighbours stay in the module's memory while its chunks decode (each chunk resets above them)
+            const nb = l > 0 ? lodNeighbours(lods, l, np.k, this.coordsAddr, bounds, this.n) : null;
             const S = this.h.rowsPerChunk;
             for (let m = 0; m * S < rows.length; m++) this.decodeChunk(rows.subarray(m * S, Math.min(rows.length, (m + 1) * S)), nb, m * S);
+            if (nb) this.w.release(nb.mark);
         }
     }
 
@@ -103,8 +107,8 @@ class TileAttributeDecoder {
         w.reset();
         const at = (arr) => copyIn(w, arr);
         const pBytes = at(bytes), pRows = at(rows), pDegrees = at(degrees);
-        const pIdx = nb ? at(nb.idx.subarray(lo * k, (lo + nr) * k)) : at(new Int32Array(0));
-        const pCnt = nb ? at(nb.cnt.subarray(lo, lo + nr)) : at(new Uint8Array(nr));
+        const pIdx = nb ? nb.idx + 4 * lo * k : alloc(w, 0);
+        const pCnt = nb ? nb.cnt + lo : alloc(w, nr);
         callWasm(() => w.attributeChunk(pBytes, bytes.length, pRows, nr, pIdx, pCnt, k, pDegrees, degrees.length),
             (code, a, b) => chunkError(w.errorStage() === STAGE_FLAGS ? `SH-degree chunk ${i}` : `attribute chunk ${i}`, code, a, b, w));
     }
