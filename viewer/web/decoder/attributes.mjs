@@ -139,7 +139,7 @@ class TileAttributeDecoder {
         const w = this.w, n = this.n, M = this.M;
         const scale = Float32Array.from({ length: 8 * M }, (_, j) => Math.fround(this.ctx.steps[j % M] * STEP_ADJUST_FACTORS[Math.floor(j / M)]));
         w.reset();
-        const pScale = copyIn(w, scale), out = alloc(w, 4 * n * M);
+        const pScale = copyIn(w, scale), out = alloc(w, 4 * n * M, false);
         callWasm(() => w.reconstruct(n, pScale, out), (code, row, c) => new BitstreamError(`row ${row}, channel ${c}: the reconstructed value is not finite (clause 11.5, E52)`));
         const values = new Float32Array(w.memory.buffer, out, n * M).slice();
         const rl = this.ctx.rotationLength;

@@ -22,6 +22,13 @@ export function release(prev: usize): void { floor = prev; top = prev ? prev : h
 
 /** `bytes` of zeroed memory, 16-byte aligned; grows the memory when needed. */
 export function alloc(bytes: i32): usize {
+    const p = reserve(bytes);
+    memory.fill(p, 0, <usize>bytes);
+    return p;
+}
+
+/** `bytes` of memory as alloc, not zeroed (for what the caller overwrites whole). */
+export function reserve(bytes: i32): usize {
     err = 0; // a trap after this without fail() is no decoding error
     if (top == 0) top = heapStart();
     const p = top;
@@ -30,7 +37,6 @@ export function alloc(bytes: i32): usize {
     if (top > have) {
         if (memory.grow(<i32>((top - have + 0xFFFF) >> 16)) < 0) fail(ERR_MEMORY, 0, 0);
     }
-    memory.fill(p, 0, <usize>bytes);
     return p;
 }
 
@@ -1146,6 +1152,26 @@ export function serializeTile(x: usize, y: usize, z: usize, values: usize, n: i3
         store<i64>(p + 16, <i64>load<i32>(z + o));
     }
     let at = out + <usize>n * 24;
+    at = serializeGroup(values, n, M, 0, S3, at);
+    at = serializeGroup(values, n, M, S3, S3 + 1, at);
+    at = serializeGroup(values, n, M, S3 + 1, S3 + 4, at);
+    serializeGroup(values, n, M, S3 + 4, M, at);
+}
+
+/**
+ * The renderer's arrays of one tile's n points (decoder.mjs's sceneArrays) at out, one after the other:
+ * positions (f32 [3 n]: float32(c) * voxel_size + origin per axis, each step rounded to binary32 as
+ * Math.fround does), SH (f32 [S3 n]), opacities (f32 [n]), log scales (f32 [3 n]) and rotations
+ * (f32 [(M - S3 - 4) n]), from the coordinates x, y, z (i32 [n]) and values (f32 [n M], 11.1's order).
+ */
+export function rendererArrays(x: usize, y: usize, z: usize, values: usize, n: i32, M: i32, S3: i32, vs: f32, o0: f32, o1: f32, o2: f32, out: usize): void {
+    for (let i = 0; i < n; i++) {
+        const o = <usize>i << 2, p = out + <usize>i * 12;
+        store<f32>(p, <f32>load<i32>(x + o) * vs + o0);
+        store<f32>(p + 4, <f32>load<i32>(y + o) * vs + o1);
+        store<f32>(p + 8, <f32>load<i32>(z + o) * vs + o2);
+    }
+    let at = out + <usize>n * 12;
     at = serializeGroup(values, n, M, 0, S3, at);
     at = serializeGroup(values, n, M, S3, S3 + 1, at);
     at = serializeGroup(values, n, M, S3 + 1, S3 + 4, at);
