@@ -8,7 +8,7 @@
 // end (reconstruct). JS parses, finds the neighbours (knn.mjs) and turns the module's failures into
 // the spec's errors.
 import { BitstreamError } from './errors.mjs';
-import { gridNeighbours } from './knn.mjs';
+import { neighboursInModule } from './knn.mjs';
 import { impliedRotations } from './rotation.mjs';
 import { decodeSymbolChunk, symbolError } from './symbols.mjs';
 import { alloc, callWasm, copyIn, wasm } from './wasm.mjs';
@@ -19,16 +19,20 @@ export const ADJUST_LEVEL_SHIFT = [0, 1, 3, 4, 5, 6, 8, 9];
 export const MAX_EXTENT = 1753413056;
 const FIXED_POINT = Int32Array.from(ADJUST_FIXED_POINT), LEVEL_SHIFT = Int32Array.from(ADJUST_LEVEL_SHIFT);
 
-/** The rows of each LoD (clause 11.7.1), in increasing order: LoD 0 the multiples of 2^(L-1), LoD l >= 1 the odd multiples of 2^(L-1-l). */
+/**
+ * The rows of each LoD (clause 11.7.1) of n rows, in increasing order, as arithmetic progressions
+ * {first, step, count}: LoD 0 the multiples of 2^(L-1), LoD l >= 1 the odd multiples of 2^(L-1-l).
+ */
 export function lodRows(n, L) {
-    const rows = (first, step) => {
-        const r = new Int32Array(n > first ? Math.floor((n - 1 - first) / step) + 1 : 0);
-        for (let t = 0; t < r.length; t++) r[t] = first + t * step;
-        return r;
-    };
+    const rows = (first, step) => ({ first, step, count: n > first ? Math.floor((n - 1 - first) / step) + 1 : 0 });
     const out = [rows(0, 2 ** (L - 1))];
     for (let l = 1; l < L; l++) out.push(rows(2 ** (L - 1 - l), 2 ** (L - l)));
     return out;
+}
+
+/** count rows of a progression from its t-th on, as int32 in the module's memory (no per-row JS: cold in every worker). */
+function rowsInModule(w, rows, t, count) {
+    return w.progression(rows.first + t * rows.step, rows.step, count);
 }
 
 /** The per-axis minima and extents of the tile's points (decodeGeometry's min and max); throws E64 beyond MAX_EXTENT. */
@@ -39,15 +43,14 @@ function tileBounds(coords) {
     return { lo, ext };
 }
 
-/** Neighbours (clause 11.7.2) of the rows of LoD l among the rows of LoDs < l: {idx: Int32Array [n_l * k], cnt}. */
-function lodNeighbours(lods, l, k, coords, bounds, n) {
+/**
+ * Neighbours (clause 11.7.2) of the rows of LoD l among the rows of LoDs < l, the tile's coordinates
+ * at p in the module's memory: {idx, cnt, mark}, addresses in the module's memory (knn.mjs).
+ */
+function lodNeighbours(w, lods, l, k, p, bounds, n) {
     const step = 2 ** (lods.length - l); // the rows of LoDs < l are the multiples of 2^(L - l)
-    const ids = new Int32Array(Math.ceil(n / step));
-    for (let t = 0; t < ids.length; t++) ids[t] = t * step;
-    const rows = lods[l];
-    const idx = new Int32Array(rows.length * k), cnt = new Uint8Array(rows.length);
-    gridNeighbours(coords.x, coords.y, coords.z, bounds.lo, bounds.ext, ids, rows, k, idx, cnt);
-    return { idx, cnt };
+    const data = { first: 0, step, count: Math.ceil(n / step) }, queries = lods[l];
+    return neighboursInModule(p, bounds.lo, bounds.ext, rowsInModule(w, data, 0, data.count), data.count, rowsInModule(w, queries, 0, queries.count), queries.count, k);
 }
 
 class TileAttributeDecoder {
@@ -56,7 +59,7 @@ class TileAttributeDecoder {
         this.M = ctx.M; this.n = h.numRows;
         this.off = h.dataOffset;
         this.chunk = 0;
-        // kept in the module's memory until release(): q (i64 [n * M]), the indices and degrees (u8 [n] each), the tile's parameters
+        // kept in the module's memory until release(): q (i64 [n * M]), the indices and degrees (u8 [n] each), the tile's parameters, its coordinates
         const w = this.w = wasm(), M = this.M, np = ctx.np;
         w.reset();
         this.qAddr = alloc(w, 8 * this.n * M);
@@ -70,6 +73,7 @@ class TileAttributeDecoder {
             at(np ? np.meanFlag : new Uint8Array(M)), at(np ? np.bucketLevel : new Uint8Array(1)), np ? np.B : 1,
             at(h.priorMean), at(h.priorLevel), at(pStart), at(h.predSource), at(Int32Array.from(h.predWeight)));
         if (ctx.shDegreeUnit) w.attributeDegrees(alloc(w, this.n), ctx.ps.shDegree, at(ctx.shDegreeUnit.freq));
+        this.coordsAddr = ctx.np ? [coords.x, coords.y, coords.z].map(at) : null; // the k-NN's points, copied once
         this.mark = w.keep();
     }
 
@@ -84,27 +88,30 @@ class TileAttributeDecoder {
 
     run() {
         const { np } = this.ctx;
-        const lods = np ? lodRows(this.n, np.L) : [null];
+        const lods = np ? lodRows(this.n, np.L) : [{ first: 0, step: 1, count: this.n }];
         const bounds = np ? tileBounds(this.coords) : null;
         for (let l = 0; l < lods.length; l++) {
-            const rows = lods[l] ?? Int32Array.from({ length: this.n }, (_, t) => t);
-            const nb = l > 0 ? lodNeighbours(lods, l, np.k, this.coords, bounds, this.n) : null;
+            const rows = lods[l];
+            this.w.reset();
+            // the LoD's neighbours stay in the module's memory while its chunks decode (each chunk resets above them)
+            const nb = l > 0 ? lodNeighbours(this.w, lods, l, np.k, this.coordsAddr, bounds, this.n) : null;
             const S = this.h.rowsPerChunk;
-            for (let m = 0; m * S < rows.length; m++) this.decodeChunk(rows.subarray(m * S, Math.min(rows.length, (m + 1) * S)), nb, m * S);
+            for (let m = 0; m * S < rows.count; m++) this.decodeChunk(rows, m * S, Math.min(rows.count - m * S, S), nb);
+            if (nb) this.w.release(nb.mark);
         }
     }
 
-    /** Chunk i of the rows `rows` (the lo-th onwards of their LoD; clause 11.4, 11.7.5, 11.8, 11.9). */
-    decodeChunk(rows, nb, lo) {
-        const i = this.chunk++, nr = rows.length, w = this.w, k = nb ? this.ctx.np.k : 0;
-        if (this.ctx.stepAdjust) this.decodeIndices(i, rows);
+    /** Chunk i: nr rows of the LoD's rows (a progression) from its lo-th on (clause 11.4, 11.7.5, 11.8, 11.9). */
+    decodeChunk(rows, lo, nr, nb) {
+        const i = this.chunk++, w = this.w, k = nb ? this.ctx.np.k : 0;
+        if (this.ctx.stepAdjust) this.decodeIndices(i, rows.first + lo * rows.step, rows.step, nr);
         const degrees = this.ctx.shDegreeUnit ? this.takeWords(this.h.degreeSize[i], `SH-degree chunk ${i}`) : new Uint8Array(0);
         const bytes = this.takeWords(this.h.chunkSize[i], `attribute chunk ${i}`);
         w.reset();
         const at = (arr) => copyIn(w, arr);
-        const pBytes = at(bytes), pRows = at(rows), pDegrees = at(degrees);
-        const pIdx = nb ? at(nb.idx.subarray(lo * k, (lo + nr) * k)) : at(new Int32Array(0));
-        const pCnt = nb ? at(nb.cnt.subarray(lo, lo + nr)) : at(new Uint8Array(nr));
+        const pBytes = at(bytes), pRows = rowsInModule(w, rows, lo, nr), pDegrees = at(degrees);
+        const pIdx = nb ? nb.idx + 4 * lo * k : alloc(w, 0);
+        const pCnt = nb ? nb.cnt + lo : alloc(w, nr);
         callWasm(() => w.attributeChunk(pBytes, bytes.length, pRows, nr, pIdx, pCnt, k, pDegrees, degrees.length),
             (code, a, b) => chunkError(w.errorStage() === STAGE_FLAGS ? `SH-degree chunk ${i}` : `attribute chunk ${i}`, code, a, b, w));
     }
@@ -116,9 +123,9 @@ class TileAttributeDecoder {
         return bytes;
     }
 
-    /** The step-adjustment indices of the chunk's rows (clause 11.8), into the module's memory. */
-    decodeIndices(i, rows) {
-        const h = this.h, nr = rows.length;
+    /** The step-adjustment indices of the chunk's nr rows first, first + step, ... (clause 11.8), into the module's memory. */
+    decodeIndices(i, first, step, nr) {
+        const h = this.h;
         const bytes = this.take(h.adjustSize[i]);
         const r = new Float64Array(nr);
         decodeSymbolChunk(bytes, new Uint8Array(nr).fill(h.adjustLevel), nr, r, new Map(), `step-adjustment chunk ${i}`);
@@ -126,7 +133,7 @@ class TileAttributeDecoder {
         for (let t = 0; t < nr; t++) {
             const a = r[t] + h.adjustMean;
             if (!(a >= 0 && a <= max)) throw new BitstreamError(`step-adjustment chunk ${i}: an index is outside [0, max_step_adjust = ${max}] (clause 11.8, E65)`);
-            adj[rows[t]] = a;
+            adj[first + t * step] = a;
         }
     }
 
@@ -135,7 +142,7 @@ class TileAttributeDecoder {
         const w = this.w, n = this.n, M = this.M;
         const scale = Float32Array.from({ length: 8 * M }, (_, j) => Math.fround(this.ctx.steps[j % M] * STEP_ADJUST_FACTORS[Math.floor(j / M)]));
         w.reset();
-        const pScale = copyIn(w, scale), out = alloc(w, 4 * n * M);
+        const pScale = copyIn(w, scale), out = alloc(w, 4 * n * M, false);
         callWasm(() => w.reconstruct(n, pScale, out), (code, row, c) => new BitstreamError(`row ${row}, channel ${c}: the reconstructed value is not finite (clause 11.5, E52)`));
         const values = new Float32Array(w.memory.buffer, out, n * M).slice();
         const rl = this.ctx.rotationLength;

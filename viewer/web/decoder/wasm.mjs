@@ -32,15 +32,15 @@ export function wasm() {
 
 const ERR_MEMORY = 9; // decoder.ts: linear memory could not grow
 
-/** `bytes` of the module's arena; returns their address. */
-export function alloc(w, bytes) {
+/** `bytes` of the module's arena, zeroed (or not: `zero` false, for bytes the caller overwrites); returns their address. */
+export function alloc(w, bytes, zero = true) {
     if (!(bytes >= 0 && bytes < 2 ** 31)) throw new ResourceLimitError(`decoding needs ${bytes} bytes at once, beyond the 2 GiB the decoder's WebAssembly module addresses`);
-    return callWasm(() => w.alloc(bytes), () => null);
+    return callWasm(() => (zero ? w.alloc(bytes) : w.reserve(bytes)), () => null);
 }
 
 /** Copy arr (a typed array) into the module's arena; returns its address. */
 export function copyIn(w, arr) {
-    const p = alloc(w, Math.max(arr.byteLength, 1));
+    const p = alloc(w, Math.max(arr.byteLength, 1), false);
     new arr.constructor(w.memory.buffer, p, arr.length).set(arr);
     return p;
 }
@@ -57,7 +57,7 @@ function loadTables(w) {
 export function arenaWith(bytes) {
     const w = wasm();
     w.reset();
-    const p = alloc(w, bytes.length);
+    const p = alloc(w, bytes.length, false);
     new Uint8Array(w.memory.buffer, p, bytes.length).set(bytes);
     return p;
 }

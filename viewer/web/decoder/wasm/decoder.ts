@@ -22,6 +22,20 @@ export function release(prev: usize): void { floor = prev; top = prev ? prev : h
 
 /** `bytes` of zeroed memory, 16-byte aligned; grows the memory when needed. */
 export function alloc(bytes: i32): usize {
+    const p = reserve(bytes);
+    memory.fill(p, 0, <usize>bytes);
+    return p;
+}
+
+/** The arithmetic progression first, first + step, ... of n int32 (rows of a LoD, 11.7.1) in fresh memory; returns its address. */
+export function progression(first: i32, step: i32, n: i32): usize {
+    const p = reserve(n << 2);
+    for (let t = 0; t < n; t++) setI32(p, t, first + t * step);
+    return p;
+}
+
+/** `bytes` of memory as alloc, not zeroed (for what the caller overwrites whole). */
+export function reserve(bytes: i32): usize {
     err = 0; // a trap after this without fail() is no decoding error
     if (top == 0) top = heapStart();
     const p = top;
@@ -30,7 +44,6 @@ export function alloc(bytes: i32): usize {
     if (top > have) {
         if (memory.grow(<i32>((top - have + 0xFFFF) >> 16)) < 0) fail(ERR_MEMORY, 0, 0);
     }
-    memory.fill(p, 0, <usize>bytes);
     return p;
 }
 
@@ -536,13 +549,15 @@ function offsetAxis(c: usize, n: i32, bmin: i32): i32 {
 const CELLS_PER_POINT: i32 = 4; // grid size: at most this many cells per data point (and 4096); 4 beat 2 on surface-like tiles once rows are visited as runs
 
 let gB: i32 = 0; let gSide: i64 = 0; let gNx: i32 = 0; let gNy: i32 = 0; let gNz: i32 = 0;
-let gStart: usize = 0; let gP: usize = 0; // gP: per point of the grid, in cell order, (x, y, z, id) as i32 (one cache line holds 4)
+// the grid's points in cell order: offsets gPx, gPy, gPz and ids gPid (i32 each, 3 more read past the end by visitPacked)
+let gStart: usize = 0; let gPx: usize = 0; let gPy: usize = 0; let gPz: usize = 0; let gPid: usize = 0;
 let worst: u64 = 0; // the k-th distance of the list once it holds k, else the largest u64
 let hD: usize = 0; let hI: usize = 0; let kK: i32 = 0; // the list: distances hD (u64) and ids hI (i32), or keys hD when gPacked
 // Extents up to PACKED_EXTENT (3 e^2 < 2^32, every tile seen in practice): the list holds keys
 // d2 * 2^32 + id (u64), whose order is the (d2, index) order, and d2 is computed in 32 bits.
 const PACKED_EXTENT: i32 = 37837;
 let gPacked: bool = false;
+let gLanes: usize = 0; // 16 bytes: the d2 of visitPacked's four points
 
 @inline function u64At(p: usize, i: i32): u64 { return load<u64>(p + (<usize>i << 3)); }
 @inline function setU64(p: usize, i: i32, v: u64): void { store<u64>(p + (<usize>i << 3), v); }
@@ -556,7 +571,7 @@ export function gridNeighbours(x: usize, y: usize, z: usize, lo0: i32, lo1: i32,
     ds: usize, nd: i32, qs: usize, nq: i32, k: i32, idx: usize, cnt: usize): void {
     err = 0;
     buildGrid(x, y, z, lo0, lo1, lo2, e0, e1, e2, ds, nd);
-    hD = alloc(k << 3); hI = alloc(k << 2); kK = k;
+    hD = alloc(k << 3); hI = alloc(k << 2); kK = k; gLanes = alloc(16);
     gPacked = max(e0, max(e1, e2)) <= PACKED_EXTENT;
     for (let r = 0; r < nq; r++) {
         const i = i32At(qs, r);
@@ -582,13 +597,13 @@ function buildGrid(x: usize, y: usize, z: usize, lo0: i32, lo1: i32, lo2: i32, e
     }
     for (let c = 1; c <= cells; c++) setI32(start, c, i32At(start, c) + i32At(start, c - 1));
     // the points sorted by cell (stable), as offsets from lo
-    gP = alloc(n << 4);
+    gPx = alloc((n + 3) << 2); gPy = alloc((n + 3) << 2); gPz = alloc((n + 3) << 2); gPid = alloc(n << 2);
     const fill = alloc(cells << 2);
     memory.copy(fill, start, <usize>cells << 2);
     for (let t = 0; t < n; t++) {
         const j = i32At(ds, t), c = i32At(cell, t), o = i32At(fill, c);
         setI32(fill, c, o + 1);
-        setI32(gP, 4 * o, i32At(x, j) - lo0); setI32(gP, 4 * o + 1, i32At(y, j) - lo1); setI32(gP, 4 * o + 2, i32At(z, j) - lo2); setI32(gP, 4 * o + 3, j);
+        setI32(gPx, o, i32At(x, j) - lo0); setI32(gPy, o, i32At(y, j) - lo1); setI32(gPz, o, i32At(z, j) - lo2); setI32(gPid, o, j);
     }
     gStart = start;
 }
@@ -693,16 +708,26 @@ function visitPoints(p0: i32, p1: i32, qx: i32, qy: i32, qz: i32, size: i32): i3
     return gPacked ? visitPacked(p0, p1, qx, qy, qz, size) : visitWide(p0, p1, qx, qy, qz, size);
 }
 
-/** The largest key within the k-th distance (ties included: the ids decide in offerKey). */
-@inline function keyLimit(): u64 { return worst == u64.MAX_VALUE ? worst : (worst << 32) | 0xFFFFFFFF; }
-
+/**
+ * Four points at a time: their d2 (each square < 2^31, the sum < 2^32: exact in u32 lanes), and
+ * those within the k-th distance (as it was before the four; offerKey checks again) offered.
+ */
 function visitPacked(p0: i32, p1: i32, qx: i32, qy: i32, qz: i32, size: i32): i32 {
-    let limit = keyLimit();
-    for (let p = p0; p < p1; p++) {
-        const r = gP + (<usize>p << 4);
-        const dx = load<i32>(r) - qx, dy = load<i32>(r, 4) - qy, dz = load<i32>(r, 8) - qz;
-        const key = (<u64><u32>(dx * dx + dy * dy + dz * dz) << 32) | <u64><u32>load<i32>(r, 12); // each square < 2^31, the sum < 2^32
-        if (key <= limit) { size = offerKey(key, size); limit = keyLimit(); }
+    const vx = i32x4.splat(qx), vy = i32x4.splat(qy), vz = i32x4.splat(qz), lanes = gLanes;
+    for (let p = p0; p < p1; p += 4) {
+        const o = <usize>p << 2;
+        const dx = i32x4.sub(v128.load(gPx + o), vx), dy = i32x4.sub(v128.load(gPy + o), vy), dz = i32x4.sub(v128.load(gPz + o), vz);
+        const d2 = i32x4.add(i32x4.add(i32x4.mul(dx, dx), i32x4.mul(dy, dy)), i32x4.mul(dz, dz));
+        let bits = i32x4.bitmask(i32x4.le_u(d2, i32x4.splat(<i32>min<u64>(worst, 0xFFFFFFFF))));
+        const rest = p1 - p;
+        if (rest < 4) bits &= (1 << rest) - 1;
+        if (!bits) continue;
+        v128.store(lanes, d2);
+        do {
+            const t = <i32>ctz(bits);
+            bits &= bits - 1;
+            size = offerKey((<u64>load<u32>(lanes + (<usize>t << 2)) << 32) | <u64><u32>i32At(gPid, p + t), size);
+        } while (bits);
     }
     return size;
 }
@@ -724,10 +749,9 @@ function offerKey(key: u64, size: i32): i32 {
 
 function visitWide(p0: i32, p1: i32, qx: i32, qy: i32, qz: i32, size: i32): i32 {
     for (let p = p0; p < p1; p++) {
-        const r = gP + (<usize>p << 4);
-        const dx = <i64>load<i32>(r) - <i64>qx, dy = <i64>load<i32>(r, 4) - <i64>qy, dz = <i64>load<i32>(r, 8) - <i64>qz;
+        const dx = <i64>i32At(gPx, p) - <i64>qx, dy = <i64>i32At(gPy, p) - <i64>qy, dz = <i64>i32At(gPz, p) - <i64>qz;
         const d = <u64>(dx * dx) + <u64>(dy * dy) + <u64>(dz * dz);
-        if (d <= worst) size = offer(d, load<i32>(r, 12), size);
+        if (d <= worst) size = offer(d, i32At(gPid, p), size);
     }
     return size;
 }
@@ -1015,67 +1039,81 @@ function codedLevels(rows: usize, nr: i32, level: usize): i32 {
     return d;
 }
 
+/** floorDiv(a, b) with inv = 1 / b: the estimate from a product (the correction makes it exact; |a / b| < 2^45 here). */
+@inline function floorDivInv(a: i64, b: i64, inv: f64): i64 {
+    let d = <i64>Math.floor(<f64>a * inv), r = a - d * b;
+    while (r < 0) { d--; r += b; }
+    while (r >= b) { d++; r -= b; }
+    return d;
+}
+
 /**
  * The mean (i64) and level (u8) of every coded channel (11.9) of nr rows to mean [nr * M] and level [nr * M].
  * Sums of up to 32 q F (|q| <= 2^40, F < 2^14) stay below 2^59: exact in i64.
  */
 function rowMeans(rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, mean: usize, level: usize): void {
-    const M = aM, qa = alloc(k << 2), fa = alloc(k << 3);
+    const M = aM, sa = aSa, qa = alloc(k << 2), fa = alloc(k << 4);
     for (let r = 0; r < nr; r++) {
-        const n = u8At(cnt, r), F: i64 = aSa ? <i64>i32At(aFix, u8At(aAdj, i32At(rows, r))) : 1, base = r * M;
+        const n = u8At(cnt, r), F: i64 = sa ? <i64>i32At(aFix, u8At(aAdj, i32At(rows, r))) : 1, base = r * M;
         if (n == 0) { priorRow(mean, level, base, F, i32At(rows, r)); continue; }
-        for (let m = 0; m < n; m++) { // the neighbours' rows of q and factors
+        for (let m = 0; m < n; m++) { // the neighbours' rows of q and factors (both lanes)
             const j = i32At(idx, r * k + m);
             setI32(qa, m, <i32>(aQ + (<usize>(j * M) << 3)));
-            setI64(fa, m, aSa ? <i64>i32At(aFix, u8At(aAdj, j)) : 1);
+            v128.store(fa + (<usize>m << 4), i64x2.splat(sa ? <i64>i32At(aFix, u8At(aAdj, j)) : 1));
         }
-        const e = codedEnd(i32At(rows, r)); // only the coded channels' (11.9)
-        if (e == M - 8) neighbourRange(qa, fa, n, 0, M, F, mean, level, base);
-        else { neighbourRange(qa, fa, n, 0, e, F, mean, level, base); neighbourRange(qa, fa, n, M - 8, M, F, mean, level, base); }
+        const nF = <i64>n * F, inv = 1.0 / <f64>nF, e = codedEnd(i32At(rows, r)); // only the coded channels' (11.9)
+        if (e == M - 8) neighbourRange(qa, fa, n, 0, M, F, nF, inv, mean, level, base);
+        else { neighbourRange(qa, fa, n, 0, e, F, nF, inv, mean, level, base); neighbourRange(qa, fa, n, M - 8, M, F, nF, inv, mean, level, base); }
     }
 }
 
 /** Channels c0 .. c1 - 1 of a row with n neighbours, two at a time. */
-@inline function neighbourRange(qa: usize, fa: usize, n: i32, c0: i32, c1: i32, F: i64, mean: usize, level: usize, base: i32): void {
+@inline function neighbourRange(qa: usize, fa: usize, n: i32, c0: i32, c1: i32, F: i64, nF: i64, inv: f64, mean: usize, level: usize, base: i32): void {
     let c = c0;
-    for (; c + 1 < c1; c += 2) neighbourPair(qa, fa, n, c, F, mean, level, base);
-    if (c < c1) neighbourOne(qa, fa, n, c, F, mean, level, base);
+    for (; c + 1 < c1; c += 2) neighbourPair(qa, fa, n, c, F, nF, inv, mean, level, base);
+    if (c < c1) neighbourOne(qa, fa, n, c, F, nF, inv, mean, level, base);
 }
 
 /** Channels c and c + 1 of a row with n neighbours (rows of q at qa, factors fa): sum, max and min of q F two lanes at a time. */
-@inline function neighbourPair(qa: usize, fa: usize, n: i32, c: i32, F: i64, mean: usize, level: usize, base: i32): void {
+@inline function neighbourPair(qa: usize, fa: usize, n: i32, c: i32, F: i64, nF: i64, inv: f64, mean: usize, level: usize, base: i32): void {
     const o = <usize>c << 3;
-    let v = v128.load(<usize>i32At(qa, 0) + o);
-    if (aSa) v = i64x2.mul(v, i64x2.splat(i64At(fa, 0)));
+    let v = i64x2.mul(v128.load(<usize>i32At(qa, 0) + o), v128.load(fa));
     let sum = v, mx = v, mn = v;
     for (let m = 1; m < n; m++) {
-        v = v128.load(<usize>i32At(qa, m) + o);
-        if (aSa) v = i64x2.mul(v, i64x2.splat(i64At(fa, m)));
+        v = i64x2.mul(v128.load(<usize>i32At(qa, m) + o), v128.load(fa + (<usize>m << 4)));
         sum = i64x2.add(sum, v);
         mx = v128.bitselect(v, mx, i64x2.gt_s(v, mx));
         mn = v128.bitselect(v, mn, i64x2.lt_s(v, mn));
     }
-    channelParameters(c, i64x2.extract_lane(sum, 0), i64x2.extract_lane(mx, 0), i64x2.extract_lane(mn, 0), n, F, mean, level, base);
-    channelParameters(c + 1, i64x2.extract_lane(sum, 1), i64x2.extract_lane(mx, 1), i64x2.extract_lane(mn, 1), n, F, mean, level, base);
+    const act = i64x2.sub(mx, mn);
+    channelParameters(c, i64x2.extract_lane(sum, 0), i64x2.extract_lane(act, 0), F, nF, inv, mean, level, base);
+    channelParameters(c + 1, i64x2.extract_lane(sum, 1), i64x2.extract_lane(act, 1), F, nF, inv, mean, level, base);
 }
 
 /** Channel c of a row with n neighbours, one lane. */
-@inline function neighbourOne(qa: usize, fa: usize, n: i32, c: i32, F: i64, mean: usize, level: usize, base: i32): void {
+@inline function neighbourOne(qa: usize, fa: usize, n: i32, c: i32, F: i64, nF: i64, inv: f64, mean: usize, level: usize, base: i32): void {
     const o = <usize>c << 3;
     let sum: i64 = 0, mx: i64 = i64.MIN_VALUE, mn: i64 = i64.MAX_VALUE;
     for (let m = 0; m < n; m++) {
-        const v = load<i64>(<usize>i32At(qa, m) + o) * i64At(fa, m);
+        const v = load<i64>(<usize>i32At(qa, m) + o) * load<i64>(fa + (<usize>m << 4));
         sum += v; mx = max(mx, v); mn = min(mn, v);
     }
-    channelParameters(c, sum, mx, mn, n, F, mean, level, base);
+    channelParameters(c, sum, mx - mn, F, nF, inv, mean, level, base);
 }
 
-/** Mean and level of channel c (11.7.3, 11.8) from the neighbours' sum, max and min of q F. */
-@inline function channelParameters(c: i32, sum: i64, mx: i64, mn: i64, n: i32, F: i64, mean: usize, level: usize, base: i32): void {
-    const nF = <i64>n * F;
-    setI64(mean, base + c, u8At(aMeanFlag, c) ? floorDiv(sum + (nF >> 1), nF) : priorMean(c, F));
-    const act = F == 1 ? mx - mn : floorDiv(mx - mn, F); // >= 0
-    setU8(level, base + c, u8At(aBucket, c * aB + min(<i32>(64 - clz<i64>(act)), aB - 1)));
+/**
+ * Mean and level of channel c (11.7.3, 11.8) from the neighbours' sum of q F and its spread
+ * (max - min >= 0); nF = n F and inv = 1 / nF.
+ */
+@inline function channelParameters(c: i32, sum: i64, spread: i64, F: i64, nF: i64, inv: f64, mean: usize, level: usize, base: i32): void {
+    setI64(mean, base + c, u8At(aMeanFlag, c) ? floorDivInv(sum + (nF >> 1), nF, inv) : priorMean(c, F));
+    setU8(level, base + c, u8At(aBucket, c * aB + min(quotientBits(spread, F), aB - 1)));
+}
+
+/** bit_length(a // F) for 0 <= a < 2^62 and 1 <= F < 2^14, with no division: a // F >= 2^s exactly when a >= F * 2^s. */
+@inline function quotientBits(a: i64, F: i64): i32 {
+    const s = <i32>(clz<i64>(F) - clz<i64>(a)); // bit_length(a) - bit_length(F): the answer is s or s + 1
+    return s < 0 ? 0 : s + <i32>(a >= (F << s));
 }
 
 /** The prior's means and levels (11.3; 11.8 when sa) of a row with no neighbours. */
@@ -1121,6 +1159,26 @@ export function serializeTile(x: usize, y: usize, z: usize, values: usize, n: i3
         store<i64>(p + 16, <i64>load<i32>(z + o));
     }
     let at = out + <usize>n * 24;
+    at = serializeGroup(values, n, M, 0, S3, at);
+    at = serializeGroup(values, n, M, S3, S3 + 1, at);
+    at = serializeGroup(values, n, M, S3 + 1, S3 + 4, at);
+    serializeGroup(values, n, M, S3 + 4, M, at);
+}
+
+/**
+ * The renderer's arrays of one tile's n points (decoder.mjs's sceneArrays) at out, one after the other:
+ * positions (f32 [3 n]: float32(c) * voxel_size + origin per axis, each step rounded to binary32 as
+ * Math.fround does), SH (f32 [S3 n]), opacities (f32 [n]), log scales (f32 [3 n]) and rotations
+ * (f32 [(M - S3 - 4) n]), from the coordinates x, y, z (i32 [n]) and values (f32 [n M], 11.1's order).
+ */
+export function rendererArrays(x: usize, y: usize, z: usize, values: usize, n: i32, M: i32, S3: i32, vs: f32, o0: f32, o1: f32, o2: f32, out: usize): void {
+    for (let i = 0; i < n; i++) {
+        const o = <usize>i << 2, p = out + <usize>i * 12;
+        store<f32>(p, <f32>load<i32>(x + o) * vs + o0);
+        store<f32>(p + 4, <f32>load<i32>(y + o) * vs + o1);
+        store<f32>(p + 8, <f32>load<i32>(z + o) * vs + o2);
+    }
+    let at = out + <usize>n * 12;
     at = serializeGroup(values, n, M, 0, S3, at);
     at = serializeGroup(values, n, M, S3, S3 + 1, at);
     at = serializeGroup(values, n, M, S3 + 1, S3 + 4, at);
