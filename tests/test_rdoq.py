@@ -326,22 +326,3 @@ def test_a_bad_weight_is_refused_with_one_line_and_nothing_written(tmp_path, cap
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "rd_quantization" in err[0], err
     assert not out.exists()
-
-
-@settings(max_examples=30, deadline=None)
-@given(n=st.integers(1, 200), seed=st.integers(0, 2 ** 31))
-def test_half_turns_keep_the_gaussian_and_make_w_the_largest_component(n, seed):
-    """The start RDOQ takes, and the plain rounding of a stream with implied w: |w| >= 1/2, w >= 0,
-    the covariance unchanged and the scales in place (a half-turn about one of the Gaussian's axes)."""
-    rng = np.random.default_rng(seed)
-    x = _shapes(rng, n, 1.0)
-    x[: n // 4, ROTATION] = [0.0, 1.0, 0.0, 0.0]  # w = 0 exactly: a half-turn itself
-    turned, f = rdoq.half_turned_rotations(x[:, ROTATION])
-    assert f is None and (turned[:, 0] >= 0.5 - 1e-12).all()
-    assert (np.abs(turned[:, 0:1]) >= np.abs(turned[:, 1:]) - 1e-12).all()
-    y = x.copy()
-    y[:, ROTATION] = turned
-    np.testing.assert_allclose(_covariances(y, 1.0), _covariances(x, 1.0), rtol=1e-9, atol=1e-18)
-    _, fr = rdoq.half_turned_rotations(x[:, ROTATION], np.arange(4.0)[None].repeat(n, 0))
-    assert sorted(fr[0].tolist()) == [0.0, 1.0, 2.0, 3.0]  # the sensitivities follow their components
-

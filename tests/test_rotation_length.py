@@ -184,24 +184,3 @@ def test_index_above_the_unit_s_maximum_is_rejected(monkeypatch):
     units[k] = DataUnit(UnitType.ROTATION_LENGTH, RotationLengthUnit(max_rotation_length_index=top - 1).to_bytes())
     with pytest.raises(BitstreamError, match="rotation length index"):
         decode_stream(write_container(units, c.header), verify_hash=False)
-
-
-def test_plain_rounding_with_implied_w_decodes_as_close_as_four_components():
-    """Without sensitivities (the fast preset's plain rounding) each rotation is first half-turned to
-    its largest |w|, so that w implied from the rounded x, y, z is well conditioned: the covariances
-    come out as close as with four coded components. A rotation near w = 0 left as it is would
-    imply a w off by up to the square root of the rounding."""
-    scene = _smooth_scene(300, 1, 4)
-    rot = scene.rotations.astype(np.float64)
-    scene.rotations[:100] = np.concatenate([np.full((100, 1), 0.02), rot[:100, 1:]], 1).astype(np.float32)
-    src = _covariances(scene.rotations, scene.log_scales)
-    errors = []
-    for on in (False, True):
-        cfg = GaussianEncoderConfig(neighbour_prediction="always", rotation_step=0.03, scale_step=0.001,
-                                    rotation_length=on)
-        res = encode_gaussian_scene(scene, cfg)
-        dec = decode_stream(res.data).scene
-        near = np.argmin(((dec.means[:, None, :] - scene.means[None, :, :]) ** 2).sum(axis=2), axis=0)
-        got = _covariances(dec.rotations[near], dec.log_scales[near])
-        errors.append(np.percentile(np.linalg.norm(src - got, axis=(1, 2)) / np.linalg.norm(src, axis=(1, 2)), 95))
-    assert errors[0] < 0.1 and errors[1] < 1.3 * errors[0]

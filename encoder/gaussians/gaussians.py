@@ -206,10 +206,7 @@ def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | Non
         del scene  # the grid's copy of the scene: its values are in ``inp`` now (peak memory)
         if sensitivity is not None and cfg.rd_quantization > 0:
             inp = rd_quantized_input(inp, sensitivity[geometry.order], levels, cfg)
-        elif cfg.rotation_length:  # index 0, unit length: the rotations are normalized, w turned large
-            from .rdoq import half_turned_rotations, orientation_columns
-            rotation = orientation_columns(inp.layout)[1]
-            inp.values[:, rotation] = half_turned_rotations(inp.values[:, rotation])[0]
+        elif cfg.rotation_length:  # index 0, unit length (the rotations are normalized, w >= 0)
             inp.values[:, inp.layout.rotation_start] = 0
     with stage(bar, "attributes", stats, STAGE_SHARES["attributes"]):
         t1 = time.perf_counter()

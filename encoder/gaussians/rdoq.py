@@ -348,20 +348,13 @@ def _half_turned(x: np.ndarray, f: np.ndarray, rotation: slice) -> tuple[np.ndar
     identity, so that the coding's means and scale levels, fitted to the rounded values before
     the choice, are near those of the values chosen (playbot lod4: 118,243 B against 120,578 B
     from the rotations as given)."""
-    xt, ft = half_turned_rotations(x[:, rotation], f[:, rotation])
-    x, f = x.copy(), f.copy()
-    x[:, rotation], f[:, rotation] = xt, ft
-    return x, f
-
-
-def half_turned_rotations(xr: np.ndarray, fr: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    """Quaternions ``xr`` [n, 4] (w first) each replaced by the one of largest |w| among q, q i,
-    q j, q k, w >= 0 (the same Gaussian: a half-turn about one of its axes keeps the scales), and
-    their sensitivities ``fr`` when given. |w| >= 1/2 then, so a w implied from rounded x, y, z
-    (format 1.4, clause 11.10) moves by at most about twice their rounding."""
+    xr = x[:, rotation]
     turn = np.argmax(np.abs(np.einsum("tij,nj->nti", AXIS_TURNS[:4], xr)[:, :, 0]), axis=1)
-    xt, ft = _turned(AXIS_TURNS[:4][turn], xr, np.ones_like(xr) if fr is None else fr)
-    return np.where(xt[:, :1] < 0, -xt, xt), (None if fr is None else ft)
+    xt, ft = _turned(AXIS_TURNS[:4][turn], xr, f[:, rotation])
+    x, f = x.copy(), f.copy()
+    x[:, rotation] = np.where(xt[:, :1] < 0, -xt, xt)
+    f[:, rotation] = ft
+    return x, f
 
 
 def _choose_rows(x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarray, mu: np.ndarray,

@@ -186,7 +186,9 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     sh_degree_choice: bool = False
     # Rotations as a length index and x, y, z (version 1.4, clause 11.10; encoder/gaussians/rdoq.py):
     # channel w carries the index k of the quaternion's length 2^(-k/2), RDOQ's choice of length
-    # per Gaussian, and w is implied by it and x, y, z (False: the four components coded).
+    # per Gaussian, and w is implied by it and x, y, z (False: the four components coded). Without
+    # sensitivities (no RDOQ) each quaternion is coded as given, w >= 0: a small w is then implied
+    # from the rounded x, y, z poorly (playbot lod4 at fast's steps: -2.2 dB), so pair it with RDOQ.
     rotation_length: bool = False
     # Drop before anything else the Gaussians whose opacity (after the sigmoid) is below this: at
     # 1/255 those that 3DGS rasterizers never draw (alpha < 1/255 is skipped, render/rasterizer.py),
