@@ -124,6 +124,28 @@ def test_fast_preset_renders_nothing_and_round_trips(degree):
     assert len(result.data) < raw / 3  # coded at the preset's steps, not copied
 
 
+def test_fast_rdoq_without_renders_codes_fewer_bytes_moving_values_a_step_at_most():
+    """The fast preset's uniform sensitivities: RDOQ with no renders, each value its rounding or one
+    step towards its prediction; fewer bytes than plain rounding, the same stream twice, and every
+    decoded colour and opacity within one step of plain rounding's (the same Gaussians, in the same
+    order: the geometry does not depend on the values), some of them moved."""
+    from lghcc.encoder import api
+    from test_neighbour_prediction import _smooth_scene
+
+    cfg = load_config("fast", kind="gaussians")
+    assert cfg.sensitivity_model == "uniform" and cfg.rotation_length
+    scene = _smooth_scene(1500, 1, 11)
+    plain, _ = api.encode(scene, dataclasses.replace(cfg, sensitivity_model="none"))
+    rdoq, _ = api.encode(scene, cfg)
+    assert len(rdoq.data) < 0.95 * len(plain.data) and api.encode(scene, cfg)[0].data == rdoq.data
+    a, b = decode_stream(plain.data).scene, decode_stream(rdoq.data).scene
+    assert np.array_equal(a.means, b.means)
+    n = a.num_gaussians
+    moves = np.abs(np.concatenate([(b.sh - a.sh).reshape(n, -1), (b.opacity - a.opacity)[:, None]], 1))
+    steps = np.array([cfg.sh_dc_step] * 3 + [cfg.sh_band_steps[0]] * 9 + [cfg.opacity_step])
+    assert (moves <= steps * (1 + 1e-5)).all() and (moves > 0.5 * steps).any(axis=0).all()
+
+
 def test_min_opacity_drops_only_what_no_rasterizer_draws():
     """Gaussians below min_opacity (after the sigmoid) are dropped, the rest kept in order; a scene
     with none above it keeps its most opaque Gaussian (a stream holds at least one)."""

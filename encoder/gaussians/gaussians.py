@@ -138,7 +138,7 @@ def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: Lev
     steps = inp.steps.astype(np.float64) if adjust is None else \
         attr.effective_steps(inp.steps, adjust[:, None]).astype(np.float64)
     return dataclasses.replace(inp, layout=layout, values=q * steps, step_adjust=adjust,
-                               sh_degrees=inp.sh_degrees if degrees is None else degrees)
+                               sh_degrees=inp.sh_degrees if degrees is None else degrees, graph=graph)
 
 
 def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: GaussianEncoderConfig, coded: CodedAttributes,

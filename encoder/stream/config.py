@@ -165,6 +165,12 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # saved; this weighs the bits (1: the slope of each group's own step; 0: plain rounding).
     # Needs the sensitivities, which the rate-aware preparation measures.
     rd_quantization: float = 1.0
+    # The sensitivities where no rate-aware preparation measures them: "none" (plain rounding) or
+    # "uniform": every value of a group as sensitive as the next, so that RDOQ trades each value's
+    # error against its bits at the group step's own slope, without renders (the fast preset: bench_real
+    # fast -2.0 to -4.3% bytes at equal PSNR on the four shared scenes; a model from each Gaussian's
+    # opacity, size and shape did no better, tools/results/search_sampling.md (i)).
+    sensitivity_model: str = "none"
     # Step adjustment (version 1.2, clause 11.8; encoder/gaussians/rdoq.py step_adjust_indices): each
     # Gaussian's steps made 2^(a/4) times coarser, a in [0, step_adjust_max], by how little the
     # pictures see it: the Gaussians above the step_adjust_quantile of visibility keep the steps.
@@ -180,7 +186,9 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     sh_degree_choice: bool = False
     # Rotations as a length index and x, y, z (version 1.4, clause 11.10; encoder/gaussians/rdoq.py):
     # channel w carries the index k of the quaternion's length 2^(-k/2), RDOQ's choice of length
-    # per Gaussian, and w is implied by it and x, y, z (False: the four components coded).
+    # per Gaussian, and w is implied by it and x, y, z (False: the four components coded). Without
+    # sensitivities (no RDOQ) each quaternion is coded as given, w >= 0: a small w is then implied
+    # from the rounded x, y, z poorly (playbot lod4 at fast's steps: -2.2 dB), so pair it with RDOQ.
     rotation_length: bool = False
     # Drop before anything else the Gaussians whose opacity (after the sigmoid) is below this: at
     # 1/255 those that 3DGS rasterizers never draw (alpha < 1/255 is skipped, render/rasterizer.py),
@@ -257,12 +265,7 @@ class GaussianEncoderConfig(AttributeCodingConfig):
             v = getattr(self, name)
             if not (isinstance(v, int) and 1 <= v <= hi):
                 raise InputError(f"{name} must be an integer in [1, {hi}], got {v!r}")
-        if not (isinstance(self.rd_quantization, (int, float)) and 0 <= self.rd_quantization < float("inf")):
-            raise InputError(f"rd_quantization must be a number >= 0, got {self.rd_quantization!r}")
-        if not (isinstance(self.step_adjust_max, int) and 0 <= self.step_adjust_max <= 7) \
-                or not 0 < self.step_adjust_quantile <= 1:
-            raise InputError(f"step_adjust_max must be an integer in [0, 7] and step_adjust_quantile in (0, 1], got "
-                             f"{self.step_adjust_max!r}, {self.step_adjust_quantile!r}")
+        self._validate_rdoq()
         for name in ("sh_degree_choice", "rotation_length"):
             if not isinstance(getattr(self, name), bool):
                 raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}")
@@ -274,6 +277,17 @@ class GaussianEncoderConfig(AttributeCodingConfig):
         self._validate_pruning()
         self._validate_views()
         return self
+
+    def _validate_rdoq(self) -> None:
+        """How the values are chosen: RDOQ's weight, its sensitivities' source, step adjustment."""
+        if not (isinstance(self.rd_quantization, (int, float)) and 0 <= self.rd_quantization < float("inf")):
+            raise InputError(f"rd_quantization must be a number >= 0, got {self.rd_quantization!r}")
+        if self.sensitivity_model not in ("none", "uniform"):
+            raise InputError(f"sensitivity_model must be none or uniform, got {self.sensitivity_model!r}")
+        if not (isinstance(self.step_adjust_max, int) and 0 <= self.step_adjust_max <= 7) \
+                or not 0 < self.step_adjust_quantile <= 1:
+            raise InputError(f"step_adjust_max must be an integer in [0, 7] and step_adjust_quantile in (0, 1], got "
+                             f"{self.step_adjust_max!r}, {self.step_adjust_quantile!r}")
 
     def _validate_pruning(self) -> None:
         """What is removed before the coding, and how."""

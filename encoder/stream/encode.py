@@ -415,7 +415,7 @@ def code_neighbours_or_prior(inp: AttributeInput, levels: LevelLayout, cfg: Attr
     coder = LevelCoder(inp.layout, cfg, level, rows, inp.live[rows], None, predict)
     q = quantized_level(coder, inp)
     nc = neighbour_coding_of(q, inp.coords, cfg, inp.layout, predict, step_adjust=inp.step_adjust,
-                             sh_degrees=inp.sh_degrees)
+                             sh_degrees=inp.sh_degrees, graph=inp.graph)
     nc.unit.sh_degree_unit = nc.degree_unit  # the stream's sh_degree unit (None without the tool), for its tiles
     unit_bytes = UNIT_FRAMING_BYTES + len(nc.unit.to_bytes())
     # step adjustment and SH degrees need neighbour prediction (the values were chosen with them)

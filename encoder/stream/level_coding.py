@@ -15,6 +15,7 @@ from ...common.context.models import level2_coding_params
 from ...common.entropy.symbol_coder import best_level
 from ...common.errors import InputError
 from ...common.hierarchy import Hierarchy
+from ...common.neighbour_prediction import NeighbourGraph
 from ...common.sh_degree import coded_channels
 from ...common.units import (CONTEXT_PER_CHANNEL_PRIOR, MASK_PROB_BITS, MAX_PREDICTED_MAGNITUDE, PRIOR_MEAN_MAX,
                             AttributeUnitHeader, GaussianParameterSet, NeighbourPredictionUnit, SceneParameterSet)
@@ -77,6 +78,9 @@ class AttributeInput:
     # the bands above it are not coded: ``live`` is narrowed to the coded channels), or None (the tool
     # off: every band coded, no sh_degree unit)
     sh_degrees: np.ndarray | None = None
+    # the neighbour graph of ``coords`` (common/neighbour_prediction.py neighbour_graph at the
+    # configuration's LoDs and neighbours) where RDOQ built it already, for the coding to reuse
+    graph: NeighbourGraph | None = None
 
     def __post_init__(self) -> None:
         if self.sh_degrees is None:
@@ -145,9 +149,10 @@ def check_predicted_magnitude(q: np.ndarray, layout) -> None:
 
 def neighbour_coding_of(q: np.ndarray, coords: np.ndarray, cfg, layout, predict: bool,
                         unit: NeighbourPredictionUnit | None = None,
-                        step_adjust: np.ndarray | None = None, sh_degrees: np.ndarray | None = None) -> NeighbourCoding:
+                        step_adjust: np.ndarray | None = None, sh_degrees: np.ndarray | None = None,
+                        graph: NeighbourGraph | None = None) -> NeighbourCoding:
     return NeighbourCoding(q, coords, cfg.prediction_lods, cfg.prediction_neighbours, cfg.prediction_buckets, predict,
-                           layout, unit, adjust=step_adjust, degrees=sh_degrees)
+                           layout, unit, adjust=step_adjust, degrees=sh_degrees, graph=graph)
 
 
 def code_with_neighbours(coder: LevelCoder, q: np.ndarray, nc: NeighbourCoding) -> LevelCoding:
