@@ -16,15 +16,17 @@ import torch
 
 from .camera import Camera
 from .rasterizer import compositing_weights
+from .view_threads import map_views
 
 
 def gaussian_contributions(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
                            cameras: list[Camera], on_view=None) -> np.ndarray:
     """float64 [M]: sum over ``cameras`` and pixels of alpha_i T_i (activated parameters:
-    unit quats (w, x, y, z), scales, opacities in [0, 1]). ``on_view()`` is called after each view."""
+    unit quats (w, x, y, z), scales, opacities in [0, 1]). ``on_view()`` is called after each view.
+    Two views at a time (render/view_threads.py), summed in the views' order."""
     total = torch.zeros(means.shape[0], dtype=torch.float64)
-    for cam in cameras:
-        total += compositing_weights(means, quats, scales, opacities, cam)
+    for weights in map_views(lambda cam: compositing_weights(means, quats, scales, opacities, cam), cameras):
+        total += weights
         if on_view is not None:
             on_view()
     return total.numpy()

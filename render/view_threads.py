@@ -1,0 +1,63 @@
+"""Views rendered two at a time in threads of one process (informative; the encoder's render loops).
+
+A view's render is a few hundred torch operations, of which the sort, the bincount, the
+index_add and the Python between them run on one core: one view at a time used the 2 cores of the
+1M-Gaussian encode 1.35x on average (tools/results/scale.md). Two views in two threads fill each
+other's gaps (torch lets go of the GIL in its operations).
+
+Each thread runs torch's operations with the caller's intra-op thread count, so every operation
+splits its work as it does in the caller, and a view's result has the bits it has when the views
+are rendered one after another (tests/test_render_view_threads.py): the results come back in the
+views' order and are summed by the caller in that order. Threads, not processes, for that reason:
+a worker process would need the caller's thread count too, and the 1M scene's tensors besides.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from typing import TypeVar
+
+import torch
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+# Views rendered at a time (at most the cores): two leave a view's one-core stretches to the other.
+VIEW_THREADS = 2
+
+
+def view_threads() -> int:
+    """The threads ``map_views`` renders in: VIEW_THREADS, at most the machine's cores."""
+    return max(1, min(VIEW_THREADS, os.cpu_count() or 1))
+
+
+def map_views(fn: Callable[[T], R], items: Iterable[T], threads: int | None = None) -> Iterator[R]:
+    """``fn`` of each item (a view), ``threads`` (default ``view_threads()``) at a time, yielded in
+    the items' order as each is done; with one thread, one after another in the caller's thread.
+    At most ``threads`` results wait unread beyond the one the caller holds (memory stays bounded).
+    ``fn`` runs in the grad mode and with the intra-op threads of this call's moment (torch's grad
+    mode is per thread: ``torch.no_grad`` around the call reaches the threads)."""
+    items = list(items)
+    threads = view_threads() if threads is None else max(1, threads)
+    if threads == 1 or len(items) <= 1:
+        return (fn(x) for x in items)
+    intra, grad = torch.get_num_threads(), torch.is_grad_enabled()
+
+    def run(x: T) -> R:
+        torch.set_num_threads(intra)  # the caller's split of every operation: the same bits
+        with torch.set_grad_enabled(grad):
+            return fn(x)
+
+    return _in_threads(run, items, threads)
+
+
+def _in_threads(run: Callable[[T], R], items: list[T], threads: int) -> Iterator[R]:
+    with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="lghcc-view") as pool:
+        pending = [pool.submit(run, x) for x in items[:threads]]
+        for i in range(len(items)):
+            result = pending.pop(0).result()
+            if i + threads < len(items):
+                pending.append(pool.submit(run, items[i + threads]))
+            yield result
