@@ -309,8 +309,8 @@ def source_renders(g: Gaussians3DGS, cams: list[Camera], drawn: list[int]) -> di
     views at a time (render/view_threads.py)."""
     views = list(dict.fromkeys(drawn))
     with torch.no_grad():
-        images = map_views(lambda j: render_3dgs(g, cams[j], background=(0, 0, 0), backend="torch").image, views)
-        return dict(zip(views, images))
+        images = list(map_views(lambda j: render_3dgs(g, cams[j], background=(0, 0, 0), backend="torch").image, views))
+    return dict(zip(views, images))
 
 
 def fit_to_renders(grid: GaussianScene, g: Gaussians3DGS, cams: list[Camera], cfg: GaussianEncoderConfig,
