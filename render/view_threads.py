@@ -46,7 +46,8 @@ def map_views(fn: Callable[[T], R], items: Iterable[T], threads: int | None = No
     intra, grad = torch.get_num_threads(), torch.is_grad_enabled()
 
     def run(x: T) -> R:
-        torch.set_num_threads(intra)  # the caller's split of every operation: the same bits
+        if torch.get_num_threads() != intra:  # the caller's split of every operation: the same bits
+            torch.set_num_threads(intra)
         with torch.set_grad_enabled(grad):
             return fn(x)
 
