@@ -36,7 +36,8 @@ def view_threads() -> int:
 def map_views(fn: Callable[[T], R], items: Iterable[T], threads: int | None = None) -> Iterator[R]:
     """``fn`` of each item (a view), ``threads`` (default ``view_threads()``) at a time, yielded in
     the items' order as each is done; with one thread, one after another in the caller's thread.
-    At most ``threads`` results wait unread beyond the one the caller holds (memory stays bounded).
+    At most 2 ``threads`` views are done or under way beyond the one the caller holds (memory stays
+    bounded).
     ``fn`` runs in the grad mode and with the intra-op threads of this call's moment (torch's grad
     mode is per thread: ``torch.no_grad`` around the call reaches the threads)."""
     items = list(items)
@@ -55,10 +56,11 @@ def map_views(fn: Callable[[T], R], items: Iterable[T], threads: int | None = No
 
 
 def _in_threads(run: Callable[[T], R], items: list[T], threads: int) -> Iterator[R]:
+    window = 2 * threads  # queued beyond the running ones: a thread done before the view in front goes on
     with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="lghcc-view") as pool:
-        pending = [pool.submit(run, x) for x in items[:threads]]
+        pending = [pool.submit(run, x) for x in items[:window]]
         for i in range(len(items)):
             result = pending.pop(0).result()
-            if i + threads < len(items):
-                pending.append(pool.submit(run, items[i + threads]))
+            if i + window < len(items):
+                pending.append(pool.submit(run, items[i + window]))
             yield result
