@@ -26,6 +26,10 @@ R = TypeVar("R")
 
 # Views rendered at a time (at most the cores): two leave a view's one-core stretches to the other.
 VIEW_THREADS = 2
+# The most memory one view's render may take for views to go two at a time (``map_views``): two at
+# once take twice a view's memory (the 1M-Gaussian sensitivities 3,139 MiB over the scene's instead
+# of 1,600, tools/results/scale.md), and the encoder's peak is to stay at 4 GiB at 1M.
+VIEW_MEMORY_BUDGET = 1 << 30
 
 
 def view_threads() -> int:
@@ -33,15 +37,19 @@ def view_threads() -> int:
     return max(1, min(VIEW_THREADS, os.cpu_count() or 1))
 
 
-def map_views(fn: Callable[[T], R], items: Iterable[T], threads: int | None = None) -> Iterator[R]:
-    """``fn`` of each item (a view), ``threads`` (default ``view_threads()``) at a time, yielded in
-    the items' order as each is done; with one thread, one after another in the caller's thread.
+def map_views(fn: Callable[[T], R], items: Iterable[T], threads: int | None = None,
+              view_bytes: float = 0.0) -> Iterator[R]:
+    """``fn`` of each item (a view), ``threads`` (default ``view_threads()``; one where a view takes
+    more than VIEW_MEMORY_BUDGET, ``view_bytes`` its estimate) at a time, yielded in the items'
+    order as each is done; with one thread, one after another in the caller's thread.
     At most 2 ``threads`` views are done or under way beyond the one the caller holds (memory stays
     bounded).
     ``fn`` runs in the grad mode and with the intra-op threads of this call's moment (torch's grad
     mode is per thread: ``torch.no_grad`` around the call reaches the threads)."""
     items = list(items)
     threads = view_threads() if threads is None else max(1, threads)
+    if view_bytes > VIEW_MEMORY_BUDGET:
+        threads = 1
     if threads == 1 or len(items) <= 1:
         return (fn(x) for x in items)
     intra, grad = torch.get_num_threads(), torch.is_grad_enabled()

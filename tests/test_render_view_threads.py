@@ -59,6 +59,13 @@ def test_the_threads_run_in_the_callers_grad_mode_and_intra_op_threads():
     assert torch.get_num_threads() == before
 
 
+def test_views_over_the_memory_budget_go_one_at_a_time():
+    name = lambda _: threading.current_thread().name  # noqa: E731
+    over = view_threads.VIEW_MEMORY_BUDGET + 1
+    assert set(map_views(name, range(3), threads=2, view_bytes=over)) == {threading.current_thread().name}
+    assert all(n.startswith("lghcc-view") for n in map_views(name, range(3), threads=2, view_bytes=over - 2))
+
+
 def test_an_error_in_a_view_reaches_the_caller():
     def fn(x):
         if x == 2:

@@ -89,6 +89,12 @@ from .gaussian_grid import OPACITY_LOGIT_LIMIT, canonical_rotations
 from ..stream.neighbour_coding import NeighbourCoding, degree_flag_counts, degree_unit_of
 
 
+# Memory of one view's render forward and backward per Gaussian of the scene: 1,600 MiB over the
+# scene's at 1M (4 views of 160 px; 3,139 MiB two at a time), so above about 600k Gaussians the views
+# go one at a time (render/view_threads.py VIEW_MEMORY_BUDGET).
+SENSITIVITY_VIEW_BYTES = 1700.0
+
+
 def sensitivities(scene: GaussianScene, cams: list[Camera], probes: int = 1, seed: int = 0,
                   on_view=None) -> np.ndarray:
     """float64 [N, M]: per Gaussian and coded channel (GaussianLayout order: SH coefficient-major
@@ -120,7 +126,7 @@ def sensitivities(scene: GaussianScene, cams: list[Camera], probes: int = 1, see
         return [[g.double() ** 2 for g in torch.autograd.grad(img, params, grad_outputs=v, retain_graph=j + 1 < probes)]
                 for j, v in enumerate(signs[k])]
 
-    for squares in map_views(view, range(len(cams))):
+    for squares in map_views(view, range(len(cams)), view_bytes=SENSITIVITY_VIEW_BYTES * n):
         for probe in squares:  # added in the order one view after another adds them
             for acc, s in zip(total, probe):
                 acc += s
