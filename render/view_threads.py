@@ -14,7 +14,10 @@ a worker process would need the caller's thread count too, and the 1M scene's te
 
 from __future__ import annotations
 
+import ctypes
+import functools
 import os
+import sys
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
@@ -65,10 +68,35 @@ def map_views(fn: Callable[[T], R], items: Iterable[T], threads: int | None = No
 
 def _in_threads(run: Callable[[T], R], items: list[T], threads: int) -> Iterator[R]:
     window = 2 * threads  # queued beyond the running ones: a thread done before the view in front goes on
-    with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="lghcc-view") as pool:
-        pending = [pool.submit(run, x) for x in items[:window]]
-        for i in range(len(items)):
-            result = pending.pop(0).result()
-            if i + window < len(items):
-                pending.append(pool.submit(run, items[i + window]))
-            yield result
+    try:
+        with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="lghcc-view") as pool:
+            pending = [pool.submit(run, x) for x in items[:window]]
+            for i in range(len(items)):
+                result = pending.pop(0).result()
+                if i + window < len(items):
+                    pending.append(pool.submit(run, items[i + window]))
+                yield result
+    finally:
+        release_freed_memory()
+
+
+def release_freed_memory() -> None:
+    """Give the memory the view threads freed back to the system (glibc's malloc_trim; elsewhere
+    nothing): glibc keeps each thread's freed blocks in that thread's arena, and after the 1M
+    scene's contributions two at a time they held 800 MiB that the sensitivities after them could
+    not use (peak 2,894 MiB instead of 2,100)."""
+    libc = _libc()
+    if libc is not None:
+        libc.malloc_trim(0)
+
+
+@functools.cache
+def _libc():
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        libc.malloc_trim  # noqa: B018 - glibc only (musl has none)
+    except (OSError, AttributeError):
+        return None
+    return libc
