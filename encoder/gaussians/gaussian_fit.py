@@ -66,6 +66,7 @@ from ...render.gaussians3dgs import Gaussians3DGS, gaussians_from_scene, render_
 from ...render.importance import gaussian_contributions
 from ...render.rasterizer import rasterize
 from ...render.sh import sh_to_rgb
+from ...render.view_threads import map_views
 
 if TYPE_CHECKING:
     from .gaussian_rd import SceneRenders
@@ -303,30 +304,34 @@ class _Optimizer:
         return float(mse.detach())
 
 
+def source_renders(g: Gaussians3DGS, cams: list[Camera], drawn: list[int]) -> dict[int, torch.Tensor]:
+    """The source's render on black of each view the fit's steps draw (``drawn``), made once, two
+    views at a time (render/view_threads.py)."""
+    views = list(dict.fromkeys(drawn))
+    with torch.no_grad():
+        images = list(map_views(lambda j: render_3dgs(g, cams[j], background=(0, 0, 0), backend="torch").image, views))
+    return dict(zip(views, images))
+
+
 def fit_to_renders(grid: GaussianScene, g: Gaussians3DGS, cams: list[Camera], cfg: GaussianEncoderConfig,
                    stats: PrepareStats, say, progress: bool, sensitivity: np.ndarray | None = None) -> GaussianScene:
     """``fit_iterations`` steps tuning the kept Gaussians to renders of the source Gaussians
     ``g`` with their quantization simulated and their estimated bits weighed in (module doc)."""
     t0 = time.perf_counter()
-    targets: dict[int, torch.Tensor] = {}  # the source's render of each view the steps draw, made once
-
-    def target(j: int) -> torch.Tensor:
-        if j not in targets:
-            with torch.no_grad():
-                targets[j] = render_3dgs(g, cams[j], background=(0, 0, 0), backend="torch").image
-        return targets[j]
+    rng = np.random.default_rng(0)
+    drawn = [int(rng.integers(len(cams))) for _ in range(cfg.fit_iterations)]  # the view of each step
+    targets = source_renders(g, cams, drawn)
     from .gaussian_rd import scene_step_adjust
 
     fit = _Fit(grid, cfg, scene_step_adjust(grid, sensitivity, cfg))
     fit.init_rate_model()
     optimizer = _Optimizer.of(fit, cfg)
-    rng = np.random.default_rng(0)
     bar = progress_bar(range(cfg.fit_iterations), desc="fit", unit="it", disable=not progress, leave=False)
     last = time.perf_counter()
     losses = []
     for it in bar:
-        j = int(rng.integers(len(cams)))
-        losses.append(optimizer.step(fit, cams[j], target(j)))
+        j = drawn[it]
+        losses.append(optimizer.step(fit, cams[j], targets[j]))
         if time.perf_counter() - last > 10 or it + 1 == cfg.fit_iterations:
             last = time.perf_counter()
             done = it + 1

@@ -34,6 +34,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,6 +54,7 @@ from .rdoq import (adjust_on_graph, channel_groups, channel_steps, degrees_on_gr
                    rd_quantize, sh_degree_subset, sh_degrees_wanted, without_dropped_bands)
 from ...render.gaussians3dgs import Gaussians3DGS, gaussians_from_scene
 from ...render.rasterizer import rasterize
+from ...render.view_threads import map_views
 
 PRUNE_LADDER = (0.0, 0.0005, 0.001, 0.002, 0.004, 0.008, 0.016, 0.032, 0.064)
 STEP_FIELDS = ("position_step", "sh_dc_step", "opacity_step", "scale_step", "rotation_step")
@@ -134,7 +136,7 @@ def whole_scene_renders(scene: GaussianScene, cams: list) -> list[torch.Tensor]:
     """The images of ``scene`` in ``cams`` on black."""
     g = gaussians_from_scene(scene)
     with torch.no_grad():
-        return [render_on_black(g, cam).image for cam in cams]
+        return list(map_views(lambda cam: render_on_black(g, cam).image, cams))
 
 
 def whole_scene_error(backdrop: Backdrop, part: GaussianScene, cams: list,
@@ -290,7 +292,8 @@ class SettingsSearch:
                 self.layers = None
             else:
                 held = gaussians_from_scene(backdrop.held)
-                self.layers = [view_layers(g, held, held_in_footprint(g, held, cam), cam) for cam in self.cams]
+                self.layers = list(map_views(lambda cam: view_layers(g, held, held_in_footprint(g, held, cam), cam),
+                                             self.cams))
         self.values = coded_values(scene).astype(np.float64)  # at the scene's SH degree
         self.cfg = cfg
         # the way RDOQ writes each Gaussian (encoder/gaussians/rdoq.py), chosen at its first trial and kept:
@@ -329,6 +332,15 @@ class SettingsSearch:
                              degrees=None if degrees is None else degrees[order])
         needed = adjust is not None or degrees is not None
         return nc.ideal_stream_bits() if needed else min(prior_bits, nc.ideal_stream_bits())
+
+    def _values_bits(self, key, grid: GaussianScene, q: np.ndarray, adjust: np.ndarray | None,
+                     degrees: np.ndarray | None, layout: GaussianLayout) -> float:
+        """The attribute bits of the values ``q`` (``_attribute_bits``, against the per-channel prior's)."""
+        prior_bits = 0.0
+        for c in range(q.shape[1]):
+            r = q[:, c] - int(np.median(q[:, c]))
+            prior_bits += float(code_lengths_bits(r, np.full(r.shape, best_level(r), np.int64)).sum())
+        return self._attribute_bits(key, grid, q, prior_bits, adjust, degrees, layout)
 
     def _grid(self, share: float, position_step: float):
         key = (share, position_step)
@@ -396,10 +408,12 @@ class SettingsSearch:
         g = gaussians_from_scene(dec)
         with torch.no_grad():
             if self.layers is None:
-                errors = [render_on_black(g, cam).image - t for cam, t in zip(self.cams, self.targets)]
-                return float(np.mean([(e ** 2).double().mean().item() for e in errors]))
-            layered = float(np.mean([(v.error(render_on_black(g, cam)) ** 2).double().mean().item()
-                                     for cam, v in zip(self.cams, self.layers)]))
+                return float(np.mean(list(map_views(
+                    lambda k: ((render_on_black(g, self.cams[k]).image - self.targets[k]) ** 2).double().mean().item(),
+                    range(len(self.cams))))))
+            layered = float(np.mean(list(map_views(
+                lambda k: (self.layers[k].error(render_on_black(g, self.cams[k])) ** 2).double().mean().item(),
+                range(len(self.cams))))))
         if share not in self.offsets:
             self.offsets[share] = whole_scene_error(self.backdrop, dec, self.cams, self.whole.images(self.plan)) - layered
         return max(layered + self.offsets[share], 0.0)
@@ -422,17 +436,16 @@ class SettingsSearch:
             q[:, layout.rotation_start] = 0
         if self.sensitivity is not None and cfg.rd_quantization > 0:
             q, degrees = self._rd_quantized(key, grid, keep, x, layout, cfg, adjust)
-        prior_bits = 0.0
-        for c in range(q.shape[1]):
-            r = q[:, c] - int(np.median(q[:, c]))
-            prior_bits += float(code_lengths_bits(r, np.full(r.shape, best_level(r), np.int64)).sum())
-        bits = geometry_bits + self._attribute_bits(key, grid, q, prior_bits, adjust, degrees, layout)
         values = (q * steps * factor).astype(np.float32)
         if cfg.rotation_length:
             w = layout.rotation_start
             values[:, w] = implied_w(q[:, w], values[:, w + 1:w + 4])
         dec = GaussianScene(grid.means, *layout.split(values))
-        mse = self._mse(dec, cfg.prune_share)
+        # the bits (numpy, one core) counted in a thread beside the renders of the error
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="lghcc-bits") as pool:
+            counted = pool.submit(self._values_bits, key, grid, q, adjust, degrees, layout)
+            mse = self._mse(dec, cfg.prune_share)
+            bits = geometry_bits + counted.result()
         cost = 10 * math.log10(max(mse, 1e-12)) + self.lam * math.log2(max(bits, 1.0))
         trial = Trial(cfg, mse, bits, cost)
         self.trials.append(trial)

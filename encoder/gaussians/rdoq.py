@@ -83,9 +83,16 @@ from ...common.units import DEGREE_PROB_BITS
 from ...render.camera import Camera
 from ...render.rasterizer import quat_to_rotmat, rasterize
 from ...render.sh import sh_to_rgb
+from ...render.view_threads import map_views
 from ..stream.level_coding import fit_per_channel_prior
 from .gaussian_grid import OPACITY_LOGIT_LIMIT, canonical_rotations
 from ..stream.neighbour_coding import NeighbourCoding, degree_flag_counts, degree_unit_of
+
+
+# Memory of one view's render forward and backward per Gaussian of the scene: 1,600 MiB over the
+# scene's at 1M (4 views of 160 px; 3,139 MiB two at a time), so above about 600k Gaussians the views
+# go one at a time (render/view_threads.py VIEW_MEMORY_BUDGET).
+SENSITIVITY_VIEW_BYTES = 1700.0
 
 
 def sensitivities(scene: GaussianScene, cams: list[Camera], probes: int = 1, seed: int = 0,
@@ -104,17 +111,25 @@ def sensitivities(scene: GaussianScene, cams: list[Camera], probes: int = 1, see
     params = [sh, op, ls, rot]
     total = [torch.zeros_like(p, dtype=torch.float64) for p in params]
     gen = torch.Generator().manual_seed(seed)
-    for cam in cams:
+    # each view's random images, drawn in the views' order before the views render two at a time
+    signs = [[torch.randint(0, 2, (cam.height, cam.width, 3), generator=gen).float() * 2 - 1 for _ in range(probes)]
+             for cam in cams]
+
+    def view(k: int) -> list[list[torch.Tensor]]:
+        """Per probe of view k, the squared gradients of the parameters."""
+        cam = cams[k]
         d = means - torch.as_tensor(cam.center, dtype=torch.float32)
         d = d / d.norm(dim=1, keepdim=True).clamp_min(1e-12)
         q = rot / rot.norm(dim=1, keepdim=True).clamp_min(1e-12)
         img = rasterize(means, q, torch.exp(ls), torch.sigmoid(op), sh_to_rgb(scene.sh_degree, sh, d), cam,
                         background=torch.zeros(3)).image
-        for j in range(probes):
-            v = torch.randint(0, 2, img.shape, generator=gen).to(img.dtype) * 2 - 1
-            grads = torch.autograd.grad(img, params, grad_outputs=v, retain_graph=j + 1 < probes)
-            for acc, g in zip(total, grads):
-                acc += g.double() ** 2
+        return [[g.double() ** 2 for g in torch.autograd.grad(img, params, grad_outputs=v, retain_graph=j + 1 < probes)]
+                for j, v in enumerate(signs[k])]
+
+    for squares in map_views(view, range(len(cams)), view_bytes=SENSITIVITY_VIEW_BYTES * n):
+        for probe in squares:  # added in the order one view after another adds them
+            for acc, s in zip(total, probe):
+                acc += s
         if on_view is not None:
             on_view()
     f = [a.numpy() / probes for a in total]
