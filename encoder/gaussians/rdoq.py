@@ -267,15 +267,17 @@ def _turn_ranking(xr: np.ndarray, mean_r: np.ndarray, level_r: np.ndarray, mu_r:
     n, nt = xr.shape[0], len(AXIS_TURNS)
     bits, signs = np.empty((n, nt)), np.empty((n, nt))
     counted = np.array([0.0, 1, 1, 1]) if length_index else _ONES4
+    c0 = 1 if length_index else 0  # the first column counted: the others' lengths stay 0 (not computed)
+    lengths = np.zeros((min(n, block), nt, 4))
     for lo in range(0, n, block):
         hi = min(n, lo + block)
         xg = (xr[lo:hi] @ _TURNS_T).reshape(hi - lo, nt, 4)
-        m = mean_r[lo:hi, None, :]
         toward = xg[:, :, 0] if length_index else np.einsum("ntc,nc->nt", xg, mean_r[lo:hi])
         s = np.where(toward < 0, -1.0, 1.0)
-        r = (np.rint(xg * s[:, :, None]) - m).astype(np.int64)
-        lv = np.broadcast_to(level_r[lo:hi, None, :], r.shape)
-        bits[lo:hi] = mu_r * (code_lengths_bits(r, lv) @ counted)
+        r = (np.rint(xg[:, :, c0:] * s[:, :, None]) - mean_r[lo:hi, None, c0:]).astype(np.int64)
+        b = lengths[:hi - lo]
+        b[:, :, c0:] = code_lengths_bits(r, np.broadcast_to(level_r[lo:hi, None, c0:], r.shape))
+        bits[lo:hi] = mu_r * (b @ counted)
         signs[lo:hi] = s
     return bits, signs
 
