@@ -269,20 +269,26 @@ def _turn_ranking(xr: np.ndarray, mean_r: np.ndarray, level_r: np.ndarray, mu_r:
     ``length_index`` (format 1.4): the bits of x, y, z alone, the sign the one of w >= 0."""
     n, nt = xr.shape[0], len(AXIS_TURNS)
     bits, signs = np.empty((n, nt)), np.empty((n, nt))
-    counted = np.array([0.0, 1, 1, 1]) if length_index else _ONES4
-    c0 = 1 if length_index else 0  # the first column counted: the others' lengths stay 0 (not computed)
-    lengths = np.zeros((min(n, block), nt, 4))
+    c0 = 1 if length_index else 0  # the first column counted
     for lo in range(0, n, block):
         hi = min(n, lo + block)
         xg = (xr[lo:hi] @ _TURNS_T).reshape(hi - lo, nt, 4)
         toward = xg[:, :, 0] if length_index else np.einsum("ntc,nc->nt", xg, mean_r[lo:hi])
         s = np.where(toward < 0, -1.0, 1.0)
         r = (np.rint(xg[:, :, c0:] * s[:, :, None]) - mean_r[lo:hi, None, c0:]).astype(np.int64)
-        b = lengths[:hi - lo]
-        b[:, :, c0:] = code_lengths_bits(r, np.broadcast_to(level_r[lo:hi, None, c0:], r.shape))
-        bits[lo:hi] = mu_r * (b @ counted)
+        b = code_lengths_bits(r, np.broadcast_to(level_r[lo:hi, None, c0:], r.shape))
+        bits[lo:hi] = mu_r * _quaternion_sum(b)
         signs[lo:hi] = s
     return bits, signs
+
+
+def _quaternion_sum(b: np.ndarray) -> np.ndarray:
+    """b [..., 4] summed over its last axis as the product with ones(4) summed it, (b0 + b2) + (b1 +
+    b3) (the turns' ranking, and its ties, depend on the last bit); b [..., 3], the columns x, y, z
+    (w not counted): that sum with b0 = 0."""
+    if b.shape[-1] == 3:
+        return b[..., 1] + (b[..., 0] + b[..., 2])
+    return (b[..., 0] + b[..., 2]) + (b[..., 1] + b[..., 3])
 
 
 def _orientation(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarray, mu: np.ndarray,
