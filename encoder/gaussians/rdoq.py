@@ -317,8 +317,7 @@ def _orientation(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarr
     # the first candidate of every row: the Gaussian as given, or the way given
     turn = np.where(fixed, np.maximum(ways, 0) % nt, 0) if ways is not None else np.zeros(n, dtype=np.int64)
     sign = np.where(fixed & (np.maximum(ways, 0) >= nt), -1.0, 1.0) if ways is not None else np.ones(n)
-    candidates = [(slice(None), turn, sign)]
-    free = np.flatnonzero(~fixed)
+    candidates, free = [(slice(None), turn, sign)], np.flatnonzero(~fixed)
     if free.size and TURN_CANDIDATES > 0:  # then the best-ranked turns of the rows still to choose
         free = slice(None) if free.size == n else free  # (every row, the usual case: views, no gathers)
         ranking, signs = _turn_ranking(np.ascontiguousarray(xr[free]), np.ascontiguousarray(mean_r[free]),
