@@ -61,35 +61,42 @@ def _class_model():
 
 # --- input checks ------------------------------------------------------------------------
 
-def _levels(levels: np.ndarray, shape: tuple | None = None) -> np.ndarray:
+def _levels(levels: np.ndarray, shape: tuple | None = None, dtype=np.uint8) -> np.ndarray:
     lv = np.asarray(levels)
     if shape is not None and lv.shape != shape:
         raise ValueError(f"levels have shape {lv.shape}, residuals {shape}")
     if lv.size == 0:
-        return np.zeros(lv.shape, dtype=np.uint8)
+        return np.zeros(lv.shape, dtype=dtype)
     if not np.issubdtype(lv.dtype, np.integer):
         raise ValueError(f"levels must be integers, not {lv.dtype}")
     if int(lv.min()) < 0 or int(lv.max()) >= NUM_SCALE_LEVELS:
         raise ValueError(f"levels must lie in [0, {NUM_SCALE_LEVELS}) (found {int(lv.min())}..{int(lv.max())})")
-    return lv.astype(np.uint8)
+    return lv.astype(dtype, copy=False)
 
 
 def _residuals(residuals: np.ndarray) -> np.ndarray:
+    return _residuals_and_range(residuals)[0]
+
+
+def _residuals_and_range(residuals: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """The residuals checked, as int64 (not copied where they are already), and their least and
+    largest values (0, 0 where there are none)."""
     r = np.asarray(residuals)
     if r.size == 0:
-        return np.zeros(r.shape, dtype=np.int64)
+        return np.zeros(r.shape, dtype=np.int64), 0, 0
     if not np.issubdtype(r.dtype, np.integer):
         raise ValueError(f"residuals must be integers, not {r.dtype}")
     if np.issubdtype(r.dtype, np.unsignedinteger):
-        if int(r.max()) > MAX_ABS_RESIDUAL:
-            raise ValueError(f"residual {int(r.max())} exceeds the codable range |r| <= 2^62 - 1")
-        return r.astype(np.int64)
-    r = r.astype(np.int64)
+        hi = int(r.max())
+        if hi > MAX_ABS_RESIDUAL:
+            raise ValueError(f"residual {hi} exceeds the codable range |r| <= 2^62 - 1")
+        return r.astype(np.int64), 0, hi
+    r = r.astype(np.int64, copy=False)
     lo, hi = int(r.min()), int(r.max())
     if lo < -MAX_ABS_RESIDUAL or hi > MAX_ABS_RESIDUAL:
         raise ValueError(f"residual {lo if lo < -MAX_ABS_RESIDUAL else hi} exceeds the codable range "
                          f"|r| <= 2^62 - 1")
-    return r
+    return r, lo, hi
 
 
 _EXACT_IN_FLOAT64 = 1 << 53
@@ -268,10 +275,14 @@ _LUT_BY_LEVEL = _LUT.reshape(NUM_SCALE_LEVELS, 2 * _LUT_R + 1)
 def code_lengths_bits(residuals: np.ndarray, levels: np.ndarray) -> np.ndarray:
     """Per residual, -log2 of the probability the tables give it at its level, escape class and
     raw remainder bits included (float64, the shape of residuals)."""
-    r = _residuals(residuals)
-    lv = _levels(levels, np.shape(residuals))
+    r, lo, hi = _residuals_and_range(residuals)
+    lv = _levels(levels, np.shape(residuals), np.int64)
     if r.size == 0:
         return np.zeros(r.shape, dtype=np.float64)
+    if -_LUT_R <= lo and hi <= _LUT_R:  # every residual in the table (RDOQ's hot path: no copies to clip)
+        index = lv * (2 * _LUT_R + 1) + r
+        index += _LUT_R
+        return _LUT[index]
     rf, lf = r.ravel(), lv.ravel()
     far = np.abs(rf) > _LUT_R
     bits = _LUT[lf.astype(np.int64) * (2 * _LUT_R + 1) + np.clip(rf, -_LUT_R, _LUT_R) + _LUT_R]

@@ -195,6 +195,7 @@ def _axis_turns() -> tuple[np.ndarray, np.ndarray]:
 
 
 AXIS_TURNS, AXIS_TURN_PERMS = _axis_turns()
+_TURNS_SQUARED = AXIS_TURNS * AXIS_TURNS
 _ONES4 = np.ones(4)
 
 
@@ -264,10 +265,12 @@ def _as_length_index(x: np.ndarray, f: np.ndarray, rho: np.ndarray) -> tuple[np.
     return x, f
 
 
-def _turned(m_rows: np.ndarray, xr: np.ndarray, fr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Quaternions ``xr`` [n, 4] turned by the per-row matrices ``m_rows`` [n, 4, 4], and their
-    sensitivities: the diagonal of M diag(f) M^T (exact for the signed permutations)."""
-    return np.einsum("nij,nj->ni", m_rows, xr), np.einsum("nij,nj->ni", m_rows * m_rows, fr)
+def _turned(turn: np.ndarray, sign: np.ndarray, xr: np.ndarray, fr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Quaternions ``xr`` [n, 4] turned by the per-row AXIS_TURNS ``turn`` [n] times ``sign``
+    [n] (+-1), and their sensitivities: the diagonal of M diag(f) M^T (exact for the signed
+    permutations; the sign squares away). The sign multiplies the product, which is the product
+    with the signed matrix exactly (rounding is symmetric about 0)."""
+    return np.einsum("nij,nj->ni", AXIS_TURNS[turn], xr) * sign[:, None], np.einsum("nij,nj->ni", _TURNS_SQUARED[turn], fr)
 
 
 _TURNS_T = np.concatenate([m.T for m in AXIS_TURNS], 1)  # [4, 96]: x @ _TURNS_T = every q g at once
@@ -281,18 +284,26 @@ def _turn_ranking(xr: np.ndarray, mean_r: np.ndarray, level_r: np.ndarray, mu_r:
     ``length_index`` (format 1.4): the bits of x, y, z alone, the sign the one of w >= 0."""
     n, nt = xr.shape[0], len(AXIS_TURNS)
     bits, signs = np.empty((n, nt)), np.empty((n, nt))
-    counted = np.array([0.0, 1, 1, 1]) if length_index else _ONES4
+    c0 = 1 if length_index else 0  # the first column counted
     for lo in range(0, n, block):
         hi = min(n, lo + block)
         xg = (xr[lo:hi] @ _TURNS_T).reshape(hi - lo, nt, 4)
-        m = mean_r[lo:hi, None, :]
         toward = xg[:, :, 0] if length_index else np.einsum("ntc,nc->nt", xg, mean_r[lo:hi])
         s = np.where(toward < 0, -1.0, 1.0)
-        r = (np.rint(xg * s[:, :, None]) - m).astype(np.int64)
-        lv = np.broadcast_to(level_r[lo:hi, None, :], r.shape)
-        bits[lo:hi] = mu_r * (code_lengths_bits(r, lv) @ counted)
+        r = (np.rint(xg[:, :, c0:] * s[:, :, None]) - mean_r[lo:hi, None, c0:]).astype(np.int64)
+        b = code_lengths_bits(r, np.broadcast_to(level_r[lo:hi, None, c0:], r.shape))
+        bits[lo:hi] = mu_r * _quaternion_sum(b)
         signs[lo:hi] = s
     return bits, signs
+
+
+def _quaternion_sum(b: np.ndarray) -> np.ndarray:
+    """b [..., 4] summed over its last axis as the product with ones(4) summed it, (b0 + b2) + (b1 +
+    b3) (the turns' ranking, and its ties, depend on the last bit); b [..., 3], the columns x, y, z
+    (w not counted): that sum with b0 = 0."""
+    if b.shape[-1] == 3:
+        return b[..., 1] + (b[..., 0] + b[..., 2])
+    return (b[..., 0] + b[..., 2]) + (b[..., 1] + b[..., 3])
 
 
 def _orientation(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarray, mu: np.ndarray,
@@ -321,9 +332,9 @@ def _orientation(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarr
     # the first candidate of every row: the Gaussian as given, or the way given
     turn = np.where(fixed, np.maximum(ways, 0) % nt, 0) if ways is not None else np.zeros(n, dtype=np.int64)
     sign = np.where(fixed & (np.maximum(ways, 0) >= nt), -1.0, 1.0) if ways is not None else np.ones(n)
-    candidates = [(np.arange(n), turn, sign)]
-    free = np.flatnonzero(~fixed)
+    candidates, free = [(slice(None), turn, sign)], np.flatnonzero(~fixed)
     if free.size and TURN_CANDIDATES > 0:  # then the best-ranked turns of the rows still to choose
+        free = slice(None) if free.size == n else free  # (every row, the usual case: views, no gathers)
         ranking, signs = _turn_ranking(np.ascontiguousarray(xr[free]), np.ascontiguousarray(mean_r[free]),
                                        np.ascontiguousarray(level_r[free]), mu_r, length_index=length_index)
         ranking += scale_bits[free][:, perm_of_turn]
@@ -332,18 +343,18 @@ def _orientation(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.ndarr
         candidates += [(free, best_turns[:, k], best_signs[:, k]) for k in range(best_turns.shape[1])]
     best = best_cost = None
     for idx, t, sg in candidates:
-        xt, ft = _turned(AXIS_TURNS[t] * sg[:, None, None], xr[idx], fr[idx])
+        xt, ft = _turned(t, sg, xr[idx], fr[idx])
         if length_index:  # w is implied >= 0: the sign that makes it so
             neg = xt[:, 0] < 0
             xt[neg], sg = -xt[neg], np.where(neg, -sg, sg)
         rho, cost = (_length_indices if length_index else _rotation_norms)(xt, ft, mean_r[idx], level_r[idx], mu_r)
-        cost += scale_bits[idx, perm_of_turn[t]]
+        cost += np.take_along_axis(scale_bits[idx], perm_of_turn[t][:, None], 1)[:, 0]
         cand = (xt, ft, rho, AXIS_TURN_PERMS[t], t + np.where(sg < 0, nt, 0))
         if best is None:
             best, best_cost = cand, cost
             continue
         better = cost < best_cost[idx]
-        rows = idx[better]
+        rows = better if isinstance(idx, slice) else idx[better]
         best_cost[rows] = cost[better]
         for b, c in zip(best, cand):
             b[rows] = c[better]
@@ -365,7 +376,7 @@ def _half_turned(x: np.ndarray, f: np.ndarray, rotation: slice) -> tuple[np.ndar
     from the rotations as given)."""
     xr = x[:, rotation]
     turn = np.argmax(np.abs(np.einsum("tij,nj->nti", AXIS_TURNS[:4], xr)[:, :, 0]), axis=1)
-    xt, ft = _turned(AXIS_TURNS[:4][turn], xr, f[:, rotation])
+    xt, ft = _turned(turn, np.ones(turn.size), xr, f[:, rotation])
     x, f = x.copy(), f.copy()
     x[:, rotation] = np.where(xt[:, :1] < 0, -xt, xt)
     f[:, rotation] = ft
