@@ -231,10 +231,6 @@ def _encode_gaussians(scene: GaussianScene, cfg, *, progress: bool, log: Log, me
             + (f", then {cfg.fit_iterations} fitting steps" if cfg.fit_iterations else ""))
         prep = prepare_gaussians(scene, cfg, log=log, progress=progress)
         scene, weights, sensitivity, cfg, prepared = prep.scene, prep.weights, prep.sensitivity, prep.cfg, prep.stats
-    if sensitivity is None and cfg.sensitivity_model == "uniform":  # RDOQ without renders (config.py)
-        import numpy as np
-        from ..common.attributes import GaussianLayout
-        sensitivity = np.ones((scene.num_gaussians, GaussianLayout(scene.sh_degree).num_channels))
     result = encode_gaussian_scene(scene, cfg, weights=weights, sensitivity=sensitivity, progress=progress,
                                    measure_ideal=measure_ideal, workers=workers)
     result.stats.prepare = prepared

@@ -144,6 +144,9 @@ def test_fast_rdoq_without_renders_codes_fewer_bytes_moving_values_a_step_at_mos
     moves = np.abs(np.concatenate([(b.sh - a.sh).reshape(n, -1), (b.opacity - a.opacity)[:, None]], 1))
     steps = np.array([cfg.sh_dc_step] * 3 + [cfg.sh_band_steps[0]] * 9 + [cfg.opacity_step])
     assert (moves <= steps * (1 + 1e-5)).all() and (moves > 0.5 * steps).any(axis=0).all()
+    from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene  # the model is the coder's, not the API's
+    direct = encode_gaussian_scene(scene, cfg).data
+    assert direct != encode_gaussian_scene(scene, dataclasses.replace(cfg, sensitivity_model="none")).data
 
 
 def test_min_opacity_drops_only_what_no_rasterizer_draws():

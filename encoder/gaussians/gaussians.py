@@ -179,7 +179,8 @@ def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | Non
     Gaussian's contribution to the pictures, when known (grid size, who keeps a shared voxel).
     ``sensitivity``: the pictures' sensitivity to each value (encoder/gaussians/rdoq.py, [N, M] at the
     scene's SH degree or above), when known: the values are then chosen by rate-distortion
-    optimized quantization (``cfg.rd_quantization``) instead of rounded. ``workers``
+    optimized quantization (``cfg.rd_quantization``) instead of rounded; without it,
+    ``cfg.sensitivity_model`` "uniform" gives every value the same one. ``workers``
     (encoder/stream/tile_workers.py TileWorkers; None: this process): where a tiled scene's tiles are
     coded; the stream does not depend on it. ``sh_degrees``: each Gaussian's SH degree in [0, the
     coded SH degree] (format 1.3, clause 11.9; None: every band of every Gaussian coded, no
@@ -189,6 +190,8 @@ def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | Non
     for name, a in (("sensitivity", sensitivity), ("sh_degrees", sh_degrees)):
         if a is not None and a.shape[0] != scene.num_gaussians:
             raise ValueError(f"{name} has {a.shape[0]} rows for {scene.num_gaussians} Gaussians")
+    if sensitivity is None and cfg.sensitivity_model == "uniform":  # RDOQ without renders (config.py)
+        sensitivity = np.ones((scene.num_gaussians, attr.GaussianLayout(scene.sh_degree).num_channels))
     stats = EncodeStats()
     t0 = time.perf_counter()
     scene = with_coded_sh_degree(scene, cfg, stats)
