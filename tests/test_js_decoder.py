@@ -264,7 +264,7 @@ const bytes = new Uint8Array(readFileSync(path));
 // a pool as pool.mjs's, in this process: tiles finish in reverse order of their start, each decoded
 // with the context a helper builds from the prelude's payloads
 const helper = (ctx) => ({ ...preludeContext(parseGaussianParameterSet(ctx.payloads.ps), ctx.payloads), tiles: ctx.tiles });
-const pool = { started: 0, start(ctx) { this.started++; }, runHere(f) { return new Promise((res) => setTimeout(res, 0)).then(f); }, decode(ctx, t) {
+const pool = { started: 0, start(ctx) { this.started++; }, flush() {}, decode(ctx, t) {
     const delay = 40 - 4 * t;
     return new Promise((res, rej) => setTimeout(() => t === failTile
         ? rej(new HashMismatchError(`tile ${t}`)) : decodeTile(helper(ctx), t).then(res, rej), delay));

@@ -39,7 +39,10 @@ export async function timed(thread, f) {
     return { ...r, span: { thread, start, end: clock() } };
 }
 
-const AHEAD = 2; // jobs a helper holds not yet decoded (one running, one waiting): it never waits for this thread between tiles
+// tiles a helper holds not yet decoded: two (one running, one waiting: it never waits for this thread
+// between tiles) while the queue is long, one at the end (the next comes when it says it decoded the
+// last, while it hashes that one and makes its arrays), so that the helpers finish together
+const AHEAD = 2;
 
 export class TilePool {
     /**
@@ -119,7 +122,7 @@ export class TilePool {
     _next() {
         if (this.queue.length) mark(`dispatch ${this.queue.length}`);
         for (const w of this.workers || []) {
-            while (w.jobs.filter((j) => !j.decoded).length < AHEAD && this.queue.length) {
+            while (w.jobs.filter((j) => !j.decoded).length < (this.queue.length > AHEAD * this.workers.length ? AHEAD : 1) && this.queue.length) {
                 const job = this._take();
                 w.jobs.push(job);
                 const tile = job.ctx.tiles[job.t];
@@ -178,9 +181,9 @@ export async function helperMessage(data) {
         const start = clock();
         const r = await decodeTile(ctx, t, { checkHash: false });
         ctx.tiles[t] = null;
+        self.postMessage({ id, t, decoded: true }); // the next tile may come while this one is hash-checked
         const hashed = checkTileHash(ctx, t, r); // the serialization is handed to Web Crypto now
         hashed.catch(() => {}); // awaited below
-        self.postMessage({ id, t, decoded: true }); // the next job may come while the hash is computed
         const arrays = sceneArrays(ctx.ps, [r]);
         const decoded = clock();
         await hashed;
