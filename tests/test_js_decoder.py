@@ -362,3 +362,25 @@ def test_scene_arrays_match_the_reference_decoder(stream):
     for name, want in (("positions", scene.means), ("sh", scene.sh), ("opacities", scene.opacity),
                        ("scales", scene.log_scales), ("rotations", scene.rotations)):
         assert bytes.fromhex(got[name]) == np.ascontiguousarray(want, dtype="<f4").reshape(n, -1).tobytes(), name
+
+
+CRC = """
+import { crc32, unitCrc32 } from './crc32.mjs';
+import { moduleCrc32 } from './wasm.mjs';
+const out = [];
+let seed = 12345;
+for (const n of [0, 1, 7, 8, 9, 4095, 4096, 4097, 65539, 1 << 20]) {
+    const b = new Uint8Array(n + 5);
+    for (let i = 0; i < b.length; i++) { seed = (seed * 1103515245 + 12345) >>> 0; b[i] = seed >>> 24; }
+    out.push([crc32(b, 3, 3 + n), moduleCrc32(b, 3, 3 + n), unitCrc32(b, 3, 3 + n), Buffer.from(b.subarray(3, 3 + n)).toString('hex')]);
+}
+console.log(JSON.stringify(out));
+"""
+
+
+def test_module_crc32_is_zlibs():
+    """The module's CRC-32 (wasm/decoder.ts crc32, slicing by 8, used for units of 4 KiB and more) and
+    crc32.mjs's give zlib's CRC-32 on every length around the 8-byte steps and the 4 KiB switch."""
+    for js, mod, unit, data in json.loads(node(CRC)):
+        want = zlib.crc32(bytes.fromhex(data))
+        assert js == mod == unit == want, (len(data) // 2, js, mod, unit, want)

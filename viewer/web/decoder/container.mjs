@@ -1,6 +1,6 @@
 // The container (spec clause 6): header, data units with CRC-32, unit types, and the unit
 // grammar of clause 6.3 for explicit-Gaussian streams.
-import { crc32 } from './crc32.mjs';
+import { unitCrc32 } from './crc32.mjs';
 import { BitstreamError, UnsupportedStreamError } from './errors.mjs';
 
 export const MAGIC = 0x4C474843;
@@ -34,7 +34,7 @@ export function parseContainer(bytes, { verifiedEnd = 0 } = {}) {
         if (size + 9 > left) throw new BitstreamError(`data unit at byte ${pos} (type 0x${type.toString(16)}): payload of ${size} bytes extends beyond the end of the stream (E8)`);
         const end = pos + 5 + size;
         const stored = ((bytes[end] << 24) | (bytes[end + 1] << 16) | (bytes[end + 2] << 8) | bytes[end + 3]) >>> 0;
-        if (end + 4 > verifiedEnd && crc32(bytes, pos, end) !== stored) throw new BitstreamError(`data unit at byte ${pos} (type 0x${type.toString(16)}) fails its CRC-32 check (E9)`);
+        if (end + 4 > verifiedEnd && unitCrc32(bytes, pos, end) !== stored) throw new BitstreamError(`data unit at byte ${pos} (type 0x${type.toString(16)}) fails its CRC-32 check (E9)`);
         units.push({ type, start: pos, end: end + 4, payload: bytes.subarray(pos + 5, end) });
         pos = end + 4;
     }

@@ -1,7 +1,7 @@
 // Progressive decoding (spec clause 6.1): tiles are decoded, and hash-checked, as soon as their
 // bytes have arrived; the scene is final only once the whole stream has passed the checks of
 // clauses 6 and 13.1 (parseStream on every byte). A stream rejected then is rejected whole.
-import { crc32 } from './crc32.mjs';
+import { unitCrc32 } from './crc32.mjs';
 import { decodeTile, parseStream, preludeContext, sceneArrays, DEFAULT_MAX_MEMORY } from './decoder.mjs';
 import { BitstreamError } from './errors.mjs';
 import { parseGaussianParameterSet, parseTileIndex } from './units.mjs';
@@ -65,7 +65,7 @@ export class ProgressiveDecoder {
     _verify(upTo = this.units.length) {
         for (; this.verified < upTo; this.verified++) {
             const u = this.units[this.verified];
-            if (crc32(this.buf, u.start, u.end - 4) !== u.stored) throw new BitstreamError(`data unit at byte ${u.start} fails its CRC-32 check (E9)`);
+            if (unitCrc32(this.buf, u.start, u.end - 4) !== u.stored) throw new BitstreamError(`data unit at byte ${u.start} fails its CRC-32 check (E9)`);
         }
     }
 

@@ -1194,3 +1194,38 @@ function serializeGroup(values: usize, n: i32, M: i32, a: i32, b: i32, at: usize
     }
     return at + (<usize>(n * w) << 2);
 }
+
+// ---------------------------------------------------------------- CRC-32 (clause 3, 6.1)
+
+let crcT: usize = 0; // slicing-by-8 tables, 8 x 256 u32 (crc32.mjs's TABLE)
+
+/** Build the CRC-32/ISO-HDLC tables (reflected polynomial 0xEDB88320) in fresh memory (kept by the caller's keep()). */
+export function crcTables(): void {
+    crcT = reserve(8 * 256 * 4);
+    for (let n: u32 = 0; n < 256; n++) {
+        let c = n;
+        for (let k = 0; k < 8; k++) c = c & 1 ? 0xEDB88320 ^ (c >>> 1) : c >>> 1;
+        store<u32>(crcT + (<usize>n << 2), c);
+    }
+    for (let s: usize = 1; s < 8; s++) {
+        for (let n: usize = 0; n < 256; n++) {
+            const prev = load<u32>(crcT + ((((s - 1) << 8) + n) << 2));
+            store<u32>(crcT + (((s << 8) + n) << 2), (prev >>> 8) ^ load<u32>(crcT + (<usize>(prev & 255) << 2)));
+        }
+    }
+}
+
+@inline function crcAt(s: usize, i: u32): u32 { return load<u32>(crcT + (((s << 8) + <usize>i) << 2)); }
+
+/** CRC-32 of the n bytes at p (crc32.mjs's crc32 of a fresh CRC, slicing by 8). */
+export function crc32(p: usize, n: i32): u32 {
+    let c: u32 = 0xFFFFFFFF;
+    let i: i32 = 0;
+    for (; i + 8 <= n; i += 8) {
+        const a = c ^ load<u32>(p + <usize>i), b = load<u32>(p + <usize>i + 4);
+        c = crcAt(7, a & 255) ^ crcAt(6, (a >>> 8) & 255) ^ crcAt(5, (a >>> 16) & 255) ^ crcAt(4, a >>> 24)
+            ^ crcAt(3, b & 255) ^ crcAt(2, (b >>> 8) & 255) ^ crcAt(1, (b >>> 16) & 255) ^ crcAt(0, b >>> 24);
+    }
+    for (; i < n; i++) c = crcAt(0, (c ^ <u32>load<u8>(p + <usize>i)) & 255) ^ (c >>> 8);
+    return ~c;
+}
