@@ -9,7 +9,7 @@
 // the spec's errors.
 import { BitstreamError } from './errors.mjs';
 import { neighboursInModule } from './knn.mjs';
-import { impliedRotations } from './rotation.mjs';
+import { lengthIndexError } from './rotation.mjs';
 import { decodeSymbolChunk, symbolError } from './symbols.mjs';
 import { alloc, callWasm, copyIn, wasm } from './wasm.mjs';
 
@@ -144,10 +144,9 @@ class TileAttributeDecoder {
         w.reset();
         const pScale = copyIn(w, scale), out = alloc(w, 4 * n * M, false);
         callWasm(() => w.reconstruct(n, pScale, out), (code, row, c) => new BitstreamError(`row ${row}, channel ${c}: the reconstructed value is not finite (clause 11.5, E52)`));
-        const values = new Float32Array(w.memory.buffer, out, n * M).slice();
         const rl = this.ctx.rotationLength;
-        if (rl) impliedRotations(values, new Int32Array(w.memory.buffer, this.qAddr, 2 * n * M), n, M, M - 4, rl.maxIndex);
-        return values;
+        if (rl) callWasm(() => w.impliedRotations(out, n, M - 4, rl.maxIndex), (code, row) => lengthIndexError(new Int32Array(w.memory.buffer, this.qAddr, 2 * n * M), row, M, M - 4, rl.maxIndex));
+        return new Float32Array(w.memory.buffer, out, n * M).slice();
     }
 }
 

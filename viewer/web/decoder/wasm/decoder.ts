@@ -899,6 +899,7 @@ export function errorStage(): i32 { return stage; }
 
 const ERR_Q_LIMIT: i32 = 11;   // |q| > 2^40 (11.6, E51; errA the row, errB the channel, errorWide() q)
 const ERR_NOT_FINITE: i32 = 12; // a reconstructed value not finite (11.5, E52; errA the row, errB the channel)
+const ERR_LENGTH_INDEX: i32 = 13; // a rotation length index outside [0, max_rotation_length_index] (11.10, E66; errA the row)
 const Q_LIMIT: i64 = 0x10000000000; // 2^40
 
 @inline function i64At(p: usize, i: i32): i64 { return load<i64>(p + (<usize>i << 3)); }
@@ -1140,6 +1141,26 @@ export function reconstruct(n: i32, scale: usize, out: usize): void {
             if (v - v != 0) fail(ERR_NOT_FINITE, i, c); // inf - inf and NaN - NaN are NaN
             store<f32>(ob + (<usize>c << 2), v);
         }
+    }
+}
+
+/**
+ * Clause 11.10 in place on the reconstructed values out (f32 [n * M]) of the tile (q at aQ): channel
+ * wc of every row becomes its implied w, float32(sqrt(max(0, 2^-k - ((x*x + y*y) + z*z)))) with every
+ * operation in binary64 (wasm's f64 arithmetic and sqrt are IEEE 754's, correctly rounded; the demotion
+ * rounds to nearest even, as Math.fround: rotation.mjs's bits), k the row's quantized value of channel
+ * wc and x, y, z its next three values; an index outside [0, maxIndex] fails (E66).
+ */
+export function impliedRotations(out: usize, n: i32, wc: i32, maxIndex: i32): void {
+    err = 0;
+    const M = aM;
+    for (let i = 0; i < n; i++) {
+        const b = out + (<usize>(i * M + wc) << 2);
+        const k = load<i64>(aQ + (<usize>(i * M + wc) << 3));
+        if (k < 0 || k > <i64>maxIndex) fail(ERR_LENGTH_INDEX, i, 0);
+        const x = <f64>load<f32>(b + 4), y = <f64>load<f32>(b + 8), z = <f64>load<f32>(b + 12);
+        const lengthSq = reinterpret<f64>(<u64>(1023 - <i32>k) << 52); // 2^-k, exactly (k <= 15)
+        store<f32>(b, <f32>Math.sqrt(Math.max(0.0, lengthSq - ((x * x + y * y) + z * z))));
     }
 }
 
