@@ -900,6 +900,7 @@ export function errorStage(): i32 { return stage; }
 const ERR_Q_LIMIT: i32 = 11;   // |q| > 2^40 (11.6, E51; errA the row, errB the channel, errorWide() q)
 const ERR_NOT_FINITE: i32 = 12; // a reconstructed value not finite (11.5, E52; errA the row, errB the channel)
 const ERR_LENGTH_INDEX: i32 = 13; // a rotation length index outside [0, max_rotation_length_index] (11.10, E66; errA the row)
+const ERR_STEP_INDEX: i32 = 14; // a step-adjustment index outside [0, max_step_adjust] (11.8, E65; errA the row of the chunk)
 const Q_LIMIT: i64 = 0x10000000000; // 2^40
 
 @inline function i64At(p: usize, i: i32): i64 { return load<i64>(p + (<usize>i << 3)); }
@@ -1161,6 +1162,20 @@ export function impliedRotations(out: usize, n: i32, wc: i32, maxIndex: i32): vo
         const x = <f64>load<f32>(b + 4), y = <f64>load<f32>(b + 8), z = <f64>load<f32>(b + 12);
         const lengthSq = reinterpret<f64>(<u64>(1023 - <i32>k) << 52); // 2^-k, exactly (k <= 15)
         store<f32>(b, <f32>Math.sqrt(Math.max(0.0, lengthSq - ((x * x + y * y) + z * z))));
+    }
+}
+
+/**
+ * The step-adjustment indices (11.8) of a chunk's n rows first, first + step, ... into adj (u8 [rows]):
+ * residual r (f64 [n], decodeSymbols' output; NaN beyond 2^53) plus the adjust mean, in binary64 as
+ * attributes.mjs did; an index outside [0, max] fails (E65).
+ */
+export function stepIndices(r: usize, n: i32, mean: f64, max: f64, adj: usize, first: i32, step: i32): void {
+    err = 0;
+    for (let t = 0; t < n; t++) {
+        const a = load<f64>(r + (<usize>t << 3)) + mean;
+        if (!(a >= 0 && a <= max)) fail(ERR_STEP_INDEX, t, 0);
+        store<u8>(adj + <usize>(first + t * step), <u8><i32>a);
     }
 }
 
