@@ -72,7 +72,12 @@ export class TilePool {
             const w = new Worker(this.url);
             w.jobs = [];
             w.onmessage = (e) => this._message(w, e.data);
-            w.onerror = (e) => { e.preventDefault(); this._failAll(w, `a decoding worker stopped: ${e.message}`); };
+            w.onerror = (e) => {
+                e.preventDefault();
+                if (!w.ready) this._message(w, { ready: true }); // 'ready' answered all the same; its tiles fail
+                this._failAll(w, `a decoding worker stopped: ${e.message}`);
+                this.close(); // no tile is handed to a stopped helper: every stream on the pool fails now, none waits
+            };
             w.postMessage({ init, helper: i + 1 });
             return w;
         });
@@ -134,7 +139,7 @@ export class TilePool {
     }
 
     _message(w, m) {
-        if (m.ready) { this._ready(); return; }
+        if (m.ready) { if (!w.ready) { w.ready = true; this._ready(); } return; }
         const i = w.jobs.findIndex((j) => j.t === m.t && j.id === m.id);
         if (m.decoded) { w.jobs[i].decoded = true; this._next(); return; }
         const { resolve, reject } = w.jobs.splice(i, 1)[0];
@@ -147,10 +152,16 @@ export class TilePool {
         for (const j of w.jobs.splice(0)) j.reject(remoteError({ name: 'Error', message }));
     }
 
+    /** Stop the helpers; every tile still queued or held by a helper (of any stream) is rejected, none waits forever. */
     close() {
-        for (const w of this.workers || []) w.terminate();
+        const message = 'the decoding pool was closed';
+        for (const w of this.workers || []) {
+            w.terminate();
+            this._failAll(w, message);
+        }
         this.workers = [];
-        for (const j of this.queue.splice(0)) j.reject(remoteError({ name: 'Error', message: 'the decoding pool was closed' }));
+        this.closed = true;
+        for (const j of this.queue.splice(0)) j.reject(remoteError({ name: 'Error', message }));
     }
 }
 

@@ -51,7 +51,7 @@ let pool = null;
 
 function poolFor(msg) {
     const W = msg.workers >= 2 && typeof Worker !== 'undefined' ? msg.workers : 0;
-    if (pool && pool.size !== W) closePool();
+    if (pool && (pool.size !== W || pool.closed)) closePool(); // a pool whose helper stopped is closed: a fresh one
     if (W && !pool) pool = new TilePool(W, helperUrl(msg));
     return pool;
 }
