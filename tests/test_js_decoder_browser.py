@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from lghcc.conformance import runner
 from lghcc.viewer import page as page_mod
@@ -63,7 +64,7 @@ def test_profile_conformance_in_chromium(tmp_path):
         b64 = base64.b64encode(c.stream.read_bytes()).decode("ascii")
         cases.append({"id": c.id, "b64": b64})
         want.append((c.id, c.expect, c.meta.get("decoded_sha256")))
-        # the same stream with its tiles decoded by a pool of 3 helper workers, the worker decoding tile 0 (pool.mjs)
+        # the same stream with its tiles decoded by a pool of 3 helper workers started once its prelude is in (no {warm}; pool.mjs)
         cases.append({"id": c.id + " pool", "b64": b64, "workers": 3})
         want.append((c.id + " pool", c.expect, c.meta.get("decoded_sha256")))
         for p in c.meta.get("partial_decodes", []):
@@ -87,6 +88,54 @@ def test_profile_conformance_in_chromium(tmp_path):
     pooled = {cid for (cid, _, _), r in zip(want, got) if r.get("helpers")}
     assert {"c078_neighbour_prediction_tiles pool", "c086_step_adjust_tiles pool"} <= pooled, pooled
     assert "c032_gaussians_sh0 pool" not in pooled  # one tile: decoded by the worker itself
+
+
+KEPT_POOL_PAGE = """<!doctype html><html><body><script id="w" type="text/plain">%WORKER%</script><script>
+const cases = %CASES%;
+const src = document.getElementById('w').textContent;
+const w = new Worker(URL.createObjectURL(new Blob([src], {type: 'text/javascript'})));
+function post(msg, transfer) {
+    return new Promise((resolve) => {
+        let tiles = 0;
+        const timer = setTimeout(() => resolve({timeout: true}), 60000);
+        w.onmessage = (e) => { if (e.data.type === 'tile') { tiles++; return; } clearTimeout(timer); resolve({...e.data, tileMessages: tiles}); };
+        w.postMessage(msg, transfer);
+    });
+}
+window.results = (async () => {
+    const out = [await post({warm: true, workers: 2, source: src}, [])];
+    for (const c of cases) {
+        const bytes = Uint8Array.from(atob(c.b64), (ch) => ch.charCodeAt(0));
+        out.push(await post({bytes, digest: true, workers: 2, source: src}, [bytes.buffer]));
+    }
+    return out;
+})();
+</script></body></html>"""
+
+
+def test_a_kept_pool_decodes_stream_after_stream_and_survives_a_bad_one(tmp_path):
+    """One worker, warmed before any stream ({warm}: 2 helpers ready), decodes a tiled stream, then one
+    whose tile unit fails its CRC-32 (E9: rejected before any of its tiles is shown, although its tiles
+    were handed out before the check), then two good streams with the pool it made again: the same
+    digests as test.yaml's, every tile by a helper."""
+    good = [STREAMS / n / "stream.lghcc" for n in ("c078_neighbour_prediction_tiles", "c086_step_adjust_tiles")]
+    data = bytearray(good[0].read_bytes())
+    data[len(data) // 2] ^= 0x55  # a byte in the middle of the tiles, its unit's CRC left as it was
+    streams = [good[0].read_bytes(), bytes(data), good[1].read_bytes(), good[0].read_bytes()]
+    cases = [{"b64": base64.b64encode(b).decode("ascii")} for b in streams]
+    html = KEPT_POOL_PAGE.replace("%WORKER%", page_mod.worker_js()).replace("%CASES%", json.dumps(cases))
+    pw, ctx, page = _browser_page(tmp_path, html)
+    try:
+        got = page.evaluate("() => window.results")
+    finally:
+        ctx.close()
+        pw.stop()
+    want = [yaml.safe_load((p.parent / "test.yaml").read_text())["decoded_sha256"] for p in good]
+    assert got[0] == {"type": "ready", "helpers": 2, "tileMessages": 0}, got[0]
+    assert got[2]["type"] == "error" and got[2]["kind"] == "BitstreamError" and "E9" in got[2]["message"] and got[2]["tileMessages"] == 0, got[2]
+    for r, digest in zip([got[1], got[3], got[4]], [want[0], want[1], want[0]]):
+        assert r["type"] == "done" and r["digest"] == digest and r["helpers"] == 2, r
+        assert r["tileMessages"] == r["tiles"] == 8 and {x["thread"] for x in r["timeline"]["tiles"]} == {"helper 1", "helper 2"}
 
 
 def _gaussian_page(tmp_path: Path, stream: Path) -> Path:

@@ -8,10 +8,12 @@ prediction where it pays, tiles of about 16k Gaussians as lghcc-enc writes them)
 Writes the streams to --out (kept between runs: a stream already there is reused), decodes each in
 Node (viewer/web/decoder/bench.mjs: best of R, tables loaded, page and process start excluded), in
 headless Chromium (the page's Web Worker, lghcc-decoder-worker.js: best of R, the stream's bytes
-already in the page; also when the first tile arrived), once more in Chromium with the tiles decoded
-by a pool of W threads (the page's default: navigator.hardwareConcurrency; W helper workers, the
-worker decoding tile 0 and handing out the rest, pool.mjs; each thread's tiles and busy time to
-stderr), and once with the reference decoder in this process, and prints a markdown table
+already in the page, a fresh worker per decode; also when the first tile arrived), once more in
+Chromium with the tiles decoded by a pool of W threads (the page's default:
+navigator.hardwareConcurrency; W helper workers, the worker handing the tiles out, pool.mjs; made and
+warmed with the page, before the first stream, and kept for every decode, as lghcc-view's page does:
+"pool helpers" says "warmed"; a tree without {warm} gets a fresh worker per decode; each thread's
+tiles and busy time to stderr), and once with the reference decoder in this process, and prints a markdown table
 (Gaussians/s). --stream adds coded streams (e.g. a 1M-Gaussian scene of tools/scale_scenes.py),
 --no-reference skips the reference decoder. --tree DIR measures the decoder of another tree (e.g. an
 older commit's `git archive` with its worker bundle built by its tools/node/build-viewer.mjs), for
@@ -54,21 +56,32 @@ def stream_for(name: str, ply: Path, out: Path, preset: str) -> Path:
 CHROMIUM_PAGE = """<!doctype html><html><body><script id="w" type="text/plain">%WORKER%</script><script>
 const src = document.getElementById('w').textContent;
 const b64 = '%STREAM%';
-function once() {
+const workers = %WORKERS% < 0 ? navigator.hardwareConcurrency : %WORKERS%;
+const make = () => new Worker(URL.createObjectURL(new Blob([src], {type: 'text/javascript'})));
+// a pool is made and warmed as a page does when it is created ({warm}: helpers started, module compiled), then kept
+// for every decode; a tree whose worker does not know {warm} (it answers an error) gets a fresh worker per decode
+function warmed() {
+    if (!workers) return Promise.resolve(null);
+    const w = make();
     return new Promise((resolve) => {
-        const w = new Worker(URL.createObjectURL(new Blob([src], {type: 'text/javascript'})));
+        w.onmessage = (e) => { if (e.data.type === 'ready') resolve(w); else { w.terminate(); resolve(null); } };
+        w.postMessage({warm: true, workers, source: src});
+    });
+}
+function once(kept) {
+    return new Promise((resolve) => {
+        const w = kept || make();
         const bytes = Uint8Array.from(atob(b64), (ch) => ch.charCodeAt(0));
-        const workers = %WORKERS% < 0 ? navigator.hardwareConcurrency : %WORKERS%;
         let first = null;
         w.onmessage = (e) => {
             if (e.data.type === 'tile') { if (first === null) first = e.data.ms; return; }
-            w.terminate();
-            resolve({...e.data, first, workers});
+            if (!kept) w.terminate();
+            resolve({...e.data, first, workers, warm: !!kept});
         };
         w.postMessage({bytes, workers, source: src}, [bytes.buffer]);
     });
 }
-window.results = (async () => { const out = []; for (let i = 0; i < %REPEAT%; i++) out.push(await once()); return out; })();
+window.results = (async () => { const kept = await warmed(); const out = []; for (let i = 0; i < %REPEAT%; i++) out.push(await once(kept)); return out; })();
 </script></body></html>"""
 
 
@@ -103,7 +116,7 @@ def chromium_decode(stream: Path, repeat: int, tmp: Path, workers: int = 0, tree
     if workers and best.get("timeline"):
         print(f"{stream.name}: pool of the best decode: {pool_balance(best['timeline'])}", file=sys.stderr)
     return {"seconds": best["seconds"], "first_tile_s": best["first"] / 1000, "first_s": runs[0]["seconds"],
-            "count": best["count"], "helpers": best["helpers"]}
+            "count": best["count"], "helpers": best["helpers"], "warm": best["warm"]}
 
 
 def pool_balance(timeline: dict) -> str:
@@ -111,8 +124,9 @@ def pool_balance(timeline: dict) -> str:
     threads: dict[str, list] = {}
     for x in timeline["tiles"]:
         threads.setdefault(x["thread"], []).append(x)
+    # busy: decoding and making the arrays (the hash is computed off the helper's thread meanwhile: "decoded")
     return "; ".join(f"{th} {len(xs)} tiles, {sum(x['points'] for x in xs)} points, busy "
-                     f"{sum(x['end'] - x['start'] for x in xs):.0f} ms" for th, xs in sorted(threads.items())) + \
+                     f"{sum(x.get('decoded', x['end']) - x['start'] for x in xs):.0f} ms" for th, xs in sorted(threads.items())) + \
         f" (decode {timeline['end'] - timeline['start']:.0f} ms)"
 
 
@@ -147,7 +161,7 @@ def measure(label: str, s: Path, args, node: str, use_chromium: bool) -> str:
         tr = time.perf_counter() - t0
         assert scene.num_gaussians == n
         ref = f"{tr:.2f} | {n / tr / 1e6:.3f} M"
-    helpers = pool["helpers"] if pool else "-"
+    helpers = (f"{pool['helpers']}" + (" warmed" if pool["warm"] else "")) if pool else "-"
     return (f"| {label} | {n} | {s.stat().st_size} | {js['seconds']:.3f} | {n / js['seconds'] / 1e6:.3f} M | "
             f"{js['first']:.3f} | {chromium_cells(one, n)} | {helpers} | {chromium_cells(pool, n)} | {ref} |")
 

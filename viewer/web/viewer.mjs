@@ -177,6 +177,8 @@ function start() {
     g.colorUpdateDistance = 0;
     g.splatBudget = 0;  // no budget: every splat, however many (the default budget is 1M)
     const bg = meta.background;
+    const url = /[#&]stream=([^&]+)/.exec(location.hash);
+    if (url || meta.panes.some((name) => document.getElementById(`lghcc-stream-${name}`))) decoderWorker(); // warming while the page sets up
     for (const name of meta.panes) {
         const layer = new Layer({ name: `lghcc-${name}` });
         app.scene.layers.push(layer);
@@ -204,7 +206,6 @@ function start() {
         app.assets.add(asset);
         app.assets.load(asset);
     }
-    const url = /[#&]stream=([^&]+)/.exec(location.hash);
     if (url) decodeInto(decodedPane(), { url: decodeURIComponent(url[1]) }, decodeURIComponent(url[1]));
     attachDrop();
     app.on('update', () => {
@@ -324,19 +325,26 @@ function dropTiles(pane) {
     pane.partial = [];
 }
 
+// decoding threads for a tiled stream's tiles: DECODE_WORKERS helpers the decoding worker starts (it hands the tiles out)
+const DECODE_WORKERS = Math.max(1, navigator.hardwareConcurrency || 1);
+
+// the decoding worker, kept from one stream to the next with its helpers; started and warmed ({warm}:
+// the module compiled, the helpers started with it) as soon as the page knows it will decode
 let worker = null;
+let decoding = false;
 function workerSource() { return document.getElementById('lghcc-worker').textContent; }
-function makeWorker() {
-    if (worker) worker.terminate(); // a new stream replaces one still decoding (and its helpers)
-    worker = new Worker(URL.createObjectURL(new Blob([workerSource()], { type: 'text/javascript' })));
+function decoderWorker() {
+    if (worker && decoding) { worker.terminate(); worker = null; } // a new stream replaces one still decoding (and its helpers)
+    if (!worker) {
+        worker = new Worker(URL.createObjectURL(new Blob([workerSource()], { type: 'text/javascript' })));
+        worker.postMessage({ warm: true, workers: DECODE_WORKERS, source: workerSource() });
+    }
     return worker;
 }
 
-// decoding threads for a tiled stream's tiles: DECODE_WORKERS helpers the decoding worker starts (it decodes tile 0 and hands out the rest)
-const DECODE_WORKERS = Math.max(1, navigator.hardwareConcurrency || 1);
-
 function decodeInto(pane, msg, what) {
-    const w = makeWorker();
+    const w = decoderWorker();
+    decoding = true;
     const parts = [];
     let firstTile = null;
     dropTiles(pane);
@@ -349,7 +357,7 @@ function decodeInto(pane, msg, what) {
             if (m.tiles > 1) showTile(pane, m.arrays);
             setCheck(`decoding ${what}: ${parts.length} of ${m.tiles} tiles (${m.count.toLocaleString()} Gaussians, hash of each tile checked)`);
         } else if (m.type === 'done') {
-            w.terminate();
+            decoding = false;
             dropTiles(pane);
             showSplats(pane, parts);
             const r = { pane: pane.name, tiles: m.tiles, count: m.count, seconds: m.seconds, firstTileSeconds: firstTile, hashChecked: true };
@@ -357,14 +365,20 @@ function decodeInto(pane, msg, what) {
             setCheck(`decoded in this page: ${m.count.toLocaleString()} Gaussians, ${m.tiles} tile${m.tiles > 1 ? 's' : ''}, ` +
                 `${m.seconds.toFixed(2)} s, hash ✓`);
         } else if (m.type === 'error') {
-            w.terminate();
+            decoding = false; // the worker stays (it replaces its helpers itself)
             dropTiles(pane);
             api.decodes.push({ pane: pane.name, error: `${m.kind}: ${m.message}` });
             setCheck(`✗ ${what}: not a valid stream`, true);
             fail(`${what}: stream rejected (${m.kind}): ${m.message}`);
         }
     };
-    w.onerror = (ev) => { dropTiles(pane); fail(`${what}: the decoder stopped: ${ev.message}`); };
+    w.onerror = (ev) => {
+        decoding = false;
+        w.terminate();
+        if (worker === w) worker = null;
+        dropTiles(pane);
+        fail(`${what}: the decoder stopped: ${ev.message}`);
+    };
     w.postMessage({ ...msg, workers: DECODE_WORKERS, source: workerSource() }, msg.bytes ? [msg.bytes.buffer] : []);
 }
 

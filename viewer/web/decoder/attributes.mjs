@@ -9,8 +9,8 @@
 // the spec's errors.
 import { BitstreamError } from './errors.mjs';
 import { neighboursInModule } from './knn.mjs';
-import { impliedRotations } from './rotation.mjs';
-import { decodeSymbolChunk, symbolError } from './symbols.mjs';
+import { lengthIndexError } from './rotation.mjs';
+import { symbolError, symbolsInModule } from './symbols.mjs';
 import { alloc, callWasm, copyIn, wasm } from './wasm.mjs';
 
 export const STEP_ADJUST_FACTORS = [1.0, 1.18920708, 1.41421354, 1.68179286, 2.0, 2.37841415, 2.82842708, 3.36358571].map(Math.fround);
@@ -125,16 +125,11 @@ class TileAttributeDecoder {
 
     /** The step-adjustment indices of the chunk's nr rows first, first + step, ... (clause 11.8), into the module's memory. */
     decodeIndices(i, first, step, nr) {
-        const h = this.h;
-        const bytes = this.take(h.adjustSize[i]);
-        const r = new Float64Array(nr);
-        decodeSymbolChunk(bytes, new Uint8Array(nr).fill(h.adjustLevel), nr, r, new Map(), `step-adjustment chunk ${i}`);
-        const max = this.ctx.stepAdjust.maxStepAdjust, adj = new Uint8Array(this.w.memory.buffer, this.adjAddr, this.n);
-        for (let t = 0; t < nr; t++) {
-            const a = r[t] + h.adjustMean;
-            if (!(a >= 0 && a <= max)) throw new BitstreamError(`step-adjustment chunk ${i}: an index is outside [0, max_step_adjust = ${max}] (clause 11.8, E65)`);
-            adj[first + t * step] = a;
-        }
+        const h = this.h, w = this.w, max = this.ctx.stepAdjust.maxStepAdjust;
+        const { po } = symbolsInModule(w, this.take(h.adjustSize[i]), h.adjustLevel, nr, `step-adjustment chunk ${i}`);
+        // residual + adjust mean, each checked against [0, max] (a residual beyond 2^53 is NaN: outside), into the rows' indices
+        callWasm(() => w.stepIndices(po, nr, h.adjustMean, max, this.adjAddr, first, step),
+            () => new BitstreamError(`step-adjustment chunk ${i}: an index is outside [0, max_step_adjust = ${max}] (clause 11.8, E65)`));
     }
 
     /** Reconstruction in binary32 (clause 11.5) of the tile's values, by the module: Float32Array [n * M]. */
@@ -144,10 +139,9 @@ class TileAttributeDecoder {
         w.reset();
         const pScale = copyIn(w, scale), out = alloc(w, 4 * n * M, false);
         callWasm(() => w.reconstruct(n, pScale, out), (code, row, c) => new BitstreamError(`row ${row}, channel ${c}: the reconstructed value is not finite (clause 11.5, E52)`));
-        const values = new Float32Array(w.memory.buffer, out, n * M).slice();
         const rl = this.ctx.rotationLength;
-        if (rl) impliedRotations(values, new Int32Array(w.memory.buffer, this.qAddr, 2 * n * M), n, M, M - 4, rl.maxIndex);
-        return values;
+        if (rl) callWasm(() => w.impliedRotations(out, n, M - 4, rl.maxIndex), (code, row) => lengthIndexError(new Int32Array(w.memory.buffer, this.qAddr, 2 * n * M), row, M, M - 4, rl.maxIndex));
+        return new Float32Array(w.memory.buffer, out, n * M).slice();
     }
 }
 

@@ -1,6 +1,6 @@
 // The container (spec clause 6): header, data units with CRC-32, unit types, and the unit
 // grammar of clause 6.3 for explicit-Gaussian streams.
-import { crc32 } from './crc32.mjs';
+import { unitCrc32 } from './crc32.mjs';
 import { BitstreamError, UnsupportedStreamError } from './errors.mjs';
 
 export const MAGIC = 0x4C474843;
@@ -11,8 +11,11 @@ export const UNIT = {
 };
 const LAST_KNOWN_CRITICAL = 0x0C;
 
-/** Clause 6.1, 6.2: the container header and every data unit (header, size, CRC), before any payload is interpreted. */
-export function parseContainer(bytes) {
+/**
+ * Clause 6.1, 6.2: the container header and every data unit (header, size, CRC), before any payload
+ * is interpreted. verifiedEnd: the units that end at or before this byte passed their CRC check already.
+ */
+export function parseContainer(bytes, { verifiedEnd = 0 } = {}) {
     if (bytes.length < 8) throw new BitstreamError(`the stream has ${bytes.length} bytes, shorter than the 8-byte container header (E1)`);
     const magic = ((bytes[0] << 24) | (bytes[1] << 16) | (bytes[2] << 8) | bytes[3]) >>> 0;
     if (magic !== MAGIC) throw new BitstreamError(`magic 0x${magic.toString(16)} is not 0x4c474843 ("LGHC") (E2)`);
@@ -31,7 +34,7 @@ export function parseContainer(bytes) {
         if (size + 9 > left) throw new BitstreamError(`data unit at byte ${pos} (type 0x${type.toString(16)}): payload of ${size} bytes extends beyond the end of the stream (E8)`);
         const end = pos + 5 + size;
         const stored = ((bytes[end] << 24) | (bytes[end + 1] << 16) | (bytes[end + 2] << 8) | bytes[end + 3]) >>> 0;
-        if (crc32(bytes, pos, end) !== stored) throw new BitstreamError(`data unit at byte ${pos} (type 0x${type.toString(16)}) fails its CRC-32 check (E9)`);
+        if (end + 4 > verifiedEnd && unitCrc32(bytes, pos, end) !== stored) throw new BitstreamError(`data unit at byte ${pos} (type 0x${type.toString(16)}) fails its CRC-32 check (E9)`);
         units.push({ type, start: pos, end: end + 4, payload: bytes.subarray(pos + 5, end) });
         pos = end + 4;
     }

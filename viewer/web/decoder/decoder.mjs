@@ -18,10 +18,11 @@ export const DEFAULT_MAX_MEMORY = 2 ** 31; // bytes a decode may hold (decodeStr
 /**
  * Parse everything before the tiles (clause 13.1 steps 1 to 5). Returns the stream's context:
  * {ps, np, stepAdjust, shDegreeUnit, rotationLength, tiles: [{units, points, cell}], M, steps, payloads}.
+ * verifiedEnd: the units ending at or before this byte passed their CRC-32 check already (progressive.mjs).
  */
-export function parseStream(bytes, { maxMemory = DEFAULT_MAX_MEMORY } = {}) {
+export function parseStream(bytes, { maxMemory = DEFAULT_MAX_MEMORY, verifiedEnd = 0 } = {}) {
     scaleTables(); // digest of clause 10.2.2 checked before anything is decoded
-    const container = parseContainer(bytes);
+    const container = parseContainer(bytes, { verifiedEnd });
     const s = unitStructure(container.units);
     const ps = parseGaussianParameterSet(s.ps.payload);
     if (s.np && ps.hierarchyEnabled) throw new BitstreamError('a neighbour_prediction unit in a stream with the hierarchy (clause 7.3.12, E60)');
@@ -110,12 +111,19 @@ export async function decodeTile(ctx, t, { checkHash = true } = {}) {
     const h = parseAttributeHeader(A[0].payload, ctx);
     if (h.numRows !== n) throw new BitstreamError(`attribute unit of tile ${t}: num_rows_minus1 + 1 = ${h.numRows}, the tile has ${n} points (clause 8.3, E59)`);
     const values = decodeTileAttributes(A[0].payload, h, coords, ctx);
-    const out = { x: coords.x, y: coords.y, z: coords.z, values, n };
-    if (checkHash) {
-        const digest = await sha256(serializeTile(ctx.ps, out)); // Web Crypto copies the bytes at the call
-        if (toHex(digest) !== toHex(sceneHash)) throw new HashMismatchError(`tile ${t}: the decoded scene does not match its scene_hash (clause 12, E53)`);
-    }
+    const out = { x: coords.x, y: coords.y, z: coords.z, values, n, sceneHash: toHex(sceneHash) };
+    if (checkHash) await checkTileHash(ctx, t, out);
     return out;
+}
+
+/**
+ * Clause 12's check of a decoded tile (decodeTile's result) against its scene_hash; rejects with
+ * HashMismatchError. The serialization is made and handed to the hash at the call (Web Crypto copies
+ * the bytes and hashes them off this thread), so the caller may go on before awaiting it.
+ */
+export async function checkTileHash(ctx, t, out) {
+    const digest = await sha256(serializeTile(ctx.ps, out));
+    if (toHex(digest) !== out.sceneHash) throw new HashMismatchError(`tile ${t}: the decoded scene does not match its scene_hash (clause 12, E53)`);
 }
 
 // E58 from the points' per-axis bounds (decodeGeometry's min and max)

@@ -1,12 +1,16 @@
 // Tiles decoded in parallel (clause 13.2: a tile's decoding needs only the prelude and its own
-// units): a pool of Web Workers that run this same worker script. The decoding worker hands each
-// complete tile to an idle helper ({job}); a helper parses the prelude once ({init}), decodes and
-// hash-checks the tile and sends back the renderer's arrays (and, for a digest, the decoded tile).
-import { decodeTile, preludeContext, sceneArrays } from './decoder.mjs';
+// units): a pool of Web Workers that run this same worker script. The pool is started and warmed
+// once ({init}: the compiled module and the checked scale tables; each helper instantiates the
+// module and answers {ready}), before a stream arrives where the page asks for it ({warm} to the
+// worker), and kept for the streams that follow. Per stream the helpers get its prelude's payloads
+// ({prelude}), then the decoding worker hands each complete tile to a helper ({job}); a helper
+// decodes it, says so ({decoded}: its next job is sent then, while this tile's hash is computed off
+// its thread), hash-checks it and sends back the renderer's arrays (and, for a digest, the decoded tile).
+import { checkTileHash, decodeTile, preludeContext, sceneArrays } from './decoder.mjs';
 import * as errors from './errors.mjs';
 import { adoptScaleTables, scaleTables } from './tables.mjs';
 import { parseGaussianParameterSet } from './units.mjs';
-import { adoptWasmModule, wasmModule } from './wasm.mjs';
+import { adoptWasmModule, wasm, wasmModule } from './wasm.mjs';
 
 // a typed array that owns its whole buffer (a view into a larger one would clone all of it)
 function own(a) { return a.byteOffset === 0 && a.byteLength === a.buffer.byteLength ? a : a.slice(); }
@@ -24,6 +28,10 @@ function remoteError({ name, message }) {
 /** Milliseconds since the epoch of the page's clock (comparable across workers: the timeline). */
 export function clock() { return performance.timeOrigin + performance.now(); }
 
+/** The decoding worker's steps on the timeline ([what, clock()]; worker.mjs takes them per stream). */
+export const marks = [];
+export function mark(what) { if (marks.length < 1000) marks.push([what, clock()]); }
+
 /** f()'s result (a promise of a decoded tile) with its span on the timeline: {thread, start, end}. */
 export async function timed(thread, f) {
     const start = clock();
@@ -31,56 +39,82 @@ export async function timed(thread, f) {
     return { ...r, span: { thread, start, end: clock() } };
 }
 
-const AHEAD = 2; // jobs a helper holds (one running, one waiting): it never waits for this thread between tiles
+// tiles a helper holds not yet decoded: two (one running, one waiting: it never waits for this thread
+// between tiles) while the queue is long, one at the end (the next comes when it says it decoded the
+// last, while it hashes that one and makes its arrays), so that the helpers finish together
+const AHEAD = 2;
 
 export class TilePool {
     /**
-     * size helpers of the worker script at url; keep: helpers send the decoded tiles back (for a
-     * digest). This thread decodes tile 0 (runHere: the first tile does not wait for a helper to
-     * start) and otherwise only hands tiles out and takes results: a thread that decoded tiles
-     * too would answer a helper only between its own tiles, and the helper would wait (round 7 of
-     * tools/results/js_decoder.md). So W decoding threads are W helpers.
+     * size helpers of the worker script at url. The decoding worker decodes no tile itself: it hands
+     * tiles out and takes results, so it answers a helper at once, and it leaves the helpers' start
+     * alone (Chromium starts a nested worker through its parent's thread: a parent busy decoding
+     * held its helpers back by that long, round 9 of tools/results/js_decoder.md).
      */
-    constructor(size, url, { keep = false } = {}) {
+    constructor(size, url) {
         this.size = size;
         this.url = url;
-        this.keep = keep;
         this.dispatching = false;
         this.workers = null;
+        this.ready = null; // promise: every helper has instantiated the module
         this.queue = [];
+        this.streams = 0;
     }
 
-    /** The prelude is known (ctx.payloads): start the helpers, at most one per tile after the first (decoded here). */
-    start(ctx) {
-        if (this.workers) return;
-        const p = ctx.payloads;
+    /** Start the helpers and send them the module and the scale tables (once); returns the promise of their being ready. */
+    warm() {
+        if (this.workers) return this.ready;
         // the module and the scale tables as this thread compiled and checked them: a helper neither compiles nor builds them again
-        const init = { ps: own(p.ps), np: p.np && own(p.np), sa: p.sa && own(p.sa), sd: p.sd && own(p.sd), rl: p.rl && own(p.rl), module: wasmModule(), tables: scaleTables() };
-        this.workers = Array.from({ length: Math.min(this.size, ctx.tiles.length - 1) }, (_, i) => {
+        const init = { module: wasmModule(), tables: scaleTables() };
+        let left = this.size;
+        this.ready = new Promise((resolve) => { this._ready = () => { if (--left === 0) resolve(this.workers.length); }; });
+        this.workers = Array.from({ length: this.size }, (_, i) => {
             const w = new Worker(this.url);
             w.jobs = [];
-            w.onmessage = (e) => this._done(w, e.data);
-            w.onerror = (e) => { e.preventDefault(); this._failAll(w, `a decoding worker stopped: ${e.message}`); };
+            w.onmessage = (e) => this._message(w, e.data);
+            w.onerror = (e) => {
+                e.preventDefault();
+                if (!w.ready) this._message(w, { ready: true }); // 'ready' answered all the same; its tiles fail
+                this._failAll(w, `a decoding worker stopped: ${e.message}`);
+                this.close(); // no tile is handed to a stopped helper: every stream on the pool fails now, none waits
+            };
             w.postMessage({ init, helper: i + 1 });
             return w;
         });
+        return this.ready;
     }
 
-    /** Promise of tile t's result {n, arrays, x, y, z, values (with keep)}. */
-    decode(ctx, t) {
-        return new Promise((resolve, reject) => {
-            this.queue.push({ ctx, t, resolve, reject });
-            // handed out once the tiles that arrived together are all queued: the largest go first
-            if (!this.dispatching) {
-                this.dispatching = true;
-                queueMicrotask(() => { this.dispatching = false; this._next(); });
-            }
-        });
-    }
-
-    /** Promise of f()'s result, run on this thread once it is free (after the jobs handed out so far are posted). */
-    runHere(f) {
-        return new Promise((res) => setTimeout(res, 0)).then(() => timed('worker', f));
+    /**
+     * A stream's side of the pool (the pool warmed first if it was not): {start(ctx): its prelude
+     * known, decode(ctx, t): promise of tile t's result {n, arrays, span, x, y, z, values (with
+     * keep)}, handed out at the next flush() or microtask, end(): the stream decoded}. keep: helpers send the decoded tiles back (for a digest).
+     */
+    stream({ keep = false } = {}) {
+        const id = ++this.streams;
+        let started = false;
+        return {
+            start: (ctx) => {
+                if (started) return;
+                started = true;
+                this.warm();
+                const p = ctx.payloads;
+                const prelude = { id, ps: own(p.ps), np: p.np && own(p.np), sa: p.sa && own(p.sa), sd: p.sd && own(p.sd), rl: p.rl && own(p.rl) };
+                for (const w of this.workers) w.postMessage({ prelude });
+            },
+            decode: (ctx, t) => new Promise((resolve, reject) => {
+                this.queue.push({ id, ctx, t, keep, resolve, reject });
+                // handed out once the tiles that arrived together are all queued: the largest go first
+                if (!this.dispatching) {
+                    this.dispatching = true;
+                    queueMicrotask(() => { this.dispatching = false; this._next(); });
+                }
+            }),
+            flush: () => this._next(), // hand out the queued tiles now
+            end: () => {
+                this.queue = this.queue.filter((j) => j.id !== id);
+                if (started) for (const w of this.workers) w.postMessage({ forget: id });
+            },
+        };
     }
 
     // the queued tile with the most points: the last tiles to finish are small ones
@@ -91,19 +125,23 @@ export class TilePool {
     }
 
     _next() {
+        if (this.queue.length) mark(`dispatch ${this.queue.length}`);
         for (const w of this.workers || []) {
-            while (w.jobs.length < AHEAD && this.queue.length) {
+            while (w.jobs.filter((j) => !j.decoded).length < (this.queue.length > AHEAD * this.workers.length ? AHEAD : 1) && this.queue.length) {
                 const job = this._take();
                 w.jobs.push(job);
                 const tile = job.ctx.tiles[job.t];
-                const units = tile.units.map((u) => ({ type: u.type, payload: u.payload.slice() }));
-                w.postMessage({ job: { t: job.t, points: tile.points, cell: tile.cell, units, keep: this.keep } }, units.map((u) => u.payload.buffer));
+                // the payloads moved, not copied (the progressive decoder's units own their bytes; a view is copied)
+                const units = tile.units.map((u) => ({ type: u.type, payload: own(u.payload) }));
+                w.postMessage({ job: { id: job.id, t: job.t, points: tile.points, cell: tile.cell, units, keep: job.keep } }, units.map((u) => u.payload.buffer));
             }
         }
     }
 
-    _done(w, m) {
-        const i = w.jobs.findIndex((j) => j.t === m.t);
+    _message(w, m) {
+        if (m.ready) { if (!w.ready) { w.ready = true; this._ready(); } return; }
+        const i = w.jobs.findIndex((j) => j.t === m.t && j.id === m.id);
+        if (m.decoded) { w.jobs[i].decoded = true; this._next(); return; }
         const { resolve, reject } = w.jobs.splice(i, 1)[0];
         if (m.error) reject(remoteError(m.error));
         else resolve({ ...m.tile, arrays: m.arrays });
@@ -114,39 +152,61 @@ export class TilePool {
         for (const j of w.jobs.splice(0)) j.reject(remoteError({ name: 'Error', message }));
     }
 
+    /** Stop the helpers; every tile still queued or held by a helper (of any stream) is rejected, none waits forever. */
     close() {
-        for (const w of this.workers || []) w.terminate();
+        const message = 'the decoding pool was closed';
+        for (const w of this.workers || []) {
+            w.terminate();
+            this._failAll(w, message);
+        }
         this.workers = [];
+        this.closed = true;
+        for (const j of this.queue.splice(0)) j.reject(remoteError({ name: 'Error', message }));
     }
 }
 
-let helperCtx = null;
+const helper = { id: 0, ready: null, streams: new Map() };
 const helperLoaded = clock(); // this script evaluated (the timeline's helper start)
 
-/** A helper's side: {init} (the prelude's payloads) once, then {job} per tile. */
+/** A helper's side: {init} once, {prelude} and {forget} per stream, {job} per tile. */
 export async function helperMessage(data) {
     if (data.init) {
         adoptWasmModule(data.init.module);
         adoptScaleTables(data.init.tables);
-        const ps = parseGaussianParameterSet(data.init.ps);
-        helperCtx = { ...preludeContext(ps, data.init), tiles: [], id: data.helper, ready: [helperLoaded, clock()] };
+        wasm(); // instantiated now, before a stream arrives
+        helper.id = data.helper;
+        helper.ready = [helperLoaded, clock()];
+        self.postMessage({ ready: true });
         return;
     }
-    const { t, points, cell, units, keep } = data.job;
+    if (data.prelude) {
+        const p = data.prelude;
+        helper.streams.set(p.id, { ...preludeContext(parseGaussianParameterSet(p.ps), p), tiles: [] });
+        return;
+    }
+    if (data.forget) { helper.streams.delete(data.forget); return; }
+    const { id, t, points, cell, units, keep } = data.job;
     try {
-        helperCtx.tiles[t] = { units, points, cell };
-        const r = await timed(`helper ${helperCtx.id}`, () => decodeTile(helperCtx, t));
-        helperCtx.tiles[t] = null;
-        const arrays = sceneArrays(helperCtx.ps, [r]);
+        const ctx = helper.streams.get(id);
+        ctx.tiles[t] = { units, points, cell };
+        const start = clock();
+        const r = await decodeTile(ctx, t, { checkHash: false });
+        ctx.tiles[t] = null;
+        self.postMessage({ id, t, decoded: true }); // the next tile may come while this one is hash-checked
+        const hashed = checkTileHash(ctx, t, r); // the serialization is handed to Web Crypto now
+        hashed.catch(() => {}); // awaited below
+        const arrays = sceneArrays(ctx.ps, [r]);
+        const decoded = clock();
+        await hashed;
         const transfer = arrayBuffers(arrays);
-        let tile = { n: r.n, span: { ...r.span, ready: helperCtx.ready } };
+        let tile = { n: r.n, span: { thread: `helper ${helper.id}`, start, end: clock(), decoded, ready: helper.ready } };
         if (keep) {
             tile = { ...tile, x: own(r.x), y: own(r.y), z: own(r.z), values: own(r.values) };
             transfer.push(tile.x.buffer, tile.y.buffer, tile.z.buffer, tile.values.buffer);
         }
-        self.postMessage({ t, tile, arrays }, transfer);
+        self.postMessage({ id, t, tile, arrays }, transfer);
     } catch (err) {
-        self.postMessage({ t, error: { name: err && err.name ? err.name : 'Error', message: String(err && err.message ? err.message : err) } });
+        self.postMessage({ id, t, error: { name: err && err.name ? err.name : 'Error', message: String(err && err.message ? err.message : err) } });
     }
 }
 

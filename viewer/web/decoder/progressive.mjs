@@ -1,18 +1,19 @@
 // Progressive decoding (spec clause 6.1): tiles are decoded, and hash-checked, as soon as their
 // bytes have arrived; the scene is final only once the whole stream has passed the checks of
 // clauses 6 and 13.1 (parseStream on every byte). A stream rejected then is rejected whole.
-import { crc32 } from './crc32.mjs';
+import { unitCrc32 } from './crc32.mjs';
 import { decodeTile, parseStream, preludeContext, sceneArrays, DEFAULT_MAX_MEMORY } from './decoder.mjs';
 import { BitstreamError } from './errors.mjs';
 import { parseGaussianParameterSet, parseTileIndex } from './units.mjs';
 import { UNIT } from './container.mjs';
-import { timed } from './pool.mjs';
+import { mark, timed } from './pool.mjs';
 
 export class ProgressiveDecoder {
     /**
      * onTile(t, tile, info): a tile decoded and hash-checked (provisional until finish()).
-     * pool: null (tiles decoded here, one after the other, in order) or an object whose
-     * decode(ctx, t) promises tile t's result (tiles in parallel workers: onTile in any order).
+     * pool: null (tiles decoded here, one after the other, in order) or a stream's side of a pool
+     * (TilePool.stream(): start(ctx) once the prelude is known, decode(ctx, t) promises tile t's
+     * result; tiles in parallel workers, onTile in any order).
      */
     constructor({ onTile = null, maxMemory = DEFAULT_MAX_MEMORY, pool = null } = {}) {
         this.onTile = onTile;
@@ -24,6 +25,7 @@ export class ProgressiveDecoder {
         this.len = 0;
         this.units = []; // complete units seen so far: {type, start, end, payload}
         this.scan = 8;
+        this.verified = 0; // units[0, verified) passed their CRC-32 check
         this.ctx = null; // the prelude, once parsed
         this.tiles = []; // decoded tiles, by tile number
         this.busy = Promise.resolve();
@@ -44,6 +46,8 @@ export class ProgressiveDecoder {
         return this.busy;
     }
 
+    // the units' boundaries; a unit's CRC-32 is checked by _verify, before its payload is parsed or
+    // its tile decoded here (with a pool: right after the tiles complete so far are handed out)
     _scanUnits() {
         const b = this.buf;
         while (this.scan + 9 <= this.len) {
@@ -52,9 +56,16 @@ export class ProgressiveDecoder {
             if (p + 9 + size > this.len) break;
             const end = p + 5 + size;
             const stored = ((b[end] << 24) | (b[end + 1] << 16) | (b[end + 2] << 8) | b[end + 3]) >>> 0;
-            if (crc32(b, p, end) !== stored) throw new BitstreamError(`data unit at byte ${p} fails its CRC-32 check (E9)`);
-            this.units.push({ type: b[p], start: p, end: end + 4, payload: b.slice(p + 5, end) });
+            this.units.push({ type: b[p], start: p, end: end + 4, stored, index: this.units.length, payload: b.slice(p + 5, end) });
             this.scan = end + 4;
+        }
+    }
+
+    // E9 for the units scanned so far before index upTo, in stream order
+    _verify(upTo = this.units.length) {
+        for (; this.verified < upTo; this.verified++) {
+            const u = this.units[this.verified];
+            if (unitCrc32(this.buf, u.start, u.end - 4) !== u.stored) throw new BitstreamError(`data unit at byte ${u.start} fails its CRC-32 check (E9)`);
         }
     }
 
@@ -62,6 +73,9 @@ export class ProgressiveDecoder {
     _prelude() {
         const crit = this.units.filter((u) => u.type < 0x80);
         if (!crit.length || crit[0].type !== UNIT.GAUSSIAN_PARAMETER_SET) return null;
+        const last = crit.findIndex((u) => u.type === UNIT.TILE_INDEX || u.type === UNIT.GEOMETRY);
+        if (last < 0) return null;
+        this._verify(crit[last].index + 1); // the units this parses
         const ps = parseGaussianParameterSet(crit[0].payload);
         if (ps.hierarchyEnabled) return null; // rejected by finish()
         let i = 1;
@@ -90,21 +104,29 @@ export class ProgressiveDecoder {
     async _advance() {
         if (this.failed) throw this.failed; // a tile the pool rejected: the stream is rejected now
         this._scanUnits();
+        mark(`scanned ${this.scan}`);
         if (!this.ctx) {
             this.ctx = this._prelude();
-            if (!this.ctx) return;
+            if (!this.ctx) { this._verify(); return; }
+            mark('prelude');
             this._startPool(this.ctx);
         }
+        if (!this.pool) this._verify(); // one thread: every unit so far checked before a tile is decoded
         const ctx = this.ctx;
         while (this.pending.length < ctx.tiles.length) {
             const t = this.pending.length, tile = ctx.tiles[t];
             const units = this.units.filter((u) => u.type < 0x80 && u.start >= tile.start && u.end <= tile.end);
             const last = units[units.length - 1];
             const complete = last && last.type === UNIT.DECODED_SCENE_HASH && (tile.end === Infinity || last.end === tile.end);
-            if (!complete) return;
+            if (!complete) break;
             tile.units = units;
             const p = this._start(ctx, t);
             if (!this.pool) await p; // one after the other: tile 0 is shown before tile 1 is started
+        }
+        if (this.pool) {
+            this.pool.flush(); // the tiles complete so far handed out (largest first), then their units checked here
+            this._verify();
+            mark('verified');
         }
     }
 
@@ -114,14 +136,9 @@ export class ProgressiveDecoder {
         if (this.pool) this.pool.start(ctx);
     }
 
-    // tile t decoded (here or by the pool), kept and reported. With a pool, tile 0 is decoded here,
-    // once the tiles complete so far have been handed out: the first tile does not wait for a
-    // helper to start (load and compile its script), and this worker is otherwise idle.
+    // tile t decoded (here, or by the pool: every tile, this thread only hands them out), kept and reported
     _start(ctx, t) {
-        let p;
-        if (!this.pool) p = timed('worker', () => decodeTile(ctx, t));
-        else if (t === 0) p = this.pool.runHere(() => decodeTile(ctx, 0));
-        else p = this.pool.decode(ctx, t);
+        let p = this.pool ? this.pool.decode(ctx, t) : timed('worker', () => decodeTile(ctx, t));
         p = p.then((r) => {
             this.tiles[t] = r;
             if (this.onTile) this.onTile(t, r, { tiles: ctx.tiles.length, ps: ctx.ps });
@@ -137,8 +154,11 @@ export class ProgressiveDecoder {
      */
     async finish() {
         await this.busy;
+        mark('finish');
         const bytes = this.buf.subarray(0, this.len);
-        const ctx = parseStream(bytes, { maxMemory: this.maxMemory });
+        // the units _verify checked are not checked again (the same bytes: the buffer only grows)
+        const ctx = parseStream(bytes, { maxMemory: this.maxMemory, verifiedEnd: this.verified ? this.units[this.verified - 1].end : 0 });
+        mark('parsed');
         // the tiles decoded early were cut by the index this full parse has now checked
         if (this.ctx && this.ctx.tiles.length !== ctx.tiles.length) throw new BitstreamError('the tiles changed between the progressive and the full parse');
         if (!this.ctx) this._startPool(ctx);
@@ -147,6 +167,7 @@ export class ProgressiveDecoder {
             if (!this.pool) await p;
         }
         await Promise.all(this.pending);
+        mark('tiles');
         return { ps: ctx.ps, tiles: this.tiles };
     }
 }

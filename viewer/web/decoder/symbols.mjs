@@ -18,15 +18,8 @@ export function symbolError(what, code, w) {
  * of escaped residuals.
  */
 export function decodeSymbolChunk(bytes, levels, n, out, wide, what) {
-    if (bytes.length % 4) {
-        throw new BitstreamError(`${what}: length ${bytes.length} is not a whole number of 32-bit words (clause 10.6.6)`);
-    }
     const w = wasm();
-    w.reset();
-    const p = alloc(w, bytes.length), pl = alloc(w, n), po = alloc(w, 8 * n), pw = alloc(w, 8 * n);
-    new Uint8Array(w.memory.buffer, p, bytes.length).set(bytes);
-    new Uint8Array(w.memory.buffer, pl, n).set(levels.subarray(0, n));
-    const nesc = callWasm(() => w.decodeSymbols(p, bytes.length, pl, n, po, pw), (code) => symbolError(what, code, w));
+    const { po, pw, nesc } = symbolsInModule(w, bytes, levels, n, what);
     const res = new Float64Array(w.memory.buffer, po, n);
     out.set(res);
     if (nesc) {
@@ -34,4 +27,22 @@ export function decodeSymbolChunk(bytes, levels, n, out, wide, what) {
         for (let j = 0; j < n; j++) if (Number.isNaN(res[j])) wide.set(j, big[j]);
     }
     return nesc;
+}
+
+/**
+ * decodeSymbolChunk's decoding, its results left in the module's fresh arena: {po: the residuals (f64 [n];
+ * NaN where |r| >= 2^53), pw: the escaped ones (i64 [n]), nesc}. levels: Uint8Array [n], or one level for all.
+ */
+export function symbolsInModule(w, bytes, levels, n, what) {
+    if (bytes.length % 4) {
+        throw new BitstreamError(`${what}: length ${bytes.length} is not a whole number of 32-bit words (clause 10.6.6)`);
+    }
+    w.reset();
+    const p = alloc(w, bytes.length), pl = alloc(w, n), po = alloc(w, 8 * n), pw = alloc(w, 8 * n);
+    new Uint8Array(w.memory.buffer, p, bytes.length).set(bytes);
+    const lv = new Uint8Array(w.memory.buffer, pl, n);
+    if (typeof levels === 'number') lv.fill(levels);
+    else lv.set(levels.subarray(0, n));
+    const nesc = callWasm(() => w.decodeSymbols(p, bytes.length, pl, n, po, pw), (code) => symbolError(what, code, w));
+    return { po, pw, nesc };
 }

@@ -50,7 +50,17 @@ function loadTables(w) {
     w.reset();
     const t = [T.levels.cum, T.levels.off, T.levels.lut, T.half, T.classes.cum, T.classes.off, T.classes.lut];
     w.setTables(...t.map((a) => copyIn(w, a)));
+    w.crcTables();
     w.keep();
+}
+
+/** CRC-32 of bytes[start, end) by the module (crc32.mjs's crc32 of a fresh CRC), the bytes copied into a fresh arena. */
+export function moduleCrc32(bytes, start, end) {
+    const w = wasm();
+    w.reset();
+    const n = end - start, p = alloc(w, Math.max(n, 1), false);
+    new Uint8Array(w.memory.buffer, p, n).set(bytes.subarray(start, end));
+    return w.crc32(p, n) >>> 0;
 }
 
 /** Copy bytes into a fresh arena (the previous call's memory is released); returns their address. */

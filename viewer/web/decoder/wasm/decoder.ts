@@ -899,6 +899,8 @@ export function errorStage(): i32 { return stage; }
 
 const ERR_Q_LIMIT: i32 = 11;   // |q| > 2^40 (11.6, E51; errA the row, errB the channel, errorWide() q)
 const ERR_NOT_FINITE: i32 = 12; // a reconstructed value not finite (11.5, E52; errA the row, errB the channel)
+const ERR_LENGTH_INDEX: i32 = 13; // a rotation length index outside [0, max_rotation_length_index] (11.10, E66; errA the row)
+const ERR_STEP_INDEX: i32 = 14; // a step-adjustment index outside [0, max_step_adjust] (11.8, E65; errA the row of the chunk)
 const Q_LIMIT: i64 = 0x10000000000; // 2^40
 
 @inline function i64At(p: usize, i: i32): i64 { return load<i64>(p + (<usize>i << 3)); }
@@ -1143,6 +1145,40 @@ export function reconstruct(n: i32, scale: usize, out: usize): void {
     }
 }
 
+/**
+ * Clause 11.10 in place on the reconstructed values out (f32 [n * M]) of the tile (q at aQ): channel
+ * wc of every row becomes its implied w, float32(sqrt(max(0, 2^-k - ((x*x + y*y) + z*z)))) with every
+ * operation in binary64 (wasm's f64 arithmetic and sqrt are IEEE 754's, correctly rounded; the demotion
+ * rounds to nearest even, as Math.fround: rotation.mjs's bits), k the row's quantized value of channel
+ * wc and x, y, z its next three values; an index outside [0, maxIndex] fails (E66).
+ */
+export function impliedRotations(out: usize, n: i32, wc: i32, maxIndex: i32): void {
+    err = 0;
+    const M = aM;
+    for (let i = 0; i < n; i++) {
+        const b = out + (<usize>(i * M + wc) << 2);
+        const k = load<i64>(aQ + (<usize>(i * M + wc) << 3));
+        if (k < 0 || k > <i64>maxIndex) fail(ERR_LENGTH_INDEX, i, 0);
+        const x = <f64>load<f32>(b + 4), y = <f64>load<f32>(b + 8), z = <f64>load<f32>(b + 12);
+        const lengthSq = reinterpret<f64>(<u64>(1023 - <i32>k) << 52); // 2^-k, exactly (k <= 15)
+        store<f32>(b, <f32>Math.sqrt(Math.max(0.0, lengthSq - ((x * x + y * y) + z * z))));
+    }
+}
+
+/**
+ * The step-adjustment indices (11.8) of a chunk's n rows first, first + step, ... into adj (u8 [rows]):
+ * residual r (f64 [n], decodeSymbols' output; NaN beyond 2^53) plus the adjust mean, in binary64 as
+ * attributes.mjs did; an index outside [0, max] fails (E65).
+ */
+export function stepIndices(r: usize, n: i32, mean: f64, max: f64, adj: usize, first: i32, step: i32): void {
+    err = 0;
+    for (let t = 0; t < n; t++) {
+        const a = load<f64>(r + (<usize>t << 3)) + mean;
+        if (!(a >= 0 && a <= max)) fail(ERR_STEP_INDEX, t, 0);
+        store<u8>(adj + <usize>(first + t * step), <u8><i32>a);
+    }
+}
+
 // ---------------------------------------------------------------- serialization (clause 12)
 
 /**
@@ -1193,4 +1229,39 @@ function serializeGroup(values: usize, n: i32, M: i32, a: i32, b: i32, at: usize
         for (let c = 0; c < w; c++) store<u32>(dst + (<usize>c << 2), load<u32>(src + (<usize>c << 2)));
     }
     return at + (<usize>(n * w) << 2);
+}
+
+// ---------------------------------------------------------------- CRC-32 (clause 3, 6.1)
+
+let crcT: usize = 0; // slicing-by-8 tables, 8 x 256 u32 (crc32.mjs's TABLE)
+
+/** Build the CRC-32/ISO-HDLC tables (reflected polynomial 0xEDB88320) in fresh memory (kept by the caller's keep()). */
+export function crcTables(): void {
+    crcT = reserve(8 * 256 * 4);
+    for (let n: u32 = 0; n < 256; n++) {
+        let c = n;
+        for (let k = 0; k < 8; k++) c = c & 1 ? 0xEDB88320 ^ (c >>> 1) : c >>> 1;
+        store<u32>(crcT + (<usize>n << 2), c);
+    }
+    for (let s: usize = 1; s < 8; s++) {
+        for (let n: usize = 0; n < 256; n++) {
+            const prev = load<u32>(crcT + ((((s - 1) << 8) + n) << 2));
+            store<u32>(crcT + (((s << 8) + n) << 2), (prev >>> 8) ^ load<u32>(crcT + (<usize>(prev & 255) << 2)));
+        }
+    }
+}
+
+@inline function crcAt(s: usize, i: u32): u32 { return load<u32>(crcT + (((s << 8) + <usize>i) << 2)); }
+
+/** CRC-32 of the n bytes at p (crc32.mjs's crc32 of a fresh CRC, slicing by 8). */
+export function crc32(p: usize, n: i32): u32 {
+    let c: u32 = 0xFFFFFFFF;
+    let i: i32 = 0;
+    for (; i + 8 <= n; i += 8) {
+        const a = c ^ load<u32>(p + <usize>i), b = load<u32>(p + <usize>i + 4);
+        c = crcAt(7, a & 255) ^ crcAt(6, (a >>> 8) & 255) ^ crcAt(5, (a >>> 16) & 255) ^ crcAt(4, a >>> 24)
+            ^ crcAt(3, b & 255) ^ crcAt(2, (b >>> 8) & 255) ^ crcAt(1, (b >>> 16) & 255) ^ crcAt(0, b >>> 24);
+    }
+    for (; i < n; i++) c = crcAt(0, (c ^ <u32>load<u8>(p + <usize>i)) & 255) ^ (c >>> 8);
+    return ~c;
 }
