@@ -166,6 +166,8 @@ def test_memory_estimate_grows_linearly_with_the_scene():
     assert sh0 < big  # fewer channels, fewer bytes
     searched = encode_memory(gaussian_scene(3000, degree=3), load_config("low", kind="gaussians")).total
     assert searched > big  # the render-based preparation adds its own
+    fast = encode_memory(gaussian_scene(3000, degree=3), load_config("fast", kind="gaussians"))
+    assert fast.total > big and "rate-distortion optimized quantization" in fast.parts  # RDOQ without renders
     workers = encode_memory(gaussian_scene(3000, degree=3), cfg, TileWorkers(jobs=2))
     assert workers.total > big and "2 worker processes" in workers.parts
 

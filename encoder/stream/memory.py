@@ -33,6 +33,13 @@ PER_VALUE_BYTES = 90  # per point and channel: the scene read, float64 values, i
 # (the sensitivities, float64 [N, M], and their copies) is not measured beyond SH 0.
 PREPARE_PER_POINT_BYTES = 9000
 PREPARE_PER_VALUE_BYTES = 24
+# Rate-distortion optimized quantization without the preparation (sensitivity_model "uniform": the
+# fast preset): the whole scene's neighbour graph, each value's candidates and their code lengths. Measured
+# on tools/scale_scenes.py's scenes (SH 0, 11 channels; tools/results/scale.md, 2026-11-29): fast peaked
+# 931 MiB above plain at 1M and 2,716 MiB above it at 3M, 950-980 B per Gaussian; 200 B per point and
+# 72 B per value (992 B at SH 0) bound it. The per-value share beyond SH 0 is not measured.
+RDOQ_PER_POINT_BYTES = 200
+RDOQ_PER_VALUE_BYTES = 72
 # A forked worker's own pages (torch's thread pools, its tile's arrays): a margin, as the peak is in
 # the whole-scene stages before the tiles: 200k Gaussians at SH 0 peaked at 503 MB of PSS over the
 # process tree with --jobs 1 and with --jobs 2 alike (tools/bench_scale.py's sampler)
@@ -66,6 +73,11 @@ def prepares(scene, cfg) -> bool:
                                                  or cfg.prune_share > 0)
 
 
+def rdoq_without_preparation(scene, cfg) -> bool:
+    """Whether RDOQ runs on modelled sensitivities, with no renders (encoder/gaussians/gaussians.py's rule)."""
+    return isinstance(scene, GaussianScene) and cfg.rd_quantization > 0 and cfg.sensitivity_model != "none"
+
+
 def encode_memory(scene: AnchorScene | GaussianScene, cfg, workers=None) -> MemoryEstimate:
     """The estimated peak resident memory of encoding ``scene`` with ``cfg`` where ``workers``
     (tile_workers.TileWorkers; None: this process) says."""
@@ -75,6 +87,8 @@ def encode_memory(scene: AnchorScene | GaussianScene, cfg, workers=None) -> Memo
     parts = {"program": PROGRAM_BYTES, "scene and coding arrays": n * (PER_POINT_BYTES + PER_VALUE_BYTES * m)}
     if prepares(scene, cfg):
         parts["render-based preparation"] = n * (PREPARE_PER_POINT_BYTES + PREPARE_PER_VALUE_BYTES * m)
+    elif rdoq_without_preparation(scene, cfg):
+        parts["rate-distortion optimized quantization"] = n * (RDOQ_PER_POINT_BYTES + RDOQ_PER_VALUE_BYTES * m)
     if workers is not None and workers.ray:
         parts["Ray: tile inputs in the object store"] = n * (8 * m + 40)
         if not workers.address:
