@@ -121,8 +121,9 @@ class VQSearch(SettingsSearch):
         steps = channel_steps(cfg, degree)
         x = values / steps
         extra, pq, idx = 0.0, None, None
-        if design in ("a", "b"):  # "bd": b with the preset's SH-degree choice on the residual (bands above D: 0)
-            cfg = dataclasses.replace(cfg, sh_degree_choice=False)
+        if design is not None:
+            if design != "bd":  # "bd": b with the preset's SH-degree choice on the residual (bands above D: 0)
+                cfg = dataclasses.replace(cfg, sh_degree_choice=False)
             pkey = (key, k, alpha)
             if pkey not in self.palettes:
                 f = sh_degree_subset(self.sensitivity[keep], degree)[:, 3:sh]
@@ -173,6 +174,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--factors", default="1,1.19", help="step factors of the base rows (the first two: the slope)")
     p.add_argument("--sizes", default="64,256,1024,4096", help="palette sizes")
     p.add_argument("--designs", default="a,b")
+    p.add_argument("--sh-factors", default="", help="also rows with only the SH-rest band steps scaled by these")
     p.add_argument("--alphas", default="1", help="k-means weights: the sensitivities to these powers (0: unweighted)")
     p.add_argument("--orbit-up", default="-y")
     p.add_argument("--threads", type=int, default=1)
@@ -216,8 +218,11 @@ def main(argv: list[str] | None = None) -> int:
     factors = [float(x) for x in args.factors.split(",")]
     base = [run(f"base x{fac:g}", _scaled(cfg, groups, fac)) for fac in factors]
     nodeg = run("base, no degrees", dataclasses.replace(cfg, sh_degree_choice=False)) if cfg.sh_degree_choice else base[0]
-    for alpha in (float(a) for a in args.alphas.split(",")):
-        for d in args.designs.split(","):
+    sh_groups = [grp for grp in groups if grp.startswith("sh_band")]
+    for fac in (float(x) for x in args.sh_factors.split(",") if x):  # the SH rest's steps alone scaled
+        run(f"SH-rest steps x{fac:g}", _scaled(cfg, sh_groups, fac))
+    for alpha in (float(a) for a in args.alphas.split(",") if a):
+        for d in (x for x in args.designs.split(",") if x):
             for k in (int(x) for x in args.sizes.split(",")):
                 run(f"({d}) {k}, weights f^{alpha:g}", cfg, d, k, alpha)
     b0, b1 = base[0], base[1]
