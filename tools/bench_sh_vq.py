@@ -106,6 +106,31 @@ def index_bits(idx: np.ndarray, k: int) -> float:
     return float(-(counts * np.log2(counts / n)).sum() + 0.5 * (counts.size - 1) * math.log2(max(n, 2)))
 
 
+def rate_assignment(x: np.ndarray, pq: np.ndarray, idx: np.ndarray, rounds: int = 3, chunk: int = 128) -> np.ndarray:
+    """Design br: each Gaussian's entry re-chosen for the fewest bits, not the nearest: the ideal code
+    lengths of its rounded residuals rint(x - pq[k]) (step units; each column at the best level of the
+    residuals of the previous assignment) plus -log2 of the entry's share; the rounding error is about
+    the same whatever the entry (the same steps), so the rate decides. ``rounds`` times, shares and
+    levels updated."""
+    from lghcc.common.entropy.symbol_coder import best_level, code_lengths_bits
+
+    k = pq.shape[0]
+    for _ in range(rounds):
+        r = np.rint(x - pq[idx]).astype(np.int64)
+        levels = np.array([best_level(r[:, c]) for c in range(x.shape[1])], dtype=np.int64)
+        counts = np.bincount(idx, minlength=k).astype(np.float64)
+        length = np.where(counts > 0, -np.log2(np.maximum(counts, 1) / idx.size), np.inf)
+        new = np.empty_like(idx)
+        for a in range(0, x.shape[0], chunk):
+            rr = np.rint(x[a:a + chunk, None, :] - pq[None, :, :]).astype(np.int64)
+            bits = code_lengths_bits(rr, np.broadcast_to(levels, rr.shape)).sum(axis=2) + length[None, :]
+            new[a:a + chunk] = np.argmin(bits, axis=1)
+        if np.array_equal(new, idx):
+            break
+        idx = new
+    return idx
+
+
 class VQSearch(SettingsSearch):
     """The settings search's trial with the SH rest vector-quantized (design a or b, see the module doc)."""
 
@@ -122,7 +147,7 @@ class VQSearch(SettingsSearch):
         x = values / steps
         extra, pq, idx = 0.0, None, None
         if design is not None:
-            if design != "bd":  # "bd": b with the preset's SH-degree choice on the residual (bands above D: 0)
+            if design not in ("bd", "brd"):  # "bd": b with the preset's SH-degree choice on the residual (bands above D: 0)
                 cfg = dataclasses.replace(cfg, sh_degree_choice=False)
             pkey = (key, k, alpha)
             if pkey not in self.palettes:
@@ -132,9 +157,11 @@ class VQSearch(SettingsSearch):
                 self.palettes[pkey] = (pal, assign_cost(values[:, 3:sh], w, pal)[0])
             pal, idx = self.palettes[pkey]
             pq = np.rint(pal / steps[3:sh]).astype(np.int64)
+            if design in ("br", "brd"):
+                idx = rate_assignment(x[:, 3:sh], pq, idx)
             used = np.unique(idx)
             extra = palette_bits(pq[used]) + index_bits(np.searchsorted(used, idx), used.size)
-            if design in ("b", "bd"):
+            if design in ("b", "bd", "br", "brd"):
                 x = x.copy()
                 x[:, 3:sh] -= pq[idx]
         adjust = self._adjust(key, grid, keep, x, degree, cfg)
