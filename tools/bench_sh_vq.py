@@ -106,7 +106,8 @@ def index_bits(idx: np.ndarray, k: int) -> float:
     return float(-(counts * np.log2(counts / n)).sum() + 0.5 * (counts.size - 1) * math.log2(max(n, 2)))
 
 
-def rate_assignment(x: np.ndarray, pq: np.ndarray, idx: np.ndarray, rounds: int = 3, chunk: int = 128) -> np.ndarray:
+def rate_assignment(x: np.ndarray, pq: np.ndarray, idx: np.ndarray, rounds: int = 3, chunk: int = 128,
+                    candidates: int = 0) -> np.ndarray:
     """Design br: each Gaussian's entry re-chosen for the fewest bits, not the nearest: the ideal code
     lengths of its rounded residuals rint(x - pq[k]) (step units; each column at the best level of the
     residuals of the previous assignment) plus -log2 of the entry's share; the rounding error is about
@@ -115,6 +116,12 @@ def rate_assignment(x: np.ndarray, pq: np.ndarray, idx: np.ndarray, rounds: int 
     from lghcc.common.entropy.symbol_coder import best_level, code_lengths_bits
 
     k = pq.shape[0]
+    near = None
+    if 0 < candidates < k:  # only each row's nearest entries (step units) are costed
+        near = np.empty((x.shape[0], candidates), dtype=np.int64)
+        for a in range(0, x.shape[0], 1024):
+            d = (x[a:a + 1024] ** 2).sum(1)[:, None] - 2 * x[a:a + 1024] @ pq.T + (pq * pq).sum(1)[None, :]
+            near[a:a + 1024] = np.argpartition(d, candidates - 1, axis=1)[:, :candidates]
     for _ in range(rounds):
         r = np.rint(x - pq[idx]).astype(np.int64)
         levels = np.array([best_level(r[:, c]) for c in range(x.shape[1])], dtype=np.int64)
@@ -122,9 +129,10 @@ def rate_assignment(x: np.ndarray, pq: np.ndarray, idx: np.ndarray, rounds: int 
         length = np.where(counts > 0, -np.log2(np.maximum(counts, 1) / idx.size), np.inf)
         new = np.empty_like(idx)
         for a in range(0, x.shape[0], chunk):
-            rr = np.rint(x[a:a + chunk, None, :] - pq[None, :, :]).astype(np.int64)
-            bits = code_lengths_bits(rr, np.broadcast_to(levels, rr.shape)).sum(axis=2) + length[None, :]
-            new[a:a + chunk] = np.argmin(bits, axis=1)
+            cand = np.broadcast_to(np.arange(k), (min(chunk, x.shape[0] - a), k)) if near is None else near[a:a + chunk]
+            rr = np.rint(x[a:a + chunk, None, :] - pq[cand]).astype(np.int64)
+            bits = code_lengths_bits(rr, np.broadcast_to(levels, rr.shape)).sum(axis=2) + length[cand]
+            new[a:a + chunk] = cand[np.arange(cand.shape[0]), np.argmin(bits, axis=1)]
         if np.array_equal(new, idx):
             break
         idx = new
@@ -135,6 +143,8 @@ class VQSearch(SettingsSearch):
     """The settings search's trial with the SH rest vector-quantized (design a or b, see the module doc)."""
 
     palettes: dict
+    rate_rounds = 3
+    candidates = 0  # 0: every entry costed
 
     def trial(self, cfg, design: str | None = None, k: int = 0, alpha: float = 1.0):
         """(decoded scene, bits, parts): ``design`` None is today's trial (SettingsSearch.evaluate)."""
@@ -149,7 +159,7 @@ class VQSearch(SettingsSearch):
         if design is not None:
             if design not in ("bd", "brd"):  # "bd": b with the preset's SH-degree choice on the residual (bands above D: 0)
                 cfg = dataclasses.replace(cfg, sh_degree_choice=False)
-            pkey = (key, k, alpha)
+            pkey = (key[0], k, alpha)  # the kept rows depend on the pruning share only
             if pkey not in self.palettes:
                 f = sh_degree_subset(self.sensitivity[keep], degree)[:, 3:sh]
                 w = (f + 1e-12 * f.mean()) ** alpha
@@ -158,7 +168,7 @@ class VQSearch(SettingsSearch):
             pal, idx = self.palettes[pkey]
             pq = np.rint(pal / steps[3:sh]).astype(np.int64)
             if design in ("br", "brd"):
-                idx = rate_assignment(x[:, 3:sh], pq, idx)
+                idx = rate_assignment(x[:, 3:sh], pq, idx, rounds=self.rate_rounds, candidates=self.candidates)
             used = np.unique(idx)
             extra = palette_bits(pq[used]) + index_bits(np.searchsorted(used, idx), used.size)
             if design in ("b", "bd", "br", "brd"):

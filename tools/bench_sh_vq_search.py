@@ -39,6 +39,7 @@ def vq_search_class(k: int):
         def __init__(self, *a, **kw):
             super().__init__(*a, **kw)
             self.palettes = {}
+            self.rate_rounds, self.candidates = 2, 16  # cheaper than bench_sh_vq's rows: every trial runs it
 
         def evaluate(self, cfg):
             design = "brd" if cfg.sh_degree_choice else "br"
@@ -72,6 +73,7 @@ def main(argv=None) -> int:
     cpu = time.process_time() - t0
     s = bv.VQSearch(scene, contrib, cfg, 0.0, cfg.search_views, cfg.search_resolution, sensitivity=f)
     s.palettes = {}
+    s.rate_rounds, s.candidates = 2, 16
     from bench_real import orbit
 
     g = gaussians_from_scene(scene)
