@@ -44,6 +44,17 @@ window.results = (async () => { const out = []; for (const c of cases) out.push(
 </script></body></html>"""
 
 
+def _page_results(tmp_path, template: str, cases: list) -> list:
+    """window.results of ``template`` run in headless Chromium with the worker bundle and ``cases``."""
+    html = template.replace("%WORKER%", page_mod.worker_js()).replace("%CASES%", json.dumps(cases))
+    pw, ctx, page = _browser_page(tmp_path, html)
+    try:
+        return page.evaluate("() => window.results")
+    finally:
+        ctx.close()
+        pw.stop()
+
+
 def _browser_page(tmp_path: Path, html: str):
     """(playwright, context, page) of a page written to tmp_path; the caller closes them."""
     from playwright.sync_api import sync_playwright
@@ -71,13 +82,7 @@ def test_profile_conformance_in_chromium(tmp_path):
             if "box" in p:
                 cases.append({"id": c.id + " box", "b64": b64, "box": p["box"]})
                 want.append((c.id + " box", "decode", p["decoded_sha256"]))
-    html = RUNNER_PAGE.replace("%WORKER%", page_mod.worker_js()).replace("%CASES%", json.dumps(cases))
-    pw, ctx, page = _browser_page(tmp_path, html)
-    try:
-        got = page.evaluate("() => window.results")
-    finally:
-        ctx.close()
-        pw.stop()
+    got = _page_results(tmp_path, RUNNER_PAGE, cases)
     failed = []
     for (cid, expect, digest), r in zip(want, got):
         ok = (r.get("type") == "error" and r.get("kind") in runner.ERROR_KINDS) \
@@ -123,13 +128,7 @@ def test_a_kept_pool_decodes_stream_after_stream_and_survives_a_bad_one(tmp_path
     data[len(data) // 2] ^= 0x55  # a byte in the middle of the tiles, its unit's CRC left as it was
     streams = [good[0].read_bytes(), bytes(data), good[1].read_bytes(), good[0].read_bytes()]
     cases = [{"b64": base64.b64encode(b).decode("ascii")} for b in streams]
-    html = KEPT_POOL_PAGE.replace("%WORKER%", page_mod.worker_js()).replace("%CASES%", json.dumps(cases))
-    pw, ctx, page = _browser_page(tmp_path, html)
-    try:
-        got = page.evaluate("() => window.results")
-    finally:
-        ctx.close()
-        pw.stop()
+    got = _page_results(tmp_path, KEPT_POOL_PAGE, cases)
     want = [yaml.safe_load((p.parent / "test.yaml").read_text())["decoded_sha256"] for p in good]
     assert got[0] == {"type": "ready", "helpers": 2, "tileMessages": 0}, got[0]
     assert got[2]["type"] == "error" and got[2]["kind"] == "BitstreamError" and "E9" in got[2]["message"] and got[2]["tileMessages"] == 0, got[2]
