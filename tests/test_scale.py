@@ -278,3 +278,23 @@ def test_an_unreachable_cluster_is_refused_before_any_work(small_ply, tmp_path, 
     monkeypatch.setattr(api, "read_source", lambda *a, **k: (_ for _ in ()).throw(AssertionError("work started")))
     assert enc_cli.main([str(ply), "-o", str(tmp_path / "x.lghcc"), "--address", f"127.0.0.1:{port}"]) == EXIT_ERROR
     assert "cannot reach the Ray cluster at 127.0.0.1" in capsys.readouterr().err
+
+
+def test_bench_scale_resume_keeps_measured_rows_and_says_when(tmp_path):
+    """--resume: the rows of an earlier run's rows.json are kept (failed ones measured again), and
+    the report says when and at what load each row was measured."""
+    spec = importlib.util.spec_from_file_location("bench_scale", ROOT / "tools" / "bench_scale.py")
+    bs = importlib.util.module_from_spec(spec)
+    sys.modules["bench_scale"] = bs  # dataclasses look their module up there
+    spec.loader.exec_module(bs)
+    import json
+    from dataclasses import asdict
+
+    good = bs.ScaleRow(10 ** 6, "medium", bytes=123, psnr=45.0, measured_at="2026-11-29 08:00 UTC, load 0.10 0.20 0.30")
+    failed = bs.ScaleRow(3 * 10 ** 6, "medium", note="lghcc-enc failed (exit 1)")
+    (tmp_path / "rows.json").write_text(json.dumps([asdict(good), asdict(failed)]))
+    kept = bs.resumed_rows(tmp_path / "rows.json")
+    assert kept == {("medium", 10 ** 6): good}
+    assert bs.resumed_rows(tmp_path / "absent.json") == {}
+    line = bs.measured_when([good, failed])[0]
+    assert "medium 1M 2026-11-29 08:00 UTC, load 0.10 0.20 0.30" in line and "3M" not in line

@@ -162,11 +162,13 @@ class ScaleRow:
     spz_cell: str = "n/a"
     note: str = ""
     memory_estimate: int = 0  # lghcc-enc --max-memory's estimate (bytes)
+    measured_at: str = ""  # UTC time and load average when the row started (rows of several runs differ)
 
 
 def encode_row(run, n: int, preset: str, args, enc: list[str], dec: list[str], work: Path) -> ScaleRow:
     """One preset on one scene: encode, decode with 1 and 2 workers, PSNR (module doc)."""
-    row = ScaleRow(n, preset)
+    row = ScaleRow(n, preset, measured_at=f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, "
+                                          f"load {load_average()}")
     stream, js = work / f"{label(n)}-{preset}.lghcc", work / f"{label(n)}-{preset}.json"
     opts = ["--preset", preset]
     if preset == "plain":
@@ -340,6 +342,12 @@ def targets(rows: list[ScaleRow]) -> list[str]:
     return out
 
 
+def measured_when(rows: list[ScaleRow]) -> list[str]:
+    """When each row was measured and at what load (a --resume table holds rows of several runs)."""
+    out = [f"{r.preset} {label(r.n)} {r.measured_at}" for r in rows if r.measured_at]
+    return ["Rows measured (start, load average 1/5/15 min): " + "; ".join(out) + ".", ""] if out else []
+
+
 def report(rows: list[ScaleRow], built: dict[int, str], args, argv, plot_line: str, spz_note: str) -> list[str]:
     import torch
 
@@ -359,7 +367,7 @@ def report(rows: list[ScaleRow], built: dict[int, str], args, argv, plot_line: s
               "process (GNU time's %M; with workers, the largest process), tree peak: the largest sum of PSS over the process and "
               "its workers, sampled every 0.2 s (it can miss a short peak). us / Gaussian, stages only: the "
               "encoder's stages without the start and the PLY read.",
-              "", *table(rows, args.jobs), "", plot_line, "", *targets(rows), "",
+              "", *table(rows, args.jobs), "", *measured_when(rows), plot_line, "", *targets(rows), "",
               "What runs in parallel: the tiles (geometry, attributes and hash of each; --jobs, --ray). The "
               "whole-scene stages run in one process before them: the render-based preparation (contributions, "
               "sensitivities, the settings search, the fit), the grid and normative order, the rate-distortion "
@@ -367,6 +375,15 @@ def report(rows: list[ScaleRow], built: dict[int, str], args, argv, plot_line: s
               "neighbour_prediction unit (a k-NN graph of the whole scene); the per Gaussian cost of a preset "
               "that prepares is mostly theirs."]
     return lines
+
+
+def resumed_rows(path: Path) -> dict[tuple[str, int], ScaleRow]:
+    """The measured rows of an earlier run's rows.json by (preset, size); rows that failed are measured again."""
+    if not path.exists():
+        log(f"--resume: no {path}: measuring every row")
+        return {}
+    rows = [ScaleRow(**r) for r in json.loads(path.read_text())]
+    return {(r.preset, r.n): r for r in rows if not r.note}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -382,6 +399,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data-root", type=Path, default=None, help="the shared scenes (default ../shared/data)")
     ap.add_argument("--work", type=Path, default=ROOT / ".bench_scale", help="scenes, streams, renders (ignored)")
     ap.add_argument("--out", type=Path, default=ROOT / "tools" / "results" / "scale.md")
+    ap.add_argument("--resume", action="store_true",
+                    help="keep the rows of --work's rows.json (an earlier run stopped part way) and measure only the "
+                         "size and preset pairs it lacks; the report lists when each row was measured")
     args = ap.parse_args(argv)
     import shlex
 
@@ -408,6 +428,7 @@ def main(argv: list[str] | None = None) -> int:
     sources = scale_scenes.load_sources(data_root)
     enc, dec = br.lghcc_commands()
     rows, built, runs = [], {}, {}
+    kept = resumed_rows(args.work / "rows.json") if args.resume else {}
     for n in sizes:  # the scenes, their renders and SPZ rows first (cached in --work)
         path, built[n], scene = scene_file(n, sources, args.work)
         run = scene_run(path, n, args, st, why)
@@ -415,10 +436,14 @@ def main(argv: list[str] | None = None) -> int:
     for preset in presets:  # every size of a preset before the next, slower preset
         for n in sizes:
             run, env, full, scene = runs[n]
-            row = encode_row(run, n, preset, args, enc, dec, args.work)
-            row.memory_estimate = memory_estimate(scene, preset, args.jobs)
-            if not row.note and st:
-                row.spz_cell = br.equal_psnr_cell(row.bytes, row.psnr, env, full)
+            row = kept.get((preset, n))
+            if row is None:
+                row = encode_row(run, n, preset, args, enc, dec, args.work)
+                row.memory_estimate = memory_estimate(scene, preset, args.jobs)
+                if not row.note and st:
+                    row.spz_cell = br.equal_psnr_cell(row.bytes, row.psnr, env, full)
+            else:
+                log(f"{label(n)} {preset}: kept from {args.work / 'rows.json'} (--resume)")
             rows.append(row)
             (args.work / "rows.json").write_text(json.dumps([asdict(r) for r in rows], indent=1))
             # written after every row: a run stopped part way keeps what it measured, and says so
