@@ -96,6 +96,9 @@ function word(): u64 {
     return w;
 }
 
+/** Word pos of the chunk, 0 past its end (10.6.6); word() without the state in globals. */
+@inline function wordAt(pos: i32): u64 { return pos < rWords ? <u64>load<u32>(rBytes + (<usize>pos << 2)) : 0; }
+
 /** Start decoding the chunk of nbytes (a multiple of 4, checked by the caller) at p. */
 export function rangeStart(p: usize, nbytes: i32): void {
     rBytes = p; rWords = nbytes >> 2; rPos = 0;
@@ -198,13 +201,23 @@ function chainDecode(T: usize, out: usize, shift: i32, dirty: usize): void {
             if (f1 < 1) f1 = 1; else if (f1 > 0xFFFFFF) f1 = 0xFFFFFF;
             const f0 = <u64>(0x1000000 - f1);
             let id = load<i32>(chHead + cc), ones = 0;
+            // decodeBinary with the decoder's state in locals (a global is a memory access in the serial chain)
+            let R = rR, D = rD, pos = rPos;
             for (let t = 0; t < n; t++) {
-                const v = decodeBinary(f0, <u64>f1);
-                const o = out + <usize>id;
+                const scale = R >> 24;
+                if (D >> 24 >= scale) fail(ERR_RANGE, 0, 0); // q >= 2^24
+                const X = f0 * scale, one = D >= X;
+                R = select<u64>(<u64>f1 * scale, X, one); D = select<u64>(D - X, D, one);
+                if (R < 0x100000000) { // R < 2^32: shift in the next word (missing words read as 0, 10.6.6)
+                    R <<= 32;
+                    D = (D << 32) | wordAt(pos); pos += <i32>(pos < rWords);
+                }
+                const v = <i32>one, o = out + <usize>id;
                 store<u8>(o, load<u8>(o) | <u8>(v << shift));
                 ones += v;
                 id = i32At(chNext, id);
             }
+            rR = R; rD = D; rPos = pos;
             store<i32>(chCount + cc, 0);
             store<i32>(chTail + cc, <i32>(chHead + cc));
             let a = n0 + n - ones, b = n1 + ones;
@@ -818,10 +831,24 @@ export function decodeSymbols(p: usize, nbytes: i32, lv: usize, n: i32, out: usi
         const end = i32At(count, i);
         if (end == start) continue;
         const L = i32At(lvHalf, i), ESC = 2 * L + 1;
+        // decodeModel of level i's model with the decoder's state in locals (a global is a memory access in the serial chain)
+        const cum = lvCum + (<usize>i32At(lvOff, i) << 2), lut = lvLut + (<usize>(i * LUT_SIZE) << 1);
+        let R = rR, D = rD, pos = rPos;
         for (let t = start; t < end; t++) {
-            const j = i32At(order, t), b = decodeModel(lvCum, lvOff, lvLut, i);
+            const scale = R >> 24, q = D / scale;
+            if (q >= 0x1000000) fail(ERR_RANGE, 0, 0);
+            let b = <i32>load<u16>(lut + (<usize>(q >> LUT_SHIFT) << 1));
+            while (<u64>i32At(cum, b + 1) <= q) b++;
+            const c = <u64>i32At(cum, b);
+            R = (<u64>i32At(cum, b + 1) - c) * scale; D -= c * scale;
+            if (R < 0x100000000) { // R < 2^32: shift in the next word (missing words read as 0, 10.6.6)
+                R <<= 32;
+                D = (D << 32) | wordAt(pos); pos += <i32>(pos < rWords);
+            }
+            const j = i32At(order, t);
             if (b == ESC) { setU8(esc, j, 1); nesc++; } else store<f64>(out + (<usize>j << 3), <f64>(b - L));
         }
+        rR = R; rD = D; rPos = pos;
         start = end;
     }
     if (nesc) decodeEscapes(lv, n, out, wide, esc, nesc);
@@ -1058,14 +1085,47 @@ function rowMeans(rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, mean: us
     for (let r = 0; r < nr; r++) {
         const n = u8At(cnt, r), F: i64 = sa ? <i64>i32At(aFix, u8At(aAdj, i32At(rows, r))) : 1, base = r * M;
         if (n == 0) { priorRow(mean, level, base, F, i32At(rows, r)); continue; }
+        let G: i64 = 0, same = true; // same: every neighbour has the factor G
         for (let m = 0; m < n; m++) { // the neighbours' rows of q and factors (both lanes)
-            const j = i32At(idx, r * k + m);
+            const j = i32At(idx, r * k + m), f: i64 = sa ? <i64>i32At(aFix, u8At(aAdj, j)) : 1;
             setI32(qa, m, <i32>(aQ + (<usize>(j * M) << 3)));
-            v128.store(fa + (<usize>m << 4), i64x2.splat(sa ? <i64>i32At(aFix, u8At(aAdj, j)) : 1));
+            v128.store(fa + (<usize>m << 4), i64x2.splat(f));
+            if (m == 0) G = f; else same = same && f == G;
         }
         const nF = <i64>n * F, inv = 1.0 / <f64>nF, e = codedEnd(i32At(rows, r)); // only the coded channels' (11.9)
-        if (e == M - 8) neighbourRange(qa, fa, n, 0, M, F, nF, inv, mean, level, base);
+        if (same) { // sum, max and min of q G are G times those of q (G > 0; exact in i64): no product per neighbour
+            if (e == M - 8) neighbourRangeSame(qa, n, 0, M, G, F, nF, inv, mean, level, base);
+            else { neighbourRangeSame(qa, n, 0, e, G, F, nF, inv, mean, level, base); neighbourRangeSame(qa, n, M - 8, M, G, F, nF, inv, mean, level, base); }
+        } else if (e == M - 8) neighbourRange(qa, fa, n, 0, M, F, nF, inv, mean, level, base);
         else { neighbourRange(qa, fa, n, 0, e, F, nF, inv, mean, level, base); neighbourRange(qa, fa, n, M - 8, M, F, nF, inv, mean, level, base); }
+    }
+}
+
+/** neighbourRange for neighbours that share one factor G. */
+@inline function neighbourRangeSame(qa: usize, n: i32, c0: i32, c1: i32, G: i64, F: i64, nF: i64, inv: f64, mean: usize, level: usize, base: i32): void {
+    let c = c0;
+    for (; c + 1 < c1; c += 2) {
+        const o = <usize>c << 3;
+        let v = v128.load(<usize>i32At(qa, 0) + o);
+        let sum = v, mx = v, mn = v;
+        for (let m = 1; m < n; m++) {
+            v = v128.load(<usize>i32At(qa, m) + o);
+            sum = i64x2.add(sum, v);
+            mx = v128.bitselect(v, mx, i64x2.gt_s(v, mx));
+            mn = v128.bitselect(v, mn, i64x2.lt_s(v, mn));
+        }
+        const act = i64x2.sub(mx, mn);
+        channelParameters(c, G * i64x2.extract_lane(sum, 0), G * i64x2.extract_lane(act, 0), F, nF, inv, mean, level, base);
+        channelParameters(c + 1, G * i64x2.extract_lane(sum, 1), G * i64x2.extract_lane(act, 1), F, nF, inv, mean, level, base);
+    }
+    if (c < c1) {
+        const o = <usize>c << 3;
+        let sum: i64 = 0, mx: i64 = i64.MIN_VALUE, mn: i64 = i64.MAX_VALUE;
+        for (let m = 0; m < n; m++) {
+            const v = load<i64>(<usize>i32At(qa, m) + o);
+            sum += v; mx = max(mx, v); mn = min(mn, v);
+        }
+        channelParameters(c, G * sum, G * (mx - mn), F, nF, inv, mean, level, base);
     }
 }
 
