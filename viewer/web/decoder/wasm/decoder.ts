@@ -625,6 +625,7 @@ function buildGrid(x: usize, y: usize, z: usize, lo0: i32, lo1: i32, lo2: i32, e
 function search(qx: i32, qy: i32, qz: i32): i32 {
     const b = gB, cx = qx >> b, cy = qy >> b, cz = qz >> b;
     worst = u64.MAX_VALUE;
+    if (gPacked) for (let j = 0; j < kK; j++) setU64(hD, j, u64.MAX_VALUE); // offerKey's empty places
     let size = visitBlock(cx, cy, cz, qx, qy, qz);
     for (let s = 1; ; s++) {
         if (s > 1) size = visitShell(cx, cy, cz, s, qx, qy, qz, size);
@@ -745,19 +746,24 @@ function visitPacked(p0: i32, p1: i32, qx: i32, qy: i32, qz: i32, size: i32): i3
     return size;
 }
 
-/** Insert key into the ascending list hD of at most k keys (keys are distinct: the ids are); returns its new size. */
+/**
+ * Insert key into the ascending list hD of k keys, u64.MAX_VALUE at the empty places (no key is: its
+ * id would be 2^32 - 1), with no branch on the data: place j becomes min(a[j], max(a[j - 1], key)),
+ * which is a[j] below the key's place, the key at it, a[j - 1] above it (keys are distinct: the ids
+ * are); a key above the k-th leaves the list as it was. Returns the number of keys in the list.
+ */
 function offerKey(key: u64, size: i32): i32 {
     const k = kK;
-    if (size == k) { if (key > u64At(hD, k - 1)) return size; } else size++;
-    let j = size - 1;
-    for (; j > 0; j--) {
-        const pk = u64At(hD, j - 1);
-        if (pk < key) break;
-        setU64(hD, j, pk);
+    let above = u64At(hD, k - 1);
+    for (let j = k - 1; j > 0; j--) {
+        const below = u64At(hD, j - 1);
+        setU64(hD, j, min(above, max(below, key)));
+        above = below;
     }
-    setU64(hD, j, key);
-    if (size == k) worst = u64At(hD, k - 1) >> 32;
-    return size;
+    setU64(hD, 0, min(above, key));
+    const last = u64At(hD, k - 1);
+    if (last != u64.MAX_VALUE) worst = last >> 32;
+    return size + <i32>(size < k);
 }
 
 function visitWide(p0: i32, p1: i32, qx: i32, qy: i32, qz: i32, size: i32): i32 {
