@@ -826,8 +826,13 @@ function decodeModel(cum: usize, off: usize, lut: usize, m: i32): i32 {
  */
 export function decodeSymbols(p: usize, nbytes: i32, lv: usize, n: i32, out: usize, wide: usize): i32 {
     err = 0;
+    return symbolChunk(p, nbytes, lv, n, out, wide, false);
+}
+
+/** decodeSymbols; with wideOnly, every residual goes to wide (i64 [n]) and out is not written (attributeChunk's values). */
+@inline function symbolChunk(p: usize, nbytes: i32, lv: usize, n: i32, out: usize, wide: usize, wideOnly: bool): i32 {
     rangeStart(p, nbytes);
-    const count = alloc(65 << 2), order = alloc(n << 2), esc = alloc(n);
+    const count = alloc(65 << 2), order = reserve(n << 2), esc = alloc(n); // order: overwritten whole
     for (let j = 0; j < n; j++) { const c = u8At(lv, j) + 1; setI32(count, c, i32At(count, c) + 1); }
     for (let i = 0; i < 64; i++) setI32(count, i + 1, i32At(count, i + 1) + i32At(count, i));
     for (let j = 0; j < n; j++) { const c = u8At(lv, j), o = i32At(count, c); setI32(order, o, j); setI32(count, c, o + 1); }
@@ -852,12 +857,14 @@ export function decodeSymbols(p: usize, nbytes: i32, lv: usize, n: i32, out: usi
                 D = (D << 32) | wordAt(pos); pos += <i32>(pos < rWords);
             }
             const j = i32At(order, t);
-            if (b == ESC) { setU8(esc, j, 1); nesc++; } else store<f64>(out + (<usize>j << 3), <f64>(b - L));
+            if (b == ESC) { setU8(esc, j, 1); nesc++; }
+            else if (wideOnly) setI64(wide, j, <i64>(b - L));
+            else store<f64>(out + (<usize>j << 3), <f64>(b - L));
         }
         rR = R; rD = D; rPos = pos;
         start = end;
     }
-    if (nesc) decodeEscapes(lv, n, out, wide, esc, nesc);
+    if (nesc) decodeEscapes(lv, n, out, wide, esc, nesc, wideOnly);
     checkExhausted();
     return nesc;
 }
@@ -877,7 +884,7 @@ function decodeBits(w: usize, n: i32, v: usize): void {
     }
 }
 
-function decodeEscapes(lv: usize, n: i32, out: usize, wide: usize, esc: usize, nesc: i32): void {
+function decodeEscapes(lv: usize, n: i32, out: usize, wide: usize, esc: usize, nesc: i32, wideOnly: bool): void {
     const idx = alloc(nesc << 2), sign = alloc(nesc), k = alloc(nesc << 2), width = alloc(nesc << 2), rem = alloc(nesc << 3);
     for (let j = 0, e = 0; j < n; j++) if (u8At(esc, j)) setI32(idx, e++, j);
     for (let e = 0; e < nesc; e++) setU8(sign, e, <i32>decodeUniform(1));
@@ -893,7 +900,7 @@ function decodeEscapes(lv: usize, n: i32, out: usize, wide: usize, esc: usize, n
         if (mag > MAX_RESIDUAL) { errWide = mag; fail(ERR_ESCAPE, 0, 0); }
         const r: i64 = u8At(sign, e) ? -<i64>mag : <i64>mag;
         store<i64>(wide + (<usize>j << 3), r);
-        store<f64>(out + (<usize>j << 3), mag < TWO53 ? <f64>r : NaN);
+        if (!wideOnly) store<f64>(out + (<usize>j << 3), mag < TWO53 ? <f64>r : NaN);
     }
 }
 
@@ -956,12 +963,13 @@ export function attributeChunk(p: usize, nbytes: i32, rows: usize, nr: i32, idx:
     if (aDeg) { stage = STAGE_FLAGS; decodeDegrees(dp, dbytes, rows, nr, idx, cnt, k); }
     stage = STAGE_SYMBOLS;
     const M = aM, n = nr * M;
-    const mean = alloc(n << 3), level = alloc(n), res = alloc(n << 3), wide = alloc(n << 3);
+    // not zeroed: rowMeans writes every coded channel's mean and level, symbolChunk every residual, and only those are read
+    const mean = reserve(n << 3), level = reserve(n), res = reserve(n << 3);
     rowMeans(rows, nr, idx, cnt, k, mean, level);
     const ns = aDeg ? codedLevels(rows, nr, level) : n;
-    const nesc = decodeSymbols(p, nbytes, level, ns, res, wide);
-    if (aDeg) for (let r = 0, j = 0; r < nr; r++) j = rowValuesCoded(i32At(rows, r), r * M, j, mean, res, wide);
-    else for (let r = 0; r < nr; r++) rowValues(i32At(rows, r), r * M, mean, res, wide);
+    const nesc = symbolChunk(p, nbytes, level, ns, 0, res, true);
+    if (aDeg) for (let r = 0, j = 0; r < nr; r++) j = rowValuesCoded(i32At(rows, r), r * M, j, mean, res);
+    else for (let r = 0; r < nr; r++) rowValues(i32At(rows, r), r * M, mean, res);
     return nesc;
 }
 
@@ -972,11 +980,10 @@ export function attributeChunk(p: usize, nbytes: i32, rows: usize, nr: i32, idx:
  * tool every channel is coded: this loop has no coded-channel tests (rowValuesCoded's cost 8-15%
  * on the logo's stream).
  */
-function rowValues(row: i32, base: i32, mean: usize, res: usize, wide: usize): void {
+function rowValues(row: i32, base: i32, mean: usize, res: usize): void {
     const M = aM, qb = aQ + (<usize>(row * M) << 3), mb = mean + (<usize>base << 3);
     for (let c = 0; c < M; c++) {
-        const rf = load<f64>(res + (<usize>(base + c) << 3));
-        const rv: i64 = rf == rf ? <i64>rf : i64At(wide, base + c); // NaN: an escape beyond 2^53
+        const rv = i64At(res, base + c);
         let pr: i64 = 0;
         for (let i = i32At(aPStart, c), e = i32At(aPStart, c + 1); i < e; i++) {
             const s = i32At(aPSrc, i);
@@ -1003,13 +1010,12 @@ function rowValues(row: i32, base: i32, mean: usize, res: usize, wide: usize): v
  * res[j ..] (its coded channels'); the channels e <= c < M - 8 it does not code have q = 0 and give
  * no prediction term. Returns j after the row's residuals.
  */
-function rowValuesCoded(row: i32, base: i32, j: i32, mean: usize, res: usize, wide: usize): i32 {
+function rowValuesCoded(row: i32, base: i32, j: i32, mean: usize, res: usize): i32 {
     const M = aM, qb = aQ + (<usize>(row * M) << 3), mb = mean + (<usize>base << 3);
     const e = codedEnd(row), gap = <u32>(M - 8 - e); // c is not coded when <u32>(c - e) < gap
     for (let c = 0; c < M; c++) {
         if (<u32>(c - e) < gap) { setI64(qb, c, 0); continue; }
-        const rf = load<f64>(res + (<usize>j << 3));
-        const rv: i64 = rf == rf ? <i64>rf : i64At(wide, j); // NaN: an escape beyond 2^53
+        const rv = i64At(res, j);
         j++;
         let pr: i64 = 0;
         for (let i = i32At(aPStart, c), ie = i32At(aPStart, c + 1); i < ie; i++) {
