@@ -201,23 +201,13 @@ function chainDecode(T: usize, out: usize, shift: i32, dirty: usize): void {
             if (f1 < 1) f1 = 1; else if (f1 > 0xFFFFFF) f1 = 0xFFFFFF;
             const f0 = <u64>(0x1000000 - f1);
             let id = load<i32>(chHead + cc), ones = 0;
-            // decodeBinary with the decoder's state in locals (a global is a memory access in the serial chain)
-            let R = rR, D = rD, pos = rPos;
             for (let t = 0; t < n; t++) {
-                const scale = R >> 24;
-                if (D >> 24 >= scale) fail(ERR_RANGE, 0, 0); // q >= 2^24
-                const X = f0 * scale, one = D >= X;
-                R = select<u64>(<u64>f1 * scale, X, one); D = select<u64>(D - X, D, one);
-                if (R < 0x100000000) { // R < 2^32: shift in the next word (missing words read as 0, 10.6.6)
-                    R <<= 32;
-                    D = (D << 32) | wordAt(pos); pos += <i32>(pos < rWords);
-                }
-                const v = <i32>one, o = out + <usize>id;
+                const v = decodeBinary(f0, <u64>f1);
+                const o = out + <usize>id;
                 store<u8>(o, load<u8>(o) | <u8>(v << shift));
                 ones += v;
                 id = i32At(chNext, id);
             }
-            rR = R; rD = D; rPos = pos;
             store<i32>(chCount + cc, 0);
             store<i32>(chTail + cc, <i32>(chHead + cc));
             let a = n0 + n - ones, b = n1 + ones;
