@@ -162,6 +162,7 @@ class ScaleRow:
     spz_cell: str = "n/a"
     note: str = ""
     memory_estimate: int = 0  # lghcc-enc --max-memory's estimate (bytes)
+    gaussians_decoded: int = 0  # 0: not recorded (rows of runs before it was)
     measured_at: str = ""  # UTC time and load average when the row started (rows of several runs differ)
 
 
@@ -194,7 +195,7 @@ def encode_row(run, n: int, preset: str, args, enc: list[str], dec: list[str], w
         if d.rc != 0:
             row.note = f"lghcc-dec --jobs {jobs} failed (exit {d.rc})"
             return row
-    row.psnr, _, _, _, _ = run.ev.compare_ply(back)
+    row.psnr, _, row.gaussians_decoded, _, _ = run.ev.compare_ply(back)
     back.unlink()
     log(f"{label(n)} {preset}: {row.bytes:,} B, PSNR {row.psnr:.2f} dB, encode {m.wall_s:.1f} s "
         f"({1e6 * m.wall_s / n:.0f} us per Gaussian), peak {m.peak_rss / 2**20:.0f} MiB")
@@ -337,8 +338,11 @@ def targets(rows: list[ScaleRow]) -> list[str]:
         peaks = [r.encode["peak_rss"] / gib for r in rows if not r.note and abs(r.n - n) <= 0.1 * n]
         out.append(f"- encoder peak memory at {label(n)} <= {limit} GiB (largest over the presets): "
                    + _verdict(max(peaks) if peaks else None, limit, "GiB"))
-    d1 = [r.decode["2"]["wall_s"] for r in rows if not r.note and abs(r.n - 10 ** 6) <= 10 ** 5]
-    out.append("- 1M Gaussians decoded in <= 10 s with 2 workers: " + _verdict(min(d1) if d1 else None, 10, "s"))
+    # streams that hold about 1M Gaussians: a preset that prunes decodes fewer (plain never prunes)
+    d1 = [r.decode["2"]["wall_s"] for r in rows if not r.note and abs(r.n - 10 ** 6) <= 10 ** 5
+          and (r.gaussians_decoded >= 0.9 * r.n or (not r.gaussians_decoded and r.preset == "plain"))]
+    out.append("- 1M Gaussians decoded in <= 10 s with 2 workers (streams of >= 0.9M Gaussians): "
+               + _verdict(min(d1) if d1 else None, 10, "s"))
     return out
 
 
