@@ -19,7 +19,8 @@ and written as 3DGS PLYs into --work. Per size and preset:
 Memory: every encoder and decoder runs in its own subprocess. "peak RSS" is the kernel's maximum
 resident set of that process (GNU time's %M); with worker processes, "tree peak" is the
 largest sum of the proportional set sizes (PSS: pages shared after fork counted once) of the
-process and its descendants, sampled every 0.2 s.
+process and its descendants, sampled every 0.2 s (or 20x a sample's own time, when reading
+PSS of a process of several GiB takes longer: the sampler keeps to about 5% of a core).
 
 Presets: any lghcc-enc preset, and ``plain``: preset low's steps without the render-based
 preparation (--psnr 0 --lambda 0 and prune_share 0: no renders, no search), the encoder's
@@ -116,6 +117,7 @@ class Measured:
     tree_peak: int  # bytes, sampled sum of PSS over the process tree (0: not sampled)
 
 
+SAMPLE_S = 0.2  # the tree peak's sampling period, at least
 TIME = "/usr/bin/time"  # GNU time: forks from its own small process, so the child's peak is its own
 
 
@@ -133,8 +135,13 @@ def measured(cmd: list[str], env: dict, scratch: Path) -> Measured:
     done = threading.Event()
 
     def sample() -> None:
-        while not done.wait(0.2):
+        # reading PSS walks the page tables: for a process of several GiB a sample takes tens of ms,
+        # so the pause grows with it and the sampler keeps to about 5% of a core
+        wait = SAMPLE_S
+        while not done.wait(wait):
+            t = time.perf_counter()
             peak[0] = max(peak[0], sum(_pss(q) for q in _descendants(p.pid)))
+            wait = max(SAMPLE_S, 20 * (time.perf_counter() - t))
     th = threading.Thread(target=sample, daemon=True)
     th.start()
     p.wait()
@@ -369,7 +376,7 @@ def report(rows: list[ScaleRow], built: dict[int, str], args, argv, plot_line: s
               f"PSNR: mean over {args.views} orbit views of {args.size} px (tools/bench_real.py's cameras, up "
               f"{UP}) of the decoded scene against the source's renders. {spz_note} Memory: peak RSS of the "
               "process (GNU time's %M; with workers, the largest process), tree peak: the largest sum of PSS over the process and "
-              "its workers, sampled every 0.2 s (it can miss a short peak). us / Gaussian, stages only: the "
+              "its workers, sampled every 0.2 s or 20x a sample's own time (it can miss a short peak). us / Gaussian, stages only: the "
               "encoder's stages without the start and the PLY read.",
               "", *table(rows, args.jobs), "", *measured_when(rows), plot_line, "", *targets(rows), "",
               "What runs in parallel: the tiles (geometry, attributes and hash of each; --jobs, --ray). The "
