@@ -450,11 +450,11 @@ def main(argv: list[str] | None = None) -> int:
             row = kept.get((preset, n))
             if row is None:
                 row = encode_row(run, n, preset, args, enc, dec, args.work)
-                row.memory_estimate = memory_estimate(scene, preset, args.jobs)
                 if not row.note and st:
                     row.spz_cell = br.equal_psnr_cell(row.bytes, row.psnr, env, full)
             else:
                 log(f"{label(n)} {preset}: kept from {args.work / 'rows.json'} (--resume)")
+            row.memory_estimate = memory_estimate(scene, preset, args.jobs)  # this code's estimate, kept rows too
             rows.append(row)
             (args.work / "rows.json").write_text(json.dumps([asdict(r) for r in rows], indent=1))
             # written after every row: a run stopped part way keeps what it measured, and says so
