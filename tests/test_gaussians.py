@@ -13,7 +13,8 @@ from lghcc.common.scene import GaussianScene
 from lghcc.decoder.decode import decode_stream
 from lghcc.encoder import cli as enc_cli
 from lghcc.encoder.stream.config import GaussianEncoderConfig, load_config
-from lghcc.encoder.gaussians.gaussian_grid import separate_duplicates
+from lghcc.encoder.gaussians.gaussian_grid import OccupiedVoxels, separate_duplicates
+from lghcc.encoder.stream.tiling import cell_keys
 from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
 from lghcc.formats.ply3dgs import read_3dgs_ply, write_3dgs_ply
 
@@ -95,6 +96,29 @@ def test_duplicates_move_to_the_nearest_free_voxel_highest_priority_stays():
     assert np.abs(out).max() == 1  # 26 others fill the 3x3x3 block around it
     out2, moved2 = separate_duplicates(np.arange(30).reshape(10, 3), None)
     assert moved2 == 0 and np.array_equal(out2, np.arange(30).reshape(10, 3))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 200), st.sampled_from([3, 1 << 30]), st.integers(0, 2 ** 31))
+def test_voxel_keys_are_a_set_and_an_order(n, span, seed):
+    """OccupiedVoxels answers membership as a set of tuples would, and cell_keys orders rows as
+    their lexicographic order, for boxes with one int64 per voxel (span 3) and boxes too large
+    for one (span 2^30 on every axis: 2^93 voxels)."""
+    rng = np.random.default_rng(seed)
+    rows = rng.integers(-span, span + 1, (n, 3))
+    distinct = np.unique(rows, axis=0)
+    occupied, truth = OccupiedVoxels(distinct), {tuple(r) for r in distinct.tolist()}
+    probes = np.concatenate([rows, rows + rng.integers(-1, 2, rows.shape), rows + 2 * span + 1])
+    for t in map(tuple, probes.tolist()):
+        assert (t in occupied) == (t in truth)
+    extra = tuple((rows[0] + 3 * span + 7).tolist())
+    occupied.add(extra)
+    assert extra in occupied
+    keys = cell_keys(rows)
+    order = np.lexsort(rows.T[::-1])  # lexicographic: x first
+    assert (np.diff(keys[order]) >= 0).all()
+    same = (rows[:, None, :] == rows[None, :, :]).all(axis=2)
+    assert np.array_equal(keys[:, None] == keys[None, :], same)
 
 
 @settings(max_examples=60, deadline=None)

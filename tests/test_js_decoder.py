@@ -427,3 +427,30 @@ def test_module_implied_rotations_match_the_reference():
     want[:, wc] = implied_w(q[:, wc], values[:, wc + 1:wc + 4])
     assert np.array_equal(got.view("<u4"), want.view("<u4"))
     assert np.count_nonzero(want[:, wc]) > 1000  # not all clamped to 0
+
+
+ARENA_LIMIT = """
+import { wasm, alloc } from './wasm.mjs';
+const w = wasm();
+w.reset();
+const out = [];
+for (let i = 0; i < 3; i++) {
+    try { out.push(alloc(w, 2 ** 31 - 1, false)); } catch (e) { out.push(`${e.name}: ${e.message}`); }
+}
+w.reset();
+out.push(alloc(w, 16) > 0);
+console.log(JSON.stringify(out));
+"""
+
+
+def test_module_arena_beyond_4_gib_is_a_resource_limit():
+    """Reservations in the module's arena that end beyond the 4 GiB of a 32-bit memory are refused
+    with the resource-limit error (before, the address sum wrapped and the arena handed out memory it
+    had already given: no error, overlapping arrays); the arena is usable again after reset. Pages
+    are reserved, not touched: the 2 GiB cost no resident memory."""
+    first, second, third, after = json.loads(node(ARENA_LIMIT))
+    assert isinstance(first, int) and first > 0
+    for refused in (second, third):
+        assert refused.startswith("ResourceLimitError: decoding needs more WebAssembly memory"), refused
+        assert "-" not in refused.split("(")[1]  # the MiB in use, not a signed 32-bit shift of 2 GiB
+    assert after is True

@@ -12,6 +12,7 @@ from ...common.errors import InputError
 from ...common.geometry import COORD_MAX
 from ...common.scene import GaussianScene
 from ..stream.config import GaussianEncoderConfig
+from ..stream.voxel_keys import VoxelBox
 
 _RING_CACHE: dict[int, np.ndarray] = {}
 
@@ -91,31 +92,19 @@ def separate_duplicates(coords: np.ndarray, priority: np.ndarray | None = None) 
 
 
 class OccupiedVoxels:
-    """A set of voxels, given first as int64 rows [K, 3] (distinct): those held as one int per
-    voxel within their box (a set of a million tuples takes seconds to build; few points move),
-    the voxels added later as tuples."""
+    """A set of voxels, given first as int64 rows [K, 3] (distinct): those held as one key per
+    voxel within their box (few points move), the voxels added later as tuples."""
 
     def __init__(self, rows: np.ndarray):
-        self.lo = rows.min(axis=0).tolist() if rows.size else [0, 0, 0]
-        span = (rows.max(axis=0) - rows.min(axis=0) + 1).tolist() if rows.size else [0, 0, 0]
-        self.span = span
-        self.packed = float(span[0]) * float(span[1]) * float(span[2]) < 2.0 ** 62
-        if self.packed:
-            c = rows - np.asarray(self.lo, dtype=np.int64)
-            self.keys = set(((c[:, 0] * span[1] + c[:, 1]) * span[2] + c[:, 2]).tolist())
-            self.added: set = set()
-        else:
-            self.added = set(map(tuple, rows.tolist()))
+        self.box = VoxelBox(rows)
+        self.keys = set(self.box.keys(rows).tolist()) if self.box.packable else set()
+        self.added = set() if self.box.packable else set(map(tuple, rows.tolist()))
 
     def __contains__(self, t: tuple) -> bool:
         if t in self.added:
             return True
-        if not self.packed:
-            return False
-        d = [t[k] - self.lo[k] for k in range(3)]
-        if not all(0 <= d[k] < self.span[k] for k in range(3)):
-            return False
-        return (d[0] * self.span[1] + d[1]) * self.span[2] + d[2] in self.keys
+        key = self.box.key(t) if self.box.packable else None
+        return key is not None and key in self.keys
 
     def add(self, t: tuple) -> None:
         self.added.add(t)

@@ -25,13 +25,16 @@ PROGRAM_BYTES = 320 << 20  # Python, NumPy, torch and the encoder's modules (300
 # SH 3 (59 channels: 5,433 B): 446 B per point and 84.5 B per value, rounded up.
 PER_POINT_BYTES = 480  # coordinates, orders, the neighbour graph, the tiles' indices, hash rows
 PER_VALUE_BYTES = 90  # per point and channel: the scene read, float64 values, int64 q, float32 decoded, copies
-# The render-based preparation (a PSNR or lambda asked for, fitting, pruning): projected
-# Gaussians, contributions, sensitivities and the search's trial scenes. Measured at one size: preset
-# low on the 100k scene of tools/scale_scenes.py (SH 0) had reached a high-water mark of 1,104 MB
-# after 34 min of its search (stopped there, on a loaded machine) against 438 MB without the
-# preparation: 6.7 KB per Gaussian and rising slowly; 9 KB leaves a margin. The per-value term
-# (the sensitivities, float64 [N, M], and their copies) is not measured beyond SH 0.
-PREPARE_PER_POINT_BYTES = 9000
+# The render-based preparation (a PSNR or lambda asked for, fitting, pruning): the views' renders and
+# projected Gaussians (two views at a time), contributions, sensitivities, the search's trial scenes
+# (on a sample of at most 100k Gaussians) and the fit. Fitted on bench_scale's peaks of `medium` with
+# --jobs 2 (tools/results/scale.md, 2026-11-29; SH 0): 1,194 MiB at 100k, 1,679 at 300k, 3,206 at 1M
+# (409k pruned), 10,158 at 3M (none pruned): above the other parts, about 420 MiB plus 1.8 KB per
+# Gaussian from 300k to 3M, more per Gaussian at 100k (the fixed part: renders, torch's buffers).
+# 600 MiB plus 2,000 B per point bounds all four by 5-7% at 100k and 3M (the tightest). The per-value
+# term (the sensitivities, float64 [N, M], and their copies) is not measured beyond SH 0.
+PREPARE_BYTES = 600 << 20
+PREPARE_PER_POINT_BYTES = 2000
 PREPARE_PER_VALUE_BYTES = 24
 # Rate-distortion optimized quantization without the preparation (sensitivity_model "uniform": the
 # fast preset): the whole scene's neighbour graph, each value's candidates and their code lengths. Measured
@@ -86,7 +89,7 @@ def encode_memory(scene: AnchorScene | GaussianScene, cfg, workers=None) -> Memo
     n, m = _points_and_channels(scene, cfg)
     parts = {"program": PROGRAM_BYTES, "scene and coding arrays": n * (PER_POINT_BYTES + PER_VALUE_BYTES * m)}
     if prepares(scene, cfg):
-        parts["render-based preparation"] = n * (PREPARE_PER_POINT_BYTES + PREPARE_PER_VALUE_BYTES * m)
+        parts["render-based preparation"] = PREPARE_BYTES + n * (PREPARE_PER_POINT_BYTES + PREPARE_PER_VALUE_BYTES * m)
     elif rdoq_without_preparation(scene, cfg):
         parts["rate-distortion optimized quantization"] = n * (RDOQ_PER_POINT_BYTES + RDOQ_PER_VALUE_BYTES * m)
     if workers is not None and workers.ray:

@@ -84,7 +84,7 @@ export function callWasm(f, describe) {
         if (!(e instanceof WebAssembly.RuntimeError)) throw e;
         const code = w.errorCode();
         if (!code) throw e;
-        if (code === ERR_MEMORY) throw new ResourceLimitError(`decoding needs more WebAssembly memory than this runtime gives (${w.memory.buffer.byteLength >> 20} MiB in use)`);
+        if (code === ERR_MEMORY) throw new ResourceLimitError(`decoding needs more WebAssembly memory than this runtime gives (${Math.round(w.memory.buffer.byteLength / 2 ** 20)} MiB in use)`);
         throw describe(code, w.errorA(), w.errorB());
     }
 }

@@ -38,8 +38,9 @@ export function progression(first: i32, step: i32, n: i32): usize {
 export function reserve(bytes: i32): usize {
     err = 0; // a trap after this without fail() is no decoding error
     if (top == 0) top = heapStart();
-    const p = top;
-    top = (p + <usize>bytes + 15) & ~(<usize>15);
+    const p = top, end = p + <usize>bytes + 15;
+    if (end < p) fail(ERR_MEMORY, 0, 0); // beyond the 4 GiB a 32-bit memory addresses (the sum wrapped)
+    top = end & ~(<usize>15);
     const have = <usize>memory.size() << 16;
     if (top > have) {
         if (memory.grow(<i32>((top - have + 0xFFFF) >> 16)) < 0) fail(ERR_MEMORY, 0, 0);
