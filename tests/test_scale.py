@@ -291,9 +291,14 @@ def test_bench_scale_resume_keeps_measured_rows_and_says_when(tmp_path):
 
     good = bs.ScaleRow(10 ** 6, "medium", bytes=123, psnr=45.0, measured_at="2026-11-29 08:00 UTC, load 0.10 0.20 0.30")
     failed = bs.ScaleRow(3 * 10 ** 6, "medium", note="lghcc-enc failed (exit 1)")
-    (tmp_path / "rows.json").write_text(json.dumps([asdict(good), asdict(failed)]))
-    kept = bs.resumed_rows(tmp_path / "rows.json")
-    assert kept == {("medium", 10 ** 6): good}
-    assert bs.resumed_rows(tmp_path / "absent.json") == {}
+    other = bs.ScaleRow(3 * 10 ** 5, "medium", bytes=99, options="--jobs 1 --views 12 --size 320 --enc-args ''")
+    (tmp_path / "rows.json").write_text(json.dumps([asdict(good), asdict(failed), asdict(other)]))
+    args = bs.argparse.Namespace(jobs=2, views=12, size=320, enc_args=[])
+    kept = bs.resumed_rows(tmp_path / "rows.json", bs.measured_options(args))
+    assert kept == {("medium", 10 ** 6): good}  # the failed row and the row of --jobs 1 are measured again
+    args.jobs = 1
+    assert set(bs.resumed_rows(tmp_path / "rows.json", bs.measured_options(args))) == {("medium", 10 ** 6),
+                                                                                      ("medium", 3 * 10 ** 5)}
+    assert bs.resumed_rows(tmp_path / "absent.json", "") == {}
     line = bs.measured_when([good, failed])[0]
     assert "medium 1M 2026-11-29 08:00 UTC, load 0.10 0.20 0.30" in line and "3M" not in line

@@ -171,12 +171,13 @@ class ScaleRow:
     memory_estimate: int = 0  # lghcc-enc --max-memory's estimate (bytes)
     gaussians_decoded: int = 0  # 0: not recorded (rows of runs before it was)
     measured_at: str = ""  # UTC time and load average when the row started (rows of several runs differ)
+    options: str = ""  # the run's options that change a row (measured_options); "": rows of runs before it was recorded
 
 
 def encode_row(run, n: int, preset: str, args, enc: list[str], dec: list[str], work: Path) -> ScaleRow:
     """One preset on one scene: encode, decode with 1 and 2 workers, PSNR (module doc)."""
     row = ScaleRow(n, preset, measured_at=f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, "
-                                          f"load {load_average()}")
+                                          f"load {load_average()}", options=measured_options(args))
     stream, js = work / f"{label(n)}-{preset}.lghcc", work / f"{label(n)}-{preset}.json"
     opts = ["--preset", preset]
     if preset == "plain":
@@ -388,13 +389,22 @@ def report(rows: list[ScaleRow], built: dict[int, str], args, argv, plot_line: s
     return lines
 
 
-def resumed_rows(path: Path) -> dict[tuple[str, int], ScaleRow]:
-    """The measured rows of an earlier run's rows.json by (preset, size); rows that failed are measured again."""
+def measured_options(args) -> str:
+    """The options a row's numbers depend on besides its size and preset (--resume keeps only rows of the same)."""
+    return f"--jobs {args.jobs} --views {args.views} --size {args.size} --enc-args '{' '.join(args.enc_args)}'"
+
+
+def resumed_rows(path: Path, options: str) -> dict[tuple[str, int], ScaleRow]:
+    """The measured rows of an earlier run's rows.json by (preset, size), those measured with ``options``
+    (or before rows recorded them); rows that failed or had other options are measured again."""
     if not path.exists():
         log(f"--resume: no {path}: measuring every row")
         return {}
     rows = [ScaleRow(**r) for r in json.loads(path.read_text())]
-    return {(r.preset, r.n): r for r in rows if not r.note}
+    other = [f"{r.preset} {label(r.n)}" for r in rows if r.options not in ("", options)]
+    if other:
+        log(f"--resume: measuring again {', '.join(other)}: measured with other options than {options}")
+    return {(r.preset, r.n): r for r in rows if not r.note and r.options in ("", options)}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -411,8 +421,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--work", type=Path, default=ROOT / ".bench_scale", help="scenes, streams, renders (ignored)")
     ap.add_argument("--out", type=Path, default=ROOT / "tools" / "results" / "scale.md")
     ap.add_argument("--resume", action="store_true",
-                    help="keep the rows of --work's rows.json (an earlier run stopped part way) and measure only the "
-                         "size and preset pairs it lacks; the report lists when each row was measured")
+                    help="keep the rows of --work's rows.json (an earlier run stopped part way) measured with the same "
+                         "--jobs, --views, --size and --enc-args, and measure only the size and preset pairs it lacks; "
+                         "the report lists when each row was measured")
     args = ap.parse_args(argv)
     import shlex
 
@@ -439,7 +450,7 @@ def main(argv: list[str] | None = None) -> int:
     sources = scale_scenes.load_sources(data_root)
     enc, dec = br.lghcc_commands()
     rows, built, runs = [], {}, {}
-    kept = resumed_rows(args.work / "rows.json") if args.resume else {}
+    kept = resumed_rows(args.work / "rows.json", measured_options(args)) if args.resume else {}
     for n in sizes:  # the scenes, their renders and SPZ rows first (cached in --work)
         path, built[n], scene = scene_file(n, sources, args.work)
         run = scene_run(path, n, args, st, why)

@@ -31,8 +31,10 @@ PER_VALUE_BYTES = 90  # per point and channel: the scene read, float64 values, i
 # --jobs 2 (tools/results/scale.md, 2026-11-29; SH 0): 1,194 MiB at 100k, 1,679 at 300k, 3,206 at 1M
 # (409k pruned), 10,158 at 3M (none pruned): above the other parts, about 420 MiB plus 1.8 KB per
 # Gaussian from 300k to 3M, more per Gaussian at 100k (the fixed part: renders, torch's buffers).
-# 600 MiB plus 2,000 B per point bounds all four by 5-7% at 100k and 3M (the tightest). The per-value
-# term (the sensitivities, float64 [N, M], and their copies) is not measured beyond SH 0.
+# 600 MiB plus 2,000 B per point bounds all four: with the other parts and two workers the whole
+# estimate is 1.16x the peak at 3M, 1.18x at 100k (the tightest), 1.44x at 1M (where pruning lowered
+# the peak). The per-value term (the sensitivities, float64 [N, M], and their copies) is not measured
+# beyond SH 0.
 PREPARE_BYTES = 600 << 20
 PREPARE_PER_POINT_BYTES = 2000
 PREPARE_PER_VALUE_BYTES = 24
