@@ -454,3 +454,19 @@ def test_module_arena_beyond_4_gib_is_a_resource_limit():
         assert refused.startswith("ResourceLimitError: decoding needs more WebAssembly memory"), refused
         assert "-" not in refused.split("(")[1]  # the MiB in use, not a signed 32-bit shift of 2 GiB
     assert after is True
+
+
+def test_bench_ab_compares_two_trees_on_one_stream():
+    """viewer/web/decoder/bench_ab.mjs: the per-tile A/B of two decoder trees (here the same tree
+    twice) checks that both decode to the same digest, the stream's, and reports CPU per decode."""
+    stream = STREAMS / "c100_rotation_length" / "stream.lghcc"
+    res = subprocess.run([NODE, str(JS / "bench_ab.mjs"), str(JS), str(JS), str(stream), "--rounds", "1"],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    r = json.loads(res.stdout)
+    want = yaml.safe_load((stream.parent / "test.yaml").read_text())
+    assert r["sameDigest"] is True and r["tiles"] >= 1
+    assert r["cpuMsA"] > 0 and r["cpuMsB"] > 0 and r["ratio"] == pytest.approx(r["cpuMsA"] / r["cpuMsB"])
+    assert r["digest"] == want["decoded_sha256"]
+    bad = subprocess.run([NODE, str(JS / "bench_ab.mjs"), str(JS)], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "usage" in bad.stderr
