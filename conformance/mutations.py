@@ -943,17 +943,17 @@ MUTATIONS: list[Mutation] = [
       ("binary_weights(f1)", "binary_weights(TOTAL_FREQUENCY - f1)")),
     M("sh_degree.probabilities_context_major", "sh_degree", f"{SH_DEGREE}:flag_weights",
       "degree_flag_prob indexed x * d + (b - 1) (context-major) instead of (b - 1) * 6 + x",
-      ("binary_weights(f1).reshape(unit.sh_degree, NUM_DEGREE_CONTEXTS, 2)",
-       "binary_weights(f1).reshape(NUM_DEGREE_CONTEXTS, unit.sh_degree, 2).transpose(1, 0, 2)")),
-    M("sh_degree.flags_row_major", "sh_degree", f"{SH_DEGREE}:decode_degree_chunk",
+      ("binary_weights(f1).reshape(levels, NUM_DEGREE_CONTEXTS, 2)",
+       "binary_weights(f1).reshape(NUM_DEGREE_CONTEXTS, levels, 2).transpose(1, 0, 2)")),
+    M("sh_degree.flags_row_major", "sh_degree", f"{SH_DEGREE}:decode_flag_chunk",
       "the flags decoded row after row (each row's flags b = 1, 2, ... until a 0) instead of band by band",
-      ("    for band in range(1, unit.sh_degree + 1):\n        if not active.size:\n            break\n"
+      ("    for band in range(1, levels + 1):\n        if not active.size:\n            break\n"
        "        flags = dec.decode_binary_models(weights[band - 1][flag_contexts(band, nd, active)])\n"
        "        active = active[flags == 1]\n        out[active] = band\n",
-       "    for r in range(num_rows):\n        for band in range(1, unit.sh_degree + 1):\n"
+       "    for r in range(num_rows):\n        for band in range(1, levels + 1):\n"
        "            flag = dec.decode_binary_models(weights[band - 1][flag_contexts(band, nd, np.array([r]))])[0]\n"
        "            if flag == 0:\n                break\n            out[r] = band\n")),
-    M("sh_degree.flags_not_truncated", "sh_degree", f"{SH_DEGREE}:decode_degree_chunk",
+    M("sh_degree.flags_not_truncated", "sh_degree", f"{SH_DEGREE}:decode_flag_chunk",
       "a flag of every band for every row (D the highest band whose flag is 1), not only after a 1",
       ("        active = active[flags == 1]\n        out[active] = band\n", "        out[active[flags == 1]] = band\n")),
     M("sh_degree.coded_one_band_more", "sh_degree", f"{SH_DEGREE}:coded_channels",
