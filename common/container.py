@@ -19,7 +19,7 @@ from .syntax import SyntaxStructure, SyntaxVisitor
 
 MAGIC = 0x4C474843  # "LGHC"
 VERSION_MAJOR = 1
-VERSION_MINOR = 4  # this decoder's version: 1.4
+VERSION_MINOR = 5  # this decoder's version: 1.5
 BASE_VERSION_MINOR = 1  # the version of a stream that uses no tool of a later minor version (clause 6.2)
 ANCILLARY_UNIT_TYPE_MIN = 0x80
 UNIT_HEADER_BYTES = 5
@@ -43,6 +43,7 @@ class UnitType(IntEnum):
     STEP_ADJUST = 0x0A  # version 1.2: a step-adjustment index per Gaussian (7.3.13)
     SH_DEGREE = 0x0B  # version 1.3: an SH degree per Gaussian (7.3.14)
     ROTATION_LENGTH = 0x0C  # version 1.4: rotations as a length index and x, y, z, w implied (7.3.15)
+    STEP_ADJUST_FLAGS = 0x0D  # version 1.5: the step-adjustment indices as flags (7.3.16)
 
 
 class AncillaryUnitType(IntEnum):
@@ -109,7 +110,8 @@ CONTAINER_HEADER_BYTES = 8
 # A stream's version_minor is the lowest whose tools it uses (clause 6.2): a stream without a
 # step_adjust unit is a version 1.1 stream, which a decoder of version 1.1 decodes (and one
 # without an sh_degree unit a version 1.2 stream at most).
-FIRST_MINOR_OF_UNIT = {UnitType.STEP_ADJUST: 2, UnitType.SH_DEGREE: 3, UnitType.ROTATION_LENGTH: 4}
+FIRST_MINOR_OF_UNIT = {UnitType.STEP_ADJUST: 2, UnitType.SH_DEGREE: 3, UnitType.ROTATION_LENGTH: 4,
+                       UnitType.STEP_ADJUST_FLAGS: 5}
 
 
 def version_minor_of(units: list[DataUnit]) -> int:

@@ -38,10 +38,11 @@ from .bitio import BitReader
 from .entropy.symbol_coder import decode_symbols, encode_symbols, escape_class
 from .errors import BitstreamError
 from .knn import MAX_EXTENT, ball_knn
-from .sh_degree import coded_channels, decode_degree_chunk, encode_degree_chunk, neighbour_degrees
+from .sh_degree import (coded_channels, decode_degree_chunk, decode_flag_chunk, encode_degree_chunk, encode_flag_chunk,
+                        flag_weights, neighbour_degrees)
 from .syntax import TraceEntry
 from .units import (CONTEXT_PER_CHANNEL_PRIOR, LEVEL_ALL, AttributeUnitHeader, NeighbourPredictionUnit, ShDegreeUnit,
-                    StepAdjustUnit)
+                    StepAdjustFlagsUnit, StepAdjustUnit)
 
 # the whole extent of a tile lies in this ball (every d2 of an admissible tile is below it)
 WHOLE_EXTENT_RADIUS_SQ = 3 * MAX_EXTENT * MAX_EXTENT
@@ -266,11 +267,13 @@ def write_predicted_attribute_unit(h: AttributeUnitHeader, layout, q: np.ndarray
                                    unit: NeighbourPredictionUnit,
                                    prediction: ChannelPrediction | None = None,
                                    adjust: np.ndarray | None = None, degrees: np.ndarray | None = None,
-                                   degree_unit: ShDegreeUnit | None = None) -> bytes:
+                                   degree_unit: ShDegreeUnit | None = None,
+                                   step_flags: StepAdjustFlagsUnit | None = None) -> bytes:
     """Code q [N, M] (rows in the tile's normative order) LoD by LoD; LoD 0 with the header's
     per-channel prior. Fills the header's chunk sizes (and cross-channel prediction entries).
     ``adjust``: each row's step-adjustment index (h.step_adjust_present, with the header's
-    adjust_mean and adjust_level set), coded in a chunk before each chunk of values. ``degrees``:
+    adjust_mean and adjust_level set), coded in a chunk before each chunk of values (as flags with the
+    stream's ``step_flags`` unit, version 1.5, the header's adjust_mean and adjust_level 0). ``degrees``:
     each row's SH degree (h.sh_degree_present, with the stream's ``degree_unit``), coded in a chunk
     before each chunk of values, which then holds only the rows' coded channels (the values of the
     others must be 0 in q)."""
@@ -286,7 +289,7 @@ def write_predicted_attribute_unit(h: AttributeUnitHeader, layout, q: np.ndarray
     for level, lo, hi in chunk_segments(h, graph):
         rows = graph.rows[level][lo:hi]
         if adjust is not None:
-            chunks.append(encode_symbols(adjust[rows, None] - h.adjust_mean, _adjust_levels(h, rows.size)))
+            chunks.append(encode_adjust_chunk(adjust, rows, h, graph, level, lo, hi, step_flags))
             h.adjust_chunk_size.append(len(chunks[-1]))
             p = _adjusted_chunk_params(level, lo, hi, q, graph, prior, table, mean_flags(unit), unit.num_buckets,
                                        adjust)
@@ -321,9 +324,37 @@ def _decode_chunk_degrees(piece: bytes, graph: NeighbourGraph, level: int, lo: i
     return chunk_coded_channels(layout, d)
 
 
+def encode_adjust_chunk(adjust: np.ndarray, rows: np.ndarray, h: AttributeUnitHeader, graph: NeighbourGraph, level: int,
+                        lo: int, hi: int, flags: StepAdjustFlagsUnit | None) -> bytes:
+    """The step-adjustment data of the chunk of rows lo..hi-1 of LoD ``level`` (``adjust``: every
+    row's index): symbols around the header's adjust_mean, or with a step_adjust_flags unit
+    (version 1.5) flags "a >= b" in the contexts of the rows' neighbours' indices (clause 11.8)."""
+    if flags is None:
+        return encode_symbols(adjust[rows, None] - h.adjust_mean, _adjust_levels(h, rows.size))
+    nd = neighbour_degrees(chunk_neighbours(graph, level, lo, hi), adjust)
+    return encode_flag_chunk(adjust[rows], nd, flags.max_step_adjust, step_flag_weights(flags))
+
+
+def step_flag_weights(flags: StepAdjustFlagsUnit) -> np.ndarray:
+    """The flag models [max_step_adjust, 6, 2] of a step_adjust_flags unit (clause 7.3.16)."""
+    return flag_weights(flags.step_flag_prob, flags.max_step_adjust)
+
+
+def check_flag_header(h: AttributeUnitHeader, what: str) -> None:
+    """With a step_adjust_flags unit the header's adjust_mean and adjust_level are 0 (clause 7.3.5, E67)."""
+    if h.adjust_mean or h.adjust_level:
+        raise BitstreamError(f"{what}: adjust_mean {h.adjust_mean} and adjust_level {h.adjust_level} in a stream with "
+                             "a step_adjust_flags unit, where both shall be 0 (clause 7.3.5)")
+
+
 def _decode_chunk_adjust(piece: bytes, h: AttributeUnitHeader, step_adjust: StepAdjustUnit, num_rows: int,
-                         i: int) -> np.ndarray:
-    """The step-adjustment indices (int64 [num_rows]) of chunk i (clause 11.8; above max_step_adjust: E65)."""
+                         i: int, flags: StepAdjustFlagsUnit | None = None, nd: np.ndarray | None = None) -> np.ndarray:
+    """The step-adjustment indices (int64 [num_rows]) of chunk i (clause 11.8; above max_step_adjust: E65);
+    with the stream's step_adjust_flags unit ``flags`` (version 1.5) decoded as flags, ``nd`` the
+    indices of the rows' neighbours (None: LoD 0)."""
+    if flags is not None:
+        return decode_flag_chunk(piece, num_rows, nd, flags.max_step_adjust, step_flag_weights(flags),
+                                 f"step-adjustment flags chunk {i}")
     a = decode_symbols(piece, _adjust_levels(h, num_rows), f"step-adjustment chunk {i}")[:, 0] + h.adjust_mean
     if a.size and (a.min() < 0 or a.max() > step_adjust.max_step_adjust):
         raise BitstreamError(f"step-adjustment chunk {i}: an index is outside [0, max_step_adjust = "
@@ -335,12 +366,13 @@ def read_predicted_attribute_unit(payload: bytes, layout, steps: np.ndarray, coo
                                   unit: NeighbourPredictionUnit, values_out: np.ndarray,
                                   trace: list[TraceEntry] | None = None, on_chunk=None,
                                   step_adjust: StepAdjustUnit | None = None,
-                                  sh_degree: ShDegreeUnit | None = None) -> AttributeUnitHeader:
+                                  sh_degree: ShDegreeUnit | None = None,
+                                  step_flags: StepAdjustFlagsUnit | None = None) -> AttributeUnitHeader:
     """Parse and decode the attribute unit of a tile of ``coords`` (normative order) coded with
     neighbour prediction (clause 13.2 with 11.7): the values of row i go to values_out[i]. With
     the stream's ``step_adjust`` unit, each chunk of values follows the chunk of its rows'
-    step-adjustment indices (clause 11.8); with its ``sh_degree`` unit, the chunk of their SH
-    degrees (clause 11.9)."""
+    step-adjustment indices (clause 11.8; as flags with its ``step_flags`` unit, version 1.5); with
+    its ``sh_degree`` unit, the chunk of their SH degrees (clause 11.9)."""
     n = coords.shape[0]
     what = "attribute unit (neighbour prediction)"
     reader = BitReader(payload, what)
@@ -351,6 +383,8 @@ def read_predicted_attribute_unit(payload: bytes, layout, steps: np.ndarray, coo
                                   sh_degree_present=int(sh_degree is not None))
     if h.attribute_level != LEVEL_ALL:
         raise BitstreamError(f"{what}: attribute_level {h.attribute_level} where level 0 is expected")
+    if step_flags is not None:
+        check_flag_header(h, what)
     if h.num_rows_minus1 + 1 != n:  # clause 8.3 rule 8
         raise BitstreamError(f"{what}: num_rows_minus1 + 1 = {h.num_rows_minus1 + 1}, but the tile has {n} rows")
     if h.context_model_id != CONTEXT_PER_CHANNEL_PRIOR:
@@ -371,7 +405,8 @@ def read_predicted_attribute_unit(payload: bytes, layout, steps: np.ndarray, coo
         rows = graph.rows[level][lo:hi]
         row_adjust = None
         if adjust is not None:
-            a = _decode_chunk_adjust(next(pieces), h, step_adjust, hi - lo, i)
+            a = _decode_chunk_adjust(next(pieces), h, step_adjust, hi - lo, i, step_flags,
+                                     neighbour_degrees(chunk_neighbours(graph, level, lo, hi), adjust))
             adjust[rows] = a
             row_adjust = a[:, None]
             p = _adjusted_chunk_params(level, lo, hi, q_all, graph, prior, table, mean_flags(unit),

@@ -13,6 +13,10 @@ at least b: 1 when m = 0, 5 when m = n, else 2 + (3 m) // n. Its frequency table
 f[1] = 4096 p + 2048, f[0] = 2^24 - f[1]. Band-major order lets a decoder decode one band of a
 chunk's rows in one call, as the symbol data's level groups (row-major flags would need one call
 per row).
+
+The same flags code version 1.5's step-adjustment indices (clause 11.8, a step_adjust_flags unit):
+encode_flag_chunk and decode_flag_chunk take the largest level and the flag models, so one
+implementation serves both tools.
 """
 
 from __future__ import annotations
@@ -34,11 +38,13 @@ def coded_channels(sh_channels: int, num_channels: int, degrees: np.ndarray) -> 
     return (c < 3 * (d + 1) ** 2) | (c >= sh_channels)
 
 
-def flag_weights(unit: ShDegreeUnit) -> np.ndarray:
-    """The constriction weights [d, NumDegreeContexts, 2] of every band's and context's flag model."""
-    p = np.asarray(unit.degree_flag_prob, np.int64)
+def flag_weights(probs, levels: int) -> np.ndarray:
+    """The constriction weights [levels, NumDegreeContexts, 2] of the flag models of every level b =
+    1 .. levels and context from the unit's probabilities ``probs`` (``degree_flag_prob``, or version
+    1.5's ``step_flag_prob``, clause 11.8), (b - 1) * 6 + x each."""
+    p = np.asarray(probs, np.int64)
     f1 = FLAG_PROB_UNIT * p + FLAG_PROB_UNIT // 2
-    return binary_weights(f1).reshape(unit.sh_degree, NUM_DEGREE_CONTEXTS, 2)
+    return binary_weights(f1).reshape(levels, NUM_DEGREE_CONTEXTS, 2)
 
 
 def neighbour_degrees(neighbours: np.ndarray | None, degrees: np.ndarray) -> np.ndarray | None:
@@ -72,24 +78,24 @@ def band_flags(row_degrees: np.ndarray, nd: np.ndarray | None, sh_degree: int):
         active = active[flags == 1]
 
 
-def encode_degree_chunk(row_degrees: np.ndarray, nd: np.ndarray | None, unit: ShDegreeUnit) -> bytes:
-    """The SH-degree data of a chunk whose rows have degrees ``row_degrees`` [n]."""
-    weights = flag_weights(unit)
+def encode_flag_chunk(row_levels: np.ndarray, nd: np.ndarray | None, levels: int, weights: np.ndarray) -> bytes:
+    """The flags of a chunk whose rows have levels ``row_levels`` [n] in [0, ``levels``] (SH degrees,
+    or step-adjustment indices, clause 11.8), ``weights`` from flag_weights."""
     enc = RangeEncoder()
-    for band, x, flags in band_flags(np.asarray(row_degrees, np.int64), nd, unit.sh_degree):
+    for band, x, flags in band_flags(np.asarray(row_levels, np.int64), nd, levels):
         enc.encode_binary_models(flags, weights[band - 1][x])
     return enc.to_bytes()
 
 
-def decode_degree_chunk(data: bytes, num_rows: int, nd: np.ndarray | None, unit: ShDegreeUnit,
-                        what: str) -> np.ndarray:
-    """The SH degrees (int64 [num_rows]) of a chunk's rows from its SH-degree data; the chunk must
-    be exhausted after the last flag (clause 10.6.5)."""
-    weights = flag_weights(unit)
+def decode_flag_chunk(data: bytes, num_rows: int, nd: np.ndarray | None, levels: int, weights: np.ndarray,
+                      what: str) -> np.ndarray:
+    """The levels (int64 [num_rows]) of a chunk's rows from its flags (clause 11.9, and 11.8 for the
+    step-adjustment indices of version 1.5); the chunk must be exhausted after the last flag
+    (clause 10.6.5)."""
     dec = RangeDecoder(data, what)
     out = np.zeros(num_rows, np.int64)
     active = np.arange(num_rows)
-    for band in range(1, unit.sh_degree + 1):
+    for band in range(1, levels + 1):
         if not active.size:
             break
         flags = dec.decode_binary_models(weights[band - 1][flag_contexts(band, nd, active)])
@@ -97,3 +103,15 @@ def decode_degree_chunk(data: bytes, num_rows: int, nd: np.ndarray | None, unit:
         out[active] = band
     dec.check_exhausted()
     return out
+
+
+def encode_degree_chunk(row_degrees: np.ndarray, nd: np.ndarray | None, unit: ShDegreeUnit) -> bytes:
+    """The SH-degree data of a chunk whose rows have degrees ``row_degrees`` [n]."""
+    return encode_flag_chunk(row_degrees, nd, unit.sh_degree, flag_weights(unit.degree_flag_prob, unit.sh_degree))
+
+
+def decode_degree_chunk(data: bytes, num_rows: int, nd: np.ndarray | None, unit: ShDegreeUnit,
+                        what: str) -> np.ndarray:
+    """The SH degrees (int64 [num_rows]) of a chunk's rows from its SH-degree data."""
+    return decode_flag_chunk(data, num_rows, nd, unit.sh_degree, flag_weights(unit.degree_flag_prob, unit.sh_degree),
+                             what)

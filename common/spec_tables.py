@@ -14,7 +14,8 @@ def all_structures() -> list[type[SyntaxStructure]]:
             units.RenderModelUnit, units.RenderMlpHeader, geometry.GeometryHeader,
             units.AttributeUnitHeader, units.DecodedSceneHashUnit, model_unit.ContextModelUnit,
             model_unit.IntArrayHeader, units.GaussianParameterSet, units.SourceInfo, units.TileIndex,
-            units.NeighbourPredictionUnit, units.StepAdjustUnit, units.ShDegreeUnit, units.RotationLengthUnit]
+            units.NeighbourPredictionUnit, units.StepAdjustUnit, units.ShDegreeUnit, units.RotationLengthUnit,
+            units.StepAdjustFlagsUnit]
 
 
 def syntax_tables_markdown() -> str:

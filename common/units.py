@@ -56,6 +56,7 @@ ROTATION_LENGTH_BITS = 4
 # Per-Gaussian SH degree (version 1.3, clause 7.3.14): binary band flags, one probability per band
 # and context, u(12) in units of 2^-12
 NUM_DEGREE_CONTEXTS = 6
+NUM_STEP_FLAG_CONTEXTS = NUM_DEGREE_CONTEXTS  # version 1.5: the step-adjustment flags use the SH-degree flags' contexts
 DEGREE_PROB_BITS = 12
 
 HASH_TYPE_SHA256 = 1
@@ -364,6 +365,8 @@ class NeighbourPredictionUnit(SyntaxStructure):
     step_adjust: object = None
     # context (clause 7.3.14): the stream's sh_degree unit, None without one (not a syntax element)
     sh_degree_unit: object = None
+    # context (clause 7.3.16): the stream's step_adjust_flags unit, None without one (not a syntax element)
+    step_flags: object = None
 
     def syntax(self, v: SyntaxVisitor) -> None:
         v.u(4, self, "num_lods_minus1", hi=MAX_LOD_LEVELS - 1)
@@ -420,6 +423,26 @@ class ShDegreeUnit(SyntaxStructure):
         count = self.sh_degree * NUM_DEGREE_CONTEXTS
         for i in v.loop(count, "sh_degree * NumDegreeContexts", self, ("degree_flag_prob",)):
             v.u(DEGREE_PROB_BITS, self, "degree_flag_prob", i)
+        v.byte_align()
+
+
+@dataclass
+class StepAdjustFlagsUnit(SyntaxStructure):
+    """step_adjust_flags unit (0x0D, version 1.5, clause 7.3.16): the step-adjustment indices of a
+    stream with a step_adjust unit are coded as binary flags "a >= b" (clause 11.8, as clause 11.9
+    codes SH degrees); ``step_flag_prob[(b - 1) * NumStepFlagContexts + x]`` is the probability (in
+    2^-12, plus half a unit) that a row whose flag of b is coded with context x has an index of at
+    least b. The attribute unit headers' adjust_mean and adjust_level are then 0 (E67)."""
+
+    syntax_name = "step_adjust_flags_unit"
+    clause = "7.3.16"
+    max_step_adjust: int = 0  # context: max_step_adjust of the step_adjust unit
+    step_flag_prob: list = field(default_factory=list)
+
+    def syntax(self, v: SyntaxVisitor) -> None:
+        count = self.max_step_adjust * NUM_STEP_FLAG_CONTEXTS
+        for i in v.loop(count, "max_step_adjust * NumStepFlagContexts", self, ("step_flag_prob",)):
+            v.u(DEGREE_PROB_BITS, self, "step_flag_prob", i)
         v.byte_align()
 
 

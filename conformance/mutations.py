@@ -943,17 +943,17 @@ MUTATIONS: list[Mutation] = [
       ("binary_weights(f1)", "binary_weights(TOTAL_FREQUENCY - f1)")),
     M("sh_degree.probabilities_context_major", "sh_degree", f"{SH_DEGREE}:flag_weights",
       "degree_flag_prob indexed x * d + (b - 1) (context-major) instead of (b - 1) * 6 + x",
-      ("binary_weights(f1).reshape(unit.sh_degree, NUM_DEGREE_CONTEXTS, 2)",
-       "binary_weights(f1).reshape(NUM_DEGREE_CONTEXTS, unit.sh_degree, 2).transpose(1, 0, 2)")),
-    M("sh_degree.flags_row_major", "sh_degree", f"{SH_DEGREE}:decode_degree_chunk",
+      ("binary_weights(f1).reshape(levels, NUM_DEGREE_CONTEXTS, 2)",
+       "binary_weights(f1).reshape(NUM_DEGREE_CONTEXTS, levels, 2).transpose(1, 0, 2)")),
+    M("sh_degree.flags_row_major", "sh_degree", f"{SH_DEGREE}:decode_flag_chunk",
       "the flags decoded row after row (each row's flags b = 1, 2, ... until a 0) instead of band by band",
-      ("    for band in range(1, unit.sh_degree + 1):\n        if not active.size:\n            break\n"
+      ("    for band in range(1, levels + 1):\n        if not active.size:\n            break\n"
        "        flags = dec.decode_binary_models(weights[band - 1][flag_contexts(band, nd, active)])\n"
        "        active = active[flags == 1]\n        out[active] = band\n",
-       "    for r in range(num_rows):\n        for band in range(1, unit.sh_degree + 1):\n"
+       "    for r in range(num_rows):\n        for band in range(1, levels + 1):\n"
        "            flag = dec.decode_binary_models(weights[band - 1][flag_contexts(band, nd, np.array([r]))])[0]\n"
        "            if flag == 0:\n                break\n            out[r] = band\n")),
-    M("sh_degree.flags_not_truncated", "sh_degree", f"{SH_DEGREE}:decode_degree_chunk",
+    M("sh_degree.flags_not_truncated", "sh_degree", f"{SH_DEGREE}:decode_flag_chunk",
       "a flag of every band for every row (D the highest band whose flag is 1), not only after a 1",
       ("        active = active[flags == 1]\n        out[active] = band\n", "        out[active[flags == 1]] = band\n")),
     M("sh_degree.coded_one_band_more", "sh_degree", f"{SH_DEGREE}:coded_channels",
@@ -997,6 +997,20 @@ MUTATIONS: list[Mutation] = [
     M("rotation_length.index_range_unchecked", "rotation_length", f"{ATTR}:check_rotation_length_index",
       "a length index above max_rotation_length_index (or below 0) accepted (E66)",
       ("if k.size and (int(k.min()) < 0 or int(k.max()) > max_index):", "if False:")),
+    # --- step-adjustment indices as flags (version 1.5, clauses 7.3.16 and 11.8; the flags' decoding is
+    # the SH degrees', whose mutations above cover it for both tools)
+    M("step_adjust_flags.header_unchecked", "step_adjust_flags", f"{NEIGHBOUR}:read_predicted_attribute_unit",
+      "adjust_mean and adjust_level other than 0 accepted beside a step_adjust_flags unit (E67)",
+      ("    if step_flags is not None:\n        check_flag_header(h, what)\n", "")),
+    M("step_adjust_flags.no_neighbour_context", "step_adjust_flags", f"{NEIGHBOUR}:_decode_chunk_adjust",
+      "every flag in context 0 (as in LoD 0) instead of the share of the row's neighbours with an index of at least b",
+      ("return decode_flag_chunk(piece, num_rows, nd,", "return decode_flag_chunk(piece, num_rows, None,")),
+    M("step_adjust_flags.one_level_fewer", "step_adjust_flags", f"{NEIGHBOUR}:_decode_chunk_adjust",
+      "the flags stop at b = max_step_adjust - 1 (the largest index never coded)",
+      ("num_rows, nd, flags.max_step_adjust,", "num_rows, nd, flags.max_step_adjust - 1,")),
+    M("step_adjust_flags.symbols_kept", "step_adjust_flags", f"{NEIGHBOUR}:_decode_chunk_adjust",
+      "the indices decoded as symbols (version 1.2) whatever the step_adjust_flags unit says",
+      ("    if flags is not None:\n        return decode_flag_chunk(", "    if False:\n        return decode_flag_chunk(")),
     M("rotation_length.binary32", "rotation_length", f"{ATTR}:implied_w",
       "w computed in binary32 instead of binary64",
       ("xyz[:, a].astype(np.float64)", "xyz[:, a]"), ("np.asarray(ROTATION_LENGTH_SQ)[k]", "np.asarray(ROTATION_LENGTH_SQ, np.float32)[k]")),

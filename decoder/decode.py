@@ -48,9 +48,7 @@ from ..common.tiles import Box, check_points_in_cell, check_tile_index, cell_int
 from ..common.neighbour_prediction import read_predicted_attribute_unit
 from ..common.units import (CONTEXT_GGCONV, LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ATTRIBUTE_VALUES, DecodedSceneHashUnit,
                             GaussianParameterSet, NeighbourPredictionUnit, RotationLengthUnit, SceneParameterSet,
-                            ShDegreeUnit, SourceInfo,
-                            StepAdjustUnit,
-                            TileIndex)
+                            ShDegreeUnit, SourceInfo, StepAdjustFlagsUnit, StepAdjustUnit, TileIndex)
 from ..app.workers import available_cpus, shared_array
 from .jobs import PREVIEW_VALUE_SHARE, WorkerPlan, plan_workers, tile_seconds
 from .limits import DEFAULT_MAX_MEMORY, MemoryPlan
@@ -58,10 +56,11 @@ from .limits import DEFAULT_MAX_MEMORY, MemoryPlan
 _LETTER = {UnitType.SCENE_PARAMETER_SET: "S", UnitType.GAUSSIAN_PARAMETER_SET: "P", UnitType.RENDER_MODEL: "R",
            UnitType.GEOMETRY: "G", UnitType.CONTEXT_MODEL: "C", UnitType.ATTRIBUTE: "A",
            UnitType.DECODED_SCENE_HASH: "H", UnitType.TILE_INDEX: "I", UnitType.NEIGHBOUR_PREDICTION: "N",
-           UnitType.STEP_ADJUST: "Q", UnitType.SH_DEGREE: "B", UnitType.ROTATION_LENGTH: "W"}
+           UnitType.STEP_ADJUST: "Q", UnitType.STEP_ADJUST_FLAGS: "F", UnitType.SH_DEGREE: "B",
+           UnitType.ROTATION_LENGTH: "W"}
 # an anchor scene, or an explicit-Gaussian scene, which has no render model but may have neighbour
 # prediction (and with it step adjustment and the SH degrees) and rotation lengths; then the tiles
-_UNIT_ORDER = re.compile(r"(SR?|P(NQ?B?)?W?)C?I?(GA{1,2}H)+")
+_UNIT_ORDER = re.compile(r"(SR?|P(N(QF?)?B?)?W?)C?I?(GA{1,2}H)+")
 
 
 @dataclass
@@ -127,7 +126,8 @@ def organize_units(container: Container, known: list[DataUnit] | None = None) ->
         names = ", ".join(u.type_name for u in critical)
         raise BitstreamError(f"data units are out of order or repeated: {names} (expected scene_parameter_set, "
                              "[render_model], [context_model], [tile_index], then per tile geometry, attribute "
-                             "(1 or 2), decoded_scene_hash; or gaussian_parameter_set, [neighbour_prediction [step_adjust] [sh_degree]], "
+                             "(1 or 2), decoded_scene_hash; or gaussian_parameter_set, [neighbour_prediction [step_adjust "
+                             "[step_adjust_flags]] [sh_degree]], "
                              "[rotation_length], "
                              "[context_model], "
                              "[tile_index], then the tiles)")
@@ -210,10 +210,12 @@ def read_context_model_unit(context_unit: DataUnit | None, ps, layout, entries):
 
 def read_neighbour_prediction_unit(unit: DataUnit | None, ps, layout, entries,
                                    step_adjust_unit: DataUnit | None = None,
-                                   sh_degree_unit: DataUnit | None = None) -> NeighbourPredictionUnit | None:
-    """The stream's neighbour_prediction unit (None without one), with the stream's step_adjust
-    and sh_degree units as its context (the unit order puts them only after a neighbour_prediction
-    unit). Raises BitstreamError."""
+                                   sh_degree_unit: DataUnit | None = None,
+                                   step_flags_unit: DataUnit | None = None) -> NeighbourPredictionUnit | None:
+    """The stream's neighbour_prediction unit (None without one), with the stream's step_adjust,
+    step_adjust_flags and sh_degree units as its context (the unit order puts them only after a
+    neighbour_prediction unit, the step_adjust_flags unit only after the step_adjust unit). Raises
+    BitstreamError."""
     if unit is None:
         return None
     if ps.hierarchy_enabled_flag:
@@ -222,6 +224,10 @@ def read_neighbour_prediction_unit(unit: DataUnit | None, ps, layout, entries,
                                                    num_channels=layout.num_channels)
     if step_adjust_unit is not None:
         neighbour.step_adjust = StepAdjustUnit.from_bytes(step_adjust_unit.payload, entries, what="step_adjust unit")
+    if step_flags_unit is not None:
+        neighbour.step_flags = StepAdjustFlagsUnit.from_bytes(step_flags_unit.payload, entries,
+                                                              what="step_adjust_flags unit",
+                                                              max_step_adjust=neighbour.step_adjust.max_step_adjust)
     if sh_degree_unit is not None:
         neighbour.sh_degree_unit = ShDegreeUnit.from_bytes(sh_degree_unit.payload, entries, what="sh_degree unit",
                                                            sh_degree=ps.sh_degree)
@@ -242,7 +248,8 @@ def decode_predicted_attribute_units(attribute_units: list[DataUnit], layout, st
         memory.check_predicted_attribute_unit(n, unit)
     bar = progress_bar(total=n, desc="decode attributes", unit="point", disable=not progress, leave=False)
     read_predicted_attribute_unit(attribute_units[0].payload, layout, steps, coords, unit, values, entries,
-                                  on_chunk=bar.update, step_adjust=unit.step_adjust, sh_degree=unit.sh_degree_unit)
+                                  on_chunk=bar.update, step_adjust=unit.step_adjust, sh_degree=unit.sh_degree_unit,
+                                  step_flags=unit.step_flags)
     bar.close()
     return _Levels(values, None, None)
 
@@ -549,7 +556,8 @@ def parse_stream(data: bytes, entries: list[TraceEntry] | None = None, *, max_an
     context_model = read_context_model_unit(by_type.get(UnitType.CONTEXT_MODEL, [None])[0], ps, layout, entries)
     neighbour = read_neighbour_prediction_unit(by_type.get(UnitType.NEIGHBOUR_PREDICTION, [None])[0], ps, layout,
                                                entries, by_type.get(UnitType.STEP_ADJUST, [None])[0],
-                                               by_type.get(UnitType.SH_DEGREE, [None])[0])
+                                               by_type.get(UnitType.SH_DEGREE, [None])[0],
+                                               by_type.get(UnitType.STEP_ADJUST_FLAGS, [None])[0])
     if neighbour is not None:
         context_model = neighbour  # the attribute units' context (the stream has no context model)
     layout = with_rotation_length(layout, by_type.get(UnitType.ROTATION_LENGTH, [None])[0], entries)
@@ -670,7 +678,7 @@ def _stream_tools(ps, decoded: DecodedTiles, context_model, point: str, num_tile
                      f"{context_model.num_neighbours} neighbours, {context_model.num_buckets} activity buckets)")
         if context_model.step_adjust is not None:
             tools.append(f"step adjustment (a step per Gaussian, up to 2^({context_model.step_adjust.max_step_adjust}"
-                         "/4) times its channel's)")
+                         "/4) times its channel's" + (", its indices as flags" if context_model.step_flags else "") + ")")
         if context_model.sh_degree_unit is not None:
             tools.append(f"per-Gaussian SH degree (0 to {context_model.sh_degree_unit.sh_degree})")
     if not ps.hierarchy_enabled_flag:

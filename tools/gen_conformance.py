@@ -804,6 +804,7 @@ Tags of test.yaml `tools`, derived from the reference decoder's result (never wr
   step_adjust           a step_adjust unit (version 1.2, clause 7.3.13): a step-adjustment index per Gaussian
   sh_degree             an sh_degree unit (version 1.3, clause 7.3.14): an SH degree per Gaussian
   rotation_length       a rotation_length unit (version 1.4, clause 7.3.15): rotations as a length index and x, y, z
+  step_adjust_flags     a step_adjust_flags unit (version 1.5, clause 7.3.16): the step-adjustment indices as flags
   gaussians             an explicit-Gaussian scene (gaussian_parameter_set), sh_degree_<d> its SH degree
   channel_prediction    an attribute unit with cross-channel predictions (clause 11.6)
   offset_mask           offset_mask_present_flag = 1
@@ -864,7 +865,8 @@ def _structure_tags(data: bytes) -> set[str]:
     types = {u.unit_type for u in units}
     unit_tags = {UnitType.RENDER_MODEL: "render_model", UnitType.CONTEXT_MODEL: "context_model_unit",
                  UnitType.NEIGHBOUR_PREDICTION: "neighbour_prediction", UnitType.STEP_ADJUST: "step_adjust",
-                 UnitType.SH_DEGREE: "sh_degree", UnitType.ROTATION_LENGTH: "rotation_length"}
+                 UnitType.SH_DEGREE: "sh_degree", UnitType.ROTATION_LENGTH: "rotation_length",
+                 UnitType.STEP_ADJUST_FLAGS: "step_adjust_flags"}
     tags.update(tag for unit_type, tag in unit_tags.items() if unit_type in types)
     if any(u.is_ancillary for u in units):
         tags.add("ancillary_unit")

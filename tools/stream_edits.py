@@ -629,9 +629,14 @@ def step_adjust(units, spec: dict) -> None:
     indices: zero | const:<a> | cycle (row i gets i mod (max + 1)) | cycle:<n> (i mod n, beyond max
     when n > max + 1: a fault), adjust_mean, adjust_level (default the encoder's),
     empty_adjust_chunks (every chunk of indices 0 bytes: each index decodes as bin 0 of the
-    level's table, -L + adjust_mean)}."""
-    from lghcc.common.units import GaussianParameterSet, StepAdjustUnit
-    from lghcc.encoder.stream.neighbour_coding import NeighbourCoding
+    level's table, -L + adjust_mean; as flags, every flag 0 and every index 0), flags (version 1.5:
+    the indices as flags with a step_adjust_flags unit after the step_adjust unit; true: the
+    encoder's probabilities, extreme: step_flag_prob[i] 0 for even i and 4095 for odd i, or a list),
+    append_adjust_hex ({chunk, hex}: words appended to a chunk of indices, the sizes kept
+    consistent)}."""
+    from lghcc.common.neighbour_prediction import neighbour_graph
+    from lghcc.common.units import NUM_STEP_FLAG_CONTEXTS, GaussianParameterSet, StepAdjustFlagsUnit, StepAdjustUnit
+    from lghcc.encoder.stream.neighbour_coding import NeighbourCoding, flag_counts, flag_probabilities
 
     gps = GaussianParameterSet.from_bytes(units[_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
     if gps.hierarchy_enabled_flag or gps.tiles_enabled_flag:
@@ -647,6 +652,12 @@ def step_adjust(units, spec: dict) -> None:
     else:
         period = 1 if kind == "zero" else int(kind.split(":")[1]) if ":" in kind else top + 1
         adjust = np.arange(n, dtype=np.int64) % period
+    flags = spec.get("flags")
+    if flags:  # the stream's step_adjust_flags unit: the neighbour unit carries it to the coding
+        graph = neighbour_graph(coords, unit.num_lods, unit.num_neighbours)
+        probs = flag_probabilities(flag_counts(graph, adjust, top)) if flags is True else \
+            [4095 * (i % 2) for i in range(top * NUM_STEP_FLAG_CONTEXTS)] if flags == "extreme" else [int(p) for p in flags]
+        unit.step_flags = StepAdjustFlagsUnit(max_step_adjust=top, step_flag_prob=probs)
     nc = NeighbourCoding(q, coords, unit.num_lods, unit.num_neighbours, unit.num_buckets,
                          bool(h0.num_channel_predictions), layout, unit, adjust=adjust)
     h = attr.new_attribute_header(layout, n, 0)
@@ -657,17 +668,26 @@ def step_adjust(units, spec: dict) -> None:
 
         h.adjust_mean = int(spec.get("adjust_mean", h.adjust_mean))
         h.adjust_level = int(spec.get("adjust_level", h.adjust_level))
-        payload = write_predicted_attribute_unit(h, layout, q, nc.graph, unit, nc.prediction, adjust)
-    if spec.get("empty_adjust_chunks"):  # every chunk of indices empty: each decodes as bin 0 of its table
+        payload = write_predicted_attribute_unit(h, layout, q, nc.graph, unit, nc.prediction, adjust,
+                                                 step_flags=unit.step_flags)
+    if spec.get("empty_adjust_chunks") or "append_adjust_hex" in spec:
         body = payload[len(h.to_bytes()):]
-        pieces, pos = [], 0
+        pieces, pos = [], 0  # per chunk [indices, values]
         for a_size, v_size in zip(h.adjust_chunk_size, h.chunk_size):
-            pieces.append(body[pos + a_size:pos + a_size + v_size])
+            pieces.append([body[pos:pos + a_size], body[pos + a_size:pos + a_size + v_size]])
             pos += a_size + v_size
-        h.adjust_chunk_size = [0] * len(pieces)
-        payload = h.to_bytes() + b"".join(pieces)
+        if spec.get("empty_adjust_chunks"):  # every chunk of indices empty: each decodes as bin 0 of its table
+            for piece in pieces:
+                piece[0] = b""
+        if "append_adjust_hex" in spec:
+            a = spec["append_adjust_hex"]
+            pieces[int(a["chunk"])][0] += bytes.fromhex(a["hex"])
+        h.adjust_chunk_size = [len(p[0]) for p in pieces]
+        payload = h.to_bytes() + b"".join(p[0] + p[1] for p in pieces)
     units[j] = DataUnit(UnitType.ATTRIBUTE, payload)
     units.insert(k + 1, DataUnit(UnitType.STEP_ADJUST, StepAdjustUnit(max_step_adjust=top).to_bytes()))
+    if unit.step_flags is not None:
+        units.insert(k + 2, DataUnit(UnitType.STEP_ADJUST_FLAGS, unit.step_flags.to_bytes()))
 
 
 def sh_degrees_of_rule(sh_rest_energy: np.ndarray, sh_degree: int, rule: str) -> np.ndarray:

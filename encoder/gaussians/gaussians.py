@@ -158,6 +158,9 @@ def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: Gaus
             unit = StepAdjustUnit(max_step_adjust=int(inp.step_adjust.max()))
             stats.step_adjust_counts = np.bincount(inp.step_adjust, minlength=unit.max_step_adjust + 1).tolist()
             parameter_units.append(DataUnit(UnitType.STEP_ADJUST, unit.to_bytes()))
+            flags = coded.neighbour_unit.step_flags  # chosen by the neighbour coding (clause 7.3.16)
+            if flags is not None:
+                parameter_units.append(DataUnit(UnitType.STEP_ADJUST_FLAGS, flags.to_bytes()))
         if inp.sh_degrees is not None:  # the unit fitted by the neighbour coding (clause 7.3.14)
             stats.sh_degree_counts = np.bincount(inp.sh_degrees, minlength=layout.sh_degree + 1).tolist()
             parameter_units.append(DataUnit(UnitType.SH_DEGREE, coded.neighbour_unit.sh_degree_unit.to_bytes()))

@@ -86,7 +86,7 @@ from ...render.sh import sh_to_rgb
 from ...render.view_threads import map_views
 from ..stream.level_coding import fit_per_channel_prior
 from .gaussian_grid import OPACITY_LOGIT_LIMIT, canonical_rotations
-from ..stream.neighbour_coding import NeighbourCoding, degree_flag_counts, degree_unit_of
+from ..stream.neighbour_coding import NeighbourCoding, flag_counts, flag_probabilities
 
 
 # Memory of one view's render forward and backward per Gaussian of the scene: 1,600 MiB over the
@@ -564,7 +564,7 @@ def _flag_bits(degrees: np.ndarray | None, graph: NeighbourGraph, sh_degree: int
     n = graph.rows[0].size + sum(r.size for r in graph.rows[1:])
     if degrees is None:
         return np.ones((n, sh_degree, 2))
-    p = np.asarray(degree_unit_of(degree_flag_counts(graph, degrees, sh_degree)).degree_flag_prob, np.float64)
+    p = np.asarray(flag_probabilities(flag_counts(graph, degrees, sh_degree)), np.float64)
     p1 = ((FLAG_PROB_UNIT * p + FLAG_PROB_UNIT / 2) / (FLAG_PROB_UNIT << DEGREE_PROB_BITS)).reshape(sh_degree, -1)
     bits = np.empty((n, sh_degree, 2))
     for lod, rows in enumerate(graph.rows):

@@ -177,6 +177,10 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # Needs the sensitivities and neighbour prediction (0: off).
     step_adjust_max: int = 0
     step_adjust_quantile: float = 0.9
+    # The step-adjustment indices as flags (version 1.5, clause 11.8; a step_adjust_flags unit): used
+    # where they code smaller than as symbols, the unit included (False: always as symbols, a version
+    # 1.2-1.4 stream; tools/results/step_flags.md).
+    step_adjust_flags: bool = True
     # Per-Gaussian SH degree (version 1.3, clause 11.9; encoder/gaussians/rdoq.py sh_degree_choice):
     # each Gaussian's SH bands above its own degree are not coded (they decode to 0) where the
     # pictures' error of dropping them costs less than their bits and flags by RDOQ's slopes; the

@@ -417,6 +417,7 @@ def code_neighbours_or_prior(inp: AttributeInput, levels: LevelLayout, cfg: Attr
     nc = neighbour_coding_of(q, inp.coords, cfg, inp.layout, predict, step_adjust=inp.step_adjust,
                              sh_degrees=inp.sh_degrees, graph=inp.graph)
     nc.unit.sh_degree_unit = nc.degree_unit  # the stream's sh_degree unit (None without the tool), for its tiles
+    nc.unit.step_flags = nc.step_flags  # the stream's step_adjust_flags unit (None: the indices as symbols)
     unit_bytes = UNIT_FRAMING_BYTES + len(nc.unit.to_bytes())
     # step adjustment and SH degrees need neighbour prediction (the values were chosen with them)
     needed = inp.step_adjust is not None or inp.sh_degrees is not None

@@ -152,7 +152,8 @@ def neighbour_coding_of(q: np.ndarray, coords: np.ndarray, cfg, layout, predict:
                         step_adjust: np.ndarray | None = None, sh_degrees: np.ndarray | None = None,
                         graph: NeighbourGraph | None = None) -> NeighbourCoding:
     return NeighbourCoding(q, coords, cfg.prediction_lods, cfg.prediction_neighbours, cfg.prediction_buckets, predict,
-                           layout, unit, adjust=step_adjust, degrees=sh_degrees, graph=graph)
+                           layout, unit, adjust=step_adjust, degrees=sh_degrees, graph=graph,
+                           step_flags_allowed=getattr(cfg, "step_adjust_flags", True))
 
 
 def code_with_neighbours(coder: LevelCoder, q: np.ndarray, nc: NeighbourCoding) -> LevelCoding:

@@ -14,6 +14,8 @@ the donut's attributes -15 to -20%, playbot's -0.3 to -2% (its Gaussians are far
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from ...common import attributes as attr
@@ -27,7 +29,8 @@ from ...common.neighbour_prediction import (ADJUST_FIXED_POINT, NeighbourGraph, 
 from ...common.attributes import NUM_STEP_ADJUST
 from ...common.container import UNIT_CRC_BYTES, UNIT_HEADER_BYTES
 from ...common.sh_degree import FLAG_PROB_UNIT, band_flags, coded_channels, neighbour_degrees
-from ...common.units import DEGREE_PROB_BITS, NUM_DEGREE_CONTEXTS, PRIOR_MEAN_MAX, NeighbourPredictionUnit, ShDegreeUnit
+from ...common.units import (DEGREE_PROB_BITS, NUM_DEGREE_CONTEXTS, PRIOR_MEAN_MAX, NeighbourPredictionUnit, ShDegreeUnit,
+                             StepAdjustFlagsUnit)
 from .prediction import fit_channel_prediction
 
 UNIT_FRAMING_BYTES = UNIT_HEADER_BYTES + UNIT_CRC_BYTES
@@ -98,32 +101,43 @@ def _mean_flags(q: np.ndarray, neighbour_mean: np.ndarray, prior_mean: np.ndarra
     return flags
 
 
-def degree_flag_counts(graph: NeighbourGraph, degrees: np.ndarray, sh_degree: int) -> np.ndarray:
-    """int64 [d, NumDegreeContexts, 2]: how many SH-degree flags of each band and context are 0 and 1
-    (clause 11.9; a flag's context depends on its row's neighbours only, not on the chunking)."""
-    counts = np.zeros((sh_degree, NUM_DEGREE_CONTEXTS, 2), np.int64)
+def flag_counts(graph: NeighbourGraph, values: np.ndarray, levels: int) -> np.ndarray:
+    """int64 [levels, NumDegreeContexts, 2]: how many flags "value >= b" of each b and context are 0 and 1
+    (clause 11.9's SH degrees, or clause 11.8's step-adjustment indices as flags; a flag's context
+    depends on its row's neighbours only, not on the chunking)."""
+    counts = np.zeros((levels, NUM_DEGREE_CONTEXTS, 2), np.int64)
     for level, rows in enumerate(graph.rows):
-        nd = neighbour_degrees(graph.neighbours[level], degrees) if level else None
-        for band, x, flags in band_flags(degrees[rows], nd, sh_degree):
+        nd = neighbour_degrees(graph.neighbours[level], values) if level else None
+        for band, x, flags in band_flags(values[rows], nd, levels):
             np.add.at(counts[band - 1], (x, flags), 1)
     return counts
 
 
-def degree_unit_of(counts: np.ndarray) -> ShDegreeUnit:
-    """The sh_degree unit whose flag probabilities code the counted flags in the fewest bits: f[1] =
-    4096 p + 2048 nearest the flags' share of ones (p = floor(4096 * ones / flags)); 2048 where a
-    context has no flag."""
+def flag_probabilities(counts: np.ndarray) -> list[int]:
+    """The probabilities (u(12) each, (b - 1) * 6 + x) that code the counted flags in the fewest bits:
+    f[1] = 4096 p + 2048 nearest the flags' share of ones (p = floor(4096 * ones / flags)); 2048
+    where a context has no flag."""
     total = counts.sum(axis=2)
     top = (1 << DEGREE_PROB_BITS) - 1
     p = np.where(total > 0, np.minimum((counts[..., 1] << DEGREE_PROB_BITS) // np.maximum(total, 1), top), 1 << 11)
-    return ShDegreeUnit(sh_degree=counts.shape[0], degree_flag_prob=[int(x) for x in p.ravel()])
+    return [int(x) for x in p.ravel()]
 
 
-def degree_flag_bits(counts: np.ndarray, unit: ShDegreeUnit) -> float:
-    """The ideal code length of the counted flags with the unit's probabilities."""
-    f1 = FLAG_PROB_UNIT * np.asarray(unit.degree_flag_prob, np.float64).reshape(counts.shape[:2]) + FLAG_PROB_UNIT / 2
+def degree_unit_of(counts: np.ndarray) -> ShDegreeUnit:
+    """The sh_degree unit of the counted SH-degree flags (flag_probabilities)."""
+    return ShDegreeUnit(sh_degree=counts.shape[0], degree_flag_prob=flag_probabilities(counts))
+
+
+def flag_bits(counts: np.ndarray, probs) -> float:
+    """The ideal code length of the counted flags with the probabilities ``probs``."""
+    f1 = FLAG_PROB_UNIT * np.asarray(probs, np.float64).reshape(counts.shape[:2]) + FLAG_PROB_UNIT / 2
     p1 = f1 / (FLAG_PROB_UNIT << DEGREE_PROB_BITS)
     return float(-(counts[..., 1] * np.log2(p1)).sum() - (counts[..., 0] * np.log2(1 - p1)).sum())
+
+
+def unit_bytes(unit) -> int:
+    """The bytes of a parameter unit in the stream, its header and CRC included."""
+    return UNIT_FRAMING_BYTES + len(unit.to_bytes())
 
 
 def _table(r: np.ndarray, bucket: np.ndarray, num_buckets: int) -> np.ndarray:
@@ -155,13 +169,14 @@ class NeighbourCoding:
     def __init__(self, q: np.ndarray, coords: np.ndarray, num_lods: int, num_neighbours: int, num_buckets: int,
                  channel_prediction: bool, layout, unit: NeighbourPredictionUnit | None = None,
                  graph: NeighbourGraph | None = None, adjust: np.ndarray | None = None,
-                 choose_mean_flags: bool = True, degrees: np.ndarray | None = None):
+                 choose_mean_flags: bool = True, degrees: np.ndarray | None = None, step_flags_allowed: bool = True):
         n, m = q.shape
         self.graph = graph if graph is not None else neighbour_graph(coords, num_lods, num_neighbours)
         self._set_degrees(degrees, layout, unit)
         if self.coded is not None:
             q = q * self.coded  # a value not coded is q = 0, also in its neighbours' sums (clause 11.9)
         self.q, self.layout, self.adjust = q, layout, adjust
+        self._given_unit, self._step_flags_allowed = unit, step_flags_allowed
         lod0 = self.graph.rows[0]
         a0 = None if adjust is None else adjust[lod0]
         base = q[lod0] if adjust is None else q[lod0] * ADJUST_FIXED_POINT[a0][:, None] / ADJUST_FIXED_POINT[0]
@@ -202,7 +217,7 @@ class NeighbourCoding:
             return
         self.degrees = np.asarray(degrees, np.int64)
         self.coded = coded_channels(layout.sh_channels, layout.num_channels, self.degrees)
-        self.degree_counts = degree_flag_counts(self.graph, self.degrees, layout.sh_degree)
+        self.degree_counts = flag_counts(self.graph, self.degrees, layout.sh_degree)
         given = None if unit is None else unit.sh_degree_unit
         self.degree_unit = given if given is not None else degree_unit_of(self.degree_counts)
 
@@ -231,26 +246,54 @@ class NeighbourCoding:
     def ideal_stream_bits(self) -> float:
         """The ideal bits of the values, their step-adjustment indices, their SH degrees and the
         units that carry the table and the flags' probabilities."""
-        unit_bytes = UNIT_FRAMING_BYTES + len(self.unit.to_bytes())
-        if self.degree_unit is not None:
-            unit_bytes += UNIT_FRAMING_BYTES + len(self.degree_unit.to_bytes())
-        return self.ideal_bits() + self.adjust_bits() + self.degree_bits() + 8 * unit_bytes
+        units = unit_bytes(self.unit) + sum(unit_bytes(u) for u in (self.degree_unit, self.step_flags) if u is not None)
+        return self.ideal_bits() + self.adjust_bits() + self.degree_bits() + 8 * units
 
     def degree_bits(self) -> float:
         """The ideal bits of the SH-degree flags (0 without them)."""
-        return 0.0 if self.degrees is None else degree_flag_bits(self.degree_counts, self.degree_unit)
+        return 0.0 if self.degrees is None else flag_bits(self.degree_counts, self.degree_unit.degree_flag_prob)
 
-    def adjust_model(self) -> tuple[int, int]:
-        """The step-adjustment indices' mean and scale level (the tile's attribute unit header)."""
+    @functools.cached_property
+    def step_flags(self) -> StepAdjustFlagsUnit | None:
+        """Whether the step-adjustment indices are coded as flags (version 1.5, clause 11.8) and with
+        which step_adjust_flags unit: the stream's (the given unit's context, for a tile), else the one
+        fitted here when the indices cost fewer bits as flags, the unit included, than as symbols
+        (computed when first asked for: the RDOQ's codings never ask)."""
+        if self.adjust is None:
+            return None
+        if self._given_unit is not None:
+            return self._given_unit.step_flags
+        if not self._step_flags_allowed:
+            return None
+        top = int(self.adjust.max(initial=0))
+        counts = flag_counts(self.graph, self.adjust, top)
+        flags = StepAdjustFlagsUnit(max_step_adjust=top, step_flag_prob=flag_probabilities(counts))
+        use = flag_bits(counts, flags.step_flag_prob) + 8 * unit_bytes(flags) < self._adjust_symbol_bits()
+        return flags if use else None
+
+    def _symbol_model(self) -> tuple[int, int]:
+        """The mean and scale level that code the indices as symbols (clause 11.8)."""
         a = self.adjust
         mean = int(np.clip(np.rint(np.median(a)), 0, NUM_STEP_ADJUST - 1))
         return mean, best_level(a - mean)
 
+    def _adjust_symbol_bits(self) -> float:
+        mean, level = self._symbol_model()
+        return ideal_code_length_bits(self.adjust - mean, np.full(self.adjust.shape, level, np.int64))
+
+    def adjust_model(self) -> tuple[int, int]:
+        """The step-adjustment indices' mean and scale level (the tile's attribute unit header; 0 and
+        0 with the indices as flags, clause 7.3.5)."""
+        return (0, 0) if self.step_flags is not None else self._symbol_model()
+
     def adjust_bits(self) -> float:
+        """The ideal bits of the step-adjustment indices (0 without them)."""
         if self.adjust is None:
             return 0.0
-        mean, level = self.adjust_model()
-        return ideal_code_length_bits(self.adjust - mean, np.full(self.adjust.shape, level, np.int64))
+        if self.step_flags is not None:
+            return flag_bits(flag_counts(self.graph, self.adjust, self.step_flags.max_step_adjust),
+                             self.step_flags.step_flag_prob)
+        return self._adjust_symbol_bits()
 
     def write(self, header) -> bytes:
         header.prior_mean = self.prior_mean.tolist()
@@ -260,7 +303,7 @@ class NeighbourCoding:
             header.adjust_mean, header.adjust_level = self.adjust_model()
         header.sh_degree_present = int(self.degrees is not None)
         return write_predicted_attribute_unit(header, self.layout, self.q, self.graph, self.unit, self.prediction,
-                                              self.adjust, self.degrees, self.degree_unit)
+                                              self.adjust, self.degrees, self.degree_unit, self.step_flags)
 
 
 def usable(coords: np.ndarray) -> bool:
