@@ -102,5 +102,7 @@ export function unitStructure(units) {
 
 function orderError(u) {
     const name = Object.keys(UNIT).find((k) => UNIT[k] === u.type) || `0x${u.type.toString(16)}`;
-    return new BitstreamError(`unit ${name.toLowerCase()} at byte ${u.start} breaks the unit order of clause 6.3 (E14)`);
+    // a misplaced step_adjust_flags unit (version 1.5): its rule named
+    const where = u.type === UNIT.STEP_ADJUST_FLAGS ? ': it may appear only right after the step_adjust unit, once (clause 7.3.16)' : '';
+    return new BitstreamError(`unit ${name.toLowerCase()} at byte ${u.start} breaks the unit order of clause 6.3 (E14)${where}`);
 }
