@@ -266,10 +266,15 @@ class NeighbourCoding:
         if not self._step_flags_allowed:
             return None
         top = int(self.adjust.max(initial=0))
-        counts = flag_counts(self.graph, self.adjust, top)
-        flags = StepAdjustFlagsUnit(max_step_adjust=top, step_flag_prob=flag_probabilities(counts))
-        use = flag_bits(counts, flags.step_flag_prob) + 8 * unit_bytes(flags) < self._adjust_symbol_bits()
+        flags = StepAdjustFlagsUnit(max_step_adjust=top, step_flag_prob=flag_probabilities(self._flag_counts(top)))
+        use = flag_bits(self._flag_counts(top), flags.step_flag_prob) + 8 * unit_bytes(flags) < self._adjust_symbol_bits()
         return flags if use else None
+
+    def _flag_counts(self, top: int) -> np.ndarray:
+        """flag_counts of the indices up to ``top`` (computed once per coding)."""
+        if getattr(self, "_counts", (None,))[0] != top:
+            self._counts = (top, flag_counts(self.graph, self.adjust, top))
+        return self._counts[1]
 
     def _symbol_model(self) -> tuple[int, int]:
         """The mean and scale level that code the indices as symbols (clause 11.8)."""
@@ -291,8 +296,7 @@ class NeighbourCoding:
         if self.adjust is None:
             return 0.0
         if self.step_flags is not None:
-            return flag_bits(flag_counts(self.graph, self.adjust, self.step_flags.max_step_adjust),
-                             self.step_flags.step_flag_prob)
+            return flag_bits(self._flag_counts(self.step_flags.max_step_adjust), self.step_flags.step_flag_prob)
         return self._adjust_symbol_bits()
 
     def write(self, header) -> bytes:
