@@ -73,6 +73,7 @@ class TileAttributeDecoder {
             at(np ? np.meanFlag : new Uint8Array(M)), at(np ? np.bucketLevel : new Uint8Array(1)), np ? np.B : 1,
             at(h.priorMean), at(h.priorLevel), at(pStart), at(h.predSource), at(Int32Array.from(h.predWeight)));
         if (ctx.shDegreeUnit) w.attributeDegrees(alloc(w, this.n), ctx.ps.shDegree, at(ctx.shDegreeUnit.freq));
+        if (ctx.stepFlags) w.attributeStepFlags(ctx.stepAdjust.maxStepAdjust, at(ctx.stepFlags.freq));
         this.coordsAddr = ctx.np ? [coords.x, coords.y, coords.z].map(at) : null; // the k-NN's points, copied once
         this.mark = w.keep();
     }
@@ -103,17 +104,19 @@ class TileAttributeDecoder {
 
     /** Chunk i: nr rows of the LoD's rows (a progression) from its lo-th on (clause 11.4, 11.7.5, 11.8, 11.9). */
     decodeChunk(rows, lo, nr, nb) {
-        const i = this.chunk++, w = this.w, k = nb ? this.ctx.np.k : 0;
-        if (this.ctx.stepAdjust) this.decodeIndices(i, rows.first + lo * rows.step, rows.step, nr);
-        const degrees = this.ctx.shDegreeUnit ? this.takeWords(this.h.degreeSize[i], `SH-degree chunk ${i}`) : new Uint8Array(0);
+        const i = this.chunk++, w = this.w, k = nb ? this.ctx.np.k : 0, flags = this.ctx.stepFlags;
+        // the indices as symbols are decoded here; as flags (version 1.5) by attributeChunk, which has the neighbours
+        if (this.ctx.stepAdjust && !flags) this.decodeIndices(i, rows.first + lo * rows.step, rows.step, nr);
+        const stepData = flags ? this.takeWords(this.h.adjustSize[i], `step-adjustment flags chunk ${i}`) : EMPTY;
+        const degrees = this.ctx.shDegreeUnit ? this.takeWords(this.h.degreeSize[i], `SH-degree chunk ${i}`) : EMPTY;
         const bytes = this.takeWords(this.h.chunkSize[i], `attribute chunk ${i}`);
         w.reset();
         const at = (arr) => copyIn(w, arr);
-        const pBytes = at(bytes), pRows = rowsInModule(w, rows, lo, nr), pDegrees = at(degrees);
+        const pBytes = at(bytes), pRows = rowsInModule(w, rows, lo, nr), pDegrees = at(degrees), pStep = at(stepData);
         const pIdx = nb ? nb.idx + 4 * lo * k : alloc(w, 0);
         const pCnt = nb ? nb.cnt + lo : alloc(w, nr);
-        callWasm(() => w.attributeChunk(pBytes, bytes.length, pRows, nr, pIdx, pCnt, k, pDegrees, degrees.length),
-            (code, a, b) => chunkError(w.errorStage() === STAGE_FLAGS ? `SH-degree chunk ${i}` : `attribute chunk ${i}`, code, a, b, w));
+        callWasm(() => w.attributeChunk(pBytes, bytes.length, pRows, nr, pIdx, pCnt, k, pDegrees, degrees.length, pStep, stepData.length),
+            (code, a, b) => chunkError(`${STAGE_NAMES[w.errorStage()]} ${i}`, code, a, b, w));
     }
 
     /** The next range-coded chunk of `size` bytes, a whole number of 32-bit words (clause 10.6.6, E35). */
@@ -146,7 +149,9 @@ class TileAttributeDecoder {
 }
 
 const ERR_Q_LIMIT = 11; // decoder.ts: |q| > 2^40
-const STAGE_FLAGS = 1; // decoder.ts: errorStage() of a failure in the SH-degree data
+const EMPTY = new Uint8Array(0);
+// decoder.ts: errorStage() of a failure in the symbol data, the SH-degree data, the step-adjustment flags
+const STAGE_NAMES = ['attribute chunk', 'SH-degree chunk', 'step-adjustment flags chunk'];
 
 /** The spec's error for the module's failure `code` in an attribute chunk. */
 function chunkError(what, code, a, b, w) {

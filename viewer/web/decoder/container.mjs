@@ -7,9 +7,9 @@ export const MAGIC = 0x4C474843;
 export const UNIT = {
     SCENE_PARAMETER_SET: 0x01, RENDER_MODEL: 0x02, GEOMETRY: 0x03, ATTRIBUTE: 0x04, CONTEXT_MODEL: 0x05,
     DECODED_SCENE_HASH: 0x06, GAUSSIAN_PARAMETER_SET: 0x07, TILE_INDEX: 0x08, NEIGHBOUR_PREDICTION: 0x09,
-    STEP_ADJUST: 0x0A, SH_DEGREE: 0x0B, ROTATION_LENGTH: 0x0C, SOURCE_INFO: 0x80,
+    STEP_ADJUST: 0x0A, SH_DEGREE: 0x0B, ROTATION_LENGTH: 0x0C, STEP_ADJUST_FLAGS: 0x0D, SOURCE_INFO: 0x80,
 };
-const LAST_KNOWN_CRITICAL = 0x0C;
+const LAST_KNOWN_CRITICAL = 0x0D;
 
 /**
  * Clause 6.1, 6.2: the container header and every data unit (header, size, CRC), before any payload
@@ -45,14 +45,14 @@ export const isCritical = (type) => type < 0x80;
 
 /**
  * The unit grammar of clause 6.3 for an explicit-Gaussian stream:
- *   P [N [Q] [B]] [W] [C] [I] tile+,  tile = G A [A] H
- * Returns {ps, np, sa, sd, rl, cm, ti, tiles: [{units: [G, A.., H], start, end}]}; the tile index's byte
+ *   P [N [Q [F]] [B]] [W] [C] [I] tile+,  tile = G A [A] H
+ * Returns {ps, np, sa, sf, sd, rl, cm, ti, tiles: [{units: [G, A.., H], start, end}]}; the tile index's byte
  * positions are checked later against the index (clause 7.3.11).
  */
 export function unitStructure(units) {
     for (const u of units) {
         if (isCritical(u.type) && u.type > LAST_KNOWN_CRITICAL) {
-            throw new UnsupportedStreamError(`critical unit type 0x${u.type.toString(16)} is not defined by version 1.4 (E10)`);
+            throw new UnsupportedStreamError(`critical unit type 0x${u.type.toString(16)} is not defined by version 1.5 (E10)`);
         }
     }
     const critical = units.filter((u) => isCritical(u.type));
@@ -70,12 +70,15 @@ export function unitStructure(units) {
     if (first.type === UNIT.SCENE_PARAMETER_SET) {
         throw new UnsupportedStreamError('an anchor stream (scene_parameter_set): outside the explicit-Gaussian profile this decoder implements');
     }
-    const s = { ps: first, np: null, sa: null, sd: null, rl: null, cm: null, ti: null, tiles: [] };
+    const s = { ps: first, np: null, sa: null, sf: null, sd: null, rl: null, cm: null, ti: null, tiles: [] };
     let i = 1;
     const peek = () => critical[i] && critical[i].type;
     if (peek() === UNIT.NEIGHBOUR_PREDICTION) {
         s.np = critical[i++];
-        if (peek() === UNIT.STEP_ADJUST) s.sa = critical[i++];
+        if (peek() === UNIT.STEP_ADJUST) {
+            s.sa = critical[i++];
+            if (peek() === UNIT.STEP_ADJUST_FLAGS) s.sf = critical[i++];
+        }
         if (peek() === UNIT.SH_DEGREE) s.sd = critical[i++];
     }
     if (peek() === UNIT.ROTATION_LENGTH) s.rl = critical[i++];
@@ -99,5 +102,7 @@ export function unitStructure(units) {
 
 function orderError(u) {
     const name = Object.keys(UNIT).find((k) => UNIT[k] === u.type) || `0x${u.type.toString(16)}`;
-    return new BitstreamError(`unit ${name.toLowerCase()} at byte ${u.start} breaks the unit order of clause 6.3 (E14)`);
+    // a misplaced step_adjust_flags unit (version 1.5): its rule named
+    const where = u.type === UNIT.STEP_ADJUST_FLAGS ? ': it may appear only right after the step_adjust unit, once (clause 7.3.16)' : '';
+    return new BitstreamError(`unit ${name.toLowerCase()} at byte ${u.start} breaks the unit order of clause 6.3 (E14)${where}`);
 }

@@ -1,5 +1,5 @@
 // The decoding process of spec clause 13 for the explicit-Gaussian profile (see README.md):
-// container, parameter set, neighbour prediction, step adjustment, SH degree and rotation length units, tile index, then
+// container, parameter set, neighbour prediction, step adjustment (its indices as symbols or flags), SH degree and rotation length units, tile index, then
 // every tile (geometry, attributes, hash check).
 import { decodeTileAttributes } from './attributes.mjs';
 import { parseContainer, unitStructure, UNIT } from './container.mjs';
@@ -9,7 +9,7 @@ import { Sha256, sha256, toHex } from './sha256.mjs';
 import { scaleTables } from './tables.mjs';
 import { alloc, copyIn, wasm } from './wasm.mjs';
 import {
-    parseAttributeHeader, parseGaussianParameterSet, parseHashUnit, parseNeighbourPrediction, parseRotationLength, parseShDegree, parseStepAdjust, parseTileIndex,
+    parseAttributeHeader, parseGaussianParameterSet, parseHashUnit, parseNeighbourPrediction, parseRotationLength, parseShDegree, parseStepAdjust, parseStepAdjustFlags, parseTileIndex,
 } from './units.mjs';
 
 export { BitstreamError, HashMismatchError, ResourceLimitError, UnsupportedStreamError };
@@ -17,7 +17,7 @@ export const DEFAULT_MAX_MEMORY = 2 ** 31; // bytes a decode may hold (decodeStr
 
 /**
  * Parse everything before the tiles (clause 13.1 steps 1 to 5). Returns the stream's context:
- * {ps, np, stepAdjust, shDegreeUnit, rotationLength, tiles: [{units, points, cell}], M, steps, payloads}.
+ * {ps, np, stepAdjust, stepFlags, shDegreeUnit, rotationLength, tiles: [{units, points, cell}], M, steps, payloads}.
  * verifiedEnd: the units ending at or before this byte passed their CRC-32 check already (progressive.mjs).
  */
 export function parseStream(bytes, { maxMemory = DEFAULT_MAX_MEMORY, verifiedEnd = 0 } = {}) {
@@ -29,22 +29,25 @@ export function parseStream(bytes, { maxMemory = DEFAULT_MAX_MEMORY, verifiedEnd
     if (s.cm && !ps.hierarchyEnabled) throw new BitstreamError('a context_model unit with hierarchy_enabled_flag = 0 (clause 8.3, E16)');
     if (ps.hierarchyEnabled) throw new UnsupportedStreamError('hierarchy_enabled_flag = 1: the two-level hierarchy is outside the explicit-Gaussian profile this decoder implements');
     const payload = (u) => u?.payload ?? null;
-    const ctx = preludeContext(ps, { ps: s.ps.payload, np: payload(s.np), sa: payload(s.sa), sd: payload(s.sd), rl: payload(s.rl) });
+    const ctx = preludeContext(ps, { ps: s.ps.payload, np: payload(s.np), sa: payload(s.sa), sf: payload(s.sf), sd: payload(s.sd), rl: payload(s.rl) });
     ctx.tiles = tileList(container.units, s, ps);
     checkMemory(ctx, bytes.length, maxMemory);
     return ctx;
 }
 
 /**
- * The stream's context (clause 13.1 step 4) from the prelude's payloads {ps, np, sa, sd, rl} (parameter
- * set, neighbour_prediction, step_adjust, sh_degree and rotation_length units; null when absent), ps parsed. The
+ * The stream's context (clause 13.1 step 4) from the prelude's payloads {ps, np, sa, sf, sd, rl} (parameter
+ * set, neighbour_prediction, step_adjust, step_adjust_flags, sh_degree and rotation_length units; null when absent), ps parsed. The
  * payloads stay in it: a worker decoding tiles in parallel parses them itself.
  */
 export function preludeContext(ps, payloads) {
+    // parsed in stream order (the first faulty unit names the error)
+    const np = payloads.np ? parseNeighbourPrediction(payloads.np, ps.M) : null;
+    const stepAdjust = payloads.sa ? parseStepAdjust(payloads.sa) : null;
+    // a step_adjust_flags unit comes only right after a step_adjust unit (container.mjs, clause 6.3)
+    const stepFlags = payloads.sf ? parseStepAdjustFlags(payloads.sf, stepAdjust.maxStepAdjust) : null;
     return {
-        ps, M: ps.M, steps: ps.steps, payloads,
-        np: payloads.np ? parseNeighbourPrediction(payloads.np, ps.M) : null,
-        stepAdjust: payloads.sa ? parseStepAdjust(payloads.sa) : null,
+        ps, M: ps.M, steps: ps.steps, payloads, np, stepAdjust, stepFlags,
         shDegreeUnit: payloads.sd ? parseShDegree(payloads.sd, ps.shDegree) : null,
         rotationLength: payloads.rl ? parseRotationLength(payloads.rl) : null,
     };

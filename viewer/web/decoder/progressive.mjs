@@ -69,7 +69,7 @@ export class ProgressiveDecoder {
         }
     }
 
-    // the prelude (parameter set, neighbour prediction, step adjustment, SH degree, rotation length, tile index) from the units so far
+    // the prelude (parameter set, neighbour prediction, step adjustment (and its flags), SH degree, rotation length, tile index) from the units so far
     _prelude() {
         const crit = this.units.filter((u) => u.type < 0x80);
         if (!crit.length || crit[0].type !== UNIT.GAUSSIAN_PARAMETER_SET) return null;
@@ -79,10 +79,14 @@ export class ProgressiveDecoder {
         const ps = parseGaussianParameterSet(crit[0].payload);
         if (ps.hierarchyEnabled) return null; // rejected by finish()
         let i = 1;
-        const payloads = { ps: crit[0].payload, np: null, sa: null, sd: null, rl: null };
+        const payloads = { ps: crit[0].payload, np: null, sa: null, sf: null, sd: null, rl: null };
         const next = (type) => (crit[i] && crit[i].type === type ? crit[i++].payload : null);
         payloads.np = next(UNIT.NEIGHBOUR_PREDICTION);
-        if (payloads.np) { payloads.sa = next(UNIT.STEP_ADJUST); payloads.sd = next(UNIT.SH_DEGREE); }
+        if (payloads.np) {
+            payloads.sa = next(UNIT.STEP_ADJUST);
+            if (payloads.sa) payloads.sf = next(UNIT.STEP_ADJUST_FLAGS);
+            payloads.sd = next(UNIT.SH_DEGREE);
+        }
         payloads.rl = next(UNIT.ROTATION_LENGTH);
         const ctx = preludeContext(ps, payloads);
         if (!crit[i]) return null;

@@ -5,6 +5,7 @@ import { BitstreamError } from './errors.mjs';
 
 const UE_MAX = 2 ** 32 - 2;
 const NUM_DEGREE_CONTEXTS = 6; // clause 7.3.14
+const NUM_STEP_FLAG_CONTEXTS = 6; // clause 7.3.16
 
 /** gaussian_parameter_set() (clause 7.3.9). */
 export function parseGaussianParameterSet(payload) {
@@ -72,6 +73,18 @@ export function parseStepAdjust(payload) {
     return { maxStepAdjust };
 }
 
+/**
+ * step_adjust_flags_unit() (clause 7.3.16, version 1.5) of the step_adjust unit's max_step_adjust: the flags'
+ * frequencies f[1] = 4096 step_flag_prob + 2048 (Int32Array [max_step_adjust * 6]; empty payload for 0).
+ */
+export function parseStepAdjustFlags(payload, maxStepAdjust) {
+    const r = new BitReader(payload, 'step_adjust_flags_unit');
+    const freq = Int32Array.from({ length: maxStepAdjust * NUM_STEP_FLAG_CONTEXTS }, (_, i) => 4096 * r.u(12, `step_flag_prob[${i}]`) + 2048);
+    r.byteAlign();
+    r.expectEnd();
+    return { freq };
+}
+
 /** rotation_length_unit() (clause 7.3.15): the largest rotation length index a row may have. */
 export function parseRotationLength(payload) {
     const r = new BitReader(payload, 'rotation_length_unit');
@@ -137,7 +150,7 @@ export function lodSizes(rows, L) {
 
 /**
  * attribute_unit_header() (clause 7.3.5) of an explicit-Gaussian stream without the hierarchy:
- * NumChannels = M, no offsets, ChannelPredictionAllowed = 1. ctx: {M, np (or null), stepAdjust, shDegreeUnit}.
+ * NumChannels = M, no offsets, ChannelPredictionAllowed = 1. ctx: {M, np (or null), stepAdjust, stepFlags, shDegreeUnit}.
  */
 export function parseAttributeHeader(payload, ctx) {
     const W = 'attribute_unit_header';
@@ -166,6 +179,9 @@ export function parseAttributeHeader(payload, ctx) {
         h.predWeight[i] = checkRange(W, `pred_weight[${i}]`, r.se(`pred_weight[${i}]`), -(2 ** 15), 2 ** 15);
     }
     if (ctx.stepAdjust) { h.adjustMean = r.u(3, 'adjust_mean'); h.adjustLevel = r.u(6, 'adjust_level'); }
+    if (ctx.stepFlags && (h.adjustMean || h.adjustLevel)) {
+        throw new BitstreamError(`attribute_unit_header: adjust_mean = ${h.adjustMean}, adjust_level = ${h.adjustLevel} in a stream with a step_adjust_flags unit: both shall be 0 (clause 7.3.16, E67)`);
+    }
     h.numRows = checkRange(W, 'num_rows_minus1', r.ue('num_rows_minus1'), 0, 2 ** 24 - 1) + 1;
     h.rowsPerChunk = checkRange(W, 'rows_per_chunk_minus1', r.ue('rows_per_chunk_minus1'), 0, h.numRows - 1) + 1;
     h.lods = ctx.np ? lodSizes(h.numRows, ctx.np.L) : [h.numRows];

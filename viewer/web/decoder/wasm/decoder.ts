@@ -910,7 +910,17 @@ export function attributeTile(q: usize, M: i32, adj: usize, sa: i32, fix: usize,
     prior: usize, priorLevel: usize, pStart: usize, pSrc: usize, pW: usize): void {
     aQ = q; aM = M; aAdj = adj; aSa = sa; aFix = fix; aShift = shift; aMeanFlag = meanFlag; aBucket = bucket; aB = B;
     aPrior = prior; aPriorLevel = priorLevel; aPStart = pStart; aPSrc = pSrc; aPW = pW;
-    aDeg = 0;
+    aDeg = 0; aStepFlags = 0;
+}
+
+// The step-adjustment indices as flags (11.8, version 1.5; attributeStepFlags after attributeTile, when
+// the stream has a step_adjust_flags unit): max_step_adjust and the flags' frequencies f[1] = 4096
+// step_flag_prob + 2048 (i32 [max * 6], b-major); the indices go to adj. aStepFlags 0: indices as symbols
+// (stepIndices), or no step adjustment.
+let aStepFlags: i32 = 0; let aMaxStep: i32 = 0; let aStepFreq: usize = 0;
+
+export function attributeStepFlags(max: i32, freq: usize): void {
+    aStepFlags = 1; aMaxStep = max; aStepFreq = freq;
 }
 
 // The per-Gaussian SH degree (11.9, version 1.3; attributeDegrees after attributeTile, when the stream
@@ -925,6 +935,7 @@ export function attributeDegrees(deg: usize, d: i32, freq: usize): void {
 // which range-coded chunk of an attribute chunk failed (errorStage(), after a trap)
 const STAGE_SYMBOLS: i32 = 0;
 const STAGE_FLAGS: i32 = 1;
+const STAGE_STEP_FLAGS: i32 = 2;
 let stage: i32 = STAGE_SYMBOLS;
 export function errorStage(): i32 { return stage; }
 
@@ -944,14 +955,17 @@ const Q_LIMIT: i64 = 0x10000000000; // 2^40
 }
 
 /**
- * Chunk of nr rows (rows: i32 [nr]) with symbol data of nbytes at p and, with the SH-degree tool,
- * SH-degree data of dbytes at dp: the rows' degrees (11.9), means and levels (11.3, 11.7.3, 11.8;
- * row r has cnt[r] neighbours idx[r * k ..], none: the prior's), the symbols of the coded channels
- * (10.7) and the values q (11.6) into the tile's q. Returns the number of escapes.
+ * Chunk of nr rows (rows: i32 [nr]) with symbol data of nbytes at p, with the step-adjustment flags
+ * (version 1.5) step-adjustment data of sbytes at sp and, with the SH-degree tool, SH-degree data of
+ * dbytes at dp: the rows' step-adjustment indices (11.8) and degrees (11.9), means and levels (11.3,
+ * 11.7.3, 11.8; row r has cnt[r] neighbours idx[r * k ..], none: the prior's), the symbols of the
+ * coded channels (10.7) and the values q (11.6) into the tile's q. Returns the number of escapes.
  */
-export function attributeChunk(p: usize, nbytes: i32, rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, dp: usize, dbytes: i32): i32 {
+export function attributeChunk(p: usize, nbytes: i32, rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, dp: usize, dbytes: i32,
+    sp: usize, sbytes: i32): i32 {
     err = 0;
-    if (aDeg) { stage = STAGE_FLAGS; decodeDegrees(dp, dbytes, rows, nr, idx, cnt, k); }
+    if (aStepFlags) { stage = STAGE_STEP_FLAGS; decodeFlags(sp, sbytes, rows, nr, idx, cnt, k, aAdj, aMaxStep, aStepFreq); }
+    if (aDeg) { stage = STAGE_FLAGS; decodeFlags(dp, dbytes, rows, nr, idx, cnt, k, aDeg, aD, aFreq); }
     stage = STAGE_SYMBOLS;
     const M = aM, n = nr * M;
     // not zeroed: rowMeans writes every coded channel's mean and level, symbolChunk every residual, and only those are read
@@ -1020,31 +1034,33 @@ function rowValuesCoded(row: i32, base: i32, j: i32, mean: usize, res: usize): i
 }
 
 /**
- * The SH degrees (11.9) of the chunk's rows from its SH-degree data (nbytes at p): binary flags in
- * band-major order, band b's flag of each row that has every band below b, with the context of the
- * share of the row's neighbours (rows of coarser LoDs, whose degrees are known) that have band b.
+ * The flags "v >= b" (11.9's SH degrees D, and 11.8's step-adjustment indices a in version 1.5) of
+ * the chunk's rows from nbytes at p into v (u8 [rows], the rows' values, 0 .. max): in b-major order,
+ * b's flag of each row whose value is b - 1, with the context of the share of the row's neighbours
+ * (rows of coarser LoDs, whose values are known) whose value is at least b, and the frequency f[1]
+ * of freq[(b - 1) * 6 + context].
  */
-function decodeDegrees(p: usize, nbytes: i32, rows: usize, nr: i32, idx: usize, cnt: usize, k: i32): void {
+function decodeFlags(p: usize, nbytes: i32, rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, v: usize, max: i32, freq: usize): void {
     rangeStart(p, nbytes);
-    for (let r = 0; r < nr; r++) setU8(aDeg, i32At(rows, r), 0);
-    for (let b = 1; b <= aD; b++) {
-        const f = aFreq + (<usize>((b - 1) * 6) << 2);
+    for (let r = 0; r < nr; r++) setU8(v, i32At(rows, r), 0);
+    for (let b = 1; b <= max; b++) {
+        const f = freq + (<usize>((b - 1) * 6) << 2);
         for (let r = 0; r < nr; r++) {
             const row = i32At(rows, r);
-            if (u8At(aDeg, row) != b - 1) continue;
-            const f1 = <u64>i32At(f, degreeContext(r, b, idx, cnt, k));
-            if (decodeBinary(0x1000000 - f1, f1)) setU8(aDeg, row, b);
+            if (u8At(v, row) != b - 1) continue;
+            const f1 = <u64>i32At(f, flagContext(v, r, b, idx, cnt, k));
+            if (decodeBinary(0x1000000 - f1, f1)) setU8(v, row, b);
         }
     }
     checkExhausted();
 }
 
-/** The context x (0 .. 5) of band b's flag of the chunk's row r (11.9). */
-@inline function degreeContext(r: i32, b: i32, idx: usize, cnt: usize, k: i32): i32 {
+/** The context x (0 .. 5) of b's flag of the chunk's row r (11.9; 11.8 as flags), the rows' values v. */
+@inline function flagContext(v: usize, r: i32, b: i32, idx: usize, cnt: usize, k: i32): i32 {
     const n = u8At(cnt, r);
     if (n == 0) return 0; // LoD 0 (a row of a finer LoD has at least one neighbour)
     let m = 0;
-    for (let t = 0; t < n; t++) if (u8At(aDeg, i32At(idx, r * k + t)) >= b) m++;
+    for (let t = 0; t < n; t++) if (u8At(v, i32At(idx, r * k + t)) >= b) m++;
     return m == 0 ? 1 : m == n ? 5 : 2 + (3 * m) / n;
 }
 
