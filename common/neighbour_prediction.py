@@ -362,6 +362,25 @@ def _decode_chunk_adjust(piece: bytes, h: AttributeUnitHeader, step_adjust: Step
     return a
 
 
+def _check_predicted_header(h: AttributeUnitHeader, coords: np.ndarray, what: str,
+                            step_flags: StepAdjustFlagsUnit | None) -> None:
+    """The header of a tile's neighbour-predicted attribute unit against the tile and the stream
+    (clauses 7.3.5, 8.1, 8.3)."""
+    n = coords.shape[0]
+    if h.attribute_level != LEVEL_ALL:
+        raise BitstreamError(f"{what}: attribute_level {h.attribute_level} where level 0 is expected")
+    if step_flags is not None:
+        check_flag_header(h, what)
+    if h.num_rows_minus1 + 1 != n:  # clause 8.3 rule 8
+        raise BitstreamError(f"{what}: num_rows_minus1 + 1 = {h.num_rows_minus1 + 1}, but the tile has {n} rows")
+    if h.context_model_id != CONTEXT_PER_CHANNEL_PRIOR:
+        raise BitstreamError(f"{what}: context_model_id {h.context_model_id}; a stream with neighbour prediction "
+                             "codes LoD 0 with the per-channel prior (context_model_id 0)")
+    why = check_extent(coords, what)
+    if why:
+        raise BitstreamError(why)
+
+
 def read_predicted_attribute_unit(payload: bytes, layout, steps: np.ndarray, coords: np.ndarray,
                                   unit: NeighbourPredictionUnit, values_out: np.ndarray,
                                   trace: list[TraceEntry] | None = None, on_chunk=None,
@@ -381,18 +400,7 @@ def read_predicted_attribute_unit(payload: bytes, layout, steps: np.ndarray, coo
                                   channel_prediction_allowed=layout.channel_prediction_allowed, num_rows=n,
                                   num_lods=unit.num_lods, step_adjust_present=int(step_adjust is not None),
                                   sh_degree_present=int(sh_degree is not None))
-    if h.attribute_level != LEVEL_ALL:
-        raise BitstreamError(f"{what}: attribute_level {h.attribute_level} where level 0 is expected")
-    if step_flags is not None:
-        check_flag_header(h, what)
-    if h.num_rows_minus1 + 1 != n:  # clause 8.3 rule 8
-        raise BitstreamError(f"{what}: num_rows_minus1 + 1 = {h.num_rows_minus1 + 1}, but the tile has {n} rows")
-    if h.context_model_id != CONTEXT_PER_CHANNEL_PRIOR:
-        raise BitstreamError(f"{what}: context_model_id {h.context_model_id}; a stream with neighbour prediction "
-                             "codes LoD 0 with the per-channel prior (context_model_id 0)")
-    why = check_extent(coords, what)
-    if why:
-        raise BitstreamError(why)
+    _check_predicted_header(h, coords, what, step_flags)
     prediction = ChannelPrediction.from_header(h, what)
     graph = neighbour_graph(coords, unit.num_lods, unit.num_neighbours)
     table, prior = level_table(unit), prior_params(h)
