@@ -111,7 +111,10 @@ def test_encoder_round_trip_with_the_choice(n, degree, top, tile_points, seed):
     dec = decode_stream(res.data)
     assert dec.hash_checked
     minor = read_container(res.data).header.version_minor
-    assert minor == 3 if _tool(res.data) else minor in ((1, 2) if top else (1,))
+    if any(u.unit_type == UnitType.STEP_ADJUST_FLAGS for u in read_container(res.data).units):
+        assert top and minor == 5  # the step-adjustment indices as flags (version 1.5)
+    else:
+        assert minor == 3 if _tool(res.data) else minor in ((1, 2) if top else (1,))
     counts = res.stats.sh_degree_counts
     if _tool(res.data):
         assert degree > 0 and sum(counts) == dec.scene.num_gaussians and counts[-1] < dec.scene.num_gaussians

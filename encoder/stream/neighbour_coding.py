@@ -109,7 +109,7 @@ def flag_counts(graph: NeighbourGraph, values: np.ndarray, levels: int) -> np.nd
     for level, rows in enumerate(graph.rows):
         nd = neighbour_degrees(graph.neighbours[level], values) if level else None
         for band, x, flags in band_flags(values[rows], nd, levels):
-            np.add.at(counts[band - 1], (x, flags), 1)
+            counts[band - 1] += np.bincount(2 * x + flags, minlength=2 * NUM_DEGREE_CONTEXTS).reshape(-1, 2)
     return counts
 
 
