@@ -413,8 +413,8 @@ def read_predicted_attribute_unit(payload: bytes, layout, steps: np.ndarray, coo
         rows = graph.rows[level][lo:hi]
         row_adjust = None
         if adjust is not None:
-            a = _decode_chunk_adjust(next(pieces), h, step_adjust, hi - lo, i, step_flags,
-                                     neighbour_degrees(chunk_neighbours(graph, level, lo, hi), adjust))
+            nd = None if step_flags is None else neighbour_degrees(chunk_neighbours(graph, level, lo, hi), adjust)
+            a = _decode_chunk_adjust(next(pieces), h, step_adjust, hi - lo, i, step_flags, nd)
             adjust[rows] = a
             row_adjust = a[:, None]
             p = _adjusted_chunk_params(level, lo, hi, q_all, graph, prior, table, mean_flags(unit),

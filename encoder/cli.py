@@ -383,12 +383,14 @@ def write_outputs(args: argparse.Namespace, result: EncodeResult, scene, cfg, ga
 
 
 def step_adjust_summary(st, num_gaussians: int) -> str:
-    """One line on the step-adjustment indices (format 1.2): their bytes, and how many Gaussians
+    """One line on the step-adjustment indices (format 1.2; as flags, 1.5): their bytes, and how many Gaussians
     have each index (index a: steps 2^(a/4) times the channels')."""
     bits = st.step_adjust_coded_bits
     share = 100 * bits / max(bits + st.attribute_coded_bits, 1)
     counts = ", ".join(f"{a}: {c:,}" for a, c in enumerate(st.step_adjust_counts or []))
-    return (f"step adjustment: indices {bits // 8:,} bytes ({bits / max(num_gaussians, 1):.2f} bits per Gaussian, "
+    coding = "as flags, " if st.step_adjust_flags else ""
+    return (f"step adjustment: indices {bits // 8:,} bytes ({coding}{bits / max(num_gaussians, 1):.2f} bits per "
+            "Gaussian, "
             f"{share:.1f}% of the attribute chunks); Gaussians per index {counts}")
 
 

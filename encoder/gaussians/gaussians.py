@@ -159,6 +159,7 @@ def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: Gaus
             stats.step_adjust_counts = np.bincount(inp.step_adjust, minlength=unit.max_step_adjust + 1).tolist()
             parameter_units.append(DataUnit(UnitType.STEP_ADJUST, unit.to_bytes()))
             flags = coded.neighbour_unit.step_flags  # chosen by the neighbour coding (clause 7.3.16)
+            stats.step_adjust_flags = flags is not None
             if flags is not None:
                 parameter_units.append(DataUnit(UnitType.STEP_ADJUST_FLAGS, flags.to_bytes()))
         if inp.sh_degrees is not None:  # the unit fitted by the neighbour coding (clause 7.3.14)

@@ -101,6 +101,7 @@ class EncodeStats:
     attribute_coded_bits: int = 0  # the attribute chunks as coded
     step_adjust_coded_bits: int | None = None  # the step-adjustment index chunks as coded (format 1.2)
     step_adjust_counts: list[int] | None = None  # how many Gaussians have each step-adjustment index
+    step_adjust_flags: bool | None = None  # the indices coded as flags (format 1.5), else as symbols
     sh_degree_coded_bits: int | None = None  # the SH-degree flag chunks as coded (format 1.3)
     sh_degree_counts: list[int] | None = None  # how many Gaussians have each SH degree
     levels: dict[int, LevelStats] = field(default_factory=dict)  # by attribute level
@@ -123,7 +124,8 @@ class EncodeStats:
         out = _present({k: getattr(self, k) for k in (
             "pruning", "anchors_before_pruning", "sh_degree_dropped_from", "gaussians_moved_off_shared_voxels",
             "time_geometry_s", "num_level1", "num_level2", "num_tiles", "neighbour_prediction", "context_twin_unused", "attribute_ideal_bits",
-            "attribute_coded_bits", "step_adjust_coded_bits", "step_adjust_counts", "sh_degree_coded_bits",
+            "attribute_coded_bits", "step_adjust_coded_bits", "step_adjust_counts", "step_adjust_flags",
+            "sh_degree_coded_bits",
             "sh_degree_counts")})
         for level, level_stats in self.levels.items():
             out.update(level_stats.to_json(level))
