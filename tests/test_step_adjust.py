@@ -154,18 +154,22 @@ def test_every_index_zero_costs_nothing_and_writes_a_version_1_1_stream(monkeypa
     assert read_container(on.data).header.version_minor == 1
 
 
-@pytest.mark.parametrize("case", ["one_gaussian", "all_invisible", "two_far_apart"])
-def test_hard_cases_round_trip(case):
+@pytest.mark.parametrize("flags", [True, False])  # the indices as flags (format 1.5) where they pay, or as symbols
+@pytest.mark.parametrize("case", ["one_gaussian", "all_invisible", "two_far_apart", "all_at_the_coarsest"])
+def test_hard_cases_round_trip(case, flags):
     rng = np.random.default_rng(9)
-    n = {"one_gaussian": 1, "all_invisible": 200, "two_far_apart": 2}[case]
+    n = {"one_gaussian": 1, "all_invisible": 200, "two_far_apart": 2, "all_at_the_coarsest": 300}[case]
     scene = random_gaussians(rng, n, 1)
     if case == "two_far_apart":
         scene.means[1] = scene.means[0] + np.float32(1e4)
     f = np.zeros((n, 20)) if case == "all_invisible" else _sensitivity(scene, rng)
-    cfg = GaussianEncoderConfig(neighbour_prediction="always", step_adjust_max=7)
+    if case == "all_at_the_coarsest":
+        f *= 1e-12  # barely seen: every Gaussian takes the coarsest step
+    cfg = GaussianEncoderConfig(neighbour_prediction="always", step_adjust_max=7, step_adjust_flags=flags)
     res = encode_gaussian_scene(scene, cfg, sensitivity=f)
     dec = decode_stream(res.data)
     assert dec.hash_checked and dec.scene.num_gaussians == n
+    assert_same(dec.scene, res.decoded)
     assert np.isfinite(dec.scene.sh).all() and np.isfinite(dec.scene.rotations).all()
     if case == "all_invisible":  # no sensitivity anywhere gives no slope to weigh bits by: plain rounding
         assert not _tool(res.data)

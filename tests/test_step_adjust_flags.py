@@ -1,6 +1,7 @@
 """The step-adjustment indices as flags (format 1.5, clauses 7.3.16 and 11.8): bit-exact round trips of
 the flag chunks and of whole streams, the same decoded scene as with the indices as symbols, the
-encoder's choice between the two, the version a stream declares, and the hard cases."""
+encoder's choice between the two, and the version a stream declares (the hard cases: test_step_adjust.py,
+with and without flags)."""
 
 import dataclasses
 
@@ -126,20 +127,3 @@ def test_a_header_model_beside_the_flags_is_rejected(field):
     with pytest.raises(BitstreamError, match="where both shall be 0"):
         check_flag_header(h, "attribute unit")
     check_flag_header(AttributeUnitHeader(), "attribute unit")
-
-
-@pytest.mark.parametrize("case", ["one_gaussian", "all_at_the_coarsest", "two_far_apart"])
-def test_hard_cases_round_trip(case):
-    rng = np.random.default_rng(15)
-    n = {"one_gaussian": 1, "all_at_the_coarsest": 300, "two_far_apart": 2}[case]
-    scene = random_gaussians(rng, n, 1)
-    if case == "two_far_apart":
-        scene.means[1] = scene.means[0] + np.float32(1e4)
-    f = _sensitivity(scene, rng)
-    if case == "all_at_the_coarsest":
-        f *= 1e-12  # barely seen: every Gaussian takes the coarsest step
-    cfg = GaussianEncoderConfig(neighbour_prediction="always", step_adjust_max=7)
-    res = encode_gaussian_scene(scene, cfg, sensitivity=f)
-    dec = decode_stream(res.data)
-    assert dec.hash_checked and dec.scene.num_gaussians == n
-    assert_same(dec.scene, res.decoded)
