@@ -177,6 +177,7 @@ class NeighbourCoding:
             q = q * self.coded  # a value not coded is q = 0, also in its neighbours' sums (clause 11.9)
         self.q, self.layout, self.adjust = q, layout, adjust
         self._given_unit, self._step_flags_allowed = unit, step_flags_allowed
+        self._counts: tuple[int, np.ndarray] | None = None  # (top, flag_counts of the indices up to top)
         lod0 = self.graph.rows[0]
         a0 = None if adjust is None else adjust[lod0]
         base = q[lod0] if adjust is None else q[lod0] * ADJUST_FIXED_POINT[a0][:, None] / ADJUST_FIXED_POINT[0]
@@ -272,7 +273,7 @@ class NeighbourCoding:
 
     def _flag_counts(self, top: int) -> np.ndarray:
         """flag_counts of the indices up to ``top`` (computed once per coding)."""
-        if getattr(self, "_counts", (None,))[0] != top:
+        if self._counts is None or self._counts[0] != top:
             self._counts = (top, flag_counts(self.graph, self.adjust, top))
         return self._counts[1]
 
