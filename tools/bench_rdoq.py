@@ -95,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
                         f"(default {rdoq.TURN_CANDIDATES}, the encoder's; 0: every Gaussian kept as it is)")
     p.add_argument("--keep-ways", action="store_true",
                    help="keep the way each Gaussian is written from the first row on, as the settings search "
-                        "does (default: chosen afresh at every row, as the coding chooses it)")
+                        "once did (default: chosen afresh at every row, as the search and the coding choose it)")
     p.add_argument("--rotation-lengths", default=",".join(f"{r:.4g}" for r in rdoq.ROTATION_NORMS),
                    help="the lengths a rotation quaternion may be given, comma-separated (default the "
                         "encoder's; 1 alone keeps every quaternion at unit length)")
@@ -128,6 +128,8 @@ def main(argv: list[str] | None = None) -> int:
     f = sensitivities(scene, cams, probes=args.probes)
     t_sens = time.perf_counter() - t0
     s = SettingsSearch(scene, contrib, cfg, 0.0, cfg.search_views, cfg.search_resolution, sensitivity=f)
+    if args.keep_ways:  # chosen at the first row and kept (the search's trials did so before search_ways.md)
+        s.ways = np.full(scene.num_gaussians, -1, dtype=np.int64)
     parts = record_parts(s)
     groups = [grp for grp in GROUPS if grp != "position" and (not grp.startswith("sh_band")
                                                                or int(grp[-1]) <= scene.sh_degree)]
@@ -158,15 +160,13 @@ def main(argv: list[str] | None = None) -> int:
                                  for b in args.sh_degrees.split(",")):
                 if w == 0 and (top or degrees):
                     continue  # step adjustment and the SH degrees are chosen with RDOQ's costs
-                if not args.keep_ways:
-                    s.ways[:] = -1  # each Gaussian's way chosen afresh at these steps, as the coding chooses it
                 trial_cfg = dataclasses.replace(_scaled(cfg, groups, fac), rd_quantization=w, step_adjust_max=top,
                                                 sh_degree_choice=degrees)
                 t = s.evaluate(trial_cfg)
                 ref = ref or t.bits
                 seen = ""
                 if orbit_search is not None:
-                    orbit_search.ways[:] = s.ways  # the same values, rendered from the orbit
+                    orbit_search.ways = None if s.ways is None else s.ways.copy()  # the same values
                     seen = f"{-10 * math.log10(max(orbit_search.evaluate(trial_cfg).mse, 1e-12)):.2f} | "
                 lines.append(f"| {fac:g} | {w:g} | {top} | {'on' if degrees else 'off'} | {-10 * math.log10(max(t.mse, 1e-12)):.2f} | {seen}"
                              f"{t.bits / 8:,.0f} | {t.bits / ref:.3f} | "

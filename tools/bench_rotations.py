@@ -124,7 +124,6 @@ def rdoq_rows(s: SettingsSearch, got: dict, cfg, preset: str, factors: list[floa
     lines = []
     for on in (False, True):
         for fac in factors:
-            s.ways[:] = -1  # each trial's ways chosen afresh, as the coding chooses them
             t = s.evaluate(dataclasses.replace(_scaled(cfg, groups, fac), rotation_length=on))
             psnr = -10 * math.log10(max(t.mse, 1e-12))
             points[on].append((psnr, t.bits))

@@ -244,7 +244,6 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
 
     def run(label, trial_cfg, design=None, k=0, alpha=1.0):
-        s.ways[:] = -1
         dec, bits, extra = s.trial(trial_cfg, design, k, alpha)
         share = trial_cfg.prune_share
         row = (label, bits / 8, psnr(s._mse(dec, share)), psnr(o._mse(dec, share)), extra / 8)

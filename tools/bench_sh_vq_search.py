@@ -43,7 +43,6 @@ def vq_search_class(k: int):
 
         def evaluate(self, cfg):
             design = "brd" if cfg.sh_degree_choice else "br"
-            self.ways[:] = -1
             dec, bits, _ = self.trial(cfg, design, k, 0.0)
             mse = self._mse(dec, cfg.prune_share)
             t = Trial(cfg, mse, bits, 10 * math.log10(max(mse, 1e-12)) + self.lam * math.log2(max(bits, 1.0)))
@@ -82,7 +81,6 @@ def main(argv=None) -> int:
     with torch.no_grad():
         o.targets = [render_3dgs(g, c, background=(0, 0, 0), backend="torch").image for c in o.cams]
     design = None if not args.vq else ("brd" if chosen.sh_degree_choice else "br")
-    s.ways[:] = -1
     dec, bits, extra = s.trial(chosen, design, args.vq, 0.0)
     ps = bv.psnr(s._mse(dec, chosen.prune_share))
     po = bv.psnr(o._mse(dec, chosen.prune_share))

@@ -296,6 +296,12 @@ class SettingsSearch:
                                              self.cams))
         self.values = coded_values(scene).astype(np.float64)  # at the scene's SH degree
         self.cfg = cfg
+        # the way RDOQ writes each Gaussian (encoder/gaussians/rdoq.py): None, chosen afresh in every trial
+        # as the coding chooses it. Kept from the first trial (as the search once did, int64 [N] of -1 to
+        # start; tools/bench_rdoq.py --keep-ways sets it), later trials measured 0.15-0.5 dB worse than the
+        # coding codes them, and the moves onto the target stopped short of coarser steps
+        # (tools/results/search_ways.md); choosing them costs a trial about 6% more
+        self.ways: np.ndarray | None = None
         self._grids: dict = {}
         self._graphs: dict = {}
         self.trials: list[Trial] = []
@@ -373,14 +379,14 @@ class SettingsSearch:
         degree = layout.sh_degree
         f = sh_degree_subset(self.sensitivity[keep], degree)
         mu = group_slopes(f, channel_groups(degree), cfg.rd_quantization)
-        # the way RDOQ writes each Gaussian (encoder/gaussians/rdoq.py) chosen afresh in every trial, as the
-        # coding chooses it: kept from the first trial (as once), every later trial measured 0.15-0.5 dB
-        # worse than the coding would code it, so the moves onto the target stopped short of coarser steps
-        # (tools/results/search_ways.md); choosing them costs a trial about as little as keeping them
+        rows = np.flatnonzero(keep)[order]  # the scene's Gaussians in coding order
+        ways = None if self.ways is None else self.ways[rows]
         q = np.empty(x.shape, dtype=np.int64)
         q[order] = rd_quantize(x[order], f[order], mu, grid.coords[order], graph, cfg.prediction_buckets,
-                               orientation_columns(layout), None, None if adjust is None else adjust[order],
+                               orientation_columns(layout), ways, None if adjust is None else adjust[order],
                                cfg.rotation_length)
+        if ways is not None:
+            self.ways[rows] = ways
         degrees = None
         if sh_degrees_wanted(cfg, self.sensitivity, degree) and graph is not None:
             degrees = degrees_on_graph(x, q, f, layout, grid.coords, order, graph, cfg, adjust)

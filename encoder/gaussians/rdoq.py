@@ -415,7 +415,7 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
     (``orientation_columns``), whose orientation and rotation length are chosen per row.
     ``ways``: int [N], the way each Gaussian is to be written (0..47, from the half-turn start;
     what an earlier call chose), -1 where it is to be chosen; the ways chosen are written into
-    it (the settings search keeps them from trial to trial: the choice is most of RDOQ's time).
+    it (None: every way chosen here, as the coding and the settings search choose them).
     ``adjust``: int [N], each row's step-adjustment index (clause 11.8; needs ``graph``): ``x`` is
     then in the channels' steps and the values chosen are in each row's own. ``length_index``: the
     rotations coded as a length index and x, y, z (format 1.4, clause 11.10; needs ``orientation``):
