@@ -298,9 +298,9 @@ class SettingsSearch:
         self.cfg = cfg
         # the way RDOQ writes each Gaussian (encoder/gaussians/rdoq.py): None, chosen afresh in every trial
         # as the coding chooses it. Kept from the first trial (as the search once did, int64 [N] of -1 to
-        # start; tools/bench_rdoq.py --keep-ways sets it), later trials measured 0.15-0.5 dB worse than the
+        # start; tools/bench_rdoq.py --keep-ways sets it), later trials measured 0.10-0.37 dB worse than the
         # coding codes them, and the moves onto the target stopped short of coarser steps
-        # (tools/results/search_ways.md); choosing them costs a trial about 6% more
+        # (tools/results/search_ways.md); choosing them costs a trial about 3% more
         self.ways: np.ndarray | None = None
         self._grids: dict = {}
         self._graphs: dict = {}
