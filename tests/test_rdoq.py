@@ -174,7 +174,7 @@ def test_orientation_writes_the_same_gaussian_costs_no_more_and_never_a_zero_qua
     graph = neighbour_graph(coords, 4, 3) if predict else None
     q = rd_quantize(x, f, np.full(7, mu), coords, graph, 5, (SCALES, ROTATION))
     assert q.shape == x.shape and np.all(q[:, ROTATION].any(axis=1))
-    # the ways chosen, kept and given back (as the settings search does), choose the same values
+    # the ways chosen, kept and given back (as tools/bench_rdoq.py --keep-ways does), choose the same values
     ways = np.full(len(x), -1)
     np.testing.assert_array_equal(rd_quantize(x, f, np.full(7, mu), coords, graph, 5, (SCALES, ROTATION), ways), q)
     if mu > 0:
@@ -326,3 +326,35 @@ def test_a_bad_weight_is_refused_with_one_line_and_nothing_written(tmp_path, cap
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "rd_quantization" in err[0], err
     assert not out.exists()
+
+
+def test_a_search_trial_does_not_depend_on_the_trials_before_it():
+    """The settings search's trials choose RDOQ's ways afresh, as the coding does
+    (tools/results/search_ways.md): a trial at coarse steps after one at fine steps measures what
+    the same trial measures alone. With the ways kept from the first trial it did not."""
+    from lghcc.encoder.gaussians.gaussian_rd import SettingsSearch, _attribute_groups, _scaled
+    from lghcc.render.gaussians3dgs import gaussians_from_scene
+    from lghcc.render.importance import gaussian_contributions
+
+    scene = small_scene(np.random.default_rng(5), 300, 1)
+    cams = fit_cameras(scene, 2, 32)
+    g = gaussians_from_scene(scene)
+    contrib = gaussian_contributions(g.means, g.quats, g.scales, g.opacities, cams)
+    f = rdoq.sensitivities(scene, cams, probes=2)
+    cfg = GaussianEncoderConfig(rd_quantization=1.0, step_adjust_max=0, search_views=2, search_resolution=32,
+                                fit_views=2, fit_resolution=32)
+    groups = _attribute_groups(scene)
+    fine, coarse = _scaled(cfg, groups, 0.25), _scaled(cfg, groups, 4.0)
+
+    def search():
+        return SettingsSearch(scene, contrib, cfg, 0.0, 2, 32, f)
+
+    alone = search().evaluate(coarse)
+    s = search()
+    s.evaluate(fine)
+    after = s.evaluate(coarse)
+    assert (after.mse, after.bits) == (alone.mse, alone.bits)
+    kept = search()
+    kept.ways = np.full(scene.num_gaussians, -1, dtype=np.int64)  # the old behaviour: this test's witness
+    kept.evaluate(fine)
+    assert kept.evaluate(coarse).bits != alone.bits
