@@ -47,7 +47,7 @@ def write_scene(scene: "Scene", path: PathLike, **options: Any) -> Path:
 
 def encode(scene: "Scene | PathLike", preset: str = "medium", *, config: PathLike | None = None,
            verify: bool = True, progress: bool = False, allow_missing_mlps: bool = False,
-           **options: Any) -> bytes:
+           cameras: "PathLike | Sequence[Camera] | None" = None, **options: Any) -> bytes:
     """Encode a scene (or the scene a path names, ``read_scene``) into one .lghcc stream.
 
     ``preset``: ``low``, ``medium``, ``high`` (both kinds of scene) or ``lghcc-low``,
@@ -55,13 +55,21 @@ def encode(scene: "Scene | PathLike", preset: str = "medium", *, config: PathLik
     ``config``: a YAML file of encoder options; ``options``: more of them (e.g.
     ``feature_step=0.01`` for anchor scenes, ``rd_lambda=0.5`` or ``sh_degree=1`` for Gaussian
     scenes; encoder/stream/config.py lists them). ``verify`` decodes the stream again and checks its
-    hash. An anchor scene without render MLPs is refused unless ``allow_missing_mlps``."""
+    hash. An anchor scene without render MLPs is refused unless ``allow_missing_mlps``.
+    ``cameras``: a Gaussian scene's capture cameras (a path ``load_capture_cameras`` reads, or
+    Camera objects), where its render-based choices look from; None: ``views`` (an option:
+    ``"auto"``, ``"orbit"``, ``"inside"``, ``"both"``) places them."""
     from .encoder import api as enc
 
     if isinstance(scene, (str, os.PathLike)):
         scene = read_scene(scene)
+    if isinstance(cameras, (str, os.PathLike)):
+        from .render.camera import load_capture_cameras
+
+        cameras = load_capture_cameras(cameras)
     cfg = enc.encoder_config(scene, preset, config, options)
-    result, _ = enc.encode(scene, cfg, progress=progress, verify=verify, allow_missing_mlps=allow_missing_mlps)
+    result, _ = enc.encode(scene, cfg, progress=progress, verify=verify, allow_missing_mlps=allow_missing_mlps,
+                           cameras=None if cameras is None else list(cameras))
     return result.data
 
 

@@ -214,28 +214,35 @@ def estimate_seconds(scene: AnchorScene | GaussianScene, cfg) -> tuple[float, st
     return seconds, f"{fits} GG-Conv fit{'s' if fits > 1 else ''} of {steps:,} steps"
 
 
-def _encode_gaussians(scene: GaussianScene, cfg, *, progress: bool, log: Log, measure_ideal: bool, workers=None):
-    """Rate-aware preparation (when the settings call for it), then the explicit-Gaussian
-    coding -> (result, the settings used: the preset's, or those the search chose)."""
-    from .gaussians.gaussian_fit import needs_preparation, prepare_gaussians
+def _encode_gaussians(scene: GaussianScene, cfg, *, progress: bool, log: Log, measure_ideal: bool, workers=None,
+                      cameras=None):
+    """Rate-aware preparation (when the settings call for it, from ``cameras``, the capture's, where
+    given), then the explicit-Gaussian coding and its check on views the preparation did not use
+    -> (result, the settings used: the preset's, or those the search chose)."""
+    from .gaussians.gaussian_fit import check_on_held_back_views, needs_preparation, prepare_gaussians
+    from .gaussians.gaussian_views import scene_views
     from .gaussians.gaussians import encode_gaussian_scene, without_invisible
 
     t0 = time.perf_counter()
     weights, sensitivity, prepared = None, None, None
     scene, invisible = without_invisible(scene, cfg)
+    source = scene
     if needs_preparation(cfg):
         goal = (f", choosing settings for {cfg.target_psnr:g} dB" if cfg.target_psnr
                 else f", choosing settings for lambda {cfg.rd_lambda:g}" if cfg.rd_lambda else "")
         log(f"{scene.num_gaussians:,} Gaussians (SH degree {scene.sh_degree}): measuring contributions on "
             f"{cfg.fit_views} views" + goal
             + (f", then {cfg.fit_iterations} fitting steps" if cfg.fit_iterations else ""))
-        prep = prepare_gaussians(scene, cfg, log=log, progress=progress)
+        prep = prepare_gaussians(scene, cfg, views=scene_views(scene, cfg.views, cameras), log=log, progress=progress)
         scene, weights, sensitivity, cfg, prepared = prep.scene, prep.weights, prep.sensitivity, prep.cfg, prep.stats
     result = encode_gaussian_scene(scene, cfg, weights=weights, sensitivity=sensitivity, progress=progress,
                                    measure_ideal=measure_ideal, workers=workers)
     result.stats.prepare = prepared
     if prepared is not None:  # the first stage, before the coding's own
+        check_on_held_back_views(source, result.decoded, prep.views, cfg, prepared, log)
         result.stats.stage_times_s = {"prepare": prepared.time_total_s, **result.stats.stage_times_s}
+        if prepared.time_held_back_s is not None:
+            result.stats.stage_times_s["check"] = prepared.time_held_back_s
     bands = ", ".join(f"{s:.3g}" for s in cfg.sh_band_steps[:result.decoded.sh_degree])
     result.stats.settings = (
         f"pruned {(prepared.gaussians_pruned if prepared else 0) + invisible:,} Gaussians"
@@ -259,8 +266,10 @@ def _verify_jobs(workers) -> int:
 
 def encode(scene: AnchorScene | GaussianScene, cfg=None, *, progress: bool = False, log: Log = _quiet,
            measure_ideal: bool = False, context_twin=None, verify: bool = True, allow_missing_mlps: bool = False,
-           transcoded: TranscodeResult | None = None, workers=None):
+           transcoded: TranscodeResult | None = None, workers=None, cameras=None):
     """Encode either kind of scene with ``cfg`` (``encoder_config``; None: preset medium).
+    ``cameras``: a Gaussian scene's capture cameras (render/camera.py ``load_capture_cameras``), the
+    views its render-based choices are made from (None: ``cfg.views`` places them).
     -> (EncodeResult, the configuration used). ``verify`` decodes the stream again and
     checks that it gives the encoded scene (its hash). ``transcoded``: the transcode that made
     the anchor scene (``read_source``): the stream gets a source_info unit with the source's
@@ -275,7 +284,7 @@ def encode(scene: AnchorScene | GaussianScene, cfg=None, *, progress: bool = Fal
         cfg = encoder_config(scene)
     if isinstance(scene, GaussianScene):
         result, cfg = _encode_gaussians(scene, cfg, progress=progress, log=log, measure_ideal=measure_ideal,
-                                        workers=workers)
+                                        workers=workers, cameras=cameras)
     else:
         ancillary = []
         if transcoded is not None:  # what the decoded anchors cannot tell: the source's SH degree

@@ -19,7 +19,7 @@ from ..app.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM,
 from ..app.cli_common import format_bytes, memory_size
 from ..app.cliargs import (OVERWRITE_RULE, add_overwrite_options, add_version_option, positive_float, positive_int,
                            run_cli)
-from ..common.errors import LghccError
+from ..common.errors import LghccError, UsageError
 from ..app.fileio import atomic_write_bytes, check_output_paths, check_overwrite, write_error
 from .api import is_gaussian_file  # noqa: F401  (lghcc-enc's test of its input; kept importable here)
 
@@ -130,9 +130,21 @@ def add_gaussian_arguments(p: argparse.ArgumentParser) -> None:
                          "scene first by fitting anchors and MLPs to renders of the source (minutes; "
                          "tools/results/transcode.md)")
     gs.add_argument("--psnr", dest="target_psnr", type=float, metavar="DB",
-                    help="quality asked for: PSNR in dB of the decoded scene against renders of the source "
-                         "(views around the scene); the encoder finds the fewest bytes that reach it "
-                         "(the presets: low 40, medium 45, high 50)")
+                    help="quality asked for: PSNR in dB of the decoded scene against renders of the source, "
+                         "from where the scene is watched (--views); the encoder finds the fewest bytes that "
+                         "reach it on its own views and reports, at the end, the PSNR on views of the same kind "
+                         "it did not use (the presets: low 40, medium 45, high 50)")
+    gs.add_argument("--cameras", metavar="PATH",
+                    help="the capture's cameras, which every render-based choice is then made from (a spread "
+                         "subset): an INRIA cameras.json, a COLMAP sparse folder, a transforms.json, or a folder "
+                         "holding one. Default: the cameras.json of an INRIA training output "
+                         "(<model>/point_cloud/iteration_N/point_cloud.ply), when there is one")
+    gs.add_argument("--no-cameras", action="store_true",
+                    help="do not look for the capture's cameras beside the input (--views places the views)")
+    gs.add_argument("--views", choices=("auto", "orbit", "inside", "both"),
+                    help="without the capture's cameras, where the views look from: orbit (around an object), "
+                         "inside (from the free space a room or street surrounds, looking outward), both, or "
+                         "auto (the default: decided from the scene's geometry, the log says what and why)")
     gs.add_argument("--lambda", dest="rd_lambda", type=float, metavar="L",
                     help="instead of a PSNR: rate-distortion weight in dB of PSNR per doubling of the stream; "
                          "the encoder stops where twice the bytes would buy less than L dB (larger: fewer "
@@ -284,7 +296,7 @@ def config_overrides(args: argparse.Namespace, gaussians: bool) -> dict:
         overrides = {"rd_lambda": args.rd_lambda, "target_psnr": args.target_psnr,
                      "fit_iterations": args.fit_iterations, "sh_degree": args.sh_degree,
                      "tile_points": args.tile_points, "rd_quantization": args.rd_quantization,
-                     "step_adjust_max": args.step_adjust,
+                     "step_adjust_max": args.step_adjust, "views": args.views,
                      "neighbour_prediction": {"auto": True, "always": "always", "never": False, None: None}[
                          args.neighbour_prediction]}
         if args.rd_lambda is not None and args.target_psnr is None:
@@ -294,6 +306,28 @@ def config_overrides(args: argparse.Namespace, gaussians: bool) -> dict:
             "offset_step": args.offset_step, "mlp_weight_bits": args.mlp_weight_bits,
             "pruning": args.prune, "prune_keep_ratio": args.prune_keep, "prune_tau": args.prune_tau,
             "tile_points": args.tile_points}
+
+
+def capture_cameras(args: argparse.Namespace, gaussians: bool, log):
+    """The capture's cameras for a Gaussian scene: --cameras, else those of an INRIA training output
+    the input lies in (none with --no-cameras); a usage error where they contradict --views or the
+    input is not a Gaussian scene."""
+    from ..render.camera import find_capture_cameras, load_capture_cameras
+
+    if args.cameras and (args.no_cameras or args.views):
+        raise UsageError("--cameras places the views: give it without --no-cameras and --views")
+    if args.cameras and not gaussians:
+        raise UsageError("--cameras is for plain 3DGS input (a PLY, SPZ or SOG file coded as Gaussians)")
+    path = args.cameras
+    if path is None and gaussians and not (args.no_cameras or args.views):
+        path = find_capture_cameras(args.input)
+        if path is not None:
+            log(f"cameras: {path}, found beside the input (--no-cameras: place the views by the scene instead)")
+    if path is None:
+        return None
+    cams = load_capture_cameras(path)
+    log(f"cameras: {len(cams)} from {path}")
+    return cams
 
 
 def load_scene(args: argparse.Namespace, cfg):
@@ -458,9 +492,10 @@ def _main(argv: list[str] | None) -> int:
     check_memory(scene, cfg, workers, args.max_memory, source, log)
     announce_estimate(args, scene, cfg, log)
     twin = context_twin_of(args, gaussians, cfg, loaded.transcoded)
+    cameras = capture_cameras(args, gaussians, log)
     result, cfg = api.encode(scene, cfg, progress=not args.quiet, log=log, measure_ideal=args.report_ideal,
                              context_twin=twin, verify=not args.no_verify, allow_missing_mlps=args.allow_no_mlps,
-                             transcoded=loaded.transcoded, workers=workers)
+                             transcoded=loaded.transcoded, workers=workers, cameras=cameras)
     if twin is not None:
         say(twin_outcome(result.stats))
     write_outputs(args, result, scene, cfg, gaussians, source)

@@ -11,6 +11,8 @@ set of views it is the "global significance" pruning criteria use (LightGaussian
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import torch
 
@@ -24,16 +26,33 @@ from .view_threads import map_views
 CONTRIBUTION_VIEW_BYTES = 800.0
 
 
-def gaussian_contributions(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
-                           cameras: list[Camera], on_view=None) -> np.ndarray:
-    """float64 [M]: sum over ``cameras`` and pixels of alpha_i T_i (activated parameters:
-    unit quats (w, x, y, z), scales, opacities in [0, 1]). ``on_view()`` is called after each view.
-    Two views at a time (render/view_threads.py), summed in the views' order."""
+@dataclass
+class Contributions:
+    total: np.ndarray  # float64 [M]: sum over the views and pixels of alpha_i T_i
+    view_share: np.ndarray  # float64 [M]: the largest share of one view's sum that Gaussian i supplies
+
+
+def view_contributions(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
+                       cameras: list[Camera], on_view=None) -> Contributions:
+    """Each Gaussian's contribution to the pictures of ``cameras``, in all and to the view it
+    matters most to (activated parameters: unit quats (w, x, y, z), scales, opacities in [0, 1]).
+    ``on_view()`` is called after each view. Two views at a time (render/view_threads.py), summed
+    in the views' order."""
     total = torch.zeros(means.shape[0], dtype=torch.float64)
+    view_share = torch.zeros(means.shape[0], dtype=torch.float64)
     views = map_views(lambda cam: compositing_weights(means, quats, scales, opacities, cam), cameras,
                       view_bytes=CONTRIBUTION_VIEW_BYTES * means.shape[0])
     for weights in views:
         total += weights
+        in_view = float(weights.sum())
+        if in_view > 0:
+            torch.maximum(view_share, weights / in_view, out=view_share)
         if on_view is not None:
             on_view()
-    return total.numpy()
+    return Contributions(total.numpy(), view_share.numpy())
+
+
+def gaussian_contributions(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
+                           cameras: list[Camera], on_view=None) -> np.ndarray:
+    """float64 [M]: sum over ``cameras`` and pixels of alpha_i T_i (``view_contributions``' total)."""
+    return view_contributions(means, quats, scales, opacities, cameras, on_view).total

@@ -58,12 +58,12 @@ from ...common.attributes import STEP_ADJUST_FACTORS
 from ...common.scene import GaussianScene
 from ..stream.config import GaussianEncoderConfig
 from .gaussian_grid import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid
-from .gaussian_views import fit_cameras, magnification, resolving_views
+from .gaussian_views import SceneViews, scene_views
 from .merging import pruned_scene
 from ..stream.stats import PrepareStats
 from ...render.camera import Camera
 from ...render.gaussians3dgs import Gaussians3DGS, gaussians_from_scene, render_3dgs
-from ...render.importance import gaussian_contributions
+from ...render.importance import Contributions, view_contributions
 from ...render.rasterizer import rasterize
 from ...render.sh import sh_to_rgb
 from ...render.view_threads import map_views
@@ -79,6 +79,7 @@ class PreparedGaussians:
     sensitivity: np.ndarray | None  # the pictures' sensitivity to each kept Gaussian's values (encoder/gaussians/rdoq.py)
     cfg: GaussianEncoderConfig  # the settings to code it with (chosen by the search when it ran)
     stats: PrepareStats
+    views: SceneViews  # where it was measured from
 
 
 def _ste(x: torch.Tensor, step) -> torch.Tensor:
@@ -172,10 +173,11 @@ def _lrs(cfg: GaussianEncoderConfig) -> list[float]:
     return [1e-3 * s, 5e-5 * s, 5e-3 * s, 1e-3 * s, 5e-4 * s]
 
 
-def measure_contributions(g: Gaussians3DGS, cams: list[Camera], progress: bool) -> np.ndarray:
-    """Each Gaussian's contribution to the pictures of ``cams`` (render/importance.py)."""
+def measure_contributions(g: Gaussians3DGS, cams: list[Camera], progress: bool) -> Contributions:
+    """Each Gaussian's contribution to the pictures of ``cams``, in all and to the view it matters
+    most to (render/importance.py)."""
     bar = progress_bar(total=len(cams), desc="contributions", unit="view", disable=not progress, leave=False)
-    contrib = gaussian_contributions(g.means, g.quats, g.scales, g.opacities, cams, on_view=bar.update)
+    contrib = view_contributions(g.means, g.quats, g.scales, g.opacities, cams, on_view=bar.update)
     bar.close()
     return contrib
 
@@ -204,7 +206,7 @@ class SearchSample:
     renders: SceneRenders  # the scene's search renders as it came in: the ratio's, reused by the search
 
 
-def _search_sample(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig,
+def _search_sample(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, views: SceneViews,
                    say) -> SearchSample | None:
     """The sample the search measures on a scene above ``search_sample_gaussians`` (None below),
     with the ratio of the whole scene's error to the sample's when a target is asked for."""
@@ -214,52 +216,53 @@ def _search_sample(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncod
     members = search_sample(scene.means, cfg.search_sample_gaussians)
     if members is None:
         return None
-    renders = SceneRenders(scene)
+    renders = SceneRenders(scene, views)
     ratio = sample_distortion_ratio(scene, contrib, cfg, members, renders) if cfg.target_psnr > 0 else 1.0
     say(f"settings: searched on a sample of {int(members.sum()):,} of {scene.num_gaussians:,} Gaussians (whole "
         f"scene's error {ratio:.3g} x the sample's)")
     return SearchSample(members, ratio, renders)
 
 
-def search_for_settings(scene: GaussianScene, contrib: np.ndarray, sensitivity: np.ndarray | None,
-                        cfg: GaussianEncoderConfig, stats: PrepareStats,
+def search_for_settings(scene: GaussianScene, contrib: Contributions, sensitivity: np.ndarray | None,
+                        cfg: GaussianEncoderConfig, views: SceneViews, stats: PrepareStats,
                         say) -> tuple[GaussianEncoderConfig, SearchSample | None]:
-    """The settings for the quality or lambda asked for (encoder/gaussians/gaussian_rd.py), measured on a
-    sample of a scene above ``search_sample_gaussians`` (with the sample); the preset's when
-    neither is asked for."""
+    """The settings for the quality or lambda asked for (encoder/gaussians/gaussian_rd.py) from
+    ``views``, measured on a sample of a scene above ``search_sample_gaussians`` (with the sample);
+    the preset's when neither is asked for."""
     if not (cfg.rd_lambda > 0 or cfg.target_psnr > 0):
         return cfg, None
     from .gaussian_rd import Backdrop, on_sample, search_settings, search_view_plan
 
-    views, resolution = search_view_plan(cfg, scene.num_gaussians)
-    say(f"settings: searched on {views} views of {resolution} px")
+    count, resolution = search_view_plan(cfg, scene.num_gaussians)
+    say(f"settings: searched on {count} views of {resolution} px")
     # the plan, applied once: trim_to_target after the fit reads these views from the settings
-    cfg = dataclasses.replace(cfg, search_views=views, search_resolution=resolution, search_reference_gaussians=0)
+    cfg = dataclasses.replace(cfg, search_views=count, search_resolution=resolution, search_reference_gaussians=0)
     t0 = time.perf_counter()
-    sample = _search_sample(scene, contrib, cfg, say)
+    sample = _search_sample(scene, contrib.total, cfg, views, say)
     if sample is None:
-        cfg, trials = search_settings(scene, contrib, cfg, sensitivity=sensitivity, log=say)
+        cfg, trials = search_settings(scene, contrib.total, cfg, sensitivity=sensitivity, log=say, views=views,
+                                      view_share=contrib.view_share)
     else:
         m = sample.members
-        chosen, trials = search_settings(scene.subset(m), contrib[m], on_sample(cfg, sample.ratio),
+        chosen, trials = search_settings(scene.subset(m), contrib.total[m], on_sample(cfg, sample.ratio),
                                          sensitivity=None if sensitivity is None else sensitivity[m], log=say,
-                                         backdrop=Backdrop(scene, m, sample.renders))
+                                         backdrop=Backdrop(scene, m, sample.renders), view_share=contrib.view_share[m])
         cfg = dataclasses.replace(chosen, target_psnr=cfg.target_psnr)
         stats.search_sample_gaussians, stats.search_sample_ratio = int(m.sum()), sample.ratio
     stats.time_search_s, stats.search_trials = time.perf_counter() - t0, len(trials)
     return cfg, sample
 
 
-def pruned_on_grid(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, stats: PrepareStats,
+def pruned_on_grid(scene: GaussianScene, contrib: Contributions, cfg: GaussianEncoderConfig, stats: PrepareStats,
                    num_views: int, say) -> tuple[GaussianScene, np.ndarray, np.ndarray]:
-    """Pruning by contribution (the pruned dropped or merged, ``prune_mode``), then the grid
-    weighted by contribution -> (the kept Gaussians on their grid, their contributions, which
-    Gaussians were kept)."""
-    keep, kept, weights = pruned_scene(scene, contrib, cfg.prune_share, cfg.prune_mode)
+    """Pruning by contribution (no view loses more than ``prune_share`` of what it shows; the
+    pruned dropped or merged, ``prune_mode``), then the grid weighted by contribution -> (the kept
+    Gaussians on their grid, their contributions, which Gaussians were kept)."""
+    keep, kept, weights = pruned_scene(scene, contrib.total, cfg.prune_share, cfg.prune_mode, contrib.view_share)
     stats.gaussians_pruned = int((~keep).sum())
     say(f"contributions from {num_views} views in {stats.time_contributions_s:.1f} s; pruned "
-        f"{stats.gaussians_pruned:,} of {scene.num_gaussians:,} Gaussians ({100 * cfg.prune_share:g}% of the "
-        f"contribution at most, {cfg.prune_mode})")
+        f"{stats.gaussians_pruned:,} of {scene.num_gaussians:,} Gaussians ({100 * cfg.prune_share:g}% of any "
+        f"view's contribution at most, {cfg.prune_mode})")
     voxel, origin = choose_grid(kept, cfg, weights)
     grid, moved = snap_to_grid(kept, voxel, origin, weights)
     stats.voxel_size, stats.gaussians_moved_off_shared_voxels = voxel, moved
@@ -379,10 +382,11 @@ def needs_preparation(cfg: GaussianEncoderConfig) -> bool:
     return cfg.rd_lambda > 0 or cfg.target_psnr > 0 or cfg.fit_iterations > 0 or cfg.prune_share > 0
 
 
-def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, cameras: list[Camera] | None = None,
+def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, views: SceneViews | None = None,
                       log=None, progress: bool = False) -> PreparedGaussians:
-    """Contribution, pruning, grid and fit (module doc). ``cameras``: extra views (the scene's
-    own) added to the sphere; ``log(msg)`` gets a line per stage (progress in logs)."""
+    """Contribution, pruning, grid and fit (module doc), all measured from ``views``
+    (gaussian_views.py; None: ``cfg.views`` decides, free_space.py where it is auto); ``log(msg)``
+    gets a line per stage (progress in logs)."""
     say = log or (lambda *a: None)
     cfg = cfg.validate()
     scene.validate()
@@ -390,26 +394,26 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
     t0 = time.perf_counter()
     if cfg.sh_degree is not None and cfg.sh_degree < scene.sh_degree:
         scene = scene.with_sh_degree(cfg.sh_degree)
-    # contributions from whole views fine enough to resolve the Gaussians (crops would favour
-    # the Gaussians they happen to show); the fit samples orbit views and magnified crops
-    contrib_res = round(cfg.fit_resolution * magnification(scene, cfg.fit_resolution, cfg.resolve_px))
-    extra = list(cameras or [])
+    if views is None:
+        views = scene_views(scene, cfg.views)
+    say(f"views: {views.kind}: {views.reason}")
+    stats.views, stats.views_reason = views.kind, views.reason
     g = gaussians_from_scene(scene)
-    contrib_cams = fit_cameras(scene, cfg.fit_views, contrib_res) + extra
+    contrib_cams = views.contribution_cameras(scene, cfg.fit_views, cfg.fit_resolution, cfg.resolve_px)
     contrib = measure_contributions(g, contrib_cams, progress)
-    cams = resolving_views(scene, cfg.fit_views, cfg.fit_resolution, cfg.resolve_px) + extra
+    cams = views.cameras(scene, cfg.fit_views, cfg.fit_resolution, cfg.resolve_px)
     stats.time_contributions_s = time.perf_counter() - t0
     sens_views = sensitivity_views(cfg, scene.num_gaussians)
     sens_cams = cams if sens_views == cfg.fit_views else \
-        resolving_views(scene, sens_views, cfg.fit_resolution, cfg.resolve_px) + extra
+        views.cameras(scene, sens_views, cfg.fit_resolution, cfg.resolve_px)
     sensitivity = measure_sensitivities(scene, sens_cams, cfg, stats, progress)
-    cfg, sample = search_for_settings(scene, contrib, sensitivity, cfg, stats, say)
+    cfg, sample = search_for_settings(scene, contrib, sensitivity, cfg, views, stats, say)
     grid, weights, keep = pruned_on_grid(scene, contrib, cfg, stats, len(contrib_cams), say)
     sensitivity = None if sensitivity is None else sensitivity[keep]
     if cfg.fit_iterations > 0:
         grid = fit_to_renders(grid, g, cams, fit_steps(cfg, grid.num_gaussians), stats, say, progress, sensitivity)
     from .gaussian_rd import SceneRenders
-    renders = SceneRenders(grid)  # the prepared scene's search renders: the trim's or the check's
+    renders = SceneRenders(grid, views)  # the prepared scene's search renders: the trim's or the check's
     if sample is not None:
         # no trim on the sample first: it moved the attribute steps by one common factor, as the
         # check does, against the ratio measured before the fit (off by -0.4 to +1.4 dB after it at
@@ -418,7 +422,30 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, camer
     elif cfg.fit_iterations > 0:
         cfg = trim_steps(grid, weights, sensitivity, cfg, stats, say, renders)
     stats.time_total_s = time.perf_counter() - t0
-    return PreparedGaussians(grid, weights, sensitivity, cfg, stats)
+    return PreparedGaussians(grid, weights, sensitivity, cfg, stats, views)
+
+
+def check_on_held_back_views(source: GaussianScene, decoded: GaussianScene, views: SceneViews,
+                             cfg: GaussianEncoderConfig, stats: PrepareStats, say) -> None:
+    """The decoded scene against the source on ``cfg.check_views`` views of the kind the encoder
+    looked from that none of its stages used (``SceneViews.whole_views``, held back): the PSNR of
+    their mean squared error, which is what the target asks for, and the worst view's."""
+    if cfg.check_views <= 0:
+        return
+    from .gaussian_rd import whole_scene_renders
+
+    t0 = time.perf_counter()
+    cams = views.whole_views(source, cfg.check_views, cfg.check_resolution, held_back=True)
+    if not cams:
+        return
+    mse = [float(((a.clamp(0, 1) - b.clamp(0, 1)) ** 2).double().mean())
+           for a, b in zip(whole_scene_renders(decoded, cams), whole_scene_renders(source, cams))]
+    psnr = lambda e: -10 * math.log10(max(e, 1e-12))  # noqa: E731
+    stats.held_back_views, stats.held_back_psnr, stats.held_back_worst_psnr = len(cams), psnr(np.mean(mse)), psnr(max(mse))
+    stats.time_held_back_s = time.perf_counter() - t0
+    asked = f" (target {cfg.target_psnr:g} dB on the encoder's views)" if cfg.target_psnr > 0 else ""
+    say(f"check: {stats.held_back_psnr:.2f} dB against the source on {len(cams)} {views.kind} views of "
+        f"{cfg.check_resolution} px the encoder did not use{asked}, worst view {stats.held_back_worst_psnr:.2f} dB")
 
 
 # The fewest views (orbit views, and as many crops where they are added) of the sensitivities on a

@@ -47,7 +47,7 @@ from ...common.neighbour_prediction import neighbour_graph
 from ...common.scene import GaussianScene
 from ..stream.config import GaussianEncoderConfig
 from .gaussian_grid import choose_grid, coded_values, snap_to_grid
-from .gaussian_views import resolving_views
+from .gaussian_views import ORBIT, SceneViews
 from .merging import pruned_scene
 from ..stream.neighbour_coding import NeighbourCoding, usable as neighbour_usable
 from .rdoq import (adjust_on_graph, channel_groups, channel_steps, degrees_on_graph, group_slopes, orientation_columns,
@@ -83,19 +83,20 @@ def search_view_plan(cfg: GaussianEncoderConfig, num_gaussians: int) -> tuple[in
 
 
 class SceneRenders:
-    """A scene's search views (``resolving_views``) and its renders on black in them, made once per
-    view plan (views, resolution, resolve_px) and shared by whoever measures against them: on a
-    sampled search the ratio and the search's offsets measure against the source's (the pair rendered
-    them twice); the whole-scene check, or the trim without a sample, against the fitted scene's."""
+    """A scene's search views (``views``, gaussian_views.py) and its renders on black in them, made
+    once per view plan (views, resolution, resolve_px) and shared by whoever measures against them: on
+    a sampled search the ratio and the search's offsets measure against the source's (the pair
+    rendered them twice); the whole-scene check, or the trim without a sample, against the fitted
+    scene's."""
 
-    def __init__(self, scene: GaussianScene):
-        self.scene = scene
+    def __init__(self, scene: GaussianScene, views: SceneViews = ORBIT):
+        self.scene, self.views = scene, views
         self._cams: dict[tuple, list] = {}
         self._images: dict[tuple, list[torch.Tensor]] = {}
 
     def cams(self, plan: tuple[int, int, float]) -> list:
         if plan not in self._cams:
-            self._cams[plan] = resolving_views(self.scene, *plan)
+            self._cams[plan] = self.views.cameras(self.scene, *plan)
         return self._cams[plan]
 
     def images(self, plan: tuple[int, int, float]) -> list[torch.Tensor]:
@@ -276,10 +277,13 @@ class SettingsSearch:
 
     def __init__(self, scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, lam: float,
                  views: int, resolution: int, sensitivity: np.ndarray | None = None,
-                 backdrop: Backdrop | None = None, renders: SceneRenders | None = None):
+                 backdrop: Backdrop | None = None, renders: SceneRenders | None = None,
+                 view_share: np.ndarray | None = None):
         """``renders``: ``scene``'s, where another measurement shares them (without a ``backdrop``;
-        with one, its own)."""
+        with one, its own). ``view_share``: each Gaussian's largest share of one view, which the
+        pruning goes by where given (merging.py ``pruned_scene``)."""
         self.scene, self.contrib, self.lam, self.sensitivity = scene, contrib, lam, sensitivity
+        self.view_share = view_share
         self.whole = backdrop.renders if backdrop is not None else renders or SceneRenders(scene)
         self.plan = (views, resolution, cfg.resolve_px)
         self.cams = self.whole.cams(self.plan)
@@ -351,7 +355,7 @@ class SettingsSearch:
             bits = 8.0 * len(encode_geometry(np.unique(self.scene.coords, axis=0)))
             self._grids[key] = (keep, self.scene, bits, self.values)
         if key not in self._grids:
-            keep, kept, weights = pruned_scene(self.scene, self.contrib, share, self.cfg.prune_mode)
+            keep, kept, weights = pruned_scene(self.scene, self.contrib, share, self.cfg.prune_mode, self.view_share)
             cfg = GaussianEncoderConfig(position_step=position_step)
             voxel, origin = choose_grid(kept, cfg, weights)
             grid, _ = snap_to_grid(kept, voxel, origin, weights)
@@ -631,17 +635,19 @@ def fewest_bits_meeting(trials: list[Trial], target_mse: float) -> Trial:
 
 
 def search_settings(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, *,
-                    sensitivity: np.ndarray | None = None, log=None,
-                    backdrop: Backdrop | None = None) -> tuple[GaussianEncoderConfig, list[Trial]]:
+                    sensitivity: np.ndarray | None = None, log=None, backdrop: Backdrop | None = None,
+                    views: SceneViews = ORBIT,
+                    view_share: np.ndarray | None = None) -> tuple[GaussianEncoderConfig, list[Trial]]:
     """Choose the settings for ``cfg.rd_lambda`` (module doc): one probe per group measures how
     much doubling its step costs in D and saves in R, the high-rate model gives the steps, every
     share of the pruning ladder is measured, and each group's step is then checked a
-    factor sqrt(2) up and down against real renders. ``backdrop``: ``scene`` is a sample of it.
-    -> (settings, every trial)."""
+    factor sqrt(2) up and down against real renders. ``backdrop``: ``scene`` is a sample of it (its
+    renders hold the views); ``views``: where to look from otherwise; ``view_share``: the pruning's
+    (``SettingsSearch``). -> (settings, every trial)."""
     say = log or (lambda *a: None)
     t0 = time.perf_counter()
     s = SettingsSearch(scene, contrib, cfg, cfg.rd_lambda, cfg.search_views, cfg.search_resolution, sensitivity,
-                       backdrop)
+                       backdrop, SceneRenders(scene, views) if backdrop is None else None, view_share)
     n = scene.num_gaussians
     groups = [g for g in GROUPS if not g.startswith("sh_band") or int(g[-1]) <= scene.sh_degree]
     target_mse = 10 ** (-cfg.target_psnr / 10) if cfg.target_psnr > 0 else None

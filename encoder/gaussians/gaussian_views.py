@@ -1,17 +1,31 @@
-"""The views the encoder measures an explicit-Gaussian scene on (informative): orbit cameras on a
-sphere around it, finer or magnified views where the orbit does not resolve its typical
-Gaussian, and the pruning by contribution to them. The settings search and the fit share them.
+"""The views the encoder measures an explicit-Gaussian scene on (informative), and the pruning by
+contribution to them. The settings search, the sensitivities, the pruning and the fit share them.
+
+Where they look from (``SceneViews``, fixed once on the source scene):
+- ``orbit``: cameras on a sphere around an object, looking at its centre;
+- ``inside``: cameras at viewpoints in the free space a scene surrounds (a room, a street, a
+  360-degree capture; free_space.py finds them), looking outward in every direction with a
+  90-degree field of view, as a viewer standing there sees it;
+- ``both``: half of each, where it is unclear which;
+- ``capture``: the capture's own cameras (``--cameras``), a spread subset at the views' pixel count.
+Finer or magnified views are added where the views do not resolve the scene's typical Gaussian
+(``magnification``): crops of the same views, as many as there are views.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from ...common.errors import InputError
 from ...common.scene import GaussianScene
 from ...render.camera import Camera
 from ...render.views import fibonacci_sphere
+from ..stream.config import VIEW_KINDS
+from .free_space import solid_points, spread, watched_from
 from .gaussian_grid import typical_size
 
 
@@ -38,12 +52,14 @@ def _sphere_camera(centre: np.ndarray, dist: float, direction: np.ndarray, aim: 
                           fov_x_deg=fov_deg, near=dist * 1e-3, far=dist * 10, name=name)
 
 
-def fit_cameras(scene: GaussianScene, n: int, resolution: int, fov_deg: float = 50.0) -> list[Camera]:
-    """n cameras on a sphere around the scene's robust bounds, each seeing the whole bounding sphere."""
+def fit_cameras(scene: GaussianScene, n: int, resolution: int, fov_deg: float = 50.0,
+                offset: float = 0.5) -> list[Camera]:
+    """n cameras on a sphere around the scene's robust bounds, each seeing the whole bounding sphere
+    (``offset``: of the spiral, fibonacci_sphere)."""
     centre, radius, _ = _robust_bounds(scene)
     dist = _orbit_distance(radius, fov_deg)
     return [_sphere_camera(centre, dist, d, centre, resolution, fov_deg, f"fit_{j:03d}")
-            for j, d in enumerate(fibonacci_sphere(n))]
+            for j, d in enumerate(fibonacci_sphere(n, offset))]
 
 
 # The most the views are magnified (module doc, "views that resolve the Gaussians").
@@ -92,7 +108,12 @@ def resolving_views(scene: GaussianScene, n: int, resolution: int, resolve_px: f
 
 def prune_by_contribution(contrib: np.ndarray, share: float) -> np.ndarray:
     """bool [N]: keep all but the least contributing Gaussians whose contributions add up to at
-    most ``share`` of the total."""
+    most ``share`` of the total. Given each Gaussian's largest share of any one view
+    (render/importance.py ``Contributions.view_share``) as ``contrib``, the bound holds for every
+    view: the pruned Gaussians' shares of a view add up to at most the sum of their largest shares,
+    so no view loses more than ``share`` of what it shows (more exactly: of its compositing weight),
+    however few views see them; ranked by their share of all views together, the Gaussians only one
+    viewpoint sees (a room's inside from its middle) would go first."""
     keep = np.ones(contrib.shape[0], dtype=bool)
     total = float(contrib.sum())
     if share <= 0 or total <= 0:
@@ -105,3 +126,146 @@ def prune_by_contribution(contrib: np.ndarray, share: float) -> np.ndarray:
     return keep
 
 
+
+
+# The field of view of the views from inside, degrees: a viewer's, wide enough that the views
+# around one viewpoint cover every direction.
+INSIDE_FOV_DEG = 90.0
+
+
+def _inside_camera(eye: np.ndarray, direction: np.ndarray, resolution: int, fov_deg: float, near: float,
+                   name: str) -> Camera:
+    up = (0.0, 0.0, 1.0) if abs(direction[2]) < 0.99 else (0.0, 1.0, 0.0)
+    return Camera.look_at(eye, eye + direction, up=up, width=resolution, height=resolution, fov_x_deg=fov_deg,
+                          near=near, far=near * 1e6, name=name)
+
+
+def cropped(cam: Camera, m: float, centre: tuple[float, float], name: str) -> Camera:
+    """The window of ``cam``'s picture m times narrower around pixel ``centre``, at ``cam``'s pixel
+    count: the same pose, focal lengths times m."""
+    u, v = centre
+    return dataclasses.replace(cam, fx=cam.fx * m, fy=cam.fy * m, cx=m * (cam.cx - u) + cam.width / 2,
+                               cy=m * (cam.cy - v) + cam.height / 2, name=name, image=None)
+
+
+def _crops(cams: list[Camera], m: float, seed: int = 0) -> list[Camera]:
+    """One crop of each view, m times magnified around a pixel drawn at random (fixed seed) far
+    enough inside that the window stays in the picture."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for j, cam in enumerate(cams):
+        half_w, half_h = cam.width / (2 * m), cam.height / (2 * m)
+        u, v = rng.uniform(half_w, cam.width - half_w), rng.uniform(half_h, cam.height - half_h)
+        out.append(cropped(cam, m, (u, v), f"crop_{j:03d}"))
+    return out
+
+
+@dataclass(frozen=True)
+class SceneViews:
+    """Where the encoder looks at a scene from (module doc), fixed once on the source scene so that
+    the search, the sensitivities, the pruning, the fit and the trim measure from the same places.
+    The orbit is placed around whichever scene it is asked for (the source, a sample, the fitted
+    grid: as it always was); the viewpoints inside and the capture's cameras stay where they are."""
+    kind: str  # orbit | inside | both | capture
+    eyes: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # [P, 3] viewpoints inside
+    capture: tuple[Camera, ...] = ()  # the capture's cameras, in spread order (the first n spread best)
+    depth: float = 1.0  # median distance from the viewpoints to the scene (inside, capture)
+    size: float = 0.0  # the scene's typical Gaussian size (inside, capture; for the magnification)
+    reason: str = ""
+
+    def _inside(self, n: int, resolution: int, held_back: bool = False) -> list[Camera]:
+        eyes = self.eyes if not held_back else (self.eyes + self.eyes.mean(axis=0)) / 2
+        near = max(self.depth * 1e-3, 1e-9)
+        dirs = fibonacci_sphere(n, offset=0.75 if held_back else 0.5)
+        return [_inside_camera(eyes[j % eyes.shape[0]], d, resolution, INSIDE_FOV_DEG, near,
+                               f"{'held' if held_back else 'inside'}_{j:03d}") for j, d in enumerate(dirs)]
+
+    def _capture(self, n: int, resolution: int, held_back: bool = False) -> list[Camera]:
+        cams = self.capture[-n:] if held_back else self.capture[:n]
+        return [c.scaled(resolution / math.sqrt(c.width * c.height)) for c in cams]
+
+    def _split(self, n: int) -> tuple[int, int]:
+        """(orbit views, views of the other kind) of n."""
+        if self.kind == "both":
+            return (n + 1) // 2, n // 2
+        return (n, 0) if self.kind == "orbit" else (0, n)
+
+    def magnification(self, scene: GaussianScene, resolution: int, resolve_px: float) -> float:
+        """How much finer than the whole views at ``resolution`` the views must sample the scene for
+        its typical Gaussian to span ``resolve_px`` pixels (1 to MAX_MAGNIFICATION)."""
+        if self.kind == "orbit":
+            return magnification(scene, resolution, resolve_px)
+        focal = 0.5 * resolution / math.tan(math.radians(INSIDE_FOV_DEG) / 2)
+        if self.kind == "capture":
+            c = self.capture[0]
+            focal = c.fx * resolution / math.sqrt(c.width * c.height)
+        size_px = self.size * focal / max(self.depth, 1e-12)
+        if not (size_px > 0 and math.isfinite(size_px)) or resolve_px <= 0:
+            return 1.0
+        return float(min(max(resolve_px / size_px, 1.0), MAX_MAGNIFICATION))
+
+    def whole_views(self, scene: GaussianScene, n: int, resolution: int, held_back: bool = False) -> list[Camera]:
+        """n whole views at ``resolution`` (``held_back``: n others of the same kind, never among the
+        encoder's: another spiral, viewpoints halfway to their middle, the capture's last cameras)."""
+        around, other = self._split(n)
+        cams = fit_cameras(scene, around, resolution, offset=0.75 if held_back else 0.5) if around else []
+        if other and self.kind == "capture":
+            return self._capture(other, resolution, held_back)
+        return cams + (self._inside(other, resolution, held_back) if other else [])
+
+    def cameras(self, scene: GaussianScene, n: int, resolution: int, resolve_px: float) -> list[Camera]:
+        """The views the fit, the sensitivities and the search render: n whole views, plus a
+        magnified crop of each where they do not resolve the scene's typical Gaussian."""
+        around, other = self._split(n)
+        cams = resolving_views(scene, around, resolution, resolve_px) if around else []
+        if not other:
+            return cams
+        whole = self.whole_views(scene, other, resolution) if self.kind == "capture" else \
+            self._inside(other, resolution)
+        m = self.magnification(scene, resolution, resolve_px)
+        return cams + whole + (_crops(whole, m) if m > 1 else [])
+
+    def contribution_cameras(self, scene: GaussianScene, n: int, resolution: int,
+                             resolve_px: float) -> list[Camera]:
+        """The whole views the contributions are measured on, magnified to resolve the Gaussians
+        (crops would favour the Gaussians they happen to show)."""
+        around, other = self._split(n)
+        cams = []
+        if around:
+            cams = fit_cameras(scene, around, round(resolution * magnification(scene, resolution, resolve_px)))
+        if other:
+            cams += self.whole_views(scene, other, round(resolution * self.magnification(scene, resolution,
+                                                                                        resolve_px)))
+        return cams
+
+
+ORBIT = SceneViews("orbit", reason="views from around it")
+
+
+def _median_depth(points: np.ndarray, eyes: np.ndarray) -> float:
+    d = np.linalg.norm(points[:, None, :] - eyes[None, :, :], axis=2)
+    return float(np.median(d)) if d.size else 1.0
+
+
+def scene_views(scene: GaussianScene, kind: str = "auto", capture: list[Camera] | None = None) -> SceneViews:
+    """Where to look at ``scene`` from: the capture's cameras when given (a spread subset of them
+    first), else ``kind``: orbit, inside, both, or auto (free_space.py decides)."""
+    if kind not in VIEW_KINDS:
+        raise InputError(f"views must be one of {', '.join(VIEW_KINDS)}, got {kind!r}")
+    points = solid_points(scene)[::16]
+    if capture:
+        centres = np.array([c.center for c in capture])
+        order = spread(centres, len(capture))
+        order = np.concatenate([order, np.setdiff1d(np.arange(len(capture)), order)])  # coincident cameras last
+        cams = tuple(capture[i] for i in order)
+        return SceneViews("capture", capture=cams, depth=_median_depth(points, centres), size=typical_size(scene),
+                          reason=f"the capture's {len(capture)} cameras")
+    found = watched_from(scene)
+    if kind == "auto":
+        kind, reason = found.kind, found.reason
+    else:
+        reason = f"views {kind} as asked (by itself: {found.kind}, {found.reason})"
+    if kind == "orbit":
+        return dataclasses.replace(ORBIT, reason=reason)
+    eyes = found.eyes if found.eyes.shape[0] else np.median(points, axis=0)[None, :]
+    return SceneViews(kind, eyes=eyes, depth=_median_depth(points, eyes), size=typical_size(scene), reason=reason)

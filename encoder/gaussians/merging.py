@@ -179,12 +179,14 @@ def merged_weights(contrib: np.ndarray, keep: np.ndarray, target: np.ndarray) ->
     return total[keep].astype(np.asarray(contrib).dtype)
 
 
-def pruned_scene(scene: GaussianScene, contrib: np.ndarray, share: float,
-                 mode: str) -> tuple[np.ndarray, GaussianScene, np.ndarray]:
-    """Pruning by contribution (``prune_by_contribution``), the pruned Gaussians dropped (``mode``
-    "drop") or merged into their kept neighbours ("merge") -> (which Gaussians were kept, the kept
-    scene, their contributions: under merge with those merged into each added)."""
-    keep = prune_by_contribution(contrib, share)
+def pruned_scene(scene: GaussianScene, contrib: np.ndarray, share: float, mode: str,
+                 view_share: np.ndarray | None = None) -> tuple[np.ndarray, GaussianScene, np.ndarray]:
+    """Pruning by contribution (``prune_by_contribution``: by each Gaussian's largest share of one
+    view where ``view_share`` is given, so that no view loses more than ``share``), the pruned
+    Gaussians dropped (``mode`` "drop") or merged into their kept neighbours ("merge") -> (which
+    Gaussians were kept, the kept scene, their contributions: under merge with those merged into
+    each added)."""
+    keep = prune_by_contribution(contrib if view_share is None else view_share, share)
     if mode != "merge" or keep.all():
         return keep, scene.subset(keep), contrib[keep]
     target = merge_targets(scene, keep)

@@ -15,6 +15,9 @@ from ...common.errors import InputError
 DEFAULT_ATTRIBUTE_STEP = 0.02  # the feature, scaling and offset step of anchor scenes (preset medium)
 
 
+# Where the explicit-Gaussian encoder's views look from (GaussianEncoderConfig.views)
+VIEW_KINDS = ("auto", "orbit", "inside", "both")
+
 @dataclass
 class AttributeCodingConfig:
     """How attribute units are coded; shared by anchor and explicit-Gaussian scenes."""
@@ -199,11 +202,22 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # found without renders (the fast preset; 0: keep all)
     min_opacity: float = 0.0
     # Rate-aware preparation (encoder/gaussians/gaussian_fit.py), against renders of the source from
-    # fit_views cameras on a sphere around it at fit_resolution pixels:
+    # fit_views cameras at fit_resolution pixels, placed where the scene is watched from
+    # (encoder/gaussians/gaussian_views.py): "orbit" (around an object), "inside" (from the free
+    # space a room or street surrounds, looking outward), "both", or "auto" (free_space.py decides);
+    # the capture's cameras instead where they are given (lghcc-enc --cameras, found beside an
+    # INRIA training output)
+    views: str = "auto"
+    # After coding, the decoded scene is checked against the source on this many views of the same
+    # kind that none of the encoder's stages used, at check_resolution pixels, so that what the
+    # target promises can be seen (lghcc-enc's log, stats held_back_psnr; 0: no check)
+    check_views: int = 8
+    check_resolution: int = 256
     fit_views: int = 24
     fit_resolution: int = 160
-    # drop the least contributing Gaussians whose contributions add up to this share of the
-    # total (0: keep all but those no view shows)
+    # drop the least contributing Gaussians, as many as their largest shares of any one view add
+    # up to at most this: no view loses more than this share of what it shows (0: keep all but
+    # those no view shows)
     prune_share: float = 0.0
     # what becomes of them: "drop" removes them, "merge" merges each into its nearest kept
     # neighbour within reach with the pair's moments kept (encoder/gaussians/merging.py)
@@ -317,6 +331,11 @@ class GaussianEncoderConfig(AttributeCodingConfig):
             raise InputError(f"resolve_px must be >= 0 and finite, got {self.resolve_px}")
         if self.fit_views < 1 or self.fit_resolution < 8 or self.fit_iterations < 0:
             raise InputError("fit_views must be >= 1, fit_resolution >= 8 and fit_iterations >= 0")
+        if self.check_views < 0 or self.check_resolution < 8:
+            raise InputError(f"check_views must be >= 0 and check_resolution >= 8, got {self.check_views} and "
+                             f"{self.check_resolution}")
+        if self.views not in VIEW_KINDS:
+            raise InputError(f"views must be one of {', '.join(VIEW_KINDS)}, got {self.views!r}")
 
 
 # Context-model sizes by number of level-2 anchors: (Ch, feature hidden, head hidden, weight bits).

@@ -78,6 +78,12 @@ class PrepareStats:
     time_trim_s: float | None = None  # the steps moved onto the target quality after the fit
     trim_bits_before: float | None = None
     trim_bits_after: float | None = None
+    views: str = "orbit"  # where the views looked from (encoder/gaussians/gaussian_views.py)
+    views_reason: str = ""
+    held_back_views: int | None = None  # the check on views the encoder did not use (check_views)
+    held_back_psnr: float | None = None  # dB, of the mean squared error over them: what the target means
+    held_back_worst_psnr: float | None = None  # dB, the worst of them
+    time_held_back_s: float | None = None
     time_total_s: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
