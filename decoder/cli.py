@@ -64,7 +64,9 @@ encoder cuts scenes of 32,768 points or more). What the tile options do, by kind
 
 --render takes orbit:N or the cameras of a dataset: a dataset folder of any layout
 (NeRF-synthetic, COLMAP sparse/0, Mip-NeRF 360, LLFF poses_bounds.npy; its test views),
-a transforms_<split>.json, a COLMAP sparse folder (all its views) or a poses_bounds.npy.
+a transforms_<split>.json, a COLMAP sparse folder (all its views) or a poses_bounds.npy, or
+the cameras a 3DGS capture comes with (all their views): an INRIA cameras.json, a nerfstudio
+transforms.json, or a folder holding one (an INRIA model folder).
 Dataset cameras render at the size of the dataset's images (COLMAP, LLFF: the full-resolution
 images/; --render-scale 0.25 for a quarter of it).
 
@@ -105,7 +107,8 @@ def setup_args() -> argparse.ArgumentParser:
     g.add_argument("--render", metavar="CAMERAS",
                    help="render the decoded scene: 'orbit:N' (N cameras on a circle around it), a dataset folder "
                         "(NeRF-synthetic, COLMAP, Mip-NeRF 360, LLFF: its test views), a transforms_<split>.json, "
-                        "a COLMAP sparse folder or a poses_bounds.npy")
+                        "a COLMAP sparse folder, a poses_bounds.npy, or a 3DGS capture's cameras.json (INRIA) "
+                        "or transforms.json (nerfstudio)")
     g.add_argument("--render-out", metavar="DIR", help="folder for the rendered PNGs (needed with --render)")
     g.add_argument("--render-size", default="256x256", metavar="WxH", help="image size of orbit cameras (256x256)")
     g.add_argument("--render-scale", type=positive_float, default=1.0,

@@ -5,7 +5,9 @@ maps world points to camera points; pixel (i, j) has its centre at (i + 0.5, j +
 in image coordinates u = fx * x / z + cx, v = fy * y / z + cy.
 
 Loaders: NeRF-synthetic (``transforms_<split>.json``), LLFF (``poses_bounds.npy``),
-COLMAP sparse models (``cameras``/``images``/``points3D`` as ``.bin`` or ``.txt``).
+COLMAP sparse models (``cameras``/``images``/``points3D`` as ``.bin`` or ``.txt``); and,
+cameras only, the captures 3DGS scenes come with: the INRIA trainer's ``cameras.json``, a
+nerfstudio / instant-ngp ``transforms.json`` (``load_capture_cameras`` takes any of them).
 Every problem with the input raises ``InputError`` naming the file.
 """
 
@@ -15,6 +17,7 @@ import json
 import logging
 import math
 import os
+import re
 import struct
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -168,17 +171,27 @@ class Camera:
 
 # --- NeRF-synthetic --------------------------------------------------------------------
 
+def _image_file(root: Path, file_path: str) -> Path | None:
+    """The image file a frame's ``file_path`` names, as given or with .png, .jpg or .jpeg
+    appended (NeRF-synthetic leaves the extension off); None when there is none."""
+    p = root / file_path
+    for q in (p, *(p.with_name(p.name + ext) for ext in (".png", ".jpg", ".jpeg"))):
+        if q.suffix.lower() in (".png", ".jpg", ".jpeg", ".exr") and q.is_file():
+            return q
+    return None
+
+
 def _resolve_image(root: Path, file_path: str, json_path: Path) -> Path:
     p = root / file_path
     if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".exr"):
         return p
-    for ext in (".png", ".jpg", ".jpeg"):
-        if p.with_name(p.name + ext).exists():
-            return p.with_name(p.name + ext)
-    raise InputError(f"{json_path}: image for frame {file_path!r} not found (tried .png, .jpg, .jpeg)")
+    found = _image_file(root, file_path)
+    if found is None:
+        raise InputError(f"{json_path}: image for frame {file_path!r} not found (tried .png, .jpg, .jpeg)")
+    return found
 
 
-def _json_number(meta: dict, key: str, jp: Path, kind: str) -> float:
+def _json_number(meta: dict, key: str, jp: Path | str, kind: str) -> float:
     """``meta[key]`` checked: kind 'angle' (radians in (0, pi)), 'positive', 'finite' or 'size'
     (positive integer). Raises InputError naming the file and the field."""
     v = meta[key]
@@ -206,22 +219,50 @@ _INTRINSIC_KINDS = {"camera_angle_x": "angle", "camera_angle_y": "angle", "fl_x"
                     "cx": "finite", "cy": "finite", "w": "size", "h": "size"}
 
 
-def _read_transforms(jp: Path) -> tuple[dict, dict, tuple[int, int] | None]:
-    """(the file's JSON, its intrinsics checked, its (w, h) or None); InputError naming the file."""
+def _read_json(jp: Path):
+    """The JSON of file ``jp``; InputError naming the file."""
     if not jp.is_file():
         raise InputError(f"{jp}: file not found")
     try:
-        meta = json.loads(jp.read_text())
+        return json.loads(jp.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise InputError(f"{jp}: not valid JSON ({e})") from None
+
+
+def _intrinsics(meta: dict, where: Path | str, kinds: dict = _INTRINSIC_KINDS) -> dict:
+    """The fields of ``kinds`` that ``meta`` gives, checked; InputError naming ``where``."""
+    intr = {k: _json_number(meta, k, where, kind) for k, kind in kinds.items() if k in meta}
+    if ("w" in intr) != ("h" in intr):
+        raise InputError(f"{where}: 'w' and 'h' must be given together")
+    return intr
+
+
+def _need_focal(intr: dict, where: Path | str) -> None:
+    """A focal length is given, in pixels (``fl_x``) or as an angle (``camera_angle_x``)."""
+    if "camera_angle_x" not in intr and "fl_x" not in intr:
+        raise InputError(f"{where}: neither 'camera_angle_x' nor 'fl_x' given")
+
+
+def _read_transforms(jp: Path) -> tuple[dict, dict, tuple[int, int] | None]:
+    """(the file's JSON, its top-level intrinsics checked, its (w, h) or None); InputError
+    naming the file."""
+    meta = _read_json(jp)
     if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list):
         raise InputError(f"{jp}: no 'frames' list")
-    if "camera_angle_x" not in meta and "fl_x" not in meta:
-        raise InputError(f"{jp}: neither 'camera_angle_x' nor 'fl_x' given")
-    intr = {k: _json_number(meta, k, jp, kind) for k, kind in _INTRINSIC_KINDS.items() if k in meta}
-    if ("w" in intr) != ("h" in intr):
-        raise InputError(f"{jp}: 'w' and 'h' must be given together")
+    intr = _intrinsics(meta, jp)
     return meta, intr, ((int(intr["w"]), int(intr["h"])) if "w" in intr else None)
+
+
+def _json_matrix(e: dict, key: str, shape: tuple[int, ...], where: Path | str) -> np.ndarray:
+    """``e[key]`` as a finite float64 array of ``shape``; InputError naming ``where``."""
+    try:
+        a = np.asarray(e[key], np.float64)
+    except (ValueError, TypeError):
+        a = np.zeros(0)
+    if a.shape != shape or not np.isfinite(a).all():
+        what = f"{shape[0]}-vector" if len(shape) == 1 else "x".join(map(str, shape)) + " matrix"
+        raise InputError(f"{where} {key} is not a finite {what}")
+    return a
 
 
 def _frame_pose(jp: Path, i: int, fr) -> tuple[str, np.ndarray]:
@@ -231,13 +272,7 @@ def _frame_pose(jp: Path, i: int, fr) -> tuple[str, np.ndarray]:
     fp = fr["file_path"]
     if not isinstance(fp, str) or not fp.strip():
         raise InputError(f"{jp}: frame {i}: 'file_path' must be a non-empty string, got {fp!r}")
-    try:
-        c2w = np.asarray(fr["transform_matrix"], np.float64)
-    except (ValueError, TypeError):
-        c2w = np.zeros(0)
-    if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
-        raise InputError(f"{jp}: frame {i} transform_matrix is not a finite 4x4 matrix")
-    return fp, c2w
+    return fp, _json_matrix(fr, "transform_matrix", (4, 4), f"{jp}: frame {i}")
 
 
 def _frame_image(jp: Path, ip: Path, load_images: bool, background, size0) -> tuple[np.ndarray | None, int, int]:
@@ -277,6 +312,14 @@ def _pixel_intrinsics(intr: dict, w: int, h: int, sx: float, sy: float) -> tuple
     return fx, fy, cx, cy
 
 
+def _check_principal_point(where: str, cx: float, cy: float, w: int, h: int, image: Path) -> None:
+    """With the size taken from the image, a principal point outside it means intrinsics for
+    another image size."""
+    if not (0 <= cx <= w and 0 <= cy <= h):
+        raise InputError(f"{where}: principal point ({cx:g}, {cy:g}) lies outside the {w}x{h} image "
+                         f"{image.name}: the intrinsics are for another image size; give 'w' and 'h'")
+
+
 def load_nerf_synthetic(root: str | os.PathLike, split: str = "test", background: str | tuple = "white",
                         load_images: bool = True, near: float = 0.01, far: float = 1e10,
                         max_frames: int | None = None) -> list[Camera]:
@@ -292,6 +335,7 @@ def load_nerf_synthetic(root: str | os.PathLike, split: str = "test", background
     root = Path(root)
     jp = root / f"transforms_{split}.json"
     meta, intr, size0 = _read_transforms(jp)
+    _need_focal(intr, jp)
     frames = meta["frames"][:max_frames] if max_frames else meta["frames"]
     cams = []
     for i, fr in enumerate(frames):
@@ -302,9 +346,8 @@ def load_nerf_synthetic(root: str | os.PathLike, split: str = "test", background
         if not cams and (sx, sy) != (1.0, 1.0):
             log.info("%s: images are %dx%d, the file says %dx%d: intrinsics scaled by %.4g", jp, w, h, *size0, sx)
         fx, fy, cx, cy = _pixel_intrinsics(intr, w, h, sx, sy)
-        if size0 is None and not (0 <= cx <= w and 0 <= cy <= h):
-            raise InputError(f"{jp}: frame {i}: principal point ({cx:g}, {cy:g}) lies outside the {w}x{h} image "
-                             f"{ip.name}: the intrinsics are for another image size; give 'w' and 'h'")
+        if size0 is None:
+            _check_principal_point(f"{jp}: frame {i}", cx, cy, w, h, ip)
         try:
             cam = Camera.from_camera_to_world(c2w, fx, fy, cx, cy, w, h, convention="opengl", near=near, far=far,
                                               name=Path(fp).name, image=img)
@@ -613,6 +656,15 @@ def read_colmap_model(sparse_dir: str | os.PathLike) -> ColmapModel:
     return ColmapModel(cams, imgs, xyz, rgb, err, pid)
 
 
+def sparse_folder(root: Path) -> Path | None:
+    """The COLMAP model folder of a dataset (``sparse/0``, ``sparse``) or the folder itself
+    when it holds ``cameras.bin``/``.txt``; None when there is none."""
+    for d in (root / "sparse" / "0", root / "sparse", root):
+        if (d / "cameras.bin").is_file() or (d / "cameras.txt").is_file():
+            return d
+    return None
+
+
 def load_colmap(sparse_dir: str | os.PathLike, images_dir: str | os.PathLike | None = None,
                 load_images: bool = False, near: float = 0.01, far: float = 1e10,
                 background: str | tuple = "black", image_paths: dict[str, Path] | None = None,
@@ -697,3 +749,162 @@ def write_colmap_binary(folder: str | os.PathLike, cameras: list[ColmapCamera], 
     for i, (x, c) in enumerate(zip(xyz, rgb)):
         b.append(struct.pack("<QdddBBBdQ", i + 1, *x, *(int(v) for v in c), 0.0, 0))
     (d / "points3D.bin").write_bytes(b"".join(b))
+
+
+# --- Capture cameras (what a 3DGS scene was trained from) ----------------------------------------
+
+_INRIA_KEYS = ("id", "img_name", "width", "height", "position", "rotation", "fx", "fy")
+
+
+def _inria_camera(jp: Path, i: int, e, near: float, far: float) -> Camera:
+    """Entry ``i`` of an INRIA ``cameras.json``, checked; InputError naming the file and the entry."""
+    where = f"{jp}: camera {i}"
+    if not isinstance(e, dict):
+        raise InputError(f"{where}: expected an object with {', '.join(_INRIA_KEYS)}, got {e!r:.60}")
+    missing = [k for k in _INRIA_KEYS if k not in e]
+    if missing:
+        raise InputError(f"{where}: missing {', '.join(repr(k) for k in missing)}")
+    if not isinstance(e["img_name"], str):
+        raise InputError(f"{where}: 'img_name' must be a string, got {e['img_name']!r:.60}")
+    w, h = (int(_json_number(e, k, where, "size")) for k in ("width", "height"))
+    fx, fy = (_json_number(e, k, where, "positive") for k in ("fx", "fy"))
+    c2w = np.eye(4)
+    c2w[:3, :3] = _json_matrix(e, "rotation", (3, 3), where)
+    c2w[:3, 3] = _json_matrix(e, "position", (3,), where)
+    try:
+        return Camera.from_camera_to_world(c2w, fx, fy, w / 2, h / 2, w, h, convention="opencv", near=near,
+                                           far=far, name=e["img_name"])
+    except InputError as err:
+        raise InputError(f"{where}: {err}") from None
+
+
+def load_inria_cameras(path: str | os.PathLike, near: float = 0.01, far: float = 1e10) -> list[Camera]:
+    """Cameras of the ``cameras.json`` that the INRIA gaussian-splatting trainer writes beside its
+    model (train and test views): a list of {id, img_name, width, height, position, rotation,
+    fx, fy}, where ``position`` is the camera centre in world coordinates and ``rotation`` the
+    camera-to-world rotation (rows) in OpenCV axes (utils/camera_utils.py, camera_to_JSON); the
+    principal point is the image centre."""
+    jp = Path(path)
+    entries = _read_json(jp)
+    if not isinstance(entries, list):
+        raise InputError(f"{jp}: expected a JSON list of cameras (INRIA cameras.json), got {type(entries).__name__}")
+    return [_inria_camera(jp, i, e, near, far) for i, e in enumerate(entries)]
+
+
+# nerfstudio's OpenCV distortion coefficients, in COLMAP's order where it has them
+_DISTORTION_KINDS = {k: "finite" for k in ("k1", "k2", "p1", "p2", "k3", "k4")}
+
+
+def _transforms_camera(jp: Path, i: int, fr, meta: dict, top: dict, near: float, far: float) -> Camera:
+    """Frame ``i`` of a transforms file: the file's intrinsics ``top`` overridden by the frame's own."""
+    where = f"{jp}: frame {i}"
+    fp, c2w = _frame_pose(jp, i, fr)
+    intr = {**top, **_intrinsics(fr, where, _INTRINSIC_KINDS | _DISTORTION_KINDS)}
+    _need_focal(intr, where)
+    model = fr.get("camera_model", meta.get("camera_model", "PINHOLE"))
+    if not isinstance(model, str) or model not in _SUPPORTED:
+        raise InputError(f"{where}: camera_model {model!r} is not one the pinhole renderer can use "
+                         f"({', '.join(_SUPPORTED)})")
+    if "w" in intr:
+        w, h = int(intr["w"]), int(intr["h"])
+    else:
+        ip = _image_file(jp.parent, fp)
+        if ip is None:
+            raise InputError(f"{where}: no image size: give 'w' and 'h' (the image {fp!r} is not there to read "
+                             "it from)")
+        w, h = _image_size(ip)
+    fx, fy, cx, cy = _pixel_intrinsics(intr, w, h, 1.0, 1.0)
+    if "w" not in intr:
+        _check_principal_point(where, cx, cy, w, h, Path(fp))
+    distortion = tuple(intr.get(k, 0.0) for k in _DISTORTION_KINDS)
+    try:
+        return Camera.from_camera_to_world(c2w, fx, fy, cx, cy, w, h, convention="opengl", near=near, far=far,
+                                           name=Path(fp).name, distortion=distortion if any(distortion) else ())
+    except InputError as e:
+        raise InputError(f"{where}: {e}") from None
+
+
+def load_transforms_cameras(path: str | os.PathLike, near: float = 0.01, far: float = 1e10) -> list[Camera]:
+    """Cameras (no images) of a nerfstudio / instant-ngp ``transforms.json`` (any file name):
+    frames with ``file_path`` and ``transform_matrix`` (camera-to-world, OpenGL axes);
+    intrinsics ``fl_x`` (``fl_y``, ``cx``, ``cy``) in pixels of a ``w`` x ``h`` image, or
+    ``camera_angle_x`` (``camera_angle_y``), at the top level or per frame (a frame's own win).
+    A camera has the size ``w`` x ``h``; without it, the size of the image the frame names,
+    else InputError. Distortion (``k1``, ``k2``, ``p1``, ``p2``, ...) is kept on the camera and
+    ignored by the pinhole renderer (a warning); a non-pinhole ``camera_model`` is refused.
+
+    The cameras are in the transforms file's frame: nerfstudio's ``dataparser_transforms.json``
+    (the transform and scale its trainer applied to them) is not applied, so a scene that a
+    nerfstudio trainer exported in its own frame needs that transform to line up with them."""
+    jp = Path(path)
+    meta, top, _ = _read_transforms(jp)
+    top |= _intrinsics(meta, jp, _DISTORTION_KINDS)
+    cams = [_transforms_camera(jp, i, fr, meta, top, near, far) for i, fr in enumerate(meta["frames"])]
+    if any(c.distortion for c in cams):
+        log.warning("%s: lens distortion ignored by the pinhole renderer (undistort the images for exact "
+                    "results)", jp)
+    return cams
+
+
+_CAPTURE_INPUTS = ("an INRIA cameras.json, a transforms.json (nerfstudio, instant-ngp, NeRF-synthetic), a COLMAP "
+                   "sparse folder (cameras and images .bin or .txt), or a folder holding one of them "
+                   "(cameras.json, transforms.json, transforms_train/test.json, sparse/0, sparse)")
+
+
+def _capture_folder_cameras(d: Path) -> list[Camera]:
+    """The cameras a folder holds (``load_capture_cameras``)."""
+    if (d / "cameras.json").is_file():
+        return load_inria_cameras(d / "cameras.json")
+    sparse = sparse_folder(d)
+    if sparse is not None and (d / "transforms.json").is_file():
+        raise InputError(f"{d}: holds both transforms.json and the COLMAP model {sparse}, which need not share "
+                         "a world frame: give the one the scene was trained from")
+    if sparse is not None:
+        return load_colmap(sparse)[0]
+    if (d / "transforms.json").is_file():
+        return load_transforms_cameras(d / "transforms.json")
+    splits = [d / f"transforms_{s}.json" for s in ("train", "test") if (d / f"transforms_{s}.json").is_file()]
+    if not splits:
+        raise InputError(f"{d}: no cameras found; expected {_CAPTURE_INPUTS}")
+    return [c for jp in splits for c in load_transforms_cameras(jp)]
+
+
+def load_capture_cameras(path: str | os.PathLike) -> list[Camera]:
+    """All the views (train and test) of the cameras a 3DGS scene was trained from or with: an
+    INRIA ``cameras.json``, a transforms JSON (told apart by content: a list or an object
+    with ``frames``), a COLMAP sparse folder, or a folder holding one of them: its
+    ``cameras.json`` first (the trainer's own record, in the scene's frame), else its sparse
+    model (``sparse/0``, ``sparse``) or its ``transforms.json`` (both there: InputError), else
+    its ``transforms_train.json`` and ``transforms_test.json``. No cameras: InputError."""
+    p = Path(path)
+    if p.is_dir():
+        cams = _capture_folder_cameras(p)
+    elif p.is_file() and p.suffix.lower() == ".json":
+        data = _read_json(p)
+        if isinstance(data, list):
+            cams = load_inria_cameras(p)
+        elif isinstance(data, dict) and "frames" in data:
+            cams = load_transforms_cameras(p)
+        else:
+            raise InputError(f"{p}: neither a list of cameras (INRIA cameras.json) nor an object with 'frames' "
+                             "(transforms.json)")
+    else:
+        raise InputError(f"{p}: {'not found' if not p.exists() else 'not a camera file'}; expected {_CAPTURE_INPUTS}")
+    if not cams:
+        raise InputError(f"{p}: no cameras")
+    return cams
+
+
+def find_capture_cameras(scene_path: str | os.PathLike) -> Path | None:
+    """The ``cameras.json`` a 3DGS training output keeps with its scene: beside the scene file
+    or one folder up, or ``<model>/cameras.json`` for the INRIA layout
+    ``<model>/point_cloud/iteration_<N>/point_cloud.ply``; for a folder, the one in it (a model
+    folder). None when there is none there: no further guessing."""
+    p = Path(scene_path)
+    if p.is_dir():
+        places = [p]
+    else:
+        places = [p.parent, p.parent.parent]
+        if re.fullmatch(r"iteration_\d+", p.parent.name) and p.parent.parent.name == "point_cloud":
+            places.append(p.parent.parent.parent)
+    return next((d / "cameras.json" for d in places if (d / "cameras.json").is_file()), None)

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from ..common.errors import InputError
-from .camera import Camera, load_colmap, load_llff, load_nerf_synthetic
+from .camera import Camera, load_colmap, load_llff, load_nerf_synthetic, sparse_folder
 from .imageio import background_color
 
 _IMAGE_EXTS = (".png", ".jpg", ".jpeg")
@@ -71,15 +71,6 @@ def parse_background(spec: Any) -> np.ndarray:
         except ValueError:
             raise InputError(f"background must be 'white', 'black' or r,g,b, got {spec!r}") from None
     return background_color(spec)
-
-
-def sparse_folder(root: Path) -> Path | None:
-    """The COLMAP model folder of a dataset (``sparse/0``, ``sparse``) or the folder itself
-    when it holds ``cameras.bin``/``.txt``; None when there is none."""
-    for d in (root / "sparse" / "0", root / "sparse", root):
-        if (d / "cameras.bin").is_file() or (d / "cameras.txt").is_file():
-            return d
-    return None
 
 
 def downscaled_folders(root: Path) -> dict[int, str]:

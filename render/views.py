@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.errors import InputError
-from .camera import Camera, load_colmap, load_llff, load_nerf_synthetic
+from .camera import Camera, load_capture_cameras, load_colmap, load_llff, load_nerf_synthetic, sparse_folder
 
 
 def fibonacci_sphere(n: int, offset: float = 0.5) -> np.ndarray:
@@ -56,18 +56,20 @@ def cameras_from_spec(spec: str, positions: np.ndarray, *, width: int = 256, hei
     folder of any layout lghcc.render.datasets detects (NeRF-synthetic, COLMAP, Mip-NeRF 360,
     LLFF), its ``split`` (test, train or all); a NeRF-synthetic ``transforms_<split>.json``; a
     COLMAP sparse folder (cameras/images .bin or .txt: all its views); an LLFF
-    ``poses_bounds.npy`` (all its views). File cameras are scaled by ``scale``."""
-    from .datasets import dataset_cameras, sparse_folder
+    ``poses_bounds.npy`` (all its views); the cameras a 3DGS capture comes with (all their
+    views): an INRIA ``cameras.json``, a nerfstudio / instant-ngp ``transforms.json``, or a
+    folder holding one (a trained INRIA model folder). File cameras are scaled by ``scale``."""
+    from .datasets import dataset_cameras
 
     m = re.fullmatch(r"orbit:(\d+)", spec.strip())
     if m:
         return orbit_cameras(positions, int(m.group(1)), width=width, height=height)
     p = Path(spec)
-    if p.is_file() and p.suffix == ".json":
-        mm = re.fullmatch(r"transforms_(\w+)\.json", p.name)
-        if not mm:
-            raise InputError(f"{p}: expected a NeRF-synthetic transforms_<split>.json")
+    mm = re.fullmatch(r"transforms_(\w+)\.json", p.name)
+    if p.is_file() and mm:
         cams = load_nerf_synthetic(p.parent, mm.group(1), load_images=False)
+    elif p.is_file() and p.suffix == ".json":
+        cams = load_capture_cameras(p)
     elif p.is_file() and p.name == "poses_bounds.npy":
         cams = load_llff(p.parent, load_images=False)
     elif p.is_dir() and (p / "transforms_train.json").is_file():
@@ -79,9 +81,13 @@ def cameras_from_spec(spec: str, positions: np.ndarray, *, width: int = 256, hei
         cams, _ = load_colmap(p)  # a bare sparse model folder: all its views
     elif p.is_dir() and (sparse_folder(p) is not None or (p / "poses_bounds.npy").is_file()):
         cams = dataset_cameras(p, split)
+    elif p.is_dir() and any((p / f).is_file() for f in ("cameras.json", "transforms.json")):
+        cams = load_capture_cameras(p)
     else:
         raise InputError(f"{spec}: not 'orbit:N', a dataset folder (transforms_train.json, sparse/0, "
-                         "poses_bounds.npy), a transforms JSON, a COLMAP sparse folder or a poses_bounds.npy")
+                         "poses_bounds.npy), a transforms JSON, a COLMAP sparse folder, a poses_bounds.npy, or "
+                         "a 3DGS capture's cameras.json (INRIA) or transforms.json (nerfstudio), or a folder "
+                         "holding one")
     if not cams:
         raise InputError(f"{spec}: no cameras")
     return [c.scaled(scale) for c in cams] if scale != 1.0 else cams
