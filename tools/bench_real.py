@@ -34,7 +34,11 @@ upright with -y), so give the axis when you know it. The table says which was us
 
 Orbit: ``--views`` cameras (default 12) at ``--elevation`` degrees (20) on a circle around the
 scene's robust box (render/views.py orbit_cameras), ``--size`` px square (320), 50 degree field
-of view, black background; PSNR and SSIM are the means over the views.
+of view, black background; PSNR and SSIM are the means over the views. ``--cameras PATH``
+evaluates from those cameras instead (what lghcc's load_capture_cameras reads: an INRIA
+cameras.json, a COLMAP sparse folder, a transforms.json), each at ``--size`` squared pixels, for
+scenes watched from inside (a room from where its viewers stand); the importance pruning of the
+SPZ curve then measures on them too, and ``LABEL=PATH`` names the section apart from the orbit's.
 
 Importance pruning keeps the top x% of Gaussians by contribution (sum over views and pixels of
 alpha T, render/importance.py) seen from ``--importance-views`` cameras on a Fibonacci sphere
@@ -150,6 +154,25 @@ def orbit(means: np.ndarray, views: int, size: int, up: str, elevation: float = 
     from lghcc.render.views import orbit_cameras
 
     return orbit_cameras(means, views, width=size, height=size, elevation_deg=elevation, up=parse_up(up))
+
+
+def evaluation_cameras(args, means: np.ndarray, up: str) -> list:
+    """The orbit, or the cameras of ``--cameras``, each at --size squared pixels."""
+    if not args.cameras:
+        return orbit(means, args.views, args.size, up, args.elevation)
+    from lghcc.render.camera import load_capture_cameras
+
+    return [c.scaled(args.size / math.sqrt(c.width * c.height)) for c in load_capture_cameras(args.cameras)]
+
+
+def cameras_digest(path: Path) -> str:
+    """SHA-256 of a cameras file, or of a folder's files (names and contents)."""
+    h = hashlib.sha256()
+    for p in sorted(path.rglob("*")) if path.is_dir() else [path]:
+        if p.is_file():
+            h.update(str(p.relative_to(path) if path.is_dir() else p.name).encode())
+            h.update(p.read_bytes())
+    return h.hexdigest()
 
 
 # --- equal PSNR -----------------------------------------------------------------------------
@@ -426,8 +449,10 @@ class SceneRun:
         key = dict(v=CACHE_VERSION, views=args.views, size=args.size, up=self.up, elevation=args.elevation,
                    background=args.background, splat_transform=pinned_version(),
                    importance=[args.importance_views, args.importance_size])
+        if args.cameras:
+            key["cameras"] = cameras_digest(Path(args.cameras))
         self.cache = SceneCache(Path(args.work), spec.slug, self.file_hash, key, args.fresh)
-        self.cams = orbit(self.scene.means, args.views, args.size, self.up, args.elevation)
+        self.cams = evaluation_cameras(args, self.scene.means, self.up)
         self.ev = Evaluator(self.cams, background_color(args.background))
         refs_path = self.cache.dir / "source_renders.npy"
         if refs_path.exists():
@@ -491,9 +516,10 @@ class SceneRun:
         g = gaussians_from_scene(self.scene)
         centre, radius = g.bounds()
         cams = sphere_cameras(centre, radius, self.args.importance_views, resolution=self.args.importance_size,
-                              prefix="importance")
-        log(f"{self.spec.slug}: importance of each Gaussian from {len(cams)} Fibonacci-sphere views "
-            f"{self.args.importance_size}px (not the evaluation orbit) ...")
+                              prefix="importance") if not self.args.cameras else self.cams
+        log(f"{self.spec.slug}: importance of each Gaussian from {len(cams)} "
+            + (f"Fibonacci-sphere views {self.args.importance_size}px (not the evaluation orbit) ..."
+               if not self.args.cameras else "evaluation cameras ..."))
         t0 = time.perf_counter()
         c = gaussian_contributions(g.means, g.quats, g.scales, g.opacities, cams)
         np.save(path, c)
@@ -781,6 +807,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--views", type=int, default=12, help="orbit views (default 12)")
     ap.add_argument("--size", type=int, default=320, help="render width and height (default 320)")
     ap.add_argument("--elevation", type=float, default=20.0, help="orbit elevation in degrees (default 20)")
+    ap.add_argument("--cameras", help="evaluate from these cameras instead of the orbit (an INRIA cameras.json, a "
+                                      "COLMAP sparse folder, a transforms.json), each at --size squared pixels")
     ap.add_argument("--background", default="black", choices=("black", "white"))
     ap.add_argument("--formats", default="spz,sog,cply", help="splat-transform formats (default spz,sog,cply)")
     ap.add_argument("--spz-keep", default="90,80,70,60,50,40,30",
@@ -885,8 +913,10 @@ def main(argv: list[str] | None = None) -> int:
                 f"{PACKAGE} {pinned_version()} (SPZ v4) on node {node_version()}; shared 2-core VM, load "
                 f"{load_average()} at the end (timings are noisy).  ",
                 f"Scene: `{display_path(spec)}`, {size:,} B, SHA-256 {run.file_hash[:16]}... "
-                f"Renders: {args.views} orbit views {args.size}x{args.size}, elevation {args.elevation:g} deg, "
-                f"field of view 50 deg, {args.background} background, up {run.up} "
+                + (f"Renders: {args.views} orbit views {args.size}x{args.size}, elevation {args.elevation:g} deg, "
+                   "field of view 50 deg, " if not args.cameras else
+                   f"Renders: the {len(run.cams)} cameras of `{args.cameras}` at {args.size}^2 pixels each, ")
+                + f"{args.background} background, up {run.up} "
                 f"({UP_WHY.get(run.up_why, run.up_why)}). "
                 "PSNR/SSIM: mean over the views of the decoded scene's renders against the source renders "
                 "(render/gaussians3dgs.py, our CPU rasterizer; SSIM as 3DGS, in float32).  ",

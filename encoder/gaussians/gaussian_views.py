@@ -106,26 +106,33 @@ def resolving_views(scene: GaussianScene, n: int, resolution: int, resolve_px: f
     return cams + crop_cameras(scene, n, resolution, m) if m > 1 else cams
 
 
-def prune_by_contribution(contrib: np.ndarray, share: float) -> np.ndarray:
-    """bool [N]: keep all but the least contributing Gaussians whose contributions add up to at
-    most ``share`` of the total. Given each Gaussian's largest share of any one view
-    (render/importance.py ``Contributions.view_share``) as ``contrib``, the bound holds for every
-    view: the pruned Gaussians' shares of a view add up to at most the sum of their largest shares,
-    so no view loses more than ``share`` of what it shows (more exactly: of its compositing weight),
-    however few views see them; ranked by their share of all views together, the Gaussians only one
-    viewpoint sees (a room's inside from its middle) would go first."""
-    keep = np.ones(contrib.shape[0], dtype=bool)
-    total = float(contrib.sum())
-    if share <= 0 or total <= 0:
+def _drop_least(key: np.ndarray, budget: float) -> np.ndarray:
+    """bool [N]: keep all but the Gaussians of least ``key`` whose keys add up to at most ``budget``
+    (never all of them)."""
+    keep = np.ones(key.shape[0], dtype=bool)
+    if budget <= 0:
         return keep
-    order = np.argsort(contrib, kind="stable")
-    cum = np.cumsum(contrib[order])
-    drop = int(np.searchsorted(cum, share * total, side="right"))
-    drop = min(drop, contrib.shape[0] - 1)  # never drop the whole scene
-    keep[order[:drop]] = False
+    order = np.argsort(key, kind="stable")
+    drop = int(np.searchsorted(np.cumsum(key[order]), budget, side="right"))
+    keep[order[:min(drop, key.shape[0] - 1)]] = False  # never drop the whole scene
     return keep
 
 
+def prune_by_contribution(contrib: np.ndarray, share: float) -> np.ndarray:
+    """bool [N]: keep all but the least contributing Gaussians whose contributions add up to at
+    most ``share`` of the total."""
+    total = float(contrib.sum())
+    return _drop_least(contrib, share * total) if share > 0 and total > 0 else np.ones(contrib.shape[0], bool)
+
+
+def prune_by_view_share(view_share: np.ndarray, share: float) -> np.ndarray:
+    """bool [N]: keep all but the Gaussians of least largest share of one view (render/importance.py
+    ``Contributions.view_share``) whose largest shares add up to at most ``share``. The pruned
+    Gaussians' shares of any view add up to at most the sum of their largest shares, so no view
+    loses more than ``share`` of what it shows (its compositing weight), however few views see
+    them; ranked by their share of all the views together, the Gaussians that one viewpoint alone
+    sees (a room's inside from its middle) would go first."""
+    return _drop_least(view_share, share)
 
 
 # The field of view of the views from inside, degrees: a viewer's, wide enough that the views

@@ -37,7 +37,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from ...common.scene import GaussianScene
-from .gaussian_views import prune_by_contribution
+from .gaussian_views import prune_by_contribution, prune_by_view_share
 
 # A pruned Gaussian merges into a kept one within this many times the sum of their largest scales.
 # On playbot lod4 at low's steps with 10% of the contribution pruned (no fit), 0.5 / 1 / 2 gave
@@ -186,7 +186,7 @@ def pruned_scene(scene: GaussianScene, contrib: np.ndarray, share: float, mode: 
     Gaussians dropped (``mode`` "drop") or merged into their kept neighbours ("merge") -> (which
     Gaussians were kept, the kept scene, their contributions: under merge with those merged into
     each added)."""
-    keep = prune_by_contribution(contrib if view_share is None else view_share, share)
+    keep = prune_by_contribution(contrib, share) if view_share is None else prune_by_view_share(view_share, share)
     if mode != "merge" or keep.all():
         return keep, scene.subset(keep), contrib[keep]
     target = merge_targets(scene, keep)

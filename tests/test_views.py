@@ -1,0 +1,197 @@
+"""Where the explicit-Gaussian encoder looks from (issue 52): the object / inside decision, the views
+of each kind, the capture's cameras, pruning bounded per view, and the check on held-back views."""
+
+import json
+import os
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lghcc.common.scene import GaussianScene
+from lghcc.encoder.gaussians.free_space import OccupancyGrid, watched_from
+from lghcc.encoder.gaussians.gaussian_views import (ORBIT, SceneViews, cropped, prune_by_view_share,
+                                                    resolving_views, scene_views)
+from lghcc.formats.procedural import (ROOM_PARTS, make_room_scene, room_inside_cameras, room_scene_parts,
+                                      smooth_gaussian_scene)
+from lghcc.render.camera import Camera
+
+
+def _box_shell(lo, hi, n: int, rng) -> np.ndarray:
+    """n points on each of the six faces of the box [lo, hi]."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    faces = []
+    for axis in range(3):
+        for side in (lo, hi):
+            p = rng.uniform(lo, hi, (n, 3))
+            p[:, axis] = side[axis]
+            faces.append(p)
+    return np.concatenate(faces)
+
+
+def _points_scene(points: np.ndarray, log_scale: float = -4.0) -> GaussianScene:
+    n = points.shape[0]
+    return GaussianScene(points.astype(np.float32), np.zeros((n, 1, 3), np.float32), np.full(n, 3.0, np.float32),
+                         np.full((n, 3), log_scale, np.float32), np.tile(np.float32([1, 0, 0, 0]), (n, 1)))
+
+
+def test_a_room_is_watched_from_inside_and_its_viewpoints_are_in_its_free_space():
+    scene = make_room_scene(20_000)
+    found = watched_from(scene)
+    assert found.kind == "inside", found.reason
+    lo, hi = np.quantile(scene.means, 0.01, axis=0), np.quantile(scene.means, 0.99, axis=0)
+    assert found.eyes.shape == (3, 3)
+    assert np.all((found.eyes > lo) & (found.eyes < hi))
+    # no content right at a viewpoint: each is at least a few cells from the nearest Gaussian
+    grid = OccupancyGrid.of(scene.means.astype(np.float64))
+    nearest = np.min(np.linalg.norm(scene.means[None, :, :] - found.eyes[:, None, :], axis=2), axis=1)
+    assert np.all(nearest > 2 * grid.cell)
+
+
+def test_objects_are_watched_from_around_them():
+    rng = np.random.default_rng(0)
+    assert watched_from(smooth_gaussian_scene(3000, 0)).kind == "orbit"
+    d = rng.normal(size=(6000, 3))
+    ball = _points_scene(d / np.linalg.norm(d, axis=1, keepdims=True))  # a thin closed shell: a small cavity
+    solid = _points_scene(rng.uniform(-1, 1, (6000, 3)))
+    assert watched_from(solid).kind == "orbit"
+    # a closed sphere's inside is a third of its box, enclosed: geometry alone cannot tell it from a
+    # room; the decision is inside or both, never a silent orbit that prunes what is seen inside
+    assert watched_from(ball).kind in ("inside", "both")
+
+
+@pytest.mark.parametrize("points", [np.zeros((50, 3)), np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]] * 20)])
+def test_degenerate_scenes_are_objects(points):
+    """A scene of one point, or on a line: no free space, an orbit, no error."""
+    assert watched_from(_points_scene(points)).kind == "orbit"
+
+
+def test_the_orbit_kind_gives_the_views_the_encoder_always_gave():
+    scene = smooth_gaussian_scene(2000, 1)
+    a, b = ORBIT.cameras(scene, 6, 64, 0.1), resolving_views(scene, 6, 64, 0.1)
+    assert [c.name for c in a] == [c.name for c in b]
+    assert all(np.array_equal(x.world_to_camera, y.world_to_camera) and x.fx == y.fx for x, y in zip(a, b))
+
+
+def test_inside_views_look_outward_from_the_viewpoints_in_every_direction():
+    scene = make_room_scene(20_000)
+    views = scene_views(scene, "inside")
+    cams = views.whole_views(scene, 12, 64)
+    assert len(cams) == 12 and all(c.width == c.height == 64 for c in cams)
+    eyes = {tuple(np.round(c.center, 6)) for c in cams}
+    assert eyes == {tuple(np.round(e, 6)) for e in views.eyes}
+    forward = np.array([c.forward for c in cams])
+    assert np.abs(forward.mean(axis=0)).max() < 0.2  # spread over the sphere
+    assert all(abs(np.degrees(c.fov_x) - 90) < 1e-6 for c in cams)
+    held = views.whole_views(scene, 12, 64, held_back=True)
+    assert not any(np.allclose(h.world_to_camera, c.world_to_camera) for h in held for c in cams)
+
+
+def test_both_splits_the_views_between_the_kinds():
+    scene = make_room_scene(20_000)
+    both = scene_views(scene, "both")
+    cams = both.whole_views(scene, 7, 32)
+    assert len(cams) == 7 and sum(c.name.startswith("fit_") for c in cams) == 4
+
+
+def _capture(n: int) -> list[Camera]:
+    angles = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    return [Camera.look_at((3 * np.cos(a), 3 * np.sin(a), 1.0), (0, 0, 0), width=320, height=180, fov_x_deg=60,
+                           name=f"cap{i}") for i, a in enumerate(angles)]
+
+
+def test_the_capture_cameras_are_used_as_a_spread_subset_at_the_views_pixel_count():
+    scene = smooth_gaussian_scene(2000, 0)
+    views = scene_views(scene, "auto", _capture(40))
+    assert views.kind == "capture"
+    cams = views.whole_views(scene, 8, 100)
+    assert len(cams) == 8 and all(abs(c.width * c.height - 100 * 100) < 300 for c in cams)
+    assert all(abs(c.width / c.height - 320 / 180) < 0.02 for c in cams)
+    centres = np.array([c.center for c in cams])
+    gaps = np.linalg.norm(centres[:, None] - centres[None], axis=2) + np.eye(8) * 99
+    assert gaps.min() > 0.5  # spread round the circle (neighbours are 0.47 apart)
+    held = {c.name for c in views.whole_views(scene, 8, 100, held_back=True)}
+    assert held.isdisjoint({c.name for c in views.whole_views(scene, 24, 100)})
+
+
+def test_a_crop_shows_the_window_of_its_view_magnified():
+    cam = Camera.look_at((0, -4, 0), (0, 0, 0), width=80, height=60, fov_x_deg=60)
+    crop = cropped(cam, 4.0, (20.0, 45.0), "c")
+    points = np.array([[0.3, 0.2, -0.4], [-1.0, 0.5, 0.1]])
+    (uv, _), (uv2, _) = cam.project(points), crop.project(points)
+    np.testing.assert_allclose(uv2, 4.0 * (uv - [20.0, 45.0]) + [40.0, 30.0], atol=1e-9)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 6), st.integers(2, 60), st.floats(0.0, 0.5), st.integers(0, 2 ** 31))
+def test_pruning_by_largest_view_share_bounds_what_every_view_loses(views, n, share, seed):
+    """Pruned by each Gaussian's largest share of one view, no view loses more than ``share`` of
+    its contribution, however the Gaussians are spread over the views."""
+    rng = np.random.default_rng(seed)
+    w = rng.exponential(size=(views, n)) * (rng.random((views, n)) < 0.5)  # many seen by few views
+    w[:, 0] += 1e-3  # every view sees something
+    view_share = (w / w.sum(axis=1, keepdims=True)).max(axis=0)
+    keep = prune_by_view_share(view_share, share)
+    lost = w[:, ~keep].sum(axis=1) / w.sum(axis=1)
+    assert np.all(lost <= share + 1e-12) and keep.any()
+
+
+def test_inside_views_keep_what_the_orbit_prunes_in_a_room():
+    """The room's furniture is hidden from the orbit: pruned by orbit contributions it goes (all but
+    14% at 1% of any view, 48 px views of 12k Gaussians); measured from inside, what the views show
+    of it stays (62%: the rest is hidden behind or under furniture), and the outside of the walls,
+    which no inside view shows, goes instead."""
+    from lghcc.encoder.gaussians.gaussian_fit import measure_contributions
+    from lghcc.render.gaussians3dgs import gaussians_from_scene
+
+    scene, parts = room_scene_parts(12_000, 0, 0)
+    furniture = parts == ROOM_PARTS.index("furniture")
+    g = gaussians_from_scene(scene)
+    kept = {}
+    for kind in ("orbit", "inside"):
+        views = scene_views(scene, kind)
+        c = measure_contributions(g, views.contribution_cameras(scene, 12, 48, 0.0), False)
+        kept[kind] = prune_by_view_share(c.view_share, 0.01)
+    exterior = parts == ROOM_PARTS.index("exterior")
+    assert kept["orbit"][furniture].mean() < 0.25 and kept["inside"][furniture].mean() > 0.5
+    assert kept["orbit"][exterior].all() and kept["inside"][exterior].mean() < 0.75
+
+
+def test_lghcc_enc_uses_the_cameras_of_an_inria_training_output(tmp_path):
+    """A PLY in the INRIA layout: lghcc-enc finds <model>/cameras.json, says so, measures from those
+    cameras and checks the stream on others of them; --no-cameras and --views place views itself."""
+    from lghcc.encoder.cli import main
+    from lghcc.formats import write_scene
+
+    model = tmp_path / "model"
+    ply = model / "point_cloud" / "iteration_7000" / "point_cloud.ply"
+    ply.parent.mkdir(parents=True)
+    scene = make_room_scene(3000)
+    write_scene(scene, ply)
+    entries = []
+    for i, c in enumerate(room_inside_cameras(n=20, size=64)):
+        c2w = c.camera_to_world
+        entries.append({"id": i, "img_name": c.name, "width": c.width, "height": c.height,
+                        "position": c2w[:3, 3].tolist(), "rotation": c2w[:3, :3].tolist(), "fx": c.fx, "fy": c.fy})
+    (model / "cameras.json").write_text(json.dumps(entries))
+    report = tmp_path / "r.json"
+    args = [str(ply), "-o", str(tmp_path / "s.lghcc"), "--preset", "low", "--json", str(report), "-q",
+            "--config", str(_small_config(tmp_path))]
+    assert main(args) == 0
+    stats = json.loads(report.read_text())["stats"]
+    assert stats["prepare_views"] == "capture" and stats["prepare_gaussians_in"] == 3000
+    assert stats["prepare_held_back_views"] == 4 and stats["prepare_held_back_psnr"] > 20
+    assert main(args + ["-y", "--views", "orbit"]) == 0
+    assert json.loads(report.read_text())["stats"]["prepare_views"] == "orbit"
+    assert main(args + ["-y", "--cameras", str(model), "--views", "inside"]) == 2  # contradicting options
+    assert main(args + ["-y", "--cameras", str(tmp_path / "none.json")]) == 1
+
+
+def _small_config(tmp_path):
+    path = tmp_path / "small.yaml"
+    path.write_text("fit_views: 16\nfit_resolution: 32\nsearch_views: 4\nsearch_resolution: 32\n"
+                    "search_reference_gaussians: 0\ncheck_views: 4\ncheck_resolution: 32\nfit_iterations: 0\n")
+    return path
