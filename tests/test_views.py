@@ -195,3 +195,18 @@ def _small_config(tmp_path):
     path.write_text("fit_views: 16\nfit_resolution: 32\nsearch_views: 4\nsearch_resolution: 32\n"
                     "search_reference_gaussians: 0\ncheck_views: 4\ncheck_resolution: 32\nfit_iterations: 0\n")
     return path
+
+
+def test_bench_views_decides_the_built_scenes(tmp_path):
+    """tools/bench_views.py on the built scenes whose answer is known."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "tools" / "bench_views.py"
+    spec = importlib.util.spec_from_file_location("bench_views", path)
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    out = tmp_path / "views.md"
+    assert tool.main(["--scenes", "room,solid-cube", "--out", str(out)]) == 0
+    rows = [line for line in out.read_text().splitlines() if line.startswith("| room") or line.startswith("| solid")]
+    assert "**inside**" in rows[0] and "**orbit**" in rows[1]
