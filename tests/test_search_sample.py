@@ -18,8 +18,11 @@ from lghcc.encoder.gaussians.search_sample import SAMPLE_CELLS, morton_keys, sea
 from test_gaussians import random_gaussians
 
 # the settings of a search small enough for a test (2 views of 32 px, a few fitting steps)
+# landing_views=0: the trim after the fit and the whole-scene check, which the landing on larger
+# views replaces by default (tests/test_views.py tests the landing)
 SMALL = dict(target_psnr=35.0, search_views=2, search_resolution=32, fit_views=2, fit_resolution=32,
-             fit_iterations=3, search_reference_gaussians=0, resolve_px=0.0, step_adjust_max=7)
+             fit_iterations=3, search_reference_gaussians=0, resolve_px=0.0, step_adjust_max=7, landing_views=0,
+             check_views=2, check_resolution=32)
 
 
 def _clusters(rng, n, k=6):

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from lghcc.common.scene import GaussianScene
 from lghcc.encoder.gaussians.free_space import OccupancyGrid, watched_from
-from lghcc.encoder.gaussians.gaussian_views import (ORBIT, SceneViews, cropped, prune_by_view_share,
+from lghcc.encoder.gaussians.gaussian_views import (CHECK_VIEWS, LANDING_VIEWS, ORBIT, SceneViews, cropped, prune_by_view_share,
                                                     resolving_views, scene_views)
 from lghcc.formats.procedural import (ROOM_PARTS, make_room_scene, room_inside_cameras, room_scene_parts,
                                       smooth_gaussian_scene)
@@ -86,7 +86,7 @@ def test_inside_views_look_outward_from_the_viewpoints_in_every_direction():
     forward = np.array([c.forward for c in cams])
     assert np.abs(forward.mean(axis=0)).max() < 0.2  # spread over the sphere
     assert all(abs(np.degrees(c.fov_x) - 90) < 1e-6 for c in cams)
-    held = views.whole_views(scene, 12, 64, held_back=True)
+    held = views.held(CHECK_VIEWS).whole_views(scene, 12, 64) + views.held(LANDING_VIEWS).whole_views(scene, 12, 64)
     assert not any(np.allclose(h.world_to_camera, c.world_to_camera) for h in held for c in cams)
 
 
@@ -113,8 +113,10 @@ def test_the_capture_cameras_are_used_as_a_spread_subset_at_the_views_pixel_coun
     centres = np.array([c.center for c in cams])
     gaps = np.linalg.norm(centres[:, None] - centres[None], axis=2) + np.eye(8) * 99
     assert gaps.min() > 0.5  # spread round the circle (neighbours are 0.47 apart)
-    held = {c.name for c in views.whole_views(scene, 8, 100, held_back=True)}
-    assert held.isdisjoint({c.name for c in views.whole_views(scene, 24, 100)})
+    check = {c.name for c in views.held(CHECK_VIEWS).whole_views(scene, 8, 100)}
+    landing = {c.name for c in views.held(LANDING_VIEWS).whole_views(scene, 8, 100)}
+    assert len(check) == len(landing) == 8 and check.isdisjoint(landing)
+    assert (check | landing).isdisjoint({c.name for c in views.whole_views(scene, 24, 100)})
 
 
 def test_a_crop_shows_the_window_of_its_view_magnified():
@@ -193,7 +195,8 @@ def test_lghcc_enc_uses_the_cameras_of_an_inria_training_output(tmp_path):
 def _small_config(tmp_path):
     path = tmp_path / "small.yaml"
     path.write_text("fit_views: 16\nfit_resolution: 32\nsearch_views: 4\nsearch_resolution: 32\n"
-                    "search_reference_gaussians: 0\ncheck_views: 4\ncheck_resolution: 32\nfit_iterations: 0\n")
+                    "search_reference_gaussians: 0\ncheck_views: 4\ncheck_resolution: 32\nfit_iterations: 0\n"
+                    "landing_views: 4\nlanding_resolution: 32\n")
     return path
 
 
@@ -210,3 +213,20 @@ def test_bench_views_decides_the_built_scenes(tmp_path):
     assert tool.main(["--scenes", "room,solid-cube", "--out", str(out)]) == 0
     rows = [line for line in out.read_text().splitlines() if line.startswith("| room") or line.startswith("| solid")]
     assert "**inside**" in rows[0] and "**orbit**" in rows[1]
+
+
+def test_the_landing_moves_the_steps_onto_the_target_on_its_own_views():
+    """With a target, the prepared scene's steps are moved onto it on the landing views (larger
+    than the search's, none of the search's or the check's), in the place of the trim."""
+    from lghcc.encoder.gaussians.gaussian_fit import prepare_gaussians
+    from lghcc.encoder.stream.config import GaussianEncoderConfig
+
+    scene = smooth_gaussian_scene(1500, 1, seed=3)
+    base = dict(target_psnr=38.0, search_views=2, search_resolution=32, fit_views=4, fit_resolution=32,
+                fit_iterations=3, search_reference_gaussians=0, resolve_px=0.0, landing_resolution=64,
+                landing_views=3)
+    landed = prepare_gaussians(scene, GaussianEncoderConfig(**base))
+    assert landed.stats.landing_trials >= 1 and landed.stats.time_trim_s is None
+    legacy = prepare_gaussians(scene, GaussianEncoderConfig(**{**base, "landing_views": 0}))
+    assert legacy.stats.landing_trials is None and legacy.stats.time_trim_s is not None
+    assert landed.cfg.search_views == 2 and landed.cfg.search_resolution == 32  # the search's plan kept

@@ -58,7 +58,7 @@ from ...common.attributes import STEP_ADJUST_FACTORS
 from ...common.scene import GaussianScene
 from ..stream.config import GaussianEncoderConfig
 from .gaussian_grid import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid
-from .gaussian_views import SceneViews, scene_views
+from .gaussian_views import CHECK_VIEWS, LANDING_VIEWS, SceneViews, scene_views
 from .merging import pruned_scene
 from ..stream.stats import PrepareStats
 from ...render.camera import Camera
@@ -376,6 +376,25 @@ def whole_scene_check(scene: GaussianScene, weights: np.ndarray, sensitivity: np
     return cfg
 
 
+def land_on_target(scene: GaussianScene, weights: np.ndarray, sensitivity: np.ndarray | None,
+                   cfg: GaussianEncoderConfig, views: SceneViews, stats: PrepareStats, say) -> GaussianEncoderConfig:
+    """With a quality asked for, the prepared scene's attribute steps moved onto it by one common
+    factor (``meet_on_whole_scene``) on ``landing_views`` views of ``landing_resolution`` px of the
+    landing set (SceneViews.held): larger views than the search's, which no other stage renders, in
+    the place of the trim and the whole-scene check. The settings as they are otherwise."""
+    if not cfg.target_psnr > 0:
+        return cfg
+    from .gaussian_rd import SceneRenders, meet_on_whole_scene
+
+    t0 = time.perf_counter()
+    on_landing = dataclasses.replace(cfg, search_views=cfg.landing_views, search_resolution=cfg.landing_resolution)
+    chosen, trials = meet_on_whole_scene(scene, weights, on_landing, sensitivity=sensitivity, log=say,
+                                         renders=SceneRenders(scene, views.held(LANDING_VIEWS)),
+                                         where=f"on {cfg.landing_views} landing views of {cfg.landing_resolution} px")
+    stats.time_landing_s, stats.landing_trials = time.perf_counter() - t0, len(trials)
+    return dataclasses.replace(chosen, search_views=cfg.search_views, search_resolution=cfg.search_resolution)
+
+
 def needs_preparation(cfg: GaussianEncoderConfig) -> bool:
     """Whether the settings ask for anything that renders (a search, pruning, a fit); the fast
     preset asks for none and is coded as it comes."""
@@ -414,7 +433,9 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, views
         grid = fit_to_renders(grid, g, cams, fit_steps(cfg, grid.num_gaussians), stats, say, progress, sensitivity)
     from .gaussian_rd import SceneRenders
     renders = SceneRenders(grid, views)  # the prepared scene's search renders: the trim's or the check's
-    if sample is not None:
+    if cfg.landing_views > 0:
+        cfg = land_on_target(grid, weights, sensitivity, cfg, views, stats, say)
+    elif sample is not None:
         # no trim on the sample first: it moved the attribute steps by one common factor, as the
         # check does, against the ratio measured before the fit (off by -0.4 to +1.4 dB after it at
         # 300k and 1M), and cost 2 whole renders per view besides its trials (tools/results/scale.md)
@@ -435,7 +456,7 @@ def check_on_held_back_views(source: GaussianScene, decoded: GaussianScene, view
     from .gaussian_rd import whole_scene_renders
 
     t0 = time.perf_counter()
-    cams = views.whole_views(source, cfg.check_views, cfg.check_resolution, held_back=True)
+    cams = views.held(CHECK_VIEWS).whole_views(source, cfg.check_views, cfg.check_resolution)
     if not cams:
         return
     mse = [float(((a.clamp(0, 1) - b.clamp(0, 1)) ** 2).double().mean())

@@ -848,15 +848,15 @@ def on_sample(cfg: GaussianEncoderConfig, ratio: float) -> GaussianEncoderConfig
 
 
 def meet_on_whole_scene(scene: GaussianScene, weights: np.ndarray, cfg: GaussianEncoderConfig, *,
-                        sensitivity: np.ndarray | None = None, log=None,
-                        renders: SceneRenders | None = None) -> tuple[GaussianEncoderConfig, list[Trial]]:
+                        sensitivity: np.ndarray | None = None, log=None, renders: SceneRenders | None = None,
+                        where: str = "on the whole scene") -> tuple[GaussianEncoderConfig, list[Trial]]:
     """The check of settings chosen on a sample against ``cfg.target_psnr`` on the whole (fitted,
     pruned) scene, less WHOLE_SCENE_MISS: one trial; while the fewest bits that meet it are off it
     by more than TARGET_TOLERANCE (or none meets it), every attribute step times one common factor
     (``common_factor_move``, first with k = WHOLE_SCENE_FIRST_EXPONENT, at most WHOLE_SCENE_MOVES
     trials more: at most 6 whole-scene trials). Of
     the trials that meet the target, the fewest bits; the least error where none does (``renders``:
-    the scene's). It starts from the search's settings: a trim on the sample before it moved the same
+    the scene's; ``where`` names them in the log). It starts from the search's settings: a trim on the sample before it moved the same
     common factor against the ratio measured before the fit, which the fit moves (at 1M its settings
     measured 1.2 dB short here), for two whole renders per view and 5 trials of the sample
     (tools/results/scale.md). -> (settings, trials)."""
@@ -869,7 +869,7 @@ def meet_on_whole_scene(scene: GaussianScene, weights: np.ndarray, cfg: Gaussian
                                  first_exponent=WHOLE_SCENE_FIRST_EXPONENT)
     before, best = tried[1.0], fewest_bits_meeting(s.trials, target_mse)
     if log:
-        log(f"settings on the whole scene: {-10 * math.log10(max(before.mse, 1e-12)):.2f} dB at "
+        log(f"settings {where}: {-10 * math.log10(max(before.mse, 1e-12)):.2f} dB at "
             f"{before.bits / 8:,.0f} B" + ("" if best is before else
                                           f" -> {-10 * math.log10(max(best.mse, 1e-12)):.2f} dB at "
                                           f"{best.bits / 8:,.0f} B") + f" (estimated, {len(s.trials)} trials: " +

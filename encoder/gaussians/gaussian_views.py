@@ -97,11 +97,12 @@ def crop_cameras(scene: GaussianScene, n: int, resolution: int, magnification: f
             for j, (d, aim) in enumerate(zip(fibonacci_sphere(n, offset=0.25), aims))]
 
 
-def resolving_views(scene: GaussianScene, n: int, resolution: int, resolve_px: float) -> list[Camera]:
+def resolving_views(scene: GaussianScene, n: int, resolution: int, resolve_px: float,
+                    offset: float = 0.5) -> list[Camera]:
     """The n orbit views, plus n magnified crops when the orbit views at ``resolution`` do not
     resolve the scene's typical Gaussian (``magnification`` > 1): what the fit and the settings
     search render. A scene whose Gaussians the orbit views resolve renders only those."""
-    cams = fit_cameras(scene, n, resolution)
+    cams = fit_cameras(scene, n, resolution, offset=offset)
     m = magnification(scene, resolution, resolve_px)
     return cams + crop_cameras(scene, n, resolution, m) if m > 1 else cams
 
@@ -167,29 +168,54 @@ def _crops(cams: list[Camera], m: float, seed: int = 0) -> list[Camera]:
     return out
 
 
+# The views' sets (SceneViews.view_set): the encoder's own (the fit, the sensitivities, the search),
+# the landing's (the steps moved onto the target on larger views, gaussian_fit.py land_on_target) and
+# the check's (the decoded scene's PSNR reported): none sees through another's cameras.
+ENCODER_VIEWS, LANDING_VIEWS, CHECK_VIEWS = 0, 1, 2
+# the offset of each set's spiral of directions (fibonacci_sphere), and how far its viewpoints inside
+# move towards their middle
+_SPIRAL = (0.5, 0.8, 0.2)
+_TOWARDS_MIDDLE = (0.0, 1 / 3, 2 / 3)
+
+
 @dataclass(frozen=True)
 class SceneViews:
     """Where the encoder looks at a scene from (module doc), fixed once on the source scene so that
     the search, the sensitivities, the pruning, the fit and the trim measure from the same places.
     The orbit is placed around whichever scene it is asked for (the source, a sample, the fitted
-    grid: as it always was); the viewpoints inside and the capture's cameras stay where they are."""
+    grid: as it always was); the viewpoints inside and the capture's cameras stay where they are.
+    ``view_set``: which of the sets of views of the same kind (ENCODER_VIEWS, LANDING_VIEWS,
+    CHECK_VIEWS; ``held``)."""
     kind: str  # orbit | inside | both | capture
     eyes: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # [P, 3] viewpoints inside
     capture: tuple[Camera, ...] = ()  # the capture's cameras, in spread order (the first n spread best)
     depth: float = 1.0  # median distance from the viewpoints to the scene (inside, capture)
     size: float = 0.0  # the scene's typical Gaussian size (inside, capture; for the magnification)
     reason: str = ""
+    view_set: int = ENCODER_VIEWS
 
-    def _inside(self, n: int, resolution: int, held_back: bool = False) -> list[Camera]:
-        eyes = self.eyes if not held_back else (self.eyes + self.eyes.mean(axis=0)) / 2
+    def held(self, view_set: int) -> SceneViews:
+        """The same kind of views, another set: other directions, other viewpoints inside (moved
+        towards their middle), other cameras of the capture (from the end of its spread order; they
+        repeat the encoder's only where the capture has fewer than the views asked of every set)."""
+        return dataclasses.replace(self, view_set=view_set)
+
+    def _inside(self, n: int, resolution: int) -> list[Camera]:
+        eyes = self.eyes + _TOWARDS_MIDDLE[self.view_set] * (self.eyes.mean(axis=0) - self.eyes)
         near = max(self.depth * 1e-3, 1e-9)
-        dirs = fibonacci_sphere(n, offset=0.75 if held_back else 0.5)
         return [_inside_camera(eyes[j % eyes.shape[0]], d, resolution, INSIDE_FOV_DEG, near,
-                               f"{'held' if held_back else 'inside'}_{j:03d}") for j, d in enumerate(dirs)]
+                               f"inside{self.view_set}_{j:03d}")
+                for j, d in enumerate(fibonacci_sphere(n, offset=_SPIRAL[self.view_set]))]
 
-    def _capture(self, n: int, resolution: int, held_back: bool = False) -> list[Camera]:
-        cams = self.capture[-n:] if held_back else self.capture[:n]
+    def _capture(self, n: int, resolution: int) -> list[Camera]:
+        k, count = self.view_set, len(self.capture)
+        end = max(count - (k - 1) * n, min(n, count))  # the held sets from the end of the spread order
+        cams = self.capture[:n] if k == ENCODER_VIEWS else self.capture[max(0, end - n):end]
         return [c.scaled(resolution / math.sqrt(c.width * c.height)) for c in cams]
+
+    def _other(self, n: int, resolution: int) -> list[Camera]:
+        """n whole views of the kind that is not the orbit (inside, or the capture's)."""
+        return self._capture(n, resolution) if self.kind == "capture" else self._inside(n, resolution)
 
     def _split(self, n: int) -> tuple[int, int]:
         """(orbit views, views of the other kind) of n."""
@@ -211,24 +237,20 @@ class SceneViews:
             return 1.0
         return float(min(max(resolve_px / size_px, 1.0), MAX_MAGNIFICATION))
 
-    def whole_views(self, scene: GaussianScene, n: int, resolution: int, held_back: bool = False) -> list[Camera]:
-        """n whole views at ``resolution`` (``held_back``: n others of the same kind, never among the
-        encoder's: another spiral, viewpoints halfway to their middle, the capture's last cameras)."""
+    def whole_views(self, scene: GaussianScene, n: int, resolution: int) -> list[Camera]:
+        """n whole views at ``resolution``."""
         around, other = self._split(n)
-        cams = fit_cameras(scene, around, resolution, offset=0.75 if held_back else 0.5) if around else []
-        if other and self.kind == "capture":
-            return self._capture(other, resolution, held_back)
-        return cams + (self._inside(other, resolution, held_back) if other else [])
+        cams = fit_cameras(scene, around, resolution, offset=_SPIRAL[self.view_set]) if around else []
+        return cams + (self._other(other, resolution) if other else [])
 
     def cameras(self, scene: GaussianScene, n: int, resolution: int, resolve_px: float) -> list[Camera]:
         """The views the fit, the sensitivities and the search render: n whole views, plus a
         magnified crop of each where they do not resolve the scene's typical Gaussian."""
         around, other = self._split(n)
-        cams = resolving_views(scene, around, resolution, resolve_px) if around else []
+        cams = resolving_views(scene, around, resolution, resolve_px, _SPIRAL[self.view_set]) if around else []
         if not other:
             return cams
-        whole = self.whole_views(scene, other, resolution) if self.kind == "capture" else \
-            self._inside(other, resolution)
+        whole = self._other(other, resolution)
         m = self.magnification(scene, resolution, resolve_px)
         return cams + whole + (_crops(whole, m) if m > 1 else [])
 
@@ -239,10 +261,10 @@ class SceneViews:
         around, other = self._split(n)
         cams = []
         if around:
-            cams = fit_cameras(scene, around, round(resolution * magnification(scene, resolution, resolve_px)))
+            cams = fit_cameras(scene, around, round(resolution * magnification(scene, resolution, resolve_px)),
+                               offset=_SPIRAL[self.view_set])
         if other:
-            cams += self.whole_views(scene, other, round(resolution * self.magnification(scene, resolution,
-                                                                                        resolve_px)))
+            cams += self._other(other, round(resolution * self.magnification(scene, resolution, resolve_px)))
         return cams
 
 

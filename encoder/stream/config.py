@@ -213,6 +213,14 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # target promises can be seen (lghcc-enc's log, stats held_back_psnr; 0: no check)
     check_views: int = 8
     check_resolution: int = 256
+    # With a target, the prepared scene's steps are moved onto it at the end (one common factor, as
+    # the whole-scene check does: encoder/gaussians/gaussian_fit.py land_on_target) on this many
+    # views of landing_resolution pixels, of the same kind again and seen by no other stage, in the
+    # place of the trim after the fit and of the whole-scene check: the search's views are small
+    # (8 of 128 px at 150,000 Gaussians and above), and what a viewer sees at larger sizes was
+    # 1.9-4.3 dB below the target on the donut (0: the trim and the check on the search's views)
+    landing_views: int = 8
+    landing_resolution: int = 256
     fit_views: int = 24
     fit_resolution: int = 160
     # drop the least contributing Gaussians, as many as their largest shares of any one view add
@@ -331,6 +339,9 @@ class GaussianEncoderConfig(AttributeCodingConfig):
             raise InputError(f"resolve_px must be >= 0 and finite, got {self.resolve_px}")
         if self.fit_views < 1 or self.fit_resolution < 8 or self.fit_iterations < 0:
             raise InputError("fit_views must be >= 1, fit_resolution >= 8 and fit_iterations >= 0")
+        if self.landing_views < 0 or self.landing_resolution < 8:
+            raise InputError(f"landing_views must be >= 0 and landing_resolution >= 8, got {self.landing_views} and "
+                             f"{self.landing_resolution}")
         if self.check_views < 0 or self.check_resolution < 8:
             raise InputError(f"check_views must be >= 0 and check_resolution >= 8, got {self.check_views} and "
                              f"{self.check_resolution}")

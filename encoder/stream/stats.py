@@ -78,6 +78,8 @@ class PrepareStats:
     time_trim_s: float | None = None  # the steps moved onto the target quality after the fit
     trim_bits_before: float | None = None
     trim_bits_after: float | None = None
+    time_landing_s: float | None = None  # the steps moved onto the target on the landing views
+    landing_trials: int | None = None
     views: str = "orbit"  # where the views looked from (encoder/gaussians/gaussian_views.py)
     views_reason: str = ""
     held_back_views: int | None = None  # the check on views the encoder did not use (check_views)
