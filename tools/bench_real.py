@@ -564,6 +564,8 @@ class SceneRun:
         for p in (stream, back):
             p.unlink(missing_ok=True)
         env = dict(os.environ, OMP_WAIT_POLICY="PASSIVE")
+        if self.args.lghcc_root:  # another checkout's code, for before/after in one run
+            env["PYTHONPATH"] = os.pathsep.join([str(Path(self.args.lghcc_root).resolve()), env.get("PYTHONPATH", "")])
         log(f"{self.spec.slug}: lghcc {preset}: encoding (lghcc-enc's own output follows) ...")
         cmd = [*enc, str(self.spec.path), "-o", str(stream), "--preset", preset, *self.args.enc_args]
         t0 = time.perf_counter()
@@ -804,6 +806,9 @@ def main(argv: list[str] | None = None) -> int:
                          "lghcc-enc lists (default: those it lists less the lghcc-* modes)")
     ap.add_argument("--enc-args", default="", help="extra lghcc-enc arguments (one string, shell-split)")
     ap.add_argument("--dec-args", default="", help="extra lghcc-dec arguments (one string, shell-split)")
+    ap.add_argument("--lghcc-root", help="a folder holding another lghcc checkout (a folder named lghcc, e.g. a git "
+                                         "worktree of an older commit) whose lghcc-enc and lghcc-dec the lghcc rows run "
+                                         "(default: this environment's)")
     ap.add_argument("--views", type=int, default=12, help="orbit views (default 12)")
     ap.add_argument("--size", type=int, default=320, help="render width and height (default 320)")
     ap.add_argument("--elevation", type=float, default=20.0, help="orbit elevation in degrees (default 20)")
