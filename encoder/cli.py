@@ -39,12 +39,17 @@ attributes, models and a hash of the decoded scene.
 
 A plain 3DGS scene (INRIA PLY, as 3DGS, gsplat, nerfstudio and SuperSplat write it) is coded
 as explicit Gaussians: every Gaussian a point with its SH colour, opacity, scales and
-rotation. The encoder renders the source from views around it, measures what each Gaussian
-contributes, and chooses the pruning, the position grid and the quantization steps that give
-the fewest bytes at the quality asked for: the presets ask for a PSNR against renders of the
-source (low 40 dB, medium 45 dB, high 50 dB; --psnr sets another), --lambda instead minimizes
--PSNR + lambda x log2(bytes). Then it tunes the kept Gaussians to the source renders with
-their quantization simulated (--fit-iterations; medium and high), which adds about 1 dB.
+rotation. The encoder renders the source from where the scene is watched: the capture's own
+cameras (--cameras, or the cameras.json of an INRIA training output beside the PLY), else views
+around an object or from inside a room or street, as the scene's geometry says (--views). It
+measures what each Gaussian contributes (no view loses more than the pruning share of what it
+shows), and chooses the pruning, the position grid and the quantization steps that give the
+fewest bytes at the quality asked for: the presets ask for a PSNR against renders of the source
+(low 40 dB, medium 45 dB, high 50 dB; --psnr sets another), met on 8 views of 256 px at the end;
+--lambda instead minimizes -PSNR + lambda x log2(bytes). Then it tunes the kept Gaussians to the
+source renders with their quantization simulated (--fit-iterations; medium and high), which adds
+about 1 dB. The log's "check:" line gives the PSNR on 8 more views that no stage used: what a
+viewer from those places sees.
 Above 100,000 Gaussians the settings search runs on a spatial sample (search_sample_gaussians in a
 YAML --config; 0 searches the whole scene, every trial on every Gaussian; tools/results/search_sampling.md (f)).
 The fast preset renders nothing: the Gaussians of opacity below 1/255 (which no rasterizer
@@ -56,6 +61,8 @@ examples:
   lghcc-enc scene.spz -o scene.lghcc                   SPZ (or SOG) input
   lghcc-enc scene.ply --preset high -o scene.lghcc     higher fidelity, more bytes
   lghcc-enc scene.ply --preset fast -o scene.lghcc     no renders: SPZ-like turnaround, more bytes
+  lghcc-enc room.ply --cameras sparse/0 -o room.lghcc  choices made from the capture's cameras
+  lghcc-enc room.ply --views inside -o room.lghcc      from inside the scene, looking outward
   lghcc-enc --procedural 20000 -o demo.lghcc           built-in procedural anchor scene
   lghcc-enc outputs/garden -o garden.lghcc             Scaffold-GS model folder
   lghcc-enc point_cloud.ply --preset lghcc-medium -o g.lghcc   anchor PLY (MLPs from checkpoint.pth beside it)
