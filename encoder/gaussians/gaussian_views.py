@@ -139,6 +139,26 @@ def prune_by_view_share(view_share: np.ndarray, share: float) -> np.ndarray:
 # The field of view of the views from inside, degrees: a viewer's, wide enough that the views
 # around one viewpoint cover every direction.
 INSIDE_FOV_DEG = 90.0
+# A viewer standing in a room or a street looks within about this many degrees of the horizon (the
+# views then still take in floor and ceiling at their edges); looking straight up or down at them
+# counted as much as looking at the walls, and the room's landing views measured 3.5 dB above what
+# a standing viewer's views did at the same steps.
+MAX_PITCH_DEG = 35.0
+
+
+def viewer_directions(n: int, up: np.ndarray, offset: float = 0.5) -> np.ndarray:
+    """[n, 3] unit directions a standing viewer looks in: yaws by the golden angle, pitches evenly
+    spread within MAX_PITCH_DEG of the plane normal to ``up`` (``offset`` shifts both, as
+    fibonacci_sphere's does)."""
+    up = up / np.linalg.norm(up)
+    a = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(up, a)
+    i = np.arange(n, dtype=np.float64) + offset
+    z = math.sin(math.radians(MAX_PITCH_DEG)) * (1 - 2 * i / n)
+    yaw = i * math.pi * (3 - math.sqrt(5))
+    r = np.sqrt(1 - z * z)
+    return (r * np.cos(yaw))[:, None] * a + (r * np.sin(yaw))[:, None] * b + z[:, None] * up
 
 
 def _inside_camera(eye: np.ndarray, direction: np.ndarray, resolution: int, fov_deg: float, near: float,
@@ -193,6 +213,9 @@ class SceneViews:
     size: float = 0.0  # the scene's typical Gaussian size (inside, capture; for the magnification)
     reason: str = ""
     view_set: int = ENCODER_VIEWS
+    # up for the viewers inside: the axis along which the scene's robust box is thinnest (a room is
+    # wider than high, a street longer); its sign does not matter to them
+    up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
 
     def held(self, view_set: int) -> SceneViews:
         """The same kind of views, another set: other directions, other viewpoints inside (moved
@@ -205,7 +228,7 @@ class SceneViews:
         near = max(self.depth * 1e-3, 1e-9)
         return [_inside_camera(eyes[j % eyes.shape[0]], d, resolution, INSIDE_FOV_DEG, near,
                                f"inside{self.view_set}_{j:03d}")
-                for j, d in enumerate(fibonacci_sphere(n, offset=_SPIRAL[self.view_set]))]
+                for j, d in enumerate(viewer_directions(n, self.up, _SPIRAL[self.view_set]))]
 
     def _capture(self, n: int, resolution: int) -> list[Camera]:
         k, count = self.view_set, len(self.capture)
@@ -297,4 +320,6 @@ def scene_views(scene: GaussianScene, kind: str = "auto", capture: list[Camera] 
     if kind == "orbit":
         return dataclasses.replace(ORBIT, reason=reason)
     eyes = found.eyes if found.eyes.shape[0] else np.median(points, axis=0)[None, :]
-    return SceneViews(kind, eyes=eyes, depth=_median_depth(points, eyes), size=typical_size(scene), reason=reason)
+    extent = np.quantile(points, 0.99, axis=0) - np.quantile(points, 0.01, axis=0)
+    return SceneViews(kind, eyes=eyes, depth=_median_depth(points, eyes), size=typical_size(scene), reason=reason,
+                      up=np.eye(3)[int(np.argmin(extent))])

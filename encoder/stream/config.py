@@ -211,16 +211,17 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # After coding, the decoded scene is checked against the source on this many views of the same
     # kind that none of the encoder's stages used, at check_resolution pixels, so that what the
     # target promises can be seen (lghcc-enc's log, stats held_back_psnr; 0: no check)
-    check_views: int = 8
+    check_views: int = 12
     check_resolution: int = 256
     # With a target, the prepared scene's steps are moved onto it at the end (one common factor, as
     # the whole-scene check does: encoder/gaussians/gaussian_fit.py land_on_target) on this many
     # views of landing_resolution pixels, of the same kind again and seen by no other stage, in the
     # place of the trim after the fit and of the whole-scene check: the search's views are small
     # (8 of 128 px at 150,000 Gaussians and above), and what a viewer sees at larger sizes was
-    # 1.9-4.3 dB below the target on the donut (0: the trim and the check on the search's views)
-    landing_views: int = 8
-    landing_resolution: int = 256
+    # 1.9-4.3 dB below the target on the donut. Many views, since views from inside differ from
+    # one another by several dB (0: the trim and the check on the search's views)
+    landing_views: int = 16
+    landing_resolution: int = 192
     fit_views: int = 24
     fit_resolution: int = 160
     # drop the least contributing Gaussians, as many as their largest shares of any one view add
