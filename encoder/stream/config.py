@@ -326,10 +326,12 @@ class GaussianEncoderConfig(AttributeCodingConfig):
             raise InputError(f"prune_mode must be drop or merge, got {self.prune_mode!r}")
 
     def _validate_views(self) -> None:
-        """The views of the fit and of the search."""
-        if self.search_views < 1 or self.search_resolution < 8:
-            raise InputError(f"search_views must be >= 1 and search_resolution >= 8, got {self.search_views} and "
-                             f"{self.search_resolution}")
+        """The views of the fit, the search, the landing and the check."""
+        for name, least in (("search", 1), ("landing", 0), ("check", 0)):
+            views, resolution = getattr(self, f"{name}_views"), getattr(self, f"{name}_resolution")
+            if views < least or resolution < 8:
+                raise InputError(f"{name}_views must be >= {least} and {name}_resolution >= 8, got {views} and "
+                                 f"{resolution}")
         if self.search_sample_gaussians < 0 or self.fit_reference_gaussians < 0:
             raise InputError(f"search_sample_gaussians and fit_reference_gaussians must be >= 0 (0: the whole scene), "
                              f"got {self.search_sample_gaussians} and {self.fit_reference_gaussians}")
@@ -340,12 +342,6 @@ class GaussianEncoderConfig(AttributeCodingConfig):
             raise InputError(f"resolve_px must be >= 0 and finite, got {self.resolve_px}")
         if self.fit_views < 1 or self.fit_resolution < 8 or self.fit_iterations < 0:
             raise InputError("fit_views must be >= 1, fit_resolution >= 8 and fit_iterations >= 0")
-        if self.landing_views < 0 or self.landing_resolution < 8:
-            raise InputError(f"landing_views must be >= 0 and landing_resolution >= 8, got {self.landing_views} and "
-                             f"{self.landing_resolution}")
-        if self.check_views < 0 or self.check_resolution < 8:
-            raise InputError(f"check_views must be >= 0 and check_resolution >= 8, got {self.check_views} and "
-                             f"{self.check_resolution}")
         if self.views not in VIEW_KINDS:
             raise InputError(f"views must be one of {', '.join(VIEW_KINDS)}, got {self.views!r}")
 
