@@ -231,3 +231,23 @@ def test_the_landing_moves_the_steps_onto_the_target_on_its_own_views():
     legacy = prepare_gaussians(scene, GaussianEncoderConfig(**{**base, "landing_views": 0}))
     assert legacy.stats.landing_trials is None and legacy.stats.time_trim_s is not None
     assert landed.cfg.search_views == 2 and landed.cfg.search_resolution == 32  # the search's plan kept
+
+
+def test_lghcc_encode_takes_the_capture_cameras(tmp_path):
+    """lghcc.encode(..., cameras=PATH): the room measured from its cameras keeps what they see; from
+    the orbit (views="orbit") the inside is pruned away, and the stream is a fraction of the size."""
+    import lghcc
+
+    scene = make_room_scene(2000)
+    path = tmp_path / "cameras.json"
+    entries = []
+    for i, c in enumerate(room_inside_cameras(n=12, size=64)):
+        c2w = c.camera_to_world
+        entries.append({"id": i, "img_name": c.name, "width": c.width, "height": c.height,
+                        "position": c2w[:3, 3].tolist(), "rotation": c2w[:3, :3].tolist(), "fx": c.fx, "fy": c.fy})
+    path.write_text(json.dumps(entries))
+    small = dict(fit_views=8, fit_resolution=32, search_views=2, search_resolution=32, search_reference_gaussians=0,
+                 check_views=2, check_resolution=32, landing_views=2, landing_resolution=32, fit_iterations=0)
+    inside = lghcc.decode(lghcc.encode(scene, "low", cameras=path, **small))
+    around = lghcc.decode(lghcc.encode(scene, "low", views="orbit", **small))
+    assert inside.num_gaussians > 2 * around.num_gaussians
