@@ -251,3 +251,15 @@ def test_lghcc_encode_takes_the_capture_cameras(tmp_path):
     inside = lghcc.decode(lghcc.encode(scene, "low", cameras=path, **small))
     around = lghcc.decode(lghcc.encode(scene, "low", views="orbit", **small))
     assert inside.num_gaussians > 2 * around.num_gaussians
+
+
+def test_a_turned_camera_keeps_its_centre_and_looks_beside_the_capture():
+    from lghcc.encoder.gaussians.gaussian_views import TURN_PITCH_DEG, TURN_YAW_DEG, turned
+
+    cam = _capture(4)[1]
+    for j in range(20):
+        t = turned(cam, j, "t")
+        np.testing.assert_allclose(t.center, cam.center, atol=1e-9)
+        angle = np.degrees(np.arccos(np.clip(t.forward @ cam.forward, -1, 1)))
+        assert 0 < angle <= np.hypot(TURN_YAW_DEG, TURN_PITCH_DEG) + 1e-6
+        np.testing.assert_allclose(t.rotation @ t.rotation.T, np.eye(3), atol=1e-12)
