@@ -390,9 +390,10 @@ def test_pruning_less_restarts_from_the_chosen_steps_and_lands_near_the_target()
     psnr = -10 * math.log10(best.mse)
     assert best.mse <= target_mse
     assert psnr <= 45 + rd.TARGET_TOLERANCE, psnr  # in the band above the target; once 170 dB
-    # each share starts where the one before met the target: 34 trials (bisection from every
-    # share's own start took 53 and landed 0.52 dB above)
-    assert len(s.trials) <= 36, len(s.trials)
+    # each share starts where the one before met the target: 34 trials over the 9 shares up to 6.4%,
+    # 42 over the 11 up to 25.6% (bisection from every share's own start took 53 for the 9 and landed
+    # 0.52 dB above)
+    assert len(s.trials) <= 4 * len(rd.PRUNE_LADDER), len(s.trials)
 
 
 @settings(max_examples=200, deadline=None)
