@@ -29,7 +29,7 @@ CONTRIBUTION_VIEW_BYTES = 800.0
 @dataclass
 class Contributions:
     total: np.ndarray  # float64 [M]: sum over the views and pixels of alpha_i T_i
-    view_share: np.ndarray  # float64 [M]: the largest share of one view's sum that Gaussian i supplies
+    view_share: np.ndarray | None  # float64 [M]: the largest share of one view's sum that Gaussian i supplies
 
 
 def view_contributions(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,

@@ -224,9 +224,9 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     landing_resolution: int = 192
     fit_views: int = 24
     fit_resolution: int = 160
-    # drop the least contributing Gaussians, as many as their largest shares of any one view add
-    # up to at most this: no view loses more than this share of what it shows (0: keep all but
-    # those no view shows)
+    # drop the least contributing Gaussians whose contributions add up to this share of the total;
+    # from inside or the capture's cameras, as many as their largest shares of any one view add up
+    # to at most this: no view loses more than this share of what it shows (0: keep all)
     prune_share: float = 0.0
     # what becomes of them: "drop" removes them, "merge" merges each into its nearest kept
     # neighbour within reach with the pair's moments kept (encoder/gaussians/merging.py)
