@@ -5,7 +5,7 @@ the box that is roomy free space enclosed on all sides, the share of roomy free 
 enclosure (share of directions that meet the scene) of a roomy place. The constants of
 free_space.py were set from this table.
 
-    python tools/bench_views.py                          # writes tools/results/views.md (section a)
+    python tools/bench_views.py                          # writes tools/results/views.md (section a; b and c stay)
     python tools/bench_views.py --out /tmp/views.md --scenes room,sphere
 """
 
@@ -107,6 +107,9 @@ def main(argv: list[str] | None = None) -> int:
              f"Command: `{command_line('bench_views.py', argv)}`; {datetime.date.today()}.", "",
              "| scene | Gaussians | watched | decided | figures (free_space.py) | viewpoints | s |",
              "|---|---|---|---|---|---|---|", *rows]
+    if args.out.exists():  # the other sections of the results file (b, c: bench_real's) stay
+        rest = args.out.read_text().split("\n## (")[1:]
+        lines += [""] + ["## (" + sec.rstrip("\n") for sec in rest if not sec.startswith("a)")]
     write_lines(args.out, lines)
     print(f"bench_views: wrote {args.out}", file=sys.stderr)
     return 0
