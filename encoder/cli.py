@@ -45,7 +45,7 @@ around an object or from inside a room or street, as the scene's geometry says (
 measures what each Gaussian contributes (no view loses more than the pruning share of what it
 shows), and chooses the pruning, the position grid and the quantization steps that give the
 fewest bytes at the quality asked for: the presets ask for a PSNR against renders of the source
-(low 40 dB, medium 45 dB, high 50 dB; --psnr sets another), met on 16 more views of 192 px at the end;
+(low 40 dB, medium 45 dB, high 50 dB; --psnr sets another), met on 12 more views of 256 px at the end;
 --lambda instead minimizes -PSNR + lambda x log2(bytes). Then it tunes the kept Gaussians to the
 source renders with their quantization simulated (--fit-iterations; medium and high), which adds
 about 1 dB. The log's "check:" line gives the PSNR on 12 more views that no stage used: what a
