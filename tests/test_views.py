@@ -174,12 +174,7 @@ def test_lghcc_enc_uses_the_cameras_of_an_inria_training_output(tmp_path):
     ply.parent.mkdir(parents=True)
     scene = make_room_scene(3000)
     write_scene(scene, ply)
-    entries = []
-    for i, c in enumerate(room_inside_cameras(n=20, size=64)):
-        c2w = c.camera_to_world
-        entries.append({"id": i, "img_name": c.name, "width": c.width, "height": c.height,
-                        "position": c2w[:3, 3].tolist(), "rotation": c2w[:3, :3].tolist(), "fx": c.fx, "fy": c.fy})
-    (model / "cameras.json").write_text(json.dumps(entries))
+    _write_inria_cameras(model / "cameras.json", room_inside_cameras(n=20, size=64))
     report = tmp_path / "r.json"
     args = [str(ply), "-o", str(tmp_path / "s.lghcc"), "--preset", "low", "--json", str(report), "-q",
             "--config", str(_small_config(tmp_path))]
@@ -191,6 +186,14 @@ def test_lghcc_enc_uses_the_cameras_of_an_inria_training_output(tmp_path):
     assert json.loads(report.read_text())["stats"]["prepare_views"] == "orbit"
     assert main(args + ["-y", "--cameras", str(model), "--views", "inside"]) == 2  # contradicting options
     assert main(args + ["-y", "--cameras", str(tmp_path / "none.json")]) == 1
+
+
+def _write_inria_cameras(path, cams):
+    """``cams`` as the cameras.json a 3DGS training output holds (centre, camera-to-world rotation)."""
+    path.write_text(json.dumps([{"id": i, "img_name": c.name, "width": c.width, "height": c.height,
+                                 "position": c.center.tolist(), "rotation": c.camera_to_world[:3, :3].tolist(),
+                                 "fx": c.fx, "fy": c.fy} for i, c in enumerate(cams)]))
+    return path
 
 
 def _small_config(tmp_path):
@@ -239,13 +242,7 @@ def test_lghcc_encode_takes_the_capture_cameras(tmp_path):
     import lghcc
 
     scene = make_room_scene(2000)
-    path = tmp_path / "cameras.json"
-    entries = []
-    for i, c in enumerate(room_inside_cameras(n=12, size=64)):
-        c2w = c.camera_to_world
-        entries.append({"id": i, "img_name": c.name, "width": c.width, "height": c.height,
-                        "position": c2w[:3, 3].tolist(), "rotation": c2w[:3, :3].tolist(), "fx": c.fx, "fy": c.fy})
-    path.write_text(json.dumps(entries))
+    path = _write_inria_cameras(tmp_path / "cameras.json", room_inside_cameras(n=12, size=64))
     small = dict(fit_views=8, fit_resolution=32, search_views=2, search_resolution=32, search_reference_gaussians=0,
                  check_views=2, check_resolution=32, landing_views=2, landing_resolution=32, fit_iterations=0)
     inside = lghcc.decode(lghcc.encode(scene, "low", cameras=path, **small))

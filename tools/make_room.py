@@ -4,6 +4,7 @@ furniture, watched from inside) as a 3DGS scene, and its capture cameras, the vi
 standing in it (room_inside_cameras), as an INRIA ``cameras.json`` beside it.
 
     python tools/make_room.py -o /tmp/room/room.ply --gaussians 60000 --sh-degree 3
+    python tools/make_room.py -o /tmp/room_eval/room.ply --camera-seed 7   # other views, to evaluate on
 
 ``-o`` takes any name lghcc.formats.write_scene takes (.ply, .spz, .sog, or a folder: a 3DGS model
 folder, point_cloud/iteration_0/point_cloud.ply). cameras.json goes in the file's folder, or in the
@@ -39,6 +40,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sh-degree", type=int, default=0, choices=range(4), help="SH degree (default 0)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the scene and the cameras (default 0)")
     ap.add_argument("--cameras", type=int, default=18, help="inside cameras in cameras.json (default 18)")
+    ap.add_argument("--camera-seed", type=int, help="seed of the cameras alone (default: --seed): other views "
+                                                    "from the same standing places, to evaluate on views the "
+                                                    "encoder never used")
     ap.add_argument("--size", type=int, default=256, help="their image width and height (default 256)")
     args = ap.parse_args(argv)
     if args.gaussians < 100:
@@ -48,7 +52,8 @@ def main(argv: list[str] | None = None) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     written = write_scene(scene, out)
     folder = out if written != out else out.parent
-    cams = room_inside_cameras(scene, args.cameras, size=args.size, seed=args.seed)
+    seed = args.seed if args.camera_seed is None else args.camera_seed
+    cams = room_inside_cameras(scene, args.cameras, size=args.size, seed=seed)
     (folder / "cameras.json").write_text(json.dumps(cameras_json(cams)) + "\n")
     print(f"wrote {written} ({scene.num_gaussians:,} Gaussians, SH degree {scene.sh_degree}) and "
           f"{folder / 'cameras.json'} ({len(cams)} inside cameras)")

@@ -59,7 +59,6 @@ class WatchedFrom:
     coordinates, [P, 3]; empty for orbit), and why (for the log)."""
     kind: str
     eyes: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    enclosure: float = 0.0
     reason: str = ""
 
 
@@ -171,11 +170,11 @@ def watched_from(scene: GaussianScene) -> WatchedFrom:
     seen = (f"{100 * share:.1f}% of its box is roomy free space enclosed on all sides, {100 * room:.0f}% roomy free "
             f"space, at most {100 * best:.0f}% of directions from there meet the scene")
     if kind == "orbit":
-        return WatchedFrom(kind, enclosure=best, reason=f"an object ({seen}): views from around it")
+        return WatchedFrom(kind, reason=f"an object ({seen}): views from around it")
     ok = roomy & (enclosed >= (INSIDE_ENCLOSURE if kind == "inside" else best - 0.05))
     good = np.flatnonzero(ok)
     good = good[np.argsort(np.linalg.norm(at[good] - middle, axis=1), kind="stable")]  # nearest the middle first
     eyes = at[good[spread(at[good][:4 * VIEWPOINTS], VIEWPOINTS)]]
     why, where = ("it surrounds free space", "from inside") if kind == "inside" else \
         ("unclear", "from around it and from inside")
-    return WatchedFrom(kind, eyes, best, f"{why} ({seen}): views {where}")
+    return WatchedFrom(kind, eyes, f"{why} ({seen}): views {where}")

@@ -266,9 +266,10 @@ def search_for_settings(scene: GaussianScene, contrib: Contributions, sensitivit
 
 def pruned_on_grid(scene: GaussianScene, contrib: Contributions, cfg: GaussianEncoderConfig, stats: PrepareStats,
                    num_views: int, say) -> tuple[GaussianScene, np.ndarray, np.ndarray]:
-    """Pruning by contribution (no view loses more than ``prune_share`` of what it shows; the
-    pruned dropped or merged, ``prune_mode``), then the grid weighted by contribution -> (the kept
-    Gaussians on their grid, their contributions, which Gaussians were kept)."""
+    """Pruning by contribution (``pruning_key``: by the views' shares, no view losing more than
+    ``prune_share`` of what it shows, or by the total; the pruned dropped or merged, ``prune_mode``),
+    then the grid weighted by contribution -> (the kept Gaussians on their grid, their contributions,
+    which Gaussians were kept)."""
     keep, kept, weights = pruned_scene(scene, contrib.total, cfg.prune_share, cfg.prune_mode, contrib.view_share)
     stats.gaussians_pruned = int((~keep).sum())
     of = "the contribution" if contrib.view_share is None else "any view's contribution"
@@ -447,16 +448,15 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, views
     if cfg.fit_iterations > 0:
         grid = fit_to_renders(grid, g, cams, fit_steps(cfg, grid.num_gaussians), stats, say, progress, sensitivity)
     from .gaussian_rd import SceneRenders
-    renders = SceneRenders(grid, views)  # the prepared scene's search renders: the trim's or the check's
     if cfg.landing_views > 0:
         cfg = land_on_target(grid, scene, weights, sensitivity, cfg, views, stats, say)
     elif sample is not None:
         # no trim on the sample first: it moved the attribute steps by one common factor, as the
         # check does, against the ratio measured before the fit (off by -0.4 to +1.4 dB after it at
         # 300k and 1M), and cost 2 whole renders per view besides its trials (tools/results/scale.md)
-        cfg = whole_scene_check(grid, weights, sensitivity, cfg, stats, say, renders)
+        cfg = whole_scene_check(grid, weights, sensitivity, cfg, stats, say, SceneRenders(grid, views))
     elif cfg.fit_iterations > 0:
-        cfg = trim_steps(grid, weights, sensitivity, cfg, stats, say, renders)
+        cfg = trim_steps(grid, weights, sensitivity, cfg, stats, say, SceneRenders(grid, views))
     stats.time_total_s = time.perf_counter() - t0
     return PreparedGaussians(grid, weights, sensitivity, cfg, stats, views)
 

@@ -56,11 +56,12 @@ from ...render.gaussians3dgs import Gaussians3DGS, gaussians_from_scene
 from ...render.rasterizer import rasterize
 from ...render.view_threads import map_views
 
-# Pruning shares tried: the most any one view may lose (gaussian_views.py prune_by_view_share). A
-# Gaussian's largest share of one view is several times its share of all views together (the donut's
-# sum of them is about 3), so the ladder goes to 25.6%: up to 6.4% the search stopped at its top on the
-# donut at low and high, keeping 33k of 45.6k Gaussians where 6.4% of the total kept 21k (bytes / SPZ
-# at equal PSNR 0.49 against 0.33)
+# Pruning shares tried: of the total on an orbit, the most any one view may lose from inside and
+# from a capture's cameras (gaussian_fit.py pruning_key). A Gaussian's largest share of one view is
+# several times its share of all views together (the donut's sum of them is about 3), so the ladder
+# goes to 25.6%: up to 6.4% of any view the search stopped at its top on the donut at low and high.
+# On the orbit the search chose no share above 6.4% on the donut and playbot lod4 at any preset
+# (tools/results/views.md (c)): there the two new shares cost trials and bought nothing measured
 PRUNE_LADDER = (0.0, 0.0005, 0.001, 0.002, 0.004, 0.008, 0.016, 0.032, 0.064, 0.128, 0.256)
 STEP_FIELDS = ("position_step", "sh_dc_step", "opacity_step", "scale_step", "rotation_step")
 
@@ -92,7 +93,7 @@ class SceneRenders:
     once per view plan (views, resolution, resolve_px) and shared by whoever measures against them: on
     a sampled search the ratio and the search's offsets measure against the source's (the pair
     rendered them twice); the whole-scene check, or the trim without a sample, against the fitted
-    scene's."""
+    scene's; the landing against the source's, in the landing's views (gaussian_fit.py)."""
 
     def __init__(self, scene: GaussianScene, views: SceneViews = ORBIT):
         self.scene, self.views = scene, views

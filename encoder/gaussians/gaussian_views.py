@@ -4,10 +4,11 @@ contribution to them. The settings search, the sensitivities, the pruning and th
 Where they look from (``SceneViews``, fixed once on the source scene):
 - ``orbit``: cameras on a sphere around an object, looking at its centre;
 - ``inside``: cameras at viewpoints in the free space a scene surrounds (a room, a street, a
-  360-degree capture; free_space.py finds them), looking outward in every direction with a
-  90-degree field of view, as a viewer standing there sees it;
+  360-degree capture; free_space.py finds them), looking all round within MAX_PITCH_DEG of the
+  horizon with a 90-degree field of view, as a viewer standing there sees it;
 - ``both``: half of each, where it is unclear which;
-- ``capture``: the capture's own cameras (``--cameras``), a spread subset at the views' pixel count.
+- ``capture``: the capture's own cameras (``--cameras``), a spread subset at the views' pixel count,
+  half of them as taken and half turned a little (``turned``).
 Finer or magnified views are added where the views do not resolve the scene's typical Gaussian
 (``magnification``): crops of the same views, as many as there are views.
 """
@@ -161,10 +162,11 @@ def viewer_directions(n: int, up: np.ndarray, offset: float = 0.5) -> np.ndarray
     return (r * np.cos(yaw))[:, None] * a + (r * np.sin(yaw))[:, None] * b + z[:, None] * up
 
 
-def _inside_camera(eye: np.ndarray, direction: np.ndarray, resolution: int, fov_deg: float, near: float,
+def _inside_camera(eye: np.ndarray, direction: np.ndarray, up: np.ndarray, resolution: int, near: float,
                    name: str) -> Camera:
-    up = (0.0, 0.0, 1.0) if abs(direction[2]) < 0.99 else (0.0, 1.0, 0.0)
-    return Camera.look_at(eye, eye + direction, up=up, width=resolution, height=resolution, fov_x_deg=fov_deg,
+    """A viewer's view from ``eye`` along ``direction`` (within MAX_PITCH_DEG of the horizon of ``up``,
+    so never along it), upright."""
+    return Camera.look_at(eye, eye + direction, up=up, width=resolution, height=resolution, fov_x_deg=INSIDE_FOV_DEG,
                           near=near, far=near * 1e6, name=name)
 
 
@@ -238,15 +240,13 @@ class SceneViews:
 
     def held(self, view_set: int) -> SceneViews:
         """The same kind of views, another set: other directions, other viewpoints inside (moved
-        towards their middle), other cameras of the capture (from the end of its spread order; they
-        repeat the encoder's only where the capture has fewer than the views asked of every set)."""
+        towards their middle), the capture's cameras turned (from the end of its spread order)."""
         return dataclasses.replace(self, view_set=view_set)
 
     def _inside(self, n: int, resolution: int) -> list[Camera]:
         eyes = self.eyes + _TOWARDS_MIDDLE[self.view_set] * (self.eyes.mean(axis=0) - self.eyes)
         near = max(self.depth * 1e-3, 1e-9)
-        return [_inside_camera(eyes[j % eyes.shape[0]], d, resolution, INSIDE_FOV_DEG, near,
-                               f"inside{self.view_set}_{j:03d}")
+        return [_inside_camera(eyes[j % eyes.shape[0]], d, self.up, resolution, near, f"inside{self.view_set}_{j:03d}")
                 for j, d in enumerate(viewer_directions(n, self.up, _SPIRAL[self.view_set]))]
 
     def _capture(self, n: int, resolution: int) -> list[Camera]:
@@ -318,6 +318,10 @@ class SceneViews:
 ORBIT = SceneViews("orbit", reason="views from around it")
 
 
+# The capture cameras whose distances to the scene give its depth (a capture may hold thousands)
+DEPTH_VIEWPOINTS = 16
+
+
 def _median_depth(points: np.ndarray, eyes: np.ndarray) -> float:
     d = np.linalg.norm(points[:, None, :] - eyes[None, :, :], axis=2)
     return float(np.median(d)) if d.size else 1.0
@@ -334,7 +338,8 @@ def scene_views(scene: GaussianScene, kind: str = "auto", capture: list[Camera] 
         order = spread(centres, len(capture))
         order = np.concatenate([order, np.setdiff1d(np.arange(len(capture)), order)])  # coincident cameras last
         cams = tuple(capture[i] for i in order)
-        return SceneViews("capture", capture=cams, depth=_median_depth(points, centres), size=typical_size(scene),
+        depth = _median_depth(points, centres[order[:DEPTH_VIEWPOINTS]])
+        return SceneViews("capture", capture=cams, depth=depth, size=typical_size(scene),
                           reason=f"the capture's {len(capture)} cameras")
     found = watched_from(scene)
     if kind == "auto":
