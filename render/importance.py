@@ -24,29 +24,36 @@ from .view_threads import map_views
 # Memory of one view's compositing weights per Gaussian: 763 MiB over the scene's at 1M in views of
 # 667 px (render/view_threads.py VIEW_MEMORY_BUDGET: two at a time up to about 1.3M Gaussians).
 CONTRIBUTION_VIEW_BYTES = 800.0
+# and per region of a view (``view_contributions``' regions): its float64 sum and share
+REGION_BYTES = 24.0
 
 
 @dataclass
 class Contributions:
     total: np.ndarray  # float64 [M]: sum over the views and pixels of alpha_i T_i
-    view_share: np.ndarray | None  # float64 [M]: the largest share of one view's sum that Gaussian i supplies
+    # float64 [M]: the largest share of one view's sum (of one region's, with regions) that Gaussian i supplies
+    view_share: np.ndarray | None
 
 
 def view_contributions(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
-                       cameras: list[Camera], on_view=None) -> Contributions:
-    """Each Gaussian's contribution to the pictures of ``cameras``, in all and to the view it
-    matters most to (activated parameters: unit quats (w, x, y, z), scales, opacities in [0, 1]).
-    ``on_view()`` is called after each view. Two views at a time (render/view_threads.py), summed
-    in the views' order."""
+                       cameras: list[Camera], on_view=None, regions: int = 1) -> Contributions:
+    """Each Gaussian's contribution to the pictures of ``cameras``, in all and to the view (with
+    ``regions`` > 1: the region of a regions x regions grid of a view) it matters most to
+    (activated parameters: unit quats (w, x, y, z), scales, opacities in [0, 1]). A Gaussian's
+    share of a view is at most its largest share of the view's regions (the view's sum is the
+    regions'), so the regions' shares bound the view's too. ``on_view()`` is called after each
+    view. Two views at a time (render/view_threads.py), summed in the views' order."""
     total = torch.zeros(means.shape[0], dtype=torch.float64)
     view_share = torch.zeros(means.shape[0], dtype=torch.float64)
-    views = map_views(lambda cam: compositing_weights(means, quats, scales, opacities, cam), cameras,
-                      view_bytes=CONTRIBUTION_VIEW_BYTES * means.shape[0])
+    views = map_views(lambda cam: compositing_weights(means, quats, scales, opacities, cam, regions=regions), cameras,
+                      view_bytes=(CONTRIBUTION_VIEW_BYTES + REGION_BYTES * regions * regions) * means.shape[0])
     for weights in views:
-        total += weights
-        in_view = float(weights.sum())
-        if in_view > 0:
-            torch.maximum(view_share, weights / in_view, out=view_share)
+        weights = weights.reshape(means.shape[0], -1)
+        total += weights.sum(1) if regions > 1 else weights[:, 0]
+        in_region = weights.sum(0)
+        seen = in_region > 0
+        if bool(seen.any()):
+            torch.maximum(view_share, (weights[:, seen] / in_region[seen]).amax(1), out=view_share)
         if on_view is not None:
             on_view()
     return Contributions(total.numpy(), view_share.numpy())

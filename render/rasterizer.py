@@ -266,11 +266,11 @@ def _coefficients(mx: torch.Tensor, my: torch.Tensor, a: torch.Tensor, b: torch.
 
 
 def _composite_forward(md, cn, op, ft, th, plan: TilePlan, m: int, acc: torch.Tensor | None = None,
-                       weight_sum: torch.Tensor | None = None) -> list:
+                       weight_sum: WeightSum | None = None) -> list:
     """The front-to-back compositing of every tile batch (padded inputs, Gaussian m the pad):
     w_i = alpha_i T_i per pixel; adds sum_i w_i f_i into ``acc`` [tiles, pixels, d] and, when
-    given, each Gaussian's sum of w_i over the pixels into ``weight_sum`` [m + 1]. Returns the
-    transmittance carries at each chunk start (the backward pass recomputes from them)."""
+    given, each Gaussian's sum of w_i over the pixels of each region into ``weight_sum``. Returns
+    the transmittance carries at each chunk start (the backward pass recomputes from them)."""
     dt = md.dtype
     npx = plan.tile_size ** 2
     basis = _pixel_basis(plan.tile_size, dt)
@@ -302,11 +302,25 @@ def _weights(cs: torch.Tensor, la: torch.Tensor, alpha: torch.Tensor) -> torch.T
     return (cs - la).clamp_(min=-80.0).exp_().mul_(alpha).mul_(cs >= LOG_T_MIN)
 
 
-def _add_weighted(w, g, tiles, ft, acc, weight_sum) -> None:
+@dataclass
+class WeightSum:
+    """Per Gaussian and region of the picture, the sum of w_i over the region's pixels: ``sums``
+    float64 [(m + 1) * regions] (Gaussian g's region r at g * regions + r), ``tile_region`` int64
+    [tiles] the region of each tile."""
+    sums: torch.Tensor
+    tile_region: torch.Tensor
+    regions: int
+
+    def add(self, w: torch.Tensor, g: torch.Tensor, tiles: torch.Tensor) -> None:
+        at = g * self.regions + self.tile_region[tiles][:, None] if self.regions > 1 else g
+        self.sums.index_add_(0, at.reshape(-1), w.sum(1).reshape(-1).to(self.sums.dtype))
+
+
+def _add_weighted(w, g, tiles, ft, acc, weight_sum: WeightSum | None) -> None:
     if acc is not None:
         acc[tiles] += torch.bmm(w, ft[g])
     if weight_sum is not None:
-        weight_sum.index_add_(0, g.reshape(-1), w.sum(1).reshape(-1).to(weight_sum.dtype))
+        weight_sum.add(w, g, tiles)
 
 
 # A batch of tiles longer than twice this is composited in at most BATCH_PARTS parts along depth,
@@ -597,10 +611,12 @@ def _jacobian_limit(camera: Camera, axis: int) -> float:
 
 
 def compositing_weights(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
-                        camera: Camera, *, tile_size: int | None = None, sigma_cutoff: float = 3.0, eps2d: float = 0.3,
-                        chunk_elements: int = DEFAULT_CHUNK_ELEMENTS) -> torch.Tensor:
+                        camera: Camera, *, regions: int = 1, tile_size: int | None = None, sigma_cutoff: float = 3.0,
+                        eps2d: float = 0.3, chunk_elements: int = DEFAULT_CHUNK_ELEMENTS) -> torch.Tensor:
     """float64 [M]: each Gaussian's compositing weight alpha_i T_i summed over the pixels of
-    ``camera``, as ``rasterize`` draws it (one forward pass, no gradient)."""
+    ``camera``, as ``rasterize`` draws it (one forward pass, no gradient). With ``regions`` > 1,
+    float64 [M, regions^2]: the sums over each of a regions x regions grid of parts of the picture
+    (row-major; the parts are whole tiles, split as evenly as the tiles allow)."""
     mcount = means.shape[0]
     with torch.no_grad():
         op = opacities.detach().float()
@@ -610,11 +626,14 @@ def compositing_weights(means: torch.Tensor, quats: torch.Tensor, scales: torch.
         k = kidx.numel()
         md, cn, opp, ft, th = _padded(drawn.means2d.float(), drawn.conics.float(), op[kidx].clamp(0, 1),
                                       torch.zeros(k, 1), drawn.thresh.float())
-        ws = torch.zeros(k + 1, dtype=torch.float64)
-        _composite_forward(md, cn, opp, ft, th, drawn.plan, k, weight_sum=ws)
-        out = torch.zeros(mcount, dtype=torch.float64)
-        out[kidx] = ws[:k]
-    return out
+        plan, r = drawn.plan, regions * regions
+        t = torch.arange(plan.tiles_x * plan.tiles_y)
+        tile_region = (t // plan.tiles_x) * regions // plan.tiles_y * regions + (t % plan.tiles_x) * regions // plan.tiles_x
+        ws = WeightSum(torch.zeros((k + 1) * r, dtype=torch.float64), tile_region, r)
+        _composite_forward(md, cn, opp, ft, th, plan, k, weight_sum=ws)
+        out = torch.zeros(mcount, r, dtype=torch.float64)
+        out[kidx] = ws.sums.view(k + 1, r)[:k]
+    return out[:, 0] if regions == 1 else out
 
 
 def render_scene(scene, camera: Camera, *, background=None, cull: bool = True, margin: float = 0.15,

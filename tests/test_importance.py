@@ -37,6 +37,25 @@ def test_a_hidden_or_transparent_gaussian_contributes_nothing():
     assert c[0] > 1 and c[1] < 0.05 * c[0] and c[2] == 0
 
 
+def test_region_weights_equal_the_gradient_of_each_region_of_the_image():
+    """compositing_weights(regions=2): per Gaussian, d(sum of each quarter of the image) / d(grey
+    level), the quarters being whole tiles (4 px: 12 x 10 tiles, split 6 | 6 and 5 | 5), and their
+    sum the whole picture's weights."""
+    from lghcc.render.rasterizer import compositing_weights
+
+    g = _gaussians(80, seed=3)
+    cam = Camera.look_at((1, -4, 1), (0, 0, 0), width=48, height=40)
+    regions = compositing_weights(*g, cam, regions=2, tile_size=4)
+    assert regions.shape == (80, 4)
+    for r, (rows, cols) in enumerate([(slice(0, 20), slice(0, 24)), (slice(0, 20), slice(24, 48)),
+                                      (slice(20, 40), slice(0, 24)), (slice(20, 40), slice(24, 48))]):
+        grey = torch.ones(80, 1, requires_grad=True)
+        rasterize(*g, grey, cam, tile_size=4).image[rows, cols].sum().backward()
+        np.testing.assert_allclose(regions[:, r].numpy(), grey.grad[:, 0].double().numpy(), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(regions.sum(1).numpy(), compositing_weights(*g, cam, tile_size=4).numpy(), rtol=1e-12)
+    assert (regions > 0).sum() > 80  # Gaussians spanning several regions share out among them
+
+
 def test_forward_weights_equal_the_gradient_of_the_image():
     """compositing_weights (one forward pass) = d(sum of the image) / d(grey level of each Gaussian)."""
     from lghcc.render.rasterizer import compositing_weights

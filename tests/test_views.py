@@ -129,25 +129,28 @@ def test_a_crop_shows_the_window_of_its_view_magnified():
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.integers(1, 6), st.integers(2, 60), st.floats(0.0, 0.5), st.integers(0, 2 ** 31))
-def test_pruning_by_largest_view_share_bounds_what_every_view_loses(views, n, share, seed):
-    """Pruned by each Gaussian's largest share of one view, no view loses more than ``share`` of
-    its contribution, however the Gaussians are spread over the views."""
+@given(st.integers(1, 6), st.integers(1, 4), st.integers(2, 60), st.floats(0.0, 0.5), st.integers(0, 2 ** 31))
+def test_pruning_by_largest_region_share_bounds_what_every_view_and_region_loses(views, regions, n, share, seed):
+    """Pruned by each Gaussian's largest share of one region of one view (render/importance.py),
+    no region of any view, and so no view, loses more than ``share`` of its contribution, however
+    the Gaussians are spread over the views and regions."""
     rng = np.random.default_rng(seed)
-    w = rng.exponential(size=(views, n)) * (rng.random((views, n)) < 0.5)  # many seen by few views
-    w[:, 0] += 1e-3  # every view sees something
-    view_share = (w / w.sum(axis=1, keepdims=True)).max(axis=0)
-    keep = prune_by_view_share(view_share, share)
-    lost = w[:, ~keep].sum(axis=1) / w.sum(axis=1)
-    assert np.all(lost <= share + 1e-12) and keep.any()
+    w = rng.exponential(size=(views, regions, n)) * (rng.random((views, regions, n)) < 0.5)  # many seen by few
+    w[:, :, 0] += 1e-3  # every region sees something
+    region_share = (w / w.sum(axis=2, keepdims=True)).max(axis=(0, 1))
+    keep = prune_by_view_share(region_share, share)
+    lost_in_region = w[:, :, ~keep].sum(axis=2) / w.sum(axis=2)
+    lost_in_view = w[:, :, ~keep].sum(axis=(1, 2)) / w.sum(axis=(1, 2))
+    assert np.all(lost_in_region <= share + 1e-12) and np.all(lost_in_view <= share + 1e-12) and keep.any()
 
 
 def test_inside_views_keep_what_the_orbit_prunes_in_a_room():
     """The room's furniture is hidden from the orbit: pruned by orbit contributions it goes (all but
-    14% at 1% of any view, 48 px views of 12k Gaussians); measured from inside, what the views show
-    of it stays (62%: the rest is hidden behind or under furniture), and the outside of the walls,
-    which no inside view shows, goes instead."""
-    from lghcc.encoder.gaussians.gaussian_fit import measure_contributions
+    14% at 1% of any view, 48 px views of 12k Gaussians); measured from inside, per region of a view
+    as the encoder prunes there, what the views show of it stays (74%: the rest is hidden behind or
+    under furniture), and a quarter of the outside of the walls, which the inside views barely
+    show, goes instead."""
+    from lghcc.encoder.gaussians.gaussian_fit import measure_contributions, pruning_regions
     from lghcc.render.gaussians3dgs import gaussians_from_scene
 
     scene, parts = room_scene_parts(12_000, 0, 0)
@@ -156,7 +159,7 @@ def test_inside_views_keep_what_the_orbit_prunes_in_a_room():
     kept = {}
     for kind in ("orbit", "inside"):
         views = scene_views(scene, kind)
-        c = measure_contributions(g, views.contribution_cameras(scene, 12, 48, 0.0), False)
+        c = measure_contributions(g, views.contribution_cameras(scene, 12, 48, 0.0), False, pruning_regions(views))
         kept[kind] = prune_by_view_share(c.view_share, 0.01)
     exterior = parts == ROOM_PARTS.index("exterior")
     assert kept["orbit"][furniture].mean() < 0.25 and kept["inside"][furniture].mean() > 0.5

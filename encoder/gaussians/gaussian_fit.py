@@ -173,11 +173,11 @@ def _lrs(cfg: GaussianEncoderConfig) -> list[float]:
     return [1e-3 * s, 5e-5 * s, 5e-3 * s, 1e-3 * s, 5e-4 * s]
 
 
-def measure_contributions(g: Gaussians3DGS, cams: list[Camera], progress: bool) -> Contributions:
-    """Each Gaussian's contribution to the pictures of ``cams``, in all and to the view it matters
-    most to (render/importance.py)."""
+def measure_contributions(g: Gaussians3DGS, cams: list[Camera], progress: bool, regions: int = 1) -> Contributions:
+    """Each Gaussian's contribution to the pictures of ``cams``, in all and to the view (the region
+    of a regions x regions grid of a view) it matters most to (render/importance.py)."""
     bar = progress_bar(total=len(cams), desc="contributions", unit="view", disable=not progress, leave=False)
-    contrib = view_contributions(g.means, g.quats, g.scales, g.opacities, cams, on_view=bar.update)
+    contrib = view_contributions(g.means, g.quats, g.scales, g.opacities, cams, on_view=bar.update, regions=regions)
     bar.close()
     return contrib
 
@@ -190,6 +190,18 @@ def pruning_key(contrib: Contributions, views: SceneViews) -> Contributions:
     over views alike, and by the views' shares the donut at low needed 0.49 of SPZ's bytes at equal
     PSNR where by the total it needed 0.33 (the search chose the ladder's top, and more kept)."""
     return contrib if views.kind != "orbit" else dataclasses.replace(contrib, view_share=None)
+
+
+# The view shares are taken per region of a PRUNING_REGIONS x PRUNING_REGIONS grid of each view (a
+# region's share bounds the view's, render/importance.py): a detail that fills a corner of one view
+# is not pruned because the rest of that view is busy.
+PRUNING_REGIONS = 4
+
+
+def pruning_regions(views: SceneViews) -> int:
+    """The regions per side of a view that ``pruning_key``'s view shares are taken over (1 on an
+    orbit, which prunes by the total)."""
+    return 1 if views.kind == "orbit" else PRUNING_REGIONS
 
 
 def measure_sensitivities(scene: GaussianScene, cams: list[Camera], cfg: GaussianEncoderConfig, stats: PrepareStats,
@@ -267,12 +279,12 @@ def search_for_settings(scene: GaussianScene, contrib: Contributions, sensitivit
 def pruned_on_grid(scene: GaussianScene, contrib: Contributions, cfg: GaussianEncoderConfig, stats: PrepareStats,
                    num_views: int, say) -> tuple[GaussianScene, np.ndarray, np.ndarray]:
     """Pruning by contribution (``pruning_key``: by the views' shares, no view losing more than
-    ``prune_share`` of what it shows, or by the total; the pruned dropped or merged, ``prune_mode``),
+    ``prune_share`` of what any region of it shows, or by the total; the pruned dropped or merged, ``prune_mode``),
     then the grid weighted by contribution -> (the kept Gaussians on their grid, their contributions,
     which Gaussians were kept)."""
     keep, kept, weights = pruned_scene(scene, contrib.total, cfg.prune_share, cfg.prune_mode, contrib.view_share)
     stats.gaussians_pruned = int((~keep).sum())
-    of = "the contribution" if contrib.view_share is None else "any view's contribution"
+    of = "the contribution" if contrib.view_share is None else "any region of a view's contribution"
     say(f"contributions from {num_views} views in {stats.time_contributions_s:.1f} s; pruned "
         f"{stats.gaussians_pruned:,} of {scene.num_gaussians:,} Gaussians ({100 * cfg.prune_share:g}% of {of} at "
         f"most, {cfg.prune_mode})")
@@ -435,7 +447,7 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, views
     stats.views, stats.views_reason = views.kind, views.reason
     g = gaussians_from_scene(scene)
     contrib_cams = views.contribution_cameras(scene, cfg.fit_views, cfg.fit_resolution, cfg.resolve_px)
-    contrib = pruning_key(measure_contributions(g, contrib_cams, progress), views)
+    contrib = pruning_key(measure_contributions(g, contrib_cams, progress, pruning_regions(views)), views)
     cams = views.cameras(scene, cfg.fit_views, cfg.fit_resolution, cfg.resolve_px)
     stats.time_contributions_s = time.perf_counter() - t0
     sens_views = sensitivity_views(cfg, scene.num_gaussians)
