@@ -255,6 +255,22 @@ def test_bench_scale_sizes_and_targets():
     assert "not measured" in "\n".join(bs.targets(rows[:1]))
 
 
+def test_bench_scale_rooms_are_judged_from_inside_on_cameras_the_encoder_cannot_find(tmp_path):
+    """--scene room: a room of the size asked, and its evaluation cameras (18 inside views of the
+    size asked, the seed of views.md (b)) in a file that lghcc-enc's search for a capture's
+    cameras beside the scene does not pick up."""
+    from lghcc.render.camera import find_capture_cameras, load_capture_cameras
+
+    bs = _bench_scale()
+    path, text, scene = bs.scene_file(3000, "room", [], tmp_path)
+    assert path.name == "room-3k.ply" and scene.num_gaussians == 3000 and "make_room_scene(3000)" in text
+    cams = load_capture_cameras(bs.room_evaluation_cameras(tmp_path, 64))
+    assert len(cams) == 18 and {(c.width, c.height) for c in cams} == {(64, 64)}
+    assert find_capture_cameras(path) is None
+    lo, hi = scene.means.min(0), scene.means.max(0)
+    assert all(np.all(c.center > lo) and np.all(c.center < hi) for c in cams)  # standing in the room
+
+
 def test_a_dying_tile_worker_is_a_clear_error(monkeypatch):
     import os
 
@@ -291,9 +307,10 @@ def test_bench_scale_resume_keeps_measured_rows_and_says_when(tmp_path):
 
     good = bs.ScaleRow(10 ** 6, "medium", bytes=123, psnr=45.0, measured_at="2026-11-29 08:00 UTC, load 0.10 0.20 0.30")
     failed = bs.ScaleRow(3 * 10 ** 6, "medium", note="lghcc-enc failed (exit 1)")
-    other = bs.ScaleRow(3 * 10 ** 5, "medium", bytes=99, options="--jobs 1 --views 12 --size 320 --enc-args ''")
+    other = bs.ScaleRow(3 * 10 ** 5, "medium", bytes=99,
+                        options="--scene objects --jobs 1 --views 12 --size 320 --enc-args ''")
     (tmp_path / "rows.json").write_text(json.dumps([asdict(good), asdict(failed), asdict(other)]))
-    args = bs.argparse.Namespace(jobs=2, views=12, size=320, enc_args=[])
+    args = bs.argparse.Namespace(scene="objects", jobs=2, views=12, size=320, enc_args=[])
     kept = bs.resumed_rows(tmp_path / "rows.json", bs.measured_options(args))
     assert kept == {("medium", 10 ** 6): good}  # the failed row and the row of --jobs 1 are measured again
     args.jobs = 1

@@ -22,12 +22,18 @@ largest sum of the proportional set sizes (PSS: pages shared after fork counted 
 process and its descendants, sampled every 0.2 s (or 20x a sample's own time, when reading
 PSS of a process of several GiB takes longer: the sampler keeps to about 5% of a core).
 
+``--scene room``: the same for rooms watched from inside (formats/procedural.py make_room_scene of
+each size, tools/make_room.py's room), PSNR and bytes / SPZ on 18 views from where a person stands
+in it (room_inside_cameras, seed 7: views none of the encoder's stages used; its own views it places
+itself, ``--views auto``), into tools/results/scale_inside.md.
+
 Presets: any lghcc-enc preset, and ``plain``: preset low's steps without the render-based
 preparation (--psnr 0 --lambda 0 and prune_share 0: no renders, no search), the encoder's
 coding alone.
 
     python tools/bench_scale.py --sizes 100k,300k --presets plain,low     # minutes
     python tools/bench_scale.py                                           # 100k-3M x low, medium: hours
+    python tools/bench_scale.py --scene room --sizes 100k,300k            # rooms from inside
 
 Results: --out (default tools/results/scale.md) and a PNG of time per Gaussian against N beside
 it (matplotlib, `pip install -e .[tools]`; skipped with a message without it). Exit status: 0
@@ -58,7 +64,9 @@ from benchutil import command_line, load_average, write_lines  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_SIZES = "100k,300k,1M,3M"
-UP = "-y"  # the copies stand along -y (tools/scale_scenes.py)
+UP = {"objects": "-y", "room": "z"}  # the copies stand along -y (tools/scale_scenes.py); the room's floor is z = 0
+OUT = {"objects": "scale.md", "room": "scale_inside.md"}
+ROOM_EVAL_SEED = 7  # the room's evaluation cameras (tools/results/views.md (b)): not the encoder's
 PLAIN_YAML = "prune_share: 0\nfit_iterations: 0\n"
 STAGES = ("prepare", "geometry", "quantization", "attributes", "tiles and hash")
 
@@ -178,7 +186,7 @@ def encode_row(run, n: int, preset: str, args, enc: list[str], dec: list[str], w
     """One preset on one scene: encode, decode with 1 and 2 workers, PSNR (module doc)."""
     row = ScaleRow(n, preset, measured_at=f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, "
                                           f"load {load_average()}", options=measured_options(args))
-    stream, js = work / f"{label(n)}-{preset}.lghcc", work / f"{label(n)}-{preset}.json"
+    stream, js = work / f"{run.spec.slug}-{preset}.lghcc", work / f"{run.spec.slug}-{preset}.json"
     opts = ["--preset", preset]
     if preset == "plain":
         plain = work / "plain.yaml"
@@ -195,7 +203,7 @@ def encode_row(run, n: int, preset: str, args, enc: list[str], dec: list[str], w
     stats = json.loads(js.read_text())["stats"]
     row.bytes = stream.stat().st_size
     row.stages = dict(stats.get("stage_times_s", {}))
-    back = work / f"{label(n)}-{preset}.back.ply"
+    back = work / f"{run.spec.slug}-{preset}.back.ply"
     for jobs in (1, 2):
         log(f"{label(n)} {preset}: decoding with {jobs} worker(s) ...")
         d = measured([*dec, str(stream), "--export-ply", str(back), "-y", "--jobs", str(jobs), "-q"], env, work)
@@ -224,15 +232,34 @@ def spz_envelope(run, keeps: list[int]) -> tuple[list, int | None]:
 
 # --- the scenes ------------------------------------------------------------------------------
 
-def scene_file(n: int, sources: list, work: Path) -> tuple[Path, str, object]:
-    """The PLY of the scene of ``n`` Gaussians (written once into ``work``), how it is built, the scene."""
+def scene_file(n: int, kind: str, sources: list, work: Path) -> tuple[Path, str, object]:
+    """The PLY of the scene of ``n`` Gaussians of ``kind`` (written once into ``work``), how it is
+    built, the scene."""
     from lghcc.formats.ply3dgs import write_3dgs_ply
 
-    scene, pieces = scale_scenes.build_scene(n, sources)
-    path = work / f"scale-{label(n)}.ply"
+    if kind == "room":
+        from lghcc.formats.procedural import make_room_scene
+
+        scene, text = make_room_scene(n), f"make_room_scene({n}): the room of tools/make_room.py --gaussians {n}"
+        path = work / f"room-{label(n)}.ply"
+    else:
+        scene, pieces = scale_scenes.build_scene(n, sources)
+        text, path = scale_scenes.describe(pieces), work / f"scale-{label(n)}.ply"
     if not path.exists():
         write_3dgs_ply(path, scene)
-    return path, scale_scenes.describe(pieces), scene
+    return path, text, scene
+
+
+def room_evaluation_cameras(work: Path, size: int) -> Path:
+    """The room's evaluation cameras as an INRIA cameras.json in ``work`` (not named cameras.json:
+    lghcc-enc would find it beside the scene and measure from the very views it is judged on)."""
+    from lghcc.formats.procedural import room_inside_cameras
+    from make_room import cameras_json
+
+    path = work / f"room-evaluation-cameras-{size}px.json"
+    cams = room_inside_cameras(None, 18, size=size, seed=ROOM_EVAL_SEED)
+    path.write_text(json.dumps(cameras_json(cams)) + "\n")
+    return path
 
 
 def memory_estimate(scene, preset: str, jobs: int) -> int:
@@ -247,10 +274,12 @@ def memory_estimate(scene, preset: str, jobs: int) -> int:
 
 
 def scene_run(path: Path, n: int, args, st, why):
+    cameras = str(room_evaluation_cameras(args.work, args.size)) if args.scene == "room" else None
     ns = argparse.Namespace(views=args.views, size=args.size, elevation=20.0, background="black",
                             importance_views=24, importance_size=256, work=str(args.work), fresh=False,
-                            enc_args=[], dec_args=[])
-    return br.SceneRun(br.SceneSpec(f"scale-{label(n)}", path, UP, "given"), ns, st, why)
+                            enc_args=[], dec_args=[], cameras=cameras)
+    slug = f"scale-{label(n)}" if args.scene == "objects" else f"room-{label(n)}"
+    return br.SceneRun(br.SceneSpec(slug, path, UP[args.scene], "given"), ns, st, why)
 
 
 # --- the report ------------------------------------------------------------------------------
@@ -363,19 +392,24 @@ def measured_when(rows: list[ScaleRow]) -> list[str]:
 def report(rows: list[ScaleRow], built: dict[int, str], args, argv, plot_line: str, spz_note: str) -> list[str]:
     import torch
 
-    lines = ["# Scale: time, memory and bytes against the number of Gaussians", "",
+    room = args.scene == "room"
+    lines = [f"# Scale{' from inside' if room else ''}: time, memory and bytes against the number of Gaussians", "",
              f"Command: `{command_line('bench_scale.py', argv)}`  ",
              f"Date: {datetime.date.today()}; torch {torch.__version__}; {os.cpu_count()} CPUs; load "
              f"{load_average()} at the end (a shared machine: timings are noisy).", "",
+             "Scenes (formats/procedural.py make_room_scene: a closed 6 x 5 x 3 room with furniture, SH degree 0, "
+             "watched from inside; lghcc-enc decides where to look from itself):" if room else
              "Scenes (tools/scale_scenes.py: each source scaled to a unit box and cut to SH degree 0, the "
              f"copies on a grid of {scale_scenes.CELL:g}-unit cells in the x-z plane, none overlapping; the "
              "last copy a slab of its lowest-x Gaussians):", ""]
+    views = (f"the 18 views of {args.size} px from where a person stands in the room (room_inside_cameras, seed "
+             f"{ROOM_EVAL_SEED}, 90-degree field of view: views no encoder stage used)" if room else
+             f"{args.views} orbit views of {args.size} px (tools/bench_real.py's cameras, up {UP['objects']})")
     lines += [f"- {n:,}: {text}" for n, text in built.items()]
     lines += ["", f"Encode: lghcc-enc --jobs {args.jobs} --no-verify (the verification decode off; decoding is "
               "timed below), wall time of the subprocess with Python's and torch's start and the PLY read. Stage "
               "shares from lghcc-enc --json stage_times_s. Decode: lghcc-dec --export-ply --jobs 1 and --jobs 2. "
-              f"PSNR: mean over {args.views} orbit views of {args.size} px (tools/bench_real.py's cameras, up "
-              f"{UP}) of the decoded scene against the source's renders. {spz_note} Memory: peak RSS of the "
+              f"PSNR: mean over {views} of the decoded scene against the source's renders. {spz_note} Memory: peak RSS of the "
               "process (GNU time's %M; with workers, the largest process), tree peak: the largest sum of PSS over the process and "
               "its workers, sampled every 0.2 s or 20x a sample's own time (it can miss a short peak). us / Gaussian, stages only: the "
               "encoder's stages without the start and the PLY read.",
@@ -391,7 +425,8 @@ def report(rows: list[ScaleRow], built: dict[int, str], args, argv, plot_line: s
 
 def measured_options(args) -> str:
     """The options a row's numbers depend on besides its size and preset (--resume keeps only rows of the same)."""
-    return f"--jobs {args.jobs} --views {args.views} --size {args.size} --enc-args '{' '.join(args.enc_args)}'"
+    return (f"--scene {args.scene} --jobs {args.jobs} --views {args.views} --size {args.size} "
+            f"--enc-args '{' '.join(args.enc_args)}'")
 
 
 def resumed_rows(path: Path, options: str) -> dict[tuple[str, int], ScaleRow]:
@@ -419,12 +454,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-splat-transform", action="store_true", help="no SPZ rows (the column says n/a)")
     ap.add_argument("--data-root", type=Path, default=None, help="the shared scenes (default ../shared/data)")
     ap.add_argument("--work", type=Path, default=ROOT / ".bench_scale", help="scenes, streams, renders (ignored)")
-    ap.add_argument("--out", type=Path, default=ROOT / "tools" / "results" / "scale.md")
+    ap.add_argument("--scene", default="objects", choices=tuple(UP),
+                    help="objects: copies of the shared scenes, from an orbit (default); room: rooms of each size, "
+                         "from inside")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="the report (default tools/results/scale.md, scale_inside.md for --scene room)")
     ap.add_argument("--resume", action="store_true",
-                    help="keep the rows of --work's rows.json (an earlier run stopped part way) measured with the same "
+                    help="keep the rows of --work's rows.json (rows-room.json) of an earlier run that stopped part way, measured with the same "
                          "--jobs, --views, --size and --enc-args, and measure only the size and preset pairs it lacks; "
                          "the report lists when each row was measured")
     args = ap.parse_args(argv)
+    args.out = args.out or ROOT / "tools" / "results" / OUT[args.scene]
     import shlex
 
     try:
@@ -450,9 +490,10 @@ def main(argv: list[str] | None = None) -> int:
     sources = scale_scenes.load_sources(data_root)
     enc, dec = br.lghcc_commands()
     rows, built, runs = [], {}, {}
-    kept = resumed_rows(args.work / "rows.json", measured_options(args)) if args.resume else {}
+    rows_json = args.work / ("rows.json" if args.scene == "objects" else f"rows-{args.scene}.json")
+    kept = resumed_rows(rows_json, measured_options(args)) if args.resume else {}
     for n in sizes:  # the scenes, their renders and SPZ rows first (cached in --work)
-        path, built[n], scene = scene_file(n, sources, args.work)
+        path, built[n], scene = scene_file(n, args.scene, sources, args.work)
         run = scene_run(path, n, args, st, why)
         runs[n] = (run, *(spz_envelope(run, keeps) if st else ([], None)), scene)
     for preset in presets:  # every size of a preset before the next, slower preset
@@ -464,10 +505,10 @@ def main(argv: list[str] | None = None) -> int:
                 if not row.note and st:
                     row.spz_cell = br.equal_psnr_cell(row.bytes, row.psnr, env, full)
             else:
-                log(f"{label(n)} {preset}: kept from {args.work / 'rows.json'} (--resume)")
+                log(f"{label(n)} {preset}: kept from {rows_json} (--resume)")
             row.memory_estimate = memory_estimate(scene, preset, args.jobs)  # this code's estimate, kept rows too
             rows.append(row)
-            (args.work / "rows.json").write_text(json.dumps([asdict(r) for r in rows], indent=1))
+            rows_json.write_text(json.dumps([asdict(r) for r in rows], indent=1))
             # written after every row: a run stopped part way keeps what it measured, and says so
             left = len(sizes) * len(presets) - len(rows)
             lines = report(rows, built, args, argv, plot(rows, args.out.with_suffix(".png")), spz_note)
