@@ -5,6 +5,7 @@ the splat-transform round trip (skipped when node or the pinned package is absen
 
 from __future__ import annotations
 
+import argparse
 import importlib.util
 import math
 import sys
@@ -295,3 +296,14 @@ def test_splat_transform_round_trip(tiny_ply, tmp_path):
     assert br.main([*args, "--no-splat-transform"]) == 0
     strip = lambda t: [l for l in t.splitlines() if not l.startswith(("Command:", "Date:"))]  # noqa: E731
     assert strip(out.read_text()) == strip(text)
+
+
+def test_the_report_says_which_views_the_spz_importance_ranks_on():
+    """Fibonacci sphere by default; with --cameras the evaluation's own views, which the report calls
+    an oracle; --importance-cameras others (a capture's), named."""
+    ns = argparse.Namespace(importance_views=24, importance_size=256, cameras=None, importance_cameras=None)
+    assert br.importance_text(ns) == "24 Fibonacci-sphere views (not the orbit)"
+    ns.cameras = "eval.json"
+    assert "oracle" in br.importance_text(ns)
+    ns.importance_cameras = "capture.json"
+    assert br.importance_text(ns).startswith("the cameras of `capture.json` at 256 px")

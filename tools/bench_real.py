@@ -38,7 +38,9 @@ of view, black background; PSNR and SSIM are the means over the views. ``--camer
 evaluates from those cameras instead (what lghcc's load_capture_cameras reads: an INRIA
 cameras.json, a COLMAP sparse folder, a transforms.json), each at ``--size`` squared pixels, for
 scenes watched from inside (a room from where its viewers stand); the importance pruning of the
-SPZ curve then measures on them too, and ``LABEL=PATH`` names the section apart from the orbit's.
+SPZ curve then measures on them too (an oracle: it ranks on the very views it is judged on) unless
+``--importance-cameras PATH`` gives others (the capture's own, which an SPZ user has), and
+``LABEL=PATH`` names the section apart from the orbit's.
 
 Importance pruning keeps the top x% of Gaussians by contribution (sum over views and pixels of
 alpha T, render/importance.py) seen from ``--importance-views`` cameras on a Fibonacci sphere
@@ -163,6 +165,15 @@ def evaluation_cameras(args, means: np.ndarray, up: str) -> list:
     from lghcc.render.camera import load_capture_cameras
 
     return [c.scaled(args.size / math.sqrt(c.width * c.height)) for c in load_capture_cameras(args.cameras)]
+
+
+def importance_text(args) -> str:
+    """Which views the SPZ curve's importance pruning ranks the Gaussians on (``SceneRun.importance``)."""
+    if getattr(args, "importance_cameras", None):
+        return f"the cameras of `{args.importance_cameras}` at {args.importance_size} px (not the evaluation's)"
+    if args.cameras:
+        return "the evaluation cameras themselves (an oracle: ranked on the views it is judged on)"
+    return f"{args.importance_views} Fibonacci-sphere views (not the orbit)"
 
 
 def cameras_digest(path: Path) -> str:
@@ -451,6 +462,8 @@ class SceneRun:
                    importance=[args.importance_views, args.importance_size])
         if args.cameras:
             key["cameras"] = cameras_digest(Path(args.cameras))
+        if getattr(args, "importance_cameras", None):
+            key["importance_cameras"] = cameras_digest(Path(args.importance_cameras))
         self.cache = SceneCache(Path(args.work), spec.slug, self.file_hash, key, args.fresh)
         self.cams = evaluation_cameras(args, self.scene.means, self.up)
         self.ev = Evaluator(self.cams, background_color(args.background))
@@ -515,11 +528,19 @@ class SceneRun:
 
         g = gaussians_from_scene(self.scene)
         centre, radius = g.bounds()
-        cams = sphere_cameras(centre, radius, self.args.importance_views, resolution=self.args.importance_size,
-                              prefix="importance") if not self.args.cameras else self.cams
-        log(f"{self.spec.slug}: importance of each Gaussian from {len(cams)} "
-            + (f"Fibonacci-sphere views {self.args.importance_size}px (not the evaluation orbit) ..."
-               if not self.args.cameras else "evaluation cameras ..."))
+        if getattr(self.args, "importance_cameras", None):
+            from lghcc.render.camera import load_capture_cameras
+
+            size = self.args.importance_size
+            cams, what = [c.scaled(size / math.sqrt(c.width * c.height))
+                          for c in load_capture_cameras(self.args.importance_cameras)], "--importance-cameras"
+        elif self.args.cameras:
+            cams, what = self.cams, "evaluation cameras"
+        else:
+            cams = sphere_cameras(centre, radius, self.args.importance_views, resolution=self.args.importance_size,
+                                  prefix="importance")
+            what = f"Fibonacci-sphere views {self.args.importance_size}px (not the evaluation orbit)"
+        log(f"{self.spec.slug}: importance of each Gaussian from {len(cams)} {what} ...")
         t0 = time.perf_counter()
         c = gaussian_contributions(g.means, g.quats, g.scales, g.opacities, cams)
         np.save(path, c)
@@ -825,6 +846,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="SH degrees of the SPZ curve: every degree down to 0 (default) or the source's")
     ap.add_argument("--importance-views", type=int, default=24, help="Fibonacci-sphere views for pruning (24)")
     ap.add_argument("--importance-size", type=int, default=256, help="their size in px (256)")
+    ap.add_argument("--importance-cameras", help="rank the SPZ curve's importance pruning on these cameras (a file "
+                                                 "as --cameras reads, at --importance-size px) instead of the "
+                                                 "Fibonacci sphere, or of --cameras, which would be an oracle")
     ap.add_argument("--no-splat-transform", action="store_true",
                     help="never run splat-transform: its rows come from the cache or are left out")
     ap.add_argument("--data-root", type=Path, default=None, help="folder of the named scenes (../shared/data)")
@@ -932,8 +956,8 @@ def main(argv: list[str] | None = None) -> int:
                    + ", Python and torch start included" if presets else "")
                 + "). SPZ curve: SPZ of the scene with fewer "
                 f"SH bands (-H) and/or fewer Gaussians: importance = the top x% by contribution over "
-                f"{args.importance_views} Fibonacci-sphere views (not the orbit), decimate-adaptive / decimate "
-                "= splat-transform --decimate-adaptive x% / -d x%."]
+                f"{importance_text(args)}, decimate-adaptive / decimate = splat-transform --decimate-adaptive x% / "
+                "-d x%."]
         notes = []
         if run.skipped:
             notes.append(f"Not measured ({why or 'failed'}): " + "; ".join(run.skipped) + ".")
