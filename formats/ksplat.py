@@ -39,7 +39,7 @@ SMALLEST_LOG_SCALE = -10.0  # what a scale of 0 or below reads as (splat-transfo
 SECTION = struct.Struct("<4IfH2xI4x2IH")  # the section header's fields at offsets 0-20, 24, 32-40
 
 
-def _sh_slots(degree: int) -> tuple[np.ndarray, np.ndarray]:
+def sh_slots(degree: int) -> tuple[np.ndarray, np.ndarray]:
     """(coefficient - 1, channel) of the section's i-th stored SH value: band by band, and within
     a band channel by channel."""
     coeff, channel = [], []
@@ -131,7 +131,7 @@ def _read_section(k: _Ksplat, header: tuple, offset: int, out: dict, start: int)
             sh = rec["sh"].astype(np.float64)
             if k.mode == 2:
                 sh = k.sh_range[0] + sh / 255.0 * (k.sh_range[1] - k.sh_range[0])
-            coeff, channel = _sh_slots(degree)
+            coeff, channel = sh_slots(degree)
             out["sh"][start:start + count, 1 + coeff, channel] = sh
     return offset + storage + rec.dtype.itemsize * capacity
 
