@@ -34,10 +34,11 @@ def alpha_logits(alpha: np.ndarray) -> np.ndarray:
 
 def finite_opacity_logits(logits: np.ndarray, what: str) -> np.ndarray:
     """``logits`` with +-inf replaced by +-LARGEST_OPACITY_LOGIT (one InfiniteOpacityWarning
-    counting them); NaN is left for the scene's validation to refuse."""
+    counting them); with NaN among them they are returned as they are, for the scene's
+    validation to refuse (no warning for a file that is not read)."""
     logits = np.asarray(logits)
     infinite = np.isinf(logits)
-    if not infinite.any():
+    if not infinite.any() or np.isnan(logits).any():
         return logits
     up = int((infinite & (logits > 0)).sum())
     down = int(infinite.sum()) - up

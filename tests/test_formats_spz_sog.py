@@ -8,7 +8,6 @@ import json
 import math
 import struct
 import zipfile
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -28,7 +27,6 @@ from lghcc.formats.sog import (decode_sog, encode_sog, inverse_log_transform, lo
                                palette_size, quantize_1d, texture_size)
 from lghcc.formats.spz import axis_flips, decode_spz, encode_spz, flip_axes
 
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def make_scene(rng, n, degree, pos_scale=1.0, rot_scale=1.0):
