@@ -159,7 +159,7 @@ def ksplat_bytes(scene: GaussianScene, mode: int, sections: int = 2, block: floa
 def splat_transform_reading(prefix: list[str], path: Path, lod: int | None) -> tuple[GaussianScene, int]:
     """(the scene splat-transform reads from ``path`` at level ``lod``, its +-inf opacity
     logits) via a PLY it writes."""
-    ply = path.with_name(f"{path.name}.{lod}.st.ply")
+    ply = path.parent.parent / f"{path.name}.{lod}.st.ply"  # outside a streamed SOG's folder
     run_splat_transform(prefix, [str(path), *([] if lod is None else ["-L", str(lod)]), str(ply)])
     n_inf = int(np.isinf(read_ply(ply)["opacity"]).sum())
     with warnings.catch_warnings():
@@ -174,7 +174,8 @@ def compare(ours: GaussianScene, theirs: GaussianScene) -> list[float]:
 
 
 def make_files(prefix: list[str], data: Path, work: Path) -> list[tuple[str, str, Path, int | None]]:
-    """(format, what it was made from, file, level of detail) of every file checked."""
+    """(format, what it was made from, file, level of detail) of every file checked (the
+    streamed SOG's units in their own folder, whose bytes are the file's)."""
     run_splat_transform(prefix, [str(data / DONUT), str(work / "donut.compressed.ply")])
     run_splat_transform(prefix, [str(data / LOD4), str(work / "playbot.compressed.ply")])
     run_splat_transform(prefix, [str(data / LOD3), "-l", "0", str(data / LOD4), "-l", "1",
@@ -195,9 +196,10 @@ def make_files(prefix: list[str], data: Path, work: Path) -> list[tuple[str, str
 def check(prefix: list[str], data: Path, work: Path) -> list[tuple]:
     rows = []
     for fmt, made, path, lod in make_files(prefix, data, work):
+        size = sum(f.stat().st_size for f in path.parent.rglob("*")) if fmt == "streamed SOG" else path.stat().st_size
         ours = read_scene(path, lod=lod)
         theirs, n_inf = splat_transform_reading(prefix, path, lod)
-        rows.append((fmt, made, path.stat().st_size, ours.num_gaussians, theirs.num_gaussians, ours.sh_degree,
+        rows.append((fmt, made, size, ours.num_gaussians, theirs.num_gaussians, ours.sh_degree,
                      compare(ours, theirs), n_inf))
         print(f"{fmt}, {made}: {ours.num_gaussians:,} Gaussians, largest differences {rows[-1][6]}", flush=True)
     return rows
@@ -209,7 +211,10 @@ def table(rows: list[tuple], argv: list[str]) -> list[str]:
              f"Date: {datetime.date.today()}; load average {load_average()}", "",
              "Largest absolute difference per field between lghcc's reading and splat-transform's "
              "(0: the same float32 values). +-inf: the opacity logits splat-transform gave as +-inf "
-             "(alpha 255 / 0), which both sides then read as the same finite logits.", "",
+             "(alpha 255 / 0), which both sides then read as the same finite logits. Bytes: the file's; a "
+             "streamed SOG's: lod-meta.json and all its units (both levels).", "",
+             "Scenes: playbot by **Stephane Agullo**, CC-BY-4.0 (playbot/LICENSE-playbot.txt); donut: V3DG "
+             "project, MIT (donut/LICENSE).", "",
              "| format | file | bytes | Gaussians (lghcc / splat-transform) | SH degree | means | SH | opacity | "
              "log scales | rotations | +-inf opacities |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
