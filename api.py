@@ -26,14 +26,17 @@ if TYPE_CHECKING:
 PathLike = Union[str, "os.PathLike[str]"]
 
 
-def read_scene(path: PathLike) -> "Scene":
+def read_scene(path: PathLike, **options: Any) -> "Scene":
     """Read a scene, its format found by content, then extension: a 3DGS PLY, SPZ (v2-v4), SOG
-    (``.sog`` or ``meta.json``), a 3DGS model folder (``point_cloud/iteration_N/``) ->
-    ``GaussianScene``; a Scaffold-GS / HAC model (folder, iteration folder or anchor PLY, render
-    MLPs from ``checkpoint.pth`` beside it) -> ``AnchorScene``."""
+    (``.sog`` or ``meta.json``), PlayCanvas compressed PLY, streamed SOG (``lod-meta.json``: one
+    level of detail, ``lod=N``; default the level with the most Gaussians), ``.splat``,
+    ``.ksplat``, a 3DGS model folder (``point_cloud/iteration_N/``) -> ``GaussianScene``; a
+    Scaffold-GS / HAC model (folder, iteration folder or anchor PLY, render MLPs from
+    ``checkpoint.pth`` beside it) -> ``AnchorScene``. Anything else: one InputError naming what
+    was expected and what the path holds."""
     from .formats import read_scene as _read
 
-    return _read(path)
+    return _read(path, **options)
 
 
 def write_scene(scene: "Scene", path: PathLike, **options: Any) -> Path:

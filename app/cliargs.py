@@ -88,11 +88,24 @@ def run_cli(prog: str, body, argv, interrupted_note: str = "") -> int:
     """Run ``body(argv)`` -> exit status under lghcc.app.cli_common's rule: an LghccError, a MemoryError
     or Ctrl-C raised inside becomes one line on stderr and its exit status (``exit_code_for``: 1, 3
     for an invalid stream, 4 for a resource limit, 130 interrupted). Outputs are written atomically,
-    so an interrupt leaves no partial file behind. Other exceptions are bugs and propagate."""
+    so an interrupt leaves no partial file behind. Other exceptions are bugs and propagate. An
+    InputWarning (the input was read, with a caveat) is one line on stderr, each time it is raised."""
+    import sys
+    import warnings
+
     from .cli_common import report
-    from ..common.errors import LghccError
+    from ..common.errors import InputWarning, LghccError
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, InputWarning):
+            print(f"{prog}: warning: {message}", file=sys.stderr, flush=True)
+        else:
+            shown(message, category, filename, lineno, file, line)
 
     try:
-        return body(argv)
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", InputWarning)
+            shown, warnings.showwarning = warnings.showwarning, show
+            return body(argv)
     except (LghccError, MemoryError, KeyboardInterrupt) as e:
         return report(prog, e, "interrupted" + (f"; {interrupted_note}" if interrupted_note else ""))

@@ -30,3 +30,8 @@ class ResourceLimitError(LghccError):
 class UsageError(LghccError):
     """A valid input asked for something it cannot give (the level-1 preview of a stream coded
     without the hierarchy): the command line is wrong for this input, exit status 2."""
+
+
+class InputWarning(UserWarning):
+    """The input was read, with something the user should know (the message says what); the
+    programs print it as one line (lghcc.app.cliargs.run_cli)."""

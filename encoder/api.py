@@ -1,7 +1,8 @@
 """The encoder as functions (informative): what ``lghcc.encode`` and ``lghcc-enc`` both call.
 
-* ``load_source``: the scene a path names, ready for coding: a plain 3DGS scene (PLY, SPZ,
-  SOG) as a GaussianScene, or (``mode="anchors"``) transcoded to anchors; a Scaffold-GS model
+* ``scene_kind``: which kind of scene a path holds, or one error saying what it holds instead.
+* ``load_source``: the scene a path names, ready for coding: a plain 3DGS scene (any format
+  lghcc.formats reads) as a GaussianScene, or (``mode="anchors"``) transcoded to anchors; a Scaffold-GS model
   as an AnchorScene (duplicates in a voxel merged on request); the procedural scene.
   ``read_source`` returns the same scene with what a transcode produced beside it (its
   statistics, the source's SH degree, the context twin of its rate phase), which ``encode``
@@ -41,18 +42,19 @@ def _quiet(_msg: str) -> None:
     pass
 
 
-def is_gaussian_file(path: str | Path) -> bool:
-    """A plain 3DGS scene file: an INRIA 3DGS PLY (not a Scaffold-GS anchor PLY), SPZ or SOG."""
+def scene_kind(path: str | Path) -> str:
+    """'gaussians' for a plain 3DGS scene of any format ``read_scene`` reads, 'anchors' for a
+    Scaffold-GS model; otherwise the InputError of ``detect_format``, which says what was expected
+    and what the path holds (before any preset of the wrong kind of scene is looked up)."""
     from ..formats import detect_format
-    from ..formats.ply3dgs import is_3dgs_ply
 
-    p = Path(path)
-    if is_3dgs_ply(p):
-        return True
-    if not p.exists() or (p.is_dir() and not (p / "meta.json").is_file()):
-        return False
+    return "anchors" if detect_format(path).name == "scaffold-gs" else "gaussians"
+
+
+def is_gaussian_file(path: str | Path) -> bool:
+    """A plain 3DGS scene (any format ``read_scene`` reads, not a Scaffold-GS model)."""
     try:
-        return detect_format(p).name in ("spz", "sog")
+        return scene_kind(path) == "gaussians"
     except LghccError:
         return False
 
@@ -87,9 +89,10 @@ class Source:
 
 
 def transcode_source(path: Path, options: TranscodeOptions, coding=None, *, progress: bool = False,
-                     log: Log = _quiet) -> TranscodeResult:
-    """A plain 3DGS scene file (PLY, SPZ or SOG) fitted to anchors (encoder/anchors/transcode.py) with
-    the settings of ``options`` for the coding configuration ``coding`` (None: its preset's)."""
+                     log: Log = _quiet, lod: int | None = None) -> TranscodeResult:
+    """A plain 3DGS scene file (any format ``read_scene`` reads; ``lod``: a streamed SOG's level)
+    fitted to anchors (encoder/anchors/transcode.py) with the settings of ``options`` for the
+    coding configuration ``coding`` (None: its preset's)."""
     from ..formats.ply3dgs import is_3dgs_ply
     from .stream.config import load_config
     from .anchors.transcode import preset_transcode_config, transcode_3dgs
@@ -99,11 +102,11 @@ def transcode_source(path: Path, options: TranscodeOptions, coding=None, *, prog
     fields = {k: v for k, v in vars(o).items() if k != "preset"}
     cfg = preset_transcode_config(o.preset, coding, **fields, progress=progress)
     source: Any = str(path)
-    if not is_3dgs_ply(path):  # SPZ or SOG
+    if not is_3dgs_ply(path):  # the other formats, read into a scene first
         from ..formats import read_scene
         from ..render.gaussians3dgs import gaussians_from_scene
 
-        source = gaussians_from_scene(read_scene(path), source=str(path))
+        source = gaussians_from_scene(read_scene(path, lod=lod), source=str(path))
     log(f"{path}: a plain 3DGS scene: transcoding it to an anchor scene first, by fitting against renders of it "
         f"(preset {o.preset}: rate lambda {cfg.rate_lambda:g}, {cfg.distill_steps} distillation steps, "
         f"{cfg.iterations} fitting iterations; minutes on a CPU; see --transcode-*)")
@@ -116,20 +119,22 @@ def transcode_source(path: Path, options: TranscodeOptions, coding=None, *, prog
 def load_source(path: str | Path | None = None, *, mode: str = "gaussians", procedural: int | None = None,
                 seed: int = 0, voxel_size: float | None = None, merge_duplicates: bool = False,
                 transcode: TranscodeOptions | None = None, coding=None, progress: bool = False, log: Log = _quiet,
-                warn: Log = _quiet) -> AnchorScene | GaussianScene:
+                warn: Log = _quiet, lod: int | None = None) -> AnchorScene | GaussianScene:
     """The scene to encode (see the module doc). ``warn`` gets the warnings a user must see
     (a folder without render MLPs); ``log`` the progress notes. ``coding``: the configuration
-    the scene will be coded with, which a transcode's rate model matches (None: the preset's)."""
+    the scene will be coded with, which a transcode's rate model matches (None: the preset's).
+    ``lod``: the level of detail of a streamed SOG (None: the level with the most Gaussians)."""
     return read_source(path, mode=mode, procedural=procedural, seed=seed, voxel_size=voxel_size,
                        merge_duplicates=merge_duplicates, transcode=transcode, coding=coding, progress=progress,
-                       log=log, warn=warn).scene
+                       log=log, warn=warn, lod=lod).scene
 
 
 def read_source(path: str | Path | None = None, *, mode: str = "gaussians", procedural: int | None = None,
                 seed: int = 0, voxel_size: float | None = None, merge_duplicates: bool = False,
                 transcode: TranscodeOptions | None = None, coding=None, progress: bool = False, log: Log = _quiet,
-                warn: Log = _quiet) -> Source:
-    """``load_source``'s scene, with the transcode that made it (``Source``)."""
+                warn: Log = _quiet, lod: int | None = None) -> Source:
+    """``load_source``'s scene, with the transcode that made it (``Source``); ``lod``: the level
+    of detail of a streamed SOG (None: the level with the most Gaussians)."""
     if (path is None) == (procedural is None):
         raise InputError("give exactly one of an input path or a procedural anchor count")
     if procedural is not None:
@@ -139,17 +144,18 @@ def read_source(path: str | Path | None = None, *, mode: str = "gaussians", proc
             raise InputError("--procedural needs a positive anchor count")
         return Source(make_procedural_scene(procedural, seed=seed, progress=progress))
     p = Path(path)
-    if not p.exists():
-        raise InputError(f"{p}: no such file or folder")
     if mode not in ("gaussians", "anchors"):
         raise InputError(f"mode must be gaussians or anchors, got {mode!r}")
-    if is_gaussian_file(p):
+    if scene_kind(p) == "gaussians":
         if mode == "gaussians":
             from ..formats import read_scene
 
-            return Source(read_scene(p))
-        res = transcode_source(p, transcode or TranscodeOptions(), coding, progress=progress, log=log)
+            return Source(read_scene(p, lod=lod))
+        res = transcode_source(p, transcode or TranscodeOptions(), coding, progress=progress, log=log, lod=lod)
         return Source(res.scene, res)
+    if lod is not None:
+        raise InputError(f"{p}: a level of detail (--lod) is chosen in a streamed SOG (lod-meta.json); this is a "
+                         "Scaffold-GS model")
     return Source(read_model(p, voxel_size, merge_duplicates, log, warn))
 
 

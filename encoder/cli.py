@@ -94,8 +94,12 @@ def add_source_arguments(p: argparse.ArgumentParser) -> None:
     """The scene, the output and the preset."""
     from .stream.config import preset_names
 
-    p.add_argument("input", nargs="?", help="a 3DGS scene (INRIA PLY, SPZ or SOG), or a Scaffold-GS model folder, "
-                                             "iteration folder or point_cloud.ply")
+    p.add_argument("input", nargs="?", help="a 3DGS scene (INRIA PLY, compressed PLY, SPZ, SOG, streamed SOG "
+                                             "lod-meta.json, .splat, .ksplat, a 3DGS model folder), or a Scaffold-GS "
+                                             "model folder, iteration folder or point_cloud.ply")
+    p.add_argument("--lod", type=int, metavar="N",
+                   help="streamed SOG input (lod-meta.json): code level of detail N (negative: from the coarsest "
+                        "end, as splat-transform's -L; default: the level with the most Gaussians, the finest)")
     p.add_argument("-o", "--output", required=True, help="the .lghcc file to write")
     p.add_argument("--procedural", type=int, metavar="N",
                    help="encode the built-in procedural scene with about N anchors instead of an input")
@@ -131,7 +135,7 @@ def add_anchor_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def add_gaussian_arguments(p: argparse.ArgumentParser) -> None:
-    gs = p.add_argument_group("plain 3DGS input (an SPZ or SOG file, or a PLY with f_dc_0 and no f_anchor_feat_0)")
+    gs = p.add_argument_group("plain 3DGS input (any 3DGS scene format above: not a Scaffold-GS model)")
     gs.add_argument("--mode", choices=("gaussians", "anchors"), default="gaussians",
                     help="gaussians (default): code every Gaussian explicitly; anchors: transcode to an anchor "
                          "scene first by fitting anchors and MLPs to renders of the source (minutes; "
@@ -354,7 +358,7 @@ def load_scene(args: argparse.Namespace, cfg):
                              transcode=transcode, coding=cfg, progress=not args.quiet,
                              log=(lambda m: print(m, file=sys.stderr, flush=True)) if not args.quiet
                              else (lambda m: None),
-                             warn=lambda m: print(f"lghcc-enc: warning: {m}", file=sys.stderr))
+                             warn=lambda m: print(f"lghcc-enc: warning: {m}", file=sys.stderr), lod=args.lod)
     api.check_encodable(source.scene, args.allow_no_mlps, warn=lambda m: print(f"lghcc-enc: warning: {m}",
                                                                                 file=sys.stderr))
     return source
@@ -488,7 +492,8 @@ def _main(argv: list[str] | None) -> int:
     # A failure is reported by run_cli: one line, and the exit status of its kind (lghcc.app.cli_common).
     check_outputs(args)
     workers = tile_workers_of(args)
-    gaussians = args.input is not None and args.mode == "gaussians" and api.is_gaussian_file(args.input)
+    # what the input is decides which presets apply: a path that is no scene is one error saying so, first
+    gaussians = args.input is not None and api.scene_kind(args.input) == "gaussians" and args.mode == "gaussians"
     cfg = load_config(args.preset, args.config, config_overrides(args, gaussians),
                       kind="gaussians" if gaussians else "anchors")
     t0 = time.perf_counter()

@@ -3,7 +3,9 @@
 per Gaussian ``x, y, z`` (``nx, ny, nz``, unused), ``f_dc_0..2``, ``f_rest_0..3(K-1)-1``
 (channel-major: f_rest_{c (K-1) + i - 1} is coefficient i of channel c, K = (d + 1)^2 for SH
 degree d; none for degree 0), ``opacity`` (logit), ``scale_0..2`` (log), ``rot_0..3``
-(quaternion w, x, y, z, any norm).
+(quaternion w, x, y, z, any norm). Opacity logits of +-inf (opacity 1 and 0, as splat-transform
+writes the 8-bit opacities of a compressed PLY) are read as finite logits with a warning
+(formats/opacity.py); NaN anywhere is an error.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.errors import InputError
+from .opacity import finite_opacity_logits
 from .ply import read_ply, read_ply_header_lines, write_ply
 from ..common.scene import SH_DEGREE_MAX, GaussianScene, sh_coeffs_per_channel
 
@@ -21,16 +24,18 @@ REQUIRED_FIELDS = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scal
                    "rot_0", "rot_1", "rot_2", "rot_3")
 
 
-def ply_property_names(path: str | os.PathLike) -> list[str]:
-    """Property names of the first element of a PLY file, from its header only."""
-    names, seen_element = [], False
+def ply_property_names(path: str | os.PathLike, element: str | None = None) -> list[str]:
+    """Property names of the element ``element`` (None: the first) of a PLY file, from its
+    header only ([] when it has no such element)."""
+    names: list[str] = []
+    current = None
     for line in read_ply_header_lines(path):
         parts = line.split()
-        if parts[:1] == ["element"]:
-            if seen_element:
+        if parts[:1] == ["element"] and len(parts) >= 2:
+            if current is not None and (element is None or current == element):
                 break
-            seen_element = True
-        elif parts[:1] == ["property"] and len(parts) >= 3:
+            current = parts[1]
+        elif parts[:1] == ["property"] and len(parts) >= 3 and (element is None or current == element):
             names.append(parts[-1])
     return names
 
@@ -79,7 +84,8 @@ def read_3dgs_ply(path: str | os.PathLike) -> GaussianScene:
     sh[:, 0] = stack(["f_dc_0", "f_dc_1", "f_dc_2"])
     if nrest:
         sh[:, 1:] = stack(rest).reshape(n, 3, k - 1).transpose(0, 2, 1)
-    scene = GaussianScene(stack(["x", "y", "z"]), sh, np.asarray(cols["opacity"], np.float32),
+    opacity = finite_opacity_logits(np.asarray(cols["opacity"], np.float32), str(p))
+    scene = GaussianScene(stack(["x", "y", "z"]), sh, opacity,
                           stack(["scale_0", "scale_1", "scale_2"]), stack(["rot_0", "rot_1", "rot_2", "rot_3"]))
     return scene.validate(str(p))
 

@@ -59,6 +59,7 @@ from .. import __version__
 from ..common.errors import InputError
 from ..app.fileio import atomic_write_bytes
 from ..common.scene import GaussianScene
+from .opacity import alpha_logits
 
 SOG_VERSION = 2
 CODEBOOK_SIZE = 256
@@ -67,7 +68,6 @@ PALETTE_ROW = 64  # SH palette entries per row of shN_centroids.webp
 QUAT_TAG = 252  # quats.webp alpha = QUAT_TAG + index of the dropped (largest) component
 KMEANS_ITERATIONS = 10  # splat-transform's default --iterations
 KMEANS_LEAF = 256  # most centroids one flat k-means fits; larger palettes are built as a tree
-OPACITY_EPS = 1e-6  # splat-transform's sigmoidInv clamp: alpha 0 and 255 decode to finite logits
 MAX_TEXTURE_SIDE = 16383  # WebP's limit
 WEBP_EFFORT, WEBP_METHOD = 70, 4  # libwebp's WebPEncodeLosslessRGBA settings, which splat-transform uses
 
@@ -528,8 +528,7 @@ class _SogMeta:
             log_scales = _lookup(self.numbers(scales, "codebook", "scales.codebook", 0), sp[:, :3], self.what,
                                  "scales.codebook")
             dc = _lookup(self.numbers(sh0, "codebook", "sh0.codebook", 0), cp[:, :3], self.what, "sh0.codebook")
-            a = np.clip(cp[:, 3] / 255, OPACITY_EPS, 1 - OPACITY_EPS)
-            return log_scales, dc, np.log(a / (1 - a))
+            return log_scales, dc, alpha_logits(cp[:, 3])  # splat-transform's sigmoidInv clamp
         smin = self.numbers(scales, "mins", "scales.mins", 3)
         log_scales = smin + (self.numbers(scales, "maxs", "scales.maxs", 3) - smin) * (sp[:, :3] / 255)
         cmin = self.numbers(sh0, "mins", "sh0.mins", 4)

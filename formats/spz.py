@@ -67,6 +67,7 @@ import zstandard
 from ..common.errors import InputError
 from ..app.fileio import atomic_write_bytes
 from ..common.scene import SH_DEGREE_MAX, GaussianScene, sh_coeffs_per_channel
+from .opacity import alpha_logits
 
 SPZ_MAGIC = 0x5053474E  # "NGSP" in file order
 SPZ_VERSION_LATEST = 4
@@ -80,7 +81,6 @@ ZSTD_LEVEL = 12  # the reference's compressZstd
 COLOR_SCALE = np.float32(0.15)
 FRACTIONAL_BITS = 12
 SH1_BITS, SH_REST_BITS = 5, 4
-ALPHA_EPS = 1e-6
 MIN_BYTES_PER_POINT = 9  # the reference's bound on numPoints: the positions stream alone ...
 MAX_COMPRESSION_RATIO = 1024  # ... compressed at most this much
 MAX_LEGACY_EXTENSION_BYTES = 1 << 20
@@ -276,8 +276,7 @@ def _unpack(n: int, degree: int, fb: int, version: int, streams: list[bytes]) ->
     fixed = pos_b[:, 0] | (pos_b[:, 1] << 8) | (pos_b[:, 2] << 16)
     fixed = np.where(fixed & 0x800000, fixed - (1 << 24), fixed)
     means = (fixed.astype(np.float64) * 2.0 ** -fb).reshape(n, 3)
-    a = np.clip(np.frombuffer(streams[1], np.uint8) / 255.0, ALPHA_EPS, 1 - ALPHA_EPS)
-    opacity = np.log(a / (1 - a))
+    opacity = alpha_logits(np.frombuffer(streams[1], np.uint8))
     color = (np.frombuffer(streams[2], np.uint8).reshape(n, 3) / 255.0 - 0.5) / 0.15
     log_scales = np.frombuffer(streams[3], np.uint8).reshape(n, 3) / 16.0 - 10.0
     if version >= 3:

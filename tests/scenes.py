@@ -1,6 +1,12 @@
-"""Small scene builders and hypothesis strategies shared by the tests."""
+"""Small scene builders, hypothesis strategies and the pinned splat-transform, shared by the tests."""
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
 
 import numpy as np
+import pytest
 from hypothesis import strategies as st
 
 from lghcc.common.scene import AnchorScene, RenderMLP
@@ -96,3 +102,27 @@ def write_scaffold_gs_model(model, coords: np.ndarray, voxel_size: float, *, fea
                                   add_color_dist=False)
         (model / "cfg_args").write_text(str(args))
     return folder
+
+
+SPLAT_TRANSFORM = Path(__file__).resolve().parents[1] / "tools" / "node" / "node_modules" / ".bin" / "splat-transform"
+SPLAT_TRANSFORM_VERSION = "3.7.0"
+
+
+def splat_transform_or_skip() -> Path:
+    """The pinned splat-transform of tools/node, or a skip saying what is missing."""
+    if shutil.which("node") is None:
+        pytest.skip("node is not installed: the splat-transform interop tests need Node.js")
+    pkg = SPLAT_TRANSFORM.parents[1] / "@playcanvas" / "splat-transform" / "package.json"
+    if not SPLAT_TRANSFORM.exists() or not pkg.exists():
+        pytest.skip("@playcanvas/splat-transform is not installed in tools/node (run `make node-tools`)")
+    version = json.loads(pkg.read_text())["version"]
+    if version != SPLAT_TRANSFORM_VERSION:
+        pytest.skip(f"tools/node has splat-transform {version}, these tests pin {SPLAT_TRANSFORM_VERSION}")
+    return SPLAT_TRANSFORM
+
+
+def splat_transform(tool: Path, *args) -> None:
+    """Run splat-transform quietly on the CPU (inputs, actions, the output last); fails the test on an error."""
+    out = subprocess.run([str(tool), "-q", "-w", "-g", "cpu", *map(str, args)], capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]

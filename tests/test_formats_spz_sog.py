@@ -6,11 +6,8 @@ import gzip
 import io
 import json
 import math
-import shutil
 import struct
-import subprocess
 import zipfile
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +15,8 @@ import zstandard
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
+
+from scenes import splat_transform, splat_transform_or_skip
 
 from lghcc import formats
 from lghcc.common.errors import InputError
@@ -28,9 +27,6 @@ from lghcc.formats.sog import (decode_sog, encode_sog, inverse_log_transform, lo
                                palette_size, quantize_1d, texture_size)
 from lghcc.formats.spz import axis_flips, decode_spz, encode_spz, flip_axes
 
-ROOT = Path(__file__).resolve().parents[1]
-SPLAT_TRANSFORM = ROOT / "tools" / "node" / "node_modules" / ".bin" / "splat-transform"
-SPLAT_TRANSFORM_VERSION = "3.7.0"
 
 
 def make_scene(rng, n, degree, pos_scale=1.0, rot_scale=1.0):
@@ -395,7 +391,7 @@ def test_sog_bundle_layout_by_hand():
     assert px["shN_centroids.webp"].shape == (1, 192, 4)
 
 
-def test_sog_palette_size_follows_splat_transform():
+def test_sog_palette_size_followssplat_transform_or_skip():
     assert [palette_size(n) for n in (1, 10, 1023, 1024, 31000, 65536, 300000)] == [1, 8, 512, 1024, 16384, 65536,
                                                                                     65536]
 
@@ -618,28 +614,10 @@ def test_another_reader_can_be_registered(tmp_path, monkeypatch):
 
 # --- interop with splat-transform 3.7.0 ----------------------------------------------------
 
-def _splat_transform():
-    if shutil.which("node") is None:
-        pytest.skip("node is not installed: the splat-transform interop tests need Node.js")
-    pkg = ROOT / "tools" / "node" / "node_modules" / "@playcanvas" / "splat-transform" / "package.json"
-    if not SPLAT_TRANSFORM.exists() or not pkg.exists():
-        pytest.skip("@playcanvas/splat-transform is not installed in tools/node (run `make node-tools`)")
-    version = json.loads(pkg.read_text())["version"]
-    if version != SPLAT_TRANSFORM_VERSION:
-        pytest.skip(f"tools/node has splat-transform {version}, these tests pin {SPLAT_TRANSFORM_VERSION}")
-    return SPLAT_TRANSFORM
-
-
-def _convert(tool, src, dst):
-    out = subprocess.run([str(tool), "-q", "-w", "-g", "cpu", str(src), str(dst)], capture_output=True, text=True,
-                         timeout=300)
-    assert out.returncode == 0, out.stderr[-2000:]
-
-
 @pytest.fixture(scope="module")
 def interop(tmp_path_factory):
     """One scene (SH degree 2, extreme values) through splat-transform and through us."""
-    tool = _splat_transform()
+    tool = splat_transform_or_skip()
     d = tmp_path_factory.mktemp("interop")
     scene = make_scene(np.random.default_rng(11), 700, 2, pos_scale=30.0)
     write_3dgs_ply(d / "scene.ply", scene)
@@ -649,7 +627,7 @@ def interop(tmp_path_factory):
     for src, dst in (("scene.ply", "st.spz"), ("scene.ply", "st.sog"), ("st.spz", "st_spz.ply"),
                      ("st.sog", "st_sog.ply"), ("ours.spz", "ours_spz.ply"), ("ours_v3.spz", "ours_v3_spz.ply"),
                      ("ours.sog", "ours_sog.ply")):
-        _convert(tool, d / src, d / dst)
+        splat_transform(tool, d / src, d / dst)
     return d, scene
 
 
@@ -698,12 +676,12 @@ def test_our_sog_images_match_splat_transforms(interop):
 
 @pytest.mark.data
 def test_donut_spz_from_splat_transform_reads_as_its_ply(shared_data, tmp_path):
-    tool = _splat_transform()
+    tool = splat_transform_or_skip()
     donut = shared_data / "donut" / "donut.ply"
     if not donut.is_file():
         pytest.skip(f"{donut} not found")
-    _convert(tool, donut, tmp_path / "donut.spz")
-    _convert(tool, tmp_path / "donut.spz", tmp_path / "donut_spz.ply")
+    splat_transform(tool, donut, tmp_path / "donut.spz")
+    splat_transform(tool, tmp_path / "donut.spz", tmp_path / "donut_spz.ply")
     _assert_same_scene(read_scene(tmp_path / "donut.spz"), read_3dgs_ply(tmp_path / "donut_spz.ply"))
     ours = encode_spz(read_scene(donut))
     assert v4_streams(ours) == v4_streams((tmp_path / "donut.spz").read_bytes())

@@ -247,7 +247,8 @@ def _columns(n=5):
 @pytest.mark.parametrize("case,fragment", [
     ("missing", "'scale_1' is missing"),
     ("nan", "'x/y/z' contains NaN"),
-    ("inf", "'opacity' contains NaN or Inf"),
+    ("inf", "'scale' contains NaN or Inf"),
+    ("opacity_nan", "'opacity' contains NaN or Inf"),
     ("sh_layout", "match no SH degree"),
     ("zero_scale", "zero or infinite after activation"),
     ("zero_rotation", "zero rotation"),
@@ -259,8 +260,10 @@ def test_cli_rejects_bad_input_with_one_line_and_writes_nothing(tmp_path, capsys
         del cols["scale_1"]
     elif case == "nan":
         cols["y"][2] = np.nan
-    elif case == "inf":
-        cols["opacity"][1] = np.inf
+    elif case == "inf":  # an infinite opacity logit is opacity 1 (tests/test_formats_readers.py); a scale is not
+        cols["scale_0"][1] = np.inf
+    elif case == "opacity_nan":
+        cols["opacity"][1] = np.nan
     elif case == "sh_layout":
         for i in range(4):
             cols[f"f_rest_{i}"] = cols["x"]

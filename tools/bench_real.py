@@ -52,7 +52,8 @@ above the envelope's top is compared with the full SPZ file (marked "above SPZ's
 below its lowest point with the smallest SPZ file (a lower bound, marked ">=").
 
 Decoded PLYs are read with lghcc.formats.ply3dgs; opacity logits of +-inf (splat-transform writes
-compressed PLY's 8-bit opacities 0 and 1 back so) are read as +-30 and counted in the row.
+compressed PLY's 8-bit opacities 0 and 1 back so) are read as opacity 0 and 1 (finite logits,
+lghcc.formats.opacity) and counted in the row.
 
 Cache (``--work``, default .bench_real/ in the repository, ignored by git): per scene file the
 source renders, the importance scores and every splat-transform row (SPZ, SOG, compressed PLY,
@@ -367,28 +368,19 @@ class Evaluator:
 
 
 def read_back_ply(path: Path):
-    """(GaussianScene, note) of a decoded 3DGS PLY. Opacity logits of +-inf (opacity exactly 1 or 0:
-    splat-transform writes them for compressed PLY, whose opacity is 8-bit) are read as +-30
-    (sigmoid 1 or 0 in float32) and the note counts them; any other bad value is an InputError."""
-    from lghcc.common.errors import InputError
-    from lghcc.formats.ply import read_ply, write_ply
+    """(GaussianScene, note) of a decoded 3DGS PLY; the note: lghcc's warning when opacity logits
+    of +-inf (opacity exactly 1 or 0: splat-transform writes them for compressed PLY, whose
+    opacity is 8-bit) were read as finite logits, counting them; any other bad value is an InputError."""
+    import warnings
+
+    from lghcc.formats.opacity import InfiniteOpacityWarning
     from lghcc.formats.ply3dgs import read_3dgs_ply
 
-    try:
-        return read_3dgs_ply(path), ""
-    except InputError:
-        cols = read_ply(path)
-        op = np.asarray(cols.get("opacity", np.zeros(0)), np.float64)
-        if not np.isinf(op).any():
-            raise
-    n_inf = int(np.isinf(op).sum())
-    cols["opacity"] = np.where(np.isinf(op), np.sign(op) * 30.0, op).astype(np.float32)
-    fixed = path.with_name(path.name + ".finite.ply")
-    write_ply(fixed, {k: np.asarray(v, np.float32) for k, v in cols.items()})
-    try:
-        return read_3dgs_ply(fixed), f"{n_inf:,} opacity logits of +-inf (opacity 1 or 0) read as +-30"
-    finally:
-        fixed.unlink(missing_ok=True)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", InfiniteOpacityWarning)
+        scene = read_3dgs_ply(path)
+    notes = [str(w.message).split(": ", 1)[-1] for w in caught if issubclass(w.category, InfiniteOpacityWarning)]
+    return scene, "; ".join(notes)
 
 
 # --- one scene ------------------------------------------------------------------------------

@@ -82,7 +82,7 @@ def gaussians_of_decoded(decoded, *, sh_degree: int = 1, num_directions: int = 1
 
 
 def load_source(path: str | os.PathLike, *, sh_degree: int = 1, num_directions: int = 16) -> ViewScene:
-    """``--source``: a plain 3DGS scene (PLY, SPZ, SOG), or a Scaffold-GS model folder /
+    """``--source``: a plain 3DGS scene (any format lghcc.formats reads), or a Scaffold-GS model folder /
     iteration folder / PLY (lghcc.formats.read_scene).
     Raises InputError naming the file when it is neither."""
     from ..formats import detect_format, read_scene
@@ -92,7 +92,9 @@ def load_source(path: str | os.PathLike, *, sh_degree: int = 1, num_directions: 
         raise InputError(f"{p}: no such file or folder")
     scene = read_scene(p)
     if isinstance(scene, GaussianScene):
-        kind = {"3dgs-ply": "3DGS PLY", "spz": "SPZ", "sog": "SOG"}.get(detect_format(p).name, "3DGS scene")
+        kind = {"3dgs-ply": "3DGS PLY", "spz": "SPZ", "sog": "SOG", "compressed-ply": "compressed PLY",
+                "streamed-sog": "streamed SOG", "splat": ".splat", "ksplat": ".ksplat"}.get(detect_format(p).name,
+                                                                                        "3DGS scene")
         return ViewScene(scene, render_gaussians_fn(scene), _visible_means(scene),
                          f"{kind}, {scene.num_gaussians:,} Gaussians, SH degree {scene.sh_degree}")
     g, stats = _exported(scene, sh_degree, num_directions)
