@@ -25,10 +25,10 @@ await build({
     banner: { js: banner },
     logLevel: 'warning',
 });
-// the stream decoder's Web Worker (viewer/web/decoder, no dependency): inlined into every page as
+// the stream decoder's Web Worker (js/lghcc-decoder, no dependency): inlined into every page as
 // text and started from a blob: URL, so that pages decode their .lghcc stream off the main thread
 await build({
-    entryPoints: [join(root, 'viewer', 'web', 'decoder', 'worker.mjs')],
+    entryPoints: [join(root, 'js', 'lghcc-decoder', 'worker.mjs')],
     outfile: join(root, 'viewer', 'assets', 'lghcc-decoder-worker.js'),
     bundle: true,
     minify: true,
