@@ -1,0 +1,34 @@
+// Helper threads in Node: worker_threads behind the Web Worker interface pool.mjs uses
+// (postMessage, onmessage, onerror, terminate). package.json's "imports" picks this file as
+// '#threads' under the "node" condition, threads_browser.mjs elsewhere.
+import { availableParallelism } from 'node:os';
+import { Worker, parentPort } from 'node:worker_threads';
+
+/** Helpers a decode starts when the caller does not say: one per core Node may use. */
+export function defaultWorkers() {
+    return availableParallelism();
+}
+
+/** A helper thread running helper.mjs, as a Web Worker looks to pool.mjs. */
+export function startHelper() {
+    const thread = new Worker(new URL('./helper.mjs', import.meta.url));
+    let stopped = false;
+    const helper = {
+        onmessage: null,
+        onerror: null,
+        postMessage: (message, transfer) => thread.postMessage(message, transfer),
+        terminate: () => { stopped = true; thread.terminate(); },
+    };
+    const fail = (message) => { if (helper.onerror) helper.onerror({ message, preventDefault() {} }); };
+    thread.on('message', (data) => { if (helper.onmessage) helper.onmessage({ data }); });
+    thread.on('error', (err) => fail(err && err.message ? err.message : String(err)));
+    // a thread that ends unasked (process.exit in it, out of memory) fails its tiles as an error would
+    thread.on('exit', (code) => { if (!stopped) fail(`the helper thread exited with code ${code}`); });
+    return helper;
+}
+
+/** Inside a helper: the messages from the thread that started it, and the way back. */
+export const hostPort = {
+    listen(handle) { parentPort.on('message', handle); },
+    postMessage(message, transfer) { parentPort.postMessage(message, transfer); },
+};
