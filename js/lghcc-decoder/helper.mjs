@@ -1,6 +1,5 @@
-// A helper thread of decode() (index.mjs): decodes the tiles the decoding thread hands it
-// (pool.mjs's helperMessage), in a module Web Worker or a Node worker thread (#threads).
+// A helper thread of decode() in a browser: a module Web Worker (threads_browser.mjs starts it)
+// that decodes the tiles the decoding thread hands it (pool.mjs's helperMessage).
 import { helperMessage } from './pool.mjs';
-import { hostPort } from '#threads';
 
-hostPort.listen((data) => helperMessage(data, hostPort));
+self.onmessage = (e) => helperMessage(e.data, self);

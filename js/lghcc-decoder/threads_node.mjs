@@ -1,17 +1,17 @@
 // Helper threads in Node: worker_threads behind the Web Worker interface pool.mjs uses
-// (postMessage, onmessage, onerror, terminate). package.json's "imports" picks this file as
-// '#threads' under the "node" condition, threads_browser.mjs elsewhere.
+// (postMessage, onmessage, onerror, terminate). index_node.mjs uses it (package.json's "node"
+// condition); index.mjs uses threads_browser.mjs.
 import { availableParallelism } from 'node:os';
-import { Worker, parentPort } from 'node:worker_threads';
+import { Worker } from 'node:worker_threads';
 
 /** Helpers a decode starts when the caller does not say: one per core Node may use. */
 export function defaultWorkers() {
     return availableParallelism();
 }
 
-/** A helper thread running helper.mjs, as a Web Worker looks to pool.mjs. */
+/** A helper thread running helper_node.mjs, as a Web Worker looks to pool.mjs. */
 export function startHelper() {
-    const thread = new Worker(new URL('./helper.mjs', import.meta.url));
+    const thread = new Worker(new URL('./helper_node.mjs', import.meta.url));
     let stopped = false;
     const helper = {
         onmessage: null,
@@ -26,9 +26,3 @@ export function startHelper() {
     thread.on('exit', (code) => { if (!stopped) fail(`the helper thread exited with code ${code}`); });
     return helper;
 }
-
-/** Inside a helper: the messages from the thread that started it, and the way back. */
-export const hostPort = {
-    listen(handle) { parentPort.on('message', handle); },
-    postMessage(message, transfer) { parentPort.postMessage(message, transfer); },
-};
