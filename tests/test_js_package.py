@@ -295,3 +295,71 @@ def test_types_declare_what_the_module_has(project):
     assert sorted(options) == sorted(re.findall(r"(\w+) =", read))
     pkg = json.loads((project["dir"] / "node_modules/lghcc-decoder/package.json").read_text())
     assert pkg["exports"]["."]["types"] == "./index.d.ts" and not pkg.get("dependencies")
+
+
+BROWSER_PAGE = """<!doctype html><html><body><script type="module">
+import { decode, BitstreamError } from './node_modules/lghcc-decoder/index.mjs';
+const hex = (f) => Array.from(new Uint8Array(f.buffer, f.byteOffset, f.byteLength), (b) => b.toString(16).padStart(2, '0')).join('');
+window.results = (async () => {
+    const out = {};
+    for (const workers of [3, 0]) {
+        const progress = [];
+        const s = await decode('scene.lghcc', { workers, onProgress: (p) => progress.push(p.tile) });
+        const r = { count: s.count, progress };
+        for (const k of ['positions', 'scales', 'rotations', 'opacities', 'colors', 'sh']) r[k] = hex(s[k]);
+        out[`workers${workers}`] = r;
+    }
+    const ac = new AbortController();
+    try { await decode('scene.lghcc', { workers: 2, signal: ac.signal, onProgress: () => ac.abort() }); out.abort = 'decoded'; }
+    catch (e) { out.abort = e.name; }
+    const bytes = new Uint8Array(await (await fetch('scene.lghcc')).arrayBuffer());
+    bytes[bytes.length - 100] ^= 1;
+    try { await decode(bytes, { workers: 2 }); out.damaged = 'decoded'; } catch (e) { out.damaged = e instanceof BitstreamError; }
+    return out;
+})().catch((e) => ({ error: String(e && e.stack || e) }));
+</script></body></html>"""
+
+
+def test_unbundled_in_chromium(project, tmp_path):
+    """The installed package imported by a page as it lies in node_modules (no bundler), served over
+    http: decode() of a URL with 3 module-worker helpers and on the page's thread gives the reference
+    decoder's arrays bit for bit, one onProgress per tile; abort and a damaged tile reject."""
+    import functools
+    import http.server
+    import threading
+
+    from lghcc.viewer.browser import CHROMIUM_FLAGS, browser_status, chromium_path
+
+    ok, why = browser_status()
+    if not ok:
+        pytest.skip(why)
+    from playwright.sync_api import sync_playwright
+
+    (project["dir"] / "page.html").write_text(BROWSER_PAGE)
+    shutil.copy(TILED, project["dir"] / "scene.lghcc")
+    class Quiet(http.server.SimpleHTTPRequestHandler):
+        extensions_map = {**http.server.SimpleHTTPRequestHandler.extensions_map, ".mjs": "text/javascript"}
+
+        def log_message(self, *args):
+            pass
+
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(Quiet, directory=str(project["dir"])))
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    pw = sync_playwright().start()
+    try:
+        ctx = pw.chromium.launch_persistent_context(str(tmp_path / "profile"), executable_path=chromium_path(),
+                                                    args=list(CHROMIUM_FLAGS), headless=True)
+        page = ctx.new_page()
+        page.goto(f"http://127.0.0.1:{server.server_address[1]}/page.html")
+        got = page.evaluate("() => window.results")
+        ctx.close()
+    finally:
+        pw.stop()
+        server.shutdown()
+    assert "error" not in got, got.get("error")
+    n, want = _reference(TILED)
+    for run in ("workers3", "workers0"):
+        assert got[run]["count"] == n and sorted(got[run]["progress"]) == list(range(8)), run
+        for name, arr in want.items():
+            assert bytes.fromhex(got[run][name]) == arr.tobytes(), (run, name)
+    assert got["abort"] == "AbortError" and got["damaged"] is True, got
