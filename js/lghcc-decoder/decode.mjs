@@ -28,7 +28,11 @@ export async function decodeWith(threads, input, options = {}) {
     const reading = byteChunks(input, signal);
     const pool = workers >= 1 ? new PoolSide(workers, threads.startHelper) : null;
     const scene = new SceneAssembly(box, activated, onProgress);
-    const dec = new ProgressiveDecoder({ maxMemory, box, pool, minPoolTiles: 1, onTile: (t, tile, info) => scene.add(t, tile, info) });
+    const onTile = (t, tile, info) => {
+        if (signal && signal.aborted) throw signal.reason; // stops a decode on this thread at its next tile
+        scene.add(t, tile, info);
+    };
+    const dec = new ProgressiveDecoder({ maxMemory, box, pool, minPoolTiles: 1, onTile });
     const run = (async () => {
         await loadWasm(); // compiled asynchronously: a browser's main thread may not compile it synchronously
         for await (const chunk of reading) await dec.push(chunk);
@@ -36,9 +40,11 @@ export async function decodeWith(threads, input, options = {}) {
         return scene.result(r);
     })();
     run.catch(() => {}); // after an abort nobody awaits it; its rejection is the abort's
+    const abort = signal ? aborted(signal) : null;
     try {
-        return await (signal ? Promise.race([run, aborted(signal)]) : run);
+        return await (abort ? Promise.race([run, abort.promise]) : run);
     } finally {
+        if (abort) abort.forget();
         if (pool) pool.close();
         reading.return().catch(() => {}); // stops a fetch or stream still being read
     }
@@ -56,11 +62,14 @@ function checkOptions({ workers, onProgress, signal, box, maxMemory }) {
     if (!(maxMemory > 0)) throw new TypeError(`maxMemory: a positive number of bytes, got ${maxMemory}`);
 }
 
+// {promise: rejected with signal.reason at the abort, forget(): stop listening (a signal may outlive many decodes)}
 function aborted(signal) {
-    return new Promise((_, reject) => {
-        if (signal.aborted) reject(signal.reason);
-        else signal.addEventListener('abort', () => reject(signal.reason), { once: true });
+    let listener = null;
+    const promise = new Promise((_, reject) => {
+        listener = () => reject(signal.reason);
+        signal.addEventListener('abort', listener, { once: true });
     });
+    return { promise, forget: () => signal.removeEventListener('abort', listener) };
 }
 
 /** The input's bytes as they arrive: one chunk for bytes in memory, the body's chunks for a stream or a URL. */

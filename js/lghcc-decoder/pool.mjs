@@ -141,6 +141,7 @@ export class TilePool {
     _message(w, m) {
         if (m.ready) { if (!w.ready) { w.ready = true; this._ready(); } return; }
         const i = w.jobs.findIndex((j) => j.t === m.t && j.id === m.id);
+        if (i < 0) return; // a job rejected already: its pool closed while the helper's answer was on its way
         if (m.decoded) { w.jobs[i].decoded = true; this._next(); return; }
         const { resolve, reject } = w.jobs.splice(i, 1)[0];
         if (m.error) reject(remoteError(m.error));

@@ -20,7 +20,8 @@ export function startHelper() {
         terminate: () => { stopped = true; thread.terminate(); },
     };
     const fail = (message) => { if (helper.onerror) helper.onerror({ message, preventDefault() {} }); };
-    thread.on('message', (data) => { if (helper.onmessage) helper.onmessage({ data }); });
+    // messages already queued when it was terminated are not delivered (as a Web Worker's are not)
+    thread.on('message', (data) => { if (!stopped && helper.onmessage) helper.onmessage({ data }); });
     thread.on('error', (err) => fail(err && err.message ? err.message : String(err)));
     // a thread that ends unasked (process.exit in it, out of memory) fails its tiles as an error would
     thread.on('exit', (code) => { if (!stopped) fail(`the helper thread exited with code ${code}`); });
