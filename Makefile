@@ -3,11 +3,12 @@
 # make check : the architecture checks (static import resolution, complexity, function length)
 # make node-tools : install the pinned npm tools (tools/node: splat-transform, PlayCanvas engine, esbuild, pyright)
 # make viewer-bundle : install them and build lghcc-view's JavaScript bundle
+# make js-package : the npm package lghcc-decoder (js/lghcc-decoder) as a tarball in dist/ (npm pack)
 VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test test-slow check spec bench clean node-tools viewer-bundle fuzz-long mutations
+.PHONY: setup demo test test-slow check spec bench clean node-tools viewer-bundle js-package fuzz-long mutations
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -50,6 +51,12 @@ node-tools:
 # built here once (set-up time) and inlined into every page; lghcc-view never runs npm
 viewer-bundle: node-tools
 	npm run --prefix tools/node build-viewer
+
+# The JavaScript decoder as an npm package (no dependency, nothing to build: the WebAssembly is committed
+# in wasm_module.mjs); tests/test_js_package.py packs and installs it the same way
+js-package:
+	mkdir -p dist
+	cd js/lghcc-decoder && npm pack --pack-destination ../../dist
 
 clean:
 	rm -rf demo_out build *.egg-info

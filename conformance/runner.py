@@ -46,9 +46,9 @@ decoder run in process is held to the exact class and a fragment of the message.
 An argument ``{options}`` is replaced by a partial decode's options (--box=X0,...,Z1 or --level 1)
 when the partial decodes of tiled streams are checked, and by nothing otherwise; without it they
 are not checked.
-``--js`` runs the project's JavaScript decoder (viewer/web/decoder/cli.mjs, with Node) as such an external
+``--js`` runs the project's JavaScript decoder (js/lghcc-decoder/cli.mjs, with Node) as such an external
 decoder on the streams of the explicit-Gaussian profile (spec clause 8.4; the profile's rule is
-viewer/web/decoder/profile.mjs, which lists them) and says how many streams lie outside it.
+js/lghcc-decoder/profile.mjs, which lists them) and says how many streams lie outside it.
 Example: ``lghcc-conformance --decoder-cmd "lghcc-dec {stream} {options} --print-hash"``, or with renders
 ``lghcc-conformance --render --decoder-cmd "lghcc-dec {stream} -o {out} --print-hash"``.
 Exit status of lghcc-conformance: 0 all passed, 1 a stream failed, 2 usage or suite error
@@ -85,7 +85,7 @@ from ..common.errors import LghccError  # noqa: E402
 from .conditions import CONDITION_ID  # noqa: E402
 
 from . import STREAMS_DIR  # noqa: E402
-JS_DECODER_DIR = Path(__file__).resolve().parent.parent / "viewer" / "web" / "decoder"
+JS_DECODER_DIR = Path(__file__).resolve().parent.parent / "js" / "lghcc-decoder"
 # the error classes an error stream may expect (lghcc.common.errors); an external decoder's exit
 # status for each is lghcc.app.cli_common.exit_code_for_class (3, invalid stream, for all of them)
 ERROR_KINDS = ("BitstreamError", "UnsupportedStreamError", "HashMismatchError")
@@ -352,7 +352,7 @@ def js_decoder_cmd() -> str:
 
 def js_profile_ids(streams: Path) -> list[str]:
     """Ids of the streams of the explicit-Gaussian profile (spec clause 8.4), as the JavaScript decoder's
-    runner decides them (viewer/web/decoder/profile.mjs: one rule, in one place)."""
+    runner decides them (js/lghcc-decoder/profile.mjs: one rule, in one place)."""
     res = subprocess.run([node_path(), str(JS_DECODER_DIR / "conformance.mjs"), "--streams", str(streams), "--list"],
                          capture_output=True, text=True, errors="replace", timeout=120)
     if res.returncode != 0:
@@ -567,7 +567,7 @@ def setup_args() -> argparse.ArgumentParser:
     p.add_argument("--decoder-cmd", help="external decoder command template with {stream} (and {out} for --render); "
                                          "see the rejection protocol above")
     p.add_argument("--js", action="store_true",
-                   help="run the JavaScript decoder (viewer/web/decoder, with Node) on the streams of the "
+                   help="run the JavaScript decoder (js/lghcc-decoder, with Node) on the streams of the "
                         "explicit-Gaussian profile (spec clause 8.4) as an external decoder")
     p.add_argument("--timeout", type=float, default=120.0,
                    help="seconds per stream for an external decoder; a decoder still running then FAILs (120)")

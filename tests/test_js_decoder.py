@@ -1,4 +1,4 @@
-"""The JavaScript decoder of the explicit-Gaussian profile (viewer/web/decoder, spec clause 8.4),
+"""The JavaScript decoder of the explicit-Gaussian profile (js/lghcc-decoder, spec clause 8.4),
 run with Node: every conformance stream of the profile bit-exact or rejected, through its own
 runner and through lghcc-conformance --js; its range decoder against the reference coder on random
 chunks (escapes up to 2^62 - 1 included); and corrupted streams, which it must reject or decode
@@ -325,7 +325,7 @@ def test_points_outside_their_tile_cell_are_rejected():
         assert r.startswith("BitstreamError") and "E58" in r, r
 
 
-ASC = runner.JS_DECODER_DIR.parents[2] / "tools" / "node" / "node_modules" / "assemblyscript"
+ASC = runner.JS_DECODER_DIR.parents[1] / "tools" / "node" / "node_modules" / "assemblyscript"
 
 
 @pytest.mark.skipif(not ASC.is_dir(), reason="AssemblyScript is not installed (make node-tools)")
@@ -457,7 +457,7 @@ def test_module_arena_beyond_4_gib_is_a_resource_limit():
 
 
 def test_bench_ab_compares_two_trees_on_one_stream():
-    """viewer/web/decoder/bench_ab.mjs: the per-tile A/B of two decoder trees (here the same tree
+    """js/lghcc-decoder/bench_ab.mjs: the per-tile A/B of two decoder trees (here the same tree
     twice) checks that both decode to the same digest, the stream's, and reports CPU per decode."""
     stream = STREAMS / "c100_rotation_length" / "stream.lghcc"
     res = subprocess.run([NODE, str(JS / "bench_ab.mjs"), str(JS), str(JS), str(stream), "--rounds", "1"],

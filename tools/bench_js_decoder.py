@@ -1,4 +1,4 @@
-"""Speed of the JavaScript decoder (viewer/web/decoder) against the reference decoder, on real
+"""Speed of the JavaScript decoder (js/lghcc-decoder) against the reference decoder, on real
 scenes coded at a preset's steps (no search, no fit: the preset's quantization, neighbour
 prediction where it pays, tiles of about 16k Gaussians as lghcc-enc writes them).
 
@@ -6,7 +6,7 @@ prediction where it pays, tiles of about 16k Gaussians as lghcc-enc writes them)
         [--workers W] [--stream FILE.lghcc ...] [--no-reference] [--tree DIR]
 
 Writes the streams to --out (kept between runs: a stream already there is reused), decodes each in
-Node (viewer/web/decoder/bench.mjs: best of R, tables loaded, page and process start excluded), in
+Node (js/lghcc-decoder/bench.mjs: best of R, tables loaded, page and process start excluded), in
 headless Chromium (the page's Web Worker, lghcc-decoder-worker.js: best of R, the stream's bytes
 already in the page, a fresh worker per decode; also when the first tile arrived), once more in
 Chromium with the tiles decoded by a pool of W threads (the page's default:
@@ -142,7 +142,11 @@ def measure(label: str, s: Path, args, node: str, use_chromium: bool) -> str:
     """One table row: the stream decoded by Node, Chromium's worker, Chromium's pool, the reference."""
     import tempfile
 
-    res = subprocess.run([node, str(args.tree / "viewer/web/decoder/bench.mjs"), str(s), "--repeat", str(args.repeat)],
+    # a tree from before issue 54 has the decoder in viewer/web/decoder
+    bench = args.tree / "js/lghcc-decoder/bench.mjs"
+    if not bench.exists():
+        bench = args.tree / "viewer/web/decoder/bench.mjs"
+    res = subprocess.run([node, str(bench), str(s), "--repeat", str(args.repeat)],
                          capture_output=True, text=True, check=True)
     js = json.loads(res.stdout.strip().splitlines()[-1])
     n = js["count"]

@@ -111,7 +111,7 @@ def orbit_view(positions: np.ndarray, up: np.ndarray, *, width: int, height: int
 
 
 def in_js_profile(data: bytes) -> bool:
-    """Whether the page's JavaScript decoder (viewer/web/decoder) decodes this stream: a
+    """Whether the page's JavaScript decoder (js/lghcc-decoder) decodes this stream: a
     gaussian_parameter_set without the hierarchy (the explicit-Gaussian profile, spec clause 8.4)."""
     from ..common.bitio import BitReader
     from ..common.container import UnitType, read_container

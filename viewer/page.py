@@ -2,7 +2,7 @@
 
 The page is ``web/page.html`` filled in one pass: the stream's numbers (in HTML), the camera
 and settings (JSON), per pane a base64 3DGS PLY or the base64 .lghcc stream itself (explicit-Gaussian
-streams, decoded in the page by ``web/decoder`` in a Web Worker: ``assets/lghcc-decoder-worker.js``,
+streams, decoded in the page by ``js/lghcc-decoder`` (the npm package lghcc-decoder) in a Web Worker: ``assets/lghcc-decoder-worker.js``,
 inlined as text), and the JavaScript bundle (``assets/
 lghcc-viewer.js``: ``web/viewer.mjs`` with the PlayCanvas engine, built once at set-up time by
 ``make viewer-bundle``, never at view time). Nothing in the page names a network address.
@@ -25,7 +25,7 @@ from ..common.errors import LghccError
 HERE = Path(__file__).resolve().parent
 TEMPLATE = HERE / "web" / "page.html"
 BUNDLE = HERE / "assets" / "lghcc-viewer.js"
-WORKER = HERE / "assets" / "lghcc-decoder-worker.js"  # viewer/web/decoder's Web Worker, built beside BUNDLE
+WORKER = HERE / "assets" / "lghcc-decoder-worker.js"  # js/lghcc-decoder's Web Worker, built beside BUNDLE
 # The renderer the bundle is built from: tools/node/package.json pins it (a test checks the two agree).
 ENGINE_NAME = "playcanvas"
 ENGINE_VERSION = "2.23.3"
@@ -46,7 +46,7 @@ def bundle_js() -> str:
 
 
 def worker_js() -> str:
-    """The stream decoder's Web Worker (viewer/web/decoder, built with the bundle); a clear error when
+    """The stream decoder's Web Worker (js/lghcc-decoder, built with the bundle); a clear error when
     the set-up step has not been run."""
     try:
         js = WORKER.read_text(encoding="utf-8")

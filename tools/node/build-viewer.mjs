@@ -25,10 +25,12 @@ await build({
     banner: { js: banner },
     logLevel: 'warning',
 });
-// the stream decoder's Web Worker (viewer/web/decoder, no dependency): inlined into every page as
-// text and started from a blob: URL, so that pages decode their .lghcc stream off the main thread
+// the stream decoder's Web Worker: the npm package lghcc-decoder's `lghcc-decoder/worker` (js/lghcc-decoder,
+// resolved by its package.json's exports, as an application that installed it would), inlined into
+// every page as text and started from a blob: URL, so that pages decode their .lghcc stream off the main thread
 await build({
-    entryPoints: [join(root, 'viewer', 'web', 'decoder', 'worker.mjs')],
+    entryPoints: ['lghcc-decoder/worker'],
+    nodePaths: [join(root, 'js')],
     outfile: join(root, 'viewer', 'assets', 'lghcc-decoder-worker.js'),
     bundle: true,
     minify: true,

@@ -1,5 +1,5 @@
-// Build the decoder's WebAssembly (viewer/web/decoder/wasm/decoder.ts, AssemblyScript pinned in
-// package.json) into viewer/web/decoder/wasm_module.mjs (the .wasm as base64, so that Node, the
+// Build the decoder's WebAssembly (js/lghcc-decoder/wasm/decoder.ts, AssemblyScript pinned in
+// package.json) into js/lghcc-decoder/wasm_module.mjs (the .wasm as base64, so that Node, the
 // worker bundle and lghcc-view's page load it with no extra file). The module is committed; this
 // rebuilds it. `--check`: exit 1 if the committed module differs from a fresh build (the test
 // tests/test_js_decoder.py::test_wasm_module_rebuilds_byte_for_byte runs it).
@@ -9,7 +9,7 @@ import { dirname, join } from 'node:path';
 import { fileURLToPath } from 'node:url';
 
 const here = dirname(fileURLToPath(import.meta.url));
-const dir = join(here, '..', '..', 'viewer', 'web', 'decoder');
+const dir = join(here, '..', '..', 'js', 'lghcc-decoder');
 const target = join(dir, 'wasm_module.mjs');
 const args = ['wasm/decoder.ts', '-O3', '--runtime', 'stub', '--noAssert', '--enable', 'simd', '--use', 'abort=', '--outFile', 'decoder.wasm'];
 let wasm = null;
@@ -30,4 +30,4 @@ if (process.argv.includes('--check')) {
     process.exit(same ? 0 : 1);
 }
 writeFileSync(target, text);
-console.log(`built viewer/web/decoder/wasm_module.mjs (${wasm.length} bytes of WebAssembly)`);
+console.log(`built js/lghcc-decoder/wasm_module.mjs (${wasm.length} bytes of WebAssembly)`);

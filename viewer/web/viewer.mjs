@@ -5,7 +5,7 @@
 // Bundled with the pinned engine at set-up time (tools/node: `make viewer-bundle`), inlined into
 // each page by lghcc.viewer.page; the page never reaches the network. The scenes arrive in the
 // page as base64 3DGS PLYs (script elements `lghcc-ply-<pane>`) or as the .lghcc stream itself
-// (`lghcc-stream-<pane>`: explicit-Gaussian streams, decoded in the page by viewer/web/decoder in a
+// (`lghcc-stream-<pane>`: explicit-Gaussian streams, decoded in the page by js/lghcc-decoder in a
 // Web Worker, whose bundle is the text of `lghcc-worker`, tile by tile, each tile's hash checked,
 // the tiles of a tiled stream in parallel helper workers and drawn as they arrive; the renderer
 // gets typed arrays, no PLY), the camera and settings as JSON (`lghcc-meta`). A
@@ -256,7 +256,7 @@ function start() {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Streams decoded in the page (viewer/web/decoder in a Web Worker)
+// Streams decoded in the page (js/lghcc-decoder in a Web Worker)
 // ---------------------------------------------------------------------------------------------
 
 function paneLoaded(pane, entity) {

@@ -4,7 +4,7 @@
 // against test.yaml (decoded_sha256 and the box partial decodes), and that every error stream
 // of the profile is rejected (an error, never a hang: each stream runs in a worker with a
 // timeout, never a scene).
-//   node viewer/web/decoder/conformance.mjs [--streams DIR] [--timeout S] [--list] [ID ...]
+//   node js/lghcc-decoder/conformance.mjs [--streams DIR] [--timeout S] [--list] [ID ...]
 // Exit status: 0 all passed, 1 a stream failed, 2 usage error.
 import { readdirSync, readFileSync, existsSync } from 'node:fs';
 import { join, dirname } from 'node:path';
@@ -16,7 +16,7 @@ import { parseTestYaml } from './yaml_subset.mjs';
 const here = dirname(fileURLToPath(import.meta.url));
 const REJECTIONS = new Set(['BitstreamError', 'UnsupportedStreamError', 'HashMismatchError']);
 const args = process.argv.slice(2);
-let root = join(here, '../../../conformance/streams'), timeout = 60, list = false;
+let root = join(here, '../../conformance/streams'), timeout = 60, list = false;
 const ids = [];
 for (let i = 0; i < args.length; i++) {
     if (args[i] === '--streams') root = args[++i];

@@ -1,6 +1,6 @@
 #!/usr/bin/env node
 // Two decoders' per-thread speed on one stream, in one process: node bench_ab.mjs DIR_A DIR_B STREAM [--rounds R].
-// DIR_A, DIR_B: the viewer/web/decoder folders of two trees (e.g. a `git archive` of main and a branch). Every
+// DIR_A, DIR_B: the js/lghcc-decoder folders of two trees (e.g. a `git archive` of main and a branch). Every
 // tile is decoded (without its hash check) by A and by B in turn, the order alternating (ABBA), and each decode's
 // process CPU time summed over R rounds after one round of warm-up: the load of a shared machine falls on both
 // alike, so A/B resolves a few per cent where separate runs scatter by tens (tools/results/js_decoder.md, round 10).

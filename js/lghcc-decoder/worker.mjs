@@ -49,16 +49,21 @@ function helperUrl(msg) {
 // the helpers, kept from one stream to the next (a viewer keeps its decoder)
 let pool = null;
 
+let helperScript = null; // the helpers' URL (a blob: URL made of msg.source is revoked with its pool)
+
 function poolFor(msg) {
     const W = msg.workers >= 2 && typeof Worker !== 'undefined' ? msg.workers : 0;
     if (pool && (pool.size !== W || pool.closed)) closePool(); // a pool whose helper stopped is closed: a fresh one
-    if (W && !pool) pool = new TilePool(W, helperUrl(msg));
+    if (W && !pool) {
+        const url = helperScript = helperUrl(msg);
+        pool = new TilePool(W, () => new Worker(url));
+    }
     return pool;
 }
 
 function closePool() {
     pool.close();
-    if (pool.url !== self.location.href) URL.revokeObjectURL(pool.url);
+    if (helperScript !== self.location.href) URL.revokeObjectURL(helperScript);
     pool = null;
 }
 
@@ -72,7 +77,7 @@ async function warm(msg) {
 }
 
 self.onmessage = async (e) => {
-    if (e.data.init || e.data.job || e.data.prelude || e.data.forget) { await helperMessage(e.data); return; }
+    if (e.data.init || e.data.job || e.data.prelude || e.data.forget) { await helperMessage(e.data, self); return; }
     if (e.data.box) { await decodeBox(e.data); return; }
     if (e.data.warm) { await warm(e.data); return; }
     const t0 = performance.now();

@@ -1,5 +1,5 @@
 // Writes scale_tables_data.mjs from the normative data file spec/tables/scale_tables.txt
-// (spec/entropy.md clause 10.2.1): node viewer/web/decoder/gen_scale_tables.mjs
+// (spec/entropy.md clause 10.2.1): node js/lghcc-decoder/gen_scale_tables.mjs
 // Each level's bins r = -L..L are symmetric (clause 10.2.3), so only r = 0..L and ESC are kept,
 // as LEB128 varints in base64; tables.mjs rebuilds the full tables and checks the digest of
 // clause 10.2.2, so a wrong data module cannot decode anything.
@@ -8,7 +8,7 @@ import { fileURLToPath } from 'node:url';
 import { dirname, join } from 'node:path';
 
 const here = dirname(fileURLToPath(import.meta.url));
-const text = readFileSync(join(here, '../../../spec/tables/scale_tables.txt'), 'latin1');
+const text = readFileSync(join(here, '../../spec/tables/scale_tables.txt'), 'latin1');
 const lines = text.split('\n');
 if (lines.length !== 65 || lines[64] !== '') throw new Error('scale_tables.txt: expected 64 lines');
 const bytes = [];

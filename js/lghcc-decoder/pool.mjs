@@ -46,14 +46,14 @@ const AHEAD = 2;
 
 export class TilePool {
     /**
-     * size helpers of the worker script at url. The decoding worker decodes no tile itself: it hands
+     * size helpers, each started by startHelper(). The decoding thread decodes no tile itself: it hands
      * tiles out and takes results, so it answers a helper at once, and it leaves the helpers' start
      * alone (Chromium starts a nested worker through its parent's thread: a parent busy decoding
      * held its helpers back by that long, round 9 of tools/results/js_decoder.md).
      */
-    constructor(size, url) {
+    constructor(size, startHelper) {
         this.size = size;
-        this.url = url;
+        this.startHelper = startHelper; // () => a Worker (or an object with its postMessage, onmessage, onerror, terminate) running helperMessage
         this.dispatching = false;
         this.workers = null;
         this.ready = null; // promise: every helper has instantiated the module
@@ -69,7 +69,7 @@ export class TilePool {
         let left = this.size;
         this.ready = new Promise((resolve) => { this._ready = () => { if (--left === 0) resolve(this.workers.length); }; });
         this.workers = Array.from({ length: this.size }, (_, i) => {
-            const w = new Worker(this.url);
+            const w = this.startHelper();
             w.jobs = [];
             w.onmessage = (e) => this._message(w, e.data);
             w.onerror = (e) => {
@@ -141,6 +141,7 @@ export class TilePool {
     _message(w, m) {
         if (m.ready) { if (!w.ready) { w.ready = true; this._ready(); } return; }
         const i = w.jobs.findIndex((j) => j.t === m.t && j.id === m.id);
+        if (i < 0) return; // a job rejected already: its pool closed while the helper's answer was on its way
         if (m.decoded) { w.jobs[i].decoded = true; this._next(); return; }
         const { resolve, reject } = w.jobs.splice(i, 1)[0];
         if (m.error) reject(remoteError(m.error));
@@ -168,15 +169,18 @@ export class TilePool {
 const helper = { id: 0, ready: null, streams: new Map() };
 const helperLoaded = clock(); // this script evaluated (the timeline's helper start)
 
-/** A helper's side: {init} once, {prelude} and {forget} per stream, {job} per tile. */
-export async function helperMessage(data) {
+/**
+ * A helper's side: {init} once, {prelude} and {forget} per stream, {job} per tile; answers through
+ * port.postMessage(message, transfer) (a Web Worker's self, or Node's parentPort).
+ */
+export async function helperMessage(data, port) {
     if (data.init) {
         adoptWasmModule(data.init.module);
         adoptScaleTables(data.init.tables);
         wasm(); // instantiated now, before a stream arrives
         helper.id = data.helper;
         helper.ready = [helperLoaded, clock()];
-        self.postMessage({ ready: true });
+        port.postMessage({ ready: true });
         return;
     }
     if (data.prelude) {
@@ -192,7 +196,7 @@ export async function helperMessage(data) {
         const start = clock();
         const r = await decodeTile(ctx, t, { checkHash: false });
         ctx.tiles[t] = null;
-        self.postMessage({ id, t, decoded: true }); // the next tile may come while this one is hash-checked
+        port.postMessage({ id, t, decoded: true }); // the next tile may come while this one is hash-checked
         const hashed = checkTileHash(ctx, t, r); // the serialization is handed to Web Crypto now
         hashed.catch(() => {}); // awaited below
         const arrays = sceneArrays(ctx.ps, [r]);
@@ -204,9 +208,9 @@ export async function helperMessage(data) {
             tile = { ...tile, x: own(r.x), y: own(r.y), z: own(r.z), values: own(r.values) };
             transfer.push(tile.x.buffer, tile.y.buffer, tile.z.buffer, tile.values.buffer);
         }
-        self.postMessage({ id, t, tile, arrays }, transfer);
+        port.postMessage({ id, t, tile, arrays }, transfer);
     } catch (err) {
-        self.postMessage({ id, t, error: { name: err && err.name ? err.name : 'Error', message: String(err && err.message ? err.message : err) } });
+        port.postMessage({ id, t, error: { name: err && err.name ? err.name : 'Error', message: String(err && err.message ? err.message : err) } });
     }
 }
 

@@ -2,7 +2,7 @@
 // bytes have arrived; the scene is final only once the whole stream has passed the checks of
 // clauses 6 and 13.1 (parseStream on every byte). A stream rejected then is rejected whole.
 import { unitCrc32 } from './crc32.mjs';
-import { decodeTile, parseStream, preludeContext, sceneArrays, DEFAULT_MAX_MEMORY } from './decoder.mjs';
+import { decodeTile, parseStream, preludeContext, sceneArrays, tilesInBox, DEFAULT_MAX_MEMORY } from './decoder.mjs';
 import { BitstreamError } from './errors.mjs';
 import { parseGaussianParameterSet, parseTileIndex } from './units.mjs';
 import { UNIT } from './container.mjs';
@@ -13,12 +13,17 @@ export class ProgressiveDecoder {
      * onTile(t, tile, info): a tile decoded and hash-checked (provisional until finish()).
      * pool: null (tiles decoded here, one after the other, in order) or a stream's side of a pool
      * (TilePool.stream(): start(ctx) once the prelude is known, decode(ctx, t) promises tile t's
-     * result; tiles in parallel workers, onTile in any order).
+     * result; tiles in parallel workers, onTile in any order). minPoolTiles: a stream of fewer tiles is
+     * decoded here, without the pool (a decoding worker pays for helpers only with two tiles or more;
+     * a page's main thread, which should decode nothing, gives 1). box: only the tiles it selects
+     * (clause 13.3, tilesInBox) are decoded; the others are skipped as their bytes pass.
      */
-    constructor({ onTile = null, maxMemory = DEFAULT_MAX_MEMORY, pool = null } = {}) {
+    constructor({ onTile = null, maxMemory = DEFAULT_MAX_MEMORY, pool = null, minPoolTiles = 2, box = null } = {}) {
         this.onTile = onTile;
         this.maxMemory = maxMemory;
         this.pool = pool;
+        this.minPoolTiles = minPoolTiles;
+        this.box = box;
         this.pending = []; // per tile started, the promise of its result
         this.failed = null; // the first tile that failed
         this.buf = new Uint8Array(1 << 16);
@@ -119,6 +124,7 @@ export class ProgressiveDecoder {
         const ctx = this.ctx;
         while (this.pending.length < ctx.tiles.length) {
             const t = this.pending.length, tile = ctx.tiles[t];
+            if (!this._selected(ctx, t)) { this.pending.push(null); continue; } // not in the box: not decoded
             const units = this.units.filter((u) => u.type < 0x80 && u.start >= tile.start && u.end <= tile.end);
             const last = units[units.length - 1];
             const complete = last && last.type === UNIT.DECODED_SCENE_HASH && (tile.end === Infinity || last.end === tile.end);
@@ -134,10 +140,17 @@ export class ProgressiveDecoder {
         }
     }
 
-    // a pool pays only for several tiles; one tile is decoded here
+    // a pool pays only for several tiles (minPoolTiles); fewer are decoded here
     _startPool(ctx) {
-        if (this.pool && ctx.tiles.length < 2) this.pool = null;
+        if (this.pool && ctx.tiles.length < this.minPoolTiles) this.pool = null;
         if (this.pool) this.pool.start(ctx);
+    }
+
+    // whether tile t is decoded: every tile, or those the box selects
+    _selected(ctx, t) {
+        if (!this.box) return true;
+        if (!ctx.selected) ctx.selected = new Set(tilesInBox(ctx, this.box));
+        return ctx.selected.has(t);
     }
 
     // tile t decoded (here, or by the pool: every tile, this thread only hands them out), kept and reported
@@ -145,7 +158,7 @@ export class ProgressiveDecoder {
         let p = this.pool ? this.pool.decode(ctx, t) : timed('worker', () => decodeTile(ctx, t));
         p = p.then((r) => {
             this.tiles[t] = r;
-            if (this.onTile) this.onTile(t, r, { tiles: ctx.tiles.length, ps: ctx.ps });
+            if (this.onTile) this.onTile(t, r, { tiles: ctx.tiles.length, ps: ctx.ps, ctx });
         });
         p.catch((err) => { this.failed = this.failed || err; }); // reported by the next push() or finish()
         this.pending.push(p);
@@ -154,7 +167,8 @@ export class ProgressiveDecoder {
 
     /**
      * The stream is complete: every check of clauses 6 and 13.1 on all its bytes, the tiles not
-     * decoded yet decoded. Returns {ps, tiles}; throws for a stream that is not conforming.
+     * decoded yet decoded. Returns {ps, tiles} (the decoded tiles in stream order); throws for a
+     * stream that is not conforming.
      */
     async finish() {
         await this.busy;
@@ -167,12 +181,13 @@ export class ProgressiveDecoder {
         if (this.ctx && this.ctx.tiles.length !== ctx.tiles.length) throw new BitstreamError('the tiles changed between the progressive and the full parse');
         if (!this.ctx) this._startPool(ctx);
         for (let t = this.pending.length; t < ctx.tiles.length; t++) {
+            if (!this._selected(ctx, t)) { this.pending.push(null); continue; }
             const p = this._start(ctx, t);
             if (!this.pool) await p;
         }
         await Promise.all(this.pending);
         mark('tiles');
-        return { ps: ctx.ps, tiles: this.tiles };
+        return { ps: ctx.ps, tiles: this.tiles.filter(Boolean) }; // in stream order (a box's tiles only)
     }
 }
 

@@ -14,8 +14,25 @@ let exports = null;
  * helper worker shares its compiled, and tiered-up, code instead of compiling it again).
  */
 export function wasmModule() {
-    if (!module) module = new WebAssembly.Module(Uint8Array.from(atob(DECODER_WASM_BASE64), (c) => c.charCodeAt(0)));
+    if (!module) module = new WebAssembly.Module(wasmBytes());
     return module;
+}
+
+function wasmBytes() { return Uint8Array.from(atob(DECODER_WASM_BASE64), (c) => c.charCodeAt(0)); }
+
+/**
+ * Compile and instantiate the module asynchronously (once): a browser's main thread may refuse to
+ * compile or instantiate a module of this size synchronously, as wasm() does. After it, wasm() and
+ * wasmModule() return at once.
+ */
+export async function loadWasm() {
+    if (exports) return;
+    if (!module) module = await WebAssembly.compile(wasmBytes());
+    const instance = await WebAssembly.instantiate(module, {});
+    if (!exports) { // another caller may have instantiated it meanwhile
+        exports = instance.exports;
+        loadTables(exports);
+    }
 }
 
 /** Use a module compiled by another thread (before the first wasm()). */

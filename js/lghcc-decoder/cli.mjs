@@ -3,7 +3,7 @@
 // (spec clause 12), following the exit-status protocol of lghcc-conformance --decoder-cmd:
 // 0 decoded (last stdout line: the hash), 3 rejected (non-conforming or outside the profile
 // is reported as 3 too, with the reason on stderr), 1 input error, 2 usage, 4 resource limit.
-//   node viewer/web/decoder/cli.mjs STREAM [--box=X0,Y0,Z0,X1,Y1,Z1] [--level 1] [--max-memory BYTES]
+//   node js/lghcc-decoder/cli.mjs STREAM [--box=X0,Y0,Z0,X1,Y1,Z1] [--level 1] [--max-memory BYTES]
 import { readFileSync } from 'node:fs';
 import { decodeStream, sceneDigestHex } from './decoder.mjs';
 import { BitstreamError, ResourceLimitError } from './errors.mjs';

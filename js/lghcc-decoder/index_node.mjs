@@ -1,0 +1,11 @@
+// lghcc-decoder in Node (package.json's "node" condition; README.md): decode() with worker threads
+// as its helpers. index.mjs is the same API with module Web Workers.
+import { decodeWith, SH_C0 } from './decode.mjs';
+import * as threads from './threads_node.mjs';
+
+export { BitstreamError, HashMismatchError, LghccError, ResourceLimitError, UnsupportedStreamError } from './errors.mjs';
+export { DEFAULT_MAX_MEMORY } from './decoder.mjs';
+export { SH_C0 };
+
+/** Decode a .lghcc stream (README.md; index.d.ts). */
+export function decode(input, options) { return decodeWith(threads, input, options); }
