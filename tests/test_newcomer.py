@@ -178,19 +178,21 @@ def test_log_progress_prints_percent_and_time_left(capsys, monkeypatch):
     assert capsys.readouterr().err == ""
 
 
-def test_install_is_quiet(tmp_path):
-    """A wheel of the tracked sources builds without one warning from setuptools (it printed
-    ~1,900 lines: every conformance stream folder, and the license table), and ships the
-    license, py.typed and the conformance streams."""
+@pytest.fixture(scope="module")
+def built_wheel(tmp_path_factory):
+    """A wheel of the tracked sources (and of lghcc-view's bundle where `make viewer-bundle` built
+    it: a release ships it) -> (the wheel, pip's output, the tracked files)."""
     if shutil.which("git") is None or not (ROOT / ".git").exists():
         pytest.skip("needs the git checkout (git ls-files)")
     try:
         import setuptools  # noqa: F401
     except ImportError:
         pytest.skip("setuptools is not installed in this environment")
+    tmp_path = tmp_path_factory.mktemp("wheel")
     files = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
     src = tmp_path / "src"
-    for f in files:
+    bundle = [str(p.relative_to(ROOT)) for p in (ROOT / "viewer" / "assets").glob("*.js")]
+    for f in files + bundle:
         if f.startswith(("tests/", "tools/", "docs/", "spec/")):
             continue
         (src / f).parent.mkdir(parents=True, exist_ok=True)
@@ -198,18 +200,75 @@ def test_install_is_quiet(tmp_path):
     r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-w",
                         str(tmp_path / "dist"), str(src)], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr[-2000:]
-    text = r.stdout + r.stderr
+    (whl,) = (tmp_path / "dist").glob("lghcc-*.whl")
+    return whl, r.stdout + r.stderr, files
+
+
+def test_install_is_quiet(built_wheel):
+    """A wheel of the tracked sources builds without one warning from setuptools (it printed
+    ~1,900 lines: every conformance stream folder, and the license table), and ships the
+    license, py.typed and the conformance streams."""
+    whl, text, files = built_wheel
     ours = [ln for ln in text.splitlines() if "warning" in ln.lower() and "Location 'file:" not in ln]
     assert ours == [], ours[:10]
     import zipfile
 
-    (whl,) = (tmp_path / "dist").glob("lghcc-*.whl")
     names = zipfile.ZipFile(whl).namelist()
     assert "lghcc/py.typed" in names and any(n.endswith("licenses/LICENSE") for n in names)
     assert "lghcc/conformance/streams/c001_one_anchor/stream.lghcc" in names
     # every package folder ships (pyproject lists each: a new subpackage missing there would not)
     inits = {f"lghcc/{f}" for f in files if f.endswith("__init__.py") and not f.startswith(("tests/", "tools/"))}
     assert inits - set(names) == set()
+
+
+def _fresh_venv_with_the_wheel(whl: Path, where: Path) -> Path:
+    """A new virtual environment outside the checkout with the wheel installed and its dependencies
+    taken from this environment's site-packages (a path in a .pth file: no network, and not this
+    environment's editable install of the checkout, whose own .pth is not read from there)."""
+    import sysconfig
+
+    venv = where / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)  # its own pip (ensurepip, offline)
+    py = venv / "bin" / "python"
+    site = subprocess.run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                          capture_output=True, text=True, check=True).stdout.strip()
+    (Path(site) / "deps_of_the_test.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
+    r = subprocess.run([str(py), "-m", "pip", "install", "--no-deps", "--no-index", "-q", str(whl)],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return venv
+
+
+def test_the_wheel_installs_and_runs_outside_the_checkout(built_wheel, tmp_path):
+    """The wheel in a fresh environment, run from a folder outside the checkout: the installed
+    lghcc (not the checkout's) prints its version, encodes a 3DGS PLY, decodes it with the hash
+    checked and writes lghcc-view's page (where the bundle was built; CI builds it)."""
+    whl, _, _ = built_wheel
+    if os.name != "posix":
+        pytest.skip("the environment's scripts are in bin/ on POSIX")
+    venv = _fresh_venv_with_the_wheel(whl, tmp_path)
+    work = tmp_path / "work"
+    work.mkdir()
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME")}
+    env["OMP_WAIT_POLICY"] = "PASSIVE"
+
+    def run(*cmd):
+        r = subprocess.run([str(c) for c in cmd], cwd=work, env=env, capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, (cmd, r.stderr[-2000:])
+        return r.stdout + r.stderr
+
+    where = run(venv / "bin" / "python", "-c", "import lghcc, sys; print(lghcc.__file__)").strip()
+    assert str(venv) in where and str(ROOT) not in where
+    assert "lghcc" in run(venv / "bin" / "lghcc-enc", "--version")
+    run(venv / "bin" / "python", "-c", "from lghcc.formats import write_scene; from lghcc.formats.procedural import "
+        "make_room_scene; write_scene(make_room_scene(500), 'room.ply')")
+    run(venv / "bin" / "lghcc-enc", "room.ply", "-o", "room.lghcc", "--preset", "fast", "-q")
+    run(venv / "bin" / "lghcc-dec", "room.lghcc", "--export-ply", "back.ply", "-q")
+    assert (work / "back.ply").stat().st_size > 0
+    if not list((ROOT / "viewer" / "assets").glob("lghcc-viewer.js")):
+        pytest.skip("lghcc-view's bundle is not built here (make viewer-bundle): the page is not checked")
+    run(venv / "bin" / "lghcc-view", "room.lghcc", "-o", "room.html", "--no-psnr", "-q")
+    assert (work / "room.html").stat().st_size > (ROOT / "viewer" / "assets" / "lghcc-viewer.js").stat().st_size
 
 
 def test_readme_commands_write_outside_the_repository():
