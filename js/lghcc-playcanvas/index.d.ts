@@ -24,7 +24,10 @@ export class LghccParser {
     handler?: ResourceHandler;
     /** True for a URL ending in .lghcc (query string aside). */
     canParse(context: { url: string | null; ext: string; basename: string; asset: Asset | undefined; app: AppBase }): boolean;
-    /** Fetches (or takes asset.file.contents), decodes and calls back with a GSplatResource, or with the decoder's error. */
-    load(url: string | { load: string; original: string }, callback: (err: unknown, resource?: GSplatResource | null) => void, asset?: Asset): Promise<void>;
+    /**
+     * Fetches (or takes asset.file.contents), decodes and calls back with a GSplatResource, or with the
+     * decoder's error object (typed `any`: the engine's ResourceHandlerCallback says string, its own parsers pass errors too).
+     */
+    load(url: string | { load: string; original: string }, callback: (err: any, resource?: GSplatResource | null) => void, asset?: Asset): Promise<void>;
     open(url: string, data: GSplatResource): GSplatResource;
 }
