@@ -43,7 +43,7 @@ pytestmark = pytest.mark.skipif(not OK, reason=WHY)  # ~35 s in all, the encode 
 
 
 @pytest.fixture(scope="module")
-def scene_stream(tmp_path_factory) -> tuple[bytes, int]:
+def scene_stream() -> tuple[bytes, int]:
     """(playbot lod4 as a tiled .lghcc stream, its Gaussian count by the reference decoder)."""
     if not PLAYBOT.is_file():
         pytest.skip(f"the playbot scene {PLAYBOT} is not here")
