@@ -3,7 +3,7 @@
 # make check : the architecture checks (static import resolution, complexity, function length)
 # make node-tools : install the pinned npm tools (tools/node: splat-transform, PlayCanvas engine, esbuild, pyright)
 # make viewer-bundle : install them and build lghcc-view's JavaScript bundle
-# make js-package : the npm package lghcc-decoder (js/lghcc-decoder) as a tarball in dist/ (npm pack)
+# make js-package : the npm packages lghcc-decoder, lghcc-playcanvas and lghcc-three (js/) as tarballs in dist/ (npm pack)
 VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
@@ -53,10 +53,13 @@ viewer-bundle: node-tools
 	npm run --prefix tools/node build-viewer
 
 # The JavaScript decoder as an npm package (no dependency, nothing to build: the WebAssembly is committed
-# in wasm_module.mjs); tests/test_js_package.py packs and installs it the same way
+# in wasm_module.mjs); tests/test_js_package.py packs and installs it the same way. Its engine loaders beside it
+# (their engines and the decoder: peer dependencies)
 js-package:
 	mkdir -p dist
 	cd js/lghcc-decoder && npm pack --pack-destination ../../dist
+	cd js/lghcc-playcanvas && npm pack --pack-destination ../../dist
+	cd js/lghcc-three && npm pack --pack-destination ../../dist
 
 clean:
 	rm -rf demo_out build *.egg-info

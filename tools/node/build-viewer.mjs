@@ -16,7 +16,8 @@ const banner = `/*! lghcc-view bundle: viewer/web/viewer.mjs + PlayCanvas engine
 await build({
     entryPoints: [join(root, 'viewer', 'web', 'viewer.mjs')],
     outfile: join(root, 'viewer', 'assets', 'lghcc-viewer.js'),
-    nodePaths: [join(here, 'node_modules')],
+    // the engine from tools/node; lghcc-playcanvas (its gsplatData) from js/, as an application that installed it
+    nodePaths: [join(here, 'node_modules'), join(root, 'js')],
     bundle: true,
     minify: true,
     format: 'iife',

@@ -30,9 +30,10 @@
 // buffer, SH colours re-evaluated after small camera moves.
 
 import {
-    Application, Asset, Color, Entity, FILLMODE_NONE, GAMMA_SRGB, GSPLATDATA_LARGE, GSplatData, GSplatResource, Layer,
+    Application, Asset, Color, Entity, FILLMODE_NONE, GAMMA_SRGB, GSPLATDATA_LARGE, GSplatResource, Layer,
     RESOLUTION_AUTO, TONEMAP_LINEAR, Vec3, Vec4
 } from 'playcanvas';
+import { gsplatData } from 'lghcc-playcanvas/gsplat-data';
 
 const meta = JSON.parse(document.getElementById('lghcc-meta').textContent);
 
@@ -274,30 +275,21 @@ function setCheck(text, bad = false) {
     if (el) { el.textContent = text; el.style.color = bad ? '#f66' : ''; }
 }
 
-// the decoder's typed arrays -> the engine's splat data (the PLY property names, f_rest channel-major)
-function splatData(parts) {
-    const count = parts.reduce((a, p) => a + p.opacities.length, 0);
-    const S3 = parts.length ? parts[0].sh.length / Math.max(parts[0].opacities.length, 1) : 3;
-    const S = S3 / 3;
-    const names = ['x', 'y', 'z', 'f_dc_0', 'f_dc_1', 'f_dc_2'];
-    for (let i = 0; i < 3 * (S - 1); i++) names.push(`f_rest_${i}`);
-    names.push('opacity', 'scale_0', 'scale_1', 'scale_2', 'rot_0', 'rot_1', 'rot_2', 'rot_3');
-    const col = Object.fromEntries(names.map((n) => [n, new Float32Array(count)]));
-    let o = 0;
-    for (const p of parts) {
-        const n = p.opacities.length;
-        for (let i = 0; i < n; i++, o++) {
-            col.x[o] = p.positions[3 * i]; col.y[o] = p.positions[3 * i + 1]; col.z[o] = p.positions[3 * i + 2];
-            for (let ch = 0; ch < 3; ch++) {
-                col[`f_dc_${ch}`][o] = p.sh[S3 * i + ch];
-                for (let j = 1; j < S; j++) col[`f_rest_${ch * (S - 1) + j - 1}`][o] = p.sh[S3 * i + 3 * j + ch];
-            }
-            col.opacity[o] = p.opacities[i];
-            for (let a = 0; a < 3; a++) col[`scale_${a}`][o] = p.scales[3 * i + a];
-            for (let j = 0; j < 4; j++) col[`rot_${j}`][o] = p.rotations[4 * i + j];
-        }
+// a tile of the decoding worker (sh with the DC first) in decode()'s layout (colors, and sh above the DC),
+// what lghcc-playcanvas's gsplatData takes
+function tileScene(a) {
+    const n = a.opacities.length, S3 = n ? a.sh.length / n : 3, R3 = S3 - 3;
+    const colors = new Float32Array(3 * n), sh = new Float32Array(R3 * n);
+    for (let i = 0; i < n; i++) {
+        for (let k = 0; k < 3; k++) colors[3 * i + k] = a.sh[S3 * i + k];
+        for (let k = 0; k < R3; k++) sh[R3 * i + k] = a.sh[S3 * i + 3 + k];
     }
-    const data = new GSplatData([{ name: 'vertex', count, properties: names.map((name) => ({ name, type: 'float', byteSize: 4, storage: col[name] })) }]);
+    return { positions: a.positions, scales: a.scales, rotations: a.rotations, opacities: a.opacities, colors, sh };
+}
+
+// the tiles' arrays -> the engine's splat data (lghcc-playcanvas: the PLY property names), in the engine's Morton order
+function splatData(parts) {
+    const data = gsplatData(parts.map(tileScene));
     data.reorderData();
     return data;
 }

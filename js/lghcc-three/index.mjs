@@ -1,0 +1,107 @@
+// lghcc-three: .lghcc scenes (LG-HCC compressed 3D Gaussian Splatting) for three.js with Spark
+// (@sparkjsdev/spark). LghccLoader is a three.js Loader, as Spark's SplatLoader is: it gives a
+// PackedSplats that a SplatMesh draws; packedSplats() converts a scene decoded by lghcc-decoder.
+import { Loader } from 'three';
+import { PackedSplats, defines, utils } from '@sparkjsdev/spark';
+import { decode } from 'lghcc-decoder';
+
+// coefficients per colour channel of SH bands 1, 2, 3, and the uint32 words Spark packs each band in
+const BAND_COEFFS = [3, 5, 7];
+const BAND_WORDS = [2, 4, 4];
+const ENCODE_BAND = [utils.encodeSh1Rgb, utils.encodeSh2Rgb, utils.encodeSh3Rgb];
+
+/**
+ * Spark's PackedSplats of a scene decoded with `activated: true` (linear scales, opacity in [0, 1],
+ * RGB colours, unit quaternions w, x, y, z): Spark's 16-byte splats (half-float centres, 8-bit
+ * colour and opacity, log-encoded scales, 24-bit quaternions) and its SH textures, in Spark's
+ * default encoding, the one its own .spz and .ply loading uses (colours clamped to [0, 1], SH
+ * coefficients to [-1, 1]): a SplatMesh made with `{packedSplats}` alone decodes them right.
+ */
+export function packedSplats(scene) {
+    const n = scene.count;
+    if (scene.opacities?.length !== n) throw new TypeError('packedSplats: not an LghccScene');
+    if (scene.opacities.some((a) => !(a >= 0 && a <= 1))) {
+        throw new RangeError('packedSplats: opacities outside [0, 1]: decode the scene with {activated: true}');
+    }
+    const { positions: p, scales: s, rotations: q, opacities: a, colors: c, sh } = scene;
+    const { maxSplats } = utils.getTextureSize(n);
+    const splatEncoding = { ...defines.DEFAULT_SPLAT_ENCODING };
+    const packedArray = new Uint32Array(4 * maxSplats);
+    for (let i = 0; i < n; i++) {
+        utils.setPackedSplat(packedArray, i, p[3 * i], p[3 * i + 1], p[3 * i + 2], s[3 * i], s[3 * i + 1], s[3 * i + 2],
+            q[4 * i + 1], q[4 * i + 2], q[4 * i + 3], q[4 * i], a[i], c[3 * i], c[3 * i + 1], c[3 * i + 2], splatEncoding);
+    }
+    // SH bands 1 to 3: the decoder's coefficient-major, R, G, B inner order is Spark's too
+    const extra = {};
+    const perGaussian = n ? sh.length / n : 0;  // 3 * ((d + 1)^2 - 1)
+    for (let band = 0, offset = 0; band < 3 && offset < perGaussian; offset += 3 * BAND_COEFFS[band], band++) {
+        const width = 3 * BAND_COEFFS[band];
+        const words = new Uint32Array(BAND_WORDS[band] * maxSplats);
+        for (let i = 0; i < n; i++) {
+            const start = perGaussian * i + offset;
+            ENCODE_BAND[band](words, i, sh.subarray(start, start + width), splatEncoding);
+        }
+        extra[`sh${band + 1}`] = words;
+    }
+    return new PackedSplats({ packedArray, numSplats: n, extra, splatEncoding });
+}
+
+function progressEvent(p) {
+    const init = { lengthComputable: true, loaded: p.pointsDecoded, total: p.pointsTotal };
+    return typeof ProgressEvent === 'function' ? new ProgressEvent('progress', init) : init;
+}
+
+/**
+ * A three.js Loader of .lghcc files into Spark's PackedSplats:
+ *
+ *     const splats = await new LghccLoader().loadAsync('scene.lghcc');
+ *     scene.add(new SplatMesh({ packedSplats: splats }));
+ *
+ * The file is fetched (the loader's path, request header and withCredentials apply, and its
+ * LoadingManager is told) and decoded as it arrives, the tiles of a tiled stream in parallel
+ * helper workers, each tile's hash checked. onProgress gets a ProgressEvent per decoded tile,
+ * counting Gaussians; a stream the decoder refuses rejects with the decoder's error
+ * (UnsupportedStreamError, BitstreamError, ...).
+ */
+export class LghccLoader extends Loader {
+    constructor(manager) {
+        super(manager);
+        this.decodeOptions = {};
+    }
+
+    /** decode()'s `workers`, `box`, `maxMemory` and `signal` for the loads that follow. */
+    setDecodeOptions(options) {
+        this.decodeOptions = { ...options };
+        return this;
+    }
+
+    load(url, onLoad, onProgress, onError) {
+        const resolved = this.manager.resolveURL(this.path + url);
+        this.manager.itemStart(resolved);
+        fetch(resolved, {
+            headers: this.requestHeader, credentials: this.withCredentials ? 'include' : 'same-origin',
+            signal: this.decodeOptions.signal
+        })
+            .then((response) => {
+                if (!response.ok) throw new Error(`${resolved}: HTTP ${response.status}`);
+                return this.parseAsync(response, onProgress);
+            })
+            .then((splats) => {
+                onLoad?.(splats);
+                this.manager.itemEnd(resolved);
+            }, (err) => {
+                if (onError) onError(err); else console.error(err);
+                this.manager.itemError(resolved);
+                this.manager.itemEnd(resolved);
+            });
+    }
+
+    /** The PackedSplats of a stream already at hand: any input decode() takes (bytes, Blob, Response, ...). */
+    async parseAsync(input, onProgress) {
+        const scene = await decode(input, {
+            ...this.decodeOptions, activated: true,
+            onProgress: onProgress ? (p) => onProgress(progressEvent(p)) : null
+        });
+        return packedSplats(scene);
+    }
+}
