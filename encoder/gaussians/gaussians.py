@@ -189,13 +189,15 @@ def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | Non
     coded; the stream does not depend on it. ``sh_degrees``: each Gaussian's SH degree in [0, the
     coded SH degree] (format 1.3, clause 11.9; None: every band of every Gaussian coded, no
     sh_degree unit); the bands above it are not coded and decode to 0."""
+    from .rdoq import take_rows, uniform_sensitivity
+
     cfg = (cfg or GaussianEncoderConfig()).validate()
     scene.validate()
     for name, a in (("sensitivity", sensitivity), ("sh_degrees", sh_degrees)):
         if a is not None and a.shape[0] != scene.num_gaussians:
             raise ValueError(f"{name} has {a.shape[0]} rows for {scene.num_gaussians} Gaussians")
     if sensitivity is None and cfg.sensitivity_model == "uniform":  # RDOQ without renders (config.py)
-        sensitivity = np.ones((scene.num_gaussians, attr.GaussianLayout(scene.sh_degree).num_channels))
+        sensitivity = uniform_sensitivity(scene.num_gaussians, attr.GaussianLayout(scene.sh_degree).num_channels)
     stats = EncodeStats()
     t0 = time.perf_counter()
     scene = with_coded_sh_degree(scene, cfg, stats)
@@ -212,7 +214,7 @@ def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | Non
             inp = dataclasses.replace(inp, sh_degrees=np.asarray(sh_degrees)[geometry.order])
         del scene  # the grid's copy of the scene: its values are in ``inp`` now (peak memory)
         if sensitivity is not None and cfg.rd_quantization > 0:
-            inp = rd_quantized_input(inp, sensitivity[geometry.order], levels, cfg)
+            inp = rd_quantized_input(inp, take_rows(sensitivity, geometry.order), levels, cfg)
         elif cfg.rotation_length:  # index 0, unit length (the rotations are normalized, w >= 0)
             inp.values[:, inp.layout.rotation_start] = 0
     with stage(bar, "attributes", stats, STAGE_SHARES["attributes"]):
