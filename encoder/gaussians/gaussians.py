@@ -33,7 +33,7 @@ from ...common.neighbour_prediction import neighbour_graph
 from ...common.scene import GaussianScene
 from ...common.units import MAX_ATTRIBUTE_VALUES, GaussianParameterSet, RotationLengthUnit, StepAdjustUnit
 from ..stream.config import GaussianEncoderConfig
-from ..stream.level_coding import check_predicted_magnitude
+from ..stream.level_coding import check_predicted_magnitude, narrowest_integers
 from ..stream.encode import (AttributeInput, CodedAttributes, EncodeResult, GeometryCoding, LevelLayout, check_point_count,
                      code_attributes, code_geometry, level_layout, neighbour_prediction_wanted, stage, stream_tiles,
                      write_stream)
@@ -103,7 +103,7 @@ def gaussian_attribute_input(scene: GaussianScene, geometry: GeometryCoding, lev
     if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
         raise InputError(f"{n} Gaussians x {layout.num_channels} channels exceed the profile's limit")
     steps = layout.steps(gps)
-    values = coded_values(scene)[geometry.order]
+    values = coded_values(scene, geometry.order)
     return AttributeInput(gps, layout, steps, values, np.ones(values.shape, dtype=bool), None, geometry.coords)
 
 
@@ -112,7 +112,8 @@ def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: Lev
     """The attribute values moved onto the quantized values rate-distortion optimized
     quantization chooses (encoder/gaussians/rdoq.py; ``sensitivity`` rows in coding order), which the
     coder's rounding then reproduces exactly. The choice uses the whole scene's neighbour
-    graph, also where tiles code their own."""
+    graph, also where tiles code their own. ``inp``'s values (float64) are consumed: divided by
+    their steps in place (no copy of the scene's values), the input returned holds the integers."""
     from .rdoq import (adjust_on_graph, channel_groups, degrees_on_graph, group_slopes, orientation_columns, rd_quantize,
                        sh_degree_subset, sh_degrees_wanted, without_dropped_bands)
 
@@ -120,8 +121,8 @@ def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: Lev
     f = sh_degree_subset(sensitivity, degree)
     graph = neighbour_graph(inp.coords, cfg.prediction_lods, cfg.prediction_neighbours) \
         if neighbour_prediction_wanted(cfg, levels, inp) else None
-    x = inp.values.astype(np.float64) / inp.steps.astype(np.float64)
-    check_predicted_magnitude(np.rint(x), inp.layout)  # before RDOQ casts the values to int64
+    x = np.divide(inp.values, inp.steps.astype(np.float64), out=inp.values)  # the values in steps
+    check_predicted_magnitude(np.rint([x.min(initial=0), x.max(initial=0)]), inp.layout)  # before RDOQ's int64
     adjust = None  # the rows are in coding order already
     if graph is not None and cfg.step_adjust_max > 0:
         adjust = adjust_on_graph(x, f, degree, inp.coords, np.arange(x.shape[0]), graph, cfg)
@@ -135,10 +136,9 @@ def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: Lev
     if graph is not None and inp.sh_degrees is None and sh_degrees_wanted(cfg, sensitivity, degree):
         degrees = degrees_on_graph(x, q, f, inp.layout, inp.coords, np.arange(x.shape[0]), graph, cfg, adjust)
         q = q if degrees is None else without_dropped_bands(q, degrees, inp.layout)
-    steps = inp.steps.astype(np.float64) if adjust is None else \
-        attr.effective_steps(inp.steps, adjust[:, None]).astype(np.float64)
-    return dataclasses.replace(inp, layout=layout, values=q * steps, step_adjust=adjust,
-                               sh_degrees=inp.sh_degrees if degrees is None else degrees, graph=graph)
+    check_predicted_magnitude(q, inp.layout)  # as the coding checked the values it quantized
+    return dataclasses.replace(inp, layout=layout, values=narrowest_integers(q), step_adjust=adjust,
+                               sh_degrees=inp.sh_degrees if degrees is None else degrees, graph=graph, quantized=True)
 
 
 def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: GaussianEncoderConfig, coded: CodedAttributes,

@@ -334,7 +334,7 @@ def code_level2_with_context(coder: LevelCoder, inp: AttributeInput, hier: Hiera
     t0 = time.perf_counter()
     ctx = ContextFitStats()
     # dead offsets are not coded: NaN tells the fit to leave them out of the rate
-    targets = np.where(coder.live, inp.values[coder.rows] / inp.steps.astype(np.float64), np.nan)
+    targets = np.where(coder.live, inp.float_values(coder.rows) / inp.steps.astype(np.float64), np.nan)
     candidates = context_candidates(cfg, coder.rows.size, progress, twin)
     best, best_unit = None, None
     for candidate in candidates.candidates:
