@@ -104,7 +104,8 @@ def gaussian_attribute_input(scene: GaussianScene, geometry: GeometryCoding, lev
         raise InputError(f"{n} Gaussians x {layout.num_channels} channels exceed the profile's limit")
     steps = layout.steps(gps)
     values = coded_values(scene, geometry.order)
-    return AttributeInput(gps, layout, steps, values, np.ones(values.shape, dtype=bool), None, geometry.coords)
+    # every value live (Gaussians have no dead channels): one broadcast True, no byte per value
+    return AttributeInput(gps, layout, steps, values, np.broadcast_to(True, values.shape), None, geometry.coords)
 
 
 def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: LevelLayout,
