@@ -72,3 +72,17 @@ def test_quantized_integers_take_the_narrowest_dtype(lo, hi, dtype):
     q = np.array([[lo, hi], [0, 1]], dtype=np.int64)
     got = narrowest_integers(q)
     assert got.dtype == dtype and np.array_equal(got, q)
+
+
+def test_sh3_content_of_the_memory_scenes_is_playbots_and_deterministic():
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    import scale_scenes
+
+    scene, playbot = _scene(50, 0, seed=1), _scene(7, 2, seed=2)
+    a, b = scale_scenes.with_sh3_content(scene, playbot), scale_scenes.with_sh3_content(scene, playbot)
+    assert a.sh_degree == 3 and a.sh.tobytes() == b.sh.tobytes()
+    assert np.array_equal(a.sh[:, 0], scene.sh[:, 0]) and np.array_equal(a.sh[9, 1:9], playbot.sh[9 % 7, 1:9])
+    assert np.array_equal(a.sh[4, 9:16], np.float32(0.5) * playbot.sh[(7 * 4 + 3) % 7, 2:9])
