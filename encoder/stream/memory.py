@@ -47,8 +47,9 @@ PREPARE_PER_VALUE_BYTES = 24
 # coding's own arrays above, and its peak below the coding's (300k SH 3: 1,144 MiB in RDOQ against 1,602
 # in the coding, tools/results/scale.md "SH 3 memory (issue 53)"). Left: the working arrays of one block,
 # about 24 float64 or int64 [rows, M] (values, sensitivities, means, levels, candidates, costs).
-# Measured `fast` peaks (--jobs 2, same section): 370 and 518 MiB at 100k and 300k SH 0, 660 and about
-# 1,600 MiB at 100k and 300k SH 3; with the terms above the estimate is 1.18-1.4x these.
+# Measured `fast` peaks (--jobs 2, same section): 370 and 518 MiB at 100k and 300k SH 0, 660 and
+# 1,334 MiB at 100k and 300k SH 3; with the terms above (the per-value term still the plain coding's, not
+# measured again) the estimate is 1.65-1.74x these (621, 902, 1,142 and 2,195 MiB).
 RDOQ_PER_POINT_BYTES = 0
 RDOQ_PER_VALUE_BYTES = 0
 RDOQ_BLOCK_VALUE_BYTES = 24 * 8  # per value of a block of RDOQ_BLOCK_ROWS rows
