@@ -86,6 +86,7 @@ from ...render.rasterizer import quat_to_rotmat, rasterize
 from ...render.sh import sh_to_rgb
 from ...render.view_threads import map_views
 from ..stream.level_coding import fit_per_channel_prior
+from ..stream.memory import RDOQ_BLOCK_ROWS
 from .gaussian_grid import OPACITY_LOGIT_LIMIT, canonical_rotations
 from ..stream.neighbour_coding import NeighbourCoding, flag_counts, flag_probabilities
 
@@ -406,9 +407,6 @@ def _choose_rows(x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarr
     return q, way
 
 
-# Rows RDOQ chooses at a time (within a LoD the rows' choices are independent of each other): the
-# working arrays of a block, about 20 of [rows, M], bound its memory instead of the scene's size
-RDOQ_BLOCK_ROWS = 16384
 
 
 def uniform(f: np.ndarray) -> bool:

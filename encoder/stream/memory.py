@@ -42,7 +42,7 @@ PREPARE_PER_VALUE_BYTES = 24
 # Rate-distortion optimized quantization without the preparation (sensitivity_model "uniform": the
 # fast preset). Since issue 53 the uniform sensitivities are one broadcast row (nothing per value), the
 # values in steps are the coding's values divided in place, RDOQ chooses each LoD's rows in blocks of
-# encoder/gaussians/rdoq.py RDOQ_BLOCK_ROWS and its integers go on to the coding (no q x steps): what RDOQ
+# RDOQ_BLOCK_ROWS (below) and its integers go on to the coding (no q x steps): what RDOQ
 # holds per value (the values in steps, the rounded integers, the fit of the coding to them) is within the
 # coding's own arrays above, and its peak below the coding's (300k SH 3: 1,144 MiB in RDOQ against 1,602
 # in the coding, tools/results/scale.md "SH 3 memory (issue 53)"). Left: the working arrays of one block,
@@ -50,6 +50,9 @@ PREPARE_PER_VALUE_BYTES = 24
 # Measured `fast` peaks (--jobs 2, same section): 370 and 518 MiB at 100k and 300k SH 0, 660 and
 # 1,334 MiB at 100k and 300k SH 3; with the terms above (the per-value term still the plain coding's, not
 # measured again) the estimate is 1.65-1.74x these (621, 902, 1,142 and 2,195 MiB).
+# Rows RDOQ (encoder/gaussians/rdoq.py rd_quantize) chooses at a time, within a LoD, whose rows' choices
+# are independent of each other: the working arrays of a block bound its memory, not the scene's size
+RDOQ_BLOCK_ROWS = 16384
 RDOQ_PER_POINT_BYTES = 0
 RDOQ_PER_VALUE_BYTES = 0
 RDOQ_BLOCK_VALUE_BYTES = 24 * 8  # per value of a block of RDOQ_BLOCK_ROWS rows
@@ -101,8 +104,6 @@ def encode_memory(scene: AnchorScene | GaussianScene, cfg, workers=None) -> Memo
     if prepares(scene, cfg):
         parts["render-based preparation"] = PREPARE_BYTES + n * (PREPARE_PER_POINT_BYTES + PREPARE_PER_VALUE_BYTES * m)
     elif rdoq_without_preparation(scene, cfg):
-        from ..gaussians.rdoq import RDOQ_BLOCK_ROWS
-
         parts["rate-distortion optimized quantization"] = n * (RDOQ_PER_POINT_BYTES + RDOQ_PER_VALUE_BYTES * m) \
             + min(n, RDOQ_BLOCK_ROWS) * m * RDOQ_BLOCK_VALUE_BYTES
     if workers is not None and workers.ray:
