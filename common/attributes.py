@@ -284,7 +284,7 @@ class ChannelPrediction:
         dev = q - mean
         if coded is not None:
             dev *= coded
-        r = dev.copy()
+        r = dev.copy() if self.targets.size else dev  # (the terms read dev)
         for c in np.unique(self.targets):
             r[:, c] -= self._term(dev, int(c), np.nonzero(self.targets == c)[0])
         return r

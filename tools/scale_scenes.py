@@ -113,3 +113,20 @@ def describe(pieces: list[Piece]) -> str:
     if not last.whole:
         text += (", " if text else "") + f"a {last.count:,}-Gaussian slab (lowest x) of {last.source}"
     return text
+
+
+def with_sh3_content(scene, playbot):
+    """``scene`` (any SH degree) at SH degree 3 with real SH content (issue 53's scenes): the DC
+    kept; bands 1 and 2 those of ``playbot`` (playbot lod3, SH 2) Gaussian i mod its size; band 3
+    half of bands 1-2's coefficients 2-8 of playbot's Gaussian (7 i + 3) mod its size (values
+    of the size of real higher bands, not zeros, which code in almost nothing). Deterministic."""
+    from lghcc.common.scene import GaussianScene
+
+    n, k = scene.num_gaussians, playbot.num_gaussians
+    rest = playbot.with_sh_degree(2).sh[:, 1:9]  # bands 1-2: [k, 8, 3]
+    i = np.arange(n)
+    sh = np.zeros((n, 16, 3), np.float32)
+    sh[:, :1] = scene.sh[:, :1]
+    sh[:, 1:9] = rest[i % k]
+    sh[:, 9:16] = np.float32(0.5) * rest[(7 * i + 3) % k][:, 1:8]
+    return GaussianScene(scene.means, sh, scene.opacity, scene.log_scales, scene.rotations)

@@ -130,11 +130,18 @@ def canonical_rotations(rot: np.ndarray) -> np.ndarray:
     return np.where(r[:, :1] < 0, -r, r)
 
 
-def coded_values(scene: GaussianScene) -> np.ndarray:
-    """[N, M] (scene order, GaussianLayout): the values the encoder codes, opacity logits clamped
-    and rotations canonical."""
-    opacity = np.clip(scene.opacity.astype(np.float64), -OPACITY_LOGIT_LIMIT, OPACITY_LOGIT_LIMIT)
-    return GaussianLayout(scene.sh_degree).join(GaussianScene(scene.means, scene.sh, opacity, scene.log_scales,
-                                                              canonical_rotations(scene.rotations)))
+def coded_values(scene: GaussianScene, order: np.ndarray | None = None) -> np.ndarray:
+    """float64 [N, M] (GaussianLayout; rows in ``order``, None: the scene's): the values the
+    encoder codes, opacity logits clamped and rotations canonical. Filled column by column: one
+    [N, M] array, no copy of it."""
+    rows = slice(None) if order is None else order
+    layout = GaussianLayout(scene.sh_degree)
+    out = np.empty((scene.num_gaussians if order is None else len(order), layout.num_channels))
+    out[:, :layout.sh_channels] = scene.sh.reshape(scene.num_gaussians, layout.sh_channels)[rows]
+    out[:, layout.opacity_channel] = np.clip(scene.opacity[rows].astype(np.float64), -OPACITY_LOGIT_LIMIT,
+                                             OPACITY_LOGIT_LIMIT)
+    out[:, layout.scale_start:layout.rotation_start] = scene.log_scales[rows]
+    out[:, layout.rotation_start:] = canonical_rotations(scene.rotations[rows])
+    return out
 
 

@@ -33,7 +33,7 @@ from ...common.neighbour_prediction import neighbour_graph
 from ...common.scene import GaussianScene
 from ...common.units import MAX_ATTRIBUTE_VALUES, GaussianParameterSet, RotationLengthUnit, StepAdjustUnit
 from ..stream.config import GaussianEncoderConfig
-from ..stream.level_coding import check_predicted_magnitude
+from ..stream.level_coding import check_predicted_magnitude, narrowest_integers
 from ..stream.encode import (AttributeInput, CodedAttributes, EncodeResult, GeometryCoding, LevelLayout, check_point_count,
                      code_attributes, code_geometry, level_layout, neighbour_prediction_wanted, stage, stream_tiles,
                      write_stream)
@@ -103,8 +103,9 @@ def gaussian_attribute_input(scene: GaussianScene, geometry: GeometryCoding, lev
     if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
         raise InputError(f"{n} Gaussians x {layout.num_channels} channels exceed the profile's limit")
     steps = layout.steps(gps)
-    values = coded_values(scene)[geometry.order]
-    return AttributeInput(gps, layout, steps, values, np.ones(values.shape, dtype=bool), None, geometry.coords)
+    values = coded_values(scene, geometry.order)
+    # every value live (Gaussians have no dead channels): one broadcast True, no byte per value
+    return AttributeInput(gps, layout, steps, values, np.broadcast_to(True, values.shape), None, geometry.coords)
 
 
 def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: LevelLayout,
@@ -112,7 +113,8 @@ def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: Lev
     """The attribute values moved onto the quantized values rate-distortion optimized
     quantization chooses (encoder/gaussians/rdoq.py; ``sensitivity`` rows in coding order), which the
     coder's rounding then reproduces exactly. The choice uses the whole scene's neighbour
-    graph, also where tiles code their own."""
+    graph, also where tiles code their own. ``inp``'s values (float64) are consumed: divided by
+    their steps in place (no copy of the scene's values), the input returned holds the integers."""
     from .rdoq import (adjust_on_graph, channel_groups, degrees_on_graph, group_slopes, orientation_columns, rd_quantize,
                        sh_degree_subset, sh_degrees_wanted, without_dropped_bands)
 
@@ -120,8 +122,8 @@ def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: Lev
     f = sh_degree_subset(sensitivity, degree)
     graph = neighbour_graph(inp.coords, cfg.prediction_lods, cfg.prediction_neighbours) \
         if neighbour_prediction_wanted(cfg, levels, inp) else None
-    x = inp.values.astype(np.float64) / inp.steps.astype(np.float64)
-    check_predicted_magnitude(np.rint(x), inp.layout)  # before RDOQ casts the values to int64
+    x = np.divide(inp.values, inp.steps.astype(np.float64), out=inp.values)  # the values in steps
+    check_predicted_magnitude(np.rint([x.min(initial=0), x.max(initial=0)]), inp.layout)  # before RDOQ's int64
     adjust = None  # the rows are in coding order already
     if graph is not None and cfg.step_adjust_max > 0:
         adjust = adjust_on_graph(x, f, degree, inp.coords, np.arange(x.shape[0]), graph, cfg)
@@ -135,10 +137,9 @@ def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: Lev
     if graph is not None and inp.sh_degrees is None and sh_degrees_wanted(cfg, sensitivity, degree):
         degrees = degrees_on_graph(x, q, f, inp.layout, inp.coords, np.arange(x.shape[0]), graph, cfg, adjust)
         q = q if degrees is None else without_dropped_bands(q, degrees, inp.layout)
-    steps = inp.steps.astype(np.float64) if adjust is None else \
-        attr.effective_steps(inp.steps, adjust[:, None]).astype(np.float64)
-    return dataclasses.replace(inp, layout=layout, values=q * steps, step_adjust=adjust,
-                               sh_degrees=inp.sh_degrees if degrees is None else degrees, graph=graph)
+    check_predicted_magnitude(q, inp.layout)  # as the coding checked the values it quantized
+    return dataclasses.replace(inp, layout=layout, values=narrowest_integers(q), step_adjust=adjust,
+                               sh_degrees=inp.sh_degrees if degrees is None else degrees, graph=graph, quantized=True)
 
 
 def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: GaussianEncoderConfig, coded: CodedAttributes,
@@ -189,13 +190,15 @@ def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | Non
     coded; the stream does not depend on it. ``sh_degrees``: each Gaussian's SH degree in [0, the
     coded SH degree] (format 1.3, clause 11.9; None: every band of every Gaussian coded, no
     sh_degree unit); the bands above it are not coded and decode to 0."""
+    from .rdoq import take_rows, uniform_sensitivity
+
     cfg = (cfg or GaussianEncoderConfig()).validate()
     scene.validate()
     for name, a in (("sensitivity", sensitivity), ("sh_degrees", sh_degrees)):
         if a is not None and a.shape[0] != scene.num_gaussians:
             raise ValueError(f"{name} has {a.shape[0]} rows for {scene.num_gaussians} Gaussians")
     if sensitivity is None and cfg.sensitivity_model == "uniform":  # RDOQ without renders (config.py)
-        sensitivity = np.ones((scene.num_gaussians, attr.GaussianLayout(scene.sh_degree).num_channels))
+        sensitivity = uniform_sensitivity(scene.num_gaussians, attr.GaussianLayout(scene.sh_degree).num_channels)
     stats = EncodeStats()
     t0 = time.perf_counter()
     scene = with_coded_sh_degree(scene, cfg, stats)
@@ -212,7 +215,7 @@ def encode_gaussian_scene(scene: GaussianScene, cfg: GaussianEncoderConfig | Non
             inp = dataclasses.replace(inp, sh_degrees=np.asarray(sh_degrees)[geometry.order])
         del scene  # the grid's copy of the scene: its values are in ``inp`` now (peak memory)
         if sensitivity is not None and cfg.rd_quantization > 0:
-            inp = rd_quantized_input(inp, sensitivity[geometry.order], levels, cfg)
+            inp = rd_quantized_input(inp, take_rows(sensitivity, geometry.order), levels, cfg)
         elif cfg.rotation_length:  # index 0, unit length (the rotations are normalized, w >= 0)
             inp.values[:, inp.layout.rotation_start] = 0
     with stage(bar, "attributes", stats, STAGE_SHARES["attributes"]):

@@ -69,6 +69,7 @@ adjustment alone is a coding tool, signalled in the stream).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -85,6 +86,7 @@ from ...render.rasterizer import quat_to_rotmat, rasterize
 from ...render.sh import sh_to_rgb
 from ...render.view_threads import map_views
 from ..stream.level_coding import fit_per_channel_prior
+from ..stream.memory import RDOQ_BLOCK_ROWS
 from .gaussian_grid import OPACITY_LOGIT_LIMIT, canonical_rotations
 from ..stream.neighbour_coding import NeighbourCoding, flag_counts, flag_probabilities
 
@@ -141,7 +143,8 @@ def group_slopes(f: np.ndarray, group_of_channel: np.ndarray, strength: float) -
     mu = np.zeros(f.shape[1], dtype=np.float64)
     for g in np.unique(group_of_channel):
         sel = group_of_channel == g
-        mu[sel] = strength * float(f[:, sel].mean()) * math.log(2) / 6
+        mu[sel] = strength * float(take_rows(f, slice(0, 1) if uniform(f) else slice(None))[:, sel].mean()) \
+            * math.log(2) / 6
     return mu
 
 
@@ -404,6 +407,77 @@ def _choose_rows(x: np.ndarray, mean: np.ndarray, level: np.ndarray, f: np.ndarr
     return q, way
 
 
+
+
+def uniform(f: np.ndarray) -> bool:
+    """Whether ``f`` [N, M] is one row broadcast to every Gaussian (``uniform_sensitivity``)."""
+    return f.ndim == 2 and f.shape[0] > 1 and f.strides[0] == 0
+
+
+def take_rows(f: np.ndarray, rows) -> np.ndarray:
+    """f[rows] (``rows`` an index array or a slice); uniform sensitivities, one row broadcast to
+    every Gaussian (``uniform_sensitivity``), stay one row broadcast, not copied per Gaussian."""
+    if uniform(f):
+        k = len(range(f.shape[0])[rows]) if isinstance(rows, slice) else len(rows)
+        return np.broadcast_to(f[0], (k, f.shape[1]))
+    return f[rows]
+
+
+def uniform_sensitivity(n: int, m: int) -> np.ndarray:
+    """float64 [n, m] of ones, every value equally sensitive (config.py sensitivity_model "uniform"):
+    one row broadcast (read-only; no memory per Gaussian)."""
+    return np.broadcast_to(np.ones(m), (n, m))
+
+
+def _in_own_steps(x: np.ndarray, f: np.ndarray, rows, factor: np.ndarray | None,
+                  rotation: slice | None) -> tuple[np.ndarray, np.ndarray]:
+    """x[rows] and f[rows] as rd_quantize chooses them: in each row's own steps (``factor``
+    [N, 1], the step adjustment's, None: the channels' steps) and, with ``rotation``, each
+    quaternion half-turned (_half_turned)."""
+    xb, fb = x[rows], take_rows(f, rows)
+    if factor is not None:
+        xb, fb = xb / factor[rows], fb * factor[rows] ** 2
+    if rotation is not None:
+        xb, fb = _half_turned(xb, fb, rotation)
+    return xb, fb
+
+
+def _rounded(x: np.ndarray, f: np.ndarray, factor: np.ndarray | None, rotation: slice | None) -> np.ndarray:
+    """int64 [N, M]: the values x rounded in each row's own steps (_in_own_steps), block by block."""
+    q0 = np.empty(x.shape, dtype=np.int64)
+    for lo in range(0, x.shape[0], RDOQ_BLOCK_ROWS):
+        block = slice(lo, min(lo + RDOQ_BLOCK_ROWS, x.shape[0]))
+        q0[block] = np.rint(_in_own_steps(x, f, block, factor, rotation)[0])
+    return q0
+
+
+@dataclass
+class _LodCoding:
+    """What the coding fitted to the rounded values gives each LoD's rows (rd_quantize): the
+    per-channel prior (LoD 0), the channels whose mean is the neighbours', the scale level per
+    channel and activity bucket, and the step adjustment (int [N] or None)."""
+    prior: CodingParams
+    flags: np.ndarray
+    table: np.ndarray
+    num_buckets: int
+    adjust: np.ndarray | None
+
+    def params(self, q: np.ndarray, lod: int, neighbours: np.ndarray | None, lo: int,
+               rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(mean, level) [n, M] of ``rows``, LoD ``lod``'s rows lo .. lo + n - 1 (``neighbours``: the LoD's)."""
+        m = self.flags.size
+        if lod == 0 and self.adjust is not None:
+            p = adjusted_prior(CodingParams(self.prior.mean[None, :], self.prior.level[None, :]), self.adjust[rows])
+            return p.mean, p.level
+        if lod == 0:
+            return (np.broadcast_to(self.prior.mean, (rows.size, m)),
+                    np.broadcast_to(self.prior.level, (rows.size, m)))
+        mean, bucket = neighbour_means_and_buckets(q, neighbours[lo:lo + rows.size], self.num_buckets, self.flags,
+                                                   self.prior.mean, self.adjust,
+                                                   None if self.adjust is None else self.adjust[rows])
+        return mean, np.take_along_axis(self.table.T, bucket, axis=0)
+
+
 def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray, graph: NeighbourGraph | None,
                 num_buckets: int, orientation: tuple[slice, slice] | None = None,
                 ways: np.ndarray | None = None, adjust: np.ndarray | None = None,
@@ -420,12 +494,10 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
     then in the channels' steps and the values chosen are in each row's own. ``length_index``: the
     rotations coded as a length index and x, y, z (format 1.4, clause 11.10; needs ``orientation``):
     the rotation's column w of the values chosen is then the index k of its length 2^(-k/2)."""
-    if adjust is not None:
-        factor = STEP_ADJUST_FACTORS[adjust].astype(np.float64)[:, None]
-        x, f = x / factor, f * factor ** 2
-    if orientation is not None and x.shape[0] and float(np.max(mu[orientation[1]], initial=0.0)) > 0:
-        x, f = _half_turned(x, f, orientation[1])
-    q0 = np.rint(x).astype(np.int64)
+    factor = None if adjust is None else STEP_ADJUST_FACTORS[adjust].astype(np.float64)[:, None]
+    turned = orientation is not None and x.shape[0] and float(np.max(mu[orientation[1]], initial=0.0)) > 0
+    rotation = orientation[1] if turned else None
+    q0 = _rounded(x, f, factor, rotation)
     if length_index and orientation is not None:
         q0[:, orientation[1].start] = 0  # the coding first fitted with unit lengths (index 0) in column w
     n, m = q0.shape
@@ -433,34 +505,29 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
         return q0
     if graph is None:  # one LoD coded with the per-channel prior, fitted as the coder fits it
         graph = NeighbourGraph([np.arange(n)], [None])
-        prior_mean, prior_level = fit_per_channel_prior(q0, np.ones(q0.shape, dtype=bool), n)
+        prior_mean, prior_level = fit_per_channel_prior(q0, np.broadcast_to(True, q0.shape), n)
         flags, table = np.zeros(m, dtype=bool), np.zeros((m, num_buckets), dtype=np.int64)
     else:  # the unit the coder would fit to the rounded values (the graph fixes L and k)
         nc = NeighbourCoding(q0, coords, len(graph.rows), 1, num_buckets, False, None, graph=graph, adjust=adjust)
         prior_mean, prior_level = nc.prior_mean, nc.prior_level
         flags = np.asarray(nc.unit.neighbour_mean_flag, dtype=bool)
         table = np.asarray(nc.unit.bucket_level, dtype=np.int64).reshape(m, num_buckets)
+        del nc  # its [N, M] arrays (peak memory)
     if length_index and orientation is not None:  # the coding, fitted to unit lengths only, would price out
         w = orientation[1].start  # every other length: the index is priced as an even choice of two instead
         prior_level, table = prior_level.copy(), table.copy()
         prior_level[w] = table[w] = INDEX_LEVEL
-    q = q0.copy()
+    q = q0  # filled LoD by LoD: a row's means come from coarser LoDs' values chosen already
+    coding = _LodCoding(CodingParams(prior_mean, prior_level), flags, table, num_buckets, adjust)
     for lod, rows in enumerate(graph.rows):
-        if rows.size == 0:
-            continue
-        if lod == 0 and adjust is not None:
-            p = adjusted_prior(CodingParams(prior_mean[None, :], prior_level[None, :]), adjust[rows])
-            mean, level = p.mean, p.level
-        elif lod == 0:
-            mean, level = np.broadcast_to(prior_mean, (rows.size, m)), np.broadcast_to(prior_level, (rows.size, m))
-        else:
-            mean, bucket = neighbour_means_and_buckets(q, graph.neighbours[lod], num_buckets, flags, prior_mean,
-                                                       adjust, None if adjust is None else adjust[rows])
-            level = np.take_along_axis(table.T, bucket, axis=0)
-        q[rows], way = _choose_rows(x[rows], mean, level, f[rows], mu[None, :], orientation,
-                                    None if ways is None else ways[rows], length_index)
-        if ways is not None and way is not None:
-            ways[rows] = way
+        for lo in range(0, rows.size, RDOQ_BLOCK_ROWS):
+            block = rows[lo:lo + RDOQ_BLOCK_ROWS]
+            mean, level = coding.params(q, lod, graph.neighbours[lod], lo, block)
+            xb, fb = _in_own_steps(x, f, block, factor, rotation)
+            q[block], way = _choose_rows(xb, mean, level, fb, mu[None, :], orientation,
+                                         None if ways is None else ways[block], length_index)
+            if ways is not None and way is not None:
+                ways[block] = way
     return q
 
 
@@ -513,6 +580,8 @@ def channel_groups(sh_degree: int) -> np.ndarray:
 def sh_degree_subset(f: np.ndarray, sh_degree: int) -> np.ndarray:
     """The columns of ``f`` [N, M] (any SH degree) that a scene of ``sh_degree`` codes."""
     sh = 3 * (sh_degree + 1) ** 2
+    if uniform(f):
+        return np.broadcast_to(np.concatenate([f[0, :sh], f[0, -8:]]), (f.shape[0], sh + 8))
     return np.concatenate([f[:, :sh], f[:, -8:]], axis=1)
 
 
@@ -524,7 +593,7 @@ def adjust_on_graph(x: np.ndarray, f: np.ndarray, degree: int, coords: np.ndarra
     (the stream then carries nothing of the tool)."""
     mu = group_slopes(f, channel_groups(degree), cfg.rd_quantization)
     adjust = np.empty(x.shape[0], dtype=np.int64)
-    adjust[order] = step_adjust_choice(x[order], f[order], mu, coords[order], graph, cfg.prediction_buckets,
+    adjust[order] = step_adjust_choice(x[order], take_rows(f, order), mu, coords[order], graph, cfg.prediction_buckets,
                                        cfg.step_adjust_max)
     return adjust if adjust.any() else None
 
@@ -635,7 +704,7 @@ def degrees_on_graph(x: np.ndarray, q: np.ndarray, f: np.ndarray, layout: Gaussi
     xo, qo, co = x[order], q[order], coords[order]
     args = (co, len(graph.rows), 1, cfg.prediction_buckets, False, layout)
     without = NeighbourCoding(qo, *args, graph=graph, adjust=a)
-    chosen = sh_degree_choice(xo, qo, f[order], mu, co, graph, cfg.prediction_buckets, layout, a, without)
+    chosen = sh_degree_choice(xo, qo, take_rows(f, order), mu, co, graph, cfg.prediction_buckets, layout, a, without)
     if (chosen == layout.sh_degree).all():
         return None
     with_tool = NeighbourCoding(without_dropped_bands(qo, chosen, layout), *args, graph=graph, adjust=a,

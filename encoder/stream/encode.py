@@ -334,7 +334,7 @@ def code_level2_with_context(coder: LevelCoder, inp: AttributeInput, hier: Hiera
     t0 = time.perf_counter()
     ctx = ContextFitStats()
     # dead offsets are not coded: NaN tells the fit to leave them out of the rate
-    targets = np.where(coder.live, inp.values[coder.rows] / inp.steps.astype(np.float64), np.nan)
+    targets = np.where(coder.live, inp.float_values(coder.rows) / inp.steps.astype(np.float64), np.nan)
     candidates = context_candidates(cfg, coder.rows.size, progress, twin)
     best, best_unit = None, None
     for candidate in candidates.candidates:
@@ -360,7 +360,10 @@ def code_level2_with_context(coder: LevelCoder, inp: AttributeInput, hier: Hiera
 def ideal_bits(coder: LevelCoder, chosen: LevelCoding) -> float:
     """The attribute model's ideal code length of the level as coded."""
     res = (chosen.prediction or attr.ChannelPrediction.none()).residuals(chosen.q, chosen.params.mean)
-    return ideal_code_length_bits(res[coder.live], np.broadcast_to(chosen.params.level, chosen.q.shape)[coder.live])
+    level = np.broadcast_to(chosen.params.level, chosen.q.shape)
+    if coder.live.all():  # every value coded: no masked copies (the same values, summed alike)
+        return ideal_code_length_bits(res, level)
+    return ideal_code_length_bits(res[coder.live], level[coder.live])
 
 
 def code_attributes(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodingConfig,

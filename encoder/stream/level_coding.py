@@ -81,6 +81,15 @@ class AttributeInput:
     # the neighbour graph of ``coords`` (common/neighbour_prediction.py neighbour_graph at the
     # configuration's LoDs and neighbours) where RDOQ built it already, for the coding to reuse
     graph: NeighbourGraph | None = None
+    # ``values`` are the quantized integers (in each row's own steps, the narrowest integer dtype
+    # that holds them) the encoder chose (RDOQ): the coding takes them as they are, quantizing once
+    quantized: bool = False
+
+    def float_values(self, rows) -> np.ndarray:
+        """float64: the values of ``rows`` (where ``quantized``: the integers times the channels' steps)."""
+        if self.quantized:
+            return self.values[rows] * self.steps.astype(np.float64)
+        return self.values[rows]
 
     def __post_init__(self) -> None:
         if self.sh_degrees is None:
@@ -132,11 +141,22 @@ class LevelCoder:
 
 def quantized_level(coder: LevelCoder, inp: AttributeInput) -> np.ndarray:
     """The level's quantized values (0 where not coded)."""
+    if inp.quantized:  # checked when chosen (rd_quantized_input)
+        return np.where(coder.live, inp.values[coder.rows], 0).astype(np.int64, copy=False)
     steps = inp.steps if inp.step_adjust is None else \
         attr.effective_steps(inp.steps, inp.step_adjust[coder.rows][:, None])
     q = np.where(coder.live, quantize(inp.values[coder.rows], steps, "attributes"), 0)
     check_predicted_magnitude(q, inp.layout)
     return q
+
+
+def narrowest_integers(q: np.ndarray) -> np.ndarray:
+    """``q`` (integers) in the narrowest of int16, int32 and int64 that holds every value."""
+    lo, hi = (int(q.min()), int(q.max())) if q.size else (0, 0)
+    for dtype in (np.int16, np.int32):
+        if np.iinfo(dtype).min <= lo and hi <= np.iinfo(dtype).max:
+            return q.astype(dtype)
+    return q.astype(np.int64, copy=False)
 
 
 def check_predicted_magnitude(q: np.ndarray, layout) -> None:
@@ -184,7 +204,7 @@ def code_with_model(coder: LevelCoder, inp: AttributeInput, hier: Hierarchy, q_l
     levels and step adjustment from the decoded level 1, the values quantized with those steps."""
     params = level2_coding_params(model, inp.coords[hier.level1_idx], q_level1, inp.coords[coder.rows],
                                   hier.parent_of_level2, inp.parameter_set.coarse_voxel_scale).materialize()
-    q = np.where(coder.live, quantize(inp.values[coder.rows], attr.effective_steps(inp.steps, params.step_adjust),
+    q = np.where(coder.live, quantize(inp.float_values(coder.rows), attr.effective_steps(inp.steps, params.step_adjust),
                                       "attributes"), 0)
     header = coder.new_header()
     header.context_model_id = model[0]

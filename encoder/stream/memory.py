@@ -3,7 +3,8 @@
 The encoder's peak resident memory grows linearly with the scene: the program itself (Python,
 NumPy, torch), then per point its arrays (the scene read, the values in coding order in float64,
 their quantized integers, the neighbour graph, each tile's working copy, the decoded values)
-and, per value of a point, the arrays sized N x M. The constants are the kernel's peak RSS of
+and, per value of a point, the arrays sized N x M; RDOQ adds the working arrays of one block of
+rows (issue 53: its whole-scene copies are gone). The constants are the kernel's peak RSS of
 lghcc-enc on the scenes tools/scale_scenes.py builds, fitted as a line in N (50k-300k Gaussians,
 SH degree 0 and the same scenes padded to degree 3: tools/results/scale.md, "Memory"), rounded
 up; they bound the measured peaks of those runs. Each worker process (--jobs) adds its own
@@ -39,12 +40,22 @@ PREPARE_BYTES = 600 << 20
 PREPARE_PER_POINT_BYTES = 2000
 PREPARE_PER_VALUE_BYTES = 24
 # Rate-distortion optimized quantization without the preparation (sensitivity_model "uniform": the
-# fast preset): the whole scene's neighbour graph, each value's candidates and their code lengths. Measured
-# on tools/scale_scenes.py's scenes (SH 0, 11 channels; tools/results/scale.md, 2026-11-29): fast peaked
-# 931 MiB above plain at 1M and 2,716 MiB above it at 3M, 950-980 B per Gaussian; 200 B per point and
-# 72 B per value (992 B at SH 0) bound it. The per-value share beyond SH 0 is not measured.
-RDOQ_PER_POINT_BYTES = 200
-RDOQ_PER_VALUE_BYTES = 72
+# fast preset). Since issue 53 the uniform sensitivities are one broadcast row (nothing per value), the
+# values in steps are the coding's values divided in place, RDOQ chooses each LoD's rows in blocks of
+# RDOQ_BLOCK_ROWS (below) and its integers go on to the coding (no q x steps): what RDOQ
+# holds per value (the values in steps, the rounded integers, the fit of the coding to them) is within the
+# coding's own arrays above, and its peak below the coding's (300k SH 3: 1,144 MiB in RDOQ against 1,602
+# in the coding, tools/results/scale.md "SH 3 memory (issue 53)"). Left: the working arrays of one block,
+# about 24 float64 or int64 [rows, M] (values, sensitivities, means, levels, candidates, costs).
+# Measured `fast` peaks (--jobs 2, same section): 370 and 518 MiB at 100k and 300k SH 0, 660 and
+# 1,334 MiB at 100k and 300k SH 3; with the terms above (the per-value term still the plain coding's, not
+# measured again) the estimate is 1.65-1.74x these (621, 902, 1,142 and 2,195 MiB).
+# Rows RDOQ (encoder/gaussians/rdoq.py rd_quantize) chooses at a time, within a LoD, whose rows' choices
+# are independent of each other: the working arrays of a block bound its memory, not the scene's size
+RDOQ_BLOCK_ROWS = 16384
+RDOQ_PER_POINT_BYTES = 0
+RDOQ_PER_VALUE_BYTES = 0
+RDOQ_BLOCK_VALUE_BYTES = 24 * 8  # per value of a block of RDOQ_BLOCK_ROWS rows
 # A forked worker's own pages (torch's thread pools, its tile's arrays): a margin, as the peak is in
 # the whole-scene stages before the tiles: 200k Gaussians at SH 0 peaked at 503 MB of PSS over the
 # process tree with --jobs 1 and with --jobs 2 alike (tools/bench_scale.py's sampler)
@@ -93,7 +104,8 @@ def encode_memory(scene: AnchorScene | GaussianScene, cfg, workers=None) -> Memo
     if prepares(scene, cfg):
         parts["render-based preparation"] = PREPARE_BYTES + n * (PREPARE_PER_POINT_BYTES + PREPARE_PER_VALUE_BYTES * m)
     elif rdoq_without_preparation(scene, cfg):
-        parts["rate-distortion optimized quantization"] = n * (RDOQ_PER_POINT_BYTES + RDOQ_PER_VALUE_BYTES * m)
+        parts["rate-distortion optimized quantization"] = n * (RDOQ_PER_POINT_BYTES + RDOQ_PER_VALUE_BYTES * m) \
+            + min(n, RDOQ_BLOCK_ROWS) * m * RDOQ_BLOCK_VALUE_BYTES
     if workers is not None and workers.ray:
         parts["Ray: tile inputs in the object store"] = n * (8 * m + 40)
         if not workers.address:

@@ -42,7 +42,7 @@ def _coding_params(q: np.ndarray, graph: NeighbourGraph, num_buckets: int, prior
     (LoD 0: -1). ``adjust``: every row's step-adjustment index (clause 11.8), or None."""
     n, m = q.shape
     mean = prior_rows(prior_mean, n, adjust)
-    bucket = np.full((n, m), -1, dtype=np.int64)
+    bucket = np.full((n, m), -1, dtype=BUCKET_DTYPE)
     every = np.ones(m, dtype=bool)
     for level in range(1, len(graph.rows)):
         rows = graph.rows[level]
@@ -51,6 +51,13 @@ def _coding_params(q: np.ndarray, graph: NeighbourGraph, num_buckets: int, prior
                 q, graph.neighbours[level], num_buckets, every, prior_mean, adjust,
                 None if adjust is None else adjust[rows])
     return mean, bucket
+
+
+# The activity buckets (-2 .. 15: prediction_buckets <= 16) in one byte each: 8x less memory than
+# int64, and a stable sort of bytes is a radix sort (_bucket_groups)
+BUCKET_DTYPE = np.int8
+# The scale levels (0 .. 63) of a coding's values in one byte each
+LEVEL_DTYPE = np.uint8
 
 
 def prior_rows(prior_mean: np.ndarray, n: int, adjust: np.ndarray | None) -> np.ndarray:
@@ -157,7 +164,7 @@ def _levels(bucket: np.ndarray, table: np.ndarray, prior_level: np.ndarray, adju
             ) -> np.ndarray:
     prior = prior_level[None, :] if adjust is None else prior_level_in_steps(prior_level[None, :], adjust[:, None])
     lv = np.where(bucket >= 0, np.take_along_axis(table.T, np.maximum(bucket, 0), axis=0), prior)
-    return lv.astype(np.int64)
+    return lv.astype(LEVEL_DTYPE)
 
 
 class NeighbourCoding:
@@ -183,7 +190,7 @@ class NeighbourCoding:
         base = q[lod0] if adjust is None else q[lod0] * ADJUST_FIXED_POINT[a0][:, None] / ADJUST_FIXED_POINT[0]
         prior_mean = np.clip(np.rint(self._medians(base)), -PRIOR_MEAN_MAX, PRIOR_MEAN_MAX).astype(np.int64)
         neighbour_mean, bucket = _coding_params(q, self.graph, num_buckets, prior_mean, adjust)
-        own_prior = prior_rows(prior_mean, n, adjust)
+        own_prior = prior_mean[None, :] if adjust is None else prior_mean_in_steps(prior_mean, adjust)
         fit_bucket = bucket if self.coded is None else np.where(self.coded, bucket, -2)  # fits: coded values only
         if unit is not None:
             flags = mean_flags(unit)
@@ -192,14 +199,16 @@ class NeighbourCoding:
         else:  # every channel from its neighbours (a quick estimate: the flags are a third of the fit's time)
             flags = np.ones(m, dtype=bool)
         mean = np.where(flags[None, :] & (bucket >= 0), neighbour_mean, own_prior)
+        del neighbour_mean  # (peak memory)
         self.prediction = attr.ChannelPrediction.none()
-        live = np.ones(q.shape, dtype=bool) if self.coded is None else self.coded
+        live = np.broadcast_to(True, q.shape) if self.coded is None else self.coded
         if channel_prediction and layout.channel_prediction_allowed:
             table0 = _table(q - mean, fit_bucket, num_buckets) if unit is None else level_table(unit)
             prior0 = self._prior_levels(q - own_prior, a0)
             params = attr.CodingParams(mean, _levels(bucket, table0, prior0, adjust))
             self.prediction, _ = fit_channel_prediction(q, params, layout, live)
         r = self.prediction.residuals(q, mean, self.coded)
+        del mean
         if unit is None:
             unit = NeighbourPredictionUnit(num_channels=m, num_lods_minus1=num_lods - 1,
                                            num_neighbours_minus1=num_neighbours - 1, num_buckets_minus1=num_buckets - 1,

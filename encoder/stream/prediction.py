@@ -47,7 +47,7 @@ def fit_channel_prediction(q: np.ndarray, params: CodingParams, layout, live: np
     per_value_levels = np.asarray(params.level).shape[0] != 1 or n == 1
     rows = np.arange(n) if n <= FIT_ROWS else np.sort(np.random.default_rng(seed).choice(n, FIT_ROWS, replace=False))
     d = dev[rows]
-    lv = np.broadcast_to(np.asarray(params.level, np.int64), q.shape)[rows] if per_value_levels else None
+    lv = np.broadcast_to(params.level, q.shape)[rows].astype(np.int64) if per_value_levels else None
     targets, sources, weights = [], [], []
     for group in (prediction_groups(layout) if isinstance(layout, GaussianLayout) else []):
         for pos, c in enumerate(group[1:], start=1):

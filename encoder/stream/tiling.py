@@ -142,7 +142,7 @@ def tile_input(inp, rows: np.ndarray):
     def part(a):
         return None if a is None else a[rows]
     return AttributeInput(inp.parameter_set, inp.layout, inp.steps, inp.values[rows], inp.live[rows], part(inp.mask),
-                          inp.coords[rows], part(inp.step_adjust), part(inp.sh_degrees))
+                          inp.coords[rows], part(inp.step_adjust), part(inp.sh_degrees), quantized=inp.quantized)
 
 
 def code_tile(tinp, cfg, context_payload: bytes | None, unit_stats: list,

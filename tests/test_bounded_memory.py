@@ -1,0 +1,88 @@
+"""The encoder's bounded-memory paths (issue 53) write the streams the whole-scene paths wrote, byte
+for byte: uniform sensitivities as one broadcast row, RDOQ's rows chosen in blocks, the quantized
+integers carried from RDOQ to the coding (quantize once). The hashes were those of the encoder
+before these paths (commit 6865211)."""
+
+import dataclasses
+import hashlib
+
+import numpy as np
+import pytest
+
+from lghcc.common.scene import GaussianScene
+from lghcc.encoder.gaussians import rdoq
+from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
+from lghcc.encoder.stream.config import load_config
+from lghcc.encoder.stream.level_coding import narrowest_integers
+
+# (SH degree, tile_points) -> sha256 of the `fast` stream of _scene(3000, degree)
+PINNED = {
+    (3, 0): "9a70f1d078c9d9a77d3975ad712e67bcf66cf9a4d60648e61c859d732f856792",
+    (3, 512): "b3cb3b07c19096afc2f47c1978a682512713615b70f356bd02654b10627337d6",
+    (0, 0): "5af58cf27b12b0d43960a60da70fec5e7bea293d3ca4516238363c40b776caa9",
+    (0, 512): "b6243fa53fbfd853f354f57f30f105910563c935d109718c7ee24aaefe76d01b",
+}
+
+
+def _scene(n: int, degree: int, seed: int = 53) -> GaussianScene:
+    """Gaussians along a wandering curve (neighbours alike), colours with correlated channels."""
+    rng = np.random.default_rng(seed)
+    k = (degree + 1) ** 2
+    sh = rng.normal(size=(n, k, 1)) + 0.1 * rng.normal(size=(n, k, 3))
+    sh[:, 1:] *= 0.2
+    f = np.float32
+    means = np.cumsum(rng.normal(0, 0.02, size=(n, 3)), axis=0)
+    return GaussianScene(means.astype(f), sh.astype(f), rng.normal(0, 3, size=n).astype(f),
+                         (-4 + 0.3 * rng.normal(size=(n, 3))).astype(f), rng.normal(size=(n, 4)).astype(f))
+
+
+def _fast_stream(degree: int, tile_points: int) -> bytes:
+    cfg = dataclasses.replace(load_config("fast", kind="gaussians"), tile_points=tile_points)
+    return encode_gaussian_scene(_scene(3000, degree), cfg).data
+
+
+@pytest.mark.parametrize("degree,tile_points", sorted(PINNED))
+def test_fast_streams_are_those_of_the_whole_scene_paths(degree, tile_points):
+    assert hashlib.sha256(_fast_stream(degree, tile_points)).hexdigest() == PINNED[degree, tile_points]
+
+
+def test_rdoq_blocks_do_not_change_the_stream(monkeypatch):
+    """Within a LoD each row's choice depends on coarser LoDs only: any block size, the same stream
+    (97 rows: many blocks per LoD, the last one partial)."""
+    monkeypatch.setattr(rdoq, "RDOQ_BLOCK_ROWS", 97)
+    assert hashlib.sha256(_fast_stream(3, 0)).hexdigest() == PINNED[3, 0]
+
+
+def test_uniform_sensitivities_are_one_broadcast_row():
+    f = rdoq.uniform_sensitivity(10 ** 9, 56)  # SH 3: 448 GB stored
+    assert f.shape == (10 ** 9, 56) and f.strides[0] == 0 and rdoq.uniform(f)
+    rows = rdoq.take_rows(f, np.array([5, 7, 11]))
+    assert rows.shape == (3, 56) and rows.strides[0] == 0 and (rows == 1).all()
+    assert rdoq.take_rows(f, slice(10, 20)).shape == (10, 56)
+    sub = rdoq.sh_degree_subset(f, 1)
+    assert sub.shape == (10 ** 9, 20) and rdoq.uniform(sub)
+    mu = rdoq.group_slopes(f[:1000], rdoq.channel_groups(3), 2.0)
+    assert np.array_equal(mu, rdoq.group_slopes(np.ones((1000, 56)), rdoq.channel_groups(3), 2.0))
+    stored = np.random.default_rng(0).random((6, 4))
+    assert np.array_equal(rdoq.take_rows(stored, np.array([1, 3])), stored[[1, 3]])
+
+
+@pytest.mark.parametrize("lo,hi,dtype", [(-5, 7, np.int16), (-40000, 3, np.int32), (0, 1 << 40, np.int64)])
+def test_quantized_integers_take_the_narrowest_dtype(lo, hi, dtype):
+    q = np.array([[lo, hi], [0, 1]], dtype=np.int64)
+    got = narrowest_integers(q)
+    assert got.dtype == dtype and np.array_equal(got, q)
+
+
+def test_sh3_content_of_the_memory_scenes_is_playbots_and_deterministic():
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    import scale_scenes
+
+    scene, playbot = _scene(50, 0, seed=1), _scene(7, 2, seed=2)
+    a, b = scale_scenes.with_sh3_content(scene, playbot), scale_scenes.with_sh3_content(scene, playbot)
+    assert a.sh_degree == 3 and a.sh.tobytes() == b.sh.tobytes()
+    assert np.array_equal(a.sh[:, 0], scene.sh[:, 0]) and np.array_equal(a.sh[9, 1:9], playbot.sh[9 % 7, 1:9])
+    assert np.array_equal(a.sh[4, 9:16], np.float32(0.5) * playbot.sh[(7 * 4 + 3) % 7, 2:9])
