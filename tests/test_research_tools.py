@@ -1,5 +1,6 @@
-"""tools/bench_step_flags.py (the indices of a 1.2-1.4 stream as 1.5's flags) and
-tools/position_precision_bound.py (the octree levels a point is alone in)."""
+"""tools/bench_step_flags.py (the indices of a 1.2-1.4 stream as 1.5's flags),
+tools/position_precision_bound.py (the octree levels a point is alone in) and tools/bench_sh_coding.py
+(candidate codings of the SH rest, on a tiny synthetic scene)."""
 
 import sys
 from pathlib import Path
@@ -41,3 +42,23 @@ def test_levels_alone_in_a_small_octree():
     assert alone.tolist() == [0, 0, 2]
     one, _ = levels_alone(np.array([[0, 0, 0], [4, 4, 4]]))
     assert one.tolist() == [2, 2]
+
+
+def test_sh_coding_bench_on_a_tiny_scene():
+    """tools/bench_sh_coding.py on 400 synthetic Gaussians of SH degree 1: RAHT keeps the values'
+    energy (orthonormal, so its rounding errors are the values'), every row has bits, and the
+    transforms are coded at today's distortion."""
+    from bench_sh_coding import measure_level, raht, sh_scene_on_grid, table_lines
+
+    rng = np.random.default_rng(0)
+    coords = np.unique(rng.integers(0, 64, size=(500, 3)), axis=0)[:400]
+    dc = rng.normal(0, 0.5, size=(400, 1, 3))
+    rest = 0.3 * dc * rng.normal(1, 0.2, size=(400, 3, 3)) + rng.normal(0, 0.05, size=(400, 3, 3))
+    sc = sh_scene_on_grid("tiny", coords, np.concatenate([dc, rest], axis=1))
+    h, _, root = raht(sc.rest, sc.coords)
+    assert h.shape[0] == sc.n - 1
+    assert np.isclose((h ** 2).sum() + (root ** 2).sum(), (sc.rest ** 2).sum())
+    r = measure_level(sc, "test", 0.05, [0.1], [0.8, 1.0, 1.25, 1.6], hidden=4, train_rows=400, train_steps=5)
+    assert all(np.isfinite(v) and v > 0 for v in r.bits.values())
+    assert all(abs(e / r.error - 1) < 0.05 for e in r.errors.values())
+    assert "| tiny | test" in table_lines([r])[2]
