@@ -97,3 +97,8 @@ fuzz-diff: setup
 mutations: setup
 	nice $(PY) tools/mutation_test.py --report
 	nice $(PY) tools/mutation_test.py --conditions --report
+
+# Mutation testing of the JavaScript decoder against its conformance run (tools/js_mutation_test.py; needs node,
+# and tools/node's AssemblyScript for the mutations of its WebAssembly); rewrites its section of conformance.md
+js-mutations: setup node-tools
+	nice $(PY) tools/js_mutation_test.py --report
