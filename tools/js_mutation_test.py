@@ -22,6 +22,7 @@ Exit status: 0 every mutation killed, 1 one survived or is stale, 2 usage error.
 from __future__ import annotations
 
 import argparse
+import re
 import shutil
 import subprocess
 import sys
@@ -60,8 +61,6 @@ MUTATIONS: list[JsMutation] = [
     M("container.no_crc_check", "container.mjs", "unitCrc32(bytes, pos, end) !== stored", "false", "E9 skipped"),
     M("container.unknown_critical_ok", "container.mjs", "u.type > LAST_KNOWN_CRITICAL)", "u.type > LAST_KNOWN_CRITICAL + 1)",
       "E10: the first undefined critical type taken for known"),
-    M("container.ancillary_first_ok", "container.mjs", "if (units.length && !isCritical(units[0].type) && critical.length) {",
-      "if (false) {", "E11's first check skipped (a second one follows)"),
     M("container.no_unit_kind_check", "container.mjs", "if (!kinds.has(t)) throw", "if (false) throw", "E13 skipped"),
     M("container.flags_before_step_adjust", "container.mjs",
       "            if (peek() === UNIT.STEP_ADJUST_FLAGS) s.sf = critical[i++];\n        }",
@@ -99,6 +98,8 @@ MUTATIONS: list[JsMutation] = [
       "E67 half checked"),
     M("units.short_chunks_ok", "units.mjs", "if (total !== payload.length - h.dataOffset)",
       "if (total > payload.length - h.dataOffset)", "E50 one-sided"),
+    M("units.step_flag_frequency", "units.mjs", "r.u(12, `step_flag_prob[${i}]`) + 2048",
+      "r.u(12, `step_flag_prob[${i}]`) + 2047", "7.3.16: a flag's frequency off by one"),
     M("units.lod_sizes_floor", "units.mjs", "Math.ceil(a / 2 ** t)", "Math.floor(a / 2 ** t)",
       "LoD sizes of clause 7.3.12 rounded down"),
     # geometry header (G.3)
@@ -116,6 +117,9 @@ MUTATIONS: list[JsMutation] = [
     M("decoder.cell_off_by_one", "decoder.mjs", "coords.max[a] > hi)", "coords.max[a] > hi + 1)", "E58 off by one"),
     M("decoder.fewer_rows_ok", "decoder.mjs", "if (h.numRows !== n) throw", "if (h.numRows > n) throw", "E59 one-sided"),
     M("decoder.no_hash_check", "decoder.mjs", "if (toHex(digest) !== out.sceneHash) throw", "if (false) throw", "E53 skipped"),
+    M("decoder.digest_tile_major", "decoder.mjs", "for (let j = 0; j < 5; j++) for (const p of parts) h.update(p[j]);",
+      "for (const p of parts) for (let j = 0; j < 5; j++) h.update(p[j]);",
+      "clause 12: a tiled scene serialized tile by tile, not part by part"),
     M("decoder.box_open_faces", "decoder.mjs", "if (lo > box[a + 3] || hi < box[a]) return false;",
       "if (lo >= box[a + 3] || hi <= box[a]) return false;", "clause 13.3: a box on a cell's face misses it"),
     # attributes (clause 11)
@@ -192,7 +196,32 @@ def run_one(m: JsMutation, timeout: float) -> tuple[str, str]:
         f"exit {run.returncode}: {(run.stderr.strip().splitlines() or [''])[-1][:160]}"
 
 
+def profile_streams() -> set[str]:
+    """The ids of the conformance streams of the explicit-Gaussian profile (conformance.mjs --list)."""
+    out = subprocess.run(["node", str(DECODER / "conformance.mjs"), "--streams", str(STREAMS), "--list"],
+                         capture_output=True, text=True, check=True).stdout
+    return {line.split()[1] for line in out.splitlines() if line.startswith("in ")}
+
+
+def missing_stream(m: JsMutation, isolated: dict[str, str], in_profile: set[str]) -> str:
+    """What the suite lacks to kill a surviving mutation: for a condition of clause 8.2, an
+    explicit-Gaussian stream that breaks it (its isolated stream, when it has one, is an anchor stream)."""
+    cond = re.search(r"\bE[0-9]+\b", m.why)
+    if cond is None:
+        return "no stream of the profile breaks only this rule (one that breaks it is rejected for another reason too)"
+    stream = isolated.get(cond.group())
+    if stream and stream not in in_profile:
+        return f"{cond.group()}'s isolated stream {stream} is outside the profile: an explicit-Gaussian one is needed"
+    if stream:
+        return f"{cond.group()}'s isolated stream {stream} breaks it another way: this mistake needs one of its own"
+    return (f"no isolated stream breaks {cond.group()} (its error streams of the profile, if any, are rejected for "
+            "another reason too)")
+
+
 def markdown(results: list[tuple[JsMutation, str, str]], seconds: float) -> str:
+    from lghcc.conformance.conditions import isolated_streams
+
+    isolated, in_profile = isolated_streams(STREAMS), profile_streams()
     killed = sum(1 for _, s, _ in results if s == "killed")
     survived = [(m, note) for m, s, note in results if s == "survived"]
     lines = [BEGIN, "", "## Mutation testing of the JavaScript decoder", "",
@@ -204,7 +233,7 @@ def markdown(results: list[tuple[JsMutation, str, str]], seconds: float) -> str:
              f"**{killed} of {len(results)} killed**; {len(survived)} survived"
              + (", each a stream the suite lacks:" if survived else "."), ""]
     for m, note in survived:
-        lines.append(f"- `{m.id}` ({m.path}: {m.why})")
+        lines.append(f"- `{m.id}` ({m.path}: {m.why}): {missing_stream(m, isolated, in_profile)}")
     lines += ["", "| mutation | file | what | result |", "|---|---|---|---|"]
     for m, status, note in results:
         lines.append(f"| `{m.id}` | {m.path} | {m.why} | {status}: {note.replace('|', '/')[:120]} |")
