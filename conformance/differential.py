@@ -220,6 +220,7 @@ class DiffSummary:
     class_pairs: Counter = field(default_factory=Counter)  # (reference class, JS class) of both-rejected cases
     scene_cases: int = 0
     disagreements: list[tuple[str, str, str, str]] = field(default_factory=list)
+    not_compared: list[tuple[str, str, str, str]] = field(default_factory=list)  # the first 20 resource-limit cases
 
     @property
     def bugs(self) -> int:
@@ -231,6 +232,8 @@ class DiffSummary:
         self.outcomes[label] += 1
         if label == AGREE_REJECTED:
             self.class_pairs[(ref.kind, js.kind)] += 1
+        if label == NOT_COMPARED and len(self.not_compared) < 20:  # two decoders' bounds differ: worth a look
+            self.not_compared.append((label, what, ref.describe(), js.describe()))
         if label.startswith(("DISAGREE", "BUG")):
             self.disagreements.append((label, what, ref.describe(), js.describe()))
             if failures_dir is not None:
