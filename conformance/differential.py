@@ -320,8 +320,12 @@ class _Loop:
 
     def scene(self, sc) -> None:
         what = f"scene {self.summary.cases}: {sc.what}"
-        if sc.data is None:  # refused by the encoder (or its bug, which tools/fuzz_decoder.py reports)
-            self.summary.outcomes[SCENE_REFUSED if not sc.bug else "scene: encoder exception (see fuzz_decoder)"] += 1
+        if sc.bug:  # the encoder's exception: no stream to compare, a bug all the same
+            self.summary.add("BUG: encoder", what, Verdict("bug", kind="encoder", message=sc.bug.strip().splitlines()[-1]),
+                             Verdict("bug", kind="not run"), b"")
+            return
+        if sc.data is None:  # refused by the encoder (InputError): not a case
+            self.summary.outcomes[SCENE_REFUSED] += 1
             return
         self.summary.scene_cases += 1
         label, ref = self.one(sc.data, what)
