@@ -14,6 +14,8 @@ a stream the suite lacks. One whose text no longer occurs exactly once in its fi
     python tools/js_mutation_test.py              # all, one line each
     python tools/js_mutation_test.py container.   # those whose id starts with this
     python tools/js_mutation_test.py --report     # also rewrite the section of tools/results/conformance.md
+    python tools/js_mutation_test.py --differential 400 --report   # and does the differential fuzzer catch
+                                                  # each survivor (400 mutated streams to both decoders)?
 
 Needs node; the WebAssembly mutations need `make node-tools` (skipped, as stale, without it).
 Exit status: 0 every mutation killed, 1 one survived or is stale, 2 usage error.
@@ -198,6 +200,23 @@ def run_one(m: JsMutation, timeout: float) -> tuple[str, str]:
         f"exit {run.returncode}: {(run.stderr.strip().splitlines() or [''])[-1][:160]}"
 
 
+def differential_verdict(m: JsMutation, mutator, cases: int) -> str:
+    """Whether the differential fuzzer (lghcc/conformance/differential.py) catches a mutation the suite
+    does not: ``cases`` mutations of the conformance streams (seed 56) to the reference and the mutant."""
+    from lghcc.conformance.differential import run_differential
+
+    with tempfile.TemporaryDirectory(prefix="lghcc-js-mutant-") as tmp:
+        try:
+            target = mutated_copy(m, Path(tmp))
+        except Stale as e:
+            return f"stale: {e}"
+        s = run_differential(mutator, seed=56, cases=cases, timeout=60.0, decoder_dir=target)
+    if not s.disagreements:
+        return f"not caught in {s.cases} cases"
+    label, what, ref, js = s.disagreements[0]
+    return f"caught: {s.bugs} of {s.cases} cases disagree; first {label} ({what[:70]}; JS: {js[:70]})"
+
+
 def profile_streams() -> set[str]:
     """The ids of the conformance streams of the explicit-Gaussian profile (conformance.mjs --list)."""
     out = subprocess.run(["node", str(DECODER / "conformance.mjs"), "--streams", str(STREAMS), "--list"],
@@ -220,7 +239,7 @@ def missing_stream(m: JsMutation, isolated: dict[str, str], in_profile: set[str]
             "another reason too)")
 
 
-def markdown(results: list[tuple[JsMutation, str, str]], seconds: float) -> str:
+def markdown(results: list[tuple[JsMutation, str, str]], seconds: float, differential: dict[str, str]) -> str:
     from lghcc.conformance.conditions import isolated_streams
 
     isolated, in_profile = isolated_streams(STREAMS), profile_streams()
@@ -235,7 +254,8 @@ def markdown(results: list[tuple[JsMutation, str, str]], seconds: float) -> str:
              f"**{killed} of {len(results)} killed**; {len(survived)} survived"
              + (", each a stream the suite lacks:" if survived else "."), ""]
     for m, note in survived:
-        lines.append(f"- `{m.id}` ({m.path}: {m.why}): {missing_stream(m, isolated, in_profile)}")
+        caught = f" Differential fuzzer: {differential[m.id]}." if m.id in differential else ""
+        lines.append(f"- `{m.id}` ({m.path}: {m.why}): {missing_stream(m, isolated, in_profile)}.{caught}")
     lines += ["", "| mutation | file | what | result |", "|---|---|---|---|"]
     for m, status, note in results:
         lines.append(f"| `{m.id}` | {m.path} | {m.why} | {status}: {note.replace('|', '/')[:120]} |")
@@ -253,11 +273,30 @@ def write_report(section: str) -> None:
     REPORT.write_text(text)
 
 
+def differential_verdicts(survivors: list[JsMutation], cases: int) -> dict[str, str]:
+    """differential_verdict of each survivor (none when ``cases`` is 0)."""
+    if not cases or not survivors:
+        return {}
+    from lghcc.conformance.differential import seed_weights
+    from lghcc.conformance.fuzz import Mutator, load_seeds
+
+    seeds = load_seeds()
+    mutator = Mutator(seeds)
+    mutator.weights = seed_weights(seeds)
+    out = {}
+    for m in survivors:
+        out[m.id] = differential_verdict(m, mutator, cases)
+        print(f"differential {m.id}: {out[m.id]}", flush=True)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("only", nargs="*", help="mutation ids or id prefixes (default: all)")
     ap.add_argument("--timeout", type=float, default=300.0, help="seconds a conformance run may take (default 300)")
     ap.add_argument("--report", action="store_true", help="rewrite the section of tools/results/conformance.md")
+    ap.add_argument("--differential", type=int, default=0, metavar="N",
+                    help="also run N differential-fuzzer cases against each surviving mutation (does the fuzzer catch it?)")
     args = ap.parse_args(argv)
     if shutil.which("node") is None:
         print("js_mutation_test: node is not on the PATH", file=sys.stderr)
@@ -273,8 +312,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{status:8} {m.id}: {note}", flush=True)
     killed = sum(1 for _, s, _ in results if s == "killed")
     print(f"{killed}/{len(results)} killed")
+    differential = differential_verdicts([m for m, s, _ in results if s == "survived"], args.differential)
     if args.report:
-        write_report(markdown(results, time.perf_counter() - t0))
+        write_report(markdown(results, time.perf_counter() - t0, differential))
         print(f"wrote {REPORT.relative_to(ROOT)}")
     return 0 if killed == len(results) else 1
 
