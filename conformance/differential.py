@@ -221,6 +221,9 @@ class DiffSummary:
     scene_cases: int = 0
     disagreements: list[tuple[str, str, str, str]] = field(default_factory=list)
     not_compared: list[tuple[str, str, str, str]] = field(default_factory=list)  # the first 20 resource-limit cases
+    # the first 20 both-rejected cases whose classes differ, the JavaScript decoder's UnsupportedStreamError
+    # (a stream outside its profile) aside: clause 8.2 gives each condition its class
+    classes_differ: list[tuple[str, str, str, str]] = field(default_factory=list)
 
     @property
     def bugs(self) -> int:
@@ -232,6 +235,8 @@ class DiffSummary:
         self.outcomes[label] += 1
         if label == AGREE_REJECTED:
             self.class_pairs[(ref.kind, js.kind)] += 1
+            if ref.kind != js.kind and js.kind != "UnsupportedStreamError" and len(self.classes_differ) < 20:
+                self.classes_differ.append((label, what, ref.describe(), js.describe()))
         if label == NOT_COMPARED and len(self.not_compared) < 20:  # two decoders' bounds differ: worth a look
             self.not_compared.append((label, what, ref.describe(), js.describe()))
         if label.startswith(("DISAGREE", "BUG")):

@@ -66,7 +66,7 @@ def summary_to_json(s: DiffSummary, command: str, started: str, seeds: int, code
             "seconds": s.seconds,
             "scene_cases": s.scene_cases, "outcomes": dict(s.outcomes),
             "class_pairs": [[a, b, n] for (a, b), n in s.class_pairs.items()], "disagreements": s.disagreements,
-            "not_compared": s.not_compared}
+            "not_compared": s.not_compared, "classes_differ": s.classes_differ}
 
 
 def merge_json(paths: list[str]) -> tuple[DiffSummary, list[str], str, int, list[str]]:
@@ -86,6 +86,7 @@ def merge_json(paths: list[str]) -> tuple[DiffSummary, list[str], str, int, list
         total.class_pairs.update(Counter({(a, b): n for a, b, n in d["class_pairs"]}))
         total.disagreements += [tuple(x) for x in d["disagreements"]]
         total.not_compared += [tuple(x) for x in d.get("not_compared", [])]
+        total.classes_differ += [tuple(x) for x in d.get("classes_differ", [])]
     return total, commands, started, seeds, codes
 
 
@@ -114,6 +115,10 @@ def results_markdown(s: DiffSummary, commands: list[str], started: str, seeds: i
               "| reference | JavaScript | cases |", "|---|---|---|"]
     for (a, b), n in s.class_pairs.most_common():
         lines.append(f"| {a} | {b} | {n:,} |")
+    if s.classes_differ:
+        lines += ["", "Both rejected with different classes, the JavaScript decoder's UnsupportedStreamError aside (the first 20):",
+                  ""]
+        lines += [f"- {what[:160]}; reference: {ref[:160]}; JavaScript: {js[:160]}" for _, what, ref, js in s.classes_differ[:20]]
     if s.not_compared:
         lines += ["", "Cases not compared (a resource bound of one decoder; the first 20):", ""]
         lines += [f"- {what[:160]}; reference: {ref[:160]}; JavaScript: {js[:160]}" for _, what, ref, js in s.not_compared[:20]]
