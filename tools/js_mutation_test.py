@@ -129,8 +129,8 @@ MUTATIONS: list[JsMutation] = [
     # attributes (clause 11)
     M("attributes.extent_off_by_one", "attributes.mjs", "if (e > MAX_EXTENT) throw", "if (e > MAX_EXTENT + 1) throw",
       "E64 off by one"),
-    M("attributes.step_factor_digit", "attributes.mjs", "1.18920708,", "1.1892071,",
-      "STEP_ADJUST_FACTORS[1] rounded otherwise"),
+    M("attributes.step_factor_one_ulp", "attributes.mjs", "1.18920708,", "1.1892072,",
+      "STEP_ADJUST_FACTORS[1] one binary32 ulp high"),
     M("attributes.half_words_ok", "attributes.mjs", "if (bytes.length % 4) throw", "if (bytes.length % 2) throw",
       "E35: chunks of whole 16-bit words"),
     # the WebAssembly module (rebuilt)
