@@ -49,7 +49,7 @@ AGREE_DECODED = "agree: both decoded, same hash"
 AGREE_REJECTED = "agree: both rejected"
 AGREE_UNSUPPORTED = "agree: outside the profile, JS rejects it as UnsupportedStreamError"
 NOT_COMPARED = "not compared: a resource limit"
-SCENE_REFUSED = "scene refused by the encoder (InputError)"
+SCENE_REFUSED = "scene refused by the encoder (InputError; not a case)"
 
 
 @dataclass(frozen=True)

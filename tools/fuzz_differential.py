@@ -94,10 +94,13 @@ def results_markdown(s: DiffSummary, commands: list[str], started: str, seeds: i
     """The differential section of tools/results/fuzz.md, markers included."""
     partial = s.cases < TARGET_CASES
     lines = [BEGIN, "", "## Differential fuzzing: the reference decoder against the JavaScript decoder", "",
-             f"Started {started}; {s.seconds / 3600:.2f} h ({len(commands)} campaign{'s' if len(commands) > 1 else ''} "
-             f"side by side, `tools/fuzz_differential.py`, `make fuzz-diff`); machine: {os.cpu_count()} shared CPU "
+             f"Started {started}; {s.seconds / 3600:.2f} h ("
+             f"{f'{len(commands)} campaigns side by side' if len(commands) > 1 else 'one campaign'}, "
+             f"`tools/fuzz_differential.py`, `make fuzz-diff`); machine: {os.cpu_count()} shared CPU "
              f"cores, no GPU. Code: {' and '.join(codes)}. Seeds: {seeds} "
-             "conformance streams that decode, plus the fresh scene streams (the 32 newest at a time).", ""]
+             "conformance streams that decode (those of the JavaScript decoder's profile drawn ten times as often as "
+             "the others), plus the fresh scene streams (the 32 newest at a time; four in five explicit-Gaussian, with "
+             "every tool of the profile).", ""]
     if partial:
         lines += [f"**A partial run: {s.cases:,} cases of the {TARGET_CASES:,} issue 56 item 4 asks for** (the "
                   "session's time); `make fuzz-diff` runs the whole campaign.", ""]
