@@ -107,3 +107,21 @@ def test_js_decoder_server_survives_a_hang_bound(tmp_path):
         js.timeout = 60.0
         assert js.run(data).outcome == "decoded"
         assert js.run(random.Random(1).randbytes(40)).outcome == "rejected"
+
+
+def test_results_section_is_rewritten_in_place_and_kept_by_fuzz_decoder(tmp_path):
+    """--out rewrites only the differential section of tools/results/fuzz.md; tools/fuzz_decoder.py,
+    which writes the file whole, keeps it."""
+    import fuzz_decoder
+
+    out = tmp_path / "fuzz.md"
+    out.write_text("# Decoder fuzzing: long run\n\nfigures\n")
+    first = fuzz_differential.BEGIN + "\nrun 1\n" + fuzz_differential.END + "\n"
+    fuzz_differential.write_section(out, first)
+    fuzz_differential.write_section(out, first.replace("run 1", "run 2"))
+    text = out.read_text()
+    assert text.startswith("# Decoder fuzzing") and "run 2" in text and "run 1" not in text
+    assert text.count(fuzz_differential.BEGIN) == 1
+    fuzz_decoder.write_results(str(out), "# Decoder fuzzing: long run\n\nnew figures\n")
+    text = out.read_text()
+    assert "new figures" in text and "run 2" in text and "\nfigures" not in text
