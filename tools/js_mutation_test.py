@@ -239,14 +239,16 @@ def missing_stream(m: JsMutation, isolated: dict[str, str], in_profile: set[str]
             "another reason too)")
 
 
-def markdown(results: list[tuple[JsMutation, str, str]], seconds: float, differential: dict[str, str]) -> str:
+def markdown(results: list[tuple[JsMutation, str, str]], seconds: float, differential: dict[str, str],
+             differential_cases: int = 0) -> str:
     from lghcc.conformance.conditions import isolated_streams
 
     isolated, in_profile = isolated_streams(STREAMS), profile_streams()
     killed = sum(1 for _, s, _ in results if s == "killed")
     survived = [(m, note) for m, s, note in results if s == "survived"]
     lines = [BEGIN, "", "## Mutation testing of the JavaScript decoder", "",
-             "Command: `python tools/js_mutation_test.py --report` (`make js-mutations`); "
+             "Command: `python tools/js_mutation_test.py --report"
+             + (f" --differential {differential_cases}" if differential else "") + "` (`make js-mutations`); "
              f"{len(results)} mutations of js/lghcc-decoder (tools/js_mutation_test.py: skipped checks of clause 8.2, "
              "bounds off by one, roundings, orders; those of wasm/decoder.ts rebuilt with the pinned AssemblyScript), "
              "each applied to a copy of the decoder whose conformance run (`node conformance.mjs`, the streams of the "
@@ -314,7 +316,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{killed}/{len(results)} killed")
     differential = differential_verdicts([m for m, s, _ in results if s == "survived"], args.differential)
     if args.report:
-        write_report(markdown(results, time.perf_counter() - t0, differential))
+        write_report(markdown(results, time.perf_counter() - t0, differential, args.differential))
         print(f"wrote {REPORT.relative_to(ROOT)}")
     return 0 if killed == len(results) else 1
 
