@@ -8,7 +8,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test test-slow check spec bench clean node-tools viewer-bundle js-package fuzz-long mutations
+.PHONY: setup demo test test-slow check spec bench clean node-tools viewer-bundle js-package fuzz-long fuzz-diff mutations js-mutations
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -80,9 +80,28 @@ fuzz-long: setup
 	done; wait
 	$(PY) tools/fuzz_decoder.py --merge fuzz_logs/job_*.json --out tools/results/fuzz.md
 
+# Differential fuzzing (not part of `make test`): the reference and the JavaScript decoder on the same
+# streams (tools/fuzz_differential.py; needs node), FUZZ_DIFF_JOBS campaigns side by side, FUZZ_DIFF_CASES
+# in all; nice'd, logs in fuzz_logs/, merged into the differential section of tools/results/fuzz.md.
+FUZZ_DIFF_CASES ?= 1000000
+FUZZ_DIFF_JOBS ?= 2
+fuzz-diff: setup
+	mkdir -p fuzz_logs
+	for j in $$(seq 1 $(FUZZ_DIFF_JOBS)); do \
+	  nice -n 19 $(PY) tools/fuzz_differential.py --cases $$(( $(FUZZ_DIFF_CASES) / $(FUZZ_DIFF_JOBS) )) --scenes \
+	    --timeout 60 --seed $$(( $(FUZZ_SEED) * 100 + 50 + $$j )) --failures fuzz_logs/diff_failures_$$j \
+	    --json fuzz_logs/diff_$$j.json > fuzz_logs/diff_$$j.log 2>&1 & \
+	done; wait
+	$(PY) tools/fuzz_differential.py --merge fuzz_logs/diff_*.json --out tools/results/fuzz.md
+
 # Mutation testing of the decoder against the conformance suite (conformance/mutations.py): every
 # listed wrong decoder must fail some stream; rewrites the table in tools/results/conformance.md.
 # Then, per condition of spec clause 8.2, the mutant without its check against its isolated stream.
 mutations: setup
 	nice $(PY) tools/mutation_test.py --report
 	nice $(PY) tools/mutation_test.py --conditions --report
+
+# Mutation testing of the JavaScript decoder against its conformance run (tools/js_mutation_test.py; needs node,
+# and tools/node's AssemblyScript for the mutations of its WebAssembly); rewrites its section of conformance.md
+js-mutations: setup node-tools
+	nice $(PY) tools/js_mutation_test.py --report

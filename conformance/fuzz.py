@@ -483,7 +483,8 @@ def partial_mismatch(data: bytes, box, part) -> str:
     return ""
 
 
-def _worker(conn, memory_bytes: int | None, threads: int, max_memory: int | None = None) -> None:
+def _worker(conn, memory_bytes: int | None, threads: int, max_memory: int | None = None, judge=None) -> None:
+    """Decodes the parent's cases one at a time with ``judge`` (default ``classify``)."""
     import signal
 
     import torch
@@ -497,6 +498,7 @@ def _worker(conn, memory_bytes: int | None, threads: int, max_memory: int | None
 
     torch.set_num_threads(threads)
     _MAX_MEMORY[0] = max_memory
+    judge = judge or classify
     from ..decoder import decode  # noqa: F401 - imported before the clock of the first case starts
 
     if memory_bytes:
@@ -510,7 +512,7 @@ def _worker(conn, memory_bytes: int | None, threads: int, max_memory: int | None
         base_kib = _reset_peak_rss()
         t0, c0 = time.perf_counter(), time.process_time()
         try:
-            kind, detail = classify(data) if options is None else classify(data, options)
+            kind, detail = judge(data) if options is None else judge(data, options)
         except Exception as e:  # noqa: BLE001 - e.g. MemoryError while handling another error
             kind, detail = f"BUG: {type(e).__name__}", traceback.format_exc()
         dt, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -568,21 +570,24 @@ class CaseResult(tuple):
 
 class Sandbox:
     """A forked worker that decodes cases one at a time, with an address-space limit of the
-    parent's current size plus ``memory_mb`` and a wall-clock bound per case."""
+    parent's current size plus ``memory_mb`` and a wall-clock bound per case. ``judge(data, options)``
+    -> (kind, detail) decodes a case in the worker (default ``classify``; the differential fuzzer's
+    also returns the decoded scene's hash, conformance/differential.py)."""
 
-    def __init__(self, timeout: float = 5.0, memory_mb: int | None = 2048, threads: int = 1):
+    def __init__(self, timeout: float = 5.0, memory_mb: int | None = 2048, threads: int = 1, judge=None):
         self.timeout = timeout
         self.memory_bytes = _vm_size_bytes() + memory_mb * (1 << 20) if memory_mb else None
         self.max_memory = memory_mb * (1 << 19) if memory_mb else None  # the decoder's own bound: half of it
         self.threads = threads
+        self.judge = judge
         self._ctx = mp.get_context("fork")
         self._proc = None
         self._conn = None
 
     def _start(self) -> None:
         parent, child = self._ctx.Pipe()
-        self._proc = self._ctx.Process(target=_worker, args=(child, self.memory_bytes, self.threads, self.max_memory),
-                                       daemon=True)
+        self._proc = self._ctx.Process(target=_worker, daemon=True,
+                                       args=(child, self.memory_bytes, self.threads, self.max_memory, self.judge))
         self._proc.start()
         child.close()
         self._conn = parent

@@ -155,6 +155,14 @@ def results_markdown(summary, command: str, started: str, seeds: int, args, jobs
     return "\n".join(lines)
 
 
+def write_results(path: str, text: str) -> None:
+    """Write the results file, keeping the differential fuzzer's section of it (tools/fuzz_differential.py)."""
+    from fuzz_differential import keep_section
+
+    p = Path(path)
+    p.write_text(keep_section(p.read_text() if p.exists() else "", text))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     budget = ap.add_mutually_exclusive_group()
@@ -193,7 +201,7 @@ def main(argv: list[str] | None = None) -> int:
         args.timeout = summary.timeout  # the campaigns' own bound
         text = results_markdown(summary, "\n".join(commands), started, seeds, args, jobs=len(commands))
         if args.out:
-            Path(args.out).write_text(text)
+            write_results(args.out, text)
             print(f"wrote {args.out}")
         else:
             print(text)
@@ -231,8 +239,8 @@ def main(argv: list[str] | None = None) -> int:
             last[1] = now
             s.seconds = now - t_start
             if args.out:
-                Path(args.out).write_text(results_markdown(s, command + "   (checkpoint: still running)", started,
-                                                           len(seeds), args))
+                write_results(args.out, results_markdown(s, command + "   (checkpoint: still running)", started,
+                                                         len(seeds), args))
             if args.json:  # a partial summary that --merge can read if the run is cut short
                 Path(args.json).write_text(json.dumps(summary_to_json(s, command + "   (checkpoint)", started,
                                                                       len(seeds), args.timeout)))
@@ -258,7 +266,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(summary_to_json(summary, command, started, len(seeds), args.timeout)))
     if args.out:
-        Path(args.out).write_text(results_markdown(summary, command, started, len(seeds), args))
+        write_results(args.out, results_markdown(summary, command, started, len(seeds), args))
         print(f"wrote {args.out}")
     if summary.failures:
         print(f"failing inputs saved in {args.failures}/")

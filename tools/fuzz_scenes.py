@@ -377,7 +377,8 @@ def random_gaussian_scene(rng: random.Random, max_points: int = 3000):
 
 def random_gaussian_config(rng: random.Random):
     """-> (GaussianEncoderConfig, description): neighbour prediction (LoDs, neighbours, buckets at
-    their extremes), step adjustment up to max 7, several small tiles, chunks of 1 row to all."""
+    their extremes), step adjustment up to max 7 (its indices as flags or symbols), per-Gaussian SH
+    degrees, rotations as a length index, several small tiles, chunks of 1 row to all."""
     from lghcc.encoder.stream.config import load_config
 
     over: dict = {"rows_per_chunk": _choice(rng, [1, 7, 64, 65536], [10, 20, 20, 50]),
@@ -386,11 +387,15 @@ def random_gaussian_config(rng: random.Random):
         over.update(neighbour_prediction=True, prediction_lods=rng.randint(1, 16),
                     prediction_neighbours=_choice(rng, [1, 2, 6, 32]), prediction_buckets=rng.randint(1, 16))
         if rng.random() < 0.6:
-            over.update(step_adjust_max=rng.randint(0, 7), step_adjust_quantile=_choice(rng, [0.01, 0.5, 0.9, 1.0]))
+            over.update(step_adjust_max=rng.randint(0, 7), step_adjust_quantile=_choice(rng, [0.01, 0.5, 0.9, 1.0]),
+                        step_adjust_flags=rng.random() < 0.7)  # version 1.5's flags, or 1.2's symbols
+        if rng.random() < 0.3:  # per-Gaussian SH degrees (version 1.3; with the sensitivities, see gaussian_scene_case)
+            over["sh_degree_choice"] = True
     else:
         over["neighbour_prediction"] = False
     if rng.random() < 0.6:
         over["tile_points"] = _choice(rng, [1, 5, 30, 200])
+    over["rotation_length"] = rng.random() < 0.7  # rotations as a length index and x, y, z (version 1.4), or 4 channels
     return load_config(_choice(rng, ["low", "medium", "high"]), overrides=over, kind="gaussians"), f"{over}"
 
 
@@ -405,7 +410,7 @@ def gaussian_scene_case(rng: random.Random) -> SceneCase:
     g = np.random.default_rng(rng.getrandbits(64))
     m = scene.sh.shape[1] * 3 + 8
     sens = None
-    if cfg.step_adjust_max or rng.random() < 0.3:
+    if cfg.step_adjust_max or cfg.sh_degree_choice or rng.random() < 0.3:
         sens = (10.0 ** (-3 * g.random((scene.num_gaussians, 1)))) * g.uniform(0.1, 10, size=(1, m))
     return encoded_case(rng, [what], lambda _: encode_gaussian_scene(scene, cfg, sensitivity=sens).data)
 

@@ -192,6 +192,28 @@ def _failing_words(seed: int, decode) -> bytes:
     raise ValueError("no failing words found")
 
 
+def _level0_header_parser(units):
+    """payload -> byte offset of the chunk data, for the single attribute unit of an anchor stream or
+    of an explicit-Gaussian stream without neighbour prediction (its header then has the same syntax,
+    with the Gaussian layout's channels and cross-channel prediction allowed)."""
+    from lghcc.common.units import GaussianParameterSet
+
+    if not any(u.unit_type == UnitType.GAUSSIAN_PARAMETER_SET for u in units):
+        sps = _sps(units)
+        return lambda payload: _parse_attribute(payload, sps, sps.num_anchors)[1]
+    gps = GaussianParameterSet.from_bytes(units[_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
+    layout = attr.gaussian_layout_of(gps)
+
+    def header_end(payload: bytes) -> int:
+        r = BitReader(payload)
+        AttributeUnitHeader.parse(r, num_channels=layout.num_channels, num_offsets=layout.num_offsets,
+                                  offset_mask_present=layout.offset_mask_present,
+                                  channel_prediction_allowed=layout.channel_prediction_allowed,
+                                  num_rows=gps.num_gaussians_minus1 + 1)
+        return r.bit_position // 8
+    return header_end
+
+
 def nonzero_alignment(units, spec: dict) -> None:
     """{unit: attribute}: the last alignment bit of the (single, level-0) attribute unit's header
     set to 1 (clause 6.4: byte_alignment() bits are zero); the header must end unaligned."""
@@ -199,13 +221,13 @@ def nonzero_alignment(units, spec: dict) -> None:
 
     if spec.get("unit", "attribute") != "attribute":
         raise ValueError("nonzero_alignment: only the attribute unit")
-    sps = _sps(units)
     j = _index(units, UnitType.ATTRIBUTE)
-    _, off = _parse_attribute(units[j].payload, sps, sps.num_anchors)
+    parse = _level0_header_parser(units)
+    off = parse(units[j].payload)
     payload = bytearray(units[j].payload)
     payload[off - 1] |= 1
     try:
-        _parse_attribute(bytes(payload), sps, sps.num_anchors)
+        parse(bytes(payload))
     except BitstreamError as e:
         if "alignment" not in str(e):
             raise

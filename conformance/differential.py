@@ -1,0 +1,373 @@
+"""Differential fuzzing: the reference decoder against the JavaScript decoder (js/lghcc-decoder),
+on the same streams (issue 56, item 3).
+
+Each case is decoded by both: the reference in the fuzz sandbox (conformance/fuzz.py ``Sandbox``,
+with ``reference_judge``, which also returns the decoded scene's SHA-256 of clause 12), the
+JavaScript decoder in one long-lived Node process (tools/js_decode_server.mjs; a Node start per
+case would cost more than most cases). The two agree when
+
+* both decode, to the same hash (a box decode: the same hash of the tiles the box selects);
+* both reject the stream (BitstreamError and its subclasses on both sides);
+* the reference decodes a stream outside the explicit-Gaussian profile (an anchor stream, the
+  hierarchy) and the JavaScript decoder rejects it as UnsupportedStreamError (spec clause 8.4);
+* either refuses it for a resource bound of its own (ResourceLimitError): not compared.
+
+Anything else is a disagreement (a hash that differs, a stream one decodes and the other rejects,
+an exception of another class or a hang of the JavaScript decoder), which is a bug in one decoder
+or an ambiguity of spec/; a reference-side bug of conformance/fuzz.py's kind ('BUG: ...') is
+reported too. When both reject, their error classes are counted pair by pair, not compared: the
+reference's messages carry no condition id of clause 8.2 (the JavaScript decoder's mostly do), and
+a stream broken twice may be rejected for either fault, since clause 8.2 does not order the checks.
+
+Cases come from conformance/fuzz.py's ``Mutator`` (its seeds: the conformance streams that decode)
+and from a scene source (tools/fuzz_scenes.py: fresh encoder streams, which then join the seeds).
+tools/fuzz_differential.py runs campaigns; tests/test_differential.py a short one.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import random
+import selectors
+import shutil
+import subprocess
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..common.errors import LghccError
+from .fuzz import VALID, Mutator, Sandbox
+
+ROOT = Path(__file__).resolve().parents[1]
+JS_SERVER = ROOT / "tools" / "js_decode_server.mjs"
+JS_DECODER = ROOT / "js" / "lghcc-decoder"
+
+AGREE_DECODED = "agree: both decoded, same hash"
+AGREE_REJECTED = "agree: both rejected"
+AGREE_UNSUPPORTED = "agree: outside the profile, JS rejects it as UnsupportedStreamError"
+NOT_COMPARED = "not compared: a resource limit"
+SCENE_REFUSED = "scene refused by the encoder (InputError; not a case)"
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """One decoder's answer: ``outcome`` 'decoded' (``hash``), 'rejected' (``kind``: the error
+    class, ``message``), 'resource' (a ResourceLimitError) or 'bug' (``kind``: an exception of
+    another class, a timeout, a dead process). ``in_profile``: of a reference decode, whether the
+    stream lies in the explicit-Gaussian profile (no anchors, no hierarchy)."""
+
+    outcome: str
+    hash: str = ""
+    kind: str = ""
+    message: str = ""
+    in_profile: bool = True
+
+    def describe(self) -> str:
+        if self.outcome == "decoded":
+            return f"decoded {self.hash}" + ("" if self.in_profile else " (outside the profile)")
+        return f"{self.outcome}: {self.kind}: {self.message}".strip()
+
+
+def reference_judge(data: bytes, options: dict | None = None) -> tuple[str, str]:
+    """In the sandbox's worker: (kind, detail) as fuzz.classify, with the decoded scene's hash and
+    'in' / 'out' (the profile) as detail of a valid decode."""
+    from ..decoder.decode import decode_stream, parse_stream
+    from ..common.scene import GaussianScene
+    from .fuzz import _MAX_MEMORY, classify
+
+    options = dict(options or {})
+    try:
+        res = decode_stream(data, max_memory=_MAX_MEMORY[0], **options)
+    except LghccError as e:
+        return f"error: {type(e).__name__}", str(e)[:300]
+    except Exception:  # noqa: BLE001 - the reference's bug: classify reports it with its traceback
+        return classify(data, options)
+    in_profile = isinstance(res.scene, GaussianScene) and not parse_stream(data).ps.hierarchy_enabled_flag
+    return VALID, f"{res.stream_hash.hex()} {'in' if in_profile else 'out'}"
+
+
+def reference_verdict(kind: str, detail: str) -> Verdict:
+    """A sandbox result of ``reference_judge`` as a Verdict."""
+    if kind == VALID:
+        digest, profile = detail.split()
+        return Verdict("decoded", hash=digest, in_profile=profile == "in")
+    if kind == "error: ResourceLimitError":
+        return Verdict("resource", kind="ResourceLimitError", message=detail)
+    if kind.startswith("error: "):
+        return Verdict("rejected", kind=kind[len("error: "):], message=detail)
+    return Verdict("bug", kind=kind, message=detail.strip().splitlines()[-1] if detail.strip() else "")
+
+
+class JsDecoder:
+    """The JavaScript decoder in a Node process (tools/js_decode_server.mjs) that decodes one
+    stream per request. ``decoder_dir``: the decoder's folder (a mutated copy in the tests); a
+    request that gets no answer within ``timeout`` seconds is a hang: the process is killed and the
+    next request starts another."""
+
+    def __init__(self, decoder_dir: Path | None = None, timeout: float = 30.0, max_memory: int = 1 << 30,
+                 node: str | None = None):
+        self.node = node or shutil.which("node")
+        if self.node is None:
+            raise LghccError("node (Node.js) is not on the PATH: the JavaScript decoder runs in it")
+        self.decoder_dir = Path(decoder_dir or JS_DECODER)
+        self.timeout, self.max_memory = timeout, max_memory
+        self._proc: subprocess.Popen | None = None
+        self._buffer = b""
+
+    def _start(self) -> None:
+        self._proc = subprocess.Popen([self.node, str(JS_SERVER), str(self.decoder_dir)], stdin=subprocess.PIPE,
+                                      stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+        self._buffer = b""
+        line = self._readline(60.0)
+        if line is None or "ready" not in json.loads(line):
+            self.close()
+            raise LghccError(f"the JavaScript decoder server did not start ({JS_SERVER})")
+
+    def _readline(self, timeout: float) -> str | None:
+        """The next line of the server's stdout; None when none came within ``timeout`` or it ended."""
+        deadline = time.monotonic() + timeout
+        fd = self._proc.stdout.fileno()
+        with selectors.DefaultSelector() as sel:
+            sel.register(fd, selectors.EVENT_READ)
+            while b"\n" not in self._buffer:
+                left = deadline - time.monotonic()
+                if left <= 0 or not sel.select(left):
+                    return None
+                chunk = os.read(fd, 1 << 16)
+                if not chunk:
+                    return None
+                self._buffer += chunk
+        line, self._buffer = self._buffer.split(b"\n", 1)
+        return line.decode()
+
+    def run(self, data: bytes, box=None) -> Verdict:
+        """Decode ``data`` (``box``: a common.tiles.Box, or None for the whole stream)."""
+        if self._proc is None or self._proc.poll() is not None:
+            self._start()
+        options = json.dumps({"box": list(box.lo) + list(box.hi) if box is not None else None,
+                              "maxMemory": self.max_memory}).encode()
+        try:
+            self._proc.stdin.write(len(options).to_bytes(4, "big") + options + len(data).to_bytes(4, "big") + data)
+            self._proc.stdin.flush()
+        except BrokenPipeError:
+            self.close()
+            return Verdict("bug", kind="JS process died", message="its stdin closed")
+        line = self._readline(self.timeout)
+        if line is None:
+            died = self._proc.poll() is not None
+            self.close()
+            return Verdict("bug", kind="JS process died" if died else "JS timeout",
+                           message="" if died else f"no answer within {self.timeout:g} s")
+        return _js_verdict(json.loads(line))
+
+    def close(self) -> None:
+        if self._proc is not None:
+            self._proc.kill()
+            self._proc.wait()
+            for f in (self._proc.stdin, self._proc.stdout):
+                f.close()
+        self._proc = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def _js_verdict(answer: dict) -> Verdict:
+    outcome = answer["outcome"]
+    if outcome == "decoded":
+        return Verdict("decoded", hash=answer["hash"])
+    if outcome == "resource":
+        return Verdict("resource", kind="ResourceLimitError", message=answer["message"])
+    if outcome == "rejected":
+        return Verdict("rejected", kind=answer["kind"], message=answer["message"])
+    return Verdict("bug", kind=f"JS {answer['kind']}", message=answer["message"])
+
+
+def compare(ref: Verdict, js: Verdict) -> str:
+    """The case's outcome: one of the AGREE_ labels, NOT_COMPARED, or 'DISAGREE: ...' / 'BUG: ...'."""
+    if ref.outcome == "bug":
+        return f"BUG: reference {ref.kind}"
+    if js.outcome == "bug":
+        return f"DISAGREE: {js.kind}"
+    if "resource" in (ref.outcome, js.outcome):
+        return NOT_COMPARED
+    if ref.outcome == "decoded" and not ref.in_profile:
+        if js.outcome == "rejected" and js.kind == "UnsupportedStreamError":
+            return AGREE_UNSUPPORTED
+        return f"DISAGREE: outside the profile, JS {'decoded it' if js.outcome == 'decoded' else 'rejected it as ' + js.kind}"
+    if ref.outcome == js.outcome == "decoded":
+        return AGREE_DECODED if ref.hash == js.hash else "DISAGREE: decoded hashes differ"
+    if ref.outcome == js.outcome == "rejected":
+        return AGREE_REJECTED
+    return f"DISAGREE: reference {ref.outcome}, JS {js.outcome}"
+
+
+@dataclass
+class DiffSummary:
+    """What a campaign found: outcomes by label, the error-class pairs of the cases both rejected,
+    and the disagreements (label, case, reference verdict, JS verdict)."""
+
+    cases: int = 0
+    seconds: float = 0.0
+    stopped: bool = False
+    outcomes: Counter = field(default_factory=Counter)
+    class_pairs: Counter = field(default_factory=Counter)  # (reference class, JS class) of both-rejected cases
+    scene_cases: int = 0
+    disagreements: list[tuple[str, str, str, str]] = field(default_factory=list)
+    not_compared: list[tuple[str, str, str, str]] = field(default_factory=list)  # the first 20 resource-limit cases
+    # the first 20 both-rejected cases whose classes differ, the JavaScript decoder's UnsupportedStreamError
+    # (a stream outside its profile) aside: clause 8.2 gives each condition its class
+    classes_differ: list[tuple[str, str, str, str]] = field(default_factory=list)
+
+    @property
+    def bugs(self) -> int:
+        return sum(n for k, n in self.outcomes.items() if k.startswith(("DISAGREE", "BUG")))
+
+    def add(self, label: str, what: str, ref: Verdict, js: Verdict, data: bytes,
+            failures_dir: Path | None = None) -> None:
+        self.cases += 1
+        self.outcomes[label] += 1
+        if label == AGREE_REJECTED:
+            self.class_pairs[(ref.kind, js.kind)] += 1
+            if ref.kind != js.kind and js.kind != "UnsupportedStreamError" and len(self.classes_differ) < 20:
+                self.classes_differ.append((label, what, ref.describe(), js.describe()))
+        if label == NOT_COMPARED and len(self.not_compared) < 20:  # two decoders' bounds differ: worth a look
+            self.not_compared.append((label, what, ref.describe(), js.describe()))
+        if label.startswith(("DISAGREE", "BUG")):
+            self.disagreements.append((label, what, ref.describe(), js.describe()))
+            if failures_dir is not None:
+                save_disagreement(Path(failures_dir), label, what, ref, js, data)
+
+    def text(self) -> str:
+        lines = [f"cases: {self.cases} in {self.seconds:.1f} s ({self.cases / max(self.seconds, 1e-9):.1f} cases/s), "
+                 f"{self.scene_cases} of them fresh scene streams", "outcomes:"]
+        for k, n in sorted(self.outcomes.items(), key=lambda kv: (not kv[0].startswith(("DISAGREE", "BUG")), -kv[1])):
+            lines.append(f"  {n:>7}  {k}")
+        lines.append(f"disagreements and bugs: {self.bugs}")
+        return "\n".join(lines)
+
+
+def save_disagreement(folder: Path, label: str, what: str, ref: Verdict, js: Verdict, data: bytes) -> Path:
+    """The stream as <tag>_<sha>.lghcc and both verdicts beside it (.txt)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    name = f"diff_{hashlib.sha256(data).hexdigest()[:12]}"
+    (folder / f"{name}.lghcc").write_bytes(data)
+    (folder / f"{name}.txt").write_text(f"{label}\n{what}\n\nreference: {ref.describe()}\nJavaScript: {js.describe()}\n")
+    return folder / f"{name}.lghcc"
+
+
+class Differential:
+    """Both decoders side by side: ``check(data, box)`` -> (label, reference verdict, JS verdict)."""
+
+    def __init__(self, sandbox: Sandbox, js: JsDecoder):
+        self.sandbox, self.js = sandbox, js
+
+    def check(self, data: bytes, box=None) -> tuple[str, Verdict, Verdict]:
+        res = self.sandbox.run(data, None if box is None else {"box": box})
+        ref = reference_verdict(res.kind, res.detail)
+        js = self.js.run(data, box)
+        return compare(ref, js), ref, js
+
+
+def run_differential(mutator: Mutator, *, seed: int = 0, cases: int | None = None, seconds: float | None = None,
+                     timeout: float = 30.0, memory_mb: int = 2048, decoder_dir: Path | None = None,
+                     failures_dir: Path | None = None, progress=None, scene_source=None,
+                     mutations_per_scene: int = 20, pool_size: int = 32) -> DiffSummary:
+    """Run cases until ``cases`` are done or ``seconds`` have passed: mutations of the mutator's
+    seeds and, with ``scene_source`` (tools/fuzz_scenes.py's), one fresh scene stream every
+    ``mutations_per_scene`` mutations, decoded whole and with its box decodes; each fresh stream
+    both decode joins the seeds (the ``pool_size`` newest). Ctrl-C / SIGTERM stops the run with
+    the figures of the cases done (``stopped``)."""
+    if cases is None and seconds is None:
+        raise ValueError("give cases or seconds")
+    rng, scene_rng = random.Random(seed), random.Random(f"differential-scenes-{seed}")
+    summary = DiffSummary()
+    t0 = time.perf_counter()
+    sandbox = Sandbox(timeout, memory_mb, judge=reference_judge)
+    with sandbox, JsDecoder(decoder_dir, timeout, max_memory=sandbox.max_memory or 1 << 30) as js:
+        loop = _Loop(Differential(sandbox, js), mutator, summary, failures_dir, pool_size)
+        try:
+            since_scene = mutations_per_scene
+            while (cases is None or summary.cases < cases) and (seconds is None or time.perf_counter() - t0 < seconds):
+                if scene_source is not None and since_scene >= mutations_per_scene:
+                    since_scene = 0
+                    loop.scene(scene_source(scene_rng))
+                else:
+                    since_scene += 1
+                    data, what = mutator.case(rng)
+                    loop.one(data, what)
+                if progress is not None:
+                    summary.seconds = time.perf_counter() - t0
+                    progress(summary)
+        except KeyboardInterrupt:
+            summary.stopped = True
+    summary.seconds = time.perf_counter() - t0
+    return summary
+
+
+class _Loop:
+    """run_differential's cases into its summary; fresh scene streams join the mutator's seeds."""
+
+    def __init__(self, diff: Differential, mutator: Mutator, summary: DiffSummary, failures_dir, pool_size: int):
+        self.diff, self.mutator, self.summary = diff, mutator, summary
+        self.failures_dir, self.pool_size, self.pool = failures_dir, pool_size, []
+
+    def one(self, data: bytes, what: str, box=None) -> tuple[str, Verdict]:
+        label, ref, js = self.diff.check(data, box)
+        self.summary.add(label, what, ref, js, data, self.failures_dir)
+        return label, ref
+
+    def scene(self, sc) -> None:
+        what = f"scene {self.summary.cases}: {sc.what}"
+        if sc.bug:  # the encoder's exception: no stream to compare, a bug all the same
+            self.summary.add("BUG: encoder", what, Verdict("bug", kind="encoder", message=sc.bug.strip().splitlines()[-1]),
+                             Verdict("bug", kind="not run"), b"")
+            return
+        if sc.data is None:  # refused by the encoder (InputError): not a case
+            self.summary.outcomes[SCENE_REFUSED] += 1
+            return
+        self.summary.scene_cases += 1
+        label, ref = self.one(sc.data, what)
+        if ref.outcome != "decoded":  # a fresh stream must decode: the reference's bug
+            self.summary.add("BUG: reference round trip", what, ref, Verdict("bug", kind="not run"), sc.data,
+                             self.failures_dir)
+            return
+        for opts in sc.decodes:
+            if set(opts) == {"box"}:  # the JavaScript decoder has no preview (no hierarchy) and no worker choice here
+                self.one(sc.data, f"{what}; box {opts['box']}", opts["box"])
+        if label == AGREE_DECODED or label == AGREE_UNSUPPORTED:
+            sid = f"scene{self.summary.cases}"
+            self.mutator.add_seed(sid, sc.data)
+            if self.mutator.weights is not None:  # the differential campaign's weights: see seed_weights
+                self.mutator.weights[sid] = 1.0 if ref.in_profile else OUTSIDE_PROFILE_WEIGHT
+            self.pool.append(sid)
+            if len(self.pool) > self.pool_size:
+                self.mutator.drop_seed(self.pool.pop(0))
+
+
+# a seed outside the explicit-Gaussian profile is mutated a tenth as often as one in it: the JavaScript
+# decoder rejects every mutation of an anchor stream as unsupported, early, so they teach little
+OUTSIDE_PROFILE_WEIGHT = 0.1
+
+
+def seed_weights(seeds: dict[str, bytes]) -> dict[str, float]:
+    """Weights of the seeds for Mutator.weights: 1 for a stream in the explicit-Gaussian profile
+    (a gaussian_parameter_set without the hierarchy), OUTSIDE_PROFILE_WEIGHT for the others."""
+    from ..common.units import GaussianParameterSet
+    from ..decoder.decode import parse_stream
+
+    out = {}
+    for sid, data in seeds.items():
+        try:
+            ps = parse_stream(data).ps
+            in_profile = isinstance(ps, GaussianParameterSet) and not ps.hierarchy_enabled_flag
+        except LghccError:
+            in_profile = False
+        out[sid] = 1.0 if in_profile else OUTSIDE_PROFILE_WEIGHT
+    return out

@@ -1,0 +1,127 @@
+"""The differential fuzzer (lghcc.conformance.differential, tools/fuzz_differential.py): a short
+seeded run of the reference and the JavaScript decoder on the same streams finds no disagreement,
+and a JavaScript decoder with a planted bug (a mutation of tools/js_mutation_test.py, in a copy)
+is caught as one. Skips where node is absent."""
+
+import random
+import shutil
+import sys
+from pathlib import Path
+
+import pytest
+
+from lghcc.conformance import differential
+from lghcc.conformance.differential import (AGREE_DECODED, AGREE_REJECTED, AGREE_UNSUPPORTED, NOT_COMPARED,
+                                            Differential, JsDecoder, Verdict, compare, reference_judge,
+                                            run_differential, seed_weights)
+from lghcc.conformance.fuzz import Mutator, Sandbox, load_seeds
+
+TOOLS = Path(__file__).resolve().parents[1] / "tools"
+sys.path.insert(0, str(TOOLS))
+
+import fuzz_differential  # noqa: E402
+import js_mutation_test  # noqa: E402
+
+needs_node = pytest.mark.skipif(shutil.which("node") is None, reason="node (Node.js) is not on the PATH")
+
+# small, quick seeds: explicit-Gaussian streams of the JavaScript decoder's profile, and one anchor stream
+SEEDS = ("c032_gaussians_sh0", "c033_gaussians_sh3_prediction", "c078_neighbour_prediction_tiles",
+         "c085_step_adjust", "c001_one_anchor")
+
+
+@pytest.fixture
+def mutator():
+    """A fresh mutator per test: a campaign adds its fresh scene streams to the seeds."""
+    seeds = {k: v for k, v in load_seeds().items() if k in SEEDS}
+    assert len(seeds) == len(SEEDS)
+    m = Mutator(seeds)
+    m.weights = seed_weights(seeds)
+    return m
+
+
+def test_compare_rules():
+    decoded = Verdict("decoded", hash="ab")
+    anchor = Verdict("decoded", hash="cd", in_profile=False)
+    rejected, unsupported = Verdict("rejected", kind="BitstreamError"), Verdict("rejected", kind="UnsupportedStreamError")
+    assert compare(decoded, Verdict("decoded", hash="ab")) == AGREE_DECODED
+    assert compare(decoded, Verdict("decoded", hash="ef")).startswith("DISAGREE")
+    assert compare(rejected, Verdict("rejected", kind="HashMismatchError")) == AGREE_REJECTED
+    assert compare(anchor, unsupported) == AGREE_UNSUPPORTED
+    assert compare(anchor, rejected).startswith("DISAGREE")  # a valid anchor stream: unsupported, not broken
+    assert compare(decoded, rejected).startswith("DISAGREE") and compare(rejected, decoded).startswith("DISAGREE")
+    assert compare(decoded, Verdict("resource")) == NOT_COMPARED
+    assert compare(rejected, Verdict("bug", kind="JS TypeError")).startswith("DISAGREE")
+    assert compare(Verdict("bug", kind="BUG: IndexError"), rejected).startswith("BUG")
+
+
+def test_seed_weights_favour_the_profile(mutator):
+    assert mutator.weights["c032_gaussians_sh0"] == 1.0
+    assert mutator.weights["c001_one_anchor"] == differential.OUTSIDE_PROFILE_WEIGHT
+
+
+@needs_node
+def test_short_differential_run_agrees(mutator, tmp_path):
+    """40 cases (seed 7): mutations of the seeds and fresh scene streams with their box decodes."""
+    summary = run_differential(mutator, seed=7, cases=40, timeout=60.0, failures_dir=tmp_path, scene_source=fuzz_differential.differential_scene_case,
+                               mutations_per_scene=8)
+    assert summary.bugs == 0, summary.text() + "\n" + "\n".join(map(str, summary.disagreements))
+    assert summary.cases == 40 and summary.scene_cases >= 2
+    assert summary.outcomes[AGREE_DECODED] + summary.outcomes[AGREE_UNSUPPORTED] >= 2
+    assert summary.outcomes[AGREE_REJECTED] >= 10
+
+
+@needs_node
+def test_seeds_agree_unmutated(mutator):
+    """Each seed as it is: the same hash from both, or (the anchor stream) unsupported by the JavaScript decoder."""
+    with Sandbox(60.0, 2048, judge=reference_judge) as box, JsDecoder() as js:
+        diff = Differential(box, js)
+        labels = {sid: diff.check(data)[0] for sid, data in mutator.seeds.items()}
+    assert labels == {sid: AGREE_UNSUPPORTED if sid == "c001_one_anchor" else AGREE_DECODED for sid in SEEDS}
+
+
+@needs_node
+def test_planted_javascript_bug_is_a_disagreement(mutator, tmp_path):
+    """The JavaScript decoder with se(v)'s signs swapped decodes nothing right: the first fresh
+    scene stream (a case of its own every other case) disagrees, and is saved with both verdicts."""
+    planted = next(m for m in js_mutation_test.MUTATIONS if m.id == "bitreader.se_sign_swapped")
+    decoder = js_mutation_test.mutated_copy(planted, tmp_path / "mutant")
+    summary = run_differential(mutator, seed=3, cases=12, timeout=60.0, decoder_dir=decoder,
+                               failures_dir=tmp_path / "failures", mutations_per_scene=1,
+                               scene_source=fuzz_differential.differential_scene_case)
+    assert summary.bugs >= 1, summary.text()
+    assert any(label.startswith("DISAGREE: reference decoded, JS rejected") for label, *_ in summary.disagreements)
+    saved = sorted((tmp_path / "failures").glob("diff_*.txt"))
+    assert saved and any("reference: decoded" in p.read_text() for p in saved)
+    assert all(p.with_suffix(".lghcc").exists() for p in saved)
+
+
+@needs_node
+def test_js_decoder_server_survives_a_hang_bound(tmp_path):
+    """A request the server does not answer in time is a 'JS timeout'; the next request starts a
+    fresh server and is answered."""
+    seeds = load_seeds()
+    data = seeds["c032_gaussians_sh0"]
+    with JsDecoder(timeout=1e-6) as js:
+        v = js.run(data)
+        assert v.outcome == "bug" and v.kind == "JS timeout"
+        js.timeout = 60.0
+        assert js.run(data).outcome == "decoded"
+        assert js.run(random.Random(1).randbytes(40)).outcome == "rejected"
+
+
+def test_results_section_is_rewritten_in_place_and_kept_by_fuzz_decoder(tmp_path):
+    """--out rewrites only the differential section of tools/results/fuzz.md; tools/fuzz_decoder.py,
+    which writes the file whole, keeps it."""
+    import fuzz_decoder
+
+    out = tmp_path / "fuzz.md"
+    out.write_text("# Decoder fuzzing: long run\n\nfigures\n")
+    first = fuzz_differential.BEGIN + "\nrun 1\n" + fuzz_differential.END + "\n"
+    fuzz_differential.write_section(out, first)
+    fuzz_differential.write_section(out, first.replace("run 1", "run 2"))
+    text = out.read_text()
+    assert text.startswith("# Decoder fuzzing") and "run 2" in text and "run 1" not in text
+    assert text.count(fuzz_differential.BEGIN) == 1
+    fuzz_decoder.write_results(str(out), "# Decoder fuzzing: long run\n\nnew figures\n")
+    text = out.read_text()
+    assert "new figures" in text and "run 2" in text and "\nfigures" not in text
