@@ -375,10 +375,25 @@ def best_level_and_bits(residuals: np.ndarray) -> tuple[int, float]:
     if -_LUT_R <= lo and hi <= _LUT_R:  # the same values and counts as np.unique's, without its sort
         counts = np.bincount(r - lo)
         values = np.flatnonzero(counts)
-        bits = _LUT_BY_LEVEL[:, values + (lo + _LUT_R)] @ counts[values]
-    else:
-        values, counts = np.unique(r, return_counts=True)
-        lv = np.repeat(np.arange(NUM_SCALE_LEVELS, dtype=np.int64), values.size)
-        bits = code_lengths_bits(np.tile(values, NUM_SCALE_LEVELS), lv).reshape(NUM_SCALE_LEVELS, -1) @ counts
-    level = int(np.argmin(bits))  # the lowest level among equal costs
+        return level_and_bits(bits_by_level(values + lo, counts[values]))
+    return level_and_bits(bits_by_level(*np.unique(r, return_counts=True)))
+
+
+# the residuals within this of 0 have their code lengths tabled (bits_by_level's histograms)
+TABLED_RESIDUAL = _LUT_R
+
+
+def bits_by_level(values: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """float64 [NUM_SCALE_LEVELS]: the ideal bits at each level of residuals taking the distinct
+    ascending int64 ``values`` ``counts`` times: a function of the histogram alone, so the same sums
+    to the last bit however the counts were gathered (whole, by bucket or block by block)."""
+    if -_LUT_R <= values[0] and values[-1] <= _LUT_R:
+        return _LUT_BY_LEVEL[:, values + _LUT_R] @ counts
+    lv = np.repeat(np.arange(NUM_SCALE_LEVELS, dtype=np.int64), values.size)
+    return code_lengths_bits(np.tile(values, NUM_SCALE_LEVELS), lv).reshape(NUM_SCALE_LEVELS, -1) @ counts
+
+
+def level_and_bits(bits: np.ndarray) -> tuple[int, float]:
+    """The level of fewest bits in bits_by_level's ``bits`` (the lowest among equal costs) and its bits."""
+    level = int(np.argmin(bits))
     return level, float(bits[level])

@@ -19,8 +19,8 @@ import functools
 import numpy as np
 
 from ...common import attributes as attr
-from ...common.entropy.symbol_coder import (best_level, best_level_and_bits, code_lengths_bits,
-                                           ideal_code_length_bits)
+from ...common.entropy.symbol_coder import (TABLED_RESIDUAL, best_level, bits_by_level, code_lengths_bits,
+                                           ideal_code_length_bits, level_and_bits)
 from ...common.entropy.scale_levels import NUM_SCALE_LEVELS
 from ...common.neighbour_prediction import (ADJUST_FIXED_POINT, NeighbourGraph, check_extent, level_table,
                                            mean_flags, neighbour_graph, neighbour_means_and_buckets,
@@ -31,7 +31,7 @@ from ...common.container import UNIT_CRC_BYTES, UNIT_HEADER_BYTES
 from ...common.sh_degree import FLAG_PROB_UNIT, band_flags, coded_channels, neighbour_degrees
 from ...common.units import (DEGREE_PROB_BITS, NUM_DEGREE_CONTEXTS, PRIOR_MEAN_MAX, NeighbourPredictionUnit, ShDegreeUnit,
                              StepAdjustFlagsUnit)
-from .prediction import fit_channel_prediction
+from .prediction import fit_rows, fit_sampled_prediction
 
 UNIT_FRAMING_BYTES = UNIT_HEADER_BYTES + UNIT_CRC_BYTES
 
@@ -84,28 +84,58 @@ def _bucket_groups(bucket: np.ndarray, num_buckets: int) -> tuple[np.ndarray, np
     return order, np.searchsorted(bucket[order], np.arange(-1, num_buckets + 1))
 
 
-def _bucket_bits(r: np.ndarray, groups: tuple[np.ndarray, np.ndarray], num_buckets: int) -> float:
-    """Ideal bits of one channel's residuals of LoD >= 1 with the best level per bucket."""
-    order, bounds = groups
+def bucket_level_bits(r: np.ndarray, bucket: np.ndarray, num_buckets: int) -> list[np.ndarray | None]:
+    """Per activity bucket 0 .. num_buckets - 1: the ideal bits at each scale level of one channel's
+    residuals ``r`` [n] of that bucket (None where it has none; buckets -1 and -2 count in none).
+    bits_by_level of each bucket's histogram, the sums best_level_and_bits gives its rows to the
+    last bit: one bincount of (bucket, residual) where every residual is tabled, no sort of the rows."""
+    lo, hi = (int(r.min()), int(r.max())) if r.size else (0, 0)
+    if not (-TABLED_RESIDUAL <= lo and hi <= TABLED_RESIDUAL):  # far residuals: each bucket's own rows
+        order, bounds = _bucket_groups(bucket, num_buckets)
+        return [bits_by_level(*np.unique(r[order[bounds[b + 1]:bounds[b + 2]]], return_counts=True))
+                if bounds[b + 2] > bounds[b + 1] else None for b in range(num_buckets)]
+    width = hi - lo + 1
+    key = (bucket.astype(np.int64) + 2) * width + (r - lo)  # buckets -2 .. num_buckets - 1
+    hist = np.bincount(key, minlength=(num_buckets + 2) * width).reshape(num_buckets + 2, width)[2:]
+    out: list[np.ndarray | None] = []
+    for counts in hist:
+        values = np.flatnonzero(counts)
+        out.append(bits_by_level(values + lo, counts[values]) if values.size else None)
+    return out
+
+
+def _total_bits(per_bucket: list[np.ndarray | None]) -> float:
+    """The ideal bits of a channel with the best level per bucket (summed in bucket order)."""
     total = 0.0
-    for b in range(num_buckets):
-        if bounds[b + 2] > bounds[b + 1]:
-            total += best_level_and_bits(r[order[bounds[b + 1]:bounds[b + 2]]])[1]
+    for bits in per_bucket:
+        if bits is not None:
+            total += level_and_bits(bits)[1]
     return total
 
 
-def _mean_flags(q: np.ndarray, neighbour_mean: np.ndarray, prior_mean: np.ndarray, bucket: np.ndarray,
-                num_buckets: int) -> np.ndarray:
+def _best_levels(per_bucket: list[np.ndarray | None]) -> np.ndarray:
+    """The best level of each bucket (0 where it is empty)."""
+    return np.array([0 if bits is None else level_and_bits(bits)[0] for bits in per_bucket], dtype=np.int64)
+
+
+def _flags_and_table(q: np.ndarray, neighbour_mean: np.ndarray, prior_mean: np.ndarray, bucket: np.ndarray,
+                     num_buckets: int, choose: bool) -> tuple[np.ndarray, np.ndarray]:
     """Per channel: whether the neighbours' mean codes it in fewer bits than the prior's (noisy
-    channels, e.g. higher SH bands of a sparse scene, are not predicted by their neighbours)."""
-    fine = bucket[:, 0] >= 0
+    channels, e.g. higher SH bands of a sparse scene, are not predicted by their neighbours;
+    ``choose`` False: every channel's mean the neighbours'), and the best scale level of each
+    bucket's residuals from the mean chosen (int64 [M, B]): one histogram per channel and mean
+    serves both (values of bucket -2, those not coded, count in none)."""
+    m = q.shape[1]
     prior = np.broadcast_to(prior_mean, q.shape)  # [M] or, with step adjustment, [N, M]
-    flags = np.zeros(q.shape[1], dtype=bool)
-    for c in range(q.shape[1]):
-        groups = _bucket_groups(bucket[fine, c], num_buckets)
-        flags[c] = _bucket_bits(q[fine, c] - neighbour_mean[fine, c], groups, num_buckets) \
-            < _bucket_bits(q[fine, c] - prior[fine, c], groups, num_buckets)
-    return flags
+    flags, table = np.ones(m, dtype=bool), np.zeros((m, num_buckets), dtype=np.int64)
+    for c in range(m):
+        chosen = bucket_level_bits(q[:, c] - neighbour_mean[:, c], bucket[:, c], num_buckets)
+        if choose:
+            by_prior = bucket_level_bits(q[:, c] - prior[:, c], bucket[:, c], num_buckets)
+            flags[c] = _total_bits(chosen) < _total_bits(by_prior)
+            chosen = chosen if flags[c] else by_prior
+        table[c] = _best_levels(chosen)
+    return flags, table
 
 
 def flag_counts(graph: NeighbourGraph, values: np.ndarray, levels: int) -> np.ndarray:
@@ -147,19 +177,6 @@ def unit_bytes(unit) -> int:
     return UNIT_FRAMING_BYTES + len(unit.to_bytes())
 
 
-def _table(r: np.ndarray, bucket: np.ndarray, num_buckets: int) -> np.ndarray:
-    """The best scale level of each (channel, bucket)'s residuals (0 where a bucket is empty; values
-    of bucket -2, those not coded, count in none)."""
-    m = r.shape[1]
-    table = np.zeros((m, num_buckets), dtype=np.int64)
-    for c in range(m):
-        order, bounds = _bucket_groups(bucket[:, c], num_buckets)
-        for b in range(num_buckets):
-            if bounds[b + 2] > bounds[b + 1]:
-                table[c, b] = best_level(r[order[bounds[b + 1]:bounds[b + 2]], c])
-    return table
-
-
 def _levels(bucket: np.ndarray, table: np.ndarray, prior_level: np.ndarray, adjust: np.ndarray | None = None
             ) -> np.ndarray:
     prior = prior_level[None, :] if adjust is None else prior_level_in_steps(prior_level[None, :], adjust[:, None])
@@ -193,31 +210,40 @@ class NeighbourCoding:
         own_prior = prior_mean[None, :] if adjust is None else prior_mean_in_steps(prior_mean, adjust)
         fit_bucket = bucket if self.coded is None else np.where(self.coded, bucket, -2)  # fits: coded values only
         if unit is not None:
-            flags = mean_flags(unit)
-        elif choose_mean_flags:
-            flags = _mean_flags(q, neighbour_mean, own_prior, fit_bucket, num_buckets)
-        else:  # every channel from its neighbours (a quick estimate: the flags are a third of the fit's time)
-            flags = np.ones(m, dtype=bool)
+            flags, table = mean_flags(unit), level_table(unit)
+        else:  # choose_mean_flags False: every channel from its neighbours (a quick estimate, no flags to fit)
+            flags, table = _flags_and_table(q, neighbour_mean, own_prior, fit_bucket, num_buckets, choose_mean_flags)
         mean = np.where(flags[None, :] & (bucket >= 0), neighbour_mean, own_prior)
         del neighbour_mean  # (peak memory)
         self.prediction = attr.ChannelPrediction.none()
-        live = np.broadcast_to(True, q.shape) if self.coded is None else self.coded
         if channel_prediction and layout.channel_prediction_allowed:
-            table0 = _table(q - mean, fit_bucket, num_buckets) if unit is None else level_table(unit)
-            prior0 = self._prior_levels(q - own_prior, a0)
-            params = attr.CodingParams(mean, _levels(bucket, table0, prior0, adjust))
-            self.prediction, _ = fit_channel_prediction(q, params, layout, live)
+            self.prediction = self._fitted_prediction(q, mean, bucket, table, own_prior, a0)
         r = self.prediction.residuals(q, mean, self.coded)
         del mean
-        if unit is None:
+        if unit is None:  # the table refitted where the prediction changed the residuals (its targets)
+            for c in np.unique(self.prediction.targets):
+                table[c] = _best_levels(bucket_level_bits(r[:, c], fit_bucket[:, c], num_buckets))
             unit = NeighbourPredictionUnit(num_channels=m, num_lods_minus1=num_lods - 1,
                                            num_neighbours_minus1=num_neighbours - 1, num_buckets_minus1=num_buckets - 1,
-                                           neighbour_mean_flag=flags.astype(int).tolist(), bucket_level=_table(r, fit_bucket, num_buckets).ravel().tolist())
+                                           neighbour_mean_flag=flags.astype(int).tolist(),
+                                           bucket_level=table.ravel().tolist())
         self.unit = unit
         self.prior_mean = prior_mean
-        self.prior_level = self._prior_levels(r, a0)
+        self.prior_level = self._prior_levels(r[lod0], a0)
         self.levels = _levels(bucket, level_table(unit), self.prior_level, adjust)
         self.residuals = r
+
+    def _fitted_prediction(self, q: np.ndarray, mean: np.ndarray, bucket: np.ndarray, table: np.ndarray,
+                           own_prior: np.ndarray, a0: np.ndarray | None) -> attr.ChannelPrediction:
+        """The cross-channel prediction of the deviations from ``mean``, fitted on the rows
+        prediction.fit_rows draws with the levels ``table`` and the prior give them: only those rows'
+        levels and deviations are made (the prior's levels, refitted after it, are not needed)."""
+        lod0 = self.graph.rows[0]
+        prior0 = self._prior_levels(q[lod0] - np.broadcast_to(own_prior, q.shape)[lod0], a0)
+        rows = fit_rows(q.shape[0])
+        lv = _levels(bucket[rows], table, prior0, None if self.adjust is None else self.adjust[rows])
+        live = np.broadcast_to(True, q.shape) if self.coded is None else self.coded
+        return fit_sampled_prediction(q[rows] - mean[rows], lv.astype(np.int64), live[rows], self.layout, q.shape[0])
 
     def _set_degrees(self, degrees: np.ndarray | None, layout, unit: NeighbourPredictionUnit | None) -> None:
         """Each row's SH degree (clause 11.9) and with it the coded channels, the flags' counts and the
@@ -238,13 +264,13 @@ class NeighbourCoding:
         ok = self.coded[self.graph.rows[0]]
         return np.array([np.median(base[ok[:, c], c]) if ok[:, c].any() else 0.0 for c in range(base.shape[1])])
 
-    def _prior_levels(self, r: np.ndarray, a0: np.ndarray | None) -> np.ndarray:
-        """The best prior level of each channel's residuals ``r`` [N, M] of LoD 0 (coded values only)."""
+    def _prior_levels(self, r0: np.ndarray, a0: np.ndarray | None) -> np.ndarray:
+        """The best prior level of each channel's residuals ``r0`` [n_0, M] of LoD 0's rows (coded values only)."""
         lod0 = self.graph.rows[0]
-        out = np.zeros(r.shape[1], dtype=np.int64)
-        for c in range(r.shape[1]):
+        out = np.zeros(r0.shape[1], dtype=np.int64)
+        for c in range(r0.shape[1]):
             ok = slice(None) if self.coded is None else self.coded[lod0, c]
-            out[c] = best_prior_level(r[lod0, c][ok], None if a0 is None else a0[ok])
+            out[c] = best_prior_level(r0[:, c][ok], None if a0 is None else a0[ok])
         return out
 
     def ideal_bits(self) -> float:

@@ -36,6 +36,12 @@ def _bits(r: np.ndarray, level: np.ndarray | None) -> float:
     return float(code_lengths_bits(r, level).sum())
 
 
+def fit_rows(n: int, seed: int = 0) -> np.ndarray:
+    """The rows (ascending) the prediction is fitted and costed on: every row up to FIT_ROWS, else
+    FIT_ROWS of them drawn with ``seed``."""
+    return np.arange(n) if n <= FIT_ROWS else np.sort(np.random.default_rng(seed).choice(n, FIT_ROWS, replace=False))
+
+
 def fit_channel_prediction(q: np.ndarray, params: CodingParams, layout, live: np.ndarray,
                            seed: int = 0) -> tuple[ChannelPrediction, np.ndarray]:
     """-> (prediction, per-channel best level of the residuals after it: the prior's levels).
@@ -43,16 +49,26 @@ def fit_channel_prediction(q: np.ndarray, params: CodingParams, layout, live: np
     of levels, which the fit re-chooses; a context model's levels are kept)."""
     n, m = q.shape
     mean = np.broadcast_to(np.asarray(params.mean, np.int64), q.shape)
-    dev = q - mean
     per_value_levels = np.asarray(params.level).shape[0] != 1 or n == 1
-    rows = np.arange(n) if n <= FIT_ROWS else np.sort(np.random.default_rng(seed).choice(n, FIT_ROWS, replace=False))
-    d = dev[rows]
+    rows = fit_rows(n, seed)
     lv = np.broadcast_to(params.level, q.shape)[rows].astype(np.int64) if per_value_levels else None
+    prediction = fit_sampled_prediction(q[rows] - mean[rows], lv, live[rows], layout, n)
+    r = prediction.residuals(q, mean)
+    levels = np.array([best_level(r[live[:, c], c]) for c in range(m)], dtype=np.int64)
+    return prediction, levels
+
+
+def fit_sampled_prediction(d: np.ndarray, lv: np.ndarray | None, live: np.ndarray, layout,
+                           n: int) -> ChannelPrediction:
+    """The prediction fitted on the deviations from their means ``d`` (int64 [rows, M]) of the
+    rows fit_rows(n) draws, ``lv`` their levels (None: each channel's best single level) and
+    ``live`` the values coded: an entry is kept where its bits saved, scaled to the ``n`` rows,
+    exceed its cost in the header."""
     targets, sources, weights = [], [], []
     for group in (prediction_groups(layout) if isinstance(layout, GaussianLayout) else []):
         for pos, c in enumerate(group[1:], start=1):
             src = group[:pos]
-            ok = live[rows][:, [c] + src].all(axis=1)
+            ok = live[:, [c] + src].all(axis=1)
             if ok.sum() < 16:
                 continue
             x, y = d[ok][:, src].astype(np.float64), d[ok, c].astype(np.float64)
@@ -68,13 +84,10 @@ def fit_channel_prediction(q: np.ndarray, params: CodingParams, layout, live: np
                 >> CHANNEL_PREDICTION_SHIFT
             lc = None if lv is None else lv[ok, c]
             saved = _bits(d[ok, c], lc) - _bits(d[ok, c] - pred, lc)
-            if saved * n / rows.size > ENTRY_COST_BITS * int(keep.sum()):
+            if saved * n / d.shape[0] > ENTRY_COST_BITS * int(keep.sum()):
                 for j, wj in zip(np.asarray(src)[keep], wi[keep]):
                     targets.append(c)
                     sources.append(int(j))
                     weights.append(int(wj))
-    prediction = ChannelPrediction(np.asarray(targets, np.int64), np.asarray(sources, np.int64),
-                                   np.asarray(weights, np.int64))
-    r = prediction.residuals(q, mean)
-    levels = np.array([best_level(r[live[:, c], c]) for c in range(m)], dtype=np.int64)
-    return prediction, levels
+    return ChannelPrediction(np.asarray(targets, np.int64), np.asarray(sources, np.int64),
+                             np.asarray(weights, np.int64))
