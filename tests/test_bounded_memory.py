@@ -86,3 +86,47 @@ def test_sh3_content_of_the_memory_scenes_is_playbots_and_deterministic():
     assert a.sh_degree == 3 and a.sh.tobytes() == b.sh.tobytes()
     assert np.array_equal(a.sh[:, 0], scene.sh[:, 0]) and np.array_equal(a.sh[9, 1:9], playbot.sh[9 % 7, 1:9])
     assert np.array_equal(a.sh[4, 9:16], np.float32(0.5) * playbot.sh[(7 * 4 + 3) % 7, 2:9])
+
+
+@pytest.mark.parametrize("size", [1, 7, 129, 8193, 300_001, 3 * (1 << 18) + 13, 9 * (1 << 18) + 5])
+def test_pairwise_total_is_numpys_sum_to_the_last_bit(size, monkeypatch):
+    """The whole-scene ideal bits summed part by part are np.sum's (a neighbour-or-prior choice
+    compares them: a different order could flip a near tie)."""
+    from lghcc.common.entropy import symbol_coder as sc
+
+    x = np.random.default_rng(size).random(size) * 10.0 ** np.random.default_rng(1).uniform(-3, 3, size)
+    monkeypatch.setattr(sc, "SUM_BLOCK_VALUES", 1 << 10)
+    assert sc.pairwise_total(size, lambda lo, hi: x[lo:hi].copy()) == float(x.sum())
+    rows = x[: size - size % 7].reshape(-1, 7)
+    ends = 7 * np.arange(1, rows.shape[0] + 1)
+    assert sc.row_blocked_total(ends, lambda a, b: rows[a:b].ravel()) == float(rows.sum())
+
+
+def test_ideal_bits_by_rows_are_the_whole_arrays():
+    from lghcc.common.entropy.symbol_coder import ideal_code_length_bits, ideal_code_length_bits_by_rows
+
+    rng = np.random.default_rng(3)
+    r = rng.integers(-40, 40, size=(20000, 30)) * rng.integers(1, 200, size=(20000, 30))
+    lv = rng.integers(0, 64, size=r.shape).astype(np.uint8)
+    coded = rng.random(r.shape) < 0.7
+    assert ideal_code_length_bits_by_rows(lambda a, b: r[a:b], lambda a, b: lv[a:b], r.shape) == \
+        ideal_code_length_bits(r, lv)
+    assert ideal_code_length_bits_by_rows(lambda a, b: r[a:b], lambda a, b: lv[a:b], r.shape, coded) == \
+        ideal_code_length_bits(r[coded], lv[coded])
+
+
+def test_bucket_histogram_bits_are_each_buckets_best_level_and_bits():
+    """The neighbour coding's flags and table from one histogram per channel: the bits and levels
+    best_level_and_bits gives each bucket's rows (tabled residuals, and far ones)."""
+    from lghcc.common.entropy.symbol_coder import best_level_and_bits, level_and_bits
+    from lghcc.encoder.stream.neighbour_coding import bucket_level_bits
+
+    rng = np.random.default_rng(4)
+    bucket = rng.integers(-2, 6, size=5000).astype(np.int8)
+    for far in (0, 3000):
+        r = rng.integers(-60, 60, size=5000)
+        r[:3] += far
+        got = bucket_level_bits(r, bucket, 7)
+        for b in range(7):
+            rows = r[bucket == b]
+            assert (got[b] is None) if not rows.size else level_and_bits(got[b]) == best_level_and_bits(rows)

@@ -297,6 +297,48 @@ def ideal_code_length_bits(residuals: np.ndarray, levels: np.ndarray) -> float:
     return float(code_lengths_bits(residuals, levels).sum())
 
 
+# informative: the most values whose code lengths row_blocked_total makes at a time (2 MiB of float64)
+SUM_BLOCK_VALUES = 1 << 18
+
+
+def pairwise_total(size: int, part) -> float:
+    """np.sum of the float64 values 0 .. size - 1, ``part(lo, hi)`` giving values lo .. hi - 1, to the
+    last bit with at most SUM_BLOCK_VALUES of them made at a time: numpy sums a contiguous array
+    pairwise (halves cut at a multiple of 8), and this follows its cuts down to parts of at most
+    SUM_BLOCK_VALUES, each summed by numpy (tests/test_bounded_memory.py checks the two agree)."""
+    def total(lo: int, n: int) -> float:
+        if n <= SUM_BLOCK_VALUES:
+            return float(np.sum(part(lo, lo + n)))
+        half = n // 2
+        half -= half % 8
+        return total(lo, half) + total(lo + half, n - half)
+    return total(0, size)
+
+
+def row_blocked_total(ends: np.ndarray, values) -> float:
+    """pairwise_total of the values of every row, rows in order: ``values(a, b)`` gives those of rows
+    a .. b - 1 (float64, flat), ``ends`` int [rows] where each row's end (cumulative counts)."""
+    def part(lo: int, hi: int) -> np.ndarray:
+        a = int(np.searchsorted(ends, lo, side="right"))  # the row holding value lo
+        b = int(np.searchsorted(ends, hi - 1, side="right")) + 1  # .. and the one holding hi - 1
+        start = int(ends[a - 1]) if a else 0
+        return values(a, b)[lo - start:hi - start]
+    size = int(ends[-1]) if len(ends) else 0
+    return pairwise_total(size, part) if size else 0.0
+
+
+def ideal_code_length_bits_by_rows(residuals, levels, shape: tuple[int, int], coded: np.ndarray | None = None) -> float:
+    """ideal_code_length_bits of the values of ``shape`` [N, M] that ``residuals(a, b)`` and
+    ``levels(a, b)`` give for rows a .. b - 1 (where ``coded`` [N, M], those values only, row-major),
+    to the last bit, with the residuals, levels and code lengths of a few rows at a time."""
+    n, m = shape
+    if coded is None:
+        return row_blocked_total(m * np.arange(1, n + 1, dtype=np.int64),
+                                 lambda a, b: code_lengths_bits(residuals(a, b), levels(a, b)).ravel())
+    return row_blocked_total(np.cumsum(coded.sum(axis=1), dtype=np.int64),
+                             lambda a, b: code_lengths_bits(residuals(a, b)[coded[a:b]], levels(a, b)[coded[a:b]]))
+
+
 # --- chunks ------------------------------------------------------------------------------
 
 def _chunk_count(rows: int, rows_per_chunk: int) -> int:

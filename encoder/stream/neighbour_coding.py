@@ -20,7 +20,7 @@ import numpy as np
 
 from ...common import attributes as attr
 from ...common.entropy.symbol_coder import (TABLED_RESIDUAL, best_level, bits_by_level, code_lengths_bits,
-                                           ideal_code_length_bits, level_and_bits)
+                                           ideal_code_length_bits, ideal_code_length_bits_by_rows, level_and_bits)
 from ...common.entropy.scale_levels import NUM_SCALE_LEVELS
 from ...common.neighbour_prediction import (ADJUST_FIXED_POINT, NeighbourGraph, check_extent, level_table,
                                            mean_flags, neighbour_graph, neighbour_means_and_buckets,
@@ -275,9 +275,8 @@ class NeighbourCoding:
 
     def ideal_bits(self) -> float:
         """The ideal bits of the coded values."""
-        if self.coded is None:
-            return ideal_code_length_bits(self.residuals, self.levels)
-        return ideal_code_length_bits(self.residuals[self.coded], self.levels[self.coded])
+        r, lv = self.residuals, self.levels  # (the code lengths of a few rows at a time: peak memory)
+        return ideal_code_length_bits_by_rows(lambda a, b: r[a:b], lambda a, b: lv[a:b], r.shape, self.coded)
 
     def ideal_stream_bits(self) -> float:
         """The ideal bits of the values, their step-adjustment indices, their SH degrees and the

@@ -71,19 +71,19 @@ def fit_sampled_prediction(d: np.ndarray, lv: np.ndarray | None, live: np.ndarra
             ok = live[:, [c] + src].all(axis=1)
             if ok.sum() < 16:
                 continue
-            x, y = d[ok][:, src].astype(np.float64), d[ok, c].astype(np.float64)
-            if not np.abs(x).any():
+            sub = d[:, [c] + src][ok]  # the target's and sources' deviations (not every channel's rows)
+            y, xs = sub[:, 0], sub[:, 1:]
+            if not np.abs(xs).any():
                 continue
-            w = np.linalg.lstsq(x, y, rcond=None)[0]
+            w = np.linalg.lstsq(xs.astype(np.float64), y.astype(np.float64), rcond=None)[0]
             wi = np.clip(np.rint(w * (1 << CHANNEL_PREDICTION_SHIFT)), -MAX_CHANNEL_PREDICTION_WEIGHT,
                          MAX_CHANNEL_PREDICTION_WEIGHT).astype(np.int64)
             keep = wi != 0
             if not keep.any():
                 continue
-            pred = (d[ok][:, src][:, keep] @ wi[keep] + (1 << (CHANNEL_PREDICTION_SHIFT - 1))) \
-                >> CHANNEL_PREDICTION_SHIFT
+            pred = (xs[:, keep] @ wi[keep] + (1 << (CHANNEL_PREDICTION_SHIFT - 1))) >> CHANNEL_PREDICTION_SHIFT
             lc = None if lv is None else lv[ok, c]
-            saved = _bits(d[ok, c], lc) - _bits(d[ok, c] - pred, lc)
+            saved = _bits(y, lc) - _bits(y - pred, lc)
             if saved * n / d.shape[0] > ENTRY_COST_BITS * int(keep.sum()):
                 for j, wj in zip(np.asarray(src)[keep], wi[keep]):
                     targets.append(c)
