@@ -130,3 +130,18 @@ def test_bucket_histogram_bits_are_each_buckets_best_level_and_bits():
         for b in range(7):
             rows = r[bucket == b]
             assert (got[b] is None) if not rows.size else level_and_bits(got[b]) == best_level_and_bits(rows)
+
+
+def test_residual_histograms_give_each_groups_best_level_and_bits():
+    """Gathered part by part, tabled and far residuals alike: best_level_and_bits of each group's all."""
+    from lghcc.common.entropy.symbol_coder import ResidualHistograms, best_level_and_bits, level_and_bits
+
+    rng = np.random.default_rng(5)
+    group, r = rng.integers(0, 4, size=9000), rng.integers(-300, 300, size=9000)
+    r[::997] *= 40  # beyond the code-length table
+    hist = ResidualHistograms(5)
+    for lo in range(0, 9000, 2500):
+        hist.add(group[lo:lo + 2500], r[lo:lo + 2500])
+    for g in range(4):
+        assert level_and_bits(hist.bits(g)) == best_level_and_bits(r[group == g])
+    assert hist.bits(4) is None and hist.best_level(4) == 0

@@ -435,6 +435,41 @@ def bits_by_level(values: np.ndarray, counts: np.ndarray) -> np.ndarray:
     return code_lengths_bits(np.tile(values, NUM_SCALE_LEVELS), lv).reshape(NUM_SCALE_LEVELS, -1) @ counts
 
 
+class ResidualHistograms:
+    """Per group (a channel, say): the histogram of its residuals, gathered a part at a time (counts:
+    the same however the values are cut), and from it bits_by_level's sums, those best_level_and_bits
+    gives all of the group's residuals to the last bit. Tabled residuals are counted, far ones kept."""
+
+    def __init__(self, groups: int):
+        self.near = np.zeros((groups, 2 * _LUT_R + 1), dtype=np.int64)
+        self.far: list[tuple[np.ndarray, np.ndarray]] = []  # (groups, residuals) beyond the table
+
+    def add(self, group: np.ndarray, r: np.ndarray) -> None:
+        """Count residuals ``r`` (int, flat) of groups ``group`` (int, the same shape)."""
+        near = (r >= -_LUT_R) & (r <= _LUT_R)
+        key = group[near].astype(np.int64) * (2 * _LUT_R + 1) + r[near] + _LUT_R
+        self.near += np.bincount(key, minlength=self.near.size).reshape(self.near.shape)
+        if not near.all():
+            self.far.append((group[~near], r[~near].astype(np.int64)))
+
+    def bits(self, g: int) -> np.ndarray | None:
+        """bits_by_level of group ``g``'s residuals (None where it has none)."""
+        values = np.flatnonzero(self.near[g])
+        counts = self.near[g, values]
+        values = values - _LUT_R
+        far = [r[group == g] for group, r in self.far]
+        if far and sum(f.size for f in far):
+            fv, fc = np.unique(np.concatenate(far), return_counts=True)
+            values = np.concatenate([fv[fv < 0], values, fv[fv > 0]])
+            counts = np.concatenate([fc[fv < 0], counts, fc[fv > 0]])
+        return bits_by_level(values, counts) if values.size else None
+
+    def best_level(self, g: int) -> int:
+        """best_level of group ``g``'s residuals (0 where it has none)."""
+        bits = self.bits(g)
+        return 0 if bits is None else level_and_bits(bits)[0]
+
+
 def level_and_bits(bits: np.ndarray) -> tuple[int, float]:
     """The level of fewest bits in bits_by_level's ``bits`` (the lowest among equal costs) and its bits."""
     level = int(np.argmin(bits))

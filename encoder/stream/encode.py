@@ -392,7 +392,7 @@ def code_attributes(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodi
     for level, rows in levels.levels:
         coder = LevelCoder(inp.layout, cfg, level, rows, inp.live[rows], None if inp.mask is None else inp.mask[rows],
                            predict)
-        chosen, context_fit = code_with_prior(coder, inp), None
+        chosen, context_fit = code_with_prior(coder, quantized_level(coder, inp)), None
         if level == LEVEL_2 and cfg.context_model != "per_channel":
             assert levels.hier is not None and q_level1 is not None
             chosen, context_payload, context_fit = code_level2_with_context(coder, inp, levels.hier, q_level1, chosen,
@@ -428,7 +428,7 @@ def code_neighbours_or_prior(inp: AttributeInput, levels: LevelLayout, cfg: Attr
     needed = inp.step_adjust is not None or inp.sh_degrees is not None
     always = cfg.neighbour_prediction == "always" or needed
     # with tiles only its ideal bits are compared: the whole scene's unit is never written
-    with_prior = code_with_prior(coder, inp, write=not levels.tile_scale) if not needed else None
+    with_prior = code_with_prior(coder, q, write=not levels.tile_scale) if not needed else None
     if levels.tile_scale:
         use = always or nc.ideal_stream_bits() / 8 < ideal_bits(coder, with_prior) / 8
         stats.neighbour_prediction = bool(use)

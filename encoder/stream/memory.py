@@ -53,6 +53,10 @@ PREPARE_PER_VALUE_BYTES = 24
 # Rows RDOQ (encoder/gaussians/rdoq.py rd_quantize) chooses at a time, within a LoD, whose rows' choices
 # are independent of each other: the working arrays of a block bound its memory, not the scene's size
 RDOQ_BLOCK_ROWS = 16384
+# Rows the neighbour coding (encoder/stream/neighbour_coding.py) makes its working arrays for at a time
+# (the neighbours' sums and spreads, levels, residuals; each row's are its own): beside its whole-scene
+# arrays, one block's
+CODING_BLOCK_ROWS = 16384
 RDOQ_PER_POINT_BYTES = 0
 RDOQ_PER_VALUE_BYTES = 0
 RDOQ_BLOCK_VALUE_BYTES = 24 * 8  # per value of a block of RDOQ_BLOCK_ROWS rows

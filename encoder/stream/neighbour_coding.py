@@ -31,6 +31,7 @@ from ...common.container import UNIT_CRC_BYTES, UNIT_HEADER_BYTES
 from ...common.sh_degree import FLAG_PROB_UNIT, band_flags, coded_channels, neighbour_degrees
 from ...common.units import (DEGREE_PROB_BITS, NUM_DEGREE_CONTEXTS, PRIOR_MEAN_MAX, NeighbourPredictionUnit, ShDegreeUnit,
                              StepAdjustFlagsUnit)
+from .memory import CODING_BLOCK_ROWS
 from .prediction import fit_rows, fit_sampled_prediction
 
 UNIT_FRAMING_BYTES = UNIT_HEADER_BYTES + UNIT_CRC_BYTES
@@ -39,18 +40,24 @@ UNIT_FRAMING_BYTES = UNIT_HEADER_BYTES + UNIT_CRC_BYTES
 def _coding_params(q: np.ndarray, graph: NeighbourGraph, num_buckets: int, prior_mean: np.ndarray,
                    adjust: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per row: the neighbours' mean of each channel (LoD 0: the prior's) and its activity bucket
-    (LoD 0: -1). ``adjust``: every row's step-adjustment index (clause 11.8), or None."""
+    (LoD 0: -1). ``adjust``: every row's step-adjustment index (clause 11.8), or None. A block of
+    a LoD's rows at a time (each row's from its own neighbours: peak memory)."""
     n, m = q.shape
     mean = prior_rows(prior_mean, n, adjust)
     bucket = np.full((n, m), -1, dtype=BUCKET_DTYPE)
     every = np.ones(m, dtype=bool)
     for level in range(1, len(graph.rows)):
-        rows = graph.rows[level]
-        if rows.size:
+        for block in row_blocks(graph.rows[level].size):
+            rows = graph.rows[level][block]
             mean[rows], bucket[rows] = neighbour_means_and_buckets(
-                q, graph.neighbours[level], num_buckets, every, prior_mean, adjust,
+                q, graph.neighbours[level][block], num_buckets, every, prior_mean, adjust,
                 None if adjust is None else adjust[rows])
     return mean, bucket
+
+
+def row_blocks(n: int):
+    """Slices of CODING_BLOCK_ROWS rows covering 0 .. n - 1 (working arrays a block at a time)."""
+    return (slice(lo, min(lo + CODING_BLOCK_ROWS, n)) for lo in range(0, n, CODING_BLOCK_ROWS))
 
 
 # The activity buckets (-2 .. 15: prediction_buckets <= 16) in one byte each: 8x less memory than
@@ -179,9 +186,25 @@ def unit_bytes(unit) -> int:
 
 def _levels(bucket: np.ndarray, table: np.ndarray, prior_level: np.ndarray, adjust: np.ndarray | None = None
             ) -> np.ndarray:
-    prior = prior_level[None, :] if adjust is None else prior_level_in_steps(prior_level[None, :], adjust[:, None])
-    lv = np.where(bucket >= 0, np.take_along_axis(table.T, np.maximum(bucket, 0), axis=0), prior)
-    return lv.astype(LEVEL_DTYPE)
+    """The scale level of each value: its bucket's in ``table``, the prior's in LoD 0 (a block of rows at
+    a time: peak memory)."""
+    out = np.empty(bucket.shape, dtype=LEVEL_DTYPE)
+    for block in row_blocks(bucket.shape[0]):
+        prior = prior_level[None, :] if adjust is None else \
+            prior_level_in_steps(prior_level[None, :], adjust[block, None])
+        b = bucket[block]
+        out[block] = np.where(b >= 0, np.take_along_axis(table.T, np.maximum(b, 0), axis=0), prior)
+    return out
+
+
+def _chosen_means(neighbour_mean: np.ndarray, own_prior: np.ndarray, flags: np.ndarray,
+                  bucket: np.ndarray) -> np.ndarray:
+    """``neighbour_mean`` turned in place into each value's mean: the neighbours' where its channel's
+    flag is set and its row has neighbours (bucket >= 0), else the prior's (no second [N, M] array)."""
+    prior = np.broadcast_to(own_prior, neighbour_mean.shape)
+    for block in row_blocks(neighbour_mean.shape[0]):
+        np.copyto(neighbour_mean[block], prior[block], where=~(flags[None, :] & (bucket[block] >= 0)))
+    return neighbour_mean
 
 
 class NeighbourCoding:
@@ -213,12 +236,15 @@ class NeighbourCoding:
             flags, table = mean_flags(unit), level_table(unit)
         else:  # choose_mean_flags False: every channel from its neighbours (a quick estimate, no flags to fit)
             flags, table = _flags_and_table(q, neighbour_mean, own_prior, fit_bucket, num_buckets, choose_mean_flags)
-        mean = np.where(flags[None, :] & (bucket >= 0), neighbour_mean, own_prior)
-        del neighbour_mean  # (peak memory)
+        mean = _chosen_means(neighbour_mean, own_prior, flags, bucket)
+        del neighbour_mean  # (now the chosen means)
         self.prediction = attr.ChannelPrediction.none()
         if channel_prediction and layout.channel_prediction_allowed:
             self.prediction = self._fitted_prediction(q, mean, bucket, table, own_prior, a0)
-        r = self.prediction.residuals(q, mean, self.coded)
+        r = np.empty(q.shape, dtype=np.int64)  # the residuals a block of rows at a time (peak memory)
+        coded = self.coded
+        for block in row_blocks(n):
+            r[block] = self.prediction.residuals(q[block], mean[block], None if coded is None else coded[block])
         del mean
         if unit is None:  # the table refitted where the prediction changed the residuals (its targets)
             for c in np.unique(self.prediction.targets):

@@ -13,8 +13,9 @@ from __future__ import annotations
 import numpy as np
 
 from ...common.attributes import ChannelPrediction, CodingParams, GaussianLayout
-from ...common.entropy.symbol_coder import best_level, code_lengths_bits
+from ...common.entropy.symbol_coder import ResidualHistograms, best_level, code_lengths_bits
 from ...common.units import CHANNEL_PREDICTION_SHIFT, MAX_CHANNEL_PREDICTION_WEIGHT
+from .memory import CODING_BLOCK_ROWS
 
 FIT_ROWS = 50_000  # rows sampled for the least-squares fit and the bit counts
 ENTRY_COST_BITS = 24.0  # about ue(target) + ue(source) + se(weight)
@@ -53,9 +54,20 @@ def fit_channel_prediction(q: np.ndarray, params: CodingParams, layout, live: np
     rows = fit_rows(n, seed)
     lv = np.broadcast_to(params.level, q.shape)[rows].astype(np.int64) if per_value_levels else None
     prediction = fit_sampled_prediction(q[rows] - mean[rows], lv, live[rows], layout, n)
-    r = prediction.residuals(q, mean)
-    levels = np.array([best_level(r[live[:, c], c]) for c in range(m)], dtype=np.int64)
-    return prediction, levels
+    return prediction, levels_after(prediction, q, mean, live)
+
+
+def levels_after(prediction: ChannelPrediction, q: np.ndarray, mean: np.ndarray, live: np.ndarray) -> np.ndarray:
+    """Per channel: the best level of its live values' residuals after ``prediction`` (best_level of
+    the column), from histograms gathered a block of rows at a time (peak memory: no [N, M] residuals)."""
+    n, m = q.shape
+    hist = ResidualHistograms(m)
+    channel = np.arange(m)
+    for lo in range(0, n, CODING_BLOCK_ROWS):
+        block = slice(lo, lo + CODING_BLOCK_ROWS)
+        r, ok = prediction.residuals(q[block], mean[block]), live[block]
+        hist.add(np.broadcast_to(channel, r.shape)[ok], r[ok])
+    return np.array([hist.best_level(c) for c in range(m)], dtype=np.int64)
 
 
 def fit_sampled_prediction(d: np.ndarray, lv: np.ndarray | None, live: np.ndarray, layout,
