@@ -19,8 +19,9 @@ import functools
 import numpy as np
 
 from ...common import attributes as attr
-from ...common.entropy.symbol_coder import (TABLED_RESIDUAL, best_level, bits_by_level, code_lengths_bits,
-                                           ideal_code_length_bits, ideal_code_length_bits_by_rows, level_and_bits)
+from ...common.entropy.symbol_coder import (TABLED_RESIDUAL, ResidualHistograms, best_level, bits_by_level,
+                                           code_lengths_bits, ideal_code_length_bits, ideal_code_length_bits_by_rows,
+                                           level_and_bits)
 from ...common.entropy.scale_levels import NUM_SCALE_LEVELS
 from ...common.neighbour_prediction import (ADJUST_FIXED_POINT, NeighbourGraph, check_extent, level_table,
                                            mean_flags, neighbour_graph, neighbour_means_and_buckets,
@@ -236,28 +237,59 @@ class NeighbourCoding:
             flags, table = mean_flags(unit), level_table(unit)
         else:  # choose_mean_flags False: every channel from its neighbours (a quick estimate, no flags to fit)
             flags, table = _flags_and_table(q, neighbour_mean, own_prior, fit_bucket, num_buckets, choose_mean_flags)
-        mean = _chosen_means(neighbour_mean, own_prior, flags, bucket)
+        self._mean, self._bucket = _chosen_means(neighbour_mean, own_prior, flags, bucket), bucket
         del neighbour_mean  # (now the chosen means)
         self.prediction = attr.ChannelPrediction.none()
         if channel_prediction and layout.channel_prediction_allowed:
-            self.prediction = self._fitted_prediction(q, mean, bucket, table, own_prior, a0)
-        r = np.empty(q.shape, dtype=np.int64)  # the residuals a block of rows at a time (peak memory)
-        coded = self.coded
-        for block in row_blocks(n):
-            r[block] = self.prediction.residuals(q[block], mean[block], None if coded is None else coded[block])
-        del mean
-        if unit is None:  # the table refitted where the prediction changed the residuals (its targets)
-            for c in np.unique(self.prediction.targets):
-                table[c] = _best_levels(bucket_level_bits(r[:, c], fit_bucket[:, c], num_buckets))
-            unit = NeighbourPredictionUnit(num_channels=m, num_lods_minus1=num_lods - 1,
-                                           num_neighbours_minus1=num_neighbours - 1, num_buckets_minus1=num_buckets - 1,
-                                           neighbour_mean_flag=flags.astype(int).tolist(),
-                                           bucket_level=table.ravel().tolist())
+            self.prediction = self._fitted_prediction(q, self._mean, bucket, table, own_prior, a0)
+        if unit is None:
+            unit = self._fitted_unit(flags, table, fit_bucket, num_lods, num_neighbours)
         self.unit = unit
         self.prior_mean = prior_mean
-        self.prior_level = self._prior_levels(r[lod0], a0)
-        self.levels = _levels(bucket, level_table(unit), self.prior_level, adjust)
-        self.residuals = r
+        self.prior_level = self._prior_levels(self._residuals_of(lod0), a0)
+
+    def _residuals_of(self, rows) -> np.ndarray:
+        """int64: the residuals of ``rows`` (a slice or indices)."""
+        if self._mean is None:  # dropped once the residuals were made
+            return self.residuals[rows]
+        coded = None if self.coded is None else self.coded[rows]
+        return self.prediction.residuals(self.q[rows], self._mean[rows], coded)
+
+    @functools.cached_property
+    def residuals(self) -> np.ndarray:
+        """int64 [N, M]: every value's residual, made when first asked for (RDOQ's fit of the unit and the
+        whole-scene coding's ideal bits take none: they make a block of rows' at a time); the means are
+        dropped then."""
+        r = np.empty(self.q.shape, dtype=np.int64)
+        for block in row_blocks(r.shape[0]):
+            r[block] = self._residuals_of(block)
+        self._mean = None
+        return r
+
+    @functools.cached_property
+    def levels(self) -> np.ndarray:
+        """uint8 [N, M]: every value's scale level, made when first asked for (RDOQ's fit needs none)."""
+        return _levels(self._bucket, level_table(self.unit), self.prior_level, self.adjust)
+
+    def _fitted_unit(self, flags: np.ndarray, table: np.ndarray, fit_bucket: np.ndarray, num_lods: int,
+                     num_neighbours: int) -> NeighbourPredictionUnit:
+        """The unit of ``flags`` and ``table``, the table refitted where the prediction changed the
+        residuals (its targets), from their histograms per bucket gathered a block of rows at a time."""
+        targets = np.unique(self.prediction.targets)
+        m, b = table.shape
+        if targets.size:
+            hist = ResidualHistograms(targets.size * b)
+            group = np.arange(targets.size)[None, :] * b
+            for block in row_blocks(self.q.shape[0]):
+                fb = fit_bucket[block][:, targets]
+                ok = fb >= 0  # (-1: LoD 0, -2: not coded)
+                hist.add((group + fb)[ok], self._residuals_of(block)[:, targets][ok])
+            for i, c in enumerate(targets):
+                table[c] = [hist.best_level(i * b + k) for k in range(b)]
+        return NeighbourPredictionUnit(num_channels=m, num_lods_minus1=num_lods - 1,
+                                       num_neighbours_minus1=num_neighbours - 1, num_buckets_minus1=b - 1,
+                                       neighbour_mean_flag=flags.astype(int).tolist(),
+                                       bucket_level=table.ravel().tolist())
 
     def _fitted_prediction(self, q: np.ndarray, mean: np.ndarray, bucket: np.ndarray, table: np.ndarray,
                            own_prior: np.ndarray, a0: np.ndarray | None) -> attr.ChannelPrediction:
@@ -301,8 +333,9 @@ class NeighbourCoding:
 
     def ideal_bits(self) -> float:
         """The ideal bits of the coded values."""
-        r, lv = self.residuals, self.levels  # (the code lengths of a few rows at a time: peak memory)
-        return ideal_code_length_bits_by_rows(lambda a, b: r[a:b], lambda a, b: lv[a:b], r.shape, self.coded)
+        lv = self.levels  # the residuals and code lengths of a few rows at a time (peak memory)
+        return ideal_code_length_bits_by_rows(lambda a, b: self._residuals_of(slice(a, b)), lambda a, b: lv[a:b],
+                                              self.q.shape, self.coded)
 
     def ideal_stream_bits(self) -> float:
         """The ideal bits of the values, their step-adjustment indices, their SH degrees and the
