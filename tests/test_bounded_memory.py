@@ -115,23 +115,6 @@ def test_ideal_bits_by_rows_are_the_whole_arrays():
         ideal_code_length_bits(r[coded], lv[coded])
 
 
-def test_bucket_histogram_bits_are_each_buckets_best_level_and_bits():
-    """The neighbour coding's flags and table from one histogram per channel: the bits and levels
-    best_level_and_bits gives each bucket's rows (tabled residuals, and far ones)."""
-    from lghcc.common.entropy.symbol_coder import best_level_and_bits, level_and_bits
-    from lghcc.encoder.stream.neighbour_coding import bucket_level_bits
-
-    rng = np.random.default_rng(4)
-    bucket = rng.integers(-2, 6, size=5000).astype(np.int8)
-    for far in (0, 3000):
-        r = rng.integers(-60, 60, size=5000)
-        r[:3] += far
-        got = bucket_level_bits(r, bucket, 7)
-        for b in range(7):
-            rows = r[bucket == b]
-            assert (got[b] is None) if not rows.size else level_and_bits(got[b]) == best_level_and_bits(rows)
-
-
 def test_residual_histograms_give_each_groups_best_level_and_bits():
     """Gathered part by part, tabled and far residuals alike: best_level_and_bits of each group's all."""
     from lghcc.common.entropy.symbol_coder import ResidualHistograms, best_level_and_bits, level_and_bits

@@ -421,10 +421,6 @@ def best_level_and_bits(residuals: np.ndarray) -> tuple[int, float]:
     return level_and_bits(bits_by_level(*np.unique(r, return_counts=True)))
 
 
-# the residuals within this of 0 have their code lengths tabled (bits_by_level's histograms)
-TABLED_RESIDUAL = _LUT_R
-
-
 def bits_by_level(values: np.ndarray, counts: np.ndarray) -> np.ndarray:
     """float64 [NUM_SCALE_LEVELS]: the ideal bits at each level of residuals taking the distinct
     ascending int64 ``values`` ``counts`` times: a function of the histogram alone, so the same sums
@@ -445,11 +441,13 @@ class ResidualHistograms:
         self.far: list[tuple[np.ndarray, np.ndarray]] = []  # (groups, residuals) beyond the table
 
     def add(self, group: np.ndarray, r: np.ndarray) -> None:
-        """Count residuals ``r`` (int, flat) of groups ``group`` (int, the same shape)."""
+        """Count residuals ``r`` (int) of groups ``group`` (int, the same shape)."""
         near = (r >= -_LUT_R) & (r <= _LUT_R)
-        key = group[near].astype(np.int64) * (2 * _LUT_R + 1) + r[near] + _LUT_R
-        self.near += np.bincount(key, minlength=self.near.size).reshape(self.near.shape)
-        if not near.all():
+        every = bool(near.all())  # (the rule: no masked copies)
+        g, rn = (group, r) if every else (group[near], r[near])
+        key = g.astype(np.int64) * (2 * _LUT_R + 1) + rn + _LUT_R
+        self.near += np.bincount(key.ravel(), minlength=self.near.size).reshape(self.near.shape)
+        if not every:
             self.far.append((group[~near], r[~near].astype(np.int64)))
 
     def bits(self, g: int) -> np.ndarray | None:

@@ -19,9 +19,8 @@ import functools
 import numpy as np
 
 from ...common import attributes as attr
-from ...common.entropy.symbol_coder import (TABLED_RESIDUAL, ResidualHistograms, best_level, bits_by_level,
-                                           code_lengths_bits, ideal_code_length_bits, ideal_code_length_bits_by_rows,
-                                           level_and_bits)
+from ...common.entropy.symbol_coder import (ResidualHistograms, best_level, code_lengths_bits, ideal_code_length_bits,
+                                           ideal_code_length_bits_by_rows, level_and_bits)
 from ...common.entropy.scale_levels import NUM_SCALE_LEVELS
 from ...common.neighbour_prediction import (ADJUST_FIXED_POINT, NeighbourGraph, check_extent, level_table,
                                            mean_flags, neighbour_graph, neighbour_means_and_buckets,
@@ -61,8 +60,7 @@ def row_blocks(n: int):
     return (slice(lo, min(lo + CODING_BLOCK_ROWS, n)) for lo in range(0, n, CODING_BLOCK_ROWS))
 
 
-# The activity buckets (-2 .. 15: prediction_buckets <= 16) in one byte each: 8x less memory than
-# int64, and a stable sort of bytes is a radix sort (_bucket_groups)
+# The activity buckets (-2 .. 15: prediction_buckets <= 16) in one byte each: 8x less memory than int64
 BUCKET_DTYPE = np.int8
 # The scale levels (0 .. 63) of a coding's values in one byte each
 LEVEL_DTYPE = np.uint8
@@ -84,34 +82,6 @@ def best_prior_level(r: np.ndarray, adjust: np.ndarray | None) -> int:
     return int(np.argmin(costs))
 
 
-def _bucket_groups(bucket: np.ndarray, num_buckets: int) -> tuple[np.ndarray, np.ndarray]:
-    """(the rows in order of their bucket, where each bucket -1 .. num_buckets - 1 starts and ends
-    in it): one sort per channel instead of a mask per bucket (stable: a bucket's rows keep their
-    order, so its levels and bit sums are the mask's to the last bit)."""
-    order = np.argsort(bucket, kind="stable")
-    return order, np.searchsorted(bucket[order], np.arange(-1, num_buckets + 1))
-
-
-def bucket_level_bits(r: np.ndarray, bucket: np.ndarray, num_buckets: int) -> list[np.ndarray | None]:
-    """Per activity bucket 0 .. num_buckets - 1: the ideal bits at each scale level of one channel's
-    residuals ``r`` [n] of that bucket (None where it has none; buckets -1 and -2 count in none).
-    bits_by_level of each bucket's histogram, the sums best_level_and_bits gives its rows to the
-    last bit: one bincount of (bucket, residual) where every residual is tabled, no sort of the rows."""
-    lo, hi = (int(r.min()), int(r.max())) if r.size else (0, 0)
-    if not (-TABLED_RESIDUAL <= lo and hi <= TABLED_RESIDUAL):  # far residuals: each bucket's own rows
-        order, bounds = _bucket_groups(bucket, num_buckets)
-        return [bits_by_level(*np.unique(r[order[bounds[b + 1]:bounds[b + 2]]], return_counts=True))
-                if bounds[b + 2] > bounds[b + 1] else None for b in range(num_buckets)]
-    width = hi - lo + 1
-    key = (bucket.astype(np.int64) + 2) * width + (r - lo)  # buckets -2 .. num_buckets - 1
-    hist = np.bincount(key, minlength=(num_buckets + 2) * width).reshape(num_buckets + 2, width)[2:]
-    out: list[np.ndarray | None] = []
-    for counts in hist:
-        values = np.flatnonzero(counts)
-        out.append(bits_by_level(values + lo, counts[values]) if values.size else None)
-    return out
-
-
 def _total_bits(per_bucket: list[np.ndarray | None]) -> float:
     """The ideal bits of a channel with the best level per bucket (summed in bucket order)."""
     total = 0.0
@@ -131,17 +101,27 @@ def _flags_and_table(q: np.ndarray, neighbour_mean: np.ndarray, prior_mean: np.n
     """Per channel: whether the neighbours' mean codes it in fewer bits than the prior's (noisy
     channels, e.g. higher SH bands of a sparse scene, are not predicted by their neighbours;
     ``choose`` False: every channel's mean the neighbours'), and the best scale level of each
-    bucket's residuals from the mean chosen (int64 [M, B]): one histogram per channel and mean
-    serves both (values of bucket -2, those not coded, count in none)."""
-    m = q.shape[1]
+    bucket's residuals from the mean chosen (int64 [M, B]). One histogram per channel, bucket and
+    mean serves both, gathered a block of rows at a time, every channel at once (the bits of each
+    bucket are best_level_and_bits's of its rows to the last bit; buckets -1 and -2, LoD 0 and the
+    values not coded, count in none)."""
+    n, m = q.shape
+    groups = num_buckets + 2  # buckets -2 .. num_buckets - 1
     prior = np.broadcast_to(prior_mean, q.shape)  # [M] or, with step adjustment, [N, M]
+    by_mean, by_prior = ResidualHistograms(m * groups), ResidualHistograms(m * groups)
+    first = np.arange(m)[None, :] * groups + 2  # each channel's bucket 0
+    for block in row_blocks(n):
+        group = first + bucket[block]
+        by_mean.add(group, q[block] - neighbour_mean[block])
+        if choose:
+            by_prior.add(group, q[block] - prior[block])
     flags, table = np.ones(m, dtype=bool), np.zeros((m, num_buckets), dtype=np.int64)
     for c in range(m):
-        chosen = bucket_level_bits(q[:, c] - neighbour_mean[:, c], bucket[:, c], num_buckets)
+        chosen = [by_mean.bits(c * groups + 2 + b) for b in range(num_buckets)]
         if choose:
-            by_prior = bucket_level_bits(q[:, c] - prior[:, c], bucket[:, c], num_buckets)
-            flags[c] = _total_bits(chosen) < _total_bits(by_prior)
-            chosen = chosen if flags[c] else by_prior
+            with_prior = [by_prior.bits(c * groups + 2 + b) for b in range(num_buckets)]
+            flags[c] = _total_bits(chosen) < _total_bits(with_prior)
+            chosen = chosen if flags[c] else with_prior
         table[c] = _best_levels(chosen)
     return flags, table
 
