@@ -26,6 +26,10 @@ PROGRAM_BYTES = 320 << 20  # Python, NumPy, torch and the encoder's modules (300
 # SH 3 (59 channels: 5,433 B): 446 B per point and 84.5 B per value, rounded up.
 PER_POINT_BYTES = 480  # coordinates, orders, the neighbour graph, the tiles' indices, hash rows
 PER_VALUE_BYTES = 90  # per point and channel: the scene read, float64 values, int64 q, float32 decoded, copies
+# Since issue 53's second round (the neighbour coding's fits by histogram and by block; tools/results/scale.md
+# "SH 3 memory (issue 53)", round 2) `fast` peaks at about 49 B per value and no more per point (300k: 453 B per
+# Gaussian above PROGRAM_BYTES at SH 0, 2,639 at SH 3): the constants are kept, a bound of those and of the
+# anchor scenes' peaks they were fitted on (not measured again).
 # The render-based preparation (a PSNR or lambda asked for, fitting, pruning): the views' renders and
 # projected Gaussians (two views at a time), contributions, sensitivities, the search's trial scenes
 # (on a sample of at most 100k Gaussians) and the fit. Fitted on bench_scale's peaks of `medium` with
@@ -45,11 +49,12 @@ PREPARE_PER_VALUE_BYTES = 24
 # RDOQ_BLOCK_ROWS (below) and its integers go on to the coding (no q x steps): what RDOQ
 # holds per value (the values in steps, the rounded integers, the fit of the coding to them) is within the
 # coding's own arrays above, and its peak below the coding's (300k SH 3: 1,144 MiB in RDOQ against 1,602
-# in the coding, tools/results/scale.md "SH 3 memory (issue 53)"). Left: the working arrays of one block,
+# in the coding, tools/results/scale.md "SH 3 memory (issue 53)"; after round 2, in-process with --jobs 1,
+# 876 MiB at RDOQ's fit of the coding, 875 at the coding's own, 946 at a tile's writing). Left: the working arrays of one block,
 # about 24 float64 or int64 [rows, M] (values, sensitivities, means, levels, candidates, costs).
-# Measured `fast` peaks (--jobs 2, same section): 370 and 518 MiB at 100k and 300k SH 0, 660 and
-# 1,334 MiB at 100k and 300k SH 3; with the terms above (the per-value term still the plain coding's, not
-# measured again) the estimate is 1.65-1.74x these (621, 902, 1,142 and 2,195 MiB).
+# Measured `fast` peaks (--jobs 2, same section, round 2): 370 and 450 MiB at 100k and 300k SH 0, 536 and
+# 1,075 MiB at 100k and 300k SH 3; with the terms above the estimate is 1.68-2.13x these (621, 902, 1,142 and
+# 2,195 MiB).
 # Rows RDOQ (encoder/gaussians/rdoq.py rd_quantize) chooses at a time, within a LoD, whose rows' choices
 # are independent of each other: the working arrays of a block bound its memory, not the scene's size
 RDOQ_BLOCK_ROWS = 16384
