@@ -48,10 +48,11 @@ PREPARE_PER_VALUE_BYTES = 24
 # values in steps are the coding's values divided in place, RDOQ chooses each LoD's rows in blocks of
 # RDOQ_BLOCK_ROWS (below) and its integers go on to the coding (no q x steps): what RDOQ
 # holds per value (the values in steps, the rounded integers, the fit of the coding to them) is within the
-# coding's own arrays above, and its peak below the coding's (300k SH 3: 1,144 MiB in RDOQ against 1,602
-# in the coding, tools/results/scale.md "SH 3 memory (issue 53)"; after round 2, in-process with --jobs 1,
-# 876 MiB at RDOQ's fit of the coding, 875 at the coding's own, 946 at a tile's writing). Left: the working arrays of one block,
-# about 24 float64 or int64 [rows, M] (values, sensitivities, means, levels, candidates, costs).
+# coding's own arrays above, and its peak no higher than the coding's (300k SH 3, in-process with --jobs 1:
+# 1,144 MiB in RDOQ against 1,602 in the coding, tools/results/scale.md "SH 3 memory (issue 53)"; after its
+# round 2, 876 MiB at RDOQ's fit of the coding, 875 at the coding's own, 946 at a tile's writing). Left: the
+# working arrays of one block, about 24 float64 or int64 [rows, M] (values, sensitivities, means, levels,
+# candidates, costs).
 # Measured `fast` peaks (--jobs 2, same section, round 2): 370 and 450 MiB at 100k and 300k SH 0, 536 and
 # 1,075 MiB at 100k and 300k SH 3; with the terms above the estimate is 1.68-2.13x these (621, 902, 1,142 and
 # 2,195 MiB).
