@@ -38,11 +38,15 @@ PER_VALUE_BYTES = 90  # per point and channel: the scene read, float64 values, i
 # Gaussian from 300k to 3M, more per Gaussian at 100k (the fixed part: renders, torch's buffers).
 # 600 MiB plus 2,000 B per point bounds all four: with the other parts and two workers the whole
 # estimate is 1.16x the peak at 3M, 1.18x at 100k (the tightest), 1.44x at 1M (where pruning lowered
-# the peak). The per-value term (the sensitivities, float64 [N, M], and their copies) is not measured
-# beyond SH 0.
+# the peak). The per-value term (the sensitivities, float64 [N, M], and their copies; the fit's parameters,
+# gradients and moments): `medium` on the 100k SH-3 scene of tools/results/scale.md "SH 3 memory (issue 53)"
+# (round 2) reached 2,661 MiB (its main process, 17 CPU minutes in), about 300 B per value above the SH-0
+# scenes' 1,194 MiB at 100k; 24 B gave 1,893 MiB there, no bound. 240 B gives 3,047 MiB (1.15x); at SH 0
+# (11 channels) the estimates grow by 2,376 B per point, looser (1,631 MiB at 100k against its 1,194) but a
+# bound still.
 PREPARE_BYTES = 600 << 20
 PREPARE_PER_POINT_BYTES = 2000
-PREPARE_PER_VALUE_BYTES = 24
+PREPARE_PER_VALUE_BYTES = 240
 # Rate-distortion optimized quantization without the preparation (sensitivity_model "uniform": the
 # fast preset). Since issue 53 the uniform sensitivities are one broadcast row (nothing per value), the
 # values in steps are the coding's values divided in place, RDOQ chooses each LoD's rows in blocks of
