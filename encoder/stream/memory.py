@@ -40,7 +40,7 @@ PER_VALUE_BYTES = 90  # per point and channel: the scene read, float64 values, i
 # estimate is 1.16x the peak at 3M, 1.18x at 100k (the tightest), 1.44x at 1M (where pruning lowered
 # the peak). The per-value term (the sensitivities, float64 [N, M], and their copies; the fit's parameters,
 # gradients and moments): `medium` on the 100k SH-3 scene of tools/results/scale.md "SH 3 memory (issue 53)"
-# (round 2) reached 2,661 MiB (its main process, 17 CPU minutes in), about 300 B per value above the SH-0
+# (round 2) peaked at 2,661 MiB (--jobs 2, GNU time), about 300 B per value above the SH-0
 # scenes' 1,194 MiB at 100k; 24 B gave 1,893 MiB there, no bound. 240 B gives 3,047 MiB (1.15x); at SH 0
 # (11 channels) the estimates grow by 2,376 B per point, looser (1,631 MiB at 100k against its 1,194) but a
 # bound still.
