@@ -40,8 +40,8 @@ PER_VALUE_BYTES = 90  # per point and channel: the scene read, float64 values, i
 # estimate is 1.16x the peak at 3M, 1.18x at 100k (the tightest), 1.44x at 1M (where pruning lowered
 # the peak). The per-value term (the sensitivities, float64 [N, M], and their copies; the fit's parameters,
 # gradients and moments): `medium` on the 100k SH-3 scene of tools/results/scale.md "SH 3 memory (issue 53)"
-# (round 2) peaked at 2,661 MiB before the round (--jobs 2, GNU time) and at 3,055 MiB or more after it (its
-# main process, still running; not explained, see there), 300-400 B per value above the SH-0 scenes' 1,194 MiB
+# (round 2) peaked at 2,661 MiB before the round (--jobs 2, GNU time) and at 3,055 MiB after it (the same
+# stream; not explained, see there), 300-400 B per value above the SH-0 scenes' 1,194 MiB
 # at 100k; 24 B gave 1,893 MiB there, no bound. 320 B gives 3,474 MiB (1.14x the higher); at SH 0 (11
 # channels) the estimates grow by 3,256 B per point, looser (1,715 MiB at 100k against its 1,194), a bound still.
 PREPARE_BYTES = 600 << 20
