@@ -46,11 +46,53 @@ def test_fast_streams_are_those_of_the_whole_scene_paths(degree, tile_points):
     assert hashlib.sha256(_fast_stream(degree, tile_points)).hexdigest() == PINNED[degree, tile_points]
 
 
+# Round 2 (the neighbour coding's fits by histogram and by block, its residuals and levels when asked
+# for, ideal bits summed by block): streams of other SH degrees, and of `low`'s coding tools without its
+# renders (given sensitivities: RDOQ with step adjustment and the SH degree choice), hashed at a646e2b
+MORE_PINNED = {
+    ("fast", 2, 0): "122b8ee0793cdf6dd28c5b7d05a87504699d3db0c36678798e7655c2f91f3905",
+    ("fast", 1, 512): "28d2a5d03ce7c86821cd065a79365c55c17ca88751762fb991b9ef24b8b6206b",
+    ("low", 3, 0): "7e8a0453a71adceb51fac4e40d062b4f8120e1f30e80efb9bfad0cf60bf7ab1d",
+    ("low", 3, 512): "8e507aef6847a004623c1c874d0435dec4a571d727f4392311309874b4de6d7a",
+    ("low", 2, 0): "8788d7918b1430da73603c85a46cac8858bc655eec36dbb831347ad59a6cf9d0",
+    ("low", 1, 512): "6370acdec86786aaab7e3f5eb78973e83ee05e68e14530f32e3aa24957c60541",
+}
+
+
+@pytest.mark.parametrize("preset,degree,tile_points", sorted(MORE_PINNED))
+def test_more_streams_are_those_before_the_coding_by_block(preset, degree, tile_points):
+    from lghcc.common.attributes import GaussianLayout
+
+    if preset == "fast":
+        assert hashlib.sha256(_fast_stream(degree, tile_points)).hexdigest() == MORE_PINNED[preset, degree, tile_points]
+        return
+    cfg = dataclasses.replace(load_config("low", kind="gaussians"), target_psnr=0, prune_share=0,
+                              tile_points=tile_points)
+    f = np.random.default_rng(7).gamma(0.5, 2.0, size=(3000, GaussianLayout(degree).num_channels))
+    got = encode_gaussian_scene(_scene(3000, degree), cfg, sensitivity=f)
+    assert got.stats.step_adjust_counts is not None and got.stats.sh_degree_counts is not None
+    assert hashlib.sha256(got.data).hexdigest() == MORE_PINNED[preset, degree, tile_points]
+
+
 def test_rdoq_blocks_do_not_change_the_stream(monkeypatch):
     """Within a LoD each row's choice depends on coarser LoDs only: any block size, the same stream
     (97 rows: many blocks per LoD, the last one partial)."""
     monkeypatch.setattr(rdoq, "RDOQ_BLOCK_ROWS", 97)
     assert hashlib.sha256(_fast_stream(3, 0)).hexdigest() == PINNED[3, 0]
+
+
+def test_coding_blocks_do_not_change_the_stream(monkeypatch):
+    """The neighbour coding's blocks of rows (each row's values its own, histograms' counts the same
+    however cut, ideal bits summed along numpy's cuts): any block size, the same stream."""
+    from lghcc.common.entropy import symbol_coder
+    from lghcc.encoder.stream import neighbour_coding, prediction
+
+    for module in (neighbour_coding, prediction):
+        monkeypatch.setattr(module, "CODING_BLOCK_ROWS", 97)
+    monkeypatch.setattr(symbol_coder, "SUM_BLOCK_VALUES", 1000)
+    for tile_points in (0, 512):  # (with tiles, the neighbour-or-prior choice compares ideal bits)
+        assert hashlib.sha256(_fast_stream(3, tile_points)).hexdigest() == PINNED[3, tile_points]
+    test_more_streams_are_those_before_the_coding_by_block("low", 3, 0)
 
 
 def test_uniform_sensitivities_are_one_broadcast_row():
@@ -86,3 +128,45 @@ def test_sh3_content_of_the_memory_scenes_is_playbots_and_deterministic():
     assert a.sh_degree == 3 and a.sh.tobytes() == b.sh.tobytes()
     assert np.array_equal(a.sh[:, 0], scene.sh[:, 0]) and np.array_equal(a.sh[9, 1:9], playbot.sh[9 % 7, 1:9])
     assert np.array_equal(a.sh[4, 9:16], np.float32(0.5) * playbot.sh[(7 * 4 + 3) % 7, 2:9])
+
+
+@pytest.mark.parametrize("size", [1, 7, 129, 8193, 300_001, 3 * (1 << 18) + 13, 9 * (1 << 18) + 5])
+def test_pairwise_total_is_numpys_sum_to_the_last_bit(size, monkeypatch):
+    """The whole-scene ideal bits summed part by part are np.sum's (a neighbour-or-prior choice
+    compares them: a different order could flip a near tie)."""
+    from lghcc.common.entropy import symbol_coder as sc
+
+    x = np.random.default_rng(size).random(size) * 10.0 ** np.random.default_rng(1).uniform(-3, 3, size)
+    monkeypatch.setattr(sc, "SUM_BLOCK_VALUES", 1 << 10)
+    assert sc.pairwise_total(size, lambda lo, hi: x[lo:hi].copy()) == float(x.sum())
+    rows = x[: size - size % 7].reshape(-1, 7)
+    ends = 7 * np.arange(1, rows.shape[0] + 1)
+    assert sc.row_blocked_total(ends, lambda a, b: rows[a:b].ravel()) == float(rows.sum())
+
+
+def test_ideal_bits_by_rows_are_the_whole_arrays():
+    from lghcc.common.entropy.symbol_coder import ideal_code_length_bits, ideal_code_length_bits_by_rows
+
+    rng = np.random.default_rng(3)
+    r = rng.integers(-40, 40, size=(20000, 30)) * rng.integers(1, 200, size=(20000, 30))
+    lv = rng.integers(0, 64, size=r.shape).astype(np.uint8)
+    coded = rng.random(r.shape) < 0.7
+    assert ideal_code_length_bits_by_rows(lambda a, b: r[a:b], lambda a, b: lv[a:b], r.shape) == \
+        ideal_code_length_bits(r, lv)
+    assert ideal_code_length_bits_by_rows(lambda a, b: r[a:b], lambda a, b: lv[a:b], r.shape, coded) == \
+        ideal_code_length_bits(r[coded], lv[coded])
+
+
+def test_residual_histograms_give_each_groups_best_level_and_bits():
+    """Gathered part by part, tabled and far residuals alike: best_level_and_bits of each group's all."""
+    from lghcc.common.entropy.symbol_coder import ResidualHistograms, best_level_and_bits, level_and_bits
+
+    rng = np.random.default_rng(5)
+    group, r = rng.integers(0, 4, size=9000), rng.integers(-300, 300, size=9000)
+    r[::997] *= 40  # beyond the code-length table
+    hist = ResidualHistograms(5)
+    for lo in range(0, 9000, 2500):
+        hist.add(group[lo:lo + 2500], r[lo:lo + 2500])
+    for g in range(4):
+        assert level_and_bits(hist.bits(g)) == best_level_and_bits(r[group == g])
+    assert hist.bits(4) is None and hist.best_level(4) == 0

@@ -297,6 +297,48 @@ def ideal_code_length_bits(residuals: np.ndarray, levels: np.ndarray) -> float:
     return float(code_lengths_bits(residuals, levels).sum())
 
 
+# informative: the most values whose code lengths row_blocked_total makes at a time (2 MiB of float64)
+SUM_BLOCK_VALUES = 1 << 18
+
+
+def pairwise_total(size: int, part) -> float:
+    """np.sum of the float64 values 0 .. size - 1, ``part(lo, hi)`` giving values lo .. hi - 1, to the
+    last bit with at most SUM_BLOCK_VALUES of them made at a time: numpy sums a contiguous array
+    pairwise (halves cut at a multiple of 8), and this follows its cuts down to parts of at most
+    SUM_BLOCK_VALUES, each summed by numpy (tests/test_bounded_memory.py checks the two agree)."""
+    def total(lo: int, n: int) -> float:
+        if n <= SUM_BLOCK_VALUES:
+            return float(np.sum(part(lo, lo + n)))
+        half = n // 2
+        half -= half % 8
+        return total(lo, half) + total(lo + half, n - half)
+    return total(0, size)
+
+
+def row_blocked_total(ends: np.ndarray, values) -> float:
+    """pairwise_total of the values of every row, rows in order: ``values(a, b)`` gives those of rows
+    a .. b - 1 (float64, flat), ``ends`` int [rows] where each row's end (cumulative counts)."""
+    def part(lo: int, hi: int) -> np.ndarray:
+        a = int(np.searchsorted(ends, lo, side="right"))  # the row holding value lo
+        b = int(np.searchsorted(ends, hi - 1, side="right")) + 1  # .. and the one holding hi - 1
+        start = int(ends[a - 1]) if a else 0
+        return values(a, b)[lo - start:hi - start]
+    size = int(ends[-1]) if len(ends) else 0
+    return pairwise_total(size, part) if size else 0.0
+
+
+def ideal_code_length_bits_by_rows(residuals, levels, shape: tuple[int, int], coded: np.ndarray | None = None) -> float:
+    """ideal_code_length_bits of the values of ``shape`` [N, M] that ``residuals(a, b)`` and
+    ``levels(a, b)`` give for rows a .. b - 1 (where ``coded`` [N, M], those values only, row-major),
+    to the last bit, with the residuals, levels and code lengths of a few rows at a time."""
+    n, m = shape
+    if coded is None:
+        return row_blocked_total(m * np.arange(1, n + 1, dtype=np.int64),
+                                 lambda a, b: code_lengths_bits(residuals(a, b), levels(a, b)).ravel())
+    return row_blocked_total(np.cumsum(coded.sum(axis=1), dtype=np.int64),
+                             lambda a, b: code_lengths_bits(residuals(a, b)[coded[a:b]], levels(a, b)[coded[a:b]]))
+
+
 # --- chunks ------------------------------------------------------------------------------
 
 def _chunk_count(rows: int, rows_per_chunk: int) -> int:
@@ -375,10 +417,58 @@ def best_level_and_bits(residuals: np.ndarray) -> tuple[int, float]:
     if -_LUT_R <= lo and hi <= _LUT_R:  # the same values and counts as np.unique's, without its sort
         counts = np.bincount(r - lo)
         values = np.flatnonzero(counts)
-        bits = _LUT_BY_LEVEL[:, values + (lo + _LUT_R)] @ counts[values]
-    else:
-        values, counts = np.unique(r, return_counts=True)
-        lv = np.repeat(np.arange(NUM_SCALE_LEVELS, dtype=np.int64), values.size)
-        bits = code_lengths_bits(np.tile(values, NUM_SCALE_LEVELS), lv).reshape(NUM_SCALE_LEVELS, -1) @ counts
-    level = int(np.argmin(bits))  # the lowest level among equal costs
+        return level_and_bits(bits_by_level(values + lo, counts[values]))
+    return level_and_bits(bits_by_level(*np.unique(r, return_counts=True)))
+
+
+def bits_by_level(values: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """float64 [NUM_SCALE_LEVELS]: the ideal bits at each level of residuals taking the distinct
+    ascending int64 ``values`` ``counts`` times: a function of the histogram alone, so the same sums
+    to the last bit however the counts were gathered (whole, by bucket or block by block)."""
+    if -_LUT_R <= values[0] and values[-1] <= _LUT_R:
+        return _LUT_BY_LEVEL[:, values + _LUT_R] @ counts
+    lv = np.repeat(np.arange(NUM_SCALE_LEVELS, dtype=np.int64), values.size)
+    return code_lengths_bits(np.tile(values, NUM_SCALE_LEVELS), lv).reshape(NUM_SCALE_LEVELS, -1) @ counts
+
+
+class ResidualHistograms:
+    """Per group (a channel, say): the histogram of its residuals, gathered a part at a time (counts:
+    the same however the values are cut), and from it bits_by_level's sums, those best_level_and_bits
+    gives all of the group's residuals to the last bit. Tabled residuals are counted, far ones kept."""
+
+    def __init__(self, groups: int):
+        self.near = np.zeros((groups, 2 * _LUT_R + 1), dtype=np.int64)
+        self.far: list[tuple[np.ndarray, np.ndarray]] = []  # (groups, residuals) beyond the table
+
+    def add(self, group: np.ndarray, r: np.ndarray) -> None:
+        """Count residuals ``r`` (int) of groups ``group`` (int, the same shape)."""
+        near = (r >= -_LUT_R) & (r <= _LUT_R)
+        every = bool(near.all())  # (the rule: no masked copies)
+        g, rn = (group, r) if every else (group[near], r[near])
+        key = g.astype(np.int64) * (2 * _LUT_R + 1) + rn + _LUT_R
+        self.near += np.bincount(key.ravel(), minlength=self.near.size).reshape(self.near.shape)
+        if not every:
+            self.far.append((group[~near], r[~near].astype(np.int64)))
+
+    def bits(self, g: int) -> np.ndarray | None:
+        """bits_by_level of group ``g``'s residuals (None where it has none)."""
+        values = np.flatnonzero(self.near[g])
+        counts = self.near[g, values]
+        values = values - _LUT_R
+        far = [r[group == g] for group, r in self.far]
+        if far and sum(f.size for f in far):
+            fv, fc = np.unique(np.concatenate(far), return_counts=True)
+            values = np.concatenate([fv[fv < 0], values, fv[fv > 0]])
+            counts = np.concatenate([fc[fv < 0], counts, fc[fv > 0]])
+        return bits_by_level(values, counts) if values.size else None
+
+    def best_level(self, g: int) -> int:
+        """best_level of group ``g``'s residuals (0 where it has none)."""
+        bits = self.bits(g)
+        return 0 if bits is None else level_and_bits(bits)[0]
+
+
+def level_and_bits(bits: np.ndarray) -> tuple[int, float]:
+    """The level of fewest bits in bits_by_level's ``bits`` (the lowest among equal costs) and its bits."""
+    level = int(np.argmin(bits))
     return level, float(bits[level])

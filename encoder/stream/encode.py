@@ -18,7 +18,7 @@ from ...app.progress import progress_bar
 from ...common import attributes as attr
 from ...common.container import (UNIT_CRC_BYTES, UNIT_HEADER_BYTES, AncillaryUnitType, DataUnit, UnitType,
                                 read_container, write_container)
-from ...common.entropy.symbol_coder import best_level, ideal_code_length_bits
+from ...common.entropy.symbol_coder import best_level, ideal_code_length_bits_by_rows
 from ...common.errors import InputError
 from ...common.context.model_unit import write_context_model_unit
 from ...common.context.models import CONTEXT_MODEL_NAMES, read_context_model
@@ -359,11 +359,13 @@ def code_level2_with_context(coder: LevelCoder, inp: AttributeInput, hier: Hiera
 
 def ideal_bits(coder: LevelCoder, chosen: LevelCoding) -> float:
     """The attribute model's ideal code length of the level as coded."""
-    res = (chosen.prediction or attr.ChannelPrediction.none()).residuals(chosen.q, chosen.params.mean)
-    level = np.broadcast_to(chosen.params.level, chosen.q.shape)
-    if coder.live.all():  # every value coded: no masked copies (the same values, summed alike)
-        return ideal_code_length_bits(res, level)
-    return ideal_code_length_bits(res[coder.live], level[coder.live])
+    prediction, q, m = chosen.prediction or attr.ChannelPrediction.none(), chosen.q, chosen.q.shape[1]
+
+    def residuals(a: int, b: int) -> np.ndarray:
+        return prediction.residuals(q[a:b], chosen.params.rows(a, b, m).mean)
+    # the residuals and code lengths of a few rows at a time (peak memory); every value coded: no mask
+    return ideal_code_length_bits_by_rows(residuals, lambda a, b: chosen.params.rows(a, b, m).level, q.shape,
+                                          None if coder.live.all() else coder.live)
 
 
 def code_attributes(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodingConfig,
@@ -390,7 +392,7 @@ def code_attributes(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodi
     for level, rows in levels.levels:
         coder = LevelCoder(inp.layout, cfg, level, rows, inp.live[rows], None if inp.mask is None else inp.mask[rows],
                            predict)
-        chosen, context_fit = code_with_prior(coder, inp), None
+        chosen, context_fit = code_with_prior(coder, quantized_level(coder, inp)), None
         if level == LEVEL_2 and cfg.context_model != "per_channel":
             assert levels.hier is not None and q_level1 is not None
             chosen, context_payload, context_fit = code_level2_with_context(coder, inp, levels.hier, q_level1, chosen,
@@ -426,7 +428,7 @@ def code_neighbours_or_prior(inp: AttributeInput, levels: LevelLayout, cfg: Attr
     needed = inp.step_adjust is not None or inp.sh_degrees is not None
     always = cfg.neighbour_prediction == "always" or needed
     # with tiles only its ideal bits are compared: the whole scene's unit is never written
-    with_prior = code_with_prior(coder, inp, write=not levels.tile_scale) if not needed else None
+    with_prior = code_with_prior(coder, q, write=not levels.tile_scale) if not needed else None
     if levels.tile_scale:
         use = always or nc.ideal_stream_bits() / 8 < ideal_bits(coder, with_prior) / 8
         stats.neighbour_prediction = bool(use)

@@ -188,9 +188,9 @@ def code_with_neighbours(coder: LevelCoder, q: np.ndarray, nc: NeighbourCoding) 
     return LevelCoding(q, params, payload, header, nc.prediction)
 
 
-def code_with_prior(coder: LevelCoder, inp: AttributeInput, write: bool = True) -> LevelCoding:
-    """The level coded with the per-channel prior fitted to it (``write`` False: without its payload)."""
-    q = quantized_level(coder, inp)
+def code_with_prior(coder: LevelCoder, q: np.ndarray, write: bool = True) -> LevelCoding:
+    """The level coded with the per-channel prior fitted to its quantized values ``q`` (quantized_level;
+    ``write`` False: without its payload)."""
     header = coder.new_header()
     means, lv = fit_per_channel_prior(q, coder.live, coder.cfg.prior_fit_rows)
     header.context_model_id = CONTEXT_PER_CHANNEL_PRIOR

@@ -26,6 +26,10 @@ PROGRAM_BYTES = 320 << 20  # Python, NumPy, torch and the encoder's modules (300
 # SH 3 (59 channels: 5,433 B): 446 B per point and 84.5 B per value, rounded up.
 PER_POINT_BYTES = 480  # coordinates, orders, the neighbour graph, the tiles' indices, hash rows
 PER_VALUE_BYTES = 90  # per point and channel: the scene read, float64 values, int64 q, float32 decoded, copies
+# Since issue 53's second round (the neighbour coding's fits by histogram and by block; tools/results/scale.md
+# "SH 3 memory (issue 53)", round 2) `fast` peaks at about 49 B per value and no more per point (300k: 453 B per
+# Gaussian above PROGRAM_BYTES at SH 0, 2,639 at SH 3): the constants are kept, a bound of those and of the
+# anchor scenes' peaks they were fitted on (not measured again).
 # The render-based preparation (a PSNR or lambda asked for, fitting, pruning): the views' renders and
 # projected Gaussians (two views at a time), contributions, sensitivities, the search's trial scenes
 # (on a sample of at most 100k Gaussians) and the fit. Fitted on bench_scale's peaks of `medium` with
@@ -34,25 +38,35 @@ PER_VALUE_BYTES = 90  # per point and channel: the scene read, float64 values, i
 # Gaussian from 300k to 3M, more per Gaussian at 100k (the fixed part: renders, torch's buffers).
 # 600 MiB plus 2,000 B per point bounds all four: with the other parts and two workers the whole
 # estimate is 1.16x the peak at 3M, 1.18x at 100k (the tightest), 1.44x at 1M (where pruning lowered
-# the peak). The per-value term (the sensitivities, float64 [N, M], and their copies) is not measured
-# beyond SH 0.
+# the peak). The per-value term (the sensitivities, float64 [N, M], and their copies; the fit's parameters,
+# gradients and moments): `medium` on the 100k SH-3 scene of tools/results/scale.md "SH 3 memory (issue 53)"
+# (round 2) peaked at 2,661 MiB before the round (--jobs 2, GNU time) and at 3,055 MiB after it (the same
+# stream; not explained, see there), 300-400 B per value above the SH-0 scenes' 1,194 MiB
+# at 100k; 24 B gave 1,893 MiB there, no bound. 320 B gives 3,474 MiB (1.14x the higher); at SH 0 (11
+# channels) the estimates grow by 3,256 B per point, looser (1,715 MiB at 100k against its 1,194), a bound still.
 PREPARE_BYTES = 600 << 20
 PREPARE_PER_POINT_BYTES = 2000
-PREPARE_PER_VALUE_BYTES = 24
+PREPARE_PER_VALUE_BYTES = 320
 # Rate-distortion optimized quantization without the preparation (sensitivity_model "uniform": the
 # fast preset). Since issue 53 the uniform sensitivities are one broadcast row (nothing per value), the
 # values in steps are the coding's values divided in place, RDOQ chooses each LoD's rows in blocks of
 # RDOQ_BLOCK_ROWS (below) and its integers go on to the coding (no q x steps): what RDOQ
 # holds per value (the values in steps, the rounded integers, the fit of the coding to them) is within the
-# coding's own arrays above, and its peak below the coding's (300k SH 3: 1,144 MiB in RDOQ against 1,602
-# in the coding, tools/results/scale.md "SH 3 memory (issue 53)"). Left: the working arrays of one block,
-# about 24 float64 or int64 [rows, M] (values, sensitivities, means, levels, candidates, costs).
-# Measured `fast` peaks (--jobs 2, same section): 370 and 518 MiB at 100k and 300k SH 0, 660 and
-# 1,334 MiB at 100k and 300k SH 3; with the terms above (the per-value term still the plain coding's, not
-# measured again) the estimate is 1.65-1.74x these (621, 902, 1,142 and 2,195 MiB).
+# coding's own arrays above, and its peak no higher than the coding's (300k SH 3, in-process with --jobs 1:
+# 1,144 MiB in RDOQ against 1,602 in the coding, tools/results/scale.md "SH 3 memory (issue 53)"; after its
+# round 2, 876 MiB at RDOQ's fit of the coding, 875 at the coding's own, 946 at a tile's writing). Left: the
+# working arrays of one block, about 24 float64 or int64 [rows, M] (values, sensitivities, means, levels,
+# candidates, costs).
+# Measured `fast` peaks (--jobs 2, same section, round 2): 370 and 450 MiB at 100k and 300k SH 0, 536 and
+# 1,075 MiB at 100k and 300k SH 3; with the terms above the estimate is 1.68-2.13x these (621, 902, 1,142 and
+# 2,195 MiB).
 # Rows RDOQ (encoder/gaussians/rdoq.py rd_quantize) chooses at a time, within a LoD, whose rows' choices
 # are independent of each other: the working arrays of a block bound its memory, not the scene's size
 RDOQ_BLOCK_ROWS = 16384
+# Rows the neighbour coding (encoder/stream/neighbour_coding.py) makes its working arrays for at a time
+# (the neighbours' sums and spreads, levels, residuals; each row's are its own): beside its whole-scene
+# arrays, one block's
+CODING_BLOCK_ROWS = 16384
 RDOQ_PER_POINT_BYTES = 0
 RDOQ_PER_VALUE_BYTES = 0
 RDOQ_BLOCK_VALUE_BYTES = 24 * 8  # per value of a block of RDOQ_BLOCK_ROWS rows

@@ -19,8 +19,8 @@ import functools
 import numpy as np
 
 from ...common import attributes as attr
-from ...common.entropy.symbol_coder import (best_level, best_level_and_bits, code_lengths_bits,
-                                           ideal_code_length_bits)
+from ...common.entropy.symbol_coder import (ResidualHistograms, best_level, code_lengths_bits, ideal_code_length_bits,
+                                           ideal_code_length_bits_by_rows, level_and_bits)
 from ...common.entropy.scale_levels import NUM_SCALE_LEVELS
 from ...common.neighbour_prediction import (ADJUST_FIXED_POINT, NeighbourGraph, check_extent, level_table,
                                            mean_flags, neighbour_graph, neighbour_means_and_buckets,
@@ -31,7 +31,8 @@ from ...common.container import UNIT_CRC_BYTES, UNIT_HEADER_BYTES
 from ...common.sh_degree import FLAG_PROB_UNIT, band_flags, coded_channels, neighbour_degrees
 from ...common.units import (DEGREE_PROB_BITS, NUM_DEGREE_CONTEXTS, PRIOR_MEAN_MAX, NeighbourPredictionUnit, ShDegreeUnit,
                              StepAdjustFlagsUnit)
-from .prediction import fit_channel_prediction
+from .memory import CODING_BLOCK_ROWS
+from .prediction import fit_rows, fit_sampled_prediction
 
 UNIT_FRAMING_BYTES = UNIT_HEADER_BYTES + UNIT_CRC_BYTES
 
@@ -39,22 +40,27 @@ UNIT_FRAMING_BYTES = UNIT_HEADER_BYTES + UNIT_CRC_BYTES
 def _coding_params(q: np.ndarray, graph: NeighbourGraph, num_buckets: int, prior_mean: np.ndarray,
                    adjust: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per row: the neighbours' mean of each channel (LoD 0: the prior's) and its activity bucket
-    (LoD 0: -1). ``adjust``: every row's step-adjustment index (clause 11.8), or None."""
+    (LoD 0: -1). ``adjust``: every row's step-adjustment index (clause 11.8), or None. A block of
+    a LoD's rows at a time (each row's from its own neighbours: peak memory)."""
     n, m = q.shape
     mean = prior_rows(prior_mean, n, adjust)
     bucket = np.full((n, m), -1, dtype=BUCKET_DTYPE)
     every = np.ones(m, dtype=bool)
     for level in range(1, len(graph.rows)):
-        rows = graph.rows[level]
-        if rows.size:
+        for block in row_blocks(graph.rows[level].size):
+            rows = graph.rows[level][block]
             mean[rows], bucket[rows] = neighbour_means_and_buckets(
-                q, graph.neighbours[level], num_buckets, every, prior_mean, adjust,
+                q, graph.neighbours[level][block], num_buckets, every, prior_mean, adjust,
                 None if adjust is None else adjust[rows])
     return mean, bucket
 
 
-# The activity buckets (-2 .. 15: prediction_buckets <= 16) in one byte each: 8x less memory than
-# int64, and a stable sort of bytes is a radix sort (_bucket_groups)
+def row_blocks(n: int):
+    """Slices of CODING_BLOCK_ROWS rows covering 0 .. n - 1 (working arrays a block at a time)."""
+    return (slice(lo, min(lo + CODING_BLOCK_ROWS, n)) for lo in range(0, n, CODING_BLOCK_ROWS))
+
+
+# The activity buckets (-2 .. 15: prediction_buckets <= 16) in one byte each: 8x less memory than int64
 BUCKET_DTYPE = np.int8
 # The scale levels (0 .. 63) of a coding's values in one byte each
 LEVEL_DTYPE = np.uint8
@@ -76,36 +82,48 @@ def best_prior_level(r: np.ndarray, adjust: np.ndarray | None) -> int:
     return int(np.argmin(costs))
 
 
-def _bucket_groups(bucket: np.ndarray, num_buckets: int) -> tuple[np.ndarray, np.ndarray]:
-    """(the rows in order of their bucket, where each bucket -1 .. num_buckets - 1 starts and ends
-    in it): one sort per channel instead of a mask per bucket (stable: a bucket's rows keep their
-    order, so its levels and bit sums are the mask's to the last bit)."""
-    order = np.argsort(bucket, kind="stable")
-    return order, np.searchsorted(bucket[order], np.arange(-1, num_buckets + 1))
-
-
-def _bucket_bits(r: np.ndarray, groups: tuple[np.ndarray, np.ndarray], num_buckets: int) -> float:
-    """Ideal bits of one channel's residuals of LoD >= 1 with the best level per bucket."""
-    order, bounds = groups
+def _total_bits(per_bucket: list[np.ndarray | None]) -> float:
+    """The ideal bits of a channel with the best level per bucket (summed in bucket order)."""
     total = 0.0
-    for b in range(num_buckets):
-        if bounds[b + 2] > bounds[b + 1]:
-            total += best_level_and_bits(r[order[bounds[b + 1]:bounds[b + 2]]])[1]
+    for bits in per_bucket:
+        if bits is not None:
+            total += level_and_bits(bits)[1]
     return total
 
 
-def _mean_flags(q: np.ndarray, neighbour_mean: np.ndarray, prior_mean: np.ndarray, bucket: np.ndarray,
-                num_buckets: int) -> np.ndarray:
+def _best_levels(per_bucket: list[np.ndarray | None]) -> np.ndarray:
+    """The best level of each bucket (0 where it is empty)."""
+    return np.array([0 if bits is None else level_and_bits(bits)[0] for bits in per_bucket], dtype=np.int64)
+
+
+def _flags_and_table(q: np.ndarray, neighbour_mean: np.ndarray, prior_mean: np.ndarray, bucket: np.ndarray,
+                     num_buckets: int, choose: bool) -> tuple[np.ndarray, np.ndarray]:
     """Per channel: whether the neighbours' mean codes it in fewer bits than the prior's (noisy
-    channels, e.g. higher SH bands of a sparse scene, are not predicted by their neighbours)."""
-    fine = bucket[:, 0] >= 0
+    channels, e.g. higher SH bands of a sparse scene, are not predicted by their neighbours;
+    ``choose`` False: every channel's mean the neighbours'), and the best scale level of each
+    bucket's residuals from the mean chosen (int64 [M, B]). One histogram per channel, bucket and
+    mean serves both, gathered a block of rows at a time, every channel at once (the bits of each
+    bucket are best_level_and_bits's of its rows to the last bit; buckets -1 and -2, LoD 0 and the
+    values not coded, count in none)."""
+    n, m = q.shape
+    groups = num_buckets + 2  # buckets -2 .. num_buckets - 1
     prior = np.broadcast_to(prior_mean, q.shape)  # [M] or, with step adjustment, [N, M]
-    flags = np.zeros(q.shape[1], dtype=bool)
-    for c in range(q.shape[1]):
-        groups = _bucket_groups(bucket[fine, c], num_buckets)
-        flags[c] = _bucket_bits(q[fine, c] - neighbour_mean[fine, c], groups, num_buckets) \
-            < _bucket_bits(q[fine, c] - prior[fine, c], groups, num_buckets)
-    return flags
+    by_mean, by_prior = ResidualHistograms(m * groups), ResidualHistograms(m * groups)
+    first = np.arange(m)[None, :] * groups + 2  # each channel's bucket 0
+    for block in row_blocks(n):
+        group = first + bucket[block]
+        by_mean.add(group, q[block] - neighbour_mean[block])
+        if choose:
+            by_prior.add(group, q[block] - prior[block])
+    flags, table = np.ones(m, dtype=bool), np.zeros((m, num_buckets), dtype=np.int64)
+    for c in range(m):
+        chosen = [by_mean.bits(c * groups + 2 + b) for b in range(num_buckets)]
+        if choose:
+            with_prior = [by_prior.bits(c * groups + 2 + b) for b in range(num_buckets)]
+            flags[c] = _total_bits(chosen) < _total_bits(with_prior)
+            chosen = chosen if flags[c] else with_prior
+        table[c] = _best_levels(chosen)
+    return flags, table
 
 
 def flag_counts(graph: NeighbourGraph, values: np.ndarray, levels: int) -> np.ndarray:
@@ -147,24 +165,27 @@ def unit_bytes(unit) -> int:
     return UNIT_FRAMING_BYTES + len(unit.to_bytes())
 
 
-def _table(r: np.ndarray, bucket: np.ndarray, num_buckets: int) -> np.ndarray:
-    """The best scale level of each (channel, bucket)'s residuals (0 where a bucket is empty; values
-    of bucket -2, those not coded, count in none)."""
-    m = r.shape[1]
-    table = np.zeros((m, num_buckets), dtype=np.int64)
-    for c in range(m):
-        order, bounds = _bucket_groups(bucket[:, c], num_buckets)
-        for b in range(num_buckets):
-            if bounds[b + 2] > bounds[b + 1]:
-                table[c, b] = best_level(r[order[bounds[b + 1]:bounds[b + 2]], c])
-    return table
-
-
 def _levels(bucket: np.ndarray, table: np.ndarray, prior_level: np.ndarray, adjust: np.ndarray | None = None
             ) -> np.ndarray:
-    prior = prior_level[None, :] if adjust is None else prior_level_in_steps(prior_level[None, :], adjust[:, None])
-    lv = np.where(bucket >= 0, np.take_along_axis(table.T, np.maximum(bucket, 0), axis=0), prior)
-    return lv.astype(LEVEL_DTYPE)
+    """The scale level of each value: its bucket's in ``table``, the prior's in LoD 0 (a block of rows at
+    a time: peak memory)."""
+    out = np.empty(bucket.shape, dtype=LEVEL_DTYPE)
+    for block in row_blocks(bucket.shape[0]):
+        prior = prior_level[None, :] if adjust is None else \
+            prior_level_in_steps(prior_level[None, :], adjust[block, None])
+        b = bucket[block]
+        out[block] = np.where(b >= 0, np.take_along_axis(table.T, np.maximum(b, 0), axis=0), prior)
+    return out
+
+
+def _chosen_means(neighbour_mean: np.ndarray, own_prior: np.ndarray, flags: np.ndarray,
+                  bucket: np.ndarray) -> np.ndarray:
+    """``neighbour_mean`` turned in place into each value's mean: the neighbours' where its channel's
+    flag is set and its row has neighbours (bucket >= 0), else the prior's (no second [N, M] array)."""
+    prior = np.broadcast_to(own_prior, neighbour_mean.shape)
+    for block in row_blocks(neighbour_mean.shape[0]):
+        np.copyto(neighbour_mean[block], prior[block], where=~(flags[None, :] & (bucket[block] >= 0)))
+    return neighbour_mean
 
 
 class NeighbourCoding:
@@ -193,31 +214,74 @@ class NeighbourCoding:
         own_prior = prior_mean[None, :] if adjust is None else prior_mean_in_steps(prior_mean, adjust)
         fit_bucket = bucket if self.coded is None else np.where(self.coded, bucket, -2)  # fits: coded values only
         if unit is not None:
-            flags = mean_flags(unit)
-        elif choose_mean_flags:
-            flags = _mean_flags(q, neighbour_mean, own_prior, fit_bucket, num_buckets)
-        else:  # every channel from its neighbours (a quick estimate: the flags are a third of the fit's time)
-            flags = np.ones(m, dtype=bool)
-        mean = np.where(flags[None, :] & (bucket >= 0), neighbour_mean, own_prior)
-        del neighbour_mean  # (peak memory)
+            flags, table = mean_flags(unit), level_table(unit)
+        else:  # choose_mean_flags False: every channel from its neighbours (a quick estimate, no flags to fit)
+            flags, table = _flags_and_table(q, neighbour_mean, own_prior, fit_bucket, num_buckets, choose_mean_flags)
+        self._mean, self._bucket = _chosen_means(neighbour_mean, own_prior, flags, bucket), bucket
+        del neighbour_mean  # (now the chosen means)
         self.prediction = attr.ChannelPrediction.none()
-        live = np.broadcast_to(True, q.shape) if self.coded is None else self.coded
         if channel_prediction and layout.channel_prediction_allowed:
-            table0 = _table(q - mean, fit_bucket, num_buckets) if unit is None else level_table(unit)
-            prior0 = self._prior_levels(q - own_prior, a0)
-            params = attr.CodingParams(mean, _levels(bucket, table0, prior0, adjust))
-            self.prediction, _ = fit_channel_prediction(q, params, layout, live)
-        r = self.prediction.residuals(q, mean, self.coded)
-        del mean
+            self.prediction = self._fitted_prediction(q, self._mean, bucket, table, own_prior, a0)
         if unit is None:
-            unit = NeighbourPredictionUnit(num_channels=m, num_lods_minus1=num_lods - 1,
-                                           num_neighbours_minus1=num_neighbours - 1, num_buckets_minus1=num_buckets - 1,
-                                           neighbour_mean_flag=flags.astype(int).tolist(), bucket_level=_table(r, fit_bucket, num_buckets).ravel().tolist())
+            unit = self._fitted_unit(flags, table, fit_bucket, num_lods, num_neighbours)
         self.unit = unit
         self.prior_mean = prior_mean
-        self.prior_level = self._prior_levels(r, a0)
-        self.levels = _levels(bucket, level_table(unit), self.prior_level, adjust)
-        self.residuals = r
+        self.prior_level = self._prior_levels(self._residuals_of(lod0), a0)
+
+    def _residuals_of(self, rows) -> np.ndarray:
+        """int64: the residuals of ``rows`` (a slice or indices)."""
+        if self._mean is None:  # dropped once the residuals were made
+            return self.residuals[rows]
+        coded = None if self.coded is None else self.coded[rows]
+        return self.prediction.residuals(self.q[rows], self._mean[rows], coded)
+
+    @functools.cached_property
+    def residuals(self) -> np.ndarray:
+        """int64 [N, M]: every value's residual, made when first asked for (RDOQ's fit of the unit and the
+        whole-scene coding's ideal bits take none: they make a block of rows' at a time); the means are
+        dropped then."""
+        r = np.empty(self.q.shape, dtype=np.int64)
+        for block in row_blocks(r.shape[0]):
+            r[block] = self._residuals_of(block)
+        self._mean = None
+        return r
+
+    @functools.cached_property
+    def levels(self) -> np.ndarray:
+        """uint8 [N, M]: every value's scale level, made when first asked for (RDOQ's fit needs none)."""
+        return _levels(self._bucket, level_table(self.unit), self.prior_level, self.adjust)
+
+    def _fitted_unit(self, flags: np.ndarray, table: np.ndarray, fit_bucket: np.ndarray, num_lods: int,
+                     num_neighbours: int) -> NeighbourPredictionUnit:
+        """The unit of ``flags`` and ``table``, the table refitted where the prediction changed the
+        residuals (its targets), from their histograms per bucket gathered a block of rows at a time."""
+        targets = np.unique(self.prediction.targets)
+        m, b = table.shape
+        if targets.size:
+            hist = ResidualHistograms(targets.size * b)
+            group = np.arange(targets.size)[None, :] * b
+            for block in row_blocks(self.q.shape[0]):
+                fb = fit_bucket[block][:, targets]
+                ok = fb >= 0  # (-1: LoD 0, -2: not coded)
+                hist.add((group + fb)[ok], self._residuals_of(block)[:, targets][ok])
+            for i, c in enumerate(targets):
+                table[c] = [hist.best_level(i * b + k) for k in range(b)]
+        return NeighbourPredictionUnit(num_channels=m, num_lods_minus1=num_lods - 1,
+                                       num_neighbours_minus1=num_neighbours - 1, num_buckets_minus1=b - 1,
+                                       neighbour_mean_flag=flags.astype(int).tolist(),
+                                       bucket_level=table.ravel().tolist())
+
+    def _fitted_prediction(self, q: np.ndarray, mean: np.ndarray, bucket: np.ndarray, table: np.ndarray,
+                           own_prior: np.ndarray, a0: np.ndarray | None) -> attr.ChannelPrediction:
+        """The cross-channel prediction of the deviations from ``mean``, fitted on the rows
+        prediction.fit_rows draws with the levels ``table`` and the prior give them: only those rows'
+        levels and deviations are made (the prior's levels, refitted after it, are not needed)."""
+        lod0 = self.graph.rows[0]
+        prior0 = self._prior_levels(q[lod0] - np.broadcast_to(own_prior, q.shape)[lod0], a0)
+        rows = fit_rows(q.shape[0])
+        lv = _levels(bucket[rows], table, prior0, None if self.adjust is None else self.adjust[rows])
+        live = np.broadcast_to(True, q.shape) if self.coded is None else self.coded
+        return fit_sampled_prediction(q[rows] - mean[rows], lv.astype(np.int64), live[rows], self.layout, q.shape[0])
 
     def _set_degrees(self, degrees: np.ndarray | None, layout, unit: NeighbourPredictionUnit | None) -> None:
         """Each row's SH degree (clause 11.9) and with it the coded channels, the flags' counts and the
@@ -238,20 +302,20 @@ class NeighbourCoding:
         ok = self.coded[self.graph.rows[0]]
         return np.array([np.median(base[ok[:, c], c]) if ok[:, c].any() else 0.0 for c in range(base.shape[1])])
 
-    def _prior_levels(self, r: np.ndarray, a0: np.ndarray | None) -> np.ndarray:
-        """The best prior level of each channel's residuals ``r`` [N, M] of LoD 0 (coded values only)."""
+    def _prior_levels(self, r0: np.ndarray, a0: np.ndarray | None) -> np.ndarray:
+        """The best prior level of each channel's residuals ``r0`` [n_0, M] of LoD 0's rows (coded values only)."""
         lod0 = self.graph.rows[0]
-        out = np.zeros(r.shape[1], dtype=np.int64)
-        for c in range(r.shape[1]):
+        out = np.zeros(r0.shape[1], dtype=np.int64)
+        for c in range(r0.shape[1]):
             ok = slice(None) if self.coded is None else self.coded[lod0, c]
-            out[c] = best_prior_level(r[lod0, c][ok], None if a0 is None else a0[ok])
+            out[c] = best_prior_level(r0[:, c][ok], None if a0 is None else a0[ok])
         return out
 
     def ideal_bits(self) -> float:
         """The ideal bits of the coded values."""
-        if self.coded is None:
-            return ideal_code_length_bits(self.residuals, self.levels)
-        return ideal_code_length_bits(self.residuals[self.coded], self.levels[self.coded])
+        lv = self.levels  # the residuals and code lengths of a few rows at a time (peak memory)
+        return ideal_code_length_bits_by_rows(lambda a, b: self._residuals_of(slice(a, b)), lambda a, b: lv[a:b],
+                                              self.q.shape, self.coded)
 
     def ideal_stream_bits(self) -> float:
         """The ideal bits of the values, their step-adjustment indices, their SH degrees and the

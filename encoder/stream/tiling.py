@@ -165,7 +165,7 @@ def code_tile(tinp, cfg, context_payload: bytes | None, unit_stats: list,
                                                                        neighbour_unit, tinp.step_adjust,
                                                                        tinp.sh_degrees))
         else:
-            chosen = code_with_prior(coder, tinp)
+            chosen = code_with_prior(coder, quantized_level(coder, tinp))
         if level == LEVEL_2 and model is not None:
             with_model = code_with_model(coder, tinp, hier, q_level1, model)
             if len(with_model.payload) < len(chosen.payload):
