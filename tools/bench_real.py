@@ -170,7 +170,7 @@ def evaluation_cameras(args, means: np.ndarray, up: str) -> list:
 
 def importance_text(args) -> str:
     """Which views the SPZ curve's importance pruning ranks the Gaussians on (``SceneRun.importance``)."""
-    if getattr(args, "importance_cameras", None):
+    if args.importance_cameras:
         return f"the cameras of `{args.importance_cameras}` at {args.importance_size} px (not the evaluation's)"
     if args.cameras:
         return "the evaluation cameras themselves (an oracle: ranked on the views it is judged on)"
@@ -454,7 +454,7 @@ class SceneRun:
                    importance=[args.importance_views, args.importance_size])
         if args.cameras:
             key["cameras"] = cameras_digest(Path(args.cameras))
-        if getattr(args, "importance_cameras", None):
+        if args.importance_cameras:
             key["importance_cameras"] = cameras_digest(Path(args.importance_cameras))
         self.cache = SceneCache(Path(args.work), spec.slug, self.file_hash, key, args.fresh)
         self.cams = evaluation_cameras(args, self.scene.means, self.up)
@@ -511,7 +511,11 @@ class SceneRun:
         return self.cached_or(f"{fmt}-full", name, go)
 
     def importance(self) -> np.ndarray:
-        path = self.cache.base / f"importance_{self.args.importance_views}x{self.args.importance_size}.npy"
+        # named by what it ranks on (kept per scene file, across render settings): a sphere's views,
+        # or a cameras file's digest (the evaluation's, or --importance-cameras')
+        ranked_on = self.args.importance_cameras or self.args.cameras
+        tag = f"{self.args.importance_views}x" if not ranked_on else f"{cameras_digest(Path(ranked_on))[:12]}-"
+        path = self.cache.base / f"importance_{tag}{self.args.importance_size}.npy"
         if path.exists():
             return np.load(path)
         from lghcc.encoder.anchors.transcode import sphere_cameras
@@ -520,7 +524,7 @@ class SceneRun:
 
         g = gaussians_from_scene(self.scene)
         centre, radius = g.bounds()
-        if getattr(self.args, "importance_cameras", None):
+        if self.args.importance_cameras:
             from lghcc.render.camera import load_capture_cameras
 
             size = self.args.importance_size

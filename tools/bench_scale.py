@@ -277,7 +277,7 @@ def scene_run(path: Path, n: int, args, st, why):
     cameras = str(room_evaluation_cameras(args.work, args.size)) if args.scene == "room" else None
     ns = argparse.Namespace(views=args.views, size=args.size, elevation=20.0, background="black",
                             importance_views=24, importance_size=256, work=str(args.work), fresh=False,
-                            enc_args=[], dec_args=[], cameras=cameras)
+                            enc_args=[], dec_args=[], cameras=cameras, importance_cameras=None)
     slug = f"scale-{label(n)}" if args.scene == "objects" else f"room-{label(n)}"
     return br.SceneRun(br.SceneSpec(slug, path, UP[args.scene], "given"), ns, st, why)
 
