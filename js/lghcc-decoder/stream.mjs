@@ -1,0 +1,343 @@
+// Streaming by tiles (README.md "stream()"): a .lghcc file read from a URL with HTTP Range requests.
+// The header, the prelude units and the tile index come first (one request, more only when the
+// prelude is longer); the index gives every tile's byte range (clause 7.3.11), so the reader chooses
+// the tiles a box or a camera frustum meets, orders them nearest the camera first and fetches them,
+// byte-adjacent tiles in one request. Each tile is decoded (the pool's helpers) as soon as its bytes
+// are in and handed to onTile; the scene is assembled in stream order, as a partial decode of the
+// same tiles (clause 13.3) gives it. A server that ignores Range (200) is read whole, tiles decoded
+// as they arrive (decode.mjs's path), with a note.
+import { checkOptions, decodeChunks, PoolSide, SceneAssembly, settle } from './decode.mjs';
+import { checkMemory, decodeTile, DEFAULT_MAX_MEMORY, tilesInBox } from './decoder.mjs';
+import { unitCrc32 } from './crc32.mjs';
+import { isCritical, LAST_KNOWN_CRITICAL, orderError, parseHeader, preludeStructure, UNIT } from './container.mjs';
+import { BitstreamError, UnsupportedStreamError } from './errors.mjs';
+import { preludeFromUnits, scanUnits } from './progressive.mjs';
+import { parseGaussianParameterSet } from './units.mjs';
+import { loadWasm } from './wasm.mjs';
+
+/** Bytes of the first request: the header, the prelude and the tile index of any stream the reference encoder writes, and then some. */
+export const HEAD_BYTES = 1 << 16;
+/** Tiles fetched in parallel requests at most (HTTP/1.1 browsers open up to 6 connections per host). */
+const CONCURRENCY = 2;
+
+/**
+ * Stream the .lghcc file at url by tiles (README.md): threads as decodeWith's. Resolves to the scene
+ * of the fetched tiles in stream order (decode()'s LghccScene) with {ranged, requests, bytesFetched,
+ * bytesTotal}; onTile(tile) gets each tile's arrays as it is decoded.
+ */
+export async function streamWith(threads, url, options = {}) {
+    const o = streamOptions(threads, url, options);
+    if (o.signal) o.signal.throwIfAborted();
+    const net = new Fetcher(url, o);
+    const first = await net.range(0, o.headBytes);
+    if (first.status === 200) return wholeFile(threads, net, first, o);
+    const head = await headAndPrelude(net, first);
+    if (!head.ctx.ps.tilesEnabled) return wholeFile(threads, net, first, o, head); // one tile: the rest of the file
+    return rangedTiles(threads, net, head, o);
+}
+
+function streamOptions(threads, url, options) {
+    if (!(typeof url === 'string' || url instanceof URL)) throw new TypeError('stream: url is a string or a URL (a file to fetch with Range requests)');
+    const {
+        workers = threads.defaultWorkers(), onProgress = null, onTile = null, onNote = null, signal = null, box = null,
+        frustum = null, camera = null, maxMemory = DEFAULT_MAX_MEMORY, activated = false, headers = {}, credentials = 'same-origin', headBytes = HEAD_BYTES,
+    } = options;
+    checkOptions({ workers, onProgress, signal, box, maxMemory });
+    if (onTile !== null && typeof onTile !== 'function') throw new TypeError('onTile: a function');
+    if (onNote !== null && typeof onNote !== 'function') throw new TypeError('onNote: a function');
+    if (camera !== null && !(Array.isArray(camera) && camera.length === 3 && camera.every(Number.isFinite))) {
+        throw new TypeError('camera: [x, y, z], three finite numbers: the camera position in the stream\'s world coordinates');
+    }
+    if (frustum !== null && !(Array.isArray(frustum) && frustum.every((p) => Array.isArray(p) && p.length === 4 && p.every(Number.isFinite)))) {
+        throw new TypeError('frustum: planes [a, b, c, d], each four finite numbers; inside is a·x + b·y + c·z + d >= 0');
+    }
+    if (!(Number.isInteger(headBytes) && headBytes >= 64)) throw new TypeError(`headBytes: a whole number of bytes >= 64, got ${headBytes}`);
+    return { workers, onProgress, onTile, onNote, signal, box, frustum, camera, maxMemory, activated, headers, credentials, headBytes };
+}
+
+/** The tiles a stream fetches (ctx: its prelude): those the box and the frustum both meet, in stream order. */
+export function selectTiles(ctx, { box = null, frustum = null } = {}) {
+    let tiles = box ? tilesInBox(ctx, box) : ctx.tiles.map((_, t) => t);
+    if (frustum) tiles = tiles.filter((t) => cellInFrustum(cellBox(ctx, t), frustum));
+    return tiles;
+}
+
+/** Tile t's cell in world coordinates, [x0, y0, z0, x1, y1, z1] (clause 13.3's lo and hi); null for an untiled stream's one tile. */
+export function cellBox(ctx, t) {
+    const cell = ctx.tiles[t].cell, ps = ctx.ps;
+    if (!cell) return null;
+    const lo = cell.map((c, a) => c * ps.tileSize * ps.voxelSize + ps.origin[a]);
+    return [...lo, ...cell.map((c, a) => (c + 1) * ps.tileSize * ps.voxelSize + ps.origin[a])];
+}
+
+// whether the box b (a cell) is not wholly outside any plane: its corner farthest along the plane's normal is inside
+function cellInFrustum(b, planes) {
+    if (!b) return true;
+    return planes.every(([a, bb, c, d]) => a * (a >= 0 ? b[3] : b[0]) + bb * (bb >= 0 ? b[4] : b[1]) + c * (c >= 0 ? b[5] : b[2]) + d >= 0);
+}
+
+/** The tiles in fetch order: nearest the camera first (distance to the cell, then to its centre), or stream order. */
+export function fetchOrder(ctx, tiles, camera) {
+    if (!camera) return tiles.slice();
+    const key = (t) => {
+        const b = cellBox(ctx, t);
+        if (!b) return [0, 0];
+        let near = 0, centre = 0;
+        for (let a = 0; a < 3; a++) {
+            const p = camera[a], gap = Math.max(b[a] - p, 0, p - b[a + 3]);
+            near += gap * gap;
+            centre += (p - (b[a] + b[a + 3]) / 2) ** 2;
+        }
+        return [near, centre];
+    };
+    const keys = new Map(tiles.map((t) => [t, key(t)]));
+    return tiles.slice().sort((s, t) => keys.get(s)[0] - keys.get(t)[0] || keys.get(s)[1] - keys.get(t)[1] || s - t);
+}
+
+/**
+ * The requests: tiles in fetch order, each request a run of byte-adjacent tiles (consecutive in the
+ * stream, both fetched) started by the first tile not yet requested, at most maxBytes long unless one
+ * tile is longer. Returns [{start, end, tiles: [t in stream order]}] in fetch order.
+ */
+export function planRequests(ctx, order, maxBytes) {
+    const want = new Set(order), taken = new Set(), plan = [];
+    for (const t of order) {
+        if (taken.has(t)) continue;
+        let lo = t, hi = t;
+        const free = (u) => want.has(u) && !taken.has(u);
+        for (;;) { // grow towards the side whose next tile comes earlier in the fetch order
+            const right = free(hi + 1) && ctx.tiles[hi + 1].end - ctx.tiles[lo].start <= maxBytes;
+            const left = free(lo - 1) && ctx.tiles[hi].end - ctx.tiles[lo - 1].start <= maxBytes;
+            if (right && (!left || order.indexOf(hi + 1) < order.indexOf(lo - 1))) hi++;
+            else if (left) lo--;
+            else break;
+        }
+        const tiles = [];
+        for (let u = lo; u <= hi; u++) { tiles.push(u); taken.add(u); }
+        plan.push({ start: ctx.tiles[lo].start, end: ctx.tiles[hi].end, tiles });
+    }
+    return plan;
+}
+
+/** fetch() with the caller's headers, credentials and signal; counts requests and bytes. */
+class Fetcher {
+    constructor(url, o) {
+        this.url = url;
+        this.o = o;
+        this.requests = 0;
+        this.bytes = 0;
+    }
+
+    /** A request of bytes [start, end) (end null: to the end of the file); the Response, checked: 206 or 200. */
+    async range(start, end) {
+        this.requests++;
+        const res = await fetch(this.url, {
+            headers: { ...this.o.headers, Range: `bytes=${start}-${end === null ? '' : end - 1}` },
+            credentials: this.o.credentials, signal: this.o.signal,
+        });
+        if (res.status !== 206 && !(res.status === 200 && start === 0)) {
+            throw new Error(`${this.url}: HTTP ${res.status} ${res.statusText} to a request of bytes ${start} to ${end === null ? 'the end' : end - 1}`.replace(/ +/g, ' '));
+        }
+        if (res.status === 206) {
+            const m = /^bytes (\d+)-(\d+)\/(\d+|\*)$/.exec(res.headers.get('Content-Range') || '');
+            if (!m || Number(m[1]) !== start) throw new Error(`${this.url}: the server answered bytes ${start}- with Content-Range "${res.headers.get('Content-Range')}"`);
+            res.total = m[3] === '*' ? null : Number(m[3]);
+        }
+        return res;
+    }
+
+    /** The response's body chunks as they arrive (counted). */
+    async* chunks(res) {
+        if (!res.body) return;
+        const reader = res.body.getReader();
+        try {
+            for (;;) {
+                const { value, done } = await reader.read();
+                if (done) return;
+                this.bytes += value.length;
+                yield value;
+            }
+        } finally {
+            reader.cancel().catch(() => {});
+        }
+    }
+
+    /** The whole body of a (short) response. */
+    async body(res) {
+        const parts = [];
+        for await (const c of this.chunks(res)) parts.push(c);
+        return concat(parts);
+    }
+}
+
+function concat(parts) {
+    const out = new Uint8Array(parts.reduce((a, p) => a + p.length, 0));
+    let at = 0;
+    for (const p of parts) { out.set(p, at); at += p.length; }
+    return out;
+}
+
+/**
+ * The file's first bytes, fetched until the prelude is complete: {bytes, total, ctx} (ctx.tiles with
+ * their byte ranges). Checks the header, the units' CRC-32 and the unit order before the tiles.
+ */
+async function headAndPrelude(net, first) {
+    let bytes = await net.body(first);
+    const total = first.total;
+    for (;;) {
+        if (bytes.length >= 8) parseHeader(bytes);
+        const units = [];
+        scanUnits(bytes, bytes.length, 8, units);
+        const ctx = bytes.length >= 8 ? prelude(bytes, units, total) : null;
+        if (ctx) return { bytes, total, ctx };
+        if (total !== null && bytes.length >= total) {
+            if (bytes.length < 8) parseHeader(bytes); // E1
+            throw new BitstreamError('the stream ends before its first tile (E13)');
+        }
+        const more = await net.range(bytes.length, bytes.length * 2);
+        if (more.status !== 206) throw new Error(`${net.url}: the server stopped answering Range requests`);
+        bytes = concat([bytes, await net.body(more)]);
+    }
+}
+
+// the prelude of the units so far, its unit order checked; null while the tile index (or an untiled stream's geometry) has not arrived
+function prelude(bytes, units, total) {
+    const critical = units.filter((u) => isCritical(u.type));
+    const end = critical.findIndex((u) => u.type === UNIT.TILE_INDEX || u.type === UNIT.GEOMETRY);
+    if (end < 0) {
+        if (units.length) preludeStructure(units); // a stream that starts wrong (an anchor stream, an ancillary unit first) fails now
+        return null;
+    }
+    const before = units.filter((u) => u.start <= critical[end].start);
+    for (const u of before) if (unitCrc32(bytes, u.start, u.end - 4) !== u.stored) throw new BitstreamError(`data unit at byte ${u.start} fails its CRC-32 check (E9)`);
+    const { s, critical: crit, i } = preludeStructure(before);
+    if (i < crit.length && crit[i].type !== UNIT.GEOMETRY) throw orderError(crit[i]);
+    const ps = parseGaussianParameterSet(s.ps.payload);
+    if (ps.hierarchyEnabled) throw new UnsupportedStreamError('hierarchy_enabled_flag = 1: the two-level hierarchy is outside the explicit-Gaussian profile this decoder implements');
+    if (s.cm) throw new BitstreamError('a context_model unit with hierarchy_enabled_flag = 0 (clause 8.3, E16)');
+    if (!!s.ti !== !!ps.tilesEnabled) {
+        throw new BitstreamError(`tiles_enabled_flag = ${ps.tilesEnabled} ${s.ti ? 'with' : 'without'} a tile_index unit (clause 7.3.11, E54)`);
+    }
+    const ctx = preludeFromUnits(before, () => {}); // CRCs checked above
+    const last = ctx.tiles[ctx.tiles.length - 1];
+    if (s.ti && total !== null && last.end > total) {
+        throw new BitstreamError(`the tile index puts the end of tile ${ctx.tiles.length - 1} at byte ${last.end}, beyond the ${total}-byte stream (clause 7.3.11, E55)`);
+    }
+    return ctx;
+}
+
+/**
+ * Tile t's units from the bytes [tile.start, tile.end) of the stream at buf[at...]: exactly its
+ * critical units G A.. H, each CRC-checked (E9, E55, E14). Returns [{type, start, end, payload}].
+ */
+export function tileUnits(buf, at, tile, t) {
+    const units = [];
+    for (let p = tile.start; p < tile.end;) {
+        const i = p - tile.start + at, left = tile.end - p;
+        const size = left >= 9 ? ((buf[i + 1] << 24) | (buf[i + 2] << 16) | (buf[i + 3] << 8) | buf[i + 4]) >>> 0 : Infinity;
+        if (size + 9 > left) throw new BitstreamError(`tile ${t}: its units do not end at the tile_data_size of the tile index (clause 7.3.11, E55)`);
+        const type = buf[i], end = i + 5 + size;
+        if (!isCritical(type)) throw new BitstreamError(`an ancillary unit between the tile index and the end of the last tile (clause 7.3.11, E55)`);
+        if (type === 0) throw new BitstreamError(`data unit at byte ${p}: unit_type 0 is forbidden (E7)`);
+        if (type > LAST_KNOWN_CRITICAL) throw new UnsupportedStreamError(`critical unit type 0x${type.toString(16)} is not defined by version 1.5 (E10)`);
+        const stored = ((buf[end] << 24) | (buf[end + 1] << 16) | (buf[end + 2] << 8) | buf[end + 3]) >>> 0;
+        if (unitCrc32(buf, i, end) !== stored) throw new BitstreamError(`data unit at byte ${p} (type 0x${type.toString(16)}) fails its CRC-32 check (E9)`);
+        units.push({ type, start: p, end: p + 9 + size, payload: buf.slice(i + 5, end) });
+        p += 9 + size;
+    }
+    const types = units.map((u) => u.type);
+    const bad = types.findIndex((ty, k) => ty !== (k === 0 ? UNIT.GEOMETRY : k === types.length - 1 ? UNIT.DECODED_SCENE_HASH : UNIT.ATTRIBUTE));
+    if (bad >= 0 || units.length < 3) throw orderError(units[bad >= 0 ? bad : units.length - 1]);
+    return units;
+}
+
+/**
+ * The whole file through decode()'s progressive path (tiles decoded as they arrive, in stream order):
+ * res is the answer to the first request; a 200 is the whole file (with a note), a 206 after the
+ * prelude (an untiled stream) is followed by a request for the rest.
+ */
+async function wholeFile(threads, net, res, o, head = null) {
+    if (res.status === 200) {
+        const note = `${net.url}: the server does not answer Range requests (HTTP 200, not 206): the whole file is fetched and its tiles decoded in stream order`;
+        if (o.onNote) o.onNote(note); else console.warn(note);
+    }
+    async function* reading() {
+        if (head) {
+            yield head.bytes;
+            if (head.total === null || head.bytes.length < head.total) yield* net.chunks(await net.range(head.bytes.length, null));
+        } else {
+            yield* net.chunks(res);
+        }
+    }
+    const select = o.box || o.frustum ? (ctx) => selectTiles(ctx, o) : null;
+    const scene = await decodeChunks(threads, reading(), o, { select, onTile: o.onTile });
+    return { ...scene, ranged: res.status === 206, requests: net.requests, bytesFetched: net.bytes, bytesTotal: head ? head.total : net.bytes };
+}
+
+/** The tiled path: the chosen tiles by Range requests, nearest the camera first, each decoded as it arrives. */
+async function rangedTiles(threads, net, head, o) {
+    const { ctx } = head;
+    const chosen = selectTiles(ctx, o);
+    const order = fetchOrder(ctx, chosen, o.camera);
+    ctx.rank = new Map(order.map((t, k) => [t, k])); // the pool hands out the nearest tile first
+    checkMemory({ ...ctx, tiles: chosen.map((t) => ctx.tiles[t]) }, chosen.reduce((a, t) => a + ctx.tiles[t].end - ctx.tiles[t].start, 0), o.maxMemory);
+    const scene = new SceneAssembly(null, o.activated, o.onProgress, { select: () => chosen, onTile: o.onTile });
+    const pool = o.workers >= 1 && chosen.length ? new PoolSide(o.workers, threads.startHelper, () => chosen.length) : null;
+    const run = (async () => {
+        await loadWasm();
+        if (pool) pool.start(ctx);
+        const decoding = [];
+        let failed = null; // the first tile that failed stops the fetching at its next chunk
+        const decodeOne = (t, buf, at) => {
+            if (o.signal && o.signal.aborted) throw o.signal.reason;
+            if (failed) throw failed;
+            ctx.tiles[t].units = tileUnits(buf, at, ctx.tiles[t], t);
+            const p = (pool ? pool.decode(ctx, t) : decodeTile(ctx, t)).then((r) => {
+                ctx.tiles[t].units = null; // its payloads are the pool's, or decoded
+                scene.add(t, r, { ctx, ps: ctx.ps, tiles: ctx.tiles.length });
+            });
+            p.catch((err) => { failed = failed || err; });
+            decoding.push(p);
+        };
+        const inHead = (t) => ctx.tiles[t].end <= head.bytes.length;
+        for (const t of order) if (inHead(t)) decodeOne(t, head.bytes, ctx.tiles[t].start);
+        if (pool) pool.flush();
+        const plan = planRequests(ctx, order.filter((t) => !inHead(t)), requestBytes(ctx, chosen));
+        await fetchPlan(net, plan, ctx, decodeOne, pool);
+        await Promise.all(decoding);
+        return { ...scene.result({ ps: ctx.ps, tiles: chosen }), ranged: true, requests: net.requests, bytesFetched: net.bytes, bytesTotal: head.total };
+    })();
+    return settle(run, o.signal, () => { if (pool) pool.close(); });
+}
+
+// the longest request: about a sixteenth of the chosen tiles' bytes (few requests; the first tiles come early), at least 256 KiB
+function requestBytes(ctx, chosen) {
+    const bytes = chosen.reduce((a, t) => a + ctx.tiles[t].end - ctx.tiles[t].start, 0);
+    return Math.max(1 << 18, Math.ceil(bytes / 16));
+}
+
+// the plan's requests, CONCURRENCY at a time in plan order; each tile handed to decodeOne as soon as its bytes are in
+async function fetchPlan(net, plan, ctx, decodeOne, pool) {
+    let next = 0;
+    const lane = async () => {
+        while (next < plan.length) {
+            const req = plan[next++];
+            const res = await net.range(req.start, req.end);
+            if (res.status !== 206) throw new Error(`${net.url}: the server stopped answering Range requests`);
+            const buf = new Uint8Array(req.end - req.start);
+            let len = 0, k = 0;
+            for await (const chunk of net.chunks(res)) {
+                if (len + chunk.length > buf.length) throw new Error(`${net.url}: the server sent more than the ${buf.length} bytes asked for`);
+                buf.set(chunk, len);
+                len += chunk.length;
+                for (; k < req.tiles.length && ctx.tiles[req.tiles[k]].end - req.start <= len; k++) {
+                    decodeOne(req.tiles[k], buf, ctx.tiles[req.tiles[k]].start - req.start);
+                }
+                if (pool) pool.flush();
+            }
+            if (len < buf.length) throw new BitstreamError(`the stream ends at byte ${req.start + len}, inside tile ${req.tiles[k]} (clause 7.3.11, E55)`);
+        }
+    };
+    await Promise.all(Array.from({ length: Math.min(CONCURRENCY, plan.length) }, lane));
+}
+
