@@ -33,6 +33,7 @@ class Link:
 
     rate: float | None
     ranges: bool = True
+    chunk: int = CHUNK
     suffixes: tuple[str, ...] = (".lghcc",)
     log: list[tuple[str, int, int, int, float, float]] = field(default_factory=list)
     bytes_sent: int = 0
@@ -103,8 +104,8 @@ class Handler(http.server.SimpleHTTPRequestHandler):
     def _send_throttled(self, data: bytes, start: int, end: int, status: int) -> None:
         first = last = time.time()
         try:
-            for p in range(start, end, CHUNK):
-                piece = data[p:min(end, p + CHUNK)]
+            for p in range(start, end, self.link.chunk):
+                piece = data[p:min(end, p + self.link.chunk)]
                 self.link.send(len(piece))
                 self.wfile.write(piece)
                 self.wfile.flush()
@@ -119,9 +120,10 @@ class Handler(http.server.SimpleHTTPRequestHandler):
 
 
 def serve(folder: Path | str, rate_bytes: float | None, *, ranges: bool = True, port: int = 0,
-          suffixes: tuple[str, ...] = (".lghcc",)) -> tuple[http.server.ThreadingHTTPServer, Link]:
-    """Start serving folder in a daemon thread; (the server, its link). server.shutdown() stops it."""
-    link = Link(rate_bytes, ranges=ranges, suffixes=suffixes)
+          suffixes: tuple[str, ...] = (".lghcc",), chunk: int = CHUNK) -> tuple[http.server.ThreadingHTTPServer, Link]:
+    """Start serving folder in a daemon thread, the throttled files at rate_bytes bytes/s (None:
+    unthrottled) in pieces of chunk bytes; (the server, its link). server.shutdown() stops it."""
+    link = Link(rate_bytes, ranges=ranges, suffixes=suffixes, chunk=chunk)
     server = http.server.ThreadingHTTPServer(("127.0.0.1", port),
                                              functools.partial(Handler, link=link, directory=str(folder)))
     server.daemon_threads = True

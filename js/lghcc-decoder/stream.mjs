@@ -15,10 +15,8 @@ import { preludeFromUnits, scanUnits } from './progressive.mjs';
 import { parseGaussianParameterSet } from './units.mjs';
 import { loadWasm } from './wasm.mjs';
 
-/** Bytes of the first request: the header, the prelude and the tile index of any stream the reference encoder writes, and then some. */
-export const HEAD_BYTES = 1 << 16;
-/** Tiles fetched in parallel requests at most (HTTP/1.1 browsers open up to 6 connections per host). */
-const CONCURRENCY = 2;
+/** Bytes of the first request: the header, the prelude units and the tile index of a stream of a few hundred tiles (a longer prelude takes more requests, each doubling what is in hand). */
+export const HEAD_BYTES = 1 << 13;
 
 /**
  * Stream the .lghcc file at url by tiles (README.md): threads as decodeWith's. Resolves to the scene
@@ -40,7 +38,7 @@ function streamOptions(threads, url, options) {
     if (!(typeof url === 'string' || url instanceof URL)) throw new TypeError('stream: url is a string or a URL (a file to fetch with Range requests)');
     const {
         workers = threads.defaultWorkers(), onProgress = null, onTile = null, onNote = null, signal = null, box = null,
-        frustum = null, camera = null, maxMemory = DEFAULT_MAX_MEMORY, activated = false, headers = {}, credentials = 'same-origin', headBytes = HEAD_BYTES,
+        frustum = null, camera = null, maxMemory = DEFAULT_MAX_MEMORY, activated = false, headers = {}, credentials = 'same-origin', headBytes = HEAD_BYTES, connections = 2,
     } = options;
     checkOptions({ workers, onProgress, signal, box, maxMemory });
     if (onTile !== null && typeof onTile !== 'function') throw new TypeError('onTile: a function');
@@ -52,7 +50,9 @@ function streamOptions(threads, url, options) {
         throw new TypeError('frustum: planes [a, b, c, d], each four finite numbers; inside is a·x + b·y + c·z + d >= 0');
     }
     if (!(Number.isInteger(headBytes) && headBytes >= 64)) throw new TypeError(`headBytes: a whole number of bytes >= 64, got ${headBytes}`);
-    return { workers, onProgress, onTile, onNote, signal, box, frustum, camera, maxMemory, activated, headers, credentials, headBytes };
+    if (!(Number.isInteger(connections) && connections >= 1)) throw new TypeError(`connections: a whole number of requests in flight >= 1, got ${connections}`);
+    if (headers === null || typeof headers !== 'object') throw new TypeError('headers: an object of request headers');
+    return { workers, onProgress, onTile, onNote, signal, box, frustum, camera, maxMemory, activated, headers, credentials, headBytes, connections };
 }
 
 /** The tiles a stream fetches (ctx: its prelude): those the box and the frustum both meet, in stream order. */
@@ -95,26 +95,20 @@ export function fetchOrder(ctx, tiles, camera) {
 }
 
 /**
- * The requests: tiles in fetch order, each request a run of byte-adjacent tiles (consecutive in the
- * stream, both fetched) started by the first tile not yet requested, at most maxBytes long unless one
- * tile is longer. Returns [{start, end, tiles: [t in stream order]}] in fetch order.
+ * The requests: in fetch order, each started by the first tile not yet requested and running on
+ * over the tiles right after it in the stream while they are fetched too and not yet requested, at
+ * most maxBytes long unless one tile is longer (a request's bytes arrive in stream order: its first
+ * tile, the one that ranks first, comes first). Returns [{start, end, tiles: [t in stream order]}].
  */
 export function planRequests(ctx, order, maxBytes) {
     const want = new Set(order), taken = new Set(), plan = [];
     for (const t of order) {
         if (taken.has(t)) continue;
-        let lo = t, hi = t;
-        const free = (u) => want.has(u) && !taken.has(u);
-        for (;;) { // grow towards the side whose next tile comes earlier in the fetch order
-            const right = free(hi + 1) && ctx.tiles[hi + 1].end - ctx.tiles[lo].start <= maxBytes;
-            const left = free(lo - 1) && ctx.tiles[hi].end - ctx.tiles[lo - 1].start <= maxBytes;
-            if (right && (!left || order.indexOf(hi + 1) < order.indexOf(lo - 1))) hi++;
-            else if (left) lo--;
-            else break;
-        }
+        let hi = t;
+        while (want.has(hi + 1) && !taken.has(hi + 1) && ctx.tiles[hi + 1].end - ctx.tiles[t].start <= maxBytes) hi++;
         const tiles = [];
-        for (let u = lo; u <= hi; u++) { tiles.push(u); taken.add(u); }
-        plan.push({ start: ctx.tiles[lo].start, end: ctx.tiles[hi].end, tiles });
+        for (let u = t; u <= hi; u++) { tiles.push(u); taken.add(u); }
+        plan.push({ start: ctx.tiles[t].start, end: ctx.tiles[hi].end, tiles });
     }
     return plan;
 }
@@ -187,7 +181,9 @@ async function headAndPrelude(net, first) {
     for (;;) {
         if (bytes.length >= 8) parseHeader(bytes);
         const units = [];
-        scanUnits(bytes, bytes.length, 8, units);
+        const scan = scanUnits(bytes, bytes.length, 8, units);
+        // an untiled stream's prelude ends where its geometry unit starts: its header is enough
+        if (scan < bytes.length && bytes[scan] === UNIT.GEOMETRY) units.push({ type: UNIT.GEOMETRY, start: scan, end: Infinity, partial: true });
         const ctx = bytes.length >= 8 ? prelude(bytes, units, total) : null;
         if (ctx) return { bytes, total, ctx };
         if (total !== null && bytes.length >= total) {
@@ -209,7 +205,9 @@ function prelude(bytes, units, total) {
         return null;
     }
     const before = units.filter((u) => u.start <= critical[end].start);
-    for (const u of before) if (unitCrc32(bytes, u.start, u.end - 4) !== u.stored) throw new BitstreamError(`data unit at byte ${u.start} fails its CRC-32 check (E9)`);
+    for (const u of before) {
+        if (!u.partial && unitCrc32(bytes, u.start, u.end - 4) !== u.stored) throw new BitstreamError(`data unit at byte ${u.start} fails its CRC-32 check (E9)`);
+    }
     const { s, critical: crit, i } = preludeStructure(before);
     if (i < crit.length && crit[i].type !== UNIT.GEOMETRY) throw orderError(crit[i]);
     const ps = parseGaussianParameterSet(s.ps.payload);
@@ -303,21 +301,21 @@ async function rangedTiles(threads, net, head, o) {
         for (const t of order) if (inHead(t)) decodeOne(t, head.bytes, ctx.tiles[t].start);
         if (pool) pool.flush();
         const plan = planRequests(ctx, order.filter((t) => !inHead(t)), requestBytes(ctx, chosen));
-        await fetchPlan(net, plan, ctx, decodeOne, pool);
+        await fetchPlan(net, plan, ctx, decodeOne, pool, o.connections);
         await Promise.all(decoding);
         return { ...scene.result({ ps: ctx.ps, tiles: chosen }), ranged: true, requests: net.requests, bytesFetched: net.bytes, bytesTotal: head.total };
     })();
     return settle(run, o.signal, () => { if (pool) pool.close(); });
 }
 
-// the longest request: about a sixteenth of the chosen tiles' bytes (few requests; the first tiles come early), at least 256 KiB
+// the longest request: a 32nd of the chosen tiles' bytes, at least 64 KiB (few requests, the order kept)
 function requestBytes(ctx, chosen) {
     const bytes = chosen.reduce((a, t) => a + ctx.tiles[t].end - ctx.tiles[t].start, 0);
-    return Math.max(1 << 18, Math.ceil(bytes / 16));
+    return Math.max(1 << 16, Math.ceil(bytes / 32));
 }
 
-// the plan's requests, CONCURRENCY at a time in plan order; each tile handed to decodeOne as soon as its bytes are in
-async function fetchPlan(net, plan, ctx, decodeOne, pool) {
+// the plan's requests, `connections` at a time in plan order; each tile handed to decodeOne as soon as its bytes are in
+async function fetchPlan(net, plan, ctx, decodeOne, pool, connections) {
     let next = 0;
     const lane = async () => {
         while (next < plan.length) {
@@ -338,6 +336,6 @@ async function fetchPlan(net, plan, ctx, decodeOne, pool) {
             if (len < buf.length) throw new BitstreamError(`the stream ends at byte ${req.start + len}, inside tile ${req.tiles[k]} (clause 7.3.11, E55)`);
         }
     };
-    await Promise.all(Array.from({ length: Math.min(CONCURRENCY, plan.length) }, lane));
+    await Promise.all(Array.from({ length: Math.min(connections, plan.length) }, lane));
 }
 

@@ -1,0 +1,256 @@
+"""The streamed reader of the JavaScript decoder (js/lghcc-decoder's stream(url)), in Node, against a
+local HTTP server (tools/range_server.py) that answers Range requests over a throttled link (the
+whole file takes over a second; nothing but that server is asked). A real scene, playbot lod4 (8,406
+Gaussians, SH degree 2, CC-BY-4.0 Stephane Agullo), is encoded here with lghcc's fast preset into 12
+tiles. The streamed scene, assembled in stream order, and each tile handed to onTile are bit for bit
+the reference decoder's partial decode (clause 13.3) of the same tiles; the tiles come nearest the
+camera first; a box or a frustum fetches fewer bytes than the file, byte-adjacent tiles in one
+request; a server without Range support gives the same scene, whole, with a note; an abort stops
+the transfer; a damaged tile is rejected when fetched. Skips where node or the scene is missing."""
+
+import json
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lghcc.common.tiles import Box
+from lghcc.conformance import runner
+from lghcc.decoder.decode import decode_stream, parse_stream
+
+NODE = shutil.which("node")
+pytestmark = pytest.mark.skipif(NODE is None, reason="node (Node.js) is not on the PATH")
+ROOT = Path(__file__).resolve().parents[1]
+PKG = runner.JS_DECODER_DIR
+PLAYBOT = ROOT.parent / "shared" / "data" / "playbot" / "playbot_lod4_8k.ply"  # conftest.SHARED_DATA's
+ANCHOR = runner.STREAMS_DIR / "c001_one_anchor" / "stream.lghcc"
+UNTILED = runner.STREAMS_DIR / "c033_gaussians_sh3_prediction" / "stream.lghcc"  # one tile, SH degree 3
+RATE = 64_000  # bytes/s: the 105 kB stream takes about 1.6 s
+FIELDS = ("positions", "scales", "rotations", "opacities", "colors", "sh")
+
+sys.path.insert(0, str(ROOT / "tools"))
+import range_server  # noqa: E402  (tools/ is not a package)
+
+STREAM_JS = """
+import { stream } from %(index)s;
+const [url, opts] = process.argv.slice(2);
+const options = JSON.parse(opts);
+const hex = (f) => Buffer.from(f.buffer, f.byteOffset, f.byteLength).toString('hex');
+const tiles = [], notes = [], progress = [];
+const controller = new AbortController();
+let out;
+try {
+    const s = await stream(url, { ...options, signal: controller.signal, onNote: (m) => notes.push(m),
+        onProgress: (p) => progress.push(p),
+        onTile: (v) => {
+            const t = { tile: v.tile, offset: v.offset, count: v.count, bounds: v.bounds, time: Date.now() };
+            for (const k of %(fields)s) t[k] = hex(v[k]);
+            tiles.push(t);
+            if (options.abortAfterFirst) controller.abort(new Error('stopped by the test'));
+        } });
+    out = { count: s.count, shDegree: s.shDegree, tiles: s.tiles, ranged: s.ranged, requests: s.requests,
+            bytesFetched: s.bytesFetched, bytesTotal: s.bytesTotal, bounds: s.bounds };
+    for (const k of %(fields)s) out[k] = hex(s[k]);
+} catch (err) {
+    out = { error: `${err.name}: ${err.message}` };
+}
+console.log(JSON.stringify({ ...out, onTile: tiles, notes, progress, end: Date.now() }));
+""" % {"index": json.dumps(str(PKG / "index_node.mjs")), "fields": json.dumps(list(FIELDS))}
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory) -> dict:
+    """playbot lod4 as a 12-tile stream in a served folder: {dir, data, parsed}."""
+    if not PLAYBOT.is_file():
+        pytest.skip(f"the playbot scene {PLAYBOT} is not here")
+    import lghcc
+
+    folder = tmp_path_factory.mktemp("served")
+    data = lghcc.encode(PLAYBOT, preset="fast", tile_points=1024)
+    (folder / "scene.lghcc").write_bytes(data)
+    (folder / "anchor.lghcc").write_bytes(ANCHOR.read_bytes())
+    (folder / "untiled.lghcc").write_bytes(UNTILED.read_bytes())
+    damaged = bytearray(data)
+    parsed = parse_stream(data)
+    last = parsed.tiles[-1].attributes[0]
+    damaged[last.offset + 20] ^= 0x10  # a payload byte of the last tile's attribute unit: its CRC-32 fails
+    (folder / "damaged.lghcc").write_bytes(bytes(damaged))
+    assert len(parsed.tiles) >= 8
+    return {"dir": folder, "data": data, "parsed": parsed}
+
+
+def _stream(scene, name: str, options: dict, *, ranges: bool = True, rate: float | None = RATE) -> tuple[dict, object]:
+    """stream() of the served file in Node: (its JSON, the server's link with its log)."""
+    server, link = range_server.serve(scene["dir"], rate, ranges=ranges, chunk=1024)
+    try:
+        url = f"http://127.0.0.1:{server.server_address[1]}/{name}"
+        script = scene["dir"] / "stream.mjs"
+        script.write_text(STREAM_JS)
+        res = subprocess.run([NODE, str(script), url, json.dumps(options)], capture_output=True, text=True, timeout=120)
+        assert res.returncode == 0, res.stderr[-3000:]
+        time.sleep(0.05)  # the server's last writes logged
+        return json.loads(res.stdout.strip().splitlines()[-1]), link
+    finally:
+        server.shutdown()
+
+
+def _reference(data: bytes, box=None) -> tuple[int, dict]:
+    """The reference decoder's (partial) decode as the package's fields, float32 [N, width]."""
+    s = decode_stream(data, box=Box(tuple(box[:3]), tuple(box[3:])) if box else None).scene
+    n = s.num_gaussians
+    f32 = lambda a: np.ascontiguousarray(a, dtype="<f4").reshape(n, -1)  # noqa: E731
+    return n, {"positions": f32(s.means), "scales": f32(s.log_scales), "rotations": f32(s.rotations),
+               "opacities": f32(s.opacity), "colors": f32(s.sh[:, 0, :]), "sh": f32(s.sh[:, 1:, :])}
+
+
+def _cell_box(parsed, t: int) -> np.ndarray:
+    """Tile t's cell in world coordinates (clause 13.3): [x0, y0, z0, x1, y1, z1]."""
+    ps = parsed.ps
+    c = np.asarray(parsed.tiles[t].cell, dtype=np.float64)
+    vs, origin = float(ps.voxel_size), np.asarray(ps.origin, dtype=np.float64)
+    return np.concatenate([c * ps.tile_size * vs + origin, (c + 1) * ps.tile_size * vs + origin])
+
+
+def _tile_bytes(parsed, t: int) -> tuple[int, int]:
+    tile = parsed.tiles[t]
+    return tile.geometry.offset, tile.scene_hash.offset + tile.scene_hash.size
+
+
+def _assert_reference(got: dict, data: bytes, box=None) -> None:
+    """The streamed scene and every onTile tile are the reference decoder's, bit for bit."""
+    assert "error" not in got, got
+    n, want = _reference(data, box)
+    assert got["count"] == n
+    for k in FIELDS:
+        assert bytes.fromhex(got[k]) == want[k].tobytes(), k
+    assert sum(t["count"] for t in got["onTile"]) == n and len(got["onTile"]) == got["tiles"]
+    for t in got["onTile"]:
+        o, c = t["offset"], t["count"]
+        for k in FIELDS:
+            assert bytes.fromhex(t[k]) == want[k][o:o + c].tobytes(), (t["tile"], k)
+        pos = want["positions"][o:o + c]
+        assert t["bounds"] == {"min": pos.min(0).astype(float).tolist(), "max": pos.max(0).astype(float).tolist()}
+    assert [p["tilesDecoded"] for p in got["progress"]] == list(range(1, got["tiles"] + 1))
+
+
+@pytest.mark.data
+@pytest.mark.parametrize("workers", [2, 0])
+def test_streamed_scene_is_the_reference_decode_nearest_tiles_first(scene, workers):
+    """No box: every tile, fetched by Range requests after the prelude, nearest the camera first,
+    the scene the reference decoder's full decode; the first tile decoded before the last byte went out."""
+    parsed = scene["parsed"]
+    camera = _cell_box(parsed, len(parsed.tiles) - 1)[3:] + 0.01  # beyond the far corner of the last tile's cell
+    got, link = _stream(scene, "scene.lghcc", {"workers": workers, "camera": camera.tolist(), "headBytes": 512,
+                                               "connections": 1})
+    _assert_reference(got, scene["data"])
+    assert got["ranged"] is True and got["bytesTotal"] == len(scene["data"])
+
+    def distance(t):
+        b = _cell_box(parsed, t)
+        return float(np.sum(np.maximum(0, np.maximum(b[:3] - camera, camera - b[3:])) ** 2))
+
+    order = [t["tile"] for t in got["onTile"]]
+    ranks = {t: r for r, t in enumerate(sorted(range(len(parsed.tiles)), key=lambda t: (distance(t), t)))}
+    assert ranks[order[0]] == 0, (order, ranks)  # the nearest tile first
+    half = len(order) // 2
+    assert np.mean([ranks[t] for t in order[:half]]) < np.mean([ranks[t] for t in order[half:]]), order
+    # the first tile was handed over while the link still had bytes to send; every request a range
+    assert got["onTile"][0]["time"] < link.last_byte_time * 1000 - 200, (got["onTile"][0]["time"], link.last_byte_time)
+    assert link.log and all(status == 206 for *_, status, _, _ in [(p, s, e, st, a, b) for p, s, e, st, a, b in link.log])
+    # byte-adjacent tiles share a request: fewer requests than tiles
+    assert got["requests"] == len(link.log) < len(parsed.tiles), got["requests"]
+
+
+@pytest.mark.data
+def test_a_box_fetches_only_its_tiles(scene):
+    """A box that meets some tiles: the reference decoder's partial decode of that box, bit for bit,
+    with fewer bytes fetched than the file: the prelude and the selected tiles' bytes only."""
+    parsed = scene["parsed"]
+    box = [-100.0, -100.0, -100.0, 100.0, 100.0, float(_cell_box(parsed, 0)[2]) + 1e-3]  # the cells of the lowest z
+    selected = [t for t in range(len(parsed.tiles)) if _cell_box(parsed, t)[2] <= box[5]]
+    assert 0 < len(selected) < len(parsed.tiles)
+    got, link = _stream(scene, "scene.lghcc", {"workers": 2, "box": box, "headBytes": 512})
+    _assert_reference(got, scene["data"], box)
+    assert sorted(t["tile"] for t in got["onTile"]) == selected
+    wanted = sum(e - s for s, e in (_tile_bytes(parsed, t) for t in selected))
+    assert wanted <= got["bytesFetched"] <= wanted + 512 < len(scene["data"]), (got["bytesFetched"], wanted)
+    assert link.bytes_sent == got["bytesFetched"]
+
+
+@pytest.mark.data
+def test_a_frustum_selects_the_tiles_it_meets(scene):
+    """A frustum of one plane x >= c keeps the cells whose x range reaches c: the tiles of the box
+    [c, +inf) on x, bit for bit the reference decoder's partial decode of that box."""
+    parsed = scene["parsed"]
+    c = float(_cell_box(parsed, len(parsed.tiles) - 1)[0]) + 1e-3  # inside the last column of cells
+    got, _ = _stream(scene, "scene.lghcc", {"workers": 0, "frustum": [[1, 0, 0, -c]], "headBytes": 512}, rate=None)
+    box = [c, -1e30, -1e30, 1e30, 1e30, 1e30]
+    _assert_reference(got, scene["data"], box)
+    assert 0 < got["tiles"] < len(parsed.tiles) and got["bytesFetched"] < len(scene["data"])
+
+
+@pytest.mark.data
+def test_a_server_without_range_support_gives_the_whole_file_with_a_note(scene):
+    """A 200 to the first request: the file is read whole, its tiles decoded as they arrive; the
+    box's tiles the same scene as the reference's; a note says why."""
+    parsed = scene["parsed"]
+    box = [-100.0, -100.0, -100.0, 100.0, 100.0, float(_cell_box(parsed, 0)[2]) + 1e-3]
+    got, link = _stream(scene, "scene.lghcc", {"workers": 2, "box": box}, ranges=False)
+    _assert_reference(got, scene["data"], box)
+    assert got["ranged"] is False and got["requests"] == 1 and got["bytesFetched"] == len(scene["data"])
+    assert len(got["notes"]) == 1 and "does not answer Range requests" in got["notes"][0], got["notes"]
+    assert [st for *_, st, _, _ in link.log] == [200]
+
+
+def test_an_untiled_stream_is_fetched_whole_after_its_prelude(scene):
+    """One tile (no tile index): the prelude, then the rest of the file, the reference's scene."""
+    got, link = _stream(scene, "untiled.lghcc", {"workers": 2, "camera": [0, 0, 0], "headBytes": 256}, rate=None)
+    _assert_reference(got, UNTILED.read_bytes())
+    assert got["ranged"] is True and got["bytesFetched"] == len(UNTILED.read_bytes()) and got["tiles"] == 1
+    assert [(s, st) for _, s, _, st, _, _ in sorted(link.log, key=lambda r: r[4])] == [(0, 206), (256, 206)]
+
+
+@pytest.mark.data
+def test_an_abort_stops_the_transfer(scene):
+    """Aborted at the first tile: stream() rejects with the reason and the rest is not sent."""
+    got, link = _stream(scene, "scene.lghcc", {"workers": 0, "abortAfterFirst": True, "headBytes": 512, "connections": 1})
+    assert got.get("error") == "Error: stopped by the test", got
+    assert len(got["onTile"]) == 1
+    time.sleep(0.3)
+    assert link.bytes_sent < 0.7 * len(scene["data"]), link.bytes_sent
+
+
+@pytest.mark.data
+def test_a_damaged_tile_is_rejected_when_fetched(scene):
+    """The last tile's attribute unit fails its CRC-32: a stream that fetches it rejects with
+    BitstreamError (E9); a box without it decodes (a tile that is not fetched is not checked)."""
+    parsed = scene["parsed"]
+    got, _ = _stream(scene, "damaged.lghcc", {"workers": 2, "headBytes": 512}, rate=None)
+    assert got["error"].startswith("BitstreamError: ") and "CRC-32" in got["error"] and "E9" in got["error"], got
+    box = [-100.0, -100.0, -100.0, float(_cell_box(parsed, 0)[3]) - 1e-3, 100.0, 100.0]  # the first column of cells
+    got, _ = _stream(scene, "damaged.lghcc", {"workers": 2, "box": box, "headBytes": 512}, rate=None)
+    _assert_reference(got, scene["data"], box)
+
+
+def test_an_anchor_stream_is_refused_from_its_prelude(scene):
+    got, link = _stream(scene, "anchor.lghcc", {"workers": 0, "headBytes": 64}, rate=None)
+    assert got["error"].startswith("UnsupportedStreamError: "), got
+    assert len(link.log) == 1  # refused from the first request's bytes
+
+
+def test_wrong_options_are_named():
+    script = f"""import {{ stream }} from {json.dumps(str(PKG / 'index_node.mjs'))};
+const out = [];
+for (const o of [{{ camera: [0, 0] }}, {{ frustum: [[1, 0, 0]] }}, {{ connections: 0 }}, {{ box: [0, 0, 0] }}, {{ onTile: 3 }}]) {{
+    try {{ await stream('http://127.0.0.1:9/x.lghcc', o); out.push('no error'); }} catch (e) {{ out.push(`${{e.name}}: ${{e.message}}`); }}
+}}
+try {{ await stream(new Uint8Array(8)); }} catch (e) {{ out.push(`${{e.name}}: ${{e.message}}`); }}
+console.log(JSON.stringify(out));"""
+    res = subprocess.run([NODE, "--input-type=module", "-e", script], capture_output=True, text=True, timeout=60)
+    out = json.loads(res.stdout.strip().splitlines()[-1])
+    for msg, name in zip(out, ["camera", "frustum", "connections", "box", "onTile", "url"]):
+        assert msg.startswith("TypeError: ") and name in msg, out
