@@ -2,6 +2,7 @@
 // as its helpers. index.mjs is the same API with module Web Workers.
 import { decodeWith, SH_C0 } from './decode.mjs';
 import { streamWith } from './stream.mjs';
+export { frustumPlanes } from './stream.mjs';
 import * as threads from './threads_node.mjs';
 
 export { BitstreamError, HashMismatchError, LghccError, ResourceLimitError, UnsupportedStreamError } from './errors.mjs';

@@ -43,23 +43,80 @@ function streamOptions(threads, url, options) {
     checkOptions({ workers, onProgress, signal, box, maxMemory });
     if (onTile !== null && typeof onTile !== 'function') throw new TypeError('onTile: a function');
     if (onNote !== null && typeof onNote !== 'function') throw new TypeError('onNote: a function');
-    if (camera !== null && !(Array.isArray(camera) && camera.length === 3 && camera.every(Number.isFinite))) {
-        throw new TypeError('camera: [x, y, z], three finite numbers: the camera position in the stream\'s world coordinates');
-    }
-    if (frustum !== null && !(Array.isArray(frustum) && frustum.every((p) => Array.isArray(p) && p.length === 4 && p.every(Number.isFinite)))) {
-        throw new TypeError('frustum: planes [a, b, c, d], each four finite numbers; inside is a·x + b·y + c·z + d >= 0');
-    }
+    if (camera !== null && typeof camera !== 'function') checkCamera(camera);
+    if (frustum !== null && typeof frustum !== 'function') checkFrustum(frustum);
     if (!(Number.isInteger(headBytes) && headBytes >= 64)) throw new TypeError(`headBytes: a whole number of bytes >= 64, got ${headBytes}`);
     if (!(Number.isInteger(connections) && connections >= 1)) throw new TypeError(`connections: a whole number of requests in flight >= 1, got ${connections}`);
     if (headers === null || typeof headers !== 'object') throw new TypeError('headers: an object of request headers');
     return { workers, onProgress, onTile, onNote, signal, box, frustum, camera, maxMemory, activated, headers, credentials, headBytes, connections };
 }
 
+function checkCamera(camera) {
+    if (!(Array.isArray(camera) && camera.length === 3 && camera.every(Number.isFinite))) {
+        throw new TypeError('camera: [x, y, z], three finite numbers: the camera position in the stream\'s world coordinates (or a function of the index giving them)');
+    }
+}
+
+function checkFrustum(frustum) {
+    if (!(Array.isArray(frustum) && frustum.every((p) => Array.isArray(p) && p.length === 4 && p.every(Number.isFinite)))) {
+        throw new TypeError('frustum: planes [a, b, c, d], each four finite numbers, inside where a·x + b·y + c·z + d >= 0 (or a function of the index giving them)');
+    }
+}
+
+/**
+ * What a stream's camera and frustum options say once its prelude (ctx) is known: a function is called
+ * with the index, {tiles, count, shDegree, bounds: the box of every tile's cell (world coordinates;
+ * null for an untiled stream)}, so that an application can frame the scene before the tiles are
+ * chosen. Evaluated once per stream; returns {camera, frustum}.
+ */
+function view(ctx, o) {
+    if (!o.view) {
+        const index = streamIndex(ctx);
+        const camera = typeof o.camera === 'function' ? o.camera(index) ?? null : o.camera;
+        const frustum = typeof o.frustum === 'function' ? o.frustum(index) ?? null : o.frustum;
+        if (camera !== null) checkCamera(camera);
+        if (frustum !== null) checkFrustum(frustum);
+        o.view = { camera, frustum };
+    }
+    return o.view;
+}
+
+/** The stream's index as view() hands it out. */
+export function streamIndex(ctx) {
+    let bounds = null;
+    for (let t = 0; t < ctx.tiles.length; t++) {
+        const b = cellBox(ctx, t);
+        if (!b) break;
+        if (!bounds) bounds = { min: b.slice(0, 3), max: b.slice(3) };
+        for (let a = 0; a < 3; a++) { bounds.min[a] = Math.min(bounds.min[a], b[a]); bounds.max[a] = Math.max(bounds.max[a], b[a + 3]); }
+    }
+    return { tiles: ctx.tiles.length, count: ctx.ps.numGaussians, shDegree: ctx.ps.shDegree, bounds };
+}
+
 /** The tiles a stream fetches (ctx: its prelude): those the box and the frustum both meet, in stream order. */
-export function selectTiles(ctx, { box = null, frustum = null } = {}) {
-    let tiles = box ? tilesInBox(ctx, box) : ctx.tiles.map((_, t) => t);
+export function selectTiles(ctx, o) {
+    const { frustum } = view(ctx, o);
+    let tiles = o.box ? tilesInBox(ctx, o.box) : ctx.tiles.map((_, t) => t);
     if (frustum) tiles = tiles.filter((t) => cellInFrustum(cellBox(ctx, t), frustum));
     return tiles;
+}
+
+/**
+ * The six planes of a view frustum, [a, b, c, d] with inside a·x + b·y + c·z + d >= 0, from a 4x4
+ * view-projection matrix in column-major order (WebGL clip space, z in [-w, w]: three.js's
+ * Matrix4.elements, PlayCanvas's Mat4.data): projection × view × the model's world matrix gives them in
+ * the model's (the stream's) coordinates. The planes stream()'s frustum option takes.
+ */
+export function frustumPlanes(m) {
+    if (!(m && m.length === 16)) throw new TypeError('frustumPlanes: a 4x4 matrix of 16 numbers in column-major order');
+    const row = (r) => [m[r], m[4 + r], m[8 + r], m[12 + r]];
+    const w = row(3);
+    const planes = [];
+    for (let r = 0; r < 3; r++) {
+        const v = row(r);
+        planes.push(w.map((x, k) => x + v[k]), w.map((x, k) => x - v[k]));
+    }
+    return planes;
 }
 
 /** Tile t's cell in world coordinates, [x0, y0, z0, x1, y1, z1] (clause 13.3's lo and hi); null for an untiled stream's one tile. */
@@ -267,7 +324,7 @@ async function wholeFile(threads, net, res, o, head = null) {
             yield* net.chunks(res);
         }
     }
-    const select = o.box || o.frustum ? (ctx) => selectTiles(ctx, o) : null;
+    const select = (ctx) => selectTiles(ctx, o); // (a camera function is called there too, with the index)
     const scene = await decodeChunks(threads, reading(), o, { select, onTile: o.onTile });
     return { ...scene, ranged: res.status === 206, requests: net.requests, bytesFetched: net.bytes, bytesTotal: head ? head.total : net.bytes };
 }
@@ -276,7 +333,7 @@ async function wholeFile(threads, net, res, o, head = null) {
 async function rangedTiles(threads, net, head, o) {
     const { ctx } = head;
     const chosen = selectTiles(ctx, o);
-    const order = fetchOrder(ctx, chosen, o.camera);
+    const order = fetchOrder(ctx, chosen, view(ctx, o).camera);
     ctx.rank = new Map(order.map((t, k) => [t, k])); // the pool hands out the nearest tile first
     checkMemory({ ...ctx, tiles: chosen.map((t) => ctx.tiles[t]) }, chosen.reduce((a, t) => a + ctx.tiles[t].end - ctx.tiles[t].start, 0), o.maxMemory);
     const scene = new SceneAssembly(null, o.activated, o.onProgress, { select: () => chosen, onTile: o.onTile });
