@@ -9,6 +9,7 @@ request; a server without Range support gives the same scene, whole, with a note
 the transfer; a damaged tile is rejected when fetched. Skips where node or the scene is missing."""
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -254,3 +255,34 @@ console.log(JSON.stringify(out));"""
     out = json.loads(res.stdout.strip().splitlines()[-1])
     for msg, name in zip(out, ["camera", "frustum", "connections", "box", "onTile", "url"]):
         assert msg.startswith("TypeError: ") and name in msg, out
+
+
+def _interface(dts: str, name: str) -> list[str]:
+    body = re.search(r"export interface " + name + r" [^{]*\{(.*?)\n\}", dts, re.S).group(1)
+    return re.findall(r"^\s+(\w+)\??:", body, re.M)
+
+
+@pytest.mark.data
+def test_types_declare_what_stream_gives(scene):
+    """index.d.ts: LghccStreamOptions lists exactly the options stream() reads; LghccTile, LghccStreamIndex
+    and LghccStreamResult (with LghccScene's fields) exactly what it hands out."""
+    dts = (PKG / "index.d.ts").read_text()
+    read = re.search(r"const \{(.*?)\} = options;", (PKG / "stream.mjs").read_text(), re.S).group(1)
+    assert sorted(_interface(dts, "LghccStreamOptions")) == sorted(re.findall(r"(\w+) =", read))
+    server, _ = range_server.serve(scene["dir"], None)
+    try:
+        url = f"http://127.0.0.1:{server.server_address[1]}/scene.lghcc"
+        script = f"""import {{ stream }} from {json.dumps(str(PKG / 'index_node.mjs'))};
+let tile, index;
+const s = await stream({json.dumps(url)}, {{ workers: 1, onTile: (t) => {{ tile = Object.keys(t); }},
+    camera: (i) => {{ index = Object.keys(i); return null; }} }});
+console.log(JSON.stringify({{ tile, index, result: Object.keys(s) }}));"""
+        (scene["dir"] / "types.mjs").write_text(script)  # a file: helper threads inherit --input-type and fail
+        res = subprocess.run([NODE, str(scene["dir"] / "types.mjs")], capture_output=True, text=True, timeout=60)
+        assert res.returncode == 0, res.stderr[-2000:]
+        got = json.loads(res.stdout.strip().splitlines()[-1])
+    finally:
+        server.shutdown()
+    assert sorted(_interface(dts, "LghccTile")) == sorted(got["tile"])
+    assert sorted(_interface(dts, "LghccStreamIndex")) == sorted(got["index"])
+    assert sorted(_interface(dts, "LghccStreamResult") + _interface(dts, "LghccScene")) == sorted(got["result"])

@@ -22,18 +22,24 @@ export const SH_C0 = 0.28209479177387814;
  * maxMemory, signal.reason when aborted.
  */
 export async function decodeWith(threads, input, options = {}) {
-    const { workers = threads.defaultWorkers(), onProgress = null, signal = null, box = null, maxMemory = DEFAULT_MAX_MEMORY } = options;
+    const o = decodeOptions(threads, options);
+    if (o.signal) o.signal.throwIfAborted();
+    return decodeChunks(threads, byteChunks(input, o.signal), o);
+}
+
+/** decode()'s options with their defaults (README.md), checked (TypeError). */
+export function decodeOptions(threads, options) {
+    const { workers = threads.defaultWorkers(), onProgress = null, signal = null, box = null, maxMemory = DEFAULT_MAX_MEMORY, activated = false } = options;
     checkOptions({ workers, onProgress, signal, box, maxMemory });
-    if (signal) signal.throwIfAborted();
-    return decodeChunks(threads, byteChunks(input, signal), options);
+    return { workers, onProgress, signal, box, maxMemory, activated };
 }
 
 /**
  * decodeWith's decode of the stream's bytes as reading (an async iterator of Uint8Array chunks)
- * gives them; options checked. select(ctx), onTile(view): SceneAssembly's (stream.mjs's whole-file read).
+ * gives them; o: decodeOptions(). select(ctx), onTile(view): SceneAssembly's (stream.mjs's whole-file read).
  */
-export async function decodeChunks(threads, reading, options, { select = null, onTile = null } = {}) {
-    const { workers = threads.defaultWorkers(), onProgress = null, signal = null, box = null, maxMemory = DEFAULT_MAX_MEMORY, activated = false } = options;
+export async function decodeChunks(threads, reading, o, { select = null, onTile = null } = {}) {
+    const { workers, onProgress, signal, box, maxMemory, activated } = o;
     const pool = workers >= 1 ? new PoolSide(workers, threads.startHelper) : null;
     const scene = new SceneAssembly(box, activated, onProgress, { select, onTile });
     const onDecoded = (t, tile, info) => {
