@@ -190,8 +190,10 @@ class Fetcher {
             throw new Error(`${this.url}: HTTP ${res.status} ${res.statusText} to a request of bytes ${start} to ${end === null ? 'the end' : end - 1}`.replace(/ +/g, ' '));
         }
         if (res.status === 206) {
-            const m = /^bytes (\d+)-(\d+)\/(\d+|\*)$/.exec(res.headers.get('Content-Range') || '');
-            if (!m || Number(m[1]) !== start) throw new Error(`${this.url}: the server answered bytes ${start}- with Content-Range "${res.headers.get('Content-Range')}"`);
+            const range = res.headers.get('Content-Range');
+            if (range === null) throw new Error(`${this.url}: a 206 answer without a readable Content-Range header (cross-origin, the server must expose it: Access-Control-Expose-Headers: Content-Range)`);
+            const m = /^bytes (\d+)-(\d+)\/(\d+|\*)$/.exec(range);
+            if (!m || Number(m[1]) !== start) throw new Error(`${this.url}: the server answered a request for bytes ${start}- with Content-Range "${range}"`);
             res.total = m[3] === '*' ? null : Number(m[3]);
         }
         return res;
