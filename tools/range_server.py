@@ -38,8 +38,13 @@ class Link:
     log: list[tuple[str, int, int, int, float, float]] = field(default_factory=list)
     bytes_sent: int = 0
     last_byte_time: float | None = None  # time.time() when the last byte of a throttled file was sent
+    timeline: list[tuple[float, int]] = field(default_factory=list)  # (time.time(), bytes_sent) after each piece
     _free_at: float = 0.0
     _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def sent_by(self, t: float) -> int:
+        """Bytes of throttled files sent by time t (time.time())."""
+        return max([b for when, b in self.timeline if when <= t], default=0)
 
     def send(self, n: int) -> None:
         """Wait until n more bytes have crossed the link (the link is shared: requests queue)."""
@@ -113,6 +118,7 @@ class Handler(http.server.SimpleHTTPRequestHandler):
                 with self.link._lock:
                     self.link.bytes_sent += len(piece)
                     self.link.last_byte_time = last
+                    self.link.timeline.append((last, self.link.bytes_sent))
         except (BrokenPipeError, ConnectionResetError):
             pass  # the client stopped reading (an abort)
         with self.link._lock:

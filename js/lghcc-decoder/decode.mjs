@@ -36,11 +36,12 @@ export function decodeOptions(threads, options) {
 
 /**
  * decodeWith's decode of the stream's bytes as reading (an async iterator of Uint8Array chunks)
- * gives them; o: decodeOptions(). select(ctx), onTile(view): SceneAssembly's (stream.mjs's whole-file read).
+ * gives them; o: decodeOptions(). select(ctx), onTile(view): SceneAssembly's; pool: a PoolSide already
+ * warming (stream.mjs's whole-file read).
  */
-export async function decodeChunks(threads, reading, o, { select = null, onTile = null } = {}) {
+export async function decodeChunks(threads, reading, o, { select = null, onTile = null, pool: warmed = null } = {}) {
     const { workers, onProgress, signal, box, maxMemory, activated } = o;
-    const pool = workers >= 1 ? new PoolSide(workers, threads.startHelper) : null;
+    const pool = warmed || (workers >= 1 ? new PoolSide(workers, threads.startHelper) : null);
     const scene = new SceneAssembly(box, activated, onProgress, { select, onTile });
     const onDecoded = (t, tile, info) => {
         if (signal && signal.aborted) throw signal.reason; // stops a decode on this thread at its next tile
@@ -144,8 +145,17 @@ export class PoolSide {
         this.side = null;
     }
 
+    /** Start `workers` helpers now, before the tile index is known (stream.mjs: while the first request is under way). */
+    async warm() {
+        await loadWasm(); // the helpers get the compiled module
+        if (!this.pool && !this.closed) {
+            this.pool = new TilePool(this.workers, this.startHelper);
+            this.pool.warm();
+        }
+    }
+
     start(ctx) {
-        this.pool = new TilePool(Math.max(1, Math.min(this.workers, this.count(ctx))), this.startHelper);
+        if (!this.pool) this.pool = new TilePool(Math.max(1, Math.min(this.workers, this.count(ctx))), this.startHelper);
         this.side = this.pool.stream();
         this.side.start(ctx);
     }
@@ -154,7 +164,7 @@ export class PoolSide {
 
     flush() { this.side.flush(); }
 
-    close() { if (this.pool) this.pool.close(); }
+    close() { this.closed = true; if (this.pool) this.pool.close(); }
 }
 
 const FIELDS = [['positions', 3], ['scales', 3], ['rotations', 4], ['opacities', 1], ['colors', 3]];

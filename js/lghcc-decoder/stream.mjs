@@ -27,11 +27,18 @@ export async function streamWith(threads, url, options = {}) {
     const o = streamOptions(threads, url, options);
     if (o.signal) o.signal.throwIfAborted();
     const net = new Fetcher(url, o);
-    const first = await net.range(0, o.headBytes);
-    if (first.status === 200) return wholeFile(threads, net, first, o);
-    const head = await headAndPrelude(net, first);
-    if (!head.ctx.ps.tilesEnabled) return wholeFile(threads, net, first, o, head); // one tile: the rest of the file
-    return rangedTiles(threads, net, head, o);
+    // the helpers start while the first request is under way (their start is most of a first tile's wait)
+    const pool = o.workers >= 1 ? new PoolSide(o.workers, threads.startHelper) : null;
+    if (pool) pool.warm().catch(() => {});
+    try {
+        const first = await net.range(0, o.headBytes);
+        if (first.status === 200) return await wholeFile(threads, net, first, o, pool);
+        const head = await headAndPrelude(net, first);
+        if (!head.ctx.ps.tilesEnabled) return await wholeFile(threads, net, first, o, pool, head); // one tile: the rest of the file
+        return await rangedTiles(net, head, o, pool);
+    } finally {
+        if (pool) pool.close();
+    }
 }
 
 function streamOptions(threads, url, options) {
@@ -313,7 +320,7 @@ export function tileUnits(buf, at, tile, t) {
  * res is the answer to the first request; a 200 is the whole file (with a note), a 206 after the
  * prelude (an untiled stream) is followed by a request for the rest.
  */
-async function wholeFile(threads, net, res, o, head = null) {
+async function wholeFile(threads, net, res, o, pool, head = null) {
     if (res.status === 200) {
         const note = `${net.url}: the server does not answer Range requests (HTTP 200, not 206): the whole file is fetched and its tiles decoded in stream order`;
         if (o.onNote) o.onNote(note); else console.warn(note);
@@ -327,29 +334,28 @@ async function wholeFile(threads, net, res, o, head = null) {
         }
     }
     const select = (ctx) => selectTiles(ctx, o); // (a camera function is called there too, with the index)
-    const scene = await decodeChunks(threads, reading(), o, { select, onTile: o.onTile });
+    const scene = await decodeChunks(threads, reading(), o, { select, onTile: o.onTile, pool });
     return { ...scene, ranged: res.status === 206, requests: net.requests, bytesFetched: net.bytes, bytesTotal: head ? head.total : net.bytes };
 }
 
 /** The tiled path: the chosen tiles by Range requests, nearest the camera first, each decoded as it arrives. */
-async function rangedTiles(threads, net, head, o) {
+async function rangedTiles(net, head, o, pool) {
     const { ctx } = head;
     const chosen = selectTiles(ctx, o);
     const order = fetchOrder(ctx, chosen, view(ctx, o).camera);
     ctx.rank = new Map(order.map((t, k) => [t, k])); // the pool hands out the nearest tile first
     checkMemory({ ...ctx, tiles: chosen.map((t) => ctx.tiles[t]) }, chosen.reduce((a, t) => a + ctx.tiles[t].end - ctx.tiles[t].start, 0), o.maxMemory);
     const scene = new SceneAssembly(null, o.activated, o.onProgress, { select: () => chosen, onTile: o.onTile });
-    const pool = o.workers >= 1 && chosen.length ? new PoolSide(o.workers, threads.startHelper, () => chosen.length) : null;
     const run = (async () => {
         await loadWasm();
-        if (pool) pool.start(ctx);
+        if (pool && chosen.length) pool.start(ctx);
         const decoding = [];
         let failed = null; // the first tile that failed stops the fetching at its next chunk
         const decodeOne = (t, buf, at) => {
             if (o.signal && o.signal.aborted) throw o.signal.reason;
             if (failed) throw failed;
             ctx.tiles[t].units = tileUnits(buf, at, ctx.tiles[t], t);
-            const p = (pool ? pool.decode(ctx, t) : decodeTile(ctx, t)).then((r) => {
+            const p = (pool && pool.side ? pool.decode(ctx, t) : decodeTile(ctx, t)).then((r) => {
                 ctx.tiles[t].units = null; // its payloads are the pool's, or decoded
                 scene.add(t, r, { ctx, ps: ctx.ps, tiles: ctx.tiles.length });
             });
@@ -358,7 +364,7 @@ async function rangedTiles(threads, net, head, o) {
         };
         const inHead = (t) => ctx.tiles[t].end <= head.bytes.length;
         for (const t of order) if (inHead(t)) decodeOne(t, head.bytes, ctx.tiles[t].start);
-        if (pool) pool.flush();
+        if (pool && pool.side) pool.flush();
         const plan = planRequests(ctx, order.filter((t) => !inHead(t)), requestBytes(ctx, chosen));
         await fetchPlan(net, plan, ctx, decodeOne, pool, o.connections);
         await Promise.all(decoding);
@@ -390,7 +396,7 @@ async function fetchPlan(net, plan, ctx, decodeOne, pool, connections) {
                 for (; k < req.tiles.length && ctx.tiles[req.tiles[k]].end - req.start <= len; k++) {
                     decodeOne(req.tiles[k], buf, ctx.tiles[req.tiles[k]].start - req.start);
                 }
-                if (pool) pool.flush();
+                if (pool && pool.side) pool.flush();
             }
             if (len < buf.length) throw new BitstreamError(`the stream ends at byte ${req.start + len}, inside tile ${req.tiles[k]} (clause 7.3.11, E55)`);
         }
