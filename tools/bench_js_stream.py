@@ -8,8 +8,10 @@ clock; the page's and Node's Date.now() are on the same machine):
 - Node: `decode(url)` (the whole file, tiles decoded as they arrive in stream order) and
   `stream(url, {camera})` (Range requests, nearest the camera first): the first decoded tile and the
   last, with the share of the file's bytes sent by then.
-- Chromium (--chromium; js/lghcc-three's example page, three.js with Spark): the page's first frame
-  with Gaussians and its frame with every Gaussian sorted, streamed (?stream=1) and whole.
+- Chromium (--chromium): a page with the decoder alone (decode(url) and stream(url, {camera}): the
+  first decoded tile and the last), and js/lghcc-three's example page (three.js with Spark): its
+  first frame with Gaussians and its frame with every Gaussian sorted, streamed (?stream=1) and whole.
+  Headless Chromium draws with a software renderer here: its frames cost CPU the transfer competes for.
 
 The camera: two half-diagonals from the centre of the tiles' cells along +z (the example pages'
 framing, in the stream's coordinates). Writes a markdown table (stdout, and appended to --out).
@@ -32,6 +34,7 @@ import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
+import urllib.parse  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -40,6 +43,17 @@ import range_server  # noqa: E402
 
 PKG = ROOT / "js" / "lghcc-decoder"
 NODE_MODULES = ROOT / "tools" / "node" / "node_modules"
+
+# a page with the decoder alone (no engine): ?mode=stream or decode; the first tile and the last as the example pages signal a draw
+DECODER_PAGE = """<!doctype html><script type="module">
+import { decode, stream } from './node_modules/lghcc-decoder/index.mjs';
+const params = new URLSearchParams(location.search);
+const onTile = () => { if (!window.lghccFirstDraw) window.lghccFirstDraw = { time: Date.now() }; };
+const s = params.get('mode') === 'stream'
+    ? await stream('scene.lghcc', { activated: true, camera: JSON.parse(params.get('camera')), onTile })
+    : await decode('scene.lghcc', { activated: true, onProgress: onTile });
+window.lghccDrew = { count: s.count, time: Date.now() };
+</script>"""
 
 NODE_SCRIPT = """
 import { decode, stream } from %(index)s;
@@ -108,7 +122,7 @@ def chromium_run(folder: Path, query: str, rate: float) -> dict:
         try:
             ctx.route("**/*", lambda r: r.continue_() if r.request.url.startswith(origin) else r.abort())
             page = ctx.new_page()
-            page.goto(origin + "index.html" + query)
+            page.goto(origin + query)
             page.wait_for_function("() => window.lghccDrew || window.lghccError", timeout=600_000)
             got = page.evaluate("() => ({drew: window.lghccDrew, first: window.lghccFirstDraw, error: window.lghccError, "
                                 "now: Date.now()})")
@@ -135,6 +149,7 @@ def site(tmp: Path, stream: Path) -> Path:
         if not link.exists():
             link.symlink_to(src, target_is_directory=True)
     (folder / "bench_stream.mjs").write_text(NODE_SCRIPT % {"index": json.dumps(str(PKG / "index_node.mjs"))})
+    (folder / "decoder.html").write_text(DECODER_PAGE)
     return folder
 
 
@@ -172,8 +187,11 @@ def main(argv: list[str] | None = None) -> int:
             modes = {"Node decode(url), whole": lambda: node_run(node, folder, "scene.lghcc", "decode", camera, rate),
                      "Node stream(url, {camera})": lambda: node_run(node, folder, "scene.lghcc", "stream", camera, rate)}
             if args.chromium:
-                modes["Chromium three.js page, whole (drawn)"] = lambda: chromium_run(folder, "", rate)
-                modes["Chromium three.js page, ?stream=1 (drawn)"] = lambda: chromium_run(folder, "?stream=1", rate)
+                cam = urllib.parse.quote(json.dumps(camera))
+                modes["Chromium decode(url) alone, no engine"] = lambda: chromium_run(folder, "decoder.html?mode=decode", rate)
+                modes["Chromium stream(url, {camera}) alone, no engine"] = lambda: chromium_run(folder, f"decoder.html?mode=stream&camera={cam}", rate)
+                modes["Chromium three.js page, whole (drawn)"] = lambda: chromium_run(folder, "index.html", rate)
+                modes["Chromium three.js page, ?stream=1 (drawn)"] = lambda: chromium_run(folder, "index.html?stream=1", rate)
             runs: dict[str, list[dict]] = {m: [] for m in modes}
             for _ in range(args.repeat):
                 for m, f in modes.items():

@@ -66,12 +66,12 @@ export interface LghccStreamLoaded {
 }
 
 export interface LghccStreamEventMap extends Object3DEventMap {
-    tile: { tile: number; count: number; mesh: SplatMesh };
+    tiles: { tiles: number[]; count: number; mesh: SplatMesh };
     loaded: { result: LghccStreamLoaded };
     error: { error: unknown };
 }
 
-/** A Group that streams a .lghcc file by tiles (HTTP Range requests), a SplatMesh per tile added as it is decoded. */
+/** A Group that streams a .lghcc file by tiles (HTTP Range requests), a SplatMesh per batch of decoded tiles (the first tile alone, at once; then batches 250 ms, 500 ms, ... up to 8 s apart). */
 export class LghccStream extends Group<LghccStreamEventMap> {
     constructor(url: string | URL, options?: LghccStreamOptions);
     url: string | URL;

@@ -110,7 +110,7 @@ export class LghccLoader extends Loader {
 /**
  * A three.js Group that streams a .lghcc file by tiles (lghcc-decoder's stream(): HTTP Range
  * requests, the tiles nearest the camera first, a box or the camera's frustum limiting what is
- * fetched) and draws each tile as soon as it is decoded: a SplatMesh per tile is added to the group.
+ * fetched) and draws the tiles as they are decoded: a SplatMesh per batch of tiles is added to the group.
  *
  *     const splats = new LghccStream('scene.lghcc', { camera });
  *     splats.quaternion.set(1, 0, 0, 0);   // placed before the tiles are chosen (see onIndex)
@@ -122,7 +122,8 @@ export class LghccLoader extends Loader {
  * ([x0, y0, z0, x1, y1, z1] in the stream's coordinates), onIndex(index, group) (the index before any
  * tile is fetched: {tiles, count, shDegree, bounds of the cells in the stream's coordinates}: frame the
  * camera here), onProgress(ProgressEvent), workers, maxMemory, signal, headers, credentials.
- * Events: 'tile' ({tile, count, mesh}) per tile added, 'loaded' ({result}) at the end, 'error' ({error}).
+ * Events: 'tiles' ({tiles: tile numbers, count, mesh}) per SplatMesh added (a batch of tiles: the
+ * first tile alone, at once), 'loaded' ({result}) at the end, 'error' ({error}).
  */
 export class LghccStream extends Group {
     constructor(url, options = {}) {
@@ -131,6 +132,9 @@ export class LghccStream extends Group {
         if (cull && !camera) throw new TypeError('LghccStream: cull needs a camera');
         this.url = url;
         this.count = 0; // Gaussians drawn so far
+        this.pending = []; // tiles decoded, not yet drawn
+        this.timer = null;
+        this.delay = 0; // the first tile is drawn at once, the next batches BATCH_MS, 2 BATCH_MS, ... later
         this.abortController = new AbortController();
         if (signal) signal.addEventListener('abort', () => this.abortController.abort(signal.reason), { once: true });
         const atIndex = (index) => {
@@ -141,9 +145,10 @@ export class LghccStream extends Group {
             ...withoutUndefined(rest), activated: true, signal: this.abortController.signal,
             camera: camera || onIndex ? atIndex : null,
             frustum: cull ? () => this._frustum(camera) : null,
-            onTile: (tile) => this._add(tile),
+            onTile: (tile) => this._queue(tile),
             onProgress: onProgress ? (p) => onProgress(progressEvent(p)) : null,
         }).then((scene) => {
+            this._flush(); // the tiles still queued drawn now
             const result = { count: scene.count, tiles: scene.tiles, bounds: scene.bounds, ranged: scene.ranged, requests: scene.requests, bytesFetched: scene.bytesFetched, bytesTotal: scene.bytesTotal };
             this.dispatchEvent({ type: 'loaded', result });
             return result;
@@ -158,11 +163,26 @@ export class LghccStream extends Group {
         this.abortController.abort(reason);
     }
 
-    _add(tile) {
-        const mesh = new SplatMesh({ packedSplats: packedSplats(tile) });
+    // the tiles are drawn in batches, each a SplatMesh: Spark generates every splat of the scene again
+    // when a mesh is added (with a software renderer that costs as much as the first draw, and slows the
+    // transfer it competes with), so the batches grow: the first tile at once, then at BATCH_MS,
+    // 2 BATCH_MS, 4 BATCH_MS ... (at most MAX_BATCH_MS) apart
+    _queue(tile) {
+        this.pending.push(tile);
+        if (this.timer === null) this.timer = setTimeout(() => this._flush(), this.delay);
+    }
+
+    _flush() {
+        if (this.timer !== null) clearTimeout(this.timer);
+        this.timer = null;
+        const tiles = this.pending.splice(0);
+        if (!tiles.length) return;
+        this.delay = Math.min(MAX_BATCH_MS, Math.max(BATCH_MS, 2 * this.delay));
+        const mesh = new SplatMesh({ packedSplats: packedSplats(joined(tiles)) });
         this.add(mesh);
-        this.count += tile.count;
-        this.dispatchEvent({ type: 'tile', tile: tile.tile, count: tile.count, mesh });
+        const count = tiles.reduce((n, t) => n + t.count, 0);
+        this.count += count;
+        this.dispatchEvent({ type: 'tiles', tiles: tiles.map((t) => t.tile), count, mesh });
     }
 
     // the camera's position in the group's (the stream's) coordinates
@@ -180,6 +200,21 @@ export class LghccStream extends Group {
         const m = new Matrix4().multiplyMatrices(camera.projectionMatrix, camera.matrixWorldInverse).multiply(this.matrixWorld);
         return frustumPlanes(m.elements);
     }
+}
+
+const BATCH_MS = 250;
+const MAX_BATCH_MS = 8000;
+
+// the tiles' Gaussians as one scene (packedSplats() takes it)
+function joined(tiles) {
+    if (tiles.length === 1) return tiles[0];
+    const out = { count: tiles.reduce((n, t) => n + t.count, 0) };
+    for (const k of ['positions', 'scales', 'rotations', 'opacities', 'colors', 'sh']) {
+        out[k] = new Float32Array(tiles.reduce((n, t) => n + t[k].length, 0));
+        let at = 0;
+        for (const t of tiles) { out[k].set(t[k], at); at += t[k].length; }
+    }
+    return out;
 }
 
 function withoutUndefined(o) {
