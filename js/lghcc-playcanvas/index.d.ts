@@ -69,8 +69,9 @@ export interface LghccStreamLoaded {
 }
 
 /**
- * A .lghcc file streamed by tiles (HTTP Range requests) into `entity`, a gsplat child entity per tile
- * added as it is decoded. Events: 'tile' (tile, count, entity), 'progress' (pointsDecoded, pointsTotal),
+ * A .lghcc file streamed by tiles (HTTP Range requests) into `entity`, a gsplat child entity per batch
+ * of decoded tiles (the first tile alone, at once; then batches 250 ms, 500 ms, ... up to 8 s apart).
+ * Events: 'tiles' (tile numbers, count, entity), 'progress' (pointsDecoded, pointsTotal),
  * 'loaded' (result), 'error' (err).
  */
 export class LghccStream extends EventHandler {

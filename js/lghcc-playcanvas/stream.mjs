@@ -1,6 +1,6 @@
 // lghcc-playcanvas/stream: a .lghcc file streamed by tiles into a PlayCanvas entity (lghcc-decoder's
-// stream(): HTTP Range requests, the tiles nearest the camera first), a gsplat child entity per tile
-// added as soon as the tile is decoded, so that the engine draws before the last byte has arrived.
+// stream(): HTTP Range requests, the tiles nearest the camera first), a gsplat child entity per batch
+// of decoded tiles (the first at once), so that the engine draws before the last byte has arrived.
 import { Entity, EventHandler, GSplatResource, Mat4, Vec3, http } from 'playcanvas';
 import { frustumPlanes, stream } from 'lghcc-decoder';
 import { gsplatData } from './gsplat-data.mjs';
@@ -19,9 +19,12 @@ import { gsplatData } from './gsplat-data.mjs';
  * entity) ({tiles, count, shDegree, bounds of the cells in the stream's coordinates}, before any tile is
  * fetched: frame the camera here), workers, maxMemory, signal, headers, unified (the gsplat
  * components' unified mode: one sort of every tile), reorder (false: keep the stream's order in a tile).
- * Events (stream.on): 'tile' (tile, count, entity) per tile added, 'progress' (pointsDecoded,
- * pointsTotal), 'loaded' (result), 'error' (err).
+ * Events (stream.on): 'tiles' (tile numbers, count, entity) per gsplat entity added (a batch of
+ * tiles: the first tile alone, at once), 'progress' (pointsDecoded, pointsTotal), 'loaded' (result), 'error' (err).
  */
+const BATCH_MS = 250;
+const MAX_BATCH_MS = 8000;
+
 export class LghccStream extends EventHandler {
     constructor(app, url, options = {}) {
         super();
@@ -31,6 +34,9 @@ export class LghccStream extends EventHandler {
         this.url = url;
         this.entity = new Entity('lghcc');
         this.count = 0; // Gaussians drawn so far
+        this.pending = []; // tiles decoded, not yet added
+        this.timer = null;
+        this.delay = 0; // the first tile is added at once, the next batches BATCH_MS, 2 BATCH_MS, ... later
         this.unified = unified;
         this.reorder = reorder;
         this.abortController = new AbortController();
@@ -45,9 +51,10 @@ export class LghccStream extends EventHandler {
             signal: this.abortController.signal,
             camera: camera || onIndex ? atIndex : null,
             frustum: cull ? () => this._frustum(camera) : null,
-            onTile: (tile) => this._add(tile),
+            onTile: (tile) => this._queue(tile),
             onProgress: (p) => this.fire('progress', p.pointsDecoded, p.pointsTotal),
         }).then((scene) => {
+            this._flush(); // the tiles still queued added now
             const result = { count: scene.count, tiles: scene.tiles, bounds: scene.bounds, ranged: scene.ranged, requests: scene.requests, bytesFetched: scene.bytesFetched, bytesTotal: scene.bytesTotal };
             this.fire('loaded', result);
             return result;
@@ -62,15 +69,29 @@ export class LghccStream extends EventHandler {
         this.abortController.abort(reason);
     }
 
-    _add(tile) {
-        const data = gsplatData(tile);
+    // the tiles are added in batches, each a gsplat entity with its own resource and sort: the first
+    // tile at once, then at BATCH_MS, 2 BATCH_MS, 4 BATCH_MS ... (at most MAX_BATCH_MS) apart (few
+    // entities and sorts, the near tiles early)
+    _queue(tile) {
+        this.pending.push(tile);
+        if (this.timer === null) this.timer = setTimeout(() => this._flush(), this.delay);
+    }
+
+    _flush() {
+        if (this.timer !== null) clearTimeout(this.timer);
+        this.timer = null;
+        const tiles = this.pending.splice(0);
+        if (!tiles.length) return;
+        this.delay = Math.min(MAX_BATCH_MS, Math.max(BATCH_MS, 2 * this.delay));
+        const data = gsplatData(tiles);
         if (this.reorder) data.reorderData();
         const prepareCenters = this.app.scene?.gsplatCentersEnabled !== false;
-        const child = new Entity(`tile ${tile.tile}`);
+        const child = new Entity(`tiles ${tiles.map((t) => t.tile).join(',')}`);
         child.addComponent('gsplat', { resource: new GSplatResource(this.app.graphicsDevice, data, { prepareCenters }), unified: this.unified });
         this.entity.addChild(child);
-        this.count += tile.count;
-        this.fire('tile', tile.tile, tile.count, child);
+        const count = tiles.reduce((n, t) => n + t.count, 0);
+        this.count += count;
+        this.fire('tiles', tiles.map((t) => t.tile), count, child);
     }
 
     // the camera's position in the entity's (the stream's) coordinates
