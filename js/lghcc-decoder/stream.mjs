@@ -26,7 +26,11 @@ export const HEAD_BYTES = 1 << 13;
 export async function streamWith(threads, url, options = {}) {
     const o = streamOptions(threads, url, options);
     if (o.signal) o.signal.throwIfAborted();
-    const net = new Fetcher(url, o);
+    // every request is cancelled at the end, or at the first error (a request of the other connection stops too)
+    const requests = new AbortController();
+    const stop = () => requests.abort(o.signal.reason);
+    if (o.signal) o.signal.addEventListener('abort', stop, { once: true });
+    const net = new Fetcher(url, o, requests.signal);
     // the helpers start while the first request is under way (their start is most of a first tile's wait)
     const pool = o.workers >= 1 ? new PoolSide(o.workers, threads.startHelper) : null;
     if (pool) pool.warm().catch(() => {});
@@ -38,6 +42,8 @@ export async function streamWith(threads, url, options = {}) {
         return await rangedTiles(net, head, o, pool);
     } finally {
         if (pool) pool.close();
+        if (o.signal) o.signal.removeEventListener('abort', stop);
+        requests.abort();
     }
 }
 
@@ -179,9 +185,11 @@ export function planRequests(ctx, order, maxBytes) {
 
 /** fetch() with the caller's headers, credentials and signal; counts requests and bytes. */
 class Fetcher {
-    constructor(url, o) {
+    constructor(url, o, signal) {
         this.url = url;
         this.o = o;
+        this.signal = signal;
+        this.total = undefined; // the file's size, as the first 206 said (null: not said)
         this.requests = 0;
         this.bytes = 0;
     }
@@ -191,7 +199,7 @@ class Fetcher {
         this.requests++;
         const res = await fetch(this.url, {
             headers: { ...this.o.headers, Range: `bytes=${start}-${end === null ? '' : end - 1}` },
-            credentials: this.o.credentials, signal: this.o.signal,
+            credentials: this.o.credentials, signal: this.signal,
         });
         if (res.status !== 206 && !(res.status === 200 && start === 0)) {
             throw new Error(`${this.url}: HTTP ${res.status} ${res.statusText} to a request of bytes ${start} to ${end === null ? 'the end' : end - 1}`.replace(/ +/g, ' '));
@@ -202,6 +210,8 @@ class Fetcher {
             const m = /^bytes (\d+)-(\d+)\/(\d+|\*)$/.exec(range);
             if (!m || Number(m[1]) !== start) throw new Error(`${this.url}: the server answered a request for bytes ${start}- with Content-Range "${range}"`);
             res.total = m[3] === '*' ? null : Number(m[3]);
+            if (this.total === undefined) this.total = res.total;
+            else if (res.total !== this.total) throw new Error(`${this.url}: the file's size changed from ${this.total} to ${res.total} bytes while it was streamed`);
         }
         return res;
     }
