@@ -149,6 +149,7 @@ def test_streamed_scene_is_the_reference_decode_nearest_tiles_first(scene, worke
                                                "connections": 1})
     _assert_reference(got, scene["data"])
     assert got["ranged"] is True and got["bytesTotal"] == len(scene["data"])
+    assert got["bytesFetched"] == link.bytes_sent == len(scene["data"])  # no byte twice (the stream ends with its last tile)
 
     def distance(t):
         b = _cell_box(parsed, t)
@@ -179,6 +180,8 @@ def test_a_box_fetches_only_its_tiles(scene):
     assert sorted(t["tile"] for t in got["onTile"]) == selected
     wanted = sum(e - s for s, e in (_tile_bytes(parsed, t) for t in selected))
     assert wanted <= got["bytesFetched"] <= wanted + 512 < len(scene["data"]), (got["bytesFetched"], wanted)
+    sent = sorted((s, e) for _, s, e, *_ in link.log)
+    assert all(a[1] <= b[0] for a, b in zip(sent, sent[1:])), sent  # no byte twice
     assert link.bytes_sent == got["bytesFetched"]
 
 

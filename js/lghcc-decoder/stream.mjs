@@ -376,7 +376,7 @@ async function rangedTiles(net, head, o, pool) {
         for (const t of order) if (inHead(t)) decodeOne(t, head.bytes, ctx.tiles[t].start);
         if (pool && pool.side) pool.flush();
         const plan = planRequests(ctx, order.filter((t) => !inHead(t)), requestBytes(ctx, chosen));
-        await fetchPlan(net, plan, ctx, decodeOne, pool, o.connections);
+        await fetchPlan(net, plan, ctx, decodeOne, pool, o.connections, head.bytes);
         await Promise.all(decoding);
         return { ...scene.result({ ps: ctx.ps, tiles: chosen }), ranged: true, requests: net.requests, bytesFetched: net.bytes, bytesTotal: head.total };
     })();
@@ -389,16 +389,18 @@ function requestBytes(ctx, chosen) {
     return Math.max(1 << 16, Math.ceil(bytes / 32));
 }
 
-// the plan's requests, `connections` at a time in plan order; each tile handed to decodeOne as soon as its bytes are in
-async function fetchPlan(net, plan, ctx, decodeOne, pool, connections) {
+// the plan's requests, `connections` at a time in plan order; each tile handed to decodeOne as soon as its
+// bytes are in. head: the file's first bytes, in hand (a request that starts in them asks for the rest only).
+async function fetchPlan(net, plan, ctx, decodeOne, pool, connections, head) {
     let next = 0;
     const lane = async () => {
         while (next < plan.length) {
             const req = plan[next++];
-            const res = await net.range(req.start, req.end);
-            if (res.status !== 206) throw new Error(`${net.url}: the server stopped answering Range requests`);
             const buf = new Uint8Array(req.end - req.start);
-            let len = 0, k = 0;
+            let len = Math.max(0, Math.min(head.length, req.end) - req.start), k = 0;
+            buf.set(head.subarray(req.start, req.start + len));
+            const res = await net.range(req.start + len, req.end);
+            if (res.status !== 206) throw new Error(`${net.url}: the server stopped answering Range requests`);
             for await (const chunk of net.chunks(res)) {
                 if (len + chunk.length > buf.length) throw new Error(`${net.url}: the server sent more than the ${buf.length} bytes asked for`);
                 buf.set(chunk, len);
