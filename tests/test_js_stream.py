@@ -289,3 +289,100 @@ console.log(JSON.stringify({{ tile, index, result: Object.keys(s) }}));"""
     assert sorted(_interface(dts, "LghccTile")) == sorted(got["tile"])
     assert sorted(_interface(dts, "LghccStreamIndex")) == sorted(got["index"])
     assert sorted(_interface(dts, "LghccStreamResult") + _interface(dts, "LghccScene")) == sorted(got["result"])
+
+
+PLAN_JS = """
+import { planRequests, fetchOrder, selectTiles } from %(stream)s;
+import { readFileSync } from 'node:fs';
+const cases = JSON.parse(readFileSync(process.argv[2], 'utf8'));
+const out = cases.map(({ sizes, order, maxBytes, cells, camera, box, planes }) => {
+    let pos = 100;
+    const tiles = sizes.map((n, t) => { const r = { start: pos, end: pos + n, points: 1, cell: cells[t] }; pos += n; return r; });
+    const ctx = { tiles, ps: { tileSize: 4, voxelSize: 0.5, origin: [0.25, -1, 2], numGaussians: tiles.length, shDegree: 0 } };
+    return { plan: planRequests(ctx, order, maxBytes), fetch: fetchOrder(ctx, tiles.map((_, t) => t), camera),
+             chosen: selectTiles(ctx, { box, frustum: planes }) };
+});
+console.log(JSON.stringify(out));
+""" % {"stream": json.dumps(str(PKG / "stream.mjs"))}
+
+
+@pytest.mark.skipif(NODE is None, reason="node is not on the PATH")
+def test_request_plans_cover_the_chosen_tiles_once_in_rank_order(tmp_path):
+    """planRequests (property test: random tile sizes, random chosen subsets in random rank orders,
+    limits from below one tile to above the file): every chosen tile in exactly one request, a
+    request a run of consecutive tiles whose bytes are contiguous, started by the best-ranked tile
+    not yet requested and running on only after it, no longer than the limit unless one tile; and
+    fetchOrder sorts by distance to the cell, selectTiles keeps exactly the cells meeting the box and
+    the half-spaces (checked against a direct evaluation here)."""
+    hypothesis = pytest.importorskip("hypothesis")
+    st = hypothesis.strategies
+    cases = []
+
+    @hypothesis.settings(max_examples=150, deadline=None, database=None)
+    @hypothesis.given(st.data())
+    def collect(data):
+        n = data.draw(st.integers(0, 12))
+        sizes = data.draw(st.lists(st.integers(9, 500), min_size=n, max_size=n))
+        chosen = data.draw(st.lists(st.sampled_from(range(n)), unique=True) if n else st.just([]))
+        order = data.draw(st.permutations(chosen))
+        cells = sorted({tuple(c) for c in data.draw(st.lists(st.tuples(*[st.integers(-3, 3)] * 3), min_size=n, max_size=n, unique=True))})
+        camera = data.draw(st.tuples(*[st.floats(-20, 20)] * 3))
+        box = data.draw(st.none() | st.tuples(*[st.floats(-20, 20)] * 6).map(lambda b: [min(b[0], b[3]), min(b[1], b[4]), min(b[2], b[5]),
+                                                                                     max(b[0], b[3]), max(b[1], b[4]), max(b[2], b[5])]))
+        planes = data.draw(st.none() | st.lists(st.tuples(*[st.floats(-1, 1)] * 3, st.floats(-10, 10)).map(list), max_size=3))
+        cases.append({"sizes": sizes, "order": list(order), "maxBytes": data.draw(st.integers(1, 3000)), "cells": [list(c) for c in cells],
+                      "camera": list(camera), "box": box, "planes": planes})
+
+    collect()
+    (tmp_path / "cases.json").write_text(json.dumps(cases))
+    (tmp_path / "plan.mjs").write_text(PLAN_JS)
+    res = subprocess.run([NODE, str(tmp_path / "plan.mjs"), str(tmp_path / "cases.json")], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stderr[-2000:]
+    for case, got in zip(cases, json.loads(res.stdout)):
+        sizes, order, limit = case["sizes"], case["order"], case["maxBytes"]
+        starts = [100 + sum(sizes[:t]) for t in range(len(sizes))]
+        plan = got["plan"]
+        assert sorted(t for r in plan for t in r["tiles"]) == sorted(order), (case, plan)
+        done: set[int] = set()
+        for r in plan:
+            tiles = r["tiles"]
+            assert tiles == list(range(tiles[0], tiles[-1] + 1)) and r["start"] == starts[tiles[0]]
+            assert r["end"] == starts[tiles[-1]] + sizes[tiles[-1]]
+            assert len(tiles) == 1 or r["end"] - r["start"] <= limit, (r, limit)
+            assert tiles[0] == next(t for t in order if t not in done), (order, plan)
+            done.update(tiles)
+        cells = np.asarray(case["cells"], dtype=np.float64).reshape(-1, 3)
+        lo, hi = cells * 4 * 0.5 + [0.25, -1, 2], (cells + 1) * 4 * 0.5 + [0.25, -1, 2]
+        cam = np.asarray(case["camera"])
+        dist = (np.maximum(0, np.maximum(lo - cam, cam - hi)) ** 2).sum(axis=1)
+        assert [float(dist[t]) for t in got["fetch"]] == sorted(float(d) for d in dist), case
+        keep = np.ones(len(cells), bool)
+        if case["box"]:
+            b = case["box"]
+            keep &= (lo <= b[3:]).all(axis=1) & (hi >= b[:3]).all(axis=1)
+        for a, bb, c, d in case["planes"] or []:
+            far = np.where(np.asarray([a, bb, c]) >= 0, hi, lo)  # the corner farthest along the normal
+            keep &= far @ [a, bb, c] + d >= 0
+        assert got["chosen"] == [int(t) for t in np.flatnonzero(keep)], case
+
+
+def test_frustum_planes_hold_exactly_the_points_in_clip_space(tmp_path):
+    """frustumPlanes of a perspective × view matrix (column-major, WebGL clip space): a point is
+    inside every plane exactly when its clip coordinates lie in [-w, w] on x, y and z."""
+    rng = np.random.default_rng(5)
+    f, near, far = 1 / np.tan(np.radians(30)), 0.5, 50.0
+    proj = np.array([[f / 1.5, 0, 0, 0], [0, f, 0, 0], [0, 0, (far + near) / (near - far), 2 * far * near / (near - far)], [0, 0, -1, 0]])
+    c, s = np.cos(0.7), np.sin(0.7)
+    view = np.array([[c, 0, -s, 1.0], [0, 1, 0, -2.0], [s, 0, c, 3.0], [0, 0, 0, 1]])
+    m = proj @ view
+    points = rng.uniform(-40, 40, (2000, 3))
+    script = f"""import {{ frustumPlanes }} from {json.dumps(str(PKG / 'stream.mjs'))};
+console.log(JSON.stringify(frustumPlanes({json.dumps(m.T.ravel().tolist())})));"""
+    (tmp_path / "planes.mjs").write_text(script)
+    res = subprocess.run([NODE, str(tmp_path / "planes.mjs")], capture_output=True, text=True, timeout=60)
+    planes = np.asarray(json.loads(res.stdout))
+    clip = np.c_[points, np.ones(len(points))] @ m.T
+    inside = (np.abs(clip[:, :3]) <= clip[:, 3:4]).all(axis=1)
+    by_planes = ((np.c_[points, np.ones(len(points))] @ planes.T) >= 0).all(axis=1)
+    assert planes.shape == (6, 4) and 50 < inside.sum() < 1950
+    assert np.array_equal(inside, by_planes)

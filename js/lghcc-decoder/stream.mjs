@@ -85,8 +85,8 @@ function checkFrustum(frustum) {
 function view(ctx, o) {
     if (!o.view) {
         const index = streamIndex(ctx);
-        const camera = typeof o.camera === 'function' ? o.camera(index) ?? null : o.camera;
-        const frustum = typeof o.frustum === 'function' ? o.frustum(index) ?? null : o.frustum;
+        const camera = (typeof o.camera === 'function' ? o.camera(index) : o.camera) ?? null;
+        const frustum = (typeof o.frustum === 'function' ? o.frustum(index) : o.frustum) ?? null;
         if (camera !== null) checkCamera(camera);
         if (frustum !== null) checkFrustum(frustum);
         o.view = { camera, frustum };
