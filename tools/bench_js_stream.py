@@ -17,7 +17,7 @@ The camera: two half-diagonals from the centre of the tiles' cells along +z (the
 framing, in the stream's coordinates). Writes a markdown table (stdout, and appended to --out).
 
     OMP_WAIT_POLICY=PASSIVE nice -n 10 .venv/bin/python tools/bench_js_stream.py STREAM.lghcc [...] \\
-        --rate 20 --repeat 3 [--chromium] [--out tools/results/js_stream.md]
+        --rate 20 --repeat 3 [--chromium [--no-engine]] [--out tools/results/js_stream.md]
 """
 
 from __future__ import annotations
@@ -168,7 +168,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("streams", nargs="+", type=Path, help=".lghcc files (tiled, explicit-Gaussian)")
     ap.add_argument("--rate", type=float, default=20.0, help="the link in Mbit/s (default 20)")
     ap.add_argument("--repeat", type=int, default=3, help="rounds, each mode once per round, alternated (default 3)")
-    ap.add_argument("--chromium", action="store_true", help="also the three.js example page in headless Chromium")
+    ap.add_argument("--chromium", action="store_true", help="also in headless Chromium: the decoder alone and the three.js example page")
+    ap.add_argument("--no-engine", action="store_true", help="with --chromium: the decoder alone, not the three.js page "
+                    "(its software-rendered frames take minutes for a 1M scene here)")
     ap.add_argument("--out", type=Path, help="append the table to this markdown file")
     args = ap.parse_args(argv)
     node = shutil.which("node")
@@ -190,6 +192,7 @@ def main(argv: list[str] | None = None) -> int:
                 cam = urllib.parse.quote(json.dumps(camera))
                 modes["Chromium decode(url) alone, no engine"] = lambda: chromium_run(folder, "decoder.html?mode=decode", rate)
                 modes["Chromium stream(url, {camera}) alone, no engine"] = lambda: chromium_run(folder, f"decoder.html?mode=stream&camera={cam}", rate)
+            if args.chromium and not args.no_engine:
                 modes["Chromium three.js page, whole (drawn)"] = lambda: chromium_run(folder, "index.html", rate)
                 modes["Chromium three.js page, ?stream=1 (drawn)"] = lambda: chromium_run(folder, "index.html?stream=1", rate)
             runs: dict[str, list[dict]] = {m: [] for m in modes}
