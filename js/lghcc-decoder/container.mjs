@@ -9,13 +9,10 @@ export const UNIT = {
     DECODED_SCENE_HASH: 0x06, GAUSSIAN_PARAMETER_SET: 0x07, TILE_INDEX: 0x08, NEIGHBOUR_PREDICTION: 0x09,
     STEP_ADJUST: 0x0A, SH_DEGREE: 0x0B, ROTATION_LENGTH: 0x0C, STEP_ADJUST_FLAGS: 0x0D, SOURCE_INFO: 0x80,
 };
-const LAST_KNOWN_CRITICAL = 0x0D;
+export const LAST_KNOWN_CRITICAL = 0x0D;
 
-/**
- * Clause 6.1, 6.2: the container header and every data unit (header, size, CRC), before any payload
- * is interpreted. verifiedEnd: the units that end at or before this byte passed their CRC check already.
- */
-export function parseContainer(bytes, { verifiedEnd = 0 } = {}) {
+/** Clause 6.1: the 8-byte container header of bytes (at least its first 8 bytes); returns {major, minor}. */
+export function parseHeader(bytes) {
     if (bytes.length < 8) throw new BitstreamError(`the stream has ${bytes.length} bytes, shorter than the 8-byte container header (E1)`);
     const magic = ((bytes[0] << 24) | (bytes[1] << 16) | (bytes[2] << 8) | bytes[3]) >>> 0;
     if (magic !== MAGIC) throw new BitstreamError(`magic 0x${magic.toString(16)} is not 0x4c474843 ("LGHC") (E2)`);
@@ -23,6 +20,15 @@ export function parseContainer(bytes, { verifiedEnd = 0 } = {}) {
     if (major !== 1) throw new UnsupportedStreamError(`stream version ${major}.${minor}: this decoder decodes version 1 streams (E3)`);
     if (bytes[6] !== 1) throw new UnsupportedStreamError(`profile_idc ${bytes[6]} is not 1 (main) (E4)`);
     if (bytes[7] !== 0) throw new BitstreamError(`reserved_zero_8bits = ${bytes[7]} is not 0 (E5)`);
+    return { major, minor };
+}
+
+/**
+ * Clause 6.1, 6.2: the container header and every data unit (header, size, CRC), before any payload
+ * is interpreted. verifiedEnd: the units that end at or before this byte passed their CRC check already.
+ */
+export function parseContainer(bytes, { verifiedEnd = 0 } = {}) {
+    const { major, minor } = parseHeader(bytes);
     const units = [];
     let pos = 8;
     while (pos < bytes.length) {
@@ -44,12 +50,11 @@ export function parseContainer(bytes, { verifiedEnd = 0 } = {}) {
 export const isCritical = (type) => type < 0x80;
 
 /**
- * The unit grammar of clause 6.3 for an explicit-Gaussian stream:
- *   P [N [Q [F]] [B]] [W] [C] [I] tile+,  tile = G A [A] H
- * Returns {ps, np, sa, sf, sd, rl, cm, ti, tiles: [{units: [G, A.., H], start, end}]}; the tile index's byte
- * positions are checked later against the index (clause 7.3.11).
+ * The unit grammar of clause 6.3 before the tiles, `P [N [Q [F]] [B]] [W] [C] [I]`, for units (the
+ * stream's, or its first ones: every unit type is checked, E10). Returns {s: {ps, np, sa, sf, sd, rl,
+ * cm, ti, tiles: []}, critical: the critical units, i: the index in critical of the first unit after them}.
  */
-export function unitStructure(units) {
+export function preludeStructure(units) {
     for (const u of units) {
         if (isCritical(u.type) && u.type > LAST_KNOWN_CRITICAL) {
             throw new UnsupportedStreamError(`critical unit type 0x${u.type.toString(16)} is not defined by version 1.5 (E10)`);
@@ -84,6 +89,19 @@ export function unitStructure(units) {
     if (peek() === UNIT.ROTATION_LENGTH) s.rl = critical[i++];
     if (peek() === UNIT.CONTEXT_MODEL) s.cm = critical[i++];
     if (peek() === UNIT.TILE_INDEX) s.ti = critical[i++];
+    return { s, critical, i };
+}
+
+/**
+ * The unit grammar of clause 6.3 for an explicit-Gaussian stream:
+ *   P [N [Q [F]] [B]] [W] [C] [I] tile+,  tile = G A [A] H
+ * Returns {ps, np, sa, sf, sd, rl, cm, ti, tiles: [{units: [G, A.., H], start, end}]}; the tile index's byte
+ * positions are checked later against the index (clause 7.3.11).
+ */
+export function unitStructure(units) {
+    const { s, critical, i: first } = preludeStructure(units);
+    let i = first;
+    const peek = () => critical[i] && critical[i].type;
     const kinds = new Set(critical.slice(i).map((u) => u.type));
     for (const t of [UNIT.GEOMETRY, UNIT.ATTRIBUTE, UNIT.DECODED_SCENE_HASH]) {
         if (!kinds.has(t)) throw new BitstreamError(`the stream has no ${t === UNIT.GEOMETRY ? 'geometry' : t === UNIT.ATTRIBUTE ? 'attribute' : 'decoded_scene_hash'} unit (E13)`);
@@ -100,7 +118,8 @@ export function unitStructure(units) {
     return s;
 }
 
-function orderError(u) {
+/** E14 for unit u, which breaks the unit order of clause 6.3. */
+export function orderError(u) {
     const name = Object.keys(UNIT).find((k) => UNIT[k] === u.type) || `0x${u.type.toString(16)}`;
     // a misplaced step_adjust_flags unit (version 1.5): its rule named
     const where = u.type === UNIT.STEP_ADJUST_FLAGS ? ': it may appear only right after the step_adjust unit, once (clause 7.3.16)' : '';

@@ -22,35 +22,57 @@ export const SH_C0 = 0.28209479177387814;
  * maxMemory, signal.reason when aborted.
  */
 export async function decodeWith(threads, input, options = {}) {
+    const o = decodeOptions(threads, options);
+    if (o.signal) o.signal.throwIfAborted();
+    return decodeChunks(threads, byteChunks(input, o.signal), o);
+}
+
+/** decode()'s options with their defaults (README.md), checked (TypeError). */
+export function decodeOptions(threads, options) {
     const { workers = threads.defaultWorkers(), onProgress = null, signal = null, box = null, maxMemory = DEFAULT_MAX_MEMORY, activated = false } = options;
     checkOptions({ workers, onProgress, signal, box, maxMemory });
-    if (signal) signal.throwIfAborted();
-    const reading = byteChunks(input, signal);
-    const pool = workers >= 1 ? new PoolSide(workers, threads.startHelper) : null;
-    const scene = new SceneAssembly(box, activated, onProgress);
-    const onTile = (t, tile, info) => {
+    return { workers, onProgress, signal, box, maxMemory, activated };
+}
+
+/**
+ * decodeWith's decode of the stream's bytes as reading (an async iterator of Uint8Array chunks)
+ * gives them; o: decodeOptions(). select(ctx), onTile(view): SceneAssembly's; pool: a PoolSide already
+ * warming (stream.mjs's whole-file read).
+ */
+export async function decodeChunks(threads, reading, o, { select = null, onTile = null, pool: warmed = null } = {}) {
+    const { workers, onProgress, signal, box, maxMemory, activated } = o;
+    const pool = warmed || (workers >= 1 ? new PoolSide(workers, threads.startHelper) : null);
+    const scene = new SceneAssembly(box, activated, onProgress, { select, onTile });
+    const onDecoded = (t, tile, info) => {
         if (signal && signal.aborted) throw signal.reason; // stops a decode on this thread at its next tile
         scene.add(t, tile, info);
     };
-    const dec = new ProgressiveDecoder({ maxMemory, box, pool, minPoolTiles: 1, onTile });
+    const dec = new ProgressiveDecoder({ maxMemory, box, select, pool, minPoolTiles: 1, onTile: onDecoded });
     const run = (async () => {
         await loadWasm(); // compiled asynchronously: a browser's main thread may not compile it synchronously
         for await (const chunk of reading) await dec.push(chunk);
         const r = await dec.finish();
         return scene.result(r);
     })();
+    return settle(run, signal, () => {
+        if (pool) pool.close();
+        reading.return().catch(() => {}); // stops a fetch or stream still being read
+    });
+}
+
+/** run's result, or signal.reason at an abort (run is left to fail alone); cleanup() after either. */
+export async function settle(run, signal, cleanup) {
     run.catch(() => {}); // after an abort nobody awaits it; its rejection is the abort's
     const abort = signal ? aborted(signal) : null;
     try {
         return await (abort ? Promise.race([run, abort.promise]) : run);
     } finally {
         if (abort) abort.forget();
-        if (pool) pool.close();
-        reading.return().catch(() => {}); // stops a fetch or stream still being read
+        cleanup();
     }
 }
 
-function checkOptions({ workers, onProgress, signal, box, maxMemory }) {
+export function checkOptions({ workers, onProgress, signal, box, maxMemory }) {
     if (!(Number.isInteger(workers) && workers >= 0)) throw new TypeError(`workers: a whole number of helper threads (0: decode on this thread), got ${workers}`);
     if (onProgress !== null && typeof onProgress !== 'function') throw new TypeError('onProgress: a function');
     if (signal !== null && !(typeof signal === 'object' && typeof signal.aborted === 'boolean' && typeof signal.addEventListener === 'function')) {
@@ -63,7 +85,7 @@ function checkOptions({ workers, onProgress, signal, box, maxMemory }) {
 }
 
 // {promise: rejected with signal.reason at the abort, forget(): stop listening (a signal may outlive many decodes)}
-function aborted(signal) {
+export function aborted(signal) {
     let listener = null;
     const promise = new Promise((_, reject) => {
         listener = () => reject(signal.reason);
@@ -73,7 +95,7 @@ function aborted(signal) {
 }
 
 /** The input's bytes as they arrive: one chunk for bytes in memory, the body's chunks for a stream or a URL. */
-async function* byteChunks(input, signal) {
+export async function* byteChunks(input, signal) {
     if (input instanceof Uint8Array) { yield input; return; }
     if (input instanceof ArrayBuffer) { yield new Uint8Array(input); return; }
     if (ArrayBuffer.isView(input)) { yield new Uint8Array(input.buffer, input.byteOffset, input.byteLength); return; }
@@ -114,16 +136,26 @@ async function* byteChunks(input, signal) {
  * The pool as ProgressiveDecoder takes it (pool.mjs's stream side), its helpers started once the
  * tile index is known: no more helpers than tiles.
  */
-class PoolSide {
-    constructor(workers, startHelper) {
+export class PoolSide {
+    constructor(workers, startHelper, count = (ctx) => ctx.tiles.length) {
         this.workers = workers;
+        this.count = count; // the tiles a stream decodes (ctx): no more helpers than them
         this.startHelper = startHelper;
         this.pool = null;
         this.side = null;
     }
 
+    /** Start `workers` helpers now, before the tile index is known (stream.mjs: while the first request is under way). */
+    async warm() {
+        await loadWasm(); // the helpers get the compiled module
+        if (!this.pool && !this.closed) {
+            this.pool = new TilePool(this.workers, this.startHelper);
+            this.pool.warm();
+        }
+    }
+
     start(ctx) {
-        this.pool = new TilePool(Math.min(this.workers, ctx.tiles.length), this.startHelper);
+        if (!this.pool) this.pool = new TilePool(Math.max(1, Math.min(this.workers, this.count(ctx))), this.startHelper);
         this.side = this.pool.stream();
         this.side.start(ctx);
     }
@@ -132,15 +164,21 @@ class PoolSide {
 
     flush() { this.side.flush(); }
 
-    close() { if (this.pool) this.pool.close(); }
+    close() { this.closed = true; if (this.pool) this.pool.close(); }
 }
 
 const FIELDS = [['positions', 3], ['scales', 3], ['rotations', 4], ['opacities', 1], ['colors', 3]];
 
 /** Each decoded tile's arrays copied into the scene's, at the tile's place in stream order. */
-class SceneAssembly {
-    constructor(box, activated, onProgress) {
+export class SceneAssembly {
+    /**
+     * select(ctx): the numbers of the tiles decoded (default: those the box selects, or all).
+     * onTile(view): each tile's Gaussians once in the scene's arrays (tileView).
+     */
+    constructor(box, activated, onProgress, { select = null, onTile = null } = {}) {
         this.box = box;
+        this.select = select;
+        this.onTile = onTile;
         this.activated = activated;
         this.onProgress = onProgress;
         this.out = null;
@@ -151,7 +189,7 @@ class SceneAssembly {
 
     // the output, sized from the tile index (the tiles to decode and their points) at the first tile
     _allocate(ctx) {
-        const selected = this.box ? tilesInBox(ctx, this.box) : ctx.tiles.map((_, t) => t);
+        const selected = this.select ? this.select(ctx) : this.box ? tilesInBox(ctx, this.box) : ctx.tiles.map((_, t) => t);
         this.offset = new Map();
         let n = 0;
         for (const t of selected) { this.offset.set(t, n); n += ctx.tiles[t].points; }
@@ -179,9 +217,19 @@ class SceneAssembly {
         if (this.activated) activate(out, o, n);
         this.tilesDecoded++;
         this.pointsDecoded += n;
+        if (this.onTile) this.onTile(this.tileView(t, o, n));
         if (this.onProgress) {
             this.onProgress({ tile: t, tilesDecoded: this.tilesDecoded, tilesTotal: this.tilesTotal, pointsDecoded: this.pointsDecoded, pointsTotal: out.count });
         }
+    }
+
+    /** Tile t's Gaussians [o, o + n) of the scene: {tile, offset, count, shDegree, bounds, and views of the scene's arrays}. */
+    tileView(t, o, n) {
+        const v = { tile: t, offset: o, count: n, shDegree: this.out.shDegree };
+        for (const [name, width] of FIELDS) v[name] = this.out[name].subarray(width * o, width * (o + n));
+        v.sh = this.out.sh.subarray(this.rest * o, this.rest * (o + n));
+        v.bounds = bounds(v.positions, n);
+        return v;
     }
 
     result(r) {

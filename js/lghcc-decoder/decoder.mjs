@@ -84,7 +84,7 @@ export const WASM_TILE_MEMORY = 2 ** 31 - 2 ** 24;
  * Refuse before allocating a stream whose declared sizes need more than maxMemory, or a tile that
  * needs more than the module can address (ResourceLimitError).
  */
-function checkMemory(ctx, streamBytes, maxMemory) {
+export function checkMemory(ctx, streamBytes, maxMemory) {
     const N = ctx.ps.numGaussians, M = ctx.M;
     const largest = Math.max(...ctx.tiles.map((t) => t.points));
     const k = ctx.np ? ctx.np.k : 0;

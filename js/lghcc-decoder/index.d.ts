@@ -66,6 +66,94 @@ export interface LghccScene {
 /** Decode a .lghcc stream of the explicit-Gaussian profile. */
 export function decode(input: LghccInput, options?: LghccDecodeOptions): Promise<LghccScene>;
 
+/** A plane [a, b, c, d] of a frustum: inside where a·x + b·y + c·z + d >= 0 (world coordinates of the stream). */
+export type LghccPlane = [number, number, number, number];
+
+/** What stream() knows once the tile index is in, before any tile is fetched (the camera and frustum functions get it). */
+export interface LghccStreamIndex {
+    /** Tiles in the stream. */
+    tiles: number;
+    /** Gaussians in the stream (all tiles). */
+    count: number;
+    /** The scene's SH degree, 0 to 3. */
+    shDegree: number;
+    /** The box of every tile's cell in world coordinates (holds every Gaussian); null for a stream without tiles. */
+    bounds: LghccBounds | null;
+}
+
+/** One decoded tile, handed to onTile: its Gaussians in the layout of LghccScene (views of the scene's arrays). */
+export interface LghccTile {
+    /** The tile's number in the stream. */
+    tile: number;
+    /** Its first Gaussian in the streamed scene (stream order). */
+    offset: number;
+    /** Its Gaussians. */
+    count: number;
+    /** The scene's SH degree. */
+    shDegree: number;
+    /** The box around its Gaussians' centres; null when count is 0. */
+    bounds: LghccBounds | null;
+    positions: Float32Array;
+    scales: Float32Array;
+    rotations: Float32Array;
+    opacities: Float32Array;
+    colors: Float32Array;
+    sh: Float32Array;
+}
+
+export interface LghccStreamOptions {
+    /** As decode()'s. */
+    workers?: number;
+    /** As decode()'s: once per decoded tile. */
+    onProgress?: ((progress: LghccProgress) => void) | null;
+    /** Each tile as soon as it is decoded and hash-checked, in the order they finish. */
+    onTile?: ((tile: LghccTile) => void) | null;
+    /** A note on how the file is read (a server without Range support); default console.warn. */
+    onNote?: ((note: string) => void) | null;
+    /** Aborting it cancels the requests, stops the helpers and rejects stream() with signal.reason. */
+    signal?: AbortSignal | null;
+    /** [x0, y0, z0, x1, y1, z1] in world coordinates: only the tiles whose cells meet the box are fetched. */
+    box?: [number, number, number, number, number, number] | null;
+    /** Only the tiles whose cells meet every plane's inside are fetched (frustumPlanes() makes them); or a function of the index giving them (null: none). */
+    frustum?: LghccPlane[] | ((index: LghccStreamIndex) => LghccPlane[] | null) | null;
+    /** The camera position in world coordinates: the tiles nearest it are fetched first; or a function of the index giving it (frame the camera there). */
+    camera?: [number, number, number] | ((index: LghccStreamIndex) => [number, number, number] | null) | null;
+    /** As decode()'s. */
+    maxMemory?: number;
+    /** As decode()'s. */
+    activated?: boolean;
+    /** Request headers sent with every request (Range is added). */
+    headers?: Record<string, string>;
+    /** fetch()'s credentials mode. Default 'same-origin'. */
+    credentials?: RequestCredentials;
+    /** Bytes of the first request (header, prelude and tile index; more are fetched when the prelude is longer). Default 8192. */
+    headBytes?: number;
+    /** Requests in flight at once. Default 2. */
+    connections?: number;
+}
+
+/** stream()'s result: the scene of the fetched tiles in stream order, and how it was fetched. */
+export interface LghccStreamResult extends LghccScene {
+    /** True when the tiles were fetched by Range requests; false when the server answered the whole file (200). */
+    ranged: boolean;
+    /** HTTP requests made. */
+    requests: number;
+    /** Body bytes received. */
+    bytesFetched: number;
+    /** The file's size (Content-Range), or null when the server did not say. */
+    bytesTotal: number | null;
+}
+
+/**
+ * Stream a .lghcc file from a URL by tiles with HTTP Range requests: the header, the prelude and the
+ * tile index first, then the tiles the box and the frustum meet, nearest the camera first, each
+ * decoded as it arrives and handed to onTile.
+ */
+export function stream(url: string | URL, options?: LghccStreamOptions): Promise<LghccStreamResult>;
+
+/** A frustum's six planes from a column-major 4x4 view-projection matrix (WebGL clip space): the planes stream()'s frustum takes. */
+export function frustumPlanes(matrix: ArrayLike<number>): LghccPlane[];
+
 /** Default maxMemory: 2^31 bytes. */
 export const DEFAULT_MAX_MEMORY: number;
 /** The zeroth-order SH basis constant (colour = 0.5 + SH_C0 * DC). */

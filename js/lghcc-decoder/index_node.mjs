@@ -1,6 +1,8 @@
 // lghcc-decoder in Node (package.json's "node" condition; README.md): decode() with worker threads
 // as its helpers. index.mjs is the same API with module Web Workers.
 import { decodeWith, SH_C0 } from './decode.mjs';
+import { streamWith } from './stream.mjs';
+export { frustumPlanes } from './stream.mjs';
 import * as threads from './threads_node.mjs';
 
 export { BitstreamError, HashMismatchError, LghccError, ResourceLimitError, UnsupportedStreamError } from './errors.mjs';
@@ -9,3 +11,6 @@ export { SH_C0 };
 
 /** Decode a .lghcc stream (README.md; index.d.ts). */
 export function decode(input, options) { return decodeWith(threads, input, options); }
+
+/** Stream a .lghcc file from a URL by tiles with HTTP Range requests (README.md; index.d.ts). */
+export function stream(url, options) { return streamWith(threads, url, options); }

@@ -117,10 +117,12 @@ export class TilePool {
         };
     }
 
-    // the queued tile with the most points: the last tiles to finish are small ones
+    // the queued tile a stream ranks first (ctx.rank: stream.mjs's nearest-first order), else the one
+    // with the most points: the last tiles to finish are small ones
     _take() {
+        const key = (j) => (j.ctx.rank ? -j.ctx.rank.get(j.t) : j.ctx.tiles[j.t].points);
         let b = 0;
-        for (let i = 1; i < this.queue.length; i++) if (this.queue[i].ctx.tiles[this.queue[i].t].points > this.queue[b].ctx.tiles[this.queue[b].t].points) b = i;
+        for (let i = 1; i < this.queue.length; i++) if (key(this.queue[i]) > key(this.queue[b])) b = i;
         return this.queue.splice(b, 1)[0];
     }
 

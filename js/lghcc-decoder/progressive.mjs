@@ -16,14 +16,16 @@ export class ProgressiveDecoder {
      * result; tiles in parallel workers, onTile in any order). minPoolTiles: a stream of fewer tiles is
      * decoded here, without the pool (a decoding worker pays for helpers only with two tiles or more;
      * a page's main thread, which should decode nothing, gives 1). box: only the tiles it selects
-     * (clause 13.3, tilesInBox) are decoded; the others are skipped as their bytes pass.
+     * (clause 13.3, tilesInBox) are decoded; the others are skipped as their bytes pass. select:
+     * instead of a box, select(ctx) gives the numbers of the tiles to decode (stream.mjs's choice).
      */
-    constructor({ onTile = null, maxMemory = DEFAULT_MAX_MEMORY, pool = null, minPoolTiles = 2, box = null } = {}) {
+    constructor({ onTile = null, maxMemory = DEFAULT_MAX_MEMORY, pool = null, minPoolTiles = 2, box = null, select = null } = {}) {
         this.onTile = onTile;
         this.maxMemory = maxMemory;
         this.pool = pool;
         this.minPoolTiles = minPoolTiles;
         this.box = box;
+        this.select = select;
         this.pending = []; // per tile started, the promise of its result
         this.failed = null; // the first tile that failed
         this.buf = new Uint8Array(1 << 16);
@@ -54,16 +56,7 @@ export class ProgressiveDecoder {
     // the units' boundaries; a unit's CRC-32 is checked by _verify, before its payload is parsed or
     // its tile decoded here (with a pool: right after the tiles complete so far are handed out)
     _scanUnits() {
-        const b = this.buf;
-        while (this.scan + 9 <= this.len) {
-            const p = this.scan;
-            const size = ((b[p + 1] << 24) | (b[p + 2] << 16) | (b[p + 3] << 8) | b[p + 4]) >>> 0;
-            if (p + 9 + size > this.len) break;
-            const end = p + 5 + size;
-            const stored = ((b[end] << 24) | (b[end + 1] << 16) | (b[end + 2] << 8) | b[end + 3]) >>> 0;
-            this.units.push({ type: b[p], start: p, end: end + 4, stored, index: this.units.length, payload: b.slice(p + 5, end) });
-            this.scan = end + 4;
-        }
+        this.scan = scanUnits(this.buf, this.len, this.scan, this.units);
     }
 
     // E9 for the units scanned so far before index upTo, in stream order
@@ -74,40 +67,9 @@ export class ProgressiveDecoder {
         }
     }
 
-    // the prelude (parameter set, neighbour prediction, step adjustment (and its flags), SH degree, rotation length, tile index) from the units so far
+    // the prelude from the units so far (preludeFromUnits), their CRCs checked first
     _prelude() {
-        const crit = this.units.filter((u) => u.type < 0x80);
-        if (!crit.length || crit[0].type !== UNIT.GAUSSIAN_PARAMETER_SET) return null;
-        const last = crit.findIndex((u) => u.type === UNIT.TILE_INDEX || u.type === UNIT.GEOMETRY);
-        if (last < 0) return null;
-        this._verify(crit[last].index + 1); // the units this parses
-        const ps = parseGaussianParameterSet(crit[0].payload);
-        if (ps.hierarchyEnabled) return null; // rejected by finish()
-        let i = 1;
-        const payloads = { ps: crit[0].payload, np: null, sa: null, sf: null, sd: null, rl: null };
-        const next = (type) => (crit[i] && crit[i].type === type ? crit[i++].payload : null);
-        payloads.np = next(UNIT.NEIGHBOUR_PREDICTION);
-        if (payloads.np) {
-            payloads.sa = next(UNIT.STEP_ADJUST);
-            if (payloads.sa) payloads.sf = next(UNIT.STEP_ADJUST_FLAGS);
-            payloads.sd = next(UNIT.SH_DEGREE);
-        }
-        payloads.rl = next(UNIT.ROTATION_LENGTH);
-        const ctx = preludeContext(ps, payloads);
-        if (!crit[i]) return null;
-        if (ps.tilesEnabled) {
-            if (crit[i].type !== UNIT.TILE_INDEX) return null;
-            const ti = crit[i];
-            let pos = ti.end;
-            ctx.tiles = parseTileIndex(ti.payload, ps.numGaussians).map((t) => {
-                const r = { points: t.points, cell: t.cell, start: pos, end: pos + t.size };
-                pos += t.size;
-                return r;
-            });
-        } else {
-            ctx.tiles = [{ points: ps.numGaussians, cell: null, start: crit[i].start, end: Infinity }];
-        }
-        return ctx;
+        return preludeFromUnits(this.units, (upTo) => this._verify(upTo));
     }
 
     async _advance() {
@@ -146,10 +108,10 @@ export class ProgressiveDecoder {
         if (this.pool) this.pool.start(ctx);
     }
 
-    // whether tile t is decoded: every tile, or those the box selects
+    // whether tile t is decoded: every tile, or those the box (or select) selects
     _selected(ctx, t) {
-        if (!this.box) return true;
-        if (!ctx.selected) ctx.selected = new Set(tilesInBox(ctx, this.box));
+        if (!this.box && !this.select) return true;
+        if (!ctx.selected) ctx.selected = new Set(this.select ? this.select(ctx) : tilesInBox(ctx, this.box));
         return ctx.selected.has(t);
     }
 
@@ -189,6 +151,67 @@ export class ProgressiveDecoder {
         mark('tiles');
         return { ps: ctx.ps, tiles: this.tiles.filter(Boolean) }; // in stream order (a box's tiles only)
     }
+}
+
+/**
+ * The complete data units of bytes[scan, len) appended to units ({type, start, end, stored, index,
+ * payload (a copy)}; CRCs not checked); returns the byte after the last complete one.
+ */
+export function scanUnits(b, len, scan, units) {
+    while (scan + 9 <= len) {
+        const p = scan;
+        const size = ((b[p + 1] << 24) | (b[p + 2] << 16) | (b[p + 3] << 8) | b[p + 4]) >>> 0;
+        if (p + 9 + size > len) break;
+        const end = p + 5 + size;
+        const stored = ((b[end] << 24) | (b[end + 1] << 16) | (b[end + 2] << 8) | b[end + 3]) >>> 0;
+        units.push({ type: b[p], start: p, end: end + 4, stored, index: units.length, payload: b.slice(p + 5, end) });
+        scan = end + 4;
+    }
+    return scan;
+}
+
+/**
+ * The prelude (parameter set, neighbour prediction, step adjustment (and its flags), SH degree,
+ * rotation length, tile index) from the complete units of a stream's first bytes ({type, start, end,
+ * index, payload}, in stream order): the stream's context with ctx.tiles = [{points, cell, start,
+ * end}] (byte positions from the index; an untiled stream's one tile ends at Infinity), or null while
+ * a unit of it is missing. verify(upTo) checks the CRC-32 of units[0, upTo) before they are parsed.
+ * A stream with the hierarchy gives null (the full parse rejects it).
+ */
+export function preludeFromUnits(units, verify) {
+    const crit = units.filter((u) => u.type < 0x80);
+    if (!crit.length || crit[0].type !== UNIT.GAUSSIAN_PARAMETER_SET) return null;
+    const last = crit.findIndex((u) => u.type === UNIT.TILE_INDEX || u.type === UNIT.GEOMETRY);
+    if (last < 0) return null;
+    verify(crit[last].index + 1); // the units this parses
+    const ps = parseGaussianParameterSet(crit[0].payload);
+    if (ps.hierarchyEnabled) return null; // rejected by the full parse
+    let i = 1;
+    const payloads = { ps: crit[0].payload, np: null, sa: null, sf: null, sd: null, rl: null };
+    const next = (type) => (crit[i] && crit[i].type === type ? crit[i++].payload : null);
+    payloads.np = next(UNIT.NEIGHBOUR_PREDICTION);
+    if (payloads.np) {
+        payloads.sa = next(UNIT.STEP_ADJUST);
+        if (payloads.sa) payloads.sf = next(UNIT.STEP_ADJUST_FLAGS);
+        payloads.sd = next(UNIT.SH_DEGREE);
+    }
+    payloads.rl = next(UNIT.ROTATION_LENGTH);
+    const ctx = preludeContext(ps, payloads);
+    if (!crit[i]) return null;
+    if (ps.tilesEnabled) {
+        if (crit[i].type !== UNIT.TILE_INDEX) return null;
+        const ti = crit[i];
+        let pos = ti.end;
+        ctx.tiles = parseTileIndex(ti.payload, ps.numGaussians).map((t) => {
+            const r = { points: t.points, cell: t.cell, start: pos, end: pos + t.size };
+            pos += t.size;
+            return r;
+        });
+        ctx.tileIndexEnd = ti.end;
+    } else {
+        ctx.tiles = [{ points: ps.numGaussians, cell: null, start: crit[i].start, end: Infinity }];
+    }
+    return ctx;
 }
 
 export { sceneArrays };

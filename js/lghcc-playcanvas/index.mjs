@@ -7,6 +7,7 @@ import { decode } from 'lghcc-decoder';
 import { gsplatData } from './gsplat-data.mjs';
 
 export { gsplatData };
+export { LghccStream } from './stream.mjs';
 
 /**
  * A parser of the engine's gsplat resource handler for .lghcc files:

@@ -1,9 +1,10 @@
 // lghcc-three: .lghcc scenes (LG-HCC compressed 3D Gaussian Splatting) for three.js with Spark
 // (@sparkjsdev/spark). LghccLoader is a three.js Loader, as Spark's SplatLoader is: it gives a
-// PackedSplats that a SplatMesh draws; packedSplats() converts a scene decoded by lghcc-decoder.
-import { Loader } from 'three';
-import { PackedSplats, defines, utils } from '@sparkjsdev/spark';
-import { decode } from 'lghcc-decoder';
+// PackedSplats that a SplatMesh draws; packedSplats() converts a scene decoded by lghcc-decoder;
+// LghccStream is a Group that streams a file by tiles (HTTP Range requests), a SplatMesh per tile.
+import { Group, Loader, Matrix4, Vector3 } from 'three';
+import { PackedSplats, SplatMesh, defines, utils } from '@sparkjsdev/spark';
+import { decode, frustumPlanes, stream } from 'lghcc-decoder';
 
 // coefficients per colour channel of SH bands 1, 2, 3, and the uint32 words Spark packs each band in
 const BAND_COEFFS = [3, 5, 7];
@@ -104,4 +105,118 @@ export class LghccLoader extends Loader {
         });
         return packedSplats(scene);
     }
+}
+
+/**
+ * A three.js Group that streams a .lghcc file by tiles (lghcc-decoder's stream(): HTTP Range
+ * requests, the tiles nearest the camera first, a box or the camera's frustum limiting what is
+ * fetched) and draws the tiles as they are decoded: a SplatMesh per batch of tiles is added to the group.
+ *
+ *     const splats = new LghccStream('scene.lghcc', { camera });
+ *     splats.quaternion.set(1, 0, 0, 0);   // placed before the tiles are chosen (see onIndex)
+ *     scene.add(splats);
+ *     await splats.loaded;
+ *
+ * options: camera (a THREE.Camera: the tiles nearest it first; its position, and with cull: true its
+ * frustum, taken in the group's coordinates once the tile index is in, after onIndex), cull, box
+ * ([x0, y0, z0, x1, y1, z1] in the stream's coordinates), onIndex(index, group) (the index before any
+ * tile is fetched: {tiles, count, shDegree, bounds of the cells in the stream's coordinates}: frame the
+ * camera here), onProgress(ProgressEvent), workers, maxMemory, signal, headers, credentials.
+ * Events: 'tiles' ({tiles: tile numbers, count, mesh}) per SplatMesh added (a batch of tiles: the
+ * first tile alone, at once), 'loaded' ({result}) at the end, 'error' ({error}).
+ */
+export class LghccStream extends Group {
+    constructor(url, options = {}) {
+        super();
+        const { camera = null, cull = false, onIndex = null, onProgress = null, signal = null, ...rest } = options;
+        if (cull && !camera) throw new TypeError('LghccStream: cull needs a camera');
+        this.url = url;
+        this.count = 0; // Gaussians drawn so far
+        this.pending = []; // tiles decoded, not yet drawn
+        this.timer = null;
+        this.delay = 0; // the first tile is drawn at once, the next batches BATCH_MS, 2 BATCH_MS, ... later
+        this.abortController = new AbortController();
+        if (signal) signal.addEventListener('abort', () => this.abortController.abort(signal.reason), { once: true });
+        const atIndex = (index) => {
+            if (onIndex) onIndex(index, this);
+            return camera ? this._local(camera) : null;
+        };
+        this.loaded = stream(url, {
+            ...withoutUndefined(rest), activated: true, signal: this.abortController.signal,
+            camera: camera || onIndex ? atIndex : null,
+            frustum: cull ? () => this._frustum(camera) : null,
+            onTile: (tile) => this._queue(tile),
+            onProgress: onProgress ? (p) => onProgress(progressEvent(p)) : null,
+        }).then((scene) => {
+            this._flush(); // the tiles still queued drawn now
+            const result = { count: scene.count, tiles: scene.tiles, bounds: scene.bounds, ranged: scene.ranged, requests: scene.requests, bytesFetched: scene.bytesFetched, bytesTotal: scene.bytesTotal };
+            this.dispatchEvent({ type: 'loaded', result });
+            return result;
+        }, (error) => {
+            this.dispatchEvent({ type: 'error', error });
+            throw error;
+        });
+    }
+
+    /** Stop streaming (the promise `loaded` rejects with reason); the tiles drawn so far stay. */
+    abort(reason) {
+        this.abortController.abort(reason);
+    }
+
+    // the tiles are drawn in batches, each a SplatMesh: Spark generates every splat of the scene again
+    // when a mesh is added (with a software renderer that costs as much as the first draw, and slows the
+    // transfer it competes with), so the batches grow: the first tile at once, then at BATCH_MS,
+    // 2 BATCH_MS, 4 BATCH_MS ... (at most MAX_BATCH_MS) apart
+    _queue(tile) {
+        this.pending.push(tile);
+        if (this.timer === null) this.timer = setTimeout(() => this._flush(), this.delay);
+    }
+
+    _flush() {
+        if (this.timer !== null) clearTimeout(this.timer);
+        this.timer = null;
+        const tiles = this.pending.splice(0);
+        if (!tiles.length) return;
+        this.delay = Math.min(MAX_BATCH_MS, Math.max(BATCH_MS, 2 * this.delay));
+        const mesh = new SplatMesh({ packedSplats: packedSplats(joined(tiles)) });
+        this.add(mesh);
+        const count = tiles.reduce((n, t) => n + t.count, 0);
+        this.count += count;
+        this.dispatchEvent({ type: 'tiles', tiles: tiles.map((t) => t.tile), count, mesh });
+    }
+
+    // the camera's position in the group's (the stream's) coordinates
+    _local(camera) {
+        this.updateWorldMatrix(true, false);
+        camera.updateWorldMatrix(true, false);
+        const p = camera.getWorldPosition(new Vector3()).applyMatrix4(new Matrix4().copy(this.matrixWorld).invert());
+        return [p.x, p.y, p.z];
+    }
+
+    // the camera's frustum in the group's coordinates: planes [a, b, c, d], inside where a·x + b·y + c·z + d >= 0
+    _frustum(camera) {
+        this.updateWorldMatrix(true, false);
+        camera.updateWorldMatrix(true, false);
+        const m = new Matrix4().multiplyMatrices(camera.projectionMatrix, camera.matrixWorldInverse).multiply(this.matrixWorld);
+        return frustumPlanes(m.elements);
+    }
+}
+
+const BATCH_MS = 250;
+const MAX_BATCH_MS = 8000;
+
+// the tiles' Gaussians as one scene (packedSplats() takes it)
+function joined(tiles) {
+    if (tiles.length === 1) return tiles[0];
+    const out = { count: tiles.reduce((n, t) => n + t.count, 0) };
+    for (const k of ['positions', 'scales', 'rotations', 'opacities', 'colors', 'sh']) {
+        out[k] = new Float32Array(tiles.reduce((n, t) => n + t[k].length, 0));
+        let at = 0;
+        for (const t of tiles) { out[k].set(t[k], at); at += t[k].length; }
+    }
+    return out;
+}
+
+function withoutUndefined(o) {
+    return Object.fromEntries(Object.entries(o).filter(([, v]) => v !== undefined));
 }
