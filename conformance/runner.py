@@ -162,7 +162,10 @@ def validate_meta(meta, folder: Path) -> dict:
     _validate_expected_error(meta, expect, folder)
     if "condition" in meta and (expect != "error" or not isinstance(meta["condition"], str)
                                 or not CONDITION_ID.fullmatch(meta["condition"])):
-        raise _bad(folder, f"condition {meta['condition']!r}: a row of spec clause 8.2 (E1 .. E65), on an error stream")
+        raise _bad(folder, f"condition {meta['condition']!r}: a row of spec clause 8.2 (E1 .. E67), on an error stream")
+    for key in ("bound", "check_removal"):  # which bound of the condition an isolated stream breaks
+        if key in meta and ("condition" not in meta or not isinstance(meta[key], str) or not meta[key].strip()):
+            raise _bad(folder, f"{key} {meta[key]!r}: a non-empty text, on an isolated stream (condition)")
     if "renders" in meta:
         if expect != "decode":
             raise _bad(folder, "renders on an error stream")

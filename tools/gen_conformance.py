@@ -768,7 +768,7 @@ def isolate(entry: dict, encoded: bytes) -> bytes:
     from lghcc.conformance.conditions import CHECK_REMOVALS, HASH_CONDITION, call_without_check, mutant_decode
 
     cond, post = entry["condition"], entry.get("post", {})
-    mutation = CHECK_REMOVALS[cond]
+    mutation = entry.get("check_removal") or CHECK_REMOVALS[cond]
 
     def edited(hashes: tuple[bytes, ...] | None = None) -> bytes:
         if entry.get("edit_without_check"):  # e.g. a k-NN of points beyond the extent limit
@@ -1121,6 +1121,9 @@ def test_yaml(entry: dict, data: bytes, decoded: str | None) -> dict:
         meta["expect_message"] = entry["expect_message"]
     if entry.get("condition"):  # an isolated error stream: the one condition of clause 8.2 it breaks
         meta["condition"] = entry["condition"]
+        for key in ("bound", "check_removal"):  # the bound of the condition it breaks, when it has several
+            if entry.get(key):
+                meta[key] = entry[key]
     meta["stream_bytes"] = len(data)
     meta["stream_sha256"] = hashlib.sha256(data).hexdigest()
     if decoded:
