@@ -1095,13 +1095,22 @@ def partial_decodes_meta(entry: dict, data: bytes) -> list[dict] | None:
     """test.yaml's ``partial_decodes`` (version 1, clause 13.3): for each partial decode sources.yaml
     asks for (``box``: the tiles whose cell meets a box; ``level: 1``: the level-1 preview; both: the
     preview of those tiles), how many tiles the reference decoder decodes, with a box which ones
-    (``tiles``: their indices in stream order), and the SHA-256 of what it outputs."""
+    (``tiles``: their indices in stream order), and the SHA-256 of what it outputs; ``refused``: the
+    preview of a stream without the hierarchy, which the reference decoder refuses (UsageError)."""
+    from lghcc.common.errors import UsageError
     from lghcc.common.hashing import digest_of
     from lghcc.common.tiles import Box
     from lghcc.decoder.decode import decode_stream, parse_stream, selected_tiles
 
     out = []
     for p in entry.get("partial_decodes", []):
+        if p.get("refused"):
+            try:
+                decode_stream(data, max_level=1)
+            except UsageError:
+                out.append(dict(p))
+                continue
+            raise SystemExit(f"{entry['id']}: the reference decoder decodes a preview that must be refused")
         box = Box(tuple(p["box"][:3]), tuple(p["box"][3:])) if "box" in p else None
         res = decode_stream(data, box=box, max_level=int(p.get("level", 2)))
         meta = {**p, "tiles_decoded": res.tiles_decoded}
