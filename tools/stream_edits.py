@@ -336,6 +336,45 @@ def _box_min_x_for_top(payload: bytes, coords: np.ndarray, top: int) -> dict:
             "geom_bbox_min_abs": [abs(new_min)] + list(gh.geom_bbox_min_abs[1:])}
 
 
+def _geometry_with_header(payload: bytes, fields: dict) -> bytes:
+    """A geometry unit's payload with header fields rewritten, the coded data after its byte alignment kept."""
+    from lghcc.common.bitio import BitWriter
+    from lghcc.common.geometry import GeometryHeader
+
+    r = BitReader(payload)
+    gh = GeometryHeader.parse(r)
+    r.byte_align()
+    for name, value in fields.items():
+        setattr(gh, name, value)
+    w = BitWriter()
+    gh.write_to(w)
+    w.byte_align()
+    return w.getvalue() + payload[r.bit_position // 8:]
+
+
+def tile_point_beyond_cell(units, spec: dict) -> None:
+    """{t, by}: the geometry unit of tile t (default the last) with its box minimum along x moved so
+    that the tile's largest decoded x lies ``by`` voxels beyond its cell (clause 7.3.11, E58; by 1:
+    the first coordinate outside), the tile's tile_data_size following the unit's new length."""
+    from lghcc.common.container import UNIT_CRC_BYTES, UNIT_HEADER_BYTES
+    from lghcc.common.geometry import decode_geometry
+    from lghcc.common.tiles import cell_bounds
+    from lghcc.common.units import TileIndex
+
+    i = _index(units, UnitType.TILE_INDEX)
+    index = TileIndex.parse(BitReader(units[i].payload), num_points=1 << 24)
+    starts = [j for j, u in enumerate(units) if u.unit_type == UnitType.GEOMETRY]
+    ends = [j for j, u in enumerate(units) if u.unit_type == UnitType.DECODED_SCENE_HASH]
+    t = int(spec.get("t", -1)) % len(starts)
+    g = starts[t]
+    coords = decode_geometry(units[g].payload, index.tile_num_points_minus1[t] + 1)
+    _, hi = cell_bounds((index.tile_x[t], index.tile_y[t], index.tile_z[t]), _sps(units).tile_size)
+    fields = _box_min_x_for_top(units[g].payload, coords, int(hi[0]) + int(spec.get("by", 1)))
+    units[g] = DataUnit(UnitType.GEOMETRY, _geometry_with_header(units[g].payload, fields))
+    index.tile_data_size[t] = sum(UNIT_HEADER_BYTES + len(u.payload) + UNIT_CRC_BYTES for u in units[g:ends[t] + 1])
+    units[i] = DataUnit(UnitType.TILE_INDEX, index.to_bytes())
+
+
 def geometry_edit(units, spec: dict) -> None:
     """{duplicate_isolated: true}: one isolated anchor repeated (an IDCM node with the same point
     twice, num_anchors + 1; with ``with_row``, the attribute unit re-coded with a row for it); {shift_min: [1, 0, 0]}: the box minimum one below every point;
@@ -366,18 +405,7 @@ def geometry_edit(units, spec: dict) -> None:
         spec = {**spec, "header": {**spec.get("header", {}), **_box_min_x_for_top(units[j].payload, coords,
                                                                                   int(spec["top_x"]))}}
     if "header" in spec:  # header fields rewritten, the coded data after the byte alignment kept
-        from lghcc.common.bitio import BitWriter
-        from lghcc.common.geometry import GeometryHeader
-
-        r = BitReader(units[j].payload)
-        gh = GeometryHeader.parse(r)
-        r.byte_align()
-        for name, value in spec["header"].items():
-            setattr(gh, name, value)
-        w = BitWriter()
-        gh.write_to(w)
-        w.byte_align()
-        units[j] = DataUnit(UnitType.GEOMETRY, w.getvalue() + units[j].payload[r.bit_position // 8:])
+        units[j] = DataUnit(UnitType.GEOMETRY, _geometry_with_header(units[j].payload, spec["header"]))
     if "anchors_delta" in spec:
         sps.num_anchors_minus1 += int(spec["anchors_delta"])
         units[s] = DataUnit(UnitType.SCENE_PARAMETER_SET, sps.to_bytes())
@@ -980,5 +1008,5 @@ def apply_edits(units, post: dict) -> None:
 _EDITS_IN_ORDER = (
     designed_model, set_q, escape_classes, edit_chunk, recode_attribute_header,
     geometry_edit, context_unit, render_unit, neighbour_prediction, step_adjust,
-    sh_degree, rotation_length, set_elements, flatten_hierarchy, swap_tiles, nonzero_alignment,
+    sh_degree, rotation_length, set_elements, flatten_hierarchy, swap_tiles, tile_point_beyond_cell, nonzero_alignment,
 )
