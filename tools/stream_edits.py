@@ -356,22 +356,83 @@ def tile_point_beyond_cell(units, spec: dict) -> None:
     """{t, by}: the geometry unit of tile t (default the last) with its box minimum along x moved so
     that the tile's largest decoded x lies ``by`` voxels beyond its cell (clause 7.3.11, E58; by 1:
     the first coordinate outside), the tile's tile_data_size following the unit's new length."""
-    from lghcc.common.container import UNIT_CRC_BYTES, UNIT_HEADER_BYTES
     from lghcc.common.geometry import decode_geometry
     from lghcc.common.tiles import cell_bounds
+
+    i, index, starts, ends = _tiles(units)
+    t = int(spec.get("t", -1)) % len(starts)
+    g = starts[t]
+    cell = (index.tile_x[t], index.tile_y[t], index.tile_z[t])
+    coords = decode_geometry(units[g].payload, index.tile_num_points_minus1[t] + 1)
+    _, hi = cell_bounds(cell, _sps(units).tile_size)
+    fields = _box_min_x_for_top(units[g].payload, coords, int(hi[0]) + int(spec.get("by", 1)))
+    units[g] = DataUnit(UnitType.GEOMETRY, _geometry_with_header(units[g].payload, fields))
+    _reframe_tile(units, index, t, starts, ends, cell)
+    units[i] = DataUnit(UnitType.TILE_INDEX, index.to_bytes())
+
+
+def _tiles(units):
+    """(tile_index unit position, its TileIndex, each tile's geometry unit position, each tile's hash unit position)."""
     from lghcc.common.units import TileIndex
 
     i = _index(units, UnitType.TILE_INDEX)
-    index = TileIndex.parse(BitReader(units[i].payload), num_points=1 << 24)
     starts = [j for j, u in enumerate(units) if u.unit_type == UnitType.GEOMETRY]
     ends = [j for j, u in enumerate(units) if u.unit_type == UnitType.DECODED_SCENE_HASH]
-    t = int(spec.get("t", -1)) % len(starts)
+    return i, TileIndex.parse(BitReader(units[i].payload), num_points=1 << 24), starts, ends
+
+
+def _box_min_shifted(payload: bytes, delta) -> dict:
+    """The geometry header's box-minimum fields moved by ``delta`` voxels per axis (the coded offsets kept)."""
+    from lghcc.common.geometry import GeometryHeader
+
+    gh = GeometryHeader.parse(BitReader(payload))
+    mins = [(-a if f else a) + int(d) for a, f, d in zip(gh.geom_bbox_min_abs, gh.geom_bbox_min_sign_flag, delta)]
+    return {"geom_bbox_min_sign_flag": [int(m < 0) for m in mins], "geom_bbox_min_abs": [abs(m) for m in mins]}
+
+
+def _reframe_tile(units, index, t: int, starts, ends, cell) -> None:
+    """Tile t's cell set and its tile_data_size made that of its units (after an edit of them)."""
+    from lghcc.common.container import UNIT_CRC_BYTES, UNIT_HEADER_BYTES
+
+    index.tile_x[t], index.tile_y[t], index.tile_z[t] = (int(c) for c in cell)
+    index.tile_data_size[t] = sum(UNIT_HEADER_BYTES + len(u.payload) + UNIT_CRC_BYTES
+                                  for u in units[starts[t]:ends[t] + 1])
+
+
+def tile_into_cell_of(units, spec: dict) -> None:
+    """{t, of}: tile t moved into tile ``of``'s cell: its cell set to that one and its points moved by
+    the whole cells between (its geometry box minimum shifted), so that every point lies in its
+    tile's cell and two tiles share a cell (clause 7.3.11, E56 with equal cells)."""
+    i, index, starts, ends = _tiles(units)
+    t, of = int(spec["t"]), int(spec["of"])
+    size = _sps(units).tile_size
+    cell_t = (index.tile_x[t], index.tile_y[t], index.tile_z[t])
+    cell_of = (index.tile_x[of], index.tile_y[of], index.tile_z[of])
+    delta = [(b - a) * size for a, b in zip(cell_t, cell_of)]
     g = starts[t]
-    coords = decode_geometry(units[g].payload, index.tile_num_points_minus1[t] + 1)
-    _, hi = cell_bounds((index.tile_x[t], index.tile_y[t], index.tile_z[t]), _sps(units).tile_size)
-    fields = _box_min_x_for_top(units[g].payload, coords, int(hi[0]) + int(spec.get("by", 1)))
-    units[g] = DataUnit(UnitType.GEOMETRY, _geometry_with_header(units[g].payload, fields))
-    index.tile_data_size[t] = sum(UNIT_HEADER_BYTES + len(u.payload) + UNIT_CRC_BYTES for u in units[g:ends[t] + 1])
+    units[g] = DataUnit(UnitType.GEOMETRY, _geometry_with_header(units[g].payload, _box_min_shifted(units[g].payload,
+                                                                                                    delta)))
+    _reframe_tile(units, index, t, starts, ends, cell_of)
+    units[i] = DataUnit(UnitType.TILE_INDEX, index.to_bytes())
+
+
+def tile_scale_cells(units, spec: dict) -> None:
+    """{tile_scale_minus1: s}: the parameter set's tile_scale_minus1 set to s and every tile's cell
+    recomputed from its points for that tile size (each tile's points must share one cell of it;
+    the cells must stay in increasing order): a stream consistent but for the element's range when s
+    is beyond it (clause 7.3.1)."""
+    from lghcc.common.geometry import decode_geometry
+
+    i, index, starts, ends = _tiles(units)
+    ps_at, ps = _ps_index(units), _sps(units)
+    ps.tile_scale_minus1 = int(spec["tile_scale_minus1"])
+    units[ps_at] = DataUnit(units[ps_at].unit_type, ps.to_bytes())
+    for t, g in enumerate(starts):
+        coords = decode_geometry(units[g].payload, index.tile_num_points_minus1[t] + 1)
+        cells = np.unique(np.floor_divide(coords, ps.tile_size), axis=0)
+        if len(cells) != 1:
+            raise ValueError(f"tile {t}'s points lie in {len(cells)} cells of {ps.tile_size} voxels")
+        _reframe_tile(units, index, t, starts, ends, cells[0])
     units[i] = DataUnit(UnitType.TILE_INDEX, index.to_bytes())
 
 
@@ -1008,5 +1069,6 @@ def apply_edits(units, post: dict) -> None:
 _EDITS_IN_ORDER = (
     designed_model, set_q, escape_classes, edit_chunk, recode_attribute_header,
     geometry_edit, context_unit, render_unit, neighbour_prediction, step_adjust,
-    sh_degree, rotation_length, set_elements, flatten_hierarchy, swap_tiles, tile_point_beyond_cell, nonzero_alignment,
+    sh_degree, rotation_length, set_elements, flatten_hierarchy, swap_tiles, tile_point_beyond_cell, tile_into_cell_of,
+    tile_scale_cells, nonzero_alignment,
 )
