@@ -83,18 +83,43 @@ NOT_ISOLATED: dict[str, str] = {
 }
 
 
-def isolated_streams(root=None) -> dict[str, str]:
-    """condition -> the id of its isolated error stream (test.yaml ``condition``)."""
+@dataclass(frozen=True)
+class IsolatedStream:
+    """One isolated error stream (test.yaml ``condition``): the condition it breaks, which bound or
+    field of that condition's check it breaks (``bound``; a condition with one bound leaves it
+    empty) and the mutation that removes exactly that check (``check_removal``: CHECK_REMOVALS of
+    the condition unless the stream names a narrower one, e.g. one range of E19)."""
+
+    id: str
+    condition: str
+    bound: str
+    check_removal: str
+
+
+def isolated_stream_list(root=None) -> list[IsolatedStream]:
+    """Every isolated error stream, in the order of their ids."""
     import yaml
 
     from . import STREAMS_DIR
 
-    out = {}
+    out = []
     for meta_file in sorted((root or STREAMS_DIR).glob("*/test.yaml")):
         meta = yaml.safe_load(meta_file.read_text())
         if meta.get("condition"):
-            out[meta["condition"]] = meta["id"]
+            cond = meta["condition"]
+            out.append(IsolatedStream(meta["id"], cond, meta.get("bound", ""),
+                                      meta.get("check_removal") or CHECK_REMOVALS[cond]))
     return out
+
+
+def isolated_streams(root=None) -> dict[str, str]:
+    """condition -> the id of its first isolated error stream (the one clause 8.2's table names
+    first; the streams of its other bounds: ``isolated_stream_list``)."""
+    out: dict[str, str] = {}
+    for s in isolated_stream_list(root):
+        out.setdefault(s.condition, s.id)
+    return out
+
 
 CONDITION_ID = re.compile(r"E[1-9][0-9]?")
 

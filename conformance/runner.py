@@ -14,7 +14,9 @@ Each stream lives in ``conformance/streams/<id>/`` as ``stream.lghcc`` and ``tes
                    what it outputs: ``box`` [x0, y0, z0, x1, y1, z1]: the tiles whose cell meets the
                    box (``tiles_decoded`` of them, ``tiles``: their indices in stream order; none: the
                    empty scene), ``level: 1``: the level-1 preview (clause 13.3), both: the preview
-                   of the tiles the box selects; ``purpose`` says what the box tests. Checked for the
+                   of the tiles the box selects; ``level: 1`` with ``refused: true`` (no hash): a stream
+                   without the hierarchy, whose preview a decoder shall refuse and output nothing
+                   (clause 13.3; exit status 2, usage); ``purpose`` says what the box tests. Checked for the
                    reference decoder (hash and tile count), and for another with ``{options}`` in
                    its --decoder-cmd (replaced by lghcc-dec's options: --box=..., --level 1)
   source_info      (streams with a source_info unit, informative: clauses 6.3, 7.3.10)
@@ -81,7 +83,7 @@ import yaml  # noqa: E402
 
 from ..app.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM, EXIT_RESOURCE_LIMIT,  # noqa: E402
                               EXIT_USAGE, exit_code_for_class)
-from ..common.errors import LghccError  # noqa: E402
+from ..common.errors import LghccError, UsageError  # noqa: E402
 from .conditions import CONDITION_ID  # noqa: E402
 
 from . import STREAMS_DIR  # noqa: E402
@@ -162,7 +164,10 @@ def validate_meta(meta, folder: Path) -> dict:
     _validate_expected_error(meta, expect, folder)
     if "condition" in meta and (expect != "error" or not isinstance(meta["condition"], str)
                                 or not CONDITION_ID.fullmatch(meta["condition"])):
-        raise _bad(folder, f"condition {meta['condition']!r}: a row of spec clause 8.2 (E1 .. E65), on an error stream")
+        raise _bad(folder, f"condition {meta['condition']!r}: a row of spec clause 8.2 (E1 .. E67), on an error stream")
+    for key in ("bound", "check_removal"):  # which bound of the condition an isolated stream breaks
+        if key in meta and ("condition" not in meta or not isinstance(meta[key], str) or not meta[key].strip()):
+            raise _bad(folder, f"{key} {meta[key]!r}: a non-empty text, on an isolated stream (condition)")
     if "renders" in meta:
         if expect != "decode":
             raise _bad(folder, "renders on an error stream")
@@ -180,6 +185,10 @@ def validate_partial_decodes(parts, expect: str, folder: Path) -> None:
     if expect != "decode" or not isinstance(parts, list) or not parts:
         raise _bad(folder, "partial_decodes must be a non-empty list, on a stream that must decode")
     for p in parts:
+        if isinstance(p, dict) and p.get("refused") is not None:
+            if p["refused"] is not True or p.get("level") != 1 or "decoded_sha256" in p or "box" in p:
+                raise _bad(folder, f"partial decode {p!r}: refused: true goes with level: 1 alone, without a hash")
+            continue
         if not isinstance(p, dict) or not _HEX64.fullmatch(str(p.get("decoded_sha256", ""))):
             raise _bad(folder, f"partial decode {p!r}: missing or malformed decoded_sha256")
         box_ok = "box" in p and isinstance(p["box"], list) and len(p["box"]) == 6 and \
@@ -451,8 +460,14 @@ def _judge_partial_internal(case: Case, note: str) -> tuple[bool, str]:
         box = Box(tuple(p["box"][:3]), tuple(p["box"][3:])) if "box" in p else None
         try:
             res = decode_stream(data, box=box, max_level=int(p.get("level", 2)))
+        except UsageError as e:
+            if p.get("refused"):  # a preview of a stream without the hierarchy (clause 13.3)
+                continue
+            return False, f"{note}; partial decode {' '.join(partial_options(p))} failed: {e}"
         except LghccError as e:
             return False, f"{note}; partial decode {' '.join(partial_options(p))} failed: {e}"
+        if p.get("refused"):
+            return False, f"{note}; partial decode {' '.join(partial_options(p))}: decoded, expected a refusal"
         got = digest_of(res.scene).hex()
         if got != p["decoded_sha256"]:
             return False, f"{note}; partial decode {' '.join(partial_options(p))}: hash {got[:16]}... differs"
@@ -518,6 +533,11 @@ def _run_external(case: Case, template: str, timeout: float, render: bool) -> tu
         if ok and "partial_decodes" in case.meta and "{options}" in shlex.split(template):
             for p in case.meta["partial_decodes"]:
                 ext = decode_external(template, case.stream, timeout, None, partial_options(p))
+                if p.get("refused"):  # refused with the usage status, nothing decoded (clause 13.3)
+                    if ext.status != "exit" or ext.code != 2:
+                        return False, f"{note}; partial decode {' '.join(partial_options(p))}: {ext.describe()}, " \
+                                      "expected a refusal (exit status 2)"
+                    continue
                 if ext.status != "exit" or ext.code != 0 or ext.last_line.lower() != p["decoded_sha256"]:
                     return False, f"{note}; partial decode {' '.join(partial_options(p))}: {ext.describe()}"
             note += f"; {len(case.meta['partial_decodes'])} partial decodes match"

@@ -55,7 +55,7 @@ def test_second_checks_of_a_mutation_apply_to_todays_code():
 
 def test_reference_decoder_rejects_every_isolated_stream():
     cases = [c for c in runner.load_cases() if c.meta.get("condition")]
-    assert len(cases) == len(conditions.isolated_streams()) >= 30
+    assert len(cases) == len(conditions.isolated_stream_list()) >= 30
     for case in cases:
         assert case.expect == "error"
         outcome = runner.run_case(case)
@@ -74,17 +74,40 @@ def _stored_hashes(stream: Path) -> tuple[bytes, ...]:
     return tuple(out)
 
 
-def _accepts(cond: str) -> None:
-    stream = runner.STREAMS_DIR / conditions.isolated_streams()[cond] / "stream.lghcc"
-    res = conditions.mutant_decode(conditions.CHECK_REMOVALS[cond], stream.read_bytes())
-    assert res.decoded, (cond, res.describe())
-    if cond != conditions.HASH_CONDITION:
-        assert res.digests == _stored_hashes(stream), cond  # the stream carries that decoder's hashes
+def _accepts(isolated: conditions.IsolatedStream) -> None:
+    stream = runner.STREAMS_DIR / isolated.id / "stream.lghcc"
+    res = conditions.mutant_decode(isolated.check_removal, stream.read_bytes())
+    assert res.decoded, (isolated.id, res.describe())
+    if isolated.condition != conditions.HASH_CONDITION:
+        assert res.digests == _stored_hashes(stream), isolated.id  # the stream carries that decoder's hashes
 
 
-@pytest.mark.parametrize("cond", ["E9", "E21", "E45", "E57"])
-def test_decoder_without_the_check_accepts_its_isolated_stream(cond):
-    _accepts(cond)
+def _isolated(stream_id: str) -> conditions.IsolatedStream:
+    return next(s for s in conditions.isolated_stream_list() if s.id == stream_id)
+
+
+@pytest.mark.parametrize("stream_id", ["x006_crc_mismatch", "x013_parameter_set_trailing_byte", "x025_attribute_level_mismatch",
+                                       "x040_tile_point_counts_beside_num_anchors",
+                                       "x055_gaussians_chunk_one_word_unread", "x057_gaussians_value_at_minus_limit",
+                                       "x063_gaussians_band_step_zero", "x064_rotation_w_value_overflows"])
+def test_decoder_without_the_check_accepts_its_isolated_stream(stream_id):
+    _accepts(_isolated(stream_id))
+
+
+def test_isolated_streams_of_one_condition_name_their_bound():
+    """A condition with several isolated streams (both ends of a range, each field of a two-field
+    rule, each profile): every stream but the table's first says which bound it breaks, no two alike;
+    a narrower check removal than the condition's is a mutation that exists."""
+    by_condition: dict[str, list[conditions.IsolatedStream]] = {}
+    for s in conditions.isolated_stream_list():
+        by_condition.setdefault(s.condition, []).append(s)
+    ids = {m.id for m in mutations.MUTATIONS}
+    assert any(len(v) > 1 for v in by_condition.values())
+    for cond, streams in by_condition.items():
+        assert streams[0].id == conditions.isolated_streams()[cond]
+        bounds = [s.bound for s in streams[1:]]
+        assert all(bounds) and len(set(bounds)) == len(bounds), (cond, bounds)
+        assert all(s.check_removal in ids for s in streams), cond
 
 
 def test_another_check_removed_still_rejects_for_the_condition():
@@ -96,5 +119,5 @@ def test_another_check_removed_still_rejects_for_the_condition():
 
 @pytest.mark.slow
 def test_every_check_removal_accepts_its_isolated_stream():
-    for cond in conditions.isolated_streams():
-        _accepts(cond)
+    for isolated in conditions.isolated_stream_list():
+        _accepts(isolated)

@@ -125,3 +125,18 @@ def test_results_section_is_rewritten_in_place_and_kept_by_fuzz_decoder(tmp_path
     fuzz_decoder.write_results(str(out), "# Decoder fuzzing: long run\n\nnew figures\n")
     text = out.read_text()
     assert "new figures" in text and "run 2" in text and "\nfigures" not in text
+
+
+def test_js_survivors_are_told_apart_equivalent_or_missing_a_stream():
+    """tools/js_mutation_test.py's report: a survivor whose condition cannot be isolated (clause 8.2)
+    or that EQUIVALENT names is equivalent under the rejection protocol; any other names what the
+    suite lacks. Every EQUIVALENT entry is a mutation of the list."""
+    by_id = {m.id: m for m in js_mutation_test.MUTATIONS}
+    assert set(js_mutation_test.EQUIVALENT) <= set(by_id)
+    equivalent, why = js_mutation_test.missing_stream(by_id["container.unit_type_0_ok"], {}, set())
+    assert equivalent and why.startswith("E7 cannot be isolated")
+    equivalent, why = js_mutation_test.missing_stream(by_id["units.equal_cells_ok"],
+                                                      {"E56": ["x042_tiles_swapped_with_their_cells"]}, set())
+    assert not equivalent and "x042_tiles_swapped_with_their_cells" in why and "outside the profile" in why
+    equivalent, _ = js_mutation_test.missing_stream(by_id["decoder.fewer_rows_ok"], {}, set())
+    assert equivalent

@@ -471,6 +471,26 @@ def test_partial_decode_tile_count_is_checked(tmp_path):
         runner.validate_partial_decodes(parts, "decode", case.folder)
 
 
+def test_a_preview_without_the_hierarchy_is_held_to_its_refusal(monkeypatch):
+    """Clause 13.3: a stream without the hierarchy has no level-1 preview. The suite's refused
+    previews (an anchor stream with and without masks, an explicit-Gaussian one) pass by refusing;
+    a decoder that outputs the whole decode as the preview fails them; a refused entry carries no hash."""
+    from lghcc.decoder import decode
+
+    cases = runner.load_cases(ids=["c065_tiles_small", "c069_gaussian_tiles_at_maximum_scale",
+                                   "c113_tiles_offset_masks"])
+    for case in cases:
+        assert any(p.get("refused") for p in case.meta["partial_decodes"]), case.id
+        assert runner.run_case(case).passed, case.id
+    whole = decode.decode_stream
+    monkeypatch.setattr(decode, "decode_stream", lambda data, box=None, max_level=2: whole(data, box=box))
+    o = runner.run_case(cases[0])
+    assert not o.passed and "expected a refusal" in o.note
+    bad = [{"level": 1, "refused": True, "decoded_sha256": "0" * 64}]
+    with pytest.raises(runner.LghccError, match="refused: true goes with level: 1 alone"):
+        runner.validate_partial_decodes(bad, "decode", cases[0].folder)
+
+
 def test_a_box_that_selects_no_tile_outputs_the_empty_scene():
     """Clause 13.3: no tile selected is no error; the output is the scene of N = 0 with the stream's
     header (for an explicit-Gaussian stream, an anchor stream and a level-1 preview)."""

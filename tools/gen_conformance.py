@@ -768,7 +768,7 @@ def isolate(entry: dict, encoded: bytes) -> bytes:
     from lghcc.conformance.conditions import CHECK_REMOVALS, HASH_CONDITION, call_without_check, mutant_decode
 
     cond, post = entry["condition"], entry.get("post", {})
-    mutation = CHECK_REMOVALS[cond]
+    mutation = entry.get("check_removal") or CHECK_REMOVALS[cond]
 
     def edited(hashes: tuple[bytes, ...] | None = None) -> bytes:
         if entry.get("edit_without_check"):  # e.g. a k-NN of points beyond the extent limit
@@ -1095,13 +1095,22 @@ def partial_decodes_meta(entry: dict, data: bytes) -> list[dict] | None:
     """test.yaml's ``partial_decodes`` (version 1, clause 13.3): for each partial decode sources.yaml
     asks for (``box``: the tiles whose cell meets a box; ``level: 1``: the level-1 preview; both: the
     preview of those tiles), how many tiles the reference decoder decodes, with a box which ones
-    (``tiles``: their indices in stream order), and the SHA-256 of what it outputs."""
+    (``tiles``: their indices in stream order), and the SHA-256 of what it outputs; ``refused``: the
+    preview of a stream without the hierarchy, which the reference decoder refuses (UsageError)."""
+    from lghcc.common.errors import UsageError
     from lghcc.common.hashing import digest_of
     from lghcc.common.tiles import Box
     from lghcc.decoder.decode import decode_stream, parse_stream, selected_tiles
 
     out = []
     for p in entry.get("partial_decodes", []):
+        if p.get("refused"):
+            try:
+                decode_stream(data, max_level=1)
+            except UsageError:
+                out.append(dict(p))
+                continue
+            raise SystemExit(f"{entry['id']}: the reference decoder decodes a preview that must be refused")
         box = Box(tuple(p["box"][:3]), tuple(p["box"][3:])) if "box" in p else None
         res = decode_stream(data, box=box, max_level=int(p.get("level", 2)))
         meta = {**p, "tiles_decoded": res.tiles_decoded}
@@ -1121,6 +1130,9 @@ def test_yaml(entry: dict, data: bytes, decoded: str | None) -> dict:
         meta["expect_message"] = entry["expect_message"]
     if entry.get("condition"):  # an isolated error stream: the one condition of clause 8.2 it breaks
         meta["condition"] = entry["condition"]
+        for key in ("bound", "check_removal"):  # the bound of the condition it breaks, when it has several
+            if entry.get(key):
+                meta[key] = entry[key]
     meta["stream_bytes"] = len(data)
     meta["stream_sha256"] = hashlib.sha256(data).hexdigest()
     if decoded:

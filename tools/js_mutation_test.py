@@ -224,28 +224,57 @@ def profile_streams() -> set[str]:
     return {line.split()[1] for line in out.splitlines() if line.startswith("in ")}
 
 
-def missing_stream(m: JsMutation, isolated: dict[str, str], in_profile: set[str]) -> str:
-    """What the suite lacks to kill a surviving mutation: for a condition of clause 8.2, an
-    explicit-Gaussian stream that breaks it (its isolated stream, when it has one, is an anchor stream)."""
+# Survivors that no stream can kill under the rejection protocol (a conforming stream that such a
+# decoder gets wrong does not exist, or it is rejected anyway, for another condition):
+# mutation -> why. Conditions of clause 8.2 that cannot be isolated at all are in
+# conformance/conditions.py NOT_ISOLATED and need no entry here.
+EQUIVALENT: dict[str, str] = {
+    "container.unknown_critical_ok": "a critical unit of type 0x0E, undefined, also breaks the unit order of clause "
+                                     "6.3 (E14): every stream with one is rejected by a decoder that takes it for known",
+    "wasm.coordinate_max_off_by_one": "the decoder holds coordinates as int32: a coordinate of 2^31 (x053) wraps to "
+                                      "-2^31, so its decoded scene differs from the one the stream's hash covers (E53)",
+    "decoder.index_without_flag_ok": "a tile_index unit with tiles_enabled_flag 0 has cells without a size "
+                                     "(tile_scale is not coded): its points lie outside them (E58) in every such stream",
+    "decoder.fewer_rows_ok": "x035 (E59, 299 rows of 300) is isolated (spec 8.2), but this decoder plans an attribute "
+                             "unit's chunks from num_rows_minus1: it meets E38 first, a conforming rejection",
+}
+
+
+def missing_stream(m: JsMutation, isolated: dict[str, list[str]], in_profile: set[str]) -> tuple[bool, str]:
+    """(equivalent, why) for a surviving mutation: equivalent under the rejection protocol (no stream
+    can kill it), or what the suite lacks to kill it: for a condition of clause 8.2, an
+    explicit-Gaussian stream that breaks it at the mutated bound."""
+    from lghcc.conformance.conditions import NOT_ISOLATED
+
+    if m.id in EQUIVALENT:
+        return True, EQUIVALENT[m.id]
     cond = re.search(r"\bE[0-9]+\b", m.why)
     if cond is None:
-        return "no stream of the profile breaks only this rule (one that breaks it is rejected for another reason too)"
-    stream = isolated.get(cond.group())
-    if stream and stream not in in_profile:
-        return f"{cond.group()}'s isolated stream {stream} is outside the profile: an explicit-Gaussian one is needed"
-    if stream:
-        return f"{cond.group()}'s isolated stream {stream} breaks it another way: this mistake needs one of its own"
-    return (f"no isolated stream breaks {cond.group()} (its error streams of the profile, if any, are rejected for "
-            "another reason too)")
+        return False, ("no stream of the profile breaks only this rule (one that breaks it is rejected for another "
+                       "reason too)")
+    c = cond.group()
+    if c in NOT_ISOLATED:
+        return True, f"{c} cannot be isolated: {NOT_ISOLATED[c]}"
+    streams = isolated.get(c, [])
+    mine = [s for s in streams if s in in_profile]
+    if streams and not mine:
+        return False, f"{c}'s isolated streams ({', '.join(streams)}) are outside the profile: an explicit-Gaussian one is needed"
+    if mine:
+        return False, f"{c}'s isolated streams of the profile ({', '.join(mine)}) break it at another bound: this mistake needs its own"
+    return False, f"no isolated stream breaks {c} (its error streams of the profile, if any, are rejected for another reason too)"
 
 
 def markdown(results: list[tuple[JsMutation, str, str]], seconds: float, differential: dict[str, str],
              differential_cases: int = 0) -> str:
-    from lghcc.conformance.conditions import isolated_streams
+    from lghcc.conformance.conditions import isolated_stream_list
 
-    isolated, in_profile = isolated_streams(STREAMS), profile_streams()
+    isolated: dict[str, list[str]] = {}
+    for s in isolated_stream_list(STREAMS):
+        isolated.setdefault(s.condition, []).append(s.id)
+    in_profile = profile_streams()
     killed = sum(1 for _, s, _ in results if s == "killed")
-    survived = [(m, note) for m, s, note in results if s == "survived"]
+    survived = [(m, *missing_stream(m, isolated, in_profile)) for m, s, _ in results if s == "survived"]
+    equivalent = [x for x in survived if x[1]]
     lines = [BEGIN, "", "## Mutation testing of the JavaScript decoder", "",
              "Command: `python tools/js_mutation_test.py --report"
              + (f" --differential {differential_cases}" if differential else "") + "` (`make js-mutations`); "
@@ -253,11 +282,12 @@ def markdown(results: list[tuple[JsMutation, str, str]], seconds: float, differe
              "bounds off by one, roundings, orders; those of wasm/decoder.ts rebuilt with the pinned AssemblyScript), "
              "each applied to a copy of the decoder whose conformance run (`node conformance.mjs`, the streams of the "
              f"explicit-Gaussian profile) must then fail; {seconds / 60:.1f} min on the shared 2-core machine.", "",
-             f"**{killed} of {len(results)} killed**; {len(survived)} survived"
-             + (", each a stream the suite lacks:" if survived else "."), ""]
-    for m, note in survived:
+             f"**{killed} of {len(results)} killed**; {len(survived)} survived: {len(equivalent)} equivalent under the "
+             f"rejection protocol (no stream can kill them), {len(survived) - len(equivalent)} that a stream the suite "
+             "lacks would kill.", ""]
+    for m, eq, why in sorted(survived, key=lambda x: not x[1]):
         caught = f" Differential fuzzer: {differential[m.id]}." if m.id in differential else ""
-        lines.append(f"- `{m.id}` ({m.path}: {m.why}): {missing_stream(m, isolated, in_profile)}.{caught}")
+        lines.append(f"- `{m.id}` ({m.path}: {m.why}): {'equivalent: ' if eq else ''}{why}.{caught}")
     lines += ["", "| mutation | file | what | result |", "|---|---|---|---|"]
     for m, status, note in results:
         lines.append(f"| `{m.id}` | {m.path} | {m.why} | {status}: {note.replace('|', '/')[:120]} |")

@@ -128,38 +128,44 @@ def markdown(results, total_s: float, n_cases: int) -> str:
 
 
 def condition_rows(chosen: list[str], timeout: float) -> list[tuple[str, str, str, str, str]]:
-    """Per condition of clause 8.2: (condition, mutation, isolated stream, killed by acceptance
-    'yes'/'no'/'-', what the mutant did). The mutant runs only its own stream (conformance/conditions.py)."""
-    from lghcc.conformance import conditions, runner
+    """Per isolated stream of each condition of clause 8.2 (one row per bound): (condition, mutation,
+    isolated stream, killed by acceptance 'yes'/'no'/'-', what the mutant did). The mutant runs only its
+    own stream (conformance/conditions.py)."""
+    from lghcc.conformance import conditions
 
-    streams = conditions.isolated_streams()
+    streams = conditions.isolated_stream_list()
     rows = []
     for cond in chosen:
-        mutation = conditions.CHECK_REMOVALS.get(cond, "")
-        if cond not in streams:
-            rows.append((cond, mutation, "none", "-", conditions.NOT_ISOLATED.get(cond, "no isolated stream")))
-            continue
-        status, killer, note, _ = run_one(mutation, [streams[cond]], timeout)
-        accepted = status == "killed" and killer == streams[cond] and note.startswith(ACCEPTED)
-        rows.append((cond, mutation, streams[cond], "yes" if accepted else "no",
-                     note if status == "killed" else f"{status}: the mutant passes its stream"))
-        print(f"{cond:4s} {mutation:36s} {streams[cond]:44s} {'yes' if accepted else 'NO'}  {note[:70]}", flush=True)
+        mine = [s for s in streams if s.condition == cond]
+        if not mine:
+            rows.append((cond, conditions.CHECK_REMOVALS.get(cond, ""), "none", "-",
+                         conditions.NOT_ISOLATED.get(cond, "no isolated stream")))
+        for s in mine:
+            status, killer, note, _ = run_one(s.check_removal, [s.id], timeout)
+            accepted = status == "killed" and killer == s.id and note.startswith(ACCEPTED)
+            shown = f"{s.id} ({s.bound})" if s.bound else s.id
+            rows.append((cond, s.check_removal, shown, "yes" if accepted else "no",
+                         note if status == "killed" else f"{status}: the mutant passes its stream"))
+            print(f"{cond:4s} {s.check_removal:36s} {s.id:44s} {'yes' if accepted else 'NO'}  {note[:70]}",
+                  flush=True)
     return rows
 
 
 def conditions_markdown(rows, total_s: float) -> str:
     n = sum(r[3] == "yes" for r in rows)
     isolated = sum(r[2] != "none" for r in rows)
+    conds_without = sum(r[2] == "none" for r in rows)
     lines = [COND_BEGIN, "", "## Clause 8.2 conditions: isolated streams and their check-removal mutants", "",
              "Command: `python tools/mutation_test.py --conditions --report`; "
              f"{total_s / 60:.1f} min on the shared 2-core machine. For each rejection condition of spec clause "
              "8.2, the mutation that removes its check (conformance/conditions.py `CHECK_REMOVALS`) runs against "
-             "the condition's isolated error stream only (test.yaml `condition`): it is *killed by acceptance* "
+             "each isolated error stream of the condition only (test.yaml `condition`; one row per bound or field: "
+             "`bound`, with the narrower mutation a stream names in `check_removal`): it is *killed by acceptance* "
              "when it decodes that stream without an error (the runner: \"decoded a stream that must be "
              "rejected\"); a rejection for another reason does not count. A condition without an isolated "
              "stream says why (`NOT_ISOLATED`; spec clause 8.2).", "",
-             f"{n} of {isolated} isolated streams kill their mutant by acceptance; {len(rows) - isolated} of "
-             f"{len(rows)} conditions cannot be isolated.", "",
+             f"{n} of {isolated} isolated streams kill their mutant by acceptance; {conds_without} of "
+             f"{len({r[0] for r in rows})} conditions cannot be isolated.", "",
              "| condition | mutation | isolated stream | killed by acceptance | note |", "|---|---|---|---|---|"]
     for cond, mutation, stream, yes, note in rows:
         lines.append(f"| {cond} | `{mutation or '-'}` | {stream} | {yes} | {note[:160].replace('|', '/')} |")

@@ -17,22 +17,40 @@ import numpy as np
 from lghcc.common import attributes as attr
 from lghcc.common.bitio import BitReader
 from lghcc.common.container import DataUnit, UnitType
-from lghcc.common.units import AttributeUnitHeader, SceneParameterSet
+from lghcc.common.units import AttributeUnitHeader, GaussianParameterSet, SceneParameterSet
 
 
 def _index(units, unit_type, nth: int = 0) -> int:
     return [j for j, u in enumerate(units) if u.unit_type == unit_type][nth]
 
 
-def _sps(units) -> SceneParameterSet:
-    return SceneParameterSet.from_bytes(units[_index(units, UnitType.SCENE_PARAMETER_SET)].payload)
+def _ps_index(units) -> int:
+    """The index of the stream's parameter set: the scene parameter set of an anchor stream, the
+    gaussian parameter set of an explicit-Gaussian one."""
+    kinds = (UnitType.SCENE_PARAMETER_SET, UnitType.GAUSSIAN_PARAMETER_SET)
+    return next(j for j, u in enumerate(units) if u.unit_type in kinds)
 
 
-def _parse_attribute(payload: bytes, sps: SceneParameterSet, num_rows: int):
+def _sps(units) -> SceneParameterSet | GaussianParameterSet:
+    """The stream's parameter set (either kind gives num_anchors, the geometry's point count)."""
+    u = units[_ps_index(units)]
+    kind = GaussianParameterSet if u.unit_type == UnitType.GAUSSIAN_PARAMETER_SET else SceneParameterSet
+    return kind.from_bytes(u.payload)
+
+
+def _layout(ps):
+    """The channel layout of a parameter set of either kind (an explicit-Gaussian stream's without
+    its optional units: the edits that use it refuse those streams or do not depend on them)."""
+    return attr.gaussian_layout_of(ps) if isinstance(ps, GaussianParameterSet) else attr.layout_of(ps)
+
+
+def _parse_attribute(payload: bytes, sps, num_rows: int):
     """(header, byte offset of the chunk data)."""
     r = BitReader(payload)
-    h = AttributeUnitHeader.parse(r, num_channels=attr.layout_of(sps).num_channels, num_offsets=sps.num_offsets,
-                                  offset_mask_present=sps.offset_mask_present_flag, num_rows=num_rows)
+    layout = _layout(sps)
+    h = AttributeUnitHeader.parse(r, num_channels=layout.num_channels, num_offsets=layout.num_offsets,
+                                  offset_mask_present=layout.offset_mask_present, num_rows=num_rows,
+                                  channel_prediction_allowed=int(isinstance(sps, GaussianParameterSet)))
     return h, r.bit_position // 8
 
 
@@ -40,7 +58,7 @@ def _level0_q(units):
     """The single (no hierarchy) attribute unit: its header, masks and quantized values."""
     sps = _sps(units)
     j = _index(units, UnitType.ATTRIBUTE)
-    layout = attr.layout_of(sps)
+    layout = _layout(sps)
     values = np.empty((sps.num_anchors, layout.num_channels), np.float32)
     h, mask, q = attr.read_attribute_unit(units[j].payload, layout, layout.steps(sps), sps.num_anchors, 0, values,
                                           keep_q=True)
@@ -50,7 +68,7 @@ def _level0_q(units):
 def _recode_level0(units, h, mask, q) -> None:
     """Write the single attribute unit again with header ``h`` (prior means / levels) and values q."""
     sps = _sps(units)
-    layout = attr.layout_of(sps)
+    layout = _layout(sps)
     j = _index(units, UnitType.ATTRIBUTE)
     new = AttributeUnitHeader(num_channels=layout.num_channels, num_offsets=sps.num_offsets,
                               offset_mask_present=h.offset_mask_present, num_rows=sps.num_anchors,
@@ -134,7 +152,7 @@ def edit_chunk(units, spec: dict) -> None:
     i = int(spec.get("chunk", 0))
     k = 2 * i + 1 if h.offset_mask_present else i
     rows = min(h.rows_per_chunk, sps.num_anchors - i * h.rows_per_chunk)
-    m = attr.layout_of(sps).num_channels
+    m = _layout(sps).num_channels
     levels = np.broadcast_to(np.asarray(h.prior_level, np.int64), (rows, m))
     if "append_hex" in spec:
         pieces[k] = pieces[k] + bytes.fromhex(spec["append_hex"])
@@ -161,7 +179,7 @@ def edit_chunk(units, spec: dict) -> None:
         pieces[2 * i] = _failing_words(int(spec["failing_mask_words"]),
                                        lambda words: attr.decode_mask_chunk(words, rows, models, "mask chunk"))
     elif spec.get("escape_beyond_limit"):
-        if sps.offset_mask_present_flag or len(set(h.prior_level)) != 1:
+        if _layout(sps).offset_mask_present or len(set(h.prior_level)) != 1:
             raise ValueError("escape_beyond_limit needs one prior level and no offset masks")
         level = int(h.prior_level[0])
         half = int(HALF_WIDTHS[level])
@@ -307,15 +325,127 @@ def _encode_geometry_unchecked(coords: np.ndarray, shift_min: list[int] | None =
     return ns["encode_geometry"](coords)
 
 
+def _box_min_x_for_top(payload: bytes, coords: np.ndarray, top: int) -> dict:
+    """The geometry header's x fields of a box minimum that puts the largest decoded x at ``top``."""
+    from lghcc.common.geometry import GeometryHeader
+
+    gh = GeometryHeader.parse(BitReader(payload))
+    min_x = -gh.geom_bbox_min_abs[0] if gh.geom_bbox_min_sign_flag[0] else gh.geom_bbox_min_abs[0]
+    new_min = top - (int(coords[:, 0].max()) - min_x)
+    return {"geom_bbox_min_sign_flag": [int(new_min < 0)] + list(gh.geom_bbox_min_sign_flag[1:]),
+            "geom_bbox_min_abs": [abs(new_min)] + list(gh.geom_bbox_min_abs[1:])}
+
+
+def _geometry_with_header(payload: bytes, fields: dict) -> bytes:
+    """A geometry unit's payload with header fields rewritten, the coded data after its byte alignment kept."""
+    from lghcc.common.bitio import BitWriter
+    from lghcc.common.geometry import GeometryHeader
+
+    r = BitReader(payload)
+    gh = GeometryHeader.parse(r)
+    r.byte_align()
+    for name, value in fields.items():
+        setattr(gh, name, value)
+    w = BitWriter()
+    gh.write_to(w)
+    w.byte_align()
+    return w.getvalue() + payload[r.bit_position // 8:]
+
+
+def tile_point_beyond_cell(units, spec: dict) -> None:
+    """{t, by}: the geometry unit of tile t (default the last) with its box minimum along x moved so
+    that the tile's largest decoded x lies ``by`` voxels beyond its cell (clause 7.3.11, E58; by 1:
+    the first coordinate outside), the tile's tile_data_size following the unit's new length."""
+    from lghcc.common.geometry import decode_geometry
+    from lghcc.common.tiles import cell_bounds
+
+    i, index, starts, ends = _tiles(units)
+    t = int(spec.get("t", -1)) % len(starts)
+    g = starts[t]
+    cell = (index.tile_x[t], index.tile_y[t], index.tile_z[t])
+    coords = decode_geometry(units[g].payload, index.tile_num_points_minus1[t] + 1)
+    _, hi = cell_bounds(cell, _sps(units).tile_size)
+    fields = _box_min_x_for_top(units[g].payload, coords, int(hi[0]) + int(spec.get("by", 1)))
+    units[g] = DataUnit(UnitType.GEOMETRY, _geometry_with_header(units[g].payload, fields))
+    _reframe_tile(units, index, t, starts, ends, cell)
+    units[i] = DataUnit(UnitType.TILE_INDEX, index.to_bytes())
+
+
+def _tiles(units):
+    """(tile_index unit position, its TileIndex, each tile's geometry unit position, each tile's hash unit position)."""
+    from lghcc.common.units import TileIndex
+
+    i = _index(units, UnitType.TILE_INDEX)
+    starts = [j for j, u in enumerate(units) if u.unit_type == UnitType.GEOMETRY]
+    ends = [j for j, u in enumerate(units) if u.unit_type == UnitType.DECODED_SCENE_HASH]
+    return i, TileIndex.parse(BitReader(units[i].payload), num_points=1 << 24), starts, ends
+
+
+def _box_min_shifted(payload: bytes, delta) -> dict:
+    """The geometry header's box-minimum fields moved by ``delta`` voxels per axis (the coded offsets kept)."""
+    from lghcc.common.geometry import GeometryHeader
+
+    gh = GeometryHeader.parse(BitReader(payload))
+    mins = [(-a if f else a) + int(d) for a, f, d in zip(gh.geom_bbox_min_abs, gh.geom_bbox_min_sign_flag, delta)]
+    return {"geom_bbox_min_sign_flag": [int(m < 0) for m in mins], "geom_bbox_min_abs": [abs(m) for m in mins]}
+
+
+def _reframe_tile(units, index, t: int, starts, ends, cell) -> None:
+    """Tile t's cell set and its tile_data_size made that of its units (after an edit of them)."""
+    from lghcc.common.container import UNIT_CRC_BYTES, UNIT_HEADER_BYTES
+
+    index.tile_x[t], index.tile_y[t], index.tile_z[t] = (int(c) for c in cell)
+    index.tile_data_size[t] = sum(UNIT_HEADER_BYTES + len(u.payload) + UNIT_CRC_BYTES
+                                  for u in units[starts[t]:ends[t] + 1])
+
+
+def tile_into_cell_of(units, spec: dict) -> None:
+    """{t, of}: tile t moved into tile ``of``'s cell: its cell set to that one and its points moved by
+    the whole cells between (its geometry box minimum shifted), so that every point lies in its
+    tile's cell and two tiles share a cell (clause 7.3.11, E56 with equal cells)."""
+    i, index, starts, ends = _tiles(units)
+    t, of = int(spec["t"]), int(spec["of"])
+    size = _sps(units).tile_size
+    cell_t = (index.tile_x[t], index.tile_y[t], index.tile_z[t])
+    cell_of = (index.tile_x[of], index.tile_y[of], index.tile_z[of])
+    delta = [(b - a) * size for a, b in zip(cell_t, cell_of)]
+    g = starts[t]
+    units[g] = DataUnit(UnitType.GEOMETRY, _geometry_with_header(units[g].payload, _box_min_shifted(units[g].payload,
+                                                                                                    delta)))
+    _reframe_tile(units, index, t, starts, ends, cell_of)
+    units[i] = DataUnit(UnitType.TILE_INDEX, index.to_bytes())
+
+
+def tile_scale_cells(units, spec: dict) -> None:
+    """{tile_scale_minus1: s}: the parameter set's tile_scale_minus1 set to s and every tile's cell
+    recomputed from its points for that tile size (each tile's points must share one cell of it;
+    the cells must stay in increasing order): a stream consistent but for the element's range when s
+    is beyond it (clause 7.3.1)."""
+    from lghcc.common.geometry import decode_geometry
+
+    i, index, starts, ends = _tiles(units)
+    ps_at, ps = _ps_index(units), _sps(units)
+    ps.tile_scale_minus1 = int(spec["tile_scale_minus1"])
+    units[ps_at] = DataUnit(units[ps_at].unit_type, ps.to_bytes())
+    for t, g in enumerate(starts):
+        coords = decode_geometry(units[g].payload, index.tile_num_points_minus1[t] + 1)
+        cells = np.unique(np.floor_divide(coords, ps.tile_size), axis=0)
+        if len(cells) != 1:
+            raise ValueError(f"tile {t}'s points lie in {len(cells)} cells of {ps.tile_size} voxels")
+        _reframe_tile(units, index, t, starts, ends, cells[0])
+    units[i] = DataUnit(UnitType.TILE_INDEX, index.to_bytes())
+
+
 def geometry_edit(units, spec: dict) -> None:
     """{duplicate_isolated: true}: one isolated anchor repeated (an IDCM node with the same point
     twice, num_anchors + 1; with ``with_row``, the attribute unit re-coded with a row for it); {shift_min: [1, 0, 0]}: the box minimum one below every point;
     {append_hex: '...'}: bytes after the coded data; {anchors_delta: d}: num_anchors changed by d
-    (the sps re-written)."""
+    (the sps re-written); {top_x: t}: the box minimum along x set so that the largest decoded x is t
+    (the coded offsets kept)."""
     from lghcc.common.geometry import decode_geometry
 
     j = _index(units, UnitType.GEOMETRY)
-    s = _index(units, UnitType.SCENE_PARAMETER_SET)
+    s = _ps_index(units)
     sps = _sps(units)
     coords = decode_geometry(units[j].payload, sps.num_anchors)
     if spec.get("duplicate_isolated"):
@@ -332,19 +462,11 @@ def geometry_edit(units, spec: dict) -> None:
         units[j] = DataUnit(UnitType.GEOMETRY, _encode_geometry_unchecked(coords, spec["shift_min"]))
     if "append_hex" in spec:
         units[j] = DataUnit(UnitType.GEOMETRY, units[j].payload + bytes.fromhex(spec["append_hex"]))
+    if "top_x" in spec:  # the box minimum along x moved so that the largest decoded x is exactly top_x
+        spec = {**spec, "header": {**spec.get("header", {}), **_box_min_x_for_top(units[j].payload, coords,
+                                                                                  int(spec["top_x"]))}}
     if "header" in spec:  # header fields rewritten, the coded data after the byte alignment kept
-        from lghcc.common.bitio import BitWriter
-        from lghcc.common.geometry import GeometryHeader
-
-        r = BitReader(units[j].payload)
-        gh = GeometryHeader.parse(r)
-        r.byte_align()
-        for name, value in spec["header"].items():
-            setattr(gh, name, value)
-        w = BitWriter()
-        gh.write_to(w)
-        w.byte_align()
-        units[j] = DataUnit(UnitType.GEOMETRY, w.getvalue() + units[j].payload[r.bit_position // 8:])
+        units[j] = DataUnit(UnitType.GEOMETRY, _geometry_with_header(units[j].payload, spec["header"]))
     if "anchors_delta" in spec:
         sps.num_anchors_minus1 += int(spec["anchors_delta"])
         units[s] = DataUnit(UnitType.SCENE_PARAMETER_SET, sps.to_bytes())
@@ -540,7 +662,7 @@ def designed_model(units, spec: dict) -> None:
     from lghcc.common.units import CONTEXT_GGCONV, CONTEXT_PARENT_MLP, LEVEL_1, LEVEL_2
 
     sps = _sps(units)
-    layout = attr.layout_of(sps)
+    layout = _layout(sps)
     m, c = layout.num_channels, sps.feature_dim
     coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, sps.num_anchors)
     hier = build_hierarchy(coords, sps.coarse_voxel_scale)
@@ -822,7 +944,8 @@ def rotation_length(units, spec: dict) -> None:
     rotation length index of a rule, and the unit the maximum ``max`` (version 1.4, clauses 7.3.15,
     11.10). x, y and z stay, so the implied w changes (rehash the stream). spec: {indices: cycle:<n>
     (row i gets i mod n; beyond ``max``, or negative with ``offset``, a fault), offset (added to
-    every index, default 0), max, rows: {row: [qx, qy, qz]} (those rows' quantized x, y, z)}."""
+    every index, default 0), max, rows: {row: [qx, qy, qz]} (those rows' quantized x, y, z), xyz_all:
+    [qx, qy, qz] (every row's)}."""
     from lghcc.common.units import GaussianParameterSet, RotationLengthUnit
     from lghcc.encoder.stream.neighbour_coding import NeighbourCoding
 
@@ -837,6 +960,8 @@ def rotation_length(units, spec: dict) -> None:
     q = np.rint(values / layout.steps(gps)).astype(np.int64)  # exact but for column w, replaced here
     period = int(str(spec["indices"]).split(":")[1])
     q[:, w] = np.arange(n, dtype=np.int64) % period + int(spec.get("offset", 0))
+    if "xyz_all" in spec:  # every row's quantized x, y, z
+        q[:, w + 1:w + 4] = np.asarray(spec["xyz_all"], np.int64)
     for row, xyz in (spec.get("rows") or {}).items():  # given x, y, z of some rows (normative order)
         q[int(row), w + 1:w + 4] = xyz
     top = int(spec["max"])
@@ -909,7 +1034,7 @@ def flatten_hierarchy(units, spec: dict) -> None:
     from lghcc.common.units import LEVEL_1, LEVEL_2
 
     sps = _sps(units)
-    layout = attr.layout_of(sps)
+    layout = _layout(sps)
     coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, sps.num_anchors)
     hier = build_hierarchy(coords, sps.coarse_voxel_scale)
     values = np.empty((sps.num_anchors, layout.num_channels), np.float32)
@@ -944,5 +1069,6 @@ def apply_edits(units, post: dict) -> None:
 _EDITS_IN_ORDER = (
     designed_model, set_q, escape_classes, edit_chunk, recode_attribute_header,
     geometry_edit, context_unit, render_unit, neighbour_prediction, step_adjust,
-    sh_degree, rotation_length, set_elements, flatten_hierarchy, swap_tiles, nonzero_alignment,
+    sh_degree, rotation_length, set_elements, flatten_hierarchy, swap_tiles, tile_point_beyond_cell, tile_into_cell_of,
+    tile_scale_cells, nonzero_alignment,
 )
