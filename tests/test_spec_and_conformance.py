@@ -478,7 +478,7 @@ def test_a_preview_without_the_hierarchy_is_held_to_its_refusal(monkeypatch):
     from lghcc.decoder import decode
 
     cases = runner.load_cases(ids=["c065_tiles_small", "c069_gaussian_tiles_at_maximum_scale",
-                                   "c113_tiles_offset_masks"])
+                                   "c121_tiles_offset_masks"])
     for case in cases:
         assert any(p.get("refused") for p in case.meta["partial_decodes"]), case.id
         assert runner.run_case(case).passed, case.id
