@@ -130,15 +130,17 @@ def encode_memory(scene: AnchorScene | GaussianScene, cfg, workers=None) -> Memo
     return MemoryEstimate(sum(parts.values()), parts)
 
 
-def check_encode_memory(scene: AnchorScene | GaussianScene, cfg, workers, max_memory: int, name: str) -> int:
+def check_encode_memory(scene: AnchorScene | GaussianScene, cfg, workers, max_memory: int, name: str,
+                        limit: str = "--max-memory") -> int:
     """The estimate (bytes) when within ``max_memory``; else ResourceLimitError naming the scene,
-    what it needs (and its largest part) and the limit."""
+    what it needs (and its largest part) and the limit (``limit``: what the bound is)."""
     est = encode_memory(scene, cfg, workers)
     if est.total > max_memory:
         n, _ = _points_and_channels(scene, cfg)
         what = "Gaussians" if isinstance(scene, GaussianScene) else "anchors"
         raise ResourceLimitError(
             f"{name}: encoding {n:,} {what} needs about {format_bytes(est.total)} (largest part: {est.largest()}), "
-            f"more than --max-memory {format_bytes(max_memory)}; raise the limit, or encode on a machine with more "
-            "memory")
+            f"more than {limit} {format_bytes(max_memory)}; " +
+            ("raise the limit, or encode on a machine with more memory" if limit == "--max-memory" else
+             "free memory, encode on a machine with more, or pass --max-memory (none: no bound) to try anyway"))
     return est.total
