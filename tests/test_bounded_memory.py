@@ -170,3 +170,37 @@ def test_residual_histograms_give_each_groups_best_level_and_bits():
     for g in range(4):
         assert level_and_bits(hist.bits(g)) == best_level_and_bits(r[group == g])
     assert hist.bits(4) is None and hist.best_level(4) == 0
+
+
+@pytest.mark.parametrize("keys", [1, 1000])
+def test_the_searchs_grid_cache_changes_no_trial(keys, monkeypatch):
+    """The settings search keeps GRID_CACHE_KEYS (pruning share, position step) grids, not every one it
+    tried: a grid made again is the same, so every trial (settings, error, bits) and the choice are those
+    of keeping one or all of them."""
+    from lghcc.encoder.gaussians import gaussian_rd
+    from lghcc.encoder.gaussians.gaussian_fit import prepare_gaussians
+
+    small = dict(target_psnr=35.0, search_views=2, search_resolution=32, fit_views=2, fit_resolution=32,
+                 fit_iterations=0, search_reference_gaussians=0, resolve_px=0.0, step_adjust_max=7, landing_views=0,
+                 check_views=0)
+    scene = _scene(600, 3)
+    cfg = dataclasses.replace(load_config("medium", kind="gaussians"), **small)
+    seen, default = {}, gaussian_rd.GRID_CACHE_KEYS
+    for n in (default, keys):
+        made = []
+        monkeypatch.setattr(gaussian_rd, "GRID_CACHE_KEYS", n)
+        real = gaussian_rd.SettingsSearch._make_grid
+        monkeypatch.setattr(gaussian_rd.SettingsSearch, "_make_grid", lambda self, *k: made.append(k) or real(self, *k))
+        trials = []
+        real_eval = gaussian_rd.SettingsSearch.evaluate
+        monkeypatch.setattr(gaussian_rd.SettingsSearch, "evaluate",
+                            lambda self, c: trials.append(real_eval(self, c)) or trials[-1])
+        prepared = prepare_gaussians(scene, cfg)
+        seen[n] = (prepared.cfg, [(t.cfg, t.mse, t.bits) for t in trials], made)
+        monkeypatch.setattr(gaussian_rd.SettingsSearch, "_make_grid", real)
+        monkeypatch.setattr(gaussian_rd.SettingsSearch, "evaluate", real_eval)
+    (cfg_a, trials_a, made_a), (cfg_b, trials_b, made_b) = seen[default], seen[keys]
+    assert len(trials_a) > 10 and cfg_a == cfg_b and trials_a == trials_b
+    assert len(set(made_b)) == len(set(made_a))  # the same grids tried
+    if keys == 1000:
+        assert len(made_b) == len(set(made_b)) <= len(made_a)  # all kept: each grid made once
