@@ -14,8 +14,7 @@ from lghcc.common.hashing import gaussian_scene_digest
 from lghcc.decoder.decode import decode_stream
 from lghcc.encoder.stream.config import GaussianEncoderConfig, load_config
 from lghcc.encoder.gaussians.gaussian_fit import MIN_SENSITIVITY_VIEWS, fit_steps, prepare_gaussians, sensitivity_views
-from lghcc.encoder.gaussians.search_sample import (SAMPLE_CELLS, morton_keys, sample_gaussians, search_sample,
-                                                  spatial_cells)
+from lghcc.encoder.gaussians.search_sample import SAMPLE_CELLS, morton_keys, search_sample, spatial_cells
 from test_gaussians import random_gaussians
 
 # the settings of a search small enough for a test (2 views of 32 px, a few fitting steps)
@@ -64,34 +63,6 @@ def test_no_sample_at_or_below_its_size_or_without_cells():
     assert search_sample(np.zeros((5000, 3)), 100) is None  # one point: no cell separates the Gaussians
 
 
-@given(size=st.integers(0, 10 ** 7), degree=st.integers(0, 3))
-def test_the_sample_holds_as_many_values_at_every_sh_degree(size, degree):
-    """search_sample_gaussians counts Gaussians at SH degree 0 (11 coded values): at a higher degree
-    the sample holds as many values (to within one Gaussian), never more, and 0 stays no sample."""
-    from lghcc.common.attributes import GaussianLayout
-    got = sample_gaussians(size, degree)
-    if size == 0:
-        assert got == 0
-        return
-    m = GaussianLayout(degree).num_channels
-    assert got >= 1 and (got * m <= size * 11 or got == 1) and (got + 1) * m > size * 11
-    assert sample_gaussians(size, 0) == size and sample_gaussians(size, degree) <= sample_gaussians(size, max(degree - 1, 0))
-
-
-def test_sh3_scenes_are_searched_on_fewer_gaussians():
-    """An SH-3 scene between the SH-3 size (11/56 of search_sample_gaussians) and search_sample_gaussians is
-    searched on a sample (about 11/56 of the setting's count); the same scene cut to SH 0 is searched whole."""
-    rng = np.random.default_rng(7)
-    scene = random_gaussians(rng, 1200, 3)
-    scene.means[:] = _clusters(rng, 1200) / 10
-    cfg = GaussianEncoderConfig(**SMALL, search_sample_gaussians=1500)
-    sh3 = prepare_gaussians(scene, cfg)
-    assert sample_gaussians(1500, 3) == 294
-    assert 0 < sh3.stats.search_sample_gaussians < 600 and sh3.stats.whole_check_trials >= 1
-    sh0 = prepare_gaussians(scene.with_sh_degree(0), cfg)
-    assert sh0.stats.search_sample_gaussians is None and sh0.stats.whole_check_trials is None
-
-
 def test_morton_keys_interleave_the_axes():
     cells = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [3, 0, 0], [(1 << 21) - 1] * 3])
     assert morton_keys(cells).tolist() == [1, 2, 4, 9, (1 << 63) - 1]
@@ -111,8 +82,7 @@ def test_search_under_the_sample_size_chooses_as_the_whole_scene_search():
     as with sampling off."""
     scene = random_gaussians(np.random.default_rng(5), 300, 1)
     whole = prepare_gaussians(scene, GaussianEncoderConfig(**SMALL, search_sample_gaussians=0))
-    # 546 Gaussians at SH degree 0 are 300 at degree 1 (``sample_gaussians``: 546 x 11 // 20)
-    under = prepare_gaussians(scene, GaussianEncoderConfig(**SMALL, search_sample_gaussians=546))
+    under = prepare_gaussians(scene, GaussianEncoderConfig(**SMALL, search_sample_gaussians=300))
     assert dataclasses.replace(under.cfg, search_sample_gaussians=0) == whole.cfg
     assert under.stats.search_sample_gaussians is None and under.stats.whole_check_trials is None
     assert under.stats.time_trim_s is not None

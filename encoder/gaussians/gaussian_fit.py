@@ -230,13 +230,12 @@ class SearchSample:
 
 def _search_sample(scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, views: SceneViews,
                    say) -> SearchSample | None:
-    """The sample the search measures on a scene above ``search_sample_gaussians`` (counted at SH degree 0:
-    fewer Gaussians of a higher degree, search_sample.py ``sample_gaussians``; None below),
+    """The sample the search measures on a scene above ``search_sample_gaussians`` (None below),
     with the ratio of the whole scene's error to the sample's when a target is asked for."""
     from .gaussian_rd import SceneRenders, sample_distortion_ratio
-    from .search_sample import sample_gaussians, search_sample
+    from .search_sample import search_sample
 
-    members = search_sample(scene.means, sample_gaussians(cfg.search_sample_gaussians, scene.sh_degree))
+    members = search_sample(scene.means, cfg.search_sample_gaussians)
     if members is None:
         return None
     renders = SceneRenders(scene, views)

@@ -17,33 +17,16 @@ every neighbourhood, and the grid and the neighbour prediction would code them d
    about the sample size.
 
 The choice depends on the positions only: the same scene gives the same sample.
-
-The sample's size is counted in values, not Gaussians (``sample_gaussians``): a trial's coding (RDOQ,
-step adjustment, the ideal bits) works on every value of every sampled Gaussian, and a Gaussian at SH
-degree 3 has 56 coded values where one at degree 0 has 11. ``search_sample_gaussians`` is the size at
-SH degree 0; a scene of higher degree gets as many values, so fewer Gaussians (degree 3: 11/56 of them),
-and the search's cost stops growing with the SH degree as it stops growing with the Gaussians.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ...common.attributes import GaussianLayout
-
 # Cells a sample is made of, about: enough that it spreads over the scene, few enough that each
 # cell holds whole neighbourhoods (at 100,000 sampled Gaussians, about 3,000 a cell).
 SAMPLE_CELLS = 32
 MAX_LEVEL = 20
-
-
-def sample_gaussians(size: int, sh_degree: int) -> int:
-    """The Gaussians a sample of ``size`` (``search_sample_gaussians``: Gaussians at SH degree 0) holds
-    at ``sh_degree``: as many coded values, so ``size`` x 11 / (the channels at that degree); 0 stays 0
-    (no sample)."""
-    if size <= 0:
-        return 0
-    return max(1, size * GaussianLayout(0).num_channels // GaussianLayout(sh_degree).num_channels)
 
 
 def morton_keys(cells: np.ndarray) -> np.ndarray:
