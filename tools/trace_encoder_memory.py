@@ -88,7 +88,8 @@ class Trace:
         for t, r, name in points:
             peak = max(peak, r)
             if name is not None:
-                print(f"{t - t0:8.2f}s rss {r / 2 ** 20:7.0f} MiB  peak since the last mark {peak / 2 ** 20:7.0f}  {name}")
+                print(f"{t - t0:8.2f}s rss {r / 2 ** 20:7.0f} MiB  peak since the last mark {peak / 2 ** 20:7.0f}  "
+                      f"{name}")
                 peak = r
         print(f"overall peak {max(r for _, r in self.samples) / 2 ** 20:,.0f} MiB")
 
