@@ -279,11 +279,12 @@ def held_in_footprint(sample: Gaussians3DGS, held: Gaussians3DGS, cam) -> torch.
 
 # The (pruning share, position step) pairs whose grid, values and neighbour graph a search keeps: each
 # holds a copy of the kept Gaussians' values (float64 [N, M]), the scene on its grid and its graph, 620 B
-# per Gaussian at SH degree 3 (measured at 100k); a search tries 15-25 pairs (every share of the ladder,
-# the position step's probe and checks) and kept them all, the largest part of the preparation's peak
-# (tools/results/scale.md, "SH 3 memory", round 3). The trials of one pair follow one another (a share's
-# moves onto the target, the probes of the attribute steps): with two kept a pair is rarely made again,
-# and then with the same bits.
+# per Gaussian at SH degree 3 (measured at 100k); a search makes one for most of its trials (the pruning
+# ladder's moves onto the target scale the position step with the others: 38 pairs in 59 trials on a test
+# scene) and kept them all, the largest part of the preparation's peak (tools/results/scale.md, "SH 3
+# memory", round 3). The trials of one pair follow one another (the probes of the attribute steps, a
+# share's first trial and its move): with two kept none was made twice there, and one made again would be
+# the same.
 GRID_CACHE_KEYS = 2
 
 

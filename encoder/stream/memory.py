@@ -42,7 +42,7 @@ PER_VALUE_BYTES = 90  # per point and channel: the scene read, float64 values, i
 # gradient and its float64 square, [N, M]), their float64 sums and result, the fit's parameters, gradients
 # and moments. The settings search's peak is bounded too (gaussian_rd.py GRID_CACHE_KEYS): it kept the
 # grid, values and neighbour graph of every (pruning share, position step) it tried, 620 B per Gaussian
-# each at SH 3 and 15-25 of them, which made the peaks of `medium` on the 100k SH-3 scene (2,661 and
+# each at SH 3, one for most trials, which made the peaks of `medium` on the 100k SH-3 scene (2,661 and
 # 3,055 MiB, once covered here by 320 B per value) and of the room watched from inside at 100k (1,592 and
 # 1,683 MiB, above the estimate of 1,404: its RSS climbed from 569 to 1,400 MiB over the pruning ladder,
 # tools/results/scale.md "SH 3 memory", round 3). With two kept, the per-stage traces of both
