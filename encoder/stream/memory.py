@@ -46,8 +46,8 @@ PER_VALUE_BYTES = 90  # per point and channel: the scene read, float64 values, i
 # 3,055 MiB, once covered here by 320 B per value) and of the room watched from inside at 100k (1,592 and
 # 1,683 MiB, above the estimate of 1,404: its RSS climbed from 569 to 1,400 MiB over the pruning ladder,
 # tools/results/scale.md "SH 3 memory", round 3). With two kept, the per-stage traces of both
-# (in-process, --jobs 2) peak at the sensitivities: 1,003 MiB the room (SH 0), 1,372 MiB the SH-3 scene,
-# 79 B per value apart: 96 B per value, with the per-point term lowered to 1,200 B so that a Gaussian at
+# (in-process, --jobs 2) peak at the sensitivities and the trials: 1,003 MiB the room (SH 0), 1,373 the
+# SH-3 scene, 86 B per value apart: 96 B per value, with the per-point term lowered to 1,200 B so that a Gaussian at
 # SH 0 (11 values) costs what the fit above gave it (2,000 B + 24 B per value; 3M: 1.15x its peak). The
 # estimate is then 1.40x the room's peak and about 1.6x the SH-3 scene's.
 PREPARE_BYTES = 600 << 20
