@@ -85,8 +85,8 @@ def _epilog() -> str:
                      "or coded, an output that cannot be written, an option value)",
          EXIT_INVALID_STREAM: "the written stream failed its own decoding check (a bug: "
                               "please report it)",
-         EXIT_RESOURCE_LIMIT: "the scene would need more memory than --max-memory (refused before "
-                              "any work), or the system ran out of memory"},
+         EXIT_RESOURCE_LIMIT: "the scene would need more memory than --max-memory, by default the "
+                              "memory available (refused before any work), or the system ran out of memory"},
         codes=(EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INVALID_STREAM, EXIT_RESOURCE_LIMIT, EXIT_INTERRUPTED))
 
 
@@ -232,10 +232,13 @@ def add_execution_arguments(p: argparse.ArgumentParser) -> None:
                         "ray://HOST:PORT for Ray Client; auto: the cluster this machine belongs to)")
     x.add_argument("--ray-cpus", type=positive_int, metavar="N",
                    help="with --ray and no --address: CPUs of the local Ray instance (default: all)")
-    x.add_argument("--max-memory", type=memory_size, default=None, metavar="SIZE",
+    x.add_argument("--max-memory", type=memory_size, default=AVAILABLE, metavar="SIZE",
                    help="refuse, before any work, a scene whose encoding would need more memory than SIZE "
-                        "(e.g. 4G, 512M; exit status 4); the estimate counts the scene, the encoder's arrays "
-                        "and the worker processes (tools/results/scale.md); default: no bound")
+                        "(e.g. 4G, 512M; none: no bound; exit status 4); the estimate counts the scene, the "
+                        "encoder's arrays, the render-based preparation and the worker processes "
+                        "(encoder/stream/memory.py, tools/results/scale.md); default: the memory the system has "
+                        "available when the encoder starts (MemAvailable, or a cgroup's limit), so a scene that "
+                        "would not fit is refused rather than killed half way")
 
 
 def add_run_arguments(p: argparse.ArgumentParser) -> None:
@@ -377,15 +380,26 @@ def announce_estimate(args: argparse.Namespace, scene, cfg, log) -> None:
             "and writes nothing")
 
 
+# --max-memory's default: the memory the system has available (app/workers.py available_memory); not a
+# string, which argparse would parse as a size
+AVAILABLE = -1
+
+
 def check_memory(scene, cfg, workers, max_memory: int | None, source: str, log) -> None:
     """Refuse a scene whose encoding would need more than ``max_memory`` (ResourceLimitError, exit
-    status 4), before the work starts; with a bound, say what the estimate is."""
-    if max_memory is None:
-        return
+    status 4), before the work starts; with a bound, say what the estimate is. ``AVAILABLE``: the
+    memory the system has available now (no bound where it does not say)."""
     from .stream.memory import check_encode_memory
 
-    need = check_encode_memory(scene, cfg, workers, max_memory, source)
-    log(f"memory: about {format_bytes(need)} needed, within --max-memory {format_bytes(max_memory)}")
+    limit = "--max-memory"
+    if max_memory == AVAILABLE:
+        from ..app.workers import available_memory
+
+        max_memory, limit = available_memory(), "the memory available"
+    if max_memory is None:
+        return
+    need = check_encode_memory(scene, cfg, workers, max_memory, source, limit)
+    log(f"memory: about {format_bytes(need)} needed, within {limit} {format_bytes(max_memory)}")
 
 
 def context_twin_of(args: argparse.Namespace, gaussians: bool, cfg, transcoded=None):

@@ -75,10 +75,12 @@ def test_more_streams_are_those_before_the_coding_by_block(preset, degree, tile_
 
 
 def test_rdoq_blocks_do_not_change_the_stream(monkeypatch):
-    """Within a LoD each row's choice depends on coarser LoDs only: any block size, the same stream
-    (97 rows: many blocks per LoD, the last one partial)."""
+    """Within a LoD each row's choice depends on coarser LoDs only, and each row's step-adjustment
+    costs are its own: any block size, the same stream (97 rows: many blocks per LoD, the last one
+    partial; `low`'s tools: step adjustment and SH degrees)."""
     monkeypatch.setattr(rdoq, "RDOQ_BLOCK_ROWS", 97)
     assert hashlib.sha256(_fast_stream(3, 0)).hexdigest() == PINNED[3, 0]
+    test_more_streams_are_those_before_the_coding_by_block("low", 3, 0)
 
 
 def test_coding_blocks_do_not_change_the_stream(monkeypatch):
@@ -170,3 +172,36 @@ def test_residual_histograms_give_each_groups_best_level_and_bits():
     for g in range(4):
         assert level_and_bits(hist.bits(g)) == best_level_and_bits(r[group == g])
     assert hist.bits(4) is None and hist.best_level(4) == 0
+
+
+@pytest.mark.parametrize("keys", [1, 1000])
+def test_the_searchs_grid_cache_changes_no_trial(keys, monkeypatch):
+    """The settings search keeps GRID_CACHE_KEYS (pruning share, position step) grids, not every one it
+    tried: a grid made again is the same, so every trial (settings, error, bits) and the choice are those
+    of keeping one or all of them."""
+    from lghcc.encoder.gaussians import gaussian_rd
+    from lghcc.encoder.gaussians.gaussian_fit import prepare_gaussians
+
+    small = {"target_psnr": 35.0, "search_views": 2, "search_resolution": 32, "fit_views": 2, "fit_resolution": 32,
+             "fit_iterations": 0, "search_reference_gaussians": 0, "resolve_px": 0.0, "step_adjust_max": 7,
+             "landing_views": 0, "check_views": 0}
+    scene = _scene(600, 3)
+    cfg = dataclasses.replace(load_config("medium", kind="gaussians"), **small)
+    real_make, real_eval = gaussian_rd.SettingsSearch._make_grid, gaussian_rd.SettingsSearch.evaluate
+
+    def search(n: int):
+        made, trials = [], []
+        monkeypatch.setattr(gaussian_rd, "GRID_CACHE_KEYS", n)
+        monkeypatch.setattr(gaussian_rd.SettingsSearch, "_make_grid",
+                            lambda self, *k: made.append(k) or real_make(self, *k))
+        monkeypatch.setattr(gaussian_rd.SettingsSearch, "evaluate",
+                            lambda self, c: trials.append(real_eval(self, c)) or trials[-1])
+        prepared = prepare_gaussians(scene, cfg)
+        return prepared.cfg, [(t.cfg, t.mse, t.bits) for t in trials], made
+
+    cfg_a, trials_a, made_a = search(gaussian_rd.GRID_CACHE_KEYS)
+    cfg_b, trials_b, made_b = search(keys)
+    assert len(trials_a) > 10 and cfg_a == cfg_b and trials_a == trials_b
+    assert set(made_b) == set(made_a)  # the same grids tried
+    if keys == 1000:
+        assert len(made_b) == len(set(made_b)) <= len(made_a)  # all kept: each grid made once

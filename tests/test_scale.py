@@ -158,6 +158,46 @@ def test_max_memory_refuses_before_any_work(small_ply, tmp_path, capsys, monkeyp
     assert out.exists()
 
 
+def test_max_memory_defaults_to_the_memory_available(small_ply, tmp_path, capsys, monkeypatch):
+    """Without --max-memory the bound is the memory the system has available: a scene beyond it is
+    refused before any work (exit 4, one line naming it); `--max-memory none` lifts the bound; where the
+    system says nothing there is none."""
+    ply, yaml = small_ply
+    import lghcc.app.workers as workers
+    import lghcc.encoder.api as api
+
+    def must_not_run(*a, **k):
+        raise AssertionError("encoding started")
+    out = tmp_path / "x.lghcc"
+    monkeypatch.setattr(workers, "available_memory", lambda: 100 << 20)
+    with monkeypatch.context() as m:
+        m.setattr(api, "_encode_gaussians", must_not_run)
+        assert enc_cli.main([str(ply), "-o", str(out), "--config", str(yaml)]) == EXIT_RESOURCE_LIMIT
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert str(ply) in err and "needs about" in err and "the memory available 100.0 MiB" in err
+    assert "--max-memory" in err  # how to lift the bound
+    assert not out.exists()
+    assert enc_cli.main([str(ply), "-o", str(out), "--config", str(yaml), "--max-memory", "none", "-q"]) == EXIT_OK
+    assert out.exists()
+    out.unlink()
+    monkeypatch.setattr(workers, "available_memory", lambda: None)
+    assert enc_cli.main([str(ply), "-o", str(out), "--config", str(yaml), "-q"]) == EXIT_OK
+    assert out.exists()
+
+
+def test_available_memory_is_the_systems():
+    """MemAvailable where Linux tells it: positive, at most the machine's memory."""
+    from lghcc.app.workers import available_memory
+    avail = available_memory()
+    if not Path("/proc/meminfo").exists():
+        assert avail is None
+        return
+    total = int(next(line for line in Path("/proc/meminfo").read_text().splitlines()
+                     if line.startswith("MemTotal:")).split()[1]) * 1024
+    assert 0 < avail <= total
+
+
 def test_memory_estimate_grows_linearly_with_the_scene():
     cfg = plain_config()
     one, two, big = (encode_memory(gaussian_scene(n, degree=3), cfg).total for n in (1000, 2000, 3000))

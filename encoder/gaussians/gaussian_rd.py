@@ -277,9 +277,31 @@ def held_in_footprint(sample: Gaussians3DGS, held: Gaussians3DGS, cam) -> torch.
     return torch.from_numpy(np.flatnonzero(ok & (hits > 0)))
 
 
+# The (pruning share, position step) pairs whose grid, values and neighbour graph a search keeps: each
+# holds a copy of the kept Gaussians' values (float64 [N, M]), the scene on its grid and its graph, 620 B
+# per Gaussian at SH degree 3 (measured at 100k); a search makes one for most of its trials (the pruning
+# ladder's moves onto the target scale the position step with the others: 38 pairs in 59 trials on a test
+# scene) and kept them all, the largest part of the preparation's peak (tools/results/scale.md, "SH 3
+# memory", round 3). The trials of one pair follow one another (the probes of the attribute steps, a
+# share's first trial and its move): with two kept none was made twice there, and one made again would be
+# the same.
+GRID_CACHE_KEYS = 2
+
+
+def _cached(cache: dict, key, make):
+    """``cache[key]``, made by ``make()`` where missing; the GRID_CACHE_KEYS most recently used kept."""
+    if key in cache:
+        cache[key] = cache.pop(key)  # the most recent last
+    else:
+        cache[key] = make()
+        while len(cache) > GRID_CACHE_KEYS:
+            del cache[next(iter(cache))]
+    return cache[key]
+
+
 class SettingsSearch:
     """Evaluates settings on one scene (the sample of a ``backdrop``, with one); caches what
-    depends only on pruning and the grid."""
+    depends only on pruning and the grid (GRID_CACHE_KEYS)."""
 
     def __init__(self, scene: GaussianScene, contrib: np.ndarray, cfg: GaussianEncoderConfig, lam: float,
                  views: int, resolution: int, sensitivity: np.ndarray | None = None,
@@ -318,12 +340,12 @@ class SettingsSearch:
 
     def _graph(self, key, grid: GaussianScene):
         """The normative order of the grid's points and their neighbour graph (cached per grid)."""
-        if key not in self._graphs:
+        def make():
             order = normative_order(grid.coords)
             graph = neighbour_graph(grid.coords[order], self.cfg.prediction_lods, self.cfg.prediction_neighbours) \
                 if self.cfg.neighbour_prediction and neighbour_usable(grid.coords) else None
-            self._graphs[key] = (order, graph)
-        return self._graphs[key]
+            return order, graph
+        return _cached(self._graphs, key, make)
 
     def _attribute_bits(self, key, grid: GaussianScene, q: np.ndarray, prior_bits: float,
                         adjust: np.ndarray | None = None, degrees: np.ndarray | None = None,
@@ -354,22 +376,24 @@ class SettingsSearch:
         return self._attribute_bits(key, grid, q, prior_bits, adjust, degrees, layout)
 
     def _grid(self, share: float, position_step: float):
-        key = (share, position_step)
-        if key not in self._grids and share == 0 and self.scene.coords is not None:
+        """(which Gaussians are kept, the kept on their grid, the geometry's bits, their values) of a
+        pruning share and position step (cached: GRID_CACHE_KEYS of them)."""
+        return _cached(self._grids, (share, position_step), lambda: self._make_grid(share, position_step))
+
+    def _make_grid(self, share: float, position_step: float):
+        if share == 0 and self.scene.coords is not None:
             # a scene already on its grid (fitted there) keeps it, whatever position_step says
             keep = np.ones(self.scene.num_gaussians, dtype=bool)
             bits = 8.0 * len(encode_geometry(np.unique(self.scene.coords, axis=0)))
-            self._grids[key] = (keep, self.scene, bits, self.values)
-        if key not in self._grids:
-            keep, kept, weights = pruned_scene(self.scene, self.contrib, share, self.cfg.prune_mode, self.view_share)
-            cfg = GaussianEncoderConfig(position_step=position_step)
-            voxel, origin = choose_grid(kept, cfg, weights)
-            grid, _ = snap_to_grid(kept, voxel, origin, weights)
-            # merged Gaussians carry their groups' values (drop: the scene's, as coded_values of the subset)
-            values = self.values[keep] if keep.all() or self.cfg.prune_mode == "drop" else \
-                coded_values(kept).astype(np.float64)
-            self._grids[key] = (keep, grid, 8.0 * len(encode_geometry(np.unique(grid.coords, axis=0))), values)
-        return self._grids[key]
+            return keep, self.scene, bits, self.values
+        keep, kept, weights = pruned_scene(self.scene, self.contrib, share, self.cfg.prune_mode, self.view_share)
+        cfg = GaussianEncoderConfig(position_step=position_step)
+        voxel, origin = choose_grid(kept, cfg, weights)
+        grid, _ = snap_to_grid(kept, voxel, origin, weights)
+        # merged Gaussians carry their groups' values (drop: the scene's, as coded_values of the subset)
+        values = self.values[keep] if keep.all() or self.cfg.prune_mode == "drop" else \
+            coded_values(kept).astype(np.float64)
+        return keep, grid, 8.0 * len(encode_geometry(np.unique(grid.coords, axis=0))), values
 
     def _adjust(self, key, grid: GaussianScene, keep: np.ndarray, x: np.ndarray, degree: int,
                 cfg: GaussianEncoderConfig) -> np.ndarray | None:

@@ -36,17 +36,23 @@ PER_VALUE_BYTES = 90  # per point and channel: the scene read, float64 values, i
 # --jobs 2 (tools/results/scale.md, 2026-11-29; SH 0): 1,194 MiB at 100k, 1,679 at 300k, 3,206 at 1M
 # (409k pruned), 10,158 at 3M (none pruned): above the other parts, about 420 MiB plus 1.8 KB per
 # Gaussian from 300k to 3M, more per Gaussian at 100k (the fixed part: renders, torch's buffers).
-# 600 MiB plus 2,000 B per point bounds all four: with the other parts and two workers the whole
+# 600 MiB plus 2,000 B per point (24 B per value then) bounds all four: with the other parts and two workers the whole
 # estimate is 1.16x the peak at 3M, 1.18x at 100k (the tightest), 1.44x at 1M (where pruning lowered
-# the peak). The per-value term (the sensitivities, float64 [N, M], and their copies; the fit's parameters,
-# gradients and moments): `medium` on the 100k SH-3 scene of tools/results/scale.md "SH 3 memory (issue 53)"
-# (round 2) peaked at 2,661 MiB before the round (--jobs 2, GNU time) and at 3,055 MiB after it (the same
-# stream; not explained, see there), 300-400 B per value above the SH-0 scenes' 1,194 MiB
-# at 100k; 24 B gave 1,893 MiB there, no bound. 320 B gives 3,474 MiB (1.14x the higher); at SH 0 (11
-# channels) the estimates grow by 3,256 B per point, looser (1,715 MiB at 100k against its 1,194), a bound still.
+# the peak). The per-value term: the sensitivities' two views in flight (each parameter's float32
+# gradient and its float64 square, [N, M]), their float64 sums and result, the fit's parameters, gradients
+# and moments. The settings search's peak is bounded too (gaussian_rd.py GRID_CACHE_KEYS): it kept the
+# grid, values and neighbour graph of every (pruning share, position step) it tried, 620 B per Gaussian
+# each at SH 3, one for most trials, which made the peaks of `medium` on the 100k SH-3 scene (2,661 and
+# 3,055 MiB, once covered here by 320 B per value) and of the room watched from inside at 100k (1,592 and
+# 1,683 MiB, above the estimate of 1,404: its RSS climbed from 569 to 1,400 MiB over the pruning ladder,
+# tools/results/scale.md "SH 3 memory", round 3). With two kept, the per-stage traces of both
+# (in-process, --jobs 2) peak at the sensitivities and the trials: 1,003 MiB the room (SH 0), 1,373 the
+# SH-3 scene, 86 B per value apart: 96 B per value, with the per-point term lowered to 1,200 B so that a Gaussian at
+# SH 0 (11 values) costs what the fit above gave it (2,000 B + 24 B per value; 3M: 1.15x its peak). The
+# estimate is then 1.40x the room's peak and about 1.6x the SH-3 scene's.
 PREPARE_BYTES = 600 << 20
-PREPARE_PER_POINT_BYTES = 2000
-PREPARE_PER_VALUE_BYTES = 320
+PREPARE_PER_POINT_BYTES = 1200
+PREPARE_PER_VALUE_BYTES = 96
 # Rate-distortion optimized quantization without the preparation (sensitivity_model "uniform": the
 # fast preset). Since issue 53 the uniform sensitivities are one broadcast row (nothing per value), the
 # values in steps are the coding's values divided in place, RDOQ chooses each LoD's rows in blocks of
@@ -130,15 +136,17 @@ def encode_memory(scene: AnchorScene | GaussianScene, cfg, workers=None) -> Memo
     return MemoryEstimate(sum(parts.values()), parts)
 
 
-def check_encode_memory(scene: AnchorScene | GaussianScene, cfg, workers, max_memory: int, name: str) -> int:
+def check_encode_memory(scene: AnchorScene | GaussianScene, cfg, workers, max_memory: int, name: str,
+                        limit: str = "--max-memory") -> int:
     """The estimate (bytes) when within ``max_memory``; else ResourceLimitError naming the scene,
-    what it needs (and its largest part) and the limit."""
+    what it needs (and its largest part) and the limit (``limit``: what the bound is)."""
     est = encode_memory(scene, cfg, workers)
     if est.total > max_memory:
         n, _ = _points_and_channels(scene, cfg)
         what = "Gaussians" if isinstance(scene, GaussianScene) else "anchors"
         raise ResourceLimitError(
             f"{name}: encoding {n:,} {what} needs about {format_bytes(est.total)} (largest part: {est.largest()}), "
-            f"more than --max-memory {format_bytes(max_memory)}; raise the limit, or encode on a machine with more "
-            "memory")
+            f"more than {limit} {format_bytes(max_memory)}; " +
+            ("raise the limit, or encode on a machine with more memory" if limit == "--max-memory" else
+             "free memory, encode on a machine with more, or pass --max-memory (none: no bound) to try anyway"))
     return est.total
