@@ -849,6 +849,38 @@ def rotation_length(units, spec: dict) -> None:
     units[r] = DataUnit(UnitType.ROTATION_LENGTH, RotationLengthUnit(max_rotation_length_index=top).to_bytes())
 
 
+def sh_transform(units, spec: dict) -> None:
+    """Replace the matrix of the sh_transform unit of an explicit-Gaussian stream (version 1.6, clauses
+    7.3.17, 11.11) by a designed one; the coefficients stay, so the decoded SH rest changes (rehash
+    the stream). spec: {matrix: identity (2^shift on the diagonal), extreme (the entries cycling
+    -2^(B-1), 2^(B-1) - 1, 0, and seeded values of every magnitude), or keep (the unit's own), shift: R
+    (default the unit's), bits: B (1 .. 16; default the fewest that hold the matrix), seed}."""
+    from lghcc.common.units import GaussianParameterSet, ShTransformUnit
+
+    gps = GaussianParameterSet.from_bytes(units[_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
+    r = _index(units, UnitType.SH_TRANSFORM)
+    old = attr.ShTransform.from_unit(ShTransformUnit.from_bytes(units[r].payload, sh_degree=gps.sh_degree))
+    shift = int(spec.get("shift", old.shift))
+    n = old.size
+    kind = spec.get("matrix", "keep")
+    if kind == "identity":
+        matrix = (np.eye(n, dtype=np.int64) << shift).ravel()
+    elif kind == "extreme":
+        bits = int(spec["bits"])
+        lo, hi = -(1 << (bits - 1)), (1 << (bits - 1)) - 1
+        rng = np.random.default_rng(int(spec.get("seed", 0)))
+        matrix = (rng.integers(lo, hi, size=n * n, endpoint=True) >> rng.integers(0, bits, size=n * n)).astype(np.int64)
+        matrix[0::3], matrix[1::3] = lo, hi
+    else:
+        matrix = np.asarray(old.matrix, np.int64)
+    unit = attr.ShTransform(shift, tuple(int(x) for x in matrix)).to_unit(gps.sh_degree)
+    if "bits" in spec:  # the same entries in a wider field
+        bits = int(spec["bits"])
+        unit = ShTransformUnit(sh_degree=gps.sh_degree, sh_transform_shift=shift, sh_transform_bits_minus1=bits - 1,
+                               sh_transform_coeff=[int(x) + (1 << (bits - 1)) for x in matrix])
+    units[r] = DataUnit(UnitType.SH_TRANSFORM, unit.to_bytes())
+
+
 def _chunks_across_lods(h: AttributeUnitHeader, nc) -> bytes:
     """The attribute unit of ``nc`` (already written into ``h``) with its rows, in coding order, cut
     every rows_per_chunk rows regardless of the LoDs (a version-1.0 chunking of the LoD-major order),
@@ -944,5 +976,5 @@ def apply_edits(units, post: dict) -> None:
 _EDITS_IN_ORDER = (
     designed_model, set_q, escape_classes, edit_chunk, recode_attribute_header,
     geometry_edit, context_unit, render_unit, neighbour_prediction, step_adjust,
-    sh_degree, rotation_length, set_elements, flatten_hierarchy, swap_tiles, nonzero_alignment,
+    sh_degree, rotation_length, sh_transform, set_elements, flatten_hierarchy, swap_tiles, nonzero_alignment,
 )
