@@ -84,7 +84,7 @@ export class ProgressiveDecoder {
         const ps = parseGaussianParameterSet(crit[0].payload);
         if (ps.hierarchyEnabled) return null; // rejected by finish()
         let i = 1;
-        const payloads = { ps: crit[0].payload, np: null, sa: null, sf: null, sd: null, rl: null };
+        const payloads = { ps: crit[0].payload, np: null, sa: null, sf: null, sd: null, rl: null, st: null };
         const next = (type) => (crit[i] && crit[i].type === type ? crit[i++].payload : null);
         payloads.np = next(UNIT.NEIGHBOUR_PREDICTION);
         if (payloads.np) {
@@ -93,6 +93,7 @@ export class ProgressiveDecoder {
             payloads.sd = next(UNIT.SH_DEGREE);
         }
         payloads.rl = next(UNIT.ROTATION_LENGTH);
+        payloads.st = next(UNIT.SH_TRANSFORM);
         const ctx = preludeContext(ps, payloads);
         if (!crit[i]) return null;
         if (ps.tilesEnabled) {
