@@ -1241,7 +1241,7 @@ export function inverseShTransform(n: i32, nRest: i32, T: usize, shift: i32, tmp
             let u: i64 = 0;
             for (let k = 0; k < nRest; k++) u += i64At(row, k) * i64At(qb, k);
             const v = (u + half) >> <i64>shift;
-            if (v > Q_LIMIT || v < -Q_LIMIT) { errWide = <u64>v; fail(ERR_SH_TRANSFORM, i, 3 + j); }
+            if (v < -Q_LIMIT || v > Q_LIMIT) { errWide = <u64>v; fail(ERR_SH_TRANSFORM, i, 3 + j); }
             setI64(tmp, j, v);
         }
         memory.copy(qb, tmp, <usize>nRest << 3);
