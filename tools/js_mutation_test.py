@@ -154,8 +154,8 @@ MUTATIONS: list[JsMutation] = [
     # the SH rest as transform coefficients (version 1.6, clause 11.11)
     M("wasm.sh_transform_no_rounding", "wasm/decoder.ts", "const v = (u + half) >> <i64>shift;", "const v = u >> <i64>shift;",
       "11.11: the shift without its rounding offset"),
-    M("wasm.sh_transform_transposed", "wasm/decoder.ts", "u += i64At(row, k) * i64At(qb, k);",
-      "u += i64At(T + (<usize>(k * nRest) << 3), j) * i64At(qb, k);", "11.11: T read column-major"),
+    M("wasm.sh_transform_transposed", "wasm/decoder.ts", "u += i64At(row, load<i32>(nzIdx + (<usize>m << 2)))",
+      "u += i64At(T + (<usize>(load<i32>(nzIdx + (<usize>m << 2)) * nRest) << 3), j)", "11.11: T read column-major"),
     M("wasm.sh_transform_limit_skipped", "wasm/decoder.ts", "if (v < -Q_LIMIT || v > Q_LIMIT) { errWide",
       "if (false) { errWide", "E68 skipped"),
     M("units.sh_transform_entries_unsigned", "units.mjs", "BigInt(r.u(bits, `sh_transform_coeff[${i}]`) - offset)",

@@ -154,7 +154,7 @@ class TileAttributeDecoder {
         const st = this.ctx.shTransform, w = this.w;
         if (!st || st.size === 0) return;
         w.reset();
-        const pT = copyIn(w, st.matrix), tmp = alloc(w, 8 * st.size);
+        const pT = copyIn(w, st.matrix), tmp = alloc(w, 20 * st.size);
         callWasm(() => w.inverseShTransform(this.n, st.size, pT, st.shift, tmp),
             (code, row, c) => new BitstreamError(`row ${row}, channel ${c}: an SH value's inverse transform ${BigInt.asIntN(64, w.errorWide())} exceeds the limit of 2^40 quantization steps (clause 11.11, E68)`));
     }

@@ -1234,12 +1234,21 @@ export function reconstruct(n: i32, scale: usize, out: usize): void {
 export function inverseShTransform(n: i32, nRest: i32, T: usize, shift: i32, tmp: usize): void {
     err = 0;
     const M = aM, half: i64 = (<i64>1 << <i64>shift) >> 1;
+    // tmp: the row's new values (i64 [nRest]), then its non-zero coefficients' indices (i32 [nRest]) and values (i64 [nRest]):
+    // the terms of zero coefficients (most, after RDOQ, and every uncoded one) are skipped
+    const nzIdx = tmp + (<usize>nRest << 3), nzVal = nzIdx + (<usize>nRest << 2);
     for (let i = 0; i < n; i++) {
         const qb = aQ + (<usize>(i * M + 3) << 3);
+        let nz = 0;
+        for (let k = 0; k < nRest; k++) {
+            const t = i64At(qb, k);
+            if (t != 0) { store<i32>(nzIdx + (<usize>nz << 2), k); setI64(nzVal, nz, t); nz++; }
+        }
+        if (nz == 0) { memory.fill(qb, 0, <usize>nRest << 3); continue; } // (0 + half) >> shift = 0
         for (let j = 0; j < nRest; j++) {
             const row = T + (<usize>(j * nRest) << 3);
             let u: i64 = 0;
-            for (let k = 0; k < nRest; k++) u += i64At(row, k) * i64At(qb, k);
+            for (let m = 0; m < nz; m++) u += i64At(row, load<i32>(nzIdx + (<usize>m << 2))) * i64At(nzVal, m);
             const v = (u + half) >> <i64>shift;
             if (v < -Q_LIMIT || v > Q_LIMIT) { errWide = <u64>v; fail(ERR_SH_TRANSFORM, i, 3 + j); }
             setI64(tmp, j, v);
