@@ -23,6 +23,7 @@ Dead offsets (offset mask present and 0) are not coded and reconstruct to 0.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -35,7 +36,7 @@ from .bitio import BitReader
 from .syntax import TraceEntry
 from .units import (CHANNEL_PREDICTION_SHIFT, CONTEXT_PER_CHANNEL_PRIOR, MASK_PROB_BITS,
                                 MAX_PREDICTED_MAGNITUDE, MAX_ROTATION_LENGTH_INDEX, AttributeUnitHeader, GaussianParameterSet,
-                                SceneParameterSet)
+                                SceneParameterSet, ShTransformUnit)
 
 # Quantization-step adjustment (context models with a step output): the step of a value is
 # float32(step(c)) * STEP_ADJUST_FACTORS[a], one binary32 multiplication. The factors are
@@ -56,6 +57,7 @@ class ChannelLayout:
     offset_mask_present: int = 0
     channel_prediction_allowed = 0
     max_rotation_length_index = -1  # anchors have no rotation channels
+    sh_transform = None  # nor SH channels
 
     @property
     def num_channels(self) -> int:
@@ -104,6 +106,9 @@ class GaussianLayout:
     # >= 0 with a rotation_length unit (its max_rotation_length_index): channel rotation_start then
     # carries the length index k and w is implied (clause 11.10); -1 without one
     max_rotation_length_index: int = -1
+    # with an sh_transform unit (format 1.6): the SH-rest channels carry transform coefficients and
+    # the values are its integer inverse (clause 11.11); None without one
+    sh_transform: "ShTransform | None" = None
     num_offsets = 0
     offset_mask_present = 0
     channel_prediction_allowed = 1
@@ -169,6 +174,63 @@ def layout_of(sps: SceneParameterSet) -> ChannelLayout:
 
 def gaussian_layout_of(gps: GaussianParameterSet, max_rotation_length_index: int = -1) -> GaussianLayout:
     return GaussianLayout(gps.sh_degree, max_rotation_length_index)
+
+
+# --- the SH rest as transform coefficients (clause 11.11, format 1.6) ---------------------------
+
+SH_REST_START = 3  # the first SH-rest channel: coefficient 1 of R (the DC term takes channels 0 .. 2)
+
+
+@dataclass(frozen=True)
+class ShTransform:
+    """The integer matrix T [NumShRest, NumShRest] and rounding shift R of an sh_transform unit
+    (clause 7.3.17): row j of T maps the row's transform coefficients t (its quantized values of the
+    SH-rest channels 3 .. 3S - 1) to the quantized value of SH-rest channel 3 + j."""
+
+    shift: int
+    matrix: tuple  # T row-major (j slowest), Python ints
+
+    @classmethod
+    def from_unit(cls, unit: ShTransformUnit) -> "ShTransform":
+        offset = 1 << unit.sh_transform_bits_minus1
+        return cls(unit.sh_transform_shift, tuple(int(c) - offset for c in unit.sh_transform_coeff))
+
+    def to_unit(self, sh_degree: int) -> ShTransformUnit:
+        """The unit with the fewest entry bits that holds the matrix."""
+        top = max([0] + [c if c >= 0 else -c - 1 for c in self.matrix])  # offset binary: -2^(B-1) .. 2^(B-1) - 1
+        bits = top.bit_length() + 1
+        unit = ShTransformUnit(sh_degree=sh_degree, sh_transform_shift=self.shift, sh_transform_bits_minus1=bits - 1,
+                               sh_transform_coeff=[c + (1 << (bits - 1)) for c in self.matrix])
+        if unit.num_sh_rest ** 2 != len(self.matrix):
+            raise ValueError(f"a transform of {len(self.matrix)} entries at SH degree {sh_degree}")
+        return unit
+
+    @property
+    def size(self) -> int:
+        return int(round(len(self.matrix) ** 0.5))
+
+    @cached_property
+    def array(self) -> np.ndarray:
+        """int64 [NumShRest, NumShRest]: T."""
+        return np.asarray(self.matrix, dtype=np.int64).reshape(self.size, self.size)
+
+
+def inverse_sh_transform(q: np.ndarray, layout, what: str) -> np.ndarray:
+    """Clause 11.11: the quantized values [rows, M] whose SH-rest channels are reconstructed, from the
+    decoded ``q`` whose SH-rest channels hold transform coefficients t: for each SH-rest channel 3 + j,
+    (sum_k T[j][k] t_k + floor(2^R / 2)) >> R, exact in int64 (|t| <= 2^40, |T| <= 2^15, at most 45
+    terms: below 2^61), each checked against |q| <= 2^40 (E68). ``q`` itself without a transform."""
+    transform = layout.sh_transform
+    if transform is None or transform.size == 0:
+        return q
+    end = SH_REST_START + transform.size
+    u = q[:, SH_REST_START:end] @ transform.array.T
+    v = (u + ((1 << transform.shift) >> 1)) >> transform.shift
+    if v.size and int(np.abs(v).max()) > MAX_PREDICTED_MAGNITUDE:
+        raise BitstreamError(f"{what}: an SH value's inverse transform exceeds the limit of 2^40 quantization steps")
+    out = q.astype(np.int64)  # (the encoder's q may be narrower than the values)
+    out[:, SH_REST_START:end] = v
+    return out
 
 
 # --- rotations as a length index and x, y, z (clause 11.10, format 1.4) ------------------------
@@ -509,10 +571,12 @@ def decode_chunk_values(data: bytes, h: AttributeUnitHeader, layout, p: CodingPa
 
 def reconstruct_chunk(q: np.ndarray, steps: np.ndarray, step_adjust: np.ndarray | None, target: np.ndarray,
                        i: int, level: int, layout=None) -> None:
-    """Reconstruction (clause 11.5) of chunk i into ``target``; every value must be finite. Then,
-    with a rotation_length unit, the rotations' w (clause 11.10; ``layout`` the scene's)."""
+    """Reconstruction (clause 11.5) of chunk i into ``target``, of the SH rest's inverse transform
+    with an sh_transform unit (clause 11.11); every value must be finite. Then, with a
+    rotation_length unit, the rotations' w (clause 11.10; ``layout`` the scene's)."""
+    values_q = q if layout is None else inverse_sh_transform(q, layout, f"attribute chunk {i} (level {level})")
     with np.errstate(over="ignore", invalid="ignore"):
-        reconstruct(q, steps, step_adjust, out=target)
+        reconstruct(values_q, steps, step_adjust, out=target)
     if not np.isfinite(target).all():
         raise BitstreamError(f"attribute chunk {i} (level {level}): a decoded value overflows binary32 "
                              "(a conforming stream decodes to finite values only)")

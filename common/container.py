@@ -19,7 +19,7 @@ from .syntax import SyntaxStructure, SyntaxVisitor
 
 MAGIC = 0x4C474843  # "LGHC"
 VERSION_MAJOR = 1
-VERSION_MINOR = 5  # this decoder's version: 1.5
+VERSION_MINOR = 6  # this decoder's version: 1.6
 BASE_VERSION_MINOR = 1  # the version of a stream that uses no tool of a later minor version (clause 6.2)
 ANCILLARY_UNIT_TYPE_MIN = 0x80
 UNIT_HEADER_BYTES = 5
@@ -44,6 +44,7 @@ class UnitType(IntEnum):
     SH_DEGREE = 0x0B  # version 1.3: an SH degree per Gaussian (7.3.14)
     ROTATION_LENGTH = 0x0C  # version 1.4: rotations as a length index and x, y, z, w implied (7.3.15)
     STEP_ADJUST_FLAGS = 0x0D  # version 1.5: the step-adjustment indices as flags (7.3.16)
+    SH_TRANSFORM = 0x0E  # version 1.6: the SH rest as transform coefficients of an integer matrix (7.3.17)
 
 
 class AncillaryUnitType(IntEnum):
@@ -111,7 +112,7 @@ CONTAINER_HEADER_BYTES = 8
 # step_adjust unit is a version 1.1 stream, which a decoder of version 1.1 decodes (and one
 # without an sh_degree unit a version 1.2 stream at most).
 FIRST_MINOR_OF_UNIT = {UnitType.STEP_ADJUST: 2, UnitType.SH_DEGREE: 3, UnitType.ROTATION_LENGTH: 4,
-                       UnitType.STEP_ADJUST_FLAGS: 5}
+                       UnitType.STEP_ADJUST_FLAGS: 5, UnitType.SH_TRANSFORM: 6}
 
 
 def version_minor_of(units: list[DataUnit]) -> int:

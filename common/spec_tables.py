@@ -15,7 +15,7 @@ def all_structures() -> list[type[SyntaxStructure]]:
             units.AttributeUnitHeader, units.DecodedSceneHashUnit, model_unit.ContextModelUnit,
             model_unit.IntArrayHeader, units.GaussianParameterSet, units.SourceInfo, units.TileIndex,
             units.NeighbourPredictionUnit, units.StepAdjustUnit, units.ShDegreeUnit, units.RotationLengthUnit,
-            units.StepAdjustFlagsUnit]
+            units.StepAdjustFlagsUnit, units.ShTransformUnit]
 
 
 def syntax_tables_markdown() -> str:

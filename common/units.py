@@ -58,6 +58,12 @@ ROTATION_LENGTH_BITS = 4
 NUM_DEGREE_CONTEXTS = 6
 NUM_STEP_FLAG_CONTEXTS = NUM_DEGREE_CONTEXTS  # version 1.5: the step-adjustment flags use the SH-degree flags' contexts
 DEGREE_PROB_BITS = 12
+# SH transform (version 1.6, clause 7.3.17): an integer matrix of NumShRest x NumShRest entries of
+# sh_transform_bits_minus1 + 1 bits (offset binary) and a rounding shift (clause 11.11)
+SH_TRANSFORM_SHIFT_BITS = 5
+SH_TRANSFORM_MAX_SHIFT = 31
+SH_TRANSFORM_BITS_BITS = 4
+SH_TRANSFORM_MAX_BITS = 16
 
 HASH_TYPE_SHA256 = 1
 
@@ -458,6 +464,35 @@ class RotationLengthUnit(SyntaxStructure):
 
     def syntax(self, v: SyntaxVisitor) -> None:
         v.u(ROTATION_LENGTH_BITS, self, "max_rotation_length_index")
+        v.byte_align()
+
+
+@dataclass
+class ShTransformUnit(SyntaxStructure):
+    """sh_transform unit (0x0E, version 1.6, clause 7.3.17): the SH-rest channels of every Gaussian
+    (3 .. 3S - 1) carry transform coefficients t, and the row's SH-rest quantized values are the
+    integer inverse transform (sum_k T[j][k] t_k + rounding) >> sh_transform_shift (clause 11.11),
+    T[j][k] = sh_transform_coeff[j * NumShRest + k] - 2^sh_transform_bits_minus1."""
+
+    syntax_name = "sh_transform_unit"
+    clause = "7.3.17"
+    sh_degree: int = 0  # context: d of the gaussian_parameter_set
+    sh_transform_shift: int = 0
+    sh_transform_bits_minus1: int = 0
+    sh_transform_coeff: list = field(default_factory=list)
+
+    @property
+    def num_sh_rest(self) -> int:
+        """NumShRest = 3 (d + 1)^2 - 3: the SH channels after the DC term."""
+        return 3 * (self.sh_degree + 1) ** 2 - 3
+
+    def syntax(self, v: SyntaxVisitor) -> None:
+        v.u(SH_TRANSFORM_SHIFT_BITS, self, "sh_transform_shift", hi=SH_TRANSFORM_MAX_SHIFT)
+        v.u(SH_TRANSFORM_BITS_BITS, self, "sh_transform_bits_minus1", hi=SH_TRANSFORM_MAX_BITS - 1)
+        count = self.num_sh_rest * self.num_sh_rest
+        bits = self.sh_transform_bits_minus1 + 1
+        for i in v.loop(count, "NumShRest * NumShRest", self, ("sh_transform_coeff",)):
+            v.u(bits, self, "sh_transform_coeff", i, width="sh_transform_bits_minus1 + 1")
         v.byte_align()
 
 

@@ -52,7 +52,8 @@ SPECIAL_VALUES: dict[str, list[int]] = {}  # (version_minor: 0 is its minimum; t
 CONTEXT_DEPENDENT_MAX = {"attribute_unit_header.rows_per_chunk_minus1": "NumRows - 1 (a single chunk)",
                          "attribute_unit_header.num_channel_predictions": "M (M - 1) / 2 (every pair)",
                          "attribute_unit_header.pred_target_channel": "M - 1 (the last channel)",
-                         "attribute_unit_header.pred_source_channel": "M - 2"}
+                         "attribute_unit_header.pred_source_channel": "M - 2",
+                         "sh_transform_unit.sh_transform_coeff": "2^B - 1 (B = sh_transform_bits_minus1 + 1)"}
 ENUM_MAX_VALUES = 5  # integers with at most this many allowed values are enumerated
 FIXED_LENGTH = {"decoded_scene_hash_unit.scene_hash"}  # byte strings that cannot be empty
 UNIT_TYPE = "data_unit_header.unit_type"
@@ -310,8 +311,13 @@ def _trace_values(trace):
     entries = [(re.sub(r"\[\d+\]", "", e.name), e.value) for e in trace]
     m = None  # channels of a Gaussian scene (3 (d + 1)^2 + 8), the limit of the prediction elements
     num_rows_minus1 = None
+    coeff_max = None  # 2^B - 1, the largest entry of an sh_transform unit
     for name, value in entries:
         ctx = None
+        if name == "sh_transform_unit.sh_transform_bits_minus1":
+            coeff_max = (1 << (int(value) + 1)) - 1
+        elif name == "sh_transform_unit.sh_transform_coeff":
+            ctx = coeff_max
         if name == "gaussian_parameter_set.sh_degree":
             m = 3 * (int(value) + 1) ** 2 + 8
         elif m is not None and name == "attribute_unit_header.num_channel_predictions":

@@ -39,6 +39,12 @@ Not listed, with the reason (each would be an *equivalent* mutation: no stream c
 * GGConvParams' own checks of k, radius_sq, h_shift and neighbour_level and IntLinear's of a
   shift: the context-model unit's syntax rejects every value outside those ranges first (the
   syntax.* mutations of those elements stand for them);
+* the SH transform's sums of products in binary64 instead of int64 (clause 11.11): with at most 45 terms
+  below 2^61 a binary64 sum errs by a few units of its last place, and the inverse transform is then
+  rounded by the shift and by float32() of clause 11.5 to 24 significant bits: the output differs only
+  where the binary64 error moves the value across a binary32 rounding boundary, which no stream of a
+  reasonable size meets (c120's sums beyond 2^53 differ in one integer of 1,248, not in any value);
+  the binary32 sum is listed instead;
 * the ranges of pred_source_channel (<= M - 2), of pred_target_channel from below (>= 1) and of
   num_channel_predictions (<= M (M - 1) / 2): an entry beyond them breaks source < target or the
   strictly increasing order of the entries, which the decoder rejects anyway (as BitstreamError;
@@ -953,10 +959,10 @@ MUTATIONS: list[Mutation] = [
       ("STEP_ADJUST_FACTORS[step_adjust]", "STEP_ADJUST_FACTORS[np.minimum(step_adjust + 1, 7)]")),
     M("step_adjust.unit_repeated", "step_adjust", f"{DECODE}:_UNIT_ORDER",
       "the step_adjust unit may be repeated (E17)",
-      value="__import__('re').compile(r'(SR?|P(N(Q*F?)?B?)?W?)C?I?(GA{1,2}H)+')"),
+      value="__import__('re').compile(r'(SR?|P(N(Q*F?)?B?)?W?T?)C?I?(GA{1,2}H)+')"),
     M("step_adjust.unit_without_neighbours", "step_adjust", f"{DECODE}:_UNIT_ORDER",
       "a step_adjust unit accepted without a neighbour_prediction unit",
-      value="__import__('re').compile(r'(SR?|P(N(QF?)?B?|QF?)?W?)C?I?(GA{1,2}H)+')"),
+      value="__import__('re').compile(r'(SR?|P(N(QF?)?B?|QF?)?W?T?)C?I?(GA{1,2}H)+')"),
     # --- per-Gaussian SH degree (version 1.3, clauses 7.3.14 and 11.9)
     M("sh_degree.context_share_rounded", "sh_degree", f"{SH_DEGREE}:flag_contexts",
       "the context of a partial share rounded, 2 + (3 m + n / 2) // n, instead of floored",
@@ -1023,12 +1029,12 @@ MUTATIONS: list[Mutation] = [
       ("[h.adjust_chunk_size] * bool(h.step_adjust_present) + [h.degree_chunk_size] * bool(h.sh_degree_present)",
        "[h.degree_chunk_size] * bool(h.sh_degree_present) + [h.adjust_chunk_size] * bool(h.step_adjust_present)")),
     M("sh_degree.unit_repeated", "sh_degree", f"{DECODE}:_UNIT_ORDER",
-      "the sh_degree unit may be repeated", value="__import__('re').compile(r'(SR?|P(N(QF?)?B*)?W?)C?I?(GA{1,2}H)+')"),
+      "the sh_degree unit may be repeated", value="__import__('re').compile(r'(SR?|P(N(QF?)?B*)?W?T?)C?I?(GA{1,2}H)+')"),
     M("sh_degree.unit_without_neighbours", "sh_degree", f"{DECODE}:_UNIT_ORDER",
       "an sh_degree unit accepted without a neighbour_prediction unit",
-      value="__import__('re').compile(r'(SR?|P(N(QF?)?B?|B)?W?)C?I?(GA{1,2}H)+')"),
+      value="__import__('re').compile(r'(SR?|P(N(QF?)?B?|B)?W?T?)C?I?(GA{1,2}H)+')"),
     M("sh_degree.unit_before_step_adjust", "sh_degree", f"{DECODE}:_UNIT_ORDER",
-      "the sh_degree unit expected before the step_adjust unit", value="__import__('re').compile(r'(SR?|P(NB?(QF?)?)?W?)C?I?(GA{1,2}H)+')"),
+      "the sh_degree unit expected before the step_adjust unit", value="__import__('re').compile(r'(SR?|P(NB?(QF?)?)?W?T?)C?I?(GA{1,2}H)+')"),
     # --- rotations as a length index and x, y, z (version 1.4, clauses 7.3.15 and 11.10)
     M("rotation_length.index_range_unchecked", "rotation_length", f"{ATTR}:check_rotation_length_index",
       "a length index above max_rotation_length_index (or below 0) accepted (E66)",
@@ -1042,13 +1048,13 @@ MUTATIONS: list[Mutation] = [
       "adjust_level other than 0 accepted beside a step_adjust_flags unit (E67's second field unchecked)",
       ("if h.adjust_mean or h.adjust_level:", "if h.adjust_mean:")),
     M("step_adjust_flags.unit_repeated", "step_adjust_flags", f"{DECODE}:_UNIT_ORDER",
-      "the step_adjust_flags unit may be repeated", value="__import__('re').compile(r'(SR?|P(N(QF*)?B?)?W?)C?I?(GA{1,2}H)+')"),
+      "the step_adjust_flags unit may be repeated", value="__import__('re').compile(r'(SR?|P(N(QF*)?B?)?W?T?)C?I?(GA{1,2}H)+')"),
     M("step_adjust_flags.unit_without_step_adjust", "step_adjust_flags", f"{DECODE}:_UNIT_ORDER",
       "a step_adjust_flags unit accepted without a step_adjust unit",
-      value="__import__('re').compile(r'(SR?|P(N(Q?F?)?B?)?W?)C?I?(GA{1,2}H)+')"),
+      value="__import__('re').compile(r'(SR?|P(N(Q?F?)?B?)?W?T?)C?I?(GA{1,2}H)+')"),
     M("step_adjust_flags.unit_after_sh_degree", "step_adjust_flags", f"{DECODE}:_UNIT_ORDER",
       "the step_adjust_flags unit expected after the sh_degree unit",
-      value="__import__('re').compile(r'(SR?|P(N(QB?F?|B)?)?W?)C?I?(GA{1,2}H)+')"),
+      value="__import__('re').compile(r'(SR?|P(N(QB?F?|B)?)?W?T?)C?I?(GA{1,2}H)+')"),
     M("step_adjust_flags.no_neighbour_context", "step_adjust_flags", f"{NEIGHBOUR}:_decode_chunk_adjust",
       "every flag in context 0 (as in LoD 0) instead of the share of the row's neighbours with an index of at least b",
       ("return decode_flag_chunk(piece, num_rows, nd,", "return decode_flag_chunk(piece, num_rows, None,")),
@@ -1077,15 +1083,53 @@ MUTATIONS: list[Mutation] = [
       "the implied w from 2^-k less the squares of channels w, x, y (one channel early)",
       ("values[:, w + 1:w + 4]", "values[:, w:w + 3]")),
     M("rotation_length.unit_repeated", "rotation_length", f"{DECODE}:_UNIT_ORDER",
-      "the rotation_length unit may be repeated", value="__import__('re').compile(r'(SR?|P(N(QF?)?B?)?W*)C?I?(GA{1,2}H)+')"),
+      "the rotation_length unit may be repeated", value="__import__('re').compile(r'(SR?|P(N(QF?)?B?)?W*T?)C?I?(GA{1,2}H)+')"),
     M("rotation_length.unit_before_neighbours", "rotation_length", f"{DECODE}:_UNIT_ORDER",
       "the rotation_length unit accepted before the neighbour_prediction unit",
-      value="__import__('re').compile(r'(SR?|PW?(N(QF?)?B?)?W?)C?I?(GA{1,2}H)+')"),
+      value="__import__('re').compile(r'(SR?|PW?(N(QF?)?B?)?W?T?)C?I?(GA{1,2}H)+')"),
     M("rotation_length.unit_in_anchor_stream", "rotation_length", f"{DECODE}:_UNIT_ORDER",
       "a rotation_length unit accepted in an anchor stream",
-      value="__import__('re').compile(r'(SW?R?|P(N(QF?)?B?)?W?)C?I?(GA{1,2}H)+')"),
+      value="__import__('re').compile(r'(SW?R?|P(N(QF?)?B?)?W?T?)C?I?(GA{1,2}H)+')"),
     M("rotation_length.unit_width", "rotation_length", f"{UNITS}:RotationLengthUnit.syntax",
       "max_rotation_length_index read as u(3)", ("v.u(ROTATION_LENGTH_BITS,", "v.u(3,")),
+    # --- the SH rest as transform coefficients (version 1.6, clauses 7.3.17 and 11.11)
+    M("sh_transform.no_magnitude_check", "sh_transform", f"{ATTR}:inverse_sh_transform",
+      "an inverse transform beyond 2^40 accepted (E68)",
+      ("if v.size and int(np.abs(v).max()) > MAX_PREDICTED_MAGNITUDE:", "if False:")),
+    M("sh_transform.no_rounding_offset", "sh_transform", f"{ATTR}:inverse_sh_transform",
+      "the shift without its rounding offset (floor instead of round)",
+      ("v = (u + ((1 << transform.shift) >> 1)) >> transform.shift", "v = u >> transform.shift")),
+    M("sh_transform.ties_down", "sh_transform", f"{ATTR}:inverse_sh_transform",
+      "ties rounded towards minus infinity (offset 2^(R-1) - 1)",
+      ("v = (u + ((1 << transform.shift) >> 1)) >> transform.shift",
+       "v = (u + max(((1 << transform.shift) >> 1) - 1, 0)) >> transform.shift")),
+    M("sh_transform.towards_zero", "sh_transform", f"{ATTR}:inverse_sh_transform",
+      "the shift of a negative sum towards zero instead of the floor",
+      ("v = (u + ((1 << transform.shift) >> 1)) >> transform.shift",
+       "w = u + ((1 << transform.shift) >> 1); v = np.sign(w) * (np.abs(w) >> transform.shift)")),
+    M("sh_transform.transposed", "sh_transform", f"{ATTR}:inverse_sh_transform",
+      "T[k][j] in place of T[j][k] (the matrix read column-major)", ("@ transform.array.T", "@ transform.array")),
+    M("sh_transform.binary32_sum", "sh_transform", f"{ATTR}:inverse_sh_transform",
+      "the sums of products in binary32 instead of integers",
+      ("u = q[:, SH_REST_START:end] @ transform.array.T",
+       "u = (q[:, SH_REST_START:end].astype(np.float32) @ transform.array.T.astype(np.float32)).astype(np.int64)")),
+    M("sh_transform.from_dc", "sh_transform", f"{ATTR}:SH_REST_START",
+      "the transform applied from channel 0 (the DC term) on", value="0"),
+    M("sh_transform.entries_unsigned", "sh_transform", f"{ATTR}:ShTransform.from_unit",
+      "the entries read without their offset 2^(B-1)", ("int(c) - offset", "int(c)")),
+    M("sh_transform.not_applied", "sh_transform", f"{ATTR}:reconstruct_chunk",
+      "the coefficients reconstructed as the values (the transform ignored)",
+      ("values_q = q if layout is None else inverse_sh_transform(", "values_q = q if True else inverse_sh_transform(")),
+    M("sh_transform.shift_width", "sh_transform", f"{UNITS}:ShTransformUnit.syntax",
+      "sh_transform_shift read as u(4)", ("v.u(SH_TRANSFORM_SHIFT_BITS,", "v.u(4,")),
+    M("sh_transform.unit_repeated", "sh_transform", f"{DECODE}:_UNIT_ORDER",
+      "the sh_transform unit may be repeated", value="__import__('re').compile(r'(SR?|P(N(QF?)?B?)?W?T*)C?I?(GA{1,2}H)+')"),
+    M("sh_transform.unit_before_rotation_length", "sh_transform", f"{DECODE}:_UNIT_ORDER",
+      "the sh_transform unit accepted before the rotation_length unit",
+      value="__import__('re').compile(r'(SR?|P(N(QF?)?B?)?(W?T?|TW))C?I?(GA{1,2}H)+')"),
+    M("sh_transform.unit_in_anchor_stream", "sh_transform", f"{DECODE}:_UNIT_ORDER",
+      "an sh_transform unit accepted in an anchor stream",
+      value="__import__('re').compile(r'(ST?R?|P(N(QF?)?B?)?W?T?)C?I?(GA{1,2}H)+')"),
 ]
 
 

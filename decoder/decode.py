@@ -48,7 +48,8 @@ from ..common.tiles import Box, check_points_in_cell, check_tile_index, cell_int
 from ..common.neighbour_prediction import read_predicted_attribute_unit
 from ..common.units import (CONTEXT_GGCONV, LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ATTRIBUTE_VALUES, DecodedSceneHashUnit,
                             GaussianParameterSet, NeighbourPredictionUnit, RotationLengthUnit, SceneParameterSet,
-                            ShDegreeUnit, SourceInfo, StepAdjustFlagsUnit, StepAdjustUnit, TileIndex)
+                            ShDegreeUnit, ShTransformUnit, SourceInfo, StepAdjustFlagsUnit, StepAdjustUnit,
+                            TileIndex)
 from ..app.workers import available_cpus, shared_array
 from .jobs import PREVIEW_VALUE_SHARE, WorkerPlan, plan_workers, tile_seconds
 from .limits import DEFAULT_MAX_MEMORY, MemoryPlan
@@ -57,10 +58,11 @@ _LETTER = {UnitType.SCENE_PARAMETER_SET: "S", UnitType.GAUSSIAN_PARAMETER_SET: "
            UnitType.GEOMETRY: "G", UnitType.CONTEXT_MODEL: "C", UnitType.ATTRIBUTE: "A",
            UnitType.DECODED_SCENE_HASH: "H", UnitType.TILE_INDEX: "I", UnitType.NEIGHBOUR_PREDICTION: "N",
            UnitType.STEP_ADJUST: "Q", UnitType.STEP_ADJUST_FLAGS: "F", UnitType.SH_DEGREE: "B",
-           UnitType.ROTATION_LENGTH: "W"}
+           UnitType.ROTATION_LENGTH: "W", UnitType.SH_TRANSFORM: "T"}
 # an anchor scene, or an explicit-Gaussian scene, which has no render model but may have neighbour
-# prediction (and with it step adjustment and the SH degrees) and rotation lengths; then the tiles
-_UNIT_ORDER = re.compile(r"(SR?|P(N(QF?)?B?)?W?)C?I?(GA{1,2}H)+")
+# prediction (and with it step adjustment and the SH degrees), rotation lengths and the SH transform;
+# then the tiles
+_UNIT_ORDER = re.compile(r"(SR?|P(N(QF?)?B?)?W?T?)C?I?(GA{1,2}H)+")
 
 
 @dataclass
@@ -128,7 +130,7 @@ def organize_units(container: Container, known: list[DataUnit] | None = None) ->
                              "[render_model], [context_model], [tile_index], then per tile geometry, attribute "
                              "(1 or 2), decoded_scene_hash; or gaussian_parameter_set, [neighbour_prediction [step_adjust "
                              "[step_adjust_flags]] [sh_degree]], "
-                             "[rotation_length], "
+                             "[rotation_length], [sh_transform], "
                              "[context_model], "
                              "[tile_index], then the tiles)")
     if "I" not in letters and letters.count("G") > 1:
@@ -561,6 +563,7 @@ def parse_stream(data: bytes, entries: list[TraceEntry] | None = None, *, max_an
     if neighbour is not None:
         context_model = neighbour  # the attribute units' context (the stream has no context model)
     layout = with_rotation_length(layout, by_type.get(UnitType.ROTATION_LENGTH, [None])[0], entries)
+    layout = with_sh_transform(layout, by_type.get(UnitType.SH_TRANSFORM, [None])[0], ps, entries)
     tiles, _ = tiles_of(units, by_type, ps.num_anchors, entries)
     return ParsedStream(container, skipped, ps, layout, mlps, context_model, tiles, memory, source_info, notes)
 
@@ -630,6 +633,15 @@ def with_rotation_length(layout, unit: DataUnit | None, entries):
     return dataclasses.replace(layout, max_rotation_length_index=rl.max_rotation_length_index)
 
 
+def with_sh_transform(layout, unit: DataUnit | None, ps, entries):
+    """The layout of a stream with an sh_transform unit (clause 7.3.17): its SH-rest channels carry
+    transform coefficients (clause 11.11); ``layout`` itself without one."""
+    if unit is None:
+        return layout
+    st = ShTransformUnit.from_bytes(unit.payload, entries, what="sh_transform unit", sh_degree=ps.sh_degree)
+    return dataclasses.replace(layout, sh_transform=attr.ShTransform.from_unit(st))
+
+
 def _read_parameter_set(by_type: dict[int, list[DataUnit]], entries) -> tuple[SceneParameterSet | GaussianParameterSet,
                                                                               object]:
     """The stream's parameter set (an explicit-Gaussian stream's, else the anchor scene's) and
@@ -669,6 +681,9 @@ def _stream_tools(ps, decoded: DecodedTiles, context_model, point: str, num_tile
         tools = [f"explicit Gaussians (SH degree {ps.sh_degree})"]
         if layout is not None and layout.max_rotation_length_index >= 0:
             tools.append(f"rotations as a length index (0 to {layout.max_rotation_length_index}) and x, y, z")
+        if layout is not None and layout.sh_transform is not None:
+            tools.append(f"the SH rest as coefficients of a {layout.sh_transform.size} x {layout.sh_transform.size} "
+                         "integer transform")
     else:
         tools = ["offset masks"] if ps.offset_mask_present_flag else []
     if ps.tiles_enabled_flag:

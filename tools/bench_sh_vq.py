@@ -174,13 +174,13 @@ class VQSearch(SettingsSearch):
             if design in ("b", "bd", "br", "brd"):
                 x = x.copy()
                 x[:, 3:sh] -= pq[idx]
-        adjust = self._adjust(key, grid, keep, x, degree, cfg)
+        adjust = self._adjust(key, grid, keep, x, layout, cfg, steps)
         factor = 1.0 if adjust is None else STEP_ADJUST_FACTORS[adjust].astype(np.float64)[:, None]
         q, degrees = np.rint(x / factor).astype(np.int64), None
         if cfg.rotation_length:
             q[:, layout.rotation_start] = 0
         if self.sensitivity is not None and cfg.rd_quantization > 0:
-            q, degrees = self._rd_quantized(key, grid, keep, x, layout, cfg, adjust)
+            q, degrees = self._rd_quantized(key, grid, keep, x, layout, cfg, adjust, steps)
         if design == "a":
             q[:, 3:sh] = 0
         dq = (q * factor).astype(np.float64)

@@ -729,9 +729,11 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
     torch.set_num_threads(1)  # context-model training in float must be reproducible byte for byte
     try:
         if entry["scene"]["generator"] == "gaussians":  # the preset's steps; no search, no fit
-            # neighbour prediction (version 1.1) and rotation lengths (version 1.4) only where the
-            # entry asks for them: the streams of the versions before keep their coding
-            overrides = {"neighbour_prediction": False, "rotation_length": False, **(entry.get("config") or {})}
+            # neighbour prediction (version 1.1), rotation lengths (version 1.4) and the SH transform
+            # (version 1.6) only where the entry asks for them: the streams of the versions before keep
+            # their coding
+            overrides = {"neighbour_prediction": False, "rotation_length": False, "sh_transform": False,
+                         **(entry.get("config") or {})}
             cfg = load_config(entry.get("preset", "medium"), overrides=overrides, kind="gaussians")
             scene = build_scene(entry["scene"])
             result = encode_gaussian_scene(scene, cfg, sensitivity=synthetic_sensitivity(scene, entry.get("sensitivity")),
@@ -804,6 +806,7 @@ Tags of test.yaml `tools`, derived from the reference decoder's result (never wr
   step_adjust           a step_adjust unit (version 1.2, clause 7.3.13): a step-adjustment index per Gaussian
   sh_degree             an sh_degree unit (version 1.3, clause 7.3.14): an SH degree per Gaussian
   rotation_length       a rotation_length unit (version 1.4, clause 7.3.15): rotations as a length index and x, y, z
+  sh_transform          an sh_transform unit (version 1.6, clause 7.3.17): the SH rest as transform coefficients
   step_adjust_flags     a step_adjust_flags unit (version 1.5, clause 7.3.16): the step-adjustment indices as flags
   gaussians             an explicit-Gaussian scene (gaussian_parameter_set), sh_degree_<d> its SH degree
   channel_prediction    an attribute unit with cross-channel predictions (clause 11.6)
@@ -866,6 +869,7 @@ def _structure_tags(data: bytes) -> set[str]:
     unit_tags = {UnitType.RENDER_MODEL: "render_model", UnitType.CONTEXT_MODEL: "context_model_unit",
                  UnitType.NEIGHBOUR_PREDICTION: "neighbour_prediction", UnitType.STEP_ADJUST: "step_adjust",
                  UnitType.SH_DEGREE: "sh_degree", UnitType.ROTATION_LENGTH: "rotation_length",
+                 UnitType.SH_TRANSFORM: "sh_transform",
                  UnitType.STEP_ADJUST_FLAGS: "step_adjust_flags"}
     tags.update(tag for unit_type, tag in unit_tags.items() if unit_type in types)
     if any(u.is_ancillary for u in units):

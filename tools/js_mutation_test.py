@@ -151,6 +151,17 @@ MUTATIONS: list[JsMutation] = [
       "the adjusted prior mean truncated, not rounded (11.8)"),
     M("wasm.one_word_left_ok", "wasm/decoder.ts", "if (rPos < rWords ||", "if (rPos + 1 < rWords ||",
       "E38: one word of data left over accepted"),
+    # the SH rest as transform coefficients (version 1.6, clause 11.11)
+    M("wasm.sh_transform_no_rounding", "wasm/decoder.ts", "const v = (u + half) >> <i64>shift;", "const v = u >> <i64>shift;",
+      "11.11: the shift without its rounding offset"),
+    M("wasm.sh_transform_transposed", "wasm/decoder.ts", "u += i64At(row, load<i32>(nzIdx + (<usize>m << 2)))",
+      "u += i64At(T + (<usize>(load<i32>(nzIdx + (<usize>m << 2)) * nRest) << 3), j)", "11.11: T read column-major"),
+    M("wasm.sh_transform_limit_skipped", "wasm/decoder.ts", "if (v < -Q_LIMIT || v > Q_LIMIT) { errWide",
+      "if (false) { errWide", "E68 skipped"),
+    M("units.sh_transform_entries_unsigned", "units.mjs", "BigInt(r.u(bits, `sh_transform_coeff[${i}]`) - offset)",
+      "BigInt(r.u(bits, `sh_transform_coeff[${i}]`))", "7.3.17: the entries without their offset"),
+    M("container.sh_transform_repeated", "container.mjs", "    if (peek() === UNIT.SH_TRANSFORM) s.st = critical[i++];\n",
+      "    while (peek() === UNIT.SH_TRANSFORM) s.st = critical[i++];\n", "E14: two sh_transform units accepted"),
 ]
 
 

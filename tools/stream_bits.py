@@ -17,7 +17,7 @@ so that the parts add up to the file size:
 - attribute headers: what an attribute unit holds besides its chunks (per-channel priors, chunk
   sizes, cross-channel prediction);
 - model: the units that parameterize the coding of every Gaussian (neighbour_prediction,
-  step_adjust, step_adjust_flags, sh_degree, rotation_length, context and render models);
+  step_adjust, step_adjust_flags, sh_degree, rotation_length, sh_transform, context and render models);
 - headers: the container header, the parameter set, the decoded-scene hash, the tile index, every
   unit's framing (type, size, CRC) and ancillary units.
 
@@ -51,7 +51,7 @@ from lghcc.decoder.decode import decode_stream  # noqa: E402
 CHANNEL_PARTS = ("DC", "SH rest", "opacity", "scales", "rotation")
 PARTS = ("geometry", *CHANNEL_PARTS, "step indices", "SH-degree flags", "attribute headers", "model", "headers")
 MODEL_UNITS = {UnitType.NEIGHBOUR_PREDICTION, UnitType.STEP_ADJUST, UnitType.STEP_ADJUST_FLAGS, UnitType.SH_DEGREE,
-               UnitType.ROTATION_LENGTH,
+               UnitType.ROTATION_LENGTH, UnitType.SH_TRANSFORM,
                UnitType.CONTEXT_MODEL, UnitType.RENDER_MODEL}
 DETAIL = ("SH band 1", "SH band 2", "SH band 3", "rotation length index or w", "rotation x", "rotation y", "rotation z")
 HEADER_UNITS = {UnitType.SCENE_PARAMETER_SET, UnitType.GAUSSIAN_PARAMETER_SET, UnitType.DECODED_SCENE_HASH,

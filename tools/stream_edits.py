@@ -974,6 +974,63 @@ def rotation_length(units, spec: dict) -> None:
     units[r] = DataUnit(UnitType.ROTATION_LENGTH, RotationLengthUnit(max_rotation_length_index=top).to_bytes())
 
 
+def sh_transform(units, spec: dict) -> None:
+    """Replace the matrix of the sh_transform unit of an explicit-Gaussian stream (version 1.6, clauses
+    7.3.17, 11.11) by a designed one; the coefficients stay, so the decoded SH rest changes (rehash
+    the stream). spec: {matrix: identity (2^shift on the diagonal), extreme (the entries cycling
+    -2^(B-1), 2^(B-1) - 1, 0, and seeded values of every magnitude), or keep (the unit's own), shift: R
+    (default the unit's), bits: B (1 .. 16; default the fewest that hold the matrix), seed,
+    scale_coefficients: s (every coefficient multiplied by s, the attribute unit coded again: a stream with
+    neighbour prediction and no tiles, step adjustment or SH degrees whose coefficients are below 2^24)}."""
+    from lghcc.common.units import GaussianParameterSet, ShTransformUnit
+
+    gps = GaussianParameterSet.from_bytes(units[_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
+    if "scale_coefficients" in spec:
+        _scale_coefficients(units, gps, int(spec["scale_coefficients"]))
+    r = _index(units, UnitType.SH_TRANSFORM)
+    old = attr.ShTransform.from_unit(ShTransformUnit.from_bytes(units[r].payload, sh_degree=gps.sh_degree))
+    shift = int(spec.get("shift", old.shift))
+    n = old.size
+    kind = spec.get("matrix", "keep")
+    if kind == "identity":
+        matrix = (np.eye(n, dtype=np.int64) << shift).ravel()
+    elif kind == "extreme":
+        bits = int(spec["bits"])
+        lo, hi = -(1 << (bits - 1)), (1 << (bits - 1)) - 1
+        rng = np.random.default_rng(int(spec.get("seed", 0)))
+        matrix = (rng.integers(lo, hi, size=n * n, endpoint=True) >> rng.integers(0, bits, size=n * n)).astype(np.int64)
+        matrix[0::3], matrix[1::3] = lo, hi
+    else:
+        matrix = np.asarray(old.matrix, np.int64)
+    unit = attr.ShTransform(shift, tuple(int(x) for x in matrix)).to_unit(gps.sh_degree)
+    if "bits" in spec:  # the same entries in a wider field
+        bits = int(spec["bits"])
+        unit = ShTransformUnit(sh_degree=gps.sh_degree, sh_transform_shift=shift, sh_transform_bits_minus1=bits - 1,
+                               sh_transform_coeff=[int(x) + (1 << (bits - 1)) for x in matrix])
+    units[r] = DataUnit(UnitType.SH_TRANSFORM, unit.to_bytes())
+
+
+def _scale_coefficients(units, gps, factor: int) -> None:
+    """The single neighbour-predicted attribute unit coded again with its SH-rest coefficients times
+    ``factor`` (large coefficients: sums of products beyond 2^53, clause 11.11). The coefficients are read
+    as the values a layout without the transform reconstructs, float32(t) * step, exact below 2^24."""
+    from lghcc.encoder.stream.neighbour_coding import NeighbourCoding
+
+    if gps.tiles_enabled_flag or any(u.unit_type in (UnitType.STEP_ADJUST, UnitType.SH_DEGREE) for u in units):
+        raise ValueError("scale_coefficients edits a stream without tiles, step adjustment or SH degrees")
+    layout = attr.gaussian_layout_of(gps)  # no transform: channel c's q as its value
+    k, unit, coords, j, h0, values = _predicted_attribute_unit(units, gps, layout)
+    q = np.rint(values / layout.steps(gps)).astype(np.int64)
+    if np.abs(q).max(initial=0) >= 1 << 24:
+        raise ValueError("scale_coefficients needs coefficients below 2^24")
+    q[:, 3:layout.sh_channels] *= factor
+    h = attr.new_attribute_header(layout, gps.num_gaussians, 0)
+    h.rows_per_chunk_minus1, h.num_lods = h0.rows_per_chunk_minus1, unit.num_lods
+    nc = NeighbourCoding(q, coords, unit.num_lods, unit.num_neighbours, unit.num_buckets,
+                         bool(h0.num_channel_predictions), layout, unit)
+    units[j] = DataUnit(UnitType.ATTRIBUTE, nc.write(h))
+
+
 def _chunks_across_lods(h: AttributeUnitHeader, nc) -> bytes:
     """The attribute unit of ``nc`` (already written into ``h``) with its rows, in coding order, cut
     every rows_per_chunk rows regardless of the LoDs (a version-1.0 chunking of the LoD-major order),
@@ -1069,6 +1126,6 @@ def apply_edits(units, post: dict) -> None:
 _EDITS_IN_ORDER = (
     designed_model, set_q, escape_classes, edit_chunk, recode_attribute_header,
     geometry_edit, context_unit, render_unit, neighbour_prediction, step_adjust,
-    sh_degree, rotation_length, set_elements, flatten_hierarchy, swap_tiles, tile_point_beyond_cell, tile_into_cell_of,
-    tile_scale_cells, nonzero_alignment,
+    sh_degree, rotation_length, sh_transform, set_elements, flatten_hierarchy, swap_tiles, tile_point_beyond_cell,
+    tile_into_cell_of, tile_scale_cells, nonzero_alignment,
 )

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ...common import attributes as attr
 from ...common.attributes import STEP_ADJUST_FACTORS, GaussianLayout, implied_w
 from ...common.entropy.symbol_coder import best_level, code_lengths_bits
 from ...common.geometry import encode_geometry, normative_order
@@ -49,6 +50,7 @@ from ..stream.config import GaussianEncoderConfig
 from .gaussian_grid import choose_grid, coded_values, snap_to_grid
 from .gaussian_views import ORBIT, SceneViews
 from .merging import pruned_scene
+from . import sh_transform as sht
 from ..stream.neighbour_coding import NeighbourCoding, usable as neighbour_usable
 from .rdoq import (adjust_on_graph, channel_groups, channel_steps, degrees_on_graph, group_slopes, orientation_columns,
                    rd_quantize, sh_degree_subset, sh_degrees_wanted, without_dropped_bands)
@@ -395,24 +397,36 @@ class SettingsSearch:
             coded_values(kept).astype(np.float64)
         return keep, grid, 8.0 * len(encode_geometry(np.unique(grid.coords, axis=0))), values
 
-    def _adjust(self, key, grid: GaussianScene, keep: np.ndarray, x: np.ndarray, degree: int,
-                cfg: GaussianEncoderConfig) -> np.ndarray | None:
+    def _sensitivity_of(self, keep: np.ndarray, layout: GaussianLayout, steps: np.ndarray) -> np.ndarray:
+        """The sensitivities of the kept Gaussians' coded channels; with the SH transform (format 1.6) the
+        SH rest's are the coefficients' (encoder/gaussians/sh_transform.py), ``steps`` the channels' in values."""
+        f = sh_degree_subset(self.sensitivity[keep], layout.sh_degree)
+        if layout.sh_transform is None:
+            return f
+        rest = sht.sh_rest_columns(layout.sh_channels)
+        g = np.array(f, dtype=np.float64)
+        g[:, rest] = sht.coefficient_sensitivity(g[:, rest], steps[rest], layout.sh_transform)
+        return g
+
+    def _adjust(self, key, grid: GaussianScene, keep: np.ndarray, x: np.ndarray, layout: GaussianLayout,
+                cfg: GaussianEncoderConfig, steps: np.ndarray) -> np.ndarray | None:
         """Each kept Gaussian's step-adjustment index (scene order), or None without the tool."""
         order, graph = self._graph(key, grid)
         if not step_adjust_wanted(cfg, self.sensitivity) or graph is None:
             return None
-        return adjust_on_graph(x, sh_degree_subset(self.sensitivity[keep], degree), degree, grid.coords, order, graph,
-                               cfg)
+        return adjust_on_graph(x, self._sensitivity_of(keep, layout, steps), layout.sh_degree, grid.coords, order,
+                               graph, cfg, layout.sh_transform is not None)
 
     def _rd_quantized(self, key, grid: GaussianScene, keep: np.ndarray, x: np.ndarray, layout: GaussianLayout,
-                      cfg: GaussianEncoderConfig, adjust: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+                      cfg: GaussianEncoderConfig, adjust: np.ndarray | None,
+                      steps: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """The values RDOQ chooses for the kept Gaussians (scene order, each row's own steps), the
         bands above each one's SH degree set to 0, and the degrees (None without the tool), as
         the coding will choose them (encoder/gaussians/rdoq.py)."""
         order, graph = self._graph(key, grid)
         degree = layout.sh_degree
-        f = sh_degree_subset(self.sensitivity[keep], degree)
-        mu = group_slopes(f, channel_groups(degree), cfg.rd_quantization)
+        f = self._sensitivity_of(keep, layout, steps)
+        mu = group_slopes(f, channel_groups(degree, layout.sh_transform is not None), cfg.rd_quantization)
         rows = np.flatnonzero(keep)[order]  # the scene's Gaussians in coding order
         ways = None if self.ways is None else self.ways[rows]
         q = np.empty(x.shape, dtype=np.int64)
@@ -462,17 +476,17 @@ class SettingsSearch:
         key = (cfg.prune_share, cfg.position_step)
         keep, grid, geometry_bits, values = self._grid(*key)
         degree = self.scene.sh_degree if cfg.sh_degree is None else min(cfg.sh_degree, self.scene.sh_degree)
-        layout = GaussianLayout(degree)
         steps = channel_steps(cfg, degree)
         x = sh_degree_subset(values, degree) / steps
-        adjust = self._adjust(key, grid, keep, x, degree, cfg)
+        layout = _with_sh_transform(GaussianLayout(degree), x, cfg)  # x's SH rest then the coefficients
+        adjust = self._adjust(key, grid, keep, x, layout, cfg, steps)
         factor = 1.0 if adjust is None else STEP_ADJUST_FACTORS[adjust].astype(np.float64)[:, None]
         q, degrees = np.rint(x / factor).astype(np.int64), None
         if cfg.rotation_length:  # unit lengths (index 0) where RDOQ does not choose them
             q[:, layout.rotation_start] = 0
         if self.sensitivity is not None and cfg.rd_quantization > 0:
-            q, degrees = self._rd_quantized(key, grid, keep, x, layout, cfg, adjust)
-        values = (q * steps * factor).astype(np.float32)
+            q, degrees = self._rd_quantized(key, grid, keep, x, layout, cfg, adjust, steps)
+        values = _decoded_values(q, steps, factor, layout)
         if cfg.rotation_length:
             w = layout.rotation_start
             values[:, w] = implied_w(q[:, w], values[:, w + 1:w + 4])
@@ -481,11 +495,41 @@ class SettingsSearch:
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="lghcc-bits") as pool:
             counted = pool.submit(self._values_bits, key, grid, q, adjust, degrees, layout)
             mse = self._mse(dec, cfg.prune_share)
-            bits = geometry_bits + counted.result()
+            bits = geometry_bits + counted.result() + _transform_bits(layout)
         cost = 10 * math.log10(max(mse, 1e-12)) + self.lam * math.log2(max(bits, 1.0))
         trial = Trial(cfg, mse, bits, cost)
         self.trials.append(trial)
         return trial
+
+
+def _with_sh_transform(layout: GaussianLayout, x: np.ndarray, cfg: GaussianEncoderConfig) -> GaussianLayout:
+    """With ``cfg.sh_transform`` where it pays (format 1.6; as encoder/gaussians/gaussians.py sh_transformed):
+    the layout carrying the scene's transform, and ``x``'s SH rest (in band steps) turned, in place, into its
+    coefficients; ``layout`` otherwise."""
+    if not cfg.sh_transform or layout.sh_degree == 0:
+        return layout
+    rest = sht.sh_rest_columns(layout.sh_channels)
+    transform = sht.integer_transform(sht.fit_klt(x[:, rest]))
+    if cfg.sh_transform != "always" and not sht.transform_pays(x[:, rest], transform, layout.sh_degree):
+        return layout
+    x[:, rest] = sht.forward(x[:, rest], transform)
+    return dataclasses.replace(layout, sh_transform=transform)
+
+
+def _decoded_values(q: np.ndarray, steps: np.ndarray, factor, layout: GaussianLayout) -> np.ndarray:
+    """float32: the values a trial's ``q`` decodes to (``factor`` the rows' step-adjustment factors), the SH rest
+    by the inverse transform (clause 11.11) in units of its band steps / 2^GUARD_BITS."""
+    if layout.sh_transform is None:
+        return (q * steps * factor).astype(np.float32)
+    fine = steps.copy()
+    fine[sht.sh_rest_columns(layout.sh_channels)] /= sht.guard_factor()
+    return (attr.inverse_sh_transform(q, layout, "trial") * fine * factor).astype(np.float32)
+
+
+def _transform_bits(layout: GaussianLayout) -> float:
+    """The bits of a trial's sh_transform unit (0 without one)."""
+    t = layout.sh_transform
+    return 0.0 if t is None else 8.0 * len(t.to_unit(layout.sh_degree).to_bytes())
 
 
 def step_adjust_wanted(cfg: GaussianEncoderConfig, sensitivity: np.ndarray | None) -> bool:

@@ -104,8 +104,49 @@ def gaussian_attribute_input(scene: GaussianScene, geometry: GeometryCoding, lev
         raise InputError(f"{n} Gaussians x {layout.num_channels} channels exceed the profile's limit")
     steps = layout.steps(gps)
     values = coded_values(scene, geometry.order)
+    if cfg.sh_transform and layout.sh_degree > 0:
+        gps, layout, steps = sh_transformed(values, gps, layout, steps, cfg, levels)
     # every value live (Gaussians have no dead channels): one broadcast True, no byte per value
     return AttributeInput(gps, layout, steps, values, np.broadcast_to(True, values.shape), None, geometry.coords)
+
+
+def sh_transformed(values: np.ndarray, gps: GaussianParameterSet, layout, steps: np.ndarray, cfg: GaussianEncoderConfig,
+                   levels: LevelLayout):
+    """With the SH transform (format 1.6, encoder/gaussians/sh_transform.py) where it pays: the parameter
+    set whose band steps are the value grid of the transform's inverse, the layout that carries the
+    transform, its steps; ``values``' SH rest becomes, in place, the coefficients times those steps (so
+    that the coding's values / steps are the coefficients). Otherwise the arguments as they are."""
+    from . import sh_transform as sht
+
+    rest = sht.sh_rest_columns(layout.sh_channels)
+    u = values[:, rest] / steps[rest].astype(np.float64)  # the SH rest in band steps
+    transform = sht.integer_transform(sht.fit_klt(u))
+    if cfg.sh_transform != "always" and not sht.transform_pays(u, transform, layout.sh_degree):
+        return gps, layout, steps
+    fine = dataclasses.replace(cfg, sh_band_steps=tuple(float(s) / sht.guard_factor() for s in cfg.sh_band_steps))
+    gps = gaussian_parameter_set(gps.num_anchors, gps.sh_degree, gps.voxel_size, gps.origin, fine, levels.hier is not None,
+                                 levels.tile_scale)
+    layout = dataclasses.replace(layout, sh_transform=transform)
+    steps = layout.steps(gps)
+    values[:, rest] = sht.forward(u, transform) * steps[rest].astype(np.float64)
+    return gps, layout, steps
+
+
+def transformed_sensitivity(f: np.ndarray, inp: AttributeInput) -> np.ndarray:
+    """The sensitivities ``f`` [N, M] with the SH rest's replaced by the coefficients' (diag(B^T F B),
+    encoder/gaussians/sh_transform.py) when the input carries the SH transform; ``f`` otherwise."""
+    from . import sh_transform as sht
+    from .rdoq import uniform
+
+    transform = inp.layout.sh_transform
+    if transform is None:
+        return f
+    rest = sht.sh_rest_columns(inp.layout.sh_channels)
+    band_steps = inp.steps[rest].astype(np.float64) * sht.guard_factor()
+    one = uniform(f)
+    g = np.array(f[:1] if one else f, dtype=np.float64)
+    g[:, rest] = sht.coefficient_sensitivity(g[:, rest], band_steps, transform)
+    return np.broadcast_to(g[0], f.shape) if one else g
 
 
 def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: LevelLayout,
@@ -119,15 +160,16 @@ def rd_quantized_input(inp: AttributeInput, sensitivity: np.ndarray, levels: Lev
                        sh_degree_subset, sh_degrees_wanted, without_dropped_bands)
 
     degree = inp.layout.sh_degree
-    f = sh_degree_subset(sensitivity, degree)
+    transformed = inp.layout.sh_transform is not None
+    f = transformed_sensitivity(sh_degree_subset(sensitivity, degree), inp)
     graph = neighbour_graph(inp.coords, cfg.prediction_lods, cfg.prediction_neighbours) \
         if neighbour_prediction_wanted(cfg, levels, inp) else None
     x = np.divide(inp.values, inp.steps.astype(np.float64), out=inp.values)  # the values in steps
     check_predicted_magnitude(np.rint([x.min(initial=0), x.max(initial=0)]), inp.layout)  # before RDOQ's int64
     adjust = None  # the rows are in coding order already
     if graph is not None and cfg.step_adjust_max > 0:
-        adjust = adjust_on_graph(x, f, degree, inp.coords, np.arange(x.shape[0]), graph, cfg)
-    q = rd_quantize(x, f, group_slopes(f, channel_groups(degree), cfg.rd_quantization), inp.coords, graph,
+        adjust = adjust_on_graph(x, f, degree, inp.coords, np.arange(x.shape[0]), graph, cfg, transformed)
+    q = rd_quantize(x, f, group_slopes(f, channel_groups(degree, transformed), cfg.rd_quantization), inp.coords, graph,
                     cfg.prediction_buckets, orientation_columns(inp.layout), adjust=adjust,
                     length_index=cfg.rotation_length)
     layout = inp.layout
@@ -169,6 +211,9 @@ def assemble_gaussian_stream(inp: AttributeInput, levels: LevelLayout, cfg: Gaus
     if layout.max_rotation_length_index >= 0:
         unit = RotationLengthUnit(max_rotation_length_index=layout.max_rotation_length_index)
         parameter_units.append(DataUnit(UnitType.ROTATION_LENGTH, unit.to_bytes()))
+    if layout.sh_transform is not None:  # clause 7.3.17
+        parameter_units.append(DataUnit(UnitType.SH_TRANSFORM, layout.sh_transform.to_unit(layout.sh_degree).to_bytes()))
+        stats.sh_transform = True
     data = write_stream(parameter_units, coded.context_payload, tiles, decoded.num_gaussians)
     digest = tiles[0].scene_hash if len(tiles) == 1 else gaussian_scene_digest(decoded)
     return EncodeResult(data, breakdown_of(read_container(data), decoded.num_gaussians, "Gaussian"), decoded, digest,

@@ -578,9 +578,14 @@ def channel_steps(cfg, sh_degree: int) -> np.ndarray:
                            [cfg.scale_step] * 3, [cfg.rotation_step] * 4])
 
 
-def channel_groups(sh_degree: int) -> np.ndarray:
-    """int [M]: each coded channel's step group (0-3: SH band, 4 opacity, 5 scales, 6 rotation)."""
-    return np.concatenate([GaussianLayout(sh_degree).band_of_channel(), [4], [5] * 3, [6] * 4])
+def channel_groups(sh_degree: int, transformed: bool = False) -> np.ndarray:
+    """int [M]: each coded channel's step group (0-3: SH band, 4 opacity, 5 scales, 6 rotation). With
+    the SH transform (format 1.6) the SH rest's channels hold coefficients of one step, every band's
+    share mixed: one group (1)."""
+    bands = GaussianLayout(sh_degree).band_of_channel()
+    if transformed:
+        bands = np.minimum(bands, 1)
+    return np.concatenate([bands, [4], [5] * 3, [6] * 4])
 
 
 def sh_degree_subset(f: np.ndarray, sh_degree: int) -> np.ndarray:
@@ -592,12 +597,13 @@ def sh_degree_subset(f: np.ndarray, sh_degree: int) -> np.ndarray:
 
 
 def adjust_on_graph(x: np.ndarray, f: np.ndarray, degree: int, coords: np.ndarray, order: np.ndarray, graph,
-                    cfg) -> np.ndarray | None:
+                    cfg, transformed: bool = False) -> np.ndarray | None:
     """int64 [N] (scene order): the step-adjustment indices encoder/gaussians/rdoq.py step_adjust_choice
     gives values ``x`` [N, M] (in the channels' steps) with sensitivities ``f``, ``graph`` being
     the neighbour graph of ``coords[order]`` (the normative order); None where every index is 0
-    (the stream then carries nothing of the tool)."""
-    mu = group_slopes(f, channel_groups(degree), cfg.rd_quantization)
+    (the stream then carries nothing of the tool). ``transformed``: the SH rest holds transform
+    coefficients (format 1.6)."""
+    mu = group_slopes(f, channel_groups(degree, transformed), cfg.rd_quantization)
     adjust = np.empty(x.shape[0], dtype=np.int64)
     adjust[order] = step_adjust_choice(x[order], take_rows(f, order), mu, coords[order], graph, cfg.prediction_buckets,
                                        cfg.step_adjust_max)
@@ -705,7 +711,7 @@ def degrees_on_graph(x: np.ndarray, q: np.ndarray, f: np.ndarray, layout: Gaussi
     every Gaussian keeps every band, or where the attributes' ideal bits with the degrees (their
     flags and unit included) are not fewer than without (a scene the tool does not help pays
     nothing for it)."""
-    mu = group_slopes(f, channel_groups(layout.sh_degree), cfg.rd_quantization)
+    mu = group_slopes(f, channel_groups(layout.sh_degree, layout.sh_transform is not None), cfg.rd_quantization)
     a = None if adjust is None else adjust[order]
     xo, qo, co = x[order], q[order], coords[order]
     args = (co, len(graph.rows), 1, cfg.prediction_buckets, False, layout)

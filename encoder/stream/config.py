@@ -197,6 +197,12 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # sensitivities (no RDOQ) each quaternion is coded as given, w >= 0: a small w is then implied
     # from the rounded x, y, z poorly (playbot lod4 at fast's steps: -2.2 dB), so pair it with RDOQ.
     rotation_length: bool = False
+    # The SH rest as coefficients of a per-scene transform (format 1.6, clause 11.11;
+    # encoder/gaussians/sh_transform.py): the KLT of each Gaussian's SH-rest vector, fitted per scene,
+    # quantized and coded in its coefficients; used where the rounded coefficients' ideal bits fall by
+    # more than the unit's (False: the SH rest coded value by value; "always": wherever the scene has
+    # an SH rest, for tests and conformance streams; tools/results/sh_coding.md).
+    sh_transform: bool | str = False
     # Drop before anything else the Gaussians whose opacity (after the sigmoid) is below this: at
     # 1/255 those that 3DGS rasterizers never draw (alpha < 1/255 is skipped, render/rasterizer.py),
     # found without renders (the fast preset; 0: keep all)
@@ -295,6 +301,8 @@ class GaussianEncoderConfig(AttributeCodingConfig):
             if not (isinstance(v, int) and 1 <= v <= hi):
                 raise InputError(f"{name} must be an integer in [1, {hi}], got {v!r}")
         self._validate_rdoq()
+        if self.sh_transform not in (True, False, "always"):
+            raise InputError(f"sh_transform must be true, false or always, got {self.sh_transform!r}")
         for name in ("sh_degree_choice", "rotation_length"):
             if not isinstance(getattr(self, name), bool):
                 raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}")

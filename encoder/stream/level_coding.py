@@ -214,8 +214,9 @@ def code_with_model(coder: LevelCoder, inp: AttributeInput, hier: Hierarchy, q_l
 def reconstruct_level(recon: np.ndarray, rows: np.ndarray, chosen: LevelCoding, steps: np.ndarray, layout) -> None:
     """The level's decoded values into ``recon`` (float32), bit for bit (with a rotation_length
     unit, the rotations' implied w: clause 11.10)."""
+    values_q = attr.inverse_sh_transform(chosen.q, layout, "attributes")  # clause 11.11
     with np.errstate(over="ignore", invalid="ignore"):
-        values = attr.reconstruct(chosen.q, steps, chosen.params.step_adjust)
+        values = attr.reconstruct(values_q, steps, chosen.params.step_adjust)
     if not np.isfinite(values).all():
         raise InputError("an attribute value would decode beyond the binary32 range; use a smaller value or step")
     attr.reconstruct_rotations(chosen.q, values, layout, "attributes")

@@ -112,6 +112,7 @@ class EncodeStats:
     step_adjust_flags: bool | None = None  # the indices coded as flags (format 1.5), else as symbols
     sh_degree_coded_bits: int | None = None  # the SH-degree flag chunks as coded (format 1.3)
     sh_degree_counts: list[int] | None = None  # how many Gaussians have each SH degree
+    sh_transform: bool | None = None  # the SH rest coded as transform coefficients (format 1.6)
     levels: dict[int, LevelStats] = field(default_factory=dict)  # by attribute level
     time_attributes_s: float = 0.0
     time_total_s: float = 0.0
@@ -134,7 +135,7 @@ class EncodeStats:
             "time_geometry_s", "num_level1", "num_level2", "num_tiles", "neighbour_prediction", "context_twin_unused", "attribute_ideal_bits",
             "attribute_coded_bits", "step_adjust_coded_bits", "step_adjust_counts", "step_adjust_flags",
             "sh_degree_coded_bits",
-            "sh_degree_counts")})
+            "sh_degree_counts", "sh_transform")})
         for level, level_stats in self.levels.items():
             out.update(level_stats.to_json(level))
         out.update(time_attributes_s=self.time_attributes_s, time_total_s=self.time_total_s)

@@ -1,6 +1,7 @@
 // Attribute decoding of explicit-Gaussian tiles (spec clause 11): the per-channel prior, chunks,
 // cross-channel prediction (11.6), neighbour prediction (11.7), step adjustment (11.8), the
-// per-Gaussian SH degree (11.9), reconstruction in binary32 (11.5) and the implied rotation w (11.10). Per chunk, one call of the
+// per-Gaussian SH degree (11.9), reconstruction in binary32 (11.5), the implied rotation w (11.10) and the SH
+// rest's inverse transform (11.11). Per chunk, one call of the
 // WebAssembly module (wasm/decoder.ts: attributeChunk) decodes the rows' SH degrees, computes their
 // means and levels, decodes the symbols of their coded channels and the values q, exact in 64-bit
 // integers; q, the rows' step-adjustment indices and SH degrees live in the module's memory while
@@ -138,6 +139,7 @@ class TileAttributeDecoder {
     /** Reconstruction in binary32 (clause 11.5) of the tile's values, by the module: Float32Array [n * M]. */
     reconstruct() {
         const w = this.w, n = this.n, M = this.M;
+        this.inverseShTransform();
         const scale = Float32Array.from({ length: 8 * M }, (_, j) => Math.fround(this.ctx.steps[j % M] * STEP_ADJUST_FACTORS[Math.floor(j / M)]));
         w.reset();
         const pScale = copyIn(w, scale), out = alloc(w, 4 * n * M, false);
@@ -145,6 +147,16 @@ class TileAttributeDecoder {
         const rl = this.ctx.rotationLength;
         if (rl) callWasm(() => w.impliedRotations(out, n, M - 4, rl.maxIndex), (code, row) => lengthIndexError(new Int32Array(w.memory.buffer, this.qAddr, 2 * n * M), row, M, M - 4, rl.maxIndex));
         return new Float32Array(w.memory.buffer, out, n * M).slice();
+    }
+
+    /** With an sh_transform unit (clause 11.11), the SH-rest q of every row from its coefficients, in place, by the module. */
+    inverseShTransform() {
+        const st = this.ctx.shTransform, w = this.w;
+        if (!st || st.size === 0) return;
+        w.reset();
+        const pT = copyIn(w, st.matrix), tmp = alloc(w, 20 * st.size);
+        callWasm(() => w.inverseShTransform(this.n, st.size, pT, st.shift, tmp),
+            (code, row, c) => new BitstreamError(`row ${row}, channel ${c}: an SH value's inverse transform ${BigInt.asIntN(64, w.errorWide())} exceeds the limit of 2^40 quantization steps (clause 11.11, E68)`));
     }
 }
 

@@ -7,9 +7,9 @@ export const MAGIC = 0x4C474843;
 export const UNIT = {
     SCENE_PARAMETER_SET: 0x01, RENDER_MODEL: 0x02, GEOMETRY: 0x03, ATTRIBUTE: 0x04, CONTEXT_MODEL: 0x05,
     DECODED_SCENE_HASH: 0x06, GAUSSIAN_PARAMETER_SET: 0x07, TILE_INDEX: 0x08, NEIGHBOUR_PREDICTION: 0x09,
-    STEP_ADJUST: 0x0A, SH_DEGREE: 0x0B, ROTATION_LENGTH: 0x0C, STEP_ADJUST_FLAGS: 0x0D, SOURCE_INFO: 0x80,
+    STEP_ADJUST: 0x0A, SH_DEGREE: 0x0B, ROTATION_LENGTH: 0x0C, STEP_ADJUST_FLAGS: 0x0D, SH_TRANSFORM: 0x0E, SOURCE_INFO: 0x80,
 };
-export const LAST_KNOWN_CRITICAL = 0x0D;
+export const LAST_KNOWN_CRITICAL = 0x0E;
 
 /** Clause 6.1: the 8-byte container header of bytes (at least its first 8 bytes); returns {major, minor}. */
 export function parseHeader(bytes) {
@@ -75,7 +75,7 @@ export function preludeStructure(units) {
     if (first.type === UNIT.SCENE_PARAMETER_SET) {
         throw new UnsupportedStreamError('an anchor stream (scene_parameter_set): outside the explicit-Gaussian profile this decoder implements');
     }
-    const s = { ps: first, np: null, sa: null, sf: null, sd: null, rl: null, cm: null, ti: null, tiles: [] };
+    const s = { ps: first, np: null, sa: null, sf: null, sd: null, rl: null, st: null, cm: null, ti: null, tiles: [] };
     let i = 1;
     const peek = () => critical[i] && critical[i].type;
     if (peek() === UNIT.NEIGHBOUR_PREDICTION) {
@@ -87,6 +87,7 @@ export function preludeStructure(units) {
         if (peek() === UNIT.SH_DEGREE) s.sd = critical[i++];
     }
     if (peek() === UNIT.ROTATION_LENGTH) s.rl = critical[i++];
+    if (peek() === UNIT.SH_TRANSFORM) s.st = critical[i++];
     if (peek() === UNIT.CONTEXT_MODEL) s.cm = critical[i++];
     if (peek() === UNIT.TILE_INDEX) s.ti = critical[i++];
     return { s, critical, i };

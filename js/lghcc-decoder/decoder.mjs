@@ -9,7 +9,7 @@ import { Sha256, sha256, toHex } from './sha256.mjs';
 import { scaleTables } from './tables.mjs';
 import { alloc, copyIn, wasm } from './wasm.mjs';
 import {
-    parseAttributeHeader, parseGaussianParameterSet, parseHashUnit, parseNeighbourPrediction, parseRotationLength, parseShDegree, parseStepAdjust, parseStepAdjustFlags, parseTileIndex,
+    parseAttributeHeader, parseGaussianParameterSet, parseHashUnit, parseNeighbourPrediction, parseRotationLength, parseShDegree, parseShTransform, parseStepAdjust, parseStepAdjustFlags, parseTileIndex,
 } from './units.mjs';
 
 export { BitstreamError, HashMismatchError, ResourceLimitError, UnsupportedStreamError };
@@ -29,7 +29,7 @@ export function parseStream(bytes, { maxMemory = DEFAULT_MAX_MEMORY, verifiedEnd
     if (s.cm && !ps.hierarchyEnabled) throw new BitstreamError('a context_model unit with hierarchy_enabled_flag = 0 (clause 8.3, E16)');
     if (ps.hierarchyEnabled) throw new UnsupportedStreamError('hierarchy_enabled_flag = 1: the two-level hierarchy is outside the explicit-Gaussian profile this decoder implements');
     const payload = (u) => u?.payload ?? null;
-    const ctx = preludeContext(ps, { ps: s.ps.payload, np: payload(s.np), sa: payload(s.sa), sf: payload(s.sf), sd: payload(s.sd), rl: payload(s.rl) });
+    const ctx = preludeContext(ps, { ps: s.ps.payload, np: payload(s.np), sa: payload(s.sa), sf: payload(s.sf), sd: payload(s.sd), rl: payload(s.rl), st: payload(s.st) });
     ctx.tiles = tileList(container.units, s, ps);
     checkMemory(ctx, bytes.length, maxMemory);
     return ctx;
@@ -37,7 +37,7 @@ export function parseStream(bytes, { maxMemory = DEFAULT_MAX_MEMORY, verifiedEnd
 
 /**
  * The stream's context (clause 13.1 step 4) from the prelude's payloads {ps, np, sa, sf, sd, rl} (parameter
- * set, neighbour_prediction, step_adjust, step_adjust_flags, sh_degree and rotation_length units; null when absent), ps parsed. The
+ * set, neighbour_prediction, step_adjust, step_adjust_flags, sh_degree, rotation_length and sh_transform units; null when absent), ps parsed. The
  * payloads stay in it: a worker decoding tiles in parallel parses them itself.
  */
 export function preludeContext(ps, payloads) {
@@ -50,6 +50,7 @@ export function preludeContext(ps, payloads) {
         ps, M: ps.M, steps: ps.steps, payloads, np, stepAdjust, stepFlags,
         shDegreeUnit: payloads.sd ? parseShDegree(payloads.sd, ps.shDegree) : null,
         rotationLength: payloads.rl ? parseRotationLength(payloads.rl) : null,
+        shTransform: payloads.st ? parseShTransform(payloads.st, ps.shDegree) : null,
     };
 }
 

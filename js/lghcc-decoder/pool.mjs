@@ -98,7 +98,7 @@ export class TilePool {
                 started = true;
                 this.warm();
                 const p = ctx.payloads;
-                const prelude = { id, ps: own(p.ps), np: p.np && own(p.np), sa: p.sa && own(p.sa), sf: p.sf && own(p.sf), sd: p.sd && own(p.sd), rl: p.rl && own(p.rl) };
+                const prelude = { id, ps: own(p.ps), np: p.np && own(p.np), sa: p.sa && own(p.sa), sf: p.sf && own(p.sf), sd: p.sd && own(p.sd), rl: p.rl && own(p.rl), st: p.st && own(p.st) };
                 for (const w of this.workers) w.postMessage({ prelude });
             },
             decode: (ctx, t) => new Promise((resolve, reject) => {

@@ -187,7 +187,7 @@ export function preludeFromUnits(units, verify) {
     const ps = parseGaussianParameterSet(crit[0].payload);
     if (ps.hierarchyEnabled) return null; // rejected by the full parse
     let i = 1;
-    const payloads = { ps: crit[0].payload, np: null, sa: null, sf: null, sd: null, rl: null };
+    const payloads = { ps: crit[0].payload, np: null, sa: null, sf: null, sd: null, rl: null, st: null };
     const next = (type) => (crit[i] && crit[i].type === type ? crit[i++].payload : null);
     payloads.np = next(UNIT.NEIGHBOUR_PREDICTION);
     if (payloads.np) {
@@ -196,6 +196,7 @@ export function preludeFromUnits(units, verify) {
         payloads.sd = next(UNIT.SH_DEGREE);
     }
     payloads.rl = next(UNIT.ROTATION_LENGTH);
+    payloads.st = next(UNIT.SH_TRANSFORM);
     const ctx = preludeContext(ps, payloads);
     if (!crit[i]) return null;
     if (ps.tilesEnabled) {

@@ -94,6 +94,21 @@ export function parseRotationLength(payload) {
     return { maxIndex };
 }
 
+/**
+ * sh_transform_unit() (clause 7.3.17) of sh_degree d: {size: NumShRest = 3 (d + 1)^2 - 3, shift: R, matrix: BigInt64Array
+ * [size * size] of T[j][k] = sh_transform_coeff[j * size + k] - 2^(B - 1), row-major}.
+ */
+export function parseShTransform(payload, d) {
+    const r = new BitReader(payload, 'sh_transform_unit');
+    const shift = r.u(5, 'sh_transform_shift');
+    const bits = r.u(4, 'sh_transform_bits_minus1') + 1;
+    const size = 3 * (d + 1) ** 2 - 3, offset = 2 ** (bits - 1);
+    const matrix = BigInt64Array.from({ length: size * size }, (_, i) => BigInt(r.u(bits, `sh_transform_coeff[${i}]`) - offset));
+    r.byteAlign();
+    r.expectEnd();
+    return { size, shift, matrix };
+}
+
 /** sh_degree_unit() (clause 7.3.14) of sh_degree d: the flags' frequencies f[1] = 4096 degree_flag_prob + 2048 (Int32Array [d * 6]). */
 export function parseShDegree(payload, d) {
     const r = new BitReader(payload, 'sh_degree_unit');

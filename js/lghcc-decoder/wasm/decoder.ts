@@ -943,6 +943,7 @@ const ERR_Q_LIMIT: i32 = 11;   // |q| > 2^40 (11.6, E51; errA the row, errB the 
 const ERR_NOT_FINITE: i32 = 12; // a reconstructed value not finite (11.5, E52; errA the row, errB the channel)
 const ERR_LENGTH_INDEX: i32 = 13; // a rotation length index outside [0, max_rotation_length_index] (11.10, E66; errA the row)
 const ERR_STEP_INDEX: i32 = 14; // a step-adjustment index outside [0, max_step_adjust] (11.8, E65; errA the row of the chunk)
+const ERR_SH_TRANSFORM: i32 = 15; // an SH-rest value's inverse transform with |q| > 2^40 (11.11, E68; errA the row, errB the channel)
 const Q_LIMIT: i64 = 0x10000000000; // 2^40
 
 @inline function i64At(p: usize, i: i32): i64 { return load<i64>(p + (<usize>i << 3)); }
@@ -1221,6 +1222,38 @@ export function reconstruct(n: i32, scale: usize, out: usize): void {
             if (v - v != 0) fail(ERR_NOT_FINITE, i, c); // inf - inf and NaN - NaN are NaN
             store<f32>(ob + (<usize>c << 2), v);
         }
+    }
+}
+
+/**
+ * Clause 11.11 in place on the tile's q (at aQ, before reconstruct): the nRest SH-rest channels from 3 on
+ * of every row hold transform coefficients t; each becomes (sum_k T[j][k] t_k + floor(2^shift / 2)) >>
+ * shift, T (i64 [nRest * nRest], row-major) the sh_transform unit's matrix, tmp (i64 [nRest]) scratch.
+ * Exact in i64: |t| <= 2^40, |T| <= 2^15, nRest <= 45, every sum below 2^61. |q| > 2^40 fails (E68).
+ */
+export function inverseShTransform(n: i32, nRest: i32, T: usize, shift: i32, tmp: usize): void {
+    err = 0;
+    const M = aM, half: i64 = (<i64>1 << <i64>shift) >> 1;
+    // tmp: the row's new values (i64 [nRest]), then its non-zero coefficients' indices (i32 [nRest]) and values (i64 [nRest]):
+    // the terms of zero coefficients (most, after RDOQ, and every uncoded one) are skipped
+    const nzIdx = tmp + (<usize>nRest << 3), nzVal = nzIdx + (<usize>nRest << 2);
+    for (let i = 0; i < n; i++) {
+        const qb = aQ + (<usize>(i * M + 3) << 3);
+        let nz = 0;
+        for (let k = 0; k < nRest; k++) {
+            const t = i64At(qb, k);
+            if (t != 0) { store<i32>(nzIdx + (<usize>nz << 2), k); setI64(nzVal, nz, t); nz++; }
+        }
+        if (nz == 0) { memory.fill(qb, 0, <usize>nRest << 3); continue; } // (0 + half) >> shift = 0
+        for (let j = 0; j < nRest; j++) {
+            const row = T + (<usize>(j * nRest) << 3);
+            let u: i64 = 0;
+            for (let m = 0; m < nz; m++) u += i64At(row, load<i32>(nzIdx + (<usize>m << 2))) * i64At(nzVal, m);
+            const v = (u + half) >> <i64>shift;
+            if (v < -Q_LIMIT || v > Q_LIMIT) { errWide = <u64>v; fail(ERR_SH_TRANSFORM, i, 3 + j); }
+            setI64(tmp, j, v);
+        }
+        memory.copy(qb, tmp, <usize>nRest << 3);
     }
 }
 
