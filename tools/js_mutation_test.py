@@ -240,7 +240,7 @@ def profile_streams() -> set[str]:
 # mutation -> why. Conditions of clause 8.2 that cannot be isolated at all are in
 # conformance/conditions.py NOT_ISOLATED and need no entry here.
 EQUIVALENT: dict[str, str] = {
-    "container.unknown_critical_ok": "a critical unit of type 0x0E, undefined, also breaks the unit order of clause "
+    "container.unknown_critical_ok": "a critical unit of type 0x0F, undefined, also breaks the unit order of clause "
                                      "6.3 (E14): every stream with one is rejected by a decoder that takes it for known",
     "wasm.coordinate_max_off_by_one": "the decoder holds coordinates as int32: a coordinate of 2^31 (x053) wraps to "
                                       "-2^31, so its decoded scene differs from the one the stream's hash covers (E53)",
