@@ -178,7 +178,8 @@ def test_no_output_may_overwrite_the_input(tmp_path, capsys, small_stream):
     for argv in (["--json", str(stream)], ["--trace", str(stream)], ["--export-ply", str(stream)],
                  ["--json", str(tmp_path / "." / "c.lghcc")], ["--trace", str(link)], ["-o", str(stream)]):
         assert dec_cli.main([str(stream), "-q"] + argv) == 1, argv
-        assert "would overwrite the input stream" in capsys.readouterr().err
+        err = capsys.readouterr().err
+        assert "overwrite" in err and "input stream" in err
     assert dec_cli.main([str(stream), "-q", "--json", str(tmp_path / "a"), "--trace", str(tmp_path / "a")]) == 1
     assert "are the same file" in capsys.readouterr().err
     assert stream.read_bytes() == before
@@ -208,7 +209,7 @@ def test_decoding_into_a_used_folder_needs_force_and_never_mixes_scenes(tmp_path
     it = out / "point_cloud" / "iteration_0"
     assert (it / "checkpoint.pth").is_file()
     assert dec_cli.main([str(tmp_path / "b.lghcc"), "-o", str(out), "-q"]) == 1
-    assert "is not empty; use -y (--overwrite)" in capsys.readouterr().err
+    assert "-y (--overwrite)" in capsys.readouterr().err
     assert dec_cli.main([str(tmp_path / "b.lghcc"), "-o", str(out), "-q", "-y"]) == 0
     assert not (it / "checkpoint.pth").exists()  # the first scene's MLPs are gone
     with pytest.warns(UserWarning, match="no render-MLP file recognised"):

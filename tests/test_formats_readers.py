@@ -140,14 +140,14 @@ def test_streamed_sog_levels_units_and_errors(tmp_path):
     assert fine.num_gaussians == 380
     np.testing.assert_array_equal(fine.means, np.concatenate([units[0].means, units[1].means]))
     assert_same(read_scene(lod, lod=1), units[2])
-    with pytest.raises(InputError, match=r"no level of detail 2; the levels: 0 \(380 Gaussians\), 1 \(40"):
+    with pytest.raises(InputError, match=r"level of detail 2\b.*0 \(380 Gaussians\), 1 \(40"):
         read_scene(lod, lod=2)
     with pytest.raises(InputError, match="option 'lod' applies to streamed-sog, this is sog"):
         read_scene(lod.parent / "1_0.sog", lod=0)
     meta = json.loads(lod.read_text())
     meta["counts"] = [1, 40]
     lod.write_text(json.dumps(meta))
-    with pytest.raises(InputError, match=r"the tree holds \[380, 40\] Gaussians per level, 'counts' says \[1, 40\]"):
+    with pytest.raises(InputError, match=r"\[380, 40\].*'counts'.*\[1, 40\]"):
         read_scene(lod)
     del meta["counts"]
     meta["tree"]["children"][0]["lods"]["0"]["count"] = 299

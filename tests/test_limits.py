@@ -102,7 +102,7 @@ def test_context_model_working_set_is_checked_before_level_2():
         limits.MemoryPlan.check = orig
     first, last = seen[0][0], seen[-1][0]
     assert any("Ball k-NN" in w or "GG-Conv" in w for w in seen[-1][1]) and last > first
-    with pytest.raises(ResourceLimitError, match="decoding this stream needs about"):
+    with pytest.raises(ResourceLimitError, match=r"needs about \d"):
         decode_stream(data, max_memory=(first + last) // 2)
 
 
@@ -181,7 +181,7 @@ def test_the_plan_bounds_the_resident_memory_of_a_fresh_decoder(sid):
 def test_ggconv_beyond_the_extent_limit_is_a_stream_error(capsys):
     """Issue 14's crash: a bare ValueError from common/knn.py; now the level limit of clause 8."""
     stream = STREAMS / "e018_ggconv_extent_limit" / "stream.lghcc"
-    with pytest.raises(BitstreamError, match="coordinate extent 4294967295 exceeds the level limit of 1753413056"):
+    with pytest.raises(BitstreamError, match=r"extent 4294967295\b.*limit\b.*1753413056"):
         decode_stream(stream.read_bytes())
     assert dec_cli.main([str(stream)]) == EXIT_INVALID_STREAM
     err = capsys.readouterr().err

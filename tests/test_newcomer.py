@@ -113,7 +113,7 @@ def test_train_refuses_an_existing_run_unless_resume_or_overwrite(tmp_path, caps
     (run / "notes.txt").write_text("mine")
     from lghcc.common.errors import InputError
 
-    with pytest.raises(InputError, match="already holds a training run; use --resume .* -y"):
+    with pytest.raises(InputError, match=r"training run\b.*--resume .* -y"):
         check_fresh_output(run, overwrite=False)
     check_fresh_output(run, overwrite=True)
     assert sorted(p.name for p in run.iterdir()) == ["notes.txt"]  # only the run's own files went

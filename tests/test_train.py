@@ -217,7 +217,7 @@ def test_resume_extends_a_finished_run(data, tmp_path, capsys):
     for k in sa["params"]:
         assert torch.equal(sa["params"][k], sr["params"][k]), k
     assert [h["psnr"] for h in b.history] == [h["psnr"] for h in ref.history]
-    with pytest.raises(InputError, match="already at iteration 30; --iterations 25 cannot shorten it"):
+    with pytest.raises(InputError, match=r"iteration 30\b.*--iterations 25\b"):
         train(cfg, tmp_path / "a", resume=True, iterations=25, **quiet)
     logs = []
     c = train(cfg, tmp_path / "a", resume=True, progress=False, log=logs.append)
