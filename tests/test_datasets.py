@@ -191,7 +191,7 @@ def test_nerf_synthetic_folder(tmp_path, teacher):
 
 
 def test_unknown_layouts_and_unmatched_images_are_named(tmp_path, teacher):
-    with pytest.raises(InputError, match="no transforms_train.json .* sparse/0 .* poses_bounds.npy"):
+    with pytest.raises(InputError, match=r"transforms_train.json .* sparse/0 .* poses_bounds.npy"):
         detect_dataset(tmp_path)
     make_colmap(tmp_path, teacher)
     (tmp_path / "images" / "frame_003.png").unlink()

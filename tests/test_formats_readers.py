@@ -152,7 +152,7 @@ def test_streamed_sog_levels_units_and_errors(tmp_path):
     del meta["counts"]
     meta["tree"]["children"][0]["lods"]["0"]["count"] = 299
     lod.write_text(json.dumps(meta))
-    with pytest.raises(InputError, match="0_0.sog: 300 Gaussians, .* gives it 299 of level 0"):
+    with pytest.raises(InputError, match=r"0_0.sog\b.*300 Gaussians\b.*299\b.*level 0"):
         read_scene(lod)
     (lod.parent / "0_0.sog").unlink()
     with pytest.raises(InputError, match="0_0.sog"):
@@ -241,7 +241,7 @@ def test_lghcc_enc_says_what_it_saw_not_a_preset_message(tmp_path, capsys, prese
     for path, found in _not_scenes(tmp_path):
         assert enc_cli.main([str(path), "--preset", preset, "-o", str(tmp_path / "s.lghcc")]) == 1
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and "not a scene this version reads: expected a 3DGS scene" in err[0], err
+        assert len(err) == 1 and "not a scene" in err[0] and "3DGS scene" in err[0], err
         assert found in err[0] and "preset" not in err[0]
         assert not (tmp_path / "s.lghcc").exists()
 
@@ -255,4 +255,5 @@ def test_lghcc_enc_reads_a_streamed_sog_level(tmp_path, capsys):
     assert decode_stream(out.read_bytes()).scene.num_gaussians == 40
     assert enc_cli.main([str(lod.parent / "0_0.sog"), "--lod", "1", "--preset", "fast", "-o",
                          str(tmp_path / "t.lghcc")]) == 1
-    assert "option 'lod' applies to streamed-sog, this is sog" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "'lod'" in err and "streamed-sog" in err

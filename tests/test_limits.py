@@ -53,7 +53,7 @@ def test_the_8_gib_stream_is_refused_fast_naming_the_amount(big_stream, tmp_path
     assert time.perf_counter() - t0 < 0.5
     msg = str(e.value)
     assert "needs about 8.7 GiB" in msg and "more than the allowed 4.0 GiB" in msg
-    assert "attribute values: 2,097,152 anchors x 1,024 channels x 4 bytes = 8.0 GiB" in msg
+    assert "2,097,152 anchors x 1,024 channels" in msg and "= 8.0 GiB" in msg
     path = tmp_path / "big.lghcc"
     path.write_bytes(big_stream)
     t0 = time.perf_counter()
