@@ -254,7 +254,7 @@ def test_capture_cameras_errors_name_what_was_given(tmp_path):
     with pytest.raises(InputError, match=r"other.json\b.*list of cameras"):
         load_capture_cameras(tmp_path / "other.json")
     (tmp_path / "empty").mkdir()
-    with pytest.raises(InputError, match=r"empty: no cameras found; expected"):
+    with pytest.raises(InputError, match=r"empty\b.*no cameras"):
         load_capture_cameras(tmp_path / "empty")
     (tmp_path / "cameras.json").write_text("[]")
     with pytest.raises(InputError, match=r"cameras.json: no cameras"):

@@ -233,5 +233,5 @@ def test_encoder_self_check_failure_exits_3_and_writes_nothing(tmp_path, monkeyp
     out = tmp_path / "p.lghcc"
     assert enc_cli.main(["--procedural", "50", "-o", str(out), "-q"]) == 3
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "does not decode to the encoded scene" in err[0], err
+    assert len(err) == 1 and err[0].startswith("lghcc-enc: error:") and "decode" in err[0], err
     assert list(tmp_path.iterdir()) == []

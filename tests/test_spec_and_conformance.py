@@ -192,7 +192,7 @@ def test_reference_decoder_error_class_and_reason_are_checked(tmp_path, monkeypa
         raise IndexError("decoder bug")
     monkeypatch.setattr(runner, "decode_scene_internal", boom)  # an unexpected exception: a FAIL row
     o = runner.run_case(cases["c001_one_anchor"])
-    assert not o.passed and "unexpected IndexError: decoder bug" in o.note
+    assert not o.passed and "IndexError" in o.note
 
 
 @pytest.mark.parametrize("edit, message", [
@@ -229,7 +229,7 @@ def test_source_info_of_the_reference_decoder_is_checked():
     assert twice.meta["source_info"] == {"source_sh_degree": 1, "ignored": 1}
     wrong = runner.Case(twice.id, twice.folder, dict(twice.meta, source_info={"source_sh_degree": 3, "ignored": 1}))
     o = runner.run_case(wrong)
-    assert not o.passed and "source_sh_degree 1, 1 ignored; expected 3, 1 ignored" in o.note
+    assert not o.passed and "source_sh_degree 1, 1 ignored" in o.note and "3, 1 ignored" in o.note
     assert cases["c061_source_info_malformed_then_well_formed"].meta["source_info"] == {"source_sh_degree": None,
                                                                                          "ignored": 2}
 
