@@ -38,10 +38,11 @@ test-integration: setup
 test-slow: setup
 	$(PY) -m pytest -m slow
 
-# The architecture checks alone (make test runs them too, in tests/test_architecture.py): imports
-# resolvable from the checkout (pyright, pinned in tools/node), complexity (ruff C901) and length of functions
+# The architecture checks alone (tests/test_architecture.py; make test runs them, but for pyright's, which
+# is in the integration tier): imports resolvable from the checkout (pyright, pinned in tools/node),
+# complexity (ruff C901) and length of functions
 check: setup node-tools
-	$(PY) -m pytest -q tests/test_architecture.py
+	$(PY) -m pytest -q -m 'not slow' tests/test_architecture.py
 
 spec: setup
 	$(PY) tools/gen_spec_tables.py
