@@ -169,6 +169,7 @@ def test_addresses():
 
 # --- on Ray ------------------------------------------------------------------------------------
 
+@pytest.mark.integration
 def test_sweep_on_local_ray(tmp_path, capsys):
     """Two small scenes x two presets and a broken scene on a local Ray instance (2 CPUs):
     the cells run as Ray tasks, the broken scene's cells fail without losing the others."""

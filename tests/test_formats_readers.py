@@ -59,6 +59,7 @@ def theirs(tool, path: Path, *select) -> GaussianScene:
 
 # --- against splat-transform -------------------------------------------------------------
 
+@pytest.mark.integration
 @pytest.mark.parametrize("degree", [0, 2])
 def test_compressed_ply_reads_as_splat_transform_reads_it(tmp_path, degree):
     tool = splat_transform_or_skip()
@@ -75,6 +76,7 @@ def test_compressed_ply_reads_as_splat_transform_reads_it(tmp_path, degree):
                                   np.float32(LARGEST_OPACITY_LOGIT))
 
 
+@pytest.mark.integration
 def test_streamed_sog_reads_each_level_as_splat_transform_does(tmp_path, monkeypatch):
     tool = splat_transform_or_skip()
     write_3dgs_ply(tmp_path / "fine.ply", make_scene(2500, 1, seed=1))
@@ -94,6 +96,7 @@ def test_streamed_sog_reads_each_level_as_splat_transform_does(tmp_path, monkeyp
     assert opened and all(name.startswith("1_") for name in opened)  # only the chosen level's units are read
 
 
+@pytest.mark.integration
 def test_splat_reads_as_splat_transform_reads_it(tmp_path):
     tool = splat_transform_or_skip()
     (tmp_path / "s.splat").write_bytes(check_readers.splat_bytes(make_scene(300, 0)))
@@ -102,6 +105,7 @@ def test_splat_reads_as_splat_transform_reads_it(tmp_path):
     assert_same(ours, theirs(tool, tmp_path / "s.splat"))
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("mode, degree", [(0, 0), (0, 2), (1, 1), (1, 3), (2, 2)])
 def test_ksplat_reads_as_splat_transform_reads_it(tmp_path, mode, degree):
     """Two sections; in modes 1 and 2 full and partial buckets."""

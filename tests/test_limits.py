@@ -127,6 +127,7 @@ def _decode_peak(data: bytes) -> tuple[int, int]:
     return max(seen), peak
 
 
+@pytest.mark.integration
 def test_the_plan_bounds_what_numpy_allocates_for_every_suite_stream():
     for case in runner.load_cases():
         if case.expect != "decode":
@@ -135,6 +136,7 @@ def test_the_plan_bounds_what_numpy_allocates_for_every_suite_stream():
         assert peak <= plan, (case.id, peak, plan)
 
 
+@pytest.mark.integration
 def test_the_plan_bounds_a_larger_scene_within_a_factor():
     """A 30,000-anchor scene with offset masks in chunks of 4096 rows: above the measured peak,
     and not absurdly so (the constants are measured, module docstring)."""
@@ -165,6 +167,7 @@ print((_status_kib("VmHWM") - base) * 1024, max(seen))
 """
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("sid", ["c013_ggconv_context", "c012_parent_mlp_context", "c003_offset_masks"])
 def test_the_plan_bounds_the_resident_memory_of_a_fresh_decoder(sid):
     """Peak RSS growth of a fresh process (torch's allocations included), after a warm-up decode of

@@ -82,6 +82,7 @@ def test_auto_jobs_is_one_process_for_small_scenes():
     assert auto_jobs(3, 10 ** 6, cpus=8) == 3
 
 
+@pytest.mark.integration
 def test_ray_tiles_give_the_same_stream():
     """One local Ray instance of 2 CPUs: every tile a task, the stream that of one process."""
     pytest.importorskip("ray", reason="ray is not installed (pip install 'lghcc[batch]')")

@@ -63,6 +63,7 @@ def test_stream_files_match_their_recorded_digests():
 AWAITING_REGENERATION: set[str] = set()
 
 
+@pytest.mark.integration
 def test_encoder_reproduces_every_stream_byte_for_byte():
     import torch
 
@@ -400,6 +401,7 @@ def _decode_or_error(stream) -> str:
         return f"{type(e).__name__}: {e}"
 
 
+@pytest.mark.integration
 def test_decoding_is_identical_with_1_and_2_torch_threads():
     """Cross-environment determinism, within one machine: every stream decodes to the same hash with
     1 and with 2 torch threads (intra-op parallelism must not change a bit), and every error stream

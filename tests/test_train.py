@@ -389,6 +389,7 @@ def _lego_colmap(shared_data, root, n_views: int = 10):
     return alphas
 
 
+@pytest.mark.integration
 @pytest.mark.data
 def test_colmap_layout_composites_on_the_chosen_background_and_trains(shared_data, tmp_path):
     """COLMAP data with transparent images: the ground truth is composited on --background (it
@@ -417,6 +418,7 @@ def test_colmap_layout_composites_on_the_chosen_background_and_trains(shared_dat
     assert final > 12.0 and final > white + 3.0, (final, white)
 
 
+@pytest.mark.integration
 def test_rate_distortion_phase_lowers_the_estimated_rate_and_resumes_exactly(data, tmp_path):
     """--rate-lambda: after the last growing/pruning the loss adds the estimated attribute bits
     (hierarchy + GG-Conv twin); the estimate falls, the scene renders quantized, and an
@@ -499,6 +501,7 @@ def test_rate_phase_resumes_older_checkpoints(data, tmp_path, monkeypatch):
     assert resumed["twin.table"].shape == saved_shape != (saved_shape[0], 3)
 
 
+@pytest.mark.integration
 def test_rate_trained_run_saves_a_context_twin_that_the_encoder_starts_from(data, tmp_path, capsys):
     """A run with --rate-lambda writes its GG-Conv twin beside the scene; the encoder adds a fit
     started from it as one more candidate (never a larger stream: the smallest is kept, and the

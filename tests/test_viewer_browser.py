@@ -43,7 +43,8 @@ from lghcc.viewer import page as page_mod
 from lghcc.viewer.browser import ViewerSession, browser_status
 
 OK, WHY = browser_status()
-pytestmark = [pytest.mark.skipif(not OK, reason=WHY),
+pytestmark = [pytest.mark.integration,  # Chromium
+              pytest.mark.skipif(not OK, reason=WHY),
               pytest.mark.skipif(not page_mod.BUNDLE.is_file(),
                                  reason=f"the viewer bundle {page_mod.BUNDLE} is not built (make viewer-bundle)")]
 
