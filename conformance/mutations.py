@@ -945,7 +945,7 @@ MUTATIONS: list[Mutation] = [
     M("step_adjust.index_range_unchecked", "step_adjust", f"{NEIGHBOUR}:decode_adjust_chunk",
       "an index above max_step_adjust accepted (E65)",
       ("if a.size and (a.min() < 0 or a.max() > step_adjust.max_step_adjust):", "if False:")),
-    M("step_adjust.index_max_off_by_one", "step_adjust", f"{NEIGHBOUR}:_decode_chunk_adjust",
+    M("step_adjust.index_max_off_by_one", "step_adjust", f"{NEIGHBOUR}:decode_adjust_chunk",
       "an index of max_step_adjust + 1 accepted (E65 off by one)",
       ("a.max() > step_adjust.max_step_adjust):", "a.max() > step_adjust.max_step_adjust + 1):")),
     M("step_adjust.factor_off_by_one", "step_adjust", f"{ATTR}:effective_steps",

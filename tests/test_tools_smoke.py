@@ -107,3 +107,13 @@ def test_bench_js_decoder(tmp_path):
     (row,) = _rows(r.stdout, "stream.lghcc")
     assert int(row[1]) > 0 and int(row[2]) == stream.stat().st_size  # Gaussians, bytes
     assert float(row[3]) > 0  # Node seconds
+
+
+@pytest.mark.skipif(shutil.which("node") is None, reason="node is not on the PATH")
+def test_bench_js_stream(tmp_path):
+    stream = ROOT / "conformance" / "streams" / "c078_neighbour_prediction_tiles" / "stream.lghcc"
+    out = tmp_path / "js_stream.md"
+    _tool("bench_js_stream.py", str(stream), "--rate", "50", "--repeat", "1", "--out", str(out), cwd=tmp_path)
+    rows = _rows(out.read_text(), "stream.lghcc")
+    assert [r[2] for r in rows] == ["Node decode(url), whole", "Node stream(url, {camera})"]
+    assert all(int(r[1].replace(",", "")) == stream.stat().st_size for r in rows)  # bytes
