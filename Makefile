@@ -1,5 +1,7 @@
 # make demo : set up .venv, encode and decode the built-in procedural scene
-# make test : set up .venv, run the test suite
+# make test : set up .venv, run the fast default tier of the tests (the inner loop)
+# make test-integration : the heavy integration tier (-m integration: conformance regeneration, Node and
+#   Chromium, pyright, the newcomer and wheel checks, big encodes, the tools' smoke runs); CI runs both
 # make check : the architecture checks (static import resolution, complexity, function length)
 # make node-tools : install the pinned npm tools (tools/node: splat-transform, PlayCanvas engine, esbuild, pyright)
 # make viewer-bundle : install them and build lghcc-view's JavaScript bundle
@@ -8,7 +10,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test test-slow check spec bench clean node-tools viewer-bundle js-package fuzz-long fuzz-diff mutations js-mutations
+.PHONY: setup demo test test-integration test-slow check spec bench clean node-tools viewer-bundle js-package fuzz-long fuzz-diff mutations js-mutations
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -30,13 +32,17 @@ demo: setup
 test: setup
 	$(PY) -m pytest
 
+test-integration: setup
+	$(PY) -m pytest -m integration
+
 test-slow: setup
 	$(PY) -m pytest -m slow
 
-# The architecture checks alone (make test runs them too, in tests/test_architecture.py): imports
-# resolvable from the checkout (pyright, pinned in tools/node), complexity (ruff C901) and length of functions
+# The architecture checks alone (tests/test_architecture.py; make test runs them, but for pyright's, which
+# is in the integration tier): imports resolvable from the checkout (pyright, pinned in tools/node),
+# complexity (ruff C901) and length of functions
 check: setup node-tools
-	$(PY) -m pytest -q tests/test_architecture.py
+	$(PY) -m pytest -q -m 'not slow' tests/test_architecture.py
 
 spec: setup
 	$(PY) tools/gen_spec_tables.py

@@ -347,8 +347,8 @@ def check_flag_header(h: AttributeUnitHeader, what: str) -> None:
                              "a step_adjust_flags unit, where both shall be 0 (clause 7.3.5)")
 
 
-def _decode_chunk_adjust(piece: bytes, h: AttributeUnitHeader, step_adjust: StepAdjustUnit, num_rows: int,
-                         i: int, flags: StepAdjustFlagsUnit | None = None, nd: np.ndarray | None = None) -> np.ndarray:
+def decode_adjust_chunk(piece: bytes, h: AttributeUnitHeader, step_adjust: StepAdjustUnit, num_rows: int,
+                        i: int, flags: StepAdjustFlagsUnit | None = None, nd: np.ndarray | None = None) -> np.ndarray:
     """The step-adjustment indices (int64 [num_rows]) of chunk i (clause 11.8; above max_step_adjust: E65);
     with the stream's step_adjust_flags unit ``flags`` (version 1.5) decoded as flags, ``nd`` the
     indices of the rows' neighbours (None: LoD 0)."""
@@ -414,7 +414,7 @@ def read_predicted_attribute_unit(payload: bytes, layout, steps: np.ndarray, coo
         row_adjust = None
         if adjust is not None:
             nd = None if step_flags is None else neighbour_degrees(chunk_neighbours(graph, level, lo, hi), adjust)
-            a = _decode_chunk_adjust(next(pieces), h, step_adjust, hi - lo, i, step_flags, nd)
+            a = decode_adjust_chunk(next(pieces), h, step_adjust, hi - lo, i, step_flags, nd)
             adjust[rows] = a
             row_adjust = a[:, None]
             p = _adjusted_chunk_params(level, lo, hi, q_all, graph, prior, table, mean_flags(unit),

@@ -358,7 +358,7 @@ _SHARED_OUTPUT: dict[str, np.ndarray] = {}
 
 def _decode_tile_job(job: tuple[int, int | None]) -> DecodedTile:
     """A worker process's task (lghcc-dec --jobs): one tile, from the tile's own units (the stream's
-    state came with the worker, ``_worker_init``); with an output row, its points are written into
+    state came with the worker, ``init_tile_worker``); with an output row, its points are written into
     the shared output and only the verdict comes back."""
     t, row = job
     tiles, ps, layout, context_model, mlps, verify_hash, max_level = _WORKER_STATE
@@ -399,7 +399,7 @@ def _decode_in_workers(tiles: list[TileUnits], selected: list[int], ps, layout, 
     # the stream's state goes to each worker once (forked: not even copied), a task is a tile number
     state = (tiles, ps, layout, context_model, mlps, verify_hash, max_level)
     try:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=init_tile_worker,
                                  initargs=(state,)) as pool:
             done = list(pool.map(_decode_tile_job, [jobs[i] for i in order]))
         parts: list[DecodedTile] = [None] * len(jobs)  # type: ignore[list-item]
@@ -411,14 +411,14 @@ def _decode_in_workers(tiles: list[TileUnits], selected: list[int], ps, layout, 
 
 
 # The k-NN candidate generator's threads in each worker: the workers are the parallelism, and one
-# thread per CPU in each oversubscribes the cores (tools/bench_tiles.py times both, alternated).
+# thread per CPU in each oversubscribes the cores (tools/results/tiles.md times both, alternated).
 WORKER_CANDIDATE_THREADS = 1
 # A worker's stream: the tiles, parameter set, layout, context model, render MLPs, verify_hash and
-# max_level (set by _worker_init).
+# max_level (set by init_tile_worker).
 _WORKER_STATE: tuple = ()
 
 
-def _worker_init(state: tuple) -> None:
+def init_tile_worker(state: tuple) -> None:
     global _WORKER_STATE
     _WORKER_STATE = state
     torch = sys.modules.get("torch")  # loaded by the parent where the stream's tools need it, else not at all

@@ -108,7 +108,7 @@ def make_procedural_scene(num_anchors: int = 20000, seed: int = 0, feature_dim: 
 
 def smooth_gaussian_scene(n: int, degree: int, seed: int = 0) -> GaussianScene:
     """n Gaussians of SH degree ``degree`` on a surface whose attributes vary slowly (what
-    neighbour prediction is for; used by the tests and tools/bench_sh_degree_decode.py)."""
+    neighbour prediction is for; used by the tests)."""
     rng = np.random.default_rng(seed)
     u, v = rng.uniform(0, 1, n), rng.uniform(0, 1, n)
     means = np.stack([u, v, 0.2 * np.sin(6 * u)], 1).astype(np.float32)

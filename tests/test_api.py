@@ -33,6 +33,7 @@ def test_import_is_light_and_decode_never_loads_the_encoder():
     assert out.stdout.strip() == "[] AnchorScene []"
 
 
+@pytest.mark.integration
 def test_three_lines_from_gaussians_to_a_stream_and_back(tmp_path):
     scene = _gaussians()
     data = lghcc.encode(scene, preset="high", rd_lambda=0, fit_iterations=0)

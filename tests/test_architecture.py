@@ -88,6 +88,7 @@ def test_every_module_imports():
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
 
 
+@pytest.mark.integration
 def test_static_import_check():
     """pyright (pinned in tools/node, installed by `make node-tools`) resolves every import of the
     package from the checkout: [tool.pyright] in pyproject.toml."""

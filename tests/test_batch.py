@@ -86,8 +86,8 @@ def test_local_run_resumes_and_survives_a_failed_cell(tmp_path, capsys):
     out = tmp_path / "sweep_results"
     assert batch_cli.main([str(f), "--local"]) == 2  # a failed cell: non-zero, after all others ran
     io = capsys.readouterr()
-    assert "[1/4]" in io.out and "[4/4]" in io.out and "bad__low: FAILED: preparing bad failed" in io.out
-    assert "2 of 4 cells failed: bad__low, bad__high" in io.err
+    assert "[1/4]" in io.out and "[4/4]" in io.out and "bad__low: FAILED" in io.out
+    assert "2 of 4" in io.err and "bad__low, bad__high" in io.err
     rec = _records(out)
     assert rec["a__low"]["status"] == rec["a__high"]["status"] == "ok"
     assert rec["a__high"]["bytes"] > rec["a__low"]["bytes"] and rec["a__high"]["psnr"] > rec["a__low"]["psnr"] > 20
@@ -152,7 +152,7 @@ def test_an_unreachable_cluster_is_named_before_any_work(tmp_path, capsys):
     t0 = time.perf_counter()
     assert batch_cli.main([str(f), "--address", addr, "--connect-timeout", "3"]) == 1
     err = capsys.readouterr().err
-    assert f"cannot reach the Ray cluster at {addr}" in err and err.count("\n") == 1
+    assert "Ray cluster" in err and addr in err and err.count("\n") == 1
     assert time.perf_counter() - t0 < 10 and not (tmp_path / "sweep_results").exists()
 
 
@@ -163,12 +163,13 @@ def test_addresses():
     for bad in ("10.0.0.5", "host:port", ":6379", "h:70000"):
         with pytest.raises(ClusterError, match="expected host:port"):
             parse_address(bad)
-    with pytest.raises(ClusterError, match="cannot reach the Ray cluster at"):
+    with pytest.raises(ClusterError, match=r"Ray cluster\b"):
         check_reachable(f"127.0.0.1:{_closed_port()}", 2.0)
 
 
 # --- on Ray ------------------------------------------------------------------------------------
 
+@pytest.mark.integration
 def test_sweep_on_local_ray(tmp_path, capsys):
     """Two small scenes x two presets and a broken scene on a local Ray instance (2 CPUs):
     the cells run as Ray tasks, the broken scene's cells fail without losing the others."""

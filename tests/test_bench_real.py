@@ -276,6 +276,7 @@ def _splat_transform_or_skip():
     return prefix
 
 
+@pytest.mark.integration
 def test_splat_transform_round_trip(tiny_ply, tmp_path):
     """SPZ, SOG and compressed PLY written and read back with the pinned splat-transform, and the
     SPZ curve (pruned, decimated, fewer SH bands), on a 300-Gaussian scene."""

@@ -117,13 +117,13 @@ def test_inria_cameras_file_errors(tmp_path):
     with pytest.raises(InputError, match="cameras.json: file not found"):
         load_inria_cameras(jp)
     jp.write_text('{"frames": []}')
-    with pytest.raises(InputError, match="cameras.json: expected a JSON list of cameras"):
+    with pytest.raises(InputError, match=r"cameras.json\b.*JSON list"):
         load_inria_cameras(jp)
     jp.write_text("[1, 2")
     with pytest.raises(InputError, match="cameras.json: not valid JSON"):
         load_inria_cameras(jp)
     jp.write_text("[7]")
-    with pytest.raises(InputError, match="cameras.json: camera 0: expected an object"):
+    with pytest.raises(InputError, match=r"cameras.json\b.*camera 0\b.*object"):
         load_inria_cameras(jp)
 
 
@@ -155,7 +155,7 @@ def test_transforms_per_frame_intrinsics_override_the_files(tmp_path):
     assert (b.fx, b.fy, b.cx, b.cy, b.width, b.height) == (70.0, 71.0, 39.0, 41.0, 80, 80)
     np.testing.assert_allclose(b.world_to_camera, cams[1].world_to_camera, atol=1e-12)
     jp.write_text(json.dumps({"frames": _frames(cams[:2], **own)}))  # only frame b has a focal length
-    with pytest.raises(InputError, match=r"transforms.json: frame 0: neither 'camera_angle_x' nor 'fl_x'"):
+    with pytest.raises(InputError, match=r"transforms.json\b.*frame 0\b.*'camera_angle_x'.*'fl_x'"):
         load_transforms_cameras(jp)
     jp.write_text(json.dumps({"fl_x": 40.0, "frames": _frames(cams[:1], a={"w": 64})}))
     with pytest.raises(InputError, match=r"transforms.json: frame 0: 'w' and 'h' must be given together"):
@@ -182,7 +182,7 @@ def test_transforms_camera_angle_and_size_from_the_image(tmp_path):
     assert c.fx == pytest.approx(10 / math.tan(0.45))
     frames[0]["file_path"] = "images/missing.png"
     jp.write_text(json.dumps({"camera_angle_x": 0.9, "frames": frames}))
-    with pytest.raises(InputError, match=r"transforms.json: frame 0: no image size: give 'w' and 'h'"):
+    with pytest.raises(InputError, match=r"transforms.json\b.*frame 0\b.*'w'.*'h'"):
         load_transforms_cameras(jp)
 
 
@@ -197,7 +197,7 @@ def test_transforms_distortion_kept_and_warned_non_pinhole_refused(tmp_path, cap
     assert "distortion ignored" in caplog.text
     jp.write_text(json.dumps({"fl_x": 40.0, "w": 64, "h": 48, "frames": _frames(cams, a={"camera_model":
                                                                                          "OPENCV_FISHEYE"})}))
-    with pytest.raises(InputError, match=r"transforms.json: frame 0: camera_model 'OPENCV_FISHEYE'"):
+    with pytest.raises(InputError, match=r"transforms.json\b.*frame 0\b.*'OPENCV_FISHEYE'"):
         load_transforms_cameras(jp)
 
 
@@ -246,15 +246,15 @@ def test_capture_cameras_of_every_file_and_folder_kind(tmp_path):
 
 def test_capture_cameras_errors_name_what_was_given(tmp_path):
     (tmp_path / "notes.txt").write_text("hello")
-    with pytest.raises(InputError, match=r"notes.txt: not a camera file; expected an INRIA cameras.json"):
+    with pytest.raises(InputError, match=r"notes.txt\b.*INRIA cameras.json"):
         load_capture_cameras(tmp_path / "notes.txt")
     with pytest.raises(InputError, match=r"missing.json: not found"):
         load_capture_cameras(tmp_path / "missing.json")
     (tmp_path / "other.json").write_text('{"camera": 1}')
-    with pytest.raises(InputError, match=r"other.json: neither a list of cameras"):
+    with pytest.raises(InputError, match=r"other.json\b.*list of cameras"):
         load_capture_cameras(tmp_path / "other.json")
     (tmp_path / "empty").mkdir()
-    with pytest.raises(InputError, match=r"empty: no cameras found; expected"):
+    with pytest.raises(InputError, match=r"empty\b.*no cameras"):
         load_capture_cameras(tmp_path / "empty")
     (tmp_path / "cameras.json").write_text("[]")
     with pytest.raises(InputError, match=r"cameras.json: no cameras"):
@@ -262,7 +262,7 @@ def test_capture_cameras_errors_name_what_was_given(tmp_path):
     both = tmp_path / "both"
     write_colmap_text(both / "sparse" / "0", *_colmap_model())
     (both / "transforms.json").write_text(json.dumps({"fl_x": 40.0, "w": 64, "h": 48, "frames": []}))
-    with pytest.raises(InputError, match=r"both: holds both transforms.json and the COLMAP model"):
+    with pytest.raises(InputError, match=r"both\b.*transforms.json.*COLMAP"):
         load_capture_cameras(both)
 
 

@@ -178,7 +178,8 @@ def test_no_output_may_overwrite_the_input(tmp_path, capsys, small_stream):
     for argv in (["--json", str(stream)], ["--trace", str(stream)], ["--export-ply", str(stream)],
                  ["--json", str(tmp_path / "." / "c.lghcc")], ["--trace", str(link)], ["-o", str(stream)]):
         assert dec_cli.main([str(stream), "-q"] + argv) == 1, argv
-        assert "would overwrite the input stream" in capsys.readouterr().err
+        err = capsys.readouterr().err
+        assert "overwrite" in err and "input stream" in err
     assert dec_cli.main([str(stream), "-q", "--json", str(tmp_path / "a"), "--trace", str(tmp_path / "a")]) == 1
     assert "are the same file" in capsys.readouterr().err
     assert stream.read_bytes() == before
@@ -208,7 +209,7 @@ def test_decoding_into_a_used_folder_needs_force_and_never_mixes_scenes(tmp_path
     it = out / "point_cloud" / "iteration_0"
     assert (it / "checkpoint.pth").is_file()
     assert dec_cli.main([str(tmp_path / "b.lghcc"), "-o", str(out), "-q"]) == 1
-    assert "is not empty; use -y (--overwrite)" in capsys.readouterr().err
+    assert "-y (--overwrite)" in capsys.readouterr().err
     assert dec_cli.main([str(tmp_path / "b.lghcc"), "-o", str(out), "-q", "-y"]) == 0
     assert not (it / "checkpoint.pth").exists()  # the first scene's MLPs are gone
     with pytest.warns(UserWarning, match="no render-MLP file recognised"):
@@ -225,15 +226,17 @@ def test_encoder_refuses_a_folder_without_mlps_unless_asked(tmp_path, capsys):
     folder = write_scaffold(random_scene(np.random.default_rng(4), 25, with_mlps=False), tmp_path / "m")
     assert enc_cli.main([str(tmp_path / "m"), "-o", str(tmp_path / "x.lghcc"), "-q"]) == 1
     err = capsys.readouterr().err
-    assert f"lghcc-enc: warning: {folder}: no render-MLP file recognised" in err
-    assert "error: the anchor scene has no render MLPs" in err and "--allow-no-mlps" in err
+    warning, error = err.strip().splitlines()
+    assert warning.startswith(f"lghcc-enc: warning: {folder}:") and "render-MLP" in warning
+    assert error.startswith("lghcc-enc: error:") and "render MLPs" in error and "--allow-no-mlps" in error
     assert not (tmp_path / "x.lghcc").exists()
     assert enc_cli.main([str(tmp_path / "m"), "-o", str(tmp_path / "x.lghcc"), "-q", "--allow-no-mlps"]) == 0
     # its decoded scene: rendering and export say why they cannot, before writing anything
     assert dec_cli.main([str(tmp_path / "x.lghcc"), "--render", "orbit:1", "--render-out", str(tmp_path / "v")]) == 1
-    assert "has no opacity, cov, color MLP: it cannot be rendered" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "opacity, cov, color MLP" in err and "rendered" in err
     assert dec_cli.main([str(tmp_path / "x.lghcc"), "--export", str(tmp_path / "x.ply")]) == 1
-    assert "cannot be rendered or exported" in capsys.readouterr().err
+    assert "exported" in capsys.readouterr().err
     assert not (tmp_path / "x.ply").exists()
 
 

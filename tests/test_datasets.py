@@ -191,7 +191,7 @@ def test_nerf_synthetic_folder(tmp_path, teacher):
 
 
 def test_unknown_layouts_and_unmatched_images_are_named(tmp_path, teacher):
-    with pytest.raises(InputError, match="no transforms_train.json .* sparse/0 .* poses_bounds.npy"):
+    with pytest.raises(InputError, match=r"transforms_train.json .* sparse/0 .* poses_bounds.npy"):
         detect_dataset(tmp_path)
     make_colmap(tmp_path, teacher)
     (tmp_path / "images" / "frame_003.png").unlink()
@@ -238,7 +238,7 @@ def test_train_init_sfm_on_a_mipnerf360_folder(tmp_path, teacher, capsys):
     # a dataset without points3D: --init sfm says so
     shutil.rmtree(tmp_path / "data" / "sparse")
     ds = load_dataset(cfg.data, "white", 2)
-    with pytest.raises(InputError, match="--init sfm needs a COLMAP model with points3D"):
+    with pytest.raises(InputError, match=r"--init sfm\b.*points3D"):
         init_points(ds, cfg, np.random.default_rng(0))
 
 

@@ -22,7 +22,12 @@ sys.path.insert(0, str(TOOLS))
 import fuzz_differential  # noqa: E402
 import js_mutation_test  # noqa: E402
 
-needs_node = pytest.mark.skipif(shutil.which("node") is None, reason="node (Node.js) is not on the PATH")
+
+def needs_node(test):
+    """A test that runs the JavaScript decoder in Node: the integration tier, skipped without node."""
+    skip = pytest.mark.skipif(shutil.which("node") is None, reason="node (Node.js) is not on the PATH")
+    return pytest.mark.integration(skip(test))
+
 
 # small, quick seeds: explicit-Gaussian streams of the JavaScript decoder's profile, and one anchor stream
 SEEDS = ("c032_gaussians_sh0", "c033_gaussians_sh3_prediction", "c078_neighbour_prediction_tiles",

@@ -79,9 +79,10 @@ def test_decoder_exit_codes(tmp_path, capsys):
         assert fragment in err and str(stream) in err
     assert not (tmp_path / "out").exists()  # nothing written for a rejected stream
     assert dec_cli.main([str(GOOD), "--max-anchors", "0"]) == EXIT_RESOURCE_LIMIT
-    assert "more than the allowed maximum 0" in _one_line(capsys.readouterr().err)
+    assert "maximum 0" in _one_line(capsys.readouterr().err)
     assert dec_cli.main([str(GOOD), "--max-memory", "1K"]) == EXIT_RESOURCE_LIMIT
-    assert "more than the allowed 1.0 KiB (--max-memory)" in _one_line(capsys.readouterr().err)
+    err = _one_line(capsys.readouterr().err)
+    assert "1.0 KiB" in err and "--max-memory" in err
     with pytest.raises(SystemExit) as e:
         dec_cli.main([str(GOOD), "--max-memory", "lots"])
     assert e.value.code == EXIT_USAGE and "memory amount" in capsys.readouterr().err
@@ -161,7 +162,7 @@ def test_conformance_exit_codes(capsys, monkeypatch):
         raise KeyboardInterrupt
     monkeypatch.setattr(runner, "run_case", interrupted)
     assert runner.main(["c001_one_anchor"]) == EXIT_INTERRUPTED
-    assert "lghcc-conformance: interrupted" in _one_line(capsys.readouterr().err)
+    assert _one_line(capsys.readouterr().err).startswith("lghcc-conformance: ")
 
 
 def test_conformance_verdict_is_1(capsys):
@@ -232,5 +233,5 @@ def test_encoder_self_check_failure_exits_3_and_writes_nothing(tmp_path, monkeyp
     out = tmp_path / "p.lghcc"
     assert enc_cli.main(["--procedural", "50", "-o", str(out), "-q"]) == 3
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "does not decode to the encoded scene" in err[0], err
+    assert len(err) == 1 and err[0].startswith("lghcc-enc: error:") and "decode" in err[0], err
     assert list(tmp_path.iterdir()) == []

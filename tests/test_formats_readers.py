@@ -59,6 +59,7 @@ def theirs(tool, path: Path, *select) -> GaussianScene:
 
 # --- against splat-transform -------------------------------------------------------------
 
+@pytest.mark.integration
 @pytest.mark.parametrize("degree", [0, 2])
 def test_compressed_ply_reads_as_splat_transform_reads_it(tmp_path, degree):
     tool = splat_transform_or_skip()
@@ -75,6 +76,7 @@ def test_compressed_ply_reads_as_splat_transform_reads_it(tmp_path, degree):
                                   np.float32(LARGEST_OPACITY_LOGIT))
 
 
+@pytest.mark.integration
 def test_streamed_sog_reads_each_level_as_splat_transform_does(tmp_path, monkeypatch):
     tool = splat_transform_or_skip()
     write_3dgs_ply(tmp_path / "fine.ply", make_scene(2500, 1, seed=1))
@@ -94,6 +96,7 @@ def test_streamed_sog_reads_each_level_as_splat_transform_does(tmp_path, monkeyp
     assert opened and all(name.startswith("1_") for name in opened)  # only the chosen level's units are read
 
 
+@pytest.mark.integration
 def test_splat_reads_as_splat_transform_reads_it(tmp_path):
     tool = splat_transform_or_skip()
     (tmp_path / "s.splat").write_bytes(check_readers.splat_bytes(make_scene(300, 0)))
@@ -102,6 +105,7 @@ def test_splat_reads_as_splat_transform_reads_it(tmp_path):
     assert_same(ours, theirs(tool, tmp_path / "s.splat"))
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("mode, degree", [(0, 0), (0, 2), (1, 1), (1, 3), (2, 2)])
 def test_ksplat_reads_as_splat_transform_reads_it(tmp_path, mode, degree):
     """Two sections; in modes 1 and 2 full and partial buckets."""
@@ -140,19 +144,19 @@ def test_streamed_sog_levels_units_and_errors(tmp_path):
     assert fine.num_gaussians == 380
     np.testing.assert_array_equal(fine.means, np.concatenate([units[0].means, units[1].means]))
     assert_same(read_scene(lod, lod=1), units[2])
-    with pytest.raises(InputError, match=r"no level of detail 2; the levels: 0 \(380 Gaussians\), 1 \(40"):
+    with pytest.raises(InputError, match=r"level of detail 2\b.*0 \(380 Gaussians\), 1 \(40"):
         read_scene(lod, lod=2)
     with pytest.raises(InputError, match="option 'lod' applies to streamed-sog, this is sog"):
         read_scene(lod.parent / "1_0.sog", lod=0)
     meta = json.loads(lod.read_text())
     meta["counts"] = [1, 40]
     lod.write_text(json.dumps(meta))
-    with pytest.raises(InputError, match=r"the tree holds \[380, 40\] Gaussians per level, 'counts' says \[1, 40\]"):
+    with pytest.raises(InputError, match=r"\[380, 40\].*'counts'.*\[1, 40\]"):
         read_scene(lod)
     del meta["counts"]
     meta["tree"]["children"][0]["lods"]["0"]["count"] = 299
     lod.write_text(json.dumps(meta))
-    with pytest.raises(InputError, match="0_0.sog: 300 Gaussians, .* gives it 299 of level 0"):
+    with pytest.raises(InputError, match=r"0_0.sog\b.*300 Gaussians\b.*299\b.*level 0"):
         read_scene(lod)
     (lod.parent / "0_0.sog").unlink()
     with pytest.raises(InputError, match="0_0.sog"):
@@ -241,7 +245,7 @@ def test_lghcc_enc_says_what_it_saw_not_a_preset_message(tmp_path, capsys, prese
     for path, found in _not_scenes(tmp_path):
         assert enc_cli.main([str(path), "--preset", preset, "-o", str(tmp_path / "s.lghcc")]) == 1
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and "not a scene this version reads: expected a 3DGS scene" in err[0], err
+        assert len(err) == 1 and "not a scene" in err[0] and "3DGS scene" in err[0], err
         assert found in err[0] and "preset" not in err[0]
         assert not (tmp_path / "s.lghcc").exists()
 
@@ -255,4 +259,5 @@ def test_lghcc_enc_reads_a_streamed_sog_level(tmp_path, capsys):
     assert decode_stream(out.read_bytes()).scene.num_gaussians == 40
     assert enc_cli.main([str(lod.parent / "0_0.sog"), "--lod", "1", "--preset", "fast", "-o",
                          str(tmp_path / "t.lghcc")]) == 1
-    assert "option 'lod' applies to streamed-sog, this is sog" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "'lod'" in err and "streamed-sog" in err

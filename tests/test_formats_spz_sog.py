@@ -581,7 +581,7 @@ def test_read_and_write_scene_by_extension_and_content(tmp_path):
     (tmp_path / "notes.txt").write_text("hello")
     (tmp_path / "cameras.json").write_text('{"frames": []}')
     for other in ("notes.txt", "cameras.json"):
-        with pytest.raises(InputError, match="not a scene this version reads"):
+        with pytest.raises(InputError, match=r"not a scene\b"):
             read_scene(tmp_path / other)
     with pytest.raises(InputError, match="folder"):
         read_scene(tmp_path)
@@ -636,6 +636,7 @@ def _assert_same_scene(a, b):
         np.testing.assert_allclose(getattr(a, f), getattr(b, f), rtol=1e-6, atol=1e-6, err_msg=f)
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("ours, theirs", [("ours.spz", "ours_spz.ply"), ("ours_v3.spz", "ours_v3_spz.ply"),
                                           ("ours.sog", "ours_sog.ply"), ("st.spz", "st_spz.ply"),
                                           ("st.sog", "st_sog.ply")])
@@ -644,6 +645,7 @@ def test_splat_transform_and_we_decode_alike(interop, ours, theirs):
     _assert_same_scene(read_scene(d / ours), read_3dgs_ply(d / theirs))
 
 
+@pytest.mark.integration
 def test_our_spz_is_splat_transforms_spz(interop):
     """Same header and the same packed bytes in every stream (the zstd frames may differ with
     the library's version)."""
@@ -651,6 +653,7 @@ def test_our_spz_is_splat_transforms_spz(interop):
     assert v4_streams((d / "ours.spz").read_bytes()) == v4_streams((d / "st.spz").read_bytes())
 
 
+@pytest.mark.integration
 def test_our_sog_images_match_splat_transforms(interop):
     """Same order and codebooks; means, quaternions and opacity round where splat-transform
     truncates (at most one code apart); the SH palettes are different k-means runs. Compared
@@ -674,6 +677,7 @@ def test_our_sog_images_match_splat_transforms(interop):
     assert (ours["shN"]["bands"], theirs["shN"]["bands"]) == (2, 2)
 
 
+@pytest.mark.integration
 @pytest.mark.data
 def test_donut_spz_from_splat_transform_reads_as_its_ply(shared_data, tmp_path):
     tool = splat_transform_or_skip()

@@ -25,6 +25,7 @@ def box():
         yield b
 
 
+@pytest.mark.integration
 def test_fresh_scene_streams_decode_to_their_own_hash(box):
     """25 generator draws from fixed seeds: every scene the encoder accepts decodes, in the sandbox,
     to exactly the encoded scene; a refusal is an InputError with a message; nothing else happens.
@@ -48,6 +49,7 @@ def test_fresh_scene_streams_decode_to_their_own_hash(box):
     assert kinds["valid"] >= 20 and kinds["hierarchy"] >= 5 and kinds["gaussians"] >= 3, kinds
 
 
+@pytest.mark.integration
 def test_gaussian_scenes_with_neighbour_prediction_step_adjustment_and_tiles_round_trip(box):
     """The explicit-Gaussian cases: neighbour prediction, step adjustment and several tiles; every
     stream the encoder writes decodes, in the sandbox, to its own hash."""

@@ -36,7 +36,7 @@ def fake_gpu(monkeypatch):
 
 def test_select_device(no_cuda):
     assert R.select_device("cpu") == "torch" and R.rasterize_with("torch") is R.rasterize
-    with pytest.raises(InputError, match=r"^no CUDA device: torch .* use --device cpu"):
+    with pytest.raises(InputError, match=r"^no CUDA device\b.*--device cpu"):
         R.select_device("cuda")
     with pytest.raises(InputError, match="unknown device 'tpu'"):
         R.select_device("tpu")
@@ -45,7 +45,7 @@ def test_select_device(no_cuda):
 def test_cuda_without_gsplat_names_what_is_missing(monkeypatch):
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
     monkeypatch.setattr(R, "gsplat_available", lambda: False)
-    with pytest.raises(InputError, match=r"--device cuda: the gsplat backend needs gsplat"):
+    with pytest.raises(InputError, match=r"--device cuda\b.*gsplat\b.*gsplat"):
         R.select_device("cuda")
 
 
@@ -54,7 +54,7 @@ def test_train_refuses_cuda_before_loading_data(no_cuda, tmp_path, capsys):
 
     rc = train_cli.main([str(tmp_path / "no_such_images"), "-o", str(tmp_path / "run"), "--device", "cuda"])
     err = capsys.readouterr().err
-    assert rc == 1 and "lghcc-train: error: no CUDA device:" in err and err.count("\n") == 1
+    assert rc == 1 and err.startswith("lghcc-train: error:") and "CUDA" in err and err.count("\n") == 1
     assert not (tmp_path / "run").exists()
 
 
@@ -65,7 +65,7 @@ def test_encoder_refuses_cuda_before_transcoding(no_cuda, tmp_path, capsys):
     ply.write_text("not read")
     assert enc_cli.main([str(ply), "-o", str(tmp_path / "x.lghcc"), "--device", "cuda"]) == 1
     err = capsys.readouterr().err
-    assert "lghcc-enc: error: no CUDA device:" in err and not (tmp_path / "x.lghcc").exists()
+    assert err.startswith("lghcc-enc: error:") and "CUDA" in err and not (tmp_path / "x.lghcc").exists()
 
 
 def test_training_rasterizes_through_the_seam(fake_gpu, tmp_path):

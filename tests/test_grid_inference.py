@@ -73,9 +73,7 @@ def test_irregular_sets_are_refused_with_the_message(seed, n, kind):
          "jittered 1%": lambda: ((k + rng.uniform(-0.01, 0.01, size=k.shape)) * voxel).astype(np.float32),
          "shifted grid": lambda: ((k[:, :1] + 0.3 + np.zeros((1, 3))) * voxel).astype(np.float32)}[kind]()
     assume(np.ptp(x, axis=0).max() > 0)
-    with pytest.raises(InputError, match=r"^anchor positions are not on a regular grid \(best spacing .* leaves an "
-                                         r"error of .* voxels, more than float32 storage explains\); pass the voxel "
-                                         r"size explicitly \(--voxel-size\)"):
+    with pytest.raises(InputError, match=r"regular grid\b.*voxels\b.*float32\b.*--voxel-size"):
         infer_voxel_size(x)
 
 

@@ -19,7 +19,8 @@ from lghcc.common.entropy.symbol_coder import encode_symbols
 from lghcc.common.errors import LghccError
 
 NODE = shutil.which("node")
-pytestmark = pytest.mark.skipif(NODE is None, reason="node (Node.js) is not on the PATH: the JavaScript decoder runs in it")
+pytestmark = [pytest.mark.integration,  # Node
+              pytest.mark.skipif(NODE is None, reason="node (Node.js) is not on the PATH: the JavaScript decoder runs in it")]
 JS = runner.JS_DECODER_DIR
 STREAMS = runner.STREAMS_DIR
 

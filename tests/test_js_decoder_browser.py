@@ -20,7 +20,8 @@ from lghcc.viewer import page as page_mod
 from lghcc.viewer.browser import CHROMIUM_FLAGS, ViewerSession, browser_status, chromium_path
 
 OK, WHY = browser_status()
-pytestmark = [pytest.mark.skipif(not OK, reason=WHY),
+pytestmark = [pytest.mark.integration,  # Chromium
+              pytest.mark.skipif(not OK, reason=WHY),
               pytest.mark.skipif(not page_mod.WORKER.is_file(),
                                  reason=f"the decoder worker {page_mod.WORKER} is not built (make viewer-bundle)")]
 STREAMS = runner.STREAMS_DIR

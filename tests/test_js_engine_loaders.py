@@ -43,7 +43,8 @@ ENGINES = {
 }
 
 OK, WHY = browser_status()
-pytestmark = pytest.mark.skipif(not OK, reason=WHY)  # ~35 s in all, the encode (~6 s) included
+pytestmark = [pytest.mark.integration,  # Chromium
+              pytest.mark.skipif(not OK, reason=WHY)]  # ~35 s in all, the encode (~6 s) included
 
 
 @pytest.fixture(scope="module")

@@ -19,8 +19,9 @@ from lghcc.conformance import runner
 from lghcc.decoder.decode import decode_stream
 
 NODE, NPM = shutil.which("node"), shutil.which("npm")
-pytestmark = pytest.mark.skipif(NODE is None or NPM is None,
-                                reason="node and npm (Node.js) are not both on the PATH: the package is packed and run with them")
+pytestmark = [pytest.mark.integration,  # npm and Node
+              pytest.mark.skipif(NODE is None or NPM is None,
+                                 reason="node and npm (Node.js) are not both on the PATH: the package is packed and run with them")]
 PKG = runner.JS_DECODER_DIR
 STREAMS = runner.STREAMS_DIR
 TILED = STREAMS / "c086_step_adjust_tiles" / "stream.lghcc"  # 8 tiles, 1,500 Gaussians

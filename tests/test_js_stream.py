@@ -25,7 +25,8 @@ from lghcc.conformance import runner
 from lghcc.decoder.decode import decode_stream, parse_stream
 
 NODE = shutil.which("node")
-pytestmark = pytest.mark.skipif(NODE is None, reason="node (Node.js) is not on the PATH")
+pytestmark = [pytest.mark.integration,  # Node and Chromium
+              pytest.mark.skipif(NODE is None, reason="node (Node.js) is not on the PATH")]
 ROOT = Path(__file__).resolve().parents[1]
 PKG = runner.JS_DECODER_DIR
 PLAYBOT = ROOT.parent / "shared" / "data" / "playbot" / "playbot_lod4_8k.ply"  # conftest.SHARED_DATA's

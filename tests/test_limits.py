@@ -53,7 +53,7 @@ def test_the_8_gib_stream_is_refused_fast_naming_the_amount(big_stream, tmp_path
     assert time.perf_counter() - t0 < 0.5
     msg = str(e.value)
     assert "needs about 8.7 GiB" in msg and "more than the allowed 4.0 GiB" in msg
-    assert "attribute values: 2,097,152 anchors x 1,024 channels x 4 bytes = 8.0 GiB" in msg
+    assert "2,097,152 anchors x 1,024 channels" in msg and "= 8.0 GiB" in msg
     path = tmp_path / "big.lghcc"
     path.write_bytes(big_stream)
     t0 = time.perf_counter()
@@ -102,7 +102,7 @@ def test_context_model_working_set_is_checked_before_level_2():
         limits.MemoryPlan.check = orig
     first, last = seen[0][0], seen[-1][0]
     assert any("Ball k-NN" in w or "GG-Conv" in w for w in seen[-1][1]) and last > first
-    with pytest.raises(ResourceLimitError, match="decoding this stream needs about"):
+    with pytest.raises(ResourceLimitError, match=r"needs about \d"):
         decode_stream(data, max_memory=(first + last) // 2)
 
 
@@ -127,6 +127,7 @@ def _decode_peak(data: bytes) -> tuple[int, int]:
     return max(seen), peak
 
 
+@pytest.mark.integration
 def test_the_plan_bounds_what_numpy_allocates_for_every_suite_stream():
     for case in runner.load_cases():
         if case.expect != "decode":
@@ -135,6 +136,7 @@ def test_the_plan_bounds_what_numpy_allocates_for_every_suite_stream():
         assert peak <= plan, (case.id, peak, plan)
 
 
+@pytest.mark.integration
 def test_the_plan_bounds_a_larger_scene_within_a_factor():
     """A 30,000-anchor scene with offset masks in chunks of 4096 rows: above the measured peak,
     and not absurdly so (the constants are measured, module docstring)."""
@@ -165,6 +167,7 @@ print((_status_kib("VmHWM") - base) * 1024, max(seen))
 """
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("sid", ["c013_ggconv_context", "c012_parent_mlp_context", "c003_offset_masks"])
 def test_the_plan_bounds_the_resident_memory_of_a_fresh_decoder(sid):
     """Peak RSS growth of a fresh process (torch's allocations included), after a warm-up decode of
@@ -181,7 +184,7 @@ def test_the_plan_bounds_the_resident_memory_of_a_fresh_decoder(sid):
 def test_ggconv_beyond_the_extent_limit_is_a_stream_error(capsys):
     """Issue 14's crash: a bare ValueError from common/knn.py; now the level limit of clause 8."""
     stream = STREAMS / "e018_ggconv_extent_limit" / "stream.lghcc"
-    with pytest.raises(BitstreamError, match="coordinate extent 4294967295 exceeds the level limit of 1753413056"):
+    with pytest.raises(BitstreamError, match=r"extent 4294967295\b.*limit\b.*1753413056"):
         decode_stream(stream.read_bytes())
     assert dec_cli.main([str(stream)]) == EXIT_INVALID_STREAM
     err = capsys.readouterr().err

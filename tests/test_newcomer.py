@@ -113,12 +113,13 @@ def test_train_refuses_an_existing_run_unless_resume_or_overwrite(tmp_path, caps
     (run / "notes.txt").write_text("mine")
     from lghcc.common.errors import InputError
 
-    with pytest.raises(InputError, match="already holds a training run; use --resume .* -y"):
+    with pytest.raises(InputError, match=r"training run\b.*--resume .* -y"):
         check_fresh_output(run, overwrite=False)
     check_fresh_output(run, overwrite=True)
     assert sorted(p.name for p in run.iterdir()) == ["notes.txt"]  # only the run's own files went
 
 
+@pytest.mark.integration
 def test_make_demo_runs_twice(tmp_path):
     """The demo target's commands (from the Makefile, with a smaller scene), twice in a row."""
     text = (ROOT / "Makefile").read_text()
@@ -204,6 +205,7 @@ def built_wheel(tmp_path_factory):
     return whl, r.stdout + r.stderr, files
 
 
+@pytest.mark.integration
 def test_install_is_quiet(built_wheel):
     """A wheel of the tracked sources builds without one warning from setuptools (it printed
     ~1,900 lines: every conformance stream folder, and the license table), and ships the
@@ -239,6 +241,7 @@ def _fresh_venv_with_the_wheel(whl: Path, where: Path) -> Path:
     return venv
 
 
+@pytest.mark.integration
 def test_the_wheel_installs_and_runs_outside_the_checkout(built_wheel, tmp_path):
     """The wheel in a fresh environment, run from a folder outside the checkout: the installed
     lghcc (not the checkout's) prints its version, encodes a 3DGS PLY, decodes it with the hash

@@ -107,7 +107,7 @@ def test_nerf_loader_converts_opengl_poses_and_composites(tmp_path):
 
 
 def test_nerf_loader_errors(tmp_path):
-    with pytest.raises(InputError, match="transforms_test.json: file not found"):
+    with pytest.raises(InputError, match=r"transforms_test.json\b.*not found"):
         load_nerf_synthetic(tmp_path)
     _write_nerf(tmp_path, missing=1)
     with pytest.raises(InputError, match="r_1"):
@@ -156,16 +156,16 @@ def test_nerf_loader_rejects_bad_frames_naming_file_and_field(tmp_path, load_ima
     for bad in (17, None, "", ["./test/r_0"]):
         meta["frames"][1]["file_path"] = bad
         jp.write_text(json.dumps(meta))
-        with pytest.raises(InputError, match="transforms_test.json: frame 1: 'file_path' must be a non-empty string"):
+        with pytest.raises(InputError, match=r"transforms_test.json\b.*frame 1\b.*'file_path'"):
             load_nerf_synthetic(tmp_path, load_images=load_images)
     meta["frames"][1]["file_path"] = "./test/r_1"
     meta["frames"][1]["transform_matrix"] = "abc"
     jp.write_text(json.dumps(meta))
-    with pytest.raises(InputError, match="transforms_test.json: frame 1 transform_matrix"):
+    with pytest.raises(InputError, match=r"transforms_test.json\b.*frame 1\b.*transform_matrix"):
         load_nerf_synthetic(tmp_path, load_images=load_images)
     meta["frames"][1]["transform_matrix"] = [[1, 0, 0, "x"]] * 4
     jp.write_text(json.dumps(meta))
-    with pytest.raises(InputError, match="transforms_test.json: frame 1 transform_matrix"):
+    with pytest.raises(InputError, match=r"transforms_test.json\b.*frame 1\b.*transform_matrix"):
         load_nerf_synthetic(tmp_path, load_images=load_images)
 
 
@@ -192,13 +192,13 @@ def test_nerf_loader_scales_intrinsics_given_for_another_size(tmp_path, load_ima
     # another aspect ratio: a clear error naming the image
     meta.update({"w": 16, "h": 16})
     jp.write_text(json.dumps(meta))
-    with pytest.raises(InputError, match=r"transforms_test.json: frame 0: image .*r_0.png is 8x6.*w=16, h=16"):
+    with pytest.raises(InputError, match=r"transforms_test.json\b.*frame 0\b.*r_0.png\b.*8x6.*w=16, h=16"):
         load_nerf_synthetic(tmp_path, load_images=load_images)
     # without w/h, a principal point outside the image means intrinsics for another size
     del meta["w"], meta["h"]
     meta.update({"fl_x": 20.0, "cx": 8.5, "cy": 6.5})
     jp.write_text(json.dumps(meta))
-    with pytest.raises(InputError, match=r"principal point \(8.5, 6.5\) lies outside the 8x6 image r_0.png"):
+    with pytest.raises(InputError, match=r"\(8.5, 6.5\).*8x6.*r_0.png"):
         load_nerf_synthetic(tmp_path, load_images=load_images)
 
 
@@ -352,7 +352,7 @@ def test_colmap_errors(tmp_path):
         load_colmap(tmp_path / "f")
     # wrong parameter count and unknown model names
     (tmp_path / "f" / "cameras.txt").write_text("1 PINHOLE 10 10 5 5 5\n")
-    with pytest.raises(InputError, match="cameras.txt: camera 1 \\(PINHOLE\\) has 3 parameters, expected 4"):
+    with pytest.raises(InputError, match=r"cameras.txt\b.*camera 1 \(PINHOLE\).* 3 .* 4"):
         load_colmap(tmp_path / "f")
     (tmp_path / "f" / "cameras.txt").write_text("1 WEIRD 10 10 5 5 5\n")
     with pytest.raises(InputError, match="unknown model 'WEIRD'"):
@@ -417,7 +417,7 @@ def test_llff_and_colmap_composite_rgba_on_the_given_background(tmp_path, loader
 
 
 def test_llff_errors(tmp_path):
-    with pytest.raises(InputError, match="poses_bounds.npy: file not found"):
+    with pytest.raises(InputError, match=r"poses_bounds.npy\b.*not found"):
         load_llff(tmp_path)
     _write_llff(tmp_path / "a", n_images=2)
     with pytest.raises(InputError, match="3 poses but 2 images"):

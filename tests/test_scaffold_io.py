@@ -95,7 +95,7 @@ def test_checkpoints_pth_is_accepted_and_missing_mlps_warn(tmp_path):
     with pytest.warns(MissingMlpWarning, match=f"{folder}: no render-MLP file recognised"):
         assert read_scaffold(tmp_path).mlps == {}
     torch.save({"something_else": {}}, folder / "checkpoint.pth")
-    with pytest.warns(MissingMlpWarning, match="checkpoint.pth: no render MLP found in it"):
+    with pytest.warns(MissingMlpWarning, match=r"checkpoint.pth\b.*render MLP"):
         assert read_scaffold(tmp_path).mlps == {}
 
 
@@ -159,7 +159,7 @@ def test_read_scaffold_validates_with_the_path(tmp_path):
         cols[column][7] = good
     write_ply(ply, cols)
     for bad in (0.0, -1.0, np.nan, np.inf):
-        with pytest.raises(InputError, match="voxel size must be a positive finite number"):
+        with pytest.raises(InputError, match=r"voxel size\b.*positive finite"):
             read_scaffold(tmp_path, voxel_size=bad)
     # Anchors sharing a voxel are left for the encoder to reject or merge (--merge-duplicates).
     cols = read_ply(ply)

@@ -82,6 +82,7 @@ def test_auto_jobs_is_one_process_for_small_scenes():
     assert auto_jobs(3, 10 ** 6, cpus=8) == 3
 
 
+@pytest.mark.integration
 def test_ray_tiles_give_the_same_stream():
     """One local Ray instance of 2 CPUs: every tile a task, the stream that of one process."""
     pytest.importorskip("ray", reason="ray is not installed (pip install 'lghcc[batch]')")
@@ -320,7 +321,7 @@ def test_a_dying_tile_worker_is_a_clear_error(monkeypatch):
     if os.name != "posix":
         pytest.skip("the workers are forked on POSIX only: a patched function reaches them there")
     monkeypatch.setattr(tw, "code_one_tile", lambda *a: os._exit(9))
-    with pytest.raises(LghccError, match="a tile worker process died.*try --jobs 1"):
+    with pytest.raises(LghccError, match=r"worker\b.*died\b.*--jobs 1"):
         encode_gaussian_scene(gaussian_scene(1500), plain_config(tile_points=300), workers=TileWorkers(jobs=2))
 
 
@@ -335,7 +336,8 @@ def test_an_unreachable_cluster_is_refused_before_any_work(small_ply, tmp_path, 
         port = s.getsockname()[1]
     monkeypatch.setattr(api, "read_source", lambda *a, **k: (_ for _ in ()).throw(AssertionError("work started")))
     assert enc_cli.main([str(ply), "-o", str(tmp_path / "x.lghcc"), "--address", f"127.0.0.1:{port}"]) == EXIT_ERROR
-    assert "cannot reach the Ray cluster at 127.0.0.1" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "Ray cluster" in err and f"127.0.0.1:{port}" in err
 
 
 def test_bench_scale_resume_keeps_measured_rows_and_says_when(tmp_path):

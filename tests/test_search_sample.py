@@ -77,6 +77,7 @@ def test_views_and_steps_stop_growing_with_the_scene():
     assert sensitivity_views(off, 10 ** 7) == off.fit_views and fit_steps(off, 10 ** 7) is off
 
 
+@pytest.mark.integration
 def test_search_under_the_sample_size_chooses_as_the_whole_scene_search():
     """A scene at or below search_sample_gaussians is searched whole: the same settings and stream
     as with sampling off."""
@@ -89,6 +90,7 @@ def test_search_under_the_sample_size_chooses_as_the_whole_scene_search():
     assert gaussian_scene_digest(under.scene) == gaussian_scene_digest(whole.scene)
 
 
+@pytest.mark.integration
 def test_sampled_search_is_deterministic_and_checked_on_the_whole_scene():
     """A scene above the sample size: searched on a sample, the same settings twice, and the whole
     scene checked against the target once at least (then moved onto it where it missed), in the

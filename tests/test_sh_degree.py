@@ -198,7 +198,7 @@ def test_a_truncated_unit_and_a_repeated_unit_are_rejected():
     units = [DataUnit(u.unit_type, u.payload) for u in read_container(res.data).units]
     k = [i for i, u in enumerate(units) if u.unit_type == UnitType.SH_DEGREE][0]
     cut = units[:k] + [DataUnit(UnitType.SH_DEGREE, units[k].payload[:-1])] + units[k + 1:]
-    with pytest.raises(BitstreamError, match="sh_degree unit ends while reading"):
+    with pytest.raises(BitstreamError, match=r"sh_degree unit ends"):
         decode_stream(write_container(cut))
     with pytest.raises(BitstreamError, match="out of order or repeated"):
         decode_stream(write_container(units[:k + 1] + units[k:]))

@@ -128,7 +128,7 @@ def test_export_takes_the_sh_degree_from_source_info(plain, tmp_path, capsys):
         cap = capsys.readouterr()
         assert read_3dgs_ply(out).sh_degree == degree, name
         if name == "info2":
-            assert "source_info: the source scene had SH degree 2" in cap.out
+            assert "source_info" in cap.out and "SH degree 2" in cap.out
             assert "the source's degree (source_info)" in cap.out and "18 directions" in cap.out
         if name == "bad":
             assert "warning: source_info" in cap.err and "ignored" in cap.err

@@ -63,6 +63,7 @@ def test_stream_files_match_their_recorded_digests():
 AWAITING_REGENERATION: set[str] = set()
 
 
+@pytest.mark.integration
 def test_encoder_reproduces_every_stream_byte_for_byte():
     import torch
 
@@ -192,7 +193,7 @@ def test_reference_decoder_error_class_and_reason_are_checked(tmp_path, monkeypa
         raise IndexError("decoder bug")
     monkeypatch.setattr(runner, "decode_scene_internal", boom)  # an unexpected exception: a FAIL row
     o = runner.run_case(cases["c001_one_anchor"])
-    assert not o.passed and "unexpected IndexError: decoder bug" in o.note
+    assert not o.passed and "IndexError" in o.note
 
 
 @pytest.mark.parametrize("edit, message", [
@@ -229,7 +230,7 @@ def test_source_info_of_the_reference_decoder_is_checked():
     assert twice.meta["source_info"] == {"source_sh_degree": 1, "ignored": 1}
     wrong = runner.Case(twice.id, twice.folder, dict(twice.meta, source_info={"source_sh_degree": 3, "ignored": 1}))
     o = runner.run_case(wrong)
-    assert not o.passed and "source_sh_degree 1, 1 ignored; expected 3, 1 ignored" in o.note
+    assert not o.passed and "source_sh_degree 1, 1 ignored" in o.note and "3, 1 ignored" in o.note
     assert cases["c061_source_info_malformed_then_well_formed"].meta["source_info"] == {"source_sh_degree": None,
                                                                                          "ignored": 2}
 
@@ -400,6 +401,7 @@ def _decode_or_error(stream) -> str:
         return f"{type(e).__name__}: {e}"
 
 
+@pytest.mark.integration
 def test_decoding_is_identical_with_1_and_2_torch_threads():
     """Cross-environment determinism, within one machine: every stream decodes to the same hash with
     1 and with 2 torch threads (intra-op parallelism must not change a bit), and every error stream

@@ -190,5 +190,5 @@ def test_a_value_beyond_2_40_steps_is_refused_before_rdoq():
     scene = GaussianScene.on_grid(c, 0.01, [0, 0, 0], sh, g.normal(size=64).astype(np.float32),
                                   g.uniform(-5, 0, (64, 3)).astype(np.float32), g.normal(size=(64, 4)).astype(np.float32))
     cfg = load_config("medium", overrides={"neighbour_prediction": True, "step_adjust_max": 3}, kind="gaussians")
-    with pytest.raises(InputError, match="beyond the 2\\^40 steps a Gaussian scene allows"):
+    with pytest.raises(InputError, match=r"2\^40 steps"):
         encode_gaussian_scene(scene, cfg, sensitivity=np.ones((64, 56)))

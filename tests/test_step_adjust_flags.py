@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 from lghcc.common.container import UnitType, read_container
 from lghcc.common.errors import BitstreamError
-from lghcc.common.neighbour_prediction import (_decode_chunk_adjust, chunk_neighbours, encode_adjust_chunk,
+from lghcc.common.neighbour_prediction import (chunk_neighbours, decode_adjust_chunk, encode_adjust_chunk,
                                                neighbour_graph, step_flag_weights)
 from lghcc.common.sh_degree import decode_flag_chunk, encode_flag_chunk, neighbour_degrees
 from lghcc.common.units import NUM_STEP_FLAG_CONTEXTS, AttributeUnitHeader, StepAdjustFlagsUnit, StepAdjustUnit
@@ -50,7 +50,7 @@ def test_flag_chunks_round_trip_in_their_neighbours_contexts(n, top, lods, k, ex
             continue
         chunk = encode_adjust_chunk(adjust, rows, h, graph, level, 0, rows.size, unit)
         nd = neighbour_degrees(chunk_neighbours(graph, level, 0, rows.size), adjust)
-        got = _decode_chunk_adjust(chunk, h, StepAdjustUnit(max_step_adjust=top), rows.size, level, unit, nd)
+        got = decode_adjust_chunk(chunk, h, StepAdjustUnit(max_step_adjust=top), rows.size, level, unit, nd)
         assert got.tolist() == adjust[rows].tolist()
 
 

@@ -43,7 +43,8 @@ from lghcc.viewer import page as page_mod
 from lghcc.viewer.browser import ViewerSession, browser_status
 
 OK, WHY = browser_status()
-pytestmark = [pytest.mark.skipif(not OK, reason=WHY),
+pytestmark = [pytest.mark.integration,  # Chromium
+              pytest.mark.skipif(not OK, reason=WHY),
               pytest.mark.skipif(not page_mod.BUNDLE.is_file(),
                                  reason=f"the viewer bundle {page_mod.BUNDLE} is not built (make viewer-bundle)")]
 
@@ -135,3 +136,20 @@ def test_panes_share_one_camera_when_dragged(view_page):
     print("browser vs CPU render after a drag:", {k: f"{p:.2f} dB, SSIM {q:.4f}" for k, (p, q) in scores.items()})
     for name, (p, q) in scores.items():
         assert p >= PSNR_MIN and q >= SSIM_MIN, (name, p, q)
+
+
+def test_viewer_screenshot_tool(view_page, tmp_path):
+    """tools/viewer_screenshot.py: the page at the window size asked, as a palette PNG, not blank."""
+    import subprocess
+    import sys
+
+    from PIL import Image
+
+    png = tmp_path / "shot.png"
+    tool = Path(__file__).resolve().parents[1] / "tools" / "viewer_screenshot.py"
+    r = subprocess.run([sys.executable, str(tool), str(view_page), str(png), "--window", "320x200", "--colors", "16"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    img = Image.open(png)
+    assert img.size == (320, 200) and img.mode == "P"
+    assert len(img.getcolors()) > 1

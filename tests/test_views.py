@@ -166,6 +166,7 @@ def test_inside_views_keep_what_the_orbit_prunes_in_a_room():
     assert kept["orbit"][exterior].all() and kept["inside"][exterior].mean() < 0.75
 
 
+@pytest.mark.integration
 def test_lghcc_enc_uses_the_cameras_of_an_inria_training_output(tmp_path):
     """A PLY in the INRIA layout: lghcc-enc finds <model>/cameras.json, says so, measures from those
     cameras and checks the stream on others of them; --no-cameras and --views place views itself."""
@@ -222,6 +223,7 @@ def test_bench_views_decides_the_built_scenes(tmp_path):
     assert "**inside**" in rows[0] and "**orbit**" in rows[1]
 
 
+@pytest.mark.integration
 def test_the_landing_moves_the_steps_onto_the_target_on_its_own_views():
     """With a target, the prepared scene's steps are moved onto it on the landing views (larger
     than the search's, none of the search's or the check's), in the place of the trim."""
@@ -239,6 +241,7 @@ def test_the_landing_moves_the_steps_onto_the_target_on_its_own_views():
     assert landed.cfg.search_views == 2 and landed.cfg.search_resolution == 32  # the search's plan kept
 
 
+@pytest.mark.integration
 def test_lghcc_encode_takes_the_capture_cameras(tmp_path):
     """lghcc.encode(..., cameras=PATH): the room measured from its cameras keeps what they see; from
     the orbit (views="orbit") the inside is pruned away, and the stream is a fraction of the size."""

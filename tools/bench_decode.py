@@ -4,7 +4,7 @@ and 2 worker processes, --jobs auto, a box and the level-1 preview (issue 38).
 
 Streams (cached in ``--cache``, encoded once): procedural anchor scenes (32 features, 10 offsets)
 at the anchor presets low and medium (per-channel prior, no hierarchy) and lghcc-low (the
-hierarchy and GG-Conv, short context training as tools/bench_tiles.py: the decoder's speed does
+hierarchy and GG-Conv, short context training as tools/results/tiles.md's: the decoder's speed does
 not depend on it), and procedural explicit-Gaussian scenes (SH degree 1, smooth attributes) at
 gaussians-medium's steps (neighbour prediction, step adjustment; no settings search, no fit), at
 the sizes ``--sizes`` (default 100k; 1M for the medium presets: ``--large``).
@@ -201,12 +201,12 @@ def _worker_start() -> str:
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    from lghcc.decoder.decode import _worker_init
+    from lghcc.decoder.decode import init_tile_worker
 
     starts, tasks = [], []
     for _ in range(5):
         t = time.perf_counter()
-        with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("fork"), initializer=_worker_init,
+        with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("fork"), initializer=init_tile_worker,
                                  initargs=((),)) as pool:
             list(pool.map(_noop, range(2)))
             t1 = time.perf_counter()

@@ -78,7 +78,7 @@ def merge_json(paths: list[str]) -> tuple[Summary, list[str], str, int]:
     return total, commands, started, seeds
 
 
-def _commit() -> str:
+def commit() -> str:
     """The commit the run's code is at (with '+ changes' when the work tree differs from it)."""
     import subprocess
 
@@ -93,7 +93,7 @@ def _commit() -> str:
     return head + (" + uncommitted changes" if dirty else "")
 
 
-def _format_version() -> str:
+def format_version() -> str:
     from lghcc.common.container import VERSION_MAJOR, VERSION_MINOR
 
     return f"{VERSION_MAJOR}.{VERSION_MINOR}"
@@ -118,7 +118,7 @@ def results_markdown(summary, command: str, started: str, seeds: int, args, jobs
         f"(load average at the end {load:.1f}); the run was niced. Seed streams: {seeds} conformance streams "
         f"that decode, plus the fresh scene streams (the {args.pool} newest at a time).",
         "",
-        f"Code: commit {_commit()}; bitstream format version {_format_version()} (the decoder's; the scene "
+        f"Code: commit {commit()}; bitstream format version {format_version()} (the decoder's; the scene "
         "cases cover anchor and explicit-Gaussian scenes, neighbour prediction, step adjustment and tiles).",
         "",
         "Command" + ("s (run side by side, `make fuzz-long`; figures added up):" if jobs > 1 else ":"),

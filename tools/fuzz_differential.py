@@ -56,9 +56,9 @@ def differential_scene_case(rng: random.Random):
 
 def code_version() -> str:
     """The commit and the bitstream format version the campaign runs (taken at its start)."""
-    from fuzz_decoder import _commit, _format_version
+    from fuzz_decoder import commit, format_version
 
-    return f"commit {_commit()}; bitstream format version {_format_version()}"
+    return f"commit {commit()}; bitstream format version {format_version()}"
 
 
 def summary_to_json(s: DiffSummary, command: str, started: str, seeds: int, code: str) -> dict:

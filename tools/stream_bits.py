@@ -67,7 +67,7 @@ class _Recorder:
         self.degree_bytes = 0
 
     def __enter__(self):
-        self._residual, self._adjust, self._degrees = (attr.decode_residual_chunk, nbp._decode_chunk_adjust,
+        self._residual, self._adjust, self._degrees = (attr.decode_residual_chunk, nbp.decode_adjust_chunk,
                                                        nbp.decode_degree_chunk)
         rec = self
 
@@ -87,12 +87,12 @@ class _Recorder:
             rec.degree_bytes += len(piece)
             return rec._degrees(piece, *args)
 
-        attr.decode_residual_chunk, nbp._decode_chunk_adjust, nbp.decode_degree_chunk = (residual_chunk, adjust_chunk,
+        attr.decode_residual_chunk, nbp.decode_adjust_chunk, nbp.decode_degree_chunk = (residual_chunk, adjust_chunk,
                                                                                           degree_chunk)
         return self
 
     def __exit__(self, *exc):
-        attr.decode_residual_chunk, nbp._decode_chunk_adjust, nbp.decode_degree_chunk = (self._residual, self._adjust,
+        attr.decode_residual_chunk, nbp.decode_adjust_chunk, nbp.decode_degree_chunk = (self._residual, self._adjust,
                                                                                           self._degrees)
 
 

@@ -332,8 +332,8 @@ def _geometry_terms(dp: torch.Tensor, params: GGConvParams, table_f: torch.Tenso
 _LUT_MAX = 1 << 17  # largest (2R+1)^3 for which the geometry terms are tabulated per offset
 # rows evaluated at once: 512 per torch thread, so that a thread's share of a block's edge terms
 # (512 x K x H float64, 2 MiB at K = 8, H = 64) stays in its core's L2 cache: 24-33% faster than
-# 4096 rows on one thread, up to 24% on two (tools/results/ggconv_blocks.md, tools/bench_ggconv.py
-# --blocks); the result does not depend on it
+# 4096 rows on one thread, up to 24% on two (tools/results/ggconv_blocks.md);
+# the result does not depend on it
 BLOCK_ROWS_PER_THREAD = 1 << 9
 MAX_BLOCK_ROWS = 1 << 12
 

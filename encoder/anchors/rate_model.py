@@ -4,7 +4,7 @@ LG-HCC optimizes a scene under L = L_render + lambda L_anchor (paper eq. 12), L_
 the entropy-coded size of the anchor attributes under the codec's own context model. Without
 it, a trained scene's attributes are nearly independent from anchor to anchor: on the lego
 scene trained without a rate term, the features of an anchor's 8 nearest level-1 anchors
-explain 23% of its feature variance (tools/context_diagnostics.py) and GG-Conv codes level 2
+explain 23% of its feature variance (tools/results/context.md) and GG-Conv codes level 2
 at 0.88x the per-channel prior; trained with the rate term (lambda 0.05), at 0.75x
 (tools/results/context.md).
 

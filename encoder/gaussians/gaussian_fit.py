@@ -39,7 +39,7 @@ view m times narrower, aimed at Gaussians drawn at random, same pixel count). Th
 leaves every scene whose orbit views already resolve it as it was (donut 0.21 px, playbot 0.12 to
 0.21 px at 128 px; there the 128 px views stay within 0.7 to 3.7 dB of 320 px ones under pruning);
 on the logo, 128 px crops at m = 2.09 follow 320 px renders (31.3 against 28.4 dB, 27.8 against
-25.9, 23.7 against 23.0). Measured by tools/bench_resolve.py: tools/results/resolve.md.
+25.9, 23.7 against 23.0). Measured in tools/results/resolve.md.
 """
 
 from __future__ import annotations

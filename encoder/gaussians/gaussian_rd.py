@@ -330,12 +330,6 @@ class SettingsSearch:
                                              self.cams))
         self.values = coded_values(scene).astype(np.float64)  # at the scene's SH degree
         self.cfg = cfg
-        # the way RDOQ writes each Gaussian (encoder/gaussians/rdoq.py): None, chosen afresh in every trial
-        # as the coding chooses it. Kept from the first trial (as the search once did, int64 [N] of -1 to
-        # start; tools/bench_rdoq.py --keep-ways sets it), later trials measured 0.10-0.37 dB worse than the
-        # coding codes them, and the moves onto the target stopped short of coarser steps
-        # (tools/results/search_ways.md); choosing them costs a trial about 3% more
-        self.ways: np.ndarray | None = None
         self._grids: dict = {}
         self._graphs: dict = {}
         self.trials: list[Trial] = []
@@ -427,14 +421,13 @@ class SettingsSearch:
         degree = layout.sh_degree
         f = self._sensitivity_of(keep, layout, steps)
         mu = group_slopes(f, channel_groups(degree, layout.sh_transform is not None), cfg.rd_quantization)
-        rows = np.flatnonzero(keep)[order]  # the scene's Gaussians in coding order
-        ways = None if self.ways is None else self.ways[rows]
+        # the way RDOQ writes each Gaussian (encoder/gaussians/rdoq.py) is chosen afresh in every trial, as
+        # the coding chooses it: kept from the first trial, later trials measured 0.10-0.37 dB worse than
+        # the coding codes them (tools/results/search_ways.md); choosing them costs a trial about 3% more
         q = np.empty(x.shape, dtype=np.int64)
         q[order] = rd_quantize(x[order], f[order], mu, grid.coords[order], graph, cfg.prediction_buckets,
-                               orientation_columns(layout), ways, None if adjust is None else adjust[order],
+                               orientation_columns(layout), None, None if adjust is None else adjust[order],
                                cfg.rotation_length)
-        if ways is not None:
-            self.ways[rows] = ways
         degrees = None
         if sh_degrees_wanted(cfg, self.sensitivity, degree) and graph is not None:
             degrees = degrees_on_graph(x, q, f, layout, grid.coords, order, graph, cfg, adjust)

@@ -10,7 +10,7 @@ otherwise. A kept Gaussian k with its merged ones G = {k} + {i -> k} becomes:
   pruning ranks by: the sum over views and pixels of alpha T), so each Gaussian moves the group
   as much as the views see of it. Opacity x footprint (alpha (s1 s2 s3)^(2/3)) or opacity x
   volume (alpha s1 s2 s3) give a hidden Gaussian the weight of a visible one: on playbot lod4
-  at the low preset's steps with 3% of the contribution pruned (bench_merging.py, no fit), the
+  at the low preset's steps with 3% of the contribution pruned (no fit, tools/results/merging.md), the
   footprint weights gave 34.68 dB against the contributions' 35.02 dB (drop: 34.48), volume
   weights 34.45 dB;
 - mean mu = sum w_j mu_j / W (W = sum w_j);

@@ -160,7 +160,7 @@ MAX_JUMP = 1
 # The lengths a rotation quaternion may be given (module doc): shorter ones round to fewer, smaller
 # integers with a coarser direction. Longer ones (finer directions) were measured to give less:
 # playbot lod4 at the low steps, 1.7% fewer bytes than unit length with 2 and sqrt 2 allowed, 2.0%
-# without (tools/bench_rdoq.py --rotation-lengths, tools/results/rdoq.md).
+# without (tools/results/rdoq.md).
 ROTATION_NORMS = (1.0, 2 ** -0.5, 0.5, 2 ** -1.5, 0.25, 2 ** -2.5, 0.125)
 
 
@@ -241,8 +241,8 @@ def _length_indices(x: np.ndarray, f: np.ndarray, mean: np.ndarray, level: np.nd
 
 
 # The length indices k (lengths 2^(-k/2)) RDOQ may give format-1.4 rotations. With w implied, the
-# unit length alone codes best: through RDOQ at the low preset's fixed steps (tools/bench_rotations.py,
-# tools/results/rotations.md section 3) playbot lod4 80,240 B with k = 0 only against 80,285-80,450 B
+# unit length alone codes best: through RDOQ at the low preset's fixed steps
+# (tools/results/rotations.md section 3) playbot lod4 80,240 B with k = 0 only against 80,285-80,450 B
 # with k = 0..6 (the index priced at levels 6-13), the donut 187,158 B against 187,287-188,992 B, at
 # the same PSNR: the shorter lengths' coarser x, y, z no longer pay for their index. The format
 # keeps the index (0 .. 15): it costs nothing where every Gaussian has k = 0.
@@ -615,7 +615,7 @@ def adjust_on_graph(x: np.ndarray, f: np.ndarray, degree: int, coords: np.ndarra
 DEGREE_ROUNDS = 2
 # The weight of the pictures' error of a dropped band against its bits (1: RDOQ's slopes). F, a
 # derivative from the fit views, underrates what a whole band's loss shows on other views: on
-# playbot lod4 (tools/bench_rdoq.py --sh-degrees on, tools/results/sh_degree.md) weight 1 gave
+# playbot lod4 (tools/results/sh_degree.md) weight 1 gave
 # 2.3% fewer bytes at equal PSNR on the search views but 0.9% on the orbit at low; weights 2-4
 # gave 1.5-2.6% on both at low, medium and high (within about 0.3% of each other).
 DEGREE_DISTORTION_WEIGHT = 2.0
