@@ -172,3 +172,23 @@ def test_bench_js_pair(tmp_path):
     assert r.returncode == 0, r.stderr[-2000:]
     result = json.loads(r.stdout.strip().splitlines()[-1])
     assert result["gaussiansA"] > 0 and result["gaussiansB"] > 0 and result["ratio"] > 0
+
+
+@pytest.mark.skipif(shutil.which("node") is None, reason="node (Node.js) is not on the PATH")
+@pytest.mark.skipif(not (ROOT / "tools" / "node" / "node_modules" / "@playcanvas" / "splat-transform").is_dir(),
+                    reason="splat-transform is not installed in tools/node (make node-tools)")
+def test_bench_js_spz(tmp_path):
+    """The JavaScript decoder beside splat-transform's SPZ reader: a conformance stream and the SPZ of
+    its decoded scene (lghcc's SPZ writer), both decoded whole, the same Gaussians counted."""
+    from lghcc.decoder.decode import decode_stream
+    from lghcc.formats.spz import write_spz
+
+    stream = ROOT / "conformance" / "streams" / "c033_gaussians_sh3_prediction" / "stream.lghcc"
+    scene = decode_stream(stream.read_bytes()).scene
+    write_spz(tmp_path / "scene.spz", scene)
+    r = subprocess.run(["node", str(ROOT / "tools" / "bench_js_spz.mjs"), str(stream), str(tmp_path / "scene.spz"),
+                        "--rounds", "1"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    result = json.loads(r.stdout.strip().splitlines()[-1])
+    assert result["lghcc"]["gaussians"] == result["spz"]["gaussians"] == scene.num_gaussians
+    assert result["ratio"] > 0
