@@ -1,7 +1,9 @@
 """The encoder's bounded-memory paths (issue 53) write the streams the whole-scene paths wrote, byte
 for byte: uniform sensitivities as one broadcast row, RDOQ's rows chosen in blocks, the quantized
 integers carried from RDOQ to the coding (quantize once). The hashes were those of the encoder
-before these paths (commit 6865211)."""
+before these paths (commit 6865211), coded without the SH transform of format 1.6 (its presets' default
+since): the pinned paths are the value-domain ones; with the transform, block sizes are checked against
+each other (test_blocks_do_not_change_a_stream_with_the_sh_transform)."""
 
 import dataclasses
 import hashlib
@@ -36,8 +38,8 @@ def _scene(n: int, degree: int, seed: int = 53) -> GaussianScene:
                          (-4 + 0.3 * rng.normal(size=(n, 3))).astype(f), rng.normal(size=(n, 4)).astype(f))
 
 
-def _fast_stream(degree: int, tile_points: int) -> bytes:
-    cfg = dataclasses.replace(load_config("fast", kind="gaussians"), tile_points=tile_points)
+def _fast_stream(degree: int, tile_points: int, sh_transform: bool = False) -> bytes:
+    cfg = dataclasses.replace(load_config("fast", kind="gaussians"), tile_points=tile_points, sh_transform=sh_transform)
     return encode_gaussian_scene(_scene(3000, degree), cfg).data
 
 
@@ -67,7 +69,7 @@ def test_more_streams_are_those_before_the_coding_by_block(preset, degree, tile_
         assert hashlib.sha256(_fast_stream(degree, tile_points)).hexdigest() == MORE_PINNED[preset, degree, tile_points]
         return
     cfg = dataclasses.replace(load_config("low", kind="gaussians"), target_psnr=0, prune_share=0,
-                              tile_points=tile_points)
+                              tile_points=tile_points, sh_transform=False)
     f = np.random.default_rng(7).gamma(0.5, 2.0, size=(3000, GaussianLayout(degree).num_channels))
     got = encode_gaussian_scene(_scene(3000, degree), cfg, sensitivity=f)
     assert got.stats.step_adjust_counts is not None and got.stats.sh_degree_counts is not None
@@ -205,3 +207,21 @@ def test_the_searchs_grid_cache_changes_no_trial(keys, monkeypatch):
     assert set(made_b) == set(made_a)  # the same grids tried
     if keys == 1000:
         assert len(made_b) == len(set(made_b)) <= len(made_a)  # all kept: each grid made once
+
+
+def test_blocks_do_not_change_a_stream_with_the_sh_transform(monkeypatch):
+    """With the SH transform (format 1.6, the presets' default), RDOQ's and the coding's blocks of rows
+    still change no byte: the stream at small blocks is the stream at the default ones, and it uses
+    the transform (its sh_transform unit is in the stream)."""
+    from lghcc.common.container import UnitType, read_container
+    from lghcc.common.entropy import symbol_coder
+    from lghcc.encoder.stream import neighbour_coding, prediction
+
+    whole = _fast_stream(3, 512, sh_transform=True)
+    assert any(u.unit_type == UnitType.SH_TRANSFORM for u in read_container(whole).units)
+    monkeypatch.setattr(rdoq, "RDOQ_BLOCK_ROWS", 97)
+    for module in (neighbour_coding, prediction):
+        monkeypatch.setattr(module, "CODING_BLOCK_ROWS", 97)
+    monkeypatch.setattr(symbol_coder, "SUM_BLOCK_VALUES", 1000)
+    assert _fast_stream(3, 512, sh_transform=True) == whole
+
