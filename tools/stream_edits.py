@@ -326,14 +326,8 @@ def _encode_geometry_unchecked(coords: np.ndarray, shift_min: list[int] | None =
 
 
 def _box_min_x_for_top(payload: bytes, coords: np.ndarray, top: int) -> dict:
-    """The geometry header's x fields of a box minimum that puts the largest decoded x at ``top``."""
-    from lghcc.common.geometry import GeometryHeader
-
-    gh = GeometryHeader.parse(BitReader(payload))
-    min_x = -gh.geom_bbox_min_abs[0] if gh.geom_bbox_min_sign_flag[0] else gh.geom_bbox_min_abs[0]
-    new_min = top - (int(coords[:, 0].max()) - min_x)
-    return {"geom_bbox_min_sign_flag": [int(new_min < 0)] + list(gh.geom_bbox_min_sign_flag[1:]),
-            "geom_bbox_min_abs": [abs(new_min)] + list(gh.geom_bbox_min_abs[1:])}
+    """The geometry header's box-minimum fields moved along x so that the largest decoded x is ``top``."""
+    return _box_min_shifted(payload, [top - int(coords[:, 0].max()), 0, 0])
 
 
 def _geometry_with_header(payload: bytes, fields: dict) -> bytes:
