@@ -12,6 +12,7 @@ import { readFileSync } from 'node:fs';
 import { dirname, join } from 'node:path';
 import { fileURLToPath, pathToFileURL } from 'node:url';
 import { decodeStream } from '../js/lghcc-decoder/decoder.mjs';
+import '../js/lghcc-decoder/sha256_node.mjs'; // node:crypto's hash for the tiles' checks, as the package's Node entry uses
 
 const here = dirname(fileURLToPath(import.meta.url));
 // splat-transform pinned in tools/node (make node-tools): its ES module build
