@@ -265,6 +265,52 @@ def test_chunk_pairs_decode_and_fail_as_single_chunks(trials):
     assert len(errors) >= len(got) // 4, f"only {len(errors)} of {len(got)} trials failed: the flips miss the chunks"
 
 
+FIRST_FAULT = """
+import { readFileSync } from 'node:fs';
+import { decodeStream } from './decoder.mjs';
+const { files, node } = JSON.parse(readFileSync(0, 'utf8'));
+if (node) await import('./sha256_node.mjs');
+const out = [];
+for (const f of files) {
+    try {
+        const r = await decodeStream(new Uint8Array(readFileSync(f)));
+        out.push(`decoded ${r.tiles.length} tiles`);
+    } catch (e) { out.push(`${e.constructor.name}: ${e.message}`); }
+}
+console.log(JSON.stringify(out));
+"""
+
+
+@pytest.mark.parametrize("node_hash", [False, True], ids=["web-crypto", "node-crypto"])
+def test_the_first_faulty_tile_names_the_error(tmp_path, node_hash):
+    """decodeStream hashes tile t while tile t + 1 decodes: a wrong scene_hash of tile 0 is still the error when
+    tile 1 fails to decode too (the order of clause 13.2), with Web Crypto's hash and with node:crypto's."""
+    from lghcc.common.container import DataUnit, UnitType, read_container, write_container
+
+    c = read_container((STREAMS / "c078_neighbour_prediction_tiles" / "stream.lghcc").read_bytes())
+    hashes = [i for i, u in enumerate(c.units) if u.unit_type == UnitType.DECODED_SCENE_HASH]
+    attributes = [i for i, u in enumerate(c.units) if u.unit_type == UnitType.ATTRIBUTE]
+    assert len(hashes) >= 2 and len(attributes) >= 2
+
+    def variant(name, wrong_hash, broken_tile1):
+        units = list(c.units)
+        if wrong_hash:  # tile 0's scene hash, its last byte flipped
+            u = units[hashes[0]]
+            units[hashes[0]] = DataUnit(u.unit_type, u.payload[:-1] + bytes([u.payload[-1] ^ 1]))
+        if broken_tile1:  # tile 1's attribute data, the same length, every byte after the first 16 inverted
+            u = units[attributes[1]]
+            units[attributes[1]] = DataUnit(u.unit_type, u.payload[:16] + bytes(b ^ 0xFF for b in u.payload[16:]))
+        path = tmp_path / f"{name}.lghcc"
+        path.write_bytes(write_container(units, c.header))
+        return str(path)
+
+    files = [variant("hash0", True, False), variant("tile1", False, True), variant("both", True, True)]
+    got = json.loads(node(FIRST_FAULT, json.dumps({"files": files, "node": node_hash})))
+    assert got[0].startswith("HashMismatchError: tile 0:"), got
+    assert got[1].startswith("BitstreamError"), got  # tile 1 alone fails to decode
+    assert got[2] == got[0], got  # both: tile 0's hash first
+
+
 def big_tile_stream(tmp_path):
     """c032 (one tile, SH 0) declaring 2^24 Gaussians: within E22 and a raised --max-memory, but its
     tile needs more WebAssembly memory than the module addresses; refused before any allocation."""
