@@ -216,6 +216,101 @@ def test_corrupted_streams_agree_with_reference_decoder(tmp_path):
             assert g == r, (f, g, r)
 
 
+CHUNK_PAIRS = """
+import { readFileSync } from 'node:fs';
+import { decodeTile, parseStream } from './decoder.mjs';
+const { root, ids, trials } = JSON.parse(readFileSync(0, 'utf8'));
+let seed = 7;
+const rand = (n) => { seed = (seed * 1103515245 + 12345) % 2147483648; return seed % n; };
+const outcome = async (ctx) => {
+    try {
+        const r = await decodeTile(ctx, 0, { checkHash: false });
+        return Buffer.from(r.values.buffer).toString('base64');
+    } catch (e) { return `${e.constructor.name}: ${e.message}`; }
+};
+const out = [];
+for (const id of ids) {
+    const bytes = new Uint8Array(readFileSync(`${root}/${id}/stream.lghcc`));
+    const ctx = parseStream(bytes); // the CRC-32s checked; the attribute unit's bytes are flipped below, in place
+    const a = ctx.tiles[0].units[1].payload;
+    for (let i = 0; i <= trials; i++) {
+        const saved = a.slice();
+        // trial 0 intact; then 1 to 3 random bytes, in the second half (the chunks' data) more often than not
+        if (i) for (let m = 1 + rand(3); m > 0; m--) { const j = rand(2) ? (a.length >> 1) + rand(a.length - (a.length >> 1)) : rand(a.length); a[j] ^= 1 + rand(255); }
+        ctx.chunkPairs = true;
+        const paired = await outcome(ctx);
+        ctx.chunkPairs = false;
+        out.push({ id, i, paired, single: await outcome(ctx) });
+        a.set(saved);
+    }
+}
+console.log(JSON.stringify(out));
+"""
+
+
+@pytest.mark.parametrize("trials", [40])
+def test_chunk_pairs_decode_and_fail_as_single_chunks(trials):
+    """Two chunks of a LoD decoded together (attributeChunkPair, the range decoders interleaved) give the
+    values of chunks decoded one at a time, and on flipped bytes the same error (the first fault in
+    stream order names it: a failed pair is decoded again one chunk at a time)."""
+    ids = ["c082_neighbour_prediction_small_chunks", "c091_sh_degree_2_channel_prediction", "c098_sh_degree_empty_degree_chunks",
+           "c101_rotation_length_prior", "c111_step_adjust_flags_empty_chunks", "c115_sh_transform_prior"]
+    got = json.loads(node(CHUNK_PAIRS, json.dumps({"root": str(STREAMS), "ids": ids, "trials": trials}), timeout=600))
+    assert len(got) == len(ids) * (trials + 1)
+    for g in got:
+        assert g["paired"] == g["single"], g
+    intact = [g for g in got if g["i"] == 0]
+    assert all(":" not in g["paired"] for g in intact), intact  # every intact stream decodes
+    errors = [g for g in got if g["paired"].startswith("BitstreamError")]
+    assert len(errors) >= len(got) // 4, f"only {len(errors)} of {len(got)} trials failed: the flips miss the chunks"
+
+
+FIRST_FAULT = """
+import { readFileSync } from 'node:fs';
+import { decodeStream } from './decoder.mjs';
+const { files, node } = JSON.parse(readFileSync(0, 'utf8'));
+if (node) await import('./sha256_node.mjs');
+const out = [];
+for (const f of files) {
+    try {
+        const r = await decodeStream(new Uint8Array(readFileSync(f)));
+        out.push(`decoded ${r.tiles.length} tiles`);
+    } catch (e) { out.push(`${e.constructor.name}: ${e.message}`); }
+}
+console.log(JSON.stringify(out));
+"""
+
+
+@pytest.mark.parametrize("node_hash", [False, True], ids=["web-crypto", "node-crypto"])
+def test_the_first_faulty_tile_names_the_error(tmp_path, node_hash):
+    """decodeStream hashes tile t while tile t + 1 decodes: a wrong scene_hash of tile 0 is still the error when
+    tile 1 fails to decode too (the order of clause 13.2), with Web Crypto's hash and with node:crypto's."""
+    from lghcc.common.container import DataUnit, UnitType, read_container, write_container
+
+    c = read_container((STREAMS / "c078_neighbour_prediction_tiles" / "stream.lghcc").read_bytes())
+    hashes = [i for i, u in enumerate(c.units) if u.unit_type == UnitType.DECODED_SCENE_HASH]
+    attributes = [i for i, u in enumerate(c.units) if u.unit_type == UnitType.ATTRIBUTE]
+    assert len(hashes) >= 2 and len(attributes) >= 2
+
+    def variant(name, wrong_hash, broken_tile1):
+        units = list(c.units)
+        if wrong_hash:  # tile 0's scene hash, its last byte flipped
+            u = units[hashes[0]]
+            units[hashes[0]] = DataUnit(u.unit_type, u.payload[:-1] + bytes([u.payload[-1] ^ 1]))
+        if broken_tile1:  # tile 1's attribute data, the same length, every byte after the first 16 inverted
+            u = units[attributes[1]]
+            units[attributes[1]] = DataUnit(u.unit_type, u.payload[:16] + bytes(b ^ 0xFF for b in u.payload[16:]))
+        path = tmp_path / f"{name}.lghcc"
+        path.write_bytes(write_container(units, c.header))
+        return str(path)
+
+    files = [variant("hash0", True, False), variant("tile1", False, True), variant("both", True, True)]
+    got = json.loads(node(FIRST_FAULT, json.dumps({"files": files, "node": node_hash})))
+    assert got[0].startswith("HashMismatchError: tile 0:"), got
+    assert got[1].startswith("BitstreamError"), got  # tile 1 alone fails to decode
+    assert got[2] == got[0], got  # both: tile 0's hash first
+
+
 def big_tile_stream(tmp_path):
     """c032 (one tile, SH 0) declaring 2^24 Gaussians: within E22 and a raised --max-memory, but its
     tile needs more WebAssembly memory than the module addresses; refused before any allocation."""

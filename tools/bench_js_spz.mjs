@@ -1,17 +1,23 @@
 #!/usr/bin/env node
 // lghcc's JavaScript decoder beside splat-transform's SPZ reader on the same scene, in one Node process,
 // one thread (issue 54's target: decoded Gaussians per second, lghcc >= 1.5x SPZ):
-//     node tools/bench_js_spz.mjs SCENE.lghcc SCENE.spz [--rounds R]
-// Each round decodes both files whole, alternating which goes first (ABBA), after one warm-up round:
-// lghcc with decodeStream (no helper threads: workers 0, every tile's hash checked, as a page decodes it),
-// SPZ with splat-transform's readSpz materialized into its columns (readFile + materializeToDataTable,
-// what its readers hand an engine). Times are wall-clock per decode (performance.now), best and median
-// over the rounds. Prints one JSON line: {lghcc: {gaussians, bytes, bestS, medianS, gaussiansPerS},
-// spz: {...}, ratio: lghcc Gaussians/s over SPZ's (best rounds)}.
-import { readFileSync } from 'node:fs';
-import { dirname, join } from 'node:path';
+//     node tools/bench_js_spz.mjs SCENE.lghcc SCENE.spz [--rounds R] [--baseline TREE]
+// Each round decodes both files whole, the order alternating (ABBA; with a baseline the three rotate),
+// after one warm-up round: lghcc with decodeStream (no helper threads: workers 0, every tile's hash checked,
+// with node:crypto as the package's Node entry hashes), SPZ with splat-transform's readSpz materialized into
+// its columns (readFile + materializeToDataTable, what its readers hand an engine). --baseline TREE: the
+// decoder of another tree (a checkout or `git archive` of main, its js/lghcc-decoder) decodes the stream
+// too, in the same rotation: before/after in one process, the load falling on both alike. Times are
+// wall-clock per decode (performance.now) and the process's CPU time (user + system, every thread: SPZ's
+// DecompressionStream and Web Crypto's hash run in Node's thread pool), best and median over the rounds.
+// Prints one JSON line: {lghcc: {gaussians, bytes, bestS, medianS, bestCpuS, medianCpuS, gaussiansPerS},
+// spz: {...}, ratio: lghcc Gaussians/s over SPZ's (best rounds), cpuRatio: the same per CPU second; with
+// --baseline also baseline: {...}, baselineRatio, speedup: lghcc's Gaussians/s over the baseline's}.
+import { existsSync, readFileSync } from 'node:fs';
+import { dirname, join, resolve } from 'node:path';
 import { fileURLToPath, pathToFileURL } from 'node:url';
 import { decodeStream } from '../js/lghcc-decoder/decoder.mjs';
+import '../js/lghcc-decoder/sha256_node.mjs'; // node:crypto's hash for the tiles' checks, as the package's Node entry uses
 
 const here = dirname(fileURLToPath(import.meta.url));
 // splat-transform pinned in tools/node (make node-tools): its ES module build
@@ -19,17 +25,30 @@ const st = await import(pathToFileURL(join(here, 'node', 'node_modules', '@playc
     'index.mjs')).href);
 
 const args = process.argv.slice(2);
-const rounds = args.includes('--rounds') ? Number(args[args.indexOf('--rounds') + 1]) : 5;
-const files = args.filter((a, i) => !a.startsWith('--') && args[i - 1] !== '--rounds');
+const opt = (name) => (args.includes(name) ? args[args.indexOf(name) + 1] : null);
+const rounds = opt('--rounds') ? Number(opt('--rounds')) : 5;
+const baselineTree = opt('--baseline');
+const files = args.filter((a, i) => !a.startsWith('--') && args[i - 1] !== '--rounds' && args[i - 1] !== '--baseline');
 if (files.length !== 2 || !files[0].endsWith('.lghcc') || !files[1].endsWith('.spz') || !(rounds >= 1)) {
-    console.error('usage: node tools/bench_js_spz.mjs SCENE.lghcc SCENE.spz [--rounds R]');
+    console.error('usage: node tools/bench_js_spz.mjs SCENE.lghcc SCENE.spz [--rounds R] [--baseline TREE]');
     process.exit(2);
+}
+// the baseline tree's decoder (and its node:crypto hash where that tree has one: older trees hash with Web Crypto)
+let baseline = null;
+if (baselineTree) {
+    const dir = join(baselineTree, 'js', 'lghcc-decoder');
+    if (!existsSync(join(dir, 'decoder.mjs'))) {
+        console.error(`--baseline ${baselineTree}: no js/lghcc-decoder/decoder.mjs in that tree`);
+        process.exit(2);
+    }
+    baseline = await import(pathToFileURL(resolve(dir, 'decoder.mjs')).href);
+    if (existsSync(join(dir, 'sha256_node.mjs'))) await import(pathToFileURL(resolve(dir, 'sha256_node.mjs')).href);
 }
 const lghccBytes = new Uint8Array(readFileSync(files[0]));
 const spzBytes = new Uint8Array(readFileSync(files[1]));
 
-async function decodeLghcc() {
-    const r = await decodeStream(lghccBytes);
+async function decodeLghcc(decoder = decodeStream) {
+    const r = await decoder(lghccBytes);
     return r.tiles.reduce((a, t) => a + t.n, 0);
 }
 
@@ -42,20 +61,35 @@ async function decodeSpz() {
     return table.numRows;
 }
 
-const runs = { lghcc: [], spz: [] };
-const counts = { lghcc: await decodeLghcc(), spz: await decodeSpz() }; // the warm-up round
+const decoders = { lghcc: () => decodeLghcc(), spz: decodeSpz };
+if (baseline) decoders.baseline = () => decodeLghcc(baseline.decodeStream);
+const keys = Object.keys(decoders), runs = {}, cpu = {}, counts = {};
+for (const k of keys) { counts[k] = await decoders[k](); runs[k] = []; cpu[k] = []; } // the warm-up round
 for (let i = 0; i < rounds; i++) {
-    for (const k of i % 2 ? ['spz', 'lghcc'] : ['lghcc', 'spz']) {
-        const t0 = performance.now();
-        const n = k === 'lghcc' ? await decodeLghcc() : await decodeSpz();
+    const order = keys.map((_, j) => keys[(i + j) % keys.length]); // each decoder first in turn
+    if (i % 2) order.reverse();
+    for (const k of order) {
+        const c0 = process.cpuUsage(), t0 = performance.now();
+        const n = await decoders[k]();
         runs[k].push((performance.now() - t0) / 1000);
+        const c = process.cpuUsage(c0);
+        cpu[k].push((c.user + c.system) / 1e6);
         if (n !== counts[k]) throw new Error(`${k}: ${n} Gaussians, ${counts[k]} in the warm-up`);
     }
 }
+const sorted = (a) => [...a].sort((x, y) => x - y);
 const stats = (k, bytes) => {
-    const s = [...runs[k]].sort((a, b) => a - b);
-    return { gaussians: counts[k], bytes, bestS: s[0], medianS: s[s.length >> 1], gaussiansPerS: counts[k] / s[0] };
+    const s = sorted(runs[k]), c = sorted(cpu[k]);
+    return { gaussians: counts[k], bytes, bestS: s[0], medianS: s[s.length >> 1], bestCpuS: c[0], medianCpuS: c[c.length >> 1], gaussiansPerS: counts[k] / s[0] };
 };
 const out = { lghcc: stats('lghcc', lghccBytes.length), spz: stats('spz', spzBytes.length), rounds };
+const perCpu = (r) => r.gaussians / r.bestCpuS;
 out.ratio = out.lghcc.gaussiansPerS / out.spz.gaussiansPerS;
+out.cpuRatio = perCpu(out.lghcc) / perCpu(out.spz);
+if (baseline) {
+    out.baseline = stats('baseline', lghccBytes.length);
+    out.baselineRatio = out.baseline.gaussiansPerS / out.spz.gaussiansPerS;
+    out.speedup = out.lghcc.gaussiansPerS / out.baseline.gaussiansPerS;
+    out.cpuSpeedup = perCpu(out.lghcc) / perCpu(out.baseline);
+}
 console.log(JSON.stringify(out));

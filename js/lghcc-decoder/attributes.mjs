@@ -97,8 +97,15 @@ class TileAttributeDecoder {
             this.w.reset();
             // the LoD's neighbours stay in the module's memory while its chunks decode (each chunk resets above them)
             const nb = l > 0 ? lodNeighbours(this.w, lods, l, np.k, this.coordsAddr, bounds, this.n) : null;
-            const S = this.h.rowsPerChunk;
-            for (let m = 0; m * S < rows.count; m++) this.decodeChunk(rows, m * S, Math.min(rows.count - m * S, S), nb);
+            const S = this.h.rowsPerChunk, chunks = Math.ceil(rows.count / S);
+            const size = (m) => Math.min(rows.count - m * S, S);
+            // two chunks at a time (their range decoders interleaved), unless the indices are symbols (decodeIndices
+            // between chunks); ctx.chunkPairs = false: one at a time (a test compares the two)
+            const pairs = this.ctx.chunkPairs !== false && !(this.ctx.stepAdjust && !this.ctx.stepFlags);
+            for (let m = 0; m < chunks; m++) {
+                if (pairs && m + 1 < chunks) { this.decodeChunkPair(rows, m * S, size(m), (m + 1) * S, size(m + 1), nb); m++; }
+                else this.decodeChunk(rows, m * S, size(m), nb);
+            }
             if (nb) this.w.release(nb.mark);
         }
     }
@@ -118,6 +125,46 @@ class TileAttributeDecoder {
         const pCnt = nb ? nb.cnt + lo : alloc(w, nr);
         callWasm(() => w.attributeChunk(pBytes, bytes.length, pRows, nr, pIdx, pCnt, k, pDegrees, degrees.length, pStep, stepData.length),
             (code, a, b) => chunkError(`${STAGE_NAMES[w.errorStage()]} ${i}`, code, a, b, w));
+    }
+
+    /**
+     * Chunks i and i + 1: nrA rows of the LoD's rows from its loA-th on, then nrB from loB (loA + nrA), by the
+     * module's attributeChunkPair; any failure decodes them again one after the other (decodeChunk), whose
+     * error names the first fault in stream order.
+     */
+    decodeChunkPair(rows, loA, nrA, loB, nrB, nb) {
+        const off = this.off, chunk = this.chunk, w = this.w, k = nb ? this.ctx.np.k : 0;
+        const again = (e) => {
+            this.off = off; this.chunk = chunk;
+            this.decodeChunk(rows, loA, nrA, nb);
+            this.decodeChunk(rows, loB, nrB, nb);
+            throw e; // not reached: the same bytes fail again
+        };
+        let parts;
+        try {
+            parts = [this.takeChunk(), this.takeChunk()];
+        } catch (e) {
+            again(e);
+        }
+        w.reset();
+        const at = (arr) => copyIn(w, arr);
+        const args = (c, lo, nr) => [at(c.bytes), c.bytes.length, rowsInModule(w, rows, lo, nr), nr,
+            nb ? nb.idx + 4 * lo * k : alloc(w, 0), nb ? nb.cnt + lo : alloc(w, nr), at(c.degrees), c.degrees.length, at(c.stepData), c.stepData.length];
+        const a = args(parts[0], loA, nrA), b = args(parts[1], loB, nrB);
+        try {
+            w.attributeChunkPair(...a, ...b, k);
+        } catch (e) {
+            if (!(e instanceof WebAssembly.RuntimeError)) throw e;
+            again(e);
+        }
+    }
+
+    /** The next chunk's range-coded parts (decodeChunk's, in stream order): {stepData, degrees, bytes}. */
+    takeChunk() {
+        const i = this.chunk++;
+        const stepData = this.ctx.stepFlags ? this.takeWords(this.h.adjustSize[i], `step-adjustment flags chunk ${i}`) : EMPTY;
+        const degrees = this.ctx.shDegreeUnit ? this.takeWords(this.h.degreeSize[i], `SH-degree chunk ${i}`) : EMPTY;
+        return { stepData, degrees, bytes: this.takeWords(this.h.chunkSize[i], `attribute chunk ${i}`) };
     }
 
     /** The next range-coded chunk of `size` bytes, a whole number of 32-bit words (clause 10.6.6, E35). */

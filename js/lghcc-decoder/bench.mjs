@@ -6,6 +6,7 @@
 import { readFileSync } from 'node:fs';
 import { decodeStream } from './decoder.mjs';
 import { scaleTables } from './tables.mjs';
+import './sha256_node.mjs'; // node:crypto's hash for the tiles' checks
 
 const args = process.argv.slice(2);
 const repeat = args.includes('--repeat') ? Number(args[args.indexOf('--repeat') + 1]) : 3;

@@ -7,6 +7,7 @@
 import { readFileSync } from 'node:fs';
 import { decodeStream, sceneDigestHex } from './decoder.mjs';
 import { BitstreamError, ResourceLimitError } from './errors.mjs';
+import './sha256_node.mjs'; // node:crypto's hash for the tiles' checks
 
 function usage(msg) {
     process.stderr.write(`cli.mjs: ${msg}\nusage: node cli.mjs STREAM [--box=X0,Y0,Z0,X1,Y1,Z1] [--level 1] [--max-memory BYTES]\n`);

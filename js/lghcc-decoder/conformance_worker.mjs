@@ -1,6 +1,7 @@
 // The worker of conformance.mjs: decodes one stream per message, answers {hash, count, tiles} or {error, kind}.
 import { parentPort } from 'node:worker_threads';
 import { decodeStream, sceneDigestHex } from './decoder.mjs';
+import './sha256_node.mjs'; // node:crypto's hash for the tiles' checks
 
 parentPort.on('message', async ({ bytes, box }) => {
     try {

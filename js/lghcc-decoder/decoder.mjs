@@ -205,11 +205,28 @@ export async function decodeStream(bytes, { box = null, maxMemory = DEFAULT_MAX_
     const ctx = parseStream(bytes, { maxMemory });
     const selected = box ? tilesInBox(ctx, box) : ctx.tiles.map((_, i) => i);
     const tiles = [];
+    // Tile t's hash runs (Web Crypto, off this thread) while tile t + 1 decodes; its result is awaited
+    // before t + 1's is kept, and before t + 1's own error is thrown, so the first faulty tile names the error.
+    let prev = null;
+    const settle = async () => {
+        await prev.hashed;
+        tiles.push(prev.r);
+        if (onTile) onTile(prev.t, prev.r, ctx);
+    };
     for (const t of selected) {
-        const r = await decodeTile(ctx, t);
-        tiles.push(r);
-        if (onTile) onTile(t, r, ctx);
+        let r;
+        try {
+            r = await decodeTile(ctx, t, { checkHash: false });
+        } catch (e) {
+            if (prev) await prev.hashed;
+            throw e;
+        }
+        const hashed = checkTileHash(ctx, t, r); // the serialization is handed to Web Crypto now
+        hashed.catch(() => {}); // awaited by settle
+        if (prev) await settle();
+        prev = { t, r, hashed };
     }
+    if (prev) await settle();
     return { ps: ctx.ps, ctx, tiles };
 }
 

@@ -4,6 +4,7 @@ import { decodeWith, SH_C0 } from './decode.mjs';
 import { streamWith } from './stream.mjs';
 export { frustumPlanes } from './stream.mjs';
 import * as threads from './threads_node.mjs';
+import './sha256_node.mjs'; // node:crypto's hash for the tiles' checks
 
 export { BitstreamError, HashMismatchError, LghccError, ResourceLimitError, UnsupportedStreamError } from './errors.mjs';
 export { DEFAULT_MAX_MEMORY } from './decoder.mjs';

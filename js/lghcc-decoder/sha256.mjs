@@ -86,8 +86,14 @@ export function toHex(bytes) {
     return s;
 }
 
-/** One-shot SHA-256 of a byte array: native Web Crypto where present, else this module. */
+let syncSha256 = null;
+
+/** Use fn(bytes) -> 32-byte digest (synchronous, native: sha256_node.mjs's node:crypto) for sha256() instead of Web Crypto. */
+export function useSyncSha256(fn) { syncSha256 = fn; }
+
+/** One-shot SHA-256 of a byte array: a native synchronous hash where one was given, native Web Crypto where present, else this module. */
 export async function sha256(bytes) {
+    if (syncSha256) return syncSha256(bytes);
     const subtle = globalThis.crypto && globalThis.crypto.subtle;
     if (subtle) return new Uint8Array(await subtle.digest('SHA-256', bytes));
     return new Sha256().update(bytes).digest();

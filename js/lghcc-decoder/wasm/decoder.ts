@@ -980,6 +980,128 @@ export function attributeChunk(p: usize, nbytes: i32, rows: usize, nr: i32, idx:
 }
 
 /**
+ * Two chunks of one LoD (A, then B: attributeChunk's arguments of each) decoded as attributeChunk decodes
+ * them one after the other, with their symbols' range decoders interleaved (symbolPair): the rows of a
+ * LoD take their neighbours from coarser LoDs only (11.7.2), so B's flags, means and levels do not wait
+ * for A's values, and the two serial chains of the range decoders overlap in the processor. A failure
+ * traps with no error order between A and B: the caller decodes them again one after the other, which
+ * names the first fault (attributes.mjs).
+ */
+export function attributeChunkPair(pa: usize, nba: i32, rowsA: usize, nrA: i32, idxA: usize, cntA: usize, dpa: usize, dba: i32, spa: usize, sba: i32,
+    pb: usize, nbb: i32, rowsB: usize, nrB: i32, idxB: usize, cntB: usize, dpb: usize, dbb: i32, spb: usize, sbb: i32, k: i32): void {
+    err = 0;
+    const M = aM;
+    chunkFlags(rowsA, nrA, idxA, cntA, k, dpa, dba, spa, sba);
+    chunkFlags(rowsB, nrB, idxB, cntB, k, dpb, dbb, spb, sbb);
+    stage = STAGE_SYMBOLS;
+    const meanA = reserve((nrA * M) << 3), levelA = reserve(nrA * M), resA = reserve((nrA * M) << 3);
+    const meanB = reserve((nrB * M) << 3), levelB = reserve(nrB * M), resB = reserve((nrB * M) << 3);
+    rowMeans(rowsA, nrA, idxA, cntA, k, meanA, levelA);
+    rowMeans(rowsB, nrB, idxB, cntB, k, meanB, levelB);
+    const nsA = aDeg ? codedLevels(rowsA, nrA, levelA) : nrA * M, nsB = aDeg ? codedLevels(rowsB, nrB, levelB) : nrB * M;
+    symbolPair(pa, nba, levelA, nsA, resA, pb, nbb, levelB, nsB, resB);
+    chunkValues(rowsA, nrA, meanA, resA);
+    chunkValues(rowsB, nrB, meanB, resB);
+}
+
+/** A chunk's step-adjustment flags and SH-degree flags, when the stream has them (attributeChunk's first steps). */
+function chunkFlags(rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, dp: usize, dbytes: i32, sp: usize, sbytes: i32): void {
+    if (aStepFlags) { stage = STAGE_STEP_FLAGS; decodeFlags(sp, sbytes, rows, nr, idx, cnt, k, aAdj, aMaxStep, aStepFreq); }
+    if (aDeg) { stage = STAGE_FLAGS; decodeFlags(dp, dbytes, rows, nr, idx, cnt, k, aDeg, aD, aFreq); }
+}
+
+/** A chunk's values q from its means and residuals (attributeChunk's last step). */
+function chunkValues(rows: usize, nr: i32, mean: usize, res: usize): void {
+    const M = aM;
+    if (aDeg) for (let r = 0, j = 0; r < nr; r++) j = rowValuesCoded(i32At(rows, r), r * M, j, mean, res);
+    else for (let r = 0; r < nr; r++) rowValues(i32At(rows, r), r * M, mean, res);
+}
+
+/**
+ * The positions 0 .. n - 1 of residuals of levels lv (u8 [n]) grouped by level, in increasing level and
+ * position (symbolChunk's order) to order (i32 [n]), and their levels in that order to sorted (u8 [n]).
+ */
+function levelOrder(lv: usize, n: i32, order: usize, sorted: usize): void {
+    const count = alloc(65 << 2);
+    for (let j = 0; j < n; j++) { const c = u8At(lv, j) + 1; setI32(count, c, i32At(count, c) + 1); }
+    for (let i = 0; i < 64; i++) setI32(count, i + 1, i32At(count, i + 1) + i32At(count, i));
+    for (let j = 0; j < n; j++) { const c = u8At(lv, j), o = i32At(count, c); setI32(order, o, j); setU8(sorted, o, c); setI32(count, c, o + 1); }
+}
+
+@inline function wordOf(bytes: usize, words: i32, pos: i32): u64 { return pos < words ? <u64>load<u32>(bytes + (<usize>pos << 2)) : 0; }
+
+/**
+ * symbolChunk (wideOnly) of two chunks A and B: their bins a symbol of A, a symbol of B in turn while
+ * both have symbols left (the decoders' states in locals), then the rest of the longer one's
+ * (binsFrom), then each chunk's escapes and exhaustion check.
+ */
+function symbolPair(pa: usize, nba: i32, lva: usize, na: i32, wa: usize, pb: usize, nbb: i32, lvb: usize, nb: i32, wb: usize): void {
+    const oa = reserve(na << 2), sa = reserve(na), ea = alloc(na), ob = reserve(nb << 2), sb = reserve(nb), eb = alloc(nb);
+    levelOrder(lva, na, oa, sa); levelOrder(lvb, nb, ob, sb);
+    rangeStart(pb, nbb);
+    let Rb = rR, Db = rD, posB = rPos, neb = 0;
+    rangeStart(pa, nba);
+    let Ra = rR, Da = rD, posA = rPos, nea = 0;
+    const wordsA = nba >> 2, wordsB = nbb >> 2, m = min(na, nb);
+    for (let t = 0; t < m; t++) {
+        { // A's symbol t
+            const lev = u8At(sa, t), L = i32At(lvHalf, lev);
+            const cum = lvCum + (<usize>i32At(lvOff, lev) << 2), lut = lvLut + (<usize>(lev * LUT_SIZE) << 1);
+            const scale = Ra >> 24, q = Da / scale;
+            if (q >= 0x1000000) fail(ERR_RANGE, 0, 0);
+            let b = <i32>load<u16>(lut + (<usize>(q >> LUT_SHIFT) << 1));
+            while (<u64>i32At(cum, b + 1) <= q) b++;
+            const c = <u64>i32At(cum, b);
+            Ra = (<u64>i32At(cum, b + 1) - c) * scale; Da -= c * scale;
+            if (Ra < 0x100000000) { Ra <<= 32; Da = (Da << 32) | wordOf(pa, wordsA, posA); posA += <i32>(posA < wordsA); }
+            const j = i32At(oa, t);
+            if (b == 2 * L + 1) { setU8(ea, j, 1); nea++; } else setI64(wa, j, <i64>(b - L));
+        }
+        { // B's symbol t
+            const lev = u8At(sb, t), L = i32At(lvHalf, lev);
+            const cum = lvCum + (<usize>i32At(lvOff, lev) << 2), lut = lvLut + (<usize>(lev * LUT_SIZE) << 1);
+            const scale = Rb >> 24, q = Db / scale;
+            if (q >= 0x1000000) fail(ERR_RANGE, 0, 0);
+            let b = <i32>load<u16>(lut + (<usize>(q >> LUT_SHIFT) << 1));
+            while (<u64>i32At(cum, b + 1) <= q) b++;
+            const c = <u64>i32At(cum, b);
+            Rb = (<u64>i32At(cum, b + 1) - c) * scale; Db -= c * scale;
+            if (Rb < 0x100000000) { Rb <<= 32; Db = (Db << 32) | wordOf(pb, wordsB, posB); posB += <i32>(posB < wordsB); }
+            const j = i32At(ob, t);
+            if (b == 2 * L + 1) { setU8(eb, j, 1); neb++; } else setI64(wb, j, <i64>(b - L));
+        }
+    }
+    rBytes = pa; rWords = wordsA; rR = Ra; rD = Da; rPos = posA;
+    nea += binsFrom(m, na, oa, sa, wa, ea);
+    if (nea) decodeEscapes(lva, na, 0, wa, ea, nea, true);
+    checkExhausted();
+    rBytes = pb; rWords = wordsB; rR = Rb; rD = Db; rPos = posB;
+    neb += binsFrom(m, nb, ob, sb, wb, eb);
+    if (neb) decodeEscapes(lvb, nb, 0, wb, eb, neb, true);
+    checkExhausted();
+}
+
+/** The bins t0 .. n - 1 of symbolPair's order (order, sorted) with the decoder's state in the globals; returns their escapes. */
+function binsFrom(t0: i32, n: i32, order: usize, sorted: usize, wide: usize, esc: usize): i32 {
+    let R = rR, D = rD, pos = rPos, nesc = 0;
+    for (let t = t0; t < n; t++) {
+        const lev = u8At(sorted, t), L = i32At(lvHalf, lev);
+        const cum = lvCum + (<usize>i32At(lvOff, lev) << 2), lut = lvLut + (<usize>(lev * LUT_SIZE) << 1);
+        const scale = R >> 24, q = D / scale;
+        if (q >= 0x1000000) fail(ERR_RANGE, 0, 0);
+        let b = <i32>load<u16>(lut + (<usize>(q >> LUT_SHIFT) << 1));
+        while (<u64>i32At(cum, b + 1) <= q) b++;
+        const c = <u64>i32At(cum, b);
+        R = (<u64>i32At(cum, b + 1) - c) * scale; D -= c * scale;
+        if (R < 0x100000000) { R <<= 32; D = (D << 32) | wordAt(pos); pos += <i32>(pos < rWords); }
+        const j = i32At(order, t);
+        if (b == 2 * L + 1) { setU8(esc, j, 1); nesc++; } else setI64(wide, j, <i64>(b - L));
+    }
+    rR = R; rD = D; rPos = pos;
+    return nesc;
+}
+
+/**
  * q of one row (11.4 step 3, 11.6): residual + mean + prediction from the channels before, each
  * checked against |q| <= 2^40 as it is computed. Exact in i64: residuals below 2^62, means below
  * 2^42 and at most M - 1 terms of |weight| <= 2^15 times |q - mean| < 2^43. Without the SH-degree
