@@ -157,7 +157,7 @@ class WorkerStream:
 _WORKER_STATE: WorkerStream | None = None
 
 
-def init_tile_worker(state: WorkerStream) -> None:
+def init_tile_worker(state: WorkerStream | None) -> None:
     global _WORKER_STATE
     _WORKER_STATE = state
     torch = sys.modules.get("torch")  # loaded by the parent where the stream's tools need it, else not at all
