@@ -138,7 +138,7 @@ def test_sh3_content_of_the_memory_scenes_is_playbots_and_deterministic():
 def test_pairwise_total_is_numpys_sum_to_the_last_bit(size, monkeypatch):
     """The whole-scene ideal bits summed part by part are np.sum's (a neighbour-or-prior choice
     compares them: a different order could flip a near tie)."""
-    from lghcc.common.entropy import symbol_coder as sc
+    from lghcc.encoder.context import code_lengths as sc
 
     x = np.random.default_rng(size).random(size) * 10.0 ** np.random.default_rng(1).uniform(-3, 3, size)
     monkeypatch.setattr(sc, "SUM_BLOCK_VALUES", 1 << 10)
@@ -149,7 +149,7 @@ def test_pairwise_total_is_numpys_sum_to_the_last_bit(size, monkeypatch):
 
 
 def test_ideal_bits_by_rows_are_the_whole_arrays():
-    from lghcc.common.entropy.symbol_coder import ideal_code_length_bits, ideal_code_length_bits_by_rows
+    from lghcc.encoder.context.code_lengths import ideal_code_length_bits, ideal_code_length_bits_by_rows
 
     rng = np.random.default_rng(3)
     r = rng.integers(-40, 40, size=(20000, 30)) * rng.integers(1, 200, size=(20000, 30))
@@ -163,7 +163,8 @@ def test_ideal_bits_by_rows_are_the_whole_arrays():
 
 def test_residual_histograms_give_each_groups_best_level_and_bits():
     """Gathered part by part, tabled and far residuals alike: best_level_and_bits of each group's all."""
-    from lghcc.common.entropy.symbol_coder import ResidualHistograms, best_level_and_bits, level_and_bits
+    from lghcc.common.entropy.symbol_coder import best_level_and_bits, level_and_bits
+    from lghcc.encoder.context.code_lengths import ResidualHistograms
 
     rng = np.random.default_rng(5)
     group, r = rng.integers(0, 4, size=9000), rng.integers(-300, 300, size=9000)
