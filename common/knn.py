@@ -62,7 +62,7 @@ def set_candidate_threads(n: int) -> None:
 def candidate_generator():
     """The candidate generator's tree class (scipy's cKDTree), imported on first use: a decoder
     loads it before forking its workers, which then share it instead of each importing it."""
-    from scipy.spatial import cKDTree
+    from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  (scipy's stubs omit it)
 
     return cKDTree
 

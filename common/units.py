@@ -368,11 +368,11 @@ class NeighbourPredictionUnit(SyntaxStructure):
     neighbour_mean_flag: list = field(default_factory=list)
     bucket_level: list = field(default_factory=list)
     # context (clause 7.3.13): the stream's step_adjust unit, None without one (not a syntax element)
-    step_adjust: object = None
+    step_adjust: StepAdjustUnit | None = None
     # context (clause 7.3.14): the stream's sh_degree unit, None without one (not a syntax element)
-    sh_degree_unit: object = None
+    sh_degree_unit: ShDegreeUnit | None = None
     # context (clause 7.3.16): the stream's step_adjust_flags unit, None without one (not a syntax element)
-    step_flags: object = None
+    step_flags: StepAdjustFlagsUnit | None = None
 
     def syntax(self, v: SyntaxVisitor) -> None:
         v.u(4, self, "num_lods_minus1", hi=MAX_LOD_LEVELS - 1)

@@ -43,14 +43,14 @@ from __future__ import annotations
 import dataclasses
 import re
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable, ClassVar, Protocol
+from typing import TYPE_CHECKING, Callable, ClassVar, Protocol, Sequence
 
 import numpy as np
 
 from ..common import attributes as attr
 from ..common.attributes import ChannelLayout, GaussianLayout
 from ..common.container import AncillaryUnitType, Container, DataUnit, UnitType, read_container
-from ..common.context.models import level2_coding_params, read_context_model
+from ..common.context.models import Level2CodingParams, level2_coding_params, read_context_model
 from ..common.errors import BitstreamError, HashMismatchError, UnsupportedStreamError, UsageError
 from ..common.geometry import decode_geometry
 from ..common.hashing import digest_of
@@ -264,8 +264,10 @@ def read_context_model_unit(context_unit: DataUnit | None, ps: ParameterSet, lay
         return None
     if not ps.hierarchy_enabled_flag:
         raise BitstreamError("a context model unit in a stream without the hierarchy")
-    model_id, params = read_context_model(context_unit.payload, layout, entries)
-    return GgconvContext(params) if model_id == CONTEXT_GGCONV else ParentMlpContext(params)
+    _, params = read_context_model(context_unit.payload, layout, entries)
+    from ..common.context.ggconv import GGConvParams  # loaded by read_context_model (torch with it)
+
+    return GgconvContext(params) if isinstance(params, GGConvParams) else ParentMlpContext(params)
 
 
 def read_neighbour_prediction_unit(unit: DataUnit | None, ps: ParameterSet, layout: Layout, entries: Trace,
@@ -451,7 +453,7 @@ class DecodedAttributes:
 def decode_predicted_attribute_units(attribute_units: list[DataUnit], layout: Layout, steps: np.ndarray,
                                     coords: np.ndarray, unit: NeighbourPredictionUnit, entries: Trace,
                                     checks: UnitChecks | None = None,
-                                    on_rows: Callable[[int], None] | None = None) -> DecodedAttributes:
+                                    on_rows: Callable[[int], object] | None = None) -> DecodedAttributes:
     """The attribute unit of a tile of a stream with a neighbour_prediction unit (clause 11.7):
     exactly one per tile."""
     n = coords.shape[0]
@@ -467,20 +469,23 @@ def decode_predicted_attribute_units(attribute_units: list[DataUnit], layout: La
     return DecodedAttributes(values, None, None)
 
 
-def hierarchy_levels(coords: np.ndarray, ps: ParameterSet) -> tuple[Hierarchy | None,
-                                                                     list[tuple[int, np.ndarray | None]]]:
+Levels = Sequence[tuple[int, "np.ndarray | None"]]  # (attribute level, its rows in the tile; None: every row)
+
+
+def hierarchy_levels(coords: np.ndarray, ps: ParameterSet) -> tuple[Hierarchy | None, Levels]:
     """13.2 step 2: the tile's hierarchy (None without one) and its levels as (level, rows):
     level 1, then level 2 when it is not empty; without the hierarchy one level of every row."""
     if not ps.hierarchy_enabled_flag:
         return None, [(LEVEL_ALL, None)]
     hier = build_hierarchy(coords, ps.coarse_voxel_scale)
-    return hier, [(LEVEL_1, hier.level1_idx)] + ([(LEVEL_2, hier.level2_idx)] if hier.num_level2 else [])
+    levels: Levels = [(LEVEL_1, hier.level1_idx)] + ([(LEVEL_2, hier.level2_idx)] if hier.num_level2 else [])
+    return hier, levels
 
 
 def decode_attribute_units(attribute_units: list[DataUnit], layout: Layout, steps: np.ndarray, coords: np.ndarray,
                            ps: ParameterSet, context_model: AttributeContext, entries: Trace,
                            checks: UnitChecks | None = None, max_level: int = LEVEL_2,
-                           on_rows: Callable[[int], None] | None = None) -> DecodedAttributes:
+                           on_rows: Callable[[int], object] | None = None) -> DecodedAttributes:
     """Decode the attribute units of a tile (clause 13.2 steps 2-3): level 1 (or every point) with
     its per-channel prior, then level 2 with the context model when there is one; a tile whose
     level 2 is empty has one unit. ``ps``: the parameter set (hierarchy flag and coarse voxel
@@ -501,7 +506,7 @@ def decode_attribute_units(attribute_units: list[DataUnit], layout: Layout, step
     mask = np.ones((n, layout.num_offsets), dtype=bool) if layout.offset_mask_present else None
     q_level1 = None
 
-    def level2_context(model_id: int) -> attr.CodingParams:
+    def level2_context(model_id: int) -> Level2CodingParams:
         if context_model is None or model_id != context_model.model_id:
             raise BitstreamError(f"the level-2 attribute unit uses context model {model_id}, but the stream's "
                                  "context model unit " + ("is missing" if context_model is None else
@@ -547,7 +552,7 @@ class DecodedTile:
 def decode_tile(tile: TileUnits, t: int, ps: ParameterSet, layout: Layout, context_model: AttributeContext,
                 mlps: dict[str, RenderMLP], *, verify_hash: bool = True, entries: Trace = None,
                 checks: UnitChecks | None = None, max_level: int = LEVEL_2,
-                on_rows: Callable[[int], None] | None = None) -> DecodedTile:
+                on_rows: Callable[[int], object] | None = None) -> DecodedTile:
     """Decode tile ``t`` on its own (clause 13.2): geometry, attribute units, and its hash (the
     hash of the tile's points as a scene). ``max_level`` 1: only the level-1 points (the
     preview; no hash can be checked)."""

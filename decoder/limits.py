@@ -189,7 +189,7 @@ class MemoryPlan:
 
     def check(self, persistent: list[Need], stages: list[Need]) -> int:
         need, largest = self.total(persistent, stages)
-        if self.max_memory is not None and need > self.max_memory:
+        if self.max_memory is not None and need > self.max_memory and largest is not None:
             raise ResourceLimitError(
                 f"decoding this stream needs about {_fmt(need)} of memory, more than the allowed {_fmt(self.max_memory)} "
                 f"(--max-memory); the largest part is {largest.what} = {_fmt(largest.bytes)}")

@@ -60,7 +60,7 @@ def _class_model():
 
 # --- input checks ------------------------------------------------------------------------
 
-def _levels(levels: np.ndarray, shape: tuple | None = None, dtype=np.uint8) -> np.ndarray:
+def _levels(levels: np.ndarray, shape: tuple | None = None, dtype: type[np.integer] = np.uint8) -> np.ndarray:
     lv = np.asarray(levels)
     if shape is not None and lv.shape != shape:
         raise ValueError(f"levels have shape {lv.shape}, residuals {shape}")
