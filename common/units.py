@@ -297,7 +297,8 @@ class AttributeUnitHeader(SyntaxStructure):
     def num_chunks(self) -> int:
         """NumChunks: ceil(NumRows / rows_per_chunk), or with LoDs the sum of that over the LoDs'
         row counts (clause 7.3.12), computed without materializing the rows."""
-        rows, rpc = self.num_rows_minus1 + 1, self.rows_per_chunk
+        rows = self.num_rows if self.num_rows_minus1 is None else self.num_rows_minus1 + 1
+        rpc = self.rows_per_chunk
         if not self.num_lods:
             return -(-rows // rpc)
         return sum(-(-size // rpc) for size in lod_sizes_of(rows, self.num_lods))
