@@ -88,12 +88,12 @@ def test_rdoq_blocks_do_not_change_the_stream(monkeypatch):
 def test_coding_blocks_do_not_change_the_stream(monkeypatch):
     """The neighbour coding's blocks of rows (each row's values its own, histograms' counts the same
     however cut, ideal bits summed along numpy's cuts): any block size, the same stream."""
-    from lghcc.common.entropy import symbol_coder
+    from lghcc.encoder.context import code_lengths
     from lghcc.encoder.stream import neighbour_coding, prediction
 
     for module in (neighbour_coding, prediction):
         monkeypatch.setattr(module, "CODING_BLOCK_ROWS", 97)
-    monkeypatch.setattr(symbol_coder, "SUM_BLOCK_VALUES", 1000)
+    monkeypatch.setattr(code_lengths, "SUM_BLOCK_VALUES", 1000)
     for tile_points in (0, 512):  # (with tiles, the neighbour-or-prior choice compares ideal bits)
         assert hashlib.sha256(_fast_stream(3, tile_points)).hexdigest() == PINNED[3, tile_points]
     test_more_streams_are_those_before_the_coding_by_block("low", 3, 0)
@@ -215,7 +215,7 @@ def test_blocks_do_not_change_a_stream_with_the_sh_transform(monkeypatch):
     still change no byte: the stream at small blocks is the stream at the default ones, and it uses
     the transform (its sh_transform unit is in the stream)."""
     from lghcc.common.container import UnitType, read_container
-    from lghcc.common.entropy import symbol_coder
+    from lghcc.encoder.context import code_lengths
     from lghcc.encoder.stream import neighbour_coding, prediction
 
     whole = _fast_stream(3, 512, sh_transform=True)
@@ -223,6 +223,6 @@ def test_blocks_do_not_change_a_stream_with_the_sh_transform(monkeypatch):
     monkeypatch.setattr(rdoq, "RDOQ_BLOCK_ROWS", 97)
     for module in (neighbour_coding, prediction):
         monkeypatch.setattr(module, "CODING_BLOCK_ROWS", 97)
-    monkeypatch.setattr(symbol_coder, "SUM_BLOCK_VALUES", 1000)
+    monkeypatch.setattr(code_lengths, "SUM_BLOCK_VALUES", 1000)
     assert _fast_stream(3, 512, sh_transform=True) == whole
 
