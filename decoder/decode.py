@@ -14,9 +14,9 @@ import multiprocessing
 import os
 import sys
 import time
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -35,7 +35,7 @@ from ..common.syntax import TraceEntry
 from ..common.tiles import Box
 from ..common.units import LEVEL_1, LEVEL_2, DecodedSceneHashUnit, GaussianParameterSet, NeighbourPredictionUnit, SourceInfo
 from . import core
-from .core import (NO_PREVIEW, AttributeContext, DecodedAttributes, DecodedTile, GgconvContext, Layout,  # noqa: F401
+from .core import (NO_PREVIEW, AttributeContext, DecodedAttributes, DecodedTile, GgconvContext, Layout,
                    ParameterSet, ParsedStream, TileUnits, organize_units, read_source_info, selected_tiles, tiles_of)
 from .jobs import PREVIEW_VALUE_SHARE, WorkerPlan, plan_workers, tile_seconds
 from .limits import DEFAULT_MAX_MEMORY, MemoryPlan
