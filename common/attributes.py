@@ -370,11 +370,10 @@ class CodingParams:
 
     def rows(self, lo: int, hi: int, num_channels: int) -> "CodingParams":
         """The parameters of rows lo..hi-1 (arrays with one row apply to every row)."""
-        def take(a):
-            if a is None:
-                return None
+        def take(a: np.ndarray) -> np.ndarray:
             return np.broadcast_to(a, (hi - lo, num_channels)) if a.shape[0] == 1 else a[lo:hi]
-        return CodingParams(take(self.mean), take(self.level), take(self.step_adjust))
+        return CodingParams(take(self.mean), take(self.level),
+                            None if self.step_adjust is None else take(self.step_adjust))
 
 
 def effective_steps(steps: np.ndarray, step_adjust: np.ndarray | None) -> np.ndarray:
@@ -478,12 +477,14 @@ def write_attribute_unit(h: AttributeUnitHeader, layout, q: np.ndarray, mask: np
         raise ValueError("cross-channel prediction in a scene that does not allow it")
     if h.channel_prediction_allowed:
         prediction.to_header(h)
+    if h.offset_mask_present and mask is None:
+        raise ValueError("an attribute unit with offset masks needs the mask")
     models = mask_models(h.mask_live_prob) if h.offset_mask_present else None
     chunks: list[bytes] = []
     h.mask_chunk_size, h.chunk_size = [], []
     for i in range(h.num_chunks):
         lo, hi = i * h.rows_per_chunk, min(h.num_rows, (i + 1) * h.rows_per_chunk)
-        if models is not None:
+        if models is not None and mask is not None:
             chunks.append(encode_mask_chunk(mask[lo:hi], models))
             h.mask_chunk_size.append(len(chunks[-1]))
         live = layout.live_channels(None if mask is None else mask[lo:hi], hi - lo)
@@ -512,6 +513,7 @@ def read_attribute_unit(payload: bytes, layout, steps: np.ndarray, num_rows: int
                                   channel_prediction_allowed=layout.channel_prediction_allowed, num_rows=num_rows)
     if h.attribute_level != level:
         raise BitstreamError(f"attribute unit: attribute_level {h.attribute_level} where level {level} is expected")
+    assert h.num_rows_minus1 is not None  # parsed
     if h.num_rows_minus1 + 1 != num_rows:  # clause 8.3 rule 8
         raise BitstreamError(f"{what}: num_rows_minus1 + 1 = {h.num_rows_minus1 + 1}, but the tile's level has "
                              f"{num_rows} rows")
@@ -529,7 +531,7 @@ def read_attribute_unit(payload: bytes, layout, steps: np.ndarray, num_rows: int
     q_all = np.zeros((num_rows, layout.num_channels), dtype=np.int64) if keep_q else None
     for i in range(h.num_chunks):
         lo, hi = i * h.rows_per_chunk, min(num_rows, (i + 1) * h.rows_per_chunk)
-        if models is not None:
+        if models is not None and mask is not None:
             mask[lo:hi] = decode_mask_chunk(next(pieces), hi - lo, models, f"attribute mask chunk {i}")
         p = params.rows(lo, hi, layout.num_channels)
         q = decode_chunk_values(next(pieces), h, layout, p, prediction, None if mask is None else mask[lo:hi],
@@ -538,7 +540,7 @@ def read_attribute_unit(payload: bytes, layout, steps: np.ndarray, num_rows: int
         reconstruct_chunk(q, steps, p.step_adjust, target, i, level, layout)
         if rows is not None:
             values_out[rows[lo:hi]] = target
-        if keep_q:
+        if q_all is not None:
             q_all[lo:hi] = q
         if on_chunk is not None:
             on_chunk(hi - lo)

@@ -111,7 +111,7 @@ CONTAINER_HEADER_BYTES = 8
 # A stream's version_minor is the lowest whose tools it uses (clause 6.2): a stream without a
 # step_adjust unit is a version 1.1 stream, which a decoder of version 1.1 decodes (and one
 # without an sh_degree unit a version 1.2 stream at most).
-FIRST_MINOR_OF_UNIT = {UnitType.STEP_ADJUST: 2, UnitType.SH_DEGREE: 3, UnitType.ROTATION_LENGTH: 4,
+FIRST_MINOR_OF_UNIT: dict[int, int] = {UnitType.STEP_ADJUST: 2, UnitType.SH_DEGREE: 3, UnitType.ROTATION_LENGTH: 4,
                        UnitType.STEP_ADJUST_FLAGS: 5, UnitType.SH_TRANSFORM: 6}
 
 

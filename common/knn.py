@@ -62,7 +62,7 @@ def set_candidate_threads(n: int) -> None:
 def candidate_generator():
     """The candidate generator's tree class (scipy's cKDTree), imported on first use: a decoder
     loads it before forking its workers, which then share it instead of each importing it."""
-    from scipy.spatial import cKDTree
+    from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  (scipy's stubs omit it)
 
     return cKDTree
 
@@ -89,7 +89,7 @@ def check_extent(*arrays: np.ndarray) -> int:
         amax = [int(v) for v in a.max(axis=0)]
         lo = amin if lo is None else [min(x, y) for x, y in zip(lo, amin)]
         hi = amax if hi is None else [max(x, y) for x, y in zip(hi, amax)]
-    if lo is None:
+    if lo is None or hi is None:
         return 0
     extent = max(h - l for h, l in zip(hi, lo))  # Python ints: no overflow here
     if extent > MAX_EXTENT:
@@ -204,6 +204,7 @@ class _CandidateSearch:
         for a in range(3):
             d = self.cols[a][cidx] - self.qcols[a][rows][:, None]
             d2 = d * d if d2 is None else d2 + d * d
+        assert d2 is not None  # three axes
         if anymiss:
             d2[missing] = -1
         ok = d2 <= self.radius_sq

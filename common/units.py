@@ -297,7 +297,8 @@ class AttributeUnitHeader(SyntaxStructure):
     def num_chunks(self) -> int:
         """NumChunks: ceil(NumRows / rows_per_chunk), or with LoDs the sum of that over the LoDs'
         row counts (clause 7.3.12), computed without materializing the rows."""
-        rows, rpc = self.num_rows_minus1 + 1, self.rows_per_chunk
+        rows = self.num_rows if self.num_rows_minus1 is None else self.num_rows_minus1 + 1
+        rpc = self.rows_per_chunk
         if not self.num_lods:
             return -(-rows // rpc)
         return sum(-(-size // rpc) for size in lod_sizes_of(rows, self.num_lods))
@@ -368,11 +369,11 @@ class NeighbourPredictionUnit(SyntaxStructure):
     neighbour_mean_flag: list = field(default_factory=list)
     bucket_level: list = field(default_factory=list)
     # context (clause 7.3.13): the stream's step_adjust unit, None without one (not a syntax element)
-    step_adjust: object = None
+    step_adjust: StepAdjustUnit | None = None
     # context (clause 7.3.14): the stream's sh_degree unit, None without one (not a syntax element)
-    sh_degree_unit: object = None
+    sh_degree_unit: ShDegreeUnit | None = None
     # context (clause 7.3.16): the stream's step_adjust_flags unit, None without one (not a syntax element)
-    step_flags: object = None
+    step_flags: StepAdjustFlagsUnit | None = None
 
     def syntax(self, v: SyntaxVisitor) -> None:
         v.u(4, self, "num_lods_minus1", hi=MAX_LOD_LEVELS - 1)

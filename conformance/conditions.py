@@ -149,12 +149,12 @@ def _child(conn, mutation_id: str, data: bytes) -> None:
 
         torch.set_num_threads(1)
         from ..common.hashing import digest_of
-        from ..decoder import decode
+        from ..decoder import core, decode
         from . import mutations
 
         mutations.apply(next(m for m in mutations.MUTATIONS if m.id == mutation_id))
         digests: list[bytes] = []
-        decode._check_scene_hash = lambda scene, scene_hash, where="": digests.append(digest_of(scene))
+        core.check_tile_hash = lambda scene, scene_hash, where="": digests.append(digest_of(scene))
         try:
             decode.decode_stream(data)
         except Exception as e:  # noqa: BLE001 - the mutant's verdict on the stream, reported as such

@@ -96,7 +96,7 @@ UNITS = "lghcc.common.units"
 SYNTAX = "lghcc.common.syntax"
 RENDER = "lghcc.common.render_model"
 CONTAINER = "lghcc.common.container"
-DECODE = "lghcc.decoder.decode"
+DECODE = "lghcc.decoder.core"  # the decoding process of clause 13 (decoder/decode.py drives it)
 HASHING = "lghcc.common.hashing"
 TILES = "lghcc.common.tiles"
 NEIGHBOUR = "lghcc.common.neighbour_prediction"
@@ -598,7 +598,7 @@ MUTATIONS: list[Mutation] = [
       "a context-model unit without the hierarchy accepted (ignored)",
       ("    if not ps.hierarchy_enabled_flag:\n        raise BitstreamError(\"a context model unit",
        "    if False:\n        raise BitstreamError(\"a context model unit")),
-    M("decode.empty_level2_two_units", "decode", f"{DECODE}:decode_attribute_units",
+    M("decode.empty_level2_two_units", "decode", f"{DECODE}:hierarchy_levels",
       "a tile with an empty level 2 expected to carry a level-2 unit anyway (version 0's rule)",
       ("+ ([(LEVEL_2, hier.level2_idx)] if hier.num_level2 else [])", "+ [(LEVEL_2, hier.level2_idx)]")),
     # --- tiles (version 1: clauses 7.3.11, 13.2)
@@ -650,10 +650,10 @@ MUTATIONS: list[Mutation] = [
       ("if u.offset != at:", "if False:")),
     M("decode.model_id_mismatch", "decode", f"{DECODE}:decode_attribute_units",
       "the level-2 unit's context_model_id not compared with the unit's model",
-      ("if context_model is None or model_id != context_model[0]:", "if context_model is None:")),
-    M("decode.no_hash_check", "decode", f"{DECODE}:_check_scene_hash", "the decoded scene hash not compared",
+      ("if context_model is None or model_id != context_model.model_id:", "if context_model is None:")),
+    M("decode.no_hash_check", "decode", f"{DECODE}:check_tile_hash", "the decoded scene hash not compared",
       ("if digest != scene_hash:", "if False:")),
-    M("decode.attribute_limit", "decode", f"{DECODE}:_check_limits", "N * M above 2^31 accepted",
+    M("decode.attribute_limit", "decode", f"{DECODE}:check_level_limits", "N * M above 2^31 accepted",
       ("if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:", "if False:")),
 
     # --- explicit-Gaussian scenes (format 0.2): gaussian_parameter_set (clause 7.3.9), the Gaussian

@@ -189,7 +189,7 @@ class MemoryPlan:
 
     def check(self, persistent: list[Need], stages: list[Need]) -> int:
         need, largest = self.total(persistent, stages)
-        if self.max_memory is not None and need > self.max_memory:
+        if self.max_memory is not None and need > self.max_memory and largest is not None:
             raise ResourceLimitError(
                 f"decoding this stream needs about {_fmt(need)} of memory, more than the allowed {_fmt(self.max_memory)} "
                 f"(--max-memory); the largest part is {largest.what} = {_fmt(largest.bytes)}")
@@ -199,7 +199,7 @@ class MemoryPlan:
                              num_level1: int | None = None) -> int:
         """Before decoding an attribute unit of ``num_rows`` rows: its chunk working set (from its
         header's rows_per_chunk), the level-1 values kept for a context model, and the context
-        model's working set at level 2 (``context_model``: (model_id, params) as decoded;
+        model's working set at level 2 (``context_model``: the stream's, decoder/core.py;
         ``num_level1``: N1). Returns the bytes needed; ResourceLimitError beyond the bound. A
         header that does not parse is left to the decoding process to report."""
         from ..common.units import LEVEL_1, LEVEL_2, AttributeUnitHeader
@@ -262,8 +262,8 @@ def context_working_set(context_model, n1: int, n2: int, m: int) -> list[Need]:
     candidate blocks, then the per-block edge tensors)."""
     from ..common.units import CONTEXT_GGCONV
 
-    model_id, p = context_model
-    if model_id != CONTEXT_GGCONV:
+    p = context_model.params
+    if context_model.model_id != CONTEXT_GGCONV:
         widths = [layer.fan_out for layer in p.head_mlp.layers]
         rows = min(n2, PARENT_MLP_BLOCK_ROWS)
         per_row = F64 * (3 + m) * 3 + 2 * F64 * sum(widths) + 4 * F64 * m

@@ -26,14 +26,15 @@ def _package_files() -> list[Path]:
     return files
 
 
-def _module_name(path: Path) -> str:
-    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+def _module_name(path: Path, root: Path = ROOT) -> str:
+    parts = list(path.relative_to(root).with_suffix("").parts)
     return ".".join(["lghcc"] + (parts[:-1] if parts[-1] == "__init__" else parts))
 
 
-def _imports(path: Path) -> set[str]:
-    """Absolute names of the modules a file imports (relative imports resolved)."""
-    package = _module_name(path) if path.name == "__init__.py" else _module_name(path).rsplit(".", 1)[0]
+def _imports(path: Path, root: Path = ROOT) -> set[str]:
+    """Absolute names of the modules a file imports (relative imports resolved; ``root``: the package's)."""
+    module = _module_name(path, root)
+    package = module if path.name == "__init__.py" else module.rsplit(".", 1)[0]
     names = set()
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.Import):
@@ -76,6 +77,44 @@ def test_common_is_normative_only():
                                                   and not n.startswith("lghcc.common"))
                  for f in (ROOT / "common").rglob("*.py")}
     assert not {k: v for k, v in offenders.items() if v}
+
+
+# The normative decoder (docs/architecture.md): clause 13's decoding process, below its driver
+# decoder/decode.py. Of the package it imports common/ alone; beside it the standard library, numpy and
+# torch (common/'s context models), but nothing that runs processes or threads: the driver does that.
+DECODER_CORE = ROOT / "decoder" / "core.py"
+CORE_THIRD_PARTY = {"numpy", "torch"}
+CORE_FORBIDDEN_STDLIB = {"multiprocessing", "concurrent", "threading", "subprocess", "time"}
+
+
+def _core_offenders(path: Path, root: Path = ROOT) -> list[str]:
+    """What decoder/core.py (``path``, in the package at ``root``) may not import or do."""
+    names = _imports(path, root)
+    tops = {n.split(".")[0] for n in names if n}
+    package = sorted(n for n in names if n.startswith("lghcc.") and not n.startswith("lghcc.common"))
+    other = sorted(t for t in tops - {"lghcc"} - CORE_THIRD_PARTY
+                   if t not in sys.stdlib_module_names or t in CORE_FORBIDDEN_STDLIB)
+    source = path.read_text()
+    state = [f"global statement at line {n.lineno}" for n in ast.walk(ast.parse(source)) if isinstance(n, ast.Global)]
+    return package + other + state
+
+
+def test_the_decoder_core_imports_only_common():
+    """decoder/core.py imports of the package only common/ (no app/, no driver module), of the rest
+    only the standard library (no processes, threads or clocks), numpy and torch, and sets no
+    module-global state."""
+    assert DECODER_CORE.is_file()
+    assert _core_offenders(DECODER_CORE) == []
+
+
+def test_the_core_import_check_finds_offenders(tmp_path):
+    core = tmp_path / "decoder" / "core.py"
+    core.parent.mkdir()
+    core.write_text("import multiprocessing\nimport scipy\nfrom ..app.progress import progress_bar\n"
+                    "from ..common.units import LEVEL_1\n_STATE = None\n\n\ndef f():\n    global _STATE\n")
+    found = _core_offenders(core, tmp_path)
+    assert found == ["lghcc.app.progress", "lghcc.app.progress.progress_bar", "multiprocessing", "scipy",
+                     "global statement at line 9"], found
 
 
 def test_every_module_imports():

@@ -88,12 +88,12 @@ def test_rdoq_blocks_do_not_change_the_stream(monkeypatch):
 def test_coding_blocks_do_not_change_the_stream(monkeypatch):
     """The neighbour coding's blocks of rows (each row's values its own, histograms' counts the same
     however cut, ideal bits summed along numpy's cuts): any block size, the same stream."""
-    from lghcc.common.entropy import symbol_coder
+    from lghcc.encoder.context import code_lengths
     from lghcc.encoder.stream import neighbour_coding, prediction
 
     for module in (neighbour_coding, prediction):
         monkeypatch.setattr(module, "CODING_BLOCK_ROWS", 97)
-    monkeypatch.setattr(symbol_coder, "SUM_BLOCK_VALUES", 1000)
+    monkeypatch.setattr(code_lengths, "SUM_BLOCK_VALUES", 1000)
     for tile_points in (0, 512):  # (with tiles, the neighbour-or-prior choice compares ideal bits)
         assert hashlib.sha256(_fast_stream(3, tile_points)).hexdigest() == PINNED[3, tile_points]
     test_more_streams_are_those_before_the_coding_by_block("low", 3, 0)
@@ -138,7 +138,7 @@ def test_sh3_content_of_the_memory_scenes_is_playbots_and_deterministic():
 def test_pairwise_total_is_numpys_sum_to_the_last_bit(size, monkeypatch):
     """The whole-scene ideal bits summed part by part are np.sum's (a neighbour-or-prior choice
     compares them: a different order could flip a near tie)."""
-    from lghcc.common.entropy import symbol_coder as sc
+    from lghcc.encoder.context import code_lengths as sc
 
     x = np.random.default_rng(size).random(size) * 10.0 ** np.random.default_rng(1).uniform(-3, 3, size)
     monkeypatch.setattr(sc, "SUM_BLOCK_VALUES", 1 << 10)
@@ -149,7 +149,7 @@ def test_pairwise_total_is_numpys_sum_to_the_last_bit(size, monkeypatch):
 
 
 def test_ideal_bits_by_rows_are_the_whole_arrays():
-    from lghcc.common.entropy.symbol_coder import ideal_code_length_bits, ideal_code_length_bits_by_rows
+    from lghcc.encoder.context.code_lengths import ideal_code_length_bits, ideal_code_length_bits_by_rows
 
     rng = np.random.default_rng(3)
     r = rng.integers(-40, 40, size=(20000, 30)) * rng.integers(1, 200, size=(20000, 30))
@@ -163,7 +163,8 @@ def test_ideal_bits_by_rows_are_the_whole_arrays():
 
 def test_residual_histograms_give_each_groups_best_level_and_bits():
     """Gathered part by part, tabled and far residuals alike: best_level_and_bits of each group's all."""
-    from lghcc.common.entropy.symbol_coder import ResidualHistograms, best_level_and_bits, level_and_bits
+    from lghcc.common.entropy.symbol_coder import best_level_and_bits, level_and_bits
+    from lghcc.encoder.context.code_lengths import ResidualHistograms
 
     rng = np.random.default_rng(5)
     group, r = rng.integers(0, 4, size=9000), rng.integers(-300, 300, size=9000)
@@ -214,7 +215,7 @@ def test_blocks_do_not_change_a_stream_with_the_sh_transform(monkeypatch):
     still change no byte: the stream at small blocks is the stream at the default ones, and it uses
     the transform (its sh_transform unit is in the stream)."""
     from lghcc.common.container import UnitType, read_container
-    from lghcc.common.entropy import symbol_coder
+    from lghcc.encoder.context import code_lengths
     from lghcc.encoder.stream import neighbour_coding, prediction
 
     whole = _fast_stream(3, 512, sh_transform=True)
@@ -222,6 +223,6 @@ def test_blocks_do_not_change_a_stream_with_the_sh_transform(monkeypatch):
     monkeypatch.setattr(rdoq, "RDOQ_BLOCK_ROWS", 97)
     for module in (neighbour_coding, prediction):
         monkeypatch.setattr(module, "CODING_BLOCK_ROWS", 97)
-    monkeypatch.setattr(symbol_coder, "SUM_BLOCK_VALUES", 1000)
+    monkeypatch.setattr(code_lengths, "SUM_BLOCK_VALUES", 1000)
     assert _fast_stream(3, 512, sh_transform=True) == whole
 

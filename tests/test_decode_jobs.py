@@ -12,7 +12,7 @@ from lghcc.app.cli_common import EXIT_USAGE
 from lghcc.common.errors import UsageError
 from lghcc.common.tiles import Box
 from lghcc.decoder import cli
-from lghcc.decoder import decode as decode_mod
+from lghcc.decoder import core as decode_core
 from lghcc.decoder.decode import decode_stream, parse_stream, selected_tiles, worker_plan
 from lghcc.decoder.jobs import VALUE_S, makespan, plan_workers, tile_seconds
 from lghcc.encoder.stream.config import EncoderConfig
@@ -82,9 +82,9 @@ def test_an_explicit_job_count_is_an_upper_bound(flat, monkeypatch):
 def test_a_box_decodes_no_tile_it_does_not_select(flat, monkeypatch):
     full = decode_stream(flat.data)
     geometry, tiles = [], []
-    real_geometry, real_tile = decode_mod.decode_geometry, decode_mod.decode_tile
-    monkeypatch.setattr(decode_mod, "decode_geometry", lambda p, n, e=None: geometry.append(n) or real_geometry(p, n, e))
-    monkeypatch.setattr(decode_mod, "decode_tile", lambda tile, t, *a, **k: tiles.append(t) or real_tile(tile, t, *a,
+    real_geometry, real_tile = decode_core.decode_geometry, decode_core.decode_tile
+    monkeypatch.setattr(decode_core, "decode_geometry", lambda p, n, e=None: geometry.append(n) or real_geometry(p, n, e))
+    monkeypatch.setattr(decode_core, "decode_tile", lambda tile, t, *a, **k: tiles.append(t) or real_tile(tile, t, *a,
                                                                                                           **k))
     pts = full.scene.positions()
     lo = pts.min(axis=0)

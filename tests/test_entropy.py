@@ -22,9 +22,6 @@ from lghcc.common.entropy.symbol_coder import (
     encode_chunked,
     encode_symbols,
     escape_class,
-    estimate_bits_float,
-    ideal_code_length_bits,
-    level_for_sigma,
 )
 from lghcc.common.entropy.tables import (
     MAX_ABS_RESIDUAL,
@@ -39,6 +36,7 @@ from lghcc.common.entropy.tables import (
     load_tables,
 )
 from lghcc.common.errors import BitstreamError
+from lghcc.encoder.context.code_lengths import estimate_bits_float, ideal_code_length_bits, level_for_sigma
 from test_range_coder import RefRangeDecoder, cumulative, ref_decode_bits, words_of
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -13,9 +13,9 @@ from lghcc.common.intnn import (
     MAX_FAN_IN,
     IntLinear,
     IntMLP,
-    quantize_linear,
     rshift_round,
 )
+from lghcc.encoder.context.int_quantization import quantize_linear
 from reference_impl import rshift_round_np
 
 

@@ -175,7 +175,8 @@ def calibrate(paths: list[tuple[str, Path]]) -> list[str]:
     """decoder/jobs.py's constants measured here (see the module docstring)."""
     import torch  # noqa: F401  (loaded as it is for context-model streams: a larger process to fork)
 
-    from lghcc.decoder.decode import attribute_tool, decode_tile, parse_stream
+    from lghcc.decoder.core import decode_tile
+    from lghcc.decoder.decode import attribute_tool, parse_stream
 
     lines = [_worker_start(), ""]
     print(lines[0], flush=True)
@@ -185,7 +186,7 @@ def calibrate(paths: list[tuple[str, Path]]) -> list[str]:
         s = parse_stream(path.read_bytes())
         t0 = time.perf_counter()
         for t, tile in enumerate(s.tiles):
-            decode_tile(tile, t, s.ps, s.layout, s.context_model, s.mlps, s.ps.tile_size)
+            decode_tile(tile, t, s.ps, s.layout, s.context_model, s.mlps)
         secs, pts, ch = time.perf_counter() - t0, sum(t.num_points for t in s.tiles), s.layout.num_channels
         lines.append(f"| {name} | {attribute_tool(s.ps, s.context_model)} | {len(s.tiles)} | {pts:,} | {ch} | "
                      f"{secs:.2f} | {secs / pts:.3g} | {secs / pts / ch:.3g} |")
@@ -207,7 +208,7 @@ def _worker_start() -> str:
     for _ in range(5):
         t = time.perf_counter()
         with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("fork"), initializer=init_tile_worker,
-                                 initargs=((),)) as pool:
+                                 initargs=(None,)) as pool:
             list(pool.map(_noop, range(2)))
             t1 = time.perf_counter()
             list(pool.map(_noop, range(200)))

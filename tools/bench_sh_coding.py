@@ -62,7 +62,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchutil import command_line, load_average, write_lines  # noqa: E402
 
 from lghcc.common.attributes import GaussianLayout  # noqa: E402
-from lghcc.common.entropy.symbol_coder import best_level_and_bits, code_lengths_bits, level_for_sigma  # noqa: E402
+from lghcc.common.entropy.symbol_coder import best_level_and_bits, code_lengths_bits  # noqa: E402
+from lghcc.encoder.context.code_lengths import level_for_sigma  # noqa: E402
 from lghcc.common.geometry import normative_order  # noqa: E402
 from lghcc.common.knn import MAX_EXTENT  # noqa: E402
 from lghcc.common.neighbour_prediction import NeighbourGraph, neighbour_graph  # noqa: E402

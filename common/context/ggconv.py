@@ -37,7 +37,7 @@ import torch
 from ..attributes import NUM_STEP_ADJUST, STEP_ADJUST_FACTORS  # noqa: F401 (re-exported)
 from ..entropy.scale_levels import NUM_SCALE_LEVELS as NUM_LEVELS  # the float twin imports it by this name
 from .model_unit import (MAX_H_SHIFT, MAX_K, MAX_RADIUS_SQ, NEIGHBOUR_LEVELS, Hyperparameters,  # noqa: F401
-                         NamedIntArray, mlp_arrays)
+                         NamedIntArray, mlp_arrays, required)
 from ..intnn import ACT_MAX, ACT_MIN, IntLinear, IntMLP, WEIGHT_BITS_ALLOWED, rshift_round
 from ..hierarchy import local_position
 from ..knn import ball_knn
@@ -96,6 +96,12 @@ class GGConvParams:
         self.parent_base = check_parent_base(self.parent_base, m)
 
     @property
+    def base(self) -> np.ndarray:
+        """parent_base as __post_init__ made it: int [M] of 0/1."""
+        assert self.parent_base is not None, "set by __post_init__"
+        return self.parent_base
+
+    @property
     def grid_size(self) -> int:
         return int(self.table.shape[0])
 
@@ -124,7 +130,7 @@ class GGConvParams:
         hp = Hyperparameters(int(self.num_features), [layer.shift for layer in self.head_mlp.layers],
                              [layer.shift for layer in self.feat_mlp.layers], self.neighbour_level, self.k,
                              self.radius_sq, self.h_shift)
-        arrays = [NamedIntArray("parent_base", self.parent_base.copy(), 1, False),
+        arrays = [NamedIntArray("parent_base", self.base.copy(), 1, False),
                   NamedIntArray("table", self.table.copy(), 16, True)]
         return hp, arrays + mlp_arrays("feat", self.feat_mlp) + mlp_arrays("head", self.head_mlp)
 
@@ -133,8 +139,9 @@ class GGConvParams:
         """Inverse of ``to_syntax``; ValueError on a missing, unknown or malformed array, or a
         model whose parts do not fit together (the message names the parameter)."""
         by = arrays_by_name(arrays)
-        p = cls(num_features=hp.num_features, neighbour_level=hp.neighbour_level, k=hp.k, radius_sq=hp.radius_sq,
-                h_shift=hp.h_shift, parent_base=take_array(by, "parent_base").values,
+        p = cls(num_features=hp.num_features, neighbour_level=required(hp.neighbour_level, "neighbour_level"),
+                k=required(hp.k, "k"), radius_sq=required(hp.radius_sq, "radius_sq"),
+                h_shift=required(hp.h_shift, "h_shift"), parent_base=take_array(by, "parent_base").values,
                 table=take_array(by, "table").values, feat_mlp=mlp_from_arrays(by, "feat", hp.feat_layer_shift),
                 head_mlp=mlp_from_arrays(by, "head", hp.head_layer_shift))
         if by:
@@ -480,6 +487,6 @@ class GGConvEvaluator:
                 o = layer.forward_f64(o)
             xf = self.x1f.index_select(0, pi)  # [nb, M]: the parents' attributes x_i
             out = slice(b_lo - lo, b_hi - lo)
-            for dst, val in zip(outs, split_outputs(o, xf, params.parent_base, m)):
+            for dst, val in zip(outs, split_outputs(o, xf, params.base, m)):
                 dst[out] = val
         return mean, level, adj

@@ -63,6 +63,13 @@ class Hyperparameters:
     h_shift: int | None = None  # GG-Conv
 
 
+def required(value: int | None, name: str) -> int:
+    """A GG-Conv hyperparameter, which a parent-MLP model leaves None; ValueError naming it when missing."""
+    if value is None:
+        raise ValueError(f"a GG-Conv model needs the hyperparameter {name}")
+    return int(value)
+
+
 def mlp_arrays(name: str, mlp) -> list[NamedIntArray]:
     """The arrays of an integer MLP (common/intnn.py IntMLP) named ``name``, layer by layer:
     {name}.{l}.weight (s8 or s16 [out, in]), {name}.{l}.bias (s32 [out]). Each layer's shift is
@@ -175,8 +182,8 @@ class ContextModelUnit(SyntaxStructure):
             return
         self.feat_num_layers_minus1 = len(hp.feat_layer_shift or []) - 1
         self.feat_layer_shift = [int(s) for s in hp.feat_layer_shift or []]
-        self.neighbour_level, self.k, self.h_shift = int(hp.neighbour_level), int(hp.k), int(hp.h_shift)
-        self.radius_sq = int(hp.radius_sq)
+        self.neighbour_level, self.k = required(hp.neighbour_level, "neighbour_level"), required(hp.k, "k")
+        self.h_shift, self.radius_sq = required(hp.h_shift, "h_shift"), required(hp.radius_sq, "radius_sq")
         self.radius_sq_bits_minus1 = max(self.radius_sq.bit_length(), 1) - 1
 
 

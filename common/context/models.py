@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..attributes import ChannelLayout, CodingParams
+from ..attributes import ChannelLayout, CodingParams, GaussianLayout
 from .model_unit import read_context_model_unit
 from ..errors import BitstreamError
 from ..units import CONTEXT_GGCONV, CONTEXT_PARENT_MLP
@@ -31,7 +31,7 @@ def params_class(model_id: int):
     raise BitstreamError(f"context model unit: unknown context model id {model_id}")
 
 
-def read_context_model(payload: bytes, layout: ChannelLayout, trace=None):
+def read_context_model(payload: bytes, layout: ChannelLayout | GaussianLayout, trace=None):
     """-> (model_id, params). Checks that the model fits the scene's channel layout."""
     model_id, hp, arrays = read_context_model_unit(payload, trace)
     try:

@@ -47,6 +47,12 @@ class ParentMlpParams:
         self.parent_base = check_parent_base(self.parent_base, m)
 
     @property
+    def base(self) -> np.ndarray:
+        """parent_base as __post_init__ made it: int [M] of 0/1."""
+        assert self.parent_base is not None, "set by __post_init__"
+        return self.parent_base
+
+    @property
     def num_attrs(self) -> int:
         return self.head_mlp.out_dim // 3
 
@@ -58,7 +64,7 @@ class ParentMlpParams:
         num_features and every head layer's shift (syntax elements), and the arrays parent_base
         (u1 [M]), then for each head layer l: head.{l}.weight (s8 or s16 [out, in]), head.{l}.bias (s32)."""
         hp = Hyperparameters(int(self.num_features), [layer.shift for layer in self.head_mlp.layers])
-        return hp, [NamedIntArray("parent_base", self.parent_base.copy(), 1, False)] + mlp_arrays("head", self.head_mlp)
+        return hp, [NamedIntArray("parent_base", self.base.copy(), 1, False)] + mlp_arrays("head", self.head_mlp)
 
     @classmethod
     def from_syntax(cls, hp: Hyperparameters, arrays: list[NamedIntArray]) -> "ParentMlpParams":
@@ -97,7 +103,7 @@ class ParentMlpEvaluator:
             b_hi = min(hi, b_lo + _BLOCK)
             xpar = self.x1c.index_select(0, torch.from_numpy(self.parent[b_lo:b_hi]))
             local = torch.from_numpy(local_position(self.coords[b_lo:b_hi], self.voxel_scale).clip(0, ACT_MAX))
-            out = split_outputs(self.params.head_mlp(torch.cat([local, xpar], 1)), xpar, self.params.parent_base, m)
+            out = split_outputs(self.params.head_mlp(torch.cat([local, xpar], 1)), xpar, self.params.base, m)
             for dst, o in zip((mean, level, adj), out):
                 dst[b_lo - lo:b_hi - lo] = o.numpy()
         return mean, level, adj

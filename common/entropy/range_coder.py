@@ -39,14 +39,15 @@ def exact_model(freqs: np.ndarray):
         # One symbol costs nothing; constriction needs at least two entries, so give the
         # second one unit: the same code for the only symbol that can occur.
         f = np.array([TOTAL_FREQUENCY - 1, 1], dtype=np.int64)
-    return constriction.stream.model.Categorical((f - 1).astype(np.float64), perfect=False)
+    # (the ignores: constriction is a compiled module whose submodules pyright cannot see)
+    return constriction.stream.model.Categorical((f - 1).astype(np.float64), perfect=False)  # pyright: ignore[reportAttributeAccessIssue]
 
 
 # Binary models as a constriction model family: one call codes a run of binary decisions, each
 # with its own model, instead of one call (and ~6 us of overhead) per context group. A row of
 # weights is exact_model's for [2^24 - f1, f1] (w = f - 1, perfect=False), which constriction
 # quantizes row by row exactly as it quantizes one Categorical (tests/test_range_coder.py).
-_BINARY_FAMILY = constriction.stream.model.Categorical(perfect=False)
+_BINARY_FAMILY = constriction.stream.model.Categorical(perfect=False)  # pyright: ignore[reportAttributeAccessIssue]
 
 
 def binary_weights(f1: np.ndarray, check: bool = True) -> np.ndarray:
@@ -63,12 +64,12 @@ def binary_weights(f1: np.ndarray, check: bool = True) -> np.ndarray:
 
 
 def _uniform(nbits: int):
-    return constriction.stream.model.Uniform(1 << nbits)
+    return constriction.stream.model.Uniform(1 << nbits)  # pyright: ignore[reportAttributeAccessIssue]
 
 
 class RangeEncoder:
     def __init__(self) -> None:
-        self._enc = constriction.stream.queue.RangeEncoder()
+        self._enc = constriction.stream.queue.RangeEncoder()  # pyright: ignore[reportAttributeAccessIssue]
 
     def encode(self, symbols: np.ndarray, model) -> None:
         """Code i.i.d. symbols (0-based indices) with one model from ``exact_model``."""
@@ -125,7 +126,7 @@ class RangeDecoder:
         self._what = what
         words = np.frombuffer(data, dtype="<u4").astype(np.uint32)
         try:
-            self._dec = constriction.stream.queue.RangeDecoder(words)
+            self._dec = constriction.stream.queue.RangeDecoder(words)  # pyright: ignore[reportAttributeAccessIssue]
         except Exception as e:  # constriction rejects some impossible word sequences up front
             raise BitstreamError(f"{what}: invalid range-coded data ({e})") from None
 

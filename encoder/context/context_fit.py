@@ -19,7 +19,8 @@ from ...common.context.models import check_ggconv_extent
 from ...common.context.parent_mlp import ParentMlpParams
 from ...common.errors import BitstreamError
 from ...common.hierarchy import local_position
-from ...common.intnn import ACT_MAX, ACT_MIN, IntMLP, frac_bits_for, quantize_linear
+from ...common.intnn import ACT_MAX, ACT_MIN, IntMLP
+from .int_quantization import frac_bits_for, quantize_linear
 from ...common.units import CONTEXT_GGCONV, CONTEXT_PARENT_MLP
 from .ggconv_train import (GGConvTrainConfig, choose_parent_base, fit_ggconv, level_of_spread, one_cycle,
                                          rd_loss)

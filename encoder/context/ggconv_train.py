@@ -47,7 +47,8 @@ from ...common.context.ggconv import (
 )
 from ...common.entropy.scale_levels import LOG_SIGMA_MIN, LOG_SIGMA_STEP
 from ...common.hierarchy import local_position
-from ...common.intnn import ACT_MAX, ACT_MIN, BIAS_BITS, MAX_SHIFT, IntLinear, IntMLP, frac_bits_for, int_range
+from ...common.intnn import ACT_MAX, ACT_MIN, BIAS_BITS, MAX_SHIFT, IntLinear, IntMLP, int_range
+from .int_quantization import frac_bits_for
 from .ste import ste_round_half_up
 
 
@@ -653,7 +654,7 @@ def estimated_rate_bits(params: GGConvParams, coords2, parent, coords1, attrs1, 
     """Bits of the level-2 attributes coded with the integer path's parameters and the frozen
     scale tables (symbols round(x / STEP_ADJUST_FACTORS[a])); also returns the step adjustments
     of the coded entries (flat; NaN targets are not coded)."""
-    from ...common.entropy.symbol_coder import ideal_code_length_bits
+    from .code_lengths import ideal_code_length_bits
 
     mean, level, adj = ggconv_coding_params(params, coords2, parent, coords1, attrs1, voxel_scale, neighbours)
     f = STEP_ADJUST_FACTORS[adj].astype(np.float64)
@@ -665,7 +666,7 @@ def estimated_rate_bits(params: GGConvParams, coords2, parent, coords1, attrs1, 
 
 def zero_mean_prior_bits(targets) -> float:
     """Reference: each channel coded with one zero-mean Gaussian level fitted to its RMS."""
-    from ...common.entropy.symbol_coder import ideal_code_length_bits, level_for_sigma
+    from .code_lengths import ideal_code_length_bits, level_for_sigma
 
     x = np.asarray(targets, dtype=np.float64)
     sym = np.floor(x + 0.5).astype(np.int64)

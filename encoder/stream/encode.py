@@ -18,7 +18,8 @@ from ...app.progress import progress_bar
 from ...common import attributes as attr
 from ...common.container import (UNIT_CRC_BYTES, UNIT_HEADER_BYTES, AncillaryUnitType, DataUnit, UnitType,
                                 read_container, write_container)
-from ...common.entropy.symbol_coder import best_level, ideal_code_length_bits_by_rows
+from ...common.entropy.symbol_coder import best_level
+from ..context.code_lengths import ideal_code_length_bits_by_rows
 from ...common.errors import InputError
 from ...common.context.model_unit import write_context_model_unit
 from ...common.context.models import CONTEXT_MODEL_NAMES, read_context_model

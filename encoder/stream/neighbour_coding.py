@@ -19,8 +19,8 @@ import functools
 import numpy as np
 
 from ...common import attributes as attr
-from ...common.entropy.symbol_coder import (ResidualHistograms, best_level, code_lengths_bits, ideal_code_length_bits,
-                                           ideal_code_length_bits_by_rows, level_and_bits)
+from ...common.entropy.symbol_coder import best_level, code_lengths_bits, level_and_bits
+from ..context.code_lengths import ResidualHistograms, ideal_code_length_bits, ideal_code_length_bits_by_rows
 from ...common.entropy.scale_levels import NUM_SCALE_LEVELS
 from ...common.neighbour_prediction import (ADJUST_FIXED_POINT, NeighbourGraph, check_extent, level_table,
                                            mean_flags, neighbour_graph, neighbour_means_and_buckets,

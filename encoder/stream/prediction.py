@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from ...common.attributes import ChannelPrediction, CodingParams, GaussianLayout
-from ...common.entropy.symbol_coder import ResidualHistograms, best_level, code_lengths_bits
+from ...common.entropy.symbol_coder import best_level, code_lengths_bits
+from ..context.code_lengths import ResidualHistograms
 from ...common.units import CHANNEL_PREDICTION_SHIFT, MAX_CHANNEL_PREDICTION_WEIGHT
 from .memory import CODING_BLOCK_ROWS
 
