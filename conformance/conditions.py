@@ -10,7 +10,7 @@ catches it through acceptance.
 ``CHECK_REMOVALS`` names, for each condition, the mutation of conformance/mutations.py that
 removes its check; ``NOT_ISOLATED`` says why a condition has no isolated stream (another check
 must fail first). ``mutant_decode`` runs the reference decoder with one mutation applied, in a
-forked process, and returns the hashes it decodes (tools/gen_conformance.py writes them into an
+forked process, and returns the hashes it decodes (conformance/generate.py writes them into an
 isolated stream; tools/mutation_test.py --conditions checks the mutant accepts the stream).
 """
 
