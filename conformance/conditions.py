@@ -98,13 +98,11 @@ class IsolatedStream:
 
 def isolated_stream_list(root=None) -> list[IsolatedStream]:
     """Every isolated error stream, in the order of their ids."""
-    import yaml
-
-    from . import STREAMS_DIR
+    from . import STREAMS_DIR, load_yaml
 
     out = []
     for meta_file in sorted((root or STREAMS_DIR).glob("*/test.yaml")):
-        meta = yaml.safe_load(meta_file.read_text())
+        meta = load_yaml(meta_file.read_text())
         if meta.get("condition"):
             cond = meta["condition"]
             out.append(IsolatedStream(meta["id"], cond, meta.get("bound", ""),

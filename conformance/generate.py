@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from . import load_yaml
 from .manifest import write_manifest
 
 HERE = Path(__file__).resolve().parent
@@ -812,7 +813,7 @@ def isolate(entry: dict, encoded: bytes) -> bytes:
 
 
 def load_sources() -> list[dict]:
-    return yaml.safe_load(SOURCES.read_text())["streams"]
+    return load_yaml(SOURCES.read_text())["streams"]
 
 
 # --- what a stream exercises, from what the reference decoder decoded -----------------------------
@@ -1204,7 +1205,7 @@ def _write(entry: dict, folder: Path) -> str:
 
 def _frozen(folder: Path) -> tuple[bytes, dict]:
     """The committed stream and its test.yaml."""
-    return (folder / "stream.lghcc").read_bytes(), yaml.safe_load((folder / "test.yaml").read_text())
+    return (folder / "stream.lghcc").read_bytes(), load_yaml((folder / "test.yaml").read_text())
 
 
 def _write_metadata(entry: dict, folder: Path, renders: bool) -> str:

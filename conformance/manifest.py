@@ -19,12 +19,14 @@ from pathlib import Path
 import yaml
 
 from ..common.container import VERSION_MAJOR, VERSION_MINOR
+from . import load_yaml
 
 HERE = Path(__file__).resolve().parent
 STREAMS = HERE / "streams"
 MANIFEST = HERE / "manifest.yaml"
 # test.yaml's keys that state the outcome a decoder must reach (conformance/runner.py checks them)
 OUTCOME_KEYS = ("expect", "decoded_sha256", "expect_error", "condition")
+FORMAT_VERSION = f"{VERSION_MAJOR}.{VERSION_MINOR}"  # the version the streams were generated at
 
 HEADER = """\
 # The frozen conformance streams: each stream's expected outcome and the SHA-256 of every file of
@@ -40,7 +42,7 @@ def _sha256(path: Path) -> str:
 
 def stream_record(folder: Path) -> dict:
     """One stream's entry: its outcome (from its test.yaml) and the SHA-256 of each of its files."""
-    meta = yaml.safe_load((folder / "test.yaml").read_text())
+    meta = load_yaml((folder / "test.yaml").read_text())
     record = {k: meta[k] for k in OUTCOME_KEYS if k in meta}
     record["files"] = {p.name: _sha256(p) for p in sorted(folder.iterdir()) if p.is_file()}
     return record
@@ -49,7 +51,7 @@ def stream_record(folder: Path) -> dict:
 def build_manifest(streams: Path = STREAMS) -> dict:
     """The manifest of the streams as they are on disk (a folder per stream, with its test.yaml)."""
     folders = sorted(p for p in streams.iterdir() if (p / "test.yaml").is_file())
-    return {"format_version": f"{VERSION_MAJOR}.{VERSION_MINOR}",
+    return {"format_version": FORMAT_VERSION,
             "streams": {f.name: stream_record(f) for f in folders}}
 
 
@@ -62,7 +64,7 @@ def write_manifest(streams: Path = STREAMS, path: Path = MANIFEST) -> None:
 
 
 def read_manifest(path: Path = MANIFEST) -> dict:
-    return yaml.safe_load(path.read_text())
+    return load_yaml(path.read_text())
 
 
 def manifest_problems(streams: Path = STREAMS, path: Path = MANIFEST) -> list[str]:
