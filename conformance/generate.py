@@ -1233,7 +1233,8 @@ def _check(entry: dict, folder: Path) -> tuple[list[str], bool]:
     try:
         data, decoded = generate(entry)
         check_expectation(entry, data, decoded)
-        test_yaml(entry, data, decoded)
+        if data != frozen or decoded != meta.get("decoded_sha256"):  # else derived from the frozen stream above
+            test_yaml(entry, data, decoded)
     except SystemExit as e:
         problems.append(f"the generator can no longer make it: {e}")
         return problems, False

@@ -122,6 +122,13 @@ def test_the_generator_check_reports_a_stream_it_can_no_longer_make(monkeypatch,
     assert not same and len(problems) == 1 and problems[0].startswith("the generator can no longer make it")
     assert gen.main(["--check", "c001_one_anchor"]) == 1
     assert "1 streams checked, 1 with problems" in capsys.readouterr().out
+    # today's encoder makes another stream (allowed), but one that no longer shows the entry's intent:
+    # c001's stream where c004's must exercise escapes
+    one = (runner.STREAMS_DIR / "c001_one_anchor" / "stream.lghcc").read_bytes()
+    monkeypatch.setattr(gen, "generate", lambda e: (one, runner.load_cases(ids=["c001_one_anchor"])[0].meta["decoded_sha256"]))
+    escape = next(e for e in gen.load_sources() if e["id"] == "c004_escape_values")
+    problems, same = gen._check(escape, runner.STREAMS_DIR / "c004_escape_values")
+    assert not same and len(problems) == 1 and "escape" in problems[0], problems
 
 
 def test_generator_rejects_unknown_ids(capsys):
