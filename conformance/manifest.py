@@ -96,7 +96,14 @@ def main(argv=None) -> int:
                     "differs (each difference printed); 2: no manifest.")
     ap.add_argument("--streams", type=Path, default=STREAMS, help="the streams folder (default: %(default)s)")
     ap.add_argument("--manifest", type=Path, default=MANIFEST, help="the manifest (default: %(default)s)")
+    ap.add_argument("--write", action="store_true",
+                    help="rewrite the manifest from the files (after a change made on purpose outside the generator, "
+                         "e.g. a merge that rewrote test.yaml files; the review then shows every file that changed)")
     args = ap.parse_args(argv)
+    if args.write:
+        write_manifest(args.streams, args.manifest)
+        print(f"{args.manifest}: {len(read_manifest(args.manifest)['streams'])} streams written")
+        return 0
     if not args.manifest.is_file():
         print(f"manifest: error: {args.manifest}: no such file", file=sys.stderr)
         return 2

@@ -93,6 +93,8 @@ def test_the_manifest_check_names_each_difference(tmp_path):
     assert any("the manifest's outcome" in p for p in manifest.manifest_problems(streams, path))
     assert manifest.main(["--streams", str(streams), "--manifest", str(path)]) == 1
     assert manifest.main(["--streams", str(streams), "--manifest", str(tmp_path / "none.yaml")]) == 2
+    assert manifest.main(["--streams", str(streams), "--manifest", str(path), "--write"]) == 0
+    assert manifest.manifest_problems(streams, path) == []
 
 
 @pytest.mark.integration
