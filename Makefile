@@ -1,7 +1,10 @@
 # make demo : set up .venv, encode and decode the built-in procedural scene
 # make test : set up .venv, run the fast default tier of the tests (the inner loop)
-# make test-integration : the heavy integration tier (-m integration: conformance regeneration, Node and
+# make test-integration : the heavy integration tier (-m integration: the conformance generator's check, Node and
 #   Chromium, pyright, the newcomer and wheel checks, big encodes, the tools' smoke runs); CI runs both
+# make conformance-regen : make the conformance streams again from conformance/sources.yaml (a format change or a
+#   stream added; IDS="c121_x ...": only those) and rewrite conformance/manifest.yaml (conformance/README.md)
+# make conformance-check : the streams against conformance/manifest.yaml, then the reference decoder over them
 # make check : the architecture checks (static import resolution, complexity, function length)
 # make node-tools : install the pinned npm tools (tools/node: splat-transform, PlayCanvas engine, esbuild, pyright)
 # make viewer-bundle : install them and build lghcc-view's JavaScript bundle
@@ -10,7 +13,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test test-integration test-slow check spec bench clean node-tools viewer-bundle js-package fuzz-long fuzz-diff mutations js-mutations
+.PHONY: setup demo test test-integration test-slow check spec conformance-regen conformance-check bench clean node-tools viewer-bundle js-package fuzz-long fuzz-diff mutations js-mutations
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -46,6 +49,16 @@ check: setup node-tools
 
 spec: setup
 	$(PY) tools/gen_spec_tables.py
+
+# The conformance streams are frozen (conformance/README.md): made again only when the format changes
+# or a stream is added, never because the encoder changed
+IDS ?=
+conformance-regen: setup
+	$(PY) -m lghcc.conformance.generate $(IDS)
+
+conformance-check: setup
+	$(PY) -m lghcc.conformance.manifest
+	$(PY) -m lghcc.conformance.runner
 
 # npm tools pinned in tools/node/package-lock.json (npm ci: exactly those versions): splat-transform
 # (format interop tests, SPZ/SOG columns of the benchmarks), the PlayCanvas engine and esbuild (lghcc-view)

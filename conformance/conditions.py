@@ -10,7 +10,7 @@ catches it through acceptance.
 ``CHECK_REMOVALS`` names, for each condition, the mutation of conformance/mutations.py that
 removes its check; ``NOT_ISOLATED`` says why a condition has no isolated stream (another check
 must fail first). ``mutant_decode`` runs the reference decoder with one mutation applied, in a
-forked process, and returns the hashes it decodes (tools/gen_conformance.py writes them into an
+forked process, and returns the hashes it decodes (conformance/generate.py writes them into an
 isolated stream; tools/mutation_test.py --conditions checks the mutant accepts the stream).
 """
 
@@ -98,13 +98,11 @@ class IsolatedStream:
 
 def isolated_stream_list(root=None) -> list[IsolatedStream]:
     """Every isolated error stream, in the order of their ids."""
-    import yaml
-
-    from . import STREAMS_DIR
+    from . import STREAMS_DIR, load_yaml
 
     out = []
     for meta_file in sorted((root or STREAMS_DIR).glob("*/test.yaml")):
-        meta = yaml.safe_load(meta_file.read_text())
+        meta = load_yaml(meta_file.read_text())
         if meta.get("condition"):
             cond = meta["condition"]
             out.append(IsolatedStream(meta["id"], cond, meta.get("bound", ""),

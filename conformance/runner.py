@@ -2,7 +2,7 @@
 
 Each stream lives in ``conformance/streams/<id>/`` as ``stream.lghcc`` and ``test.yaml``:
   id, purpose, profile, stream_bytes, stream_sha256
-  tools            what the stream exercises, derived by tools/gen_conformance.py from what the
+  tools            what the stream exercises, derived by conformance/generate.py from what the
                    reference decoder decoded (e.g. 'escape' iff an escaped residual was decoded)
   expect: decode   decoded_sha256: SHA-256 of the decoded scene (spec clause 12, lghcc_v0.md)
   expect: error    expect_error: the reference decoder's error class (BitstreamError,
@@ -86,7 +86,7 @@ from ..app.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM,
 from ..common.errors import LghccError, UsageError  # noqa: E402
 from .conditions import CONDITION_ID  # noqa: E402
 
-from . import STREAMS_DIR  # noqa: E402
+from . import STREAMS_DIR, load_yaml  # noqa: E402
 JS_DECODER_DIR = Path(__file__).resolve().parent.parent / "js" / "lghcc-decoder"
 # the error classes an error stream may expect (lghcc.common.errors); an external decoder's exit
 # status for each is lghcc.app.cli_common.exit_code_for_class (3, invalid stream, for all of them)
@@ -238,7 +238,7 @@ def load_cases(root: Path = STREAMS_DIR, ids: list[str] | None = None) -> list[C
         if ids and folder.name not in ids:
             continue
         try:
-            meta = yaml.safe_load((folder / "test.yaml").read_text())
+            meta = load_yaml((folder / "test.yaml").read_text())
         except yaml.YAMLError as e:
             raise _bad(folder, f"not valid YAML ({e})") from None
         cases.append(Case(folder.name, folder, validate_meta(meta, folder)))

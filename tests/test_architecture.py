@@ -62,13 +62,29 @@ def test_imports_inside_the_package_are_relative():
     assert not offenders, f"absolute lghcc imports inside the package: {offenders}"
 
 
+# The conformance suite's generator makes each base stream with the encoder (the edits of
+# stream_edits.py re-code with its neighbour coding); nothing else in conformance/ imports them
+CONFORMANCE_GENERATOR = {"conformance/generate.py", "conformance/stream_edits.py"}
+
+
 def test_no_source_file_outside_encoder_imports_it():
     offenders = []
     for d in NOT_ENCODER:
         for f in (ROOT / d).rglob("*.py"):
+            if str(f.relative_to(ROOT)) in CONFORMANCE_GENERATOR:
+                continue
             if any(n.startswith("lghcc.encoder") for n in _imports(f)):
                 offenders.append(str(f.relative_to(ROOT)))
     assert not offenders, f"these import lghcc.encoder: {offenders}"
+
+
+def test_only_the_generator_imports_the_generator():
+    """The runner, the manifest check and the rest of conformance/ (what a decoder's implementer
+    runs) never load the encoder through the generator."""
+    generator = {_module_name(ROOT / f) for f in CONFORMANCE_GENERATOR}
+    offenders = sorted(name for name, deps in _import_graph().items()
+                       if name not in generator and deps & generator)
+    assert not offenders, f"these import the conformance generator: {offenders}"
 
 
 def test_common_is_normative_only():

@@ -69,7 +69,7 @@ def test_unknown_ancillary_units_are_skipped_and_source_info_found_among_them(pl
     dec = decode_stream(data)
     assert dec.source_info.source_sh_degree == 2 and dec.stream_hash == base.scene_hash
     assert [s.split(" ")[0] for s in dec.skipped_units] == ["unknown_0xc5", "unknown_0xff", "unknown_0x81"]
-    # without the list of known units (tools/gen_conformance.py), every ancillary unit is skipped
+    # without the list of known units (conformance/generate.py), every ancillary unit is skipped
     critical, skipped = organize_units(read_container(data))
     assert len(skipped) == 4 and all(not u.is_ancillary for u in critical)
 

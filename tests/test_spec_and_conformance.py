@@ -1,8 +1,9 @@
-"""Frozen artefacts: the spec's syntax tables match the code; the conformance streams decode
-to their recorded hashes, the encoder reproduces them byte for byte, and the runner works."""
+"""Frozen artefacts: the spec's syntax tables match the code; the conformance streams are the frozen
+ones (conformance/manifest.yaml) and decode to their recorded hashes; the generator can still make
+the suite (integration tier; the encoder is not required to reproduce the frozen streams); the runner
+works."""
 
 import hashlib
-import importlib.util
 import itertools
 import sys
 from pathlib import Path
@@ -24,18 +25,12 @@ from lghcc.common.geometry import decode_geometry
 from lghcc.common.hierarchy import build_hierarchy
 from lghcc.common.spec_tables import syntax_tables_markdown
 from lghcc.common.units import AttributeUnitHeader, SceneParameterSet
-from lghcc.conformance import runner
+from lghcc.conformance import generate as gen
+from lghcc.conformance import manifest, runner
 from lghcc.conformance.coverage import (F32_MAX, NOT_EXERCISED, coverage_report, element_classes,
                                         element_infos, value_class)
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _gen_module():
-    spec = importlib.util.spec_from_file_location("gen_conformance", ROOT / "tools" / "gen_conformance.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def test_spec_syntax_tables_match_the_code():
@@ -58,36 +53,87 @@ def test_stream_files_match_their_recorded_digests():
         assert len(data) == case.meta["stream_bytes"]
 
 
-# Context-model streams whose test.yaml predates the derived `tools` / expect_error format: another
-# engineer regenerates them with the context-model change (their bytes are still checked here).
-AWAITING_REGENERATION: set[str] = set()
+def test_the_streams_are_the_frozen_ones():
+    """Every file under conformance/streams/ is the one conformance/manifest.yaml records, no file is
+    missing or added, and the manifest's outcome of each stream is its test.yaml's: the suite changes
+    only through the generator, which rewrites the manifest (conformance/README.md)."""
+    assert manifest.manifest_problems() == []
+    frozen = manifest.read_manifest()
+    assert frozen["format_version"] == manifest.FORMAT_VERSION, \
+        "the format's version changed: add its streams (conformance/README.md) and regenerate the manifest"
+    assert set(frozen["streams"]) == {e["id"] for e in gen.load_sources()}, \
+        "conformance/sources.yaml and the frozen streams disagree: generate the streams added to sources.yaml"
+    for case in runner.load_cases():
+        assert frozen["streams"][case.id]["files"]["stream.lghcc"] == case.meta["stream_sha256"], case.id
+
+
+def test_the_manifest_check_names_each_difference(tmp_path):
+    import shutil
+
+    streams = tmp_path / "streams"
+    for sid in ("c001_one_anchor", "e001_unknown_critical_unit"):
+        shutil.copytree(runner.STREAMS_DIR / sid, streams / sid)
+    path = tmp_path / "manifest.yaml"
+    manifest.write_manifest(streams, path)
+    assert manifest.manifest_problems(streams, path) == []
+    assert manifest.main(["--streams", str(streams), "--manifest", str(path)]) == 0
+    data = bytearray((streams / "c001_one_anchor" / "stream.lghcc").read_bytes())
+    data[-1] ^= 1  # one bit of the stream
+    (streams / "c001_one_anchor" / "stream.lghcc").write_bytes(bytes(data))
+    (streams / "c001_one_anchor" / "render_000.npy").write_bytes(b"")
+    shutil.rmtree(streams / "e001_unknown_critical_unit")
+    shutil.copytree(runner.STREAMS_DIR / "c004_escape_values", streams / "c004_escape_values")
+    assert manifest.manifest_problems(streams, path) == [
+        "e001_unknown_critical_unit: in the manifest, not in " + str(streams),
+        "c004_escape_values: in " + str(streams) + ", not in the manifest",
+        "c001_one_anchor/render_000.npy: not in the manifest",
+        "c001_one_anchor/stream.lghcc: changed"]
+    text = path.read_text().replace("expect: decode", "expect: error", 1)
+    path.write_text(text)
+    assert any("the manifest's outcome" in p for p in manifest.manifest_problems(streams, path))
+    assert manifest.main(["--streams", str(streams), "--manifest", str(path)]) == 1
+    assert manifest.main(["--streams", str(streams), "--manifest", str(tmp_path / "none.yaml")]) == 2
+    assert manifest.main(["--streams", str(streams), "--manifest", str(path), "--write"]) == 0
+    assert manifest.manifest_problems(streams, path) == []
 
 
 @pytest.mark.integration
-def test_encoder_reproduces_every_stream_byte_for_byte():
+def test_the_generator_still_makes_the_suite(capsys):
+    """The streams are frozen, so an encoder change never has to reproduce them; what must hold is
+    that the suite can be made again when the format changes: with today's encoder and decoder
+    every edit of sources.yaml still applies, every stream meets its expectation, every isolated
+    stream still isolates its condition, every stream's derived tools hold its intent, and every
+    frozen test.yaml is what the generator derives from its frozen stream."""
     import torch
 
-    gen = _gen_module()
-    sources = {e["id"]: e for e in gen.load_sources()}
-    cases = runner.load_cases()
-    assert set(sources) == {c.id for c in cases}, "sources.yaml and conformance/streams disagree"
     threads = torch.get_num_threads()
-    stale = set()
-    for case in cases:
-        data, decoded = gen.generate(sources[case.id])
-        assert torch.get_num_threads() == threads, "generate() must restore torch's thread count"
-        assert data == case.stream.read_bytes(), f"{case.id}: the encoder no longer reproduces the stream"
-        assert decoded == case.meta.get("decoded_sha256")
-        want = gen.yaml_text(gen.test_yaml(sources[case.id], data, decoded))
-        if want != (case.folder / "test.yaml").read_text():
-            stale.add(case.id)
-    assert stale <= AWAITING_REGENERATION, f"test.yaml not reproduced: {sorted(stale - AWAITING_REGENERATION)}"
-    assert stale == AWAITING_REGENERATION, \
-        f"regenerated, drop from AWAITING_REGENERATION: {sorted(AWAITING_REGENERATION - stale)}"
+    assert gen.main(["--check"]) == 0, capsys.readouterr().out[-4000:]
+    assert torch.get_num_threads() == threads, "generate() must restore torch's thread count"
+    out = capsys.readouterr().out
+    assert f"{len(gen.load_sources())} streams checked, 0 with problems" in out
 
 
-def test_gen_conformance_check_rejects_unknown_ids(capsys):
-    gen = _gen_module()
+def test_the_generator_check_reports_a_stream_it_can_no_longer_make(monkeypatch, capsys):
+    entry = next(e for e in gen.load_sources() if e["id"] == "c001_one_anchor")
+
+    def refuse(e):
+        raise SystemExit(f"{e['id']}: the reference decoder rejects the stream")
+
+    monkeypatch.setattr(gen, "generate", refuse)
+    problems, same = gen._check(entry, runner.STREAMS_DIR / "c001_one_anchor")
+    assert not same and len(problems) == 1 and problems[0].startswith("the generator can no longer make it")
+    assert gen.main(["--check", "c001_one_anchor"]) == 1
+    assert "1 streams checked, 1 with problems" in capsys.readouterr().out
+    # today's encoder makes another stream (allowed), but one that no longer shows the entry's intent:
+    # c001's stream where c004's must exercise escapes
+    one = (runner.STREAMS_DIR / "c001_one_anchor" / "stream.lghcc").read_bytes()
+    monkeypatch.setattr(gen, "generate", lambda e: (one, runner.load_cases(ids=["c001_one_anchor"])[0].meta["decoded_sha256"]))
+    escape = next(e for e in gen.load_sources() if e["id"] == "c004_escape_values")
+    problems, same = gen._check(escape, runner.STREAMS_DIR / "c004_escape_values")
+    assert not same and len(problems) == 1 and "escape" in problems[0], problems
+
+
+def test_generator_rejects_unknown_ids(capsys):
     assert gen.main(["--check", "no_such_id"]) == 2
     assert "no_such_id" in capsys.readouterr().err
     assert gen.main(["--renders", "no_such_id"]) == 2
@@ -95,7 +141,6 @@ def test_gen_conformance_check_rejects_unknown_ids(capsys):
 
 def test_derived_tools_follow_what_the_decoder_did():
     """`tools` come from the decoded result: escape exactly where an escaped residual was decoded."""
-    gen = _gen_module()
     sources = {e["id"]: e for e in gen.load_sources()}
     data = (runner.STREAMS_DIR / "c004_escape_values" / "stream.lghcc").read_bytes()
     with gen.EscapeCounter() as esc:

@@ -56,7 +56,7 @@ PLAIN = "import sys; from lghcc.decoder.cli import main; sys.exit(main(sys.argv[
 def encode(kind: str, n: int):
     """-> stream bytes of a procedural scene of about n points for a preset kind."""
     if kind.startswith("gaussians"):
-        from gen_conformance import random_gaussian_scene
+        from lghcc.conformance.generate import random_gaussian_scene
         from lghcc.encoder.stream.config import load_config
         from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
 

@@ -1,4 +1,4 @@
-// A reader of the YAML subset tools/gen_conformance.py writes into test.yaml (scalars, lists of
+// A reader of the YAML subset conformance/generate.py writes into test.yaml (scalars, lists of
 // scalars, lists of flat mappings whose values are scalars or lists of scalars); no dependency.
 function scalar(s) {
     s = s.trim();

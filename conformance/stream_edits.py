@@ -2,10 +2,11 @@
 (issue 14): values the encoder never writes (escapes up to the limit, every scale level),
 hand-built integer context models whose means, levels and step adjustments reach every clamp
 and rounding tie, and streams that break one rule each (a syntax element just beyond its range,
-a geometry constraint, a context array out of its range ...). Used by tools/gen_conformance.py
-(``post`` keys of conformance/sources.yaml; see ``apply_edits``).
+a geometry constraint, a context array out of its range ...). Used by the suite's generator,
+conformance/generate.py (``post`` keys of conformance/sources.yaml; see ``apply_edits``): these edits
+are format tools (they write what the spec allows, or one rule broken), not the encoder's choices.
 
-Every edit is deterministic (seeded), so `gen_conformance.py --check` reproduces the streams.
+Every edit is deterministic (seeded): from the same encoded stream, the same edited stream.
 """
 
 from __future__ import annotations
@@ -14,10 +15,10 @@ import dataclasses
 
 import numpy as np
 
-from lghcc.common import attributes as attr
-from lghcc.common.bitio import BitReader
-from lghcc.common.container import DataUnit, UnitType
-from lghcc.common.units import AttributeUnitHeader, GaussianParameterSet, SceneParameterSet
+from ..common import attributes as attr
+from ..common.bitio import BitReader
+from ..common.container import DataUnit, UnitType
+from ..common.units import AttributeUnitHeader, GaussianParameterSet, SceneParameterSet
 
 
 def _index(units, unit_type, nth: int = 0) -> int:
@@ -102,7 +103,7 @@ def escape_classes(units, spec: dict) -> None:
     """Channel ``channel`` of rows 0.. gets a residual of every escape class k = 0..62 at its level
     (|r| = L + 1 + m with m = 0 and m = 2^(k-1) + (2^(k-1) - 1)), both signs alternating, the
     last one the largest codable |r| = 2^62 - 1 (clause 10.5)."""
-    from lghcc.common.entropy.tables import HALF_WIDTHS, MAX_ABS_RESIDUAL
+    from ..common.entropy.tables import HALF_WIDTHS, MAX_ABS_RESIDUAL
 
     sps, j, h, mask, q = _level0_q(units)
     col = int(spec.get("channel", 0))
@@ -141,10 +142,10 @@ def edit_chunk(units, spec: dict) -> None:
     {chunk: i, failing_mask_words: seed} (the same for mask chunk i), or
     {chunk: i, append_mask_hex: '...'} (trailing bytes after mask chunk i), or
     {chunk: i, escape_beyond_limit: true} (one escaped residual of magnitude 2^62 + L, clause 10.5)."""
-    from lghcc.common.entropy import symbol_coder
-    from lghcc.common.entropy.range_coder import RangeEncoder
-    from lghcc.common.entropy.tables import HALF_WIDTHS
-    from lghcc.common.errors import BitstreamError
+    from ..common.entropy import symbol_coder
+    from ..common.entropy.range_coder import RangeEncoder
+    from ..common.entropy.tables import HALF_WIDTHS
+    from ..common.errors import BitstreamError
 
     sps = _sps(units)
     j = _index(units, UnitType.ATTRIBUTE)
@@ -197,7 +198,7 @@ def edit_chunk(units, spec: dict) -> None:
 def _failing_words(seed: int, decode) -> bytes:
     """1 to 3 words, found by a search seeded with ``seed``, on which ``decode(words)`` (a range
     decoding) fails with q >= 2^24 (clause 10.6.4): "range decoding failed"."""
-    from lghcc.common.errors import BitstreamError
+    from ..common.errors import BitstreamError
 
     rng = np.random.default_rng(seed)
     for _ in range(200000):
@@ -214,7 +215,7 @@ def _level0_header_parser(units):
     """payload -> byte offset of the chunk data, for the single attribute unit of an anchor stream or
     of an explicit-Gaussian stream without neighbour prediction (its header then has the same syntax,
     with the Gaussian layout's channels and cross-channel prediction allowed)."""
-    from lghcc.common.units import GaussianParameterSet
+    from ..common.units import GaussianParameterSet
 
     if not any(u.unit_type == UnitType.GAUSSIAN_PARAMETER_SET for u in units):
         sps = _sps(units)
@@ -235,7 +236,7 @@ def _level0_header_parser(units):
 def nonzero_alignment(units, spec: dict) -> None:
     """{unit: attribute}: the last alignment bit of the (single, level-0) attribute unit's header
     set to 1 (clause 6.4: byte_alignment() bits are zero); the header must end unaligned."""
-    from lghcc.common.errors import BitstreamError
+    from ..common.errors import BitstreamError
 
     if spec.get("unit", "attribute") != "attribute":
         raise ValueError("nonzero_alignment: only the attribute unit")
@@ -257,8 +258,8 @@ def nonzero_alignment(units, spec: dict) -> None:
 def recode_attribute_header(units, spec: dict) -> None:
     """Rewrite the header of attribute unit ``nth`` (default: the last), its chunks kept:
     {context_model_id: id} for a unit that names a context model the stream does not hold."""
-    from lghcc.common.geometry import decode_geometry
-    from lghcc.common.hierarchy import build_hierarchy
+    from ..common.geometry import decode_geometry
+    from ..common.hierarchy import build_hierarchy
 
     sps = _sps(units)
     nth = int(spec.get("nth", -1))
@@ -288,9 +289,9 @@ def set_elements(units, edits: list[dict]) -> None:
     (lghcc.conformance.fuzz.replace_element: later bits move, CRCs are recomputed by the writer).
     f(32) values are given as numbers (or 'nan', 'inf'). Located from the decoder's trace of the
     unedited stream."""
-    from lghcc.common.container import write_container
-    from lghcc.common.syntax import f32_bits
-    from lghcc.conformance.fuzz import replace_element, stream_elements
+    from ..common.container import write_container
+    from ..common.syntax import f32_bits
+    from .fuzz import replace_element, stream_elements
 
     els = stream_elements(write_container(units))
     picked = []
@@ -314,7 +315,7 @@ def _encode_geometry_unchecked(coords: np.ndarray, shift_min: list[int] | None =
     import inspect
     import textwrap
 
-    from lghcc.common import geometry
+    from ..common import geometry
 
     src = textwrap.dedent(inspect.getsource(geometry.encode_geometry))
     src = src.replace('raise ValueError("coordinates must be unique")', "pass")
@@ -332,8 +333,8 @@ def _box_min_x_for_top(payload: bytes, coords: np.ndarray, top: int) -> dict:
 
 def _geometry_with_header(payload: bytes, fields: dict) -> bytes:
     """A geometry unit's payload with header fields rewritten, the coded data after its byte alignment kept."""
-    from lghcc.common.bitio import BitWriter
-    from lghcc.common.geometry import GeometryHeader
+    from ..common.bitio import BitWriter
+    from ..common.geometry import GeometryHeader
 
     r = BitReader(payload)
     gh = GeometryHeader.parse(r)
@@ -350,8 +351,8 @@ def tile_point_beyond_cell(units, spec: dict) -> None:
     """{t, by}: the geometry unit of tile t (default the last) with its box minimum along x moved so
     that the tile's largest decoded x lies ``by`` voxels beyond its cell (clause 7.3.11, E58; by 1:
     the first coordinate outside), the tile's tile_data_size following the unit's new length."""
-    from lghcc.common.geometry import decode_geometry
-    from lghcc.common.tiles import cell_bounds
+    from ..common.geometry import decode_geometry
+    from ..common.tiles import cell_bounds
 
     i, index, starts, ends = _tiles(units)
     t = int(spec.get("t", -1)) % len(starts)
@@ -367,7 +368,7 @@ def tile_point_beyond_cell(units, spec: dict) -> None:
 
 def _tiles(units):
     """(tile_index unit position, its TileIndex, each tile's geometry unit position, each tile's hash unit position)."""
-    from lghcc.common.units import TileIndex
+    from ..common.units import TileIndex
 
     i = _index(units, UnitType.TILE_INDEX)
     starts = [j for j, u in enumerate(units) if u.unit_type == UnitType.GEOMETRY]
@@ -377,7 +378,7 @@ def _tiles(units):
 
 def _box_min_shifted(payload: bytes, delta) -> dict:
     """The geometry header's box-minimum fields moved by ``delta`` voxels per axis (the coded offsets kept)."""
-    from lghcc.common.geometry import GeometryHeader
+    from ..common.geometry import GeometryHeader
 
     gh = GeometryHeader.parse(BitReader(payload))
     mins = [(-a if f else a) + int(d) for a, f, d in zip(gh.geom_bbox_min_abs, gh.geom_bbox_min_sign_flag, delta)]
@@ -386,7 +387,7 @@ def _box_min_shifted(payload: bytes, delta) -> dict:
 
 def _reframe_tile(units, index, t: int, starts, ends, cell) -> None:
     """Tile t's cell set and its tile_data_size made that of its units (after an edit of them)."""
-    from lghcc.common.container import UNIT_CRC_BYTES, UNIT_HEADER_BYTES
+    from ..common.container import UNIT_CRC_BYTES, UNIT_HEADER_BYTES
 
     index.tile_x[t], index.tile_y[t], index.tile_z[t] = (int(c) for c in cell)
     index.tile_data_size[t] = sum(UNIT_HEADER_BYTES + len(u.payload) + UNIT_CRC_BYTES
@@ -415,7 +416,7 @@ def tile_scale_cells(units, spec: dict) -> None:
     recomputed from its points for that tile size (each tile's points must share one cell of it;
     the cells must stay in increasing order): a stream consistent but for the element's range when s
     is beyond it (clause 7.3.1)."""
-    from lghcc.common.geometry import decode_geometry
+    from ..common.geometry import decode_geometry
 
     i, index, starts, ends = _tiles(units)
     ps_at, ps = _ps_index(units), _sps(units)
@@ -436,7 +437,7 @@ def geometry_edit(units, spec: dict) -> None:
     {append_hex: '...'}: bytes after the coded data; {anchors_delta: d}: num_anchors changed by d
     (the sps re-written); {top_x: t}: the box minimum along x set so that the largest decoded x is t
     (the coded offsets kept)."""
-    from lghcc.common.geometry import decode_geometry
+    from ..common.geometry import decode_geometry
 
     j = _index(units, UnitType.GEOMETRY)
     s = _ps_index(units)
@@ -475,14 +476,14 @@ def context_unit(units, spec: dict) -> None:
     values in all, coded data empty); or the arrays kept and the coded data damaged:
     {failing_words: seed} (words on which range decoding fails), {coded_size_delta: d} (coded_size
     beyond the payload). The hyperparameters, syntax elements, are edited with set_elements."""
-    from lghcc.common.context.model_unit import (ContextModelUnit, IntArrayHeader, NamedIntArray,
+    from ..common.context.model_unit import (ContextModelUnit, IntArrayHeader, NamedIntArray,
                                                  read_context_model_unit, write_context_model_unit)
 
     j = _index(units, UnitType.CONTEXT_MODEL)
     model_id, hp, arrays = read_context_model_unit(units[j].payload)
     unit = ContextModelUnit.from_bytes(units[j].payload)
     if "failing_words" in spec or "coded_size_delta" in spec:  # the arrays kept, the coded data damaged
-        from lghcc.common.entropy.symbol_coder import decode_symbols
+        from ..common.entropy.symbol_coder import decode_symbols
 
         if "failing_words" in spec:
             levels = np.concatenate([np.full(int(np.prod(a.shape, dtype=np.int64)), a.array_level, np.int64)
@@ -516,8 +517,8 @@ def render_unit(units, spec: dict) -> None:
     {duplicate_role: true} (the first MLP twice), {oversized: true} (two 4096 x 4096 layers: more
     than 2^24 parameters, coded data empty), {failing_words: seed} (coded data on which range
     decoding fails, q >= 2^24), {coded_size_delta: d} (coded_size beyond the payload)."""
-    from lghcc.common.entropy.symbol_coder import encode_symbols
-    from lghcc.common.units import RenderMlpHeader, RenderModelUnit
+    from ..common.entropy.symbol_coder import encode_symbols
+    from ..common.units import RenderMlpHeader, RenderModelUnit
 
     j = _index(units, UnitType.RENDER_MODEL)
     unit = RenderModelUnit.from_bytes(units[j].payload)
@@ -527,7 +528,7 @@ def render_unit(units, spec: dict) -> None:
                             bias_level=[0, 0])
         unit = RenderModelUnit(num_mlps=1, mlps=[h], coded_size=0, coded_data=b"")
     elif spec.get("duplicate_role"):
-        from lghcc.common.entropy.symbol_coder import decode_symbols
+        from ..common.entropy.symbol_coder import decode_symbols
 
         h = unit.mlps[0]
         first = []
@@ -540,7 +541,7 @@ def render_unit(units, spec: dict) -> None:
         unit = RenderModelUnit(num_mlps=unit.num_mlps + 1, mlps=list(unit.mlps) + [h], coded_size=len(data),
                                coded_data=data)
     elif "failing_words" in spec:
-        from lghcc.common.entropy.symbol_coder import decode_symbols
+        from ..common.entropy.symbol_coder import decode_symbols
 
         levels = _all_levels(unit)
         unit.coded_data = _failing_words(int(spec["failing_words"]), lambda w: decode_symbols(w, levels))
@@ -548,7 +549,7 @@ def render_unit(units, spec: dict) -> None:
     elif "coded_size_delta" in spec:  # coded_size beyond the payload: a truncation
         unit.coded_size += int(spec["coded_size_delta"])
     elif spec.get("weight_2_24"):
-        from lghcc.common.entropy.symbol_coder import decode_symbols
+        from ..common.entropy.symbol_coder import decode_symbols
 
         levels = _all_levels(unit)
         q = decode_symbols(unit.coded_data, levels)
@@ -618,7 +619,7 @@ def _layers(rng, specs: list[dict], fan_in: int, last_out: int, m: int | None = 
     """IntLinear layers from specs [{out, w, b, shift, bits}, ...]; the last one has ``last_out``
     outputs. With ``m`` (a head: 3M outputs), the last layer's rows of means, levels and step
     adjustments take their own weights and biases (w/b, level_w/level_b, adjust_w/adjust_b)."""
-    from lghcc.common.intnn import IntLinear
+    from ..common.intnn import IntLinear
 
     layers = []
     for l, sp in enumerate(specs):
@@ -637,38 +638,13 @@ def _layers(rng, specs: list[dict], fan_in: int, last_out: int, m: int | None = 
     return layers
 
 
-def designed_model(units, spec: dict) -> None:
-    """Code level 2 with a context model built from ``spec`` (seeded; every layer's weights,
-    biases, shift and width, the GG-Conv graph and table), so that its means, levels and step
-    adjustments reach the clamps and rounding ties a wrong decoder gets wrong. The level-2 values
-    the per-channel stream decoded to are re-quantized with the model's adjusted steps; the caller
-    rehashes the stream. spec: {model: ggconv | parent_mlp, seed, k, radius_sq, grid, channels,
-    h_shift, neighbour_level, table: small|extreme|wide, parent_base: random|ones|zeros,
-    feat: [layer, ...], head: [layer, ...]} with layer = {out, w, b, shift, bits} (the head's last
-    layer also level_w, level_b, adjust_w, adjust_b)."""
-    from lghcc.common.context.ggconv import GGConvParams
-    from lghcc.common.context.model_unit import write_context_model_unit
-    from lghcc.common.context.models import level2_coding_params, read_context_model
-    from lghcc.common.context.parent_mlp import ParentMlpParams
-    from lghcc.common.geometry import decode_geometry
-    from lghcc.common.hierarchy import build_hierarchy
-    from lghcc.common.intnn import IntMLP
-    from lghcc.common.units import CONTEXT_GGCONV, CONTEXT_PARENT_MLP, LEVEL_1, LEVEL_2
+def _designed_params(spec: dict, c: int, m: int):
+    """(context_model_id, parameters) of ``designed_model``'s model for C features and M channels."""
+    from ..common.context.ggconv import GGConvParams
+    from ..common.context.parent_mlp import ParentMlpParams
+    from ..common.intnn import IntMLP
+    from ..common.units import CONTEXT_GGCONV, CONTEXT_PARENT_MLP
 
-    sps = _sps(units)
-    layout = _layout(sps)
-    m, c = layout.num_channels, sps.feature_dim
-    coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, sps.num_anchors)
-    hier = build_hierarchy(coords, sps.coarse_voxel_scale)
-    values = np.empty((sps.num_anchors, m), np.float32)
-    a1, a2 = _index(units, UnitType.ATTRIBUTE, 0), _index(units, UnitType.ATTRIBUTE, 1)
-    if UnitType.CONTEXT_MODEL in [u.unit_type for u in units]:
-        raise ValueError("designed_model starts from a stream without a context model")
-    steps = layout.steps(sps)
-    _, _, q1 = attr.read_attribute_unit(units[a1].payload, layout, steps, hier.num_level1, LEVEL_1, values,
-                                        hier.level1_idx, keep_q=True)
-    h2, mask2, _ = attr.read_attribute_unit(units[a2].payload, layout, steps, hier.num_level2, LEVEL_2, values,
-                                            hier.level2_idx, keep_q=True)
     rng = np.random.default_rng(int(spec.get("seed", 0)))
     base = {"ones": np.ones(m, np.int64), "zeros": np.zeros(m, np.int64),
             "random": rng.integers(0, 2, size=m)}[spec.get("parent_base", "random")]
@@ -684,6 +660,39 @@ def designed_model(units, spec: dict) -> None:
                               table=table, h_shift=int(spec.get("h_shift", 0)), feat_mlp=feat, head_mlp=head,
                               neighbour_level=int(spec.get("neighbour_level", 1)), parent_base=base)
         model_id = CONTEXT_GGCONV
+    return model_id, params
+
+
+def designed_model(units, spec: dict) -> None:
+    """Code level 2 with a context model built from ``spec`` (seeded; every layer's weights,
+    biases, shift and width, the GG-Conv graph and table), so that its means, levels and step
+    adjustments reach the clamps and rounding ties a wrong decoder gets wrong. The level-2 values
+    the per-channel stream decoded to are re-quantized with the model's adjusted steps; the caller
+    rehashes the stream. spec: {model: ggconv | parent_mlp, seed, k, radius_sq, grid, channels,
+    h_shift, neighbour_level, table: small|extreme|wide, parent_base: random|ones|zeros,
+    feat: [layer, ...], head: [layer, ...]} with layer = {out, w, b, shift, bits} (the head's last
+    layer also level_w, level_b, adjust_w, adjust_b)."""
+    from ..common.context.model_unit import write_context_model_unit
+    from ..common.context.models import level2_coding_params, read_context_model
+    from ..common.geometry import decode_geometry
+    from ..common.hierarchy import build_hierarchy
+    from ..common.units import LEVEL_1, LEVEL_2
+
+    sps = _sps(units)
+    layout = _layout(sps)
+    m, c = layout.num_channels, sps.feature_dim
+    coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, sps.num_anchors)
+    hier = build_hierarchy(coords, sps.coarse_voxel_scale)
+    values = np.empty((sps.num_anchors, m), np.float32)
+    a1, a2 = _index(units, UnitType.ATTRIBUTE, 0), _index(units, UnitType.ATTRIBUTE, 1)
+    if UnitType.CONTEXT_MODEL in [u.unit_type for u in units]:
+        raise ValueError("designed_model starts from a stream without a context model")
+    steps = layout.steps(sps)
+    _, _, q1 = attr.read_attribute_unit(units[a1].payload, layout, steps, hier.num_level1, LEVEL_1, values,
+                                        hier.level1_idx, keep_q=True)
+    h2, mask2, _ = attr.read_attribute_unit(units[a2].payload, layout, steps, hier.num_level2, LEVEL_2, values,
+                                            hier.level2_idx, keep_q=True)
+    model_id, params = _designed_params(spec, c, m)
     unit = write_context_model_unit(model_id, *params.to_syntax())
     model = read_context_model(unit, layout)
     cp = level2_coding_params(model, coords[hier.level1_idx], q1, coords[hier.level2_idx], hier.parent_of_level2,
@@ -713,9 +722,9 @@ def neighbour_prediction(units, spec: dict) -> None:
     the LoDs, padded with empty chunks to NumChunks) | context_model_id_1 (the header names context
     model 1, its chunks kept) | no_graph (points beyond the extent limit: no graph is built, every
     chunk empty)}."""
-    from lghcc.common.geometry import decode_geometry
-    from lghcc.common.units import GaussianParameterSet, NeighbourPredictionUnit
-    from lghcc.encoder.stream.neighbour_coding import NeighbourCoding
+    from ..common.geometry import decode_geometry
+    from ..common.units import GaussianParameterSet, NeighbourPredictionUnit
+    from ..encoder.stream.neighbour_coding import NeighbourCoding
 
     gps = GaussianParameterSet.from_bytes(units[_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
     if gps.hierarchy_enabled_flag or gps.tiles_enabled_flag:
@@ -759,6 +768,32 @@ def neighbour_prediction(units, spec: dict) -> None:
                  DataUnit(UnitType.NEIGHBOUR_PREDICTION, unit.to_bytes()))
 
 
+def _adjust_indices(kind: str, n: int, top: int) -> np.ndarray:
+    """``step_adjust``'s indices of n rows: zero | const:<a> | cycle | cycle:<n>."""
+    if kind.startswith("const:"):
+        return np.full(n, int(kind.split(":")[1]), dtype=np.int64)
+    period = 1 if kind == "zero" else int(kind.split(":")[1]) if ":" in kind else top + 1
+    return np.arange(n, dtype=np.int64) % period
+
+
+def _edit_adjust_chunks(h: AttributeUnitHeader, payload: bytes, spec: dict) -> bytes:
+    """``step_adjust``'s empty_adjust_chunks and append_adjust_hex: the chunks of indices edited, the
+    header's sizes kept consistent."""
+    body = payload[len(h.to_bytes()):]
+    pieces, pos = [], 0  # per chunk [indices, values]
+    for a_size, v_size in zip(h.adjust_chunk_size, h.chunk_size):
+        pieces.append([body[pos:pos + a_size], body[pos + a_size:pos + a_size + v_size]])
+        pos += a_size + v_size
+    if spec.get("empty_adjust_chunks"):  # every chunk of indices empty: each decodes as bin 0 of its table
+        for piece in pieces:
+            piece[0] = b""
+    if "append_adjust_hex" in spec:
+        a = spec["append_adjust_hex"]
+        pieces[int(a["chunk"])][0] += bytes.fromhex(a["hex"])
+    h.adjust_chunk_size = [len(p[0]) for p in pieces]
+    return h.to_bytes() + b"".join(p[0] + p[1] for p in pieces)
+
+
 def step_adjust(units, spec: dict) -> None:
     """Give every row of the single attribute unit of an explicit-Gaussian stream coded with
     neighbour prediction (no tiles) a step-adjustment index and insert the step_adjust unit after
@@ -772,9 +807,9 @@ def step_adjust(units, spec: dict) -> None:
     encoder's probabilities, extreme: step_flag_prob[i] 0 for even i and 4095 for odd i, or a list),
     append_adjust_hex ({chunk, hex}: words appended to a chunk of indices, the sizes kept
     consistent)}."""
-    from lghcc.common.neighbour_prediction import neighbour_graph
-    from lghcc.common.units import NUM_STEP_FLAG_CONTEXTS, GaussianParameterSet, StepAdjustFlagsUnit, StepAdjustUnit
-    from lghcc.encoder.stream.neighbour_coding import NeighbourCoding, flag_counts, flag_probabilities
+    from ..common.neighbour_prediction import neighbour_graph
+    from ..common.units import NUM_STEP_FLAG_CONTEXTS, GaussianParameterSet, StepAdjustFlagsUnit, StepAdjustUnit
+    from ..encoder.stream.neighbour_coding import NeighbourCoding, flag_counts, flag_probabilities
 
     gps = GaussianParameterSet.from_bytes(units[_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
     if gps.hierarchy_enabled_flag or gps.tiles_enabled_flag:
@@ -784,12 +819,7 @@ def step_adjust(units, spec: dict) -> None:
     k, unit, coords, j, h0, values = _predicted_attribute_unit(units, gps, layout)
     q = np.rint(values / layout.steps(gps)).astype(np.int64)  # index 0 throughout: exact
     top = int(spec["max"])
-    kind = str(spec.get("indices", "cycle"))
-    if kind.startswith("const:"):
-        adjust = np.full(n, int(kind.split(":")[1]), dtype=np.int64)
-    else:
-        period = 1 if kind == "zero" else int(kind.split(":")[1]) if ":" in kind else top + 1
-        adjust = np.arange(n, dtype=np.int64) % period
+    adjust = _adjust_indices(str(spec.get("indices", "cycle")), n, top)
     flags = spec.get("flags")
     if flags:  # the stream's step_adjust_flags unit: the neighbour unit carries it to the coding
         graph = neighbour_graph(coords, unit.num_lods, unit.num_neighbours)
@@ -802,26 +832,14 @@ def step_adjust(units, spec: dict) -> None:
     h.rows_per_chunk_minus1 = h0.rows_per_chunk_minus1
     payload = nc.write(h)
     if "adjust_mean" in spec or "adjust_level" in spec:  # recoded with the given model
-        from lghcc.common.neighbour_prediction import write_predicted_attribute_unit
+        from ..common.neighbour_prediction import write_predicted_attribute_unit
 
         h.adjust_mean = int(spec.get("adjust_mean", h.adjust_mean))
         h.adjust_level = int(spec.get("adjust_level", h.adjust_level))
         payload = write_predicted_attribute_unit(h, layout, q, nc.graph, unit, nc.prediction, adjust,
                                                  step_flags=unit.step_flags)
     if spec.get("empty_adjust_chunks") or "append_adjust_hex" in spec:
-        body = payload[len(h.to_bytes()):]
-        pieces, pos = [], 0  # per chunk [indices, values]
-        for a_size, v_size in zip(h.adjust_chunk_size, h.chunk_size):
-            pieces.append([body[pos:pos + a_size], body[pos + a_size:pos + a_size + v_size]])
-            pos += a_size + v_size
-        if spec.get("empty_adjust_chunks"):  # every chunk of indices empty: each decodes as bin 0 of its table
-            for piece in pieces:
-                piece[0] = b""
-        if "append_adjust_hex" in spec:
-            a = spec["append_adjust_hex"]
-            pieces[int(a["chunk"])][0] += bytes.fromhex(a["hex"])
-        h.adjust_chunk_size = [len(p[0]) for p in pieces]
-        payload = h.to_bytes() + b"".join(p[0] + p[1] for p in pieces)
+        payload = _edit_adjust_chunks(h, payload, spec)
     units[j] = DataUnit(UnitType.ATTRIBUTE, payload)
     units.insert(k + 1, DataUnit(UnitType.STEP_ADJUST, StepAdjustUnit(max_step_adjust=top).to_bytes()))
     if unit.step_flags is not None:
@@ -850,7 +868,7 @@ def _degree_chunk_faults(h: AttributeUnitHeader, payload: bytes, spec: dict) -> 
     emptied (``empty_degree_chunks``: [i], degree_chunk_size[i] 0), words appended to one
     (``append_degree_hex``: {chunk, hex}, sizes kept consistent) or ``degree_chunk_size_add`` bytes
     added to degree_chunk_size[0] alone (the sizes then miss the payload)."""
-    from lghcc.common.neighbour_prediction import chunk_piece_sizes
+    from ..common.neighbour_prediction import chunk_piece_sizes
 
     sizes = chunk_piece_sizes(h)
     body, pos, pieces = payload[len(h.to_bytes()):], 0, []
@@ -878,9 +896,9 @@ def sh_degree(units, spec: dict) -> None:
     the encoder's, from the flags' counts), predictions: [[target, source, weight]] (the unit's
     cross-channel predictions, e.g. from channels a row may not code), and the faults of
     _degree_chunk_faults}."""
-    from lghcc.common.neighbour_prediction import chunk_segments
-    from lghcc.common.units import NUM_DEGREE_CONTEXTS, GaussianParameterSet, ShDegreeUnit
-    from lghcc.encoder.stream.neighbour_coding import NeighbourCoding
+    from ..common.neighbour_prediction import chunk_segments
+    from ..common.units import NUM_DEGREE_CONTEXTS, GaussianParameterSet, ShDegreeUnit
+    from ..encoder.stream.neighbour_coding import NeighbourCoding
 
     gps = GaussianParameterSet.from_bytes(units[_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
     if gps.hierarchy_enabled_flag or gps.tiles_enabled_flag or any(u.unit_type == UnitType.STEP_ADJUST for u in units):
@@ -918,9 +936,9 @@ def _predicted_attribute_unit(units, gps, layout):
     """The single neighbour-predicted attribute unit of an explicit-Gaussian stream, decoded:
     (index of the neighbour_prediction unit, that unit, the positions, index of the attribute unit,
     its header, the decoded values [N, M])."""
-    from lghcc.common.geometry import decode_geometry
-    from lghcc.common.neighbour_prediction import read_predicted_attribute_unit
-    from lghcc.common.units import NeighbourPredictionUnit
+    from ..common.geometry import decode_geometry
+    from ..common.neighbour_prediction import read_predicted_attribute_unit
+    from ..common.units import NeighbourPredictionUnit
 
     n = gps.num_gaussians
     k = _index(units, UnitType.NEIGHBOUR_PREDICTION)
@@ -940,8 +958,8 @@ def rotation_length(units, spec: dict) -> None:
     (row i gets i mod n; beyond ``max``, or negative with ``offset``, a fault), offset (added to
     every index, default 0), max, rows: {row: [qx, qy, qz]} (those rows' quantized x, y, z), xyz_all:
     [qx, qy, qz] (every row's)}."""
-    from lghcc.common.units import GaussianParameterSet, RotationLengthUnit
-    from lghcc.encoder.stream.neighbour_coding import NeighbourCoding
+    from ..common.units import GaussianParameterSet, RotationLengthUnit
+    from ..encoder.stream.neighbour_coding import NeighbourCoding
 
     gps = GaussianParameterSet.from_bytes(units[_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
     if gps.hierarchy_enabled_flag or gps.tiles_enabled_flag or \
@@ -976,7 +994,7 @@ def sh_transform(units, spec: dict) -> None:
     (default the unit's), bits: B (1 .. 16; default the fewest that hold the matrix), seed,
     scale_coefficients: s (every coefficient multiplied by s, the attribute unit coded again: a stream with
     neighbour prediction and no tiles, step adjustment or SH degrees whose coefficients are below 2^24)}."""
-    from lghcc.common.units import GaussianParameterSet, ShTransformUnit
+    from ..common.units import GaussianParameterSet, ShTransformUnit
 
     gps = GaussianParameterSet.from_bytes(units[_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
     if "scale_coefficients" in spec:
@@ -1008,7 +1026,7 @@ def _scale_coefficients(units, gps, factor: int) -> None:
     """The single neighbour-predicted attribute unit coded again with its SH-rest coefficients times
     ``factor`` (large coefficients: sums of products beyond 2^53, clause 11.11). The coefficients are read
     as the values a layout without the transform reconstructs, float32(t) * step, exact below 2^24."""
-    from lghcc.encoder.stream.neighbour_coding import NeighbourCoding
+    from ..encoder.stream.neighbour_coding import NeighbourCoding
 
     if gps.tiles_enabled_flag or any(u.unit_type in (UnitType.STEP_ADJUST, UnitType.SH_DEGREE) for u in units):
         raise ValueError("scale_coefficients edits a stream without tiles, step adjustment or SH degrees")
@@ -1029,7 +1047,7 @@ def _chunks_across_lods(h: AttributeUnitHeader, nc) -> bytes:
     """The attribute unit of ``nc`` (already written into ``h``) with its rows, in coding order, cut
     every rows_per_chunk rows regardless of the LoDs (a version-1.0 chunking of the LoD-major order),
     then empty chunks up to the NumChunks of clause 7.3.12."""
-    from lghcc.common.neighbour_prediction import (
+    from ..common.neighbour_prediction import (
         level_table,
         lod_coding_params,
         mean_flags,
@@ -1060,7 +1078,7 @@ def swap_tiles(units, pair: list[int]) -> None:
     """Tiles a and b exchanged with their tile_index entries (cell, point count, size): every
     tile's points still lie in its cell and the index still gives each tile's bytes, but the
     cells are out of their increasing order (clause 7.3.11)."""
-    from lghcc.common.units import TileIndex
+    from ..common.units import TileIndex
 
     i = _index(units, UnitType.TILE_INDEX)
     index = TileIndex.parse(BitReader(units[i].payload), num_points=1 << 24)
@@ -1080,9 +1098,9 @@ def flatten_hierarchy(units, spec: dict) -> None:
     """hierarchy_enabled_flag 0, the level-1 and level-2 units (both with the per-channel prior)
     replaced by one level-0 unit of every row with the level-1 unit's prior: the same decoded
     scene without the hierarchy. Any context_model unit stays (clause 6.3: then an error)."""
-    from lghcc.common.geometry import decode_geometry
-    from lghcc.common.hierarchy import build_hierarchy
-    from lghcc.common.units import LEVEL_1, LEVEL_2
+    from ..common.geometry import decode_geometry
+    from ..common.hierarchy import build_hierarchy
+    from ..common.units import LEVEL_1, LEVEL_2
 
     sps = _sps(units)
     layout = _layout(sps)
@@ -1109,7 +1127,7 @@ def flatten_hierarchy(units, spec: dict) -> None:
 
 
 def apply_edits(units, post: dict) -> None:
-    """The edits of this module that ``post`` asks for, in a fixed order (gen_conformance's
+    """The edits of this module that ``post`` asks for, in a fixed order (the generator's
     post_process calls it after its own unit edits and before the rehash)."""
     for edit in _EDITS_IN_ORDER:
         if edit.__name__ in post:

@@ -1,22 +1,31 @@
-#!/usr/bin/env python3
-"""Generate the conformance streams from conformance/sources.yaml, or check them.
+"""The generator of the conformance suite: conformance/streams/<id>/ from conformance/sources.yaml.
 
-    python tools/gen_conformance.py            # (re)write conformance/streams/<id>/
-    python tools/gen_conformance.py c020_idcm_mode_2      # only these streams
-    python tools/gen_conformance.py --check    # the encoder must reproduce every stream byte for byte,
-                                               # and its test.yaml exactly
-    python tools/gen_conformance.py --renders  # only the reference renders (informative) of the
-                                               # streams with `renders` in sources.yaml
+    python -m lghcc.conformance.generate                   # (re)write every stream (a format change)
+    python -m lghcc.conformance.generate c020_idcm_mode_2  # only these streams (a stream added or fixed)
+    python -m lghcc.conformance.generate --check           # generate in memory, write nothing: see below
+    python -m lghcc.conformance.generate --metadata        # only test.yaml, from the frozen streams
+    python -m lghcc.conformance.generate --renders         # only the reference renders (informative) of
+                                                           # the streams with `renders` in sources.yaml
+
+The streams are frozen reference material (conformance/README.md): the encoder makes each base
+stream, the edits of ``post`` (this module and stream_edits.py) make from it what an encoder never
+writes, and the result is committed with its SHA-256 in conformance/manifest.yaml, which every mode
+that writes rewrites. An encoder change never requires them to be made again; regenerate when the
+bitstream format changes (all of them), or for the streams added or changed in sources.yaml.
 
 Every stream is checked against sources.yaml when generated: a stream that must decode decodes
 to the encoder's hash; an error stream is rejected by the reference decoder with
-`expect_error` and a message holding `expect_message`. test.yaml's `tools` are derived from
-what the reference decoder did with the stream (tags below), and for an error stream the
-decoding stage that rejects it, which sources.yaml declares (`rejected_in`); the `tools` of
+`expect_error` and a message holding `expect_message`; an isolated error stream (`condition`) is
+decoded by the decoder without that one check (conformance/conditions.py). test.yaml's `tools` are
+derived from what the reference decoder did with the stream (tags below), and for an error stream
+the decoding stage that rejects it, which sources.yaml declares (`rejected_in`); the `tools` of
 sources.yaml state the intent and must be among them.
 
-Streams are frozen once committed: regenerate only when the bitstream format changes
-on purpose, and say so in the commit.
+--check (the integration tier runs it) writes nothing and fails (exit 1) when the generator could no
+longer make the suite with today's encoder and decoder (an edit that no longer applies, a stream
+that no longer isolates its condition, a stream whose derived tools miss its intent), or when a
+frozen test.yaml is not what the generator derives from its frozen stream. Whether today's
+encoder reproduces a frozen stream byte for byte is reported, never required.
 """
 
 from __future__ import annotations
@@ -33,14 +42,16 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tools"))  # stream_edits
-SOURCES = ROOT / "conformance" / "sources.yaml"
-STREAMS = ROOT / "conformance" / "streams"
+from . import load_yaml
+from .manifest import write_manifest
+
+HERE = Path(__file__).resolve().parent
+SOURCES = HERE / "sources.yaml"
+STREAMS = HERE / "streams"
 
 
 def random_mlp(rng, dims: list[int], final: str, zero_bias: bool):
-    from lghcc.common.scene import RenderMLP
+    from ..common.scene import RenderMLP
 
     ws = [(rng.normal(size=(o, i)) / np.sqrt(i)).astype(np.float32) for i, o in zip(dims[:-1], dims[1:])]
     bs = [np.zeros(o, np.float32) if zero_bias else (0.1 * rng.normal(size=o)).astype(np.float32)
@@ -51,7 +62,7 @@ def random_mlp(rng, dims: list[int], final: str, zero_bias: bool):
 def spec_mlp(rng, in_dim: int, spec: dict):
     """A render MLP from an explicit layer list: spec = {layers: [{out, act, weight, bias}, ...]},
     weight/bias: a number (scale of N(0, 1) values; 0 gives a tensor of zeros)."""
-    from lghcc.common.scene import RenderMLP
+    from ..common.scene import RenderMLP
 
     ws, bs, acts = [], [], []
     fan_in = in_dim
@@ -66,7 +77,7 @@ def spec_mlp(rng, in_dim: int, spec: dict):
 
 def random_scene(s: dict):
     """Small random scene with the knobs the sources use."""
-    from lghcc.common.scene import AnchorScene
+    from ..common.scene import AnchorScene
 
     rng = np.random.default_rng(s["seed"])
     n, c, k = s["num_anchors"], s["feature_dim"], s["num_offsets"]
@@ -121,7 +132,7 @@ def random_gaussian_scene(s: dict):
     """Small random explicit-Gaussian scene: SH degree ``sh_degree``; with ``correlated`` the
     colours of each SH coefficient and the three scales move together (cross-channel prediction
     pays off); positions on a grid of ``voxel_size`` within +-``spread`` voxels."""
-    from lghcc.common.scene import GaussianScene
+    from ..common.scene import GaussianScene
 
     rng = np.random.default_rng(s["seed"])
     n, d = s["num_gaussians"], s.get("sh_degree", 0)
@@ -149,7 +160,7 @@ def random_gaussian_scene(s: dict):
     scene = GaussianScene.on_grid(coords, float(s.get("voxel_size", 0.01)), s.get("origin", [0.0, 0.0, 0.0]),
                                   f(sh), f(rng.normal(0, 2, size=n)), f(log_scales), f(rng.normal(size=(n, 4))))
     for row, col, value in s.get("outliers", []):  # [row, channel of the Gaussian layout, value]
-        from lghcc.common.attributes import GaussianLayout
+        from ..common.attributes import GaussianLayout
 
         lay = GaussianLayout(d)
         v = lay.join(scene)
@@ -167,8 +178,8 @@ def _smooth_gaussian_scene(s: dict, rng, coords: np.ndarray, spread: int):
     coefficient and the three scales follow one channel's field); the channels of ``noise_channels`` (indices of the
     Gaussian layout, clause 11.1) are white noise alone (their neighbours do not predict them).
     ``extra_coords`` replace the first positions (e.g. far corners: the extent limit)."""
-    from lghcc.common.attributes import GaussianLayout
-    from lghcc.common.scene import GaussianScene
+    from ..common.attributes import GaussianLayout
+    from ..common.scene import GaussianScene
 
     lay = GaussianLayout(s.get("sh_degree", 0))
     m, n = lay.num_channels, coords.shape[0]
@@ -193,7 +204,7 @@ def _smooth_gaussian_scene(s: dict, rng, coords: np.ndarray, spread: int):
 
 
 def build_scene(s: dict):
-    from lghcc.formats.procedural import make_procedural_scene
+    from ..formats.procedural import make_procedural_scene
 
     if s["generator"] == "gaussians":
         return random_gaussian_scene(s)
@@ -212,10 +223,10 @@ def _unit_index(units, unit_type, nth: int = 0) -> int:
 def _empty_chunks(units, chunks: list[dict]):
     """Replace chunks of the (single, level-0) attribute unit by 0 bytes (spec 10.6.4: an empty
     chunk decodes as bin 0 of every symbol's table). chunks: [{chunk: i, mask: bool}, ...]."""
-    from lghcc.common import attributes as attr
-    from lghcc.common.bitio import BitReader
-    from lghcc.common.container import DataUnit, UnitType
-    from lghcc.common.units import AttributeUnitHeader, SceneParameterSet
+    from ..common import attributes as attr
+    from ..common.bitio import BitReader
+    from ..common.container import DataUnit, UnitType
+    from ..common.units import AttributeUnitHeader, SceneParameterSet
 
     sps = SceneParameterSet.from_bytes(units[_unit_index(units, UnitType.SCENE_PARAMETER_SET)].payload)
     j = _unit_index(units, UnitType.ATTRIBUTE)
@@ -239,8 +250,8 @@ def _empty_chunks(units, chunks: list[dict]):
 def _ggconv_feature_inputs(c: int) -> int:
     """The input count of GG-Conv's feature MLP for C features (C plus the geometric inputs of
     the normative model, whatever their number): the first width GGConvParams accepts."""
-    from lghcc.common.context.ggconv import GGConvParams
-    from lghcc.common.intnn import IntLinear, IntMLP
+    from ..common.context.ggconv import GGConvParams
+    from ..common.intnn import IntLinear, IntMLP
 
     for n in range(c, c + 64):
         try:
@@ -254,36 +265,11 @@ def _ggconv_feature_inputs(c: int) -> int:
     raise ValueError("no feature-MLP input count fits GGConvParams")
 
 
-def _hand_ggconv(units, spec: dict):
-    """Code level 2 with a hand-built GG-Conv model instead of the per-channel prior: one-layer
-    feature and head MLPs (``feat_layers``, ``head_layers`` deeper), Ch context channels, every
-    layer's shift 0 (or ``feat_shifts``, ``head_shifts``: one per layer; a shift of the head's last
-    layer scales the levels down). Its step adjustment is 0, so the quantized values, and the decoded scene, are
-    those of the per-channel stream. ``override``: {array: {shape, fill, bits}}, arrays that a
-    conforming model cannot have (with ``unchecked``: level 2 keeps the per-channel chunks; with
-    ``model_only``: only the context_model unit is added, which level 2 does not use)."""
-    from lghcc.common import attributes as attr
-    from lghcc.common.container import DataUnit, UnitType
-    from lghcc.common.context.ggconv import GGConvParams
-    from lghcc.common.context.model_unit import NamedIntArray, write_context_model_unit
-    from lghcc.common.context.models import level2_coding_params, read_context_model
-    from lghcc.common.geometry import decode_geometry
-    from lghcc.common.hierarchy import build_hierarchy
-    from lghcc.common.intnn import IntLinear, IntMLP
-    from lghcc.common.units import CONTEXT_GGCONV, LEVEL_1, LEVEL_2, AttributeUnitHeader, SceneParameterSet
+def _hand_ggconv_params(spec: dict, c: int, m: int):
+    """The hand-built GG-Conv model of ``_hand_ggconv`` for C features and M channels."""
+    from ..common.context.ggconv import GGConvParams
+    from ..common.intnn import IntLinear, IntMLP
 
-    sps = SceneParameterSet.from_bytes(units[_unit_index(units, UnitType.SCENE_PARAMETER_SET)].payload)
-    layout = attr.layout_of(sps)
-    m, c = layout.num_channels, sps.feature_dim
-    coords = decode_geometry(units[_unit_index(units, UnitType.GEOMETRY)].payload, sps.num_anchors)
-    hier = build_hierarchy(coords, sps.coarse_voxel_scale)
-    values = np.empty((sps.num_anchors, m), np.float32)
-    a1, a2 = _unit_index(units, UnitType.ATTRIBUTE, 0), _unit_index(units, UnitType.ATTRIBUTE, 1)
-    steps = layout.steps(sps)
-    _, _, q1 = attr.read_attribute_unit(units[a1].payload, layout, steps, hier.num_level1, LEVEL_1, values,
-                                        hier.level1_idx, keep_q=True)
-    h2, mask2, q2 = attr.read_attribute_unit(units[a2].payload, layout, steps, hier.num_level2, LEVEL_2, values,
-                                             hier.level2_idx, keep_q=True)
     ch, d = int(spec.get("channels", 1)), int(spec.get("grid", 2))
     rng = np.random.default_rng(int(spec.get("seed", 0)))
     table = rng.integers(-64, 64, size=(d, d, d, ch), endpoint=True)
@@ -312,8 +298,14 @@ def _hand_ggconv(units, spec: dict):
                      radius_sq=int(spec.get("radius_sq", 64)),
                      table=table, h_shift=0, feat_mlp=IntMLP(feat_layers), head_mlp=IntMLP(head_layers),
                      parent_base=np.arange(m) % 2)  # both kinds of channel mean (Annex H.5.3 step 6)
+    return p
+
+
+def _hand_ggconv_arrays(p, override: dict):
+    """(hyperparameters, arrays) of the model's unit, with ``override``'s arrays in place of the model's."""
+    from ..common.context.model_unit import NamedIntArray
+
     arrays = []
-    override = spec.get("override", {})  # error streams: arrays a conforming model cannot have
     hp, model_arrays = p.to_syntax()
     unknown = set(override) - {a.name for a in model_arrays}
     if unknown:  # hyperparameters out of range: set_elements after the model is written
@@ -327,6 +319,40 @@ def _hand_ggconv(units, spec: dict):
             if "bits" in o:  # a declared width of its own (e.g. beyond the model's)
                 bits = int(o["bits"])
         arrays.append(NamedIntArray(a.name, v, bits, a.signed))
+    return hp, arrays
+
+
+def _hand_ggconv(units, spec: dict):
+    """Code level 2 with a hand-built GG-Conv model instead of the per-channel prior: one-layer
+    feature and head MLPs (``feat_layers``, ``head_layers`` deeper), Ch context channels, every
+    layer's shift 0 (or ``feat_shifts``, ``head_shifts``: one per layer; a shift of the head's last
+    layer scales the levels down). Its step adjustment is 0, so the quantized values, and the decoded scene, are
+    those of the per-channel stream. ``override``: {array: {shape, fill, bits}}, arrays that a
+    conforming model cannot have (with ``unchecked``: level 2 keeps the per-channel chunks; with
+    ``model_only``: only the context_model unit is added, which level 2 does not use)."""
+    from ..common import attributes as attr
+    from ..common.container import DataUnit, UnitType
+    from ..common.context.model_unit import write_context_model_unit
+    from ..common.context.models import level2_coding_params, read_context_model
+    from ..common.geometry import decode_geometry
+    from ..common.hierarchy import build_hierarchy
+    from ..common.units import CONTEXT_GGCONV, LEVEL_1, LEVEL_2, AttributeUnitHeader, SceneParameterSet
+
+    sps = SceneParameterSet.from_bytes(units[_unit_index(units, UnitType.SCENE_PARAMETER_SET)].payload)
+    layout = attr.layout_of(sps)
+    m, c = layout.num_channels, sps.feature_dim
+    coords = decode_geometry(units[_unit_index(units, UnitType.GEOMETRY)].payload, sps.num_anchors)
+    hier = build_hierarchy(coords, sps.coarse_voxel_scale)
+    values = np.empty((sps.num_anchors, m), np.float32)
+    a1, a2 = _unit_index(units, UnitType.ATTRIBUTE, 0), _unit_index(units, UnitType.ATTRIBUTE, 1)
+    steps = layout.steps(sps)
+    _, _, q1 = attr.read_attribute_unit(units[a1].payload, layout, steps, hier.num_level1, LEVEL_1, values,
+                                        hier.level1_idx, keep_q=True)
+    h2, mask2, q2 = attr.read_attribute_unit(units[a2].payload, layout, steps, hier.num_level2, LEVEL_2, values,
+                                             hier.level2_idx, keep_q=True)
+    p = _hand_ggconv_params(spec, c, m)
+    override = spec.get("override", {})  # error streams: arrays a conforming model cannot have
+    hp, arrays = _hand_ggconv_arrays(p, override)
     unit = write_context_model_unit(CONTEXT_GGCONV, hp, arrays)
     if spec.get("model_only"):  # the unit alone: no level-2 unit uses it (clause 8.3 rule 3)
         units.insert(_unit_index(units, UnitType.GEOMETRY), DataUnit(UnitType.CONTEXT_MODEL, unit))
@@ -337,7 +363,7 @@ def _hand_ggconv(units, spec: dict):
     if spec.get("unchecked"):
         # an error stream: the decoder must stop (at a level limit or at the model's parameters)
         # before it evaluates the model, so the level-2 chunks are those of the per-channel stream
-        from lghcc.common.bitio import BitReader
+        from ..common.bitio import BitReader
 
         r = BitReader(units[a2].payload)
         AttributeUnitHeader.parse(r, num_channels=m, num_offsets=sps.num_offsets,
@@ -357,10 +383,10 @@ def _hand_ggconv(units, spec: dict):
 def _rehash(data: bytes) -> bytes:
     """Replace the decoded scene hash by the hash of what the stream decodes to (for edits that
     change the decoded scene on purpose; tests/test_spec_and_conformance.py checks those values)."""
-    from lghcc.common.container import DataUnit, UnitType, read_container, write_container
-    from lghcc.common.hashing import digest_of
-    from lghcc.common.units import DecodedSceneHashUnit
-    from lghcc.decoder.decode import decode_stream
+    from ..common.container import DataUnit, UnitType, read_container, write_container
+    from ..common.hashing import digest_of
+    from ..common.units import DecodedSceneHashUnit
+    from ..decoder.decode import decode_stream
 
     digest = digest_of(decode_stream(data, verify_hash=False).scene)
     container = read_container(data)
@@ -374,8 +400,8 @@ def _set_render_mlp(units, edits: list[dict]):
     """Rewrite fields of render MLP headers (e.g. exponents at their limits); the coded integers
     stay, so the decoded weights change by powers of two (rehash the stream).
     edits: [{mlp: m, layer: l, weight_exponent: e, bias_exponent: e}, ...]."""
-    from lghcc.common.container import DataUnit, UnitType
-    from lghcc.common.units import RenderModelUnit
+    from ..common.container import DataUnit, UnitType
+    from ..common.units import RenderModelUnit
 
     j = _unit_index(units, UnitType.RENDER_MODEL)
     unit = RenderModelUnit.from_bytes(units[j].payload)
@@ -390,10 +416,10 @@ def _set_render_mlp(units, edits: list[dict]):
 def _set_prior_mean(units, means: dict):
     """Overwrite prior means of the (single, level-0) attribute unit: {channel: mean}. The coded
     residuals stay, so the channel's decoded values move with the mean (rehash the stream)."""
-    from lghcc.common import attributes as attr
-    from lghcc.common.bitio import BitReader
-    from lghcc.common.container import DataUnit, UnitType
-    from lghcc.common.units import AttributeUnitHeader, SceneParameterSet
+    from ..common import attributes as attr
+    from ..common.bitio import BitReader
+    from ..common.container import DataUnit, UnitType
+    from ..common.units import AttributeUnitHeader, SceneParameterSet
 
     sps = SceneParameterSet.from_bytes(units[_unit_index(units, UnitType.SCENE_PARAMETER_SET)].payload)
     j = _unit_index(units, UnitType.ATTRIBUTE)
@@ -410,7 +436,7 @@ def _insert_raw_unit(data: bytes, spec: dict) -> bytes:
     types the writer refuses (type 0)."""
     import zlib
 
-    from lghcc.common.container import read_container
+    from ..common.container import read_container
 
     units = read_container(data).units
     i = int(spec["index"])
@@ -426,9 +452,9 @@ def _rewrite_gaussian_attributes(units, edit: dict):
     decoded scene is unchanged), and/or with the quantized value at ``set_q`` [row, channel, value]
     changed (the hash then no longer matches: for error streams, or give ``rehash``); ``set_q`` may
     also be a list of such triples."""
-    from lghcc.common import attributes as attr
-    from lghcc.common.container import DataUnit, UnitType
-    from lghcc.common.units import GaussianParameterSet
+    from ..common import attributes as attr
+    from ..common.container import DataUnit, UnitType
+    from ..common.units import GaussianParameterSet
 
     gps = GaussianParameterSet.from_bytes(units[_unit_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
     layout = attr.gaussian_layout_of(gps)
@@ -452,11 +478,12 @@ def _rewrite_gaussian_attributes(units, edit: dict):
 
 
 def _edit_tile_index(units, edits: list[dict]) -> None:
-    from lghcc.common.container import DataUnit, UnitType
-    from lghcc.common.units import TileIndex
+    from ..common.bitio import BitReader
+    from ..common.container import DataUnit, UnitType
+    from ..common.units import TileIndex
 
     j = _unit_index(units, UnitType.TILE_INDEX)
-    index = TileIndex.parse(__import__("lghcc.common.bitio", fromlist=["BitReader"]).BitReader(units[j].payload),
+    index = TileIndex.parse(BitReader(units[j].payload),
                             num_points=1 << 24)
     for e in edits:
         cur = getattr(index, e["name"])
@@ -477,7 +504,7 @@ def _edit_tile_index(units, edits: list[dict]) -> None:
 def _set_scene_hashes(units, hashes: tuple[bytes, ...]) -> None:
     """Write ``hashes`` into the decoded_scene_hash units, in stream order (one per tile); the
     rest of each payload (hash_type, any trailing byte) stays as the edits left it."""
-    from lghcc.common.container import DataUnit, UnitType
+    from ..common.container import DataUnit, UnitType
 
     at = [j for j, u in enumerate(units) if u.unit_type == UnitType.DECODED_SCENE_HASH]
     for j, digest in zip(at, hashes):
@@ -487,7 +514,7 @@ def _set_scene_hashes(units, hashes: tuple[bytes, ...]) -> None:
 
 def _insert_units(units, spec) -> None:
     """One unit or a list, inserted in order; payload as text, or hex bytes."""
-    from lghcc.common.container import DataUnit
+    from ..common.container import DataUnit
 
     for p in spec if isinstance(spec, list) else [spec]:
         payload = bytes.fromhex(p["hex"]) if "hex" in p else p["payload"].encode()
@@ -496,17 +523,17 @@ def _insert_units(units, spec) -> None:
 
 def _insert_empty_render_model(units, index: int) -> None:
     """num_mlps = 0, coded_size = 0: the same decoded scene."""
-    from lghcc.common.container import DataUnit, UnitType
-    from lghcc.common.units import RenderModelUnit
+    from ..common.container import DataUnit, UnitType
+    from ..common.units import RenderModelUnit
 
     units.insert(index, DataUnit(UnitType.RENDER_MODEL, RenderModelUnit().to_bytes()))
 
 
 def _recode_geometry(units, idcm_mode: int) -> None:
     """The geometry coded again, losslessly, with another IDCM mode."""
-    from lghcc.common.container import DataUnit, UnitType
-    from lghcc.common.geometry import decode_geometry, encode_geometry
-    from lghcc.common.units import SceneParameterSet
+    from ..common.container import DataUnit, UnitType
+    from ..common.geometry import decode_geometry, encode_geometry
+    from ..common.units import SceneParameterSet
 
     j = _unit_index(units, UnitType.GEOMETRY)
     n = SceneParameterSet.from_bytes(units[0].payload).num_anchors
@@ -517,8 +544,8 @@ def _recode_geometry(units, idcm_mode: int) -> None:
 
 def _set_parameter_set(unit_type, units, fields: dict) -> None:
     """Fields of the parameter set in the unit of ``unit_type`` overwritten."""
-    from lghcc.common.container import DataUnit, UnitType
-    from lghcc.common.units import GaussianParameterSet, SceneParameterSet
+    from ..common.container import DataUnit, UnitType
+    from ..common.units import GaussianParameterSet, SceneParameterSet
 
     cls = GaussianParameterSet if unit_type == UnitType.GAUSSIAN_PARAMETER_SET else SceneParameterSet
     j = _unit_index(units, unit_type)
@@ -529,13 +556,13 @@ def _set_parameter_set(unit_type, units, fields: dict) -> None:
 
 
 def _set_gps(units, fields: dict) -> None:
-    from lghcc.common.container import UnitType
+    from ..common.container import UnitType
 
     _set_parameter_set(UnitType.GAUSSIAN_PARAMETER_SET, units, fields)
 
 
 def _set_sps(units, fields: dict) -> None:
-    from lghcc.common.container import UnitType
+    from ..common.container import UnitType
 
     _set_parameter_set(UnitType.SCENE_PARAMETER_SET, units, fields)
 
@@ -547,7 +574,7 @@ def _swap_units(units, pair) -> None:
 
 def _duplicate_unit(units, i) -> None:
     """A copy of unit i inserted right after it."""
-    from lghcc.common.container import DataUnit
+    from ..common.container import DataUnit
 
     i = int(i)
     units.insert(i + 1, DataUnit(units[i].unit_type, units[i].payload))
@@ -558,7 +585,7 @@ def _drop_unit(units, i) -> None:
 
 
 def _edit_payload(units, index: int, edit) -> None:
-    from lghcc.common.container import DataUnit
+    from ..common.container import DataUnit
 
     units[index] = DataUnit(units[index].unit_type, edit(units[index].payload))
 
@@ -579,7 +606,7 @@ def _truncate_unit(units, p: dict) -> None:
 
 
 def _corrupt_hash(units, wanted) -> None:
-    from lghcc.common.container import DataUnit, UnitType
+    from ..common.container import DataUnit, UnitType
 
     if not wanted:
         return
@@ -590,7 +617,7 @@ def _corrupt_hash(units, wanted) -> None:
 
 
 def _apply_stream_edits(units, post: dict) -> None:
-    import stream_edits  # tools/stream_edits.py: values the encoder never writes, one broken rule each
+    from . import stream_edits  # values the encoder never writes, one broken rule each
 
     stream_edits.apply_edits(units, post)
 
@@ -604,13 +631,13 @@ def _flip_byte(out: bytes, at) -> bytes:
 
 def _container_bytes(out: bytes, spec) -> bytes:
     """Container-header bytes the writer refuses (a wrong magic)."""
-    import stream_edits
+    from . import stream_edits
 
     return stream_edits.raw_container_edit(out, spec)
 
 
 # The edits of an entry's `post`, each (key, edit), in the order they apply. Edits of the units
-# (with valid CRCs) first; None: the edits of tools/stream_edits.py, which read the whole `post`.
+# (with valid CRCs) first; None: the edits of stream_edits.py, which read the whole `post`.
 UNIT_EDITS = (
     ("insert_unit", _insert_units),
     ("insert_empty_render_model", _insert_empty_render_model),
@@ -648,7 +675,7 @@ def post_process(data: bytes, post: dict, hashes: tuple[bytes, ...] | None = Non
     """Edits applied to an encoded stream, in this order: unit edits (which keep valid CRCs),
     then the rehash, then raw byte edits (which may break the framing on purpose). ``hashes``:
     the scene hashes written after the unit edits (an isolated error stream, ``isolate``)."""
-    from lghcc.common.container import ContainerHeader, DataUnit, read_container, write_container
+    from ..common.container import ContainerHeader, DataUnit, read_container, write_container
 
     if not post:
         return data
@@ -676,7 +703,7 @@ def synthetic_sensitivity(scene, spec: dict | None) -> np.ndarray | None:
     if not spec:
         return None
     rng = np.random.default_rng(int(spec["seed"]))
-    from lghcc.common.attributes import GaussianLayout
+    from ..common.attributes import GaussianLayout
 
     n, m = scene.num_gaussians, GaussianLayout(scene.sh_degree).num_channels
     visibility = 10.0 ** (float(spec.get("spread", 3)) * -rng.random(n))
@@ -685,11 +712,11 @@ def synthetic_sensitivity(scene, spec: dict | None) -> np.ndarray | None:
 
 def synthetic_sh_degrees(scene, spec: dict | None) -> np.ndarray | None:
     """Each Gaussian's SH degree (format 1.3) as an entry's ``sh_degrees`` gives it: {rule} of
-    tools/stream_edits.py sh_degrees_of_rule, from the source's SH-rest energy (the sum of the
+    stream_edits.py's sh_degrees_of_rule, from the source's SH-rest energy (the sum of the
     squares of its coefficients of bands 1 .. d). None without the key (every band coded)."""
     if not spec:
         return None
-    from stream_edits import sh_degrees_of_rule
+    from .stream_edits import sh_degrees_of_rule
 
     energy = (scene.sh[:, 1:].astype(np.float64) ** 2).sum(axis=(1, 2))
     return sh_degrees_of_rule(energy, scene.sh_degree, str(spec.get("rule", "energy")))
@@ -699,14 +726,14 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
     """-> (stream bytes, decoded scene SHA-256 hex or None when the stream must be rejected)."""
     import torch
 
-    from lghcc.encoder.stream.config import load_config
-    from lghcc.encoder.stream.encode import encode_scene
-    from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
+    from ..encoder.stream.config import load_config
+    from ..encoder.stream.encode import encode_scene
+    from ..encoder.gaussians.gaussians import encode_gaussian_scene
 
     post = entry.get("post", {})
     if entry["scene"]["generator"] in ("forge_dense", "forge_box"):  # zero attributes (conformance/forge.py)
-        from lghcc.common.geometry import normative_order
-        from lghcc.conformance.forge import dense_zero_stream
+        from ..common.geometry import normative_order
+        from .forge import dense_zero_stream
 
         s = entry["scene"]
         coords = None
@@ -720,8 +747,8 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
         data = edit_stream(entry, encoded)
         if entry.get("expect") == "error":
             return data, None
-        from lghcc.common.container import UnitType, read_container
-        from lghcc.common.units import DecodedSceneHashUnit
+        from ..common.container import UnitType, read_container
+        from ..common.units import DecodedSceneHashUnit
 
         unit = [u for u in read_container(data).units if u.unit_type == UnitType.DECODED_SCENE_HASH][0]
         return data, DecodedSceneHashUnit.from_bytes(unit.payload).scene_hash.hex()
@@ -747,8 +774,8 @@ def generate(entry: dict) -> tuple[bytes, str | None]:
     if entry.get("expect") == "error":
         return data, None
     if post.get("rehash"):  # the edit changed the decoded scene: the stream carries its new hash
-        from lghcc.common.container import UnitType, read_container
-        from lghcc.common.units import DecodedSceneHashUnit
+        from ..common.container import UnitType, read_container
+        from ..common.units import DecodedSceneHashUnit
 
         unit = [u for u in read_container(data).units if u.unit_type == UnitType.DECODED_SCENE_HASH][0]
         return data, DecodedSceneHashUnit.from_bytes(unit.payload).scene_hash.hex()
@@ -767,7 +794,7 @@ def isolate(entry: dict, encoded: bytes) -> bytes:
     the check of ``condition`` computes, so that this decoder accepts it. ``edit_without_check``:
     the edits themselves run with the check removed. E53's stream (the hash itself) keeps its
     hashes. SystemExit when that decoder rejects the stream (it breaks more than its condition)."""
-    from lghcc.conformance.conditions import CHECK_REMOVALS, HASH_CONDITION, call_without_check, mutant_decode
+    from .conditions import CHECK_REMOVALS, HASH_CONDITION, call_without_check, mutant_decode
 
     cond, post = entry["condition"], entry.get("post", {})
     mutation = entry.get("check_removal") or CHECK_REMOVALS[cond]
@@ -786,7 +813,7 @@ def isolate(entry: dict, encoded: bytes) -> bytes:
 
 
 def load_sources() -> list[dict]:
-    return yaml.safe_load(SOURCES.read_text())["streams"]
+    return load_yaml(SOURCES.read_text())["streams"]
 
 
 # --- what a stream exercises, from what the reference decoder decoded -----------------------------
@@ -833,8 +860,8 @@ class EscapeCounter:
     the cleaner hook; see the conformance report.)"""
 
     def __enter__(self):
-        from lghcc.common.entropy import symbol_coder
-        from lghcc.common.entropy.tables import HALF_WIDTHS
+        from ..common.entropy import symbol_coder
+        from ..common.entropy.tables import HALF_WIDTHS
 
         self.count = 0
         orig = symbol_coder.decode_symbols
@@ -858,10 +885,10 @@ class EscapeCounter:
 
 def _structure_tags(data: bytes) -> set[str]:
     """Tags of a stream's parts that parse without decoding (container, sps, unit types)."""
-    from lghcc.common import attributes as attr
-    from lghcc.common.container import UnitType, read_container
-    from lghcc.common.errors import LghccError
-    from lghcc.common.units import MAX_ATTRIBUTE_VALUES, GaussianParameterSet, SceneParameterSet
+    from ..common import attributes as attr
+    from ..common.container import UnitType, read_container
+    from ..common.errors import LghccError
+    from ..common.units import MAX_ATTRIBUTE_VALUES, GaussianParameterSet, SceneParameterSet
 
     units = read_container(data).units
     tags = set()
@@ -911,9 +938,9 @@ def derive_tools(data: bytes, rejected_in: str | None = None) -> list[str]:
     sources.yaml declares it (one of REJECTION_STAGES, or None)."""
     if rejected_in is not None and rejected_in not in REJECTION_STAGES:
         raise SystemExit(f"rejected_in: {rejected_in!r} is not one of {', '.join(REJECTION_STAGES)}")
-    from lghcc.common.container import read_container
-    from lghcc.common.errors import HashMismatchError, LghccError
-    from lghcc.decoder.decode import decode_stream, organize_units
+    from ..common.container import read_container
+    from ..common.errors import HashMismatchError, LghccError
+    from ..decoder.decode import decode_stream, organize_units
 
     try:
         container = read_container(data)
@@ -937,7 +964,7 @@ def derive_tools(data: bytes, rejected_in: str | None = None) -> list[str]:
 
 def _unit_tags(container, res, hierarchy: bool) -> set[str]:
     """Tags of the decoded stream's units: its version, tiles, source_info."""
-    from lghcc.common.container import UnitType, version_minor_of
+    from ..common.container import UnitType, version_minor_of
 
     tags = set()
     if container.header.version_minor != version_minor_of(container.units):
@@ -956,11 +983,11 @@ def _unit_tags(container, res, hierarchy: bool) -> set[str]:
 
 def _context_model_tags(container, sc) -> set[str]:
     """Tags of the context-model units: GG-Conv's neighbour level, the channels' parent bases."""
-    from lghcc.common.attributes import ChannelLayout, GaussianLayout
-    from lghcc.common.container import UnitType
-    from lghcc.common.context.models import read_context_model
-    from lghcc.common.scene import GaussianScene
-    from lghcc.common.units import CONTEXT_GGCONV
+    from ..common.attributes import ChannelLayout, GaussianLayout
+    from ..common.container import UnitType
+    from ..common.context.models import read_context_model
+    from ..common.scene import GaussianScene
+    from ..common.units import CONTEXT_GGCONV
 
     tags = set()
     for u in container.units:
@@ -987,7 +1014,7 @@ TRACE_TAGS = {
 
 def _trace_tags(trace) -> set[str]:
     """Tags of the syntax elements the decoder read: modes, ids, chunks, values at their maximum."""
-    from lghcc.conformance.coverage import _trace_values, element_infos, value_class
+    from .coverage import _trace_values, element_infos, value_class
 
     infos = element_infos()
     tags, chunk_sizes = set(), []
@@ -1020,9 +1047,9 @@ def _undeclared(tools: list[str], rejected_in: str | None) -> list[str]:
 def check_expectation(entry: dict, data: bytes, decoded: str | None) -> None:
     """The reference decoder must do with the stream what sources.yaml says: decode it to
     ``decoded``, or reject it with ``expect_error`` whose message holds ``expect_message``."""
-    from lghcc.common.errors import LghccError
-    from lghcc.common.hashing import digest_of
-    from lghcc.decoder.decode import decode_stream
+    from ..common.errors import LghccError
+    from ..common.hashing import digest_of
+    from ..decoder.decode import decode_stream
 
     try:
         digest = digest_of(decode_stream(data).scene).hex()
@@ -1065,8 +1092,8 @@ def write_renders(entry: dict, data: bytes, folder: Path) -> None:
     """Render the decoded scene from the stream's cameras; write the reference images."""
     import torch
 
-    from lghcc.conformance.runner import render_views, to_uint16
-    from lghcc.decoder.decode import decode_stream
+    from .runner import render_views, to_uint16
+    from ..decoder.decode import decode_stream
 
     r = renders_meta(entry)
     before = torch.get_num_threads()
@@ -1085,8 +1112,8 @@ def source_info_meta(data: bytes) -> dict | None:
     of the first source_info unit when it is well formed, else null) and how many source_info
     units it ignores (a malformed first one, and every one after the first); None for a stream
     without one."""
-    from lghcc.common.container import AncillaryUnitType, read_container
-    from lghcc.decoder.decode import decode_stream
+    from ..common.container import AncillaryUnitType, read_container
+    from ..decoder.decode import decode_stream
 
     if not any(u.unit_type == AncillaryUnitType.SOURCE_INFO for u in read_container(data).units):
         return None
@@ -1101,10 +1128,10 @@ def partial_decodes_meta(entry: dict, data: bytes) -> list[dict] | None:
     preview of those tiles), how many tiles the reference decoder decodes, with a box which ones
     (``tiles``: their indices in stream order), and the SHA-256 of what it outputs; ``refused``: the
     preview of a stream without the hierarchy, which the reference decoder refuses (UsageError)."""
-    from lghcc.common.errors import UsageError
-    from lghcc.common.hashing import digest_of
-    from lghcc.common.tiles import Box
-    from lghcc.decoder.decode import decode_stream, parse_stream, selected_tiles
+    from ..common.errors import UsageError
+    from ..common.hashing import digest_of
+    from ..common.tiles import Box
+    from ..decoder.decode import decode_stream, parse_stream, selected_tiles
 
     out = []
     for p in entry.get("partial_decodes", []):
@@ -1164,56 +1191,96 @@ def yaml_text(meta: dict) -> str:
     return yaml.safe_dump(meta, sort_keys=False)
 
 
+def _write(entry: dict, folder: Path) -> str:
+    """Generate the entry's stream and write its folder (stream, test.yaml, renders). A stream made
+    again to the same bytes keeps its reference renders (float renders of the same scene can differ
+    in their last bits from machine to machine: they are informative, compared within a tolerance)."""
+    data, decoded = generate(entry)
+    check_expectation(entry, data, decoded)
+    folder.mkdir(parents=True, exist_ok=True)
+    same = (folder / "stream.lghcc").is_file() and (folder / "stream.lghcc").read_bytes() == data
+    (folder / "stream.lghcc").write_bytes(data)
+    if entry.get("renders") and not (same and all((folder / n).is_file() for n in renders_meta(entry)["images"])):
+        write_renders(entry, data, folder)
+    (folder / "test.yaml").write_text(yaml_text(test_yaml(entry, data, decoded)))
+    return f"{len(data):,} bytes" + (", the same as before" if same else "")
+
+
+def _frozen(folder: Path) -> tuple[bytes, dict]:
+    """The committed stream and its test.yaml."""
+    return (folder / "stream.lghcc").read_bytes(), load_yaml((folder / "test.yaml").read_text())
+
+
+def _write_metadata(entry: dict, folder: Path, renders: bool) -> str:
+    """test.yaml (with ``renders``: and the reference renders) from the frozen stream."""
+    data, meta = _frozen(folder)
+    if renders:
+        write_renders(entry, data, folder)
+    (folder / "test.yaml").write_text(yaml_text(test_yaml(entry, data, meta.get("decoded_sha256"))))
+    return f"{len(renders_meta(entry)['images'])} reference renders" if renders else "test.yaml"
+
+
+def _check(entry: dict, folder: Path) -> tuple[list[str], bool]:
+    """(problems, whether today's encoder reproduces the frozen stream byte for byte): the frozen
+    test.yaml must be what the generator derives from the frozen stream, and a fresh generation
+    must meet sources.yaml (generate, isolate and test_yaml raise SystemExit when it does not)."""
+    if not (folder / "stream.lghcc").is_file():
+        return [f"no stream in {folder} (generate it)"], False
+    frozen, meta = _frozen(folder)
+    problems = []
+    if yaml_text(test_yaml(entry, frozen, meta.get("decoded_sha256"))) != (folder / "test.yaml").read_text():
+        problems.append("test.yaml is not what the generator derives from the frozen stream (--metadata)")
+    try:
+        data, decoded = generate(entry)
+        check_expectation(entry, data, decoded)
+        if data != frozen or decoded != meta.get("decoded_sha256"):  # else derived from the frozen stream above
+            test_yaml(entry, data, decoded)
+    except SystemExit as e:
+        problems.append(f"the generator can no longer make it: {e}")
+        return problems, False
+    return problems, data == frozen
+
+
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__ + "\n" + TOOL_TAGS,
+    ap = argparse.ArgumentParser(prog="python -m lghcc.conformance.generate", description=__doc__ + "\n" + TOOL_TAGS,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     mode = ap.add_mutually_exclusive_group()
     mode.add_argument("--check", action="store_true",
-                      help="verify the committed streams and their test.yaml instead of writing")
+                      help="generate in memory and check, writing nothing (see above); exit 1 on a problem")
+    mode.add_argument("--metadata", action="store_true",
+                      help="only rewrite test.yaml from the frozen streams (sources.yaml's purpose or the tags "
+                           "changed), and the manifest")
     mode.add_argument("--renders", action="store_true",
                       help="only (re)write the reference renders (and test.yaml) of streams with `renders` in "
-                           "sources.yaml, from the committed streams")
+                           "sources.yaml, from the frozen streams, and the manifest")
     ap.add_argument("ids", nargs="*", help="only these stream ids")
     args = ap.parse_args(argv)
     entries = load_sources()
     unknown = sorted(set(args.ids) - {e["id"] for e in entries})
     if unknown:
-        print(f"gen_conformance: error: no such stream in {SOURCES.name}: {', '.join(unknown)}", file=sys.stderr)
+        print(f"generate: error: no such stream in {SOURCES.name}: {', '.join(unknown)}", file=sys.stderr)
         return 2
-    failures = 0
-    for entry in entries:
-        if args.ids and entry["id"] not in args.ids:
-            continue
+    failures = reproduced = checked = 0
+    for entry in (e for e in entries if not args.ids or e["id"] in args.ids):
         folder = STREAMS / entry["id"]
-        if args.renders:
-            if not entry.get("renders"):
-                if args.ids:
-                    print(f"{entry['id']}: no renders in {SOURCES.name}")
-                continue
-            data = (folder / "stream.lghcc").read_bytes()
-            meta = yaml.safe_load((folder / "test.yaml").read_text())
-            write_renders(entry, data, folder)
-            (folder / "test.yaml").write_text(yaml_text(test_yaml(entry, data, meta.get("decoded_sha256"))))
-            print(f"{entry['id']}: {len(renders_meta(entry)['images'])} reference renders")
-            continue
-        data, decoded = generate(entry)
-        check_expectation(entry, data, decoded)
         if args.check:
-            stored = (folder / "stream.lghcc").read_bytes() if (folder / "stream.lghcc").is_file() else None
-            stored_yaml = (folder / "test.yaml").read_text() if (folder / "test.yaml").is_file() else None
-            want_yaml = yaml_text(test_yaml(entry, data, decoded))
-            problems = (["the stream DIFFERS from the committed one"] if stored != data else []) + \
-                       (["test.yaml DIFFERS from the committed one"] if stored_yaml != want_yaml else [])
-            failures += bool(problems)
-            print(f"{entry['id']}: {'; '.join(problems) if problems else 'stream and test.yaml reproduced'}")
-            continue
-        folder.mkdir(parents=True, exist_ok=True)
-        (folder / "stream.lghcc").write_bytes(data)
-        if entry.get("renders"):
-            write_renders(entry, data, folder)
-        (folder / "test.yaml").write_text(yaml_text(test_yaml(entry, data, decoded)))
-        print(f"{entry['id']}: {len(data):,} bytes")
-    return 1 if failures else 0
+            problems, same = _check(entry, folder)
+            failures, reproduced, checked = failures + bool(problems), reproduced + same, checked + 1
+            note = "reproduced byte for byte" if same else "a different stream today (allowed: the streams are frozen)"
+            print(f"{entry['id']}: {'; '.join(problems) if problems else 'ok'}; {note}")
+        elif args.renders and not entry.get("renders"):
+            if args.ids:
+                print(f"{entry['id']}: no renders in {SOURCES.name}")
+        else:
+            done = _write_metadata(entry, folder, args.renders) if args.renders or args.metadata else \
+                _write(entry, folder)
+            print(f"{entry['id']}: {done}")
+    if args.check:
+        print(f"{checked} streams checked, {failures} with problems; today's encoder reproduces {reproduced} "
+              f"of them byte for byte")
+        return 1 if failures else 0
+    write_manifest(STREAMS)
+    return 0
 
 
 if __name__ == "__main__":
