@@ -531,7 +531,7 @@ class ParsedStream:
         return "Gaussian" if isinstance(self.ps, GaussianParameterSet) else "anchor"
 
 
-def parse_stream(data: bytes, entries: list[TraceEntry] | None = None, *, max_anchors: int | None = None,
+def parse_stream(data: bytes, entries: list[TraceEntry] | None = None, *, max_points: int | None = None,
                  max_memory: int | None = DEFAULT_MAX_MEMORY, max_level: int = LEVEL_2) -> ParsedStream:
     """Clause 13.1 steps 1 to 5, made alike for a full and a partial decode: the container, the
     unit order, the parameter set and its limits, the models and the tile index. ``max_level`` 1
@@ -547,7 +547,7 @@ def parse_stream(data: bytes, entries: list[TraceEntry] | None = None, *, max_an
     if max_level == LEVEL_1 and not ps.hierarchy_enabled_flag:
         raise UsageError(NO_PREVIEW)
     source_info, notes = read_source_info(ancillary, entries)
-    _check_limits(ps, layout, max_anchors)
+    _check_limits(ps, layout, max_points)
     memory = MemoryPlan(max_memory, ps, by_type, len(data), layout)  # refuses before anything sized by the stream exists
     if (UnitType.TILE_INDEX in by_type) != bool(ps.tiles_enabled_flag):
         raise BitstreamError(f"tiles_enabled_flag is {ps.tiles_enabled_flag} but the stream "
@@ -564,7 +564,7 @@ def parse_stream(data: bytes, entries: list[TraceEntry] | None = None, *, max_an
         context_model = neighbour  # the attribute units' context (the stream has no context model)
     layout = with_rotation_length(layout, by_type.get(UnitType.ROTATION_LENGTH, [None])[0], entries)
     layout = with_sh_transform(layout, by_type.get(UnitType.SH_TRANSFORM, [None])[0], ps, entries)
-    tiles, _ = tiles_of(units, by_type, ps.num_anchors, entries)
+    tiles, _ = tiles_of(units, by_type, ps.num_points, entries)
     return ParsedStream(container, skipped, ps, layout, mlps, context_model, tiles, memory, source_info, notes)
 
 
@@ -574,23 +574,23 @@ NO_PREVIEW = ("the stream has no level-1 preview: it was coded without the hiera
               "(--level 2, the default) or a part of it with --box")
 
 
-def _check_limits(ps, layout, max_anchors: int | None) -> None:
+def _check_limits(ps, layout, max_points: int | None) -> None:
     """The level limit on attribute values (clause 8) and the caller's bound on points."""
     point = "Gaussian" if isinstance(ps, GaussianParameterSet) else "anchor"
-    n = ps.num_anchors
+    n = ps.num_points
     if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
         raise BitstreamError(f"{n} {point}s x {layout.num_channels} channels exceeds the level limit of "
                              f"{MAX_ATTRIBUTE_VALUES} attribute values")
-    if max_anchors is not None and n > max_anchors:
-        raise ResourceLimitError(f"the stream declares {n} {point}s, more than the allowed maximum {max_anchors}")
+    if max_points is not None and n > max_points:
+        raise ResourceLimitError(f"the stream declares {n} {point}s, more than the allowed maximum {max_points}")
 
 
 def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
-                  max_anchors: int | None = None, max_memory: int | None = DEFAULT_MAX_MEMORY,
+                  max_points: int | None = None, max_memory: int | None = DEFAULT_MAX_MEMORY,
                   progress: bool = False, jobs: int | None = 1, exact_jobs: bool = False, box: Box | None = None,
                   max_level: int = LEVEL_2) -> DecodeResult:
     """Decode a stream. Raises a BitstreamError subclass naming the problem, or
-    ResourceLimitError for a stream beyond ``max_anchors`` points (anchors or Gaussians) or one
+    ResourceLimitError for a stream beyond ``max_points`` points (anchors or Gaussians) or one
     whose decoding needs more than ``max_memory`` bytes (None: no bound), computed from its
     headers before anything sized by the stream is allocated (decoder/limits.py). ``progress``
     shows a bar on stderr. ``jobs``: at most this many worker processes for the tiles, as many as
@@ -602,7 +602,7 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
         raise ValueError(f"jobs must be at least 1, got {jobs}")
     t0 = time.perf_counter()
     entries: list[TraceEntry] | None = [] if trace else None
-    s = parse_stream(data, entries, max_anchors=max_anchors, max_memory=max_memory, max_level=max_level)
+    s = parse_stream(data, entries, max_points=max_points, max_memory=max_memory, max_level=max_level)
     tiles, ps, layout = s.tiles, s.ps, s.layout
     selected = selected_tiles(tiles, ps, box)
     plan = worker_plan(tiles, selected, ps, layout, s.context_model, jobs=jobs, exact_jobs=exact_jobs,
@@ -616,7 +616,7 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
     stream_hash = None  # a tiled stream carries no hash of the whole scene: computed when asked for
     if whole and len(tiles) == 1:
         stream_hash = DecodedSceneHashUnit.from_bytes(tiles[0].scene_hash.payload).scene_hash
-    n = ps.num_anchors
+    n = ps.num_points
     return DecodeResult(scene, breakdown_of(s.container, n, s.point), verify_hash and decoded.hash_checked,
                         stream_hash, s.skipped, entries, _stream_tools(ps, decoded, s.context_model, s.point,
                                                                       len(tiles), s.layout),

@@ -28,7 +28,7 @@ from ...common.render_model import dequantize, write_render_model_unit
 from ...app.report import SizeBreakdown, breakdown_of
 from ...common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene, GaussianScene, RenderMLP
 from ...common.hierarchy import Hierarchy, build_hierarchy
-from ...common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ANCHORS,
+from ...common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_POINTS,
                                 MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, NeighbourPredictionUnit, RenderMlpHeader,
                                 SceneParameterSet, SourceInfo)
 from .config import AttributeCodingConfig, EncoderConfig, context_model_size
@@ -154,8 +154,8 @@ def prune(scene: AnchorScene, cfg: EncoderConfig, stats: EncodeStats) -> AnchorS
 
 
 def check_point_count(n: int, what: str) -> None:
-    if n > MAX_ANCHORS:
-        raise InputError(f"{n} {what} exceed the profile's limit of {MAX_ANCHORS}")
+    if n > MAX_POINTS:
+        raise InputError(f"{n} {what} exceed the profile's limit of {MAX_POINTS}")
 
 
 @dataclass
