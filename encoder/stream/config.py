@@ -4,6 +4,7 @@ file or command-line options override single fields."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -139,7 +140,7 @@ def _check_steps(cfg, names) -> None:
 @dataclass
 class GaussianEncoderConfig(AttributeCodingConfig):
     """Explicit-Gaussian scenes (3DGS PLY, SPZ, SOG input): every Gaussian coded as a point of
-    the geometry unit with its attributes. The presets are encoder/presets/gaussians-*.yaml."""
+    the geometry unit with its attributes. The presets' gaussians sections (encoder/presets/*.yaml) set it."""
     # Quantization steps (decoded value = q * step): SH DC term, each higher SH band (1, 2, 3),
     # opacity logit, log scales, rotation quaternion components.
     sh_dc_step: float = 0.03
@@ -371,12 +372,12 @@ def context_model_size(cfg: EncoderConfig, num_level2: int) -> tuple[int, int, i
 
 
 # lghcc-enc --mode anchors: what each preset asks of the transcoder (encoder/anchors/transcode.py, step 4
-# of its module doc). The coding preset of the same name (presets/<name>.yaml or lghcc-<name>.yaml)
-# gives the quantization steps the fit simulates and the hierarchy and context its rate term
-# models (transcode.preset_transcode_config); the lghcc-* presets share these settings. A step up
-# asks for a smaller rate weight and a longer fit (measurements: tools/results/transcode.md).
-# Fit renders are 256 px: on playbot lod4 the same stream size went from 30.0 to 32.0 dB against
-# 320 px orbit renders of the source when the fit moved from 128 to 256 px.
+# of its module doc). The anchors section of the coding preset (presets/<name>.yaml or
+# lghcc-<name>.yaml) gives the quantization steps the fit simulates and the hierarchy and context
+# its rate term models (transcode.preset_transcode_config); the lghcc-* presets share these
+# settings. A step up asks for a smaller rate weight and a longer fit (measurements:
+# tools/results/transcode.md). Fit renders are 256 px: at 128 px the same stream size lost 2 dB
+# against 320 px orbit renders of the source (playbot lod4, 32.0 -> 30.0 dB).
 TRANSCODE_PRESETS: dict[str, dict] = {
     "low": {"rate_lambda": 0.02, "iterations": 300, "distill_steps": 300, "prune_keep": 0.8, "resolution": 256},
     "medium": {"rate_lambda": 0.005, "iterations": 500, "distill_steps": 400, "prune_keep": 0.9, "resolution": 256},
@@ -384,17 +385,41 @@ TRANSCODE_PRESETS: dict[str, dict] = {
 }
 
 
-GAUSSIAN_PRESET_PREFIX = "gaussians-"
+# The kinds of scene a preset can have a section for (encoder/presets/<name>.yaml), as the messages name them
+PRESET_KINDS = {"anchors": "anchor scenes", "gaussians": "explicit-Gaussian scenes"}
 
 
-def preset_names(kind: str = "anchors") -> list[str]:
-    """The presets of anchor scenes (``kind`` "anchors") or explicit-Gaussian scenes ("gaussians"),
-    by the names the command line uses (a Gaussian preset's file is gaussians-<name>.yaml)."""
-    names = [p.name[:-5] for p in resources.files("lghcc.encoder").joinpath("presets").iterdir()
-             if p.name.endswith(".yaml")]
-    if kind == "gaussians":
-        return sorted(n[len(GAUSSIAN_PRESET_PREFIX):] for n in names if n.startswith(GAUSSIAN_PRESET_PREFIX))
-    return sorted(n for n in names if not n.startswith(GAUSSIAN_PRESET_PREFIX))
+@functools.cache
+def _presets() -> dict[str, dict[str, dict]]:
+    """Every preset: its name (the file's, less .yaml) -> {kind of scene: its fields}."""
+    presets = {}
+    for p in resources.files("lghcc.encoder").joinpath("presets").iterdir():
+        if p.name.endswith(".yaml"):
+            data = yaml.safe_load(p.read_text()) or {}
+            if not isinstance(data, dict) or not set(data) <= set(PRESET_KINDS):
+                raise InputError(f"preset file {p.name}: expected sections {' and/or '.join(PRESET_KINDS)}")
+            presets[p.name[:-5]] = data
+    return presets
+
+
+def preset_names(kind: str | None = "anchors") -> list[str]:
+    """The presets of anchor scenes (``kind`` "anchors"), of explicit-Gaussian scenes ("gaussians")
+    or all of them (None): the names lghcc-enc --preset takes, one file each."""
+    if kind is not None and kind not in PRESET_KINDS:
+        raise ValueError(f"kind must be one of {', '.join(PRESET_KINDS)}, got {kind!r}")
+    return sorted(name for name, sections in _presets().items() if kind is None or kind in sections)
+
+
+def _preset_fields(preset: str, kind: str) -> dict:
+    """The section of ``preset`` for ``kind``; InputError naming the choices when there is none."""
+    presets = _presets()
+    if preset not in presets:
+        raise InputError(f"unknown preset {preset!r}; choose one of {', '.join(preset_names(None))}")
+    if kind not in presets[preset]:
+        raise InputError(f"preset {preset!r} has no settings for {PRESET_KINDS[kind]} (it is for "
+                         f"{' and '.join(PRESET_KINDS[k] for k in presets[preset])}); for {PRESET_KINDS[kind]} "
+                         f"choose one of {', '.join(preset_names(kind))}")
+    return presets[preset][kind] or {}
 
 
 def _apply(cfg, data: dict, source: str):
@@ -411,15 +436,13 @@ def _apply(cfg, data: dict, source: str):
 
 def load_config(preset: str = "medium", config_file: str | Path | None = None,
                 overrides: dict | None = None, kind: str = "anchors"):
-    """The configuration of ``preset`` for anchor scenes (EncoderConfig) or, with ``kind``
-    "gaussians", explicit-Gaussian scenes (GaussianEncoderConfig), then the fields of
-    ``config_file`` (YAML) and ``overrides`` (None values ignored)."""
-    if preset not in preset_names(kind):
-        raise InputError(f"unknown preset {preset!r} for {kind}; choose one of {', '.join(preset_names(kind))}")
-    file = f"{GAUSSIAN_PRESET_PREFIX}{preset}.yaml" if kind == "gaussians" else f"{preset}.yaml"
-    text = resources.files("lghcc.encoder").joinpath("presets", file).read_text()
+    """The configuration of ``preset`` for anchor scenes (EncoderConfig: the preset file's anchors
+    section) or, with ``kind`` "gaussians", explicit-Gaussian scenes (GaussianEncoderConfig: its
+    gaussians section), then the fields of ``config_file`` (YAML) and ``overrides`` (None values
+    ignored). InputError for an unknown preset or one without a section for ``kind``."""
+    fields = _preset_fields(preset, kind)
     base = GaussianEncoderConfig() if kind == "gaussians" else EncoderConfig()
-    cfg = _apply(base, yaml.safe_load(text) or {}, f"preset {preset}")
+    cfg = _apply(base, fields, f"preset {preset}")
     if config_file is not None:
         try:
             data = yaml.safe_load(Path(config_file).read_text())
