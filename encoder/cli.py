@@ -374,7 +374,7 @@ def announce_estimate(args: argparse.Namespace, scene, cfg, log) -> None:
     estimate = api.estimate_seconds(scene, cfg)
     if estimate is not None:
         secs, what = estimate
-        log(f"preset {args.preset}: {what} on {min(scene.num_anchors, cfg.context_train_anchors):,} anchors, "
+        log(f"preset {args.preset}: {what} on {min(scene.num_anchors, cfg.context_train_points):,} anchors, "
             f"about {_duration(secs)} on 2 CPU threads (tools/results/presets.md); the preset "
             f"{args.preset.removeprefix('lghcc-')} codes with the same steps in seconds. Ctrl-C stops it "
             "and writes nothing")

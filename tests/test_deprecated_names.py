@@ -8,7 +8,7 @@ import pytest
 
 from lghcc.app.cli_common import EXIT_RESOURCE_LIMIT
 from lghcc.app.cliargs import add_deprecated_alias
-from lghcc.common.errors import InputWarning
+from lghcc.common.errors import InputError, InputWarning
 from lghcc.conformance import runner
 from lghcc.decoder import cli as dec_cli
 
@@ -36,3 +36,19 @@ def test_lghcc_dec_max_points_and_its_old_spelling(option, capsys):
     warned = [line for line in err if "warning:" in line]
     assert warned == ([] if option == "--max-points" else
                       ["lghcc-dec: warning: --max-anchors is deprecated and will be removed: use --max-points"])
+
+
+@pytest.mark.parametrize("kind", ["anchors", "gaussians"])
+def test_context_train_anchors_is_context_train_points(tmp_path, kind):
+    from lghcc.encoder.stream.config import load_config
+
+    f = tmp_path / "c.yaml"
+    f.write_text("context_train_anchors: 1234\n")
+    with pytest.warns(InputWarning, match="context_train_anchors is deprecated and will be removed: "
+                                          "use context_train_points"):
+        assert load_config("medium", f, kind=kind).context_train_points == 1234
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert load_config("medium", overrides={"context_train_points": 99}, kind=kind).context_train_points == 99
+    with pytest.raises(InputError, match="give context_train_points only"):
+        load_config("medium", overrides={"context_train_anchors": 1, "context_train_points": 2}, kind=kind)

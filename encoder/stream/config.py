@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import warnings
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 import yaml
 
-from ...common.errors import InputError
+from ...common.errors import InputError, InputWarning
 
 DEFAULT_ATTRIBUTE_STEP = 0.02  # the feature, scaling and offset step of anchor scenes (preset medium)
 
@@ -21,8 +22,10 @@ VIEW_KINDS = ("auto", "orbit", "inside", "both")
 
 @dataclass
 class AttributeCodingConfig:
-    """How attribute units are coded; shared by anchor and explicit-Gaussian scenes."""
-    # Anchors (or Gaussians) per independently decodable attribute chunk.
+    """How attribute units are coded: the fields both kinds of scene use (EncoderConfig adds those of
+    anchor scenes, GaussianEncoderConfig those of explicit-Gaussian scenes). A point is an anchor or
+    a Gaussian."""
+    # Points per independently decodable attribute chunk.
     rows_per_chunk: int = 65536
     # Rows sampled when choosing each channel's prior (informative speed/accuracy knob).
     prior_fit_rows: int = 50000
@@ -33,14 +36,14 @@ class AttributeCodingConfig:
     # The tile side in coarse voxels (voxels without the hierarchy), 1 .. 2^20, instead of the
     # choice from tile_points; tiles are then used even when the scene fits one. 0: chosen.
     tile_scale: int = 0
-    # Two-level hierarchy: level 1 = one anchor per coarse voxel of this many voxels per side.
+    # Two-level hierarchy: level 1 = one point per coarse voxel of this many voxels per side.
     hierarchy: bool = False
     coarse_voxel_scale: int = 4
     # Level-2 context model: per_channel (the spine's prior), parent_mlp (vanilla EM) or ggconv.
     context_model: str = "per_channel"
     context_k: int = 8  # neighbours of the Ball k-NN graph (GG-Conv)
-    # GG-Conv neighbours: 1 = the level-1 anchors with their own decoded attributes (default:
-    # fewer bits on most scenes, tools/results/context.md), 2 = the other level-2 anchors carrying
+    # GG-Conv neighbours: 1 = the level-1 points with their own decoded attributes (default:
+    # fewer bits on most scenes, tools/results/context.md), 2 = the other level-2 points carrying
     # their parents' attributes (the paper's graph over A_pre^(2)), "auto" = fit both, keep the smaller.
     context_neighbour_level: int | str = 1
     # Base of each channel's mean (parent_base, Annex H.5.3): "choose" = the parent's value where it
@@ -48,7 +51,7 @@ class AttributeCodingConfig:
     # the parent's value on every channel (the paper's skip); "auto" = fit both, keep the smaller
     # stream (twice the fit time; neither wins on every scene: tools/results/context.md).
     context_parent_base: str = "auto"
-    # Context-model size; None: chosen from the number of level-2 anchors (context_model_size), so
+    # Context-model size; None: chosen from the number of level-2 points (context_model_size), so
     # that a small scene is not charged for a model it cannot pay back.
     context_channels: int | None = None  # GG-Conv context channels Ch (geometry table and feature MLP outputs)
     context_feat_hidden: int | None = None  # GG-Conv feature-MLP hidden width
@@ -57,7 +60,7 @@ class AttributeCodingConfig:
     context_float_steps: int = 1200  # training steps in float
     context_qat_steps: int = 300  # quantization-aware steps (GG-Conv; the parent MLP trains float_steps + qat_steps)
     context_weight_bits: int | None = None  # integer precision of the context model's weights: 8 or 16
-    context_train_anchors: int = 200_000  # level-2 anchors sampled for training
+    context_train_points: int = 200_000  # level-2 points sampled for training
     context_fallback: bool = True  # use the context model only when it saves bytes over the prior
 
     def validate(self) -> "AttributeCodingConfig":
@@ -76,7 +79,7 @@ class AttributeCodingConfig:
         if self.context_parent_base not in ("choose", "parent", "auto"):
             raise InputError("context_parent_base must be choose, parent or auto")
         if self.context_neighbour_level not in (1, 2, "auto"):
-            raise InputError("context_neighbour_level must be 1 (level-1 anchors), 2 (level-2 anchors) or auto")
+            raise InputError("context_neighbour_level must be 1 (level-1 points), 2 (level-2 points) or auto")
         for name in ("context_channels", "context_feat_hidden", "context_head_hidden"):
             if getattr(self, name) is not None and not 1 <= getattr(self, name) <= 4096:
                 raise InputError(f"{name} must be in [1, 4096], got {getattr(self, name)}")
@@ -357,15 +360,25 @@ class GaussianEncoderConfig(AttributeCodingConfig):
             raise InputError(f"views must be one of {', '.join(VIEW_KINDS)}, got {self.views!r}")
 
 
-# Context-model sizes by number of level-2 anchors: (Ch, feature hidden, head hidden, weight bits).
-# Measured in tools/results/context.md: a 16-bit Ch=32 model (about 65 kB) pays for itself from
-# about 20k level-2 anchors on; below, smaller 8-bit models (7-20 kB) keep most of the gain.
+def channel_prediction_on(cfg: AttributeCodingConfig) -> bool:
+    """Whether ``cfg`` asks for cross-channel prediction, a tool of explicit-Gaussian scenes."""
+    return isinstance(cfg, GaussianEncoderConfig) and cfg.channel_prediction
+
+
+def neighbour_prediction_on(cfg: AttributeCodingConfig) -> bool:
+    """Whether ``cfg`` asks for neighbour prediction (true or "always"), a tool of explicit-Gaussian scenes."""
+    return isinstance(cfg, GaussianEncoderConfig) and cfg.neighbour_prediction is not False
+
+
+# Context-model sizes by number of level-2 points: (Ch, feature hidden, head hidden, weight bits).
+# Measured on anchor scenes (tools/results/context.md): a 16-bit Ch=32 model (about 65 kB) pays for
+# itself from about 20k level-2 points on; below, smaller 8-bit models (7-20 kB) keep most of the gain.
 CONTEXT_MODEL_SIZES = ((8_000, (8, 16, 16, 8)), (50_000, (16, 32, 32, 8)), (None, (32, 64, 64, 16)))
 
 
-def context_model_size(cfg: EncoderConfig, num_level2: int) -> tuple[int, int, int, int]:
+def context_model_size(cfg: AttributeCodingConfig, num_level2: int) -> tuple[int, int, int, int]:
     """(Ch, feature hidden, head hidden, weight bits): the configured values, and for those left
-    at None the size for ``num_level2`` anchors from CONTEXT_MODEL_SIZES."""
+    at None the size for ``num_level2`` points from CONTEXT_MODEL_SIZES."""
     auto = next(size for limit, size in CONTEXT_MODEL_SIZES if limit is None or num_level2 < limit)
     given = (cfg.context_channels, cfg.context_feat_hidden, cfg.context_head_hidden, cfg.context_weight_bits)
     return tuple(g if g is not None else a for g, a in zip(given, auto))
@@ -422,9 +435,24 @@ def _preset_fields(preset: str, kind: str) -> dict:
     return presets[preset][kind] or {}
 
 
+# Fields renamed, each old name kept one release: it warns (InputWarning) and sets the new field
+RENAMED_FIELDS = {"context_train_anchors": "context_train_points"}
+
+
+def _renamed(data: dict, source: str) -> dict:
+    for old, new in RENAMED_FIELDS.items():
+        if old in data:
+            if new in data:
+                raise InputError(f"{source}: {old} and {new} are the same option; give {new} only")
+            warnings.warn(InputWarning(f"{source}: {old} is deprecated and will be removed: use {new}"), stacklevel=4)
+            data = {(new if k == old else k): v for k, v in data.items()}
+    return data
+
+
 def _apply(cfg, data: dict, source: str):
     if not isinstance(data, dict):
         raise InputError(f"{source}: expected a mapping of option: value")
+    data = _renamed(data, source)
     fields = {f.name for f in dataclasses.fields(cfg)}
     unknown = sorted(set(data) - fields)
     if unknown:
