@@ -226,12 +226,11 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # With a target, the prepared scene's steps are moved onto it at the end (one common factor, as
     # the whole-scene check does: encoder/gaussians/gaussian_fit.py land_on_target) on this many
     # views of landing_resolution pixels, of the same kind again and seen by no other stage, in the
-    # place of the trim after the fit and of the whole-scene check: the search's views are small
-    # (8 of 128 px at 150,000 Gaussians and above), and what a viewer sees at larger sizes was
-    # 1.9-4.3 dB below the target on the donut. 12 views of 256 px, the check's size: at 16 of 192 px
-    # the donut's low landed 1.6 dB under on bench_real's 320 px orbit, at 256 px 0.8 dB under, at the
-    # same bytes / SPZ (0.33; the room 0.45 -> 0.47 at 40.2 dB instead of 39.5; tools/results/views.md
-    # (d)). (0: the trim and the check on the search's views)
+    # place of the trim after the fit and of the whole-scene check. Why: the search's views are
+    # small (8 of 128 px at 150,000 Gaussians and above), and a target met on them leaves what a
+    # viewer sees at larger sizes up to 4 dB below it (the donut). 12 views of 256 px, the check's
+    # size, land within 1 dB on 320 px views where 16 of 192 px missed by 1.6 dB, at the same bytes
+    # / SPZ (tools/results/views.md (d)). (0: the trim and the check on the search's views)
     landing_views: int = 12
     landing_resolution: int = 256
     fit_views: int = 24
@@ -270,14 +269,12 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # of space (encoder/gaussians/search_sample.py), on the views its whole would get; the choice is then
     # checked on the whole scene (after the fit) and moved onto the target there by one common
     # factor on the steps if it misses (encoder/gaussians/gaussian_rd.py, meet_on_whole_scene). 0: the whole
-    # scene, whatever its size. The search's time stops growing with the scene here. On at 100,000
-    # (tools/results/search_sampling.md (f), (h)): against SPZ's envelope at equal PSNR the sample cost
-    # the logo (307k) +2.3% (+4.8% before its whole-scene check landed on the target, section (h)), the
-    # donut, playbot lod3 and lod4 (forced samples of 20k, 20k, 3k) +0.5%, -1.1%, +0.1%; on the whole
-    # search's own curve the logo +0.2%, lod3 and lod4 +0.5% and +0.9%, the donut +3.6% (+0.5% in (f)).
-    # At 1M the sampled medium took about 15 min of a quiet machine's time (tools/results/scale.md, before
-    # (f)); the whole search there was never run: its trials render and code every Gaussian, about 10x
-    # the sample's each.
+    # scene, whatever its size. The search's time stops growing with the scene here: its trials
+    # render and code every Gaussian they are given, so at 1M a whole-scene search would take about
+    # 10x the sample's (about 15 min of a quiet machine, tools/results/scale.md). What the sample
+    # costs in bytes at equal PSNR, against SPZ's envelope: +2.3% on the logo (307k), -1.1% to
+    # +0.5% on the donut and playbot (forced samples); against the whole search's own curve +0.2%
+    # to +0.9%, the donut +3.6% (tools/results/search_sampling.md (f), (h)).
     search_sample_gaussians: int = 100000
     # The sensitivities and the fit render every Gaussian for each view or step: a scene of N above
     # this many Gaussians gets fit_views x this / N views for its sensitivities (at least
