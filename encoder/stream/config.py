@@ -228,9 +228,10 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # views of landing_resolution pixels, of the same kind again and seen by no other stage, in the
     # place of the trim after the fit and of the whole-scene check. Why: the search's views are
     # small (8 of 128 px at 150,000 Gaussians and above), and a target met on them leaves what a
-    # viewer sees at larger sizes up to 4 dB below it (the donut). 12 views of 256 px, the check's
-    # size, land within 1 dB on 320 px views where 16 of 192 px missed by 1.6 dB, at the same bytes
-    # / SPZ (tools/results/views.md (d)). (0: the trim and the check on the search's views)
+    # viewer sees at larger sizes 1.9-4.3 dB below it (the donut). 12 views of 256 px, the check's
+    # size, land the donut's low 0.8 dB under on 320 px views where 16 of 192 px left it 1.6 dB
+    # under, at the same bytes / SPZ (tools/results/views.md (d)). (0: the trim and the check on
+    # the search's views)
     landing_views: int = 12
     landing_resolution: int = 256
     fit_views: int = 24
@@ -270,8 +271,9 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # checked on the whole scene (after the fit) and moved onto the target there by one common
     # factor on the steps if it misses (encoder/gaussians/gaussian_rd.py, meet_on_whole_scene). 0: the whole
     # scene, whatever its size. The search's time stops growing with the scene here: its trials
-    # render and code every Gaussian they are given, so at 1M a whole-scene search would take about
-    # 10x the sample's (about 15 min of a quiet machine, tools/results/scale.md). What the sample
+    # render and code every Gaussian they are given, so at 1M each whole-scene trial would cost
+    # about 10x a sample's (the sampled medium takes about 15 min of a quiet machine there,
+    # tools/results/scale.md). What the sample
     # costs in bytes at equal PSNR, against SPZ's envelope: +2.3% on the logo (307k), -1.1% to
     # +0.5% on the donut and playbot (forced samples); against the whole search's own curve +0.2%
     # to +0.9%, the donut +3.6% (tools/results/search_sampling.md (f), (h)).
