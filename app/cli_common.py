@@ -13,7 +13,7 @@ One rule for lghcc-enc, lghcc-dec, lghcc-conformance, lghcc-train and lghcc-view
     3    invalid stream: the bitstream is malformed, unsupported or does not decode to its own
          hash (BitstreamError and its subclasses UnsupportedStreamError, HashMismatchError)
     4    resource limit: the work needs more than this run may use (ResourceLimitError from
-         --max-memory or --max-anchors; a MemoryError from the system)
+         --max-memory or --max-points; a MemoryError from the system)
     130  interrupted (Ctrl-C); outputs are written atomically (lghcc.app.fileio), so an
          interrupted run leaves no partial file behind
 
@@ -38,7 +38,7 @@ EXIT_INTERRUPTED = 130
 EXIT_CODES = {EXIT_OK: "success", EXIT_ERROR: "error in the input or the environment (a file, an option value)",
               EXIT_USAGE: "usage error (the command line is wrong)",
               EXIT_INVALID_STREAM: "invalid stream (malformed, unsupported, or its decoded-scene hash does not match)",
-              EXIT_RESOURCE_LIMIT: "resource limit (--max-memory, --max-anchors, or the system ran out of memory)",
+              EXIT_RESOURCE_LIMIT: "resource limit (--max-memory, --max-points, or the system ran out of memory)",
               EXIT_INTERRUPTED: "interrupted (Ctrl-C); no partial output is left"}
 
 

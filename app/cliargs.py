@@ -84,6 +84,21 @@ def add_overwrite_options(p: argparse.ArgumentParser, what: str = "output files 
                    help="never replace an existing output: stop with an error (the default, stated)")
 
 
+def add_deprecated_alias(p: argparse.ArgumentParser, old: str, new: str, **kwargs) -> None:
+    """``old``: a hidden spelling of the option ``new`` (same destination, type and value) kept for
+    one release; using it warns (an InputWarning naming ``new``) and then acts as ``new``."""
+
+    class Alias(argparse.Action):
+        def __call__(self, parser, namespace, values, option_string=None):
+            import warnings
+
+            from ..common.errors import InputWarning
+            warnings.warn(InputWarning(f"{old} is deprecated and will be removed: use {new}"), stacklevel=2)
+            setattr(namespace, self.dest, values)
+
+    p.add_argument(old, dest=new.lstrip("-").replace("-", "_"), action=Alias, help=argparse.SUPPRESS, **kwargs)
+
+
 def run_cli(prog: str, body, argv, interrupted_note: str = "") -> int:
     """Run ``body(argv)`` -> exit status under lghcc.app.cli_common's rule: an LghccError, a MemoryError
     or Ctrl-C raised inside becomes one line on stderr and its exit status (``exit_code_for``: 1, 3

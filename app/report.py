@@ -22,7 +22,7 @@ CATEGORIES = ("header", "geometry", "attributes", "model", "ancillary")
 
 @dataclass
 class SizeBreakdown:
-    num_anchors: int  # the points of the scene: anchors, or Gaussians (``point_name``)
+    num_points: int  # the points of the scene: anchors, or Gaussians (``point_name``)
     bytes_by_category: dict[str, int] = field(default_factory=dict)
     point_name: str = "anchor"
 
@@ -38,17 +38,17 @@ class SizeBreakdown:
             b = self.bytes_by_category.get(cat, 0)
             if cat == "ancillary" and not b:
                 continue
-            rows.append(f"{cat:<12}{b:>12,}{8 * b / self.num_anchors:>15.2f}{100 * b / total:>8.1f}%")
-        rows.append(f"{'total':<12}{self.total_bytes:>12,}{8 * self.total_bytes / self.num_anchors:>15.2f}"
+            rows.append(f"{cat:<12}{b:>12,}{8 * b / self.num_points:>15.2f}{100 * b / total:>8.1f}%")
+        rows.append(f"{'total':<12}{self.total_bytes:>12,}{8 * self.total_bytes / self.num_points:>15.2f}"
                     f"{100.0:>8.1f}%")
         return "\n".join(rows)
 
 
-def breakdown_of(container: Container, num_anchors: int, point_name: str = "anchor") -> SizeBreakdown:
+def breakdown_of(container: Container, num_points: int, point_name: str = "anchor") -> SizeBreakdown:
     """Unit framing (type, size, CRC) is charged to the unit it frames; the container header to 'header'."""
     by = {c: 0 for c in CATEGORIES}
     by["header"] += CONTAINER_HEADER_BYTES
     for u in container.units:
         cat = "ancillary" if u.is_ancillary else CATEGORY_OF_UNIT.get(u.unit_type, "header")  # an unknown type: "header"
         by[cat] += u.size
-    return SizeBreakdown(num_anchors, by, point_name)
+    return SizeBreakdown(num_points, by, point_name)

@@ -24,7 +24,7 @@ class InputError(LghccError):
 
 class ResourceLimitError(LghccError):
     """The work is allowed by the spec but needs more than this run may use (``--max-memory``,
-    ``--max-anchors``): not a fault of the stream or the input, so it is not a BitstreamError."""
+    ``--max-points``): not a fault of the stream or the input, so it is not a BitstreamError."""
 
 
 class UsageError(LghccError):

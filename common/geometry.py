@@ -364,14 +364,14 @@ def _children(q: np.ndarray, occ: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return child, parent
 
 
-def _validate_header(h: GeometryHeader, num_anchors: int) -> None:
+def _validate_header(h: GeometryHeader, num_points: int) -> None:
     for a in range(3):
         if h.geom_bbox_min_sign_flag[a] == 0 and h.geom_bbox_min_abs[a] > COORD_MAX:
             raise BitstreamError(f"geometry_header.geom_bbox_min_abs[{a}] = {h.geom_bbox_min_abs[a]} "
                                  f"puts the bounding-box minimum outside [-2^31, 2^31)")
     total_bits = sum(h.geom_bit_depth)
-    if num_anchors > (1 << total_bits):
-        raise BitstreamError(f"{num_anchors} anchors cannot be distinct in a bounding box of "
+    if num_points > (1 << total_bits):
+        raise BitstreamError(f"{num_points} points cannot be distinct in a bounding box of "
                              f"{h.geom_bit_depth} bits per axis")
 
 
@@ -529,17 +529,17 @@ def _encode_direct_nodes(io: _SymbolIO, st: _ContextState, pts: np.ndarray, star
 
 # --- decoding (G.5) ---------------------------------------------------------------------------
 
-def decode_geometry(payload: bytes, num_anchors: int, trace: list | None = None) -> np.ndarray:
-    """Decode the geometry payload of ``num_anchors`` anchors. Returns int64 [N,3] coordinates in
-    normative order. Raises BitstreamError on any malformed payload."""
-    n = int(num_anchors)
+def decode_geometry(payload: bytes, num_points: int, trace: list | None = None) -> np.ndarray:
+    """Decode the geometry payload of ``num_points`` points (anchors or Gaussians). Returns int64 [N,3]
+    coordinates in normative order. Raises BitstreamError on any malformed payload."""
+    n = int(num_points)
     if n < 1:
-        raise BitstreamError(f"num_anchors = {n}: the geometry of at least one anchor is needed")
+        raise BitstreamError(f"N = {n}: the geometry of at least one point is needed")
     header, data = _read_geometry_header(payload, n, trace)
     dec = RangeDecoder(data, "geometry data")
     pts = _decode_octree(_SymbolIO(decoder=dec), list(header.geom_bit_depth), header.geom_idcm_mode, n)
     dec.check_exhausted()
-    return _output_anchors(pts, header, n)
+    return _output_points(pts, header, n)
 
 
 def _read_geometry_header(payload: bytes, n: int, trace: list | None) -> tuple[GeometryHeader, bytes]:
@@ -605,7 +605,7 @@ def _decode_direct_nodes(io: _SymbolIO, st: _ContextState, q: np.ndarray, elig: 
     return p, keep
 
 
-def _output_anchors(pts: np.ndarray, header: GeometryHeader, n: int) -> np.ndarray:
+def _output_points(pts: np.ndarray, header: GeometryHeader, n: int) -> np.ndarray:
     """G.5.5: exactly N points attaining the bounding-box minimum, as coordinates in normative order."""
     if pts.shape[0] != n:
         raise BitstreamError(f"geometry data holds {pts.shape[0]} anchors, num_anchors = {n}")

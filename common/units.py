@@ -15,10 +15,10 @@ from .syntax import SyntaxStructure, SyntaxVisitor
 
 # Profile "main", level limits (spec clause 8). A decoder rejects streams beyond them,
 # so no allocation is ever sized by an unchecked field.
-MAX_ANCHORS = 1 << 24
+MAX_POINTS = 1 << 24
 MAX_FEATURE_DIM = 1024
 MAX_NUM_OFFSETS = 64
-MAX_ATTRIBUTE_VALUES = 1 << 31  # num_anchors * num_attribute_channels
+MAX_ATTRIBUTE_VALUES = 1 << 31  # N * M: points x attribute channels
 MAX_MLPS = 4
 MAX_MLP_LAYERS = 8
 MAX_MLP_WIDTH = 4096
@@ -104,7 +104,7 @@ class SceneParameterSet(SyntaxStructure):
     tile_scale_minus1: int = 0
 
     def syntax(self, v: SyntaxVisitor) -> None:
-        v.ue(self, "num_anchors_minus1", hi=MAX_ANCHORS - 1)
+        v.ue(self, "num_anchors_minus1", hi=MAX_POINTS - 1)
         v.ue(self, "feature_dim_minus1", hi=MAX_FEATURE_DIM - 1)
         v.ue(self, "num_offsets_minus1", hi=MAX_NUM_OFFSETS - 1)
         v.f32(self, "voxel_size", positive=True)
@@ -131,6 +131,10 @@ class SceneParameterSet(SyntaxStructure):
     @property
     def num_anchors(self) -> int:
         return self.num_anchors_minus1 + 1
+
+    @property
+    def num_points(self) -> int:  # N of clause 7.4.1: the geometry's points, as for the gps
+        return self.num_anchors
 
     @property
     def feature_dim(self) -> int:
@@ -163,7 +167,7 @@ class GaussianParameterSet(SyntaxStructure):
     tile_scale_minus1: int = 0
 
     def syntax(self, v: SyntaxVisitor) -> None:
-        v.ue(self, "num_gaussians_minus1", hi=MAX_ANCHORS - 1)
+        v.ue(self, "num_gaussians_minus1", hi=MAX_POINTS - 1)
         v.u(2, self, "sh_degree", hi=MAX_SH_DEGREE)
         v.f32(self, "voxel_size", positive=True)
         for i in v.loop(3, "3", self, ("origin",)):
@@ -185,7 +189,7 @@ class GaussianParameterSet(SyntaxStructure):
         return self.num_gaussians_minus1 + 1
 
     @property
-    def num_anchors(self) -> int:  # the geometry unit's point count, as for anchor scenes
+    def num_points(self) -> int:  # N: the geometry's points, as for the sps
         return self.num_gaussians
 
     @property
@@ -325,7 +329,7 @@ class AttributeUnitHeader(SyntaxStructure):
         for _ in v.when(self.step_adjust_present, "StepAdjustPresent"):
             v.u(STEP_ADJUST_BITS, self, "adjust_mean")
             v.u(NUM_SCALE_LEVELS_BITS, self, "adjust_level")
-        v.ue(self, "num_rows_minus1", hi=MAX_ANCHORS - 1)  # = NumRows - 1: checked after parsing (clause 8.3)
+        v.ue(self, "num_rows_minus1", hi=MAX_POINTS - 1)  # = NumRows - 1: checked after parsing (clause 8.3)
         v.ue(self, "rows_per_chunk_minus1", hi=self.num_rows_minus1)
         sizes = ("mask_chunk_size",) * bool(self.offset_mask_present) \
             + ("adjust_chunk_size",) * bool(self.step_adjust_present) \

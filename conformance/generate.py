@@ -233,7 +233,7 @@ def _empty_chunks(units, chunks: list[dict]):
     payload = units[j].payload
     r = BitReader(payload)
     h = AttributeUnitHeader.parse(r, num_channels=attr.layout_of(sps).num_channels, num_offsets=sps.num_offsets,
-                                  offset_mask_present=sps.offset_mask_present_flag, num_rows=sps.num_anchors)
+                                  offset_mask_present=sps.offset_mask_present_flag, num_rows=sps.num_points)
     mask_sizes = h.mask_chunk_size if h.offset_mask_present else [0] * h.num_chunks
     sizes = [x for pair in zip(mask_sizes, h.chunk_size) for x in pair]
     pieces = attr.split_chunks(payload[r.bit_position // 8:], sizes, "attribute unit")
@@ -341,9 +341,9 @@ def _hand_ggconv(units, spec: dict):
     sps = SceneParameterSet.from_bytes(units[_unit_index(units, UnitType.SCENE_PARAMETER_SET)].payload)
     layout = attr.layout_of(sps)
     m, c = layout.num_channels, sps.feature_dim
-    coords = decode_geometry(units[_unit_index(units, UnitType.GEOMETRY)].payload, sps.num_anchors)
+    coords = decode_geometry(units[_unit_index(units, UnitType.GEOMETRY)].payload, sps.num_points)
     hier = build_hierarchy(coords, sps.coarse_voxel_scale)
-    values = np.empty((sps.num_anchors, m), np.float32)
+    values = np.empty((sps.num_points, m), np.float32)
     a1, a2 = _unit_index(units, UnitType.ATTRIBUTE, 0), _unit_index(units, UnitType.ATTRIBUTE, 1)
     steps = layout.steps(sps)
     _, _, q1 = attr.read_attribute_unit(units[a1].payload, layout, steps, hier.num_level1, LEVEL_1, values,
@@ -425,7 +425,7 @@ def _set_prior_mean(units, means: dict):
     j = _unit_index(units, UnitType.ATTRIBUTE)
     r = BitReader(units[j].payload)
     h = AttributeUnitHeader.parse(r, num_channels=attr.layout_of(sps).num_channels, num_offsets=sps.num_offsets,
-                                  offset_mask_present=sps.offset_mask_present_flag, num_rows=sps.num_anchors)
+                                  offset_mask_present=sps.offset_mask_present_flag, num_rows=sps.num_points)
     for c, m in means.items():
         h.prior_mean[int(c)] = int(m)
     units[j] = DataUnit(UnitType.ATTRIBUTE, h.to_bytes() + units[j].payload[r.bit_position // 8:])
@@ -912,7 +912,7 @@ def _structure_tags(data: bytes) -> set[str]:
             tags.add("hierarchy")
         if sps.offset_mask_present_flag:
             tags.add("offset_mask")
-        if sps.num_anchors * attr.layout_of(sps).num_channels > MAX_ATTRIBUTE_VALUES:
+        if sps.num_points * attr.layout_of(sps).num_channels > MAX_ATTRIBUTE_VALUES:
             tags.add("level_limits")
     gps_units = [u for u in units if u.unit_type == UnitType.GAUSSIAN_PARAMETER_SET]
     try:

@@ -4,7 +4,7 @@ Each stream lives in ``conformance/streams/<id>/`` as ``stream.lghcc`` and ``tes
   id, purpose, profile, stream_bytes, stream_sha256
   tools            what the stream exercises, derived by conformance/generate.py from what the
                    reference decoder decoded (e.g. 'escape' iff an escaped residual was decoded)
-  expect: decode   decoded_sha256: SHA-256 of the decoded scene (spec clause 12, lghcc_v0.md)
+  expect: decode   decoded_sha256: SHA-256 of the decoded scene (spec clause 12, lghcc.md)
   expect: error    expect_error: the reference decoder's error class (BitstreamError,
                    UnsupportedStreamError or HashMismatchError) and expect_message: a fragment
                    of its message (the reason); both are checked for the reference decoder

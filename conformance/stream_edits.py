@@ -60,8 +60,8 @@ def _level0_q(units):
     sps = _sps(units)
     j = _index(units, UnitType.ATTRIBUTE)
     layout = _layout(sps)
-    values = np.empty((sps.num_anchors, layout.num_channels), np.float32)
-    h, mask, q = attr.read_attribute_unit(units[j].payload, layout, layout.steps(sps), sps.num_anchors, 0, values,
+    values = np.empty((sps.num_points, layout.num_channels), np.float32)
+    h, mask, q = attr.read_attribute_unit(units[j].payload, layout, layout.steps(sps), sps.num_points, 0, values,
                                           keep_q=True)
     return sps, j, h, mask, q
 
@@ -72,7 +72,7 @@ def _recode_level0(units, h, mask, q) -> None:
     layout = _layout(sps)
     j = _index(units, UnitType.ATTRIBUTE)
     new = AttributeUnitHeader(num_channels=layout.num_channels, num_offsets=sps.num_offsets,
-                              offset_mask_present=h.offset_mask_present, num_rows=sps.num_anchors,
+                              offset_mask_present=h.offset_mask_present, num_rows=sps.num_points,
                               attribute_level=h.attribute_level, context_model_id=0, prior_mean=list(h.prior_mean),
                               prior_level=list(h.prior_level), mask_live_prob=list(h.mask_live_prob),
                               rows_per_chunk_minus1=h.rows_per_chunk_minus1)
@@ -111,7 +111,7 @@ def escape_classes(units, spec: dict) -> None:
     h.prior_level[col], h.prior_mean[col] = level, 0
     half = int(HALF_WIDTHS[level])
     mags = [half + 1] + [half + 1 + (1 << (k - 1)) + (1 << (k - 1)) - 1 for k in range(1, 62)] + [MAX_ABS_RESIDUAL]
-    if len(mags) > sps.num_anchors:
+    if len(mags) > sps.num_points:
         raise ValueError(f"escape_classes needs {len(mags)} rows")
     q = q.copy()
     for row, mag in enumerate(mags):
@@ -149,10 +149,10 @@ def edit_chunk(units, spec: dict) -> None:
 
     sps = _sps(units)
     j = _index(units, UnitType.ATTRIBUTE)
-    h, pieces = _chunk_pieces(units, j, sps, sps.num_anchors)
+    h, pieces = _chunk_pieces(units, j, sps, sps.num_points)
     i = int(spec.get("chunk", 0))
     k = 2 * i + 1 if h.offset_mask_present else i
-    rows = min(h.rows_per_chunk, sps.num_anchors - i * h.rows_per_chunk)
+    rows = min(h.rows_per_chunk, sps.num_points - i * h.rows_per_chunk)
     m = _layout(sps).num_channels
     levels = np.broadcast_to(np.asarray(h.prior_level, np.int64), (rows, m))
     if "append_hex" in spec:
@@ -219,7 +219,7 @@ def _level0_header_parser(units):
 
     if not any(u.unit_type == UnitType.GAUSSIAN_PARAMETER_SET for u in units):
         sps = _sps(units)
-        return lambda payload: _parse_attribute(payload, sps, sps.num_anchors)[1]
+        return lambda payload: _parse_attribute(payload, sps, sps.num_points)[1]
     gps = GaussianParameterSet.from_bytes(units[_index(units, UnitType.GAUSSIAN_PARAMETER_SET)].payload)
     layout = attr.gaussian_layout_of(gps)
 
@@ -266,9 +266,9 @@ def recode_attribute_header(units, spec: dict) -> None:
     attribute_units = [j for j, u in enumerate(units) if u.unit_type == UnitType.ATTRIBUTE]
     j = attribute_units[nth]
     level = 0
-    num_rows = sps.num_anchors
+    num_rows = sps.num_points
     if sps.hierarchy_enabled_flag:
-        coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, sps.num_anchors)
+        coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, sps.num_points)
         hier = build_hierarchy(coords, sps.coarse_voxel_scale)
         level = attribute_units.index(j) + 1
         num_rows = hier.num_level1 if level == 1 else hier.num_level2
@@ -442,7 +442,7 @@ def geometry_edit(units, spec: dict) -> None:
     j = _index(units, UnitType.GEOMETRY)
     s = _ps_index(units)
     sps = _sps(units)
-    coords = decode_geometry(units[j].payload, sps.num_anchors)
+    coords = decode_geometry(units[j].payload, sps.num_points)
     if spec.get("duplicate_isolated"):
         rows = _level0_q(units) if spec.get("with_row") else None  # the attributes of the N points
         far = coords[np.argmax(np.abs(coords - np.median(coords, axis=0)).sum(axis=1))]
@@ -681,9 +681,9 @@ def designed_model(units, spec: dict) -> None:
     sps = _sps(units)
     layout = _layout(sps)
     m, c = layout.num_channels, sps.feature_dim
-    coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, sps.num_anchors)
+    coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, sps.num_points)
     hier = build_hierarchy(coords, sps.coarse_voxel_scale)
-    values = np.empty((sps.num_anchors, m), np.float32)
+    values = np.empty((sps.num_points, m), np.float32)
     a1, a2 = _index(units, UnitType.ATTRIBUTE, 0), _index(units, UnitType.ATTRIBUTE, 1)
     if UnitType.CONTEXT_MODEL in [u.unit_type for u in units]:
         raise ValueError("designed_model starts from a stream without a context model")
@@ -1104,11 +1104,11 @@ def flatten_hierarchy(units, spec: dict) -> None:
 
     sps = _sps(units)
     layout = _layout(sps)
-    coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, sps.num_anchors)
+    coords = decode_geometry(units[_index(units, UnitType.GEOMETRY)].payload, sps.num_points)
     hier = build_hierarchy(coords, sps.coarse_voxel_scale)
-    values = np.empty((sps.num_anchors, layout.num_channels), np.float32)
-    q = np.zeros((sps.num_anchors, layout.num_channels), np.int64)
-    mask = np.ones((sps.num_anchors, layout.num_offsets), bool) if sps.offset_mask_present_flag else None
+    values = np.empty((sps.num_points, layout.num_channels), np.float32)
+    q = np.zeros((sps.num_points, layout.num_channels), np.int64)
+    mask = np.ones((sps.num_points, layout.num_offsets), bool) if sps.offset_mask_present_flag else None
     a1, a2 = _index(units, UnitType.ATTRIBUTE, 0), _index(units, UnitType.ATTRIBUTE, 1)
     headers = []
     for j, level, rows in ((a1, LEVEL_1, hier.level1_idx), (a2, LEVEL_2, hier.level2_idx)):

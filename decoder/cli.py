@@ -19,6 +19,7 @@ from ..app.cli_common import (EXIT_ERROR, EXIT_INTERRUPTED, EXIT_INVALID_STREAM,
                               EXIT_USAGE, exit_status_epilog, format_bytes, memory_size, with_prefix)
 from ..app.cliargs import (OVERWRITE_RULE, add_overwrite_options, add_version_option, box_arg, jobs_arg,
                            positive_float, run_cli)
+from ..app.cliargs import add_deprecated_alias
 from ..common.errors import LghccError
 from ..app.fileio import (atomic_write_bytes, check_output_folder, check_output_paths, check_overwrite,
                                  write_error)
@@ -95,7 +96,9 @@ def setup_args() -> argparse.ArgumentParser:
     p.add_argument("--trace", metavar="FILE", help="write a bit trace: every syntax element with its position")
     p.add_argument("--threads", type=int, help="torch threads for inference (the output does not depend on it)")
     _add_tile_options(p)
-    p.add_argument("--max-anchors", type=int, help="refuse streams declaring more anchors than this (exit status 4)")
+    p.add_argument("--max-points", type=int,
+                   help="refuse streams declaring more points (anchors or Gaussians) than this (exit status 4)")
+    add_deprecated_alias(p, "--max-anchors", "--max-points", type=int)
     p.add_argument("--max-memory", type=memory_size, default=DEFAULT_MAX_MEMORY, metavar="SIZE",
                    help="refuse a stream whose decoding needs more memory than this, computed from its headers "
                         f"before anything is allocated: e.g. 512M, 8G; 0 or none: no bound "
@@ -232,7 +235,7 @@ def _main(argv: list[str] | None) -> int:
     t0 = time.perf_counter()
     try:  # a failure is reported by run_cli: one line, and the exit status of its kind (3 for a hash mismatch)
         result = decode_stream(data, verify_hash=not args.no_verify, trace=bool(args.trace),
-                               max_anchors=args.max_anchors, max_memory=args.max_memory, progress=not args.quiet,
+                               max_points=args.max_points, max_memory=args.max_memory, progress=not args.quiet,
                                jobs=args.jobs, box=args.box, max_level=args.level)
     except LghccError as e:  # the same class (and exit status), with the stream's path
         raise with_prefix(e, args.stream) from None

@@ -208,7 +208,7 @@ def point_word(ps: ParameterSet) -> str:
 
 def check_level_limits(ps: ParameterSet, layout: Layout) -> None:
     """The level limit on attribute values (clause 8)."""
-    n = ps.num_anchors
+    n = ps.num_points
     if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
         raise BitstreamError(f"{n} {point_word(ps)}s x {layout.num_channels} channels exceeds the level limit of "
                              f"{MAX_ATTRIBUTE_VALUES} attribute values")
@@ -437,7 +437,7 @@ def parse_stream(data: bytes, entries: Trace = None, *, max_level: int = LEVEL_2
     context = read_attribute_context(by_type, ps, layout, entries)
     layout = with_rotation_length(layout, _first(by_type, UnitType.ROTATION_LENGTH), entries)
     layout = with_sh_transform(layout, _first(by_type, UnitType.SH_TRANSFORM), ps, entries)
-    tiles, _ = tiles_of(units, by_type, ps.num_anchors, entries)
+    tiles, _ = tiles_of(units, by_type, ps.num_points, entries)
     return ParsedStream(container, skipped, ps, layout, mlps, context, tiles, source_info, notes)
 
 

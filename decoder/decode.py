@@ -1,7 +1,7 @@
 """The reference decoder's driver: clause 13's decoding process (decoder/core.py) run for a caller.
 
 The core decodes; this module decides how, and reports: the caller's bound on points
-(``max_anchors``) and on memory (decoder/limits.py, checked before anything sized by the stream
+(``max_points``) and on memory (decoder/limits.py, checked before anything sized by the stream
 is allocated), the tiles a box selects, how many worker processes decode them (decoder/jobs.py;
 forked, each writing its tiles' points into shared output arrays), progress bars, the size
 breakdown by unit, the coding tools in words and the timings. Nothing here changes a decoded
@@ -79,22 +79,22 @@ class DecodeResult:
 
 # --- parsing with the caller's bounds ----------------------------------------------------------
 
-def check_max_points(ps: ParameterSet, max_anchors: int | None) -> None:
+def check_max_points(ps: ParameterSet, max_points: int | None) -> None:
     """The caller's bound on points (anchors or Gaussians): ResourceLimitError beyond it."""
-    n = ps.num_anchors
-    if max_anchors is not None and n > max_anchors:
+    n = ps.num_points
+    if max_points is not None and n > max_points:
         raise ResourceLimitError(f"the stream declares {n} {core.point_word(ps)}s, more than the allowed maximum "
-                                 f"{max_anchors}")
+                                 f"{max_points}")
 
 
-def parse_with_bounds(data: bytes, entries: list[TraceEntry] | None, *, max_anchors: int | None,
+def parse_with_bounds(data: bytes, entries: list[TraceEntry] | None, *, max_points: int | None,
                       max_memory: int | None, max_level: int) -> tuple[ParsedStream, MemoryPlan]:
-    """Clause 13.1 steps 1 to 5 (``core.parse_stream``), refusing a stream beyond ``max_anchors``
+    """Clause 13.1 steps 1 to 5 (``core.parse_stream``), refusing a stream beyond ``max_points``
     points or ``max_memory`` bytes once its parameter set is read; -> (the stream, its memory plan)."""
     plans: list[MemoryPlan] = []
 
     def admit(ps: ParameterSet, layout: Layout, by_type: dict[int, list[DataUnit]]) -> None:
-        check_max_points(ps, max_anchors)
+        check_max_points(ps, max_points)
         # refuses before anything sized by the stream exists
         plans.append(MemoryPlan(max_memory, ps, by_type, len(data), layout))
 
@@ -102,13 +102,13 @@ def parse_with_bounds(data: bytes, entries: list[TraceEntry] | None, *, max_anch
     return parsed, plans[0]
 
 
-def parse_stream(data: bytes, entries: list[TraceEntry] | None = None, *, max_anchors: int | None = None,
+def parse_stream(data: bytes, entries: list[TraceEntry] | None = None, *, max_points: int | None = None,
                  max_memory: int | None = DEFAULT_MAX_MEMORY, max_level: int = LEVEL_2) -> ParsedStream:
     """Clause 13.1 steps 1 to 5, made alike for a full and a partial decode: the container, the
-    unit order, the parameter set and its limits (and the caller's: ``max_anchors``,
+    unit order, the parameter set and its limits (and the caller's: ``max_points``,
     ``max_memory``), the models and the tile index. ``max_level`` 1 on a stream without the
     hierarchy raises UsageError (clause 13.3: such a stream has no preview)."""
-    return parse_with_bounds(data, entries, max_anchors=max_anchors, max_memory=max_memory, max_level=max_level)[0]
+    return parse_with_bounds(data, entries, max_points=max_points, max_memory=max_memory, max_level=max_level)[0]
 
 
 # --- the tiles: here or in worker processes ----------------------------------------------------
@@ -292,11 +292,11 @@ def worker_plan(tiles: list[TileUnits], selected: list[int], ps: ParameterSet, l
 # --- the whole decode ----------------------------------------------------------------------------
 
 def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
-                  max_anchors: int | None = None, max_memory: int | None = DEFAULT_MAX_MEMORY,
+                  max_points: int | None = None, max_memory: int | None = DEFAULT_MAX_MEMORY,
                   progress: bool = False, jobs: int | None = 1, exact_jobs: bool = False, box: Box | None = None,
                   max_level: int = LEVEL_2) -> DecodeResult:
     """Decode a stream. Raises a BitstreamError subclass naming the problem, or
-    ResourceLimitError for a stream beyond ``max_anchors`` points (anchors or Gaussians) or one
+    ResourceLimitError for a stream beyond ``max_points`` points (anchors or Gaussians) or one
     whose decoding needs more than ``max_memory`` bytes (None: no bound), computed from its
     headers before anything sized by the stream is allocated (decoder/limits.py). ``progress``
     shows a bar on stderr. ``jobs``: at most this many worker processes for the tiles, as many as
@@ -308,7 +308,7 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
         raise ValueError(f"jobs must be at least 1, got {jobs}")
     t0 = time.perf_counter()
     entries: list[TraceEntry] | None = [] if trace else None
-    s, memory = parse_with_bounds(data, entries, max_anchors=max_anchors, max_memory=max_memory, max_level=max_level)
+    s, memory = parse_with_bounds(data, entries, max_points=max_points, max_memory=max_memory, max_level=max_level)
     tiles, ps, layout = s.tiles, s.ps, s.layout
     selected = selected_tiles(tiles, ps, box)
     plan = worker_plan(tiles, selected, ps, layout, s.context_model, jobs=jobs, exact_jobs=exact_jobs,
@@ -322,7 +322,7 @@ def decode_stream(data: bytes, *, verify_hash: bool = True, trace: bool = False,
     stream_hash = None  # a tiled stream carries no hash of the whole scene: computed when asked for
     if whole and len(tiles) == 1:
         stream_hash = DecodedSceneHashUnit.from_bytes(tiles[0].scene_hash.payload).scene_hash
-    n = ps.num_anchors
+    n = ps.num_points
     return DecodeResult(scene, breakdown_of(s.container, n, s.point), verify_hash and decoded.hash_checked,
                         stream_hash, s.skipped, entries, _stream_tools(ps, decoded, s.context_model, s.point,
                                                                       len(tiles), s.layout),

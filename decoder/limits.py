@@ -139,7 +139,7 @@ class MemoryPlan:
         if layout is None:
             layout = attr.gaussian_layout_of(sps) if gaussians else attr.layout_of(sps)
         self.layout = layout
-        n, m, k = sps.num_anchors, layout.num_channels, layout.num_offsets
+        n, m, k = sps.num_points, layout.num_channels, layout.num_offsets
         self.n, self.m, self.k = n, m, k
         render_params = _render_model_parameters((units.get(UnitType.RENDER_MODEL) or [None])[0])
         context_values = _context_model_values((units.get(UnitType.CONTEXT_MODEL) or [None])[0])

@@ -28,6 +28,7 @@ from ..common.scene import AnchorScene, GaussianScene
 
 if TYPE_CHECKING:
     from .anchors.transcode import TranscodeResult
+    from .stream.config import AttributeCodingConfig
 
 Log = Callable[[str], None]
 
@@ -208,14 +209,14 @@ def check_encodable(scene: AnchorScene | GaussianScene, allow_missing_mlps: bool
         warn(f"the anchor scene has no {', '.join(missing)} MLP: its decoded scene cannot be rendered or exported")
 
 
-def estimate_seconds(scene: AnchorScene | GaussianScene, cfg) -> tuple[float, str] | None:
+def estimate_seconds(scene: AnchorScene | GaussianScene, cfg: AttributeCodingConfig) -> tuple[float, str] | None:
     """(seconds, what takes them) for a configuration that fits a context model to the scene
     (the lghcc-* presets), on 2 CPU threads; None when coding takes seconds."""
-    if isinstance(scene, GaussianScene) or getattr(cfg, "context_model", "per_channel") != "ggconv":
+    if isinstance(scene, GaussianScene) or cfg.context_model != "ggconv":
         return None
     fits = (2 if cfg.context_parent_base == "auto" else 1) * (2 if cfg.context_neighbour_level == "auto" else 1)
     steps = cfg.context_float_steps + cfg.context_qat_steps
-    n = min(scene.num_anchors, cfg.context_train_anchors)
+    n = min(scene.num_anchors, cfg.context_train_points)
     seconds = fits * steps * (_STEP_S + _STEP_S_PER_ANCHOR * n)
     return seconds, f"{fits} GG-Conv fit{'s' if fits > 1 else ''} of {steps:,} steps"
 

@@ -104,10 +104,10 @@ def add_source_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--procedural", type=int, metavar="N",
                    help="encode the built-in procedural scene with about N anchors instead of an input")
     p.add_argument("--seed", type=int, default=0, help="seed of the procedural scene (default 0)")
-    names = sorted(set(preset_names()) | set(preset_names("gaussians")))
-    p.add_argument("--preset", default="medium", choices=names,
-                   help="rate point (default: medium). 3DGS input: " + ", ".join(preset_names("gaussians"))
-                        + "; anchor scenes: " + ", ".join(preset_names()))
+    p.add_argument("--preset", default="medium", choices=preset_names(None),
+                   help="rate point (default: medium), one file each: encoder/presets/<name>.yaml, with a section "
+                        "per kind of scene it applies to. 3DGS input: " + ", ".join(preset_names("gaussians"))
+                        + "; anchor scenes: " + ", ".join(preset_names("anchors")))
     p.add_argument("--config", metavar="YAML", help="YAML file overriding preset options")
     p.add_argument("--tile-points", type=int, metavar="N",
                    help="cut the scene into spatial tiles (each decodable alone: lghcc-dec --jobs, --box) of about "
@@ -374,7 +374,7 @@ def announce_estimate(args: argparse.Namespace, scene, cfg, log) -> None:
     estimate = api.estimate_seconds(scene, cfg)
     if estimate is not None:
         secs, what = estimate
-        log(f"preset {args.preset}: {what} on {min(scene.num_anchors, cfg.context_train_anchors):,} anchors, "
+        log(f"preset {args.preset}: {what} on {min(scene.num_anchors, cfg.context_train_points):,} anchors, "
             f"about {_duration(secs)} on 2 CPU threads (tools/results/presets.md); the preset "
             f"{args.preset.removeprefix('lghcc-')} codes with the same steps in seconds. Ctrl-C stops it "
             "and writes nothing")

@@ -11,7 +11,7 @@ import pytest
 from lghcc.common.container import CONTAINER_HEADER_BYTES, UNIT_CRC_BYTES, UNIT_HEADER_BYTES, UnitType
 from lghcc.conformance import conditions, mutations, runner
 
-SPEC = Path(__file__).resolve().parents[1] / "spec" / "lghcc_v0.md"
+SPEC = Path(__file__).resolve().parents[1] / "spec" / "lghcc.md"
 
 
 def _spec_rows() -> dict[str, list[str]]:

@@ -44,9 +44,9 @@ def test_the_driver_arguments_are_called_as_promised():
     its row count; on_rows: the rows of every chunk, adding up to the tile's points."""
     data = _case("c012_parent_mlp_context").stream.read_bytes()
     admitted = []
-    s = core.parse_stream(data, admit=lambda ps, layout, by_type: admitted.append((ps.num_anchors,
+    s = core.parse_stream(data, admit=lambda ps, layout, by_type: admitted.append((ps.num_points,
                                                                                    layout.num_channels)))
-    assert admitted == [(s.ps.num_anchors, s.layout.num_channels)]
+    assert admitted == [(s.ps.num_points, s.layout.num_channels)]
 
     class Checks:
         def __init__(self):

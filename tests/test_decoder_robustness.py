@@ -106,12 +106,12 @@ def test_huge_declared_counts_fail_before_allocating():
     assert time.perf_counter() - t0 < 1.0
 
 
-def test_max_anchors_option():
+def test_max_points_option():
     """A cap the caller sets is a resource limit, not a fault of the stream (exit status 4)."""
     from lghcc.common.errors import ResourceLimitError
 
     with pytest.raises(ResourceLimitError, match=r"maximum 10\b") as e:
-        decode_stream(STREAM, max_anchors=10)
+        decode_stream(STREAM, max_points=10)
     assert not isinstance(e.value, BitstreamError)
 
 

@@ -78,7 +78,7 @@ def test_decoder_exit_codes(tmp_path, capsys):
         err = _one_line(capsys.readouterr().err)
         assert fragment in err and str(stream) in err
     assert not (tmp_path / "out").exists()  # nothing written for a rejected stream
-    assert dec_cli.main([str(GOOD), "--max-anchors", "0"]) == EXIT_RESOURCE_LIMIT
+    assert dec_cli.main([str(GOOD), "--max-points", "0"]) == EXIT_RESOURCE_LIMIT
     assert "maximum 0" in _one_line(capsys.readouterr().err)
     assert dec_cli.main([str(GOOD), "--max-memory", "1K"]) == EXIT_RESOURCE_LIMIT
     err = _one_line(capsys.readouterr().err)

@@ -285,7 +285,7 @@ def test_preset_steps_buy_fidelity_in_order():
     names = [load_config(p, kind="gaussians") for p in ("low", "medium", "high")]
     assert 0 < names[0].target_psnr < names[1].target_psnr < names[2].target_psnr
     assert names[0].fit_iterations <= names[1].fit_iterations <= names[2].fit_iterations
-    with pytest.raises(InputError, match="unknown preset"):
+    with pytest.raises(InputError, match="has no settings for explicit-Gaussian scenes"):
         load_config("lghcc-medium", kind="gaussians")
 
 

@@ -35,7 +35,7 @@ def test_the_8_gib_stream_is_legal_and_small(big_stream):
 
     sps = SceneParameterSet.from_bytes(read_container(big_stream).units[0].payload)
     m = sps.feature_dim + 6 + 3 * sps.num_offsets
-    assert sps.num_anchors == 1 << 21 and m == 1024 and sps.num_anchors * m == MAX_ATTRIBUTE_VALUES
+    assert sps.num_points == 1 << 21 and m == 1024 and sps.num_points * m == MAX_ATTRIBUTE_VALUES
     assert len(big_stream) < 5000
 
 

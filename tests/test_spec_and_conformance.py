@@ -407,8 +407,8 @@ def test_impossible_coarse_voxel_scale_one():
     for case_id in ("c011_hierarchy_per_channel", "c019_ggconv_minimal"):
         units = _units(case_id)
         sps = SceneParameterSet.from_bytes(units[0].payload)
-        coords = decode_geometry(next(u.payload for u in units if u.unit_type == UnitType.GEOMETRY), sps.num_anchors)
-        assert np.unique(coords, axis=0).shape[0] == sps.num_anchors
+        coords = decode_geometry(next(u.payload for u in units if u.unit_type == UnitType.GEOMETRY), sps.num_points)
+        assert np.unique(coords, axis=0).shape[0] == sps.num_points
         assert build_hierarchy(coords, 1).num_level2 == 0
 
 
@@ -421,7 +421,7 @@ def test_empty_chunks_decode_as_bin_zero():
     sps = SceneParameterSet.from_bytes(units[0].payload)
     layout = attr.layout_of(sps)
     h = AttributeUnitHeader.parse(BitReader(units[2].payload), num_channels=layout.num_channels,
-                                  num_offsets=sps.num_offsets, offset_mask_present=1, num_rows=sps.num_anchors)
+                                  num_offsets=sps.num_offsets, offset_mask_present=1, num_rows=sps.num_points)
     assert h.chunk_size[1] == h.mask_chunk_size[1] == h.chunk_size[3] == 0 and h.mask_chunk_size[3] > 0
     scene = decode_stream((runner.STREAMS_DIR / "c017_empty_chunks" / "stream.lghcc").read_bytes()).scene
     values = layout.join(scene.features, scene.scalings, scene.offsets)

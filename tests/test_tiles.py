@@ -33,7 +33,7 @@ def _index(data: bytes) -> tuple[SceneParameterSet, TileIndex | None]:
     units = read_container(data).units
     sps = SceneParameterSet.from_bytes(units[0].payload)
     iu = [u for u in units if u.unit_type == UnitType.TILE_INDEX]
-    return sps, (TileIndex.from_bytes(iu[0].payload, num_points=sps.num_anchors) if iu else None)
+    return sps, (TileIndex.from_bytes(iu[0].payload, num_points=sps.num_points) if iu else None)
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -71,7 +71,7 @@ def encode(kind: str, n: int):
     scene = make_procedural_scene(n, seed=0, feature_dim=32, num_offsets=10)
     over = {} if not kind.startswith("lghcc") else {
         "context_neighbour_level": 1, "context_parent_base": "choose", "context_float_steps": 150,
-        "context_qat_steps": 30, "context_train_anchors": 50_000}
+        "context_qat_steps": 30, "context_train_points": 50_000}
     return encode_scene(scene, load_config(kind, overrides=over)).data
 
 

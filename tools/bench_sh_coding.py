@@ -74,7 +74,7 @@ from lghcc.encoder.stream.neighbour_coding import NeighbourCoding  # noqa: E402
 LODS, NEIGHBOURS, BUCKETS = 6, 6, 5  # today's neighbour prediction (encoder/stream/config.py defaults)
 PARAM_BITS = 16  # a transform entry or a model weight, as half floats
 LEVEL_BITS = 6  # a scale level (u(6))
-# DC step and band steps of encoder/presets/gaussians-{low,medium,high}.yaml
+# DC step and band steps of the gaussians sections of encoder/presets/{low,medium,high}.yaml
 DEFAULT_LEVELS = "low=0.06,0.12,0.16,0.2;medium=0.04,0.08,0.1,0.12;high=0.03,0.06,0.08,0.1"
 
 

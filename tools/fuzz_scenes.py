@@ -290,7 +290,7 @@ def replace_context_model(data: bytes, decoded, rng: random.Random) -> tuple[byt
     hier = build_hierarchy(coords, sps.coarse_voxel_scale)
     a1 = types.index(UnitType.ATTRIBUTE)
     a2 = a1 + 1
-    values = np.empty((sps.num_anchors, m), np.float32)
+    values = np.empty((sps.num_points, m), np.float32)
     _, _, q1 = attr.read_attribute_unit(units[a1].payload, layout, layout.steps(sps), hier.num_level1, LEVEL_1,
                                         values, hier.level1_idx, keep_q=True)
     h2, mask2, q2 = _level2_q(units[a2].payload, sps, hier, q1, coords, units, types, values)

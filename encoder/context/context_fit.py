@@ -45,7 +45,7 @@ def fit_parent_mlp(coords2: np.ndarray, parent_attrs: np.ndarray, targets: np.nd
     n, m = parent_attrs.shape
     rng = np.random.default_rng(cfg.seed)
     torch.manual_seed(cfg.seed)
-    rows = np.sort(rng.permutation(n)[:cfg.max_train_anchors])
+    rows = np.sort(rng.permutation(n)[:cfg.max_train_points])
     local = local_position(coords2[rows], voxel_scale).clip(0, ACT_MAX).astype(np.float64)
     xpar = np.clip(parent_attrs[rows], ACT_MIN, ACT_MAX).astype(np.float64)
     x_int = torch.from_numpy(np.concatenate([local, xpar], 1))

@@ -69,7 +69,7 @@ class GGConvTrainConfig:
     qat_lr_scale: float = 0.05  # the quantization-aware phase peaks at lr * qat_lr_scale
     lam: float = 16.0  # distortion weight, bits per squared base step
     parent_base: str = "choose"  # "choose": per channel, parent or median (choose_parent_base); "parent": all 1
-    max_train_anchors: int = 200_000
+    max_train_points: int = 200_000
     seed: int = 0
     progress: bool = True
     # warm start: a twin trained with the scene (lghcc-train --rate-lambda; ``ContextTwin``): its
@@ -477,7 +477,7 @@ def train_ggconv_twin(coords2, parent, coords1, attrs1, targets, num_features: i
         default_radius_sq(coords2, cfg.k, coords1 if cfg.neighbour_level == 1 else None)
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
-    rows = np.sort(rng.permutation(n)[:cfg.max_train_anchors]).astype(np.int64)
+    rows = np.sort(rng.permutation(n)[:cfg.max_train_points]).astype(np.int64)
     data = _prepare(coords2, parent_attrs, targets, voxel_scale, num_features, cfg.k, radius_sq, cfg.grid,
                     rows, neighbours, cfg.neighbour_level, level1)
     model = _initial_twin(data, num_features, voxel_scale, cfg)

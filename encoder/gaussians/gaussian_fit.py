@@ -186,7 +186,7 @@ def pruning_key(contrib: Contributions, views: SceneViews) -> Contributions:
     """``contrib`` with the view shares the pruning goes by (no view loses more than the pruning
     share of what it shows) where the views see different parts of the scene (inside, both, the
     capture's cameras), without them on an orbit, where every view sees the whole object and the
-    share of the total is the pruning's key as it always was: there the search's error is the mean
+    share of the total is the pruning's key: there the search's error is the mean
     over views alike, and by the views' shares the donut at low needed 0.49 of SPZ's bytes at equal
     PSNR where by the total it needed 0.33 (the search chose the ladder's top, and more kept)."""
     return contrib if views.kind != "orbit" else dataclasses.replace(contrib, view_share=None)
@@ -463,9 +463,9 @@ def prepare_gaussians(scene: GaussianScene, cfg: GaussianEncoderConfig, *, views
     if cfg.landing_views > 0:
         cfg = land_on_target(grid, scene, weights, sensitivity, cfg, views, stats, say)
     elif sample is not None:
-        # no trim on the sample first: it moved the attribute steps by one common factor, as the
+        # no trim on the sample first: a trim moves the attribute steps by one common factor, as the
         # check does, against the ratio measured before the fit (off by -0.4 to +1.4 dB after it at
-        # 300k and 1M), and cost 2 whole renders per view besides its trials (tools/results/scale.md)
+        # 300k and 1M), and costs 2 whole renders per view besides its trials (tools/results/scale.md)
         cfg = whole_scene_check(grid, weights, sensitivity, cfg, stats, say, SceneRenders(grid, views))
     elif cfg.fit_iterations > 0:
         cfg = trim_steps(grid, weights, sensitivity, cfg, stats, say, SceneRenders(grid, views))

@@ -283,10 +283,10 @@ def held_in_footprint(sample: Gaussians3DGS, held: Gaussians3DGS, cam) -> torch.
 # holds a copy of the kept Gaussians' values (float64 [N, M]), the scene on its grid and its graph, 620 B
 # per Gaussian at SH degree 3 (measured at 100k); a search makes one for most of its trials (the pruning
 # ladder's moves onto the target scale the position step with the others: 38 pairs in 59 trials on a test
-# scene) and kept them all, the largest part of the preparation's peak (tools/results/scale.md, "SH 3
-# memory", round 3). The trials of one pair follow one another (the probes of the attribute steps, a
-# share's first trial and its move): with two kept none was made twice there, and one made again would be
-# the same.
+# scene); keeping them all would be the largest part of the preparation's peak (tools/results/scale.md, "SH 3
+# memory"). Two are kept: the trials of one pair follow one another (the probes of the attribute steps, a
+# share's first trial and its move), so with two none is made twice on that scene, and one made again
+# would be the same.
 GRID_CACHE_KEYS = 2
 
 
@@ -850,9 +850,9 @@ def common_factor_move(measured: dict[float, float], target_mse: float,
     else ``first_exponent`` (TARGET_FIRST_EXPONENT by default); the move aims at the middle of the
     band, stays inside a bracket (TARGET_BRACKET) and within a factor TARGET_MAX_MOVE of the trial
     it starts from.
-    The whole-scene check once had 2 moves, the second finer by the full target / error after a
-    miss: on the logo it stopped 1.7 dB above the target, +4.8% bytes
-    (tools/results/search_sampling.md (f), (h))."""
+    Why one bracketed move and not a second one finer by the full target / error after a miss: on
+    the logo that stopped 1.7 dB above the target, +4.8% bytes (tools/results/search_sampling.md
+    (f), (h))."""
     meet = sorted(f for f, e in measured.items() if e <= target_mse)
     fail = sorted(f for f, e in measured.items() if e > target_mse)
     if meet and measured[meet[-1]] * 10 ** (TARGET_TOLERANCE / 10) >= target_mse:

@@ -224,7 +224,7 @@ class SceneViews:
     """Where the encoder looks at a scene from (module doc), fixed once on the source scene so that
     the search, the sensitivities, the pruning, the fit and the trim measure from the same places.
     The orbit is placed around whichever scene it is asked for (the source, a sample, the fitted
-    grid: as it always was); the viewpoints inside and the capture's cameras stay where they are.
+    grid); the viewpoints inside and the capture's cameras stay where they are.
     ``view_set``: which of the sets of views of the same kind (ENCODER_VIEWS, LANDING_VIEWS,
     CHECK_VIEWS; ``held``)."""
     kind: str  # orbit | inside | both | capture

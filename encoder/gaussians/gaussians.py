@@ -124,7 +124,7 @@ def sh_transformed(values: np.ndarray, gps: GaussianParameterSet, layout, steps:
     if cfg.sh_transform != "always" and not sht.transform_pays(u, transform, layout.sh_degree):
         return gps, layout, steps
     fine = dataclasses.replace(cfg, sh_band_steps=tuple(float(s) / sht.guard_factor() for s in cfg.sh_band_steps))
-    gps = gaussian_parameter_set(gps.num_anchors, gps.sh_degree, gps.voxel_size, gps.origin, fine, levels.hier is not None,
+    gps = gaussian_parameter_set(gps.num_points, gps.sh_degree, gps.voxel_size, gps.origin, fine, levels.hier is not None,
                                  levels.tile_scale)
     layout = dataclasses.replace(layout, sh_transform=transform)
     steps = layout.steps(gps)

@@ -4,13 +4,15 @@ file or command-line options override single fields."""
 from __future__ import annotations
 
 import dataclasses
+import functools
+import warnings
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 import yaml
 
-from ...common.errors import InputError
+from ...common.errors import InputError, InputWarning
 
 DEFAULT_ATTRIBUTE_STEP = 0.02  # the feature, scaling and offset step of anchor scenes (preset medium)
 
@@ -20,8 +22,10 @@ VIEW_KINDS = ("auto", "orbit", "inside", "both")
 
 @dataclass
 class AttributeCodingConfig:
-    """How attribute units are coded; shared by anchor and explicit-Gaussian scenes."""
-    # Anchors (or Gaussians) per independently decodable attribute chunk.
+    """How attribute units are coded: the fields both kinds of scene use (EncoderConfig adds those of
+    anchor scenes, GaussianEncoderConfig those of explicit-Gaussian scenes). A point is an anchor or
+    a Gaussian."""
+    # Points per independently decodable attribute chunk.
     rows_per_chunk: int = 65536
     # Rows sampled when choosing each channel's prior (informative speed/accuracy knob).
     prior_fit_rows: int = 50000
@@ -32,14 +36,14 @@ class AttributeCodingConfig:
     # The tile side in coarse voxels (voxels without the hierarchy), 1 .. 2^20, instead of the
     # choice from tile_points; tiles are then used even when the scene fits one. 0: chosen.
     tile_scale: int = 0
-    # Two-level hierarchy: level 1 = one anchor per coarse voxel of this many voxels per side.
+    # Two-level hierarchy: level 1 = one point per coarse voxel of this many voxels per side.
     hierarchy: bool = False
     coarse_voxel_scale: int = 4
     # Level-2 context model: per_channel (the spine's prior), parent_mlp (vanilla EM) or ggconv.
     context_model: str = "per_channel"
     context_k: int = 8  # neighbours of the Ball k-NN graph (GG-Conv)
-    # GG-Conv neighbours: 1 = the level-1 anchors with their own decoded attributes (default:
-    # fewer bits on most scenes, tools/results/context.md), 2 = the other level-2 anchors carrying
+    # GG-Conv neighbours: 1 = the level-1 points with their own decoded attributes (default:
+    # fewer bits on most scenes, tools/results/context.md), 2 = the other level-2 points carrying
     # their parents' attributes (the paper's graph over A_pre^(2)), "auto" = fit both, keep the smaller.
     context_neighbour_level: int | str = 1
     # Base of each channel's mean (parent_base, Annex H.5.3): "choose" = the parent's value where it
@@ -47,7 +51,7 @@ class AttributeCodingConfig:
     # the parent's value on every channel (the paper's skip); "auto" = fit both, keep the smaller
     # stream (twice the fit time; neither wins on every scene: tools/results/context.md).
     context_parent_base: str = "auto"
-    # Context-model size; None: chosen from the number of level-2 anchors (context_model_size), so
+    # Context-model size; None: chosen from the number of level-2 points (context_model_size), so
     # that a small scene is not charged for a model it cannot pay back.
     context_channels: int | None = None  # GG-Conv context channels Ch (geometry table and feature MLP outputs)
     context_feat_hidden: int | None = None  # GG-Conv feature-MLP hidden width
@@ -56,7 +60,7 @@ class AttributeCodingConfig:
     context_float_steps: int = 1200  # training steps in float
     context_qat_steps: int = 300  # quantization-aware steps (GG-Conv; the parent MLP trains float_steps + qat_steps)
     context_weight_bits: int | None = None  # integer precision of the context model's weights: 8 or 16
-    context_train_anchors: int = 200_000  # level-2 anchors sampled for training
+    context_train_points: int = 200_000  # level-2 points sampled for training
     context_fallback: bool = True  # use the context model only when it saves bytes over the prior
 
     def validate(self) -> "AttributeCodingConfig":
@@ -75,7 +79,7 @@ class AttributeCodingConfig:
         if self.context_parent_base not in ("choose", "parent", "auto"):
             raise InputError("context_parent_base must be choose, parent or auto")
         if self.context_neighbour_level not in (1, 2, "auto"):
-            raise InputError("context_neighbour_level must be 1 (level-1 anchors), 2 (level-2 anchors) or auto")
+            raise InputError("context_neighbour_level must be 1 (level-1 points), 2 (level-2 points) or auto")
         for name in ("context_channels", "context_feat_hidden", "context_head_hidden"):
             if getattr(self, name) is not None and not 1 <= getattr(self, name) <= 4096:
                 raise InputError(f"{name} must be in [1, 4096], got {getattr(self, name)}")
@@ -139,7 +143,7 @@ def _check_steps(cfg, names) -> None:
 @dataclass
 class GaussianEncoderConfig(AttributeCodingConfig):
     """Explicit-Gaussian scenes (3DGS PLY, SPZ, SOG input): every Gaussian coded as a point of
-    the geometry unit with its attributes. The presets are encoder/presets/gaussians-*.yaml."""
+    the geometry unit with its attributes. The presets' gaussians sections (encoder/presets/*.yaml) set it."""
     # Quantization steps (decoded value = q * step): SH DC term, each higher SH band (1, 2, 3),
     # opacity logit, log scales, rotation quaternion components.
     sh_dc_step: float = 0.03
@@ -222,12 +226,12 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # With a target, the prepared scene's steps are moved onto it at the end (one common factor, as
     # the whole-scene check does: encoder/gaussians/gaussian_fit.py land_on_target) on this many
     # views of landing_resolution pixels, of the same kind again and seen by no other stage, in the
-    # place of the trim after the fit and of the whole-scene check: the search's views are small
-    # (8 of 128 px at 150,000 Gaussians and above), and what a viewer sees at larger sizes was
-    # 1.9-4.3 dB below the target on the donut. 12 views of 256 px, the check's size: at 16 of 192 px
-    # the donut's low landed 1.6 dB under on bench_real's 320 px orbit, at 256 px 0.8 dB under, at the
-    # same bytes / SPZ (0.33; the room 0.45 -> 0.47 at 40.2 dB instead of 39.5; tools/results/views.md
-    # (d)). (0: the trim and the check on the search's views)
+    # place of the trim after the fit and of the whole-scene check. Why: the search's views are
+    # small (8 of 128 px at 150,000 Gaussians and above), and a target met on them leaves what a
+    # viewer sees at larger sizes 1.9-4.3 dB below it (the donut). 12 views of 256 px, the check's
+    # size, land the donut's low 0.8 dB under on 320 px views where 16 of 192 px left it 1.6 dB
+    # under, at the same bytes / SPZ (tools/results/views.md (d)). (0: the trim and the check on
+    # the search's views)
     landing_views: int = 12
     landing_resolution: int = 256
     fit_views: int = 24
@@ -266,14 +270,13 @@ class GaussianEncoderConfig(AttributeCodingConfig):
     # of space (encoder/gaussians/search_sample.py), on the views its whole would get; the choice is then
     # checked on the whole scene (after the fit) and moved onto the target there by one common
     # factor on the steps if it misses (encoder/gaussians/gaussian_rd.py, meet_on_whole_scene). 0: the whole
-    # scene, whatever its size. The search's time stops growing with the scene here. On at 100,000
-    # (tools/results/search_sampling.md (f), (h)): against SPZ's envelope at equal PSNR the sample cost
-    # the logo (307k) +2.3% (+4.8% before its whole-scene check landed on the target, section (h)), the
-    # donut, playbot lod3 and lod4 (forced samples of 20k, 20k, 3k) +0.5%, -1.1%, +0.1%; on the whole
-    # search's own curve the logo +0.2%, lod3 and lod4 +0.5% and +0.9%, the donut +3.6% (+0.5% in (f)).
-    # At 1M the sampled medium took about 15 min of a quiet machine's time (tools/results/scale.md, before
-    # (f)); the whole search there was never run: its trials render and code every Gaussian, about 10x
-    # the sample's each.
+    # scene, whatever its size. The search's time stops growing with the scene here: its trials
+    # render and code every Gaussian they are given, so at 1M each whole-scene trial would cost
+    # about 10x a sample's (the sampled medium takes about 15 min of a quiet machine there,
+    # tools/results/scale.md). What the sample
+    # costs in bytes at equal PSNR, against SPZ's envelope: +2.3% on the logo (307k), -1.1% to
+    # +0.5% on the donut and playbot (forced samples); against the whole search's own curve +0.2%
+    # to +0.9%, the donut +3.6% (tools/results/search_sampling.md (f), (h)).
     search_sample_gaussians: int = 100000
     # The sensitivities and the fit render every Gaussian for each view or step: a scene of N above
     # this many Gaussians gets fit_views x this / N views for its sensitivities (at least
@@ -356,27 +359,37 @@ class GaussianEncoderConfig(AttributeCodingConfig):
             raise InputError(f"views must be one of {', '.join(VIEW_KINDS)}, got {self.views!r}")
 
 
-# Context-model sizes by number of level-2 anchors: (Ch, feature hidden, head hidden, weight bits).
-# Measured in tools/results/context.md: a 16-bit Ch=32 model (about 65 kB) pays for itself from
-# about 20k level-2 anchors on; below, smaller 8-bit models (7-20 kB) keep most of the gain.
+def channel_prediction_on(cfg: AttributeCodingConfig) -> bool:
+    """Whether ``cfg`` asks for cross-channel prediction, a tool of explicit-Gaussian scenes."""
+    return isinstance(cfg, GaussianEncoderConfig) and cfg.channel_prediction
+
+
+def neighbour_prediction_on(cfg: AttributeCodingConfig) -> bool:
+    """Whether ``cfg`` asks for neighbour prediction (true or "always"), a tool of explicit-Gaussian scenes."""
+    return isinstance(cfg, GaussianEncoderConfig) and cfg.neighbour_prediction is not False
+
+
+# Context-model sizes by number of level-2 points: (Ch, feature hidden, head hidden, weight bits).
+# Measured on anchor scenes (tools/results/context.md): a 16-bit Ch=32 model (about 65 kB) pays for
+# itself from about 20k level-2 points on; below, smaller 8-bit models (7-20 kB) keep most of the gain.
 CONTEXT_MODEL_SIZES = ((8_000, (8, 16, 16, 8)), (50_000, (16, 32, 32, 8)), (None, (32, 64, 64, 16)))
 
 
-def context_model_size(cfg: EncoderConfig, num_level2: int) -> tuple[int, int, int, int]:
+def context_model_size(cfg: AttributeCodingConfig, num_level2: int) -> tuple[int, int, int, int]:
     """(Ch, feature hidden, head hidden, weight bits): the configured values, and for those left
-    at None the size for ``num_level2`` anchors from CONTEXT_MODEL_SIZES."""
+    at None the size for ``num_level2`` points from CONTEXT_MODEL_SIZES."""
     auto = next(size for limit, size in CONTEXT_MODEL_SIZES if limit is None or num_level2 < limit)
     given = (cfg.context_channels, cfg.context_feat_hidden, cfg.context_head_hidden, cfg.context_weight_bits)
     return tuple(g if g is not None else a for g, a in zip(given, auto))
 
 
 # lghcc-enc --mode anchors: what each preset asks of the transcoder (encoder/anchors/transcode.py, step 4
-# of its module doc). The coding preset of the same name (presets/<name>.yaml or lghcc-<name>.yaml)
-# gives the quantization steps the fit simulates and the hierarchy and context its rate term
-# models (transcode.preset_transcode_config); the lghcc-* presets share these settings. A step up
-# asks for a smaller rate weight and a longer fit (measurements: tools/results/transcode.md).
-# Fit renders are 256 px: on playbot lod4 the same stream size went from 30.0 to 32.0 dB against
-# 320 px orbit renders of the source when the fit moved from 128 to 256 px.
+# of its module doc). The anchors section of the coding preset (presets/<name>.yaml or
+# lghcc-<name>.yaml) gives the quantization steps the fit simulates and the hierarchy and context
+# its rate term models (transcode.preset_transcode_config); the lghcc-* presets share these
+# settings. A step up asks for a smaller rate weight and a longer fit (measurements:
+# tools/results/transcode.md). Fit renders are 256 px: at 128 px the same stream size lost 2 dB
+# against 320 px orbit renders of the source (playbot lod4, 32.0 -> 30.0 dB).
 TRANSCODE_PRESETS: dict[str, dict] = {
     "low": {"rate_lambda": 0.02, "iterations": 300, "distill_steps": 300, "prune_keep": 0.8, "resolution": 256},
     "medium": {"rate_lambda": 0.005, "iterations": 500, "distill_steps": 400, "prune_keep": 0.9, "resolution": 256},
@@ -384,22 +397,61 @@ TRANSCODE_PRESETS: dict[str, dict] = {
 }
 
 
-GAUSSIAN_PRESET_PREFIX = "gaussians-"
+# The kinds of scene a preset can have a section for (encoder/presets/<name>.yaml), as the messages name them
+PRESET_KINDS = {"anchors": "anchor scenes", "gaussians": "explicit-Gaussian scenes"}
 
 
-def preset_names(kind: str = "anchors") -> list[str]:
-    """The presets of anchor scenes (``kind`` "anchors") or explicit-Gaussian scenes ("gaussians"),
-    by the names the command line uses (a Gaussian preset's file is gaussians-<name>.yaml)."""
-    names = [p.name[:-5] for p in resources.files("lghcc.encoder").joinpath("presets").iterdir()
-             if p.name.endswith(".yaml")]
-    if kind == "gaussians":
-        return sorted(n[len(GAUSSIAN_PRESET_PREFIX):] for n in names if n.startswith(GAUSSIAN_PRESET_PREFIX))
-    return sorted(n for n in names if not n.startswith(GAUSSIAN_PRESET_PREFIX))
+@functools.cache
+def _presets() -> dict[str, dict[str, dict]]:
+    """Every preset: its name (the file's, less .yaml) -> {kind of scene: its fields}."""
+    presets = {}
+    for p in resources.files("lghcc.encoder").joinpath("presets").iterdir():
+        if p.name.endswith(".yaml"):
+            data = yaml.safe_load(p.read_text()) or {}
+            if not isinstance(data, dict) or not set(data) <= set(PRESET_KINDS):
+                raise InputError(f"preset file {p.name}: expected sections {' and/or '.join(PRESET_KINDS)}")
+            presets[p.name[:-5]] = data
+    return presets
+
+
+def preset_names(kind: str | None = "anchors") -> list[str]:
+    """The presets of anchor scenes (``kind`` "anchors"), of explicit-Gaussian scenes ("gaussians")
+    or all of them (None): the names lghcc-enc --preset takes, one file each."""
+    if kind is not None and kind not in PRESET_KINDS:
+        raise ValueError(f"kind must be one of {', '.join(PRESET_KINDS)}, got {kind!r}")
+    return sorted(name for name, sections in _presets().items() if kind is None or kind in sections)
+
+
+def _preset_fields(preset: str, kind: str) -> dict:
+    """The section of ``preset`` for ``kind``; InputError naming the choices when there is none."""
+    presets = _presets()
+    if preset not in presets:
+        raise InputError(f"unknown preset {preset!r}; choose one of {', '.join(preset_names(None))}")
+    if kind not in presets[preset]:
+        raise InputError(f"preset {preset!r} has no settings for {PRESET_KINDS[kind]} (it is for "
+                         f"{' and '.join(PRESET_KINDS[k] for k in presets[preset])}); for {PRESET_KINDS[kind]} "
+                         f"choose one of {', '.join(preset_names(kind))}")
+    return presets[preset][kind] or {}
+
+
+# Fields renamed, each old name kept one release: it warns (InputWarning) and sets the new field
+RENAMED_FIELDS = {"context_train_anchors": "context_train_points"}
+
+
+def _renamed(data: dict, source: str) -> dict:
+    for old, new in RENAMED_FIELDS.items():
+        if old in data:
+            if new in data:
+                raise InputError(f"{source}: {old} and {new} are the same option; give {new} only")
+            warnings.warn(InputWarning(f"{source}: {old} is deprecated and will be removed: use {new}"), stacklevel=4)
+            data = {(new if k == old else k): v for k, v in data.items()}
+    return data
 
 
 def _apply(cfg, data: dict, source: str):
     if not isinstance(data, dict):
         raise InputError(f"{source}: expected a mapping of option: value")
+    data = _renamed(data, source)
     fields = {f.name for f in dataclasses.fields(cfg)}
     unknown = sorted(set(data) - fields)
     if unknown:
@@ -411,15 +463,13 @@ def _apply(cfg, data: dict, source: str):
 
 def load_config(preset: str = "medium", config_file: str | Path | None = None,
                 overrides: dict | None = None, kind: str = "anchors"):
-    """The configuration of ``preset`` for anchor scenes (EncoderConfig) or, with ``kind``
-    "gaussians", explicit-Gaussian scenes (GaussianEncoderConfig), then the fields of
-    ``config_file`` (YAML) and ``overrides`` (None values ignored)."""
-    if preset not in preset_names(kind):
-        raise InputError(f"unknown preset {preset!r} for {kind}; choose one of {', '.join(preset_names(kind))}")
-    file = f"{GAUSSIAN_PRESET_PREFIX}{preset}.yaml" if kind == "gaussians" else f"{preset}.yaml"
-    text = resources.files("lghcc.encoder").joinpath("presets", file).read_text()
+    """The configuration of ``preset`` for anchor scenes (EncoderConfig: the preset file's anchors
+    section) or, with ``kind`` "gaussians", explicit-Gaussian scenes (GaussianEncoderConfig: its
+    gaussians section), then the fields of ``config_file`` (YAML) and ``overrides`` (None values
+    ignored). InputError for an unknown preset or one without a section for ``kind``."""
+    fields = _preset_fields(preset, kind)
     base = GaussianEncoderConfig() if kind == "gaussians" else EncoderConfig()
-    cfg = _apply(base, yaml.safe_load(text) or {}, f"preset {preset}")
+    cfg = _apply(base, fields, f"preset {preset}")
     if config_file is not None:
         try:
             data = yaml.safe_load(Path(config_file).read_text())

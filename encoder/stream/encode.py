@@ -29,10 +29,11 @@ from ...common.render_model import dequantize, write_render_model_unit
 from ...app.report import SizeBreakdown, breakdown_of
 from ...common.scene import ACTIVATIONS, MLP_ROLES, AnchorScene, GaussianScene, RenderMLP
 from ...common.hierarchy import Hierarchy, build_hierarchy
-from ...common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_ANCHORS,
+from ...common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_POINTS,
                                 MAX_ATTRIBUTE_VALUES, MAX_EXPONENT, NeighbourPredictionUnit, RenderMlpHeader,
                                 SceneParameterSet, SourceInfo)
-from .config import AttributeCodingConfig, EncoderConfig, context_model_size
+from .config import (AttributeCodingConfig, EncoderConfig, channel_prediction_on, context_model_size,
+                     neighbour_prediction_on)
 from ..context.context_fit import ContextFitError, fit_level2_context
 from ..context.ggconv_train import ContextTwin, GGConvTrainConfig
 from .neighbour_coding import usable as neighbour_usable
@@ -60,7 +61,7 @@ def context_train_config(cfg: AttributeCodingConfig, num_level2: int, neighbour_
     return GGConvTrainConfig(k=cfg.context_k, neighbour_level=neighbour_level, parent_base=parent_base,
                              ctx_channels=ch, feat_hidden=feat_hidden, head_hidden=head_hidden, lam=cfg.context_lambda,
                              float_steps=cfg.context_float_steps, qat_steps=cfg.context_qat_steps,
-                             weight_bits=weight_bits, max_train_anchors=cfg.context_train_anchors,
+                             weight_bits=weight_bits, max_train_points=cfg.context_train_points,
                              progress=progress)
 
 
@@ -155,8 +156,8 @@ def prune(scene: AnchorScene, cfg: EncoderConfig, stats: EncodeStats) -> AnchorS
 
 
 def check_point_count(n: int, what: str) -> None:
-    if n > MAX_ANCHORS:
-        raise InputError(f"{n} {what} exceed the profile's limit of {MAX_ANCHORS}")
+    if n > MAX_POINTS:
+        raise InputError(f"{n} {what} exceed the profile's limit of {MAX_POINTS}")
 
 
 @dataclass
@@ -266,7 +267,7 @@ class CodedAttributes:
 def neighbour_prediction_wanted(cfg: AttributeCodingConfig, levels: "LevelLayout", inp: AttributeInput) -> bool:
     """Whether the configuration asks for neighbour prediction and the scene admits it (a Gaussian
     scene without the hierarchy, within the extent limit)."""
-    return (getattr(cfg, "neighbour_prediction", False) is not False and levels.hier is None
+    return (neighbour_prediction_on(cfg) and levels.hier is None
             and isinstance(inp.layout, attr.GaussianLayout) and neighbour_usable(inp.coords))
 
 
@@ -376,7 +377,7 @@ def code_attributes(inp: AttributeInput, levels: LevelLayout, cfg: AttributeCodi
     level 2 the configured context model when it codes smaller (fits of each candidate; the
     smallest stream is kept). Cross-channel prediction is fitted where the layout allows it
     (Gaussian scenes)."""
-    predict = bool(inp.layout.channel_prediction_allowed) and getattr(cfg, "channel_prediction", False)
+    predict = bool(inp.layout.channel_prediction_allowed) and channel_prediction_on(cfg)
     if neighbour_prediction_wanted(cfg, levels, inp):
         return code_neighbours_or_prior(inp, levels, cfg, stats, predict, measure_ideal)
     if inp.sh_degrees is not None:

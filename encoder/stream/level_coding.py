@@ -19,7 +19,7 @@ from ...common.neighbour_prediction import NeighbourGraph
 from ...common.sh_degree import coded_channels
 from ...common.units import (CONTEXT_PER_CHANNEL_PRIOR, MASK_PROB_BITS, MAX_PREDICTED_MAGNITUDE, PRIOR_MEAN_MAX,
                             AttributeUnitHeader, GaussianParameterSet, NeighbourPredictionUnit, SceneParameterSet)
-from .config import AttributeCodingConfig
+from .config import AttributeCodingConfig, GaussianEncoderConfig
 from .neighbour_coding import NeighbourCoding
 from .prediction import fit_channel_prediction
 
@@ -167,13 +167,13 @@ def check_predicted_magnitude(q: np.ndarray, layout) -> None:
                          "2^40 steps a Gaussian scene allows; use a larger step")
 
 
-def neighbour_coding_of(q: np.ndarray, coords: np.ndarray, cfg, layout, predict: bool,
+def neighbour_coding_of(q: np.ndarray, coords: np.ndarray, cfg: GaussianEncoderConfig, layout, predict: bool,
                         unit: NeighbourPredictionUnit | None = None,
                         step_adjust: np.ndarray | None = None, sh_degrees: np.ndarray | None = None,
                         graph: NeighbourGraph | None = None) -> NeighbourCoding:
     return NeighbourCoding(q, coords, cfg.prediction_lods, cfg.prediction_neighbours, cfg.prediction_buckets, predict,
                            layout, unit, adjust=step_adjust, degrees=sh_degrees, graph=graph,
-                           step_flags_allowed=getattr(cfg, "step_adjust_flags", True))
+                           step_flags_allowed=cfg.step_adjust_flags)
 
 
 def code_with_neighbours(coder: LevelCoder, q: np.ndarray, nc: NeighbourCoding) -> LevelCoding:

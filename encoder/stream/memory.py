@@ -4,7 +4,7 @@ The encoder's peak resident memory grows linearly with the scene: the program it
 NumPy, torch), then per point its arrays (the scene read, the values in coding order in float64,
 their quantized integers, the neighbour graph, each tile's working copy, the decoded values)
 and, per value of a point, the arrays sized N x M; RDOQ adds the working arrays of one block of
-rows (issue 53: its whole-scene copies are gone). The constants are the kernel's peak RSS of
+rows (no whole-scene copy: it works block by block). The constants are the kernel's peak RSS of
 lghcc-enc on the scenes tools/scale_scenes.py builds, fitted as a line in N (50k-300k Gaussians,
 SH degree 0 and the same scenes padded to degree 3: tools/results/scale.md, "Memory"), rounded
 up; they bound the measured peaks of those runs. Each worker process (--jobs) adds its own
@@ -26,10 +26,9 @@ PROGRAM_BYTES = 320 << 20  # Python, NumPy, torch and the encoder's modules (300
 # SH 3 (59 channels: 5,433 B): 446 B per point and 84.5 B per value, rounded up.
 PER_POINT_BYTES = 480  # coordinates, orders, the neighbour graph, the tiles' indices, hash rows
 PER_VALUE_BYTES = 90  # per point and channel: the scene read, float64 values, int64 q, float32 decoded, copies
-# Since issue 53's second round (the neighbour coding's fits by histogram and by block; tools/results/scale.md
-# "SH 3 memory (issue 53)", round 2) `fast` peaks at about 49 B per value and no more per point (300k: 453 B per
-# Gaussian above PROGRAM_BYTES at SH 0, 2,639 at SH 3): the constants are kept, a bound of those and of the
-# anchor scenes' peaks they were fitted on (not measured again).
+# With the neighbour coding's fits by histogram and by block, `fast` peaks at about 49 B per value and no more
+# per point (300k: 453 B per Gaussian above PROGRAM_BYTES at SH 0, 2,639 at SH 3; tools/results/scale.md "SH 3
+# memory (issue 53)"): the constants above bound those and the anchor scenes' peaks they were fitted on.
 # The render-based preparation (a PSNR or lambda asked for, fitting, pruning): the views' renders and
 # projected Gaussians (two views at a time), contributions, sensitivities, the search's trial scenes
 # (on a sample of at most 100k Gaussians) and the fit. Fitted on bench_scale's peaks of `medium` with
@@ -40,30 +39,27 @@ PER_VALUE_BYTES = 90  # per point and channel: the scene read, float64 values, i
 # estimate is 1.16x the peak at 3M, 1.18x at 100k (the tightest), 1.44x at 1M (where pruning lowered
 # the peak). The per-value term: the sensitivities' two views in flight (each parameter's float32
 # gradient and its float64 square, [N, M]), their float64 sums and result, the fit's parameters, gradients
-# and moments. The settings search's peak is bounded too (gaussian_rd.py GRID_CACHE_KEYS): it kept the
-# grid, values and neighbour graph of every (pruning share, position step) it tried, 620 B per Gaussian
-# each at SH 3, one for most trials, which made the peaks of `medium` on the 100k SH-3 scene (2,661 and
-# 3,055 MiB, once covered here by 320 B per value) and of the room watched from inside at 100k (1,592 and
-# 1,683 MiB, above the estimate of 1,404: its RSS climbed from 569 to 1,400 MiB over the pruning ladder,
-# tools/results/scale.md "SH 3 memory", round 3). With two kept, the per-stage traces of both
-# (in-process, --jobs 2) peak at the sensitivities and the trials: 1,003 MiB the room (SH 0), 1,373 the
-# SH-3 scene, 86 B per value apart: 96 B per value, with the per-point term lowered to 1,200 B so that a Gaussian at
-# SH 0 (11 values) costs what the fit above gave it (2,000 B + 24 B per value; 3M: 1.15x its peak). The
-# estimate is then 1.40x the room's peak and about 1.6x the SH-3 scene's.
+# and moments. The settings search's peak is bounded by keeping the grid, values and neighbour graph
+# (620 B per Gaussian at SH 3) of only two (pruning share, position step) pairs (gaussian_rd.py
+# GRID_CACHE_KEYS). With that, the per-stage traces (in-process, --jobs 2) of `medium` on the room
+# watched from inside and on a 100k SH-3 scene peak at the sensitivities and the trials: 1,003 MiB the
+# room (SH 0), 1,373 the SH-3 scene, 86 B per value apart (tools/results/scale.md "SH 3 memory"): hence
+# 96 B per value, with the per-point term 1,200 B so that a Gaussian at SH 0 (11 values) costs what the
+# fit above gave it (2,000 B + 24 B per value; 3M: 1.15x its peak). The estimate is 1.40x the room's
+# peak and about 1.6x the SH-3 scene's.
 PREPARE_BYTES = 600 << 20
 PREPARE_PER_POINT_BYTES = 1200
 PREPARE_PER_VALUE_BYTES = 96
 # Rate-distortion optimized quantization without the preparation (sensitivity_model "uniform": the
-# fast preset). Since issue 53 the uniform sensitivities are one broadcast row (nothing per value), the
-# values in steps are the coding's values divided in place, RDOQ chooses each LoD's rows in blocks of
-# RDOQ_BLOCK_ROWS (below) and its integers go on to the coding (no q x steps): what RDOQ
-# holds per value (the values in steps, the rounded integers, the fit of the coding to them) is within the
-# coding's own arrays above, and its peak no higher than the coding's (300k SH 3, in-process with --jobs 1:
-# 1,144 MiB in RDOQ against 1,602 in the coding, tools/results/scale.md "SH 3 memory (issue 53)"; after its
-# round 2, 876 MiB at RDOQ's fit of the coding, 875 at the coding's own, 946 at a tile's writing). Left: the
-# working arrays of one block, about 24 float64 or int64 [rows, M] (values, sensitivities, means, levels,
-# candidates, costs).
-# Measured `fast` peaks (--jobs 2, same section, round 2): 370 and 450 MiB at 100k and 300k SH 0, 536 and
+# fast preset). The uniform sensitivities are one broadcast row (nothing per value), the values in steps
+# are the coding's values divided in place, RDOQ chooses each LoD's rows in blocks of RDOQ_BLOCK_ROWS
+# (below) and its integers go on to the coding (no q x steps): what RDOQ holds per value (the values in
+# steps, the rounded integers, the fit of the coding to them) is within the coding's own arrays above,
+# and its peak no higher than the coding's (300k SH 3, in-process with --jobs 1: 876 MiB at RDOQ's fit
+# of the coding, 875 at the coding's own, 946 at a tile's writing; tools/results/scale.md "SH 3 memory
+# (issue 53)"). Left: the working arrays of one block, about 24 float64 or int64 [rows, M] (values,
+# sensitivities, means, levels, candidates, costs).
+# Measured `fast` peaks (--jobs 2, same section): 370 and 450 MiB at 100k and 300k SH 0, 536 and
 # 1,075 MiB at 100k and 300k SH 3; with the terms above the estimate is 1.68-2.13x these (621, 902, 1,142 and
 # 2,195 MiB).
 # Rows RDOQ (encoder/gaussians/rdoq.py rd_quantize) chooses at a time, within a LoD, whose rows' choices

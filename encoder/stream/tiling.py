@@ -30,6 +30,7 @@ from ...common.tiles import tile_cells
 from .level_coding import (AttributeInput, LevelCoder, code_with_model, code_with_neighbours, code_with_prior,
                            neighbour_coding_of, quantized_level, reconstruct_level)
 from ...common.units import (LEVEL_1, LEVEL_2, LEVEL_ALL, MAX_TILE_SCALE, SE_MAX, DecodedSceneHashUnit, TileIndex)
+from .config import channel_prediction_on
 from .voxel_keys import VoxelBox
 
 MAX_TILE_LOG2 = 40
@@ -152,7 +153,7 @@ def code_tile(tinp, cfg, context_payload: bytes | None, unit_stats: list,
     stream's neighbour_prediction unit, the tile's one unit is coded with it."""
     coords = tinp.coords
     levels, hier = tile_levels(coords, tinp.parameter_set)
-    predict = bool(tinp.layout.channel_prediction_allowed) and getattr(cfg, "channel_prediction", False)
+    predict = bool(tinp.layout.channel_prediction_allowed) and channel_prediction_on(cfg)
     model = None if context_payload is None else read_context_model(context_payload, tinp.layout)
     trecon = np.zeros_like(tinp.values, dtype=np.float32)
     payloads, q_level1 = [], None
