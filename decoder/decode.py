@@ -99,6 +99,17 @@ class DecodeResult:
 _KNOWN_ANCILLARY = set(AncillaryUnitType._value2member_map_)
 
 
+def _order_condition(letters: str) -> str:
+    """The row of clause 8.2 a unit order that ``_UNIT_ORDER`` refuses breaks: E61 (a case of E14 with
+    a row of its own) when the neighbour_prediction units alone are wrong (in an anchor stream,
+    repeated, or not right after the gaussian_parameter_set), else E14."""
+    if "N" in letters:
+        rest = letters.replace("N", "")
+        if _UNIT_ORDER.fullmatch(rest.replace("P", "PN", 1) if rest.startswith("P") else rest):
+            return "E61"
+    return "E14"
+
+
 def organize_units(container: Container, known: list[DataUnit] | None = None) -> tuple[list[DataUnit], list[str]]:
     """Check unit types and their order; return the critical units and the skipped ones (the
     ancillary units this decoder does not know). The ancillary units it knows (clause 6.3)
@@ -132,7 +143,7 @@ def organize_units(container: Container, known: list[DataUnit] | None = None) ->
                              "[step_adjust_flags]] [sh_degree]], "
                              "[rotation_length], [sh_transform], "
                              "[context_model], "
-                             "[tile_index], then the tiles)", condition="E14")
+                             "[tile_index], then the tiles)", condition=_order_condition(letters))
     if "I" not in letters and letters.count("G") > 1:
         raise BitstreamError(f"the stream has {letters.count('G')} tiles (geometry units) but no tile_index unit", condition="E54")
     return critical, skipped
