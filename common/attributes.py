@@ -521,7 +521,8 @@ def read_attribute_unit(payload: bytes, layout, steps: np.ndarray, num_rows: int
     else:
         if context is None:
             raise BitstreamError(f"attribute unit (level {level}) uses context model {h.context_model_id}, "
-                                 "but the stream has no matching context model unit", condition="E47")
+                                 "but the stream has no matching context model unit",
+                                 condition="E47" if level == 2 else "E46")  # levels 0 and 1 have no context model
         params = context(h.context_model_id)
     pieces = iter(split_chunks(payload[reader.bit_position // 8:], _chunk_sizes(h), what))
     models = mask_models(h.mask_live_prob) if h.offset_mask_present else None

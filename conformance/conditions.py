@@ -130,19 +130,23 @@ HASH_CONDITION = "E53"
 @dataclass(frozen=True)
 class MutantResult:
     """What the decoder with one mutation applied did with a stream: ``digests`` (the decoded
-    scene hash of each tile, in stream order) when it decoded, else the error's class and message."""
+    scene hash of each tile, in stream order) when it decoded, else the error's class, message and
+    ``condition`` (the row of clause 8.2 it names; None for an error that names none)."""
 
     decoded: bool
     digests: tuple[bytes, ...] = ()
     error: str = ""
     message: str = ""
+    condition: str | None = None
 
     def describe(self) -> str:
-        return f"decoded ({len(self.digests)} hashes)" if self.decoded else f"{self.error}: {self.message}"
+        if self.decoded:
+            return f"decoded ({len(self.digests)} hashes)"
+        return f"{self.error}" + (f" ({self.condition})" if self.condition else "") + f": {self.message}"
 
 
-def _child(conn, mutation_id: str, data: bytes) -> None:
-    """In the forked process: apply the mutation, decode, record each tile's decoded scene hash
+def _child(conn, mutation_ids: tuple[str, ...], data: bytes) -> None:
+    """In the forked process: apply the mutations, decode, record each tile's decoded scene hash
     in place of comparing it (clause 12)."""
     try:
         import torch
@@ -152,13 +156,15 @@ def _child(conn, mutation_id: str, data: bytes) -> None:
         from ..decoder import decode
         from . import mutations
 
-        mutations.apply(next(m for m in mutations.MUTATIONS if m.id == mutation_id))
+        for mutation_id in mutation_ids:
+            mutations.apply(next(m for m in mutations.MUTATIONS if m.id == mutation_id))
         digests: list[bytes] = []
         decode._check_scene_hash = lambda scene, scene_hash, where="": digests.append(digest_of(scene))
         try:
             decode.decode_stream(data)
         except Exception as e:  # noqa: BLE001 - the mutant's verdict on the stream, reported as such
-            conn.send(MutantResult(False, error=type(e).__name__, message=str(e)[:300]))
+            conn.send(MutantResult(False, error=type(e).__name__, message=str(e)[:300],
+                                   condition=getattr(e, "condition", None)))
             return
         conn.send(MutantResult(True, tuple(digests)))
     except Exception:  # noqa: BLE001 - the harness itself failed
@@ -200,12 +206,13 @@ def call_without_check(mutation_id: str, fn, *args, timeout: float = 600.0):
     return value
 
 
-def mutant_decode(mutation_id: str, data: bytes, timeout: float = 120.0) -> MutantResult:
-    """Decode ``data`` with the reference decoder and mutation ``mutation_id`` applied (in a
-    forked child: the mutation never reaches this process)."""
+def mutant_decode(mutation_id: str | tuple[str, ...], data: bytes, timeout: float = 120.0) -> MutantResult:
+    """Decode ``data`` with the reference decoder and mutation ``mutation_id`` applied (several: a
+    tuple of ids, applied in turn), in a forked child: the mutation never reaches this process."""
+    ids = (mutation_id,) if isinstance(mutation_id, str) else tuple(mutation_id)
     ctx = mp.get_context("fork")
     parent, child = ctx.Pipe(duplex=False)
-    p = ctx.Process(target=_child, args=(child, mutation_id, data), daemon=True)
+    p = ctx.Process(target=_child, args=(child, ids, data), daemon=True)
     p.start()
     child.close()
     try:
