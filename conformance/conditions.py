@@ -83,6 +83,63 @@ NOT_ISOLATED: dict[str, str] = {
 }
 
 
+# condition -> the checks to remove so that the reference decoder no longer rejects a stream for it
+# at all (the differential fuzzer's confirm_condition, conformance/differential.py): CHECK_REMOVALS[c]
+# (the check an isolated stream needs gone) and the condition's other checks, where the reference
+# checks it in several places (E19: every range of clause 7.2; E59: with and without neighbour
+# prediction ...). Each entry: a mutation id of conformance/mutations.py, or (target, edits) of a
+# removal no isolated stream needs (not in its list, so not in the mutation report).
+MORE_CHECK_REMOVALS: dict[str, tuple] = {
+    "E19": ("lghcc.common.syntax:ReadVisitor._visit",
+            (("if isinstance(value, int) and not _check_range(value, lo, hi):", "if False:"),)),
+    "E19+": ("lghcc.common.syntax:_checked_f32",
+             (('if x != x or x in (float("inf"), float("-inf")):', "if False:"), ("if positive and not x > 0:", "if False:"))),
+    "E41": ("lghcc.common.context.model_unit:read_context_model_unit",
+            (("if any(d > MAX_CONTEXT_PARAMETERS for d in a.shape):", "if False:"),)),
+    "E45": ("lghcc.common.neighbour_prediction:_check_predicted_header",
+            (("if h.attribute_level != LEVEL_ALL:", "if False:"),)),
+    "E54": "tiles.several_without_index",
+    "E55": "tiles.no_tile_count_check",
+    "E55+": ("lghcc.decoder.decode:tiles_of", (("if u.offset != at:", "if False:"),)),
+    "E59": ("lghcc.common.attributes:read_attribute_unit", (("if h.num_rows_minus1 + 1 != num_rows:", "if False:"),)),
+}
+
+
+def all_check_removals(condition: str) -> list:
+    """The mutations (conformance/mutations.py Mutation objects) that together remove every check of
+    ``condition`` from the reference decoder; empty when no mutation removes it (E39, E46)."""
+    from . import mutations
+
+    by_id = {m.id: m for m in mutations.MUTATIONS}
+    out = [by_id[CHECK_REMOVALS[condition]]] if condition in CHECK_REMOVALS else []
+    for key in (condition, condition + "+"):
+        more = MORE_CHECK_REMOVALS.get(key)
+        if isinstance(more, str):
+            out.append(by_id[more])
+        elif more is not None:
+            out.append(mutations.Mutation(f"all.{key}", "check", more[0], f"every check of {condition} removed",
+                                          tuple(more[1])))
+    return out
+
+
+def combined(removals: list) -> list:
+    """``removals`` (Mutation objects) as one Mutation per function they edit: mutations.apply
+    rewrites a function from its source file, so two edits of one function are applied together."""
+    from . import mutations
+
+    edits: dict[str, list] = {}
+    out = []
+    for m in removals:
+        if m.value is not None:
+            out.append(m)
+            continue
+        for target, e in ((m.target, m.edits),) + tuple(m.also):
+            have = edits.setdefault(target, [])
+            have += [x for x in e if x not in have]  # one check removed for two conditions (E64, E44: the k-NN's)
+    return out + [mutations.Mutation(f"combined.{t}", "check", t, "checks removed together", tuple(e))
+                  for t, e in edits.items()]
+
+
 @dataclass(frozen=True)
 class IsolatedStream:
     """One isolated error stream (test.yaml ``condition``): the condition it breaks, which bound or
@@ -145,7 +202,7 @@ class MutantResult:
         return f"{self.error}" + (f" ({self.condition})" if self.condition else "") + f": {self.message}"
 
 
-def _child(conn, mutation_ids: tuple[str, ...], data: bytes) -> None:
+def _child(conn, mutation_ids: tuple, data: bytes) -> None:
     """In the forked process: apply the mutations, decode, record each tile's decoded scene hash
     in place of comparing it (clause 12)."""
     try:
@@ -156,8 +213,8 @@ def _child(conn, mutation_ids: tuple[str, ...], data: bytes) -> None:
         from ..decoder import decode
         from . import mutations
 
-        for mutation_id in mutation_ids:
-            mutations.apply(next(m for m in mutations.MUTATIONS if m.id == mutation_id))
+        for m in mutation_ids:  # ids of the list, or Mutation objects (combined removals)
+            mutations.apply(m if isinstance(m, mutations.Mutation) else next(x for x in mutations.MUTATIONS if x.id == m))
         digests: list[bytes] = []
         decode._check_scene_hash = lambda scene, scene_hash, where="": digests.append(digest_of(scene))
         try:
@@ -206,9 +263,10 @@ def call_without_check(mutation_id: str, fn, *args, timeout: float = 600.0):
     return value
 
 
-def mutant_decode(mutation_id: str | tuple[str, ...], data: bytes, timeout: float = 120.0) -> MutantResult:
+def mutant_decode(mutation_id, data: bytes, timeout: float = 120.0) -> MutantResult:
     """Decode ``data`` with the reference decoder and mutation ``mutation_id`` applied (several: a
-    tuple of ids, applied in turn), in a forked child: the mutation never reaches this process."""
+    tuple of ids or Mutation objects, applied in turn), in a forked child: the mutation never
+    reaches this process."""
     ids = (mutation_id,) if isinstance(mutation_id, str) else tuple(mutation_id)
     ctx = mp.get_context("fork")
     parent, child = ctx.Pipe(duplex=False)

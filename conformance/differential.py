@@ -7,17 +7,24 @@ JavaScript decoder in one long-lived Node process (tools/js_decode_server.mjs; a
 case would cost more than most cases). The two agree when
 
 * both decode, to the same hash (a box decode: the same hash of the tiles the box selects);
-* both reject the stream (BitstreamError and its subclasses on both sides);
+* both reject the stream (BitstreamError and its subclasses on both sides) for the same condition
+  of clause 8.2 (the error's ``condition``), or for two conditions the stream breaks both of: the
+  reference decoder names c_ref, the JavaScript decoder c_js, and the reference with its check of
+  c_ref removed (conformance/conditions.py's CHECK_REMOVALS and mutant_decode) rejects the stream
+  for c_js, or, removing the check of each condition it then names in turn (at most
+  MAX_CONFIRM_CHAIN conditions), reaches c_js: clause 8.2 does not order the checks, so a decoder may
+  report any condition a stream breaks;
+* the JavaScript decoder rejects a stream the reference rejects as UnsupportedStreamError with no
+  condition (an anchor stream, the hierarchy: outside its profile);
 * the reference decodes a stream outside the explicit-Gaussian profile (an anchor stream, the
   hierarchy) and the JavaScript decoder rejects it as UnsupportedStreamError (spec clause 8.4);
 * either refuses it for a resource bound of its own (ResourceLimitError): not compared.
 
 Anything else is a disagreement (a hash that differs, a stream one decodes and the other rejects,
-an exception of another class or a hang of the JavaScript decoder), which is a bug in one decoder
-or an ambiguity of spec/; a reference-side bug of conformance/fuzz.py's kind ('BUG: ...') is
-reported too. When both reject, their error classes are counted pair by pair, not compared: the
-reference's messages carry no condition id of clause 8.2 (the JavaScript decoder's mostly do), and
-a stream broken twice may be rejected for either fault, since clause 8.2 does not order the checks.
+a condition of the JavaScript decoder the stream is not shown to break, a rejection that names no
+condition, an exception of another class or a hang of the JavaScript decoder), which is a bug in
+one decoder or an ambiguity of spec/; a reference-side bug of conformance/fuzz.py's kind ('BUG:
+...') is reported too. The cases both reject are counted by their pair of conditions.
 
 Cases come from conformance/fuzz.py's ``Mutator`` (its seeds: the conformance streams that decode)
 and from a scene source (tools/fuzz_scenes.py: fresh encoder streams, which then join the seeds).
@@ -46,7 +53,12 @@ JS_SERVER = ROOT / "tools" / "js_decode_server.mjs"
 JS_DECODER = ROOT / "js" / "lghcc-decoder"
 
 AGREE_DECODED = "agree: both decoded, same hash"
-AGREE_REJECTED = "agree: both rejected"
+AGREE_REJECTED = "agree: both rejected, for the same condition"
+AGREE_REJECTED_TWO = "agree: both rejected, for two conditions the stream breaks (confirmed without the check)"
+AGREE_REJECTED_OUTSIDE = "agree: both rejected, JS as outside its profile (UnsupportedStreamError, no condition)"
+CONDITIONS_DIFFER = "DISAGREE: rejected for different conditions"
+# the most checks of the reference decoder removed, one after the other, to confirm the JavaScript decoder's condition
+MAX_CONFIRM_CHAIN = 4
 AGREE_UNSUPPORTED = "agree: outside the profile, JS rejects it as UnsupportedStreamError"
 NOT_COMPARED = "not compared: a resource limit"
 SCENE_REFUSED = "scene refused by the encoder (InputError; not a case)"
@@ -64,11 +76,13 @@ class Verdict:
     kind: str = ""
     message: str = ""
     in_profile: bool = True
+    condition: str | None = None  # of a rejection: the row of clause 8.2 the error names
 
     def describe(self) -> str:
         if self.outcome == "decoded":
             return f"decoded {self.hash}" + ("" if self.in_profile else " (outside the profile)")
-        return f"{self.outcome}: {self.kind}: {self.message}".strip()
+        cond = f" ({self.condition})" if self.condition else ""
+        return f"{self.outcome}: {self.kind}{cond}: {self.message}".strip()
 
 
 def reference_judge(data: bytes, options: dict | None = None) -> tuple[str, str]:
@@ -81,8 +95,8 @@ def reference_judge(data: bytes, options: dict | None = None) -> tuple[str, str]
     options = dict(options or {})
     try:
         res = decode_stream(data, max_memory=_MAX_MEMORY[0], **options)
-    except LghccError as e:
-        return f"error: {type(e).__name__}", str(e)[:300]
+    except LghccError as e:  # detail: the condition (or '-') and the message
+        return f"error: {type(e).__name__}", f"{getattr(e, 'condition', None) or '-'} {str(e)[:300]}"
     except Exception:  # noqa: BLE001 - the reference's bug: classify reports it with its traceback
         return classify(data, options)
     in_profile = isinstance(res.scene, GaussianScene) and not parse_stream(data).ps.hierarchy_enabled_flag
@@ -94,10 +108,12 @@ def reference_verdict(kind: str, detail: str) -> Verdict:
     if kind == VALID:
         digest, profile = detail.split()
         return Verdict("decoded", hash=digest, in_profile=profile == "in")
-    if kind == "error: ResourceLimitError":
-        return Verdict("resource", kind="ResourceLimitError", message=detail)
     if kind.startswith("error: "):
-        return Verdict("rejected", kind=kind[len("error: "):], message=detail)
+        condition, _, message = detail.partition(" ")
+        condition = None if condition == "-" else condition
+        if kind == "error: ResourceLimitError":
+            return Verdict("resource", kind="ResourceLimitError", message=message)
+        return Verdict("rejected", kind=kind[len("error: "):], message=message, condition=condition)
     return Verdict("bug", kind=kind, message=detail.strip().splitlines()[-1] if detail.strip() else "")
 
 
@@ -185,7 +201,7 @@ def _js_verdict(answer: dict) -> Verdict:
     if outcome == "resource":
         return Verdict("resource", kind="ResourceLimitError", message=answer["message"])
     if outcome == "rejected":
-        return Verdict("rejected", kind=answer["kind"], message=answer["message"])
+        return Verdict("rejected", kind=answer["kind"], message=answer["message"], condition=answer.get("condition"))
     return Verdict("bug", kind=f"JS {answer['kind']}", message=answer["message"])
 
 
@@ -204,8 +220,42 @@ def compare(ref: Verdict, js: Verdict) -> str:
     if ref.outcome == js.outcome == "decoded":
         return AGREE_DECODED if ref.hash == js.hash else "DISAGREE: decoded hashes differ"
     if ref.outcome == js.outcome == "rejected":
-        return AGREE_REJECTED
+        return _compare_rejections(ref, js)
     return f"DISAGREE: reference {ref.outcome}, JS {js.outcome}"
+
+
+def _compare_rejections(ref: Verdict, js: Verdict) -> str:
+    """Both rejected: AGREE_REJECTED for one condition, CONDITIONS_DIFFER for two (``Differential``
+    then asks the reference decoder whether the stream breaks the JavaScript decoder's too)."""
+    if ref.condition is None and ref.kind != "UnsupportedStreamError":
+        return "BUG: the reference's rejection names no condition of clause 8.2"
+    if js.condition is None:
+        if js.kind == "UnsupportedStreamError":
+            return AGREE_REJECTED_OUTSIDE
+        return "DISAGREE: JS's rejection names no condition of clause 8.2"
+    return AGREE_REJECTED if ref.condition == js.condition else CONDITIONS_DIFFER
+
+
+def confirm_condition(data: bytes, c_ref: str, c_js: str, timeout: float = 120.0) -> tuple[bool, str]:
+    """Does ``data`` break ``c_js`` as well as ``c_ref``? The reference decoder with every check of
+    c_ref removed, then of each condition it names next (MAX_CONFIRM_CHAIN conditions at most), in
+    a forked child: (True when it reaches c_js, the chain as text)."""
+    from .conditions import all_check_removals, combined, mutant_decode
+
+    removed, named, cond = [], [c_ref], c_ref
+    while len(named) <= MAX_CONFIRM_CHAIN:
+        more = all_check_removals(cond)
+        if not more:
+            return False, f"{' -> '.join(named)}: no mutation removes the check of {cond}"
+        removed += more
+        res = mutant_decode(tuple(combined(removed)), data, timeout)
+        if res.decoded or res.condition is None or res.condition in named:
+            return False, f"{' -> '.join(named)}, then without those checks: {res.describe()[:200]}"
+        named.append(res.condition)
+        if res.condition == c_js:
+            return True, " -> ".join(named)
+        cond = res.condition
+    return False, f"{' -> '.join(named)}: not {c_js} within {MAX_CONFIRM_CHAIN} checks removed"
 
 
 @dataclass
@@ -218,6 +268,8 @@ class DiffSummary:
     stopped: bool = False
     outcomes: Counter = field(default_factory=Counter)
     class_pairs: Counter = field(default_factory=Counter)  # (reference class, JS class) of both-rejected cases
+    condition_pairs: Counter = field(default_factory=Counter)  # (reference condition, JS condition), likewise
+    confirmed: list[tuple[str, str]] = field(default_factory=list)  # the first 20 chains of AGREE_REJECTED_TWO
     scene_cases: int = 0
     disagreements: list[tuple[str, str, str, str]] = field(default_factory=list)
     not_compared: list[tuple[str, str, str, str]] = field(default_factory=list)  # the first 20 resource-limit cases
@@ -233,7 +285,9 @@ class DiffSummary:
             failures_dir: Path | None = None) -> None:
         self.cases += 1
         self.outcomes[label] += 1
-        if label == AGREE_REJECTED:
+        if ref.outcome == js.outcome == "rejected":
+            self.condition_pairs[(ref.condition or "-", js.condition or "-")] += 1
+        if label in (AGREE_REJECTED, AGREE_REJECTED_TWO, AGREE_REJECTED_OUTSIDE):
             self.class_pairs[(ref.kind, js.kind)] += 1
             if ref.kind != js.kind and js.kind != "UnsupportedStreamError" and len(self.classes_differ) < 20:
                 self.classes_differ.append((label, what, ref.describe(), js.describe()))
@@ -267,12 +321,21 @@ class Differential:
 
     def __init__(self, sandbox: Sandbox, js: JsDecoder):
         self.sandbox, self.js = sandbox, js
+        self.last_chain = ""  # of the last case confirmed by confirm_condition (AGREE_REJECTED_TWO)
 
     def check(self, data: bytes, box=None) -> tuple[str, Verdict, Verdict]:
         res = self.sandbox.run(data, None if box is None else {"box": box})
         ref = reference_verdict(res.kind, res.detail)
         js = self.js.run(data, box)
-        return compare(ref, js), ref, js
+        label = compare(ref, js)
+        if label == CONDITIONS_DIFFER:
+            ok, self.last_chain = confirm_condition(data, ref.condition, js.condition, self.sandbox.timeout)
+            if ok:
+                label = AGREE_REJECTED_TWO
+            else:
+                js = Verdict(js.outcome, js.hash, js.kind, f"{js.message} [reference: {self.last_chain}]",
+                             js.in_profile, js.condition)
+        return label, ref, js
 
 
 def run_differential(mutator: Mutator, *, seed: int = 0, cases: int | None = None, seconds: float | None = None,
@@ -321,6 +384,8 @@ class _Loop:
     def one(self, data: bytes, what: str, box=None) -> tuple[str, Verdict]:
         label, ref, js = self.diff.check(data, box)
         self.summary.add(label, what, ref, js, data, self.failures_dir)
+        if label == AGREE_REJECTED_TWO and len(self.summary.confirmed) < 20:
+            self.summary.confirmed.append((what, self.diff.last_chain))
         return label, ref
 
     def scene(self, sc) -> None:
