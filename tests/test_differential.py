@@ -81,6 +81,41 @@ def test_a_second_condition_is_confirmed_only_when_the_stream_breaks_it():
     assert not ok and "decoded" in chain
 
 
+def test_e61_and_e14_agree_only_when_the_neighbour_unit_is_out_of_place():
+    """E61 is a case of E14 (one check of the unit order in both decoders): a stream whose
+    neighbour_prediction unit stands after the tile breaks both; one whose step_adjust unit does
+    breaks E14 alone."""
+    from lghcc.common.container import UnitType, read_container
+
+    data = load_seeds()["c085_step_adjust"]
+    units = read_container(data).units
+    assert [UnitType(u.unit_type).name for u in units[:3]] == ["GAUSSIAN_PARAMETER_SET", "NEIGHBOUR_PREDICTION",
+                                                               "STEP_ADJUST"]
+
+    def moved_to_end(i):
+        return bytes(data[:8]) + b"".join(_unit_bytes(data, u) for u in units[:i] + units[i + 1:] + units[i:i + 1])
+
+    assert not differential.neighbour_unit_misplaced(data)
+    assert differential.neighbour_unit_misplaced(moved_to_end(1))
+    assert confirm_condition(moved_to_end(1), "E14", "E61")[0] and confirm_condition(moved_to_end(1), "E61", "E14")[0]
+    assert not differential.neighbour_unit_misplaced(moved_to_end(2))
+    ok, why = confirm_condition(moved_to_end(2), "E14", "E61")
+    assert not ok and "is not out of place" in why
+
+
+def _unit_bytes(data: bytes, u) -> bytes:
+    """A data unit's bytes as they stand in ``data`` (header, payload, CRC)."""
+    from lghcc.common.container import UNIT_CRC_BYTES, UNIT_HEADER_BYTES
+
+    return bytes(data[u.offset:u.offset + UNIT_HEADER_BYTES + len(u.payload) + UNIT_CRC_BYTES])
+
+
+def test_duplicate_mutations_are_skipped(mutator):
+    """A stream compared once is not compared again: it counts as a duplicate, not as a case."""
+    loop = differential._Loop(None, mutator, differential.DiffSummary(), None, 4)
+    assert not loop.seen_before(b"abc") and loop.seen_before(b"abc") and not loop.seen_before(b"abd")
+
+
 def test_seed_weights_favour_the_profile(mutator):
     assert mutator.weights["c032_gaussians_sh0"] == 1.0
     assert mutator.weights["c001_one_anchor"] == differential.OUTSIDE_PROFILE_WEIGHT

@@ -65,7 +65,7 @@ def code_version() -> str:
 def summary_to_json(s: DiffSummary, command: str, started: str, seeds: int, code: str) -> dict:
     return {"command": command, "started": started, "seeds": seeds, "code": code, "cases": s.cases,
             "seconds": s.seconds,
-            "scene_cases": s.scene_cases, "outcomes": dict(s.outcomes),
+            "scene_cases": s.scene_cases, "duplicates": s.duplicates, "outcomes": dict(s.outcomes),
             "class_pairs": [[a, b, n] for (a, b), n in s.class_pairs.items()], "disagreements": s.disagreements,
             "condition_pairs": [[a, b, n] for (a, b), n in s.condition_pairs.items()], "confirmed": s.confirmed,
             "not_compared": s.not_compared, "classes_differ": s.classes_differ}
@@ -83,6 +83,7 @@ def merge_json(paths: list[str]) -> tuple[DiffSummary, list[str], str, int, list
         seeds = max(seeds, d["seeds"])
         total.cases += d["cases"]
         total.scene_cases += d["scene_cases"]
+        total.duplicates += d.get("duplicates", 0)
         total.seconds = max(total.seconds, d["seconds"])
         total.outcomes.update(Counter(d["outcomes"]))
         total.class_pairs.update(Counter({(a, b): n for a, b, n in d["class_pairs"]}))
@@ -109,8 +110,10 @@ def results_markdown(s: DiffSummary, commands: list[str], started: str, seeds: i
         lines += [f"**A partial run: {s.cases:,} cases of the {TARGET_CASES:,} issue 56 item 4 asks for** (the "
                   "session's time); `make fuzz-diff` runs the whole campaign.", ""]
     lines += ["Commands:", "", *[f"    {c}" for c in commands], "",
-              "| cases | fresh scene streams | cases / s | disagreements and bugs |", "|---|---|---|---|",
-              f"| {s.cases:,} | {s.scene_cases:,} | {s.cases / max(s.seconds, 1e-9):.1f} | {s.bugs} |", "",
+              "| cases | fresh scene streams | duplicate mutations (skipped) | cases / s | disagreements and bugs |",
+              "|---|---|---|---|---|",
+              f"| {s.cases:,} | {s.scene_cases:,} | {s.duplicates:,} | {s.cases / max(s.seconds, 1e-9):.1f} | {s.bugs} |",
+              "",
               "| outcome | cases |", "|---|---|"]
     for k, n in sorted(s.outcomes.items(), key=lambda kv: (not kv[0].startswith(("DISAGREE", "BUG")), -kv[1])):
         lines.append(f"| {k} | {n:,} |")
