@@ -94,6 +94,8 @@ MORE_CHECK_REMOVALS: dict[str, tuple] = {
             (("if isinstance(value, int) and not _check_range(value, lo, hi):", "if False:"),)),
     "E19+": ("lghcc.common.syntax:_checked_f32",
              (('if x != x or x in (float("inf"), float("-inf")):', "if False:"), ("if positive and not x > 0:", "if False:"))),
+    "E38": ("lghcc.common.entropy.range_coder:RangeDecoder.check_exhausted",
+            (("if self._dec.maybe_exhausted() is False:", "if False:"),)),
     "E41": ("lghcc.common.context.model_unit:read_context_model_unit",
             (("if any(d > MAX_CONTEXT_PARAMETERS for d in a.shape):", "if False:"),)),
     "E45": ("lghcc.common.neighbour_prediction:_check_predicted_header",

@@ -58,7 +58,7 @@ AGREE_REJECTED_TWO = "agree: both rejected, for two conditions the stream breaks
 AGREE_REJECTED_OUTSIDE = "agree: both rejected, JS as outside its profile (UnsupportedStreamError, no condition)"
 CONDITIONS_DIFFER = "DISAGREE: rejected for different conditions"
 # the most checks of the reference decoder removed, one after the other, to confirm the JavaScript decoder's condition
-MAX_CONFIRM_CHAIN = 4
+MAX_CONFIRM_CHAIN = 8
 AGREE_UNSUPPORTED = "agree: outside the profile, JS rejects it as UnsupportedStreamError"
 NOT_COMPARED = "not compared: a resource limit"
 SCENE_REFUSED = "scene refused by the encoder (InputError; not a case)"
@@ -257,6 +257,28 @@ def neighbour_unit_misplaced(data: bytes) -> bool:
     return "N" in letters and ("S" in letters or letters.count("N") > 1 or "PN" not in letters)
 
 
+def hash_unit_conditions(data: bytes) -> set[str]:
+    """The conditions the stream's decoded_scene_hash units break, each parsed alone by the
+    reference's syntax (the reference decoder parses one only after its tile's data, which a
+    stream broken earlier in the tile may keep it from reaching). The units are found by their
+    headers' sizes alone: a stream may break the container's own checks as well."""
+    from ..common.container import CONTAINER_HEADER_BYTES, UNIT_CRC_BYTES, UNIT_HEADER_BYTES, UnitType
+    from ..common.errors import BitstreamError
+    from ..common.units import DecodedSceneHashUnit
+
+    out, pos = set(), CONTAINER_HEADER_BYTES
+    while pos + UNIT_HEADER_BYTES <= len(data):
+        size = int.from_bytes(data[pos + 1:pos + UNIT_HEADER_BYTES], "big")
+        if data[pos] == UnitType.DECODED_SCENE_HASH and pos + UNIT_HEADER_BYTES + size <= len(data):
+            try:
+                DecodedSceneHashUnit.from_bytes(data[pos + UNIT_HEADER_BYTES:pos + UNIT_HEADER_BYTES + size],
+                                                what="decoded scene hash unit")
+            except BitstreamError as e:
+                out.add(e.condition)
+        pos += UNIT_HEADER_BYTES + size + UNIT_CRC_BYTES
+    return out
+
+
 def confirm_condition(data: bytes, c_ref: str, c_js: str, timeout: float = 120.0) -> tuple[bool, str]:
     """Does ``data`` break ``c_js`` as well as ``c_ref``? The reference decoder with every check of
     c_ref removed, then of each condition it names next (MAX_CONFIRM_CHAIN conditions at most), in
@@ -266,6 +288,8 @@ def confirm_condition(data: bytes, c_ref: str, c_js: str, timeout: float = 120.0
     if {c_ref, c_js} == {"E14", "E61"}:  # E61 is a case of E14: one check, no removal tells them apart
         ok = neighbour_unit_misplaced(data)
         return ok, f"{c_ref} -> E61 is a case of E14: the neighbour_prediction unit {'is' if ok else 'is not'} out of place"
+    if c_js in hash_unit_conditions(data):  # the JavaScript decoder reads them before the tiles' data
+        return True, f"{c_ref} -> {c_js} in a decoded_scene_hash unit (parsed alone)"
     removed, named, cond = [], [c_ref], c_ref
     while len(named) <= MAX_CONFIRM_CHAIN:
         more = all_check_removals(cond)

@@ -76,6 +76,10 @@ def test_a_second_condition_is_confirmed_only_when_the_stream_breaks_it():
     assert ok and chain == "E2 -> E5"
     ok, chain = confirm_condition(bytes(data), "E2", "E9")
     assert not ok and "E9" not in chain.split(" -> ")
+    hash_type_0 = bytearray(load_seeds()["c032_gaussians_sh0"])
+    hash_type_0[-37] = 0  # the last unit: decoded_scene_hash (hash_type, 32 bytes, CRC); CRC now wrong (E9)
+    assert differential.hash_unit_conditions(bytes(hash_type_0)) == {"E19"}
+    assert confirm_condition(bytes(hash_type_0), "E9", "E19")[0]
     isolated = (runner.STREAMS_DIR / "x013_parameter_set_trailing_byte" / "stream.lghcc").read_bytes()
     ok, chain = confirm_condition(isolated, "E21", "E20")
     assert not ok and "decoded" in chain

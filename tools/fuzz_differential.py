@@ -176,7 +176,9 @@ def parse_args(argv):
                     help="address space a case may add to the reference's worker, MiB; both decoders' own bound "
                          "is half of it (default 2048)")
     ap.add_argument("--scenes", action="store_true", help="also fresh encoder streams of random scenes")
-    ap.add_argument("--mutations-per-scene", type=int, default=20, help="mutation cases per fresh scene (default 20)")
+    ap.add_argument("--mutations-per-scene", type=int, default=200,
+                    help="mutation cases per fresh scene (default 200: a fresh scene costs its encoding, its box decodes and "
+                         "the trace of its syntax elements, about as much as 100 mutation cases)")
     ap.add_argument("--decoder-dir", help="the JavaScript decoder's folder (default js/lghcc-decoder)")
     ap.add_argument("--failures", default="fuzz_failures_diff", help="folder for disagreeing streams")
     ap.add_argument("--json", help="write the summary as JSON (for --merge); rewritten every --checkpoint-minutes")
