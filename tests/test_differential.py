@@ -12,7 +12,7 @@ import pytest
 
 from lghcc.conformance import differential
 from lghcc.conformance.differential import (AGREE_DECODED, AGREE_REJECTED, AGREE_REJECTED_OUTSIDE,
-                                            AGREE_REJECTED_TWO, AGREE_UNSUPPORTED, CONDITIONS_DIFFER,
+                                            AGREE_UNSUPPORTED, CONDITIONS_DIFFER,
                                             NOT_COMPARED, Differential, JsDecoder, Verdict, compare,
                                             confirm_condition, reference_judge, run_differential, seed_weights)
 from lghcc.conformance import runner
