@@ -89,9 +89,12 @@ def with_prefix(exc: LghccError, prefix: str) -> LghccError:
     """The same error class with ``prefix: `` before its message (e.g. the stream's path), so that
     adding context never changes the exit status."""
     try:
-        return type(exc)(f"{prefix}: {exc}")
+        out = type(exc)(f"{prefix}: {exc}")
     except TypeError:  # a subclass with another constructor: keep the class, message as is
         return exc
+    if hasattr(exc, "condition"):  # a BitstreamError keeps the clause-8.2 condition it names
+        out.condition = exc.condition
+    return out
 
 
 def report(prog: str, exc: BaseException, interrupted: str | None = None) -> int:

@@ -227,7 +227,7 @@ def inverse_sh_transform(q: np.ndarray, layout, what: str) -> np.ndarray:
     u = q[:, SH_REST_START:end] @ transform.array.T
     v = (u + ((1 << transform.shift) >> 1)) >> transform.shift
     if v.size and int(np.abs(v).max()) > MAX_PREDICTED_MAGNITUDE:
-        raise BitstreamError(f"{what}: an SH value's inverse transform exceeds the limit of 2^40 quantization steps")
+        raise BitstreamError(f"{what}: an SH value's inverse transform exceeds the limit of 2^40 quantization steps", condition="E68")
     out = q.astype(np.int64)  # (the encoder's q may be narrower than the values)
     out[:, SH_REST_START:end] = v
     return out
@@ -241,7 +241,7 @@ ROTATION_LENGTH_SQ = tuple(2.0 ** -k for k in range(MAX_ROTATION_LENGTH_INDEX + 
 
 def check_rotation_length_index(k: np.ndarray, max_index: int, what: str) -> None:
     if k.size and (int(k.min()) < 0 or int(k.max()) > max_index):
-        raise BitstreamError(f"{what}: a rotation length index outside [0, max_rotation_length_index = {max_index}]")
+        raise BitstreamError(f"{what}: a rotation length index outside [0, max_rotation_length_index = {max_index}]", condition="E66")
 
 
 def implied_w(k: np.ndarray, xyz: np.ndarray) -> np.ndarray:
@@ -292,11 +292,11 @@ class ChannelPrediction:
         w = np.asarray(h.pred_weight, np.int64)
         if t.size:
             if (s >= t).any():
-                raise BitstreamError(f"{what}: a cross-channel prediction's source channel is not before its target")
+                raise BitstreamError(f"{what}: a cross-channel prediction's source channel is not before its target", condition="E48")
             key = t * h.num_channels + s
             if (np.diff(key) <= 0).any():
                 raise BitstreamError(f"{what}: cross-channel predictions are not in strictly increasing "
-                                     "(target, source) order")
+                                     "(target, source) order", condition="E49")
         return cls(t, s, w)
 
     def to_header(self, h: AttributeUnitHeader) -> None:
@@ -355,7 +355,7 @@ class ChannelPrediction:
 def _check_magnitude(q: np.ndarray, what: str) -> None:
     if q.size and int(np.abs(q).max()) > MAX_PREDICTED_MAGNITUDE:
         raise BitstreamError(f"{what}: a decoded value exceeds the limit of 2^40 quantization steps of a "
-                             "Gaussian scene")
+                             "Gaussian scene", condition="E51")
 
 
 @dataclass
@@ -440,7 +440,7 @@ def decode_residual_chunk(data: bytes, levels: np.ndarray, live: np.ndarray | No
 def split_chunks(payload: bytes, sizes: list[int], what: str) -> list[bytes]:
     total = sum(sizes)
     if total != len(payload):
-        raise BitstreamError(f"{what}: chunk sizes add up to {total} bytes but the unit holds {len(payload)}")
+        raise BitstreamError(f"{what}: chunk sizes add up to {total} bytes but the unit holds {len(payload)}", condition="E50")
     out, pos = [], 0
     for s in sizes:
         out.append(payload[pos:pos + s])
@@ -450,7 +450,7 @@ def split_chunks(payload: bytes, sizes: list[int], what: str) -> list[bytes]:
 
 def check_levels(levels: np.ndarray, what: str) -> None:
     if levels.size and (levels.min() < 0 or levels.max() >= NUM_SCALE_LEVELS):
-        raise BitstreamError(f"{what}: a scale level is outside [0, 63]")
+        raise BitstreamError(f"{what}: a scale level is outside [0, 63]", condition="E19")
 
 
 # --- the attribute unit ---------------------------------------------------------------------
@@ -512,18 +512,19 @@ def read_attribute_unit(payload: bytes, layout, steps: np.ndarray, num_rows: int
                                   offset_mask_present=layout.offset_mask_present,
                                   channel_prediction_allowed=layout.channel_prediction_allowed, num_rows=num_rows)
     if h.attribute_level != level:
-        raise BitstreamError(f"attribute unit: attribute_level {h.attribute_level} where level {level} is expected")
+        raise BitstreamError(f"attribute unit: attribute_level {h.attribute_level} where level {level} is expected", condition="E45")
     assert h.num_rows_minus1 is not None  # parsed
     if h.num_rows_minus1 + 1 != num_rows:  # clause 8.3 rule 8
         raise BitstreamError(f"{what}: num_rows_minus1 + 1 = {h.num_rows_minus1 + 1}, but the tile's level has "
-                             f"{num_rows} rows")
+                             f"{num_rows} rows", condition="E59")
     prediction = ChannelPrediction.from_header(h, what)
     if h.context_model_id == CONTEXT_PER_CHANNEL_PRIOR:
         params = prior_params(h)
     else:
         if context is None:
             raise BitstreamError(f"attribute unit (level {level}) uses context model {h.context_model_id}, "
-                                 "but the stream has no matching context model unit")
+                                 "but the stream has no matching context model unit",
+                                 condition="E47" if level == 2 else "E46")  # levels 0 and 1 have no context model
         params = context(h.context_model_id)
     pieces = iter(split_chunks(payload[reader.bit_position // 8:], _chunk_sizes(h), what))
     models = mask_models(h.mask_live_prob) if h.offset_mask_present else None
@@ -581,6 +582,6 @@ def reconstruct_chunk(q: np.ndarray, steps: np.ndarray, step_adjust: np.ndarray 
         reconstruct(values_q, steps, step_adjust, out=target)
     if not np.isfinite(target).all():
         raise BitstreamError(f"attribute chunk {i} (level {level}): a decoded value overflows binary32 "
-                             "(a conforming stream decodes to finite values only)")
+                             "(a conforming stream decodes to finite values only)", condition="E52")
     if layout is not None:
         reconstruct_rotations(q, target, layout, f"attribute chunk {i} (level {level})")

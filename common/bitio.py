@@ -80,7 +80,7 @@ class BitReader:
             raise BitstreamError(
                 f"{self._what} ends while reading {name or 'a syntax element'} "
                 f"(needs {nbits} bits at bit {self._pos}, {self.bits_left} left)"
-            )
+            , condition="E17")
 
     def u(self, nbits: int, name: str = "") -> int:
         self._need(nbits, name)
@@ -101,7 +101,7 @@ class BitReader:
         while self.u(1, name) == 0:
             zeros += 1
             if zeros >= MAX_EXP_GOLOMB_PREFIX:
-                raise BitstreamError(f"{self._what}: invalid Exp-Golomb code for {name or 'a syntax element'}")
+                raise BitstreamError(f"{self._what}: invalid Exp-Golomb code for {name or 'a syntax element'}", condition="E18")
         return ((1 << zeros) | self.u(zeros, name)) - 1
 
     def se(self, name: str = "") -> int:
@@ -111,7 +111,7 @@ class BitReader:
     def byte_align(self) -> None:
         pad = (-self._pos) & 7
         if pad and self.u(pad, "alignment_zero_bits") != 0:
-            raise BitstreamError(f"{self._what}: non-zero alignment bits at bit {self._pos}")
+            raise BitstreamError(f"{self._what}: non-zero alignment bits at bit {self._pos}", condition="E20")
 
     def bytes(self, nbytes: int, name: str = "") -> bytes:
         if self._pos & 7:

@@ -140,36 +140,36 @@ class Container:
 def read_container(data: bytes) -> Container:
     """Split a stream into units, checking magic, version, profile, lengths and CRCs."""
     if len(data) < CONTAINER_HEADER_BYTES:
-        raise BitstreamError(f"not an LG-HCC stream: {len(data)} bytes is shorter than the container header")
+        raise BitstreamError(f"not an LG-HCC stream: {len(data)} bytes is shorter than the container header", condition="E1")
     r = BitReader(data, "container")
     header = ContainerHeader.parse(r)
     if header.magic != MAGIC:
-        raise BitstreamError("not an LG-HCC stream: the magic number is not 'LGHC'")
+        raise BitstreamError("not an LG-HCC stream: the magic number is not 'LGHC'", condition="E2")
     if header.version_major != VERSION_MAJOR:
         raise UnsupportedStreamError(
             f"stream version {header.version_major}.{header.version_minor} is not supported "
             f"(this decoder reads version {VERSION_MAJOR}.x"
             + ("; version 0 streams were written by lghcc before the tiled format: re-encode the scene)"
-               if header.version_major == 0 else ")"))
+               if header.version_major == 0 else ")"), condition="E3")
     if header.profile_idc not in Profile._value2member_map_:
-        raise UnsupportedStreamError(f"profile_idc {header.profile_idc} is not supported")
+        raise UnsupportedStreamError(f"profile_idc {header.profile_idc} is not supported", condition="E4")
     if header.reserved_zero_8bits != 0:
-        raise BitstreamError("container_header.reserved_zero_8bits is not zero")
+        raise BitstreamError("container_header.reserved_zero_8bits is not zero", condition="E5")
     units: list[DataUnit] = []
     pos = CONTAINER_HEADER_BYTES
     while pos < len(data):
         if len(data) - pos < UNIT_HEADER_BYTES + UNIT_CRC_BYTES:
-            raise BitstreamError(f"stream ends inside the header of data unit {len(units)} at byte {pos}")
+            raise BitstreamError(f"stream ends inside the header of data unit {len(units)} at byte {pos}", condition="E6")
         uh = UnitHeader.parse(BitReader(data[pos:pos + UNIT_HEADER_BYTES], f"data unit {len(units)} header"))
         end = pos + UNIT_HEADER_BYTES + uh.unit_payload_size
         if end + UNIT_CRC_BYTES > len(data):
             raise BitstreamError(
                 f"data unit {len(units)} (type 0x{uh.unit_type:02x}) declares {uh.unit_payload_size} payload "
-                f"bytes but the stream ends {len(data) - pos - UNIT_HEADER_BYTES - UNIT_CRC_BYTES} bytes later")
+                f"bytes but the stream ends {len(data) - pos - UNIT_HEADER_BYTES - UNIT_CRC_BYTES} bytes later", condition="E8")
         stored = int.from_bytes(data[end:end + UNIT_CRC_BYTES], "big")
         if zlib.crc32(data[pos:end]) != stored:
             raise BitstreamError(f"data unit {len(units)} (type 0x{uh.unit_type:02x}) at byte {pos} fails its "
-                                 "CRC-32 check: the stream is corrupted")
+                                 "CRC-32 check: the stream is corrupted", condition="E9")
         units.append(DataUnit(uh.unit_type, bytes(data[pos + UNIT_HEADER_BYTES:end]), pos))
         pos = end + UNIT_CRC_BYTES
     return Container(header, units)

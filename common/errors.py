@@ -7,7 +7,26 @@ class LghccError(Exception):
 
 
 class BitstreamError(LghccError):
-    """The bitstream is malformed: truncated, corrupted, or violates a constraint of the spec."""
+    """The bitstream is malformed: truncated, corrupted, or violates a constraint of the spec.
+
+    ``condition``: the row of spec clause 8.2's table the stream breaks ('E1' .. 'E68'), set where
+    the check raises it; None for a rejection that is no row of it (an unsupported profile). The
+    conformance runner and the differential fuzzer compare it with what the stream is known to
+    break, so it must survive pickling (a decoding worker process) and ``with_prefix``."""
+
+    def __init__(self, *args, condition: str | None = None):
+        super().__init__(*args)
+        self.condition = condition
+
+    def __reduce__(self):
+        return _rebuild, (type(self), self.args, self.condition)
+
+
+def _rebuild(cls, args, condition):
+    """Unpickle a BitstreamError (or subclass) with its condition (Exception pickles only args)."""
+    e = cls(*args)
+    e.condition = condition
+    return e
 
 
 class UnsupportedStreamError(BitstreamError):

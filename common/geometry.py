@@ -368,11 +368,11 @@ def _validate_header(h: GeometryHeader, num_points: int) -> None:
     for a in range(3):
         if h.geom_bbox_min_sign_flag[a] == 0 and h.geom_bbox_min_abs[a] > COORD_MAX:
             raise BitstreamError(f"geometry_header.geom_bbox_min_abs[{a}] = {h.geom_bbox_min_abs[a]} "
-                                 f"puts the bounding-box minimum outside [-2^31, 2^31)")
+                                 f"puts the bounding-box minimum outside [-2^31, 2^31)", condition="E26")
     total_bits = sum(h.geom_bit_depth)
     if num_points > (1 << total_bits):
         raise BitstreamError(f"{num_points} points cannot be distinct in a bounding box of "
-                             f"{h.geom_bit_depth} bits per axis")
+                             f"{h.geom_bit_depth} bits per axis", condition="E27")
 
 
 # NTH_BIT[b, r]: the index of the r-th set bit of the byte b (0 where b has fewer)
@@ -534,7 +534,7 @@ def decode_geometry(payload: bytes, num_points: int, trace: list | None = None) 
     coordinates in normative order. Raises BitstreamError on any malformed payload."""
     n = int(num_points)
     if n < 1:
-        raise BitstreamError(f"N = {n}: the geometry of at least one point is needed")
+        raise BitstreamError(f"N = {n}: the geometry of at least one point is needed", condition="E19")
     header, data = _read_geometry_header(payload, n, trace)
     dec = RangeDecoder(data, "geometry data")
     pts = _decode_octree(_SymbolIO(decoder=dec), list(header.geom_bit_depth), header.geom_idcm_mode, n)
@@ -550,7 +550,7 @@ def _read_geometry_header(payload: bytes, n: int, trace: list | None) -> tuple[G
     _validate_header(header, n)
     data = bytes(payload[reader.bit_position // 8:])
     if max(header.geom_bit_depth) == 0 and data:
-        raise BitstreamError(f"geometry payload: {len(data)} bytes of coded data after a header of bit depth 0")
+        raise BitstreamError(f"geometry payload: {len(data)} bytes of coded data after a header of bit depth 0", condition="E28")
     return header, data
 
 
@@ -576,7 +576,7 @@ def _decode_octree(io: _SymbolIO, bit_depth: list[int], mode: int, n: int) -> np
         num_children = int(POPCOUNT8[occ].sum())
         if num_direct + num_children > n:
             raise BitstreamError(f"geometry data: {num_direct + num_children} anchors at depth {depth + 1}, "
-                                 f"more than num_anchors = {n}")
+                                 f"more than num_anchors = {n}", condition="E31")
         q, parent = _children(q, occ)
         nodes = nodes.children(occ, nbr_count, parent)
     return np.concatenate(direct_pts + [q]) if (dmax == 0 or q.shape[0]) else np.concatenate(direct_pts)
@@ -592,14 +592,14 @@ def _decode_direct_nodes(io: _SymbolIO, st: _ContextState, q: np.ndarray, elig: 
     two = io.binary(np.zeros(direct.size, dtype=np.int64), st.idcm_two)
     owner = np.sort(np.concatenate([direct, direct[two == 1]]))
     if num_direct + owner.size + (q.shape[0] - direct.size) > n:
-        raise BitstreamError(f"geometry data: more than num_anchors = {n} anchors at depth {depth}")
+        raise BitstreamError(f"geometry data: more than num_anchors = {n} anchors at depth {depth}", condition="E29")
     low = np.stack([io.raw(min(remaining, bit_depth[a]), count=owner.size) for a in range(3)], axis=1)
     p = (q[owner] << remaining) | low
     if owner.size > 1:
         same = (owner[1:] == owner[:-1]) & np.all(p[1:] == p[:-1], axis=1)
         if same.any():
             raise BitstreamError(f"geometry data: a directly coded node at depth {depth} holds "
-                                 f"the same point twice")
+                                 f"the same point twice", condition="E30")
     keep = np.ones(q.shape[0], dtype=bool)
     keep[direct] = False
     return p, keep
@@ -608,11 +608,11 @@ def _decode_direct_nodes(io: _SymbolIO, st: _ContextState, q: np.ndarray, elig: 
 def _output_points(pts: np.ndarray, header: GeometryHeader, n: int) -> np.ndarray:
     """G.5.5: exactly N points attaining the bounding-box minimum, as coordinates in normative order."""
     if pts.shape[0] != n:
-        raise BitstreamError(f"geometry data holds {pts.shape[0]} anchors, num_anchors = {n}")
+        raise BitstreamError(f"geometry data holds {pts.shape[0]} anchors, num_anchors = {n}", condition="E32")
     bmin = np.array(header.bbox_min, dtype=np.int64)
     if np.any(pts.min(axis=0) != 0):
-        raise BitstreamError("geometry data: the decoded anchors do not attain the bounding-box minimum")
+        raise BitstreamError("geometry data: the decoded anchors do not attain the bounding-box minimum", condition="E33")
     coords = pts + bmin
     if int(coords.max()) > COORD_MAX:
-        raise BitstreamError("geometry data: decoded coordinates exceed 2^31 - 1")
+        raise BitstreamError("geometry data: decoded coordinates exceed 2^31 - 1", condition="E34")
     return coords[_morton_perm(pts, max(header.geom_bit_depth))]

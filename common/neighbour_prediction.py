@@ -344,7 +344,7 @@ def check_flag_header(h: AttributeUnitHeader, what: str) -> None:
     """With a step_adjust_flags unit the header's adjust_mean and adjust_level are 0 (clause 7.3.5, E67)."""
     if h.adjust_mean or h.adjust_level:
         raise BitstreamError(f"{what}: adjust_mean {h.adjust_mean} and adjust_level {h.adjust_level} in a stream with "
-                             "a step_adjust_flags unit, where both shall be 0 (clause 7.3.5)")
+                             "a step_adjust_flags unit, where both shall be 0 (clause 7.3.5)", condition="E67")
 
 
 def decode_adjust_chunk(piece: bytes, h: AttributeUnitHeader, step_adjust: StepAdjustUnit, num_rows: int,
@@ -358,7 +358,7 @@ def decode_adjust_chunk(piece: bytes, h: AttributeUnitHeader, step_adjust: StepA
     a = decode_symbols(piece, _adjust_levels(h, num_rows), f"step-adjustment chunk {i}")[:, 0] + h.adjust_mean
     if a.size and (a.min() < 0 or a.max() > step_adjust.max_step_adjust):
         raise BitstreamError(f"step-adjustment chunk {i}: an index is outside [0, max_step_adjust = "
-                             f"{step_adjust.max_step_adjust}]")
+                             f"{step_adjust.max_step_adjust}]", condition="E65")
     return a
 
 
@@ -368,17 +368,17 @@ def _check_predicted_header(h: AttributeUnitHeader, coords: np.ndarray, what: st
     (clauses 7.3.5, 8.1, 8.3)."""
     n = coords.shape[0]
     if h.attribute_level != LEVEL_ALL:
-        raise BitstreamError(f"{what}: attribute_level {h.attribute_level} where level 0 is expected")
+        raise BitstreamError(f"{what}: attribute_level {h.attribute_level} where level 0 is expected", condition="E45")
     if step_flags is not None:
         check_flag_header(h, what)
     if h.num_rows_minus1 + 1 != n:  # clause 8.3 rule 8
-        raise BitstreamError(f"{what}: num_rows_minus1 + 1 = {h.num_rows_minus1 + 1}, but the tile has {n} rows")
+        raise BitstreamError(f"{what}: num_rows_minus1 + 1 = {h.num_rows_minus1 + 1}, but the tile has {n} rows", condition="E59")
     if h.context_model_id != CONTEXT_PER_CHANNEL_PRIOR:
         raise BitstreamError(f"{what}: context_model_id {h.context_model_id}; a stream with neighbour prediction "
-                             "codes LoD 0 with the per-channel prior (context_model_id 0)")
+                             "codes LoD 0 with the per-channel prior (context_model_id 0)", condition="E62")
     why = check_extent(coords, what)
     if why:
-        raise BitstreamError(why)
+        raise BitstreamError(why, condition="E64")
 
 
 def read_predicted_attribute_unit(payload: bytes, layout, steps: np.ndarray, coords: np.ndarray,

@@ -59,12 +59,12 @@ def read_render_model_unit(payload: bytes, trace=None) -> dict[str, RenderMLP]:
     for m, h in enumerate(unit.mlps):
         role = MLP_ROLES[h.mlp_role]
         if role in roles:
-            raise BitstreamError(f"render model unit: MLP role {role!r} appears twice")
+            raise BitstreamError(f"render model unit: MLP role {role!r} appears twice", condition="E23")
         roles.append(role)
         shapes = _tensor_shapes(h)
         total += sum(int(np.prod(s)) for s in shapes)
         if total > MAX_MODEL_PARAMETERS:
-            raise BitstreamError(f"render model unit: more than {MAX_MODEL_PARAMETERS} parameters (level limit)")
+            raise BitstreamError(f"render model unit: more than {MAX_MODEL_PARAMETERS} parameters (level limit)", condition="E24")
         shapes_all.append(shapes)
         for l in range(h.num_layers_minus1 + 1):
             levels += [np.full(int(np.prod(shapes[2 * l])), h.weight_level[l]),
@@ -72,7 +72,7 @@ def read_render_model_unit(payload: bytes, trace=None) -> dict[str, RenderMLP]:
     lv = np.concatenate(levels).astype(np.int64) if levels else np.zeros(0, np.int64)
     q = decode_symbols(unit.coded_data, lv, "render model coded data")
     if q.size and np.abs(q).max() > MAX_WEIGHT_MAGNITUDE:
-        raise BitstreamError("render model unit: a weight exceeds 2^24 - 1 in magnitude")
+        raise BitstreamError("render model unit: a weight exceeds 2^24 - 1 in magnitude", condition="E25")
     mlps, pos = {}, 0
     for role, h, shapes in zip(roles, unit.mlps, shapes_all):
         ws, bs = [], []

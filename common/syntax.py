@@ -141,9 +141,9 @@ class SyntaxVisitor:
 def _checked_f32(bits: int, name: str, positive: bool) -> float:
     x = bits_f32(bits)
     if x != x or x in (float("inf"), float("-inf")):
-        raise BitstreamError(f"{name} is not a finite number")
+        raise BitstreamError(f"{name} is not a finite number", condition="E19")
     if positive and not x > 0:
-        raise BitstreamError(f"{name}={x} must be greater than zero")
+        raise BitstreamError(f"{name}={x} must be greater than zero", condition="E19")
     return x
 
 
@@ -156,6 +156,10 @@ def _checked_f32_value(x: float, name: str, positive: bool) -> float:
 
 def _check_range(value: int, lo: int | None, hi: int | None) -> bool:
     return (lo is None or value >= lo) and (hi is None or value <= hi)
+
+
+# a range check that is a row of clause 8.2's own, not E19 (a syntax element outside its range)
+_RANGE_CONDITIONS = {("data_unit_header", "unit_type"): "E7"}
 
 
 class ReadVisitor(SyntaxVisitor):
@@ -171,7 +175,8 @@ class ReadVisitor(SyntaxVisitor):
         if isinstance(value, int) and not _check_range(value, lo, hi):
             raise BitstreamError(
                 f"{self.structure}.{lab} = {value} is outside its allowed range "
-                f"[{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'}]")
+                f"[{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'}]",
+                condition=_RANGE_CONDITIONS.get((self.structure, lab), "E19"))
         _set(obj, name, i, value)
         if self.trace is not None:
             self.trace.append(TraceEntry(pos, f"{self.structure}.{lab}", desc, value))
@@ -337,7 +342,7 @@ class SyntaxStructure:
         reader = BitReader(data, what or cls.syntax_name)
         obj = cls.parse(reader, trace, **context)
         if reader.bits_left >= 8:
-            raise BitstreamError(f"{cls.syntax_name}: {reader.bits_left // 8} unexpected trailing bytes")
+            raise BitstreamError(f"{cls.syntax_name}: {reader.bits_left // 8} unexpected trailing bytes", condition="E21")
         return obj
 
     def write_to(self, writer: BitWriter, trace: list[TraceEntry] | None = None) -> None:

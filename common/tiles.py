@@ -45,11 +45,11 @@ def check_tile_index(index: TileIndex, num_points: int) -> None:
         if not cells[t - 1] < cells[t]:
             raise BitstreamError(f"tile_index_unit: tile {t} has cell {cells[t]}, not after tile {t - 1}'s cell "
                                  f"{cells[t - 1]} (tiles shall be in strictly increasing order of their cells, "
-                                 "each cell once)")
+                                 "each cell once)", condition="E56")
     total = sum(x + 1 for x in index.tile_num_points_minus1)
     if total != num_points:
         raise BitstreamError(f"tile_index_unit: the tiles hold {total} points, the parameter set declares "
-                             f"{num_points}")
+                             f"{num_points}", condition="E57")
 
 
 def check_points_in_cell(coords: np.ndarray, cell, tile_size: int, t: int) -> None:
@@ -59,7 +59,7 @@ def check_points_in_cell(coords: np.ndarray, cell, tile_size: int, t: int) -> No
     if outside.any():
         i = int(np.argmax(outside))
         raise BitstreamError(f"tile {t}: decoded point {i} at voxel {coords[i].tolist()} lies outside the "
-                             f"tile's cell {list(cell)} (voxels {lo.tolist()} .. {hi.tolist()})")
+                             f"tile's cell {list(cell)} (voxels {lo.tolist()} .. {hi.tolist()})", condition="E58")
 
 
 @dataclass(frozen=True)

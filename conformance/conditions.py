@@ -83,6 +83,65 @@ NOT_ISOLATED: dict[str, str] = {
 }
 
 
+# condition -> the checks to remove so that the reference decoder no longer rejects a stream for it
+# at all (the differential fuzzer's confirm_condition, conformance/differential.py): CHECK_REMOVALS[c]
+# (the check an isolated stream needs gone) and the condition's other checks, where the reference
+# checks it in several places (E19: every range of clause 7.2; E59: with and without neighbour
+# prediction ...). Each entry: a mutation id of conformance/mutations.py, or (target, edits) of a
+# removal no isolated stream needs (not in its list, so not in the mutation report).
+MORE_CHECK_REMOVALS: dict[str, tuple] = {
+    "E19": ("lghcc.common.syntax:ReadVisitor._visit",
+            (("if isinstance(value, int) and not _check_range(value, lo, hi):", "if False:"),)),
+    "E19+": ("lghcc.common.syntax:_checked_f32",
+             (('if x != x or x in (float("inf"), float("-inf")):', "if False:"), ("if positive and not x > 0:", "if False:"))),
+    "E38": ("lghcc.common.entropy.range_coder:RangeDecoder.check_exhausted",
+            (("if self._dec.maybe_exhausted() is False:", "if False:"),)),
+    "E41": ("lghcc.common.context.model_unit:read_context_model_unit",
+            (("if any(d > MAX_CONTEXT_PARAMETERS for d in a.shape):", "if False:"),)),
+    "E45": ("lghcc.common.neighbour_prediction:_check_predicted_header",
+            (("if h.attribute_level != LEVEL_ALL:", "if False:"),)),
+    "E54": "tiles.several_without_index",
+    "E55": "tiles.no_tile_count_check",
+    "E55+": ("lghcc.decoder.core:tiles_of", (("if u.offset != at:", "if False:"),)),
+    "E59": ("lghcc.common.attributes:read_attribute_unit", (("if h.num_rows_minus1 + 1 != num_rows:", "if False:"),)),
+}
+
+
+def all_check_removals(condition: str) -> list:
+    """The mutations (conformance/mutations.py Mutation objects) that together remove every check of
+    ``condition`` from the reference decoder; empty when no mutation removes it (E39, E46)."""
+    from . import mutations
+
+    by_id = {m.id: m for m in mutations.MUTATIONS}
+    out = [by_id[CHECK_REMOVALS[condition]]] if condition in CHECK_REMOVALS else []
+    for key in (condition, condition + "+"):
+        more = MORE_CHECK_REMOVALS.get(key)
+        if isinstance(more, str):
+            out.append(by_id[more])
+        elif more is not None:
+            out.append(mutations.Mutation(f"all.{key}", "check", more[0], f"every check of {condition} removed",
+                                          tuple(more[1])))
+    return out
+
+
+def combined(removals: list) -> list:
+    """``removals`` (Mutation objects) as one Mutation per function they edit: mutations.apply
+    rewrites a function from its source file, so two edits of one function are applied together."""
+    from . import mutations
+
+    edits: dict[str, list] = {}
+    out = []
+    for m in removals:
+        if m.value is not None:
+            out.append(m)
+            continue
+        for target, e in ((m.target, m.edits),) + tuple(m.also):
+            have = edits.setdefault(target, [])
+            have += [x for x in e if x not in have]  # one check removed for two conditions (E64, E44: the k-NN's)
+    return out + [mutations.Mutation(f"combined.{t}", "check", t, "checks removed together", tuple(e))
+                  for t, e in edits.items()]
+
+
 @dataclass(frozen=True)
 class IsolatedStream:
     """One isolated error stream (test.yaml ``condition``): the condition it breaks, which bound or
@@ -128,19 +187,23 @@ HASH_CONDITION = "E53"
 @dataclass(frozen=True)
 class MutantResult:
     """What the decoder with one mutation applied did with a stream: ``digests`` (the decoded
-    scene hash of each tile, in stream order) when it decoded, else the error's class and message."""
+    scene hash of each tile, in stream order) when it decoded, else the error's class, message and
+    ``condition`` (the row of clause 8.2 it names; None for an error that names none)."""
 
     decoded: bool
     digests: tuple[bytes, ...] = ()
     error: str = ""
     message: str = ""
+    condition: str | None = None
 
     def describe(self) -> str:
-        return f"decoded ({len(self.digests)} hashes)" if self.decoded else f"{self.error}: {self.message}"
+        if self.decoded:
+            return f"decoded ({len(self.digests)} hashes)"
+        return f"{self.error}" + (f" ({self.condition})" if self.condition else "") + f": {self.message}"
 
 
-def _child(conn, mutation_id: str, data: bytes) -> None:
-    """In the forked process: apply the mutation, decode, record each tile's decoded scene hash
+def _child(conn, mutation_ids: tuple, data: bytes) -> None:
+    """In the forked process: apply the mutations, decode, record each tile's decoded scene hash
     in place of comparing it (clause 12)."""
     try:
         import torch
@@ -150,13 +213,15 @@ def _child(conn, mutation_id: str, data: bytes) -> None:
         from ..decoder import core, decode
         from . import mutations
 
-        mutations.apply(next(m for m in mutations.MUTATIONS if m.id == mutation_id))
+        for m in mutation_ids:  # ids of the list, or Mutation objects (combined removals)
+            mutations.apply(m if isinstance(m, mutations.Mutation) else next(x for x in mutations.MUTATIONS if x.id == m))
         digests: list[bytes] = []
         core.check_tile_hash = lambda scene, scene_hash, where="": digests.append(digest_of(scene))
         try:
             decode.decode_stream(data)
         except Exception as e:  # noqa: BLE001 - the mutant's verdict on the stream, reported as such
-            conn.send(MutantResult(False, error=type(e).__name__, message=str(e)[:300]))
+            conn.send(MutantResult(False, error=type(e).__name__, message=str(e)[:300],
+                                   condition=getattr(e, "condition", None)))
             return
         conn.send(MutantResult(True, tuple(digests)))
     except Exception:  # noqa: BLE001 - the harness itself failed
@@ -198,12 +263,14 @@ def call_without_check(mutation_id: str, fn, *args, timeout: float = 600.0):
     return value
 
 
-def mutant_decode(mutation_id: str, data: bytes, timeout: float = 120.0) -> MutantResult:
-    """Decode ``data`` with the reference decoder and mutation ``mutation_id`` applied (in a
-    forked child: the mutation never reaches this process)."""
+def mutant_decode(mutation_id, data: bytes, timeout: float = 120.0) -> MutantResult:
+    """Decode ``data`` with the reference decoder and mutation ``mutation_id`` applied (several: a
+    tuple of ids or Mutation objects, applied in turn), in a forked child: the mutation never
+    reaches this process."""
+    ids = (mutation_id,) if isinstance(mutation_id, str) else tuple(mutation_id)
     ctx = mp.get_context("fork")
     parent, child = ctx.Pipe(duplex=False)
-    p = ctx.Process(target=_child, args=(child, mutation_id, data), daemon=True)
+    p = ctx.Process(target=_child, args=(child, ids, data), daemon=True)
     p.start()
     child.close()
     try:

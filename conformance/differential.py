@@ -7,17 +7,24 @@ JavaScript decoder in one long-lived Node process (tools/js_decode_server.mjs; a
 case would cost more than most cases). The two agree when
 
 * both decode, to the same hash (a box decode: the same hash of the tiles the box selects);
-* both reject the stream (BitstreamError and its subclasses on both sides);
+* both reject the stream (BitstreamError and its subclasses on both sides) for the same condition
+  of clause 8.2 (the error's ``condition``), or for two conditions the stream breaks both of: the
+  reference decoder names c_ref, the JavaScript decoder c_js, and the reference with its check of
+  c_ref removed (conformance/conditions.py's CHECK_REMOVALS and mutant_decode) rejects the stream
+  for c_js, or, removing the check of each condition it then names in turn (at most
+  MAX_CONFIRM_CHAIN conditions), reaches c_js: clause 8.2 does not order the checks, so a decoder may
+  report any condition a stream breaks;
+* the JavaScript decoder rejects a stream the reference rejects as UnsupportedStreamError with no
+  condition (an anchor stream, the hierarchy: outside its profile);
 * the reference decodes a stream outside the explicit-Gaussian profile (an anchor stream, the
   hierarchy) and the JavaScript decoder rejects it as UnsupportedStreamError (spec clause 8.4);
 * either refuses it for a resource bound of its own (ResourceLimitError): not compared.
 
 Anything else is a disagreement (a hash that differs, a stream one decodes and the other rejects,
-an exception of another class or a hang of the JavaScript decoder), which is a bug in one decoder
-or an ambiguity of spec/; a reference-side bug of conformance/fuzz.py's kind ('BUG: ...') is
-reported too. When both reject, their error classes are counted pair by pair, not compared: the
-reference's messages carry no condition id of clause 8.2 (the JavaScript decoder's mostly do), and
-a stream broken twice may be rejected for either fault, since clause 8.2 does not order the checks.
+a condition of the JavaScript decoder the stream is not shown to break, a rejection that names no
+condition, an exception of another class or a hang of the JavaScript decoder), which is a bug in
+one decoder or an ambiguity of spec/; a reference-side bug of conformance/fuzz.py's kind ('BUG:
+...') is reported too. The cases both reject are counted by their pair of conditions.
 
 Cases come from conformance/fuzz.py's ``Mutator`` (its seeds: the conformance streams that decode)
 and from a scene source (tools/fuzz_scenes.py: fresh encoder streams, which then join the seeds).
@@ -46,7 +53,15 @@ JS_SERVER = ROOT / "tools" / "js_decode_server.mjs"
 JS_DECODER = ROOT / "js" / "lghcc-decoder"
 
 AGREE_DECODED = "agree: both decoded, same hash"
-AGREE_REJECTED = "agree: both rejected"
+AGREE_REJECTED = "agree: both rejected, for the same condition"
+AGREE_REJECTED_TWO = "agree: both rejected, for two conditions the stream breaks (confirmed without the check)"
+AGREE_REJECTED_OUTSIDE = "agree: both rejected, JS as outside its profile (UnsupportedStreamError, no condition)"
+CONDITIONS_DIFFER = "DISAGREE: rejected for different conditions"
+# the most checks of the reference decoder removed, one after the other, to confirm the JavaScript decoder's condition
+MAX_CONFIRM_CHAIN = 8
+# seconds a decode of the reference with checks removed may take: without its checks it may loop on
+# data that no longer means anything (a 60 s case timeout spent on each such chain halved a campaign's speed)
+CONFIRM_TIMEOUT = 15.0
 AGREE_UNSUPPORTED = "agree: outside the profile, JS rejects it as UnsupportedStreamError"
 NOT_COMPARED = "not compared: a resource limit"
 SCENE_REFUSED = "scene refused by the encoder (InputError; not a case)"
@@ -64,11 +79,13 @@ class Verdict:
     kind: str = ""
     message: str = ""
     in_profile: bool = True
+    condition: str | None = None  # of a rejection: the row of clause 8.2 the error names
 
     def describe(self) -> str:
         if self.outcome == "decoded":
             return f"decoded {self.hash}" + ("" if self.in_profile else " (outside the profile)")
-        return f"{self.outcome}: {self.kind}: {self.message}".strip()
+        cond = f" ({self.condition})" if self.condition else ""
+        return f"{self.outcome}: {self.kind}{cond}: {self.message}".strip()
 
 
 def reference_judge(data: bytes, options: dict | None = None) -> tuple[str, str]:
@@ -81,8 +98,8 @@ def reference_judge(data: bytes, options: dict | None = None) -> tuple[str, str]
     options = dict(options or {})
     try:
         res = decode_stream(data, max_memory=_MAX_MEMORY[0], **options)
-    except LghccError as e:
-        return f"error: {type(e).__name__}", str(e)[:300]
+    except LghccError as e:  # detail: the condition (or '-') and the message
+        return f"error: {type(e).__name__}", f"{getattr(e, 'condition', None) or '-'} {str(e)[:300]}"
     except Exception:  # noqa: BLE001 - the reference's bug: classify reports it with its traceback
         return classify(data, options)
     in_profile = isinstance(res.scene, GaussianScene) and not parse_stream(data).ps.hierarchy_enabled_flag
@@ -94,10 +111,12 @@ def reference_verdict(kind: str, detail: str) -> Verdict:
     if kind == VALID:
         digest, profile = detail.split()
         return Verdict("decoded", hash=digest, in_profile=profile == "in")
-    if kind == "error: ResourceLimitError":
-        return Verdict("resource", kind="ResourceLimitError", message=detail)
     if kind.startswith("error: "):
-        return Verdict("rejected", kind=kind[len("error: "):], message=detail)
+        condition, _, message = detail.partition(" ")
+        condition = None if condition == "-" else condition
+        if kind == "error: ResourceLimitError":
+            return Verdict("resource", kind="ResourceLimitError", message=message)
+        return Verdict("rejected", kind=kind[len("error: "):], message=message, condition=condition)
     return Verdict("bug", kind=kind, message=detail.strip().splitlines()[-1] if detail.strip() else "")
 
 
@@ -145,6 +164,10 @@ class JsDecoder:
 
     def run(self, data: bytes, box=None) -> Verdict:
         """Decode ``data`` (``box``: a common.tiles.Box, or None for the whole stream)."""
+        return self.collect(self.submit(data, box))
+
+    def submit(self, data: bytes, box=None) -> Verdict | None:
+        """Send the request and return at once (None), or the verdict when it cannot be sent."""
         if self._proc is None or self._proc.poll() is not None:
             self._start()
         options = json.dumps({"box": list(box.lo) + list(box.hi) if box is not None else None,
@@ -155,6 +178,12 @@ class JsDecoder:
         except BrokenPipeError:
             self.close()
             return Verdict("bug", kind="JS process died", message="its stdin closed")
+        return None
+
+    def collect(self, failed: Verdict | None = None) -> Verdict:
+        """The answer to the request ``submit`` sent (``failed``: what submit returned)."""
+        if failed is not None:
+            return failed
         line = self._readline(self.timeout)
         if line is None:
             died = self._proc.poll() is not None
@@ -185,7 +214,7 @@ def _js_verdict(answer: dict) -> Verdict:
     if outcome == "resource":
         return Verdict("resource", kind="ResourceLimitError", message=answer["message"])
     if outcome == "rejected":
-        return Verdict("rejected", kind=answer["kind"], message=answer["message"])
+        return Verdict("rejected", kind=answer["kind"], message=answer["message"], condition=answer.get("condition"))
     return Verdict("bug", kind=f"JS {answer['kind']}", message=answer["message"])
 
 
@@ -204,8 +233,80 @@ def compare(ref: Verdict, js: Verdict) -> str:
     if ref.outcome == js.outcome == "decoded":
         return AGREE_DECODED if ref.hash == js.hash else "DISAGREE: decoded hashes differ"
     if ref.outcome == js.outcome == "rejected":
-        return AGREE_REJECTED
+        return _compare_rejections(ref, js)
     return f"DISAGREE: reference {ref.outcome}, JS {js.outcome}"
+
+
+def _compare_rejections(ref: Verdict, js: Verdict) -> str:
+    """Both rejected: AGREE_REJECTED for one condition, CONDITIONS_DIFFER for two (``Differential``
+    then asks the reference decoder whether the stream breaks the JavaScript decoder's too)."""
+    if ref.condition is None and ref.kind != "UnsupportedStreamError":
+        return "BUG: the reference's rejection names no condition of clause 8.2"
+    if js.condition is None:
+        if js.kind == "UnsupportedStreamError":
+            return AGREE_REJECTED_OUTSIDE
+        return "DISAGREE: JS's rejection names no condition of clause 8.2"
+    return AGREE_REJECTED if ref.condition == js.condition else CONDITIONS_DIFFER
+
+
+def neighbour_unit_misplaced(data: bytes) -> bool:
+    """Whether the stream breaks E61: a neighbour_prediction unit in an anchor stream, more than one,
+    or one not right after the gaussian_parameter_set (clause 6.3)."""
+    from ..common.container import UnitType, read_container
+    from ..decoder.core import _LETTER
+
+    letters = "".join(_LETTER[UnitType(u.unit_type)] for u in read_container(data).units
+                      if not u.is_ancillary and u.unit_type in _LETTER)
+    return "N" in letters and ("S" in letters or letters.count("N") > 1 or "PN" not in letters)
+
+
+def hash_unit_conditions(data: bytes) -> set[str]:
+    """The conditions the stream's decoded_scene_hash units break, each parsed alone by the
+    reference's syntax (the reference decoder parses one only after its tile's data, which a
+    stream broken earlier in the tile may keep it from reaching). The units are found by their
+    headers' sizes alone: a stream may break the container's own checks as well."""
+    from ..common.container import CONTAINER_HEADER_BYTES, UNIT_CRC_BYTES, UNIT_HEADER_BYTES, UnitType
+    from ..common.errors import BitstreamError
+    from ..common.units import DecodedSceneHashUnit
+
+    out, pos = set(), CONTAINER_HEADER_BYTES
+    while pos + UNIT_HEADER_BYTES <= len(data):
+        size = int.from_bytes(data[pos + 1:pos + UNIT_HEADER_BYTES], "big")
+        if data[pos] == UnitType.DECODED_SCENE_HASH and pos + UNIT_HEADER_BYTES + size <= len(data):
+            try:
+                DecodedSceneHashUnit.from_bytes(data[pos + UNIT_HEADER_BYTES:pos + UNIT_HEADER_BYTES + size],
+                                                what="decoded scene hash unit")
+            except BitstreamError as e:
+                out.add(e.condition)
+        pos += UNIT_HEADER_BYTES + size + UNIT_CRC_BYTES
+    return out
+
+
+def confirm_condition(data: bytes, c_ref: str, c_js: str, timeout: float = 120.0) -> tuple[bool, str]:
+    """Does ``data`` break ``c_js`` as well as ``c_ref``? The reference decoder with every check of
+    c_ref removed, then of each condition it names next (MAX_CONFIRM_CHAIN conditions at most), in
+    a forked child: (True when it reaches c_js, the chain as text)."""
+    from .conditions import all_check_removals, combined, mutant_decode
+
+    if {c_ref, c_js} == {"E14", "E61"}:  # E61 is a case of E14: one check, no removal tells them apart
+        ok = neighbour_unit_misplaced(data)
+        return ok, f"{c_ref} -> E61 is a case of E14: the neighbour_prediction unit {'is' if ok else 'is not'} out of place"
+    if c_js in hash_unit_conditions(data):  # the JavaScript decoder reads them before the tiles' data
+        return True, f"{c_ref} -> {c_js} in a decoded_scene_hash unit (parsed alone)"
+    removed, named, cond = [], [c_ref], c_ref
+    while len(named) <= MAX_CONFIRM_CHAIN:
+        more = all_check_removals(cond)
+        if not more:
+            return False, f"{' -> '.join(named)}: no mutation removes the check of {cond}"
+        removed += more
+        res = mutant_decode(tuple(combined(removed)), data, timeout)
+        if res.decoded or res.condition is None or res.condition in named:
+            return False, f"{' -> '.join(named)}, then without those checks: {res.describe()[:200]}"
+        named.append(res.condition)
+        if res.condition == c_js:
+            return True, " -> ".join(named)
+        cond = res.condition
+    return False, f"{' -> '.join(named)}: not {c_js} within {MAX_CONFIRM_CHAIN} checks removed"
 
 
 @dataclass
@@ -218,7 +319,10 @@ class DiffSummary:
     stopped: bool = False
     outcomes: Counter = field(default_factory=Counter)
     class_pairs: Counter = field(default_factory=Counter)  # (reference class, JS class) of both-rejected cases
+    condition_pairs: Counter = field(default_factory=Counter)  # (reference condition, JS condition), likewise
+    confirmed: list[tuple[str, str]] = field(default_factory=list)  # the first 20 chains of AGREE_REJECTED_TWO
     scene_cases: int = 0
+    duplicates: int = 0  # mutations that gave a stream already compared (skipped, not counted as cases)
     disagreements: list[tuple[str, str, str, str]] = field(default_factory=list)
     not_compared: list[tuple[str, str, str, str]] = field(default_factory=list)  # the first 20 resource-limit cases
     # the first 20 both-rejected cases whose classes differ, the JavaScript decoder's UnsupportedStreamError
@@ -233,7 +337,9 @@ class DiffSummary:
             failures_dir: Path | None = None) -> None:
         self.cases += 1
         self.outcomes[label] += 1
-        if label == AGREE_REJECTED:
+        if ref.outcome == js.outcome == "rejected":
+            self.condition_pairs[(ref.condition or "-", js.condition or "-")] += 1
+        if label in (AGREE_REJECTED, AGREE_REJECTED_TWO, AGREE_REJECTED_OUTSIDE):
             self.class_pairs[(ref.kind, js.kind)] += 1
             if ref.kind != js.kind and js.kind != "UnsupportedStreamError" and len(self.classes_differ) < 20:
                 self.classes_differ.append((label, what, ref.describe(), js.describe()))
@@ -246,7 +352,8 @@ class DiffSummary:
 
     def text(self) -> str:
         lines = [f"cases: {self.cases} in {self.seconds:.1f} s ({self.cases / max(self.seconds, 1e-9):.1f} cases/s), "
-                 f"{self.scene_cases} of them fresh scene streams", "outcomes:"]
+                 f"{self.scene_cases} of them fresh scene streams; {self.duplicates} duplicate mutations skipped",
+                 "outcomes:"]
         for k, n in sorted(self.outcomes.items(), key=lambda kv: (not kv[0].startswith(("DISAGREE", "BUG")), -kv[1])):
             lines.append(f"  {n:>7}  {k}")
         lines.append(f"disagreements and bugs: {self.bugs}")
@@ -267,12 +374,24 @@ class Differential:
 
     def __init__(self, sandbox: Sandbox, js: JsDecoder):
         self.sandbox, self.js = sandbox, js
+        self.last_chain = ""  # of the last case confirmed by confirm_condition (AGREE_REJECTED_TWO)
 
     def check(self, data: bytes, box=None) -> tuple[str, Verdict, Verdict]:
-        res = self.sandbox.run(data, None if box is None else {"box": box})
+        # both decoders at work at once: the reference in its worker process, the JavaScript one in Node
+        self.sandbox.submit(data, None if box is None else {"box": box})
+        js = self.js.collect(self.js.submit(data, box))
+        res = self.sandbox.collect()
         ref = reference_verdict(res.kind, res.detail)
-        js = self.js.run(data, box)
-        return compare(ref, js), ref, js
+        label = compare(ref, js)
+        if label == CONDITIONS_DIFFER:
+            ok, self.last_chain = confirm_condition(data, ref.condition, js.condition,
+                                                    min(self.sandbox.timeout, CONFIRM_TIMEOUT))
+            if ok:
+                label = AGREE_REJECTED_TWO
+            else:
+                js = Verdict(js.outcome, js.hash, js.kind, f"{js.message} [reference: {self.last_chain}]",
+                             js.in_profile, js.condition)
+        return label, ref, js
 
 
 def run_differential(mutator: Mutator, *, seed: int = 0, cases: int | None = None, seconds: float | None = None,
@@ -301,7 +420,10 @@ def run_differential(mutator: Mutator, *, seed: int = 0, cases: int | None = Non
                 else:
                     since_scene += 1
                     data, what = mutator.case(rng)
-                    loop.one(data, what)
+                    if loop.seen_before(data):
+                        summary.duplicates += 1
+                    else:
+                        loop.one(data, what)
                 if progress is not None:
                     summary.seconds = time.perf_counter() - t0
                     progress(summary)
@@ -317,10 +439,24 @@ class _Loop:
     def __init__(self, diff: Differential, mutator: Mutator, summary: DiffSummary, failures_dir, pool_size: int):
         self.diff, self.mutator, self.summary = diff, mutator, summary
         self.failures_dir, self.pool_size, self.pool = failures_dir, pool_size, []
+        self.seen: set[bytes] = set()
+
+    def seen_before(self, data: bytes) -> bool:
+        """Whether this stream was compared already in the campaign (the mutator draws some twice,
+        e.g. a syntax element set to the same extreme value): the decoders are deterministic."""
+        key = hashlib.blake2b(data, digest_size=12).digest()
+        if key in self.seen:
+            return True
+        if len(self.seen) >= SEEN_LIMIT:  # a bound on memory: forget them all (a few may be compared twice)
+            self.seen.clear()
+        self.seen.add(key)
+        return False
 
     def one(self, data: bytes, what: str, box=None) -> tuple[str, Verdict]:
         label, ref, js = self.diff.check(data, box)
         self.summary.add(label, what, ref, js, data, self.failures_dir)
+        if label == AGREE_REJECTED_TWO and len(self.summary.confirmed) < 20:
+            self.summary.confirmed.append((what, self.diff.last_chain))
         return label, ref
 
     def scene(self, sc) -> None:
@@ -350,6 +486,9 @@ class _Loop:
             if len(self.pool) > self.pool_size:
                 self.mutator.drop_seed(self.pool.pop(0))
 
+
+# the most stream digests run_differential keeps to skip duplicates (about 100 bytes each)
+SEEN_LIMIT = 2_000_000
 
 # a seed outside the explicit-Gaussian profile is mutated a tenth as often as one in it: the JavaScript
 # decoder rejects every mutation of an anchor stream as unsupported, early, so they teach little

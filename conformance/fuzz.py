@@ -583,6 +583,7 @@ class Sandbox:
         self._ctx = mp.get_context("fork")
         self._proc = None
         self._conn = None
+        self._t0 = 0.0
 
     def _start(self) -> None:
         parent, child = self._ctx.Pipe()
@@ -605,11 +606,21 @@ class Sandbox:
         """Decode one case in the worker (``options``: see classify): (kind, detail, seconds, peak
         RSS KiB, peak above the RSS before the case KiB); the memory figures are 0 when the worker
         timed out or died."""
+        self.submit(data, options)
+        return self.collect()
+
+    def submit(self, data: bytes, options: dict | None = None) -> None:
+        """Hand the worker one case and return at once (``collect`` waits for its result): the
+        caller may do other work meanwhile (the differential fuzzer runs the JavaScript decoder)."""
         if self._proc is None or not self._proc.is_alive():
             self._start()
-        t0 = time.perf_counter()
+        self._t0 = time.perf_counter()
         self._conn.send((data, options))
-        if not self._conn.poll(self.timeout):
+
+    def collect(self) -> "CaseResult":
+        """The result of the case ``submit`` handed over, within ``timeout`` of its submission."""
+        t0 = self._t0
+        if not self._conn.poll(max(self.timeout - (time.perf_counter() - t0), 0.0)):
             self._stop()
             return CaseResult("BUG: timeout", f"no result after {self.timeout:g} s", time.perf_counter() - t0)
         try:

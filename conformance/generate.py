@@ -1152,6 +1152,19 @@ def partial_decodes_meta(entry: dict, data: bytes) -> list[dict] | None:
     return out or None
 
 
+def rejection_condition(data: bytes) -> str | None:
+    """The row of clause 8.2 the reference decoder's rejection of ``data`` names (test.yaml
+    ``expect_condition``; a stream that breaks several may name any of them, clause 8.2)."""
+    from ..common.errors import BitstreamError
+    from ..decoder.decode import decode_stream
+
+    try:
+        decode_stream(data)
+    except BitstreamError as e:
+        return e.condition
+    return None
+
+
 def test_yaml(entry: dict, data: bytes, decoded: str | None) -> dict:
     meta = {"id": entry["id"], "purpose": entry["purpose"], "profile": "main",
             "tools": derive_tools(data, entry.get("rejected_in")),
@@ -1159,6 +1172,7 @@ def test_yaml(entry: dict, data: bytes, decoded: str | None) -> dict:
     if entry.get("expect") == "error":
         meta["expect_error"] = entry["expect_error"]
         meta["expect_message"] = entry["expect_message"]
+        meta["expect_condition"] = rejection_condition(data)
     if entry.get("condition"):  # an isolated error stream: the one condition of clause 8.2 it breaks
         meta["condition"] = entry["condition"]
         for key in ("bound", "check_removal"):  # the bound of the condition it breaks, when it has several

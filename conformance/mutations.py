@@ -879,8 +879,8 @@ MUTATIONS: list[Mutation] = [
       ("if header.profile_idc not in Profile._value2member_map_:", "if False:")),
     M("check.E6", "check", f"{CONTAINER}:read_container",
       "1 to 8 bytes after the last data unit ignored as padding (E6)",
-      ('            raise BitstreamError(f"stream ends inside the header of data unit {len(units)} at byte {pos}")',
-       "            break")),
+      (('            raise BitstreamError(f"stream ends inside the header of data unit {len(units)} at byte {pos}", '
+        'condition="E6")'), "            break")),
     M("check.E7", "check", f"{CONTAINER}:UnitHeader.syntax", "unit_type 0 accepted (E7)",
       ('v.u(8, self, "unit_type", lo=1)', 'v.u(8, self, "unit_type")')),
     M("check.E8", "check", f"{CONTAINER}:read_container",

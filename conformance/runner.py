@@ -7,7 +7,12 @@ Each stream lives in ``conformance/streams/<id>/`` as ``stream.lghcc`` and ``tes
   expect: decode   decoded_sha256: SHA-256 of the decoded scene (spec clause 12, lghcc.md)
   expect: error    expect_error: the reference decoder's error class (BitstreamError,
                    UnsupportedStreamError or HashMismatchError) and expect_message: a fragment
-                   of its message (the reason); both are checked for the reference decoder
+                   of its message (the reason); both are checked for the reference decoder;
+                   expect_condition: the row of spec clause 8.2 (E1 .. E68) its rejection names
+                   (the error's ``condition``), checked for the reference decoder in process
+  condition        (isolated error streams) the one row of clause 8.2 the stream breaks: every
+                   decoder shall reject it for that row (checked for the reference decoder in
+                   process and for the JavaScript decoder by js/lghcc-decoder/conformance.mjs)
   renders          (optional, informative) reference images of fixed cameras and a tolerance;
                    checked with --render (the renderer is not normative, hence no hash)
   partial_decodes  (tiled streams, version 1) decodes of part of the stream, each with the SHA-256 of
@@ -162,9 +167,9 @@ def validate_meta(meta, folder: Path) -> dict:
         raise _bad(folder, f"unknown expect value {expect!r} (decode or error)")
     _validate_hashes(meta, expect, folder)
     _validate_expected_error(meta, expect, folder)
-    if "condition" in meta and (expect != "error" or not isinstance(meta["condition"], str)
-                                or not CONDITION_ID.fullmatch(meta["condition"])):
-        raise _bad(folder, f"condition {meta['condition']!r}: a row of spec clause 8.2 (E1 .. E67), on an error stream")
+    for key in ("condition", "expect_condition"):
+        if key in meta and (expect != "error" or not isinstance(meta[key], str) or not CONDITION_ID.fullmatch(meta[key])):
+            raise _bad(folder, f"{key} {meta[key]!r}: a row of spec clause 8.2 (E1 .. E68), on an error stream")
     for key in ("bound", "check_removal"):  # which bound of the condition an isolated stream breaks
         if key in meta and ("condition" not in meta or not isinstance(meta[key], str) or not meta[key].strip()):
             raise _bad(folder, f"{key} {meta[key]!r}: a non-empty text, on an isolated stream (condition)")
@@ -416,8 +421,10 @@ def compare_renders(scene, spec: dict, folder: Path) -> tuple[bool, str]:
 
 # --- one case --------------------------------------------------------------------------------------
 
-def _judge_error(case: Case, kind: str, message: str | None) -> tuple[bool, str]:
-    """The reference decoder rejected the stream with ``kind``: right class and reason?"""
+def _judge_error(case: Case, kind: str, message: str | None, condition: str | None = None) -> tuple[bool, str]:
+    """The reference decoder rejected the stream with ``kind`` for ``condition`` (the row of clause
+    8.2 its error names): right class, reason and, where test.yaml records it (an isolated
+    stream's ``condition``), right condition?"""
     if case.expect != "error":
         return False, f"error: {kind}: {message}"
     want, frag = case.meta["expect_error"], case.meta["expect_message"]
@@ -425,14 +432,17 @@ def _judge_error(case: Case, kind: str, message: str | None) -> tuple[bool, str]
         return False, f"rejected with {kind} instead of {want}: {message}"
     if message is not None and frag not in message:
         return False, f"rejected for another reason (expected '{frag}'): {message}"
-    return True, f"rejected: {kind}: {message}"
+    want_condition = case.meta.get("condition") or case.meta.get("expect_condition")
+    if want_condition and condition != want_condition:
+        return False, f"rejected for {condition or 'no condition of clause 8.2'} instead of {want_condition}: {message}"
+    return True, f"rejected: {kind} ({condition}): {message}"
 
 
 def _run_internal(case: Case, render: bool) -> tuple[bool, str]:
     try:
         digest, scene, result = decode_scene_internal(case.stream)
     except LghccError as e:
-        return _judge_error(case, type(e).__name__, str(e))
+        return _judge_error(case, type(e).__name__, str(e), getattr(e, "condition", None))
     except Exception as e:  # noqa: BLE001 - any other exception is a decoder bug: a FAIL row
         return False, f"unexpected {type(e).__name__}: {e}"
     ok, note = _judge_decoded(case, digest, scene, render)

@@ -130,6 +130,17 @@ _UNIT_ORDER = re.compile(r"(SR?|P(N(QF?)?B?)?W?T?)C?I?(GA{1,2}H)+")
 _KNOWN_ANCILLARY = set(AncillaryUnitType._value2member_map_)
 
 
+def _order_condition(letters: str) -> str:
+    """The row of clause 8.2 a unit order that ``_UNIT_ORDER`` refuses breaks: E61 (a case of E14 with
+    a row of its own) when the neighbour_prediction units alone are wrong (in an anchor stream,
+    repeated, or not right after the gaussian_parameter_set), else E14."""
+    if "N" in letters:
+        rest = letters.replace("N", "")
+        if _UNIT_ORDER.fullmatch(rest.replace("P", "PN", 1) if rest.startswith("P") else rest):
+            return "E61"
+    return "E14"
+
+
 def organize_units(container: Container, known: list[DataUnit] | None = None) -> tuple[list[DataUnit], list[str]]:
     """Check unit types and their order; return the critical units and the skipped ones (the
     ancillary units this decoder does not know). The ancillary units it knows (clause 6.3)
@@ -139,7 +150,7 @@ def organize_units(container: Container, known: list[DataUnit] | None = None) ->
     for idx, u in enumerate(container.units):
         if u.is_ancillary:
             if not critical:
-                raise BitstreamError(f"data unit {idx}: an ancillary unit precedes the scene parameter set (or gaussian parameter set)")
+                raise BitstreamError(f"data unit {idx}: an ancillary unit precedes the scene parameter set (or gaussian parameter set)", condition="E11")
             if known is not None and u.unit_type in _KNOWN_ANCILLARY:
                 known.append(u)
             else:
@@ -148,13 +159,13 @@ def organize_units(container: Container, known: list[DataUnit] | None = None) ->
             critical.append(u)
         else:
             raise UnsupportedStreamError(f"data unit {idx} has unit type 0x{u.unit_type:02x}, which this "
-                                         "decoder does not know and which is not marked ancillary")
+                                         "decoder does not know and which is not marked ancillary", condition="E10")
     letters = "".join(_LETTER[UnitType(u.unit_type)] for u in critical)
     if "S" not in letters and "P" not in letters:
-        raise BitstreamError("the stream has no scene_parameter_set or gaussian_parameter_set unit")
+        raise BitstreamError("the stream has no scene_parameter_set or gaussian_parameter_set unit", condition="E12")
     for t in (UnitType.GEOMETRY, UnitType.ATTRIBUTE, UnitType.DECODED_SCENE_HASH):
         if _LETTER[t] not in letters:
-            raise BitstreamError(f"the stream has no {t.name.lower()} unit")
+            raise BitstreamError(f"the stream has no {t.name.lower()} unit", condition="E13")
     if not _UNIT_ORDER.fullmatch(letters):
         names = ", ".join(u.type_name for u in critical)
         raise BitstreamError(f"data units are out of order or repeated: {names} (expected scene_parameter_set, "
@@ -163,9 +174,9 @@ def organize_units(container: Container, known: list[DataUnit] | None = None) ->
                              "[step_adjust_flags]] [sh_degree]], "
                              "[rotation_length], [sh_transform], "
                              "[context_model], "
-                             "[tile_index], then the tiles)")
+                             "[tile_index], then the tiles)", condition=_order_condition(letters))
     if "I" not in letters and letters.count("G") > 1:
-        raise BitstreamError(f"the stream has {letters.count('G')} tiles (geometry units) but no tile_index unit")
+        raise BitstreamError(f"the stream has {letters.count('G')} tiles (geometry units) but no tile_index unit", condition="E54")
     return critical, skipped
 
 
@@ -211,7 +222,7 @@ def check_level_limits(ps: ParameterSet, layout: Layout) -> None:
     n = ps.num_points
     if n * layout.num_channels > MAX_ATTRIBUTE_VALUES:
         raise BitstreamError(f"{n} {point_word(ps)}s x {layout.num_channels} channels exceeds the level limit of "
-                             f"{MAX_ATTRIBUTE_VALUES} attribute values")
+                             f"{MAX_ATTRIBUTE_VALUES} attribute values", condition="E22")
 
 
 def steps_of(ps: ParameterSet, layout: Layout) -> np.ndarray:
@@ -264,7 +275,7 @@ def read_context_model_unit(context_unit: DataUnit | None, ps: ParameterSet, lay
     if context_unit is None:
         return None
     if not ps.hierarchy_enabled_flag:
-        raise BitstreamError("a context model unit in a stream without the hierarchy")
+        raise BitstreamError("a context model unit in a stream without the hierarchy", condition="E16")
     _, params = read_context_model(context_unit.payload, layout, entries)
     from ..common.context.ggconv import GGConvParams  # loaded by read_context_model (torch with it)
 
@@ -282,7 +293,7 @@ def read_neighbour_prediction_unit(unit: DataUnit | None, ps: ParameterSet, layo
     if unit is None:
         return None
     if ps.hierarchy_enabled_flag:
-        raise BitstreamError("a neighbour_prediction unit in a stream with the hierarchy (hierarchy_enabled_flag 1)")
+        raise BitstreamError("a neighbour_prediction unit in a stream with the hierarchy (hierarchy_enabled_flag 1)", condition="E60")
     neighbour = NeighbourPredictionUnit.from_bytes(unit.payload, entries, what="neighbour prediction unit",
                                                    num_channels=layout.num_channels)
     if step_adjust_unit is not None:
@@ -369,7 +380,7 @@ def tiles_of(units: list[DataUnit], by_type: dict[int, list[DataUnit]], n: int,
     index = TileIndex.from_bytes(iu.payload, entries, what="tile index unit", num_points=n)
     check_tile_index(index, n)
     if index.num_tiles != len(groups):
-        raise BitstreamError(f"tile_index_unit lists {index.num_tiles} tiles, the stream holds {len(groups)}")
+        raise BitstreamError(f"tile_index_unit lists {index.num_tiles} tiles, the stream holds {len(groups)}", condition="E55")
     pos = iu.offset + iu.size
     tiles = []
     for t, g in enumerate(groups):
@@ -378,11 +389,11 @@ def tiles_of(units: list[DataUnit], by_type: dict[int, list[DataUnit]], n: int,
         for u in g:  # the tile's units one after the other: no ancillary unit among them
             if u.offset != at:
                 raise BitstreamError(f"tile {t}: an ancillary unit stands among its units (at byte {at}); the tiles "
-                                     "hold only their critical units")
+                                     "hold only their critical units", condition="E55")
             at += u.size
         if g[0].offset != pos or end - pos != index.tile_data_size[t]:
             raise BitstreamError(f"tile_index_unit: tile {t} is said to take {index.tile_data_size[t]} bytes at byte "
-                                 f"{pos}, its units take {end - g[0].offset} bytes at byte {g[0].offset}")
+                                 f"{pos}, its units take {end - g[0].offset} bytes at byte {g[0].offset}", condition="E55")
         tiles.append(TileUnits(index.cells[t], index.tile_num_points_minus1[t] + 1, g[0], g[1:-1], g[-1]))
         pos = end
     return tiles, index
@@ -430,7 +441,7 @@ def parse_stream(data: bytes, entries: Trace = None, *, max_level: int = LEVEL_2
         admit(ps, layout, by_type)
     if (UnitType.TILE_INDEX in by_type) != bool(ps.tiles_enabled_flag):
         raise BitstreamError(f"tiles_enabled_flag is {ps.tiles_enabled_flag} but the stream "
-                             + ("has a tile_index unit" if ps.tiles_enabled_flag == 0 else "has no tile_index unit"))
+                             + ("has a tile_index unit" if ps.tiles_enabled_flag == 0 else "has no tile_index unit"), condition="E54")
     mlps = {}
     if UnitType.RENDER_MODEL in by_type:
         mlps = read_render_model_unit(by_type[UnitType.RENDER_MODEL][0].payload, entries)
@@ -460,7 +471,7 @@ def decode_predicted_attribute_units(attribute_units: list[DataUnit], layout: La
     n = coords.shape[0]
     if len(attribute_units) != 1:
         raise BitstreamError(f"a tile of {n} points without the hierarchy has {len(attribute_units)} attribute "
-                             "units, not 1")
+                             "units, not 1", condition="E63")
     values = np.empty((n, layout.num_channels), dtype=np.float32)
     if checks is not None:
         checks.check_predicted_attribute_unit(n, unit)
@@ -500,7 +511,7 @@ def decode_attribute_units(attribute_units: list[DataUnit], layout: Layout, step
     if len(attribute_units) != len(levels):
         raise BitstreamError(f"a tile of {n} points with hierarchy_enabled_flag = {ps.hierarchy_enabled_flag} "
                              + (f"and {hier.num_level2} level-2 points " if hier is not None else "")
-                             + f"has {len(attribute_units)} attribute units, not {len(levels)}")
+                             + f"has {len(attribute_units)} attribute units, not {len(levels)}", condition="E15")
     if max_level == LEVEL_1:
         levels = levels[:1]
     values = np.empty((n, layout.num_channels), dtype=np.float32)
@@ -511,7 +522,7 @@ def decode_attribute_units(attribute_units: list[DataUnit], layout: Layout, step
         if context_model is None or model_id != context_model.model_id:
             raise BitstreamError(f"the level-2 attribute unit uses context model {model_id}, but the stream's "
                                  "context model unit " + ("is missing" if context_model is None else
-                                                          f"holds model {context_model.model_id}"))
+                                                          f"holds model {context_model.model_id}"), condition="E47")
         assert hier is not None and q_level1 is not None  # a level-2 unit follows level 1 of a hierarchy
         return level2_coding_params(context_model.pair, coords[hier.level1_idx], q_level1, coords[hier.level2_idx],
                                     hier.parent_of_level2, ps.coarse_voxel_scale)
@@ -580,7 +591,7 @@ def check_tile_hash(scene: AnchorScene | GaussianScene, scene_hash: bytes, where
     digest = digest_of(scene)
     if digest != scene_hash:
         raise HashMismatchError(f"{where}the decoded scene does not match the hash in the stream "
-                                f"(decoded SHA-256 {digest.hex()}, stream {scene_hash.hex()})")
+                                f"(decoded SHA-256 {digest.hex()}, stream {scene_hash.hex()})", condition="E53")
 
 
 # --- 13.1 step 7: the scene ---------------------------------------------------------------------

@@ -62,6 +62,63 @@ def test_reference_decoder_rejects_every_isolated_stream():
         assert outcome.passed, (case.id, outcome.note)
 
 
+def test_every_rejection_names_its_condition():
+    """The reference decoder rejects each isolated stream for exactly its condition (the error's
+    ``condition``) and every other error stream for the condition its test.yaml records
+    (expect_condition), never for none; the condition survives pickling (a decoding worker)."""
+    import pickle
+
+    from lghcc.common.errors import BitstreamError
+    from lghcc.decoder.decode import decode_stream
+
+    cases = [c for c in runner.load_cases() if c.expect == "error"]
+    assert len(cases) >= 200
+    for case in cases:
+        with pytest.raises(BitstreamError) as info:
+            decode_stream(case.stream.read_bytes())
+        want = case.meta.get("condition") or case.meta["expect_condition"]
+        assert conditions.CONDITION_ID.fullmatch(want), case.id
+        assert info.value.condition == want, (case.id, info.value.condition, str(info.value))
+        if case.meta.get("condition"):
+            assert case.meta["expect_condition"] == case.meta["condition"], case.id
+    again = pickle.loads(pickle.dumps(info.value))
+    assert type(again) is type(info.value) and again.condition == info.value.condition and str(again) == str(info.value)
+
+
+def test_every_check_of_a_condition_can_be_removed():
+    """all_check_removals (the differential fuzzer's confirmation): its edits match today's code
+    once each, also when a chain of conditions edits one function twice (combined)."""
+    chain = []
+    for cond in conditions.CONDITIONS:
+        removals = conditions.all_check_removals(cond)
+        assert removals or cond in ("E39", "E46"), cond
+        chain += removals
+        for m in conditions.combined(removals):
+            if m.value is None:
+                compile(mutations.mutated_source(m), m.id, "exec")
+    for m in conditions.combined(chain):  # every removal at once: no two edits of one function collide
+        if m.value is None:
+            compile(mutations.mutated_source(m), m.id, "exec")
+
+
+def test_a_wrong_condition_fails_the_runner():
+    """The runner holds the reference decoder to an error stream's recorded condition."""
+    case = next(c for c in runner.load_cases() if c.id.startswith("x013"))
+    ok, note = runner._judge_error(case, "BitstreamError", case.meta["expect_message"], "E20")
+    assert not ok and "E20 instead of E21" in note
+    ok, _ = runner._judge_error(case, "BitstreamError", case.meta["expect_message"], "E21")
+    assert ok
+
+
+def test_unit_order_names_e61_for_the_neighbour_prediction_unit_alone():
+    from lghcc.decoder.core import _order_condition
+
+    assert _order_condition("PNNGAH") == "E61"  # repeated
+    assert _order_condition("PIGAHNGAH") == "E61" and _order_condition("SNGAH") == "E61"
+    assert _order_condition("PQGAH") == "E14"  # a step_adjust unit without neighbour prediction
+    assert _order_condition("PNGAHP") == "E14"
+
+
 def _stored_hashes(stream: Path) -> tuple[bytes, ...]:
     """The scene hashes in the stream's decoded_scene_hash units, read from the unit framing
     alone (an isolated stream may break the container's own checks: magic, CRC, trailing bytes)."""

@@ -11,9 +11,11 @@ from pathlib import Path
 import pytest
 
 from lghcc.conformance import differential
-from lghcc.conformance.differential import (AGREE_DECODED, AGREE_REJECTED, AGREE_UNSUPPORTED, NOT_COMPARED,
-                                            Differential, JsDecoder, Verdict, compare, reference_judge,
-                                            run_differential, seed_weights)
+from lghcc.conformance.differential import (AGREE_DECODED, AGREE_REJECTED, AGREE_REJECTED_OUTSIDE,
+                                            AGREE_UNSUPPORTED, CONDITIONS_DIFFER,
+                                            NOT_COMPARED, Differential, JsDecoder, Verdict, compare,
+                                            confirm_condition, reference_judge, run_differential, seed_weights)
+from lghcc.conformance import runner
 from lghcc.conformance.fuzz import Mutator, Sandbox, load_seeds
 
 TOOLS = Path(__file__).resolve().parents[1] / "tools"
@@ -47,16 +49,75 @@ def mutator():
 def test_compare_rules():
     decoded = Verdict("decoded", hash="ab")
     anchor = Verdict("decoded", hash="cd", in_profile=False)
-    rejected, unsupported = Verdict("rejected", kind="BitstreamError"), Verdict("rejected", kind="UnsupportedStreamError")
+    rejected = Verdict("rejected", kind="BitstreamError", condition="E9")
+    unsupported = Verdict("rejected", kind="UnsupportedStreamError")  # outside the JavaScript decoder's profile
     assert compare(decoded, Verdict("decoded", hash="ab")) == AGREE_DECODED
     assert compare(decoded, Verdict("decoded", hash="ef")).startswith("DISAGREE")
-    assert compare(rejected, Verdict("rejected", kind="HashMismatchError")) == AGREE_REJECTED
+    assert compare(rejected, Verdict("rejected", kind="BitstreamError", condition="E9")) == AGREE_REJECTED
+    assert compare(rejected, Verdict("rejected", kind="HashMismatchError", condition="E53")) == CONDITIONS_DIFFER
+    assert compare(rejected, unsupported) == AGREE_REJECTED_OUTSIDE
+    assert compare(rejected, Verdict("rejected", kind="BitstreamError")).startswith("DISAGREE")  # no condition
+    assert compare(Verdict("rejected", kind="BitstreamError"), rejected).startswith("BUG")
     assert compare(anchor, unsupported) == AGREE_UNSUPPORTED
     assert compare(anchor, rejected).startswith("DISAGREE")  # a valid anchor stream: unsupported, not broken
     assert compare(decoded, rejected).startswith("DISAGREE") and compare(rejected, decoded).startswith("DISAGREE")
     assert compare(decoded, Verdict("resource")) == NOT_COMPARED
     assert compare(rejected, Verdict("bug", kind="JS TypeError")).startswith("DISAGREE")
     assert compare(Verdict("bug", kind="BUG: IndexError"), rejected).startswith("BUG")
+
+
+def test_a_second_condition_is_confirmed_only_when_the_stream_breaks_it():
+    """A stream with a wrong magic number (E2) and a non-zero reserved byte (E5): the reference
+    names E2, and without that check E5, so a decoder that names E5 agrees; E9 (the CRCs are
+    right) is not confirmed. An isolated stream breaks nothing else."""
+    data = bytearray(load_seeds()["c032_gaussians_sh0"])
+    data[0], data[7] = ord("X"), 1
+    ok, chain = confirm_condition(bytes(data), "E2", "E5")
+    assert ok and chain == "E2 -> E5"
+    ok, chain = confirm_condition(bytes(data), "E2", "E9")
+    assert not ok and "E9" not in chain.split(" -> ")
+    hash_type_0 = bytearray(load_seeds()["c032_gaussians_sh0"])
+    hash_type_0[-37] = 0  # the last unit: decoded_scene_hash (hash_type, 32 bytes, CRC); CRC now wrong (E9)
+    assert differential.hash_unit_conditions(bytes(hash_type_0)) == {"E19"}
+    assert confirm_condition(bytes(hash_type_0), "E9", "E19")[0]
+    isolated = (runner.STREAMS_DIR / "x013_parameter_set_trailing_byte" / "stream.lghcc").read_bytes()
+    ok, chain = confirm_condition(isolated, "E21", "E20")
+    assert not ok and "decoded" in chain
+
+
+def test_e61_and_e14_agree_only_when_the_neighbour_unit_is_out_of_place():
+    """E61 is a case of E14 (one check of the unit order in both decoders): a stream whose
+    neighbour_prediction unit stands after the tile breaks both; one whose step_adjust unit does
+    breaks E14 alone."""
+    from lghcc.common.container import UnitType, read_container
+
+    data = load_seeds()["c085_step_adjust"]
+    units = read_container(data).units
+    assert [UnitType(u.unit_type).name for u in units[:3]] == ["GAUSSIAN_PARAMETER_SET", "NEIGHBOUR_PREDICTION",
+                                                               "STEP_ADJUST"]
+
+    def moved_to_end(i):
+        return bytes(data[:8]) + b"".join(_unit_bytes(data, u) for u in units[:i] + units[i + 1:] + units[i:i + 1])
+
+    assert not differential.neighbour_unit_misplaced(data)
+    assert differential.neighbour_unit_misplaced(moved_to_end(1))
+    assert confirm_condition(moved_to_end(1), "E14", "E61")[0] and confirm_condition(moved_to_end(1), "E61", "E14")[0]
+    assert not differential.neighbour_unit_misplaced(moved_to_end(2))
+    ok, why = confirm_condition(moved_to_end(2), "E14", "E61")
+    assert not ok and "is not out of place" in why
+
+
+def _unit_bytes(data: bytes, u) -> bytes:
+    """A data unit's bytes as they stand in ``data`` (header, payload, CRC)."""
+    from lghcc.common.container import UNIT_CRC_BYTES, UNIT_HEADER_BYTES
+
+    return bytes(data[u.offset:u.offset + UNIT_HEADER_BYTES + len(u.payload) + UNIT_CRC_BYTES])
+
+
+def test_duplicate_mutations_are_skipped(mutator):
+    """A stream compared once is not compared again: it counts as a duplicate, not as a case."""
+    loop = differential._Loop(None, mutator, differential.DiffSummary(), None, 4)
+    assert not loop.seen_before(b"abc") and loop.seen_before(b"abc") and not loop.seen_before(b"abd")
 
 
 def test_seed_weights_favour_the_profile(mutator):
@@ -98,6 +159,27 @@ def test_planted_javascript_bug_is_a_disagreement(mutator, tmp_path):
     saved = sorted((tmp_path / "failures").glob("diff_*.txt"))
     assert saved and any("reference: decoded" in p.read_text() for p in saved)
     assert all(p.with_suffix(".lghcc").exists() for p in saved)
+
+
+@needs_node
+def test_a_wrong_condition_of_the_javascript_decoder_is_a_disagreement(tmp_path):
+    """A JavaScript decoder that names E21 for non-zero byte_alignment() bits (E20) disagrees on
+    e187 (the reference names E20, and the stream breaks nothing else), and the verdict says
+    what the reference found; the real decoder agrees, for the same condition."""
+    decoder = tmp_path / "js" / "lghcc-decoder"
+    shutil.copytree(differential.JS_DECODER, decoder)
+    f = decoder / "bitreader.mjs"
+    text = f.read_text()
+    assert text.count("(clause 2, E20)`, 'E20')") == 1
+    f.write_text(text.replace("(clause 2, E20)`, 'E20')", "(clause 2, E20)`, 'E21')"))
+    data = next((runner.STREAMS_DIR).glob("e187_*/stream.lghcc")).read_bytes()
+    with Sandbox(60.0, 2048, judge=reference_judge) as box:
+        with JsDecoder(decoder) as js:
+            label, ref, wrong = Differential(box, js).check(data)
+        assert label == CONDITIONS_DIFFER and ref.condition == "E20" and wrong.condition == "E21"
+        assert "reference: E20" in wrong.message
+        with JsDecoder() as js:
+            assert Differential(box, js).check(data)[0] == AGREE_REJECTED
 
 
 @needs_node

@@ -6,6 +6,7 @@ exactly as the reference decoder does, never hang. Skips with the reason where n
 
 import base64
 import json
+import re
 import shutil
 import subprocess
 import zlib
@@ -39,6 +40,35 @@ def test_node_runner_passes_every_profile_stream():
     passed, total = (int(x) for x in last.split()[0].split("/"))
     assert passed == total >= 54, last
     assert "FAIL" not in res.stdout
+
+
+def test_every_rejection_names_its_condition():
+    """Each error stream of the profile is rejected with a condition of clause 8.2 (err.condition);
+    each isolated one (test.yaml condition) with exactly its condition, as the reference decoder."""
+    ids = set(runner.js_profile_ids(STREAMS))
+    cases = [c for c in runner.load_cases() if c.expect == "error" and c.id in ids]
+    script = """
+import { readFileSync } from 'node:fs';
+const { decodeStream } = await import(process.argv[1] + '/decoder.mjs');
+const out = {};
+for (const [id, path] of JSON.parse(readFileSync(0, 'utf8'))) {
+    try { await decodeStream(new Uint8Array(readFileSync(path))); out[id] = ['decoded', null]; }
+    catch (e) { out[id] = [e.name, e.condition === undefined ? null : e.condition]; }
+}
+console.log(JSON.stringify(out));
+"""
+    res = subprocess.run([NODE, "--input-type=module", "-e", script, str(JS)], capture_output=True, text=True,
+                         timeout=600, input=json.dumps([[c.id, str(c.stream)] for c in cases]))
+    assert res.returncode == 0, res.stderr[-2000:]
+    got = json.loads(res.stdout.strip().splitlines()[-1])
+    isolated = [c for c in cases if c.meta.get("condition")]
+    assert len(cases) >= 100 and len(isolated) >= 20
+    for c in cases:
+        kind, condition = got[c.id]
+        assert kind in ("BitstreamError", "UnsupportedStreamError", "HashMismatchError"), (c.id, kind)
+        assert condition is not None and re.fullmatch(r"E[1-9][0-9]?", condition), (c.id, kind, condition)
+        if c.meta.get("condition"):
+            assert condition == c.meta["condition"], (c.id, condition)
 
 
 def test_profile_membership():

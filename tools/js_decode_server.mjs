@@ -6,7 +6,8 @@
 // {box: [x0, y0, z0, x1, y1, z1] | null, maxMemory: bytes}, a 4-byte big-endian length, the stream.
 // Answers one JSON line per request on stdout, in order:
 //   {outcome: 'decoded', hash, count, tiles}
-//   {outcome: 'rejected', kind, message}    a BitstreamError (UnsupportedStreamError, HashMismatchError)
+//   {outcome: 'rejected', kind, message, condition}   a BitstreamError (UnsupportedStreamError, HashMismatchError);
+//                                          condition: the row of clause 8.2 it names (null: none)
 //   {outcome: 'resource', message}          a ResourceLimitError: this decoder's bound, no verdict
 //   {outcome: 'crash', kind, message}       anything else (TypeError, a WebAssembly trap): a bug
 // A hang is the caller's to detect (it kills this process after its timeout).
@@ -27,7 +28,7 @@ async function answer(options, bytes) {
         const kind = e && e.name ? e.name : typeof e;
         const message = String(e && e.message !== undefined ? e.message : e).slice(0, 300);
         if (e instanceof ResourceLimitError) return { outcome: 'resource', message };
-        if (e instanceof BitstreamError) return { outcome: 'rejected', kind, message };
+        if (e instanceof BitstreamError) return { outcome: 'rejected', kind, message, condition: e.condition || null };
         return { outcome: 'crash', kind, message: String(e && e.stack ? e.stack : message).slice(0, 1000) };
     }
 }

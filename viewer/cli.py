@@ -139,7 +139,7 @@ def _main(argv: list[str] | None) -> int:
     try:
         return _run(args, say)
     except HashMismatchError as e:
-        raise type(e)(f"{args.stream}: {e}; no page written") from None  # exit status 3 (run_cli)
+        raise type(e)(f"{args.stream}: {e}; no page written", condition=e.condition) from None  # exit status 3
 
 
 def _check_args(args) -> tuple[int, int, np.ndarray]:

@@ -220,10 +220,10 @@ def read_context_model_unit(payload: bytes, trace=None) -> tuple[int, Hyperparam
     sizes = []
     for a in unit.arrays:
         if any(d > MAX_CONTEXT_PARAMETERS for d in a.shape):
-            raise BitstreamError("context model unit: an array dimension exceeds the level limit")
+            raise BitstreamError("context model unit: an array dimension exceeds the level limit", condition="E41")
         sizes.append(int(np.prod(a.shape, dtype=np.int64)))
         if sum(sizes) > MAX_CONTEXT_PARAMETERS:
-            raise BitstreamError(f"context model unit: more than {MAX_CONTEXT_PARAMETERS} parameters (level limit)")
+            raise BitstreamError(f"context model unit: more than {MAX_CONTEXT_PARAMETERS} parameters (level limit)", condition="E41")
     levels = np.concatenate([np.full(s, a.array_level, np.int64) for s, a in zip(sizes, unit.arrays)]) \
         if sizes else np.zeros(0, np.int64)
     values = decode_symbols(unit.coded_data, levels, "context model coded data")
@@ -234,6 +234,6 @@ def read_context_model_unit(payload: bytes, trace=None) -> tuple[int, Hyperparam
         bits = a.array_bits_minus1 + 1
         lo, hi = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if a.array_signed_flag else (0, (1 << bits) - 1)
         if v.size and (int(v.min()) < lo or int(v.max()) > hi):
-            raise BitstreamError(f"context model unit: {name} has values outside its {bits}-bit range")
+            raise BitstreamError(f"context model unit: {name} has values outside its {bits}-bit range", condition="E40")
         out.append(NamedIntArray(name, v, bits, bool(a.array_signed_flag)))
     return unit.context_model_id, unit.hyperparameters(), out

@@ -28,7 +28,7 @@ def params_class(model_id: int):
     if model_id == CONTEXT_PARENT_MLP:
         from .parent_mlp import ParentMlpParams
         return ParentMlpParams
-    raise BitstreamError(f"context model unit: unknown context model id {model_id}")
+    raise BitstreamError(f"context model unit: unknown context model id {model_id}", condition="E19")
 
 
 def read_context_model(payload: bytes, layout: ChannelLayout | GaussianLayout, trace=None):
@@ -37,11 +37,11 @@ def read_context_model(payload: bytes, layout: ChannelLayout | GaussianLayout, t
     try:
         params = params_class(model_id).from_syntax(hp, arrays)
     except ValueError as e:
-        raise BitstreamError(f"context model unit: {e}") from None
+        raise BitstreamError(f"context model unit: {e}", condition="E42") from None
     if params.num_attrs != layout.num_channels or params.num_features != layout.feature_dim:
         raise BitstreamError(f"context model unit: the model codes {params.num_attrs} channels with "
                              f"{params.num_features} features; the scene has {layout.num_channels} with "
-                             f"{layout.feature_dim}")
+                             f"{layout.feature_dim}", condition="E43")
     return model_id, params
 
 
@@ -73,7 +73,7 @@ def check_ggconv_extent(*coords: np.ndarray) -> None:
     extent = max(int(h) - int(l) for h, l in zip(hi, lo))  # Python ints: exact
     if extent > MAX_EXTENT:
         raise BitstreamError(f"the anchors' coordinate extent {extent} exceeds the level limit of {MAX_EXTENT} "
-                             "for a stream with a GG-Conv context model (spec clause 8)")
+                             "for a stream with a GG-Conv context model (spec clause 8)", condition="E44")
 
 
 class Level2CodingParams:

@@ -122,13 +122,13 @@ class RangeEncoder:
 class RangeDecoder:
     def __init__(self, data: bytes, what: str = "coded data") -> None:
         if len(data) % 4:
-            raise BitstreamError(f"{what}: length {len(data)} is not a whole number of 32-bit words")
+            raise BitstreamError(f"{what}: length {len(data)} is not a whole number of 32-bit words", condition="E35")
         self._what = what
         words = np.frombuffer(data, dtype="<u4").astype(np.uint32)
         try:
             self._dec = constriction.stream.queue.RangeDecoder(words)  # pyright: ignore[reportAttributeAccessIssue]
         except Exception as e:  # constriction rejects some impossible word sequences up front
-            raise BitstreamError(f"{what}: invalid range-coded data ({e})") from None
+            raise BitstreamError(f"{what}: invalid range-coded data ({e})", condition="E36") from None
 
     def decode(self, count: int, model) -> np.ndarray:
         """``count`` symbols (int32, as constriction returns them)."""
@@ -137,7 +137,7 @@ class RangeDecoder:
         try:
             return self._dec.decode(model, int(count))
         except Exception as e:
-            raise BitstreamError(f"{self._what}: range decoding failed ({e})") from None
+            raise BitstreamError(f"{self._what}: range decoding failed ({e})", condition="E36") from None
 
     def decode_binary(self, f1: np.ndarray) -> np.ndarray:
         """One binary decision per entry of f1 (frequency of symbol 1, of 2^24); int32."""
@@ -150,7 +150,7 @@ class RangeDecoder:
         try:
             return self._dec.decode(_BINARY_FAMILY, w)
         except Exception as e:
-            raise BitstreamError(f"{self._what}: range decoding failed ({e})") from None
+            raise BitstreamError(f"{self._what}: range decoding failed ({e})", condition="E36") from None
 
     def decode_bits(self, nbits: np.ndarray | int, count: int | None = None) -> np.ndarray:
         nb = np.asarray(nbits, dtype=np.int64)
@@ -174,4 +174,4 @@ class RangeDecoder:
     def check_exhausted(self) -> None:
         """The coder must have consumed all its words: leftover data means corruption."""
         if self._dec.maybe_exhausted() is False:
-            raise BitstreamError(f"{self._what}: data left over after decoding")
+            raise BitstreamError(f"{self._what}: data left over after decoding", condition="E38")

@@ -246,7 +246,7 @@ def _finish_escapes(dec: RangeDecoder, out: np.ndarray, esc: np.ndarray, half_of
             m = np.where(k > 0, np.left_shift(np.uint64(1), width.astype(np.uint64)) + rem, np.uint64(0))
             mag = m + (half_of_escaped() + 1).astype(np.uint64)
             if int(mag.max()) > MAX_ABS_RESIDUAL:
-                raise BitstreamError(f"{what}: escaped residual magnitude {int(mag.max())} exceeds 2^62 - 1")
+                raise BitstreamError(f"{what}: escaped residual magnitude {int(mag.max())} exceeds 2^62 - 1", condition="E37")
             mag = mag.astype(np.int64)
             out[esc] = np.where(neg, -mag, mag)
 
@@ -318,7 +318,7 @@ def decode_chunked(chunks: list[bytes], levels: np.ndarray, rows_per_chunk: int)
     expected = _chunk_count(lv.shape[0], rows_per_chunk)
     if len(chunks) != expected:
         raise BitstreamError(f"{len(chunks)} chunks where {lv.shape[0]} rows in chunks of "
-                             f"{rows_per_chunk} make {expected}")
+                             f"{rows_per_chunk} make {expected}", condition="E59")
     S = int(rows_per_chunk)
     out = np.zeros(lv.shape, dtype=np.int64)
     for c, data in enumerate(chunks):

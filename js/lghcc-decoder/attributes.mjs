@@ -40,7 +40,7 @@ function rowsInModule(w, rows, t, count) {
 function tileBounds(coords) {
     const lo = coords.min.slice(), ext = [0, 1, 2].map((a) => coords.max[a] - coords.min[a]);
     const e = Math.max(...ext);
-    if (e > MAX_EXTENT) throw new BitstreamError(`the tile's points span ${e} voxels, beyond MAX_EXTENT = ${MAX_EXTENT} (clause 8.1, E64)`);
+    if (e > MAX_EXTENT) throw new BitstreamError(`the tile's points span ${e} voxels, beyond MAX_EXTENT = ${MAX_EXTENT} (clause 8.1, E64)`, 'E64');
     return { lo, ext };
 }
 
@@ -170,7 +170,7 @@ class TileAttributeDecoder {
     /** The next range-coded chunk of `size` bytes, a whole number of 32-bit words (clause 10.6.6, E35). */
     takeWords(size, what) {
         const bytes = this.take(size);
-        if (bytes.length % 4) throw new BitstreamError(`${what}: length ${bytes.length} is not a whole number of 32-bit words (clause 10.6.6)`);
+        if (bytes.length % 4) throw new BitstreamError(`${what}: length ${bytes.length} is not a whole number of 32-bit words (clause 10.6.6)`, 'E35');
         return bytes;
     }
 
@@ -180,7 +180,7 @@ class TileAttributeDecoder {
         const { po } = symbolsInModule(w, this.take(h.adjustSize[i]), h.adjustLevel, nr, `step-adjustment chunk ${i}`);
         // residual + adjust mean, each checked against [0, max] (a residual beyond 2^53 is NaN: outside), into the rows' indices
         callWasm(() => w.stepIndices(po, nr, h.adjustMean, max, this.adjAddr, first, step),
-            () => new BitstreamError(`step-adjustment chunk ${i}: an index is outside [0, max_step_adjust = ${max}] (clause 11.8, E65)`));
+            () => new BitstreamError(`step-adjustment chunk ${i}: an index is outside [0, max_step_adjust = ${max}] (clause 11.8, E65)`, 'E65'));
     }
 
     /** Reconstruction in binary32 (clause 11.5) of the tile's values, by the module: Float32Array [n * M]. */
@@ -190,7 +190,7 @@ class TileAttributeDecoder {
         const scale = Float32Array.from({ length: 8 * M }, (_, j) => Math.fround(this.ctx.steps[j % M] * STEP_ADJUST_FACTORS[Math.floor(j / M)]));
         w.reset();
         const pScale = copyIn(w, scale), out = alloc(w, 4 * n * M, false);
-        callWasm(() => w.reconstruct(n, pScale, out), (code, row, c) => new BitstreamError(`row ${row}, channel ${c}: the reconstructed value is not finite (clause 11.5, E52)`));
+        callWasm(() => w.reconstruct(n, pScale, out), (code, row, c) => new BitstreamError(`row ${row}, channel ${c}: the reconstructed value is not finite (clause 11.5, E52)`, 'E52'));
         const rl = this.ctx.rotationLength;
         if (rl) callWasm(() => w.impliedRotations(out, n, M - 4, rl.maxIndex), (code, row) => lengthIndexError(new Int32Array(w.memory.buffer, this.qAddr, 2 * n * M), row, M, M - 4, rl.maxIndex));
         return new Float32Array(w.memory.buffer, out, n * M).slice();
@@ -203,7 +203,7 @@ class TileAttributeDecoder {
         w.reset();
         const pT = copyIn(w, st.matrix), tmp = alloc(w, 20 * st.size);
         callWasm(() => w.inverseShTransform(this.n, st.size, pT, st.shift, tmp),
-            (code, row, c) => new BitstreamError(`row ${row}, channel ${c}: an SH value's inverse transform ${BigInt.asIntN(64, w.errorWide())} exceeds the limit of 2^40 quantization steps (clause 11.11, E68)`));
+            (code, row, c) => new BitstreamError(`row ${row}, channel ${c}: an SH value's inverse transform ${BigInt.asIntN(64, w.errorWide())} exceeds the limit of 2^40 quantization steps (clause 11.11, E68)`, 'E68'));
     }
 }
 
@@ -214,7 +214,7 @@ const STAGE_NAMES = ['attribute chunk', 'SH-degree chunk', 'step-adjustment flag
 
 /** The spec's error for the module's failure `code` in an attribute chunk. */
 function chunkError(what, code, a, b, w) {
-    if (code === ERR_Q_LIMIT) return new BitstreamError(`a quantized value ${BigInt.asIntN(64, w.errorWide())} of row ${a}, channel ${b} is beyond 2^40 (clause 11.6, E51)`);
+    if (code === ERR_Q_LIMIT) return new BitstreamError(`a quantized value ${BigInt.asIntN(64, w.errorWide())} of row ${a}, channel ${b} is beyond 2^40 (clause 11.6, E51)`, 'E51');
     return symbolError(what, code, w);
 }
 

@@ -18,7 +18,7 @@ export class BitReader {
 
     _need(n, name) {
         if (this.pos + n > this.nbits) {
-            throw new BitstreamError(`${this.what}: truncated: ${name} needs ${n} bits beyond the end of the payload (clause 6.4)`);
+            throw new BitstreamError(`${this.what}: truncated: ${name} needs ${n} bits beyond the end of the payload (clause 6.4)`, 'E17');
         }
     }
 
@@ -53,7 +53,7 @@ export class BitReader {
             if ((this.bytes[p >>> 3] >>> (7 - (p & 7))) & 1) break;
             zeros++;
             if (zeros >= 32) {
-                throw new BitstreamError(`${this.what}: ${name}: an Exp-Golomb code with 32 or more leading zero bits (clause 2)`);
+                throw new BitstreamError(`${this.what}: ${name}: an Exp-Golomb code with 32 or more leading zero bits (clause 2)`, 'E18');
             }
         }
         return 2 ** zeros - 1 + this.u(zeros, name);
@@ -69,7 +69,7 @@ export class BitReader {
     f32(name = 'element') {
         U32[0] = this.u(32, name);
         const v = F32[0];
-        if (!Number.isFinite(v)) throw new BitstreamError(`${this.what}.${name} = ${v} is not finite (clause 2)`);
+        if (!Number.isFinite(v)) throw new BitstreamError(`${this.what}.${name} = ${v} is not finite (clause 2)`, 'E19');
         return v;
     }
 
@@ -77,7 +77,7 @@ export class BitReader {
     byteAlign() {
         while (this.pos & 7) {
             if (this.u(1, 'byte_alignment') !== 0) {
-                throw new BitstreamError(`${this.what}: non-zero byte_alignment() bits (clause 2, E20)`);
+                throw new BitstreamError(`${this.what}: non-zero byte_alignment() bits (clause 2, E20)`, 'E20');
             }
         }
     }
@@ -89,7 +89,7 @@ export class BitReader {
     expectEnd(allowPartialByte = false) {
         const endByte = Math.ceil(this.pos / 8);
         if (endByte < this.bytes.length) {
-            throw new BitstreamError(`${this.what}: ${this.bytes.length - endByte} bytes after its last element (clause 6.4)`);
+            throw new BitstreamError(`${this.what}: ${this.bytes.length - endByte} bytes after its last element (clause 6.4)`, 'E21');
         }
         if (!allowPartialByte && (this.pos & 7)) throw new Error('expectEnd inside a byte');
     }
@@ -98,13 +98,13 @@ export class BitReader {
 /** Check an element's range (clause 7.2), BitstreamError naming it. */
 export function checkRange(what, name, v, lo, hi) {
     if (!(v >= lo && v <= hi)) {
-        throw new BitstreamError(`${what}.${name} = ${v} is outside its allowed range [${lo}, ${hi}] (clause 7.2)`);
+        throw new BitstreamError(`${what}.${name} = ${v} is outside its allowed range [${lo}, ${hi}] (clause 7.2)`, 'E19');
     }
     return v;
 }
 
 /** f(32) elements that shall be > 0 (clause 7.2). */
 export function checkPositive(what, name, v) {
-    if (!(v > 0)) throw new BitstreamError(`${what}.${name} = ${v} is outside its allowed range: finite and > 0 (clause 7.2)`);
+    if (!(v > 0)) throw new BitstreamError(`${what}.${name} = ${v} is outside its allowed range: finite and > 0 (clause 7.2)`, 'E19');
     return v;
 }

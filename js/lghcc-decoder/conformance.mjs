@@ -2,7 +2,7 @@
 // The conformance of this decoder (the second implementation, spec clause 8.4): decodes every
 // conformance stream of the explicit-Gaussian profile and checks the decoded scene's SHA-256
 // against test.yaml (decoded_sha256 and the box partial decodes), and that every error stream
-// of the profile is rejected (an error, never a hang: each stream runs in a worker with a
+// of the profile is rejected (an error, never a hang, for the condition of clause 8.2 that an isolated stream names: each stream runs in a worker with a
 // timeout, never a scene).
 //   node js/lghcc-decoder/conformance.mjs [--streams DIR] [--timeout S] [--list] [ID ...]
 // Exit status: 0 all passed, 1 a stream failed, 2 usage error.
@@ -73,7 +73,12 @@ async function check(runner, c) {
     else if (r.crash) { ok = false; notes.push(`worker crashed: ${r.crash}`); }
     else if (c.meta.expect === 'error') {
         ok = !!r.error && REJECTIONS.has(r.kind); // a TypeError or a resource limit is no verdict on the stream
-        notes.push(r.error ? `rejected: ${r.kind}: ${r.error}` : 'decoded, expected a rejection');
+        notes.push(r.error ? `rejected: ${r.kind} (${r.condition || 'no condition'}): ${r.error}` : 'decoded, expected a rejection');
+        // a stream that breaks one condition alone (test.yaml condition: an isolated stream) is rejected for it
+        if (ok && c.meta.condition && r.condition !== c.meta.condition) {
+            ok = false;
+            notes.push(`expected the rejection for ${c.meta.condition}, got ${r.condition || 'none'}`);
+        }
     } else {
         ok = !r.error && r.hash === c.meta.decoded_sha256;
         notes.push(r.error ? `${r.kind}: ${r.error}` : ok ? `${r.count} Gaussians` : `hash ${r.hash} != ${c.meta.decoded_sha256}`);

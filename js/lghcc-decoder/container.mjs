@@ -13,13 +13,13 @@ export const LAST_KNOWN_CRITICAL = 0x0E;
 
 /** Clause 6.1: the 8-byte container header of bytes (at least its first 8 bytes); returns {major, minor}. */
 export function parseHeader(bytes) {
-    if (bytes.length < 8) throw new BitstreamError(`the stream has ${bytes.length} bytes, shorter than the 8-byte container header (E1)`);
+    if (bytes.length < 8) throw new BitstreamError(`the stream has ${bytes.length} bytes, shorter than the 8-byte container header (E1)`, 'E1');
     const magic = ((bytes[0] << 24) | (bytes[1] << 16) | (bytes[2] << 8) | bytes[3]) >>> 0;
-    if (magic !== MAGIC) throw new BitstreamError(`magic 0x${magic.toString(16)} is not 0x4c474843 ("LGHC") (E2)`);
+    if (magic !== MAGIC) throw new BitstreamError(`magic 0x${magic.toString(16)} is not 0x4c474843 ("LGHC") (E2)`, 'E2');
     const major = bytes[4], minor = bytes[5];
-    if (major !== 1) throw new UnsupportedStreamError(`stream version ${major}.${minor}: this decoder decodes version 1 streams (E3)`);
-    if (bytes[6] !== 1) throw new UnsupportedStreamError(`profile_idc ${bytes[6]} is not 1 (main) (E4)`);
-    if (bytes[7] !== 0) throw new BitstreamError(`reserved_zero_8bits = ${bytes[7]} is not 0 (E5)`);
+    if (major !== 1) throw new UnsupportedStreamError(`stream version ${major}.${minor}: this decoder decodes version 1 streams (E3)`, 'E3');
+    if (bytes[6] !== 1) throw new UnsupportedStreamError(`profile_idc ${bytes[6]} is not 1 (main) (E4)`, 'E4');
+    if (bytes[7] !== 0) throw new BitstreamError(`reserved_zero_8bits = ${bytes[7]} is not 0 (E5)`, 'E5');
     return { major, minor };
 }
 
@@ -33,14 +33,14 @@ export function parseContainer(bytes, { verifiedEnd = 0 } = {}) {
     let pos = 8;
     while (pos < bytes.length) {
         const left = bytes.length - pos;
-        if (left < 9) throw new BitstreamError(`${left} bytes after the last data unit, too few for a unit (clause 6.4, E6)`);
+        if (left < 9) throw new BitstreamError(`${left} bytes after the last data unit, too few for a unit (clause 6.4, E6)`, 'E6');
         const type = bytes[pos];
         const size = ((bytes[pos + 1] << 24) | (bytes[pos + 2] << 16) | (bytes[pos + 3] << 8) | bytes[pos + 4]) >>> 0;
-        if (type === 0) throw new BitstreamError(`data unit at byte ${pos}: unit_type 0 is forbidden (E7)`);
-        if (size + 9 > left) throw new BitstreamError(`data unit at byte ${pos} (type 0x${type.toString(16)}): payload of ${size} bytes extends beyond the end of the stream (E8)`);
+        if (type === 0) throw new BitstreamError(`data unit at byte ${pos}: unit_type 0 is forbidden (E7)`, 'E7');
+        if (size + 9 > left) throw new BitstreamError(`data unit at byte ${pos} (type 0x${type.toString(16)}): payload of ${size} bytes extends beyond the end of the stream (E8)`, 'E8');
         const end = pos + 5 + size;
         const stored = ((bytes[end] << 24) | (bytes[end + 1] << 16) | (bytes[end + 2] << 8) | bytes[end + 3]) >>> 0;
-        if (end + 4 > verifiedEnd && unitCrc32(bytes, pos, end) !== stored) throw new BitstreamError(`data unit at byte ${pos} (type 0x${type.toString(16)}) fails its CRC-32 check (E9)`);
+        if (end + 4 > verifiedEnd && unitCrc32(bytes, pos, end) !== stored) throw new BitstreamError(`data unit at byte ${pos} (type 0x${type.toString(16)}) fails its CRC-32 check (E9)`, 'E9');
         units.push({ type, start: pos, end: end + 4, payload: bytes.subarray(pos + 5, end) });
         pos = end + 4;
     }
@@ -57,21 +57,21 @@ export const isCritical = (type) => type < 0x80;
 export function preludeStructure(units) {
     for (const u of units) {
         if (isCritical(u.type) && u.type > LAST_KNOWN_CRITICAL) {
-            throw new UnsupportedStreamError(`critical unit type 0x${u.type.toString(16)} is not defined by version 1.5 (E10)`);
+            throw new UnsupportedStreamError(`critical unit type 0x${u.type.toString(16)} is not defined by version 1.5 (E10)`, 'E10');
         }
     }
     const critical = units.filter((u) => isCritical(u.type));
     if (units.length && !isCritical(units[0].type) && critical.length) {
-        throw new BitstreamError('an ancillary unit before the parameter set (clause 6.3, E11)');
+        throw new BitstreamError('an ancillary unit before the parameter set (clause 6.3, E11)', 'E11');
     }
     const first = critical[0];
     if (!first || (first.type !== UNIT.GAUSSIAN_PARAMETER_SET && first.type !== UNIT.SCENE_PARAMETER_SET)) {
         if (!critical.some((u) => u.type === UNIT.GAUSSIAN_PARAMETER_SET || u.type === UNIT.SCENE_PARAMETER_SET)) {
-            throw new BitstreamError('the stream has no parameter set (E12)');
+            throw new BitstreamError('the stream has no parameter set (E12)', 'E12');
         }
-        throw new BitstreamError('the first critical unit is not the parameter set (clause 6.3, E14)');
+        throw new BitstreamError('the first critical unit is not the parameter set (clause 6.3, E14)', 'E14');
     }
-    if (!units.length || !isCritical(units[0].type)) throw new BitstreamError('an ancillary unit before the parameter set (clause 6.3, E11)');
+    if (!units.length || !isCritical(units[0].type)) throw new BitstreamError('an ancillary unit before the parameter set (clause 6.3, E11)', 'E11');
     if (first.type === UNIT.SCENE_PARAMETER_SET) {
         throw new UnsupportedStreamError('an anchor stream (scene_parameter_set): outside the explicit-Gaussian profile this decoder implements');
     }
@@ -105,7 +105,7 @@ export function unitStructure(units) {
     const peek = () => critical[i] && critical[i].type;
     const kinds = new Set(critical.slice(i).map((u) => u.type));
     for (const t of [UNIT.GEOMETRY, UNIT.ATTRIBUTE, UNIT.DECODED_SCENE_HASH]) {
-        if (!kinds.has(t)) throw new BitstreamError(`the stream has no ${t === UNIT.GEOMETRY ? 'geometry' : t === UNIT.ATTRIBUTE ? 'attribute' : 'decoded_scene_hash'} unit (E13)`);
+        if (!kinds.has(t)) throw new BitstreamError(`the stream has no ${t === UNIT.GEOMETRY ? 'geometry' : t === UNIT.ATTRIBUTE ? 'attribute' : 'decoded_scene_hash'} unit (E13)`, 'E13');
     }
     while (i < critical.length) {
         const tile = [];
@@ -119,10 +119,12 @@ export function unitStructure(units) {
     return s;
 }
 
-/** E14 for unit u, which breaks the unit order of clause 6.3. */
+/** E14 for unit u, which breaks the unit order of clause 6.3; E61 (a case of E14 with a row of its own) when u is a
+ * neighbour_prediction unit (repeated, or not right after the gaussian_parameter_set). */
 export function orderError(u) {
     const name = Object.keys(UNIT).find((k) => UNIT[k] === u.type) || `0x${u.type.toString(16)}`;
     // a misplaced step_adjust_flags unit (version 1.5): its rule named
+    const condition = u.type === UNIT.NEIGHBOUR_PREDICTION ? 'E61' : 'E14';
     const where = u.type === UNIT.STEP_ADJUST_FLAGS ? ': it may appear only right after the step_adjust unit, once (clause 7.3.16)' : '';
-    return new BitstreamError(`unit ${name.toLowerCase()} at byte ${u.start} breaks the unit order of clause 6.3 (E14)${where}`);
+    return new BitstreamError(`unit ${name.toLowerCase()} at byte ${u.start} breaks the unit order of clause 6.3 (${condition})${where}`, condition);
 }

@@ -114,7 +114,7 @@ export async function* byteChunks(input, signal) {
     } else {
         throw new TypeError('decode: input is a Uint8Array, ArrayBuffer, Blob, Response, ReadableStream or URL');
     }
-    if (!stream) throw new BitstreamError('the response has no body: an empty stream');
+    if (!stream) throw new BitstreamError('the response has no body: an empty stream', 'E1');
     const reader = stream.getReader();
     // an abort cancels the read under way (a stream the caller made knows nothing of the signal)
     const stop = () => { reader.cancel(signal.reason).catch(() => {}); };

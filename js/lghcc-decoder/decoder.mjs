@@ -25,8 +25,8 @@ export function parseStream(bytes, { maxMemory = DEFAULT_MAX_MEMORY, verifiedEnd
     const container = parseContainer(bytes, { verifiedEnd });
     const s = unitStructure(container.units);
     const ps = parseGaussianParameterSet(s.ps.payload);
-    if (s.np && ps.hierarchyEnabled) throw new BitstreamError('a neighbour_prediction unit in a stream with the hierarchy (clause 7.3.12, E60)');
-    if (s.cm && !ps.hierarchyEnabled) throw new BitstreamError('a context_model unit with hierarchy_enabled_flag = 0 (clause 8.3, E16)');
+    if (s.np && ps.hierarchyEnabled) throw new BitstreamError('a neighbour_prediction unit in a stream with the hierarchy (clause 7.3.12, E60)', 'E60');
+    if (s.cm && !ps.hierarchyEnabled) throw new BitstreamError('a context_model unit with hierarchy_enabled_flag = 0 (clause 8.3, E16)', 'E16');
     if (ps.hierarchyEnabled) throw new UnsupportedStreamError('hierarchy_enabled_flag = 1: the two-level hierarchy is outside the explicit-Gaussian profile this decoder implements');
     const payload = (u) => u?.payload ?? null;
     const ctx = preludeContext(ps, { ps: s.ps.payload, np: payload(s.np), sa: payload(s.sa), sf: payload(s.sf), sd: payload(s.sd), rl: payload(s.rl), st: payload(s.st) });
@@ -56,24 +56,24 @@ export function preludeContext(ps, payloads) {
 
 function tileList(units, s, ps) {
     if (!!s.ti !== !!ps.tilesEnabled) {
-        throw new BitstreamError(`tiles_enabled_flag = ${ps.tilesEnabled} ${s.ti ? 'with' : 'without'} a tile_index unit (clause 7.3.11, E54)`);
+        throw new BitstreamError(`tiles_enabled_flag = ${ps.tilesEnabled} ${s.ti ? 'with' : 'without'} a tile_index unit (clause 7.3.11, E54)`, 'E54');
     }
     if (!s.ti) {
-        if (s.tiles.length !== 1) throw new BitstreamError(`${s.tiles.length} tiles without a tile_index unit (E54)`);
+        if (s.tiles.length !== 1) throw new BitstreamError(`${s.tiles.length} tiles without a tile_index unit (E54)`, 'E54');
         return [{ units: s.tiles[0].units, points: ps.numGaussians, cell: null }];
     }
     const index = parseTileIndex(s.ti.payload, ps.numGaussians);
-    if (index.length !== s.tiles.length) throw new BitstreamError(`the tile index lists ${index.length} tiles, the stream holds ${s.tiles.length} (clause 7.3.11, E55)`);
+    if (index.length !== s.tiles.length) throw new BitstreamError(`the tile index lists ${index.length} tiles, the stream holds ${s.tiles.length} (clause 7.3.11, E55)`, 'E55');
     let pos = s.ti.end;
     index.forEach((t, i) => {
         const tile = s.tiles[i];
         if (tile.start !== pos || tile.end !== pos + t.size) {
-            throw new BitstreamError(`tile ${i} does not start at byte ${pos} and take tile_data_size = ${t.size} bytes (clause 7.3.11, E55)`);
+            throw new BitstreamError(`tile ${i} does not start at byte ${pos} and take tile_data_size = ${t.size} bytes (clause 7.3.11, E55)`, 'E55');
         }
         pos += t.size;
     });
     if (units.some((u) => u.type >= 0x80 && u.start >= s.ti.end && u.start < pos)) {
-        throw new BitstreamError('an ancillary unit between the tile index and the end of the last tile (clause 7.3.11, E55)');
+        throw new BitstreamError('an ancillary unit between the tile index and the end of the last tile (clause 7.3.11, E55)', 'E55');
     }
     return index.map((t, i) => ({ units: s.tiles[i].units, points: t.points, cell: t.cell }));
 }
@@ -110,10 +110,10 @@ export async function decodeTile(ctx, t, { checkHash = true } = {}) {
     const n = tile.points;
     const coords = decodeGeometry(G.payload, n);
     if (tile.cell) checkCell(coords, tile.cell, ctx.ps.tileSize, t);
-    if (A.length !== 1) throw new BitstreamError(`tile ${t} has ${A.length} attribute units; without the hierarchy it has 1 (clause 6.3, ${ctx.np ? 'E63' : 'E15'})`);
+    if (A.length !== 1) throw new BitstreamError(`tile ${t} has ${A.length} attribute units; without the hierarchy it has 1 (clause 6.3, ${ctx.np ? 'E63' : 'E15'})`, ctx.np ? 'E63' : 'E15');
     const sceneHash = parseHashUnit(H.payload);
     const h = parseAttributeHeader(A[0].payload, ctx);
-    if (h.numRows !== n) throw new BitstreamError(`attribute unit of tile ${t}: num_rows_minus1 + 1 = ${h.numRows}, the tile has ${n} points (clause 8.3, E59)`);
+    if (h.numRows !== n) throw new BitstreamError(`attribute unit of tile ${t}: num_rows_minus1 + 1 = ${h.numRows}, the tile has ${n} points (clause 8.3, E59)`, 'E59');
     const values = decodeTileAttributes(A[0].payload, h, coords, ctx);
     const out = { x: coords.x, y: coords.y, z: coords.z, values, n, sceneHash: toHex(sceneHash) };
     if (checkHash) await checkTileHash(ctx, t, out);
@@ -127,14 +127,14 @@ export async function decodeTile(ctx, t, { checkHash = true } = {}) {
  */
 export async function checkTileHash(ctx, t, out) {
     const digest = await sha256(serializeTile(ctx.ps, out));
-    if (toHex(digest) !== out.sceneHash) throw new HashMismatchError(`tile ${t}: the decoded scene does not match its scene_hash (clause 12, E53)`);
+    if (toHex(digest) !== out.sceneHash) throw new HashMismatchError(`tile ${t}: the decoded scene does not match its scene_hash (clause 12, E53)`, 'E53');
 }
 
 // E58 from the points' per-axis bounds (decodeGeometry's min and max)
 function checkCell(coords, cell, T, t) {
     for (let a = 0; a < 3; a++) {
         const lo = cell[a] * T, hi = lo + T - 1;
-        if (coords.min[a] < lo || coords.max[a] > hi) throw new BitstreamError(`tile ${t}: a decoded point lies outside the tile's cell (clause 7.3.11, E58)`);
+        if (coords.min[a] < lo || coords.max[a] > hi) throw new BitstreamError(`tile ${t}: a decoded point lies outside the tile's cell (clause 7.3.11, E58)`, 'E58');
     }
 }
 

@@ -2,8 +2,15 @@
 export class LghccError extends Error {
     constructor(message) { super(message); }
 }
-/** The stream is non-conforming (truncated, corrupted, or violating a constraint). */
-export class BitstreamError extends LghccError {}
+/** The stream is non-conforming (truncated, corrupted, or violating a constraint). ``condition``: the row of
+ * clause 8.2's table it breaks ('E1' .. 'E68'), set where the check throws; undefined for a rejection that is no
+ * row of it (a stream outside this decoder's profile). */
+export class BitstreamError extends LghccError {
+    constructor(message, condition) {
+        super(message);
+        this.condition = condition;
+    }
+}
 /** Well formed as far as this decoder can tell, but uses a version, profile or unit it does not know. */
 export class UnsupportedStreamError extends BitstreamError {}
 /** Every unit decoded, but the decoded scene does not match scene_hash (clause 12). */

@@ -13,7 +13,7 @@ export function parseGeometryHeader(payload, n) {
         const sign = r.u(1, `geom_bbox_min_sign_flag[${i}]`);
         const abs = checkRange('geometry_header', `geom_bbox_min_abs[${i}]`, r.ue(`geom_bbox_min_abs[${i}]`), 0, 2 ** 31);
         if (!sign && abs > 2 ** 31 - 1) {
-            throw new BitstreamError(`geometry_header.geom_bbox_min_abs[${i}] = ${abs} puts the bounding-box minimum outside [-2^31, 2^31) (G.3, E26)`);
+            throw new BitstreamError(`geometry_header.geom_bbox_min_abs[${i}] = ${abs} puts the bounding-box minimum outside [-2^31, 2^31) (G.3, E26)`, 'E26');
         }
         bboxMin[i] = sign ? -abs : abs;
         bitDepth[i] = checkRange('geometry_header', `geom_bit_depth[${i}]`, r.u(6, `geom_bit_depth[${i}]`), 0, 32);
@@ -21,11 +21,11 @@ export function parseGeometryHeader(payload, n) {
     const idcmMode = checkRange('geometry_header', 'geom_idcm_mode', r.ue('geom_idcm_mode'), 0, 2);
     r.byteAlign();
     if (n > 2 ** (bitDepth[0] + bitDepth[1] + bitDepth[2])) {
-        throw new BitstreamError(`geometry: ${n} points cannot be distinct in a bounding box of ${bitDepth} bits per axis (G.3, E27)`);
+        throw new BitstreamError(`geometry: ${n} points cannot be distinct in a bounding box of ${bitDepth} bits per axis (G.3, E27)`, 'E27');
     }
     const dataOffset = r.bitPosition >>> 3;
     if (Math.max(...bitDepth) === 0 && dataOffset < payload.length) {
-        throw new BitstreamError(`geometry: ${payload.length - dataOffset} bytes of coded data after a header of bit depth 0 (G.3, E28)`);
+        throw new BitstreamError(`geometry: ${payload.length - dataOffset} bytes of coded data after a header of bit depth 0 (G.3, E28)`, 'E28');
     }
     return { bboxMin, bitDepth, idcmMode, dataOffset };
 }
@@ -42,7 +42,8 @@ function geometryError(code, a, b, n) {
         7: 'geometry data: the decoded points do not attain the bounding-box minimum (G.5.5, E33)',
         8: 'geometry data: decoded coordinates exceed 2^31 - 1 (G.5.5, E34)',
     };
-    return new BitstreamError(messages[code]);
+    const conditions = { 1: 'E36', 2: 'E38', 3: 'E29', 4: 'E30', 5: 'E31', 6: 'E32', 7: 'E33', 8: 'E34' };
+    return new BitstreamError(messages[code], conditions[code]);
 }
 
 /**
@@ -54,7 +55,7 @@ export function decodeGeometry(payload, n) {
     const h = parseGeometryHeader(payload, n);
     const data = payload.subarray(h.dataOffset);
     if (data.length % 4) {
-        throw new BitstreamError(`geometry data: length ${data.length} is not a whole number of 32-bit words (clause 10.6.6)`);
+        throw new BitstreamError(`geometry data: length ${data.length} is not a whole number of 32-bit words (clause 10.6.6)`, 'E35');
     }
     const p = arenaWith(data);
     const [b0, b1, b2] = h.bitDepth, [m0, m1, m2] = h.bboxMin;

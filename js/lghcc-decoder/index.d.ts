@@ -162,7 +162,11 @@ export const SH_C0: number;
 /** The base of the decoder's errors. */
 export class LghccError extends Error {}
 /** The stream is non-conforming (truncated, corrupted, or violating a constraint of the format). */
-export class BitstreamError extends LghccError {}
+export class BitstreamError extends LghccError {
+    constructor(message?: string, condition?: string);
+    /** The row of the spec's clause 8.2 the stream breaks ('E1' .. 'E68'); undefined for a stream outside the profile. */
+    readonly condition: string | undefined;
+}
 /** A stream this decoder does not decode: another version, or outside the explicit-Gaussian profile (anchor streams, the hierarchy). */
 export class UnsupportedStreamError extends BitstreamError {}
 /** A tile's decoded Gaussians do not match the hash the stream carries for them. */

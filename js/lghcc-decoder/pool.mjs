@@ -18,9 +18,9 @@ function own(a) { return a.byteOffset === 0 && a.byteLength === a.buffer.byteLen
 function arrayBuffers(arrays) { return [arrays.positions, arrays.sh, arrays.opacities, arrays.scales, arrays.rotations].map((a) => a.buffer); }
 
 // the helper's error as the same class (the page reports the class name)
-function remoteError({ name, message }) {
+function remoteError({ name, message, condition }) {
     const C = Object.prototype.hasOwnProperty.call(errors, name) ? errors[name] : Error;
-    const e = new C(message);
+    const e = new C(message, condition);
     if (e.name !== name) Object.defineProperty(e, 'name', { value: name });
     return e;
 }
@@ -212,7 +212,7 @@ export async function helperMessage(data, port) {
         }
         port.postMessage({ id, t, tile, arrays }, transfer);
     } catch (err) {
-        port.postMessage({ id, t, error: { name: err && err.name ? err.name : 'Error', message: String(err && err.message ? err.message : err) } });
+        port.postMessage({ id, t, error: { name: err && err.name ? err.name : 'Error', message: String(err && err.message ? err.message : err), condition: err && err.condition } });
     }
 }
 

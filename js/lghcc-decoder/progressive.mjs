@@ -63,7 +63,7 @@ export class ProgressiveDecoder {
     _verify(upTo = this.units.length) {
         for (; this.verified < upTo; this.verified++) {
             const u = this.units[this.verified];
-            if (unitCrc32(this.buf, u.start, u.end - 4) !== u.stored) throw new BitstreamError(`data unit at byte ${u.start} fails its CRC-32 check (E9)`);
+            if (unitCrc32(this.buf, u.start, u.end - 4) !== u.stored) throw new BitstreamError(`data unit at byte ${u.start} fails its CRC-32 check (E9)`, 'E9');
         }
     }
 

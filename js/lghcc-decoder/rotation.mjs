@@ -10,5 +10,5 @@ import { BitstreamError } from './errors.mjs';
 export function lengthIndexError(q32, r, M, wc, maxIndex) {
     const b = r * M, lo = q32[2 * (b + wc)], hi = q32[2 * (b + wc) + 1];
     const k = hi === -1 && lo < 0 ? lo : hi * 2 ** 32 + (lo >>> 0);
-    return new BitstreamError(`row ${r}: a rotation length index ${k} outside [0, max_rotation_length_index = ${maxIndex}] (clause 11.10, E66)`);
+    return new BitstreamError(`row ${r}: a rotation length index ${k} outside [0, max_rotation_length_index = ${maxIndex}] (clause 11.10, E66)`, 'E66');
 }

@@ -264,7 +264,7 @@ async function headAndPrelude(net, first) {
         if (ctx) return { bytes, total, ctx };
         if (total !== null && bytes.length >= total) {
             if (bytes.length < 8) parseHeader(bytes); // E1
-            throw new BitstreamError('the stream ends before its first tile (E13)');
+            throw new BitstreamError('the stream ends before its first tile (E13)', 'E13');
         }
         const more = await net.range(bytes.length, bytes.length * 2);
         if (more.status !== 206) throw new Error(`${net.url}: the server stopped answering Range requests`);
@@ -282,20 +282,20 @@ function prelude(bytes, units, total) {
     }
     const before = units.filter((u) => u.start <= critical[end].start);
     for (const u of before) {
-        if (!u.partial && unitCrc32(bytes, u.start, u.end - 4) !== u.stored) throw new BitstreamError(`data unit at byte ${u.start} fails its CRC-32 check (E9)`);
+        if (!u.partial && unitCrc32(bytes, u.start, u.end - 4) !== u.stored) throw new BitstreamError(`data unit at byte ${u.start} fails its CRC-32 check (E9)`, 'E9');
     }
     const { s, critical: crit, i } = preludeStructure(before);
     if (i < crit.length && crit[i].type !== UNIT.GEOMETRY) throw orderError(crit[i]);
     const ps = parseGaussianParameterSet(s.ps.payload);
     if (ps.hierarchyEnabled) throw new UnsupportedStreamError('hierarchy_enabled_flag = 1: the two-level hierarchy is outside the explicit-Gaussian profile this decoder implements');
-    if (s.cm) throw new BitstreamError('a context_model unit with hierarchy_enabled_flag = 0 (clause 8.3, E16)');
+    if (s.cm) throw new BitstreamError('a context_model unit with hierarchy_enabled_flag = 0 (clause 8.3, E16)', 'E16');
     if (!!s.ti !== !!ps.tilesEnabled) {
-        throw new BitstreamError(`tiles_enabled_flag = ${ps.tilesEnabled} ${s.ti ? 'with' : 'without'} a tile_index unit (clause 7.3.11, E54)`);
+        throw new BitstreamError(`tiles_enabled_flag = ${ps.tilesEnabled} ${s.ti ? 'with' : 'without'} a tile_index unit (clause 7.3.11, E54)`, 'E54');
     }
     const ctx = preludeFromUnits(before, () => {}); // CRCs checked above
     const last = ctx.tiles[ctx.tiles.length - 1];
     if (s.ti && total !== null && last.end > total) {
-        throw new BitstreamError(`the tile index puts the end of tile ${ctx.tiles.length - 1} at byte ${last.end}, beyond the ${total}-byte stream (clause 7.3.11, E55)`);
+        throw new BitstreamError(`the tile index puts the end of tile ${ctx.tiles.length - 1} at byte ${last.end}, beyond the ${total}-byte stream (clause 7.3.11, E55)`, 'E55');
     }
     return ctx;
 }
@@ -309,13 +309,13 @@ export function tileUnits(buf, at, tile, t) {
     for (let p = tile.start; p < tile.end;) {
         const i = p - tile.start + at, left = tile.end - p;
         const size = left >= 9 ? ((buf[i + 1] << 24) | (buf[i + 2] << 16) | (buf[i + 3] << 8) | buf[i + 4]) >>> 0 : Infinity;
-        if (size + 9 > left) throw new BitstreamError(`tile ${t}: its units do not end at the tile_data_size of the tile index (clause 7.3.11, E55)`);
+        if (size + 9 > left) throw new BitstreamError(`tile ${t}: its units do not end at the tile_data_size of the tile index (clause 7.3.11, E55)`, 'E55');
         const type = buf[i], end = i + 5 + size;
-        if (!isCritical(type)) throw new BitstreamError(`an ancillary unit between the tile index and the end of the last tile (clause 7.3.11, E55)`);
-        if (type === 0) throw new BitstreamError(`data unit at byte ${p}: unit_type 0 is forbidden (E7)`);
-        if (type > LAST_KNOWN_CRITICAL) throw new UnsupportedStreamError(`critical unit type 0x${type.toString(16)} is not defined by version 1.5 (E10)`);
+        if (!isCritical(type)) throw new BitstreamError(`an ancillary unit between the tile index and the end of the last tile (clause 7.3.11, E55)`, 'E55');
+        if (type === 0) throw new BitstreamError(`data unit at byte ${p}: unit_type 0 is forbidden (E7)`, 'E7');
+        if (type > LAST_KNOWN_CRITICAL) throw new UnsupportedStreamError(`critical unit type 0x${type.toString(16)} is not defined by version 1.5 (E10)`, 'E10');
         const stored = ((buf[end] << 24) | (buf[end + 1] << 16) | (buf[end + 2] << 8) | buf[end + 3]) >>> 0;
-        if (unitCrc32(buf, i, end) !== stored) throw new BitstreamError(`data unit at byte ${p} (type 0x${type.toString(16)}) fails its CRC-32 check (E9)`);
+        if (unitCrc32(buf, i, end) !== stored) throw new BitstreamError(`data unit at byte ${p} (type 0x${type.toString(16)}) fails its CRC-32 check (E9)`, 'E9');
         units.push({ type, start: p, end: p + 9 + size, payload: buf.slice(i + 5, end) });
         p += 9 + size;
     }
@@ -410,7 +410,7 @@ async function fetchPlan(net, plan, ctx, decodeOne, pool, connections, head) {
                 }
                 if (pool && pool.side) pool.flush();
             }
-            if (len < buf.length) throw new BitstreamError(`the stream ends at byte ${req.start + len}, inside tile ${req.tiles[k]} (clause 7.3.11, E55)`);
+            if (len < buf.length) throw new BitstreamError(`the stream ends at byte ${req.start + len}, inside tile ${req.tiles[k]} (clause 7.3.11, E55)`, 'E55');
         }
     };
     await Promise.all(Array.from({ length: Math.min(connections, plan.length) }, lane));

@@ -6,9 +6,9 @@ import { alloc, callWasm, wasm } from './wasm.mjs';
 
 /** The spec's error for the module's failure `code` in the symbol chunk `what`. */
 export function symbolError(what, code, w) {
-    if (code === 1) return new BitstreamError(`${what}: range decoding failed: q >= 2^24 (clause 10.6.4)`);
-    if (code === 2) return new BitstreamError(`${what}: data left over after decoding (clause 10.6.5)`);
-    return new BitstreamError(`${what}: escaped residual magnitude ${BigInt.asUintN(64, w.errorWide())} exceeds 2^62 - 1 (clause 10.5)`);
+    if (code === 1) return new BitstreamError(`${what}: range decoding failed: q >= 2^24 (clause 10.6.4)`, 'E36');
+    if (code === 2) return new BitstreamError(`${what}: data left over after decoding (clause 10.6.5)`, 'E38');
+    return new BitstreamError(`${what}: escaped residual magnitude ${BigInt.asUintN(64, w.errorWide())} exceeds 2^62 - 1 (clause 10.5)`, 'E37');
 }
 
 /**
@@ -35,7 +35,7 @@ export function decodeSymbolChunk(bytes, levels, n, out, wide, what) {
  */
 export function symbolsInModule(w, bytes, levels, n, what) {
     if (bytes.length % 4) {
-        throw new BitstreamError(`${what}: length ${bytes.length} is not a whole number of 32-bit words (clause 10.6.6)`);
+        throw new BitstreamError(`${what}: length ${bytes.length} is not a whole number of 32-bit words (clause 10.6.6)`, 'E35');
     }
     w.reset();
     const p = alloc(w, bytes.length), pl = alloc(w, n), po = alloc(w, 8 * n), pw = alloc(w, 8 * n);

@@ -32,7 +32,7 @@ export function parseGaussianParameterSet(payload) {
     p.S = (p.shDegree + 1) ** 2;
     p.M = 3 * p.S + 8;
     p.tileSize = p.tileScale * (p.hierarchyEnabled ? p.coarseVoxelScale : 1);
-    if (p.numGaussians * p.M > 2 ** 31) throw new BitstreamError(`N * M = ${p.numGaussians * p.M} exceeds 2^31 (clause 8.1, E22)`);
+    if (p.numGaussians * p.M > 2 ** 31) throw new BitstreamError(`N * M = ${p.numGaussians * p.M} exceeds 2^31 (clause 8.1, E22)`, 'E22');
     p.steps = channelSteps(p);
     return p;
 }
@@ -130,14 +130,14 @@ export function parseTileIndex(payload, N) {
         const points = checkRange(W, `tile_num_points_minus1[${t}]`, r.ue(`tile_num_points_minus1[${t}]`), 0, N - 1) + 1;
         const size = checkRange(W, `tile_data_size[${t}]`, r.ue(`tile_data_size[${t}]`), 0, UE_MAX);
         if (t > 0 && !lexLess(tiles[t - 1].cell, cell)) {
-            throw new BitstreamError(`tile_index_unit: cell ${cell} of tile ${t} does not follow ${tiles[t - 1].cell} in strictly increasing order (E56)`);
+            throw new BitstreamError(`tile_index_unit: cell ${cell} of tile ${t} does not follow ${tiles[t - 1].cell} in strictly increasing order (E56)`, 'E56');
         }
         tiles.push({ cell, points, size });
         total += points;
     }
     r.byteAlign();
     r.expectEnd();
-    if (total !== N) throw new BitstreamError(`tile_index_unit: the tiles' point counts add up to ${total}, not N = ${N} (E57)`);
+    if (total !== N) throw new BitstreamError(`tile_index_unit: the tiles' point counts add up to ${total}, not N = ${N} (E57)`, 'E57');
     return tiles;
 }
 
@@ -150,8 +150,8 @@ function lexLess(a, b) {
 export function parseHashUnit(payload) {
     const r = new BitReader(payload, 'decoded_scene_hash_unit');
     checkRange('decoded_scene_hash_unit', 'hash_type', r.u(8, 'hash_type'), 1, 1);
-    if (payload.length < 33) throw new BitstreamError(`decoded_scene_hash_unit: truncated: ${payload.length} bytes, 33 needed (clause 6.4)`);
-    if (payload.length > 33) throw new BitstreamError(`decoded_scene_hash_unit: ${payload.length - 33} bytes after scene_hash (clause 6.4, E21)`);
+    if (payload.length < 33) throw new BitstreamError(`decoded_scene_hash_unit: truncated: ${payload.length} bytes, 33 needed (clause 6.4)`, 'E17');
+    if (payload.length > 33) throw new BitstreamError(`decoded_scene_hash_unit: ${payload.length - 33} bytes after scene_hash (clause 6.4, E21)`, 'E21');
     return payload.subarray(1, 33);
 }
 
@@ -173,10 +173,10 @@ export function parseAttributeHeader(payload, ctx) {
     const M = ctx.M;
     const h = {};
     h.level = checkRange(W, 'attribute_level', r.u(2, 'attribute_level'), 0, 2);
-    if (h.level !== 0) throw new BitstreamError(`attribute_unit_header.attribute_level = ${h.level}: the unit's position requires 0 (clause 7.3.5, E45)`);
+    if (h.level !== 0) throw new BitstreamError(`attribute_unit_header.attribute_level = ${h.level}: the unit's position requires 0 (clause 7.3.5, E45)`, 'E45');
     h.contextModelId = checkRange(W, 'context_model_id', r.u(3, 'context_model_id'), 0, 2);
     if (h.contextModelId !== 0) {
-        throw new BitstreamError(`attribute_unit_header.context_model_id = ${h.contextModelId} in a unit of attribute_level 0 (clause 7.3.5, ${ctx.np ? 'E62' : 'E46'})`);
+        throw new BitstreamError(`attribute_unit_header.context_model_id = ${h.contextModelId} in a unit of attribute_level 0 (clause 7.3.5, ${ctx.np ? 'E62' : 'E46'})`, ctx.np ? 'E62' : 'E46');
     }
     h.priorMean = new Float64Array(M);
     h.priorLevel = new Uint8Array(M);
@@ -186,16 +186,16 @@ export function parseAttributeHeader(payload, ctx) {
     for (let i = 0; i < np; i++) {
         const t = checkRange(W, `pred_target_channel[${i}]`, r.ue(`pred_target_channel[${i}]`), 1, M - 1);
         const s = checkRange(W, `pred_source_channel[${i}]`, r.ue(`pred_source_channel[${i}]`), 0, M - 2);
-        if (s >= t) throw new BitstreamError(`attribute_unit_header: prediction ${i}: source ${s} is not before its target ${t} (E48)`);
+        if (s >= t) throw new BitstreamError(`attribute_unit_header: prediction ${i}: source ${s} is not before its target ${t} (E48)`, 'E48');
         if (i > 0 && !(t > h.predTarget[i - 1] || (t === h.predTarget[i - 1] && s > h.predSource[i - 1]))) {
-            throw new BitstreamError(`attribute_unit_header: predictions not in strictly increasing (target, source) order at ${i} (E49)`);
+            throw new BitstreamError(`attribute_unit_header: predictions not in strictly increasing (target, source) order at ${i} (E49)`, 'E49');
         }
         h.predTarget[i] = t; h.predSource[i] = s;
         h.predWeight[i] = checkRange(W, `pred_weight[${i}]`, r.se(`pred_weight[${i}]`), -(2 ** 15), 2 ** 15);
     }
     if (ctx.stepAdjust) { h.adjustMean = r.u(3, 'adjust_mean'); h.adjustLevel = r.u(6, 'adjust_level'); }
     if (ctx.stepFlags && (h.adjustMean || h.adjustLevel)) {
-        throw new BitstreamError(`attribute_unit_header: adjust_mean = ${h.adjustMean}, adjust_level = ${h.adjustLevel} in a stream with a step_adjust_flags unit: both shall be 0 (clause 7.3.16, E67)`);
+        throw new BitstreamError(`attribute_unit_header: adjust_mean = ${h.adjustMean}, adjust_level = ${h.adjustLevel} in a stream with a step_adjust_flags unit: both shall be 0 (clause 7.3.16, E67)`, 'E67');
     }
     h.numRows = checkRange(W, 'num_rows_minus1', r.ue('num_rows_minus1'), 0, 2 ** 24 - 1) + 1;
     h.rowsPerChunk = checkRange(W, 'rows_per_chunk_minus1', r.ue('rows_per_chunk_minus1'), 0, h.numRows - 1) + 1;
@@ -214,7 +214,7 @@ export function parseAttributeHeader(payload, ctx) {
     let total = 0;
     for (let i = 0; i < numChunks; i++) total += h.chunkSize[i] + (ctx.stepAdjust ? h.adjustSize[i] : 0) + (ctx.shDegreeUnit ? h.degreeSize[i] : 0);
     if (total !== payload.length - h.dataOffset) {
-        throw new BitstreamError(`attribute unit: the chunk sizes add up to ${total} bytes, the payload holds ${payload.length - h.dataOffset} after the header (clause 6.4, E50)`);
+        throw new BitstreamError(`attribute unit: the chunk sizes add up to ${total} bytes, the payload holds ${payload.length - h.dataOffset} after the header (clause 6.4, E50)`, 'E50');
     }
     return h;
 }

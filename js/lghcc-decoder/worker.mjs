@@ -36,7 +36,7 @@ async function decodeBox(msg) {
         const count = r.tiles.reduce((a, t) => a + t.n, 0);
         self.postMessage({ type: 'done', count, tiles: r.tiles.length, seconds: (performance.now() - t0) / 1000, digest: sceneDigestHex(r.ps, r.tiles) });
     } catch (err) {
-        self.postMessage({ type: 'error', kind: err && err.name ? err.name : 'Error', message: String(err && err.message ? err.message : err) });
+        self.postMessage({ type: 'error', kind: err && err.name ? err.name : 'Error', message: String(err && err.message ? err.message : err), condition: err && err.condition });
     }
 }
 
@@ -112,6 +112,6 @@ self.onmessage = async (e) => {
             closePool();
             if (warmed) poolFor(e.data).warm();
         }
-        self.postMessage({ type: 'error', kind: err && err.name ? err.name : 'Error', message: String(err && err.message ? err.message : err) });
+        self.postMessage({ type: 'error', kind: err && err.name ? err.name : 'Error', message: String(err && err.message ? err.message : err), condition: err && err.condition });
     }
 };
