@@ -240,3 +240,39 @@ def test_errors():
     with pytest.raises(HashMismatchError):  # another matrix, other values: the hash tells
         decode_stream(other)
     assert decode_stream(other, verify_hash=False).scene.sh[:, 1:].any()
+
+
+def test_the_fit_rounds_and_prices_the_coefficients_the_stream_codes():
+    """The rate-aware fit (encoder/gaussians/gaussian_fit.py) simulates the coding: with the transform,
+    its quantized SH rest is B round(B^-1 u) in band steps (u the values in band steps), what the
+    decoder's inverse gives within its 2^-GUARD_BITS grid, and the integers it prices are the
+    coefficients; with an identity basis, exactly the values' own rounding."""
+    from lghcc.encoder.gaussians.gaussian_fit import _Fit, sh_transform_basis
+
+    rng = np.random.default_rng(50)
+    scene = _latent_scene(rng, 400, 2)
+    cfg = dataclasses.replace(GaussianEncoderConfig(), sh_transform="always").validate()
+    basis = sh_transform_basis(scene, cfg)
+    assert basis is not None and basis.shape == (24, 24)
+    assert sh_transform_basis(scene, dataclasses.replace(cfg, sh_transform=False)) is None
+    assert sh_transform_basis(random_gaussians(rng, 50, 0), cfg) is None
+    steps = np.repeat(np.asarray(cfg.sh_band_steps)[np.floor(np.sqrt(np.arange(1, 9))).astype(int) - 1], 3)
+    u = scene.sh[:, 1:].reshape(400, -1).astype(np.float64) / steps
+    t = np.rint(np.linalg.solve(basis, u.T).T)
+
+    fit = _Fit(scene, cfg, sh_basis=basis)
+    sh, *_ = fit.quantized()
+    got = sh[:, 1:].detach().numpy().reshape(400, -1).astype(np.float64) / steps
+    assert np.abs(got - t @ basis.T).max() < 1e-3
+    coded = fit.values_in_steps(*fit.quantized())[1].detach().numpy()
+    assert np.abs(coded - t).max() < 1e-3 and np.abs(coded - np.rint(coded)).max() < 1e-3
+    # the straight-through gradient reaches every SH-rest value
+    sh[:, 1:].sum().backward()
+    assert fit.sh_rest.grad is not None and bool((fit.sh_rest.grad != 0).all())
+
+    plain, identity = _Fit(scene, cfg), _Fit(scene, cfg, sh_basis=np.eye(24))
+    assert torch_equal(plain.quantized()[0], identity.quantized()[0])
+
+
+def torch_equal(a, b) -> bool:
+    return bool((a.detach() == b.detach()).all())

@@ -57,6 +57,7 @@ from ...app.progress import progress_bar
 from ...common.attributes import STEP_ADJUST_FACTORS
 from ...common.scene import GaussianScene
 from ..stream.config import GaussianEncoderConfig
+from . import sh_transform as sht
 from .gaussian_grid import OPACITY_LOGIT_LIMIT, canonical_rotations, choose_grid, snap_to_grid
 from .gaussian_views import CHECK_VIEWS, LANDING_VIEWS, SceneViews, scene_views
 from .merging import pruned_scene
@@ -101,7 +102,8 @@ def _bits(x_steps: torch.Tensor, mu: torch.Tensor, sigma: torch.Tensor) -> torch
 class _Fit:
     """The fitted parameters and their quantized values as the encoder will code them."""
 
-    def __init__(self, scene: GaussianScene, cfg: GaussianEncoderConfig, step_adjust: np.ndarray | None = None):
+    def __init__(self, scene: GaussianScene, cfg: GaussianEncoderConfig, step_adjust: np.ndarray | None = None,
+                 sh_basis: np.ndarray | None = None):
         t = lambda a: torch.tensor(np.asarray(a, np.float64), dtype=torch.float32)  # noqa: E731
         self.cfg = cfg
         # each Gaussian's factor on its steps (step adjustment, clause 11.8; 1 without it)
@@ -116,6 +118,10 @@ class _Fit:
         self.rotations = t(canonical_rotations(scene.rotations)).requires_grad_(True)
         band = np.floor(np.sqrt(np.arange(1, self.sh_dc.shape[1] + self.sh_rest.shape[1]))).astype(int)
         self.rest_steps = torch.tensor([cfg.sh_band_steps[b - 1] for b in band], dtype=torch.float32)[None, :, None]
+        # With the SH transform (format 1.6) the coded SH rest is the coefficients t of u = B t (u the values in
+        # band steps): the fit rounds and prices t, as the stream will (sh_transform_basis)
+        self.basis = None if sh_basis is None else (torch.from_numpy(sh_basis.astype(np.float32)),
+                                                    torch.from_numpy(np.linalg.inv(sh_basis).astype(np.float32)))
         self.rate_model = None
 
     def params(self) -> list[torch.Tensor]:
@@ -125,16 +131,30 @@ class _Fit:
         """(SH, opacity, log scales, rotations) rounded to their steps, with straight-through gradients."""
         c, k = self.cfg, self.factor
         rot = self.rotations / self.rotations.norm(dim=1, keepdim=True).clamp_min(1e-12)
-        sh = torch.cat([_ste(self.sh_dc, c.sh_dc_step * k[:, :, None]),
-                        _ste(self.sh_rest, self.rest_steps * k[:, :, None])], 1)
+        sh = torch.cat([_ste(self.sh_dc, c.sh_dc_step * k[:, :, None]), self._quantized_rest()], 1)
         op = _ste(self.opacity.clamp(-OPACITY_LOGIT_LIMIT, OPACITY_LOGIT_LIMIT), c.opacity_step * k[:, 0])
         return sh, op, _ste(self.log_scales, c.scale_step * k), _ste(rot, c.rotation_step * k)
 
+    def _quantized_rest(self) -> torch.Tensor:
+        """The SH rest rounded as coded: values to their band steps, or, with the transform, the
+        coefficients to one step each (the decoder's 2^-GUARD_BITS value grid is not simulated:
+        1/256 of a rounding's error)."""
+        step = self.rest_steps * self.factor[:, :, None]
+        if self.basis is None:
+            return _ste(self.sh_rest, step)
+        b, b_inv = self.basis
+        n = self.sh_rest.shape[0]
+        t = _ste((self.sh_rest / step).reshape(n, -1) @ b_inv.T, 1.0)
+        return (t @ b.T).reshape(self.sh_rest.shape) * step
+
     def values_in_steps(self, sh, op, ls, rot) -> list[torch.Tensor]:
+        """The coded integers (before rounding: the straight-through values), channel by channel."""
         c, k = self.cfg, self.factor
         n = sh.shape[0]
-        return [(sh[:, :1] / (c.sh_dc_step * k[:, :, None])).reshape(n, -1),
-                (sh[:, 1:] / (self.rest_steps * k[:, :, None])).reshape(n, -1),
+        rest = (sh[:, 1:] / (self.rest_steps * k[:, :, None])).reshape(n, -1)
+        if self.basis is not None:
+            rest = rest @ self.basis[1].T
+        return [(sh[:, :1] / (c.sh_dc_step * k[:, :, None])).reshape(n, -1), rest,
                 (op / (c.opacity_step * k[:, 0]))[:, None], ls / (c.scale_step * k), rot / (c.rotation_step * k)]
 
     def init_rate_model(self) -> None:
@@ -341,6 +361,19 @@ def source_renders(g: Gaussians3DGS, cams: list[Camera], drawn: list[int]) -> di
     return dict(zip(views, images))
 
 
+def sh_transform_basis(scene: GaussianScene, cfg: GaussianEncoderConfig) -> np.ndarray | None:
+    """float64 [n, n] B of the transform the coding will fit to ``scene``'s SH rest (values in band steps =
+    B @ coefficients; encoder/gaussians/sh_transform.py), fitted here to the values before the fit; None
+    where the coding will not use one."""
+    if not cfg.sh_transform or scene.sh_degree == 0:
+        return None
+    band = np.floor(np.sqrt(np.arange(1, scene.sh.shape[1]))).astype(int)
+    band_steps = np.repeat(np.asarray(cfg.sh_band_steps, np.float64)[band - 1], 3)
+    u = scene.sh[:, 1:].reshape(scene.num_gaussians, -1).astype(np.float64) / band_steps
+    transform = sht.chosen_transform(u, cfg.sh_transform, scene.sh_degree)
+    return None if transform is None else sht.value_matrix(transform)
+
+
 def fit_to_renders(grid: GaussianScene, g: Gaussians3DGS, cams: list[Camera], cfg: GaussianEncoderConfig,
                    stats: PrepareStats, say, progress: bool, sensitivity: np.ndarray | None = None) -> GaussianScene:
     """``fit_iterations`` steps tuning the kept Gaussians to renders of the source Gaussians
@@ -351,7 +384,7 @@ def fit_to_renders(grid: GaussianScene, g: Gaussians3DGS, cams: list[Camera], cf
     targets = source_renders(g, cams, drawn)
     from .gaussian_rd import scene_step_adjust
 
-    fit = _Fit(grid, cfg, scene_step_adjust(grid, sensitivity, cfg))
+    fit = _Fit(grid, cfg, scene_step_adjust(grid, sensitivity, cfg), sh_transform_basis(grid, cfg))
     fit.init_rate_model()
     optimizer = _Optimizer.of(fit, cfg)
     bar = progress_bar(range(cfg.fit_iterations), desc="fit", unit="it", disable=not progress, leave=False)

@@ -499,11 +499,9 @@ def _with_sh_transform(layout: GaussianLayout, x: np.ndarray, cfg: GaussianEncod
     """With ``cfg.sh_transform`` where it pays (format 1.6; as encoder/gaussians/gaussians.py sh_transformed):
     the layout carrying the scene's transform, and ``x``'s SH rest (in band steps) turned, in place, into its
     coefficients; ``layout`` otherwise."""
-    if not cfg.sh_transform or layout.sh_degree == 0:
-        return layout
     rest = sht.sh_rest_columns(layout.sh_channels)
-    transform = sht.integer_transform(sht.fit_klt(x[:, rest]))
-    if cfg.sh_transform != "always" and not sht.transform_pays(x[:, rest], transform, layout.sh_degree):
+    transform = sht.chosen_transform(x[:, rest], cfg.sh_transform, layout.sh_degree)
+    if transform is None:
         return layout
     x[:, rest] = sht.forward(x[:, rest], transform)
     return dataclasses.replace(layout, sh_transform=transform)

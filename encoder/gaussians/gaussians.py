@@ -120,8 +120,8 @@ def sh_transformed(values: np.ndarray, gps: GaussianParameterSet, layout, steps:
 
     rest = sht.sh_rest_columns(layout.sh_channels)
     u = values[:, rest] / steps[rest].astype(np.float64)  # the SH rest in band steps
-    transform = sht.integer_transform(sht.fit_klt(u))
-    if cfg.sh_transform != "always" and not sht.transform_pays(u, transform, layout.sh_degree):
+    transform = sht.chosen_transform(u, cfg.sh_transform, layout.sh_degree)
+    if transform is None:
         return gps, layout, steps
     fine = dataclasses.replace(cfg, sh_band_steps=tuple(float(s) / sht.guard_factor() for s in cfg.sh_band_steps))
     gps = gaussian_parameter_set(gps.num_points, gps.sh_degree, gps.voxel_size, gps.origin, fine, levels.hier is not None,

@@ -102,5 +102,16 @@ def transform_pays(u: np.ndarray, transform: ShTransform, sh_degree: int) -> boo
     return _entropy_bits(np.rint(u)) - _entropy_bits(np.rint(forward(u, transform))) > unit_bits
 
 
+def chosen_transform(u: np.ndarray, mode: bool | str, sh_degree: int) -> ShTransform | None:
+    """The scene's transform of the SH rest ``u`` [N, n] (band steps) as ``mode`` (the configuration's
+    ``sh_transform``: False, True where it pays, or "always") asks; None without one."""
+    if not mode or sh_degree == 0 or u.shape[1] == 0:
+        return None
+    transform = integer_transform(fit_klt(u))
+    if mode != "always" and not transform_pays(u, transform, sh_degree):
+        return None
+    return transform
+
+
 def sh_rest_columns(sh_channels: int) -> slice:
     return slice(SH_REST_START, sh_channels)
