@@ -26,6 +26,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numpy as np  # noqa: E402
 
 import lghcc.common.neighbour_prediction as nbp  # noqa: E402
+import lghcc.decoder.core as core  # noqa: E402  (the decoding process: the hooks go there)
 import lghcc.decoder.decode as dec  # noqa: E402
 from lghcc.common.sh_degree import decode_flag_chunk, encode_flag_chunk, neighbour_degrees  # noqa: E402
 from lghcc.common.units import StepAdjustFlagsUnit  # noqa: E402
@@ -35,7 +36,7 @@ from lghcc.encoder.stream.neighbour_coding import flag_counts, flag_probabilitie
 def recorded_tiles(data: bytes) -> tuple[list[dict], int]:
     """Per tile: {graph, header, adjust (int64 [n])}, decoding the stream once; and its Gaussians."""
     tiles: list[dict] = []
-    graph_of, adjust_of, read_unit = nbp.neighbour_graph, nbp.decode_adjust_chunk, dec.read_predicted_attribute_unit
+    graph_of, adjust_of, read_unit = nbp.neighbour_graph, nbp.decode_adjust_chunk, core.read_predicted_attribute_unit
 
     def graph(*a, **k):
         g = graph_of(*a, **k)
@@ -54,11 +55,11 @@ def recorded_tiles(data: bytes) -> tuple[list[dict], int]:
         tiles[-1]["header"] = h
         return h
 
-    nbp.neighbour_graph, nbp.decode_adjust_chunk, dec.read_predicted_attribute_unit = graph, adjust, read
+    nbp.neighbour_graph, nbp.decode_adjust_chunk, core.read_predicted_attribute_unit = graph, adjust, read
     try:
         result = dec.decode_stream(data, jobs=1, verify_hash=True)
     finally:
-        nbp.neighbour_graph, nbp.decode_adjust_chunk, dec.read_predicted_attribute_unit = graph_of, adjust_of, read_unit
+        nbp.neighbour_graph, nbp.decode_adjust_chunk, core.read_predicted_attribute_unit = graph_of, adjust_of, read_unit
     if not tiles or not tiles[0]["chunks"]:
         raise SystemExit("the stream has no step-adjustment indices (no step_adjust unit)")
     for t in tiles:

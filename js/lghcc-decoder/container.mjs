@@ -50,14 +50,14 @@ export function parseContainer(bytes, { verifiedEnd = 0 } = {}) {
 export const isCritical = (type) => type < 0x80;
 
 /**
- * The unit grammar of clause 6.3 before the tiles, `P [N [Q [F]] [B]] [W] [C] [I]`, for units (the
+ * The unit grammar of clause 6.3 before the tiles, `P [N [Q [F]] [B]] [W] [T] [C] [I]`, for units (the
  * stream's, or its first ones: every unit type is checked, E10). Returns {s: {ps, np, sa, sf, sd, rl,
  * cm, ti, tiles: []}, critical: the critical units, i: the index in critical of the first unit after them}.
  */
 export function preludeStructure(units) {
     for (const u of units) {
         if (isCritical(u.type) && u.type > LAST_KNOWN_CRITICAL) {
-            throw new UnsupportedStreamError(`critical unit type 0x${u.type.toString(16)} is not defined by version 1.5 (E10)`, 'E10');
+            throw new UnsupportedStreamError(`critical unit type 0x${u.type.toString(16)} is not defined by version 1.6, the last this decoder knows (E10)`, 'E10');
         }
     }
     const critical = units.filter((u) => isCritical(u.type));
@@ -95,7 +95,7 @@ export function preludeStructure(units) {
 
 /**
  * The unit grammar of clause 6.3 for an explicit-Gaussian stream:
- *   P [N [Q [F]] [B]] [W] [C] [I] tile+,  tile = G A [A] H
+ *   P [N [Q [F]] [B]] [W] [T] [C] [I] tile+,  tile = G A [A] H
  * Returns {ps, np, sa, sf, sd, rl, cm, ti, tiles: [{units: [G, A.., H], start, end}]}; the tile index's byte
  * positions are checked later against the index (clause 7.3.11).
  */

@@ -313,7 +313,7 @@ export function tileUnits(buf, at, tile, t) {
         const type = buf[i], end = i + 5 + size;
         if (!isCritical(type)) throw new BitstreamError(`an ancillary unit between the tile index and the end of the last tile (clause 7.3.11, E55)`, 'E55');
         if (type === 0) throw new BitstreamError(`data unit at byte ${p}: unit_type 0 is forbidden (E7)`, 'E7');
-        if (type > LAST_KNOWN_CRITICAL) throw new UnsupportedStreamError(`critical unit type 0x${type.toString(16)} is not defined by version 1.5 (E10)`, 'E10');
+        if (type > LAST_KNOWN_CRITICAL) throw new UnsupportedStreamError(`critical unit type 0x${type.toString(16)} is not defined by version 1.6, the last this decoder knows (E10)`, 'E10');
         const stored = ((buf[end] << 24) | (buf[end + 1] << 16) | (buf[end + 2] << 8) | buf[end + 3]) >>> 0;
         if (unitCrc32(buf, i, end) !== stored) throw new BitstreamError(`data unit at byte ${p} (type 0x${type.toString(16)}) fails its CRC-32 check (E9)`, 'E9');
         units.push({ type, start: p, end: p + 9 + size, payload: buf.slice(i + 5, end) });
