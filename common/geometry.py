@@ -209,10 +209,12 @@ class _SymbolIO:
         # each decision with its context's model: the models of the table's contexts, gathered
         # (clipped: in range; np.take gathers rows many times faster than fancy indexing)
         models = np.take(binary_weights(binary_frequency(table), check=False), ctx[order], axis=0)
-        if self.encoding:
+        if self.enc is not None:  # encoding: the values are given
+            assert values is not None
             values = values.astype(np.int64, copy=False)
             self.enc.encode_binary_models(values[order], models)
         else:
+            assert self.dec is not None
             values = np.empty(n, dtype=np.int64)
             values[order] = self.dec.decode_binary_models(models)
         table += np.bincount(ctx.astype(np.int64, copy=False) * 2 + values, minlength=table.size).reshape(table.shape)
@@ -222,9 +224,11 @@ class _SymbolIO:
     def raw(self, nbits: int, values: np.ndarray | None = None, count: int = 0) -> np.ndarray:
         if nbits == 0:
             return np.zeros(count if values is None else values.size, dtype=np.int64)
-        if self.encoding:
+        if self.enc is not None:  # encoding: the values are given
+            assert values is not None
             self.enc.encode_bits(values.astype(np.uint64), nbits)
             return values
+        assert self.dec is not None
         return self.dec.decode_bits(nbits, count).astype(np.int64)
 
 
@@ -322,7 +326,7 @@ def _code_occupancy(io: _SymbolIO, st: _ContextState, q: np.ndarray, depth: int,
     splits = [remaining - 1 < d for d in bit_depth]  # axis a splits at this depth
     valid = [k for k in range(8) if all(splits[a] or not (k & AXIS_BIT[a]) for a in range(3))]
     last = valid[-1]
-    padded = np.append(occ, 0) if occ_true is not None else None
+    padded = np.append(occ, 0)  # index -1 (no neighbour) reads an empty node; decoding refreshes it per child
     for k in valid:
         if occ_true is None:
             padded = np.append(occ, 0)  # index -1 (no neighbour) reads an empty node

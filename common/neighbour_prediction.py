@@ -79,6 +79,12 @@ class NeighbourGraph:
     rows: list[np.ndarray]
     neighbours: list[np.ndarray | None]
 
+    def neighbours_of(self, level: int) -> np.ndarray:
+        """The neighbours of LoD ``level`` >= 1 (LoD 0 has none)."""
+        nb = self.neighbours[level]
+        assert nb is not None, "LoD 0 has no neighbours"
+        return nb
+
     @property
     def coding_order(self) -> np.ndarray:
         return np.concatenate(self.rows) if self.rows else np.zeros(0, np.int64)
@@ -164,7 +170,7 @@ def neighbour_means_and_buckets(q: np.ndarray, neighbours: np.ndarray, num_bucke
     n = valid.sum(axis=1, keepdims=True).astype(np.int64)  # >= 1
     safe = np.where(valid, neighbours, 0)
     unit = None if adjust is None else ADJUST_FIXED_POINT[row_adjust][:, None]  # F (None: 1)
-    own_prior = prior_mean[None, :] if adjust is None else prior_mean_in_steps(prior_mean, row_adjust)
+    own_prior = prior_mean[None, :] if row_adjust is None else prior_mean_in_steps(prior_mean, row_adjust)
     factor = None if adjust is None else ADJUST_FIXED_POINT[adjust[safe]]  # [n_l, k]: each neighbour's FP
     total, spread = _neighbour_sum_and_spread(q, safe, valid, factor)
     den = n if unit is None else n * unit
@@ -192,9 +198,11 @@ def _neighbour_sum_and_spread(q: np.ndarray, safe: np.ndarray, valid: np.ndarray
         if total is None:
             total, hi, lo = add.copy(), vh.copy(), vl.copy()
         else:
+            assert hi is not None and lo is not None
             total += add
             np.maximum(hi, vh, out=hi)
             np.minimum(lo, vl, out=lo)
+    assert total is not None and hi is not None and lo is not None, "at least one neighbour slot"
     return total, hi - lo
 
 
@@ -224,7 +232,7 @@ def _lod_params(level: int, q: np.ndarray, graph: NeighbourGraph, prior: CodingP
                 flags: np.ndarray, num_buckets: int) -> CodingParams:
     if level == 0:
         return prior
-    return lod_coding_params(q, graph.neighbours[level], table, num_buckets, flags, prior.mean[0])
+    return lod_coding_params(q, graph.neighbours_of(level), table, num_buckets, flags, prior.mean[0])
 
 
 def _adjusted_chunk_params(level: int, lo: int, hi: int, q: np.ndarray, graph: NeighbourGraph, prior: CodingParams,
@@ -234,7 +242,7 @@ def _adjusted_chunk_params(level: int, lo: int, hi: int, q: np.ndarray, graph: N
     rows = graph.rows[level][lo:hi]
     if level == 0:
         return adjusted_prior(prior, adjust[rows])
-    return lod_coding_params(q, graph.neighbours[level][lo:hi], table, num_buckets, flags, prior.mean[0], adjust,
+    return lod_coding_params(q, graph.neighbours_of(level)[lo:hi], table, num_buckets, flags, prior.mean[0], adjust,
                              adjust[rows])
 
 
@@ -244,7 +252,7 @@ def _adjust_levels(h: AttributeUnitHeader, n: int) -> np.ndarray:
 
 def chunk_neighbours(graph: NeighbourGraph, level: int, lo: int, hi: int) -> np.ndarray | None:
     """The neighbours of rows lo..hi-1 of LoD ``level`` (None for LoD 0, which has none)."""
-    return None if level == 0 else graph.neighbours[level][lo:hi]
+    return None if level == 0 else graph.neighbours_of(level)[lo:hi]
 
 
 def chunk_coded_channels(layout, row_degrees: np.ndarray) -> np.ndarray | None:
@@ -296,9 +304,11 @@ def write_predicted_attribute_unit(h: AttributeUnitHeader, layout, q: np.ndarray
         else:
             if lo == 0:
                 params = _lod_params(level, q, graph, prior, table, mean_flags(unit), unit.num_buckets)
+            assert params is not None  # a LoD's first chunk starts at row 0 (chunk_segments)
             p = params.rows(lo, hi, layout.num_channels)
         coded = None
         if degrees is not None:
+            assert degree_unit is not None  # _check_chunk_options: degrees come with the stream's sh_degree unit
             nd = neighbour_degrees(chunk_neighbours(graph, level, lo, hi), degrees)
             chunks.append(encode_degree_chunk(degrees[rows], nd, degree_unit))
             h.degree_chunk_size.append(len(chunks[-1]))
@@ -371,6 +381,7 @@ def _check_predicted_header(h: AttributeUnitHeader, coords: np.ndarray, what: st
         raise BitstreamError(f"{what}: attribute_level {h.attribute_level} where level 0 is expected", condition="E45")
     if step_flags is not None:
         check_flag_header(h, what)
+    assert h.num_rows_minus1 is not None  # parsed
     if h.num_rows_minus1 + 1 != n:  # clause 8.3 rule 8
         raise BitstreamError(f"{what}: num_rows_minus1 + 1 = {h.num_rows_minus1 + 1}, but the tile has {n} rows", condition="E59")
     if h.context_model_id != CONTEXT_PER_CHANNEL_PRIOR:
@@ -413,6 +424,7 @@ def read_predicted_attribute_unit(payload: bytes, layout, steps: np.ndarray, coo
         rows = graph.rows[level][lo:hi]
         row_adjust = None
         if adjust is not None:
+            assert step_adjust is not None  # adjust exists with the step_adjust unit (above)
             nd = None if step_flags is None else neighbour_degrees(chunk_neighbours(graph, level, lo, hi), adjust)
             a = decode_adjust_chunk(next(pieces), h, step_adjust, hi - lo, i, step_flags, nd)
             adjust[rows] = a
@@ -422,9 +434,12 @@ def read_predicted_attribute_unit(payload: bytes, layout, steps: np.ndarray, coo
         else:
             if lo == 0:
                 params = _lod_params(level, q_all, graph, prior, table, mean_flags(unit), unit.num_buckets)
+            assert params is not None  # a LoD's first chunk starts at row 0 (chunk_segments)
             p = params.rows(lo, hi, layout.num_channels)
-        coded = None if degrees is None else \
-            _decode_chunk_degrees(next(pieces), graph, level, lo, hi, degrees, sh_degree, layout, i)
+        coded = None
+        if degrees is not None:
+            assert sh_degree is not None  # degrees exist with the sh_degree unit (above)
+            coded = _decode_chunk_degrees(next(pieces), graph, level, lo, hi, degrees, sh_degree, layout, i)
         q = decode_chunk_values(next(pieces), h, layout, p, prediction, None, hi - lo, i, LEVEL_ALL, coded)
         q_all[rows] = q
         target = np.empty((hi - lo, layout.num_channels), np.float32)
