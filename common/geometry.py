@@ -579,8 +579,8 @@ def _decode_octree(io: _SymbolIO, bit_depth: list[int], mode: int, n: int) -> np
         occ, nbr_count = _code_occupancy(io, st, q, depth, remaining, bit_depth, None, nodes.nb)
         num_children = int(POPCOUNT8[occ].sum())
         if num_direct + num_children > n:
-            raise BitstreamError(f"geometry data: {num_direct + num_children} anchors at depth {depth + 1}, "
-                                 f"more than num_anchors = {n}", condition="E31")
+            raise BitstreamError(f"geometry data: {num_direct + num_children} points at depth {depth + 1}, "
+                                 f"more than N = {n}", condition="E31")
         q, parent = _children(q, occ)
         nodes = nodes.children(occ, nbr_count, parent)
     return np.concatenate(direct_pts + [q]) if (dmax == 0 or q.shape[0]) else np.concatenate(direct_pts)
@@ -596,7 +596,7 @@ def _decode_direct_nodes(io: _SymbolIO, st: _ContextState, q: np.ndarray, elig: 
     two = io.binary(np.zeros(direct.size, dtype=np.int64), st.idcm_two)
     owner = np.sort(np.concatenate([direct, direct[two == 1]]))
     if num_direct + owner.size + (q.shape[0] - direct.size) > n:
-        raise BitstreamError(f"geometry data: more than num_anchors = {n} anchors at depth {depth}", condition="E29")
+        raise BitstreamError(f"geometry data: more than N = {n} points at depth {depth}", condition="E29")
     low = np.stack([io.raw(min(remaining, bit_depth[a]), count=owner.size) for a in range(3)], axis=1)
     p = (q[owner] << remaining) | low
     if owner.size > 1:
@@ -612,10 +612,10 @@ def _decode_direct_nodes(io: _SymbolIO, st: _ContextState, q: np.ndarray, elig: 
 def _output_points(pts: np.ndarray, header: GeometryHeader, n: int) -> np.ndarray:
     """G.5.5: exactly N points attaining the bounding-box minimum, as coordinates in normative order."""
     if pts.shape[0] != n:
-        raise BitstreamError(f"geometry data holds {pts.shape[0]} anchors, num_anchors = {n}", condition="E32")
+        raise BitstreamError(f"geometry data holds {pts.shape[0]} points, N = {n}", condition="E32")
     bmin = np.array(header.bbox_min, dtype=np.int64)
     if np.any(pts.min(axis=0) != 0):
-        raise BitstreamError("geometry data: the decoded anchors do not attain the bounding-box minimum", condition="E33")
+        raise BitstreamError("geometry data: the decoded points do not attain the bounding-box minimum", condition="E33")
     coords = pts + bmin
     if int(coords.max()) > COORD_MAX:
         raise BitstreamError("geometry data: decoded coordinates exceed 2^31 - 1", condition="E34")
