@@ -326,10 +326,11 @@ def _code_occupancy(io: _SymbolIO, st: _ContextState, q: np.ndarray, depth: int,
     splits = [remaining - 1 < d for d in bit_depth]  # axis a splits at this depth
     valid = [k for k in range(8) if all(splits[a] or not (k & AXIS_BIT[a]) for a in range(3))]
     last = valid[-1]
-    padded = np.append(occ, 0)  # index -1 (no neighbour) reads an empty node; decoding refreshes it per child
+    # index -1 (no neighbour) reads an empty node: occ with a 0 appended, once when encoding (occ is known
+    # whole), per child when decoding (the children decoded so far)
+    padded_whole = None if occ_true is None else np.append(occ, 0)
     for k in valid:
-        if occ_true is None:
-            padded = np.append(occ, 0)  # index -1 (no neighbour) reads an empty node
+        padded = padded_whole if padded_whole is not None else np.append(occ, 0)
         axes = np.zeros(m, dtype=np.int64)
         for a in range(3):
             bit = AXIS_BIT[a]

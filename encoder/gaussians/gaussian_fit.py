@@ -99,6 +99,13 @@ def _bits(x_steps: torch.Tensor, mu: torch.Tensor, sigma: torch.Tensor) -> torch
     return -torch.log2(p.clamp_min(2.0 ** -24)).sum()
 
 
+def _rest_band_steps(num_coefficients: int, cfg: GaussianEncoderConfig) -> np.ndarray:
+    """float64 [num_coefficients - 1]: the step of each SH-rest coefficient, its band's (band b holds
+    coefficients b^2 .. (b + 1)^2 - 1)."""
+    band = np.floor(np.sqrt(np.arange(1, num_coefficients))).astype(int)
+    return np.asarray(cfg.sh_band_steps, np.float64)[band - 1]
+
+
 class _Fit:
     """The fitted parameters and their quantized values as the encoder will code them."""
 
@@ -116,8 +123,7 @@ class _Fit:
         self.opacity = t(np.clip(scene.opacity, -OPACITY_LOGIT_LIMIT, OPACITY_LOGIT_LIMIT)).requires_grad_(True)
         self.log_scales = t(scene.log_scales).requires_grad_(True)
         self.rotations = t(canonical_rotations(scene.rotations)).requires_grad_(True)
-        band = np.floor(np.sqrt(np.arange(1, self.sh_dc.shape[1] + self.sh_rest.shape[1]))).astype(int)
-        self.rest_steps = torch.tensor([cfg.sh_band_steps[b - 1] for b in band], dtype=torch.float32)[None, :, None]
+        self.rest_steps = torch.tensor(_rest_band_steps(scene.sh.shape[1], cfg), dtype=torch.float32)[None, :, None]
         # With the SH transform (format 1.6) the coded SH rest is the coefficients t of u = B t (u the values in
         # band steps): the fit rounds and prices t, as the stream will (sh_transform_basis)
         self.basis = None if sh_basis is None else (torch.from_numpy(sh_basis.astype(np.float32)),
@@ -367,8 +373,7 @@ def sh_transform_basis(scene: GaussianScene, cfg: GaussianEncoderConfig) -> np.n
     where the coding will not use one."""
     if not cfg.sh_transform or scene.sh_degree == 0:
         return None
-    band = np.floor(np.sqrt(np.arange(1, scene.sh.shape[1]))).astype(int)
-    band_steps = np.repeat(np.asarray(cfg.sh_band_steps, np.float64)[band - 1], 3)
+    band_steps = np.repeat(_rest_band_steps(scene.sh.shape[1], cfg), 3)  # per value: coefficient-major, colour-minor
     u = scene.sh[:, 1:].reshape(scene.num_gaussians, -1).astype(np.float64) / band_steps
     transform = sht.chosen_transform(u, cfg.sh_transform, scene.sh_degree)
     return None if transform is None else sht.value_matrix(transform)
