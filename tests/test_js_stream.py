@@ -462,3 +462,34 @@ def test_conformance_partial_decodes_streamed():
             assert bytes.fromhex(g[k]) == ref[k].tobytes(), (case.id, entry["box"], k)
         if "tiles" in entry and len(entry["tiles"]) < len(parse_stream(data).tiles):
             assert g["bytesFetched"] < len(data), (case.id, entry["box"])
+
+
+BATCHER_JS = """
+import { TileBatcher } from %(stream)s;
+const batches = [], delays = [];
+const b = new TileBatcher((tiles) => { batches.push(tiles.slice()); delays.push(b.delay); }, { delay: 40, maxDelay: 200 });
+b.push(0);                                                   // the first tile: handed on at once (timer 0)
+await new Promise((r) => setTimeout(r, 20));
+b.push(1); b.push(2);                                        // queued behind a 40 ms timer
+const queued = batches.length;
+b.flush();                                                   // the stream's end: what is queued now
+b.flush();                                                   // nothing queued: no batch
+for (let t = 3; t < 7; t++) { b.push(t); b.flush(); }        // the delay doubles up to maxDelay
+let error = null;
+try { new TileBatcher(() => {}, { delay: 0 }); } catch (e) { error = e.name; }
+console.log(JSON.stringify({ batches, delays, queued, error }));
+""" % {"stream": json.dumps(str(PKG / "stream.mjs"))}
+
+
+def test_tile_batcher_hands_on_the_first_tile_at_once_then_growing_batches(tmp_path):
+    """The loaders' shared batcher (lghcc-decoder's TileBatcher): the first tile alone at once, later
+    tiles queued behind a timer whose delay doubles from `delay` up to `maxDelay`, every tile handed on
+    exactly once and in order, flush() with nothing queued a no-op, a zero delay refused."""
+    (tmp_path / "batcher.mjs").write_text(BATCHER_JS)
+    res = subprocess.run([NODE, str(tmp_path / "batcher.mjs")], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stderr
+    out = json.loads(res.stdout)
+    assert out["batches"] == [[0], [1, 2], [3], [4], [5], [6]]
+    assert out["queued"] == 1                       # tiles 1 and 2 waited for their timer
+    assert out["delays"] == [40, 80, 160, 200, 200, 200]
+    assert out["error"] == "TypeError"

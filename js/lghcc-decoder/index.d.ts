@@ -154,6 +154,17 @@ export function stream(url: string | URL, options?: LghccStreamOptions): Promise
 /** A frustum's six planes from a column-major 4x4 view-projection matrix (WebGL clip space): the planes stream()'s frustum takes. */
 export function frustumPlanes(matrix: ArrayLike<number>): LghccPlane[];
 
+/**
+ * Tiles handed on in batches that grow (for a loader making one engine object per batch): push() each
+ * tile of stream()'s onTile; the first goes to onBatch at once, the next batches delay, 2 delay, 4 delay ...
+ * (at most maxDelay) ms apart; flush() hands on what is queued now.
+ */
+export class TileBatcher {
+    constructor(onBatch: (tiles: LghccTile[]) => void, options?: { delay?: number; maxDelay?: number });
+    push(tile: LghccTile): void;
+    flush(): void;
+}
+
 /** Default maxMemory: 2^31 bytes. */
 export const DEFAULT_MAX_MEMORY: number;
 /** The zeroth-order SH basis constant (colour = 0.5 + SH_C0 * DC). */

@@ -2,7 +2,7 @@
 // Workers as its helpers. index_node.mjs is the same API with Node's worker threads.
 import { decodeWith, SH_C0 } from './decode.mjs';
 import { streamWith } from './stream.mjs';
-export { frustumPlanes } from './stream.mjs';
+export { frustumPlanes, TileBatcher } from './stream.mjs';
 import * as threads from './threads_browser.mjs';
 
 export { BitstreamError, HashMismatchError, LghccError, ResourceLimitError, UnsupportedStreamError } from './errors.mjs';

@@ -2,7 +2,7 @@
 // as its helpers. index.mjs is the same API with module Web Workers.
 import { decodeWith, SH_C0 } from './decode.mjs';
 import { streamWith } from './stream.mjs';
-export { frustumPlanes } from './stream.mjs';
+export { frustumPlanes, TileBatcher } from './stream.mjs';
 import * as threads from './threads_node.mjs';
 import './sha256_node.mjs'; // node:crypto's hash for the tiles' checks
 

@@ -132,6 +132,39 @@ export function frustumPlanes(m) {
     return planes;
 }
 
+/**
+ * Tiles handed on in batches that grow, for a loader that makes one engine object per batch (each
+ * costs the engine a sort or a regeneration): push() each tile stream() hands to onTile; the first
+ * tile goes to onBatch(tiles) at once, the next batches `delay`, 2 `delay`, 4 `delay` ... (at most
+ * `maxDelay`) milliseconds apart; flush() hands on what is queued now (at the stream's end).
+ */
+export class TileBatcher {
+    constructor(onBatch, { delay = 250, maxDelay = 8000 } = {}) {
+        if (typeof onBatch !== 'function') throw new TypeError('TileBatcher: onBatch must be a function');
+        if (!(delay > 0 && maxDelay >= delay)) throw new TypeError('TileBatcher: needs 0 < delay <= maxDelay');
+        this.onBatch = onBatch;
+        this.minDelay = delay;
+        this.maxDelay = maxDelay;
+        this.pending = [];
+        this.timer = null;
+        this.delay = 0; // the first batch at once
+    }
+
+    push(tile) {
+        this.pending.push(tile);
+        if (this.timer === null) this.timer = setTimeout(() => this.flush(), this.delay);
+    }
+
+    flush() {
+        if (this.timer !== null) clearTimeout(this.timer);
+        this.timer = null;
+        const tiles = this.pending.splice(0);
+        if (!tiles.length) return;
+        this.delay = Math.min(this.maxDelay, Math.max(this.minDelay, 2 * this.delay));
+        this.onBatch(tiles);
+    }
+}
+
 /** Tile t's cell in world coordinates, [x0, y0, z0, x1, y1, z1] (clause 13.3's lo and hi); null for an untiled stream's one tile. */
 export function cellBox(ctx, t) {
     const cell = ctx.tiles[t].cell, ps = ctx.ps;

@@ -2,7 +2,7 @@
 // stream(): HTTP Range requests, the tiles nearest the camera first), a gsplat child entity per batch
 // of decoded tiles (the first at once), so that the engine draws before the last byte has arrived.
 import { Entity, EventHandler, GSplatResource, Mat4, Vec3, http } from 'playcanvas';
-import { frustumPlanes, stream } from 'lghcc-decoder';
+import { TileBatcher, frustumPlanes, stream } from 'lghcc-decoder';
 import { gsplatData } from './gsplat-data.mjs';
 
 /**
@@ -22,9 +22,6 @@ import { gsplatData } from './gsplat-data.mjs';
  * Events (stream.on): 'tiles' (tile numbers, count, entity) per gsplat entity added (a batch of
  * tiles: the first tile alone, at once), 'progress' (pointsDecoded, pointsTotal), 'loaded' (result), 'error' (err).
  */
-const BATCH_MS = 250;
-const MAX_BATCH_MS = 8000;
-
 export class LghccStream extends EventHandler {
     constructor(app, url, options = {}) {
         super();
@@ -34,9 +31,9 @@ export class LghccStream extends EventHandler {
         this.url = url;
         this.entity = new Entity('lghcc');
         this.count = 0; // Gaussians drawn so far
-        this.pending = []; // tiles decoded, not yet added
-        this.timer = null;
-        this.delay = 0; // the first tile is added at once, the next batches BATCH_MS, 2 BATCH_MS, ... later
+        // a gsplat entity per batch of tiles, each with its own resource and sort: the first tile at
+        // once, then batches 250 ms, 500 ms, 1 s ... (at most 8 s) apart (few entities and sorts, the near tiles early)
+        this.batcher = new TileBatcher((tiles) => this._add(tiles));
         this.unified = unified;
         this.reorder = reorder;
         this.abortController = new AbortController();
@@ -51,10 +48,10 @@ export class LghccStream extends EventHandler {
             signal: this.abortController.signal,
             camera: camera || onIndex ? atIndex : null,
             frustum: cull ? () => this._frustum(camera) : null,
-            onTile: (tile) => this._queue(tile),
+            onTile: (tile) => this.batcher.push(tile),
             onProgress: (p) => this.fire('progress', p.pointsDecoded, p.pointsTotal),
         }).then((scene) => {
-            this._flush(); // the tiles still queued added now
+            this.batcher.flush(); // the tiles still queued added now
             const result = { count: scene.count, tiles: scene.tiles, bounds: scene.bounds, ranged: scene.ranged, requests: scene.requests, bytesFetched: scene.bytesFetched, bytesTotal: scene.bytesTotal };
             this.fire('loaded', result);
             return result;
@@ -69,20 +66,7 @@ export class LghccStream extends EventHandler {
         this.abortController.abort(reason);
     }
 
-    // the tiles are added in batches, each a gsplat entity with its own resource and sort: the first
-    // tile at once, then at BATCH_MS, 2 BATCH_MS, 4 BATCH_MS ... (at most MAX_BATCH_MS) apart (few
-    // entities and sorts, the near tiles early)
-    _queue(tile) {
-        this.pending.push(tile);
-        if (this.timer === null) this.timer = setTimeout(() => this._flush(), this.delay);
-    }
-
-    _flush() {
-        if (this.timer !== null) clearTimeout(this.timer);
-        this.timer = null;
-        const tiles = this.pending.splice(0);
-        if (!tiles.length) return;
-        this.delay = Math.min(MAX_BATCH_MS, Math.max(BATCH_MS, 2 * this.delay));
+    _add(tiles) {
         const data = gsplatData(tiles);
         if (this.reorder) data.reorderData();
         const prepareCenters = this.app.scene?.gsplatCentersEnabled !== false;

@@ -4,7 +4,7 @@
 // LghccStream is a Group that streams a file by tiles (HTTP Range requests), a SplatMesh per tile.
 import { Group, Loader, Matrix4, Vector3 } from 'three';
 import { PackedSplats, SplatMesh, defines, utils } from '@sparkjsdev/spark';
-import { decode, frustumPlanes, stream } from 'lghcc-decoder';
+import { TileBatcher, decode, frustumPlanes, stream } from 'lghcc-decoder';
 
 // coefficients per colour channel of SH bands 1, 2, 3, and the uint32 words Spark packs each band in
 const BAND_COEFFS = [3, 5, 7];
@@ -132,9 +132,10 @@ export class LghccStream extends Group {
         if (cull && !camera) throw new TypeError('LghccStream: cull needs a camera');
         this.url = url;
         this.count = 0; // Gaussians drawn so far
-        this.pending = []; // tiles decoded, not yet drawn
-        this.timer = null;
-        this.delay = 0; // the first tile is drawn at once, the next batches BATCH_MS, 2 BATCH_MS, ... later
+        // a SplatMesh per batch of tiles: Spark generates every splat of the scene again when a mesh is
+        // added (with a software renderer that costs as much as the first draw, and slows the transfer it
+        // competes with), so the batches grow: the first tile at once, then 250 ms, 500 ms, 1 s ... (at most 8 s) apart
+        this.batcher = new TileBatcher((tiles) => this._add(tiles));
         this.abortController = new AbortController();
         if (signal) signal.addEventListener('abort', () => this.abortController.abort(signal.reason), { once: true });
         const atIndex = (index) => {
@@ -145,10 +146,10 @@ export class LghccStream extends Group {
             ...withoutUndefined(rest), activated: true, signal: this.abortController.signal,
             camera: camera || onIndex ? atIndex : null,
             frustum: cull ? () => this._frustum(camera) : null,
-            onTile: (tile) => this._queue(tile),
+            onTile: (tile) => this.batcher.push(tile),
             onProgress: onProgress ? (p) => onProgress(progressEvent(p)) : null,
         }).then((scene) => {
-            this._flush(); // the tiles still queued drawn now
+            this.batcher.flush(); // the tiles still queued drawn now
             const result = { count: scene.count, tiles: scene.tiles, bounds: scene.bounds, ranged: scene.ranged, requests: scene.requests, bytesFetched: scene.bytesFetched, bytesTotal: scene.bytesTotal };
             this.dispatchEvent({ type: 'loaded', result });
             return result;
@@ -163,21 +164,7 @@ export class LghccStream extends Group {
         this.abortController.abort(reason);
     }
 
-    // the tiles are drawn in batches, each a SplatMesh: Spark generates every splat of the scene again
-    // when a mesh is added (with a software renderer that costs as much as the first draw, and slows the
-    // transfer it competes with), so the batches grow: the first tile at once, then at BATCH_MS,
-    // 2 BATCH_MS, 4 BATCH_MS ... (at most MAX_BATCH_MS) apart
-    _queue(tile) {
-        this.pending.push(tile);
-        if (this.timer === null) this.timer = setTimeout(() => this._flush(), this.delay);
-    }
-
-    _flush() {
-        if (this.timer !== null) clearTimeout(this.timer);
-        this.timer = null;
-        const tiles = this.pending.splice(0);
-        if (!tiles.length) return;
-        this.delay = Math.min(MAX_BATCH_MS, Math.max(BATCH_MS, 2 * this.delay));
+    _add(tiles) {
         const mesh = new SplatMesh({ packedSplats: packedSplats(joined(tiles)) });
         this.add(mesh);
         const count = tiles.reduce((n, t) => n + t.count, 0);
@@ -201,9 +188,6 @@ export class LghccStream extends Group {
         return frustumPlanes(m.elements);
     }
 }
-
-const BATCH_MS = 250;
-const MAX_BATCH_MS = 8000;
 
 // the tiles' Gaussians as one scene (packedSplats() takes it)
 function joined(tiles) {
