@@ -361,3 +361,35 @@ def test_bench_scale_resume_keeps_measured_rows_and_says_when(tmp_path):
     assert bs.resumed_rows(tmp_path / "absent.json", "") == {}
     line = bs.measured_when([good, failed])[0]
     assert "medium 1M 2026-11-29 08:00 UTC, load 0.10 0.20 0.30" in line and "3M" not in line
+
+
+def test_bench_scale_sh3_scenes_and_issue_53_targets(tmp_path, shared_data):
+    """--scene objects-sh3: the objects scene of the size asked at SH degree 3 (real bands 1-2 of
+    playbot lod3, band 3 modelled), its own file; and issue 53's targets per row (encoder peak
+    1 GiB + 1 KB per Gaussian, fast 20 us and medium 0.2 ms per Gaussian, decoder 300 MiB + 400 B
+    per Gaussian, 6M decoded in 60 s with 2 workers), each met or missed by how much."""
+    bs = _bench_scale()
+    import scale_scenes
+
+    sources = scale_scenes.load_sources(shared_data)
+    playbot = scale_scenes.read_source(shared_data, "playbot-lod3")
+    path, text, scene = bs.scene_file(2000, "objects-sh3", sources, tmp_path, playbot)
+    flat_path, _, flat = bs.scene_file(2000, "objects", sources, tmp_path)
+    assert path.name == "scale-sh3-2k.ply" and flat_path.name == "scale-2k.ply" and "SH degree 3" in text
+    assert scene.sh_degree == 3 and flat.sh_degree == 0 and scene.num_gaussians == 2000
+    assert np.array_equal(scene.means, flat.means) and np.array_equal(scene.sh[:, 0], flat.sh[:, 0])
+    assert np.abs(scene.sh[:, 9:]).mean() > 0.1 * np.abs(scene.sh[:, 1:9]).mean() > 0  # band 3 not zeros
+
+    def row(n, preset, wall, peak_mib, dec_peak_mib, dec2):
+        m = {"rc": 0, "wall_s": wall, "peak_rss": int(peak_mib * 2 ** 20), "tree_peak": 0}
+        d = dict(m, peak_rss=int(dec_peak_mib * 2 ** 20))
+        return bs.ScaleRow(n, preset, 1000, 40.0, m, {}, {"1": d, "2": dict(d, wall_s=dec2)})
+    text = "\n".join(bs.targets_sh3([row(10 ** 6, "fast", 40.0, 1500, 600, 10.0),
+                                     row(6 * 10 ** 6, "medium", 1800.0, 8000, 3000, 50.0)]))
+    assert "fast 1M: encoder peak RSS <= 1 GiB + 1 KB per Gaussian: met: 1,500.0 MiB (target 2,000.6)" in text
+    assert "fast 1M: <= 20 us per Gaussian: MISSED by 100%: 40.0 us" in text
+    assert "medium 6M: <= 200 us per Gaussian: met: 300.0 us" not in text and "medium 6M: <= 200 us per Gaussian: MISSED by 50%" in text
+    assert "medium 6M: encoder peak RSS <= 1 GiB + 1 KB per Gaussian: MISSED" in text
+    assert "fast 1M: decoder peak RSS <= 300 MiB + 400 B per Gaussian (largest of 1 and 2 workers): met" in text
+    assert "medium 6M: decoded in <= 60 s with 2 workers: met: 50.0 s" in text
+    assert "fast 1M: decoded in" not in text

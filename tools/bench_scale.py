@@ -22,6 +22,11 @@ largest sum of the proportional set sizes (PSS: pages shared after fork counted 
 process and its descendants, sampled every 0.2 s (or 20x a sample's own time, when reading
 PSS of a process of several GiB takes longer: the sampler keeps to about 5% of a core).
 
+``--scene objects-sh3``: the same scenes at SH degree 3, the 59 values per Gaussian of real
+captures (tools/scale_scenes.py with_sh3_content: bands 1-2 playbot lod3's, band 3 modelled from
+them), into tools/results/scale_sh3.md with issue 53's targets (encoder and decoder memory per
+Gaussian, `fast` and `medium` time per Gaussian, 6M decoded in 60 s).
+
 ``--scene room``: the same for rooms watched from inside (formats/procedural.py make_room_scene of
 each size, tools/make_room.py's room), PSNR and bytes / SPZ on 18 views from where a person stands
 in it (room_inside_cameras, seed 7: views none of the encoder's stages used; its own views it places
@@ -34,6 +39,8 @@ coding alone.
     python tools/bench_scale.py --sizes 100k,300k --presets plain,low     # minutes
     python tools/bench_scale.py                                           # 100k-3M x low, medium: hours
     python tools/bench_scale.py --scene room --sizes 100k,300k            # rooms from inside
+    python tools/bench_scale.py --scene objects-sh3 --sizes 1M,3M,6M --presets fast,low,medium
+                                                                          # issue 53's SH-3 rows: a day
 
 Results: --out (default tools/results/scale.md) and a PNG of time per Gaussian against N beside
 it (matplotlib, `pip install -e .[tools]`; skipped with a message without it). Exit status: 0
@@ -64,8 +71,9 @@ from benchutil import command_line, load_average, write_lines  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_SIZES = "100k,300k,1M,3M"
-UP = {"objects": "-y", "room": "z"}  # the copies stand along -y (tools/scale_scenes.py); the room's floor is z = 0
-OUT = {"objects": "scale.md", "room": "scale_inside.md"}
+UP = {"objects": "-y", "objects-sh3": "-y", "room": "z"}  # the copies stand along -y (tools/scale_scenes.py); the room's floor is z = 0
+OUT = {"objects": "scale.md", "objects-sh3": "scale_sh3.md", "room": "scale_inside.md"}
+SLUG = {"objects": "scale", "objects-sh3": "scale-sh3", "room": "room"}
 ROOM_EVAL_SEED = 7  # the room's evaluation cameras (tools/results/views.md (b)): not the encoder's
 PLAIN_YAML = "prune_share: 0\nfit_iterations: 0\n"
 STAGES = ("prepare", "geometry", "quantization", "attributes", "tiles and hash")
@@ -224,7 +232,7 @@ def spz_envelope(run, keeps: list[int]) -> tuple[list, int | None]:
     full = run.format_row("spz")
     points = [] if full is None else [(full.bytes, full.psnr)]
     for k in keeps:
-        r = run.curve_point(f"spz-sh0-decimate-adaptive-{k}", 0, "decimate-adaptive", k)
+        r = run.curve_point(f"spz-sh{run.deg}-decimate-adaptive-{k}", run.deg, "decimate-adaptive", k)
         if r is not None:
             points.append((r.bytes, r.psnr))
     return br.envelope(points), None if full is None else full.bytes
@@ -232,9 +240,9 @@ def spz_envelope(run, keeps: list[int]) -> tuple[list, int | None]:
 
 # --- the scenes ------------------------------------------------------------------------------
 
-def scene_file(n: int, kind: str, sources: list, work: Path) -> tuple[Path, str, object]:
+def scene_file(n: int, kind: str, sources: list, work: Path, playbot=None) -> tuple[Path, str, object]:
     """The PLY of the scene of ``n`` Gaussians of ``kind`` (written once into ``work``), how it is
-    built, the scene."""
+    built, the scene. ``playbot``: playbot lod3 as read (SH 2), the SH content of objects-sh3."""
     from lghcc.formats.ply3dgs import write_3dgs_ply
 
     if kind == "room":
@@ -244,7 +252,10 @@ def scene_file(n: int, kind: str, sources: list, work: Path) -> tuple[Path, str,
         path = work / f"room-{label(n)}.ply"
     else:
         scene, pieces = scale_scenes.build_scene(n, sources)
-        text, path = scale_scenes.describe(pieces), work / f"scale-{label(n)}.ply"
+        text, path = scale_scenes.describe(pieces), work / f"{SLUG[kind]}-{label(n)}.ply"
+        if kind == "objects-sh3":
+            scene = scale_scenes.with_sh3_content(scene, playbot)
+            text += "; SH degree 3 (bands 1-2 playbot lod3's, band 3 modelled from them: scale_scenes.with_sh3_content)"
     if not path.exists():
         write_3dgs_ply(path, scene)
     return path, text, scene
@@ -278,7 +289,7 @@ def scene_run(path: Path, n: int, args, st, why):
     ns = argparse.Namespace(views=args.views, size=args.size, elevation=20.0, background="black",
                             importance_views=24, importance_size=256, work=str(args.work), fresh=False,
                             enc_args=[], dec_args=[], cameras=cameras, importance_cameras=None)
-    slug = f"scale-{label(n)}" if args.scene == "objects" else f"room-{label(n)}"
+    slug = f"{SLUG[args.scene]}-{label(n)}"
     return br.SceneRun(br.SceneSpec(slug, path, UP[args.scene], "given"), ns, st, why)
 
 
@@ -383,6 +394,28 @@ def targets(rows: list[ScaleRow]) -> list[str]:
     return out
 
 
+def targets_sh3(rows: list[ScaleRow]) -> list[str]:
+    """Issue 53's targets at SH degree 3 that these rows measure, each met or missed by how much."""
+    mib = 2 ** 20
+    out = ["Targets (issue 53, SH degree 3; 2 cores):", ""]
+    for r in (r for r in rows if not r.note):
+        enc_limit = (2 ** 30 + 1024 * r.n) / mib
+        out.append(f"- {r.preset} {label(r.n)}: encoder peak RSS <= 1 GiB + 1 KB per Gaussian: "
+                   + _verdict(r.encode["peak_rss"] / mib, enc_limit, "MiB"))
+        per = {"fast": 20.0, "medium": 200.0}.get(r.preset)
+        if per is not None:
+            out.append(f"- {r.preset} {label(r.n)}: <= {per:g} us per Gaussian: "
+                       + _verdict(1e6 * r.encode["wall_s"] / r.n, per, "us"))
+        dec_limit = (300 * mib + 400 * r.n) / mib
+        peaks = [r.decode[j]["peak_rss"] / mib for j in ("1", "2") if j in r.decode]
+        out.append(f"- {r.preset} {label(r.n)}: decoder peak RSS <= 300 MiB + 400 B per Gaussian (largest of 1 and 2 "
+                   "workers): " + _verdict(max(peaks) if peaks else None, dec_limit, "MiB"))
+        if abs(r.n - 6 * 10 ** 6) <= 6 * 10 ** 5 and "2" in r.decode:
+            out.append(f"- {r.preset} {label(r.n)}: decoded in <= 60 s with 2 workers: "
+                       + _verdict(r.decode["2"]["wall_s"], 60, "s"))
+    return out
+
+
 def measured_when(rows: list[ScaleRow]) -> list[str]:
     """When each row was measured and at what load (a --resume table holds rows of several runs)."""
     out = [f"{r.preset} {label(r.n)} {r.measured_at}" for r in rows if r.measured_at]
@@ -399,6 +432,9 @@ def report(rows: list[ScaleRow], built: dict[int, str], args, argv, plot_line: s
              f"{load_average()} at the end (a shared machine: timings are noisy).", "",
              "Scenes (formats/procedural.py make_room_scene: a closed 6 x 5 x 3 room with furniture, SH degree 0, "
              "watched from inside; lghcc-enc decides where to look from itself):" if room else
+             "Scenes (tools/scale_scenes.py: each source scaled to a unit box and cut to SH degree 0, then "
+             "at SH degree 3 as its with_sh3_content says, the "
+             if args.scene == "objects-sh3" else
              "Scenes (tools/scale_scenes.py: each source scaled to a unit box and cut to SH degree 0, the "
              f"copies on a grid of {scale_scenes.CELL:g}-unit cells in the x-z plane, none overlapping; the "
              "last copy a slab of its lowest-x Gaussians):", ""]
@@ -413,7 +449,8 @@ def report(rows: list[ScaleRow], built: dict[int, str], args, argv, plot_line: s
               "process (GNU time's %M; with workers, the largest process), tree peak: the largest sum of PSS over the process and "
               "its workers, sampled every 0.2 s or 20x a sample's own time (it can miss a short peak). us / Gaussian, stages only: the "
               "encoder's stages without the start and the PLY read.",
-              "", *table(rows, args.jobs), "", *measured_when(rows), plot_line, "", *targets(rows), "",
+              "", *table(rows, args.jobs), "", *measured_when(rows), plot_line, "",
+              *(targets_sh3(rows) if args.scene == "objects-sh3" else targets(rows)), "",
               "What runs in parallel: the tiles (geometry, attributes and hash of each; --jobs, --ray). The "
               "whole-scene stages run in one process before them: the render-based preparation (contributions, "
               "sensitivities, the settings search, the fit), the grid and normative order, the rate-distortion "
@@ -455,7 +492,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data-root", type=Path, default=None, help="the shared scenes (default ../shared/data)")
     ap.add_argument("--work", type=Path, default=ROOT / ".bench_scale", help="scenes, streams, renders (ignored)")
     ap.add_argument("--scene", default="objects", choices=tuple(UP),
-                    help="objects: copies of the shared scenes, from an orbit (default); room: rooms of each size, "
+                    help="objects: copies of the shared scenes, from an orbit (default); objects-sh3: the same "
+                         "scenes at SH degree 3 (issue 53: real captures' 59 values per Gaussian); room: rooms of each size, "
                          "from inside")
     ap.add_argument("--out", type=Path, default=None,
                     help="the report (default tools/results/scale.md, scale_inside.md for --scene room)")
@@ -475,7 +513,7 @@ def main(argv: list[str] | None = None) -> int:
     args.enc_args = shlex.split(args.enc_args)
     presets = [p for p in args.presets.split(",") if p.strip()]
     data_root = args.data_root or br.default_data_root()
-    objects = args.scene == "objects"  # the rooms are made from nothing
+    objects = args.scene != "room"  # the rooms are made from nothing
     missing = [rel for _, rel in scale_scenes.SOURCES if objects and not (data_root / rel).is_file()]
     if missing:
         print(f"bench_scale: error: missing under {data_root}: {', '.join(missing)} (--data-root)", file=sys.stderr)
@@ -489,12 +527,13 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(2)
     args.work.mkdir(parents=True, exist_ok=True)
     sources = scale_scenes.load_sources(data_root) if objects else []
+    playbot = scale_scenes.read_source(data_root, "playbot-lod3") if args.scene == "objects-sh3" else None
     enc, dec = br.lghcc_commands()
     rows, built, runs = [], {}, {}
     rows_json = args.work / ("rows.json" if args.scene == "objects" else f"rows-{args.scene}.json")
     kept = resumed_rows(rows_json, measured_options(args)) if args.resume else {}
     for n in sizes:  # the scenes, their renders and SPZ rows first (cached in --work)
-        path, built[n], scene = scene_file(n, args.scene, sources, args.work)
+        path, built[n], scene = scene_file(n, args.scene, sources, args.work, playbot)
         run = scene_run(path, n, args, st, why)
         runs[n] = (run, *(spz_envelope(run, keeps) if st else ([], None)), scene)
     for preset in presets:  # every size of a preset before the next, slower preset

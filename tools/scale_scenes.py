@@ -57,9 +57,14 @@ def normalized(scene):
 
 
 def load_sources(data_root: Path) -> list:
+    return [(name, normalized(read_source(data_root, name))) for name, _ in SOURCES]
+
+
+def read_source(data_root: Path, name: str):
+    """The source ``name`` of SOURCES as read, at its own SH degree (with_sh3_content takes playbot so)."""
     from lghcc.formats.ply3dgs import read_3dgs_ply
 
-    return [(name, normalized(read_3dgs_ply(Path(data_root) / rel))) for name, rel in SOURCES]
+    return read_3dgs_ply(Path(data_root) / dict(SOURCES)[name])
 
 
 def plan(n: int, sizes: list[int]) -> list[tuple[int, int]]:
