@@ -426,18 +426,17 @@ def report(rows: list[ScaleRow], built: dict[int, str], args, argv, plot_line: s
     import torch
 
     room = args.scene == "room"
-    lines = [f"# Scale{' from inside' if room else ''}: time, memory and bytes against the number of Gaussians", "",
+    where = {"room": " from inside", "objects-sh3": " at SH degree 3"}.get(args.scene, "")
+    lines = [f"# Scale{where}: time, memory and bytes against the number of Gaussians", "",
              f"Command: `{command_line('bench_scale.py', argv)}`  ",
              f"Date: {datetime.date.today()}; torch {torch.__version__}; {os.cpu_count()} CPUs; load "
              f"{load_average()} at the end (a shared machine: timings are noisy).", "",
              "Scenes (formats/procedural.py make_room_scene: a closed 6 x 5 x 3 room with furniture, SH degree 0, "
              "watched from inside; lghcc-enc decides where to look from itself):" if room else
-             "Scenes (tools/scale_scenes.py: each source scaled to a unit box and cut to SH degree 0, then "
-             "at SH degree 3 as its with_sh3_content says, the "
-             if args.scene == "objects-sh3" else
              "Scenes (tools/scale_scenes.py: each source scaled to a unit box and cut to SH degree 0, the "
              f"copies on a grid of {scale_scenes.CELL:g}-unit cells in the x-z plane, none overlapping; the "
-             "last copy a slab of its lowest-x Gaussians):", ""]
+             "last copy a slab of its lowest-x Gaussians"
+             + ("; then at SH degree 3 as with_sh3_content says):" if args.scene == "objects-sh3" else "):"), ""]
     views = (f"the 18 views of {args.size} px from where a person stands in the room (room_inside_cameras, seed "
              f"{ROOM_EVAL_SEED}, 90-degree field of view: views no encoder stage used)" if room else
              f"{args.views} orbit views of {args.size} px (tools/bench_real.py's cameras, up {UP['objects']})")
