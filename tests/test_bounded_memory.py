@@ -128,10 +128,22 @@ def test_sh3_content_of_the_memory_scenes_is_playbots_and_deterministic():
     import scale_scenes
 
     scene, playbot = _scene(50, 0, seed=1), _scene(7, 2, seed=2)
-    a, b = scale_scenes.with_sh3_content(scene, playbot), scale_scenes.with_sh3_content(scene, playbot)
-    assert a.sh_degree == 3 and a.sh.tobytes() == b.sh.tobytes()
-    assert np.array_equal(a.sh[:, 0], scene.sh[:, 0]) and np.array_equal(a.sh[9, 1:9], playbot.sh[9 % 7, 1:9])
-    assert np.array_equal(a.sh[4, 9:16], np.float32(0.5) * playbot.sh[(7 * 4 + 3) % 7, 2:9])
+    a, b = scale_scenes.with_sh3_content(scene, playbot), scale_scenes.with_sh3_content(scene, playbot, block=16)
+    assert a.sh_degree == 3 and a.sh.tobytes() == b.sh.tobytes()  # deterministic, and the same by blocks
+    assert np.array_equal(a.sh[:, 0], scene.sh[:, 0])
+    # each Gaussian's bands 1-2 are those of playbot's nearest Gaussian (both in unit boxes, at the
+    # Gaussian's position in its grid cell), band 3 half of the second nearest's coefficients 2-8
+    m = playbot.means.astype(np.float64)
+    unit = (m - (m.min(0) + m.max(0)) / 2) / (m.max(0) - m.min(0)).max()
+    local = scene.means.astype(np.float64)
+    local[:, [0, 2]] -= np.round(local[:, [0, 2]] / scale_scenes.CELL) * scale_scenes.CELL
+    order = np.argsort(((local[:, None] - unit[None]) ** 2).sum(-1), axis=1, kind="stable")
+    assert np.array_equal(a.sh[:, 1:9], playbot.sh[order[:, 0], 1:9])
+    assert np.array_equal(a.sh[:, 9:16], np.float32(0.5) * playbot.sh[order[:, 1], 2:9])
+    # a copy of playbot in a cell gets its own bands back
+    copy = type(scene)((unit + [2 * scale_scenes.CELL, 0, scale_scenes.CELL]).astype(np.float32), playbot.sh[:, :1],
+                       playbot.opacity, playbot.log_scales, playbot.rotations)
+    assert np.array_equal(scale_scenes.with_sh3_content(copy, playbot).sh[:, 1:9], playbot.sh[:, 1:9])
 
 
 @pytest.mark.parametrize("size", [1, 7, 129, 8193, 300_001, 3 * (1 << 18) + 13, 9 * (1 << 18) + 5])

@@ -23,8 +23,8 @@ process and its descendants, sampled every 0.2 s (or 20x a sample's own time, wh
 PSS of a process of several GiB takes longer: the sampler keeps to about 5% of a core).
 
 ``--scene objects-sh3``: the same scenes at SH degree 3, the 59 values per Gaussian of real
-captures (tools/scale_scenes.py with_sh3_content: bands 1-2 playbot lod3's, band 3 modelled from
-them), into tools/results/scale_sh3.md with issue 53's targets (encoder and decoder memory per
+captures (tools/scale_scenes.py with_sh3_content: bands 1-2 playbot lod3's, laid out in space as
+on playbot, band 3 modelled from them), into tools/results/scale_sh3.md with issue 53's targets (encoder and decoder memory per
 Gaussian, `fast` and `medium` time per Gaussian, 6M decoded in 60 s).
 
 ``--scene room``: the same for rooms watched from inside (formats/procedural.py make_room_scene of
@@ -255,7 +255,8 @@ def scene_file(n: int, kind: str, sources: list, work: Path, playbot=None) -> tu
         text, path = scale_scenes.describe(pieces), work / f"{SLUG[kind]}-{label(n)}.ply"
         if kind == "objects-sh3":
             scene = scale_scenes.with_sh3_content(scene, playbot)
-            text += "; SH degree 3 (bands 1-2 playbot lod3's, band 3 modelled from them: scale_scenes.with_sh3_content)"
+            text += ("; SH degree 3 (bands 1-2 of playbot lod3's Gaussian nearest in the unit box, band 3 modelled "
+                     "from the second nearest: scale_scenes.with_sh3_content)")
     if not path.exists():
         write_3dgs_ply(path, scene)
     return path, text, scene

@@ -120,18 +120,30 @@ def describe(pieces: list[Piece]) -> str:
     return text
 
 
-def with_sh3_content(scene, playbot):
-    """``scene`` (any SH degree) at SH degree 3 with real SH content (issue 53's scenes): the DC
-    kept; bands 1 and 2 those of ``playbot`` (playbot lod3, SH 2) Gaussian i mod its size; band 3
-    half of bands 1-2's coefficients 2-8 of playbot's Gaussian (7 i + 3) mod its size (values
-    of the size of real higher bands, not zeros, which code in almost nothing). Deterministic."""
+def with_sh3_content(scene, playbot, block: int = 1 << 20):
+    """``scene`` (a built scene, any SH degree) at SH degree 3 with real SH content laid out in
+    space as in a capture (issue 53's scenes): the DC kept; each Gaussian takes, at its position in
+    its grid cell, bands 1 and 2 of the nearest Gaussian of ``playbot`` (playbot lod3, SH 2, scaled
+    to a unit box as the copies are: a playbot copy gets its own bands back) and band 3 as half of
+    coefficients 2-8 of the second nearest (values of the size of real higher bands, not zeros,
+    which code in almost nothing, and not a function of the Gaussian's own bands, which a
+    transform would code for free). Neighbours thus share colour as in real scenes; SH assigned
+    by index would be noise in space, which no capture is. Deterministic; by blocks of ``block``."""
+    from scipy.spatial import cKDTree
+
     from lghcc.common.scene import GaussianScene
 
-    n, k = scene.num_gaussians, playbot.num_gaussians
+    m = playbot.means.astype(np.float64)
+    lo, hi = m.min(axis=0), m.max(axis=0)
+    tree = cKDTree((m - (lo + hi) / 2) / max(float((hi - lo).max()), 1e-30))
     rest = playbot.with_sh_degree(2).sh[:, 1:9]  # bands 1-2: [k, 8, 3]
-    i = np.arange(n)
+    n = scene.num_gaussians
     sh = np.zeros((n, 16, 3), np.float32)
     sh[:, :1] = scene.sh[:, :1]
-    sh[:, 1:9] = rest[i % k]
-    sh[:, 9:16] = np.float32(0.5) * rest[(7 * i + 3) % k][:, 1:8]
+    for a in range(0, n, block):
+        local = scene.means[a:a + block].astype(np.float64)
+        local[:, [0, 2]] -= np.round(local[:, [0, 2]] / CELL) * CELL  # the position in its cell
+        _, near = tree.query(local, k=2)
+        sh[a:a + block, 1:9] = rest[near[:, 0]]
+        sh[a:a + block, 9:16] = np.float32(0.5) * rest[near[:, 1]][:, 1:8]
     return GaussianScene(scene.means, sh, scene.opacity, scene.log_scales, scene.rotations)
