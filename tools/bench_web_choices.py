@@ -12,7 +12,8 @@ which every other variant's bytes are moved to the base's PSNR ("bytes at equal 
     OMP_WAIT_POLICY=PASSIVE python tools/bench_web_choices.py SCENE --out DIR \\
         --variant base --variant steps:1.15 --variant no_np:neighbour_prediction=false ...
 
-SCENE: a name of tools/bench_real.py (playcanvas-logo, playbot-lod3, donut, playbot-lod4), or any
+SCENE: a name of tools/bench_real.py (playcanvas-logo, playbot-lod3, donut, playbot-lod4), scale-N
+(tools/scale_scenes.py's scene of N Gaussians: scale-1000000 is the pool target's 1M scene), or any
 input lghcc-enc reads (a PLY, SPZ, a streamed SOG lod-meta.json) with ``@UP`` for its up axis
 (default: detected as bench_real does). A variant: ``NAME`` (the preset as it is), ``NAME:key=value,
 key=value`` (GaussianEncoderConfig fields over the preset: true/false, integers, numbers, strings) or
@@ -73,6 +74,11 @@ def load_scene(spec: str, data_root: Path):
     from lghcc.formats import read_scene
 
     path_text, _, up = spec.partition("@")
+    if path_text.startswith("scale-"):  # tools/scale_scenes.py's scene of that many Gaussians (e.g. the 1M stream's)
+        import scale_scenes
+
+        n = int(path_text.removeprefix("scale-"))
+        return path_text, scale_scenes.build_scene(n, scale_scenes.load_sources(data_root))[0], up or "-y"
     if path_text in bench_real.SCENES:
         rel, rec_up, _ = bench_real.SCENES[path_text]
         return path_text, read_scene(data_root / rel), up or rec_up
@@ -98,6 +104,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", required=True, help="folder for the streams")
     ap.add_argument("--views", type=int, default=12, help="orbit cameras for the PSNR (default 12)")
     ap.add_argument("--size", type=int, default=256, help="their size in px, square (default 256)")
+    ap.add_argument("--no-psnr", action="store_true", help="streams and bytes only (no renders: a large scene "
+                    "meant for decode timings)")
     ap.add_argument("--data-root", default=str(bench_real.default_data_root()),
                     help="where the named scenes lie (default ../shared/data)")
     args = ap.parse_args(argv)
@@ -110,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     label, scene, up = load_scene(args.scene, Path(args.data_root))
     cams = bench_real.orbit(scene.means, args.views, args.size, up)
-    source_images = whole_scene_renders(scene, cams)
+    source_images = None if args.no_psnr else whole_scene_renders(scene, cams)
     base_cfg = load_config(args.preset, kind="gaussians")
     rows = []
     for spec in args.variant:
@@ -121,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
         seconds = time.perf_counter() - t0
         path = out / f"{label}_{name}.lghcc"
         path.write_bytes(res.data)
-        row = {"variant": name, "spec": spec, "bytes": len(res.data), "psnr": psnr_against(source_images, res.decoded, cams),
+        row = {"variant": name, "spec": spec, "bytes": len(res.data), "psnr": None if args.no_psnr else psnr_against(source_images, res.decoded, cams),
                "gaussians": res.decoded.num_gaussians, "encode_s": round(seconds, 1), "stream": str(path),
                "load": os.getloadavg()[0]}
         rows.append(row)
@@ -135,7 +143,7 @@ def equal_psnr(rows: list[dict]) -> dict:
     row (dB per doubling of the bytes), where there is one."""
     base = rows[0]
     scaled = [r for r in rows if r["variant"].startswith("steps")]
-    if not scaled or scaled[0]["bytes"] == base["bytes"]:
+    if base["psnr"] is None or not scaled or scaled[0]["bytes"] == base["bytes"]:
         return {"slope_db_per_doubling": None}
     s = scaled[0]
     slope = (base["psnr"] - s["psnr"]) / math.log2(base["bytes"] / s["bytes"])
