@@ -147,6 +147,9 @@ def equal_psnr(rows: list[dict]) -> dict:
         return {"slope_db_per_doubling": None}
     s = scaled[0]
     slope = (base["psnr"] - s["psnr"]) / math.log2(base["bytes"] / s["bytes"])
+    if slope <= 0:  # the PSNR did not follow the steps: too few or too small views to measure by
+        return {"slope_db_per_doubling": round(slope, 3), "bytes_at_base_psnr": None,
+                "note": "the PSNR did not fall with the bytes: measure on more or larger views (--views, --size)"}
     eq = {r["variant"]: round(r["bytes"] * 2 ** ((base["psnr"] - r["psnr"]) / slope)) for r in rows}
     rel = {k: round(100 * (v / base["bytes"] - 1), 2) for k, v in eq.items()}
     return {"slope_db_per_doubling": round(slope, 3), "bytes_at_base_psnr": eq, "percent_vs_base": rel}
