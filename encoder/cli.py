@@ -55,7 +55,7 @@ YAML --config; 0 searches the whole scene, every trial on every Gaussian; tools/
 The fast preset renders nothing: the Gaussians of opacity below 1/255 (which no rasterizer
 draws) are dropped and the rest coded at fixed steps.
 The web preset is fast for a web page that decodes the stream with the JavaScript decoder: no
-neighbour prediction and chunks of 2048 rows, 1.5-1.6x faster to decode in one thread for 1.8-4.7% more
+neighbour prediction and chunks of 2048 rows, 1.5-1.9x faster to decode in one thread for 1.8-4.7% more
 bytes at equal PSNR (tools/results/js_decoder.md, Round 12).
 An anchor scene (Scaffold-GS / HAC checkpoint) is coded with its anchors and render MLPs.
 
