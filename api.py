@@ -53,7 +53,8 @@ def encode(scene: "Scene | PathLike", preset: str = "medium", *, config: PathLik
            cameras: "PathLike | Sequence[Camera] | None" = None, **options: Any) -> bytes:
     """Encode a scene (or the scene a path names, ``read_scene``) into one .lghcc stream.
 
-    ``preset``: ``low``, ``medium``, ``high`` (both kinds of scene) or ``lghcc-low``,
+    ``preset``: ``low``, ``medium``, ``high`` (both kinds of scene), ``fast`` and ``web``
+    (Gaussian scenes, no renders; ``web`` decodes faster in JavaScript) or ``lghcc-low``,
     ``lghcc-medium``, ``lghcc-high`` (anchor scenes; they fit a context model: minutes).
     ``config``: a YAML file of encoder options; ``options``: more of them (e.g.
     ``feature_step=0.01`` for anchor scenes, ``rd_lambda=0.5`` or ``sh_degree=1`` for Gaussian

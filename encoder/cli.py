@@ -54,6 +54,9 @@ Above 100,000 Gaussians the settings search runs on a spatial sample (search_sam
 YAML --config; 0 searches the whole scene, every trial on every Gaussian; tools/results/search_sampling.md (f)).
 The fast preset renders nothing: the Gaussians of opacity below 1/255 (which no rasterizer
 draws) are dropped and the rest coded at fixed steps.
+The web preset is fast for a web page that decodes the stream with the JavaScript decoder: no
+neighbour prediction and chunks of 2048 rows, 1.5-1.9x faster to decode in one thread for 1.8-4.7% more
+bytes at equal PSNR (tools/results/js_decoder.md, Round 12).
 An anchor scene (Scaffold-GS / HAC checkpoint) is coded with its anchors and render MLPs.
 
 examples:
@@ -61,6 +64,7 @@ examples:
   lghcc-enc scene.spz -o scene.lghcc                   SPZ (or SOG) input
   lghcc-enc scene.ply --preset high -o scene.lghcc     higher fidelity, more bytes
   lghcc-enc scene.ply --preset fast -o scene.lghcc     no renders: SPZ-like turnaround, more bytes
+  lghcc-enc scene.ply --preset web -o scene.lghcc      fast's coding made to decode faster in JavaScript
   lghcc-enc room.ply --cameras sparse/0 -o room.lghcc  choices made from the capture's cameras
   lghcc-enc room.ply --views inside -o room.lghcc      from inside the scene, looking outward
   lghcc-enc --procedural 20000 -o demo.lghcc           built-in procedural anchor scene

@@ -596,3 +596,32 @@ def test_bench_ab_compares_two_trees_on_one_stream():
     assert r["digest"] == want["decoded_sha256"]
     bad = subprocess.run([NODE, str(JS / "bench_ab.mjs"), str(JS)], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "usage" in bad.stderr
+
+
+def test_web_preset_streams_decode_bit_for_bit(shared_data, tmp_path):
+    """The web preset (encoder/presets/web.yaml) writes a stream without neighbour prediction, its
+    attributes in chunks of 2048 rows (several per tile, which the decoder takes two at a time), and
+    the JavaScript decoder's arrays of it are the reference decoder's bit for bit."""
+    import lghcc
+    from lghcc.common.container import UnitType, read_container
+    from lghcc.decoder.decode import decode_stream
+
+    ply = shared_data / "playbot" / "playbot_lod4_8k.ply"
+    data = lghcc.encode(ply, preset="web")
+    units = [u.unit_type for u in read_container(data).units]
+    assert UnitType.NEIGHBOUR_PREDICTION not in units and UnitType.ATTRIBUTE in units
+    fast = [u.unit_type for u in read_container(lghcc.encode(ply, preset="fast")).units]
+    assert UnitType.NEIGHBOUR_PREDICTION in fast  # what the web preset leaves out
+    scene = decode_stream(data).scene
+    n = scene.num_gaussians
+    assert n > 2 * 2048  # more than two chunks of rows: at least one pair
+    path = tmp_path / "web.lghcc"
+    path.write_bytes(data)
+    res = subprocess.run([NODE, "--input-type=module", "-e", SCENE_ARRAYS, str(path)], capture_output=True, text=True,
+                         cwd=JS, timeout=120)
+    assert res.returncode == 0, res.stderr[-2000:]
+    got = json.loads(res.stdout)
+    assert got["count"] == n
+    for name, want in (("positions", scene.means), ("sh", scene.sh), ("opacities", scene.opacity),
+                       ("scales", scene.log_scales), ("rotations", scene.rotations)):
+        assert bytes.fromhex(got[name]) == np.ascontiguousarray(want, dtype="<f4").reshape(n, -1).tobytes(), name

@@ -35,7 +35,7 @@ def test_each_name_is_one_file_with_a_section_per_kind():
 
 def test_the_names_of_each_kind():
     assert preset_names("anchors") == ["high", "lghcc-high", "lghcc-low", "lghcc-medium", "low", "medium"]
-    assert preset_names("gaussians") == ["fast", "high", "low", "medium"]
+    assert preset_names("gaussians") == ["fast", "high", "low", "medium", "web"]
     assert preset_names() == preset_names("anchors")
     with pytest.raises(ValueError, match="kind must be one of anchors, gaussians"):
         preset_names("points")
@@ -54,6 +54,13 @@ def test_an_unknown_name_is_refused_naming_every_preset():
     with pytest.raises(InputError) as e:
         load_config("ultra", kind="gaussians")
     assert str(e.value) == "unknown preset 'ultra'; choose one of " + ", ".join(preset_names(None))
+
+
+def test_web_is_fast_with_the_decoders_choices():
+    """web (for the JavaScript decoder) codes as fast does but without neighbour prediction and in
+    chunks of 2048 rows: a change to fast's steps is one to web's too (tools/results/js_decoder.md, Round 12)."""
+    assert load_config("web", kind="gaussians") == dataclasses.replace(
+        load_config("fast", kind="gaussians"), neighbour_prediction=False, rows_per_chunk=2048)
 
 
 def test_a_user_file_overrides_the_section(tmp_path):

@@ -187,9 +187,28 @@ def test_bench_js_spz(tmp_path):
     stream = ROOT / "conformance" / "streams" / "c033_gaussians_sh3_prediction" / "stream.lghcc"
     scene = decode_stream(stream.read_bytes()).scene
     write_spz(tmp_path / "scene.spz", scene)
+    other = ROOT / "conformance" / "streams" / "c032_gaussians_sh0" / "stream.lghcc"  # --also: another stream
     r = subprocess.run(["node", str(ROOT / "tools" / "bench_js_spz.mjs"), str(stream), str(tmp_path / "scene.spz"),
-                        "--rounds", "1"], capture_output=True, text=True, timeout=300)
+                        "--rounds", "1", "--also", str(other)], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     result = json.loads(r.stdout.strip().splitlines()[-1])
     assert result["lghcc"]["gaussians"] == result["spz"]["gaussians"] == scene.num_gaussians
     assert result["ratio"] > 0
+    also = result["also"][str(other)]
+    assert also["gaussians"] == decode_stream(other.read_bytes()).scene.num_gaussians
+    assert also["bytes"] == other.stat().st_size and also["speedup"] > 0 and also["ratio"] > 0
+
+
+def test_bench_web_choices(tmp_path, shared_data):
+    """A scene at fast with variants of its settings: one stream and row each, the base's PSNR found
+    again by its variant with the same settings, and bytes at equal PSNR from the steps' slope."""
+    r = _tool("bench_web_choices.py", "playbot-lod4", "--out", str(tmp_path), "--data-root", str(shared_data),
+              "--views", "4", "--size", "128", "--variant", "base", "--variant", "steps:1.3",
+              "--variant", "no_np:neighbour_prediction=false", "--variant", "same:rows_per_chunk=65536", cwd=tmp_path)
+    *rows, summary = [json.loads(ln) for ln in r.stdout.strip().splitlines()]
+    assert [row["variant"] for row in rows] == ["base", "steps1.3", "no_np", "same"]
+    for row in rows:
+        assert Path(row["stream"]).stat().st_size == row["bytes"] > 0 and row["gaussians"] > 0
+    assert rows[3]["bytes"] == rows[0]["bytes"] and rows[3]["psnr"] == rows[0]["psnr"]
+    assert rows[1]["bytes"] < rows[0]["bytes"] and summary["slope_db_per_doubling"] > 0
+    assert summary["bytes_at_base_psnr"]["base"] == rows[0]["bytes"]

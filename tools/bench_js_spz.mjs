@@ -1,18 +1,21 @@
 #!/usr/bin/env node
 // lghcc's JavaScript decoder beside splat-transform's SPZ reader on the same scene, in one Node process,
 // one thread (issue 54's target: decoded Gaussians per second, lghcc >= 1.5x SPZ):
-//     node tools/bench_js_spz.mjs SCENE.lghcc SCENE.spz [--rounds R] [--baseline TREE]
+//     node tools/bench_js_spz.mjs SCENE.lghcc SCENE.spz [--rounds R] [--baseline TREE] [--also OTHER.lghcc ...]
 // Each round decodes both files whole, the order alternating (ABBA; with a baseline the three rotate),
 // after one warm-up round: lghcc with decodeStream (no helper threads: workers 0, every tile's hash checked,
 // with node:crypto as the package's Node entry hashes), SPZ with splat-transform's readSpz materialized into
 // its columns (readFile + materializeToDataTable, what its readers hand an engine). --baseline TREE: the
 // decoder of another tree (a checkout or `git archive` of main, its js/lghcc-decoder) decodes the stream
-// too, in the same rotation: before/after in one process, the load falling on both alike. Times are
+// too, in the same rotation: before/after in one process, the load falling on both alike. --also OTHER.lghcc
+// (repeatable): another stream of the same scene (e.g. coded with other encoder settings) decoded by this tree's
+// decoder in the same rotation: what a setting gains in decode speed, against the same SPZ decodes. Times are
 // wall-clock per decode (performance.now) and the process's CPU time (user + system, every thread: SPZ's
 // DecompressionStream and Web Crypto's hash run in Node's thread pool), best and median over the rounds.
 // Prints one JSON line: {lghcc: {gaussians, bytes, bestS, medianS, bestCpuS, medianCpuS, gaussiansPerS},
 // spz: {...}, ratio: lghcc Gaussians/s over SPZ's (best rounds), cpuRatio: the same per CPU second; with
-// --baseline also baseline: {...}, baselineRatio, speedup: lghcc's Gaussians/s over the baseline's}.
+// --baseline also baseline: {...}, baselineRatio, speedup: lghcc's Gaussians/s over the baseline's; with --also,
+// also: {OTHER: {...stats, ratio, cpuRatio, speedup, cpuSpeedup}}, speedups over the first stream}.
 import { existsSync, readFileSync } from 'node:fs';
 import { dirname, join, resolve } from 'node:path';
 import { fileURLToPath, pathToFileURL } from 'node:url';
@@ -28,9 +31,10 @@ const args = process.argv.slice(2);
 const opt = (name) => (args.includes(name) ? args[args.indexOf(name) + 1] : null);
 const rounds = opt('--rounds') ? Number(opt('--rounds')) : 5;
 const baselineTree = opt('--baseline');
-const files = args.filter((a, i) => !a.startsWith('--') && args[i - 1] !== '--rounds' && args[i - 1] !== '--baseline');
+const alsoFiles = args.filter((a, i) => args[i - 1] === '--also');
+const files = args.filter((a, i) => !a.startsWith('--') && !['--rounds', '--baseline', '--also'].includes(args[i - 1]));
 if (files.length !== 2 || !files[0].endsWith('.lghcc') || !files[1].endsWith('.spz') || !(rounds >= 1)) {
-    console.error('usage: node tools/bench_js_spz.mjs SCENE.lghcc SCENE.spz [--rounds R] [--baseline TREE]');
+    console.error('usage: node tools/bench_js_spz.mjs SCENE.lghcc SCENE.spz [--rounds R] [--baseline TREE] [--also OTHER.lghcc ...]');
     process.exit(2);
 }
 // the baseline tree's decoder (and its node:crypto hash where that tree has one: older trees hash with Web Crypto)
@@ -47,8 +51,14 @@ if (baselineTree) {
 const lghccBytes = new Uint8Array(readFileSync(files[0]));
 const spzBytes = new Uint8Array(readFileSync(files[1]));
 
-async function decodeLghcc(decoder = decodeStream) {
-    const r = await decoder(lghccBytes);
+if (alsoFiles.some((f) => !f.endsWith('.lghcc'))) {
+    console.error(`--also takes .lghcc streams, got ${alsoFiles.filter((f) => !f.endsWith('.lghcc')).join(', ')}`);
+    process.exit(2);
+}
+const alsoBytes = alsoFiles.map((f) => new Uint8Array(readFileSync(f)));
+
+async function decodeLghcc(decoder = decodeStream, bytes = lghccBytes) {
+    const r = await decoder(bytes);
     return r.tiles.reduce((a, t) => a + t.n, 0);
 }
 
@@ -63,6 +73,7 @@ async function decodeSpz() {
 
 const decoders = { lghcc: () => decodeLghcc(), spz: decodeSpz };
 if (baseline) decoders.baseline = () => decodeLghcc(baseline.decodeStream);
+alsoFiles.forEach((f, i) => { decoders[`also:${f}`] = () => decodeLghcc(decodeStream, alsoBytes[i]); });
 const keys = Object.keys(decoders), runs = {}, cpu = {}, counts = {};
 for (const k of keys) { counts[k] = await decoders[k](); runs[k] = []; cpu[k] = []; } // the warm-up round
 for (let i = 0; i < rounds; i++) {
@@ -91,5 +102,13 @@ if (baseline) {
     out.baselineRatio = out.baseline.gaussiansPerS / out.spz.gaussiansPerS;
     out.speedup = out.lghcc.gaussiansPerS / out.baseline.gaussiansPerS;
     out.cpuSpeedup = perCpu(out.lghcc) / perCpu(out.baseline);
+}
+if (alsoFiles.length) {
+    out.also = {};
+    alsoFiles.forEach((f, i) => {
+        const r = stats(`also:${f}`, alsoBytes[i].length);
+        out.also[f] = { ...r, ratio: r.gaussiansPerS / out.spz.gaussiansPerS, cpuRatio: perCpu(r) / perCpu(out.spz),
+            speedup: r.gaussiansPerS / out.lghcc.gaussiansPerS, cpuSpeedup: perCpu(r) / perCpu(out.lghcc) };
+    });
 }
 console.log(JSON.stringify(out));
