@@ -366,7 +366,9 @@ class SettingsSearch:
                      degrees: np.ndarray | None, layout: GaussianLayout) -> float:
         """The attribute bits of the values ``q`` (``_attribute_bits``, against the per-channel prior's)."""
         prior_bits = 0.0
-        for c in range(q.shape[1]):
+        # with step adjustment or SH degrees (both only with a neighbour graph) the estimate is neighbour
+        # prediction's alone: the prior's bits, 56 channels' code lengths at SH 3, are not counted
+        for c in range(q.shape[1] if adjust is None and degrees is None else 0):
             r = q[:, c] - int(np.median(q[:, c]))
             prior_bits += float(code_lengths_bits(r, np.full(r.shape, best_level(r), np.int64)).sum())
         return self._attribute_bits(key, grid, q, prior_bits, adjust, degrees, layout)
@@ -402,24 +404,22 @@ class SettingsSearch:
         g[:, rest] = sht.coefficient_sensitivity(g[:, rest], steps[rest], layout.sh_transform)
         return g
 
-    def _adjust(self, key, grid: GaussianScene, keep: np.ndarray, x: np.ndarray, layout: GaussianLayout,
-                cfg: GaussianEncoderConfig, steps: np.ndarray) -> np.ndarray | None:
-        """Each kept Gaussian's step-adjustment index (scene order), or None without the tool."""
+    def _adjust(self, key, grid: GaussianScene, f: np.ndarray | None, x: np.ndarray, layout: GaussianLayout,
+                cfg: GaussianEncoderConfig) -> np.ndarray | None:
+        """Each kept Gaussian's step-adjustment index (scene order), or None without the tool (``f``: the
+        kept Gaussians' sensitivities, ``_sensitivity_of``)."""
         order, graph = self._graph(key, grid)
         if not step_adjust_wanted(cfg, self.sensitivity) or graph is None:
             return None
-        return adjust_on_graph(x, self._sensitivity_of(keep, layout, steps), layout.sh_degree, grid.coords, order,
-                               graph, cfg, layout.sh_transform is not None)
+        return adjust_on_graph(x, f, layout.sh_degree, grid.coords, order, graph, cfg, layout.sh_transform is not None)
 
-    def _rd_quantized(self, key, grid: GaussianScene, keep: np.ndarray, x: np.ndarray, layout: GaussianLayout,
-                      cfg: GaussianEncoderConfig, adjust: np.ndarray | None,
-                      steps: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    def _rd_quantized(self, key, grid: GaussianScene, f: np.ndarray, x: np.ndarray, layout: GaussianLayout,
+                      cfg: GaussianEncoderConfig, adjust: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
         """The values RDOQ chooses for the kept Gaussians (scene order, each row's own steps), the
         bands above each one's SH degree set to 0, and the degrees (None without the tool), as
-        the coding will choose them (encoder/gaussians/rdoq.py)."""
+        the coding will choose them (encoder/gaussians/rdoq.py; ``f`` as ``_adjust``'s)."""
         order, graph = self._graph(key, grid)
         degree = layout.sh_degree
-        f = self._sensitivity_of(keep, layout, steps)
         mu = group_slopes(f, channel_groups(degree, layout.sh_transform is not None), cfg.rd_quantization)
         # the way RDOQ writes each Gaussian (encoder/gaussians/rdoq.py) is chosen afresh in every trial, as
         # the coding chooses it: kept from the first trial, later trials measured 0.10-0.37 dB worse than
@@ -472,13 +472,15 @@ class SettingsSearch:
         steps = channel_steps(cfg, degree)
         x = sh_degree_subset(values, degree) / steps
         layout = _with_sh_transform(GaussianLayout(degree), x, cfg)  # x's SH rest then the coefficients
-        adjust = self._adjust(key, grid, keep, x, layout, cfg, steps)
+        # the sensitivities in the trial's coded channels, made once for the step adjustment and RDOQ
+        f = None if self.sensitivity is None else self._sensitivity_of(keep, layout, steps)
+        adjust = self._adjust(key, grid, f, x, layout, cfg)
         factor = 1.0 if adjust is None else STEP_ADJUST_FACTORS[adjust].astype(np.float64)[:, None]
         q, degrees = np.rint(x / factor).astype(np.int64), None
         if cfg.rotation_length:  # unit lengths (index 0) where RDOQ does not choose them
             q[:, layout.rotation_start] = 0
         if self.sensitivity is not None and cfg.rd_quantization > 0:
-            q, degrees = self._rd_quantized(key, grid, keep, x, layout, cfg, adjust, steps)
+            q, degrees = self._rd_quantized(key, grid, f, x, layout, cfg, adjust)
         values = _decoded_values(q, steps, factor, layout)
         if cfg.rotation_length:
             w = layout.rotation_start
