@@ -697,11 +697,12 @@ def fewest_bits_at_target(s: SettingsSearch, best: Trial, groups: list[str], tar
 
 
 # A pruning share none of whose trials meets the target, and whose two finest measured error ~ f^k with k
-# below this (finer steps bought almost nothing: a quarter of the step 0.4 dB at k = 0.1), is at the floor
+# below this (finer steps bought almost nothing: a quarter of the step 0.6 dB at k = 0.1), is at the floor
 # its pruning leaves: the shares after it prune more (the pruned Gaussians of a share are among those of
 # every larger one), their floors are higher, and their moves only make the steps finer for nothing
-# (the 20k SH-3 scene at medium: 42.1 -> 42.6 -> 42.7 -> 42.7 dB for 264 -> 787 kB at share 0.032, then
-# 3 shares of 4 such trials each: 12 of 61 trials; tools/results/scale.md, "Round 4").
+# (the 20k SH-3 scene at medium: 42.1 -> 42.6 -> 42.7 -> 42.7 dB for 264 -> 788 kB at share 0.032). At
+# medium on playbot lod4 and lod3, the donut and SH-3 scenes of 20k and 100k: 8-20 fewer of 48-62 trials,
+# the same settings (tools/results/scale.md, "Round 4").
 PRUNING_FLOOR_EXPONENT = 0.5
 
 
