@@ -472,14 +472,16 @@ class SettingsSearch:
         steps = channel_steps(cfg, degree)
         x = sh_degree_subset(values, degree) / steps
         layout = _with_sh_transform(GaussianLayout(degree), x, cfg)  # x's SH rest then the coefficients
-        # the sensitivities in the trial's coded channels, made once for the step adjustment and RDOQ
-        f = None if self.sensitivity is None else self._sensitivity_of(keep, layout, steps)
+        # the sensitivities in the trial's coded channels, made once for the step adjustment and RDOQ (both
+        # need RDOQ on)
+        rdoq_on = self.sensitivity is not None and cfg.rd_quantization > 0
+        f = self._sensitivity_of(keep, layout, steps) if rdoq_on else None
         adjust = self._adjust(key, grid, f, x, layout, cfg)
         factor = 1.0 if adjust is None else STEP_ADJUST_FACTORS[adjust].astype(np.float64)[:, None]
         q, degrees = np.rint(x / factor).astype(np.int64), None
         if cfg.rotation_length:  # unit lengths (index 0) where RDOQ does not choose them
             q[:, layout.rotation_start] = 0
-        if self.sensitivity is not None and cfg.rd_quantization > 0:
+        if rdoq_on:
             q, degrees = self._rd_quantized(key, grid, f, x, layout, cfg, adjust)
         values = _decoded_values(q, steps, factor, layout)
         if cfg.rotation_length:
