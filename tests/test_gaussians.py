@@ -399,6 +399,46 @@ def test_pruning_less_restarts_from_the_chosen_steps_and_lands_near_the_target()
     assert len(s.trials) <= 4 * len(rd.PRUNE_LADDER), len(s.trials)
 
 
+def test_the_pruning_ladder_stops_at_a_share_held_below_the_target_by_its_pruning(monkeypatch):
+    """A share whose trials all miss the target while finer steps buy almost nothing is at the floor its
+    pruning leaves; every larger share prunes more and would only make its steps finer for nothing: the
+    ladder stops there, with the trial every share would have chosen, in fewer trials. A share that misses
+    the target while its steps still buy error does not stop it (its moves ran out)."""
+    import math
+
+    from lghcc.encoder.gaussians import gaussian_rd as rd
+
+    class ModelSearch:  # distortion = steps^2 + a floor that grows with the share, from 0.1% on above 45 dB
+        def __init__(self):
+            self.trials = []
+
+        def evaluate(self, cfg):
+            floor = 4e-5 * cfg.prune_share / 0.001 if cfg.prune_share >= 0.001 else 1e-6 * cfg.prune_share / 0.001
+            bits = 1e5 * (1 - 0.05 * math.log2(cfg.sh_dc_step)) * (1 - 5 * cfg.prune_share)
+            t = rd.Trial(cfg, cfg.sh_dc_step ** 2 + floor, bits, 0.0)
+            self.trials.append(t)
+            return t
+
+    target_mse = 10 ** (-45 / 10)
+    cfg = GaussianEncoderConfig(sh_dc_step=0.004, prune_share=0.0)
+    runs, rule = {}, rd.PRUNING_FLOOR_EXPONENT
+    for exponent in (rule, 0.0):  # 0: the rule off, every share
+        monkeypatch.setattr(rd, "PRUNING_FLOOR_EXPONENT", exponent)
+        s = ModelSearch()
+        runs[exponent] = (rd.fewest_bits_at_target(s, s.evaluate(cfg), ["sh_dc"], target_mse), s.trials)
+    monkeypatch.undo()
+    (best, trials), (every_best, every) = runs[rule], runs[0.0]
+    assert best.cfg == every_best.cfg and best.mse <= target_mse and best.cfg.prune_share == 0.0005
+    assert {t.cfg.prune_share for t in trials} == {0.0, 0.0005, 0.001}  # stopped after the first at its floor
+    assert {t.cfg.prune_share for t in every} == set(rd.PRUNE_LADDER) and len(trials) < len(every) / 2
+    floor = rd.Trial(None, 2 * target_mse, 0.0, 0.0)
+    assert rd.at_pruning_floor({1.0: rd.Trial(None, 2.4 * target_mse, 0.0, 0.0), 0.25: floor}, target_mse)
+    # still moving onto the target (k = 2: a quarter of the step, a sixteenth of the error), or met: no stop
+    assert not rd.at_pruning_floor({1.0: rd.Trial(None, 32 * target_mse, 0.0, 0.0), 0.25: floor}, target_mse)
+    assert not rd.at_pruning_floor({1.0: floor, 0.5: rd.Trial(None, target_mse, 0.0, 0.0)}, target_mse)
+    assert not rd.at_pruning_floor({1.0: floor}, target_mse)  # one trial measures no exponent
+
+
 @settings(max_examples=200, deadline=None)
 @given(st.integers(1, 10_000_000), st.integers(1, 10_000_000), st.integers(1, 32), st.integers(8, 512),
        st.floats(1, 64))

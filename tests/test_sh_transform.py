@@ -119,6 +119,20 @@ def test_klt_is_orthonormal_by_decreasing_variance():
     assert np.allclose(sht.forward(u[:5], t) @ sht.value_matrix(t).T, u[:5])  # B^-1 then B
 
 
+def test_klt_is_the_same_whatever_the_layout_of_its_input():
+    """The search fits the KLT to a column slice of its values (x[:, rest]); a contiguous copy, or the
+    columns of a Fortran-order array, give the same integer transform."""
+    rng = np.random.default_rng(11)
+    wide = (rng.normal(size=(5000, 24)) @ rng.normal(size=(24, 24))) * rng.uniform(0.1, 30, 24)
+    x = np.concatenate([rng.normal(size=(5000, 3)), wide, rng.normal(size=(5000, 8))], axis=1)
+    t = sht.integer_transform(sht.fit_klt(x[:, 3:27]))
+    assert t == sht.integer_transform(sht.fit_klt(np.ascontiguousarray(x[:, 3:27])))
+    assert t == sht.integer_transform(sht.fit_klt(np.asfortranarray(x)[:, 3:27]))
+    a = sht.fit_klt(x[:, 3:27])
+    c = np.cov(x[:, 3:27], rowvar=False)  # the eigenvectors of the covariance, by decreasing variance
+    assert np.allclose(c @ a, a * np.diag(a.T @ c @ a), atol=1e-9 * np.abs(c).max())
+
+
 def test_klt_of_degenerate_inputs():
     for u in (np.zeros((1, 9)), np.zeros((50, 9)), np.ones((50, 9))):
         a = sht.fit_klt(u)

@@ -13,7 +13,7 @@ from lghcc.common.attributes import STEP_ADJUST_FACTORS, CodingParams, GaussianL
 from lghcc.common.geometry import normative_order
 from lghcc.common.container import UnitType, read_container
 from lghcc.common.neighbour_prediction import (ADJUST_FIXED_POINT, ADJUST_LEVEL_SHIFT, adjusted_prior,
-                                               lod_coding_params, neighbour_graph)
+                                               lod_coding_params, neighbour_graph, prior_level_in_steps)
 from lghcc.decoder.decode import decode_stream
 from lghcc.encoder.cli import step_adjust_summary
 from lghcc.encoder.stream.config import GaussianEncoderConfig
@@ -192,3 +192,24 @@ def test_a_value_beyond_2_40_steps_is_refused_before_rdoq():
     cfg = load_config("medium", overrides={"neighbour_prediction": True, "step_adjust_max": 3}, kind="gaussians")
     with pytest.raises(InputError, match=r"2\^40 steps"):
         encode_gaussian_scene(scene, cfg, sensitivity=np.ones((64, 56)))
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(n=st.sampled_from([1, 2, 7, 129, 3000, 20000]), scale=st.sampled_from([0.0, 0.4, 3.0, 200.0, 1e7]),
+       share=st.floats(0.0, 1.0), seed=st.integers(0, 2 ** 16))
+def test_best_prior_level_is_the_least_of_every_levels_bits(n, scale, share, seed):
+    """The prior level of LoD 0's residuals with step adjustment: the least of the 64 levels' summed code
+    lengths, each row's level lowered by its index's shift; made several levels per call (the blocks cut
+    small here too), the same sums to the last bit as one level at a time, ties to the lower level."""
+    from lghcc.common.entropy.scale_levels import NUM_SCALE_LEVELS
+    from lghcc.common.entropy.symbol_coder import code_lengths_bits
+    from lghcc.encoder.stream import neighbour_coding
+    rng = np.random.default_rng(seed)
+    r = np.rint(rng.standard_normal(n) * scale * np.where(rng.random(n) < 0.05, 50.0, 1.0)).astype(np.int64)
+    adjust = rng.integers(0, 8, n) * (rng.random(n) < share)
+    costs = [float(code_lengths_bits(r, prior_level_in_steps(lv, adjust)).sum()) for lv in range(NUM_SCALE_LEVELS)]
+    expected = int(np.argmin(costs)) if adjust.any() else neighbour_coding.best_level(r)
+    assert neighbour_coding.best_prior_level(r, adjust) == expected
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(neighbour_coding, "PRIOR_LEVEL_VALUES", 5 * n)  # 5 levels a call, the last 4
+        assert neighbour_coding.best_prior_level(r, adjust) == expected

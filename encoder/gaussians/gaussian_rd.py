@@ -366,7 +366,9 @@ class SettingsSearch:
                      degrees: np.ndarray | None, layout: GaussianLayout) -> float:
         """The attribute bits of the values ``q`` (``_attribute_bits``, against the per-channel prior's)."""
         prior_bits = 0.0
-        for c in range(q.shape[1]):
+        # with step adjustment or SH degrees (both only with a neighbour graph) the estimate is neighbour
+        # prediction's alone: the prior's bits, 56 channels' code lengths at SH 3, are not counted
+        for c in range(q.shape[1] if adjust is None and degrees is None else 0):
             r = q[:, c] - int(np.median(q[:, c]))
             prior_bits += float(code_lengths_bits(r, np.full(r.shape, best_level(r), np.int64)).sum())
         return self._attribute_bits(key, grid, q, prior_bits, adjust, degrees, layout)
@@ -402,24 +404,22 @@ class SettingsSearch:
         g[:, rest] = sht.coefficient_sensitivity(g[:, rest], steps[rest], layout.sh_transform)
         return g
 
-    def _adjust(self, key, grid: GaussianScene, keep: np.ndarray, x: np.ndarray, layout: GaussianLayout,
-                cfg: GaussianEncoderConfig, steps: np.ndarray) -> np.ndarray | None:
-        """Each kept Gaussian's step-adjustment index (scene order), or None without the tool."""
+    def _adjust(self, key, grid: GaussianScene, f: np.ndarray | None, x: np.ndarray, layout: GaussianLayout,
+                cfg: GaussianEncoderConfig) -> np.ndarray | None:
+        """Each kept Gaussian's step-adjustment index (scene order), or None without the tool (``f``: the
+        kept Gaussians' sensitivities, ``_sensitivity_of``)."""
         order, graph = self._graph(key, grid)
         if not step_adjust_wanted(cfg, self.sensitivity) or graph is None:
             return None
-        return adjust_on_graph(x, self._sensitivity_of(keep, layout, steps), layout.sh_degree, grid.coords, order,
-                               graph, cfg, layout.sh_transform is not None)
+        return adjust_on_graph(x, f, layout.sh_degree, grid.coords, order, graph, cfg, layout.sh_transform is not None)
 
-    def _rd_quantized(self, key, grid: GaussianScene, keep: np.ndarray, x: np.ndarray, layout: GaussianLayout,
-                      cfg: GaussianEncoderConfig, adjust: np.ndarray | None,
-                      steps: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    def _rd_quantized(self, key, grid: GaussianScene, f: np.ndarray, x: np.ndarray, layout: GaussianLayout,
+                      cfg: GaussianEncoderConfig, adjust: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
         """The values RDOQ chooses for the kept Gaussians (scene order, each row's own steps), the
         bands above each one's SH degree set to 0, and the degrees (None without the tool), as
-        the coding will choose them (encoder/gaussians/rdoq.py)."""
+        the coding will choose them (encoder/gaussians/rdoq.py; ``f`` as ``_adjust``'s)."""
         order, graph = self._graph(key, grid)
         degree = layout.sh_degree
-        f = self._sensitivity_of(keep, layout, steps)
         mu = group_slopes(f, channel_groups(degree, layout.sh_transform is not None), cfg.rd_quantization)
         # the way RDOQ writes each Gaussian (encoder/gaussians/rdoq.py) is chosen afresh in every trial, as
         # the coding chooses it: kept from the first trial, later trials measured 0.10-0.37 dB worse than
@@ -472,13 +472,17 @@ class SettingsSearch:
         steps = channel_steps(cfg, degree)
         x = sh_degree_subset(values, degree) / steps
         layout = _with_sh_transform(GaussianLayout(degree), x, cfg)  # x's SH rest then the coefficients
-        adjust = self._adjust(key, grid, keep, x, layout, cfg, steps)
+        # the sensitivities in the trial's coded channels, made once for the step adjustment and RDOQ (both
+        # need RDOQ on)
+        rdoq_on = self.sensitivity is not None and cfg.rd_quantization > 0
+        f = self._sensitivity_of(keep, layout, steps) if rdoq_on else None
+        adjust = self._adjust(key, grid, f, x, layout, cfg)
         factor = 1.0 if adjust is None else STEP_ADJUST_FACTORS[adjust].astype(np.float64)[:, None]
         q, degrees = np.rint(x / factor).astype(np.int64), None
         if cfg.rotation_length:  # unit lengths (index 0) where RDOQ does not choose them
             q[:, layout.rotation_start] = 0
-        if self.sensitivity is not None and cfg.rd_quantization > 0:
-            q, degrees = self._rd_quantized(key, grid, keep, x, layout, cfg, adjust, steps)
+        if rdoq_on:
+            q, degrees = self._rd_quantized(key, grid, f, x, layout, cfg, adjust)
         values = _decoded_values(q, steps, factor, layout)
         if cfg.rotation_length:
             w = layout.rotation_start
@@ -686,10 +690,31 @@ def fewest_bits_at_target(s: SettingsSearch, best: Trial, groups: list[str], tar
         cfg = dataclasses.replace(start_cfg, prune_share=share)
         start = best if cfg == best.cfg else s.evaluate(cfg)
         tried = onto_target_trials(s, start, groups, target_mse, SHARE_MOVES, exponent)
+        if at_pruning_floor(tried, target_mse):
+            break
         landed = fewest_bits_meeting(list(tried.values()), target_mse)
         start_cfg = landed.cfg if landed.mse <= target_mse else best.cfg
         exponent = bracket_exponent({f: t.mse for f, t in tried.items()}, target_mse) or exponent
     return fewest_bits_meeting(s.trials, target_mse)
+
+
+# A pruning share none of whose trials meets the target, and whose two finest measured error ~ f^k with k
+# below this (finer steps bought almost nothing: a quarter of the step 0.6 dB at k = 0.1), is at the floor
+# its pruning leaves: the shares after it prune more (the pruned Gaussians of a share are among those of
+# every larger one), their floors are higher, and their moves only make the steps finer for nothing
+# (the 20k SH-3 scene at medium: 42.1 -> 42.6 -> 42.7 -> 42.7 dB for 264 -> 788 kB at share 0.032). At
+# medium on playbot lod4 and lod3, the donut and SH-3 scenes of 20k and 100k: 8-20 fewer of 48-62 trials,
+# the same settings (tools/results/scale.md, "Round 4").
+PRUNING_FLOOR_EXPONENT = 0.5
+
+
+def at_pruning_floor(tried: dict[float, Trial], target_mse: float) -> bool:
+    """Whether a share's trials (common factor -> Trial) miss the target at the floor its pruning leaves
+    (PRUNING_FLOOR_EXPONENT): the pruning ladder stops there."""
+    if len(tried) < 2 or any(t.mse <= target_mse for t in tried.values()):
+        return False
+    (f1, t1), (f2, t2) = sorted(tried.items())[:2]
+    return _measured_exponent(f1, t1.mse, f2, t2.mse) < PRUNING_FLOOR_EXPONENT
 
 
 def fewest_bits_meeting(trials: list[Trial], target_mse: float) -> Trial:

@@ -50,7 +50,9 @@ def fit_klt(u: np.ndarray) -> np.ndarray:
     SH rest in band steps), by decreasing eigenvalue; each column's sign makes its largest entry
     positive (a deterministic choice)."""
     rows = u if u.shape[0] <= FIT_ROWS else u[np.linspace(0, u.shape[0] - 1, FIT_ROWS).astype(np.int64)]
-    c = np.cov(rows.T.astype(np.float64)) if rows.shape[0] > 1 else np.eye(u.shape[1])
+    # the variables as contiguous rows: np.cov of the transposed columns (Fortran order) took a slow
+    # product, 1.6-3.2 s at 100k x 45 against 0.16
+    c = np.cov(np.ascontiguousarray(rows.T, dtype=np.float64)) if rows.shape[0] > 1 else np.eye(u.shape[1])
     c = np.atleast_2d(c)
     w, v = np.linalg.eigh(c)
     v = v[:, np.argsort(-w, kind="stable")]

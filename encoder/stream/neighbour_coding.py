@@ -78,8 +78,19 @@ def best_prior_level(r: np.ndarray, adjust: np.ndarray | None) -> int:
     row's level lowered by its step adjustment's shift."""
     if adjust is None or not adjust.any():
         return best_level(r)
-    costs = [float(code_lengths_bits(r, prior_level_in_steps(lv, adjust)).sum()) for lv in range(NUM_SCALE_LEVELS)]
+    costs = np.empty(NUM_SCALE_LEVELS)
+    # several levels per call (a call per level was most of a search trial's prior levels at SH 3); each
+    # row of bits summed alone, as np.sum sums a 1-D array (pairwise along the row): the same costs
+    per = max(1, min(NUM_SCALE_LEVELS, PRIOR_LEVEL_VALUES // max(r.size, 1)))
+    for lo in range(0, NUM_SCALE_LEVELS, per):
+        lv = np.arange(lo, min(lo + per, NUM_SCALE_LEVELS))[:, None]
+        costs[lv[:, 0]] = code_lengths_bits(np.broadcast_to(r, (lv.size, r.size)),
+                                            prior_level_in_steps(lv, adjust[None, :])).sum(axis=1)
     return int(np.argmin(costs))
+
+
+# The code lengths best_prior_level makes at once (levels x rows): 8 MB of float64
+PRIOR_LEVEL_VALUES = 1 << 20
 
 
 def _total_bits(per_bucket: list[np.ndarray | None]) -> float:
