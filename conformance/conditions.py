@@ -209,10 +209,12 @@ def _child(conn, mutation_ids: tuple, data: bytes) -> None:
         import torch
 
         torch.set_num_threads(1)
+        from ..common import knn
         from ..common.hashing import digest_of
         from ..decoder import core, decode
         from . import mutations
 
+        knn.set_candidate_threads(1)
         for m in mutation_ids:  # ids of the list, or Mutation objects (combined removals)
             mutations.apply(m if isinstance(m, mutations.Mutation) else next(x for x in mutations.MUTATIONS if x.id == m))
         digests: list[bytes] = []
