@@ -298,6 +298,52 @@ def hash_unit_conditions(data: bytes) -> set[str]:
     return out
 
 
+def _units_by_headers(data: bytes):
+    """(unit_type, payload) of each unit of ``data``, found by its header's size alone (a stream may
+    break the container's own checks as well)."""
+    from ..common.container import CONTAINER_HEADER_BYTES, UNIT_CRC_BYTES, UNIT_HEADER_BYTES
+
+    pos = CONTAINER_HEADER_BYTES
+    while pos + UNIT_HEADER_BYTES <= len(data):
+        size = int.from_bytes(data[pos + 1:pos + UNIT_HEADER_BYTES], "big")
+        if pos + UNIT_HEADER_BYTES + size <= len(data):
+            yield data[pos], data[pos + UNIT_HEADER_BYTES:pos + UNIT_HEADER_BYTES + size]
+        pos += UNIT_HEADER_BYTES + size + UNIT_CRC_BYTES
+
+
+def attribute_header_conditions(data: bytes) -> set[str]:
+    """The conditions the first two elements of the stream's attribute unit headers break, read
+    alone (attribute_level u(2), context_model_id u(3), clause 7.3.5): E46 (context_model_id 1 or 2
+    at level 0 or 1), E62 (context_model_id not 0 in a stream with a neighbour_prediction unit) and,
+    in a stream of a gaussian_parameter_set without the hierarchy, E45 (a level other than 0). The
+    JavaScript decoder checks them as it reads them; the reference parses the whole header first
+    (its syntax depends on context_model_id), so another element's range may stop it first, and
+    without those checks it reads the rest of the unit as other elements."""
+    from ..common.container import UnitType
+    from ..common.units import GaussianParameterSet
+
+    units = list(_units_by_headers(data))
+    flat = None
+    if units and units[0][0] == UnitType.GAUSSIAN_PARAMETER_SET:
+        try:
+            flat = not GaussianParameterSet.from_bytes(units[0][1]).hierarchy_enabled_flag
+        except LghccError:
+            pass
+    neighbours = any(t == UnitType.NEIGHBOUR_PREDICTION for t, _ in units)
+    out = set()
+    for t, payload in units:
+        if t != UnitType.ATTRIBUTE or not payload:
+            continue
+        level, model = payload[0] >> 6, (payload[0] >> 3) & 7
+        if flat and level != 0:
+            out.add("E45")
+        if model in (1, 2) and level in (0, 1):
+            out.add("E46")
+        if model and neighbours:
+            out.add("E62")
+    return out
+
+
 def confirm_condition(data: bytes, c_ref: str, c_js: str, timeout: float = 120.0) -> tuple[bool, str]:
     """Does ``data`` break ``c_js`` as well as ``c_ref``? The reference decoder with every check of
     c_ref removed, then of each condition it names next (MAX_CONFIRM_CHAIN conditions at most), in
@@ -309,6 +355,8 @@ def confirm_condition(data: bytes, c_ref: str, c_js: str, timeout: float = 120.0
         return ok, f"{c_ref} -> E61 is a case of E14: the neighbour_prediction unit {'is' if ok else 'is not'} out of place"
     if c_js in hash_unit_conditions(data):  # the JavaScript decoder reads them before the tiles' data
         return True, f"{c_ref} -> {c_js} in a decoded_scene_hash unit (parsed alone)"
+    if c_js in attribute_header_conditions(data):
+        return True, f"{c_ref} -> {c_js} in an attribute unit header's first elements (read alone)"
     removed, named, cond = [], [c_ref], c_ref
     while len(named) <= MAX_CONFIRM_CHAIN:
         more = all_check_removals(cond)

@@ -185,12 +185,94 @@ def parse_args(argv):
     ap.add_argument("--checkpoint-minutes", type=float, default=5.0)
     ap.add_argument("--out", help="rewrite the differential section of this file (tools/results/fuzz.md)")
     ap.add_argument("--merge", nargs="+", metavar="JSON", help="no run: merge the --json summaries into --out")
+    ap.add_argument("--cost-cap-ms", type=float, default=50.0,
+                    help="a seed whose reference decode takes longer (CPU ms) is drawn less often: half as often for "
+                         "each doubling beyond it, so that a long run spends its time on many cases rather than on the "
+                         "slowest seeds (default 50; 0: every seed of the profile alike)")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="campaigns side by side, one per core, each with its own reference worker and Node server "
+                         "(seeds SEED, SEED + 7919, ...; --cases split among them; --json merged every checkpoint; "
+                         "--failures gets a folder per job); default 1")
     ap.add_argument("--quiet", action="store_true", help="no progress line")
-    return ap.parse_args(argv)
+    args = ap.parse_args(argv)
+    if args.jobs < 1:
+        ap.error("--jobs must be at least 1")
+    return args
+
+
+JOB_SEED_STEP = 7919  # job j of --jobs runs --seed SEED + j * JOB_SEED_STEP
+
+
+def job_argv(args, j: int) -> list[str]:
+    """The command line of job ``j`` (0-based) of ``--jobs``: its share of the budget, its seed, its
+    own JSON summary and failures folder."""
+    out = [sys.executable, str(Path(__file__).resolve())]
+    if args.cases is not None:
+        out += ["--cases", str(args.cases // args.jobs + (j < args.cases % args.jobs))]
+    else:
+        out += ["--minutes", str(args.minutes if args.minutes is not None else 1.0)]
+    out += ["--seed", str(args.seed + j * JOB_SEED_STEP), "--timeout", str(args.timeout), "--memory-mb",
+            str(args.memory_mb), "--mutations-per-scene", str(args.mutations_per_scene), "--failures",
+            str(Path(args.failures) / f"job{j + 1}"), "--json", job_json(args, j), "--checkpoint-minutes",
+            str(args.checkpoint_minutes), "--cost-cap-ms", str(args.cost_cap_ms)]
+    out += ["--scenes"] * args.scenes + ["--quiet"] * args.quiet
+    return out + (["--decoder-dir", args.decoder_dir] if args.decoder_dir else [])
+
+
+def job_json(args, j: int) -> str:
+    return f"{args.json}.job{j + 1}" if args.json else str(Path(args.failures) / f"job{j + 1}.json")
+
+
+def run_jobs(args) -> int:
+    """--jobs campaigns as child processes; their JSON summaries merged into --json at each
+    checkpoint and at the end, and into --out. SIGTERM / Ctrl-C stops them all (each reports the
+    cases it did)."""
+    import subprocess
+
+    Path(args.failures).mkdir(parents=True, exist_ok=True)
+    children = [subprocess.Popen(job_argv(args, j)) for j in range(args.jobs)]
+    paths = [job_json(args, j) for j in range(args.jobs)]
+
+    def stop(signum, frame):
+        for c in children:
+            if c.poll() is None:
+                c.send_signal(signal.SIGTERM)
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)
+    while any(c.poll() is None for c in children):
+        time.sleep(min(60.0 * args.checkpoint_minutes, 10.0))
+        if args.json:
+            merge_into(args, paths)
+    summary = merge_into(args, paths) or merge_into(args, paths)
+    if summary is None:
+        print("no job wrote its summary", file=sys.stderr)
+        return 1
+    print(summary.text())
+    return 1 if summary.bugs or any(c.returncode not in (0, 1) for c in children) else 0
+
+
+def merge_into(args, paths: list[str]):
+    """The jobs' summaries written so far, merged into --json (as JSON) and --out; None when none is."""
+    done = [p for p in paths if Path(p).exists()]
+    try:
+        summary, commands, started, seeds, codes = merge_json(done)
+    except ValueError:  # a job is rewriting its summary just now: the next checkpoint merges it
+        return None
+    if not done:
+        return None
+    if args.json:
+        merged = summary_to_json(summary, " && ".join(commands), started, seeds, " and ".join(codes))
+        merged["commands"] = commands
+        Path(args.json).write_text(json.dumps(merged))
+    if args.out:
+        write_section(Path(args.out), results_markdown(summary, commands, started, seeds, codes))
+    return summary
 
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    if args.jobs > 1 and not args.merge:
+        return run_jobs(args)
     if args.merge:
         summary, commands, started, seeds, codes = merge_json(args.merge)
         text = results_markdown(summary, commands, started, seeds, codes)
@@ -224,7 +306,8 @@ def main(argv: list[str] | None = None) -> int:
         seconds=None if args.cases else 60.0 * (args.minutes if args.minutes is not None else 1.0),
         timeout=args.timeout, memory_mb=args.memory_mb, failures_dir=Path(args.failures), progress=progress,
         decoder_dir=Path(args.decoder_dir) if args.decoder_dir else None,
-        scene_source=differential_scene_case if args.scenes else None, mutations_per_scene=args.mutations_per_scene)
+        scene_source=differential_scene_case if args.scenes else None, mutations_per_scene=args.mutations_per_scene,
+        cost_cap=args.cost_cap_ms / 1000.0)
     if summary.stopped:
         command += f"   (stopped after {summary.cases:,} cases)"
     print(summary.text())
