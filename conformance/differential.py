@@ -8,12 +8,17 @@ case would cost more than most cases). The two agree when
 
 * both decode, to the same hash (a box decode: the same hash of the tiles the box selects);
 * both reject the stream (BitstreamError and its subclasses on both sides) for the same condition
-  of clause 8.2 (the error's ``condition``), or for two conditions the stream breaks both of: the
-  reference decoder names c_ref, the JavaScript decoder c_js, and the reference with its check of
-  c_ref removed (conformance/conditions.py's CHECK_REMOVALS and mutant_decode) rejects the stream
-  for c_js, or, removing the check of each condition it then names in turn (at most
-  MAX_CONFIRM_CHAIN conditions), reaches c_js: clause 8.2 does not order the checks, so a decoder may
-  report any condition a stream breaks;
+  of clause 8.2 (the error's ``condition``), or for two conditions the stream is shown to break
+  both of (clause 8.2 does not order the checks, so a decoder may report any condition a stream
+  breaks): the reference decoder names c_ref, the JavaScript decoder c_js, and either
+  - the JavaScript decoder with its checks of c_js removed (conformance/js_checks.py: a copy of
+    its sources, loaded once in a Node server of its own) rejects the stream for c_ref, or,
+    removing the checks of each condition it then names in turn (at most MAX_CONFIRM_CHAIN
+    conditions), reaches c_ref (AGREE_REJECTED_TWO_JS); or
+  - the reference with its check of c_ref removed (conformance/conditions.py's CHECK_REMOVALS and
+    mutant_decode) likewise reaches c_js, or the elements c_js is about, read alone, break it (a
+    decoded_scene_hash unit; the first elements of an attribute unit header; E61, a case of E14)
+    (AGREE_REJECTED_TWO);
 * the JavaScript decoder rejects a stream the reference rejects as UnsupportedStreamError with no
   condition (an anchor stream, the hierarchy: outside its profile);
 * the reference decodes a stream outside the explicit-Gaussian profile (an anchor stream, the
