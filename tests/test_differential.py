@@ -336,7 +336,7 @@ def test_jobs_split_the_budget_and_the_seeds(tmp_path):
     assert [int(value(a, "--seed")) for a in argvs] == [5, 5 + fuzz_differential.JOB_SEED_STEP,
                                                         5 + 2 * fuzz_differential.JOB_SEED_STEP]
     assert len({value(a, "--json") for a in argvs}) == 3 and len({value(a, "--failures") for a in argvs}) == 3
-    assert all("--scenes" in a and "--jobs" not in a for a in argvs)
+    assert all("--scenes" in a and "--jobs" not in a and value(a, "--scene-max-points") == "1000" for a in argvs)
     with pytest.raises(SystemExit):
         fuzz_differential.parse_args(["--jobs", "0"])
 
@@ -389,3 +389,16 @@ def test_jobs_run_side_by_side_and_merge(tmp_path):
     merged = json.loads(out.read_text())
     assert merged["cases"] == 8 and len(merged["commands"]) == 2
     assert all((tmp_path / f"d.json.job{j}").exists() for j in (1, 2))
+
+
+def test_fresh_scenes_keep_to_their_bound():
+    """--scene-max-points: no fresh scene, Gaussian or anchor, has more points than the bound."""
+    import re
+
+    sizes = []
+    for i in range(12):
+        sc = fuzz_differential.differential_scene_case(random.Random(i), 20)
+        n = re.search(r"\bN=(\d+)", sc.what)
+        assert n is not None, sc.what
+        sizes.append(int(n.group(1)))
+    assert max(sizes) <= 20 and len(set(sizes)) > 1

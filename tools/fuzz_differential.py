@@ -54,11 +54,14 @@ TARGET_CASES = 1_000_000  # issue 56, item 4
 GAUSSIAN_SHARE = 0.8  # of the fresh scenes: explicit-Gaussian (the JavaScript decoder's profile)
 
 
-def differential_scene_case(rng: random.Random):
-    """A fresh scene stream: explicit Gaussians (GAUSSIAN_SHARE of them) or an anchor scene."""
+def differential_scene_case(rng: random.Random, max_points: int = 3000):
+    """A fresh scene stream: explicit Gaussians (GAUSSIAN_SHARE of them) or an anchor scene, of at
+    most ``max_points`` Gaussians or anchors."""
     from fuzz_scenes import anchor_scene_case, gaussian_scene_case
 
-    return gaussian_scene_case(rng) if rng.random() < GAUSSIAN_SHARE else anchor_scene_case(rng)
+    if rng.random() < GAUSSIAN_SHARE:
+        return gaussian_scene_case(rng, max_points)
+    return anchor_scene_case(rng, max_points)
 
 
 def code_version() -> str:
@@ -190,6 +193,10 @@ def parse_args(argv):
     ap.add_argument("--mutations-per-scene", type=int, default=400,
                     help="mutation cases per fresh scene (default 400: a fresh scene costs its encoding, its box decodes and "
                          "the trace of its syntax elements, 1 to 3 s on a shared core, as much as 50 to 100 mutation cases)")
+    ap.add_argument("--scene-max-points", type=int, default=1000,
+                    help="Gaussians (anchors) of a fresh scene at most (default 1000; the scene generator's own bound is "
+                         "3000: a scene of 3000 takes 10 to 20 s of CPU to encode, the time of hundreds of cases, and its "
+                         "mutations are drawn seldom, --cost-cap-ms)")
     ap.add_argument("--decoder-dir", help="the JavaScript decoder's folder (default js/lghcc-decoder)")
     ap.add_argument("--failures", default="fuzz_failures_diff", help="folder for disagreeing streams")
     ap.add_argument("--json", help="write the summary as JSON (for --merge); rewritten every --checkpoint-minutes")
@@ -225,7 +232,8 @@ def job_argv(args, j: int) -> list[str]:
     out += ["--seed", str(args.seed + j * JOB_SEED_STEP), "--timeout", str(args.timeout), "--memory-mb",
             str(args.memory_mb), "--mutations-per-scene", str(args.mutations_per_scene), "--failures",
             str(Path(args.failures) / f"job{j + 1}"), "--json", job_json(args, j), "--checkpoint-minutes",
-            str(args.checkpoint_minutes), "--cost-cap-ms", str(args.cost_cap_ms)]
+            str(args.checkpoint_minutes), "--cost-cap-ms", str(args.cost_cap_ms), "--scene-max-points",
+            str(args.scene_max_points)]
     out += ["--scenes"] * args.scenes + ["--quiet"] * args.quiet
     return out + (["--decoder-dir", args.decoder_dir] if args.decoder_dir else [])
 
@@ -317,7 +325,8 @@ def main(argv: list[str] | None = None) -> int:
         seconds=None if args.cases else 60.0 * (args.minutes if args.minutes is not None else 1.0),
         timeout=args.timeout, memory_mb=args.memory_mb, failures_dir=Path(args.failures), progress=progress,
         decoder_dir=Path(args.decoder_dir) if args.decoder_dir else None,
-        scene_source=differential_scene_case if args.scenes else None, mutations_per_scene=args.mutations_per_scene,
+        scene_source=(lambda rng: differential_scene_case(rng, args.scene_max_points)) if args.scenes else None,
+        mutations_per_scene=args.mutations_per_scene,
         cost_cap=args.cost_cap_ms / 1000.0)
     if summary.stopped:
         command += f"   (stopped after {summary.cases:,} cases)"
