@@ -402,3 +402,67 @@ def test_fresh_scenes_keep_to_their_bound():
         assert n is not None, sc.what
         sizes.append(int(n.group(1)))
     assert max(sizes) <= 20 and len(set(sizes)) > 1
+
+
+# c105_rotation_length_summation_order, payload_bitflip of unit 1 (bits 353, 203): the reference meets a
+# rotation length index beyond its table in chunk 1 (E66), the JavaScript decoder, which decodes every
+# chunk's symbols before it reconstructs a rotation, meets data left over in chunk 2 (E38)
+E66_E38 = (
+    "TEdIQwEEAQAHAAAAIwIAeEeuFAAAAAAAAAAAAAAAAHpHrhR8mZmae5mZmmEAAAAAdtnlyAkAAAAtUqc3AAAApAAAvoAAAAoAeAecAAAjhAAAhg"
+    "AAAihAAAAAAAAAAAAAAAAAAABA6dKasAwAAAABAN8bUJkDAAAAaZxJxJxEuY//f8RU8a/kv0Avk34wflEAAHq3OeGZyRcA2ztuO3UuWb5HPkPR"
+    "whBWEEQAAOsKA2IGANqCEA+pcC6Hu/QS5B30HHq55JgSTGxfHFQQwYMrxBnhhxaI+JOs9mRwW0sdAACAesiOmocEAAAHqgByACQ0CyaaBPcAor"
+    "gTWYAAAAAIm354AAAAAJxdZgAAAAAL5cTOAIEACADkHoH0B4gHdAHcgP/M///O/2T+zP//////zf97J2T/aQ+klksb75rujnsNNl/lcnV36wif"
+    "4too2yvTHJMJVT4f6QvZ/8z//87/ZP7M///////N/7+mZP88RIKjmBdp+47d0xcB/DAp+OIXqg8hb68R0gTjoKHW40JgMKvU96vI/8z//87/ZP"
+    "7M///////N////ZP//m//M/////2n/lv7/////MabdoYulV3d/pg8afC9ka6h7PUKdNWqEyoBfivktyACsJwfLNGDsOofqxa6J8XX//sy8cOrq"
+    "561b99G4ygRfSSgeoi+fJe98tV8JBDVeSW5C4aNRAACCM//M///O/2T+zP//////zf///2T//5v/zP////9p/5b+/////wDN//9r/mTLzf////"
+    "//BQD//mT//9P+zP////+h/pb+//////ITMsW6F05V9WlgCKHIKv1McYj+wZvISZOdl3wwd30U1x51befj61ZjAfndMT6mR6aoMHTHs+Jfdbp9"
+    "k6GPwp0OCN2d5/ynNszRobW/a8DnyksqUrjjXPUPdyrvmmmF8T+nKqBw/Muahaf+H27i/YHo6rQEokBHlKgDf7SkA7AJvv6Pzv98iYR1N/dHJ8"
+    "FwTObTNlHPHLygm9VA+2h2FJlH75gXwD3wCv/M///O/2T+zP//////zf///2T//5v/zP////9p/5b+/////wDN//9r/mTLzf//////BQD//mT/"
+    "/9P+zP////+h/pb+/////wHN///X/GSXzf//////PQH//GT//wv+zP/////Z/Zb+/////wLN//9D+2Rjzf//////dQL/+mT//0P9zP////8R/Z"
+    "b+/////xbNEnq7SCA5BTFSVg5vr8Ar4Q9SnASKTLH4jUESdb2Z2geUlcbp6j+15z7/poAk20yt0WJQImrUCyjWqT1sYUF45w2J8ruMmSpnSPwl"
+    "5YgJgGE0gPcsg/MGCudZ8H/g3kk7T43rGrj379Oei6nSy1/6HHXz4C9S6RSZ6+7eBqJge2B2O0r68RKFK/V004lilERHyJ6uwL/EGTCLwGDzPW"
+    "+TlY8PWUVVJZzmiEtENIV0PEBp+P8UrDxsuv5Mtp10K00kK/9jUYg7xKu+q+BoeDRhZ+7NqXsQPjjs4shgY7GHn0x/de+SkLoq3c5vEJKuBcf8"
+    "O4M92z7mhWkllbTeVO7kVOBfTGo1wb5uGpg8TrZ4oB4fQLnsKAt1J5lDrwoCkYAFVnmps+EREAsl3FJiacxNaYtwx9zzwMHjgIPIwk3fCrOO/n"
+    "b0EfSwI4fi/8z//87/ZP7M///////N////ZP//m//M/////2n/lv7/////AM3//2v+ZMvN//////8FAP/+ZP//0/7M/////6H+lv7/////Ac3/"
+    "/9f8ZJfN//////89Af/8ZP//C/7M/////9n9lv7/////As3//0P7ZGPN//////91Av/6ZP//Q/3M/////xH9lv7/////A83//6/5ZC/N//////"
+    "+tAv/5ZP//e/zM/////0n8lv7/////A83//xv4ZPvN///////lA//3ZP//s/vM/////4H7lv7/////BM3//4f2ZMfN//////8dBP/2ZP//6/rM"
+    "/////7n6lv7/////Bc3///P0ZJPN//////9VBf/0ZP//I/rM//////H5lv7/////rGNizXgePzunBEoR8ZJQYgX3T/+V+jd+gYhwIJlqrG5SQN"
+    "f7b92pJUbeRxO7wLbT6q4eFGuCB9kUQp456LjqfZkdXctOOTcJp1w4AIQRizYvOuisXXTP8PVicOqwwwQBCAkuBZBfm1uAOuogQ0Mh+pOV9i1j"
+    "1lM8dpAKtPRGTYBPCx0dSAURSnyHq+ucCVNwUmO7A/T7jh53I/McAlqsQtctr4K7FMDOLD8cirdZIY9Xt0BIvEIqsU0fmq3pDp2wW2Yt4wYtSq"
+    "0g0spQoiy1khresf75g8/VqTQfQOwFApGVZs+mxVTCTPaQhE8W5DPibhesufbJSbejFSd+mOWnuMCoJqZSvLurUBwmVR+B+IUMidaVO6k48foD"
+    "RTzne5paHAISnP651uYdYQPL/6nPQOSXUtFKMbH/bJgRUWr6Z0+PJWfGDGIAncwzV6FsIY057/Xmpl+/V3/C8z/9nJj+63dg+irO/MAaXgJLH5"
+    "D/1CyEEFdYOg5NThJW6VozDIHlOF16GqN1He1zs5NzLM2V/x6tJeBEO2K2wmrnFsv1MZYMStL3sJUIVAkOl10o5LNf3usJF24Fe/XkHAJMHer3"
+    "fGiF+2kQfebQC1ZOWv0qkhdgxQ0o1kyIdC9BaSqWd0y38f9Xd2osS2uwQM4SgFkUbM+GSRQ7WGOH97hX3pqym/eynVFHB15gyBcxBYs4+r2K6i"
+    "Nc9qyqxZWMzqUkZMBXbSGvqnnGGHGyKIh6jy8qMBzCb7/pvOEKmXg+rLqsWkt1Y8PJY1NOVMej2Vk4ZsqMPd/IUvk9ler9hXZHiGAM6VrPj1y8"
+    "UJpzta3ezpXLuNcNkas2VDuLMFAQLVJjnvg1gFPbUcGtodciPZydtVTIM71dQZo3RZNUcPE5ojcGAAAAIQFZZzSDZe9wiFva1jhv7UptTXHluC"
+    "hoyaBylJ8hggFlyvQOeps="
+)
+
+
+def test_e66_is_read_past_with_its_index_clamped():
+    """Without E66's check the reference indexes out of its table; confirm_condition clamps the index
+    instead (conditions.CONFIRM_INSTEAD), reads on and meets the JavaScript decoder's E38."""
+    import base64
+
+    from lghcc.conformance.conditions import all_check_removals, combined, confirm_removals, mutant_decode
+
+    data = base64.b64decode(E66_E38)
+    assert reference_judge(data)[1].startswith("E66 ")
+    plain = mutant_decode(tuple(combined(all_check_removals("E66"))), data, 120.0)
+    assert not plain.decoded and plain.error == "IndexError"
+    assert [m.id for m in confirm_removals("E66")] == ["confirm.E66"]
+    assert confirm_removals("E48") == all_check_removals("E48")
+    assert confirm_condition(data, "E66", "E38", 120.0) == (True, "E66 -> E38")
+
+
+def test_a_mutant_that_reads_on_is_stopped_by_its_cpu_time():
+    """The reference without E17's and E18's checks reads on beyond the end of a unit: stopped by
+    its CPU bound (the same on a busy machine as on a quiet one), reported as a hang."""
+    from lghcc.conformance.conditions import all_check_removals, combined, mutant_decode
+
+    _, _, data = _saved("E17/E46")
+    res = mutant_decode(tuple(combined(all_check_removals("E17") + all_check_removals("E18"))), data, 300.0,
+                        cpu_seconds=1)
+    assert not res.decoded and res.error == "hang" and res.message == "more than 1 s of CPU"
+    ok, chain = confirm_condition(data, "E17", "E9", 300.0, cpu_seconds=1)
+    assert not ok and chain.startswith("E17") and chain.endswith("hang: more than 1 s of CPU")
