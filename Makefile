@@ -106,12 +106,9 @@ FUZZ_DIFF_CASES ?= 1000000
 FUZZ_DIFF_JOBS ?= 2
 fuzz-diff: setup
 	mkdir -p fuzz_logs
-	for j in $$(seq 1 $(FUZZ_DIFF_JOBS)); do \
-	  nice -n 19 $(PY) tools/fuzz_differential.py --cases $$(( $(FUZZ_DIFF_CASES) / $(FUZZ_DIFF_JOBS) )) --scenes \
-	    --timeout 60 --seed $$(( $(FUZZ_SEED) * 100 + 50 + $$j )) --failures fuzz_logs/diff_failures_$$j \
-	    --json fuzz_logs/diff_$$j.json > fuzz_logs/diff_$$j.log 2>&1 & \
-	done; wait
-	$(PY) tools/fuzz_differential.py --merge fuzz_logs/diff_*.json --out tools/results/fuzz.md
+	nice -n 19 $(PY) tools/fuzz_differential.py --cases $(FUZZ_DIFF_CASES) --jobs $(FUZZ_DIFF_JOBS) --scenes \
+	  --timeout 60 --seed $$(( $(FUZZ_SEED) * 100 + 51 )) --failures fuzz_logs/diff_failures \
+	  --json fuzz_logs/diff.json --checkpoint-minutes 5 --out tools/results/fuzz.md > fuzz_logs/diff.log 2>&1
 
 # Mutation testing of the decoder against the conformance suite (conformance/mutations.py): every
 # listed wrong decoder must fail some stream; rewrites the table in tools/results/conformance.md.

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import re
+import signal
 import traceback
 from dataclasses import dataclass
 
@@ -124,6 +125,28 @@ def all_check_removals(condition: str) -> list:
     return out
 
 
+# condition -> the edit the differential fuzzer's confirm_condition makes in place of removing the
+# check, where a decoder without the check cannot go on: a rotation length index beyond the table of
+# clause 11.10 indexes out of the reference's table (IndexError), so E66's index is clamped into its
+# range instead, and the decoder reads on to the next condition the stream breaks
+CONFIRM_INSTEAD: dict[str, tuple] = {
+    "E66": ("lghcc.common.attributes:check_rotation_length_index",
+            (("if k.size and (int(k.min()) < 0 or int(k.max()) > max_index):",
+              "if np.clip(k, 0, max_index, out=k) is None:"),)),
+}
+
+
+def confirm_removals(condition: str) -> list:
+    """The mutations confirm_condition applies to get past ``condition``: CONFIRM_INSTEAD's edit where
+    it has one, else ``all_check_removals``."""
+    from . import mutations
+
+    if condition in CONFIRM_INSTEAD:
+        target, edits = CONFIRM_INSTEAD[condition]
+        return [mutations.Mutation(f"confirm.{condition}", "check", target, f"{condition}: read on past it", edits)]
+    return all_check_removals(condition)
+
+
 def combined(removals: list) -> list:
     """``removals`` (Mutation objects) as one Mutation per function they edit: mutations.apply
     rewrites a function from its source file, so two edits of one function are applied together."""
@@ -202,17 +225,23 @@ class MutantResult:
         return f"{self.error}" + (f" ({self.condition})" if self.condition else "") + f": {self.message}"
 
 
-def _child(conn, mutation_ids: tuple, data: bytes) -> None:
+def _child(conn, mutation_ids: tuple, data: bytes, cpu_seconds: int | None = None) -> None:
     """In the forked process: apply the mutations, decode, record each tile's decoded scene hash
-    in place of comparing it (clause 12)."""
+    in place of comparing it (clause 12). ``cpu_seconds``: the process's CPU bound (SIGXCPU ends it)."""
     try:
+        if cpu_seconds:
+            import resource
+
+            resource.setrlimit(resource.RLIMIT_CPU, (cpu_seconds, cpu_seconds + 1))
         import torch
 
         torch.set_num_threads(1)
+        from ..common import knn
         from ..common.hashing import digest_of
         from ..decoder import core, decode
         from . import mutations
 
+        knn.set_candidate_threads(1)
         for m in mutation_ids:  # ids of the list, or Mutation objects (combined removals)
             mutations.apply(m if isinstance(m, mutations.Mutation) else next(x for x in mutations.MUTATIONS if x.id == m))
         digests: list[bytes] = []
@@ -263,14 +292,15 @@ def call_without_check(mutation_id: str, fn, *args, timeout: float = 600.0):
     return value
 
 
-def mutant_decode(mutation_id, data: bytes, timeout: float = 120.0) -> MutantResult:
+def mutant_decode(mutation_id, data: bytes, timeout: float = 120.0, cpu_seconds: int | None = None) -> MutantResult:
     """Decode ``data`` with the reference decoder and mutation ``mutation_id`` applied (several: a
     tuple of ids or Mutation objects, applied in turn), in a forked child: the mutation never
-    reaches this process."""
+    reaches this process. ``cpu_seconds``: a bound on the child's CPU time as well as ``timeout``
+    on the wall clock (a hang found on a busy machine by CPU time is one on a quiet machine too)."""
     ids = (mutation_id,) if isinstance(mutation_id, str) else tuple(mutation_id)
     ctx = mp.get_context("fork")
     parent, child = ctx.Pipe(duplex=False)
-    p = ctx.Process(target=_child, args=(child, ids, data), daemon=True)
+    p = ctx.Process(target=_child, args=(child, ids, data, cpu_seconds), daemon=True)
     p.start()
     child.close()
     try:
@@ -279,6 +309,9 @@ def mutant_decode(mutation_id, data: bytes, timeout: float = 120.0) -> MutantRes
         try:
             return parent.recv()
         except EOFError:
+            p.join()
+            if cpu_seconds and p.exitcode == -signal.SIGXCPU:
+                return MutantResult(False, error="hang", message=f"more than {cpu_seconds} s of CPU")
             return MutantResult(False, error="died", message=f"exit code {p.exitcode}")
     finally:
         if p.is_alive():

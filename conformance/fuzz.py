@@ -497,6 +497,9 @@ def _worker(conn, memory_bytes: int | None, threads: int, max_memory: int | None
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # the parent's handler is not the worker's
 
     torch.set_num_threads(threads)
+    from ..common import knn
+
+    knn.set_candidate_threads(threads)  # a thread pool per k-NN query costs more than small cases' queries
     _MAX_MEMORY[0] = max_memory
     judge = judge or classify
     from ..decoder import decode  # noqa: F401 - imported before the clock of the first case starts

@@ -8,11 +8,17 @@ streams of random scenes (tools/fuzz_scenes.py: explicit-Gaussian scenes with ev
 profile, four in five; anchor scenes, which the JavaScript decoder must refuse as unsupported,
 one in five) with their box decodes, then mutations of them.
 
+Two rejections for different conditions agree when the stream is shown to break both, either way:
+the JavaScript decoder without its checks of its condition (conformance/js_checks.py: copies of its
+sources, kept loaded in a second Node server) names the reference's, or the reference without its
+checks names the JavaScript decoder's (lghcc/conformance/differential.py states the rule).
+
 A disagreement saves the stream and both verdicts to --failures (diff_<sha>.lghcc and .txt);
 reproduce with `lghcc-dec F --print-hash` and `node js/lghcc-decoder/cli.mjs F`.
 
     python tools/fuzz_differential.py --cases 2000 --scenes --seed 1
     python tools/fuzz_differential.py --minutes 60 --scenes --json fuzz_logs/diff_1.json
+    python tools/fuzz_differential.py --minutes 60 --scenes --jobs 2 --json fuzz_logs/diff.json   # one per core
     python tools/fuzz_differential.py --merge fuzz_logs/diff_*.json --out tools/results/fuzz.md
     make fuzz-diff      # FUZZ_DIFF_JOBS campaigns side by side, merged into tools/results/fuzz.md
 
@@ -48,11 +54,14 @@ TARGET_CASES = 1_000_000  # issue 56, item 4
 GAUSSIAN_SHARE = 0.8  # of the fresh scenes: explicit-Gaussian (the JavaScript decoder's profile)
 
 
-def differential_scene_case(rng: random.Random):
-    """A fresh scene stream: explicit Gaussians (GAUSSIAN_SHARE of them) or an anchor scene."""
+def differential_scene_case(rng: random.Random, max_points: int = 3000):
+    """A fresh scene stream: explicit Gaussians (GAUSSIAN_SHARE of them) or an anchor scene, of at
+    most ``max_points`` Gaussians or anchors."""
     from fuzz_scenes import anchor_scene_case, gaussian_scene_case
 
-    return gaussian_scene_case(rng) if rng.random() < GAUSSIAN_SHARE else anchor_scene_case(rng)
+    if rng.random() < GAUSSIAN_SHARE:
+        return gaussian_scene_case(rng, max_points)
+    return anchor_scene_case(rng, max_points)
 
 
 def code_version() -> str:
@@ -119,10 +128,15 @@ def results_markdown(s: DiffSummary, commands: list[str], started: str, seeds: i
         lines.append(f"| {k} | {n:,} |")
     lines += ["", "Conditions of clause 8.2 of the cases both decoders rejected (reference, JavaScript; '-': the "
               "error names none, the JavaScript decoder's UnsupportedStreamError for a stream outside its profile). "
-              "Equal conditions agree. Different ones agree only when the stream is shown to break the JavaScript "
-              "decoder's condition too: the reference decoder with its own condition's check removed (then the "
-              f"check of each condition it names next, at most {MAX_CONFIRM_CHAIN}) rejects it for that condition "
-              "(clause 8.2 does not order the checks); otherwise the case is a disagreement.", "",
+              "Equal conditions agree. Different ones (clause 8.2 does not order the checks: a decoder may report any "
+              "condition a stream breaks) agree only when the stream is shown to break both, one way or the other: "
+              "the JavaScript decoder without its checks of its own condition (a copy of its sources with each throw "
+              "that names it removed; then of each condition it names next, at most "
+              f"{MAX_CONFIRM_CHAIN}) rejects it for the reference's condition; or the reference decoder without its "
+              "checks of its condition (conformance/conditions.py's removals, likewise chained) rejects it for the "
+              "JavaScript decoder's; or the elements that condition is about, read alone, break it (a "
+              "decoded_scene_hash unit; an attribute unit header's attribute_level and context_model_id for E45, E46, "
+              "E62; E61 as the case of E14 it is). Otherwise the case is a disagreement.", "",
               "| reference | JavaScript | cases |", "|---|---|---|"]
     for (a, b), n in sorted(s.condition_pairs.items(), key=lambda kv: (kv[0][0] == kv[0][1], -kv[1])):
         lines.append(f"| {a} | {b} | {n:,} |")
@@ -176,21 +190,108 @@ def parse_args(argv):
                     help="address space a case may add to the reference's worker, MiB; both decoders' own bound "
                          "is half of it (default 2048)")
     ap.add_argument("--scenes", action="store_true", help="also fresh encoder streams of random scenes")
-    ap.add_argument("--mutations-per-scene", type=int, default=200,
-                    help="mutation cases per fresh scene (default 200: a fresh scene costs its encoding, its box decodes and "
-                         "the trace of its syntax elements, about as much as 100 mutation cases)")
+    ap.add_argument("--mutations-per-scene", type=int, default=400,
+                    help="mutation cases per fresh scene (default 400: a fresh scene costs its encoding, its box decodes and "
+                         "the trace of its syntax elements, 1 to 3 s on a shared core, as much as 50 to 100 mutation cases)")
+    ap.add_argument("--scene-max-points", type=int, default=1000,
+                    help="Gaussians (anchors) of a fresh scene at most (default 1000; the scene generator's own bound is "
+                         "3000: a scene of 3000 takes 10 to 20 s of CPU to encode, the time of hundreds of cases, and its "
+                         "mutations are drawn seldom, --cost-cap-ms)")
     ap.add_argument("--decoder-dir", help="the JavaScript decoder's folder (default js/lghcc-decoder)")
     ap.add_argument("--failures", default="fuzz_failures_diff", help="folder for disagreeing streams")
     ap.add_argument("--json", help="write the summary as JSON (for --merge); rewritten every --checkpoint-minutes")
     ap.add_argument("--checkpoint-minutes", type=float, default=5.0)
     ap.add_argument("--out", help="rewrite the differential section of this file (tools/results/fuzz.md)")
     ap.add_argument("--merge", nargs="+", metavar="JSON", help="no run: merge the --json summaries into --out")
+    ap.add_argument("--cost-cap-ms", type=float, default=50.0,
+                    help="a seed whose reference decode takes longer (CPU ms) is drawn less often: half as often for "
+                         "each doubling beyond it, so that a long run spends its time on many cases rather than on the "
+                         "slowest seeds (default 50; 0: every seed of the profile alike)")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="campaigns side by side, one per core, each with its own reference worker and Node server "
+                         "(seeds SEED, SEED + 7919, ...; --cases split among them; --json merged every checkpoint; "
+                         "--failures gets a folder per job); default 1")
     ap.add_argument("--quiet", action="store_true", help="no progress line")
-    return ap.parse_args(argv)
+    args = ap.parse_args(argv)
+    if args.jobs < 1:
+        ap.error("--jobs must be at least 1")
+    return args
+
+
+JOB_SEED_STEP = 7919  # job j of --jobs runs --seed SEED + j * JOB_SEED_STEP
+
+
+def job_argv(args, j: int) -> list[str]:
+    """The command line of job ``j`` (0-based) of ``--jobs``: its share of the budget, its seed, its
+    own JSON summary and failures folder."""
+    out = [sys.executable, str(Path(__file__).resolve())]
+    if args.cases is not None:
+        out += ["--cases", str(args.cases // args.jobs + (j < args.cases % args.jobs))]
+    else:
+        out += ["--minutes", str(args.minutes if args.minutes is not None else 1.0)]
+    out += ["--seed", str(args.seed + j * JOB_SEED_STEP), "--timeout", str(args.timeout), "--memory-mb",
+            str(args.memory_mb), "--mutations-per-scene", str(args.mutations_per_scene), "--failures",
+            str(Path(args.failures) / f"job{j + 1}"), "--json", job_json(args, j), "--checkpoint-minutes",
+            str(args.checkpoint_minutes), "--cost-cap-ms", str(args.cost_cap_ms), "--scene-max-points",
+            str(args.scene_max_points)]
+    out += ["--scenes"] * args.scenes + ["--quiet"] * args.quiet
+    return out + (["--decoder-dir", args.decoder_dir] if args.decoder_dir else [])
+
+
+def job_json(args, j: int) -> str:
+    return f"{args.json}.job{j + 1}" if args.json else str(Path(args.failures) / f"job{j + 1}.json")
+
+
+def run_jobs(args) -> int:
+    """--jobs campaigns as child processes; their JSON summaries merged into --json at each
+    checkpoint and at the end, and into --out. SIGTERM / Ctrl-C stops them all (each reports the
+    cases it did)."""
+    import subprocess
+
+    Path(args.failures).mkdir(parents=True, exist_ok=True)
+    children = [subprocess.Popen(job_argv(args, j)) for j in range(args.jobs)]
+    paths = [job_json(args, j) for j in range(args.jobs)]
+
+    def stop(signum, frame):
+        for c in children:
+            if c.poll() is None:
+                c.send_signal(signal.SIGTERM)
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)
+    while any(c.poll() is None for c in children):
+        time.sleep(min(60.0 * args.checkpoint_minutes, 10.0))
+        if args.json:
+            merge_into(args, paths)
+    summary = merge_into(args, paths) or merge_into(args, paths)
+    if summary is None:
+        print("no job wrote its summary", file=sys.stderr)
+        return 1
+    print(summary.text())
+    return 1 if summary.bugs or any(c.returncode not in (0, 1) for c in children) else 0
+
+
+def merge_into(args, paths: list[str]):
+    """The jobs' summaries written so far, merged into --json (as JSON) and --out; None when none is."""
+    done = [p for p in paths if Path(p).exists()]
+    try:
+        summary, commands, started, seeds, codes = merge_json(done)
+    except ValueError:  # a job is rewriting its summary just now: the next checkpoint merges it
+        return None
+    if not done:
+        return None
+    if args.json:
+        merged = summary_to_json(summary, " && ".join(commands), started, seeds, " and ".join(codes))
+        merged["commands"] = commands
+        Path(args.json).write_text(json.dumps(merged))
+    if args.out:
+        write_section(Path(args.out), results_markdown(summary, commands, started, seeds, codes))
+    return summary
 
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    if args.jobs > 1 and not args.merge:
+        return run_jobs(args)
     if args.merge:
         summary, commands, started, seeds, codes = merge_json(args.merge)
         text = results_markdown(summary, commands, started, seeds, codes)
@@ -224,7 +325,9 @@ def main(argv: list[str] | None = None) -> int:
         seconds=None if args.cases else 60.0 * (args.minutes if args.minutes is not None else 1.0),
         timeout=args.timeout, memory_mb=args.memory_mb, failures_dir=Path(args.failures), progress=progress,
         decoder_dir=Path(args.decoder_dir) if args.decoder_dir else None,
-        scene_source=differential_scene_case if args.scenes else None, mutations_per_scene=args.mutations_per_scene)
+        scene_source=(lambda rng: differential_scene_case(rng, args.scene_max_points)) if args.scenes else None,
+        mutations_per_scene=args.mutations_per_scene,
+        cost_cap=args.cost_cap_ms / 1000.0)
     if summary.stopped:
         command += f"   (stopped after {summary.cases:,} cases)"
     print(summary.text())

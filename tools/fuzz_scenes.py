@@ -399,13 +399,13 @@ def random_gaussian_config(rng: random.Random):
     return load_config(_choice(rng, ["low", "medium", "high"]), overrides=over, kind="gaussians"), f"{over}"
 
 
-def gaussian_scene_case(rng: random.Random) -> SceneCase:
-    """Build and encode one random explicit-Gaussian scene, with a random sensitivity (so that RDOQ
-    and step adjustment choose per Gaussian) when step adjustment is on."""
+def gaussian_scene_case(rng: random.Random, max_points: int = 3000) -> SceneCase:
+    """Build and encode one random explicit-Gaussian scene (at most ``max_points`` Gaussians), with a
+    random sensitivity (so that RDOQ and step adjustment choose per Gaussian) when step adjustment is on."""
     from lghcc.encoder.gaussians.gaussians import encode_gaussian_scene
 
     cfg, cwhat = random_gaussian_config(rng)
-    scene, what = random_gaussian_scene(rng, max_points=3000 if cfg.rows_per_chunk > 7 else 400)
+    scene, what = random_gaussian_scene(rng, max_points=min(max_points, 3000 if cfg.rows_per_chunk > 7 else 400))
     what = f"{what}; {cwhat}"
     g = np.random.default_rng(rng.getrandbits(64))
     m = scene.sh.shape[1] * 3 + 8
@@ -466,15 +466,16 @@ def scene_case(rng: random.Random) -> SceneCase:
     return anchor_scene_case(rng)
 
 
-def anchor_scene_case(rng: random.Random) -> SceneCase:
-    """One random anchor scene, encoded (and sometimes level 2 re-coded with a hand-built model)."""
+def anchor_scene_case(rng: random.Random, max_points: int = 3000) -> SceneCase:
+    """One random anchor scene of at most ``max_points`` anchors, encoded (and sometimes level 2
+    re-coded with a hand-built model)."""
     from lghcc.encoder.stream.encode import encode_scene
 
     cfg, cwhat = random_config(rng)
     # chunks of a few rows cost the decoder ~1 ms each with a context model: a few hundred anchors
     # then, so that a slow decode is not mistaken for a hang (the sandbox's bound is 5 s a case)
     scene, what = random_scene(rng, (cfg.feature_step, cfg.scaling_step, cfg.offset_step),
-                               max_anchors=3000 if cfg.rows_per_chunk > 7 else 400)
+                               max_anchors=min(max_points, 3000 if cfg.rows_per_chunk > 7 else 400))
     what = f"{what}; {cwhat}"
     hand = rng.random() < 0.5
 

@@ -3,7 +3,9 @@
 // (lghcc/conformance/differential.py): one Node start for a whole campaign instead of one per case.
 //   node tools/js_decode_server.mjs [DECODER_DIR]     (default: js/lghcc-decoder; a mutated copy in tests)
 // Reads requests from stdin, each framed as a 4-byte big-endian length, a JSON object
-// {box: [x0, y0, z0, x1, y1, z1] | null, maxMemory: bytes}, a 4-byte big-endian length, the stream.
+// {box: [x0, y0, z0, x1, y1, z1] | null, maxMemory: bytes, decoder?: DIR}, a 4-byte big-endian length, the
+// stream. decoder: another copy of the decoder to decode this stream with (the differential fuzzer's copies
+// with the checks of a condition removed), imported on its first request and kept loaded.
 // Answers one JSON line per request on stdout, in order:
 //   {outcome: 'decoded', hash, count, tiles}
 //   {outcome: 'rejected', kind, message, condition}   a BitstreamError (UnsupportedStreamError, HashMismatchError);
@@ -16,10 +18,26 @@ import { fileURLToPath, pathToFileURL } from 'node:url';
 
 const here = dirname(fileURLToPath(import.meta.url));
 const decoderDir = resolve(process.argv[2] || join(here, '..', 'js', 'lghcc-decoder'));
-const { decodeStream, sceneDigestHex } = await import(pathToFileURL(join(decoderDir, 'decoder.mjs')).href);
-const { BitstreamError, ResourceLimitError } = await import(pathToFileURL(join(decoderDir, 'errors.mjs')).href);
+const decoders = new Map(); // folder -> its modules (each copy its own module instances, WebAssembly included)
+
+async function load(dir) {
+    if (!decoders.has(dir)) {
+        const { decodeStream, sceneDigestHex } = await import(pathToFileURL(join(dir, 'decoder.mjs')).href);
+        const { BitstreamError, ResourceLimitError } = await import(pathToFileURL(join(dir, 'errors.mjs')).href);
+        decoders.set(dir, { decodeStream, sceneDigestHex, BitstreamError, ResourceLimitError });
+    }
+    return decoders.get(dir);
+}
+await load(decoderDir);
 
 async function answer(options, bytes) {
+    let d;
+    try {
+        d = await load(options.decoder ? resolve(options.decoder) : decoderDir);
+    } catch (e) {
+        return { outcome: 'crash', kind: 'LoadError', message: String(e && e.stack ? e.stack : e).slice(0, 1000) };
+    }
+    const { decodeStream, sceneDigestHex, BitstreamError, ResourceLimitError } = d;
     try {
         const r = await decodeStream(bytes, { box: options.box || null, maxMemory: options.maxMemory });
         const count = r.tiles.reduce((a, t) => a + t.n, 0);
