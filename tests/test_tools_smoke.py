@@ -199,6 +199,34 @@ def test_bench_js_spz(tmp_path):
     assert also["bytes"] == other.stat().st_size and also["speedup"] > 0 and also["ratio"] > 0
 
 
+@pytest.mark.skipif(shutil.which("node") is None, reason="node (Node.js) is not on the PATH")
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="bench_js_memory.mjs reads /proc (Linux)")
+@pytest.mark.skipif(not (ROOT / "tools" / "node" / "node_modules" / "@playcanvas" / "splat-transform").is_dir(),
+                    reason="splat-transform is not installed in tools/node (make node-tools)")
+def test_bench_js_memory(tmp_path):
+    """A decode's peak memory against its arrays, lghcc in one thread and with helpers and SPZ's reader: every
+    measurement counts the scene's Gaussians, its arrays' bytes are 4 per value, and the peak covers them."""
+    from lghcc.decoder.decode import decode_stream
+    from lghcc.formats.spz import write_spz
+
+    stream = ROOT / "conformance" / "streams" / "c033_gaussians_sh3_prediction" / "stream.lghcc"
+    scene = decode_stream(stream.read_bytes()).scene
+    write_spz(tmp_path / "scene.spz", scene)
+    r = subprocess.run(["node", str(ROOT / "tools" / "bench_js_memory.mjs"), str(stream), str(tmp_path / "scene.spz"),
+                        "--workers", "0,2", "--json"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    rows = [json.loads(ln) for ln in r.stdout.strip().splitlines()]
+    assert [(row["kind"], row["workers"]) for row in rows] == [("lghcc", 0), ("lghcc", 2), ("spz", 0)]
+    values = 3 + 3 + 4 + 1 + 3 * (scene.sh_degree + 1) ** 2  # positions, scales, rotations, opacity, SH
+    for row in rows:
+        assert row["count"] == scene.num_gaussians
+        assert row["arraysBytes"] == 4 * values * scene.num_gaussians
+        assert row["peak"] >= row["rssBefore"] > 0 and row["decodePeak"] == row["peak"] - row["rssBefore"]
+    bad = subprocess.run(["node", str(ROOT / "tools" / "bench_js_memory.mjs"), str(stream), "--workers", "x"],
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "--workers" in bad.stderr
+
+
 def test_bench_web_choices(tmp_path, shared_data):
     """A scene at fast with variants of its settings: one stream and row each, the base's PSNR found
     again by its variant with the same settings, and bytes at equal PSNR from the steps' slope."""

@@ -46,6 +46,8 @@ export async function decodeChunks(threads, reading, o, { select = null, onTile 
     const onDecoded = (t, tile, info) => {
         if (signal && signal.aborted) throw signal.reason; // stops a decode on this thread at its next tile
         scene.add(t, tile, info);
+        // the scene's arrays hold the tile now: its decoded coordinates and values are not kept to the end
+        tile.x = tile.y = tile.z = tile.values = null;
     };
     const dec = new ProgressiveDecoder({ maxMemory, box, select, pool, minPoolTiles: 1, onTile: onDecoded });
     const run = (async () => {
@@ -202,7 +204,8 @@ export class SceneAssembly {
 
     add(t, tile, info) {
         if (!this.out) this._allocate(info.ctx);
-        const a = tile.arrays || sceneArrays(info.ps, [tile]); // the pool's helpers made them; here, made now
+        // the pool's helpers made them; here, made now as views of the module's memory, copied below before any other call into it
+        const a = tile.arrays || sceneArrays(info.ps, [tile], { views: true });
         delete tile.arrays; // the scene's arrays hold them now
         const n = tile.n, o = this.offset.get(t), out = this.out, S3 = 3 * info.ps.S, rest = this.rest;
         out.positions.set(a.positions, 3 * o);

@@ -233,28 +233,40 @@ export async function decodeStream(bytes, { box = null, maxMemory = DEFAULT_MAX_
 /**
  * The decoded scene as renderer arrays (no PLY): positions (world, float32), SH, opacity, log scales,
  * rotations; each tile's made by the module (rendererArrays: a per-point loop in JS was 40-140 ms of
- * CPU for a 590k-Gaussian scene, cold in every worker that decodes once).
+ * CPU for a 590k-Gaussian scene, cold in every worker that decodes once). views: one tile's arrays as views of
+ * the module's memory, valid until the next call into it (a caller that copies them at once makes no garbage: a
+ * 172k-point SH-3 tile's arrays are 40 MB).
  */
-export function sceneArrays(ps, tiles) {
-    const N = tiles.reduce((a, t) => a + t.n, 0), M = ps.M, S3 = 3 * ps.S;
+export function sceneArrays(ps, tiles, { views = false } = {}) {
+    if (views && tiles.length === 1) return tileArrayViews(ps, tiles[0]);
+    const N = tiles.reduce((a, t) => a + t.n, 0), S3 = 3 * ps.S;
     const out = {
         count: N, shDegree: ps.shDegree, positions: new Float32Array(3 * N), sh: new Float32Array(S3 * N),
         opacities: new Float32Array(N), scales: new Float32Array(3 * N), rotations: new Float32Array(4 * N),
     };
-    const parts = [[out.positions, 3], [out.sh, S3], [out.opacities, 1], [out.scales, 3], [out.rotations, 4]];
-    const w = wasm(), vs = Math.fround(ps.voxelSize);
     let o = 0;
     for (const t of tiles) {
-        const n = t.n;
-        w.reset();
-        const px = copyIn(w, t.x), py = copyIn(w, t.y), pz = copyIn(w, t.z), pv = copyIn(w, t.values), pa = alloc(w, 4 * n * (3 + M), false);
-        w.rendererArrays(px, py, pz, pv, n, M, S3, vs, ps.origin[0], ps.origin[1], ps.origin[2], pa);
-        let at = pa;
-        for (const [arr, width] of parts) {
-            arr.set(new Float32Array(w.memory.buffer, at, width * n), width * o);
-            at += 4 * width * n;
-        }
-        o += n;
+        const v = tileArrayViews(ps, t);
+        for (const [name, width] of RENDERER_PARTS(S3)) out[name].set(v[name], width * o);
+        o += t.n;
+    }
+    return out;
+}
+
+// the renderer arrays' parts in the order the module writes them (rendererArrays), with their widths
+const RENDERER_PARTS = (S3) => [['positions', 3], ['sh', S3], ['opacities', 1], ['scales', 3], ['rotations', 4]];
+
+// sceneArrays of one tile as views of the module's memory
+function tileArrayViews(ps, t) {
+    const n = t.n, M = ps.M, w = wasm();
+    w.reset();
+    const px = copyIn(w, t.x), py = copyIn(w, t.y), pz = copyIn(w, t.z), pv = copyIn(w, t.values), pa = alloc(w, 4 * n * (3 + M), false);
+    w.rendererArrays(px, py, pz, pv, n, M, 3 * ps.S, Math.fround(ps.voxelSize), ps.origin[0], ps.origin[1], ps.origin[2], pa);
+    const out = { count: n, shDegree: ps.shDegree };
+    let at = pa;
+    for (const [name, width] of RENDERER_PARTS(3 * ps.S)) {
+        out[name] = new Float32Array(w.memory.buffer, at, width * n);
+        at += 4 * width * n;
     }
     return out;
 }
