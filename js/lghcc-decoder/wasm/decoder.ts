@@ -855,7 +855,7 @@ export function decodeSymbols(p: usize, nbytes: i32, lv: usize, n: i32, out: usi
         rR = R; rD = D; rPos = pos;
         start = end;
     }
-    if (nesc) decodeEscapes(lv, n, out, wide, esc, nesc, wideOnly);
+    if (nesc) decodeEscapes(lv, n, out, wide, esc, nesc, wideOnly, 0);
     checkExhausted();
     return nesc;
 }
@@ -875,7 +875,8 @@ function decodeBits(w: usize, n: i32, v: usize): void {
     }
 }
 
-function decodeEscapes(lv: usize, n: i32, out: usize, wide: usize, esc: usize, nesc: i32, wideOnly: bool): void {
+/** The escape section (10.7) of n residuals of levels lv[j], or lv[j % period] when period > 0 (rows of one level pattern). */
+function decodeEscapes(lv: usize, n: i32, out: usize, wide: usize, esc: usize, nesc: i32, wideOnly: bool, period: i32): void {
     const idx = alloc(nesc << 2), sign = alloc(nesc), k = alloc(nesc << 2), width = alloc(nesc << 2), rem = alloc(nesc << 3);
     for (let j = 0, e = 0; j < n; j++) if (u8At(esc, j)) setI32(idx, e++, j);
     for (let e = 0; e < nesc; e++) setU8(sign, e, <i32>decodeUniform(1));
@@ -885,7 +886,7 @@ function decodeEscapes(lv: usize, n: i32, out: usize, wide: usize, esc: usize, n
     }
     decodeBits(width, nesc, rem);
     for (let e = 0; e < nesc; e++) {
-        const j = i32At(idx, e), c = i32At(k, e), L = <u64>i32At(lvHalf, u8At(lv, j));
+        const j = i32At(idx, e), c = i32At(k, e), L = <u64>i32At(lvHalf, u8At(lv, period ? j % period : j));
         const m: u64 = c == 0 ? 0 : (<u64>1 << <u64>(c - 1)) + u64At(rem, e); // c <= 62: below 2^62
         const mag = L + 1 + m;
         if (mag > MAX_RESIDUAL) { errWide = mag; fail(ERR_ESCAPE, 0, 0); }
@@ -911,6 +912,7 @@ export function attributeTile(q: usize, M: i32, adj: usize, sa: i32, fix: usize,
     aQ = q; aM = M; aAdj = adj; aSa = sa; aFix = fix; aShift = shift; aMeanFlag = meanFlag; aBucket = bucket; aB = B;
     aPrior = prior; aPriorLevel = priorLevel; aPStart = pStart; aPSrc = pSrc; aPW = pW;
     aDeg = 0; aStepFlags = 0;
+    priorGroups();
 }
 
 // The step-adjustment indices as flags (11.8, version 1.5; attributeStepFlags after attributeTile, when
@@ -965,6 +967,11 @@ const Q_LIMIT: i64 = 0x10000000000; // 2^40
 export function attributeChunk(p: usize, nbytes: i32, rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, dp: usize, dbytes: i32,
     sp: usize, sbytes: i32): i32 {
     err = 0;
+    if (priorRows(k)) {
+        const desc = alloc(16);
+        setI32(desc, 0, <i32>p); setI32(desc, 1, nbytes); setI32(desc, 2, <i32>rows); setI32(desc, 3, nr);
+        return attributePriorChunks(desc, 1);
+    }
     if (aStepFlags) { stage = STAGE_STEP_FLAGS; decodeFlags(sp, sbytes, rows, nr, idx, cnt, k, aAdj, aMaxStep, aStepFreq); }
     if (aDeg) { stage = STAGE_FLAGS; decodeFlags(dp, dbytes, rows, nr, idx, cnt, k, aDeg, aD, aFreq); }
     stage = STAGE_SYMBOLS;
@@ -975,7 +982,7 @@ export function attributeChunk(p: usize, nbytes: i32, rows: usize, nr: i32, idx:
     const ns = aDeg ? codedLevels(rows, nr, level) : n;
     const nesc = symbolChunk(p, nbytes, level, ns, 0, res, true);
     if (aDeg) for (let r = 0, j = 0; r < nr; r++) j = rowValuesCoded(i32At(rows, r), r * M, j, mean, res);
-    else for (let r = 0; r < nr; r++) rowValues(i32At(rows, r), r * M, mean, res);
+    else for (let r = 0; r < nr; r++) rowValues(i32At(rows, r), mean + (<usize>(r * M) << 3), res + (<usize>(r * M) << 3));
     return nesc;
 }
 
@@ -1014,7 +1021,7 @@ function chunkFlags(rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, dp: us
 function chunkValues(rows: usize, nr: i32, mean: usize, res: usize): void {
     const M = aM;
     if (aDeg) for (let r = 0, j = 0; r < nr; r++) j = rowValuesCoded(i32At(rows, r), r * M, j, mean, res);
-    else for (let r = 0; r < nr; r++) rowValues(i32At(rows, r), r * M, mean, res);
+    else for (let r = 0; r < nr; r++) rowValues(i32At(rows, r), mean + (<usize>(r * M) << 3), res + (<usize>(r * M) << 3));
 }
 
 /**
@@ -1073,11 +1080,11 @@ function symbolPair(pa: usize, nba: i32, lva: usize, na: i32, wa: usize, pb: usi
     }
     rBytes = pa; rWords = wordsA; rR = Ra; rD = Da; rPos = posA;
     nea += binsFrom(m, na, oa, sa, wa, ea);
-    if (nea) decodeEscapes(lva, na, 0, wa, ea, nea, true);
+    if (nea) decodeEscapes(lva, na, 0, wa, ea, nea, true, 0);
     checkExhausted();
     rBytes = pb; rWords = wordsB; rR = Rb; rD = Db; rPos = posB;
     neb += binsFrom(m, nb, ob, sb, wb, eb);
-    if (neb) decodeEscapes(lvb, nb, 0, wb, eb, neb, true);
+    if (neb) decodeEscapes(lvb, nb, 0, wb, eb, neb, true, 0);
     checkExhausted();
 }
 
@@ -1101,6 +1108,202 @@ function binsFrom(t0: i32, n: i32, order: usize, sorted: usize, wide: usize, esc
     return nesc;
 }
 
+// ---------------------------------------------------------------- chunks of prior rows (11.3, 10.7)
+
+// Where no row of a chunk has neighbours (no neighbour prediction, or LoD 0) and the stream has neither
+// step adjustment nor the SH-degree tool, every row's means and levels are the prior's (11.3): the same
+// for every row. The chunk's bins, grouped by level (10.7), are then for each level its channels of
+// row 0, row 1, ...: no per-row means and levels, no sort by level, one model per run of symbols.
+// Per chunk a record of PC_SIZE bytes: its data's address and words, the decoder's word position and
+// state R, D, its rows (i32 [nr]) and nr, residuals res (i64 [nr * M]), escape marks esc (u8 [nr * M])
+// and escape count.
+const PC_BYTES = 0; const PC_WORDS = 4; const PC_POS = 8; const PC_ROWS = 12; const PC_NR = 16;
+const PC_RES = 20; const PC_ESC = 24; const PC_NESC = 28; const PC_R = 32; const PC_D = 40; const PC_SIZE = 48;
+
+// the prior's channels in increasing (level, channel): pcChans (i32 [M]); group g (one level, pcLev[g])
+// from pcStart[g] to pcStart[g + 1]; pcMean the prior's means (i64 [M]); set by attributeTile
+let pcChans: usize = 0; let pcStart: usize = 0; let pcLev: usize = 0; let pcGroups: i32 = 0; let pcMean: usize = 0;
+
+function priorGroups(): void {
+    const M = aM;
+    pcChans = alloc(M << 2); pcStart = alloc((M + 1) << 2); pcLev = alloc(M << 2); pcMean = alloc(M << 3);
+    let j = 0, g = 0;
+    for (let l = 0; l < 64; l++) { // prior_level is 6 bits (7.3.4)
+        const j0 = j;
+        for (let c = 0; c < M; c++) if (u8At(aPriorLevel, c) == l) setI32(pcChans, j++, c);
+        if (j > j0) { setI32(pcStart, g, j0); setI32(pcLev, g, l); g++; }
+    }
+    setI32(pcStart, g, j);
+    pcGroups = g;
+    for (let c = 0; c < M; c++) setI64(pcMean, c, <i64>load<f64>(aPrior + (<usize>c << 3)));
+}
+
+/** Whether attributeChunk's rows (k == 0: no neighbours) take the prior's means and levels unchanged. */
+@inline function priorRows(k: i32): bool { return k == 0 && !aSa && !aDeg; }
+
+/**
+ * count (1 .. 4) chunks of one LoD decoded as attributeChunk decodes them one after the other, where
+ * priorRows holds: chunk i's data at desc[4 i] of desc[4 i + 1] bytes, its rows at desc[4 i + 2], nr =
+ * desc[4 i + 3] (i32). The symbols of a level, row by row, with the chunks' range decoders interleaved
+ * (priorQuad, priorPair: their serial chains overlap in the processor), then each chunk's escapes and
+ * exhaustion check, then the values. Returns the escapes' number. A failure of several chunks traps with
+ * no order between them: the caller decodes them again one at a time, which names the first fault.
+ */
+export function attributePriorChunks(desc: usize, count: i32): i32 {
+    err = 0; stage = STAGE_SYMBOLS;
+    const M = aM, recs = alloc(count * PC_SIZE);
+    let nr4 = 0x7FFFFFFF, nr2 = 0x7FFFFFFF; // the fewest rows of chunks 0 .. 3 and of chunks 0, 1
+    for (let i = 0; i < count; i++) {
+        const rec = recs + <usize>(i * PC_SIZE), nr = i32At(desc, 4 * i + 3);
+        rangeStart(<usize>i32At(desc, 4 * i), i32At(desc, 4 * i + 1));
+        store<i32>(rec + PC_BYTES, <i32>rBytes); store<i32>(rec + PC_WORDS, rWords); store<i32>(rec + PC_POS, rPos);
+        store<u64>(rec + PC_R, rR); store<u64>(rec + PC_D, rD);
+        store<i32>(rec + PC_ROWS, i32At(desc, 4 * i + 2)); store<i32>(rec + PC_NR, nr);
+        store<i32>(rec + PC_RES, <i32>reserve((nr * M) << 3)); store<i32>(rec + PC_ESC, <i32>alloc(nr * M));
+        nr4 = min(nr4, nr); if (i < 2) nr2 = min(nr2, nr);
+    }
+    const joint = count >= 4 ? 4 : count >= 2 ? 2 : 0, shared = joint == 4 ? nr4 : nr2;
+    for (let g = 0; g < pcGroups; g++) {
+        const c0 = i32At(pcStart, g), c1 = i32At(pcStart, g + 1), lev = i32At(pcLev, g), L = i32At(lvHalf, lev);
+        const cum = lvCum + (<usize>i32At(lvOff, lev) << 2), lut = lvLut + (<usize>(lev * LUT_SIZE) << 1);
+        if (joint == 4) priorQuad(recs, c0, c1, shared, L, cum, lut);
+        else if (joint == 2) priorPair(recs, c0, c1, shared, L, cum, lut);
+        for (let i = 0; i < count; i++) {
+            const rec = recs + <usize>(i * PC_SIZE);
+            priorRun(rec, c0, c1, i < joint ? shared : 0, load<i32>(rec + PC_NR), L, cum, lut);
+        }
+    }
+    let nesc = 0;
+    for (let i = 0; i < count; i++) nesc += priorFinish(recs + <usize>(i * PC_SIZE));
+    return nesc;
+}
+
+/** A prior chunk after its bins: its escapes (10.7) and exhaustion check (10.6.5), then its values q (11.6). */
+function priorFinish(rec: usize): i32 {
+    const M = aM, nr = load<i32>(rec + PC_NR), rows = <usize>load<i32>(rec + PC_ROWS), res = <usize>load<i32>(rec + PC_RES);
+    const nesc = load<i32>(rec + PC_NESC);
+    rBytes = <usize>load<i32>(rec + PC_BYTES); rWords = load<i32>(rec + PC_WORDS); rPos = load<i32>(rec + PC_POS);
+    rR = load<u64>(rec + PC_R); rD = load<u64>(rec + PC_D);
+    if (nesc) decodeEscapes(aPriorLevel, nr * M, 0, res, <usize>load<i32>(rec + PC_ESC), nesc, true, M);
+    checkExhausted();
+    for (let r = 0; r < nr; r++) rowValues(i32At(rows, r), pcMean, res + (<usize>(r * M) << 3));
+    return nesc;
+}
+
+/** The bin of quantile q in a level's model (cum, lut: tables.mjs's ModelSet), from the table's guess up. */
+@inline function binOf(q: u64, cum: usize, lut: usize): i32 {
+    let b = <i32>load<u16>(lut + (<usize>(q >> LUT_SHIFT) << 1));
+    while (<u64>i32At(cum, b + 1) <= q) b++;
+    return b;
+}
+
+/** Word pos of a prior chunk's data, 0 past its end (10.6.6). */
+@inline function recWord(rec: usize, pos: i32): u64 {
+    return pos < load<i32>(rec + PC_WORDS) ? <u64>load<u32>(<usize>load<i32>(rec + PC_BYTES) + (<usize>pos << 2)) : 0;
+}
+
+/** Residual j of a prior chunk is an escape (its magnitude follows in the escape section, 10.7). */
+@inline function escapeAt(rec: usize, j: i32): void {
+    setU8(<usize>load<i32>(rec + PC_ESC), j, 1);
+    store<i32>(rec + PC_NESC, load<i32>(rec + PC_NESC) + 1);
+}
+
+/**
+ * The bins of rows r0 .. r1 - 1 of one level's channels pcChans[c0 .. c1 - 1] (half width L, model cum,
+ * lut) of the prior chunk at rec, its decoder's state in locals; every bin's b - L to res (an escape's
+ * is replaced by decodeEscapes).
+ */
+function priorRun(rec: usize, c0: i32, c1: i32, r0: i32, r1: i32, L: i32, cum: usize, lut: usize): void {
+    const M = aM, ESC = 2 * L + 1, res = <usize>load<i32>(rec + PC_RES);
+    let R = load<u64>(rec + PC_R), D = load<u64>(rec + PC_D), pos = load<i32>(rec + PC_POS);
+    for (let r = r0; r < r1; r++) {
+        for (let i = c0; i < c1; i++) {
+            const scale = R >> 24, q = D / scale;
+            if (q >= 0x1000000) fail(ERR_RANGE, 0, 0);
+            const b = binOf(q, cum, lut), c = <u64>i32At(cum, b);
+            R = (<u64>i32At(cum, b + 1) - c) * scale; D -= c * scale;
+            if (R < 0x100000000) { R <<= 32; D = (D << 32) | recWord(rec, pos); pos += <i32>(pos < load<i32>(rec + PC_WORDS)); }
+            const j = r * M + i32At(pcChans, i);
+            setI64(res, j, <i64>(b - L)); if (b == ESC) escapeAt(rec, j);
+        }
+    }
+    store<u64>(rec + PC_R, R); store<u64>(rec + PC_D, D); store<i32>(rec + PC_POS, pos);
+}
+
+/** priorRun of rows 0 .. nr - 1 of two chunks (records recs[0], recs[1]), a symbol of each in turn. */
+function priorPair(recs: usize, c0: i32, c1: i32, nr: i32, L: i32, cum: usize, lut: usize): void {
+    const M = aM, ESC = 2 * L + 1;
+    const rec0 = recs + <usize>(0 * PC_SIZE), res0 = <usize>load<i32>(rec0 + PC_RES);
+    let R0 = load<u64>(rec0 + PC_R), D0 = load<u64>(rec0 + PC_D), pos0 = load<i32>(rec0 + PC_POS);
+    const rec1 = recs + <usize>(1 * PC_SIZE), res1 = <usize>load<i32>(rec1 + PC_RES);
+    let R1 = load<u64>(rec1 + PC_R), D1 = load<u64>(rec1 + PC_D), pos1 = load<i32>(rec1 + PC_POS);
+    for (let r = 0; r < nr; r++) {
+        for (let i = c0; i < c1; i++) {
+            const j = r * M + i32At(pcChans, i);
+            { const scale = R0 >> 24, q = D0 / scale;
+              if (q >= 0x1000000) fail(ERR_RANGE, 0, 0);
+              const b = binOf(q, cum, lut), c = <u64>i32At(cum, b);
+              R0 = (<u64>i32At(cum, b + 1) - c) * scale; D0 -= c * scale;
+              if (R0 < 0x100000000) { R0 <<= 32; D0 = (D0 << 32) | recWord(rec0, pos0); pos0 += <i32>(pos0 < load<i32>(rec0 + PC_WORDS)); }
+              setI64(res0, j, <i64>(b - L)); if (b == ESC) escapeAt(rec0, j); }
+            { const scale = R1 >> 24, q = D1 / scale;
+              if (q >= 0x1000000) fail(ERR_RANGE, 0, 0);
+              const b = binOf(q, cum, lut), c = <u64>i32At(cum, b);
+              R1 = (<u64>i32At(cum, b + 1) - c) * scale; D1 -= c * scale;
+              if (R1 < 0x100000000) { R1 <<= 32; D1 = (D1 << 32) | recWord(rec1, pos1); pos1 += <i32>(pos1 < load<i32>(rec1 + PC_WORDS)); }
+              setI64(res1, j, <i64>(b - L)); if (b == ESC) escapeAt(rec1, j); }
+        }
+    }
+    store<u64>(rec0 + PC_R, R0); store<u64>(rec0 + PC_D, D0); store<i32>(rec0 + PC_POS, pos0);
+    store<u64>(rec1 + PC_R, R1); store<u64>(rec1 + PC_D, D1); store<i32>(rec1 + PC_POS, pos1);
+}
+
+/** priorRun of rows 0 .. nr - 1 of four chunks (records recs[0 .. 3]), a symbol of each in turn: four serial chains overlap. */
+function priorQuad(recs: usize, c0: i32, c1: i32, nr: i32, L: i32, cum: usize, lut: usize): void {
+    const M = aM, ESC = 2 * L + 1;
+    const rec0 = recs + <usize>(0 * PC_SIZE), res0 = <usize>load<i32>(rec0 + PC_RES);
+    let R0 = load<u64>(rec0 + PC_R), D0 = load<u64>(rec0 + PC_D), pos0 = load<i32>(rec0 + PC_POS);
+    const rec1 = recs + <usize>(1 * PC_SIZE), res1 = <usize>load<i32>(rec1 + PC_RES);
+    let R1 = load<u64>(rec1 + PC_R), D1 = load<u64>(rec1 + PC_D), pos1 = load<i32>(rec1 + PC_POS);
+    const rec2 = recs + <usize>(2 * PC_SIZE), res2 = <usize>load<i32>(rec2 + PC_RES);
+    let R2 = load<u64>(rec2 + PC_R), D2 = load<u64>(rec2 + PC_D), pos2 = load<i32>(rec2 + PC_POS);
+    const rec3 = recs + <usize>(3 * PC_SIZE), res3 = <usize>load<i32>(rec3 + PC_RES);
+    let R3 = load<u64>(rec3 + PC_R), D3 = load<u64>(rec3 + PC_D), pos3 = load<i32>(rec3 + PC_POS);
+    for (let r = 0; r < nr; r++) {
+        for (let i = c0; i < c1; i++) {
+            const j = r * M + i32At(pcChans, i);
+            { const scale = R0 >> 24, q = D0 / scale;
+              if (q >= 0x1000000) fail(ERR_RANGE, 0, 0);
+              const b = binOf(q, cum, lut), c = <u64>i32At(cum, b);
+              R0 = (<u64>i32At(cum, b + 1) - c) * scale; D0 -= c * scale;
+              if (R0 < 0x100000000) { R0 <<= 32; D0 = (D0 << 32) | recWord(rec0, pos0); pos0 += <i32>(pos0 < load<i32>(rec0 + PC_WORDS)); }
+              setI64(res0, j, <i64>(b - L)); if (b == ESC) escapeAt(rec0, j); }
+            { const scale = R1 >> 24, q = D1 / scale;
+              if (q >= 0x1000000) fail(ERR_RANGE, 0, 0);
+              const b = binOf(q, cum, lut), c = <u64>i32At(cum, b);
+              R1 = (<u64>i32At(cum, b + 1) - c) * scale; D1 -= c * scale;
+              if (R1 < 0x100000000) { R1 <<= 32; D1 = (D1 << 32) | recWord(rec1, pos1); pos1 += <i32>(pos1 < load<i32>(rec1 + PC_WORDS)); }
+              setI64(res1, j, <i64>(b - L)); if (b == ESC) escapeAt(rec1, j); }
+            { const scale = R2 >> 24, q = D2 / scale;
+              if (q >= 0x1000000) fail(ERR_RANGE, 0, 0);
+              const b = binOf(q, cum, lut), c = <u64>i32At(cum, b);
+              R2 = (<u64>i32At(cum, b + 1) - c) * scale; D2 -= c * scale;
+              if (R2 < 0x100000000) { R2 <<= 32; D2 = (D2 << 32) | recWord(rec2, pos2); pos2 += <i32>(pos2 < load<i32>(rec2 + PC_WORDS)); }
+              setI64(res2, j, <i64>(b - L)); if (b == ESC) escapeAt(rec2, j); }
+            { const scale = R3 >> 24, q = D3 / scale;
+              if (q >= 0x1000000) fail(ERR_RANGE, 0, 0);
+              const b = binOf(q, cum, lut), c = <u64>i32At(cum, b);
+              R3 = (<u64>i32At(cum, b + 1) - c) * scale; D3 -= c * scale;
+              if (R3 < 0x100000000) { R3 <<= 32; D3 = (D3 << 32) | recWord(rec3, pos3); pos3 += <i32>(pos3 < load<i32>(rec3 + PC_WORDS)); }
+              setI64(res3, j, <i64>(b - L)); if (b == ESC) escapeAt(rec3, j); }
+        }
+    }
+    store<u64>(rec0 + PC_R, R0); store<u64>(rec0 + PC_D, D0); store<i32>(rec0 + PC_POS, pos0);
+    store<u64>(rec1 + PC_R, R1); store<u64>(rec1 + PC_D, D1); store<i32>(rec1 + PC_POS, pos1);
+    store<u64>(rec2 + PC_R, R2); store<u64>(rec2 + PC_D, D2); store<i32>(rec2 + PC_POS, pos2);
+    store<u64>(rec3 + PC_R, R3); store<u64>(rec3 + PC_D, D3); store<i32>(rec3 + PC_POS, pos3);
+}
+
 /**
  * q of one row (11.4 step 3, 11.6): residual + mean + prediction from the channels before, each
  * checked against |q| <= 2^40 as it is computed. Exact in i64: residuals below 2^62, means below
@@ -1108,10 +1311,10 @@ function binsFrom(t0: i32, n: i32, order: usize, sorted: usize, wide: usize, esc
  * tool every channel is coded: this loop has no coded-channel tests (rowValuesCoded's cost 8-15%
  * on the logo's stream).
  */
-function rowValues(row: i32, base: i32, mean: usize, res: usize): void {
-    const M = aM, qb = aQ + (<usize>(row * M) << 3), mb = mean + (<usize>base << 3);
+function rowValues(row: i32, mb: usize, rb: usize): void {
+    const M = aM, qb = aQ + (<usize>(row * M) << 3);
     for (let c = 0; c < M; c++) {
-        const rv = i64At(res, base + c);
+        const rv = i64At(rb, c);
         let pr: i64 = 0;
         for (let i = i32At(aPStart, c), e = i32At(aPStart, c + 1); i < e; i++) {
             const s = i32At(aPSrc, i);
