@@ -1555,31 +1555,69 @@ export function reconstruct(n: i32, scale: usize, out: usize): void {
  * of every row hold transform coefficients t; each becomes (sum_k T[j][k] t_k + floor(2^shift / 2)) >>
  * shift, T (i64 [nRest * nRest], row-major) the sh_transform unit's matrix, tmp (i64 [nRest]) scratch.
  * Exact in i64: |t| <= 2^40, |T| <= 2^15, nRest <= 45, every sum below 2^61. |q| > 2^40 fails (E68).
+ * A row whose coefficients are all below 2^32 in magnitude (every row seen in practice) sums in binary64
+ * lanes (shTransformRow): each product is below 2^47 and each partial sum of at most 45 of them below
+ * 2^53, so every binary64 operation is exact and the sums are the i64 sums.
  */
 export function inverseShTransform(n: i32, nRest: i32, T: usize, shift: i32, tmp: usize): void {
     err = 0;
-    const M = aM, half: i64 = (<i64>1 << <i64>shift) >> 1;
+    const M = aM, half: i64 = (<i64>1 << <i64>shift) >> 1, P = (nRest + 7) & ~7;
     // tmp: the row's new values (i64 [nRest]), then its non-zero coefficients' indices (i32 [nRest]) and values (i64 [nRest]):
     // the terms of zero coefficients (most, after RDOQ, and every uncoded one) are skipped
     const nzIdx = tmp + (<usize>nRest << 3), nzVal = nzIdx + (<usize>nRest << 2);
+    // T by columns in binary64, each padded with zeros to P (a multiple of 8 lanes): Tt[k * P + j] = T[j][k]
+    const Tt = alloc((nRest * P) << 3), tv = alloc(nRest << 4), sums = alloc(P << 3);
+    for (let j = 0; j < nRest; j++) for (let k = 0; k < nRest; k++) store<f64>(Tt + (<usize>(k * P + j) << 3), <f64>i64At(T, j * nRest + k));
     for (let i = 0; i < n; i++) {
         const qb = aQ + (<usize>(i * M + 3) << 3);
-        let nz = 0;
+        let nz = 0, small = true;
         for (let k = 0; k < nRest; k++) {
             const t = i64At(qb, k);
-            if (t != 0) { store<i32>(nzIdx + (<usize>nz << 2), k); setI64(nzVal, nz, t); nz++; }
+            if (t != 0) { store<i32>(nzIdx + (<usize>nz << 2), k); setI64(nzVal, nz, t); nz++; small = small && t < 0x100000000 && t > -0x100000000; }
         }
         if (nz == 0) { memory.fill(qb, 0, <usize>nRest << 3); continue; } // (0 + half) >> shift = 0
+        if (small) { shTransformRow(i, qb, nz, nRest, P, Tt, tv, sums, nzIdx, nzVal, half, shift); continue; }
         for (let j = 0; j < nRest; j++) {
             const row = T + (<usize>(j * nRest) << 3);
             let u: i64 = 0;
             for (let m = 0; m < nz; m++) u += i64At(row, load<i32>(nzIdx + (<usize>m << 2))) * i64At(nzVal, m);
-            const v = (u + half) >> <i64>shift;
-            if (v < -Q_LIMIT || v > Q_LIMIT) { errWide = <u64>v; fail(ERR_SH_TRANSFORM, i, 3 + j); }
-            setI64(tmp, j, v);
+            shTransformValue(tmp, i, j, u, half, shift);
         }
         memory.copy(qb, tmp, <usize>nRest << 3);
     }
+}
+
+/** Value j of row i of the inverse SH transform from its sum u (inverseShTransform), checked (E68), to out[j]. */
+@inline function shTransformValue(out: usize, i: i32, j: i32, u: i64, half: i64, shift: i32): void {
+    const v = (u + half) >> <i64>shift;
+    if (v < -Q_LIMIT || v > Q_LIMIT) { errWide = <u64>v; fail(ERR_SH_TRANSFORM, i, 3 + j); }
+    setI64(out, j, v);
+}
+
+/**
+ * inverseShTransform's row i (its SH rest at qb, nz non-zero coefficients below 2^32 in magnitude) in
+ * binary64 lanes: for eight outputs j at a time, the sum over the coefficients of Tt's column times t,
+ * four f64x2 accumulators, then the values in increasing j (the order of the E68 check).
+ */
+function shTransformRow(i: i32, qb: usize, nz: i32, nRest: i32, P: i32, Tt: usize, tv: usize, sums: usize, nzIdx: usize, nzVal: usize, half: i64, shift: i32): void {
+    for (let m = 0; m < nz; m++) {
+        v128.store(tv + (<usize>m << 4), f64x2.splat(<f64>i64At(nzVal, m)));
+        store<i32>(nzIdx + (<usize>m << 2), (load<i32>(nzIdx + (<usize>m << 2)) * P) << 3); // the column's byte offset
+    }
+    for (let j0 = 0; j0 < nRest; j0 += 8) {
+        let a0 = f64x2.splat(0), a1 = a0, a2 = a0, a3 = a0;
+        const base = Tt + (<usize>j0 << 3);
+        for (let m = 0; m < nz; m++) {
+            const col = base + <usize>load<i32>(nzIdx + (<usize>m << 2)), t = v128.load(tv + (<usize>m << 4));
+            a0 = f64x2.add(a0, f64x2.mul(v128.load(col), t));
+            a1 = f64x2.add(a1, f64x2.mul(v128.load(col, 16), t));
+            a2 = f64x2.add(a2, f64x2.mul(v128.load(col, 32), t));
+            a3 = f64x2.add(a3, f64x2.mul(v128.load(col, 48), t));
+        }
+        const o = sums + (<usize>j0 << 3);
+        v128.store(o, a0); v128.store(o, a1, 16); v128.store(o, a2, 32); v128.store(o, a3, 48);
+    }
+    for (let j = 0; j < nRest; j++) shTransformValue(qb, i, j, <i64>load<f64>(sums + (<usize>j << 3)), half, shift);
 }
 
 /**
