@@ -63,7 +63,7 @@ class TileAttributeDecoder {
         // kept in the module's memory until release(): q (i64 [n * M]), the indices and degrees (u8 [n] each), the tile's parameters, its coordinates
         const w = this.w = wasm(), M = this.M, np = ctx.np;
         w.reset();
-        this.qAddr = alloc(w, 8 * this.n * M);
+        this.qAddr = alloc(w, 8 * this.n * M, false); // not zeroed: every chunk writes every value of its rows before any is read
         this.adjAddr = alloc(w, this.n);
         // predictions grouped by target (they are sorted by target, clause 7.3.5)
         const pStart = new Int32Array(M + 1);
