@@ -982,7 +982,7 @@ export function attributeChunk(p: usize, nbytes: i32, rows: usize, nr: i32, idx:
     const ns = aDeg ? codedLevels(rows, nr, level) : n;
     const nesc = symbolChunk(p, nbytes, level, ns, 0, res, true);
     if (aDeg) for (let r = 0, j = 0; r < nr; r++) j = rowValuesCoded(i32At(rows, r), r * M, j, mean, res);
-    else for (let r = 0; r < nr; r++) rowValues(i32At(rows, r), mean + (<usize>(r * M) << 3), res + (<usize>(r * M) << 3));
+    else for (let r = 0; r < nr; r++) rowValuesLanes(i32At(rows, r), mean + (<usize>(r * M) << 3), res + (<usize>(r * M) << 3));
     return nesc;
 }
 
@@ -1021,7 +1021,7 @@ function chunkFlags(rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, dp: us
 function chunkValues(rows: usize, nr: i32, mean: usize, res: usize): void {
     const M = aM;
     if (aDeg) for (let r = 0, j = 0; r < nr; r++) j = rowValuesCoded(i32At(rows, r), r * M, j, mean, res);
-    else for (let r = 0; r < nr; r++) rowValues(i32At(rows, r), mean + (<usize>(r * M) << 3), res + (<usize>(r * M) << 3));
+    else for (let r = 0; r < nr; r++) rowValuesLanes(i32At(rows, r), mean + (<usize>(r * M) << 3), res + (<usize>(r * M) << 3));
 }
 
 /**
@@ -1123,6 +1123,8 @@ const PC_RES = 20; const PC_ESC = 24; const PC_NESC = 28; const PC_R = 32; const
 // the prior's channels in increasing (level, channel): pcChans (i32 [M]); group g (one level, pcLev[g])
 // from pcStart[g] to pcStart[g + 1]; pcMean the prior's means (i64 [M]); set by attributeTile
 let pcChans: usize = 0; let pcStart: usize = 0; let pcLev: usize = 0; let pcGroups: i32 = 0; let pcMean: usize = 0;
+// the channels with a cross-channel prediction (11.6), increasing (i32 [pvCount]); set by attributeTile
+let pvTargets: usize = 0; let pvCount: i32 = 0;
 
 function priorGroups(): void {
     const M = aM;
@@ -1136,6 +1138,8 @@ function priorGroups(): void {
     setI32(pcStart, g, j);
     pcGroups = g;
     for (let c = 0; c < M; c++) setI64(pcMean, c, <i64>load<f64>(aPrior + (<usize>c << 3)));
+    pvTargets = alloc(M << 2); pvCount = 0;
+    for (let c = 0; c < M; c++) if (i32At(aPStart, c + 1) > i32At(aPStart, c)) setI32(pvTargets, pvCount++, c);
 }
 
 /** Whether attributeChunk's rows (k == 0: no neighbours) take the prior's means and levels unchanged. */
@@ -1186,7 +1190,7 @@ function priorFinish(rec: usize): i32 {
     rR = load<u64>(rec + PC_R); rD = load<u64>(rec + PC_D);
     if (nesc) decodeEscapes(aPriorLevel, nr * M, 0, res, <usize>load<i32>(rec + PC_ESC), nesc, true, M);
     checkExhausted();
-    for (let r = 0; r < nr; r++) rowValues(i32At(rows, r), pcMean, res + (<usize>(r * M) << 3));
+    for (let r = 0; r < nr; r++) rowValuesLanes(i32At(rows, r), pcMean, res + (<usize>(r * M) << 3));
     return nesc;
 }
 
@@ -1322,6 +1326,36 @@ function rowValues(row: i32, mb: usize, rb: usize): void {
         }
         storeValue(qb, row, c, rv + i64At(mb, c) + ((pr + 128) >> 8));
     }
+}
+
+/**
+ * rowValues in two passes: residual + mean of every channel two at a time in i64x2 lanes, then the
+ * channels with a prediction in increasing order (their sources, channels before, are final by then).
+ * A row with a value beyond 2^40 in the first pass (a predicted channel's residual + mean may be, and its
+ * prediction bring it back) is computed again by rowValues, which checks in channel order (E51).
+ */
+function rowValuesLanes(row: i32, mb: usize, rb: usize): void {
+    const M = aM, qb = aQ + (<usize>(row * M) << 3), hi = i64x2.splat(Q_LIMIT), lo = i64x2.splat(-Q_LIMIT);
+    let bad = i64x2.splat(0), c = 0;
+    for (; c + 1 < M; c += 2) {
+        const o = <usize>c << 3, v = i64x2.add(v128.load(rb + o), v128.load(mb + o));
+        v128.store(qb + o, v);
+        bad = v128.or(bad, v128.or(i64x2.gt_s(v, hi), i64x2.lt_s(v, lo)));
+    }
+    let out = v128.any_true(bad);
+    if (c < M) { const v = i64At(rb, c) + i64At(mb, c); setI64(qb, c, v); out = out || v > Q_LIMIT || v < -Q_LIMIT; }
+    for (let t = 0; t < pvCount; t++) {
+        const tc = i32At(pvTargets, t);
+        let pr: i64 = 0;
+        for (let i = i32At(aPStart, tc), e = i32At(aPStart, tc + 1); i < e; i++) {
+            const s = i32At(aPSrc, i);
+            pr += <i64>i32At(aPW, i) * (i64At(qb, s) - i64At(mb, s));
+        }
+        const v = i64At(rb, tc) + i64At(mb, tc) + ((pr + 128) >> 8);
+        setI64(qb, tc, v);
+        out = out || v > Q_LIMIT || v < -Q_LIMIT;
+    }
+    if (out) rowValues(row, mb, rb);
 }
 
 @inline function storeValue(qb: usize, row: i32, c: i32, v: i64): void {
