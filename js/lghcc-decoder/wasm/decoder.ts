@@ -1573,15 +1573,40 @@ function priorRow(mean: usize, level: usize, base: i32, F: i64, row: i32): void 
  */
 export function reconstruct(n: i32, scale: usize, out: usize): void {
     err = 0;
-    const M = aM;
+    const M = aM, M4 = M & ~3, zero = f32x4.splat(0);
     for (let i = 0; i < n; i++) {
         const s = scale + (<usize>(u8At(aAdj, i) * M) << 2), qb = aQ + (<usize>(i * M) << 3), ob = out + (<usize>(i * M) << 2);
-        for (let c = 0; c < M; c++) {
-            const v = <f32>load<i64>(qb + (<usize>c << 3)) * load<f32>(s + (<usize>c << 2));
-            if (v - v != 0) fail(ERR_NOT_FINITE, i, c); // inf - inf and NaN - NaN are NaN
-            store<f32>(ob + (<usize>c << 2), v);
+        let bad = zero;
+        for (let c = 0; c < M4; c += 4) {
+            const v = f32x4.mul(float32Lanes(qb + (<usize>c << 3)), v128.load(s + (<usize>c << 2)));
+            bad = v128.or(bad, f32x4.ne(f32x4.sub(v, v), zero)); // inf - inf and NaN - NaN are NaN
+            v128.store(ob + (<usize>c << 2), v);
         }
+        reconstructFrom(v128.any_true(bad) ? 0 : M4, i, s, qb, ob); // a lane not finite: again in channel order, which fails at the first
     }
+}
+
+/** reconstruct's channels c0 .. M - 1 of row i, one at a time. */
+@inline function reconstructFrom(c0: i32, i: i32, s: usize, qb: usize, ob: usize): void {
+    for (let c = c0; c < aM; c++) {
+        const v = <f32>load<i64>(qb + (<usize>c << 3)) * load<f32>(s + (<usize>c << 2));
+        if (v - v != 0) fail(ERR_NOT_FINITE, i, c);
+        store<f32>(ob + (<usize>c << 2), v);
+    }
+}
+
+// 2^52 + 2^51: for an integer |q| < 2^51, the binary64 number with the bits of MAGIC's plus q is MAGIC + q, exactly
+const MAGIC: f64 = 6755399441055744.0;
+const MAGIC_BITS: i64 = 0x4338000000000000;
+
+/**
+ * float32(q) of the four i64 at p (|q| <= 2^40, checked as each was computed: E51, E68): q to binary64 exactly
+ * (MAGIC), then one rounding to binary32, as the scalar conversion rounds.
+ */
+@inline function float32Lanes(p: usize): v128 {
+    const m = f64x2.splat(MAGIC), mb = i64x2.splat(MAGIC_BITS);
+    const a = f64x2.sub(i64x2.add(v128.load(p), mb), m), b = f64x2.sub(i64x2.add(v128.load(p, 16), mb), m);
+    return v128.shuffle<i32>(f32x4.demote_f64x2_zero(a), f32x4.demote_f64x2_zero(b), 0, 1, 4, 5);
 }
 
 /**
