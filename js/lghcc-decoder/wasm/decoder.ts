@@ -1760,7 +1760,9 @@ function serializeGroup(values: usize, n: i32, M: i32, a: i32, b: i32, at: usize
     const w = b - a;
     for (let i = 0; i < n; i++) {
         const src = values + (<usize>(i * M + a) << 2), dst = at + (<usize>(i * w) << 2);
-        for (let c = 0; c < w; c++) store<u32>(dst + (<usize>c << 2), load<u32>(src + (<usize>c << 2)));
+        let c = 0;
+        for (; c + 4 <= w; c += 4) v128.store(dst + (<usize>c << 2), v128.load(src + (<usize>c << 2)));
+        for (; c < w; c++) store<u32>(dst + (<usize>c << 2), load<u32>(src + (<usize>c << 2)));
     }
     return at + (<usize>(n * w) << 2);
 }
