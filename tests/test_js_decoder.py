@@ -629,7 +629,7 @@ def test_bench_ab_compares_two_trees_on_one_stream():
 
 def test_web_preset_streams_decode_bit_for_bit(shared_data, tmp_path):
     """The web preset (encoder/presets/web.yaml) writes a stream without neighbour prediction, its
-    attributes in chunks of 2048 rows (several per tile, which the decoder takes two at a time), and
+    attributes in chunks of 2048 rows (several per tile, which the decoder takes up to four at a time), and
     the JavaScript decoder's arrays of it are the reference decoder's bit for bit."""
     import lghcc
     from lghcc.common.container import UnitType, read_container
