@@ -101,8 +101,12 @@ export function checkMemory(ctx, streamBytes, maxMemory) {
     }
 }
 
-/** Decode tile t of the stream context (clause 13.2). Returns {x, y, z, values, n}. */
-export async function decodeTile(ctx, t, { checkHash = true } = {}) {
+/**
+ * Decode tile t of the stream context (clause 13.2). Returns {x, y, z, values, n}. digest (default: checkHash):
+ * the tile's clause-12 serialization is made and handed to the hash while its values are still in the module
+ * (no copy of them back in), for checkTileHash, which also serializes the tile itself where this was not asked.
+ */
+export async function decodeTile(ctx, t, { checkHash = true, digest = checkHash } = {}) {
     const tile = ctx.tiles[t];
     const [G, ...rest] = tile.units;
     const H = rest.pop();
@@ -114,11 +118,19 @@ export async function decodeTile(ctx, t, { checkHash = true } = {}) {
     const sceneHash = parseHashUnit(H.payload);
     const h = parseAttributeHeader(A[0].payload, ctx);
     if (h.numRows !== n) throw new BitstreamError(`attribute unit of tile ${t}: num_rows_minus1 + 1 = ${h.numRows}, the tile has ${n} points (clause 8.3, E59)`, 'E59');
-    const values = decodeTileAttributes(A[0].payload, h, coords, ctx);
+    let hashed = null;
+    const values = decodeTileAttributes(A[0].payload, h, coords, ctx, digest ? (w, pv) => {
+        hashed = sha256(serialization(ctx.ps, w, coords, pv, n));
+        hashed.catch(() => {}); // awaited by checkTileHash
+    } : null);
     const out = { x: coords.x, y: coords.y, z: coords.z, values, n, sceneHash: toHex(sceneHash) };
+    if (hashed) digests.set(out, hashed);
     if (checkHash) await checkTileHash(ctx, t, out);
     return out;
 }
+
+// decodeTile's digests of its results, started while the values were in the module (checkTileHash takes them)
+const digests = new WeakMap();
 
 /**
  * Clause 12's check of a decoded tile (decodeTile's result) against its scene_hash; rejects with
@@ -126,7 +138,9 @@ export async function decodeTile(ctx, t, { checkHash = true } = {}) {
  * the bytes and hashes them off this thread), so the caller may go on before awaiting it.
  */
 export async function checkTileHash(ctx, t, out) {
-    const digest = await sha256(serializeTile(ctx.ps, out));
+    const started = digests.get(out);
+    digests.delete(out);
+    const digest = await (started || sha256(serializeTile(ctx.ps, out)));
     if (toHex(digest) !== out.sceneHash) throw new HashMismatchError(`tile ${t}: the decoded scene does not match its scene_hash (clause 12, E53)`, 'E53');
 }
 
@@ -157,17 +171,24 @@ function serialHeader(ps, N) {
  * `parts`, the body's parts [coordinates, SH, opacity, scales, rotations] as copies instead.
  */
 function serializeTile(ps, t, parts = false) {
-    const w = wasm(), M = ps.M, S3 = 3 * ps.S, n = t.n, lead = 3 + HEAD; // 3 bytes before the header align the body to 4
-    const body = n * (24 + 4 * M);
+    const w = wasm(), M = ps.M, S3 = 3 * ps.S, n = t.n;
     w.reset();
+    if (!parts) return serialization(ps, w, t, copyIn(w, t.values), n);
+    const out = alloc(w, n * (24 + 4 * M), false);
+    w.serializeTile(copyIn(w, t.x), copyIn(w, t.y), copyIn(w, t.z), copyIn(w, t.values), n, M, S3, out);
+    const ends = [24, 4 * S3, 4, 12, 4 * (M - S3 - 4)];
+    let at = out;
+    return ends.map((size) => { at += size * n; return new Uint8Array(w.memory.buffer, at - size * n, size * n).slice(); });
+}
+
+/**
+ * Clause 12's serialization of a tile's n points, coordinates c ({x, y, z}, copied in) and values at pv in the
+ * module's memory, made in the module's arena: a view of it, valid until the next call into the module.
+ */
+function serialization(ps, w, c, pv, n) {
+    const M = ps.M, lead = 3 + HEAD, body = n * (24 + 4 * M); // 3 bytes before the header align the body to 4
     const out = alloc(w, lead + body, false); // the module writes the body, the header is set below
-    const px = copyIn(w, t.x), py = copyIn(w, t.y), pz = copyIn(w, t.z), pv = copyIn(w, t.values);
-    w.serializeTile(px, py, pz, pv, n, M, S3, out + lead);
-    if (parts) {
-        const ends = [24, 4 * S3, 4, 12, 4 * (M - S3 - 4)];
-        let at = out + lead;
-        return ends.map((size) => { at += size * n; return new Uint8Array(w.memory.buffer, at - size * n, size * n).slice(); });
-    }
+    w.serializeTile(copyIn(w, c.x), copyIn(w, c.y), copyIn(w, c.z), pv, n, M, 3 * ps.S, out + lead);
     const bytes = new Uint8Array(w.memory.buffer, out + 3, HEAD + body);
     bytes.set(serialHeader(ps, n));
     return bytes;
@@ -216,12 +237,12 @@ export async function decodeStream(bytes, { box = null, maxMemory = DEFAULT_MAX_
     for (const t of selected) {
         let r;
         try {
-            r = await decodeTile(ctx, t, { checkHash: false });
+            r = await decodeTile(ctx, t, { checkHash: false, digest: true });
         } catch (e) {
             if (prev) await prev.hashed;
             throw e;
         }
-        const hashed = checkTileHash(ctx, t, r); // the serialization is handed to Web Crypto now
+        const hashed = checkTileHash(ctx, t, r); // the digest was started by decodeTile (Web Crypto: off this thread)
         hashed.catch(() => {}); // awaited by settle
         if (prev) await settle();
         prev = { t, r, hashed };

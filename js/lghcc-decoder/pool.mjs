@@ -196,10 +196,10 @@ export async function helperMessage(data, port) {
         const ctx = helper.streams.get(id);
         ctx.tiles[t] = { units, points, cell };
         const start = clock();
-        const r = await decodeTile(ctx, t, { checkHash: false });
+        const r = await decodeTile(ctx, t, { checkHash: false, digest: true });
         ctx.tiles[t] = null;
         port.postMessage({ id, t, decoded: true }); // the next tile may come while this one is hash-checked
-        const hashed = checkTileHash(ctx, t, r); // the serialization is handed to Web Crypto now
+        const hashed = checkTileHash(ctx, t, r); // the digest was started by decodeTile (Web Crypto: off this thread)
         hashed.catch(() => {}); // awaited below
         const arrays = sceneArrays(ctx.ps, [r]);
         const decoded = clock();
