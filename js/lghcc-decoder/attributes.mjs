@@ -202,7 +202,8 @@ class TileAttributeDecoder {
         callWasm(() => w.reconstruct(n, pScale, out), (code, row, c) => new BitstreamError(`row ${row}, channel ${c}: the reconstructed value is not finite (clause 11.5, E52)`, 'E52'));
         const rl = this.ctx.rotationLength;
         if (rl) callWasm(() => w.impliedRotations(out, n, M - 4, rl.maxIndex), (code, row) => lengthIndexError(new Int32Array(w.memory.buffer, this.qAddr, 2 * n * M), row, M, M - 4, rl.maxIndex));
-        if (this.onValues) this.onValues(w, out); // the values while they are in the module's memory (the tile's hash)
+        // the values while they are in the module's memory (the tile's hash, the renderer's arrays); q is no longer needed: scratch
+        if (this.onValues) this.onValues(w, out, this.qAddr, 8 * n * M);
         return new Float32Array(w.memory.buffer, out, n * M).slice();
     }
 
@@ -230,8 +231,9 @@ function chunkError(what, code, a, b, w) {
 
 /**
  * Decode the attribute unit of a tile: returns the reconstructed values, Float32Array [n * M]
- * (row-major, channel order of clause 11.1). onValues(w, address): called with the values' address in
- * the module's memory before they are copied out (valid until the next call into the module).
+ * (row-major, channel order of clause 11.1). onValues(w, address, scratch, bytes): called with the values'
+ * address in the module's memory before they are copied out (valid until the next call into the module), and a
+ * region of `bytes` at scratch that is free by then (the tile's q).
  */
 export function decodeTileAttributes(payload, header, coords, ctx, onValues = null) {
     const dec = new TileAttributeDecoder(payload, header, coords, ctx);

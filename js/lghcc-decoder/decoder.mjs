@@ -104,9 +104,10 @@ export function checkMemory(ctx, streamBytes, maxMemory) {
 /**
  * Decode tile t of the stream context (clause 13.2). Returns {x, y, z, values, n}. digest (default: checkHash):
  * the tile's clause-12 serialization is made and handed to the hash while its values are still in the module
- * (no copy of them back in), for checkTileHash, which also serializes the tile itself where this was not asked.
+ * (no copy of them back in), for checkTileHash, which also serializes the tile itself where this was not asked;
+ * arrays: the renderer's arrays likewise, for tileSceneArrays.
  */
-export async function decodeTile(ctx, t, { checkHash = true, digest = checkHash } = {}) {
+export async function decodeTile(ctx, t, { checkHash = true, digest = checkHash, arrays = false } = {}) {
     const tile = ctx.tiles[t];
     const [G, ...rest] = tile.units;
     const H = rest.pop();
@@ -118,19 +119,30 @@ export async function decodeTile(ctx, t, { checkHash = true, digest = checkHash 
     const sceneHash = parseHashUnit(H.payload);
     const h = parseAttributeHeader(A[0].payload, ctx);
     if (h.numRows !== n) throw new BitstreamError(`attribute unit of tile ${t}: num_rows_minus1 + 1 = ${h.numRows}, the tile has ${n} points (clause 8.3, E59)`, 'E59');
-    let hashed = null;
-    const values = decodeTileAttributes(A[0].payload, h, coords, ctx, digest ? (w, pv) => {
-        hashed = sha256(serialization(ctx.ps, w, coords, pv, n));
+    let hashed = null, made = null;
+    const values = decodeTileAttributes(A[0].payload, h, coords, ctx, digest || arrays ? (w, pv, scratch, room) => {
+        // in the attribute decode's free scratch where they fit (the memory bound of checkMemory holds), one after the other
+        const pc = [coords.x, coords.y, coords.z].map((a) => copyIn(w, a)), M = ctx.ps.M;
+        const place = (bytes) => (bytes <= room ? scratch : alloc(w, bytes, false));
+        if (arrays) {
+            const v = rendererViews(ctx.ps, w, pc, pv, n, place(4 * n * (3 + M)));
+            made = { ...v };
+            for (const [name] of RENDERER_PARTS(0)) made[name] = v[name].slice();
+        }
+        if (!digest) return;
+        hashed = sha256(serialization(ctx.ps, w, pc, pv, n, place(3 + HEAD + n * (24 + 4 * M))));
         hashed.catch(() => {}); // awaited by checkTileHash
     } : null);
     const out = { x: coords.x, y: coords.y, z: coords.z, values, n, sceneHash: toHex(sceneHash) };
     if (hashed) digests.set(out, hashed);
+    if (made) madeArrays.set(out, made);
     if (checkHash) await checkTileHash(ctx, t, out);
     return out;
 }
 
-// decodeTile's digests of its results, started while the values were in the module (checkTileHash takes them)
-const digests = new WeakMap();
+// decodeTile's digests of its results, started while the values were in the module (checkTileHash takes them),
+// and their renderer arrays where asked (tileSceneArrays takes them)
+const digests = new WeakMap(), madeArrays = new WeakMap();
 
 /**
  * Clause 12's check of a decoded tile (decodeTile's result) against its scene_hash; rejects with
@@ -173,22 +185,23 @@ function serialHeader(ps, N) {
 function serializeTile(ps, t, parts = false) {
     const w = wasm(), M = ps.M, S3 = 3 * ps.S, n = t.n;
     w.reset();
-    if (!parts) return serialization(ps, w, t, copyIn(w, t.values), n);
+    const pc = [t.x, t.y, t.z].map((a) => copyIn(w, a)), pv = copyIn(w, t.values);
+    if (!parts) return serialization(ps, w, pc, pv, n, alloc(w, 3 + HEAD + n * (24 + 4 * M), false));
     const out = alloc(w, n * (24 + 4 * M), false);
-    w.serializeTile(copyIn(w, t.x), copyIn(w, t.y), copyIn(w, t.z), copyIn(w, t.values), n, M, S3, out);
+    w.serializeTile(...pc, pv, n, M, S3, out);
     const ends = [24, 4 * S3, 4, 12, 4 * (M - S3 - 4)];
     let at = out;
     return ends.map((size) => { at += size * n; return new Uint8Array(w.memory.buffer, at - size * n, size * n).slice(); });
 }
 
 /**
- * Clause 12's serialization of a tile's n points, coordinates c ({x, y, z}, copied in) and values at pv in the
- * module's memory, made in the module's arena: a view of it, valid until the next call into the module.
+ * Clause 12's serialization of a tile's n points, coordinates at pc ([x, y, z] addresses, int32) and values at pv
+ * in the module's memory, made at out (3 + 49 + n (24 + 4 M) bytes): a view of it, valid until the next call into
+ * the module.
  */
-function serialization(ps, w, c, pv, n) {
+function serialization(ps, w, pc, pv, n, out) {
     const M = ps.M, lead = 3 + HEAD, body = n * (24 + 4 * M); // 3 bytes before the header align the body to 4
-    const out = alloc(w, lead + body, false); // the module writes the body, the header is set below
-    w.serializeTile(copyIn(w, c.x), copyIn(w, c.y), copyIn(w, c.z), pv, n, M, 3 * ps.S, out + lead);
+    w.serializeTile(...pc, pv, n, M, 3 * ps.S, out + lead); // the module writes the body, the header is set below
     const bytes = new Uint8Array(w.memory.buffer, out + 3, HEAD + body);
     bytes.set(serialHeader(ps, n));
     return bytes;
@@ -279,10 +292,19 @@ const RENDERER_PARTS = (S3) => [['positions', 3], ['sh', S3], ['opacities', 1], 
 
 // sceneArrays of one tile as views of the module's memory
 function tileArrayViews(ps, t) {
-    const n = t.n, M = ps.M, w = wasm();
+    const w = wasm();
     w.reset();
-    const px = copyIn(w, t.x), py = copyIn(w, t.y), pz = copyIn(w, t.z), pv = copyIn(w, t.values), pa = alloc(w, 4 * n * (3 + M), false);
-    w.rendererArrays(px, py, pz, pv, n, M, 3 * ps.S, Math.fround(ps.voxelSize), ps.origin[0], ps.origin[1], ps.origin[2], pa);
+    const pc = [t.x, t.y, t.z].map((c) => copyIn(w, c)), pv = copyIn(w, t.values);
+    return rendererViews(ps, w, pc, pv, t.n, alloc(w, 4 * t.n * (3 + ps.M), false));
+}
+
+/**
+ * sceneArrays of one tile's n points, coordinates at pc ([x, y, z] addresses, int32) and values at pv in the
+ * module's memory, made by the module (rendererArrays) at pa (4 n (3 + M) bytes): views of its memory, valid
+ * until the next call into it.
+ */
+function rendererViews(ps, w, pc, pv, n, pa) {
+    w.rendererArrays(...pc, pv, n, ps.M, 3 * ps.S, Math.fround(ps.voxelSize), ps.origin[0], ps.origin[1], ps.origin[2], pa);
     const out = { count: n, shDegree: ps.shDegree };
     let at = pa;
     for (const [name, width] of RENDERER_PARTS(3 * ps.S)) {
@@ -290,4 +312,15 @@ function tileArrayViews(ps, t) {
         at += 4 * width * n;
     }
     return out;
+}
+
+/**
+ * sceneArrays(ps, [tile]) of a tile decodeTile decoded with `arrays` (made while its values were in the module),
+ * else made now.
+ */
+export function tileSceneArrays(ps, tile) {
+    const made = madeArrays.get(tile);
+    if (!made) return sceneArrays(ps, [tile]);
+    madeArrays.delete(tile);
+    return made;
 }
