@@ -295,6 +295,35 @@ def test_chunk_pairs_decode_and_fail_as_single_chunks(trials):
     assert len(errors) >= len(got) // 4, f"only {len(errors)} of {len(got)} trials failed: the flips miss the chunks"
 
 
+
+@pytest.mark.parametrize("chunks", [5, 6, 7])
+def test_prior_chunk_groups_decode_and_fail_as_single_chunks(shared_data, tmp_path, chunks):
+    """Without neighbour prediction every row takes the prior's means and levels, and the module decodes
+    up to four chunks at a time (attributePriorChunks: four range decoders interleaved, then two, then
+    one): a tile of 5, 6 or 7 chunks (groups 4 + 1, 4 + 2, 4 + 3) decodes to the reference decoder's
+    scene, and on flipped bytes gives the values or the error of chunks decoded one at a time."""
+    import math
+
+    import lghcc
+    from lghcc.common.hashing import digest_of
+    from lghcc.decoder.decode import decode_stream
+
+    ply = shared_data / "playbot" / "playbot_lod4_8k.ply"
+    n = lghcc.decode(lghcc.encode(ply, preset="web", verify=False)).num_gaussians
+    rpc = math.ceil(n / chunks)
+    assert math.ceil(n / rpc) == chunks and n < 16384  # one tile of `chunks` chunks
+    data = lghcc.encode(ply, preset="web", rows_per_chunk=rpc)
+    (tmp_path / "s").mkdir()
+    (tmp_path / "s" / "stream.lghcc").write_bytes(data)
+    got = json.loads(node(DECODE_FILES, json.dumps([str(tmp_path / "s" / "stream.lghcc")]), timeout=120))
+    assert got == [digest_of(decode_stream(data).scene).hex()]
+    got = json.loads(node(CHUNK_PAIRS, json.dumps({"root": str(tmp_path), "ids": ["s"], "trials": 30}), timeout=600))
+    assert len(got) == 31 and ":" not in got[0]["paired"]
+    for g in got:
+        assert g["paired"] == g["single"], g
+    assert sum(g["paired"].startswith("BitstreamError") for g in got) >= 8, got
+
+
 FIRST_FAULT = """
 import { readFileSync } from 'node:fs';
 import { decodeStream } from './decoder.mjs';
@@ -600,7 +629,7 @@ def test_bench_ab_compares_two_trees_on_one_stream():
 
 def test_web_preset_streams_decode_bit_for_bit(shared_data, tmp_path):
     """The web preset (encoder/presets/web.yaml) writes a stream without neighbour prediction, its
-    attributes in chunks of 2048 rows (several per tile, which the decoder takes two at a time), and
+    attributes in chunks of 2048 rows (several per tile, which the decoder takes up to four at a time), and
     the JavaScript decoder's arrays of it are the reference decoder's bit for bit."""
     import lghcc
     from lghcc.common.container import UnitType, read_container

@@ -63,7 +63,7 @@ class TileAttributeDecoder {
         // kept in the module's memory until release(): q (i64 [n * M]), the indices and degrees (u8 [n] each), the tile's parameters, its coordinates
         const w = this.w = wasm(), M = this.M, np = ctx.np;
         w.reset();
-        this.qAddr = alloc(w, 8 * this.n * M);
+        this.qAddr = alloc(w, 8 * this.n * M, false); // not zeroed: every chunk writes every value of its rows before any is read
         this.adjAddr = alloc(w, this.n);
         // predictions grouped by target (they are sorted by target, clause 7.3.5)
         const pStart = new Int32Array(M + 1);
@@ -99,12 +99,17 @@ class TileAttributeDecoder {
             const nb = l > 0 ? lodNeighbours(this.w, lods, l, np.k, this.coordsAddr, bounds, this.n) : null;
             const S = this.h.rowsPerChunk, chunks = Math.ceil(rows.count / S);
             const size = (m) => Math.min(rows.count - m * S, S);
-            // two chunks at a time (their range decoders interleaved), unless the indices are symbols (decodeIndices
-            // between chunks); ctx.chunkPairs = false: one at a time (a test compares the two)
-            const pairs = this.ctx.chunkPairs !== false && !(this.ctx.stepAdjust && !this.ctx.stepFlags);
-            for (let m = 0; m < chunks; m++) {
-                if (pairs && m + 1 < chunks) { this.decodeChunkPair(rows, m * S, size(m), (m + 1) * S, size(m + 1), nb); m++; }
-                else this.decodeChunk(rows, m * S, size(m), nb);
+            // several chunks at a time, their range decoders interleaved: four where the rows take the prior's means
+            // and levels (no neighbours, no step adjustment, no SH-degree tool), else two, unless the indices are
+            // symbols (decodeIndices between chunks); ctx.chunkPairs = false: one at a time (a test compares the two)
+            const prior = !nb && !this.ctx.stepAdjust && !this.ctx.shDegreeUnit;
+            const group = this.ctx.chunkPairs === false || (this.ctx.stepAdjust && !this.ctx.stepFlags) ? 1 : prior ? 4 : 2;
+            for (let m = 0; m < chunks;) {
+                const g = Math.min(group, chunks - m), parts = [];
+                for (let i = m; i < m + g; i++) parts.push({ lo: i * S, nr: size(i) });
+                if (g === 1) this.decodeChunk(rows, m * S, size(m), nb);
+                else this.decodeChunkGroup(rows, parts, nb, prior);
+                m += g;
             }
             if (nb) this.w.release(nb.mark);
         }
@@ -128,31 +133,35 @@ class TileAttributeDecoder {
     }
 
     /**
-     * Chunks i and i + 1: nrA rows of the LoD's rows from its loA-th on, then nrB from loB (loA + nrA), by the
-     * module's attributeChunkPair; any failure decodes them again one after the other (decodeChunk), whose
-     * error names the first fault in stream order.
+     * Chunks i, i + 1, ...: parts[t].nr rows of the LoD's rows from its parts[t].lo-th on, by the module's
+     * attributePriorChunks (up to four chunks, prior) or attributeChunkPair (two); any failure decodes them again
+     * one after the other (decodeChunk), whose error names the first fault in stream order.
      */
-    decodeChunkPair(rows, loA, nrA, loB, nrB, nb) {
+    decodeChunkGroup(rows, parts, nb, prior) {
         const off = this.off, chunk = this.chunk, w = this.w, k = nb ? this.ctx.np.k : 0;
         const again = (e) => {
             this.off = off; this.chunk = chunk;
-            this.decodeChunk(rows, loA, nrA, nb);
-            this.decodeChunk(rows, loB, nrB, nb);
+            for (const { lo, nr } of parts) this.decodeChunk(rows, lo, nr, nb);
             throw e; // not reached: the same bytes fail again
         };
-        let parts;
+        let data;
         try {
-            parts = [this.takeChunk(), this.takeChunk()];
+            data = parts.map(() => this.takeChunk());
         } catch (e) {
             again(e);
         }
         w.reset();
         const at = (arr) => copyIn(w, arr);
-        const args = (c, lo, nr) => [at(c.bytes), c.bytes.length, rowsInModule(w, rows, lo, nr), nr,
-            nb ? nb.idx + 4 * lo * k : alloc(w, 0), nb ? nb.cnt + lo : alloc(w, nr), at(c.degrees), c.degrees.length, at(c.stepData), c.stepData.length];
-        const a = args(parts[0], loA, nrA), b = args(parts[1], loB, nrB);
         try {
-            w.attributeChunkPair(...a, ...b, k);
+            if (prior) {
+                const desc = new Int32Array(4 * parts.length);
+                parts.forEach(({ lo, nr }, t) => desc.set([at(data[t].bytes), data[t].bytes.length, rowsInModule(w, rows, lo, nr), nr], 4 * t));
+                w.attributePriorChunks(at(desc), parts.length);
+            } else {
+                const args = (c, lo, nr) => [at(c.bytes), c.bytes.length, rowsInModule(w, rows, lo, nr), nr,
+                    nb ? nb.idx + 4 * lo * k : alloc(w, 0), nb ? nb.cnt + lo : alloc(w, nr), at(c.degrees), c.degrees.length, at(c.stepData), c.stepData.length];
+                w.attributeChunkPair(...args(data[0], parts[0].lo, parts[0].nr), ...args(data[1], parts[1].lo, parts[1].nr), k);
+            }
         } catch (e) {
             if (!(e instanceof WebAssembly.RuntimeError)) throw e;
             again(e);
@@ -193,6 +202,8 @@ class TileAttributeDecoder {
         callWasm(() => w.reconstruct(n, pScale, out), (code, row, c) => new BitstreamError(`row ${row}, channel ${c}: the reconstructed value is not finite (clause 11.5, E52)`, 'E52'));
         const rl = this.ctx.rotationLength;
         if (rl) callWasm(() => w.impliedRotations(out, n, M - 4, rl.maxIndex), (code, row) => lengthIndexError(new Int32Array(w.memory.buffer, this.qAddr, 2 * n * M), row, M, M - 4, rl.maxIndex));
+        // the values while they are in the module's memory (the tile's hash, the renderer's arrays); q is no longer needed: scratch
+        if (this.onValues) this.onValues(w, out, this.qAddr, 8 * n * M);
         return new Float32Array(w.memory.buffer, out, n * M).slice();
     }
 
@@ -220,10 +231,13 @@ function chunkError(what, code, a, b, w) {
 
 /**
  * Decode the attribute unit of a tile: returns the reconstructed values, Float32Array [n * M]
- * (row-major, channel order of clause 11.1).
+ * (row-major, channel order of clause 11.1). onValues(w, address, scratch, bytes): called with the values'
+ * address in the module's memory before they are copied out (valid until the next call into the module), and a
+ * region of `bytes` at scratch that is free by then (the tile's q).
  */
-export function decodeTileAttributes(payload, header, coords, ctx) {
+export function decodeTileAttributes(payload, header, coords, ctx, onValues = null) {
     const dec = new TileAttributeDecoder(payload, header, coords, ctx);
+    dec.onValues = onValues;
     try {
         dec.run();
         return dec.reconstruct();

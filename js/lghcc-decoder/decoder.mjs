@@ -101,8 +101,13 @@ export function checkMemory(ctx, streamBytes, maxMemory) {
     }
 }
 
-/** Decode tile t of the stream context (clause 13.2). Returns {x, y, z, values, n}. */
-export async function decodeTile(ctx, t, { checkHash = true } = {}) {
+/**
+ * Decode tile t of the stream context (clause 13.2). Returns {x, y, z, values, n}. digest (default: checkHash):
+ * the tile's clause-12 serialization is made and handed to the hash while its values are still in the module
+ * (no copy of them back in), for checkTileHash, which also serializes the tile itself where this was not asked;
+ * arrays: the renderer's arrays likewise, for tileSceneArrays.
+ */
+export async function decodeTile(ctx, t, { checkHash = true, digest = checkHash, arrays = false } = {}) {
     const tile = ctx.tiles[t];
     const [G, ...rest] = tile.units;
     const H = rest.pop();
@@ -114,11 +119,30 @@ export async function decodeTile(ctx, t, { checkHash = true } = {}) {
     const sceneHash = parseHashUnit(H.payload);
     const h = parseAttributeHeader(A[0].payload, ctx);
     if (h.numRows !== n) throw new BitstreamError(`attribute unit of tile ${t}: num_rows_minus1 + 1 = ${h.numRows}, the tile has ${n} points (clause 8.3, E59)`, 'E59');
-    const values = decodeTileAttributes(A[0].payload, h, coords, ctx);
+    let hashed = null, made = null;
+    const values = decodeTileAttributes(A[0].payload, h, coords, ctx, digest || arrays ? (w, pv, scratch, room) => {
+        // in the attribute decode's free scratch where they fit (the memory bound of checkMemory holds), one after the other
+        const pc = [coords.x, coords.y, coords.z].map((a) => copyIn(w, a)), M = ctx.ps.M;
+        const place = (bytes) => (bytes <= room ? scratch : alloc(w, bytes, false));
+        if (arrays) {
+            const v = rendererViews(ctx.ps, w, pc, pv, n, place(4 * n * (3 + M)));
+            made = { ...v };
+            for (const [name] of RENDERER_PARTS(0)) made[name] = v[name].slice();
+        }
+        if (!digest) return;
+        hashed = sha256(serialization(ctx.ps, w, pc, pv, n, place(3 + HEAD + n * (24 + 4 * M))));
+        hashed.catch(() => {}); // awaited by checkTileHash
+    } : null);
     const out = { x: coords.x, y: coords.y, z: coords.z, values, n, sceneHash: toHex(sceneHash) };
+    if (hashed) digests.set(out, hashed);
+    if (made) madeArrays.set(out, made);
     if (checkHash) await checkTileHash(ctx, t, out);
     return out;
 }
+
+// decodeTile's digests of its results, started while the values were in the module (checkTileHash takes them),
+// and their renderer arrays where asked (tileSceneArrays takes them)
+const digests = new WeakMap(), madeArrays = new WeakMap();
 
 /**
  * Clause 12's check of a decoded tile (decodeTile's result) against its scene_hash; rejects with
@@ -126,7 +150,9 @@ export async function decodeTile(ctx, t, { checkHash = true } = {}) {
  * the bytes and hashes them off this thread), so the caller may go on before awaiting it.
  */
 export async function checkTileHash(ctx, t, out) {
-    const digest = await sha256(serializeTile(ctx.ps, out));
+    const started = digests.get(out);
+    digests.delete(out);
+    const digest = await (started || sha256(serializeTile(ctx.ps, out)));
     if (toHex(digest) !== out.sceneHash) throw new HashMismatchError(`tile ${t}: the decoded scene does not match its scene_hash (clause 12, E53)`, 'E53');
 }
 
@@ -157,17 +183,25 @@ function serialHeader(ps, N) {
  * `parts`, the body's parts [coordinates, SH, opacity, scales, rotations] as copies instead.
  */
 function serializeTile(ps, t, parts = false) {
-    const w = wasm(), M = ps.M, S3 = 3 * ps.S, n = t.n, lead = 3 + HEAD; // 3 bytes before the header align the body to 4
-    const body = n * (24 + 4 * M);
+    const w = wasm(), M = ps.M, S3 = 3 * ps.S, n = t.n;
     w.reset();
-    const out = alloc(w, lead + body, false); // the module writes the body, the header is set below
-    const px = copyIn(w, t.x), py = copyIn(w, t.y), pz = copyIn(w, t.z), pv = copyIn(w, t.values);
-    w.serializeTile(px, py, pz, pv, n, M, S3, out + lead);
-    if (parts) {
-        const ends = [24, 4 * S3, 4, 12, 4 * (M - S3 - 4)];
-        let at = out + lead;
-        return ends.map((size) => { at += size * n; return new Uint8Array(w.memory.buffer, at - size * n, size * n).slice(); });
-    }
+    const pc = [t.x, t.y, t.z].map((a) => copyIn(w, a)), pv = copyIn(w, t.values);
+    if (!parts) return serialization(ps, w, pc, pv, n, alloc(w, 3 + HEAD + n * (24 + 4 * M), false));
+    const out = alloc(w, n * (24 + 4 * M), false);
+    w.serializeTile(...pc, pv, n, M, S3, out);
+    const ends = [24, 4 * S3, 4, 12, 4 * (M - S3 - 4)];
+    let at = out;
+    return ends.map((size) => { at += size * n; return new Uint8Array(w.memory.buffer, at - size * n, size * n).slice(); });
+}
+
+/**
+ * Clause 12's serialization of a tile's n points, coordinates at pc ([x, y, z] addresses, int32) and values at pv
+ * in the module's memory, made at out (3 + 49 + n (24 + 4 M) bytes): a view of it, valid until the next call into
+ * the module.
+ */
+function serialization(ps, w, pc, pv, n, out) {
+    const M = ps.M, lead = 3 + HEAD, body = n * (24 + 4 * M); // 3 bytes before the header align the body to 4
+    w.serializeTile(...pc, pv, n, M, 3 * ps.S, out + lead); // the module writes the body, the header is set below
     const bytes = new Uint8Array(w.memory.buffer, out + 3, HEAD + body);
     bytes.set(serialHeader(ps, n));
     return bytes;
@@ -216,12 +250,12 @@ export async function decodeStream(bytes, { box = null, maxMemory = DEFAULT_MAX_
     for (const t of selected) {
         let r;
         try {
-            r = await decodeTile(ctx, t, { checkHash: false });
+            r = await decodeTile(ctx, t, { checkHash: false, digest: true });
         } catch (e) {
             if (prev) await prev.hashed;
             throw e;
         }
-        const hashed = checkTileHash(ctx, t, r); // the serialization is handed to Web Crypto now
+        const hashed = checkTileHash(ctx, t, r); // the digest was started by decodeTile (Web Crypto: off this thread)
         hashed.catch(() => {}); // awaited by settle
         if (prev) await settle();
         prev = { t, r, hashed };
@@ -258,10 +292,19 @@ const RENDERER_PARTS = (S3) => [['positions', 3], ['sh', S3], ['opacities', 1], 
 
 // sceneArrays of one tile as views of the module's memory
 function tileArrayViews(ps, t) {
-    const n = t.n, M = ps.M, w = wasm();
+    const w = wasm();
     w.reset();
-    const px = copyIn(w, t.x), py = copyIn(w, t.y), pz = copyIn(w, t.z), pv = copyIn(w, t.values), pa = alloc(w, 4 * n * (3 + M), false);
-    w.rendererArrays(px, py, pz, pv, n, M, 3 * ps.S, Math.fround(ps.voxelSize), ps.origin[0], ps.origin[1], ps.origin[2], pa);
+    const pc = [t.x, t.y, t.z].map((c) => copyIn(w, c)), pv = copyIn(w, t.values);
+    return rendererViews(ps, w, pc, pv, t.n, alloc(w, 4 * t.n * (3 + ps.M), false));
+}
+
+/**
+ * sceneArrays of one tile's n points, coordinates at pc ([x, y, z] addresses, int32) and values at pv in the
+ * module's memory, made by the module (rendererArrays) at pa (4 n (3 + M) bytes): views of its memory, valid
+ * until the next call into it.
+ */
+function rendererViews(ps, w, pc, pv, n, pa) {
+    w.rendererArrays(...pc, pv, n, ps.M, 3 * ps.S, Math.fround(ps.voxelSize), ps.origin[0], ps.origin[1], ps.origin[2], pa);
     const out = { count: n, shDegree: ps.shDegree };
     let at = pa;
     for (const [name, width] of RENDERER_PARTS(3 * ps.S)) {
@@ -269,4 +312,15 @@ function tileArrayViews(ps, t) {
         at += 4 * width * n;
     }
     return out;
+}
+
+/**
+ * sceneArrays(ps, [tile]) of a tile decodeTile decoded with `arrays` (made while its values were in the module),
+ * else made now.
+ */
+export function tileSceneArrays(ps, tile) {
+    const made = madeArrays.get(tile);
+    if (!made) return sceneArrays(ps, [tile]);
+    madeArrays.delete(tile);
+    return made;
 }

@@ -6,7 +6,7 @@
 // ({prelude}), then the decoding worker hands each complete tile to a helper ({job}); a helper
 // decodes it, says so ({decoded}: its next job is sent then, while this tile's hash is computed off
 // its thread), hash-checks it and sends back the renderer's arrays (and, for a digest, the decoded tile).
-import { checkTileHash, decodeTile, preludeContext, sceneArrays } from './decoder.mjs';
+import { checkTileHash, decodeTile, preludeContext, tileSceneArrays } from './decoder.mjs';
 import * as errors from './errors.mjs';
 import { adoptScaleTables, scaleTables } from './tables.mjs';
 import { parseGaussianParameterSet } from './units.mjs';
@@ -196,12 +196,12 @@ export async function helperMessage(data, port) {
         const ctx = helper.streams.get(id);
         ctx.tiles[t] = { units, points, cell };
         const start = clock();
-        const r = await decodeTile(ctx, t, { checkHash: false });
+        const r = await decodeTile(ctx, t, { checkHash: false, digest: true, arrays: true });
         ctx.tiles[t] = null;
         port.postMessage({ id, t, decoded: true }); // the next tile may come while this one is hash-checked
-        const hashed = checkTileHash(ctx, t, r); // the serialization is handed to Web Crypto now
+        const hashed = checkTileHash(ctx, t, r); // the digest was started by decodeTile (Web Crypto: off this thread)
         hashed.catch(() => {}); // awaited below
-        const arrays = sceneArrays(ctx.ps, [r]);
+        const arrays = tileSceneArrays(ctx.ps, r);
         const decoded = clock();
         await hashed;
         const transfer = arrayBuffers(arrays);

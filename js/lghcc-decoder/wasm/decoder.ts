@@ -855,7 +855,7 @@ export function decodeSymbols(p: usize, nbytes: i32, lv: usize, n: i32, out: usi
         rR = R; rD = D; rPos = pos;
         start = end;
     }
-    if (nesc) decodeEscapes(lv, n, out, wide, esc, nesc, wideOnly);
+    if (nesc) decodeEscapes(lv, n, out, wide, esc, nesc, wideOnly, 0);
     checkExhausted();
     return nesc;
 }
@@ -875,7 +875,8 @@ function decodeBits(w: usize, n: i32, v: usize): void {
     }
 }
 
-function decodeEscapes(lv: usize, n: i32, out: usize, wide: usize, esc: usize, nesc: i32, wideOnly: bool): void {
+/** The escape section (10.7) of n residuals of levels lv[j], or lv[j % period] when period > 0 (rows of one level pattern). */
+function decodeEscapes(lv: usize, n: i32, out: usize, wide: usize, esc: usize, nesc: i32, wideOnly: bool, period: i32): void {
     const idx = alloc(nesc << 2), sign = alloc(nesc), k = alloc(nesc << 2), width = alloc(nesc << 2), rem = alloc(nesc << 3);
     for (let j = 0, e = 0; j < n; j++) if (u8At(esc, j)) setI32(idx, e++, j);
     for (let e = 0; e < nesc; e++) setU8(sign, e, <i32>decodeUniform(1));
@@ -885,7 +886,7 @@ function decodeEscapes(lv: usize, n: i32, out: usize, wide: usize, esc: usize, n
     }
     decodeBits(width, nesc, rem);
     for (let e = 0; e < nesc; e++) {
-        const j = i32At(idx, e), c = i32At(k, e), L = <u64>i32At(lvHalf, u8At(lv, j));
+        const j = i32At(idx, e), c = i32At(k, e), L = <u64>i32At(lvHalf, u8At(lv, period ? j % period : j));
         const m: u64 = c == 0 ? 0 : (<u64>1 << <u64>(c - 1)) + u64At(rem, e); // c <= 62: below 2^62
         const mag = L + 1 + m;
         if (mag > MAX_RESIDUAL) { errWide = mag; fail(ERR_ESCAPE, 0, 0); }
@@ -911,6 +912,7 @@ export function attributeTile(q: usize, M: i32, adj: usize, sa: i32, fix: usize,
     aQ = q; aM = M; aAdj = adj; aSa = sa; aFix = fix; aShift = shift; aMeanFlag = meanFlag; aBucket = bucket; aB = B;
     aPrior = prior; aPriorLevel = priorLevel; aPStart = pStart; aPSrc = pSrc; aPW = pW;
     aDeg = 0; aStepFlags = 0;
+    priorGroups();
 }
 
 // The step-adjustment indices as flags (11.8, version 1.5; attributeStepFlags after attributeTile, when
@@ -965,6 +967,11 @@ const Q_LIMIT: i64 = 0x10000000000; // 2^40
 export function attributeChunk(p: usize, nbytes: i32, rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, dp: usize, dbytes: i32,
     sp: usize, sbytes: i32): i32 {
     err = 0;
+    if (priorRows(k)) {
+        const desc = alloc(16);
+        setI32(desc, 0, <i32>p); setI32(desc, 1, nbytes); setI32(desc, 2, <i32>rows); setI32(desc, 3, nr);
+        return attributePriorChunks(desc, 1);
+    }
     if (aStepFlags) { stage = STAGE_STEP_FLAGS; decodeFlags(sp, sbytes, rows, nr, idx, cnt, k, aAdj, aMaxStep, aStepFreq); }
     if (aDeg) { stage = STAGE_FLAGS; decodeFlags(dp, dbytes, rows, nr, idx, cnt, k, aDeg, aD, aFreq); }
     stage = STAGE_SYMBOLS;
@@ -975,7 +982,7 @@ export function attributeChunk(p: usize, nbytes: i32, rows: usize, nr: i32, idx:
     const ns = aDeg ? codedLevels(rows, nr, level) : n;
     const nesc = symbolChunk(p, nbytes, level, ns, 0, res, true);
     if (aDeg) for (let r = 0, j = 0; r < nr; r++) j = rowValuesCoded(i32At(rows, r), r * M, j, mean, res);
-    else for (let r = 0; r < nr; r++) rowValues(i32At(rows, r), r * M, mean, res);
+    else for (let r = 0; r < nr; r++) rowValuesLanes(i32At(rows, r), mean + (<usize>(r * M) << 3), res + (<usize>(r * M) << 3));
     return nesc;
 }
 
@@ -1014,7 +1021,7 @@ function chunkFlags(rows: usize, nr: i32, idx: usize, cnt: usize, k: i32, dp: us
 function chunkValues(rows: usize, nr: i32, mean: usize, res: usize): void {
     const M = aM;
     if (aDeg) for (let r = 0, j = 0; r < nr; r++) j = rowValuesCoded(i32At(rows, r), r * M, j, mean, res);
-    else for (let r = 0; r < nr; r++) rowValues(i32At(rows, r), r * M, mean, res);
+    else for (let r = 0; r < nr; r++) rowValuesLanes(i32At(rows, r), mean + (<usize>(r * M) << 3), res + (<usize>(r * M) << 3));
 }
 
 /**
@@ -1073,11 +1080,11 @@ function symbolPair(pa: usize, nba: i32, lva: usize, na: i32, wa: usize, pb: usi
     }
     rBytes = pa; rWords = wordsA; rR = Ra; rD = Da; rPos = posA;
     nea += binsFrom(m, na, oa, sa, wa, ea);
-    if (nea) decodeEscapes(lva, na, 0, wa, ea, nea, true);
+    if (nea) decodeEscapes(lva, na, 0, wa, ea, nea, true, 0);
     checkExhausted();
     rBytes = pb; rWords = wordsB; rR = Rb; rD = Db; rPos = posB;
     neb += binsFrom(m, nb, ob, sb, wb, eb);
-    if (neb) decodeEscapes(lvb, nb, 0, wb, eb, neb, true);
+    if (neb) decodeEscapes(lvb, nb, 0, wb, eb, neb, true, 0);
     checkExhausted();
 }
 
@@ -1101,6 +1108,206 @@ function binsFrom(t0: i32, n: i32, order: usize, sorted: usize, wide: usize, esc
     return nesc;
 }
 
+// ---------------------------------------------------------------- chunks of prior rows (11.3, 10.7)
+
+// Where no row of a chunk has neighbours (no neighbour prediction, or LoD 0) and the stream has neither
+// step adjustment nor the SH-degree tool, every row's means and levels are the prior's (11.3): the same
+// for every row. The chunk's bins, grouped by level (10.7), are then for each level its channels of
+// row 0, row 1, ...: no per-row means and levels, no sort by level, one model per run of symbols.
+// Per chunk a record of PC_SIZE bytes: its data's address and words, the decoder's word position and
+// state R, D, its rows (i32 [nr]) and nr, residuals res (i64 [nr * M]), escape marks esc (u8 [nr * M])
+// and escape count.
+const PC_BYTES = 0; const PC_WORDS = 4; const PC_POS = 8; const PC_ROWS = 12; const PC_NR = 16;
+const PC_RES = 20; const PC_ESC = 24; const PC_NESC = 28; const PC_R = 32; const PC_D = 40; const PC_SIZE = 48;
+
+// the prior's channels in increasing (level, channel): pcChans (i32 [M]); group g (one level, pcLev[g])
+// from pcStart[g] to pcStart[g + 1]; pcMean the prior's means (i64 [M]); set by attributeTile
+let pcChans: usize = 0; let pcStart: usize = 0; let pcLev: usize = 0; let pcGroups: i32 = 0; let pcMean: usize = 0;
+// the channels with a cross-channel prediction (11.6), increasing (i32 [pvCount]); set by attributeTile
+let pvTargets: usize = 0; let pvCount: i32 = 0;
+
+function priorGroups(): void {
+    const M = aM;
+    pcChans = alloc(M << 2); pcStart = alloc((M + 1) << 2); pcLev = alloc(M << 2); pcMean = alloc(M << 3);
+    let j = 0, g = 0;
+    for (let l = 0; l < 64; l++) { // prior_level is 6 bits (7.3.4)
+        const j0 = j;
+        for (let c = 0; c < M; c++) if (u8At(aPriorLevel, c) == l) setI32(pcChans, j++, c);
+        if (j > j0) { setI32(pcStart, g, j0); setI32(pcLev, g, l); g++; }
+    }
+    setI32(pcStart, g, j);
+    pcGroups = g;
+    for (let c = 0; c < M; c++) setI64(pcMean, c, <i64>load<f64>(aPrior + (<usize>c << 3)));
+    pvTargets = alloc(M << 2); pvCount = 0;
+    for (let c = 0; c < M; c++) if (i32At(aPStart, c + 1) > i32At(aPStart, c)) setI32(pvTargets, pvCount++, c);
+}
+
+/** Whether attributeChunk's rows (k == 0: no neighbours) take the prior's means and levels unchanged. */
+@inline function priorRows(k: i32): bool { return k == 0 && !aSa && !aDeg; }
+
+/**
+ * count (1 .. 4) chunks of one LoD decoded as attributeChunk decodes them one after the other, where
+ * priorRows holds: chunk i's data at desc[4 i] of desc[4 i + 1] bytes, its rows at desc[4 i + 2], nr =
+ * desc[4 i + 3] (i32). The symbols of a level, row by row, with the chunks' range decoders interleaved
+ * (priorQuad, priorPair: their serial chains overlap in the processor), then each chunk's escapes and
+ * exhaustion check, then the values. Returns the escapes' number. A failure of several chunks traps with
+ * no order between them: the caller decodes them again one at a time, which names the first fault.
+ */
+export function attributePriorChunks(desc: usize, count: i32): i32 {
+    err = 0; stage = STAGE_SYMBOLS;
+    const M = aM, recs = alloc(count * PC_SIZE);
+    let nr4 = 0x7FFFFFFF, nr2 = 0x7FFFFFFF; // the fewest rows of chunks 0 .. 3 and of chunks 0, 1
+    for (let i = 0; i < count; i++) {
+        const rec = recs + <usize>(i * PC_SIZE), nr = i32At(desc, 4 * i + 3);
+        rangeStart(<usize>i32At(desc, 4 * i), i32At(desc, 4 * i + 1));
+        store<i32>(rec + PC_BYTES, <i32>rBytes); store<i32>(rec + PC_WORDS, rWords); store<i32>(rec + PC_POS, rPos);
+        store<u64>(rec + PC_R, rR); store<u64>(rec + PC_D, rD);
+        store<i32>(rec + PC_ROWS, i32At(desc, 4 * i + 2)); store<i32>(rec + PC_NR, nr);
+        store<i32>(rec + PC_RES, <i32>reserve((nr * M) << 3)); store<i32>(rec + PC_ESC, <i32>alloc(nr * M));
+        nr4 = min(nr4, nr); if (i < 2) nr2 = min(nr2, nr);
+    }
+    const joint = count >= 4 ? 4 : count >= 2 ? 2 : 0, shared = joint == 4 ? nr4 : nr2;
+    for (let g = 0; g < pcGroups; g++) {
+        const c0 = i32At(pcStart, g), c1 = i32At(pcStart, g + 1), lev = i32At(pcLev, g), L = i32At(lvHalf, lev);
+        const cum = lvCum + (<usize>i32At(lvOff, lev) << 2), lut = lvLut + (<usize>(lev * LUT_SIZE) << 1);
+        if (joint == 4) priorQuad(recs, c0, c1, shared, L, cum, lut);
+        else if (joint == 2) priorPair(recs, c0, c1, shared, L, cum, lut);
+        for (let i = 0; i < count; i++) {
+            const rec = recs + <usize>(i * PC_SIZE);
+            priorRun(rec, c0, c1, i < joint ? shared : 0, load<i32>(rec + PC_NR), L, cum, lut);
+        }
+    }
+    let nesc = 0;
+    for (let i = 0; i < count; i++) nesc += priorFinish(recs + <usize>(i * PC_SIZE));
+    return nesc;
+}
+
+/** A prior chunk after its bins: its escapes (10.7) and exhaustion check (10.6.5), then its values q (11.6). */
+function priorFinish(rec: usize): i32 {
+    const M = aM, nr = load<i32>(rec + PC_NR), rows = <usize>load<i32>(rec + PC_ROWS), res = <usize>load<i32>(rec + PC_RES);
+    const nesc = load<i32>(rec + PC_NESC);
+    rBytes = <usize>load<i32>(rec + PC_BYTES); rWords = load<i32>(rec + PC_WORDS); rPos = load<i32>(rec + PC_POS);
+    rR = load<u64>(rec + PC_R); rD = load<u64>(rec + PC_D);
+    if (nesc) decodeEscapes(aPriorLevel, nr * M, 0, res, <usize>load<i32>(rec + PC_ESC), nesc, true, M);
+    checkExhausted();
+    for (let r = 0; r < nr; r++) rowValuesLanes(i32At(rows, r), pcMean, res + (<usize>(r * M) << 3));
+    return nesc;
+}
+
+/** The bin of quantile q in a level's model (cum, lut: tables.mjs's ModelSet), from the table's guess up. */
+@inline function binOf(q: u64, cum: usize, lut: usize): i32 {
+    let b = <i32>load<u16>(lut + (<usize>(q >> LUT_SHIFT) << 1));
+    while (<u64>i32At(cum, b + 1) <= q) b++;
+    return b;
+}
+
+/** Word pos of a prior chunk's data, 0 past its end (10.6.6). */
+@inline function recWord(rec: usize, pos: i32): u64 {
+    return pos < load<i32>(rec + PC_WORDS) ? <u64>load<u32>(<usize>load<i32>(rec + PC_BYTES) + (<usize>pos << 2)) : 0;
+}
+
+/** Residual j of a prior chunk is an escape (its magnitude follows in the escape section, 10.7). */
+@inline function escapeAt(rec: usize, j: i32): void {
+    setU8(<usize>load<i32>(rec + PC_ESC), j, 1);
+    store<i32>(rec + PC_NESC, load<i32>(rec + PC_NESC) + 1);
+}
+
+/**
+ * The bins of rows r0 .. r1 - 1 of one level's channels pcChans[c0 .. c1 - 1] (half width L, model cum,
+ * lut) of the prior chunk at rec, its decoder's state in locals; every bin's b - L to res (an escape's
+ * is replaced by decodeEscapes).
+ */
+function priorRun(rec: usize, c0: i32, c1: i32, r0: i32, r1: i32, L: i32, cum: usize, lut: usize): void {
+    const M = aM, ESC = 2 * L + 1, res = <usize>load<i32>(rec + PC_RES);
+    let R = load<u64>(rec + PC_R), D = load<u64>(rec + PC_D), pos = load<i32>(rec + PC_POS);
+    for (let r = r0; r < r1; r++) {
+        for (let i = c0; i < c1; i++) {
+            const scale = R >> 24, q = D / scale;
+            if (q >= 0x1000000) fail(ERR_RANGE, 0, 0);
+            const b = binOf(q, cum, lut), c = <u64>i32At(cum, b);
+            R = (<u64>i32At(cum, b + 1) - c) * scale; D -= c * scale;
+            if (R < 0x100000000) { R <<= 32; D = (D << 32) | recWord(rec, pos); pos += <i32>(pos < load<i32>(rec + PC_WORDS)); }
+            const j = r * M + i32At(pcChans, i);
+            setI64(res, j, <i64>(b - L)); if (b == ESC) escapeAt(rec, j);
+        }
+    }
+    store<u64>(rec + PC_R, R); store<u64>(rec + PC_D, D); store<i32>(rec + PC_POS, pos);
+}
+
+/** priorRun of rows 0 .. nr - 1 of two chunks (records recs[0], recs[1]), a symbol of each in turn. */
+function priorPair(recs: usize, c0: i32, c1: i32, nr: i32, L: i32, cum: usize, lut: usize): void {
+    const M = aM, ESC = 2 * L + 1;
+    const rec0 = recs + <usize>(0 * PC_SIZE), res0 = <usize>load<i32>(rec0 + PC_RES);
+    let R0 = load<u64>(rec0 + PC_R), D0 = load<u64>(rec0 + PC_D), pos0 = load<i32>(rec0 + PC_POS);
+    const rec1 = recs + <usize>(1 * PC_SIZE), res1 = <usize>load<i32>(rec1 + PC_RES);
+    let R1 = load<u64>(rec1 + PC_R), D1 = load<u64>(rec1 + PC_D), pos1 = load<i32>(rec1 + PC_POS);
+    for (let r = 0; r < nr; r++) {
+        for (let i = c0; i < c1; i++) {
+            const j = r * M + i32At(pcChans, i);
+            { const scale = R0 >> 24, q = D0 / scale;
+              if (q >= 0x1000000) fail(ERR_RANGE, 0, 0);
+              const b = binOf(q, cum, lut), c = <u64>i32At(cum, b);
+              R0 = (<u64>i32At(cum, b + 1) - c) * scale; D0 -= c * scale;
+              if (R0 < 0x100000000) { R0 <<= 32; D0 = (D0 << 32) | recWord(rec0, pos0); pos0 += <i32>(pos0 < load<i32>(rec0 + PC_WORDS)); }
+              setI64(res0, j, <i64>(b - L)); if (b == ESC) escapeAt(rec0, j); }
+            { const scale = R1 >> 24, q = D1 / scale;
+              if (q >= 0x1000000) fail(ERR_RANGE, 0, 0);
+              const b = binOf(q, cum, lut), c = <u64>i32At(cum, b);
+              R1 = (<u64>i32At(cum, b + 1) - c) * scale; D1 -= c * scale;
+              if (R1 < 0x100000000) { R1 <<= 32; D1 = (D1 << 32) | recWord(rec1, pos1); pos1 += <i32>(pos1 < load<i32>(rec1 + PC_WORDS)); }
+              setI64(res1, j, <i64>(b - L)); if (b == ESC) escapeAt(rec1, j); }
+        }
+    }
+    store<u64>(rec0 + PC_R, R0); store<u64>(rec0 + PC_D, D0); store<i32>(rec0 + PC_POS, pos0);
+    store<u64>(rec1 + PC_R, R1); store<u64>(rec1 + PC_D, D1); store<i32>(rec1 + PC_POS, pos1);
+}
+
+/** priorRun of rows 0 .. nr - 1 of four chunks (records recs[0 .. 3]), a symbol of each in turn: four serial chains overlap. */
+function priorQuad(recs: usize, c0: i32, c1: i32, nr: i32, L: i32, cum: usize, lut: usize): void {
+    const M = aM, ESC = 2 * L + 1;
+    const rec0 = recs + <usize>(0 * PC_SIZE), res0 = <usize>load<i32>(rec0 + PC_RES);
+    let R0 = load<u64>(rec0 + PC_R), D0 = load<u64>(rec0 + PC_D), pos0 = load<i32>(rec0 + PC_POS);
+    const rec1 = recs + <usize>(1 * PC_SIZE), res1 = <usize>load<i32>(rec1 + PC_RES);
+    let R1 = load<u64>(rec1 + PC_R), D1 = load<u64>(rec1 + PC_D), pos1 = load<i32>(rec1 + PC_POS);
+    const rec2 = recs + <usize>(2 * PC_SIZE), res2 = <usize>load<i32>(rec2 + PC_RES);
+    let R2 = load<u64>(rec2 + PC_R), D2 = load<u64>(rec2 + PC_D), pos2 = load<i32>(rec2 + PC_POS);
+    const rec3 = recs + <usize>(3 * PC_SIZE), res3 = <usize>load<i32>(rec3 + PC_RES);
+    let R3 = load<u64>(rec3 + PC_R), D3 = load<u64>(rec3 + PC_D), pos3 = load<i32>(rec3 + PC_POS);
+    for (let r = 0; r < nr; r++) {
+        for (let i = c0; i < c1; i++) {
+            const j = r * M + i32At(pcChans, i);
+            { const scale = R0 >> 24, q = D0 / scale;
+              if (q >= 0x1000000) fail(ERR_RANGE, 0, 0);
+              const b = binOf(q, cum, lut), c = <u64>i32At(cum, b);
+              R0 = (<u64>i32At(cum, b + 1) - c) * scale; D0 -= c * scale;
+              if (R0 < 0x100000000) { R0 <<= 32; D0 = (D0 << 32) | recWord(rec0, pos0); pos0 += <i32>(pos0 < load<i32>(rec0 + PC_WORDS)); }
+              setI64(res0, j, <i64>(b - L)); if (b == ESC) escapeAt(rec0, j); }
+            { const scale = R1 >> 24, q = D1 / scale;
+              if (q >= 0x1000000) fail(ERR_RANGE, 0, 0);
+              const b = binOf(q, cum, lut), c = <u64>i32At(cum, b);
+              R1 = (<u64>i32At(cum, b + 1) - c) * scale; D1 -= c * scale;
+              if (R1 < 0x100000000) { R1 <<= 32; D1 = (D1 << 32) | recWord(rec1, pos1); pos1 += <i32>(pos1 < load<i32>(rec1 + PC_WORDS)); }
+              setI64(res1, j, <i64>(b - L)); if (b == ESC) escapeAt(rec1, j); }
+            { const scale = R2 >> 24, q = D2 / scale;
+              if (q >= 0x1000000) fail(ERR_RANGE, 0, 0);
+              const b = binOf(q, cum, lut), c = <u64>i32At(cum, b);
+              R2 = (<u64>i32At(cum, b + 1) - c) * scale; D2 -= c * scale;
+              if (R2 < 0x100000000) { R2 <<= 32; D2 = (D2 << 32) | recWord(rec2, pos2); pos2 += <i32>(pos2 < load<i32>(rec2 + PC_WORDS)); }
+              setI64(res2, j, <i64>(b - L)); if (b == ESC) escapeAt(rec2, j); }
+            { const scale = R3 >> 24, q = D3 / scale;
+              if (q >= 0x1000000) fail(ERR_RANGE, 0, 0);
+              const b = binOf(q, cum, lut), c = <u64>i32At(cum, b);
+              R3 = (<u64>i32At(cum, b + 1) - c) * scale; D3 -= c * scale;
+              if (R3 < 0x100000000) { R3 <<= 32; D3 = (D3 << 32) | recWord(rec3, pos3); pos3 += <i32>(pos3 < load<i32>(rec3 + PC_WORDS)); }
+              setI64(res3, j, <i64>(b - L)); if (b == ESC) escapeAt(rec3, j); }
+        }
+    }
+    store<u64>(rec0 + PC_R, R0); store<u64>(rec0 + PC_D, D0); store<i32>(rec0 + PC_POS, pos0);
+    store<u64>(rec1 + PC_R, R1); store<u64>(rec1 + PC_D, D1); store<i32>(rec1 + PC_POS, pos1);
+    store<u64>(rec2 + PC_R, R2); store<u64>(rec2 + PC_D, D2); store<i32>(rec2 + PC_POS, pos2);
+    store<u64>(rec3 + PC_R, R3); store<u64>(rec3 + PC_D, D3); store<i32>(rec3 + PC_POS, pos3);
+}
+
 /**
  * q of one row (11.4 step 3, 11.6): residual + mean + prediction from the channels before, each
  * checked against |q| <= 2^40 as it is computed. Exact in i64: residuals below 2^62, means below
@@ -1108,10 +1315,10 @@ function binsFrom(t0: i32, n: i32, order: usize, sorted: usize, wide: usize, esc
  * tool every channel is coded: this loop has no coded-channel tests (rowValuesCoded's cost 8-15%
  * on the logo's stream).
  */
-function rowValues(row: i32, base: i32, mean: usize, res: usize): void {
-    const M = aM, qb = aQ + (<usize>(row * M) << 3), mb = mean + (<usize>base << 3);
+function rowValues(row: i32, mb: usize, rb: usize): void {
+    const M = aM, qb = aQ + (<usize>(row * M) << 3);
     for (let c = 0; c < M; c++) {
-        const rv = i64At(res, base + c);
+        const rv = i64At(rb, c);
         let pr: i64 = 0;
         for (let i = i32At(aPStart, c), e = i32At(aPStart, c + 1); i < e; i++) {
             const s = i32At(aPSrc, i);
@@ -1119,6 +1326,36 @@ function rowValues(row: i32, base: i32, mean: usize, res: usize): void {
         }
         storeValue(qb, row, c, rv + i64At(mb, c) + ((pr + 128) >> 8));
     }
+}
+
+/**
+ * rowValues in two passes: residual + mean of every channel two at a time in i64x2 lanes, then the
+ * channels with a prediction in increasing order (their sources, channels before, are final by then).
+ * A row with a value beyond 2^40 in the first pass (a predicted channel's residual + mean may be, and its
+ * prediction bring it back) is computed again by rowValues, which checks in channel order (E51).
+ */
+function rowValuesLanes(row: i32, mb: usize, rb: usize): void {
+    const M = aM, qb = aQ + (<usize>(row * M) << 3), hi = i64x2.splat(Q_LIMIT), lo = i64x2.splat(-Q_LIMIT);
+    let bad = i64x2.splat(0), c = 0;
+    for (; c + 1 < M; c += 2) {
+        const o = <usize>c << 3, v = i64x2.add(v128.load(rb + o), v128.load(mb + o));
+        v128.store(qb + o, v);
+        bad = v128.or(bad, v128.or(i64x2.gt_s(v, hi), i64x2.lt_s(v, lo)));
+    }
+    let out = v128.any_true(bad);
+    if (c < M) { const v = i64At(rb, c) + i64At(mb, c); setI64(qb, c, v); out = out || v > Q_LIMIT || v < -Q_LIMIT; }
+    for (let t = 0; t < pvCount; t++) {
+        const tc = i32At(pvTargets, t);
+        let pr: i64 = 0;
+        for (let i = i32At(aPStart, tc), e = i32At(aPStart, tc + 1); i < e; i++) {
+            const s = i32At(aPSrc, i);
+            pr += <i64>i32At(aPW, i) * (i64At(qb, s) - i64At(mb, s));
+        }
+        const v = i64At(rb, tc) + i64At(mb, tc) + ((pr + 128) >> 8);
+        setI64(qb, tc, v);
+        out = out || v > Q_LIMIT || v < -Q_LIMIT;
+    }
+    if (out) rowValues(row, mb, rb);
 }
 
 @inline function storeValue(qb: usize, row: i32, c: i32, v: i64): void {
@@ -1336,15 +1573,40 @@ function priorRow(mean: usize, level: usize, base: i32, F: i64, row: i32): void 
  */
 export function reconstruct(n: i32, scale: usize, out: usize): void {
     err = 0;
-    const M = aM;
+    const M = aM, M4 = M & ~3, zero = f32x4.splat(0);
     for (let i = 0; i < n; i++) {
         const s = scale + (<usize>(u8At(aAdj, i) * M) << 2), qb = aQ + (<usize>(i * M) << 3), ob = out + (<usize>(i * M) << 2);
-        for (let c = 0; c < M; c++) {
-            const v = <f32>load<i64>(qb + (<usize>c << 3)) * load<f32>(s + (<usize>c << 2));
-            if (v - v != 0) fail(ERR_NOT_FINITE, i, c); // inf - inf and NaN - NaN are NaN
-            store<f32>(ob + (<usize>c << 2), v);
+        let bad = zero;
+        for (let c = 0; c < M4; c += 4) {
+            const v = f32x4.mul(float32Lanes(qb + (<usize>c << 3)), v128.load(s + (<usize>c << 2)));
+            bad = v128.or(bad, f32x4.ne(f32x4.sub(v, v), zero)); // inf - inf and NaN - NaN are NaN
+            v128.store(ob + (<usize>c << 2), v);
         }
+        reconstructFrom(v128.any_true(bad) ? 0 : M4, i, s, qb, ob); // a lane not finite: again in channel order, which fails at the first
     }
+}
+
+/** reconstruct's channels c0 .. M - 1 of row i, one at a time. */
+@inline function reconstructFrom(c0: i32, i: i32, s: usize, qb: usize, ob: usize): void {
+    for (let c = c0; c < aM; c++) {
+        const v = <f32>load<i64>(qb + (<usize>c << 3)) * load<f32>(s + (<usize>c << 2));
+        if (v - v != 0) fail(ERR_NOT_FINITE, i, c);
+        store<f32>(ob + (<usize>c << 2), v);
+    }
+}
+
+// 2^52 + 2^51: for an integer |q| < 2^51, the binary64 number with the bits of MAGIC's plus q is MAGIC + q, exactly
+const MAGIC: f64 = 6755399441055744.0;
+const MAGIC_BITS: i64 = 0x4338000000000000;
+
+/**
+ * float32(q) of the four i64 at p (|q| <= 2^40, checked as each was computed: E51, E68): q to binary64 exactly
+ * (MAGIC), then one rounding to binary32, as the scalar conversion rounds.
+ */
+@inline function float32Lanes(p: usize): v128 {
+    const m = f64x2.splat(MAGIC), mb = i64x2.splat(MAGIC_BITS);
+    const a = f64x2.sub(i64x2.add(v128.load(p), mb), m), b = f64x2.sub(i64x2.add(v128.load(p, 16), mb), m);
+    return v128.shuffle<i32>(f32x4.demote_f64x2_zero(a), f32x4.demote_f64x2_zero(b), 0, 1, 4, 5);
 }
 
 /**
@@ -1352,31 +1614,69 @@ export function reconstruct(n: i32, scale: usize, out: usize): void {
  * of every row hold transform coefficients t; each becomes (sum_k T[j][k] t_k + floor(2^shift / 2)) >>
  * shift, T (i64 [nRest * nRest], row-major) the sh_transform unit's matrix, tmp (i64 [nRest]) scratch.
  * Exact in i64: |t| <= 2^40, |T| <= 2^15, nRest <= 45, every sum below 2^61. |q| > 2^40 fails (E68).
+ * A row whose coefficients are all below 2^32 in magnitude (every row seen in practice) sums in binary64
+ * lanes (shTransformRow): each product is below 2^47 and each partial sum of at most 45 of them below
+ * 2^53, so every binary64 operation is exact and the sums are the i64 sums.
  */
 export function inverseShTransform(n: i32, nRest: i32, T: usize, shift: i32, tmp: usize): void {
     err = 0;
-    const M = aM, half: i64 = (<i64>1 << <i64>shift) >> 1;
+    const M = aM, half: i64 = (<i64>1 << <i64>shift) >> 1, P = (nRest + 7) & ~7;
     // tmp: the row's new values (i64 [nRest]), then its non-zero coefficients' indices (i32 [nRest]) and values (i64 [nRest]):
     // the terms of zero coefficients (most, after RDOQ, and every uncoded one) are skipped
     const nzIdx = tmp + (<usize>nRest << 3), nzVal = nzIdx + (<usize>nRest << 2);
+    // T by columns in binary64, each padded with zeros to P (a multiple of 8 lanes): Tt[k * P + j] = T[j][k]
+    const Tt = alloc((nRest * P) << 3), tv = alloc(nRest << 4), sums = alloc(P << 3);
+    for (let j = 0; j < nRest; j++) for (let k = 0; k < nRest; k++) store<f64>(Tt + (<usize>(k * P + j) << 3), <f64>i64At(T, j * nRest + k));
     for (let i = 0; i < n; i++) {
         const qb = aQ + (<usize>(i * M + 3) << 3);
-        let nz = 0;
+        let nz = 0, small = true;
         for (let k = 0; k < nRest; k++) {
             const t = i64At(qb, k);
-            if (t != 0) { store<i32>(nzIdx + (<usize>nz << 2), k); setI64(nzVal, nz, t); nz++; }
+            if (t != 0) { store<i32>(nzIdx + (<usize>nz << 2), k); setI64(nzVal, nz, t); nz++; small = small && t < 0x100000000 && t > -0x100000000; }
         }
         if (nz == 0) { memory.fill(qb, 0, <usize>nRest << 3); continue; } // (0 + half) >> shift = 0
+        if (small) { shTransformRow(i, qb, nz, nRest, P, Tt, tv, sums, nzIdx, nzVal, half, shift); continue; }
         for (let j = 0; j < nRest; j++) {
             const row = T + (<usize>(j * nRest) << 3);
             let u: i64 = 0;
             for (let m = 0; m < nz; m++) u += i64At(row, load<i32>(nzIdx + (<usize>m << 2))) * i64At(nzVal, m);
-            const v = (u + half) >> <i64>shift;
-            if (v < -Q_LIMIT || v > Q_LIMIT) { errWide = <u64>v; fail(ERR_SH_TRANSFORM, i, 3 + j); }
-            setI64(tmp, j, v);
+            shTransformValue(tmp, i, j, u, half, shift);
         }
         memory.copy(qb, tmp, <usize>nRest << 3);
     }
+}
+
+/** Value j of row i of the inverse SH transform from its sum u (inverseShTransform), checked (E68), to out[j]. */
+@inline function shTransformValue(out: usize, i: i32, j: i32, u: i64, half: i64, shift: i32): void {
+    const v = (u + half) >> <i64>shift;
+    if (v < -Q_LIMIT || v > Q_LIMIT) { errWide = <u64>v; fail(ERR_SH_TRANSFORM, i, 3 + j); }
+    setI64(out, j, v);
+}
+
+/**
+ * inverseShTransform's row i (its SH rest at qb, nz non-zero coefficients below 2^32 in magnitude) in
+ * binary64 lanes: for eight outputs j at a time, the sum over the coefficients of Tt's column times t,
+ * four f64x2 accumulators, then the values in increasing j (the order of the E68 check).
+ */
+function shTransformRow(i: i32, qb: usize, nz: i32, nRest: i32, P: i32, Tt: usize, tv: usize, sums: usize, nzIdx: usize, nzVal: usize, half: i64, shift: i32): void {
+    for (let m = 0; m < nz; m++) {
+        v128.store(tv + (<usize>m << 4), f64x2.splat(<f64>i64At(nzVal, m)));
+        store<i32>(nzIdx + (<usize>m << 2), (load<i32>(nzIdx + (<usize>m << 2)) * P) << 3); // the column's byte offset
+    }
+    for (let j0 = 0; j0 < nRest; j0 += 8) {
+        let a0 = f64x2.splat(0), a1 = a0, a2 = a0, a3 = a0;
+        const base = Tt + (<usize>j0 << 3);
+        for (let m = 0; m < nz; m++) {
+            const col = base + <usize>load<i32>(nzIdx + (<usize>m << 2)), t = v128.load(tv + (<usize>m << 4));
+            a0 = f64x2.add(a0, f64x2.mul(v128.load(col), t));
+            a1 = f64x2.add(a1, f64x2.mul(v128.load(col, 16), t));
+            a2 = f64x2.add(a2, f64x2.mul(v128.load(col, 32), t));
+            a3 = f64x2.add(a3, f64x2.mul(v128.load(col, 48), t));
+        }
+        const o = sums + (<usize>j0 << 3);
+        v128.store(o, a0); v128.store(o, a1, 16); v128.store(o, a2, 32); v128.store(o, a3, 48);
+    }
+    for (let j = 0; j < nRest; j++) shTransformValue(qb, i, j, <i64>load<f64>(sums + (<usize>j << 3)), half, shift);
 }
 
 /**
@@ -1460,7 +1760,9 @@ function serializeGroup(values: usize, n: i32, M: i32, a: i32, b: i32, at: usize
     const w = b - a;
     for (let i = 0; i < n; i++) {
         const src = values + (<usize>(i * M + a) << 2), dst = at + (<usize>(i * w) << 2);
-        for (let c = 0; c < w; c++) store<u32>(dst + (<usize>c << 2), load<u32>(src + (<usize>c << 2)));
+        let c = 0;
+        for (; c + 4 <= w; c += 4) v128.store(dst + (<usize>c << 2), v128.load(src + (<usize>c << 2)));
+        for (; c < w; c++) store<u32>(dst + (<usize>c << 2), load<u32>(src + (<usize>c << 2)));
     }
     return at + (<usize>(n * w) << 2);
 }
