@@ -264,7 +264,8 @@ def _main(argv: list[str] | None) -> int:
         from ..common.hashing import digest_of
         print(digest_of(result.scene).hex())
         return 0
-    _print_summary(args, result, len(data), t_dec, say)
+    if not args.quiet:  # (the summary's hash of a tiled stream's whole scene is a pass over it: not for nothing)
+        _print_summary(args, result, len(data), t_dec, say)
     return 0
 
 

@@ -177,24 +177,37 @@ def _decode_tile_job(job: tuple[int, int | None]) -> DecodedTile | TileVerdict:
                          max_level=s.max_level)
     if row is None:
         return d
+    return _write_rows(_SHARED_OUTPUT, row, d)
+
+
+def _write_rows(out: dict[str, np.ndarray], row: int, d: DecodedTile) -> TileVerdict:
+    """A decoded tile's points written into the output arrays from ``row`` on -> its verdict."""
     n = d.num_points
-    _SHARED_OUTPUT["coords"][row:row + n] = d.coords
-    _SHARED_OUTPUT["values"][row:row + n] = d.values
+    out["coords"][row:row + n] = d.coords
+    out["values"][row:row + n] = d.values
     if d.mask is not None:
-        _SHARED_OUTPUT["mask"][row:row + n] = d.mask
+        out["mask"][row:row + n] = d.mask
     return TileVerdict(d.hash_checked, d.level_counts)
+
+
+def _output_arrays(tiles: list[TileUnits], selected: list[int], layout: Layout,
+                   alloc: Callable[..., np.ndarray]) -> tuple[list[int], dict[str, np.ndarray]]:
+    """The output arrays of the selected tiles' points (made by ``alloc(shape, dtype)``) and each
+    tile's first row in them."""
+    counts = [tiles[t].num_points for t in selected]
+    rows = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(int).tolist()
+    total = sum(counts)
+    out = {"coords": alloc((total, 3), np.int64), "values": alloc((total, layout.num_channels), np.float32)}
+    if layout.offset_mask_present:
+        out["mask"] = alloc((total, layout.num_offsets), np.bool_)
+    return rows, out
 
 
 def _shared_rows(tiles: list[TileUnits], selected: list[int], layout: Layout) -> list[int | None]:
     """Each selected tile's first row in the shared output arrays, which are made here."""
-    counts = [tiles[t].num_points for t in selected]
-    rows = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(int).tolist()
-    total = sum(counts)
-    _SHARED_OUTPUT.update(coords=shared_array((total, 3), np.int64),
-                          values=shared_array((total, layout.num_channels), np.float32))
-    if layout.offset_mask_present:
-        _SHARED_OUTPUT["mask"] = shared_array((total, layout.num_offsets), np.bool_)
-    return rows
+    rows, out = _output_arrays(tiles, selected, layout, shared_array)
+    _SHARED_OUTPUT.update(out)
+    return list(rows)
 
 
 def _decode_in_workers(stream: WorkerStream, selected: list[int],
@@ -247,18 +260,23 @@ def decode_tiles(tiles: list[TileUnits], selected: list[int], ps: ParameterSet, 
         parts, shared = _decode_in_workers(stream, selected, workers)
         return _joined(parts, layout, shared)
     one = len(tiles) == 1
+    # whole tiles go straight into the output arrays as they are decoded: no second copy of the scene
+    # to join them (the level-1 preview's point counts are not known before)
+    rows, output = _output_arrays(tiles, selected, layout, np.empty) if not one and max_level != LEVEL_1 \
+        else (None, None)
     bar = progress_bar(total=len(selected), desc="decode tiles", unit="tile", disable=not progress or one, leave=False)
     out: list[DecodedTile | TileVerdict] = []
-    for t in selected:
+    for i, t in enumerate(selected):
         rows_bar = progress_bar(total=tiles[t].num_points, desc="decode attributes", unit="point",
                                 disable=not (progress and one), leave=False)
         on_rows: Callable[[int], object] = rows_bar.update
-        out.append(core.decode_tile(tiles[t], t, ps, layout, context_model, mlps, verify_hash=verify_hash,
-                                    entries=entries, checks=memory, max_level=max_level, on_rows=on_rows))
+        d = core.decode_tile(tiles[t], t, ps, layout, context_model, mlps, verify_hash=verify_hash, entries=entries,
+                             checks=memory, max_level=max_level, on_rows=on_rows)
+        out.append(d if output is None or rows is None else _write_rows(output, rows[i], d))
         rows_bar.close()
         bar.update()
     bar.close()
-    return _joined(out, layout)
+    return _joined(out, layout, output)
 
 
 def attribute_tool(ps: ParameterSet, context_model: AttributeContext) -> str:

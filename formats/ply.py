@@ -96,7 +96,9 @@ def read_ply(path: str | os.PathLike, element: str = "vertex") -> dict[str, np.n
     raise InputError(f"{path}: no element {element!r}")
 
 
-WRITE_BLOCK_ROWS = 1 << 16
+# rows per block: a block's rows of the source arrays stay in the cache while its columns are copied
+# (3x faster than 2^16 rows for a 1M SH-3 scene of strided views, tools/results/decode.md)
+WRITE_BLOCK_ROWS = 1 << 12
 
 
 def read_ply_header_lines(path: str | os.PathLike) -> list[str]:

@@ -98,8 +98,8 @@ def write_3dgs_ply(path: str | os.PathLike, scene: GaussianScene, comments: list
     m = scene.means
     cols = {"x": m[:, 0], "y": m[:, 1], "z": m[:, 2], "nx": z, "ny": z, "nz": z}
     cols.update({f"f_dc_{c}": scene.sh[:, 0, c] for c in range(3)})
-    rest = np.asarray(scene.sh[:, 1:, :]).transpose(0, 2, 1).reshape(n, 3 * (k - 1))
-    cols.update({f"f_rest_{i}": rest[:, i] for i in range(rest.shape[1])})
+    # f_rest_{c (K-1) + i - 1} is coefficient i of channel c: views, no copy of the scene's SH
+    cols.update({f"f_rest_{c * (k - 1) + i - 1}": scene.sh[:, i, c] for c in range(3) for i in range(1, k)})
     cols["opacity"] = scene.opacity
     cols.update({f"scale_{i}": scene.log_scales[:, i] for i in range(3)})
     cols.update({f"rot_{i}": scene.rotations[:, i] for i in range(4)})

@@ -462,3 +462,13 @@ def test_column_level_fast_path_is_the_same_code(rows, cols, seed):
     data = encode_symbols(r, full)
     assert encode_symbols(r, broadcast) == data
     assert np.array_equal(decode_symbols(data, broadcast), r)
+
+
+def test_escape_class_by_table_below_2_16_and_by_frexp_above():
+    m = np.arange(0, (1 << 16) + 3, dtype=np.int64)  # the look-up's whole range, then its edge
+    assert escape_class(m).tolist() == [int(x).bit_length() for x in m.tolist()]
+    for last in ((1 << 16) - 1, 1 << 16):  # one value past the table sends the whole array to frexp
+        block = np.array([[0, 1, 5], [7, 3, last]], np.int64)
+        assert escape_class(block).tolist() == [[int(x).bit_length() for x in row] for row in block.tolist()]
+        assert escape_class(block).dtype == np.int64
+    assert escape_class(np.array([0], np.int32)).tolist() == [0]

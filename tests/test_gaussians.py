@@ -467,3 +467,43 @@ def test_search_view_plan_gives_smaller_scenes_more_pixels_within_the_bounds(n1,
 def test_search_view_settings_out_of_range_are_rejected(field, value):
     with pytest.raises(InputError, match=field):
         GaussianEncoderConfig(**{field: value}).validate()
+
+
+def _reconstruct_channel_by_channel(pred, r, mean, coded=None):
+    """ChannelPrediction.reconstruct as clause 11.6 words it: every channel in order, each checked."""
+    q = r + mean
+    if coded is not None:
+        q = q * coded
+    dev = np.zeros_like(q)
+    for c in range(q.shape[1]):
+        entries = np.nonzero(pred.targets == c)[0]
+        if entries.size:
+            acc = sum(int(pred.weights[e]) * dev[:, pred.sources[e]] for e in entries)
+            q[:, c] += (acc + (1 << 7)) >> 8
+            if coded is not None:
+                q[:, c] *= coded[:, c]
+        if np.abs(q[:, c]).max() > 1 << 40:
+            return None
+        dev[:, c] = (q[:, c] - np.broadcast_to(mean, q.shape)[:, c]) * (1 if coded is None else coded[:, c])
+    return q
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(2, 20), st.integers(1, 30), st.integers(0, 2 ** 31), st.integers(1, 6), st.booleans(),
+       st.sampled_from([0, 1 << 20, 1 << 40, (1 << 40) + 1]))
+def test_channel_prediction_checks_the_channels_it_leaves_alone_as_every_other(m, rows, seed, entries, with_coded,
+                                                                                big):
+    rng = np.random.default_rng(seed)
+    pairs = sorted({(int(t), int(rng.integers(0, t))) for t in rng.integers(1, m, size=entries)})
+    pred = attr.ChannelPrediction(np.array([p[0] for p in pairs], np.int64), np.array([p[1] for p in pairs], np.int64),
+                                  rng.integers(-(1 << 15), (1 << 15) + 1, size=len(pairs)).astype(np.int64))
+    r = rng.integers(-1000, 1000, size=(rows, m)).astype(np.int64)
+    r[rng.integers(0, rows), rng.integers(0, m)] = big * (1 if rng.random() < 0.5 else -1)  # maybe beyond 2^40
+    mean = rng.integers(-1000, 1000, size=(1, m)).astype(np.int64)
+    coded = (rng.random((rows, m)) < 0.8).astype(np.int64) if with_coded else None
+    expected = _reconstruct_channel_by_channel(pred, r.copy(), mean, coded)
+    if expected is None:
+        with pytest.raises(BitstreamError, match="2\\^40"):
+            pred.reconstruct(r, mean, "t", coded)
+    else:
+        assert np.array_equal(pred.reconstruct(r, mean, "t", coded), expected)

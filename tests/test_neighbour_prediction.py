@@ -151,3 +151,27 @@ def test_hierarchy_scenes_do_not_use_it_and_bad_options_are_named():
                 {"neighbour_prediction": "sometimes"}):
         with pytest.raises(Exception, match=next(iter(bad))):
             dataclasses.replace(GaussianEncoderConfig(), **bad).validate()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 60), st.integers(1, 6), st.integers(1, 9), st.integers(0, 2 ** 31), st.booleans(),
+       st.integers(1, 7))
+def test_lod_coding_params_in_blocks_are_those_of_the_whole_lod(rows, k, m, seed, with_adjust, block):
+    import lghcc.common.neighbour_prediction as npd
+    rng = np.random.default_rng(seed)
+    q = rng.integers(-(1 << 20), 1 << 20, size=(rows + 5, m))
+    neighbours = rng.integers(-1, rows + 5, size=(rows, k))
+    neighbours[:, 0] = rng.integers(0, rows + 5, size=rows)  # at least one neighbour per row
+    table = rng.integers(0, 64, size=(m, 5))
+    flags = rng.random(m) < 0.7
+    prior = rng.integers(-50, 50, size=m)
+    adjust = rng.integers(0, 8, size=rows + 5) if with_adjust else None
+    row_adjust = rng.integers(0, 8, size=rows) if with_adjust else None
+    whole = lod_coding_params(q, neighbours, table, 5, flags, prior, adjust, row_adjust)
+    saved = npd.LOD_BLOCK_ROWS
+    try:
+        npd.LOD_BLOCK_ROWS = block
+        blocks = lod_coding_params(q, neighbours, table, 5, flags, prior, adjust, row_adjust)
+    finally:
+        npd.LOD_BLOCK_ROWS = saved
+    assert np.array_equal(blocks.mean, whole.mean) and np.array_equal(blocks.level, whole.level)

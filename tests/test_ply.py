@@ -83,3 +83,25 @@ def test_malformed_files_name_the_problem(tmp_path, body, message):
 def test_a_missing_file_is_an_input_error(tmp_path):
     with pytest.raises(InputError, match="cannot read"):
         read_ply(tmp_path / "absent.ply")
+
+
+def test_3dgs_ply_of_views_is_the_file_of_copies_at_sh_3(tmp_path, monkeypatch):
+    import lghcc.formats.ply as ply_mod
+    from lghcc.common.scene import GaussianScene
+    from lghcc.formats.ply3dgs import read_3dgs_ply, write_3dgs_ply
+    rng = np.random.default_rng(5)
+    n = 1000
+    values = rng.standard_normal((n, 56)).astype(np.float32)  # the SH, opacity, scales, rotations of a decoder's rows
+    scene = GaussianScene(rng.standard_normal((n, 3)).astype(np.float32), values[:, :48].reshape(n, 16, 3),
+                          values[:, 48], values[:, 49:52], values[:, 52:56])
+    monkeypatch.setattr(ply_mod, "WRITE_BLOCK_ROWS", 7)  # blocks, the last one partial
+    write_3dgs_ply(tmp_path / "views.ply", scene)
+    copies = GaussianScene(*(np.ascontiguousarray(a) for a in (scene.means, scene.sh, scene.opacity,
+                                                                scene.log_scales, scene.rotations)))
+    monkeypatch.setattr(ply_mod, "WRITE_BLOCK_ROWS", 1 << 16)
+    write_3dgs_ply(tmp_path / "copies.ply", copies)
+    assert (tmp_path / "views.ply").read_bytes() == (tmp_path / "copies.ply").read_bytes()
+    cols = read_ply(tmp_path / "views.ply")
+    # f_rest_{c * 15 + i - 1} is coefficient i of channel c (channel-major, the INRIA layout)
+    assert np.array_equal(cols["f_rest_16"], scene.sh[:, 2, 1]) and np.array_equal(cols["f_rest_44"], scene.sh[:, 15, 2])
+    assert np.array_equal(read_3dgs_ply(tmp_path / "views.ply").sh, scene.sh)

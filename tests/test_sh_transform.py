@@ -290,3 +290,23 @@ def test_the_fit_rounds_and_prices_the_coefficients_the_stream_codes():
 
 def torch_equal(a, b) -> bool:
     return bool((a.detach() == b.detach()).all())
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.integers(0, 300), st.integers(1, 45), st.integers(0, 2 ** 31), st.integers(1, 40), st.integers(1, 15))
+def test_exact_matmul_is_the_integer_product_on_both_sides_of_2_53(rows, n, seed, a_bits, b_bits):
+    from lghcc.common.attributes import exact_matmul
+    rng = np.random.default_rng(seed)
+    a = rng.integers(-(1 << a_bits), (1 << a_bits) + 1, size=(rows, n))
+    b = rng.integers(-(1 << b_bits), (1 << b_bits) + 1, size=(n, n))
+    assert exact_matmul(a, b).tolist() == (a @ b).tolist()  # numpy's int64 product: exact below 2^63
+
+
+def test_exact_matmul_at_the_float64_edge():
+    from lghcc.common.attributes import exact_matmul
+    # |a| * column sum = 2^53 - 1: the float64 product, every partial sum exact; one more: the int64 path
+    for top in ((1 << 53) - 1, 1 << 53, (1 << 53) + 1):
+        a = np.array([[top, -top, 5]] * 130, np.int64)  # over a block of 128 rows
+        b = np.array([[1, 0], [0, 1], [0, 0]], np.int64)  # column sums 1
+        assert exact_matmul(a, b).tolist() == (a @ b).tolist()
+    assert exact_matmul(np.zeros((0, 3), np.int64), np.ones((3, 3), np.int64)).shape == (0, 3)

@@ -240,3 +240,14 @@ def test_bench_web_choices(tmp_path, shared_data):
     assert rows[3]["bytes"] == rows[0]["bytes"] and rows[3]["psnr"] == rows[0]["psnr"]
     assert rows[1]["bytes"] < rows[0]["bytes"] and summary["slope_db_per_doubling"] > 0
     assert summary["bytes_at_base_psnr"]["base"] == rows[0]["bytes"]
+
+
+def test_decode_stages(tmp_path):
+    stream = ROOT / "conformance" / "streams" / "c092_sh_degree_tiles" / "stream.lghcc"
+    r = _tool("decode_stages.py", str(stream), "--work", str(tmp_path), cwd=tmp_path)
+    rows = [line for line in r.stdout.splitlines() if line.startswith("| ") and "CPU s" not in line]
+    labels = {line.split(" | ")[0][2:] for line in rows}
+    assert {"geometry", "k-NN graph", "neighbour means and buckets", "PLY write"} <= labels, r.stdout
+    shares = [float(line.split(" | ")[2].rstrip("%")) for line in rows]
+    assert abs(sum(shares) - 100) < 1.0, r.stdout  # the stages and the rest make up the whole
+    assert (tmp_path / "decode_stages.ply").stat().st_size > 0
