@@ -359,6 +359,11 @@ def test_bench_scale_resume_keeps_measured_rows_and_says_when(tmp_path):
     assert set(bs.resumed_rows(tmp_path / "rows.json", bs.measured_options(args))) == {("medium", 10 ** 6),
                                                                                       ("medium", 3 * 10 ** 5)}
     assert bs.resumed_rows(tmp_path / "absent.json", "") == {}
+    # a run of other presets or sizes keeps the rows it did not measure, in preset and size order
+    fast = bs.ScaleRow(10 ** 6, "fast", bytes=77)
+    low3m = bs.ScaleRow(3 * 10 ** 6, "low", bytes=88)
+    assert bs.with_other_kept([low3m], {("medium", 10 ** 6): good, ("fast", 10 ** 6): fast}) == [fast, low3m, good]
+    assert bs.with_other_kept([good], {("medium", 10 ** 6): other}) == [good]  # measured again: this run's row
     line = bs.measured_when([good, failed])[0]
     assert "medium 1M 2026-11-29 08:00 UTC, load 0.10 0.20 0.30" in line and "3M" not in line
 

@@ -479,6 +479,18 @@ def resumed_rows(path: Path, options: str) -> dict[tuple[str, int], ScaleRow]:
     return {(r.preset, r.n): r for r in rows if not r.note and r.options in ("", options)}
 
 
+PRESET_ORDER = ("plain", "fast", "web", "low", "medium", "high")  # the table's order of presets
+
+
+def with_other_kept(rows: list[ScaleRow], kept: dict[tuple[str, int], ScaleRow]) -> list[ScaleRow]:
+    """This run's rows and the kept rows of presets or sizes it did not ask for (--resume adds rows to a
+    table and drops none), by preset (PRESET_ORDER) and size."""
+    done = {(r.preset, r.n) for r in rows}
+    order = {p: i for i, p in enumerate(PRESET_ORDER)}
+    every = rows + [r for key, r in kept.items() if key not in done]
+    return sorted(every, key=lambda r: (order.get(r.preset, len(order)), r.n))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sizes", default=DEFAULT_SIZES, help=f"scene sizes (default {DEFAULT_SIZES})")
@@ -548,10 +560,11 @@ def main(argv: list[str] | None = None) -> int:
                 log(f"{label(n)} {preset}: kept from {rows_json} (--resume)")
             row.memory_estimate = memory_estimate(scene, preset, args.jobs)  # this code's estimate, kept rows too
             rows.append(row)
-            rows_json.write_text(json.dumps([asdict(r) for r in rows], indent=1))
+            table_rows = with_other_kept(rows, kept)
+            rows_json.write_text(json.dumps([asdict(r) for r in table_rows], indent=1))
             # written after every row: a run stopped part way keeps what it measured, and says so
             left = len(sizes) * len(presets) - len(rows)
-            lines = report(rows, built, args, argv, plot(rows, args.out.with_suffix(".png")), spz_note)
+            lines = report(table_rows, built, args, argv, plot(table_rows, args.out.with_suffix(".png")), spz_note)
             if left:
                 lines[3:3] = [f"Part of the run: {len(rows)} of {len(rows) + left} rows measured when this was "
                               "written.", ""]
