@@ -120,7 +120,8 @@ def sh_transformed(values: np.ndarray, gps: GaussianParameterSet, layout, steps:
 
     rest = sht.sh_rest_columns(layout.sh_channels)
     u = values[:, rest] / steps[rest].astype(np.float64)  # the SH rest in band steps
-    transform = sht.chosen_transform(u, cfg.sh_transform, layout.sh_degree)
+    transform, coefficients = sht.chosen_transform_and_coefficients(u, cfg.sh_transform, layout.sh_degree)
+    del u
     if transform is None:
         return gps, layout, steps
     fine = dataclasses.replace(cfg, sh_band_steps=tuple(float(s) / sht.guard_factor() for s in cfg.sh_band_steps))
@@ -128,7 +129,7 @@ def sh_transformed(values: np.ndarray, gps: GaussianParameterSet, layout, steps:
                                  levels.tile_scale)
     layout = dataclasses.replace(layout, sh_transform=transform)
     steps = layout.steps(gps)
-    values[:, rest] = sht.forward(u, transform) * steps[rest].astype(np.float64)
+    values[:, rest] = np.multiply(coefficients, steps[rest].astype(np.float64), out=coefficients)
     return gps, layout, steps
 
 

@@ -95,13 +95,20 @@ def _entropy_bits(q: np.ndarray) -> float:
     return total
 
 
+def _pays(u: np.ndarray, coefficients: np.ndarray, transform: ShTransform, sh_degree: int) -> bool:
+    """transform_pays with ``coefficients`` = forward(u, transform) given."""
+    if u.shape[1] == 0 or u.shape[0] < 2:
+        return False
+    unit_bits = 8 * len(transform.to_unit(sh_degree).to_bytes())
+    return _entropy_bits(np.rint(u)) - _entropy_bits(np.rint(coefficients)) > unit_bits
+
+
 def transform_pays(u: np.ndarray, transform: ShTransform, sh_degree: int) -> bool:
     """Whether the rounded coefficients of ``u`` (band steps) take fewer ideal bits than the rounded
     values by more than the unit's own bits (a scene that the transform does not help pays nothing)."""
     if u.shape[1] == 0 or u.shape[0] < 2:
         return False
-    unit_bits = 8 * len(transform.to_unit(sh_degree).to_bytes())
-    return _entropy_bits(np.rint(u)) - _entropy_bits(np.rint(forward(u, transform))) > unit_bits
+    return _pays(u, forward(u, transform), transform, sh_degree)
 
 
 def chosen_transform(u: np.ndarray, mode: bool | str, sh_degree: int) -> ShTransform | None:
@@ -113,6 +120,19 @@ def chosen_transform(u: np.ndarray, mode: bool | str, sh_degree: int) -> ShTrans
     if mode != "always" and not transform_pays(u, transform, sh_degree):
         return None
     return transform
+
+
+def chosen_transform_and_coefficients(u: np.ndarray, mode: bool | str, sh_degree: int
+                                      ) -> tuple[ShTransform | None, np.ndarray | None]:
+    """(chosen_transform's, forward(u, it)): the coefficients the choice made, not made twice (None
+    without a transform)."""
+    if not mode or sh_degree == 0 or u.shape[1] == 0:
+        return None, None
+    transform = integer_transform(fit_klt(u))
+    coefficients = forward(u, transform)
+    if mode != "always" and not _pays(u, coefficients, transform, sh_degree):
+        return None, None
+    return transform, coefficients
 
 
 def sh_rest_columns(sh_channels: int) -> slice:
