@@ -119,9 +119,9 @@ def sh_transformed(values: np.ndarray, gps: GaussianParameterSet, layout, steps:
     from . import sh_transform as sht
 
     rest = sht.sh_rest_columns(layout.sh_channels)
-    u = values[:, rest] / steps[rest].astype(np.float64)  # the SH rest in band steps
-    transform, coefficients = sht.chosen_transform_and_coefficients(u, cfg.sh_transform, layout.sh_degree)
-    del u
+    # the SH rest in band steps: values[:, rest] / steps[rest] (not made whole: peak memory)
+    transform, coefficients = sht.chosen_transform_of_values(values, rest, steps[rest].astype(np.float64),
+                                                             cfg.sh_transform, layout.sh_degree)
     if transform is None:
         return gps, layout, steps
     fine = dataclasses.replace(cfg, sh_band_steps=tuple(float(s) / sht.guard_factor() for s in cfg.sh_band_steps))
