@@ -185,8 +185,9 @@ def _neighbour_sum_and_spread(q: np.ndarray, safe: np.ndarray, valid: np.ndarray
     """Sum and max - min over each row's valid neighbours of their values (in fixed point with step
     adjustment: times ``factor`` [n_l, k], each neighbour's FP), one neighbour column at a time:
     [n_l, M] arrays throughout (a reduction over the k axis of an [n_l, k, M] gather took twice as
-    long)."""
-    big = np.iinfo(np.int64).max
+    long). ``q`` may be int32 (the encoder's RDOQ values, within 2^26): the sums stay within it, and
+    the fill of a missing neighbour is an int64 (a Python int would be cast to q's dtype and wrap)."""
+    big = np.int64(np.iinfo(np.int64).max)
     every = bool(valid.all())
     total = hi = lo = None
     for j in range(safe.shape[1]):

@@ -43,7 +43,7 @@ def _coding_params(q: np.ndarray, graph: NeighbourGraph, num_buckets: int, prior
     (LoD 0: -1). ``adjust``: every row's step-adjustment index (clause 11.8), or None. A block of
     a LoD's rows at a time (each row's from its own neighbours: peak memory)."""
     n, m = q.shape
-    mean = prior_rows(prior_mean, n, adjust)
+    mean = prior_rows(prior_mean, n, adjust, np.int32 if q.dtype.itemsize <= 4 else np.int64)
     bucket = np.full((n, m), -1, dtype=BUCKET_DTYPE)
     every = np.ones(m, dtype=bool)
     for level in range(1, len(graph.rows)):
@@ -66,11 +66,13 @@ BUCKET_DTYPE = np.int8
 LEVEL_DTYPE = np.uint8
 
 
-def prior_rows(prior_mean: np.ndarray, n: int, adjust: np.ndarray | None) -> np.ndarray:
-    """int64 [n, M]: the prior mean in each row's steps."""
+def prior_rows(prior_mean: np.ndarray, n: int, adjust: np.ndarray | None, dtype=np.int64) -> np.ndarray:
+    """[n, M] of ``dtype``: the prior mean in each row's steps. int32 for values of int32 or narrower
+    (RDOQ's: chosen_values_dtype): a neighbours' mean is within their values, the prior's within
+    PRIOR_MEAN_MAX."""
     if adjust is None:
-        return np.broadcast_to(prior_mean, (n, prior_mean.size)).copy()
-    return prior_mean_in_steps(prior_mean, adjust)
+        return np.broadcast_to(prior_mean, (n, prior_mean.size)).astype(dtype)
+    return prior_mean_in_steps(prior_mean, adjust).astype(dtype, copy=False)
 
 
 def best_prior_level(r: np.ndarray, adjust: np.ndarray | None) -> int:
