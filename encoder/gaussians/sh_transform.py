@@ -80,20 +80,32 @@ def value_matrix(transform: ShTransform) -> np.ndarray:
 
 
 def forward(u: np.ndarray, transform: ShTransform) -> np.ndarray:
-    """float64 [N, n]: the coefficients whose inverse is closest to ``u`` [N, n] (band steps): B^-1 u.
-    By blocks of FORWARD_BLOCK_ROWS rows (LAPACK solves each row alone: the same coefficients to the
-    last bit as one solve of every row, checked on 1M rows, without its [N, n] working copies)."""
+    """float64 [N, n]: the coefficients whose inverse is closest to ``u`` [N, n] (band steps): B^-1 u,
+    solved by blocks of rows (solve_blocks: the bits of one solve of every row, without its [N, n]
+    working copies)."""
     b = value_matrix(transform)
     out = np.empty(u.shape, dtype=np.float64)
-    for lo in range(0, u.shape[0], FORWARD_BLOCK_ROWS):
-        out[lo:lo + FORWARD_BLOCK_ROWS] = np.linalg.solve(b, np.asarray(u[lo:lo + FORWARD_BLOCK_ROWS], np.float64).T).T
+    for rows in solve_blocks(u.shape[0]):
+        out[rows] = np.linalg.solve(b, np.asarray(u[rows], np.float64).T).T
     return out
 
 
-# The rows whose coefficients one solve makes (forward): 23 MB of float64 at SH 3
+# The rows of one solve in forward: 23-47 MB of float64 at SH 3
 FORWARD_BLOCK_ROWS = 1 << 16
 
 
+def solve_blocks(n: int):
+    """Slices of rows 0 .. n - 1 for forward's solves: one under 2 x FORWARD_BLOCK_ROWS rows, else blocks
+    of FORWARD_BLOCK_ROWS with the last one's rest added to it. LAPACK solves each row (right-hand side)
+    by itself, with the same operations wherever it sits in a wide block, but a narrow one (a handful of
+    rows) may take the library's small-size paths, whose last bits differ: so no block is narrower than
+    FORWARD_BLOCK_ROWS (a multiple of the kernels' widths), and a block's last rows are the whole solve's
+    last rows (checked bit for bit on 200k and 1M rows: tests/test_sh_transform.py)."""
+    lo = 0
+    while lo < n:
+        hi = n if n - lo < 2 * FORWARD_BLOCK_ROWS else lo + FORWARD_BLOCK_ROWS
+        yield slice(lo, hi)
+        lo = hi
 def coefficient_sensitivity(f_rest: np.ndarray, band_steps: np.ndarray, transform: ShTransform) -> np.ndarray:
     """float64 [N, n]: each coefficient's sensitivity, diag(B^T F B) per Gaussian with F the pictures'
     sensitivity to the values ``f_rest`` [N, n] (per value) and B in values: band_steps[j] * B[j, k]."""
@@ -147,8 +159,7 @@ def chosen_transform_of_values(values: np.ndarray, rest: slice, band_steps: np.n
         return None, None
     transform = integer_transform(fit_klt(values[fit_rows(n), rest] / band_steps))
     coefficients = np.empty((n, len(columns)), dtype=np.float64)
-    for lo in range(0, n, FORWARD_BLOCK_ROWS):
-        block = slice(lo, lo + FORWARD_BLOCK_ROWS)
+    for block in solve_blocks(n):
         coefficients[block] = forward(values[block, rest] / band_steps, transform)
     if mode != "always":  # transform_pays, the rounded values a column at a time
         if n < 2:
