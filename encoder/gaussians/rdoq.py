@@ -497,9 +497,10 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
                 num_buckets: int, orientation: tuple[slice, slice] | None = None,
                 ways: np.ndarray | None = None, adjust: np.ndarray | None = None,
                 length_index: bool = False) -> np.ndarray:
-    """int [N, M] (int32 where it holds them, chosen_values_dtype): the values chosen for ``x`` (float [N, M], in steps, rows in coding order)
-    with sensitivities ``f`` [N, M] and slopes ``mu`` [M] (module doc). ``graph``: the neighbour
-    graph of ``coords`` when neighbour prediction codes the rows (None: the per-channel prior).
+    """int [N, M] (int32 where it holds them, chosen_values_dtype): the values chosen for ``x``
+    (float [N, M], in steps, rows in coding order) with sensitivities ``f`` [N, M] and slopes ``mu``
+    [M] (module doc). ``graph``: the neighbour graph of ``coords`` when neighbour prediction codes
+    the rows (None: the per-channel prior).
     ``orientation``: the columns of the log scales and of the unit rotation quaternions
     (``orientation_columns``), whose orientation and rotation length are chosen per row.
     ``ways``: int [N], the way each Gaussian is to be written (0..47, from the half-turn start;
