@@ -187,8 +187,9 @@ def _neighbour_sum_and_spread(q: np.ndarray, safe: np.ndarray, valid: np.ndarray
     """Sum and max - min over each row's valid neighbours of their values (in fixed point with step
     adjustment: times ``factor`` [n_l, k], each neighbour's FP), one neighbour column at a time:
     [n_l, M] arrays throughout (a reduction over the k axis of an [n_l, k, M] gather took twice as
-    long)."""
-    big = np.iinfo(np.int64).max
+    long). ``q`` may be int32 (the encoder's RDOQ values, within 2^26): the sums stay within it, and
+    the fill of a missing neighbour is an int64 (a Python int would be cast to q's dtype and wrap)."""
+    big = np.int64(np.iinfo(np.int64).max)
     every = bool(valid.all())
     total = hi = lo = None
     for j in range(safe.shape[1]):
@@ -301,9 +302,11 @@ def write_predicted_attribute_unit(h: AttributeUnitHeader, layout, q: np.ndarray
                                    prediction: ChannelPrediction | None = None,
                                    adjust: np.ndarray | None = None, degrees: np.ndarray | None = None,
                                    degree_unit: ShDegreeUnit | None = None,
-                                   step_flags: StepAdjustFlagsUnit | None = None) -> bytes:
+                                   step_flags: StepAdjustFlagsUnit | None = None, lod_params=None) -> bytes:
     """Code q [N, M] (rows in the tile's normative order) LoD by LoD; LoD 0 with the header's
     per-channel prior. Fills the header's chunk sizes (and cross-channel prediction entries).
+    ``lod_params(level)`` (informative, without step adjustment): the CodingParams of LoD ``level``
+    >= 1's rows that lod_coding_params gives, where the encoder has them already (None: made here).
     ``adjust``: each row's step-adjustment index (h.step_adjust_present, with the header's
     adjust_mean and adjust_level set), coded in a chunk before each chunk of values (as flags with the
     stream's ``step_flags`` unit, version 1.5, the header's adjust_mean and adjust_level 0). ``degrees``:
@@ -328,7 +331,8 @@ def write_predicted_attribute_unit(h: AttributeUnitHeader, layout, q: np.ndarray
                                        adjust)
         else:
             if lo == 0:
-                params = _lod_params(level, q, graph, prior, table, mean_flags(unit), unit.num_buckets)
+                params = _lod_params(level, q, graph, prior, table, mean_flags(unit), unit.num_buckets) \
+                    if level == 0 or lod_params is None else lod_params(level)
             assert params is not None  # a LoD's first chunk starts at row 0 (chunk_segments)
             p = params.rows(lo, hi, layout.num_channels)
         coded = None

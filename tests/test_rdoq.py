@@ -61,6 +61,37 @@ def test_sensitivities_estimate_the_diagonal_of_jtj():
     assert np.all(est[exact == 0] == 0)  # nothing where the pictures do not depend on the value
 
 
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(1, 300), m=st.integers(1, 9), scale=st.sampled_from([0.3, 30.0, 3e6]),
+       k=st.integers(1, 8), lods=st.integers(1, 6), mu=st.floats(0.01, 10), seed=st.integers(0, 2 ** 31))
+def test_values_chosen_in_int32_are_those_chosen_in_int64(n, m, scale, k, lods, mu, seed):
+    """RDOQ's values held in int32 (chosen_values_dtype: |x| < 2^26) are the int64 ones, also where
+    rows have fewer neighbours than k (the spread's fill of a missing neighbour) and near the limit."""
+    rng = np.random.default_rng(seed)
+    x = rng.normal(0, scale, (n, m))
+    x[rng.uniform(size=x.shape) < 0.05] = np.sign(rng.normal()) * (rdoq.INT32_VALUE_LIMIT - 1)
+    coords = np.unique(rng.integers(0, 40, (n, 3)), axis=0)
+    x = x[:coords.shape[0]]
+    f = rng.exponential(1.0, x.shape)
+    graph = neighbour_graph(coords, lods, k)
+    narrow = rd_quantize(x, f, np.full(x.shape[1], mu), coords, graph, 5)
+    limit = rdoq.INT32_VALUE_LIMIT
+    try:
+        rdoq.INT32_VALUE_LIMIT = 0.0  # every value int64, as before the narrow dtype
+        wide = rd_quantize(x, f, np.full(x.shape[1], mu), coords, graph, 5)
+    finally:
+        rdoq.INT32_VALUE_LIMIT = limit
+    assert narrow.dtype == np.int32 and wide.dtype == np.int64
+    np.testing.assert_array_equal(narrow, wide)
+
+
+def test_values_beyond_the_int32_limit_are_chosen_in_int64():
+    x = np.array([[0.2, -rdoq.INT32_VALUE_LIMIT], [1.0, 2.0]])
+    assert rdoq.chosen_values_dtype(x) == np.int64
+    assert rdoq.chosen_values_dtype(x[1:]) == np.int32
+    assert rdoq.chosen_values_dtype(np.array([[np.nan]])) == np.int64  # (no comparison holds)
+
+
 def _prior_costs(x, q, f, mu):
     mean = np.rint(np.median(np.rint(x), axis=0)).astype(np.int64)
     level = np.array([best_level(np.rint(x[:, c]).astype(np.int64) - mean[c]) for c in range(x.shape[1])])
@@ -86,7 +117,7 @@ def test_choice_stays_within_a_step_towards_the_prediction_and_never_costs_more(
     graph = neighbour_graph(coords, 4, 3) if predict else None
     q0 = np.rint(x).astype(np.int64)
     q = rd_quantize(x, f, mus, coords, graph, 5)
-    assert q.dtype == np.int64 and q.shape == x.shape
+    assert q.dtype == rdoq.chosen_values_dtype(x) and q.shape == x.shape
     assert np.all(np.abs(q - q0) <= MAX_JUMP)
     np.testing.assert_array_equal(rd_quantize(x, f, np.zeros(m), coords, graph, 5), q0)
     if graph is None:

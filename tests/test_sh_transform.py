@@ -133,6 +133,48 @@ def test_klt_is_the_same_whatever_the_layout_of_its_input():
     assert np.allclose(c @ a, a * np.diag(a.T @ c @ a), atol=1e-9 * np.abs(c).max())
 
 
+@settings(max_examples=25, deadline=None)
+@given(n=st.integers(0, 700), width=st.sampled_from([9, 24, 45]), fit_rows=st.integers(2, 400),
+       mode=st.sampled_from([True, "always"]), scale=st.sampled_from([0.3, 4.0, 1e5]), seed=st.integers(0, 2 ** 31))
+def test_the_transform_of_the_values_is_the_one_of_the_sh_rest_made_whole(n, width, fit_rows, mode, scale, seed):
+    """chosen_transform_of_values (the SH rest divided by its band steps a block or a column at a time,
+    the fit on its sampled rows) chooses the transform chosen_transform chooses from u made whole, and
+    its coefficients are one solve's of every row."""
+    rng = np.random.default_rng(seed)
+    mix = rng.normal(size=(width, width)) * (rng.uniform(size=(width, width)) < 0.3) + np.eye(width)
+    values = np.concatenate([rng.normal(size=(n, 3)), (rng.normal(size=(n, width)) @ mix) * scale,
+                             rng.normal(size=(n, 8))], axis=1)
+    band_steps = rng.uniform(0.05, 2.0, width)
+    rest, degree = slice(3, 3 + width), {9: 1, 24: 2, 45: 3}[width]
+    old_fit = sht.FIT_ROWS
+    try:
+        sht.FIT_ROWS = fit_rows  # (the fit's sample taken from the values as from u)
+        transform, coefficients = sht.chosen_transform_of_values(values, rest, band_steps, mode, degree)
+        u = values[:, rest] / band_steps
+        assert transform == sht.chosen_transform(u, mode, degree)
+    finally:
+        sht.FIT_ROWS = old_fit
+    if transform is None:
+        assert coefficients is None
+        return
+    whole = np.linalg.solve(sht.value_matrix(transform), u.T).T
+    assert np.array_equal(coefficients.view(np.int64), whole.view(np.int64))  # every bit
+
+
+@pytest.mark.parametrize("n", [2 * (1 << 16) - 1, 2 * (1 << 16) + 3, 3 * (1 << 16) + 12345])
+def test_forward_by_blocks_is_one_solve_to_the_last_bit(n):
+    """forward's blocks (solve_blocks: none narrower than FORWARD_BLOCK_ROWS, the rest in the last) give
+    every coefficient the bits of one solve of every row."""
+    blocks = list(sht.solve_blocks(n))
+    assert blocks[0].start == 0 and blocks[-1].stop == n and all(a.stop == b.start for a, b in zip(blocks, blocks[1:]))
+    assert all(b.stop - b.start >= sht.FORWARD_BLOCK_ROWS for b in blocks)
+    rng = np.random.default_rng(n)
+    u = rng.normal(size=(n, 45)) @ (np.eye(45) + 0.3 * rng.normal(size=(45, 45)))
+    t = sht.integer_transform(sht.fit_klt(u))
+    whole = np.linalg.solve(sht.value_matrix(t), u.T).T
+    assert np.array_equal(sht.forward(u, t).view(np.int64), whole.view(np.int64))
+
+
 def test_klt_of_degenerate_inputs():
     for u in (np.zeros((1, 9)), np.zeros((50, 9)), np.ones((50, 9))):
         a = sht.fit_klt(u)

@@ -30,13 +30,18 @@ def pairwise_total(size: int, part) -> float:
     last bit with at most SUM_BLOCK_VALUES of them made at a time: numpy sums a contiguous array
     pairwise (halves cut at a multiple of 8), and this follows its cuts down to parts of at most
     SUM_BLOCK_VALUES, each summed by numpy (tests/test_bounded_memory.py checks the two agree)."""
-    def total(lo: int, n: int) -> float:
-        if n <= SUM_BLOCK_VALUES:
-            return float(np.sum(part(lo, lo + n)))
-        half = n // 2
-        half -= half % 8
-        return total(lo, half) + total(lo + half, n - half)
-    return total(0, size)
+    return _pairwise_part_total(part, 0, size)
+
+
+def _pairwise_part_total(part, lo: int, n: int) -> float:
+    """pairwise_total's sum of values lo .. lo + n - 1. (A module function, not a nested one that calls
+    itself: such a closure is a reference cycle, which kept what ``part`` holds, a whole scene's
+    neighbour coding, alive until the next garbage collection, through the tiles' stage.)"""
+    if n <= SUM_BLOCK_VALUES:
+        return float(np.sum(part(lo, lo + n)))
+    half = n // 2
+    half -= half % 8
+    return _pairwise_part_total(part, lo, half) + _pairwise_part_total(part, lo + half, n - half)
 
 
 def row_blocked_total(ends: np.ndarray, values) -> float:

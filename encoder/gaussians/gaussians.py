@@ -119,8 +119,9 @@ def sh_transformed(values: np.ndarray, gps: GaussianParameterSet, layout, steps:
     from . import sh_transform as sht
 
     rest = sht.sh_rest_columns(layout.sh_channels)
-    u = values[:, rest] / steps[rest].astype(np.float64)  # the SH rest in band steps
-    transform = sht.chosen_transform(u, cfg.sh_transform, layout.sh_degree)
+    # the SH rest in band steps: values[:, rest] / steps[rest] (not made whole: peak memory)
+    transform, coefficients = sht.chosen_transform_of_values(values, rest, steps[rest].astype(np.float64),
+                                                             cfg.sh_transform, layout.sh_degree)
     if transform is None:
         return gps, layout, steps
     fine = dataclasses.replace(cfg, sh_band_steps=tuple(float(s) / sht.guard_factor() for s in cfg.sh_band_steps))
@@ -128,7 +129,7 @@ def sh_transformed(values: np.ndarray, gps: GaussianParameterSet, layout, steps:
                                  levels.tile_scale)
     layout = dataclasses.replace(layout, sh_transform=transform)
     steps = layout.steps(gps)
-    values[:, rest] = sht.forward(u, transform) * steps[rest].astype(np.float64)
+    values[:, rest] = np.multiply(coefficients, steps[rest].astype(np.float64), out=coefficients)
     return gps, layout, steps
 
 

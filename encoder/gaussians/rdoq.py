@@ -442,9 +442,24 @@ def _in_own_steps(x: np.ndarray, f: np.ndarray, rows, factor: np.ndarray | None,
     return xb, fb
 
 
+# int32 holds the values chosen, and the sums of up to 32 neighbours' values the neighbour coding makes
+# of them (clause 11.7, prediction_neighbours <= 32), where every |x| is below this
+INT32_VALUE_LIMIT = float(1 << 26)
+
+
+def chosen_values_dtype(x: np.ndarray) -> type[np.integer]:
+    """int32 where the values chosen for ``x`` (in steps) fit it with their neighbours' sums: every
+    value within INT32_VALUE_LIMIT (own steps, a quaternion turned and a length index within it too);
+    int64 otherwise. Half the bytes of RDOQ's [N, M] values and of its coding fit's means."""
+    if x.size == 0:
+        return np.int64
+    return np.int32 if max(float(x.max()), -float(x.min())) < INT32_VALUE_LIMIT else np.int64
+
+
 def _rounded(x: np.ndarray, f: np.ndarray, factor: np.ndarray | None, rotation: slice | None) -> np.ndarray:
-    """int64 [N, M]: the values x rounded in each row's own steps (_in_own_steps), block by block."""
-    q0 = np.empty(x.shape, dtype=np.int64)
+    """int [N, M] (chosen_values_dtype): the values x rounded in each row's own steps (_in_own_steps),
+    block by block."""
+    q0 = np.empty(x.shape, dtype=chosen_values_dtype(x))
     for lo in range(0, x.shape[0], RDOQ_BLOCK_ROWS):
         block = slice(lo, min(lo + RDOQ_BLOCK_ROWS, x.shape[0]))
         q0[block] = np.rint(_in_own_steps(x, f, block, factor, rotation)[0])
@@ -482,9 +497,10 @@ def rd_quantize(x: np.ndarray, f: np.ndarray, mu: np.ndarray, coords: np.ndarray
                 num_buckets: int, orientation: tuple[slice, slice] | None = None,
                 ways: np.ndarray | None = None, adjust: np.ndarray | None = None,
                 length_index: bool = False) -> np.ndarray:
-    """int64 [N, M]: the values chosen for ``x`` (float [N, M], in steps, rows in coding order)
-    with sensitivities ``f`` [N, M] and slopes ``mu`` [M] (module doc). ``graph``: the neighbour
-    graph of ``coords`` when neighbour prediction codes the rows (None: the per-channel prior).
+    """int [N, M] (int32 where it holds them, chosen_values_dtype): the values chosen for ``x``
+    (float [N, M], in steps, rows in coding order) with sensitivities ``f`` [N, M] and slopes ``mu``
+    [M] (module doc). ``graph``: the neighbour graph of ``coords`` when neighbour prediction codes
+    the rows (None: the per-channel prior).
     ``orientation``: the columns of the log scales and of the unit rotation quaternions
     (``orientation_columns``), whose orientation and rotation length are chosen per row.
     ``ways``: int [N], the way each Gaussian is to be written (0..47, from the half-turn start;

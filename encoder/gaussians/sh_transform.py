@@ -49,7 +49,7 @@ def fit_klt(u: np.ndarray) -> np.ndarray:
     """float64 [n, n] orthonormal: the eigenvectors (columns) of the covariance of ``u`` [N, n] (the
     SH rest in band steps), by decreasing eigenvalue; each column's sign makes its largest entry
     positive (a deterministic choice)."""
-    rows = u if u.shape[0] <= FIT_ROWS else u[np.linspace(0, u.shape[0] - 1, FIT_ROWS).astype(np.int64)]
+    rows = u[fit_rows(u.shape[0])]
     # the variables as contiguous rows: np.cov of the transposed columns (Fortran order) took a slow
     # product, 1.6-3.2 s at 100k x 45 against 0.16
     c = np.cov(np.ascontiguousarray(rows.T, dtype=np.float64)) if rows.shape[0] > 1 else np.eye(u.shape[1])
@@ -58,6 +58,12 @@ def fit_klt(u: np.ndarray) -> np.ndarray:
     v = v[:, np.argsort(-w, kind="stable")]
     signs = np.sign(v[np.argmax(np.abs(v), axis=0), np.arange(v.shape[1])])
     return v * np.where(signs == 0, 1.0, signs)
+
+
+def fit_rows(n: int) -> slice | np.ndarray:
+    """The rows of n that fit_klt fits the covariance to: all, or FIT_ROWS of them evenly spaced in
+    normative order."""
+    return slice(None) if n <= FIT_ROWS else np.linspace(0, n - 1, FIT_ROWS).astype(np.int64)
 
 
 def integer_transform(a: np.ndarray) -> ShTransform:
@@ -74,10 +80,32 @@ def value_matrix(transform: ShTransform) -> np.ndarray:
 
 
 def forward(u: np.ndarray, transform: ShTransform) -> np.ndarray:
-    """float64 [N, n]: the coefficients whose inverse is closest to ``u`` [N, n] (band steps): B^-1 u."""
-    return np.linalg.solve(value_matrix(transform), u.T.astype(np.float64)).T
+    """float64 [N, n]: the coefficients whose inverse is closest to ``u`` [N, n] (band steps): B^-1 u,
+    solved by blocks of rows (solve_blocks: the bits of one solve of every row, without its [N, n]
+    working copies)."""
+    b = value_matrix(transform)
+    out = np.empty(u.shape, dtype=np.float64)
+    for rows in solve_blocks(u.shape[0]):
+        out[rows] = np.linalg.solve(b, np.asarray(u[rows], np.float64).T).T
+    return out
 
 
+# The rows of one solve in forward: 23-47 MB of float64 at SH 3
+FORWARD_BLOCK_ROWS = 1 << 16
+
+
+def solve_blocks(n: int):
+    """Slices of rows 0 .. n - 1 for forward's solves: one under 2 x FORWARD_BLOCK_ROWS rows, else blocks
+    of FORWARD_BLOCK_ROWS with the last one's rest added to it. LAPACK solves each row (right-hand side)
+    by itself, with the same operations wherever it sits in a wide block, but a narrow one (a handful of
+    rows) may take the library's small-size paths, whose last bits differ: so no block is narrower than
+    FORWARD_BLOCK_ROWS (a multiple of the kernels' widths), and a block's last rows are the whole solve's
+    last rows (checked bit for bit on 200k and 1M rows: tests/test_sh_transform.py)."""
+    lo = 0
+    while lo < n:
+        hi = n if n - lo < 2 * FORWARD_BLOCK_ROWS else lo + FORWARD_BLOCK_ROWS
+        yield slice(lo, hi)
+        lo = hi
 def coefficient_sensitivity(f_rest: np.ndarray, band_steps: np.ndarray, transform: ShTransform) -> np.ndarray:
     """float64 [N, n]: each coefficient's sensitivity, diag(B^T F B) per Gaussian with F the pictures'
     sensitivity to the values ``f_rest`` [N, n] (per value) and B in values: band_steps[j] * B[j, k]."""
@@ -85,13 +113,18 @@ def coefficient_sensitivity(f_rest: np.ndarray, band_steps: np.ndarray, transfor
     return np.asarray(f_rest, np.float64) @ (b * b)
 
 
+def _column_bits(col: np.ndarray) -> float:
+    """Ideal bits of the integers ``col`` [N] coded with their histogram, negated."""
+    _, counts = np.unique(col, return_counts=True)
+    p = counts / counts.sum()
+    return float((counts * np.log2(p)).sum())
+
+
 def _entropy_bits(q: np.ndarray) -> float:
     """Ideal bits of the integers ``q`` [N, n] coded column by column with each column's histogram."""
     total = 0.0
     for col in q.T:
-        _, counts = np.unique(col, return_counts=True)
-        p = counts / counts.sum()
-        total -= float((counts * np.log2(p)).sum())
+        total -= _column_bits(col)
     return total
 
 
@@ -113,6 +146,32 @@ def chosen_transform(u: np.ndarray, mode: bool | str, sh_degree: int) -> ShTrans
     if mode != "always" and not transform_pays(u, transform, sh_degree):
         return None
     return transform
+
+
+def chosen_transform_of_values(values: np.ndarray, rest: slice, band_steps: np.ndarray, mode: bool | str,
+                               sh_degree: int) -> tuple[ShTransform | None, np.ndarray | None]:
+    """chosen_transform of the SH rest in band steps, u = values[:, rest] / band_steps (``values``
+    [N, M] float64, ``band_steps`` float64 [n]), and the coefficients forward(u) (None, None without
+    a transform), without u made whole: the fit's rows, a block's or a column's at a time (the same
+    numbers, so the same choice and coefficients as from u)."""
+    n, columns = values.shape[0], range(values.shape[1])[rest]
+    if not mode or sh_degree == 0 or len(columns) == 0:
+        return None, None
+    transform = integer_transform(fit_klt(values[fit_rows(n), rest] / band_steps))
+    coefficients = np.empty((n, len(columns)), dtype=np.float64)
+    for block in solve_blocks(n):
+        coefficients[block] = forward(values[block, rest] / band_steps, transform)
+    if mode != "always":  # transform_pays, the rounded values a column at a time
+        if n < 2:
+            return None, None
+        bits_u = bits_t = 0.0
+        for j, c in enumerate(columns):
+            bits_u -= _column_bits(np.rint(values[:, c] / band_steps[j]))
+        for j in range(len(columns)):
+            bits_t -= _column_bits(np.rint(coefficients[:, j]))
+        if not bits_u - bits_t > 8 * len(transform.to_unit(sh_degree).to_bytes()):
+            return None, None
+    return transform, coefficients
 
 
 def sh_rest_columns(sh_channels: int) -> slice:

@@ -43,7 +43,7 @@ def _coding_params(q: np.ndarray, graph: NeighbourGraph, num_buckets: int, prior
     (LoD 0: -1). ``adjust``: every row's step-adjustment index (clause 11.8), or None. A block of
     a LoD's rows at a time (each row's from its own neighbours: peak memory)."""
     n, m = q.shape
-    mean = prior_rows(prior_mean, n, adjust)
+    mean = prior_rows(prior_mean, n, adjust, _means_dtype(q))
     bucket = np.full((n, m), -1, dtype=BUCKET_DTYPE)
     every = np.ones(m, dtype=bool)
     for level in range(1, len(graph.rows)):
@@ -53,6 +53,14 @@ def _coding_params(q: np.ndarray, graph: NeighbourGraph, num_buckets: int, prior
                 q, graph.neighbours[level][block], num_buckets, every, prior_mean, adjust,
                 None if adjust is None else adjust[rows])
     return mean, bucket
+
+
+def _means_dtype(q: np.ndarray) -> type[np.integer]:
+    """int32 where it holds every mean of the values ``q``: a neighbours' mean is within 4 x their
+    largest |q| (in another row's steps, 2^(7/4) at most: clause 11.8), the prior's within
+    PRIOR_MEAN_MAX; int64 otherwise. Half the bytes of the coding's [N, M] means."""
+    top = max(int(q.max()), -int(q.min())) if q.size else 0
+    return np.int32 if 4 * top < PRIOR_MEAN_MAX else np.int64
 
 
 def row_blocks(n: int):
@@ -66,11 +74,12 @@ BUCKET_DTYPE = np.int8
 LEVEL_DTYPE = np.uint8
 
 
-def prior_rows(prior_mean: np.ndarray, n: int, adjust: np.ndarray | None) -> np.ndarray:
-    """int64 [n, M]: the prior mean in each row's steps."""
+def prior_rows(prior_mean: np.ndarray, n: int, adjust: np.ndarray | None, dtype=np.int64) -> np.ndarray:
+    """[n, M] of ``dtype`` (int64, or int32 where it holds the means: _means_dtype): the prior mean in
+    each row's steps."""
     if adjust is None:
-        return np.broadcast_to(prior_mean, (n, prior_mean.size)).copy()
-    return prior_mean_in_steps(prior_mean, adjust)
+        return np.broadcast_to(prior_mean, (n, prior_mean.size)).astype(dtype)
+    return prior_mean_in_steps(prior_mean, adjust).astype(dtype, copy=False)
 
 
 def best_prior_level(r: np.ndarray, adjust: np.ndarray | None) -> int:
@@ -392,7 +401,16 @@ class NeighbourCoding:
             header.adjust_mean, header.adjust_level = self.adjust_model()
         header.sh_degree_present = int(self.degrees is not None)
         return write_predicted_attribute_unit(header, self.layout, self.q, self.graph, self.unit, self.prediction,
-                                              self.adjust, self.degrees, self.degree_unit, self.step_flags)
+                                              self.adjust, self.degrees, self.degree_unit, self.step_flags,
+                                              None if self._mean is None else self._lod_params)
+
+    def _lod_params(self, level: int) -> attr.CodingParams:
+        """The means and scale levels of LoD ``level`` >= 1's rows, those the writer's lod_coding_params
+        would make again (the chosen means: the neighbours' where the unit's flag is set, the prior's
+        otherwise; the level of the value's bucket in the unit's table)."""
+        rows = self.graph.rows[level]
+        bucket = self._bucket[rows].astype(np.int64)
+        return attr.CodingParams(self._mean[rows], np.take_along_axis(level_table(self.unit).T, bucket, axis=0))
 
 
 def usable(coords: np.ndarray) -> bool:
