@@ -47,9 +47,13 @@ PER_VALUE_BYTES = 90  # per point and channel: the scene read, float64 values, i
 # 96 B per value, with the per-point term 1,200 B so that a Gaussian at SH 0 (11 values) costs what the
 # fit above gave it (2,000 B + 24 B per value; 3M: 1.15x its peak). The estimate is 1.40x the room's
 # peak and about 1.6x the SH-3 scene's.
+# At 1M SH 3 `low` (tools/results/scale_sh3.md, 2026-12-08) the peak was 18,072 MiB, where 96 B per value gave
+# 12,584: the landing's whole-scene trials (a 300k SH-3 trace peaks there, at 2,982-3,128 MiB) grow faster than
+# the 100k-300k traces showed; the 1M run's stage was not traced. 210 B per value bounds that row (18,998 MiB,
+# 1.05x), at the cost of a looser bound at SH 0 (3M: about 1.45x its peak).
 PREPARE_BYTES = 600 << 20
 PREPARE_PER_POINT_BYTES = 1200
-PREPARE_PER_VALUE_BYTES = 96
+PREPARE_PER_VALUE_BYTES = 210
 # Rate-distortion optimized quantization without the preparation (sensitivity_model "uniform": the
 # fast preset). The uniform sensitivities are one broadcast row (nothing per value), the values in steps
 # are the coding's values divided in place, RDOQ chooses each LoD's rows in blocks of RDOQ_BLOCK_ROWS
