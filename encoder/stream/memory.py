@@ -45,12 +45,12 @@ PER_VALUE_BYTES = 90  # per point and channel: the scene read, float64 values, i
 # watched from inside and on a 100k SH-3 scene peak at the sensitivities and the trials: 1,003 MiB the
 # room (SH 0), 1,373 the SH-3 scene, 86 B per value apart (tools/results/scale.md "SH 3 memory"): hence
 # 96 B per value, with the per-point term 1,200 B so that a Gaussian at SH 0 (11 values) costs what the
-# fit above gave it (2,000 B + 24 B per value; 3M: 1.15x its peak). The estimate is 1.40x the room's
-# peak and about 1.6x the SH-3 scene's.
+# fit above gave it (2,000 B + 24 B per value; 3M: 1.15x its peak).
 # At 1M SH 3 `low` (tools/results/scale_sh3.md, 2026-12-08) the peak was 18,072 MiB, where 96 B per value gave
 # 12,584: the landing's whole-scene trials (a 300k SH-3 trace peaks there, at 2,982-3,128 MiB) grow faster than
-# the 100k-300k traces showed; the 1M run's stage was not traced. 210 B per value bounds that row (18,998 MiB,
-# 1.05x), at the cost of a looser bound at SH 0 (3M: about 1.45x its peak).
+# the 100k-300k traces showed; the 1M run's stage was not traced. 210 B per value bounds that row (18,672 MiB,
+# 1.03x), at the cost of looser bounds elsewhere: by this arithmetic about 1.5x the 3M SH-0 peak above, 1.5x the
+# room's and 2.1x the 100k SH-3 scene's.
 PREPARE_BYTES = 600 << 20
 PREPARE_PER_POINT_BYTES = 1200
 PREPARE_PER_VALUE_BYTES = 210
